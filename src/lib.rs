@@ -1,0 +1,26 @@
+//! # clipmap
+//!
+//! Clipmaps for textures far larger than memory: a faithful reader for OpenGL Performer's
+//! clip-texture (`.ct`) and image-cache (`.ic`) configuration files, and the pieces that turn such
+//! a configuration into per-level windows of texels.
+//!
+//! ## Map of the crate, in data-flow order
+//!
+//! | module | owns |
+//! |---|---|
+//! | [`config`] | text → syntax tree with a span for every value; no arithmetic, no other files |
+//! | [`plan`] | syntax tree → validated, immutable plan: levels, formats, file names, byte offsets |
+//! | [`texel`] | texel formats, bytes per texel, colour encoding |
+//! | [`source`] | texel values: procedural textures (and tile files, through the plan) |
+//!
+//! ## Invariants
+//!
+//! - Nothing after the plan reads configuration text.
+//! - The plan, residency and priority logic are pure and synchronous.
+//! - Texel addressing is done in 64-bit integers; world coordinates in f64.
+//! - There is no `unsafe` code outside the shared-memory access layer.
+
+pub mod config;
+pub mod plan;
+pub mod source;
+pub mod texel;

@@ -1,0 +1,2 @@
+//! Stage two: syntax tree → validated, immutable plan.
+pub fn _placeholder() {}

@@ -1,0 +1,205 @@
+//! Procedural textures defined per level, for textures up to 2^26 texels a side without a file.
+//!
+//! * [`hash`]: the verification texture of DESIGN.md §11. The texel at level L, column s, row t is
+//!   the little-endian bytes of `splitmix64((L << 58) | (t << 29) | s)`; a format of `n` bytes per
+//!   texel takes bytes `0..n` of that 64-bit value (cycling for formats wider than 8 bytes). Any
+//!   reader can check any texel it reads without a reference copy. Each level is defined on its
+//!   own, so a pyramid of it is *not* a filtered pyramid.
+//! * [`Terrain`]: smooth fractal value noise coloured like land and sea. Level k is band-limited
+//!   analytically (octaves finer than two level-k texels are dropped), so any texel of any level of
+//!   a 2^26 texture costs the same few dozen operations. All lattice arithmetic is integer; only
+//!   the fractional position inside a lattice cell is a float, so precision does not degrade at
+//!   the far corner of the texture.
+//!
+//! This module only computes texel values; reading them through tiles is the engine's business.
+
+use crate::texel::TexelFormat;
+
+/// SplitMix64 finaliser (all arithmetic wrapping on 64 bits), as in DESIGN.md §11.
+#[inline]
+pub fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// The 64-bit hash behind the verification texel at (level, s, t).
+///
+/// `s` and `t` must be below 2^29 and `level` below 64 for the key to be unique; textures up to
+/// 2^26 texels a side satisfy this with room to spare.
+#[inline]
+pub fn hash_value(level: u32, s: u64, t: u64) -> u64 {
+    splitmix64(((level as u64) << 58) | (t << 29) | s)
+}
+
+/// Writes the verification texel at (level, s, t) into `out` (any length: byte i is byte i mod 8
+/// of [`hash_value`], little-endian).
+#[inline]
+pub fn hash(level: u32, s: u64, t: u64, out: &mut [u8]) {
+    let bytes = hash_value(level, s, t).to_le_bytes();
+    for (i, b) in out.iter_mut().enumerate() {
+        *b = bytes[i & 7];
+    }
+}
+
+/// Fills a `w` x `h` region of level `level` whose lower-left texel is (s0, t0) with the
+/// verification texture, rows in increasing t, s fastest, `bpt` bytes per texel.
+pub fn hash_region(level: u32, s0: u64, t0: u64, w: usize, h: usize, bpt: usize, out: &mut [u8]) {
+    assert_eq!(out.len(), w * h * bpt, "hash_region: buffer size does not match the region");
+    for (row, line) in out.chunks_exact_mut(w * bpt.max(1)).enumerate() {
+        let t = t0 + row as u64;
+        for (col, texel) in line.chunks_exact_mut(bpt.max(1)).enumerate() {
+            hash(level, s0 + col as u64, t, texel);
+        }
+    }
+}
+
+/// Smooth fractal noise ("terrain"), defined for every level of a square texture of
+/// `size` = 2^n texels a side.
+#[derive(Clone, Copy, Debug)]
+pub struct Terrain {
+    /// log2 of the level-0 size.
+    pub log2_size: u32,
+    /// Seed mixed into every lattice hash.
+    pub seed: u64,
+}
+
+impl Terrain {
+    /// Finest octave's wavelength, in level-0 texels (log2).
+    const FINEST_LOG2: u32 = 2;
+
+    /// A terrain for a 2^`log2_size` texture.
+    pub fn new(log2_size: u32, seed: u64) -> Self {
+        Terrain { log2_size, seed }
+    }
+
+    /// Height in 0..=1 at level `level`, texel (s, t): the sum of value-noise octaves evaluated at
+    /// the texel's centre, leaving out octaves shorter than two texels of that level.
+    pub fn height(&self, level: u32, s: u64, t: u64) -> f64 {
+        // Texel centre in units of half level-0 texels: exact integers up to 2^(26+1+level).
+        let shift = level;
+        let x = (2 * s + 1) << shift;
+        let y = (2 * t + 1) << shift;
+        let coarsest = self.log2_size.saturating_sub(1).max(Self::FINEST_LOG2);
+        let finest = Self::FINEST_LOG2.max(level + 1);
+        let mut sum = 0.0;
+        let mut norm = 0.0;
+        let mut amp = 1.0;
+        let mut j = coarsest;
+        loop {
+            if j < finest {
+                break;
+            }
+            sum += amp * self.octave(j, x, y);
+            norm += amp;
+            amp *= 0.55;
+            if j == 0 {
+                break;
+            }
+            j -= 1;
+        }
+        if norm == 0.0 {
+            // A level so coarse that every octave is filtered out: the mean.
+            return 0.5;
+        }
+        sum / norm
+    }
+
+    /// One octave of wavelength 2^j level-0 texels at (x, y) in half-texel units.
+    fn octave(&self, j: u32, x: u64, y: u64) -> f64 {
+        let cell_shift = j + 1;
+        let (cx, cy) = (x >> cell_shift, y >> cell_shift);
+        let scale = (1u64 << cell_shift) as f64;
+        let fx = (x & ((1u64 << cell_shift) - 1)) as f64 / scale;
+        let fy = (y & ((1u64 << cell_shift) - 1)) as f64 / scale;
+        let smooth = |f: f64| f * f * (3.0 - 2.0 * f);
+        let (sx, sy) = (smooth(fx), smooth(fy));
+        let v = |i: u64, k: u64| self.lattice(j, i, k);
+        let a = v(cx, cy) + (v(cx + 1, cy) - v(cx, cy)) * sx;
+        let b = v(cx, cy + 1) + (v(cx + 1, cy + 1) - v(cx, cy + 1)) * sx;
+        a + (b - a) * sy
+    }
+
+    fn lattice(&self, j: u32, i: u64, k: u64) -> f64 {
+        let h = splitmix64(self.seed ^ splitmix64(((j as u64) << 58) ^ (k << 29) ^ i));
+        (h >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Colour for a height: deep and shallow water, sand, grass, rock, snow.
+    pub fn colour(height: f64) -> [f32; 4] {
+        const STOPS: [(f64, [f32; 3]); 6] = [
+            (0.00, [0.02, 0.10, 0.35]),
+            (0.45, [0.10, 0.35, 0.65]),
+            (0.50, [0.80, 0.75, 0.55]),
+            (0.58, [0.20, 0.55, 0.20]),
+            (0.72, [0.45, 0.40, 0.35]),
+            (0.85, [0.95, 0.95, 0.97]),
+        ];
+        let h = height.clamp(0.0, 1.0);
+        for w in STOPS.windows(2) {
+            let (h0, c0) = w[0];
+            let (h1, c1) = w[1];
+            if h <= h1 {
+                let f = ((h - h0) / (h1 - h0)) as f32;
+                return [c0[0] + (c1[0] - c0[0]) * f, c0[1] + (c1[1] - c0[1]) * f, c0[2] + (c1[2] - c0[2]) * f, 1.0];
+            }
+        }
+        let c = STOPS[STOPS.len() - 1].1;
+        [c[0], c[1], c[2], 1.0]
+    }
+
+    /// Writes the texel at (level, s, t) in `format` into `out`.
+    pub fn texel(&self, level: u32, s: u64, t: u64, format: TexelFormat, out: &mut [u8]) {
+        format.encode(Self::colour(self.height(level, s, t)), out);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn splitmix64_matches_the_reference_sequence() {
+        // Reference values of the SplitMix64 generator seeded with 0: its first outputs are
+        // splitmix64(0), splitmix64(0x9E37..15), ... (Vigna's public-domain reference).
+        assert_eq!(splitmix64(0), 0xE220_A839_7B1D_CDAF);
+        assert_eq!(splitmix64(0x9E37_79B9_7F4A_7C15), 0x6E78_9E6A_A1B9_65F4);
+    }
+
+    #[test]
+    fn hash_texel_is_the_low_bytes_of_the_key() {
+        let mut four = [0u8; 4];
+        hash(3, 17, 5, &mut four);
+        let v = splitmix64((3u64 << 58) | (5 << 29) | 17);
+        assert_eq!(four, (v as u32).to_le_bytes());
+        let mut three = [0u8; 3];
+        hash(3, 17, 5, &mut three);
+        assert_eq!(three, four[..3]);
+    }
+
+    #[test]
+    fn hash_region_matches_texel_by_texel() {
+        let mut buf = vec![0u8; 5 * 3 * 4];
+        hash_region(2, 100, 200, 5, 3, 4, &mut buf);
+        let mut one = [0u8; 4];
+        hash(2, 104, 202, &mut one);
+        assert_eq!(&buf[(2 * 5 + 4) * 4..(2 * 5 + 5) * 4], &one);
+    }
+
+    #[test]
+    fn terrain_is_smooth_and_in_range_even_at_the_far_corner() {
+        let t = Terrain::new(26, 7);
+        let far = (1u64 << 26) - 1;
+        for level in [0, 1, 10, 25, 26] {
+            let size = 1u64 << (26 - level);
+            let s = far >> level;
+            let h = t.height(level, s.min(size - 1), s.min(size - 1));
+            assert!((0.0..=1.0).contains(&h), "level {level}: {h}");
+        }
+        // Neighbouring level-0 texels differ little (smoothness).
+        let a = t.height(0, 1 << 25, 1 << 25);
+        let b = t.height(0, (1 << 25) + 1, 1 << 25);
+        assert!((a - b).abs() < 0.05, "{a} vs {b}");
+    }
+}
