@@ -5,7 +5,7 @@
 use clap::{Parser, Subcommand};
 use clipmap::config::FileKind;
 use clipmap::plan;
-use clipmap::report::{exit, info, validate, EnvArgs};
+use clipmap::report::{self, exit, info, validate, EnvArgs};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -57,6 +57,51 @@ enum Command {
         json: bool,
         #[command(flatten)]
         env: EnvArgs,
+    },
+    /// Size a deployment: clipmap memory against the full mipmap, update bandwidth, clip size for a display.
+    #[command(after_help = "\
+Examples:
+  cliptex plan --size 67108864 --clip 2048 --texel-bytes 4
+  cliptex plan --size 65536 --clip 1024 --texel-bytes 3 --display 1920 --speed 2000 --json
+  cliptex plan --size 67108864 --clip 2048 --texel-bytes 4 --display 1920 --eye-height 3000
+  cliptex plan --table --clip 2048 --texel-bytes 4")]
+    Plan {
+        /// Texture size in texels a side (a power of two).
+        #[arg(long, required_unless_present = "table")]
+        size: Option<u64>,
+        /// Clip size (a power of two).
+        #[arg(long, default_value_t = 1024)]
+        clip: u64,
+        /// Bytes per texel (e.g. 3 for RGB8, 4 for RGBA8, 2 for RGB565).
+        #[arg(long, default_value_t = 4)]
+        texel_bytes: u64,
+        /// Display width in pixels: recommends a clip size.
+        #[arg(long)]
+        display: Option<u64>,
+        /// Horizontal field of view in degrees.
+        #[arg(long, default_value_t = 60.0)]
+        fov: f64,
+        /// Centre speed in level-0 texels per second: update bandwidth.
+        #[arg(long)]
+        speed: Option<f64>,
+        /// Eye height in metres: levels a virtual clip texture should address.
+        #[arg(long)]
+        eye_height: Option<f64>,
+        /// Metres per level-0 texel (with --eye-height).
+        #[arg(long, default_value_t = 1.0)]
+        texel_metres: f64,
+        /// With --eye-height: 0 keeps the finest levels (resolution), 1 keeps the coarsest (area), as Performer's rule.
+        #[arg(long, default_value_t = 0.0)]
+        tradeoff: f64,
+        /// Invalid border (with --eye-height).
+        #[arg(long, default_value_t = 8)]
+        invalid_border: u64,
+        /// Print memory for texture sizes 2^10 to 2^26 at once.
+        #[arg(long)]
+        table: bool,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
     },
     /// Print where a tile's texels are: file, byte offset, length, stream server.
     Tile {
@@ -156,6 +201,69 @@ fn run(cli: Cli) -> i32 {
                 exit::OK
             }
         },
+        Command::Plan {
+            size,
+            clip,
+            texel_bytes,
+            display,
+            fov,
+            speed,
+            eye_height,
+            texel_metres,
+            tradeoff,
+            invalid_border,
+            table,
+            json,
+        } => {
+            if table {
+                return match report::plan::table(clip, texel_bytes, 10, 26) {
+                    Ok((text, rows)) => {
+                        if json {
+                            println!(
+                                "{}",
+                                serde_json::to_string_pretty(&rows).expect("rows serialise")
+                            );
+                        } else {
+                            print!("{text}");
+                        }
+                        exit::OK
+                    }
+                    Err(e) => {
+                        eprintln!("cliptex plan: {e}");
+                        exit::BAD_INPUT
+                    }
+                };
+            }
+            let req = report::plan::Request {
+                size: size.unwrap_or(0),
+                clip,
+                texel_bytes,
+                display,
+                fov_deg: fov,
+                speed,
+                eye_height,
+                texel_metres,
+                tradeoff,
+                invalid_border,
+            };
+            match report::plan::compute(&req) {
+                Ok(p) => {
+                    if json {
+                        println!(
+                            "{}",
+                            serde_json::to_string_pretty(&p).expect("plan serialises")
+                        );
+                    } else {
+                        print!("{}", report::plan::human(&p, &req));
+                    }
+                    exit::OK
+                }
+                Err(e) => {
+                    eprintln!("cliptex plan: {e}");
+                    exit::BAD_INPUT
+                }
+            }
+        }
         Command::Tile {
             file,
             level,

@@ -2,6 +2,7 @@
 //! locations, each as a human text and as JSON. The binaries only parse arguments and call these.
 
 pub mod info;
+pub mod plan;
 pub mod validate;
 
 use crate::plan::{Env, Options};
