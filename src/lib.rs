@@ -12,6 +12,7 @@
 //! | [`plan`] | syntax tree → validated, immutable plan: levels, formats, file names, byte offsets |
 //! | [`texel`] | texel formats, bytes per texel, colour encoding |
 //! | [`source`] | texel values: procedural textures (and tile files, through the plan) |
+//! | [`geom`] | pure level geometry: centres, tex / valid / mem regions, toroidal addressing |
 //!
 //! ## Invariants
 //!
@@ -21,6 +22,7 @@
 //! - There is no `unsafe` code outside the shared-memory access layer.
 
 pub mod config;
+pub mod geom;
 pub mod plan;
 pub mod source;
 pub mod texel;
