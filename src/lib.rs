@@ -13,6 +13,7 @@
 //! | [`texel`] | texel formats, bytes per texel, colour encoding |
 //! | [`source`] | texel values: procedural textures (and tile files, through the plan) |
 //! | [`geom`] | pure level geometry: centres, tex / valid / mem regions, toroidal addressing |
+//! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
 //!
 //! ## Invariants
 //!
@@ -21,6 +22,7 @@
 //! - Texel addressing is done in 64-bit integers; world coordinates in f64.
 //! - There is no `unsafe` code outside the shared-memory access layer.
 
+pub mod cache;
 pub mod config;
 pub mod geom;
 pub mod plan;
