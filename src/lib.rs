@@ -13,6 +13,8 @@
 //! | [`texel`] | texel formats, bytes per texel, colour encoding |
 //! | [`source`] | texel values: procedural textures (and tile files, through the plan) |
 //! | [`geom`] | pure level geometry: centres, tex / valid / mem regions, toroidal addressing |
+//! | [`limits`] | every bound the paging engine keeps (queue lengths, reads in flight, bytes) |
+//! | [`queue`] | per-stream-server async read queues: priorities, coalescing, stale drops |
 //! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
 //!
 //! ## Invariants
@@ -25,6 +27,8 @@
 pub mod cache;
 pub mod config;
 pub mod geom;
+pub mod limits;
+pub mod queue;
 pub mod plan;
 pub mod source;
 pub mod texel;
