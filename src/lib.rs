@@ -16,6 +16,7 @@
 //! | [`limits`] | every bound the paging engine keeps (queue lengths, reads in flight, bytes) |
 //! | [`queue`] | per-stream-server async read queues: priorities, coalescing, stale drops |
 //! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
+//! | [`clip`] | per-level toroidal windows, the update tick, load control (min LOD), statistics |
 //!
 //! ## Invariants
 //!
@@ -25,6 +26,7 @@
 //! - There is no `unsafe` code outside the shared-memory access layer.
 
 pub mod cache;
+pub mod clip;
 pub mod config;
 pub mod geom;
 pub mod limits;

@@ -10,8 +10,11 @@ pub struct Limits {
     /// Most requests waiting (not yet started) in one stream server's read queue. Requests beyond
     /// it are dropped, most urgent kept, and asked for again at the next tick if still wanted.
     pub max_pending_reads: usize,
-    /// Most reads of one queue running or finished but not yet taken by the update tick.
+    /// Most reads of one queue running at once (each holds a blocking thread and a tile buffer).
     pub max_in_flight_reads: usize,
+    /// Most reads of one queue running or finished but not yet taken by the update tick; no read
+    /// starts while this many are outstanding.
+    pub max_ready_reads: usize,
     /// Capacity of each queue's command channel; an update that does not fit is skipped (and
     /// counted) rather than blocking the tick.
     pub queue_commands: usize,
@@ -28,6 +31,7 @@ impl Default for Limits {
         Limits {
             max_pending_reads: 256,
             max_in_flight_reads: 4,
+            max_ready_reads: 256,
             queue_commands: 8,
             cache_bytes: 1 << 30,
             window_bytes: 2 << 30,

@@ -97,12 +97,14 @@ impl Runner {
         }
     }
 
-    fn busy(&self) -> usize {
-        self.in_flight.len() + self.delivered.len()
+    fn can_start(&self) -> bool {
+        !self.pending.is_empty()
+            && self.in_flight.len() < self.limits.max_in_flight_reads.max(1)
+            && self.in_flight.len() + self.delivered.len() < self.limits.max_ready_reads.max(1)
     }
 
     fn start_reads(&mut self) {
-        while self.busy() < self.limits.max_in_flight_reads && !self.pending.is_empty() {
+        while self.can_start() {
             let request = self.pending.remove(0);
             let tile = request.tile;
             let source = Arc::clone(&self.source);
@@ -122,8 +124,7 @@ impl Runner {
     }
 
     fn answer_flushes(&mut self) {
-        let can_start = !self.pending.is_empty() && self.busy() < self.limits.max_in_flight_reads;
-        if self.in_flight.is_empty() && !can_start {
+        if self.in_flight.is_empty() && !self.can_start() {
             for reply in self.flushes.drain(..) {
                 let _ = reply.send(());
             }

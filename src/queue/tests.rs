@@ -11,7 +11,12 @@ fn source() -> Arc<FaultySource> {
 }
 
 fn limits(pending: usize, in_flight: usize) -> Limits {
-    Limits { max_pending_reads: pending, max_in_flight_reads: in_flight, ..Limits::default() }
+    Limits {
+        max_pending_reads: pending,
+        max_in_flight_reads: in_flight,
+        max_ready_reads: in_flight,
+        ..Limits::default()
+    }
 }
 
 fn request(s: u64, t: u64, eta: u64) -> ReadRequest {
