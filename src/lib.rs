@@ -17,6 +17,7 @@
 //! | [`queue`] | per-stream-server async read queues: priorities, coalescing, stale drops |
 //! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
 //! | [`clip`] | per-level toroidal windows, the update tick, load control (min LOD), statistics |
+//! | [`sample`] | reference point / bilinear / trilinear sampling of the full mipmap and the clipmap |
 //!
 //! ## Invariants
 //!
@@ -31,6 +32,7 @@ pub mod config;
 pub mod geom;
 pub mod limits;
 pub mod queue;
+pub mod sample;
 pub mod plan;
 pub mod source;
 pub mod texel;

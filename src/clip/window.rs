@@ -70,12 +70,6 @@ impl Window {
         self.buf.len()
     }
 
-    /// The texel at level coordinates (s, t), whatever its state.
-    pub fn texel(&self, s: i64, t: i64) -> &[u8] {
-        let i = window_index(s, t, self.clip, self.dims) * self.bpt;
-        &self.buf[i..i + self.bpt]
-    }
-
     /// The next band that grows `content` towards `goal` (which must lie in the tex region that
     /// `content` was last cut to), or `None` when `content` already covers it.
     pub fn next_band(&self, goal: &Rect) -> Option<Band> {
