@@ -18,6 +18,7 @@
 //! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
 //! | [`clip`] | per-level toroidal windows, the update tick, load control (min LOD), statistics |
 //! | [`sample`] | reference point / bilinear / trilinear sampling of the full mipmap and the clipmap |
+//! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
 //!
 //! ## Invariants
 //!
@@ -32,6 +33,7 @@ pub mod config;
 pub mod geom;
 pub mod limits;
 pub mod queue;
+pub mod roam;
 pub mod sample;
 pub mod plan;
 pub mod source;
