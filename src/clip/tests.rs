@@ -115,7 +115,7 @@ fn walk(src: Arc<HashSource>, budget: Option<u64>, start: [i64; 2], steps: &[Ste
 }
 
 proptest! {
-    #![proptest_config(Config { cases: 48, rng_seed: RngSeed::Fixed(0xC11F), failure_persistence: None, ..Config::default() })]
+    #![proptest_config(Config { cases: 160, rng_seed: RngSeed::Fixed(0xC11F), failure_persistence: None, ..Config::default() })]
 
     #[test]
     fn published_texels_equal_the_source_after_any_walk(
@@ -130,7 +130,7 @@ proptest! {
 }
 
 proptest! {
-    #![proptest_config(Config { cases: 4, rng_seed: RngSeed::Fixed(0xB16), failure_persistence: None, ..Config::default() })]
+    #![proptest_config(Config { cases: 8, rng_seed: RngSeed::Fixed(0xB16), failure_persistence: None, ..Config::default() })]
 
     /// Large clip sizes on long, thin textures keep the per-case work small.
     #[test]
@@ -157,13 +157,14 @@ fn wrap_crossing_moves_copy_only_the_new_strips() {
     let mut map = Clipmap::new(hash_source([1024, 1024], 16, 8, 2, TexelFormat::L8), settings(None)).unwrap();
     settle(&mut map, [100, 100], 20);
     let before = map.stats().bytes_copied;
-    // Move by 3 texels along s: level 0 needs a 3 x 16 strip, level 1 (centre 50 → 51) 1 x 16.
+    // Move by 3 texels along s: level 0 needs a 3 x 16 strip, level 1 (centre 50 → 51) 1 x 16,
+    // level 2 and coarser keep their centres (25, 12, ...).
     map.tick([103, 100], None);
     map.wait_for_reads();
     let r = map.tick([103, 100], None);
     assert_eq!(r.min_lod, 0.0);
     let copied = map.stats().bytes_copied - before;
-    assert_eq!(copied, 3 * 16 + 16 + 16 * 0, "only the strips that changed: {copied}");
+    assert_eq!(copied, 3 * 16 + 16, "only the strips that changed: {copied}");
     assert_eq!(check_published(&map).map(|n| n > 0), Ok(true));
 }
 
@@ -264,7 +265,7 @@ fn a_tight_copy_budget_serves_coarse_levels_first_and_min_lod_follows_it() {
         raised |= r.min_lod >= 1.0;
         // Whatever is enabled is complete; the coarsest levels always are.
         let enabled_from = r.min_lod.ceil() as usize;
-        for k in enabled_from.saturating_sub(1).max(0)..map.level_count() {
+        for k in enabled_from.saturating_sub(1)..map.level_count() {
             let complete = map.level(k as u32).valid == map.levels[k].frame.valid;
             assert!(complete || (k as f64) + 1.0 <= r.min_lod, "level {k} in use but stale: {r:?}");
         }
