@@ -2,7 +2,7 @@
 //!
 //! Owns getting tiles from a [`TileSource`] into memory without ever blocking the update tick:
 //! the synchronous [`ReadQueues`] front (used by [`crate::clip`]) sends each queue's runner the
-//! tiles wanted now with fresh [priorities](priority), and drains finished reads from a channel.
+//! tiles wanted now with fresh [priorities](fn@priority), and drains finished reads from a channel.
 //! Where tiles are kept is [`crate::cache`]'s business; which tiles are wanted is decided by the
 //! caller from [`crate::geom`].
 //!
