@@ -28,13 +28,14 @@ impl CostTable {
     /// Measures this machine: copies rows of `bpt`-byte texels and keeps the fastest of a few
     /// runs, so a busy moment does not inflate the estimate.
     pub fn measure(bpt: usize) -> Self {
+        // Larger than the caches, as window copies are.
         let row = 256 * bpt.max(1);
-        let rows = 64;
+        let rows = (8 << 20) / row;
         let src = vec![0x5Au8; row * rows];
         let mut dst = vec![0u8; row * rows];
         let mut best_short = f64::MAX;
         let mut best_long = f64::MAX;
-        for _ in 0..5 {
+        for _ in 0..3 {
             let t = Instant::now();
             for (d, s) in dst.chunks_exact_mut(8).zip(src.chunks_exact(8)) {
                 d.copy_from_slice(s);
@@ -78,13 +79,17 @@ pub fn target_min_lod(complete: &[bool]) -> usize {
 }
 
 /// The next min LOD: at once up to `target` if it lies above (a level not up to date must never
-/// be shown), else down towards it by `1 / fade_ticks` per tick (at once when `fade_ticks` is 0).
+/// be shown), else down towards it by `(current - target) / fade_ticks` per tick as Performer
+/// does, but by at least `1 / fade_ticks`, so that the last level fades in over exactly
+/// `fade_ticks` ticks and the approach ends (at once when `fade_ticks` is 0).
 pub fn next_min_lod(current: f64, target: usize, fade_ticks: u32) -> f64 {
     let target = target as f64;
     if current <= target || fade_ticks == 0 {
         return target;
     }
-    (current - 1.0 / fade_ticks as f64).max(target)
+    let n = fade_ticks as f64;
+    let step = ((current - target) / n).max(1.0 / n);
+    (current - step).max(target)
 }
 
 #[cfg(test)]
@@ -106,15 +111,30 @@ mod tests {
     }
 
     #[test]
-    fn min_lod_rises_at_once_and_fades_down_linearly() {
+    fn min_lod_rises_at_once_and_fades_down_in_bounded_ticks() {
         assert_eq!(next_min_lod(0.0, 3, 4), 3.0);
-        let mut lod = 3.0;
+        // The last level fades in over exactly `fade_ticks` ticks.
+        let lods: Vec<f64> = (1..=4)
+            .scan(2.0, |lod, _| {
+                Some({
+                    *lod = next_min_lod(*lod, 1, 4);
+                    *lod
+                })
+            })
+            .collect();
+        assert_eq!(lods, vec![1.75, 1.5, 1.25, 1.0]);
+        // Several levels: a quarter of the gap per tick, then a quarter level per tick.
+        assert_eq!(next_min_lod(9.0, 1, 4), 7.0);
+        let mut lod = 9.0;
         let mut steps = 0;
         while lod > 1.0 {
-            lod = next_min_lod(lod, 1, 4);
+            let next = next_min_lod(lod, 1, 4);
+            assert!(next < lod && (lod - next >= 0.25 || next == 1.0));
+            lod = next;
             steps += 1;
         }
-        assert_eq!((lod, steps), (1.0, 8), "two levels at four ticks each");
+        assert_eq!(lod, 1.0);
+        assert!(steps <= 4 * 4, "bounded: {steps} ticks");
         assert_eq!(next_min_lod(3.0, 1, 0), 1.0);
         assert_eq!(next_min_lod(1.25, 1, 2), 1.0, "never below the target");
     }
