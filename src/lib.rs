@@ -12,6 +12,13 @@
 //! | [`plan`] | syntax tree → validated, immutable plan: levels, formats, file names, byte offsets |
 //! | [`texel`] | texel formats, bytes per texel, colour encoding |
 //! | [`source`] | texel values: procedural textures (and tile files, through the plan) |
+//! | [`geom`] | pure level geometry: centres, tex / valid / mem regions, toroidal addressing |
+//! | [`limits`] | every bound the paging engine keeps (queue lengths, reads in flight, bytes) |
+//! | [`queue`] | per-stream-server async read queues: priorities, coalescing, stale drops |
+//! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
+//! | [`clip`] | per-level toroidal windows, the update tick, load control (min LOD), statistics |
+//! | [`sample`] | reference point / bilinear / trilinear sampling of the full mipmap and the clipmap |
+//! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
 //! | [`sizing`] | memory and bandwidth arithmetic, clip-size and virtual-level recommendations |
 //! | [`report`] | what the inspection tools print: validation reports, info, tile locations |
 //!
@@ -22,7 +29,14 @@
 //! - Texel addressing is done in 64-bit integers; world coordinates in f64.
 //! - There is no `unsafe` code outside the shared-memory access layer.
 
+pub mod cache;
+pub mod clip;
 pub mod config;
+pub mod geom;
+pub mod limits;
+pub mod queue;
+pub mod roam;
+pub mod sample;
 pub mod plan;
 pub mod report;
 pub mod sizing;

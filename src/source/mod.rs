@@ -1,5 +1,151 @@
 //! Tile sources: where texels come from (files described by a plan, or procedural textures).
 //!
-//! This module owns texel *values*; residency, queues and windows belong to later modules.
+//! Owns texel *values* and the unit they are read in: the [`TileSource`] trait, its typed
+//! [`SourceError`], the [`TextureDesc`] a source serves, the procedural sources ([`HashSource`],
+//! [`TerrainSource`]) and a fault-injecting wrapper ([`FaultySource`]). Residency, queues and
+//! windows belong to later modules ([`crate::cache`], [`crate::queue`], [`crate::clip`]).
+//!
+//! Tile layout (DESIGN §11): a tile of level `k` is `tile[0] x tile[1]` texels, rows in
+//! increasing t, s fastest. Texel (s, t) of tile (S, T) is at byte
+//! `((t - T*tile[1]) * tile[0] + (s - S*tile[0])) * bytes_per_texel`. Texels of an edge tile that
+//! lie outside the level are zero.
 
+pub mod desc;
+pub mod faulty;
 pub mod procedural;
+mod synthetic;
+
+pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};
+pub use faulty::{Fault, FaultRule, FaultySource};
+pub use synthetic::{HashSource, TerrainSource};
+
+use serde::Serialize;
+use std::fmt;
+use thiserror::Error;
+
+/// A tile: level, tile column S and tile row T.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+pub struct TileId {
+    /// Mipmap level (0 is the finest).
+    pub level: u32,
+    /// Tile column S (texels S*tile_width ..).
+    pub s: u64,
+    /// Tile row T (texels T*tile_height ..).
+    pub t: u64,
+}
+
+impl TileId {
+    /// Tile (s, t) of `level`.
+    pub fn new(level: u32, s: u64, t: u64) -> Self {
+        TileId { level, s, t }
+    }
+}
+
+impl fmt::Display for TileId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "level {} tile ({}, {})", self.level, self.s, self.t)
+    }
+}
+
+/// What went wrong reading a tile, without its details: used for counting and fault injection.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FaultKind {
+    /// The tile (or its file) does not exist.
+    Missing,
+    /// Fewer bytes than a tile were available.
+    Short,
+    /// The data has the wrong size or layout.
+    Corrupt,
+    /// The tile exists but may not be read.
+    PermissionDenied,
+    /// Any other I/O failure.
+    Io,
+    /// A request for a tile that is not part of the texture, or into a wrong-sized buffer.
+    BadRequest,
+}
+
+/// Why a tile could not be read.
+#[derive(Debug, Error)]
+pub enum SourceError {
+    /// The tile (or the file holding it) does not exist.
+    #[error("{tile}: missing")]
+    Missing { tile: TileId },
+    /// The read ended early.
+    #[error("{tile}: short read: got {got} of {expected} bytes")]
+    Short { tile: TileId, expected: u64, got: u64 },
+    /// The stored tile has the wrong size.
+    #[error("{tile}: corrupt: {found} bytes stored, expected {expected}")]
+    Corrupt { tile: TileId, expected: u64, found: u64 },
+    /// The tile may not be read.
+    #[error("{tile}: permission denied")]
+    PermissionDenied { tile: TileId },
+    /// Any other I/O failure.
+    #[error("{tile}: I/O error: {source}")]
+    Io {
+        tile: TileId,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The tile is not part of the texture.
+    #[error("{tile}: outside the texture: level has {tiles:?} tiles and {levels} levels exist")]
+    OutOfRange { tile: TileId, tiles: [u64; 2], levels: usize },
+    /// The caller's buffer is not one tile long.
+    #[error("{tile}: buffer holds {found} bytes, expected {expected}")]
+    BufferSize { tile: TileId, expected: usize, found: usize },
+}
+
+impl SourceError {
+    /// The kind of failure, for statistics.
+    pub fn kind(&self) -> FaultKind {
+        match self {
+            SourceError::Missing { .. } => FaultKind::Missing,
+            SourceError::Short { .. } => FaultKind::Short,
+            SourceError::Corrupt { .. } => FaultKind::Corrupt,
+            SourceError::PermissionDenied { .. } => FaultKind::PermissionDenied,
+            SourceError::Io { .. } => FaultKind::Io,
+            SourceError::OutOfRange { .. } | SourceError::BufferSize { .. } => FaultKind::BadRequest,
+        }
+    }
+
+    /// The tile the error is about.
+    pub fn tile(&self) -> TileId {
+        match self {
+            SourceError::Missing { tile }
+            | SourceError::Short { tile, .. }
+            | SourceError::Corrupt { tile, .. }
+            | SourceError::PermissionDenied { tile }
+            | SourceError::Io { tile, .. }
+            | SourceError::OutOfRange { tile, .. }
+            | SourceError::BufferSize { tile, .. } => *tile,
+        }
+    }
+}
+
+/// Something tiles can be read from. Reads block (disk, network, computation): callers run them
+/// off async worker threads (the read queue uses `spawn_blocking`).
+pub trait TileSource: Send + Sync {
+    /// The texture this source serves.
+    fn desc(&self) -> &TextureDesc;
+
+    /// Reads `tile` into `out`, which must be exactly [`TextureDesc::tile_bytes`] of its level
+    /// long, laid out as described in the [module docs](self). On error `out` holds no promise.
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError>;
+}
+
+/// Checks that `tile` exists in `desc` and that `out` is one tile long: the common preamble of
+/// every [`TileSource::read_tile`].
+pub fn check_request(desc: &TextureDesc, tile: TileId, out: &[u8]) -> Result<(), SourceError> {
+    if tile.level as usize >= desc.level_count() {
+        return Err(SourceError::OutOfRange { tile, tiles: [0, 0], levels: desc.level_count() });
+    }
+    let tiles = desc.level(tile.level).tiles();
+    if tile.s >= tiles[0] || tile.t >= tiles[1] {
+        return Err(SourceError::OutOfRange { tile, tiles, levels: desc.level_count() });
+    }
+    let expected = desc.tile_bytes(tile.level);
+    if out.len() != expected {
+        return Err(SourceError::BufferSize { tile, expected, found: out.len() });
+    }
+    Ok(())
+}

@@ -1,0 +1,334 @@
+//! Tests of the update tick: published texels are never wrong, faults disable levels and heal,
+//! load control follows the budget.
+
+use super::*;
+use crate::source::procedural::hash;
+use crate::source::{Fault, FaultKind, FaultRule, FaultySource, HashSource, TileId};
+use crate::texel::TexelFormat;
+use proptest::prelude::*;
+use proptest::test_runner::{Config, RngSeed};
+
+fn hash_source(size: [u64; 2], clip: u64, tile: u64, border: u64, format: TexelFormat) -> Arc<HashSource> {
+    let desc = TextureDesc::new(size, clip, format, [tile, tile]).unwrap().with_invalid_border(border).unwrap();
+    Arc::new(HashSource::new(desc))
+}
+
+fn settings(budget_ns: Option<u64>) -> Settings {
+    Settings {
+        budget_ns,
+        cost: Some(CostTable::fixed(100.0, 10.0, 1.0)),
+        fade_ticks: 2,
+        retry_after_ticks: 2,
+        ..Settings::default()
+    }
+}
+
+/// Every texel of every published valid region against the hash texture; at most `stride`-th
+/// texels of each row on very wide regions.
+fn check_published(map: &Clipmap) -> Result<u64, String> {
+    let bpt = map.desc().bytes_per_texel();
+    let mut want = vec![0u8; bpt];
+    let mut checked = 0;
+    for k in 0..map.level_count() as u32 {
+        let view = map.level(k);
+        let v = view.valid;
+        let stride = (v.area() / 200_000).max(1) as i64;
+        for t in v.t0..v.t1 {
+            let mut s = v.s0 + (t % stride);
+            while s < v.s1 {
+                hash(k, s as u64, t as u64, &mut want);
+                let got = view.texel(s, t).ok_or("published texel not readable")?;
+                if got != want.as_slice() {
+                    return Err(format!("level {k} texel ({s}, {t}): got {got:?}, expected {want:?}"));
+                }
+                checked += 1;
+                s += stride;
+            }
+        }
+    }
+    Ok(checked)
+}
+
+/// A publisher that checks every publication.
+fn checker(errors: &mut Vec<String>) -> impl FnMut(Phase, &Clipmap) + '_ {
+    move |phase, map| {
+        if let Err(e) = check_published(map) {
+            errors.push(format!("{phase:?}: {e}"));
+        }
+    }
+}
+
+/// Ticks at `centre`, waiting for reads in between, until every level is published whole and
+/// min LOD is 0; panics if that takes more than `max_ticks`.
+fn settle(map: &mut Clipmap, centre: [i64; 2], max_ticks: usize) -> usize {
+    for n in 0..max_ticks {
+        let r = map.tick(centre, Some([0, 0]));
+        if r.min_lod == 0.0
+            && (0..map.level_count() as u32).all(|k| map.level(k).valid == map.levels[k as usize].frame.valid)
+        {
+            return n + 1;
+        }
+        map.wait_for_reads();
+    }
+    panic!("not settled after {max_ticks} ticks: min LOD {}", map.min_lod());
+}
+
+#[derive(Clone, Debug)]
+enum Step {
+    Move(i64, i64),
+    Jump(i64, i64),
+    Wait,
+}
+
+fn step() -> impl Strategy<Value = Step> {
+    prop_oneof![
+        4 => (-6i64..=6, -6i64..=6).prop_map(|(a, b)| Step::Move(a, b)),
+        1 => (-(1i64 << 27)..(1i64 << 27), -(1i64 << 27)..(1i64 << 27)).prop_map(|(a, b)| Step::Jump(a, b)),
+        1 => (-40i64..40, -40i64..40).prop_map(|(a, b)| Step::Jump(a, b)),
+        3 => Just(Step::Wait),
+    ]
+}
+
+fn edge() -> impl Strategy<Value = u64> {
+    prop_oneof![1u64..=70, (0u32..=26).prop_map(|k| 1u64 << k), 1u64..=(1 << 26)]
+}
+
+/// Runs `steps` and checks every publication; then settles and checks again.
+fn walk(src: Arc<HashSource>, budget: Option<u64>, start: [i64; 2], steps: &[Step]) -> Result<(), TestCaseError> {
+    let mut map = Clipmap::new(src, settings(budget)).unwrap();
+    let mut errors = Vec::new();
+    let mut c = start;
+    for s in steps {
+        match *s {
+            Step::Move(a, b) => c = [c[0] + a, c[1] + b],
+            Step::Jump(a, b) => c = [a, b],
+            Step::Wait => map.wait_for_reads(),
+        }
+        map.tick_with(c, None, &mut checker(&mut errors));
+        prop_assert!(errors.is_empty(), "{:?}", errors);
+    }
+    map.set_budget_ns(None);
+    settle(&mut map, c, 60);
+    prop_assert!(check_published(&map).map_err(TestCaseError::fail)? > 0);
+    prop_assert_eq!(map.stats().writes_into_published, 0);
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(Config { cases: 160, rng_seed: RngSeed::Fixed(0xC11F), failure_persistence: None, ..Config::default() })]
+
+    #[test]
+    fn published_texels_equal_the_source_after_any_walk(
+        sw in edge(), sh in edge(), clip in 1u64..=16, tile in 1u64..=9, border in 0u64..4,
+        budget in prop_oneof![Just(None), (200u64..20_000).prop_map(Some)],
+        start in (-(1i64 << 27)..(1i64 << 27), -(1i64 << 27)..(1i64 << 27)),
+        steps in proptest::collection::vec(step(), 1..24),
+    ) {
+        let border = border.min((clip - 1) / 2);
+        walk(hash_source([sw, sh], clip, tile, border, TexelFormat::RGB8), budget, [start.0, start.1], &steps)?;
+    }
+}
+
+proptest! {
+    #![proptest_config(Config { cases: 8, rng_seed: RngSeed::Fixed(0xB16), failure_persistence: None, ..Config::default() })]
+
+    /// Large clip sizes on long, thin textures keep the per-case work small.
+    #[test]
+    fn published_texels_equal_the_source_with_large_clip_sizes(
+        clip in prop_oneof![Just(1024u64), Just(4096), Just(8192), 1000u64..8192],
+        tall in 1u64..=12, tile in prop_oneof![Just(256u64), Just(1000)],
+        steps in proptest::collection::vec(step(), 1..6),
+    ) {
+        let src = hash_source([1 << 26, tall], clip, tile, 16, TexelFormat::L8);
+        walk(src, Some(2_000_000), [(1 << 26) - 5, 0], &steps)?;
+    }
+}
+
+#[test]
+fn a_one_texel_texture_is_published_whole() {
+    let mut map = Clipmap::new(hash_source([1, 1], 1, 1, 0, TexelFormat::RGBA8), settings(None)).unwrap();
+    settle(&mut map, [-5, 7], 10);
+    assert_eq!(map.level(0).valid, Rect::new(0, 0, 1, 1));
+    assert_eq!(check_published(&map), Ok(1));
+}
+
+#[test]
+fn wrap_crossing_moves_copy_only_the_new_strips() {
+    let mut map = Clipmap::new(hash_source([1024, 1024], 16, 8, 2, TexelFormat::L8), settings(None)).unwrap();
+    settle(&mut map, [100, 100], 20);
+    let before = map.stats().bytes_copied;
+    // Move by 3 texels along s: level 0 needs a 3 x 16 strip, level 1 (centre 50 → 51) 1 x 16,
+    // level 2 and coarser keep their centres (25, 12, ...).
+    map.tick([103, 100], None);
+    map.wait_for_reads();
+    let r = map.tick([103, 100], None);
+    assert_eq!(r.min_lod, 0.0);
+    let copied = map.stats().bytes_copied - before;
+    assert_eq!(copied, 3 * 16 + 16, "only the strips that changed: {copied}");
+    assert_eq!(check_published(&map).map(|n| n > 0), Ok(true));
+}
+
+#[test]
+fn each_fault_kind_disables_the_level_never_publishes_a_wrong_texel_and_heals() {
+    let faults = [
+        (Fault::Missing, FaultKind::Missing),
+        (Fault::Short, FaultKind::Short),
+        (Fault::Corrupt, FaultKind::Corrupt),
+        (Fault::PermissionDenied, FaultKind::PermissionDenied),
+        (Fault::Io, FaultKind::Io),
+    ];
+    for (fault, kind) in faults {
+        let inner = hash_source([4096, 4096], 32, 16, 4, TexelFormat::RGBA8);
+        let src = Arc::new(FaultySource::new(inner));
+        let mut map = Clipmap::new(src.clone(), settings(None)).unwrap();
+        settle(&mut map, [1000, 1000], 30);
+        src.add(FaultRule::level(0, fault));
+        src.add(FaultRule::level(1, fault));
+        let mut errors = Vec::new();
+        // Jump to a place whose level-0 and level-1 tiles all fail.
+        let mut disabled = 0;
+        for _ in 0..8 {
+            let r = map.tick_with([3000, 500], None, &mut checker(&mut errors));
+            map.wait_for_reads();
+            if r.disabled_levels == [0, 1] {
+                disabled += 1;
+            }
+            assert!(r.min_lod >= 2.0, "{fault:?}: levels 0 and 1 cannot be up to date: {r:?}");
+        }
+        assert!(disabled > 0);
+        assert!(errors.is_empty(), "{fault:?}: {errors:?}");
+        let faults_seen = map.stats().read_faults.clone();
+        assert!(faults_seen.total() > 0 && faults_seen == count_of(kind, faults_seen.total()), "{faults_seen:?}");
+        // The fault clears: bounded recovery (retry after 2 ticks, 2 levels to fade at 2 ticks each).
+        src.set_enabled(false);
+        let mut healed_after = None;
+        for n in 1..=12 {
+            let r = map.tick_with([3000, 500], None, &mut checker(&mut errors));
+            map.wait_for_reads();
+            if r.min_lod == 0.0 {
+                healed_after = Some(n);
+                break;
+            }
+        }
+        assert!(healed_after.is_some(), "{fault:?}: not healed, min LOD {}", map.min_lod());
+        assert!(errors.is_empty(), "{fault:?}: {errors:?}");
+        assert_eq!(map.stats().writes_into_published, 0);
+    }
+}
+
+fn count_of(kind: FaultKind, n: u64) -> FaultCounts {
+    let mut c = FaultCounts::default();
+    for _ in 0..n {
+        c.add(kind);
+    }
+    c
+}
+
+#[test]
+fn a_slow_source_raises_min_lod_while_coarse_levels_stay_complete() {
+    let inner = hash_source([1 << 14, 1 << 14], 64, 32, 4, TexelFormat::L8);
+    let src = Arc::new(FaultySource::new(inner));
+    let mut map = Clipmap::new(src.clone(), settings(None)).unwrap();
+    settle(&mut map, [8000, 8000], 30);
+    let coarse_from = map.desc().stack_levels() as u32;
+    // Level-0 tiles now take long; the tick never waits for them.
+    src.add(FaultRule::level(0, Fault::Slow(std::time::Duration::from_millis(300))));
+    let r = map.tick([8600, 8000], None);
+    assert!(r.min_lod >= 1.0 && r.disabled_levels.contains(&0), "{r:?}");
+    for k in coarse_from..map.level_count() as u32 {
+        assert_eq!(map.level(k).valid, map.levels[k as usize].frame.valid, "pyramid level {k} complete");
+    }
+    // Once the reads land, every level is up to date and min LOD fades down (fade_ticks 2).
+    map.wait_for_reads();
+    let mut expected = r.min_lod;
+    for _ in 0..12 {
+        expected = next_min_lod(expected, 0, 2);
+        assert_eq!(map.tick([8600, 8000], None).min_lod, expected);
+    }
+    assert_eq!(expected, 0.0, "faded in within 12 ticks");
+    assert_eq!(check_published(&map).map(|n| n > 0), Ok(true));
+}
+
+#[test]
+fn a_tight_copy_budget_serves_coarse_levels_first_and_min_lod_follows_it() {
+    let src = hash_source([1 << 16, 1 << 16], 64, 64, 4, TexelFormat::RGBA8);
+    // Cost: 100 ns per band, 10 ns per line, 1 ns per byte; one 64-texel line costs 266 ns.
+    let mut map = Clipmap::new(src, settings(None)).unwrap();
+    let mut c = [30_000i64, 30_000];
+    settle(&mut map, c, 40);
+    // Budget for about 60 lines a tick; moving 40 texels a tick needs 40 lines at level 0,
+    // 20 at level 1, 10 at level 2 ... more than 60 in all.
+    map.set_budget_ns(Some(16_000));
+    let mut raised = false;
+    for _ in 0..10 {
+        c[0] += 40;
+        let r = map.tick(c, None);
+        map.wait_for_reads();
+        raised |= r.min_lod >= 1.0;
+        // Whatever is enabled is complete; the coarsest levels always are.
+        let enabled_from = r.min_lod.ceil() as usize;
+        for k in enabled_from.saturating_sub(1)..map.level_count() {
+            let complete = map.level(k as u32).valid == map.levels[k].frame.valid;
+            assert!(complete || (k as f64) + 1.0 <= r.min_lod, "level {k} in use but stale: {r:?}");
+        }
+        assert!(r.estimated_copy_ns <= 16_000.0);
+    }
+    assert!(raised, "the budget could not keep level 0 up to date");
+    assert!(map.stats().ticks_over_budget > 0);
+    // Standing still, the budget catches up and min LOD falls back to 0, never rising meanwhile.
+    let mut last = map.min_lod();
+    let mut ticks = 0;
+    while map.min_lod() > 0.0 {
+        let r = map.tick(c, None);
+        map.wait_for_reads();
+        assert!(r.min_lod <= last, "min LOD rose while standing still");
+        last = r.min_lod;
+        ticks += 1;
+        assert!(ticks < 40, "min LOD stuck at {last}");
+    }
+}
+
+#[test]
+fn widening_the_invalid_border_shrinks_the_valid_region() {
+    let mut map = Clipmap::new(hash_source([1 << 12, 1 << 12], 64, 16, 4, TexelFormat::L8), settings(None)).unwrap();
+    settle(&mut map, [2000, 2000], 30);
+    assert_eq!(map.level(0).valid.width(), 56);
+    map.set_invalid_border(12);
+    map.tick([2000, 2000], None);
+    assert_eq!(map.level(0).valid.width(), crate::geom::effective_size(64, 12));
+    map.set_invalid_border(1000);
+    assert_eq!(map.invalid_border(), 31);
+}
+
+#[test]
+fn centre_speed_is_clamped_and_counted() {
+    let mut s = settings(None);
+    s.max_centre_step = Some(10);
+    let mut map = Clipmap::new(hash_source([1 << 12, 1 << 12], 32, 16, 0, TexelFormat::L8), s).unwrap();
+    map.tick([100, 100], None);
+    let r = map.tick([500, 95], None);
+    assert_eq!(r.centre, [110, 95]);
+    assert_eq!(map.stats().centre_clamps, 1);
+}
+
+#[test]
+fn queue_length_stays_bounded_and_stale_requests_are_dropped_under_jumps() {
+    let mut s = settings(None);
+    s.limits.max_pending_reads = 8;
+    s.limits.max_in_flight_reads = 1;
+    s.streams = 2;
+    let inner = hash_source([1 << 20, 1 << 20], 64, 8, 0, TexelFormat::L8);
+    let src = Arc::new(FaultySource::new(inner));
+    src.add(FaultRule::everywhere(Fault::Slow(std::time::Duration::from_millis(2))));
+    let mut map = Clipmap::new(src, s).unwrap();
+    for i in 0..30i64 {
+        map.tick([(i * 7919 * 97) % (1 << 20), (i * 104_729) % (1 << 20)], None);
+    }
+    map.wait_for_reads();
+    map.tick([0, 0], None);
+    let q = &map.stats().queue;
+    assert!(q.peak_pending <= 8, "{q:?}");
+    assert!(q.stale_dropped > 0 && q.overflow_dropped > 0, "{q:?}");
+    assert!(map.stats().late_tiles + q.stale_dropped > 0);
+    let _ = TileId::new(0, 0, 0);
+}

@@ -1,0 +1,163 @@
+//! One level's toroidal window: its texel buffer and which of its texels are correct.
+//!
+//! Owns the buffer (`min(clip, level size)` texels per axis, texel (s, t) at (s mod clip,
+//! t mod clip)), the `content` rectangle (level texels whose values in the buffer are correct;
+//! always a rectangle no wider than the clip size), the `published` rectangle (what readers may
+//! read; always inside `content`), and copying bands of texels from resident tiles. Deciding what
+//! to copy and when is [`super`]'s business.
+//!
+//! Bands grow `content` one side at a time so that it stays a rectangle: columns to its left or
+//! right across its rows, then rows below or above across its (by then full) columns; an empty
+//! `content` is seeded with rows at the bottom of the goal.
+
+use crate::cache::TileCache;
+use crate::geom::{tiles_covering, window_index, Rect};
+use crate::source::TileId;
+
+/// A strip of lines adjacent to `content`, growing it along `axis` (0: s, 1: t) in direction
+/// `dir` (-1 or +1) from line `start` for at most `depth` lines, spanning `across` on the other
+/// axis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Band {
+    pub axis: usize,
+    pub dir: i64,
+    pub start: i64,
+    pub depth: u64,
+    pub across: (i64, i64),
+}
+
+impl Band {
+    /// The texels of the first `depth` lines.
+    pub fn rect(&self, depth: u64) -> Rect {
+        let d = depth as i64;
+        let (lo, hi) = if self.dir > 0 { (self.start, self.start + d) } else { (self.start - d + 1, self.start + 1) };
+        if self.axis == 0 {
+            Rect::new(lo, self.across.0, hi, self.across.1)
+        } else {
+            Rect::new(self.across.0, lo, self.across.1, hi)
+        }
+    }
+
+    /// Texels in one line.
+    pub fn line_texels(&self) -> u64 {
+        (self.across.1 - self.across.0).max(0) as u64
+    }
+}
+
+/// One level's window.
+#[derive(Clone, Debug)]
+pub struct Window {
+    pub level: u32,
+    pub clip: u64,
+    pub dims: [u64; 2],
+    pub bpt: usize,
+    pub tile: [u64; 2],
+    pub buf: Vec<u8>,
+    pub content: Rect,
+    pub published: Rect,
+}
+
+impl Window {
+    /// An empty window for a level of `size` texels read in `tile`-sized tiles.
+    pub fn new(level: u32, size: [u64; 2], clip: u64, tile: [u64; 2], bpt: usize) -> Self {
+        let dims = [clip.min(size[0]), clip.min(size[1])];
+        let buf = vec![0u8; (dims[0] * dims[1]) as usize * bpt];
+        Window { level, clip, dims, bpt, tile, buf, content: Rect::EMPTY, published: Rect::EMPTY }
+    }
+
+    /// Bytes of the buffer.
+    pub fn bytes(&self) -> usize {
+        self.buf.len()
+    }
+
+    /// The next band that grows `content` towards `goal` (which must lie in the tex region that
+    /// `content` was last cut to), or `None` when `content` already covers it.
+    pub fn next_band(&self, goal: &Rect) -> Option<Band> {
+        let c = self.content;
+        if goal.is_empty() || c.contains_rect(goal) {
+            return None;
+        }
+        if c.is_empty() {
+            return Some(Band { axis: 1, dir: 1, start: goal.t0, depth: goal.height(), across: (goal.s0, goal.s1) });
+        }
+        let band = if c.s0 > goal.s0 {
+            Band { axis: 0, dir: -1, start: c.s0 - 1, depth: (c.s0 - goal.s0) as u64, across: (c.t0, c.t1) }
+        } else if c.s1 < goal.s1 {
+            Band { axis: 0, dir: 1, start: c.s1, depth: (goal.s1 - c.s1) as u64, across: (c.t0, c.t1) }
+        } else if c.t0 > goal.t0 {
+            Band { axis: 1, dir: -1, start: c.t0 - 1, depth: (c.t0 - goal.t0) as u64, across: (c.s0, c.s1) }
+        } else {
+            Band { axis: 1, dir: 1, start: c.t1, depth: (goal.t1 - c.t1) as u64, across: (c.s0, c.s1) }
+        };
+        Some(band)
+    }
+
+    /// How many of the band's first `max_depth` lines have all their tiles resident.
+    pub fn resident_depth(&self, band: &Band, max_depth: u64, cache: &TileCache) -> u64 {
+        let tile_len = self.tile[band.axis] as i64;
+        let across_len = self.tile[1 - band.axis] as i64;
+        let (a0, a1) = (band.across.0.div_euclid(across_len), (band.across.1 - 1).div_euclid(across_len) + 1);
+        let mut d = 0u64;
+        while d < max_depth {
+            let line = band.start + band.dir * d as i64;
+            let tile_line = line.div_euclid(tile_len);
+            let run = if band.dir > 0 { (tile_line + 1) * tile_len - line } else { line - tile_line * tile_len + 1 };
+            let all = (a0..a1).all(|a| {
+                let (s, t) = if band.axis == 0 { (tile_line, a) } else { (a, tile_line) };
+                s >= 0 && t >= 0 && cache.texels(TileId::new(self.level, s as u64, t as u64)).is_some()
+            });
+            if !all {
+                break;
+            }
+            d += run as u64;
+        }
+        d.min(max_depth)
+    }
+
+    /// Copies the texels of `rect` from resident tiles into the buffer and returns the bytes
+    /// copied. Every tile `rect` touches must be resident (checked by
+    /// [`resident_depth`](Self::resident_depth)); returns `None`, copying nothing, if one is not.
+    pub fn copy_rect(&mut self, rect: Rect, cache: &TileCache) -> Option<u64> {
+        let tiles = tiles_covering(rect, self.tile);
+        let mut sources = Vec::with_capacity(tiles.area() as usize);
+        for tt in tiles.t0..tiles.t1 {
+            for ts in tiles.s0..tiles.s1 {
+                sources.push(cache.texels(TileId::new(self.level, ts as u64, tt as u64))?);
+            }
+        }
+        let [tw, th] = [self.tile[0] as i64, self.tile[1] as i64];
+        let bpt = self.bpt;
+        let clip = self.clip as i64;
+        for t in rect.t0..rect.t1 {
+            let tt = t.div_euclid(th);
+            let mut s = rect.s0;
+            while s < rect.s1 {
+                let ts = s.div_euclid(tw);
+                let tile_end = ((ts + 1) * tw).min(rect.s1);
+                let wrap_end = s + (clip - s.rem_euclid(clip));
+                let end = tile_end.min(wrap_end);
+                let n = (end - s) as usize;
+                let data = sources[((tt - tiles.t0) * tiles.width() as i64 + (ts - tiles.s0)) as usize];
+                let src = (((t - tt * th) * tw + (s - ts * tw)) as usize) * bpt;
+                let dst = window_index(s, t, self.clip, self.dims) * bpt;
+                self.buf[dst..dst + n * bpt].copy_from_slice(&data[src..src + n * bpt]);
+                s = end;
+            }
+        }
+        Some(rect.area() * bpt as u64)
+    }
+
+    /// Grows `content` by the first `depth` lines of `band` (which must have been copied).
+    pub fn grow(&mut self, band: &Band, depth: u64) {
+        let r = band.rect(depth);
+        if self.content.is_empty() {
+            self.content = r;
+            return;
+        }
+        let c = &mut self.content;
+        c.s0 = c.s0.min(r.s0);
+        c.t0 = c.t0.min(r.t0);
+        c.s1 = c.s1.max(r.s1);
+        c.t1 = c.t1.max(r.t1);
+    }
+}

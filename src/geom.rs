@@ -1,0 +1,385 @@
+//! Level geometry: where each level's window, valid region and tile grid lie for a given centre.
+//!
+//! Owns the pure arithmetic of clipmaps, in 64-bit integers: per-level centres, the tex region
+//! (the clip-size window centred on the level centre, translated to stay inside the level,
+//! PERFORMER §2.2), the valid region (tex region less the invalid border), toroidal addressing,
+//! and the mem region (the tile grid covering the tex region plus `lookahead` tiles, DESIGN §3).
+//! Everything here is a synchronous function of its arguments; holding tiles and texels is left
+//! to [`crate::cache`] and [`crate::clip`].
+//!
+//! Bounds: level sizes are at most 2^26 and clip sizes at most 2^26, so every coordinate a
+//! window can take fits in an `i64` with room to spare; arbitrary (even extreme) centres are
+//! handled with saturating arithmetic before clamping.
+
+use serde::Serialize;
+
+/// A half-open rectangle `[s0, s1) x [t0, t1)`, in level texels or in tiles.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize)]
+pub struct Rect {
+    /// First column.
+    pub s0: i64,
+    /// First row.
+    pub t0: i64,
+    /// One past the last column.
+    pub s1: i64,
+    /// One past the last row.
+    pub t1: i64,
+}
+
+impl Rect {
+    /// The empty rectangle.
+    pub const EMPTY: Rect = Rect { s0: 0, t0: 0, s1: 0, t1: 0 };
+
+    /// `[s0, s1) x [t0, t1)`.
+    pub const fn new(s0: i64, t0: i64, s1: i64, t1: i64) -> Self {
+        Rect { s0, t0, s1, t1 }
+    }
+
+    /// Whether it holds no texel.
+    pub fn is_empty(&self) -> bool {
+        self.s1 <= self.s0 || self.t1 <= self.t0
+    }
+
+    /// Columns (0 when empty).
+    pub fn width(&self) -> u64 {
+        if self.is_empty() {
+            0
+        } else {
+            (self.s1 - self.s0) as u64
+        }
+    }
+
+    /// Rows (0 when empty).
+    pub fn height(&self) -> u64 {
+        if self.is_empty() {
+            0
+        } else {
+            (self.t1 - self.t0) as u64
+        }
+    }
+
+    /// Number of texels (or tiles).
+    pub fn area(&self) -> u64 {
+        self.width() * self.height()
+    }
+
+    /// Whether (s, t) lies inside.
+    pub fn contains(&self, s: i64, t: i64) -> bool {
+        s >= self.s0 && s < self.s1 && t >= self.t0 && t < self.t1
+    }
+
+    /// Whether `other` lies entirely inside (an empty `other` always does).
+    pub fn contains_rect(&self, other: &Rect) -> bool {
+        other.is_empty() || (other.s0 >= self.s0 && other.s1 <= self.s1 && other.t0 >= self.t0 && other.t1 <= self.t1)
+    }
+
+    /// The common part ([`Rect::EMPTY`] if none).
+    pub fn intersect(&self, other: &Rect) -> Rect {
+        let r = Rect::new(self.s0.max(other.s0), self.t0.max(other.t0), self.s1.min(other.s1), self.t1.min(other.t1));
+        if r.is_empty() {
+            Rect::EMPTY
+        } else {
+            r
+        }
+    }
+}
+
+/// Level `k`'s default centre: level 0's centre shifted right by `k` (floor, also for negative
+/// centres), so the windows of all levels are concentric.
+pub fn default_centre(centre0: [i64; 2], k: u32) -> [i64; 2] {
+    let k = k.min(63);
+    [centre0[0] >> k, centre0[1] >> k]
+}
+
+/// Euclidean `x mod m` (in `0..m` also for negative `x`). `m` must be in 1..=2^62.
+pub fn wrap(x: i64, m: u64) -> u64 {
+    x.rem_euclid(m as i64) as u64
+}
+
+/// Offset of level texel (s, t) in a toroidal window of `clip` texels a side whose buffer is
+/// `dims` texels (dims are `min(clip, level size)` per axis). Texels are `(s mod clip, t mod clip)`
+/// of the window, rows of `dims[0]` texels.
+pub fn window_index(s: i64, t: i64, clip: u64, dims: [u64; 2]) -> usize {
+    (wrap(t, clip) * dims[0] + wrap(s, clip)) as usize
+}
+
+/// One axis of the tex region: `[lo, lo + min(clip, size))` with `lo` as close to
+/// `centre - clip/2` as the level allows.
+fn window_axis(size: u64, clip: u64, centre: i64) -> (i64, i64) {
+    if size <= clip {
+        return (0, size as i64);
+    }
+    let lo = centre.saturating_sub((clip / 2) as i64).clamp(0, (size - clip) as i64);
+    (lo, lo + clip as i64)
+}
+
+/// The tex region of a level of `size` texels: the clip-size window centred on `centre`,
+/// translated (never shrunk) to stay inside the level; the whole level on axes no larger than the
+/// clip size.
+pub fn tex_region(size: [u64; 2], clip: u64, centre: [i64; 2]) -> Rect {
+    let (s0, s1) = window_axis(size[0], clip, centre[0]);
+    let (t0, t1) = window_axis(size[1], clip, centre[1]);
+    Rect::new(s0, t0, s1, t1)
+}
+
+/// The part of `tex` renderers may read: `border` texels less on each side along every axis on
+/// which the level is larger than the clip size (the whole level is resident on the others).
+pub fn valid_region(size: [u64; 2], clip: u64, border: u64, tex: Rect) -> Rect {
+    let b = |axis: usize| if size[axis] > clip { border as i64 } else { 0 };
+    let r = Rect::new(tex.s0 + b(0), tex.t0 + b(1), tex.s1 - b(0), tex.t1 - b(1));
+    if r.is_empty() {
+        Rect::EMPTY
+    } else {
+        r
+    }
+}
+
+/// The readable edge of a stack window: clip size less twice the border.
+pub fn effective_size(clip: u64, border: u64) -> u64 {
+    clip.saturating_sub(2 * border)
+}
+
+/// Tiles along each axis of a level.
+pub fn tiles_in_level(size: [u64; 2], tile: [u64; 2]) -> [u64; 2] {
+    [size[0].div_ceil(tile[0]), size[1].div_ceil(tile[1])]
+}
+
+/// The tiles (as a rectangle of tile indices) holding every texel of `rect`.
+pub fn tiles_covering(rect: Rect, tile: [u64; 2]) -> Rect {
+    if rect.is_empty() {
+        return Rect::EMPTY;
+    }
+    let (w, h) = (tile[0] as i64, tile[1] as i64);
+    Rect::new(
+        rect.s0.div_euclid(w),
+        rect.t0.div_euclid(h),
+        (rect.s1 - 1).div_euclid(w) + 1,
+        (rect.t1 - 1).div_euclid(h) + 1,
+    )
+}
+
+/// The texels of tile (S, T), clipped to the level.
+pub fn tile_texels(size: [u64; 2], tile: [u64; 2], st: [u64; 2]) -> Rect {
+    let s0 = (st[0] * tile[0]) as i64;
+    let t0 = (st[1] * tile[1]) as i64;
+    Rect::new(s0, t0, (s0 + tile[0] as i64).min(size[0] as i64), (t0 + tile[1] as i64).min(size[1] as i64))
+}
+
+/// Edge of the mem region in tiles per axis: enough tiles to cover the tex region at any
+/// alignment plus `lookahead`, never more than the level has (DESIGN §3: clip 1024, 256-texel
+/// tiles, lookahead 1 → 6 x 6).
+pub fn mem_grid(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64) -> [u64; 2] {
+    let n = tiles_in_level(size, tile);
+    let axis = |a: usize| (clip.min(size[a]).div_ceil(tile[a]) + 1 + lookahead).min(n[a]);
+    [axis(0), axis(1)]
+}
+
+/// The mem region (a rectangle of tile indices, `grid` tiles a side) around `tex`: it holds every
+/// tile the tex region touches; the spare tiles go ahead of the motion along each axis where
+/// `velocity` is non-zero and are split evenly otherwise; it stays inside the level.
+pub fn mem_region(size: [u64; 2], tile: [u64; 2], grid: [u64; 2], tex: Rect, velocity: [i64; 2]) -> Rect {
+    let n = tiles_in_level(size, tile);
+    let need = tiles_covering(tex, tile);
+    let axis = |lo: i64, hi: i64, a: usize| {
+        let g = grid[a] as i64;
+        let extra = (g - (hi - lo)).max(0);
+        let before = match velocity[a].signum() {
+            1 => 0,
+            -1 => extra,
+            _ => extra / 2,
+        };
+        let o = (lo - before).clamp(0, n[a] as i64 - g);
+        (o, o + g)
+    };
+    let (s0, s1) = axis(need.s0, need.s1, 0);
+    let (t0, t1) = axis(need.t0, need.t1, 1);
+    Rect::new(s0, t0, s1, t1)
+}
+
+/// Everything a level's geometry needs from the engine's settings.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LevelShape {
+    /// Level size in texels.
+    pub size: [u64; 2],
+    /// Tile size in texels.
+    pub tile: [u64; 2],
+    /// Clip size.
+    pub clip: u64,
+    /// Extra tiles beyond the minimum, per axis.
+    pub lookahead: u64,
+}
+
+/// Where a level's regions lie for one centre.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct LevelFrame {
+    /// The level centre used.
+    pub centre: [i64; 2],
+    /// The window the level should hold.
+    pub tex: Rect,
+    /// The part of it renderers may read once it is up to date.
+    pub valid: Rect,
+    /// The tiles that should be in main memory.
+    pub mem: Rect,
+}
+
+impl LevelShape {
+    /// The level's regions for `centre` (in level texels), `border` and direction of motion.
+    pub fn frame(&self, centre: [i64; 2], border: u64, velocity: [i64; 2]) -> LevelFrame {
+        let tex = tex_region(self.size, self.clip, centre);
+        let valid = valid_region(self.size, self.clip, border, tex);
+        let grid = mem_grid(self.size, self.tile, self.clip, self.lookahead);
+        let mem = mem_region(self.size, self.tile, grid, tex, velocity);
+        LevelFrame { centre, tex, valid, mem }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use proptest::test_runner::{Config, RngSeed};
+
+    fn config(cases: u32) -> Config {
+        Config { cases, rng_seed: RngSeed::Fixed(0x6E0), failure_persistence: None, ..Config::default() }
+    }
+
+    /// Level sizes from 1 to 2^26, biased to small and to powers of two.
+    fn size() -> impl Strategy<Value = u64> {
+        prop_oneof![1u64..=300, (0u32..=26).prop_map(|k| 1u64 << k), 1u64..=(1 << 26)]
+    }
+
+    /// Centres anywhere: negative, 0, the far edge, outside, extreme.
+    fn centre() -> impl Strategy<Value = i64> {
+        prop_oneof![-400i64..400, -(1i64 << 27)..(1i64 << 27), Just(i64::MIN), Just(i64::MAX), Just(0)]
+    }
+
+    #[test]
+    fn design_example_clip_1024_tiles_256_lookahead_1_is_a_6x6_grid() {
+        assert_eq!(mem_grid([1 << 20, 1 << 20], [256, 256], 1024, 1), [6, 6]);
+        // PERFORMER §1.10 examples: size 8192, tile 256, tex 512, lookahead 2 → 5; size 1024 → 4.
+        assert_eq!(mem_grid([8192, 8192], [256, 256], 512, 2), [5, 5]);
+        assert_eq!(mem_grid([1024, 1024], [256, 256], 512, 3), [4, 4]);
+    }
+
+    #[test]
+    fn windows_translate_at_the_edges_and_whole_levels_ignore_the_centre() {
+        assert_eq!(tex_region([100, 100], 10, [50, 50]), Rect::new(45, 45, 55, 55));
+        assert_eq!(tex_region([100, 100], 10, [-7, 99]), Rect::new(0, 90, 10, 100));
+        assert_eq!(tex_region([100, 8], 10, [50, 50]), Rect::new(45, 0, 55, 8));
+        assert_eq!(tex_region([1, 1], 1, [i64::MIN, i64::MAX]), Rect::new(0, 0, 1, 1));
+        let tex = tex_region([100, 8], 10, [50, 50]);
+        assert_eq!(valid_region([100, 8], 10, 2, tex), Rect::new(47, 0, 53, 8));
+        assert_eq!(effective_size(1024, 16), 992);
+        assert_eq!(default_centre([-1, 5], 1), [-1, 2]);
+        assert_eq!(wrap(-1, 16), 15);
+        assert_eq!(window_index(-1, 17, 16, [16, 16]), 16 + 15);
+    }
+
+    #[test]
+    fn mem_region_puts_spare_tiles_ahead_of_the_motion() {
+        let size = [1 << 12, 1 << 12];
+        let tex = Rect::new(1024, 1024, 2048, 2048); // tiles 4..8 of 256
+        let grid = mem_grid(size, [256, 256], 1024, 1);
+        assert_eq!(mem_region(size, [256, 256], grid, tex, [0, 0]), Rect::new(3, 3, 9, 9));
+        assert_eq!(mem_region(size, [256, 256], grid, tex, [5, -5]), Rect::new(4, 2, 10, 8));
+    }
+
+    proptest! {
+        #![proptest_config(config(2000))]
+
+        #[test]
+        fn tex_region_matches_brute_force_search_on_small_levels(
+            sw in 1u64..=64, sh in 1u64..=64, clip in 1u64..=80, cs in -100i64..160, ct in -100i64..160,
+        ) {
+            let r = tex_region([sw, sh], clip, [cs, ct]);
+            // Oracle: among every origin that keeps a min(clip, size) window inside the level, the
+            // one nearest centre - clip/2.
+            let oracle = |size: u64, c: i64| {
+                let ext = clip.min(size) as i64;
+                let best = (0..=(size as i64 - ext)).min_by_key(|&o| (o - (c - (clip / 2) as i64)).abs()).unwrap();
+                (best, best + ext)
+            };
+            prop_assert_eq!((r.s0, r.s1), oracle(sw, cs));
+            prop_assert_eq!((r.t0, r.t1), oracle(sh, ct));
+        }
+
+        #[test]
+        fn regions_stay_inside_the_level_for_any_centre(
+            sw in size(), sh in size(), clip in 1u64..=8192, cs in centre(), ct in centre(),
+            border in 0u64..64, tile in 1u64..=512, look in 0u64..3, vs in -2i64..=2, vt in -2i64..=2,
+        ) {
+            let size = [sw, sh];
+            let shape = LevelShape { size, tile: [tile, tile], clip, lookahead: look };
+            let f = shape.frame([cs, ct], border.min((clip - 1) / 2), [vs, vt]);
+            let level = Rect::new(0, 0, sw as i64, sh as i64);
+            prop_assert!(level.contains_rect(&f.tex));
+            prop_assert_eq!([f.tex.width(), f.tex.height()], [clip.min(sw), clip.min(sh)]);
+            prop_assert!(f.tex.contains_rect(&f.valid));
+            // The centre lies in the window whenever some window position could contain it.
+            for (c, lo, hi, sz) in [(cs, f.tex.s0, f.tex.s1, sw), (ct, f.tex.t0, f.tex.t1, sh)] {
+                if c >= 0 && (c as u64) < sz && sz > clip {
+                    let half = (clip / 2) as i64;
+                    let reachable = c >= half && c - half <= (sz - clip) as i64;
+                    prop_assert!(!reachable || (lo <= c && c < hi));
+                }
+            }
+            // The mem region has the grid's size, lies in the level and covers the tex region.
+            let grid = mem_grid(size, [tile, tile], clip, look);
+            let n = tiles_in_level(size, [tile, tile]);
+            prop_assert_eq!([f.mem.width(), f.mem.height()], grid);
+            prop_assert!(Rect::new(0, 0, n[0] as i64, n[1] as i64).contains_rect(&f.mem));
+            prop_assert!(f.mem.contains_rect(&tiles_covering(f.tex, [tile, tile])));
+        }
+
+        #[test]
+        fn mem_region_covers_every_texel_of_the_window_brute_force(
+            sw in 1u64..=200, sh in 1u64..=200, clip in 1u64..=64, tw in 1u64..=40, th in 1u64..=40,
+            cs in -50i64..250, ct in -50i64..250, look in 0u64..3, vs in -1i64..=1, vt in -1i64..=1,
+        ) {
+            let shape = LevelShape { size: [sw, sh], tile: [tw, th], clip, lookahead: look };
+            let f = shape.frame([cs, ct], 0, [vs, vt]);
+            for t in f.tex.t0..f.tex.t1 {
+                for s in f.tex.s0..f.tex.s1 {
+                    let (ts, tt) = (s / tw as i64, t / th as i64);
+                    prop_assert!(f.mem.contains(ts, tt), "texel ({}, {}) in tile ({}, {}) outside {:?}", s, t, ts, tt, f.mem);
+                }
+            }
+            // Toroidal slots of the mem region are distinct.
+            let mut seen = std::collections::HashSet::new();
+            for tt in f.mem.t0..f.mem.t1 {
+                for ts in f.mem.s0..f.mem.s1 {
+                    prop_assert!(seen.insert((wrap(ts, f.mem.width()), wrap(tt, f.mem.height()))));
+                }
+            }
+        }
+
+        #[test]
+        fn wrap_is_euclidean_modulo(x in any::<i64>(), m in 1u64..=(1 << 40)) {
+            let r = wrap(x, m);
+            prop_assert!(r < m);
+            prop_assert_eq!((x as i128 - r as i128).rem_euclid(m as i128), 0);
+        }
+
+        #[test]
+        fn wrap_matches_repeated_subtraction(x in -2000i64..2000, m in 1u64..=64) {
+            let mut r = x;
+            while r < 0 { r += m as i64; }
+            while r >= m as i64 { r -= m as i64; }
+            prop_assert_eq!(wrap(x, m), r as u64);
+        }
+
+        #[test]
+        fn toroidal_window_slots_are_distinct_over_any_window(
+            clip in 1u64..=24, s0 in -(1i64 << 26)..(1i64 << 26), t0 in -(1i64 << 26)..(1i64 << 26),
+        ) {
+            let mut seen = vec![false; (clip * clip) as usize];
+            for t in t0..t0 + clip as i64 {
+                for s in s0..s0 + clip as i64 {
+                    let i = window_index(s, t, clip, [clip, clip]);
+                    prop_assert!(!seen[i]);
+                    seen[i] = true;
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,231 @@
+//! Read queues: one per stream server, reading tiles asynchronously in priority order.
+//!
+//! Owns getting tiles from a [`TileSource`] into memory without ever blocking the update tick:
+//! the synchronous [`ReadQueues`] front (used by [`crate::clip`]) sends each queue's runner the
+//! tiles wanted now with fresh [priorities](fn@priority), and drains finished reads from a channel.
+//! Where tiles are kept is [`crate::cache`]'s business; which tiles are wanted is decided by the
+//! caller from [`crate::geom`].
+//!
+//! Design: each queue is a cloneable handle (a bounded command sender) plus a private runner task
+//! owning all of the queue's state, on a small tokio runtime; blocking reads run on
+//! `spawn_blocking`. Completions come back over a channel that the tick drains when it runs, so
+//! the tick stays synchronous and deterministic: [`ReadQueues::flush`] waits until every read that
+//! could start has finished, which lets tests step reads and ticks in lock step.
+//!
+//! Bounds ([`Limits`]): pending requests per queue, reads running or undrained per queue, command
+//! channel capacity. A tile leaving every mem region is dropped from the queue at the next update
+//! (counted as stale); a tile wanted while its read runs is coalesced with it.
+
+pub mod priority;
+mod runner;
+
+pub use priority::{priority, Priority};
+
+use crate::limits::Limits;
+use crate::source::{SourceError, TileId, TileSource};
+use runner::{Command, Event, Runner};
+use serde::Serialize;
+use std::sync::mpsc as std_mpsc;
+use std::sync::Arc;
+use thiserror::Error;
+use tokio::sync::{mpsc, oneshot};
+
+/// A tile wanted now, and how urgently.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReadRequest {
+    /// The tile.
+    pub tile: TileId,
+    /// Lower is more urgent.
+    pub priority: Priority,
+}
+
+/// A finished read.
+#[derive(Debug)]
+pub struct Completion {
+    /// The tile read.
+    pub tile: TileId,
+    /// Its texels, or why there are none.
+    pub result: Result<Vec<u8>, SourceError>,
+}
+
+/// Counters of one queue (or the sum over queues).
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct QueueStats {
+    /// Distinct tiles newly queued.
+    pub requested: u64,
+    /// Requests for a tile whose read was already running (or finished, not yet taken).
+    pub coalesced: u64,
+    /// Queued requests dropped because their tile was no longer wanted.
+    pub stale_dropped: u64,
+    /// Requests dropped because the queue was full.
+    pub overflow_dropped: u64,
+    /// Updates skipped because a queue's command channel was full.
+    pub updates_skipped: u64,
+    /// Reads started.
+    pub reads_started: u64,
+    /// Reads that delivered a tile.
+    pub reads_done: u64,
+    /// Reads that failed.
+    pub reads_failed: u64,
+    /// Requests waiting now.
+    pub pending: u64,
+    /// Most requests ever waiting in one queue.
+    pub peak_pending: u64,
+    /// Reads running now.
+    pub in_flight: u64,
+}
+
+impl QueueStats {
+    fn add(&mut self, o: &QueueStats) {
+        self.requested += o.requested;
+        self.coalesced += o.coalesced;
+        self.stale_dropped += o.stale_dropped;
+        self.overflow_dropped += o.overflow_dropped;
+        self.updates_skipped += o.updates_skipped;
+        self.reads_started += o.reads_started;
+        self.reads_done += o.reads_done;
+        self.reads_failed += o.reads_failed;
+        self.pending += o.pending;
+        self.peak_pending = self.peak_pending.max(o.peak_pending);
+        self.in_flight += o.in_flight;
+    }
+}
+
+/// Why the queues could not start.
+#[derive(Debug, Error)]
+pub enum QueueError {
+    /// The async runtime could not be built.
+    #[error("cannot start the read-queue runtime: {0}")]
+    Runtime(#[source] std::io::Error),
+    /// A stream count of 0 or above the limit.
+    #[error("{streams} stream servers requested: expected 1..={max}")]
+    Streams { streams: usize, max: usize },
+}
+
+/// A cloneable handle to one queue's runner.
+#[derive(Clone, Debug)]
+pub struct QueueHandle {
+    commands: mpsc::Sender<Command>,
+}
+
+/// The read queues of one texture, one per stream server; tile (S, T) goes to server S mod n.
+pub struct ReadQueues {
+    runtime: Option<tokio::runtime::Runtime>,
+    handles: Vec<QueueHandle>,
+    events: std_mpsc::Receiver<Event>,
+    /// Completions taken per stream since the last update sent to it.
+    drained: Vec<usize>,
+    counters: Vec<QueueStats>,
+    skipped: u64,
+}
+
+impl ReadQueues {
+    /// Starts `streams` queues reading from `source`, on a runtime of their own.
+    pub fn new(source: Arc<dyn TileSource>, streams: usize, limits: Limits) -> Result<Self, QueueError> {
+        if streams == 0 || streams > limits.max_streams {
+            return Err(QueueError::Streams { streams, max: limits.max_streams });
+        }
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .max_blocking_threads(streams * limits.max_in_flight_reads.max(1))
+            .thread_name("clipmap-read")
+            .enable_all()
+            .build()
+            .map_err(QueueError::Runtime)?;
+        let (tx, events) = std_mpsc::channel();
+        let handles = (0..streams)
+            .map(|stream| {
+                let (commands, rx) = mpsc::channel(limits.queue_commands.max(1));
+                let runner = Runner::new(stream, rx, tx.clone(), Arc::clone(&source), limits);
+                runtime.spawn(runner.run());
+                QueueHandle { commands }
+            })
+            .collect();
+        Ok(ReadQueues {
+            runtime: Some(runtime),
+            handles,
+            events,
+            drained: vec![0; streams],
+            counters: vec![QueueStats::default(); streams],
+            skipped: 0,
+        })
+    }
+
+    /// Number of stream servers.
+    pub fn streams(&self) -> usize {
+        self.handles.len()
+    }
+
+    /// The stream server that reads `tile`.
+    pub fn stream_of(&self, tile: TileId) -> usize {
+        (tile.s % self.handles.len() as u64) as usize
+    }
+
+    /// Tells every queue which tiles are wanted now (all of them: a tile not listed is dropped
+    /// from its queue). Never blocks: a queue whose command channel is full skips this update.
+    pub fn update(&mut self, wanted: &[ReadRequest]) {
+        let mut per_stream: Vec<Vec<ReadRequest>> = vec![Vec::new(); self.handles.len()];
+        for r in wanted {
+            per_stream[self.stream_of(r.tile)].push(*r);
+        }
+        for (stream, wanted) in per_stream.into_iter().enumerate() {
+            let drained = self.drained[stream];
+            match self.handles[stream].commands.try_send(Command::Update { wanted, drained }) {
+                Ok(()) => self.drained[stream] = 0,
+                Err(_) => self.skipped += 1,
+            }
+        }
+    }
+
+    /// Takes every finished read, oldest first. Never blocks.
+    pub fn drain(&mut self) -> Vec<Completion> {
+        let mut done = Vec::new();
+        while let Ok(event) = self.events.try_recv() {
+            match event {
+                Event::Done(c) => {
+                    let stream = self.stream_of(c.tile);
+                    self.drained[stream] += 1;
+                    done.push(c);
+                }
+                Event::Counters { stream, stats } => self.counters[stream] = stats,
+            }
+        }
+        done
+    }
+
+    /// Blocks until, in every queue, no read is running and none can start before the finished
+    /// ones are drained. For tests and offline simulation; must not be called from async code.
+    pub fn flush(&mut self) {
+        let mut replies = Vec::new();
+        for h in &self.handles {
+            let (tx, rx) = oneshot::channel();
+            if h.commands.blocking_send(Command::Flush(tx)).is_ok() {
+                replies.push(rx);
+            }
+        }
+        for rx in replies {
+            let _ = rx.blocking_recv();
+        }
+    }
+
+    /// Counters summed over the queues, as of the last [`drain`](Self::drain).
+    pub fn stats(&self) -> QueueStats {
+        let mut sum = QueueStats { updates_skipped: self.skipped, ..QueueStats::default() };
+        for c in &self.counters {
+            sum.add(c);
+        }
+        sum
+    }
+}
+
+impl Drop for ReadQueues {
+    fn drop(&mut self) {
+        // Reads already running finish on their own threads; nothing waits for them.
+        if let Some(rt) = self.runtime.take() {
+            rt.shutdown_background();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,170 @@
+//! The read-queue runner: one tokio task per stream server owning that queue's whole state.
+//!
+//! Owns the pending requests (sorted by priority, bounded), the reads in flight, the completions
+//! delivered but not yet taken, and the queue's counters. Nothing else touches them: the handle
+//! only sends commands. Reads run on `spawn_blocking` threads, never on the async workers.
+
+use super::{Completion, Priority, QueueStats, ReadRequest};
+use crate::limits::Limits;
+use crate::source::{SourceError, TileId, TileSource};
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::sync::mpsc as std_mpsc;
+use std::sync::Arc;
+use tokio::sync::{mpsc, oneshot};
+use tokio::task::JoinSet;
+
+/// What the handle asks of the runner.
+pub(super) enum Command {
+    /// The tiles wanted now, with fresh priorities; `drained` completions were taken since the
+    /// last update.
+    Update { wanted: Vec<ReadRequest>, drained: usize },
+    /// Answer once no read runs and none can start before the owner takes completions.
+    Flush(oneshot::Sender<()>),
+}
+
+/// A message from a runner to the owner of the queues.
+pub(super) enum Event {
+    /// A read finished.
+    Done(Completion),
+    /// The runner's counters changed.
+    Counters { stream: usize, stats: QueueStats },
+}
+
+pub(super) struct Runner {
+    pub stream: usize,
+    pub commands: mpsc::Receiver<Command>,
+    pub events: std_mpsc::Sender<Event>,
+    pub source: Arc<dyn TileSource>,
+    pub limits: Limits,
+    pending: Vec<ReadRequest>,
+    in_flight: HashSet<TileId>,
+    /// Completions sent but not yet reported taken, oldest first.
+    delivered: VecDeque<TileId>,
+    reads: JoinSet<Completion>,
+    flushes: Vec<oneshot::Sender<()>>,
+    stats: QueueStats,
+}
+
+impl Runner {
+    pub fn new(
+        stream: usize,
+        commands: mpsc::Receiver<Command>,
+        events: std_mpsc::Sender<Event>,
+        source: Arc<dyn TileSource>,
+        limits: Limits,
+    ) -> Self {
+        Runner {
+            stream,
+            commands,
+            events,
+            source,
+            limits,
+            pending: Vec::new(),
+            in_flight: HashSet::new(),
+            delivered: VecDeque::new(),
+            reads: JoinSet::new(),
+            flushes: Vec::new(),
+            stats: QueueStats::default(),
+        }
+    }
+
+    /// Serves commands and reads until the handle side is dropped.
+    pub async fn run(mut self) {
+        loop {
+            self.start_reads();
+            self.answer_flushes();
+            tokio::select! {
+                command = self.commands.recv() => match command {
+                    None => break,
+                    Some(Command::Update { wanted, drained }) => self.update(wanted, drained),
+                    Some(Command::Flush(reply)) => self.flushes.push(reply),
+                },
+                Some(joined) = self.reads.join_next(), if !self.reads.is_empty() => {
+                    let Ok(done) = joined else { continue };
+                    self.in_flight.remove(&done.tile);
+                    self.delivered.push_back(done.tile);
+                    if done.result.is_ok() {
+                        self.stats.reads_done += 1;
+                    } else {
+                        self.stats.reads_failed += 1;
+                    }
+                    if self.events.send(Event::Done(done)).is_err() {
+                        break;
+                    }
+                    self.publish_counters();
+                }
+            }
+        }
+    }
+
+    fn can_start(&self) -> bool {
+        !self.pending.is_empty()
+            && self.in_flight.len() < self.limits.max_in_flight_reads.max(1)
+            && self.in_flight.len() + self.delivered.len() < self.limits.max_ready_reads.max(1)
+    }
+
+    fn start_reads(&mut self) {
+        while self.can_start() {
+            let request = self.pending.remove(0);
+            let tile = request.tile;
+            let source = Arc::clone(&self.source);
+            self.in_flight.insert(tile);
+            self.stats.reads_started += 1;
+            self.reads.spawn(async move {
+                let read = tokio::task::spawn_blocking(move || {
+                    let mut buf = vec![0u8; source.desc().tile_bytes(tile.level)];
+                    source.read_tile(tile, &mut buf).map(|()| buf)
+                });
+                let result = read.await.unwrap_or_else(|e| {
+                    Err(SourceError::Io { tile, source: std::io::Error::other(format!("tile read task failed: {e}")) })
+                });
+                Completion { tile, result }
+            });
+        }
+    }
+
+    fn answer_flushes(&mut self) {
+        if self.in_flight.is_empty() && !self.can_start() {
+            for reply in self.flushes.drain(..) {
+                let _ = reply.send(());
+            }
+        }
+    }
+
+    /// Replaces the pending set by `wanted`: stale requests are dropped, tiles already being read
+    /// are coalesced, priorities refreshed, and the queue cut to its bound.
+    fn update(&mut self, wanted: Vec<ReadRequest>, drained: usize) {
+        for _ in 0..drained.min(self.delivered.len()) {
+            self.delivered.pop_front();
+        }
+        let busy: HashSet<TileId> = self.in_flight.iter().chain(self.delivered.iter()).copied().collect();
+        let mut fresh: HashMap<TileId, Priority> = HashMap::with_capacity(wanted.len());
+        for r in wanted {
+            if busy.contains(&r.tile) {
+                self.stats.coalesced += 1;
+                continue;
+            }
+            fresh.entry(r.tile).and_modify(|p| *p = (*p).min(r.priority)).or_insert(r.priority);
+        }
+        let was_pending: HashSet<TileId> = self.pending.iter().map(|r| r.tile).collect();
+        self.stats.stale_dropped += was_pending.iter().filter(|t| !fresh.contains_key(t)).count() as u64;
+        self.stats.requested += fresh.keys().filter(|t| !was_pending.contains(t)).count() as u64;
+        let mut pending: Vec<ReadRequest> =
+            fresh.into_iter().map(|(tile, priority)| ReadRequest { tile, priority }).collect();
+        pending.sort_unstable_by_key(|r| (r.priority, r.tile));
+        if pending.len() > self.limits.max_pending_reads {
+            self.stats.overflow_dropped += (pending.len() - self.limits.max_pending_reads) as u64;
+            pending.truncate(self.limits.max_pending_reads);
+        }
+        self.stats.pending = pending.len() as u64;
+        self.stats.peak_pending = self.stats.peak_pending.max(self.stats.pending);
+        self.pending = pending;
+        self.publish_counters();
+    }
+
+    fn publish_counters(&mut self) {
+        self.stats.pending = self.pending.len() as u64;
+        self.stats.in_flight = self.in_flight.len() as u64;
+        let _ = self.events.send(Event::Counters { stream: self.stream, stats: self.stats.clone() });
+    }
+}

@@ -1,0 +1,133 @@
+//! Tests of the read queues: order, coalescing, stale drops and bounds.
+
+use super::*;
+use crate::source::{Fault, FaultRule, FaultySource, HashSource, TextureDesc};
+use crate::texel::TexelFormat;
+use std::time::Duration;
+
+fn source() -> Arc<FaultySource> {
+    let desc = TextureDesc::new([1024, 1024], 64, TexelFormat::L8, [8, 8]).unwrap();
+    Arc::new(FaultySource::new(Arc::new(HashSource::new(desc))))
+}
+
+fn limits(pending: usize, in_flight: usize) -> Limits {
+    Limits {
+        max_pending_reads: pending,
+        max_in_flight_reads: in_flight,
+        max_ready_reads: in_flight,
+        ..Limits::default()
+    }
+}
+
+fn request(s: u64, t: u64, eta: u64) -> ReadRequest {
+    ReadRequest { tile: TileId::new(0, s, t), priority: Priority { rank: 0, eta } }
+}
+
+/// Steps the queues until nothing is left to read, returning completions in arrival order.
+fn run_to_end(q: &mut ReadQueues, wanted: &[ReadRequest]) -> Vec<Completion> {
+    let mut all = Vec::new();
+    let mut left: Vec<ReadRequest> = wanted.to_vec();
+    for _ in 0..1000 {
+        q.update(&left);
+        q.flush();
+        let done = q.drain();
+        if done.is_empty() && left.is_empty() {
+            break;
+        }
+        left.retain(|r| !done.iter().any(|c| c.tile == r.tile));
+        all.extend(done);
+    }
+    all
+}
+
+#[test]
+fn reads_follow_priority_order_one_at_a_time() {
+    let src = source();
+    let mut q = ReadQueues::new(src.clone(), 1, limits(64, 1)).unwrap();
+    let wanted = [request(3, 0, 30), request(1, 0, 10), request(2, 0, 20), request(0, 0, 5)];
+    let order: Vec<u64> = run_to_end(&mut q, &wanted).iter().map(|c| c.tile.s).collect();
+    assert_eq!(order, vec![0, 1, 2, 3]);
+    assert_eq!(src.reads(), 4);
+    let stats = q.stats();
+    assert_eq!((stats.requested, stats.reads_done, stats.reads_failed), (4, 4, 0));
+}
+
+#[test]
+fn completed_tiles_hold_the_source_texels_and_failures_are_typed() {
+    let src = source();
+    src.add(FaultRule::tile(TileId::new(0, 1, 1), Fault::Missing));
+    let mut q = ReadQueues::new(src.clone(), 2, limits(64, 4)).unwrap();
+    let done = run_to_end(&mut q, &[request(0, 0, 0), request(1, 1, 0)]);
+    assert_eq!(done.len(), 2);
+    for c in done {
+        if c.tile.s == 1 {
+            assert!(matches!(c.result, Err(SourceError::Missing { .. })));
+        } else {
+            let mut want = vec![0u8; 64];
+            src.read_tile(c.tile, &mut want).unwrap();
+            assert_eq!(c.result.unwrap(), want);
+        }
+    }
+}
+
+#[test]
+fn requests_for_a_tile_being_read_are_coalesced() {
+    let src = source();
+    src.add(FaultRule::tile(TileId::new(0, 0, 0), Fault::Slow(Duration::from_millis(100))));
+    let mut q = ReadQueues::new(src.clone(), 1, limits(64, 2)).unwrap();
+    // Asked for three times, twice in one update and again while the read runs.
+    q.update(&[request(0, 0, 1), request(0, 0, 0)]);
+    q.update(&[request(0, 0, 0)]);
+    q.flush();
+    let done = q.drain();
+    assert_eq!(done.len(), 1);
+    assert_eq!(src.reads(), 1);
+    assert!(q.stats().coalesced >= 1, "{:?}", q.stats());
+}
+
+#[test]
+fn requests_that_left_every_mem_region_are_dropped_and_counted() {
+    let src = source();
+    let mut q = ReadQueues::new(src.clone(), 1, limits(64, 1)).unwrap();
+    // One read can be outstanding (running or undrained), so nine of these ten wait ...
+    let first: Vec<ReadRequest> = (0..10).map(|s| request(s, 0, s)).collect();
+    q.update(&first);
+    // ... and are dropped when the next update no longer wants them.
+    let second: Vec<ReadRequest> = (0..10).map(|s| request(s, 5, s)).collect();
+    q.update(&second);
+    q.flush();
+    q.drain();
+    let stats = q.stats();
+    assert_eq!(stats.stale_dropped, 9, "{stats:?}");
+    assert_eq!(stats.pending, 10);
+}
+
+#[test]
+fn queue_length_stays_within_its_bound_when_the_centre_jumps_every_tick() {
+    let src = source();
+    let bound = 16;
+    let mut q = ReadQueues::new(src.clone(), 3, limits(bound, 2)).unwrap();
+    let mut max_seen = 0;
+    for tick in 0..40u64 {
+        // A jump: a fresh 10 x 10 block of tiles, 100 requests for 3 queues of 16.
+        let base = (tick * 37) % 100;
+        let wanted: Vec<ReadRequest> =
+            (0..100).map(|i| request((base + i % 10) % 128, (base * 3 + i / 10) % 128, i)).collect();
+        q.update(&wanted);
+        q.drain();
+        max_seen = max_seen.max(q.stats().peak_pending);
+    }
+    q.flush();
+    q.drain();
+    let stats = q.stats();
+    assert!(stats.peak_pending <= bound as u64, "{stats:?}");
+    assert!(max_seen <= bound as u64);
+    assert!(stats.overflow_dropped > 0, "the bound was exercised: {stats:?}");
+    assert!(stats.stale_dropped > 0, "jumps made requests stale: {stats:?}");
+}
+
+#[test]
+fn bad_stream_counts_are_refused() {
+    let err = ReadQueues::new(source(), 0, Limits::default()).err().unwrap();
+    assert_eq!(err.to_string(), "0 stream servers requested: expected 1..=64");
+}

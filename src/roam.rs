@@ -1,0 +1,389 @@
+//! In-process flight simulation behind `cliptex roam`: fly a centre over a texture, tick a
+//! [`Clipmap`] once per frame and report what every frame cost.
+//!
+//! Owns the flight spec language (`straight:SPEED[:ANGLE]`, `circle:RADIUS:SPEED`,
+//! `zigzag:SPEED:PERIOD`, `hover`, `jump:EVERY:DIST`; speeds and distances in level-0 texels per
+//! frame, angles in degrees from the +s axis) and the [`RoamReport`]. Command-line parsing and
+//! printing belong to the tool.
+
+use crate::clip::{ClipError, Clipmap, Settings, Stats};
+use crate::source::{DescError, HashSource, TerrainSource, TextureDesc, TileSource};
+use crate::texel::TexelFormat;
+use serde::Serialize;
+use std::str::FromStr;
+use std::sync::Arc;
+use thiserror::Error;
+
+/// A path for the centre.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Flight {
+    /// A straight line at `speed` texels per frame, `angle` degrees from +s.
+    Straight { speed: f64, angle: f64 },
+    /// A circle of `radius` texels around the start, at `speed` texels per frame.
+    Circle { radius: f64, speed: f64 },
+    /// Along +s at `speed`, swinging ±45° every `period` frames.
+    Zigzag { speed: f64, period: u64 },
+    /// Standing still.
+    Hover,
+    /// Still, then a jump of `dist` texels along +s every `every` frames.
+    Jump { every: u64, dist: f64 },
+}
+
+/// A flight spec that could not be read.
+#[derive(Debug, Error, PartialEq, Eq)]
+pub enum FlightError {
+    /// The first word is no known flight.
+    #[error("unknown flight `{found}`: expected straight:SPEED[:ANGLE], circle:RADIUS:SPEED, zigzag:SPEED:PERIOD, hover or jump:EVERY:DIST")]
+    Kind { found: String },
+    /// Wrong number of `:`-separated arguments.
+    #[error("`{spec}`: {kind} takes {expected}, found {found} argument(s)")]
+    Arity { spec: String, kind: &'static str, expected: &'static str, found: usize },
+    /// An argument that is not a number in range.
+    #[error("`{spec}`: {name} `{found}` is not valid: expected {expected}")]
+    Number { spec: String, name: &'static str, found: String, expected: &'static str },
+}
+
+impl FromStr for Flight {
+    type Err = FlightError;
+
+    fn from_str(spec: &str) -> Result<Self, FlightError> {
+        let parts: Vec<&str> = spec.trim().split(':').collect();
+        let args = &parts[1..];
+        let arity = |kind: &'static str, expected: &'static str, ok: bool| {
+            if ok {
+                Ok(())
+            } else {
+                Err(FlightError::Arity { spec: spec.into(), kind, expected, found: args.len() })
+            }
+        };
+        let real = |i: usize, name: &'static str, positive: bool| -> Result<f64, FlightError> {
+            let expected = if positive { "a number above 0" } else { "a number of at least 0" };
+            let bad = || FlightError::Number { spec: spec.into(), name, found: args[i].into(), expected };
+            let x: f64 = args[i].trim().parse().map_err(|_| bad())?;
+            if !x.is_finite() || x < 0.0 || (positive && x == 0.0) {
+                return Err(bad());
+            }
+            Ok(x)
+        };
+        let count = |i: usize, name: &'static str| -> Result<u64, FlightError> {
+            let bad = || FlightError::Number {
+                spec: spec.into(),
+                name,
+                found: args[i].into(),
+                expected: "a whole number of frames above 0",
+            };
+            args[i].trim().parse::<u64>().ok().filter(|&n| n > 0).ok_or_else(bad)
+        };
+        match parts[0].trim().to_ascii_lowercase().as_str() {
+            "straight" => {
+                arity("straight", "1 or 2 (SPEED[:ANGLE])", (1..=2).contains(&args.len()))?;
+                let angle = if args.len() == 2 {
+                    let bad = || FlightError::Number {
+                        spec: spec.into(),
+                        name: "ANGLE",
+                        found: args[1].into(),
+                        expected: "degrees",
+                    };
+                    args[1].trim().parse::<f64>().ok().filter(|a| a.is_finite()).ok_or_else(bad)?
+                } else {
+                    0.0
+                };
+                Ok(Flight::Straight { speed: real(0, "SPEED", false)?, angle })
+            }
+            "circle" => {
+                arity("circle", "2 (RADIUS:SPEED)", args.len() == 2)?;
+                Ok(Flight::Circle { radius: real(0, "RADIUS", true)?, speed: real(1, "SPEED", false)? })
+            }
+            "zigzag" => {
+                arity("zigzag", "2 (SPEED:PERIOD)", args.len() == 2)?;
+                Ok(Flight::Zigzag { speed: real(0, "SPEED", false)?, period: count(1, "PERIOD")? })
+            }
+            "hover" => {
+                arity("hover", "no", args.is_empty())?;
+                Ok(Flight::Hover)
+            }
+            "jump" => {
+                arity("jump", "2 (EVERY:DIST)", args.len() == 2)?;
+                Ok(Flight::Jump { every: count(0, "EVERY")?, dist: real(1, "DIST", false)? })
+            }
+            other => Err(FlightError::Kind { found: other.into() }),
+        }
+    }
+}
+
+impl Flight {
+    /// Position at `frame` (0 is the start), in level-0 texels.
+    pub fn position(&self, start: [f64; 2], frame: u64) -> [f64; 2] {
+        let n = frame as f64;
+        match *self {
+            Flight::Straight { speed, angle } => {
+                let a = angle.to_radians();
+                [start[0] + n * speed * a.cos(), start[1] + n * speed * a.sin()]
+            }
+            Flight::Circle { radius, speed } => {
+                let a = n * speed / radius;
+                [start[0] + radius * a.cos() - radius, start[1] + radius * a.sin()]
+            }
+            Flight::Zigzag { speed, period } => {
+                let step = speed * std::f64::consts::FRAC_1_SQRT_2;
+                let p = frame % (2 * period);
+                let tri = if p < period { p } else { 2 * period - p };
+                [start[0] + n * step, start[1] + tri as f64 * step]
+            }
+            Flight::Hover => start,
+            Flight::Jump { every, dist } => [start[0] + (frame / every) as f64 * dist, start[1]],
+        }
+    }
+}
+
+/// Which procedural texture to fly over.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Procedural {
+    /// The verification texture (DESIGN §11).
+    Hash,
+    /// Smooth fractal terrain.
+    Terrain,
+}
+
+/// Everything a roam needs.
+pub struct RoamOptions {
+    /// The texture.
+    pub source: Arc<dyn TileSource>,
+    /// The path.
+    pub flight: Flight,
+    /// Frames to simulate.
+    pub frames: u64,
+    /// Copy budget per frame in milliseconds (`None`: unlimited).
+    pub budget_ms: Option<f64>,
+    /// Start centre (level-0 texels); the middle of the texture when `None`.
+    pub start: Option<[i64; 2]>,
+    /// Wait for all reads between frames (an ideally fast disk; deterministic reports). When
+    /// false, reads land whenever they finish, as in the service.
+    pub wait_for_reads: bool,
+    /// Engine settings (the budget is taken from `budget_ms`).
+    pub settings: Settings,
+}
+
+impl RoamOptions {
+    /// A procedural square texture of `size` texels a side, clip size `clip`, 4-byte texels
+    /// (RGBA8) read in `tile`-texel tiles, invalid border `border`.
+    pub fn procedural(
+        kind: Procedural,
+        size: u64,
+        clip: u64,
+        tile: u64,
+        border: u64,
+        flight: Flight,
+        frames: u64,
+    ) -> Result<Self, RoamError> {
+        let desc =
+            TextureDesc::new([size, size], clip, TexelFormat::RGBA8, [tile, tile])?.with_invalid_border(border)?;
+        let source: Arc<dyn TileSource> = match kind {
+            Procedural::Hash => Arc::new(HashSource::new(desc)),
+            Procedural::Terrain => Arc::new(TerrainSource::new(desc, 1)),
+        };
+        Ok(RoamOptions {
+            source,
+            flight,
+            frames,
+            budget_ms: Some(6.0),
+            start: None,
+            wait_for_reads: true,
+            settings: Settings::default(),
+        })
+    }
+}
+
+/// Why a roam could not run.
+#[derive(Debug, Error)]
+pub enum RoamError {
+    /// The texture description is invalid.
+    #[error(transparent)]
+    Desc(#[from] DescError),
+    /// The clipmap could not start.
+    #[error(transparent)]
+    Clip(#[from] ClipError),
+}
+
+/// One frame of a roam.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FrameReport {
+    /// Frame number from 0.
+    pub frame: u64,
+    /// Level-0 centre applied.
+    pub centre: [i64; 2],
+    /// Texel bytes copied into windows.
+    pub bytes_copied: u64,
+    /// Tiles read into the cache.
+    pub tiles_read: u64,
+    /// Min LOD after the frame.
+    pub min_lod: f64,
+    /// Levels renderers could not use.
+    pub disabled_levels: Vec<u32>,
+    /// Whether the copy budget ran out with work left.
+    pub over_budget: bool,
+}
+
+/// Totals over a roam.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Totals {
+    /// Texel bytes copied into windows.
+    pub bytes_copied: u64,
+    /// Tiles read into the cache.
+    pub tiles_read: u64,
+    /// Frames whose copy budget ran out with work left.
+    pub ticks_over_budget: u64,
+    /// Frames with at least one level disabled.
+    pub frames_with_disabled_level: u64,
+    /// Most bytes held in tiles and windows together.
+    pub peak_resident_bytes: u64,
+}
+
+/// The result of a roam.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RoamReport {
+    /// Clip size.
+    pub clip_size: u64,
+    /// Bytes per texel.
+    pub bytes_per_texel: usize,
+    /// Level-0 size.
+    pub size: [u64; 2],
+    /// Number of levels.
+    pub levels: usize,
+    /// The flight flown.
+    pub flight: Flight,
+    /// Per frame.
+    pub frames: Vec<FrameReport>,
+    /// Totals.
+    pub totals: Totals,
+    /// The engine's counters at the end.
+    pub stats: Stats,
+}
+
+/// Flies `options.flight` for `options.frames` frames.
+pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
+    let desc = options.source.desc().clone();
+    let mut settings = options.settings;
+    settings.budget_ns = options.budget_ms.map(|ms| (ms.max(0.0) * 1e6) as u64);
+    let mut map = Clipmap::new(options.source, settings)?;
+    let size = desc.size();
+    let start = options.start.unwrap_or([(size[0] / 2) as i64, (size[1] / 2) as i64]);
+    let startf = [start[0] as f64, start[1] as f64];
+    let mut frames = Vec::with_capacity(options.frames as usize);
+    let mut totals = Totals::default();
+    for frame in 0..options.frames {
+        let p = options.flight.position(startf, frame);
+        let clamp = |x: f64, n: u64| (x.floor() as i64).clamp(0, n as i64 - 1);
+        let centre = [clamp(p[0], size[0]), clamp(p[1], size[1])];
+        let r = map.tick(centre, None);
+        if options.wait_for_reads {
+            map.wait_for_reads();
+        }
+        totals.bytes_copied += r.bytes_copied;
+        totals.tiles_read += r.tiles_read;
+        totals.ticks_over_budget += r.over_budget as u64;
+        totals.frames_with_disabled_level += !r.disabled_levels.is_empty() as u64;
+        frames.push(FrameReport {
+            frame,
+            centre: r.centre,
+            bytes_copied: r.bytes_copied,
+            tiles_read: r.tiles_read,
+            min_lod: r.min_lod,
+            disabled_levels: r.disabled_levels,
+            over_budget: r.over_budget,
+        });
+    }
+    totals.peak_resident_bytes = map.stats().peak_resident_bytes;
+    Ok(RoamReport {
+        clip_size: desc.clip_size(),
+        bytes_per_texel: desc.bytes_per_texel(),
+        size,
+        levels: desc.level_count(),
+        flight: options.flight,
+        frames,
+        totals,
+        stats: map.stats().clone(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flight_specs_parse_with_defaults() {
+        assert_eq!("straight:4".parse(), Ok(Flight::Straight { speed: 4.0, angle: 0.0 }));
+        assert_eq!("straight:2.5:90".parse(), Ok(Flight::Straight { speed: 2.5, angle: 90.0 }));
+        assert_eq!("circle:100:3".parse(), Ok(Flight::Circle { radius: 100.0, speed: 3.0 }));
+        assert_eq!("zigzag:8:30".parse(), Ok(Flight::Zigzag { speed: 8.0, period: 30 }));
+        assert_eq!("hover".parse(), Ok(Flight::Hover));
+        assert_eq!("jump:10:5000".parse(), Ok(Flight::Jump { every: 10, dist: 5000.0 }));
+    }
+
+    #[test]
+    fn bad_flight_specs_say_what_was_expected() {
+        let err = |s: &str| s.parse::<Flight>().unwrap_err().to_string();
+        assert!(err("fly:3").starts_with("unknown flight `fly`: expected straight:SPEED"), "{}", err("fly:3"));
+        assert_eq!(err("straight"), "`straight`: straight takes 1 or 2 (SPEED[:ANGLE]), found 0 argument(s)");
+        assert_eq!(err("straight:-1"), "`straight:-1`: SPEED `-1` is not valid: expected a number of at least 0");
+        assert_eq!(err("circle:0:3"), "`circle:0:3`: RADIUS `0` is not valid: expected a number above 0");
+        assert_eq!(
+            err("zigzag:3:x"),
+            "`zigzag:3:x`: PERIOD `x` is not valid: expected a whole number of frames above 0"
+        );
+        assert_eq!(err("hover:1"), "`hover:1`: hover takes no, found 1 argument(s)");
+        assert_eq!(err("straight:1:east"), "`straight:1:east`: ANGLE `east` is not valid: expected degrees");
+        assert!(err("jump:0:5").contains("EVERY `0`"));
+    }
+
+    #[test]
+    fn flights_go_where_they_say() {
+        let s = [100.0, 100.0];
+        let p = Flight::Straight { speed: 2.0, angle: 90.0 }.position(s, 10);
+        assert!((p[0] - 100.0).abs() < 1e-9 && (p[1] - 120.0).abs() < 1e-9);
+        assert_eq!(Flight::Jump { every: 5, dist: 1000.0 }.position(s, 11), [2100.0, 100.0]);
+        assert_eq!(Flight::Hover.position(s, 99), s);
+        let c = Flight::Circle { radius: 10.0, speed: 1.0 };
+        assert_eq!(c.position(s, 0), s);
+        let z = Flight::Zigzag { speed: 2.0_f64.sqrt(), period: 4 };
+        let t: Vec<f64> = (0..9).map(|f| z.position(s, f)[1].round() - 100.0).collect();
+        assert_eq!(t, vec![0.0, 1.0, 2.0, 3.0, 4.0, 3.0, 2.0, 1.0, 0.0]);
+    }
+
+    #[test]
+    fn a_roam_reports_every_frame_and_totals_that_add_up() {
+        let flight: Flight = "straight:40:30".parse().unwrap();
+        let mut options = RoamOptions::procedural(Procedural::Hash, 1 << 16, 64, 32, 4, flight, 25).unwrap();
+        options.settings.cost = Some(crate::clip::CostTable::fixed(100.0, 10.0, 1.0));
+        options.budget_ms = Some(0.03);
+        let report = run(options).unwrap();
+        assert_eq!(report.frames.len(), 25);
+        assert_eq!((report.clip_size, report.bytes_per_texel, report.levels), (64, 4, 17));
+        let sum: u64 = report.frames.iter().map(|f| f.bytes_copied).sum();
+        assert_eq!(report.totals.bytes_copied, sum);
+        assert_eq!(report.totals.tiles_read, report.frames.iter().map(|f| f.tiles_read).sum::<u64>());
+        assert_eq!(report.totals.ticks_over_budget, report.stats.ticks_over_budget);
+        assert!(report.totals.ticks_over_budget > 0, "30 us cannot keep up with 40 texels a frame");
+        assert!(report.totals.frames_with_disabled_level > 0);
+        assert!(report.totals.peak_resident_bytes > 0);
+        assert_eq!(report.frames[24].centre, [32768 + (24.0 * 40.0 * 30f64.to_radians().cos()) as i64, 32768 + 480]);
+        let json = serde_json::to_value(&report).unwrap();
+        for key in
+            ["bytes_copied", "tiles_read", "ticks_over_budget", "frames_with_disabled_level", "peak_resident_bytes"]
+        {
+            assert!(json["totals"][key].is_u64(), "totals.{key}");
+        }
+        assert!(json["frames"][0]["disabled_levels"].is_array());
+    }
+
+    #[test]
+    fn a_terrain_roam_with_an_ample_budget_keeps_every_level() {
+        let options = RoamOptions::procedural(Procedural::Terrain, 1 << 12, 128, 64, 8, Flight::Hover, 6).unwrap();
+        let report = run(RoamOptions { budget_ms: None, ..options }).unwrap();
+        let last = report.frames.last().unwrap();
+        assert_eq!((last.min_lod, last.disabled_levels.len()), (0.0, 0));
+        assert_eq!(report.totals.ticks_over_budget, 0);
+    }
+}

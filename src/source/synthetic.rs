@@ -1,0 +1,124 @@
+//! Procedural tile sources: the verification texture ([`HashSource`], DESIGN §11) and smooth
+//! terrain ([`TerrainSource`]), any size up to 2^26 texels a side, no files.
+//!
+//! Owns cutting the per-texel functions of [`super::procedural`] into tiles; the texel values
+//! themselves are defined there.
+
+use super::procedural::{hash_region, Terrain};
+use super::{check_request, SourceError, TextureDesc, TileId, TileSource};
+
+/// Visits the part of `tile` that lies inside its level: calls `row(t, s0, width, bytes)` for each
+/// texel row, where `bytes` is the row's slice of `out`. Texels outside the level are zeroed.
+fn for_each_row(desc: &TextureDesc, tile: TileId, out: &mut [u8], mut row: impl FnMut(u64, u64, usize, &mut [u8])) {
+    let level = desc.level(tile.level);
+    let bpt = desc.bytes_per_texel();
+    let [tw, th] = level.tile;
+    let (s0, t0) = (tile.s * tw, tile.t * th);
+    let w = (level.size[0] - s0).min(tw) as usize;
+    let h = (level.size[1] - t0).min(th) as usize;
+    let stride = tw as usize * bpt;
+    if w < tw as usize || h < th as usize {
+        out.fill(0);
+    }
+    for (r, line) in out.chunks_exact_mut(stride).take(h).enumerate() {
+        row(t0 + r as u64, s0, w, &mut line[..w * bpt]);
+    }
+}
+
+/// The verification texture: texel (L, s, t) is the low bytes of
+/// `splitmix64((L << 58) | (t << 29) | s)`, so any texel can be checked without a reference copy.
+#[derive(Clone, Debug)]
+pub struct HashSource {
+    desc: TextureDesc,
+}
+
+impl HashSource {
+    /// A hash texture of the given shape.
+    pub fn new(desc: TextureDesc) -> Self {
+        HashSource { desc }
+    }
+}
+
+impl TileSource for HashSource {
+    fn desc(&self) -> &TextureDesc {
+        &self.desc
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        check_request(&self.desc, tile, out)?;
+        let bpt = self.desc.bytes_per_texel();
+        for_each_row(&self.desc, tile, out, |t, s0, w, bytes| hash_region(tile.level, s0, t, w, 1, bpt, bytes));
+        Ok(())
+    }
+}
+
+/// Smooth fractal terrain, for pictures and accuracy studies.
+#[derive(Clone, Debug)]
+pub struct TerrainSource {
+    desc: TextureDesc,
+    terrain: Terrain,
+}
+
+impl TerrainSource {
+    /// A terrain texture of the given shape (the noise spans the larger level-0 edge).
+    pub fn new(desc: TextureDesc, seed: u64) -> Self {
+        let edge = desc.size()[0].max(desc.size()[1]);
+        let log2 = 64 - (edge - 1).max(1).leading_zeros();
+        TerrainSource { terrain: Terrain::new(log2, seed), desc }
+    }
+}
+
+impl TileSource for TerrainSource {
+    fn desc(&self) -> &TextureDesc {
+        &self.desc
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        check_request(&self.desc, tile, out)?;
+        let bpt = self.desc.bytes_per_texel();
+        let format = self.desc.format();
+        for_each_row(&self.desc, tile, out, |t, s0, _w, bytes| {
+            for (i, texel) in bytes.chunks_exact_mut(bpt).enumerate() {
+                self.terrain.texel(tile.level, s0 + i as u64, t, format, texel);
+            }
+        });
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::procedural::hash;
+    use super::*;
+    use crate::source::FaultKind;
+    use crate::texel::TexelFormat;
+
+    #[test]
+    fn hash_tiles_hold_the_verification_texels_in_performer_order() {
+        let desc = TextureDesc::new([100, 60], 16, TexelFormat::RGB8, [32, 16]).unwrap();
+        let src = HashSource::new(desc.clone());
+        let mut buf = vec![0u8; desc.tile_bytes(0)];
+        // Edge tile (3, 3): texels 96..100 x 48..60, the rest zero.
+        src.read_tile(TileId::new(0, 3, 3), &mut buf).unwrap();
+        let mut want = [0u8; 3];
+        hash(0, 99, 59, &mut want);
+        let at = ((59 - 48) * 32 + (99 - 96)) * 3;
+        assert_eq!(&buf[at..at + 3], &want);
+        assert_eq!(&buf[at + 3..at + 6], &[0, 0, 0], "outside the level");
+        let e = src.read_tile(TileId::new(0, 4, 0), &mut buf).unwrap_err();
+        assert_eq!(e.kind(), FaultKind::BadRequest);
+        assert!(e.to_string().contains("level 0 tile (4, 0)"), "{e}");
+        let e = src.read_tile(TileId::new(0, 0, 0), &mut buf[1..]).unwrap_err();
+        assert!(matches!(e, SourceError::BufferSize { expected: 1536, found: 1535, .. }));
+    }
+
+    #[test]
+    fn terrain_tiles_are_defined_at_the_far_corner_of_a_huge_texture() {
+        let desc = TextureDesc::new([1 << 26, 1 << 26], 1024, TexelFormat::RGBA8, [64, 64]).unwrap();
+        let src = TerrainSource::new(desc.clone(), 3);
+        let mut buf = vec![0u8; desc.tile_bytes(0)];
+        let last = (1 << 26) / 64 - 1;
+        src.read_tile(TileId::new(0, last, last), &mut buf).unwrap();
+        assert!(buf.chunks_exact(4).all(|px| px[3] == 255), "opaque everywhere");
+    }
+}
