@@ -12,6 +12,7 @@
 //! | [`plan`] | syntax tree → validated, immutable plan: levels, formats, file names, byte offsets |
 //! | [`texel`] | texel formats, bytes per texel, colour encoding |
 //! | [`source`] | texel values: procedural textures (and tile files, through the plan) |
+//! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
 //!
 //! ## Invariants
 //!
@@ -22,5 +23,6 @@
 
 pub mod config;
 pub mod plan;
+pub mod prep;
 pub mod source;
 pub mod texel;
