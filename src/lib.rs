@@ -12,6 +12,8 @@
 //! | [`plan`] | syntax tree → validated, immutable plan: levels, formats, file names, byte offsets |
 //! | [`texel`] | texel formats, bytes per texel, colour encoding |
 //! | [`source`] | texel values: procedural textures (and tile files, through the plan) |
+//! | [`sizing`] | memory and bandwidth arithmetic, clip-size and virtual-level recommendations |
+//! | [`report`] | what the inspection tools print: validation reports, info, tile locations |
 //! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
 //!
 //! ## Invariants
@@ -24,5 +26,7 @@
 pub mod config;
 pub mod plan;
 pub mod prep;
+pub mod report;
+pub mod sizing;
 pub mod source;
 pub mod texel;

@@ -1,1 +1,295 @@
-fn main(){}
+//! `cliptex`: inspect, validate and locate data of Performer clip-texture (`.ct`) configurations.
+//!
+//! Exit status: 0 ok, 1 the input is bad, 2 the tool could not run.
+
+use clap::{Parser, Subcommand};
+use clipmap::config::FileKind;
+use clipmap::plan;
+use clipmap::report::{self, exit, info, validate, EnvArgs};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    name = "cliptex",
+    version,
+    about = "Inspect and validate clip-texture (.ct) configurations",
+    after_help = "\
+Examples:
+  cliptex validate config_examples/*.ct
+  cliptex validate --strict --json my.ct
+  cliptex info config_examples/v2_format_params.ct
+  cliptex tile my.ct --level 0 --s 3 --t 5 --json
+  cliptex info my.ct --env DATA=/mnt/terrain
+
+Exit status: 0 ok, 1 the input is bad, 2 the tool could not run."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Check .ct files (and every .ic they name); report every problem with file:line:col.
+    Validate {
+        /// The .ct files.
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        /// Also fail on warnings and on anything Performer 3.0 would not read as intended.
+        #[arg(long)]
+        strict: bool,
+        /// Print a JSON report instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Print only the invalid files.
+        #[arg(long, short)]
+        quiet: bool,
+        #[command(flatten)]
+        env: EnvArgs,
+    },
+    /// Print every value (defaults marked) and the level table.
+    Info {
+        /// The .ct file.
+        file: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        env: EnvArgs,
+    },
+    /// Size a deployment: clipmap memory against the full mipmap, update bandwidth, clip size for a display.
+    #[command(after_help = "\
+Examples:
+  cliptex plan --size 67108864 --clip 2048 --texel-bytes 4
+  cliptex plan --size 65536 --clip 1024 --texel-bytes 3 --display 1920 --speed 2000 --json
+  cliptex plan --size 67108864 --clip 2048 --texel-bytes 4 --display 1920 --eye-height 3000
+  cliptex plan --table --clip 2048 --texel-bytes 4")]
+    Plan {
+        /// Texture size in texels a side (a power of two).
+        #[arg(long, required_unless_present = "table")]
+        size: Option<u64>,
+        /// Clip size (a power of two).
+        #[arg(long, default_value_t = 1024)]
+        clip: u64,
+        /// Bytes per texel (e.g. 3 for RGB8, 4 for RGBA8, 2 for RGB565).
+        #[arg(long, default_value_t = 4)]
+        texel_bytes: u64,
+        /// Display width in pixels: recommends a clip size.
+        #[arg(long)]
+        display: Option<u64>,
+        /// Horizontal field of view in degrees.
+        #[arg(long, default_value_t = 60.0)]
+        fov: f64,
+        /// Centre speed in level-0 texels per second: update bandwidth.
+        #[arg(long)]
+        speed: Option<f64>,
+        /// Eye height in metres: levels a virtual clip texture should address.
+        #[arg(long)]
+        eye_height: Option<f64>,
+        /// Metres per level-0 texel (with --eye-height).
+        #[arg(long, default_value_t = 1.0)]
+        texel_metres: f64,
+        /// With --eye-height: 0 keeps the finest levels (resolution), 1 keeps the coarsest (area), as Performer's rule.
+        #[arg(long, default_value_t = 0.0)]
+        tradeoff: f64,
+        /// Invalid border (with --eye-height).
+        #[arg(long, default_value_t = 8)]
+        invalid_border: u64,
+        /// Print memory for texture sizes 2^10 to 2^26 at once.
+        #[arg(long)]
+        table: bool,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Print where a tile's texels are: file, byte offset, length, stream server.
+    Tile {
+        /// The .ct file.
+        file: PathBuf,
+        /// Level (0 is the finest).
+        #[arg(long)]
+        level: u32,
+        /// Tile column (0 for pyramid levels).
+        #[arg(long)]
+        s: u64,
+        /// Tile row (0 for pyramid levels).
+        #[arg(long)]
+        t: u64,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        env: EnvArgs,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    ExitCode::from(run(cli) as u8)
+}
+
+fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
+    env.options().map_err(|e| {
+        eprintln!("cliptex: {e}");
+        exit::COULD_NOT_RUN
+    })
+}
+
+fn load(
+    file: &PathBuf,
+    env: &EnvArgs,
+) -> Result<(plan::ClipTexturePlan, Vec<clipmap::config::Diagnostic>), i32> {
+    let o = opts(env)?;
+    let loaded = plan::load_clip_texture(file, &o).map_err(|e| {
+        eprintln!("cliptex: {e}");
+        exit::COULD_NOT_RUN
+    })?;
+    let rendered = loaded.render_from(clipmap::config::Severity::Warning);
+    match loaded.plan {
+        Some(p) => {
+            eprint!("{rendered}");
+            Ok((p, info::non_errors(&loaded.diagnostics.items)))
+        }
+        None => {
+            eprint!("{rendered}");
+            eprintln!(
+                "cliptex: {} is not a valid clip texture configuration (see above)",
+                file.display()
+            );
+            Err(exit::BAD_INPUT)
+        }
+    }
+}
+
+fn run(cli: Cli) -> i32 {
+    match cli.command {
+        Command::Validate {
+            files,
+            strict,
+            json,
+            quiet,
+            env,
+        } => {
+            let o = match opts(&env) {
+                Ok(o) => o,
+                Err(c) => return c,
+            };
+            let r = validate::run(&files, FileKind::ClipTexture, strict, &o);
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&r).expect("report serialises")
+                );
+            } else {
+                print!("{}", r.human(quiet));
+            }
+            r.exit_code()
+        }
+        Command::Info { file, json, env } => match load(&file, &env) {
+            Err(c) => c,
+            Ok((p, warnings)) => {
+                if json {
+                    println!(
+                        "{}",
+                        serde_json::to_string_pretty(&info::clip_texture(&p, &warnings))
+                            .expect("info serialises")
+                    );
+                } else {
+                    print!("{}", info::clip_texture_human(&p));
+                }
+                exit::OK
+            }
+        },
+        Command::Plan {
+            size,
+            clip,
+            texel_bytes,
+            display,
+            fov,
+            speed,
+            eye_height,
+            texel_metres,
+            tradeoff,
+            invalid_border,
+            table,
+            json,
+        } => {
+            if table {
+                return match report::plan::table(clip, texel_bytes, 10, 26) {
+                    Ok((text, rows)) => {
+                        if json {
+                            println!(
+                                "{}",
+                                serde_json::to_string_pretty(&rows).expect("rows serialise")
+                            );
+                        } else {
+                            print!("{text}");
+                        }
+                        exit::OK
+                    }
+                    Err(e) => {
+                        eprintln!("cliptex plan: {e}");
+                        exit::BAD_INPUT
+                    }
+                };
+            }
+            let req = report::plan::Request {
+                size: size.unwrap_or(0),
+                clip,
+                texel_bytes,
+                display,
+                fov_deg: fov,
+                speed,
+                eye_height,
+                texel_metres,
+                tradeoff,
+                invalid_border,
+            };
+            match report::plan::compute(&req) {
+                Ok(p) => {
+                    if json {
+                        println!(
+                            "{}",
+                            serde_json::to_string_pretty(&p).expect("plan serialises")
+                        );
+                    } else {
+                        print!("{}", report::plan::human(&p, &req));
+                    }
+                    exit::OK
+                }
+                Err(e) => {
+                    eprintln!("cliptex plan: {e}");
+                    exit::BAD_INPUT
+                }
+            }
+        }
+        Command::Tile {
+            file,
+            level,
+            s,
+            t,
+            json,
+            env,
+        } => match load(&file, &env) {
+            Err(c) => c,
+            Ok((p, _)) => match p.locate(level, s, t) {
+                Ok(loc) => {
+                    if json {
+                        println!(
+                            "{}",
+                            serde_json::to_string_pretty(&loc).expect("location serialises")
+                        );
+                    } else {
+                        print!("{}", info::tile_human(&loc));
+                    }
+                    exit::OK
+                }
+                Err(e) => {
+                    eprintln!("cliptex: {}: {e}", file.display());
+                    exit::BAD_INPUT
+                }
+            },
+        },
+    }
+}

@@ -22,7 +22,12 @@ struct Parser<'a, 'p> {
 }
 
 /// Parses `src` as a file of `kind`. Returns the tree (possibly partial) and all findings.
-pub fn parse(src: &[u8], path: &Path, kind: FileKind, limits: &Limits) -> (SyntaxFile, Diagnostics) {
+pub fn parse(
+    src: &[u8],
+    path: &Path,
+    kind: FileKind,
+    limits: &Limits,
+) -> (SyntaxFile, Diagnostics) {
     let mut p = Parser {
         lx: Lexer::new(src),
         path,
@@ -36,12 +41,20 @@ pub fn parse(src: &[u8], path: &Path, kind: FileKind, limits: &Limits) -> (Synta
         p.error(
             "file-too-large",
             Some(Span::START),
-            format!("the file is {} bytes, more than the limit of {} bytes for a configuration file", src.len(), limits.max_file_bytes),
+            format!(
+                "the file is {} bytes, more than the limit of {} bytes for a configuration file",
+                src.len(),
+                limits.max_file_bytes
+            ),
         );
     } else {
         p.run();
     }
-    let file = SyntaxFile { path: path.to_path_buf(), kind, entries: p.entries };
+    let file = SyntaxFile {
+        path: path.to_path_buf(),
+        kind,
+        entries: p.entries,
+    };
     (file, p.diags)
 }
 
@@ -56,7 +69,10 @@ impl<'a> Parser<'a, '_> {
                 "too-many-diagnostics",
                 self.path,
                 d.span,
-                format!("too many problems ({}); stopping here", self.limits.max_diagnostics),
+                format!(
+                    "too many problems ({}); stopping here",
+                    self.limits.max_diagnostics
+                ),
             ));
             self.stopped = true;
             return;
@@ -69,7 +85,13 @@ impl<'a> Parser<'a, '_> {
         self.push(d);
     }
 
-    fn diag(&self, sev: Severity, code: &'static str, span: Span, msg: impl Into<String>) -> Diagnostic {
+    fn diag(
+        &self,
+        sev: Severity,
+        code: &'static str,
+        span: Span,
+        msg: impl Into<String>,
+    ) -> Diagnostic {
         Diagnostic::new(sev, code, self.path, Some(span), msg)
     }
 
@@ -119,7 +141,14 @@ impl<'a> Parser<'a, '_> {
                 None => self.unknown(&text, w.span),
             }
             if self.entries.len() > self.limits.max_entries {
-                self.error("too-many-entries", Some(w.span), format!("more than {} tokens in one file; stopping here", self.limits.max_entries));
+                self.error(
+                    "too-many-entries",
+                    Some(w.span),
+                    format!(
+                        "more than {} tokens in one file; stopping here",
+                        self.limits.max_entries
+                    ),
+                );
                 self.stopped = true;
             }
         }
@@ -127,11 +156,20 @@ impl<'a> Parser<'a, '_> {
 
     fn unknown(&mut self, text: &str, span: Span) {
         let mut d = self
-            .diag(Severity::Error, "unknown-token", span, format!("`{}` is not a {} token", shorten(text), self.kind.noun()))
+            .diag(
+                Severity::Error,
+                "unknown-token",
+                span,
+                format!("`{}` is not a {} token", shorten(text), self.kind.noun()),
+            )
             .found(shorten(text))
             .expected("a token name");
         if let Some((def, rest)) = tokens::glued(text) {
-            d = d.hint(format!("put a space between the token and its value: `{} {}`", def.name, shorten(rest)));
+            d = d.hint(format!(
+                "put a space between the token and its value: `{} {}`",
+                def.name,
+                shorten(rest)
+            ));
         } else if let Some(s) = tokens::suggest(text, self.kind) {
             d = d.hint(format!("did you mean `{s}`?"));
         } else if text.parse::<i64>().is_ok() {
@@ -150,18 +188,44 @@ impl<'a> Parser<'a, '_> {
                 FileKind::ClipTexture => ("an image cache (.ic)", "icache"),
                 FileKind::ImageCache => ("a clip texture (.ct)", "cliptex"),
             };
-            let code = if matches!(def.id, TokenId::CtVersion | TokenId::IcVersion) { "wrong-file-kind" } else { "token-not-allowed" };
-            let mut d = self.diag(Severity::Error, code, span, format!("`{}` belongs in {other} file, not in a {} file", def.name, self.kind.noun()));
-            d = if code == "wrong-file-kind" {
-                d.hint(format!("this looks like {other} file: check it with `{tool} validate`"))
+            let code = if matches!(def.id, TokenId::CtVersion | TokenId::IcVersion) {
+                "wrong-file-kind"
             } else {
-                d.hint(format!("move `{}` to the file where it belongs, or remove it", def.name))
+                "token-not-allowed"
+            };
+            let mut d = self.diag(
+                Severity::Error,
+                code,
+                span,
+                format!(
+                    "`{}` belongs in {other} file, not in a {} file",
+                    def.name,
+                    self.kind.noun()
+                ),
+            );
+            d = if code == "wrong-file-kind" {
+                d.hint(format!(
+                    "this looks like {other} file: check it with `{tool} validate`"
+                ))
+            } else {
+                d.hint(format!(
+                    "move `{}` to the file where it belongs, or remove it",
+                    def.name
+                ))
             };
             self.push(d);
         }
         let value = self.args(def, span);
         if def.obsolete {
-            let d = self.diag(Severity::Note, "obsolete-token", span, format!("`{}` is obsolete; Performer ignores it and so do we", def.name));
+            let d = self.diag(
+                Severity::Note,
+                "obsolete-token",
+                span,
+                format!(
+                    "`{}` is obsolete; Performer ignores it and so do we",
+                    def.name
+                ),
+            );
             self.push(d);
         }
         if allowed {
@@ -195,10 +259,18 @@ impl<'a> Parser<'a, '_> {
             }
             ArgShape::NumStreams => {
                 let line = span.line;
-                if self.lx.peek().is_some_and(|w| w.span.line == line && w.text().is_some_and(|t| t.parse::<i64>().is_ok())) {
+                if self.lx.peek().is_some_and(|w| {
+                    w.span.line == line && w.text().is_some_and(|t| t.parse::<i64>().is_ok())
+                }) {
                     self.lx.next_word();
                 }
-                let next = self.lx.peek().map(|w| (w.span, w.shown(), w.text().is_some_and(tokens::is_comment_start)));
+                let next = self.lx.peek().map(|w| {
+                    (
+                        w.span,
+                        w.shown(),
+                        w.text().is_some_and(tokens::is_comment_start),
+                    )
+                });
                 if let Some((wspan, shown, is_comment)) = next {
                     if wspan.line == line && !is_comment {
                         let mut d = self
@@ -239,10 +311,18 @@ impl<'a> Parser<'a, '_> {
     fn parse_int(&mut self, w: &Word<'a>, def: &'static TokenDef) -> Option<Spanned<i64>> {
         let text = self.text(w)?;
         match parse_c_int(&text) {
-            Ok(v) => Some(Spanned { value: v, span: w.span }),
+            Ok(v) => Some(Spanned {
+                value: v,
+                span: w.span,
+            }),
             Err(IntError::Overflow) => {
                 let d = self
-                    .diag(Severity::Error, "number-out-of-range", w.span, format!("the value of `{}` is out of range", def.name))
+                    .diag(
+                        Severity::Error,
+                        "number-out-of-range",
+                        w.span,
+                        format!("the value of `{}` is out of range", def.name),
+                    )
                     .found(shorten(&text))
                     .expected("an integer between -2^63 and 2^63-1");
                 self.push(d);
@@ -250,10 +330,18 @@ impl<'a> Parser<'a, '_> {
             }
             Err(IntError::NotANumber) => {
                 let mut d = self
-                    .diag(Severity::Error, "expected-integer", w.span, format!("`{}` takes an integer", def.name))
+                    .diag(
+                        Severity::Error,
+                        "expected-integer",
+                        w.span,
+                        format!("`{}` takes an integer", def.name),
+                    )
                     .found(shorten(&text))
                     .expected("an integer");
-                let digits: String = text.chars().take_while(|c| c.is_ascii_digit() || *c == '-' || *c == '+').collect();
+                let digits: String = text
+                    .chars()
+                    .take_while(|c| c.is_ascii_digit() || *c == '-' || *c == '+')
+                    .collect();
                 if !digits.is_empty() && digits.len() < text.len() {
                     d = d.hint(format!("Performer 3.0 would read `{digits}` and then fail on `{}`; write the number alone", shorten(&text[digits.len()..])));
                 }
@@ -273,7 +361,14 @@ impl<'a> Parser<'a, '_> {
             other => {
                 if required {
                     let found = other.map(|w| w.shown());
-                    let mut d = self.diag(Severity::Error, "missing-value", span, format!("`{}` needs an integer value", def.name)).expected("an integer after the token");
+                    let mut d = self
+                        .diag(
+                            Severity::Error,
+                            "missing-value",
+                            span,
+                            format!("`{}` needs an integer value", def.name),
+                        )
+                        .expected("an integer after the token");
                     if let Some(f) = found {
                         d = d.found(f);
                     } else {
@@ -290,7 +385,10 @@ impl<'a> Parser<'a, '_> {
         let mut vals = Vec::with_capacity(3);
         for i in 0..3 {
             self.skip_value_comments(def);
-            let next_is_int = self.lx.peek().is_some_and(|w| !Self::is_token_word(w) && w.text().is_some_and(looks_numeric));
+            let next_is_int = self
+                .lx
+                .peek()
+                .is_some_and(|w| !Self::is_token_word(w) && w.text().is_some_and(looks_numeric));
             if !next_is_int {
                 if i == 0 {
                     // No number at all: report what is there (or the end of file).
@@ -302,7 +400,12 @@ impl<'a> Parser<'a, '_> {
                         }
                     }
                     let d = self
-                        .diag(Severity::Error, "missing-value", span, format!("`{}` needs three integers (S T R)", def.name))
+                        .diag(
+                            Severity::Error,
+                            "missing-value",
+                            span,
+                            format!("`{}` needs three integers (S T R)", def.name),
+                        )
                         .expected("three integers after the token");
                     self.push(d);
                     return Value::Missing;
@@ -324,13 +427,27 @@ impl<'a> Parser<'a, '_> {
             Some(w) if !Self::is_token_word(w) => {
                 let w = self.lx.next_word().expect("peeked");
                 let text = self.text(&w)?;
-                Some(Spanned { value: text, span: w.span })
+                Some(Spanned {
+                    value: text,
+                    span: w.span,
+                })
             }
             other => {
-                let found = other.map(|w| w.shown()).unwrap_or_else(|| "end of file".into());
-                let what = if def.args == ArgShape::Format { "a format name or number" } else { "a value" };
+                let found = other
+                    .map(|w| w.shown())
+                    .unwrap_or_else(|| "end of file".into());
+                let what = if def.args == ArgShape::Format {
+                    "a format name or number"
+                } else {
+                    "a value"
+                };
                 let d = self
-                    .diag(Severity::Error, "missing-value", span, format!("`{}` needs {what}", def.name))
+                    .diag(
+                        Severity::Error,
+                        "missing-value",
+                        span,
+                        format!("`{}` needs {what}", def.name),
+                    )
                     .found(found)
                     .expected(format!("{what} after the token"));
                 self.push(d);
@@ -344,7 +461,10 @@ impl<'a> Parser<'a, '_> {
             Some(w) if !Self::is_token_word(w) => {
                 let w = self.lx.next_word().expect("peeked");
                 match self.text(&w) {
-                    Some(t) => Value::Base(Some(Spanned { value: t, span: w.span })),
+                    Some(t) => Value::Base(Some(Spanned {
+                        value: t,
+                        span: w.span,
+                    })),
                     None => Value::Missing,
                 }
             }
@@ -364,7 +484,10 @@ impl<'a> Parser<'a, '_> {
             if tokens::is_comment_in_value_position(t) {
                 let line = w.span.line;
                 let cspan = w.span;
-                let same_line_as_item = items.last().is_some_and(|i: &Spanned<String>| i.span.line == line) || (items.is_empty() && span.line == line);
+                let same_line_as_item = items
+                    .last()
+                    .is_some_and(|i: &Spanned<String>| i.span.line == line)
+                    || (items.is_empty() && span.line == line);
                 self.lx.skip_line(line);
                 let more = self.lx.peek().is_some_and(|n| !Self::is_token_word(n));
                 if more && !same_line_as_item {
@@ -382,10 +505,21 @@ impl<'a> Parser<'a, '_> {
             let w = self.lx.next_word().expect("peeked");
             if items.len() >= self.limits.max_list_items {
                 if items.len() == self.limits.max_list_items {
-                    let d = self.diag(Severity::Error, "list-too-long", w.span, format!("the list of `{}` has more than {} items", def.name, self.limits.max_list_items));
+                    let d = self.diag(
+                        Severity::Error,
+                        "list-too-long",
+                        w.span,
+                        format!(
+                            "the list of `{}` has more than {} items",
+                            def.name, self.limits.max_list_items
+                        ),
+                    );
                     self.push(d);
                 }
-                items.push(Spanned { value: String::new(), span: w.span });
+                items.push(Spanned {
+                    value: String::new(),
+                    span: w.span,
+                });
                 continue;
             }
             if let Some(text) = self.text(&w) {
@@ -397,12 +531,25 @@ impl<'a> Parser<'a, '_> {
                 }
                 if tokens::is_comment_start(&text) {
                     let mut d = self
-                        .diag(Severity::Warning, "value-starts-with-comment-marker", w.span, format!("`{}` starts with `//`, which Performer 3.0 reads as a comment", shorten(&text)))
-                        .hint("write the path differently (for example with a single leading slash)");
+                        .diag(
+                            Severity::Warning,
+                            "value-starts-with-comment-marker",
+                            w.span,
+                            format!(
+                                "`{}` starts with `//`, which Performer 3.0 reads as a comment",
+                                shorten(&text)
+                            ),
+                        )
+                        .hint(
+                            "write the path differently (for example with a single leading slash)",
+                        );
                     d.portability = true;
                     self.push(d);
                 }
-                items.push(Spanned { value: text, span: w.span });
+                items.push(Spanned {
+                    value: text,
+                    span: w.span,
+                });
             }
         }
         if items.len() > self.limits.max_list_items {
@@ -418,7 +565,10 @@ impl<'a> Parser<'a, '_> {
                 Some(w) if w.span.line == span.line && !Self::is_token_word(w) => {
                     let w = self.lx.next_word().expect("peeked");
                     if let Some(t) = self.text(&w) {
-                        items.push(Spanned { value: t, span: w.span });
+                        items.push(Spanned {
+                            value: t,
+                            span: w.span,
+                        });
                     }
                 }
                 _ => break,
@@ -426,7 +576,15 @@ impl<'a> Parser<'a, '_> {
         }
         if items.is_empty() {
             let d = self
-                .diag(Severity::Error, "missing-value", span, format!("`{}` needs a function name (`read_func NAME` or `read_func LIBRARY NAME`)", def.name))
+                .diag(
+                    Severity::Error,
+                    "missing-value",
+                    span,
+                    format!(
+                        "`{}` needs a function name (`read_func NAME` or `read_func LIBRARY NAME`)",
+                        def.name
+                    ),
+                )
                 .expected("one or two words on the same line");
             self.push(d);
             return Value::Missing;
@@ -449,7 +607,8 @@ pub fn parse_c_int(text: &str) -> Result<i64, IntError> {
     use nom::character::complete::{digit1, one_of};
     use nom::combinator::{all_consuming, opt, recognize};
     use nom::sequence::pair;
-    let parsed: nom::IResult<&str, &str> = all_consuming(recognize(pair(opt(one_of("+-")), digit1)))(text);
+    let parsed: nom::IResult<&str, &str> =
+        all_consuming(recognize(pair(opt(one_of("+-")), digit1)))(text);
     match parsed {
         Ok((_, s)) => s.parse::<i64>().map_err(|_| IntError::Overflow),
         Err(_) => Err(IntError::NotANumber),

@@ -1,2 +1,364 @@
-//! Stage two: syntax tree → validated, immutable plan.
-pub fn _placeholder() {}
+//! Stage two of reading a configuration: syntax tree → validated, immutable plan.
+//!
+//! [`load_clip_texture`] and [`load_image_cache`] read a file (and, for a `.ct`, every `.ic` it
+//! names), check everything PERFORMER.md §1.15 checks and more, expand environment variables,
+//! build and anchor every file name, and derive the per-level geometry. The result is a
+//! [`ClipTexturePlan`] or [`ImageCachePlan`] that everything downstream borrows; nothing after this
+//! module reads configuration text.
+
+mod ct;
+pub mod env;
+mod fields;
+pub mod formats;
+mod ic;
+mod naming;
+pub mod params;
+pub mod printf;
+mod tile;
+mod values;
+
+pub use env::Env;
+pub use naming::TileNaming;
+pub use tile::{TileError, TileLocation};
+
+use crate::config::{self, Diagnostic, Diagnostics, FileKind, Limits, Severity};
+use crate::texel::TexelFormat;
+use formats::FormatValue;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// How to read: where variables come from, and the bounds.
+#[derive(Clone, Debug, Default)]
+pub struct Options {
+    /// Environment for `$VAR` expansion.
+    pub env: Env,
+    /// Input bounds.
+    pub limits: Limits,
+}
+
+/// The result of loading: the plan when there was no error, all findings, and the text of every
+/// file read (so findings can be shown with their source line).
+#[derive(Debug)]
+pub struct Loaded<T> {
+    /// The plan, when no finding is an error.
+    pub plan: Option<T>,
+    /// Every finding, in every file read.
+    pub diagnostics: Diagnostics,
+    /// The bytes of every configuration file read, by path.
+    pub sources: BTreeMap<PathBuf, Vec<u8>>,
+}
+
+impl<T> Loaded<T> {
+    /// Renders every finding with its source line.
+    pub fn render(&self) -> String {
+        self.render_from(Severity::Note)
+    }
+
+    /// Renders the findings of at least `min` severity with their source lines.
+    pub fn render_from(&self, min: Severity) -> String {
+        self.diagnostics
+            .items
+            .iter()
+            .filter(|d| d.severity >= min)
+            .map(|d| d.render(self.sources.get(&d.path).map(|v| v.as_slice())))
+            .collect()
+    }
+}
+
+/// The top-level file could not be read at all (the tool could not run).
+#[derive(Debug, thiserror::Error)]
+#[error("cannot read {}: {source}", path.display())]
+pub struct LoadError {
+    /// The file.
+    pub path: PathBuf,
+    /// Why.
+    #[source]
+    pub source: std::io::Error,
+}
+
+/// A custom read function named in a configuration (not supported: the default reader is used).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct ReadFunc {
+    /// The library, for `read_func LIBRARY SYMBOL`.
+    pub library: Option<String>,
+    /// The symbol.
+    pub symbol: String,
+}
+
+/// One image cache (one stack level, or a standalone `.ic`), fully resolved.
+#[derive(Clone, Debug, Serialize)]
+pub struct ImageCachePlan {
+    /// The `.ic` file (absolute), or `None` when synthesised from the `.ct` (no-`.ic` mode).
+    pub path: Option<PathBuf>,
+    /// `ext_format`.
+    pub ext_format: FormatValue,
+    /// `int_format`.
+    pub int_format: FormatValue,
+    /// `img_format`.
+    pub img_format: FormatValue,
+    /// The texel format these give.
+    pub texel: TexelFormat,
+    /// Bytes per texel.
+    pub bytes_per_texel: u32,
+    /// Size of the cache (texels, S T R).
+    pub size: [u64; 3],
+    /// Size of one tile (texels).
+    pub tile_size: [u64; 3],
+    /// Tiles per file along S, T, R.
+    pub tiles_in_file: [u64; 3],
+    /// Bytes skipped at the start of each file.
+    pub header_offset: u64,
+    /// The part kept in texture memory (texels).
+    pub tex_region: [u64; 3],
+    /// The destination texture size (texels).
+    pub tex_size: [u64; 3],
+    /// The grid of tiles kept in main memory (tiles).
+    pub mem_region: [u64; 3],
+    /// Extra tile rows/columns in the mem region.
+    pub lookahead: u64,
+    /// Memory alignment for direct I/O (-1: default 4096; 0: no direct I/O).
+    pub page_size: i64,
+    /// Custom read function, if named.
+    pub read_func: Option<ReadFunc>,
+    /// How tile files are named.
+    pub naming: TileNaming,
+    /// Stream server path prefixes per axis (S, T, R).
+    pub streams: [Vec<String>; 3],
+    /// The default tile's file (absolute), if any.
+    pub default_tile: Option<PathBuf>,
+    /// Fields that took their default value.
+    pub defaulted: Vec<&'static str>,
+}
+
+/// How a clip texture's level `.ic` files or pyramid files are named.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GroupMode {
+    /// Named by a printf format with parameters.
+    Format,
+    /// Named by an explicit list.
+    FileList,
+    /// Not named (image caches: no-`.ic` mode; pyramid: blank levels).
+    None,
+}
+
+/// A pyramid level's single tile.
+#[derive(Clone, Debug, Serialize)]
+pub struct PyramidTile {
+    /// The file (absolute), or `None` when the configuration names none.
+    pub path: Option<PathBuf>,
+    /// Bytes skipped at the start of the file.
+    pub header_offset: u64,
+    /// Bytes of texels.
+    pub length: u64,
+}
+
+/// What a level is made of.
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+pub enum LevelKind {
+    /// An image cache (a stack level in Performer's split).
+    Icache(Box<ImageCachePlan>),
+    /// A single tile holding the whole level.
+    Pyramid(PyramidTile),
+}
+
+/// One mipmap level of a clip texture.
+#[derive(Clone, Debug, Serialize)]
+pub struct Level {
+    /// Level number, 0 the finest.
+    pub level: u32,
+    /// Size (texels, S T).
+    pub size: [u64; 2],
+    /// Its data.
+    pub kind: LevelKind,
+}
+
+/// A clip texture, fully resolved.
+#[derive(Clone, Debug, Serialize)]
+pub struct ClipTexturePlan {
+    /// The `.ct` file (absolute).
+    pub path: PathBuf,
+    /// The version token, if any.
+    pub version: Option<String>,
+    /// `ext_format`.
+    pub ext_format: FormatValue,
+    /// `int_format`.
+    pub int_format: FormatValue,
+    /// `img_format`.
+    pub img_format: FormatValue,
+    /// The texel format.
+    pub texel: TexelFormat,
+    /// Bytes per texel.
+    pub bytes_per_texel: u32,
+    /// Level-0 size (texels, S T R).
+    pub virt_size: [u64; 3],
+    /// Side of the window kept per clipped level.
+    pub clip_size: u64,
+    /// Invalid border (after Performer's raise to 8).
+    pub invalid_border: u64,
+    /// Levels the renderer addresses at once.
+    pub effective_levels: u32,
+    /// Levels given texture memory, as written (default 1000: all).
+    pub allocated_levels: u32,
+    /// Smallest image cache size (texels).
+    pub smallest_icache: [u64; 3],
+    /// Header bytes of pyramid files.
+    pub header_offset: u64,
+    /// Page size passed to the image caches.
+    pub page_size: i64,
+    /// Lookahead passed to the image caches.
+    pub lookahead: u64,
+    /// Custom read function, if named.
+    pub read_func: Option<ReadFunc>,
+    /// `tile_size` of the `.ct` (used in no-`.ic` mode).
+    pub tile_size: Option<[u64; 3]>,
+    /// How the level `.ic` files are named.
+    pub icache_mode: GroupMode,
+    /// How the pyramid files are named.
+    pub tile_mode: GroupMode,
+    /// Every level, finest first.
+    pub levels: Vec<Level>,
+    /// True when `effective_levels` is less than the level count (a virtual clip texture).
+    pub is_virtual: bool,
+    /// Fields that took their default value.
+    pub defaulted: Vec<&'static str>,
+}
+
+impl ClipTexturePlan {
+    /// The level, if it exists.
+    pub fn level(&self, level: u32) -> Option<&Level> {
+        self.levels.get(level as usize)
+    }
+
+    /// Number of image-cache levels.
+    pub fn icache_levels(&self) -> usize {
+        self.levels
+            .iter()
+            .filter(|l| matches!(l.kind, LevelKind::Icache(_)))
+            .count()
+    }
+}
+
+fn read_source(path: &Path, limits: &Limits) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let f = std::fs::File::open(path)?;
+    let mut buf = Vec::new();
+    // Read one byte more than the limit so the parser can say the file is too large.
+    f.take(limits.max_file_bytes as u64 + 1)
+        .read_to_end(&mut buf)?;
+    Ok(buf)
+}
+
+/// The absolute form of a path (without resolving symbolic links in the file name itself).
+pub fn absolute(path: &Path) -> PathBuf {
+    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
+}
+
+/// Loads a clip texture and every image cache it names.
+pub fn load_clip_texture(
+    path: &Path,
+    opts: &Options,
+) -> Result<Loaded<ClipTexturePlan>, LoadError> {
+    let src = read_source(path, &opts.limits).map_err(|e| LoadError {
+        path: path.to_path_buf(),
+        source: e,
+    })?;
+    let abs = absolute(path);
+    let (file, mut diags) = config::parse_bytes(&src, &abs, FileKind::ClipTexture, &opts.limits);
+    let mut sources = BTreeMap::new();
+    sources.insert(abs.clone(), src);
+    let plan = if diags.has_errors() && file.entries.is_empty() {
+        None
+    } else {
+        ct::build(&file, opts, &mut diags, &mut sources)
+    };
+    let plan = if diags.has_errors() { None } else { plan };
+    Ok(Loaded {
+        plan,
+        diagnostics: diags,
+        sources,
+    })
+}
+
+/// Loads a standalone image cache.
+pub fn load_image_cache(path: &Path, opts: &Options) -> Result<Loaded<ImageCachePlan>, LoadError> {
+    let src = read_source(path, &opts.limits).map_err(|e| LoadError {
+        path: path.to_path_buf(),
+        source: e,
+    })?;
+    let abs = absolute(path);
+    let (file, mut diags) = config::parse_bytes(&src, &abs, FileKind::ImageCache, &opts.limits);
+    let mut sources = BTreeMap::new();
+    sources.insert(abs.clone(), src);
+    let plan = ic::build(&file, &ic::Context::standalone(), opts, &mut diags);
+    let plan = if diags.has_errors() { None } else { plan };
+    Ok(Loaded {
+        plan,
+        diagnostics: diags,
+        sources,
+    })
+}
+
+/// Guesses a file's kind from its first token (`ct_version…` / `ic_version…`), then from its
+/// extension. Used by tools to point users at the right command.
+pub fn sniff_kind(src: &[u8], path: &Path) -> Option<FileKind> {
+    let mut lx = config::lexer::Lexer::new(src);
+    while let Some(w) = lx.next_word() {
+        match w.text() {
+            Some(t) if config::tokens::is_comment_start(t) => lx.skip_line(w.span.line),
+            Some(t) if t.starts_with("ct_version") => return Some(FileKind::ClipTexture),
+            Some(t) if t.starts_with("ic_version") => return Some(FileKind::ImageCache),
+            _ => break,
+        }
+    }
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("ct") => Some(FileKind::ClipTexture),
+        Some("ic") => Some(FileKind::ImageCache),
+        _ => None,
+    }
+}
+
+/// Checks the version token of a file: it must come first (a warning otherwise, as in 3.0).
+fn check_version(r: &mut fields::Reader<'_>, kind: FileKind) {
+    let want = match kind {
+        FileKind::ClipTexture => config::TokenId::CtVersion,
+        FileKind::ImageCache => config::TokenId::IcVersion,
+    };
+    let name = config::tokens::preferred_name(want, kind);
+    match r.file.position(want) {
+        None => {
+            let d = r
+                .diag(
+                    Severity::Warning,
+                    "missing-version",
+                    Some(config::Span::START),
+                    format!("the file does not start with a version token (`{name}`)"),
+                )
+                .hint(format!(
+                    "add `{name}` as the first line; tools use it to tell the file kinds apart"
+                ));
+            r.push(d);
+        }
+        Some(0) => {}
+        Some(_) => {
+            let span = r.span_of(want);
+            let d = r
+                .diag(
+                    Severity::Warning,
+                    "version-not-first",
+                    span,
+                    format!("`{name}` must begin the file"),
+                )
+                .hint("move the version token to the first line");
+            r.push(d);
+        }
+    }
+}
+
+/// A finding that is only about portability to Performer 3.0.
+fn portability(mut d: Diagnostic) -> Diagnostic {
+    d.portability = true;
+    d
+}

@@ -1,0 +1,428 @@
+//! `info` and `tile`: every value of a configuration with defaults marked, the level table, and
+//! where a tile's texels are.
+
+use super::human_bytes;
+use crate::config::{Diagnostic, Severity};
+use crate::plan::{ClipTexturePlan, ImageCachePlan, LevelKind, TileLocation};
+use serde::Serialize;
+use std::path::PathBuf;
+
+/// One row of the level table.
+#[derive(Debug, Serialize)]
+pub struct LevelRow {
+    /// Level number.
+    pub level: u32,
+    /// Size in texels.
+    pub size: [u64; 2],
+    /// `icache` or `pyramid`.
+    pub kind: &'static str,
+    /// The level's `.ic` file (absolute), or null (pyramid levels, no-`.ic` mode).
+    pub icache_config: Option<PathBuf>,
+    /// The pyramid file (absolute), or null (image cache levels, unnamed pyramid levels).
+    pub tile_file: Option<PathBuf>,
+    /// Tile size in texels (a pyramid level is one tile).
+    pub tile_size: [u64; 2],
+    /// Tex region in texels.
+    pub tex_region: [u64; 2],
+    /// Mem region in tiles.
+    pub mem_region: [u64; 2],
+    /// Header bytes of each file.
+    pub header_offset: u64,
+    /// Tiles along S and T.
+    pub tiles: [u64; 2],
+}
+
+/// `cliptex info --json`.
+#[derive(Debug, Serialize)]
+pub struct ClipTextureInfo<'a> {
+    /// The `.ct` file.
+    pub path: &'a std::path::Path,
+    /// Level-0 size.
+    pub virt_size: [u64; 3],
+    /// Clip size.
+    pub clip_size: u64,
+    /// Invalid border in use.
+    pub invalid_border: u64,
+    /// Effective levels.
+    pub effective_levels: u32,
+    /// Allocated levels as written (1000: all).
+    pub allocated_levels: u32,
+    /// Smallest image cache.
+    pub smallest_icache: [u64; 3],
+    /// Bytes per texel.
+    pub bytes_per_texel: u32,
+    /// Texel format short name.
+    pub texel_format: String,
+    /// `ext_format`, `int_format`, `img_format` as written.
+    pub formats: [&'a str; 3],
+    /// Level count.
+    pub level_count: usize,
+    /// Virtual clip texture.
+    pub is_virtual: bool,
+    /// Header offset of pyramid files.
+    pub header_offset: u64,
+    /// Lookahead.
+    pub lookahead: u64,
+    /// Page size.
+    pub page_size: i64,
+    /// How the `.ic` files are named.
+    pub icache_mode: crate::plan::GroupMode,
+    /// How the pyramid files are named.
+    pub tile_mode: crate::plan::GroupMode,
+    /// Fields that took their default.
+    pub defaulted: &'a [&'static str],
+    /// Warnings and notes.
+    pub warnings: &'a [Diagnostic],
+    /// The level table.
+    pub levels: Vec<LevelRow>,
+}
+
+fn two(a: [u64; 3]) -> [u64; 2] {
+    [a[0], a[1]]
+}
+
+/// The level table of a clip texture.
+pub fn level_rows(plan: &ClipTexturePlan) -> Vec<LevelRow> {
+    plan.levels
+        .iter()
+        .map(|l| match &l.kind {
+            LevelKind::Icache(ic) => LevelRow {
+                level: l.level,
+                size: l.size,
+                kind: "icache",
+                icache_config: ic.path.clone(),
+                tile_file: None,
+                tile_size: two(ic.tile_size),
+                tex_region: two(ic.tex_region),
+                mem_region: two(ic.mem_region),
+                header_offset: ic.header_offset,
+                tiles: two(ic.tile_count()),
+            },
+            LevelKind::Pyramid(p) => LevelRow {
+                level: l.level,
+                size: l.size,
+                kind: "pyramid",
+                icache_config: None,
+                tile_file: p.path.clone(),
+                tile_size: l.size,
+                tex_region: l.size,
+                mem_region: [1, 1],
+                header_offset: p.header_offset,
+                tiles: [1, 1],
+            },
+        })
+        .collect()
+}
+
+/// Builds the JSON form of `cliptex info`.
+pub fn clip_texture<'a>(
+    plan: &'a ClipTexturePlan,
+    warnings: &'a [Diagnostic],
+) -> ClipTextureInfo<'a> {
+    ClipTextureInfo {
+        path: &plan.path,
+        virt_size: plan.virt_size,
+        clip_size: plan.clip_size,
+        invalid_border: plan.invalid_border,
+        effective_levels: plan.effective_levels,
+        allocated_levels: plan.allocated_levels,
+        smallest_icache: plan.smallest_icache,
+        bytes_per_texel: plan.bytes_per_texel,
+        texel_format: plan.texel.short_name(),
+        formats: [
+            &plan.ext_format.written,
+            &plan.int_format.written,
+            &plan.img_format.written,
+        ],
+        level_count: plan.levels.len(),
+        is_virtual: plan.is_virtual,
+        header_offset: plan.header_offset,
+        lookahead: plan.lookahead,
+        page_size: plan.page_size,
+        icache_mode: plan.icache_mode,
+        tile_mode: plan.tile_mode,
+        defaulted: &plan.defaulted,
+        warnings,
+        levels: level_rows(plan),
+    }
+}
+
+fn mark(defaulted: &[&str], key: &str) -> &'static str {
+    if defaulted.contains(&key) {
+        "  (default)"
+    } else {
+        ""
+    }
+}
+
+fn rel(p: &Option<PathBuf>, base: &std::path::Path) -> String {
+    match p {
+        None => "-".into(),
+        Some(p) => p.strip_prefix(base).unwrap_or(p).display().to_string(),
+    }
+}
+
+/// The human form of `cliptex info`.
+pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
+    let d = &plan.defaulted;
+    let dir = plan.path.parent().unwrap_or(std::path::Path::new(""));
+    let mut o = String::new();
+    let n = plan.levels.len();
+    o.push_str(&format!("clip texture   {}\n", plan.path.display()));
+    o.push_str(&format!(
+        "version        {}\n",
+        plan.version.as_deref().unwrap_or("(none)")
+    ));
+    o.push_str(&format!(
+        "texel          {} ({} bytes; ext_format {}, int_format {}, img_format {})\n",
+        plan.texel,
+        plan.bytes_per_texel,
+        plan.ext_format.written,
+        plan.int_format.written,
+        plan.img_format.written
+    ));
+    o.push_str(&format!(
+        "virt_size      {} x {} x {}\n",
+        plan.virt_size[0], plan.virt_size[1], plan.virt_size[2]
+    ));
+    o.push_str(&format!("clip_size      {}\n", plan.clip_size));
+    o.push_str(&format!(
+        "invalid_border {}{}  (effective size {})\n",
+        plan.invalid_border,
+        mark(d, "invalid_border"),
+        plan.clip_size.saturating_sub(2 * plan.invalid_border)
+    ));
+    o.push_str(&format!(
+        "levels         {n} ({} image cache, {} pyramid)\n",
+        plan.icache_levels(),
+        n - plan.icache_levels()
+    ));
+    o.push_str(&format!(
+        "effective      {}{}{}\n",
+        plan.effective_levels,
+        mark(d, "effective_levels"),
+        if plan.is_virtual {
+            "  (virtual clip texture)"
+        } else {
+            ""
+        }
+    ));
+    o.push_str(&format!(
+        "allocated      {}{}\n",
+        plan.allocated_levels,
+        mark(d, "allocated_levels")
+    ));
+    o.push_str(&format!(
+        "smallest_icache {} x {} x {}{}\n",
+        plan.smallest_icache[0],
+        plan.smallest_icache[1],
+        plan.smallest_icache[2],
+        mark(d, "smallest_icache")
+    ));
+    o.push_str(&format!(
+        "header_offset  {}{}\n",
+        plan.header_offset,
+        mark(d, "header_offset")
+    ));
+    o.push_str(&format!(
+        "lookahead      {}{}\n",
+        plan.lookahead,
+        mark(d, "lookahead")
+    ));
+    o.push_str(&format!(
+        "page_size      {}{}\n",
+        plan.page_size,
+        mark(d, "page_size")
+    ));
+    o.push_str(&format!(
+        "naming         .ic files: {:?}, pyramid files: {:?}\n",
+        plan.icache_mode, plan.tile_mode
+    ));
+    let bpt = plan.bytes_per_texel as u128;
+    let resident: u128 = plan
+        .levels
+        .iter()
+        .map(|l| (l.size[0].min(plan.clip_size) as u128) * (l.size[1].min(plan.clip_size) as u128))
+        .sum();
+    let full: u128 = plan
+        .levels
+        .iter()
+        .map(|l| l.size[0] as u128 * l.size[1] as u128)
+        .sum();
+    o.push_str(&format!(
+        "resident       {} texels ({}) against {} ({}) for the full mipmap\n",
+        resident,
+        human_bytes(resident * bpt),
+        full,
+        human_bytes(full * bpt)
+    ));
+    o.push_str("\nlevel  size              kind     tile          tex region   mem region  file\n");
+    for r in level_rows(plan) {
+        let file = if r.kind == "icache" {
+            rel(&r.icache_config, dir)
+        } else {
+            rel(&r.tile_file, dir)
+        };
+        let file = if r.kind == "icache" && r.icache_config.is_none() {
+            "(no .ic: synthesised)".to_string()
+        } else {
+            file
+        };
+        o.push_str(&format!(
+            "{:<6} {:<17} {:<8} {:<13} {:<12} {:<11} {}\n",
+            r.level,
+            format!("{}x{}", r.size[0], r.size[1]),
+            r.kind,
+            format!("{}x{}", r.tile_size[0], r.tile_size[1]),
+            format!("{}x{}", r.tex_region[0], r.tex_region[1]),
+            format!("{}x{}", r.mem_region[0], r.mem_region[1]),
+            file
+        ));
+    }
+    o
+}
+
+/// `icache info --json`.
+#[derive(Debug, Serialize)]
+pub struct ImageCacheInfo<'a> {
+    /// The plan (every value).
+    #[serde(flatten)]
+    pub plan: &'a ImageCachePlan,
+    /// Tiles along S, T, R.
+    pub tiles: [u64; 3],
+    /// Bytes of one tile.
+    pub tile_bytes: u64,
+    /// Where tile (0, 0) is.
+    pub first_tile: Option<TileLocation>,
+    /// Warnings and notes.
+    pub warnings: &'a [Diagnostic],
+}
+
+/// The JSON form of `icache info`.
+pub fn image_cache<'a>(plan: &'a ImageCachePlan, warnings: &'a [Diagnostic]) -> ImageCacheInfo<'a> {
+    ImageCacheInfo {
+        plan,
+        tiles: plan.tile_count(),
+        tile_bytes: plan.tile_bytes(),
+        first_tile: plan.locate(0, 0, 0).ok(),
+        warnings,
+    }
+}
+
+/// The human form of `icache info`.
+pub fn image_cache_human(plan: &ImageCachePlan) -> String {
+    let d = &plan.defaulted;
+    let t = plan.tile_count();
+    let mut o = String::new();
+    let f3 = |a: [u64; 3]| format!("{} x {} x {}", a[0], a[1], a[2]);
+    o.push_str(&format!(
+        "image cache    {}\n",
+        plan.path
+            .as_ref()
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|| "(synthesised)".into())
+    ));
+    o.push_str(&format!(
+        "texel          {} ({} bytes; ext_format {}, int_format {}, img_format {})\n",
+        plan.texel,
+        plan.bytes_per_texel,
+        plan.ext_format.written,
+        plan.int_format.written,
+        plan.img_format.written
+    ));
+    o.push_str(&format!("icache_size    {}\n", f3(plan.size)));
+    o.push_str(&format!(
+        "tile_size      {}  ({} x {} tiles, {} each)\n",
+        f3(plan.tile_size),
+        t[0],
+        t[1],
+        human_bytes(plan.tile_bytes() as u128)
+    ));
+    o.push_str(&format!(
+        "tiles_in_file  {}{}\n",
+        f3(plan.tiles_in_file),
+        mark(d, "tiles_in_file")
+    ));
+    o.push_str(&format!(
+        "header_offset  {}{}\n",
+        plan.header_offset,
+        mark(d, "header_offset")
+    ));
+    o.push_str(&format!("tex_region     {}\n", f3(plan.tex_region)));
+    o.push_str(&format!(
+        "tex_size       {}{}\n",
+        f3(plan.tex_size),
+        mark(d, "tex_size")
+    ));
+    o.push_str(&format!(
+        "mem_region     {} tiles{}  ({} in memory)\n",
+        f3(plan.mem_region),
+        mark(d, "mem_region"),
+        human_bytes(plan.mem_region.iter().product::<u64>() as u128 * plan.tile_bytes() as u128)
+    ));
+    o.push_str(&format!(
+        "lookahead      {}{}\n",
+        plan.lookahead,
+        mark(d, "lookahead")
+    ));
+    o.push_str(&format!(
+        "page_size      {}{}\n",
+        plan.page_size,
+        mark(d, "page_size")
+    ));
+    o.push_str(&format!(
+        "tile_format    {}{}\n",
+        plan.naming.format,
+        mark(d, "tile_format")
+    ));
+    o.push_str(&format!(
+        "tile_params    {}\n",
+        plan.naming
+            .params
+            .iter()
+            .map(|p| p.short())
+            .collect::<Vec<_>>()
+            .join(" ")
+    ));
+    o.push_str(&format!("cache name     {:?}\n", plan.naming.cache_name));
+    for (axis, list) in ["s", "t", "r"].iter().zip(&plan.streams) {
+        if !list.is_empty() {
+            o.push_str(&format!("{axis}_streams      {}\n", list.join(" ")));
+        }
+    }
+    if let Some(dt) = &plan.default_tile {
+        o.push_str(&format!("default_tile   {}\n", dt.display()));
+    }
+    if let Ok(loc) = plan.locate(0, 0, 0) {
+        o.push_str(&format!(
+            "tile (0, 0)    {} @ {} (+{} bytes)\n",
+            loc.path.display(),
+            loc.offset,
+            loc.length
+        ));
+    }
+    o
+}
+
+/// The human form of a tile location.
+pub fn tile_human(loc: &TileLocation) -> String {
+    let mut o = format!(
+        "path    {}\noffset  {}\nlength  {}\n",
+        loc.path.display(),
+        loc.offset,
+        loc.length
+    );
+    if !loc.stream.is_empty() {
+        o.push_str(&format!("stream  {}\n", loc.stream));
+    }
+    o
+}
+
+/// Warnings and notes of a loaded plan (errors make no plan).
+pub fn non_errors(diags: &[Diagnostic]) -> Vec<Diagnostic> {
+    diags
+        .iter()
+        .filter(|d| d.severity != Severity::Error)
+        .cloned()
+        .collect()
+}

@@ -1,0 +1,235 @@
+//! `cliptex plan`: memory of a clipmap against the full mipmap, the stack/pyramid split, update
+//! bandwidth, clip-size recommendations for a display, and virtual-level parameters.
+
+use super::human_bytes;
+use crate::sizing::{self, Memory, SizingError, VirtualInputs, VirtualParams};
+use serde::Serialize;
+
+/// What the user asked for.
+#[derive(Clone, Debug)]
+pub struct Request {
+    /// Texture size (texels a side).
+    pub size: u64,
+    /// Clip size.
+    pub clip: u64,
+    /// Bytes per texel.
+    pub texel_bytes: u64,
+    /// Display width in pixels, for recommendations.
+    pub display: Option<u64>,
+    /// Horizontal field of view (degrees).
+    pub fov_deg: f64,
+    /// Centre speed in level-0 texels per second.
+    pub speed: Option<f64>,
+    /// Eye height in metres, for the virtual-level parameters.
+    pub eye_height: Option<f64>,
+    /// Metres per level-0 texel.
+    pub texel_metres: f64,
+    /// 0 keeps resolution, 1 keeps area (Performer's tradeoff).
+    pub tradeoff: f64,
+    /// Invalid border.
+    pub invalid_border: u64,
+}
+
+/// The answer.
+#[derive(Clone, Debug, Serialize)]
+pub struct Plan {
+    /// Texture size.
+    pub size: u64,
+    /// Clip size used (clamped to the size).
+    pub clip_size: u64,
+    /// Bytes per texel.
+    pub texel_bytes: u64,
+    /// Levels in all.
+    pub levels: u32,
+    /// Memory figures.
+    #[serde(flatten)]
+    pub memory: Memory,
+    /// Update bandwidth, when a speed was given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub update: Option<Update>,
+    /// Recommendations, when a display width was given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub display: Option<Display>,
+    /// Virtual-level parameters, when an eye height was given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub virtual_levels: Option<VirtualParams>,
+}
+
+/// Update bandwidth at a centre speed.
+#[derive(Clone, Debug, Serialize)]
+pub struct Update {
+    /// Level-0 texels per second of centre motion (one axis).
+    pub speed: f64,
+    /// Texels written into the windows per second.
+    pub texels_per_second: f64,
+    /// Bytes written into the windows per second.
+    pub bytes_per_second: f64,
+}
+
+/// Recommendations for a display.
+#[derive(Clone, Debug, Serialize)]
+pub struct Display {
+    /// Display width.
+    pub width: u64,
+    /// The usual clip size (the width rounded up to a power of two).
+    pub usual_clip: u64,
+    /// The pixel-exact clip size (twice the usual).
+    pub exact_clip: u64,
+    /// Memory with the usual clip size.
+    pub usual_bytes: u128,
+    /// Memory with the pixel-exact clip size.
+    pub exact_bytes: u128,
+}
+
+/// Computes the plan.
+pub fn compute(r: &Request) -> Result<Plan, SizingError> {
+    let memory = sizing::memory(r.size, r.clip, r.texel_bytes)?;
+    let levels = memory.log2_size + 1;
+    let update = r.speed.map(|speed| {
+        let t = sizing::update_texels_per_second(&memory, speed);
+        Update {
+            speed,
+            texels_per_second: t,
+            bytes_per_second: t * r.texel_bytes as f64,
+        }
+    });
+    let display = match r.display {
+        Some(w) => {
+            let (usual, exact) = sizing::recommended_clip(w);
+            Some(Display {
+                width: w,
+                usual_clip: usual,
+                exact_clip: exact,
+                usual_bytes: sizing::memory(r.size, usual.min(r.size), r.texel_bytes)?
+                    .clipmap_bytes,
+                exact_bytes: sizing::memory(r.size, exact.min(r.size), r.texel_bytes)?
+                    .clipmap_bytes,
+            })
+        }
+        None => None,
+    };
+    let virtual_levels = r.eye_height.map(|h| {
+        let lod =
+            sizing::finest_lod_at_foot(h, r.fov_deg, r.display.unwrap_or(1024), r.texel_metres);
+        sizing::virtual_params(&VirtualInputs {
+            levels,
+            clip_size: 1 << memory.log2_clip,
+            invalid_border: r.invalid_border,
+            min_lod_tex_pix: lod,
+            min_lod_loaded: 0.0,
+            max_lod_loaded: levels as f64,
+            bbox_min_dist: 0.0,
+            bbox_max_dist: 0.0,
+            tradeoff: r.tradeoff,
+        })
+    });
+    Ok(Plan {
+        size: r.size,
+        clip_size: 1 << memory.log2_clip,
+        texel_bytes: r.texel_bytes,
+        levels,
+        memory,
+        update,
+        display,
+        virtual_levels,
+    })
+}
+
+/// Groups digits in threes for reading.
+pub fn grouped(v: u128) -> String {
+    let s = v.to_string();
+    let mut out = String::new();
+    for (i, c) in s.chars().enumerate() {
+        if i > 0 && (s.len() - i) % 3 == 0 {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+/// The human form.
+pub fn human(p: &Plan, r: &Request) -> String {
+    let m = &p.memory;
+    let mut o = String::new();
+    o.push_str(&format!(
+        "texture      {} x {} texels (2^{}), {} levels, {} bytes per texel\n",
+        p.size, p.size, m.log2_size, p.levels, p.texel_bytes
+    ));
+    o.push_str(&format!(
+        "clip size    {}: {} stack level{} keep a {}x{} window; {} pyramid level{} ({}x{} down to 1x1) stay whole\n",
+        p.clip_size,
+        m.stack_levels,
+        if m.stack_levels == 1 { "" } else { "s" },
+        p.clip_size,
+        p.clip_size,
+        m.pyramid_levels,
+        if m.pyramid_levels == 1 { "" } else { "s" },
+        p.clip_size,
+        p.clip_size
+    ));
+    o.push_str(&format!(
+        "clipmap      {} texels, {}\n",
+        grouped(m.clipmap_texels),
+        human_bytes(m.clipmap_bytes)
+    ));
+    o.push_str(&format!(
+        "full mipmap  {} texels, {}\n",
+        grouped(m.mipmap_texels),
+        human_bytes(m.mipmap_bytes)
+    ));
+    o.push_str(&format!(
+        "saving       the clipmap is 1/{:.0} of the mipmap\n",
+        m.mipmap_texels as f64 / m.clipmap_texels as f64
+    ));
+    if let Some(u) = &p.update {
+        o.push_str(&format!("update       at {} texels/s of centre motion: {:.3} Mtexel/s, {}/s into the windows (diagonal motion up to twice)\n", u.speed, u.texels_per_second / 1e6, human_bytes(u.bytes_per_second as u128)));
+    }
+    if let Some(d) = &p.display {
+        o.push_str(&format!("display      {} px wide: clip {} is the usual choice ({}), clip {} is pixel-exact with trilinear filtering ({})\n", d.width, d.usual_clip, human_bytes(d.usual_bytes), d.exact_clip, human_bytes(d.exact_bytes)));
+    }
+    if let Some(v) = &p.virtual_levels {
+        o.push_str(&format!(
+            "virtual      eye at {} m, {} m texels, {}° over {} px: levels {}..{} ({} effective from LOD offset {}), LOD range {:.2}..{:.2}\n",
+            r.eye_height.unwrap_or(0.0),
+            r.texel_metres,
+            r.fov_deg,
+            r.display.unwrap_or(1024),
+            v.lod_offset,
+            v.lod_offset + v.effective_levels - 1,
+            v.effective_levels,
+            v.lod_offset,
+            v.min_lod,
+            v.max_lod
+        ));
+    }
+    o
+}
+
+/// A table of memory for several texture sizes with one clip size.
+pub fn table(
+    clip: u64,
+    texel_bytes: u64,
+    from_log2: u32,
+    to_log2: u32,
+) -> Result<(String, Vec<Memory>), SizingError> {
+    let mut rows = Vec::new();
+    let mut o = format!(
+        "{:>12} {:>7} {:>7} {:>14} {:>14} {:>10}\n",
+        "size", "stack", "pyramid", "clipmap", "mipmap", "ratio"
+    );
+    for n in from_log2..=to_log2 {
+        let m = sizing::memory(1 << n, clip, texel_bytes)?;
+        o.push_str(&format!(
+            "{:>12} {:>7} {:>7} {:>14} {:>14} {:>10}\n",
+            format!("2^{n}"),
+            m.stack_levels,
+            m.pyramid_levels,
+            human_bytes(m.clipmap_bytes),
+            human_bytes(m.mipmap_bytes),
+            format!("1/{:.0}", m.mipmap_texels as f64 / m.clipmap_texels as f64)
+        ));
+        rows.push(m);
+    }
+    Ok((o, rows))
+}

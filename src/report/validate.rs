@@ -1,0 +1,134 @@
+//! `validate`: load each file, report every finding, and say whether it is usable.
+
+use crate::config::{Diagnostic, FileKind, Severity};
+use crate::plan::{self, Options};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// The validation result of one file.
+#[derive(Debug, Serialize)]
+pub struct FileReport {
+    /// The file as given.
+    pub path: PathBuf,
+    /// Its kind.
+    pub kind: FileKind,
+    /// True when no finding is an error.
+    pub valid: bool,
+    /// Number of errors.
+    pub errors: usize,
+    /// Number of warnings.
+    pub warnings: usize,
+    /// Number of notes.
+    pub notes: usize,
+    /// Every finding.
+    pub diagnostics: Vec<Diagnostic>,
+    /// Why the file could not be read at all (then nothing else is known).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unreadable: Option<String>,
+    #[serde(skip)]
+    rendered: String,
+}
+
+/// The validation result of several files.
+#[derive(Debug, Serialize)]
+pub struct Report {
+    /// True when every file is valid.
+    pub valid: bool,
+    /// True when some file could not be read (exit status 2).
+    pub could_not_run: bool,
+    /// One entry per file.
+    pub files: Vec<FileReport>,
+}
+
+impl Report {
+    /// Exit status: 0 every file valid, 1 some file invalid, 2 some file unreadable.
+    pub fn exit_code(&self) -> i32 {
+        if self.could_not_run {
+            2
+        } else if self.valid {
+            0
+        } else {
+            1
+        }
+    }
+
+    /// The human form: every finding with its source line, then one line per file.
+    pub fn human(&self, quiet: bool) -> String {
+        let mut out = String::new();
+        for f in &self.files {
+            if !quiet || !f.valid {
+                out.push_str(&f.rendered);
+            }
+            let status = match (&f.unreadable, f.valid) {
+                (Some(why), _) => format!("cannot be read: {why}"),
+                (None, true) => "valid".to_string(),
+                (None, false) => "invalid".to_string(),
+            };
+            let counts = format!(
+                "{} error{}, {} warning{}",
+                f.errors,
+                plural(f.errors),
+                f.warnings,
+                plural(f.warnings)
+            );
+            if !quiet || !f.valid {
+                out.push_str(&format!("{}: {status} ({counts})\n", f.path.display()));
+            }
+        }
+        out
+    }
+}
+
+fn plural(n: usize) -> &'static str {
+    if n == 1 {
+        ""
+    } else {
+        "s"
+    }
+}
+
+/// Validates files of one kind. `strict` turns warnings and portability findings into errors.
+pub fn run(paths: &[PathBuf], kind: FileKind, strict: bool, opts: &Options) -> Report {
+    let files: Vec<FileReport> = paths.iter().map(|p| one(p, kind, strict, opts)).collect();
+    Report {
+        valid: files.iter().all(|f| f.valid),
+        could_not_run: files.iter().any(|f| f.unreadable.is_some()),
+        files,
+    }
+}
+
+fn one(path: &Path, kind: FileKind, strict: bool, opts: &Options) -> FileReport {
+    fn finish<T>(mut l: plan::Loaded<T>, strict: bool) -> (crate::config::Diagnostics, String) {
+        l.diagnostics.apply_mode(strict);
+        let rendered = l.render();
+        (l.diagnostics, rendered)
+    }
+    let loaded = match kind {
+        FileKind::ClipTexture => plan::load_clip_texture(path, opts).map(|l| finish(l, strict)),
+        FileKind::ImageCache => plan::load_image_cache(path, opts).map(|l| finish(l, strict)),
+    };
+    match loaded {
+        Err(e) => FileReport {
+            path: path.to_path_buf(),
+            kind,
+            valid: false,
+            errors: 0,
+            warnings: 0,
+            notes: 0,
+            diagnostics: vec![],
+            unreadable: Some(e.source.to_string()),
+            rendered: String::new(),
+        },
+        Ok((diags, rendered)) => FileReport {
+            path: path.to_path_buf(),
+            kind,
+            valid: !diags.has_errors(),
+            errors: diags.count(Severity::Error),
+            warnings: diags.count(Severity::Warning),
+            notes: diags.count(Severity::Note),
+            diagnostics: diags.items,
+            unreadable: None,
+            rendered,
+        },
+    }
+}
