@@ -18,6 +18,10 @@ use super::error::{next_power_of_two, PrepError};
 use crate::texel::TexelFormat;
 use std::path::PathBuf;
 
+/// Performer raises any smaller `invalid_border` to this (PERFORMER.md §1.4), so a clip window
+/// must be larger than twice it.
+pub const MIN_INVALID_BORDER: u64 = 8;
+
 /// What the user asked for, before any derivation.
 #[derive(Clone, Debug)]
 pub struct Spec {
@@ -126,6 +130,13 @@ impl Layout {
     pub fn new(spec: Spec) -> Result<Layout, PrepError> {
         check_pow2("the clip size".into(), spec.clip, "; pass --clip with a power of two")?;
         check_pow2("the tile size".into(), spec.tile, "; pass --tile with a power of two")?;
+        if spec.clip <= 2 * MIN_INVALID_BORDER {
+            return Err(PrepError::Geometry(format!(
+                "the clip size {} leaves nothing of the clip window once Performer's minimum invalid border of {MIN_INVALID_BORDER} texels is taken from each side; expected a clip size of at least {}; pass a larger --clip",
+                spec.clip,
+                4 * MIN_INVALID_BORDER
+            )));
+        }
         if spec.format.bytes_per_texel() == 0 {
             return Err(PrepError::Geometry(format!("texel format {} has no byte size", spec.format)));
         }
