@@ -578,3 +578,33 @@ fn the_prepared_example_is_what_clipprep_writes() {
     }
     assert!(ct.ends_with("hash256.ct"));
 }
+
+#[cfg(unix)]
+#[test]
+fn an_interrupted_run_leaves_neither_output_nor_partial_directory() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("cut");
+    let args = ["--source", "terrain", "--size", "4096", "--tile", "256", "--clip", "256", "--format", "rgba8", "-q"];
+    let child = Command::new(CLIPPREP)
+        .args(args)
+        .arg("--out")
+        .arg(&out)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let partial =
+        |p: &Path| std::fs::read_dir(p).unwrap().any(|e| e.unwrap().file_name().to_string_lossy().contains("partial"));
+    let start = std::time::Instant::now();
+    while !partial(tmp.path()) && start.elapsed() < std::time::Duration::from_secs(20) {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let status = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(status.success());
+    let out_put = child.wait_with_output().unwrap();
+    let d = describe(&["clipprep (interrupted)"], &out_put);
+    assert_eq!(out_put.status.code(), Some(2), "{d}");
+    assert!(String::from_utf8_lossy(&out_put.stderr).contains("interrupted"), "{d}");
+    assert!(!out.exists(), "{d}");
+    assert!(!partial(tmp.path()), "the partial directory was removed\n{d}");
+}

@@ -254,29 +254,30 @@ fn prepare(cli: &Cli, cancel: &AtomicBool) -> Result<Outcome, PrepError> {
 }
 
 /// Sets `flag` on Ctrl-C or SIGTERM, so the run stops between bands and removes its partial
-/// output instead of dying mid-write.
+/// output instead of dying mid-write. The handlers are registered before this returns.
 fn watch_signals(flag: Arc<AtomicBool>) -> anyhow::Result<()> {
     let rt =
         tokio::runtime::Builder::new_current_thread().enable_all().build().context("starting the signal watcher")?;
+    #[cfg(unix)]
+    let (mut int, mut term) = {
+        use tokio::signal::unix::{signal, SignalKind};
+        let _guard = rt.enter();
+        (
+            signal(SignalKind::interrupt()).context("watching SIGINT")?,
+            signal(SignalKind::terminate()).context("watching SIGTERM")?,
+        )
+    };
     std::thread::Builder::new()
         .name("signals".into())
         .spawn(move || {
             rt.block_on(async move {
                 #[cfg(unix)]
-                {
-                    use tokio::signal::unix::{signal, SignalKind};
-                    let Ok(mut term) = signal(SignalKind::terminate()) else {
-                        return;
-                    };
-                    tokio::select! {
-                        _ = tokio::signal::ctrl_c() => {}
-                        _ = term.recv() => {}
-                    }
+                tokio::select! {
+                    _ = int.recv() => {}
+                    _ = term.recv() => {}
                 }
                 #[cfg(not(unix))]
-                {
-                    let _ = tokio::signal::ctrl_c().await;
-                }
+                let _ = tokio::signal::ctrl_c().await;
                 flag.store(true, Ordering::Relaxed);
             })
         })

@@ -152,3 +152,18 @@ fn is_disk_full(e: &io::Error) -> bool {
 pub fn next_power_of_two(n: u64) -> u64 {
     n.max(1).next_power_of_two()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_full_disk_is_named_as_such_and_is_not_bad_input() {
+        let e = PrepError::write("out/L00/r000.c000.raw", io::Error::from_raw_os_error(28), 3 << 20);
+        assert!(matches!(e, PrepError::DiskFull { needed_mib: 3, .. }), "{e:?}");
+        assert!(e.to_string().contains("no space left") && e.to_string().contains("free space"), "{e}");
+        assert_eq!(e.exit_code(), 2);
+        let other = PrepError::write("x", io::Error::from_raw_os_error(13), 0);
+        assert!(matches!(other, PrepError::Write { .. }));
+    }
+}

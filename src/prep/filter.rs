@@ -211,9 +211,9 @@ impl Downsampler {
             let c = &mut self.scratch[x * n..x * n + n];
             self.ch.unpack(texel, c);
             if self.linear {
-                for i in 0..n {
+                for (i, v) in c.iter_mut().enumerate() {
                     if self.ch.colour[i] {
-                        c[i] = srgb_to_linear(c[i] / self.ch.max[i]);
+                        *v = srgb_to_linear(*v / self.ch.max[i]);
                     }
                 }
             }
@@ -225,8 +225,8 @@ impl Downsampler {
             let acc = &mut reduced[x as usize * n..x as usize * n + n];
             for &(d, w) in &self.taps {
                 let sx = (2 * x + d).clamp(0, last) as usize;
-                for i in 0..n {
-                    acc[i] += w * self.scratch[sx * n + i];
+                for (a, v) in acc.iter_mut().zip(&self.scratch[sx * n..sx * n + n]) {
+                    *a += w * v;
                 }
             }
         }
@@ -249,14 +249,14 @@ impl Downsampler {
                 for &(d, w) in &self.taps {
                     let sy = (2 * j + d).clamp(0, last_row);
                     let src = &self.rows[(sy - front) as usize].1;
-                    for i in 0..n {
-                        comps[i] += w * src[x * n + i];
+                    for (c, v) in comps.iter_mut().zip(&src[x * n..x * n + n]) {
+                        *c += w * v;
                     }
                 }
                 if self.linear {
-                    for i in 0..n {
+                    for (i, c) in comps.iter_mut().enumerate() {
                         if self.ch.colour[i] {
-                            comps[i] = linear_to_srgb(comps[i]) * self.ch.max[i];
+                            *c = linear_to_srgb(*c) * self.ch.max[i];
                         }
                     }
                 }

@@ -196,13 +196,11 @@ fn feed(
 ) -> Result<(), PrepError> {
     progress(writers[k].push(row)?);
     if k < downs.len() {
-        let mut out = Vec::with_capacity(downs[k].dst_row_bytes());
-        let n = downs[k].push(row, &mut out);
-        if n > 0 {
-            let rb = out.len() / n;
-            for r in out.chunks_exact(rb) {
-                feed(k + 1, r, writers, downs, progress)?;
-            }
+        let row_bytes = downs[k].dst_row_bytes();
+        let mut out = Vec::with_capacity(row_bytes);
+        downs[k].push(row, &mut out);
+        for r in out.chunks_exact(row_bytes) {
+            feed(k + 1, r, writers, downs, progress)?;
         }
     }
     Ok(())
