@@ -608,3 +608,43 @@ fn an_interrupted_run_leaves_neither_output_nor_partial_directory() {
     assert!(!out.exists(), "{d}");
     assert!(!partial(tmp.path()), "the partial directory was removed\n{d}");
 }
+
+#[test]
+fn an_image_over_the_memory_limit_is_refused_naming_the_sizes_and_the_fix() {
+    let tmp = tempfile::tempdir().unwrap();
+    let png = tmp.path().join("wide.png");
+    write_png(&png, 1024, 512);
+    let out = tmp.path().join("never");
+    let err = fails(
+        &[
+            "--input",
+            png.to_str().unwrap(),
+            "--tile",
+            "64",
+            "--clip",
+            "64",
+            "--format",
+            "rgb8",
+            "--max-memory",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        1,
+    );
+    assert!(err.contains("1024x512") && err.contains("2 MiB") && err.contains("TIFF"), "{err}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn jpeg_input_is_accepted() {
+    let tmp = tempfile::tempdir().unwrap();
+    let jpg = tmp.path().join("in.jpg");
+    image::RgbImage::from_fn(64, 64, |x, y| image::Rgb([(x * 4) as u8, (y * 4) as u8, 128])).save(&jpg).unwrap();
+    let ct = ct_path(&prep(
+        &tmp.path().join("jpeg"),
+        &["--input", jpg.to_str().unwrap(), "--tile", "32", "--clip", "32", "--format", "rgb565"],
+    ));
+    validate_strict(&ct);
+    assert_eq!(levels(&ct).len(), 7);
+}
