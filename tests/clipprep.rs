@@ -523,6 +523,7 @@ fn every_format_and_layout_option_passes_strict_validation() {
         ("rgba5551", "512x128", &["--tiles-per-file", "3x2", "--header-bytes", "64"][..]),
         ("rgba8", "128x512", &[][..]),
         ("l8", "1024x64", &["--streams", "4", "--tiles-per-file", "2"][..]),
+        ("rgb8", "32", &[][..]),
     ]
     .into_iter()
     .enumerate()

@@ -56,7 +56,7 @@ pub fn ct_text(layout: &Layout, description: &[String]) -> String {
     let _ = writeln!(out, "virt_size {} {} 1", spec.width, spec.height);
     let _ = writeln!(out, "clip_size {}", spec.clip);
     if !layout.smallest_icache_is_default {
-        out.push_str("# The default smallest_icache would exceed twice the clip size for this aspect ratio.\n");
+        out.push_str("# Not Performer's default smallest_icache, which does not fit this texture's shape.\n");
         let _ = writeln!(out, "smallest_icache {} {} 1", layout.smallest_icache.0, layout.smallest_icache.1);
     }
     let ics: Vec<&Level> = layout.image_cache_levels().collect();

@@ -162,7 +162,12 @@ impl Layout {
                 ratio.div_ceil(2)
             )));
         }
-        let smallest = if w >= h { (c2, c2 / ratio) } else { (c2 / ratio, c2) };
+        let mut smallest = if w >= h { (c2, c2 / ratio) } else { (c2 / ratio, c2) };
+        if smallest.0 > w {
+            // The whole texture fits the clip window (size == clip): level 0 becomes the one
+            // image cache, rather than a smallest_icache larger than the texture.
+            smallest = (w, h);
+        }
         let default = if w == h {
             (c2, c2)
         } else if w > h {
@@ -343,6 +348,15 @@ mod tests {
         let loc = l.tile(&l.levels[0], 6, 9);
         assert_eq!(loc.offset, 1_180_672);
         assert_eq!(loc.path, PathBuf::from("L00/r002.c001.raw"));
+    }
+
+    #[test]
+    fn a_texture_the_size_of_the_clip_window_is_one_image_cache_and_its_pyramid() {
+        let l = Layout::new(spec(64, 64, 64, 32)).unwrap();
+        assert_eq!(l.smallest_icache, (64, 64));
+        assert!(!l.smallest_icache_is_default);
+        assert_eq!(l.image_cache_levels().count(), 1);
+        assert_eq!(l.levels.len(), 7);
     }
 
     #[test]
