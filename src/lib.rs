@@ -21,6 +21,7 @@
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
 //! | [`sizing`] | memory and bandwidth arithmetic, clip-size and virtual-level recommendations |
 //! | [`report`] | what the inspection tools print: validation reports, info, tile locations |
+//! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
 //!
 //! ## Invariants
 //!
@@ -38,6 +39,7 @@ pub mod queue;
 pub mod roam;
 pub mod sample;
 pub mod plan;
+pub mod prep;
 pub mod report;
 pub mod sizing;
 pub mod source;

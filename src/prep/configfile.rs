@@ -1,0 +1,119 @@
+//! Writes the `.ct` and `.ic` text of a [`Layout`].
+//!
+//! Follows PERFORMER.md §1: version token first, `.ct` tokens in the manual's documented order,
+//! formats as names, every comment on a line of its own (never inside a list or between numbers),
+//! relative paths only (so the directory can be moved), and the singular `s_stream` spelling
+//! (Performer 3.0 reads the documented `s_streams` as `s_stream` plus a bogus stream `s`).
+//!
+//! No `*_base` token is written: 3.0 anchors only the first entry of a file list that follows a
+//! base, so a base would break the relative paths. Nothing here touches the file system.
+
+use super::layout::{Layout, Level, LevelKind};
+use crate::texel::{ComponentType, Components, PackedType, TexelFormat};
+use std::fmt::Write;
+
+/// The `ext_format`, `int_format` and `img_format` names of a texel format, or `None` when this
+/// tool does not write that format.
+pub fn format_names(f: TexelFormat) -> Option<(&'static str, &'static str, &'static str)> {
+    Some(match (f.components, f.ctype) {
+        (Components::One, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "GL_LUMINANCE8_EXT", "PFTEX_LUMINANCE"),
+        (Components::Three, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "PFTEX_RGB_8", "PFTEX_RGB"),
+        (Components::Four, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "PFTEX_RGBA_8", "PFTEX_RGBA"),
+        (Components::Three, ComponentType::Packed(PackedType::Rgb565)) => {
+            ("PFTEX_PACK_USHORT_5_6_5", "PFTEX_RGB_5", "PFTEX_RGB")
+        }
+        (Components::Four, ComponentType::Packed(PackedType::Rgba5551)) => {
+            ("PFTEX_UNSIGNED_SHORT_5_5_5_1", "PFTEX_RGB5_A1", "PFTEX_RGBA")
+        }
+        _ => return None,
+    })
+}
+
+fn formats(out: &mut String, f: TexelFormat) {
+    let (ext, int, img) = format_names(f).expect("the layout was built with a writable format");
+    let _ = writeln!(out, "ext_format {ext}");
+    let _ = writeln!(out, "int_format {int}");
+    let _ = writeln!(out, "img_format {img}");
+}
+
+/// The `.ct` text. `description` lines become comments (one `#` line each).
+pub fn ct_text(layout: &Layout, description: &[String]) -> String {
+    let spec = &layout.spec;
+    let mut out = String::new();
+    out.push_str("ct_version2.0\n");
+    for line in description {
+        let _ = writeln!(out, "# {line}");
+    }
+    let _ = writeln!(
+        out,
+        "# {} levels: {} image cache levels (one .ic each), {} pyramid levels (one file each).",
+        layout.levels.len(),
+        layout.image_cache_levels().count(),
+        layout.pyramid_levels().count()
+    );
+    out.push_str("# Texel (s, t) of a tile is at byte ((t mod tile height) * tile width + (s mod tile width)) * bytes per texel.\n");
+    formats(&mut out, spec.format);
+    let _ = writeln!(out, "virt_size {} {} 1", spec.width, spec.height);
+    let _ = writeln!(out, "clip_size {}", spec.clip);
+    if !layout.smallest_icache_is_default {
+        out.push_str("# Not Performer's default smallest_icache, which does not fit this texture's shape.\n");
+        let _ = writeln!(out, "smallest_icache {} {} 1", layout.smallest_icache.0, layout.smallest_icache.1);
+    }
+    let ics: Vec<&Level> = layout.image_cache_levels().collect();
+    if !ics.is_empty() {
+        out.push_str("icache_files\n");
+        for l in ics {
+            let _ = writeln!(out, "\t{}", Layout::ic_file(l.index));
+        }
+    }
+    out.push_str("tile_files\n");
+    for l in layout.pyramid_levels() {
+        let _ = writeln!(out, "\t{}", Layout::pyramid_file(l.index));
+    }
+    let _ = writeln!(out, "tile_size {} {} 1", spec.tile, spec.tile);
+    out
+}
+
+/// The `.ic` text of an image-cache level.
+pub fn ic_text(layout: &Layout, level: &Level, ct_name: &str) -> String {
+    assert_eq!(level.kind, LevelKind::ImageCache, "only image-cache levels have an .ic");
+    let spec = &layout.spec;
+    let mut out = String::new();
+    out.push_str("ic_version2.0\n");
+    let _ = writeln!(
+        out,
+        "# Level {} ({}x{} texels) of {ct_name}: {}x{} tiles of {}x{} texels.",
+        level.index,
+        level.width,
+        level.height,
+        level.tiles_s(),
+        level.tiles_t(),
+        level.tile_w,
+        level.tile_h
+    );
+    formats(&mut out, spec.format);
+    let _ = writeln!(out, "icache_size {} {} 1", level.width, level.height);
+    let _ = writeln!(out, "tex_region_size {} {} 1", spec.clip.min(level.width), spec.clip.min(level.height));
+    if spec.header_bytes > 0 {
+        let _ = writeln!(out, "header_offset {}", spec.header_bytes);
+    }
+    if spec.tiles_in_file != (1, 1) {
+        let _ = writeln!(out, "tiles_in_file {} {} 1", spec.tiles_in_file.0, spec.tiles_in_file.1);
+    }
+    let _ = writeln!(out, "tile_size {} {} 1", level.tile_w, level.tile_h);
+    let _ = writeln!(out, "tile_format {}", layout.tile_format(level.index));
+    out.push_str("tile_params");
+    for p in layout.tile_params() {
+        let _ = write!(out, " {p}");
+    }
+    out.push('\n');
+    if let Some(n) = spec.streams {
+        out.push_str("# Stream servers, chosen by tile column modulo their number.\n");
+        out.push_str("s_stream");
+        for i in 0..n {
+            let _ = write!(out, " {}", Layout::stream_name(i));
+        }
+        out.push('\n');
+    }
+    out
+}

@@ -1,0 +1,320 @@
+//! Downsampling one level into the next, row by row, with bounded memory.
+//!
+//! A [`Downsampler`] receives the rows of level k in increasing t and emits the rows of level
+//! k + 1 as soon as every source row they depend on has arrived; it keeps only the few source rows
+//! still needed (2 for the box filter, 12 for Lanczos-3), already reduced horizontally.
+//!
+//! Filtering works on the components *as stored* in level k (the quantised values), so a box
+//! filtered level is exactly reproducible from the level below:
+//! `out = floor((a + b + c + d + 2) / 4)` per component (the 2x2 average, halves rounded up),
+//! for packed formats per packed component (5, 6 or 1 bits). With linear light, colour components
+//! (not alpha) are converted from sRGB to linear before averaging and back after.
+//!
+//! Edges are clamped (the texel beyond the edge repeats the edge texel).
+
+use crate::texel::{ComponentType, PackedType, TexelFormat};
+use std::collections::VecDeque;
+
+/// The reconstruction filter used to build coarser levels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Filter {
+    /// 2x2 box (the default).
+    Box,
+    /// Lanczos windowed sinc with three lobes, 12 taps per axis.
+    Lanczos3,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Packing {
+    Bytes,
+    Rgb565,
+    Rgba5551,
+}
+
+/// How a texel splits into components.
+#[derive(Clone, Copy, Debug)]
+pub struct Channels {
+    packing: Packing,
+    n: usize,
+    bpt: usize,
+    max: [f32; 4],
+    colour: [bool; 4],
+}
+
+impl Channels {
+    /// The components of a format, or `None` for formats this tool does not filter.
+    pub fn of(f: TexelFormat) -> Option<Channels> {
+        let n = f.components.count() as usize;
+        let bpt = f.bytes_per_texel() as usize;
+        let alpha_last = n == 2 || n == 4;
+        let mut colour = [true; 4];
+        if alpha_last {
+            colour[n - 1] = false;
+        }
+        let (packing, max) = match f.ctype {
+            ComponentType::U8 => (Packing::Bytes, [255.0; 4]),
+            ComponentType::Packed(PackedType::Rgb565) => (Packing::Rgb565, [31.0, 63.0, 31.0, 0.0]),
+            ComponentType::Packed(PackedType::Rgba5551) => (Packing::Rgba5551, [31.0, 31.0, 31.0, 1.0]),
+            _ => return None,
+        };
+        Some(Channels { packing, n, bpt, max, colour })
+    }
+
+    /// Number of components.
+    pub fn count(&self) -> usize {
+        self.n
+    }
+
+    /// Unpacks one texel into its integer components (as f32).
+    pub fn unpack(&self, texel: &[u8], out: &mut [f32]) {
+        match self.packing {
+            Packing::Bytes => {
+                for (o, &b) in out.iter_mut().zip(texel) {
+                    *o = b as f32;
+                }
+            }
+            Packing::Rgb565 => {
+                let v = u16::from_le_bytes([texel[0], texel[1]]);
+                out[0] = (v >> 11) as f32;
+                out[1] = ((v >> 5) & 63) as f32;
+                out[2] = (v & 31) as f32;
+            }
+            Packing::Rgba5551 => {
+                let v = u16::from_le_bytes([texel[0], texel[1]]);
+                out[0] = (v >> 11) as f32;
+                out[1] = ((v >> 6) & 31) as f32;
+                out[2] = ((v >> 1) & 31) as f32;
+                out[3] = (v & 1) as f32;
+            }
+        }
+    }
+
+    /// Packs components (rounded half up and clamped to their range) into one texel.
+    pub fn pack(&self, comps: &[f32], out: &mut [u8]) {
+        let q = |i: usize| (comps[i] + 0.5).floor().clamp(0.0, self.max[i]) as u16;
+        match self.packing {
+            Packing::Bytes => {
+                for (i, o) in out.iter_mut().enumerate().take(self.n) {
+                    *o = q(i) as u8;
+                }
+            }
+            Packing::Rgb565 => {
+                let v = (q(0) << 11) | (q(1) << 5) | q(2);
+                out.copy_from_slice(&v.to_le_bytes());
+            }
+            Packing::Rgba5551 => {
+                let v = (q(0) << 11) | (q(1) << 6) | (q(2) << 1) | q(3);
+                out.copy_from_slice(&v.to_le_bytes());
+            }
+        }
+    }
+}
+
+fn srgb_to_linear(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+fn linear_to_srgb(v: f32) -> f32 {
+    let v = v.clamp(0.0, 1.0);
+    if v <= 0.003_130_8 {
+        v * 12.92
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+fn lanczos3(x: f32) -> f32 {
+    let x = x.abs();
+    if x < 1e-6 {
+        return 1.0;
+    }
+    if x >= 3.0 {
+        return 0.0;
+    }
+    let px = std::f32::consts::PI * x;
+    3.0 * px.sin() * (px / 3.0).sin() / (px * px)
+}
+
+/// Taps of a 2:1 reduction: destination texel j reads source texels 2j + offset.
+fn taps(filter: Filter) -> Vec<(i64, f32)> {
+    match filter {
+        Filter::Box => vec![(0, 0.5), (1, 0.5)],
+        Filter::Lanczos3 => {
+            // Destination centre 2j + 1 in source texel units; source texel i has centre i + 0.5.
+            let raw: Vec<(i64, f32)> = (-5..=6).map(|d| (d, lanczos3((d as f32 + 0.5 - 1.0) / 2.0))).collect();
+            let sum: f32 = raw.iter().map(|(_, w)| w).sum();
+            raw.into_iter().map(|(d, w)| (d, w / sum)).collect()
+        }
+    }
+}
+
+/// Reduces one level to the next (half the width and half the height), row by row.
+pub struct Downsampler {
+    ch: Channels,
+    linear: bool,
+    src_w: u64,
+    src_h: u64,
+    dst_w: u64,
+    dst_h: u64,
+    taps: Vec<(i64, f32)>,
+    /// Source rows still needed, reduced horizontally: (t, dst_w * n components).
+    rows: VecDeque<(u64, Vec<f32>)>,
+    next_in: u64,
+    next_out: u64,
+    scratch: Vec<f32>,
+}
+
+impl Downsampler {
+    /// A reducer from a `src_w` x `src_h` level (both at least 2) in format `ch`.
+    pub fn new(ch: Channels, filter: Filter, linear: bool, src_w: u64, src_h: u64) -> Downsampler {
+        Downsampler {
+            ch,
+            linear,
+            src_w,
+            src_h,
+            dst_w: src_w / 2,
+            dst_h: src_h / 2,
+            taps: taps(filter),
+            rows: VecDeque::new(),
+            next_in: 0,
+            next_out: 0,
+            scratch: vec![0.0; src_w as usize * ch.n],
+        }
+    }
+
+    /// Bytes of one destination row.
+    pub fn dst_row_bytes(&self) -> usize {
+        self.dst_w as usize * self.ch.bpt
+    }
+
+    fn max_offset(&self) -> i64 {
+        self.taps.iter().map(|t| t.0).max().unwrap_or(0)
+    }
+
+    fn min_offset(&self) -> i64 {
+        self.taps.iter().map(|t| t.0).min().unwrap_or(0)
+    }
+
+    /// Takes the next source row and appends every destination row it completes to `out`.
+    /// Returns how many rows were appended. The last source row completes the level.
+    pub fn push(&mut self, row: &[u8], out: &mut Vec<u8>) -> usize {
+        let n = self.ch.n;
+        let bpt = self.ch.bpt;
+        debug_assert_eq!(row.len(), self.src_w as usize * bpt);
+        // Unpack (and linearise) the source row.
+        for (x, texel) in row.chunks_exact(bpt).enumerate() {
+            let c = &mut self.scratch[x * n..x * n + n];
+            self.ch.unpack(texel, c);
+            if self.linear {
+                for (i, v) in c.iter_mut().enumerate() {
+                    if self.ch.colour[i] {
+                        *v = srgb_to_linear(*v / self.ch.max[i]);
+                    }
+                }
+            }
+        }
+        // Horizontal reduction.
+        let mut reduced = vec![0.0f32; self.dst_w as usize * n];
+        let last = self.src_w as i64 - 1;
+        for x in 0..self.dst_w as i64 {
+            let acc = &mut reduced[x as usize * n..x as usize * n + n];
+            for &(d, w) in &self.taps {
+                let sx = (2 * x + d).clamp(0, last) as usize;
+                for (a, v) in acc.iter_mut().zip(&self.scratch[sx * n..sx * n + n]) {
+                    *a += w * v;
+                }
+            }
+        }
+        self.rows.push_back((self.next_in, reduced));
+        self.next_in += 1;
+        // Emit every destination row whose source rows have all arrived.
+        let mut produced = 0;
+        let last_row = self.src_h as i64 - 1;
+        let mut comps = vec![0.0f32; n];
+        let mut texel = vec![0u8; bpt];
+        while self.next_out < self.dst_h {
+            let j = self.next_out as i64;
+            let needed = (2 * j + self.max_offset()).min(last_row);
+            if needed >= self.next_in as i64 {
+                break;
+            }
+            let front = self.rows.front().map(|r| r.0).unwrap_or(0) as i64;
+            for x in 0..self.dst_w as usize {
+                comps.iter_mut().for_each(|c| *c = 0.0);
+                for &(d, w) in &self.taps {
+                    let sy = (2 * j + d).clamp(0, last_row);
+                    let src = &self.rows[(sy - front) as usize].1;
+                    for (c, v) in comps.iter_mut().zip(&src[x * n..x * n + n]) {
+                        *c += w * v;
+                    }
+                }
+                if self.linear {
+                    for (i, c) in comps.iter_mut().enumerate() {
+                        if self.ch.colour[i] {
+                            *c = linear_to_srgb(*c) * self.ch.max[i];
+                        }
+                    }
+                }
+                self.ch.pack(&comps, &mut texel);
+                out.extend_from_slice(&texel);
+            }
+            self.next_out += 1;
+            produced += 1;
+            // Drop source rows no later destination row reads.
+            let keep_from = 2 * self.next_out as i64 + self.min_offset();
+            while self.rows.front().is_some_and(|r| (r.0 as i64) < keep_from && (r.0 as i64) < last_row) {
+                self.rows.pop_front();
+            }
+        }
+        produced
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_filter_rounds_halves_up_on_stored_components() {
+        let ch = Channels::of(TexelFormat::L8).unwrap();
+        let mut d = Downsampler::new(ch, Filter::Box, false, 4, 2);
+        let mut out = Vec::new();
+        assert_eq!(d.push(&[0, 1, 10, 20], &mut out), 0);
+        assert_eq!(d.push(&[0, 0, 30, 41], &mut out), 1);
+        // (0+1+0+0+2)/4 = 0; (10+20+30+41+2)/4 = 25.
+        assert_eq!(out, vec![0, 25]);
+    }
+
+    #[test]
+    fn packed_5551_averages_each_field() {
+        let ch = Channels::of(TexelFormat::RGBA5551).unwrap();
+        let px = |r: u16, g: u16, b: u16, a: u16| ((r << 11) | (g << 6) | (b << 1) | a).to_le_bytes();
+        let row0 = [px(31, 0, 1, 1), px(30, 2, 1, 0)].concat();
+        let row1 = [px(29, 4, 1, 1), px(28, 6, 2, 0)].concat();
+        let mut d = Downsampler::new(ch, Filter::Box, false, 2, 2);
+        let mut out = Vec::new();
+        d.push(&row0, &mut out);
+        d.push(&row1, &mut out);
+        // r (31+30+29+28+2)/4 = 30, g (0+2+4+6+2)/4 = 3, b (1+1+1+2+2)/4 = 1, a (1+0+1+0+2)/4 = 1.
+        assert_eq!(out, px(30, 3, 1, 1).to_vec());
+    }
+
+    #[test]
+    fn lanczos_keeps_a_constant_constant() {
+        let ch = Channels::of(TexelFormat::RGB8).unwrap();
+        let mut d = Downsampler::new(ch, Filter::Lanczos3, true, 32, 32);
+        let mut out = Vec::new();
+        let row = vec![77u8; 32 * 3];
+        let mut n = 0;
+        for _ in 0..32 {
+            n += d.push(&row, &mut out);
+        }
+        assert_eq!(n, 16);
+        assert!(out.iter().all(|&v| v == 77), "{out:?}");
+    }
+}

@@ -1,0 +1,367 @@
+//! Where everything goes: the level table of a prepared clip texture (which levels are image
+//! caches, which are pyramid levels), tile sizes per level, and the relative path, byte offset and
+//! stream of every tile.
+//!
+//! Pure geometry: no I/O. The names chosen here are the ones [`super::configfile`] writes into
+//! the `.ct`/`.ic` files, so a reader that follows PERFORMER.md §1.9–§1.14 finds every tile.
+//!
+//! Layout of a prepared directory:
+//!
+//! ```text
+//! NAME.ct                    the clip texture
+//! L00.ic, L01.ic, ...        one image cache per image-cache level
+//! [streamN/]L00/rRRR.cCCC.raw  image-cache tile files (R = file row, C = file column)
+//! pyramid/L05.raw, ...       one file per pyramid level (a single tile the size of the level)
+//! ```
+
+use super::error::{next_power_of_two, PrepError};
+use crate::texel::TexelFormat;
+use std::path::PathBuf;
+
+/// Performer raises any smaller `invalid_border` to this (PERFORMER.md §1.4), so a clip window
+/// must be larger than twice it.
+pub const MIN_INVALID_BORDER: u64 = 8;
+
+/// What the user asked for, before any derivation.
+#[derive(Clone, Debug)]
+pub struct Spec {
+    /// Level-0 width (S) in texels.
+    pub width: u64,
+    /// Level-0 height (T) in texels.
+    pub height: u64,
+    /// Clip size (texels).
+    pub clip: u64,
+    /// Tile edge (texels) of image-cache tiles.
+    pub tile: u64,
+    /// Texel format on disk.
+    pub format: TexelFormat,
+    /// Tiles per file along S and T (`tiles_in_file`); (1, 1) is one tile per file.
+    pub tiles_in_file: (u64, u64),
+    /// Bytes of header at the start of every image-cache tile file (`header_offset`).
+    pub header_bytes: u64,
+    /// Number of stream servers (directories `stream0/` ...); `None` for none.
+    pub streams: Option<u32>,
+}
+
+/// Whether a level is paged through an image cache or held whole.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LevelKind {
+    /// A level at least `smallest_icache` large: an `.ic` and tiles.
+    ImageCache,
+    /// A smaller level: one file holding the whole level as a single tile.
+    Pyramid,
+}
+
+/// One level of the prepared texture.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Level {
+    /// Level index, 0 the finest.
+    pub index: u32,
+    /// Width in texels.
+    pub width: u64,
+    /// Height in texels.
+    pub height: u64,
+    /// Image cache or pyramid.
+    pub kind: LevelKind,
+    /// Tile width in texels (the level width for a pyramid level).
+    pub tile_w: u64,
+    /// Tile height in texels (the level height for a pyramid level).
+    pub tile_h: u64,
+}
+
+impl Level {
+    /// Tiles along S.
+    pub fn tiles_s(&self) -> u64 {
+        self.width / self.tile_w
+    }
+
+    /// Tiles along T.
+    pub fn tiles_t(&self) -> u64 {
+        self.height / self.tile_h
+    }
+
+    /// Texels in the level.
+    pub fn texels(&self) -> u64 {
+        self.width * self.height
+    }
+}
+
+/// Where one tile lives, relative to the prepared directory.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct TileLocation {
+    /// The file, relative to the directory of the `.ct`.
+    pub path: PathBuf,
+    /// Byte offset of the tile in the file.
+    pub offset: u64,
+    /// Bytes of the tile.
+    pub length: u64,
+    /// Stream server index, if streams are used.
+    pub stream: Option<u32>,
+}
+
+/// The derived level table and naming scheme.
+#[derive(Clone, Debug)]
+pub struct Layout {
+    /// What was asked for.
+    pub spec: Spec,
+    /// Every level, finest first.
+    pub levels: Vec<Level>,
+    /// Performer's `smallest_icache` (S, T) for this layout.
+    pub smallest_icache: (u64, u64),
+    /// True when `smallest_icache` equals Performer's default (so the `.ct` need not say it).
+    pub smallest_icache_is_default: bool,
+}
+
+fn check_pow2(what: String, v: u64, hint: &'static str) -> Result<(), PrepError> {
+    if v == 0 || !v.is_power_of_two() {
+        return Err(PrepError::NotPowerOfTwo { what, found: v, next: next_power_of_two(v), hint });
+    }
+    Ok(())
+}
+
+impl Layout {
+    /// Derives the level table, following PERFORMER.md §1.14.
+    ///
+    /// `smallest_icache` is Performer's default where that default is valid (square textures and
+    /// aspect ratios up to 2); for more elongated textures the default would exceed twice the clip
+    /// size (which 3.0 rejects), so the long side is set to 2 x clip and the short side follows the
+    /// aspect ratio; the `.ct` then states it.
+    pub fn new(spec: Spec) -> Result<Layout, PrepError> {
+        check_pow2("the clip size".into(), spec.clip, "; pass --clip with a power of two")?;
+        check_pow2("the tile size".into(), spec.tile, "; pass --tile with a power of two")?;
+        if spec.clip <= 2 * MIN_INVALID_BORDER {
+            return Err(PrepError::Geometry(format!(
+                "the clip size {} leaves nothing of the clip window once Performer's minimum invalid border of {MIN_INVALID_BORDER} texels is taken from each side; expected a clip size of at least {}; pass a larger --clip",
+                spec.clip,
+                4 * MIN_INVALID_BORDER
+            )));
+        }
+        if spec.format.bytes_per_texel() == 0 {
+            return Err(PrepError::Geometry(format!("texel format {} has no byte size", spec.format)));
+        }
+        let (w, h) = (spec.width, spec.height);
+        let (long, short) = (w.max(h), w.min(h));
+        if spec.clip > short {
+            return Err(PrepError::Geometry(format!(
+                "the clip size {} is larger than the texture's shorter side ({w}x{h}); expected a clip size of at most {short}; pass a smaller --clip",
+                spec.clip
+            )));
+        }
+        if spec.tiles_in_file.0 == 0 || spec.tiles_in_file.1 == 0 {
+            return Err(PrepError::Geometry("--tiles-per-file must be at least 1 along each axis".into()));
+        }
+        if spec.streams == Some(0) {
+            return Err(PrepError::Geometry("--streams must be at least 1".into()));
+        }
+        let ratio = long / short;
+        let c2 = 2 * spec.clip;
+        if c2 < ratio {
+            return Err(PrepError::Geometry(format!(
+                "the texture's aspect ratio {ratio}:1 ({w}x{h}) exceeds twice the clip size ({c2}); Performer's level layout cannot express it; pass --clip {} or more",
+                ratio.div_ceil(2)
+            )));
+        }
+        let mut smallest = if w >= h { (c2, c2 / ratio) } else { (c2 / ratio, c2) };
+        if smallest.0 > w {
+            // The whole texture fits the clip window (size == clip): level 0 becomes the one
+            // image cache, rather than a smallest_icache larger than the texture.
+            smallest = (w, h);
+        }
+        let default = if w == h {
+            (c2, c2)
+        } else if w > h {
+            (spec.clip * ratio, spec.clip)
+        } else {
+            (spec.clip, spec.clip * ratio)
+        };
+        let mut levels = Vec::new();
+        let mut k = 0u32;
+        while (w >> k) >= smallest.0 && (h >> k) >= smallest.1 {
+            let (lw, lh) = (w >> k, h >> k);
+            levels.push(Level {
+                index: k,
+                width: lw,
+                height: lh,
+                kind: LevelKind::ImageCache,
+                tile_w: spec.tile.min(lw),
+                tile_h: spec.tile.min(lh),
+            });
+            k += 1;
+        }
+        while (w >> k) > 0 && (h >> k) > 0 {
+            let (lw, lh) = (w >> k, h >> k);
+            levels.push(Level { index: k, width: lw, height: lh, kind: LevelKind::Pyramid, tile_w: lw, tile_h: lh });
+            k += 1;
+        }
+        Ok(Layout { spec, levels, smallest_icache: smallest, smallest_icache_is_default: smallest == default })
+    }
+
+    /// Bytes per texel.
+    pub fn bpt(&self) -> u64 {
+        self.spec.format.bytes_per_texel() as u64
+    }
+
+    /// The image-cache levels, finest first.
+    pub fn image_cache_levels(&self) -> impl Iterator<Item = &Level> {
+        self.levels.iter().filter(|l| l.kind == LevelKind::ImageCache)
+    }
+
+    /// The pyramid levels, finest first.
+    pub fn pyramid_levels(&self) -> impl Iterator<Item = &Level> {
+        self.levels.iter().filter(|l| l.kind == LevelKind::Pyramid)
+    }
+
+    /// Total texels over all levels.
+    pub fn total_texels(&self) -> u64 {
+        self.levels.iter().map(Level::texels).sum()
+    }
+
+    /// The `.ic` file of an image-cache level, relative to the `.ct`.
+    pub fn ic_file(level: u32) -> String {
+        format!("L{level:02}.ic")
+    }
+
+    /// The directory of an image-cache level's tiles (inside each stream directory, if any).
+    pub fn level_dir(level: u32) -> String {
+        format!("L{level:02}")
+    }
+
+    /// The file of a pyramid level, relative to the `.ct`.
+    pub fn pyramid_file(level: u32) -> String {
+        format!("pyramid/L{level:02}.raw")
+    }
+
+    /// The name (path prefix, with its trailing `/`) of stream server `i`.
+    pub fn stream_name(i: u32) -> String {
+        format!("stream{i}/")
+    }
+
+    /// The printf format of an image-cache level's tile files, as written into its `.ic`; its
+    /// parameters are [`Layout::tile_params`].
+    pub fn tile_format(&self, level: u32) -> String {
+        let stream = if self.spec.streams.is_some() { "%s" } else { "" };
+        format!("{stream}{}/r%03d.c%03d.raw", Self::level_dir(level))
+    }
+
+    /// The `tile_params` of [`Layout::tile_format`].
+    pub fn tile_params(&self) -> Vec<&'static str> {
+        let mut p = Vec::new();
+        if self.spec.streams.is_some() {
+            p.push("PFIMAGECACHE_TILE_FILENAMEARG_STREAMSERVERNAME");
+        }
+        p.push("PFIMAGECACHE_TILE_FILENAMEARG_FILENUM_T");
+        p.push("PFIMAGECACHE_TILE_FILENAMEARG_FILENUM_S");
+        p
+    }
+
+    /// Where tile (s, t) of `level` lives. For a pyramid level only (0, 0) exists.
+    pub fn tile(&self, level: &Level, s: u64, t: u64) -> TileLocation {
+        let bpt = self.bpt();
+        let length = level.tile_w * level.tile_h * bpt;
+        match level.kind {
+            LevelKind::Pyramid => {
+                TileLocation { path: PathBuf::from(Self::pyramid_file(level.index)), offset: 0, length, stream: None }
+            }
+            LevelKind::ImageCache => {
+                let (ns, nt) = self.spec.tiles_in_file;
+                let (fs, ft) = (s / ns, t / nt);
+                let pos = (s % ns) + ns * (t % nt);
+                let stream = self.spec.streams.map(|n| (s % n as u64) as u32);
+                let mut path = String::new();
+                if let Some(i) = stream {
+                    path.push_str(&Self::stream_name(i));
+                }
+                path.push_str(&format!("{}/r{ft:03}.c{fs:03}.raw", Self::level_dir(level.index)));
+                TileLocation {
+                    path: PathBuf::from(path),
+                    offset: pos * length + self.spec.header_bytes,
+                    length,
+                    stream,
+                }
+            }
+        }
+    }
+
+    /// Directories (relative) that tiles are written into.
+    pub fn directories(&self) -> Vec<PathBuf> {
+        let mut dirs = Vec::new();
+        let prefixes: Vec<String> = match self.spec.streams {
+            Some(n) => (0..n).map(Self::stream_name).collect(),
+            None => vec![String::new()],
+        };
+        for level in self.image_cache_levels() {
+            for p in &prefixes {
+                dirs.push(PathBuf::from(format!("{p}{}", Self::level_dir(level.index))));
+            }
+        }
+        if self.pyramid_levels().next().is_some() {
+            dirs.push(PathBuf::from("pyramid"));
+        }
+        dirs
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(w: u64, h: u64, clip: u64, tile: u64) -> Spec {
+        Spec {
+            width: w,
+            height: h,
+            clip,
+            tile,
+            format: TexelFormat::RGB8,
+            tiles_in_file: (1, 1),
+            header_bytes: 0,
+            streams: None,
+        }
+    }
+
+    #[test]
+    fn square_layout_matches_the_manual_example() {
+        // virt 4096, clip 512: 3 image caches (4096, 2048, 1024) + 10 pyramid levels (512 .. 1).
+        let l = Layout::new(spec(4096, 4096, 512, 256)).unwrap();
+        assert_eq!(l.image_cache_levels().count(), 3);
+        assert_eq!(l.pyramid_levels().count(), 10);
+        assert_eq!(l.levels.last().unwrap().width, 1);
+        assert!(l.smallest_icache_is_default);
+    }
+
+    #[test]
+    fn non_square_pyramid_stops_when_the_short_side_would_vanish() {
+        // 8192x2048 ends at 4x1 (PERFORMER.md §1.14).
+        let l = Layout::new(spec(8192, 2048, 1024, 256)).unwrap();
+        let last = l.levels.last().unwrap();
+        assert_eq!((last.width, last.height), (4, 1));
+        assert_eq!(l.smallest_icache, (2048, 512));
+    }
+
+    #[test]
+    fn multi_tile_files_follow_the_offset_formula() {
+        // PERFORMER.md §1.12: 256x256 RGB tiles, 4x4 per file, header 1024, tile (6, 9).
+        let mut sp = spec(4096, 4096, 512, 256);
+        sp.tiles_in_file = (4, 4);
+        sp.header_bytes = 1024;
+        let l = Layout::new(sp).unwrap();
+        let loc = l.tile(&l.levels[0], 6, 9);
+        assert_eq!(loc.offset, 1_180_672);
+        assert_eq!(loc.path, PathBuf::from("L00/r002.c001.raw"));
+    }
+
+    #[test]
+    fn a_texture_the_size_of_the_clip_window_is_one_image_cache_and_its_pyramid() {
+        let l = Layout::new(spec(64, 64, 64, 32)).unwrap();
+        assert_eq!(l.smallest_icache, (64, 64));
+        assert!(!l.smallest_icache_is_default);
+        assert_eq!(l.image_cache_levels().count(), 1);
+        assert_eq!(l.levels.len(), 7);
+    }
+
+    #[test]
+    fn non_powers_of_two_are_refused_with_the_next_power() {
+        let e = Layout::new(spec(256, 256, 100, 64)).unwrap_err();
+        assert!(e.to_string().contains("128"), "{e}");
+    }
+}

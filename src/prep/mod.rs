@@ -1,0 +1,50 @@
+//! Data preparation: turns an image or a procedural source into a complete, valid clip texture
+//! (tiled pyramid plus `.ct` and `.ic` files) that this crate, and Performer, can load.
+//!
+//! | module | owns |
+//! |---|---|
+//! | [`layout`] | level table (image cache vs pyramid), tile sizes, file names, offsets, streams |
+//! | [`configfile`] | the `.ct` / `.ic` text of a layout |
+//! | [`source`] | level texels: `hash` per level, `terrain` and images at level 0 |
+//! | [`tiff_stream`] | streaming TIFF input, strip by strip or tile row by tile row |
+//! | [`filter`] | row-by-row 2:1 reduction (box, Lanczos-3, optional linear light) |
+//! | [`sink`] | cutting bands of rows into tiles and writing them at their offsets |
+//! | [`pipeline`] | one run: configuration, then the band cascade down the levels |
+//! | [`output`] | the temporary sibling directory and the final rename |
+//!
+//! Memory is bounded by a few bands of one row of level-0 tiles (tile height x level-0 width),
+//! never by the texture: levels are generated or filtered band by band, each coarser level fed
+//! row by row from the one above. This module does not read configuration files; checking what
+//! it wrote is left to [`crate::config`] and the plan.
+
+pub mod configfile;
+pub mod error;
+pub mod filter;
+pub mod layout;
+pub mod output;
+pub mod pipeline;
+pub mod sink;
+pub mod source;
+pub mod tiff_stream;
+
+pub use error::PrepError;
+pub use filter::Filter;
+pub use layout::{Layout, Level, LevelKind, Spec, TileLocation};
+pub use pipeline::{run, Job, Source, Summary};
+
+/// Every memory bound of a preparation run.
+#[derive(Clone, Debug)]
+pub struct Limits {
+    /// Most memory a run may plan to use: the decoded size of an in-memory input image, and the
+    /// band cascade (about three bands of one row of level-0 tiles).
+    pub max_memory_bytes: u64,
+    /// Most bytes of one band of a pyramid level (pyramid levels are one tile each, written in
+    /// bands of rows).
+    pub pyramid_band_bytes: u64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits { max_memory_bytes: 512 << 20, pyramid_band_bytes: 16 << 20 }
+    }
+}

@@ -1,0 +1,225 @@
+//! One preparation run: configuration files, then every level's tiles, generated or filtered
+//! in bands of tile rows cascading down the levels, so memory is bounded by a few bands of
+//! level-0 width, never by the texture size.
+
+use super::configfile::{ct_text, ic_text};
+use super::error::PrepError;
+use super::filter::{Channels, Downsampler, Filter};
+use super::layout::Layout;
+use super::sink::LevelWriter;
+use super::source::{BandSource, HashLevel, OpenedImage, TerrainLevel0};
+use super::Limits;
+use crate::source::procedural::Terrain;
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Where level texels come from.
+pub enum Source {
+    /// The verification texture, generated per level (not filtered).
+    Hash,
+    /// Fractal terrain at level 0; coarser levels filtered.
+    Terrain {
+        /// Seed of the noise.
+        seed: u64,
+    },
+    /// An input image at level 0 (padded with zeros to the layout size); coarser levels filtered.
+    Image(OpenedImage),
+}
+
+/// Everything one run needs.
+pub struct Job {
+    /// The level table and naming.
+    pub layout: Layout,
+    /// The texel source.
+    pub source: Source,
+    /// Filter for coarser levels (ignored by the hash source).
+    pub filter: Filter,
+    /// Average in linear light (sRGB-decoded) rather than on stored values.
+    pub linear_light: bool,
+    /// File stem of the `.ct` (`NAME.ct`).
+    pub name: String,
+    /// Lines for the `.ct`'s leading comment.
+    pub description: Vec<String>,
+    /// Memory bounds.
+    pub limits: Limits,
+}
+
+/// What a run wrote.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Summary {
+    /// The `.ct`, relative to the output directory.
+    pub ct: PathBuf,
+    /// Levels written.
+    pub levels: usize,
+    /// Image-cache levels.
+    pub image_cache_levels: usize,
+    /// Pyramid levels.
+    pub pyramid_levels: usize,
+    /// Files written (configuration and tiles).
+    pub files: u64,
+    /// Bytes written (configuration and tiles).
+    pub bytes: u64,
+    /// Texels written over all levels.
+    pub texels: u64,
+}
+
+fn create_dir(path: &Path, total: u64) -> Result<(), PrepError> {
+    fs::create_dir_all(path).map_err(|e| PrepError::write(path, e, total))
+}
+
+fn write_file(path: &Path, text: &str, total: u64) -> Result<(), PrepError> {
+    fs::write(path, text).map_err(|e| PrepError::write(path, e, total))
+}
+
+/// Memory one band of level-0 rows takes in the cascade (source band, level-0 writer band, and
+/// the halving bands below), checked against the limit before anything is written.
+pub fn band_memory(layout: &Layout) -> u64 {
+    let l0 = &layout.levels[0];
+    3 * l0.tile_h * l0.width * layout.bpt()
+}
+
+/// Writes the whole prepared texture under `root` (an empty directory). `progress` receives the
+/// number of texels written since its last call; `cancel` is polled between bands.
+pub fn run(
+    job: Job,
+    root: &Path,
+    cancel: &AtomicBool,
+    interrupted_dir: &Path,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Summary, PrepError> {
+    let layout = &job.layout;
+    let total = layout.total_texels() * layout.bpt();
+    let need = band_memory(layout);
+    if need > job.limits.max_memory_bytes {
+        return Err(PrepError::Geometry(format!(
+            "one row of level-0 tiles ({} rows of {} texels) needs about {} MiB in the filter cascade, over the memory limit of {} MiB; pass a smaller --tile or raise --max-memory",
+            layout.levels[0].tile_h,
+            layout.levels[0].width,
+            need >> 20,
+            job.limits.max_memory_bytes >> 20
+        )));
+    }
+    for d in layout.directories() {
+        create_dir(&root.join(d), total)?;
+    }
+    let ct_name = format!("{}.ct", job.name);
+    write_file(&root.join(&ct_name), &ct_text(layout, &job.description), total)?;
+    for level in layout.image_cache_levels() {
+        write_file(&root.join(Layout::ic_file(level.index)), &ic_text(layout, level, &ct_name), total)?;
+    }
+    let interrupted = || PrepError::Interrupted { dir: interrupted_dir.into() };
+    let mut writers: Vec<LevelWriter> =
+        layout.levels.iter().map(|l| LevelWriter::new(root, layout, l, job.limits.pyramid_band_bytes)).collect();
+    let bpt = layout.bpt() as usize;
+    match job.source {
+        Source::Hash => {
+            for (w, level) in writers.iter_mut().zip(&layout.levels) {
+                let mut src = HashLevel { level: level.index, width: level.width, bpt };
+                let mut band = Vec::new();
+                let mut t = 0;
+                while t < level.height {
+                    if cancel.load(Ordering::Relaxed) {
+                        return Err(interrupted());
+                    }
+                    let rows = (w.band_rows() as u64).min(level.height - t) as usize;
+                    band.resize(rows * w.row_bytes(), 0);
+                    src.fill(t, rows, &mut band)?;
+                    progress(w.push(&band)?);
+                    t += rows as u64;
+                }
+                progress(w.finish()?);
+            }
+        }
+        Source::Terrain { .. } | Source::Image(_) => {
+            let mut src: Box<dyn BandSource> = match job.source {
+                Source::Terrain { seed } => {
+                    let log2 = layout.spec.width.max(layout.spec.height).trailing_zeros();
+                    Box::new(TerrainLevel0 {
+                        terrain: Terrain::new(log2, seed),
+                        width: layout.spec.width,
+                        format: layout.spec.format,
+                    })
+                }
+                Source::Image(img) => img.into_source(layout.spec.format, layout.spec.width)?,
+                Source::Hash => unreachable!("handled above"),
+            };
+            let ch = Channels::of(layout.spec.format).ok_or_else(|| {
+                PrepError::Geometry(format!("texel format {} cannot be filtered", layout.spec.format))
+            })?;
+            let mut downs: Vec<Downsampler> = layout.levels[..layout.levels.len() - 1]
+                .iter()
+                .map(|l| Downsampler::new(ch, job.filter, job.linear_light, l.width, l.height))
+                .collect();
+            let l0 = &layout.levels[0];
+            let band_rows = writers[0].band_rows();
+            let row_bytes = writers[0].row_bytes();
+            let mut band = Vec::new();
+            let mut t = 0;
+            while t < l0.height {
+                if cancel.load(Ordering::Relaxed) {
+                    return Err(interrupted());
+                }
+                let rows = (band_rows as u64).min(l0.height - t) as usize;
+                band.resize(rows * row_bytes, 0);
+                src.fill(t, rows, &mut band)?;
+                for row in band.chunks_exact(row_bytes) {
+                    feed(0, row, &mut writers, &mut downs, progress)?;
+                }
+                t += rows as u64;
+            }
+            for w in &mut writers {
+                progress(w.finish()?);
+            }
+        }
+    }
+    drop(writers);
+    let (files, bytes) = tally(root).map_err(|e| PrepError::write(root, e, total))?;
+    Ok(Summary {
+        ct: PathBuf::from(ct_name),
+        levels: layout.levels.len(),
+        image_cache_levels: layout.image_cache_levels().count(),
+        pyramid_levels: layout.pyramid_levels().count(),
+        files,
+        bytes,
+        texels: layout.total_texels(),
+    })
+}
+
+/// Hands one row of level `k` to its writer and to the reducer that builds level k + 1.
+fn feed(
+    k: usize,
+    row: &[u8],
+    writers: &mut [LevelWriter],
+    downs: &mut [Downsampler],
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(), PrepError> {
+    progress(writers[k].push(row)?);
+    if k < downs.len() {
+        let row_bytes = downs[k].dst_row_bytes();
+        let mut out = Vec::with_capacity(row_bytes);
+        downs[k].push(row, &mut out);
+        for r in out.chunks_exact(row_bytes) {
+            feed(k + 1, r, writers, downs, progress)?;
+        }
+    }
+    Ok(())
+}
+
+/// Counts the files and bytes under `dir`.
+fn tally(dir: &Path) -> std::io::Result<(u64, u64)> {
+    let (mut files, mut bytes) = (0, 0);
+    for e in fs::read_dir(dir)? {
+        let e = e?;
+        let meta = e.metadata()?;
+        if meta.is_dir() {
+            let (f, b) = tally(&e.path())?;
+            files += f;
+            bytes += b;
+        } else {
+            files += 1;
+            bytes += meta.len();
+        }
+    }
+    Ok((files, bytes))
+}

@@ -1,0 +1,144 @@
+//! Writes one level's rows into its tile files, a band of rows at a time.
+//!
+//! A band never spans two rows of tiles: image-cache levels are written one row of tiles at a
+//! time (so a one-tile file is written whole, once); a pyramid level, a single tile, is written in
+//! bands of at most [`Limits::pyramid_band_bytes`](super::Limits). Each band is cut into its
+//! tiles, and each tile's part is written at its byte offset in its file (PERFORMER.md §1.12), with
+//! the file's header in front when `header_offset` is set.
+
+use super::error::PrepError;
+use super::layout::{Layout, Level, LevelKind};
+use std::fs::OpenOptions;
+use std::io::{Seek, SeekFrom, Write};
+use std::path::Path;
+
+/// Buffers and writes the rows of one level.
+pub struct LevelWriter<'a> {
+    root: &'a Path,
+    layout: &'a Layout,
+    level: Level,
+    row_bytes: usize,
+    band_rows: usize,
+    band: Vec<u8>,
+    band_t0: u64,
+    filled: usize,
+    /// Total bytes of the prepared texture (for a full-disk message).
+    total_bytes: u64,
+}
+
+impl<'a> LevelWriter<'a> {
+    /// A writer for `level` of `layout`, writing under `root`.
+    pub fn new(root: &'a Path, layout: &'a Layout, level: &Level, pyramid_band_bytes: u64) -> LevelWriter<'a> {
+        let row_bytes = (level.width * layout.bpt()) as usize;
+        let band_rows = match level.kind {
+            LevelKind::ImageCache => level.tile_h as usize,
+            LevelKind::Pyramid => (pyramid_band_bytes as usize / row_bytes).clamp(1, level.height as usize),
+        };
+        LevelWriter {
+            root,
+            layout,
+            level: level.clone(),
+            row_bytes,
+            band_rows,
+            band: Vec::with_capacity(band_rows * row_bytes),
+            band_t0: 0,
+            filled: 0,
+            total_bytes: layout.total_texels() * layout.bpt(),
+        }
+    }
+
+    /// Rows per band.
+    pub fn band_rows(&self) -> usize {
+        self.band_rows
+    }
+
+    /// Bytes of one row.
+    pub fn row_bytes(&self) -> usize {
+        self.row_bytes
+    }
+
+    /// Appends rows (a whole number of them); writes each band as it fills. Returns the texels
+    /// written to disk by this call.
+    pub fn push(&mut self, rows: &[u8]) -> Result<u64, PrepError> {
+        debug_assert_eq!(rows.len() % self.row_bytes, 0);
+        let mut written = 0;
+        for row in rows.chunks_exact(self.row_bytes) {
+            self.band.extend_from_slice(row);
+            self.filled += 1;
+            if self.filled == self.band_rows {
+                written += self.flush()?;
+            }
+        }
+        Ok(written)
+    }
+
+    /// Writes any rows still buffered. Returns the texels written.
+    pub fn finish(&mut self) -> Result<u64, PrepError> {
+        self.flush()
+    }
+
+    fn flush(&mut self) -> Result<u64, PrepError> {
+        let rows = self.filled;
+        if rows == 0 {
+            return Ok(0);
+        }
+        let bpt = self.layout.bpt() as usize;
+        let level = &self.level;
+        let tile_t = self.band_t0 / level.tile_h;
+        let row_in_tile = self.band_t0 % level.tile_h;
+        let tw = level.tile_w as usize;
+        let mut part = Vec::with_capacity(rows * tw * bpt);
+        for tile_s in 0..level.tiles_s() {
+            let loc = self.layout.tile(level, tile_s, tile_t);
+            part.clear();
+            let x0 = tile_s as usize * tw * bpt;
+            for r in 0..rows {
+                let start = r * self.row_bytes + x0;
+                part.extend_from_slice(&self.band[start..start + tw * bpt]);
+            }
+            let path = self.root.join(&loc.path);
+            let offset = loc.offset + row_in_tile * tw as u64 * bpt as u64;
+            let header = self.header(level, tile_s, tile_t);
+            write_at(&path, &header, offset, &part).map_err(|e| PrepError::write(&path, e, self.total_bytes))?;
+        }
+        self.band_t0 += rows as u64;
+        self.filled = 0;
+        self.band.clear();
+        Ok(rows as u64 * level.width)
+    }
+
+    /// The header of the file holding tile (s, t): a line of text describing the file, padded
+    /// with zeros (or cut) to `header_offset` bytes. Empty without a header.
+    fn header(&self, level: &Level, s: u64, t: u64) -> Vec<u8> {
+        let h = self.layout.spec.header_bytes as usize;
+        if h == 0 || level.kind == LevelKind::Pyramid {
+            return Vec::new();
+        }
+        let (ns, nt) = self.layout.spec.tiles_in_file;
+        let text = format!(
+            "clipmap tiles: level {} file {} {} holds {}x{} tiles of {}x{} {} texels, s fastest, after {} header bytes\n",
+            level.index,
+            s / ns,
+            t / nt,
+            ns,
+            nt,
+            level.tile_w,
+            level.tile_h,
+            self.layout.spec.format,
+            h
+        );
+        let mut out = text.into_bytes();
+        out.resize(h, 0);
+        out
+    }
+}
+
+fn write_at(path: &Path, header: &[u8], offset: u64, data: &[u8]) -> std::io::Result<()> {
+    let mut f = OpenOptions::new().write(true).create(true).truncate(false).open(path)?;
+    if !header.is_empty() {
+        f.write_all(header)?;
+    }
+    f.seek(SeekFrom::Start(offset))?;
+    f.write_all(data)?;
+    Ok(())
+}

@@ -1,0 +1,651 @@
+//! `clipprep` end to end: the real binary writes a clip texture into a temporary directory, and
+//! every check reads it back through the project's own resolution (`cliptex info`, `cliptex
+//! tile`, `icache tile`) and `cliptex validate --strict`.
+
+use clipmap::source::procedural::hash;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const CLIPPREP: &str = env!("CARGO_BIN_EXE_clipprep");
+const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
+const ICACHE: &str = env!("CARGO_BIN_EXE_icache");
+
+fn describe(cmd: &[&str], out: &Output) -> String {
+    format!(
+        "command: {}\nstatus: {:?}\nstdout:\n{}\nstderr:\n{}",
+        cmd.join(" "),
+        out.status.code(),
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+/// Runs a program; returns its output and a description for failure messages.
+fn exec(prog: &str, args: &[&str]) -> (Output, String) {
+    let out = Command::new(prog).args(args).output().expect("the binary runs");
+    let mut cmd = vec![prog];
+    cmd.extend_from_slice(args);
+    let d = describe(&cmd, &out);
+    (out, d)
+}
+
+/// Runs a program that must succeed; returns stdout.
+fn ok(prog: &str, args: &[&str]) -> String {
+    let (out, d) = exec(prog, args);
+    assert!(out.status.success(), "expected success\n{d}");
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// Runs clipprep with `args` plus `--out dir --json`; returns the JSON summary.
+fn prep(dir: &Path, args: &[&str]) -> Value {
+    let mut all: Vec<&str> = args.to_vec();
+    let d = dir.to_str().unwrap();
+    all.extend_from_slice(&["--out", d, "--json"]);
+    serde_json::from_str(&ok(CLIPPREP, &all)).expect("--json prints JSON")
+}
+
+/// One level as the project's plan describes it.
+struct LevelInfo {
+    size: (u64, u64),
+    tile: (u64, u64),
+}
+
+fn levels(ct: &str) -> Vec<LevelInfo> {
+    let info: Value = serde_json::from_str(&ok(CLIPTEX, &["info", ct, "--json"])).unwrap();
+    info["levels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| {
+            let size = (l["size"][0].as_u64().unwrap(), l["size"][1].as_u64().unwrap());
+            let tile = match l["tile_size"].as_array() {
+                Some(t) => (t[0].as_u64().unwrap(), t[1].as_u64().unwrap()),
+                None => size,
+            };
+            LevelInfo { size, tile }
+        })
+        .collect()
+}
+
+/// Reads tile (s, t) of `level` through `cliptex tile`.
+fn read_tile(ct: &str, level: usize, s: u64, t: u64) -> Vec<u8> {
+    let (l, s, t) = (level.to_string(), s.to_string(), t.to_string());
+    let loc: Value = serde_json::from_str(&ok(CLIPTEX, &["tile", ct, "--level", &l, "--s", &s, "--t", &t, "--json"]))
+        .expect("cliptex tile --json prints JSON");
+    let bytes = std::fs::read(loc["path"].as_str().unwrap()).expect("the tile file exists");
+    let (off, len) = (loc["offset"].as_u64().unwrap() as usize, loc["length"].as_u64().unwrap() as usize);
+    assert!(bytes.len() >= off + len, "tile file too short: {loc}");
+    bytes[off..off + len].to_vec()
+}
+
+/// A whole level, assembled from its tiles: rows in increasing t, s fastest.
+fn read_level(ct: &str, level: usize, info: &LevelInfo, bpt: usize) -> Vec<u8> {
+    let (w, h) = info.size;
+    let (tw, th) = info.tile;
+    let mut out = vec![0u8; (w * h) as usize * bpt];
+    for tt in 0..h / th {
+        for ts in 0..w / tw {
+            let tile = read_tile(ct, level, ts, tt);
+            assert_eq!(tile.len(), (tw * th) as usize * bpt);
+            for r in 0..th {
+                let src = &tile[(r * tw) as usize * bpt..][..tw as usize * bpt];
+                let t = tt * th + r;
+                let dst = ((t * w + ts * tw) as usize) * bpt;
+                out[dst..dst + tw as usize * bpt].copy_from_slice(src);
+            }
+        }
+    }
+    out
+}
+
+fn validate_strict(ct: &str) {
+    ok(CLIPTEX, &["validate", "--strict", ct]);
+}
+
+fn ct_path(summary: &Value) -> String {
+    let ct = summary["ct"].as_str().expect("ct is a string").to_string();
+    assert!(Path::new(&ct).is_file(), "{ct} exists");
+    ct
+}
+
+#[test]
+fn hash_texels_match_at_sampled_coordinates_of_every_level() {
+    for (format, bpt) in [("rgb8", 3usize), ("rgba5551", 2), ("l8", 1)] {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("hash");
+        let summary =
+            prep(&dir, &["--source", "hash", "--size", "256", "--tile", "64", "--clip", "64", "--format", format]);
+        let ct = ct_path(&summary);
+        validate_strict(&ct);
+        let lv = levels(&ct);
+        assert_eq!(lv.len(), 9, "256 down to 1x1");
+        assert_eq!(summary["levels"], 9);
+        for (k, info) in lv.iter().enumerate() {
+            let (w, h) = info.size;
+            assert_eq!((w, h), (256 >> k, 256 >> k));
+            for (s, t) in [(0, 0), (w - 1, h - 1), (w / 2, h / 3), ((w * 3) / 4, h - 1), (w - 1, 0)] {
+                let tile = read_tile(&ct, k, s / info.tile.0, t / info.tile.1);
+                let at = (((t % info.tile.1) * info.tile.0 + s % info.tile.0) as usize) * bpt;
+                let mut expect = vec![0u8; bpt];
+                hash(k as u32, s, t, &mut expect);
+                assert_eq!(&tile[at..at + bpt], &expect[..], "{format} level {k} texel ({s}, {t})");
+            }
+        }
+    }
+}
+
+/// floor((a + b + c + d + 2) / 4) per component, the rounding clipprep documents.
+fn avg4(a: u32, b: u32, c: u32, d: u32) -> u32 {
+    (a + b + c + d + 2) / 4
+}
+
+/// Checks that every level is the 2x2 rounded average of the one below, per byte component.
+fn assert_box_pyramid(ct: &str, bpt: usize) {
+    let lv = levels(ct);
+    let mut below = read_level(ct, 0, &lv[0], bpt);
+    for k in 1..lv.len() {
+        let level = read_level(ct, k, &lv[k], bpt);
+        let (w, h) = lv[k].size;
+        let bw = lv[k - 1].size.0;
+        for t in 0..h {
+            for s in 0..w {
+                for c in 0..bpt {
+                    let px = |s: u64, t: u64| below[((t * bw + s) as usize) * bpt + c] as u32;
+                    let want =
+                        avg4(px(2 * s, 2 * t), px(2 * s + 1, 2 * t), px(2 * s, 2 * t + 1), px(2 * s + 1, 2 * t + 1));
+                    let got = level[((t * w + s) as usize) * bpt + c] as u32;
+                    assert_eq!(got, want, "level {k} texel ({s}, {t}) component {c}");
+                }
+            }
+        }
+        below = level;
+    }
+}
+
+#[test]
+fn box_filtered_terrain_levels_are_the_rounded_average_of_the_level_below() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("terrain");
+    let summary =
+        prep(&dir, &["--source", "terrain", "--size", "256", "--tile", "64", "--clip", "64", "--format", "rgb8"]);
+    let ct = ct_path(&summary);
+    validate_strict(&ct);
+    assert_box_pyramid(&ct, 3);
+}
+
+#[test]
+fn packed_5551_levels_average_each_packed_field() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("t5551");
+    let summary =
+        prep(&dir, &["--source", "terrain", "--size", "128", "--tile", "32", "--clip", "32", "--format", "rgba5551"]);
+    let ct = ct_path(&summary);
+    validate_strict(&ct);
+    let lv = levels(&ct);
+    let fields = |v: u16| [(v >> 11) as u32, ((v >> 6) & 31) as u32, ((v >> 1) & 31) as u32, (v & 1) as u32];
+    let texel = |data: &[u8], w: u64, s: u64, t: u64| {
+        let i = ((t * w + s) * 2) as usize;
+        fields(u16::from_le_bytes([data[i], data[i + 1]]))
+    };
+    let l0 = read_level(&ct, 0, &lv[0], 2);
+    let l1 = read_level(&ct, 1, &lv[1], 2);
+    for t in 0..lv[1].size.1 {
+        for s in 0..lv[1].size.0 {
+            let q = [(2 * s, 2 * t), (2 * s + 1, 2 * t), (2 * s, 2 * t + 1), (2 * s + 1, 2 * t + 1)]
+                .map(|(x, y)| texel(&l0, lv[0].size.0, x, y));
+            let got = texel(&l1, lv[1].size.0, s, t);
+            for c in 0..4 {
+                assert_eq!(got[c], avg4(q[0][c], q[1][c], q[2][c], q[3][c]), "({s}, {t}) field {c}");
+            }
+        }
+    }
+}
+
+fn write_png(path: &Path, w: u32, h: u32) -> image::RgbaImage {
+    let img = image::RgbaImage::from_fn(w, h, |x, y| {
+        let v = (x * 7 + y * 13) as u8;
+        image::Rgba([v, (x * 3) as u8, (y * 5) as u8, 255 - (x as u8)])
+    });
+    img.save(path).unwrap();
+    img
+}
+
+#[test]
+fn png_input_is_level_zero_with_a_lower_left_origin_and_filtered_below() {
+    let tmp = tempfile::tempdir().unwrap();
+    let png = tmp.path().join("in.png");
+    let img = write_png(&png, 128, 64);
+    let dir = tmp.path().join("png");
+    let summary = prep(
+        &dir,
+        &[
+            "--input",
+            png.to_str().unwrap(),
+            "--tile",
+            "32",
+            "--clip",
+            "32",
+            "--format",
+            "rgba8",
+            "--tiles-per-file",
+            "2",
+        ],
+    );
+    let ct = ct_path(&summary);
+    validate_strict(&ct);
+    let lv = levels(&ct);
+    assert_eq!(lv[0].size, (128, 64));
+    let l0 = read_level(&ct, 0, &lv[0], 4);
+    for t in 0..64u32 {
+        for s in 0..128u32 {
+            let want = img.get_pixel(s, 63 - t).0;
+            let i = ((t * 128 + s) * 4) as usize;
+            assert_eq!(&l0[i..i + 4], &want, "texel ({s}, {t})");
+        }
+    }
+    assert_box_pyramid(&ct, 4);
+    // Performer's non-square pyramid ends when the short side reaches 1: 128x64 ... 2x1.
+    assert_eq!(lv.last().unwrap().size, (2, 1));
+}
+
+#[test]
+fn tiff_input_is_streamed_strip_by_strip() {
+    use tiff::encoder::{colortype, TiffEncoder};
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("in.tif");
+    let (w, h) = (64u32, 32u32);
+    let data: Vec<u8> = (0..w * h * 3).map(|i| (i * 31 % 251) as u8).collect();
+    {
+        let file = std::fs::File::create(&path).unwrap();
+        let mut enc = TiffEncoder::new(file).unwrap();
+        let mut image = enc.new_image::<colortype::RGB8>(w, h).unwrap();
+        image.rows_per_strip(3).unwrap();
+        image.write_data(&data).unwrap();
+    }
+    let dir = tmp.path().join("tif");
+    let summary = prep(&dir, &["--input", path.to_str().unwrap(), "--tile", "16", "--clip", "32", "--format", "rgb8"]);
+    let ct = ct_path(&summary);
+    let lv = levels(&ct);
+    let l0 = read_level(&ct, 0, &lv[0], 3);
+    for t in 0..h {
+        for s in 0..w {
+            let src = (((h - 1 - t) * w + s) * 3) as usize;
+            let dst = ((t * w + s) * 3) as usize;
+            assert_eq!(&l0[dst..dst + 3], &data[src..src + 3], "texel ({s}, {t})");
+        }
+    }
+    assert_box_pyramid(&ct, 3);
+}
+
+#[test]
+fn linear_light_averages_in_linear_space_and_lanczos_keeps_flat_areas_flat() {
+    let tmp = tempfile::tempdir().unwrap();
+    let png = tmp.path().join("checker.png");
+    image::GrayImage::from_fn(64, 64, |x, y| image::Luma([if (x + y) % 2 == 0 { 0 } else { 255 }])).save(&png).unwrap();
+    let args = |extra: &'static [&'static str]| {
+        let mut a = vec!["--input", png.to_str().unwrap(), "--tile", "16", "--clip", "32", "--format", "l8"];
+        a.extend_from_slice(extra);
+        a.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let level1 = |name: &str, extra: &'static [&'static str]| {
+        let a = args(extra);
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
+        let ct = ct_path(&prep(&tmp.path().join(name), &a));
+        validate_strict(&ct);
+        let lv = levels(&ct);
+        read_level(&ct, 1, &lv[1], 1)
+    };
+    // Stored values: (0 + 255 + 0 + 255 + 2) / 4 = 128. Linear light: half of full intensity is
+    // sRGB 0.7354, 187.5 of 255, rounded up to 188.
+    assert!(level1("plain", &[]).iter().all(|&v| v == 128));
+    assert!(level1("linear", &["--linear-light"]).iter().all(|&v| v == 188));
+    // A flat image stays flat through Lanczos-3 (its weights sum to one).
+    let flat = tmp.path().join("flat.png");
+    image::GrayImage::from_pixel(64, 64, image::Luma([77])).save(&flat).unwrap();
+    let ct = ct_path(&prep(
+        &tmp.path().join("lanczos"),
+        &["--input", flat.to_str().unwrap(), "--tile", "16", "--clip", "32", "--format", "l8", "--filter", "lanczos3"],
+    ));
+    let lv = levels(&ct);
+    for (k, info) in lv.iter().enumerate() {
+        assert!(read_level(&ct, k, info, 1).iter().all(|&v| v == 77), "level {k}");
+    }
+}
+
+#[test]
+fn multi_tile_files_hold_a_header_then_tiles_at_their_offsets() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("multi");
+    let args = [
+        "--source",
+        "hash",
+        "--size",
+        "256",
+        "--tile",
+        "32",
+        "--clip",
+        "32",
+        "--format",
+        "rgb8",
+        "--tiles-per-file",
+        "2x2",
+        "--header-bytes",
+        "100",
+    ];
+    let ct = ct_path(&prep(&dir, &args));
+    validate_strict(&ct);
+    let ic = dir.join("L00.ic");
+    let text = std::fs::read_to_string(&ic).unwrap();
+    assert!(text.contains("tiles_in_file 2 2 1") && text.contains("header_offset 100"), "{text}");
+    let tile_bytes = 32 * 32 * 3;
+    for (s, t) in [(0u64, 0u64), (1, 0), (0, 1), (1, 1), (5, 6), (7, 7)] {
+        let (ss, ts) = (s.to_string(), t.to_string());
+        let loc: Value =
+            serde_json::from_str(&ok(ICACHE, &["tile", ic.to_str().unwrap(), "--s", &ss, "--t", &ts, "--json"]))
+                .unwrap();
+        let expect_offset = ((s % 2) + 2 * (t % 2)) * tile_bytes + 100;
+        assert_eq!(loc["offset"].as_u64(), Some(expect_offset), "tile ({s}, {t})");
+        assert_eq!(loc["length"].as_u64(), Some(tile_bytes));
+        let file = std::fs::read(loc["path"].as_str().unwrap()).unwrap();
+        assert_eq!(file.len() as u64, 100 + 4 * tile_bytes, "four tiles after the header");
+        assert!(file.starts_with(b"clipmap tiles: level 0"), "the header describes the file");
+        let at = expect_offset as usize;
+        let mut first = [0u8; 3];
+        hash(0, s * 32, t * 32, &mut first);
+        assert_eq!(&file[at..at + 3], &first, "first texel of tile ({s}, {t})");
+        let mut last = [0u8; 3];
+        hash(0, s * 32 + 31, t * 32 + 31, &mut last);
+        let end = at + tile_bytes as usize;
+        assert_eq!(&file[end - 3..end], &last, "last texel of tile ({s}, {t})");
+    }
+}
+
+#[test]
+fn stream_servers_take_tiles_by_column_modulo_their_number() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("streams");
+    let args =
+        ["--source", "hash", "--size", "256", "--tile", "32", "--clip", "32", "--format", "l8", "--streams", "3"];
+    let ct = ct_path(&prep(&dir, &args));
+    validate_strict(&ct);
+    let text = std::fs::read_to_string(dir.join("L00.ic")).unwrap();
+    assert!(text.contains("s_stream stream0/ stream1/ stream2/"), "{text}");
+    assert!(!text.contains("s_streams"), "the singular spelling avoids Performer 3.0's misparse");
+    for s in 0..8u64 {
+        for t in [0u64, 3] {
+            let (ss, ts) = (s.to_string(), t.to_string());
+            let ic = dir.join("L00.ic");
+            let loc: Value =
+                serde_json::from_str(&ok(ICACHE, &["tile", ic.to_str().unwrap(), "--s", &ss, "--t", &ts, "--json"]))
+                    .unwrap();
+            let stream = format!("stream{}/", s % 3);
+            assert_eq!(loc["stream"].as_str(), Some(stream.as_str()));
+            let path = PathBuf::from(loc["path"].as_str().unwrap());
+            assert!(path.to_string_lossy().contains(&stream), "{}", path.display());
+            let tile = std::fs::read(&path).unwrap();
+            let mut texel = [0u8; 1];
+            hash(0, s * 32 + 5, t * 32 + 2, &mut texel);
+            assert_eq!(tile[2 * 32 + 5], texel[0]);
+            for other in (0..3).filter(|&o| o != s % 3) {
+                let elsewhere = dir.join(format!("stream{other}")).join(path.strip_prefix(dir.join(&stream)).unwrap());
+                assert!(!elsewhere.exists(), "{} should not exist", elsewhere.display());
+            }
+        }
+    }
+}
+
+#[test]
+fn json_summary_reports_the_contract_fields() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("json");
+    let v = prep(&dir, &["--source", "hash", "--size", "512", "--tile", "64", "--clip", "128", "--format", "rgba8"]);
+    let ct = ct_path(&v);
+    assert!(ct.ends_with("json.ct"), "{ct}");
+    assert_eq!(v["levels"], 10);
+    assert!(v["seconds"].as_f64().unwrap() >= 0.0);
+    fn du(p: &Path) -> (u64, u64) {
+        let mut t = (0, 0);
+        for e in std::fs::read_dir(p).unwrap() {
+            let e = e.unwrap();
+            if e.file_type().unwrap().is_dir() {
+                let (f, b) = du(&e.path());
+                t = (t.0 + f, t.1 + b);
+            } else {
+                t = (t.0 + 1, t.1 + e.metadata().unwrap().len());
+            }
+        }
+        t
+    }
+    let (files, bytes) = du(&dir);
+    assert_eq!(v["bytes"].as_u64(), Some(bytes));
+    assert_eq!(v["files"].as_u64(), Some(files));
+    // Texels of all levels times 4 bytes, plus the configuration files.
+    let texels: u64 = (0..10).map(|k| (512u64 >> k) * (512 >> k)).sum();
+    assert!(bytes > texels * 4 && bytes < texels * 4 + 16 * 1024, "{bytes}");
+}
+
+fn fails(args: &[&str], code: i32) -> String {
+    let (out, d) = exec(CLIPPREP, args);
+    assert_eq!(out.status.code(), Some(code), "expected exit {code}\n{d}");
+    String::from_utf8(out.stderr).unwrap()
+}
+
+#[test]
+fn an_existing_pyramid_is_refused_without_force_and_replaced_with_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("again");
+    let d = dir.to_str().unwrap();
+    let base = ["--source", "hash", "--size", "128", "--tile", "32", "--clip", "32", "--out", d];
+    ok(CLIPPREP, &[&base[..], &["--format", "rgb8", "-q"]].concat());
+    let err = fails(&[&base[..], &["--format", "l8"]].concat(), 1);
+    assert!(err.contains("already holds a clip texture") && err.contains("--force"), "{err}");
+    assert!(std::fs::read_to_string(dir.join("again.ct")).unwrap().contains("PFTEX_RGB_8"), "left untouched");
+    ok(CLIPPREP, &[&base[..], &["--format", "l8", "--force", "-q"]].concat());
+    assert!(std::fs::read_to_string(dir.join("again.ct")).unwrap().contains("PFTEX_LUMINANCE"), "replaced");
+    // A directory holding anything else is never replaced, even with --force.
+    let other = tmp.path().join("other");
+    std::fs::create_dir(&other).unwrap();
+    std::fs::write(other.join("notes.txt"), "mine").unwrap();
+    let o = other.to_str().unwrap();
+    let err = fails(
+        &["--source", "hash", "--size", "64", "--tile", "32", "--clip", "32", "--format", "l8", "--out", o, "--force"],
+        1,
+    );
+    assert!(err.contains("not an empty directory"), "{err}");
+    assert_eq!(std::fs::read_to_string(other.join("notes.txt")).unwrap(), "mine");
+}
+
+#[test]
+fn non_power_of_two_sizes_are_refused_naming_the_next_power_or_padded() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("npot");
+    let o = out.to_str().unwrap();
+    let err =
+        fails(&["--source", "hash", "--size", "300", "--tile", "32", "--clip", "32", "--format", "l8", "--out", o], 1);
+    assert!(err.contains("300") && err.contains("512"), "{err}");
+    let err =
+        fails(&["--source", "hash", "--size", "256", "--tile", "48", "--clip", "32", "--format", "l8", "--out", o], 1);
+    assert!(err.contains("tile size is 48") && err.contains("64"), "{err}");
+    let err =
+        fails(&["--source", "hash", "--size", "256", "--tile", "16", "--clip", "16", "--format", "l8", "--out", o], 1);
+    assert!(err.contains("clip size 16") && err.contains("at least 32"), "{err}");
+    assert!(!out.exists());
+    let png = tmp.path().join("odd.png");
+    write_png(&png, 100, 60);
+    let p = png.to_str().unwrap();
+    let err = fails(&["--input", p, "--tile", "32", "--clip", "32", "--format", "rgb8", "--out", o], 1);
+    assert!(err.contains("width of") && err.contains("100") && err.contains("128") && err.contains("--pad"), "{err}");
+    let ct = ct_path(&prep(&out, &["--input", p, "--tile", "32", "--clip", "32", "--format", "rgb8", "--pad"]));
+    validate_strict(&ct);
+    let lv = levels(&ct);
+    assert_eq!(lv[0].size, (128, 64));
+    let l0 = read_level(&ct, 0, &lv[0], 3);
+    // Padding is black, at the right (s >= 100) and the top (t >= 60).
+    assert_eq!(&l0[((10 * 128 + 120) * 3)..][..3], &[0, 0, 0]);
+    assert_eq!(&l0[((62 * 128 + 10) * 3)..][..3], &[0, 0, 0]);
+}
+
+#[test]
+fn a_truncated_png_fails_with_exit_1_and_leaves_nothing_behind() {
+    let tmp = tempfile::tempdir().unwrap();
+    let png = tmp.path().join("cut.png");
+    write_png(&png, 64, 64);
+    let bytes = std::fs::read(&png).unwrap();
+    std::fs::write(&png, &bytes[..bytes.len() / 2]).unwrap();
+    let out = tmp.path().join("never");
+    let err = fails(
+        &[
+            "--input",
+            png.to_str().unwrap(),
+            "--tile",
+            "32",
+            "--clip",
+            "32",
+            "--format",
+            "rgb8",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        1,
+    );
+    assert!(err.contains("cannot decode") && err.contains("cut.png"), "{err}");
+    assert!(!out.exists());
+    let left: Vec<_> = std::fs::read_dir(tmp.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(left.len(), 1, "only the input remains: {left:?}");
+}
+
+#[test]
+fn every_format_and_layout_option_passes_strict_validation() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (i, (format, size, extra)) in [
+        ("rgb565", "256", &["--streams", "2"][..]),
+        ("rgba5551", "512x128", &["--tiles-per-file", "3x2", "--header-bytes", "64"][..]),
+        ("rgba8", "128x512", &[][..]),
+        ("l8", "1024x64", &["--streams", "4", "--tiles-per-file", "2"][..]),
+        ("rgb8", "32", &[][..]),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let dir = tmp.path().join(format!("v{i}"));
+        let mut args = vec!["--source", "terrain", "--size", size, "--tile", "32", "--clip", "32", "--format", format];
+        args.extend_from_slice(extra);
+        let ct = ct_path(&prep(&dir, &args));
+        validate_strict(&ct);
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.extension().is_some_and(|x| x == "ic") {
+                ok(ICACHE, &["validate", "--strict", p.to_str().unwrap()]);
+            }
+        }
+        let text = std::fs::read_to_string(&ct).unwrap();
+        assert!(text.starts_with("ct_version2.0\n"), "{text}");
+        for line in text.lines() {
+            assert!(!line.contains('#') || line.starts_with('#'), "comments stand on their own lines: {line}");
+            assert!(!line.contains('/') || !line.trim_start().starts_with('/'), "no absolute paths: {line}");
+        }
+    }
+}
+
+#[test]
+fn the_prepared_example_is_what_clipprep_writes() {
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("config_examples/prepared");
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("prepared");
+    let ct = ct_path(&prep(
+        &dir,
+        &["--source", "hash", "--size", "256", "--tile", "64", "--clip", "64", "--format", "rgb8", "--name", "hash256"],
+    ));
+    validate_strict(example.join("hash256.ct").to_str().unwrap());
+    fn files(root: &Path, p: &Path, out: &mut Vec<PathBuf>) {
+        for e in std::fs::read_dir(p).unwrap() {
+            let e = e.unwrap().path();
+            if e.is_dir() {
+                files(root, &e, out);
+            } else {
+                out.push(e.strip_prefix(root).unwrap().to_path_buf());
+            }
+        }
+    }
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    files(&dir, &dir, &mut a);
+    files(&example, &example, &mut b);
+    a.sort();
+    b.sort();
+    assert_eq!(a, b, "same files");
+    for f in &a {
+        assert_eq!(std::fs::read(dir.join(f)).unwrap(), std::fs::read(example.join(f)).unwrap(), "{}", f.display());
+    }
+    assert!(ct.ends_with("hash256.ct"));
+}
+
+#[cfg(unix)]
+#[test]
+fn an_interrupted_run_leaves_neither_output_nor_partial_directory() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("cut");
+    let args = ["--source", "terrain", "--size", "4096", "--tile", "256", "--clip", "256", "--format", "rgba8", "-q"];
+    let child = Command::new(CLIPPREP)
+        .args(args)
+        .arg("--out")
+        .arg(&out)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let partial =
+        |p: &Path| std::fs::read_dir(p).unwrap().any(|e| e.unwrap().file_name().to_string_lossy().contains("partial"));
+    let start = std::time::Instant::now();
+    while !partial(tmp.path()) && start.elapsed() < std::time::Duration::from_secs(20) {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let status = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(status.success());
+    let out_put = child.wait_with_output().unwrap();
+    let d = describe(&["clipprep (interrupted)"], &out_put);
+    assert_eq!(out_put.status.code(), Some(2), "{d}");
+    assert!(String::from_utf8_lossy(&out_put.stderr).contains("interrupted"), "{d}");
+    assert!(!out.exists(), "{d}");
+    assert!(!partial(tmp.path()), "the partial directory was removed\n{d}");
+}
+
+#[test]
+fn an_image_over_the_memory_limit_is_refused_naming_the_sizes_and_the_fix() {
+    let tmp = tempfile::tempdir().unwrap();
+    let png = tmp.path().join("wide.png");
+    write_png(&png, 1024, 512);
+    let out = tmp.path().join("never");
+    let err = fails(
+        &[
+            "--input",
+            png.to_str().unwrap(),
+            "--tile",
+            "64",
+            "--clip",
+            "64",
+            "--format",
+            "rgb8",
+            "--max-memory",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        1,
+    );
+    assert!(err.contains("1024x512") && err.contains("2 MiB") && err.contains("TIFF"), "{err}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn jpeg_input_is_accepted() {
+    let tmp = tempfile::tempdir().unwrap();
+    let jpg = tmp.path().join("in.jpg");
+    image::RgbImage::from_fn(64, 64, |x, y| image::Rgb([(x * 4) as u8, (y * 4) as u8, 128])).save(&jpg).unwrap();
+    let ct = ct_path(&prep(
+        &tmp.path().join("jpeg"),
+        &["--input", jpg.to_str().unwrap(), "--tile", "32", "--clip", "32", "--format", "rgb565"],
+    ));
+    validate_strict(&ct);
+    assert_eq!(levels(&ct).len(), 7);
+}

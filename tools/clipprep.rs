@@ -1,0 +1,335 @@
+//! `clipprep`: prepares a clip texture (tiled pyramid plus `.ct`/`.ic`) from an image or a
+//! procedural source. A thin shell over [`clipmap::prep`]: arguments, progress, signals, and
+//! the summary; exit codes 0 (ok), 1 (bad input), 2 (could not run).
+
+use anyhow::Context;
+use clap::{Parser, ValueEnum};
+use clipmap::prep::error::next_power_of_two;
+use clipmap::prep::output::Staging;
+use clipmap::prep::source::open_image;
+use clipmap::prep::{Filter, Job, Layout, Limits, PrepError, Source, Spec};
+use clipmap::texel::TexelFormat;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum SourceKind {
+    /// The verification texture: level k texel (s, t) = hash(k, s, t), every level generated.
+    Hash,
+    /// Fractal terrain at level 0, coarser levels filtered.
+    Terrain,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum Format {
+    Rgb8,
+    Rgba8,
+    L8,
+    Rgb565,
+    Rgba5551,
+}
+
+impl Format {
+    fn texel(self) -> TexelFormat {
+        match self {
+            Format::Rgb8 => TexelFormat::RGB8,
+            Format::Rgba8 => TexelFormat::RGBA8,
+            Format::L8 => TexelFormat::L8,
+            Format::Rgb565 => TexelFormat::RGB565,
+            Format::Rgba5551 => TexelFormat::RGBA5551,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum FilterArg {
+    Box,
+    Lanczos3,
+}
+
+/// Prepares a clip texture: a tiled pyramid in Performer's raw tile layout plus its .ct and .ic
+/// configuration files, with relative paths so the directory can be moved.
+#[derive(Parser, Debug)]
+#[command(
+    name = "clipprep",
+    version,
+    after_help = "Level-0 texel (s, t) is image pixel (s, height-1-t): Performer's origin is the lower-left corner.\n\
+Exit codes: 0 ok; 1 bad input (arguments, image, existing output); 2 could not run (disk full, \
+write error, interrupted, command-line syntax)."
+)]
+struct Cli {
+    /// Input image (PNG, JPEG, TIFF; TIFF is streamed, others are decoded into memory).
+    #[arg(long, value_name = "IMAGE", required_unless_present = "source", conflicts_with = "source")]
+    input: Option<PathBuf>,
+    /// Procedural source instead of an image.
+    #[arg(long, value_enum, requires = "size")]
+    source: Option<SourceKind>,
+    /// Size of a procedural texture: N (square) or WxH, powers of two.
+    #[arg(long, value_name = "N|WxH")]
+    size: Option<String>,
+    /// Tile edge in texels (power of two).
+    #[arg(long, value_name = "T")]
+    tile: u64,
+    /// Clip size in texels (power of two).
+    #[arg(long, value_name = "C")]
+    clip: u64,
+    /// Texel format on disk.
+    #[arg(long, value_enum, value_name = "FMT")]
+    format: Format,
+    /// Output directory (created; the .ct is at its top).
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Print a JSON summary on stdout: ct, levels, bytes, seconds, files, ...
+    #[arg(long)]
+    json: bool,
+    /// No progress bar and no summary line.
+    #[arg(long, short)]
+    quiet: bool,
+    /// Replace an output directory that already holds a clip texture.
+    #[arg(long)]
+    force: bool,
+    /// Pad an image whose sides are not powers of two with black, transparent texels (at the
+    /// right and the top) up to the next powers of two.
+    #[arg(long)]
+    pad: bool,
+    /// Filter that builds each coarser level from the one below.
+    #[arg(long, value_enum, default_value = "box")]
+    filter: FilterArg,
+    /// Average in linear light (decode sRGB, average, encode) instead of on stored values.
+    #[arg(long)]
+    linear_light: bool,
+    /// Image-cache tiles per file: N (N along S) or NSxNT; written as tiles_in_file.
+    #[arg(long, value_name = "N|NSxNT", default_value = "1")]
+    tiles_per_file: String,
+    /// Bytes of header at the start of each image-cache tile file (header_offset).
+    #[arg(long, value_name = "H", default_value_t = 0)]
+    header_bytes: u64,
+    /// Spread image-cache tiles over N stream directories by tile column modulo N.
+    #[arg(long, value_name = "N")]
+    streams: Option<u32>,
+    /// File stem of the .ct (default: the output directory's name).
+    #[arg(long)]
+    name: Option<String>,
+    /// Seed of the terrain source.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Memory limit in MiB for a decoded input image and the band cascade.
+    #[arg(long, value_name = "MIB", default_value_t = 512)]
+    max_memory: u64,
+}
+
+fn parse_pair(text: &str, what: &str) -> Result<(u64, u64), PrepError> {
+    let bad = || {
+        PrepError::Geometry(format!("{what} '{text}' is not a number N or a pair NxM; expected e.g. 1024 or 2048x1024"))
+    };
+    let num = |s: &str| s.trim().parse::<u64>().map_err(|_| bad());
+    match text.split_once(['x', 'X', ',']) {
+        Some((a, b)) => Ok((num(a)?, num(b)?)),
+        None => {
+            let n = num(text)?;
+            Ok((n, n))
+        }
+    }
+}
+
+fn check_pow2(what: String, v: u64, hint: &'static str) -> Result<(), PrepError> {
+    if v == 0 || !v.is_power_of_two() {
+        return Err(PrepError::NotPowerOfTwo { what, found: v, next: next_power_of_two(v), hint });
+    }
+    Ok(())
+}
+
+fn default_name(out: &Path) -> String {
+    let raw = out.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let clean: String =
+        raw.chars().map(|c| if c.is_ascii_alphanumeric() || "-_.".contains(c) { c } else { '_' }).collect();
+    let clean = clean.trim_start_matches('.').to_string();
+    if clean.is_empty() {
+        "texture".into()
+    } else {
+        clean
+    }
+}
+
+struct Outcome {
+    ct: PathBuf,
+    summary: clipmap::prep::Summary,
+    seconds: f64,
+    layout: Layout,
+}
+
+fn prepare(cli: &Cli, cancel: &AtomicBool) -> Result<Outcome, PrepError> {
+    let started = Instant::now();
+    let limits = Limits { max_memory_bytes: cli.max_memory << 20, ..Limits::default() };
+    let format = cli.format.texel();
+    let (source, (width, height), origin) = match (&cli.input, cli.source) {
+        (Some(path), _) => {
+            let img = open_image(path, &limits)?;
+            let (w, h) = (img.width, img.height);
+            let size = if cli.pad {
+                (next_power_of_two(w), next_power_of_two(h))
+            } else {
+                let hint = "; pass --pad to pad it with black, transparent texels, or resize the image";
+                check_pow2(format!("the width of {}", path.display()), w, hint)?;
+                check_pow2(format!("the height of {}", path.display()), h, hint)?;
+                (w, h)
+            };
+            let file = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let mut origin = format!("image {file} ({w}x{h}");
+            if size != (w, h) {
+                origin.push_str(&format!(", padded to {}x{}", size.0, size.1));
+            }
+            origin.push(')');
+            (Source::Image(img), size, origin)
+        }
+        (None, Some(kind)) => {
+            let text = cli.size.as_deref().unwrap_or_default();
+            let (w, h) = parse_pair(text, "--size")?;
+            let hint = "; pass --size with a power of two";
+            check_pow2("the --size width".into(), w, hint)?;
+            check_pow2("the --size height".into(), h, hint)?;
+            match kind {
+                SourceKind::Hash => (Source::Hash, (w, h), "the hash verification source (not filtered)".into()),
+                SourceKind::Terrain => {
+                    (Source::Terrain { seed: cli.seed }, (w, h), format!("the terrain source, seed {}", cli.seed))
+                }
+            }
+        }
+        (None, None) => unreachable!("clap requires --input or --source"),
+    };
+    let tiles_in_file = match cli.tiles_per_file.split_once(['x', 'X', ',']) {
+        Some(_) => parse_pair(&cli.tiles_per_file, "--tiles-per-file")?,
+        None => (parse_pair(&cli.tiles_per_file, "--tiles-per-file")?.0, 1),
+    };
+    let layout = Layout::new(Spec {
+        width,
+        height,
+        clip: cli.clip,
+        tile: cli.tile,
+        format,
+        tiles_in_file,
+        header_bytes: cli.header_bytes,
+        streams: cli.streams,
+    })?;
+    let filter = match cli.filter {
+        FilterArg::Box => Filter::Box,
+        FilterArg::Lanczos3 => Filter::Lanczos3,
+    };
+    let mut description = vec![format!("Prepared by clipprep {} from {origin}.", env!("CARGO_PKG_VERSION"))];
+    if !matches!(source, Source::Hash) {
+        let f = match filter {
+            Filter::Box => "2x2 box",
+            Filter::Lanczos3 => "Lanczos-3",
+        };
+        let light = if cli.linear_light { "linear light" } else { "stored values" };
+        description.push(format!("Coarser levels: {f} filter on {light}."));
+    }
+    let name = cli.name.clone().unwrap_or_else(|| default_name(&cli.out));
+    let staging = Staging::begin(&cli.out, cli.force)?;
+    let bar = if cli.quiet || !std::io::stderr().is_terminal() {
+        ProgressBar::hidden()
+    } else {
+        let b = ProgressBar::with_draw_target(Some(layout.total_texels()), ProgressDrawTarget::stderr());
+        b.set_style(
+            ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {percent:>3}% {msg} (eta {eta})")
+                .expect("a valid template")
+                .progress_chars("=> "),
+        );
+        b.set_message(format!("{} levels", layout.levels.len()));
+        b
+    };
+    let job = Job { layout: layout.clone(), source, filter, linear_light: cli.linear_light, name, description, limits };
+    let summary = clipmap::prep::run(job, staging.path(), cancel, &cli.out, &|n| bar.inc(n))?;
+    bar.finish_and_clear();
+    if cancel.load(Ordering::Relaxed) {
+        return Err(PrepError::Interrupted { dir: cli.out.clone() });
+    }
+    staging.commit()?;
+    Ok(Outcome { ct: cli.out.join(&summary.ct), summary, seconds: started.elapsed().as_secs_f64(), layout })
+}
+
+/// Sets `flag` on Ctrl-C or SIGTERM, so the run stops between bands and removes its partial
+/// output instead of dying mid-write. The handlers are registered before this returns.
+fn watch_signals(flag: Arc<AtomicBool>) -> anyhow::Result<()> {
+    let rt =
+        tokio::runtime::Builder::new_current_thread().enable_all().build().context("starting the signal watcher")?;
+    #[cfg(unix)]
+    let (mut int, mut term) = {
+        use tokio::signal::unix::{signal, SignalKind};
+        let _guard = rt.enter();
+        (
+            signal(SignalKind::interrupt()).context("watching SIGINT")?,
+            signal(SignalKind::terminate()).context("watching SIGTERM")?,
+        )
+    };
+    std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(move || {
+            rt.block_on(async move {
+                #[cfg(unix)]
+                tokio::select! {
+                    _ = int.recv() => {}
+                    _ = term.recv() => {}
+                }
+                #[cfg(not(unix))]
+                let _ = tokio::signal::ctrl_c().await;
+                flag.store(true, Ordering::Relaxed);
+            })
+        })
+        .context("starting the signal watcher")?;
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let cancel = Arc::new(AtomicBool::new(false));
+    if let Err(e) = watch_signals(cancel.clone()) {
+        eprintln!("clipprep: warning: {e:#}; Ctrl-C will stop the run without cleaning up");
+    }
+    match prepare(&cli, &cancel) {
+        Ok(o) => {
+            let s = &o.summary;
+            let mib = s.bytes as f64 / (1u64 << 20) as f64;
+            if cli.json {
+                let spec = &o.layout.spec;
+                let v = serde_json::json!({
+                    "ct": o.ct,
+                    "levels": s.levels,
+                    "bytes": s.bytes,
+                    "seconds": o.seconds,
+                    "files": s.files,
+                    "texels": s.texels,
+                    "image_cache_levels": s.image_cache_levels,
+                    "pyramid_levels": s.pyramid_levels,
+                    "size": [spec.width, spec.height],
+                    "clip": spec.clip,
+                    "tile": spec.tile,
+                    "format": spec.format.short_name(),
+                });
+                println!("{v}");
+            } else if !cli.quiet {
+                println!(
+                    "wrote {}: {} levels ({} image cache, {} pyramid), {} files, {:.1} MiB in {:.2} s ({:.1} MiB/s)",
+                    o.ct.display(),
+                    s.levels,
+                    s.image_cache_levels,
+                    s.pyramid_levels,
+                    s.files,
+                    mib,
+                    o.seconds,
+                    mib / o.seconds.max(1e-9)
+                );
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("clipprep: error: {e}");
+            ExitCode::from(e.exit_code() as u8)
+        }
+    }
+}
