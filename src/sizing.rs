@@ -65,20 +65,10 @@ pub fn memory(size: u64, clip: u64, texel_bytes: u64) -> Result<Memory, SizingEr
     let n = pow2("texture size", size)?;
     let m = pow2("clip size", clip)?.min(n);
     if n > 40 {
-        return Err(SizingError::OutOfRange {
-            what: "texture size",
-            value: size,
-            min: 1,
-            max: 1 << 40,
-        });
+        return Err(SizingError::OutOfRange { what: "texture size", value: size, min: 1, max: 1 << 40 });
     }
     if texel_bytes == 0 || texel_bytes > 64 {
-        return Err(SizingError::OutOfRange {
-            what: "texel bytes",
-            value: texel_bytes,
-            min: 1,
-            max: 64,
-        });
+        return Err(SizingError::OutOfRange { what: "texel bytes", value: texel_bytes, min: 1, max: 64 });
     }
     let four = |k: u32| 1u128 << (2 * k);
     let clipmap = (n - m) as u128 * four(m) + (four(m + 1) - 1) / 3;
@@ -102,9 +92,7 @@ pub fn memory(size: u64, clip: u64, texel_bytes: u64) -> Result<Memory, SizingEr
 /// texels. Pyramid levels are resident whole and never update.
 pub fn update_texels_per_second(mem: &Memory, speed: f64) -> f64 {
     let clip = (1u64 << mem.log2_clip) as f64;
-    (0..mem.stack_levels)
-        .map(|k| speed / (1u64 << k) as f64 * clip)
-        .sum()
+    (0..mem.stack_levels).map(|k| speed / (1u64 << k) as f64 * clip).sum()
 }
 
 /// Clip sizes for a display `width` pixels wide: the usual choice (the width, rounded up to a
@@ -158,17 +146,8 @@ pub fn virtual_params(i: &VirtualInputs) -> VirtualParams {
     let border = (i.invalid_border as f64).clamp(0.0, i.clip_size as f64 / 2.0);
     let effective_clip = i.clip_size as f64 - border;
     let reach = i.bbox_min_dist * 2f64.powf(n - 1.0);
-    let min_lod_bbox = if reach <= effective_clip / 2.0 {
-        0.0
-    } else {
-        (reach / (effective_clip / 2.0)).log2().ceil()
-    };
-    let mut lod_offset = i
-        .min_lod_tex_pix
-        .max(i.min_lod_loaded)
-        .max(min_lod_bbox)
-        .max(-1000.0)
-        .floor();
+    let min_lod_bbox = if reach <= effective_clip / 2.0 { 0.0 } else { (reach / (effective_clip / 2.0)).log2().ceil() };
+    let mut lod_offset = i.min_lod_tex_pix.max(i.min_lod_loaded).max(min_lod_bbox).max(-1000.0).floor();
     lod_offset = lod_offset.clamp(0.0, (n - 1.0).min(i.max_lod_loaded).max(0.0));
     let mut num_effective = n - lod_offset;
     if i.bbox_max_dist > 0.0 {
@@ -187,15 +166,8 @@ pub fn virtual_params(i: &VirtualInputs) -> VirtualParams {
         num_effective = max_effective;
     }
     let min_lod = i.min_lod_loaded.clamp(-1000.0, 1000.0);
-    let max_lod = (lod_offset + 6.0)
-        .min(i.max_lod_loaded)
-        .clamp(-1000.0, 1000.0);
-    VirtualParams {
-        lod_offset: lod_offset as u32,
-        effective_levels: num_effective.max(1.0) as u32,
-        min_lod,
-        max_lod,
-    }
+    let max_lod = (lod_offset + 6.0).min(i.max_lod_loaded).clamp(-1000.0, 1000.0);
+    VirtualParams { lod_offset: lod_offset as u32, effective_levels: num_effective.max(1.0) as u32, min_lod, max_lod }
 }
 
 /// Finest level the renderer samples at the foot of a camera `eye_height` metres above the
@@ -231,11 +203,7 @@ mod tests {
             for m in 0..=n {
                 let mem = memory(1 << n, 1 << m, 4).unwrap();
                 let (c, f) = brute(n, m);
-                assert_eq!(
-                    (mem.clipmap_texels, mem.mipmap_texels),
-                    (c, f),
-                    "n={n} m={m}"
-                );
+                assert_eq!((mem.clipmap_texels, mem.mipmap_texels), (c, f), "n={n} m={m}");
                 assert_eq!(mem.clipmap_bytes, c * 4);
                 assert_eq!(mem.stack_levels + mem.pyramid_levels, n + 1);
             }
@@ -252,21 +220,9 @@ mod tests {
 
     #[test]
     fn bad_inputs_are_refused() {
-        assert!(matches!(
-            memory(1000, 256, 4),
-            Err(SizingError::NotPowerOfTwo {
-                what: "texture size",
-                ..
-            })
-        ));
-        assert!(matches!(
-            memory(1024, 0, 4),
-            Err(SizingError::NotPowerOfTwo { .. })
-        ));
-        assert!(matches!(
-            memory(1024, 256, 0),
-            Err(SizingError::OutOfRange { .. })
-        ));
+        assert!(matches!(memory(1000, 256, 4), Err(SizingError::NotPowerOfTwo { what: "texture size", .. })));
+        assert!(matches!(memory(1024, 0, 4), Err(SizingError::NotPowerOfTwo { .. })));
+        assert!(matches!(memory(1024, 256, 0), Err(SizingError::OutOfRange { .. })));
         assert!(memory(1 << 41, 256, 4).is_err());
     }
 
@@ -299,16 +255,9 @@ mod tests {
         };
         let p = virtual_params(&base);
         assert_eq!((p.lod_offset, p.effective_levels), (11, 16));
-        let keep_res = virtual_params(&VirtualInputs {
-            tradeoff: 0.0,
-            ..base.clone()
-        });
+        let keep_res = virtual_params(&VirtualInputs { tradeoff: 0.0, ..base.clone() });
         assert_eq!((keep_res.lod_offset, keep_res.effective_levels), (0, 16));
-        let high = virtual_params(&VirtualInputs {
-            min_lod_tex_pix: 5.3,
-            tradeoff: 0.0,
-            ..base
-        });
+        let high = virtual_params(&VirtualInputs { min_lod_tex_pix: 5.3, tradeoff: 0.0, ..base });
         assert_eq!(high.lod_offset, 5);
         assert!(high.max_lod <= 27.0);
     }

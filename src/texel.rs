@@ -121,35 +121,19 @@ pub struct TexelFormat {
 
 impl TexelFormat {
     /// 8-bit luminance.
-    pub const L8: TexelFormat = TexelFormat {
-        components: Components::One,
-        ctype: ComponentType::U8,
-    };
+    pub const L8: TexelFormat = TexelFormat { components: Components::One, ctype: ComponentType::U8 };
     /// 8-bit RGB.
-    pub const RGB8: TexelFormat = TexelFormat {
-        components: Components::Three,
-        ctype: ComponentType::U8,
-    };
+    pub const RGB8: TexelFormat = TexelFormat { components: Components::Three, ctype: ComponentType::U8 };
     /// 8-bit RGBA.
-    pub const RGBA8: TexelFormat = TexelFormat {
-        components: Components::Four,
-        ctype: ComponentType::U8,
-    };
+    pub const RGBA8: TexelFormat = TexelFormat { components: Components::Four, ctype: ComponentType::U8 };
     /// 16-bit packed RGB 5-6-5.
-    pub const RGB565: TexelFormat = TexelFormat {
-        components: Components::Three,
-        ctype: ComponentType::Packed(PackedType::Rgb565),
-    };
+    pub const RGB565: TexelFormat =
+        TexelFormat { components: Components::Three, ctype: ComponentType::Packed(PackedType::Rgb565) };
     /// 16-bit packed RGBA 5-5-5-1.
-    pub const RGBA5551: TexelFormat = TexelFormat {
-        components: Components::Four,
-        ctype: ComponentType::Packed(PackedType::Rgba5551),
-    };
+    pub const RGBA5551: TexelFormat =
+        TexelFormat { components: Components::Four, ctype: ComponentType::Packed(PackedType::Rgba5551) };
     /// 16-bit luminance.
-    pub const L16: TexelFormat = TexelFormat {
-        components: Components::One,
-        ctype: ComponentType::U16,
-    };
+    pub const L16: TexelFormat = TexelFormat { components: Components::One, ctype: ComponentType::U16 };
 
     /// Bytes one texel takes on disk and in memory (0 for `GL_BITMAP`).
     pub fn bytes_per_texel(self) -> u32 {
@@ -207,8 +191,7 @@ impl TexelFormat {
             }
             ComponentType::U16 | ComponentType::I16 => {
                 for i in 0..n {
-                    out[2 * i..2 * i + 2]
-                        .copy_from_slice(&(q(chans[i], 65535) as u16).to_le_bytes());
+                    out[2 * i..2 * i + 2].copy_from_slice(&(q(chans[i], 65535) as u16).to_le_bytes());
                 }
             }
             ComponentType::U32 | ComponentType::I32 => {
@@ -230,34 +213,22 @@ impl TexelFormat {
                         out.copy_from_slice(&(v as u16).to_le_bytes());
                     }
                     PackedType::Rgba4444 => {
-                        let v = (q(c(r), 15) << 12)
-                            | (q(c(g), 15) << 8)
-                            | (q(c(b), 15) << 4)
-                            | q(c(a), 15);
+                        let v = (q(c(r), 15) << 12) | (q(c(g), 15) << 8) | (q(c(b), 15) << 4) | q(c(a), 15);
                         out.copy_from_slice(&(v as u16).to_le_bytes());
                     }
                     PackedType::Rgba5551 => {
-                        let v = (q(c(r), 31) << 11)
-                            | (q(c(g), 31) << 6)
-                            | (q(c(b), 31) << 1)
-                            | q(c(a), 1);
+                        let v = (q(c(r), 31) << 11) | (q(c(g), 31) << 6) | (q(c(b), 31) << 1) | q(c(a), 1);
                         out.copy_from_slice(&(v as u16).to_le_bytes());
                     }
                     PackedType::Rgb332 => {
                         out[0] = ((q(c(r), 7) << 5) | (q(c(g), 7) << 2) | q(c(b), 3)) as u8;
                     }
                     PackedType::Rgba8888 => {
-                        let v = (q(c(r), 255) << 24)
-                            | (q(c(g), 255) << 16)
-                            | (q(c(b), 255) << 8)
-                            | q(c(a), 255);
+                        let v = (q(c(r), 255) << 24) | (q(c(g), 255) << 16) | (q(c(b), 255) << 8) | q(c(a), 255);
                         out.copy_from_slice(&v.to_le_bytes());
                     }
                     PackedType::Rgb10A2 => {
-                        let v = (q(c(r), 1023) << 22)
-                            | (q(c(g), 1023) << 12)
-                            | (q(c(b), 1023) << 2)
-                            | q(c(a), 3);
+                        let v = (q(c(r), 1023) << 22) | (q(c(g), 1023) << 12) | (q(c(b), 1023) << 2) | q(c(a), 3);
                         out.copy_from_slice(&v.to_le_bytes());
                     }
                 }
@@ -284,23 +255,13 @@ impl TexelFormat {
             }
             ComponentType::U32 | ComponentType::I32 => {
                 for i in 0..n {
-                    let b = [
-                        texel[4 * i],
-                        texel[4 * i + 1],
-                        texel[4 * i + 2],
-                        texel[4 * i + 3],
-                    ];
+                    let b = [texel[4 * i], texel[4 * i + 1], texel[4 * i + 2], texel[4 * i + 3]];
                     ch[i] = (u32::from_le_bytes(b) as f64 / u32::MAX as f64) as f32;
                 }
             }
             ComponentType::F32 => {
                 for i in 0..n {
-                    let b = [
-                        texel[4 * i],
-                        texel[4 * i + 1],
-                        texel[4 * i + 2],
-                        texel[4 * i + 3],
-                    ];
+                    let b = [texel[4 * i], texel[4 * i + 1], texel[4 * i + 2], texel[4 * i + 3]];
                     ch[i] = f32::from_le_bytes(b);
                 }
             }
@@ -315,21 +276,11 @@ impl TexelFormat {
                     }
                     PackedType::Rgba4444 => {
                         let v = w16();
-                        [
-                            f(v >> 12, 4),
-                            f((v >> 8) & 15, 4),
-                            f((v >> 4) & 15, 4),
-                            f(v & 15, 4),
-                        ]
+                        [f(v >> 12, 4), f((v >> 8) & 15, 4), f((v >> 4) & 15, 4), f(v & 15, 4)]
                     }
                     PackedType::Rgba5551 => {
                         let v = w16();
-                        [
-                            f(v >> 11, 5),
-                            f((v >> 6) & 31, 5),
-                            f((v >> 1) & 31, 5),
-                            f(v & 1, 1),
-                        ]
+                        [f(v >> 11, 5), f((v >> 6) & 31, 5), f((v >> 1) & 31, 5), f(v & 1, 1)]
                     }
                     PackedType::Rgb332 => {
                         let v = texel[0] as u32;
@@ -337,21 +288,11 @@ impl TexelFormat {
                     }
                     PackedType::Rgba8888 => {
                         let v = w32();
-                        [
-                            f(v >> 24, 8),
-                            f((v >> 16) & 255, 8),
-                            f((v >> 8) & 255, 8),
-                            f(v & 255, 8),
-                        ]
+                        [f(v >> 24, 8), f((v >> 16) & 255, 8), f((v >> 8) & 255, 8), f(v & 255, 8)]
                     }
                     PackedType::Rgb10A2 => {
                         let v = w32();
-                        [
-                            f(v >> 22, 10),
-                            f((v >> 12) & 1023, 10),
-                            f((v >> 2) & 1023, 10),
-                            f(v & 3, 2),
-                        ]
+                        [f(v >> 22, 10), f((v >> 12) & 1023, 10), f((v >> 2) & 1023, 10), f(v & 3, 2)]
                     }
                 };
             }
@@ -383,21 +324,13 @@ mod tests {
         assert_eq!(TexelFormat::L8.bytes_per_texel(), 1);
         assert_eq!(TexelFormat::RGBA5551.bytes_per_texel(), 2);
         assert_eq!(TexelFormat::RGB565.bytes_per_texel(), 2);
-        let rgb16 = TexelFormat {
-            components: Components::Three,
-            ctype: ComponentType::U16,
-        };
+        let rgb16 = TexelFormat { components: Components::Three, ctype: ComponentType::U16 };
         assert_eq!(rgb16.bytes_per_texel(), 6);
     }
 
     #[test]
     fn encode_then_decode_round_trips_within_quantisation() {
-        for fmt in [
-            TexelFormat::RGB8,
-            TexelFormat::RGBA8,
-            TexelFormat::RGB565,
-            TexelFormat::RGBA5551,
-        ] {
+        for fmt in [TexelFormat::RGB8, TexelFormat::RGBA8, TexelFormat::RGB565, TexelFormat::RGBA5551] {
             let mut buf = vec![0u8; fmt.bytes_per_texel() as usize];
             let colour = [0.25, 0.5, 0.75, 1.0];
             fmt.encode(colour, &mut buf);

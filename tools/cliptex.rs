@@ -136,10 +136,7 @@ fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
     })
 }
 
-fn load(
-    file: &PathBuf,
-    env: &EnvArgs,
-) -> Result<(plan::ClipTexturePlan, Vec<clipmap::config::Diagnostic>), i32> {
+fn load(file: &PathBuf, env: &EnvArgs) -> Result<(plan::ClipTexturePlan, Vec<clipmap::config::Diagnostic>), i32> {
     let o = opts(env)?;
     let loaded = plan::load_clip_texture(file, &o).map_err(|e| {
         eprintln!("cliptex: {e}");
@@ -153,10 +150,7 @@ fn load(
         }
         None => {
             eprint!("{rendered}");
-            eprintln!(
-                "cliptex: {} is not a valid clip texture configuration (see above)",
-                file.display()
-            );
+            eprintln!("cliptex: {} is not a valid clip texture configuration (see above)", file.display());
             Err(exit::BAD_INPUT)
         }
     }
@@ -164,23 +158,14 @@ fn load(
 
 fn run(cli: Cli) -> i32 {
     match cli.command {
-        Command::Validate {
-            files,
-            strict,
-            json,
-            quiet,
-            env,
-        } => {
+        Command::Validate { files, strict, json, quiet, env } => {
             let o = match opts(&env) {
                 Ok(o) => o,
                 Err(c) => return c,
             };
             let r = validate::run(&files, FileKind::ClipTexture, strict, &o);
             if json {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(&r).expect("report serialises")
-                );
+                println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
             } else {
                 print!("{}", r.human(quiet));
             }
@@ -192,8 +177,7 @@ fn run(cli: Cli) -> i32 {
                 if json {
                     println!(
                         "{}",
-                        serde_json::to_string_pretty(&info::clip_texture(&p, &warnings))
-                            .expect("info serialises")
+                        serde_json::to_string_pretty(&info::clip_texture(&p, &warnings)).expect("info serialises")
                     );
                 } else {
                     print!("{}", info::clip_texture_human(&p));
@@ -219,10 +203,7 @@ fn run(cli: Cli) -> i32 {
                 return match report::plan::table(clip, texel_bytes, 10, 26) {
                     Ok((text, rows)) => {
                         if json {
-                            println!(
-                                "{}",
-                                serde_json::to_string_pretty(&rows).expect("rows serialise")
-                            );
+                            println!("{}", serde_json::to_string_pretty(&rows).expect("rows serialise"));
                         } else {
                             print!("{text}");
                         }
@@ -249,10 +230,7 @@ fn run(cli: Cli) -> i32 {
             match report::plan::compute(&req) {
                 Ok(p) => {
                     if json {
-                        println!(
-                            "{}",
-                            serde_json::to_string_pretty(&p).expect("plan serialises")
-                        );
+                        println!("{}", serde_json::to_string_pretty(&p).expect("plan serialises"));
                     } else {
                         print!("{}", report::plan::human(&p, &req));
                     }
@@ -264,22 +242,12 @@ fn run(cli: Cli) -> i32 {
                 }
             }
         }
-        Command::Tile {
-            file,
-            level,
-            s,
-            t,
-            json,
-            env,
-        } => match load(&file, &env) {
+        Command::Tile { file, level, s, t, json, env } => match load(&file, &env) {
             Err(c) => c,
             Ok((p, _)) => match p.locate(level, s, t) {
                 Ok(loc) => {
                     if json {
-                        println!(
-                            "{}",
-                            serde_json::to_string_pretty(&loc).expect("location serialises")
-                        );
+                        println!("{}", serde_json::to_string_pretty(&loc).expect("location serialises"));
                     } else {
                         print!("{}", info::tile_human(&loc));
                     }

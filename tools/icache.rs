@@ -88,10 +88,7 @@ fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
     })
 }
 
-fn load(
-    file: &PathBuf,
-    env: &EnvArgs,
-) -> Result<(plan::ImageCachePlan, Vec<clipmap::config::Diagnostic>), i32> {
+fn load(file: &PathBuf, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clipmap::config::Diagnostic>), i32> {
     let o = opts(env)?;
     let loaded = plan::load_image_cache(file, &o).map_err(|e| {
         eprintln!("icache: {e}");
@@ -101,10 +98,7 @@ fn load(
     match loaded.plan {
         Some(p) => Ok((p, info::non_errors(&loaded.diagnostics.items))),
         None => {
-            eprintln!(
-                "icache: {} is not a valid image cache configuration (see above)",
-                file.display()
-            );
+            eprintln!("icache: {} is not a valid image cache configuration (see above)", file.display());
             Err(exit::BAD_INPUT)
         }
     }
@@ -112,23 +106,14 @@ fn load(
 
 fn run(cli: Cli) -> i32 {
     match cli.command {
-        Command::Validate {
-            files,
-            strict,
-            json,
-            quiet,
-            env,
-        } => {
+        Command::Validate { files, strict, json, quiet, env } => {
             let o = match opts(&env) {
                 Ok(o) => o,
                 Err(c) => return c,
             };
             let r = validate::run(&files, FileKind::ImageCache, strict, &o);
             if json {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(&r).expect("report serialises")
-                );
+                println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
             } else {
                 print!("{}", r.human(quiet));
             }
@@ -140,8 +125,7 @@ fn run(cli: Cli) -> i32 {
                 if json {
                     println!(
                         "{}",
-                        serde_json::to_string_pretty(&info::image_cache(&p, &warnings))
-                            .expect("info serialises")
+                        serde_json::to_string_pretty(&info::image_cache(&p, &warnings)).expect("info serialises")
                     );
                 } else {
                     print!("{}", info::image_cache_human(&p));
@@ -149,22 +133,12 @@ fn run(cli: Cli) -> i32 {
                 exit::OK
             }
         },
-        Command::Tile {
-            file,
-            s,
-            t,
-            r,
-            json,
-            env,
-        } => match load(&file, &env) {
+        Command::Tile { file, s, t, r, json, env } => match load(&file, &env) {
             Err(c) => c,
             Ok((p, _)) => match p.locate(s, t, r) {
                 Ok(loc) => {
                     if json {
-                        println!(
-                            "{}",
-                            serde_json::to_string_pretty(&loc).expect("location serialises")
-                        );
+                        println!("{}", serde_json::to_string_pretty(&loc).expect("location serialises"));
                     } else {
                         print!("{}", info::tile_human(&loc));
                     }

@@ -24,12 +24,7 @@ pub struct Span {
 
 impl Span {
     /// The span of the start of the file.
-    pub const START: Span = Span {
-        line: 1,
-        col: 1,
-        offset: 0,
-        len: 0,
-    };
+    pub const START: Span = Span { line: 1, col: 1, offset: 0, len: 0 };
 }
 
 /// How bad a finding is.
@@ -170,14 +165,8 @@ impl Diagnostic {
 }
 
 fn source_line(src: &[u8], span: Span) -> Option<&[u8]> {
-    let start = src[..span.offset.min(src.len())]
-        .iter()
-        .rposition(|&b| b == b'\n')
-        .map_or(0, |p| p + 1);
-    let end = src[start..]
-        .iter()
-        .position(|&b| b == b'\n')
-        .map_or(src.len(), |p| start + p);
+    let start = src[..span.offset.min(src.len())].iter().rposition(|&b| b == b'\n').map_or(0, |p| p + 1);
+    let end = src[start..].iter().position(|&b| b == b'\n').map_or(src.len(), |p| start + p);
     if start > src.len() {
         return None;
     }

@@ -49,13 +49,7 @@ pub struct Lexer<'a> {
 impl<'a> Lexer<'a> {
     /// A lexer over `src`.
     pub fn new(src: &'a [u8]) -> Self {
-        Lexer {
-            src,
-            pos: 0,
-            line: 1,
-            line_start: 0,
-            peeked: None,
-        }
+        Lexer { src, pos: 0, line: 1, line_start: 0, peeked: None }
     }
 
     fn scan(&mut self) -> Option<Word<'a>> {
@@ -80,10 +74,7 @@ impl<'a> Lexer<'a> {
             offset: start,
             len: self.pos - start,
         };
-        Some(Word {
-            bytes: &src[start..self.pos],
-            span,
-        })
+        Some(Word { bytes: &src[start..self.pos], span })
     }
 
     /// The next word.
@@ -125,15 +116,9 @@ mod tests {
     fn words_carry_lines_and_columns() {
         let mut lx = Lexer::new(b"ct_version2.0\n  clip_size\t512\n");
         let a = lx.next_word().unwrap();
-        assert_eq!(
-            (a.text(), a.span.line, a.span.col),
-            (Some("ct_version2.0"), 1, 1)
-        );
+        assert_eq!((a.text(), a.span.line, a.span.col), (Some("ct_version2.0"), 1, 1));
         let b = lx.next_word().unwrap();
-        assert_eq!(
-            (b.text(), b.span.line, b.span.col),
-            (Some("clip_size"), 2, 3)
-        );
+        assert_eq!((b.text(), b.span.line, b.span.col), (Some("clip_size"), 2, 3));
         let c = lx.next_word().unwrap();
         assert_eq!((c.text(), c.span.line, c.span.col), (Some("512"), 2, 13));
         assert!(lx.next_word().is_none());

@@ -56,11 +56,6 @@ impl Default for Limits {
 }
 
 /// Parses configuration text of a known kind.
-pub fn parse_bytes(
-    src: &[u8],
-    path: &Path,
-    kind: FileKind,
-    limits: &Limits,
-) -> (SyntaxFile, Diagnostics) {
+pub fn parse_bytes(src: &[u8], path: &Path, kind: FileKind, limits: &Limits) -> (SyntaxFile, Diagnostics) {
     parse::parse(src, path, kind, limits)
 }

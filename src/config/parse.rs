@@ -22,12 +22,7 @@ struct Parser<'a, 'p> {
 }
 
 /// Parses `src` as a file of `kind`. Returns the tree (possibly partial) and all findings.
-pub fn parse(
-    src: &[u8],
-    path: &Path,
-    kind: FileKind,
-    limits: &Limits,
-) -> (SyntaxFile, Diagnostics) {
+pub fn parse(src: &[u8], path: &Path, kind: FileKind, limits: &Limits) -> (SyntaxFile, Diagnostics) {
     let mut p = Parser {
         lx: Lexer::new(src),
         path,
@@ -50,11 +45,7 @@ pub fn parse(
     } else {
         p.run();
     }
-    let file = SyntaxFile {
-        path: path.to_path_buf(),
-        kind,
-        entries: p.entries,
-    };
+    let file = SyntaxFile { path: path.to_path_buf(), kind, entries: p.entries };
     (file, p.diags)
 }
 
@@ -69,10 +60,7 @@ impl<'a> Parser<'a, '_> {
                 "too-many-diagnostics",
                 self.path,
                 d.span,
-                format!(
-                    "too many problems ({}); stopping here",
-                    self.limits.max_diagnostics
-                ),
+                format!("too many problems ({}); stopping here", self.limits.max_diagnostics),
             ));
             self.stopped = true;
             return;
@@ -85,13 +73,7 @@ impl<'a> Parser<'a, '_> {
         self.push(d);
     }
 
-    fn diag(
-        &self,
-        sev: Severity,
-        code: &'static str,
-        span: Span,
-        msg: impl Into<String>,
-    ) -> Diagnostic {
+    fn diag(&self, sev: Severity, code: &'static str, span: Span, msg: impl Into<String>) -> Diagnostic {
         Diagnostic::new(sev, code, self.path, Some(span), msg)
     }
 
@@ -99,9 +81,20 @@ impl<'a> Parser<'a, '_> {
     fn text(&mut self, w: &Word<'a>) -> Option<String> {
         if w.bytes.len() > self.limits.max_word_bytes {
             let d = self
-                .diag(Severity::Error, "word-too-long", w.span, format!("a word of {} bytes is longer than the limit of {} bytes", w.bytes.len(), self.limits.max_word_bytes))
+                .diag(
+                    Severity::Error,
+                    "word-too-long",
+                    w.span,
+                    format!(
+                        "a word of {} bytes is longer than the limit of {} bytes",
+                        w.bytes.len(),
+                        self.limits.max_word_bytes
+                    ),
+                )
                 .found(w.shown())
-                .hint("configuration values cannot contain whitespace and are short; is this a binary or a mangled file?");
+                .hint(
+                    "configuration values cannot contain whitespace and are short; is this a binary or a mangled file?",
+                );
             self.push(d);
             return None;
         }
@@ -144,10 +137,7 @@ impl<'a> Parser<'a, '_> {
                 self.error(
                     "too-many-entries",
                     Some(w.span),
-                    format!(
-                        "more than {} tokens in one file; stopping here",
-                        self.limits.max_entries
-                    ),
+                    format!("more than {} tokens in one file; stopping here", self.limits.max_entries),
                 );
                 self.stopped = true;
             }
@@ -165,11 +155,7 @@ impl<'a> Parser<'a, '_> {
             .found(shorten(text))
             .expected("a token name");
         if let Some((def, rest)) = tokens::glued(text) {
-            d = d.hint(format!(
-                "put a space between the token and its value: `{} {}`",
-                def.name,
-                shorten(rest)
-            ));
+            d = d.hint(format!("put a space between the token and its value: `{} {}`", def.name, shorten(rest)));
         } else if let Some(s) = tokens::suggest(text, self.kind) {
             d = d.hint(format!("did you mean `{s}`?"));
         } else if text.parse::<i64>().is_ok() {
@@ -197,21 +183,12 @@ impl<'a> Parser<'a, '_> {
                 Severity::Error,
                 code,
                 span,
-                format!(
-                    "`{}` belongs in {other} file, not in a {} file",
-                    def.name,
-                    self.kind.noun()
-                ),
+                format!("`{}` belongs in {other} file, not in a {} file", def.name, self.kind.noun()),
             );
             d = if code == "wrong-file-kind" {
-                d.hint(format!(
-                    "this looks like {other} file: check it with `{tool} validate`"
-                ))
+                d.hint(format!("this looks like {other} file: check it with `{tool} validate`"))
             } else {
-                d.hint(format!(
-                    "move `{}` to the file where it belongs, or remove it",
-                    def.name
-                ))
+                d.hint(format!("move `{}` to the file where it belongs, or remove it", def.name))
             };
             self.push(d);
         }
@@ -221,10 +198,7 @@ impl<'a> Parser<'a, '_> {
                 Severity::Note,
                 "obsolete-token",
                 span,
-                format!(
-                    "`{}` is obsolete; Performer ignores it and so do we",
-                    def.name
-                ),
+                format!("`{}` is obsolete; Performer ignores it and so do we", def.name),
             );
             self.push(d);
         }
@@ -259,18 +233,14 @@ impl<'a> Parser<'a, '_> {
             }
             ArgShape::NumStreams => {
                 let line = span.line;
-                if self.lx.peek().is_some_and(|w| {
-                    w.span.line == line && w.text().is_some_and(|t| t.parse::<i64>().is_ok())
-                }) {
+                if self
+                    .lx
+                    .peek()
+                    .is_some_and(|w| w.span.line == line && w.text().is_some_and(|t| t.parse::<i64>().is_ok()))
+                {
                     self.lx.next_word();
                 }
-                let next = self.lx.peek().map(|w| {
-                    (
-                        w.span,
-                        w.shown(),
-                        w.text().is_some_and(tokens::is_comment_start),
-                    )
-                });
+                let next = self.lx.peek().map(|w| (w.span, w.shown(), w.text().is_some_and(tokens::is_comment_start)));
                 if let Some((wspan, shown, is_comment)) = next {
                     if wspan.line == line && !is_comment {
                         let mut d = self
@@ -300,7 +270,15 @@ impl<'a> Parser<'a, '_> {
             let more = self.lx.peek().is_some_and(|n| !Self::is_token_word(n));
             if more {
                 let mut d = self
-                    .diag(Severity::Warning, "comment-inside-arguments", span, format!("a comment inside the arguments of `{}`: Performer 3.0 stops reading the token here", def.name))
+                    .diag(
+                        Severity::Warning,
+                        "comment-inside-arguments",
+                        span,
+                        format!(
+                            "a comment inside the arguments of `{}`: Performer 3.0 stops reading the token here",
+                            def.name
+                        ),
+                    )
                     .hint("move the comment after the last argument");
                 d.portability = true;
                 self.push(d);
@@ -311,10 +289,7 @@ impl<'a> Parser<'a, '_> {
     fn parse_int(&mut self, w: &Word<'a>, def: &'static TokenDef) -> Option<Spanned<i64>> {
         let text = self.text(w)?;
         match parse_c_int(&text) {
-            Ok(v) => Some(Spanned {
-                value: v,
-                span: w.span,
-            }),
+            Ok(v) => Some(Spanned { value: v, span: w.span }),
             Err(IntError::Overflow) => {
                 let d = self
                     .diag(
@@ -330,20 +305,16 @@ impl<'a> Parser<'a, '_> {
             }
             Err(IntError::NotANumber) => {
                 let mut d = self
-                    .diag(
-                        Severity::Error,
-                        "expected-integer",
-                        w.span,
-                        format!("`{}` takes an integer", def.name),
-                    )
+                    .diag(Severity::Error, "expected-integer", w.span, format!("`{}` takes an integer", def.name))
                     .found(shorten(&text))
                     .expected("an integer");
-                let digits: String = text
-                    .chars()
-                    .take_while(|c| c.is_ascii_digit() || *c == '-' || *c == '+')
-                    .collect();
+                let digits: String =
+                    text.chars().take_while(|c| c.is_ascii_digit() || *c == '-' || *c == '+').collect();
                 if !digits.is_empty() && digits.len() < text.len() {
-                    d = d.hint(format!("Performer 3.0 would read `{digits}` and then fail on `{}`; write the number alone", shorten(&text[digits.len()..])));
+                    d = d.hint(format!(
+                        "Performer 3.0 would read `{digits}` and then fail on `{}`; write the number alone",
+                        shorten(&text[digits.len()..])
+                    ));
                 }
                 self.push(d);
                 None
@@ -362,12 +333,7 @@ impl<'a> Parser<'a, '_> {
                 if required {
                     let found = other.map(|w| w.shown());
                     let mut d = self
-                        .diag(
-                            Severity::Error,
-                            "missing-value",
-                            span,
-                            format!("`{}` needs an integer value", def.name),
-                        )
+                        .diag(Severity::Error, "missing-value", span, format!("`{}` needs an integer value", def.name))
                         .expected("an integer after the token");
                     if let Some(f) = found {
                         d = d.found(f);
@@ -385,10 +351,8 @@ impl<'a> Parser<'a, '_> {
         let mut vals = Vec::with_capacity(3);
         for i in 0..3 {
             self.skip_value_comments(def);
-            let next_is_int = self
-                .lx
-                .peek()
-                .is_some_and(|w| !Self::is_token_word(w) && w.text().is_some_and(looks_numeric));
+            let next_is_int =
+                self.lx.peek().is_some_and(|w| !Self::is_token_word(w) && w.text().is_some_and(looks_numeric));
             if !next_is_int {
                 if i == 0 {
                     // No number at all: report what is there (or the end of file).
@@ -427,27 +391,13 @@ impl<'a> Parser<'a, '_> {
             Some(w) if !Self::is_token_word(w) => {
                 let w = self.lx.next_word().expect("peeked");
                 let text = self.text(&w)?;
-                Some(Spanned {
-                    value: text,
-                    span: w.span,
-                })
+                Some(Spanned { value: text, span: w.span })
             }
             other => {
-                let found = other
-                    .map(|w| w.shown())
-                    .unwrap_or_else(|| "end of file".into());
-                let what = if def.args == ArgShape::Format {
-                    "a format name or number"
-                } else {
-                    "a value"
-                };
+                let found = other.map(|w| w.shown()).unwrap_or_else(|| "end of file".into());
+                let what = if def.args == ArgShape::Format { "a format name or number" } else { "a value" };
                 let d = self
-                    .diag(
-                        Severity::Error,
-                        "missing-value",
-                        span,
-                        format!("`{}` needs {what}", def.name),
-                    )
+                    .diag(Severity::Error, "missing-value", span, format!("`{}` needs {what}", def.name))
                     .found(found)
                     .expected(format!("{what} after the token"));
                 self.push(d);
@@ -461,10 +411,7 @@ impl<'a> Parser<'a, '_> {
             Some(w) if !Self::is_token_word(w) => {
                 let w = self.lx.next_word().expect("peeked");
                 match self.text(&w) {
-                    Some(t) => Value::Base(Some(Spanned {
-                        value: t,
-                        span: w.span,
-                    })),
+                    Some(t) => Value::Base(Some(Spanned { value: t, span: w.span })),
                     None => Value::Missing,
                 }
             }
@@ -484,9 +431,7 @@ impl<'a> Parser<'a, '_> {
             if tokens::is_comment_in_value_position(t) {
                 let line = w.span.line;
                 let cspan = w.span;
-                let same_line_as_item = items
-                    .last()
-                    .is_some_and(|i: &Spanned<String>| i.span.line == line)
+                let same_line_as_item = items.last().is_some_and(|i: &Spanned<String>| i.span.line == line)
                     || (items.is_empty() && span.line == line);
                 self.lx.skip_line(line);
                 let more = self.lx.peek().is_some_and(|n| !Self::is_token_word(n));
@@ -509,17 +454,11 @@ impl<'a> Parser<'a, '_> {
                         Severity::Error,
                         "list-too-long",
                         w.span,
-                        format!(
-                            "the list of `{}` has more than {} items",
-                            def.name, self.limits.max_list_items
-                        ),
+                        format!("the list of `{}` has more than {} items", def.name, self.limits.max_list_items),
                     );
                     self.push(d);
                 }
-                items.push(Spanned {
-                    value: String::new(),
-                    span: w.span,
-                });
+                items.push(Spanned { value: String::new(), span: w.span });
                 continue;
             }
             if let Some(text) = self.text(&w) {
@@ -535,21 +474,13 @@ impl<'a> Parser<'a, '_> {
                             Severity::Warning,
                             "value-starts-with-comment-marker",
                             w.span,
-                            format!(
-                                "`{}` starts with `//`, which Performer 3.0 reads as a comment",
-                                shorten(&text)
-                            ),
+                            format!("`{}` starts with `//`, which Performer 3.0 reads as a comment", shorten(&text)),
                         )
-                        .hint(
-                            "write the path differently (for example with a single leading slash)",
-                        );
+                        .hint("write the path differently (for example with a single leading slash)");
                     d.portability = true;
                     self.push(d);
                 }
-                items.push(Spanned {
-                    value: text,
-                    span: w.span,
-                });
+                items.push(Spanned { value: text, span: w.span });
             }
         }
         if items.len() > self.limits.max_list_items {
@@ -565,10 +496,7 @@ impl<'a> Parser<'a, '_> {
                 Some(w) if w.span.line == span.line && !Self::is_token_word(w) => {
                     let w = self.lx.next_word().expect("peeked");
                     if let Some(t) = self.text(&w) {
-                        items.push(Spanned {
-                            value: t,
-                            span: w.span,
-                        });
+                        items.push(Spanned { value: t, span: w.span });
                     }
                 }
                 _ => break,
@@ -580,10 +508,7 @@ impl<'a> Parser<'a, '_> {
                     Severity::Error,
                     "missing-value",
                     span,
-                    format!(
-                        "`{}` needs a function name (`read_func NAME` or `read_func LIBRARY NAME`)",
-                        def.name
-                    ),
+                    format!("`{}` needs a function name (`read_func NAME` or `read_func LIBRARY NAME`)", def.name),
                 )
                 .expected("one or two words on the same line");
             self.push(d);
@@ -607,8 +532,7 @@ pub fn parse_c_int(text: &str) -> Result<i64, IntError> {
     use nom::character::complete::{digit1, one_of};
     use nom::combinator::{all_consuming, opt, recognize};
     use nom::sequence::pair;
-    let parsed: nom::IResult<&str, &str> =
-        all_consuming(recognize(pair(opt(one_of("+-")), digit1)))(text);
+    let parsed: nom::IResult<&str, &str> = all_consuming(recognize(pair(opt(one_of("+-")), digit1)))(text);
     match parsed {
         Ok((_, s)) => s.parse::<i64>().map_err(|_| IntError::Overflow),
         Err(_) => Err(IntError::NotANumber),
@@ -625,11 +549,7 @@ fn looks_like_token(item: &str) -> Option<&'static str> {
     if item.contains(['.', '/', '$', '%']) || item.starts_with("PF") {
         return None;
     }
-    tokens::TOKENS
-        .iter()
-        .filter(|d| d.name.len() > 4 && strsim::levenshtein(item, d.name) <= 2)
-        .map(|d| d.name)
-        .next()
+    tokens::TOKENS.iter().filter(|d| d.name.len() > 4 && strsim::levenshtein(item, d.name) <= 2).map(|d| d.name).next()
 }
 
 #[cfg(test)]

@@ -114,24 +114,8 @@ pub struct TokenDef {
     pub obsolete: bool,
 }
 
-const fn t(
-    id: TokenId,
-    name: &'static str,
-    args: ArgShape,
-    in_ct: bool,
-    in_ic: bool,
-    ct_order: u8,
-) -> TokenDef {
-    TokenDef {
-        id,
-        name,
-        args,
-        in_ct,
-        in_ic,
-        ct_order,
-        alias_of: None,
-        obsolete: false,
-    }
+const fn t(id: TokenId, name: &'static str, args: ArgShape, in_ct: bool, in_ic: bool, ct_order: u8) -> TokenDef {
+    TokenDef { id, name, args, in_ct, in_ic, ct_order, alias_of: None, obsolete: false }
 }
 
 const fn alias(mut d: TokenDef, of: &'static str) -> TokenDef {
@@ -159,69 +143,20 @@ pub static TOKENS: &[TokenDef] = &[
     t(I::Size, "virt_size", A::Int3, true, true, 5),
     t(I::Size, "icache_size", A::Int3, true, true, 5),
     t(I::ClipSize, "clip_size", A::Int, true, false, 6),
-    t(
-        I::EffectiveLevels,
-        "effective_levels",
-        A::Int,
-        true,
-        false,
-        7,
-    ),
-    t(
-        I::AllocatedLevels,
-        "allocated_levels",
-        A::Int,
-        true,
-        false,
-        8,
-    ),
+    t(I::EffectiveLevels, "effective_levels", A::Int, true, false, 7),
+    t(I::AllocatedLevels, "allocated_levels", A::Int, true, false, 8),
     t(I::InvalidBorder, "invalid_border", A::Int, true, false, 9),
-    t(
-        I::SmallestIcache,
-        "smallest_icache",
-        A::Int3,
-        true,
-        false,
-        10,
-    ),
-    old(t(
-        I::PhaseShift,
-        "phase_shift",
-        A::SkipWords,
-        true,
-        false,
-        0,
-    )),
-    old(t(
-        I::PhaseMargin,
-        "phase_margin",
-        A::SkipWords,
-        true,
-        false,
-        0,
-    )),
+    t(I::SmallestIcache, "smallest_icache", A::Int3, true, false, 10),
+    old(t(I::PhaseShift, "phase_shift", A::SkipWords, true, false, 0)),
+    old(t(I::PhaseMargin, "phase_margin", A::SkipWords, true, false, 0)),
     t(I::IcacheBase, "icache_base", A::Base, true, false, 11),
     t(I::IcacheFormat, "icache_format", A::Word, true, false, 12),
-    old(t(
-        I::NumIcacheParams,
-        "num_icache_params",
-        A::Int,
-        true,
-        false,
-        13,
-    )),
+    old(t(I::NumIcacheParams, "num_icache_params", A::Int, true, false, 13)),
     t(I::IcacheParams, "icache_params", A::List, true, false, 14),
     t(I::HeaderOffset, "header_offset", A::Int, true, true, 15),
     t(I::TileBase, "tile_base", A::Base, true, true, 16),
     t(I::TileFormat, "tile_format", A::Word, true, true, 17),
-    old(t(
-        I::NumTileParams,
-        "num_tile_params",
-        A::Int,
-        true,
-        true,
-        17,
-    )),
+    old(t(I::NumTileParams, "num_tile_params", A::Int, true, true, 17)),
     t(I::TileParams, "tile_params", A::List, true, true, 18),
     t(I::IcacheFiles, "icache_files", A::List, true, false, 19),
     t(I::TileFiles, "tile_files", A::List, true, false, 20),
@@ -230,44 +165,19 @@ pub static TOKENS: &[TokenDef] = &[
     t(I::ReadFunc, "read_func", A::ReadFunc, true, true, 22),
     t(I::Lookahead, "lookahead", A::Int, true, true, 23),
     t(I::MemRegionSize, "mem_region_size", A::Int3, false, true, 0),
-    alias(
-        t(I::MemRegionSize, "cache_size", A::Int3, false, true, 0),
-        "mem_region_size",
-    ),
+    alias(t(I::MemRegionSize, "cache_size", A::Int3, false, true, 0), "mem_region_size"),
     t(I::TexRegionSize, "tex_region_size", A::Int3, false, true, 0),
-    alias(
-        t(I::TexRegionSize, "valid_region", A::Int3, false, true, 0),
-        "tex_region_size",
-    ),
+    alias(t(I::TexRegionSize, "valid_region", A::Int3, false, true, 0), "tex_region_size"),
     t(I::TexSize, "tex_size", A::Int3, false, true, 0),
-    alias(
-        t(I::TexSize, "valid_region_dst", A::Int3, false, true, 0),
-        "tex_size",
-    ),
+    alias(t(I::TexSize, "valid_region_dst", A::Int3, false, true, 0), "tex_size"),
     t(I::TilesInFile, "tiles_in_file", A::Int3, false, true, 0),
     t(I::SStreams, "s_streams", A::List, false, true, 0),
-    alias(
-        t(I::SStreams, "s_stream", A::List, false, true, 0),
-        "s_streams",
-    ),
+    alias(t(I::SStreams, "s_stream", A::List, false, true, 0), "s_streams"),
     t(I::TStreams, "t_streams", A::List, false, true, 0),
-    alias(
-        t(I::TStreams, "t_stream", A::List, false, true, 0),
-        "t_streams",
-    ),
+    alias(t(I::TStreams, "t_stream", A::List, false, true, 0), "t_streams"),
     t(I::RStreams, "r_streams", A::List, false, true, 0),
-    alias(
-        t(I::RStreams, "r_stream", A::List, false, true, 0),
-        "r_streams",
-    ),
-    old(t(
-        I::NumStreams,
-        "num_streams",
-        A::NumStreams,
-        false,
-        true,
-        0,
-    )),
+    alias(t(I::RStreams, "r_stream", A::List, false, true, 0), "r_streams"),
+    old(t(I::NumStreams, "num_streams", A::NumStreams, false, true, 0)),
     t(I::DefaultTile, "default_tile", A::Word, false, true, 0),
 ];
 
@@ -286,11 +196,7 @@ pub fn preferred_name(id: TokenId, kind: FileKind) -> &'static str {
         (TokenId::Size, FileKind::ImageCache) => "icache_size",
         (TokenId::CtVersion, _) => "ct_version2.0",
         (TokenId::IcVersion, _) => "ic_version2.0",
-        _ => TOKENS
-            .iter()
-            .find(|d| d.id == id && d.alias_of.is_none())
-            .map(|d| d.name)
-            .unwrap_or("?"),
+        _ => TOKENS.iter().find(|d| d.id == id && d.alias_of.is_none()).map(|d| d.name).unwrap_or("?"),
     }
 }
 
@@ -298,21 +204,13 @@ pub fn preferred_name(id: TokenId, kind: FileKind) -> &'static str {
 /// `//`) start a comment even when glued to the text (`#note`); the word markers (`comment`,
 /// `rem`) only as whole words, so `remote.raw` is a file name, not a comment.
 pub fn is_comment_start(word: &str) -> bool {
-    word.starts_with('#')
-        || word.starts_with(';')
-        || word.starts_with("//")
-        || word == "comment"
-        || word == "rem"
+    word.starts_with('#') || word.starts_with(';') || word.starts_with("//") || word == "comment" || word == "rem"
 }
 
 /// True when `word` starts a comment inside a list or between numbers. Here a word starting with
 /// `//` longer than the marker (`//server/share`) is a value, not a comment.
 pub fn is_comment_in_value_position(word: &str) -> bool {
-    word.starts_with('#')
-        || word.starts_with(';')
-        || word == "//"
-        || word == "comment"
-        || word == "rem"
+    word.starts_with('#') || word.starts_with(';') || word == "//" || word == "comment" || word == "rem"
 }
 
 /// Suggests the closest token name allowed in `kind` for a misspelled word.

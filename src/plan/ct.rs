@@ -8,12 +8,8 @@ use super::naming::{self, anchor, Scope, TileNaming};
 use super::params::{Param, ParamRef};
 use super::printf::{Arg, Format};
 use super::values::{self, SizeRule};
-use super::{
-    check_version, portability, ClipTexturePlan, GroupMode, Level, LevelKind, Options, PyramidTile,
-};
-use crate::config::{
-    self, Diagnostic, Diagnostics, FileKind, Severity, Span, Spanned, SyntaxFile, TokenId,
-};
+use super::{check_version, portability, ClipTexturePlan, GroupMode, Level, LevelKind, Options, PyramidTile};
+use crate::config::{self, Diagnostic, Diagnostics, FileKind, Severity, Span, Spanned, SyntaxFile, TokenId};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -34,12 +30,7 @@ pub fn build(
     let virt_f = r.int3(TokenId::Size);
     if virt_f.is_absent() {
         let d = r
-            .diag(
-                Severity::Error,
-                "missing-mandatory",
-                Some(Span::START),
-                "`virt_size` is missing; it is mandatory",
-            )
+            .diag(Severity::Error, "missing-mandatory", Some(Span::START), "`virt_size` is missing; it is mandatory")
             .hint("add `virt_size S T 1` (the level-0 size in texels)");
         r.push(d);
     }
@@ -47,12 +38,7 @@ pub fn build(
         &mut r,
         &virt_f,
         "virt_size",
-        SizeRule {
-            pow2: true,
-            max: limits.max_texture_size,
-            allow_two: true,
-            r_is_one: true,
-        },
+        SizeRule { pow2: true, max: limits.max_texture_size, allow_two: true, r_is_one: true },
     );
 
     let clip_f = r.int(TokenId::ClipSize);
@@ -73,12 +59,7 @@ pub fn build(
         Field::Given(v, _) => {
             if v.value <= 0 {
                 let d = r
-                    .diag(
-                        Severity::Error,
-                        "clip-size-not-positive",
-                        Some(v.span),
-                        "`clip_size` must be positive",
-                    )
+                    .diag(Severity::Error, "clip-size-not-positive", Some(v.span), "`clip_size` must be positive")
                     .found(v.value.to_string())
                     .expected("a positive power of two");
                 r.push(d);
@@ -118,7 +99,16 @@ pub fn build(
     };
     if let (Some(v), Some(c)) = (virt, clip) {
         if v[0].min(v[1]) < c {
-            let d = r.diag(Severity::Warning, "clip-larger-than-texture", values::span_of(&clip_f), format!("`clip_size` {c} is larger than the texture's smaller side ({})", v[0].min(v[1]))).hint("a clip size above the texture size keeps the whole texture resident; lower it to the texture size");
+            let d = r
+                .diag(
+                    Severity::Warning,
+                    "clip-larger-than-texture",
+                    values::span_of(&clip_f),
+                    format!("`clip_size` {c} is larger than the texture's smaller side ({})", v[0].min(v[1])),
+                )
+                .hint(
+                    "a clip size above the texture size keeps the whole texture resident; lower it to the texture size",
+                );
             r.push(d);
         }
     }
@@ -132,12 +122,7 @@ pub fn build(
         Field::Broken => None,
         Field::Given(v, _) if v.value < 0 => {
             let d = r
-                .diag(
-                    Severity::Error,
-                    "negative-value",
-                    Some(v.span),
-                    "`invalid_border` cannot be negative",
-                )
+                .diag(Severity::Error, "negative-value", Some(v.span), "`invalid_border` cannot be negative")
                 .found(v.value.to_string())
                 .expected("8 or more");
             r.push(d);
@@ -145,7 +130,15 @@ pub fn build(
         }
         Field::Given(v, _) if v.value < 8 => {
             let d = r
-                .diag(Severity::Warning, "border-raised", Some(v.span), format!("`invalid_border` {} is below the minimum of 8; it is raised to 8, as Performer does", v.value))
+                .diag(
+                    Severity::Warning,
+                    "border-raised",
+                    Some(v.span),
+                    format!(
+                        "`invalid_border` {} is below the minimum of 8; it is raised to 8, as Performer does",
+                        v.value
+                    ),
+                )
                 .hint("write `invalid_border 8` (or more) to say what is used");
             r.push(d);
             Some(8)
@@ -155,7 +148,12 @@ pub fn build(
     if let (Some(b), Some(c)) = (invalid_border, clip) {
         if 2 * b >= c && c > 0 {
             let d = r
-                .diag(Severity::Error, "border-too-wide", values::span_of(&border_f).or(values::span_of(&clip_f)), format!("an invalid border of {b} on each side leaves nothing of a {c}-texel clip window"))
+                .diag(
+                    Severity::Error,
+                    "border-too-wide",
+                    values::span_of(&border_f).or(values::span_of(&clip_f)),
+                    format!("an invalid border of {b} on each side leaves nothing of a {c}-texel clip window"),
+                )
                 .expected(format!("an invalid border below {}", c / 2))
                 .hint("raise clip_size or lower invalid_border");
             r.push(d);
@@ -167,19 +165,11 @@ pub fn build(
     let alloc_f = r.int(TokenId::AllocatedLevels);
     let allocated = positive_u32(&mut r, &alloc_f, "allocated_levels", 1000, &mut defaulted);
     let header_f = r.int(TokenId::HeaderOffset);
-    let header_offset = values::non_negative(
-        &mut r,
-        &header_f,
-        "header_offset",
-        0,
-        &mut defaulted,
-        "header_offset",
-    );
+    let header_offset = values::non_negative(&mut r, &header_f, "header_offset", 0, &mut defaulted, "header_offset");
     let page_f = r.int(TokenId::PageSize);
     let page_size = ic::page_size(&mut r, &page_f, None, &mut defaulted);
     let look_f = r.int(TokenId::Lookahead);
-    let lookahead =
-        values::non_negative(&mut r, &look_f, "lookahead", 1, &mut defaulted, "lookahead");
+    let lookahead = values::non_negative(&mut r, &look_f, "lookahead", 1, &mut defaulted, "lookahead");
     let read_func = ic::read_func(&mut r);
     let tile_f = r.int3(TokenId::TileSize);
     let tile_size = match &tile_f {
@@ -188,12 +178,7 @@ pub fn build(
             &mut r,
             f,
             "tile_size",
-            SizeRule {
-                pow2: false,
-                max: limits.max_tile_size,
-                allow_two: true,
-                r_is_one: true,
-            },
+            SizeRule { pow2: false, max: limits.max_tile_size, allow_two: true, r_is_one: true },
         ),
     };
 
@@ -203,27 +188,11 @@ pub fn build(
     };
 
     // Naming groups.
-    let icache_mode = group_mode(
-        &mut r,
-        TokenId::IcacheFormat,
-        TokenId::IcacheParams,
-        TokenId::IcacheFiles,
-        "icache",
-    );
-    let tile_mode = group_mode(
-        &mut r,
-        TokenId::TileFormat,
-        TokenId::TileParams,
-        TokenId::TileFiles,
-        "tile",
-    );
+    let icache_mode = group_mode(&mut r, TokenId::IcacheFormat, TokenId::IcacheParams, TokenId::IcacheFiles, "icache");
+    let tile_mode = group_mode(&mut r, TokenId::TileFormat, TokenId::TileParams, TokenId::TileFiles, "tile");
     check_base_after_files(&mut r, TokenId::IcacheBase, TokenId::IcacheFiles);
     check_base_after_files(&mut r, TokenId::TileBase, TokenId::TileFiles);
-    let dir = file
-        .path
-        .parent()
-        .map(Path::to_path_buf)
-        .unwrap_or_default();
+    let dir = file.path.parent().map(Path::to_path_buf).unwrap_or_default();
     let icache_base_f = r.base(TokenId::IcacheBase);
     let icache_base = expand_base(&mut r, &icache_base_f, opts);
     let tile_base_f = r.base(TokenId::TileBase);
@@ -234,9 +203,7 @@ pub fn build(
     };
     // Level layout.
     let n_icache = (virt[0] / smallest[0]).trailing_zeros() + 1;
-    let mut sizes: Vec<[u64; 2]> = (0..n_icache)
-        .map(|l| [virt[0] >> l, virt[1] >> l])
-        .collect();
+    let mut sizes: Vec<[u64; 2]> = (0..n_icache).map(|l| [virt[0] >> l, virt[1] >> l]).collect();
     let mut p = [smallest[0] / 2, smallest[1] / 2];
     while p[0] > 0 && p[1] > 0 {
         sizes.push(p);
@@ -247,11 +214,7 @@ pub fn build(
             Severity::Error,
             "too-many-levels",
             values::span_of(&virt_f),
-            format!(
-                "the texture has {} levels; at most {} are supported",
-                sizes.len(),
-                limits.max_levels
-            ),
+            format!("the texture has {} levels; at most {} are supported", sizes.len(), limits.max_levels),
         );
         r.push(d);
         return None;
@@ -285,17 +248,8 @@ pub fn build(
         opts,
     );
     let pyramid_sizes = &sizes[n_icache as usize..];
-    let pyramid_names = level_names(
-        &mut r,
-        Group::Tile,
-        tile_mode,
-        pyramid_sizes,
-        virt,
-        &icache_base,
-        &tile_base,
-        &dir,
-        opts,
-    );
+    let pyramid_names =
+        level_names(&mut r, Group::Tile, tile_mode, pyramid_sizes, virt, &icache_base, &tile_base, &dir, opts);
 
     let no_ic_naming = if icache_mode == GroupMode::None {
         no_ic_naming(&mut r, &tile_base, &dir, opts, tile_size, &tile_f)
@@ -341,28 +295,13 @@ pub fn build(
                 load_level_ic(&path, span, &file.path, &ctx, opts, diags, sources)
             };
             if let Some(p) = plan {
-                levels.push(Level {
-                    level,
-                    size,
-                    kind: LevelKind::Icache(Box::new(p)),
-                });
+                levels.push(Level { level, size, kind: LevelKind::Icache(Box::new(p)) });
             }
         } else {
             let idx = l - n_icache as usize;
-            let path = pyramid_names
-                .as_ref()
-                .and_then(|v| v.get(idx).cloned().flatten())
-                .map(|(p, _)| p);
+            let path = pyramid_names.as_ref().and_then(|v| v.get(idx).cloned().flatten()).map(|(p, _)| p);
             let length = size[0] * size[1] * texel.bytes_per_texel() as u64;
-            levels.push(Level {
-                level,
-                size,
-                kind: LevelKind::Pyramid(PyramidTile {
-                    path,
-                    header_offset,
-                    length,
-                }),
-            });
+            levels.push(Level { level, size, kind: LevelKind::Pyramid(PyramidTile { path, header_offset, length }) });
         }
     }
     if levels.len() != sizes.len() {
@@ -372,9 +311,7 @@ pub fn build(
     let effective = effective?;
     Some(ClipTexturePlan {
         path: file.path.clone(),
-        version: file
-            .first(TokenId::CtVersion)
-            .map(|e| e.def.name.to_string()),
+        version: file.first(TokenId::CtVersion).map(|e| e.def.name.to_string()),
         bytes_per_texel: texel.bytes_per_texel(),
         ext_format: ext,
         int_format: int,
@@ -417,12 +354,7 @@ fn positive_u32(
         Field::Broken => None,
         Field::Given(v, _) if v.value < 1 || v.value > u32::MAX as i64 => {
             let d = r
-                .diag(
-                    Severity::Error,
-                    "level-count-not-positive",
-                    Some(v.span),
-                    format!("`{name}` must be at least 1"),
-                )
+                .diag(Severity::Error, "level-count-not-positive", Some(v.span), format!("`{name}` must be at least 1"))
                 .found(v.value.to_string())
                 .expected("a positive number of levels");
             r.push(d);
@@ -458,12 +390,7 @@ fn smallest_icache(
             for (i, x) in v.iter().enumerate().take(3) {
                 if x.value == 0 {
                     let d = r
-                        .diag(
-                            Severity::Error,
-                            "smallest-icache-zero",
-                            Some(x.span),
-                            "`smallest_icache` cannot be 0",
-                        )
+                        .diag(Severity::Error, "smallest-icache-zero", Some(x.span), "`smallest_icache` cannot be 0")
                         .expected("a positive size");
                     r.push(d);
                     return None;
@@ -484,7 +411,12 @@ fn smallest_icache(
     for (i, axis) in ["S", "T"].iter().enumerate() {
         if s[i] > 2 * clip {
             let d = r
-                .diag(Severity::Error, "smallest-icache-too-large", span.or(Some(Span::START)), format!("{axis} of `smallest_icache` ({}) is more than twice `clip_size` ({clip})", s[i]))
+                .diag(
+                    Severity::Error,
+                    "smallest-icache-too-large",
+                    span.or(Some(Span::START)),
+                    format!("{axis} of `smallest_icache` ({}) is more than twice `clip_size` ({clip})", s[i]),
+                )
                 .hint("every level larger than the clip size must be an image cache; lower smallest_icache");
             r.push(d);
             return None;
@@ -495,10 +427,7 @@ fn smallest_icache(
                     Severity::Error,
                     "smallest-icache-larger-than-texture",
                     span.or(r.span_of(TokenId::ClipSize)),
-                    format!(
-                        "{axis} of `smallest_icache` ({}) is larger than the texture ({})",
-                        s[i], virt[i]
-                    ),
+                    format!("{axis} of `smallest_icache` ({}) is larger than the texture ({})", s[i], virt[i]),
                 )
                 .hint(if span.is_none() {
                     "the default is 2 x clip_size; lower clip_size or give smallest_icache"
@@ -550,13 +479,7 @@ fn check_order(r: &mut Reader<'_>) {
     }
 }
 
-fn group_mode(
-    r: &mut Reader<'_>,
-    fmt: TokenId,
-    params: TokenId,
-    files: TokenId,
-    group: &str,
-) -> GroupMode {
+fn group_mode(r: &mut Reader<'_>, fmt: TokenId, params: TokenId, files: TokenId, group: &str) -> GroupMode {
     let has_fmt = r.file.first(fmt).is_some();
     let has_params = r.file.first(params).is_some();
     let has_files = r.file.first(files).is_some();
@@ -568,16 +491,11 @@ fn group_mode(
                 r.span_of(params),
                 format!("`{group}_params` without `{group}_format`"),
             )
-            .hint(format!(
-                "add `{group}_format` (Performer 3.0 crashes here), or remove the parameters"
-            ));
+            .hint(format!("add `{group}_format` (Performer 3.0 crashes here), or remove the parameters"));
         r.push(d);
     }
     if (has_fmt || has_params) && has_files {
-        let second = [r.span_of(files), r.span_of(fmt)]
-            .into_iter()
-            .flatten()
-            .max_by_key(|s| s.offset);
+        let second = [r.span_of(files), r.span_of(fmt)].into_iter().flatten().max_by_key(|s| s.offset);
         let d = r
             .diag(
                 Severity::Error,
@@ -585,9 +503,7 @@ fn group_mode(
                 second,
                 format!("both `{group}_format` and `{group}_files` are given; use one method"),
             )
-            .hint(format!(
-                "keep either the format (with `{group}_params`) or the explicit list"
-            ));
+            .hint(format!("keep either the format (with `{group}_params`) or the explicit list"));
         r.push(d);
     }
     if has_fmt || has_params {
@@ -604,7 +520,15 @@ fn check_base_after_files(r: &mut Reader<'_>, base: TokenId, files: TokenId) {
         if b > f {
             let span = r.span_of(base);
             let d = r
-                .diag(Severity::Warning, "base-after-files", span, format!("`{}` comes after `{}`: Performer 3.0 applies a base only to lists read after it", r.file.entries[b].def.name, r.file.entries[f].def.name))
+                .diag(
+                    Severity::Warning,
+                    "base-after-files",
+                    span,
+                    format!(
+                        "`{}` comes after `{}`: Performer 3.0 applies a base only to lists read after it",
+                        r.file.entries[b].def.name, r.file.entries[f].def.name
+                    ),
+                )
                 .hint("move the base before the list; this reader applies it to every entry either way");
             r.push(portability(d));
         }
@@ -639,26 +563,22 @@ fn level_names(
     opts: &Options,
 ) -> Option<Vec<Option<(PathBuf, Option<Span>)>>> {
     let (fmt_id, params_id, files_id, base, gname) = match group {
-        Group::Icache => (
-            TokenId::IcacheFormat,
-            TokenId::IcacheParams,
-            TokenId::IcacheFiles,
-            icache_base,
-            "icache",
-        ),
-        Group::Tile => (
-            TokenId::TileFormat,
-            TokenId::TileParams,
-            TokenId::TileFiles,
-            tile_base,
-            "tile",
-        ),
+        Group::Icache => (TokenId::IcacheFormat, TokenId::IcacheParams, TokenId::IcacheFiles, icache_base, "icache"),
+        Group::Tile => (TokenId::TileFormat, TokenId::TileParams, TokenId::TileFiles, tile_base, "tile"),
     };
     match mode {
         GroupMode::None => {
             if group == Group::Tile && !sizes.is_empty() {
                 let d = r
-                    .diag(Severity::Warning, "pyramid-unnamed", Some(Span::START), format!("no `tile_files` or `tile_format`: the {} pyramid levels have no files and will be blank", sizes.len()))
+                    .diag(
+                        Severity::Warning,
+                        "pyramid-unnamed",
+                        Some(Span::START),
+                        format!(
+                            "no `tile_files` or `tile_format`: the {} pyramid levels have no files and will be blank",
+                            sizes.len()
+                        ),
+                    )
                     .hint("name the pyramid files with `tile_files` (one per level, largest first) or `tile_format`");
                 r.push(d);
             }
@@ -669,11 +589,7 @@ fn level_names(
                 return None;
             };
             if items.len() < sizes.len() {
-                let what = if group == Group::Icache {
-                    "image cache level"
-                } else {
-                    "pyramid level"
-                };
+                let what = if group == Group::Icache { "image cache level" } else { "pyramid level" };
                 let d = r
                     .diag(
                         Severity::Error,
@@ -690,27 +606,31 @@ fn level_names(
                     )
                     .hint(format!(
                         "list one file per {what}, largest first: sizes {}",
-                        sizes
-                            .iter()
-                            .map(|s| format!("{}x{}", s[0], s[1]))
-                            .collect::<Vec<_>>()
-                            .join(", ")
+                        sizes.iter().map(|s| format!("{}x{}", s[0], s[1])).collect::<Vec<_>>().join(", ")
                     ));
                 r.push(d);
                 return None;
             }
             if items.len() > sizes.len() {
                 let extra = &items[sizes.len()];
-                let d = r.diag(Severity::Warning, "file-list-too-long", Some(extra.span), format!("`{gname}_files` has {} entries but only {} are used; the rest are ignored", items.len(), sizes.len())).found(extra.value.clone());
+                let d = r
+                    .diag(
+                        Severity::Warning,
+                        "file-list-too-long",
+                        Some(extra.span),
+                        format!(
+                            "`{gname}_files` has {} entries but only {} are used; the rest are ignored",
+                            items.len(),
+                            sizes.len()
+                        ),
+                    )
+                    .found(extra.value.clone());
                 r.push(d);
             }
             let mut out = Vec::new();
             for item in items.iter().take(sizes.len()) {
                 let name = naming::expand_field(r, item, &opts.env);
-                out.push(Some((
-                    anchor(dir, &format!("{base}{name}")),
-                    Some(item.span),
-                )));
+                out.push(Some((anchor(dir, &format!("{base}{name}")), Some(item.span))));
             }
             Some(out)
         }
@@ -730,14 +650,7 @@ fn level_names(
                         && r.file.first(TokenId::IcacheParams).is_none(),
                 },
             };
-            let (parsed, refs) = naming::check_format(
-                r,
-                &fmt,
-                &expanded,
-                &params,
-                values::span_of(&params_f),
-                scope,
-            )?;
+            let (parsed, refs) = naming::check_format(r, &fmt, &expanded, &params, values::span_of(&params_f), scope)?;
             let mut out = Vec::new();
             for (i, size) in sizes.iter().enumerate() {
                 let level = match group {
@@ -792,15 +705,16 @@ fn no_ic_naming(
 ) -> Option<(TileNaming, Option<Span>)> {
     if tile_size.is_none() && tile_f.is_absent() {
         let d = r
-            .diag(Severity::Error, "no-ic-needs-tile-size", Some(Span::START), "without `.ic` files (no `icache_files` or `icache_format`), `tile_size` is required")
+            .diag(
+                Severity::Error,
+                "no-ic-needs-tile-size",
+                Some(Span::START),
+                "without `.ic` files (no `icache_files` or `icache_format`), `tile_size` is required",
+            )
             .hint("add `tile_size W H 1`, or name one .ic file per image cache level");
         r.push(d);
     }
-    let cache_name = if tile_base.is_empty() {
-        "./".to_string()
-    } else {
-        tile_base.to_string()
-    };
+    let cache_name = if tile_base.is_empty() { "./".to_string() } else { tile_base.to_string() };
     let fmt_f = r.word(TokenId::TileFormat, Some("a format"));
     match fmt_f {
         Field::Given(fmt, span) => {
@@ -816,12 +730,7 @@ fn no_ic_naming(
                 Scope::CtTile { no_ic: true },
             )?;
             Some((
-                TileNaming::new(
-                    parsed,
-                    refs.iter().map(|p| p.param).collect(),
-                    cache_name,
-                    dir.to_path_buf(),
-                ),
+                TileNaming::new(parsed, refs.iter().map(|p| p.param).collect(), cache_name, dir.to_path_buf()),
                 Some(span),
             ))
         }
@@ -830,10 +739,7 @@ fn no_ic_naming(
                 .diag(Severity::Warning, "no-ic-default-format", Some(Span::START), "without `.ic` files and without `tile_format`, image cache tiles use the default name format `%s%s.%d.r%03d.c%03d.raw888`")
                 .hint("give `tile_format` and `tile_params` to name the tiles");
             r.push(d);
-            Some((
-                TileNaming::default_format(cache_name, dir.to_path_buf()),
-                None,
-            ))
+            Some((TileNaming::default_format(cache_name, dir.to_path_buf()), None))
         }
         Field::Broken => None,
     }
@@ -853,15 +759,19 @@ fn load_level_ic(
     let src = match std::fs::read(path) {
         Ok(s) => s,
         Err(e) => {
-            let what = if e.kind() == std::io::ErrorKind::NotFound {
-                "not found".to_string()
-            } else {
-                e.to_string()
-            };
+            let what = if e.kind() == std::io::ErrorKind::NotFound { "not found".to_string() } else { e.to_string() };
             diags.push(
-                Diagnostic::new(Severity::Error, "icache-file-unreadable", ct_path, span, format!("the image cache file of level {level} cannot be read: {what}"))
-                    .found(path.display().to_string())
-                    .hint("check the name (relative names are taken from the .ct file's directory) and that the file exists"),
+                Diagnostic::new(
+                    Severity::Error,
+                    "icache-file-unreadable",
+                    ct_path,
+                    span,
+                    format!("the image cache file of level {level} cannot be read: {what}"),
+                )
+                .found(path.display().to_string())
+                .hint(
+                    "check the name (relative names are taken from the .ct file's directory) and that the file exists",
+                ),
             );
             return None;
         }

@@ -25,16 +25,12 @@ impl Env {
 
     /// An environment with no variables at all except those set explicitly (for tests).
     pub fn isolated() -> Self {
-        Env {
-            overrides: BTreeMap::new(),
-            isolated: true,
-        }
+        Env { overrides: BTreeMap::new(), isolated: true }
     }
 
     /// Sets a variable (it shadows the process environment).
     pub fn set(&mut self, name: &str, value: &str) -> &mut Self {
-        self.overrides
-            .insert(name.to_string(), Some(value.to_string()));
+        self.overrides.insert(name.to_string(), Some(value.to_string()));
         self
     }
 
@@ -82,11 +78,7 @@ pub enum Outcome {
 
 /// Expands a field per Performer 3.0's rules.
 pub fn expand(field: &str, env: &Env) -> Expansion {
-    let plain = |outcome| Expansion {
-        value: field.to_string(),
-        variable: None,
-        outcome,
-    };
+    let plain = |outcome| Expansion { value: field.to_string(), variable: None, outcome };
     let Some(rest) = field.strip_prefix('$') else {
         return plain(Outcome::Plain);
     };
@@ -132,11 +124,7 @@ pub fn expand(field: &str, env: &Env) -> Expansion {
     } else {
         ""
     };
-    Expansion {
-        value: format!("{value}{tail}"),
-        variable: Some(name.to_string()),
-        outcome,
-    }
+    Expansion { value: format!("{value}{tail}"), variable: Some(name.to_string()), outcome }
 }
 
 #[cfg(test)]
@@ -145,9 +133,7 @@ mod tests {
 
     fn env() -> Env {
         let mut e = Env::isolated();
-        e.set("CLIPTEST_PYR", "/mnt/pyr")
-            .set("EMPTY", "")
-            .set("COLON", "a:b");
+        e.set("CLIPTEST_PYR", "/mnt/pyr").set("EMPTY", "").set("COLON", "a:b");
         e
     }
 
@@ -186,10 +172,7 @@ mod tests {
         assert_eq!(x("$/x"), "$/x");
         assert_eq!(x("plain/x"), "plain/x");
         assert_eq!(expand("$UNSET/a", &env()).outcome, Outcome::UnsetEmpty);
-        assert_eq!(
-            expand("${UNSET:-/fb}/a", &env()).outcome,
-            Outcome::DefaultUsed
-        );
+        assert_eq!(expand("${UNSET:-/fb}/a", &env()).outcome, Outcome::DefaultUsed);
     }
 
     #[test]

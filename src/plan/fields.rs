@@ -50,13 +50,7 @@ impl<'a> Reader<'a> {
     }
 
     /// A new finding about this file.
-    pub fn diag(
-        &self,
-        sev: Severity,
-        code: &'static str,
-        span: Option<Span>,
-        msg: impl Into<String>,
-    ) -> Diagnostic {
+    pub fn diag(&self, sev: Severity, code: &'static str, span: Option<Span>, msg: impl Into<String>) -> Diagnostic {
         Diagnostic::new(sev, code, &self.file.path, span, msg)
     }
 
@@ -71,16 +65,9 @@ impl<'a> Reader<'a> {
                     Severity::Warning,
                     "repeated-token",
                     Some(last.span),
-                    format!(
-                        "`{}` is given {} times; the last one (here) wins",
-                        last.def.name,
-                        all.len()
-                    ),
+                    format!("`{}` is given {} times; the last one (here) wins", last.def.name, all.len()),
                 )
-                .hint(format!(
-                    "remove the earlier one at line {}",
-                    first.span.line
-                ));
+                .hint(format!("remove the earlier one at line {}", first.span.line));
             self.push(d);
         }
     }
@@ -95,15 +82,9 @@ impl<'a> Reader<'a> {
                     Severity::Error,
                     "duplicate-token",
                     Some(second.span),
-                    format!(
-                        "`{}` is given twice; {what} may be given only once",
-                        second.def.name
-                    ),
+                    format!("`{}` is given twice; {what} may be given only once", second.def.name),
                 )
-                .hint(format!(
-                    "the first one is at line {}; keep one",
-                    all[0].span.line
-                ));
+                .hint(format!("the first one is at line {}; keep one", all[0].span.line));
             self.push(d);
         }
     }
@@ -138,11 +119,7 @@ impl<'a> Reader<'a> {
             Some(what) => self.unique(id, what),
             None => self.repeated_scalar(id),
         }
-        let e = if unique.is_some() {
-            self.file.first(id)
-        } else {
-            self.file.last(id)
-        };
+        let e = if unique.is_some() { self.file.first(id) } else { self.file.last(id) };
         match e {
             None => Field::Absent,
             Some(e) => match &e.value {
@@ -159,13 +136,7 @@ impl<'a> Reader<'a> {
             None => Field::Absent,
             Some(e) => match &e.value {
                 Value::Base(Some(v)) => Field::Given(v.clone(), e.span),
-                Value::Base(None) => Field::Given(
-                    Spanned {
-                        value: String::new(),
-                        span: e.span,
-                    },
-                    e.span,
-                ),
+                Value::Base(None) => Field::Given(Spanned { value: String::new(), span: e.span }, e.span),
                 _ => Field::Broken,
             },
         }

@@ -151,22 +151,14 @@ fn table(which: Which) -> Vec<(&'static str, u32)> {
 pub fn resolve(which: Which, word: &str) -> Result<FormatValue, FormatRefusal> {
     let t = table(which);
     if let Some(&(_, v)) = t.iter().find(|(n, _)| *n == word) {
-        return Ok(FormatValue {
-            written: word.to_string(),
-            value: v,
-            numeric: false,
-        });
+        return Ok(FormatValue { written: word.to_string(), value: v, numeric: false });
     }
     if word.starts_with(|c: char| c.is_ascii_digit() || c == '-' || c == '+') {
         return match word.parse::<i64>() {
             Ok(v) if v >= 0 && v <= u32::MAX as i64 => {
                 let v = v as u32;
                 if which == Which::Int || t.iter().any(|&(_, tv)| tv == v) {
-                    Ok(FormatValue {
-                        written: word.to_string(),
-                        value: v,
-                        numeric: true,
-                    })
+                    Ok(FormatValue { written: word.to_string(), value: v, numeric: true })
                 } else {
                     Err(FormatRefusal::UnknownNumber)
                 }
@@ -185,10 +177,7 @@ pub fn resolve(which: Which, word: &str) -> Result<FormatValue, FormatRefusal> {
 
 /// Component count of an image format value.
 pub fn components_of(img_value: u32) -> Option<u32> {
-    IMG_FORMATS
-        .iter()
-        .find(|&&(_, v, _)| v == img_value)
-        .map(|&(_, _, c)| c)
+    IMG_FORMATS.iter().find(|&&(_, v, _)| v == img_value).map(|&(_, _, c)| c)
 }
 
 /// The texel format for an external type and image layout. `None` for `GL_BITMAP`, which has no
@@ -227,10 +216,7 @@ mod tests {
         assert_eq!(resolve(Which::Img, "PFTEX_RGB").unwrap().value, 6407);
         assert_eq!(resolve(Which::Ext, "-5"), Err(FormatRefusal::UnknownNumber));
         assert_eq!(resolve(Which::Ext, "99"), Err(FormatRefusal::UnknownNumber));
-        assert_eq!(
-            resolve(Which::Img, "PFTEX_RBG"),
-            Err(FormatRefusal::UnknownName(Some("PFTEX_RGB")))
-        );
+        assert_eq!(resolve(Which::Img, "PFTEX_RBG"), Err(FormatRefusal::UnknownName(Some("PFTEX_RGB"))));
     }
 
     #[test]

@@ -52,7 +52,12 @@ pub fn read_formats(
                 Ok(v) => {
                     if which == Which::Img && v.numeric {
                         let d = r
-                            .diag(Severity::Warning, "numeric-img-format", Some(w.span), "Performer 3.0 refuses a number for `img_format` (its manual allows it)")
+                            .diag(
+                                Severity::Warning,
+                                "numeric-img-format",
+                                Some(w.span),
+                                "Performer 3.0 refuses a number for `img_format` (its manual allows it)",
+                            )
                             .found(w.value.clone())
                             .hint("write the name, e.g. PFTEX_RGB");
                         r.push(portability(d));
@@ -70,9 +75,7 @@ pub fn read_formats(
                         )
                         .found(w.value.clone());
                     d = match refusal {
-                        FormatRefusal::UnknownName(Some(s)) => {
-                            d.hint(format!("did you mean `{s}`?"))
-                        }
+                        FormatRefusal::UnknownName(Some(s)) => d.hint(format!("did you mean `{s}`?")),
                         FormatRefusal::UnknownName(None) => d.expected(format!(
                             "a name such as {}",
                             match which {
@@ -116,7 +119,15 @@ pub fn read_formats(
         Some(t) => Some((ext, int, img, t)),
         None => {
             let d = r
-                .diag(Severity::Error, "unsupported-texel-format", spans[0], format!("`ext_format {}` with `img_format {}` does not describe a texel this reader can size", ext.written, img.written))
+                .diag(
+                    Severity::Error,
+                    "unsupported-texel-format",
+                    spans[0],
+                    format!(
+                        "`ext_format {}` with `img_format {}` does not describe a texel this reader can size",
+                        ext.written, img.written
+                    ),
+                )
                 .hint("GL_BITMAP has no meaning for tiles; use a component type such as PFTEX_UNSIGNED_BYTE");
             r.push(d);
             None
@@ -125,12 +136,7 @@ pub fn read_formats(
 }
 
 /// Builds the plan of one `.ic` file.
-pub fn build(
-    file: &SyntaxFile,
-    ctx: &Context,
-    opts: &Options,
-    diags: &mut Diagnostics,
-) -> Option<ImageCachePlan> {
+pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagnostics) -> Option<ImageCachePlan> {
     let mut r = Reader::new(file, diags);
     check_version(&mut r, FileKind::ImageCache);
     let mut defaulted = Vec::new();
@@ -140,12 +146,7 @@ pub fn build(
     let size_f = r.int3(TokenId::Size);
     if size_f.is_absent() {
         let d = r
-            .diag(
-                Severity::Error,
-                "missing-mandatory",
-                Some(Span::START),
-                "`icache_size` is missing; it is mandatory",
-            )
+            .diag(Severity::Error, "missing-mandatory", Some(Span::START), "`icache_size` is missing; it is mandatory")
             .hint("add `icache_size S T 1` (the size of this level in texels)");
         r.push(d);
     }
@@ -153,12 +154,7 @@ pub fn build(
         &mut r,
         &size_f,
         "icache_size",
-        SizeRule {
-            pow2: true,
-            max: limits.max_texture_size,
-            allow_two: true,
-            r_is_one: true,
-        },
+        SizeRule { pow2: true, max: limits.max_texture_size, allow_two: true, r_is_one: true },
     );
 
     let tile_f = r.int3(TokenId::TileSize);
@@ -172,12 +168,7 @@ pub fn build(
         &mut r,
         &tile_f,
         "tile_size",
-        SizeRule {
-            pow2: false,
-            max: limits.max_tile_size,
-            allow_two: true,
-            r_is_one: true,
-        },
+        SizeRule { pow2: false, max: limits.max_tile_size, allow_two: true, r_is_one: true },
     );
 
     let tif_f = r.int3(TokenId::TilesInFile);
@@ -190,23 +181,11 @@ pub fn build(
             &mut r,
             &tif_f,
             "tiles_in_file",
-            SizeRule {
-                pow2: false,
-                max: 1 << 20,
-                allow_two: true,
-                r_is_one: false,
-            },
+            SizeRule { pow2: false, max: 1 << 20, allow_two: true, r_is_one: false },
         ),
     };
     let header_f = r.int(TokenId::HeaderOffset);
-    let header_offset = values::non_negative(
-        &mut r,
-        &header_f,
-        "header_offset",
-        0,
-        &mut defaulted,
-        "header_offset",
-    );
+    let header_offset = values::non_negative(&mut r, &header_f, "header_offset", 0, &mut defaulted, "header_offset");
     let look_f = r.int(TokenId::Lookahead);
     let lookahead = match (&look_f, ctx.lookahead) {
         (Field::Absent, Some(l)) => Some(l),
@@ -222,7 +201,12 @@ pub fn build(
             if tl[i] > sz[i] || sz[i] % tl[i] != 0 {
                 let axis = ["S", "T"][i];
                 let d = r
-                    .diag(Severity::Error, "tile-does-not-divide", values::span_of(&tile_f), format!("{axis} of `tile_size` ({}) does not divide the cache size ({})", tl[i], sz[i]))
+                    .diag(
+                        Severity::Error,
+                        "tile-does-not-divide",
+                        values::span_of(&tile_f),
+                        format!("{axis} of `tile_size` ({}) does not divide the cache size ({})", tl[i], sz[i]),
+                    )
                     .hint("the cache size must be a whole number of tiles; choose a tile size that divides it");
                 r.push(d);
             }
@@ -244,7 +228,12 @@ pub fn build(
                 .hint("every level must use the clip texture's texel format");
             r.push(d);
         } else if want != *have {
-            let d = r.diag(Severity::Warning, "format-differs", r.span_of(TokenId::ExtFormat), format!("this image cache stores {have} but the clip texture is {want} (same size per texel)"));
+            let d = r.diag(
+                Severity::Warning,
+                "format-differs",
+                r.span_of(TokenId::ExtFormat),
+                format!("this image cache stores {have} but the clip texture is {want} (same size per texel)"),
+            );
             r.push(d);
         }
     }
@@ -269,7 +258,12 @@ pub fn build(
         (None, _) => {
             if tex_f.is_absent() {
                 let d = r
-                    .diag(Severity::Error, "missing-mandatory", Some(Span::START), "`tex_region_size` is missing; a standalone image cache needs it")
+                    .diag(
+                        Severity::Error,
+                        "missing-mandatory",
+                        Some(Span::START),
+                        "`tex_region_size` is missing; a standalone image cache needs it",
+                    )
                     .hint("add `tex_region_size W H 1` (the part of the cache kept in texture memory)");
                 r.push(d);
             }
@@ -277,12 +271,7 @@ pub fn build(
                 &mut r,
                 &tex_f,
                 "tex_region_size",
-                SizeRule {
-                    pow2: false,
-                    max: limits.max_texture_size,
-                    allow_two: true,
-                    r_is_one: true,
-                },
+                SizeRule { pow2: false, max: limits.max_texture_size, allow_two: true, r_is_one: true },
             );
             if let (Some(tr), Some(sz)) = (tr, size) {
                 if tr[0] > sz[0] || tr[1] > sz[1] {
@@ -290,10 +279,7 @@ pub fn build(
                         Severity::Error,
                         "tex-region-too-large",
                         values::span_of(&tex_f),
-                        format!(
-                            "the tex region {}x{} is larger than the cache {}x{}",
-                            tr[0], tr[1], sz[0], sz[1]
-                        ),
+                        format!("the tex region {}x{} is larger than the cache {}x{}", tr[0], tr[1], sz[0], sz[1]),
                     );
                     r.push(d);
                 }
@@ -307,7 +293,15 @@ pub fn build(
             defaulted.push("tex_size");
             if !tr[0].is_power_of_two() || !tr[1].is_power_of_two() {
                 let d = r
-                    .diag(Severity::Error, "tex-size-not-power-of-two", r.span_of(TokenId::TexRegionSize), format!("the destination texture defaults to the tex region, {}x{}, which is not a power of two", tr[0], tr[1]))
+                    .diag(
+                        Severity::Error,
+                        "tex-size-not-power-of-two",
+                        r.span_of(TokenId::TexRegionSize),
+                        format!(
+                            "the destination texture defaults to the tex region, {}x{}, which is not a power of two",
+                            tr[0], tr[1]
+                        ),
+                    )
                     .hint(format!("add `tex_size {} {} 1`", values::next_pow2(tr[0]), values::next_pow2(tr[1])));
                 r.push(d);
                 None
@@ -321,12 +315,7 @@ pub fn build(
                 &mut r,
                 f,
                 "tex_size",
-                SizeRule {
-                    pow2: true,
-                    max: limits.max_texture_size,
-                    allow_two: true,
-                    r_is_one: true,
-                },
+                SizeRule { pow2: true, max: limits.max_texture_size, allow_two: true, r_is_one: true },
             );
             if let (Some(ts), Some(tr)) = (ts, tr) {
                 if ts[0] < tr[0] || ts[1] < tr[1] {
@@ -350,25 +339,14 @@ pub fn build(
 
     let mem_f = r.int3(TokenId::MemRegionSize);
     let mem_region = match (size, tile, tex_region, lookahead) {
-        (Some(sz), Some(tl), Some(tr), Some(la)) => mem_region(
-            &mut r,
-            &mem_f,
-            sz,
-            tl,
-            tr,
-            la,
-            limits.max_mem_region_tiles,
-            &mut defaulted,
-        ),
+        (Some(sz), Some(tl), Some(tr), Some(la)) => {
+            mem_region(&mut r, &mem_f, sz, tl, tr, la, limits.max_mem_region_tiles, &mut defaulted)
+        }
         _ => None,
     };
 
     // Naming.
-    let dir = file
-        .path
-        .parent()
-        .map(Path::to_path_buf)
-        .unwrap_or_default();
+    let dir = file.path.parent().map(Path::to_path_buf).unwrap_or_default();
     let base_f = r.base(TokenId::TileBase);
     let cache_name = match &base_f {
         Field::Given(b, _) => naming::expand_field(&mut r, b, &opts.env),
@@ -381,21 +359,21 @@ pub fn build(
             let expanded = naming::expand_field(&mut r, f, &opts.env);
             let params = params_f.value().cloned().unwrap_or_default();
             let pspan = values::span_of(&params_f);
-            naming::check_format(&mut r, f, &expanded, &params, pspan, Scope::Ic).map(
-                |(fmt, refs)| {
-                    TileNaming::new(
-                        fmt,
-                        refs.iter().map(|p| p.param).collect(),
-                        cache_name.clone(),
-                        dir.clone(),
-                    )
-                },
-            )
+            naming::check_format(&mut r, f, &expanded, &params, pspan, Scope::Ic).map(|(fmt, refs)| {
+                TileNaming::new(fmt, refs.iter().map(|p| p.param).collect(), cache_name.clone(), dir.clone())
+            })
         }
         Field::Absent => {
             if let Field::Given(p, span) = &params_f {
                 if !p.is_empty() {
-                    let d = r.diag(Severity::Warning, "params-without-format", Some(*span), "`tile_params` without `tile_format` is ignored; the default name format is used").hint("add the `tile_format` these parameters belong to, or remove them");
+                    let d = r
+                        .diag(
+                            Severity::Warning,
+                            "params-without-format",
+                            Some(*span),
+                            "`tile_params` without `tile_format` is ignored; the default name format is used",
+                        )
+                        .hint("add the `tile_format` these parameters belong to, or remove them");
                     r.push(d);
                 }
             }
@@ -406,10 +384,7 @@ pub fn build(
     };
 
     let mut streams: [Vec<String>; 3] = Default::default();
-    for (i, id) in [TokenId::SStreams, TokenId::TStreams, TokenId::RStreams]
-        .into_iter()
-        .enumerate()
-    {
+    for (i, id) in [TokenId::SStreams, TokenId::TStreams, TokenId::RStreams].into_iter().enumerate() {
         if let Field::Given(items, span) = r.list(id, None) {
             if items.is_empty() {
                 let d = r.diag(
@@ -447,7 +422,12 @@ pub fn build(
     let default_tile = match r.word(TokenId::DefaultTile, None) {
         Field::Given(w, _) => {
             if w.value.starts_with('$') {
-                let d = r.diag(Severity::Warning, "default-tile-not-expanded", Some(w.span), "`default_tile` is not environment-expanded (as in Performer); the `$` is part of the name");
+                let d = r.diag(
+                    Severity::Warning,
+                    "default-tile-not-expanded",
+                    Some(w.span),
+                    "`default_tile` is not environment-expanded (as in Performer); the `$` is part of the name",
+                );
                 r.push(d);
             }
             Some(anchor(&dir, &format!("{cache_name}{}", w.value)))
@@ -511,12 +491,7 @@ fn mem_region(
         Field::Given(v, span) => {
             if v.iter().any(|x| x.value == 0) {
                 let d = r
-                    .diag(
-                        Severity::Error,
-                        "mem-region-zero",
-                        Some(*span),
-                        "`mem_region_size` cannot be 0 in any axis",
-                    )
+                    .diag(Severity::Error, "mem-region-zero", Some(*span), "`mem_region_size` cannot be 0 in any axis")
                     .hint("remove it to let it be computed from the tex region and lookahead");
                 r.push(d);
                 return None;
@@ -525,20 +500,26 @@ fn mem_region(
                 r,
                 field,
                 "mem_region_size",
-                SizeRule {
-                    pow2: false,
-                    max: u64::MAX,
-                    allow_two: true,
-                    r_is_one: false,
-                },
+                SizeRule { pow2: false, max: u64::MAX, allow_two: true, r_is_one: false },
             )?;
             let mut ok = true;
             for i in 0..2 {
                 let axis = ["S", "T"][i];
                 if tex[i] > m[i].saturating_mul(tile[i]) {
                     let d = r
-                        .diag(Severity::Error, "mem-region-too-small", Some(*span), format!("{axis}: the mem region ({} tiles of {}) is smaller than the tex region ({})", m[i], tile[i], tex[i]))
-                        .hint(format!("use at least {} tiles (remove the token to have it computed)", tex[i].div_ceil(tile[i]) + 1));
+                        .diag(
+                            Severity::Error,
+                            "mem-region-too-small",
+                            Some(*span),
+                            format!(
+                                "{axis}: the mem region ({} tiles of {}) is smaller than the tex region ({})",
+                                m[i], tile[i], tex[i]
+                            ),
+                        )
+                        .hint(format!(
+                            "use at least {} tiles (remove the token to have it computed)",
+                            tex[i].div_ceil(tile[i]) + 1
+                        ));
                     r.push(d);
                     ok = false;
                 } else if m[i] < 2 && m[i] * tile[i] < size[i] {
@@ -546,7 +527,16 @@ fn mem_region(
                     r.push(d);
                     ok = false;
                 } else if m[i] * tile[i] < size[i] && tex[i].div_ceil(tile[i]) + 2 > m[i] {
-                    let d = r.diag(Severity::Warning, "mem-region-tight", Some(*span), format!("{axis}: {} tiles leave too few to move freely (Performer suggests at least {})", m[i], tex[i].div_ceil(tile[i]) + 2));
+                    let d = r.diag(
+                        Severity::Warning,
+                        "mem-region-tight",
+                        Some(*span),
+                        format!(
+                            "{axis}: {} tiles leave too few to move freely (Performer suggests at least {})",
+                            m[i],
+                            tex[i].div_ceil(tile[i]) + 2
+                        ),
+                    );
                     r.push(d);
                 }
                 if m[i] > tiles_in_cache(i) {
@@ -571,7 +561,15 @@ fn mem_region(
     };
     if mem[0] > max_tiles || mem[1] > max_tiles {
         let d = r
-            .diag(Severity::Error, "mem-region-too-many-tiles", values::span_of(field).or(r.span_of(TokenId::TileSize)), format!("the mem region is {}x{} tiles; Performer allows at most {max_tiles}x{max_tiles}", mem[0], mem[1]))
+            .diag(
+                Severity::Error,
+                "mem-region-too-many-tiles",
+                values::span_of(field).or(r.span_of(TokenId::TileSize)),
+                format!(
+                    "the mem region is {}x{} tiles; Performer allows at most {max_tiles}x{max_tiles}",
+                    mem[0], mem[1]
+                ),
+            )
             .hint("use larger tiles");
         r.push(d);
         return None;
@@ -596,12 +594,26 @@ pub fn page_size(
         Field::Broken => None,
         Field::Given(v, _) => {
             if v.value < -1 {
-                let d = r.diag(Severity::Error, "bad-page-size", Some(v.span), "`page_size` must be -1 (default), 0 (no direct I/O) or a positive power of two").found(v.value.to_string());
+                let d = r
+                    .diag(
+                        Severity::Error,
+                        "bad-page-size",
+                        Some(v.span),
+                        "`page_size` must be -1 (default), 0 (no direct I/O) or a positive power of two",
+                    )
+                    .found(v.value.to_string());
                 r.push(d);
                 None
             } else {
                 if v.value > 0 && !(v.value as u64).is_power_of_two() {
-                    let d = r.diag(Severity::Warning, "page-size-not-power-of-two", Some(v.span), "`page_size` is not a power of two; direct I/O needs a power-of-two alignment").found(v.value.to_string());
+                    let d = r
+                        .diag(
+                            Severity::Warning,
+                            "page-size-not-power-of-two",
+                            Some(v.span),
+                            "`page_size` is not a power of two; direct I/O needs a power-of-two alignment",
+                        )
+                        .found(v.value.to_string());
                     r.push(d);
                 }
                 Some(v.value)
@@ -617,14 +629,8 @@ pub fn read_func(r: &mut Reader<'_>) -> Option<ReadFunc> {
         return None;
     };
     let rf = match items.as_slice() {
-        [sym] => ReadFunc {
-            library: None,
-            symbol: sym.value.clone(),
-        },
-        [lib, sym] => ReadFunc {
-            library: Some(lib.value.clone()),
-            symbol: sym.value.clone(),
-        },
+        [sym] => ReadFunc { library: None, symbol: sym.value.clone() },
+        [lib, sym] => ReadFunc { library: Some(lib.value.clone()), symbol: sym.value.clone() },
         _ => return None,
     };
     let d = r
@@ -665,11 +671,7 @@ impl Synth<'_> {
     pub fn build(self, diags: &mut Diagnostics, max_tiles: u64) -> Option<ImageCachePlan> {
         let (level, lsize) = self.level;
         let size = [lsize[0], lsize[1], 1];
-        let tile = [
-            self.tile_size[0].min(size[0]),
-            self.tile_size[1].min(size[1]),
-            1,
-        ];
+        let tile = [self.tile_size[0].min(size[0]), self.tile_size[1].min(size[1]), 1];
         if size[0] % tile[0] != 0 || size[1] % tile[1] != 0 {
             diags.push(
                 crate::config::Diagnostic::new(

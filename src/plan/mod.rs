@@ -234,10 +234,7 @@ impl ClipTexturePlan {
 
     /// Number of image-cache levels.
     pub fn icache_levels(&self) -> usize {
-        self.levels
-            .iter()
-            .filter(|l| matches!(l.kind, LevelKind::Icache(_)))
-            .count()
+        self.levels.iter().filter(|l| matches!(l.kind, LevelKind::Icache(_))).count()
     }
 }
 
@@ -246,8 +243,7 @@ fn read_source(path: &Path, limits: &Limits) -> std::io::Result<Vec<u8>> {
     let f = std::fs::File::open(path)?;
     let mut buf = Vec::new();
     // Read one byte more than the limit so the parser can say the file is too large.
-    f.take(limits.max_file_bytes as u64 + 1)
-        .read_to_end(&mut buf)?;
+    f.take(limits.max_file_bytes as u64 + 1).read_to_end(&mut buf)?;
     Ok(buf)
 }
 
@@ -257,14 +253,8 @@ pub fn absolute(path: &Path) -> PathBuf {
 }
 
 /// Loads a clip texture and every image cache it names.
-pub fn load_clip_texture(
-    path: &Path,
-    opts: &Options,
-) -> Result<Loaded<ClipTexturePlan>, LoadError> {
-    let src = read_source(path, &opts.limits).map_err(|e| LoadError {
-        path: path.to_path_buf(),
-        source: e,
-    })?;
+pub fn load_clip_texture(path: &Path, opts: &Options) -> Result<Loaded<ClipTexturePlan>, LoadError> {
+    let src = read_source(path, &opts.limits).map_err(|e| LoadError { path: path.to_path_buf(), source: e })?;
     let abs = absolute(path);
     let (file, mut diags) = config::parse_bytes(&src, &abs, FileKind::ClipTexture, &opts.limits);
     let mut sources = BTreeMap::new();
@@ -275,30 +265,19 @@ pub fn load_clip_texture(
         ct::build(&file, opts, &mut diags, &mut sources)
     };
     let plan = if diags.has_errors() { None } else { plan };
-    Ok(Loaded {
-        plan,
-        diagnostics: diags,
-        sources,
-    })
+    Ok(Loaded { plan, diagnostics: diags, sources })
 }
 
 /// Loads a standalone image cache.
 pub fn load_image_cache(path: &Path, opts: &Options) -> Result<Loaded<ImageCachePlan>, LoadError> {
-    let src = read_source(path, &opts.limits).map_err(|e| LoadError {
-        path: path.to_path_buf(),
-        source: e,
-    })?;
+    let src = read_source(path, &opts.limits).map_err(|e| LoadError { path: path.to_path_buf(), source: e })?;
     let abs = absolute(path);
     let (file, mut diags) = config::parse_bytes(&src, &abs, FileKind::ImageCache, &opts.limits);
     let mut sources = BTreeMap::new();
     sources.insert(abs.clone(), src);
     let plan = ic::build(&file, &ic::Context::standalone(), opts, &mut diags);
     let plan = if diags.has_errors() { None } else { plan };
-    Ok(Loaded {
-        plan,
-        diagnostics: diags,
-        sources,
-    })
+    Ok(Loaded { plan, diagnostics: diags, sources })
 }
 
 /// Guesses a file's kind from its first token (`ct_version…` / `ic_version…`), then from its
@@ -336,21 +315,14 @@ fn check_version(r: &mut fields::Reader<'_>, kind: FileKind) {
                     Some(config::Span::START),
                     format!("the file does not start with a version token (`{name}`)"),
                 )
-                .hint(format!(
-                    "add `{name}` as the first line; tools use it to tell the file kinds apart"
-                ));
+                .hint(format!("add `{name}` as the first line; tools use it to tell the file kinds apart"));
             r.push(d);
         }
         Some(0) => {}
         Some(_) => {
             let span = r.span_of(want);
             let d = r
-                .diag(
-                    Severity::Warning,
-                    "version-not-first",
-                    span,
-                    format!("`{name}` must begin the file"),
-                )
+                .diag(Severity::Warning, "version-not-first", span, format!("`{name}` must begin the file"))
                 .hint("move the version token to the first line");
             r.push(d);
         }

@@ -107,7 +107,12 @@ pub fn check_format(
         Ok(f) => Some(f),
         Err(e) => {
             let d = r
-                .diag(Severity::Error, "bad-format", Some(format.span), format!("the file-name format has a bad conversion at character {}: {}", e.offset + 1, e.message))
+                .diag(
+                    Severity::Error,
+                    "bad-format",
+                    Some(format.span),
+                    format!("the file-name format has a bad conversion at character {}: {}", e.offset + 1, e.message),
+                )
                 .found(format.value.clone())
                 .expected("printf conversions %d %i %u %x %X %o %c %s (with flags, width, precision) or %%");
             r.push(d);
@@ -124,11 +129,7 @@ pub fn check_format(
                 "`{token}` names {} parameters; at most {} are allowed in {}",
                 params.len(),
                 scope.max_params(),
-                if scope == Scope::Ic {
-                    "an .ic file"
-                } else {
-                    "a .ct file"
-                }
+                if scope == Scope::Ic { "an .ic file" } else { "a .ct file" }
             ),
         );
         r.push(d);
@@ -162,18 +163,12 @@ pub fn check_format(
             _ => None,
         };
         if let Some(msg) = refusal {
-            let d = r
-                .diag(Severity::Error, "param-not-allowed", Some(p.span), msg)
-                .found(p.value.clone());
+            let d = r.diag(Severity::Error, "param-not-allowed", Some(p.span), msg).found(p.value.clone());
             r.push(d);
             ok = false;
             continue;
         }
-        refs.push(ParamRef {
-            param,
-            name: p.value.clone(),
-            span: p.span,
-        });
+        refs.push(ParamRef { param, name: p.value.clone(), span: p.span });
     }
     let parsed = parsed?;
     if !ok {
@@ -199,10 +194,7 @@ pub fn check_format(
                     Severity::Error,
                     "param-type-mismatch",
                     Some(p.span),
-                    format!(
-                        "conversion `{}` does not fit parameter `{}`, which is {have}",
-                        c.text, p.name
-                    ),
+                    format!("conversion `{}` does not fit parameter `{}`, which is {have}", c.text, p.name),
                 )
                 .expected(want)
                 .hint("change the conversion or reorder the parameters");
@@ -237,13 +229,7 @@ impl TileNaming {
         TileNaming {
             format: text.into(),
             default_format: true,
-            params: vec![
-                Param::StreamServerName,
-                Param::CacheName,
-                Param::VsizeS,
-                Param::TilenumT,
-                Param::TilenumS,
-            ],
+            params: vec![Param::StreamServerName, Param::CacheName, Param::VsizeS, Param::TilenumT, Param::TilenumS],
             cache_name,
             dir,
             parsed: Format::parse(text).expect("the default format parses"),
@@ -252,14 +238,7 @@ impl TileNaming {
 
     /// A checked format.
     pub fn new(parsed: Format, params: Vec<Param>, cache_name: String, dir: PathBuf) -> TileNaming {
-        TileNaming {
-            format: parsed.text.clone(),
-            default_format: false,
-            params,
-            cache_name,
-            dir,
-            parsed,
-        }
+        TileNaming { format: parsed.text.clone(), default_format: false, params, cache_name, dir, parsed }
     }
 
     /// Renders a name with a value for each parameter.

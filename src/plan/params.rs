@@ -41,10 +41,7 @@ pub const NAMES: &[(&str, Param)] = &[
     ("PFIMAGECACHE_TILE_FILENAMEARG_TILEORG_S", Param::TileorgS),
     ("PFIMAGECACHE_TILE_FILENAMEARG_TILEORG_T", Param::TileorgT),
     ("PFIMAGECACHE_TILE_FILENAMEARG_TILEORG_R", Param::TileorgR),
-    (
-        "PFIMAGECACHE_TILE_FILENAMEARG_STREAMSERVERNAME",
-        Param::StreamServerName,
-    ),
+    ("PFIMAGECACHE_TILE_FILENAMEARG_STREAMSERVERNAME", Param::StreamServerName),
     ("PFIMAGECACHE_TILE_FILENAMEARG_CACHENAME", Param::CacheName),
     ("PFIMAGECACHE_TILE_FILENAMEARG_FILENUM_S", Param::FilenumS),
     ("PFIMAGECACHE_TILE_FILENAMEARG_FILENUM_T", Param::FilenumT),
@@ -90,11 +87,7 @@ impl Param {
             Param::Level => "PFCLIPTEX_FNAMEARG_LEVEL".into(),
             Param::ImageCacheBase => "PFCLIPTEX_FNAMEARG_IMAGE_CACHE_BASE".into(),
             p => {
-                let n = NAMES
-                    .iter()
-                    .find(|&&(_, q)| q == p)
-                    .map(|&(n, _)| n)
-                    .unwrap_or("?");
+                let n = NAMES.iter().find(|&&(_, q)| q == p).map(|&(n, _)| n).unwrap_or("?");
                 n.to_string()
             }
         }
@@ -102,10 +95,7 @@ impl Param {
 
     /// Short name without the prefix.
     pub fn short(self) -> String {
-        self.canonical()
-            .trim_start_matches(IC)
-            .trim_start_matches("PFCLIPTEX_FNAMEARG_")
-            .to_string()
+        self.canonical().trim_start_matches(IC).trim_start_matches("PFCLIPTEX_FNAMEARG_").to_string()
     }
 }
 

@@ -92,19 +92,8 @@ fn conversion(input: &str) -> IResult<&str, (&str, Option<&str>, Option<&str>, c
     let (input, _) = tag("%")(input)?;
     let (input, flags) = take_while(|c| "-0+ #".contains(c))(input)?;
     let (input, width) = opt(digit1)(input)?;
-    let (input, precision) = opt(preceded(
-        tag("."),
-        map(opt(digit1), |d: Option<&str>| d.unwrap_or("0")),
-    ))(input)?;
-    let (input, _) = opt(alt((
-        tag("hh"),
-        tag("ll"),
-        tag("h"),
-        tag("l"),
-        tag("z"),
-        tag("j"),
-        tag("t"),
-    )))(input)?;
+    let (input, precision) = opt(preceded(tag("."), map(opt(digit1), |d: Option<&str>| d.unwrap_or("0"))))(input)?;
+    let (input, _) = opt(alt((tag("hh"), tag("ll"), tag("h"), tag("l"), tag("z"), tag("j"), tag("t"))))(input)?;
     let (input, conv) = one_of("diuxXocs")(input)?;
     Ok((input, (flags, width, precision, conv)))
 }
@@ -139,17 +128,10 @@ impl Format {
                     let parse_num = |s: Option<&str>| -> Result<Option<usize>, FormatError> {
                         match s {
                             None => Ok(None),
-                            Some(s) => s
-                                .parse::<usize>()
-                                .ok()
-                                .filter(|&n| n <= 255)
-                                .map(Some)
-                                .ok_or(FormatError {
-                                    offset,
-                                    message: format!(
-                                        "width or precision `{s}` is too large (at most 255)"
-                                    ),
-                                }),
+                            Some(s) => s.parse::<usize>().ok().filter(|&n| n <= 255).map(Some).ok_or(FormatError {
+                                offset,
+                                message: format!("width or precision `{s}` is too large (at most 255)"),
+                            }),
                         }
                     };
                     pieces.push(Piece::Conv(Conversion {
@@ -169,8 +151,7 @@ impl Format {
                     {
                         format!("`{shown}`: a width or precision taken from an argument (`*`) is not supported")
                     } else if rest.len() == 1 {
-                        "a lone `%` at the end of the format (write `%%` for a percent sign)"
-                            .to_string()
+                        "a lone `%` at the end of the format (write `%%` for a percent sign)".to_string()
                     } else {
                         format!("`{shown}` is not a conversion this reader supports (d, i, u, x, X, o, c, s, or %% for a percent sign)")
                     };
@@ -181,10 +162,7 @@ impl Format {
         if !lit.is_empty() {
             pieces.push(Piece::Lit(lit));
         }
-        Ok(Format {
-            text: text.to_string(),
-            pieces,
-        })
+        Ok(Format { text: text.to_string(), pieces })
     }
 
     /// The conversions, in order.
@@ -295,37 +273,16 @@ mod tests {
     fn renders_like_c() {
         use Arg::*;
         assert_eq!(
-            r(
-                "%s%s.%d.r%03d.c%03d.raw888",
-                &[
-                    Str("/".into()),
-                    Str("usr/t".into()),
-                    Int(16384),
-                    Int(4),
-                    Int(16)
-                ]
-            ),
+            r("%s%s.%d.r%03d.c%03d.raw888", &[Str("/".into()), Str("usr/t".into()), Int(16384), Int(4), Int(16)]),
             "/usr/t.16384.r004.c016.raw888"
         );
+        assert_eq!(r("%5d|%-5d|%05d", &[Int(42), Int(42), Int(-42)]), "   42|42   |-0042");
         assert_eq!(
-            r("%5d|%-5d|%05d", &[Int(42), Int(42), Int(-42)]),
-            "   42|42   |-0042"
-        );
-        assert_eq!(
-            r(
-                "%+d % d %.3d %x %X %#x %o",
-                &[Int(7), Int(7), Int(7), Int(255), Int(255), Int(255), Int(8)]
-            ),
+            r("%+d % d %.3d %x %X %#x %o", &[Int(7), Int(7), Int(7), Int(255), Int(255), Int(255), Int(8)]),
             "+7  7 007 ff FF 0xff 10"
         );
         assert_eq!(r("100%% %s", &[Str("done".into())]), "100% done");
-        assert_eq!(
-            r(
-                "%.2s|%4s|%-4s|",
-                &[Str("abc".into()), Str("ab".into()), Str("ab".into())]
-            ),
-            "ab|  ab|ab  |"
-        );
+        assert_eq!(r("%.2s|%4s|%-4s|", &[Str("abc".into()), Str("ab".into()), Str("ab".into())]), "ab|  ab|ab  |");
         assert_eq!(r("%ld %lld %hd", &[Int(1), Int(2), Int(3)]), "1 2 3");
         assert_eq!(r("%08.3d", &[Int(5)]), "     005");
     }
@@ -342,9 +299,6 @@ mod tests {
         assert_eq!(Format::parse("ab%q").unwrap_err().offset, 2);
         assert!(Format::parse("x%*d").unwrap_err().message.contains('*'));
         assert!(Format::parse("x%").unwrap_err().message.contains("lone"));
-        assert!(Format::parse("%999d")
-            .unwrap_err()
-            .message
-            .contains("too large"));
+        assert!(Format::parse("%999d").unwrap_err().message.contains("too large"));
     }
 }

@@ -97,12 +97,7 @@ impl ImageCachePlan {
     ) -> Result<TileLocation, TileError> {
         let count = self.tile_count();
         if s >= count[0] || t >= count[1] || r >= count[2] {
-            return Err(TileError::OutOfRange {
-                s,
-                t,
-                count_s: count[0],
-                count_t: count[1],
-            });
+            return Err(TileError::OutOfRange { s, t, count_s: count[0], count_t: count[1] });
         }
         let idx = [s, t, r];
         let mut queue: Option<(usize, usize, usize)> = None;
@@ -117,9 +112,7 @@ impl ImageCachePlan {
                 queue = Some((axis, i, load));
             }
         }
-        let stream = queue
-            .map(|(a, i, _)| self.streams[a][i].clone())
-            .unwrap_or_default();
+        let stream = queue.map(|(a, i, _)| self.streams[a][i].clone()).unwrap_or_default();
         let [w, h, d] = self.tile_size;
         let [ns, nt, nr] = self.tiles_in_file;
         let path = self.naming.render(|p| match p {
@@ -147,23 +140,14 @@ impl ImageCachePlan {
                 .checked_add(self.header_offset)
         })()
         .ok_or(TileError::Overflow { s, t })?;
-        Ok(TileLocation {
-            path,
-            offset,
-            length,
-            stream,
-            queue: queue.map(|(a, i, _)| (a, i)),
-        })
+        Ok(TileLocation { path, offset, length, stream, queue: queue.map(|(a, i, _)| (a, i)) })
     }
 }
 
 impl ClipTexturePlan {
     /// Locates tile (s, t) of a level (pyramid levels: s = t = 0).
     pub fn locate(&self, level: u32, s: u64, t: u64) -> Result<TileLocation, TileError> {
-        let l = self.level(level).ok_or(TileError::NoLevel {
-            level,
-            count: self.levels.len() as u32,
-        })?;
+        let l = self.level(level).ok_or(TileError::NoLevel { level, count: self.levels.len() as u32 })?;
         match &l.kind {
             LevelKind::Icache(ic) => ic.locate(s, t, 0),
             LevelKind::Pyramid(p) => {
@@ -171,13 +155,7 @@ impl ClipTexturePlan {
                     return Err(TileError::PyramidTile { level });
                 }
                 let path = p.path.clone().ok_or(TileError::Unnamed { level })?;
-                Ok(TileLocation {
-                    path,
-                    offset: p.header_offset,
-                    length: p.length,
-                    stream: String::new(),
-                    queue: None,
-                })
+                Ok(TileLocation { path, offset: p.header_offset, length: p.length, stream: String::new(), queue: None })
             }
         }
     }

@@ -23,12 +23,7 @@ pub fn next_pow2(v: u64) -> u64 {
 }
 
 /// Checks a three-number size. Returns `None` (having reported why) when it is unusable.
-pub fn size3(
-    r: &mut Reader<'_>,
-    field: &Field<Vec<Spanned<i64>>>,
-    name: &str,
-    rule: SizeRule,
-) -> Option<[u64; 3]> {
+pub fn size3(r: &mut Reader<'_>, field: &Field<Vec<Spanned<i64>>>, name: &str, rule: SizeRule) -> Option<[u64; 3]> {
     let (vals, span) = match field {
         Field::Given(v, s) => (v, *s),
         _ => return None,
@@ -38,9 +33,17 @@ pub fn size3(
         3 => {}
         2 if rule.allow_two => {
             let d = r
-                .diag(Severity::Warning, "size-missing-r", Some(span), format!("`{name}` has two numbers; R is taken as 1"))
+                .diag(
+                    Severity::Warning,
+                    "size-missing-r",
+                    Some(span),
+                    format!("`{name}` has two numbers; R is taken as 1"),
+                )
                 .expected("three numbers: S T R")
-                .hint(format!("write `{name} {} {} 1`: Performer 3.0 leaves R unset and fails with \"image size wasn't set\"", vals[0].value, vals[1].value));
+                .hint(format!(
+                    "write `{name} {} {} 1`: Performer 3.0 leaves R unset and fails with \"image size wasn't set\"",
+                    vals[0].value, vals[1].value
+                ));
             r.push(portability(d));
         }
         n => {
@@ -52,9 +55,7 @@ pub fn size3(
                     format!("`{name}` has {n} number{}", if n == 1 { "" } else { "s" }),
                 )
                 .expected("three numbers: S T R")
-                .hint(format!(
-                    "write `{name} S T 1` (R is 1 for two-dimensional textures)"
-                ));
+                .hint(format!("write `{name} S T 1` (R is 1 for two-dimensional textures)"));
             r.push(d);
             return None;
         }
@@ -83,10 +84,7 @@ pub fn size3(
                     Severity::Error,
                     "size-too-large",
                     Some(v.span),
-                    format!(
-                        "{axis} of `{name}` is larger than this reader's limit of {}",
-                        rule.max
-                    ),
+                    format!("{axis} of `{name}` is larger than this reader's limit of {}", rule.max),
                 )
                 .found(v.value.to_string());
             r.push(d);
@@ -104,10 +102,7 @@ pub fn size3(
                 )
                 .found(v.value.to_string())
                 .expected("a power of two")
-                .hint(format!(
-                    "the nearest powers of two are {lower} and {}",
-                    next_pow2(u)
-                ));
+                .hint(format!("the nearest powers of two are {lower} and {}", next_pow2(u)));
             r.push(d);
             ok = false;
             continue;
@@ -120,10 +115,7 @@ pub fn size3(
                 Severity::Error,
                 "three-dimensional",
                 Some(vals[2].span),
-                format!(
-                    "R of `{name}` is {}; only two-dimensional textures (R = 1) are supported",
-                    out[2]
-                ),
+                format!("R of `{name}` is {}; only two-dimensional textures (R = 1) are supported", out[2]),
             )
             .found(out[2].to_string())
             .expected("1");
@@ -145,12 +137,7 @@ pub fn non_negative(
     match field {
         Field::Given(v, _) if v.value < 0 => {
             let d = r
-                .diag(
-                    Severity::Error,
-                    "negative-value",
-                    Some(v.span),
-                    format!("`{name}` cannot be negative"),
-                )
+                .diag(Severity::Error, "negative-value", Some(v.span), format!("`{name}` cannot be negative"))
                 .found(v.value.to_string())
                 .expected("0 or a positive integer");
             r.push(d);

@@ -115,10 +115,7 @@ pub fn level_rows(plan: &ClipTexturePlan) -> Vec<LevelRow> {
 }
 
 /// Builds the JSON form of `cliptex info`.
-pub fn clip_texture<'a>(
-    plan: &'a ClipTexturePlan,
-    warnings: &'a [Diagnostic],
-) -> ClipTextureInfo<'a> {
+pub fn clip_texture<'a>(plan: &'a ClipTexturePlan, warnings: &'a [Diagnostic]) -> ClipTextureInfo<'a> {
     ClipTextureInfo {
         path: &plan.path,
         virt_size: plan.virt_size,
@@ -129,11 +126,7 @@ pub fn clip_texture<'a>(
         smallest_icache: plan.smallest_icache,
         bytes_per_texel: plan.bytes_per_texel,
         texel_format: plan.texel.short_name(),
-        formats: [
-            &plan.ext_format.written,
-            &plan.int_format.written,
-            &plan.img_format.written,
-        ],
+        formats: [&plan.ext_format.written, &plan.int_format.written, &plan.img_format.written],
         level_count: plan.levels.len(),
         is_virtual: plan.is_virtual,
         header_offset: plan.header_offset,
@@ -169,22 +162,12 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
     let mut o = String::new();
     let n = plan.levels.len();
     o.push_str(&format!("clip texture   {}\n", plan.path.display()));
-    o.push_str(&format!(
-        "version        {}\n",
-        plan.version.as_deref().unwrap_or("(none)")
-    ));
+    o.push_str(&format!("version        {}\n", plan.version.as_deref().unwrap_or("(none)")));
     o.push_str(&format!(
         "texel          {} ({} bytes; ext_format {}, int_format {}, img_format {})\n",
-        plan.texel,
-        plan.bytes_per_texel,
-        plan.ext_format.written,
-        plan.int_format.written,
-        plan.img_format.written
+        plan.texel, plan.bytes_per_texel, plan.ext_format.written, plan.int_format.written, plan.img_format.written
     ));
-    o.push_str(&format!(
-        "virt_size      {} x {} x {}\n",
-        plan.virt_size[0], plan.virt_size[1], plan.virt_size[2]
-    ));
+    o.push_str(&format!("virt_size      {} x {} x {}\n", plan.virt_size[0], plan.virt_size[1], plan.virt_size[2]));
     o.push_str(&format!("clip_size      {}\n", plan.clip_size));
     o.push_str(&format!(
         "invalid_border {}{}  (effective size {})\n",
@@ -201,17 +184,9 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
         "effective      {}{}{}\n",
         plan.effective_levels,
         mark(d, "effective_levels"),
-        if plan.is_virtual {
-            "  (virtual clip texture)"
-        } else {
-            ""
-        }
+        if plan.is_virtual { "  (virtual clip texture)" } else { "" }
     ));
-    o.push_str(&format!(
-        "allocated      {}{}\n",
-        plan.allocated_levels,
-        mark(d, "allocated_levels")
-    ));
+    o.push_str(&format!("allocated      {}{}\n", plan.allocated_levels, mark(d, "allocated_levels")));
     o.push_str(&format!(
         "smallest_icache {} x {} x {}{}\n",
         plan.smallest_icache[0],
@@ -219,36 +194,17 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
         plan.smallest_icache[2],
         mark(d, "smallest_icache")
     ));
-    o.push_str(&format!(
-        "header_offset  {}{}\n",
-        plan.header_offset,
-        mark(d, "header_offset")
-    ));
-    o.push_str(&format!(
-        "lookahead      {}{}\n",
-        plan.lookahead,
-        mark(d, "lookahead")
-    ));
-    o.push_str(&format!(
-        "page_size      {}{}\n",
-        plan.page_size,
-        mark(d, "page_size")
-    ));
-    o.push_str(&format!(
-        "naming         .ic files: {:?}, pyramid files: {:?}\n",
-        plan.icache_mode, plan.tile_mode
-    ));
+    o.push_str(&format!("header_offset  {}{}\n", plan.header_offset, mark(d, "header_offset")));
+    o.push_str(&format!("lookahead      {}{}\n", plan.lookahead, mark(d, "lookahead")));
+    o.push_str(&format!("page_size      {}{}\n", plan.page_size, mark(d, "page_size")));
+    o.push_str(&format!("naming         .ic files: {:?}, pyramid files: {:?}\n", plan.icache_mode, plan.tile_mode));
     let bpt = plan.bytes_per_texel as u128;
     let resident: u128 = plan
         .levels
         .iter()
         .map(|l| (l.size[0].min(plan.clip_size) as u128) * (l.size[1].min(plan.clip_size) as u128))
         .sum();
-    let full: u128 = plan
-        .levels
-        .iter()
-        .map(|l| l.size[0] as u128 * l.size[1] as u128)
-        .sum();
+    let full: u128 = plan.levels.iter().map(|l| l.size[0] as u128 * l.size[1] as u128).sum();
     o.push_str(&format!(
         "resident       {} texels ({}) against {} ({}) for the full mipmap\n",
         resident,
@@ -258,16 +214,9 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
     ));
     o.push_str("\nlevel  size              kind     tile          tex region   mem region  file\n");
     for r in level_rows(plan) {
-        let file = if r.kind == "icache" {
-            rel(&r.icache_config, dir)
-        } else {
-            rel(&r.tile_file, dir)
-        };
-        let file = if r.kind == "icache" && r.icache_config.is_none() {
-            "(no .ic: synthesised)".to_string()
-        } else {
-            file
-        };
+        let file = if r.kind == "icache" { rel(&r.icache_config, dir) } else { rel(&r.tile_file, dir) };
+        let file =
+            if r.kind == "icache" && r.icache_config.is_none() { "(no .ic: synthesised)".to_string() } else { file };
         o.push_str(&format!(
             "{:<6} {:<17} {:<8} {:<13} {:<12} {:<11} {}\n",
             r.level,
@@ -317,18 +266,11 @@ pub fn image_cache_human(plan: &ImageCachePlan) -> String {
     let f3 = |a: [u64; 3]| format!("{} x {} x {}", a[0], a[1], a[2]);
     o.push_str(&format!(
         "image cache    {}\n",
-        plan.path
-            .as_ref()
-            .map(|p| p.display().to_string())
-            .unwrap_or_else(|| "(synthesised)".into())
+        plan.path.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "(synthesised)".into())
     ));
     o.push_str(&format!(
         "texel          {} ({} bytes; ext_format {}, int_format {}, img_format {})\n",
-        plan.texel,
-        plan.bytes_per_texel,
-        plan.ext_format.written,
-        plan.int_format.written,
-        plan.img_format.written
+        plan.texel, plan.bytes_per_texel, plan.ext_format.written, plan.int_format.written, plan.img_format.written
     ));
     o.push_str(&format!("icache_size    {}\n", f3(plan.size)));
     o.push_str(&format!(
@@ -338,51 +280,22 @@ pub fn image_cache_human(plan: &ImageCachePlan) -> String {
         t[1],
         human_bytes(plan.tile_bytes() as u128)
     ));
-    o.push_str(&format!(
-        "tiles_in_file  {}{}\n",
-        f3(plan.tiles_in_file),
-        mark(d, "tiles_in_file")
-    ));
-    o.push_str(&format!(
-        "header_offset  {}{}\n",
-        plan.header_offset,
-        mark(d, "header_offset")
-    ));
+    o.push_str(&format!("tiles_in_file  {}{}\n", f3(plan.tiles_in_file), mark(d, "tiles_in_file")));
+    o.push_str(&format!("header_offset  {}{}\n", plan.header_offset, mark(d, "header_offset")));
     o.push_str(&format!("tex_region     {}\n", f3(plan.tex_region)));
-    o.push_str(&format!(
-        "tex_size       {}{}\n",
-        f3(plan.tex_size),
-        mark(d, "tex_size")
-    ));
+    o.push_str(&format!("tex_size       {}{}\n", f3(plan.tex_size), mark(d, "tex_size")));
     o.push_str(&format!(
         "mem_region     {} tiles{}  ({} in memory)\n",
         f3(plan.mem_region),
         mark(d, "mem_region"),
         human_bytes(plan.mem_region.iter().product::<u64>() as u128 * plan.tile_bytes() as u128)
     ));
-    o.push_str(&format!(
-        "lookahead      {}{}\n",
-        plan.lookahead,
-        mark(d, "lookahead")
-    ));
-    o.push_str(&format!(
-        "page_size      {}{}\n",
-        plan.page_size,
-        mark(d, "page_size")
-    ));
-    o.push_str(&format!(
-        "tile_format    {}{}\n",
-        plan.naming.format,
-        mark(d, "tile_format")
-    ));
+    o.push_str(&format!("lookahead      {}{}\n", plan.lookahead, mark(d, "lookahead")));
+    o.push_str(&format!("page_size      {}{}\n", plan.page_size, mark(d, "page_size")));
+    o.push_str(&format!("tile_format    {}{}\n", plan.naming.format, mark(d, "tile_format")));
     o.push_str(&format!(
         "tile_params    {}\n",
-        plan.naming
-            .params
-            .iter()
-            .map(|p| p.short())
-            .collect::<Vec<_>>()
-            .join(" ")
+        plan.naming.params.iter().map(|p| p.short()).collect::<Vec<_>>().join(" ")
     ));
     o.push_str(&format!("cache name     {:?}\n", plan.naming.cache_name));
     for (axis, list) in ["s", "t", "r"].iter().zip(&plan.streams) {
@@ -394,24 +307,14 @@ pub fn image_cache_human(plan: &ImageCachePlan) -> String {
         o.push_str(&format!("default_tile   {}\n", dt.display()));
     }
     if let Ok(loc) = plan.locate(0, 0, 0) {
-        o.push_str(&format!(
-            "tile (0, 0)    {} @ {} (+{} bytes)\n",
-            loc.path.display(),
-            loc.offset,
-            loc.length
-        ));
+        o.push_str(&format!("tile (0, 0)    {} @ {} (+{} bytes)\n", loc.path.display(), loc.offset, loc.length));
     }
     o
 }
 
 /// The human form of a tile location.
 pub fn tile_human(loc: &TileLocation) -> String {
-    let mut o = format!(
-        "path    {}\noffset  {}\nlength  {}\n",
-        loc.path.display(),
-        loc.offset,
-        loc.length
-    );
+    let mut o = format!("path    {}\noffset  {}\nlength  {}\n", loc.path.display(), loc.offset, loc.length);
     if !loc.stream.is_empty() {
         o.push_str(&format!("stream  {}\n", loc.stream));
     }
@@ -420,9 +323,5 @@ pub fn tile_human(loc: &TileLocation) -> String {
 
 /// Warnings and notes of a loaded plan (errors make no plan).
 pub fn non_errors(diags: &[Diagnostic]) -> Vec<Diagnostic> {
-    diags
-        .iter()
-        .filter(|d| d.severity != Severity::Error)
-        .cloned()
-        .collect()
+    diags.iter().filter(|d| d.severity != Severity::Error).cloned().collect()
 }

@@ -15,19 +15,14 @@ pub fn options(env: &[String], unset: &[String]) -> Result<Options, String> {
             return Err(format!("--env expects NAME=VALUE, found `{kv}`"));
         };
         if k.is_empty() {
-            return Err(format!(
-                "--env expects NAME=VALUE with a non-empty NAME, found `{kv}`"
-            ));
+            return Err(format!("--env expects NAME=VALUE with a non-empty NAME, found `{kv}`"));
         }
         e.set(k, v);
     }
     for k in unset {
         e.unset(k);
     }
-    Ok(Options {
-        env: e,
-        ..Options::default()
-    })
+    Ok(Options { env: e, ..Options::default() })
 }
 
 /// Formats a byte count the way a person reads it (KiB, MiB, GiB, TiB).

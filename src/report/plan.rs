@@ -87,11 +87,7 @@ pub fn compute(r: &Request) -> Result<Plan, SizingError> {
     let levels = memory.log2_size + 1;
     let update = r.speed.map(|speed| {
         let t = sizing::update_texels_per_second(&memory, speed);
-        Update {
-            speed,
-            texels_per_second: t,
-            bytes_per_second: t * r.texel_bytes as f64,
-        }
+        Update { speed, texels_per_second: t, bytes_per_second: t * r.texel_bytes as f64 }
     });
     let display = match r.display {
         Some(w) => {
@@ -100,17 +96,14 @@ pub fn compute(r: &Request) -> Result<Plan, SizingError> {
                 width: w,
                 usual_clip: usual,
                 exact_clip: exact,
-                usual_bytes: sizing::memory(r.size, usual.min(r.size), r.texel_bytes)?
-                    .clipmap_bytes,
-                exact_bytes: sizing::memory(r.size, exact.min(r.size), r.texel_bytes)?
-                    .clipmap_bytes,
+                usual_bytes: sizing::memory(r.size, usual.min(r.size), r.texel_bytes)?.clipmap_bytes,
+                exact_bytes: sizing::memory(r.size, exact.min(r.size), r.texel_bytes)?.clipmap_bytes,
             })
         }
         None => None,
     };
     let virtual_levels = r.eye_height.map(|h| {
-        let lod =
-            sizing::finest_lod_at_foot(h, r.fov_deg, r.display.unwrap_or(1024), r.texel_metres);
+        let lod = sizing::finest_lod_at_foot(h, r.fov_deg, r.display.unwrap_or(1024), r.texel_metres);
         sizing::virtual_params(&VirtualInputs {
             levels,
             clip_size: 1 << memory.log2_clip,
@@ -168,16 +161,8 @@ pub fn human(p: &Plan, r: &Request) -> String {
         p.clip_size,
         p.clip_size
     ));
-    o.push_str(&format!(
-        "clipmap      {} texels, {}\n",
-        grouped(m.clipmap_texels),
-        human_bytes(m.clipmap_bytes)
-    ));
-    o.push_str(&format!(
-        "full mipmap  {} texels, {}\n",
-        grouped(m.mipmap_texels),
-        human_bytes(m.mipmap_bytes)
-    ));
+    o.push_str(&format!("clipmap      {} texels, {}\n", grouped(m.clipmap_texels), human_bytes(m.clipmap_bytes)));
+    o.push_str(&format!("full mipmap  {} texels, {}\n", grouped(m.mipmap_texels), human_bytes(m.mipmap_bytes)));
     o.push_str(&format!(
         "saving       the clipmap is 1/{:.0} of the mipmap\n",
         m.mipmap_texels as f64 / m.clipmap_texels as f64
@@ -207,17 +192,10 @@ pub fn human(p: &Plan, r: &Request) -> String {
 }
 
 /// A table of memory for several texture sizes with one clip size.
-pub fn table(
-    clip: u64,
-    texel_bytes: u64,
-    from_log2: u32,
-    to_log2: u32,
-) -> Result<(String, Vec<Memory>), SizingError> {
+pub fn table(clip: u64, texel_bytes: u64, from_log2: u32, to_log2: u32) -> Result<(String, Vec<Memory>), SizingError> {
     let mut rows = Vec::new();
-    let mut o = format!(
-        "{:>12} {:>7} {:>7} {:>14} {:>14} {:>10}\n",
-        "size", "stack", "pyramid", "clipmap", "mipmap", "ratio"
-    );
+    let mut o =
+        format!("{:>12} {:>7} {:>7} {:>14} {:>14} {:>10}\n", "size", "stack", "pyramid", "clipmap", "mipmap", "ratio");
     for n in from_log2..=to_log2 {
         let m = sizing::memory(1 << n, clip, texel_bytes)?;
         o.push_str(&format!(

@@ -64,13 +64,8 @@ impl Report {
                 (None, true) => "valid".to_string(),
                 (None, false) => "invalid".to_string(),
             };
-            let counts = format!(
-                "{} error{}, {} warning{}",
-                f.errors,
-                plural(f.errors),
-                f.warnings,
-                plural(f.warnings)
-            );
+            let counts =
+                format!("{} error{}, {} warning{}", f.errors, plural(f.errors), f.warnings, plural(f.warnings));
             if !quiet || !f.valid {
                 out.push_str(&format!("{}: {status} ({counts})\n", f.path.display()));
             }
@@ -90,11 +85,7 @@ fn plural(n: usize) -> &'static str {
 /// Validates files of one kind. `strict` turns warnings and portability findings into errors.
 pub fn run(paths: &[PathBuf], kind: FileKind, strict: bool, opts: &Options) -> Report {
     let files: Vec<FileReport> = paths.iter().map(|p| one(p, kind, strict, opts)).collect();
-    Report {
-        valid: files.iter().all(|f| f.valid),
-        could_not_run: files.iter().any(|f| f.unreadable.is_some()),
-        files,
-    }
+    Report { valid: files.iter().all(|f| f.valid), could_not_run: files.iter().any(|f| f.unreadable.is_some()), files }
 }
 
 fn one(path: &Path, kind: FileKind, strict: bool, opts: &Options) -> FileReport {

@@ -46,11 +46,7 @@ pub fn hash(level: u32, s: u64, t: u64, out: &mut [u8]) {
 /// Fills a `w` x `h` region of level `level` whose lower-left texel is (s0, t0) with the
 /// verification texture, rows in increasing t, s fastest, `bpt` bytes per texel.
 pub fn hash_region(level: u32, s0: u64, t0: u64, w: usize, h: usize, bpt: usize, out: &mut [u8]) {
-    assert_eq!(
-        out.len(),
-        w * h * bpt,
-        "hash_region: buffer size does not match the region"
-    );
+    assert_eq!(out.len(), w * h * bpt, "hash_region: buffer size does not match the region");
     for (row, line) in out.chunks_exact_mut(w * bpt.max(1)).enumerate() {
         let t = t0 + row as u64;
         for (col, texel) in line.chunks_exact_mut(bpt.max(1)).enumerate() {
@@ -146,12 +142,7 @@ impl Terrain {
             let (h1, c1) = w[1];
             if h <= h1 {
                 let f = ((h - h0) / (h1 - h0)) as f32;
-                return [
-                    c0[0] + (c1[0] - c0[0]) * f,
-                    c0[1] + (c1[1] - c0[1]) * f,
-                    c0[2] + (c1[2] - c0[2]) * f,
-                    1.0,
-                ];
+                return [c0[0] + (c1[0] - c0[0]) * f, c0[1] + (c1[1] - c0[1]) * f, c0[2] + (c1[2] - c0[2]) * f, 1.0];
             }
         }
         let c = STOPS[STOPS.len() - 1].1;
