@@ -17,6 +17,7 @@
 //! | [`queue`] | per-stream-server async read queues: priorities, coalescing, stale drops |
 //! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
 //! | [`clip`] | per-level toroidal windows, the update tick, load control (min LOD), statistics |
+//! | [`shm`] | the shared-memory layout, writer and client (the only `unsafe` code) |
 //! | [`sample`] | reference point / bilinear / trilinear sampling of the full mipmap and the clipmap |
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
 //! | [`sizing`] | memory and bandwidth arithmetic, clip-size and virtual-level recommendations |
@@ -41,6 +42,7 @@ pub mod queue;
 pub mod report;
 pub mod roam;
 pub mod sample;
+pub mod shm;
 pub mod sizing;
 pub mod source;
 pub mod texel;
