@@ -1,0 +1,286 @@
+//! The sweep: cases over clip size, invalid border, update budget, flight speed and shape; the
+//! rows `clipbench accuracy` prints, a CSV, SVG plots and the generated `docs/ACCURACY.md`.
+//!
+//! Plots are written as SVG by hand (a few lines of markup) rather than through a plotting crate:
+//! they need axes, labels and lines only, and SVG keeps text sharp in the documentation.
+
+use super::study::{self, Case, Outcome, StudyError};
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// One row of the sweep (the `--json` contract).
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    /// Clip size.
+    pub clip_size: u64,
+    /// Image width in pixels.
+    pub display_width: u32,
+    /// Invalid border.
+    pub invalid_border: u64,
+    /// Copy budget per frame in ms (fixed cost model); `null` for unlimited.
+    pub budget_ms: Option<f64>,
+    /// Flight speed, level-0 texels per frame.
+    pub speed: f64,
+    /// Flight spec.
+    pub flight: String,
+    /// Worst PSNR in dB (`null` when every frame is identical to the reference).
+    pub psnr_min: Option<f64>,
+    /// Worst channel error (8-bit units).
+    pub max_error: u8,
+    /// Mean share of pixels from a coarser level than ideal.
+    pub coarser_pixel_share: f64,
+    /// Bytes copied over the flight.
+    pub bytes_copied: u64,
+    /// Tiles read over the flight.
+    pub tiles_read: u64,
+    /// Frames over budget.
+    pub ticks_over_budget: u64,
+    /// Engine resident bytes.
+    pub resident_bytes: u64,
+    /// Frames flown.
+    pub frames: u64,
+}
+
+impl Row {
+    fn from(o: &Outcome, speed: f64) -> Row {
+        Row {
+            clip_size: o.case.clip_size,
+            display_width: o.case.display[0],
+            invalid_border: o.case.invalid_border,
+            budget_ms: o.case.budget_ms,
+            speed,
+            flight: o.case.flight.clone(),
+            psnr_min: o.psnr_min,
+            max_error: o.max_error,
+            coarser_pixel_share: o.coarser_pixel_share,
+            bytes_copied: o.bytes_copied,
+            tiles_read: o.tiles_read,
+            ticks_over_budget: o.ticks_over_budget,
+            resident_bytes: o.resident_bytes,
+            frames: o.case.frames,
+        }
+    }
+}
+
+/// The cases of a sweep: each knob varied around a base case.
+pub fn cases(quick: bool) -> Vec<(Case, f64)> {
+    let (display, frames) = if quick { ([192u32, 144u32], 4) } else { ([512, 384], 10) };
+    let base = Case { display, frames, ..Case::small() };
+    let mut out = Vec::new();
+    let flight = |shape: &str, speed: f64| match shape {
+        "circle" => format!("circle:{}:{speed}", 400.0),
+        "zigzag" => format!("zigzag:{speed}:8"),
+        _ => format!("straight:{speed}:30"),
+    };
+    let clips: &[u64] = if quick { &[64, 128, 256, 512] } else { &[64, 128, 256, 512, 1024] };
+    for &clip in clips {
+        out.push((Case { clip_size: clip, flight: flight("straight", 8.0), ..base.clone() }, 8.0));
+    }
+    for &border in &[8u64, 16, 32] {
+        out.push((
+            Case { invalid_border: border, clip_size: 256, flight: flight("straight", 8.0), ..base.clone() },
+            8.0,
+        ));
+    }
+    let budgets: &[f64] = if quick { &[0.02, 0.2] } else { &[0.01, 0.05, 0.2, 1.0] };
+    for &speed in if quick { &[4.0, 32.0][..] } else { &[2.0, 8.0, 32.0, 128.0][..] } {
+        for &b in budgets {
+            out.push((
+                Case { budget_ms: Some(b), wait_for_reads: true, flight: flight("straight", speed), ..base.clone() },
+                speed,
+            ));
+        }
+    }
+    for shape in ["circle", "zigzag"] {
+        out.push((Case { flight: flight(shape, 16.0), budget_ms: Some(0.05), ..base.clone() }, 16.0));
+    }
+    out
+}
+
+/// Runs every case; `progress` is told each finished row.
+pub fn run(quick: bool, mut progress: impl FnMut(usize, usize, &Row)) -> Result<Vec<Row>, StudyError> {
+    let all = cases(quick);
+    let mut rows = Vec::new();
+    for (i, (case, speed)) in all.iter().enumerate() {
+        let o = study::run(case, |_, _, _, _| {})?;
+        let row = Row::from(&o, *speed);
+        progress(i + 1, all.len(), &row);
+        rows.push(row);
+    }
+    Ok(rows)
+}
+
+/// Rows as CSV.
+pub fn csv(rows: &[Row]) -> String {
+    let mut o = String::from("clip_size,display_width,invalid_border,budget_ms,speed,flight,psnr_min,max_error,coarser_pixel_share,bytes_copied,tiles_read,ticks_over_budget,resident_bytes,frames\n");
+    for r in rows {
+        let _ = writeln!(
+            o,
+            "{},{},{},{},{},{},{},{},{:.6},{},{},{},{},{}",
+            r.clip_size,
+            r.display_width,
+            r.invalid_border,
+            r.budget_ms.map(|b| b.to_string()).unwrap_or_default(),
+            r.speed,
+            r.flight,
+            r.psnr_min.map(|p| format!("{p:.3}")).unwrap_or_else(|| "inf".into()),
+            r.max_error,
+            r.coarser_pixel_share,
+            r.bytes_copied,
+            r.tiles_read,
+            r.ticks_over_budget,
+            r.resident_bytes,
+            r.frames
+        );
+    }
+    o
+}
+
+/// A line chart as SVG: one series per (label, points).
+pub fn svg_chart(
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[(String, Vec<(f64, f64)>)],
+    log_x: bool,
+) -> String {
+    let (w, h, l, r, t, b) = (640.0, 400.0, 70.0, 160.0, 40.0, 50.0);
+    let tx = |x: f64| if log_x { x.max(1e-9).log2() } else { x };
+    let pts: Vec<(f64, f64)> = series.iter().flat_map(|s| s.1.iter().map(|&(x, y)| (tx(x), y))).collect();
+    let (mut x0, mut x1) = pts.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let (mut y0, mut y1) = pts.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    if pts.is_empty() {
+        (x0, x1, y0, y1) = (0.0, 1.0, 0.0, 1.0);
+    }
+    if x1 - x0 < 1e-9 {
+        x1 = x0 + 1.0;
+    }
+    if y1 - y0 < 1e-9 {
+        y1 = y0 + 1.0;
+    }
+    let px = |x: f64| l + (x - x0) / (x1 - x0) * (w - l - r);
+    let py = |y: f64| h - b - (y - y0) / (y1 - y0) * (h - t - b);
+    let mut s = format!("<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n");
+    let _ = writeln!(s, "<text x=\"{}\" y=\"22\" font-size=\"15\">{title}</text>", l);
+    let _ = writeln!(s, "<line x1=\"{l}\" y1=\"{}\" x2=\"{}\" y2=\"{}\" stroke=\"black\"/>", h - b, w - r, h - b);
+    let _ = writeln!(s, "<line x1=\"{l}\" y1=\"{t}\" x2=\"{l}\" y2=\"{}\" stroke=\"black\"/>", h - b);
+    for i in 0..=4 {
+        let fx = x0 + (x1 - x0) * i as f64 / 4.0;
+        let fy = y0 + (y1 - y0) * i as f64 / 4.0;
+        let xl = if log_x { format!("{:.0}", 2f64.powf(fx)) } else { format!("{fx:.3}") };
+        let _ = writeln!(s, "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"middle\">{xl}</text>", px(fx), h - b + 18.0);
+        let _ = writeln!(s, "<text x=\"{}\" y=\"{:.1}\" text-anchor=\"end\">{fy:.2}</text>", l - 6.0, py(fy) + 4.0);
+    }
+    let _ =
+        writeln!(s, "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"middle\">{x_label}</text>", (l + w - r) / 2.0, h - 10.0);
+    let _ = writeln!(
+        s,
+        "<text x=\"16\" y=\"{:.1}\" transform=\"rotate(-90 16 {:.1})\" text-anchor=\"middle\">{y_label}</text>",
+        (t + h - b) / 2.0,
+        (t + h - b) / 2.0
+    );
+    const COLOURS: [&str; 6] = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf"];
+    for (i, (label, points)) in series.iter().enumerate() {
+        let c = COLOURS[i % COLOURS.len()];
+        let path: Vec<String> = points.iter().map(|&(x, y)| format!("{:.1},{:.1}", px(tx(x)), py(y))).collect();
+        let _ =
+            writeln!(s, "<polyline fill=\"none\" stroke=\"{c}\" stroke-width=\"2\" points=\"{}\"/>", path.join(" "));
+        for p in &path {
+            let (x, y) = p.split_once(',').unwrap_or(("0", "0"));
+            let _ = writeln!(s, "<circle cx=\"{x}\" cy=\"{y}\" r=\"3\" fill=\"{c}\"/>");
+        }
+        let ly = t + 10.0 + i as f64 * 18.0;
+        let _ = writeln!(
+            s,
+            "<line x1=\"{}\" y1=\"{ly}\" x2=\"{}\" y2=\"{ly}\" stroke=\"{c}\" stroke-width=\"2\"/>",
+            w - r + 10.0,
+            w - r + 30.0
+        );
+        let _ = writeln!(s, "<text x=\"{}\" y=\"{}\">{label}</text>", w - r + 36.0, ly + 4.0);
+    }
+    s.push_str("</svg>\n");
+    s
+}
+
+/// PSNR for the chart: identical frames (infinite PSNR) are drawn at 60 dB.
+fn psnr_plot(p: Option<f64>) -> f64 {
+    p.unwrap_or(60.0).min(60.0)
+}
+
+/// Writes CSV, plots and the report into `dir`; returns the report text.
+pub fn write_outputs(rows: &[Row], dir: &Path, quick: bool, command: &str) -> std::io::Result<String> {
+    std::fs::create_dir_all(dir)?;
+    std::fs::write(dir.join("accuracy.csv"), csv(rows))?;
+    let base_clip: Vec<&Row> = rows
+        .iter()
+        .filter(|r| r.budget_ms.is_none() && r.invalid_border == 8 && r.flight.starts_with("straight"))
+        .collect();
+    let by_clip: Vec<(f64, f64)> = base_clip.iter().map(|r| (r.clip_size as f64, psnr_plot(r.psnr_min))).collect();
+    let coarser_clip: Vec<(f64, f64)> =
+        base_clip.iter().map(|r| (r.clip_size as f64, r.coarser_pixel_share * 100.0)).collect();
+    std::fs::write(
+        dir.join("psnr_vs_clip.svg"),
+        svg_chart(
+            "Worst-frame PSNR against clip size (unlimited budget)",
+            "clip size (texels)",
+            "PSNR dB (60 = identical)",
+            &[("PSNR".into(), by_clip), ("% coarser".into(), coarser_clip)],
+            true,
+        ),
+    )?;
+    let mut speeds: Vec<f64> =
+        rows.iter().filter(|r| r.budget_ms.is_some() && r.flight.starts_with("straight")).map(|r| r.speed).collect();
+    speeds.sort_by(|a, b| a.total_cmp(b));
+    speeds.dedup();
+    let series: Vec<(String, Vec<(f64, f64)>)> = speeds
+        .iter()
+        .map(|&sp| {
+            let pts = rows
+                .iter()
+                .filter(|r| r.speed == sp && r.flight.starts_with("straight") && r.budget_ms.is_some())
+                .map(|r| (r.budget_ms.unwrap_or(0.0) * 1000.0, r.coarser_pixel_share * 100.0))
+                .collect();
+            (format!("{sp} texels/frame"), pts)
+        })
+        .collect();
+    std::fs::write(
+        dir.join("coarser_vs_budget.svg"),
+        svg_chart(
+            "Pixels drawn coarser than ideal against update budget",
+            "budget per frame (µs, fixed cost model)",
+            "% of ground pixels",
+            &series,
+            true,
+        ),
+    )?;
+    Ok(report(rows, quick, command))
+}
+
+/// The Markdown report.
+pub fn report(rows: &[Row], quick: bool, command: &str) -> String {
+    let mut o = String::new();
+    let _ = writeln!(o, "# Accuracy against speed\n");
+    let _ = writeln!(o, "Generated by `{command}`{}. Every row flies a terrain texture of 2^16 texels a side with a camera above the clip centre (the viewer's foot), renders each frame from the full mipmap and from the clipmap (trilinear, LOD from screen-space derivatives), and compares them. Budgets use the fixed copy-cost model of `src/accuracy/study.rs` (2 µs per band, 50 ns per line, 0.25 ns per byte), so they mean the same copying on every machine. Images are {}x{} pixels.\n", if quick { " (quick mode)" } else { "" }, rows.first().map(|r| r.display_width).unwrap_or(0), rows.first().map(|r| r.display_width * 3 / 4).unwrap_or(0));
+    let _ = writeln!(o, "![PSNR against clip size](accuracy/psnr_vs_clip.svg)\n\n![coarser pixels against budget](accuracy/coarser_vs_budget.svg)\n");
+    let _ = writeln!(o, "| clip | border | budget ms | speed | flight | PSNR min dB | max error | coarser px | MB copied | tiles read | frames over budget |");
+    let _ = writeln!(o, "|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|");
+    for r in rows {
+        let _ = writeln!(
+            o,
+            "| {} | {} | {} | {} | `{}` | {} | {} | {:.2}% | {:.1} | {} | {} |",
+            r.clip_size,
+            r.invalid_border,
+            r.budget_ms.map(|b| b.to_string()).unwrap_or_else(|| "∞".into()),
+            r.speed,
+            r.flight,
+            r.psnr_min.map(|p| format!("{p:.1}")).unwrap_or_else(|| "∞ (identical)".into()),
+            r.max_error,
+            r.coarser_pixel_share * 100.0,
+            r.bytes_copied as f64 / 1e6,
+            r.tiles_read,
+            r.ticks_over_budget
+        );
+    }
+    o
+}
