@@ -189,6 +189,33 @@ fn smallest_icache_default_rules() {
 }
 
 #[test]
+fn non_square_default_smallest_icache_is_not_refused_by_the_2x_clip_check() {
+    // S > T: S = clip x ratio, T = clip (2048 > 2 x 512, but it is the default, not a value
+    // from the file, so the 2 x clip_size check does not apply).
+    let wide = NO_IC_CT.replace("virt_size 4096 4096 1", "virt_size 8192 2048 1");
+    let (p, d) = ct_ok(&wide);
+    assert_eq!(p.smallest_icache, [2048, 512, 1]);
+    // T > S.
+    let tall = NO_IC_CT.replace("virt_size 4096 4096 1", "virt_size 2048 8192 1");
+    let (p2, _) = ct_ok(&tall);
+    assert_eq!(p2.smallest_icache, [512, 2048, 1]);
+    // 8192 x 2048: image caches 8192, 4096, 2048 wide; the pyramid ends at 4x1.
+    assert_eq!(kinds(&p), (3, 9));
+    let s = sizes(&p);
+    assert_eq!(&s[..3], &[[8192, 2048], [4096, 1024], [2048, 512]]);
+    assert_eq!(s[3], [1024, 256]);
+    assert_eq!(*s.last().unwrap(), [4, 1]);
+    expect(
+        &d,
+        "non-square-pyramid-end",
+        Severity::Note,
+        Some((5, 1)),
+        &["4x1", "not 1x1"],
+    );
+    assert_eq!(*sizes(&p2).last().unwrap(), [1, 4]);
+}
+
+#[test]
 fn smallest_icache_given_and_copied_between_axes() {
     let (p, _) = ct_ok(&format!("{NO_IC_CT}smallest_icache 512 512 1\n"));
     assert_eq!(p.smallest_icache, [512, 512, 1]);
