@@ -573,3 +573,24 @@ fn rendering_gives_path_line_col_the_source_line_a_caret_and_the_hint() {
         "{out}"
     );
 }
+
+#[test]
+fn manual_misspelling_icache_base_suggests_image_cache_base_not_tile_base() {
+    // D-CT's examples use PFCLIPTEX_FNAMEARG_ICACHE_BASE, which is not a token; string
+    // similarity alone suggested PFCLIPTEX_FNAMEARG_TILE_BASE, which names the other group.
+    let d = ct_err(&ct(
+        "virt_size 2048 2048 1\nclip_size 512\nicache_format %s%d.ic\n\
+         icache_params PFCLIPTEX_FNAMEARG_ICACHE_BASE PFCLIPTEX_FNAMEARG_LEVEL\n",
+    ));
+    let x = expect(
+        &d,
+        "unknown-param",
+        Severity::Error,
+        Some((8, 15)),
+        &["PFCLIPTEX_FNAMEARG_ICACHE_BASE"],
+    );
+    assert_eq!(
+        x.hint.as_deref(),
+        Some("did you mean `PFCLIPTEX_FNAMEARG_IMAGE_CACHE_BASE`?")
+    );
+}
