@@ -231,3 +231,18 @@ fn every_error_is_reported_not_only_the_first() {
         find(&d, code);
     }
 }
+
+#[test]
+fn huge_mem_region_size_overflowed_the_tight_region_check() {
+    // mem_region x tile overflowed 64 bits (a panic) before the "too many tiles" check.
+    let d = ic_err(&format!(
+        "{SMALL_IC}mem_region_size 4611686018427387904 4 1\n"
+    ));
+    expect(
+        &d,
+        "mem-region-too-many-tiles",
+        Severity::Error,
+        Some((8, 1)),
+        &["128x128"],
+    );
+}

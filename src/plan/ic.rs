@@ -545,7 +545,9 @@ fn mem_region(
                     let d = r.diag(Severity::Error, "mem-region-one-tile", Some(*span), format!("{axis}: a mem region of one tile must cover the whole cache ({} texels), but the tile is {}", size[i], tile[i])).hint("use at least 2 tiles");
                     r.push(d);
                     ok = false;
-                } else if m[i] * tile[i] < size[i] && tex[i].div_ceil(tile[i]) + 2 > m[i] {
+                } else if m[i].saturating_mul(tile[i]) < size[i]
+                    && tex[i].div_ceil(tile[i]) + 2 > m[i]
+                {
                     let d = r.diag(Severity::Warning, "mem-region-tight", Some(*span), format!("{axis}: {} tiles leave too few to move freely (Performer suggests at least {})", m[i], tex[i].div_ceil(tile[i]) + 2));
                     r.push(d);
                 }
