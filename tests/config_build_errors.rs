@@ -461,3 +461,21 @@ fn level_counts_and_limits() {
         &["limit"],
     );
 }
+
+#[test]
+fn huge_pyramid_level_overflowed_its_byte_length() {
+    // A 2^31-square pyramid level of 16-byte texels is 2^66 bytes: the length multiplication
+    // overflowed (a panic) instead of being reported.
+    let d = ct_err(
+        "ct_version2.0\next_format PFTEX_FLOAT\nint_format PFTEX_RGBA_8\nimg_format PFTEX_RGBA\n\
+         virt_size 4294967296 4294967296 1\nclip_size 2147483648\n\
+         smallest_icache 4294967296 4294967296 1\ntile_size 65536 65536 1\n",
+    );
+    expect(
+        &d,
+        "level-too-large",
+        Severity::Error,
+        Some((5, 1)),
+        &["pyramid level 1", "2147483648x2147483648"],
+    );
+}

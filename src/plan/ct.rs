@@ -353,7 +353,25 @@ pub fn build(
                 .as_ref()
                 .and_then(|v| v.get(idx).cloned().flatten())
                 .map(|(p, _)| p);
-            let length = size[0] * size[1] * texel.bytes_per_texel() as u64;
+            let Some(length) = size[0]
+                .checked_mul(size[1])
+                .and_then(|n| n.checked_mul(texel.bytes_per_texel() as u64))
+            else {
+                diags.push(
+                    Diagnostic::new(
+                        Severity::Error,
+                        "level-too-large",
+                        &file.path,
+                        file.first(TokenId::Size).map(|e| e.span),
+                        format!(
+                            "pyramid level {level} ({}x{}) does not fit in a 64-bit byte count",
+                            size[0], size[1]
+                        ),
+                    )
+                    .hint("a pyramid level is read whole: lower smallest_icache or clip_size"),
+                );
+                return None;
+            };
             levels.push(Level {
                 level,
                 size,
