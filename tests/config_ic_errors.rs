@@ -101,7 +101,7 @@ fn ic3_mem_region_checks() {
         "mem-region-too-many-tiles",
         Severity::Error,
         Some((6, 1)),
-        &["258x258", "128x128"],
+        &["258x258x1", "at most 128"],
     );
 }
 
@@ -243,6 +243,22 @@ fn huge_mem_region_size_overflowed_the_tight_region_check() {
         "mem-region-too-many-tiles",
         Severity::Error,
         Some((8, 1)),
-        &["128x128"],
+        &["at most 128"],
+    );
+}
+
+#[test]
+fn huge_mem_region_r_overflowed_the_tile_count_in_icache_info() {
+    // R of mem_region_size was never bounded; `icache info` multiplied the three axes and
+    // overflowed (a panic). It is now held to the same per-axis limit as S and T.
+    let d = ic_err(&format!(
+        "{SMALL_IC}mem_region_size 4 4 4611686018427387904\n"
+    ));
+    expect(
+        &d,
+        "mem-region-too-many-tiles",
+        Severity::Error,
+        Some((8, 1)),
+        &["4x4x4611686018427387904", "at most 128"],
     );
 }

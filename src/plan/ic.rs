@@ -571,9 +571,10 @@ fn mem_region(
             m
         }
     };
-    if mem[0] > max_tiles || mem[1] > max_tiles {
+    // R counts too: a given R is otherwise unchecked, and the tile count multiplies it.
+    if mem.iter().any(|&m| m > max_tiles) {
         let d = r
-            .diag(Severity::Error, "mem-region-too-many-tiles", values::span_of(field).or(r.span_of(TokenId::TileSize)), format!("the mem region is {}x{} tiles; Performer allows at most {max_tiles}x{max_tiles}", mem[0], mem[1]))
+            .diag(Severity::Error, "mem-region-too-many-tiles", values::span_of(field).or(r.span_of(TokenId::TileSize)), format!("the mem region is {}x{}x{} tiles; Performer allows at most {max_tiles} along each axis", mem[0], mem[1], mem[2]))
             .hint("use larger tiles");
         r.push(d);
         return None;
