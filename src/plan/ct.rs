@@ -870,7 +870,7 @@ fn load_level_ic(
     sources: &mut BTreeMap<PathBuf, Vec<u8>>,
 ) -> Option<super::ImageCachePlan> {
     let level = ctx.level.map(|l| l.0).unwrap_or(0);
-    let src = match std::fs::read(path) {
+    let src = match super::read_source(path, &opts.limits) {
         Ok(s) => s,
         Err(e) => {
             let what = if e.kind() == std::io::ErrorKind::NotFound {
