@@ -109,6 +109,11 @@ pub fn procedural_source(
     clip: u64,
     tile: u64,
 ) -> Result<Arc<dyn TileSource>, ServiceError> {
+    for (what, v) in [("--size", size), ("--clip", clip), ("--tile", tile)] {
+        if !v.is_power_of_two() {
+            return Err(ServiceError::BadOption(format!("{what} {v}: expected a power of two")));
+        }
+    }
     let desc = TextureDesc::new([size, size], clip, TexelFormat::RGBA8, [tile, tile])?;
     let border = (clip / 32).clamp(1, 16);
     let desc = desc.with_invalid_border(border.min((clip.saturating_sub(1)) / 2))?;
