@@ -527,3 +527,93 @@ fn the_demo_writes_its_pictures_and_a_summary_and_exits() {
     let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(out_dir.join("stats.json")).unwrap()).unwrap();
     assert_eq!(stats["requests_seen"], 60);
 }
+
+#[test]
+fn the_c_header_and_the_python_reader_agree_with_the_layout() {
+    use clipmap::shm::layout::{desc, header, request, state, DESC_BYTES, MAX_LEVELS, PAGE, STATE_BYTES, VERSION};
+    let h = std::fs::read_to_string(Path::new(ROOT).join("include/clipmap_shm.h")).unwrap();
+    let define = |name: &str| -> usize {
+        let line = h
+            .lines()
+            .find(|l| l.split_whitespace().nth(1) == Some(name) && l.starts_with("#define"))
+            .unwrap_or_else(|| panic!("{name} is not defined in the header"));
+        let value = line.split_whitespace().nth(2).unwrap().trim_end_matches('u');
+        value.parse().unwrap_or_else(|_| panic!("{line}"))
+    };
+    let pairs: &[(&str, usize)] = &[
+        ("CLIPMAP_VERSION", VERSION as usize),
+        ("CLIPMAP_PAGE", PAGE as usize),
+        ("CLIPMAP_MAX_LEVELS", MAX_LEVELS),
+        ("CLIPMAP_H_VERSION", header::VERSION),
+        ("CLIPMAP_H_HEADER_BYTES", header::HEADER_BYTES),
+        ("CLIPMAP_H_TOTAL_BYTES", header::TOTAL_BYTES),
+        ("CLIPMAP_H_TEXEL_FORMAT", header::TEXEL_FORMAT),
+        ("CLIPMAP_H_BYTES_PER_TEXEL", header::BYTES_PER_TEXEL),
+        ("CLIPMAP_H_CLIP_SIZE", header::CLIP_SIZE),
+        ("CLIPMAP_H_LEVEL_COUNT", header::LEVEL_COUNT),
+        ("CLIPMAP_H_LEVEL0_S", header::LEVEL0_S),
+        ("CLIPMAP_H_LEVEL0_T", header::LEVEL0_T),
+        ("CLIPMAP_H_WRITER_PID", header::WRITER_PID),
+        ("CLIPMAP_H_FLAGS", header::FLAGS),
+        ("CLIPMAP_H_HEARTBEAT", header::HEARTBEAT),
+        ("CLIPMAP_H_HEARTBEAT_MS", header::HEARTBEAT_MS),
+        ("CLIPMAP_H_GENERATION", header::GENERATION),
+        ("CLIPMAP_H_GLOBAL_SEQ", header::GLOBAL_SEQ),
+        ("CLIPMAP_H_MIN_LOD", header::MIN_LOD),
+        ("CLIPMAP_H_TICK", header::TICK),
+        ("CLIPMAP_H_REQUEST", header::REQUEST),
+        ("CLIPMAP_H_LEVEL_DESCS", header::LEVEL_DESCS),
+        ("CLIPMAP_DESC_BYTES", DESC_BYTES),
+        ("CLIPMAP_STATE_BYTES", STATE_BYTES),
+        ("CLIPMAP_D_SIZE_S", desc::SIZE_S),
+        ("CLIPMAP_D_SIZE_T", desc::SIZE_T),
+        ("CLIPMAP_D_WINDOW_OFFSET", desc::WINDOW_OFFSET),
+        ("CLIPMAP_D_WINDOW_BYTES", desc::WINDOW_BYTES),
+        ("CLIPMAP_D_WINDOW_S", desc::WINDOW_S),
+        ("CLIPMAP_D_WINDOW_T", desc::WINDOW_T),
+        ("CLIPMAP_D_KIND", desc::KIND),
+        ("CLIPMAP_S_SEQ", state::SEQ),
+        ("CLIPMAP_S_CENTRE_S", state::CENTRE_S),
+        ("CLIPMAP_S_CENTRE_T", state::CENTRE_T),
+        ("CLIPMAP_S_VALID_S0", state::VALID_S0),
+        ("CLIPMAP_S_VALID_T0", state::VALID_T0),
+        ("CLIPMAP_S_VALID_S1", state::VALID_S1),
+        ("CLIPMAP_S_VALID_T1", state::VALID_T1),
+        ("CLIPMAP_S_ENABLED", state::ENABLED),
+        ("CLIPMAP_S_INVALID_BORDER", state::INVALID_BORDER),
+        ("CLIPMAP_S_UPDATED_TICK", state::UPDATED_TICK),
+        ("CLIPMAP_S_ORIGIN_S", state::ORIGIN_S),
+        ("CLIPMAP_S_ORIGIN_T", state::ORIGIN_T),
+        ("CLIPMAP_R_SEQ", request::SEQ),
+        ("CLIPMAP_R_CENTRE_S", request::CENTRE_S),
+        ("CLIPMAP_R_CENTRE_T", request::CENTRE_T),
+        ("CLIPMAP_R_VEL_S", request::VEL_S),
+        ("CLIPMAP_R_VEL_T", request::VEL_T),
+        ("CLIPMAP_R_CLIENT_PID", request::CLIENT_PID),
+        ("CLIPMAP_R_COUNT", request::COUNT),
+    ];
+    for (name, want) in pairs {
+        assert_eq!(define(name), *want, "{name}");
+    }
+    // The derived offsets, and Python's copy of them, computed by Python itself.
+    let py = Command::new("python3")
+        .arg("-c")
+        .arg(
+            "import sys; sys.path.insert(0, sys.argv[1]); import clipmap_shm as c; \
+             print(c.H_LEVEL_STATES, c.H_END, c.H_GLOBAL_SEQ, c.H_HEARTBEAT_MS, c.DESC_BYTES, c.STATE_BYTES)",
+        )
+        .arg(Path::new(ROOT).join("clients/python"))
+        .output()
+        .unwrap();
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    let want = format!(
+        "{} {} {} {} {} {}",
+        header::LEVEL_STATES,
+        header::END,
+        header::GLOBAL_SEQ,
+        header::HEARTBEAT_MS,
+        DESC_BYTES,
+        STATE_BYTES
+    );
+    assert_eq!(String::from_utf8_lossy(&py.stdout).trim(), want);
+}
