@@ -339,9 +339,9 @@ fn cross_group_and_no_ic_parameter_refusals() {
         Some((8, 15)),
         &["tile base", "icache_params"],
     );
-    let d = ct_err(&ct(&format!(
-        "virt_size 2048 2048 1\nclip_size 512\nicache_files a b\ntile_format %s\ntile_params PFCLIPTEX_FNAMEARG_IMAGE_CACHE_BASE\n"
-    )));
+    let d = ct_err(&ct(
+        "virt_size 2048 2048 1\nclip_size 512\nicache_files a b\ntile_format %s\ntile_params PFCLIPTEX_FNAMEARG_IMAGE_CACHE_BASE\n",
+    ));
     expect(
         &d,
         "param-not-allowed",
