@@ -75,6 +75,13 @@ fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool) -> u8 {
     };
     let command = format!("clipbench accuracy{} --out {}", if quick { " --quick" } else { "" }, out.display());
     let dir = out.join("accuracy");
+    if let Err(e) = std::fs::create_dir_all(&dir)
+        .map_err(|e| e.to_string())
+        .and_then(|_| sweep::write_samples(&dir, quick).map_err(|e| e.to_string()))
+    {
+        eprintln!("clipbench accuracy: sample frames: {e}");
+        return 2;
+    }
     match sweep::write_outputs(&rows, &dir, quick, &command) {
         Ok(report) => {
             let path = out.join("ACCURACY.md");

@@ -127,6 +127,9 @@ pub enum StudyError {
     /// Bad flight.
     #[error("{0}")]
     Flight(#[from] crate::roam::FlightError),
+    /// An output could not be written.
+    #[error("cannot write a picture: {0}")]
+    Io(String),
 }
 
 /// Compares a frame with its reference.
