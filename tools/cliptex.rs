@@ -5,7 +5,7 @@
 use clap::{Parser, Subcommand};
 use clipmap::config::FileKind;
 use clipmap::plan;
-use clipmap::report::{self, exit, info, validate, EnvArgs};
+use clipmap::report::{self, check, exit, info, validate, EnvArgs};
 use clipmap::roam;
 use clipmap::source::FileSource;
 use std::path::PathBuf;
@@ -26,6 +26,7 @@ Examples:
   cliptex info my.ct --env DATA=/mnt/terrain
   cliptex roam --source hash --size 65536 --clip 1024 --flight straight:16:30 --frames 100
   cliptex roam my.ct --flight circle:2000:8 --frames 300 --budget-ms 4 --json
+  cliptex check my.ct --json
 
 Exit status: 0 ok, 1 the input is bad, 2 the tool could not run."
 )]
@@ -137,6 +138,22 @@ Examples:
   cliptex roam config_examples/prepared/hash256.ct --flight straight:4:45 --frames 20 --json
   cliptex roam --source terrain --size 1048576 --clip 2048 --flight zigzag:64:20 --frames 200 --budget-ms inf")]
     Roam(RoamArgs),
+    /// Walk every tile on disk: per level, tiles present, missing, short, unreadable and covered by the default tile.
+    #[command(after_help = "\
+Exit status: 0 every tile can be served (present, or covered by a default tile), 1 some cannot,
+2 the configuration cannot be read (unreadable or invalid).")]
+    Check {
+        /// The .ct file.
+        file: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// No progress bar and no table: only problems and a failing verdict are printed.
+        #[arg(long, short)]
+        quiet: bool,
+        #[command(flatten)]
+        env: EnvArgs,
+    },
 }
 
 #[derive(clap::Args)]
@@ -286,8 +303,38 @@ fn roam(args: RoamArgs) -> i32 {
     }
 }
 
+fn check(file: &PathBuf, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
+    use std::io::IsTerminal;
+    let plan = match load(file, env) {
+        Ok((p, _)) => p,
+        Err(_) => return exit::COULD_NOT_RUN,
+    };
+    let bar = if !quiet && std::io::stderr().is_terminal() {
+        let bar = indicatif::ProgressBar::new(check::tile_count(&plan));
+        if let Ok(style) = indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} tiles {eta}") {
+            bar.set_style(style);
+        }
+        bar
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let report = check::run(&plan, &|n| bar.inc(n));
+    bar.finish_and_clear();
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report).expect("report serialises"));
+    } else {
+        print!("{}", check::human(&report, quiet));
+    }
+    if report.servable {
+        exit::OK
+    } else {
+        exit::BAD_INPUT
+    }
+}
+
 fn run(cli: Cli) -> i32 {
     match cli.command {
+        Command::Check { file, json, quiet, env } => check(&file, json, quiet, &env),
         Command::Roam(args) => roam(args),
         Command::Validate { files, strict, json, quiet, env } => {
             let o = match opts(&env) {
