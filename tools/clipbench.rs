@@ -4,7 +4,13 @@
 //! renders every frame from the full mipmap and from the clipmap, and writes the table, CSV,
 //! plots and `docs/ACCURACY.md`.
 //!
+//! `clipbench engine` measures update throughput against memcpy, bytes per tick against the
+//! strips a move uncovers, and resident memory against the clipmap formula.
+//!
 //! Exit status: 0 ok, 1 bad input, 2 the tool could not run.
+
+#[path = "clipbench/engine.rs"]
+mod engine;
 
 use clap::{Parser, Subcommand};
 use clipmap::accuracy::sweep;
@@ -21,6 +27,18 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Update throughput against memcpy, bytes per tick against the strips, resident memory.
+    Engine {
+        /// A small texture (2^20, clip 512) for a fast check.
+        #[arg(long)]
+        quick: bool,
+        /// Runs per measurement (the median is reported).
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
     /// Speed against accuracy: sweep the knobs, render each frame twice, measure the difference.
     #[command(after_help = "\
 Examples:
@@ -46,6 +64,20 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let code = match cli.command {
         Command::Accuracy { quick, out, json, quiet } => accuracy(quick, out, json, quiet),
+        Command::Engine { quick, runs, json } => match engine::engine(quick, runs) {
+            Ok(r) => {
+                if json {
+                    println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
+                } else {
+                    print!("{}", engine::human(&r));
+                }
+                0
+            }
+            Err(e) => {
+                eprintln!("clipbench engine: {e:#}");
+                2
+            }
+        },
     };
     ExitCode::from(code)
 }
