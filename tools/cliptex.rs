@@ -16,7 +16,7 @@ use std::sync::Arc;
 #[command(
     name = "cliptex",
     version,
-    about = "Inspect and validate clip-texture (.ct) configurations",
+    about = "Inspect, validate, size and fly clip textures (.ct configurations and their data)",
     after_help = "\
 Examples:
   cliptex validate config_examples/*.ct
