@@ -38,22 +38,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Check .ct files (and every .ic they name); report every problem with file:line:col.
-    Validate {
-        /// The .ct files.
-        #[arg(required = true)]
-        files: Vec<PathBuf>,
-        /// Also fail on warnings and on anything Performer 3.0 would not read as intended.
-        #[arg(long)]
-        strict: bool,
-        /// Print a JSON report instead of text.
-        #[arg(long)]
-        json: bool,
-        /// Print only the invalid files.
-        #[arg(long, short)]
-        quiet: bool,
-        #[command(flatten)]
-        env: EnvArgs,
-    },
+    Validate(validate::ValidateArgs),
     /// Print every value (defaults marked) and the level table.
     Info {
         /// The .ct file.
@@ -336,19 +321,7 @@ fn run(cli: Cli) -> i32 {
     match cli.command {
         Command::Check { file, json, quiet, env } => check(&file, json, quiet, &env),
         Command::Roam(args) => roam(args),
-        Command::Validate { files, strict, json, quiet, env } => {
-            let o = match opts(&env) {
-                Ok(o) => o,
-                Err(c) => return c,
-            };
-            let r = validate::run(&files, FileKind::ClipTexture, strict, &o);
-            if json {
-                println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
-            } else {
-                print!("{}", r.human(quiet));
-            }
-            r.exit_code()
-        }
+        Command::Validate(args) => validate::cli(&args, FileKind::ClipTexture, "cliptex"),
         Command::Info { file, json, env } => match load(&file, &env) {
             Err(c) => c,
             Ok((p, warnings)) => {
