@@ -39,6 +39,28 @@ struct Cli {
 enum Command {
     /// Check .ct files (and every .ic they name); report every problem with file:line:col.
     Validate(validate::ValidateArgs),
+    /// A live view of a running service (levels, centres, valid regions, min LOD, tick rate).
+    #[command(after_help = "\
+Examples:
+  cliptex attach demo
+  cliptex attach terrain --once --json
+  cliptex attach terrain --shm-dir /tmp/maps --interval 0.5")]
+    Attach {
+        /// The service's --name.
+        name: String,
+        /// Where the service's mapping lives (the service's --shm-dir).
+        #[arg(long)]
+        shm_dir: Option<PathBuf>,
+        /// Print one view and exit.
+        #[arg(long)]
+        once: bool,
+        /// Print JSON (implies --once).
+        #[arg(long)]
+        json: bool,
+        /// Seconds between refreshes (and over which the tick rate is measured).
+        #[arg(long, default_value_t = 1.0)]
+        interval: f64,
+    },
     /// Print every value (defaults marked) and the level table.
     Info {
         /// The .ct file.
@@ -321,6 +343,40 @@ fn run(cli: Cli) -> i32 {
     match cli.command {
         Command::Check { file, json, quiet, env } => check(&file, json, quiet, &env),
         Command::Roam(args) => roam(args),
+        Command::Attach { name, shm_dir, once, json, interval } => {
+            let dir = shm_dir.unwrap_or_else(clipmap::shm::default_dir);
+            let every = std::time::Duration::from_secs_f64(interval.clamp(0.05, 3600.0));
+            let live = !once && !json && std::io::IsTerminal::is_terminal(&std::io::stdout());
+            loop {
+                match report::attach::status(
+                    &dir,
+                    &name,
+                    every.min(std::time::Duration::from_millis(250)).max(if live {
+                        every
+                    } else {
+                        std::time::Duration::ZERO
+                    }),
+                ) {
+                    Ok(s) => {
+                        if json {
+                            println!("{}", serde_json::to_string_pretty(&s).expect("status serialises"));
+                        } else {
+                            if live {
+                                print!("\x1b[2J\x1b[H");
+                            }
+                            print!("{}", report::attach::human(&s));
+                        }
+                        if !live || s.closed {
+                            return exit::OK;
+                        }
+                    }
+                    Err(e) => {
+                        eprintln!("cliptex attach: {e}");
+                        return exit::COULD_NOT_RUN;
+                    }
+                }
+            }
+        }
         Command::Validate(args) => validate::cli(&args, FileKind::ClipTexture, "cliptex"),
         Command::Info { file, json, env } => match load(&file, &env) {
             Err(c) => c,
