@@ -1,5 +1,6 @@
-//! Micro-benchmarks of the paging engine: the strip copy of one update tick during a steady
-//! flight, and the residency geometry (every level's regions for a centre) of a 2^26 texture.
+//! Micro-benchmarks of the paging engine: one update tick during a steady flight (its strip
+//! copies, plus waiting for the tiles it asked for), and the residency geometry (every level's
+//! regions for a centre) of a 2^26 texture.
 //! `cargo bench --bench engine`; `clipbench engine` measures the goals in one run.
 
 use clipmap::clip::{Clipmap, CostTable, Settings};
@@ -27,8 +28,14 @@ fn strip_copy(c: &mut Criterion) {
     // Level 0 uncovers d x 512 texels, level 1 d/2 x 512, ...: about 2·d·clip texels.
     group.throughput(Throughput::Bytes((2 * d as u64 * 512 - 512) * 4));
     for (name, v) in [("move_s_32", [d, 0]), ("move_t_32", [0, d])] {
+        // Back and forth every 200 ticks, so that the centre stays well inside the texture
+        // however many iterations criterion runs.
+        let mut tick = 0u64;
         group.bench_function(name, |b| {
             b.iter(|| {
+                let sign = if (tick / 200) % 2 == 0 { 1 } else { -1 };
+                tick += 1;
+                let v = [sign * v[0], sign * v[1]];
                 centre = [centre[0] + v[0], centre[1] + v[1]];
                 let r = map.tick(centre, Some(v));
                 map.wait_for_reads();
