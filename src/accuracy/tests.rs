@@ -48,3 +48,15 @@ fn a_tighter_budget_or_a_faster_flight_draws_more_pixels_coarser() {
     let (slow, fast) = (at(0.02, 2.0), at(0.02, 64.0));
     assert!(fast > slow, "fast {fast} <= slow {slow}");
 }
+
+#[test]
+fn a_virtual_clip_texture_with_few_effective_levels_loses_the_far_field() {
+    // Looking towards the horizon needs every level; a window of 2 levels cannot reach the
+    // coarse ones, so far pixels are drawn too sharp (aliased) and differ from the reference.
+    let all = Case { effective_levels: Some(32), pitch_deg: 15.0, ..case(256, 128) };
+    let few = Case { effective_levels: Some(2), pitch_deg: 15.0, ..case(256, 128) };
+    let o_all = run(&all, |_, _, _, _| {}).unwrap();
+    let o_few = run(&few, |_, _, _, _| {}).unwrap();
+    assert_eq!((o_all.psnr_min, o_all.max_error), (None, 0), "all levels addressable: identical");
+    assert!(o_few.max_error > 0 && o_few.psnr_min.is_some(), "{:?}", (o_few.psnr_min, o_few.max_error));
+}
