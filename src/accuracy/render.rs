@@ -150,7 +150,7 @@ pub fn render_clipmap_levels(cam: &Camera, map: &Clipmap, filter: Filter, window
         .flat_map(|j| (0..cam.width).map(move |i| (i, j)))
         .map(|(i, j)| match cam.footprint(i, j) {
             Some(fp) if in_texture(fp.uv, size) => {
-                match sample_clipmap(map, filter, fp.uv[0], fp.uv[1], fp.lod.clamp(0.0, last)) {
+                match sample_clipmap(map, filter, fp.uv[0], fp.uv[1], fp.lod.clamp(lo, last)) {
                     Some(s) => Pixel { rgba: quantise(s.rgba), lod: s.lod, ground: true },
                     None => Pixel { rgba: [0, 0, 0, 255], lod: last, ground: true },
                 }
