@@ -649,3 +649,191 @@ fn jpeg_input_is_accepted() {
     validate_strict(&ct);
     assert_eq!(levels(&ct).len(), 7);
 }
+
+/// Whether `cliptex tile` resolves tile (s, t) of `level` to a file that exists.
+fn tile_exists(ct: &str, level: usize, s: u64, t: u64) -> bool {
+    let (l, s, t) = (level.to_string(), s.to_string(), t.to_string());
+    let loc: Value = serde_json::from_str(&ok(CLIPTEX, &["tile", ct, "--level", &l, "--s", &s, "--t", &t, "--json"]))
+        .expect("cliptex tile --json prints JSON");
+    Path::new(loc["path"].as_str().unwrap()).exists()
+}
+
+#[test]
+fn sparse_inset_levels_hold_the_inset_a_magnified_border_and_absent_tiles_elsewhere() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("inset");
+    let (clip, tile, big_k) = (128u64, 64u64, 2usize);
+    let (s0, t0, s1, t1) = (1000u64, 600u64, 1200u64, 700u64);
+    let summary = prep(
+        &dir,
+        &[
+            "--source",
+            "hash",
+            "--size",
+            "2048",
+            "--tile",
+            "64",
+            "--clip",
+            "128",
+            "--format",
+            "rgba8",
+            "--inset",
+            "1000,600,1200,700",
+            "--inset-level",
+            "2",
+        ],
+    );
+    let ct = ct_path(&summary);
+    validate_strict(&ct);
+    let lv = levels(&ct);
+    let coarse = read_level(&ct, big_k, &lv[big_k], 4);
+    let coarse_w = lv[big_k].size.0;
+    let (mut inset_tiles, mut border_tiles, mut absent_tiles) = (0, 0, 0);
+    for k in 0..big_k {
+        let (w, h) = lv[k].size;
+        assert_eq!(lv[k].tile, (tile, tile));
+        // The inset in level-k texels, rounded outwards.
+        let (is0, it0) = (s0 >> k, t0 >> k);
+        let (is1, it1) = (s1.div_ceil(1 << k), t1.div_ceil(1 << k));
+        let inset = |s: u64, t: u64| (s + 1) * tile > is0 && s * tile < is1 && (t + 1) * tile > it0 && t * tile < it1;
+        // The tiles that exist, and their bounding box.
+        let (mut bs0, mut bt0, mut bs1, mut bt1) = (u64::MAX, u64::MAX, 0, 0);
+        for t in 0..h / tile {
+            for s in 0..w / tile {
+                // Far-away tiles are checked on a coarse grid; everything near the inset exactly.
+                let near = s * tile + 3 * clip >= is0
+                    && s * tile <= is1 + 3 * clip
+                    && t * tile + 3 * clip >= it0
+                    && t * tile <= it1 + 3 * clip;
+                if !near && (s % 5 != 0 || t % 5 != 0) {
+                    continue;
+                }
+                if !tile_exists(&ct, k, s, t) {
+                    assert!(!inset(s, t), "level {k} inset tile ({s}, {t}) exists");
+                    absent_tiles += 1;
+                    continue;
+                }
+                (bs0, bt0, bs1, bt1) = (bs0.min(s), bt0.min(t), bs1.max(s + 1), bt1.max(t + 1));
+                let data = read_tile(&ct, k, s, t);
+                let shift = big_k - k;
+                for r in 0..tile {
+                    for x in 0..tile {
+                        let (ls, lt) = (s * tile + x, t * tile + r);
+                        let got = &data[((r * tile + x) * 4) as usize..][..4];
+                        if inset(s, t) {
+                            let mut expect = [0u8; 4];
+                            hash(k as u32, ls, lt, &mut expect);
+                            assert_eq!(got, expect, "level {k} inset texel ({ls}, {lt})");
+                        } else {
+                            let at = (((lt >> shift) * coarse_w + (ls >> shift)) * 4) as usize;
+                            assert_eq!(got, &coarse[at..at + 4], "level {k} border texel ({ls}, {lt})");
+                        }
+                    }
+                }
+                if inset(s, t) {
+                    inset_tiles += 1;
+                } else {
+                    border_tiles += 1;
+                }
+            }
+        }
+        // The border is at least one clip size wide on every side, unless the level ends first.
+        assert!(bs0 == 0 || bs0 * tile + clip <= is0, "level {k}: border left {bs0}");
+        assert!(bt0 == 0 || bt0 * tile + clip <= it0, "level {k}: border below {bt0}");
+        assert!(bs1 * tile == w || bs1 * tile >= is1 + clip, "level {k}: border right {bs1}");
+        assert!(bt1 * tile == h || bt1 * tile >= it1 + clip, "level {k}: border above {bt1}");
+        // Absent tiles are covered by the level's default tile: zeros, one tile long.
+        let ic = dir.join(format!("L{k:02}.ic"));
+        let info: Value =
+            serde_json::from_str(&ok(ICACHE, &["info", ic.to_str().unwrap(), "--json"])).expect("icache info --json");
+        let default = info["default_tile"].as_str().expect("the .ic names a default tile");
+        let bytes = std::fs::read(default).expect("the default tile exists");
+        assert_eq!(bytes.len() as u64, tile * tile * 4);
+        assert!(bytes.iter().all(|&b| b == 0));
+        ok(ICACHE, &["validate", "--strict", ic.to_str().unwrap()]);
+    }
+    assert!(!tile_exists(&ct, 0, 0, 0) && !tile_exists(&ct, 0, 31, 31), "far corners are absent");
+    assert_eq!(summary["inset_tiles"], inset_tiles);
+    assert_eq!(summary["border_tiles"], border_tiles);
+    assert!(absent_tiles > 0);
+    // Level K and coarser are complete: every texel is the source's.
+    for (k, info) in lv.iter().enumerate().skip(big_k) {
+        let level = read_level(&ct, k, info, 4);
+        let (w, h) = info.size;
+        for (s, t) in [(0, 0), (w - 1, h - 1), (w / 3, h / 2)] {
+            let mut expect = [0u8; 4];
+            hash(k as u32, s, t, &mut expect);
+            assert_eq!(&level[((t * w + s) * 4) as usize..][..4], expect, "level {k} ({s}, {t})");
+        }
+    }
+    assert!(std::fs::read_to_string(&ct).unwrap().contains("\n# Sparse: levels 0 to 1 exist only inside"));
+}
+
+#[test]
+fn filtered_insets_keep_the_texels_of_a_complete_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = ["--source", "terrain", "--size", "512", "--tile", "32", "--clip", "64", "--format", "rgb8"];
+    let full = ct_path(&prep(&tmp.path().join("full"), &base));
+    let mut args = base.to_vec();
+    args.extend_from_slice(&["--inset", "0,448,40,512", "--inset-level", "1"]);
+    let sparse = ct_path(&prep(&tmp.path().join("sparse"), &args));
+    validate_strict(&sparse);
+    // Level 0 inset tiles (columns 0-1, rows 14-15) are the complete run's; coarser levels are equal.
+    for (s, t) in [(0, 14), (1, 15), (0, 15)] {
+        assert_eq!(read_tile(&sparse, 0, s, t), read_tile(&full, 0, s, t), "tile ({s}, {t})");
+    }
+    let lv = levels(&full);
+    for (k, info) in lv.iter().enumerate().skip(1) {
+        assert_eq!(read_level(&sparse, k, info, 3), read_level(&full, k, info, 3), "level {k}");
+    }
+    assert!(!tile_exists(&sparse, 0, 15, 0), "a tile far from the inset is absent");
+}
+
+#[test]
+fn an_inset_outside_the_texture_or_at_a_pyramid_level_is_refused() {
+    let e = fails(
+        &[
+            "--source",
+            "hash",
+            "--size",
+            "256",
+            "--tile",
+            "32",
+            "--clip",
+            "64",
+            "--format",
+            "l8",
+            "--inset",
+            "0,0,300,10",
+            "--inset-level",
+            "1",
+            "--out",
+            "unused-inset-out",
+        ],
+        1,
+    );
+    assert!(e.contains("S1 <= 256"), "{e}");
+    let e = fails(
+        &[
+            "--source",
+            "hash",
+            "--size",
+            "256",
+            "--tile",
+            "32",
+            "--clip",
+            "64",
+            "--format",
+            "l8",
+            "--inset",
+            "0,0,8,8",
+            "--inset-level",
+            "5",
+            "--out",
+            "unused-inset-out",
+        ],
+        1,
+    );
+    assert!(e.contains("expected an inset level from 1 to 2"), "{e}");
+    assert!(!Path::new("unused-inset-out").exists());
+}

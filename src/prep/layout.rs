@@ -15,6 +15,7 @@
 //! ```
 
 use super::error::{next_power_of_two, PrepError};
+use super::inset::{Inset, SparseLevel, TileRole};
 use crate::texel::TexelFormat;
 use std::path::PathBuf;
 
@@ -41,6 +42,8 @@ pub struct Spec {
     pub header_bytes: u64,
     /// Number of stream servers (directories `stream0/` ...); `None` for none.
     pub streams: Option<u32>,
+    /// A sparse inset: levels finer than its level exist only around it.
+    pub inset: Option<Inset>,
 }
 
 /// Whether a level is paged through an image cache or held whole.
@@ -194,7 +197,38 @@ impl Layout {
             levels.push(Level { index: k, width: lw, height: lh, kind: LevelKind::Pyramid, tile_w: lw, tile_h: lh });
             k += 1;
         }
-        Ok(Layout { spec, levels, smallest_icache: smallest, smallest_icache_is_default: smallest == default })
+        let layout =
+            Layout { spec, levels, smallest_icache: smallest, smallest_icache_is_default: smallest == default };
+        if let Some(inset) = &layout.spec.inset {
+            inset.check(&layout)?;
+        }
+        Ok(layout)
+    }
+
+    /// The tiles of `level` if the layout has an inset and the level is finer than its level.
+    pub fn sparse(&self, level: &Level) -> Option<SparseLevel> {
+        self.spec.inset.as_ref().and_then(|i| i.sparse(self, level))
+    }
+
+    /// What tile (s, t) of `level` holds.
+    pub fn tile_role(&self, level: &Level, s: u64, t: u64) -> TileRole {
+        self.sparse(level).map_or(TileRole::Source, |sp| sp.role(s, t))
+    }
+
+    /// The default tile of a sparse image-cache level, relative to the `.ct` (beside its `.ic`).
+    pub fn default_tile_file(level: u32) -> String {
+        format!("L{level:02}.default.raw")
+    }
+
+    /// Texels written over all levels (all of them, less the absent tiles of sparse levels).
+    pub fn written_texels(&self) -> u64 {
+        self.levels
+            .iter()
+            .map(|l| match self.sparse(l) {
+                Some(sp) => sp.written.count() * l.tile_w * l.tile_h,
+                None => l.texels(),
+            })
+            .sum()
     }
 
     /// Bytes per texel.
@@ -316,6 +350,7 @@ mod tests {
             tiles_in_file: (1, 1),
             header_bytes: 0,
             streams: None,
+            inset: None,
         }
     }
 

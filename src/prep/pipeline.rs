@@ -2,6 +2,7 @@
 //! in bands of tile rows cascading down the levels, so memory is bounded by a few bands of
 //! level-0 width, never by the texture size.
 
+use super::border::write_borders;
 use super::configfile::{ct_text, ic_text};
 use super::error::PrepError;
 use super::filter::{Channels, Downsampler, Filter};
@@ -62,6 +63,12 @@ pub struct Summary {
     pub bytes: u64,
     /// Texels written over all levels.
     pub texels: u64,
+    /// Tiles of sparse levels that hold the source's texels (0 without an inset).
+    pub inset_tiles: u64,
+    /// Border tiles of sparse levels (magnified from the inset level).
+    pub border_tiles: u64,
+    /// Tiles of sparse levels left absent (the default tile stands in).
+    pub absent_tiles: u64,
 }
 
 fn create_dir(path: &Path, total: u64) -> Result<(), PrepError> {
@@ -107,6 +114,11 @@ pub fn run(
     write_file(&root.join(&ct_name), &ct_text(layout, &job.description), total)?;
     for level in layout.image_cache_levels() {
         write_file(&root.join(Layout::ic_file(level.index)), &ic_text(layout, level, &ct_name), total)?;
+        if layout.sparse(level).is_some() {
+            let zeros = vec![0u8; (level.tile_w * level.tile_h * layout.bpt()) as usize];
+            let path = root.join(Layout::default_tile_file(level.index));
+            fs::write(&path, zeros).map_err(|e| PrepError::write(&path, e, total))?;
+        }
     }
     let interrupted = || PrepError::Interrupted { dir: interrupted_dir.into() };
     let mut writers: Vec<LevelWriter> =
@@ -174,6 +186,14 @@ pub fn run(
         }
     }
     drop(writers);
+    let border_tiles = write_borders(root, layout, total)?;
+    let (mut inset_tiles, mut absent_tiles) = (0, 0);
+    for level in &layout.levels {
+        if let Some(sp) = layout.sparse(level) {
+            inset_tiles += sp.inset.count();
+            absent_tiles += level.tiles_s() * level.tiles_t() - sp.written.count();
+        }
+    }
     let (files, bytes) = tally(root).map_err(|e| PrepError::write(root, e, total))?;
     Ok(Summary {
         ct: PathBuf::from(ct_name),
@@ -182,7 +202,10 @@ pub fn run(
         pyramid_levels: layout.pyramid_levels().count(),
         files,
         bytes,
-        texels: layout.total_texels(),
+        texels: layout.written_texels(),
+        inset_tiles,
+        border_tiles,
+        absent_tiles,
     })
 }
 

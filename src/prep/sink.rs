@@ -7,6 +7,7 @@
 //! the file's header in front when `header_offset` is set.
 
 use super::error::PrepError;
+use super::inset::TileRole;
 use super::layout::{Layout, Level, LevelKind};
 use std::fs::OpenOptions;
 use std::io::{Seek, SeekFrom, Write};
@@ -89,48 +90,68 @@ impl<'a> LevelWriter<'a> {
         let tw = level.tile_w as usize;
         let mut part = Vec::with_capacity(rows * tw * bpt);
         for tile_s in 0..level.tiles_s() {
-            let loc = self.layout.tile(level, tile_s, tile_t);
+            if self.layout.tile_role(level, tile_s, tile_t) != TileRole::Source {
+                continue;
+            }
             part.clear();
             let x0 = tile_s as usize * tw * bpt;
             for r in 0..rows {
                 let start = r * self.row_bytes + x0;
                 part.extend_from_slice(&self.band[start..start + tw * bpt]);
             }
-            let path = self.root.join(&loc.path);
-            let offset = loc.offset + row_in_tile * tw as u64 * bpt as u64;
-            let header = self.header(level, tile_s, tile_t);
-            write_at(&path, &header, offset, &part).map_err(|e| PrepError::write(&path, e, self.total_bytes))?;
+            let offset = row_in_tile * tw as u64 * bpt as u64;
+            write_tile_part(self.root, self.layout, level, tile_s, tile_t, offset, &part, self.total_bytes)?;
         }
         self.band_t0 += rows as u64;
         self.filled = 0;
         self.band.clear();
         Ok(rows as u64 * level.width)
     }
+}
 
-    /// The header of the file holding tile (s, t): a line of text describing the file, padded
-    /// with zeros (or cut) to `header_offset` bytes. Empty without a header.
-    fn header(&self, level: &Level, s: u64, t: u64) -> Vec<u8> {
-        let h = self.layout.spec.header_bytes as usize;
-        if h == 0 || level.kind == LevelKind::Pyramid {
-            return Vec::new();
-        }
-        let (ns, nt) = self.layout.spec.tiles_in_file;
-        let text = format!(
-            "clipmap tiles: level {} file {} {} holds {}x{} tiles of {}x{} {} texels, s fastest, after {} header bytes\n",
-            level.index,
-            s / ns,
-            t / nt,
-            ns,
-            nt,
-            level.tile_w,
-            level.tile_h,
-            self.layout.spec.format,
-            h
-        );
-        let mut out = text.into_bytes();
-        out.resize(h, 0);
-        out
+/// Writes `data` at byte `offset` of tile (s, t) of `level` (offset 0 is the tile's first texel),
+/// with the file's header in front when the layout has one. `total_bytes` is the size of the
+/// whole output, for a full-disk message.
+#[allow(clippy::too_many_arguments)]
+pub fn write_tile_part(
+    root: &Path,
+    layout: &Layout,
+    level: &Level,
+    s: u64,
+    t: u64,
+    offset: u64,
+    data: &[u8],
+    total_bytes: u64,
+) -> Result<(), PrepError> {
+    let loc = layout.tile(level, s, t);
+    let path = root.join(&loc.path);
+    write_at(&path, &header(layout, level, s, t), loc.offset + offset, data)
+        .map_err(|e| PrepError::write(&path, e, total_bytes))
+}
+
+/// The header of the file holding tile (s, t): a line of text describing the file, padded
+/// with zeros (or cut) to `header_offset` bytes. Empty without a header.
+fn header(layout: &Layout, level: &Level, s: u64, t: u64) -> Vec<u8> {
+    let h = layout.spec.header_bytes as usize;
+    if h == 0 || level.kind == LevelKind::Pyramid {
+        return Vec::new();
     }
+    let (ns, nt) = layout.spec.tiles_in_file;
+    let text = format!(
+        "clipmap tiles: level {} file {} {} holds {}x{} tiles of {}x{} {} texels, s fastest, after {} header bytes\n",
+        level.index,
+        s / ns,
+        t / nt,
+        ns,
+        nt,
+        level.tile_w,
+        level.tile_h,
+        layout.spec.format,
+        h
+    );
+    let mut out = text.into_bytes();
+    out.resize(h, 0);
+    out
 }
 
 fn write_at(path: &Path, header: &[u8], offset: u64, data: &[u8]) -> std::io::Result<()> {
