@@ -279,6 +279,36 @@ fn tiff_input_is_streamed_strip_by_strip() {
 }
 
 #[test]
+fn rgba_tiff_input_is_copied_row_by_row_and_padded_with_zeros() {
+    use tiff::encoder::{colortype, TiffEncoder};
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("in.tif");
+    let (w, h) = (48u32, 32u32);
+    let data: Vec<u8> = (0..w * h * 4).map(|i| (i * 29 % 253) as u8).collect();
+    {
+        let file = std::fs::File::create(&path).unwrap();
+        let mut enc = TiffEncoder::new(file).unwrap();
+        let mut image = enc.new_image::<colortype::RGBA8>(w, h).unwrap();
+        image.rows_per_strip(5).unwrap();
+        image.write_data(&data).unwrap();
+    }
+    let dir = tmp.path().join("tif");
+    let args = ["--input", path.to_str().unwrap(), "--tile", "16", "--clip", "32", "--format", "rgba8", "--pad"];
+    let ct = ct_path(&prep(&dir, &args));
+    let lv = levels(&ct);
+    assert_eq!(lv[0].size, (64, 32));
+    let l0 = read_level(&ct, 0, &lv[0], 4);
+    for t in 0..h {
+        for s in 0..64 {
+            let dst = ((t * 64 + s) * 4) as usize;
+            let want = if s < w { &data[(((h - 1 - t) * w + s) * 4) as usize..][..4] } else { &[0u8; 4][..] };
+            assert_eq!(&l0[dst..dst + 4], want, "texel ({s}, {t})");
+        }
+    }
+    assert_box_pyramid(&ct, 4);
+}
+
+#[test]
 fn linear_light_averages_in_linear_space_and_lanczos_keeps_flat_areas_flat() {
     let tmp = tempfile::tempdir().unwrap();
     let png = tmp.path().join("checker.png");
