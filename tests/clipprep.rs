@@ -867,3 +867,57 @@ fn an_inset_outside_the_texture_or_at_a_pyramid_level_is_refused() {
     assert!(e.contains("expected an inset level from 1 to 2"), "{e}");
     assert!(!Path::new("unused-inset-out").exists());
 }
+
+#[test]
+fn zstd_tiles_decode_to_the_raw_tiles_and_keep_pyramid_levels_raw() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = ["--source", "terrain", "--size", "256", "--tile", "32", "--clip", "64", "--format", "rgb8"];
+    let raw = ct_path(&prep(&tmp.path().join("raw"), &base));
+    let mut args = base.to_vec();
+    args.extend_from_slice(&["--zstd", "3", "--inset", "0,0,64,64", "--inset-level", "1", "--streams", "2"]);
+    let dir = tmp.path().join("zst");
+    let zst = ct_path(&prep(&dir, &args));
+    validate_strict(&zst);
+    let ic = std::fs::read_to_string(dir.join("L00.ic")).unwrap();
+    assert!(ic.contains("tile_format %sL00/r%03d.c%03d.raw.zst\n"), "{ic}");
+    let lv = levels(&raw);
+    let written = |k: usize, s: u64, t: u64| {
+        let (l, s, t) = (k.to_string(), s.to_string(), t.to_string());
+        let loc: Value =
+            serde_json::from_str(&ok(CLIPTEX, &["tile", &zst, "--level", &l, "--s", &s, "--t", &t, "--json"])).unwrap();
+        std::fs::read(loc["path"].as_str().unwrap()).ok()
+    };
+    let level1 = read_level(&raw, 1, &lv[1], 3);
+    let mut compressed = 0;
+    for (k, info) in lv.iter().enumerate() {
+        for t in 0..info.size.1 / info.tile.1 {
+            for s in 0..info.size.0 / info.tile.0 {
+                let Some(bytes) = written(k, s, t) else {
+                    assert_eq!(k, 0, "only level 0 is sparse");
+                    continue;
+                };
+                let plain = read_tile(&raw, k, s, t);
+                if k < 2 {
+                    // Image-cache levels: one zstd frame per tile file.
+                    let decoded = zstd::bulk::decompress(&bytes, plain.len()).expect("a zstd frame");
+                    if k == 1 || (s < 2 && t < 2) {
+                        assert_eq!(decoded, plain, "level {k} tile ({s}, {t})");
+                    } else {
+                        // A border tile: level 1 (itself compressed) magnified.
+                        for i in 0..32 * 32 {
+                            let (x, y) = (s * 32 + i % 32, t * 32 + i / 32);
+                            let at = (((y / 2) * 128 + x / 2) * 3) as usize;
+                            assert_eq!(&decoded[i as usize * 3..][..3], &level1[at..at + 3], "border ({x}, {y})");
+                        }
+                    }
+                    compressed += 1;
+                } else {
+                    assert_eq!(bytes, plain, "pyramid level {k} stays raw");
+                }
+            }
+        }
+    }
+    assert!(compressed > 16);
+    let e = fails(&[&base[..], &["--zstd", "3", "--tiles-per-file", "2", "--out", "unused-zstd-out"]].concat(), 1);
+    assert!(e.contains("one tile per file"), "{e}");
+}

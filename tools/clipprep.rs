@@ -7,7 +7,7 @@ use clap::{Parser, ValueEnum};
 use clipmap::prep::error::next_power_of_two;
 use clipmap::prep::output::Staging;
 use clipmap::prep::source::open_image;
-use clipmap::prep::{Filter, Inset, Job, Layout, Limits, PrepError, Source, Spec};
+use clipmap::prep::{Compression, Filter, Inset, Job, Layout, Limits, PrepError, Source, Spec};
 use clipmap::texel::TexelFormat;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::io::IsTerminal;
@@ -126,6 +126,11 @@ struct Cli {
     /// The finest level that covers the whole texture when --inset is given (1 or more).
     #[arg(long, value_name = "K", requires = "inset")]
     inset_level: Option<u32>,
+    /// Compress image-cache tiles with zstd at this level (1-22), one frame per tile file named
+    /// `.raw.zst`: an extension only clipmap readers decode (Performer cannot); pyramid levels
+    /// stay raw.
+    #[arg(long, value_name = "LEVEL", value_parser = clap::value_parser!(i32).range(1..=22))]
+    zstd: Option<i32>,
     /// Memory limit in MiB for a decoded input image and the band cascade.
     #[arg(long, value_name = "MIB", default_value_t = 512)]
     max_memory: u64,
@@ -238,6 +243,7 @@ fn prepare(cli: &Cli, cancel: &AtomicBool) -> Result<Outcome, PrepError> {
         header_bytes: cli.header_bytes,
         streams: cli.streams,
         inset,
+        compression: cli.zstd.map(Compression::Zstd),
     })?;
     let filter = match cli.filter {
         FilterArg::Box => Filter::Box,

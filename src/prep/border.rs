@@ -2,7 +2,8 @@
 //! nearest neighbour (level-k texel (s, t) is level-K texel (s >> (K - k), t >> (K - k))).
 //!
 //! Runs after every level has been written, and reads level K back from the output, one
-//! level-K row segment at a time, so it needs one tile of memory whatever the texture size.
+//! level-K row segment (or, compressed, one level-K tile) at a time, so it needs one tile of
+//! memory whatever the texture size.
 //! Which tiles are borders is [`super::inset`]'s business.
 
 use super::error::PrepError;
@@ -20,6 +21,8 @@ struct LevelReader<'a> {
     layout: &'a Layout,
     level: &'a Level,
     files: HashMap<PathBuf, File>,
+    /// The last tile decoded, when the level is compressed: (tile s, tile t, texels).
+    decoded: Option<(u64, u64, Vec<u8>)>,
 }
 
 impl LevelReader<'_> {
@@ -27,9 +30,21 @@ impl LevelReader<'_> {
     fn segment(&mut self, s: u64, t: u64, n: u64, out: &mut Vec<u8>) -> std::io::Result<()> {
         let l = self.level;
         let bpt = self.layout.bpt();
-        let loc = self.layout.tile(l, s / l.tile_w, t / l.tile_h);
-        let offset = loc.offset + ((t % l.tile_h) * l.tile_w + s % l.tile_w) * bpt;
+        let (ts, tt) = (s / l.tile_w, t / l.tile_h);
+        let loc = self.layout.tile(l, ts, tt);
+        let within = ((t % l.tile_h) * l.tile_w + s % l.tile_w) * bpt;
         let path = self.root.join(&loc.path);
+        if self.layout.compressed(l) {
+            if !matches!(&self.decoded, Some((a, b, _)) if (*a, *b) == (ts, tt)) {
+                let packed = std::fs::read(&path)?;
+                self.decoded = Some((ts, tt, zstd::bulk::decompress(&packed, loc.length as usize)?));
+            }
+            let tile = &self.decoded.as_ref().expect("decoded above").2;
+            out.clear();
+            out.extend_from_slice(&tile[within as usize..(within + n * bpt) as usize]);
+            return Ok(());
+        }
+        let offset = loc.offset + within;
         let f = match self.files.entry(path) {
             std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
             std::collections::hash_map::Entry::Vacant(e) => {
@@ -49,7 +64,7 @@ pub fn write_borders(root: &Path, layout: &Layout, total_bytes: u64) -> Result<u
         return Ok(0);
     };
     let coarse = &layout.levels[inset.level as usize];
-    let mut reader = LevelReader { root, layout, level: coarse, files: HashMap::new() };
+    let mut reader = LevelReader { root, layout, level: coarse, files: HashMap::new(), decoded: None };
     let bpt = layout.bpt() as usize;
     let mut written = 0;
     let mut tile = Vec::new();

@@ -158,6 +158,7 @@ mod tests {
             header_bytes: 0,
             streams: None,
             inset: None,
+            compression: None,
         })
         .unwrap()
     }

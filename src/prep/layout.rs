@@ -10,7 +10,8 @@
 //! ```text
 //! NAME.ct                    the clip texture
 //! L00.ic, L01.ic, ...        one image cache per image-cache level
-//! [streamN/]L00/rRRR.cCCC.raw  image-cache tile files (R = file row, C = file column)
+//! [streamN/]L00/rRRR.cCCC.raw  image-cache tile files (R = file row, C = file column);
+//!                            `.raw.zst` when compressed (one zstd frame per tile)
 //! pyramid/L05.raw, ...       one file per pyramid level (a single tile the size of the level)
 //! ```
 
@@ -44,6 +45,20 @@ pub struct Spec {
     pub streams: Option<u32>,
     /// A sparse inset: levels finer than its level exist only around it.
     pub inset: Option<Inset>,
+    /// Compression of image-cache tiles (pyramid levels stay raw).
+    pub compression: Option<Compression>,
+}
+
+/// How image-cache tiles are compressed: an extension of this crate, which Performer cannot read.
+///
+/// Each tile is one file holding one zstd frame of the raw tile (the bytes Performer's layout
+/// would hold); the tile files end in `.raw.zst` instead of `.raw`, which is the only mark in the
+/// configuration. Pyramid levels stay raw.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Compression {
+    /// zstd at the given level (1 to 22; 3 is zstd's default).
+    Zstd(i32),
 }
 
 /// Whether a level is paged through an image cache or held whole.
@@ -153,6 +168,11 @@ impl Layout {
         }
         if spec.tiles_in_file.0 == 0 || spec.tiles_in_file.1 == 0 {
             return Err(PrepError::Geometry("--tiles-per-file must be at least 1 along each axis".into()));
+        }
+        if spec.compression.is_some() && (spec.tiles_in_file != (1, 1) || spec.header_bytes != 0) {
+            return Err(PrepError::Geometry(
+                "compressed tiles are one tile per file without a header (a compressed tile has no fixed offset); drop --tiles-per-file and --header-bytes, or --compress".into(),
+            ));
         }
         if spec.streams == Some(0) {
             return Err(PrepError::Geometry("--streams must be at least 1".into()));
@@ -275,7 +295,20 @@ impl Layout {
     /// parameters are [`Layout::tile_params`].
     pub fn tile_format(&self, level: u32) -> String {
         let stream = if self.spec.streams.is_some() { "%s" } else { "" };
-        format!("{stream}{}/r%03d.c%03d.raw", Self::level_dir(level))
+        format!("{stream}{}/r%03d.c%03d{}", Self::level_dir(level), self.tile_extension())
+    }
+
+    /// The extension of image-cache tile files: `.raw`, or `.raw.zst` when compressed.
+    pub fn tile_extension(&self) -> &'static str {
+        match self.spec.compression {
+            None => ".raw",
+            Some(Compression::Zstd(_)) => ".raw.zst",
+        }
+    }
+
+    /// True when tiles of `level` are written compressed (whole tiles, one per file).
+    pub fn compressed(&self, level: &Level) -> bool {
+        self.spec.compression.is_some() && level.kind == LevelKind::ImageCache
     }
 
     /// The `tile_params` of [`Layout::tile_format`].
@@ -306,7 +339,7 @@ impl Layout {
                 if let Some(i) = stream {
                     path.push_str(&Self::stream_name(i));
                 }
-                path.push_str(&format!("{}/r{ft:03}.c{fs:03}.raw", Self::level_dir(level.index)));
+                path.push_str(&format!("{}/r{ft:03}.c{fs:03}{}", Self::level_dir(level.index), self.tile_extension()));
                 TileLocation {
                     path: PathBuf::from(path),
                     offset: pos * length + self.spec.header_bytes,
@@ -351,6 +384,7 @@ mod tests {
             header_bytes: 0,
             streams: None,
             inset: None,
+            compression: None,
         }
     }
 
@@ -392,6 +426,18 @@ mod tests {
         assert!(!l.smallest_icache_is_default);
         assert_eq!(l.image_cache_levels().count(), 1);
         assert_eq!(l.levels.len(), 7);
+    }
+
+    #[test]
+    fn compressed_tiles_are_named_raw_zst_one_per_file() {
+        let mut sp = spec(1024, 1024, 256, 128);
+        sp.compression = Some(Compression::Zstd(3));
+        let l = Layout::new(sp.clone()).unwrap();
+        assert_eq!(l.tile_format(0), "L00/r%03d.c%03d.raw.zst");
+        assert_eq!(l.tile(&l.levels[1], 2, 3).path, PathBuf::from("L01/r003.c002.raw.zst"));
+        assert!(l.compressed(&l.levels[1]) && !l.compressed(&l.levels[2]));
+        sp.header_bytes = 16;
+        assert!(Layout::new(sp).unwrap_err().to_string().contains("one tile per file"));
     }
 
     #[test]

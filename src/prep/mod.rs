@@ -34,7 +34,7 @@ pub mod tiff_stream;
 pub use error::PrepError;
 pub use filter::Filter;
 pub use inset::{Inset, TileRole};
-pub use layout::{Layout, Level, LevelKind, Spec, TileLocation};
+pub use layout::{Compression, Layout, Level, LevelKind, Spec, TileLocation};
 pub use pipeline::{run, Job, Source, Summary};
 
 /// Every memory bound of a preparation run.

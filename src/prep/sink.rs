@@ -4,11 +4,13 @@
 //! time (so a one-tile file is written whole, once); a pyramid level, a single tile, is written in
 //! bands of at most [`Limits::pyramid_band_bytes`](super::Limits). Each band is cut into its
 //! tiles, and each tile's part is written at its byte offset in its file (PERFORMER.md §1.12), with
-//! the file's header in front when `header_offset` is set.
+//! the file's header in front when `header_offset` is set. Compressed image-cache tiles are
+//! whole tiles, each compressed into its own file, the tiles of a band in parallel.
 
 use super::error::PrepError;
 use super::inset::TileRole;
-use super::layout::{Layout, Level, LevelKind};
+use super::layout::{Compression, Layout, Level, LevelKind};
+use rayon::prelude::*;
 use std::fs::OpenOptions;
 use std::io::{Seek, SeekFrom, Write};
 use std::path::Path;
@@ -88,19 +90,29 @@ impl<'a> LevelWriter<'a> {
         let tile_t = self.band_t0 / level.tile_h;
         let row_in_tile = self.band_t0 % level.tile_h;
         let tw = level.tile_w as usize;
-        let mut part = Vec::with_capacity(rows * tw * bpt);
-        for tile_s in 0..level.tiles_s() {
-            if self.layout.tile_role(level, tile_s, tile_t) != TileRole::Source {
-                continue;
-            }
+        let tiles: Vec<u64> =
+            (0..level.tiles_s()).filter(|&ts| self.layout.tile_role(level, ts, tile_t) == TileRole::Source).collect();
+        let part_of = |tile_s: u64, part: &mut Vec<u8>| {
             part.clear();
             let x0 = tile_s as usize * tw * bpt;
             for r in 0..rows {
                 let start = r * self.row_bytes + x0;
                 part.extend_from_slice(&self.band[start..start + tw * bpt]);
             }
-            let offset = row_in_tile * tw as u64 * bpt as u64;
-            write_tile_part(self.root, self.layout, level, tile_s, tile_t, offset, &part, self.total_bytes)?;
+        };
+        let offset = row_in_tile * tw as u64 * bpt as u64;
+        if self.layout.compressed(level) {
+            // Whole tiles (an image-cache band is one row of tiles), compressed in parallel.
+            tiles.par_iter().try_for_each_init(Vec::new, |part, &tile_s| {
+                part_of(tile_s, part);
+                write_tile_part(self.root, self.layout, level, tile_s, tile_t, offset, part, self.total_bytes)
+            })?;
+        } else {
+            let mut part = Vec::with_capacity(rows * tw * bpt);
+            for tile_s in tiles {
+                part_of(tile_s, &mut part);
+                write_tile_part(self.root, self.layout, level, tile_s, tile_t, offset, &part, self.total_bytes)?;
+            }
         }
         self.band_t0 += rows as u64;
         self.filled = 0;
@@ -125,6 +137,11 @@ pub fn write_tile_part(
 ) -> Result<(), PrepError> {
     let loc = layout.tile(level, s, t);
     let path = root.join(&loc.path);
+    if let (true, Some(Compression::Zstd(z))) = (layout.compressed(level), layout.spec.compression) {
+        assert!(offset == 0 && data.len() as u64 == loc.length, "compressed tiles are written whole");
+        let packed = zstd::bulk::compress(data, z).map_err(|e| PrepError::write(&path, e, total_bytes))?;
+        return std::fs::write(&path, packed).map_err(|e| PrepError::write(&path, e, total_bytes));
+    }
     write_at(&path, &header(layout, level, s, t), loc.offset + offset, data)
         .map_err(|e| PrepError::write(&path, e, total_bytes))
 }
