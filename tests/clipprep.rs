@@ -921,3 +921,34 @@ fn zstd_tiles_decode_to_the_raw_tiles_and_keep_pyramid_levels_raw() {
     let e = fails(&[&base[..], &["--zstd", "3", "--tiles-per-file", "2", "--out", "unused-zstd-out"]].concat(), 1);
     assert!(e.contains("one tile per file"), "{e}");
 }
+
+#[test]
+fn a_wide_hash_texture_is_written_tile_by_tile_within_a_small_memory_limit() {
+    // 32768x128: a level-0 band of the filter cascade would be 3 x 128 rows x 32768 texels = 12 MiB;
+    // the hash source needs a tile per worker thread and the pyramid bands, under 1 MiB here.
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("wide");
+    let args = ["--source", "hash", "--size", "32768x128", "--tile", "64", "--clip", "128", "--format", "l8"];
+    let summary = prep(&dir, &[&args[..], &["--max-memory", "1"]].concat());
+    let buffers = summary["buffer_bytes"].as_u64().unwrap();
+    assert!(buffers <= 1 << 20, "{summary}");
+    assert!(buffers * 8 < 3 * 128 * 32768, "buffers do not grow with the width: {summary}");
+    let ct = ct_path(&summary);
+    validate_strict(&ct);
+    let lv = levels(&ct);
+    for (k, info) in lv.iter().enumerate().take(4) {
+        let (w, h) = info.size;
+        for (s, t) in [(0, 0), (w - 1, h - 1), (w / 2 + 3, h / 3)] {
+            let tile = read_tile(&ct, k, s / info.tile.0, t / info.tile.1);
+            let mut expect = [0u8; 1];
+            hash(k as u32, s, t, &mut expect);
+            assert_eq!(tile[((t % info.tile.1) * info.tile.0 + s % info.tile.0) as usize], expect[0], "{k} ({s}, {t})");
+        }
+    }
+    // The filtered sources still run the band cascade, whose memory grows with the width.
+    let e = fails(
+        &[&["--source", "terrain"][..], &args[2..], &["--max-memory", "1", "--out", "unused-wide-out"]].concat(),
+        1,
+    );
+    assert!(e.contains("one row of level-0 tiles"), "{e}");
+}

@@ -342,6 +342,7 @@ fn main() -> ExitCode {
                     "inset_tiles": s.inset_tiles,
                     "border_tiles": s.border_tiles,
                     "absent_tiles": s.absent_tiles,
+                    "buffer_bytes": s.buffer_bytes,
                 });
                 println!("{v}");
             } else if !cli.quiet {

@@ -43,7 +43,7 @@ impl<'a> LevelWriter<'a> {
             level: level.clone(),
             row_bytes,
             band_rows,
-            band: Vec::with_capacity(band_rows * row_bytes),
+            band: Vec::new(),
             band_t0: 0,
             filled: 0,
             total_bytes: layout.total_texels() * layout.bpt(),
@@ -65,6 +65,10 @@ impl<'a> LevelWriter<'a> {
     pub fn push(&mut self, rows: &[u8]) -> Result<u64, PrepError> {
         debug_assert_eq!(rows.len() % self.row_bytes, 0);
         let mut written = 0;
+        if self.band.capacity() == 0 {
+            // Allocated on first use, so writers of levels written otherwise hold nothing.
+            self.band.reserve_exact(self.band_rows * self.row_bytes);
+        }
         for row in rows.chunks_exact(self.row_bytes) {
             self.band.extend_from_slice(row);
             self.filled += 1;
@@ -77,7 +81,9 @@ impl<'a> LevelWriter<'a> {
 
     /// Writes any rows still buffered. Returns the texels written.
     pub fn finish(&mut self) -> Result<u64, PrepError> {
-        self.flush()
+        let written = self.flush()?;
+        self.band = Vec::new();
+        Ok(written)
     }
 
     fn flush(&mut self) -> Result<u64, PrepError> {
