@@ -123,10 +123,14 @@ pub fn tex_region(size: [u64; 2], clip: u64, centre: [i64; 2]) -> Rect {
 }
 
 /// The part of `tex` renderers may read: `border` texels less on each side along every axis on
-/// which the level is larger than the clip size (the whole level is resident on the others).
+/// which the level is larger than the clip size (the whole level is resident on the others),
+/// except on a side where the window touches the level's edge.
 pub fn valid_region(size: [u64; 2], clip: u64, border: u64, tex: Rect) -> Rect {
-    let b = |axis: usize| if size[axis] > clip { border as i64 } else { 0 };
-    let r = Rect::new(tex.s0 + b(0), tex.t0 + b(1), tex.s1 - b(0), tex.t1 - b(1));
+    // No border against the level's edge: the window cannot roam past it, so those texels are
+    // never updated in place, and renderers keep the finest level up to the texture's edge.
+    let lo = |axis: usize, at: i64| if size[axis] > clip && at > 0 { border as i64 } else { 0 };
+    let hi = |axis: usize, at: i64| if size[axis] > clip && at < size[axis] as i64 { border as i64 } else { 0 };
+    let r = Rect::new(tex.s0 + lo(0, tex.s0), tex.t0 + lo(1, tex.t0), tex.s1 - hi(0, tex.s1), tex.t1 - hi(1, tex.t1));
     if r.is_empty() {
         Rect::EMPTY
     } else {

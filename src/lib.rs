@@ -17,8 +17,10 @@
 //! | [`queue`] | per-stream-server async read queues: priorities, coalescing, stale drops |
 //! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
 //! | [`clip`] | per-level toroidal windows, the update tick, load control (min LOD), statistics |
+//! | [`shm`] | the shared-memory layout, writer and client (the only `unsafe` code) |
 //! | [`sample`] | reference point / bilinear / trilinear sampling of the full mipmap and the clipmap |
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
+//! | [`accuracy`] | the reference renderer, per-frame accuracy metrics and the speed/accuracy sweep |
 //! | [`sizing`] | memory and bandwidth arithmetic, clip-size and virtual-level recommendations |
 //! | [`report`] | what the inspection tools print: validation reports, info, tile locations |
 //! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
@@ -30,6 +32,7 @@
 //! - Texel addressing is done in 64-bit integers; world coordinates in f64.
 //! - There is no `unsafe` code outside the shared-memory access layer.
 
+pub mod accuracy;
 pub mod cache;
 pub mod clip;
 pub mod config;
@@ -41,6 +44,7 @@ pub mod queue;
 pub mod report;
 pub mod roam;
 pub mod sample;
+pub mod shm;
 pub mod sizing;
 pub mod source;
 pub mod texel;

@@ -300,7 +300,20 @@ pub fn build(
         } else {
             let idx = l - n_icache as usize;
             let path = pyramid_names.as_ref().and_then(|v| v.get(idx).cloned().flatten()).map(|(p, _)| p);
-            let length = size[0] * size[1] * texel.bytes_per_texel() as u64;
+            let Some(length) = size[0].checked_mul(size[1]).and_then(|n| n.checked_mul(texel.bytes_per_texel() as u64))
+            else {
+                diags.push(
+                    Diagnostic::new(
+                        Severity::Error,
+                        "level-too-large",
+                        &file.path,
+                        file.first(TokenId::Size).map(|e| e.span),
+                        format!("pyramid level {level} ({}x{}) does not fit in a 64-bit byte count", size[0], size[1]),
+                    )
+                    .hint("a pyramid level is read whole: lower smallest_icache or clip_size"),
+                );
+                return None;
+            };
             levels.push(Level { level, size, kind: LevelKind::Pyramid(PyramidTile { path, header_offset, length }) });
         }
     }
@@ -409,7 +422,9 @@ fn smallest_icache(
         }
     };
     for (i, axis) in ["S", "T"].iter().enumerate() {
-        if s[i] > 2 * clip {
+        // Only a value from the file is checked: Performer checks before computing the default,
+        // whose S (or T) is clip x ratio for a non-square texture and may exceed 2 x clip.
+        if span.is_some() && s[i] > 2 * clip {
             let d = r
                 .diag(
                     Severity::Error,
@@ -756,7 +771,7 @@ fn load_level_ic(
     sources: &mut BTreeMap<PathBuf, Vec<u8>>,
 ) -> Option<super::ImageCachePlan> {
     let level = ctx.level.map(|l| l.0).unwrap_or(0);
-    let src = match std::fs::read(path) {
+    let src = match super::read_source(path, &opts.limits) {
         Ok(s) => s,
         Err(e) => {
             let what = if e.kind() == std::io::ErrorKind::NotFound { "not found".to_string() } else { e.to_string() };

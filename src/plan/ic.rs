@@ -526,7 +526,7 @@ fn mem_region(
                     let d = r.diag(Severity::Error, "mem-region-one-tile", Some(*span), format!("{axis}: a mem region of one tile must cover the whole cache ({} texels), but the tile is {}", size[i], tile[i])).hint("use at least 2 tiles");
                     r.push(d);
                     ok = false;
-                } else if m[i] * tile[i] < size[i] && tex[i].div_ceil(tile[i]) + 2 > m[i] {
+                } else if m[i].saturating_mul(tile[i]) < size[i] && tex[i].div_ceil(tile[i]) + 2 > m[i] {
                     let d = r.diag(
                         Severity::Warning,
                         "mem-region-tight",
@@ -559,15 +559,16 @@ fn mem_region(
             m
         }
     };
-    if mem[0] > max_tiles || mem[1] > max_tiles {
+    // R counts too: a given R is otherwise unchecked, and the tile count multiplies it.
+    if mem.iter().any(|&m| m > max_tiles) {
         let d = r
             .diag(
                 Severity::Error,
                 "mem-region-too-many-tiles",
                 values::span_of(field).or(r.span_of(TokenId::TileSize)),
                 format!(
-                    "the mem region is {}x{} tiles; Performer allows at most {max_tiles}x{max_tiles}",
-                    mem[0], mem[1]
+                    "the mem region is {}x{}x{} tiles; Performer allows at most {max_tiles} along each axis",
+                    mem[0], mem[1], mem[2]
                 ),
             )
             .hint("use larger tiles");

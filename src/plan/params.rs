@@ -65,6 +65,11 @@ impl Param {
 
     /// The closest known spelling, for "did you mean".
     pub fn suggest(name: &str) -> Option<&'static str> {
+        // The clip texture manual's own examples misspell this one; string similarity alone
+        // would point at the tile base instead.
+        if name == "PFCLIPTEX_FNAMEARG_ICACHE_BASE" {
+            return Some("PFCLIPTEX_FNAMEARG_IMAGE_CACHE_BASE");
+        }
         NAMES
             .iter()
             .map(|&(n, _)| (strsim::jaro_winkler(name, n), n))

@@ -1,0 +1,20 @@
+//! The accuracy study: a reference software renderer draws a perspective view of a textured
+//! ground plane twice per frame, from the full mipmap (ground truth, straight from the tile
+//! source) and from the clipmap as published, and measures the difference (DESIGN.md §10).
+//!
+//! Owns the camera and per-pixel LOD ([`render`]), the per-frame metrics and flights over a
+//! clipmap ([`study`]), and the parameter sweep ([`sweep`]). Sampling itself is
+//! [`crate::sample`]'s; moving the clipmap is [`crate::clip`]'s.
+//!
+//! Numerics: texel addressing is integer (i64/u64) everywhere; world positions, ray directions
+//! and texture coordinates are f64 (a 2^26 texture needs 26 bits of integer part plus the
+//! fraction, beyond f32's 24-bit mantissa); colours are f32 in 0..=1 and compared after
+//! quantising to 8 bits per channel.
+
+pub mod cache;
+pub mod render;
+pub mod study;
+pub mod sweep;
+
+#[cfg(test)]
+mod tests;

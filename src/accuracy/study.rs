@@ -1,0 +1,256 @@
+//! One flight of the study: move the clipmap's centre along a flight, keep the camera above the
+//! centre, render every frame from the full mipmap and from the clipmap, and measure.
+//!
+//! Copy costs come from a fixed cost table ([`COST`]), so a budget in milliseconds means the same
+//! amount of copying on every machine and the study is reproducible; the engine benchmark measures
+//! real copy speed separately.
+
+use super::cache::CachedSource;
+use super::render::{render_clipmap_levels, render_mipmap, Camera, Pixel};
+use crate::clip::{Clipmap, CostTable, Settings};
+use crate::roam::{Flight, Procedural};
+use crate::sample::Filter;
+use crate::source::{HashSource, TerrainSource, TextureDesc, TileSource};
+use crate::texel::TexelFormat;
+use serde::Serialize;
+use std::sync::Arc;
+
+/// The fixed copy-cost model of the study: 2 µs per band, 50 ns per line, 0.25 ns per byte
+/// (about 4 GB/s).
+pub const COST: (f64, f64, f64) = (2000.0, 50.0, 0.25);
+
+/// What to fly and how to look.
+#[derive(Clone, Debug, Serialize)]
+pub struct Case {
+    /// Texture content.
+    pub source: Procedural,
+    /// Texture size (texels a side).
+    pub size: u64,
+    /// Clip size.
+    pub clip_size: u64,
+    /// Tile size.
+    pub tile: u64,
+    /// Invalid border.
+    pub invalid_border: u64,
+    /// Copy budget per frame in ms under the fixed cost model (`None`: unlimited).
+    pub budget_ms: Option<f64>,
+    /// The flight (speed in level-0 texels per frame).
+    pub flight: String,
+    /// Frames.
+    pub frames: u64,
+    /// Image size in pixels.
+    pub display: [u32; 2],
+    /// Eye height above the ground (level-0 texels).
+    pub eye_height: f64,
+    /// Pitch below the horizon (degrees).
+    pub pitch_deg: f64,
+    /// Horizontal field of view (degrees).
+    pub fov_deg: f64,
+    /// Wait for every tile read before rendering (an ideally fast disk).
+    pub wait_for_reads: bool,
+    /// A virtual clip texture: the renderer addresses only this many levels at once, from a LOD
+    /// offset chosen each frame from the eye height (Performer's rule, keeping resolution).
+    pub effective_levels: Option<u32>,
+}
+
+impl Case {
+    /// A small default case: terrain 2^16, clip 512, 256x192 pixels, unlimited budget.
+    pub fn small() -> Self {
+        Case {
+            source: Procedural::Terrain,
+            size: 1 << 16,
+            clip_size: 512,
+            tile: 128,
+            invalid_border: 8,
+            budget_ms: None,
+            flight: "straight:8:30".into(),
+            frames: 6,
+            display: [256, 192],
+            eye_height: 24.0,
+            pitch_deg: 35.0,
+            fov_deg: 60.0,
+            wait_for_reads: true,
+            effective_levels: None,
+        }
+    }
+}
+
+/// Metrics of one frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameMetrics {
+    /// Frame number.
+    pub frame: u64,
+    /// PSNR over RGB of ground pixels, dB; `None` when identical to the reference.
+    pub psnr: Option<f64>,
+    /// Largest absolute channel difference (8-bit units).
+    pub max_error: u8,
+    /// Share of ground pixels drawn from a coarser level than the reference used.
+    pub coarser_pixel_share: f64,
+    /// Bytes copied into windows this frame.
+    pub bytes_copied: u64,
+    /// Tiles read this frame.
+    pub tiles_read: u64,
+    /// The copy budget ran out this frame.
+    pub over_budget: bool,
+    /// Min LOD after the tick.
+    pub min_lod: f64,
+}
+
+/// The outcome of a case.
+#[derive(Clone, Debug, Serialize)]
+pub struct Outcome {
+    /// The case.
+    pub case: Case,
+    /// Per frame.
+    pub frames: Vec<FrameMetrics>,
+    /// Worst PSNR (`None` when every frame is identical to the reference).
+    pub psnr_min: Option<f64>,
+    /// Worst channel error.
+    pub max_error: u8,
+    /// Mean share of pixels from a coarser level than ideal.
+    pub coarser_pixel_share: f64,
+    /// Total bytes copied.
+    pub bytes_copied: u64,
+    /// Total tiles read.
+    pub tiles_read: u64,
+    /// Frames over budget.
+    pub ticks_over_budget: u64,
+    /// Engine resident bytes at the end.
+    pub resident_bytes: u64,
+}
+
+/// Why a case could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum StudyError {
+    /// Bad texture description.
+    #[error("{0}")]
+    Desc(#[from] crate::source::DescError),
+    /// The engine refused the settings.
+    #[error("{0}")]
+    Clip(#[from] crate::clip::ClipError),
+    /// Bad flight.
+    #[error("{0}")]
+    Flight(#[from] crate::roam::FlightError),
+    /// An output could not be written.
+    #[error("cannot write a picture: {0}")]
+    Io(String),
+}
+
+/// Compares a frame with its reference.
+pub fn compare(reference: &[Pixel], test: &[Pixel]) -> (Option<f64>, u8, f64) {
+    let (mut sq, mut n, mut max, mut coarser, mut ground) = (0f64, 0u64, 0u8, 0u64, 0u64);
+    for (r, t) in reference.iter().zip(test) {
+        if !r.ground {
+            continue;
+        }
+        ground += 1;
+        if t.lod > r.lod + 1e-9 {
+            coarser += 1;
+        }
+        for c in 0..3 {
+            let d = r.rgba[c].abs_diff(t.rgba[c]);
+            max = max.max(d);
+            sq += (d as f64) * (d as f64);
+            n += 1;
+        }
+    }
+    let psnr = if sq == 0.0 || n == 0 { None } else { Some(10.0 * (255.0f64 * 255.0 / (sq / n as f64)).log10()) };
+    (psnr, max, if ground == 0 { 0.0 } else { coarser as f64 / ground as f64 })
+}
+
+/// The source of a case (behind a tile cache for the reference renders).
+pub fn source(case: &Case) -> Result<Arc<dyn TileSource>, StudyError> {
+    let desc = TextureDesc::new([case.size, case.size], case.clip_size, TexelFormat::RGBA8, [case.tile, case.tile])?
+        .with_invalid_border(case.invalid_border)?;
+    Ok(match case.source {
+        Procedural::Hash => Arc::new(HashSource::new(desc)),
+        Procedural::Terrain => Arc::new(TerrainSource::new(desc, 1)),
+    })
+}
+
+/// Runs one case; `keep` receives (frame, reference, clipmap render) for pictures.
+pub fn run(case: &Case, mut keep: impl FnMut(u64, &Camera, &[Pixel], &[Pixel])) -> Result<Outcome, StudyError> {
+    let flight: Flight = case.flight.parse()?;
+    let src = source(case)?;
+    let reference = CachedSource::new(src.clone(), 512);
+    let settings = Settings {
+        budget_ns: case.budget_ms.map(|ms| (ms * 1e6) as u64),
+        cost: Some(CostTable::fixed(COST.0, COST.1, COST.2)),
+        ..Settings::default()
+    };
+    let mut map = Clipmap::new(src, settings)?;
+    let start = [case.size as f64 / 2.0, case.size as f64 / 2.0];
+    let heading = {
+        let a = flight.position(start, 0);
+        let b = flight.position(start, 1);
+        if (b[0] - a[0]).abs() + (b[1] - a[1]).abs() < 1e-9 {
+            0.0
+        } else {
+            (b[1] - a[1]).atan2(b[0] - a[0]).to_degrees()
+        }
+    };
+    // Warm up at the start with no budget and an ideal disk, so frame 0 shows the steady state.
+    let first = flight.position(start, 0);
+    let first = [first[0].floor() as i64, first[1].floor() as i64];
+    map.set_budget_ns(None);
+    for _ in 0..64 {
+        let r = map.tick(first, None);
+        map.wait_for_reads();
+        if r.min_lod == 0.0 && r.bytes_copied == 0 && r.tiles_read == 0 {
+            break;
+        }
+    }
+    map.set_budget_ns(case.budget_ms.map(|ms| (ms * 1e6) as u64));
+    let mut frames = Vec::new();
+    for f in 0..case.frames {
+        let foot = flight.position(start, f);
+        let centre = [foot[0].floor() as i64, foot[1].floor() as i64];
+        let report = map.tick(centre, None);
+        if case.wait_for_reads {
+            map.wait_for_reads();
+        }
+        let cam = Camera::following(foot, case.eye_height, heading, case.pitch_deg, case.fov_deg, case.display);
+        let want = render_mipmap(&cam, &reference, Filter::Trilinear);
+        let window = case.effective_levels.map(|eff| {
+            let levels = map.level_count() as u32;
+            let lod = crate::sizing::finest_lod_at_foot(case.eye_height, case.fov_deg, case.display[0] as u64, 1.0);
+            let v = crate::sizing::virtual_params(&crate::sizing::VirtualInputs {
+                levels,
+                clip_size: case.clip_size,
+                invalid_border: case.invalid_border,
+                min_lod_tex_pix: lod,
+                min_lod_loaded: map.min_lod(),
+                max_lod_loaded: levels as f64,
+                bbox_min_dist: 0.0,
+                bbox_max_dist: 0.0,
+                tradeoff: 0.0,
+            });
+            (v.lod_offset, eff.min(v.effective_levels))
+        });
+        let got = render_clipmap_levels(&cam, &map, Filter::Trilinear, window);
+        let (psnr, max_error, coarser) = compare(&want, &got);
+        keep(f, &cam, &want, &got);
+        frames.push(FrameMetrics {
+            frame: f,
+            psnr,
+            max_error,
+            coarser_pixel_share: coarser,
+            bytes_copied: report.bytes_copied,
+            tiles_read: report.tiles_read,
+            over_budget: report.over_budget,
+            min_lod: report.min_lod,
+        });
+    }
+    let psnr_min = frames.iter().filter_map(|f| f.psnr).min_by(|a, b| a.total_cmp(b));
+    Ok(Outcome {
+        psnr_min,
+        max_error: frames.iter().map(|f| f.max_error).max().unwrap_or(0),
+        coarser_pixel_share: frames.iter().map(|f| f.coarser_pixel_share).sum::<f64>() / frames.len().max(1) as f64,
+        bytes_copied: frames.iter().map(|f| f.bytes_copied).sum(),
+        tiles_read: frames.iter().map(|f| f.tiles_read).sum(),
+        ticks_over_budget: frames.iter().filter(|f| f.over_budget).count() as u64,
+        resident_bytes: map.resident_bytes(),
+        frames,
+        case: case.clone(),
+    })
+}

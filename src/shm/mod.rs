@@ -1,0 +1,104 @@
+//! The shared-memory access layer: one mapping per clip texture, which any renderer process reads
+//! without copies or locks (DESIGN.md §5, `docs/SHM.md`).
+//!
+//! Owns the layout ([`layout`]), the only `unsafe` code of the crate ([`raw`]), the writer side
+//! used by the service ([`writer`], [`mirror`]) and the reader side used by clients
+//! ([`client`]). It leaves deciding *what* to publish to the engine ([`crate::clip`]).
+//!
+//! The invariant every part keeps: the writer never writes texels inside a currently published
+//! valid region. It writes outside, then publishes a larger region under the level's seqlock.
+
+pub mod client;
+pub mod layout;
+pub mod mirror;
+pub mod raw;
+pub mod writer;
+
+#[cfg(test)]
+mod tests;
+
+pub use client::{Client, LevelState, Snapshot};
+pub use writer::Writer;
+
+use std::path::{Path, PathBuf};
+
+/// Errors of the shared-memory layer.
+#[derive(Debug, thiserror::Error)]
+pub enum ShmError {
+    /// A service already publishes this name.
+    #[error("a service already publishes `{name}` (process {pid}); stop it first or choose another --name")]
+    AlreadyRunning {
+        /// The name.
+        name: String,
+        /// Its process id, as recorded in the lock file (0 when unknown).
+        pid: u32,
+    },
+    /// The name is not usable in a file name.
+    #[error("invalid name `{0}`: use 1 to 64 letters, digits, `-`, `_` or `.`")]
+    BadName(String),
+    /// No mapping of this name exists.
+    #[error("no clip texture `{name}` is published in {}: is the service running (and is --shm-dir the same)?", dir.display())]
+    NotFound {
+        /// The name.
+        name: String,
+        /// Where it was looked for.
+        dir: PathBuf,
+    },
+    /// The mapping is not one of ours, or of another layout version, or truncated.
+    #[error("{}: {reason}", path.display())]
+    Invalid {
+        /// The mapping file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The shape cannot be laid out.
+    #[error("cannot lay out the mapping: {0}")]
+    Shape(String),
+    /// An I/O error.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The error.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Where mappings live by default: `/dev/shm` when it exists, else the temporary directory.
+pub fn default_dir() -> PathBuf {
+    let shm = Path::new("/dev/shm");
+    if shm.is_dir() {
+        shm.to_path_buf()
+    } else {
+        std::env::temp_dir()
+    }
+}
+
+/// Checks a publication name.
+pub fn check_name(name: &str) -> Result<(), ShmError> {
+    let ok = !name.is_empty()
+        && name.len() <= 64
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+        && !name.starts_with('.');
+    if ok {
+        Ok(())
+    } else {
+        Err(ShmError::BadName(name.to_string()))
+    }
+}
+
+/// The mapping file of a name.
+pub fn map_path(dir: &Path, name: &str) -> PathBuf {
+    dir.join(format!("clipmap-{name}.map"))
+}
+
+/// The lock file of a name (held by the running service).
+pub fn lock_path(dir: &Path, name: &str) -> PathBuf {
+    dir.join(format!("clipmap-{name}.lock"))
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ShmError + '_ {
+    move |source| ShmError::Io { path: path.to_path_buf(), source }
+}
