@@ -7,8 +7,10 @@
 //! | [`configfile`] | the `.ct` / `.ic` text of a layout |
 //! | [`source`] | level texels: `hash` per level, `terrain` and images at level 0 |
 //! | [`tiff_stream`] | streaming TIFF input, strip by strip or tile row by tile row |
+//! | [`inset`] | sparse insets: which tiles of a finer level are inset, border or absent |
 //! | [`filter`] | row-by-row 2:1 reduction (box, Lanczos-3, optional linear light) |
 //! | [`sink`] | cutting bands of rows into tiles and writing them at their offsets |
+//! | [`border`] | border tiles of sparse levels, magnified from the inset level |
 //! | [`pipeline`] | one run: configuration, then the band cascade down the levels |
 //! | [`output`] | the temporary sibling directory and the final rename |
 //!
@@ -17,9 +19,11 @@
 //! row by row from the one above. This module does not read configuration files; checking what
 //! it wrote is left to [`crate::config`] and the plan.
 
+pub mod border;
 pub mod configfile;
 pub mod error;
 pub mod filter;
+pub mod inset;
 pub mod layout;
 pub mod output;
 pub mod pipeline;
@@ -29,7 +33,8 @@ pub mod tiff_stream;
 
 pub use error::PrepError;
 pub use filter::Filter;
-pub use layout::{Layout, Level, LevelKind, Spec, TileLocation};
+pub use inset::{Inset, TileRole};
+pub use layout::{Compression, Layout, Level, LevelKind, Spec, TileLocation};
 pub use pipeline::{run, Job, Source, Summary};
 
 /// Every memory bound of a preparation run.
