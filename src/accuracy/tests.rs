@@ -60,3 +60,15 @@ fn a_virtual_clip_texture_with_few_effective_levels_loses_the_far_field() {
     assert_eq!((o_all.psnr_min, o_all.max_error), (None, 0), "all levels addressable: identical");
     assert!(o_few.max_error > 0 && o_few.psnr_min.is_some(), "{:?}", (o_few.psnr_min, o_few.max_error));
 }
+
+#[test]
+fn a_wider_invalid_border_never_improves_the_picture() {
+    let mut last = -1.0;
+    for border in [8u64, 16, 32] {
+        let o = run(&Case { invalid_border: border, ..case(128, 128) }, |_, _, _, _| {}).unwrap();
+        assert!(o.coarser_pixel_share >= last, "border {border}: {} < {last}", o.coarser_pixel_share);
+        last = o.coarser_pixel_share;
+    }
+    let narrow = run(&Case { invalid_border: 8, ..case(128, 128) }, |_, _, _, _| {}).unwrap().coarser_pixel_share;
+    assert!(last > narrow, "a 32-texel border must cost more than an 8-texel one: {last} vs {narrow}");
+}
