@@ -18,6 +18,7 @@
 //! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
 //! | [`clip`] | per-level toroidal windows, the update tick, load control (min LOD), statistics |
 //! | [`shm`] | the shared-memory layout, writer and client (the only `unsafe` code) |
+//! | [`service`] | the `clipmapd` service: tick loop thread, control socket, statistics, demo |
 //! | [`sample`] | reference point / bilinear / trilinear sampling of the full mipmap and the clipmap |
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
 //! | [`accuracy`] | the reference renderer, per-frame accuracy metrics and the speed/accuracy sweep |
@@ -44,6 +45,7 @@ pub mod queue;
 pub mod report;
 pub mod roam;
 pub mod sample;
+pub mod service;
 pub mod shm;
 pub mod sizing;
 pub mod source;

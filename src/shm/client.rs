@@ -302,8 +302,21 @@ impl Client {
         let b = header::REQUEST;
         let r = &self.region;
         // Take the request seqlock (odd), write, release (even). Several renderers serialise here.
+        // A renderer that died holding it (odd for longer than any write takes) is overruled: the
+        // lock is reset to even, so one crashed renderer cannot silence the others.
+        let mut odd_since: Option<(u64, std::time::Instant)> = None;
         loop {
             let s = r.load(b + request::SEQ, Ordering::Relaxed);
+            if s & 1 == 1 {
+                match odd_since {
+                    Some((seen, at)) if seen == s && at.elapsed() > Duration::from_millis(100) => {
+                        let _ = r.compare_exchange(b + request::SEQ, s, s + 1);
+                        odd_since = None;
+                    }
+                    Some((seen, _)) if seen == s => {}
+                    _ => odd_since = Some((s, std::time::Instant::now())),
+                }
+            }
             if s & 1 == 0 && r.compare_exchange(b + request::SEQ, s, s + 1).is_ok() {
                 r.store(b + request::CENTRE_S, centre[0] as u64, Ordering::Relaxed);
                 r.store(b + request::CENTRE_T, centre[1] as u64, Ordering::Relaxed);

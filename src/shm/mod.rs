@@ -12,6 +12,7 @@ pub mod client;
 pub mod layout;
 pub mod mirror;
 pub mod raw;
+pub mod verify;
 pub mod writer;
 
 #[cfg(test)]

@@ -213,3 +213,20 @@ fn a_renderer_request_reaches_the_writer() {
     m.into_writer().close();
     assert!(c.closed());
 }
+
+#[test]
+fn a_renderer_that_died_holding_the_request_lock_does_not_silence_the_others() {
+    use std::os::unix::fs::FileExt;
+    let dir = tempfile::tempdir().unwrap();
+    let map = engine(1024, 64, 32);
+    let m = mirror::Mirror::create(dir.path(), "dead", &map, 0o600).unwrap();
+    let c = Client::attach(dir.path(), "dead").unwrap();
+    c.request_centre([1, 2], [0.0, 0.0]);
+    // A renderer killed between taking the lock (odd) and releasing it.
+    let f = std::fs::OpenOptions::new().write(true).open(m.writer().path()).unwrap();
+    f.write_all_at(&3u64.to_le_bytes(), (layout::header::REQUEST + layout::request::SEQ) as u64).unwrap();
+    assert_eq!(m.writer().request(), None, "a half-written request is never taken");
+    c.request_centre([7, 8], [0.0, 0.0]);
+    let r = m.writer().request().unwrap();
+    assert_eq!(r.centre, [7, 8]);
+}

@@ -1,0 +1,220 @@
+//! The control socket: a Unix stream socket (owner-only) answering the line protocol of
+//! [`super::protocol`] — status, statistics, budget, invalid border, centre and shutdown.
+//!
+//! One task accepts; one task per connection reads lines with a hard length limit and an idle
+//! timeout, and holds one of [`ControlLimits::max_connections`] permits. Commands that change the
+//! engine go to the tick loop through its bounded handle and wait (bounded) for its answer.
+//! Nothing a client sends can make the service hold more than the limits say.
+
+use super::protocol::{self, Request};
+use super::stats::{ControlCounters, ServiceStats};
+use super::ticker::{Command, Started, Ticker};
+use super::{ControlLimits, ServiceError};
+use std::os::unix::fs::{DirBuilderExt, FileTypeExt, PermissionsExt};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
+use tokio::net::{UnixListener, UnixStream};
+use tokio::sync::{oneshot, watch, OwnedSemaphorePermit, Semaphore};
+use tokio::task::JoinSet;
+
+/// What every connection shares.
+#[derive(Debug)]
+pub struct Context {
+    /// Publication name.
+    pub name: String,
+    /// Socket path.
+    pub socket: PathBuf,
+    /// Texture and mapping.
+    pub started: Started,
+    /// The tick loop.
+    pub ticker: Ticker,
+    /// Bounds.
+    pub limits: ControlLimits,
+    /// Counters.
+    pub counters: ControlCounters,
+    /// Set to true to stop the service.
+    pub stop: watch::Sender<bool>,
+}
+
+impl Context {
+    /// Everything `STATS` reports.
+    pub fn stats(&self) -> ServiceStats {
+        ServiceStats { name: self.name.clone(), tick: self.ticker.stats(), control: self.counters.get() }
+    }
+}
+
+/// Binds `path` as an owner-only socket: bound inside a fresh 0700 directory, made 0600, then
+/// renamed into place, so it is never reachable with wider permissions. A stale socket left by a
+/// crash is replaced; a live one (something accepts connections) is refused.
+pub fn bind(path: &Path) -> Result<UnixListener, ServiceError> {
+    let err = |source| ServiceError::Socket { path: path.to_path_buf(), source };
+    if let Ok(meta) = std::fs::symlink_metadata(path) {
+        if !meta.file_type().is_socket() {
+            return Err(ServiceError::SocketInUse {
+                path: path.to_path_buf(),
+                why: "it exists and is not a socket".into(),
+            });
+        }
+        if std::os::unix::net::UnixStream::connect(path).is_ok() {
+            return Err(ServiceError::SocketInUse {
+                path: path.to_path_buf(),
+                why: "another process accepts connections on it".into(),
+            });
+        }
+        std::fs::remove_file(path).map_err(err)?;
+    }
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
+    let tmp_dir = parent.join(format!(".clipmapd-{}-{nanos}", std::process::id()));
+    std::fs::DirBuilder::new().mode(0o700).create(&tmp_dir).map_err(err)?;
+    let tmp = tmp_dir.join("s");
+    let bound = std::os::unix::net::UnixListener::bind(&tmp)
+        .and_then(|l| std::fs::set_permissions(&tmp, std::fs::Permissions::from_mode(0o600)).map(|_| l))
+        .and_then(|l| std::fs::rename(&tmp, path).map(|_| l))
+        .and_then(|l| l.set_nonblocking(true).map(|_| l));
+    let _ = std::fs::remove_file(&tmp);
+    let _ = std::fs::remove_dir(&tmp_dir);
+    UnixListener::from_std(bound.map_err(err)?).map_err(err)
+}
+
+/// Accepts connections until `stop` turns true, then closes every connection.
+pub async fn serve(listener: UnixListener, ctx: Arc<Context>) {
+    let permits = Arc::new(Semaphore::new(ctx.limits.max_connections));
+    let mut stop = ctx.stop.subscribe();
+    let mut conns = JoinSet::new();
+    loop {
+        while conns.try_join_next().is_some() {}
+        let stream = tokio::select! {
+            r = listener.accept() => match r {
+                Ok((s, _)) => s,
+                Err(e) => {
+                    tracing::warn!("control socket accept failed: {e}");
+                    tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+                    continue;
+                }
+            },
+            _ = async { let _ = stop.wait_for(|s| *s).await; } => break,
+        };
+        match permits.clone().try_acquire_owned() {
+            Ok(permit) => {
+                ControlCounters::bump(&ctx.counters.accepted);
+                conns.spawn(connection(stream, ctx.clone(), permit));
+            }
+            Err(_) => {
+                ControlCounters::bump(&ctx.counters.refused);
+                let limit = ctx.limits.max_connections;
+                // Best effort, never waiting: the refusal must not hold anything.
+                let _ = stream.try_write(format!("ERR too many connections (limit {limit}); closing\n").as_bytes());
+            }
+        }
+    }
+    conns.shutdown().await;
+}
+
+enum Flow {
+    Continue,
+    Close,
+}
+
+async fn connection(stream: UnixStream, ctx: Arc<Context>, _permit: OwnedSemaphorePermit) {
+    ControlCounters::bump(&ctx.counters.open);
+    let (rd, mut wr) = stream.into_split();
+    let mut rd = BufReader::with_capacity(4096, rd);
+    let limits = ctx.limits;
+    let mut line = Vec::with_capacity(256);
+    loop {
+        line.clear();
+        let mut limited = (&mut rd).take(limits.max_line as u64 + 1);
+        let read = limited.read_until(b'\n', &mut line);
+        let (reply, flow) = match tokio::time::timeout(limits.idle, read).await {
+            Err(_) => {
+                ControlCounters::bump(&ctx.counters.idle_closed);
+                (format!("ERR idle for {} ms; closing", limits.idle.as_millis()), Flow::Close)
+            }
+            Ok(Err(_)) | Ok(Ok(0)) => break,
+            Ok(Ok(_)) if line.last() == Some(&b'\n') => {
+                line.pop();
+                answer(&ctx, &line).await
+            }
+            Ok(Ok(_)) if line.len() > limits.max_line => {
+                ControlCounters::bump(&ctx.counters.long_lines);
+                (format!("ERR request longer than {} bytes; closing", limits.max_line), Flow::Close)
+            }
+            Ok(Ok(_)) => ("ERR incomplete request (no newline before end of input)".to_string(), Flow::Close),
+        };
+        let counter = if reply.starts_with("OK") { &ctx.counters.ok } else { &ctx.counters.errors };
+        ControlCounters::bump(counter);
+        let mut out = reply.into_bytes();
+        out.push(b'\n');
+        let sent = tokio::time::timeout(limits.idle, wr.write_all(&out)).await;
+        if !matches!(sent, Ok(Ok(()))) || matches!(flow, Flow::Close) {
+            break;
+        }
+    }
+    ctx.counters.open.fetch_sub(1, std::sync::atomic::Ordering::Relaxed);
+}
+
+async fn answer(ctx: &Context, line: &[u8]) -> (String, Flow) {
+    let req = match protocol::parse(line) {
+        Ok(r) => r,
+        Err(e) => return (format!("ERR {e}"), Flow::Continue),
+    };
+    match req {
+        Request::Ping => ("OK pong".into(), Flow::Continue),
+        Request::Status => (format!("OK {}", status(ctx)), Flow::Continue),
+        Request::Stats => (format!("OK {}", serde_json::to_string(&ctx.stats()).unwrap_or_default()), Flow::Continue),
+        Request::StatsProm => {
+            let text = ctx.stats().prometheus();
+            let text = text.trim_end();
+            (format!("OK prometheus {}\n{text}", text.lines().count()), Flow::Continue)
+        }
+        Request::Budget(ms) => (command(ctx, |tx| Command::Budget(ms, tx)).await, Flow::Continue),
+        Request::Border(b) => (command(ctx, |tx| Command::Border(b, tx)).await, Flow::Continue),
+        Request::Centre(c) => (command(ctx, |tx| Command::Centre(c, tx)).await, Flow::Continue),
+        Request::Quit => ("OK bye".into(), Flow::Close),
+        Request::Shutdown => {
+            tracing::info!("shutdown requested on the control socket");
+            ctx.stop.send_replace(true);
+            ("OK shutting down".into(), Flow::Close)
+        }
+    }
+}
+
+async fn command(ctx: &Context, make: impl FnOnce(oneshot::Sender<String>) -> Command) -> String {
+    let (tx, rx) = oneshot::channel();
+    if let Err(e) = ctx.ticker.send(make(tx)) {
+        return format!("ERR {e}");
+    }
+    match tokio::time::timeout(ctx.limits.reply_timeout, rx).await {
+        Ok(Ok(text)) => format!("OK {text}"),
+        Ok(Err(_)) => "ERR the tick loop has stopped".into(),
+        Err(_) => "ERR the tick loop did not answer in time".into(),
+    }
+}
+
+fn status(ctx: &Context) -> String {
+    let t = ctx.ticker.stats();
+    let s = &ctx.started;
+    serde_json::json!({
+        "name": ctx.name,
+        "pid": std::process::id(),
+        "mapping": s.mapping,
+        "socket": ctx.socket,
+        "size": s.size,
+        "clip_size": s.clip_size,
+        "levels": s.levels,
+        "format": s.format,
+        "mapping_bytes": s.mapping_bytes,
+        "uptime_s": t.uptime_s,
+        "ticks": t.engine.ticks,
+        "tick_hz": t.tick_hz,
+        "centre": t.centre,
+        "min_lod": t.min_lod,
+        "levels_disabled": t.levels_disabled,
+        "budget_ms": t.budget_ms,
+        "invalid_border": t.invalid_border,
+        "valid": t.valid,
+    })
+    .to_string()
+}

@@ -1,0 +1,199 @@
+//! The clip-texture service behind `clipmapd`: keeps one clip texture's windows filled around
+//! the centre renderers ask for and publishes them in shared memory, answering a control socket.
+//!
+//! | file | owns |
+//! |---|---|
+//! | [`options`] | run-time options and the control socket's bounds, validated once |
+//! | [`ticker`] | the tick loop: a dedicated thread owning the engine and the mapping's writer |
+//! | [`control`] | the owner-only Unix control socket (tokio): one task per connection, bounded |
+//! | [`protocol`] | the control socket's line protocol, as pure functions |
+//! | [`stats`] | statistics: JSON and Prometheus text |
+//! | [`demo`] | `clipmapd --demo`: a built-in texture, a small flying client, pictures |
+//!
+//! The entry point [`run`] takes its shutdown signal as an argument (a future), so the binary
+//! passes SIGINT/SIGTERM and tests pass whatever they like. Reading configuration files and
+//! tiles is left to [`crate::source`]; the layout and its `unsafe` access to [`crate::shm`].
+
+pub mod control;
+pub mod demo;
+pub mod options;
+pub mod protocol;
+pub mod stats;
+pub mod ticker;
+
+pub use options::{default_socket, ControlLimits, Options};
+pub use stats::ServiceStats;
+pub use ticker::{Started, Ticker};
+
+use crate::source::{HashSource, TerrainSource, TextureDesc, TileSource};
+use crate::texel::TexelFormat;
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// Why the service could not start or stopped early.
+#[derive(Debug, thiserror::Error)]
+pub enum ServiceError {
+    /// An option is out of range.
+    #[error("{0}")]
+    BadOption(String),
+    /// The shared-memory layer refused (name taken, directory not writable, ...).
+    #[error(transparent)]
+    Shm(#[from] crate::shm::ShmError),
+    /// The engine could not be built.
+    #[error(transparent)]
+    Engine(#[from] crate::clip::ClipError),
+    /// The texture description is not usable.
+    #[error("texture: {0}")]
+    Texture(#[from] crate::source::DescError),
+    /// The control socket could not be bound.
+    #[error("control socket {}: {source}", path.display())]
+    Socket {
+        /// The socket path.
+        path: PathBuf,
+        /// The error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The control socket path is taken.
+    #[error("control socket {}: {why}; choose another --socket", path.display())]
+    SocketInUse {
+        /// The socket path.
+        path: PathBuf,
+        /// Why it cannot be used.
+        why: String,
+    },
+    /// A thread could not be started.
+    #[error("could not start the tick loop thread: {0}")]
+    Thread(std::io::Error),
+    /// The tick loop stopped unexpectedly.
+    #[error("the tick loop stopped unexpectedly")]
+    TickLoopDied,
+    /// Writing the demo's pictures failed.
+    #[error("{}: {message}", path.display())]
+    Output {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+impl ServiceError {
+    /// The documented exit status: 1 when the input (options, texture) is bad, 2 when the service
+    /// could not run.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            ServiceError::BadOption(_) | ServiceError::Texture(_) => crate::report::exit::BAD_INPUT,
+            _ => crate::report::exit::COULD_NOT_RUN,
+        }
+    }
+}
+
+/// A built-in procedural texture.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Procedural {
+    /// The verification texture (DESIGN §11): every texel checkable by any reader.
+    Hash,
+    /// Smooth fractal terrain, for pictures.
+    Terrain,
+}
+
+/// The seed of the built-in terrain.
+pub const TERRAIN_SEED: u64 = 7;
+
+/// A procedural RGBA8 texture `size` texels a side with clip size `clip` and `tile`-texel tiles.
+pub fn procedural_source(
+    kind: Procedural,
+    size: u64,
+    clip: u64,
+    tile: u64,
+) -> Result<Arc<dyn TileSource>, ServiceError> {
+    let desc = TextureDesc::new([size, size], clip, TexelFormat::RGBA8, [tile, tile])?;
+    let border = (clip / 32).clamp(1, 16);
+    let desc = desc.with_invalid_border(border.min((clip.saturating_sub(1)) / 2))?;
+    Ok(match kind {
+        Procedural::Hash => Arc::new(HashSource::new(desc)),
+        Procedural::Terrain => Arc::new(TerrainSource::new(desc, TERRAIN_SEED)),
+    })
+}
+
+/// What a service did, returned when it stops.
+#[derive(Clone, Debug)]
+pub struct Summary {
+    /// The texture and mapping.
+    pub started: Started,
+    /// The final statistics.
+    pub stats: ServiceStats,
+}
+
+/// Runs the service for `source` until `shutdown` resolves, `SHUTDOWN` arrives on the control
+/// socket, or the tick loop fails. Creates the mapping (refusing a name a live service holds,
+/// taking over from a dead one), binds the control socket, ticks, and on the way out marks the
+/// mapping closed and removes the mapping's and socket's names (readers keep their mapping).
+///
+/// `ready` is called once the mapping and socket exist (the binary logs there; the demo starts
+/// its client there).
+pub async fn run(
+    source: Arc<dyn TileSource>,
+    options: Options,
+    shutdown: impl Future<Output = ()>,
+    ready: impl FnOnce(&Started),
+) -> Result<Summary, ServiceError> {
+    options.check()?;
+    let opts = options.clone();
+    let (ticker, started, join) = tokio::task::spawn_blocking(move || Ticker::start(source, &opts))
+        .await
+        .map_err(|_| ServiceError::TickLoopDied)??;
+    let stop_ticker = |ticker: Ticker, join: std::thread::JoinHandle<()>| async move {
+        let _ = ticker.send(ticker::Command::Stop);
+        drop(ticker);
+        let _ = tokio::task::spawn_blocking(move || join.join()).await;
+    };
+    let listener = match control::bind(&options.socket) {
+        Ok(l) => l,
+        Err(e) => {
+            stop_ticker(ticker, join).await;
+            return Err(e);
+        }
+    };
+    tracing::info!(
+        name = %options.name,
+        mapping = %started.mapping.display(),
+        socket = %options.socket.display(),
+        size = started.size[0],
+        clip = started.clip_size,
+        levels = started.levels,
+        tick_hz = options.tick_hz,
+        "serving"
+    );
+    ready(&started);
+    let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
+    let ctx = Arc::new(control::Context {
+        name: options.name.clone(),
+        socket: options.socket.clone(),
+        started: started.clone(),
+        ticker: ticker.clone(),
+        limits: options.control,
+        counters: Default::default(),
+        stop: stop_tx,
+    });
+    let server = tokio::spawn(control::serve(listener, ctx.clone()));
+    let mut ticks = ticker.watch();
+    let died = tokio::select! {
+        _ = shutdown => { tracing::info!("shutdown signal received"); false }
+        _ = async { let _ = stop_rx.wait_for(|s| *s).await; } => false,
+        _ = async { while ticks.changed().await.is_ok() {} } => true,
+    };
+    ctx.stop.send_replace(true);
+    let _ = server.await;
+    let stats = ctx.stats();
+    drop(ctx);
+    stop_ticker(ticker, join).await;
+    let _ = std::fs::remove_file(&options.socket);
+    tracing::info!(ticks = stats.tick.engine.ticks, "stopped");
+    if died {
+        return Err(ServiceError::TickLoopDied);
+    }
+    Ok(Summary { started, stats })
+}

@@ -1,0 +1,108 @@
+//! The service's run-time options (what the command line resolved to) and the control socket's
+//! bounds, checked once before anything starts.
+//!
+//! Owns defaults and validation only; reading a command line is the binary's business.
+
+use super::ServiceError;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// Bounds of the control socket: every resource a client can make the service hold.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ControlLimits {
+    /// Longest request line in bytes (without its newline); a longer one closes the connection.
+    pub max_line: usize,
+    /// Most connections open at once; more are answered `ERR` and closed.
+    pub max_connections: usize,
+    /// A connection that sends no complete line for this long is closed.
+    pub idle: Duration,
+    /// Longest wait for the tick loop to answer a command.
+    pub reply_timeout: Duration,
+}
+
+impl Default for ControlLimits {
+    fn default() -> Self {
+        ControlLimits {
+            max_line: 4096,
+            max_connections: 64,
+            idle: Duration::from_secs(30),
+            reply_timeout: Duration::from_secs(5),
+        }
+    }
+}
+
+/// How to run one service.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Publication name (the mapping is `clipmap-<name>.map` in `shm_dir`).
+    pub name: String,
+    /// Directory of the mapping and its lock file.
+    pub shm_dir: PathBuf,
+    /// Path of the control socket.
+    pub socket: PathBuf,
+    /// Permission bits of the mapping (0o600: owner only).
+    pub shm_mode: u32,
+    /// Copy budget per tick in milliseconds (`None`: unlimited).
+    pub budget_ms: Option<f64>,
+    /// Update ticks per second.
+    pub tick_hz: f64,
+    /// Invalid border to start with (`None`: the texture's).
+    pub invalid_border: Option<u64>,
+    /// Control socket bounds.
+    pub control: ControlLimits,
+}
+
+/// The default control socket of a name: `clipmap-<name>.sock` beside the mapping.
+pub fn default_socket(shm_dir: &Path, name: &str) -> PathBuf {
+    shm_dir.join(format!("clipmap-{name}.sock"))
+}
+
+impl Options {
+    /// Defaults for `name`: mapping in [`crate::shm::default_dir`], socket beside it, owner-only,
+    /// 6 ms budget, 60 ticks per second.
+    pub fn new(name: &str) -> Options {
+        let shm_dir = crate::shm::default_dir();
+        Options {
+            name: name.to_string(),
+            socket: default_socket(&shm_dir, name),
+            shm_dir,
+            shm_mode: 0o600,
+            budget_ms: Some(6.0),
+            tick_hz: 60.0,
+            invalid_border: None,
+            control: ControlLimits::default(),
+        }
+    }
+
+    /// Checks every value; the error says which option and what was expected.
+    pub fn check(&self) -> Result<(), ServiceError> {
+        let bad = |m: String| Err(ServiceError::BadOption(m));
+        crate::shm::check_name(&self.name).map_err(|e| ServiceError::BadOption(e.to_string()))?;
+        if !(self.tick_hz.is_finite() && self.tick_hz >= 1.0 && self.tick_hz <= 1000.0) {
+            return bad(format!("--tick-hz {}: expected 1 to 1000 ticks per second", self.tick_hz));
+        }
+        if let Some(ms) = self.budget_ms {
+            if !(ms.is_finite() && ms > 0.0 && ms <= super::protocol::MAX_BUDGET_MS) {
+                return bad(format!("--budget-ms {ms}: expected more than 0 and at most 10000"));
+            }
+        }
+        if self.shm_mode & !0o666 != 0 || self.shm_mode & 0o600 != 0o600 {
+            return bad(format!(
+                "--shm-mode {:o}: expected read-write for the owner and no execute bits (e.g. 600, 640, 660)",
+                self.shm_mode
+            ));
+        }
+        // sockaddr_un holds 108 bytes including the terminating NUL.
+        if self.socket.as_os_str().len() > 100 {
+            return bad(format!("--socket {}: paths longer than 100 bytes cannot be bound", self.socket.display()));
+        }
+        if !self.shm_dir.is_dir() {
+            return bad(format!("--shm-dir {}: not a directory", self.shm_dir.display()));
+        }
+        let c = &self.control;
+        if c.max_line < 16 || c.max_connections == 0 || c.idle.is_zero() {
+            return bad(format!("control limits {c:?}: too small"));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,191 @@
+//! The service's statistics: a snapshot the tick loop publishes after every tick, the control
+//! server's own counters, and their Prometheus text form.
+//!
+//! Owns the numbers' names and units only; the tick loop ([`super::ticker`]) and the control
+//! server ([`super::control`]) fill them in.
+
+use crate::clip::Stats;
+use serde::Serialize;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// What the tick loop reports after each tick.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct TickStats {
+    /// Seconds since the tick loop started.
+    pub uptime_s: f64,
+    /// Ticks per second asked for.
+    pub tick_hz: f64,
+    /// Ticks that took longer than the tick period (the loop then skips ahead, never bursts).
+    pub tick_overruns: u64,
+    /// Level-0 centre of the last tick.
+    pub centre: [i64; 2],
+    /// Renderer requests seen through the mapping (the request block's count).
+    pub requests_seen: u64,
+    /// Centres set through the control socket.
+    pub socket_centres: u64,
+    /// Finest level renderers may use.
+    pub min_lod: f64,
+    /// Levels renderers may not use now (finer than min LOD).
+    pub levels_disabled: u64,
+    /// Copy budget per tick in milliseconds (`null`: unlimited).
+    pub budget_ms: Option<f64>,
+    /// Invalid border in use.
+    pub invalid_border: u64,
+    /// Bytes copied into the mapping.
+    pub bytes_published: u64,
+    /// Level-state publications written to the mapping.
+    pub publications: u64,
+    /// Bytes held in tiles and windows.
+    pub resident_bytes: u64,
+    /// Per level: the published valid region `[s0, t0, s1, t1]`.
+    pub valid: Vec<[i64; 4]>,
+    /// The engine's counters.
+    pub engine: Stats,
+}
+
+/// The control server's counters (plain atomics: connections update them concurrently).
+#[derive(Debug, Default)]
+pub struct ControlCounters {
+    /// Connections accepted.
+    pub accepted: AtomicU64,
+    /// Connections refused because the limit was reached.
+    pub refused: AtomicU64,
+    /// Connections open now.
+    pub open: AtomicU64,
+    /// Requests answered `OK`.
+    pub ok: AtomicU64,
+    /// Requests answered `ERR`.
+    pub errors: AtomicU64,
+    /// Connections closed for a line longer than the limit.
+    pub long_lines: AtomicU64,
+    /// Connections closed for idling.
+    pub idle_closed: AtomicU64,
+}
+
+/// A copy of [`ControlCounters`].
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ControlStats {
+    pub accepted: u64,
+    pub refused: u64,
+    pub open: u64,
+    pub ok: u64,
+    pub errors: u64,
+    pub long_lines: u64,
+    pub idle_closed: u64,
+}
+
+impl ControlCounters {
+    /// Adds one to a counter.
+    pub fn bump(c: &AtomicU64) {
+        c.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// A copy.
+    pub fn get(&self) -> ControlStats {
+        let g = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        ControlStats {
+            accepted: g(&self.accepted),
+            refused: g(&self.refused),
+            open: g(&self.open),
+            ok: g(&self.ok),
+            errors: g(&self.errors),
+            long_lines: g(&self.long_lines),
+            idle_closed: g(&self.idle_closed),
+        }
+    }
+}
+
+/// Everything `STATS` answers.
+#[derive(Clone, Debug, Serialize)]
+pub struct ServiceStats {
+    /// The publication name.
+    pub name: String,
+    /// The tick loop's figures.
+    #[serde(flatten)]
+    pub tick: TickStats,
+    /// The control socket's figures.
+    pub control: ControlStats,
+}
+
+impl ServiceStats {
+    /// The Prometheus text exposition form (`clipmapd_` prefix, label `name`).
+    pub fn prometheus(&self) -> String {
+        let t = &self.tick;
+        let e = &t.engine;
+        let c = &self.control;
+        let q = &e.queue;
+        let rows: [(&str, &str, &str, f64); 28] = [
+            ("ticks_total", "counter", "Update ticks run", e.ticks as f64),
+            ("tick_overruns_total", "counter", "Ticks longer than the tick period", t.tick_overruns as f64),
+            ("uptime_seconds", "gauge", "Seconds since start", t.uptime_s),
+            ("bytes_copied_total", "counter", "Texel bytes copied from tiles into windows", e.bytes_copied as f64),
+            ("bytes_published_total", "counter", "Texel bytes copied into the mapping", t.bytes_published as f64),
+            ("publications_total", "counter", "Level-state publications", t.publications as f64),
+            ("tiles_read_total", "counter", "Tiles read and admitted", e.tiles_read as f64),
+            ("read_faults_total", "counter", "Tile reads that failed", e.read_faults.total() as f64),
+            ("late_tiles_total", "counter", "Tiles that arrived after leaving their region", e.late_tiles as f64),
+            ("tiles_evicted_total", "counter", "Tiles evicted", e.tiles_evicted as f64),
+            ("queue_pending", "gauge", "Read requests waiting", q.pending as f64),
+            ("queue_in_flight", "gauge", "Reads running", q.in_flight as f64),
+            ("queue_peak_pending", "gauge", "Most read requests ever waiting in one queue", q.peak_pending as f64),
+            (
+                "queue_dropped_total",
+                "counter",
+                "Queued reads dropped (stale or overflow)",
+                (q.stale_dropped + q.overflow_dropped) as f64,
+            ),
+            ("levels_disabled", "gauge", "Levels renderers may not use now", t.levels_disabled as f64),
+            (
+                "ticks_with_disabled_level_total",
+                "counter",
+                "Ticks with a level disabled",
+                e.ticks_with_disabled_level as f64,
+            ),
+            (
+                "budget_overruns_total",
+                "counter",
+                "Ticks whose copy budget ran out with work left",
+                e.ticks_over_budget as f64,
+            ),
+            ("min_lod", "gauge", "Finest level renderers may use", t.min_lod),
+            ("min_lod_raises_total", "counter", "Times min LOD was raised", e.min_lod_raises as f64),
+            ("invalid_border_texels", "gauge", "Invalid border in use", t.invalid_border as f64),
+            ("resident_bytes", "gauge", "Bytes in tiles and windows", t.resident_bytes as f64),
+            ("requests_seen_total", "counter", "Centre requests made through the mapping", t.requests_seen as f64),
+            ("control_connections_total", "counter", "Control connections accepted", c.accepted as f64),
+            ("control_connections_refused_total", "counter", "Control connections refused (limit)", c.refused as f64),
+            ("control_connections_open", "gauge", "Control connections open", c.open as f64),
+            ("control_requests_ok_total", "counter", "Control requests answered OK", c.ok as f64),
+            ("control_requests_err_total", "counter", "Control requests answered ERR", c.errors as f64),
+            (
+                "writes_into_published_total",
+                "counter",
+                "Writes inside a published region (always 0)",
+                e.writes_into_published as f64,
+            ),
+        ];
+        let mut out = String::new();
+        for (name, kind, help, v) in rows {
+            out.push_str(&format!(
+                "# HELP clipmapd_{name} {help}\n# TYPE clipmapd_{name} {kind}\nclipmapd_{name}{{name=\"{}\"}} {v}\n",
+                self.name
+            ));
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn prometheus_text_has_one_sample_per_metric() {
+        let s = ServiceStats { name: "x".into(), tick: TickStats::default(), control: ControlStats::default() };
+        let text = s.prometheus();
+        let samples: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).collect();
+        assert_eq!(samples.len(), 28);
+        assert!(samples.iter().all(|l| l.starts_with("clipmapd_") && l.contains("{name=\"x\"} ")));
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 28);
+    }
+}

@@ -1,0 +1,245 @@
+//! The tick loop: a dedicated thread that owns the [`Clipmap`] (synchronous, with its own small
+//! read runtime) and the [`Mirror`] into the mapping, and runs one update tick per period.
+//!
+//! Handle and runner: [`Ticker`] is the cloneable handle (a bounded command sender and a watch on
+//! the latest [`TickStats`]); the runner owns every piece of mutable state, without locks. Each
+//! tick takes the newest renderer request from the mapping, then ticks the engine, which
+//! publishes through the mirror and beats the heartbeat. Commands (budget, border, centre, stop)
+//! are taken between ticks and answered through a one-shot reply.
+
+use super::stats::TickStats;
+use super::{Options, ServiceError};
+use crate::clip::{Clipmap, Settings};
+use crate::shm::mirror::Mirror;
+use crate::source::TileSource;
+use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use tokio::sync::{oneshot, watch};
+
+/// Commands waiting for the tick loop, at most (a full queue answers "busy", never blocks).
+pub const COMMAND_QUEUE: usize = 64;
+
+/// What the tick loop is asked to do between ticks.
+#[derive(Debug)]
+pub enum Command {
+    /// Sets the copy budget per tick (ms; `None`: unlimited).
+    Budget(Option<f64>, oneshot::Sender<String>),
+    /// Sets the invalid border (clamped by the engine); replies with the border applied.
+    Border(u64, oneshot::Sender<String>),
+    /// Moves the clip centre (level-0 texels).
+    Centre([i64; 2], oneshot::Sender<String>),
+    /// Stops after closing the mapping.
+    Stop,
+}
+
+/// What the texture and mapping look like, once the tick loop is running.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Started {
+    /// The mapping file.
+    pub mapping: std::path::PathBuf,
+    /// Level-0 size.
+    pub size: [u64; 2],
+    /// Clip size.
+    pub clip_size: u64,
+    /// Number of levels.
+    pub levels: usize,
+    /// Texel format.
+    pub format: String,
+    /// Bytes of the mapping.
+    pub mapping_bytes: u64,
+}
+
+/// The handle of the tick loop.
+#[derive(Clone, Debug)]
+pub struct Ticker {
+    commands: SyncSender<Command>,
+    stats: watch::Receiver<TickStats>,
+}
+
+impl Ticker {
+    /// Starts the tick loop on its own thread; returns once the mapping exists (or could not be
+    /// made). Blocks: call it off async worker threads.
+    pub fn start(
+        source: Arc<dyn TileSource>,
+        options: &Options,
+    ) -> Result<(Ticker, Started, JoinHandle<()>), ServiceError> {
+        let (ready_tx, ready_rx) = mpsc::sync_channel(1);
+        let (cmd_tx, cmd_rx) = mpsc::sync_channel(COMMAND_QUEUE);
+        let (stats_tx, stats_rx) = watch::channel(TickStats::default());
+        let options = options.clone();
+        let join = std::thread::Builder::new()
+            .name("clipmapd-tick".into())
+            .spawn(move || match Runner::new(source, &options, cmd_rx, stats_tx) {
+                Ok((runner, started)) => {
+                    let _ = ready_tx.send(Ok(started));
+                    runner.run();
+                }
+                Err(e) => {
+                    let _ = ready_tx.send(Err(e));
+                }
+            })
+            .map_err(ServiceError::Thread)?;
+        match ready_rx.recv() {
+            Ok(Ok(started)) => Ok((Ticker { commands: cmd_tx, stats: stats_rx }, started, join)),
+            Ok(Err(e)) => {
+                let _ = join.join();
+                Err(e)
+            }
+            Err(_) => Err(ServiceError::TickLoopDied),
+        }
+    }
+
+    /// Sends a command without blocking; `Err` with a message when the loop is busy or gone.
+    pub fn send(&self, cmd: Command) -> Result<(), String> {
+        self.commands.try_send(cmd).map_err(|e| match e {
+            TrySendError::Full(_) => "the tick loop is busy; try again".to_string(),
+            TrySendError::Disconnected(_) => "the tick loop has stopped".to_string(),
+        })
+    }
+
+    /// The latest statistics.
+    pub fn stats(&self) -> TickStats {
+        self.stats.borrow().clone()
+    }
+
+    /// A watch that changes after every tick (and closes when the loop stops).
+    pub fn watch(&self) -> watch::Receiver<TickStats> {
+        self.stats.clone()
+    }
+}
+
+struct Runner {
+    clipmap: Clipmap,
+    mirror: Mirror,
+    commands: mpsc::Receiver<Command>,
+    stats_tx: watch::Sender<TickStats>,
+    period: Duration,
+    hz: f64,
+    centre: [i64; 2],
+    velocity: Option<[i64; 2]>,
+    last_request: u64,
+    stats: TickStats,
+    started: Instant,
+}
+
+impl Runner {
+    fn new(
+        source: Arc<dyn TileSource>,
+        o: &Options,
+        commands: mpsc::Receiver<Command>,
+        stats_tx: watch::Sender<TickStats>,
+    ) -> Result<(Runner, Started), ServiceError> {
+        let desc = source.desc().clone();
+        let settings = Settings { budget_ns: o.budget_ms.map(|ms| (ms * 1e6) as u64), ..Settings::default() };
+        let mut clipmap = Clipmap::new(source, settings)?;
+        if let Some(b) = o.invalid_border {
+            clipmap.set_invalid_border(b);
+        }
+        let mirror = Mirror::create(&o.shm_dir, &o.name, &clipmap, o.shm_mode)?;
+        let started = Started {
+            mapping: mirror.writer().path().to_path_buf(),
+            size: desc.size(),
+            clip_size: desc.clip_size(),
+            levels: desc.level_count(),
+            format: desc.format().short_name(),
+            mapping_bytes: mirror.writer().placement().total_bytes,
+        };
+        let size = desc.size();
+        let stats = TickStats { tick_hz: o.tick_hz, budget_ms: o.budget_ms, ..TickStats::default() };
+        let runner = Runner {
+            clipmap,
+            mirror,
+            commands,
+            stats_tx,
+            period: Duration::from_secs_f64(1.0 / o.tick_hz),
+            hz: o.tick_hz,
+            centre: [(size[0] / 2) as i64, (size[1] / 2) as i64],
+            velocity: None,
+            last_request: 0,
+            stats,
+            started: Instant::now(),
+        };
+        Ok((runner, started))
+    }
+
+    fn run(mut self) {
+        let mut next = Instant::now();
+        'ticks: loop {
+            loop {
+                let now = Instant::now();
+                if now >= next {
+                    break;
+                }
+                match self.commands.recv_timeout(next - now) {
+                    Ok(Command::Stop) | Err(RecvTimeoutError::Disconnected) => break 'ticks,
+                    Ok(cmd) => self.apply(cmd),
+                    Err(RecvTimeoutError::Timeout) => break,
+                }
+            }
+            self.tick();
+            next += self.period;
+            let now = Instant::now();
+            if now > next {
+                self.stats.tick_overruns += 1;
+                next = now;
+            }
+        }
+        tracing::info!(ticks = self.stats.engine.ticks, "tick loop stopping; closing the mapping");
+        self.mirror.into_writer().close();
+    }
+
+    fn apply(&mut self, cmd: Command) {
+        match cmd {
+            Command::Budget(ms, reply) => {
+                self.clipmap.set_budget_ns(ms.map(|ms| (ms * 1e6) as u64));
+                self.stats.budget_ms = ms;
+                tracing::info!(budget_ms = ?ms, "copy budget changed");
+                let _ = reply.send(match ms {
+                    Some(ms) => format!("budget {ms} ms"),
+                    None => "budget off".to_string(),
+                });
+            }
+            Command::Border(b, reply) => {
+                self.clipmap.set_invalid_border(b);
+                let applied = self.clipmap.invalid_border();
+                tracing::info!(asked = b, applied, "invalid border changed");
+                let _ = reply.send(format!("border {applied}"));
+            }
+            Command::Centre(c, reply) => {
+                self.centre = c;
+                self.velocity = None;
+                self.stats.socket_centres += 1;
+                let _ = reply.send(format!("centre {} {}", c[0], c[1]));
+            }
+            Command::Stop => {}
+        }
+    }
+
+    fn tick(&mut self) {
+        if let Some(req) = self.mirror.writer().request() {
+            if req.count != self.last_request {
+                self.last_request = req.count;
+                self.centre = req.centre;
+                let per_tick = |v: f64| if v.is_finite() { (v / self.hz).round() as i64 } else { 0 };
+                let v = [per_tick(req.velocity[0]), per_tick(req.velocity[1])];
+                self.velocity = (v != [0, 0]).then_some(v);
+                self.stats.requests_seen = req.count;
+            }
+        }
+        let report = self.clipmap.tick_with(self.centre, self.velocity, &mut self.mirror);
+        let s = &mut self.stats;
+        s.uptime_s = self.started.elapsed().as_secs_f64();
+        s.centre = report.centre;
+        s.min_lod = report.min_lod;
+        s.levels_disabled = report.disabled_levels.len() as u64;
+        s.invalid_border = self.clipmap.invalid_border();
+        s.bytes_published = self.mirror.bytes_copied;
+        s.publications = self.mirror.publications;
+        s.resident_bytes = self.clipmap.resident_bytes();
+        s.valid = report.valid.iter().map(|r| [r.s0, r.t0, r.s1, r.t1]).collect();
+        s.engine = self.clipmap.stats().clone();
+        self.stats_tx.send_replace(s.clone());
+    }
+}

@@ -1,0 +1,147 @@
+//! `clipmap-read`: a reader of a published clip texture that serves the hash texture. Reads random
+//! blocks of texels inside the published valid regions and checks every one; optionally asks for
+//! centres (a fast flight with jumps and reversals) and follows the service across restarts.
+//!
+//! Prints one JSON line of counts, then `N passed, M failed`.
+//! Exit status: 0 every texel matched, 1 a mismatch, 2 the mapping could not be read.
+
+use clap::Parser;
+use clipmap::shm::verify::HashCheck;
+use clipmap::shm::{Client, ShmError};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+#[derive(Parser)]
+#[command(name = "clipmap-read", version, about = "Read and verify a clip texture published by clipmapd --source hash")]
+struct Cli {
+    /// Publication name.
+    #[arg(long, default_value = "hash")]
+    name: String,
+    /// Directory of the mapping.
+    #[arg(long)]
+    shm_dir: Option<PathBuf>,
+    /// A mapping file to read instead of a name.
+    #[arg(long, conflicts_with_all = ["name", "follow"])]
+    path: Option<PathBuf>,
+    /// Stop after checking this many texels.
+    #[arg(long, default_value_t = 1_000_000)]
+    reads: u64,
+    /// Stop after this many seconds in any case.
+    #[arg(long, default_value_t = 60.0)]
+    seconds: f64,
+    /// Edge of the blocks read at once.
+    #[arg(long, default_value_t = 16)]
+    block: u64,
+    /// Follow the service: notice a stale heartbeat, reattach when the name is republished.
+    #[arg(long)]
+    follow: bool,
+    /// Heartbeat age (ms) after which the service is considered stale.
+    #[arg(long, default_value_t = 500)]
+    stale_ms: u64,
+    /// Also request centres: a fast flight with jumps and reversals.
+    #[arg(long)]
+    drive: bool,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+#[derive(Default, serde::Serialize)]
+struct Counts {
+    #[serde(flatten)]
+    check: HashCheck,
+    stale_seen: u64,
+    reattached: u64,
+    requests: u64,
+    seconds: f64,
+}
+
+fn attach(cli: &Cli) -> Result<Client, ShmError> {
+    match &cli.path {
+        Some(p) => Client::attach_path(p),
+        None => Client::attach(&cli.shm_dir.clone().unwrap_or_else(clipmap::shm::default_dir), &cli.name),
+    }
+}
+
+/// The driver's flight: fast steps, a reversal every 150 requests and a jump every 400.
+fn flight(i: u64, size: [u64; 2]) -> ([i64; 2], [f64; 2]) {
+    let phase = i % 400;
+    let dir = if (i / 150) % 2 == 0 { 1 } else { -1 };
+    let jump = (i / 400) as i64 * 7919;
+    let (w, h) = (size[0] as i64, size[1] as i64);
+    let s = (w / 2 + jump * 3 + dir * (phase as i64) * 37).rem_euclid(w);
+    let t = (h / 2 - jump * 2 + (phase as i64) * 23).rem_euclid(h);
+    ([s, t], [dir as f64 * 37.0 * 240.0, 23.0 * 240.0])
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let start = Instant::now();
+    let deadline = start + Duration::from_secs_f64(cli.seconds);
+    let mut client = loop {
+        match attach(&cli) {
+            Ok(c) => break c,
+            Err(ShmError::NotFound { .. }) if cli.follow && Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(20))
+            }
+            Err(e) => {
+                eprintln!("clipmap-read: {e}");
+                return ExitCode::from(2);
+            }
+        }
+    };
+    let mut counts = Counts::default();
+    let mut rng = clipmap::source::procedural::splitmix64(cli.seed ^ std::process::id() as u64);
+    let mut buf = Vec::new();
+    let mut stale = false;
+    let mut last_request = Instant::now();
+    let mut step = 0u64;
+    while counts.check.passed + counts.check.failed < cli.reads && Instant::now() < deadline {
+        step += 1;
+        counts.check.step(&client, &mut rng, cli.block.max(1), &mut buf);
+        if cli.drive && last_request.elapsed() >= Duration::from_millis(4) {
+            let size = client.levels[0].size;
+            let (c, v) = flight(counts.requests, size);
+            client.request_centre(c, v);
+            counts.requests += 1;
+            last_request = Instant::now();
+        }
+        if cli.follow && step % 64 == 0 {
+            let now_stale = client.heartbeat_age() > Duration::from_millis(cli.stale_ms) || client.closed();
+            if now_stale && !stale {
+                counts.stale_seen += 1;
+            }
+            stale = now_stale;
+            if stale {
+                if client.replaced() {
+                    match attach(&cli) {
+                        Ok(c) if c.generation != client.generation => {
+                            client = c;
+                            counts.reattached += 1;
+                            stale = false;
+                        }
+                        Ok(_) => {}
+                        Err(ShmError::NotFound { .. }) => {}
+                        Err(e) => {
+                            eprintln!("clipmap-read: reattaching: {e}");
+                            return ExitCode::from(2);
+                        }
+                    }
+                }
+                std::thread::sleep(Duration::from_millis(2));
+            }
+        }
+    }
+    counts.seconds = start.elapsed().as_secs_f64();
+    println!("{}", serde_json::to_string(&counts).unwrap_or_default());
+    println!("{} passed, {} failed", counts.check.passed, counts.check.failed);
+    if let Some(f) = &counts.check.first_failure {
+        eprintln!("clipmap-read: first failure: {f}");
+    }
+    if counts.check.failed == 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    }
+}

@@ -1,0 +1,217 @@
+//! `clipmapd`: the clip-texture service. Keeps a clip texture's windows filled around the centre
+//! renderers ask for, publishes them in shared memory (docs/SHM.md) and answers a control socket.
+//! A thin shell over [`clipmap::service`].
+//!
+//! Exit status: 0 ok, 1 the input is bad, 2 the service could not run.
+
+use anyhow::Context as _;
+use clap::{Parser, ValueEnum};
+use clipmap::report::exit;
+use clipmap::service::{self, demo, ControlLimits, Options, Procedural};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+#[derive(Parser)]
+#[command(
+    name = "clipmapd",
+    version,
+    about = "Serve a clip texture in shared memory",
+    after_help = "\
+Examples:
+  clipmapd --demo
+  clipmapd --source hash --size 65536 --clip 1024 --name verify
+  clipmapd --source terrain --size 1048576 --clip 2048 --budget-ms 4 --tick-hz 60
+  echo STATS | socat - UNIX-CONNECT:/dev/shm/clipmap-verify.sock
+
+Environment: RUST_LOG sets the log filter (default info); logs go to standard error.
+Exit status: 0 ok, 1 the input is bad, 2 the service could not run."
+)]
+struct Cli {
+    /// A clip-texture configuration (.ct).
+    config: Option<PathBuf>,
+    /// Serve a procedural texture instead of a configuration.
+    #[arg(long, value_enum, conflicts_with = "config")]
+    source: Option<SourceArg>,
+    /// Procedural texture size, texels a side (a power of two).
+    #[arg(long, default_value_t = 65536)]
+    size: u64,
+    /// Procedural clip size.
+    #[arg(long, default_value_t = 1024)]
+    clip: u64,
+    /// Procedural tile size.
+    #[arg(long, default_value_t = 128)]
+    tile: u64,
+    /// Publication name (default: the source kind or the configuration's file stem).
+    #[arg(long)]
+    name: Option<String>,
+    /// Directory of the mapping (default /dev/shm, else the temporary directory).
+    #[arg(long)]
+    shm_dir: Option<PathBuf>,
+    /// Control socket path (default: clipmap-NAME.sock in the mapping's directory).
+    #[arg(long)]
+    socket: Option<PathBuf>,
+    /// Permission bits of the mapping, octal (600: owner only).
+    #[arg(long, default_value = "600")]
+    shm_mode: String,
+    /// Copy budget per tick in milliseconds, or `off`.
+    #[arg(long, default_value = "6")]
+    budget_ms: String,
+    /// Update ticks per second.
+    #[arg(long, default_value_t = 60.0)]
+    tick_hz: f64,
+    /// Invalid border in texels (default: the texture's).
+    #[arg(long)]
+    border: Option<u64>,
+    /// Close control connections idle for this many milliseconds.
+    #[arg(long, default_value_t = 30_000)]
+    idle_ms: u64,
+    /// Most control connections open at once.
+    #[arg(long, default_value_t = 64)]
+    max_connections: usize,
+    /// Run the built-in demonstration and exit.
+    #[arg(long, conflicts_with_all = ["config", "source"])]
+    demo: bool,
+    /// Where the demo writes its pictures.
+    #[arg(long, default_value = "clipmapd-demo", requires = "demo")]
+    out: PathBuf,
+    /// Frames the demo's client flies.
+    #[arg(long, default_value_t = 240, requires = "demo", hide = true)]
+    demo_frames: u32,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum SourceArg {
+    Hash,
+    Terrain,
+}
+
+/// A failure and its exit status.
+struct Failure(i32, anyhow::Error);
+
+fn bad(e: impl Into<anyhow::Error>) -> Failure {
+    Failure(exit::BAD_INPUT, e.into())
+}
+
+fn options(cli: &Cli, default_name: &str) -> Result<Options, Failure> {
+    let name = cli.name.clone().unwrap_or_else(|| default_name.to_string());
+    let mut o = Options::new(&name);
+    if let Some(d) = &cli.shm_dir {
+        o.shm_dir = d.clone();
+    }
+    o.socket = cli.socket.clone().unwrap_or_else(|| service::default_socket(&o.shm_dir, &name));
+    o.shm_mode = u32::from_str_radix(&cli.shm_mode, 8)
+        .map_err(|_| bad(anyhow::anyhow!("--shm-mode {}: expected octal permission bits like 600", cli.shm_mode)))?;
+    o.budget_ms = if cli.budget_ms.eq_ignore_ascii_case("off") {
+        None
+    } else {
+        Some(
+            cli.budget_ms
+                .parse()
+                .map_err(|_| bad(anyhow::anyhow!("--budget-ms {}: expected milliseconds or `off`", cli.budget_ms)))?,
+        )
+    };
+    o.tick_hz = cli.tick_hz;
+    o.invalid_border = cli.border;
+    o.control = ControlLimits {
+        idle: Duration::from_millis(cli.idle_ms),
+        max_connections: cli.max_connections,
+        ..ControlLimits::default()
+    };
+    Ok(o)
+}
+
+async fn shutdown_signal(mut int: tokio::signal::unix::Signal, mut term: tokio::signal::unix::Signal) {
+    tokio::select! {
+        _ = int.recv() => tracing::info!("SIGINT"),
+        _ = term.recv() => tracing::info!("SIGTERM"),
+    }
+}
+
+async fn serve(cli: Cli) -> Result<(), Failure> {
+    use tokio::signal::unix::{signal, SignalKind};
+    let could_not_run = |e: std::io::Error| Failure(exit::COULD_NOT_RUN, e.into());
+    // Registered before anything is published, so a signal never finds the default action.
+    let int = signal(SignalKind::interrupt()).map_err(could_not_run)?;
+    let term = signal(SignalKind::terminate()).map_err(could_not_run)?;
+    if cli.demo {
+        let o = demo::DemoOptions { out_dir: cli.out.clone(), frames: cli.demo_frames, ..Default::default() };
+        let r = demo::demo(o.clone()).await.map_err(|e| Failure(e.exit_code(), e.into()))?;
+        let stats_path = o.out_dir.join("stats.json");
+        let json = serde_json::to_string_pretty(&r.stats).map_err(|e| Failure(exit::COULD_NOT_RUN, e.into()))?;
+        std::fs::write(&stats_path, json)
+            .with_context(|| format!("writing {}", stats_path.display()))
+            .map_err(|e| Failure(exit::COULD_NOT_RUN, e))?;
+        let t = &r.stats.tick;
+        let e = &t.engine;
+        println!(
+            "clipmapd demo: served a {0}x{0} terrain texture (clip {1}) and flew a client over it for {2} frames in {3:.1} s",
+            o.size, o.clip, r.frames, r.seconds
+        );
+        println!("pictures in {}/:", o.out_dir.display());
+        for p in &r.pictures {
+            println!("  {}", p.file_name().map(|n| n.to_string_lossy()).unwrap_or_default());
+        }
+        println!("statistics in {}", stats_path.display());
+        println!(
+            "ticks {}, centre requests {}, MiB published {:.1}, tiles read {}, budget overruns {}, ticks with a level disabled {}",
+            e.ticks,
+            t.requests_seen,
+            t.bytes_published as f64 / (1 << 20) as f64,
+            e.tiles_read,
+            e.ticks_over_budget,
+            e.ticks_with_disabled_level
+        );
+        println!("level 0 usable at the centre in {} of {} frames", r.frames_sharp, r.frames);
+        return Ok(());
+    }
+    let (source, default_name) = match (&cli.config, cli.source) {
+        (Some(path), _) => {
+            return Err(bad(anyhow::anyhow!(
+                "{}: serving .ct configurations needs the file tile source, which this build lacks; use --source",
+                path.display()
+            )))
+        }
+        (None, Some(kind)) => {
+            let (kind, name) = match kind {
+                SourceArg::Hash => (Procedural::Hash, "hash"),
+                SourceArg::Terrain => (Procedural::Terrain, "terrain"),
+            };
+            let src = service::procedural_source(kind, cli.size, cli.clip, cli.tile)
+                .map_err(|e| Failure(e.exit_code(), e.into()))?;
+            (src, name.to_string())
+        }
+        (None, None) => {
+            return Err(bad(anyhow::anyhow!("give a configuration (CONFIG.ct), --source hash|terrain, or --demo")))
+        }
+    };
+    let options = options(&cli, &default_name)?;
+    let summary = service::run(source, options, shutdown_signal(int, term), |s| {
+        println!("clipmapd: serving {} ({} levels, clip {})", s.mapping.display(), s.levels, s.clip_size);
+    })
+    .await
+    .map_err(|e| Failure(e.exit_code(), e.into()))?;
+    println!("clipmapd: stopped after {} ticks", summary.stats.tick.engine.ticks);
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+    let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("clipmapd: cannot start the runtime: {e}");
+            return ExitCode::from(exit::COULD_NOT_RUN as u8);
+        }
+    };
+    match rt.block_on(serve(cli)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(Failure(code, e)) => {
+            eprintln!("clipmapd: {e:#}");
+            ExitCode::from(code as u8)
+        }
+    }
+}
