@@ -451,20 +451,7 @@ fn run(cli: Cli) -> i32 {
         }
         Command::Tile { file, level, s, t, json, env } => match load(&file, &env) {
             Err(c) => c,
-            Ok((p, _)) => match p.locate(level, s, t) {
-                Ok(loc) => {
-                    if json {
-                        println!("{}", serde_json::to_string_pretty(&loc).expect("location serialises"));
-                    } else {
-                        print!("{}", info::tile_human(&loc));
-                    }
-                    exit::OK
-                }
-                Err(e) => {
-                    eprintln!("cliptex: {}: {e}", file.display());
-                    exit::BAD_INPUT
-                }
-            },
+            Ok((p, _)) => info::print_tile(p.locate(level, s, t), json, "cliptex", &file),
         },
     }
 }

@@ -108,20 +108,7 @@ fn run(cli: Cli) -> i32 {
         },
         Command::Tile { file, s, t, r, json, env } => match load(&file, &env) {
             Err(c) => c,
-            Ok((p, _)) => match p.locate(s, t, r) {
-                Ok(loc) => {
-                    if json {
-                        println!("{}", serde_json::to_string_pretty(&loc).expect("location serialises"));
-                    } else {
-                        print!("{}", info::tile_human(&loc));
-                    }
-                    exit::OK
-                }
-                Err(e) => {
-                    eprintln!("icache: {}: {e}", file.display());
-                    exit::BAD_INPUT
-                }
-            },
+            Ok((p, _)) => info::print_tile(p.locate(s, t, r), json, "icache", &file),
         },
     }
 }
