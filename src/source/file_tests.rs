@@ -31,6 +31,8 @@ fn prepare(
         tiles_in_file,
         header_bytes: header,
         streams,
+        inset: None,
+        compression: None,
     })
     .unwrap();
     let job = Job {
