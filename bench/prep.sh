@@ -50,6 +50,7 @@ fi
 
 cd "$ROOT"
 cargo build --release --quiet --bin clipprep
+LOAD_START=$(cut -d' ' -f1-3 /proc/loadavg)
 CLIPPREP="$ROOT/target/release/clipprep"
 
 mkdir -p "$DIR"
@@ -135,7 +136,8 @@ row() { # name written_bytes log
 DD_T=$(col "$WORK/dd.log" 1 | median)
 HASH_T=$(col "$WORK/hash.log" 1 | median)
 echo
-echo "machine: $(nproc) cores, $(awk -F': ' '/model name/ {print $2; exit}' /proc/cpuinfo), $(df -h "$DIR" | awk 'NR == 2 {print $1 " (" $2 ")"}')"
+echo "machine: $(nproc) cores, $(awk -F': ' '/model name/ {print $2; exit}' /proc/cpuinfo), $(df -h "$DIR" | awk 'NR == 2 {print $1 " (" $2 ")"}'), $(free -g | awk '/Mem:/ {print $2}') GiB memory"
+echo "load average (1, 5, 15 min) at the start: $LOAD_START; at the end: $(cut -d' ' -f1-3 /proc/loadavg)"
 echo
 echo "| command | bytes written | median s | MiB/s | median peak RSS MiB |"
 echo "|---|---|---|---|---|"

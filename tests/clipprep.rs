@@ -719,9 +719,9 @@ fn sparse_inset_levels_hold_the_inset_a_magnified_border_and_absent_tiles_elsewh
     let coarse = read_level(&ct, big_k, &lv[big_k], 4);
     let coarse_w = lv[big_k].size.0;
     let (mut inset_tiles, mut border_tiles, mut absent_tiles) = (0, 0, 0);
-    for k in 0..big_k {
-        let (w, h) = lv[k].size;
-        assert_eq!(lv[k].tile, (tile, tile));
+    for (k, info) in lv.iter().enumerate().take(big_k) {
+        let (w, h) = info.size;
+        assert_eq!(info.tile, (tile, tile));
         // The inset in level-k texels, rounded outwards.
         let (is0, it0) = (s0 >> k, t0 >> k);
         let (is1, it1) = (s1.div_ceil(1 << k), t1.div_ceil(1 << k));

@@ -190,8 +190,7 @@ impl Downsampler {
             box_bytes: (filter == Filter::Box
                 && !linear
                 && matches!(ch.packing, Packing::Bytes)
-                && src_w % 2 == 0
-                && src_h % 2 == 0)
+                && (src_w | src_h) & 1 == 0)
                 .then(Vec::new),
         }
     }

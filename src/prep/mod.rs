@@ -14,10 +14,14 @@
 //! | [`pipeline`] | one run: configuration, then the band cascade down the levels |
 //! | [`output`] | the temporary sibling directory and the final rename |
 //!
-//! Memory is bounded by a few bands of one row of level-0 tiles (tile height x level-0 width),
-//! never by the texture: levels are generated or filtered band by band, each coarser level fed
-//! row by row from the one above. This module does not read configuration files; checking what
-//! it wrote is left to [`crate::config`] and the plan.
+//! Memory is bounded by [`pipeline::buffer_memory`], checked before anything is written: the hash
+//! source writes image-cache levels tile by tile (one tile per worker thread, whatever the
+//! texture's size); filtered sources (terrain, images) run a band cascade of a few bands of one
+//! row of level-0 tiles (tile height x level-0 width), each coarser level fed row by row from the
+//! one above, so their memory grows with the texture's width but never with its height.
+//!
+//! This module does not read configuration files; checking what it wrote is left to
+//! [`crate::config`] and the plan.
 
 pub mod border;
 pub mod configfile;
@@ -41,7 +45,8 @@ pub use pipeline::{run, Job, Source, Summary};
 #[derive(Clone, Debug)]
 pub struct Limits {
     /// Most memory a run may plan to use: the decoded size of an in-memory input image, and the
-    /// band cascade (about three bands of one row of level-0 tiles).
+    /// buffers of [`pipeline::buffer_memory`] (for filtered sources about three bands of one row
+    /// of level-0 tiles).
     pub max_memory_bytes: u64,
     /// Most bytes of one band of a pyramid level (pyramid levels are one tile each, written in
     /// bands of rows).
