@@ -24,6 +24,9 @@ pub struct Limits {
     pub window_bytes: usize,
     /// Most stream servers (read queues).
     pub max_streams: usize,
+    /// Most tile files a file source keeps open at once (least recently used closed first; 0
+    /// opens every file for each read).
+    pub max_open_files: usize,
 }
 
 impl Default for Limits {
@@ -36,6 +39,7 @@ impl Default for Limits {
             cache_bytes: 1 << 30,
             window_bytes: 2 << 30,
             max_streams: 64,
+            max_open_files: 64,
         }
     }
 }

@@ -162,6 +162,9 @@ pub struct RoamOptions {
     /// Wait for all reads between frames (an ideally fast disk; deterministic reports). When
     /// false, reads land whenever they finish, as in the service.
     pub wait_for_reads: bool,
+    /// Invalid border to run with instead of the texture's (texels; clamped so that one texel
+    /// of each stack window stays readable).
+    pub invalid_border: Option<u64>,
     /// Engine settings (the budget is taken from `budget_ms`).
     pub settings: Settings,
 }
@@ -184,15 +187,23 @@ impl RoamOptions {
             Procedural::Hash => Arc::new(HashSource::new(desc)),
             Procedural::Terrain => Arc::new(TerrainSource::new(desc, 1)),
         };
-        Ok(RoamOptions {
+        Ok(Self::over(source, flight, frames))
+    }
+
+    /// A roam over any tile source (a [`crate::source::FileSource`], say) with Performer's 6 ms
+    /// budget, one read queue per stream server the source names, waiting for reads.
+    pub fn over(source: Arc<dyn TileSource>, flight: Flight, frames: u64) -> Self {
+        let settings = Settings { streams: source.stream_servers(), ..Settings::default() };
+        RoamOptions {
             source,
             flight,
             frames,
             budget_ms: Some(6.0),
             start: None,
             wait_for_reads: true,
-            settings: Settings::default(),
-        })
+            invalid_border: None,
+            settings,
+        }
     }
 }
 
@@ -268,6 +279,9 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
     let mut settings = options.settings;
     settings.budget_ns = options.budget_ms.map(|ms| (ms.max(0.0) * 1e6) as u64);
     let mut map = Clipmap::new(options.source, settings)?;
+    if let Some(border) = options.invalid_border {
+        map.set_invalid_border(border);
+    }
     let size = desc.size();
     let start = options.start.unwrap_or([(size[0] / 2) as i64, (size[1] / 2) as i64]);
     let startf = [start[0] as f64, start[1] as f64];
@@ -306,6 +320,62 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
         totals,
         stats: map.stats().clone(),
     })
+}
+
+/// The report as a person reads it: one line per frame, then the totals.
+pub fn human(report: &RoamReport) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "{}x{} texels, {} levels, clip size {}, {} bytes per texel; flight {:?}",
+        report.size[0], report.size[1], report.levels, report.clip_size, report.bytes_per_texel, report.flight
+    );
+    let _ = writeln!(
+        o,
+        "{:>6} {:>22} {:>14} {:>7} {:>7} {:>6}  disabled",
+        "frame", "centre", "bytes copied", "tiles", "min LOD", "over"
+    );
+    for f in &report.frames {
+        let disabled = match (f.disabled_levels.first(), f.disabled_levels.last()) {
+            (Some(a), Some(b)) if a == b => format!("{a}"),
+            (Some(a), Some(b)) => format!("{a}-{b}"),
+            _ => "-".into(),
+        };
+        let _ = writeln!(
+            o,
+            "{:>6} {:>22} {:>14} {:>7} {:>7.2} {:>6}  {}",
+            f.frame,
+            format!("({}, {})", f.centre[0], f.centre[1]),
+            f.bytes_copied,
+            f.tiles_read,
+            f.min_lod,
+            if f.over_budget { "yes" } else { "" },
+            disabled
+        );
+    }
+    let t = &report.totals;
+    let _ = writeln!(o, "totals:");
+    let _ = writeln!(
+        o,
+        "  bytes copied                {} ({})",
+        t.bytes_copied,
+        crate::report::human_bytes(t.bytes_copied as u128)
+    );
+    let _ = writeln!(o, "  tiles read                  {}", t.tiles_read);
+    let _ = writeln!(o, "  ticks over budget           {}", t.ticks_over_budget);
+    let _ = writeln!(o, "  frames with disabled level  {}", t.frames_with_disabled_level);
+    let _ = writeln!(
+        o,
+        "  peak resident bytes         {} ({})",
+        t.peak_resident_bytes,
+        crate::report::human_bytes(t.peak_resident_bytes as u128)
+    );
+    let faults = report.stats.read_faults.total();
+    if faults > 0 {
+        let _ = writeln!(o, "  failed reads                {faults} ({:?})", report.stats.read_faults);
+    }
+    o
 }
 
 #[cfg(test)]

@@ -61,6 +61,14 @@ fn pow2(what: &'static str, value: u64) -> Result<u32, SizingError> {
 
 /// Memory of a `size` x `size` texture with clip size `clip` and `texel_bytes` per texel.
 /// `size` up to 2^40, `clip` a power of two (clamped to `size`).
+///
+/// ```
+/// // The whole earth at one metre a texel, a 2048 clip, RGBA8: 261 MiB instead of 21 PiB.
+/// let m = clipmap::sizing::memory(1 << 26, 2048, 4).unwrap();
+/// assert_eq!((m.stack_levels, m.pyramid_levels), (15, 12));
+/// assert_eq!(m.clipmap_texels, 68_506_965);
+/// assert_eq!(m.mipmap_texels, ((1u128 << 54) - 1) / 3);
+/// ```
 pub fn memory(size: u64, clip: u64, texel_bytes: u64) -> Result<Memory, SizingError> {
     let n = pow2("texture size", size)?;
     let m = pow2("clip size", clip)?.min(n);

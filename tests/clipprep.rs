@@ -279,6 +279,36 @@ fn tiff_input_is_streamed_strip_by_strip() {
 }
 
 #[test]
+fn rgba_tiff_input_is_copied_row_by_row_and_padded_with_zeros() {
+    use tiff::encoder::{colortype, TiffEncoder};
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("in.tif");
+    let (w, h) = (48u32, 32u32);
+    let data: Vec<u8> = (0..w * h * 4).map(|i| (i * 29 % 253) as u8).collect();
+    {
+        let file = std::fs::File::create(&path).unwrap();
+        let mut enc = TiffEncoder::new(file).unwrap();
+        let mut image = enc.new_image::<colortype::RGBA8>(w, h).unwrap();
+        image.rows_per_strip(5).unwrap();
+        image.write_data(&data).unwrap();
+    }
+    let dir = tmp.path().join("tif");
+    let args = ["--input", path.to_str().unwrap(), "--tile", "16", "--clip", "32", "--format", "rgba8", "--pad"];
+    let ct = ct_path(&prep(&dir, &args));
+    let lv = levels(&ct);
+    assert_eq!(lv[0].size, (64, 32));
+    let l0 = read_level(&ct, 0, &lv[0], 4);
+    for t in 0..h {
+        for s in 0..64 {
+            let dst = ((t * 64 + s) * 4) as usize;
+            let want = if s < w { &data[(((h - 1 - t) * w + s) * 4) as usize..][..4] } else { &[0u8; 4][..] };
+            assert_eq!(&l0[dst..dst + 4], want, "texel ({s}, {t})");
+        }
+    }
+    assert_box_pyramid(&ct, 4);
+}
+
+#[test]
 fn linear_light_averages_in_linear_space_and_lanczos_keeps_flat_areas_flat() {
     let tmp = tempfile::tempdir().unwrap();
     let png = tmp.path().join("checker.png");
@@ -648,4 +678,277 @@ fn jpeg_input_is_accepted() {
     ));
     validate_strict(&ct);
     assert_eq!(levels(&ct).len(), 7);
+}
+
+/// Whether `cliptex tile` resolves tile (s, t) of `level` to a file that exists.
+fn tile_exists(ct: &str, level: usize, s: u64, t: u64) -> bool {
+    let (l, s, t) = (level.to_string(), s.to_string(), t.to_string());
+    let loc: Value = serde_json::from_str(&ok(CLIPTEX, &["tile", ct, "--level", &l, "--s", &s, "--t", &t, "--json"]))
+        .expect("cliptex tile --json prints JSON");
+    Path::new(loc["path"].as_str().unwrap()).exists()
+}
+
+#[test]
+fn sparse_inset_levels_hold_the_inset_a_magnified_border_and_absent_tiles_elsewhere() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("inset");
+    let (clip, tile, big_k) = (128u64, 64u64, 2usize);
+    let (s0, t0, s1, t1) = (1000u64, 600u64, 1200u64, 700u64);
+    let summary = prep(
+        &dir,
+        &[
+            "--source",
+            "hash",
+            "--size",
+            "2048",
+            "--tile",
+            "64",
+            "--clip",
+            "128",
+            "--format",
+            "rgba8",
+            "--inset",
+            "1000,600,1200,700",
+            "--inset-level",
+            "2",
+        ],
+    );
+    let ct = ct_path(&summary);
+    validate_strict(&ct);
+    let lv = levels(&ct);
+    let coarse = read_level(&ct, big_k, &lv[big_k], 4);
+    let coarse_w = lv[big_k].size.0;
+    let (mut inset_tiles, mut border_tiles, mut absent_tiles) = (0, 0, 0);
+    for (k, info) in lv.iter().enumerate().take(big_k) {
+        let (w, h) = info.size;
+        assert_eq!(info.tile, (tile, tile));
+        // The inset in level-k texels, rounded outwards.
+        let (is0, it0) = (s0 >> k, t0 >> k);
+        let (is1, it1) = (s1.div_ceil(1 << k), t1.div_ceil(1 << k));
+        let inset = |s: u64, t: u64| (s + 1) * tile > is0 && s * tile < is1 && (t + 1) * tile > it0 && t * tile < it1;
+        // The tiles that exist, and their bounding box.
+        let (mut bs0, mut bt0, mut bs1, mut bt1) = (u64::MAX, u64::MAX, 0, 0);
+        for t in 0..h / tile {
+            for s in 0..w / tile {
+                // Far-away tiles are checked on a coarse grid; everything near the inset exactly.
+                let near = s * tile + 3 * clip >= is0
+                    && s * tile <= is1 + 3 * clip
+                    && t * tile + 3 * clip >= it0
+                    && t * tile <= it1 + 3 * clip;
+                if !near && (s % 5 != 0 || t % 5 != 0) {
+                    continue;
+                }
+                if !tile_exists(&ct, k, s, t) {
+                    assert!(!inset(s, t), "level {k} inset tile ({s}, {t}) exists");
+                    absent_tiles += 1;
+                    continue;
+                }
+                (bs0, bt0, bs1, bt1) = (bs0.min(s), bt0.min(t), bs1.max(s + 1), bt1.max(t + 1));
+                let data = read_tile(&ct, k, s, t);
+                let shift = big_k - k;
+                for r in 0..tile {
+                    for x in 0..tile {
+                        let (ls, lt) = (s * tile + x, t * tile + r);
+                        let got = &data[((r * tile + x) * 4) as usize..][..4];
+                        if inset(s, t) {
+                            let mut expect = [0u8; 4];
+                            hash(k as u32, ls, lt, &mut expect);
+                            assert_eq!(got, expect, "level {k} inset texel ({ls}, {lt})");
+                        } else {
+                            let at = (((lt >> shift) * coarse_w + (ls >> shift)) * 4) as usize;
+                            assert_eq!(got, &coarse[at..at + 4], "level {k} border texel ({ls}, {lt})");
+                        }
+                    }
+                }
+                if inset(s, t) {
+                    inset_tiles += 1;
+                } else {
+                    border_tiles += 1;
+                }
+            }
+        }
+        // The border is at least one clip size wide on every side, unless the level ends first.
+        assert!(bs0 == 0 || bs0 * tile + clip <= is0, "level {k}: border left {bs0}");
+        assert!(bt0 == 0 || bt0 * tile + clip <= it0, "level {k}: border below {bt0}");
+        assert!(bs1 * tile == w || bs1 * tile >= is1 + clip, "level {k}: border right {bs1}");
+        assert!(bt1 * tile == h || bt1 * tile >= it1 + clip, "level {k}: border above {bt1}");
+        // Absent tiles are covered by the level's default tile: zeros, one tile long.
+        let ic = dir.join(format!("L{k:02}.ic"));
+        let info: Value =
+            serde_json::from_str(&ok(ICACHE, &["info", ic.to_str().unwrap(), "--json"])).expect("icache info --json");
+        let default = info["default_tile"].as_str().expect("the .ic names a default tile");
+        let bytes = std::fs::read(default).expect("the default tile exists");
+        assert_eq!(bytes.len() as u64, tile * tile * 4);
+        assert!(bytes.iter().all(|&b| b == 0));
+        ok(ICACHE, &["validate", "--strict", ic.to_str().unwrap()]);
+    }
+    assert!(!tile_exists(&ct, 0, 0, 0) && !tile_exists(&ct, 0, 31, 31), "far corners are absent");
+    assert_eq!(summary["inset_tiles"], inset_tiles);
+    assert_eq!(summary["border_tiles"], border_tiles);
+    assert!(absent_tiles > 0);
+    // Level K and coarser are complete: every texel is the source's.
+    for (k, info) in lv.iter().enumerate().skip(big_k) {
+        let level = read_level(&ct, k, info, 4);
+        let (w, h) = info.size;
+        for (s, t) in [(0, 0), (w - 1, h - 1), (w / 3, h / 2)] {
+            let mut expect = [0u8; 4];
+            hash(k as u32, s, t, &mut expect);
+            assert_eq!(&level[((t * w + s) * 4) as usize..][..4], expect, "level {k} ({s}, {t})");
+        }
+    }
+    assert!(std::fs::read_to_string(&ct).unwrap().contains("\n# Sparse: levels 0 to 1 exist only inside"));
+}
+
+#[test]
+fn filtered_insets_keep_the_texels_of_a_complete_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = ["--source", "terrain", "--size", "512", "--tile", "32", "--clip", "64", "--format", "rgb8"];
+    let full = ct_path(&prep(&tmp.path().join("full"), &base));
+    let mut args = base.to_vec();
+    args.extend_from_slice(&["--inset", "0,448,40,512", "--inset-level", "1"]);
+    let sparse = ct_path(&prep(&tmp.path().join("sparse"), &args));
+    validate_strict(&sparse);
+    // Level 0 inset tiles (columns 0-1, rows 14-15) are the complete run's; coarser levels are equal.
+    for (s, t) in [(0, 14), (1, 15), (0, 15)] {
+        assert_eq!(read_tile(&sparse, 0, s, t), read_tile(&full, 0, s, t), "tile ({s}, {t})");
+    }
+    let lv = levels(&full);
+    for (k, info) in lv.iter().enumerate().skip(1) {
+        assert_eq!(read_level(&sparse, k, info, 3), read_level(&full, k, info, 3), "level {k}");
+    }
+    assert!(!tile_exists(&sparse, 0, 15, 0), "a tile far from the inset is absent");
+}
+
+#[test]
+fn an_inset_outside_the_texture_or_at_a_pyramid_level_is_refused() {
+    let e = fails(
+        &[
+            "--source",
+            "hash",
+            "--size",
+            "256",
+            "--tile",
+            "32",
+            "--clip",
+            "64",
+            "--format",
+            "l8",
+            "--inset",
+            "0,0,300,10",
+            "--inset-level",
+            "1",
+            "--out",
+            "unused-inset-out",
+        ],
+        1,
+    );
+    assert!(e.contains("S1 <= 256"), "{e}");
+    let e = fails(
+        &[
+            "--source",
+            "hash",
+            "--size",
+            "256",
+            "--tile",
+            "32",
+            "--clip",
+            "64",
+            "--format",
+            "l8",
+            "--inset",
+            "0,0,8,8",
+            "--inset-level",
+            "5",
+            "--out",
+            "unused-inset-out",
+        ],
+        1,
+    );
+    assert!(e.contains("expected an inset level from 1 to 2"), "{e}");
+    assert!(!Path::new("unused-inset-out").exists());
+}
+
+#[test]
+fn zstd_tiles_decode_to_the_raw_tiles_and_keep_pyramid_levels_raw() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = ["--source", "terrain", "--size", "256", "--tile", "32", "--clip", "64", "--format", "rgb8"];
+    let raw = ct_path(&prep(&tmp.path().join("raw"), &base));
+    let mut args = base.to_vec();
+    args.extend_from_slice(&["--zstd", "3", "--inset", "0,0,64,64", "--inset-level", "1", "--streams", "2"]);
+    let dir = tmp.path().join("zst");
+    let zst = ct_path(&prep(&dir, &args));
+    validate_strict(&zst);
+    let ic = std::fs::read_to_string(dir.join("L00.ic")).unwrap();
+    assert!(ic.contains("tile_format %sL00/r%03d.c%03d.raw.zst\n"), "{ic}");
+    let lv = levels(&raw);
+    let written = |k: usize, s: u64, t: u64| {
+        let (l, s, t) = (k.to_string(), s.to_string(), t.to_string());
+        let loc: Value =
+            serde_json::from_str(&ok(CLIPTEX, &["tile", &zst, "--level", &l, "--s", &s, "--t", &t, "--json"])).unwrap();
+        std::fs::read(loc["path"].as_str().unwrap()).ok()
+    };
+    let level1 = read_level(&raw, 1, &lv[1], 3);
+    let mut compressed = 0;
+    for (k, info) in lv.iter().enumerate() {
+        for t in 0..info.size.1 / info.tile.1 {
+            for s in 0..info.size.0 / info.tile.0 {
+                let Some(bytes) = written(k, s, t) else {
+                    assert_eq!(k, 0, "only level 0 is sparse");
+                    continue;
+                };
+                let plain = read_tile(&raw, k, s, t);
+                if k < 2 {
+                    // Image-cache levels: one zstd frame per tile file.
+                    let decoded = zstd::bulk::decompress(&bytes, plain.len()).expect("a zstd frame");
+                    if k == 1 || (s < 2 && t < 2) {
+                        assert_eq!(decoded, plain, "level {k} tile ({s}, {t})");
+                    } else {
+                        // A border tile: level 1 (itself compressed) magnified.
+                        for i in 0..32 * 32 {
+                            let (x, y) = (s * 32 + i % 32, t * 32 + i / 32);
+                            let at = (((y / 2) * 128 + x / 2) * 3) as usize;
+                            assert_eq!(&decoded[i as usize * 3..][..3], &level1[at..at + 3], "border ({x}, {y})");
+                        }
+                    }
+                    compressed += 1;
+                } else {
+                    assert_eq!(bytes, plain, "pyramid level {k} stays raw");
+                }
+            }
+        }
+    }
+    assert!(compressed > 16);
+    let e = fails(&[&base[..], &["--zstd", "3", "--tiles-per-file", "2", "--out", "unused-zstd-out"]].concat(), 1);
+    assert!(e.contains("one tile per file"), "{e}");
+}
+
+#[test]
+fn a_wide_hash_texture_is_written_tile_by_tile_within_a_small_memory_limit() {
+    // 32768x128: a level-0 band of the filter cascade would be 3 x 128 rows x 32768 texels = 12 MiB;
+    // the hash source needs a tile per worker thread and the pyramid bands, under 1 MiB here.
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("wide");
+    let args = ["--source", "hash", "--size", "32768x128", "--tile", "64", "--clip", "128", "--format", "l8"];
+    let summary = prep(&dir, &[&args[..], &["--max-memory", "1"]].concat());
+    let buffers = summary["buffer_bytes"].as_u64().unwrap();
+    assert!(buffers <= 1 << 20, "{summary}");
+    assert!(buffers * 8 < 3 * 128 * 32768, "buffers do not grow with the width: {summary}");
+    let ct = ct_path(&summary);
+    validate_strict(&ct);
+    let lv = levels(&ct);
+    for (k, info) in lv.iter().enumerate().take(4) {
+        let (w, h) = info.size;
+        for (s, t) in [(0, 0), (w - 1, h - 1), (w / 2 + 3, h / 3)] {
+            let tile = read_tile(&ct, k, s / info.tile.0, t / info.tile.1);
+            let mut expect = [0u8; 1];
+            hash(k as u32, s, t, &mut expect);
+            assert_eq!(tile[((t % info.tile.1) * info.tile.0 + s % info.tile.0) as usize], expect[0], "{k} ({s}, {t})");
+        }
+    }
+    // The filtered sources still run the band cascade, whose memory grows with the width.
+    let e = fails(
+        &[&["--source", "terrain"][..], &args[2..], &["--max-memory", "1", "--out", "unused-wide-out"]].concat(),
+        1,
+    );
+    assert!(e.contains("one row of level-0 tiles"), "{e}");
 }

@@ -160,9 +160,9 @@ fn cross_group_and_no_ic_parameter_refusals() {
         "virt_size 2048 2048 1\nclip_size 512\nicache_format %s\nicache_params PFCLIPTEX_FNAMEARG_TILE_BASE\n",
     ));
     expect(&d, "param-not-allowed", Severity::Error, Some((8, 15)), &["tile base", "icache_params"]);
-    let d = ct_err(&ct(&format!(
-        "virt_size 2048 2048 1\nclip_size 512\nicache_files a b\ntile_format %s\ntile_params PFCLIPTEX_FNAMEARG_IMAGE_CACHE_BASE\n"
-    )));
+    let d = ct_err(&ct(
+        "virt_size 2048 2048 1\nclip_size 512\nicache_files a b\ntile_format %s\ntile_params PFCLIPTEX_FNAMEARG_IMAGE_CACHE_BASE\n",
+    ));
     expect(&d, "param-not-allowed", Severity::Error, Some((9, 13)), &["IMAGE_CACHE_BASE", "tile_params"]);
     // LEVEL in no-.ic mode would also name image cache tiles, where it means nothing.
     let d = ct_err(&ct(&format!(

@@ -121,17 +121,17 @@ fn unknown_or_misplaced_parameter_names() {
 
 #[test]
 fn too_many_parameters() {
-    let seven = vec!["PFCLIPTEX_FNAMEARG_LEVEL"; 7].join(" ");
+    let seven = ["PFCLIPTEX_FNAMEARG_LEVEL"; 7].join(" ");
     let d = ct_err(&ct(&format!(
         "virt_size 2048 2048 1\nclip_size 512\nicache_format {}\nicache_params {seven}\n",
         "%d".repeat(7)
     )));
     expect(&d, "too-many-params", Severity::Error, Some((8, 1)), &["7 parameters", "at most 6", ".ct"]);
-    let seventeen = vec!["PFIMAGECACHE_TILE_FILENAMEARG_TILENUM_S"; 17].join(" ");
+    let seventeen = ["PFIMAGECACHE_TILE_FILENAMEARG_TILENUM_S"; 17].join(" ");
     let d = ic_err(&format!("{SMALL_IC}tile_format {}\ntile_params {seventeen}\n", "%d".repeat(17)));
     expect(&d, "too-many-params", Severity::Error, Some((9, 1)), &["17 parameters", "at most 16", ".ic"]);
     // 16 is fine.
-    let sixteen = vec!["PFIMAGECACHE_TILE_FILENAMEARG_TILENUM_S"; 16].join(" ");
+    let sixteen = ["PFIMAGECACHE_TILE_FILENAMEARG_TILENUM_S"; 16].join(" ");
     ic_ok(&format!("{SMALL_IC}tile_format {}\ntile_params {sixteen}\n", "%d".repeat(16)));
 }
 

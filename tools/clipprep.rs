@@ -7,7 +7,7 @@ use clap::{Parser, ValueEnum};
 use clipmap::prep::error::next_power_of_two;
 use clipmap::prep::output::Staging;
 use clipmap::prep::source::open_image;
-use clipmap::prep::{Filter, Job, Layout, Limits, PrepError, Source, Spec};
+use clipmap::prep::{Compression, Filter, Inset, Job, Layout, Limits, PrepError, Source, Spec};
 use clipmap::texel::TexelFormat;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::io::IsTerminal;
@@ -118,6 +118,19 @@ struct Cli {
     /// Seed of the terrain source.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Sparse inset: a level-0 region S0,T0,S1,T1 (texels, S1 and T1 exclusive) outside which
+    /// the levels finer than --inset-level are absent (a default tile stands in), with a border
+    /// of at least one clip size of texels magnified from the inset level around it.
+    #[arg(long, value_name = "S0,T0,S1,T1", requires = "inset_level")]
+    inset: Option<String>,
+    /// The finest level that covers the whole texture when --inset is given (1 or more).
+    #[arg(long, value_name = "K", requires = "inset")]
+    inset_level: Option<u32>,
+    /// Compress image-cache tiles with zstd at this level (1-22), one frame per tile file named
+    /// `.raw.zst`: an extension only clipmap readers decode (Performer cannot); pyramid levels
+    /// stay raw.
+    #[arg(long, value_name = "LEVEL", value_parser = clap::value_parser!(i32).range(1..=22))]
+    zstd: Option<i32>,
     /// Memory limit in MiB for a decoded input image and the band cascade.
     #[arg(long, value_name = "MIB", default_value_t = 512)]
     max_memory: u64,
@@ -134,6 +147,16 @@ fn parse_pair(text: &str, what: &str) -> Result<(u64, u64), PrepError> {
             let n = num(text)?;
             Ok((n, n))
         }
+    }
+}
+
+fn parse_inset(text: &str, level: u32) -> Result<Inset, PrepError> {
+    let v: Vec<u64> = text.split(',').filter_map(|x| x.trim().parse().ok()).collect();
+    match v[..] {
+        [s0, t0, s1, t1] if text.split(',').count() == 4 => Ok(Inset { s0, t0, s1, t1, level }),
+        _ => Err(PrepError::Geometry(format!(
+            "--inset '{text}' is not four numbers S0,T0,S1,T1; expected level-0 texels such as 1024,2048,3072,4096"
+        ))),
     }
 }
 
@@ -206,6 +229,10 @@ fn prepare(cli: &Cli, cancel: &AtomicBool) -> Result<Outcome, PrepError> {
         Some(_) => parse_pair(&cli.tiles_per_file, "--tiles-per-file")?,
         None => (parse_pair(&cli.tiles_per_file, "--tiles-per-file")?.0, 1),
     };
+    let inset = match (&cli.inset, cli.inset_level) {
+        (Some(text), Some(level)) => Some(parse_inset(text, level)?),
+        _ => None,
+    };
     let layout = Layout::new(Spec {
         width,
         height,
@@ -215,6 +242,8 @@ fn prepare(cli: &Cli, cancel: &AtomicBool) -> Result<Outcome, PrepError> {
         tiles_in_file,
         header_bytes: cli.header_bytes,
         streams: cli.streams,
+        inset,
+        compression: cli.zstd.map(Compression::Zstd),
     })?;
     let filter = match cli.filter {
         FilterArg::Box => Filter::Box,
@@ -310,6 +339,10 @@ fn main() -> ExitCode {
                     "clip": spec.clip,
                     "tile": spec.tile,
                     "format": spec.format.short_name(),
+                    "inset_tiles": s.inset_tiles,
+                    "border_tiles": s.border_tiles,
+                    "absent_tiles": s.absent_tiles,
+                    "buffer_bytes": s.buffer_bytes,
                 });
                 println!("{v}");
             } else if !cli.quiet {

@@ -5,15 +5,18 @@
 use clap::{Parser, Subcommand};
 use clipmap::config::FileKind;
 use clipmap::plan;
-use clipmap::report::{self, exit, info, validate, EnvArgs};
+use clipmap::report::{self, check, exit, info, validate, EnvArgs};
+use clipmap::roam;
+use clipmap::source::FileSource;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 
 #[derive(Parser)]
 #[command(
     name = "cliptex",
     version,
-    about = "Inspect and validate clip-texture (.ct) configurations",
+    about = "Inspect, validate, size and fly clip textures (.ct configurations and their data)",
     after_help = "\
 Examples:
   cliptex validate config_examples/*.ct
@@ -21,6 +24,9 @@ Examples:
   cliptex info config_examples/v2_format_params.ct
   cliptex tile my.ct --level 0 --s 3 --t 5 --json
   cliptex info my.ct --env DATA=/mnt/terrain
+  cliptex roam --source hash --size 65536 --clip 1024 --flight straight:16:30 --frames 100
+  cliptex roam my.ct --flight circle:2000:8 --frames 300 --budget-ms 4 --json
+  cliptex check my.ct --json
 
 Exit status: 0 ok, 1 the input is bad, 2 the tool could not run."
 )]
@@ -32,21 +38,28 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Check .ct files (and every .ic they name); report every problem with file:line:col.
-    Validate {
-        /// The .ct files.
-        #[arg(required = true)]
-        files: Vec<PathBuf>,
-        /// Also fail on warnings and on anything Performer 3.0 would not read as intended.
+    Validate(validate::ValidateArgs),
+    /// A live view of a running service (levels, centres, valid regions, min LOD, tick rate).
+    #[command(after_help = "\
+Examples:
+  cliptex attach demo
+  cliptex attach terrain --once --json
+  cliptex attach terrain --shm-dir /tmp/maps --interval 0.5")]
+    Attach {
+        /// The service's --name.
+        name: String,
+        /// Where the service's mapping lives (the service's --shm-dir).
         #[arg(long)]
-        strict: bool,
-        /// Print a JSON report instead of text.
+        shm_dir: Option<PathBuf>,
+        /// Print one view and exit.
+        #[arg(long)]
+        once: bool,
+        /// Print JSON (implies --once).
         #[arg(long)]
         json: bool,
-        /// Print only the invalid files.
-        #[arg(long, short)]
-        quiet: bool,
-        #[command(flatten)]
-        env: EnvArgs,
+        /// Seconds between refreshes (and over which the tick rate is measured).
+        #[arg(long, default_value_t = 1.0)]
+        interval: f64,
     },
     /// Print every value (defaults marked) and the level table.
     Info {
@@ -122,6 +135,77 @@ Examples:
         #[command(flatten)]
         env: EnvArgs,
     },
+    /// Fly the clip centre over a texture and report what every frame cost.
+    #[command(after_help = "\
+Flights (speeds and distances in level-0 texels per frame, angles in degrees from +s):
+  straight:SPEED[:ANGLE]  circle:RADIUS:SPEED  zigzag:SPEED:PERIOD  hover  jump:EVERY:DIST
+
+Examples:
+  cliptex roam --source hash --size 65536 --clip 1024 --flight straight:16 --frames 50 --wait-for-reads
+  cliptex roam config_examples/prepared/hash256.ct --flight straight:4:45 --frames 20 --json
+  cliptex roam --source terrain --size 1048576 --clip 2048 --flight zigzag:64:20 --frames 200 --budget-ms inf")]
+    Roam(RoamArgs),
+    /// Walk every tile on disk: per level, tiles present, missing, short, unreadable and covered by the default tile.
+    #[command(after_help = "\
+Exit status: 0 every tile can be served (present, or covered by a default tile), 1 some cannot,
+2 the configuration cannot be read (unreadable or invalid).")]
+    Check {
+        /// The .ct file.
+        file: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// No progress bar and no table: only problems and a failing verdict are printed.
+        #[arg(long, short)]
+        quiet: bool,
+        #[command(flatten)]
+        env: EnvArgs,
+    },
+}
+
+#[derive(clap::Args)]
+struct RoamArgs {
+    /// The .ct file whose tiles are read (or use --source).
+    #[arg(required_unless_present = "source", conflicts_with = "source")]
+    config: Option<PathBuf>,
+    /// A procedural texture instead of a configuration (4-byte texels).
+    #[arg(long, value_enum, requires_all = ["size", "clip"])]
+    source: Option<ProceduralArg>,
+    /// Procedural texture size in texels a side.
+    #[arg(long)]
+    size: Option<u64>,
+    /// Procedural clip size.
+    #[arg(long)]
+    clip: Option<u64>,
+    /// Procedural tile size in texels a side.
+    #[arg(long, default_value_t = 256)]
+    tile: u64,
+    /// Invalid border in texels (default: the configuration's, 0 for a procedural texture).
+    #[arg(long)]
+    border: Option<u64>,
+    /// The flight: straight:SPEED[:ANGLE], circle:RADIUS:SPEED, zigzag:SPEED:PERIOD, hover, jump:EVERY:DIST.
+    #[arg(long)]
+    flight: String,
+    /// Frames to fly.
+    #[arg(long)]
+    frames: u64,
+    /// Copy budget per frame in milliseconds (`inf`: no limit).
+    #[arg(long, default_value_t = 6.0)]
+    budget_ms: f64,
+    /// Wait for every read between frames (an ideally fast disk): the report is deterministic.
+    #[arg(long)]
+    wait_for_reads: bool,
+    /// Print JSON instead of the per-frame table.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    env: EnvArgs,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum ProceduralArg {
+    Hash,
+    Terrain,
 }
 
 fn main() -> ExitCode {
@@ -156,21 +240,144 @@ fn load(file: &PathBuf, env: &EnvArgs) -> Result<(plan::ClipTexturePlan, Vec<cli
     }
 }
 
-fn run(cli: Cli) -> i32 {
-    match cli.command {
-        Command::Validate { files, strict, json, quiet, env } => {
-            let o = match opts(&env) {
-                Ok(o) => o,
+fn roam(args: RoamArgs) -> i32 {
+    let flight: roam::Flight = match args.flight.parse() {
+        Ok(f) => f,
+        Err(e) => {
+            eprintln!("cliptex roam: --flight {e}");
+            return exit::COULD_NOT_RUN;
+        }
+    };
+    if args.budget_ms.is_nan() || args.budget_ms < 0.0 {
+        eprintln!(
+            "cliptex roam: --budget-ms {}: expected a number of milliseconds of at least 0, or inf",
+            args.budget_ms
+        );
+        return exit::COULD_NOT_RUN;
+    }
+    let options = match (&args.config, args.source) {
+        (Some(file), _) => {
+            let plan = match load(file, &args.env) {
+                Ok((p, _)) => p,
                 Err(c) => return c,
             };
-            let r = validate::run(&files, FileKind::ClipTexture, strict, &o);
-            if json {
-                println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
-            } else {
-                print!("{}", r.human(quiet));
+            match FileSource::new(plan, &clipmap::limits::Limits::default()) {
+                Ok(src) => roam::RoamOptions::over(Arc::new(src), flight, args.frames),
+                Err(e) => {
+                    eprintln!("cliptex roam: {e}");
+                    return exit::BAD_INPUT;
+                }
             }
-            r.exit_code()
         }
+        (None, Some(kind)) => {
+            let kind = match kind {
+                ProceduralArg::Hash => roam::Procedural::Hash,
+                ProceduralArg::Terrain => roam::Procedural::Terrain,
+            };
+            let (size, clip) = (args.size.unwrap_or(0), args.clip.unwrap_or(0));
+            match roam::RoamOptions::procedural(kind, size, clip, args.tile, 0, flight, args.frames) {
+                Ok(o) => o,
+                Err(e) => {
+                    eprintln!("cliptex roam: {e}");
+                    return exit::COULD_NOT_RUN;
+                }
+            }
+        }
+        (None, None) => {
+            eprintln!("cliptex roam: give a .ct file or --source hash|terrain with --size and --clip");
+            return exit::COULD_NOT_RUN;
+        }
+    };
+    let options = roam::RoamOptions {
+        budget_ms: args.budget_ms.is_finite().then_some(args.budget_ms),
+        wait_for_reads: args.wait_for_reads,
+        invalid_border: args.border,
+        ..options
+    };
+    match roam::run(options) {
+        Ok(report) => {
+            if args.json {
+                println!("{}", serde_json::to_string_pretty(&report).expect("report serialises"));
+            } else {
+                print!("{}", roam::human(&report));
+            }
+            exit::OK
+        }
+        Err(e) => {
+            eprintln!("cliptex roam: {e}");
+            exit::COULD_NOT_RUN
+        }
+    }
+}
+
+fn check(file: &PathBuf, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
+    use std::io::IsTerminal;
+    let plan = match load(file, env) {
+        Ok((p, _)) => p,
+        Err(_) => return exit::COULD_NOT_RUN,
+    };
+    let bar = if !quiet && std::io::stderr().is_terminal() {
+        let bar = indicatif::ProgressBar::new(check::tile_count(&plan));
+        if let Ok(style) = indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} tiles {eta}") {
+            bar.set_style(style);
+        }
+        bar
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let report = check::run(&plan, &|n| bar.inc(n));
+    bar.finish_and_clear();
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report).expect("report serialises"));
+    } else {
+        print!("{}", check::human(&report, quiet));
+    }
+    if report.servable {
+        exit::OK
+    } else {
+        exit::BAD_INPUT
+    }
+}
+
+fn run(cli: Cli) -> i32 {
+    match cli.command {
+        Command::Check { file, json, quiet, env } => check(&file, json, quiet, &env),
+        Command::Roam(args) => roam(args),
+        Command::Attach { name, shm_dir, once, json, interval } => {
+            let dir = shm_dir.unwrap_or_else(clipmap::shm::default_dir);
+            let every = std::time::Duration::from_secs_f64(interval.clamp(0.05, 3600.0));
+            let live = !once && !json && std::io::IsTerminal::is_terminal(&std::io::stdout());
+            loop {
+                match report::attach::status(
+                    &dir,
+                    &name,
+                    every.min(std::time::Duration::from_millis(250)).max(if live {
+                        every
+                    } else {
+                        std::time::Duration::ZERO
+                    }),
+                ) {
+                    Ok(s) => {
+                        if json {
+                            println!("{}", serde_json::to_string_pretty(&s).expect("status serialises"));
+                        } else {
+                            if live {
+                                print!("\x1b[2J\x1b[H");
+                            }
+                            print!("{}", report::attach::human(&s));
+                        }
+                        if !live || s.closed {
+                            return exit::OK;
+                        }
+                    }
+                    Err(e) => {
+                        eprintln!("cliptex attach: {e}");
+                        return exit::COULD_NOT_RUN;
+                    }
+                }
+            }
+        }
+        Command::Validate(args) => validate::cli(&args, FileKind::ClipTexture, "cliptex"),
         Command::Info { file, json, env } => match load(&file, &env) {
             Err(c) => c,
             Ok((p, warnings)) => {
@@ -244,20 +451,7 @@ fn run(cli: Cli) -> i32 {
         }
         Command::Tile { file, level, s, t, json, env } => match load(&file, &env) {
             Err(c) => c,
-            Ok((p, _)) => match p.locate(level, s, t) {
-                Ok(loc) => {
-                    if json {
-                        println!("{}", serde_json::to_string_pretty(&loc).expect("location serialises"));
-                    } else {
-                        print!("{}", info::tile_human(&loc));
-                    }
-                    exit::OK
-                }
-                Err(e) => {
-                    eprintln!("cliptex: {}: {e}", file.display());
-                    exit::BAD_INPUT
-                }
-            },
+            Ok((p, _)) => info::print_tile(p.locate(level, s, t), json, "cliptex", &file),
         },
     }
 }

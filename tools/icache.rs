@@ -30,22 +30,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Check standalone .ic files; report every problem with file:line:col.
-    Validate {
-        /// The .ic files.
-        #[arg(required = true)]
-        files: Vec<PathBuf>,
-        /// Also fail on warnings and on anything Performer 3.0 would not read as intended.
-        #[arg(long)]
-        strict: bool,
-        /// Print a JSON report instead of text.
-        #[arg(long)]
-        json: bool,
-        /// Print only the invalid files.
-        #[arg(long, short)]
-        quiet: bool,
-        #[command(flatten)]
-        env: EnvArgs,
-    },
+    Validate(validate::ValidateArgs),
     /// Print every value (defaults marked).
     Info {
         /// The .ic file.
@@ -106,19 +91,7 @@ fn load(file: &PathBuf, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clip
 
 fn run(cli: Cli) -> i32 {
     match cli.command {
-        Command::Validate { files, strict, json, quiet, env } => {
-            let o = match opts(&env) {
-                Ok(o) => o,
-                Err(c) => return c,
-            };
-            let r = validate::run(&files, FileKind::ImageCache, strict, &o);
-            if json {
-                println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
-            } else {
-                print!("{}", r.human(quiet));
-            }
-            r.exit_code()
-        }
+        Command::Validate(args) => validate::cli(&args, FileKind::ImageCache, "icache"),
         Command::Info { file, json, env } => match load(&file, &env) {
             Err(c) => c,
             Ok((p, warnings)) => {
@@ -135,20 +108,7 @@ fn run(cli: Cli) -> i32 {
         },
         Command::Tile { file, s, t, r, json, env } => match load(&file, &env) {
             Err(c) => c,
-            Ok((p, _)) => match p.locate(s, t, r) {
-                Ok(loc) => {
-                    if json {
-                        println!("{}", serde_json::to_string_pretty(&loc).expect("location serialises"));
-                    } else {
-                        print!("{}", info::tile_human(&loc));
-                    }
-                    exit::OK
-                }
-                Err(e) => {
-                    eprintln!("icache: {}: {e}", file.display());
-                    exit::BAD_INPUT
-                }
-            },
+            Ok((p, _)) => info::print_tile(p.locate(s, t, r), json, "icache", &file),
         },
     }
 }

@@ -134,13 +134,23 @@ pub fn render_mipmap(cam: &Camera, source: &dyn TileSource, filter: Filter) -> V
 
 /// Renders from the clipmap as published (min LOD and the finest-available rule applied).
 pub fn render_clipmap(cam: &Camera, map: &Clipmap, filter: Filter) -> Vec<Pixel> {
+    render_clipmap_levels(cam, map, filter, None)
+}
+
+/// Renders from the clipmap seeing only the levels `lod_offset .. lod_offset + effective` (a
+/// virtual clip texture, PERFORMER.md §2.7): the LOD asked for is clamped into that window.
+pub fn render_clipmap_levels(cam: &Camera, map: &Clipmap, filter: Filter, window: Option<(u32, u32)>) -> Vec<Pixel> {
     let size = map.desc().size();
-    let last = map.level_count() as f64 - 1.0;
+    let count = map.level_count() as f64;
+    let (lo, last) = match window {
+        Some((offset, effective)) => (offset as f64, (offset as f64 + effective.max(1) as f64 - 1.0).min(count - 1.0)),
+        None => (0.0, count - 1.0),
+    };
     (0..cam.height)
         .flat_map(|j| (0..cam.width).map(move |i| (i, j)))
         .map(|(i, j)| match cam.footprint(i, j) {
             Some(fp) if in_texture(fp.uv, size) => {
-                match sample_clipmap(map, filter, fp.uv[0], fp.uv[1], fp.lod.clamp(0.0, last)) {
+                match sample_clipmap(map, filter, fp.uv[0], fp.uv[1], fp.lod.clamp(lo, last)) {
                     Some(s) => Pixel { rgba: quantise(s.rgba), lod: s.lod, ground: true },
                     None => Pixel { rgba: [0, 0, 0, 255], lod: last, ground: true },
                 }

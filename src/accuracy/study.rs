@@ -6,7 +6,7 @@
 //! real copy speed separately.
 
 use super::cache::CachedSource;
-use super::render::{render_clipmap, render_mipmap, Camera, Pixel};
+use super::render::{render_clipmap_levels, render_mipmap, Camera, Pixel};
 use crate::clip::{Clipmap, CostTable, Settings};
 use crate::roam::{Flight, Procedural};
 use crate::sample::Filter;
@@ -48,6 +48,9 @@ pub struct Case {
     pub fov_deg: f64,
     /// Wait for every tile read before rendering (an ideally fast disk).
     pub wait_for_reads: bool,
+    /// A virtual clip texture: the renderer addresses only this many levels at once, from a LOD
+    /// offset chosen each frame from the eye height (Performer's rule, keeping resolution).
+    pub effective_levels: Option<u32>,
 }
 
 impl Case {
@@ -67,6 +70,7 @@ impl Case {
             pitch_deg: 35.0,
             fov_deg: 60.0,
             wait_for_reads: true,
+            effective_levels: None,
         }
     }
 }
@@ -127,6 +131,9 @@ pub enum StudyError {
     /// Bad flight.
     #[error("{0}")]
     Flight(#[from] crate::roam::FlightError),
+    /// An output could not be written.
+    #[error("cannot write a picture: {0}")]
+    Io(String),
 }
 
 /// Compares a frame with its reference.
@@ -204,7 +211,23 @@ pub fn run(case: &Case, mut keep: impl FnMut(u64, &Camera, &[Pixel], &[Pixel])) 
         }
         let cam = Camera::following(foot, case.eye_height, heading, case.pitch_deg, case.fov_deg, case.display);
         let want = render_mipmap(&cam, &reference, Filter::Trilinear);
-        let got = render_clipmap(&cam, &map, Filter::Trilinear);
+        let window = case.effective_levels.map(|eff| {
+            let levels = map.level_count() as u32;
+            let lod = crate::sizing::finest_lod_at_foot(case.eye_height, case.fov_deg, case.display[0] as u64, 1.0);
+            let v = crate::sizing::virtual_params(&crate::sizing::VirtualInputs {
+                levels,
+                clip_size: case.clip_size,
+                invalid_border: case.invalid_border,
+                min_lod_tex_pix: lod,
+                min_lod_loaded: map.min_lod(),
+                max_lod_loaded: levels as f64,
+                bbox_min_dist: 0.0,
+                bbox_max_dist: 0.0,
+                tradeoff: 0.0,
+            });
+            (v.lod_offset, eff.min(v.effective_levels))
+        });
+        let got = render_clipmap_levels(&cam, &map, Filter::Trilinear, window);
         let (psnr, max_error, coarser) = compare(&want, &got);
         keep(f, &cam, &want, &got);
         frames.push(FrameMetrics {

@@ -48,3 +48,27 @@ fn a_tighter_budget_or_a_faster_flight_draws_more_pixels_coarser() {
     let (slow, fast) = (at(0.02, 2.0), at(0.02, 64.0));
     assert!(fast > slow, "fast {fast} <= slow {slow}");
 }
+
+#[test]
+fn a_virtual_clip_texture_with_few_effective_levels_loses_the_far_field() {
+    // Looking towards the horizon needs every level; a window of 2 levels cannot reach the
+    // coarse ones, so far pixels are drawn too sharp (aliased) and differ from the reference.
+    let all = Case { effective_levels: Some(32), pitch_deg: 15.0, ..case(256, 128) };
+    let few = Case { effective_levels: Some(2), pitch_deg: 15.0, ..case(256, 128) };
+    let o_all = run(&all, |_, _, _, _| {}).unwrap();
+    let o_few = run(&few, |_, _, _, _| {}).unwrap();
+    assert_eq!((o_all.psnr_min, o_all.max_error), (None, 0), "all levels addressable: identical");
+    assert!(o_few.max_error > 0 && o_few.psnr_min.is_some(), "{:?}", (o_few.psnr_min, o_few.max_error));
+}
+
+#[test]
+fn a_wider_invalid_border_never_improves_the_picture() {
+    let mut last = -1.0;
+    for border in [8u64, 16, 32] {
+        let o = run(&Case { invalid_border: border, ..case(128, 128) }, |_, _, _, _| {}).unwrap();
+        assert!(o.coarser_pixel_share >= last, "border {border}: {} < {last}", o.coarser_pixel_share);
+        last = o.coarser_pixel_share;
+    }
+    let narrow = run(&Case { invalid_border: 8, ..case(128, 128) }, |_, _, _, _| {}).unwrap().coarser_pixel_share;
+    assert!(last > narrow, "a 32-texel border must cost more than an 8-texel one: {last} vs {narrow}");
+}

@@ -34,7 +34,9 @@ use window::Window;
 pub struct Settings {
     /// Extra tile rows and columns kept beyond those the window touches (Performer default 1).
     pub lookahead: u64,
-    /// Number of stream servers (read queues); tile (S, T) is read by server S mod n.
+    /// Number of stream servers (read queues); the source picks each tile's queue
+    /// ([`TileSource::stream_of`], by default tile column S mod n). Use the source's
+    /// [`TileSource::stream_servers`] to give each configured server its own queue.
     pub streams: usize,
     /// Copy budget per tick in nanoseconds of estimated cost; `None` copies everything.
     pub budget_ns: Option<u64>,
@@ -443,4 +445,4 @@ impl Clipmap {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

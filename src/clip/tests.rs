@@ -25,7 +25,7 @@ fn settings(budget_ns: Option<u64>) -> Settings {
 
 /// Every texel of every published valid region against the hash texture; at most `stride`-th
 /// texels of each row on very wide regions.
-fn check_published(map: &Clipmap) -> Result<u64, String> {
+pub(crate) fn check_published(map: &Clipmap) -> Result<u64, String> {
     let bpt = map.desc().bytes_per_texel();
     let mut want = vec![0u8; bpt];
     let mut checked = 0;
@@ -50,7 +50,7 @@ fn check_published(map: &Clipmap) -> Result<u64, String> {
 }
 
 /// A publisher that checks every publication.
-fn checker(errors: &mut Vec<String>) -> impl FnMut(Phase, &Clipmap) + '_ {
+pub(crate) fn checker(errors: &mut Vec<String>) -> impl FnMut(Phase, &Clipmap) + '_ {
     move |phase, map| {
         if let Err(e) = check_published(map) {
             errors.push(format!("{phase:?}: {e}"));
@@ -60,7 +60,7 @@ fn checker(errors: &mut Vec<String>) -> impl FnMut(Phase, &Clipmap) + '_ {
 
 /// Ticks at `centre`, waiting for reads in between, until every level is published whole and
 /// min LOD is 0; panics if that takes more than `max_ticks`.
-fn settle(map: &mut Clipmap, centre: [i64; 2], max_ticks: usize) -> usize {
+pub(crate) fn settle(map: &mut Clipmap, centre: [i64; 2], max_ticks: usize) -> usize {
     for n in 0..max_ticks {
         let r = map.tick(centre, Some([0, 0]));
         if r.min_lod == 0.0

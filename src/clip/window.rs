@@ -11,7 +11,7 @@
 //! `content` is seeded with rows at the bottom of the goal.
 
 use crate::cache::TileCache;
-use crate::geom::{tiles_covering, window_index, Rect};
+use crate::geom::{tiles_covering, wrap, Rect};
 use crate::source::TileId;
 
 /// A strip of lines adjacent to `content`, growing it along `axis` (0: s, 1: t) in direction
@@ -128,20 +128,34 @@ impl Window {
         let [tw, th] = [self.tile[0] as i64, self.tile[1] as i64];
         let bpt = self.bpt;
         let clip = self.clip as i64;
+        // The runs of a row (split at tile edges and at the window's wrap) are the same for every
+        // row: (tile column in `sources`, byte offset in a tile row, byte offset in a window row,
+        // bytes). Computing them once keeps divisions out of the per-row loop.
+        let mut runs = Vec::new();
+        let mut s = rect.s0;
+        while s < rect.s1 {
+            let ts = s.div_euclid(tw);
+            let ws = s.rem_euclid(clip);
+            let end = ((ts + 1) * tw).min(rect.s1).min(s + (clip - ws));
+            runs.push((
+                (ts - tiles.s0) as usize,
+                (s - ts * tw) as usize * bpt,
+                ws as usize * bpt,
+                (end - s) as usize * bpt,
+            ));
+            s = end;
+        }
+        let window_row = self.dims[0] as usize * bpt;
+        let tile_row = tw as usize * bpt;
+        let tiles_w = tiles.width() as usize;
         for t in rect.t0..rect.t1 {
             let tt = t.div_euclid(th);
-            let mut s = rect.s0;
-            while s < rect.s1 {
-                let ts = s.div_euclid(tw);
-                let tile_end = ((ts + 1) * tw).min(rect.s1);
-                let wrap_end = s + (clip - s.rem_euclid(clip));
-                let end = tile_end.min(wrap_end);
-                let n = (end - s) as usize;
-                let data = sources[((tt - tiles.t0) * tiles.width() as i64 + (ts - tiles.s0)) as usize];
-                let src = (((t - tt * th) * tw + (s - ts * tw)) as usize) * bpt;
-                let dst = window_index(s, t, self.clip, self.dims) * bpt;
-                self.buf[dst..dst + n * bpt].copy_from_slice(&data[src..src + n * bpt]);
-                s = end;
+            let src_row = (t - tt * th) as usize * tile_row;
+            let dst_row = wrap(t, self.clip) as usize * window_row;
+            let row_sources = &sources[(tt - tiles.t0) as usize * tiles_w..];
+            for &(col, src_at, dst_at, n) in &runs {
+                let (src, dst) = (src_row + src_at, dst_row + dst_at);
+                self.buf[dst..dst + n].copy_from_slice(&row_sources[col][src..src + n]);
             }
         }
         Some(rect.area() * bpt as u64)

@@ -52,6 +52,17 @@ pub fn ct_text(layout: &Layout, description: &[String]) -> String {
         layout.pyramid_levels().count()
     );
     out.push_str("# Texel (s, t) of a tile is at byte ((t mod tile height) * tile width + (s mod tile width)) * bytes per texel.\n");
+    if let Some(i) = &spec.inset {
+        let _ = writeln!(
+            out,
+            "# Sparse: levels 0 to {} exist only inside the level-0 region [{}, {}) x [{}, {}) and a border at least clip_size wide; their other tiles are absent (each .ic names a default tile).",
+            i.level - 1,
+            i.s0,
+            i.s1,
+            i.t0,
+            i.t1
+        );
+    }
     formats(&mut out, spec.format);
     let _ = writeln!(out, "virt_size {} {} 1", spec.width, spec.height);
     let _ = writeln!(out, "clip_size {}", spec.clip);
@@ -107,6 +118,15 @@ pub fn ic_text(layout: &Layout, level: &Level, ct_name: &str) -> String {
         let _ = write!(out, " {p}");
     }
     out.push('\n');
+    if let Some(sp) = layout.sparse(level) {
+        let (i, w) = (sp.inset, sp.written);
+        let _ = writeln!(
+            out,
+            "# Sparse level: tiles [{}, {}) x [{}, {}) hold the inset, tiles [{}, {}) x [{}, {}) around them texels of level {} magnified; all others are absent.",
+            i.s0, i.s1, i.t0, i.t1, w.s0, w.s1, w.t0, w.t1, layout.spec.inset.map_or(0, |x| x.level)
+        );
+        let _ = writeln!(out, "default_tile {}", Layout::default_tile_file(level.index));
+    }
     if let Some(n) = spec.streams {
         out.push_str("# Stream servers, chosen by tile column modulo their number.\n");
         out.push_str("s_stream");

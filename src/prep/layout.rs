@@ -10,11 +10,13 @@
 //! ```text
 //! NAME.ct                    the clip texture
 //! L00.ic, L01.ic, ...        one image cache per image-cache level
-//! [streamN/]L00/rRRR.cCCC.raw  image-cache tile files (R = file row, C = file column)
+//! [streamN/]L00/rRRR.cCCC.raw  image-cache tile files (R = file row, C = file column);
+//!                            `.raw.zst` when compressed (one zstd frame per tile)
 //! pyramid/L05.raw, ...       one file per pyramid level (a single tile the size of the level)
 //! ```
 
 use super::error::{next_power_of_two, PrepError};
+use super::inset::{Inset, SparseLevel, TileRole};
 use crate::texel::TexelFormat;
 use std::path::PathBuf;
 
@@ -41,6 +43,22 @@ pub struct Spec {
     pub header_bytes: u64,
     /// Number of stream servers (directories `stream0/` ...); `None` for none.
     pub streams: Option<u32>,
+    /// A sparse inset: levels finer than its level exist only around it.
+    pub inset: Option<Inset>,
+    /// Compression of image-cache tiles (pyramid levels stay raw).
+    pub compression: Option<Compression>,
+}
+
+/// How image-cache tiles are compressed: an extension of this crate, which Performer cannot read.
+///
+/// Each tile is one file holding one zstd frame of the raw tile (the bytes Performer's layout
+/// would hold); the tile files end in `.raw.zst` instead of `.raw`, which is the only mark in the
+/// configuration. Pyramid levels stay raw.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Compression {
+    /// zstd at the given level (1 to 22; 3 is zstd's default).
+    Zstd(i32),
 }
 
 /// Whether a level is paged through an image cache or held whole.
@@ -151,6 +169,11 @@ impl Layout {
         if spec.tiles_in_file.0 == 0 || spec.tiles_in_file.1 == 0 {
             return Err(PrepError::Geometry("--tiles-per-file must be at least 1 along each axis".into()));
         }
+        if spec.compression.is_some() && (spec.tiles_in_file != (1, 1) || spec.header_bytes != 0) {
+            return Err(PrepError::Geometry(
+                "compressed tiles are one tile per file without a header (a compressed tile has no fixed offset); drop --tiles-per-file and --header-bytes, or --compress".into(),
+            ));
+        }
         if spec.streams == Some(0) {
             return Err(PrepError::Geometry("--streams must be at least 1".into()));
         }
@@ -194,7 +217,38 @@ impl Layout {
             levels.push(Level { index: k, width: lw, height: lh, kind: LevelKind::Pyramid, tile_w: lw, tile_h: lh });
             k += 1;
         }
-        Ok(Layout { spec, levels, smallest_icache: smallest, smallest_icache_is_default: smallest == default })
+        let layout =
+            Layout { spec, levels, smallest_icache: smallest, smallest_icache_is_default: smallest == default };
+        if let Some(inset) = &layout.spec.inset {
+            inset.check(&layout)?;
+        }
+        Ok(layout)
+    }
+
+    /// The tiles of `level` if the layout has an inset and the level is finer than its level.
+    pub fn sparse(&self, level: &Level) -> Option<SparseLevel> {
+        self.spec.inset.as_ref().and_then(|i| i.sparse(self, level))
+    }
+
+    /// What tile (s, t) of `level` holds.
+    pub fn tile_role(&self, level: &Level, s: u64, t: u64) -> TileRole {
+        self.sparse(level).map_or(TileRole::Source, |sp| sp.role(s, t))
+    }
+
+    /// The default tile of a sparse image-cache level, relative to the `.ct` (beside its `.ic`).
+    pub fn default_tile_file(level: u32) -> String {
+        format!("L{level:02}.default.raw")
+    }
+
+    /// Texels written over all levels (all of them, less the absent tiles of sparse levels).
+    pub fn written_texels(&self) -> u64 {
+        self.levels
+            .iter()
+            .map(|l| match self.sparse(l) {
+                Some(sp) => sp.written.count() * l.tile_w * l.tile_h,
+                None => l.texels(),
+            })
+            .sum()
     }
 
     /// Bytes per texel.
@@ -241,7 +295,20 @@ impl Layout {
     /// parameters are [`Layout::tile_params`].
     pub fn tile_format(&self, level: u32) -> String {
         let stream = if self.spec.streams.is_some() { "%s" } else { "" };
-        format!("{stream}{}/r%03d.c%03d.raw", Self::level_dir(level))
+        format!("{stream}{}/r%03d.c%03d{}", Self::level_dir(level), self.tile_extension())
+    }
+
+    /// The extension of image-cache tile files: `.raw`, or `.raw.zst` when compressed.
+    pub fn tile_extension(&self) -> &'static str {
+        match self.spec.compression {
+            None => ".raw",
+            Some(Compression::Zstd(_)) => ".raw.zst",
+        }
+    }
+
+    /// True when tiles of `level` are written compressed (whole tiles, one per file).
+    pub fn compressed(&self, level: &Level) -> bool {
+        self.spec.compression.is_some() && level.kind == LevelKind::ImageCache
     }
 
     /// The `tile_params` of [`Layout::tile_format`].
@@ -272,7 +339,7 @@ impl Layout {
                 if let Some(i) = stream {
                     path.push_str(&Self::stream_name(i));
                 }
-                path.push_str(&format!("{}/r{ft:03}.c{fs:03}.raw", Self::level_dir(level.index)));
+                path.push_str(&format!("{}/r{ft:03}.c{fs:03}{}", Self::level_dir(level.index), self.tile_extension()));
                 TileLocation {
                     path: PathBuf::from(path),
                     offset: pos * length + self.spec.header_bytes,
@@ -316,6 +383,8 @@ mod tests {
             tiles_in_file: (1, 1),
             header_bytes: 0,
             streams: None,
+            inset: None,
+            compression: None,
         }
     }
 
@@ -357,6 +426,18 @@ mod tests {
         assert!(!l.smallest_icache_is_default);
         assert_eq!(l.image_cache_levels().count(), 1);
         assert_eq!(l.levels.len(), 7);
+    }
+
+    #[test]
+    fn compressed_tiles_are_named_raw_zst_one_per_file() {
+        let mut sp = spec(1024, 1024, 256, 128);
+        sp.compression = Some(Compression::Zstd(3));
+        let l = Layout::new(sp.clone()).unwrap();
+        assert_eq!(l.tile_format(0), "L00/r%03d.c%03d.raw.zst");
+        assert_eq!(l.tile(&l.levels[1], 2, 3).path, PathBuf::from("L01/r003.c002.raw.zst"));
+        assert!(l.compressed(&l.levels[1]) && !l.compressed(&l.levels[2]));
+        sp.header_bytes = 16;
+        assert!(Layout::new(sp).unwrap_err().to_string().contains("one tile per file"));
     }
 
     #[test]

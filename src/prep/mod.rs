@@ -7,19 +7,27 @@
 //! | [`configfile`] | the `.ct` / `.ic` text of a layout |
 //! | [`source`] | level texels: `hash` per level, `terrain` and images at level 0 |
 //! | [`tiff_stream`] | streaming TIFF input, strip by strip or tile row by tile row |
+//! | [`inset`] | sparse insets: which tiles of a finer level are inset, border or absent |
 //! | [`filter`] | row-by-row 2:1 reduction (box, Lanczos-3, optional linear light) |
 //! | [`sink`] | cutting bands of rows into tiles and writing them at their offsets |
+//! | [`border`] | border tiles of sparse levels, magnified from the inset level |
 //! | [`pipeline`] | one run: configuration, then the band cascade down the levels |
 //! | [`output`] | the temporary sibling directory and the final rename |
 //!
-//! Memory is bounded by a few bands of one row of level-0 tiles (tile height x level-0 width),
-//! never by the texture: levels are generated or filtered band by band, each coarser level fed
-//! row by row from the one above. This module does not read configuration files; checking what
-//! it wrote is left to [`crate::config`] and the plan.
+//! Memory is bounded by [`pipeline::buffer_memory`], checked before anything is written: the hash
+//! source writes image-cache levels tile by tile (one tile per worker thread, whatever the
+//! texture's size); filtered sources (terrain, images) run a band cascade of a few bands of one
+//! row of level-0 tiles (tile height x level-0 width), each coarser level fed row by row from the
+//! one above, so their memory grows with the texture's width but never with its height.
+//!
+//! This module does not read configuration files; checking what it wrote is left to
+//! [`crate::config`] and the plan.
 
+pub mod border;
 pub mod configfile;
 pub mod error;
 pub mod filter;
+pub mod inset;
 pub mod layout;
 pub mod output;
 pub mod pipeline;
@@ -29,14 +37,16 @@ pub mod tiff_stream;
 
 pub use error::PrepError;
 pub use filter::Filter;
-pub use layout::{Layout, Level, LevelKind, Spec, TileLocation};
+pub use inset::{Inset, TileRole};
+pub use layout::{Compression, Layout, Level, LevelKind, Spec, TileLocation};
 pub use pipeline::{run, Job, Source, Summary};
 
 /// Every memory bound of a preparation run.
 #[derive(Clone, Debug)]
 pub struct Limits {
     /// Most memory a run may plan to use: the decoded size of an in-memory input image, and the
-    /// band cascade (about three bands of one row of level-0 tiles).
+    /// buffers of [`pipeline::buffer_memory`] (for filtered sources about three bands of one row
+    /// of level-0 tiles).
     pub max_memory_bytes: u64,
     /// Most bytes of one band of a pyramid level (pyramid levels are one tile each, written in
     /// bands of rows).

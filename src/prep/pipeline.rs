@@ -2,14 +2,18 @@
 //! in bands of tile rows cascading down the levels, so memory is bounded by a few bands of
 //! level-0 width, never by the texture size.
 
+use super::border::write_borders;
 use super::configfile::{ct_text, ic_text};
 use super::error::PrepError;
 use super::filter::{Channels, Downsampler, Filter};
-use super::layout::Layout;
+use super::inset::TileRole;
+use super::layout::{Layout, Level, LevelKind};
+use super::sink::write_tile_part;
 use super::sink::LevelWriter;
 use super::source::{BandSource, HashLevel, OpenedImage, TerrainLevel0};
 use super::Limits;
-use crate::source::procedural::Terrain;
+use crate::source::procedural::{hash_region, Terrain};
+use rayon::prelude::*;
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -62,6 +66,14 @@ pub struct Summary {
     pub bytes: u64,
     /// Texels written over all levels.
     pub texels: u64,
+    /// Tiles of sparse levels that hold the source's texels (0 without an inset).
+    pub inset_tiles: u64,
+    /// Border tiles of sparse levels (magnified from the inset level).
+    pub border_tiles: u64,
+    /// Tiles of sparse levels left absent (the default tile stands in).
+    pub absent_tiles: u64,
+    /// The most memory the run's buffers took, by [`buffer_memory`]'s accounting.
+    pub buffer_bytes: u64,
 }
 
 fn create_dir(path: &Path, total: u64) -> Result<(), PrepError> {
@@ -79,6 +91,61 @@ pub fn band_memory(layout: &Layout) -> u64 {
     3 * l0.tile_h * l0.width * layout.bpt()
 }
 
+/// Bytes of a pyramid level's band (what its [`LevelWriter`] buffers).
+fn pyramid_band(layout: &Layout, level: &Level, limits: &Limits) -> u64 {
+    let row = level.width * layout.bpt();
+    (limits.pyramid_band_bytes / row).clamp(1, level.height) * row
+}
+
+/// The most memory a run's buffers take, by the library's own accounting, checked against
+/// [`Limits::max_memory_bytes`] before anything is written and reported in the [`Summary`].
+///
+/// The hash source writes image-cache levels tile by tile (a tile per worker thread) and pyramid
+/// levels in bands, so its memory does not grow with the texture's width. Filtered sources run
+/// the band cascade: [`band_memory`], which grows with the level-0 width.
+pub fn buffer_memory(layout: &Layout, source: &Source, limits: &Limits) -> u64 {
+    let pyramid: u64 = layout.pyramid_levels().map(|l| pyramid_band(layout, l, limits)).sum();
+    match source {
+        Source::Hash => {
+            let tile = layout.image_cache_levels().map(|l| l.tile_w * l.tile_h * layout.bpt()).max().unwrap_or(0);
+            tile * rayon::current_num_threads() as u64 + pyramid
+        }
+        _ => band_memory(layout) + pyramid,
+    }
+}
+
+/// Writes every tile of an image-cache level of the hash source, one row of tiles at a time,
+/// the tiles of a row generated and written in parallel (one tile buffer per worker).
+fn write_hash_tiles(
+    root: &Path,
+    layout: &Layout,
+    level: &Level,
+    cancel: &AtomicBool,
+    interrupted: &(dyn Fn() -> PrepError + Sync),
+    total: u64,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(), PrepError> {
+    let (tw, th) = (level.tile_w as usize, level.tile_h as usize);
+    let bpt = layout.bpt() as usize;
+    for t in 0..level.tiles_t() {
+        if cancel.load(Ordering::Relaxed) {
+            return Err(interrupted());
+        }
+        (0..level.tiles_s())
+            .into_par_iter()
+            .filter(|&s| layout.tile_role(level, s, t) == TileRole::Source)
+            .try_for_each_init(
+                || vec![0u8; tw * th * bpt],
+                |tile, s| {
+                    hash_region(level.index, s * tw as u64, t * th as u64, tw, th, bpt, tile);
+                    write_tile_part(root, layout, level, s, t, 0, tile, total)
+                },
+            )?;
+        progress(level.width * th as u64);
+    }
+    Ok(())
+}
+
 /// Writes the whole prepared texture under `root` (an empty directory). `progress` receives the
 /// number of texels written since its last call; `cancel` is polled between bands.
 pub fn run(
@@ -90,8 +157,15 @@ pub fn run(
 ) -> Result<Summary, PrepError> {
     let layout = &job.layout;
     let total = layout.total_texels() * layout.bpt();
-    let need = band_memory(layout);
+    let need = buffer_memory(layout, &job.source, &job.limits);
     if need > job.limits.max_memory_bytes {
+        if matches!(job.source, Source::Hash) {
+            return Err(PrepError::Geometry(format!(
+                "the tile buffers ({} MiB) are over the memory limit of {} MiB; pass a smaller --tile or raise --max-memory",
+                need >> 20,
+                job.limits.max_memory_bytes >> 20
+            )));
+        }
         return Err(PrepError::Geometry(format!(
             "one row of level-0 tiles ({} rows of {} texels) needs about {} MiB in the filter cascade, over the memory limit of {} MiB; pass a smaller --tile or raise --max-memory",
             layout.levels[0].tile_h,
@@ -107,14 +181,23 @@ pub fn run(
     write_file(&root.join(&ct_name), &ct_text(layout, &job.description), total)?;
     for level in layout.image_cache_levels() {
         write_file(&root.join(Layout::ic_file(level.index)), &ic_text(layout, level, &ct_name), total)?;
+        if layout.sparse(level).is_some() {
+            let zeros = vec![0u8; (level.tile_w * level.tile_h * layout.bpt()) as usize];
+            let path = root.join(Layout::default_tile_file(level.index));
+            fs::write(&path, zeros).map_err(|e| PrepError::write(&path, e, total))?;
+        }
     }
-    let interrupted = || PrepError::Interrupted { dir: interrupted_dir.into() };
+    let interrupted = || PrepError::Interrupted { dir: interrupted_dir.to_path_buf() };
     let mut writers: Vec<LevelWriter> =
         layout.levels.iter().map(|l| LevelWriter::new(root, layout, l, job.limits.pyramid_band_bytes)).collect();
     let bpt = layout.bpt() as usize;
     match job.source {
         Source::Hash => {
             for (w, level) in writers.iter_mut().zip(&layout.levels) {
+                if level.kind == LevelKind::ImageCache {
+                    write_hash_tiles(root, layout, level, cancel, &interrupted, total, progress)?;
+                    continue;
+                }
                 let mut src = HashLevel { level: level.index, width: level.width, bpt };
                 let mut band = Vec::new();
                 let mut t = 0;
@@ -174,6 +257,14 @@ pub fn run(
         }
     }
     drop(writers);
+    let border_tiles = write_borders(root, layout, total)?;
+    let (mut inset_tiles, mut absent_tiles) = (0, 0);
+    for level in &layout.levels {
+        if let Some(sp) = layout.sparse(level) {
+            inset_tiles += sp.inset.count();
+            absent_tiles += level.tiles_s() * level.tiles_t() - sp.written.count();
+        }
+    }
     let (files, bytes) = tally(root).map_err(|e| PrepError::write(root, e, total))?;
     Ok(Summary {
         ct: PathBuf::from(ct_name),
@@ -182,7 +273,11 @@ pub fn run(
         pyramid_levels: layout.pyramid_levels().count(),
         files,
         bytes,
-        texels: layout.total_texels(),
+        texels: layout.written_texels(),
+        inset_tiles,
+        border_tiles,
+        absent_tiles,
+        buffer_bytes: need,
     })
 }
 

@@ -4,10 +4,13 @@
 //! time (so a one-tile file is written whole, once); a pyramid level, a single tile, is written in
 //! bands of at most [`Limits::pyramid_band_bytes`](super::Limits). Each band is cut into its
 //! tiles, and each tile's part is written at its byte offset in its file (PERFORMER.md §1.12), with
-//! the file's header in front when `header_offset` is set.
+//! the file's header in front when `header_offset` is set. Compressed image-cache tiles are
+//! whole tiles, each compressed into its own file, the tiles of a band in parallel.
 
 use super::error::PrepError;
-use super::layout::{Layout, Level, LevelKind};
+use super::inset::TileRole;
+use super::layout::{Compression, Layout, Level, LevelKind};
+use rayon::prelude::*;
 use std::fs::OpenOptions;
 use std::io::{Seek, SeekFrom, Write};
 use std::path::Path;
@@ -40,7 +43,7 @@ impl<'a> LevelWriter<'a> {
             level: level.clone(),
             row_bytes,
             band_rows,
-            band: Vec::with_capacity(band_rows * row_bytes),
+            band: Vec::new(),
             band_t0: 0,
             filled: 0,
             total_bytes: layout.total_texels() * layout.bpt(),
@@ -62,6 +65,10 @@ impl<'a> LevelWriter<'a> {
     pub fn push(&mut self, rows: &[u8]) -> Result<u64, PrepError> {
         debug_assert_eq!(rows.len() % self.row_bytes, 0);
         let mut written = 0;
+        if self.band.capacity() == 0 {
+            // Allocated on first use, so writers of levels written otherwise hold nothing.
+            self.band.reserve_exact(self.band_rows * self.row_bytes);
+        }
         for row in rows.chunks_exact(self.row_bytes) {
             self.band.extend_from_slice(row);
             self.filled += 1;
@@ -74,7 +81,9 @@ impl<'a> LevelWriter<'a> {
 
     /// Writes any rows still buffered. Returns the texels written.
     pub fn finish(&mut self) -> Result<u64, PrepError> {
-        self.flush()
+        let written = self.flush()?;
+        self.band = Vec::new();
+        Ok(written)
     }
 
     fn flush(&mut self) -> Result<u64, PrepError> {
@@ -87,50 +96,85 @@ impl<'a> LevelWriter<'a> {
         let tile_t = self.band_t0 / level.tile_h;
         let row_in_tile = self.band_t0 % level.tile_h;
         let tw = level.tile_w as usize;
-        let mut part = Vec::with_capacity(rows * tw * bpt);
-        for tile_s in 0..level.tiles_s() {
-            let loc = self.layout.tile(level, tile_s, tile_t);
+        let tiles: Vec<u64> =
+            (0..level.tiles_s()).filter(|&ts| self.layout.tile_role(level, ts, tile_t) == TileRole::Source).collect();
+        let part_of = |tile_s: u64, part: &mut Vec<u8>| {
             part.clear();
             let x0 = tile_s as usize * tw * bpt;
             for r in 0..rows {
                 let start = r * self.row_bytes + x0;
                 part.extend_from_slice(&self.band[start..start + tw * bpt]);
             }
-            let path = self.root.join(&loc.path);
-            let offset = loc.offset + row_in_tile * tw as u64 * bpt as u64;
-            let header = self.header(level, tile_s, tile_t);
-            write_at(&path, &header, offset, &part).map_err(|e| PrepError::write(&path, e, self.total_bytes))?;
+        };
+        let offset = row_in_tile * tw as u64 * bpt as u64;
+        if self.layout.compressed(level) {
+            // Whole tiles (an image-cache band is one row of tiles), compressed in parallel.
+            tiles.par_iter().try_for_each_init(Vec::new, |part, &tile_s| {
+                part_of(tile_s, part);
+                write_tile_part(self.root, self.layout, level, tile_s, tile_t, offset, part, self.total_bytes)
+            })?;
+        } else {
+            let mut part = Vec::with_capacity(rows * tw * bpt);
+            for tile_s in tiles {
+                part_of(tile_s, &mut part);
+                write_tile_part(self.root, self.layout, level, tile_s, tile_t, offset, &part, self.total_bytes)?;
+            }
         }
         self.band_t0 += rows as u64;
         self.filled = 0;
         self.band.clear();
         Ok(rows as u64 * level.width)
     }
+}
 
-    /// The header of the file holding tile (s, t): a line of text describing the file, padded
-    /// with zeros (or cut) to `header_offset` bytes. Empty without a header.
-    fn header(&self, level: &Level, s: u64, t: u64) -> Vec<u8> {
-        let h = self.layout.spec.header_bytes as usize;
-        if h == 0 || level.kind == LevelKind::Pyramid {
-            return Vec::new();
-        }
-        let (ns, nt) = self.layout.spec.tiles_in_file;
-        let text = format!(
-            "clipmap tiles: level {} file {} {} holds {}x{} tiles of {}x{} {} texels, s fastest, after {} header bytes\n",
-            level.index,
-            s / ns,
-            t / nt,
-            ns,
-            nt,
-            level.tile_w,
-            level.tile_h,
-            self.layout.spec.format,
-            h
-        );
-        let mut out = text.into_bytes();
-        out.resize(h, 0);
-        out
+/// Writes `data` at byte `offset` of tile (s, t) of `level` (offset 0 is the tile's first texel),
+/// with the file's header in front when the layout has one. `total_bytes` is the size of the
+/// whole output, for a full-disk message.
+#[allow(clippy::too_many_arguments)]
+pub fn write_tile_part(
+    root: &Path,
+    layout: &Layout,
+    level: &Level,
+    s: u64,
+    t: u64,
+    offset: u64,
+    data: &[u8],
+    total_bytes: u64,
+) -> Result<(), PrepError> {
+    let loc = layout.tile(level, s, t);
+    let path = root.join(&loc.path);
+    if let (true, Some(Compression::Zstd(z))) = (layout.compressed(level), layout.spec.compression) {
+        assert!(offset == 0 && data.len() as u64 == loc.length, "compressed tiles are written whole");
+        let packed = zstd::bulk::compress(data, z).map_err(|e| PrepError::write(&path, e, total_bytes))?;
+        return std::fs::write(&path, packed).map_err(|e| PrepError::write(&path, e, total_bytes));
     }
+    write_at(&path, &header(layout, level, s, t), loc.offset + offset, data)
+        .map_err(|e| PrepError::write(&path, e, total_bytes))
+}
+
+/// The header of the file holding tile (s, t): a line of text describing the file, padded
+/// with zeros (or cut) to `header_offset` bytes. Empty without a header.
+fn header(layout: &Layout, level: &Level, s: u64, t: u64) -> Vec<u8> {
+    let h = layout.spec.header_bytes as usize;
+    if h == 0 || level.kind == LevelKind::Pyramid {
+        return Vec::new();
+    }
+    let (ns, nt) = layout.spec.tiles_in_file;
+    let text = format!(
+        "clipmap tiles: level {} file {} {} holds {}x{} tiles of {}x{} {} texels, s fastest, after {} header bytes\n",
+        level.index,
+        s / ns,
+        t / nt,
+        ns,
+        nt,
+        level.tile_w,
+        level.tile_h,
+        layout.spec.format,
+        h
+    );
+    let mut out = text.into_bytes();
+    out.resize(h, 0);
+    out
 }
 
 fn write_at(path: &Path, header: &[u8], offset: u64, data: &[u8]) -> std::io::Result<()> {

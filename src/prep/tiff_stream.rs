@@ -125,6 +125,15 @@ impl TiffStream {
                     _ => 0,
                 }
             };
+            if let (DecodingResult::U8(v), 4) = (&data, n) {
+                // RGBA8 as stored: whole rows at once.
+                let len = dw as usize * 4;
+                for r in 0..dh.min(rows) as usize {
+                    let o = (r * w + x0) * 4;
+                    self.cache[o..o + len].copy_from_slice(&v[r * len..(r + 1) * len]);
+                }
+                continue;
+            }
             for r in 0..dh.min(rows) as usize {
                 for c in 0..dw as usize {
                     let i = (r * dw as usize + c) * n;
@@ -170,6 +179,10 @@ impl BandSource for TiffSource {
                 s.load(y)?;
             }
             let line = &s.cache[(y - s.cache_y0) as usize * iw * 4..][..iw * 4];
+            if self.format == TexelFormat::RGBA8 {
+                row[..iw * 4].copy_from_slice(line);
+                continue;
+            }
             for (texel, px) in row.chunks_exact_mut(bpt).zip(line.chunks_exact(4)) {
                 encode_rgba8(self.format, [px[0], px[1], px[2], px[3]], texel);
             }

@@ -108,8 +108,11 @@ pub struct QueueHandle {
     commands: mpsc::Sender<Command>,
 }
 
-/// The read queues of one texture, one per stream server; tile (S, T) goes to server S mod n.
+/// The read queues of one texture, one per stream server. The source chooses each tile's queue
+/// ([`TileSource::stream_of`]: by default tile column S mod n; a [`crate::source::FileSource`]
+/// follows its configuration's stream servers), so a tile always goes to the same queue.
 pub struct ReadQueues {
+    source: Arc<dyn TileSource>,
     runtime: Option<tokio::runtime::Runtime>,
     handles: Vec<QueueHandle>,
     events: std_mpsc::Receiver<Event>,
@@ -142,6 +145,7 @@ impl ReadQueues {
             })
             .collect();
         Ok(ReadQueues {
+            source,
             runtime: Some(runtime),
             handles,
             events,
@@ -156,9 +160,10 @@ impl ReadQueues {
         self.handles.len()
     }
 
-    /// The stream server that reads `tile`.
+    /// The stream server that reads `tile` (always below [`streams`](Self::streams)).
     pub fn stream_of(&self, tile: TileId) -> usize {
-        (tile.s % self.handles.len() as u64) as usize
+        let n = self.handles.len();
+        self.source.stream_of(tile, n) % n
     }
 
     /// Tells every queue which tiles are wanted now (all of them: a tile not listed is dropped

@@ -325,3 +325,27 @@ pub fn tile_human(loc: &TileLocation) -> String {
 pub fn non_errors(diags: &[Diagnostic]) -> Vec<Diagnostic> {
     diags.iter().filter(|d| d.severity != Severity::Error).cloned().collect()
 }
+
+/// Prints a tile location (or why there is none) for `cliptex tile` / `icache tile`; returns the
+/// exit status.
+pub fn print_tile(
+    found: Result<TileLocation, crate::plan::TileError>,
+    json: bool,
+    tool: &str,
+    file: &std::path::Path,
+) -> i32 {
+    match found {
+        Ok(loc) => {
+            if json {
+                println!("{}", serde_json::to_string_pretty(&loc).expect("location serialises"));
+            } else {
+                print!("{}", tile_human(&loc));
+            }
+            super::exit::OK
+        }
+        Err(e) => {
+            eprintln!("{tool}: {}: {e}", file.display());
+            super::exit::BAD_INPUT
+        }
+    }
+}

@@ -1,6 +1,8 @@
 //! What the inspection tools print: validation reports, configuration summaries and tile
 //! locations, each as a human text and as JSON. The binaries only parse arguments and call these.
 
+pub mod attach;
+pub mod check;
 pub mod info;
 pub mod plan;
 pub mod validate;

@@ -123,3 +123,40 @@ fn one(path: &Path, kind: FileKind, strict: bool, opts: &Options) -> FileReport 
         },
     }
 }
+
+/// The arguments of `cliptex validate` and `icache validate`.
+#[derive(Clone, Debug, clap::Args)]
+pub struct ValidateArgs {
+    /// The configuration files.
+    #[arg(required = true)]
+    pub files: Vec<PathBuf>,
+    /// Also fail on warnings and on anything Performer 3.0 would not read as intended.
+    #[arg(long)]
+    pub strict: bool,
+    /// Print a JSON report instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Print only the invalid files.
+    #[arg(long, short)]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub env: super::EnvArgs,
+}
+
+/// Runs a `validate` subcommand: prints the report and returns the exit status.
+pub fn cli(args: &ValidateArgs, kind: FileKind, tool: &str) -> i32 {
+    let opts = match args.env.options() {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("{tool}: {e}");
+            return super::exit::COULD_NOT_RUN;
+        }
+    };
+    let r = run(&args.files, kind, args.strict, &opts);
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
+    } else {
+        print!("{}", r.human(args.quiet));
+    }
+    r.exit_code()
+}

@@ -121,6 +121,14 @@ impl TileSource for FaultySource {
         self.inner.desc()
     }
 
+    fn stream_servers(&self) -> usize {
+        self.inner.stream_servers()
+    }
+
+    fn stream_of(&self, tile: TileId, streams: usize) -> usize {
+        self.inner.stream_of(tile, streams)
+    }
+
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
         self.reads.fetch_add(1, Ordering::SeqCst);
         let Some(fault) = self.fault_for(tile) else {

@@ -1,8 +1,9 @@
 //! Tile sources: where texels come from (files described by a plan, or procedural textures).
 //!
 //! Owns texel *values* and the unit they are read in: the [`TileSource`] trait, its typed
-//! [`SourceError`], the [`TextureDesc`] a source serves, the procedural sources ([`HashSource`],
-//! [`TerrainSource`]) and a fault-injecting wrapper ([`FaultySource`]). Residency, queues and
+//! [`SourceError`], the [`TextureDesc`] a source serves, the tile files a plan names
+//! ([`FileSource`]), the procedural sources ([`HashSource`], [`TerrainSource`]) and a
+//! fault-injecting wrapper ([`FaultySource`]). Residency, queues and
 //! windows belong to later modules ([`crate::cache`], [`crate::queue`], [`crate::clip`]).
 //!
 //! Tile layout (DESIGN §11): a tile of level `k` is `tile[0] x tile[1]` texels, rows in
@@ -12,11 +13,13 @@
 
 pub mod desc;
 pub mod faulty;
+pub mod file;
 pub mod procedural;
 mod synthetic;
 
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};
 pub use faulty::{Fault, FaultRule, FaultySource};
+pub use file::{FileSource, FileSourceError, FileStats};
 pub use synthetic::{HashSource, TerrainSource};
 
 use serde::Serialize;
@@ -131,6 +134,19 @@ pub trait TileSource: Send + Sync {
     /// Reads `tile` into `out`, which must be exactly [`TextureDesc::tile_bytes`] of its level
     /// long, laid out as described in the [module docs](self). On error `out` holds no promise.
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError>;
+
+    /// Number of stream servers (separate disks, one read queue each) the source is laid out
+    /// for; 1 when it has no notion of them.
+    fn stream_servers(&self) -> usize {
+        1
+    }
+
+    /// Which of `streams` read queues should read `tile` (`streams` >= 1). The default is the
+    /// tile column modulo the number of queues; [`FileSource`] answers with the stream server its
+    /// configuration names for the tile.
+    fn stream_of(&self, tile: TileId, streams: usize) -> usize {
+        (tile.s % streams.max(1) as u64) as usize
+    }
 }
 
 /// Checks that `tile` exists in `desc` and that `out` is one tile long: the common preamble of

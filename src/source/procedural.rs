@@ -108,6 +108,11 @@ impl Terrain {
 
     /// One octave of wavelength 2^j level-0 texels at (x, y) in half-texel units.
     fn octave(&self, j: u32, x: u64, y: u64) -> f64 {
+        self.octave_salted(j, x, y, 0)
+    }
+
+    /// An octave of an independent noise field per `salt`.
+    fn octave_salted(&self, j: u32, x: u64, y: u64, salt: u64) -> f64 {
         let cell_shift = j + 1;
         let (cx, cy) = (x >> cell_shift, y >> cell_shift);
         let scale = (1u64 << cell_shift) as f64;
@@ -115,14 +120,14 @@ impl Terrain {
         let fy = (y & ((1u64 << cell_shift) - 1)) as f64 / scale;
         let smooth = |f: f64| f * f * (3.0 - 2.0 * f);
         let (sx, sy) = (smooth(fx), smooth(fy));
-        let v = |i: u64, k: u64| self.lattice(j, i, k);
+        let v = |i: u64, k: u64| self.lattice(j, i, k, salt);
         let a = v(cx, cy) + (v(cx + 1, cy) - v(cx, cy)) * sx;
         let b = v(cx, cy + 1) + (v(cx + 1, cy + 1) - v(cx, cy + 1)) * sx;
         a + (b - a) * sy
     }
 
-    fn lattice(&self, j: u32, i: u64, k: u64) -> f64 {
-        let h = splitmix64(self.seed ^ splitmix64(((j as u64) << 58) ^ (k << 29) ^ i));
+    fn lattice(&self, j: u32, i: u64, k: u64, salt: u64) -> f64 {
+        let h = splitmix64(self.seed ^ salt ^ splitmix64(((j as u64) << 58) ^ (k << 29) ^ i));
         (h >> 11) as f64 / (1u64 << 53) as f64
     }
 
@@ -149,9 +154,33 @@ impl Terrain {
         [c[0], c[1], c[2], 1.0]
     }
 
-    /// Writes the texel at (level, s, t) in `format` into `out`.
+    /// Surface detail in -1..=1 at (level, s, t): the four finest octaves (wavelengths 4 to 32
+    /// level-0 texels) at equal weight, band-limited like [`height`](Self::height), so the texture
+    /// shows structure at every viewing distance. 0 where a level filters them all out.
+    pub fn detail(&self, level: u32, s: u64, t: u64) -> f64 {
+        let x = (2 * s + 1) << level;
+        let y = (2 * t + 1) << level;
+        let (mut sum, mut n) = (0.0, 0.0);
+        for j in Self::FINEST_LOG2..Self::FINEST_LOG2 + 4 {
+            if j < level + 1 {
+                continue;
+            }
+            sum += self.octave_salted(j, x, y, 0xD37A_11) - 0.5;
+            n += 1.0;
+        }
+        if n == 0.0 {
+            0.0
+        } else {
+            (2.0 * sum / n).clamp(-1.0, 1.0)
+        }
+    }
+
+    /// Writes the texel at (level, s, t) in `format` into `out`: the height's colour, shaded by
+    /// the surface detail.
     pub fn texel(&self, level: u32, s: u64, t: u64, format: TexelFormat, out: &mut [u8]) {
-        format.encode(Self::colour(self.height(level, s, t)), out);
+        let c = Self::colour(self.height(level, s, t));
+        let shade = (1.0 + 0.35 * self.detail(level, s, t)) as f32;
+        format.encode([c[0] * shade, c[1] * shade, c[2] * shade, c[3]], out);
     }
 }
 

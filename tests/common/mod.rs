@@ -1,4 +1,4 @@
-//! Shared helpers of the configuration tests: files in a temporary directory, an isolated
+//! Shared code of the configuration tests: files in a temporary directory, an isolated
 //! environment, and assertions on diagnostics (code, severity, line, column, key words).
 #![allow(dead_code)]
 

@@ -1,0 +1,280 @@
+//! `cliptex check`: can the data on disk serve every tile a clip texture names?
+//!
+//! Owns walking every tile of every level through the plan's file names and byte offsets and
+//! sorting each into present, missing, short or unreadable, and telling which missing or short
+//! tiles an image cache's default tile covers (as [`crate::source::FileSource`] would serve
+//! them). It looks at file sizes and permissions, opening each file once; it does not read
+//! texels. Printing is the tool's business, apart from the text rendering here.
+
+use crate::plan::{ClipTexturePlan, ImageCachePlan, LevelKind, TileLocation};
+use serde::Serialize;
+use std::collections::HashMap;
+use std::fmt::Write;
+use std::fs::File;
+use std::io;
+use std::path::{Path, PathBuf};
+
+/// Most problem tiles listed one by one; the rest are only counted.
+pub const MAX_LISTED_PROBLEMS: usize = 50;
+
+/// What is wrong with one tile.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Problem {
+    /// Its file does not exist (or the level names no file).
+    Missing,
+    /// Its file ends before the tile does.
+    Short,
+    /// Its file exists but cannot be opened.
+    Unreadable,
+}
+
+/// One tile that cannot be read from its file.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct TileProblem {
+    /// Level.
+    pub level: u32,
+    /// Tile column.
+    pub s: u64,
+    /// Tile row.
+    pub t: u64,
+    /// The file (absent when the level names none).
+    pub path: Option<PathBuf>,
+    /// What is wrong.
+    pub problem: Problem,
+    /// Whether the level's default tile stands in for it.
+    pub default_covered: bool,
+}
+
+/// An image cache's default tile, checked.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct DefaultTileCheck {
+    /// The file.
+    pub path: PathBuf,
+    /// Whether it can be served (readable, one tile long, or one tile after the header).
+    pub usable: bool,
+    /// Why not, when it cannot.
+    pub error: Option<String>,
+}
+
+/// Tile counts of one level (or of all levels).
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct Counts {
+    /// Tiles the level has.
+    pub tiles: u64,
+    /// Tiles whose file holds them whole.
+    pub present: u64,
+    /// Tiles whose file does not exist.
+    pub missing: u64,
+    /// Tiles whose file is too short.
+    pub short: u64,
+    /// Tiles whose file cannot be opened.
+    pub unreadable: u64,
+    /// Missing or short tiles the default tile stands in for.
+    pub default_covered: u64,
+}
+
+impl Counts {
+    /// Tiles that can be served (present, or covered by the default tile).
+    pub fn servable(&self) -> u64 {
+        self.present + self.default_covered
+    }
+
+    fn add(&mut self, o: &Counts) {
+        self.tiles += o.tiles;
+        self.present += o.present;
+        self.missing += o.missing;
+        self.short += o.short;
+        self.unreadable += o.unreadable;
+        self.default_covered += o.default_covered;
+    }
+}
+
+/// One level, checked.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct LevelCheck {
+    /// Level number.
+    pub level: u32,
+    /// `image_cache` or `pyramid`.
+    pub kind: &'static str,
+    /// Level size in texels.
+    pub size: [u64; 2],
+    /// Tile counts.
+    #[serde(flatten)]
+    pub counts: Counts,
+    /// The default tile, if the level's `.ic` names one.
+    pub default_tile: Option<DefaultTileCheck>,
+}
+
+/// The whole check.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct CheckReport {
+    /// The `.ct`.
+    pub path: PathBuf,
+    /// True when every tile can be served.
+    pub servable: bool,
+    /// Per level, finest first.
+    pub levels: Vec<LevelCheck>,
+    /// Sums over the levels.
+    pub totals: Counts,
+    /// The first [`MAX_LISTED_PROBLEMS`] problem tiles.
+    pub problems: Vec<TileProblem>,
+    /// Problem tiles not listed.
+    pub problems_not_listed: u64,
+}
+
+/// What opening a file found: its length, or the problem every tile in it has.
+type FileState = Result<u64, Problem>;
+
+fn probe(path: &Path) -> FileState {
+    match File::open(path).and_then(|f| f.metadata()) {
+        Ok(m) if m.is_file() => Ok(m.len()),
+        Ok(_) => Err(Problem::Unreadable),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Err(Problem::Missing),
+        Err(_) => Err(Problem::Unreadable),
+    }
+}
+
+fn check_default(ic: &ImageCachePlan, path: &Path) -> DefaultTileCheck {
+    let tile = ic.tile_bytes();
+    let error = match std::fs::metadata(path).and_then(|m| File::open(path).map(|_| m)) {
+        Err(e) => Some(e.to_string()),
+        Ok(m) if m.len() == tile || (ic.header_offset > 0 && m.len() == tile + ic.header_offset) => None,
+        Ok(m) => Some(format!("{} bytes: expected {tile} (one tile)", m.len())),
+    };
+    DefaultTileCheck { path: path.to_path_buf(), usable: error.is_none(), error }
+}
+
+/// Number of tiles of every level (for a progress bar's length).
+pub fn tile_count(plan: &ClipTexturePlan) -> u64 {
+    plan.levels
+        .iter()
+        .map(|l| match &l.kind {
+            LevelKind::Icache(ic) => ic.tile_count().iter().product(),
+            LevelKind::Pyramid(_) => 1,
+        })
+        .sum()
+}
+
+/// Checks every tile of `plan`; `progress` is told the number of tiles checked since its last
+/// call.
+pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
+    let mut files: HashMap<PathBuf, FileState> = HashMap::new();
+    let mut problems = Vec::new();
+    let mut not_listed = 0u64;
+    let mut levels = Vec::with_capacity(plan.levels.len());
+    let mut totals = Counts::default();
+    for l in &plan.levels {
+        let mut counts = Counts::default();
+        let (kind, default_tile, tiles) = match &l.kind {
+            LevelKind::Icache(ic) => {
+                let d = ic.default_tile.as_ref().map(|p| check_default(ic, p));
+                let n = ic.tile_count();
+                ("image_cache", d, [n[0], n[1]])
+            }
+            LevelKind::Pyramid(_) => ("pyramid", None, [1, 1]),
+        };
+        let covers = default_tile.as_ref().is_some_and(|d| d.usable);
+        for t in 0..tiles[1] {
+            for s in 0..tiles[0] {
+                counts.tiles += 1;
+                let loc: Option<TileLocation> = plan.locate(l.level, s, t).ok();
+                let state = match &loc {
+                    None => Err(Problem::Missing),
+                    Some(loc) => {
+                        let len = *files.entry(loc.path.clone()).or_insert_with(|| probe(&loc.path));
+                        len.and_then(|len| {
+                            if len >= loc.offset.saturating_add(loc.length) {
+                                Ok(len)
+                            } else {
+                                Err(Problem::Short)
+                            }
+                        })
+                    }
+                };
+                let Err(problem) = state else {
+                    counts.present += 1;
+                    continue;
+                };
+                match problem {
+                    Problem::Missing => counts.missing += 1,
+                    Problem::Short => counts.short += 1,
+                    Problem::Unreadable => counts.unreadable += 1,
+                }
+                let covered = covers && problem != Problem::Unreadable;
+                counts.default_covered += covered as u64;
+                if problems.len() < MAX_LISTED_PROBLEMS {
+                    let path = loc.map(|l| l.path);
+                    problems.push(TileProblem { level: l.level, s, t, path, problem, default_covered: covered });
+                } else {
+                    not_listed += 1;
+                }
+            }
+            progress(tiles[0]);
+        }
+        totals.add(&counts);
+        levels.push(LevelCheck { level: l.level, kind, size: l.size, counts, default_tile });
+    }
+    CheckReport {
+        path: plan.path.clone(),
+        servable: totals.servable() == totals.tiles,
+        levels,
+        totals,
+        problems,
+        problems_not_listed: not_listed,
+    }
+}
+
+/// The report as a person reads it: a table per level, the problem tiles, the verdict.
+pub fn human(r: &CheckReport, quiet: bool) -> String {
+    let mut o = String::new();
+    if !quiet {
+        let _ = writeln!(
+            o,
+            "{:>5} {:<11} {:>17} {:>9} {:>9} {:>8} {:>6} {:>10} {:>8}",
+            "level", "kind", "size", "tiles", "present", "missing", "short", "unreadable", "default"
+        );
+        for l in &r.levels {
+            let c = &l.counts;
+            let _ = writeln!(
+                o,
+                "{:>5} {:<11} {:>17} {:>9} {:>9} {:>8} {:>6} {:>10} {:>8}",
+                l.level,
+                l.kind,
+                format!("{}x{}", l.size[0], l.size[1]),
+                c.tiles,
+                c.present,
+                c.missing,
+                c.short,
+                c.unreadable,
+                c.default_covered
+            );
+            if let Some(d) = l.default_tile.as_ref().filter(|d| !d.usable) {
+                let why = d.error.as_deref().unwrap_or("unusable");
+                let _ = writeln!(o, "      default tile {} cannot be used: {why}", d.path.display());
+            }
+        }
+    }
+    for p in r.problems.iter().filter(|p| !p.default_covered || !quiet) {
+        let path = p.path.as_ref().map_or("(no file named)".into(), |p| p.display().to_string());
+        let covered = if p.default_covered { " (default tile used)" } else { "" };
+        let _ = writeln!(o, "level {} tile ({}, {}): {:?}: {path}{covered}", p.level, p.s, p.t, p.problem);
+    }
+    if r.problems_not_listed > 0 {
+        let _ = writeln!(o, "... and {} more problem tiles", r.problems_not_listed);
+    }
+    let t = &r.totals;
+    if !quiet || !r.servable {
+        let verdict = if r.servable { "every tile can be served" } else { "some tiles cannot be served" };
+        let _ = writeln!(
+            o,
+            "{}: {} of {} tiles servable ({} present, {} covered by a default tile): {verdict}",
+            r.path.display(),
+            t.servable(),
+            t.tiles,
+            t.present,
+            t.default_covered
+        );
+    }
+    o
+}

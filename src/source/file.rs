@@ -1,0 +1,371 @@
+//! [`FileSource`]: tiles read from the files a [`ClipTexturePlan`] names.
+//!
+//! Owns turning a plan into a [`TextureDesc`] (level sizes; image-cache levels are read in their
+//! `.ic` tile size, pyramid levels as one tile the size of the level), reading each tile with one
+//! positioned read at the byte offset the plan computes (PERFORMER.md §1.12), a bounded set of
+//! open file handles ([`Limits::max_open_files`], least recently used closed first), the default
+//! tile of each image cache (§1.13: read once at start-up, checked to be one tile long, served in
+//! place of a tile whose file is missing or too short), and the mapping of tiles to stream
+//! servers (§1.11).
+//!
+//! Stream servers: every distinct stream path named by any level's `.ic` is one server, numbered
+//! in order of first appearance. A tile goes to the server its axes propose with idle queues
+//! (the S proposal when the level has S servers, else T, else R), which is
+//! [`ImageCachePlan::locate`]'s choice; Performer's run-time "least busy proposal" tie-break is
+//! not followed, so a tile keeps one queue while it waits. A clipmap gives each server its own
+//! queue when its `Settings::streams` is [`TileSource::stream_servers`]; with fewer queues,
+//! server i goes to queue i mod n. Levels without streams (and pyramid levels) use the tile
+//! column S mod n, as the engine does for every other source.
+//!
+//! Scheduling reads, retrying and keeping tiles are the queue's and cache's business.
+
+use super::{check_request, DescError, LevelDesc, SourceError, TextureDesc, TileId, TileSource};
+use crate::limits::Limits;
+use crate::plan::{ClipTexturePlan, ImageCachePlan, LevelKind, TileError};
+use serde::Serialize;
+use std::collections::HashMap;
+use std::fs::File;
+use std::io;
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use thiserror::Error;
+
+/// Why a plan cannot be served as a tile source.
+#[derive(Debug, Error)]
+pub enum FileSourceError {
+    /// The plan's levels do not form a texture the engine serves.
+    #[error("{path}: the levels cannot be served: {source}", path = path.display())]
+    Desc {
+        /// The `.ct`.
+        path: PathBuf,
+        /// What is wrong with them.
+        #[source]
+        source: DescError,
+    },
+    /// A three-dimensional clip texture.
+    #[error("{path}: virt_size has depth {depth}: only 2-D clip textures (depth 1) can be served", path = path.display())]
+    Depth {
+        /// The `.ct`.
+        path: PathBuf,
+        /// The R size.
+        depth: u64,
+    },
+    /// A default tile that cannot be read.
+    #[error("default tile {path} of level {level}: {source}", path = path.display())]
+    DefaultTileRead {
+        /// The level whose `.ic` names it.
+        level: u32,
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: io::Error,
+    },
+    /// A default tile of the wrong size.
+    #[error("default tile {path} of level {level} holds {found} bytes: expected {expected} (one {w}x{h} tile), or that plus the {header}-byte header", path = path.display())]
+    DefaultTileSize {
+        /// The level whose `.ic` names it.
+        level: u32,
+        /// The file.
+        path: PathBuf,
+        /// Its length.
+        found: u64,
+        /// One tile's bytes.
+        expected: u64,
+        /// Tile width.
+        w: u64,
+        /// Tile height.
+        h: u64,
+        /// The `.ic`'s header offset.
+        header: u64,
+    },
+}
+
+/// Counters of a file source, since it was opened.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct FileStats {
+    /// Tiles asked for.
+    pub reads: u64,
+    /// Bytes delivered (tiles read from their files and default tiles).
+    pub bytes_read: u64,
+    /// Tiles served from the default tile because their file was missing or short.
+    pub default_tiles: u64,
+    /// Files opened (a handle reused from the open set is not counted).
+    pub files_opened: u64,
+    /// Handles open now.
+    pub open_files: u64,
+}
+
+/// A bounded set of open files, least recently used closed first.
+struct Handles {
+    bound: usize,
+    clock: u64,
+    open: HashMap<PathBuf, (Arc<File>, u64)>,
+}
+
+impl Handles {
+    fn cached(&mut self, path: &Path) -> Option<Arc<File>> {
+        self.clock += 1;
+        let now = self.clock;
+        self.open.get_mut(path).map(|(f, used)| {
+            *used = now;
+            Arc::clone(f)
+        })
+    }
+
+    fn insert(&mut self, path: &Path, file: Arc<File>) {
+        if self.bound == 0 {
+            return;
+        }
+        while self.open.len() >= self.bound {
+            let oldest = self.open.iter().min_by_key(|(_, (_, used))| *used).map(|(p, _)| p.clone());
+            match oldest {
+                Some(p) => self.open.remove(&p),
+                None => break,
+            };
+        }
+        self.clock += 1;
+        self.open.insert(path.to_path_buf(), (file, self.clock));
+    }
+}
+
+/// How one level's tiles map to stream servers: the axis whose list decides, and each list
+/// entry's server number.
+#[derive(Clone, Debug)]
+struct LevelStreams {
+    axis: usize,
+    servers: Vec<usize>,
+}
+
+/// Tiles read from the files a clip-texture plan names.
+pub struct FileSource {
+    plan: ClipTexturePlan,
+    desc: TextureDesc,
+    defaults: Vec<Option<Arc<[u8]>>>,
+    streams: Vec<Option<LevelStreams>>,
+    stream_names: Vec<String>,
+    handles: Mutex<Handles>,
+    reads: AtomicU64,
+    bytes_read: AtomicU64,
+    default_tiles: AtomicU64,
+    files_opened: AtomicU64,
+}
+
+/// The texture a plan describes: level sizes from the plan, image-cache levels in their tile
+/// size, pyramid levels as one tile; the invalid border clamped so that one texel of each stack
+/// window stays readable (Performer raises it to at least 8, more than a tiny clip size allows).
+pub fn texture_desc(plan: &ClipTexturePlan) -> Result<TextureDesc, FileSourceError> {
+    if plan.virt_size[2] > 1 {
+        return Err(FileSourceError::Depth { path: plan.path.clone(), depth: plan.virt_size[2] });
+    }
+    let levels = plan
+        .levels
+        .iter()
+        .map(|l| {
+            let tile = match &l.kind {
+                LevelKind::Icache(ic) => [ic.tile_size[0], ic.tile_size[1]],
+                LevelKind::Pyramid(_) => l.size,
+            };
+            LevelDesc { size: l.size, tile }
+        })
+        .collect();
+    let desc_err = |source| FileSourceError::Desc { path: plan.path.clone(), source };
+    let size = [plan.virt_size[0], plan.virt_size[1]];
+    let desc = TextureDesc::from_levels(size, plan.clip_size, plan.texel, levels).map_err(desc_err)?;
+    let border = plan.invalid_border.min((plan.clip_size.max(1) - 1) / 2);
+    desc.with_invalid_border(border).map_err(desc_err)
+}
+
+/// Reads an image cache's default tile: exactly one tile, or one tile after the header.
+fn read_default(level: u32, ic: &ImageCachePlan, path: &Path) -> Result<Arc<[u8]>, FileSourceError> {
+    let read_err = |source| FileSourceError::DefaultTileRead { level, path: path.to_path_buf(), source };
+    let bytes = std::fs::read(path).map_err(read_err)?;
+    let expected = ic.tile_bytes();
+    let found = bytes.len() as u64;
+    let start = if found == expected {
+        0
+    } else if ic.header_offset > 0 && found == expected + ic.header_offset {
+        ic.header_offset as usize
+    } else {
+        return Err(FileSourceError::DefaultTileSize {
+            level,
+            path: path.to_path_buf(),
+            found,
+            expected,
+            w: ic.tile_size[0],
+            h: ic.tile_size[1],
+            header: ic.header_offset,
+        });
+    };
+    Ok(Arc::from(&bytes[start..]))
+}
+
+impl FileSource {
+    /// A source over `plan`'s files. Reads every default tile now (Performer does too), sharing
+    /// one buffer between levels that name the same file.
+    pub fn new(plan: ClipTexturePlan, limits: &Limits) -> Result<Self, FileSourceError> {
+        let desc = texture_desc(&plan)?;
+        let mut read: HashMap<PathBuf, Arc<[u8]>> = HashMap::new();
+        let mut defaults = Vec::with_capacity(plan.levels.len());
+        let mut stream_names: Vec<String> = Vec::new();
+        let mut streams = Vec::with_capacity(plan.levels.len());
+        for l in &plan.levels {
+            let LevelKind::Icache(ic) = &l.kind else {
+                defaults.push(None);
+                streams.push(None);
+                continue;
+            };
+            let default = match &ic.default_tile {
+                None => None,
+                Some(path) => match read.get(path) {
+                    Some(d) if d.len() as u64 == ic.tile_bytes() => Some(Arc::clone(d)),
+                    _ => {
+                        let d = read_default(l.level, ic, path)?;
+                        read.insert(path.clone(), Arc::clone(&d));
+                        Some(d)
+                    }
+                },
+            };
+            defaults.push(default);
+            let level_streams = ic.streams.iter().position(|list| !list.is_empty()).map(|axis| {
+                let servers = ic.streams[axis]
+                    .iter()
+                    .map(|name| match stream_names.iter().position(|n| n == name) {
+                        Some(i) => i,
+                        None => {
+                            stream_names.push(name.clone());
+                            stream_names.len() - 1
+                        }
+                    })
+                    .collect();
+                LevelStreams { axis, servers }
+            });
+            streams.push(level_streams);
+        }
+        Ok(FileSource {
+            plan,
+            desc,
+            defaults,
+            streams,
+            stream_names,
+            handles: Mutex::new(Handles { bound: limits.max_open_files, clock: 0, open: HashMap::new() }),
+            reads: AtomicU64::new(0),
+            bytes_read: AtomicU64::new(0),
+            default_tiles: AtomicU64::new(0),
+            files_opened: AtomicU64::new(0),
+        })
+    }
+
+    /// The plan served.
+    pub fn plan(&self) -> &ClipTexturePlan {
+        &self.plan
+    }
+
+    /// The stream server paths, in server order (empty without streams).
+    pub fn stream_names(&self) -> &[String] {
+        &self.stream_names
+    }
+
+    /// Whether level `k` has a default tile.
+    pub fn has_default_tile(&self, k: u32) -> bool {
+        self.defaults.get(k as usize).is_some_and(Option::is_some)
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> FileStats {
+        let open = self.handles.lock().unwrap_or_else(|e| e.into_inner()).open.len() as u64;
+        FileStats {
+            reads: self.reads.load(Ordering::Relaxed),
+            bytes_read: self.bytes_read.load(Ordering::Relaxed),
+            default_tiles: self.default_tiles.load(Ordering::Relaxed),
+            files_opened: self.files_opened.load(Ordering::Relaxed),
+            open_files: open,
+        }
+    }
+
+    /// An open handle to `path`, from the open set or newly opened (outside the lock).
+    fn handle(&self, path: &Path) -> io::Result<Arc<File>> {
+        if let Some(f) = self.handles.lock().unwrap_or_else(|e| e.into_inner()).cached(path) {
+            return Ok(f);
+        }
+        let file = Arc::new(File::open(path)?);
+        self.files_opened.fetch_add(1, Ordering::Relaxed);
+        self.handles.lock().unwrap_or_else(|e| e.into_inner()).insert(path, Arc::clone(&file));
+        Ok(file)
+    }
+
+    /// Reads `tile`'s bytes from its file, without the default-tile fallback.
+    fn read_file(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        let loc = self.plan.locate(tile.level, tile.s, tile.t).map_err(|e| match e {
+            TileError::Unnamed { .. } => SourceError::Missing { tile },
+            other => SourceError::Io { tile, source: io::Error::other(other) },
+        })?;
+        if loc.length != out.len() as u64 {
+            return Err(SourceError::Corrupt { tile, expected: out.len() as u64, found: loc.length });
+        }
+        let file = self.handle(&loc.path).map_err(|e| io_error(tile, e))?;
+        match file.read_exact_at(out, loc.offset) {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => {
+                let len = file.metadata().map(|m| m.len()).unwrap_or(0);
+                let got = len.saturating_sub(loc.offset).min(loc.length);
+                Err(SourceError::Short { tile, expected: loc.length, got })
+            }
+            Err(e) => Err(io_error(tile, e)),
+        }
+    }
+}
+
+/// The [`SourceError`] of an I/O failure on `tile`'s file.
+fn io_error(tile: TileId, e: io::Error) -> SourceError {
+    match e.kind() {
+        io::ErrorKind::NotFound => SourceError::Missing { tile },
+        io::ErrorKind::PermissionDenied => SourceError::PermissionDenied { tile },
+        _ => SourceError::Io { tile, source: e },
+    }
+}
+
+impl TileSource for FileSource {
+    fn desc(&self) -> &TextureDesc {
+        &self.desc
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        check_request(&self.desc, tile, out)?;
+        self.reads.fetch_add(1, Ordering::Relaxed);
+        let result = match self.read_file(tile, out) {
+            Err(SourceError::Missing { .. } | SourceError::Short { .. }) if self.has_default_tile(tile.level) => {
+                let default = self.defaults[tile.level as usize].as_deref().unwrap_or_default();
+                out.copy_from_slice(default);
+                self.default_tiles.fetch_add(1, Ordering::Relaxed);
+                Ok(())
+            }
+            other => other,
+        };
+        if result.is_ok() {
+            self.bytes_read.fetch_add(out.len() as u64, Ordering::Relaxed);
+        }
+        result
+    }
+
+    fn stream_servers(&self) -> usize {
+        self.stream_names.len().max(1)
+    }
+
+    fn stream_of(&self, tile: TileId, streams: usize) -> usize {
+        let n = streams.max(1);
+        match self.streams.get(tile.level as usize) {
+            Some(Some(ls)) => {
+                let index = [tile.s, tile.t, 0][ls.axis];
+                ls.servers[(index % ls.servers.len() as u64) as usize] % n
+            }
+            _ => (tile.s % n as u64) as usize,
+        }
+    }
+}
+
+#[cfg(test)]
+#[path = "file_tests.rs"]
+mod tests;

@@ -1,0 +1,264 @@
+//! Tests of [`FileSource`]: pyramids written by [`crate::prep`] read back equal to the hash
+//! texture, every failure maps to its kind, default tiles stand in, and a clipmap over files
+//! publishes only correct texels.
+
+use super::*;
+use crate::clip::tests::{check_published, checker, settle};
+use crate::clip::{Clipmap, CostTable, Settings};
+use crate::plan::{self, ClipTexturePlan};
+use crate::prep::{self, Filter, Job, Layout, Spec};
+use crate::source::{FaultKind, HashSource};
+use crate::texel::TexelFormat;
+use std::os::unix::fs::PermissionsExt;
+use std::sync::atomic::AtomicBool;
+
+/// Prepares a hash texture under `dir` with the library's preparation API; returns the `.ct`.
+fn prepare(
+    dir: &Path,
+    size: u64,
+    clip: u64,
+    tile: u64,
+    tiles_in_file: (u64, u64),
+    header: u64,
+    streams: Option<u32>,
+) -> PathBuf {
+    let layout = Layout::new(Spec {
+        width: size,
+        height: size,
+        clip,
+        tile,
+        format: TexelFormat::RGB8,
+        tiles_in_file,
+        header_bytes: header,
+        streams,
+        inset: None,
+        compression: None,
+    })
+    .unwrap();
+    let job = Job {
+        layout,
+        source: prep::Source::Hash,
+        filter: Filter::Box,
+        linear_light: false,
+        name: "hash".into(),
+        description: vec![],
+        limits: prep::Limits::default(),
+    };
+    let summary = prep::run(job, dir, &AtomicBool::new(false), dir, &|_| {}).unwrap();
+    dir.join(summary.ct)
+}
+
+fn load(ct: &Path) -> ClipTexturePlan {
+    let loaded = plan::load_clip_texture(ct, &plan::Options::default()).unwrap();
+    let rendered = loaded.render();
+    loaded.plan.unwrap_or_else(|| panic!("{}: {rendered}", ct.display()))
+}
+
+fn open(ct: &Path) -> FileSource {
+    FileSource::new(load(ct), &Limits::default()).unwrap()
+}
+
+/// Every tile of every level of `files` against the hash texture of the same shape.
+fn assert_equals_hash(files: &FileSource) -> u64 {
+    let hash = HashSource::new(files.desc().clone());
+    let mut tiles = 0;
+    for k in 0..files.desc().level_count() as u32 {
+        let n = files.desc().level(k).tiles();
+        let mut got = vec![0u8; files.desc().tile_bytes(k)];
+        let mut want = got.clone();
+        for t in 0..n[1] {
+            for s in 0..n[0] {
+                let id = TileId::new(k, s, t);
+                files.read_tile(id, &mut got).unwrap_or_else(|e| panic!("{e}"));
+                hash.read_tile(id, &mut want).unwrap();
+                assert!(got == want, "{id}: file texels differ from the hash texture");
+                tiles += 1;
+            }
+        }
+    }
+    tiles
+}
+
+#[test]
+fn a_prepared_hash_pyramid_reads_back_equal_to_the_hash_source_tile_for_tile() {
+    let dir = tempfile::tempdir().unwrap();
+    let files = open(&prepare(dir.path(), 256, 32, 16, (1, 1), 0, None));
+    assert_eq!(files.desc().level_count(), 9);
+    assert_eq!(files.desc().level(0).tile, [16, 16]);
+    assert_eq!(files.desc().level(3).tile, [32, 32], "pyramid level: one tile the size of the level");
+    let tiles = assert_equals_hash(&files);
+    assert_eq!(tiles, 256 + 64 + 16 + 6, "levels 256, 128 and 64 are image caches");
+    let st = files.stats();
+    assert_eq!((st.reads, st.default_tiles), (tiles, 0));
+    assert_eq!(st.bytes_read, (256 * 256 + 128 * 128 + 64 * 64) * 3 + (32 * 32 + 16 * 16 + 64 + 16 + 4 + 1) * 3);
+}
+
+#[test]
+fn multi_tile_files_with_headers_and_streams_read_back_equal_to_the_hash_source() {
+    let dir = tempfile::tempdir().unwrap();
+    let files = open(&prepare(dir.path(), 256, 32, 16, (4, 2), 100, Some(3)));
+    assert_equals_hash(&files);
+    assert_eq!(files.stream_servers(), 3);
+    assert_eq!(files.stream_names().len(), 3);
+    assert!(files.stream_names()[2].ends_with("stream2/"), "{:?}", files.stream_names());
+    // The plan's stream choice (tile column mod 3) is the queue; pyramid levels use S mod n.
+    for s in 0..16 {
+        assert_eq!(files.stream_of(TileId::new(0, s, 5), 3), (s % 3) as usize);
+        assert_eq!(files.stream_of(TileId::new(1, s % 8, 0), 2), ((s % 8) % 3 % 2) as usize);
+    }
+    assert_eq!(files.stream_of(TileId::new(4, 0, 0), 3), 0);
+    // 8 tiles per file (spread over the stream directories by column): fewer files opened than
+    // tiles read, even with handles evicted.
+    let st = files.stats();
+    assert!(st.files_opened < st.reads / 2 && st.open_files <= 64, "{st:?}");
+}
+
+#[test]
+fn the_checked_in_prepared_example_reads_back_equal_to_the_hash_source() {
+    let ct = Path::new(env!("CARGO_MANIFEST_DIR")).join("config_examples/prepared/hash256.ct");
+    let files = open(&ct);
+    assert_eq!((files.desc().clip_size(), files.desc().bytes_per_texel()), (64, 3));
+    assert_eq!(assert_equals_hash(&files), 16 + 4 + 7);
+}
+
+/// Whether this process ignores file permissions (root, or CAP_DAC_OVERRIDE): a real probe.
+fn permissions_ignored(dir: &Path) -> bool {
+    let probe = dir.join("probe");
+    std::fs::write(&probe, b"x").unwrap();
+    std::fs::set_permissions(&probe, std::fs::Permissions::from_mode(0o000)).unwrap();
+    let ignored = File::open(&probe).is_ok();
+    std::fs::remove_file(&probe).unwrap();
+    ignored
+}
+
+#[test]
+fn missing_short_and_unreadable_tiles_fail_with_their_kind() {
+    let dir = tempfile::tempdir().unwrap();
+    let ct = prepare(dir.path(), 128, 32, 16, (1, 1), 0, None);
+    let level0 = dir.path().join("L00");
+    std::fs::remove_file(level0.join("r000.c001.raw")).unwrap();
+    let short = level0.join("r001.c000.raw");
+    let f = std::fs::OpenOptions::new().write(true).open(&short).unwrap();
+    f.set_len(100).unwrap();
+    drop(f);
+    let locked = level0.join("r002.c002.raw");
+    std::fs::set_permissions(&locked, std::fs::Permissions::from_mode(0o000)).unwrap();
+    let files = open(&ct);
+    let mut buf = vec![0u8; files.desc().tile_bytes(0)];
+    let err = |s, t, buf: &mut Vec<u8>| files.read_tile(TileId::new(0, s, t), buf).unwrap_err();
+    assert_eq!(err(1, 0, &mut buf).kind(), FaultKind::Missing);
+    match err(0, 1, &mut buf) {
+        SourceError::Short { expected, got, .. } => assert_eq!((expected, got), (768, 100)),
+        e => panic!("expected a short read, got {e}"),
+    }
+    if permissions_ignored(dir.path()) {
+        eprintln!("skipping the permission case: this process reads files whatever their mode (root)");
+    } else {
+        assert_eq!(err(2, 2, &mut buf).kind(), FaultKind::PermissionDenied);
+    }
+    // A pyramid file that is too short, and a request outside the level.
+    let pyramid = dir.path().join("pyramid/L03.raw");
+    std::fs::write(&pyramid, [0u8; 10]).unwrap();
+    let mut p = vec![0u8; files.desc().tile_bytes(3)];
+    assert_eq!(files.read_tile(TileId::new(3, 0, 0), &mut p).unwrap_err().kind(), FaultKind::Short);
+    assert_eq!(err(8, 0, &mut buf).kind(), FaultKind::BadRequest);
+    files.read_tile(TileId::new(0, 3, 3), &mut buf).unwrap();
+    assert_eq!(files.stats().default_tiles, 0);
+}
+
+#[test]
+fn a_default_tile_stands_in_for_missing_and_short_tiles_and_is_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    let ct = prepare(dir.path(), 128, 32, 16, (1, 1), 0, None);
+    let ic = dir.path().join("L00.ic");
+    let mut text = std::fs::read_to_string(&ic).unwrap();
+    text.push_str("default_tile sea.raw\n");
+    std::fs::write(&ic, text).unwrap();
+    let sea: Vec<u8> = (0..16 * 16 * 3).map(|i| (i % 251) as u8).collect();
+    std::fs::write(dir.path().join("sea.raw"), &sea).unwrap();
+    std::fs::remove_file(dir.path().join("L00/r000.c001.raw")).unwrap();
+    std::fs::write(dir.path().join("L00/r001.c000.raw"), [1u8; 7]).unwrap();
+    let files = open(&ct);
+    assert!(files.has_default_tile(0) && !files.has_default_tile(1));
+    let mut buf = vec![0u8; files.desc().tile_bytes(0)];
+    files.read_tile(TileId::new(0, 1, 0), &mut buf).unwrap();
+    assert_eq!(buf, sea);
+    files.read_tile(TileId::new(0, 0, 1), &mut buf).unwrap();
+    assert_eq!(buf, sea);
+    let hash = HashSource::new(files.desc().clone());
+    let mut want = buf.clone();
+    files.read_tile(TileId::new(0, 2, 2), &mut buf).unwrap();
+    hash.read_tile(TileId::new(0, 2, 2), &mut want).unwrap();
+    assert_eq!(buf, want, "present tiles are read from their files");
+    assert_eq!(files.stats().default_tiles, 2);
+
+    // A default tile of the wrong size is refused when the source opens.
+    std::fs::write(dir.path().join("sea.raw"), &sea[..700]).unwrap();
+    let e = FileSource::new(load(&ct), &Limits::default()).err().expect("a short default tile is refused");
+    assert!(matches!(e, FileSourceError::DefaultTileSize { level: 0, found: 700, expected: 768, .. }), "{e}");
+    assert!(e.to_string().contains("expected 768 (one 16x16 tile)"), "{e}");
+    std::fs::remove_file(dir.path().join("sea.raw")).unwrap();
+    let e = FileSource::new(load(&ct), &Limits::default()).err().expect("a missing default tile is refused");
+    assert!(matches!(e, FileSourceError::DefaultTileRead { level: 0, .. }), "{e}");
+}
+
+#[test]
+fn open_file_handles_stay_within_their_bound() {
+    let dir = tempfile::tempdir().unwrap();
+    let ct = prepare(dir.path(), 128, 32, 16, (1, 1), 0, None);
+    let limits = Limits { max_open_files: 3, ..Limits::default() };
+    let files = FileSource::new(load(&ct), &limits).unwrap();
+    let mut buf = vec![0u8; files.desc().tile_bytes(0)];
+    for round in 0..2 {
+        for s in 0..8 {
+            files.read_tile(TileId::new(0, s, 0), &mut buf).unwrap();
+            assert!(files.stats().open_files <= 3);
+        }
+        // The last three stay open: reading them again opens nothing.
+        let opened = files.stats().files_opened;
+        for s in 5..8 {
+            files.read_tile(TileId::new(0, s, 0), &mut buf).unwrap();
+        }
+        assert_eq!(files.stats().files_opened, opened, "round {round}");
+    }
+    let none = FileSource::new(load(&ct), &Limits { max_open_files: 0, ..Limits::default() }).unwrap();
+    none.read_tile(TileId::new(0, 0, 0), &mut buf).unwrap();
+    none.read_tile(TileId::new(0, 0, 0), &mut buf).unwrap();
+    assert_eq!((none.stats().files_opened, none.stats().open_files), (2, 0));
+}
+
+#[test]
+fn a_clipmap_over_files_publishes_only_hash_texels_during_a_random_walk() {
+    let dir = tempfile::tempdir().unwrap();
+    let files = Arc::new(open(&prepare(dir.path(), 1024, 64, 32, (2, 2), 64, Some(2))));
+    let settings = Settings {
+        streams: files.stream_servers(),
+        budget_ns: Some(40_000),
+        cost: Some(CostTable::fixed(100.0, 10.0, 1.0)),
+        fade_ticks: 2,
+        ..Settings::default()
+    };
+    let mut map = Clipmap::new(files.clone(), settings).unwrap();
+    let mut errors = Vec::new();
+    let mut c = [500i64, 500];
+    let mut x = 0x5EEDu64;
+    for step in 0..60 {
+        x = crate::source::procedural::splitmix64(x);
+        if step % 15 == 14 {
+            c = [(x % 1100) as i64 - 30, ((x >> 20) % 1100) as i64 - 30];
+        } else {
+            c = [c[0] + (x % 41) as i64 - 20, c[1] + ((x >> 8) % 41) as i64 - 20];
+        }
+        map.tick_with(c, None, &mut checker(&mut errors));
+        assert!(errors.is_empty(), "step {step}: {errors:?}");
+        if x % 3 != 0 {
+            map.wait_for_reads();
+        }
+    }
+    map.set_budget_ns(None);
+    settle(&mut map, c, 60);
+    assert!(check_published(&map).unwrap() > 0);
+    assert_eq!(map.stats().writes_into_published, 0);
+    assert_eq!(map.stats().read_faults.total(), 0);
+    assert!(files.stats().reads > 0);
+}

@@ -1,0 +1,50 @@
+//! `cliptex attach` against a mapping published by this test process (the service's writer and
+//! engine mirror, without the service around them).
+
+use clipmap::clip::{Clipmap, CostTable, Settings};
+use clipmap::shm::mirror::Mirror;
+use clipmap::source::{HashSource, TextureDesc};
+use clipmap::texel::TexelFormat;
+use std::process::Command;
+use std::sync::Arc;
+
+fn run(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_cliptex")).args(args).output().expect("cliptex runs");
+    let (o, e) = (String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned());
+    (out.status.code().unwrap_or(-1), o, e)
+}
+
+#[test]
+fn attach_once_json_reports_every_level_as_published() {
+    let dir = tempfile::tempdir().unwrap();
+    let desc =
+        TextureDesc::new([4096, 4096], 256, TexelFormat::RGBA8, [64, 64]).unwrap().with_invalid_border(8).unwrap();
+    let settings = Settings { budget_ns: None, cost: Some(CostTable::fixed(100.0, 10.0, 1.0)), ..Settings::default() };
+    let mut map = Clipmap::new(Arc::new(HashSource::new(desc)), settings).unwrap();
+    let mut mirror = Mirror::create(dir.path(), "att", &map, 0o600).unwrap();
+    for _ in 0..6 {
+        map.tick_with([1000, 3000], None, &mut mirror);
+        map.wait_for_reads();
+    }
+    let d = dir.path().to_str().unwrap();
+    let (code, out, err) = run(&["attach", "att", "--shm-dir", d, "--once", "--json", "--interval", "0.05"]);
+    assert_eq!(code, 0, "stdout: {out}\nstderr: {err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let levels = v["levels"].as_array().unwrap();
+    assert_eq!(levels.len(), map.level_count());
+    for (k, l) in levels.iter().enumerate() {
+        let want = map.level(k as u32).valid;
+        let got: Vec<i64> = l["valid"].as_array().unwrap().iter().map(|x| x.as_i64().unwrap()).collect();
+        assert_eq!(got, vec![want.s0, want.t0, want.s1, want.t1], "level {k}");
+    }
+    assert_eq!(v["clip_size"], 256);
+    assert_eq!(v["min_lod"].as_f64(), Some(map.min_lod()));
+
+    let (code, out, _) = run(&["attach", "att", "--shm-dir", d, "--once", "--interval", "0.05"]);
+    assert_eq!(code, 0);
+    assert!(out.contains("level  size") && out.contains("4096x4096") && out.contains("["), "{out}");
+
+    let (code, _, err) = run(&["attach", "absent", "--shm-dir", d, "--once"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("no clip texture `absent`"), "{err}");
+}

@@ -1,0 +1,138 @@
+//! `clipbench`: measured studies of the clipmap, run on demand (not part of the test suite).
+//!
+//! `clipbench accuracy` sweeps clip size, invalid border, update budget, flight speed and shape,
+//! renders every frame from the full mipmap and from the clipmap, and writes the table, CSV,
+//! plots and `docs/ACCURACY.md`.
+//!
+//! `clipbench engine` measures update throughput against memcpy, bytes per tick against the
+//! strips a move uncovers, and resident memory against the clipmap formula.
+//!
+//! Exit status: 0 ok, 1 bad input, 2 the tool could not run.
+
+#[path = "clipbench/engine.rs"]
+mod engine;
+
+use clap::{Parser, Subcommand};
+use clipmap::accuracy::sweep;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "clipbench", version, about = "Measured studies of the clipmap: accuracy against speed, performance")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Update throughput against memcpy, bytes per tick against the strips, resident memory.
+    Engine {
+        /// A small texture (2^20, clip 512) for a fast check.
+        #[arg(long)]
+        quick: bool,
+        /// Runs per measurement (the median is reported).
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Speed against accuracy: sweep the knobs, render each frame twice, measure the difference.
+    #[command(after_help = "\
+Examples:
+  clipbench accuracy --quick
+  clipbench accuracy --out docs --json > rows.json")]
+    Accuracy {
+        /// A small sweep at 192x144 pixels that finishes in about a minute.
+        #[arg(long)]
+        quick: bool,
+        /// Directory for accuracy.csv, the SVG plots (under accuracy/) and ACCURACY.md.
+        #[arg(long, default_value = "docs")]
+        out: PathBuf,
+        /// Print the rows as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+        /// No progress on stderr.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let code = match cli.command {
+        Command::Accuracy { quick, out, json, quiet } => accuracy(quick, out, json, quiet),
+        Command::Engine { quick, runs, json } => match engine::engine(quick, runs) {
+            Ok(r) => {
+                if json {
+                    println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
+                } else {
+                    print!("{}", engine::human(&r));
+                }
+                0
+            }
+            Err(e) => {
+                eprintln!("clipbench engine: {e:#}");
+                2
+            }
+        },
+    };
+    ExitCode::from(code)
+}
+
+fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool) -> u8 {
+    let started = std::time::Instant::now();
+    let show = !quiet && std::io::stderr().is_terminal() || !quiet && !json;
+    let rows = match sweep::run(quick, |i, n, r| {
+        if show {
+            eprintln!(
+                "[{i}/{n}] clip {} border {} budget {} speed {} {}: PSNR min {}, {:.2}% coarser",
+                r.clip_size,
+                r.invalid_border,
+                r.budget_ms.map(|b| format!("{b} ms")).unwrap_or_else(|| "unlimited".into()),
+                r.speed,
+                r.flight,
+                r.psnr_min.map(|p| format!("{p:.1} dB")).unwrap_or_else(|| "inf".into()),
+                r.coarser_pixel_share * 100.0
+            );
+        }
+    }) {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("clipbench accuracy: {e}");
+            return 1;
+        }
+    };
+    let command = format!("clipbench accuracy{} --out {}", if quick { " --quick" } else { "" }, out.display());
+    let dir = out.join("accuracy");
+    if let Err(e) = std::fs::create_dir_all(&dir)
+        .map_err(|e| e.to_string())
+        .and_then(|_| sweep::write_samples(&dir, quick).map_err(|e| e.to_string()))
+    {
+        eprintln!("clipbench accuracy: sample frames: {e}");
+        return 2;
+    }
+    match sweep::write_outputs(&rows, &dir, quick, &command) {
+        Ok(report) => {
+            let path = out.join("ACCURACY.md");
+            let text = format!("{report}\n{}", sweep::CONCLUSIONS);
+            if let Err(e) = std::fs::write(&path, text) {
+                eprintln!("clipbench accuracy: cannot write {}: {e}", path.display());
+                return 2;
+            }
+            if !quiet {
+                eprintln!("wrote {} and {} ({:.1} s)", path.display(), dir.display(), started.elapsed().as_secs_f64());
+            }
+        }
+        Err(e) => {
+            eprintln!("clipbench accuracy: cannot write {}: {e}", dir.display());
+            return 2;
+        }
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(&rows).expect("rows serialise"));
+    }
+    0
+}
