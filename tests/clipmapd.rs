@@ -36,27 +36,18 @@ impl Service {
     }
 
     fn spawn(dir: &Path, name: &str, extra: &[&str]) -> Service {
+        let source = ["--source", "hash", "--size", "65536", "--clip", "256", "--tile", "64"];
+        Service::spawn_with(dir, name, &source, extra)
+    }
+
+    /// Starts `clipmapd SOURCE...` (a configuration file or procedural options).
+    fn spawn_with(dir: &Path, name: &str, source: &[&str], extra: &[&str]) -> Service {
         let given = extra.iter().position(|a| *a == "--socket").map(|i| PathBuf::from(extra[i + 1]));
         let socket = given.clone().unwrap_or_else(|| dir.join(format!("{name}.sock")));
-        let mut args: Vec<String> = [
-            "--source",
-            "hash",
-            "--size",
-            "65536",
-            "--clip",
-            "256",
-            "--tile",
-            "64",
-            "--tick-hz",
-            "120",
-            "--name",
-            name,
-            "--shm-dir",
-            dir.to_str().unwrap(),
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
+        let mut args: Vec<String> = source.iter().map(|s| s.to_string()).collect();
+        args.extend(
+            ["--tick-hz", "120", "--name", name, "--shm-dir", dir.to_str().unwrap()].iter().map(|s| s.to_string()),
+        );
         if given.is_none() {
             args.extend(["--socket".to_string(), socket.to_str().unwrap().to_string()]);
         }
@@ -616,4 +607,27 @@ fn the_c_header_and_the_python_reader_agree_with_the_layout() {
         STATE_BYTES
     );
     assert_eq!(String::from_utf8_lossy(&py.stdout).trim(), want);
+}
+
+#[test]
+fn a_ct_configuration_is_served_from_its_tile_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pyr = d.join("pyr");
+    let prep = Command::new(env!("CARGO_BIN_EXE_clipprep"))
+        .args(["--source", "hash", "--size", "4096", "--tile", "64", "--clip", "256", "--format", "rgba8", "--out"])
+        .arg(&pyr)
+        .output()
+        .unwrap();
+    assert!(prep.status.success(), "clipprep: {}", String::from_utf8_lossy(&prep.stderr));
+    let ct = pyr.join("pyr.ct");
+    let svc = Service::spawn_with(d, "pyr", &[ct.to_str().unwrap()], &[]);
+    svc.wait_ready();
+    let out = rust_reader(d, "pyr", &["--drive", "--seconds", "2", "--reads", "1000000000000"]).output().unwrap();
+    let (passed, failed) = counts(&out, "reader of the file-backed texture");
+    assert_eq!(failed, 0, "{}\n{}", String::from_utf8_lossy(&out.stderr), svc.dump());
+    assert!(passed > 100_000, "{passed}");
+    let stats = json_reply(&svc.ask("STATS"));
+    assert!(stats["engine"]["tiles_read"].as_u64().unwrap() > 0, "{stats}");
+    assert_eq!(json_reply(&svc.ask("STATUS"))["levels"], 13);
 }

@@ -6,10 +6,13 @@
 
 use anyhow::Context as _;
 use clap::{Parser, ValueEnum};
-use clipmap::report::exit;
+use clipmap::plan;
+use clipmap::report::{exit, EnvArgs};
 use clipmap::service::{self, demo, ControlLimits, Options, Procedural};
+use clipmap::source::FileSource;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::time::Duration;
 
 #[derive(Parser)]
@@ -75,6 +78,8 @@ struct Cli {
     /// Where the demo writes its pictures.
     #[arg(long, default_value = "clipmapd-demo", requires = "demo")]
     out: PathBuf,
+    #[command(flatten)]
+    env: EnvArgs,
     /// Frames the demo's client flies.
     #[arg(long, default_value_t = 240, requires = "demo", hide = true)]
     demo_frames: u32,
@@ -167,10 +172,15 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
     }
     let (source, default_name) = match (&cli.config, cli.source) {
         (Some(path), _) => {
-            return Err(bad(anyhow::anyhow!(
-                "{}: serving .ct configurations needs the file tile source, which this build lacks; use --source",
-                path.display()
-            )))
+            let o = cli.env.options().map_err(|e| Failure(exit::COULD_NOT_RUN, anyhow::anyhow!(e)))?;
+            let loaded = plan::load_clip_texture(path, &o).map_err(|e| Failure(exit::COULD_NOT_RUN, e.into()))?;
+            eprint!("{}", loaded.render_from(clipmap::config::Severity::Warning));
+            let Some(plan) = loaded.plan else {
+                return Err(bad(anyhow::anyhow!("{} is not a valid clip texture configuration", path.display())));
+            };
+            let src = FileSource::new(plan, &clipmap::limits::Limits::default()).map_err(bad)?;
+            let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "clip".into());
+            (Arc::new(src) as Arc<dyn clipmap::source::TileSource>, stem)
         }
         (None, Some(kind)) => {
             let (kind, name) = match kind {
