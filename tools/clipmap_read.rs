@@ -67,7 +67,7 @@ fn attach(cli: &Cli) -> Result<Client, ShmError> {
 /// The driver's flight: fast steps, a reversal every 150 requests and a jump every 400.
 fn flight(i: u64, size: [u64; 2]) -> ([i64; 2], [f64; 2]) {
     let phase = i % 400;
-    let dir = if (i / 150) % 2 == 0 { 1 } else { -1 };
+    let dir = if (i / 150).is_multiple_of(2) { 1 } else { -1 };
     let jump = (i / 400) as i64 * 7919;
     let (w, h) = (size[0] as i64, size[1] as i64);
     let s = (w / 2 + jump * 3 + dir * (phase as i64) * 37).rem_euclid(w);
@@ -107,7 +107,7 @@ fn main() -> ExitCode {
             counts.requests += 1;
             last_request = Instant::now();
         }
-        if cli.follow && step % 64 == 0 {
+        if cli.follow && step.is_multiple_of(64) {
             let now_stale = client.heartbeat_age() > Duration::from_millis(cli.stale_ms) || client.closed();
             if now_stale && !stale {
                 counts.stale_seen += 1;
