@@ -145,7 +145,7 @@ impl Fetch for ClipFetch<'_> {
     }
 
     fn texel(&mut self, level: u32, s: i64, t: i64) -> Option<[f32; 4]> {
-        self.0.level(level).texel(s, t).map(|bytes| self.0.desc().format().decode(bytes))
+        self.0.level(level).texel(s, t).map(|bytes| self.0.desc().format().decode(&bytes))
     }
 }
 

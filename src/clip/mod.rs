@@ -28,6 +28,7 @@ use crate::source::{TextureDesc, TileSource};
 use std::sync::Arc;
 use thiserror::Error;
 use window::Window;
+pub use window::{Store, WindowStore};
 
 /// Run-time settings of a clipmap.
 #[derive(Clone, Debug)]
@@ -76,6 +77,12 @@ pub enum ClipError {
     /// The windows would take more memory than allowed.
     #[error("clip windows need {needed} bytes: the limit is {limit} bytes")]
     WindowBytes { needed: usize, limit: usize },
+    /// Caller-supplied window memory does not match the texture.
+    #[error("window memory for level {level}: found {found} bytes, expected {expected} (the window of a {dims:?}-texel buffer); supply one store per level, sized by Clipmap::window_bytes")]
+    WindowStore { level: usize, found: usize, expected: usize, dims: [u64; 2] },
+    /// Caller-supplied window memory has the wrong number of levels.
+    #[error("window memory for {found} levels supplied: the texture has {expected} levels")]
+    WindowStores { found: usize, expected: usize },
 }
 
 /// When the [`Publisher`] is called within a tick.
@@ -114,20 +121,36 @@ pub struct LevelView<'a> {
     pub bpt: usize,
     /// Published valid region: texels readers may read.
     pub valid: Rect,
-    /// The toroidal buffer: texel (s, t) at `((t mod clip) * dims[0] + s mod clip) * bpt`.
-    pub texels: &'a [u8],
+    /// The toroidal buffer: texel (s, t) at byte `((t mod clip) * dims[0] + s mod clip) * bpt`.
+    pub texels: &'a Store,
     /// The level's current centre.
     pub centre: [i64; 2],
 }
 
 impl LevelView<'_> {
     /// The texel at (s, t) if it lies in the published valid region.
-    pub fn texel(&self, s: i64, t: i64) -> Option<&[u8]> {
+    pub fn texel(&self, s: i64, t: i64) -> Option<Texel> {
         if !self.valid.contains(s, t) {
             return None;
         }
         let i = crate::geom::window_index(s, t, self.clip, self.dims) * self.bpt;
-        Some(&self.texels[i..i + self.bpt])
+        let mut texel = Texel { bytes: [0; 16], len: self.bpt.min(16) as u8 };
+        self.texels.read(i, &mut texel.bytes[..texel.len as usize]);
+        Some(texel)
+    }
+}
+
+/// One texel's bytes (at most 16: four 32-bit components), copied out of a window.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Texel {
+    bytes: [u8; 16],
+    len: u8,
+}
+
+impl std::ops::Deref for Texel {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        &self.bytes[..self.len as usize]
     }
 }
 
@@ -156,7 +179,54 @@ pub struct Clipmap {
 impl Clipmap {
     /// A clipmap of `source`'s texture with nothing resident yet (min LOD above every level).
     pub fn new(source: Arc<dyn TileSource>, settings: Settings) -> Result<Self, ClipError> {
+        Self::build(source, settings, None)
+    }
+
+    /// Bytes of each level's window for `desc` (what [`with_windows`](Self::with_windows) wants).
+    pub fn window_bytes(desc: &TextureDesc) -> Vec<usize> {
+        let clip = desc.clip_size();
+        desc.levels()
+            .iter()
+            .map(|l| {
+                let d = Window::dims(l.size, clip);
+                (d[0] * d[1]) as usize * desc.bytes_per_texel()
+            })
+            .collect()
+    }
+
+    /// [`new`](Self::new), keeping each level's window in caller-supplied memory (one store per
+    /// level, of [`window_bytes`](Self::window_bytes) bytes), such as a shared mapping: texels
+    /// are then written once, where readers read them.
+    pub fn with_windows(
+        source: Arc<dyn TileSource>,
+        settings: Settings,
+        stores: Vec<Box<dyn WindowStore>>,
+    ) -> Result<Self, ClipError> {
+        Self::build(source, settings, Some(stores))
+    }
+
+    fn build(
+        source: Arc<dyn TileSource>,
+        settings: Settings,
+        stores: Option<Vec<Box<dyn WindowStore>>>,
+    ) -> Result<Self, ClipError> {
         let desc = source.desc().clone();
+        let mut stores: Vec<Option<Box<dyn WindowStore>>> = match stores {
+            None => desc.levels().iter().map(|_| None).collect(),
+            Some(v) => {
+                if v.len() != desc.level_count() {
+                    return Err(ClipError::WindowStores { found: v.len(), expected: desc.level_count() });
+                }
+                let want = Self::window_bytes(&desc);
+                for (k, (st, &expected)) in v.iter().zip(&want).enumerate() {
+                    if st.len() != expected {
+                        let dims = Window::dims(desc.levels()[k].size, desc.clip_size());
+                        return Err(ClipError::WindowStore { level: k, found: st.len(), expected, dims });
+                    }
+                }
+                v.into_iter().map(Some).collect()
+            }
+        };
         let bpt = desc.bytes_per_texel();
         let clip = desc.clip_size();
         let needed: usize =
@@ -172,7 +242,7 @@ impl Clipmap {
                 let shape = LevelShape { size: l.size, tile: l.tile, clip, lookahead: settings.lookahead };
                 Level {
                     shape,
-                    window: Window::new(k as u32, l.size, clip, l.tile, bpt),
+                    window: Window::new(k as u32, l.size, clip, l.tile, bpt, stores[k].take()),
                     centre_override: None,
                     frame: LevelFrame { centre: [0, 0], tex: Rect::EMPTY, valid: Rect::EMPTY, mem: Rect::EMPTY },
                 }

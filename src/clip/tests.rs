@@ -38,7 +38,7 @@ pub(crate) fn check_published(map: &Clipmap) -> Result<u64, String> {
             while s < v.s1 {
                 hash(k, s as u64, t as u64, &mut want);
                 let got = view.texel(s, t).ok_or("published texel not readable")?;
-                if got != want.as_slice() {
+                if *got != *want.as_slice() {
                     return Err(format!("level {k} texel ({s}, {t}): got {got:?}, expected {want:?}"));
                 }
                 checked += 1;

@@ -44,24 +44,108 @@ impl Band {
     }
 }
 
+/// Memory outside this process's private heap that holds one level's window (the shared
+/// mapping of [`crate::shm`], so that the engine writes texels where renderers read them, with no
+/// second copy). Offsets are bytes within the window, row-major toroidal as in [`Window`].
+pub trait WindowStore: Send + std::fmt::Debug {
+    /// The window's length in bytes.
+    fn len(&self) -> usize;
+    /// True for a zero-length window.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Copies `src` into the window at byte `at` (`at + src.len() <= len()`).
+    fn write(&mut self, at: usize, src: &[u8]);
+    /// Copies the window's bytes at `at` into `out`.
+    fn read(&self, at: usize, out: &mut [u8]);
+}
+
+/// Where a window's texels live.
+#[derive(Debug)]
+pub enum Store {
+    /// Private memory of this process (the default).
+    Private(Vec<u8>),
+    /// Memory supplied by the caller, such as a shared mapping.
+    External(Box<dyn WindowStore>),
+}
+
+impl Store {
+    /// Length in bytes.
+    pub fn len(&self) -> usize {
+        match self {
+            Store::Private(v) => v.len(),
+            Store::External(e) => e.len(),
+        }
+    }
+
+    /// True for a zero-length window.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    #[inline]
+    fn write(&mut self, at: usize, src: &[u8]) {
+        match self {
+            Store::Private(v) => v[at..at + src.len()].copy_from_slice(src),
+            Store::External(e) => e.write(at, src),
+        }
+    }
+
+    /// Copies the bytes at `at` into `out`.
+    pub fn read(&self, at: usize, out: &mut [u8]) {
+        match self {
+            Store::Private(v) => out.copy_from_slice(&v[at..at + out.len()]),
+            Store::External(e) => e.read(at, out),
+        }
+    }
+
+    /// The bytes themselves, when they are private to this process.
+    pub fn as_slice(&self) -> Option<&[u8]> {
+        match self {
+            Store::Private(v) => Some(v),
+            Store::External(_) => None,
+        }
+    }
+}
+
 /// One level's window.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct Window {
     pub level: u32,
     pub clip: u64,
     pub dims: [u64; 2],
     pub bpt: usize,
     pub tile: [u64; 2],
-    pub buf: Vec<u8>,
+    pub buf: Store,
     pub content: Rect,
     pub published: Rect,
 }
 
 impl Window {
-    /// An empty window for a level of `size` texels read in `tile`-sized tiles.
-    pub fn new(level: u32, size: [u64; 2], clip: u64, tile: [u64; 2], bpt: usize) -> Self {
-        let dims = [clip.min(size[0]), clip.min(size[1])];
-        let buf = vec![0u8; (dims[0] * dims[1]) as usize * bpt];
+    /// The buffer size in texels per axis of a level of `size` texels.
+    pub fn dims(size: [u64; 2], clip: u64) -> [u64; 2] {
+        [clip.min(size[0]), clip.min(size[1])]
+    }
+
+    /// An empty window for a level of `size` texels read in `tile`-sized tiles, in private
+    /// memory, or in `store` (which must be exactly the window's length).
+    pub fn new(
+        level: u32,
+        size: [u64; 2],
+        clip: u64,
+        tile: [u64; 2],
+        bpt: usize,
+        store: Option<Box<dyn WindowStore>>,
+    ) -> Self {
+        let dims = Self::dims(size, clip);
+        let len = (dims[0] * dims[1]) as usize * bpt;
+        let buf = match store {
+            Some(e) => {
+                assert_eq!(e.len(), len, "level {level}: the window store's length differs from the window's");
+                Store::External(e)
+            }
+            None => Store::Private(vec![0u8; len]),
+        };
         Window { level, clip, dims, bpt, tile, buf, content: Rect::EMPTY, published: Rect::EMPTY }
     }
 
@@ -155,7 +239,7 @@ impl Window {
             let row_sources = &sources[(tt - tiles.t0) as usize * tiles_w..];
             for &(col, src_at, dst_at, n) in &runs {
                 let (src, dst) = (src_row + src_at, dst_row + dst_at);
-                self.buf[dst..dst + n].copy_from_slice(&row_sources[col][src..src + n]);
+                self.buf.write(dst, &row_sources[col][src..src + n]);
             }
         }
         Some(rect.area() * bpt as u64)

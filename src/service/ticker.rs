@@ -10,7 +10,8 @@
 use super::stats::TickStats;
 use super::{Options, ServiceError};
 use crate::clip::{Clipmap, Settings};
-use crate::shm::mirror::Mirror;
+use crate::shm::mirror::{shape_of_desc, Mirror};
+use crate::shm::Writer;
 use crate::source::TileSource;
 use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::Arc;
@@ -133,11 +134,21 @@ impl Runner {
     ) -> Result<(Runner, Started), ServiceError> {
         let desc = source.desc().clone();
         let settings = Settings { budget_ns: o.budget_ms.map(|ms| (ms * 1e6) as u64), ..Settings::default() };
-        let mut clipmap = Clipmap::new(source, settings)?;
+        // The engine keeps its windows in the mapping itself: each texel is copied once, from a
+        // tile straight to where renderers read it.
+        let writer = Writer::create(&o.shm_dir, &o.name, shape_of_desc(&desc), desc.format(), o.shm_mode)?;
+        let mut clipmap = match Clipmap::with_windows(source, settings, writer.window_stores()) {
+            Ok(c) => c,
+            Err(e) => {
+                // Leave nothing behind that looks like a service.
+                writer.close();
+                return Err(e.into());
+            }
+        };
         if let Some(b) = o.invalid_border {
             clipmap.set_invalid_border(b);
         }
-        let mirror = Mirror::create(&o.shm_dir, &o.name, &clipmap, o.shm_mode)?;
+        let mirror = Mirror::direct(writer, &clipmap)?;
         let started = Started {
             mapping: mirror.writer().path().to_path_buf(),
             size: desc.size(),

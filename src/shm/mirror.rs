@@ -12,6 +12,7 @@ use super::writer::{PublishedLevel, Writer};
 use super::ShmError;
 use crate::clip::{Clipmap, LevelView, Phase, Publisher};
 use crate::geom::Rect;
+use crate::source::TextureDesc;
 use std::path::Path;
 
 /// A [`Publisher`] that keeps a mapping equal to the engine's published state.
@@ -19,7 +20,9 @@ pub struct Mirror {
     writer: Writer,
     published: Vec<Rect>,
     tick: u64,
-    /// Bytes copied into the mapping so far.
+    /// True when the engine writes its windows straight into the mapping (nothing to copy).
+    direct: bool,
+    /// Bytes copied into the mapping so far (by the mirror, or by the engine when direct).
     pub bytes_copied: u64,
     /// Level-state publications so far.
     pub publications: u64,
@@ -33,11 +36,15 @@ impl std::fmt::Debug for Mirror {
 
 /// The mapping shape of an engine.
 pub fn shape_of(clipmap: &Clipmap) -> Shape {
-    let d = clipmap.desc();
+    shape_of_desc(clipmap.desc())
+}
+
+/// The mapping shape of a texture.
+pub fn shape_of_desc(d: &TextureDesc) -> Shape {
     Shape {
         bytes_per_texel: d.bytes_per_texel() as u64,
         clip_size: d.clip_size(),
-        levels: (0..clipmap.level_count() as u32).map(|k| clipmap.level(k).size).collect(),
+        levels: d.levels().iter().map(|l| l.size).collect(),
     }
 }
 
@@ -57,9 +64,29 @@ fn minus(a: Rect, b: Rect) -> Vec<Rect> {
 
 impl Mirror {
     /// Creates the mapping for `clipmap` as `name` in `dir` (owner-only unless `mode` says more).
+    /// The engine keeps its windows in private memory and the mirror copies what becomes valid.
     pub fn create(dir: &Path, name: &str, clipmap: &Clipmap, mode: u32) -> Result<Mirror, ShmError> {
         let shape = shape_of(clipmap);
         let writer = Writer::create(dir, name, shape, clipmap.desc().format(), mode)?;
+        Self::over(writer, clipmap, false)
+    }
+
+    /// A mirror over `writer` for an engine built with the writer's own window memory
+    /// ([`Writer::window_stores`] and [`Clipmap::with_windows`]): the engine writes texels into
+    /// the mapping itself and the mirror only publishes, so a service copies each texel once,
+    /// as the in-process engine does.
+    pub fn direct(writer: Writer, clipmap: &Clipmap) -> Result<Mirror, ShmError> {
+        for k in 0..clipmap.level_count() {
+            if clipmap.level(k as u32).texels.as_slice().is_some() {
+                return Err(ShmError::Shape(format!(
+                    "level {k}: the engine keeps this window in private memory; build it with Clipmap::with_windows(.., writer.window_stores())"
+                )));
+            }
+        }
+        Self::over(writer, clipmap, true)
+    }
+
+    fn over(writer: Writer, clipmap: &Clipmap, direct: bool) -> Result<Mirror, ShmError> {
         for k in 0..clipmap.level_count() {
             let v = clipmap.level(k as u32);
             let w = writer.placement().windows[k];
@@ -72,7 +99,7 @@ impl Mirror {
             }
         }
         let n = clipmap.level_count();
-        Ok(Mirror { writer, published: vec![Rect::EMPTY; n], tick: 0, bytes_copied: 0, publications: 0 })
+        Ok(Mirror { writer, published: vec![Rect::EMPTY; n], tick: 0, direct, bytes_copied: 0, publications: 0 })
     }
 
     /// The writer (for requests, heartbeat and shutdown).
@@ -96,7 +123,14 @@ impl Mirror {
                 let run = ((r.s1 - s) as u64).min(v.dims[0] - slot_s);
                 let off = ((slot_t * v.dims[0] + slot_s) as usize) * bpt;
                 let len = run as usize * bpt;
-                self.writer.write_window(k, off as u64, &v.texels[off..off + len]);
+                match v.texels.as_slice() {
+                    Some(texels) => self.writer.write_window(k, off as u64, &texels[off..off + len]),
+                    None => {
+                        let mut run = vec![0u8; len];
+                        v.texels.read(off, &mut run);
+                        self.writer.write_window(k, off as u64, &run);
+                    }
+                }
                 self.bytes_copied += len as u64;
                 s += run as i64;
             }
@@ -131,7 +165,12 @@ impl Mirror {
             self.publish_level(k, &v, keep, clipmap.invalid_border());
         }
         for r in minus(n, keep) {
-            self.copy_rect(k, &v, r);
+            if self.direct {
+                // Already in the mapping: the engine wrote it there.
+                self.bytes_copied += r.area() * v.bpt as u64;
+            } else {
+                self.copy_rect(k, &v, r);
+            }
         }
         if n != keep {
             self.publish_level(k, &v, n, clipmap.invalid_border());

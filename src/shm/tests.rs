@@ -8,19 +8,43 @@ use crate::source::procedural::hash;
 use crate::source::{HashSource, TextureDesc};
 use crate::texel::TexelFormat;
 use std::os::unix::fs::PermissionsExt;
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
+fn desc(size: u64, clip: u64, tile: u64) -> TextureDesc {
+    TextureDesc::new([size, size], clip, TexelFormat::RGBA8, [tile, tile]).unwrap().with_invalid_border(4).unwrap()
+}
+
+fn settings() -> Settings {
+    Settings { budget_ns: None, cost: Some(CostTable::fixed(100.0, 10.0, 1.0)), fade_ticks: 1, ..Settings::default() }
+}
+
 fn engine(size: u64, clip: u64, tile: u64) -> Clipmap {
-    let desc =
-        TextureDesc::new([size, size], clip, TexelFormat::RGBA8, [tile, tile]).unwrap().with_invalid_border(4).unwrap();
-    let settings = Settings {
-        budget_ns: None,
-        cost: Some(CostTable::fixed(100.0, 10.0, 1.0)),
-        fade_ticks: 1,
-        ..Settings::default()
-    };
-    Clipmap::new(Arc::new(HashSource::new(desc)), settings).unwrap()
+    Clipmap::new(Arc::new(HashSource::new(desc(size, clip, tile))), settings()).unwrap()
+}
+
+/// An engine and its mirror in `dir`: copying from private windows, or (`direct`) with the
+/// engine's windows in the mapping itself, as the service runs it.
+fn engine_and_mirror(
+    dir: &Path,
+    name: &str,
+    size: u64,
+    clip: u64,
+    tile: u64,
+    direct: bool,
+) -> (Clipmap, mirror::Mirror) {
+    if direct {
+        let d = desc(size, clip, tile);
+        let writer = Writer::create(dir, name, mirror::shape_of_desc(&d), d.format(), 0o600).unwrap();
+        let map = Clipmap::with_windows(Arc::new(HashSource::new(d)), settings(), writer.window_stores()).unwrap();
+        let m = mirror::Mirror::direct(writer, &map).unwrap();
+        (map, m)
+    } else {
+        let map = engine(size, clip, tile);
+        let m = mirror::Mirror::create(dir, name, &map, 0o600).unwrap();
+        (map, m)
+    }
 }
 
 /// Reads random texels inside the published regions and checks them; returns (reads, mismatches).
@@ -58,9 +82,17 @@ fn read_and_check(c: &Client, rng: &mut u64, reads: u64) -> (u64, u64) {
 
 #[test]
 fn a_client_reads_exactly_the_hash_texels_while_the_centre_moves() {
+    client_reads_hash_texels(false);
+}
+
+#[test]
+fn a_client_reads_exactly_the_hash_texels_when_the_engine_writes_into_the_mapping() {
+    client_reads_hash_texels(true);
+}
+
+fn client_reads_hash_texels(direct: bool) {
     let dir = tempfile::tempdir().unwrap();
-    let mut map = engine(1 << 14, 256, 64);
-    let mut mirror = mirror::Mirror::create(dir.path(), "t1", &map, 0o600).unwrap();
+    let (mut map, mut mirror) = engine_and_mirror(dir.path(), "t1", 1 << 14, 256, 64, direct);
     let client = Client::attach(dir.path(), "t1").unwrap();
     let mut rng = 7u64;
     let mut centre = [100i64, 8000];
@@ -81,9 +113,17 @@ fn a_client_reads_exactly_the_hash_texels_while_the_centre_moves() {
 
 #[test]
 fn concurrent_readers_never_see_a_wrong_texel() {
+    concurrent_readers(false);
+}
+
+#[test]
+fn concurrent_readers_never_see_a_wrong_texel_when_the_engine_writes_into_the_mapping() {
+    concurrent_readers(true);
+}
+
+fn concurrent_readers(direct: bool) {
     let dir = tempfile::tempdir().unwrap();
-    let mut map = engine(1 << 16, 128, 32);
-    let mut mirror = mirror::Mirror::create(dir.path(), "t2", &map, 0o600).unwrap();
+    let (mut map, mut mirror) = engine_and_mirror(dir.path(), "t2", 1 << 16, 128, 32, direct);
     let stop = Arc::new(AtomicBool::new(false));
     let counts = Arc::new((AtomicU64::new(0), AtomicU64::new(0)));
     let readers: Vec<_> = (0..2)
@@ -229,4 +269,112 @@ fn a_renderer_that_died_holding_the_request_lock_does_not_silence_the_others() {
     c.request_centre([7, 8], [0.0, 0.0]);
     let r = m.writer().request().unwrap();
     assert_eq!(r.centre, [7, 8]);
+}
+
+#[test]
+fn direct_windows_must_match_the_texture_and_a_private_engine_is_not_direct() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = desc(1024, 64, 32);
+    let writer = Writer::create(dir.path(), "shape", mirror::shape_of_desc(&d), d.format(), 0o600).unwrap();
+    // Stores of another texture (clip 32) do not fit this one (clip 64).
+    let other = desc(1024, 32, 32);
+    let w2 = Writer::create(dir.path(), "other", mirror::shape_of_desc(&other), other.format(), 0o600).unwrap();
+    let Err(err) = Clipmap::with_windows(Arc::new(HashSource::new(d.clone())), settings(), w2.window_stores()) else {
+        panic!("stores of another texture were accepted")
+    };
+    let msg = err.to_string();
+    assert!(msg.contains("level 0") && msg.contains("found 4096 bytes, expected 16384"), "{msg}");
+    let mut fewer = writer.window_stores();
+    fewer.pop();
+    let Err(err) = Clipmap::with_windows(Arc::new(HashSource::new(d.clone())), settings(), fewer) else {
+        panic!("too few stores were accepted")
+    };
+    assert!(err.to_string().contains("supplied"), "{err}");
+    // An engine with private windows cannot be published without copies.
+    let private = engine(1024, 64, 32);
+    let err = mirror::Mirror::direct(writer, &private).unwrap_err();
+    assert!(err.to_string().contains("private memory"), "{err}");
+}
+
+#[test]
+fn a_direct_engine_samples_what_a_private_one_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut a, mut ma) = engine_and_mirror(dir.path(), "sa", 1 << 12, 128, 32, true);
+    let mut b = engine(1 << 12, 128, 32);
+    let mut c = [1000i64, 1500];
+    for _ in 0..40 {
+        c = [c[0] + 13, c[1] - 7];
+        a.tick_with(c, None, &mut ma);
+        b.tick(c, None);
+        a.wait_for_reads();
+        b.wait_for_reads();
+    }
+    for k in 0..a.level_count() as u32 {
+        let (va, vb) = (a.level(k), b.level(k));
+        assert_eq!(va.valid, vb.valid, "level {k}");
+        assert!(va.texels.as_slice().is_none() && vb.texels.as_slice().is_some());
+        for t in va.valid.t0..va.valid.t1 {
+            for s in va.valid.s0..va.valid.s1 {
+                assert_eq!(va.texel(s, t), vb.texel(s, t), "level {k} ({s}, {t})");
+            }
+        }
+    }
+    assert!(ma.bytes_copied > 0);
+}
+
+/// Checks, just before each after-writes publication (when the engine has written this tick's
+/// texels but not yet published them), that every texel the mapping publishes still holds its
+/// `hash` value: a write into a published slot is caught even when no reader happened to race
+/// it.
+struct CheckBeforePublishing<'a> {
+    mirror: &'a mut mirror::Mirror,
+    client: &'a Client,
+    checked: u64,
+    bad: u64,
+}
+
+impl crate::clip::Publisher for CheckBeforePublishing<'_> {
+    fn publish(&mut self, phase: crate::clip::Phase, clipmap: &Clipmap) {
+        if phase == crate::clip::Phase::AfterWrites {
+            let bpt = self.client.bytes_per_texel;
+            let mut want = vec![0u8; bpt];
+            for k in 0..self.client.levels.len() {
+                let Some(st) = self.client.level_state(k) else { continue };
+                let [s0, t0, s1, t1] = st.valid;
+                if !st.enabled || s1 <= s0 || t1 <= t0 {
+                    continue;
+                }
+                let mut got = vec![0u8; ((s1 - s0) * (t1 - t0)) as usize * bpt];
+                self.client.read_region(k, s0, t0, (s1 - s0) as u64, (t1 - t0) as u64, &mut got).unwrap();
+                for (i, px) in got.chunks(bpt).enumerate() {
+                    let (s, t) = (s0 + i as i64 % (s1 - s0), t0 + i as i64 / (s1 - s0));
+                    hash(k as u32, s as u64, t as u64, &mut want);
+                    self.checked += 1;
+                    self.bad += u64::from(px != &want[..]);
+                }
+            }
+        }
+        self.mirror.publish(phase, clipmap);
+    }
+}
+
+#[test]
+fn the_engine_never_writes_a_slot_the_mapping_publishes() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, mut mirror) = engine_and_mirror(dir.path(), "inv", 1 << 12, 64, 16, true);
+    let client = Client::attach(dir.path(), "inv").unwrap();
+    let mut check = CheckBeforePublishing { mirror: &mut mirror, client: &client, checked: 0, bad: 0 };
+    let mut c = [2000i64, 2000];
+    for tick in 0..120u64 {
+        // Steady moves, reversals, and a jump larger than the window every 40 ticks.
+        c = match tick % 40 {
+            0 => [c[0] + 300, c[1] - 200],
+            20..=29 => [c[0] - 5, c[1] + 3],
+            _ => [c[0] + 6, c[1] + 2],
+        };
+        map.tick_with(c, None, &mut check);
+        map.wait_for_reads();
+    }
+    assert_eq!(check.bad, 0, "{} published texels were overwritten before publication", check.bad);
+    assert!(check.checked > 100_000, "too few texels checked: {}", check.checked);
 }

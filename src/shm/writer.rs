@@ -5,12 +5,14 @@
 use super::layout::{self, desc, header, request, state, Placement, Shape};
 use super::raw::Region;
 use super::{check_name, io, lock_path, map_path, ShmError};
+use crate::clip::WindowStore;
 use crate::texel::TexelFormat;
 use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{fence, Ordering};
+use std::sync::Arc;
 
 /// What a level state says.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -38,7 +40,7 @@ pub struct Request {
 
 /// The writer of one mapping.
 pub struct Writer {
-    region: Region,
+    region: Arc<Region>,
     placement: Placement,
     shape: Shape,
     path: PathBuf,
@@ -98,7 +100,8 @@ impl Writer {
             OpenOptions::new().read(true).write(true).create_new(true).mode(mode).open(&tmp).map_err(io(&tmp))?;
         file.set_len(placement.total_bytes).map_err(io(&tmp))?;
         let region = Region::map(&file).map_err(io(&tmp))?;
-        let w = Writer { region, placement, shape, path: path.clone(), lock_path, _lock: lock, tick: 0 };
+        let w =
+            Writer { region: Arc::new(region), placement, shape, path: path.clone(), lock_path, _lock: lock, tick: 0 };
         w.init(format);
         // Visible under its name only once complete; readers of a previous mapping keep theirs.
         std::fs::rename(&tmp, &path).map_err(io(&path))?;
@@ -201,6 +204,25 @@ impl Writer {
         self.region.write((w.offset + byte_offset) as usize, src);
     }
 
+    /// One store per level that writes straight into the level's window of the mapping, for the
+    /// engine to keep its windows in ([`crate::clip::Clipmap::with_windows`]): texels are then
+    /// written once, where readers read them. The engine keeps the invariant (it writes only
+    /// outside what it has published, and [`super::mirror::Mirror`] publishes no more than the
+    /// engine).
+    pub fn window_stores(&self) -> Vec<Box<dyn WindowStore>> {
+        self.placement
+            .windows
+            .iter()
+            .map(|w| {
+                Box::new(SharedWindow {
+                    region: Arc::clone(&self.region),
+                    offset: w.offset as usize,
+                    len: w.bytes as usize,
+                }) as Box<dyn WindowStore>
+            })
+            .collect()
+    }
+
     /// Beats the heartbeat: readers judge the service alive while it moves.
     pub fn heartbeat(&self) {
         self.region.fetch_add(header::HEARTBEAT, 1, Ordering::Relaxed);
@@ -236,5 +258,34 @@ impl Writer {
         self.region.store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
         let _ = std::fs::remove_file(&self.path);
         let _ = std::fs::remove_file(&self.lock_path);
+    }
+}
+
+/// A level's window inside the mapping, as engine memory.
+struct SharedWindow {
+    region: Arc<Region>,
+    offset: usize,
+    len: usize,
+}
+
+impl std::fmt::Debug for SharedWindow {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SharedWindow").field("offset", &self.offset).field("len", &self.len).finish()
+    }
+}
+
+impl WindowStore for SharedWindow {
+    fn len(&self) -> usize {
+        self.len
+    }
+
+    fn write(&mut self, at: usize, src: &[u8]) {
+        assert!(at + src.len() <= self.len, "write outside a window of {} bytes", self.len);
+        self.region.write(self.offset + at, src);
+    }
+
+    fn read(&self, at: usize, out: &mut [u8]) {
+        assert!(at + out.len() <= self.len, "read outside a window of {} bytes", self.len);
+        self.region.read(self.offset + at, out);
     }
 }
