@@ -631,3 +631,28 @@ fn a_ct_configuration_is_served_from_its_tile_files() {
     assert!(stats["engine"]["tiles_read"].as_u64().unwrap() > 0, "{stats}");
     assert_eq!(json_reply(&svc.ask("STATUS"))["levels"], 13);
 }
+
+#[test]
+fn a_renderer_request_is_published_without_waiting_for_the_next_period() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Two ticks a second: a request that waited for the period would wait up to half a second.
+    let svc = Service::start(d, "early", &["--tick-hz", "2"]);
+    let c = clipmap::shm::Client::attach(d, "early").unwrap();
+    let before = json_reply(&svc.ask("STATS"));
+    for i in 1..=5i64 {
+        let want = [30_000 + 100 * i, 20_000 - 50 * i];
+        c.request_centre(want, [0.0, 0.0]);
+        let t = Instant::now();
+        while c.level_state(0).is_none_or(|s| s.centre != want) {
+            assert!(t.elapsed() < Duration::from_secs(10), "request {i} was never published\n{}", svc.dump());
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let after = json_reply(&svc.ask("STATS"));
+    let early = after["ticks_on_request"].as_u64().unwrap() - before["ticks_on_request"].as_u64().unwrap();
+    assert!(early >= 4, "at most one of 5 requests may coincide with a periodic tick: {after}");
+    assert!(after["tick_busy_s"].as_f64().unwrap() > 0.0, "{after}");
+    assert!(svc.ask("STATS PROM").starts_with("OK prometheus"));
+}

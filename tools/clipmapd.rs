@@ -17,6 +17,7 @@ use std::time::Duration;
 
 #[derive(Parser)]
 #[command(
+    args_override_self = true,
     name = "clipmapd",
     version,
     about = "Serve a clip texture in shared memory",

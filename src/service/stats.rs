@@ -17,6 +17,12 @@ pub struct TickStats {
     pub tick_hz: f64,
     /// Ticks that took longer than the tick period (the loop then skips ahead, never bursts).
     pub tick_overruns: u64,
+    /// Ticks started early because a renderer's request arrived (the tick loop polls the
+    /// request block every millisecond while it waits, so a request is published in about the
+    /// time of one tick's work instead of waiting for the next period).
+    pub ticks_on_request: u64,
+    /// Seconds spent inside update ticks (reads taken, strips copied, states published).
+    pub tick_busy_s: f64,
     /// Level-0 centre of the last tick.
     pub centre: [i64; 2],
     /// Renderer requests seen through the mapping (the request block's count).
@@ -31,7 +37,7 @@ pub struct TickStats {
     pub budget_ms: Option<f64>,
     /// Invalid border in use.
     pub invalid_border: u64,
-    /// Bytes copied into the mapping.
+    /// Texel bytes newly published in the mapping (the engine writes them there itself).
     pub bytes_published: u64,
     /// Level-state publications written to the mapping.
     pub publications: u64,
@@ -114,12 +120,24 @@ impl ServiceStats {
         let e = &t.engine;
         let c = &self.control;
         let q = &e.queue;
-        let rows: [(&str, &str, &str, f64); 28] = [
+        let rows: [(&str, &str, &str, f64); 30] = [
             ("ticks_total", "counter", "Update ticks run", e.ticks as f64),
             ("tick_overruns_total", "counter", "Ticks longer than the tick period", t.tick_overruns as f64),
+            (
+                "ticks_on_request_total",
+                "counter",
+                "Ticks started early by a renderer's request",
+                t.ticks_on_request as f64,
+            ),
+            ("tick_busy_seconds_total", "counter", "Seconds spent inside update ticks", t.tick_busy_s),
             ("uptime_seconds", "gauge", "Seconds since start", t.uptime_s),
             ("bytes_copied_total", "counter", "Texel bytes copied from tiles into windows", e.bytes_copied as f64),
-            ("bytes_published_total", "counter", "Texel bytes copied into the mapping", t.bytes_published as f64),
+            (
+                "bytes_published_total",
+                "counter",
+                "Texel bytes newly published in the mapping",
+                t.bytes_published as f64,
+            ),
             ("publications_total", "counter", "Level-state publications", t.publications as f64),
             ("tiles_read_total", "counter", "Tiles read and admitted", e.tiles_read as f64),
             ("read_faults_total", "counter", "Tile reads that failed", e.read_faults.total() as f64),
@@ -184,8 +202,8 @@ mod tests {
         let s = ServiceStats { name: "x".into(), tick: TickStats::default(), control: ControlStats::default() };
         let text = s.prometheus();
         let samples: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).collect();
-        assert_eq!(samples.len(), 28);
+        assert_eq!(samples.len(), 30);
         assert!(samples.iter().all(|l| l.starts_with("clipmapd_") && l.contains("{name=\"x\"} ")));
-        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 28);
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 30);
     }
 }

@@ -176,21 +176,33 @@ impl Runner {
     }
 
     fn run(mut self) {
+        // While waiting for the next period, look at the request block this often; a new
+        // request starts a tick at once, but never sooner than `min_gap` after the last one.
+        let poll = Duration::from_millis(1);
+        let min_gap = self.period / 4;
         let mut next = Instant::now();
+        let mut last_start = next - self.period;
         'ticks: loop {
             loop {
                 let now = Instant::now();
                 if now >= next {
                     break;
                 }
-                match self.commands.recv_timeout(next - now) {
+                if now >= last_start + min_gap && self.mirror.writer().request_count() != self.last_request {
+                    self.stats.ticks_on_request += 1;
+                    break;
+                }
+                match self.commands.recv_timeout((next - now).min(poll)) {
                     Ok(Command::Stop) | Err(RecvTimeoutError::Disconnected) => break 'ticks,
                     Ok(cmd) => self.apply(cmd),
-                    Err(RecvTimeoutError::Timeout) => break,
+                    Err(RecvTimeoutError::Timeout) => {}
                 }
             }
+            let start = Instant::now();
+            let early = start < next;
+            last_start = start;
             self.tick();
-            next += self.period;
+            next = if early { start + self.period } else { next + self.period };
             let now = Instant::now();
             if now > next {
                 self.stats.tick_overruns += 1;
@@ -239,8 +251,10 @@ impl Runner {
                 self.stats.requests_seen = req.count;
             }
         }
+        let t0 = Instant::now();
         let report = self.clipmap.tick_with(self.centre, self.velocity, &mut self.mirror);
         let s = &mut self.stats;
+        s.tick_busy_s += t0.elapsed().as_secs_f64();
         s.uptime_s = self.started.elapsed().as_secs_f64();
         s.centre = report.centre;
         s.min_lod = report.min_lod;

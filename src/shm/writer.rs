@@ -229,6 +229,12 @@ impl Writer {
         self.region.store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
     }
 
+    /// How many requests renderers have made so far (one atomic load: cheap enough to poll
+    /// while waiting for the next tick).
+    pub fn request_count(&self) -> u64 {
+        self.region.load(header::REQUEST + request::COUNT, Ordering::Acquire)
+    }
+
     /// Reads the latest renderer request, if a consistent one is there.
     pub fn request(&self) -> Option<Request> {
         let r = &self.region;
