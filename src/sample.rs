@@ -12,7 +12,8 @@
 //! level-0 texel (s, t). Addressing clamps to the level's edges.
 
 use crate::clip::Clipmap;
-use crate::source::{level_size, SourceError, TextureDesc, TileId, TileSource};
+use crate::shm::Client;
+use crate::source::{level_size, SourceError, TileId, TileSource};
 use crate::texel::TexelFormat;
 use std::collections::HashMap;
 
@@ -38,7 +39,10 @@ pub struct Sample {
 
 /// Where texels come from: `None` when a texel is not available.
 trait Fetch {
-    fn desc(&self) -> &TextureDesc;
+    /// Level 0's size in texels.
+    fn size(&self) -> [u64; 2];
+    /// Number of levels.
+    fn level_count(&self) -> usize;
     fn texel(&mut self, level: u32, s: i64, t: i64) -> Option<[f32; 4]>;
 }
 
@@ -47,7 +51,7 @@ fn lerp(a: [f32; 4], b: [f32; 4], f: f32) -> [f32; 4] {
 }
 
 fn point(src: &mut dyn Fetch, k: u32, u: f64, v: f64) -> Option<[f32; 4]> {
-    let size = level_size(src.desc().size(), k);
+    let size = level_size(src.size(), k);
     let scale = (1u64 << k) as f64;
     let s = ((u / scale).floor() as i64).clamp(0, size[0] as i64 - 1);
     let t = ((v / scale).floor() as i64).clamp(0, size[1] as i64 - 1);
@@ -55,7 +59,7 @@ fn point(src: &mut dyn Fetch, k: u32, u: f64, v: f64) -> Option<[f32; 4]> {
 }
 
 fn bilinear(src: &mut dyn Fetch, k: u32, u: f64, v: f64) -> Option<[f32; 4]> {
-    let size = level_size(src.desc().size(), k);
+    let size = level_size(src.size(), k);
     let scale = (1u64 << k) as f64;
     let (x, y) = (u / scale - 0.5, v / scale - 0.5);
     let (x0, y0) = (x.floor(), y.floor());
@@ -71,7 +75,7 @@ fn bilinear(src: &mut dyn Fetch, k: u32, u: f64, v: f64) -> Option<[f32; 4]> {
 }
 
 fn filtered(src: &mut dyn Fetch, filter: Filter, u: f64, v: f64, lod: f64) -> Option<[f32; 4]> {
-    let last = src.desc().level_count() as u32 - 1;
+    let last = src.level_count() as u32 - 1;
     let lod = lod.clamp(0.0, last as f64);
     let nearest = (lod + 0.5).floor() as u32;
     match filter {
@@ -115,8 +119,12 @@ impl<'a> MipmapSampler<'a> {
 }
 
 impl Fetch for MipmapSampler<'_> {
-    fn desc(&self) -> &TextureDesc {
-        self.source.desc()
+    fn size(&self) -> [u64; 2] {
+        self.source.desc().size()
+    }
+
+    fn level_count(&self) -> usize {
+        self.source.desc().level_count()
     }
 
     fn texel(&mut self, level: u32, s: i64, t: i64) -> Option<[f32; 4]> {
@@ -140,8 +148,12 @@ impl Fetch for MipmapSampler<'_> {
 struct ClipFetch<'a>(&'a Clipmap);
 
 impl Fetch for ClipFetch<'_> {
-    fn desc(&self) -> &TextureDesc {
-        self.0.desc()
+    fn size(&self) -> [u64; 2] {
+        self.0.desc().size()
+    }
+
+    fn level_count(&self) -> usize {
+        self.0.level_count()
     }
 
     fn texel(&mut self, level: u32, s: i64, t: i64) -> Option<[f32; 4]> {
@@ -152,18 +164,55 @@ impl Fetch for ClipFetch<'_> {
 /// Samples the clipmap as published at (u, v) and `lod`, applying min LOD and the
 /// finest-available rule; `None` when no level holds the footprint (nothing published yet).
 pub fn sample_clipmap(map: &Clipmap, filter: Filter, u: f64, v: f64, lod: f64) -> Option<Sample> {
-    let mut src = ClipFetch(map);
-    let last = map.level_count() as f64 - 1.0;
-    let lod = lod.max(map.min_lod()).clamp(0.0, last);
-    if let Some(rgba) = filtered(&mut src, filter, u, v, lod) {
+    sample_published(&mut ClipFetch(map), map.min_lod(), filter, u, v, lod)
+}
+
+/// A mapping as a reader sees it ([`Client`]): each texel read under its level's seqlock, and
+/// only from the published valid region.
+struct MappedFetch<'a> {
+    client: &'a Client,
+    format: TexelFormat,
+    buf: Vec<u8>,
+}
+
+impl Fetch for MappedFetch<'_> {
+    fn size(&self) -> [u64; 2] {
+        self.client.levels[0].size
+    }
+
+    fn level_count(&self) -> usize {
+        self.client.levels.len()
+    }
+
+    fn texel(&mut self, level: u32, s: i64, t: i64) -> Option<[f32; 4]> {
+        self.client.read_region(level as usize, s, t, 1, 1, &mut self.buf).ok()?;
+        Some(self.format.decode(&self.buf))
+    }
+}
+
+/// Samples a service's mapping through `client` exactly as [`sample_clipmap`] samples the engine
+/// (min LOD from the mapping's global state, the finest-available rule over the published valid
+/// regions); `None` when nothing holds the footprint, or the mapping's texel format is one the
+/// sampler cannot decode.
+pub fn sample_mapping(client: &Client, filter: Filter, u: f64, v: f64, lod: f64) -> Option<Sample> {
+    let format = crate::shm::layout::format_from_code(client.format_code)?;
+    let min_lod = client.snapshot().min_lod;
+    let mut src = MappedFetch { client, format, buf: vec![0; client.bytes_per_texel] };
+    sample_published(&mut src, min_lod, filter, u, v, lod)
+}
+
+fn sample_published(src: &mut dyn Fetch, min_lod: f64, filter: Filter, u: f64, v: f64, lod: f64) -> Option<Sample> {
+    let count = src.level_count() as u32;
+    let last = count as f64 - 1.0;
+    let lod = lod.max(min_lod).clamp(0.0, last);
+    if let Some(rgba) = filtered(src, filter, u, v, lod) {
         return Some(Sample { rgba, lod });
     }
     let first = match filter {
         Filter::Trilinear => lod.ceil() as u32,
         _ => (lod + 0.5).floor() as u32 + 1,
     };
-    (first..map.level_count() as u32)
-        .find_map(|k| filtered(&mut src, filter, u, v, k as f64).map(|rgba| Sample { rgba, lod: k as f64 }))
+    (first..count).find_map(|k| filtered(src, filter, u, v, k as f64).map(|rgba| Sample { rgba, lod: k as f64 }))
 }
 
 #[cfg(test)]

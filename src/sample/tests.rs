@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::clip::{CostTable, Settings};
-use crate::source::{Fault, FaultRule, FaultySource, HashSource};
+use crate::source::{Fault, FaultRule, FaultySource, HashSource, TextureDesc};
 use std::sync::Arc;
 
 fn setup(size: u64, clip: u64, centre: [i64; 2]) -> (Arc<dyn TileSource>, Clipmap) {

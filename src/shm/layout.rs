@@ -145,6 +145,12 @@ pub fn format_code(f: crate::texel::TexelFormat) -> u32 {
     }
 }
 
+/// The texel format of a `TEXEL_FORMAT` code; `None` for 0 (other) or an unknown code.
+pub fn format_from_code(code: u32) -> Option<crate::texel::TexelFormat> {
+    use crate::texel::TexelFormat as F;
+    [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16].into_iter().find(|&f| format_code(f) == code)
+}
+
 /// The static shape of a mapping.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Shape {

@@ -378,3 +378,54 @@ fn the_engine_never_writes_a_slot_the_mapping_publishes() {
     assert_eq!(check.bad, 0, "{} published texels were overwritten before publication", check.bad);
     assert!(check.checked > 100_000, "too few texels checked: {}", check.checked);
 }
+
+#[test]
+fn a_client_samples_the_mapping_exactly_as_the_engine_is_sampled() {
+    use crate::sample::{sample_clipmap, Filter, MipmapSampler};
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, mut mirror) = engine_and_mirror(dir.path(), "smp", 1 << 12, 128, 32, true);
+    let client = Client::attach(dir.path(), "smp").unwrap();
+    let full_source = HashSource::new(desc(1 << 12, 128, 32));
+    let mut full = MipmapSampler::new(&full_source);
+    let mut c = [1500i64, 2500];
+    let mut rng = 3u64;
+    let mut next = || {
+        rng = crate::source::procedural::splitmix64(rng);
+        rng
+    };
+    let (mut compared, mut coarser) = (0, 0);
+    for tick in 0..30 {
+        c = [c[0] + 11, c[1] - 9];
+        map.tick_with(c, None, &mut mirror);
+        map.wait_for_reads();
+        if tick < 5 {
+            continue;
+        }
+        for _ in 0..100 {
+            // Around the centre, out to a few windows away, at LODs from 0 to 6.
+            let u = c[0] as f64 + (next() % 1200) as f64 - 600.0 + (next() % 1000) as f64 / 1000.0;
+            let v = c[1] as f64 + (next() % 1200) as f64 - 600.0 + (next() % 1000) as f64 / 1000.0;
+            let lod = (next() % 600) as f64 / 100.0;
+            let filter = [Filter::Point, Filter::Bilinear, Filter::Trilinear][(next() % 3) as usize];
+            let from_engine = sample_clipmap(&map, filter, u, v, lod).expect("the engine holds every footprint");
+            let from_mapping = client.sample(filter, u, v, lod).expect("the mapping holds every footprint");
+            assert_eq!(from_mapping, from_engine, "{filter:?} at ({u}, {v}) lod {lod}");
+            let reference = full.sample(filter, u, v, from_mapping.lod).unwrap();
+            assert_eq!(from_mapping.rgba, reference, "{filter:?} at ({u}, {v}) lod {}", from_mapping.lod);
+            compared += 1;
+            coarser += usize::from(from_mapping.lod > lod);
+        }
+    }
+    assert_eq!(compared, 2500);
+    assert!(coarser > 0, "some samples fall outside the finer windows and use a coarser level");
+}
+
+#[test]
+fn texel_format_codes_round_trip() {
+    use crate::texel::TexelFormat as F;
+    for f in [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16] {
+        assert_eq!(layout::format_from_code(layout::format_code(f)), Some(f));
+    }
+    assert_eq!(layout::format_from_code(0), None);
+    assert_eq!(layout::format_from_code(99), None);
+}
