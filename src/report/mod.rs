@@ -4,6 +4,7 @@
 pub mod attach;
 pub mod check;
 pub mod info;
+pub mod picture;
 pub mod plan;
 pub mod validate;
 
