@@ -41,7 +41,7 @@ struct Cli {
 enum Command {
     /// Check .ct files (and every .ic they name); report every problem with file:line:col.
     Validate(validate::ValidateArgs),
-    /// A live view of a running service (levels, centres, valid regions, min LOD, tick rate).
+    /// A live view of a running service (levels, centres, valid regions, min LOD, tick rate, read queues).
     #[command(after_help = "\
 Examples:
   cliptex attach demo
@@ -53,6 +53,10 @@ Examples:
         /// Where the service's mapping lives (the service's --shm-dir).
         #[arg(long)]
         shm_dir: Option<PathBuf>,
+        /// The service's control socket, asked for queue figures (default: the service's
+        /// default, clipmap-NAME.sock beside the mapping).
+        #[arg(long)]
+        socket: Option<PathBuf>,
         /// Print one view and exit.
         #[arg(long)]
         once: bool,
@@ -460,8 +464,9 @@ fn run(cli: Cli) -> i32 {
         Command::Check { file, json, quiet, env } => check(&file, json, quiet, &env),
         Command::Roam(args) => roam(args),
         Command::Dump(args) => dump(args),
-        Command::Attach { name, shm_dir, once, json, interval } => {
+        Command::Attach { name, shm_dir, socket, once, json, interval } => {
             let dir = shm_dir.unwrap_or_else(clipmap::shm::default_dir);
+            let socket = socket.unwrap_or_else(|| clipmap::service::default_socket(&dir, &name));
             let every = std::time::Duration::from_secs_f64(interval.clamp(0.05, 3600.0));
             let live = !once && !json && std::io::IsTerminal::is_terminal(&std::io::stdout());
             loop {
@@ -473,6 +478,7 @@ fn run(cli: Cli) -> i32 {
                     } else {
                         std::time::Duration::ZERO
                     }),
+                    &socket,
                 ) {
                     Ok(s) => {
                         if json {
