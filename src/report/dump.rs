@@ -34,7 +34,7 @@ pub enum DumpError {
     RegionOutside { what: String, s0: u64, t0: u64, s1: u64, t1: u64, w: u64, h: u64 },
     /// The region holds more texels than a dump writes.
     #[error(
-        "{what} is {w}x{h} texels, more than one dump writes ({max} texels, e.g. 4096x4096); choose a part with --region S0,T0,S1,T1, e.g. --region {s0},{t0},{s1},{t1}"
+        "{what} is {w}x{h} texels, more than one dump writes ({max} texels, as 4096x4096 does); choose a part with --region S0,T0,S1,T1, e.g. --region {s0},{t0},{s1},{t1}"
     )]
     TooLarge { what: String, w: u64, h: u64, max: u64, s0: u64, t0: u64, s1: u64, t1: u64 },
     /// The level does not exist.
@@ -112,8 +112,8 @@ pub struct DumpReport {
     pub colour: &'static str,
     /// PNG width and height (the region's, one pixel per texel).
     pub pixels: [u64; 2],
-    /// Tiles read.
-    pub tiles_read: u64,
+    /// Tiles the region covers (each read once).
+    pub tiles: u64,
     /// Tiles that could not be read (painted magenta and black).
     pub missing: Vec<MissingTile>,
 }
@@ -209,7 +209,7 @@ pub fn dump(file: &Path, src: &LevelTiles, region: Option<[u64; 4]>, out: &Path)
         None => "the image cache, all of it,".to_string(),
     };
     let r = choose_region(src.level, src.size, region, &what)?;
-    let (img, tiles_read, missing) = read_region(src, r);
+    let (img, tiles, missing) = read_region(src, r);
     let colour = if matches!(img, DynamicImage::ImageRgba8(_)) { "rgba" } else { "rgb" };
     img.save_with_format(out, image::ImageFormat::Png)
         .map_err(|e| DumpError::Write { path: out.to_path_buf(), message: e.to_string() })?;
@@ -222,7 +222,7 @@ pub fn dump(file: &Path, src: &LevelTiles, region: Option<[u64; 4]>, out: &Path)
         png: out.display().to_string(),
         colour,
         pixels: [r.width(), r.height()],
-        tiles_read,
+        tiles,
         missing,
     })
 }
@@ -231,7 +231,7 @@ pub fn dump(file: &Path, src: &LevelTiles, region: Option<[u64; 4]>, out: &Path)
 pub fn human(r: &DumpReport) -> String {
     let [s0, t0, s1, t1] = r.region;
     let mut o = format!(
-        "{} ({}x{}, {}): [{s0}, {s1}) x [{t0}, {t1}) -> {} ({}x{} {})\ntiles read {}, missing {}\n",
+        "{} ({}x{}, {}): [{s0}, {s1}) x [{t0}, {t1}) -> {} ({}x{} {})\ntiles {}: {} read, {} could not be read\n",
         r.level.map_or("image cache".to_string(), |k| format!("level {k}")),
         r.level_size[0],
         r.level_size[1],
@@ -240,7 +240,8 @@ pub fn human(r: &DumpReport) -> String {
         r.pixels[0],
         r.pixels[1],
         r.colour.to_uppercase(),
-        r.tiles_read,
+        r.tiles,
+        r.tiles - r.missing.len() as u64,
         r.missing.len()
     );
     for m in r.missing.iter().take(20) {
@@ -277,7 +278,7 @@ pub fn finish(result: Result<DumpReport, DumpError>, json: bool, quiet: bool, to
                     eprintln!(
                         "{tool} dump: {} of {} tiles could not be read (first: tile ({}, {}): {}{}); they are painted as magenta and black squares in {}",
                         r.missing.len(),
-                        r.tiles_read,
+                        r.tiles,
                         r.missing[0].s,
                         r.missing[0].t,
                         r.missing[0].problem,
