@@ -145,6 +145,7 @@ fn a_missing_tile_is_painted_and_reported_and_the_rest_is_dumped() {
         let (code, r, img, _, d) =
             dump(dir.path(), prog, &["dump", target, "--region", "0,0,128,96", "--out", png.to_str().unwrap()]);
         assert_eq!(code, 1, "a missing tile is a data problem\n{d}");
+        assert_eq!(img.dimensions(), (128, 96), "the picture is written all the same\n{d}");
         let missing = r["missing"].as_array().unwrap();
         assert_eq!(missing.len(), 1, "{d}");
         assert_eq!(

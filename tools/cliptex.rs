@@ -8,7 +8,7 @@ use clipmap::plan;
 use clipmap::report::{self, check, exit, info, validate, EnvArgs};
 use clipmap::roam;
 use clipmap::source::FileSource;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 
@@ -281,7 +281,7 @@ fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
     })
 }
 
-fn load(file: &PathBuf, env: &EnvArgs) -> Result<(plan::ClipTexturePlan, Vec<clipmap::config::Diagnostic>), i32> {
+fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ClipTexturePlan, Vec<clipmap::config::Diagnostic>), i32> {
     let o = opts(env)?;
     let loaded = plan::load_clip_texture(file, &o).map_err(|e| {
         eprintln!("cliptex: {e}");
@@ -430,7 +430,7 @@ fn dump(args: DumpArgs) -> i32 {
     dump::finish(dump::dump(file, &tiles, region, out), args.json, args.quiet, "cliptex")
 }
 
-fn check(file: &PathBuf, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
+fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
     use std::io::IsTerminal;
     let plan = match load(file, env) {
         Ok((p, _)) => p,

@@ -107,7 +107,7 @@ fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
     })
 }
 
-fn load(file: &PathBuf, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clipmap::config::Diagnostic>), i32> {
+fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clipmap::config::Diagnostic>), i32> {
     let o = opts(env)?;
     let loaded = plan::load_image_cache(file, &o).map_err(|e| {
         eprintln!("icache: {e}");
@@ -123,7 +123,7 @@ fn load(file: &PathBuf, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clip
     }
 }
 
-fn dump(file: &PathBuf, region: Option<&str>, out: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
+fn dump(file: &Path, region: Option<&str>, out: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
     let region = match region.map(dump::parse_region).transpose() {
         Ok(r) => r,
         Err(e) => return dump::finish(Err(e), json, quiet, "icache"),

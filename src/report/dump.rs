@@ -62,6 +62,9 @@ pub fn parse_region(text: &str) -> Result<[u64; 4], DumpError> {
     <[u64; 4]>::try_from(v).map_err(|_| DumpError::RegionSyntax { text: text.to_string() })
 }
 
+/// Reads one tile into a buffer of one tile.
+pub type ReadTile<'a> = dyn Fn(TileId, &mut [u8]) -> Result<(), SourceError> + 'a;
+
 /// One level's geometry and its tile reader.
 pub struct LevelTiles<'a> {
     /// Level number (for messages and tile ids); `None` for a standalone image cache.
@@ -73,7 +76,7 @@ pub struct LevelTiles<'a> {
     /// Texel format.
     pub format: TexelFormat,
     /// Reads tile (S, T) into a buffer of one tile.
-    pub read: &'a dyn Fn(TileId, &mut [u8]) -> Result<(), SourceError>,
+    pub read: &'a ReadTile<'a>,
     /// The file a tile is read from, for messages (`None` where the configuration names none).
     pub file_of: &'a dyn Fn(TileId) -> Option<PathBuf>,
 }

@@ -75,7 +75,7 @@ pub fn texel_rgba(format: Option<TexelFormat>, texel: &[u8]) -> [u8; 4] {
 /// The stand-in painted where a texel could not be read (a missing tile): magenta and black
 /// squares of 8 pixels, impossible to mistake for data.
 pub fn missing_pattern(x: u32, y: u32) -> [u8; 4] {
-    if (x / 8 + y / 8) % 2 == 0 {
+    if (x / 8 + y / 8).is_multiple_of(2) {
         [255, 0, 255, 255]
     } else {
         [0, 0, 0, 255]
