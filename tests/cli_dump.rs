@@ -339,6 +339,7 @@ fn dump_attach_pictures_every_level_and_the_rings_of_a_running_service() {
     assert_eq!(o.status.code(), Some(0), "{d}");
     let r: Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{e}\n{d}"));
     assert_eq!(r["format"], "rgba8", "{d}");
+    assert_eq!(r["closed"], false, "{d}");
     let levels = r["levels"].as_array().unwrap();
     assert_eq!(levels.len(), 17, "{d}");
     let rect = |v: &Value| -> [i64; 4] { serde_json::from_value(v.clone()).unwrap() };

@@ -52,6 +52,18 @@ impl DumpError {
     }
 }
 
+/// The error for an output file that could not be written, with the likely fix.
+pub fn write_error(path: &Path, e: impl std::fmt::Display) -> DumpError {
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+    let message = match parent {
+        Some(dir) if !dir.is_dir() => {
+            format!("{e}: the directory {} does not exist; create it or write elsewhere", dir.display())
+        }
+        _ => format!("{e}; check the path and its permissions"),
+    };
+    DumpError::Write { path: path.to_path_buf(), message }
+}
+
 /// Parses `S0,T0,S1,T1`.
 pub fn parse_region(text: &str) -> Result<[u64; 4], DumpError> {
     let v: Vec<u64> = text
@@ -214,8 +226,7 @@ pub fn dump(file: &Path, src: &LevelTiles, region: Option<[u64; 4]>, out: &Path)
     let r = choose_region(src.level, src.size, region, &what)?;
     let (img, tiles, missing) = read_region(src, r);
     let colour = if matches!(img, DynamicImage::ImageRgba8(_)) { "rgba" } else { "rgb" };
-    img.save_with_format(out, image::ImageFormat::Png)
-        .map_err(|e| DumpError::Write { path: out.to_path_buf(), message: e.to_string() })?;
+    img.save_with_format(out, image::ImageFormat::Png).map_err(|e| write_error(out, e))?;
     Ok(DumpReport {
         file: file.display().to_string(),
         level: src.level,

@@ -66,6 +66,8 @@ pub struct LiveDump {
     pub tick: u64,
     /// Finest level renderers may use.
     pub min_lod: f64,
+    /// The service had shut down (the pictures show its last publication).
+    pub closed: bool,
     /// Clip size.
     pub clip_size: u64,
     /// Texel format (`null` when the mapping's code is unknown).
@@ -85,8 +87,10 @@ pub struct LiveDump {
 }
 
 fn save(img: &RgbImage, path: PathBuf) -> Result<String, LiveDumpError> {
-    img.save_with_format(&path, image::ImageFormat::Png)
-        .map_err(|e| LiveDumpError::Write { path: path.clone(), message: e.to_string() })?;
+    img.save_with_format(&path, image::ImageFormat::Png).map_err(|e| LiveDumpError::Write {
+        path: path.clone(),
+        message: format!("{e}; check the permissions of --out-dir"),
+    })?;
     Ok(path.display().to_string())
 }
 
@@ -94,8 +98,10 @@ fn save(img: &RgbImage, path: PathBuf) -> Result<String, LiveDumpError> {
 /// (created if needed).
 pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDumpError> {
     let client = Client::attach(dir, name)?;
-    std::fs::create_dir_all(out_dir)
-        .map_err(|e| LiveDumpError::Write { path: out_dir.to_path_buf(), message: e.to_string() })?;
+    std::fs::create_dir_all(out_dir).map_err(|e| LiveDumpError::Write {
+        path: out_dir.to_path_buf(),
+        message: format!("{e}; --out-dir must be a directory that can be created or written"),
+    })?;
     let snap = client.snapshot();
     let mut levels = Vec::with_capacity(client.levels.len());
     for (k, d) in client.levels.iter().enumerate() {
@@ -136,6 +142,7 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDump
         mapping: client.path().display().to_string(),
         tick: snap.tick,
         min_lod: snap.min_lod,
+        closed: client.closed(),
         clip_size: client.clip_size,
         format: picture::format_of_code(client.format_code).map(|f| f.short_name()),
         centre,
@@ -150,12 +157,13 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDump
 /// The human form.
 pub fn human(d: &LiveDump) -> String {
     let mut o = format!(
-        "{}  tick {}  min LOD {:.2}  clip {}  {}\n\nlevel  size              window                          valid region                    use       picture\n",
+        "{}  tick {}  min LOD {:.2}  clip {}  {}{}\n\nlevel  size              window                          valid region                    use       picture\n",
         d.mapping,
         d.tick,
         d.min_lod,
         d.clip_size,
-        d.format.as_deref().unwrap_or("unknown format")
+        d.format.as_deref().unwrap_or("unknown format"),
+        if d.closed { "  (service stopped: its last publication)" } else { "" }
     );
     let rect = |r: &[i64; 4]| format!("[{}, {}) x [{}, {})", r[0], r[2], r[1], r[3]);
     for l in &d.levels {
