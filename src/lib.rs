@@ -23,7 +23,7 @@
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
 //! | [`accuracy`] | the reference renderer, per-frame accuracy metrics and the speed/accuracy sweep |
 //! | [`sizing`] | memory and bandwidth arithmetic, clip-size and virtual-level recommendations |
-//! | [`report`] | what the inspection tools print: validation reports, info, tile locations |
+//! | [`report`] | what the inspection tools print: validation reports, info, tile locations, dumps and pictures |
 //! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
 //!
 //! ## Invariants

@@ -39,10 +39,15 @@ fn attach_once_json_reports_every_level_as_published() {
     }
     assert_eq!(v["clip_size"], 256);
     assert_eq!(v["min_lod"].as_f64(), Some(map.min_lod()));
+    // No service around the mapping: no control socket, so no queue figures, and the reason.
+    assert_eq!(v["streams"], serde_json::json!([]));
+    let why = v["streams_error"].as_str().unwrap();
+    assert!(why.contains("clipmap-att.sock"), "{why}");
 
     let (code, out, _) = run(&["attach", "att", "--shm-dir", d, "--once", "--interval", "0.05"]);
     assert_eq!(code, 0);
     assert!(out.contains("level  size") && out.contains("4096x4096") && out.contains("["), "{out}");
+    assert!(out.contains("read queues: no figures (control socket"), "{out}");
 
     let (code, _, err) = run(&["attach", "absent", "--shm-dir", d, "--once"]);
     assert_eq!(code, 2);

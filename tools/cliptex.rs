@@ -8,7 +8,7 @@ use clipmap::plan;
 use clipmap::report::{self, check, exit, info, validate, EnvArgs};
 use clipmap::roam;
 use clipmap::source::FileSource;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 
@@ -27,6 +27,8 @@ Examples:
   cliptex roam --source hash --size 65536 --clip 1024 --flight straight:16:30 --frames 100
   cliptex roam my.ct --flight circle:2000:8 --frames 300 --budget-ms 4 --json
   cliptex check my.ct --json
+  cliptex dump my.ct --level 2 --out level2.png
+  cliptex dump --attach terrain --out-dir pictures
 
 Exit status: 0 ok, 1 the input is bad, 2 the tool could not run."
 )]
@@ -39,7 +41,7 @@ struct Cli {
 enum Command {
     /// Check .ct files (and every .ic they name); report every problem with file:line:col.
     Validate(validate::ValidateArgs),
-    /// A live view of a running service (levels, centres, valid regions, min LOD, tick rate).
+    /// A live view of a running service (levels, centres, valid regions, min LOD, tick rate, read queues).
     #[command(after_help = "\
 Examples:
   cliptex attach demo
@@ -51,6 +53,10 @@ Examples:
         /// Where the service's mapping lives (the service's --shm-dir).
         #[arg(long)]
         shm_dir: Option<PathBuf>,
+        /// The service's control socket, asked for queue figures (default: the service's
+        /// default, clipmap-NAME.sock beside the mapping).
+        #[arg(long)]
+        socket: Option<PathBuf>,
         /// Print one view and exit.
         #[arg(long)]
         once: bool,
@@ -145,6 +151,27 @@ Examples:
   cliptex roam config_examples/prepared/hash256.ct --flight straight:4:45 --frames 20 --json
   cliptex roam --source terrain --size 1048576 --clip 2048 --flight zigzag:64:20 --frames 200 --budget-ms inf")]
     Roam(RoamArgs),
+    /// Write a level region to PNG from the tile files, or every level of a running service.
+    #[command(after_help = "\
+From disk, one level (or a part of it) becomes one PNG, one pixel per texel, t upwards (the
+last row of the region is the top of the picture). Formats are converted to 8-bit RGB, or RGBA
+when they carry alpha. A tile that cannot be read is painted as magenta and black squares,
+listed, and the exit status is 1.
+
+From a running service (--attach NAME --out-dir DIR): DIR/level-NN.png shows each level's window
+(yellow outline), its valid region (red outline) and the invalid border (dark checkerboard);
+DIR/view.png is the view around the centre as a renderer would texture it and DIR/rings.png the
+same view coloured by the level each pixel uses.
+
+Examples:
+  cliptex dump config_examples/prepared/hash256.ct --level 1 --out level1.png
+  cliptex dump my.ct --level 0 --region 4096,4096,6144,6144 --out part.png --json
+  cliptex dump --attach terrain --out-dir pictures
+  cliptex dump --attach hash --shm-dir /tmp/maps --out-dir pictures --json
+
+Exit status: 0 written, 1 some tiles could not be read (the picture is written), 2 the tool
+could not run (bad options, unreadable configuration, no such service, unwritable output).")]
+    Dump(DumpArgs),
     /// Walk every tile on disk: per level, tiles present, missing, short, unreadable and covered by the default tile.
     #[command(after_help = "\
 Exit status: 0 every tile can be served (present, or covered by a default tile), 1 some cannot,
@@ -161,6 +188,40 @@ Exit status: 0 every tile can be served (present, or covered by a default tile),
         #[command(flatten)]
         env: EnvArgs,
     },
+}
+
+#[derive(clap::Args)]
+struct DumpArgs {
+    /// The .ct file whose tiles are read (or use --attach).
+    #[arg(required_unless_present = "attach", conflicts_with = "attach", requires = "out")]
+    config: Option<PathBuf>,
+    /// Level to dump (0 is the finest).
+    #[arg(long, default_value_t = 0)]
+    level: u32,
+    /// Part of the level: S0,T0,S1,T1 in level texels, half-open (default: the whole level, if
+    /// it has at most 4096x4096 texels).
+    #[arg(long, value_name = "S0,T0,S1,T1")]
+    region: Option<String>,
+    /// The PNG to write (with a .ct file).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Picture a running service instead: its --name.
+    #[arg(long, value_name = "NAME", requires = "out_dir", conflicts_with_all = ["region", "out"])]
+    attach: Option<String>,
+    /// Where the service's mapping lives (the service's --shm-dir; with --attach).
+    #[arg(long, requires = "attach")]
+    shm_dir: Option<PathBuf>,
+    /// Directory for the pictures (with --attach; created if needed).
+    #[arg(long, requires = "attach")]
+    out_dir: Option<PathBuf>,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+    /// Print nothing but problems.
+    #[arg(long, short)]
+    quiet: bool,
+    #[command(flatten)]
+    env: EnvArgs,
 }
 
 #[derive(clap::Args)]
@@ -220,7 +281,7 @@ fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
     })
 }
 
-fn load(file: &PathBuf, env: &EnvArgs) -> Result<(plan::ClipTexturePlan, Vec<clipmap::config::Diagnostic>), i32> {
+fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ClipTexturePlan, Vec<clipmap::config::Diagnostic>), i32> {
     let o = opts(env)?;
     let loaded = plan::load_clip_texture(file, &o).map_err(|e| {
         eprintln!("cliptex: {e}");
@@ -310,7 +371,66 @@ fn roam(args: RoamArgs) -> i32 {
     }
 }
 
-fn check(file: &PathBuf, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
+fn dump(args: DumpArgs) -> i32 {
+    use report::{dump, live_dump};
+    if let Some(name) = &args.attach {
+        let dir = args.shm_dir.clone().unwrap_or_else(clipmap::shm::default_dir);
+        let out = args.out_dir.clone().unwrap_or_default();
+        return match live_dump::dump(&dir, name, &out) {
+            Ok(d) => {
+                if args.json {
+                    println!("{}", serde_json::to_string_pretty(&d).expect("dump serialises"));
+                } else if !args.quiet {
+                    print!("{}", live_dump::human(&d));
+                }
+                exit::OK
+            }
+            Err(e) => {
+                eprintln!("cliptex dump: {e}");
+                exit::COULD_NOT_RUN
+            }
+        };
+    }
+    let (Some(file), Some(out)) = (&args.config, &args.out) else {
+        eprintln!("cliptex dump: give a .ct file with --out FILE.png, or --attach NAME with --out-dir DIR");
+        return exit::COULD_NOT_RUN;
+    };
+    let region = match args.region.as_deref().map(dump::parse_region).transpose() {
+        Ok(r) => r,
+        Err(e) => return dump::finish(Err(e), args.json, args.quiet, "cliptex"),
+    };
+    let plan = match load(file, &args.env) {
+        Ok((p, _)) => p,
+        Err(c) => return c,
+    };
+    let count = plan.levels.len() as u32;
+    if args.level >= count {
+        let e = dump::DumpError::NoLevel { level: args.level, last: count.saturating_sub(1) };
+        return dump::finish(Err(e), args.json, args.quiet, "cliptex");
+    }
+    let src = match FileSource::new(plan, &clipmap::limits::Limits::default()) {
+        Ok(src) => src,
+        Err(e) => {
+            eprintln!("cliptex dump: {e}");
+            return exit::BAD_INPUT;
+        }
+    };
+    use clipmap::source::TileSource;
+    let d = src.desc().level(args.level);
+    let read = |id, buf: &mut [u8]| src.read_tile(id, buf);
+    let file_of = |id: clipmap::source::TileId| src.plan().locate(id.level, id.s, id.t).ok().map(|l| l.path);
+    let tiles = dump::LevelTiles {
+        level: Some(args.level),
+        size: d.size,
+        tile: d.tile,
+        format: src.desc().format(),
+        read: &read,
+        file_of: &file_of,
+    };
+    dump::finish(dump::dump(file, &tiles, region, out), args.json, args.quiet, "cliptex")
+}
+
+fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
     use std::io::IsTerminal;
     let plan = match load(file, env) {
         Ok((p, _)) => p,
@@ -343,8 +463,10 @@ fn run(cli: Cli) -> i32 {
     match cli.command {
         Command::Check { file, json, quiet, env } => check(&file, json, quiet, &env),
         Command::Roam(args) => roam(args),
-        Command::Attach { name, shm_dir, once, json, interval } => {
+        Command::Dump(args) => dump(args),
+        Command::Attach { name, shm_dir, socket, once, json, interval } => {
             let dir = shm_dir.unwrap_or_else(clipmap::shm::default_dir);
+            let socket = socket.unwrap_or_else(|| clipmap::service::default_socket(&dir, &name));
             let every = std::time::Duration::from_secs_f64(interval.clamp(0.05, 3600.0));
             let live = !once && !json && std::io::IsTerminal::is_terminal(&std::io::stdout());
             loop {
@@ -356,6 +478,7 @@ fn run(cli: Cli) -> i32 {
                     } else {
                         std::time::Duration::ZERO
                     }),
+                    &socket,
                 ) {
                     Ok(s) => {
                         if json {

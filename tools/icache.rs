@@ -5,8 +5,9 @@
 use clap::{Parser, Subcommand};
 use clipmap::config::FileKind;
 use clipmap::plan;
-use clipmap::report::{exit, info, validate, EnvArgs};
-use std::path::PathBuf;
+use clipmap::report::{dump, exit, info, validate, EnvArgs};
+use clipmap::source::TileId;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -19,6 +20,7 @@ Examples:
   icache validate config_examples/ic/*.ic
   icache info level0.ic --json
   icache tile level0.ic --s 3 --t 5 --json
+  icache dump level0.ic --region 0,0,1024,1024 --out corner.png
 
 Exit status: 0 ok, 1 the input is bad, 2 the tool could not run."
 )]
@@ -38,6 +40,38 @@ enum Command {
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+        #[command(flatten)]
+        env: EnvArgs,
+    },
+    /// Write a region of the image cache to PNG, read from its tile files.
+    #[command(after_help = "\
+One pixel per texel, t upwards (the last row of the region is the top of the picture). Formats
+are converted to 8-bit RGB, or RGBA when they carry alpha. A tile that cannot be read (and is not
+covered by the default tile) is painted as magenta and black squares, listed, and the exit
+status is 1.
+
+Examples:
+  icache dump level0.ic --out level0.png
+  icache dump level0.ic --region 2048,2048,4096,4096 --out part.png --json
+
+Exit status: 0 written, 1 some tiles could not be read or the .ic is invalid (the picture is
+written when the .ic is valid), 2 the tool could not run (bad options, unwritable output).")]
+    Dump {
+        /// The .ic file.
+        file: PathBuf,
+        /// Part of the image: S0,T0,S1,T1 in texels, half-open (default: all of it, if it has at
+        /// most 4096x4096 texels).
+        #[arg(long, value_name = "S0,T0,S1,T1")]
+        region: Option<String>,
+        /// The PNG to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Print nothing but problems.
+        #[arg(long, short)]
+        quiet: bool,
         #[command(flatten)]
         env: EnvArgs,
     },
@@ -73,7 +107,7 @@ fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
     })
 }
 
-fn load(file: &PathBuf, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clipmap::config::Diagnostic>), i32> {
+fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clipmap::config::Diagnostic>), i32> {
     let o = opts(env)?;
     let loaded = plan::load_image_cache(file, &o).map_err(|e| {
         eprintln!("icache: {e}");
@@ -89,9 +123,46 @@ fn load(file: &PathBuf, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clip
     }
 }
 
+fn dump(file: &Path, region: Option<&str>, out: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
+    let region = match region.map(dump::parse_region).transpose() {
+        Ok(r) => r,
+        Err(e) => return dump::finish(Err(e), json, quiet, "icache"),
+    };
+    let plan = match load(file, env) {
+        Ok((p, _)) => p,
+        Err(c) => return c,
+    };
+    if plan.size[2] > 1 {
+        eprintln!(
+            "icache dump: {}: the image cache is {} layers deep (size R); dump reads 2D image caches only (R = 1)",
+            file.display(),
+            plan.size[2]
+        );
+        return exit::BAD_INPUT;
+    }
+    let (tiles, note) = dump::IcacheTiles::new(&plan);
+    if let Some(note) = note {
+        eprintln!("icache dump: {note}");
+    }
+    let read = |id, buf: &mut [u8]| tiles.read(id, buf);
+    let file_of = |id: TileId| plan.locate(id.s, id.t, 0).ok().map(|l| l.path);
+    let level = dump::LevelTiles {
+        level: None,
+        size: [plan.size[0], plan.size[1]],
+        tile: [plan.tile_size[0], plan.tile_size[1]],
+        format: plan.texel,
+        read: &read,
+        file_of: &file_of,
+    };
+    dump::finish(dump::dump(file, &level, region, out), json, quiet, "icache")
+}
+
 fn run(cli: Cli) -> i32 {
     match cli.command {
         Command::Validate(args) => validate::cli(&args, FileKind::ImageCache, "icache"),
+        Command::Dump { file, region, out, json, quiet, env } => {
+            dump(&file, region.as_deref(), &out, json, quiet, &env)
+        }
         Command::Info { file, json, env } => match load(&file, &env) {
             Err(c) => c,
             Ok((p, warnings)) => {

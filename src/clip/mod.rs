@@ -281,6 +281,11 @@ impl Clipmap {
         &self.stats
     }
 
+    /// Each read queue's counters, in stream-server order (their sum is `stats().queue`).
+    pub fn stream_stats(&self) -> Vec<crate::queue::QueueStats> {
+        self.queues.stream_stats()
+    }
+
     /// The finest level renderers may use (fractional while a level fades in; the level count
     /// when none may be used yet).
     pub fn min_lod(&self) -> f64 {

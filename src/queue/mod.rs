@@ -73,6 +73,8 @@ pub struct QueueStats {
     pub peak_pending: u64,
     /// Reads running now.
     pub in_flight: u64,
+    /// Bytes of the tiles delivered (reads done).
+    pub bytes_read: u64,
 }
 
 impl QueueStats {
@@ -88,6 +90,7 @@ impl QueueStats {
         self.pending += o.pending;
         self.peak_pending = self.peak_pending.max(o.peak_pending);
         self.in_flight += o.in_flight;
+        self.bytes_read += o.bytes_read;
     }
 }
 
@@ -211,6 +214,12 @@ impl ReadQueues {
         for rx in replies {
             let _ = rx.blocking_recv();
         }
+    }
+
+    /// Each queue's counters, in stream-server order, as of the last [`drain`](Self::drain)
+    /// (`updates_skipped` is counted only in the sum of [`stats`](Self::stats)).
+    pub fn stream_stats(&self) -> Vec<QueueStats> {
+        self.counters.clone()
     }
 
     /// Counters summed over the queues, as of the last [`drain`](Self::drain).

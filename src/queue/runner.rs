@@ -83,8 +83,9 @@ impl Runner {
                     let Ok(done) = joined else { continue };
                     self.in_flight.remove(&done.tile);
                     self.delivered.push_back(done.tile);
-                    if done.result.is_ok() {
+                    if let Ok(texels) = &done.result {
                         self.stats.reads_done += 1;
+                        self.stats.bytes_read += texels.len() as u64;
                     } else {
                         self.stats.reads_failed += 1;
                     }

@@ -1,10 +1,43 @@
 //! `cliptex attach`: a live view of a running service, read straight from its shared-memory
-//! mapping (levels, centres, valid regions, min LOD, heartbeat, tick rate).
+//! mapping (levels, centres, valid regions, min LOD, heartbeat, tick rate), plus each read
+//! queue's length and throughput from the control socket's `STATS` reply (sampled at both ends
+//! of the interval).
 
 use crate::shm::{Client, ShmError};
 use serde::Serialize;
+use serde_json::Value;
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
 use std::path::Path;
 use std::time::{Duration, Instant};
+
+/// How long a `STATS` request may take before the view goes without stream figures.
+const STATS_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// One stream server's read queue, from two `STATS` replies.
+#[derive(Clone, Debug, Serialize)]
+pub struct StreamRow {
+    /// Stream server (read queue) index.
+    pub stream: usize,
+    /// Requests waiting now.
+    pub pending: u64,
+    /// Reads running now.
+    pub in_flight: u64,
+    /// Most requests ever waiting.
+    pub peak_pending: u64,
+    /// Reads that delivered a tile, so far.
+    pub reads_done: u64,
+    /// Reads that failed, so far.
+    pub reads_failed: u64,
+    /// Bytes delivered, so far.
+    pub bytes_read: u64,
+    /// Queued requests dropped (stale or overflow), so far.
+    pub dropped: u64,
+    /// Tiles delivered per second over the sampling interval.
+    pub tiles_per_second: f64,
+    /// Bytes delivered per second over the sampling interval.
+    pub bytes_per_second: f64,
+}
 
 /// One level as published.
 #[derive(Clone, Debug, Serialize)]
@@ -50,14 +83,75 @@ pub struct Status {
     pub bytes_per_texel: usize,
     /// Per level.
     pub levels: Vec<LevelRow>,
+    /// The control socket asked for statistics.
+    pub socket: String,
+    /// Per stream server (empty when the socket did not answer: see `streams_error`).
+    pub streams: Vec<StreamRow>,
+    /// Why there are no stream figures (`null` when there are).
+    pub streams_error: Option<String>,
 }
 
-/// Takes a status view, sampling the heartbeat over `interval` for the tick rate.
-pub fn status(dir: &Path, name: &str, interval: Duration) -> Result<Status, ShmError> {
+/// Sends `STATS` to the control socket and returns the reply's JSON.
+pub fn ask_stats(socket: &Path) -> Result<Value, String> {
+    let fail = |e: std::io::Error| format!("control socket {}: {e}", socket.display());
+    let mut s = UnixStream::connect(socket).map_err(fail)?;
+    s.set_read_timeout(Some(STATS_TIMEOUT)).map_err(fail)?;
+    s.set_write_timeout(Some(STATS_TIMEOUT)).map_err(fail)?;
+    s.write_all(b"STATS\n").map_err(fail)?;
+    let mut line = String::new();
+    BufReader::new(&s).read_line(&mut line).map_err(fail)?;
+    let _ = s.write_all(b"QUIT\n");
+    let body = line.trim_end().strip_prefix("OK ").ok_or_else(|| {
+        format!("control socket {}: expected `OK {{json}}` to STATS, found `{}`", socket.display(), line.trim_end())
+    })?;
+    serde_json::from_str(body).map_err(|e| format!("control socket {}: STATS reply is not JSON: {e}", socket.display()))
+}
+
+/// Stream rows from a `STATS` reply taken `dt` seconds after `before`.
+fn stream_rows(before: &Value, after: &Value, dt: f64) -> Result<Vec<StreamRow>, String> {
+    let list = |v: &Value| v["streams"].as_array().cloned();
+    let (Some(b), Some(a)) = (list(before), list(after)) else {
+        return Err("the service's STATS reply has no `streams` (an older clipmapd)".into());
+    };
+    let n = |v: &Value, k: &str| v[k].as_u64().unwrap_or(0);
+    let rate = |a: u64, b: u64| if dt > 0.0 { a.saturating_sub(b) as f64 / dt } else { 0.0 };
+    Ok(a.iter()
+        .enumerate()
+        .map(|(i, q)| {
+            let p = b.get(i).unwrap_or(q);
+            StreamRow {
+                stream: i,
+                pending: n(q, "pending"),
+                in_flight: n(q, "in_flight"),
+                peak_pending: n(q, "peak_pending"),
+                reads_done: n(q, "reads_done"),
+                reads_failed: n(q, "reads_failed"),
+                bytes_read: n(q, "bytes_read"),
+                dropped: n(q, "stale_dropped") + n(q, "overflow_dropped"),
+                tiles_per_second: rate(n(q, "reads_done"), n(p, "reads_done")),
+                bytes_per_second: rate(n(q, "bytes_read"), n(p, "bytes_read")),
+            }
+        })
+        .collect())
+}
+
+/// Takes a status view, sampling the heartbeat (for the tick rate) and the control socket's
+/// `STATS` (for queue throughput) over `interval`. A socket that does not answer leaves the
+/// stream figures out, with the reason, rather than failing the view.
+pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Result<Status, ShmError> {
     let c = Client::attach(dir, name)?;
+    let before = ask_stats(socket);
     let (h0, t0) = (c.heartbeat(), Instant::now());
     std::thread::sleep(interval);
+    let after = ask_stats(socket);
     let (h1, dt) = (c.heartbeat(), t0.elapsed().as_secs_f64());
+    let (streams, streams_error) = match (&before, &after) {
+        (Ok(b), Ok(a)) => match stream_rows(b, a, dt) {
+            Ok(rows) => (rows, None),
+            Err(e) => (Vec::new(), Some(e)),
+        },
+        (Err(e), _) | (_, Err(e)) => (Vec::new(), Some(e.clone())),
+    };
     let snap = c.snapshot();
     let levels = snap
         .levels
@@ -85,6 +179,9 @@ pub fn status(dir: &Path, name: &str, interval: Duration) -> Result<Status, ShmE
         clip_size: c.clip_size,
         bytes_per_texel: c.bytes_per_texel,
         levels,
+        socket: socket.display().to_string(),
+        streams,
+        streams_error,
     })
 }
 
@@ -122,5 +219,49 @@ pub fn human(s: &Status) -> String {
             }
         ));
     }
+    o.push('\n');
+    match &s.streams_error {
+        Some(e) => o.push_str(&format!("read queues: no figures ({e})\n")),
+        None => {
+            o.push_str("stream  pending  in flight  peak  reads done  failed  dropped   tiles/s     MiB/s\n");
+            for q in &s.streams {
+                o.push_str(&format!(
+                    "{:<7} {:>7}  {:>9}  {:>4}  {:>10}  {:>6}  {:>7}  {:>8.1}  {:>8.2}\n",
+                    q.stream,
+                    q.pending,
+                    q.in_flight,
+                    q.peak_pending,
+                    q.reads_done,
+                    q.reads_failed,
+                    q.dropped,
+                    q.tiles_per_second,
+                    q.bytes_per_second / (1024.0 * 1024.0)
+                ));
+            }
+        }
+    }
     o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stream_rows_take_lengths_from_the_later_reply_and_rates_from_both() {
+        let b = serde_json::json!({"streams": [{"reads_done": 10, "bytes_read": 1000}, {"reads_done": 0}]});
+        let a = serde_json::json!({"streams": [
+            {"reads_done": 30, "bytes_read": 5000, "pending": 7, "in_flight": 2, "peak_pending": 9,
+             "stale_dropped": 1, "overflow_dropped": 2, "reads_failed": 1},
+            {"reads_done": 4}
+        ]});
+        let rows = stream_rows(&b, &a, 2.0).unwrap();
+        assert_eq!(rows.len(), 2);
+        let r = &rows[0];
+        assert_eq!((r.pending, r.in_flight, r.peak_pending, r.dropped, r.reads_failed), (7, 2, 9, 3, 1));
+        assert_eq!((r.tiles_per_second, r.bytes_per_second), (10.0, 2000.0));
+        assert_eq!(rows[1].tiles_per_second, 2.0);
+        let e = stream_rows(&serde_json::json!({}), &a, 1.0).unwrap_err();
+        assert!(e.contains("no `streams`"), "{e}");
+    }
 }

@@ -3,7 +3,10 @@
 
 pub mod attach;
 pub mod check;
+pub mod dump;
 pub mod info;
+pub mod live_dump;
+pub mod picture;
 pub mod plan;
 pub mod validate;
 

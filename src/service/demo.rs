@@ -2,11 +2,12 @@
 //! small client over it through the shared mapping (steady flight, a jump, a turn), and writes
 //! pictures of what the client saw: each level's window with its valid region outlined, the view
 //! as a renderer would texture it (finest available level per pixel), and the same view coloured
-//! by the level each pixel uses.
+//! by the level each pixel uses (drawn by [`crate::report::picture`]).
 //!
 //! Everything it shows is read back through [`crate::shm::Client`], as any renderer would.
 
 use super::{procedural_source, run, Options, Procedural, ServiceError, ServiceStats};
+use crate::report::picture;
 use crate::shm::{Client, Snapshot};
 use image::{Rgb, RgbImage};
 use std::os::unix::fs::DirBuilderExt;
@@ -46,21 +47,6 @@ pub struct DemoReport {
     /// Wall-clock seconds.
     pub seconds: f64,
 }
-
-const PALETTE: [[u8; 3]; 12] = [
-    [230, 25, 75],
-    [245, 130, 48],
-    [255, 225, 25],
-    [60, 180, 75],
-    [70, 240, 240],
-    [0, 130, 200],
-    [145, 30, 180],
-    [240, 50, 230],
-    [170, 110, 40],
-    [128, 128, 0],
-    [0, 0, 128],
-    [128, 128, 128],
-];
 
 /// Runs the demo to completion (a few seconds).
 pub async fn demo(o: DemoOptions) -> Result<DemoReport, ServiceError> {
@@ -170,7 +156,6 @@ fn pictures_at(
     o: &DemoOptions,
     tag: &str,
 ) -> Result<Vec<PathBuf>, ServiceError> {
-    let bpt = client.bytes_per_texel;
     let clip = client.clip_size as i64;
     // Levels' windows side by side (stack levels, and the first pyramid level).
     let shown: Vec<usize> = (0..client.levels.len()).take_while(|&k| k == 0 || !client.levels[k - 1].pyramid).collect();
@@ -179,69 +164,15 @@ fn pictures_at(
     let gap = 6;
     let mut img = RgbImage::from_pixel(shown.len() as u32 * (tile + gap) + gap, tile + 2 * gap, Rgb([24, 24, 24]));
     for (i, &k) in shown.iter().enumerate() {
-        let st = snap.levels[k];
-        let size = client.levels[k].size;
         let (cs, ct) = (centre[0] >> k, centre[1] >> k);
         let (s0, t0) = if client.levels[k].pyramid { (0, 0) } else { (cs - clip / 2, ct - clip / 2) };
-        let mut texels = vec![0u8; 0];
-        let v = st.valid;
-        let (w, h) = ((v[2] - v[0]).max(0) as u64, (v[3] - v[1]).max(0) as u64);
-        let have = st.enabled && w > 0 && h > 0 && {
-            texels.resize((w * h) as usize * bpt, 0);
-            client.read_region(k, v[0], v[1], w, h, &mut texels).is_ok()
-        };
-        let x0 = gap + i as u32 * (tile + gap);
-        for y in 0..tile {
-            for x in 0..tile {
-                let (s, t) = (s0 + x as i64 * scale, t0 + (tile - 1 - y) as i64 * scale);
-                let inside_level = s >= 0 && t >= 0 && (s as u64) < size[0] && (t as u64) < size[1];
-                let px = if have && s >= v[0] && s < v[2] && t >= v[1] && t < v[3] {
-                    let j = (((t - v[1]) as u64 * w + (s - v[0]) as u64) as usize) * bpt;
-                    Rgb([texels[j], texels[j + 1.min(bpt - 1)], texels[j + 2.min(bpt - 1)]])
-                } else if inside_level {
-                    Rgb(if (s / 16 + t / 16) % 2 == 0 { [60, 60, 60] } else { [80, 80, 80] })
-                } else {
-                    Rgb([0, 0, 0])
-                };
-                let on_edge = st.enabled
-                    && ((s - v[0]).abs() < scale || (s - (v[2] - 1)).abs() < scale) as u8
-                        + ((t - v[1]).abs() < scale || (t - (v[3] - 1)).abs() < scale) as u8
-                        > 0
-                    && s >= v[0] - scale
-                    && s < v[2] + scale
-                    && t >= v[1] - scale
-                    && t < v[3] + scale;
-                img.put_pixel(x0 + x, gap + y, if on_edge { Rgb([255, 0, 0]) } else { px });
-            }
-        }
+        let frame = picture::Frame { s0, t0, pixels: [tile, tile], scale };
+        picture::draw_published_level(&mut img, gap + i as u32 * (tile + gap), gap, frame, client, snap, k);
     }
     let mut out = vec![save(&img, o.out_dir.join(format!("levels-{tag}.png")))?];
 
     // The view around the centre, 4 clip sizes of level 0 across: texture and level used.
-    let n = 384u32;
-    let extent = clip * 4;
-    let step = (extent / n as i64).max(1);
-    let first = (snap.min_lod.max(0.0).ceil() as usize).min(client.levels.len());
-    let mut view = RgbImage::new(n, n);
-    let mut lod = RgbImage::new(n, n);
-    let mut px = vec![0u8; bpt];
-    for y in 0..n {
-        for x in 0..n {
-            let s = centre[0] + (x as i64 - n as i64 / 2) * step;
-            let t = centre[1] + ((n - 1 - y) as i64 - n as i64 / 2) * step;
-            let found = (first..client.levels.len()).find(|&k| {
-                let (sk, tk) = (s >> k, t >> k);
-                snap.levels[k].contains(sk, tk) && client.read_region(k, sk, tk, 1, 1, &mut px).is_ok()
-            });
-            if let Some(k) = found {
-                view.put_pixel(x, y, Rgb([px[0], px[1.min(bpt - 1)], px[2.min(bpt - 1)]]));
-                let c = PALETTE[k % PALETTE.len()];
-                let lum = (px[0] as u32 + px[1.min(bpt - 1)] as u32 + px[2.min(bpt - 1)] as u32) / 3;
-                let mix = |a: u8| ((a as u32 * 3 + lum * 2) / 5) as u8;
-                lod.put_pixel(x, y, Rgb([mix(c[0]), mix(c[1]), mix(c[2])]));
-            }
-        }
-    }
+    let (view, lod) = picture::view_and_rings(client, snap, centre, 384, clip * 4);
     out.push(save(&view, o.out_dir.join(format!("view-{tag}.png")))?);
     out.push(save(&lod, o.out_dir.join(format!("lod-{tag}.png")))?);
     Ok(out)

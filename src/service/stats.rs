@@ -5,6 +5,7 @@
 //! server ([`super::control`]) fill them in.
 
 use crate::clip::Stats;
+use crate::queue::QueueStats;
 use serde::Serialize;
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -47,6 +48,9 @@ pub struct TickStats {
     pub valid: Vec<[i64; 4]>,
     /// The engine's counters.
     pub engine: Stats,
+    /// Per stream server (read queue), in server order: queue lengths and reads, the same
+    /// counters as `engine.queue` sums.
+    pub streams: Vec<QueueStats>,
 }
 
 /// The control server's counters (plain atomics: connections update them concurrently).

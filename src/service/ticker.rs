@@ -265,6 +265,7 @@ impl Runner {
         s.resident_bytes = self.clipmap.resident_bytes();
         s.valid = report.valid.iter().map(|r| [r.s0, r.t0, r.s1, r.t1]).collect();
         s.engine = self.clipmap.stats().clone();
+        s.streams = self.clipmap.stream_stats();
         self.stats_tx.send_replace(s.clone());
     }
 }

@@ -1,0 +1,431 @@
+//! `cliptex dump` and `icache dump` from disk: a region of one level read from its tile files
+//! and written as a PNG (8-bit RGB, or RGBA for formats with alpha).
+//!
+//! Owns choosing and checking the region, gathering its tiles, converting texels and reporting
+//! the tiles that could not be read (painted with [`picture::missing_pattern`], never fatal).
+//! Reading a tile is the caller's function: a [`crate::source::FileSource`] for a clip texture,
+//! [`IcacheTiles`] for a standalone image cache. Pictures of a running service are
+//! [`super::live_dump`]'s business.
+
+use super::picture;
+use crate::geom::{tile_texels, tiles_covering, Rect};
+use crate::plan::ImageCachePlan;
+use crate::source::{FaultKind, SourceError, TileId};
+use crate::texel::TexelFormat;
+use image::{DynamicImage, RgbImage, RgbaImage};
+use serde::Serialize;
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+
+/// Most texels one dump reads (a 4096 x 4096 region): 64 MiB of RGBA in memory at most.
+pub const MAX_DUMP_TEXELS: u64 = 4096 * 4096;
+
+/// Why a dump could not be made.
+#[derive(Debug, Error)]
+pub enum DumpError {
+    /// `--region` is not four numbers.
+    #[error("--region `{text}`: expected S0,T0,S1,T1 (four whole numbers, the half-open texel rectangle [S0, S1) x [T0, T1))")]
+    RegionSyntax { text: String },
+    /// The region is empty or leaves the level.
+    #[error(
+        "--region {s0},{t0},{s1},{t1} does not fit {what} ({w}x{h} texels): expected 0 <= S0 < S1 <= {w} and 0 <= T0 < T1 <= {h}"
+    )]
+    RegionOutside { what: String, s0: u64, t0: u64, s1: u64, t1: u64, w: u64, h: u64 },
+    /// The region holds more texels than a dump writes.
+    #[error(
+        "{what} is {w}x{h} texels, more than one dump writes ({max} texels, as 4096x4096 does); choose a part with --region S0,T0,S1,T1, e.g. --region {s0},{t0},{s1},{t1}"
+    )]
+    TooLarge { what: String, w: u64, h: u64, max: u64, s0: u64, t0: u64, s1: u64, t1: u64 },
+    /// The level does not exist.
+    #[error("--level {level}: the texture has levels 0 to {last}")]
+    NoLevel { level: u32, last: u32 },
+    /// The PNG could not be written.
+    #[error("cannot write {}: {message}", path.display())]
+    Write { path: PathBuf, message: String },
+}
+
+impl DumpError {
+    /// The exit status: usage errors and unwritable output are 2.
+    pub fn exit_code(&self) -> i32 {
+        super::exit::COULD_NOT_RUN
+    }
+}
+
+/// The error for an output file that could not be written, with the likely fix.
+pub fn write_error(path: &Path, e: impl std::fmt::Display) -> DumpError {
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+    let message = match parent {
+        Some(dir) if !dir.is_dir() => {
+            format!("{e}: the directory {} does not exist; create it or write elsewhere", dir.display())
+        }
+        _ => format!("{e}; check the path and its permissions"),
+    };
+    DumpError::Write { path: path.to_path_buf(), message }
+}
+
+/// Parses `S0,T0,S1,T1`.
+pub fn parse_region(text: &str) -> Result<[u64; 4], DumpError> {
+    let v: Vec<u64> = text
+        .split(',')
+        .map(|w| w.trim().parse::<u64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| DumpError::RegionSyntax { text: text.to_string() })?;
+    <[u64; 4]>::try_from(v).map_err(|_| DumpError::RegionSyntax { text: text.to_string() })
+}
+
+/// Reads one tile into a buffer of one tile.
+pub type ReadTile<'a> = dyn Fn(TileId, &mut [u8]) -> Result<(), SourceError> + 'a;
+
+/// One level's geometry and its tile reader.
+pub struct LevelTiles<'a> {
+    /// Level number (for messages and tile ids); `None` for a standalone image cache.
+    pub level: Option<u32>,
+    /// Level size in texels.
+    pub size: [u64; 2],
+    /// Tile size in texels (the level size for a pyramid level).
+    pub tile: [u64; 2],
+    /// Texel format.
+    pub format: TexelFormat,
+    /// Reads tile (S, T) into a buffer of one tile.
+    pub read: &'a ReadTile<'a>,
+    /// The file a tile is read from, for messages (`None` where the configuration names none).
+    pub file_of: &'a dyn Fn(TileId) -> Option<PathBuf>,
+}
+
+/// A tile that could not be read.
+#[derive(Clone, Debug, Serialize)]
+pub struct MissingTile {
+    /// Tile column.
+    pub s: u64,
+    /// Tile row.
+    pub t: u64,
+    /// What kind of failure.
+    pub kind: FaultKind,
+    /// The reader's message.
+    pub problem: String,
+    /// The file the tile should be read from.
+    pub path: Option<String>,
+}
+
+/// What a dump wrote.
+#[derive(Clone, Debug, Serialize)]
+pub struct DumpReport {
+    /// The configuration read.
+    pub file: String,
+    /// The level dumped (`null` for a standalone image cache).
+    pub level: Option<u32>,
+    /// Its size.
+    pub level_size: [u64; 2],
+    /// The region `[s0, t0, s1, t1)` in level texels.
+    pub region: [u64; 4],
+    /// Texel format on disk.
+    pub format: String,
+    /// The PNG written.
+    pub png: String,
+    /// `rgb` or `rgba`.
+    pub colour: &'static str,
+    /// PNG width and height (the region's, one pixel per texel).
+    pub pixels: [u64; 2],
+    /// Tiles the region covers (each read once).
+    pub tiles: u64,
+    /// Tiles that could not be read (painted magenta and black).
+    pub missing: Vec<MissingTile>,
+}
+
+/// Checks the region (the whole level when `None`) against the level and [`MAX_DUMP_TEXELS`].
+pub fn choose_region(
+    level: Option<u32>,
+    size: [u64; 2],
+    region: Option<[u64; 4]>,
+    what: &str,
+) -> Result<Rect, DumpError> {
+    let [s0, t0, s1, t1] = region.unwrap_or([0, 0, size[0], size[1]]);
+    if s0 >= s1 || t0 >= t1 || s1 > size[0] || t1 > size[1] {
+        let what = level.map_or("the image cache".to_string(), |k| format!("level {k}"));
+        return Err(DumpError::RegionOutside { what, s0, t0, s1, t1, w: size[0], h: size[1] });
+    }
+    let (w, h) = (s1 - s0, t1 - t0);
+    if w.saturating_mul(h) > MAX_DUMP_TEXELS {
+        // Suggest the largest square around the region's centre.
+        let side = 4096u64;
+        let (cs, ct) = (s0 + w / 2, t0 + h / 2);
+        let a0 = cs.saturating_sub(side / 2).min(size[0].saturating_sub(side));
+        let b0 = ct.saturating_sub(side / 2).min(size[1].saturating_sub(side));
+        let what = if region.is_some() { "the region".to_string() } else { what.to_string() };
+        return Err(DumpError::TooLarge {
+            what,
+            w,
+            h,
+            max: MAX_DUMP_TEXELS,
+            s0: a0,
+            t0: b0,
+            s1: a0 + side.min(size[0]),
+            t1: b0 + side.min(size[1]),
+        });
+    }
+    Ok(Rect::new(s0 as i64, t0 as i64, s1 as i64, t1 as i64))
+}
+
+/// Reads `region` of a level tile by tile into an image (RGB, or RGBA for formats with alpha);
+/// row 0 of the image is the region's last t row. Returns the image, tiles read and the tiles
+/// that could not be read.
+pub fn read_region(src: &LevelTiles, region: Rect) -> (DynamicImage, u64, Vec<MissingTile>) {
+    let bpt = src.format.bytes_per_texel() as usize;
+    let (w, h) = (region.width() as u32, region.height() as u32);
+    let mut rgba = RgbaImage::new(w, h);
+    let tiles = tiles_covering(region, src.tile);
+    let mut buf = vec![0u8; (src.tile[0] * src.tile[1]) as usize * bpt];
+    let (mut read, mut missing) = (0, Vec::new());
+    for tt in tiles.t0..tiles.t1 {
+        for ts in tiles.s0..tiles.s1 {
+            let id = TileId::new(src.level.unwrap_or(0), ts as u64, tt as u64);
+            let result = (src.read)(id, &mut buf);
+            read += 1;
+            if let Err(e) = &result {
+                let text = e.to_string();
+                let problem = text.strip_prefix(&format!("{id}: ")).unwrap_or(&text).to_string();
+                let path = (src.file_of)(id).map(|p| p.display().to_string());
+                missing.push(MissingTile { s: id.s, t: id.t, kind: e.kind(), problem, path });
+            }
+            let texels = tile_texels(src.size, src.tile, [id.s, id.t]).intersect(&region);
+            for t in texels.t0..texels.t1 {
+                let y = (region.t1 - 1 - t) as u32;
+                for s in texels.s0..texels.s1 {
+                    let x = (s - region.s0) as u32;
+                    let px = if result.is_ok() {
+                        let j = (((t as u64 - id.t * src.tile[1]) * src.tile[0] + (s as u64 - id.s * src.tile[0]))
+                            as usize)
+                            * bpt;
+                        picture::texel_rgba(Some(src.format), &buf[j..j + bpt])
+                    } else {
+                        picture::missing_pattern(x, y)
+                    };
+                    rgba.put_pixel(x, y, image::Rgba(px));
+                }
+            }
+        }
+    }
+    let img = if picture::has_alpha(src.format) {
+        DynamicImage::ImageRgba8(rgba)
+    } else {
+        DynamicImage::ImageRgb8(RgbImage::from_fn(w, h, |x, y| {
+            let p = rgba.get_pixel(x, y).0;
+            image::Rgb([p[0], p[1], p[2]])
+        }))
+    };
+    (img, read, missing)
+}
+
+/// Dumps `region` of a level to the PNG `out`.
+pub fn dump(file: &Path, src: &LevelTiles, region: Option<[u64; 4]>, out: &Path) -> Result<DumpReport, DumpError> {
+    let what = match src.level {
+        Some(k) => format!("level {k}, the whole level,"),
+        None => "the image cache, all of it,".to_string(),
+    };
+    let r = choose_region(src.level, src.size, region, &what)?;
+    let (img, tiles, missing) = read_region(src, r);
+    let colour = if matches!(img, DynamicImage::ImageRgba8(_)) { "rgba" } else { "rgb" };
+    img.save_with_format(out, image::ImageFormat::Png).map_err(|e| write_error(out, e))?;
+    Ok(DumpReport {
+        file: file.display().to_string(),
+        level: src.level,
+        level_size: src.size,
+        region: [r.s0 as u64, r.t0 as u64, r.s1 as u64, r.t1 as u64],
+        format: src.format.short_name(),
+        png: out.display().to_string(),
+        colour,
+        pixels: [r.width(), r.height()],
+        tiles,
+        missing,
+    })
+}
+
+/// The human form.
+pub fn human(r: &DumpReport) -> String {
+    let [s0, t0, s1, t1] = r.region;
+    let mut o = format!(
+        "{} ({}x{}, {}): [{s0}, {s1}) x [{t0}, {t1}) -> {} ({}x{} {})\ntiles {}: {} read, {} could not be read\n",
+        r.level.map_or("image cache".to_string(), |k| format!("level {k}")),
+        r.level_size[0],
+        r.level_size[1],
+        r.format,
+        r.png,
+        r.pixels[0],
+        r.pixels[1],
+        r.colour.to_uppercase(),
+        r.tiles,
+        r.tiles - r.missing.len() as u64,
+        r.missing.len()
+    );
+    for m in r.missing.iter().take(20) {
+        let at = m.path.as_deref().map(|p| format!(" ({p})")).unwrap_or_default();
+        o.push_str(&format!("  tile ({}, {}): {}{at}\n", m.s, m.t, m.problem));
+    }
+    if r.missing.len() > 20 {
+        o.push_str(&format!("  ... and {} more (--json lists every one)\n", r.missing.len() - 20));
+    }
+    if !r.missing.is_empty() {
+        o.push_str("tiles that could not be read are painted as magenta and black squares\n");
+    }
+    o
+}
+
+/// Prints a dump's outcome the way both tools do and returns the exit status: 0, or 1 when some
+/// tile could not be read (the picture is written all the same). `--quiet` prints only problems.
+pub fn finish(result: Result<DumpReport, DumpError>, json: bool, quiet: bool, tool: &str) -> i32 {
+    match result {
+        Err(e) => {
+            eprintln!("{tool} dump: {e}");
+            e.exit_code()
+        }
+        Ok(r) => {
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
+            } else if !quiet {
+                print!("{}", human(&r));
+            }
+            if r.missing.is_empty() {
+                super::exit::OK
+            } else {
+                if quiet || json {
+                    eprintln!(
+                        "{tool} dump: {} of {} tiles could not be read (first: tile ({}, {}): {}{}); they are painted as magenta and black squares in {}",
+                        r.missing.len(),
+                        r.tiles,
+                        r.missing[0].s,
+                        r.missing[0].t,
+                        r.missing[0].problem,
+                        r.missing[0].path.as_deref().map(|p| format!(", {p}")).unwrap_or_default(),
+                        r.png
+                    );
+                }
+                super::exit::BAD_INPUT
+            }
+        }
+    }
+}
+
+/// The tiles of a standalone image cache, read as its `.ic` file describes (default tile where
+/// a tile is missing or short).
+pub struct IcacheTiles<'a> {
+    plan: &'a ImageCachePlan,
+    default: Option<Vec<u8>>,
+}
+
+impl<'a> IcacheTiles<'a> {
+    /// Reads the default tile now, if one is named; a default tile of the wrong size is ignored
+    /// and reported in the returned message.
+    pub fn new(plan: &'a ImageCachePlan) -> (Self, Option<String>) {
+        let expected = plan.tile_bytes();
+        let (default, note) = match &plan.default_tile {
+            None => (None, None),
+            Some(p) => match std::fs::read(p) {
+                Ok(b) if b.len() as u64 == expected => (Some(b), None),
+                Ok(b) if b.len() as u64 == expected + plan.header_offset => {
+                    (Some(b[plan.header_offset as usize..].to_vec()), None)
+                }
+                Ok(b) => (
+                    None,
+                    Some(format!(
+                        "default tile {}: {} bytes, expected {expected} (one tile); not used",
+                        p.display(),
+                        b.len()
+                    )),
+                ),
+                Err(e) => (None, Some(format!("default tile {}: {e}; not used", p.display()))),
+            },
+        };
+        (IcacheTiles { plan, default }, note)
+    }
+
+    /// Reads tile `id` (its level is ignored).
+    pub fn read(&self, id: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        let r = self.read_file(id, out);
+        match (r, &self.default) {
+            (Err(SourceError::Missing { .. } | SourceError::Short { .. }), Some(d)) if d.len() == out.len() => {
+                out.copy_from_slice(d);
+                Ok(())
+            }
+            (r, _) => r,
+        }
+    }
+
+    fn read_file(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        let io = |e: std::io::Error| match e.kind() {
+            std::io::ErrorKind::NotFound => SourceError::Missing { tile },
+            std::io::ErrorKind::PermissionDenied => SourceError::PermissionDenied { tile },
+            _ => SourceError::Io { tile, source: e },
+        };
+        let loc = self
+            .plan
+            .locate(tile.s, tile.t, 0)
+            .map_err(|e| SourceError::Io { tile, source: std::io::Error::other(e) })?;
+        if loc.length != out.len() as u64 {
+            return Err(SourceError::Corrupt { tile, expected: out.len() as u64, found: loc.length });
+        }
+        let f = std::fs::File::open(&loc.path).map_err(io)?;
+        f.read_exact_at(out, loc.offset).map_err(|e| {
+            if e.kind() == std::io::ErrorKind::UnexpectedEof {
+                let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+                SourceError::Short { tile, expected: loc.length, got: len.saturating_sub(loc.offset).min(loc.length) }
+            } else {
+                io(e)
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn regions_parse_and_are_checked_against_the_level() {
+        assert_eq!(parse_region("1, 2,3,4").unwrap(), [1, 2, 3, 4]);
+        for bad in ["1,2,3", "1,2,3,4,5", "a,b,c,d", "-1,0,2,2", ""] {
+            assert!(matches!(parse_region(bad), Err(DumpError::RegionSyntax { .. })), "{bad}");
+        }
+        assert_eq!(choose_region(Some(0), [64, 32], None, "x").unwrap(), Rect::new(0, 0, 64, 32));
+        let e = choose_region(Some(2), [64, 32], Some([0, 0, 65, 8]), "x").unwrap_err().to_string();
+        assert!(e.contains("does not fit level 2 (64x32 texels)") && e.contains("S1 <= 64"), "{e}");
+        assert!(choose_region(None, [64, 32], Some([5, 5, 5, 8]), "x").is_err(), "empty");
+        let e = choose_region(Some(0), [65536, 65536], None, "level 0, the whole level,").unwrap_err().to_string();
+        assert!(e.contains("level 0, the whole level, is 65536x65536 texels"), "{e}");
+        assert!(e.contains("--region 30720,30720,34816,34816"), "{e}");
+    }
+
+    #[test]
+    fn a_region_is_read_across_tiles_with_missing_ones_painted() {
+        let read = |id: TileId, out: &mut [u8]| {
+            if (id.s, id.t) == (1, 1) {
+                return Err(SourceError::Missing { tile: id });
+            }
+            for (i, px) in out.chunks_mut(3).enumerate() {
+                let (s, t) = (id.s * 4 + i as u64 % 4, id.t * 4 + i as u64 / 4);
+                px.copy_from_slice(&[s as u8, t as u8, 9]);
+            }
+            Ok(())
+        };
+        let file_of = |id: TileId| Some(PathBuf::from(format!("t{}{}", id.s, id.t)));
+        let src = LevelTiles {
+            level: Some(0),
+            size: [8, 8],
+            tile: [4, 4],
+            format: TexelFormat::RGB8,
+            read: &read,
+            file_of: &file_of,
+        };
+        let (img, n, missing) = read_region(&src, Rect::new(2, 1, 7, 6));
+        assert_eq!((n, missing.len(), missing[0].s, missing[0].t), (4, 1, 1, 1));
+        assert_eq!((missing[0].problem.as_str(), missing[0].path.as_deref()), ("missing", Some("t11")));
+        let img = img.as_rgb8().expect("rgb8 gives an RGB picture");
+        assert_eq!(img.dimensions(), (5, 5));
+        // Texel (2, 1) is the bottom-left pixel; (3, 5) is in the top row.
+        assert_eq!(img.get_pixel(0, 4).0, [2, 1, 9]);
+        assert_eq!(img.get_pixel(1, 0).0, [3, 5, 9]);
+        // Texel (6, 5) lies in missing tile (1, 1).
+        let p = img.get_pixel(4, 0).0;
+        assert!(p == [255, 0, 255] || p == [0, 0, 0], "{p:?}");
+    }
+}
