@@ -2,25 +2,14 @@
 //! are deleted, truncated and locked, and the real `cliptex check` must count each per level, use
 //! a default tile where one is named, and exit 0 / 1 / 2 as documented.
 
+mod common;
+use common::exec;
 use serde_json::Value;
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 const CLIPPREP: &str = env!("CARGO_BIN_EXE_clipprep");
 const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
-
-fn exec(cwd: &Path, prog: &str, args: &[&str]) -> (Output, String) {
-    let out = Command::new(prog).current_dir(cwd).args(args).output().expect("the binary runs");
-    let d = format!(
-        "command: {prog} {}\nstatus: {:?}\nstdout:\n{}\nstderr:\n{}",
-        args.join(" "),
-        out.status.code(),
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out, d)
-}
 
 /// A 256 x 256 RGB8 hash pyramid with 32-texel tiles and clip 32 under `dir/tex`; returns the `.ct`.
 fn prepare(dir: &Path) -> PathBuf {

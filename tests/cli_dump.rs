@@ -7,31 +7,21 @@
 //!
 //! Failures print the command, its exit status and its output.
 
+mod common;
 use clipmap::report::picture::{PALETTE, VALID_EDGE, WINDOW_EDGE};
 use clipmap::source::procedural::hash;
+use common::exec;
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output};
+use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 const CLIPPREP: &str = env!("CARGO_BIN_EXE_clipprep");
 const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
 const ICACHE: &str = env!("CARGO_BIN_EXE_icache");
 const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
-
-fn exec(cwd: &Path, prog: &str, args: &[&str]) -> (Output, String) {
-    let out = Command::new(prog).current_dir(cwd).args(args).output().expect("the binary runs");
-    let d = format!(
-        "command: {prog} {}\nstatus: {:?}\nstdout:\n{}\nstderr:\n{}",
-        args.join(" "),
-        out.status.code(),
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out, d)
-}
 
 /// A 256 x 256 hash pyramid in `format` with 32-texel tiles and clip 32 under `dir/NAME`;
 /// returns the directory and the `.ct`.

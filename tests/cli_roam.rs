@@ -2,23 +2,16 @@
 //! checked-in prepared pyramid (run from an unrelated working directory), and the JSON report
 //! keeps its contract: per-frame rows, totals, and exactly the strips a steady flight uncovers.
 
+mod common;
 use serde_json::Value;
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
 
 /// Runs `cliptex` in `cwd`; returns the output and a description for failure messages.
 fn cliptex(cwd: &Path, args: &[&str]) -> (Output, String) {
-    let out = Command::new(CLIPTEX).current_dir(cwd).args(args).output().expect("cliptex runs");
-    let d = format!(
-        "command: cliptex {}\nstatus: {:?}\nstdout:\n{}\nstderr:\n{}",
-        args.join(" "),
-        out.status.code(),
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out, d)
+    common::exec(cwd, CLIPTEX, args)
 }
 
 /// Runs a roam that must succeed with `--json`; returns the report.
