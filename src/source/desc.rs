@@ -40,8 +40,8 @@ pub enum DescError {
     #[error("texel format {format} has {bytes} bytes per texel: expected 1..=16")]
     Format { format: TexelFormat, bytes: u32 },
     /// A level list whose length is not the mipmap depth of the level-0 size.
-    #[error("{found} levels given for a {size:?} texture: expected {expected}")]
-    LevelCount { size: [u64; 2], expected: usize, found: usize },
+    #[error("{found} levels given for a {size:?} texture: expected {expected} (down to 1 x 1){}", if short != expected { format!(" or {short} (down to where the short side is 1, as Performer 3.0 ends non-square pyramids)") } else { String::new() })]
+    LevelCount { size: [u64; 2], expected: usize, short: usize, found: usize },
     /// A level whose size is not level 0's shifted right by its index.
     #[error("level {level} is {found:?} texels: expected {expected:?}")]
     LevelSize { level: u32, expected: [u64; 2], found: [u64; 2] },
@@ -94,7 +94,8 @@ impl TextureDesc {
     }
 
     /// A texture with explicitly described levels (as read from a plan). Levels must be the full
-    /// mipmap chain of `size` down to 1 x 1.
+    /// mipmap chain of `size` down to 1 x 1, or, for a non-square texture, the chain down to where
+    /// the short side is 1 (as Performer 3.0 builds it).
     pub fn from_levels(
         size: [u64; 2],
         clip_size: u64,
@@ -110,8 +111,11 @@ impl TextureDesc {
             return Err(DescError::Format { format, bytes });
         }
         let expected = level_count(size);
-        if levels.len() != expected {
-            return Err(DescError::LevelCount { size, expected, found: levels.len() });
+        // Performer 3.0 ends a non-square pyramid where its short side reaches 1 (8192 x 2048
+        // ends at 4 x 1): such a chain is served as given, its last level the coarsest.
+        let short = level_count([size[0].min(size[1]); 2]);
+        if levels.len() != expected && levels.len() != short {
+            return Err(DescError::LevelCount { size, expected, short, found: levels.len() });
         }
         for (k, l) in levels.iter().enumerate() {
             let want = level_size(size, k as u32);
@@ -246,5 +250,20 @@ mod tests {
         three.push(LevelDesc { size: [1, 1], tile: [1, 1] });
         let e = TextureDesc::from_levels([4, 4], 4, TexelFormat::L8, three).unwrap_err();
         assert_eq!(e.to_string(), "level 1 is [3, 2] texels: expected [2, 2]");
+    }
+
+    #[test]
+    fn a_non_square_chain_may_end_where_its_short_side_is_one() {
+        let chain = |n: u32| -> Vec<LevelDesc> {
+            (0..n).map(|k| LevelDesc { size: level_size([16, 4], k), tile: level_size([16, 4], k) }).collect()
+        };
+        // 16x4 .. 1x1 is 5 levels; Performer 3.0 stops at 4x1: 3 levels.
+        assert_eq!(TextureDesc::from_levels([16, 4], 4, TexelFormat::L8, chain(5)).unwrap().level_count(), 5);
+        assert_eq!(TextureDesc::from_levels([16, 4], 4, TexelFormat::L8, chain(3)).unwrap().level_count(), 3);
+        let e = TextureDesc::from_levels([16, 4], 4, TexelFormat::L8, chain(4)).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "4 levels given for a [16, 4] texture: expected 5 (down to 1 x 1) or 3 (down to where the short side is 1, as Performer 3.0 ends non-square pyramids)"
+        );
     }
 }
