@@ -183,6 +183,8 @@ pub struct Report {
     ingest: ingest::Ingest,
     flight: flight::Flight,
     scale: scale::Scale,
+    /// The same flight with a lookahead covering two ticks of motion.
+    scale_lookahead: scale::Scale,
     service: service::Latency,
 }
 
@@ -307,7 +309,7 @@ pub fn run(args: &Args) -> anyhow::Result<Report> {
     let flight = flight::measure(&prepared, size, runs, gdal.as_ref().map_err(|s| s.as_str()))?;
     drop(scratch);
     progress(json, "2^26 flight in real time");
-    let scale = scale::measure(size)?;
+    let (scale, scale_lookahead) = scale::measure(size)?;
     progress(json, "service latency");
     let service = service::measure(size)?;
 
@@ -327,6 +329,7 @@ pub fn run(args: &Args) -> anyhow::Result<Report> {
         ingest,
         flight,
         scale,
+        scale_lookahead,
         service,
     })
 }
@@ -461,34 +464,39 @@ fn human(r: &Report) -> String {
     );
     let _ = writeln!(
         o,
-        "flight: {} frames of ({}, {}) texels, clip {}, {} levels; engine frames below level 0: {}; full reload: construct {} + fill {} per frame",
+        "flight: {} frames of ({}, {}) texels, clip {}, {} levels; engine tick alone {} of it; engine frames below level 0: {}; full reload: construct {} + fill {} per frame",
         f.frames,
         f.velocity[0],
         f.velocity[1],
         f.clip,
         f.levels,
+        ms(f.engine_tick_s.median),
         f.engine_degraded_frames,
         ms(f.reload_construct_s.median),
         ms(f.reload_frame_s.median - f.reload_construct_s.median)
     );
-    let sc = &r.scale;
-    let _ = writeln!(
-        o,
-        "scale: 2^26 texels, clip {}, {} texels per tick at {} ticks/s for {:.1} s: {} ticks, {} over budget, {} with disabled levels (at most {}), {} late; tick p50 {} p99 {}; {}/s copied, {:.0} tiles/s read",
-        sc.clip,
-        sc.texels_per_tick,
-        sc.tick_hz,
-        sc.seconds,
-        sc.ticks,
-        sc.ticks_over_budget,
-        sc.ticks_with_disabled_levels,
-        sc.max_disabled_levels,
-        sc.late_ticks,
-        ms(sc.tick_p50_s),
-        ms(sc.tick_p99_s),
-        mib(sc.bytes_copied_per_s),
-        sc.tiles_read_per_s
-    );
+    for sc in [&r.scale, &r.scale_lookahead] {
+        let _ = writeln!(
+            o,
+            "scale: 2^26 texels, clip {}, lookahead {}, {} texels per tick at {} ticks/s for {:.1} s: {} ticks, {} over budget, {} with disabled levels (at most {}, mean min LOD {:.2}), {} late; tick p50 {} p99 {}; {}/s copied, {:.0} tiles/s read; {:.2} cores busy",
+            sc.clip,
+            sc.lookahead,
+            sc.texels_per_tick,
+            sc.tick_hz,
+            sc.seconds,
+            sc.ticks,
+            sc.ticks_over_budget,
+            sc.ticks_with_disabled_levels,
+            sc.max_disabled_levels,
+            sc.mean_min_lod,
+            sc.late_ticks,
+            ms(sc.tick_p50_s),
+            ms(sc.tick_p99_s),
+            mib(sc.bytes_copied_per_s),
+            sc.tiles_read_per_s,
+            sc.cpu_cores_used
+        );
+    }
     let sv = &r.service;
     let _ = writeln!(
         o,

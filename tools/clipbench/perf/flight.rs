@@ -37,6 +37,8 @@ pub struct Flight {
     pub window_bytes: u64,
     /// Mean per-frame seconds of each run.
     pub engine_frame_s: Stat,
+    /// The update tick alone (without waiting for the reads it started), mean per run.
+    pub engine_tick_s: Stat,
     pub engine_frame_p50_s: f64,
     pub engine_frame_p99_s: f64,
     /// Frames on which the engine could not show level 0 (min LOD above 0): should be 0.
@@ -97,14 +99,15 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize, gdal: Result<&Gdal,
     let centre = |i: usize| [c0[0] + i as i64 * velocity[0], c0[1] + i as i64 * velocity[1]];
 
     // (a) incremental.
-    let (mut eng_runs, mut eng_all, mut degraded) = (Vec::new(), Vec::new(), 0u64);
+    let (mut eng_runs, mut eng_all, mut degraded, mut tick_runs) = (Vec::new(), Vec::new(), 0u64, Vec::new());
     for _ in 0..runs {
         let mut map = Clipmap::new(Arc::clone(&source), settings())?;
         fill(&mut map, centre(0))?;
-        let mut times = Vec::with_capacity(frames);
+        let (mut times, mut ticks) = (Vec::with_capacity(frames), Vec::with_capacity(frames));
         for i in 1..=frames {
             let t = Instant::now();
             let r = map.tick(centre(i), Some(velocity));
+            ticks.push(t.elapsed().as_secs_f64());
             map.wait_for_reads();
             times.push(t.elapsed().as_secs_f64());
             if r.min_lod > 0.0 {
@@ -112,6 +115,7 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize, gdal: Result<&Gdal,
             }
         }
         eng_runs.push(mean(&times));
+        tick_runs.push(mean(&ticks));
         eng_all.extend(times);
     }
 
@@ -186,6 +190,7 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize, gdal: Result<&Gdal,
         engine_frame_p50_s: quantile(&eng_all, 0.5),
         engine_frame_p99_s: quantile(&eng_all, 0.99),
         engine_frame_s: Stat::of(eng_runs),
+        engine_tick_s: Stat::of(tick_runs),
         engine_degraded_frames: degraded,
         reload_frames: reload_at.len(),
         reload_every: every,

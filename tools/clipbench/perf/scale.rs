@@ -1,7 +1,9 @@
 //! Scale: a 2^26 x 2^26 procedural texture flown at 1000 level-0 texels per tick along +s, 60
 //! ticks a second in real time (each tick starts at its slot; reads run in the background as in
 //! the service), with the default copy budget and load control. Counts ticks over budget, ticks
-//! with disabled levels, late ticks (longer than the tick period) and the throughput.
+//! with disabled levels, late ticks (longer than the tick period) and the throughput; then the
+//! same flight, shorter, with a lookahead of tiles that covers two ticks of motion, to show
+//! whether reading ahead is what limits it.
 
 use super::{quantile, Size};
 use clipmap::clip::{Clipmap, Settings};
@@ -12,6 +14,8 @@ use std::time::{Duration, Instant};
 /// What the real-time flight measured.
 #[derive(Clone, Debug, Serialize)]
 pub struct Scale {
+    /// Extra tile rows and columns read ahead.
+    pub lookahead: u64,
     pub texture: u64,
     pub clip: u64,
     pub tile: u64,
@@ -35,18 +39,42 @@ pub struct Scale {
     pub tiles_read_per_s: f64,
     /// Level-0 texels the centre moved per second of wall time.
     pub texels_flown_per_s: f64,
+    /// CPU time of this process (update tick and tile reads) per second of the flight: 2.0 on two
+    /// cores means the machine, not the engine's pacing, is the limit.
+    pub cpu_cores_used: f64,
 }
 
-pub fn measure(size: Size) -> anyhow::Result<Scale> {
-    let (clip, tile, seconds) = match size {
-        Size::Full => (2048, 256, 60.0),
-        Size::Quick => (2048, 256, 5.0),
-        Size::Smoke => (256, 64, 0.5),
+/// User plus system CPU seconds of this process so far (`/proc/self/stat`, in 1/100 s).
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the command name (which may hold spaces) start at field 3; utime and stime
+    // are fields 14 and 15.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<f64> = rest.split_whitespace().skip(11).take(2).filter_map(|x| x.parse().ok()).collect();
+    f.iter().sum::<f64>() / 100.0
+}
+
+/// The default flight, and the same with a lookahead of two ticks of motion.
+pub fn measure(size: Size) -> anyhow::Result<(Scale, Scale)> {
+    let (clip, tile, seconds, again) = match size {
+        Size::Full => (2048, 256, 60.0, 20.0),
+        Size::Quick => (2048, 256, 5.0, 3.0),
+        Size::Smoke => (256, 64, 0.5, 0.5),
     };
+    let plain = fly(clip, tile, seconds, None)?;
+    let ahead = fly(clip, tile, again, Some((2 * 1000u64).div_ceil(tile)))?;
+    Ok((plain, ahead))
+}
+
+fn fly(clip: u64, tile: u64, seconds: f64, lookahead: Option<u64>) -> anyhow::Result<Scale> {
     let texture = 1u64 << 26;
     let (speed, hz) = (1000i64, 60.0);
     let source = procedural_source(Procedural::Hash, texture, clip, tile)?;
-    let settings = Settings::default();
+    let mut settings = Settings::default();
+    if let Some(l) = lookahead {
+        settings.lookahead = l;
+    }
+    let lookahead = settings.lookahead;
     let budget_ms = settings.budget_ns.unwrap_or(0) as f64 / 1e6;
     let mut map = Clipmap::new(source, settings)?;
     // Start where the whole flight stays inside the texture, filled (untimed).
@@ -62,6 +90,7 @@ pub fn measure(size: Size) -> anyhow::Result<Scale> {
     let ticks = (seconds * hz) as u64;
     let (mut times, mut over, mut disabled, mut max_disabled, mut lod_sum, mut late) =
         (Vec::new(), 0u64, 0u64, 0usize, 0.0, 0u64);
+    let cpu_before = cpu_seconds();
     let start = Instant::now();
     for i in 0..ticks {
         std::thread::sleep((start + period * i as u32).saturating_duration_since(Instant::now()));
@@ -77,8 +106,10 @@ pub fn measure(size: Size) -> anyhow::Result<Scale> {
         lod_sum += r.min_lod;
     }
     let wall = start.elapsed().as_secs_f64();
+    let cpu = cpu_seconds() - cpu_before;
     let after = map.stats();
     Ok(Scale {
+        lookahead,
         texture,
         clip,
         tile,
@@ -98,5 +129,6 @@ pub fn measure(size: Size) -> anyhow::Result<Scale> {
         bytes_copied_per_s: (after.bytes_copied - before.bytes_copied) as f64 / wall,
         tiles_read_per_s: (after.tiles_read - before.tiles_read) as f64 / wall,
         texels_flown_per_s: (speed as u64 * ticks) as f64 / wall,
+        cpu_cores_used: cpu / wall,
     })
 }

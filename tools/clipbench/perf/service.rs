@@ -2,11 +2,14 @@
 //! (its tick loop at 60 ticks a second, default budget) over a hash texture of 2^20 texels, a
 //! reader attached to the mapping requesting a centre 8 texels further 60 times a second, timing
 //! request → level 0's state carries the centre, and request → level 0 complete around it.
+//! Requests are spread over the tick's phase (each at a pseudo-random offset within its 1/60 s
+//! slot): requests in lock step with the ticks would measure only their fixed phase difference.
 
 use super::{quantile, Size};
 use anyhow::Context;
 use clipmap::service::{procedural_source, run, Options, Procedural};
 use clipmap::shm::Client;
+use clipmap::source::procedural::splitmix64;
 use serde::Serialize;
 use std::time::{Duration, Instant};
 
@@ -44,7 +47,9 @@ fn reader(shm_dir: &std::path::Path, clip: u64, requests: usize) -> anyhow::Resu
     let period = Duration::from_secs_f64(1.0 / 60.0);
     let start = Instant::now();
     for i in 1..=requests {
-        std::thread::sleep((start + period * i as u32).saturating_duration_since(Instant::now()));
+        let phase = (splitmix64(i as u64) >> 11) as f64 / (1u64 << 53) as f64;
+        let slot = start + period * i as u32 + period.mul_f64(phase);
+        std::thread::sleep(slot.saturating_duration_since(Instant::now()));
         let want = [base[0] + 8 * i as i64, base[1]];
         let t0 = Instant::now();
         c.request_centre(want, [480.0, 0.0]);
