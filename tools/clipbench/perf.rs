@@ -105,6 +105,24 @@ pub fn quantile(v: &[f64], p: f64) -> f64 {
     s[((s.len() - 1) as f64 * p).round() as usize]
 }
 
+/// This process's counters from `/proc/self/stat`.
+pub struct ProcSelf {
+    /// Minor page faults (all threads).
+    pub minor_faults: u64,
+    /// User plus system CPU seconds (all threads; the kernel counts in 1/100 s).
+    pub cpu_s: f64,
+}
+
+pub fn proc_self() -> ProcSelf {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // The command name (field 2) may hold spaces; fields after it start at field 3, so minflt
+    // (field 10) is the 8th and utime, stime (fields 14, 15) the 12th and 13th.
+    let f: Vec<u64> =
+        stat.rsplit_once(')').map_or("", |(_, r)| r).split_whitespace().map(|x| x.parse().unwrap_or(0)).collect();
+    let at = |i: usize| f.get(i).copied().unwrap_or(0);
+    ProcSelf { minor_faults: at(7), cpu_s: (at(11) + at(12)) as f64 / 100.0 }
+}
+
 /// The machine the figures come from.
 #[derive(Clone, Debug, Serialize)]
 struct Machine {
@@ -410,6 +428,14 @@ fn human(r: &Report) -> String {
         i.read_tiles_per_s.median,
         i.ratio.min,
         i.ratio.max
+    );
+    let _ = writeln!(
+        o,
+        "ingest per tile: engine {:.0} minor faults, {:.1} µs CPU; plain reads {:.0} minor faults, {:.1} µs CPU",
+        i.engine_faults_per_tile.median,
+        i.engine_cpu_us_per_tile.median,
+        i.read_faults_per_tile.median,
+        i.read_cpu_us_per_tile.median
     );
     let f = &r.flight;
     match (&f.speedup_vs_gdal, &f.gdal_frame_s) {

@@ -10,7 +10,7 @@
 //! too.
 
 use super::data::{shape, Prepared};
-use super::{Size, Stat};
+use super::{proc_self, Size, Stat};
 use anyhow::Context;
 use clipmap::clip::{Clipmap, CostTable, Settings};
 use clipmap::limits::Limits;
@@ -71,6 +71,11 @@ pub struct Ingest {
     pub read_tiles_per_s: Stat,
     /// Per run: engine / plain reads.
     pub ratio: Stat,
+    /// Minor page faults and CPU time (all threads) per tile, each side.
+    pub engine_faults_per_tile: Stat,
+    pub read_faults_per_tile: Stat,
+    pub engine_cpu_us_per_tile: Stat,
+    pub read_cpu_us_per_tile: Stat,
     /// Whether the page cache could be dropped (`/proc/sys/vm/drop_caches` writable).
     pub drop_caches: bool,
     pub cold: Option<Cold>,
@@ -154,10 +159,20 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
 
     let (mut eng, mut plain, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
     let (mut tiles_per_run, mut bytes_per_run) = (0, 0);
+    let (mut ef, mut rf, mut ec, mut rc) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for _ in 0..runs {
+        let p0 = proc_self();
         let (e, log, _) = engine_run(&source, &centres)?;
+        let p1 = proc_self();
         let paths: Vec<PathBuf> = log.iter().map(|&t| path_of(t)).collect();
+        let p2 = proc_self();
         let plain_s = read_run(&paths)?;
+        let p3 = proc_self();
+        let tiles = log.len().max(1) as f64;
+        ef.push((p1.minor_faults - p0.minor_faults) as f64 / tiles);
+        rf.push((p3.minor_faults - p2.minor_faults) as f64 / tiles);
+        ec.push((p1.cpu_s - p0.cpu_s) * 1e6 / tiles);
+        rc.push((p3.cpu_s - p2.cpu_s) * 1e6 / tiles);
         tiles_per_run = log.len();
         bytes_per_run = log.iter().map(|t| source.desc().tile_bytes(t.level) as u64).sum();
         let (e_rate, p_rate) = (log.len() as f64 / e, log.len() as f64 / plain_s);
@@ -190,6 +205,10 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
         engine_tiles_per_s: Stat::of(eng),
         read_tiles_per_s: Stat::of(plain),
         ratio: Stat::of(ratio),
+        engine_faults_per_tile: Stat::of(ef),
+        read_faults_per_tile: Stat::of(rf),
+        engine_cpu_us_per_tile: Stat::of(ec),
+        read_cpu_us_per_tile: Stat::of(rc),
         drop_caches: drop_ok,
         cold,
     })

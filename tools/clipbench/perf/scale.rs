@@ -44,16 +44,6 @@ pub struct Scale {
     pub cpu_cores_used: f64,
 }
 
-/// User plus system CPU seconds of this process so far (`/proc/self/stat`, in 1/100 s).
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    // Fields after the command name (which may hold spaces) start at field 3; utime and stime
-    // are fields 14 and 15.
-    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let f: Vec<f64> = rest.split_whitespace().skip(11).take(2).filter_map(|x| x.parse().ok()).collect();
-    f.iter().sum::<f64>() / 100.0
-}
-
 /// The default flight, and the same with a lookahead of two ticks of motion.
 pub fn measure(size: Size) -> anyhow::Result<(Scale, Scale)> {
     let (clip, tile, seconds, again) = match size {
@@ -90,7 +80,7 @@ fn fly(clip: u64, tile: u64, seconds: f64, lookahead: Option<u64>) -> anyhow::Re
     let ticks = (seconds * hz) as u64;
     let (mut times, mut over, mut disabled, mut max_disabled, mut lod_sum, mut late) =
         (Vec::new(), 0u64, 0u64, 0usize, 0.0, 0u64);
-    let cpu_before = cpu_seconds();
+    let cpu_before = super::proc_self().cpu_s;
     let start = Instant::now();
     for i in 0..ticks {
         std::thread::sleep((start + period * i as u32).saturating_duration_since(Instant::now()));
@@ -106,7 +96,7 @@ fn fly(clip: u64, tile: u64, seconds: f64, lookahead: Option<u64>) -> anyhow::Re
         lod_sum += r.min_lod;
     }
     let wall = start.elapsed().as_secs_f64();
-    let cpu = cpu_seconds() - cpu_before;
+    let cpu = super::proc_self().cpu_s - cpu_before;
     let after = map.stats();
     Ok(Scale {
         lookahead,
