@@ -7,10 +7,16 @@
 //! `clipbench engine` measures update throughput against memcpy, bytes per tick against the
 //! strips a move uncovers, and resident memory against the clipmap formula.
 //!
+//! `clipbench perf` runs every performance comparison in one go (engine against memcpy, tile
+//! ingest against plain reads, per-frame cost against GDAL and against full reloads, memory
+//! against the formula, a 2^26 flight in real time, service latency) and prints ratios.
+//!
 //! Exit status: 0 ok, 1 bad input, 2 the tool could not run.
 
 #[path = "clipbench/engine.rs"]
 mod engine;
+#[path = "clipbench/perf.rs"]
+mod perf;
 
 use clap::{Parser, Subcommand};
 use clipmap::accuracy::sweep;
@@ -38,7 +44,18 @@ enum Command {
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+        /// A tiny texture (2^12, clip 128): checks that the benchmark runs (for tests).
+        #[arg(long, hide = true, conflicts_with = "quick")]
+        smoke: bool,
     },
+    /// Every performance comparison in one run: engine against memcpy, tile ingest against plain
+    /// reads, per-frame cost against GDAL and full reloads, memory against the formula, a 2^26
+    /// flight in real time, service latency.
+    #[command(after_help = "\
+Examples:
+  clipbench perf --quick --json
+  clipbench perf --runs 7 --dir /var/tmp")]
+    Perf(perf::Args),
     /// Speed against accuracy: sweep the knobs, render each frame twice, measure the difference.
     #[command(after_help = "\
 Examples:
@@ -64,7 +81,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let code = match cli.command {
         Command::Accuracy { quick, out, json, quiet } => accuracy(quick, out, json, quiet),
-        Command::Engine { quick, runs, json } => match engine::engine(quick, runs) {
+        Command::Perf(args) => perf::main(args),
+        Command::Engine { quick, runs, json, smoke } => match engine::engine(engine_size(quick, smoke), runs) {
             Ok(r) => {
                 if json {
                     println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
@@ -80,6 +98,16 @@ fn main() -> ExitCode {
         },
     };
     ExitCode::from(code)
+}
+
+fn engine_size(quick: bool, smoke: bool) -> engine::Size {
+    if smoke {
+        engine::Size::Smoke
+    } else if quick {
+        engine::Size::Quick
+    } else {
+        engine::Size::Full
+    }
 }
 
 fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool) -> u8 {

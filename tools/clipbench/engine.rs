@@ -66,6 +66,8 @@ pub struct Report {
     window_bytes: u64,
     tile_cache_budget_bytes: u64,
     engine_peak_resident_bytes: u64,
+    /// `VmRSS` just before the clipmap was built (the program itself).
+    vm_rss_before_bytes: u64,
     vm_hwm_bytes: u64,
     /// VmHWM / (window bytes + tile-cache budget) (goal: at most 1.25, plus a small constant).
     resident_ratio: f64,
@@ -89,9 +91,15 @@ fn median(v: &[f64]) -> f64 {
 
 /// `VmHWM` (peak resident set) of this process, in bytes.
 fn vm_hwm() -> anyhow::Result<u64> {
+    proc_status("VmHWM:")
+}
+
+/// A size field (`VmHWM:`, `VmRSS:`) of `/proc/self/status`, in bytes.
+fn proc_status(field: &str) -> anyhow::Result<u64> {
     let status = std::fs::read_to_string("/proc/self/status").context("reading /proc/self/status")?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:")).context("no VmHWM in /proc/self/status")?;
-    let kib: u64 = line.split_whitespace().nth(1).context("VmHWM without a value")?.parse()?;
+    let line =
+        status.lines().find(|l| l.starts_with(field)).with_context(|| format!("no {field} in /proc/self/status"))?;
+    let kib: u64 = line.split_whitespace().nth(1).with_context(|| format!("{field} without a value"))?.parse()?;
     Ok(kib * 1024)
 }
 
@@ -121,8 +129,21 @@ fn cache_budget(desc: &TextureDesc, lookahead: u64) -> u64 {
         .sum()
 }
 
-pub fn engine(quick: bool, runs: usize) -> anyhow::Result<Report> {
-    let setup = if quick {
+/// The sizes `clipbench engine` flies.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Size {
+    /// 2^26 texels, clip 2048 (the goal's case).
+    Full,
+    /// 2^20 texels, clip 512.
+    Quick,
+    /// 2^12 texels, clip 128: checks that the benchmark runs, measures nothing worth reading.
+    Smoke,
+}
+
+pub fn engine(size: Size, runs: usize) -> anyhow::Result<Report> {
+    let setup = if size == Size::Smoke {
+        Setup { size: 1 << 12, clip: 128, tile: 32, border: 8, bytes_per_texel: 4, speed: 8, frames_per_run: 4, runs }
+    } else if size == Size::Quick {
         Setup { size: 1 << 20, clip: 512, tile: 128, border: 8, bytes_per_texel: 4, speed: 32, frames_per_run: 8, runs }
     } else {
         Setup {
@@ -151,6 +172,7 @@ pub fn engine(quick: bool, runs: usize) -> anyhow::Result<Report> {
     settings.limits.max_pending_reads = 4096;
     settings.limits.max_ready_reads = 4096;
     let source: Arc<dyn TileSource> = Arc::new(HashSource::new(desc.clone()));
+    let rss_before = proc_status("VmRSS:")?;
     let mut map = Clipmap::new(source, settings)?;
 
     let mut c = [(setup.size / 2) as i64; 2];
@@ -256,6 +278,7 @@ pub fn engine(quick: bool, runs: usize) -> anyhow::Result<Report> {
         window_bytes,
         tile_cache_budget_bytes: budget,
         engine_peak_resident_bytes: engine_peak,
+        vm_rss_before_bytes: rss_before,
         vm_hwm_bytes: hwm,
         resident_ratio: hwm as f64 / (window_bytes + budget) as f64,
         settle_ticks,

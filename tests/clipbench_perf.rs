@@ -1,0 +1,37 @@
+//! `clipbench perf --smoke --no-gdal --json` runs every comparison at tiny sizes and keeps its
+//! JSON contract: the five top-level ratios exist, four are positive numbers and
+//! `speedup_vs_gdal` is null without GDAL. No timing is asserted.
+
+use std::process::Command;
+
+fn run_perf(dir: &std::path::Path, extra: &[&str]) -> serde_json::Value {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_clipbench"));
+    cmd.args(["perf", "--smoke", "--json", "--runs", "2", "--dir"]).arg(dir).args(extra);
+    let out = cmd.output().expect("clipbench runs");
+    let show = format!(
+        "command: {cmd:?}\nstatus: {}\nstdout:\n{}\nstderr:\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "{show}");
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{show}"))
+}
+
+#[test]
+fn perf_json_has_the_contract_fields() {
+    let dir = tempfile::tempdir().unwrap();
+    let v = run_perf(dir.path(), &["--no-gdal"]);
+    for field in ["update_vs_memcpy", "ingest_vs_read", "speedup_vs_full_reload", "memory_vs_formula"] {
+        let x = v[field].as_f64().unwrap_or_else(|| panic!("{field} is not a number: {}", v[field]));
+        assert!(x.is_finite() && x > 0.0, "{field} = {x}");
+    }
+    assert!(v.get("speedup_vs_gdal").is_some_and(|g| g.is_null()), "speedup_vs_gdal: {:?}", v.get("speedup_vs_gdal"));
+    // Details are there for every comparison, and the scratch data is gone.
+    for detail in ["engine", "memory", "ingest", "flight", "scale", "service", "machine"] {
+        assert!(v[detail].is_object(), "no {detail} object");
+    }
+    assert_eq!(v["flight"]["engine_degraded_frames"], 0, "the engine showed every frame at level 0");
+    assert!(v["ingest"]["tiles_per_run"].as_u64().unwrap() > 0);
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "scratch data left behind");
+}

@@ -1,0 +1,373 @@
+//! `clipbench perf`: every performance comparison of the project in one run, as ratios.
+//!
+//! Prepares its own data in a scratch directory (a hash pyramid written with the preparation
+//! library, and for GDAL a tiled GeoTIFF with overviews of the same level 0), then measures,
+//! several runs each, medians and spreads:
+//! - `update_vs_memcpy`: the engine's update throughput on its slowest steady flight against
+//!   `memcpy` of the same bytes (`clipbench engine`, run as a child process so that its memory
+//!   figures are its own);
+//! - `ingest_vs_read`: tiles per second through the engine's tile path (file source, read
+//!   queues, tile cache) against plain sequential `std::fs::read` of the same files;
+//! - `speedup_vs_gdal`, `speedup_vs_full_reload`: per-frame cost of one flight with the same
+//!   per-level windows, through GDAL (one Python process reading every frame) and through the
+//!   engine without incremental updates (a fresh clipmap filled every frame), against the engine;
+//! - `memory_vs_formula`: resident growth of the engine's process against DESIGN §3's clipmap
+//!   texels plus the tile-cache budget;
+//! - a 2^26 texture flown in real time, and the service's request-to-publication latency.
+//!
+//! What each figure means and what limits it is in `docs/BENCHMARKS.md` (## Perf).
+
+#[path = "perf/data.rs"]
+mod data;
+#[path = "perf/flight.rs"]
+mod flight;
+#[path = "perf/human.rs"]
+mod human;
+#[path = "perf/ingest.rs"]
+mod ingest;
+#[path = "perf/scale.rs"]
+mod scale;
+#[path = "perf/service.rs"]
+mod service;
+
+use anyhow::Context;
+use serde::Serialize;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Options of `clipbench perf`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Small sizes and short runs (under two minutes in all).
+    #[arg(long)]
+    quick: bool,
+    /// Tiny sizes: checks that every comparison runs (for tests); the figures mean little.
+    #[arg(long, hide = true, conflicts_with = "quick")]
+    smoke: bool,
+    /// Print one JSON object instead of tables.
+    #[arg(long)]
+    json: bool,
+    /// Runs per measurement (default 5; 3 with --quick or --smoke).
+    #[arg(long)]
+    runs: Option<usize>,
+    /// Scratch directory for the prepared data (a fresh subdirectory, removed at the end).
+    #[arg(long)]
+    dir: Option<PathBuf>,
+    /// Install GDAL (`apt-get install -y gdal-bin python3-gdal`) if it is missing.
+    #[arg(long)]
+    install_peers: bool,
+    /// Skip the GDAL comparison (`speedup_vs_gdal` is then null).
+    #[arg(long)]
+    no_gdal: bool,
+}
+
+/// How large a run is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Size {
+    Full,
+    Quick,
+    Smoke,
+}
+
+/// Median and spread of a measurement's runs.
+#[derive(Clone, Debug, Serialize)]
+pub struct Stat {
+    pub median: f64,
+    pub min: f64,
+    pub max: f64,
+    /// (max - min) / median: the relative spread of the runs.
+    pub spread: f64,
+    pub samples: Vec<f64>,
+}
+
+impl Stat {
+    pub fn of(samples: Vec<f64>) -> Stat {
+        let mut s = samples.clone();
+        s.sort_by(f64::total_cmp);
+        let n = s.len();
+        let median = match n {
+            0 => 0.0,
+            _ if n % 2 == 1 => s[n / 2],
+            _ => (s[n / 2 - 1] + s[n / 2]) / 2.0,
+        };
+        let (min, max) = (s.first().copied().unwrap_or(0.0), s.last().copied().unwrap_or(0.0));
+        let spread = if median == 0.0 { 0.0 } else { (max - min) / median };
+        Stat { median, min, max, spread, samples }
+    }
+}
+
+/// The p-quantile (0..=1) of `v` by nearest rank.
+pub fn quantile(v: &[f64], p: f64) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    if s.is_empty() {
+        return 0.0;
+    }
+    s[((s.len() - 1) as f64 * p).round() as usize]
+}
+
+/// This process's counters from `/proc/self/stat`.
+pub struct ProcSelf {
+    /// Minor page faults (all threads).
+    pub minor_faults: u64,
+    /// User plus system CPU seconds (all threads; the kernel counts in 1/100 s).
+    pub cpu_s: f64,
+}
+
+pub fn proc_self() -> ProcSelf {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // The command name (field 2) may hold spaces; fields after it start at field 3, so minflt
+    // (field 10) is the 8th and utime, stime (fields 14, 15) the 12th and 13th.
+    let f: Vec<u64> =
+        stat.rsplit_once(')').map_or("", |(_, r)| r).split_whitespace().map(|x| x.parse().unwrap_or(0)).collect();
+    let at = |i: usize| f.get(i).copied().unwrap_or(0);
+    ProcSelf { minor_faults: at(7), cpu_s: (at(11) + at(12)) as f64 / 100.0 }
+}
+
+/// The machine the figures come from.
+#[derive(Clone, Debug, Serialize)]
+pub struct Machine {
+    pub nproc: usize,
+    pub cpu: String,
+    pub memory_gib: f64,
+    pub load_start: String,
+    pub load_end: String,
+}
+
+fn machine(load_start: String) -> Machine {
+    let cpuinfo = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+    let cpu = cpuinfo
+        .lines()
+        .find(|l| l.starts_with("model name"))
+        .and_then(|l| l.split(':').nth(1))
+        .map_or_else(|| "unknown".into(), |s| s.trim().to_string());
+    let meminfo = std::fs::read_to_string("/proc/meminfo").unwrap_or_default();
+    let kib: f64 = meminfo
+        .lines()
+        .find(|l| l.starts_with("MemTotal:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0.0);
+    Machine {
+        nproc: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        cpu,
+        memory_gib: kib / (1u64 << 20) as f64,
+        load_start,
+        load_end: loadavg(),
+    }
+}
+
+fn loadavg() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_default()
+}
+
+/// Memory of the engine's process against DESIGN §3.
+#[derive(Clone, Debug, Serialize)]
+pub struct Memory {
+    /// DESIGN §3: 4^m (n - m + 4/3) - 1/3 texels times bytes per texel.
+    pub formula_window_bytes: u64,
+    /// What the engine allocates for its windows (equal to the formula for square textures).
+    pub window_bytes: u64,
+    pub tile_cache_budget_bytes: u64,
+    pub vm_rss_before_bytes: u64,
+    pub vm_hwm_bytes: u64,
+    /// (VmHWM - VmRSS before the clipmap) / (formula + tile-cache budget).
+    pub delta_ratio: f64,
+    /// VmHWM / (formula + tile-cache budget): the whole process, program included.
+    pub hwm_ratio: f64,
+}
+
+/// Everything `clipbench perf` measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    /// Slowest steady flight's update throughput / memcpy of the same bytes (goal >= 0.5).
+    pub update_vs_memcpy: f64,
+    /// Engine tile ingest (tiles/s) / plain sequential reads of the same files (goal >= 0.7).
+    pub ingest_vs_read: f64,
+    /// GDAL's per-frame time / the engine's (goal >= 20); null without GDAL.
+    pub speedup_vs_gdal: Option<f64>,
+    /// Full window reload's per-frame time / the engine's (goal >= 10).
+    pub speedup_vs_full_reload: f64,
+    /// Resident growth / (clipmap formula + tile-cache budget) (goal <= 1.25 + small constant).
+    pub memory_vs_formula: f64,
+    pub size: Size,
+    pub runs: usize,
+    pub command: String,
+    pub machine: Machine,
+    pub elapsed_s: f64,
+    pub engine: serde_json::Value,
+    pub memory: Memory,
+    pub ingest: ingest::Ingest,
+    pub flight: flight::Flight,
+    pub scale: scale::Scale,
+    /// The same flight with a lookahead covering two ticks of motion.
+    pub scale_lookahead: scale::Scale,
+    pub service: service::Latency,
+}
+
+/// Runs `clipbench engine` in a child process (its `VmHWM` is then the engine's alone).
+fn engine_child(size: Size, runs: usize) -> anyhow::Result<serde_json::Value> {
+    let exe = std::env::current_exe().context("locating this program")?;
+    let mut cmd = std::process::Command::new(exe);
+    cmd.args(["engine", "--json", "--runs", &runs.to_string()]);
+    match size {
+        Size::Full => {}
+        Size::Quick => {
+            cmd.arg("--quick");
+        }
+        Size::Smoke => {
+            cmd.arg("--smoke");
+        }
+    }
+    let out = cmd.output().context("running clipbench engine")?;
+    anyhow::ensure!(
+        out.status.success(),
+        "clipbench engine failed ({}): {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).context("reading clipbench engine's JSON")
+}
+
+fn field(v: &serde_json::Value, path: &[&str]) -> anyhow::Result<f64> {
+    let mut at = v;
+    for p in path {
+        at = at.get(p).with_context(|| format!("clipbench engine's JSON has no {}", path.join(".")))?;
+    }
+    at.as_f64().with_context(|| format!("{} is not a number", path.join(".")))
+}
+
+/// DESIGN §3: a 2^n texture with clip 2^m holds 4^m (n - m + 4/3) - 1/3 texels.
+pub fn formula_texels(size: u64, clip: u64) -> u64 {
+    let (n, m) = (size.trailing_zeros() as u64, clip.min(size).trailing_zeros() as u64);
+    // 4^m (n - m + 4/3) - 1/3 = (4^m (3 (n - m) + 4) - 1) / 3, exact in integers.
+    ((1u64 << (2 * m)) * (3 * (n - m) + 4) - 1) / 3
+}
+
+fn memory(engine: &serde_json::Value) -> anyhow::Result<Memory> {
+    let size = field(engine, &["setup", "size"])? as u64;
+    let clip = field(engine, &["setup", "clip"])? as u64;
+    let bpt = field(engine, &["setup", "bytes_per_texel"])? as u64;
+    let formula = formula_texels(size, clip) * bpt;
+    let budget = field(engine, &["tile_cache_budget_bytes"])? as u64;
+    let before = field(engine, &["vm_rss_before_bytes"])? as u64;
+    let hwm = field(engine, &["vm_hwm_bytes"])? as u64;
+    Ok(Memory {
+        formula_window_bytes: formula,
+        window_bytes: field(engine, &["window_bytes"])? as u64,
+        tile_cache_budget_bytes: budget,
+        vm_rss_before_bytes: before,
+        vm_hwm_bytes: hwm,
+        delta_ratio: hwm.saturating_sub(before) as f64 / (formula + budget) as f64,
+        hwm_ratio: hwm as f64 / (formula + budget) as f64,
+    })
+}
+
+/// A scratch directory removed when dropped.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn new(parent: Option<PathBuf>) -> anyhow::Result<Scratch> {
+        let parent = parent.unwrap_or_else(std::env::temp_dir);
+        let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+        let dir = parent.join(format!("clipbench-perf-{}-{nanos}", std::process::id()));
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        Ok(Scratch(dir))
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn progress(json: bool, what: &str) {
+    if !json || std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        eprintln!("clipbench perf: {what}");
+    }
+}
+
+pub fn run(args: &Args) -> anyhow::Result<Report> {
+    let started = Instant::now();
+    let load_start = loadavg();
+    let size = if args.smoke {
+        Size::Smoke
+    } else if args.quick {
+        Size::Quick
+    } else {
+        Size::Full
+    };
+    let runs = args.runs.unwrap_or(if size == Size::Full { 5 } else { 3 }).max(1);
+    let mut command = String::from("clipbench perf");
+    for (on, flag) in [(args.quick, " --quick"), (args.smoke, " --smoke"), (args.no_gdal, " --no-gdal")] {
+        if on {
+            command.push_str(flag);
+        }
+    }
+    if let Some(r) = args.runs {
+        command.push_str(&format!(" --runs {r}"));
+    }
+    let gdal = if args.no_gdal { Err("--no-gdal".to_string()) } else { data::find_gdal(args.install_peers) };
+    let json = args.json;
+
+    progress(json, "engine against memcpy, memory (child process)");
+    let engine = engine_child(size, runs)?;
+    let update_vs_memcpy = field(&engine, &["throughput_ratio"])?;
+    let memory = memory(&engine)?;
+
+    let scratch = Scratch::new(args.dir.clone())?;
+    progress(json, &format!("preparing data in {}", scratch.0.display()));
+    let prepared = data::prepare(&scratch.0, size, gdal.as_ref().ok())?;
+
+    progress(json, "tile ingest against plain reads");
+    let ingest = ingest::measure(&prepared, size, runs)?;
+    progress(json, "flight: engine, full reloads, GDAL");
+    let flight = flight::measure(&prepared, size, runs, gdal.as_ref().map_err(|s| s.as_str()))?;
+    drop(scratch);
+    progress(json, "2^26 flight in real time");
+    let (scale, scale_lookahead) = scale::measure(size)?;
+    progress(json, "service latency");
+    let service = service::measure(size)?;
+
+    Ok(Report {
+        update_vs_memcpy,
+        ingest_vs_read: ingest.ratio.median,
+        speedup_vs_gdal: flight.speedup_vs_gdal.as_ref().map(|s| s.median),
+        speedup_vs_full_reload: flight.speedup_vs_full_reload.median,
+        memory_vs_formula: memory.delta_ratio,
+        size,
+        runs,
+        command,
+        machine: machine(load_start),
+        elapsed_s: started.elapsed().as_secs_f64(),
+        engine,
+        memory,
+        ingest,
+        flight,
+        scale,
+        scale_lookahead,
+        service,
+    })
+}
+
+/// `clipbench perf`: exit status 0 when it measured (goals met or not), 2 when it could not.
+pub fn main(args: Args) -> u8 {
+    match run(&args) {
+        Ok(r) => {
+            if args.json {
+                println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
+            } else {
+                print!("{}", human::table(&r));
+            }
+            0
+        }
+        Err(e) => {
+            eprintln!("clipbench perf: {e:#}");
+            2
+        }
+    }
+}

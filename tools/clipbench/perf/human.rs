@@ -1,0 +1,173 @@
+//! `clipbench perf`'s human output: a Markdown table of the five ratios with their goals,
+//! medians and spreads, then one line per detail (ingest, flight, scale, service).
+
+use super::Report;
+
+fn mib(b: f64) -> String {
+    format!("{:.1} MiB", b / (1u64 << 20) as f64)
+}
+
+fn ms(s: f64) -> String {
+    format!("{:.3} ms", s * 1e3)
+}
+
+/// The human table: the five ratios with goals, medians and spreads, then one line per detail.
+pub fn table(r: &Report) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let m = &r.machine;
+    let _ = writeln!(o, "{} ({:?}, {} runs each, {:.0} s)", r.command, r.size, r.runs, r.elapsed_s);
+    let _ = writeln!(
+        o,
+        "machine: {} cores, {}, {:.0} GiB; load average {} at the start, {} at the end",
+        m.nproc, m.cpu, m.memory_gib, m.load_start, m.load_end
+    );
+    let _ = writeln!(o);
+    let _ = writeln!(o, "| figure | ratio | goal | met | median | spread (min .. max) |");
+    let _ = writeln!(o, "|---|---:|---|---|---|---|");
+    let met = |ok: bool| if ok { "yes" } else { "**no**" };
+    let e = &r.engine;
+    let rate = |f: &serde_json::Value| f["throughput_bytes_per_s"].as_f64().unwrap_or(0.0);
+    let worst = e["flights"]
+        .as_array()
+        .and_then(|f| f.iter().min_by(|a, b| rate(a).total_cmp(&rate(b))))
+        .cloned()
+        .unwrap_or_default();
+    let _ = writeln!(
+        o,
+        "| update_vs_memcpy (slowest flight {}) | {:.2} | >= 0.5 | {} | {}/s vs memcpy {}/s | flight runs {} |",
+        worst["direction"].as_str().unwrap_or("?"),
+        r.update_vs_memcpy,
+        met(r.update_vs_memcpy >= 0.5),
+        mib(worst["throughput_bytes_per_s"].as_f64().unwrap_or(0.0)),
+        mib(e["memcpy_bytes_per_s"].as_f64().unwrap_or(0.0)),
+        worst["run_throughputs"]
+            .as_array()
+            .map(|v| v
+                .iter()
+                .map(|x| format!("{:.0}", x.as_f64().unwrap_or(0.0) / (1u64 << 20) as f64))
+                .collect::<Vec<_>>()
+                .join(", "))
+            .unwrap_or_default()
+    );
+    let i = &r.ingest;
+    let _ = writeln!(
+        o,
+        "| ingest_vs_read ({} tiles of {} per run, page cache) | {:.2} | >= 0.7 | {} | {:.0} vs {:.0} tiles/s | ratio {:.2} .. {:.2} |",
+        i.tiles_per_run,
+        mib(i.tile_bytes as f64),
+        r.ingest_vs_read,
+        met(r.ingest_vs_read >= 0.7),
+        i.engine_tiles_per_s.median,
+        i.read_tiles_per_s.median,
+        i.ratio.min,
+        i.ratio.max
+    );
+    let f = &r.flight;
+    match (&f.speedup_vs_gdal, &f.gdal_frame_s) {
+        (Some(s), Some(g)) => {
+            let _ = writeln!(
+                o,
+                "| speedup_vs_gdal ({} frames) | {:.1} | >= 20 | {} | {} vs {} per frame | ratio {:.1} .. {:.1} |",
+                f.frames,
+                s.median,
+                met(s.median >= 20.0),
+                ms(g.median),
+                ms(f.engine_frame_s.median),
+                s.min,
+                s.max
+            );
+        }
+        _ => {
+            let _ = writeln!(o, "| speedup_vs_gdal | - | >= 20 | not measured ({}) | | |", f.gdal_note);
+        }
+    }
+    let s = &f.speedup_vs_full_reload;
+    let _ = writeln!(
+        o,
+        "| speedup_vs_full_reload | {:.1} | >= 10 | {} | {} vs {} per frame | ratio {:.1} .. {:.1} |",
+        s.median,
+        met(s.median >= 10.0),
+        ms(f.reload_frame_s.median),
+        ms(f.engine_frame_s.median),
+        s.min,
+        s.max
+    );
+    let mm = &r.memory;
+    let _ = writeln!(
+        o,
+        "| memory_vs_formula (VmHWM - VmRSS before) | {:.3} | <= 1.25 + small constant | {} | {} over formula {} + cache {} | VmHWM alone: {:.3} |",
+        r.memory_vs_formula,
+        met(r.memory_vs_formula <= 1.25),
+        mib(mm.vm_hwm_bytes.saturating_sub(mm.vm_rss_before_bytes) as f64),
+        mib(mm.formula_window_bytes as f64),
+        mib(mm.tile_cache_budget_bytes as f64),
+        mm.hwm_ratio
+    );
+    let _ = writeln!(o);
+    let _ = writeln!(
+        o,
+        "ingest: drop_caches {}{}",
+        if i.cold.is_some() { "possible" } else { "not possible" },
+        i.cold.as_ref().map_or(String::new(), |c| format!(
+            "; cold (after dropping caches): engine {:.0} tiles/s, plain reads {:.0} tiles/s, ratio {:.2}",
+            c.engine_tiles_per_s, c.read_tiles_per_s, c.ratio
+        ))
+    );
+    let _ = writeln!(
+        o,
+        "ingest per tile: engine {:.0} minor faults, {:.1} µs CPU; plain reads {:.0} minor faults, {:.1} µs CPU",
+        i.engine_faults_per_tile.median,
+        i.engine_cpu_us_per_tile.median,
+        i.read_faults_per_tile.median,
+        i.read_cpu_us_per_tile.median
+    );
+    let _ = writeln!(
+        o,
+        "flight: {} frames of ({}, {}) texels, clip {}, {} levels; engine tick alone {} of it; engine frames below level 0: {}; full reload: construct {} + fill {} per frame",
+        f.frames,
+        f.velocity[0],
+        f.velocity[1],
+        f.clip,
+        f.levels,
+        ms(f.engine_tick_s.median),
+        f.engine_degraded_frames,
+        ms(f.reload_construct_s.median),
+        ms(f.reload_frame_s.median - f.reload_construct_s.median)
+    );
+    for sc in [&r.scale, &r.scale_lookahead] {
+        let _ = writeln!(
+            o,
+            "scale: 2^26 texels, clip {}, lookahead {}, {} texels per tick at {} ticks/s for {:.1} s: {} ticks, {} over budget, {} with disabled levels (at most {}, mean min LOD {:.2}), {} late; tick p50 {} p99 {}; {}/s copied, {:.0} tiles/s read; {:.2} cores busy",
+            sc.clip,
+            sc.lookahead,
+            sc.texels_per_tick,
+            sc.tick_hz,
+            sc.seconds,
+            sc.ticks,
+            sc.ticks_over_budget,
+            sc.ticks_with_disabled_levels,
+            sc.max_disabled_levels,
+            sc.mean_min_lod,
+            sc.late_ticks,
+            ms(sc.tick_p50_s),
+            ms(sc.tick_p99_s),
+            mib(sc.bytes_copied_per_s),
+            sc.tiles_read_per_s,
+            sc.cpu_cores_used
+        );
+    }
+    let sv = &r.service;
+    let _ = writeln!(
+        o,
+        "service: clip {}, {} requests at 60/s: request -> published p50 {} p99 {}; -> level 0 complete p50 {} p99 {}; snapshot {:.0} ns",
+        sv.clip,
+        sv.requests,
+        ms(sv.published_p50_s),
+        ms(sv.published_p99_s),
+        ms(sv.complete_p50_s),
+        ms(sv.complete_p99_s),
+        sv.snapshot_ns
+    );
+    o
+}

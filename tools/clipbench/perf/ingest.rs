@@ -1,0 +1,215 @@
+//! Tile ingest: tiles per second through the engine's tile path against plain reads.
+//!
+//! The engine side is a clipmap over the prepared pyramid's [`FileSource`] with a copy budget of
+//! zero (nothing is copied into windows: only the read queues, the file source and the tile
+//! cache work), jumping its centre across a grid of positions far enough apart that every jump
+//! needs a new mem region at level 0; each jump is one tick plus waiting for its reads. A thin
+//! wrapper records which tiles were read, in order. The baseline reads exactly those tiles' files,
+//! in the same order, with `std::fs::read`. Both read the page cache (every file is read once
+//! before timing); when `/proc/sys/vm/drop_caches` can be written, one cold pair is measured
+//! too.
+
+use super::data::{shape, Prepared};
+use super::{proc_self, Size, Stat};
+use anyhow::Context;
+use clipmap::clip::{Clipmap, CostTable, Settings};
+use clipmap::limits::Limits;
+use clipmap::plan;
+use clipmap::source::{FileSource, SourceError, TextureDesc, TileId, TileSource};
+use serde::Serialize;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+/// A file source that records the tiles read.
+struct Recording {
+    inner: Arc<FileSource>,
+    log: Mutex<Vec<TileId>>,
+}
+
+impl TileSource for Recording {
+    fn desc(&self) -> &TextureDesc {
+        self.inner.desc()
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        self.inner.read_tile(tile, out)?;
+        self.log.lock().unwrap_or_else(|e| e.into_inner()).push(tile);
+        Ok(())
+    }
+
+    fn stream_servers(&self) -> usize {
+        self.inner.stream_servers()
+    }
+
+    fn stream_of(&self, tile: TileId, streams: usize) -> usize {
+        self.inner.stream_of(tile, streams)
+    }
+}
+
+/// One cold (caches dropped) pair.
+#[derive(Clone, Debug, Serialize)]
+pub struct Cold {
+    pub engine_tiles_per_s: f64,
+    pub read_tiles_per_s: f64,
+    pub ratio: f64,
+}
+
+/// What the ingest comparison measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct Ingest {
+    pub texture: u64,
+    pub clip: u64,
+    pub tile: u64,
+    /// Bytes of one image-cache tile.
+    pub tile_bytes: u64,
+    pub jumps_per_run: usize,
+    /// Tiles read per engine run (the baseline reads the same files).
+    pub tiles_per_run: usize,
+    pub bytes_per_run: u64,
+    pub engine_tiles_per_s: Stat,
+    pub read_tiles_per_s: Stat,
+    /// Per run: engine / plain reads.
+    pub ratio: Stat,
+    /// Minor page faults and CPU time (all threads) per tile, each side.
+    pub engine_faults_per_tile: Stat,
+    pub read_faults_per_tile: Stat,
+    pub engine_cpu_us_per_tile: Stat,
+    pub read_cpu_us_per_tile: Stat,
+    /// Whether the page cache could be dropped (`/proc/sys/vm/drop_caches` writable).
+    pub drop_caches: bool,
+    pub cold: Option<Cold>,
+}
+
+fn open(prepared: &Prepared) -> anyhow::Result<Arc<FileSource>> {
+    let loaded = plan::load_clip_texture(&prepared.ct, &plan::Options::default())?;
+    let rendered = loaded.render();
+    let plan = loaded.plan.with_context(|| format!("{}: {rendered}", prepared.ct.display()))?;
+    Ok(Arc::new(FileSource::new(plan, &Limits::default())?))
+}
+
+/// Centres of level 0 two clip sizes apart, so that consecutive jumps share no level-0 tile.
+fn jumps(n: u64, clip: u64) -> Vec<[i64; 2]> {
+    let step = (2 * clip) as i64;
+    let first = (clip / 2) as i64;
+    let along: Vec<i64> = (0..).map(|i| first + i * step).take_while(|&c| c < n as i64).collect();
+    let mut out = Vec::new();
+    for (row, &t) in along.iter().enumerate() {
+        // Boustrophedon, so a jump's coarser levels stay near the last one's.
+        let mut cols = along.clone();
+        if row % 2 == 1 {
+            cols.reverse();
+        }
+        out.extend(cols.into_iter().map(|s| [s, t]));
+    }
+    out
+}
+
+/// One engine run: seconds and the tiles read, in order.
+fn engine_run(source: &Arc<FileSource>, centres: &[[i64; 2]]) -> anyhow::Result<(f64, Vec<TileId>, u64)> {
+    let rec = Arc::new(Recording { inner: Arc::clone(source), log: Mutex::new(Vec::new()) });
+    let mut settings =
+        Settings { budget_ns: Some(0), cost: Some(CostTable::fixed(200.0, 10.0, 0.1)), ..Settings::default() };
+    settings.limits.max_pending_reads = 4096;
+    settings.limits.max_ready_reads = 4096;
+    let mut map = Clipmap::new(Arc::clone(&rec) as Arc<dyn TileSource>, settings)?;
+    let t = Instant::now();
+    for &c in centres {
+        map.tick(c, Some([0, 0]));
+        map.wait_for_reads();
+    }
+    // Takes the last reads into the cache.
+    map.tick(*centres.last().expect("at least one jump"), Some([0, 0]));
+    let secs = t.elapsed().as_secs_f64();
+    let admitted = map.stats().tiles_read;
+    drop(map);
+    let log = std::mem::take(&mut *rec.log.lock().unwrap_or_else(|e| e.into_inner()));
+    Ok((secs, log, admitted))
+}
+
+fn read_run(paths: &[PathBuf]) -> anyhow::Result<f64> {
+    let t = Instant::now();
+    let mut bytes = 0usize;
+    for p in paths {
+        bytes += std::fs::read(p).with_context(|| format!("reading {}", p.display()))?.len();
+    }
+    std::hint::black_box(bytes);
+    Ok(t.elapsed().as_secs_f64())
+}
+
+fn drop_caches() -> bool {
+    let _ = std::process::Command::new("sync").status();
+    std::fs::write("/proc/sys/vm/drop_caches", "3\n").is_ok()
+}
+
+pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<Ingest> {
+    let (n, clip, tile) = shape(size);
+    let source = open(prepared)?;
+    let mut centres = jumps(n, clip);
+    // Twice over, so that tiles evicted by the first pass are read again.
+    centres.extend(centres.clone());
+    let path_of = |tile: TileId| {
+        let level = &prepared.layout.levels[tile.level as usize];
+        prepared.root.join(prepared.layout.tile(level, tile.s, tile.t).path)
+    };
+    // Warm the page cache with every file the flight reads (and the engine's first run).
+    let (_, warm, _) = engine_run(&source, &centres)?;
+    let warm_paths: Vec<PathBuf> = warm.iter().map(|&t| path_of(t)).collect();
+    read_run(&warm_paths)?;
+
+    let (mut eng, mut plain, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut tiles_per_run, mut bytes_per_run) = (0, 0);
+    let (mut ef, mut rf, mut ec, mut rc) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for _ in 0..runs {
+        let p0 = proc_self();
+        let (e, log, _) = engine_run(&source, &centres)?;
+        let p1 = proc_self();
+        let paths: Vec<PathBuf> = log.iter().map(|&t| path_of(t)).collect();
+        let p2 = proc_self();
+        let plain_s = read_run(&paths)?;
+        let p3 = proc_self();
+        let tiles = log.len().max(1) as f64;
+        ef.push((p1.minor_faults - p0.minor_faults) as f64 / tiles);
+        rf.push((p3.minor_faults - p2.minor_faults) as f64 / tiles);
+        ec.push((p1.cpu_s - p0.cpu_s) * 1e6 / tiles);
+        rc.push((p3.cpu_s - p2.cpu_s) * 1e6 / tiles);
+        tiles_per_run = log.len();
+        bytes_per_run = log.iter().map(|t| source.desc().tile_bytes(t.level) as u64).sum();
+        let (e_rate, p_rate) = (log.len() as f64 / e, log.len() as f64 / plain_s);
+        eng.push(e_rate);
+        plain.push(p_rate);
+        ratio.push(e_rate / p_rate);
+    }
+
+    let drop_ok = drop_caches();
+    let cold = if drop_ok {
+        let (e, log, _) = engine_run(&source, &centres)?;
+        let paths: Vec<PathBuf> = log.iter().map(|&t| path_of(t)).collect();
+        drop_caches();
+        let p = read_run(&paths)?;
+        let (e_rate, p_rate) = (log.len() as f64 / e, log.len() as f64 / p);
+        // Leave the page cache warm for what follows.
+        read_run(&paths)?;
+        Some(Cold { engine_tiles_per_s: e_rate, read_tiles_per_s: p_rate, ratio: e_rate / p_rate })
+    } else {
+        None
+    };
+    Ok(Ingest {
+        texture: n,
+        clip,
+        tile,
+        tile_bytes: source.desc().tile_bytes(0) as u64,
+        jumps_per_run: centres.len(),
+        tiles_per_run,
+        bytes_per_run,
+        engine_tiles_per_s: Stat::of(eng),
+        read_tiles_per_s: Stat::of(plain),
+        ratio: Stat::of(ratio),
+        engine_faults_per_tile: Stat::of(ef),
+        read_faults_per_tile: Stat::of(rf),
+        engine_cpu_us_per_tile: Stat::of(ec),
+        read_cpu_us_per_tile: Stat::of(rc),
+        drop_caches: drop_ok,
+        cold,
+    })
+}

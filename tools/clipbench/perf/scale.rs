@@ -1,0 +1,124 @@
+//! Scale: a 2^26 x 2^26 procedural texture flown at 1000 level-0 texels per tick along +s, 60
+//! ticks a second in real time (each tick starts at its slot; reads run in the background as in
+//! the service), with the default copy budget and load control. Counts ticks over budget, ticks
+//! with disabled levels, late ticks (longer than the tick period) and the throughput; then the
+//! same flight, shorter, with a lookahead of tiles that covers two ticks of motion, to show
+//! whether reading ahead is what limits it.
+
+use super::{quantile, Size};
+use clipmap::clip::{Clipmap, Settings};
+use clipmap::service::{procedural_source, Procedural};
+use serde::Serialize;
+use std::time::{Duration, Instant};
+
+/// What the real-time flight measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct Scale {
+    /// Extra tile rows and columns read ahead.
+    pub lookahead: u64,
+    pub texture: u64,
+    pub clip: u64,
+    pub tile: u64,
+    pub texels_per_tick: i64,
+    pub tick_hz: f64,
+    pub seconds: f64,
+    pub budget_ms: f64,
+    pub ticks: u64,
+    pub ticks_over_budget: u64,
+    pub ticks_with_disabled_levels: u64,
+    /// Most levels disabled at once.
+    pub max_disabled_levels: usize,
+    /// Mean min LOD over the ticks (0: level 0 always shown).
+    pub mean_min_lod: f64,
+    /// Ticks that took longer than the tick period.
+    pub late_ticks: u64,
+    pub tick_p50_s: f64,
+    pub tick_p99_s: f64,
+    pub tick_max_s: f64,
+    pub bytes_copied_per_s: f64,
+    pub tiles_read_per_s: f64,
+    /// Level-0 texels the centre moved per second of wall time.
+    pub texels_flown_per_s: f64,
+    /// CPU time of this process (update tick and tile reads) per second of the flight: 2.0 on two
+    /// cores means the machine, not the engine's pacing, is the limit.
+    pub cpu_cores_used: f64,
+}
+
+/// The default flight, and the same with a lookahead of two ticks of motion.
+pub fn measure(size: Size) -> anyhow::Result<(Scale, Scale)> {
+    let (clip, tile, seconds, again) = match size {
+        Size::Full => (2048, 256, 60.0, 20.0),
+        Size::Quick => (2048, 256, 5.0, 3.0),
+        Size::Smoke => (256, 64, 0.5, 0.5),
+    };
+    let plain = fly(clip, tile, seconds, None)?;
+    let ahead = fly(clip, tile, again, Some((2 * 1000u64).div_ceil(tile)))?;
+    Ok((plain, ahead))
+}
+
+fn fly(clip: u64, tile: u64, seconds: f64, lookahead: Option<u64>) -> anyhow::Result<Scale> {
+    let texture = 1u64 << 26;
+    let (speed, hz) = (1000i64, 60.0);
+    let source = procedural_source(Procedural::Hash, texture, clip, tile)?;
+    let mut settings = Settings::default();
+    if let Some(l) = lookahead {
+        settings.lookahead = l;
+    }
+    let lookahead = settings.lookahead;
+    let budget_ms = settings.budget_ns.unwrap_or(0) as f64 / 1e6;
+    let mut map = Clipmap::new(source, settings)?;
+    // Start where the whole flight stays inside the texture, filled (untimed).
+    let mut c = [(texture / 4) as i64, (texture / 2) as i64];
+    for _ in 0..100 {
+        if map.tick(c, Some([0, 0])).min_lod == 0.0 {
+            break;
+        }
+        map.wait_for_reads();
+    }
+    let before = map.stats().clone();
+    let period = Duration::from_secs_f64(1.0 / hz);
+    let ticks = (seconds * hz) as u64;
+    let (mut times, mut over, mut disabled, mut max_disabled, mut lod_sum, mut late) =
+        (Vec::new(), 0u64, 0u64, 0usize, 0.0, 0u64);
+    let cpu_before = super::proc_self().cpu_s;
+    let start = Instant::now();
+    for i in 0..ticks {
+        std::thread::sleep((start + period * i as u32).saturating_duration_since(Instant::now()));
+        c[0] += speed;
+        let t = Instant::now();
+        let r = map.tick(c, Some([speed, 0]));
+        let dt = t.elapsed();
+        times.push(dt.as_secs_f64());
+        late += (dt > period) as u64;
+        over += r.over_budget as u64;
+        disabled += !r.disabled_levels.is_empty() as u64;
+        max_disabled = max_disabled.max(r.disabled_levels.len());
+        lod_sum += r.min_lod;
+    }
+    let wall = start.elapsed().as_secs_f64();
+    let cpu = super::proc_self().cpu_s - cpu_before;
+    let after = map.stats();
+    Ok(Scale {
+        lookahead,
+        texture,
+        clip,
+        tile,
+        texels_per_tick: speed,
+        tick_hz: hz,
+        seconds: wall,
+        budget_ms,
+        ticks,
+        ticks_over_budget: over,
+        ticks_with_disabled_levels: disabled,
+        max_disabled_levels: max_disabled,
+        mean_min_lod: lod_sum / ticks.max(1) as f64,
+        late_ticks: late,
+        tick_p50_s: quantile(&times, 0.5),
+        tick_p99_s: quantile(&times, 0.99),
+        tick_max_s: quantile(&times, 1.0),
+        bytes_copied_per_s: (after.bytes_copied - before.bytes_copied) as f64 / wall,
+        tiles_read_per_s: (after.tiles_read - before.tiles_read) as f64 / wall,
+        texels_flown_per_s: (speed as u64 * ticks) as f64 / wall,
+        cpu_cores_used: cpu / wall,
+    })
+}
