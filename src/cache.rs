@@ -104,6 +104,11 @@ impl TileCache {
     /// Moves level `k`'s mem region to `mem` (at most grid-sized): tiles that left are freed, new
     /// tiles start absent. Returns the number of resident tiles evicted.
     pub fn set_mem_region(&mut self, k: u32, mem: Rect) -> u64 {
+        self.set_mem_region_recycling(k, mem, drop)
+    }
+
+    /// [`set_mem_region`](Self::set_mem_region), handing each evicted tile's buffer to `recycle`.
+    pub fn set_mem_region_recycling(&mut self, k: u32, mem: Rect, mut recycle: impl FnMut(Vec<u8>)) -> u64 {
         let level = &mut self.levels[k as usize];
         debug_assert!(mem.width() <= level.grid[0] && mem.height() <= level.grid[1], "mem region larger than grid");
         level.mem = mem;
@@ -114,9 +119,10 @@ impl TileCache {
                 let i = level.slot_index([s, t]);
                 let slot = &mut level.slots[i];
                 if slot.tile != Some([s, t]) {
-                    if slot.data.take().is_some() {
+                    if let Some(buf) = slot.data.take() {
                         evicted += 1;
                         freed += level.tile_bytes;
+                        recycle(buf);
                     }
                     *slot = Slot { tile: Some([s, t]), state: TileState::Absent, data: None };
                 }
@@ -127,9 +133,10 @@ impl TileCache {
         if mem.area() < (gw * gh) as u64 {
             for slot in level.slots.iter_mut() {
                 if slot.tile.is_some_and(|[s, t]| !mem.contains(s, t)) {
-                    if slot.data.take().is_some() {
+                    if let Some(buf) = slot.data.take() {
                         evicted += 1;
                         freed += level.tile_bytes;
+                        recycle(buf);
                     }
                     *slot = EMPTY_SLOT;
                 }

@@ -281,6 +281,11 @@ impl Clipmap {
         &self.stats
     }
 
+    /// How the reads' tile buffers were served: handed back by evictions, or freshly allocated.
+    pub fn read_buffers(&self) -> crate::queue::PoolCounts {
+        self.queues.buffer_counts()
+    }
+
     /// Each read queue's counters, in stream-server order (their sum is `stats().queue`).
     pub fn stream_stats(&self) -> Vec<crate::queue::QueueStats> {
         self.queues.stream_stats()
@@ -449,7 +454,9 @@ impl Clipmap {
             let c = level.centre_override.unwrap_or_else(|| default_centre(centre, k32));
             let v = velocity.map(|x| if x != 0 && (x >> k32.min(63)) == 0 { x.signum() } else { x >> k32.min(63) });
             level.frame = level.shape.frame(c, self.border, v);
-            self.stats.tiles_evicted += self.cache.set_mem_region(k32, level.frame.mem);
+            let queues = &self.queues;
+            self.stats.tiles_evicted +=
+                self.cache.set_mem_region_recycling(k32, level.frame.mem, |buf| queues.recycle(buf));
             for tile in self.cache.wanted(k32, self.tick) {
                 let texels = tile_texels(level.shape.size, level.shape.tile, [tile.s, tile.t]);
                 let p = priority(k32, count, texels, level.frame.valid, level.shape.clip, v);

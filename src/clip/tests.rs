@@ -169,6 +169,25 @@ fn wrap_crossing_moves_copy_only_the_new_strips() {
 }
 
 #[test]
+fn evicted_tiles_buffers_are_reused_and_every_published_texel_stays_right() {
+    // A long flight over small tiles: tiles leave the mem regions every few ticks, their buffers
+    // go back to the read queues and come back holding other tiles' texels.
+    let mut map = Clipmap::new(hash_source([1 << 16, 1 << 16], 64, 16, 4, TexelFormat::RGBA8), settings(None)).unwrap();
+    let mut errors = Vec::new();
+    settle(&mut map, [1000, 1000], 30);
+    for i in 1..=200i64 {
+        map.tick_with([1000 + 7 * i, 1000 + 3 * i], None, &mut checker(&mut errors));
+        map.wait_for_reads();
+    }
+    settle(&mut map, [2400, 1600], 30);
+    assert!(errors.is_empty(), "{errors:?}");
+    assert!(check_published(&map).unwrap() > 0);
+    let b = map.read_buffers();
+    assert!(b.reused > 100, "evicted buffers are read into again: {b:?}");
+    assert!(b.reused + b.allocated >= map.stats().queue.reads_done, "every read took a buffer: {b:?}");
+}
+
+#[test]
 fn each_fault_kind_disables_the_level_never_publishes_a_wrong_texel_and_heals() {
     let faults = [
         (Fault::Missing, FaultKind::Missing),

@@ -16,9 +16,11 @@
 //! channel capacity. A tile leaving every mem region is dropped from the queue at the next update
 //! (counted as stale); a tile wanted while its read runs is coalesced with it.
 
+pub mod pool;
 pub mod priority;
 mod runner;
 
+pub use pool::{BufferPool, PoolCounts};
 pub use priority::{priority, Priority};
 
 use crate::limits::Limits;
@@ -123,6 +125,7 @@ pub struct ReadQueues {
     drained: Vec<usize>,
     counters: Vec<QueueStats>,
     skipped: u64,
+    pool: BufferPool,
 }
 
 impl ReadQueues {
@@ -139,10 +142,12 @@ impl ReadQueues {
             .build()
             .map_err(QueueError::Runtime)?;
         let (tx, events) = std_mpsc::channel();
+        // Enough spare buffers for a few rounds of reads in flight; evictions beyond are freed.
+        let pool = BufferPool::new(4 * streams * limits.max_in_flight_reads.max(1));
         let handles = (0..streams)
             .map(|stream| {
                 let (commands, rx) = mpsc::channel(limits.queue_commands.max(1));
-                let runner = Runner::new(stream, rx, tx.clone(), Arc::clone(&source), limits);
+                let runner = Runner::new(stream, rx, tx.clone(), Arc::clone(&source), limits, pool.clone());
                 runtime.spawn(runner.run());
                 QueueHandle { commands }
             })
@@ -155,6 +160,7 @@ impl ReadQueues {
             drained: vec![0; streams],
             counters: vec![QueueStats::default(); streams],
             skipped: 0,
+            pool,
         })
     }
 
@@ -183,6 +189,16 @@ impl ReadQueues {
                 Err(_) => self.skipped += 1,
             }
         }
+    }
+
+    /// Hands a tile buffer that is no longer needed (an evicted tile's) back for later reads.
+    pub fn recycle(&self, buf: Vec<u8>) {
+        self.pool.give(buf);
+    }
+
+    /// How the reads' buffers were served so far.
+    pub fn buffer_counts(&self) -> PoolCounts {
+        self.pool.counts()
     }
 
     /// Takes every finished read, oldest first. Never blocks.

@@ -4,7 +4,7 @@
 //! delivered but not yet taken, and the queue's counters. Nothing else touches them: the handle
 //! only sends commands. Reads run on `spawn_blocking` threads, never on the async workers.
 
-use super::{Completion, Priority, QueueStats, ReadRequest};
+use super::{BufferPool, Completion, Priority, QueueStats, ReadRequest};
 use crate::limits::Limits;
 use crate::source::{SourceError, TileId, TileSource};
 use std::collections::{HashMap, HashSet, VecDeque};
@@ -43,6 +43,7 @@ pub(super) struct Runner {
     reads: JoinSet<Completion>,
     flushes: Vec<oneshot::Sender<()>>,
     stats: QueueStats,
+    pool: BufferPool,
 }
 
 impl Runner {
@@ -52,6 +53,7 @@ impl Runner {
         events: std_mpsc::Sender<Event>,
         source: Arc<dyn TileSource>,
         limits: Limits,
+        pool: BufferPool,
     ) -> Self {
         Runner {
             stream,
@@ -65,6 +67,7 @@ impl Runner {
             reads: JoinSet::new(),
             flushes: Vec::new(),
             stats: QueueStats::default(),
+            pool,
         }
     }
 
@@ -109,11 +112,14 @@ impl Runner {
             let request = self.pending.remove(0);
             let tile = request.tile;
             let source = Arc::clone(&self.source);
+            let pool = self.pool.clone();
             self.in_flight.insert(tile);
             self.stats.reads_started += 1;
             self.reads.spawn(async move {
                 let read = tokio::task::spawn_blocking(move || {
-                    let mut buf = vec![0u8; source.desc().tile_bytes(tile.level)];
+                    // A reused buffer holds old texels: the source overwrites every byte on success,
+                    // and on failure the buffer is dropped with the error.
+                    let mut buf = pool.take(source.desc().tile_bytes(tile.level));
                     source.read_tile(tile, &mut buf).map(|()| buf)
                 });
                 let result = read.await.unwrap_or_else(|e| {

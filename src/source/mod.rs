@@ -132,7 +132,9 @@ pub trait TileSource: Send + Sync {
     fn desc(&self) -> &TextureDesc;
 
     /// Reads `tile` into `out`, which must be exactly [`TextureDesc::tile_bytes`] of its level
-    /// long, laid out as described in the [module docs](self). On error `out` holds no promise.
+    /// long, laid out as described in the [module docs](self). On success every byte of `out` has
+    /// been written (buffers are reused, so a byte left alone would be an old tile's); on error
+    /// `out` holds no promise.
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError>;
 
     /// Number of stream servers (separate disks, one read queue each) the source is laid out
