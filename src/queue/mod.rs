@@ -143,7 +143,7 @@ impl ReadQueues {
             .map_err(QueueError::Runtime)?;
         let (tx, events) = std_mpsc::channel();
         // Enough spare buffers for a few rounds of reads in flight; evictions beyond are freed.
-        let pool = BufferPool::new(4 * streams * limits.max_in_flight_reads.max(1));
+        let pool = BufferPool::new(16 * streams * limits.max_in_flight_reads.max(1));
         let handles = (0..streams)
             .map(|stream| {
                 let (commands, rx) = mpsc::channel(limits.queue_commands.max(1));
