@@ -184,7 +184,6 @@ fn evicted_tiles_buffers_are_reused_and_every_published_texel_stays_right() {
     assert!(check_published(&map).unwrap() > 0);
     let b = map.read_buffers();
     assert!(b.reused > 100, "evicted buffers are read into again: {b:?}");
-    assert!(b.reused + b.allocated >= map.stats().queue.reads_done, "every read took a buffer: {b:?}");
 }
 
 #[test]

@@ -1,7 +1,7 @@
 //! Tile buffers handed back for reuse.
 //!
 //! Every read needs a tile-sized buffer, and a fresh `vec![0; n]` costs a page-zeroing pass over
-//! it before the read overwrites every byte (9% of the read threads' time in the ingest profile
+//! it before the read overwrites every byte (`memset`: 9% of all samples in the ingest profile
 //! of docs/BENCHMARKS.md). The tile cache hands the buffers of evicted tiles back here and the
 //! runners take them for their next reads. Reuse is safe because a [`TileSource`] that answers
 //! `Ok` has written every byte of its buffer (its contract); a buffer whose read failed is never

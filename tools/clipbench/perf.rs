@@ -222,14 +222,14 @@ fn engine_child(size: Size, runs: usize) -> anyhow::Result<serde_json::Value> {
             cmd.arg("--smoke");
         }
     }
-    let out = cmd.output().context("running clipbench engine")?;
-    anyhow::ensure!(
-        out.status.success(),
-        "clipbench engine failed ({}): {}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).context("reading clipbench engine's JSON")
+    child_json(&mut cmd, "clipbench engine")
+}
+
+/// Runs a child that prints one JSON value on success; its stderr goes into the error otherwise.
+fn child_json<T: serde::de::DeserializeOwned>(cmd: &mut std::process::Command, what: &str) -> anyhow::Result<T> {
+    let out = cmd.output().with_context(|| format!("running {what}"))?;
+    anyhow::ensure!(out.status.success(), "{what} failed ({}): {}", out.status, String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).with_context(|| format!("reading {what}'s JSON"))
 }
 
 fn field(v: &serde_json::Value, path: &[&str]) -> anyhow::Result<f64> {

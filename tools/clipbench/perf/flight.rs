@@ -227,16 +227,6 @@ fn run_gdal(
     let spec = dir.join("frames.json");
     let body = serde_json::json!({ "tif": tif, "sizes": sizes, "runs": runs, "frames": windows });
     std::fs::write(&spec, serde_json::to_vec(&body)?)?;
-    let out = std::process::Command::new(&g.python)
-        .arg(&script)
-        .arg(&spec)
-        .output()
-        .with_context(|| format!("running {}", g.python.display()))?;
-    anyhow::ensure!(
-        out.status.success(),
-        "the GDAL reader failed ({}): {}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).context("reading the GDAL reader's JSON")
+    let what = format!("the GDAL reader ({} {})", g.python.display(), script.display());
+    super::child_json(std::process::Command::new(&g.python).arg(&script).arg(&spec), &what)
 }
