@@ -19,6 +19,7 @@
 //! ```text
 //! cargo run --release --example strip_layout                    # +s and +t, 64 texels a tick
 //! cargo run --release --example strip_layout -- --speed 16 --runs 7
+//! cargo run --release --example strip_layout -- --granule 16 --huge  # 16-texel centre steps, 2 MiB pages
 //! ```
 
 use std::time::Instant;
@@ -175,7 +176,7 @@ struct Flight {
 fn fly(
     layout: Layout,
     clip: usize,
-    wins: &mut [Vec<u8>],
+    wins: &mut [Buf],
     tiles: &Tiles,
     f: &Flight,
     start: u64,
@@ -217,6 +218,47 @@ fn fly(
     (bytes, secs)
 }
 
+/// A window's bytes: a plain allocation, or anonymous memory the kernel is asked to back with
+/// transparent huge pages (`--huge`), so that a column strip's 2048 rows touch a few 2 MiB pages
+/// instead of 2048 pages of 4 KiB.
+enum Buf {
+    Plain(Vec<u8>),
+    Huge(memmap2::MmapMut),
+}
+
+impl Buf {
+    fn new(len: usize, huge: bool) -> Buf {
+        if !huge {
+            return Buf::Plain(vec![1u8; len]);
+        }
+        let mut m = memmap2::MmapMut::map_anon(len).expect("an anonymous mapping for a window");
+        if let Err(e) = m.advise(memmap2::Advice::HugePage) {
+            eprintln!("strip_layout: madvise(MADV_HUGEPAGE) refused ({e}); the window stays on small pages");
+        }
+        m.fill(1);
+        Buf::Huge(m)
+    }
+}
+
+impl std::ops::Deref for Buf {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            Buf::Plain(v) => v,
+            Buf::Huge(m) => m,
+        }
+    }
+}
+
+impl std::ops::DerefMut for Buf {
+    fn deref_mut(&mut self) -> &mut [u8] {
+        match self {
+            Buf::Plain(v) => v,
+            Buf::Huge(m) => m,
+        }
+    }
+}
+
 fn memcpy_rate(bytes: usize, src: &[u8], dst: &mut [u8]) -> f64 {
     let t = Instant::now();
     let (mut done, mut off) = (0, 0);
@@ -242,6 +284,7 @@ fn main() {
     let mut speed = 64u64;
     let mut runs = 5usize;
     let mut granule = 1u64;
+    let mut huge = false;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut num = |what: &str| -> u64 {
@@ -254,8 +297,9 @@ fn main() {
             "--speed" => speed = num("--speed").max(1),
             "--runs" => runs = num("--runs").max(1) as usize,
             "--granule" => granule = num("--granule").max(1),
+            "--huge" => huge = true,
             _ => {
-                eprintln!("strip_layout: unknown argument {a:?}; expected --speed N, --runs N or --granule G");
+                eprintln!("strip_layout: unknown argument {a:?}; expected --speed N, --runs N, --granule G or --huge");
                 std::process::exit(2)
             }
         }
@@ -270,6 +314,7 @@ fn main() {
         "steady flights of {speed} level-0 texels a tick, clip {clip}, RGBA8, {levels} stack levels, 256-texel tiles"
     );
     println!("each level's centre moves in steps of {granule} level texels");
+    println!("windows {}", if huge { "on transparent huge pages (--huge)" } else { "in plain allocations" });
     println!("median of {runs} runs of 32 ticks; memcpy of the same bytes in 1 MiB pieces after each run\n");
     println!("{:<8} {:<15} {:>12} {:>12} {:>8} {:>12}", "flight", "layout", "MiB/s", "memcpy", "ratio", "us/tick");
     for (fname, dir) in [("+s", (1, 0)), ("+t", (0, 1))] {
@@ -279,7 +324,7 @@ fn main() {
             // 96 tiles: 24 MiB, beyond the first two cache levels. Bricked tiles stand for a
             // tile cache that re-lays tiles out once as they are read.
             let tiles = Tiles::new(96, tb);
-            let mut wins: Vec<Vec<u8>> = (0..levels).map(|_| vec![1u8; layout.bytes(clip)]).collect();
+            let mut wins: Vec<Buf> = (0..levels).map(|_| Buf::new(layout.bytes(clip), huge)).collect();
             let f = Flight { dir, speed, ticks: 32, levels, granule };
             let (mut rates, mut copies, mut ratios, mut per_tick) = (vec![], vec![], vec![], vec![]);
             for r in 0..runs {

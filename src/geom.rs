@@ -91,6 +91,16 @@ pub fn default_centre(centre0: [i64; 2], k: u32) -> [i64; 2] {
     [centre0[0] >> k, centre0[1] >> k]
 }
 
+/// Level `k`'s centre when level centres are aligned down to multiples of `alignment` level
+/// texels (Performer's "shift and mask"; floor also for negative centres). `alignment` 0 or 1
+/// gives [`default_centre`].
+pub fn aligned_centre(centre0: [i64; 2], k: u32, alignment: u64) -> [i64; 2] {
+    let c = default_centre(centre0, k);
+    let a = alignment.clamp(1, 1 << 62) as i64;
+    // Saturating: near i64::MIN the multiple below may not exist.
+    c.map(|x| x.saturating_sub(x.rem_euclid(a)))
+}
+
 /// Euclidean `x mod m` (in `0..m` also for negative `x`). `m` must be in 1..=2^62.
 pub fn wrap(x: i64, m: u64) -> u64 {
     x.rem_euclid(m as i64) as u64
@@ -275,6 +285,11 @@ mod tests {
         assert_eq!(valid_region([100, 8], 10, 2, tex), Rect::new(47, 0, 53, 8));
         assert_eq!(effective_size(1024, 16), 992);
         assert_eq!(default_centre([-1, 5], 1), [-1, 2]);
+        assert_eq!(aligned_centre([-1, 5], 1, 1), [-1, 2]);
+        assert_eq!(aligned_centre([-1, 5], 1, 0), [-1, 2]);
+        assert_eq!(aligned_centre([-1, 37], 1, 8), [-8, 16]);
+        assert_eq!(aligned_centre([100, -100], 2, 3), [24, -27]);
+        assert_eq!(aligned_centre([i64::MIN, i64::MAX], 0, 3), [i64::MIN, i64::MAX - i64::MAX.rem_euclid(3)]);
         assert_eq!(wrap(-1, 16), 15);
         assert_eq!(window_index(-1, 17, 16, [16, 16]), 16 + 15);
     }
@@ -305,6 +320,22 @@ mod tests {
             };
             prop_assert_eq!((r.s0, r.s1), oracle(sw, cs));
             prop_assert_eq!((r.t0, r.t1), oracle(sh, ct));
+        }
+
+        #[test]
+        fn aligned_centres_are_the_nearest_multiple_at_or_below(
+            c in -5000i64..5000, k in 0u32..6, a in 0u64..40,
+        ) {
+            // Oracle: walk down from the level centre to the first multiple of the alignment.
+            let step = a.max(1) as i64;
+            let oracle = |level: i64| {
+                let mut w = level;
+                while w.rem_euclid(step) != 0 {
+                    w -= 1;
+                }
+                w
+            };
+            prop_assert_eq!(aligned_centre([c, -c], k, a), [oracle(c >> k), oracle((-c) >> k)]);
         }
 
         #[test]

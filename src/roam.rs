@@ -265,6 +265,8 @@ pub struct RoamReport {
     pub levels: usize,
     /// The flight flown.
     pub flight: Flight,
+    /// Level centres were aligned to multiples of this many level texels (1: texel-exact).
+    pub centre_alignment: u64,
     /// Per frame.
     pub frames: Vec<FrameReport>,
     /// Totals.
@@ -278,6 +280,7 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
     let desc = options.source.desc().clone();
     let mut settings = options.settings;
     settings.budget_ns = options.budget_ms.map(|ms| (ms.max(0.0) * 1e6) as u64);
+    let settings_alignment = settings.centre_alignment.max(1);
     let mut map = Clipmap::new(options.source, settings)?;
     if let Some(border) = options.invalid_border {
         map.set_invalid_border(border);
@@ -316,6 +319,7 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
         size,
         levels: desc.level_count(),
         flight: options.flight,
+        centre_alignment: settings_alignment,
         frames,
         totals,
         stats: map.stats().clone(),
@@ -331,6 +335,9 @@ pub fn human(report: &RoamReport) -> String {
         "{}x{} texels, {} levels, clip size {}, {} bytes per texel; flight {:?}",
         report.size[0], report.size[1], report.levels, report.clip_size, report.bytes_per_texel, report.flight
     );
+    if report.centre_alignment > 1 {
+        let _ = writeln!(o, "level centres aligned to multiples of {} level texels", report.centre_alignment);
+    }
     let _ = writeln!(
         o,
         "{:>6} {:>22} {:>14} {:>7} {:>7} {:>6}  disabled",

@@ -143,6 +143,37 @@ fn a_diagonal_flight_copies_the_l_shaped_strips() {
 }
 
 #[test]
+fn aligned_centres_copy_strips_a_whole_step_wide_and_only_when_a_level_steps() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut args = vec!["--source", "hash", "--size", "65536", "--clip", "256", "--tile", "64"];
+    args.extend(["--flight", "straight:3", "--frames", "24", "--budget-ms", "inf", "--wait-for-reads"]);
+    args.extend(["--centre-alignment", "8"]);
+    let r = roam_json(dir.path(), &args);
+    assert_eq!(u(&r["centre_alignment"]), 8);
+    let (clip, bpt, levels, centres, bytes) = contract(&r, 24);
+    // Level k's window centre is (c >> k) aligned down to a multiple of 8: a frame copies an
+    // 8 x clip strip for each level whose aligned centre changed, and nothing otherwise.
+    let aligned = |c: i64, k: usize| (c >> k).div_euclid(8) * 8;
+    let stack = levels.iter().filter(|&&size| size > clip).count();
+    let mut steps = 0;
+    for f in 4..24 {
+        let moved = (0..stack).filter(|&k| aligned(centres[f][0], k) != aligned(centres[f - 1][0], k)).count();
+        assert_eq!(bytes[f], moved as u64 * 8 * clip as u64 * bpt, "frame {f}: {:?}", centres[f]);
+        steps += moved;
+    }
+    assert!(steps >= 8, "the flight crossed several alignment steps: {steps}");
+    let (out, d) = cliptex(
+        dir.path(),
+        &["roam", "--source", "hash", "--size", "4096", "--clip", "128"]
+            .into_iter()
+            .chain(["--flight", "hover", "--frames", "2", "--centre-alignment", "0"])
+            .collect::<Vec<_>>(),
+    );
+    assert_eq!(out.status.code(), Some(2), "{d}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--centre-alignment"), "{d}");
+}
+
+#[test]
 fn a_flight_over_the_prepared_example_reads_its_files_from_any_working_directory() {
     let ct = Path::new(env!("CARGO_MANIFEST_DIR")).join("config_examples/prepared/hash256.ct");
     let dir = tempfile::tempdir().unwrap();

@@ -232,6 +232,20 @@ fn readers_in_rust_c_and_python_verify_every_texel_while_the_centre_moves_fast()
 }
 
 #[test]
+fn with_aligned_level_centres_a_driving_reader_still_sees_only_right_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "steps", &["--centre-alignment", "8", "--budget-ms", "2"]);
+    let out = rust_reader(d, "steps", &["--drive", "--reads", "1000000000000", "--seconds", "1"]).output().unwrap();
+    let (passed, failed) = counts(&out, "rust driver");
+    assert_eq!(failed, 0, "{failed} mismatches\n{}\n{}", String::from_utf8_lossy(&out.stderr), svc.dump());
+    assert!(out.status.success(), "{:?}\n{}", out.status, String::from_utf8_lossy(&out.stderr));
+    assert!(passed > 10_000, "only {passed} texels checked");
+    let stats = json_reply(&svc.ask("STATS"));
+    assert_eq!(stats["engine"]["writes_into_published"], 0, "{stats}");
+}
+
+#[test]
 fn kill_9_mid_update_readers_see_no_torn_state_notice_the_stale_heartbeat_and_reattach() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
@@ -476,6 +490,7 @@ fn bad_options_exit_with_status_1_and_say_why() {
         (&["--source", "hash", "--size", "1000", "--shm-dir", d], "size"),
         (&["--source", "hash", "--tick-hz", "0", "--shm-dir", d], "--tick-hz"),
         (&["--source", "hash", "--budget-ms", "soon", "--shm-dir", d], "--budget-ms"),
+        (&["--source", "hash", "--centre-alignment", "0", "--shm-dir", d], "--centre-alignment"),
         (&["--source", "hash", "--name", "../x", "--shm-dir", d], "invalid name"),
         (&["--shm-dir", d], "--source"),
     ];

@@ -47,6 +47,10 @@ enum Command {
         /// A tiny texture (2^12, clip 128): checks that the benchmark runs (for tests).
         #[arg(long, hide = true, conflicts_with = "quick")]
         smoke: bool,
+        /// Align each level's centre to multiples of this many level texels (1: texel-exact, the
+        /// engine's default; Performer's InfiniteReality used 8).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=clipmap::clip::MAX_CENTRE_ALIGNMENT))]
+        centre_alignment: u64,
     },
     /// Every performance comparison in one run: engine against memcpy, tile ingest against plain
     /// reads, per-frame cost against GDAL and full reloads, memory against the formula, a 2^26
@@ -82,20 +86,22 @@ fn main() -> ExitCode {
     let code = match cli.command {
         Command::Accuracy { quick, out, json, quiet } => accuracy(quick, out, json, quiet),
         Command::Perf(args) => perf::main(args),
-        Command::Engine { quick, runs, json, smoke } => match engine::engine(engine_size(quick, smoke), runs) {
-            Ok(r) => {
-                if json {
-                    println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
-                } else {
-                    print!("{}", engine::human(&r));
+        Command::Engine { quick, runs, json, smoke, centre_alignment } => {
+            match engine::engine(engine_size(quick, smoke), runs, centre_alignment) {
+                Ok(r) => {
+                    if json {
+                        println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
+                    } else {
+                        print!("{}", engine::human(&r));
+                    }
+                    0
                 }
-                0
+                Err(e) => {
+                    eprintln!("clipbench engine: {e:#}");
+                    2
+                }
             }
-            Err(e) => {
-                eprintln!("clipbench engine: {e:#}");
-                2
-            }
-        },
+        }
     };
     ExitCode::from(code)
 }

@@ -67,6 +67,11 @@ struct Cli {
     /// Invalid border in texels (default: the texture's).
     #[arg(long)]
     border: Option<u64>,
+    /// Align each level's centre down to a multiple of this many level texels (1: texel-exact).
+    /// Larger values copy column strips wider and less often, at the cost of up to
+    /// ALIGNMENT - 1 texels of each level's valid region on the side the view moves towards.
+    #[arg(long, default_value_t = 1)]
+    centre_alignment: u64,
     /// Close control connections idle for this many milliseconds.
     #[arg(long, default_value_t = 30_000)]
     idle_ms: u64,
@@ -119,6 +124,7 @@ fn options(cli: &Cli, default_name: &str) -> Result<Options, Failure> {
     };
     o.tick_hz = cli.tick_hz;
     o.invalid_border = cli.border;
+    o.centre_alignment = cli.centre_alignment;
     o.control = ControlLimits {
         idle: Duration::from_millis(cli.idle_ms),
         max_connections: cli.max_connections,

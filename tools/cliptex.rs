@@ -256,6 +256,11 @@ struct RoamArgs {
     /// Wait for every read between frames (an ideally fast disk): the report is deterministic.
     #[arg(long)]
     wait_for_reads: bool,
+    /// Align each level's centre down to a multiple of this many level texels (1: texel-exact;
+    /// Performer's InfiniteReality used 8). Copies column strips wider and less often, at the
+    /// cost of up to ALIGNMENT - 1 texels of each level on the side the view moves towards.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=clipmap::clip::MAX_CENTRE_ALIGNMENT))]
+    centre_alignment: u64,
     /// Print JSON instead of the per-frame table.
     #[arg(long)]
     json: bool,
@@ -349,7 +354,10 @@ fn roam(args: RoamArgs) -> i32 {
             return exit::COULD_NOT_RUN;
         }
     };
+    let mut settings = options.settings;
+    settings.centre_alignment = args.centre_alignment;
     let options = roam::RoamOptions {
+        settings,
         budget_ms: args.budget_ms.is_finite().then_some(args.budget_ms),
         wait_for_reads: args.wait_for_reads,
         invalid_border: args.border,

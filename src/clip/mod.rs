@@ -21,7 +21,7 @@ pub use load::{next_min_lod, target_min_lod, CostTable};
 pub use stats::{FaultCounts, Stats, TickReport};
 
 use crate::cache::{Admit, TileCache};
-use crate::geom::{default_centre, tile_texels, LevelFrame, LevelShape, Rect};
+use crate::geom::{aligned_centre, tile_texels, LevelFrame, LevelShape, Rect};
 use crate::limits::Limits;
 use crate::queue::{priority, QueueError, ReadQueues, ReadRequest};
 use crate::source::{TextureDesc, TileSource};
@@ -45,6 +45,13 @@ pub struct Settings {
     pub fade_ticks: u32,
     /// Most level-0 texels the centre may move per tick along each axis; `None`: unclamped.
     pub max_centre_step: Option<u64>,
+    /// Each level's centre (level 0's shifted right by the level) is aligned down to a multiple
+    /// of this many level texels, Performer's "shift and mask" (its InfiniteReality aligned to 8).
+    /// 1 (or 0) keeps centres texel-exact. Larger values make a level's window move in steps, so
+    /// column strips are copied wider and less often (faster), while the valid region lags the
+    /// true centre by up to `alignment - 1` level texels on the side the view moves towards
+    /// (less of the finest level there). Levels given their own centre are not aligned.
+    pub centre_alignment: u64,
     /// Ticks to wait before reading a failed tile again.
     pub retry_after_ticks: u64,
     /// Copy costs; `None` measures this machine at start-up.
@@ -61,12 +68,17 @@ impl Default for Settings {
             budget_ns: Some(6_000_000),
             fade_ticks: 5,
             max_centre_step: None,
+            centre_alignment: 1,
             retry_after_ticks: 4,
             cost: None,
             limits: Limits::default(),
         }
     }
 }
+
+/// Largest centre alignment the tools accept (level texels): a level's window would jump by
+/// more than most clip sizes beyond it.
+pub const MAX_CENTRE_ALIGNMENT: u64 = 4096;
 
 /// Why a clipmap could not be built.
 #[derive(Debug, Error)]
@@ -451,7 +463,8 @@ impl Clipmap {
         let mut wanted = Vec::new();
         for (k, level) in self.levels.iter_mut().enumerate() {
             let k32 = k as u32;
-            let c = level.centre_override.unwrap_or_else(|| default_centre(centre, k32));
+            let c =
+                level.centre_override.unwrap_or_else(|| aligned_centre(centre, k32, self.settings.centre_alignment));
             let v = velocity.map(|x| if x != 0 && (x >> k32.min(63)) == 0 { x.signum() } else { x >> k32.min(63) });
             level.frame = level.shape.frame(c, self.border, v);
             let queues = &self.queues;

@@ -94,8 +94,15 @@ fn edge() -> impl Strategy<Value = u64> {
 }
 
 /// Runs `steps` and checks every publication; then settles and checks again.
-fn walk(src: Arc<HashSource>, budget: Option<u64>, start: [i64; 2], steps: &[Step]) -> Result<(), TestCaseError> {
-    let mut map = Clipmap::new(src, settings(budget)).unwrap();
+/// Level centres are aligned to multiples of `align` level texels.
+fn walk(
+    src: Arc<HashSource>,
+    budget: Option<u64>,
+    align: u64,
+    start: [i64; 2],
+    steps: &[Step],
+) -> Result<(), TestCaseError> {
+    let mut map = Clipmap::new(src, Settings { centre_alignment: align, ..settings(budget) }).unwrap();
     let mut errors = Vec::new();
     let mut c = start;
     for s in steps {
@@ -106,6 +113,9 @@ fn walk(src: Arc<HashSource>, budget: Option<u64>, start: [i64; 2], steps: &[Ste
         }
         map.tick_with(c, None, &mut checker(&mut errors));
         prop_assert!(errors.is_empty(), "{:?}", errors);
+        for k in 0..map.level_count() as u32 {
+            prop_assert_eq!(map.level(k).centre, crate::geom::aligned_centre(c, k, align), "level {}", k);
+        }
     }
     map.set_budget_ns(None);
     settle(&mut map, c, 60);
@@ -122,10 +132,12 @@ proptest! {
         sw in edge(), sh in edge(), clip in 1u64..=16, tile in 1u64..=9, border in 0u64..4,
         budget in prop_oneof![Just(None), (200u64..20_000).prop_map(Some)],
         start in (-(1i64 << 27)..(1i64 << 27), -(1i64 << 27)..(1i64 << 27)),
+        align in prop_oneof![2 => Just(1u64), 1 => 2u64..=9],
         steps in proptest::collection::vec(step(), 1..24),
     ) {
         let border = border.min((clip - 1) / 2);
-        walk(hash_source([sw, sh], clip, tile, border, TexelFormat::RGB8), budget, [start.0, start.1], &steps)?;
+        let src = hash_source([sw, sh], clip, tile, border, TexelFormat::RGB8);
+        walk(src, budget, align, [start.0, start.1], &steps)?;
     }
 }
 
@@ -140,7 +152,7 @@ proptest! {
         steps in proptest::collection::vec(step(), 1..6),
     ) {
         let src = hash_source([1 << 26, tall], clip, tile, 16, TexelFormat::L8);
-        walk(src, Some(2_000_000), [(1 << 26) - 5, 0], &steps)?;
+        walk(src, Some(2_000_000), 1, [(1 << 26) - 5, 0], &steps)?;
     }
 }
 
@@ -166,6 +178,35 @@ fn wrap_crossing_moves_copy_only_the_new_strips() {
     let copied = map.stats().bytes_copied - before;
     assert_eq!(copied, 3 * 16 + 16, "only the strips that changed: {copied}");
     assert_eq!(check_published(&map).map(|n| n > 0), Ok(true));
+}
+
+#[test]
+fn aligned_centres_move_windows_in_whole_steps_and_lag_by_less_than_a_step() {
+    // Clip 32, centres aligned to 8 level texels, a flight of one level-0 texel a tick along s.
+    let (clip, align) = (32i64, 8i64);
+    let src = hash_source([1024, 1024], clip as u64, 8, 0, TexelFormat::L8);
+    let mut map = Clipmap::new(src, Settings { centre_alignment: align as u64, ..settings(None) }).unwrap();
+    settle(&mut map, [96, 200], 20);
+    let mut copied = Vec::new();
+    for i in 1..=16 {
+        let c = [96 + i, 200];
+        let before = map.stats().bytes_copied;
+        settle(&mut map, c, 20);
+        copied.push(map.stats().bytes_copied - before);
+        // Level 0's window stays put until the centre reaches the next multiple of 8, so the
+        // valid region still holds every texel within clip/2 - (align - 1) of the true centre.
+        let reach = clip / 2 - (align - 1);
+        let near = Rect::new(c[0] - reach, c[1] - reach, c[0] + reach, c[1] + reach);
+        assert!(map.level(0).valid.contains_rect(&near), "tick {i}: {:?} lacks {near:?}", map.level(0).valid);
+        assert_eq!(map.level(0).centre, [c[0] / align * align, 200]);
+    }
+    // Level 0 moves 8 texels at ticks 8 and 16 (a 8 x 32 strip each); level 1 (centre 48 → 56)
+    // moves at tick 16; coarser levels stay. Nothing else is copied.
+    let mut want = vec![0u64; 16];
+    want[7] = 8 * 32;
+    want[15] = 2 * 8 * 32;
+    assert_eq!(copied, want);
+    assert!(check_published(&map).unwrap() > 0);
 }
 
 #[test]

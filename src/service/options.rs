@@ -48,6 +48,9 @@ pub struct Options {
     pub tick_hz: f64,
     /// Invalid border to start with (`None`: the texture's).
     pub invalid_border: Option<u64>,
+    /// Level centres aligned to multiples of this many level texels (1: texel-exact; see
+    /// [`crate::clip::Settings::centre_alignment`]).
+    pub centre_alignment: u64,
     /// Control socket bounds.
     pub control: ControlLimits,
 }
@@ -70,6 +73,7 @@ impl Options {
             budget_ms: Some(6.0),
             tick_hz: 60.0,
             invalid_border: None,
+            centre_alignment: 1,
             control: ControlLimits::default(),
         }
     }
@@ -80,6 +84,13 @@ impl Options {
         crate::shm::check_name(&self.name).map_err(|e| ServiceError::BadOption(e.to_string()))?;
         if !(self.tick_hz.is_finite() && self.tick_hz >= 1.0 && self.tick_hz <= 1000.0) {
             return bad(format!("--tick-hz {}: expected 1 to 1000 ticks per second", self.tick_hz));
+        }
+        if !(1..=crate::clip::MAX_CENTRE_ALIGNMENT).contains(&self.centre_alignment) {
+            return bad(format!(
+                "--centre-alignment {}: expected 1 (texel-exact centres) to {} level texels",
+                self.centre_alignment,
+                crate::clip::MAX_CENTRE_ALIGNMENT
+            ));
         }
         if let Some(ms) = self.budget_ms {
             if !(ms.is_finite() && ms > 0.0 && ms <= super::protocol::MAX_BUDGET_MS) {

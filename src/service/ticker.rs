@@ -133,7 +133,13 @@ impl Runner {
         stats_tx: watch::Sender<TickStats>,
     ) -> Result<(Runner, Started), ServiceError> {
         let desc = source.desc().clone();
-        let settings = Settings { budget_ns: o.budget_ms.map(|ms| (ms * 1e6) as u64), ..Settings::default() };
+        let settings = Settings {
+            budget_ns: o.budget_ms.map(|ms| (ms * 1e6) as u64),
+            // One read queue per stream server the configuration names.
+            streams: source.stream_servers(),
+            centre_alignment: o.centre_alignment,
+            ..Settings::default()
+        };
         // The engine keeps its windows in the mapping itself: each texel is copied once, from a
         // tile straight to where renderers read it.
         let writer = Writer::create(&o.shm_dir, &o.name, shape_of_desc(&desc), desc.format(), o.shm_mode)?;

@@ -13,7 +13,7 @@
 
 use anyhow::Context;
 use clipmap::clip::{Clipmap, CostTable, Settings};
-use clipmap::geom::mem_grid;
+use clipmap::geom::{aligned_centre, mem_grid};
 use clipmap::source::{HashSource, TextureDesc, TileSource};
 use clipmap::texel::TexelFormat;
 use serde::Serialize;
@@ -31,6 +31,8 @@ struct Setup {
     speed: i64,
     frames_per_run: usize,
     runs: usize,
+    /// Level centres aligned to multiples of this many level texels (1: texel-exact).
+    centre_alignment: u64,
 }
 
 /// One direction of steady flight.
@@ -103,16 +105,18 @@ fn proc_status(field: &str) -> anyhow::Result<u64> {
     Ok(kib * 1024)
 }
 
-/// Exact bytes a move from `a` to `b` uncovers in the stack levels' windows.
-fn exact_strips(desc: &TextureDesc, a: [i64; 2], b: [i64; 2]) -> u64 {
+/// Exact bytes a move from `a` to `b` uncovers in the stack levels' windows, level centres
+/// aligned to multiples of `align` level texels.
+fn exact_strips(desc: &TextureDesc, a: [i64; 2], b: [i64; 2], align: u64) -> u64 {
     let clip = desc.clip_size() as i64;
     let mut texels = 0i64;
     for k in 0..desc.level_count() as u32 {
         if !desc.is_stack(k) {
             continue;
         }
-        let ds = ((b[0] >> k) - (a[0] >> k)).abs().min(clip);
-        let dt = ((b[1] >> k) - (a[1] >> k)).abs().min(clip);
+        let (ca, cb) = (aligned_centre(a, k, align), aligned_centre(b, k, align));
+        let ds = (cb[0] - ca[0]).abs().min(clip);
+        let dt = (cb[1] - ca[1]).abs().min(clip);
         texels += clip * clip - (clip - ds) * (clip - dt);
     }
     texels as u64 * desc.bytes_per_texel() as u64
@@ -140,11 +144,31 @@ pub enum Size {
     Smoke,
 }
 
-pub fn engine(size: Size, runs: usize) -> anyhow::Result<Report> {
+pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<Report> {
     let setup = if size == Size::Smoke {
-        Setup { size: 1 << 12, clip: 128, tile: 32, border: 8, bytes_per_texel: 4, speed: 8, frames_per_run: 4, runs }
+        Setup {
+            size: 1 << 12,
+            clip: 128,
+            tile: 32,
+            border: 8,
+            bytes_per_texel: 4,
+            speed: 8,
+            frames_per_run: 4,
+            runs,
+            centre_alignment,
+        }
     } else if size == Size::Quick {
-        Setup { size: 1 << 20, clip: 512, tile: 128, border: 8, bytes_per_texel: 4, speed: 32, frames_per_run: 8, runs }
+        Setup {
+            size: 1 << 20,
+            clip: 512,
+            tile: 128,
+            border: 8,
+            bytes_per_texel: 4,
+            speed: 32,
+            frames_per_run: 8,
+            runs,
+            centre_alignment,
+        }
     } else {
         Setup {
             size: 1 << 26,
@@ -155,6 +179,7 @@ pub fn engine(size: Size, runs: usize) -> anyhow::Result<Report> {
             speed: 64,
             frames_per_run: 16,
             runs,
+            centre_alignment,
         }
     };
     let runs = runs.max(1);
@@ -167,7 +192,12 @@ pub fn engine(size: Size, runs: usize) -> anyhow::Result<Report> {
         .sum();
     let settings = Settings::default();
     let budget = cache_budget(&desc, settings.lookahead);
-    let mut settings = Settings { budget_ns: None, cost: Some(CostTable::fixed(200.0, 10.0, 0.1)), ..settings };
+    let mut settings = Settings {
+        budget_ns: None,
+        cost: Some(CostTable::fixed(200.0, 10.0, 0.1)),
+        centre_alignment: setup.centre_alignment,
+        ..settings
+    };
     settings.limits.cache_bytes = budget as usize;
     settings.limits.max_pending_reads = 4096;
     settings.limits.max_ready_reads = 4096;
@@ -210,8 +240,14 @@ pub fn engine(size: Size, runs: usize) -> anyhow::Result<Report> {
                 let dt = t.elapsed().as_secs_f64();
                 map.wait_for_reads();
                 anyhow::ensure!(r.min_lod == 0.0, "a level fell behind during the steady flight: {r:?}");
-                let want = exact_strips(&desc, c, next);
-                worst = worst.max((r.bytes_copied as f64 / want as f64 - 1.0).abs());
+                let want = exact_strips(&desc, c, next, setup.centre_alignment);
+                // With aligned centres a tick may uncover nothing: then nothing may be copied.
+                let dev = match (want, r.bytes_copied) {
+                    (0, 0) => 0.0,
+                    (0, _) => f64::INFINITY,
+                    (w, b) => (b as f64 / w as f64 - 1.0).abs(),
+                };
+                worst = worst.max(dev);
                 measured += r.bytes_copied;
                 exact += want;
                 n += 1;
@@ -306,6 +342,9 @@ pub fn human(r: &Report) -> String {
         s.frames_per_run,
         s.runs
     );
+    if s.centre_alignment > 1 {
+        let _ = writeln!(o, "level centres aligned to multiples of {} level texels", s.centre_alignment);
+    }
     let _ = writeln!(o, "first fill: {} ticks, {:.2} s (reads included)", r.settle_ticks, r.settle_s);
     let _ = writeln!(
         o,
