@@ -625,12 +625,13 @@ fn the_c_header_and_the_python_reader_agree_with_the_layout() {
 }
 
 #[test]
-fn a_ct_configuration_is_served_from_its_tile_files() {
+fn a_ct_configuration_is_served_from_its_tile_files_one_read_queue_per_stream_server() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let pyr = d.join("pyr");
     let prep = Command::new(env!("CARGO_BIN_EXE_clipprep"))
-        .args(["--source", "hash", "--size", "4096", "--tile", "64", "--clip", "256", "--format", "rgba8", "--out"])
+        .args(["--source", "hash", "--size", "4096", "--tile", "64", "--clip", "256", "--format", "rgba8"])
+        .args(["--streams", "2", "--out"])
         .arg(&pyr)
         .output()
         .unwrap();
@@ -644,6 +645,12 @@ fn a_ct_configuration_is_served_from_its_tile_files() {
     assert!(passed > 100_000, "{passed}");
     let stats = json_reply(&svc.ask("STATS"));
     assert!(stats["engine"]["tiles_read"].as_u64().unwrap() > 0, "{stats}");
+    // Tiles are spread over two stream directories: each has its own queue, and both read.
+    let streams = stats["streams"].as_array().expect("STATS lists the read queues");
+    assert_eq!(streams.len(), 2, "{stats}");
+    for q in streams {
+        assert!(q["reads_done"].as_u64().unwrap() > 0, "every stream server's queue reads: {stats}");
+    }
     assert_eq!(json_reply(&svc.ask("STATUS"))["levels"], 13);
 }
 
