@@ -106,6 +106,36 @@ fn missing_short_and_unreadable_tiles_are_counted_per_level_and_fail_the_check()
 }
 
 #[test]
+fn compressed_tiles_are_checked_by_their_frame_header_not_their_length() {
+    // Terrain compresses well: every tile file is far shorter than a raw tile, and must not be
+    // counted as short. A file that is not a zstd frame of one tile is corrupt.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("z");
+    let args = ["--source", "terrain", "--size", "256", "--tile", "32", "--clip", "32", "--format", "rgb8"];
+    let (o, d) = exec(dir.path(), CLIPPREP, &[&args[..], &["--zstd", "3", "--out", out.to_str().unwrap()]].concat());
+    assert!(o.status.success(), "{d}");
+    let ct = out.join("z.ct");
+    let l0 = out.join("L00");
+    assert!(std::fs::metadata(l0.join("r000.c000.raw.zst")).unwrap().len() < 32 * 32 * 3, "terrain compresses");
+    let (code, r, d) = check(dir.path(), &ct);
+    assert_eq!((code, &r["servable"]), (0, &Value::Bool(true)), "{d}");
+    assert_eq!(r["totals"]["corrupt"], 0, "{d}");
+    std::fs::write(l0.join("r000.c001.raw.zst"), b"not a frame").unwrap();
+    std::fs::write(l0.join("r000.c002.raw.zst"), zstd_frame_of(100)).unwrap();
+    let (code, r, d) = check(dir.path(), &ct);
+    assert_eq!(code, 1, "{d}");
+    assert_eq!(r["levels"][0]["corrupt"], 2, "{d}");
+    assert_eq!(counts(&r["levels"][0]), [64, 62, 0, 0, 0, 0], "{d}");
+    let problems = r["problems"].as_array().unwrap();
+    assert!(problems.iter().all(|p| p["problem"] == "corrupt" && p["level"] == 0), "{d}");
+}
+
+/// A well-formed zstd frame of `n` bytes (not one tile).
+fn zstd_frame_of(n: usize) -> Vec<u8> {
+    zstd::bulk::compress(&vec![9u8; n], 3).unwrap()
+}
+
+#[test]
 fn a_default_tile_covers_missing_and_short_tiles() {
     let dir = tempfile::tempdir().unwrap();
     let ct = prepare(dir.path());

@@ -1,7 +1,8 @@
 //! `cliptex check`: can the data on disk serve every tile a clip texture names?
 //!
 //! Owns walking every tile of every level through the plan's file names and byte offsets and
-//! sorting each into present, missing, short or unreadable, and telling which missing or short
+//! sorting each into present, missing, short, unreadable or (compressed tiles whose zstd frame
+//! header does not announce one tile) corrupt, and telling which missing or short
 //! tiles an image cache's default tile covers (as [`crate::source::FileSource`] would serve
 //! them). It looks at file sizes and permissions, opening each file once; it does not read
 //! texels. Printing is the tool's business, apart from the text rendering here.
@@ -27,6 +28,8 @@ pub enum Problem {
     Short,
     /// Its file exists but cannot be opened.
     Unreadable,
+    /// Its file is a compressed tile (`.raw.zst`) whose zstd frame does not announce one tile.
+    Corrupt,
 }
 
 /// One tile that cannot be read from its file.
@@ -70,6 +73,8 @@ pub struct Counts {
     pub short: u64,
     /// Tiles whose file cannot be opened.
     pub unreadable: u64,
+    /// Compressed tiles whose file is not a zstd frame of one tile.
+    pub corrupt: u64,
     /// Missing or short tiles the default tile stands in for.
     pub default_covered: u64,
 }
@@ -86,6 +91,7 @@ impl Counts {
         self.missing += o.missing;
         self.short += o.short;
         self.unreadable += o.unreadable;
+        self.corrupt += o.corrupt;
         self.default_covered += o.default_covered;
     }
 }
@@ -135,6 +141,22 @@ fn probe(path: &Path) -> FileState {
     }
 }
 
+/// A compressed tile file (docs/COMPRESSED-TILES.md): its length, when the zstd frame header at
+/// its start announces exactly `tile` bytes and the file is no longer than such a frame can be.
+/// Reads the frame header only, not the texels.
+fn probe_compressed(path: &Path, tile: u64) -> FileState {
+    use std::io::Read;
+    let len = probe(path)?;
+    let mut head = Vec::with_capacity(18);
+    File::open(path).and_then(|f| f.take(18).read_to_end(&mut head)).map_err(|_| Problem::Unreadable)?;
+    let announced = zstd::zstd_safe::get_frame_content_size(&head);
+    let bound = zstd::zstd_safe::compress_bound(tile as usize) as u64;
+    match announced {
+        Ok(Some(n)) if n == tile && len <= bound => Ok(len),
+        _ => Err(Problem::Corrupt),
+    }
+}
+
 fn check_default(ic: &ImageCachePlan, path: &Path) -> DefaultTileCheck {
     let tile = ic.tile_bytes();
     let error = match std::fs::metadata(path).and_then(|m| File::open(path).map(|_| m)) {
@@ -181,6 +203,9 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
                 let loc: Option<TileLocation> = plan.locate(l.level, s, t).ok();
                 let state = match &loc {
                     None => Err(Problem::Missing),
+                    Some(loc) if crate::source::file::is_compressed(&loc.path) => {
+                        *files.entry(loc.path.clone()).or_insert_with(|| probe_compressed(&loc.path, loc.length))
+                    }
                     Some(loc) => {
                         let len = *files.entry(loc.path.clone()).or_insert_with(|| probe(&loc.path));
                         len.and_then(|len| {
@@ -200,8 +225,11 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
                     Problem::Missing => counts.missing += 1,
                     Problem::Short => counts.short += 1,
                     Problem::Unreadable => counts.unreadable += 1,
+                    Problem::Corrupt => counts.corrupt += 1,
                 }
-                let covered = covers && problem != Problem::Unreadable;
+                // As the file source serves them: the default tile stands in for missing and
+                // short tiles only.
+                let covered = covers && matches!(problem, Problem::Missing | Problem::Short);
                 counts.default_covered += covered as u64;
                 if problems.len() < MAX_LISTED_PROBLEMS {
                     let path = loc.map(|l| l.path);
@@ -231,14 +259,14 @@ pub fn human(r: &CheckReport, quiet: bool) -> String {
     if !quiet {
         let _ = writeln!(
             o,
-            "{:>5} {:<11} {:>17} {:>9} {:>9} {:>8} {:>6} {:>10} {:>8}",
-            "level", "kind", "size", "tiles", "present", "missing", "short", "unreadable", "default"
+            "{:>5} {:<11} {:>17} {:>9} {:>9} {:>8} {:>6} {:>10} {:>7} {:>8}",
+            "level", "kind", "size", "tiles", "present", "missing", "short", "unreadable", "corrupt", "default"
         );
         for l in &r.levels {
             let c = &l.counts;
             let _ = writeln!(
                 o,
-                "{:>5} {:<11} {:>17} {:>9} {:>9} {:>8} {:>6} {:>10} {:>8}",
+                "{:>5} {:<11} {:>17} {:>9} {:>9} {:>8} {:>6} {:>10} {:>7} {:>8}",
                 l.level,
                 l.kind,
                 format!("{}x{}", l.size[0], l.size[1]),
@@ -247,6 +275,7 @@ pub fn human(r: &CheckReport, quiet: bool) -> String {
                 c.missing,
                 c.short,
                 c.unreadable,
+                c.corrupt,
                 c.default_covered
             );
             if let Some(d) = l.default_tile.as_ref().filter(|d| !d.usable) {

@@ -14,7 +14,6 @@ use crate::source::{FaultKind, SourceError, TileId};
 use crate::texel::TexelFormat;
 use image::{DynamicImage, RgbImage, RgbaImage};
 use serde::Serialize;
-use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 
@@ -352,11 +351,6 @@ impl<'a> IcacheTiles<'a> {
     }
 
     fn read_file(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
-        let io = |e: std::io::Error| match e.kind() {
-            std::io::ErrorKind::NotFound => SourceError::Missing { tile },
-            std::io::ErrorKind::PermissionDenied => SourceError::PermissionDenied { tile },
-            _ => SourceError::Io { tile, source: e },
-        };
         let loc = self
             .plan
             .locate(tile.s, tile.t, 0)
@@ -364,15 +358,8 @@ impl<'a> IcacheTiles<'a> {
         if loc.length != out.len() as u64 {
             return Err(SourceError::Corrupt { tile, expected: out.len() as u64, found: loc.length });
         }
-        let f = std::fs::File::open(&loc.path).map_err(io)?;
-        f.read_exact_at(out, loc.offset).map_err(|e| {
-            if e.kind() == std::io::ErrorKind::UnexpectedEof {
-                let len = f.metadata().map(|m| m.len()).unwrap_or(0);
-                SourceError::Short { tile, expected: loc.length, got: len.saturating_sub(loc.offset).min(loc.length) }
-            } else {
-                io(e)
-            }
-        })
+        let f = std::fs::File::open(&loc.path).map_err(|e| crate::source::file::io_error(tile, e))?;
+        crate::source::file::read_stored(&f, &loc.path, tile, loc.offset, out)
     }
 }
 

@@ -306,20 +306,82 @@ impl FileSource {
             return Err(SourceError::Corrupt { tile, expected: out.len() as u64, found: loc.length });
         }
         let file = self.handle(&loc.path).map_err(|e| io_error(tile, e))?;
-        match file.read_exact_at(out, loc.offset) {
-            Ok(()) => Ok(()),
-            Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => {
-                let len = file.metadata().map(|m| m.len()).unwrap_or(0);
-                let got = len.saturating_sub(loc.offset).min(loc.length);
-                Err(SourceError::Short { tile, expected: loc.length, got })
-            }
-            Err(e) => Err(io_error(tile, e)),
-        }
+        read_stored(&file, &loc.path, tile, loc.offset, out)
     }
 }
 
+/// Whether `path` names a compressed tile file (`rRRR.cCCC.raw.zst`, docs/COMPRESSED-TILES.md).
+pub fn is_compressed(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e == "zst")
+}
+
+/// Reads the tile stored at byte `offset` of `file` (opened from `path`) into `out`, which is one
+/// tile long: the raw bytes there, or, for a compressed tile file, the one zstd frame the whole
+/// file holds, decoded; it must decode to exactly `out.len()` bytes. A short raw read is
+/// [`SourceError::Short`]; a compressed file that does not decode to one tile is
+/// [`SourceError::Undecodable`] and leaves nothing to trust in `out`.
+pub(crate) fn read_stored(
+    file: &File,
+    path: &Path,
+    tile: TileId,
+    offset: u64,
+    out: &mut [u8],
+) -> Result<(), SourceError> {
+    if is_compressed(path) {
+        return read_compressed(file, path, tile, offset, out);
+    }
+    match file.read_exact_at(out, offset) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => {
+            let len = file.metadata().map(|m| m.len()).unwrap_or(0);
+            let expected = out.len() as u64;
+            Err(SourceError::Short { tile, expected, got: len.saturating_sub(offset).min(expected) })
+        }
+        Err(e) => Err(io_error(tile, e)),
+    }
+}
+
+thread_local! {
+    /// Each reading thread's zstd context and buffer for the compressed bytes, kept between
+    /// tiles so that a read allocates nothing once warm.
+    static ZSTD: std::cell::RefCell<(Option<zstd::bulk::Decompressor<'static>>, Vec<u8>)> =
+        const { std::cell::RefCell::new((None, Vec::new())) };
+}
+
+fn read_compressed(file: &File, path: &Path, tile: TileId, offset: u64, out: &mut [u8]) -> Result<(), SourceError> {
+    let bad = |problem: String| SourceError::Undecodable { tile, path: path.to_path_buf(), problem };
+    if offset != 0 {
+        return Err(bad(format!(
+            "its tile is placed at byte {offset}, but a compressed file holds one whole tile (no header, one tile per file)"
+        )));
+    }
+    let len = file.metadata().map_err(|e| io_error(tile, e))?.len();
+    // The most a zstd frame of one tile can take (incompressible data grows a little).
+    let bound = zstd::zstd_safe::compress_bound(out.len()) as u64;
+    if len > bound {
+        return Err(bad(format!(
+            "the file holds {len} bytes, more than one {}-byte tile compresses to ({bound} at most)",
+            out.len()
+        )));
+    }
+    ZSTD.with(|cell| {
+        let (ctx, packed) = &mut *cell.borrow_mut();
+        packed.resize(len as usize, 0);
+        file.read_exact_at(packed, 0).map_err(|e| io_error(tile, e))?;
+        if ctx.is_none() {
+            *ctx = Some(zstd::bulk::Decompressor::new().map_err(|e| io_error(tile, e))?);
+        }
+        let ctx = ctx.as_mut().expect("just made");
+        match ctx.decompress_to_buffer(packed.as_slice(), out) {
+            Ok(n) if n == out.len() => Ok(()),
+            Ok(n) => Err(bad(format!("it decodes to {n} bytes, expected one tile of {}", out.len()))),
+            Err(e) => Err(bad(format!("it is not one zstd frame of a {}-byte tile ({e})", out.len()))),
+        }
+    })
+}
+
 /// The [`SourceError`] of an I/O failure on `tile`'s file.
-fn io_error(tile: TileId, e: io::Error) -> SourceError {
+pub(crate) fn io_error(tile: TileId, e: io::Error) -> SourceError {
     match e.kind() {
         io::ErrorKind::NotFound => SourceError::Missing { tile },
         io::ErrorKind::PermissionDenied => SourceError::PermissionDenied { tile },

@@ -22,6 +22,21 @@ fn prepare(
     header: u64,
     streams: Option<u32>,
 ) -> PathBuf {
+    prepare_with(dir, size, clip, tile, tiles_in_file, header, streams, None)
+}
+
+/// [`prepare`], with image-cache tiles compressed as `clipprep --zstd` writes them.
+#[allow(clippy::too_many_arguments)]
+fn prepare_with(
+    dir: &Path,
+    size: u64,
+    clip: u64,
+    tile: u64,
+    tiles_in_file: (u64, u64),
+    header: u64,
+    streams: Option<u32>,
+    compression: Option<prep::Compression>,
+) -> PathBuf {
     let layout = Layout::new(Spec {
         width: size,
         height: size,
@@ -32,7 +47,7 @@ fn prepare(
         header_bytes: header,
         streams,
         inset: None,
-        compression: None,
+        compression,
     })
     .unwrap();
     let job = Job {
@@ -119,6 +134,53 @@ fn the_checked_in_prepared_example_reads_back_equal_to_the_hash_source() {
     let files = open(&ct);
     assert_eq!((files.desc().clip_size(), files.desc().bytes_per_texel()), (64, 3));
     assert_eq!(assert_equals_hash(&files), 16 + 4 + 7);
+}
+
+#[test]
+fn compressed_tiles_read_back_equal_to_the_hash_source() {
+    let dir = tempfile::tempdir().unwrap();
+    let ct = prepare_with(dir.path(), 256, 32, 16, (1, 1), 0, None, Some(prep::Compression::Zstd(3)));
+    let l0 = dir.path().join("L00");
+    assert!(l0.join("r000.c000.raw.zst").exists() && !l0.join("r000.c000.raw").exists());
+    let files = open(&ct);
+    // The hash texture does not compress: a compressed tile file is longer than the raw tile, so
+    // reading its bytes as texels would go unnoticed by a length check. Every texel is compared.
+    assert_eq!(assert_equals_hash(&files), 256 + 64 + 16 + 6);
+    assert_eq!(files.stats().default_tiles, 0);
+}
+
+#[test]
+fn compressed_tiles_that_do_not_decode_to_one_tile_are_corrupt_never_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    let ct = prepare_with(dir.path(), 128, 32, 16, (1, 1), 0, None, Some(prep::Compression::Zstd(3)));
+    let l0 = dir.path().join("L00");
+    let path = |s: u64, t: u64| l0.join(format!("r{t:03}.c{s:03}.raw.zst"));
+    let good = std::fs::read(path(0, 0)).unwrap();
+    // Truncated; garbage; a valid frame of a tile half as long; a file longer than any frame of
+    // one tile; and, to show the frame itself is what is checked, the good frame moved elsewhere.
+    std::fs::write(path(1, 0), &good[..good.len() / 2]).unwrap();
+    std::fs::write(path(2, 0), vec![0xA5u8; good.len()]).unwrap();
+    std::fs::write(path(3, 0), zstd::bulk::compress(&vec![7u8; 16 * 16 * 3 / 2], 3).unwrap()).unwrap();
+    std::fs::write(path(4, 0), vec![0u8; 16 * 16 * 3 * 2 + 4096]).unwrap();
+    std::fs::write(path(5, 0), &good).unwrap();
+    let files = open(&ct);
+    let mut buf = vec![0u8; files.desc().tile_bytes(0)];
+    for (s, want) in
+        [(1, "not one zstd frame"), (2, "not one zstd frame"), (3, "decodes to 384 bytes"), (4, "more than one")]
+    {
+        let e = files.read_tile(TileId::new(0, s, 0), &mut buf).unwrap_err();
+        assert_eq!(e.kind(), FaultKind::Corrupt, "tile ({s}, 0): {e}");
+        let msg = e.to_string();
+        assert!(msg.contains(want) && msg.contains(".raw.zst") && msg.contains("clipprep --zstd"), "{msg}");
+    }
+    // Tile (5, 0) now holds tile (0, 0)'s texels: readable, and (as with raw files) not ours to
+    // detect; tile (0, 0) itself is still right.
+    files.read_tile(TileId::new(0, 5, 0), &mut buf).unwrap();
+    let mut want = vec![0u8; buf.len()];
+    HashSource::new(files.desc().clone()).read_tile(TileId::new(0, 0, 0), &mut want).unwrap();
+    assert_eq!(buf, want);
+    files.read_tile(TileId::new(0, 0, 0), &mut buf).unwrap();
+    assert_eq!(buf, want);
 }
 
 /// Whether this process ignores file permissions (root, or CAP_DAC_OVERRIDE): a real probe.

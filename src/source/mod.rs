@@ -80,6 +80,10 @@ pub enum SourceError {
     /// The stored tile has the wrong size.
     #[error("{tile}: corrupt: {found} bytes stored, expected {expected}")]
     Corrupt { tile: TileId, expected: u64, found: u64 },
+    /// A compressed tile file (`.zst`, docs/COMPRESSED-TILES.md) that does not decode to exactly
+    /// one tile.
+    #[error("{tile}: compressed tile {path} cannot be used: {problem}; restore the file or prepare the pyramid again (clipprep --zstd)", path = path.display())]
+    Undecodable { tile: TileId, path: std::path::PathBuf, problem: String },
     /// The tile may not be read.
     #[error("{tile}: permission denied")]
     PermissionDenied { tile: TileId },
@@ -104,7 +108,7 @@ impl SourceError {
         match self {
             SourceError::Missing { .. } => FaultKind::Missing,
             SourceError::Short { .. } => FaultKind::Short,
-            SourceError::Corrupt { .. } => FaultKind::Corrupt,
+            SourceError::Corrupt { .. } | SourceError::Undecodable { .. } => FaultKind::Corrupt,
             SourceError::PermissionDenied { .. } => FaultKind::PermissionDenied,
             SourceError::Io { .. } => FaultKind::Io,
             SourceError::OutOfRange { .. } | SourceError::BufferSize { .. } => FaultKind::BadRequest,
@@ -117,6 +121,7 @@ impl SourceError {
             SourceError::Missing { tile }
             | SourceError::Short { tile, .. }
             | SourceError::Corrupt { tile, .. }
+            | SourceError::Undecodable { tile, .. }
             | SourceError::PermissionDenied { tile }
             | SourceError::Io { tile, .. }
             | SourceError::OutOfRange { tile, .. }
