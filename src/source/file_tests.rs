@@ -22,36 +22,29 @@ fn prepare(
     header: u64,
     streams: Option<u32>,
 ) -> PathBuf {
-    prepare_with(dir, size, clip, tile, tiles_in_file, header, streams, None)
+    prepare_spec(dir, Spec { tiles_in_file, header_bytes: header, streams, ..spec(size, clip, tile) })
 }
 
-/// [`prepare`], with image-cache tiles compressed as `clipprep --zstd` writes them.
-#[allow(clippy::too_many_arguments)]
-fn prepare_with(
-    dir: &Path,
-    size: u64,
-    clip: u64,
-    tile: u64,
-    tiles_in_file: (u64, u64),
-    header: u64,
-    streams: Option<u32>,
-    compression: Option<prep::Compression>,
-) -> PathBuf {
-    let layout = Layout::new(Spec {
+/// A square RGB8 texture, one tile per file, no header, streams, inset or compression.
+fn spec(size: u64, clip: u64, tile: u64) -> Spec {
+    Spec {
         width: size,
         height: size,
         clip,
         tile,
         format: TexelFormat::RGB8,
-        tiles_in_file,
-        header_bytes: header,
-        streams,
+        tiles_in_file: (1, 1),
+        header_bytes: 0,
+        streams: None,
         inset: None,
-        compression,
-    })
-    .unwrap();
+        compression: None,
+    }
+}
+
+/// Prepares the hash texture of `spec` under `dir`; returns the `.ct`.
+fn prepare_spec(dir: &Path, spec: Spec) -> PathBuf {
     let job = Job {
-        layout,
+        layout: Layout::new(spec).unwrap(),
         source: prep::Source::Hash,
         filter: Filter::Box,
         linear_light: false,
@@ -61,6 +54,11 @@ fn prepare_with(
     };
     let summary = prep::run(job, dir, &AtomicBool::new(false), dir, &|_| {}).unwrap();
     dir.join(summary.ct)
+}
+
+/// A hash texture whose image-cache tiles are compressed as `clipprep --zstd 3` writes them.
+fn prepare_zstd(dir: &Path, size: u64, clip: u64, tile: u64) -> PathBuf {
+    prepare_spec(dir, Spec { compression: Some(prep::Compression::Zstd(3)), ..spec(size, clip, tile) })
 }
 
 fn load(ct: &Path) -> ClipTexturePlan {
@@ -139,7 +137,7 @@ fn the_checked_in_prepared_example_reads_back_equal_to_the_hash_source() {
 #[test]
 fn compressed_tiles_read_back_equal_to_the_hash_source() {
     let dir = tempfile::tempdir().unwrap();
-    let ct = prepare_with(dir.path(), 256, 32, 16, (1, 1), 0, None, Some(prep::Compression::Zstd(3)));
+    let ct = prepare_zstd(dir.path(), 256, 32, 16);
     let l0 = dir.path().join("L00");
     assert!(l0.join("r000.c000.raw.zst").exists() && !l0.join("r000.c000.raw").exists());
     let files = open(&ct);
@@ -152,7 +150,7 @@ fn compressed_tiles_read_back_equal_to_the_hash_source() {
 #[test]
 fn compressed_tiles_that_do_not_decode_to_one_tile_are_corrupt_never_texels() {
     let dir = tempfile::tempdir().unwrap();
-    let ct = prepare_with(dir.path(), 128, 32, 16, (1, 1), 0, None, Some(prep::Compression::Zstd(3)));
+    let ct = prepare_zstd(dir.path(), 128, 32, 16);
     let l0 = dir.path().join("L00");
     let path = |s: u64, t: u64| l0.join(format!("r{t:03}.c{s:03}.raw.zst"));
     let good = std::fs::read(path(0, 0)).unwrap();
@@ -292,7 +290,18 @@ fn open_file_handles_stay_within_their_bound() {
 #[test]
 fn a_clipmap_over_files_publishes_only_hash_texels_during_a_random_walk() {
     let dir = tempfile::tempdir().unwrap();
-    let files = Arc::new(open(&prepare(dir.path(), 1024, 64, 32, (2, 2), 64, Some(2))));
+    random_walk_publishes_only_hash_texels(Arc::new(open(&prepare(dir.path(), 1024, 64, 32, (2, 2), 64, Some(2)))));
+}
+
+#[test]
+fn a_clipmap_over_compressed_tiles_publishes_only_hash_texels_during_a_random_walk() {
+    let dir = tempfile::tempdir().unwrap();
+    random_walk_publishes_only_hash_texels(Arc::new(open(&prepare_zstd(dir.path(), 1024, 64, 32))));
+}
+
+/// Flies a clipmap over `files` (a hash texture) with jumps and partial waits, checking every
+/// publication against the hash texture, then settles and checks again.
+fn random_walk_publishes_only_hash_texels(files: Arc<FileSource>) {
     let settings = Settings {
         streams: files.stream_servers(),
         budget_ns: Some(40_000),
