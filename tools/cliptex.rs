@@ -172,7 +172,7 @@ Examples:
 Exit status: 0 written, 1 some tiles could not be read (the picture is written), 2 the tool
 could not run (bad options, unreadable configuration, no such service, unwritable output).")]
     Dump(DumpArgs),
-    /// Walk every tile on disk: per level, tiles present, missing, short, unreadable and covered by the default tile.
+    /// Walk every tile on disk: per level, tiles present, missing, short, unreadable, corrupt (compressed) and covered by the default tile.
     #[command(after_help = "\
 Exit status: 0 every tile can be served (present, or covered by a default tile), 1 some cannot,
 2 the configuration cannot be read (unreadable or invalid).")]
