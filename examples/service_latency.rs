@@ -17,8 +17,6 @@
 use clipmap::clip::{Clipmap, Settings};
 use clipmap::service::{procedural_source, run, Options, Procedural};
 use clipmap::shm::Client;
-use std::io::{BufRead, BufReader, Write};
-use std::os::unix::net::UnixStream;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -32,18 +30,14 @@ fn pct(v: &mut [f64], p: f64) -> f64 {
     v[((v.len() - 1) as f64 * p).round() as usize]
 }
 
-fn stats(socket: &Path) -> serde_json::Value {
-    let mut s = UnixStream::connect(socket).expect("control socket");
-    writeln!(s, "STATS").unwrap();
-    let mut line = String::new();
-    BufReader::new(s).read_line(&mut line).unwrap();
-    serde_json::from_str(line.trim_start_matches("OK ").trim()).expect("STATS reply")
+fn stats(socket: &Path) -> clipmap::service::ServiceStats {
+    clipmap::inspect::attach::ask_stats(socket).expect("STATS reply")
 }
 
 /// (bytes copied, seconds inside ticks) between two `STATS` replies.
-fn copied_between(a: &serde_json::Value, b: &serde_json::Value) -> (f64, f64) {
-    let bytes = b["engine"]["bytes_copied"].as_f64().unwrap() - a["engine"]["bytes_copied"].as_f64().unwrap();
-    let secs = b["tick_busy_s"].as_f64().unwrap() - a["tick_busy_s"].as_f64().unwrap();
+fn copied_between(a: &clipmap::service::ServiceStats, b: &clipmap::service::ServiceStats) -> (f64, f64) {
+    let bytes = b.tick.engine.bytes_copied as f64 - a.tick.engine.bytes_copied as f64;
+    let secs = b.tick.tick_busy_s - a.tick.tick_busy_s;
     (bytes, secs)
 }
 

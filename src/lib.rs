@@ -23,7 +23,8 @@
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
 //! | [`accuracy`] | the reference renderer, per-frame accuracy metrics and the speed/accuracy sweep |
 //! | [`sizing`] | memory and bandwidth arithmetic, clip-size and virtual-level recommendations |
-//! | [`report`] | what the inspection tools print: validation reports, info, tile locations, dumps and pictures |
+//! | [`report`] | what the tools print: validation reports, info, tile locations, dumps, pictures and their labels (below the service) |
+//! | [`inspect`] | a running service seen from outside: `cliptex attach` and `dump --attach` (the top of the stack) |
 //! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
 //!
 //! ## Invariants
@@ -38,6 +39,7 @@ pub mod cache;
 pub mod clip;
 pub mod config;
 pub mod geom;
+pub mod inspect;
 pub mod limits;
 pub mod plan;
 pub mod prep;

@@ -162,6 +162,11 @@ pub struct RoamOptions {
     /// Wait for all reads between frames (an ideally fast disk; deterministic reports). When
     /// false, reads land whenever they finish, as in the service.
     pub wait_for_reads: bool,
+    /// Frames per second of the frame clock: each frame starts 1/fps after the one before (when
+    /// a frame takes longer, the next starts at once and the frame counts as late), so reads
+    /// have real time to arrive, as in a renderer. `None`: frames back to back. Ignored with
+    /// `wait_for_reads`.
+    pub fps: Option<f64>,
     /// Invalid border to run with instead of the texture's (texels; clamped so that one texel
     /// of each stack window stays readable).
     pub invalid_border: Option<u64>,
@@ -201,6 +206,7 @@ impl RoamOptions {
             budget_ms: Some(6.0),
             start: None,
             wait_for_reads: true,
+            fps: None,
             invalid_border: None,
             settings,
         }
@@ -250,6 +256,8 @@ pub struct Totals {
     pub frames_with_disabled_level: u64,
     /// Most bytes held in tiles and windows together.
     pub peak_resident_bytes: u64,
+    /// Frames that took longer than the frame clock's period (0 without a clock).
+    pub late_frames: u64,
 }
 
 /// The result of a roam.
@@ -265,6 +273,11 @@ pub struct RoamReport {
     pub levels: usize,
     /// The flight flown.
     pub flight: Flight,
+    /// How frames were paced: `"frame_clock"` (at `fps`), `"wait_for_reads"` (every read
+    /// finished between frames) or `"back_to_back"`.
+    pub pacing: &'static str,
+    /// The frame clock's rate (null unless paced by the clock).
+    pub fps: Option<f64>,
     /// Level centres were aligned to multiples of this many level texels (1: texel-exact).
     pub centre_alignment: u64,
     /// Per frame.
@@ -290,6 +303,13 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
     let startf = [start[0] as f64, start[1] as f64];
     let mut frames = Vec::with_capacity(options.frames as usize);
     let mut totals = Totals::default();
+    let fps = options.fps.filter(|f| f.is_finite() && *f > 0.0 && !options.wait_for_reads);
+    let pacing = match (options.wait_for_reads, fps) {
+        (true, _) => "wait_for_reads",
+        (false, Some(_)) => "frame_clock",
+        (false, None) => "back_to_back",
+    };
+    let clock = std::time::Instant::now();
     for frame in 0..options.frames {
         let p = options.flight.position(startf, frame);
         let clamp = |x: f64, n: u64| (x.floor() as i64).clamp(0, n as i64 - 1);
@@ -297,6 +317,13 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
         let r = map.tick(centre, None);
         if options.wait_for_reads {
             map.wait_for_reads();
+        } else if let Some(fps) = fps {
+            // The next frame starts at its slot on the clock; a late frame starts the next at once.
+            let next = clock + std::time::Duration::from_secs_f64((frame + 1) as f64 / fps);
+            match next.checked_duration_since(std::time::Instant::now()) {
+                Some(wait) => std::thread::sleep(wait),
+                None => totals.late_frames += 1,
+            }
         }
         totals.bytes_copied += r.bytes_copied;
         totals.tiles_read += r.tiles_read;
@@ -319,6 +346,8 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
         size,
         levels: desc.level_count(),
         flight: options.flight,
+        pacing,
+        fps,
         centre_alignment: settings_alignment,
         frames,
         totals,
@@ -335,6 +364,17 @@ pub fn human(report: &RoamReport) -> String {
         "{}x{} texels, {} levels, clip size {}, {} bytes per texel; flight {:?}",
         report.size[0], report.size[1], report.levels, report.clip_size, report.bytes_per_texel, report.flight
     );
+    match report.fps {
+        Some(fps) => {
+            let _ = writeln!(o, "frame clock {fps} frames/s: reads arrive in real time between frames");
+        }
+        None if report.pacing == "wait_for_reads" => {
+            let _ = writeln!(o, "every read finished between frames (an ideally fast disk)");
+        }
+        None => {
+            let _ = writeln!(o, "frames back to back, no clock: reads have almost no time to arrive");
+        }
+    }
     if report.centre_alignment > 1 {
         let _ = writeln!(o, "level centres aligned to multiples of {} level texels", report.centre_alignment);
     }
@@ -372,6 +412,9 @@ pub fn human(report: &RoamReport) -> String {
     let _ = writeln!(o, "  tiles read                  {}", t.tiles_read);
     let _ = writeln!(o, "  ticks over budget           {}", t.ticks_over_budget);
     let _ = writeln!(o, "  frames with disabled level  {}", t.frames_with_disabled_level);
+    if report.fps.is_some() {
+        let _ = writeln!(o, "  late frames                 {}", t.late_frames);
+    }
     let _ = writeln!(
         o,
         "  peak resident bytes         {} ({})",

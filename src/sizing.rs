@@ -6,22 +6,28 @@
 
 use serde::Serialize;
 
-/// Memory of a square 2^n texture with clip size 2^m.
+/// Memory of a 2^a x 2^b texture with clip size 2^m (square: a = b = n).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
 pub struct Memory {
-    /// log2 of the texture size.
+    /// Level-0 width (S) in texels.
+    pub width: u64,
+    /// Level-0 height (T) in texels.
+    pub height: u64,
+    /// log2 of the texture's longer side.
     pub log2_size: u32,
     /// log2 of the clip size (clamped to the texture size).
     pub log2_clip: u32,
-    /// Levels larger than the clip size (only a window is resident).
+    /// Levels with a side larger than the clip size (only a window is resident).
     pub stack_levels: u32,
     /// Levels no larger than the clip size (resident whole).
     pub pyramid_levels: u32,
-    /// Texels resident in the clipmap: 4^m (n - m + 4/3) - 1/3.
+    /// Texels resident in the clipmap: for a square texture 4^m (n - m + 4/3) - 1/3; in general
+    /// the sum over levels of min(W_k, C) x min(H_k, C).
     pub clipmap_texels: u128,
     /// Bytes resident in the clipmap.
     pub clipmap_bytes: u128,
-    /// Texels of the full mipmap: (4^(n+1) - 1) / 3.
+    /// Texels of the full mipmap of the same levels: (4^(n+1) - 1) / 3 for a square texture;
+    /// in general the sum over levels of W_k x H_k.
     pub mipmap_texels: u128,
     /// Bytes of the full mipmap.
     pub mipmap_bytes: u128,
@@ -75,14 +81,14 @@ pub fn memory(size: u64, clip: u64, texel_bytes: u64) -> Result<Memory, SizingEr
     if n > 40 {
         return Err(SizingError::OutOfRange { what: "texture size", value: size, min: 1, max: 1 << 40 });
     }
-    if texel_bytes == 0 || texel_bytes > 64 {
-        return Err(SizingError::OutOfRange { what: "texel bytes", value: texel_bytes, min: 1, max: 64 });
-    }
+    check_texel_bytes(texel_bytes)?;
     let four = |k: u32| 1u128 << (2 * k);
     let clipmap = (n - m) as u128 * four(m) + (four(m + 1) - 1) / 3;
     let mipmap = (four(n + 1) - 1) / 3;
     let b = texel_bytes as u128;
     Ok(Memory {
+        width: size,
+        height: size,
         log2_size: n,
         log2_clip: m,
         stack_levels: n - m,
@@ -94,13 +100,81 @@ pub fn memory(size: u64, clip: u64, texel_bytes: u64) -> Result<Memory, SizingEr
     })
 }
 
+fn check_texel_bytes(texel_bytes: u64) -> Result<(), SizingError> {
+    if texel_bytes == 0 || texel_bytes > 64 {
+        return Err(SizingError::OutOfRange { what: "texel bytes", value: texel_bytes, min: 1, max: 64 });
+    }
+    Ok(())
+}
+
+/// Memory of a `width` x `height` texture (powers of two, each up to 2^40). The levels are
+/// Performer's: both sides halve until the short side is 1 (8192 x 2048 ends at 4 x 1), so the
+/// level count is log2(short side) + 1; level k keeps min(W_k, C) x min(H_k, C) texels. The
+/// clip size is clamped to the longer side. A square size gives exactly [`memory`].
+///
+/// ```
+/// let m = clipmap::sizing::memory_rect(8192, 2048, 512, 3).unwrap();
+/// assert_eq!((m.stack_levels, m.pyramid_levels), (4, 8)); // 8192x2048 .. 1024x256; 512x128 .. 4x1
+/// // Three levels keep 512x512, 1024x256 keeps 512x256, and 512x128 .. 4x1 stay whole.
+/// assert_eq!(m.clipmap_texels, 3 * 512 * 512 + 512 * 256 + (1..=8).map(|i| 1u128 << (2 * i)).sum::<u128>());
+/// ```
+pub fn memory_rect(width: u64, height: u64, clip: u64, texel_bytes: u64) -> Result<Memory, SizingError> {
+    if width == height {
+        return memory(width, clip, texel_bytes);
+    }
+    let a = pow2("texture width", width)?;
+    let b = pow2("texture height", height)?;
+    let n = a.max(b);
+    if n > 40 {
+        let (what, value) = if a >= b { ("texture width", width) } else { ("texture height", height) };
+        return Err(SizingError::OutOfRange { what, value, min: 1, max: 1 << 40 });
+    }
+    let m = pow2("clip size", clip)?.min(n);
+    check_texel_bytes(texel_bytes)?;
+    let c = 1u128 << m;
+    let (mut clipmap, mut mipmap, mut stack) = (0u128, 0u128, 0u32);
+    let levels = a.min(b) + 1;
+    for k in 0..levels {
+        let (w, h) = ((width >> k) as u128, (height >> k) as u128);
+        clipmap += w.min(c) * h.min(c);
+        mipmap += w * h;
+        if w > c || h > c {
+            stack += 1;
+        }
+    }
+    let bytes = texel_bytes as u128;
+    Ok(Memory {
+        width,
+        height,
+        log2_size: n,
+        log2_clip: m,
+        stack_levels: stack,
+        pyramid_levels: levels - stack,
+        clipmap_texels: clipmap,
+        clipmap_bytes: clipmap * bytes,
+        mipmap_texels: mipmap,
+        mipmap_bytes: mipmap * bytes,
+    })
+}
+
 /// Texels per second written into the stack levels' windows when the centre moves at `speed`
 /// level-0 texels per second along one axis (diagonal motion costs up to twice this): level k
 /// moves `speed / 2^k` texels a second and each texel of motion brings in a strip of `clip`
 /// texels. Pyramid levels are resident whole and never update.
+///
+/// A non-square texture: motion along S rewrites only levels wider than the clip size, each with
+/// a strip of min(H_k, clip) texels (along T the same with the roles swapped); the larger of the
+/// two axes is returned.
 pub fn update_texels_per_second(mem: &Memory, speed: f64) -> f64 {
-    let clip = (1u64 << mem.log2_clip) as f64;
-    (0..mem.stack_levels).map(|k| speed / (1u64 << k) as f64 * clip).sum()
+    let clip = 1u64 << mem.log2_clip;
+    let levels = mem.stack_levels + mem.pyramid_levels;
+    let axis = |along: u64, across: u64| -> f64 {
+        (0..levels)
+            .filter(|&k| along >> k > clip)
+            .map(|k| speed / (1u64 << k) as f64 * (across >> k).min(clip) as f64)
+            .sum()
+    };
+    axis(mem.width, mem.height).max(axis(mem.height, mem.width))
 }
 
 /// Clip sizes for a display `width` pixels wide: the usual choice (the width, rounded up to a
@@ -216,6 +290,40 @@ mod tests {
                 assert_eq!(mem.stack_levels + mem.pyramid_levels, n + 1);
             }
         }
+    }
+
+    #[test]
+    fn non_square_textures_match_the_level_by_level_sum() {
+        for a in 0..=20u32 {
+            for b in 0..=20u32 {
+                for m in 0..=a.max(b) {
+                    let (w, h) = (1u64 << a, 1u64 << b);
+                    let mem = memory_rect(w, h, 1 << m, 3).unwrap();
+                    // Brute force: Performer's levels end where the short side is 1.
+                    let (mut clip, mut full, mut stack) = (0u128, 0u128, 0);
+                    for k in 0..=a.min(b) {
+                        let (lw, lh) = ((w >> k) as u128, (h >> k) as u128);
+                        clip += lw.min(1 << m) * lh.min(1 << m);
+                        full += lw * lh;
+                        stack += u32::from(lw > 1 << m || lh > 1 << m);
+                    }
+                    assert_eq!((mem.clipmap_texels, mem.mipmap_texels), (clip, full), "{w}x{h} clip 2^{m}");
+                    assert_eq!((mem.stack_levels, mem.stack_levels + mem.pyramid_levels), (stack, a.min(b) + 1));
+                    assert_eq!(mem.clipmap_bytes, clip * 3);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_non_square_update_counts_only_the_levels_clipped_along_the_motion() {
+        // 8192 x 2048, clip 512: along S, levels 0..3 are clipped (8192..1024 wide) with strips of
+        // 512, 512, 512 and 256 texels; along T only levels 0 and 1 (2048, 1024 high) with 512.
+        let mem = memory_rect(8192, 2048, 512, 4).unwrap();
+        let s = 512.0 + 512.0 / 2.0 + 512.0 / 4.0 + 256.0 / 8.0;
+        assert!((update_texels_per_second(&mem, 1.0) - s).abs() < 1e-9);
+        let square = memory(4096, 512, 4).unwrap();
+        assert!((update_texels_per_second(&square, 1.0) - 512.0 * (1.0 + 0.5 + 0.25)).abs() < 1e-9);
     }
 
     #[test]

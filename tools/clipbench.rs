@@ -2,7 +2,8 @@
 //!
 //! `clipbench accuracy` sweeps clip size, invalid border, update budget, flight speed and shape,
 //! renders every frame from the full mipmap and from the clipmap, and writes the table, CSV,
-//! plots and `docs/ACCURACY.md`.
+//! plots and `ACCURACY.md` where `--out` says (the repository's `docs/` only when asked for
+//! with `--out docs`; by default a directory under the system's temporary directory).
 //!
 //! `clipbench engine` measures update throughput against memcpy, bytes per tick against the
 //! strips a move uncovers, and resident memory against the clipmap formula.
@@ -25,7 +26,21 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "clipbench", version, about = "Measured studies of the clipmap: accuracy against speed, performance")]
+#[command(
+    name = "clipbench",
+    version,
+    about = "Measured studies of the clipmap: accuracy against speed, performance",
+    after_help = "\
+Examples:
+  clipbench perf --quick --json
+  clipbench engine --quick
+  clipbench accuracy --quick --out study
+
+Reports go where --out says (or to standard output); nothing is written into the repository
+unless asked for (`clipbench accuracy --out docs`).
+
+Exit status: 0 ok, 1 the input is bad, 2 the tool could not run."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -34,6 +49,11 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Update throughput against memcpy, bytes per tick against the strips, resident memory.
+    #[command(after_help = "\
+Examples:
+  clipbench engine --quick
+  clipbench engine --runs 7 --json
+  clipbench engine --centre-alignment 8")]
     Engine {
         /// A small texture (2^20, clip 512) for a fast check.
         #[arg(long)]
@@ -63,15 +83,18 @@ Examples:
     /// Speed against accuracy: sweep the knobs, render each frame twice, measure the difference.
     #[command(after_help = "\
 Examples:
-  clipbench accuracy --quick
-  clipbench accuracy --out docs --json > rows.json")]
+  clipbench accuracy --quick                       # writes under $TMPDIR/clipbench-accuracy
+  clipbench accuracy --quick --out study --json > rows.json
+  clipbench accuracy --out docs                    # refreshes the repository's docs/ACCURACY.md")]
     Accuracy {
         /// A small sweep at 192x144 pixels that finishes in about a minute.
         #[arg(long)]
         quick: bool,
-        /// Directory for accuracy.csv, the SVG plots (under accuracy/) and ACCURACY.md.
-        #[arg(long, default_value = "docs")]
-        out: PathBuf,
+        /// Directory for ACCURACY.md and accuracy/ (CSV, SVG plots, sample frames), created if
+        /// needed [default: clipbench-accuracy under the system's temporary directory]. The
+        /// repository's committed report is refreshed only with an explicit `--out docs`.
+        #[arg(long)]
+        out: Option<PathBuf>,
         /// Print the rows as JSON on stdout.
         #[arg(long)]
         json: bool,
@@ -84,7 +107,9 @@ Examples:
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let code = match cli.command {
-        Command::Accuracy { quick, out, json, quiet } => accuracy(quick, out, json, quiet),
+        Command::Accuracy { quick, out, json, quiet } => {
+            accuracy(quick, out.unwrap_or_else(|| std::env::temp_dir().join("clipbench-accuracy")), json, quiet)
+        }
         Command::Perf(args) => perf::main(args),
         Command::Engine { quick, runs, json, smoke, centre_alignment } => {
             match engine::engine(engine_size(quick, smoke), runs, centre_alignment) {

@@ -13,7 +13,19 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 #[derive(Parser)]
-#[command(name = "clipmap-read", version, about = "Read and verify a clip texture published by clipmapd --source hash")]
+#[command(
+    name = "clipmap-read",
+    version,
+    about = "Read and verify a clip texture published by clipmapd --source hash",
+    after_help = "\
+Every texel read is checked against the verification texture (hash); any wrong texel fails.
+
+Examples:
+  clipmapd --source hash --size 65536 --clip 512 --name hash &
+  clipmap-read --name hash --reads 1000000
+  clipmap-read --name hash --follow --seconds 60      # keeps reading through service restarts
+  clipmap-read --name hash --drive --seconds 10       # also requests a fast flight with jumps"
+)]
 struct Cli {
     /// Publication name.
     #[arg(long, default_value = "hash")]

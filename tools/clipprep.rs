@@ -52,15 +52,28 @@ enum FilterArg {
     Lanczos3,
 }
 
+const AFTER_HELP: &str = "\
+Level-0 texel (s, t) is image pixel (s, height-1-t): Performer's origin is the lower-left corner.
+
+Examples:
+  clipprep --input photo.png --tile 256 --clip 512 --format rgb8 --out pyr
+  clipprep --input map.jpg --pad --tile 512 --clip 1024 --format rgb8 --filter lanczos3 --out map
+  clipprep --source terrain --size 16384 --tile 256 --clip 1024 --format rgb8 --out terrain
+  clipprep --source hash --size 65536x32768 --tile 512 --clip 2048 --format rgba8 --streams 4 --out verify
+  clipprep --source terrain --size 8192 --tile 256 --clip 512 --format rgb8 --zstd 3 --out packed
+  clipprep --source terrain --size 8192 --tile 256 --clip 512 --format rgb8 \\
+           --inset 2048,2048,4096,4096 --inset-level 2 --out inset
+
+Exit codes: 0 ok; 1 bad input (arguments, image, existing output); 2 could not run (disk full,
+write error, interrupted, command-line syntax).";
+
 /// Prepares a clip texture: a tiled pyramid in Performer's raw tile layout plus its .ct and .ic
 /// configuration files, with relative paths so the directory can be moved.
 #[derive(Parser, Debug)]
 #[command(
     name = "clipprep",
     version,
-    after_help = "Level-0 texel (s, t) is image pixel (s, height-1-t): Performer's origin is the lower-left corner.\n\
-Exit codes: 0 ok; 1 bad input (arguments, image, existing output); 2 could not run (disk full, \
-write error, interrupted, command-line syntax)."
+    after_help = AFTER_HELP
 )]
 struct Cli {
     /// Input image (PNG, JPEG, TIFF; TIFF is streamed, others are decoded into memory).

@@ -40,7 +40,22 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Check .ct files (and every .ic they name); report every problem with file:line:col.
-    Validate(validate::ValidateArgs),
+    #[command(after_help = "\
+Examples:
+  cliptex validate config_examples/*.ct
+  cliptex validate --strict --json my.ct
+  cliptex validate --ct-only --env DATA=/mnt/terrain configs/*.ct   # on a machine without the data
+  cliptex validate --quiet --unset HOME configs/*.ct
+
+Exit status: 0 every file valid, 1 some file invalid, 2 some file could not be read.")]
+    Validate {
+        #[command(flatten)]
+        args: validate::ValidateArgs,
+        /// Check each .ct alone: the .ic files it names are resolved and printed, not opened
+        /// (for CI on a machine without the data volume).
+        #[arg(long)]
+        ct_only: bool,
+    },
     /// A live view of a running service (levels, centres, valid regions, min LOD, tick rate, read queues).
     #[command(after_help = "\
 Examples:
@@ -68,12 +83,22 @@ Examples:
         interval: f64,
     },
     /// Print every value (defaults marked) and the level table.
+    #[command(after_help = "\
+Examples:
+  cliptex info config_examples/v2_format_params.ct
+  cliptex info my.ct --json
+  cliptex info my.ct --env DATA=/mnt/terrain
+  cliptex info --ct-only my.ct     # the level table without opening the .ic files")]
     Info {
         /// The .ct file.
         file: PathBuf,
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+        /// Read the .ct alone: the .ic files it names are resolved and listed, not opened; what
+        /// only they give (tile size, regions) is shown as unknown (`?`, null in JSON).
+        #[arg(long)]
+        ct_only: bool,
         #[command(flatten)]
         env: EnvArgs,
     },
@@ -83,17 +108,24 @@ Examples:
   cliptex plan --size 67108864 --clip 2048 --texel-bytes 4
   cliptex plan --size 65536 --clip 1024 --texel-bytes 3 --display 1920 --speed 2000 --json
   cliptex plan --size 67108864 --clip 2048 --texel-bytes 4 --display 1920 --eye-height 3000
+  cliptex plan --size 8192x2048 --clip 512 --texel-bytes 3
+  cliptex plan my.ct                       # sizes, clip and texel format from the .ct
+  cliptex plan my.ct --clip 2048 --json    # the same texture with another clip size
   cliptex plan --table --clip 2048 --texel-bytes 4")]
     Plan {
-        /// Texture size in texels a side (a power of two).
-        #[arg(long, required_unless_present = "table")]
-        size: Option<u64>,
-        /// Clip size (a power of two).
-        #[arg(long, default_value_t = 1024)]
-        clip: u64,
-        /// Bytes per texel (e.g. 3 for RGB8, 4 for RGBA8, 2 for RGB565).
-        #[arg(long, default_value_t = 4)]
-        texel_bytes: u64,
+        /// A .ct to size: its virt_size, clip_size, texel format and invalid_border (its .ic
+        /// files are not opened); --clip, --texel-bytes and --invalid-border override them.
+        #[arg(conflicts_with_all = ["size", "table"])]
+        file: Option<PathBuf>,
+        /// Texture size in texels: N (square) or WxH, powers of two.
+        #[arg(long, value_name = "N|WxH", required_unless_present_any = ["table", "file"], value_parser = parse_plan_size)]
+        size: Option<[u64; 2]>,
+        /// Clip size (a power of two) [default: 1024, or the .ct's].
+        #[arg(long)]
+        clip: Option<u64>,
+        /// Bytes per texel (e.g. 3 for RGB8, 4 for RGBA8, 2 for RGB565) [default: 4, or the .ct's].
+        #[arg(long)]
+        texel_bytes: Option<u64>,
         /// Display width in pixels: recommends a clip size.
         #[arg(long)]
         display: Option<u64>,
@@ -112,17 +144,26 @@ Examples:
         /// With --eye-height: 0 keeps the finest levels (resolution), 1 keeps the coarsest (area), as Performer's rule.
         #[arg(long, default_value_t = 0.0)]
         tradeoff: f64,
-        /// Invalid border (with --eye-height).
-        #[arg(long, default_value_t = 8)]
-        invalid_border: u64,
+        /// Invalid border (with --eye-height) [default: 8, or the .ct's].
+        #[arg(long)]
+        invalid_border: Option<u64>,
         /// Print memory for texture sizes 2^10 to 2^26 at once.
         #[arg(long)]
         table: bool,
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+        #[command(flatten)]
+        env: EnvArgs,
     },
     /// Print where a tile's texels are: file, byte offset, length, stream server.
+    #[command(after_help = "\
+Examples:
+  cliptex tile config_examples/prepared/hash256.ct --level 0 --s 1 --t 2
+  cliptex tile my.ct --level 3 --s 12 --t 40 --json
+  cliptex tile my.ct --level 9 --s 0 --t 0 --env DATA=/mnt/terrain   # a pyramid level: one tile
+
+Exit status: 0 found, 1 no such tile or an invalid configuration, 2 the tool could not run.")]
     Tile {
         /// The .ct file.
         file: PathBuf,
@@ -146,7 +187,11 @@ Examples:
 Flights (speeds and distances in level-0 texels per frame, angles in degrees from +s):
   straight:SPEED[:ANGLE]  circle:RADIUS:SPEED  zigzag:SPEED:PERIOD  hover  jump:EVERY:DIST
 
+Frames run on a 60 frames/s clock by default, reads arriving in real time as in the service;
+--fps sets the rate, --wait-for-reads makes every read finish between frames (deterministic).
+
 Examples:
+  cliptex roam --source hash --size 65536 --clip 1024 --flight straight:16 --frames 120
   cliptex roam --source hash --size 65536 --clip 1024 --flight straight:16 --frames 50 --wait-for-reads
   cliptex roam config_examples/prepared/hash256.ct --flight straight:4:45 --frames 20 --json
   cliptex roam --source terrain --size 1048576 --clip 2048 --flight zigzag:64:20 --frames 200 --budget-ms inf")]
@@ -174,6 +219,11 @@ could not run (bad options, unreadable configuration, no such service, unwritabl
     Dump(DumpArgs),
     /// Walk every tile on disk: per level, tiles present, missing, short, unreadable, corrupt (compressed) and covered by the default tile.
     #[command(after_help = "\
+Examples:
+  cliptex check config_examples/prepared/hash256.ct
+  cliptex check my.ct --json > check.json
+  cliptex check my.ct --quiet --env DATA=/mnt/terrain     # in CI: problems and the verdict only
+
 Exit status: 0 every tile can be served (present, or covered by a default tile), 1 some cannot,
 2 the configuration cannot be read (unreadable or invalid).")]
     Check {
@@ -200,8 +250,8 @@ struct DumpArgs {
     level: u32,
     /// Part of the level: S0,T0,S1,T1 in level texels, half-open (default: the whole level, if
     /// it has at most 4096x4096 texels).
-    #[arg(long, value_name = "S0,T0,S1,T1")]
-    region: Option<String>,
+    #[arg(long, value_name = "S0,T0,S1,T1", value_parser = report::dump::parse_region)]
+    region: Option<[u64; 4]>,
     /// The PNG to write (with a .ct file).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -246,16 +296,20 @@ struct RoamArgs {
     border: Option<u64>,
     /// The flight: straight:SPEED[:ANGLE], circle:RADIUS:SPEED, zigzag:SPEED:PERIOD, hover, jump:EVERY:DIST.
     #[arg(long)]
-    flight: String,
+    flight: roam::Flight,
     /// Frames to fly.
     #[arg(long)]
     frames: u64,
-    /// Copy budget per frame in milliseconds (`inf`: no limit).
-    #[arg(long, default_value_t = 6.0)]
+    /// Copy budget per frame in milliseconds (`inf` or `off`: no limit).
+    #[arg(long, default_value = "6", value_parser = parse_budget_ms)]
     budget_ms: f64,
     /// Wait for every read between frames (an ideally fast disk): the report is deterministic.
     #[arg(long)]
     wait_for_reads: bool,
+    /// Frames per second of the frame clock: frames are paced as a renderer's and reads arrive
+    /// in real time between them, as in the service (0: frames back to back, no clock).
+    #[arg(long, default_value_t = 60.0, conflicts_with = "wait_for_reads", value_parser = parse_fps)]
+    fps: f64,
     /// Align each level's centre down to a multiple of this many level texels (1: texel-exact;
     /// Performer's InfiniteReality used 8). Copies column strips wider and less often, at the
     /// cost of up to ALIGNMENT - 1 texels of each level on the side the view moves towards.
@@ -279,6 +333,39 @@ fn main() -> ExitCode {
     ExitCode::from(run(cli) as u8)
 }
 
+/// `--budget-ms`: milliseconds of at least 0, or `inf` / `off` for no limit.
+fn parse_budget_ms(text: &str) -> Result<f64, String> {
+    if text.trim().eq_ignore_ascii_case("off") {
+        return Ok(f64::INFINITY);
+    }
+    match text.trim().parse::<f64>() {
+        Ok(ms) if ms >= 0.0 => Ok(ms),
+        _ => Err(format!(
+            "`{text}` is not a budget: expected a number of milliseconds of at least 0, or inf (or off) for no limit"
+        )),
+    }
+}
+
+/// `--fps`: 0 (no clock) or a rate up to 10000 frames a second.
+fn parse_fps(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(f) if f.is_finite() && (0.0..=10_000.0).contains(&f) => Ok(f),
+        _ => Err(format!(
+            "`{text}` is not a frame rate: expected 0 (no clock) or a number of frames per second up to 10000"
+        )),
+    }
+}
+
+/// `--size N` or `--size WxH`.
+fn parse_plan_size(text: &str) -> Result<[u64; 2], String> {
+    let num =
+        |t: &str| t.trim().parse::<u64>().map_err(|_| format!("`{text}` is not N or WxH (e.g. 65536 or 8192x2048)"));
+    match text.split_once(['x', 'X']) {
+        Some((w, h)) => Ok([num(w)?, num(h)?]),
+        None => num(text).map(|n| [n, n]),
+    }
+}
+
 fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
     env.options().map_err(|e| {
         eprintln!("cliptex: {e}");
@@ -287,7 +374,15 @@ fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
 }
 
 fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ClipTexturePlan, Vec<clipmap::config::Diagnostic>), i32> {
-    let o = opts(env)?;
+    load_with(file, env, false)
+}
+
+fn load_with(
+    file: &Path,
+    env: &EnvArgs,
+    ct_only: bool,
+) -> Result<(plan::ClipTexturePlan, Vec<clipmap::config::Diagnostic>), i32> {
+    let o = plan::Options { ct_only, ..opts(env)? };
     let loaded = plan::load_clip_texture(file, &o).map_err(|e| {
         eprintln!("cliptex: {e}");
         exit::COULD_NOT_RUN
@@ -307,20 +402,7 @@ fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ClipTexturePlan, Vec<clipma
 }
 
 fn roam(args: RoamArgs) -> i32 {
-    let flight: roam::Flight = match args.flight.parse() {
-        Ok(f) => f,
-        Err(e) => {
-            eprintln!("cliptex roam: --flight {e}");
-            return exit::COULD_NOT_RUN;
-        }
-    };
-    if args.budget_ms.is_nan() || args.budget_ms < 0.0 {
-        eprintln!(
-            "cliptex roam: --budget-ms {}: expected a number of milliseconds of at least 0, or inf",
-            args.budget_ms
-        );
-        return exit::COULD_NOT_RUN;
-    }
+    let flight = args.flight;
     let options = match (&args.config, args.source) {
         (Some(file), _) => {
             let plan = match load(file, &args.env) {
@@ -360,6 +442,7 @@ fn roam(args: RoamArgs) -> i32 {
         settings,
         budget_ms: args.budget_ms.is_finite().then_some(args.budget_ms),
         wait_for_reads: args.wait_for_reads,
+        fps: (args.fps > 0.0).then_some(args.fps),
         invalid_border: args.border,
         ..options
     };
@@ -380,7 +463,8 @@ fn roam(args: RoamArgs) -> i32 {
 }
 
 fn dump(args: DumpArgs) -> i32 {
-    use report::{dump, live_dump};
+    use clipmap::inspect::live_dump;
+    use report::dump;
     if let Some(name) = &args.attach {
         let dir = args.shm_dir.clone().unwrap_or_else(clipmap::shm::default_dir);
         let out = args.out_dir.clone().unwrap_or_default();
@@ -403,10 +487,7 @@ fn dump(args: DumpArgs) -> i32 {
         eprintln!("cliptex dump: give a .ct file with --out FILE.png, or --attach NAME with --out-dir DIR");
         return exit::COULD_NOT_RUN;
     };
-    let region = match args.region.as_deref().map(dump::parse_region).transpose() {
-        Ok(r) => r,
-        Err(e) => return dump::finish(Err(e), args.json, args.quiet, "cliptex"),
-    };
+    let region = args.region;
     let plan = match load(file, &args.env) {
         Ok((p, _)) => p,
         Err(c) => return c,
@@ -478,7 +559,7 @@ fn run(cli: Cli) -> i32 {
             let every = std::time::Duration::from_secs_f64(interval.clamp(0.05, 3600.0));
             let live = !once && !json && std::io::IsTerminal::is_terminal(&std::io::stdout());
             loop {
-                match report::attach::status(
+                match clipmap::inspect::attach::status(
                     &dir,
                     &name,
                     every.min(std::time::Duration::from_millis(250)).max(if live {
@@ -495,7 +576,7 @@ fn run(cli: Cli) -> i32 {
                             if live {
                                 print!("\x1b[2J\x1b[H");
                             }
-                            print!("{}", report::attach::human(&s));
+                            print!("{}", clipmap::inspect::attach::human(&s));
                         }
                         if !live || s.closed {
                             return exit::OK;
@@ -508,8 +589,8 @@ fn run(cli: Cli) -> i32 {
                 }
             }
         }
-        Command::Validate(args) => validate::cli(&args, FileKind::ClipTexture, "cliptex"),
-        Command::Info { file, json, env } => match load(&file, &env) {
+        Command::Validate { args, ct_only } => validate::cli(&args, FileKind::ClipTexture, "cliptex", ct_only),
+        Command::Info { file, json, env, ct_only } => match load_with(&file, &env, ct_only) {
             Err(c) => c,
             Ok((p, warnings)) => {
                 if json {
@@ -524,6 +605,7 @@ fn run(cli: Cli) -> i32 {
             }
         },
         Command::Plan {
+            file,
             size,
             clip,
             texel_bytes,
@@ -536,7 +618,23 @@ fn run(cli: Cli) -> i32 {
             invalid_border,
             table,
             json,
+            env,
         } => {
+            // From a .ct (read alone: sizing needs no .ic), or from the options.
+            let from_ct = match &file {
+                None => None,
+                Some(f) => match load_with(f, &env, true) {
+                    Ok((p, _)) => Some(p),
+                    Err(code) => return code,
+                },
+            };
+            let clip = clip.or(from_ct.as_ref().map(|p| p.clip_size)).unwrap_or(1024);
+            let texel_bytes = texel_bytes.or(from_ct.as_ref().map(|p| p.bytes_per_texel as u64)).unwrap_or(4);
+            let invalid_border = invalid_border.or(from_ct.as_ref().map(|p| p.invalid_border)).unwrap_or(8);
+            let size = match &from_ct {
+                Some(p) => [p.virt_size[0], p.virt_size[1]],
+                None => size.unwrap_or([0, 0]),
+            };
             if table {
                 return match report::plan::table(clip, texel_bytes, 10, 26) {
                     Ok((text, rows)) => {
@@ -554,7 +652,8 @@ fn run(cli: Cli) -> i32 {
                 };
             }
             let req = report::plan::Request {
-                size: size.unwrap_or(0),
+                from: from_ct.as_ref().map(|p| p.path.clone()),
+                size,
                 clip,
                 texel_bytes,
                 display,

@@ -32,8 +32,20 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Check standalone .ic files; report every problem with file:line:col.
+    #[command(after_help = "\
+Examples:
+  icache validate config_examples/*.ic
+  icache validate --strict --json level0.ic
+  icache validate --quiet --env DATA=/mnt/terrain ic/*.ic
+
+Exit status: 0 every file valid, 1 some file invalid, 2 some file could not be read.")]
     Validate(validate::ValidateArgs),
     /// Print every value (defaults marked).
+    #[command(after_help = "\
+Examples:
+  icache info config_examples/standalone.ic
+  icache info level0.ic --json
+  icache info level0.ic --env DATA=/mnt/terrain")]
     Info {
         /// The .ic file.
         file: PathBuf,
@@ -61,8 +73,8 @@ written when the .ic is valid), 2 the tool could not run (bad options, unwritabl
         file: PathBuf,
         /// Part of the image: S0,T0,S1,T1 in texels, half-open (default: all of it, if it has at
         /// most 4096x4096 texels).
-        #[arg(long, value_name = "S0,T0,S1,T1")]
-        region: Option<String>,
+        #[arg(long, value_name = "S0,T0,S1,T1", value_parser = dump::parse_region)]
+        region: Option<[u64; 4]>,
         /// The PNG to write.
         #[arg(long)]
         out: PathBuf,
@@ -76,6 +88,12 @@ written when the .ic is valid), 2 the tool could not run (bad options, unwritabl
         env: EnvArgs,
     },
     /// Print where a tile's texels are: file, byte offset, length, stream server.
+    #[command(after_help = "\
+Examples:
+  icache tile config_examples/standalone.ic --s 3 --t 5
+  icache tile level0.ic --s 3 --t 5 --json
+
+Exit status: 0 found, 1 no such tile or an invalid .ic, 2 the tool could not run.")]
     Tile {
         /// The .ic file.
         file: PathBuf,
@@ -123,11 +141,7 @@ fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clipmap
     }
 }
 
-fn dump(file: &Path, region: Option<&str>, out: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
-    let region = match region.map(dump::parse_region).transpose() {
-        Ok(r) => r,
-        Err(e) => return dump::finish(Err(e), json, quiet, "icache"),
-    };
+fn dump(file: &Path, region: Option<[u64; 4]>, out: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
     let plan = match load(file, env) {
         Ok((p, _)) => p,
         Err(c) => return c,
@@ -159,10 +173,8 @@ fn dump(file: &Path, region: Option<&str>, out: &Path, json: bool, quiet: bool, 
 
 fn run(cli: Cli) -> i32 {
     match cli.command {
-        Command::Validate(args) => validate::cli(&args, FileKind::ImageCache, "icache"),
-        Command::Dump { file, region, out, json, quiet, env } => {
-            dump(&file, region.as_deref(), &out, json, quiet, &env)
-        }
+        Command::Validate(args) => validate::cli(&args, FileKind::ImageCache, "icache", false),
+        Command::Dump { file, region, out, json, quiet, env } => dump(&file, region, &out, json, quiet, &env),
         Command::Info { file, json, env } => match load(&file, &env) {
             Err(c) => c,
             Ok((p, warnings)) => {

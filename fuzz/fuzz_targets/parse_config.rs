@@ -1,10 +1,10 @@
 //! Fuzzes the configuration reader end to end: both parsers, both plan builders (through a
 //! file, as the tools read it, next to two level `.ic` files a `.ct` may name), the tools'
 //! reports and tile location. The logic is shared with the property tests
-//! (`tests/common/exercise.rs`), which run it where `cargo fuzz` cannot.
+//! (`tests/it/common/exercise.rs`), which run it where `cargo fuzz` cannot.
 #![no_main]
 
-#[path = "../../tests/common/exercise.rs"]
+#[path = "../../tests/it/common/exercise.rs"]
 mod exercise;
 
 use libfuzzer_sys::fuzz_target;

@@ -221,7 +221,7 @@ pub const CONCLUSIONS: &str = "\
   viewer's foot, every frame is bit-identical to the full-mipmap render (PSNR infinite, maximum
   error 0, no pixel coarser than ideal), for terrain and for the verification texture. The tests
   `accuracy::tests::with_clip_twice_the_display_every_frame_is_bit_identical` and
-  `tests/stability.rs` hold this.
+  `tests/it/stability.rs` hold this.
 - **Clip size.** Below that, the share of pixels drawn from a coarser level grows as the clip
   shrinks (never the reverse: `a_smaller_clip_size_never_improves_the_picture`); the errors stay
   small on smooth terrain because a coarser level of a filtered pyramid is a blur, not a wrong
@@ -247,7 +247,7 @@ pub const CONCLUSIONS: &str = "\
 - World positions, ray directions and texture coordinates are f64: a 2^26 texture needs 26 bits
   of integer part plus the sub-texel fraction, more than f32's 24-bit mantissa.
 - Colours are f32 in 0..1 and are compared after quantising to 8 bits per channel.
-- `tests/stability.rs` flies 2^26 textures with clip sizes from 1 to 8192, centres at 0, at the
+- `tests/it/stability.rs` flies 2^26 textures with clip sizes from 1 to 8192, centres at 0, at the
   far edge, outside the texture and at ±2^40, across wrap boundaries, on non-square textures and
   down to the 1x1 level, and checks every published texel and the sampling identity.
 ";

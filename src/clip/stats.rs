@@ -8,7 +8,8 @@ use crate::source::FaultKind;
 use serde::Serialize;
 
 /// Read failures by kind.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct FaultCounts {
     pub missing: u64,
     pub short: u64,
@@ -38,7 +39,8 @@ impl FaultCounts {
 }
 
 /// Counters since the clipmap started.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct Stats {
     /// Update ticks run.
     pub ticks: u64,

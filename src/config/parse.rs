@@ -232,12 +232,17 @@ impl<'a> Parser<'a, '_> {
                 Value::Ignored
             }
             ArgShape::NumStreams => {
+                // The manual gives three integers ("the modulo number for the s, t and r
+                // directions"); older files give one or none. All are read and ignored.
                 let line = span.line;
-                if self
-                    .lx
-                    .peek()
-                    .is_some_and(|w| w.span.line == line && w.text().is_some_and(|t| t.parse::<i64>().is_ok()))
-                {
+                for _ in 0..3 {
+                    if !self
+                        .lx
+                        .peek()
+                        .is_some_and(|w| w.span.line == line && w.text().is_some_and(|t| t.parse::<i64>().is_ok()))
+                    {
+                        break;
+                    }
                     self.lx.next_word();
                 }
                 let next = self.lx.peek().map(|w| (w.span, w.shown(), w.text().is_some_and(tokens::is_comment_start)));

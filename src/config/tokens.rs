@@ -89,7 +89,7 @@ pub enum ArgShape {
     ReadFunc,
     /// Obsolete: every following non-token word is skipped.
     SkipWords,
-    /// Obsolete `num_streams`: an optional integer on the same line.
+    /// Obsolete `num_streams`: up to three integers (S, T, R) on the same line, all ignored.
     NumStreams,
 }
 

@@ -284,6 +284,10 @@ pub fn build(
                 .build(diags, limits.max_mem_region_tiles)
             } else {
                 let (path, span) = icache_names.as_ref()?.get(l)?.clone()?;
+                if opts.ct_only {
+                    levels.push(Level { level, size, kind: LevelKind::IcacheNotOpened { path } });
+                    continue;
+                }
                 let ctx = Context {
                     clip_size: Some(clip),
                     page_size: Some(page_size),
@@ -785,7 +789,7 @@ fn load_level_ic(
                 )
                 .found(path.display().to_string())
                 .hint(
-                    "check the name (relative names are taken from the .ct file's directory) and that the file exists",
+                    "check the name (relative names are taken from the .ct file's directory) and that the file exists; to check the .ct where its data is not, use `cliptex validate --ct-only`",
                 ),
             );
             return None;

@@ -35,6 +35,9 @@ pub struct Options {
     pub env: Env,
     /// Input bounds.
     pub limits: Limits,
+    /// Check a `.ct` alone: the `.ic` files it names are resolved but not opened (their levels
+    /// are [`LevelKind::IcacheNotOpened`]). For checking configurations where their data is not.
+    pub ct_only: bool,
 }
 
 /// The result of loading: the plan when there was no error, all findings, and the text of every
@@ -162,6 +165,12 @@ pub enum LevelKind {
     Icache(Box<ImageCachePlan>),
     /// A single tile holding the whole level.
     Pyramid(PyramidTile),
+    /// An image cache whose `.ic` file was named but not opened ([`Options::ct_only`]): what only
+    /// the `.ic` gives (tile size, regions, streams) is unknown. Never served.
+    IcacheNotOpened {
+        /// The `.ic` file the `.ct` names (absolute, variables expanded).
+        path: PathBuf,
+    },
 }
 
 /// One mipmap level of a clip texture.
@@ -232,9 +241,18 @@ impl ClipTexturePlan {
         self.levels.get(level as usize)
     }
 
-    /// Number of image-cache levels.
+    /// Number of image-cache levels (opened or not).
     pub fn icache_levels(&self) -> usize {
-        self.levels.iter().filter(|l| matches!(l.kind, LevelKind::Icache(_))).count()
+        self.levels
+            .iter()
+            .filter(|l| matches!(l.kind, LevelKind::Icache(_) | LevelKind::IcacheNotOpened { .. }))
+            .count()
+    }
+
+    /// True when some level's `.ic` was not opened ([`Options::ct_only`]): such a plan describes
+    /// the configuration but cannot be served or checked against data.
+    pub fn is_ct_only(&self) -> bool {
+        self.levels.iter().any(|l| matches!(l.kind, LevelKind::IcacheNotOpened { .. }))
     }
 }
 

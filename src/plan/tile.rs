@@ -47,6 +47,14 @@ pub enum TileError {
         /// Level count.
         count: u32,
     },
+    /// The level's `.ic` was not opened (a `.ct`-only plan).
+    #[error("level {level}'s image cache {} was not opened (.ct-only): its tiles are unknown", path.display())]
+    NotOpened {
+        /// The level.
+        level: u32,
+        /// The `.ic` named.
+        path: std::path::PathBuf,
+    },
     /// A pyramid level is one tile.
     #[error("level {level} is a pyramid level held in a single tile: use s 0 and t 0")]
     PyramidTile {
@@ -150,6 +158,7 @@ impl ClipTexturePlan {
         let l = self.level(level).ok_or(TileError::NoLevel { level, count: self.levels.len() as u32 })?;
         match &l.kind {
             LevelKind::Icache(ic) => ic.locate(s, t, 0),
+            LevelKind::IcacheNotOpened { path } => Err(TileError::NotOpened { level, path: path.clone() }),
             LevelKind::Pyramid(p) => {
                 if s != 0 || t != 0 {
                     return Err(TileError::PyramidTile { level });

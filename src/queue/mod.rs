@@ -51,7 +51,8 @@ pub struct Completion {
 }
 
 /// Counters of one queue (or the sum over queues).
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct QueueStats {
     /// Distinct tiles newly queued.
     pub requested: u64,

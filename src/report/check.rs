@@ -174,6 +174,7 @@ pub fn tile_count(plan: &ClipTexturePlan) -> u64 {
         .map(|l| match &l.kind {
             LevelKind::Icache(ic) => ic.tile_count().iter().product(),
             LevelKind::Pyramid(_) => 1,
+            LevelKind::IcacheNotOpened { .. } => 0,
         })
         .sum()
 }
@@ -195,6 +196,8 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
                 ("image_cache", d, [n[0], n[1]])
             }
             LevelKind::Pyramid(_) => ("pyramid", None, [1, 1]),
+            // Only a `.ct`-only plan has these, and `check` loads every `.ic`.
+            LevelKind::IcacheNotOpened { .. } => ("image_cache_not_opened", None, [0, 0]),
         };
         let covers = default_tile.as_ref().is_some_and(|d| d.usable);
         for t in 0..tiles[1] {

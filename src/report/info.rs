@@ -20,16 +20,19 @@ pub struct LevelRow {
     pub icache_config: Option<PathBuf>,
     /// The pyramid file (absolute), or null (image cache levels, unnamed pyramid levels).
     pub tile_file: Option<PathBuf>,
-    /// Tile size in texels (a pyramid level is one tile).
-    pub tile_size: [u64; 2],
+    /// Tile size in texels (a pyramid level is one tile). Null (unknown) when the level's `.ic`
+    /// was not opened (`--ct-only`), as for the fields below.
+    pub tile_size: Option<[u64; 2]>,
     /// Tex region in texels.
-    pub tex_region: [u64; 2],
+    pub tex_region: Option<[u64; 2]>,
     /// Mem region in tiles.
-    pub mem_region: [u64; 2],
+    pub mem_region: Option<[u64; 2]>,
     /// Header bytes of each file.
-    pub header_offset: u64,
+    pub header_offset: Option<u64>,
     /// Tiles along S and T.
-    pub tiles: [u64; 2],
+    pub tiles: Option<[u64; 2]>,
+    /// False when the level's `.ic` was named but not opened (`--ct-only`).
+    pub icache_opened: bool,
 }
 
 /// `cliptex info --json`.
@@ -92,11 +95,25 @@ pub fn level_rows(plan: &ClipTexturePlan) -> Vec<LevelRow> {
                 kind: "icache",
                 icache_config: ic.path.clone(),
                 tile_file: None,
-                tile_size: two(ic.tile_size),
-                tex_region: two(ic.tex_region),
-                mem_region: two(ic.mem_region),
-                header_offset: ic.header_offset,
-                tiles: two(ic.tile_count()),
+                tile_size: Some(two(ic.tile_size)),
+                tex_region: Some(two(ic.tex_region)),
+                mem_region: Some(two(ic.mem_region)),
+                header_offset: Some(ic.header_offset),
+                tiles: Some(two(ic.tile_count())),
+                icache_opened: true,
+            },
+            LevelKind::IcacheNotOpened { path } => LevelRow {
+                level: l.level,
+                size: l.size,
+                kind: "icache",
+                icache_config: Some(path.clone()),
+                tile_file: None,
+                tile_size: None,
+                tex_region: None,
+                mem_region: None,
+                header_offset: None,
+                tiles: None,
+                icache_opened: false,
             },
             LevelKind::Pyramid(p) => LevelRow {
                 level: l.level,
@@ -104,11 +121,12 @@ pub fn level_rows(plan: &ClipTexturePlan) -> Vec<LevelRow> {
                 kind: "pyramid",
                 icache_config: None,
                 tile_file: p.path.clone(),
-                tile_size: l.size,
-                tex_region: l.size,
-                mem_region: [1, 1],
-                header_offset: p.header_offset,
-                tiles: [1, 1],
+                tile_size: Some(l.size),
+                tex_region: Some(l.size),
+                mem_region: Some([1, 1]),
+                header_offset: Some(p.header_offset),
+                tiles: Some([1, 1]),
+                icache_opened: true,
             },
         })
         .collect()
@@ -213,20 +231,29 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
         human_bytes(full * bpt)
     ));
     o.push_str("\nlevel  size              kind     tile          tex region   mem region  file\n");
+    let pair = |v: Option<[u64; 2]>| v.map(|[a, b]| format!("{a}x{b}")).unwrap_or_else(|| "?".into());
     for r in level_rows(plan) {
         let file = if r.kind == "icache" { rel(&r.icache_config, dir) } else { rel(&r.tile_file, dir) };
-        let file =
-            if r.kind == "icache" && r.icache_config.is_none() { "(no .ic: synthesised)".to_string() } else { file };
+        let file = if r.kind == "icache" && r.icache_config.is_none() {
+            "(no .ic: synthesised)".to_string()
+        } else if !r.icache_opened {
+            format!("{file}  (not opened)")
+        } else {
+            file
+        };
         o.push_str(&format!(
             "{:<6} {:<17} {:<8} {:<13} {:<12} {:<11} {}\n",
             r.level,
             format!("{}x{}", r.size[0], r.size[1]),
             r.kind,
-            format!("{}x{}", r.tile_size[0], r.tile_size[1]),
-            format!("{}x{}", r.tex_region[0], r.tex_region[1]),
-            format!("{}x{}", r.mem_region[0], r.mem_region[1]),
+            pair(r.tile_size),
+            pair(r.tex_region),
+            pair(r.mem_region),
             file
         ));
+    }
+    if plan.is_ct_only() {
+        o.push_str("\n.ct only: the .ic files were not opened; `?` marks what only they give.\n");
     }
     o
 }

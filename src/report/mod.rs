@@ -1,26 +1,36 @@
 //! What the inspection tools print: validation reports, configuration summaries and tile
 //! locations, each as a human text and as JSON. The binaries only parse arguments and call these.
 
-pub mod attach;
 pub mod check;
 pub mod dump;
 pub mod info;
-pub mod live_dump;
+pub mod label;
 pub mod picture;
 pub mod plan;
 pub mod validate;
 
 use crate::plan::{Env, Options};
 
+/// An `--env` argument that is not `NAME=VALUE`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum EnvArgError {
+    /// No `=`.
+    #[error("--env expects NAME=VALUE, found `{0}`")]
+    NoEquals(String),
+    /// `=VALUE`.
+    #[error("--env expects NAME=VALUE with a non-empty NAME, found `{0}`")]
+    EmptyName(String),
+}
+
 /// Builds reader options from `--env NAME=VALUE` and `--unset NAME` arguments.
-pub fn options(env: &[String], unset: &[String]) -> Result<Options, String> {
+pub fn options(env: &[String], unset: &[String]) -> Result<Options, EnvArgError> {
     let mut e = Env::process();
     for kv in env {
         let Some((k, v)) = kv.split_once('=') else {
-            return Err(format!("--env expects NAME=VALUE, found `{kv}`"));
+            return Err(EnvArgError::NoEquals(kv.clone()));
         };
         if k.is_empty() {
-            return Err(format!("--env expects NAME=VALUE with a non-empty NAME, found `{kv}`"));
+            return Err(EnvArgError::EmptyName(kv.clone()));
         }
         e.set(k, v);
     }
@@ -59,7 +69,7 @@ pub struct EnvArgs {
 
 impl EnvArgs {
     /// Reader options from these arguments.
-    pub fn options(&self) -> Result<Options, String> {
+    pub fn options(&self) -> Result<Options, EnvArgError> {
         options(&self.env, &self.unset)
     }
 }

@@ -8,8 +8,8 @@ use serde::Serialize;
 /// What the user asked for.
 #[derive(Clone, Debug)]
 pub struct Request {
-    /// Texture size (texels a side).
-    pub size: u64,
+    /// Texture size (texels, S and T; powers of two).
+    pub size: [u64; 2],
     /// Clip size.
     pub clip: u64,
     /// Bytes per texel.
@@ -28,12 +28,17 @@ pub struct Request {
     pub tradeoff: f64,
     /// Invalid border.
     pub invalid_border: u64,
+    /// The `.ct` the sizes came from (`cliptex plan FILE.ct`).
+    pub from: Option<std::path::PathBuf>,
 }
 
 /// The answer.
 #[derive(Clone, Debug, Serialize)]
 pub struct Plan {
-    /// Texture size.
+    /// The `.ct` the sizes came from, when one was given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub from: Option<std::path::PathBuf>,
+    /// Texture size: the longer side (the side, for a square texture).
     pub size: u64,
     /// Clip size used (clamped to the size).
     pub clip_size: u64,
@@ -83,21 +88,23 @@ pub struct Display {
 
 /// Computes the plan.
 pub fn compute(r: &Request) -> Result<Plan, SizingError> {
-    let memory = sizing::memory(r.size, r.clip, r.texel_bytes)?;
-    let levels = memory.log2_size + 1;
+    let [w, h] = r.size;
+    let memory = sizing::memory_rect(w, h, r.clip, r.texel_bytes)?;
+    let levels = memory.stack_levels + memory.pyramid_levels;
+    let long = w.max(h);
     let update = r.speed.map(|speed| {
         let t = sizing::update_texels_per_second(&memory, speed);
         Update { speed, texels_per_second: t, bytes_per_second: t * r.texel_bytes as f64 }
     });
     let display = match r.display {
-        Some(w) => {
-            let (usual, exact) = sizing::recommended_clip(w);
+        Some(display) => {
+            let (usual, exact) = sizing::recommended_clip(display);
             Some(Display {
-                width: w,
+                width: display,
                 usual_clip: usual,
                 exact_clip: exact,
-                usual_bytes: sizing::memory(r.size, usual.min(r.size), r.texel_bytes)?.clipmap_bytes,
-                exact_bytes: sizing::memory(r.size, exact.min(r.size), r.texel_bytes)?.clipmap_bytes,
+                usual_bytes: sizing::memory_rect(w, h, usual.min(long), r.texel_bytes)?.clipmap_bytes,
+                exact_bytes: sizing::memory_rect(w, h, exact.min(long), r.texel_bytes)?.clipmap_bytes,
             })
         }
         None => None,
@@ -117,7 +124,8 @@ pub fn compute(r: &Request) -> Result<Plan, SizingError> {
         })
     });
     Ok(Plan {
-        size: r.size,
+        from: r.from.clone(),
+        size: long,
         clip_size: 1 << memory.log2_clip,
         texel_bytes: r.texel_bytes,
         levels,
@@ -145,12 +153,24 @@ pub fn grouped(v: u128) -> String {
 pub fn human(p: &Plan, r: &Request) -> String {
     let m = &p.memory;
     let mut o = String::new();
+    if let Some(ct) = &p.from {
+        o.push_str(&format!("from         {}\n", ct.display()));
+    }
+    let powers = if m.width == m.height {
+        format!("2^{}", m.log2_size)
+    } else {
+        format!("2^{} x 2^{}", m.width.trailing_zeros(), m.height.trailing_zeros())
+    };
     o.push_str(&format!(
-        "texture      {} x {} texels (2^{}), {} levels, {} bytes per texel\n",
-        p.size, p.size, m.log2_size, p.levels, p.texel_bytes
+        "texture      {} x {} texels ({powers}), {} levels, {} bytes per texel\n",
+        m.width, m.height, p.levels, p.texel_bytes
     ));
+    let first = m.stack_levels;
+    let last = p.levels - 1;
+    let (fw, fh) = (m.width >> first, m.height >> first);
+    let (lw, lh) = (m.width >> last, m.height >> last);
     o.push_str(&format!(
-        "clip size    {}: {} stack level{} keep a {}x{} window; {} pyramid level{} ({}x{} down to 1x1) stay whole\n",
+        "clip size    {}: {} stack level{} keep a {}x{} window; {} pyramid level{} ({fw}x{fh} down to {lw}x{lh}) stay whole\n",
         p.clip_size,
         m.stack_levels,
         if m.stack_levels == 1 { "" } else { "s" },
@@ -158,8 +178,6 @@ pub fn human(p: &Plan, r: &Request) -> String {
         p.clip_size,
         m.pyramid_levels,
         if m.pyramid_levels == 1 { "" } else { "s" },
-        p.clip_size,
-        p.clip_size
     ));
     o.push_str(&format!("clipmap      {} texels, {}\n", grouped(m.clipmap_texels), human_bytes(m.clipmap_bytes)));
     o.push_str(&format!("full mipmap  {} texels, {}\n", grouped(m.mipmap_texels), human_bytes(m.mipmap_bytes)));

@@ -25,8 +25,32 @@ pub struct FileReport {
     /// Why the file could not be read at all (then nothing else is known).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub unreadable: Option<String>,
+    /// With `--ct-only`: the `.ic` file each image-cache level names, resolved (absolute,
+    /// variables expanded) but not opened. Absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub icache_files: Option<Vec<NamedIcache>>,
     #[serde(skip)]
     rendered: String,
+}
+
+/// An `.ic` file a `.ct` names, not opened (`--ct-only`).
+#[derive(Debug, Serialize)]
+pub struct NamedIcache {
+    /// The level.
+    pub level: u32,
+    /// The file, absolute, variables expanded.
+    pub path: PathBuf,
+}
+
+/// The `.ic` files a `.ct`-only plan names, by level.
+pub fn named_icaches(plan: &plan::ClipTexturePlan) -> Vec<NamedIcache> {
+    plan.levels
+        .iter()
+        .filter_map(|l| match &l.kind {
+            plan::LevelKind::IcacheNotOpened { path } => Some(NamedIcache { level: l.level, path: path.clone() }),
+            _ => None,
+        })
+        .collect()
 }
 
 /// The validation result of several files.
@@ -68,6 +92,13 @@ impl Report {
                 format!("{} error{}, {} warning{}", f.errors, plural(f.errors), f.warnings, plural(f.warnings));
             if !quiet || !f.valid {
                 out.push_str(&format!("{}: {status} ({counts})\n", f.path.display()));
+                if let Some(ics) = &f.icache_files {
+                    let opened = if ics.is_empty() { " (none: tiles named by the .ct)" } else { ", not opened:" };
+                    out.push_str(&format!("  .ct only; image cache files{opened}\n"));
+                    for ic in ics {
+                        out.push_str(&format!("    level {:<3} {}\n", ic.level, ic.path.display()));
+                    }
+                }
             }
         }
         out
@@ -89,14 +120,18 @@ pub fn run(paths: &[PathBuf], kind: FileKind, strict: bool, opts: &Options) -> R
 }
 
 fn one(path: &Path, kind: FileKind, strict: bool, opts: &Options) -> FileReport {
-    fn finish<T>(mut l: plan::Loaded<T>, strict: bool) -> (crate::config::Diagnostics, String) {
+    type Finished = (crate::config::Diagnostics, String, Option<Vec<NamedIcache>>);
+    fn finish<T>(mut l: plan::Loaded<T>, strict: bool, named: Option<Vec<NamedIcache>>) -> Finished {
         l.diagnostics.apply_mode(strict);
         let rendered = l.render();
-        (l.diagnostics, rendered)
+        (l.diagnostics, rendered, named)
     }
     let loaded = match kind {
-        FileKind::ClipTexture => plan::load_clip_texture(path, opts).map(|l| finish(l, strict)),
-        FileKind::ImageCache => plan::load_image_cache(path, opts).map(|l| finish(l, strict)),
+        FileKind::ClipTexture => plan::load_clip_texture(path, opts).map(|l| {
+            let named = opts.ct_only.then(|| l.plan.as_ref().map(named_icaches).unwrap_or_default());
+            finish(l, strict, named)
+        }),
+        FileKind::ImageCache => plan::load_image_cache(path, opts).map(|l| finish(l, strict, None)),
     };
     match loaded {
         Err(e) => FileReport {
@@ -108,9 +143,10 @@ fn one(path: &Path, kind: FileKind, strict: bool, opts: &Options) -> FileReport 
             notes: 0,
             diagnostics: vec![],
             unreadable: Some(e.source.to_string()),
+            icache_files: None,
             rendered: String::new(),
         },
-        Ok((diags, rendered)) => FileReport {
+        Ok((diags, rendered, icache_files)) => FileReport {
             path: path.to_path_buf(),
             kind,
             valid: !diags.has_errors(),
@@ -119,6 +155,7 @@ fn one(path: &Path, kind: FileKind, strict: bool, opts: &Options) -> FileReport 
             notes: diags.count(Severity::Note),
             diagnostics: diags.items,
             unreadable: None,
+            icache_files,
             rendered,
         },
     }
@@ -143,10 +180,11 @@ pub struct ValidateArgs {
     pub env: super::EnvArgs,
 }
 
-/// Runs a `validate` subcommand: prints the report and returns the exit status.
-pub fn cli(args: &ValidateArgs, kind: FileKind, tool: &str) -> i32 {
+/// Runs a `validate` subcommand: prints the report and returns the exit status. `ct_only`
+/// (`cliptex validate --ct-only`) checks each `.ct` without opening the `.ic` files it names.
+pub fn cli(args: &ValidateArgs, kind: FileKind, tool: &str, ct_only: bool) -> i32 {
     let opts = match args.env.options() {
-        Ok(o) => o,
+        Ok(o) => plan::Options { ct_only, ..o },
         Err(e) => {
             eprintln!("{tool}: {e}");
             return super::exit::COULD_NOT_RUN;

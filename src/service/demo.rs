@@ -7,7 +7,7 @@
 //! Everything it shows is read back through [`crate::shm::Client`], as any renderer would.
 
 use super::{procedural_source, run, Options, Procedural, ServiceError, ServiceStats};
-use crate::report::picture;
+use crate::report::{label, picture};
 use crate::shm::{Client, Snapshot};
 use image::{Rgb, RgbImage};
 use std::os::unix::fs::DirBuilderExt;
@@ -137,8 +137,12 @@ fn fly(shm_dir: &Path, o: &DemoOptions) -> Result<(Vec<PathBuf>, u32), ServiceEr
             sharp += 1;
         }
         if let Some(i) = shots.iter().position(|&s| s == f) {
-            let tag = ["flight", "after-jump", "settled"][i];
-            pictures.extend(pictures_at(&client, &snap, c, o, tag)?);
+            let (tag, text) = [
+                ("flight", "steady flight east"),
+                ("after-jump", "just after a jump of 1500 texels north-west"),
+                ("settled", "settled after the jump"),
+            ][i];
+            pictures.extend(pictures_at(&client, &snap, c, o, Moment { tag, text, frame: f })?);
         }
     }
     Ok((pictures, sharp))
@@ -154,26 +158,89 @@ fn pictures_at(
     snap: &Snapshot,
     centre: [i64; 2],
     o: &DemoOptions,
-    tag: &str,
+    moment: Moment,
 ) -> Result<Vec<PathBuf>, ServiceError> {
+    use label::Swatch;
     let clip = client.clip_size as i64;
-    // Levels' windows side by side (stack levels, and the first pyramid level).
+    let when = format!(
+        "{} (frame {}), centre ({}, {}), min LOD {:.2}",
+        moment.text, moment.frame, centre[0], centre[1], snap.min_lod
+    );
+    // Levels' windows side by side (stack levels, and the first pyramid level), each labelled.
     let shown: Vec<usize> = (0..client.levels.len()).take_while(|&k| k == 0 || !client.levels[k - 1].pyramid).collect();
     let tile = clip.min(256) as u32;
     let scale = (clip as u32).div_ceil(tile).max(1) as i64;
     let gap = 6;
-    let mut img = RgbImage::from_pixel(shown.len() as u32 * (tile + gap) + gap, tile + 2 * gap, Rgb([24, 24, 24]));
+    let label_h = label::line_height(1) + 2;
+    let mut img =
+        RgbImage::from_pixel(shown.len() as u32 * (tile + gap) + gap, tile + 2 * gap + label_h, Rgb(label::BACKGROUND));
     for (i, &k) in shown.iter().enumerate() {
         let (cs, ct) = (centre[0] >> k, centre[1] >> k);
         let (s0, t0) = if client.levels[k].pyramid { (0, 0) } else { (cs - clip / 2, ct - clip / 2) };
         let frame = picture::Frame { s0, t0, pixels: [tile, tile], scale };
-        picture::draw_published_level(&mut img, gap + i as u32 * (tile + gap), gap, frame, client, snap, k);
+        let x = gap + i as u32 * (tile + gap);
+        picture::draw_published_level(&mut img, x, gap + label_h, frame, client, snap, k);
+        let state = if client.levels[k].pyramid {
+            "pyramid"
+        } else if !snap.levels[k].enabled {
+            "off"
+        } else if (k as f64) < snap.min_lod {
+            "fading"
+        } else {
+            "in use"
+        };
+        label::text(&mut img, x, gap, &format!("level {k} {state}"), [235, 235, 235], 1);
     }
-    let mut out = vec![save(&img, o.out_dir.join(format!("levels-{tag}.png")))?];
+    let img = label::captioned(
+        &img,
+        &[
+            when.clone(),
+            format!(
+                "each level's {clip}x{clip} window around the centre, finest left (1 pixel = {scale}x{scale} texels)"
+            ),
+        ],
+        0,
+    );
+    let img = label::with_legend(
+        &img,
+        &[
+            (Swatch::Outline(picture::VALID_EDGE), "valid region: renderers may read it".into()),
+            (Swatch::Outline(picture::WINDOW_EDGE), "window (tex region)".into()),
+            (Swatch::Checker, "invalid border or not yet loaded".into()),
+            (Swatch::Solid([0, 0, 0]), "outside the texture".into()),
+        ],
+    );
+    let mut out = vec![save(&img, o.out_dir.join(format!("levels-{}.png", moment.tag)))?];
 
-    // The view around the centre, 4 clip sizes of level 0 across: texture and level used.
-    let (view, lod) = picture::view_and_rings(client, snap, centre, 384, clip * 4);
-    out.push(save(&view, o.out_dir.join(format!("view-{tag}.png")))?);
-    out.push(save(&lod, o.out_dir.join(format!("lod-{tag}.png")))?);
+    // The view around the centre, 8 clip sizes of level 0 across: texture and level used.
+    let extent = clip * 8;
+    let (view, lod) = picture::view_and_rings(client, snap, centre, 384, extent, picture::Lod::Footprint);
+    let view = label::captioned(
+        &view,
+        &[
+            when.clone(),
+            format!("the view, {extent}x{extent} level-0 texels around the centre, as a renderer textures it"),
+        ],
+        0,
+    );
+    out.push(save(&view, o.out_dir.join(format!("view-{}.png", moment.tag)))?);
+    let used: Vec<(Swatch, String)> = (0..client.levels.len())
+        .take(picture::PALETTE.len())
+        .map(|k| (Swatch::Solid(picture::PALETTE[k % picture::PALETTE.len()]), format!("level {k}")))
+        .collect();
+    let lod = label::captioned(&lod, &[when, "the same view coloured by the level each pixel uses".into()], 0);
+    let lod = label::with_legend(&lod, &used);
+    out.push(save(&lod, o.out_dir.join(format!("lod-{}.png", moment.tag)))?);
     Ok(out)
+}
+
+/// One of the three moments the demo pictures.
+#[derive(Clone, Copy, Debug)]
+struct Moment {
+    /// File-name tag.
+    tag: &'static str,
+    /// What it shows, for the caption.
+    text: &'static str,
+    /// Frame number.
+    frame: u32,
 }

@@ -6,11 +6,12 @@
 
 use crate::clip::Stats;
 use crate::queue::QueueStats;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// What the tick loop reports after each tick.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
 pub struct TickStats {
     /// Seconds since the tick loop started.
     pub uptime_s: f64,
@@ -73,7 +74,8 @@ pub struct ControlCounters {
 }
 
 /// A copy of [`ControlCounters`].
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
 pub struct ControlStats {
     pub accepted: u64,
     pub refused: u64,
@@ -105,8 +107,10 @@ impl ControlCounters {
     }
 }
 
-/// Everything `STATS` answers.
-#[derive(Clone, Debug, Serialize)]
+/// Everything `STATS` answers: the service serialises it and `cliptex attach` reads it back
+/// into the same struct (missing fields, from an older service, take their defaults).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
 pub struct ServiceStats {
     /// The publication name.
     pub name: String,

@@ -59,6 +59,17 @@ pub struct Ticker {
     stats: watch::Receiver<TickStats>,
 }
 
+/// Why a command did not reach the tick loop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum SendError {
+    /// Its command queue is full.
+    #[error("the tick loop is busy; try again")]
+    Busy,
+    /// It has stopped.
+    #[error("the tick loop has stopped")]
+    Stopped,
+}
+
 impl Ticker {
     /// Starts the tick loop on its own thread; returns once the mapping exists (or could not be
     /// made). Blocks: call it off async worker threads.
@@ -92,11 +103,11 @@ impl Ticker {
         }
     }
 
-    /// Sends a command without blocking; `Err` with a message when the loop is busy or gone.
-    pub fn send(&self, cmd: Command) -> Result<(), String> {
+    /// Sends a command without blocking; `Err` when the loop is busy or gone.
+    pub fn send(&self, cmd: Command) -> Result<(), SendError> {
         self.commands.try_send(cmd).map_err(|e| match e {
-            TrySendError::Full(_) => "the tick loop is busy; try again".to_string(),
-            TrySendError::Disconnected(_) => "the tick loop has stopped".to_string(),
+            TrySendError::Full(_) => SendError::Busy,
+            TrySendError::Disconnected(_) => SendError::Stopped,
         })
     }
 

@@ -35,6 +35,16 @@ use thiserror::Error;
 /// Why a plan cannot be served as a tile source.
 #[derive(Debug, Error)]
 pub enum FileSourceError {
+    /// A plan loaded with `ct_only`: its `.ic` files were not opened.
+    #[error("{path}: level {level}'s image cache {ic} was not opened (the plan was loaded for a .ct-only check); load it with its .ic files to serve it", path = path.display(), ic = ic.display())]
+    NotOpened {
+        /// The `.ct`.
+        path: PathBuf,
+        /// The level.
+        level: u32,
+        /// The `.ic` it names.
+        ic: PathBuf,
+    },
     /// The plan's levels do not form a texture the engine serves.
     #[error("{path}: the levels cannot be served: {source}", path = path.display())]
     Desc {
@@ -167,10 +177,17 @@ pub fn texture_desc(plan: &ClipTexturePlan) -> Result<TextureDesc, FileSourceErr
             let tile = match &l.kind {
                 LevelKind::Icache(ic) => [ic.tile_size[0], ic.tile_size[1]],
                 LevelKind::Pyramid(_) => l.size,
+                LevelKind::IcacheNotOpened { path } => {
+                    return Err(FileSourceError::NotOpened {
+                        path: plan.path.clone(),
+                        level: l.level,
+                        ic: path.clone(),
+                    })
+                }
             };
-            LevelDesc { size: l.size, tile }
+            Ok(LevelDesc { size: l.size, tile })
         })
-        .collect();
+        .collect::<Result<Vec<_>, _>>()?;
     let desc_err = |source| FileSourceError::Desc { path: plan.path.clone(), source };
     let size = [plan.virt_size[0], plan.virt_size[1]];
     let desc = TextureDesc::from_levels(size, plan.clip_size, plan.texel, levels).map_err(desc_err)?;

@@ -1,0 +1,308 @@
+//! `cliptex attach`: a live view of a running service, read straight from its shared-memory
+//! mapping (levels, centres, valid regions, min LOD, heartbeat, tick rate), plus each read
+//! queue's length and throughput from the control socket's `STATS` reply (sampled at both ends
+//! of the interval).
+
+use crate::service::ServiceStats;
+use crate::shm::{Client, ShmError};
+use serde::Serialize;
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// How long a `STATS` request may take before the view goes without stream figures.
+const STATS_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// One stream server's read queue, from two `STATS` replies.
+#[derive(Clone, Debug, Serialize)]
+pub struct StreamRow {
+    /// Stream server (read queue) index.
+    pub stream: usize,
+    /// Requests waiting now.
+    pub pending: u64,
+    /// Reads running now.
+    pub in_flight: u64,
+    /// Most requests ever waiting.
+    pub peak_pending: u64,
+    /// Reads that delivered a tile, so far.
+    pub reads_done: u64,
+    /// Reads that failed, so far.
+    pub reads_failed: u64,
+    /// Bytes delivered, so far.
+    pub bytes_read: u64,
+    /// Queued requests dropped (stale or overflow), so far.
+    pub dropped: u64,
+    /// Tiles delivered per second over the sampling interval.
+    pub tiles_per_second: f64,
+    /// Bytes delivered per second over the sampling interval.
+    pub bytes_per_second: f64,
+}
+
+/// One level as published.
+#[derive(Clone, Debug, Serialize)]
+pub struct LevelRow {
+    /// Level number.
+    pub level: usize,
+    /// Level size.
+    pub size: [u64; 2],
+    /// Pyramid (resident whole) or stack level.
+    pub pyramid: bool,
+    /// Centre.
+    pub centre: [i64; 2],
+    /// Valid region `[s0, t0, s1, t1)`.
+    pub valid: [i64; 4],
+    /// Renderers may use it.
+    pub enabled: bool,
+    /// Invalid border.
+    pub invalid_border: u64,
+}
+
+/// A status view.
+#[derive(Clone, Debug, Serialize)]
+pub struct Status {
+    /// The mapping.
+    pub mapping: String,
+    /// Writer generation.
+    pub generation: u64,
+    /// Tick of the global state.
+    pub tick: u64,
+    /// Finest level renderers may use.
+    pub min_lod: f64,
+    /// Heartbeat ticks counted.
+    pub heartbeat: u64,
+    /// Milliseconds since the last heartbeat.
+    pub heartbeat_age_ms: u64,
+    /// Update ticks per second over the sampling interval.
+    pub ticks_per_second: f64,
+    /// The service shut down cleanly.
+    pub closed: bool,
+    /// Clip size.
+    pub clip_size: u64,
+    /// Bytes per texel.
+    pub bytes_per_texel: usize,
+    /// Per level.
+    pub levels: Vec<LevelRow>,
+    /// The control socket asked for statistics.
+    pub socket: String,
+    /// Per stream server (empty when the socket did not answer: see `streams_error`).
+    pub streams: Vec<StreamRow>,
+    /// Why there are no stream figures (`null` when there are).
+    pub streams_error: Option<String>,
+}
+
+/// Why a `STATS` request got no statistics.
+#[derive(Debug, thiserror::Error)]
+pub enum StatsError {
+    /// Connecting, writing or reading failed (or timed out).
+    #[error("control socket {}: {source}", socket.display())]
+    Io {
+        /// The socket.
+        socket: std::path::PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The reply was not `OK {json}`.
+    #[error("control socket {}: expected `OK {{json}}` to STATS, found `{found}`", socket.display())]
+    Reply {
+        /// The socket.
+        socket: std::path::PathBuf,
+        /// The reply line.
+        found: String,
+    },
+    /// The JSON is not the service's statistics.
+    #[error("control socket {}: the STATS reply is not the service's statistics: {source}", socket.display())]
+    Json {
+        /// The socket.
+        socket: std::path::PathBuf,
+        /// Why.
+        #[source]
+        source: serde_json::Error,
+    },
+}
+
+/// Sends `STATS` to the control socket and reads the reply into the service's own statistics
+/// type (the struct the service serialised).
+pub fn ask_stats(socket: &Path) -> Result<ServiceStats, StatsError> {
+    let fail = |source: std::io::Error| StatsError::Io { socket: socket.to_path_buf(), source };
+    let mut s = UnixStream::connect(socket).map_err(fail)?;
+    s.set_read_timeout(Some(STATS_TIMEOUT)).map_err(fail)?;
+    s.set_write_timeout(Some(STATS_TIMEOUT)).map_err(fail)?;
+    s.write_all(b"STATS\n").map_err(fail)?;
+    let mut line = String::new();
+    BufReader::new(&s).read_line(&mut line).map_err(fail)?;
+    let _ = s.write_all(b"QUIT\n");
+    let body = line.trim_end().strip_prefix("OK ").ok_or_else(|| StatsError::Reply {
+        socket: socket.to_path_buf(),
+        found: line.trim_end().chars().take(200).collect(),
+    })?;
+    serde_json::from_str(body).map_err(|source| StatsError::Json { socket: socket.to_path_buf(), source })
+}
+
+/// Stream rows from a `STATS` reply taken `dt` seconds after `before`.
+fn stream_rows(before: &ServiceStats, after: &ServiceStats, dt: f64) -> Result<Vec<StreamRow>, String> {
+    let (b, a) = (&before.tick.streams, &after.tick.streams);
+    if a.is_empty() {
+        return Err("the service's STATS reply has no `streams` (an older clipmapd)".into());
+    }
+    let rate = |a: u64, b: u64| if dt > 0.0 { a.saturating_sub(b) as f64 / dt } else { 0.0 };
+    Ok(a.iter()
+        .enumerate()
+        .map(|(i, q)| {
+            let p = b.get(i).unwrap_or(q);
+            StreamRow {
+                stream: i,
+                pending: q.pending,
+                in_flight: q.in_flight,
+                peak_pending: q.peak_pending,
+                reads_done: q.reads_done,
+                reads_failed: q.reads_failed,
+                bytes_read: q.bytes_read,
+                dropped: q.stale_dropped + q.overflow_dropped,
+                tiles_per_second: rate(q.reads_done, p.reads_done),
+                bytes_per_second: rate(q.bytes_read, p.bytes_read),
+            }
+        })
+        .collect())
+}
+
+/// Takes a status view, sampling the heartbeat (for the tick rate) and the control socket's
+/// `STATS` (for queue throughput) over `interval`. A socket that does not answer leaves the
+/// stream figures out, with the reason, rather than failing the view.
+pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Result<Status, ShmError> {
+    let c = Client::attach(dir, name)?;
+    let before = ask_stats(socket);
+    let (h0, t0) = (c.heartbeat(), Instant::now());
+    std::thread::sleep(interval);
+    let after = ask_stats(socket);
+    let (h1, dt) = (c.heartbeat(), t0.elapsed().as_secs_f64());
+    let (streams, streams_error) = match (&before, &after) {
+        (Ok(b), Ok(a)) => match stream_rows(b, a, dt) {
+            Ok(rows) => (rows, None),
+            Err(e) => (Vec::new(), Some(e)),
+        },
+        (Err(e), _) | (_, Err(e)) => (Vec::new(), Some(e.to_string())),
+    };
+    let snap = c.snapshot();
+    let levels = snap
+        .levels
+        .iter()
+        .enumerate()
+        .map(|(k, st)| LevelRow {
+            level: k,
+            size: c.levels[k].size,
+            pyramid: c.levels[k].pyramid,
+            centre: st.centre,
+            valid: st.valid,
+            enabled: st.enabled,
+            invalid_border: st.invalid_border,
+        })
+        .collect();
+    Ok(Status {
+        mapping: c.path().display().to_string(),
+        generation: c.generation,
+        tick: snap.tick,
+        min_lod: snap.min_lod,
+        heartbeat: h1,
+        heartbeat_age_ms: c.heartbeat_age().as_millis() as u64,
+        ticks_per_second: if dt > 0.0 { h1.saturating_sub(h0) as f64 / dt } else { 0.0 },
+        closed: c.closed(),
+        clip_size: c.clip_size,
+        bytes_per_texel: c.bytes_per_texel,
+        levels,
+        socket: socket.display().to_string(),
+        streams,
+        streams_error,
+    })
+}
+
+/// The human form.
+pub fn human(s: &Status) -> String {
+    let mut o = format!(
+        "{}  generation {:016x}\ntick {}  min LOD {:.2}  {:.1} ticks/s  heartbeat {} ms ago{}\nclip {}  {} bytes per texel\n\n",
+        s.mapping,
+        s.generation,
+        s.tick,
+        s.min_lod,
+        s.ticks_per_second,
+        s.heartbeat_age_ms,
+        if s.closed { "  (service stopped)" } else { "" },
+        s.clip_size,
+        s.bytes_per_texel
+    );
+    o.push_str(
+        "level  size                kind     centre                  valid region                              use\n",
+    );
+    for l in &s.levels {
+        o.push_str(&format!(
+            "{:<6} {:<19} {:<8} {:<23} {:<41} {}\n",
+            l.level,
+            format!("{}x{}", l.size[0], l.size[1]),
+            if l.pyramid { "pyramid" } else { "stack" },
+            format!("({}, {})", l.centre[0], l.centre[1]),
+            format!("[{}, {}) x [{}, {})", l.valid[0], l.valid[2], l.valid[1], l.valid[3]),
+            if !l.enabled {
+                "disabled"
+            } else if (l.level as f64) < s.min_lod.floor() {
+                "below min LOD"
+            } else {
+                "yes"
+            }
+        ));
+    }
+    o.push('\n');
+    match &s.streams_error {
+        Some(e) => o.push_str(&format!("read queues: no figures ({e})\n")),
+        None => {
+            o.push_str("stream  pending  in flight  peak  reads done  failed  dropped   tiles/s     MiB/s\n");
+            for q in &s.streams {
+                o.push_str(&format!(
+                    "{:<7} {:>7}  {:>9}  {:>4}  {:>10}  {:>6}  {:>7}  {:>8.1}  {:>8.2}\n",
+                    q.stream,
+                    q.pending,
+                    q.in_flight,
+                    q.peak_pending,
+                    q.reads_done,
+                    q.reads_failed,
+                    q.dropped,
+                    q.tiles_per_second,
+                    q.bytes_per_second / (1024.0 * 1024.0)
+                ));
+            }
+        }
+    }
+    o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stream_rows_take_lengths_from_the_later_reply_and_rates_from_both() {
+        // The wire form the service writes (`streams` at the top level: the tick figures are
+        // flattened), read back into the typed statistics.
+        let typed = |v: serde_json::Value| serde_json::from_value::<ServiceStats>(v).unwrap();
+        let b = typed(
+            serde_json::json!({"name": "x", "streams": [{"reads_done": 10, "bytes_read": 1000}, {"reads_done": 0}]}),
+        );
+        let a = typed(serde_json::json!({"name": "x", "streams": [
+            {"reads_done": 30, "bytes_read": 5000, "pending": 7, "in_flight": 2, "peak_pending": 9,
+             "stale_dropped": 1, "overflow_dropped": 2, "reads_failed": 1},
+            {"reads_done": 4}
+        ]}));
+        let rows = stream_rows(&b, &a, 2.0).unwrap();
+        assert_eq!(rows.len(), 2);
+        let r = &rows[0];
+        assert_eq!((r.pending, r.in_flight, r.peak_pending, r.dropped, r.reads_failed), (7, 2, 9, 3, 1));
+        assert_eq!((r.tiles_per_second, r.bytes_per_second), (10.0, 2000.0));
+        assert_eq!(rows[1].tiles_per_second, 2.0);
+        let e = stream_rows(&a, &typed(serde_json::json!({})), 1.0).unwrap_err();
+        assert!(e.contains("no `streams`"), "{e}");
+        // What the service serialises reads back to the same figures.
+        let back = typed(serde_json::to_value(&a).unwrap());
+        assert_eq!(back.tick.streams, a.tick.streams);
+        assert_eq!(back.name, "x");
+    }
+}

@@ -1,0 +1,194 @@
+//! `cliptex dump --attach`: pictures of a running service, read from its shared-memory mapping
+//! as any renderer reads it. One PNG per level (its window, the valid region's texels, the
+//! invalid border as a dark checkerboard, the window outlined in yellow and the valid region in
+//! red), `view.png` (the view around the centre as a renderer would texture it) and `rings.png`
+//! (the same view coloured by the level each pixel would use: the concentric resolution bands).
+//!
+//! Owns choosing what to draw and naming the files; drawing is [`crate::report::picture`]'s.
+
+use crate::geom::{tex_region, Rect};
+use crate::report::picture::{self, Frame};
+use crate::shm::{Client, ShmError};
+use image::{Rgb, RgbImage};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+
+/// Longest side of a level picture in pixels (larger windows are shown one pixel per several texels).
+pub const MAX_LEVEL_PIXELS: u32 = 1024;
+/// Side of `view.png` and `rings.png` in pixels.
+pub const VIEW_PIXELS: u32 = 512;
+/// Pixels of margin around each level picture, where the outlines go.
+const MARGIN: u32 = 2;
+
+/// Why the pictures could not be made.
+#[derive(Debug, Error)]
+pub enum LiveDumpError {
+    /// The mapping could not be attached.
+    #[error("{0}")]
+    Attach(#[from] ShmError),
+    /// The output directory or a picture could not be written.
+    #[error("cannot write {}: {message}", path.display())]
+    Write { path: PathBuf, message: String },
+}
+
+/// One level's picture.
+#[derive(Clone, Debug, Serialize)]
+pub struct LevelPicture {
+    /// Level number.
+    pub level: usize,
+    /// Level size.
+    pub size: [u64; 2],
+    /// Pyramid (resident whole) or stack level.
+    pub pyramid: bool,
+    /// The window (tex region) `[s0, t0, s1, t1)`.
+    pub window: [i64; 4],
+    /// The published valid region `[s0, t0, s1, t1)`.
+    pub valid: [i64; 4],
+    /// Renderers may use it.
+    pub enabled: bool,
+    /// Invalid border.
+    pub invalid_border: u64,
+    /// The PNG.
+    pub png: String,
+    /// Its size in pixels.
+    pub pixels: [u32; 2],
+    /// Texels per pixel.
+    pub texels_per_pixel: i64,
+}
+
+/// What was written.
+#[derive(Clone, Debug, Serialize)]
+pub struct LiveDump {
+    /// The mapping read.
+    pub mapping: String,
+    /// Tick of the snapshot drawn.
+    pub tick: u64,
+    /// Finest level renderers may use.
+    pub min_lod: f64,
+    /// The service had shut down (the pictures show its last publication).
+    pub closed: bool,
+    /// Clip size.
+    pub clip_size: u64,
+    /// Texel format (`null` when the mapping's code is unknown).
+    pub format: Option<String>,
+    /// Level-0 centre the view is drawn around.
+    pub centre: [i64; 2],
+    /// Per level.
+    pub levels: Vec<LevelPicture>,
+    /// The view.
+    pub view: String,
+    /// The view coloured by level.
+    pub rings: String,
+    /// Level-0 texels across the view.
+    pub view_extent: i64,
+    /// Colour of each level in `rings.png` (`#rrggbb`, repeating after 12).
+    pub ring_colours: Vec<String>,
+}
+
+fn save(img: &RgbImage, path: PathBuf) -> Result<String, LiveDumpError> {
+    img.save_with_format(&path, image::ImageFormat::Png).map_err(|e| LiveDumpError::Write {
+        path: path.clone(),
+        message: format!("{e}; check the permissions of --out-dir"),
+    })?;
+    Ok(path.display().to_string())
+}
+
+/// Attaches to `name` in `dir` and writes the pictures of one consistent snapshot into `out_dir`
+/// (created if needed).
+pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDumpError> {
+    let client = Client::attach(dir, name)?;
+    std::fs::create_dir_all(out_dir).map_err(|e| LiveDumpError::Write {
+        path: out_dir.to_path_buf(),
+        message: format!("{e}; --out-dir must be a directory that can be created or written"),
+    })?;
+    let snap = client.snapshot();
+    let mut levels = Vec::with_capacity(client.levels.len());
+    for (k, d) in client.levels.iter().enumerate() {
+        let st = snap.levels[k];
+        let window = tex_region(d.size, client.clip_size, st.centre);
+        let frame = Frame::around(window, MAX_LEVEL_PIXELS, MARGIN);
+        let mut img = RgbImage::from_pixel(frame.pixels[0], frame.pixels[1], Rgb([0, 0, 0]));
+        picture::draw_published_level(&mut img, 0, 0, frame, &client, &snap, k);
+        let png = save(&img, out_dir.join(format!("level-{k:02}.png")))?;
+        levels.push(LevelPicture {
+            level: k,
+            size: d.size,
+            pyramid: d.pyramid,
+            window: [window.s0, window.t0, window.s1, window.t1],
+            valid: st.valid,
+            enabled: st.enabled,
+            invalid_border: st.invalid_border,
+            png,
+            pixels: frame.pixels,
+            texels_per_pixel: frame.scale,
+        });
+    }
+    // Wide enough to show the first few rings: each stack level's window is twice the previous.
+    let stack = client.levels.iter().filter(|l| !l.pyramid).count().min(4) as u32;
+    let size0 = client.levels.first().map_or(1, |l| l.size[0].max(l.size[1])) as i64;
+    let extent = ((client.clip_size as i64) << stack).min(size0).max(VIEW_PIXELS as i64);
+    let centre = snap.levels.first().map_or([0, 0], |l| l.centre);
+    let (view, rings) = picture::view_and_rings(&client, &snap, centre, VIEW_PIXELS, extent, picture::Lod::Finest);
+    let view = save(&view, out_dir.join("view.png"))?;
+    let rings = save(&rings, out_dir.join("rings.png"))?;
+    let ring_colours = (0..client.levels.len())
+        .map(|k| {
+            let c = picture::PALETTE[k % picture::PALETTE.len()];
+            format!("#{:02x}{:02x}{:02x}", c[0], c[1], c[2])
+        })
+        .collect();
+    Ok(LiveDump {
+        mapping: client.path().display().to_string(),
+        tick: snap.tick,
+        min_lod: snap.min_lod,
+        closed: client.closed(),
+        clip_size: client.clip_size,
+        format: picture::format_of_code(client.format_code).map(|f| f.short_name()),
+        centre,
+        levels,
+        view,
+        rings,
+        view_extent: extent,
+        ring_colours,
+    })
+}
+
+/// The human form.
+pub fn human(d: &LiveDump) -> String {
+    let mut o = format!(
+        "{}  tick {}  min LOD {:.2}  clip {}  {}{}\n\nlevel  size              window                          valid region                    use       picture\n",
+        d.mapping,
+        d.tick,
+        d.min_lod,
+        d.clip_size,
+        d.format.as_deref().unwrap_or("unknown format"),
+        if d.closed { "  (service stopped: its last publication)" } else { "" }
+    );
+    let rect = |r: &[i64; 4]| format!("[{}, {}) x [{}, {})", r[0], r[2], r[1], r[3]);
+    for l in &d.levels {
+        let valid = Rect::new(l.valid[0], l.valid[1], l.valid[2], l.valid[3]);
+        o.push_str(&format!(
+            "{:<6} {:<17} {:<31} {:<31} {:<9} {}{}\n",
+            l.level,
+            format!("{}x{}", l.size[0], l.size[1]),
+            rect(&l.window),
+            if valid.is_empty() { "(empty)".to_string() } else { rect(&l.valid) },
+            if l.enabled { "yes" } else { "disabled" },
+            l.png,
+            if l.texels_per_pixel > 1 { format!("  (1 pixel = {} texels)", l.texels_per_pixel) } else { String::new() }
+        ));
+    }
+    o.push_str(&format!(
+        "\nview   {}  ({} level-0 texels across, centre ({}, {}))\nrings  {}  (colour = level used: {})\n",
+        d.view,
+        d.view_extent,
+        d.centre[0],
+        d.centre[1],
+        d.rings,
+        d.ring_colours.iter().enumerate().take(6).map(|(k, c)| format!("{k} {c}")).collect::<Vec<_>>().join(", ")
+            + if d.ring_colours.len() > 6 { ", ..." } else { "" }
+    ));
+    o.push_str("outlines: yellow = window, red = valid region; dark checkerboard = invalid border or not loaded\n");
+    o
+}

@@ -1,0 +1,262 @@
+//! `cliptex roam` end to end: the real binary flies over the procedural hash texture and over the
+//! checked-in prepared pyramid (run from an unrelated working directory), and the JSON report
+//! keeps its contract: per-frame rows, totals, and exactly the strips a steady flight uncovers.
+
+use crate::common;
+use serde_json::Value;
+use std::path::Path;
+use std::process::Output;
+
+const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
+
+/// Runs `cliptex` in `cwd`; returns the output and a description for failure messages.
+fn cliptex(cwd: &Path, args: &[&str]) -> (Output, String) {
+    common::exec(cwd, CLIPTEX, args)
+}
+
+/// Runs a roam that must succeed with `--json`; returns the report.
+fn roam_json(cwd: &Path, args: &[&str]) -> Value {
+    let mut all = vec!["roam"];
+    all.extend_from_slice(args);
+    all.push("--json");
+    let (out, d) = cliptex(cwd, &all);
+    assert_eq!(out.status.code(), Some(0), "{d}");
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{d}"))
+}
+
+fn u(v: &Value) -> u64 {
+    v.as_u64().unwrap_or_else(|| panic!("not an unsigned integer: {v}"))
+}
+
+/// Checks the JSON contract and returns (clip, bytes per texel, level sizes, frame centres,
+/// bytes copied per frame).
+fn contract(r: &Value, frames: usize) -> (i64, u64, Vec<i64>, Vec<[i64; 2]>, Vec<u64>) {
+    let clip = u(&r["clip_size"]) as i64;
+    let bpt = u(&r["bytes_per_texel"]);
+    for key in ["bytes_copied", "tiles_read", "ticks_over_budget", "frames_with_disabled_level", "peak_resident_bytes"]
+    {
+        u(&r["totals"][key]);
+    }
+    let rows = r["frames"].as_array().expect("frames is a list");
+    assert_eq!(rows.len(), frames);
+    let centres: Vec<[i64; 2]> =
+        rows.iter().map(|f| [f["centre"][0].as_i64().unwrap(), f["centre"][1].as_i64().unwrap()]).collect();
+    let bytes: Vec<u64> = rows.iter().map(|f| u(&f["bytes_copied"])).collect();
+    assert_eq!(bytes.iter().sum::<u64>(), u(&r["totals"]["bytes_copied"]), "totals add up");
+    let tiles: u64 = rows.iter().map(|f| u(&f["tiles_read"])).sum();
+    assert_eq!(tiles, u(&r["totals"]["tiles_read"]));
+    let size = u(&r["size"][0]) as i64;
+    let levels: Vec<i64> = (0..u(&r["levels"])).map(|k| (size >> k).max(1)).collect();
+    (clip, bpt, levels, centres, bytes)
+}
+
+/// The bytes a move from `a` to `b` (level-0 texels) uncovers in every stack level's window
+/// when the window slides as a rectangle: clip² - (clip - |Δs|)(clip - |Δt|) texels per level,
+/// with level k's centre at (c >> k).
+fn strips(clip: i64, bpt: u64, levels: &[i64], a: [i64; 2], b: [i64; 2]) -> u64 {
+    let mut texels = 0;
+    for (k, &size) in levels.iter().enumerate() {
+        if size <= clip {
+            continue;
+        }
+        let ds = ((b[0] >> k) - (a[0] >> k)).abs().min(clip);
+        let dt = ((b[1] >> k) - (a[1] >> k)).abs().min(clip);
+        texels += clip * clip - (clip - ds) * (clip - dt);
+    }
+    texels as u64 * bpt
+}
+
+/// From frame `steady` on, every frame copies exactly the uncovered strips: no full-window
+/// reloads.
+fn assert_steady_strips(r: &Value, frames: usize, steady: usize, speed: u64) {
+    let (clip, bpt, levels, centres, bytes) = contract(r, frames);
+    let window = (clip * clip) as u64 * bpt;
+    for f in steady..frames {
+        let want = strips(clip, bpt, &levels, centres[f - 1], centres[f]);
+        assert_eq!(bytes[f], want, "frame {f}: {:?} -> {:?}", centres[f - 1], centres[f]);
+        assert!(bytes[f] < window, "frame {f} reloaded a whole window");
+        // About 2·d·clip texels at level 0 and halving per level, plus rounding of the centres.
+        let bound = (2 * speed + levels.len() as u64) * clip as u64 * bpt;
+        assert!(bytes[f] <= bound, "frame {f}: {} bytes over {bound}", bytes[f]);
+    }
+    let last = &r["frames"][frames - 1];
+    assert_eq!(last["min_lod"].as_f64(), Some(0.0), "every level in use at the end");
+    assert_eq!(u(&r["totals"]["ticks_over_budget"]), 0);
+}
+
+#[test]
+fn a_straight_flight_over_the_hash_source_copies_exactly_the_new_strips() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = [
+        "--source",
+        "hash",
+        "--size",
+        "65536",
+        "--clip",
+        "256",
+        "--tile",
+        "64",
+        "--flight",
+        "straight:16",
+        "--frames",
+        "14",
+        "--budget-ms",
+        "inf",
+        "--wait-for-reads",
+    ];
+    let r = roam_json(dir.path(), &args);
+    assert_eq!((u(&r["clip_size"]), u(&r["bytes_per_texel"])), (256, 4));
+    assert_eq!(r["flight"]["kind"], "straight");
+    assert_steady_strips(&r, 14, 4, 16);
+    // A straight move of 16 texels at level 0: 16 x 256 texels at level 0, halving per level.
+    let (_, _, _, centres, bytes) = contract(&r, 14);
+    assert_eq!(centres[5], [32768 + 5 * 16, 32768]);
+    assert_eq!(bytes[5], (16 + 8 + 4 + 2 + 1) * 256 * 4);
+    assert!(u(&r["totals"]["frames_with_disabled_level"]) > 0, "nothing is resident before the first reads");
+    assert!(u(&r["totals"]["peak_resident_bytes"]) > 0);
+}
+
+#[test]
+fn a_diagonal_flight_copies_the_l_shaped_strips() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = [
+        "--source",
+        "terrain",
+        "--size",
+        "16384",
+        "--clip",
+        "128",
+        "--tile",
+        "32",
+        "--border",
+        "8",
+        "--flight",
+        "straight:12:30",
+        "--frames",
+        "12",
+        "--budget-ms",
+        "inf",
+        "--wait-for-reads",
+    ];
+    let r = roam_json(dir.path(), &args);
+    assert_steady_strips(&r, 12, 4, 12);
+}
+
+#[test]
+fn aligned_centres_copy_strips_a_whole_step_wide_and_only_when_a_level_steps() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut args = vec!["--source", "hash", "--size", "65536", "--clip", "256", "--tile", "64"];
+    args.extend(["--flight", "straight:3", "--frames", "24", "--budget-ms", "inf", "--wait-for-reads"]);
+    args.extend(["--centre-alignment", "8"]);
+    let r = roam_json(dir.path(), &args);
+    assert_eq!(u(&r["centre_alignment"]), 8);
+    let (clip, bpt, levels, centres, bytes) = contract(&r, 24);
+    // Level k's window centre is (c >> k) aligned down to a multiple of 8: a frame copies an
+    // 8 x clip strip for each level whose aligned centre changed, and nothing otherwise.
+    let aligned = |c: i64, k: usize| (c >> k).div_euclid(8) * 8;
+    let stack = levels.iter().filter(|&&size| size > clip).count();
+    let mut steps = 0;
+    for f in 4..24 {
+        let moved = (0..stack).filter(|&k| aligned(centres[f][0], k) != aligned(centres[f - 1][0], k)).count();
+        assert_eq!(bytes[f], moved as u64 * 8 * clip as u64 * bpt, "frame {f}: {:?}", centres[f]);
+        steps += moved;
+    }
+    assert!(steps >= 8, "the flight crossed several alignment steps: {steps}");
+    let (out, d) = cliptex(
+        dir.path(),
+        &["roam", "--source", "hash", "--size", "4096", "--clip", "128"]
+            .into_iter()
+            .chain(["--flight", "hover", "--frames", "2", "--centre-alignment", "0"])
+            .collect::<Vec<_>>(),
+    );
+    assert_eq!(out.status.code(), Some(2), "{d}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--centre-alignment"), "{d}");
+}
+
+#[test]
+fn a_flight_over_the_prepared_example_reads_its_files_from_any_working_directory() {
+    let ct = Path::new(env!("CARGO_MANIFEST_DIR")).join("config_examples/prepared/hash256.ct");
+    let dir = tempfile::tempdir().unwrap();
+    let args =
+        [ct.to_str().unwrap(), "--flight", "straight:4", "--frames", "10", "--budget-ms", "inf", "--wait-for-reads"];
+    let r = roam_json(dir.path(), &args);
+    assert_eq!((u(&r["clip_size"]), u(&r["bytes_per_texel"]), u(&r["levels"])), (64, 3, 9));
+    assert_eq!(u(&r["stats"]["read_faults"]["missing"]), 0, "every tile file found");
+    // Level 0 pages a 3 x 3 mem region of its 4 x 4 tiles; level 1 (2 x 2) and the 7 pyramid
+    // levels are held whole. Each tile is read once.
+    assert_eq!(u(&r["totals"]["tiles_read"]), 9 + 4 + 7);
+    assert_steady_strips(&r, 10, 3, 4);
+}
+
+#[test]
+fn the_default_output_is_a_table_with_totals() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = ["roam", "--source", "hash", "--size", "4096", "--clip", "128", "--flight", "hover", "--frames", "3"];
+    let (out, d) = cliptex(dir.path(), &args);
+    assert_eq!(out.status.code(), Some(0), "{d}");
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("clip size 128, 4 bytes per texel"), "{d}");
+    assert!(text.lines().any(|l| l.trim_start().starts_with("frame")), "{d}");
+    for key in ["bytes copied", "tiles read", "ticks over budget", "frames with disabled level", "peak resident bytes"]
+    {
+        assert!(text.contains(key), "missing {key}\n{d}");
+    }
+    let rows = text.lines().filter(|l| l.split_whitespace().next().is_some_and(|w| w.parse::<u64>().is_ok()));
+    assert_eq!(rows.count(), 3, "one row per frame\n{d}");
+}
+
+#[test]
+fn bad_arguments_and_bad_configurations_exit_with_their_codes() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path();
+    let base = ["roam", "--source", "hash", "--size", "4096", "--clip", "128", "--frames", "2"];
+    let with = |extra: &[&str]| {
+        let mut a = base.to_vec();
+        a.extend_from_slice(extra);
+        cliptex(p, &a)
+    };
+    let (out, d) = with(&["--flight", "sideways:3"]);
+    assert_eq!(out.status.code(), Some(2), "{d}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown flight `sideways`"), "{d}");
+    let (out, d) = with(&["--flight", "straight:1", "--budget-ms", "-3"]);
+    assert_eq!(out.status.code(), Some(2), "{d}");
+    let (out, d) = cliptex(p, &["roam", "--source", "hash", "--size", "4096", "--flight", "hover", "--frames", "2"]);
+    assert_eq!(out.status.code(), Some(2), "--source needs --clip\n{d}");
+    let (out, d) = cliptex(p, &["roam", "missing.ct", "--flight", "hover", "--frames", "2"]);
+    assert_eq!(out.status.code(), Some(2), "an unreadable file\n{d}");
+    std::fs::write(p.join("bad.ct"), "ct_version2.0\nclip_size 64\n").unwrap();
+    let (out, d) = cliptex(p, &["roam", "bad.ct", "--flight", "hover", "--frames", "2"]);
+    assert_eq!(out.status.code(), Some(1), "an invalid configuration\n{d}");
+}
+
+#[test]
+fn by_default_a_straight_flight_runs_on_a_frame_clock_and_its_levels_come_in_as_reads_arrive() {
+    // Before the frame clock, frames ran back to back (240 frames in 0.13 s): no read had time to
+    // arrive, every level was disabled on every frame. On the default 60 frames/s clock the
+    // reads land between frames and the fine levels are enabled once they have.
+    let dir = tempfile::tempdir().unwrap();
+    let args = ["--source", "hash", "--size", "65536", "--clip", "256", "--tile", "64", "--flight", "straight:4"];
+    let started = std::time::Instant::now();
+    let r = roam_json(dir.path(), &[&args[..], &["--frames", "60"]].concat());
+    let took = started.elapsed().as_secs_f64();
+    assert_eq!(r["pacing"], "frame_clock", "{r}");
+    assert_eq!(r["fps"].as_f64(), Some(60.0));
+    assert!(took >= 59.0 / 60.0, "60 frames at 60 frames/s take about a second, took {took:.2} s");
+    let rows = r["frames"].as_array().unwrap();
+    assert!(!rows[0]["disabled_levels"].as_array().unwrap().is_empty(), "nothing is read before frame 0");
+    let tail = &rows[30..];
+    let enabled = tail.iter().filter(|f| f["disabled_levels"].as_array().unwrap().is_empty()).count();
+    assert!(enabled * 2 > tail.len(), "most of the last 30 frames have every level: {enabled} of 30\n{r}");
+    assert!(tail.iter().any(|f| f["min_lod"].as_f64() == Some(0.0)), "level 0 is shown");
+    // --fps 0 is the old back-to-back run, reported as such; --fps with --wait-for-reads is a
+    // usage error, as is a rate that is no rate.
+    let r = roam_json(dir.path(), &[&args[..], &["--frames", "3", "--fps", "0"]].concat());
+    assert_eq!((r["pacing"].as_str(), r["fps"].is_null()), (Some("back_to_back"), true), "{r}");
+    let r = roam_json(dir.path(), &[&args[..], &["--frames", "3", "--wait-for-reads"]].concat());
+    assert_eq!(r["pacing"], "wait_for_reads");
+    for bad in [&["--fps", "30", "--wait-for-reads"][..], &["--fps", "-1"], &["--fps", "inf"]] {
+        let all = [&["roam"][..], &args[..], &["--frames", "2"], bad].concat();
+        let (out, d) = cliptex(dir.path(), &all);
+        assert_eq!(out.status.code(), Some(2), "{d}");
+    }
+}

@@ -1,0 +1,703 @@
+//! The `clipmapd` service end to end: the real binary in a temporary directory, readers in Rust
+//! (`clipmap-read`), C (`clients/c/reader.c`, built with `cc`) and Python
+//! (`clients/python/clipmap_shm.py`) verifying every texel they read against the hash texture
+//! while the centre moves fast, jumps and reverses; the service killed with SIGKILL and
+//! restarted under the readers; hostile control-socket input; permissions; refused mappings.
+//!
+//! Every service is killed when its guard drops; failures print the command and its output.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::os::unix::fs::PermissionsExt;
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
+const READER: &str = env!("CARGO_BIN_EXE_clipmap-read");
+const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+
+/// A running `clipmapd`, killed on drop; its output goes to files in the temp dir.
+struct Service {
+    child: Child,
+    args: Vec<String>,
+    out: PathBuf,
+    err: PathBuf,
+    socket: PathBuf,
+}
+
+impl Service {
+    /// Starts `clipmapd --source hash` named `name` in `dir` with `extra` options and waits until
+    /// its socket answers.
+    fn start(dir: &Path, name: &str, extra: &[&str]) -> Service {
+        let s = Service::spawn(dir, name, extra);
+        s.wait_ready();
+        s
+    }
+
+    fn spawn(dir: &Path, name: &str, extra: &[&str]) -> Service {
+        let source = ["--source", "hash", "--size", "65536", "--clip", "256", "--tile", "64"];
+        Service::spawn_with(dir, name, &source, extra)
+    }
+
+    /// Starts `clipmapd SOURCE...` (a configuration file or procedural options).
+    fn spawn_with(dir: &Path, name: &str, source: &[&str], extra: &[&str]) -> Service {
+        let given = extra.iter().position(|a| *a == "--socket").map(|i| PathBuf::from(extra[i + 1]));
+        let socket = given.clone().unwrap_or_else(|| dir.join(format!("{name}.sock")));
+        let mut args: Vec<String> = source.iter().map(|s| s.to_string()).collect();
+        args.extend(
+            ["--tick-hz", "120", "--name", name, "--shm-dir", dir.to_str().unwrap()].iter().map(|s| s.to_string()),
+        );
+        if given.is_none() {
+            args.extend(["--socket".to_string(), socket.to_str().unwrap().to_string()]);
+        }
+        args.extend(extra.iter().map(|s| s.to_string()));
+        let n = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos();
+        let (out, err) = (dir.join(format!("{name}-{n}.out")), dir.join(format!("{name}-{n}.err")));
+        let child = Command::new(CLIPMAPD)
+            .args(&args)
+            .env("RUST_LOG", "info")
+            .stdout(std::fs::File::create(&out).unwrap())
+            .stderr(std::fs::File::create(&err).unwrap())
+            .spawn()
+            .unwrap();
+        Service { child, args, out, err, socket }
+    }
+
+    fn wait_ready(&self) {
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(30) {
+            if let Ok(mut s) = UnixStream::connect(&self.socket) {
+                if writeln!(s, "PING").is_ok() {
+                    let mut line = String::new();
+                    let _ = BufReader::new(s).read_line(&mut line);
+                    if line.starts_with("OK pong") {
+                        return;
+                    }
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        panic!("the service did not come up\n{}", self.dump());
+    }
+
+    fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    fn dump(&self) -> String {
+        format!(
+            "command: {CLIPMAPD} {}\nstdout:\n{}\nstderr:\n{}",
+            self.args.join(" "),
+            std::fs::read_to_string(&self.out).unwrap_or_default(),
+            std::fs::read_to_string(&self.err).unwrap_or_default()
+        )
+    }
+
+    /// Sends one request and returns the first reply line.
+    fn ask(&self, line: &str) -> String {
+        ask(&self.socket, line)
+    }
+
+    fn wait_exit(&mut self, within: Duration) -> Option<std::process::ExitStatus> {
+        let t = Instant::now();
+        while t.elapsed() < within {
+            if let Some(st) = self.child.try_wait().unwrap() {
+                return Some(st);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        None
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn ask(socket: &Path, line: &str) -> String {
+    let mut s = UnixStream::connect(socket).unwrap_or_else(|e| panic!("connect {}: {e}", socket.display()));
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    writeln!(s, "{line}").unwrap();
+    let mut reply = String::new();
+    BufReader::new(s).read_line(&mut reply).unwrap();
+    reply.trim_end().to_string()
+}
+
+fn json_reply(reply: &str) -> serde_json::Value {
+    let body = reply.strip_prefix("OK ").unwrap_or_else(|| panic!("not OK: {reply}"));
+    serde_json::from_str(body).unwrap_or_else(|e| panic!("{e}: {reply}"))
+}
+
+/// Parses "N passed, M failed" from a reader's output.
+fn counts(out: &Output, what: &str) -> (u64, u64) {
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let line = stdout.lines().find(|l| l.contains(" passed, ")).unwrap_or_else(|| {
+        panic!(
+            "{what}: no counts\nstatus {:?}\nstdout:\n{stdout}\nstderr:\n{}",
+            out.status,
+            String::from_utf8_lossy(&out.stderr)
+        )
+    });
+    let mut w = line.split_whitespace();
+    let passed = w.next().unwrap().parse().unwrap();
+    let failed = w.nth(1).unwrap().parse().unwrap();
+    (passed, failed)
+}
+
+fn rust_reader(dir: &Path, name: &str, extra: &[&str]) -> Command {
+    let mut c = Command::new(READER);
+    c.args(["--name", name, "--shm-dir", dir.to_str().unwrap()]).args(extra);
+    c.stdout(Stdio::piped()).stderr(Stdio::piped());
+    c
+}
+
+/// Builds the C example reader with the system compiler.
+fn c_reader(dir: &Path) -> PathBuf {
+    let exe = dir.join("c-reader");
+    let out = Command::new("cc")
+        .args(["-O2", "-Wall", "-Werror", "-I"])
+        .arg(Path::new(ROOT).join("include"))
+        .arg(Path::new(ROOT).join("clients/c/reader.c"))
+        .arg("-o")
+        .arg(&exe)
+        .output()
+        .expect("a C compiler (`cc`) is needed: .ci/run installs gcc");
+    assert!(out.status.success(), "cc failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    exe
+}
+
+fn python_reader() -> Command {
+    let mut c = Command::new("python3");
+    c.arg(Path::new(ROOT).join("clients/python/clipmap_shm.py"));
+    c.stdout(Stdio::piped()).stderr(Stdio::piped());
+    c
+}
+
+#[test]
+fn readers_in_rust_c_and_python_verify_every_texel_while_the_centre_moves_fast() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "fly", &["--budget-ms", "2"]);
+    let map = d.join("clipmap-fly.map");
+    let creader = c_reader(d);
+    let secs = "3";
+    // Each reader reads until the time is up (the caps are far above what a reader reaches).
+    // One Rust reader drives: fast steps, reversals and jumps larger than the window.
+    let readers: Vec<(String, std::process::Child)> = vec![
+        (
+            "rust driver".into(),
+            rust_reader(d, "fly", &["--drive", "--reads", "1000000000000", "--seconds", secs]).spawn().unwrap(),
+        ),
+        (
+            "rust 1".into(),
+            rust_reader(d, "fly", &["--reads", "1000000000000", "--seconds", secs, "--seed", "2"]).spawn().unwrap(),
+        ),
+        (
+            "rust 2".into(),
+            rust_reader(d, "fly", &["--reads", "1000000000000", "--seconds", secs, "--block", "3", "--seed", "3"])
+                .spawn()
+                .unwrap(),
+        ),
+        (
+            "c".into(),
+            Command::new(&creader)
+                .arg(&map)
+                .args(["1000000000000", "5", secs])
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap(),
+        ),
+        ("python".into(), python_reader().arg(&map).args(["1000000000000", "7", secs]).spawn().unwrap()),
+    ];
+    let mut total = 0;
+    for (what, child) in readers {
+        let out = child.wait_with_output().unwrap();
+        let (passed, failed) = counts(&out, &what);
+        assert_eq!(failed, 0, "{what}: {failed} mismatches\n{}\n{}", String::from_utf8_lossy(&out.stderr), svc.dump());
+        assert!(out.status.success(), "{what}: {:?}\n{}", out.status, String::from_utf8_lossy(&out.stderr));
+        assert!(passed > 10_000, "{what}: only {passed} texels checked");
+        eprintln!("{what}: {passed} texels checked");
+        total += passed;
+    }
+    eprintln!("all readers: {total} texels checked, none wrong");
+    assert!(total >= 10_000_000, "only {total} texels checked");
+    let stats = json_reply(&svc.ask("STATS"));
+    assert!(stats["requests_seen"].as_u64().unwrap() > 100, "the driver's requests must arrive: {stats}");
+    assert_eq!(stats["engine"]["writes_into_published"], 0);
+}
+
+#[test]
+fn with_aligned_level_centres_a_driving_reader_still_sees_only_right_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "steps", &["--centre-alignment", "8", "--budget-ms", "2"]);
+    let out = rust_reader(d, "steps", &["--drive", "--reads", "1000000000000", "--seconds", "1"]).output().unwrap();
+    let (passed, failed) = counts(&out, "rust driver");
+    assert_eq!(failed, 0, "{failed} mismatches\n{}\n{}", String::from_utf8_lossy(&out.stderr), svc.dump());
+    assert!(out.status.success(), "{:?}\n{}", out.status, String::from_utf8_lossy(&out.stderr));
+    assert!(passed > 10_000, "only {passed} texels checked");
+    let stats = json_reply(&svc.ask("STATS"));
+    assert_eq!(stats["engine"]["writes_into_published"], 0, "{stats}");
+}
+
+#[test]
+fn kill_9_mid_update_readers_see_no_torn_state_notice_the_stale_heartbeat_and_reattach() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut svc = Service::start(d, "crash", &[]);
+    let follow = ["--follow", "--stale-ms", "400", "--seconds", "9", "--reads", "1000000000000"];
+    let driver = rust_reader(d, "crash", &[&follow[..], &["--drive"]].concat()).spawn().unwrap();
+    let reader = rust_reader(d, "crash", &[&follow[..], &["--block", "5", "--seed", "9"]].concat()).spawn().unwrap();
+    let kills = 3;
+    for i in 0..kills {
+        std::thread::sleep(Duration::from_millis(900));
+        let st = json_reply(&svc.ask("STATS"));
+        assert!(st["engine"]["ticks"].as_u64().unwrap() > 0, "{st}");
+        svc.child.kill().unwrap(); // SIGKILL, in the middle of whatever it was doing
+        svc.child.wait().unwrap();
+        std::thread::sleep(Duration::from_millis(900));
+        // A clean takeover: the dead service's lock died with it, its socket is stale.
+        svc = Service::start(d, "crash", &[]);
+        eprintln!("restart {} done", i + 1);
+    }
+    for (what, child) in [("driver", driver), ("reader", reader)] {
+        let out = child.wait_with_output().unwrap();
+        let (passed, failed) = counts(&out, what);
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        let json: serde_json::Value = serde_json::from_str(stdout.lines().next().unwrap()).unwrap();
+        eprintln!("{what}: {json}");
+        assert_eq!(failed, 0, "{what}: {stdout}\n{}\n{}", String::from_utf8_lossy(&out.stderr), svc.dump());
+        assert!(passed > 100_000, "{what}: {stdout}");
+        assert!(json["stale_seen"].as_u64().unwrap() >= kills, "{what} must notice every stale heartbeat: {json}");
+        assert!(json["reattached"].as_u64().unwrap() >= kills, "{what} must reattach after every restart: {json}");
+    }
+}
+
+#[test]
+fn killed_readers_go_unnoticed_but_in_the_statistics() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "rk", &[]);
+    for _ in 0..3 {
+        let mut r = rust_reader(d, "rk", &["--drive", "--seconds", "30", "--reads", "1000000000000"]).spawn().unwrap();
+        std::thread::sleep(Duration::from_millis(300));
+        r.kill().unwrap();
+        r.wait().unwrap();
+    }
+    let before = json_reply(&svc.ask("STATS"));
+    std::thread::sleep(Duration::from_millis(300));
+    let after = json_reply(&svc.ask("STATS"));
+    assert!(after["engine"]["ticks"].as_u64() > before["engine"]["ticks"].as_u64(), "still ticking");
+    assert!(after["requests_seen"].as_u64().unwrap() > 0, "the readers' requests were seen: {after}");
+    let out = rust_reader(d, "rk", &["--drive", "--reads", "200000"]).output().unwrap();
+    let (passed, failed) = counts(&out, "reader after the kills");
+    assert_eq!((failed, passed >= 200_000), (0, true), "{}", String::from_utf8_lossy(&out.stdout));
+}
+
+#[test]
+fn hostile_control_input_gets_errors_bounded_memory_and_the_service_keeps_serving() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "hostile", &["--idle-ms", "700", "--max-connections", "8"]);
+    let connect = || {
+        let s = UnixStream::connect(&svc.socket).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        s
+    };
+    let read_all = |mut s: UnixStream| {
+        let mut text = String::new();
+        let _ = s.read_to_string(&mut text);
+        text
+    };
+    // Garbage, bad arguments and binary on one connection: one ERR each, the connection stays.
+    let mut s = connect();
+    s.write_all(b"HELLO\n\xff\xfe\x00\n\nBUDGET -3\nBORDER many\nCENTRE 1\nPING\nQUIT\n").unwrap();
+    let replies = read_all(s);
+    let lines: Vec<&str> = replies.lines().collect();
+    assert_eq!(lines.len(), 8, "{replies}");
+    assert!(lines[..6].iter().all(|l| l.starts_with("ERR ")), "{replies}");
+    assert!(lines[0].contains("unknown command") && lines[1].contains("UTF-8"), "{replies}");
+    assert_eq!(lines[6..], ["OK pong", "OK bye"]);
+    // A huge line: refused as soon as it passes the limit, not buffered.
+    let mut s = connect();
+    let huge = vec![b'A'; 4 << 20];
+    let _ = s.write_all(&huge); // the service may close before all of it is sent
+    let reply = read_all(s);
+    assert!(reply.starts_with("ERR request longer than 4096 bytes"), "{reply}");
+    // Half a line, then the writer goes away.
+    let mut s = connect();
+    s.write_all(b"STAT").unwrap();
+    s.shutdown(std::net::Shutdown::Write).unwrap();
+    assert!(read_all(s).starts_with("ERR incomplete request"));
+    // Half a line and silence: closed after the idle time.
+    let mut s = connect();
+    s.write_all(b"STATU").unwrap();
+    assert!(read_all(s).starts_with("ERR idle"));
+    // Many connections at once: beyond the limit, refused with a reason.
+    let held: Vec<UnixStream> = (0..40).map(|_| connect()).collect();
+    std::thread::sleep(Duration::from_millis(100));
+    let refused = held
+        .into_iter()
+        .map(|mut s| {
+            let _ = writeln!(s, "PING");
+            let mut line = String::new();
+            let _ = BufReader::new(s).read_line(&mut line);
+            line
+        })
+        .filter(|l| l.starts_with("ERR too many connections"))
+        .count();
+    assert!(refused >= 30, "{refused} of 40 refused");
+    // Still serving, and it counted everything.
+    std::thread::sleep(Duration::from_millis(100));
+    let st = json_reply(&svc.ask("STATS"));
+    assert!(st["control"]["errors"].as_u64().unwrap() >= 9, "{st}");
+    assert!(st["control"]["refused"].as_u64().unwrap() >= 30, "{st}");
+    assert_eq!(st["control"]["long_lines"], 1);
+    assert_eq!(svc.ask("PING"), "OK pong");
+    let status = std::fs::read_to_string(format!("/proc/{}/status", svc.pid())).unwrap_or_default();
+    if let Some(kb) = status.lines().find(|l| l.starts_with("VmRSS:")) {
+        let kb: u64 = kb.split_whitespace().nth(1).unwrap().parse().unwrap();
+        assert!(kb < 256 * 1024, "resident memory {kb} kB after hostile input");
+    }
+}
+
+#[test]
+fn control_commands_change_the_service_and_shutdown_stops_it_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut svc = Service::start(d, "ctl", &[]);
+    assert_eq!(svc.ask("BUDGET 2.5"), "OK budget 2.5 ms");
+    assert_eq!(svc.ask("budget off"), "OK budget off");
+    assert_eq!(svc.ask("BORDER 12"), "OK border 12");
+    assert_eq!(svc.ask("BORDER 100000"), "OK border 127", "clamped to what the clip size allows");
+    assert_eq!(svc.ask("CENTRE 1000 2000"), "OK centre 1000 2000");
+    std::thread::sleep(Duration::from_millis(200));
+    let status = json_reply(&svc.ask("STATUS"));
+    assert_eq!(status["centre"], serde_json::json!([1000, 2000]), "{status}");
+    assert_eq!(status["invalid_border"], 127);
+    assert_eq!(status["budget_ms"], serde_json::Value::Null);
+    assert_eq!(status["levels"], 17);
+    assert_eq!(status["pid"], svc.pid());
+    // Prometheus text: a header line giving the count, then that many lines.
+    let mut s = UnixStream::connect(&svc.socket).unwrap();
+    writeln!(s, "STATS PROM").unwrap();
+    let mut r = BufReader::new(s);
+    let mut head = String::new();
+    r.read_line(&mut head).unwrap();
+    let n: usize = head.trim().strip_prefix("OK prometheus ").unwrap().parse().unwrap();
+    let body: Vec<String> = (0..n)
+        .map(|_| {
+            let mut l = String::new();
+            r.read_line(&mut l).unwrap();
+            l
+        })
+        .collect();
+    let ticks = body.iter().find(|l| l.starts_with("clipmapd_ticks_total{name=\"ctl\"} ")).expect("ticks sample");
+    assert!(ticks.split_whitespace().nth(1).unwrap().parse::<f64>().unwrap() > 0.0);
+    assert!(body.iter().any(|l| l.starts_with("clipmapd_budget_overruns_total")));
+    assert!(body.iter().any(|l| l.starts_with("clipmapd_levels_disabled")));
+    assert_eq!(svc.ask("SHUTDOWN"), "OK shutting down");
+    let st = svc.wait_exit(Duration::from_secs(10)).unwrap_or_else(|| panic!("still running\n{}", svc.dump()));
+    assert!(st.success(), "{st:?}\n{}", svc.dump());
+    assert!(!d.join("clipmap-ctl.map").exists() && !svc.socket.exists(), "names removed on a clean stop");
+    // Its log went to a file: plain text, no terminal colour codes.
+    let log = std::fs::read_to_string(&svc.err).unwrap();
+    assert!(log.contains("INFO"), "the log has lines\n{log}");
+    assert!(!log.contains('\x1b'), "colour codes in a log file\n{log}");
+}
+
+#[test]
+fn sigterm_stops_gracefully_and_a_second_service_on_the_same_name_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut first = Service::start(d, "one", &[]);
+    let mut second = Service::spawn(d, "one", &["--socket", d.join("other.sock").to_str().unwrap()]);
+    let st = second.wait_exit(Duration::from_secs(20)).expect("the second service must exit");
+    assert_eq!(st.code(), Some(2), "{}", second.dump());
+    assert!(second.dump().contains("already publishes `one`"), "{}", second.dump());
+    assert_eq!(first.ask("PING"), "OK pong", "the first keeps serving");
+    // A second service on another name but the same socket is refused too.
+    let mut third = Service::spawn(d, "two", &["--socket", first.socket.to_str().unwrap()]);
+    let st = third.wait_exit(Duration::from_secs(20)).expect("the third service must exit");
+    assert_eq!(st.code(), Some(2), "{}", third.dump());
+    assert!(third.dump().contains("another process accepts connections"), "{}", third.dump());
+    assert!(!d.join("clipmap-two.map").exists(), "a refused service leaves no mapping behind");
+    let kill = Command::new("kill").args(["-TERM", &first.pid().to_string()]).status().unwrap();
+    assert!(kill.success());
+    let st = first.wait_exit(Duration::from_secs(10)).unwrap_or_else(|| panic!("still running\n{}", first.dump()));
+    assert!(st.success(), "{st:?}\n{}", first.dump());
+    assert!(first.dump().contains("SIGTERM"), "{}", first.dump());
+    assert!(!d.join("clipmap-one.map").exists() && !first.socket.exists());
+}
+
+#[test]
+fn the_mapping_and_the_socket_are_owner_only_unless_widened() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+    let a = Service::start(d, "priv", &[]);
+    assert_eq!(mode(&d.join("clipmap-priv.map")), 0o600);
+    assert_eq!(mode(&a.socket), 0o600);
+    let b = Service::start(d, "shared", &["--shm-mode", "640"]);
+    assert_eq!(mode(&d.join("clipmap-shared.map")), 0o640);
+    assert_eq!(mode(&b.socket), 0o600, "the control socket stays owner-only");
+    let mut c = Service::spawn(d, "bad", &["--shm-mode", "777"]);
+    assert_eq!(c.wait_exit(Duration::from_secs(20)).unwrap().code(), Some(1), "{}", c.dump());
+}
+
+#[test]
+fn every_client_refuses_a_mapping_with_a_wrong_magic_version_or_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let good = {
+        let svc = Service::start(d, "src", &[]);
+        let bytes = std::fs::read(d.join("clipmap-src.map")).unwrap();
+        drop(svc);
+        bytes
+    };
+    let creader = c_reader(d);
+    let mut cases: Vec<(&str, Vec<u8>, &str)> = Vec::new();
+    let mut b = good.clone();
+    b[0..8].copy_from_slice(b"NOTACLIP");
+    cases.push(("magic", b, "wrong magic"));
+    let mut b = good.clone();
+    b[8..12].copy_from_slice(&9u32.to_le_bytes());
+    cases.push(("version", b, "layout version 9"));
+    cases.push(("short", good[..good.len() - 4096].to_vec(), "the header says"));
+    cases.push(("tiny", good[..512].to_vec(), "truncated"));
+    for (name, bytes, want) in cases {
+        let p = d.join(format!("{name}.map"));
+        std::fs::write(&p, &bytes).unwrap();
+        let runs: [(&str, Output); 3] = [
+            ("rust", Command::new(READER).arg("--path").arg(&p).args(["--reads", "10"]).output().unwrap()),
+            ("c", Command::new(&creader).arg(&p).arg("10").output().unwrap()),
+            ("python", python_reader().arg(&p).arg("10").output().unwrap()),
+        ];
+        for (who, out) in runs {
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert_eq!(out.status.code(), Some(2), "{who} on {name}: {:?}\n{err}", out.status);
+            assert!(err.contains(want), "{who} on {name}: expected `{want}` in: {err}");
+        }
+    }
+}
+
+#[test]
+fn bad_options_exit_with_status_1_and_say_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (&["--source", "hash", "--size", "1000", "--shm-dir", d], "size"),
+        (&["--source", "hash", "--tick-hz", "0", "--shm-dir", d], "--tick-hz"),
+        (&["--source", "hash", "--budget-ms", "soon", "--shm-dir", d], "--budget-ms"),
+        (&["--source", "hash", "--centre-alignment", "0", "--shm-dir", d], "--centre-alignment"),
+        (&["--source", "hash", "--name", "../x", "--shm-dir", d], "invalid name"),
+        (&["--shm-dir", d], "--source"),
+    ];
+    for (args, want) in cases {
+        let mut child =
+            Command::new(CLIPMAPD).args(*args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+        let t = Instant::now();
+        while child.try_wait().unwrap().is_none() && t.elapsed() < Duration::from_secs(20) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = child.kill(); // never leave a service running if it wrongly started
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains(want), "{args:?}: expected `{want}` in: {err}");
+    }
+}
+
+#[test]
+fn the_demo_writes_its_pictures_and_a_summary_and_exits() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("pictures");
+    let out = Command::new(CLIPMAPD)
+        .args(["--demo", "--demo-frames", "60", "--out", out_dir.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains(&format!("pictures in {}", out_dir.display())), "{stdout}");
+    let pngs: Vec<_> = std::fs::read_dir(&out_dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "png"))
+        .collect();
+    assert_eq!(pngs.len(), 9, "{pngs:?}");
+    for p in &pngs {
+        assert!(stdout.contains(p.file_name().unwrap().to_str().unwrap()), "{stdout}");
+        assert_eq!(&std::fs::read(p).unwrap()[..8], b"\x89PNG\r\n\x1a\n");
+    }
+    let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(out_dir.join("stats.json")).unwrap()).unwrap();
+    assert_eq!(stats["requests_seen"], 60);
+    // Every picture is labelled: caption text across its top rows, and the level pictures carry
+    // a legend below with the valid region's red and the window's yellow swatches.
+    for p in &pngs {
+        let img = image::open(p).unwrap().to_rgb8();
+        let caption = (0..20).flat_map(|y| (0..img.width()).map(move |x| (x, y)));
+        let text = caption.filter(|&(x, y)| img.get_pixel(x, y).0 == [235, 235, 235]).count();
+        assert!(text > 100, "{}: no caption ({text} text pixels)", p.display());
+        let name = p.file_name().unwrap().to_str().unwrap();
+        if name.starts_with("levels-") || name.starts_with("lod-") {
+            let rows = if name.starts_with("levels-") { 30 } else { 70 }; // the level legend wraps
+            let bottom = (img.height() - rows..img.height()).flat_map(|y| (0..img.width()).map(move |x| (x, y)));
+            let colours: std::collections::HashSet<[u8; 3]> = bottom.map(|(x, y)| img.get_pixel(x, y).0).collect();
+            let want: &[[u8; 3]] =
+                if name.starts_with("levels-") { &[[255, 0, 0], [255, 255, 0]] } else { &[[230, 25, 75]] };
+            for c in want {
+                assert!(colours.contains(c), "{name}: the legend lacks {c:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn the_c_header_and_the_python_reader_agree_with_the_layout() {
+    use clipmap::shm::layout::{desc, header, request, state, DESC_BYTES, MAX_LEVELS, PAGE, STATE_BYTES, VERSION};
+    let h = std::fs::read_to_string(Path::new(ROOT).join("include/clipmap_shm.h")).unwrap();
+    let define = |name: &str| -> usize {
+        let line = h
+            .lines()
+            .find(|l| l.split_whitespace().nth(1) == Some(name) && l.starts_with("#define"))
+            .unwrap_or_else(|| panic!("{name} is not defined in the header"));
+        let value = line.split_whitespace().nth(2).unwrap().trim_end_matches('u');
+        value.parse().unwrap_or_else(|_| panic!("{line}"))
+    };
+    let pairs: &[(&str, usize)] = &[
+        ("CLIPMAP_VERSION", VERSION as usize),
+        ("CLIPMAP_PAGE", PAGE as usize),
+        ("CLIPMAP_MAX_LEVELS", MAX_LEVELS),
+        ("CLIPMAP_H_VERSION", header::VERSION),
+        ("CLIPMAP_H_HEADER_BYTES", header::HEADER_BYTES),
+        ("CLIPMAP_H_TOTAL_BYTES", header::TOTAL_BYTES),
+        ("CLIPMAP_H_TEXEL_FORMAT", header::TEXEL_FORMAT),
+        ("CLIPMAP_H_BYTES_PER_TEXEL", header::BYTES_PER_TEXEL),
+        ("CLIPMAP_H_CLIP_SIZE", header::CLIP_SIZE),
+        ("CLIPMAP_H_LEVEL_COUNT", header::LEVEL_COUNT),
+        ("CLIPMAP_H_LEVEL0_S", header::LEVEL0_S),
+        ("CLIPMAP_H_LEVEL0_T", header::LEVEL0_T),
+        ("CLIPMAP_H_WRITER_PID", header::WRITER_PID),
+        ("CLIPMAP_H_FLAGS", header::FLAGS),
+        ("CLIPMAP_H_HEARTBEAT", header::HEARTBEAT),
+        ("CLIPMAP_H_HEARTBEAT_MS", header::HEARTBEAT_MS),
+        ("CLIPMAP_H_GENERATION", header::GENERATION),
+        ("CLIPMAP_H_GLOBAL_SEQ", header::GLOBAL_SEQ),
+        ("CLIPMAP_H_MIN_LOD", header::MIN_LOD),
+        ("CLIPMAP_H_TICK", header::TICK),
+        ("CLIPMAP_H_REQUEST", header::REQUEST),
+        ("CLIPMAP_H_LEVEL_DESCS", header::LEVEL_DESCS),
+        ("CLIPMAP_DESC_BYTES", DESC_BYTES),
+        ("CLIPMAP_STATE_BYTES", STATE_BYTES),
+        ("CLIPMAP_D_SIZE_S", desc::SIZE_S),
+        ("CLIPMAP_D_SIZE_T", desc::SIZE_T),
+        ("CLIPMAP_D_WINDOW_OFFSET", desc::WINDOW_OFFSET),
+        ("CLIPMAP_D_WINDOW_BYTES", desc::WINDOW_BYTES),
+        ("CLIPMAP_D_WINDOW_S", desc::WINDOW_S),
+        ("CLIPMAP_D_WINDOW_T", desc::WINDOW_T),
+        ("CLIPMAP_D_KIND", desc::KIND),
+        ("CLIPMAP_S_SEQ", state::SEQ),
+        ("CLIPMAP_S_CENTRE_S", state::CENTRE_S),
+        ("CLIPMAP_S_CENTRE_T", state::CENTRE_T),
+        ("CLIPMAP_S_VALID_S0", state::VALID_S0),
+        ("CLIPMAP_S_VALID_T0", state::VALID_T0),
+        ("CLIPMAP_S_VALID_S1", state::VALID_S1),
+        ("CLIPMAP_S_VALID_T1", state::VALID_T1),
+        ("CLIPMAP_S_ENABLED", state::ENABLED),
+        ("CLIPMAP_S_INVALID_BORDER", state::INVALID_BORDER),
+        ("CLIPMAP_S_UPDATED_TICK", state::UPDATED_TICK),
+        ("CLIPMAP_S_ORIGIN_S", state::ORIGIN_S),
+        ("CLIPMAP_S_ORIGIN_T", state::ORIGIN_T),
+        ("CLIPMAP_R_SEQ", request::SEQ),
+        ("CLIPMAP_R_CENTRE_S", request::CENTRE_S),
+        ("CLIPMAP_R_CENTRE_T", request::CENTRE_T),
+        ("CLIPMAP_R_VEL_S", request::VEL_S),
+        ("CLIPMAP_R_VEL_T", request::VEL_T),
+        ("CLIPMAP_R_CLIENT_PID", request::CLIENT_PID),
+        ("CLIPMAP_R_COUNT", request::COUNT),
+    ];
+    for (name, want) in pairs {
+        assert_eq!(define(name), *want, "{name}");
+    }
+    // The derived offsets, and Python's copy of them, computed by Python itself.
+    let py = Command::new("python3")
+        .arg("-c")
+        .arg(
+            "import sys; sys.path.insert(0, sys.argv[1]); import clipmap_shm as c; \
+             print(c.H_LEVEL_STATES, c.H_END, c.H_GLOBAL_SEQ, c.H_HEARTBEAT_MS, c.DESC_BYTES, c.STATE_BYTES)",
+        )
+        .arg(Path::new(ROOT).join("clients/python"))
+        .output()
+        .unwrap();
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    let want = format!(
+        "{} {} {} {} {} {}",
+        header::LEVEL_STATES,
+        header::END,
+        header::GLOBAL_SEQ,
+        header::HEARTBEAT_MS,
+        DESC_BYTES,
+        STATE_BYTES
+    );
+    assert_eq!(String::from_utf8_lossy(&py.stdout).trim(), want);
+}
+
+#[test]
+fn a_ct_configuration_is_served_from_its_tile_files_one_read_queue_per_stream_server() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pyr = d.join("pyr");
+    let prep = Command::new(env!("CARGO_BIN_EXE_clipprep"))
+        .args(["--source", "hash", "--size", "4096", "--tile", "64", "--clip", "256", "--format", "rgba8"])
+        .args(["--streams", "2", "--out"])
+        .arg(&pyr)
+        .output()
+        .unwrap();
+    assert!(prep.status.success(), "clipprep: {}", String::from_utf8_lossy(&prep.stderr));
+    let ct = pyr.join("pyr.ct");
+    let svc = Service::spawn_with(d, "pyr", &[ct.to_str().unwrap()], &[]);
+    svc.wait_ready();
+    let out = rust_reader(d, "pyr", &["--drive", "--seconds", "2", "--reads", "1000000000000"]).output().unwrap();
+    let (passed, failed) = counts(&out, "reader of the file-backed texture");
+    assert_eq!(failed, 0, "{}\n{}", String::from_utf8_lossy(&out.stderr), svc.dump());
+    assert!(passed > 100_000, "{passed}");
+    let stats = json_reply(&svc.ask("STATS"));
+    assert!(stats["engine"]["tiles_read"].as_u64().unwrap() > 0, "{stats}");
+    // Tiles are spread over two stream directories: each has its own queue, and both read.
+    let streams = stats["streams"].as_array().expect("STATS lists the read queues");
+    assert_eq!(streams.len(), 2, "{stats}");
+    for q in streams {
+        assert!(q["reads_done"].as_u64().unwrap() > 0, "every stream server's queue reads: {stats}");
+    }
+    assert_eq!(json_reply(&svc.ask("STATUS"))["levels"], 13);
+}
+
+#[test]
+fn a_renderer_request_is_published_without_waiting_for_the_next_period() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Two ticks a second: a request that waited for the period would wait up to half a second.
+    let svc = Service::start(d, "early", &["--tick-hz", "2"]);
+    let c = clipmap::shm::Client::attach(d, "early").unwrap();
+    let before = json_reply(&svc.ask("STATS"));
+    for i in 1..=5i64 {
+        let want = [30_000 + 100 * i, 20_000 - 50 * i];
+        c.request_centre(want, [0.0, 0.0]);
+        let t = Instant::now();
+        while c.level_state(0).is_none_or(|s| s.centre != want) {
+            assert!(t.elapsed() < Duration::from_secs(10), "request {i} was never published\n{}", svc.dump());
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let after = json_reply(&svc.ask("STATS"));
+    let early = after["ticks_on_request"].as_u64().unwrap() - before["ticks_on_request"].as_u64().unwrap();
+    assert!(early >= 4, "at most one of 5 requests may coincide with a periodic tick: {after}");
+    assert!(after["tick_busy_s"].as_f64().unwrap() > 0.0, "{after}");
+    assert!(svc.ask("STATS PROM").starts_with("OK prometheus"));
+}

@@ -1,0 +1,30 @@
+//! Every integration test in one binary: linking is most of a clean test run, so the tests are
+//! modules of this crate rather than a binary each (as ripgrep gathers its own). Run one group
+//! with `cargo test --test it cli_roam::`, one test by its name.
+//!
+//! Each module drives the real binaries (`CARGO_BIN_EXE_*`) or the library from a temporary
+//! directory; `common` holds the shared helpers.
+
+mod common;
+
+mod cli_attach;
+mod cli_check;
+mod cli_config;
+mod cli_dump;
+mod cli_roam;
+mod cli_snapshots;
+mod clipbench_perf;
+mod clipmapd;
+mod clipprep;
+mod config_build_errors;
+mod config_errors;
+mod config_fuzz_props;
+mod config_hostile;
+mod config_ic_errors;
+mod config_lexical;
+mod config_paths;
+mod config_plan;
+mod config_tokens;
+mod examples;
+mod fuzz_regressions;
+mod stability;
