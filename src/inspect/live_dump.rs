@@ -129,7 +129,7 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDump
     let size0 = client.levels.first().map_or(1, |l| l.size[0].max(l.size[1])) as i64;
     let extent = ((client.clip_size as i64) << stack).min(size0).max(VIEW_PIXELS as i64);
     let centre = snap.levels.first().map_or([0, 0], |l| l.centre);
-    let (view, rings) = picture::view_and_rings(&client, &snap, centre, VIEW_PIXELS, extent, picture::Lod::Finest);
+    let (view, rings) = picture::view_and_rings(&client, &snap, centre, VIEW_PIXELS, extent);
     let view = save(&view, out_dir.join("view.png"))?;
     let rings = save(&rings, out_dir.join("rings.png"))?;
     let ring_colours = (0..client.levels.len())

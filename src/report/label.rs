@@ -47,18 +47,38 @@ pub fn fill(img: &mut RgbImage, x: u32, y: u32, w: u32, h: u32, colour: [u8; 3])
 }
 
 /// A copy of `img` with `lines` of caption above it (white on the picture's dark background),
-/// at least `min_width` pixels wide.
+/// at least `min_width` pixels wide; lines longer than the width are wrapped at spaces.
 pub fn captioned(img: &RgbImage, lines: &[String], min_width: u32) -> RgbImage {
     let scale = 1;
     let pad = 6;
-    let text_w = lines.iter().map(|l| text_width(l, scale)).max().unwrap_or(0) + 2 * pad;
-    let width = img.width().max(text_w).max(min_width);
+    let width = img.width().max(min_width).max(160);
+    let lines = wrap(lines, ((width - 2 * pad) / (8 * scale)) as usize);
     let top = lines.len() as u32 * line_height(scale) + pad;
     let mut out = RgbImage::from_pixel(width, img.height() + top, Rgb(BACKGROUND));
     for (i, l) in lines.iter().enumerate() {
         text(&mut out, pad, pad / 2 + i as u32 * line_height(scale) + scale, l, [235, 235, 235], scale);
     }
     image::imageops::replace(&mut out, img, 0, top as i64);
+    out
+}
+
+/// `lines` broken at spaces so that none is longer than `columns` characters (a word longer than
+/// that stands on its own line).
+fn wrap(lines: &[String], columns: usize) -> Vec<String> {
+    let mut out = Vec::new();
+    for line in lines {
+        let mut cur = String::new();
+        for word in line.split(' ') {
+            if !cur.is_empty() && cur.chars().count() + 1 + word.chars().count() > columns {
+                out.push(std::mem::take(&mut cur));
+            }
+            if !cur.is_empty() {
+                cur.push(' ');
+            }
+            cur.push_str(word);
+        }
+        out.push(cur);
+    }
     out
 }
 
@@ -155,6 +175,12 @@ mod tests {
         let top = c.height() - 20;
         assert!(top >= 2 * line_height(1));
         assert!(c.width() >= text_width("min LOD 0.00", 1));
+        // A long line wraps at spaces to the picture's width instead of widening it.
+        let long = "word ".repeat(60);
+        let w = captioned(&RgbImage::new(200, 10), &[long], 0);
+        assert_eq!(w.width(), 200);
+        assert!(w.height() >= 10 + 5 * line_height(1), "wrapped onto several lines");
+        assert_eq!(wrap(&["aa bb cc".into()], 5), ["aa bb", "cc"]);
         assert_eq!(c.get_pixel(3, top + 4).0, [1, 2, 3], "the picture sits under the caption");
         let l =
             with_legend(&c, &[(Swatch::Outline([255, 0, 0]), "valid region".into()), (Swatch::Checker, "x".into())]);

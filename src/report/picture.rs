@@ -203,39 +203,15 @@ pub fn draw_published_level(
     draw_level(img, x0, y0, frame, size, window, valid, format, client.bytes_per_texel, &mut row);
 }
 
-/// Which levels a view may use (see [`view_and_rings`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Lod {
-    /// The finest published level at each pixel (shows the residency rings exactly).
-    Finest,
-    /// No finer than the pixel's footprint, as a renderer's texture LOD.
-    Footprint,
-}
-
 /// The view around `centre` (level-0 texels), `n` pixels a side over `extent` level-0 texels:
-/// the texture as a renderer would sample it and the same view coloured by the level used
-/// (texture luminance mixed in). Each pixel takes the finest level available there, never one
-/// finer than min LOD, and with `Lod::Footprint` never one finer than the pixel's footprint
-/// (log2 of the level-0 texels per pixel, a renderer's LOD from screen derivatives): point
-/// sampling level 0 under a pixel that covers several texels shows speckle, not terrain.
-/// `Lod::Finest` shows every level's ring as published (the inspection pictures).
+/// the texture as a renderer would sample it (the finest level available at each pixel, no
+/// coarser than min LOD) and the same view coloured by that level (texture luminance mixed in).
 /// Pixels no level covers stay black.
-pub fn view_and_rings(
-    client: &Client,
-    snap: &Snapshot,
-    centre: [i64; 2],
-    n: u32,
-    extent: i64,
-    lod: Lod,
-) -> (RgbImage, RgbImage) {
+pub fn view_and_rings(client: &Client, snap: &Snapshot, centre: [i64; 2], n: u32, extent: i64) -> (RgbImage, RgbImage) {
     let bpt = client.bytes_per_texel;
     let format = format_of_code(client.format_code);
     let step = (extent / n as i64).max(1);
-    let footprint = match lod {
-        Lod::Footprint => (63 - step.leading_zeros()) as usize, // floor(log2(step))
-        Lod::Finest => 0,
-    };
-    let first = (snap.min_lod.max(0.0).ceil() as usize).max(footprint).min(client.levels.len());
+    let first = (snap.min_lod.max(0.0).ceil() as usize).min(client.levels.len());
     let mut view = RgbImage::new(n, n);
     let mut lod = RgbImage::new(n, n);
     let mut px = vec![0u8; bpt];

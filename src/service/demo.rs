@@ -1,8 +1,10 @@
 //! `clipmapd --demo`: serves a built-in terrain clip texture in a private directory, flies a
 //! small client over it through the shared mapping (steady flight, a jump, a turn), and writes
-//! pictures of what the client saw: each level's window with its valid region outlined, the view
-//! as a renderer would texture it (finest available level per pixel), and the same view coloured
-//! by the level each pixel uses (drawn by [`crate::report::picture`]).
+//! pictures of what the client saw: each level's window with its valid region outlined, a
+//! perspective view as a renderer would texture it (the reference renderer's camera, trilinear,
+//! LOD from each pixel's footprint), and the same view coloured by the level each pixel uses;
+//! every picture captioned and its outlines and colours explained in a legend (drawn by
+//! [`crate::report::picture`] and [`crate::report::label`]).
 //!
 //! Everything it shows is read back through [`crate::shm::Client`], as any renderer would.
 
@@ -212,14 +214,14 @@ fn pictures_at(
     );
     let mut out = vec![save(&img, o.out_dir.join(format!("levels-{}.png", moment.tag)))?];
 
-    // The view around the centre, 8 clip sizes of level 0 across: texture and level used.
-    let extent = clip * 8;
-    let (view, lod) = picture::view_and_rings(client, snap, centre, 384, extent, picture::Lod::Footprint);
+    // The view from above the centre, looking ahead along the flight, as a renderer draws it:
+    // perspective, LOD from the pixel footprint, trilinear filtering of the published levels.
+    let (view, lod) = perspective(client, centre);
     let view = label::captioned(
         &view,
         &[
             when.clone(),
-            format!("the view, {extent}x{extent} level-0 texels around the centre, as a renderer textures it"),
+            format!("the view from {EYE_HEIGHT} texels above the centre, looking east: trilinear, LOD from each pixel's footprint, from the levels as published"),
         ],
         0,
     );
@@ -232,6 +234,41 @@ fn pictures_at(
     let lod = label::with_legend(&lod, &used);
     out.push(save(&lod, o.out_dir.join(format!("lod-{}.png", moment.tag)))?);
     Ok(out)
+}
+
+/// Eye height of the demo's view, in level-0 texels.
+const EYE_HEIGHT: f64 = 1200.0;
+
+/// A 480x300 perspective view from [`EYE_HEIGHT`] above `centre`, looking east (the flight's
+/// heading) 22 degrees below the horizon with a 70 degree field of view, rendered by the
+/// reference renderer's camera and sampled from the mapping as any reader samples it; and the
+/// same view coloured by the level each pixel used (texture brightness mixed in). Sky is blue.
+fn perspective(client: &Client, centre: [i64; 2]) -> (RgbImage, RgbImage) {
+    use crate::accuracy::render::Camera;
+    use crate::sample::{sample_mapping, Filter};
+    let size = [480u32, 300u32];
+    let foot = [centre[0] as f64 + 0.5, centre[1] as f64 + 0.5];
+    let cam = Camera::following(foot, EYE_HEIGHT, 0.0, 22.0, 70.0, size);
+    let mut view = RgbImage::from_pixel(size[0], size[1], Rgb([140, 180, 230]));
+    let mut lod = RgbImage::from_pixel(size[0], size[1], Rgb([140, 180, 230]));
+    for j in 0..size[1] {
+        for i in 0..size[0] {
+            let Some(fp) = cam.footprint(i, j) else { continue };
+            let Some(sample) = sample_mapping(client, Filter::Trilinear, fp.uv[0], fp.uv[1], fp.lod) else {
+                view.put_pixel(i, j, Rgb([0, 0, 0]));
+                lod.put_pixel(i, j, Rgb([0, 0, 0]));
+                continue;
+            };
+            let c = sample.rgba.map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8);
+            view.put_pixel(i, j, Rgb([c[0], c[1], c[2]]));
+            let k = sample.lod.floor().max(0.0) as usize;
+            let p = picture::PALETTE[k % picture::PALETTE.len()];
+            let lum = (c[0] as u32 + c[1] as u32 + c[2] as u32) / 3;
+            let mix = |a: u8| ((a as u32 * 3 + lum * 2) / 5) as u8;
+            lod.put_pixel(i, j, Rgb([mix(p[0]), mix(p[1]), mix(p[2])]));
+        }
+    }
+    (view, lod)
 }
 
 /// One of the three moments the demo pictures.
