@@ -114,11 +114,7 @@ fn main() -> ExitCode {
         Command::Engine { quick, runs, json, smoke, centre_alignment } => {
             match engine::engine(engine_size(quick, smoke), runs, centre_alignment) {
                 Ok(r) => {
-                    if json {
-                        println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
-                    } else {
-                        print!("{}", engine::human(&r));
-                    }
+                    clipmap::report::emit(json, &r, engine::human);
                     0
                 }
                 Err(e) => {

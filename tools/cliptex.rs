@@ -366,39 +366,8 @@ fn parse_plan_size(text: &str) -> Result<[u64; 2], String> {
     }
 }
 
-fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
-    env.options().map_err(|e| {
-        eprintln!("cliptex: {e}");
-        exit::COULD_NOT_RUN
-    })
-}
-
 fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ClipTexturePlan, Vec<clipmap::config::Diagnostic>), i32> {
-    load_with(file, env, false)
-}
-
-fn load_with(
-    file: &Path,
-    env: &EnvArgs,
-    ct_only: bool,
-) -> Result<(plan::ClipTexturePlan, Vec<clipmap::config::Diagnostic>), i32> {
-    let o = plan::Options { ct_only, ..opts(env)? };
-    let loaded = plan::load_clip_texture(file, &o).map_err(|e| {
-        eprintln!("cliptex: {e}");
-        exit::COULD_NOT_RUN
-    })?;
-    let rendered = loaded.render_from(clipmap::config::Severity::Warning);
-    match loaded.plan {
-        Some(p) => {
-            eprint!("{rendered}");
-            Ok((p, info::non_errors(&loaded.diagnostics.items)))
-        }
-        None => {
-            eprint!("{rendered}");
-            eprintln!("cliptex: {} is not a valid clip texture configuration (see above)", file.display());
-            Err(exit::BAD_INPUT)
-        }
-    }
+    env.load_clip_texture(file, "cliptex", false)
 }
 
 fn roam(args: RoamArgs) -> i32 {
@@ -448,11 +417,7 @@ fn roam(args: RoamArgs) -> i32 {
     };
     match roam::run(options) {
         Ok(report) => {
-            if args.json {
-                println!("{}", serde_json::to_string_pretty(&report).expect("report serialises"));
-            } else {
-                print!("{}", roam::human(&report));
-            }
+            report::emit(args.json, &report, roam::human);
             exit::OK
         }
         Err(e) => {
@@ -536,11 +501,7 @@ fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
     };
     let report = check::run(&plan, &|n| bar.inc(n));
     bar.finish_and_clear();
-    if json {
-        println!("{}", serde_json::to_string_pretty(&report).expect("report serialises"));
-    } else {
-        print!("{}", check::human(&report, quiet));
-    }
+    report::emit(json, &report, |r| check::human(r, quiet));
     if report.servable {
         exit::OK
     } else {
@@ -590,17 +551,10 @@ fn run(cli: Cli) -> i32 {
             }
         }
         Command::Validate { args, ct_only } => validate::cli(&args, FileKind::ClipTexture, "cliptex", ct_only),
-        Command::Info { file, json, env, ct_only } => match load_with(&file, &env, ct_only) {
+        Command::Info { file, json, env, ct_only } => match env.load_clip_texture(&file, "cliptex", ct_only) {
             Err(c) => c,
             Ok((p, warnings)) => {
-                if json {
-                    println!(
-                        "{}",
-                        serde_json::to_string_pretty(&info::clip_texture(&p, &warnings)).expect("info serialises")
-                    );
-                } else {
-                    print!("{}", info::clip_texture_human(&p));
-                }
+                report::emit(json, &info::clip_texture(&p, &warnings), |_| info::clip_texture_human(&p));
                 exit::OK
             }
         },
@@ -623,7 +577,7 @@ fn run(cli: Cli) -> i32 {
             // From a .ct (read alone: sizing needs no .ic), or from the options.
             let from_ct = match &file {
                 None => None,
-                Some(f) => match load_with(f, &env, true) {
+                Some(f) => match env.load_clip_texture(f, "cliptex", true) {
                     Ok((p, _)) => Some(p),
                     Err(code) => return code,
                 },
@@ -638,11 +592,7 @@ fn run(cli: Cli) -> i32 {
             if table {
                 return match report::plan::table(clip, texel_bytes, 10, 26) {
                     Ok((text, rows)) => {
-                        if json {
-                            println!("{}", serde_json::to_string_pretty(&rows).expect("rows serialise"));
-                        } else {
-                            print!("{text}");
-                        }
+                        report::emit(json, &rows, |_| text);
                         exit::OK
                     }
                     Err(e) => {
@@ -666,11 +616,7 @@ fn run(cli: Cli) -> i32 {
             };
             match report::plan::compute(&req) {
                 Ok(p) => {
-                    if json {
-                        println!("{}", serde_json::to_string_pretty(&p).expect("plan serialises"));
-                    } else {
-                        print!("{}", report::plan::human(&p, &req));
-                    }
+                    report::emit(json, &p, |p| report::plan::human(p, &req));
                     exit::OK
                 }
                 Err(e) => {

@@ -5,7 +5,7 @@
 use clap::{Parser, Subcommand};
 use clipmap::config::FileKind;
 use clipmap::plan;
-use clipmap::report::{dump, exit, info, validate, EnvArgs};
+use clipmap::report::{self, dump, exit, info, validate, EnvArgs};
 use clipmap::source::TileId;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -118,27 +118,8 @@ fn main() -> ExitCode {
     ExitCode::from(run(Cli::parse()) as u8)
 }
 
-fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
-    env.options().map_err(|e| {
-        eprintln!("icache: {e}");
-        exit::COULD_NOT_RUN
-    })
-}
-
 fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clipmap::config::Diagnostic>), i32> {
-    let o = opts(env)?;
-    let loaded = plan::load_image_cache(file, &o).map_err(|e| {
-        eprintln!("icache: {e}");
-        exit::COULD_NOT_RUN
-    })?;
-    eprint!("{}", loaded.render_from(clipmap::config::Severity::Warning));
-    match loaded.plan {
-        Some(p) => Ok((p, info::non_errors(&loaded.diagnostics.items))),
-        None => {
-            eprintln!("icache: {} is not a valid image cache configuration (see above)", file.display());
-            Err(exit::BAD_INPUT)
-        }
-    }
+    env.load_image_cache(file, "icache")
 }
 
 fn dump(file: &Path, region: Option<[u64; 4]>, out: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
@@ -178,14 +159,7 @@ fn run(cli: Cli) -> i32 {
         Command::Info { file, json, env } => match load(&file, &env) {
             Err(c) => c,
             Ok((p, warnings)) => {
-                if json {
-                    println!(
-                        "{}",
-                        serde_json::to_string_pretty(&info::image_cache(&p, &warnings)).expect("info serialises")
-                    );
-                } else {
-                    print!("{}", info::image_cache_human(&p));
-                }
+                report::emit(json, &info::image_cache(&p, &warnings), |_| info::image_cache_human(&p));
                 exit::OK
             }
         },

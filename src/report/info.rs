@@ -363,11 +363,7 @@ pub fn print_tile(
 ) -> i32 {
     match found {
         Ok(loc) => {
-            if json {
-                println!("{}", serde_json::to_string_pretty(&loc).expect("location serialises"));
-            } else {
-                print!("{}", tile_human(&loc));
-            }
+            super::emit(json, &loc, tile_human);
             super::exit::OK
         }
         Err(e) => {

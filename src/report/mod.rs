@@ -40,6 +40,16 @@ pub fn options(env: &[String], unset: &[String]) -> Result<Options, EnvArgError>
     Ok(Options { env: e, ..Options::default() })
 }
 
+/// Prints a report on standard output: pretty JSON with `--json`, else its human text. The one
+/// place every tool's `--json` goes, so the two forms cannot drift apart per tool.
+pub fn emit<T: serde::Serialize + ?Sized>(json: bool, value: &T, human: impl FnOnce(&T) -> String) {
+    if json {
+        println!("{}", serde_json::to_string_pretty(value).expect("reports serialise"));
+    } else {
+        print!("{}", human(value));
+    }
+}
+
 /// Formats a byte count the way a person reads it (KiB, MiB, GiB, TiB).
 pub fn human_bytes(bytes: u128) -> String {
     const UNITS: [&str; 6] = ["B", "KiB", "MiB", "GiB", "TiB", "PiB"];
@@ -71,6 +81,64 @@ impl EnvArgs {
     /// Reader options from these arguments.
     pub fn options(&self) -> Result<Options, EnvArgError> {
         options(&self.env, &self.unset)
+    }
+
+    /// Loads a `.ct` the way every subcommand of `cliptex` does: warnings and errors rendered on
+    /// standard error, `tool: FILE is not a valid ...` after errors. `ct_only` reads the `.ct`
+    /// alone. `Err` is the exit status: 2 when the file (or an `--env`) cannot be read, 1 when it
+    /// is invalid.
+    pub fn load_clip_texture(
+        &self,
+        file: &std::path::Path,
+        tool: &str,
+        ct_only: bool,
+    ) -> Result<(crate::plan::ClipTexturePlan, Vec<crate::config::Diagnostic>), i32> {
+        let o = Options { ct_only, ..self.reader_options(tool)? };
+        let loaded = crate::plan::load_clip_texture(file, &o).map_err(|e| {
+            eprintln!("{tool}: {e}");
+            exit::COULD_NOT_RUN
+        })?;
+        finish_load(loaded, file, tool, "clip texture")
+    }
+
+    /// Loads a standalone `.ic` the way every subcommand of `icache` does (see
+    /// [`load_clip_texture`](Self::load_clip_texture)).
+    pub fn load_image_cache(
+        &self,
+        file: &std::path::Path,
+        tool: &str,
+    ) -> Result<(crate::plan::ImageCachePlan, Vec<crate::config::Diagnostic>), i32> {
+        let o = self.reader_options(tool)?;
+        let loaded = crate::plan::load_image_cache(file, &o).map_err(|e| {
+            eprintln!("{tool}: {e}");
+            exit::COULD_NOT_RUN
+        })?;
+        finish_load(loaded, file, tool, "image cache")
+    }
+
+    /// Reader options, or exit status 2 with the reason on standard error.
+    pub fn reader_options(&self, tool: &str) -> Result<Options, i32> {
+        self.options().map_err(|e| {
+            eprintln!("{tool}: {e}");
+            exit::COULD_NOT_RUN
+        })
+    }
+}
+
+/// Renders a load's warnings and errors on standard error and returns its plan, or exit status 1.
+fn finish_load<T>(
+    loaded: crate::plan::Loaded<T>,
+    file: &std::path::Path,
+    tool: &str,
+    what: &str,
+) -> Result<(T, Vec<crate::config::Diagnostic>), i32> {
+    eprint!("{}", loaded.render_from(crate::config::Severity::Warning));
+    match loaded.plan {
+        Some(p) => Ok((p, info::non_errors(&loaded.diagnostics.items))),
+        None => {
+            eprintln!("{tool}: {} is not a valid {what} configuration (see above)", file.display());
+            Err(exit::BAD_INPUT)
+        }
     }
 }
 

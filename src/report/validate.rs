@@ -183,18 +183,11 @@ pub struct ValidateArgs {
 /// Runs a `validate` subcommand: prints the report and returns the exit status. `ct_only`
 /// (`cliptex validate --ct-only`) checks each `.ct` without opening the `.ic` files it names.
 pub fn cli(args: &ValidateArgs, kind: FileKind, tool: &str, ct_only: bool) -> i32 {
-    let opts = match args.env.options() {
+    let opts = match args.env.reader_options(tool) {
         Ok(o) => plan::Options { ct_only, ..o },
-        Err(e) => {
-            eprintln!("{tool}: {e}");
-            return super::exit::COULD_NOT_RUN;
-        }
+        Err(code) => return code,
     };
     let r = run(&args.files, kind, args.strict, &opts);
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
-    } else {
-        print!("{}", r.human(args.quiet));
-    }
+    super::emit(args.json, &r, |r| r.human(args.quiet));
     r.exit_code()
 }
