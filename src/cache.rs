@@ -5,7 +5,7 @@
 //! resident, failed) and the hard byte budget on resident tiles. It decides nothing about *which*
 //! region to hold ([`crate::geom`]) nor how tiles are read ([`crate::queue`]).
 
-use crate::geom::{mem_grid, wrap, Rect};
+use crate::geom::{wrap, Rect};
 use crate::source::{FaultKind, TextureDesc, TileId};
 use serde::Serialize;
 
@@ -75,15 +75,15 @@ pub struct TileCache {
 }
 
 impl TileCache {
-    /// Empty caches for every level of `desc`, each `mem_grid` tiles a side, holding at most
-    /// `budget` bytes of tiles in all.
-    pub fn new(desc: &TextureDesc, lookahead: u64, budget: usize) -> Self {
+    /// Empty caches for every level of `desc`, level `k` `grids[k]` tiles a side (the engine's
+    /// [`crate::geom::level_grid`]), holding at most `budget` bytes of tiles in all.
+    pub fn new(desc: &TextureDesc, grids: &[[u64; 2]], budget: usize) -> Self {
         let levels = desc
             .levels()
             .iter()
             .enumerate()
-            .map(|(k, l)| {
-                let grid = mem_grid(l.size, l.tile, desc.clip_size(), lookahead);
+            .map(|(k, _)| {
+                let grid = grids[k];
                 let n = (grid[0] * grid[1]) as usize;
                 LevelCache { grid, tile_bytes: desc.tile_bytes(k as u32), mem: Rect::EMPTY, slots: vec![EMPTY_SLOT; n] }
             })
@@ -254,11 +254,14 @@ impl TileCache {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geom::mem_grid;
     use crate::texel::TexelFormat;
 
     fn cache(budget: usize) -> (TextureDesc, TileCache) {
         let desc = TextureDesc::new([256, 256], 32, TexelFormat::L8, [16, 16]).unwrap();
-        let cache = TileCache::new(&desc, 1, budget);
+        let grids: Vec<[u64; 2]> =
+            desc.levels().iter().map(|l| mem_grid(l.size, l.tile, desc.clip_size(), 1)).collect();
+        let cache = TileCache::new(&desc, &grids, budget);
         (desc, cache)
     }
 

@@ -210,6 +210,20 @@ pub fn mem_region(size: [u64; 2], tile: [u64; 2], grid: [u64; 2], tex: Rect, vel
     Rect::new(s0, t0, s1, t1)
 }
 
+/// The mem grid a level uses: `configured` (a configuration's mem region) raised, per axis, to
+/// the minimum that covers the tex region at any alignment (`mem_grid` with lookahead 0) and
+/// never more than the level has; without one, [`mem_grid`] with `lookahead`.
+pub fn level_grid(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64, configured: Option<[u64; 2]>) -> [u64; 2] {
+    match configured {
+        None => mem_grid(size, tile, clip, lookahead),
+        Some(g) => {
+            let n = tiles_in_level(size, tile);
+            let least = mem_grid(size, tile, clip, 0);
+            [g[0].max(least[0]).min(n[0]), g[1].max(least[1]).min(n[1])]
+        }
+    }
+}
+
 /// Everything a level's geometry needs from the engine's settings.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LevelShape {
@@ -219,8 +233,8 @@ pub struct LevelShape {
     pub tile: [u64; 2],
     /// Clip size.
     pub clip: u64,
-    /// Extra tiles beyond the minimum, per axis.
-    pub lookahead: u64,
+    /// The mem region's edge in tiles per axis (see [`level_grid`]).
+    pub grid: [u64; 2],
 }
 
 /// Where a level's regions lie for one centre.
@@ -237,12 +251,16 @@ pub struct LevelFrame {
 }
 
 impl LevelShape {
+    /// A shape whose mem grid is [`mem_grid`] with `lookahead` extra tiles per axis.
+    pub fn new(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64) -> Self {
+        LevelShape { size, tile, clip, grid: mem_grid(size, tile, clip, lookahead) }
+    }
+
     /// The level's regions for `centre` (in level texels), `border` and direction of motion.
     pub fn frame(&self, centre: [i64; 2], border: u64, velocity: [i64; 2]) -> LevelFrame {
         let tex = tex_region(self.size, self.clip, centre);
         let valid = valid_region(self.size, self.clip, border, tex);
-        let grid = mem_grid(self.size, self.tile, self.clip, self.lookahead);
-        let mem = mem_region(self.size, self.tile, grid, tex, velocity);
+        let mem = mem_region(self.size, self.tile, self.grid, tex, velocity);
         LevelFrame { centre, tex, valid, mem }
     }
 }
@@ -344,7 +362,7 @@ mod tests {
             border in 0u64..64, tile in 1u64..=512, look in 0u64..3, vs in -2i64..=2, vt in -2i64..=2,
         ) {
             let size = [sw, sh];
-            let shape = LevelShape { size, tile: [tile, tile], clip, lookahead: look };
+            let shape = LevelShape::new(size, [tile, tile], clip, look);
             let f = shape.frame([cs, ct], border.min((clip - 1) / 2), [vs, vt]);
             let level = Rect::new(0, 0, sw as i64, sh as i64);
             prop_assert!(level.contains_rect(&f.tex));
@@ -371,7 +389,7 @@ mod tests {
             sw in 1u64..=200, sh in 1u64..=200, clip in 1u64..=64, tw in 1u64..=40, th in 1u64..=40,
             cs in -50i64..250, ct in -50i64..250, look in 0u64..3, vs in -1i64..=1, vt in -1i64..=1,
         ) {
-            let shape = LevelShape { size: [sw, sh], tile: [tw, th], clip, lookahead: look };
+            let shape = LevelShape::new([sw, sh], [tw, th], clip, look);
             let f = shape.frame([cs, ct], 0, [vs, vt]);
             for t in f.tex.t0..f.tex.t1 {
                 for s in f.tex.s0..f.tex.s1 {

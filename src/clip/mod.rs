@@ -21,7 +21,7 @@ pub use load::{next_min_lod, target_min_lod, CostTable};
 pub use stats::{FaultCounts, Stats, TickReport};
 
 use crate::cache::{Admit, TileCache};
-use crate::geom::{aligned_centre, tile_texels, LevelFrame, LevelShape, Rect};
+use crate::geom::{aligned_centre, level_grid, tile_texels, LevelFrame, LevelShape, Rect};
 use crate::limits::Limits;
 use crate::queue::{priority, QueueError, ReadQueues, ReadRequest};
 use crate::source::{TextureDesc, TileSource};
@@ -246,12 +246,13 @@ impl Clipmap {
         if needed > settings.limits.window_bytes {
             return Err(ClipError::WindowBytes { needed, limit: settings.limits.window_bytes });
         }
-        let levels = desc
+        let levels: Vec<Level> = desc
             .levels()
             .iter()
             .enumerate()
             .map(|(k, l)| {
-                let shape = LevelShape { size: l.size, tile: l.tile, clip, lookahead: settings.lookahead };
+                let grid = level_grid(l.size, l.tile, clip, settings.lookahead, desc.mem_grid(k as u32));
+                let shape = LevelShape { size: l.size, tile: l.tile, clip, grid };
                 Level {
                     shape,
                     window: Window::new(k as u32, l.size, clip, l.tile, bpt, stores[k].take()),
@@ -260,7 +261,8 @@ impl Clipmap {
                 }
             })
             .collect();
-        let cache = TileCache::new(&desc, settings.lookahead, settings.limits.cache_bytes);
+        let grids: Vec<[u64; 2]> = levels.iter().map(|l| l.shape.grid).collect();
+        let cache = TileCache::new(&desc, &grids, settings.limits.cache_bytes);
         let queues = ReadQueues::new(source, settings.streams, settings.limits)?;
         let cost = settings.cost.unwrap_or_else(|| CostTable::measure(bpt));
         Ok(Clipmap {

@@ -61,6 +61,8 @@ pub struct TextureDesc {
     invalid_border: u64,
     format: TexelFormat,
     levels: Vec<LevelDesc>,
+    /// Per level, the mem region (tiles per axis) its configuration asks for, if any.
+    mem_grids: Vec<Option<[u64; 2]>>,
 }
 
 /// Size of level `k` of a texture whose level 0 is `size`: each edge halved k times, at least 1.
@@ -126,7 +128,8 @@ impl TextureDesc {
                 return Err(DescError::TileSize { level: k as u32, tile: l.tile });
             }
         }
-        Ok(TextureDesc { size, clip_size, invalid_border: 0, format, levels })
+        let mem_grids = vec![None; levels.len()];
+        Ok(TextureDesc { size, clip_size, invalid_border: 0, format, levels, mem_grids })
     }
 
     fn check_size(size: [u64; 2]) -> Result<(), DescError> {
@@ -144,6 +147,21 @@ impl TextureDesc {
         }
         self.invalid_border = border;
         Ok(self)
+    }
+
+    /// The same texture with the mem regions (tiles per axis, one entry per level, `None`: the
+    /// engine's lookahead decides) its configuration gives: an `.ic`'s `mem_region_size`, or the
+    /// region computed from its `lookahead`. The engine raises a grid too small to cover the
+    /// window at any alignment to that minimum.
+    pub fn with_mem_grids(mut self, grids: Vec<Option<[u64; 2]>>) -> Self {
+        assert_eq!(grids.len(), self.levels.len(), "one mem grid entry per level");
+        self.mem_grids = grids;
+        self
+    }
+
+    /// The mem region level `k`'s configuration asks for, if any.
+    pub fn mem_grid(&self, k: u32) -> Option<[u64; 2]> {
+        self.mem_grids.get(k as usize).copied().flatten()
     }
 
     /// Level-0 size [s, t].

@@ -164,7 +164,7 @@ pub struct FileSource {
 }
 
 /// The texture a plan describes: level sizes from the plan, image-cache levels in their tile
-/// size, pyramid levels as one tile; the invalid border clamped so that one texel of each stack
+/// size and configured mem region, pyramid levels as one tile; the invalid border clamped so that one texel of each stack
 /// window stays readable (Performer raises it to at least 8, more than a tiny clip size allows).
 pub fn texture_desc(plan: &ClipTexturePlan) -> Result<TextureDesc, FileSourceError> {
     if plan.virt_size[2] > 1 {
@@ -191,8 +191,19 @@ pub fn texture_desc(plan: &ClipTexturePlan) -> Result<TextureDesc, FileSourceErr
     let desc_err = |source| FileSourceError::Desc { path: plan.path.clone(), source };
     let size = [plan.virt_size[0], plan.virt_size[1]];
     let desc = TextureDesc::from_levels(size, plan.clip_size, plan.texel, levels).map_err(desc_err)?;
+    // The mem region each image cache's configuration gives (its `mem_region_size`, or the
+    // region its `lookahead` implies): the engine holds exactly that many tiles (raised to what
+    // covers the window, if less).
+    let grids = plan
+        .levels
+        .iter()
+        .map(|l| match &l.kind {
+            LevelKind::Icache(ic) => Some([ic.mem_region[0], ic.mem_region[1]]),
+            _ => None,
+        })
+        .collect();
     let border = plan.invalid_border.min((plan.clip_size.max(1) - 1) / 2);
-    desc.with_invalid_border(border).map_err(desc_err)
+    Ok(desc.with_invalid_border(border).map_err(desc_err)?.with_mem_grids(grids))
 }
 
 /// Reads an image cache's default tile: exactly one tile, or one tile after the header.

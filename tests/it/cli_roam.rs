@@ -260,3 +260,61 @@ fn by_default_a_straight_flight_runs_on_a_frame_clock_and_its_levels_come_in_as_
         assert_eq!(out.status.code(), Some(2), "{d}");
     }
 }
+
+#[test]
+fn a_configured_lookahead_or_mem_region_changes_what_the_engine_reads_and_holds() {
+    // Before, the engine derived every mem region from its own lookahead of 1: a configured
+    // `lookahead 0` or `3` changed what `cliptex info` printed but not what the engine held.
+    // The prepared example: level 0 is 4 x 4 tiles of 64 x 64 RGB texels, clip 64; level 1 is
+    // 2 x 2 tiles; seven pyramid levels of 5461 texels in all.
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("config_examples/prepared");
+    let tile = 64 * 64 * 3u64;
+    // Level 0 and 1 windows, plus the pyramid held both as tiles and as windows.
+    let fixed = 2 * tile + 2 * 5461 * 3;
+    let roam = |extra_ct: &str, extra_ic: &str| {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path().join("p");
+        copy_dir(&src, &d);
+        let append = |name: &str, text: &str| {
+            let mut s = std::fs::read_to_string(d.join(name)).unwrap();
+            s.push_str(text);
+            std::fs::write(d.join(name), s).unwrap();
+        };
+        append("hash256.ct", extra_ct);
+        append("L00.ic", extra_ic);
+        let ct = d.join("hash256.ct");
+        let args = [
+            ct.to_str().unwrap(),
+            "--flight",
+            "straight:4",
+            "--frames",
+            "10",
+            "--budget-ms",
+            "inf",
+            "--wait-for-reads",
+        ];
+        let r = roam_json(dir.path(), &args);
+        (u(&r["totals"]["tiles_read"]), u(&r["totals"]["peak_resident_bytes"]))
+    };
+    // lookahead 1 (the default): a 3 x 3 grid at level 0, never crossed by the short flight.
+    assert_eq!(roam("", ""), (9 + 4 + 7, fixed + (9 + 4) * tile));
+    // lookahead 0: a 2 x 2 grid; the 40-texel flight crosses one tile column, read as it comes.
+    assert_eq!(roam("lookahead 0\n", ""), (4 + 2 + 4 + 7, fixed + (4 + 4) * tile));
+    // lookahead 3: the grid grows to the whole 4 x 4 level.
+    assert_eq!(roam("lookahead 3\n", ""), (16 + 4 + 7, fixed + (16 + 4) * tile));
+    // An .ic's own mem_region_size wins over the .ct's lookahead.
+    assert_eq!(roam("lookahead 0\n", "mem_region_size 4 4 1\n"), (16 + 4 + 7, fixed + (16 + 4) * tile));
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let target = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), &target).unwrap();
+        }
+    }
+}
