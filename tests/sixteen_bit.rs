@@ -395,3 +395,21 @@ fn the_mapping_format_codes_are_mirrored_by_the_c_header_and_the_python_reader()
         assert!(docs.contains(&row), "`{row}` in docs/SHM.md");
     }
 }
+
+#[test]
+fn a_sixteen_bit_image_counts_two_bytes_a_sample_against_the_memory_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let input = d.join("big.png");
+    ImageBuffer::<Luma<u16>, Vec<u16>>::from_fn(512, 512, |x, y| Luma([noise(x, y, 0, 0, 65535)]))
+        .save(&input)
+        .unwrap();
+    let out = d.join("out");
+    let args = ["--input", input.to_str().unwrap(), "--tile", "64", "--clip", "128", "--format", "l16"];
+    let mut args = args.to_vec();
+    args.extend_from_slice(&["--max-memory", "1", "--out", out.to_str().unwrap()]);
+    let (o, desc) = exec(d, CLIPPREP, &args);
+    assert_eq!(o.status.code(), Some(1), "{desc}");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("512x512 (2 MiB decoded), over the in-memory limit of 1 MiB"), "{desc}");
+}

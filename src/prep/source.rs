@@ -15,7 +15,7 @@ use super::tiff_stream::TiffStream;
 use super::Limits;
 use crate::source::procedural::{hash_region, Terrain};
 use crate::texel::{ComponentType, Components, TexelFormat};
-use image::{DynamicImage, GenericImageView, ImageReader};
+use image::{DynamicImage, GenericImageView, ImageDecoder, ImageReader};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -273,8 +273,13 @@ pub fn open_image(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepError
             .with_guessed_format()
             .map_err(|source| PrepError::ImageOpen { path: path.into(), source })
     };
-    let (w, h) = reader()?.into_dimensions().map_err(|e| decode_error(path, e))?;
-    let decoded = w as u64 * h as u64 * 4;
+    let decoder = reader()?.into_decoder().map_err(|e| decode_error(path, e))?;
+    let (w, h) = decoder.dimensions();
+    // Four samples a pixel at most, of one byte or (16-bit images) two.
+    let sample_bytes =
+        if decoder.color_type().bytes_per_pixel() > decoder.color_type().channel_count() { 2 } else { 1 };
+    drop(decoder);
+    let decoded = w as u64 * h as u64 * 4 * sample_bytes;
     if decoded > limits.max_memory_bytes {
         return Err(PrepError::ImageTooLarge {
             path: path.into(),
