@@ -2,8 +2,9 @@
 //! images far larger than memory can be prepared.
 //!
 //! Only one row of TIFF chunks is held decoded at a time (chunk height x image width, as 8-bit
-//! RGBA, or 16-bit RGBA for 16-bit samples, which are never reduced to 8 bits on the way). Bands are requested bottom-up (Performer's origin is the lower-left corner), which the
-//! random access to strips and tiles of a TIFF makes cheap. Layouts this module does not stream
+//! RGBA, or 16-bit RGBA for 16-bit samples, which are never reduced to 8 bits on the way). Bands
+//! are requested bottom-up (Performer's origin is the lower-left corner), which the random
+//! access to strips and tiles of a TIFF makes cheap. Layouts this module does not stream
 //! (planar, palette, CMYK, float, or a single strip larger than the memory limit) are left to the
 //! in-memory decoder.
 
@@ -246,5 +247,41 @@ impl BandSource for TiffSource {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::prep::source::open_image;
+
+    #[test]
+    fn sixteen_bit_samples_are_streamed_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("in.tif");
+        let (w, h) = (8u32, 4u32);
+        let v = |x: u32, y: u32, c: u32| (x * 8191 + y * 257 + c * 21_845 + 1) as u16;
+        image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_fn(w, h, |x, y| {
+            image::Rgb([0, 1, 2].map(|c| v(x, y, c)))
+        })
+        .save(&path)
+        .unwrap();
+        let img = open_image(&path, &Limits::default()).unwrap();
+        assert_eq!((img.streamed, img.bits, img.samples), (true, 16, 3));
+        let mut src = img.into_source(TexelFormat::RGBA16, w as u64).unwrap();
+        let mut band = vec![0u8; (w * h * 8) as usize];
+        src.fill(0, h as usize, &mut band).unwrap();
+        for (i, texel) in band.chunks_exact(8).enumerate() {
+            let (s, t) = (i as u32 % w, i as u32 / w);
+            let got: Vec<u16> = texel.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
+            // Texel (s, t) is pixel (s, h - 1 - t); alpha is opaque.
+            let y = h - 1 - t;
+            assert_eq!(got, [v(s, y, 0), v(s, y, 1), v(s, y, 2), 65535], "texel ({s}, {t})");
+        }
+        // The same image into an 8-bit format is refused without the reduction.
+        let img = open_image(&path, &Limits::default()).unwrap();
+        let e = img.into_source(TexelFormat::RGB8, w as u64).err().expect("refused");
+        assert!(matches!(e, PrepError::DeeperThanFormat { bits: 16, .. }), "{e}");
+        assert_eq!(e.exit_code(), 1);
     }
 }
