@@ -20,6 +20,7 @@ use std::time::{Duration, Instant};
 const CLIPPREP: &str = env!("CARGO_BIN_EXE_clipprep");
 const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
 const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
+const ICACHE: &str = env!("CARGO_BIN_EXE_icache");
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
 /// Runs `prog args` in `cwd`; it must succeed; returns stdout.
@@ -234,6 +235,12 @@ fn sixteen_bit_colour_and_grey_alpha_pngs_round_trip_exactly() {
         let (got, report) = dump(&sub, &ct, 0);
         assert_eq!(report["colour"], format, "{report}");
         assert_eq!(got, img, "{format}: level 0 as dumped differs from the input");
+        // `icache dump` of level 0's image cache alone gives the same picture.
+        let ic = ct.parent().unwrap().join("L00.ic");
+        let png = sub.join("ic.png");
+        let report = ok(&sub, ICACHE, &["dump", ic.to_str().unwrap(), "--out", png.to_str().unwrap(), "--json"]);
+        assert!(report.contains(&format!("\"colour\": \"{format}\"")), "{report}");
+        assert_eq!(image::open(&png).unwrap(), img, "{format}: icache dump");
     }
 }
 
