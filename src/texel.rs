@@ -132,14 +132,30 @@ impl TexelFormat {
     /// 16-bit packed RGBA 5-5-5-1.
     pub const RGBA5551: TexelFormat =
         TexelFormat { components: Components::Four, ctype: ComponentType::Packed(PackedType::Rgba5551) };
-    /// 16-bit luminance.
+    /// 16-bit luminance (heights, for terrain).
     pub const L16: TexelFormat = TexelFormat { components: Components::One, ctype: ComponentType::U16 };
+    /// 16-bit luminance and alpha.
+    pub const LA16: TexelFormat = TexelFormat { components: Components::Two, ctype: ComponentType::U16 };
+    /// 16-bit RGB.
+    pub const RGB16: TexelFormat = TexelFormat { components: Components::Three, ctype: ComponentType::U16 };
+    /// 16-bit RGBA.
+    pub const RGBA16: TexelFormat = TexelFormat { components: Components::Four, ctype: ComponentType::U16 };
 
     /// Bytes one texel takes on disk and in memory (0 for `GL_BITMAP`).
     pub fn bytes_per_texel(self) -> u32 {
         match self.ctype {
             ComponentType::Packed(p) => p.bytes(),
             other => other.bytes() * self.components.count(),
+        }
+    }
+
+    /// Bits of the deepest component (8 for the 8-bit and packed formats of 8 bits or fewer per
+    /// component, 16 for the 16-bit ones).
+    pub fn component_bits(self) -> u32 {
+        match self.ctype {
+            ComponentType::Packed(PackedType::Rgb10A2) => 10,
+            ComponentType::Packed(_) => 8,
+            other => other.bytes() * 8,
         }
     }
 
@@ -325,7 +341,53 @@ mod tests {
         assert_eq!(TexelFormat::RGBA5551.bytes_per_texel(), 2);
         assert_eq!(TexelFormat::RGB565.bytes_per_texel(), 2);
         let rgb16 = TexelFormat { components: Components::Three, ctype: ComponentType::U16 };
+        assert_eq!(rgb16, TexelFormat::RGB16);
         assert_eq!(rgb16.bytes_per_texel(), 6);
+        assert_eq!(TexelFormat::L16.bytes_per_texel(), 2);
+        assert_eq!(TexelFormat::LA16.bytes_per_texel(), 4);
+        assert_eq!(TexelFormat::RGBA16.bytes_per_texel(), 8);
+    }
+
+    #[test]
+    fn sixteen_bit_formats_are_named_and_sized() {
+        let names: Vec<String> = [TexelFormat::L16, TexelFormat::LA16, TexelFormat::RGB16, TexelFormat::RGBA16]
+            .iter()
+            .map(|f| f.short_name())
+            .collect();
+        assert_eq!(names, ["l16", "la16", "rgb16", "rgba16"]);
+        assert_eq!(TexelFormat::RGBA16.component_bits(), 16);
+        assert_eq!(TexelFormat::L8.component_bits(), 8);
+        assert_eq!(TexelFormat::RGB565.component_bits(), 8);
+    }
+
+    #[test]
+    fn sixteen_bit_components_encode_and_decode_exactly_little_endian() {
+        // Every 16-bit value survives encode(decode(v)), in every component position.
+        for fmt in [TexelFormat::L16, TexelFormat::LA16, TexelFormat::RGB16, TexelFormat::RGBA16] {
+            let n = fmt.components.count() as usize;
+            let mut buf = vec![0u8; fmt.bytes_per_texel() as usize];
+            for v in (0..=65535u32).step_by(7).chain([1, 256, 257, 32767, 32768, 65534, 65535]) {
+                let v = v as u16;
+                // A different value per component: v, 65535 - v, v / 2, v ^ 0x5a5a.
+                let comps = [v, 65535 - v, v / 2, v ^ 0x5a5a];
+                let mut texel = Vec::new();
+                for c in comps.iter().take(n) {
+                    texel.extend_from_slice(&c.to_le_bytes());
+                }
+                let rgba = fmt.decode(&texel);
+                let colour = match n {
+                    1 => [rgba[0]; 4],
+                    2 => [rgba[0], rgba[0], rgba[0], rgba[3]],
+                    _ => rgba,
+                };
+                fmt.encode(colour, &mut buf);
+                assert_eq!(buf, texel, "{fmt} {comps:?}");
+            }
+        }
+        // Little-endian on disk: 0x1234 is stored as 34 12.
+        let mut b = [0u8; 2];
+        TexelFormat::L16.encode([0x1234 as f32 / 65535.0; 4], &mut b);
+        assert_eq!(b, [0x34, 0x12]);
     }
 
     #[test]

@@ -32,6 +32,11 @@ enum Format {
     L8,
     Rgb565,
     Rgba5551,
+    // 16-bit components, little-endian: luminance (heights), luminance and alpha, RGB, RGBA.
+    L16,
+    La16,
+    Rgb16,
+    Rgba16,
 }
 
 impl Format {
@@ -42,6 +47,10 @@ impl Format {
             Format::L8 => TexelFormat::L8,
             Format::Rgb565 => TexelFormat::RGB565,
             Format::Rgba5551 => TexelFormat::RGBA5551,
+            Format::L16 => TexelFormat::L16,
+            Format::La16 => TexelFormat::LA16,
+            Format::Rgb16 => TexelFormat::RGB16,
+            Format::Rgba16 => TexelFormat::RGBA16,
         }
     }
 }
@@ -91,9 +100,14 @@ struct Cli {
     /// Clip size in texels (power of two).
     #[arg(long, value_name = "C")]
     clip: u64,
-    /// Texel format on disk.
+    /// Texel format on disk (16-bit formats keep 16-bit samples exactly; 8-bit samples into them
+    /// are scaled by 257).
     #[arg(long, value_enum, value_name = "FMT")]
     format: Format,
+    /// Round an input deeper than --format (16-bit samples for an 8-bit or packed format) to
+    /// nearest instead of refusing it.
+    #[arg(long)]
+    reduce_depth: bool,
     /// Output directory (created; the .ct is at its top).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
@@ -205,7 +219,9 @@ fn prepare(cli: &Cli, cancel: &AtomicBool) -> Result<Outcome, PrepError> {
     let format = cli.format.texel();
     let (source, (width, height), origin) = match (&cli.input, cli.source) {
         (Some(path), _) => {
-            let img = open_image(path, &limits)?;
+            let mut img = open_image(path, &limits)?;
+            img.reduce_depth = cli.reduce_depth;
+            img.check_depth(format)?;
             let (w, h) = (img.width, img.height);
             let size = if cli.pad {
                 (next_power_of_two(w), next_power_of_two(h))

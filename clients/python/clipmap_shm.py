@@ -35,6 +35,13 @@ H_LEVEL_STATES = H_LEVEL_DESCS + MAX_LEVELS * DESC_BYTES
 STATE_BYTES = 128
 H_END = H_LEVEL_STATES + MAX_LEVELS * STATE_BYTES
 
+# Texel format codes (H_TEXEL_FORMAT): code -> (name, bytes per texel); 0 is any other format.
+# 16-bit components are little-endian.
+FORMATS = {
+    1: ("l8", 1), 3: ("rgb8", 3), 4: ("rgba8", 4), 5: ("rgb565", 2), 6: ("rgba5551", 2),
+    7: ("l16", 2), 8: ("la16", 4), 9: ("rgb16", 6), 10: ("rgba16", 8),
+}
+
 M64 = (1 << 64) - 1
 
 

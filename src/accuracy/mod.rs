@@ -9,7 +9,8 @@
 //! Numerics: texel addressing is integer (i64/u64) everywhere; world positions, ray directions
 //! and texture coordinates are f64 (a 2^26 texture needs 26 bits of integer part plus the
 //! fraction, beyond f32's 24-bit mantissa); colours are f32 in 0..=1 and compared after
-//! quantising to 8 bits per channel.
+//! quantising to 8 bits per channel, or to 16 for a case with a 16-bit texel format
+//! ([`study::Case::format`]; PSNR then against a peak of 65535).
 
 pub mod cache;
 pub mod render;

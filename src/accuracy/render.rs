@@ -91,16 +91,30 @@ impl Camera {
 pub struct Pixel {
     /// Colour quantised to 8 bits per channel (RGBA).
     pub rgba: [u8; 4],
+    /// Colour quantised to 16 bits per channel (RGBA), for the comparison of 16-bit textures.
+    pub rgba16: [u16; 4],
     /// LOD used.
     pub lod: f64,
     /// False for sky and for ground outside the texture.
     pub ground: bool,
 }
 
-const SKY: Pixel = Pixel { rgba: [140, 180, 230, 255], lod: 0.0, ground: false };
+const SKY: Pixel =
+    Pixel { rgba: [140, 180, 230, 255], rgba16: [140 * 257, 180 * 257, 230 * 257, 65535], lod: 0.0, ground: false };
+
+/// Black ground: where the clipmap has no level to sample.
+const BLACK: [f32; 4] = [0.0, 0.0, 0.0, 1.0];
 
 fn quantise(c: [f32; 4]) -> [u8; 4] {
     c.map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+}
+
+fn quantise16(c: [f32; 4]) -> [u16; 4] {
+    c.map(|v| (v.clamp(0.0, 1.0) as f64 * 65535.0).round() as u16)
+}
+
+fn ground(c: [f32; 4], lod: f64) -> Pixel {
+    Pixel { rgba: quantise(c), rgba16: quantise16(c), lod, ground: true }
 }
 
 fn in_texture(uv: [f64; 2], size: [u64; 2]) -> bool {
@@ -120,7 +134,7 @@ pub fn render_mipmap(cam: &Camera, source: &dyn TileSource, filter: Filter) -> V
                     Some(fp) if in_texture(fp.uv, size) => {
                         let lod = fp.lod.clamp(0.0, last);
                         match sampler.sample(filter, fp.uv[0], fp.uv[1], lod) {
-                            Ok(c) => Pixel { rgba: quantise(c), lod, ground: true },
+                            Ok(c) => ground(c, lod),
                             Err(_) => SKY,
                         }
                     }
@@ -151,8 +165,8 @@ pub fn render_clipmap_levels(cam: &Camera, map: &Clipmap, filter: Filter, window
         .map(|(i, j)| match cam.footprint(i, j) {
             Some(fp) if in_texture(fp.uv, size) => {
                 match sample_clipmap(map, filter, fp.uv[0], fp.uv[1], fp.lod.clamp(lo, last)) {
-                    Some(s) => Pixel { rgba: quantise(s.rgba), lod: s.lod, ground: true },
-                    None => Pixel { rgba: [0, 0, 0, 255], lod: last, ground: true },
+                    Some(s) => ground(s.rgba, s.lod),
+                    None => ground(BLACK, last),
                 }
             }
             _ => SKY,

@@ -51,6 +51,14 @@ pub struct Case {
     /// A virtual clip texture: the renderer addresses only this many levels at once, from a LOD
     /// offset chosen each frame from the eye height (Performer's rule, keeping resolution).
     pub effective_levels: Option<u32>,
+    /// Texel format of the texture (RGBA8 by default). With a 16-bit format the frames are
+    /// compared at 16 bits per channel: PSNR against a peak of 65535, errors in 16-bit units.
+    #[serde(serialize_with = "format_name")]
+    pub format: TexelFormat,
+}
+
+fn format_name<S: serde::Serializer>(f: &TexelFormat, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(&f.short_name())
 }
 
 impl Case {
@@ -71,6 +79,7 @@ impl Case {
             fov_deg: 60.0,
             wait_for_reads: true,
             effective_levels: None,
+            format: TexelFormat::RGBA8,
         }
     }
 }
@@ -82,8 +91,8 @@ pub struct FrameMetrics {
     pub frame: u64,
     /// PSNR over RGB of ground pixels, dB; `None` when identical to the reference.
     pub psnr: Option<f64>,
-    /// Largest absolute channel difference (8-bit units).
-    pub max_error: u8,
+    /// Largest absolute channel difference (8-bit units; 16-bit units for a 16-bit format).
+    pub max_error: u16,
     /// Share of ground pixels drawn from a coarser level than the reference used.
     pub coarser_pixel_share: f64,
     /// Bytes copied into windows this frame.
@@ -106,7 +115,7 @@ pub struct Outcome {
     /// Worst PSNR (`None` when every frame is identical to the reference).
     pub psnr_min: Option<f64>,
     /// Worst channel error.
-    pub max_error: u8,
+    pub max_error: u16,
     /// Mean share of pixels from a coarser level than ideal.
     pub coarser_pixel_share: f64,
     /// Total bytes copied.
@@ -136,9 +145,18 @@ pub enum StudyError {
     Io(String),
 }
 
-/// Compares a frame with its reference.
-pub fn compare(reference: &[Pixel], test: &[Pixel]) -> (Option<f64>, u8, f64) {
-    let (mut sq, mut n, mut max, mut coarser, mut ground) = (0f64, 0u64, 0u8, 0u64, 0u64);
+/// Compares a frame with its reference at 8 bits per channel: (PSNR, largest channel error,
+/// share of ground pixels drawn coarser).
+pub fn compare(reference: &[Pixel], test: &[Pixel]) -> (Option<f64>, u16, f64) {
+    compare_at(reference, test, 8)
+}
+
+/// Compares a frame with its reference at `bits` (8 or 16) per channel: PSNR against the peak
+/// of that depth (255 or 65535), the largest channel error in its units.
+pub fn compare_at(reference: &[Pixel], test: &[Pixel], bits: u32) -> (Option<f64>, u16, f64) {
+    let deep = bits >= 16;
+    let peak = if deep { 65535.0f64 } else { 255.0 };
+    let (mut sq, mut n, mut max, mut coarser, mut ground) = (0f64, 0u64, 0u16, 0u64, 0u64);
     for (r, t) in reference.iter().zip(test) {
         if !r.ground {
             continue;
@@ -148,19 +166,19 @@ pub fn compare(reference: &[Pixel], test: &[Pixel]) -> (Option<f64>, u8, f64) {
             coarser += 1;
         }
         for c in 0..3 {
-            let d = r.rgba[c].abs_diff(t.rgba[c]);
+            let d = if deep { r.rgba16[c].abs_diff(t.rgba16[c]) } else { r.rgba[c].abs_diff(t.rgba[c]) as u16 };
             max = max.max(d);
             sq += (d as f64) * (d as f64);
             n += 1;
         }
     }
-    let psnr = if sq == 0.0 || n == 0 { None } else { Some(10.0 * (255.0f64 * 255.0 / (sq / n as f64)).log10()) };
+    let psnr = if sq == 0.0 || n == 0 { None } else { Some(10.0 * (peak * peak / (sq / n as f64)).log10()) };
     (psnr, max, if ground == 0 { 0.0 } else { coarser as f64 / ground as f64 })
 }
 
 /// The source of a case (behind a tile cache for the reference renders).
 pub fn source(case: &Case) -> Result<Arc<dyn TileSource>, StudyError> {
-    let desc = TextureDesc::new([case.size, case.size], case.clip_size, TexelFormat::RGBA8, [case.tile, case.tile])?
+    let desc = TextureDesc::new([case.size, case.size], case.clip_size, case.format, [case.tile, case.tile])?
         .with_invalid_border(case.invalid_border)?;
     Ok(match case.source {
         Procedural::Hash => Arc::new(HashSource::new(desc)),
@@ -228,7 +246,7 @@ pub fn run(case: &Case, mut keep: impl FnMut(u64, &Camera, &[Pixel], &[Pixel])) 
             (v.lod_offset, eff.min(v.effective_levels))
         });
         let got = render_clipmap_levels(&cam, &map, Filter::Trilinear, window);
-        let (psnr, max_error, coarser) = compare(&want, &got);
+        let (psnr, max_error, coarser) = compare_at(&want, &got, case.format.component_bits());
         keep(f, &cam, &want, &got);
         frames.push(FrameMetrics {
             frame: f,

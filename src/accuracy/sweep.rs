@@ -26,8 +26,8 @@ pub struct Row {
     pub flight: String,
     /// Worst PSNR in dB (`null` when every frame is identical to the reference).
     pub psnr_min: Option<f64>,
-    /// Worst channel error (8-bit units).
-    pub max_error: u8,
+    /// Worst channel error (8-bit units; 16-bit units for a 16-bit format).
+    pub max_error: u16,
     /// Mean share of pixels from a coarser level than ideal.
     pub coarser_pixel_share: f64,
     /// Bytes copied over the flight.

@@ -72,3 +72,26 @@ fn a_wider_invalid_border_never_improves_the_picture() {
     let narrow = run(&Case { invalid_border: 8, ..case(128, 128) }, |_, _, _, _| {}).unwrap().coarser_pixel_share;
     assert!(last > narrow, "a 32-texel border must cost more than an 8-texel one: {last} vs {narrow}");
 }
+
+#[test]
+fn a_sixteen_bit_texture_is_compared_at_sixteen_bits() {
+    use super::study::compare_at;
+    use crate::texel::TexelFormat;
+    // Identical frames stay identical at 16 bits; a case that differs measures against 65535.
+    let same = Case { format: TexelFormat::L16, ..case(256, 128) };
+    let o = run(&same, |_, _, _, _| {}).unwrap();
+    assert_eq!((o.psnr_min, o.max_error), (None, 0), "{:?}", o.frames);
+    let few = Case { effective_levels: Some(2), pitch_deg: 15.0, format: TexelFormat::RGBA16, ..case(256, 128) };
+    let mut pairs = Vec::new();
+    let o = run(&few, |_, _, want, got| pairs.push((want.to_vec(), got.to_vec()))).unwrap();
+    assert!(o.max_error > 255, "errors in 16-bit units: {}", o.max_error);
+    // The same frames at 8 bits: errors 257 times smaller (within rounding), and the PSNR nearly
+    // the same, the peak scaling with the errors.
+    let (want, got) = &pairs[0];
+    let (p16, e16, _) = compare_at(want, got, 16);
+    let (p8, e8, _) = compare_at(want, got, 8);
+    assert!((e16 as f64 / 257.0 - e8 as f64).abs() <= 1.0, "{e16} vs {e8}");
+    let (p16, p8) = (p16.unwrap(), p8.unwrap());
+    assert!((p16 - p8).abs() < 0.5, "{p16} dB at 16 bits, {p8} dB at 8");
+    assert_eq!(serde_json::to_value(&few).unwrap()["format"], "rgba16");
+}

@@ -144,7 +144,7 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDump
         min_lod: snap.min_lod,
         closed: client.closed(),
         clip_size: client.clip_size,
-        format: picture::format_of_code(client.format_code).map(|f| f.short_name()),
+        format: crate::shm::layout::format_from_code(client.format_code).map(|f| f.short_name()),
         centre,
         levels,
         view,

@@ -25,6 +25,12 @@ pub fn format_names(f: TexelFormat) -> Option<(&'static str, &'static str, &'sta
         (Components::Four, ComponentType::Packed(PackedType::Rgba5551)) => {
             ("PFTEX_UNSIGNED_SHORT_5_5_5_1", "PFTEX_RGB5_A1", "PFTEX_RGBA")
         }
+        (Components::One, ComponentType::U16) => ("PFTEX_UNSIGNED_SHORT", "GL_LUMINANCE16_EXT", "PFTEX_LUMINANCE"),
+        (Components::Two, ComponentType::U16) => {
+            ("PFTEX_UNSIGNED_SHORT", "GL_LUMINANCE16_ALPHA16_EXT", "PFTEX_LUMINANCE_ALPHA")
+        }
+        (Components::Three, ComponentType::U16) => ("PFTEX_UNSIGNED_SHORT", "GL_RGB16_EXT", "PFTEX_RGB"),
+        (Components::Four, ComponentType::U16) => ("PFTEX_UNSIGNED_SHORT", "GL_RGBA16_EXT", "PFTEX_RGBA"),
         _ => return None,
     })
 }
@@ -136,4 +142,22 @@ pub fn ic_text(layout: &Layout, level: &Level, ct_name: &str) -> String {
         out.push('\n');
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plan::formats::{resolve, texel_format, Which};
+
+    #[test]
+    fn every_written_format_reads_back_as_itself() {
+        use TexelFormat as F;
+        for f in [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16] {
+            let (ext, int, img) = format_names(f).unwrap_or_else(|| panic!("{f} is written"));
+            let e = resolve(Which::Ext, ext).unwrap().value;
+            resolve(Which::Int, int).unwrap();
+            let i = resolve(Which::Img, img).unwrap().value;
+            assert_eq!(texel_format(e, i), Some(f), "{ext} {int} {img}");
+        }
+    }
 }

@@ -49,6 +49,22 @@ pub enum PrepError {
         /// The format found.
         found: String,
     },
+    /// The image's samples are deeper than the texel format: writing them would drop bits.
+    #[error("the input image {path} has {bits}-bit {layout} samples, deeper than the texel format {format}; expected samples of at most {allowed} bits for {format}; pass --format {wider} to keep all {bits} bits, or --reduce-depth to round them to {format}")]
+    DeeperThanFormat {
+        /// The image.
+        path: PathBuf,
+        /// Bits per sample found.
+        bits: u32,
+        /// Its pixel layout (`grey`, `RGB`, ...).
+        layout: &'static str,
+        /// The texel format asked for.
+        format: String,
+        /// The most bits per sample that format takes without a reduction.
+        allowed: u32,
+        /// The 16-bit format with the same components.
+        wider: String,
+    },
     /// The image is too large to decode into memory and cannot be streamed.
     #[error("the input image {path} is {width}x{height} ({mib} MiB decoded), over the in-memory limit of {limit_mib} MiB; only TIFF images (8/16-bit, chunky) are streamed: convert it to a tiled TIFF, or raise --max-memory")]
     ImageTooLarge {
@@ -111,6 +127,7 @@ impl PrepError {
                 | PrepError::ImageOpen { .. }
                 | PrepError::ImageDecode { .. }
                 | PrepError::UnsupportedPixels { .. }
+                | PrepError::DeeperThanFormat { .. }
                 | PrepError::ImageTooLarge { .. }
                 | PrepError::OutputHoldsPyramid { .. }
                 | PrepError::OutputOccupied { .. }

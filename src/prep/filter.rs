@@ -7,7 +7,8 @@
 //! Filtering works on the components *as stored* in level k (the quantised values), so a box
 //! filtered level is exactly reproducible from the level below:
 //! `out = floor((a + b + c + d + 2) / 4)` per component (the 2x2 average, halves rounded up),
-//! for packed formats per packed component (5, 6 or 1 bits). With linear light, colour components
+//! for packed formats per packed component (5, 6 or 1 bits), for 16-bit formats per 16-bit
+//! component (little-endian words). With linear light, colour components
 //! (not alpha) are converted from sRGB to linear before averaging and back after.
 //!
 //! Edges are clamped (the texel beyond the edge repeats the edge texel).
@@ -28,6 +29,8 @@ pub enum Filter {
 #[derive(Clone, Copy, Debug)]
 enum Packing {
     Bytes,
+    /// 16-bit components, little-endian.
+    Words,
     Rgb565,
     Rgba5551,
 }
@@ -54,6 +57,7 @@ impl Channels {
         }
         let (packing, max) = match f.ctype {
             ComponentType::U8 => (Packing::Bytes, [255.0; 4]),
+            ComponentType::U16 => (Packing::Words, [65535.0; 4]),
             ComponentType::Packed(PackedType::Rgb565) => (Packing::Rgb565, [31.0, 63.0, 31.0, 0.0]),
             ComponentType::Packed(PackedType::Rgba5551) => (Packing::Rgba5551, [31.0, 31.0, 31.0, 1.0]),
             _ => return None,
@@ -72,6 +76,11 @@ impl Channels {
             Packing::Bytes => {
                 for (o, &b) in out.iter_mut().zip(texel) {
                     *o = b as f32;
+                }
+            }
+            Packing::Words => {
+                for (o, w) in out.iter_mut().zip(texel.chunks_exact(2)) {
+                    *o = u16::from_le_bytes([w[0], w[1]]) as f32;
                 }
             }
             Packing::Rgb565 => {
@@ -97,6 +106,11 @@ impl Channels {
             Packing::Bytes => {
                 for (i, o) in out.iter_mut().enumerate().take(self.n) {
                     *o = q(i) as u8;
+                }
+            }
+            Packing::Words => {
+                for (i, o) in out.chunks_exact_mut(2).enumerate().take(self.n) {
+                    o.copy_from_slice(&q(i).to_le_bytes());
                 }
             }
             Packing::Rgb565 => {
@@ -167,8 +181,8 @@ pub struct Downsampler {
     next_in: u64,
     next_out: u64,
     scratch: Vec<f32>,
-    /// The 2x2 box on byte components without linear light takes an integer path; this holds
-    /// the even source row waiting for its odd partner.
+    /// The 2x2 box on byte or 16-bit components without linear light takes an integer path;
+    /// this holds the even source row waiting for its odd partner.
     box_bytes: Option<Vec<u8>>,
 }
 
@@ -189,7 +203,7 @@ impl Downsampler {
             scratch: vec![0.0; src_w as usize * ch.n],
             box_bytes: (filter == Filter::Box
                 && !linear
-                && matches!(ch.packing, Packing::Bytes)
+                && matches!(ch.packing, Packing::Bytes | Packing::Words)
                 && (src_w | src_h) & 1 == 0)
                 .then(Vec::new),
         }
@@ -285,8 +299,9 @@ impl Downsampler {
         produced
     }
 
-    /// The box filter on bytes: `floor((a + b + c + d + 2) / 4)` per component, in integers (the
-    /// general path computes the same value in f32, where every step is exact).
+    /// The box filter on bytes or 16-bit words: `floor((a + b + c + d + 2) / 4)` per component,
+    /// in integers (the general path computes the same value in f32, where every step is exact:
+    /// four 16-bit values sum to less than 2^18, far inside f32's 24-bit mantissa).
     fn push_box_bytes(&mut self, row: &[u8], out: &mut Vec<u8>) -> usize {
         let pending = self.box_bytes.as_mut().expect("the integer box path is on");
         self.next_in += 1;
@@ -297,10 +312,20 @@ impl Downsampler {
         }
         let n = self.ch.bpt;
         out.reserve(self.dst_w as usize * n);
-        for (a, b) in pending.chunks_exact(2 * n).zip(row.chunks_exact(2 * n)) {
-            for c in 0..n {
-                let sum = a[c] as u16 + a[n + c] as u16 + b[c] as u16 + b[n + c] as u16 + 2;
-                out.push((sum / 4) as u8);
+        if matches!(self.ch.packing, Packing::Words) {
+            let w = |x: &[u8], i: usize| u16::from_le_bytes([x[i], x[i + 1]]) as u32;
+            for (a, b) in pending.chunks_exact(2 * n).zip(row.chunks_exact(2 * n)) {
+                for c in (0..n).step_by(2) {
+                    let sum = w(a, c) + w(a, n + c) + w(b, c) + w(b, n + c) + 2;
+                    out.extend_from_slice(&((sum / 4) as u16).to_le_bytes());
+                }
+            }
+        } else {
+            for (a, b) in pending.chunks_exact(2 * n).zip(row.chunks_exact(2 * n)) {
+                for c in 0..n {
+                    let sum = a[c] as u16 + a[n + c] as u16 + b[c] as u16 + b[n + c] as u16 + 2;
+                    out.push((sum / 4) as u8);
+                }
             }
         }
         self.next_out += 1;
@@ -353,6 +378,83 @@ mod tests {
         }
         assert_eq!(a.len(), 3 * 2 * 4);
         assert_eq!(a, b);
+    }
+
+    #[test]
+    fn sixteen_bit_components_unpack_and_pack_exactly() {
+        for f in [TexelFormat::L16, TexelFormat::LA16, TexelFormat::RGB16, TexelFormat::RGBA16] {
+            let ch = Channels::of(f).expect("16-bit formats are filtered");
+            let n = ch.count();
+            assert_eq!(n, f.components.count() as usize);
+            for v in [0u16, 1, 255, 256, 257, 0x1234, 32767, 32768, 65534, 65535] {
+                let comps: Vec<u16> = (0..n as u16).map(|i| v.wrapping_add(i.wrapping_mul(4099))).collect();
+                let texel: Vec<u8> = comps.iter().flat_map(|c| c.to_le_bytes()).collect();
+                let mut un = vec![0f32; n];
+                ch.unpack(&texel, &mut un);
+                assert_eq!(un, comps.iter().map(|&c| c as f32).collect::<Vec<_>>(), "{f}");
+                let mut back = vec![0u8; texel.len()];
+                ch.pack(&un, &mut back);
+                assert_eq!(back, texel, "{f}");
+            }
+        }
+        // Packing rounds halves up and clamps to the 16-bit range.
+        let ch = Channels::of(TexelFormat::LA16).unwrap();
+        let mut t = [0u8; 4];
+        ch.pack(&[1000.5, 70000.0], &mut t);
+        assert_eq!(t, [0xe9, 0x03, 0xff, 0xff]);
+    }
+
+    #[test]
+    fn the_sixteen_bit_box_filter_is_exact_on_both_paths() {
+        let ch = Channels::of(TexelFormat::RGB16).unwrap();
+        let (w, h) = (6u64, 4u64);
+        let v = |i: u64, t: u64| ((i * 40_503 + t * 9_973 + 65_000) % 65_536) as u16;
+        let rows: Vec<Vec<u8>> = (0..h).map(|t| (0..w * 3).flat_map(|i| v(i, t).to_le_bytes()).collect()).collect();
+        let mut fast = Downsampler::new(ch, Filter::Box, false, w, h);
+        let mut general = Downsampler::new(ch, Filter::Box, false, w, h);
+        general.box_bytes = None;
+        assert!(fast.box_bytes.is_some());
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for r in &rows {
+            assert_eq!(fast.push(r, &mut a), general.push(r, &mut b));
+        }
+        assert_eq!(a, b);
+        // floor((a + b + c + d + 2) / 4) of the stored components.
+        let mut want = Vec::new();
+        for j in 0..h / 2 {
+            for x in 0..w / 2 {
+                for c in 0..3 {
+                    let at = |s: u64, t: u64| v(s * 3 + c, t) as u32;
+                    let sum = at(2 * x, 2 * j) + at(2 * x + 1, 2 * j) + at(2 * x, 2 * j + 1) + at(2 * x + 1, 2 * j + 1);
+                    want.extend_from_slice(&(((sum + 2) / 4) as u16).to_le_bytes());
+                }
+            }
+        }
+        assert_eq!(a, want);
+    }
+
+    #[test]
+    fn sixteen_bit_lanczos_and_linear_light_keep_a_constant_constant() {
+        for (filter, linear) in [(Filter::Lanczos3, false), (Filter::Lanczos3, true), (Filter::Box, true)] {
+            let ch = Channels::of(TexelFormat::RGBA16).unwrap();
+            let mut d = Downsampler::new(ch, filter, linear, 32, 32);
+            let texel: Vec<u8> = [51_234u16, 1, 65_535, 40_000].iter().flat_map(|c| c.to_le_bytes()).collect();
+            let row = texel.repeat(32);
+            let mut out = Vec::new();
+            for _ in 0..32 {
+                d.push(&row, &mut out);
+            }
+            assert_eq!(out.len(), 16 * 16 * 8);
+            for (i, got) in out.chunks_exact(8).enumerate() {
+                for c in 0..4 {
+                    let g = u16::from_le_bytes([got[2 * c], got[2 * c + 1]]) as i32;
+                    let w = u16::from_le_bytes([texel[2 * c], texel[2 * c + 1]]) as i32;
+                    // Linear light goes through f32 powers: within a few 16-bit steps.
+                    let tol = if linear { 8 } else { 0 };
+                    assert!((g - w).abs() <= tol, "{filter:?} linear {linear}: texel {i} component {c}: {g} vs {w}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -4,13 +4,18 @@
 //! Image convention: Performer's texture origin is the lower-left corner, so level-0 texel
 //! (s, t) is image pixel (column s, row H - 1 - t) (image rows run top-down). With padding, the
 //! texels beyond the image (s >= width or t >= height) are zero (black, transparent).
+//!
+//! Depth: 16-bit samples reach 16-bit formats unchanged (never through 8 bits); 8-bit samples
+//! into a 16-bit format are scaled by 257 (exact: 255 becomes 65535). An input deeper than the
+//! chosen format (16-bit samples, a format of 8 bits or fewer per component) is refused unless
+//! the reduction is asked for ([`OpenedImage::reduce_depth`]); it then rounds to nearest.
 
 use super::error::PrepError;
 use super::tiff_stream::TiffStream;
 use super::Limits;
 use crate::source::procedural::{hash_region, Terrain};
-use crate::texel::TexelFormat;
-use image::{DynamicImage, GenericImageView, ImageReader};
+use crate::texel::{ComponentType, Components, TexelFormat};
+use image::{DynamicImage, GenericImageView, ImageDecoder, ImageReader};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -40,7 +45,8 @@ impl BandSource for HashLevel {
     }
 }
 
-/// Level 0 of the terrain texture.
+/// Level 0 of the terrain texture: its colours, or for the 16-bit luminance formats (`l16`,
+/// `la16`) its heights (0..=1 as 0..=65535, alpha opaque): a height map.
 pub struct TerrainLevel0 {
     /// The terrain.
     pub terrain: Terrain,
@@ -54,9 +60,17 @@ impl BandSource for TerrainLevel0 {
     fn fill(&mut self, t0: u64, _rows: usize, out: &mut [u8]) -> Result<(), PrepError> {
         let bpt = self.format.bytes_per_texel() as usize;
         let row_bytes = self.width as usize * bpt;
+        let heights = self.format.ctype == ComponentType::U16
+            && matches!(self.format.components, Components::One | Components::Two);
         out.par_chunks_mut(row_bytes).enumerate().for_each(|(i, row)| {
             for (s, texel) in row.chunks_exact_mut(bpt).enumerate() {
-                self.terrain.texel(0, s as u64, t0 + i as u64, self.format, texel);
+                if heights {
+                    let h = self.terrain.height(0, s as u64, t0 + i as u64).clamp(0.0, 1.0);
+                    let v = (h * 65535.0).round() as u16;
+                    encode_rgba16(self.format, [v, v, v, u16::MAX], texel);
+                } else {
+                    self.terrain.texel(0, s as u64, t0 + i as u64, self.format, texel);
+                }
             }
         });
         Ok(())
@@ -69,6 +83,34 @@ pub struct MemoryImage {
     format: TexelFormat,
     /// Level-0 width (image width, or padded).
     width: u64,
+    /// The image has 16-bit samples, or the format 16-bit components: pixels go through
+    /// [`encode_rgba16`].
+    deep: bool,
+}
+
+/// Pixel (x, y) of a decoded image as 16-bit RGBA (8-bit samples scaled by 257; grey repeated).
+fn pixel16(image: &DynamicImage, x: u32, y: u32) -> [u16; 4] {
+    match image {
+        DynamicImage::ImageLuma16(i) => {
+            let v = i.get_pixel(x, y).0[0];
+            [v, v, v, u16::MAX]
+        }
+        DynamicImage::ImageLumaA16(i) => {
+            let [v, a] = i.get_pixel(x, y).0;
+            [v, v, v, a]
+        }
+        DynamicImage::ImageRgb16(i) => {
+            let [r, g, b] = i.get_pixel(x, y).0;
+            [r, g, b, u16::MAX]
+        }
+        DynamicImage::ImageRgba16(i) => i.get_pixel(x, y).0,
+        other => widen(other.get_pixel(x, y).0),
+    }
+}
+
+/// An 8-bit pixel on the 16-bit scale (times 257, exact).
+pub fn widen(p: [u8; 4]) -> [u16; 4] {
+    p.map(|v| v as u16 * 257)
 }
 
 impl BandSource for MemoryImage {
@@ -78,6 +120,7 @@ impl BandSource for MemoryImage {
         let (iw, ih) = self.image.dimensions();
         let image = &self.image;
         let format = self.format;
+        let deep = self.deep;
         out.par_chunks_mut(row_bytes).enumerate().for_each(|(i, row)| {
             let t = t0 + i as u64;
             row.fill(0);
@@ -86,8 +129,11 @@ impl BandSource for MemoryImage {
             }
             let y = ih - 1 - t as u32;
             for (x, texel) in row.chunks_exact_mut(bpt).take(iw as usize).enumerate() {
-                let p = image.get_pixel(x as u32, y).0;
-                encode_rgba8(format, p, texel);
+                if deep {
+                    encode_rgba16(format, pixel16(image, x as u32, y), texel);
+                } else {
+                    encode_rgba8(format, image.get_pixel(x as u32, y).0, texel);
+                }
             }
         });
         Ok(())
@@ -106,6 +152,39 @@ pub fn encode_rgba8(format: TexelFormat, p: [u8; 4], out: &mut [u8]) {
     }
 }
 
+/// Encodes a 16-bit RGBA pixel into `format`: 16-bit formats take the samples as they are,
+/// 8-bit formats the samples rounded to nearest (v / 257), packed formats their encoding.
+/// One-component formats take the luminance (Rec. 709 weights; a grey pixel's value exactly).
+pub fn encode_rgba16(format: TexelFormat, p: [u16; 4], out: &mut [u8]) {
+    let lum = || -> f64 {
+        if p[0] == p[1] && p[1] == p[2] {
+            p[0] as f64
+        } else {
+            0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64
+        }
+    };
+    let chans: [f64; 4] = match format.components {
+        Components::One => [lum(), 0.0, 0.0, 0.0],
+        Components::Two => [lum(), p[3] as f64, 0.0, 0.0],
+        Components::Three => [p[0] as f64, p[1] as f64, p[2] as f64, 0.0],
+        Components::Four => p.map(|v| v as f64),
+    };
+    let n = format.components.count() as usize;
+    match format.ctype {
+        ComponentType::U16 => {
+            for (o, c) in out.chunks_exact_mut(2).zip(&chans[..n]) {
+                o.copy_from_slice(&(c.round().clamp(0.0, 65535.0) as u16).to_le_bytes());
+            }
+        }
+        ComponentType::U8 => {
+            for (o, c) in out.iter_mut().zip(&chans[..n]) {
+                *o = (c / 257.0).round().clamp(0.0, 255.0) as u8;
+            }
+        }
+        _ => format.encode(p.map(|v| v as f32 / 65535.0), out),
+    }
+}
+
 /// An opened input image: its size and a band source for level 0.
 pub struct OpenedImage {
     /// Image width in pixels.
@@ -114,6 +193,13 @@ pub struct OpenedImage {
     pub height: u64,
     /// True when the image is streamed rather than held in memory.
     pub streamed: bool,
+    /// Bits per sample: 8 or 16.
+    pub bits: u32,
+    /// Samples per pixel: 1 grey, 2 grey and alpha, 3 RGB, 4 RGBA.
+    pub samples: u32,
+    /// Round samples deeper than the texel format to it instead of refusing the image.
+    pub reduce_depth: bool,
+    path: PathBuf,
     opener: Opener,
 }
 
@@ -123,10 +209,36 @@ enum Opener {
 }
 
 impl OpenedImage {
-    /// A band source producing level 0 of `padded_width` in `format`.
+    /// Refuses an image deeper than `format` (16-bit samples for a format of 8 bits or fewer per
+    /// component) unless [`reduce_depth`](Self::reduce_depth) asks for the reduction.
+    pub fn check_depth(&self, format: TexelFormat) -> Result<(), PrepError> {
+        let allowed = if format.component_bits() >= 16 { 16 } else { 8 };
+        if self.bits <= allowed || self.reduce_depth {
+            return Ok(());
+        }
+        let wider = TexelFormat { components: format.components, ctype: ComponentType::U16 };
+        Err(PrepError::DeeperThanFormat {
+            path: self.path.clone(),
+            bits: self.bits,
+            layout: match self.samples {
+                1 => "grey",
+                2 => "grey+alpha",
+                3 => "RGB",
+                _ => "RGBA",
+            },
+            format: format.short_name(),
+            allowed,
+            wider: wider.short_name(),
+        })
+    }
+
+    /// A band source producing level 0 of `padded_width` in `format` (refused by
+    /// [`check_depth`](Self::check_depth) when the image is deeper than the format).
     pub fn into_source(self, format: TexelFormat, padded_width: u64) -> Result<Box<dyn BandSource>, PrepError> {
+        self.check_depth(format)?;
+        let deep = self.bits == 16 || format.ctype == ComponentType::U16;
         Ok(match self.opener {
-            Opener::Memory(image) => Box::new(MemoryImage { image, format, width: padded_width }),
+            Opener::Memory(image) => Box::new(MemoryImage { image, format, width: padded_width, deep }),
             Opener::Tiff(path) => Box::new(TiffStream::open(&path)?.into_source(format, padded_width)),
         })
     }
@@ -143,7 +255,17 @@ pub fn open_image(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepError
     drop(file);
     if let Some(stream) = TiffStream::try_open(path, limits)? {
         let (width, height) = stream.dimensions();
-        return Ok(OpenedImage { width, height, streamed: true, opener: Opener::Tiff(path.into()) });
+        let (bits, samples) = stream.depth();
+        return Ok(OpenedImage {
+            width,
+            height,
+            streamed: true,
+            bits,
+            samples,
+            reduce_depth: false,
+            path: path.into(),
+            opener: Opener::Tiff(path.into()),
+        });
     }
     let reader = || -> Result<ImageReader<std::io::BufReader<std::fs::File>>, PrepError> {
         ImageReader::open(path)
@@ -151,8 +273,13 @@ pub fn open_image(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepError
             .with_guessed_format()
             .map_err(|source| PrepError::ImageOpen { path: path.into(), source })
     };
-    let (w, h) = reader()?.into_dimensions().map_err(|e| decode_error(path, e))?;
-    let decoded = w as u64 * h as u64 * 4;
+    let decoder = reader()?.into_decoder().map_err(|e| decode_error(path, e))?;
+    let (w, h) = decoder.dimensions();
+    // Four samples a pixel at most, of one byte or (16-bit images) two.
+    let sample_bytes =
+        if decoder.color_type().bytes_per_pixel() > decoder.color_type().channel_count() { 2 } else { 1 };
+    drop(decoder);
+    let decoded = w as u64 * h as u64 * 4 * sample_bytes;
     if decoded > limits.max_memory_bytes {
         return Err(PrepError::ImageTooLarge {
             path: path.into(),
@@ -168,11 +295,21 @@ pub fn open_image(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepError
     r.limits(il);
     let image = r.decode().map_err(|e| decode_error(path, e))?;
     use image::ColorType as C;
-    match image.color() {
-        C::L8 | C::La8 | C::Rgb8 | C::Rgba8 | C::L16 | C::La16 | C::Rgb16 | C::Rgba16 => {}
+    let bits = match image.color() {
+        C::L8 | C::La8 | C::Rgb8 | C::Rgba8 => 8,
+        C::L16 | C::La16 | C::Rgb16 | C::Rgba16 => 16,
         other => {
             return Err(PrepError::UnsupportedPixels { path: path.into(), found: format!("{other:?}") });
         }
-    }
-    Ok(OpenedImage { width: w as u64, height: h as u64, streamed: false, opener: Opener::Memory(image) })
+    };
+    Ok(OpenedImage {
+        width: w as u64,
+        height: h as u64,
+        streamed: false,
+        bits,
+        samples: image.color().channel_count() as u32,
+        reduce_depth: false,
+        path: path.into(),
+        opener: Opener::Memory(image),
+    })
 }

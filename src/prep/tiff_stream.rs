@@ -2,15 +2,16 @@
 //! images far larger than memory can be prepared.
 //!
 //! Only one row of TIFF chunks is held decoded at a time (chunk height x image width, as 8-bit
-//! RGBA). Bands are requested bottom-up (Performer's origin is the lower-left corner), which the
-//! random access to strips and tiles of a TIFF makes cheap. Layouts this module does not stream
+//! RGBA, or 16-bit RGBA for 16-bit samples, which are never reduced to 8 bits on the way). Bands
+//! are requested bottom-up (Performer's origin is the lower-left corner), which the random
+//! access to strips and tiles of a TIFF makes cheap. Layouts this module does not stream
 //! (planar, palette, CMYK, float, or a single strip larger than the memory limit) are left to the
 //! in-memory decoder.
 
 use super::error::PrepError;
-use super::source::{encode_rgba8, BandSource};
+use super::source::{encode_rgba16, encode_rgba8, widen, BandSource};
 use super::Limits;
-use crate::texel::TexelFormat;
+use crate::texel::{ComponentType, TexelFormat};
 use std::fs::File;
 use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};
@@ -25,11 +26,15 @@ pub struct TiffStream {
     width: u32,
     height: u32,
     samples: usize,
+    /// Bits per sample: 8 or 16.
+    bits: u32,
     chunk_w: u32,
     chunk_h: u32,
     chunk_type: ChunkType,
-    /// Decoded rows `cache_y0 .. cache_y0 + cache_rows`, RGBA8, full width.
+    /// Decoded rows `cache_y0 .. cache_y0 + cache_rows`, RGBA8, full width (8-bit samples).
     cache: Vec<u8>,
+    /// The same for 16-bit samples, RGBA16.
+    cache16: Vec<u16>,
     cache_y0: u32,
     cache_rows: u32,
 }
@@ -52,7 +57,7 @@ impl TiffStream {
             return Ok(None);
         }
         let s = Self::open(path)?;
-        let chunk_row_bytes = s.chunk_h as u64 * s.width as u64 * 4;
+        let chunk_row_bytes = s.chunk_h as u64 * s.width as u64 * 4 * (s.bits as u64 / 8);
         if s.samples == 0 || chunk_row_bytes > limits.max_memory_bytes / 4 {
             return Ok(None);
         }
@@ -65,13 +70,18 @@ impl TiffStream {
         let mut decoder = Decoder::new(BufReader::new(file)).map_err(|e| err(path, e))?;
         let (width, height) = decoder.dimensions().map_err(|e| err(path, e))?;
         let planar: Option<u16> = decoder.find_tag_unsigned(Tag::PlanarConfiguration).map_err(|e| err(path, e))?;
-        let samples = match decoder.colortype().map_err(|e| err(path, e))? {
+        let colortype = decoder.colortype().map_err(|e| err(path, e))?;
+        let samples = match colortype {
             _ if planar.unwrap_or(1) != 1 => 0,
             ColorType::Gray(8 | 16) => 1,
             ColorType::GrayA(8 | 16) => 2,
             ColorType::RGB(8 | 16) => 3,
             ColorType::RGBA(8 | 16) => 4,
             _ => 0,
+        };
+        let bits = match colortype {
+            ColorType::Gray(16) | ColorType::GrayA(16) | ColorType::RGB(16) | ColorType::RGBA(16) => 16,
+            _ => 8,
         };
         let (chunk_w, chunk_h) = decoder.chunk_dimensions();
         let chunk_type = decoder.get_chunk_type();
@@ -81,10 +91,12 @@ impl TiffStream {
             width,
             height,
             samples,
+            bits,
             chunk_w,
             chunk_h,
             chunk_type,
             cache: Vec::new(),
+            cache16: Vec::new(),
             cache_y0: 0,
             cache_rows: 0,
         })
@@ -93,6 +105,11 @@ impl TiffStream {
     /// Image size in pixels.
     pub fn dimensions(&self) -> (u64, u64) {
         (self.width as u64, self.height as u64)
+    }
+
+    /// Bits per sample (8 or 16) and samples per pixel.
+    pub fn depth(&self) -> (u32, u32) {
+        (self.bits, self.samples as u32)
     }
 
     /// A band source for level 0 in `format`, `padded_width` texels wide.
@@ -106,8 +123,14 @@ impl TiffStream {
         let y0 = band * self.chunk_h;
         let rows = self.chunk_h.min(self.height - y0);
         let w = self.width as usize;
+        let deep = self.bits == 16;
         self.cache.clear();
-        self.cache.resize(rows as usize * w * 4, 0);
+        self.cache16.clear();
+        if deep {
+            self.cache16.resize(rows as usize * w * 4, 0);
+        } else {
+            self.cache.resize(rows as usize * w * 4, 0);
+        }
         let across = match self.chunk_type {
             ChunkType::Strip => 1,
             ChunkType::Tile => self.width.div_ceil(self.chunk_w),
@@ -118,6 +141,29 @@ impl TiffStream {
             let data = self.decoder.read_chunk(index).map_err(|e| err(&self.path, e))?;
             let n = self.samples;
             let x0 = (cx * self.chunk_w) as usize;
+            if deep {
+                let sample = |i: usize| -> u16 {
+                    match &data {
+                        DecodingResult::U16(v) => v[i],
+                        DecodingResult::U8(v) => v[i] as u16 * 257,
+                        _ => 0,
+                    }
+                };
+                for r in 0..dh.min(rows) as usize {
+                    for c in 0..dw as usize {
+                        let i = (r * dw as usize + c) * n;
+                        let px = match n {
+                            1 => [sample(i), sample(i), sample(i), u16::MAX],
+                            2 => [sample(i), sample(i), sample(i), sample(i + 1)],
+                            3 => [sample(i), sample(i + 1), sample(i + 2), u16::MAX],
+                            _ => [sample(i), sample(i + 1), sample(i + 2), sample(i + 3)],
+                        };
+                        let o = (r * w + x0 + c) * 4;
+                        self.cache16[o..o + 4].copy_from_slice(&px);
+                    }
+                }
+                continue;
+            }
             let sample = |i: usize| -> u8 {
                 match &data {
                     DecodingResult::U8(v) => v[i],
@@ -178,7 +224,20 @@ impl BandSource for TiffSource {
             if !(s.cache_rows > 0 && y >= s.cache_y0 && y < s.cache_y0 + s.cache_rows) {
                 s.load(y)?;
             }
+            if s.bits == 16 {
+                let line = &s.cache16[(y - s.cache_y0) as usize * iw * 4..][..iw * 4];
+                for (texel, px) in row.chunks_exact_mut(bpt).zip(line.chunks_exact(4)) {
+                    encode_rgba16(self.format, [px[0], px[1], px[2], px[3]], texel);
+                }
+                continue;
+            }
             let line = &s.cache[(y - s.cache_y0) as usize * iw * 4..][..iw * 4];
+            if self.format.ctype == ComponentType::U16 {
+                for (texel, px) in row.chunks_exact_mut(bpt).zip(line.chunks_exact(4)) {
+                    encode_rgba16(self.format, widen([px[0], px[1], px[2], px[3]]), texel);
+                }
+                continue;
+            }
             if self.format == TexelFormat::RGBA8 {
                 row[..iw * 4].copy_from_slice(line);
                 continue;
@@ -188,5 +247,41 @@ impl BandSource for TiffSource {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::prep::source::open_image;
+
+    #[test]
+    fn sixteen_bit_samples_are_streamed_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("in.tif");
+        let (w, h) = (8u32, 4u32);
+        let v = |x: u32, y: u32, c: u32| (x * 8191 + y * 257 + c * 21_845 + 1) as u16;
+        image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_fn(w, h, |x, y| {
+            image::Rgb([0, 1, 2].map(|c| v(x, y, c)))
+        })
+        .save(&path)
+        .unwrap();
+        let img = open_image(&path, &Limits::default()).unwrap();
+        assert_eq!((img.streamed, img.bits, img.samples), (true, 16, 3));
+        let mut src = img.into_source(TexelFormat::RGBA16, w as u64).unwrap();
+        let mut band = vec![0u8; (w * h * 8) as usize];
+        src.fill(0, h as usize, &mut band).unwrap();
+        for (i, texel) in band.chunks_exact(8).enumerate() {
+            let (s, t) = (i as u32 % w, i as u32 / w);
+            let got: Vec<u16> = texel.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
+            // Texel (s, t) is pixel (s, h - 1 - t); alpha is opaque.
+            let y = h - 1 - t;
+            assert_eq!(got, [v(s, y, 0), v(s, y, 1), v(s, y, 2), 65535], "texel ({s}, {t})");
+        }
+        // The same image into an 8-bit format is refused without the reduction.
+        let img = open_image(&path, &Limits::default()).unwrap();
+        let e = img.into_source(TexelFormat::RGB8, w as u64).err().expect("refused");
+        assert!(matches!(e, PrepError::DeeperThanFormat { bits: 16, .. }), "{e}");
+        assert_eq!(e.exit_code(), 1);
     }
 }

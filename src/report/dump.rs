@@ -1,5 +1,6 @@
 //! `cliptex dump` and `icache dump` from disk: a region of one level read from its tile files
-//! and written as a PNG (8-bit RGB, or RGBA for formats with alpha).
+//! and written as a PNG: 8-bit RGB (RGBA for formats with alpha), or for the 16-bit formats a
+//! 16-bit PNG of their components (grey, grey+alpha, RGB, RGBA) with the stored values exactly.
 //!
 //! Owns choosing and checking the region, gathering its tiles, converting texels and reporting
 //! the tiles that could not be read (painted with [`picture::missing_pattern`], never fatal).
@@ -11,13 +12,14 @@ use super::picture;
 use crate::geom::{tile_texels, tiles_covering, Rect};
 use crate::plan::ImageCachePlan;
 use crate::source::{FaultKind, SourceError, TileId};
-use crate::texel::TexelFormat;
-use image::{DynamicImage, RgbImage, RgbaImage};
+use crate::texel::{ComponentType, Components, TexelFormat};
+use image::{DynamicImage, ImageBuffer, Luma, LumaA, Rgb, RgbImage, Rgba, RgbaImage};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 
-/// Most texels one dump reads (a 4096 x 4096 region): 64 MiB of RGBA in memory at most.
+/// Most texels one dump reads (a 4096 x 4096 region): 64 MiB of RGBA in memory at most (128 MiB
+/// for the 16-bit formats).
 pub const MAX_DUMP_TEXELS: u64 = 4096 * 4096;
 
 /// Why a dump could not be made.
@@ -122,7 +124,8 @@ pub struct DumpReport {
     pub format: String,
     /// The PNG written.
     pub png: String,
-    /// `rgb` or `rgba`.
+    /// The PNG's pixels: `rgb` or `rgba` (8 bits per sample), or for 16-bit formats `l16`,
+    /// `la16`, `rgb16` or `rgba16` (16 bits per sample, grey, grey+alpha, RGB, RGBA).
     pub colour: &'static str,
     /// PNG width and height (the region's, one pixel per texel).
     pub pixels: [u64; 2],
@@ -166,13 +169,15 @@ pub fn choose_region(
     Ok(Rect::new(s0 as i64, t0 as i64, s1 as i64, t1 as i64))
 }
 
-/// Reads `region` of a level tile by tile into an image (RGB, or RGBA for formats with alpha);
-/// row 0 of the image is the region's last t row. Returns the image, tiles read and the tiles
-/// that could not be read.
+/// Reads `region` of a level tile by tile into an image (RGB, or RGBA for formats with alpha;
+/// for 16-bit formats a 16-bit image of their components, values exact); row 0 of the image is
+/// the region's last t row. Returns the image, tiles read and the tiles that could not be read.
 pub fn read_region(src: &LevelTiles, region: Rect) -> (DynamicImage, u64, Vec<MissingTile>) {
     let bpt = src.format.bytes_per_texel() as usize;
     let (w, h) = (region.width() as u32, region.height() as u32);
-    let mut rgba = RgbaImage::new(w, h);
+    let deep = src.format.ctype == ComponentType::U16;
+    let mut rgba = RgbaImage::new(if deep { 0 } else { w }, if deep { 0 } else { h });
+    let mut rgba16: Vec<u16> = if deep { vec![0; w as usize * h as usize * 4] } else { Vec::new() };
     let tiles = tiles_covering(region, src.tile);
     let mut buf = vec![0u8; (src.tile[0] * src.tile[1]) as usize * bpt];
     let (mut read, mut missing) = (0, Vec::new());
@@ -192,10 +197,20 @@ pub fn read_region(src: &LevelTiles, region: Rect) -> (DynamicImage, u64, Vec<Mi
                 let y = (region.t1 - 1 - t) as u32;
                 for s in texels.s0..texels.s1 {
                     let x = (s - region.s0) as u32;
+                    let j = (((t as u64 - id.t * src.tile[1]) * src.tile[0] + (s as u64 - id.s * src.tile[0]))
+                        as usize)
+                        * bpt;
+                    if deep {
+                        let px = if result.is_ok() {
+                            picture::texel_rgba16(Some(src.format), &buf[j..j + bpt])
+                        } else {
+                            picture::missing_pattern(x, y).map(|v| v as u16 * 257)
+                        };
+                        let o = (y as usize * w as usize + x as usize) * 4;
+                        rgba16[o..o + 4].copy_from_slice(&px);
+                        continue;
+                    }
                     let px = if result.is_ok() {
-                        let j = (((t as u64 - id.t * src.tile[1]) * src.tile[0] + (s as u64 - id.s * src.tile[0]))
-                            as usize)
-                            * bpt;
                         picture::texel_rgba(Some(src.format), &buf[j..j + bpt])
                     } else {
                         picture::missing_pattern(x, y)
@@ -204,6 +219,9 @@ pub fn read_region(src: &LevelTiles, region: Rect) -> (DynamicImage, u64, Vec<Mi
                 }
             }
         }
+    }
+    if deep {
+        return (sixteen_bit_image(src.format.components, w, h, &rgba16), read, missing);
     }
     let img = if picture::has_alpha(src.format) {
         DynamicImage::ImageRgba8(rgba)
@@ -216,6 +234,38 @@ pub fn read_region(src: &LevelTiles, region: Rect) -> (DynamicImage, u64, Vec<Mi
     (img, read, missing)
 }
 
+/// The 16-bit picture of `components` from RGBA16 pixels (`w * h * 4` samples, rows top-down).
+fn sixteen_bit_image(components: Components, w: u32, h: u32, px: &[u16]) -> DynamicImage {
+    let at = |x: u32, y: u32| {
+        let o = (y as usize * w as usize + x as usize) * 4;
+        [px[o], px[o + 1], px[o + 2], px[o + 3]]
+    };
+    match components {
+        Components::One => DynamicImage::ImageLuma16(ImageBuffer::from_fn(w, h, |x, y| Luma([at(x, y)[0]]))),
+        Components::Two => DynamicImage::ImageLumaA16(ImageBuffer::from_fn(w, h, |x, y| {
+            let p = at(x, y);
+            LumaA([p[0], p[3]])
+        })),
+        Components::Three => DynamicImage::ImageRgb16(ImageBuffer::from_fn(w, h, |x, y| {
+            let p = at(x, y);
+            Rgb([p[0], p[1], p[2]])
+        })),
+        Components::Four => DynamicImage::ImageRgba16(ImageBuffer::from_fn(w, h, |x, y| Rgba(at(x, y)))),
+    }
+}
+
+/// The report's name of a picture's pixels.
+fn colour_of(img: &DynamicImage) -> &'static str {
+    match img {
+        DynamicImage::ImageRgba8(_) => "rgba",
+        DynamicImage::ImageLuma16(_) => "l16",
+        DynamicImage::ImageLumaA16(_) => "la16",
+        DynamicImage::ImageRgb16(_) => "rgb16",
+        DynamicImage::ImageRgba16(_) => "rgba16",
+        _ => "rgb",
+    }
+}
+
 /// Dumps `region` of a level to the PNG `out`.
 pub fn dump(file: &Path, src: &LevelTiles, region: Option<[u64; 4]>, out: &Path) -> Result<DumpReport, DumpError> {
     let what = match src.level {
@@ -224,7 +274,7 @@ pub fn dump(file: &Path, src: &LevelTiles, region: Option<[u64; 4]>, out: &Path)
     };
     let r = choose_region(src.level, src.size, region, &what)?;
     let (img, tiles, missing) = read_region(src, r);
-    let colour = if matches!(img, DynamicImage::ImageRgba8(_)) { "rgba" } else { "rgb" };
+    let colour = colour_of(&img);
     img.save_with_format(out, image::ImageFormat::Png).map_err(|e| write_error(out, e))?;
     Ok(DumpReport {
         file: file.display().to_string(),
@@ -414,5 +464,46 @@ mod tests {
         // Texel (6, 5) lies in missing tile (1, 1).
         let p = img.get_pixel(4, 0).0;
         assert!(p == [255, 0, 255] || p == [0, 0, 0], "{p:?}");
+    }
+
+    #[test]
+    fn a_sixteen_bit_level_gives_a_sixteen_bit_picture_of_its_exact_values() {
+        let value = |s: u64, t: u64| (s * 7919 + t * 104 + 301) as u16;
+        let read = |id: TileId, out: &mut [u8]| {
+            if (id.s, id.t) == (1, 0) {
+                return Err(SourceError::Missing { tile: id });
+            }
+            for (i, px) in out.chunks_mut(4).enumerate() {
+                let (s, t) = (id.s * 4 + i as u64 % 4, id.t * 4 + i as u64 / 4);
+                px[..2].copy_from_slice(&value(s, t).to_le_bytes());
+                px[2..].copy_from_slice(&(65535 - value(s, t)).to_le_bytes());
+            }
+            Ok(())
+        };
+        let file_of = |_: TileId| None;
+        let src = LevelTiles {
+            level: Some(0),
+            size: [8, 8],
+            tile: [4, 4],
+            format: TexelFormat::LA16,
+            read: &read,
+            file_of: &file_of,
+        };
+        let (img, n, missing) = read_region(&src, Rect::new(0, 0, 8, 8));
+        assert_eq!((n, missing.len()), (4, 1));
+        assert_eq!(colour_of(&img), "la16");
+        let img = img.as_luma_alpha16().expect("la16 gives a 16-bit grey+alpha picture");
+        for t in 0..8u32 {
+            for s in 0..8u32 {
+                let p = img.get_pixel(s, 7 - t).0;
+                if s >= 4 && t < 4 {
+                    // Missing tile (1, 0): the pattern, in 16 bits.
+                    assert!(p == [65535, 65535] || p == [0, 65535], "{p:?}");
+                } else {
+                    let v = value(s as u64, t as u64);
+                    assert_eq!(p, [v, 65535 - v], "texel ({s}, {t})");
+                }
+            }
+        }
     }
 }

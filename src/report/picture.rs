@@ -8,6 +8,7 @@
 //! image row `y` of a picture of `[t0, t1)` shows `t = t1 - 1 - y`, as `clipprep` reads images.
 
 use crate::geom::Rect;
+use crate::shm::layout::format_from_code;
 use crate::shm::{Client, Snapshot};
 use crate::texel::{ComponentType, Components, TexelFormat};
 use image::{Rgb, RgbImage};
@@ -33,20 +34,6 @@ pub const VALID_EDGE: [u8; 3] = [255, 0, 0];
 /// Outline of a window (tex region).
 pub const WINDOW_EDGE: [u8; 3] = [255, 255, 0];
 
-/// The texel format a mapping's header code names (see [`crate::shm::layout::format_code`]).
-pub fn format_of_code(code: u32) -> Option<TexelFormat> {
-    [
-        TexelFormat::L8,
-        TexelFormat::RGB8,
-        TexelFormat::RGBA8,
-        TexelFormat::RGB565,
-        TexelFormat::RGBA5551,
-        TexelFormat::L16,
-    ]
-    .into_iter()
-    .find(|&f| crate::shm::layout::format_code(f) == code)
-}
-
 /// Whether a format carries alpha (its pictures are RGBA, others RGB).
 pub fn has_alpha(format: TexelFormat) -> bool {
     matches!(format.components, Components::Two | Components::Four)
@@ -70,6 +57,24 @@ pub fn texel_rgba(format: Option<TexelFormat>, texel: &[u8]) -> [u8; 4] {
     let q = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
     let c = f.decode(texel);
     [q(c[0]), q(c[1]), q(c[2]), q(c[3])]
+}
+
+/// One texel as 16-bit RGBA, for the 16-bit pictures of 16-bit formats: 16-bit components are
+/// copied exactly (luminance to grey, alpha 65535 where absent); other formats are
+/// [`texel_rgba`] scaled by 257.
+pub fn texel_rgba16(format: Option<TexelFormat>, texel: &[u8]) -> [u16; 4] {
+    match format {
+        Some(f) if f.ctype == ComponentType::U16 => {
+            let w = |i: usize| u16::from_le_bytes([texel[2 * i], texel[2 * i + 1]]);
+            match f.components {
+                Components::One => [w(0), w(0), w(0), u16::MAX],
+                Components::Two => [w(0), w(0), w(0), w(1)],
+                Components::Three => [w(0), w(1), w(2), u16::MAX],
+                Components::Four => [w(0), w(1), w(2), w(3)],
+            }
+        }
+        _ => texel_rgba(format, texel).map(|v| v as u16 * 257),
+    }
 }
 
 /// The stand-in painted where a texel could not be read (a missing tile): magenta and black
@@ -198,7 +203,7 @@ pub fn draw_published_level(
     let window = crate::geom::tex_region(size, client.clip_size, st.centre);
     let v = Rect::new(st.valid[0], st.valid[1], st.valid[2], st.valid[3]);
     let valid = st.enabled.then_some(v);
-    let format = format_of_code(client.format_code);
+    let format = format_from_code(client.format_code);
     let mut row = |t: i64, out: &mut [u8]| client.read_region(k, v.s0, t, v.width(), 1, out).is_ok();
     draw_level(img, x0, y0, frame, size, window, valid, format, client.bytes_per_texel, &mut row);
 }
@@ -209,7 +214,7 @@ pub fn draw_published_level(
 /// Pixels no level covers stay black.
 pub fn view_and_rings(client: &Client, snap: &Snapshot, centre: [i64; 2], n: u32, extent: i64) -> (RgbImage, RgbImage) {
     let bpt = client.bytes_per_texel;
-    let format = format_of_code(client.format_code);
+    let format = format_from_code(client.format_code);
     let step = (extent / n as i64).max(1);
     let first = (snap.min_lod.max(0.0).ceil() as usize).min(client.levels.len());
     let mut view = RgbImage::new(n, n);
@@ -256,11 +261,15 @@ mod tests {
     }
 
     #[test]
-    fn every_mapping_format_code_names_its_format() {
-        for f in [TexelFormat::L8, TexelFormat::RGB8, TexelFormat::RGBA8, TexelFormat::RGB565, TexelFormat::RGBA5551] {
-            assert_eq!(format_of_code(crate::shm::layout::format_code(f)), Some(f));
-        }
-        assert_eq!(format_of_code(0), None);
+    fn sixteen_bit_texels_are_copied_exactly_into_sixteen_bit_pixels() {
+        let le = |v: &[u16]| v.iter().flat_map(|c| c.to_le_bytes()).collect::<Vec<u8>>();
+        assert_eq!(texel_rgba16(Some(TexelFormat::L16), &le(&[1234])), [1234, 1234, 1234, 65535]);
+        assert_eq!(texel_rgba16(Some(TexelFormat::LA16), &le(&[1, 2])), [1, 1, 1, 2]);
+        assert_eq!(texel_rgba16(Some(TexelFormat::RGB16), &le(&[1, 2, 3])), [1, 2, 3, 65535]);
+        assert_eq!(texel_rgba16(Some(TexelFormat::RGBA16), &le(&[1, 2, 3, 4])), [1, 2, 3, 4]);
+        assert_eq!(texel_rgba16(Some(TexelFormat::RGB8), &[0, 1, 255]), [0, 257, 65535, 65535]);
+        // 16-bit texels in 8-bit pictures are rounded: 0x1234 / 257 = 18.13.
+        assert_eq!(texel_rgba(Some(TexelFormat::L16), &le(&[0x1234])), [18, 18, 18, 255]);
     }
 
     #[test]

@@ -141,6 +141,9 @@ pub fn format_code(f: crate::texel::TexelFormat) -> u32 {
         x if x == F::RGB565 => 5,
         x if x == F::RGBA5551 => 6,
         x if x == F::L16 => 7,
+        x if x == F::LA16 => 8,
+        x if x == F::RGB16 => 9,
+        x if x == F::RGBA16 => 10,
         _ => 0,
     }
 }
@@ -148,7 +151,9 @@ pub fn format_code(f: crate::texel::TexelFormat) -> u32 {
 /// The texel format of a `TEXEL_FORMAT` code; `None` for 0 (other) or an unknown code.
 pub fn format_from_code(code: u32) -> Option<crate::texel::TexelFormat> {
     use crate::texel::TexelFormat as F;
-    [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16].into_iter().find(|&f| format_code(f) == code)
+    [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16]
+        .into_iter()
+        .find(|&f| format_code(f) == code)
 }
 
 /// The static shape of a mapping.
