@@ -199,9 +199,10 @@ Examples:
     /// Write a level region to PNG from the tile files, or every level of a running service.
     #[command(after_help = "\
 From disk, one level (or a part of it) becomes one PNG, one pixel per texel, t upwards (the
-last row of the region is the top of the picture). Formats are converted to 8-bit RGB, or RGBA
-when they carry alpha. A tile that cannot be read is painted as magenta and black squares,
-listed, and the exit status is 1.
+last row of the region is the top of the picture). 16-bit formats give 16-bit PNGs of the stored
+values (grey, grey and alpha, RGB, RGBA); others are converted to 8-bit RGB, or RGBA when they
+carry alpha. A tile that cannot be read is painted as magenta and black squares, listed, and the
+exit status is 1.
 
 From a running service (--attach NAME --out-dir DIR): DIR/level-NN.png shows each level's window
 (yellow outline), its valid region (red outline) and the invalid border (dark checkerboard);

@@ -57,8 +57,9 @@ Examples:
     },
     /// Write a region of the image cache to PNG, read from its tile files.
     #[command(after_help = "\
-One pixel per texel, t upwards (the last row of the region is the top of the picture). Formats
-are converted to 8-bit RGB, or RGBA when they carry alpha. A tile that cannot be read (and is not
+One pixel per texel, t upwards (the last row of the region is the top of the picture). 16-bit
+formats give 16-bit PNGs of the stored values; others are converted to 8-bit RGB, or RGBA when
+they carry alpha. A tile that cannot be read (and is not
 covered by the default tile) is painted as magenta and black squares, listed, and the exit
 status is 1.
 

@@ -27,4 +27,5 @@ mod config_plan;
 mod config_tokens;
 mod examples;
 mod fuzz_regressions;
+mod sixteen_bit;
 mod stability;

@@ -5,7 +5,7 @@
 //! procedural sources in every 16-bit format; the mapping's format codes as the C header and the
 //! Python reader mirror them.
 
-mod common;
+use crate::common;
 
 use clipmap::source::procedural::splitmix64;
 use common::exec;
