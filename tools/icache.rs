@@ -59,9 +59,8 @@ Examples:
     #[command(after_help = "\
 One pixel per texel, t upwards (the last row of the region is the top of the picture). 16-bit
 formats give 16-bit PNGs of the stored values; others are converted to 8-bit RGB, or RGBA when
-they carry alpha. A tile that cannot be read (and is not
-covered by the default tile) is painted as magenta and black squares, listed, and the exit
-status is 1.
+they carry alpha. A tile that cannot be read (and is not covered by the default tile) is
+painted as magenta and black squares, listed, and the exit status is 1.
 
 Examples:
   icache dump level0.ic --out level0.png
