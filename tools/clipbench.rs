@@ -101,15 +101,23 @@ Examples:
         /// No progress on stderr.
         #[arg(long, short)]
         quiet: bool,
+        /// Texel format of the studied texture; 16-bit formats are compared at 16 bits a channel
+        /// (PSNR against 65535).
+        #[arg(long, value_enum, default_value = "rgba8")]
+        format: StudyFormat,
     },
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let code = match cli.command {
-        Command::Accuracy { quick, out, json, quiet } => {
-            accuracy(quick, out.unwrap_or_else(|| std::env::temp_dir().join("clipbench-accuracy")), json, quiet)
-        }
+        Command::Accuracy { quick, out, json, quiet, format } => accuracy(
+            quick,
+            out.unwrap_or_else(|| std::env::temp_dir().join("clipbench-accuracy")),
+            json,
+            quiet,
+            format.texel(),
+        ),
         Command::Perf(args) => perf::main(args),
         Command::Engine { quick, runs, json, smoke, centre_alignment } => {
             match engine::engine(engine_size(quick, smoke), runs, centre_alignment) {
@@ -137,10 +145,31 @@ fn engine_size(quick: bool, smoke: bool) -> engine::Size {
     }
 }
 
-fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool) -> u8 {
+/// The formats `clipbench accuracy --format` studies.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum StudyFormat {
+    Rgba8,
+    L16,
+    Rgb16,
+    Rgba16,
+}
+
+impl StudyFormat {
+    fn texel(self) -> clipmap::texel::TexelFormat {
+        use clipmap::texel::TexelFormat as F;
+        match self {
+            StudyFormat::Rgba8 => F::RGBA8,
+            StudyFormat::L16 => F::L16,
+            StudyFormat::Rgb16 => F::RGB16,
+            StudyFormat::Rgba16 => F::RGBA16,
+        }
+    }
+}
+
+fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool, format: clipmap::texel::TexelFormat) -> u8 {
     let started = std::time::Instant::now();
     let show = !quiet && std::io::stderr().is_terminal() || !quiet && !json;
-    let rows = match sweep::run(quick, |i, n, r| {
+    let rows = match sweep::run(quick, format, |i, n, r| {
         if show {
             eprintln!(
                 "[{i}/{n}] clip {} border {} budget {} speed {} {}: PSNR min {}, {:.2}% coarser",
@@ -160,7 +189,12 @@ fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool) -> u8 {
             return 1;
         }
     };
-    let command = format!("clipbench accuracy{} --out {}", if quick { " --quick" } else { "" }, out.display());
+    let fmt = if format == clipmap::texel::TexelFormat::RGBA8 {
+        String::new()
+    } else {
+        format!(" --format {}", format.short_name())
+    };
+    let command = format!("clipbench accuracy{}{fmt} --out {}", if quick { " --quick" } else { "" }, out.display());
     let dir = out.join("accuracy");
     if let Err(e) = std::fs::create_dir_all(&dir)
         .map_err(|e| e.to_string())

@@ -6,6 +6,7 @@
 
 use super::study::{self, Case, Outcome, StudyError};
 use serde::Serialize;
+use crate::texel::TexelFormat;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -42,6 +43,8 @@ pub struct Row {
     pub frames: u64,
     /// Levels addressable at once (virtual clip texture), `null` for all.
     pub effective_levels: Option<u32>,
+    /// Texel format of the texture (`rgba8`, or a 16-bit format compared at 16 bits).
+    pub format: String,
 }
 
 impl Row {
@@ -62,14 +65,15 @@ impl Row {
             resident_bytes: o.resident_bytes,
             frames: o.case.frames,
             effective_levels: o.case.effective_levels,
+            format: o.case.format.short_name(),
         }
     }
 }
 
-/// The cases of a sweep: each knob varied around a base case.
-pub fn cases(quick: bool) -> Vec<(Case, f64)> {
+/// The cases of a sweep: each knob varied around a base case, the texture in `format`.
+pub fn cases(quick: bool, format: TexelFormat) -> Vec<(Case, f64)> {
     let (display, frames) = if quick { ([192u32, 144u32], 4) } else { ([512, 384], 10) };
-    let base = Case { display, frames, ..Case::small() };
+    let base = Case { display, frames, format, ..Case::small() };
     let mut out = Vec::new();
     let flight = |shape: &str, speed: f64| match shape {
         "circle" => format!("circle:{}:{speed}", 400.0),
@@ -108,8 +112,12 @@ pub fn cases(quick: bool) -> Vec<(Case, f64)> {
 }
 
 /// Runs every case; `progress` is told each finished row.
-pub fn run(quick: bool, mut progress: impl FnMut(usize, usize, &Row)) -> Result<Vec<Row>, StudyError> {
-    let all = cases(quick);
+pub fn run(
+    quick: bool,
+    format: TexelFormat,
+    mut progress: impl FnMut(usize, usize, &Row),
+) -> Result<Vec<Row>, StudyError> {
+    let all = cases(quick, format);
     let mut rows = Vec::new();
     for (i, (case, speed)) in all.iter().enumerate() {
         let o = study::run(case, |_, _, _, _| {})?;
