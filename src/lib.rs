@@ -8,6 +8,7 @@
 //!
 //! | module | owns |
 //! |---|---|
+//! | [`open`] | the one way to open a file a configuration names: regular files only, never blocking |
 //! | [`config`] | text → syntax tree with a span for every value; no arithmetic, no other files |
 //! | [`plan`] | syntax tree → validated, immutable plan: levels, formats, file names, byte offsets |
 //! | [`texel`] | texel formats, bytes per texel, colour encoding |
@@ -39,6 +40,7 @@ pub mod clip;
 pub mod config;
 pub mod geom;
 pub mod limits;
+pub mod open;
 pub mod plan;
 pub mod prep;
 pub mod queue;

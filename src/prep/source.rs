@@ -139,15 +139,16 @@ fn decode_error(path: &Path, e: impl std::fmt::Display) -> PrepError {
 /// Opens an image: TIFF images with a streamable layout are streamed; anything else is decoded
 /// into memory if it fits `limits.max_memory_bytes`.
 pub fn open_image(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepError> {
-    let file = std::fs::File::open(path).map_err(|source| PrepError::ImageOpen { path: path.into(), source })?;
+    let (file, _) = crate::open::regular(path).map_err(|source| PrepError::ImageOpen { path: path.into(), source })?;
     drop(file);
     if let Some(stream) = TiffStream::try_open(path, limits)? {
         let (width, height) = stream.dimensions();
         return Ok(OpenedImage { width, height, streamed: true, opener: Opener::Tiff(path.into()) });
     }
     let reader = || -> Result<ImageReader<std::io::BufReader<std::fs::File>>, PrepError> {
-        ImageReader::open(path)
-            .map_err(|source| PrepError::ImageOpen { path: path.into(), source })?
+        let (file, _) =
+            crate::open::regular(path).map_err(|source| PrepError::ImageOpen { path: path.into(), source })?;
+        ImageReader::new(std::io::BufReader::new(file))
             .with_guessed_format()
             .map_err(|source| PrepError::ImageOpen { path: path.into(), source })
     };

@@ -11,7 +11,6 @@ use crate::plan::{ClipTexturePlan, ImageCachePlan, LevelKind, TileLocation};
 use serde::Serialize;
 use std::collections::HashMap;
 use std::fmt::Write;
-use std::fs::File;
 use std::io;
 use std::path::{Path, PathBuf};
 
@@ -133,9 +132,8 @@ pub struct CheckReport {
 type FileState = Result<u64, Problem>;
 
 fn probe(path: &Path) -> FileState {
-    match File::open(path).and_then(|f| f.metadata()) {
-        Ok(m) if m.is_file() => Ok(m.len()),
-        Ok(_) => Err(Problem::Unreadable),
+    match crate::open::regular(path) {
+        Ok((_, m)) => Ok(m.len()),
         Err(e) if e.kind() == io::ErrorKind::NotFound => Err(Problem::Missing),
         Err(_) => Err(Problem::Unreadable),
     }
@@ -148,7 +146,7 @@ fn probe_compressed(path: &Path, tile: u64) -> FileState {
     use std::io::Read;
     let len = probe(path)?;
     let mut head = Vec::with_capacity(18);
-    File::open(path).and_then(|f| f.take(18).read_to_end(&mut head)).map_err(|_| Problem::Unreadable)?;
+    crate::open::regular(path).and_then(|(f, _)| f.take(18).read_to_end(&mut head)).map_err(|_| Problem::Unreadable)?;
     let announced = zstd::zstd_safe::get_frame_content_size(&head);
     let bound = zstd::zstd_safe::compress_bound(tile as usize) as u64;
     match announced {
@@ -159,10 +157,10 @@ fn probe_compressed(path: &Path, tile: u64) -> FileState {
 
 fn check_default(ic: &ImageCachePlan, path: &Path) -> DefaultTileCheck {
     let tile = ic.tile_bytes();
-    let error = match std::fs::metadata(path).and_then(|m| File::open(path).map(|_| m)) {
+    let error = match crate::open::regular(path) {
         Err(e) => Some(e.to_string()),
-        Ok(m) if m.len() == tile || (ic.header_offset > 0 && m.len() == tile + ic.header_offset) => None,
-        Ok(m) => Some(format!("{} bytes: expected {tile} (one tile)", m.len())),
+        Ok((_, m)) if m.len() == tile || (ic.header_offset > 0 && m.len() == tile + ic.header_offset) => None,
+        Ok((_, m)) => Some(format!("{} bytes: expected {tile} (one tile)", m.len())),
     };
     DefaultTileCheck { path: path.to_path_buf(), usable: error.is_none(), error }
 }
@@ -243,9 +241,12 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
         totals.add(&counts);
         levels.push(LevelCheck { level: l.level, kind, size: l.size, counts, default_tile });
     }
+    // A named default tile that cannot be used stops the service from starting (as
+    // `FileSource::new` refuses it), so no tile of the texture can be served then.
+    let defaults_usable = levels.iter().all(|l| l.default_tile.as_ref().is_none_or(|d| d.usable));
     CheckReport {
         path: plan.path.clone(),
-        servable: totals.servable() == totals.tiles,
+        servable: defaults_usable && totals.servable() == totals.tiles,
         levels,
         totals,
         problems,
@@ -294,7 +295,14 @@ pub fn human(r: &CheckReport, quiet: bool) -> String {
     }
     let t = &r.totals;
     if !quiet || !r.servable {
-        let verdict = if r.servable { "every tile can be served" } else { "some tiles cannot be served" };
+        let bad_default = r.levels.iter().any(|l| l.default_tile.as_ref().is_some_and(|d| !d.usable));
+        let verdict = if r.servable {
+            "every tile can be served"
+        } else if bad_default {
+            "a default tile cannot be used, so the texture cannot be served"
+        } else {
+            "some tiles cannot be served"
+        };
         let _ = writeln!(
             o,
             "{}: {} of {} tiles servable ({} present, {} covered by a default tile): {verdict}",

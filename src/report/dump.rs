@@ -319,21 +319,23 @@ impl<'a> IcacheTiles<'a> {
         let expected = plan.tile_bytes();
         let (default, note) = match &plan.default_tile {
             None => (None, None),
-            Some(p) => match std::fs::read(p) {
-                Ok(b) if b.len() as u64 == expected => (Some(b), None),
-                Ok(b) if b.len() as u64 == expected + plan.header_offset => {
-                    (Some(b[plan.header_offset as usize..].to_vec()), None)
+            Some(p) => {
+                let allowed = [expected, expected.saturating_add(plan.header_offset)];
+                match crate::open::read_sized(p, &allowed) {
+                    Ok(b) if b.len() as u64 == expected => (Some(b), None),
+                    Ok(b) => (Some(b[plan.header_offset as usize..].to_vec()), None),
+                    Err(crate::open::SizedError::Length(n)) => (
+                        None,
+                        Some(format!(
+                            "default tile {}: {n} bytes, expected {expected} (one tile); not used",
+                            p.display()
+                        )),
+                    ),
+                    Err(crate::open::SizedError::Io(e)) => {
+                        (None, Some(format!("default tile {}: {e}; not used", p.display())))
+                    }
                 }
-                Ok(b) => (
-                    None,
-                    Some(format!(
-                        "default tile {}: {} bytes, expected {expected} (one tile); not used",
-                        p.display(),
-                        b.len()
-                    )),
-                ),
-                Err(e) => (None, Some(format!("default tile {}: {e}; not used", p.display()))),
-            },
+            }
         };
         (IcacheTiles { plan, default }, note)
     }
@@ -358,7 +360,7 @@ impl<'a> IcacheTiles<'a> {
         if loc.length != out.len() as u64 {
             return Err(SourceError::Corrupt { tile, expected: out.len() as u64, found: loc.length });
         }
-        let f = std::fs::File::open(&loc.path).map_err(|e| crate::source::file::io_error(tile, e))?;
+        let (f, _) = crate::open::regular(&loc.path).map_err(|e| crate::source::file::io_error(tile, e))?;
         crate::source::file::read_stored(&f, &loc.path, tile, loc.offset, out)
     }
 }
