@@ -12,6 +12,8 @@ mod common;
 
 #[path = "hostile/files.rs"]
 mod files;
+#[path = "hostile/images.rs"]
+mod images;
 #[path = "hostile/names.rs"]
 mod names;
 #[path = "hostile/service.rs"]

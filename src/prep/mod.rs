@@ -28,6 +28,7 @@ pub mod configfile;
 pub mod error;
 pub mod filter;
 pub mod inset;
+pub mod jpeg_check;
 pub mod layout;
 pub mod output;
 pub mod pipeline;
