@@ -16,5 +16,7 @@ mod files;
 mod images;
 #[path = "hostile/names.rs"]
 mod names;
+#[path = "hostile/numbers.rs"]
+mod numbers;
 #[path = "hostile/service.rs"]
 mod service;

@@ -314,10 +314,11 @@ fn roam(args: RoamArgs) -> i32 {
             return exit::COULD_NOT_RUN;
         }
     };
-    if args.budget_ms.is_nan() || args.budget_ms < 0.0 {
+    if !(args.budget_ms >= clipmap::limits::MIN_BUDGET_MS) {
         eprintln!(
-            "cliptex roam: --budget-ms {}: expected a number of milliseconds of at least 0, or inf",
-            args.budget_ms
+            "cliptex roam: --budget-ms {}: expected a number of milliseconds of at least {} (MIN_BUDGET_MS; less rounds to no work), or inf",
+            args.budget_ms,
+            clipmap::limits::MIN_BUDGET_MS
         );
         return exit::COULD_NOT_RUN;
     }

@@ -82,6 +82,18 @@ fn plural(n: usize) -> &'static str {
     }
 }
 
+/// Adds an error when a valid plan is not a texture the service and the tools serve (the checks
+/// of [`crate::source::file::texture_desc`]: level chain, tile size and count bounds), so that
+/// `validate`, `check` and `clipmapd` accept the same files.
+fn servable(l: &mut plan::Loaded<plan::ClipTexturePlan>) {
+    if let Some(p) = &l.plan {
+        if let Err(e) = crate::source::file::texture_desc(p) {
+            let message = format!("the clip texture cannot be served: {e}");
+            l.diagnostics.push(crate::config::Diagnostic::new(Severity::Error, "not-servable", &p.path, None, message));
+        }
+    }
+}
+
 /// Validates files of one kind. `strict` turns warnings and portability findings into errors.
 pub fn run(paths: &[PathBuf], kind: FileKind, strict: bool, opts: &Options) -> Report {
     let files: Vec<FileReport> = paths.iter().map(|p| one(p, kind, strict, opts)).collect();
@@ -95,7 +107,10 @@ fn one(path: &Path, kind: FileKind, strict: bool, opts: &Options) -> FileReport 
         (l.diagnostics, rendered)
     }
     let loaded = match kind {
-        FileKind::ClipTexture => plan::load_clip_texture(path, opts).map(|l| finish(l, strict)),
+        FileKind::ClipTexture => plan::load_clip_texture(path, opts).map(|mut l| {
+            servable(&mut l);
+            finish(l, strict)
+        }),
         FileKind::ImageCache => plan::load_image_cache(path, opts).map(|l| finish(l, strict)),
     };
     match loaded {
