@@ -24,6 +24,7 @@
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
 //! | [`accuracy`] | the reference renderer, per-frame accuracy metrics and the speed/accuracy sweep |
 //! | [`sizing`] | memory and bandwidth arithmetic, clip-size and virtual-level recommendations |
+//! | [`save`] | writing a result file completely or not at all (temporary, sync, rename) |
 //! | [`report`] | what the inspection tools print: validation reports, info, tile locations, dumps and pictures |
 //! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
 //!
@@ -47,6 +48,7 @@ pub mod queue;
 pub mod report;
 pub mod roam;
 pub mod sample;
+pub mod save;
 pub mod service;
 pub mod shm;
 pub mod sizing;

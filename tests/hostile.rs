@@ -20,3 +20,5 @@ mod names;
 mod numbers;
 #[path = "hostile/service.rs"]
 mod service;
+#[path = "hostile/writes.rs"]
+mod writes;

@@ -225,7 +225,8 @@ pub fn dump(file: &Path, src: &LevelTiles, region: Option<[u64; 4]>, out: &Path)
     let r = choose_region(src.level, src.size, region, &what)?;
     let (img, tiles, missing) = read_region(src, r);
     let colour = if matches!(img, DynamicImage::ImageRgba8(_)) { "rgba" } else { "rgb" };
-    img.save_with_format(out, image::ImageFormat::Png).map_err(|e| write_error(out, e))?;
+    crate::save::atomically(out, |w| img.write_to(w, image::ImageFormat::Png).map_err(crate::save::image_io))
+        .map_err(|e| write_error(out, e))?;
     Ok(DumpReport {
         file: file.display().to_string(),
         level: src.level,
