@@ -221,6 +221,14 @@ pub enum RoamError {
     OutOfBounds(String),
 }
 
+impl RoamError {
+    /// The exit status ([`crate::report::exit`]): every roam error is a texture or an option
+    /// out of bounds, so the input is bad (1).
+    pub fn exit_code(&self) -> i32 {
+        crate::report::exit::BAD_INPUT
+    }
+}
+
 /// One frame of a roam.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FrameReport {

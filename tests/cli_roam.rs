@@ -169,7 +169,7 @@ fn aligned_centres_copy_strips_a_whole_step_wide_and_only_when_a_level_steps() {
             .chain(["--flight", "hover", "--frames", "2", "--centre-alignment", "0"])
             .collect::<Vec<_>>(),
     );
-    assert_eq!(out.status.code(), Some(2), "{d}");
+    assert_eq!(out.status.code(), Some(1), "{d}");
     assert!(String::from_utf8_lossy(&out.stderr).contains("--centre-alignment"), "{d}");
 }
 
@@ -216,12 +216,12 @@ fn bad_arguments_and_bad_configurations_exit_with_their_codes() {
         cliptex(p, &a)
     };
     let (out, d) = with(&["--flight", "sideways:3"]);
-    assert_eq!(out.status.code(), Some(2), "{d}");
+    assert_eq!(out.status.code(), Some(1), "{d}");
     assert!(String::from_utf8_lossy(&out.stderr).contains("unknown flight `sideways`"), "{d}");
     let (out, d) = with(&["--flight", "straight:1", "--budget-ms", "-3"]);
-    assert_eq!(out.status.code(), Some(2), "{d}");
+    assert_eq!(out.status.code(), Some(1), "{d}");
     let (out, d) = cliptex(p, &["roam", "--source", "hash", "--size", "4096", "--flight", "hover", "--frames", "2"]);
-    assert_eq!(out.status.code(), Some(2), "--source needs --clip\n{d}");
+    assert_eq!(out.status.code(), Some(1), "--source needs --clip\n{d}");
     let (out, d) = cliptex(p, &["roam", "missing.ct", "--flight", "hover", "--frames", "2"]);
     assert_eq!(out.status.code(), Some(2), "an unreadable file\n{d}");
     std::fs::write(p.join("bad.ct"), "ct_version2.0\nclip_size 64\n").unwrap();

@@ -10,6 +10,8 @@
 
 mod common;
 
+#[path = "hostile/exits.rs"]
+mod exits;
 #[path = "hostile/files.rs"]
 mod files;
 #[path = "hostile/images.rs"]

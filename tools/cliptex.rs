@@ -169,13 +169,13 @@ Examples:
   cliptex dump --attach terrain --out-dir pictures
   cliptex dump --attach hash --shm-dir /tmp/maps --out-dir pictures --json
 
-Exit status: 0 written, 1 some tiles could not be read (the picture is written), 2 the tool
-could not run (bad options, unreadable configuration, no such service, unwritable output).")]
+Exit status: 0 written, 1 some tiles could not be read (the picture is written) or bad options,
+2 the tool could not run (unreadable configuration, no such service, unwritable output).")]
     Dump(DumpArgs),
     /// Walk every tile on disk: per level, tiles present, missing, short, unreadable, corrupt (compressed) and covered by the default tile.
     #[command(after_help = "\
-Exit status: 0 every tile can be served (present, or covered by a default tile), 1 some cannot,
-2 the configuration cannot be read (unreadable or invalid).")]
+Exit status: 0 every tile can be served (present, or covered by a default tile), 1 some cannot
+or the configuration is invalid, 2 the configuration cannot be read.")]
     Check {
         /// The .ct file.
         file: PathBuf,
@@ -275,14 +275,14 @@ enum ProceduralArg {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli: Cli = exit::parse();
     ExitCode::from(run(cli) as u8)
 }
 
 fn opts(env: &EnvArgs) -> Result<plan::Options, i32> {
     env.options().map_err(|e| {
         eprintln!("cliptex: {e}");
-        exit::COULD_NOT_RUN
+        exit::BAD_INPUT
     })
 }
 
@@ -311,7 +311,7 @@ fn roam(args: RoamArgs) -> i32 {
         Ok(f) => f,
         Err(e) => {
             eprintln!("cliptex roam: --flight {e}");
-            return exit::COULD_NOT_RUN;
+            return exit::BAD_INPUT;
         }
     };
     if !(args.budget_ms >= clipmap::limits::MIN_BUDGET_MS) {
@@ -320,7 +320,7 @@ fn roam(args: RoamArgs) -> i32 {
             args.budget_ms,
             clipmap::limits::MIN_BUDGET_MS
         );
-        return exit::COULD_NOT_RUN;
+        return exit::BAD_INPUT;
     }
     let options = match (&args.config, args.source) {
         (Some(file), _) => {
@@ -346,13 +346,13 @@ fn roam(args: RoamArgs) -> i32 {
                 Ok(o) => o,
                 Err(e) => {
                     eprintln!("cliptex roam: {e}");
-                    return exit::COULD_NOT_RUN;
+                    return exit::BAD_INPUT;
                 }
             }
         }
         (None, None) => {
             eprintln!("cliptex roam: give a .ct file or --source hash|terrain with --size and --clip");
-            return exit::COULD_NOT_RUN;
+            return exit::BAD_INPUT;
         }
     };
     let mut settings = options.settings;
@@ -375,7 +375,7 @@ fn roam(args: RoamArgs) -> i32 {
         }
         Err(e) => {
             eprintln!("cliptex roam: {e}");
-            exit::COULD_NOT_RUN
+            e.exit_code()
         }
     }
 }
@@ -402,7 +402,7 @@ fn dump(args: DumpArgs) -> i32 {
     }
     let (Some(file), Some(out)) = (&args.config, &args.out) else {
         eprintln!("cliptex dump: give a .ct file with --out FILE.png, or --attach NAME with --out-dir DIR");
-        return exit::COULD_NOT_RUN;
+        return exit::BAD_INPUT;
     };
     let region = match args.region.as_deref().map(dump::parse_region).transpose() {
         Ok(r) => r,
@@ -443,7 +443,7 @@ fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
     use std::io::IsTerminal;
     let plan = match load(file, env) {
         Ok((p, _)) => p,
-        Err(_) => return exit::COULD_NOT_RUN,
+        Err(c) => return c,
     };
     let bar = if !quiet && std::io::stderr().is_terminal() {
         let bar = indicatif::ProgressBar::new(check::tile_count(&plan));

@@ -45,9 +45,13 @@ pub enum DumpError {
 }
 
 impl DumpError {
-    /// The exit status: usage errors and unwritable output are 2.
+    /// The exit status: an unwritable output is 2 (the tool could not run); a region or level
+    /// that does not fit is 1 (the input is bad).
     pub fn exit_code(&self) -> i32 {
-        super::exit::COULD_NOT_RUN
+        match self {
+            DumpError::Write { .. } => super::exit::COULD_NOT_RUN,
+            _ => super::exit::BAD_INPUT,
+        }
     }
 }
 

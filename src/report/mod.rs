@@ -64,12 +64,37 @@ impl EnvArgs {
     }
 }
 
-/// Exit statuses shared by the tools.
+/// Exit statuses shared by the tools: one rule for every tool, carried by the error types
+/// (`exit_code()` on each) and pinned by the hostile-input suite.
 pub mod exit {
     /// Everything is fine.
     pub const OK: i32 = 0;
-    /// The input is bad (invalid configuration, missing data).
+    /// The input is bad: an invalid configuration or image, missing or unreadable tiles, an
+    /// option value out of its bound, a command line that does not parse (usage errors).
     pub const BAD_INPUT: i32 = 1;
-    /// The tool could not run (unreadable file, bad arguments, I/O failure).
+    /// The tool could not run: a file that cannot be opened or read, an output that cannot be
+    /// written (a full disk), a name taken, no service to attach to, an interruption.
     pub const COULD_NOT_RUN: i32 = 2;
+
+    /// The exit status of a command-line parse error: 0 for `--help` and `--version` (which
+    /// clap reports as errors), [`BAD_INPUT`] for usage errors (clap's own default is 2).
+    pub fn of_clap(e: &clap::Error) -> i32 {
+        use clap::error::ErrorKind;
+        match e.kind() {
+            ErrorKind::DisplayHelp | ErrorKind::DisplayVersion => OK,
+            _ => BAD_INPUT,
+        }
+    }
+
+    /// Parses the command line like [`clap::Parser::parse`], but exits by this module's rule:
+    /// a usage error prints clap's message and exits [`BAD_INPUT`].
+    pub fn parse<C: clap::Parser>() -> C {
+        match C::try_parse() {
+            Ok(c) => c,
+            Err(e) => {
+                let _ = e.print();
+                std::process::exit(of_clap(&e));
+            }
+        }
+    }
 }

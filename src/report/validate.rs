@@ -82,13 +82,14 @@ fn plural(n: usize) -> &'static str {
     }
 }
 
-/// Adds an error when a valid plan is not a texture the service and the tools serve (the checks
-/// of [`crate::source::file::texture_desc`]: level chain, tile size and count bounds), so that
-/// `validate`, `check` and `clipmapd` accept the same files.
+/// Adds an error when a valid plan is not one the service serves: the very checks
+/// [`crate::source::FileSource::new`] makes when `clipmapd` starts (level chain, tile size and
+/// count bounds, every default tile a regular file of one tile), so that `validate`, `check` and
+/// `clipmapd` accept the same configurations.
 fn servable(l: &mut plan::Loaded<plan::ClipTexturePlan>) {
     if let Some(p) = &l.plan {
-        if let Err(e) = crate::source::file::texture_desc(p) {
-            let message = format!("the clip texture cannot be served: {e}");
+        if let Err(e) = crate::source::FileSource::new(p.clone(), &crate::limits::Limits::default()) {
+            let message = format!("the service cannot serve it: {e}");
             l.diagnostics.push(crate::config::Diagnostic::new(Severity::Error, "not-servable", &p.path, None, message));
         }
     }
@@ -164,7 +165,7 @@ pub fn cli(args: &ValidateArgs, kind: FileKind, tool: &str) -> i32 {
         Ok(o) => o,
         Err(e) => {
             eprintln!("{tool}: {e}");
-            return super::exit::COULD_NOT_RUN;
+            return super::exit::BAD_INPUT;
         }
     };
     let r = run(&args.files, kind, args.strict, &opts);
