@@ -167,3 +167,42 @@ fn a_default_tile_that_is_a_fifo_or_far_too_large_is_refused_without_hanging() {
         &["1073741824 bytes"],
     );
 }
+
+#[test]
+fn a_compressed_tile_cut_after_its_frame_header_is_corrupt_for_check_and_the_service_alike() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let pyr = d.join("z");
+    let (o, desc) = run(
+        d,
+        super::service::CLIPPREP,
+        &["--source", "hash", "--size", "256", "--tile", "64", "--clip", "64", "--format", "rgb8", "--zstd", "3"]
+            .into_iter()
+            .chain(["--out", pyr.to_str().unwrap()])
+            .collect::<Vec<_>>(),
+    );
+    assert_eq!(o.status.code(), Some(0), "{desc}");
+    // Every level-1 tile cut to half: the frame header (which announces one tile) survives.
+    let l1: Vec<PathBuf> = std::fs::read_dir(pyr.join("L01")).unwrap().map(|e| e.unwrap().path()).collect();
+    assert!(!l1.is_empty());
+    for f in &l1 {
+        let bytes = std::fs::read(f).unwrap();
+        std::fs::write(f, &bytes[..bytes.len() / 2]).unwrap();
+    }
+    let ct = std::fs::read_dir(&pyr)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "ct"))
+        .unwrap();
+    let c = ct.to_str().unwrap();
+    let (o, desc) = run(d, CLIPTEX, &["check", c, "--json"]);
+    assert_eq!(o.status.code(), Some(1), "{desc}");
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(r["levels"][1]["corrupt"].as_u64(), Some(l1.len() as u64), "{desc}");
+    let s = Service::start(d, "zc", &[c], &[]);
+    let t = Instant::now();
+    while s.stats()["engine"]["read_faults"]["corrupt"].as_u64().unwrap_or(0) == 0 && t.elapsed() < LIMIT {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(s.stats()["engine"]["read_faults"]["corrupt"].as_u64().unwrap_or(0) > 0, "{}", s.stats());
+}
