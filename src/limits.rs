@@ -15,6 +15,11 @@ pub const MAX_TILE_BYTES: u64 = 1 << 28;
 /// slots, each with its own bookkeeping): refuses tiny tiles (`--tile 1`) before they multiply.
 pub const MAX_GRID_TILES: u64 = 1 << 16;
 
+/// Farthest a clip centre (and a velocity per tick) may be from the origin, level-0 texels, on
+/// each axis: requests beyond are clamped to it. Far outside any texture (at most 2^26), yet far
+/// from where differences and products of centres overflow 64 bits.
+pub const MAX_CENTRE: i64 = 1 << 40;
+
 /// Most control connections a service may be told to accept at once (`--max-connections`).
 pub const MAX_CONNECTIONS: usize = 4096;
 

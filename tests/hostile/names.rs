@@ -154,3 +154,28 @@ fn shm_mode_gives_exactly_the_permissions_asked_whatever_the_umask() {
         assert_eq!(sock, 0o600, "the control socket stays owner-only");
     }
 }
+
+#[test]
+fn a_group_member_writing_extreme_requests_cannot_crash_the_service() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let s = Service::start(d, "g", &HASH, &["--shm-mode", "660"]);
+    let client = clipmap::shm::Client::attach(d, "g").expect("attach");
+    let t0 = s.stats()["engine"]["ticks"].as_u64().unwrap_or(0);
+    for (centre, velocity) in [
+        ([i64::MIN, i64::MAX], [f64::MAX, -f64::MAX]),
+        ([i64::MAX, i64::MIN], [f64::NAN, f64::INFINITY]),
+        ([-1, 1 << 40], [1e300, -1e300]),
+        ([0, 0], [0.0, 0.0]),
+    ] {
+        client.request_centre(centre, velocity);
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        assert!(
+            s.alive(),
+            "the service died on a request of centre {centre:?}, velocity {velocity:?}:\n{}",
+            std::fs::read_to_string(&s.err).unwrap_or_default()
+        );
+    }
+    let t1 = s.stats()["engine"]["ticks"].as_u64().unwrap_or(0);
+    assert!(t1 > t0, "the service keeps ticking ({t0} -> {t1})");
+}

@@ -113,3 +113,20 @@ fn a_tile_size_of_65536_squared_is_refused_by_validate_and_the_service_alike() {
     let e = fails(d, CLIPMAPD, &[c, "--shm-dir", d.to_str().unwrap(), "--name", "h"], 1, &["MAX_TILE_BYTES"]);
     assert!(!e.contains("memory allocation"), "{e}");
 }
+
+#[test]
+fn a_centre_at_the_ends_of_i64_on_the_socket_is_clamped_not_a_crash() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let s = Service::start(d, "c", &HASH, &[]);
+    for line in [
+        "CENTRE -9223372036854775808 9223372036854775807",
+        "CENTRE 9223372036854775807 -9223372036854775808",
+        "CENTRE 0 0",
+    ] {
+        let r = super::service::ask(&s.socket, line);
+        assert!(r.starts_with("OK"), "{line}: {r}");
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        assert!(s.alive(), "{line}: {}", std::fs::read_to_string(&s.err).unwrap_or_default());
+    }
+}
