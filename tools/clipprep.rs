@@ -132,7 +132,7 @@ struct Cli {
     #[arg(long, value_name = "LEVEL", value_parser = clap::value_parser!(i32).range(1..=22))]
     zstd: Option<i32>,
     /// Memory limit in MiB for a decoded input image and the band cascade.
-    #[arg(long, value_name = "MIB", default_value_t = 512)]
+    #[arg(long, value_name = "MIB", default_value_t = 512, value_parser = clap::value_parser!(u64).range(1..=clipmap::prep::MAX_MEMORY_MIB))]
     max_memory: u64,
 }
 

@@ -42,6 +42,9 @@ pub use inset::{Inset, TileRole};
 pub use layout::{Compression, Layout, Level, LevelKind, Spec, TileLocation};
 pub use pipeline::{run, Job, Source, Summary};
 
+/// Largest `--max-memory`, MiB (16 TiB): a larger value would overflow when turned into bytes.
+pub const MAX_MEMORY_MIB: u64 = 1 << 24;
+
 /// Every memory bound of a preparation run.
 #[derive(Clone, Debug)]
 pub struct Limits {

@@ -130,3 +130,17 @@ fn a_centre_at_the_ends_of_i64_on_the_socket_is_clamped_not_a_crash() {
         assert!(s.alive(), "{line}: {}", std::fs::read_to_string(&s.err).unwrap_or_default());
     }
 }
+
+#[test]
+fn a_max_memory_that_overflows_into_bytes_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let out = d.join("o");
+    let o = out.to_str().unwrap();
+    let base = ["--source", "hash", "--size", "256", "--tile", "64", "--clip", "64", "--format", "rgb8", "--out", o];
+    for bad in ["18446744073709551615", "0"] {
+        let args: Vec<&str> = base.iter().copied().chain(["--max-memory", bad]).collect();
+        fails(d, super::service::CLIPPREP, &args, 1, &["--max-memory", "16777216"]);
+    }
+    assert!(!out.exists());
+}
