@@ -144,3 +144,16 @@ fn a_max_memory_that_overflows_into_bytes_is_refused() {
     }
     assert!(!out.exists());
 }
+
+#[test]
+fn a_clipprep_size_beyond_2_pow_26_is_refused_not_an_overflow() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let out = d.join("o");
+    let args =
+        ["--source", "hash", "--size", "1099511627776", "--tile", "64", "--clip", "64", "--format", "l8", "--out"];
+    let args: Vec<&str> = args.iter().copied().chain([out.to_str().unwrap()]).collect();
+    let err = fails(d, super::service::CLIPPREP, &args, 1, &["MAX_TEXTURE_SIZE"]);
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(!out.exists());
+}
