@@ -8,6 +8,7 @@
 //!
 //! | module | owns |
 //! |---|---|
+//! | [`open`] | the one way to open a file a configuration names: regular files only, never blocking |
 //! | [`config`] | text → syntax tree with a span for every value; no arithmetic, no other files |
 //! | [`plan`] | syntax tree → validated, immutable plan: levels, formats, file names, byte offsets |
 //! | [`texel`] | texel formats, bytes per texel, colour encoding |
@@ -23,6 +24,7 @@
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
 //! | [`accuracy`] | the reference renderer, per-frame accuracy metrics and the speed/accuracy sweep |
 //! | [`sizing`] | memory and bandwidth arithmetic, clip-size and virtual-level recommendations |
+//! | [`save`] | writing a result file completely or not at all (temporary, sync, rename) |
 //! | [`report`] | what the tools print: validation reports, info, tile locations, dumps, pictures and their labels (below the service) |
 //! | [`inspect`] | a running service seen from outside: `cliptex attach` and `dump --attach` (the top of the stack) |
 //! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
@@ -41,12 +43,14 @@ pub mod config;
 pub mod geom;
 pub mod inspect;
 pub mod limits;
+pub mod open;
 pub mod plan;
 pub mod prep;
 pub mod queue;
 pub mod report;
 pub mod roam;
 pub mod sample;
+pub mod save;
 pub mod service;
 pub mod shm;
 pub mod sizing;

@@ -222,6 +222,17 @@ pub enum RoamError {
     /// The clipmap could not start.
     #[error(transparent)]
     Clip(#[from] ClipError),
+    /// A number out of its bound.
+    #[error("{0}")]
+    OutOfBounds(String),
+}
+
+impl RoamError {
+    /// The exit status ([`crate::report::exit`]): every roam error is a texture or an option
+    /// out of bounds, so the input is bad (1).
+    pub fn exit_code(&self) -> i32 {
+        crate::report::exit::BAD_INPUT
+    }
 }
 
 /// One frame of a roam.
@@ -290,6 +301,18 @@ pub struct RoamReport {
 
 /// Flies `options.flight` for `options.frames` frames.
 pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
+    use crate::limits::{MAX_ROAM_FRAMES, MIN_BUDGET_MS};
+    if options.frames > MAX_ROAM_FRAMES {
+        return Err(RoamError::OutOfBounds(format!(
+            "--frames {}: expected at most {MAX_ROAM_FRAMES} (MAX_ROAM_FRAMES)",
+            options.frames
+        )));
+    }
+    if let Some(ms) = options.budget_ms.filter(|ms| !(*ms >= MIN_BUDGET_MS)) {
+        return Err(RoamError::OutOfBounds(format!(
+            "--budget-ms {ms}: expected at least {MIN_BUDGET_MS} (MIN_BUDGET_MS; less rounds to no work), or `inf`"
+        )));
+    }
     let desc = options.source.desc().clone();
     let mut settings = options.settings;
     settings.budget_ns = options.budget_ms.map(|ms| (ms.max(0.0) * 1e6) as u64);
@@ -301,7 +324,8 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
     let size = desc.size();
     let start = options.start.unwrap_or([(size[0] / 2) as i64, (size[1] / 2) as i64]);
     let startf = [start[0] as f64, start[1] as f64];
-    let mut frames = Vec::with_capacity(options.frames as usize);
+    // Grown as frames are flown, never reserved from the unchecked count.
+    let mut frames = Vec::with_capacity(options.frames.min(4096) as usize);
     let mut totals = Totals::default();
     let fps = options.fps.filter(|f| f.is_finite() && *f > 0.0 && !options.wait_for_reads);
     let pacing = match (options.wait_for_reads, fps) {

@@ -109,7 +109,7 @@ Examples:
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli: Cli = clipmap::report::exit::parse();
     let code = match cli.command {
         Command::Accuracy { quick, out, json, quiet, format } => accuracy(
             quick,

@@ -180,12 +180,15 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
     let (source, default_name) = match (&cli.config, cli.source) {
         (Some(path), _) => {
             let o = cli.env.options().map_err(|e| Failure(exit::COULD_NOT_RUN, anyhow::anyhow!(e)))?;
-            let loaded = plan::load_clip_texture(path, &o).map_err(|e| Failure(exit::COULD_NOT_RUN, e.into()))?;
+            // Displayed once: the error's text already holds its source.
+            let loaded =
+                plan::load_clip_texture(path, &o).map_err(|e| Failure(exit::COULD_NOT_RUN, anyhow::anyhow!("{e}")))?;
             eprint!("{}", loaded.render_from(clipmap::config::Severity::Warning));
             let Some(plan) = loaded.plan else {
                 return Err(bad(anyhow::anyhow!("{} is not a valid clip texture configuration", path.display())));
             };
-            let src = FileSource::new(plan, &clipmap::limits::Limits::default()).map_err(bad)?;
+            let src =
+                FileSource::new(plan, &clipmap::limits::Limits::default()).map_err(|e| bad(anyhow::anyhow!("{e}")))?;
             let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "clip".into());
             (Arc::new(src) as Arc<dyn clipmap::source::TileSource>, stem)
         }
@@ -213,7 +216,7 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli: Cli = exit::parse();
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     // Colour codes only for a person at a terminal, never into a log file or a pipe.

@@ -73,8 +73,8 @@ Examples:
   clipprep --source terrain --size 8192 --tile 256 --clip 512 --format rgb8 \\
            --inset 2048,2048,4096,4096 --inset-level 2 --out inset
 
-Exit codes: 0 ok; 1 bad input (arguments, image, existing output); 2 could not run (disk full,
-write error, interrupted, command-line syntax).";
+Exit codes: 0 ok; 1 bad input (arguments and command-line syntax, image, existing output);
+2 could not run (disk full, write error, interrupted).";
 
 /// Prepares a clip texture: a tiled pyramid in Performer's raw tile layout plus its .ct and .ic
 /// configuration files, with relative paths so the directory can be moved.
@@ -159,7 +159,7 @@ struct Cli {
     #[arg(long, value_name = "LEVEL", value_parser = clap::value_parser!(i32).range(1..=22))]
     zstd: Option<i32>,
     /// Memory limit in MiB for a decoded input image and the band cascade.
-    #[arg(long, value_name = "MIB", default_value_t = 512)]
+    #[arg(long, value_name = "MIB", default_value_t = 512, value_parser = clap::value_parser!(u64).range(1..=clipmap::prep::MAX_MEMORY_MIB))]
     max_memory: u64,
 }
 
@@ -344,7 +344,7 @@ fn watch_signals(flag: Arc<AtomicBool>) -> anyhow::Result<()> {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli: Cli = clipmap::report::exit::parse();
     let cancel = Arc::new(AtomicBool::new(false));
     if let Err(e) = watch_signals(cancel.clone()) {
         eprintln!("clipprep: warning: {e:#}; Ctrl-C will stop the run without cleaning up");

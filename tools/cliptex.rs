@@ -215,8 +215,8 @@ Examples:
   cliptex dump --attach terrain --out-dir pictures
   cliptex dump --attach hash --shm-dir /tmp/maps --out-dir pictures --json
 
-Exit status: 0 written, 1 some tiles could not be read (the picture is written), 2 the tool
-could not run (bad options, unreadable configuration, no such service, unwritable output).")]
+Exit status: 0 written, 1 some tiles could not be read (the picture is written) or bad options,
+2 the tool could not run (unreadable configuration, no such service, unwritable output).")]
     Dump(DumpArgs),
     /// Walk every tile on disk: per level, tiles present, missing, short, unreadable, corrupt (compressed) and covered by the default tile.
     #[command(after_help = "\
@@ -225,8 +225,8 @@ Examples:
   cliptex check my.ct --json > check.json
   cliptex check my.ct --quiet --env DATA=/mnt/terrain     # in CI: problems and the verdict only
 
-Exit status: 0 every tile can be served (present, or covered by a default tile), 1 some cannot,
-2 the configuration cannot be read (unreadable or invalid).")]
+Exit status: 0 every tile can be served (present, or covered by a default tile), 1 some cannot
+or the configuration is invalid, 2 the configuration cannot be read.")]
     Check {
         /// The .ct file.
         file: PathBuf,
@@ -330,19 +330,21 @@ enum ProceduralArg {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli: Cli = exit::parse();
     ExitCode::from(run(cli) as u8)
 }
 
-/// `--budget-ms`: milliseconds of at least 0, or `inf` / `off` for no limit.
+/// `--budget-ms`: milliseconds of at least `MIN_BUDGET_MS` (less rounds to no work), or `inf` /
+/// `off` for no limit.
 fn parse_budget_ms(text: &str) -> Result<f64, String> {
     if text.trim().eq_ignore_ascii_case("off") {
         return Ok(f64::INFINITY);
     }
+    let min = clipmap::limits::MIN_BUDGET_MS;
     match text.trim().parse::<f64>() {
-        Ok(ms) if ms >= 0.0 => Ok(ms),
+        Ok(ms) if ms >= min => Ok(ms),
         _ => Err(format!(
-            "`{text}` is not a budget: expected a number of milliseconds of at least 0, or inf (or off) for no limit"
+            "`{text}` is not a budget: expected a number of milliseconds of at least {min} (MIN_BUDGET_MS; less rounds to no work), or inf (or off) for no limit"
         )),
     }
 }
@@ -397,13 +399,13 @@ fn roam(args: RoamArgs) -> i32 {
                 Ok(o) => o,
                 Err(e) => {
                     eprintln!("cliptex roam: {e}");
-                    return exit::COULD_NOT_RUN;
+                    return exit::BAD_INPUT;
                 }
             }
         }
         (None, None) => {
             eprintln!("cliptex roam: give a .ct file or --source hash|terrain with --size and --clip");
-            return exit::COULD_NOT_RUN;
+            return exit::BAD_INPUT;
         }
     };
     let mut settings = options.settings;
@@ -423,7 +425,7 @@ fn roam(args: RoamArgs) -> i32 {
         }
         Err(e) => {
             eprintln!("cliptex roam: {e}");
-            exit::COULD_NOT_RUN
+            e.exit_code()
         }
     }
 }
@@ -451,7 +453,7 @@ fn dump(args: DumpArgs) -> i32 {
     }
     let (Some(file), Some(out)) = (&args.config, &args.out) else {
         eprintln!("cliptex dump: give a .ct file with --out FILE.png, or --attach NAME with --out-dir DIR");
-        return exit::COULD_NOT_RUN;
+        return exit::BAD_INPUT;
     };
     let region = args.region;
     let plan = match load(file, &args.env) {
@@ -489,7 +491,7 @@ fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
     use std::io::IsTerminal;
     let plan = match load(file, env) {
         Ok((p, _)) => p,
-        Err(_) => return exit::COULD_NOT_RUN,
+        Err(c) => return c,
     };
     let bar = if !quiet && std::io::stderr().is_terminal() {
         let bar = indicatif::ProgressBar::new(check::tile_count(&plan));

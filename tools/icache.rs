@@ -66,8 +66,8 @@ Examples:
   icache dump level0.ic --out level0.png
   icache dump level0.ic --region 2048,2048,4096,4096 --out part.png --json
 
-Exit status: 0 written, 1 some tiles could not be read or the .ic is invalid (the picture is
-written when the .ic is valid), 2 the tool could not run (bad options, unwritable output).")]
+Exit status: 0 written, 1 some tiles could not be read, the .ic is invalid or an option is bad (the
+picture is written when the .ic is valid), 2 the tool could not run (unreadable .ic, unwritable output).")]
     Dump {
         /// The .ic file.
         file: PathBuf,
@@ -115,7 +115,7 @@ Exit status: 0 found, 1 no such tile or an invalid .ic, 2 the tool could not run
 }
 
 fn main() -> ExitCode {
-    ExitCode::from(run(Cli::parse()) as u8)
+    ExitCode::from(run(exit::parse()) as u8)
 }
 
 fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clipmap::config::Diagnostic>), i32> {

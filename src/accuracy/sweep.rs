@@ -297,7 +297,10 @@ pub fn write_samples(dir: &Path, quick: bool) -> Result<Vec<String>, StudyError>
         if let Some((want, got, diff, levels)) = images {
             for (suffix, img) in [("reference", want), ("clipmap", got), ("diff32", diff), ("levels", levels)] {
                 let file = format!("{name}_{suffix}.png");
-                img.save(dir.join(&file)).map_err(|e| StudyError::Io(e.to_string()))?;
+                crate::save::atomically(&dir.join(&file), |w| {
+                    img.write_to(w, image::ImageFormat::Png).map_err(crate::save::image_io)
+                })
+                .map_err(|e| StudyError::Io(e.to_string()))?;
                 written.push(file);
             }
         }

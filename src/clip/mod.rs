@@ -383,7 +383,11 @@ impl Clipmap {
     ) -> TickReport {
         self.tick += 1;
         self.stats.ticks += 1;
-        let centre = self.clamp_centre(centre);
+        // Whatever a renderer asked for (any i64 through the mapping or the socket): bounded
+        // before any arithmetic, so that no difference or product of them can overflow.
+        let far = crate::limits::MAX_CENTRE;
+        let centre = self.clamp_centre(centre.map(|c| c.clamp(-far, far)));
+        let velocity = velocity.map(|v| v.map(|x| x.clamp(-far, far)));
         let velocity = velocity.unwrap_or_else(|| self.centre.map_or([0, 0], |c| [centre[0] - c[0], centre[1] - c[1]]));
         self.centre = Some(centre);
         let mut report = TickReport { centre, ..TickReport::default() };

@@ -87,10 +87,11 @@ pub struct LiveDump {
 }
 
 fn save(img: &RgbImage, path: PathBuf) -> Result<String, LiveDumpError> {
-    img.save_with_format(&path, image::ImageFormat::Png).map_err(|e| LiveDumpError::Write {
-        path: path.clone(),
-        message: format!("{e}; check the permissions of --out-dir"),
-    })?;
+    crate::save::atomically(&path, |w| img.write_to(w, image::ImageFormat::Png).map_err(crate::save::image_io))
+        .map_err(|e| LiveDumpError::Write {
+            path: path.clone(),
+            message: format!("{e}; check the permissions of --out-dir"),
+        })?;
     Ok(path.display().to_string())
 }
 

@@ -257,12 +257,9 @@ impl ClipTexturePlan {
 }
 
 fn read_source(path: &Path, limits: &Limits) -> std::io::Result<Vec<u8>> {
-    use std::io::Read;
-    let f = std::fs::File::open(path)?;
-    let mut buf = Vec::new();
-    // Read one byte more than the limit so the parser can say the file is too large.
-    f.take(limits.max_file_bytes as u64 + 1).read_to_end(&mut buf)?;
-    Ok(buf)
+    // Regular files only, never blocking; one byte more than the limit so the parser can say
+    // the file is too large.
+    crate::open::read_bounded(path, limits.max_file_bytes as u64)
 }
 
 /// The absolute form of a path (without resolving symbolic links in the file name itself).

@@ -66,7 +66,7 @@ pub enum PrepError {
         wider: String,
     },
     /// The image is too large to decode into memory and cannot be streamed.
-    #[error("the input image {path} is {width}x{height} ({mib} MiB decoded), over the in-memory limit of {limit_mib} MiB; only TIFF images (8/16-bit, chunky) are streamed: convert it to a tiled TIFF, or raise --max-memory")]
+    #[error("the input image {path} is {width}x{height} ({mib} MiB decoded), over the in-memory limit of {limit_mib} MiB; raise --max-memory to at least {mib} (MiB), or convert it to a TIFF that is streamed: 8- or 16-bit grey, grey+alpha, RGB or RGBA samples, interleaved (chunky), in tiles or strips of at most {} rows", (limit_mib << 20) / (16 * (*width).max(1)))]
     ImageTooLarge {
         /// The image.
         path: PathBuf,

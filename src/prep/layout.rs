@@ -159,6 +159,13 @@ impl Layout {
             return Err(PrepError::Geometry(format!("texel format {} has no byte size", spec.format)));
         }
         let (w, h) = (spec.width, spec.height);
+        let max = crate::source::MAX_TEXTURE_SIZE;
+        if w > max || h > max || spec.tile > max {
+            return Err(PrepError::Geometry(format!(
+                "the texture is {w}x{h} with {} texel tiles; expected each at most {max} (MAX_TEXTURE_SIZE, 2^26) texels; pass a smaller --size or --tile",
+                spec.tile
+            )));
+        }
         let (long, short) = (w.max(h), w.min(h));
         if spec.clip > short {
             return Err(PrepError::Geometry(format!(

@@ -28,6 +28,7 @@ pub mod configfile;
 pub mod error;
 pub mod filter;
 pub mod inset;
+pub mod jpeg_check;
 pub mod layout;
 pub mod output;
 pub mod pipeline;
@@ -40,6 +41,9 @@ pub use filter::Filter;
 pub use inset::{Inset, TileRole};
 pub use layout::{Compression, Layout, Level, LevelKind, Spec, TileLocation};
 pub use pipeline::{run, Job, Source, Summary};
+
+/// Largest `--max-memory`, MiB (16 TiB): a larger value would overflow when turned into bytes.
+pub const MAX_MEMORY_MIB: u64 = 1 << 24;
 
 /// Every memory bound of a preparation run.
 #[derive(Clone, Debug)]

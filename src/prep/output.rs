@@ -74,6 +74,24 @@ fn sibling(dir: &Path, tag: &str) -> PathBuf {
     parent.join(format!(".{name}.clipprep-{tag}-{}", std::process::id()))
 }
 
+/// Removes what killed runs for the same output left beside it: `.NAME.clipprep-partial-PID`
+/// directories whose process is gone (a live one, another run in progress, is left alone).
+fn remove_stale(parent: &Path, dir: &Path) {
+    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+    let prefix = format!(".{name}.clipprep-partial-");
+    let Ok(entries) = fs::read_dir(parent) else { return };
+    for e in entries.flatten() {
+        let file_name = e.file_name();
+        let Some(pid) = file_name.to_str().and_then(|n| n.strip_prefix(&prefix)) else { continue };
+        let Ok(pid) = pid.parse::<u32>() else { continue };
+        let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
+        if is_dir && pid != std::process::id() && !Path::new(&format!("/proc/{pid}")).exists() {
+            tracing::info!(path = %e.path().display(), "removing the partial output of a run that was killed");
+            let _ = fs::remove_dir_all(e.path());
+        }
+    }
+}
+
 impl Staging {
     /// Checks that `dir` may be written and creates the temporary sibling directory.
     pub fn begin(dir: &Path, force: bool) -> Result<Staging, PrepError> {
@@ -81,6 +99,7 @@ impl Staging {
         let tmp = sibling(dir, "partial");
         if let Some(parent) = tmp.parent() {
             fs::create_dir_all(parent).map_err(|e| write_err(parent, e))?;
+            remove_stale(parent, dir);
         }
         if tmp.exists() {
             fs::remove_dir_all(&tmp).map_err(|e| write_err(&tmp, e))?;

@@ -178,9 +178,7 @@ pub fn run(
         create_dir(&root.join(d), total)?;
     }
     let ct_name = format!("{}.ct", job.name);
-    write_file(&root.join(&ct_name), &ct_text(layout, &job.description), total)?;
     for level in layout.image_cache_levels() {
-        write_file(&root.join(Layout::ic_file(level.index)), &ic_text(layout, level, &ct_name), total)?;
         if layout.sparse(level).is_some() {
             let zeros = vec![0u8; (level.tile_w * level.tile_h * layout.bpt()) as usize];
             let path = root.join(Layout::default_tile_file(level.index));
@@ -258,6 +256,12 @@ pub fn run(
     }
     drop(writers);
     let border_tiles = write_borders(root, layout, total)?;
+    // The configuration files last, once every tile is written: a run stopped before this point
+    // leaves no `.ct` or `.ic` that would validate over missing tiles.
+    for level in layout.image_cache_levels() {
+        write_file(&root.join(Layout::ic_file(level.index)), &ic_text(layout, level, &ct_name), total)?;
+    }
+    write_file(&root.join(&ct_name), &ct_text(layout, &job.description), total)?;
     let (mut inset_tiles, mut absent_tiles) = (0, 0);
     for level in &layout.levels {
         if let Some(sp) = layout.sparse(level) {

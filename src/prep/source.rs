@@ -248,10 +248,21 @@ fn decode_error(path: &Path, e: impl std::fmt::Display) -> PrepError {
     PrepError::ImageDecode { path: path.to_path_buf(), message: e.to_string() }
 }
 
+/// Refuses an image whose decoder would accept it cut short: a JPEG is walked from its SOI to
+/// its EOI marker ([`super::jpeg_check`]); PNG and TIFF decoders find truncation themselves.
+fn check_whole(path: &Path, limits: &Limits) -> Result<(), PrepError> {
+    let open_err = |source| PrepError::ImageOpen { path: path.into(), source };
+    let bytes = crate::open::read_bounded(path, limits.max_memory_bytes).map_err(open_err)?;
+    if super::jpeg_check::is_jpeg(&bytes) && bytes.len() as u64 <= limits.max_memory_bytes {
+        super::jpeg_check::check(&bytes).map_err(|m| decode_error(path, m))?;
+    }
+    Ok(())
+}
+
 /// Opens an image: TIFF images with a streamable layout are streamed; anything else is decoded
 /// into memory if it fits `limits.max_memory_bytes`.
 pub fn open_image(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepError> {
-    let file = std::fs::File::open(path).map_err(|source| PrepError::ImageOpen { path: path.into(), source })?;
+    let (file, _) = crate::open::regular(path).map_err(|source| PrepError::ImageOpen { path: path.into(), source })?;
     drop(file);
     if let Some(stream) = TiffStream::try_open(path, limits)? {
         let (width, height) = stream.dimensions();
@@ -268,8 +279,9 @@ pub fn open_image(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepError
         });
     }
     let reader = || -> Result<ImageReader<std::io::BufReader<std::fs::File>>, PrepError> {
-        ImageReader::open(path)
-            .map_err(|source| PrepError::ImageOpen { path: path.into(), source })?
+        let (file, _) =
+            crate::open::regular(path).map_err(|source| PrepError::ImageOpen { path: path.into(), source })?;
+        ImageReader::new(std::io::BufReader::new(file))
             .with_guessed_format()
             .map_err(|source| PrepError::ImageOpen { path: path.into(), source })
     };
@@ -289,6 +301,7 @@ pub fn open_image(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepError
             limit_mib: limits.max_memory_bytes >> 20,
         });
     }
+    check_whole(path, limits)?;
     let mut r = reader()?;
     let mut il = image::Limits::default();
     il.max_alloc = Some(limits.max_memory_bytes.saturating_mul(2));

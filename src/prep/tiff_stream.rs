@@ -45,7 +45,7 @@ fn err(path: &Path, e: impl std::fmt::Display) -> PrepError {
 
 fn is_tiff(path: &Path) -> bool {
     let mut magic = [0u8; 4];
-    File::open(path).and_then(|mut f| f.read_exact(&mut magic)).is_ok()
+    crate::open::regular(path).and_then(|(mut f, _)| f.read_exact(&mut magic)).is_ok()
         && matches!(&magic, b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+")
 }
 
@@ -66,7 +66,8 @@ impl TiffStream {
 
     /// Opens a TIFF; samples == 0 marks a layout that cannot be streamed.
     pub fn open(path: &Path) -> Result<TiffStream, PrepError> {
-        let file = File::open(path).map_err(|source| PrepError::ImageOpen { path: path.into(), source })?;
+        let (file, _) =
+            crate::open::regular(path).map_err(|source| PrepError::ImageOpen { path: path.into(), source })?;
         let mut decoder = Decoder::new(BufReader::new(file)).map_err(|e| err(path, e))?;
         let (width, height) = decoder.dimensions().map_err(|e| err(path, e))?;
         let planar: Option<u16> = decoder.find_tag_unsigned(Tag::PlanarConfiguration).map_err(|e| err(path, e))?;

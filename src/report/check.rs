@@ -1,17 +1,17 @@
 //! `cliptex check`: can the data on disk serve every tile a clip texture names?
 //!
 //! Owns walking every tile of every level through the plan's file names and byte offsets and
-//! sorting each into present, missing, short, unreadable or (compressed tiles whose zstd frame
-//! header does not announce one tile) corrupt, and telling which missing or short
-//! tiles an image cache's default tile covers (as [`crate::source::FileSource`] would serve
-//! them). It looks at file sizes and permissions, opening each file once; it does not read
-//! texels. Printing is the tool's business, apart from the text rendering here.
+//! sorting each into present, missing, short, unreadable or (compressed tiles that do not decode
+//! to one tile) corrupt, and telling which missing or short tiles an image cache's default tile
+//! covers (as [`crate::source::FileSource`] would serve them). It opens each file once, the way
+//! the service does ([`crate::open::regular`]); it looks at the sizes of raw tile files without
+//! reading their texels, and decodes every compressed tile as the service would. Printing is
+//! the tool's business, apart from the text rendering here.
 
 use crate::plan::{ClipTexturePlan, ImageCachePlan, LevelKind, TileLocation};
 use serde::Serialize;
 use std::collections::HashMap;
 use std::fmt::Write;
-use std::fs::File;
 use std::io;
 use std::path::{Path, PathBuf};
 
@@ -28,7 +28,7 @@ pub enum Problem {
     Short,
     /// Its file exists but cannot be opened.
     Unreadable,
-    /// Its file is a compressed tile (`.raw.zst`) whose zstd frame does not announce one tile.
+    /// Its file is a compressed tile (`.raw.zst`) that does not decode to exactly one tile.
     Corrupt,
 }
 
@@ -133,36 +133,39 @@ pub struct CheckReport {
 type FileState = Result<u64, Problem>;
 
 fn probe(path: &Path) -> FileState {
-    match File::open(path).and_then(|f| f.metadata()) {
-        Ok(m) if m.is_file() => Ok(m.len()),
-        Ok(_) => Err(Problem::Unreadable),
+    match crate::open::regular(path) {
+        Ok((_, m)) => Ok(m.len()),
         Err(e) if e.kind() == io::ErrorKind::NotFound => Err(Problem::Missing),
         Err(_) => Err(Problem::Unreadable),
     }
 }
 
-/// A compressed tile file (docs/COMPRESSED-TILES.md): its length, when the zstd frame header at
-/// its start announces exactly `tile` bytes and the file is no longer than such a frame can be.
-/// Reads the frame header only, not the texels.
-fn probe_compressed(path: &Path, tile: u64) -> FileState {
-    use std::io::Read;
-    let len = probe(path)?;
-    let mut head = Vec::with_capacity(18);
-    File::open(path).and_then(|f| f.take(18).read_to_end(&mut head)).map_err(|_| Problem::Unreadable)?;
-    let announced = zstd::zstd_safe::get_frame_content_size(&head);
-    let bound = zstd::zstd_safe::compress_bound(tile as usize) as u64;
-    match announced {
-        Ok(Some(n)) if n == tile && len <= bound => Ok(len),
-        _ => Err(Problem::Corrupt),
+/// A compressed tile file (docs/COMPRESSED-TILES.md): its length, when it decodes to exactly
+/// one `tile`-byte tile. Decoded the very way the service reads it
+/// ([`crate::source::file::read_stored`]), so that `check` and the service agree on which
+/// frames are good; `buf` is reused between files.
+fn probe_compressed(path: &Path, offset: u64, tile: u64, buf: &mut Vec<u8>) -> FileState {
+    use crate::source::{SourceError, TileId};
+    let (file, meta) = match crate::open::regular(path) {
+        Ok(f) => f,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(Problem::Missing),
+        Err(_) => return Err(Problem::Unreadable),
+    };
+    buf.resize(tile as usize, 0);
+    match crate::source::file::read_stored(&file, path, TileId::new(0, 0, 0), offset, buf) {
+        Ok(()) => Ok(meta.len()),
+        Err(SourceError::Undecodable { .. }) => Err(Problem::Corrupt),
+        Err(SourceError::Missing { .. }) => Err(Problem::Missing),
+        Err(_) => Err(Problem::Unreadable),
     }
 }
 
 fn check_default(ic: &ImageCachePlan, path: &Path) -> DefaultTileCheck {
     let tile = ic.tile_bytes();
-    let error = match std::fs::metadata(path).and_then(|m| File::open(path).map(|_| m)) {
+    let error = match crate::open::regular(path) {
         Err(e) => Some(e.to_string()),
-        Ok(m) if m.len() == tile || (ic.header_offset > 0 && m.len() == tile + ic.header_offset) => None,
-        Ok(m) => Some(format!("{} bytes: expected {tile} (one tile)", m.len())),
+        Ok((_, m)) if m.len() == tile || (ic.header_offset > 0 && m.len() == tile + ic.header_offset) => None,
+        Ok((_, m)) => Some(format!("{} bytes: expected {tile} (one tile)", m.len())),
     };
     DefaultTileCheck { path: path.to_path_buf(), usable: error.is_none(), error }
 }
@@ -187,6 +190,7 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
     let mut not_listed = 0u64;
     let mut levels = Vec::with_capacity(plan.levels.len());
     let mut totals = Counts::default();
+    let mut scratch = Vec::new();
     for l in &plan.levels {
         let mut counts = Counts::default();
         let (kind, default_tile, tiles) = match &l.kind {
@@ -206,9 +210,9 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
                 let loc: Option<TileLocation> = plan.locate(l.level, s, t).ok();
                 let state = match &loc {
                     None => Err(Problem::Missing),
-                    Some(loc) if crate::source::file::is_compressed(&loc.path) => {
-                        *files.entry(loc.path.clone()).or_insert_with(|| probe_compressed(&loc.path, loc.length))
-                    }
+                    Some(loc) if crate::source::file::is_compressed(&loc.path) => *files
+                        .entry(loc.path.clone())
+                        .or_insert_with(|| probe_compressed(&loc.path, loc.offset, loc.length, &mut scratch)),
                     Some(loc) => {
                         let len = *files.entry(loc.path.clone()).or_insert_with(|| probe(&loc.path));
                         len.and_then(|len| {
@@ -246,9 +250,12 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
         totals.add(&counts);
         levels.push(LevelCheck { level: l.level, kind, size: l.size, counts, default_tile });
     }
+    // A named default tile that cannot be used stops the service from starting (as
+    // `FileSource::new` refuses it), so no tile of the texture can be served then.
+    let defaults_usable = levels.iter().all(|l| l.default_tile.as_ref().is_none_or(|d| d.usable));
     CheckReport {
         path: plan.path.clone(),
-        servable: totals.servable() == totals.tiles,
+        servable: defaults_usable && totals.servable() == totals.tiles,
         levels,
         totals,
         problems,
@@ -297,7 +304,14 @@ pub fn human(r: &CheckReport, quiet: bool) -> String {
     }
     let t = &r.totals;
     if !quiet || !r.servable {
-        let verdict = if r.servable { "every tile can be served" } else { "some tiles cannot be served" };
+        let bad_default = r.levels.iter().any(|l| l.default_tile.as_ref().is_some_and(|d| !d.usable));
+        let verdict = if r.servable {
+            "every tile can be served"
+        } else if bad_default {
+            "a default tile cannot be used, so the texture cannot be served"
+        } else {
+            "some tiles cannot be served"
+        };
         let _ = writeln!(
             o,
             "{}: {} of {} tiles servable ({} present, {} covered by a default tile): {verdict}",

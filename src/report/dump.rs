@@ -47,9 +47,13 @@ pub enum DumpError {
 }
 
 impl DumpError {
-    /// The exit status: usage errors and unwritable output are 2.
+    /// The exit status: an unwritable output is 2 (the tool could not run); a region or level
+    /// that does not fit is 1 (the input is bad).
     pub fn exit_code(&self) -> i32 {
-        super::exit::COULD_NOT_RUN
+        match self {
+            DumpError::Write { .. } => super::exit::COULD_NOT_RUN,
+            _ => super::exit::BAD_INPUT,
+        }
     }
 }
 
@@ -275,7 +279,8 @@ pub fn dump(file: &Path, src: &LevelTiles, region: Option<[u64; 4]>, out: &Path)
     let r = choose_region(src.level, src.size, region, &what)?;
     let (img, tiles, missing) = read_region(src, r);
     let colour = colour_of(&img);
-    img.save_with_format(out, image::ImageFormat::Png).map_err(|e| write_error(out, e))?;
+    crate::save::atomically(out, |w| img.write_to(w, image::ImageFormat::Png).map_err(crate::save::image_io))
+        .map_err(|e| write_error(out, e))?;
     Ok(DumpReport {
         file: file.display().to_string(),
         level: src.level,
@@ -369,21 +374,23 @@ impl<'a> IcacheTiles<'a> {
         let expected = plan.tile_bytes();
         let (default, note) = match &plan.default_tile {
             None => (None, None),
-            Some(p) => match std::fs::read(p) {
-                Ok(b) if b.len() as u64 == expected => (Some(b), None),
-                Ok(b) if b.len() as u64 == expected + plan.header_offset => {
-                    (Some(b[plan.header_offset as usize..].to_vec()), None)
+            Some(p) => {
+                let allowed = [expected, expected.saturating_add(plan.header_offset)];
+                match crate::open::read_sized(p, &allowed) {
+                    Ok(b) if b.len() as u64 == expected => (Some(b), None),
+                    Ok(b) => (Some(b[plan.header_offset as usize..].to_vec()), None),
+                    Err(crate::open::SizedError::Length(n)) => (
+                        None,
+                        Some(format!(
+                            "default tile {}: {n} bytes, expected {expected} (one tile); not used",
+                            p.display()
+                        )),
+                    ),
+                    Err(crate::open::SizedError::Io(e)) => {
+                        (None, Some(format!("default tile {}: {e}; not used", p.display())))
+                    }
                 }
-                Ok(b) => (
-                    None,
-                    Some(format!(
-                        "default tile {}: {} bytes, expected {expected} (one tile); not used",
-                        p.display(),
-                        b.len()
-                    )),
-                ),
-                Err(e) => (None, Some(format!("default tile {}: {e}; not used", p.display()))),
-            },
+            }
         };
         (IcacheTiles { plan, default }, note)
     }
@@ -408,7 +415,7 @@ impl<'a> IcacheTiles<'a> {
         if loc.length != out.len() as u64 {
             return Err(SourceError::Corrupt { tile, expected: out.len() as u64, found: loc.length });
         }
-        let f = std::fs::File::open(&loc.path).map_err(|e| crate::source::file::io_error(tile, e))?;
+        let (f, _) = crate::open::regular(&loc.path).map_err(|e| crate::source::file::io_error(tile, e))?;
         crate::source::file::read_stored(&f, &loc.path, tile, loc.offset, out)
     }
 }

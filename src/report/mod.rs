@@ -85,8 +85,8 @@ impl EnvArgs {
 
     /// Loads a `.ct` the way every subcommand of `cliptex` does: warnings and errors rendered on
     /// standard error, `tool: FILE is not a valid ...` after errors. `ct_only` reads the `.ct`
-    /// alone. `Err` is the exit status: 2 when the file (or an `--env`) cannot be read, 1 when it
-    /// is invalid.
+    /// alone. `Err` is the exit status: 2 when the file cannot be read, 1 when it (or an
+    /// `--env`) is invalid.
     pub fn load_clip_texture(
         &self,
         file: &std::path::Path,
@@ -116,11 +116,11 @@ impl EnvArgs {
         finish_load(loaded, file, tool, "image cache")
     }
 
-    /// Reader options, or exit status 2 with the reason on standard error.
+    /// Reader options, or exit status 1 (a bad `--env` value) with the reason on standard error.
     pub fn reader_options(&self, tool: &str) -> Result<Options, i32> {
         self.options().map_err(|e| {
             eprintln!("{tool}: {e}");
-            exit::COULD_NOT_RUN
+            exit::BAD_INPUT
         })
     }
 }
@@ -142,12 +142,37 @@ fn finish_load<T>(
     }
 }
 
-/// Exit statuses shared by the tools.
+/// Exit statuses shared by the tools: one rule for every tool, carried by the error types
+/// (`exit_code()` on each) and pinned by the hostile-input suite.
 pub mod exit {
     /// Everything is fine.
     pub const OK: i32 = 0;
-    /// The input is bad (invalid configuration, missing data).
+    /// The input is bad: an invalid configuration or image, missing or unreadable tiles, an
+    /// option value out of its bound, a command line that does not parse (usage errors).
     pub const BAD_INPUT: i32 = 1;
-    /// The tool could not run (unreadable file, bad arguments, I/O failure).
+    /// The tool could not run: a file that cannot be opened or read, an output that cannot be
+    /// written (a full disk), a name taken, no service to attach to, an interruption.
     pub const COULD_NOT_RUN: i32 = 2;
+
+    /// The exit status of a command-line parse error: 0 for `--help` and `--version` (which
+    /// clap reports as errors), [`BAD_INPUT`] for usage errors (clap's own default is 2).
+    pub fn of_clap(e: &clap::Error) -> i32 {
+        use clap::error::ErrorKind;
+        match e.kind() {
+            ErrorKind::DisplayHelp | ErrorKind::DisplayVersion => OK,
+            _ => BAD_INPUT,
+        }
+    }
+
+    /// Parses the command line like [`clap::Parser::parse`], but exits by this module's rule:
+    /// a usage error prints clap's message and exits [`BAD_INPUT`].
+    pub fn parse<C: clap::Parser>() -> C {
+        match C::try_parse() {
+            Ok(c) => c,
+            Err(e) => {
+                let _ = e.print();
+                std::process::exit(of_clap(&e));
+            }
+        }
+    }
 }

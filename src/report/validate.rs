@@ -113,6 +113,19 @@ fn plural(n: usize) -> &'static str {
     }
 }
 
+/// Adds an error when a valid plan is not one the service serves: the very checks
+/// [`crate::source::FileSource::new`] makes when `clipmapd` starts (level chain, tile size and
+/// count bounds, every default tile a regular file of one tile), so that `validate`, `check` and
+/// `clipmapd` accept the same configurations.
+fn servable(l: &mut plan::Loaded<plan::ClipTexturePlan>) {
+    if let Some(p) = &l.plan {
+        if let Err(e) = crate::source::FileSource::new(p.clone(), &crate::limits::Limits::default()) {
+            let message = format!("the service cannot serve it: {e}");
+            l.diagnostics.push(crate::config::Diagnostic::new(Severity::Error, "not-servable", &p.path, None, message));
+        }
+    }
+}
+
 /// Validates files of one kind. `strict` turns warnings and portability findings into errors.
 pub fn run(paths: &[PathBuf], kind: FileKind, strict: bool, opts: &Options) -> Report {
     let files: Vec<FileReport> = paths.iter().map(|p| one(p, kind, strict, opts)).collect();
@@ -127,8 +140,12 @@ fn one(path: &Path, kind: FileKind, strict: bool, opts: &Options) -> FileReport 
         (l.diagnostics, rendered, named)
     }
     let loaded = match kind {
-        FileKind::ClipTexture => plan::load_clip_texture(path, opts).map(|l| {
+        FileKind::ClipTexture => plan::load_clip_texture(path, opts).map(|mut l| {
             let named = opts.ct_only.then(|| l.plan.as_ref().map(named_icaches).unwrap_or_default());
+            // A .ct-only plan is never served: whether its levels can be is for the full check.
+            if !opts.ct_only {
+                servable(&mut l);
+            }
             finish(l, strict, named)
         }),
         FileKind::ImageCache => plan::load_image_cache(path, opts).map(|l| finish(l, strict, None)),

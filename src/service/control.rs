@@ -10,7 +10,8 @@ use super::protocol::{self, Request};
 use super::stats::{ControlCounters, ServiceStats};
 use super::ticker::{Command, Started, Ticker};
 use super::{ControlLimits, ServiceError};
-use std::os::unix::fs::{DirBuilderExt, FileTypeExt, PermissionsExt};
+use crate::shm::names::{self, Identity};
+use std::os::unix::fs::{DirBuilderExt, FileTypeExt, MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
@@ -45,24 +46,31 @@ impl Context {
 }
 
 /// Binds `path` as an owner-only socket: bound inside a fresh 0700 directory, made 0600, then
-/// renamed into place, so it is never reachable with wider permissions. A stale socket left by a
-/// crash is replaced; a live one (something accepts connections) is refused.
-pub fn bind(path: &Path) -> Result<UnixListener, ServiceError> {
+/// renamed into place (never over anything that is there), so it is never reachable with wider
+/// permissions. A stale socket of this user left by a crash (connecting is refused) is replaced;
+/// a live one, one of another user, or anything that is not a socket is refused and left alone.
+/// Returns the listener and the socket's identity, for removing it (and only it) at the end.
+pub fn bind(path: &Path) -> Result<(UnixListener, Identity), ServiceError> {
     let err = |source| ServiceError::Socket { path: path.to_path_buf(), source };
+    let in_use = |why: String| ServiceError::SocketInUse { path: path.to_path_buf(), why };
     if let Ok(meta) = std::fs::symlink_metadata(path) {
+        let who = names::owner(meta.uid());
         if !meta.file_type().is_socket() {
-            return Err(ServiceError::SocketInUse {
-                path: path.to_path_buf(),
-                why: "it exists and is not a socket".into(),
-            });
+            return Err(in_use(format!(
+                "it exists and is {} owned by {who}, not a socket",
+                crate::open::kind_of(&meta)
+            )));
         }
-        if std::os::unix::net::UnixStream::connect(path).is_ok() {
-            return Err(ServiceError::SocketInUse {
-                path: path.to_path_buf(),
-                why: "another process accepts connections on it".into(),
-            });
+        match std::os::unix::net::UnixStream::connect(path) {
+            Ok(_) => {
+                return Err(in_use(format!("another process accepts connections on it (the socket is owned by {who})")))
+            }
+            Err(_) if meta.uid() != names::euid() => {
+                return Err(in_use(format!("it is a socket owned by {who}, not by this service's user")))
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => std::fs::remove_file(path).map_err(err)?,
+            Err(e) => return Err(in_use(format!("cannot tell whether a service listens on it ({e})"))),
         }
-        std::fs::remove_file(path).map_err(err)?;
     }
     let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
@@ -71,11 +79,16 @@ pub fn bind(path: &Path) -> Result<UnixListener, ServiceError> {
     let tmp = tmp_dir.join("s");
     let bound = std::os::unix::net::UnixListener::bind(&tmp)
         .and_then(|l| std::fs::set_permissions(&tmp, std::fs::Permissions::from_mode(0o600)).map(|_| l))
-        .and_then(|l| std::fs::rename(&tmp, path).map(|_| l))
-        .and_then(|l| l.set_nonblocking(true).map(|_| l));
+        .and_then(|l| std::fs::symlink_metadata(&tmp).map(|m| (l, Identity::of(&m))))
+        .and_then(|(l, id)| names::rename_no_replace(&tmp, path).map(|_| (l, id)))
+        .and_then(|(l, id)| l.set_nonblocking(true).map(|_| (l, id)));
     let _ = std::fs::remove_file(&tmp);
     let _ = std::fs::remove_dir(&tmp_dir);
-    UnixListener::from_std(bound.map_err(err)?).map_err(err)
+    let (listener, id) = bound.map_err(|e| match e.kind() {
+        std::io::ErrorKind::AlreadyExists => in_use("another process created it while this one started".into()),
+        _ => err(e),
+    })?;
+    Ok((UnixListener::from_std(listener).map_err(err)?, id))
 }
 
 /// Accepts connections until `stop` turns true, then closes every connection.

@@ -151,7 +151,8 @@ fn fly(shm_dir: &Path, o: &DemoOptions) -> Result<(Vec<PathBuf>, u32), ServiceEr
 }
 
 fn save(img: &RgbImage, path: PathBuf) -> Result<PathBuf, ServiceError> {
-    img.save(&path).map_err(|e| ServiceError::Output { path: path.clone(), message: e.to_string() })?;
+    crate::save::atomically(&path, |w| img.write_to(w, image::ImageFormat::Png).map_err(crate::save::image_io))
+        .map_err(|e| ServiceError::Output { path: path.clone(), message: e.to_string() })?;
     Ok(path)
 }
 

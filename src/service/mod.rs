@@ -155,7 +155,7 @@ pub async fn run(
         drop(ticker);
         let _ = tokio::task::spawn_blocking(move || join.join()).await;
     };
-    let listener = match control::bind(&options.socket) {
+    let (listener, socket_id) = match control::bind(&options.socket) {
         Ok(l) => l,
         Err(e) => {
             stop_ticker(ticker, join).await;
@@ -195,7 +195,7 @@ pub async fn run(
     let stats = ctx.stats();
     drop(ctx);
     stop_ticker(ticker, join).await;
-    let _ = std::fs::remove_file(&options.socket);
+    crate::shm::names::remove_if_same(&options.socket, socket_id);
     tracing::info!(ticks = stats.tick.engine.ticks, "stopped");
     if died {
         return Err(ServiceError::TickLoopDied);

@@ -4,6 +4,7 @@
 //! Owns defaults and validation only; reading a command line is the binary's business.
 
 use super::ServiceError;
+use crate::limits::{MAX_CONNECTIONS, MAX_IDLE_MS, MIN_BUDGET_MS};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -93,8 +94,11 @@ impl Options {
             ));
         }
         if let Some(ms) = self.budget_ms {
-            if !(ms.is_finite() && ms > 0.0 && ms <= super::protocol::MAX_BUDGET_MS) {
-                return bad(format!("--budget-ms {ms}: expected more than 0 and at most 10000"));
+            if !(ms.is_finite() && ms >= MIN_BUDGET_MS && ms <= super::protocol::MAX_BUDGET_MS) {
+                return bad(format!(
+                    "--budget-ms {ms}: expected at least {MIN_BUDGET_MS} (MIN_BUDGET_MS; less rounds to no work) and at most {} milliseconds, or `off`",
+                    super::protocol::MAX_BUDGET_MS
+                ));
             }
         }
         if self.shm_mode & !0o666 != 0 || self.shm_mode & 0o600 != 0o600 {
@@ -111,8 +115,22 @@ impl Options {
             return bad(format!("--shm-dir {}: not a directory", self.shm_dir.display()));
         }
         let c = &self.control;
-        if c.max_line < 16 || c.max_connections == 0 || c.idle.is_zero() {
-            return bad(format!("control limits {c:?}: too small"));
+        if c.max_connections == 0 || c.max_connections > MAX_CONNECTIONS {
+            return bad(format!(
+                "--max-connections {}: expected 1 to {MAX_CONNECTIONS} (MAX_CONNECTIONS)",
+                c.max_connections
+            ));
+        }
+        if c.idle.is_zero() || c.idle.as_millis() > MAX_IDLE_MS as u128 {
+            return bad(format!(
+                "--idle-ms {}: expected 1 to {MAX_IDLE_MS} (MAX_IDLE_MS, one day)",
+                c.idle.as_millis()
+            ));
+        }
+        if c.max_line < 16 || c.max_line > 1 << 20 || c.reply_timeout.is_zero() {
+            return bad(format!(
+                "control limits {c:?}: expected a line limit of 16 bytes to 1 MiB and a reply timeout"
+            ));
         }
         Ok(())
     }

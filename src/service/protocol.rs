@@ -66,10 +66,13 @@ pub fn parse(line: &[u8]) -> Result<Request, String> {
                 return Ok(Request::Budget(None));
             }
             match args[0].parse::<f64>() {
-                Ok(ms) if ms.is_finite() && ms > 0.0 && ms <= MAX_BUDGET_MS => Ok(Request::Budget(Some(ms))),
+                Ok(ms) if ms.is_finite() && ms >= crate::limits::MIN_BUDGET_MS && ms <= MAX_BUDGET_MS => {
+                    Ok(Request::Budget(Some(ms)))
+                }
                 _ => Err(format!(
-                    "BUDGET: `{}` is not a number of milliseconds in (0, {MAX_BUDGET_MS}] or `off`",
-                    clip(args[0])
+                    "BUDGET: `{}` is not a number of milliseconds in [{}, {MAX_BUDGET_MS}] or `off`",
+                    clip(args[0]),
+                    crate::limits::MIN_BUDGET_MS
                 )),
             }
         }

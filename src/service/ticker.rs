@@ -262,7 +262,10 @@ impl Runner {
             if req.count != self.last_request {
                 self.last_request = req.count;
                 self.centre = req.centre;
-                let per_tick = |v: f64| if v.is_finite() { (v / self.hz).round() as i64 } else { 0 };
+                // Anything a renderer (or a member of the mapping's group) wrote: bounded to a
+                // texture's width per tick before the engine does arithmetic with it.
+                let max = crate::source::MAX_TEXTURE_SIZE as f64;
+                let per_tick = |v: f64| if v.is_finite() { (v / self.hz).round().clamp(-max, max) as i64 } else { 0 };
                 let v = [per_tick(req.velocity[0]), per_tick(req.velocity[1])];
                 self.velocity = (v != [0, 0]).then_some(v);
                 self.stats.requests_seen = req.count;

@@ -11,6 +11,7 @@
 pub mod client;
 pub mod layout;
 pub mod mirror;
+pub mod names;
 pub mod raw;
 pub mod verify;
 pub mod writer;
@@ -33,6 +34,23 @@ pub enum ShmError {
         name: String,
         /// Its process id, as recorded in the lock file (0 when unknown).
         pid: u32,
+    },
+    /// The name's lock file is locked by a process that records no live process id: not a
+    /// service of ours (a squatter), so no pid is given.
+    #[error("{}: locked by another process that is not a running service (the file records {}); stop that process or choose another --name", path.display(), if recorded.is_empty() { "nothing".to_string() } else { format!("`{recorded}`") })]
+    LockHeld {
+        /// The lock file.
+        path: PathBuf,
+        /// What the file records (at most a few bytes).
+        recorded: String,
+    },
+    /// A name in the shared directory is taken by something the service will not use or remove.
+    #[error("{}: {why}", path.display())]
+    Foreign {
+        /// The file.
+        path: PathBuf,
+        /// What it is and who owns it.
+        why: String,
     },
     /// The name is not usable in a file name.
     #[error("invalid name `{0}`: use 1 to 64 letters, digits, `-`, `_` or `.`")]

@@ -4,12 +4,11 @@
 
 use super::layout::{self, desc, header, request, state, Placement, Shape};
 use super::raw::Region;
-use super::{check_name, io, lock_path, map_path, ShmError};
+use super::{check_name, io, lock_path, map_path, names, ShmError};
 use crate::clip::WindowStore;
 use crate::texel::TexelFormat;
-use std::fs::{File, OpenOptions};
-use std::io::Write;
-use std::os::unix::fs::OpenOptionsExt;
+use std::fs::File;
+use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{fence, Ordering};
 use std::sync::Arc;
@@ -46,6 +45,8 @@ pub struct Writer {
     path: PathBuf,
     lock_path: PathBuf,
     _lock: File,
+    lock_id: names::Identity,
+    map_id: names::Identity,
     tick: u64,
 }
 
@@ -74,37 +75,57 @@ impl Writer {
             ))
         })?;
         let lock_path = lock_path(dir, name);
-        let mut lock = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .mode(mode)
-            .open(&lock_path)
-            .map_err(io(&lock_path))?;
+        let lock = open_lock(&lock_path, mode)?;
         match lock.try_lock() {
             Ok(()) => {}
-            Err(std::fs::TryLockError::WouldBlock) => {
-                let pid = std::fs::read_to_string(&lock_path).ok().and_then(|s| s.trim().parse().ok()).unwrap_or(0);
-                return Err(ShmError::AlreadyRunning { name: name.to_string(), pid });
-            }
+            Err(std::fs::TryLockError::WouldBlock) => return Err(held(&lock, &lock_path, name)),
             Err(std::fs::TryLockError::Error(e)) => return Err(ShmError::Io { path: lock_path, source: e }),
         }
+        // Ours (checked by `open_lock`) and locked by us: record our pid, nothing else.
         lock.set_len(0).map_err(io(&lock_path))?;
-        write!(lock, "{}", std::process::id()).map_err(io(&lock_path))?;
+        lock.write_all_at(std::process::id().to_string().as_bytes(), 0).map_err(io(&lock_path))?;
+        let lock_id = names::Identity::of(&lock.metadata().map_err(io(&lock_path))?);
 
         let path = map_path(dir, name);
-        let tmp = dir.join(format!(".clipmap-{name}.map.{}", std::process::id()));
-        let _ = std::fs::remove_file(&tmp);
-        let file =
-            OpenOptions::new().read(true).write(true).create_new(true).mode(mode).open(&tmp).map_err(io(&tmp))?;
-        file.set_len(placement.total_bytes).map_err(io(&tmp))?;
-        let region = Region::map(&file).map_err(io(&tmp))?;
-        let w =
-            Writer { region: Arc::new(region), placement, shape, path: path.clone(), lock_path, _lock: lock, tick: 0 };
+        let (tmp, file) = create_tmp(dir, name, mode)?;
+        let made = (|| {
+            file.set_len(placement.total_bytes).map_err(io(&tmp))?;
+            let region = Region::map(&file).map_err(io(&tmp))?;
+            let id = names::Identity::of(&file.metadata().map_err(io(&tmp))?);
+            Ok::<_, ShmError>((region, id))
+        })();
+        let (region, map_id) = match made {
+            Ok(r) => r,
+            Err(e) => {
+                let _ = std::fs::remove_file(&tmp);
+                return Err(e);
+            }
+        };
+        let w = Writer {
+            region: Arc::new(region),
+            placement,
+            shape,
+            path: path.clone(),
+            lock_path,
+            _lock: lock,
+            lock_id,
+            map_id,
+            tick: 0,
+        };
         w.init(format);
         // Visible under its name only once complete; readers of a previous mapping keep theirs.
-        std::fs::rename(&tmp, &path).map_err(io(&path))?;
+        // A previous mapping is replaced only when it is a regular file of this user (a dead
+        // service's); anything else there is refused and left alone.
+        let placed = match std::fs::symlink_metadata(&path) {
+            Ok(m) => names::check_own_file(&path, &m).and_then(|()| std::fs::rename(&tmp, &path).map_err(io(&path))),
+            Err(_) => names::rename_no_replace(&tmp, &path).map_err(io(&path)),
+        };
+        if let Err(e) = placed {
+            let _ = std::fs::remove_file(&tmp);
+            // The lock file is ours and held: leave it for the next start (it is not removed,
+            // so a service starting meanwhile never holds a lock on an unlinked file).
+            return Err(e);
+        }
         Ok(w)
     }
 
@@ -262,9 +283,50 @@ impl Writer {
     pub fn close(self) {
         self.region.write(header::FLAGS, &1u32.to_le_bytes());
         self.region.store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
-        let _ = std::fs::remove_file(&self.path);
-        let _ = std::fs::remove_file(&self.lock_path);
+        names::remove_if_same(&self.path, self.map_id);
+        names::remove_if_same(&self.lock_path, self.lock_id);
     }
+}
+
+/// Opens (creating it with exactly `mode` if absent) the lock file of a name: never through a
+/// symbolic link, never a file that is not a regular file of this user.
+fn open_lock(path: &Path, mode: u32) -> Result<File, ShmError> {
+    match names::create_new(path, mode) {
+        Ok(f) => Ok(f),
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => names::open_own(path),
+        Err(e) => Err(ShmError::Io { path: path.to_path_buf(), source: e }),
+    }
+}
+
+/// The error for a lock somebody else holds: the service it names when the pid it records is a
+/// live process, else a squatter that is named as such (no invented pid).
+fn held(lock: &File, path: &Path, name: &str) -> ShmError {
+    let mut buf = [0u8; 24];
+    let n = lock.read_at(&mut buf, 0).unwrap_or(0);
+    let recorded = String::from_utf8_lossy(&buf[..n]).trim().to_string();
+    match recorded.parse::<u32>() {
+        Ok(pid) if pid > 0 && Path::new(&format!("/proc/{pid}")).exists() => {
+            ShmError::AlreadyRunning { name: name.to_string(), pid }
+        }
+        _ => ShmError::LockHeld { path: path.to_path_buf(), recorded },
+    }
+}
+
+/// Creates the mapping's temporary file `.clipmap-NAME.map.PID.N` with exactly `mode`, never
+/// replacing (or removing) a file that is already there: another number is tried instead.
+fn create_tmp(dir: &Path, name: &str, mode: u32) -> Result<(PathBuf, File), ShmError> {
+    let pid = std::process::id();
+    let mut last = None;
+    for n in 0..16 {
+        let tmp = dir.join(format!(".clipmap-{name}.map.{pid}.{n}"));
+        match names::create_new(&tmp, mode) {
+            Ok(f) => return Ok((tmp, f)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last = Some((tmp, e)),
+            Err(e) => return Err(ShmError::Io { path: tmp, source: e }),
+        }
+    }
+    let (path, source) = last.expect("tried at least once");
+    Err(ShmError::Io { path, source })
 }
 
 /// A level's window inside the mapping, as engine memory.

@@ -48,6 +48,12 @@ pub enum DescError {
     /// A zero tile edge.
     #[error("level {level} has tile size {tile:?}: each edge must be at least 1")]
     TileSize { level: u32, tile: [u64; 2] },
+    /// A stack level whose tiles are larger than one read may be.
+    #[error("level {level} has {tile:?}-texel tiles of {bytes} bytes: expected at most {} bytes (MAX_TILE_BYTES) per tile; choose smaller tiles", crate::limits::MAX_TILE_BYTES)]
+    TileTooLarge { level: u32, tile: [u64; 2], bytes: u64 },
+    /// A stack level whose clip window spans more tiles than a level's tile grid may hold.
+    #[error("level {level}'s clip window of {clip} texels spans at least {tiles} tiles of {tile:?} texels: expected at most {} (MAX_GRID_TILES); choose larger tiles", crate::limits::MAX_GRID_TILES)]
+    TooManyTiles { level: u32, clip: u64, tile: [u64; 2], tiles: u64 },
     /// An invalid border leaving nothing of the clip window to read.
     #[error("invalid border {border} leaves nothing of clip size {clip}: expected at most {max}")]
     Border { border: u64, clip: u64, max: u64 },
@@ -126,6 +132,20 @@ impl TextureDesc {
             }
             if l.tile[0] == 0 || l.tile[1] == 0 {
                 return Err(DescError::TileSize { level: k as u32, tile: l.tile });
+            }
+            let stack = l.size[0] > clip_size || l.size[1] > clip_size;
+            if stack {
+                let bytes = l.tile[0].saturating_mul(l.tile[1]).saturating_mul(bytes as u64);
+                if bytes > crate::limits::MAX_TILE_BYTES {
+                    return Err(DescError::TileTooLarge { level: k as u32, tile: l.tile, bytes });
+                }
+                // The fewest tiles a window of the clip size can touch at any alignment.
+                let across =
+                    |a: usize| (clip_size.min(l.size[a]).div_ceil(l.tile[a]) + 1).min(l.size[a].div_ceil(l.tile[a]));
+                let tiles = across(0).saturating_mul(across(1));
+                if tiles > crate::limits::MAX_GRID_TILES {
+                    return Err(DescError::TooManyTiles { level: k as u32, clip: clip_size, tile: l.tile, tiles });
+                }
             }
         }
         let mem_grids = vec![None; levels.len()];

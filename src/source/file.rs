@@ -206,18 +206,17 @@ pub fn texture_desc(plan: &ClipTexturePlan) -> Result<TextureDesc, FileSourceErr
     Ok(desc.with_invalid_border(border).map_err(desc_err)?.with_mem_grids(grids))
 }
 
-/// Reads an image cache's default tile: exactly one tile, or one tile after the header.
+/// Reads an image cache's default tile: exactly one tile, or one tile after the header. Only a
+/// regular file of one of those two lengths is read (never more than a tile and its header).
 fn read_default(level: u32, ic: &ImageCachePlan, path: &Path) -> Result<Arc<[u8]>, FileSourceError> {
-    let read_err = |source| FileSourceError::DefaultTileRead { level, path: path.to_path_buf(), source };
-    let bytes = std::fs::read(path).map_err(read_err)?;
     let expected = ic.tile_bytes();
-    let found = bytes.len() as u64;
-    let start = if found == expected {
-        0
-    } else if ic.header_offset > 0 && found == expected + ic.header_offset {
-        ic.header_offset as usize
-    } else {
-        return Err(FileSourceError::DefaultTileSize {
+    let with_header = expected.saturating_add(ic.header_offset);
+    let allowed: &[u64] = if ic.header_offset > 0 { &[expected, with_header] } else { &[expected] };
+    let bytes = crate::open::read_sized(path, allowed).map_err(|e| match e {
+        crate::open::SizedError::Io(source) => {
+            FileSourceError::DefaultTileRead { level, path: path.to_path_buf(), source }
+        }
+        crate::open::SizedError::Length(found) => FileSourceError::DefaultTileSize {
             level,
             path: path.to_path_buf(),
             found,
@@ -225,8 +224,9 @@ fn read_default(level: u32, ic: &ImageCachePlan, path: &Path) -> Result<Arc<[u8]
             w: ic.tile_size[0],
             h: ic.tile_size[1],
             header: ic.header_offset,
-        });
-    };
+        },
+    })?;
+    let start = if bytes.len() as u64 == expected { 0 } else { ic.header_offset as usize };
     Ok(Arc::from(&bytes[start..]))
 }
 
@@ -313,12 +313,14 @@ impl FileSource {
         }
     }
 
-    /// An open handle to `path`, from the open set or newly opened (outside the lock).
+    /// An open handle to `path`, from the open set or newly opened (outside the lock): only a
+    /// regular file ([`crate::open::regular`]), so a tile that is a FIFO or a device is a failed
+    /// read, never a blocked read slot or device bytes served as texels.
     fn handle(&self, path: &Path) -> io::Result<Arc<File>> {
         if let Some(f) = self.handles.lock().unwrap_or_else(|e| e.into_inner()).cached(path) {
             return Ok(f);
         }
-        let file = Arc::new(File::open(path)?);
+        let file = Arc::new(crate::open::regular(path)?.0);
         self.files_opened.fetch_add(1, Ordering::Relaxed);
         self.handles.lock().unwrap_or_else(|e| e.into_inner()).insert(path, Arc::clone(&file));
         Ok(file)

@@ -132,9 +132,9 @@ fn validate_exit_statuses() {
     out.check(out.stdout.contains("cannot be read"), "says why");
     run(CLIPTEX, &["info", &s.rel("missing.ct")], s.cwd()).status(2);
     run(ICACHE, &["validate", "nope.ic"], s.cwd()).status(2);
-    // Bad arguments.
-    run(CLIPTEX, &["validate"], s.cwd()).status(2);
-    run(CLIPTEX, &["info", &s.rel("x.ct"), "--env", "NOEQUALS"], s.cwd()).status(2);
+    // Bad arguments: the command line is input too (docs/RELIABILITY.md).
+    run(CLIPTEX, &["validate"], s.cwd()).status(1);
+    run(CLIPTEX, &["info", &s.rel("x.ct"), "--env", "NOEQUALS"], s.cwd()).status(1);
 }
 
 #[test]
@@ -440,7 +440,7 @@ fn ct_only_checks_a_ct_whose_ic_files_are_absent_and_lists_them_resolved() {
     assert_eq!(levels[3]["tile_size"], serde_json::json!([512, 512]));
     assert_eq!(levels[3]["icache_opened"], true);
     // A .ct-only plan is never served or walked: `check` opens every .ic and says what is missing.
-    run(CLIPTEX, &["check", &ct, "--env", &env], s.cwd()).status(2);
+    run(CLIPTEX, &["check", &ct, "--env", &env], s.cwd()).status(1);
 }
 
 #[test]
@@ -480,7 +480,7 @@ fn plan_of_a_non_square_texture_equals_the_level_by_level_formula() {
     let out = run(CLIPTEX, &["plan", "--size", "8192x2000"], s.cwd());
     out.status(1);
     out.check(out.stderr.contains("texture height"), "names the height");
-    run(CLIPTEX, &["plan", "--size", "8192y2048"], s.cwd()).status(2);
+    run(CLIPTEX, &["plan", "--size", "8192y2048"], s.cwd()).status(1);
 
     // `plan FILE.ct`: the .ct's sizes, clip and texel bytes, its .ic files not needed.
     let ct = format!("{ROOT}/config_examples/non_square.ct");
@@ -497,8 +497,8 @@ fn plan_of_a_non_square_texture_equals_the_level_by_level_formula() {
     // An option overrides what the .ct says.
     let j = run(CLIPTEX, &["plan", &ct, "--clip", "256", "--json"], s.cwd()).status(0).json();
     assert_eq!(num_u128(&j["clipmap_texels"]), formula(8192, 2048, 256).0);
-    // A .ct and --size together are a usage error; an invalid .ct is bad input.
-    run(CLIPTEX, &["plan", &ct, "--size", "1024"], s.cwd()).status(2);
+    // A .ct and --size together are a usage error; an invalid .ct is bad input (both exit 1).
+    run(CLIPTEX, &["plan", &ct, "--size", "1024"], s.cwd()).status(1);
     s.conf.write("bad.ct", "ct_version2.0\nclip_size 500\n");
     run(CLIPTEX, &["plan", &s.rel("bad.ct")], s.cwd()).status(1);
 }

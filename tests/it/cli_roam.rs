@@ -169,7 +169,7 @@ fn aligned_centres_copy_strips_a_whole_step_wide_and_only_when_a_level_steps() {
             .chain(["--flight", "hover", "--frames", "2", "--centre-alignment", "0"])
             .collect::<Vec<_>>(),
     );
-    assert_eq!(out.status.code(), Some(2), "{d}");
+    assert_eq!(out.status.code(), Some(1), "{d}");
     assert!(String::from_utf8_lossy(&out.stderr).contains("--centre-alignment"), "{d}");
 }
 
@@ -216,12 +216,12 @@ fn bad_arguments_and_bad_configurations_exit_with_their_codes() {
         cliptex(p, &a)
     };
     let (out, d) = with(&["--flight", "sideways:3"]);
-    assert_eq!(out.status.code(), Some(2), "{d}");
+    assert_eq!(out.status.code(), Some(1), "{d}");
     assert!(String::from_utf8_lossy(&out.stderr).contains("unknown flight `sideways`"), "{d}");
     let (out, d) = with(&["--flight", "straight:1", "--budget-ms", "-3"]);
-    assert_eq!(out.status.code(), Some(2), "{d}");
+    assert_eq!(out.status.code(), Some(1), "{d}");
     let (out, d) = cliptex(p, &["roam", "--source", "hash", "--size", "4096", "--flight", "hover", "--frames", "2"]);
-    assert_eq!(out.status.code(), Some(2), "--source needs --clip\n{d}");
+    assert_eq!(out.status.code(), Some(1), "--source needs --clip\n{d}");
     let (out, d) = cliptex(p, &["roam", "missing.ct", "--flight", "hover", "--frames", "2"]);
     assert_eq!(out.status.code(), Some(2), "an unreadable file\n{d}");
     std::fs::write(p.join("bad.ct"), "ct_version2.0\nclip_size 64\n").unwrap();
@@ -249,7 +249,7 @@ fn by_default_a_straight_flight_runs_on_a_frame_clock_and_its_levels_come_in_as_
     assert!(enabled * 2 > tail.len(), "most of the last 30 frames have every level: {enabled} of 30\n{r}");
     assert!(tail.iter().any(|f| f["min_lod"].as_f64() == Some(0.0)), "level 0 is shown");
     // --fps 0 is the old back-to-back run, reported as such; --fps with --wait-for-reads is a
-    // usage error, as is a rate that is no rate.
+    // usage error (exit 1, bad input), as is a rate that is no rate.
     let r = roam_json(dir.path(), &[&args[..], &["--frames", "3", "--fps", "0"]].concat());
     assert_eq!((r["pacing"].as_str(), r["fps"].is_null()), (Some("back_to_back"), true), "{r}");
     let r = roam_json(dir.path(), &[&args[..], &["--frames", "3", "--wait-for-reads"]].concat());
@@ -257,7 +257,7 @@ fn by_default_a_straight_flight_runs_on_a_frame_clock_and_its_levels_come_in_as_
     for bad in [&["--fps", "30", "--wait-for-reads"][..], &["--fps", "-1"], &["--fps", "inf"]] {
         let all = [&["roam"][..], &args[..], &["--frames", "2"], bad].concat();
         let (out, d) = cliptex(dir.path(), &all);
-        assert_eq!(out.status.code(), Some(2), "{d}");
+        assert_eq!(out.status.code(), Some(1), "{d}");
     }
 }
 

@@ -23,9 +23,20 @@ fn level_ic_named_dev_zero_was_read_without_a_size_limit() {
     let t = Instant::now();
     let l = plan::load_clip_texture(&fx.path("z.ct"), &o).unwrap();
     assert!(t.elapsed() < Duration::from_secs(10));
+    // A device is refused before anything is read (src/open.rs: regular files only).
+    let x = find(&l.diagnostics, "icache-file-unreadable");
+    assert_eq!(x.severity, Severity::Error);
+    assert!(x.message.contains("a character device, not a regular file"), "{}", x.message);
+    // A regular file far over the limit is read up to the limit only.
+    let big = fx.path("big.ic");
+    std::fs::File::create(&big).unwrap().set_len(1 << 30).unwrap();
+    fx.write("b.ct", format!("ct_version2.0\n{RGB8}virt_size 1024 1024 1\nclip_size 512\nicache_files big.ic\n"));
+    let t = Instant::now();
+    let l = plan::load_clip_texture(&fx.path("b.ct"), &o).unwrap();
+    assert!(t.elapsed() < Duration::from_secs(10));
     let x = find(&l.diagnostics, "file-too-large");
     assert_eq!(x.severity, Severity::Error);
-    assert!(x.path.ends_with("zero"));
+    assert!(x.path.ends_with("big.ic"));
     assert!(x.message.contains("65537 bytes"), "{}", x.message);
 }
 

@@ -27,5 +27,6 @@ mod config_plan;
 mod config_tokens;
 mod examples;
 mod fuzz_regressions;
+mod hostile;
 mod sixteen_bit;
 mod stability;

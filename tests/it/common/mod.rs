@@ -237,3 +237,57 @@ pub fn exec(cwd: &Path, prog: &str, args: &[&str]) -> (Output, String) {
     );
     (out, d)
 }
+
+/// Like [`exec`], but the program is killed after `limit` and the test fails saying it hung, so
+/// that a regression to a hang fails instead of hanging the suite. `envs` are set for it.
+pub fn exec_bounded(
+    cwd: &Path,
+    prog: &str,
+    args: &[&str],
+    envs: &[(&str, &str)],
+    limit: std::time::Duration,
+) -> (Output, String) {
+    use std::process::Stdio;
+    let mut child = Command::new(prog)
+        .current_dir(cwd)
+        .args(args)
+        .envs(envs.iter().copied())
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("the binary runs");
+    // Drained while it runs, so that a chatty program never blocks on a full pipe.
+    let drain = |r: Option<Box<dyn std::io::Read + Send>>| {
+        std::thread::spawn(move || {
+            let mut v = Vec::new();
+            if let Some(mut r) = r {
+                let _ = r.read_to_end(&mut v);
+            }
+            v
+        })
+    };
+    let so = drain(child.stdout.take().map(|r| Box::new(r) as Box<dyn std::io::Read + Send>));
+    let se = drain(child.stderr.take().map(|r| Box::new(r) as Box<dyn std::io::Read + Send>));
+    let start = std::time::Instant::now();
+    let (status, hung) = loop {
+        if let Some(st) = child.try_wait().expect("wait") {
+            break (st, false);
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            break (child.wait().expect("wait"), true);
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    };
+    let out = Output { status, stdout: so.join().unwrap_or_default(), stderr: se.join().unwrap_or_default() };
+    let d = format!(
+        "command: {prog} {}\nstatus: {:?}\nstdout:\n{}\nstderr:\n{}",
+        args.join(" "),
+        out.status.code(),
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(!hung, "hung for more than {limit:?}:\n{d}");
+    (out, d)
+}

@@ -1,0 +1,136 @@
+//! The one way to open a file that a configuration or a command line names: configuration files,
+//! `.ic` files, tiles, default tiles and input images.
+//!
+//! Only regular files are opened. The open itself never blocks (`O_NONBLOCK`, so a FIFO with no
+//! writer or a device that waits is not a hang), then `fstat` decides: a FIFO, a device, a
+//! directory or a socket is refused with [`not_regular`]'s error, naming what it is; a regular
+//! file gets its blocking mode back. Symbolic links are followed (tile trees are often links into
+//! other disks); what they lead to is what is checked. Reads are bounded by what the caller's
+//! format implies ([`read_bounded`], [`read_sized`]); nothing here reads a file whole without a
+//! bound.
+//!
+//! What a file holds is left to the callers; names in shared directories (the service's mapping,
+//! lock and socket) are [`crate::shm::names`]'s business: those are never followed at all.
+
+use rustix::fs::OFlags;
+use std::fs::{File, Metadata, OpenOptions};
+use std::io::{self, Read};
+use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+use std::path::Path;
+
+/// What a file that is not a regular file is, in words ("a FIFO", "a directory", ...).
+pub fn kind_of(meta: &Metadata) -> &'static str {
+    let t = meta.file_type();
+    if t.is_file() {
+        "a regular file"
+    } else if t.is_dir() {
+        "a directory"
+    } else if t.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_socket() {
+        "a socket"
+    } else if t.is_symlink() {
+        "a symbolic link"
+    } else {
+        "not a regular file"
+    }
+}
+
+/// The error for a file that is not a regular file (kind [`io::ErrorKind::InvalidInput`]).
+pub fn not_regular(meta: &Metadata) -> io::Error {
+    io::Error::new(io::ErrorKind::InvalidInput, format!("{}, not a regular file", kind_of(meta)))
+}
+
+/// Opens `path` for reading if it is (or a symbolic link leads to) a regular file; returns the
+/// file and its metadata. Never blocks on a FIFO or device: those, directories and sockets are
+/// refused with [`not_regular`]'s error.
+pub fn regular(path: &Path) -> io::Result<(File, Metadata)> {
+    let file = OpenOptions::new().read(true).custom_flags(OFlags::NONBLOCK.bits() as i32).open(path)?;
+    let meta = file.metadata()?;
+    if !meta.is_file() {
+        return Err(not_regular(&meta));
+    }
+    let flags = rustix::fs::fcntl_getfl(&file)?;
+    rustix::fs::fcntl_setfl(&file, flags - OFlags::NONBLOCK)?;
+    Ok((file, meta))
+}
+
+/// Reads at most `max + 1` bytes of the regular file `path`, so that a caller can tell a file
+/// longer than `max` (it then has more than `max` bytes) without reading it whole.
+pub fn read_bounded(path: &Path, max: u64) -> io::Result<Vec<u8>> {
+    let (file, meta) = regular(path)?;
+    let mut buf = Vec::with_capacity(meta.len().min(max.saturating_add(1)).min(1 << 20) as usize);
+    file.take(max.saturating_add(1)).read_to_end(&mut buf)?;
+    Ok(buf)
+}
+
+/// Reads the regular file `path` when its length is one of `allowed`; any other length is an
+/// error of kind [`io::ErrorKind::InvalidData`] that gives it (`len` bytes), and nothing is read.
+/// Allocates no more than the largest allowed length.
+pub fn read_sized(path: &Path, allowed: &[u64]) -> Result<Vec<u8>, SizedError> {
+    let (file, meta) = regular(path).map_err(SizedError::Io)?;
+    let len = meta.len();
+    if !allowed.contains(&len) {
+        return Err(SizedError::Length(len));
+    }
+    let mut buf = Vec::with_capacity(len as usize);
+    file.take(len).read_to_end(&mut buf).map_err(SizedError::Io)?;
+    if buf.len() as u64 != len {
+        return Err(SizedError::Length(buf.len() as u64));
+    }
+    Ok(buf)
+}
+
+/// Why [`read_sized`] read nothing.
+#[derive(Debug)]
+pub enum SizedError {
+    /// The file could not be opened or read, or is not a regular file.
+    Io(io::Error),
+    /// The file holds this many bytes, none of the allowed lengths.
+    Length(u64),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_fifo_is_refused_without_blocking() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("f");
+        rustix::fs::mkfifoat(rustix::fs::CWD, &fifo, rustix::fs::Mode::from_raw_mode(0o600)).unwrap();
+        let e = regular(&fifo).unwrap_err();
+        assert_eq!(e.kind(), io::ErrorKind::InvalidInput);
+        assert!(e.to_string().contains("a FIFO"), "{e}");
+    }
+
+    #[test]
+    fn devices_and_directories_are_refused_and_links_to_files_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        assert!(regular(Path::new("/dev/zero")).unwrap_err().to_string().contains("a character device"));
+        assert!(regular(dir.path()).unwrap_err().to_string().contains("a directory"));
+        let f = dir.path().join("a");
+        std::fs::write(&f, b"hello").unwrap();
+        let l = dir.path().join("l");
+        std::os::unix::fs::symlink(&f, &l).unwrap();
+        assert_eq!(read_bounded(&l, 100).unwrap(), b"hello");
+        assert_eq!(read_bounded(&l, 2).unwrap(), b"hel", "one byte past the bound, no more");
+        let z = dir.path().join("z");
+        std::os::unix::fs::symlink("/dev/zero", &z).unwrap();
+        assert!(read_bounded(&z, 100).is_err());
+    }
+
+    #[test]
+    fn read_sized_reads_only_allowed_lengths() {
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("a");
+        std::fs::write(&f, [7u8; 10]).unwrap();
+        assert_eq!(read_sized(&f, &[4, 10]).unwrap().len(), 10);
+        assert!(matches!(read_sized(&f, &[4]), Err(SizedError::Length(10))));
+        assert!(matches!(read_sized(Path::new("/dev/zero"), &[4]), Err(SizedError::Io(_))));
+    }
+}

@@ -1,0 +1,181 @@
+//! Names in shared directories: the mapping, lock file and control socket of a service, planted,
+//! squatted or taken by someone else before it starts.
+
+use super::service::{fails, is_root, mkfifo, place, Service, CLIPMAPD, HASH};
+use std::os::unix::fs::{MetadataExt, PermissionsExt};
+use std::path::Path;
+
+fn victim(dir: &Path) -> std::path::PathBuf {
+    let v = dir.join("victim");
+    std::fs::write(&v, "precious contents\n").unwrap();
+    std::fs::set_permissions(&v, std::fs::Permissions::from_mode(0o600)).unwrap();
+    v
+}
+
+fn args<'a>(place: &'a [String]) -> Vec<&'a str> {
+    HASH.iter().copied().chain(place.iter().map(String::as_str)).collect()
+}
+
+fn untouched(v: &Path) {
+    assert_eq!(std::fs::read_to_string(v).unwrap(), "precious contents\n", "the victim file changed");
+    assert_eq!(std::fs::metadata(v).unwrap().permissions().mode() & 0o777, 0o600);
+}
+
+#[test]
+fn a_symlink_planted_at_the_lock_name_is_refused_and_its_target_untouched() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let v = victim(d);
+    std::os::unix::fs::symlink(&v, d.join("clipmap-n.lock")).unwrap();
+    let p = place(d, "n");
+    fails(d, CLIPMAPD, &args(&p), 2, &["clipmap-n.lock", "a symbolic link owned by uid"]);
+    untouched(&v);
+    assert!(d.join("clipmap-n.lock").symlink_metadata().unwrap().file_type().is_symlink(), "the link is left alone");
+    assert!(!d.join("clipmap-n.map").exists());
+}
+
+#[test]
+fn a_symlink_planted_at_the_mapping_name_is_neither_followed_nor_replaced() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let v = victim(d);
+    std::os::unix::fs::symlink(&v, d.join("clipmap-n.map")).unwrap();
+    let p = place(d, "n");
+    fails(d, CLIPMAPD, &args(&p), 2, &["clipmap-n.map", "a symbolic link owned by uid"]);
+    untouched(&v);
+    assert!(d.join("clipmap-n.map").symlink_metadata().unwrap().file_type().is_symlink());
+    let left: Vec<_> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    assert!(!left.iter().any(|n| n.starts_with(".clipmap-")), "no temporary mapping left: {left:?}");
+}
+
+#[test]
+fn a_fifo_planted_at_the_lock_name_is_refused_without_hanging() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    mkfifo(&d.join("clipmap-n.lock"));
+    let p = place(d, "n");
+    fails(d, CLIPMAPD, &args(&p), 2, &["clipmap-n.lock", "a FIFO"]);
+}
+
+#[test]
+fn a_lock_file_of_another_user_is_refused_naming_its_owner() {
+    if !is_root() {
+        eprintln!("skipped: making a file of another user needs root");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let lock = d.join("clipmap-n.lock");
+    std::fs::write(&lock, "").unwrap();
+    std::os::unix::fs::chown(&lock, Some(65534), Some(65534)).unwrap();
+    let p = place(d, "n");
+    fails(d, CLIPMAPD, &args(&p), 2, &["clipmap-n.lock", "owned by uid 65534", "not by this service's user"]);
+    assert_eq!(std::fs::metadata(&lock).unwrap().uid(), 65534);
+}
+
+#[test]
+fn a_squatter_holding_the_lock_is_named_as_such_not_given_an_invented_pid() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let lock = d.join("clipmap-n.lock");
+    std::fs::write(&lock, "squat").unwrap();
+    let f = std::fs::OpenOptions::new().read(true).write(true).open(&lock).unwrap();
+    f.lock().unwrap();
+    let p = place(d, "n");
+    let err = fails(d, CLIPMAPD, &args(&p), 2, &["clipmap-n.lock", "not a running service", "`squat`"]);
+    assert!(!err.contains("process 0"), "{err}");
+    assert_eq!(std::fs::read_to_string(&lock).unwrap(), "squat", "the squatter's file is not rewritten");
+}
+
+#[test]
+fn a_squatter_listening_on_the_socket_name_is_named_and_left_alone() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let sock = d.join("clipmap-n.sock");
+    let _squatter = std::os::unix::net::UnixListener::bind(&sock).unwrap();
+    let p = place(d, "n");
+    fails(d, CLIPMAPD, &args(&p), 2, &["clipmap-n.sock", "another process accepts connections"]);
+    assert!(sock.exists(), "the squatter's socket is left in place");
+    assert!(!d.join("clipmap-n.map").exists(), "the failed start unpublished its own mapping");
+}
+
+#[test]
+fn a_regular_file_at_the_socket_name_is_refused_and_untouched() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let sock = d.join("clipmap-n.sock");
+    std::fs::write(&sock, "precious contents\n").unwrap();
+    std::fs::set_permissions(&sock, std::fs::Permissions::from_mode(0o600)).unwrap();
+    let p = place(d, "n");
+    fails(d, CLIPMAPD, &args(&p), 2, &["clipmap-n.sock", "a regular file owned by uid", "not a socket"]);
+    untouched(&sock);
+}
+
+#[test]
+fn second_starts_on_the_same_name_or_socket_never_unpublish_the_running_service() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let first = Service::start(d, "one", &HASH, &[]);
+    let map = d.join("clipmap-one.map");
+    let ino = std::fs::metadata(&map).unwrap().ino();
+    // The same name: refused, naming the live service.
+    let p = place(d, "one");
+    let mut same_name = args(&p);
+    let other_sock = d.join("other.sock");
+    let i = same_name.iter().position(|a| *a == "--socket").unwrap();
+    same_name[i + 1] = other_sock.to_str().unwrap();
+    let pid = first.child.id().to_string();
+    fails(d, CLIPMAPD, &same_name, 2, &["already publishes `one`", &format!("process {pid}")]);
+    // Another name on the same socket: refused.
+    let mut same_socket: Vec<String> = place(d, "two");
+    let j = same_socket.iter().position(|a| a == "--socket").unwrap();
+    same_socket[j + 1] = first.socket.to_str().unwrap().to_string();
+    let a2 = args(&same_socket);
+    fails(d, CLIPMAPD, &a2, 2, &["another process accepts connections"]);
+    assert!(first.alive(), "the first service still answers");
+    assert_eq!(std::fs::metadata(&map).unwrap().ino(), ino, "its mapping is still the one published");
+    assert!(d.join("clipmap-one.lock").exists());
+    assert!(!d.join("clipmap-two.map").exists() && !other_sock.exists());
+}
+
+#[test]
+fn shm_mode_gives_exactly_the_permissions_asked_whatever_the_umask() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    for (mode, want) in [("640", 0o640), ("660", 0o660), ("600", 0o600)] {
+        let name = format!("m{mode}");
+        let s = Service::spawn(d, &name, &HASH, &["--shm-mode", mode], "umask 077;");
+        s.wait_ready();
+        for f in [format!("clipmap-{name}.map"), format!("clipmap-{name}.lock")] {
+            let m = std::fs::metadata(d.join(&f)).unwrap().permissions().mode() & 0o777;
+            assert_eq!(m, want, "{f} with --shm-mode {mode} under umask 077: {m:o}");
+        }
+        let sock = std::fs::metadata(&s.socket).unwrap().permissions().mode() & 0o777;
+        assert_eq!(sock, 0o600, "the control socket stays owner-only");
+    }
+}
+
+#[test]
+fn a_group_member_writing_extreme_requests_cannot_crash_the_service() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let s = Service::start(d, "g", &HASH, &["--shm-mode", "660"]);
+    let client = clipmap::shm::Client::attach(d, "g").expect("attach");
+    let t0 = s.stats()["engine"]["ticks"].as_u64().unwrap_or(0);
+    for (centre, velocity) in [
+        ([i64::MIN, i64::MAX], [f64::MAX, -f64::MAX]),
+        ([i64::MAX, i64::MIN], [f64::NAN, f64::INFINITY]),
+        ([-1, 1 << 40], [1e300, -1e300]),
+        ([0, 0], [0.0, 0.0]),
+    ] {
+        client.request_centre(centre, velocity);
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        assert!(
+            s.alive(),
+            "the service died on a request of centre {centre:?}, velocity {velocity:?}:\n{}",
+            std::fs::read_to_string(&s.err).unwrap_or_default()
+        );
+    }
+    let t1 = s.stats()["engine"]["ticks"].as_u64().unwrap_or(0);
+    assert!(t1 > t0, "the service keeps ticking ({t0} -> {t1})");
+}
