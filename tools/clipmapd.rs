@@ -56,11 +56,11 @@ struct Cli {
     #[arg(long)]
     socket: Option<PathBuf>,
     /// Permission bits of the mapping, octal (600: owner only).
-    #[arg(long, default_value = "600")]
-    shm_mode: String,
+    #[arg(long, default_value = "600", value_parser = parse_mode)]
+    shm_mode: u32,
     /// Copy budget per tick in milliseconds, or `off`.
-    #[arg(long, default_value = "6")]
-    budget_ms: String,
+    #[arg(long, default_value = "6", value_parser = parse_budget)]
+    budget_ms: Budget,
     /// Update ticks per second.
     #[arg(long, default_value_t = 60.0)]
     tick_hz: f64,
@@ -111,17 +111,8 @@ fn options(cli: &Cli, default_name: &str) -> Result<Options, Failure> {
         o.shm_dir = d.clone();
     }
     o.socket = cli.socket.clone().unwrap_or_else(|| service::default_socket(&o.shm_dir, &name));
-    o.shm_mode = u32::from_str_radix(&cli.shm_mode, 8)
-        .map_err(|_| bad(anyhow::anyhow!("--shm-mode {}: expected octal permission bits like 600", cli.shm_mode)))?;
-    o.budget_ms = if cli.budget_ms.eq_ignore_ascii_case("off") {
-        None
-    } else {
-        Some(
-            cli.budget_ms
-                .parse()
-                .map_err(|_| bad(anyhow::anyhow!("--budget-ms {}: expected milliseconds or `off`", cli.budget_ms)))?,
-        )
-    };
+    o.shm_mode = cli.shm_mode;
+    o.budget_ms = cli.budget_ms.0;
     o.tick_hz = cli.tick_hz;
     o.invalid_border = cli.border;
     o.centre_alignment = cli.centre_alignment;
@@ -213,6 +204,26 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
     .map_err(|e| Failure(e.exit_code(), e.into()))?;
     println!("clipmapd: stopped after {} ticks", summary.stats.tick.engine.ticks);
     Ok(())
+}
+
+/// `--budget-ms`: milliseconds (checked against the service's bounds when it starts), or `off`.
+#[derive(Clone, Copy, Debug)]
+struct Budget(Option<f64>);
+
+fn parse_budget(text: &str) -> Result<Budget, String> {
+    if text.trim().eq_ignore_ascii_case("off") {
+        return Ok(Budget(None));
+    }
+    text.trim()
+        .parse::<f64>()
+        .map(|ms| Budget(Some(ms)))
+        .map_err(|_| format!("`{text}` is not a budget: expected milliseconds or `off`"))
+}
+
+/// `--shm-mode`: octal permission bits (checked against what the service allows when it starts).
+fn parse_mode(text: &str) -> Result<u32, String> {
+    u32::from_str_radix(text.trim(), 8)
+        .map_err(|_| format!("`{text}` is not a mode: expected octal permission bits like 600"))
 }
 
 fn main() -> ExitCode {

@@ -5,8 +5,8 @@
 //! they need axes, labels and lines only, and SVG keeps text sharp in the documentation.
 
 use super::study::{self, Case, Outcome, StudyError};
-use serde::Serialize;
 use crate::texel::TexelFormat;
+use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;
 

@@ -35,21 +35,57 @@ pub const MAX_BUDGET_MS: f64 = 10_000.0;
 pub const COMMANDS: &str =
     "PING, STATUS, STATS, STATS PROM, BUDGET <ms>|off, BORDER <texels>, CENTRE <s> <t>, QUIT, SHUTDOWN";
 
-/// Parses one line (without its newline; a trailing `\r` is ignored). The error is the message
-/// of the `ERR` reply.
-pub fn parse(line: &[u8]) -> Result<Request, String> {
-    let line = std::str::from_utf8(line).map_err(|_| "request is not UTF-8 text".to_string())?;
+/// Why a request line was refused; its text is the message of the `ERR` reply (words quoted
+/// from the request are cut to 40 characters).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum BadRequest {
+    /// The line is not UTF-8.
+    #[error("request is not UTF-8 text")]
+    NotUtf8,
+    /// Nothing but blanks.
+    #[error("empty request; expected one of {COMMANDS}")]
+    Empty,
+    /// A command with the wrong number of arguments.
+    #[error("{command} takes {count} argument{}: {usage}", if *count == 1 { "" } else { "s" })]
+    Arity {
+        /// The command, upper case.
+        command: String,
+        /// Arguments it takes.
+        count: usize,
+        /// Its usage.
+        usage: &'static str,
+    },
+    /// `STATS` with something other than `PROM`.
+    #[error("usage: STATS or STATS PROM")]
+    Stats,
+    /// A budget that is not a number of milliseconds in range, nor `off`.
+    #[error("BUDGET: `{0}` is not a number of milliseconds in [{min}, {MAX_BUDGET_MS}] or `off`", min = crate::limits::MIN_BUDGET_MS)]
+    Budget(String),
+    /// A border that is not a whole number.
+    #[error("BORDER: `{0}` is not a whole number of texels")]
+    Border(String),
+    /// A centre coordinate that is not an integer.
+    #[error("CENTRE: `{0}` is not an integer")]
+    Centre(String),
+    /// No such command.
+    #[error("unknown command `{0}`; expected one of {COMMANDS}")]
+    Unknown(String),
+}
+
+/// Parses one line (without its newline; a trailing `\r` is ignored).
+pub fn parse(line: &[u8]) -> Result<Request, BadRequest> {
+    let line = std::str::from_utf8(line).map_err(|_| BadRequest::NotUtf8)?;
     let line = line.strip_suffix('\r').unwrap_or(line);
     let words: Vec<&str> = line.split_ascii_whitespace().collect();
     let Some((cmd, args)) = words.split_first() else {
-        return Err(format!("empty request; expected one of {COMMANDS}"));
+        return Err(BadRequest::Empty);
     };
     let cmd = cmd.to_ascii_uppercase();
-    let arity = |n: usize, usage: &str| -> Result<(), String> {
-        if args.len() == n {
+    let arity = |count: usize, usage: &'static str| -> Result<(), BadRequest> {
+        if args.len() == count {
             Ok(())
         } else {
-            Err(format!("{cmd} takes {n} argument{}: {usage}", if n == 1 { "" } else { "s" }))
+            Err(BadRequest::Arity { command: clip(&cmd), count, usage })
         }
     };
     match cmd.as_str() {
@@ -58,7 +94,7 @@ pub fn parse(line: &[u8]) -> Result<Request, String> {
         "STATS" => match args {
             [] => Ok(Request::Stats),
             [f] if f.eq_ignore_ascii_case("PROM") => Ok(Request::StatsProm),
-            _ => Err("usage: STATS or STATS PROM".to_string()),
+            _ => Err(BadRequest::Stats),
         },
         "BUDGET" => {
             arity(1, "BUDGET <milliseconds> or BUDGET off")?;
@@ -69,28 +105,21 @@ pub fn parse(line: &[u8]) -> Result<Request, String> {
                 Ok(ms) if ms.is_finite() && ms >= crate::limits::MIN_BUDGET_MS && ms <= MAX_BUDGET_MS => {
                     Ok(Request::Budget(Some(ms)))
                 }
-                _ => Err(format!(
-                    "BUDGET: `{}` is not a number of milliseconds in [{}, {MAX_BUDGET_MS}] or `off`",
-                    clip(args[0]),
-                    crate::limits::MIN_BUDGET_MS
-                )),
+                _ => Err(BadRequest::Budget(clip(args[0]))),
             }
         }
         "BORDER" => {
             arity(1, "BORDER <texels>")?;
-            args[0]
-                .parse::<u64>()
-                .map(Request::Border)
-                .map_err(|_| format!("BORDER: `{}` is not a whole number of texels", clip(args[0])))
+            args[0].parse::<u64>().map(Request::Border).map_err(|_| BadRequest::Border(clip(args[0])))
         }
         "CENTRE" | "CENTER" => {
             arity(2, "CENTRE <s> <t>")?;
-            let p = |w: &str| w.parse::<i64>().map_err(|_| format!("CENTRE: `{}` is not an integer", clip(w)));
+            let p = |w: &str| w.parse::<i64>().map_err(|_| BadRequest::Centre(clip(w)));
             Ok(Request::Centre([p(args[0])?, p(args[1])?]))
         }
         "QUIT" => arity(0, "QUIT").map(|_| Request::Quit),
         "SHUTDOWN" => arity(0, "SHUTDOWN").map(|_| Request::Shutdown),
-        _ => Err(format!("unknown command `{}`; expected one of {COMMANDS}", clip(&cmd))),
+        _ => Err(BadRequest::Unknown(clip(&cmd))),
     }
 }
 
@@ -145,10 +174,12 @@ mod tests {
             (b"PING now", "takes 0 arguments"),
         ];
         for (line, want) in cases {
-            let err = parse(line).unwrap_err();
+            let err = parse(line).unwrap_err().to_string();
             assert!(err.contains(want), "{:?}: {err}", String::from_utf8_lossy(line));
         }
         let long = format!("X{}", "y".repeat(5000));
-        assert!(parse(long.as_bytes()).unwrap_err().len() < 200, "error replies stay short");
+        assert!(parse(long.as_bytes()).unwrap_err().to_string().len() < 200, "error replies stay short");
+        assert_eq!(parse(b"BUDGET 0").unwrap_err(), BadRequest::Budget("0".into()));
+        assert_eq!(parse(b"").unwrap_err(), BadRequest::Empty);
     }
 }
