@@ -5,14 +5,40 @@
 //!
 //! Owns the structure walk only; decoding is the `image` crate's.
 
+/// What is wrong with a JPEG's structure.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum JpegDefect {
+    /// The first two bytes are not FF D8.
+    #[error("it does not start with a JPEG SOI marker")]
+    NoStart,
+    /// The file stops inside something.
+    #[error("the file ends early ({what} at byte {at} of {len}); no EOI marker")]
+    EndsEarly {
+        /// Where it stops.
+        what: String,
+        /// The offset.
+        at: usize,
+        /// The file's length.
+        len: usize,
+    },
+    /// A byte that should begin a marker does not.
+    #[error("byte {at} is 0x{byte:02X} where a marker was expected")]
+    NotAMarker {
+        /// The offset.
+        at: usize,
+        /// The byte found.
+        byte: u8,
+    },
+}
+
 /// Checks that `bytes` (a whole file starting with the JPEG SOI marker) runs from SOI through
 /// complete segments and scans to an EOI marker. The error says what was cut short.
-pub fn check(bytes: &[u8]) -> Result<(), String> {
+pub fn check(bytes: &[u8]) -> Result<(), JpegDefect> {
     let n = bytes.len();
     if n < 4 || bytes[0] != 0xFF || bytes[1] != 0xD8 {
-        return Err("it does not start with a JPEG SOI marker".into());
+        return Err(JpegDefect::NoStart);
     }
-    let cut = |what: &str, at: usize| Err(format!("the file ends early ({what} at byte {at} of {n}); no EOI marker"));
+    let cut = |what: &str, at: usize| Err(JpegDefect::EndsEarly { what: what.to_string(), at, len: n });
     let mut pos = 2;
     loop {
         // Markers may be preceded by fill bytes 0xFF.
@@ -20,7 +46,7 @@ pub fn check(bytes: &[u8]) -> Result<(), String> {
             return cut("before a marker", pos);
         }
         if bytes[pos] != 0xFF {
-            return Err(format!("byte {pos} is 0x{:02X} where a marker was expected", bytes[pos]));
+            return Err(JpegDefect::NotAMarker { at: pos, byte: bytes[pos] });
         }
         while pos < n && bytes[pos] == 0xFF {
             pos += 1;
@@ -83,7 +109,8 @@ mod tests {
         check(&tail).unwrap();
         for cut in [4, 20, j.len() / 2, j.len() - 2, j.len() - 1] {
             let e = check(&j[..cut]).unwrap_err();
-            assert!(e.contains("ends early"), "cut at {cut}: {e}");
+            assert!(matches!(e, JpegDefect::EndsEarly { len, .. } if len == cut), "cut at {cut}: {e}");
+            assert!(e.to_string().contains("ends early"), "cut at {cut}: {e}");
         }
     }
 }
