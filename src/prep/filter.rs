@@ -362,6 +362,21 @@ mod tests {
         assert_eq!(out, px(30, 3, 1, 1).to_vec());
     }
 
+    /// Box-filters `rows` on the integer path and on the general one; asserts they agree and
+    /// returns the output.
+    fn box_on_both_paths(ch: Channels, w: u64, h: u64, rows: &[Vec<u8>]) -> Vec<u8> {
+        let mut fast = Downsampler::new(ch, Filter::Box, false, w, h);
+        let mut general = Downsampler::new(ch, Filter::Box, false, w, h);
+        general.box_bytes = None;
+        assert!(fast.box_bytes.is_some());
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for r in rows {
+            assert_eq!(fast.push(r, &mut a), general.push(r, &mut b));
+        }
+        assert_eq!(a, b);
+        a
+    }
+
     #[test]
     fn the_integer_box_path_equals_the_general_path() {
         let ch = Channels::of(TexelFormat::RGBA8).unwrap();
@@ -410,15 +425,7 @@ mod tests {
         let (w, h) = (6u64, 4u64);
         let v = |i: u64, t: u64| ((i * 40_503 + t * 9_973 + 65_000) % 65_536) as u16;
         let rows: Vec<Vec<u8>> = (0..h).map(|t| (0..w * 3).flat_map(|i| v(i, t).to_le_bytes()).collect()).collect();
-        let mut fast = Downsampler::new(ch, Filter::Box, false, w, h);
-        let mut general = Downsampler::new(ch, Filter::Box, false, w, h);
-        general.box_bytes = None;
-        assert!(fast.box_bytes.is_some());
-        let (mut a, mut b) = (Vec::new(), Vec::new());
-        for r in &rows {
-            assert_eq!(fast.push(r, &mut a), general.push(r, &mut b));
-        }
-        assert_eq!(a, b);
+        let a = box_on_both_paths(ch, w, h, &rows);
         // floor((a + b + c + d + 2) / 4) of the stored components.
         let mut want = Vec::new();
         for j in 0..h / 2 {

@@ -228,14 +228,19 @@ pub fn codes(d: &Diagnostics) -> Vec<&'static str> {
 /// stderr) for failure messages. Used by the tests that drive the real binaries.
 pub fn exec(cwd: &Path, prog: &str, args: &[&str]) -> (Output, String) {
     let out = Command::new(prog).current_dir(cwd).args(args).output().expect("the binary runs");
-    let d = format!(
+    let d = describe(prog, args, &out);
+    (out, d)
+}
+
+/// Command, status, stdout and stderr of a finished run, for failure messages.
+pub fn describe(prog: &str, args: &[&str], out: &Output) -> String {
+    format!(
         "command: {prog} {}\nstatus: {:?}\nstdout:\n{}\nstderr:\n{}",
         args.join(" "),
         out.status.code(),
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
-    );
-    (out, d)
+    )
 }
 
 /// Like [`exec`], but the program is killed after `limit` and the test fails saying it hung, so
@@ -281,13 +286,7 @@ pub fn exec_bounded(
         std::thread::sleep(std::time::Duration::from_millis(10));
     };
     let out = Output { status, stdout: so.join().unwrap_or_default(), stderr: se.join().unwrap_or_default() };
-    let d = format!(
-        "command: {prog} {}\nstatus: {:?}\nstdout:\n{}\nstderr:\n{}",
-        args.join(" "),
-        out.status.code(),
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let d = describe(prog, args, &out);
     assert!(!hung, "hung for more than {limit:?}:\n{d}");
     (out, d)
 }
