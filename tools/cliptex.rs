@@ -314,7 +314,7 @@ fn roam(args: RoamArgs) -> i32 {
             return exit::BAD_INPUT;
         }
     };
-    if !(args.budget_ms >= clipmap::limits::MIN_BUDGET_MS) {
+    if !(clipmap::limits::MIN_BUDGET_MS..).contains(&args.budget_ms) {
         eprintln!(
             "cliptex roam: --budget-ms {}: expected a number of milliseconds of at least {} (MIN_BUDGET_MS; less rounds to no work), or inf",
             args.budget_ms,
