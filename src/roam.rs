@@ -308,7 +308,7 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
             options.frames
         )));
     }
-    if let Some(ms) = options.budget_ms.filter(|ms| !(*ms >= MIN_BUDGET_MS)) {
+    if let Some(ms) = options.budget_ms.filter(|ms| !(MIN_BUDGET_MS..).contains(ms)) {
         return Err(RoamError::OutOfBounds(format!(
             "--budget-ms {ms}: expected at least {MIN_BUDGET_MS} (MIN_BUDGET_MS; less rounds to no work), or `inf`"
         )));

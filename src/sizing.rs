@@ -37,7 +37,7 @@ pub struct Memory {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum SizingError {
     /// A size that is not a power of two.
-    #[error("{what} must be a power of two, found {value} (nearest: {} or {})", value.checked_next_power_of_two().unwrap_or(0) / 2, value.checked_next_power_of_two().unwrap_or(0))]
+    #[error("{what} must be a power of two, found {value} (nearest: {})", nearest_powers(*value))]
     NotPowerOfTwo {
         /// Which input.
         what: &'static str,
@@ -56,6 +56,14 @@ pub enum SizingError {
         /// Largest allowed.
         max: u64,
     },
+}
+
+/// The powers of two around `v`, in words: "512 or 1024", or the largest past it.
+fn nearest_powers(v: u64) -> String {
+    match v.checked_next_power_of_two() {
+        Some(next) => format!("{} or {next}", next / 2),
+        None => format!("{} (2^63, the largest)", 1u64 << 63),
+    }
 }
 
 fn pow2(what: &'static str, value: u64) -> Result<u32, SizingError> {

@@ -493,6 +493,12 @@ fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
         Ok((p, _)) => p,
         Err(c) => return c,
     };
+    // A shape the service refuses to start on has no tile to serve: said before any walk (the
+    // default tiles are reported in the walk's table).
+    if let Some(why) = validate::unservable_shape(&plan) {
+        eprintln!("cliptex check: {}: the service cannot serve it: {why}", file.display());
+        return exit::BAD_INPUT;
+    }
     let bar = if !quiet && std::io::stderr().is_terminal() {
         let bar = indicatif::ProgressBar::new(check::tile_count(&plan));
         if let Ok(style) = indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} tiles {eta}") {

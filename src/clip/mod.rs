@@ -87,7 +87,7 @@ pub enum ClipError {
     #[error(transparent)]
     Queue(#[from] QueueError),
     /// The windows would take more memory than allowed.
-    #[error("clip windows need {needed} bytes: the limit is {limit} bytes")]
+    #[error("clip windows need {needed} bytes: the limit is {limit} bytes (Limits::window_bytes); choose a smaller clip size")]
     WindowBytes { needed: usize, limit: usize },
     /// Caller-supplied window memory does not match the texture.
     #[error("window memory for level {level}: found {found} bytes, expected {expected} (the window of a {dims:?}-texel buffer); supply one store per level, sized by Clipmap::window_bytes")]

@@ -114,14 +114,35 @@ fn plural(n: usize) -> &'static str {
 }
 
 /// Adds an error when a valid plan is not one the service serves: the very checks
-/// [`crate::source::FileSource::new`] makes when `clipmapd` starts (level chain, tile size and
-/// count bounds, every default tile a regular file of one tile), so that `validate`, `check` and
-/// `clipmapd` accept the same configurations.
+/// [`crate::source::FileSource::new`] and the service make when `clipmapd` starts (level chain,
+/// tile size and count bounds, every default tile a regular file of one tile, the windows within
+/// [`crate::limits::Limits::window_bytes`]), so that `validate`, `check` and `clipmapd` accept
+/// the same configurations.
 fn servable(l: &mut plan::Loaded<plan::ClipTexturePlan>) {
-    if let Some(p) = &l.plan {
-        if let Err(e) = crate::source::FileSource::new(p.clone(), &crate::limits::Limits::default()) {
-            let message = format!("the service cannot serve it: {e}");
-            l.diagnostics.push(crate::config::Diagnostic::new(Severity::Error, "not-servable", &p.path, None, message));
+    let Some(p) = &l.plan else { return };
+    if let Some(why) = unservable(p) {
+        let message = format!("the service cannot serve it: {why}");
+        l.diagnostics.push(crate::config::Diagnostic::new(Severity::Error, "not-servable", &p.path, None, message));
+    }
+}
+
+/// Why the service would refuse to start on `plan` (see [`servable`]), or `None`.
+pub fn unservable(plan: &plan::ClipTexturePlan) -> Option<String> {
+    unservable_shape(plan).or_else(|| {
+        crate::source::FileSource::new(plan.clone(), &crate::limits::Limits::default()).err().map(|e| e.to_string())
+    })
+}
+
+/// Why the service would refuse the texture's shape (its levels, tiles and windows), without
+/// opening any file, or `None`.
+pub fn unservable_shape(plan: &plan::ClipTexturePlan) -> Option<String> {
+    let limits = crate::limits::Limits::default();
+    match crate::source::file::texture_desc(plan) {
+        Err(e) => Some(e.to_string()),
+        Ok(desc) => {
+            let needed: usize = crate::clip::Clipmap::window_bytes(&desc).iter().sum();
+            (needed > limits.window_bytes)
+                .then(|| crate::clip::ClipError::WindowBytes { needed, limit: limits.window_bytes }.to_string())
         }
     }
 }

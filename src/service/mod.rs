@@ -84,7 +84,9 @@ impl ServiceError {
     /// could not run.
     pub fn exit_code(&self) -> i32 {
         match self {
-            ServiceError::BadOption(_) | ServiceError::Texture(_) => crate::report::exit::BAD_INPUT,
+            ServiceError::BadOption(_)
+            | ServiceError::Texture(_)
+            | ServiceError::Engine(crate::clip::ClipError::WindowBytes { .. }) => crate::report::exit::BAD_INPUT,
             _ => crate::report::exit::COULD_NOT_RUN,
         }
     }

@@ -94,7 +94,7 @@ impl Options {
             ));
         }
         if let Some(ms) = self.budget_ms {
-            if !(ms.is_finite() && ms >= MIN_BUDGET_MS && ms <= super::protocol::MAX_BUDGET_MS) {
+            if !((MIN_BUDGET_MS..=super::protocol::MAX_BUDGET_MS).contains(&ms)) {
                 return bad(format!(
                     "--budget-ms {ms}: expected at least {MIN_BUDGET_MS} (MIN_BUDGET_MS; less rounds to no work) and at most {} milliseconds, or `off`",
                     super::protocol::MAX_BUDGET_MS

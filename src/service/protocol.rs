@@ -102,9 +102,7 @@ pub fn parse(line: &[u8]) -> Result<Request, BadRequest> {
                 return Ok(Request::Budget(None));
             }
             match args[0].parse::<f64>() {
-                Ok(ms) if ms.is_finite() && ms >= crate::limits::MIN_BUDGET_MS && ms <= MAX_BUDGET_MS => {
-                    Ok(Request::Budget(Some(ms)))
-                }
+                Ok(ms) if (crate::limits::MIN_BUDGET_MS..=MAX_BUDGET_MS).contains(&ms) => Ok(Request::Budget(Some(ms))),
                 _ => Err(BadRequest::Budget(clip(args[0]))),
             }
         }

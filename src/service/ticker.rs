@@ -151,6 +151,11 @@ impl Runner {
             centre_alignment: o.centre_alignment,
             ..Settings::default()
         };
+        // Refused before anything is created in the shared directory.
+        let needed: usize = Clipmap::window_bytes(&desc).iter().sum();
+        if needed > settings.limits.window_bytes {
+            return Err(crate::clip::ClipError::WindowBytes { needed, limit: settings.limits.window_bytes }.into());
+        }
         // The engine keeps its windows in the mapping itself: each texel is copied once, from a
         // tile straight to where renderers read it.
         let writer = Writer::create(&o.shm_dir, &o.name, shape_of_desc(&desc), desc.format(), o.shm_mode)?;

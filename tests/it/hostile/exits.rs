@@ -103,6 +103,12 @@ fn validate_check_and_the_service_agree_on_a_table_of_configurations() {
         "ct_version2.0\next_format PFTEX_PACK_8\nint_format PFTEX_RGB_8\nimg_format PFTEX_RGB\nvirt_size 1048576 1048576 1\nclip_size 1024\ntile_format t.%d.r%d.c%d.raw\ntile_params PFIMAGECACHE_TILE_FILENAMEARG_VSIZE_S PFIMAGECACHE_TILE_FILENAMEARG_TILENUM_T PFIMAGECACHE_TILE_FILENAMEARG_TILENUM_S\ntile_size 65536 65536 1\n",
     )
     .unwrap();
+    let wide = d.join("wide.ct");
+    std::fs::write(
+        &wide,
+        "ct_version2.0\next_format PFTEX_PACK_8\nint_format PFTEX_RGB_8\nimg_format PFTEX_RGB\nvirt_size 67108864 67108864 1\nclip_size 65536\ntile_format t.%d.r%d.c%d.raw\ntile_params PFIMAGECACHE_TILE_FILENAMEARG_VSIZE_S PFIMAGECACHE_TILE_FILENAMEARG_TILENUM_T PFIMAGECACHE_TILE_FILENAMEARG_TILENUM_S\ntile_size 2048 2048 1\n",
+    )
+    .unwrap();
     type Setup = Box<dyn Fn()>;
     let (l0a, ica) = (l0.clone(), ic.clone());
     let (l0b, icb) = (l0.clone(), ic.clone());
@@ -110,6 +116,7 @@ fn validate_check_and_the_service_agree_on_a_table_of_configurations() {
     let rows: Vec<(&str, &Path, Setup)> = vec![
         ("as prepared", &ct, Box::new(|| {})),
         ("tile_size 65536 squared", &huge, Box::new(|| {})),
+        ("clip windows over the limit", &wide, Box::new(|| {})),
         (
             "default tile /dev/zero",
             &ct,

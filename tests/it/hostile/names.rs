@@ -12,7 +12,7 @@ fn victim(dir: &Path) -> std::path::PathBuf {
     v
 }
 
-fn args<'a>(place: &'a [String]) -> Vec<&'a str> {
+fn args(place: &[String]) -> Vec<&str> {
     HASH.iter().copied().chain(place.iter().map(String::as_str)).collect()
 }
 

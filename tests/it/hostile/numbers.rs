@@ -157,3 +157,26 @@ fn a_clipprep_size_beyond_2_pow_26_is_refused_not_an_overflow() {
     assert!(!err.contains("panicked"), "{err}");
     assert!(!out.exists());
 }
+
+#[test]
+fn a_clip_size_whose_windows_exceed_the_limit_is_refused_before_anything_is_created() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let mut a = clipmapd_with(d, &[]);
+    for (opt, v) in [("--size", "67108864"), ("--clip", "67108864"), ("--tile", "128")] {
+        let i = a.iter().position(|x| x == opt).unwrap();
+        a[i + 1] = v.into();
+    }
+    let a: Vec<&str> = a.iter().map(String::as_str).collect();
+    fails(d, CLIPMAPD, &a, 1, &["clip windows need", "the limit is"]);
+    let left: Vec<_> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert!(left.is_empty(), "nothing created in the shared directory: {left:?}");
+}
+
+#[test]
+fn plan_with_a_size_past_the_last_power_of_two_names_a_real_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let err = fails(d, CLIPTEX, &["plan", "--size", "18446744073709551615", "--clip", "1024"], 1, &["power of two"]);
+    assert!(err.contains("9223372036854775808 (2^63, the largest)") && !err.contains("0 or 0"), "{err}");
+}
