@@ -1,11 +1,36 @@
-//! [`Limits`]: every bound the paging engine keeps, in one place; beside it the fixed bounds on
-//! what a texture, a tile and a service may be (the constants below), each checked once where the
-//! value enters ([`crate::source::TextureDesc`], [`crate::service::Options::check`], the tools'
-//! options) and named in the error that refuses it.
+//! Every bound of the project, in one place: [`Limits`] (the paging engine's queues, reads and
+//! memory), [`ConfigLimits`] (the configuration reader's, against hostile or broken files),
+//! [`PrepLimits`] (data preparation's memory), and the fixed bounds on what a texture, a tile, a
+//! service, a picture or a flight may be (the constants). Each is checked once, where the value
+//! enters ([`crate::config`], [`crate::source::TextureDesc`], [`crate::service::Options::check`],
+//! the tools' value parsers), and named in the error that refuses it. `docs/RELIABILITY.md`
+//! lists them with what each protects against.
 //!
-//! Owns the numbers only; [`crate::queue`], [`crate::cache`] and [`crate::clip`] enforce them.
-//! Bounds of the configuration reader are [`crate::config::Limits`]; those of data preparation
-//! are [`crate::prep::Limits`].
+//! Owns the numbers only; the modules that take the values in enforce them. The old paths
+//! (`config::Limits`, `prep::Limits`, `report::dump::MAX_DUMP_TEXELS`, ...) re-export these.
+
+/// Largest level-0 edge a texture may have (texels): 2^26, the whole earth at one metre.
+pub const MAX_TEXTURE_SIZE: u64 = 1 << 26;
+
+/// Most texels one dump reads (a 4096 x 4096 region): 64 MiB of RGBA in memory at most (128 MiB
+/// for the 16-bit formats).
+pub const MAX_DUMP_TEXELS: u64 = 4096 * 4096;
+
+/// Most problem tiles listed one by one; the rest are only counted.
+pub const MAX_LISTED_PROBLEMS: usize = 50;
+
+/// Largest centre alignment the tools accept (level texels): a level's window would jump by
+/// more than most clip sizes beyond it.
+pub const MAX_CENTRE_ALIGNMENT: u64 = 4096;
+
+/// Largest copy budget accepted, in milliseconds.
+pub const MAX_BUDGET_MS: f64 = 10_000.0;
+
+/// Longest side of a level picture in pixels (larger windows are shown one pixel per several texels).
+pub const MAX_LEVEL_PIXELS: u32 = 1024;
+
+/// Largest `--max-memory`, MiB (16 TiB): a larger value would overflow when turned into bytes.
+pub const MAX_MEMORY_MIB: u64 = 1 << 24;
 
 /// Largest tile of a stack level, in bytes: a tile is one read into one buffer, and a cache holds
 /// a grid of them, so a tile larger than this is refused before anything is allocated.
@@ -72,5 +97,62 @@ impl Default for Limits {
             max_streams: 64,
             max_open_files: 64,
         }
+    }
+}
+
+/// Every bound the reader enforces against hostile or broken input.
+#[derive(Clone, Debug)]
+pub struct ConfigLimits {
+    /// Largest configuration file read (bytes). Real files are a few kilobytes.
+    pub max_file_bytes: usize,
+    /// Longest word (bytes). Performer's buffers held 255 (tokens) and 2047 (values).
+    pub max_word_bytes: usize,
+    /// Most entries (tokens) in one file.
+    pub max_entries: usize,
+    /// Most items in one list.
+    pub max_list_items: usize,
+    /// Most findings reported for one file before giving up.
+    pub max_diagnostics: usize,
+    /// Largest texture edge accepted (texels): 2^32.
+    pub max_texture_size: u64,
+    /// Largest tile edge accepted (texels).
+    pub max_tile_size: u64,
+    /// Most levels in a clip texture (Performer's `PFCLIPTEXTURE_MAX_LEVELS`).
+    pub max_levels: u32,
+    /// Largest mem region edge in tiles (Performer clamps to 128).
+    pub max_mem_region_tiles: u64,
+}
+
+impl Default for ConfigLimits {
+    fn default() -> Self {
+        ConfigLimits {
+            max_file_bytes: 4 << 20,
+            max_word_bytes: 4096,
+            max_entries: 10_000,
+            max_list_items: 1024,
+            max_diagnostics: 200,
+            max_texture_size: 1 << 32,
+            max_tile_size: 1 << 16,
+            max_levels: 33,
+            max_mem_region_tiles: 128,
+        }
+    }
+}
+
+/// Every memory bound of a preparation run.
+#[derive(Clone, Debug)]
+pub struct PrepLimits {
+    /// Most memory a run may plan to use: the decoded size of an in-memory input image, and the
+    /// buffers of [`crate::prep::pipeline::buffer_memory`] (for filtered sources about three bands of one row
+    /// of level-0 tiles).
+    pub max_memory_bytes: u64,
+    /// Most bytes of one band of a pyramid level (pyramid levels are one tile each, written in
+    /// bands of rows).
+    pub pyramid_band_bytes: u64,
+}
+
+impl Default for PrepLimits {
+    fn default() -> Self {
+        PrepLimits { max_memory_bytes: 512 << 20, pyramid_band_bytes: 16 << 20 }
     }
 }

@@ -76,9 +76,7 @@ impl Default for Settings {
     }
 }
 
-/// Largest centre alignment the tools accept (level texels): a level's window would jump by
-/// more than most clip sizes beyond it.
-pub const MAX_CENTRE_ALIGNMENT: u64 = 4096;
+pub use crate::limits::MAX_CENTRE_ALIGNMENT;
 
 /// Why a clipmap could not be built.
 #[derive(Debug, Error)]

@@ -14,8 +14,7 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 
-/// Longest side of a level picture in pixels (larger windows are shown one pixel per several texels).
-pub const MAX_LEVEL_PIXELS: u32 = 1024;
+pub use crate::limits::MAX_LEVEL_PIXELS;
 /// Side of `view.png` and `rings.png` in pixels.
 pub const VIEW_PIXELS: u32 = 512;
 /// Pixels of margin around each level picture, where the outlines go.

@@ -42,23 +42,7 @@ pub use inset::{Inset, TileRole};
 pub use layout::{Compression, Layout, Level, LevelKind, Spec, TileLocation};
 pub use pipeline::{run, Job, Source, Summary};
 
-/// Largest `--max-memory`, MiB (16 TiB): a larger value would overflow when turned into bytes.
-pub const MAX_MEMORY_MIB: u64 = 1 << 24;
+pub use crate::limits::MAX_MEMORY_MIB;
 
-/// Every memory bound of a preparation run.
-#[derive(Clone, Debug)]
-pub struct Limits {
-    /// Most memory a run may plan to use: the decoded size of an in-memory input image, and the
-    /// buffers of [`pipeline::buffer_memory`] (for filtered sources about three bands of one row
-    /// of level-0 tiles).
-    pub max_memory_bytes: u64,
-    /// Most bytes of one band of a pyramid level (pyramid levels are one tile each, written in
-    /// bands of rows).
-    pub pyramid_band_bytes: u64,
-}
-
-impl Default for Limits {
-    fn default() -> Self {
-        Limits { max_memory_bytes: 512 << 20, pyramid_band_bytes: 16 << 20 }
-    }
-}
+/// The preparation's bounds ([`crate::limits::PrepLimits`], with every other bound of the project).
+pub use crate::limits::PrepLimits as Limits;

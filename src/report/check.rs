@@ -15,8 +15,7 @@ use std::fmt::Write;
 use std::io;
 use std::path::{Path, PathBuf};
 
-/// Most problem tiles listed one by one; the rest are only counted.
-pub const MAX_LISTED_PROBLEMS: usize = 50;
+pub use crate::limits::MAX_LISTED_PROBLEMS;
 
 /// What is wrong with one tile.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]

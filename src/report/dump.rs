@@ -18,9 +18,7 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 
-/// Most texels one dump reads (a 4096 x 4096 region): 64 MiB of RGBA in memory at most (128 MiB
-/// for the 16-bit formats).
-pub const MAX_DUMP_TEXELS: u64 = 4096 * 4096;
+pub use crate::limits::MAX_DUMP_TEXELS;
 
 /// Why a dump could not be made.
 #[derive(Debug, Error)]

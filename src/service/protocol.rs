@@ -28,8 +28,7 @@ pub enum Request {
     Shutdown,
 }
 
-/// Largest copy budget accepted, in milliseconds.
-pub const MAX_BUDGET_MS: f64 = 10_000.0;
+pub use crate::limits::MAX_BUDGET_MS;
 
 /// The commands, for error messages.
 pub const COMMANDS: &str =

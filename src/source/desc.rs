@@ -8,8 +8,7 @@ use crate::texel::TexelFormat;
 use serde::Serialize;
 use thiserror::Error;
 
-/// Largest level-0 edge a texture may have (texels): 2^26, the whole earth at one metre.
-pub const MAX_TEXTURE_SIZE: u64 = 1 << 26;
+pub use crate::limits::MAX_TEXTURE_SIZE;
 
 /// One mipmap level: its size and the size of the tiles it is read in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
