@@ -207,7 +207,7 @@ fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool, format: clipmap:
         Ok(report) => {
             let path = out.join("ACCURACY.md");
             let text = format!("{report}\n{}", sweep::CONCLUSIONS);
-            if let Err(e) = std::fs::write(&path, text) {
+            if let Err(e) = sweep::write_whole(&path, text) {
                 eprintln!("clipbench accuracy: cannot write {}: {e}", path.display());
                 return 2;
             }

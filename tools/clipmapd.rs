@@ -142,7 +142,7 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
         let r = demo::demo(o.clone()).await.map_err(|e| Failure(e.exit_code(), e.into()))?;
         let stats_path = o.out_dir.join("stats.json");
         let json = serde_json::to_string_pretty(&r.stats).map_err(|e| Failure(exit::COULD_NOT_RUN, e.into()))?;
-        std::fs::write(&stats_path, json)
+        clipmap::save::atomically(&stats_path, |w| std::io::Write::write_all(w, json.as_bytes()))
             .with_context(|| format!("writing {}", stats_path.display()))
             .map_err(|e| Failure(exit::COULD_NOT_RUN, e))?;
         let t = &r.stats.tick;

@@ -323,10 +323,16 @@ fn hsv(h: f64, s: f64, v: f64) -> [u8; 3] {
     [((r + m) * 255.0) as u8, ((g + m) * 255.0) as u8, ((b + m) * 255.0) as u8]
 }
 
+/// Writes `text` to `path` completely or not at all ([`crate::save::atomically`]).
+pub fn write_whole(path: &Path, text: impl AsRef<[u8]>) -> std::io::Result<()> {
+    use std::io::Write;
+    crate::save::atomically(path, |w| w.write_all(text.as_ref()))
+}
+
 /// Writes CSV, plots and the report into `dir`; returns the report text.
 pub fn write_outputs(rows: &[Row], dir: &Path, quick: bool, command: &str) -> std::io::Result<String> {
     std::fs::create_dir_all(dir)?;
-    std::fs::write(dir.join("accuracy.csv"), csv(rows))?;
+    write_whole(&dir.join("accuracy.csv"), csv(rows))?;
     let base_clip: Vec<&Row> = rows
         .iter()
         .filter(|r| r.budget_ms.is_none() && r.invalid_border == 8 && r.flight.starts_with("straight"))
@@ -334,8 +340,8 @@ pub fn write_outputs(rows: &[Row], dir: &Path, quick: bool, command: &str) -> st
     let by_clip: Vec<(f64, f64)> = base_clip.iter().map(|r| (r.clip_size as f64, psnr_plot(r.psnr_min))).collect();
     let coarser_clip: Vec<(f64, f64)> =
         base_clip.iter().map(|r| (r.clip_size as f64, r.coarser_pixel_share * 100.0)).collect();
-    std::fs::write(
-        dir.join("psnr_vs_clip.svg"),
+    write_whole(
+        &dir.join("psnr_vs_clip.svg"),
         svg_chart(
             "Worst-frame PSNR against clip size (unlimited budget)",
             "clip size (texels)",
@@ -359,8 +365,8 @@ pub fn write_outputs(rows: &[Row], dir: &Path, quick: bool, command: &str) -> st
             (format!("{sp} texels/frame"), pts)
         })
         .collect();
-    std::fs::write(
-        dir.join("coarser_vs_budget.svg"),
+    write_whole(
+        &dir.join("coarser_vs_budget.svg"),
         svg_chart(
             "Pixels drawn coarser than ideal against update budget",
             "budget per frame (µs, fixed cost model)",
