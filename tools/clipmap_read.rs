@@ -3,7 +3,8 @@
 //! centres (a fast flight with jumps and reversals) and follows the service across restarts.
 //!
 //! Prints one JSON line of counts, then `N passed, M failed`.
-//! Exit status: 0 every texel matched, 1 a mismatch, 2 the mapping could not be read.
+//! Exit status: 0 every texel matched, 1 a mismatch (or a bad command line), 2 the mapping could
+//! not be read.
 
 use clap::Parser;
 use clipmap::shm::verify::HashCheck;
@@ -88,7 +89,8 @@ fn flight(i: u64, size: [u64; 2]) -> ([i64; 2], [f64; 2]) {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    // The tools' rule: a usage error is bad input (1), as a wrong texel is.
+    let cli: Cli = clipmap::report::exit::parse();
     let start = Instant::now();
     let deadline = start + Duration::from_secs_f64(cli.seconds);
     let mut client = loop {
