@@ -169,13 +169,13 @@ pub fn human(p: &Plan, r: &Request) -> String {
     let last = p.levels - 1;
     let (fw, fh) = (m.width >> first, m.height >> first);
     let (lw, lh) = (m.width >> last, m.height >> last);
+    let c = p.clip_size;
+    // A non-square stack level whose short side is below the clip size keeps that side whole.
+    let window = if m.width == m.height { format!("a {c}x{c} window") } else { format!("at most a {c}x{c} window") };
     o.push_str(&format!(
-        "clip size    {}: {} stack level{} keep a {}x{} window; {} pyramid level{} ({fw}x{fh} down to {lw}x{lh}) stay whole\n",
-        p.clip_size,
+        "clip size    {c}: {} stack level{} keep {window}; {} pyramid level{} ({fw}x{fh} down to {lw}x{lh}) stay whole\n",
         m.stack_levels,
         if m.stack_levels == 1 { "" } else { "s" },
-        p.clip_size,
-        p.clip_size,
         m.pyramid_levels,
         if m.pyramid_levels == 1 { "" } else { "s" },
     ));
