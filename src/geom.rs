@@ -2,8 +2,8 @@
 //!
 //! Owns the pure arithmetic of clipmaps, in 64-bit integers: per-level centres, the tex region
 //! (the clip-size window centred on the level centre, translated to stay inside the level,
-//! docs/PERFORMER.md §2.2), the valid region (tex region less the invalid border), toroidal addressing,
-//! and the mem region (the tile grid covering the tex region plus `lookahead` tiles, docs/DESIGN.md §3).
+//! docs/PERFORMER-REFERENCE.md §2.2), the valid region (tex region less the invalid border), toroidal addressing,
+//! and the mem region (the tile grid covering the tex region plus `lookahead` tiles, docs/ARCHITECTURE.md §3).
 //! Everything here is a synchronous function of its arguments; holding tiles and texels is left
 //! to [`crate::cache`] and [`crate::clip`].
 //!
@@ -180,7 +180,7 @@ pub fn tile_texels(size: [u64; 2], tile: [u64; 2], st: [u64; 2]) -> Rect {
 }
 
 /// Edge of the mem region in tiles per axis: enough tiles to cover the tex region at any
-/// alignment plus `lookahead`, never more than the level has (docs/DESIGN.md §3: clip 1024, 256-texel
+/// alignment plus `lookahead`, never more than the level has (docs/ARCHITECTURE.md §3: clip 1024, 256-texel
 /// tiles, lookahead 1 → 6 x 6).
 pub fn mem_grid(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64) -> [u64; 2] {
     let n = tiles_in_level(size, tile);
@@ -288,7 +288,7 @@ mod tests {
     #[test]
     fn design_example_clip_1024_tiles_256_lookahead_1_is_a_6x6_grid() {
         assert_eq!(mem_grid([1 << 20, 1 << 20], [256, 256], 1024, 1), [6, 6]);
-        // docs/PERFORMER.md §1.10 examples: size 8192, tile 256, tex 512, lookahead 2 → 5; size 1024 → 4.
+        // docs/PERFORMER-REFERENCE.md §1.10 examples: size 8192, tile 256, tex 512, lookahead 2 → 5; size 1024 → 4.
         assert_eq!(mem_grid([8192, 8192], [256, 256], 512, 2), [5, 5]);
         assert_eq!(mem_grid([1024, 1024], [256, 256], 512, 3), [4, 4]);
     }

@@ -141,7 +141,7 @@ impl Flight {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Procedural {
-    /// The verification texture (docs/DESIGN.md §11).
+    /// The verification texture (docs/ARCHITECTURE.md §11).
     Hash,
     /// Smooth fractal terrain.
     Terrain,

@@ -1,7 +1,7 @@
 //! Reference sampler: point, bilinear and trilinear sampling of the full mipmap (read straight
 //! from a [`TileSource`]) and of a [`Clipmap`] as published.
 //!
-//! Owns the filtering arithmetic and the finest-available rule of docs/DESIGN.md §3: the clipmap is
+//! Owns the filtering arithmetic and the finest-available rule of docs/ARCHITECTURE.md §3: the clipmap is
 //! sampled at `max(lod, min LOD)` if every texel the filter touches lies in a published valid
 //! region, else at the finest whole level `k` above that whose footprint does. Both paths run the
 //! same code on the same texel bytes, so where the clipmap holds the texels the two results are

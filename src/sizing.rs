@@ -1,6 +1,6 @@
-//! Sizing arithmetic: clipmap against full-mipmap memory (docs/DESIGN.md §3), the stack/pyramid
+//! Sizing arithmetic: clipmap against full-mipmap memory (docs/ARCHITECTURE.md §3), the stack/pyramid
 //! split, update bandwidth for a centre speed, clip-size recommendations for a display, and
-//! Performer's virtual clip-texture parameter rule (docs/PERFORMER.md §2.8).
+//! Performer's virtual clip-texture parameter rule (docs/PERFORMER-REFERENCE.md §2.8).
 //!
 //! Pure functions on exact integers (u128 for texel and byte counts); nothing here reads files.
 
@@ -192,7 +192,7 @@ pub fn recommended_clip(width: u64) -> (u64, u64) {
     (usual, usual * 2)
 }
 
-/// Inputs of Performer's `pfuCalcVirtualClipTexParams` (docs/PERFORMER.md §2.8).
+/// Inputs of Performer's `pfuCalcVirtualClipTexParams` (docs/PERFORMER-REFERENCE.md §2.8).
 #[derive(Clone, Debug)]
 pub struct VirtualInputs {
     /// Levels of the virtual texture.

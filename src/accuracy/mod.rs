@@ -1,6 +1,6 @@
 //! The accuracy study: a reference software renderer draws a perspective view of a textured
 //! ground plane twice per frame, from the full mipmap (ground truth, straight from the tile
-//! source) and from the clipmap as published, and measures the difference (docs/DESIGN.md §10).
+//! source) and from the clipmap as published, and measures the difference (docs/ARCHITECTURE.md §10).
 //!
 //! Owns the camera and per-pixel LOD ([`render`]), the per-frame metrics and flights over a
 //! clipmap ([`study`]), and the parameter sweep ([`sweep`]). Sampling itself is

@@ -152,7 +152,7 @@ pub fn render_clipmap(cam: &Camera, map: &Clipmap, filter: Filter) -> Vec<Pixel>
 }
 
 /// Renders from the clipmap seeing only the levels `lod_offset .. lod_offset + effective` (a
-/// virtual clip texture, docs/PERFORMER.md §2.7): the LOD asked for is clamped into that window.
+/// virtual clip texture, docs/PERFORMER-REFERENCE.md §2.7): the LOD asked for is clamped into that window.
 pub fn render_clipmap_levels(cam: &Camera, map: &Clipmap, filter: Filter, window: Option<(u32, u32)>) -> Vec<Pixel> {
     let size = map.desc().size();
     let count = map.level_count() as f64;

@@ -1,4 +1,4 @@
-//! Load control (docs/DESIGN.md §6, docs/PERFORMER.md §2.5): what a copy costs and how min LOD moves.
+//! Load control (docs/ARCHITECTURE.md §6, docs/PERFORMER-REFERENCE.md §2.5): what a copy costs and how min LOD moves.
 //!
 //! Owns the copy-cost table (measured at start-up, or given by tests so that decisions are
 //! deterministic) and the pure rules that turn "which levels are up to date" into min LOD: raise

@@ -3,7 +3,7 @@
 //! Owns the update tick. Each tick it takes finished reads into the tile cache, moves every
 //! level's mem region and asks the read queues for the tiles now wanted, then brings windows up to
 //! date coarse levels first within a copy budget (estimated from a [`CostTable`]), and finally
-//! moves min LOD past any level it could not bring up to date (load control, docs/DESIGN.md §6).
+//! moves min LOD past any level it could not bring up to date (load control, docs/ARCHITECTURE.md §6).
 //!
 //! The invariant it keeps: **every texel inside a published valid region equals the source
 //! texel**. Each tick first shrinks every published region to texels that stay correct and will

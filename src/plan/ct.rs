@@ -1,5 +1,5 @@
 //! Builds a [`ClipTexturePlan`] from a `.ct` syntax tree: global values, the level layout
-//! (docs/PERFORMER.md §1.14), the naming groups (§1.6), each level's `.ic` (loaded and checked with
+//! (docs/PERFORMER-REFERENCE.md §1.14), the naming groups (§1.6), each level's `.ic` (loaded and checked with
 //! the values the `.ct` passes down) and each pyramid file name.
 
 use super::fields::{Field, Reader};
@@ -381,7 +381,7 @@ fn positive_u32(
     }
 }
 
-/// `smallest_icache`: the default rule and the checks of docs/PERFORMER.md §1.14.
+/// `smallest_icache`: the default rule and the checks of docs/PERFORMER-REFERENCE.md §1.14.
 fn smallest_icache(
     r: &mut Reader<'_>,
     virt: [u64; 3],

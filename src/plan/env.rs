@@ -1,4 +1,4 @@
-//! Environment variable expansion, exactly as Performer 3.0 does it (docs/PERFORMER.md §1.7).
+//! Environment variable expansion, exactly as Performer 3.0 does it (docs/PERFORMER-REFERENCE.md §1.7).
 //!
 //! Only a `$` that begins a field is expanded, at most one variable per field; `$(NAME)`,
 //! `${NAME}` and bare `$NAME` forms (the brackets are interchangeable); `NAME:-default` supplies a

@@ -1,4 +1,4 @@
-//! Reading typed values out of a [`SyntaxFile`] with the repetition rules of docs/PERFORMER.md §1.5:
+//! Reading typed values out of a [`SyntaxFile`] with the repetition rules of docs/PERFORMER-REFERENCE.md §1.5:
 //! a repeated scalar is last-wins (with a warning here), a repeated base, format (in a `.ct`) or
 //! file list is an error.
 

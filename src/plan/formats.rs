@@ -1,5 +1,5 @@
 //! Texel format names and numbers: `ext_format`, `int_format` and `img_format` values
-//! (docs/PERFORMER.md §1.3), resolved to OpenGL enum values and to a [`TexelFormat`].
+//! (docs/PERFORMER-REFERENCE.md §1.3), resolved to OpenGL enum values and to a [`TexelFormat`].
 
 use crate::texel::{ComponentType, Components, PackedType, TexelFormat};
 

@@ -461,7 +461,7 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
     })
 }
 
-/// The mem region (docs/PERFORMER.md §1.10): computed per axis when absent, checked when given.
+/// The mem region (docs/PERFORMER-REFERENCE.md §1.10): computed per axis when absent, checked when given.
 #[allow(clippy::too_many_arguments)]
 fn mem_region(
     r: &mut Reader<'_>,
@@ -641,7 +641,7 @@ pub fn read_func(r: &mut Reader<'_>) -> Option<ReadFunc> {
     Some(rf)
 }
 
-/// Synthesises the image cache of a level in no-`.ic` mode (docs/PERFORMER.md §1.6).
+/// Synthesises the image cache of a level in no-`.ic` mode (docs/PERFORMER-REFERENCE.md §1.6).
 pub struct Synth<'a> {
     /// Level and its size.
     pub level: (u32, [u64; 2]),

@@ -1,7 +1,7 @@
 //! Stage two of reading a configuration: syntax tree → validated, immutable plan.
 //!
 //! [`load_clip_texture`] and [`load_image_cache`] read a file (and, for a `.ct`, every `.ic` it
-//! names), check everything docs/PERFORMER.md §1.15 checks and more, expand environment variables,
+//! names), check everything docs/PERFORMER-REFERENCE.md §1.15 checks and more, expand environment variables,
 //! build and anchor every file name, and derive the per-level geometry. The result is a
 //! [`ClipTexturePlan`] or [`ImageCachePlan`] that everything downstream borrows; nothing after this
 //! module reads configuration text.

@@ -1,7 +1,7 @@
 //! File names: environment expansion of fields, printf formats checked against their parameter
 //! lists, and anchoring relative names to the configuration file's directory.
 //!
-//! The rule (docs/PERFORMER.md §1.8, the documented intent): expand each field, build the final name
+//! The rule (docs/PERFORMER-REFERENCE.md §1.8, the documented intent): expand each field, build the final name
 //! (base + list entry, or the printf output), then anchor it to the directory of the file that
 //! named it if it does not start with `/`.
 

@@ -1,5 +1,5 @@
 //! File-name parameter tokens (`tile_params`, `icache_params`): names, types, and which file and
-//! group each may appear in (docs/PERFORMER.md §1.9).
+//! group each may appear in (docs/PERFORMER-REFERENCE.md §1.9).
 
 use super::printf::ArgType;
 

@@ -2,7 +2,7 @@
 //! parameter list, and rendering.
 //!
 //! Performer passes the format to C `sprintf` unchecked, so a wrong parameter count or type gives
-//! garbage names or crashes (docs/PERFORMER.md §1.6). We parse every conversion (flags, width,
+//! garbage names or crashes (docs/PERFORMER-REFERENCE.md §1.6). We parse every conversion (flags, width,
 //! precision, length modifiers, `%%`), check count and type against the parameter list before any
 //! file is named, and render with the same semantics as C for the conversions file names use.
 //! Written here rather than taken from a crate because the checks need the position of each

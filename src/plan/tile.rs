@@ -1,5 +1,5 @@
 //! Where a tile lives: file name, byte offset and length, and stream server
-//! (docs/PERFORMER.md §1.9, §1.11, §1.12).
+//! (docs/PERFORMER-REFERENCE.md §1.9, §1.11, §1.12).
 
 use super::params::Param;
 use super::printf::Arg;

@@ -1,6 +1,6 @@
 //! Writes the `.ct` and `.ic` text of a [`Layout`].
 //!
-//! Follows docs/PERFORMER.md §1: version token first, `.ct` tokens in the manual's documented order,
+//! Follows docs/PERFORMER-REFERENCE.md §1: version token first, `.ct` tokens in the manual's documented order,
 //! formats as names, every comment on a line of its own (never inside a list or between numbers),
 //! relative paths only (so the directory can be moved), and the singular `s_stream` spelling
 //! (Performer 3.0 reads the documented `s_streams` as `s_stream` plus a bogus stream `s`).

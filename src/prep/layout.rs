@@ -3,7 +3,7 @@
 //! stream of every tile.
 //!
 //! Pure geometry: no I/O. The names chosen here are the ones [`super::configfile`] writes into
-//! the `.ct`/`.ic` files, so a reader that follows docs/PERFORMER.md §1.9–§1.14 finds every tile.
+//! the `.ct`/`.ic` files, so a reader that follows docs/PERFORMER-REFERENCE.md §1.9–§1.14 finds every tile.
 //!
 //! Layout of a prepared directory:
 //!
@@ -20,7 +20,7 @@ use super::inset::{Inset, SparseLevel, TileRole};
 use crate::texel::TexelFormat;
 use std::path::PathBuf;
 
-/// Performer raises any smaller `invalid_border` to this (docs/PERFORMER.md §1.4), so a clip window
+/// Performer raises any smaller `invalid_border` to this (docs/PERFORMER-REFERENCE.md §1.4), so a clip window
 /// must be larger than twice it.
 pub const MIN_INVALID_BORDER: u64 = 8;
 
@@ -139,7 +139,7 @@ fn check_pow2(what: String, v: u64, hint: &'static str) -> Result<(), PrepError>
 }
 
 impl Layout {
-    /// Derives the level table, following docs/PERFORMER.md §1.14.
+    /// Derives the level table, following docs/PERFORMER-REFERENCE.md §1.14.
     ///
     /// `smallest_icache` is Performer's default where that default is valid (square textures and
     /// aspect ratios up to 2); for more elongated textures the default would exceed twice the clip
@@ -407,7 +407,7 @@ mod tests {
 
     #[test]
     fn non_square_pyramid_stops_when_the_short_side_would_vanish() {
-        // 8192x2048 ends at 4x1 (docs/PERFORMER.md §1.14).
+        // 8192x2048 ends at 4x1 (docs/PERFORMER-REFERENCE.md §1.14).
         let l = Layout::new(spec(8192, 2048, 1024, 256)).unwrap();
         let last = l.levels.last().unwrap();
         assert_eq!((last.width, last.height), (4, 1));
@@ -416,7 +416,7 @@ mod tests {
 
     #[test]
     fn multi_tile_files_follow_the_offset_formula() {
-        // docs/PERFORMER.md §1.12: 256x256 RGB tiles, 4x4 per file, header 1024, tile (6, 9).
+        // docs/PERFORMER-REFERENCE.md §1.12: 256x256 RGB tiles, 4x4 per file, header 1024, tile (6, 9).
         let mut sp = spec(4096, 4096, 512, 256);
         sp.tiles_in_file = (4, 4);
         sp.header_bytes = 1024;

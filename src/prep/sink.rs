@@ -3,7 +3,7 @@
 //! A band never spans two rows of tiles: image-cache levels are written one row of tiles at a
 //! time (so a one-tile file is written whole, once); a pyramid level, a single tile, is written in
 //! bands of at most [`Limits::pyramid_band_bytes`](super::Limits). Each band is cut into its
-//! tiles, and each tile's part is written at its byte offset in its file (docs/PERFORMER.md §1.12), with
+//! tiles, and each tile's part is written at its byte offset in its file (docs/PERFORMER-REFERENCE.md §1.12), with
 //! the file's header in front when `header_offset` is set. Compressed image-cache tiles are
 //! whole tiles, each compressed into its own file, the tiles of a band in parallel.
 

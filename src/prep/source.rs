@@ -25,7 +25,7 @@ pub trait BandSource: Send {
     fn fill(&mut self, t0: u64, rows: usize, out: &mut [u8]) -> Result<(), PrepError>;
 }
 
-/// The verification texture of one level (docs/DESIGN.md §11).
+/// The verification texture of one level (docs/ARCHITECTURE.md §11).
 pub struct HashLevel {
     /// Level index.
     pub level: u32,

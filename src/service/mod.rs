@@ -95,7 +95,7 @@ impl ServiceError {
 /// A built-in procedural texture.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Procedural {
-    /// The verification texture (docs/DESIGN.md §11): every texel checkable by any reader.
+    /// The verification texture (docs/ARCHITECTURE.md §11): every texel checkable by any reader.
     Hash,
     /// Smooth fractal terrain, for pictures.
     Terrain,

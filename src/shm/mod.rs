@@ -1,5 +1,5 @@
 //! The shared-memory access layer: one mapping per clip texture, which any renderer process reads
-//! without copies or locks (docs/DESIGN.md §5, `docs/SHM.md`).
+//! without copies or locks (docs/ARCHITECTURE.md §5, `docs/SHM.md`).
 //!
 //! Owns the layout ([`layout`]), the only `unsafe` code of the crate ([`raw`]), the writer side
 //! used by the service ([`writer`], [`mirror`]) and the reader side used by clients

@@ -1,4 +1,4 @@
-//! Verification of a mapping that serves the hash texture (docs/DESIGN.md §11): read random blocks of
+//! Verification of a mapping that serves the hash texture (docs/ARCHITECTURE.md §11): read random blocks of
 //! texels inside the published valid regions and check every texel, and every consistently read
 //! level state, against what the texture and the layout allow.
 //!

@@ -2,7 +2,7 @@
 //!
 //! Owns turning a plan into a [`TextureDesc`] (level sizes; image-cache levels are read in their
 //! `.ic` tile size, pyramid levels as one tile the size of the level), reading each tile with one
-//! positioned read at the byte offset the plan computes (docs/PERFORMER.md §1.12), a bounded set of
+//! positioned read at the byte offset the plan computes (docs/PERFORMER-REFERENCE.md §1.12), a bounded set of
 //! open file handles ([`Limits::max_open_files`], least recently used closed first), the default
 //! tile of each image cache (§1.13: read once at start-up, checked to be one tile long, served in
 //! place of a tile whose file is missing or too short), and the mapping of tiles to stream

@@ -6,7 +6,7 @@
 //! fault-injecting wrapper ([`FaultySource`]). Residency, queues and
 //! windows belong to later modules ([`crate::cache`], [`crate::queue`], [`crate::clip`]).
 //!
-//! Tile layout (docs/DESIGN.md §11): a tile of level `k` is `tile[0] x tile[1]` texels, rows in
+//! Tile layout (docs/ARCHITECTURE.md §11): a tile of level `k` is `tile[0] x tile[1]` texels, rows in
 //! increasing t, s fastest. Texel (s, t) of tile (S, T) is at byte
 //! `((t - T*tile[1]) * tile[0] + (s - S*tile[0])) * bytes_per_texel`. Texels of an edge tile that
 //! lie outside the level are zero.

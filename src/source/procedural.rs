@@ -1,6 +1,6 @@
 //! Procedural textures defined per level, for textures up to 2^26 texels a side without a file.
 //!
-//! * [`hash`]: the verification texture of docs/DESIGN.md §11. The texel at level L, column s, row t is
+//! * [`hash`]: the verification texture of docs/ARCHITECTURE.md §11. The texel at level L, column s, row t is
 //!   the little-endian bytes of `splitmix64((L << 58) | (t << 29) | s)`; a format of `n` bytes per
 //!   texel takes bytes `0..n` of that 64-bit value (cycling for formats wider than 8 bytes). Any
 //!   reader can check any texel it reads without a reference copy. Each level is defined on its
@@ -15,7 +15,7 @@
 
 use crate::texel::TexelFormat;
 
-/// SplitMix64 finaliser (all arithmetic wrapping on 64 bits), as in docs/DESIGN.md §11.
+/// SplitMix64 finaliser (all arithmetic wrapping on 64 bits), as in docs/ARCHITECTURE.md §11.
 #[inline]
 pub fn splitmix64(x: u64) -> u64 {
     let mut z = x.wrapping_add(0x9E37_79B9_7F4A_7C15);

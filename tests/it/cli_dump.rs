@@ -1,5 +1,5 @@
 //! `cliptex dump`, `icache dump` and `cliptex attach` end to end, checked texel by texel against
-//! the hash verification texture (docs/DESIGN.md §11): `clipprep --source hash` writes pyramids in a
+//! the hash verification texture (docs/ARCHITECTURE.md §11): `clipprep --source hash` writes pyramids in a
 //! temporary directory and every pixel of the dumped PNGs must be the hash texel it shows; a
 //! running `clipmapd --source hash` is pictured level by level (valid texels, outlines) and as
 //! rings (each pixel in the colour of the level it must use), and `cliptex attach --once --json`

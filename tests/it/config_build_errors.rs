@@ -1,4 +1,4 @@
-//! Clip texture build-stage errors of docs/PERFORMER.md §1.15 (checks 1-12), plus the extra checks
+//! Clip texture build-stage errors of docs/PERFORMER-REFERENCE.md §1.15 (checks 1-12), plus the extra checks
 //! this reader makes (formats, sizes, naming).
 
 use crate::common;

@@ -1,4 +1,4 @@
-//! Parse-stage errors of docs/PERFORMER.md §1.15, each with its code, severity, place and message, and
+//! Parse-stage errors of docs/PERFORMER-REFERENCE.md §1.15, each with its code, severity, place and message, and
 //! the strict/portability reporting modes.
 
 use crate::common;

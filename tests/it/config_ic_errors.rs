@@ -1,4 +1,4 @@
-//! Image cache build-stage errors of docs/PERFORMER.md §1.15 (checks 1-6), plus the checks this reader
+//! Image cache build-stage errors of docs/PERFORMER-REFERENCE.md §1.15 (checks 1-6), plus the checks this reader
 //! adds (tile size dividing the cache, tiles per file, header offset).
 
 use crate::common;

@@ -43,7 +43,7 @@ fn the_default_tile_name_of_the_image_cache_manual() {
 
 #[test]
 fn tile_byte_offset_with_tiles_in_file_and_header() {
-    // docs/PERFORMER.md §1.12: 256x256 RGB tiles, 4x4x1 per file, header 1024, tile (6, 9)
+    // docs/PERFORMER-REFERENCE.md §1.12: 256x256 RGB tiles, 4x4x1 per file, header 1024, tile (6, 9)
     // -> file (1, 2), position (2, 1) -> (2 + 4*1) * 3 * 65536 + 1024 = 1180672.
     let (p, d) = ic_ok(&ic("icache_size 4096 4096 1\ntile_size 256 256 1\ntex_region_size 1024 1024 1\n\
          tiles_in_file 4 4 1\nheader_offset 1024\ntile_format f.%d.%d\n\

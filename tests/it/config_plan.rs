@@ -1,4 +1,4 @@
-//! The plan stage's numbers: every default (docs/PERFORMER.md §1.4, §1.5, §1.10, §1.14, §2.10), the
+//! The plan stage's numbers: every default (docs/PERFORMER-REFERENCE.md §1.4, §1.5, §1.10, §1.14, §2.10), the
 //! level layout, tex and mem regions, no-`.ic` mode and virtual clip textures.
 
 use crate::common;
@@ -253,7 +253,7 @@ fn a_virtual_clip_texture_of_2_to_the_26() {
 
 #[test]
 fn the_explicit_file_list_example_of_the_manual() {
-    // docs/PERFORMER.md §1.14 / D-CT example 1: virt 4096, clip 512 -> 3 .ic files + 10 tile files.
+    // docs/PERFORMER-REFERENCE.md §1.14 / D-CT example 1: virt 4096, clip 512 -> 3 .ic files + 10 tile files.
     let fx = Fixture::new();
     fx.write_level_ics("ic/l", 4096, 1024, 256);
     let pyr: Vec<String> = (0..10).map(|i| format!("pyr/{}.raw", 512 >> i)).collect();

@@ -7,7 +7,7 @@ use clipmap::config::tokens::{self, ArgShape, TOKENS};
 use clipmap::config::{FileKind, Severity, TokenId, Value};
 use common::*;
 
-/// Every spelling the reader knows, in table order (docs/PERFORMER.md §1.4, §1.5).
+/// Every spelling the reader knows, in table order (docs/PERFORMER-REFERENCE.md §1.4, §1.5).
 const ALL_NAMES: &[&str] = &[
     "ct_version1.0",
     "ct_version2.0",
@@ -57,7 +57,7 @@ const ALL_NAMES: &[&str] = &[
     "default_tile",
 ];
 
-/// Tokens that are legal in the table but fatal in a `.ct` (docs/PERFORMER.md §1.4).
+/// Tokens that are legal in the table but fatal in a `.ct` (docs/PERFORMER-REFERENCE.md §1.4).
 const FATAL_IN_CT: &[&str] = &[
     "ic_version1.0",
     "ic_version2.0",
@@ -78,7 +78,7 @@ const FATAL_IN_CT: &[&str] = &[
     "num_streams",
 ];
 
-/// Tokens fatal in an `.ic` (docs/PERFORMER.md §1.5).
+/// Tokens fatal in an `.ic` (docs/PERFORMER-REFERENCE.md §1.5).
 const FATAL_IN_IC: &[&str] = &[
     "ct_version1.0",
     "ct_version2.0",

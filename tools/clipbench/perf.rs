@@ -11,7 +11,7 @@
 //! - `speedup_vs_gdal`, `speedup_vs_full_reload`: per-frame cost of one flight with the same
 //!   per-level windows, through GDAL (one Python process reading every frame) and through the
 //!   engine without incremental updates (a fresh clipmap filled every frame), against the engine;
-//! - `memory_vs_formula`: resident growth of the engine's process against docs/DESIGN.md §3's clipmap
+//! - `memory_vs_formula`: resident growth of the engine's process against docs/ARCHITECTURE.md §3's clipmap
 //!   texels plus the tile-cache budget;
 //! - a 2^26 texture flown in real time, and the service's request-to-publication latency.
 //!
@@ -164,10 +164,10 @@ fn loadavg() -> String {
         .unwrap_or_default()
 }
 
-/// Memory of the engine's process against docs/DESIGN.md §3.
+/// Memory of the engine's process against docs/ARCHITECTURE.md §3.
 #[derive(Clone, Debug, Serialize)]
 pub struct Memory {
-    /// docs/DESIGN.md §3: 4^m (n - m + 4/3) - 1/3 texels times bytes per texel.
+    /// docs/ARCHITECTURE.md §3: 4^m (n - m + 4/3) - 1/3 texels times bytes per texel.
     pub formula_window_bytes: u64,
     /// What the engine allocates for its windows (equal to the formula for square textures).
     pub window_bytes: u64,
@@ -240,7 +240,7 @@ fn field(v: &serde_json::Value, path: &[&str]) -> anyhow::Result<f64> {
     at.as_f64().with_context(|| format!("{} is not a number", path.join(".")))
 }
 
-/// docs/DESIGN.md §3: a 2^n texture with clip 2^m holds 4^m (n - m + 4/3) - 1/3 texels.
+/// docs/ARCHITECTURE.md §3: a 2^n texture with clip 2^m holds 4^m (n - m + 4/3) - 1/3 texels.
 pub fn formula_texels(size: u64, clip: u64) -> u64 {
     let (n, m) = (size.trailing_zeros() as u64, clip.min(size).trailing_zeros() as u64);
     // 4^m (n - m + 4/3) - 1/3 = (4^m (3 (n - m) + 4) - 1) / 3, exact in integers.
