@@ -1,26 +1,40 @@
-//! The shared-memory layout, version 1: every offset and size, as pure arithmetic.
+//! The shared-memory layout, version 2: every offset and size, as pure arithmetic.
+//!
+//! The mapping publishes each level's image cache: a toroidal grid of slots, one slot one whole
+//! tile in the tile files' texel order, each with a small seqlocked tag, plus one seqlocked
+//! snapshot of every level's valid region and min LOD. Renderers' requests go through a separate
+//! small request mapping, so the texel mapping can be mapped read-only.
 //!
 //! `docs/SHM.md` documents the same table for readers in other languages; `include/clipmap_shm.h`
 //! and `clients/python/clipmap_shm.py` mirror it, and a test checks that they agree with this file.
 //! All integers are little-endian. Every field the writer changes while readers run is 8 bytes,
 //! naturally aligned, and accessed atomically.
 
-/// Magic bytes at offset 0.
-pub const MAGIC: [u8; 8] = *b"CLIPMAP1";
+use crate::geom::{tiles_in_level, Rect};
+
+/// Magic bytes at offset 0 of the texel mapping.
+pub const MAGIC: [u8; 8] = *b"CLIPMAP2";
+/// Magic bytes at offset 0 of the request mapping.
+pub const REQUEST_MAGIC: [u8; 8] = *b"CLIPREQ2";
 /// Layout version.
-pub const VERSION: u32 = 1;
-/// Alignment of every window (a page).
+pub const VERSION: u32 = 2;
+/// Alignment of every level's tags and slots (a page).
 pub const PAGE: u64 = 4096;
 /// Most levels a mapping describes.
 pub const MAX_LEVELS: usize = 32;
+/// Bytes of the request mapping.
+pub const REQUEST_BYTES: u64 = 4096;
+/// Most attempts a reader makes at one seqlocked read (the snapshot or a tag) before it gives up
+/// for now: the writer holds a lock for microseconds, so more means the writer is stuck or gone.
+pub const MAX_RETRIES: usize = 64;
 
-/// Header field offsets.
+/// Header field offsets of the texel mapping.
 pub mod header {
-    /// `[u8; 8]` magic.
+    /// `[u8; 8]` magic `CLIPMAP2`.
     pub const MAGIC: usize = 0;
-    /// `u32` layout version.
+    /// `u32` layout version (2).
     pub const VERSION: usize = 8;
-    /// `u32` bytes before the first window (a multiple of 4096).
+    /// `u32` bytes before the first level's tags (a multiple of 4096).
     pub const HEADER_BYTES: usize = 12;
     /// `u64` size of the whole mapping.
     pub const TOTAL_BYTES: usize = 16;
@@ -38,97 +52,164 @@ pub mod header {
     pub const LEVEL0_T: usize = 48;
     /// `u32` process id of the writer.
     pub const WRITER_PID: usize = 56;
-    /// `u32` flags (bit 0: the writer shut down cleanly).
-    pub const FLAGS: usize = 60;
     /// `u64` (atomic) tick counter, incremented every update tick.
     pub const HEARTBEAT: usize = 64;
     /// `u64` (atomic) wall-clock time of the last tick, milliseconds since the Unix epoch.
     pub const HEARTBEAT_MS: usize = 72;
     /// `u64` a number unique to each start of the writer.
     pub const GENERATION: usize = 80;
-    /// `u64` (atomic) sequence counter of the global state (even: stable).
-    pub const GLOBAL_SEQ: usize = 88;
-    /// `f64` bits (atomic): the finest level renderers may use (fractional while fading).
-    pub const MIN_LOD: usize = 96;
-    /// `u64` (atomic): the tick the global state belongs to.
-    pub const TICK: usize = 104;
-    /// Request block (written by a renderer, read by the writer).
-    pub const REQUEST: usize = 128;
+    /// `u64` (atomic) flags: bit 0 set when the writer shut down cleanly.
+    pub const FLAGS: usize = 88;
+    /// `u64` the tick period in nanoseconds (the tick rate is 1e9 / this).
+    pub const TICK_PERIOD_NS: usize = 96;
+    /// The snapshot: every level's state and min LOD under one seqlock.
+    pub const SNAPSHOT: usize = 128;
     /// Level descriptors (static after creation), [`super::DESC_BYTES`] each.
-    pub const LEVEL_DESCS: usize = 192;
-    /// Level states (seqlocked), [`super::STATE_BYTES`] each.
-    pub const LEVEL_STATES: usize = LEVEL_DESCS + super::MAX_LEVELS * super::DESC_BYTES;
+    pub const LEVEL_DESCS: usize = SNAPSHOT + super::snapshot::LEVELS + super::MAX_LEVELS * super::STATE_BYTES;
     /// End of the fixed header.
-    pub const END: usize = LEVEL_STATES + super::MAX_LEVELS * super::STATE_BYTES;
+    pub const END: usize = LEVEL_DESCS + super::MAX_LEVELS * super::DESC_BYTES;
 }
 
-/// Request block fields, relative to [`header::REQUEST`]; every field 8 bytes.
-pub mod request {
-    /// `u64` (atomic) sequence counter (even: stable); a renderer bumps it to odd, writes, bumps
-    /// it to even.
+/// Snapshot fields, relative to [`header::SNAPSHOT`]; every field 8 bytes, all atomic, all
+/// under the one sequence counter at offset 0.
+pub mod snapshot {
+    /// `u64` sequence counter (odd while the writer changes the snapshot).
     pub const SEQ: usize = 0;
-    /// `i64` requested centre, level-0 texels.
-    pub const CENTRE_S: usize = 8;
+    /// `f64` bits: the finest level renderers may use (fractional while fading).
+    pub const MIN_LOD: usize = 8;
+    /// `u64` the tick this snapshot belongs to (0 before the first).
+    pub const TICK: usize = 16;
+    /// `u64` invalid border in use (stack levels).
+    pub const INVALID_BORDER: usize = 24;
+    /// `i64` level-0 centre applied by that tick.
+    pub const CENTRE_S: usize = 32;
     /// `i64`.
-    pub const CENTRE_T: usize = 16;
-    /// `f64` bits: velocity, level-0 texels per second (0 when unknown).
-    pub const VEL_S: usize = 24;
-    /// `f64` bits.
-    pub const VEL_T: usize = 32;
-    /// `u64` process id of the requester.
-    pub const CLIENT_PID: usize = 40;
-    /// `u64` number of requests made (monotonic).
-    pub const COUNT: usize = 48;
+    pub const CENTRE_T: usize = 40;
+    /// Level states, [`super::STATE_BYTES`] each.
+    pub const LEVELS: usize = 64;
+}
+
+/// Bytes of one level state in the snapshot.
+pub const STATE_BYTES: usize = 64;
+/// Level state fields, relative to the state.
+pub mod state {
+    /// `i64` level centre, level texels.
+    pub const CENTRE_S: usize = 0;
+    /// `i64`.
+    pub const CENTRE_T: usize = 8;
+    /// `i64` valid region, half-open: s0 <= s < s1, t0 <= t < t1 (level texels).
+    pub const VALID_S0: usize = 16;
+    /// `i64`.
+    pub const VALID_T0: usize = 24;
+    /// `i64`.
+    pub const VALID_S1: usize = 32;
+    /// `i64`.
+    pub const VALID_T1: usize = 40;
+    /// `u64` 1 when renderers may use the level (then the region is not empty), else 0.
+    pub const ENABLED: usize = 48;
+    /// `u64` tick of the last change of this level's state.
+    pub const UPDATED_TICK: usize = 56;
 }
 
 /// Bytes of one level descriptor.
-pub const DESC_BYTES: usize = 64;
-/// Level descriptor fields, relative to the descriptor; every field 8 bytes.
+pub const DESC_BYTES: usize = 128;
+/// Level descriptor fields, relative to the descriptor; every field a static `u64`.
 pub mod desc {
-    /// `u64` level width in texels.
+    /// Level width in texels.
     pub const SIZE_S: usize = 0;
-    /// `u64` level height.
+    /// Level height.
     pub const SIZE_T: usize = 8;
-    /// `u64` byte offset of the window from the start of the mapping.
-    pub const WINDOW_OFFSET: usize = 16;
-    /// `u64` bytes of the window.
-    pub const WINDOW_BYTES: usize = 24;
-    /// `u64` window width in texels (min(clip, level width)).
-    pub const WINDOW_S: usize = 32;
-    /// `u64` window height.
-    pub const WINDOW_T: usize = 40;
-    /// `u64` 0: stack level (toroidal window), 1: pyramid level (resident whole).
-    pub const KIND: usize = 48;
+    /// Tile width in texels.
+    pub const TILE_S: usize = 16;
+    /// Tile height.
+    pub const TILE_T: usize = 24;
+    /// Slots per row of the grid.
+    pub const GRID_S: usize = 32;
+    /// Slot rows of the grid.
+    pub const GRID_T: usize = 40;
+    /// Bytes of one slot (tile width x tile height x bytes per texel).
+    pub const SLOT_BYTES: usize = 48;
+    /// Byte offset of the level's tags (a multiple of 4096).
+    pub const TAGS_OFFSET: usize = 56;
+    /// Byte offset of the level's slots (a multiple of 4096).
+    pub const SLOTS_OFFSET: usize = 64;
+    /// 0: stack level (a toroidal grid around the centre), 1: pyramid level (one slot, the
+    /// whole level).
+    pub const KIND: usize = 72;
 }
 
-/// Bytes of one level state.
-pub const STATE_BYTES: usize = 128;
-/// Level state fields, relative to the state; every field 8 bytes, all atomic.
-pub mod state {
-    /// `u64` sequence counter (even: stable).
+/// Bytes of one slot tag.
+pub const TAG_BYTES: usize = 32;
+/// Slot tag fields, relative to the tag; every field 8 bytes, all atomic.
+pub mod tag {
+    /// `u64` sequence counter (odd while the writer changes the tag).
     pub const SEQ: usize = 0;
-    /// `i64` level centre, level texels.
-    pub const CENTRE_S: usize = 8;
+    /// `i64` tile column S the slot holds (or is being loaded with).
+    pub const TILE_S: usize = 8;
+    /// `i64` tile row T.
+    pub const TILE_T: usize = 16;
+    /// `u64` one of [`super::SlotState`].
+    pub const STATE: usize = 24;
+}
+
+/// What a slot holds, as its tag says.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SlotState {
+    /// Nothing yet.
+    Empty = 0,
+    /// Being loaded with the tile the tag names: its bytes may be changing.
+    Loading = 1,
+    /// Holds the tile's texels.
+    Ready = 2,
+    /// The tile could not be read: use a coarser level for its texels.
+    Missing = 3,
+    /// Holds the configuration's default tile in place of a tile that does not exist.
+    Default = 4,
+}
+
+impl SlotState {
+    /// The state of a tag's `STATE` value (`None` for a value no writer writes).
+    pub fn from_code(code: u64) -> Option<SlotState> {
+        [SlotState::Empty, SlotState::Loading, SlotState::Ready, SlotState::Missing, SlotState::Default]
+            .into_iter()
+            .find(|s| *s as u64 == code)
+    }
+
+    /// True when the slot's texels may be read (ready or the default tile).
+    pub fn readable(self) -> bool {
+        matches!(self, SlotState::Ready | SlotState::Default)
+    }
+
+    /// True when nothing more is coming for the tile (readable, or missing for good).
+    pub fn settled(self) -> bool {
+        self != SlotState::Loading && self != SlotState::Empty
+    }
+}
+
+/// Request mapping fields (its own small file, written by renderers).
+pub mod request {
+    /// `[u8; 8]` magic `CLIPREQ2`.
+    pub const MAGIC: usize = 0;
+    /// `u32` layout version (2).
+    pub const VERSION: usize = 8;
+    /// `u64` the generation of the texel mapping this request file belongs to.
+    pub const GENERATION: usize = 16;
+    /// `u64` (atomic) sequence counter (even: stable); a renderer takes it with compare-and-swap
+    /// from even v to v + 1, writes, and stores v + 2.
+    pub const SEQ: usize = 64;
+    /// `i64` requested centre, level-0 texels.
+    pub const CENTRE_S: usize = 72;
     /// `i64`.
-    pub const CENTRE_T: usize = 16;
-    /// `i64` valid region, half-open: s0 <= s < s1, t0 <= t < t1 (level texels).
-    pub const VALID_S0: usize = 24;
-    /// `i64`.
-    pub const VALID_T0: usize = 32;
-    /// `i64`.
-    pub const VALID_S1: usize = 40;
-    /// `i64`.
-    pub const VALID_T1: usize = 48;
-    /// `u64` 1 when renderers may use the level.
-    pub const ENABLED: usize = 56;
-    /// `u64` invalid border in use.
-    pub const INVALID_BORDER: usize = 64;
-    /// `u64` tick of the last change.
-    pub const UPDATED_TICK: usize = 72;
-    /// `i64` toroidal origin: the window slot of the valid region's first texel, S.
-    pub const ORIGIN_S: usize = 80;
-    /// `i64` toroidal origin, T.
-    pub const ORIGIN_T: usize = 88;
+    pub const CENTRE_T: usize = 80;
+    /// `f64` bits: velocity, level-0 texels per second (0 when unknown).
+    pub const VEL_S: usize = 88;
+    /// `f64` bits.
+    pub const VEL_T: usize = 96;
+    /// `u64` process id of the requester.
+    pub const CLIENT_PID: usize = 104;
+    /// `u64` number of requests made (monotonic).
+    pub const COUNT: usize = 112;
 }
 
 /// Texel format codes in the header.
@@ -156,6 +237,17 @@ pub fn format_from_code(code: u32) -> Option<crate::texel::TexelFormat> {
         .find(|&f| format_code(f) == code)
 }
 
+/// One level of a shape: its size, tile size and grid of slots.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LevelShape {
+    /// Level size in texels.
+    pub size: [u64; 2],
+    /// Tile size in texels.
+    pub tile: [u64; 2],
+    /// Slots per axis.
+    pub grid: [u64; 2],
+}
+
 /// The static shape of a mapping.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Shape {
@@ -163,85 +255,198 @@ pub struct Shape {
     pub bytes_per_texel: u64,
     /// Clip size.
     pub clip_size: u64,
-    /// Level sizes, finest first.
-    pub levels: Vec<[u64; 2]>,
+    /// Levels, finest first.
+    pub levels: Vec<LevelShape>,
 }
 
-/// Where each level's window lies, and the whole size.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Placement {
-    /// Bytes before the first window.
-    pub header_bytes: u64,
-    /// Per level: (offset, bytes, window width, window height, kind).
-    pub windows: Vec<WindowPlace>,
-    /// Whole mapping.
-    pub total_bytes: u64,
-}
-
-/// One level's window.
+/// Where one level's tags and slots lie.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct WindowPlace {
-    /// Byte offset from the start of the mapping.
-    pub offset: u64,
-    /// Bytes.
-    pub bytes: u64,
-    /// Width in texels.
-    pub s: u64,
-    /// Height in texels.
-    pub t: u64,
+pub struct LevelPlace {
+    /// Byte offset of the tags.
+    pub tags: u64,
+    /// Byte offset of the slots.
+    pub slots: u64,
+    /// Bytes of one slot.
+    pub slot_bytes: u64,
+    /// Number of slots (grid width x height).
+    pub slot_count: u64,
     /// 0 stack, 1 pyramid.
     pub kind: u64,
 }
 
-/// Lays a shape out. `None` when it has too many levels or overflows.
+impl LevelPlace {
+    /// Byte offset of slot `index`.
+    pub fn slot_offset(&self, index: u64) -> u64 {
+        self.slots + index * self.slot_bytes
+    }
+
+    /// Byte offset of slot `index`'s tag.
+    pub fn tag_offset(&self, index: u64) -> u64 {
+        self.tags + index * TAG_BYTES as u64
+    }
+}
+
+/// Where every level lies, and the whole size.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Placement {
+    /// Bytes before the first level.
+    pub header_bytes: u64,
+    /// Per level.
+    pub levels: Vec<LevelPlace>,
+    /// Whole mapping.
+    pub total_bytes: u64,
+}
+
+impl Placement {
+    /// Bytes of the slots of every level (the texels).
+    pub fn slot_bytes(&self) -> u64 {
+        self.levels.iter().map(|l| l.slot_bytes * l.slot_count).sum()
+    }
+}
+
+/// The slot index of tile (S, T) in a grid: (S mod grid width, T mod grid height), Euclidean.
+pub fn slot_index(grid: [u64; 2], tile: [i64; 2]) -> u64 {
+    tile[1].rem_euclid(grid[1] as i64) as u64 * grid[0] + tile[0].rem_euclid(grid[0] as i64) as u64
+}
+
+/// Whether a level's static description is one a writer of this layout makes: non-zero tiles, a grid no larger than the level's tiles and large enough for a window
+/// of the clip size at any alignment, and a pyramid level (no larger than the clip size) whole. `Err` says what is wrong.
+pub fn check_level(l: &LevelShape, clip: u64, bpt: u64) -> Result<(), String> {
+    let [w, h] = l.size;
+    if w == 0 || h == 0 || l.tile[0] == 0 || l.tile[1] == 0 || l.grid[0] == 0 || l.grid[1] == 0 {
+        return Err(format!("a zero size: level {w}x{h}, tile {:?}, grid {:?}", l.tile, l.grid));
+    }
+    let n = tiles_in_level(l.size, l.tile);
+    if l.grid[0] > n[0] || l.grid[1] > n[1] {
+        return Err(format!("grid {:?} larger than the level's {n:?} tiles", l.grid));
+    }
+    for a in 0..2 {
+        let least = (clip.min(l.size[a]).div_ceil(l.tile[a]) + 1).min(n[a]);
+        if l.grid[a] < least {
+            return Err(format!("grid {:?} cannot hold a {clip}-texel window (needs {least} along axis {a})", l.grid));
+        }
+    }
+    let pyramid = w <= clip && h <= clip;
+    if pyramid && l.grid != n {
+        return Err(format!("a pyramid level ({w}x{h}, clip {clip}) must hold all its {n:?} tiles, not a {:?} grid", l.grid));
+    }
+    l.tile[0]
+        .checked_mul(l.tile[1])
+        .and_then(|x| x.checked_mul(bpt))
+        .and_then(|x| x.checked_mul(l.grid[0] * l.grid[1]))
+        .ok_or_else(|| format!("tile {:?} x grid {:?} x {bpt} bytes overflows", l.tile, l.grid))?;
+    Ok(())
+}
+
+/// Lays a shape out. `None` when it has too many levels, a level fails [`check_level`] or the
+/// sizes overflow.
 pub fn place(shape: &Shape) -> Option<Placement> {
-    if shape.levels.is_empty() || shape.levels.len() > MAX_LEVELS || shape.bytes_per_texel == 0 || shape.clip_size == 0
+    if shape.levels.is_empty()
+        || shape.levels.len() > MAX_LEVELS
+        || shape.bytes_per_texel == 0
+        || shape.clip_size == 0
+        || shape.levels.iter().any(|l| check_level(l, shape.clip_size, shape.bytes_per_texel).is_err())
     {
         return None;
     }
     let round = |v: u64| v.checked_add(PAGE - 1).map(|x| x / PAGE * PAGE);
     let header_bytes = round(header::END as u64)?;
     let mut at = header_bytes;
-    let mut windows = Vec::new();
+    let mut levels = Vec::new();
     for l in &shape.levels {
-        let (s, t) = (l[0].min(shape.clip_size), l[1].min(shape.clip_size));
-        let kind = u64::from(l[0] <= shape.clip_size && l[1] <= shape.clip_size);
-        let bytes = s.checked_mul(t)?.checked_mul(shape.bytes_per_texel)?;
-        windows.push(WindowPlace { offset: at, bytes, s, t, kind });
-        at = round(at.checked_add(bytes)?)?;
+        let slot_count = l.grid[0].checked_mul(l.grid[1])?;
+        let slot_bytes = l.tile[0].checked_mul(l.tile[1])?.checked_mul(shape.bytes_per_texel)?;
+        let tags = at;
+        let slots = round(tags.checked_add(slot_count.checked_mul(TAG_BYTES as u64)?)?)?;
+        let kind = u64::from(l.size[0] <= shape.clip_size && l.size[1] <= shape.clip_size);
+        levels.push(LevelPlace { tags, slots, slot_bytes, slot_count, kind });
+        at = round(slots.checked_add(slot_count.checked_mul(slot_bytes)?)?)?;
     }
-    Some(Placement { header_bytes, windows, total_bytes: at })
+    Some(Placement { header_bytes, levels, total_bytes: at })
+}
+
+/// Whether a published valid region is one a writer of this layout publishes for a level of
+/// `l`'s shape: inside the level, and spanning no more tiles than the grid has slots per axis (so
+/// the tiles under it have distinct slots). `Err` says what is wrong.
+pub fn check_region(l: &LevelShape, r: [i64; 4]) -> Result<Rect, String> {
+    let [s0, t0, s1, t1] = r;
+    let inside = |lo: i64, hi: i64, size: u64| 0 <= lo && lo < hi && hi as u64 <= size;
+    if !inside(s0, s1, l.size[0]) || !inside(t0, t1, l.size[1]) {
+        return Err(format!("valid region {r:?} is not a non-empty rectangle inside the {}x{} level", l.size[0], l.size[1]));
+    }
+    let rect = Rect::new(s0, t0, s1, t1);
+    let tiles = crate::geom::tiles_covering(rect, l.tile);
+    if tiles.width() > l.grid[0] || tiles.height() > l.grid[1] {
+        return Err(format!(
+            "valid region {r:?} spans {}x{} tiles, more than the {:?} grid holds",
+            tiles.width(),
+            tiles.height(),
+            l.grid
+        ));
+    }
+    Ok(rect)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geom::mem_grid;
 
-    #[test]
-    fn header_fits_and_windows_are_page_aligned() {
-        assert!(header::END <= 8192);
-        let shape =
-            Shape { bytes_per_texel: 4, clip_size: 1024, levels: (0..15).map(|k| [16384 >> k, 16384 >> k]).collect() };
-        let p = place(&shape).unwrap();
-        assert_eq!(p.header_bytes, 8192);
-        for (i, w) in p.windows.iter().enumerate() {
-            assert_eq!(w.offset % PAGE, 0);
-            assert_eq!(w.s, (16384u64 >> i).min(1024));
-            if i > 0 {
-                let prev = p.windows[i - 1];
-                assert!(w.offset >= prev.offset + prev.bytes);
-            }
-        }
-        assert_eq!(p.windows[4].kind, 1);
-        assert_eq!(p.windows[3].kind, 0);
-        assert!(p.total_bytes >= p.windows[14].offset + p.windows[14].bytes);
+    fn shape(size: u64, clip: u64, tile: u64, bpt: u64) -> Shape {
+        let levels = (0..crate::source::level_count([size, size]))
+            .map(|k| {
+                let s = (size >> k).max(1);
+                let t = if s <= clip { s } else { tile.min(s) };
+                LevelShape { size: [s, s], tile: [t, t], grid: mem_grid([s, s], [t, t], clip, 1) }
+            })
+            .collect();
+        Shape { bytes_per_texel: bpt, clip_size: clip, levels }
     }
 
     #[test]
-    fn too_many_levels_or_overflow_is_refused() {
-        let many = Shape { bytes_per_texel: 4, clip_size: 1, levels: vec![[1, 1]; 33] };
+    fn header_fits_and_levels_are_page_aligned_in_order() {
+        assert!(header::END <= 8192);
+        let p = place(&shape(16384, 1024, 256, 4)).unwrap();
+        assert_eq!(p.header_bytes, 8192);
+        let mut end = p.header_bytes;
+        for (i, l) in p.levels.iter().enumerate() {
+            assert_eq!(l.tags % PAGE, 0);
+            assert_eq!(l.slots % PAGE, 0);
+            assert!(l.tags >= end, "level {i} overlaps the one before");
+            assert!(l.slots >= l.tags + l.slot_count * TAG_BYTES as u64);
+            end = l.slots + l.slot_count * l.slot_bytes;
+        }
+        assert!(p.total_bytes >= end);
+        // Level 0: a 6x6 grid of 256x256 RGBA tiles; level 4 (1024) is a pyramid level.
+        assert_eq!(p.levels[0].slot_count, 36);
+        assert_eq!(p.levels[0].slot_bytes, 256 * 256 * 4);
+        assert_eq!((p.levels[3].kind, p.levels[4].kind), (0, 1));
+        assert_eq!(p.levels[4].slot_count, 1);
+    }
+
+    #[test]
+    fn too_many_levels_bad_grids_or_overflow_are_refused() {
+        let mut many = shape(4, 4, 4, 4);
+        many.levels = vec![many.levels[0]; 33];
         assert!(place(&many).is_none());
-        let huge = Shape { bytes_per_texel: u64::MAX, clip_size: 1 << 20, levels: vec![[1 << 30, 1 << 30]] };
+        let mut small = shape(4096, 1024, 256, 4);
+        small.levels[0].grid = [4, 4];
+        assert!(place(&small).is_none(), "a 4x4 grid cannot hold a 1024 window of 256 tiles");
+        let mut huge = shape(1 << 20, 1 << 20, 1 << 20, 4);
+        huge.bytes_per_texel = u64::MAX;
         assert!(place(&huge).is_none());
+    }
+
+    #[test]
+    fn slots_wrap_euclidean_and_regions_are_checked() {
+        assert_eq!(slot_index([6, 5], [7, 11]), 5 + 1);
+        assert_eq!(slot_index([6, 5], [-1, -1]), 4 * 6 + 5);
+        let l = LevelShape { size: [4096, 4096], tile: [256, 256], grid: [6, 6] };
+        assert!(check_region(&l, [100, 100, 1124, 1124]).is_ok());
+        assert!(check_region(&l, [0, 0, 4097, 10]).is_err());
+        assert!(check_region(&l, [-1, 0, 10, 10]).is_err());
+        assert!(check_region(&l, [5, 5, 5, 9]).is_err());
+        assert!(check_region(&l, [0, 0, 256 * 7, 10]).is_err(), "7 tiles wide in a 6-slot grid");
+        assert!(check_region(&l, [i64::MIN, 0, i64::MAX, 1]).is_err());
     }
 }
