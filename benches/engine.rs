@@ -5,7 +5,7 @@
 //! queue (priorities of every mem-region tile, and a queue re-sorting 1024 pending reads).
 //! `cargo bench --bench engine`; `clipbench engine` measures the goals in one run.
 
-use clipmap::clip::{Clipmap, CostTable, Settings};
+use clipmap::clip::{Clipmap, Settings};
 use clipmap::geom::{default_centre, tile_texels, LevelShape};
 use clipmap::limits::Limits;
 use clipmap::queue::{priority, ReadQueues, ReadRequest};
@@ -18,7 +18,7 @@ use std::sync::Arc;
 fn strip_copy(c: &mut Criterion) {
     let desc =
         TextureDesc::new([1 << 20; 2], 512, TexelFormat::RGBA8, [128; 2]).unwrap().with_invalid_border(8).unwrap();
-    let settings = Settings { budget_ns: None, cost: Some(CostTable::fixed(200.0, 10.0, 0.1)), ..Settings::default() };
+    let settings = Settings { budget_ns: None, ..Settings::default() };
     let mut map = Clipmap::new(Arc::new(HashSource::new(desc)), settings).unwrap();
     let mut centre = [1i64 << 19; 2];
     for _ in 0..20 {
@@ -43,7 +43,7 @@ fn strip_copy(c: &mut Criterion) {
                 centre = [centre[0] + v[0], centre[1] + v[1]];
                 let r = map.tick(centre, Some(v));
                 map.wait_for_reads();
-                black_box(r.bytes_copied)
+                black_box(r.tiles_read)
             })
         });
     }
@@ -71,7 +71,7 @@ fn residency(c: &mut Criterion) {
 fn strip_copy_resident(c: &mut Criterion) {
     let desc =
         TextureDesc::new([1 << 20; 2], 512, TexelFormat::RGBA8, [128; 2]).unwrap().with_invalid_border(8).unwrap();
-    let settings = Settings { budget_ns: None, cost: Some(CostTable::fixed(200.0, 10.0, 0.1)), ..Settings::default() };
+    let settings = Settings { budget_ns: None, ..Settings::default() };
     let mut map = Clipmap::new(Arc::new(HashSource::new(desc)), settings).unwrap();
     // The windows' edges lie mid-tile, so a step of 32 texels needs no other tile.
     let home = [(1i64 << 19) + 64; 2];
@@ -93,7 +93,7 @@ fn strip_copy_resident(c: &mut Criterion) {
                 let r = map.tick(c, Some([0, 0]));
                 // Every level stays complete: the strips were copied from resident tiles.
                 assert_eq!(r.min_lod, 0.0);
-                black_box(r.bytes_copied)
+                black_box(r.tiles_read)
             })
         });
     }

@@ -36,7 +36,7 @@ fn stats(socket: &Path) -> clipmap::service::ServiceStats {
 
 /// (bytes copied, seconds inside ticks) between two `STATS` replies.
 fn copied_between(a: &clipmap::service::ServiceStats, b: &clipmap::service::ServiceStats) -> (f64, f64) {
-    let bytes = b.tick.engine.bytes_copied as f64 - a.tick.engine.bytes_copied as f64;
+    let bytes = b.tick.engine.queue.bytes_read as f64 - a.tick.engine.queue.bytes_read as f64;
     let secs = b.tick.tick_busy_s - a.tick.tick_busy_s;
     (bytes, secs)
 }
@@ -68,7 +68,7 @@ fn engine_flight(clip: u64, requests: usize) -> (f64, f64) {
         let t0 = Instant::now();
         let r = map.tick([base[0] + STEP * i as i64, base[1]], Some([STEP, 0]));
         secs += t0.elapsed().as_secs_f64();
-        bytes += r.bytes_copied;
+        bytes += r.tiles_read;
     }
     (bytes as f64, secs)
 }
@@ -95,8 +95,9 @@ async fn service_flight(clip: u64, requests: usize) -> Measured {
             std::thread::spawn(move || {
                 let c = Client::attach(&shm_dir, "latency").unwrap();
                 let base = [(SIZE / 2) as i64; 2];
+                let border = c.snapshot().invalid_border;
                 let complete = |st: &clipmap::shm::LevelState| {
-                    st.enabled && (st.valid[2] - st.valid[0]) as u64 + 2 * st.invalid_border >= clip
+                    st.enabled && (st.valid[2] - st.valid[0]) as u64 + 2 * border >= clip
                 };
                 // Warm up: the first window fills completely.
                 c.request_centre(base, [0.0, 0.0]);

@@ -1,55 +1,73 @@
-//! Per-level tile caches: the mem regions of main memory.
+//! Per-level image caches: the mem regions of main memory, as toroidal grids of whole tiles.
 //!
-//! Owns, for every level, a toroidal grid of tile slots covering the level's mem region (tile
-//! (S, T) lives in slot (S mod grid_w, T mod grid_h)), the state of each slot (absent, loading,
-//! resident, failed) and the hard byte budget on resident tiles. It decides nothing about *which*
+//! Owns, for every level, which tile each slot of its grid should hold (tile (S, T) lives in slot
+//! (S mod grid width, T mod grid height)) and what the engine knows of it (absent, loading,
+//! resident, defaulted, failed). The slots' bytes and tags live in an [`ImageMemory`] (the
+//! service's mapping, or anonymous memory): reads write there directly, and this module only moves
+//! claims ([`ImageMemory::assign`], [`ImageMemory::settle`]). It decides nothing about *which*
 //! region to hold ([`crate::geom`]) nor how tiles are read ([`crate::queue`]).
 
 use crate::geom::{wrap, Rect};
-use crate::source::{FaultKind, TextureDesc, TileId};
+use crate::shm::layout::SlotState;
+use crate::shm::memory::Assign;
+use crate::shm::ImageMemory;
+use crate::source::{Delivered, FaultKind, TextureDesc, TileId};
 use serde::Serialize;
+use std::sync::Arc;
 
 /// The state of one tile of a mem region.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum TileState {
-    /// Not in memory and not requested (or outside the mem region).
+    /// Not in memory and not requested (or outside the mem region, or waiting for its slot).
     Absent,
     /// Requested from the read queue.
     Loading,
-    /// In memory, texels valid.
+    /// In its slot, texels valid.
     Resident,
-    /// The last read failed; it is asked for again from tick `retry_at` on.
+    /// The configuration's default tile is in its slot (the tile's file does not exist).
+    Defaulted,
+    /// The last read failed (readers use a coarser level for it); it is asked for again from
+    /// tick `retry_at` on.
     Failed { kind: FaultKind, retry_at: u64 },
 }
 
-/// What happened to a tile offered to the cache.
+impl TileState {
+    /// True when nothing more is expected for the tile now (it can be published).
+    pub fn settled(self) -> bool {
+        matches!(self, TileState::Resident | TileState::Defaulted | TileState::Failed { .. })
+    }
+
+    /// True when its texels may be read.
+    pub fn readable(self) -> bool {
+        matches!(self, TileState::Resident | TileState::Defaulted)
+    }
+}
+
+/// What happened to a finished read offered to the cache.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Admit {
-    /// Stored; its texels may be copied.
+    /// The slot holds the tile now.
     Admitted,
-    /// The tile left the mem region while it was read: discarded.
+    /// The tile left the mem region (or its slot was given to another) while it was read.
     Stale,
-    /// Storing it would exceed the byte budget: discarded.
-    OverBudget,
-    /// The buffer is not one tile long: discarded.
-    WrongSize,
 }
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Copy, Debug)]
 struct Slot {
+    /// The tile the engine wants in this slot.
     tile: Option<[i64; 2]>,
     state: TileState,
-    data: Option<Vec<u8>>,
+    /// True once the slot's claim and tag were moved to `tile` ([`ImageMemory::assign`]).
+    assigned: bool,
 }
 
-const EMPTY_SLOT: Slot = Slot { tile: None, state: TileState::Absent, data: None };
+const EMPTY_SLOT: Slot = Slot { tile: None, state: TileState::Absent, assigned: false };
 
 /// One level's grid of slots.
 #[derive(Clone, Debug)]
 struct LevelCache {
     grid: [u64; 2],
-    tile_bytes: usize,
     mem: Rect,
     slots: Vec<Slot>,
 }
@@ -65,30 +83,29 @@ impl LevelCache {
     }
 }
 
-/// The tile caches of every level, under one byte budget.
-#[derive(Clone, Debug)]
+/// The image caches of every level, over one [`ImageMemory`].
+#[derive(Debug)]
 pub struct TileCache {
     levels: Vec<LevelCache>,
-    budget: usize,
-    resident_bytes: usize,
-    peak_bytes: usize,
+    memory: Arc<ImageMemory>,
+    tile_bytes: Vec<usize>,
 }
 
 impl TileCache {
     /// Empty caches for every level of `desc`, level `k` `grids[k]` tiles a side (the engine's
-    /// [`crate::geom::level_grid`]), holding at most `budget` bytes of tiles in all.
-    pub fn new(desc: &TextureDesc, grids: &[[u64; 2]], budget: usize) -> Self {
-        let levels = desc
-            .levels()
+    /// [`crate::geom::level_grid`]), their slots in `memory` (laid out for the same grids).
+    pub fn new(desc: &TextureDesc, grids: &[[u64; 2]], memory: Arc<ImageMemory>) -> Self {
+        let levels = grids
             .iter()
-            .enumerate()
-            .map(|(k, _)| {
-                let grid = grids[k];
-                let n = (grid[0] * grid[1]) as usize;
-                LevelCache { grid, tile_bytes: desc.tile_bytes(k as u32), mem: Rect::EMPTY, slots: vec![EMPTY_SLOT; n] }
-            })
+            .map(|&grid| LevelCache { grid, mem: Rect::EMPTY, slots: vec![EMPTY_SLOT; (grid[0] * grid[1]) as usize] })
             .collect();
-        TileCache { levels, budget, resident_bytes: 0, peak_bytes: 0 }
+        let tile_bytes = (0..desc.level_count() as u32).map(|k| desc.tile_bytes(k)).collect();
+        TileCache { levels, memory, tile_bytes }
+    }
+
+    /// The memory the slots live in.
+    pub fn memory(&self) -> &Arc<ImageMemory> {
+        &self.memory
     }
 
     /// Slots per axis of level `k`'s grid.
@@ -101,48 +118,43 @@ impl TileCache {
         self.levels[k as usize].mem
     }
 
-    /// Moves level `k`'s mem region to `mem` (at most grid-sized): tiles that left are freed, new
-    /// tiles start absent. Returns the number of resident tiles evicted.
+    /// Moves level `k`'s mem region to `mem` (at most grid-sized): each slot whose tile left is
+    /// given to the tile that now maps to it (tag to loading, then claim). Call only after a
+    /// publication that no longer covers the tiles that left. A slot a read is still filling
+    /// keeps its old tile until a later call. Returns the number of settled tiles evicted.
     pub fn set_mem_region(&mut self, k: u32, mem: Rect) -> u64 {
-        self.set_mem_region_recycling(k, mem, drop)
-    }
-
-    /// [`set_mem_region`](Self::set_mem_region), handing each evicted tile's buffer to `recycle`.
-    pub fn set_mem_region_recycling(&mut self, k: u32, mem: Rect, mut recycle: impl FnMut(Vec<u8>)) -> u64 {
+        let memory = Arc::clone(&self.memory);
         let level = &mut self.levels[k as usize];
         debug_assert!(mem.width() <= level.grid[0] && mem.height() <= level.grid[1], "mem region larger than grid");
         level.mem = mem;
         let mut evicted = 0;
-        let mut freed = 0;
         for t in mem.t0..mem.t1 {
             for s in mem.s0..mem.s1 {
                 let i = level.slot_index([s, t]);
                 let slot = &mut level.slots[i];
                 if slot.tile != Some([s, t]) {
-                    if let Some(buf) = slot.data.take() {
+                    if slot.state.settled() {
                         evicted += 1;
-                        freed += level.tile_bytes;
-                        recycle(buf);
                     }
-                    *slot = Slot { tile: Some([s, t]), state: TileState::Absent, data: None };
+                    *slot = Slot { tile: Some([s, t]), state: TileState::Absent, assigned: false };
+                }
+                if !slot.assigned {
+                    slot.assigned = memory.assign(k, [s, t]) == Assign::Assigned;
                 }
             }
         }
-        // Slots outside a region smaller than the grid (edges of small levels) hold nothing.
-        let (gw, gh) = (level.grid[0] as i64, level.grid[1] as i64);
-        if mem.area() < (gw * gh) as u64 {
+        // Slots outside a region smaller than the grid (edges of small levels) hold nothing the
+        // engine uses; their memory keeps whatever tile it had, which no region covers.
+        if mem.area() < level.grid[0] * level.grid[1] {
             for slot in level.slots.iter_mut() {
                 if slot.tile.is_some_and(|[s, t]| !mem.contains(s, t)) {
-                    if let Some(buf) = slot.data.take() {
+                    if slot.state.settled() {
                         evicted += 1;
-                        freed += level.tile_bytes;
-                        recycle(buf);
                     }
                     *slot = EMPTY_SLOT;
                 }
             }
         }
-        self.resident_bytes -= freed;
         evicted
     }
 
@@ -163,7 +175,7 @@ impl TileCache {
         }
         let i = level.slot_index(st);
         let slot = &mut level.slots[i];
-        (slot.tile == Some(st)).then_some(slot)
+        (slot.tile == Some(st) && slot.assigned).then_some(slot)
     }
 
     /// Notes that `tile` was requested (ignored unless it is absent or failed in its mem region).
@@ -175,58 +187,62 @@ impl TileCache {
         }
     }
 
-    /// Notes that reading `tile` failed; it will be wanted again from tick `retry_at`.
+    /// Takes a finished read: its slot is settled as ready (or the default tile).
+    pub fn admit(&mut self, tile: TileId, delivered: Delivered) -> Admit {
+        let memory = Arc::clone(&self.memory);
+        let Some(slot) = self.level_slot_mut(tile) else { return Admit::Stale };
+        let (state, tag) = match delivered {
+            Delivered::Tile => (TileState::Resident, SlotState::Ready),
+            Delivered::Default => (TileState::Defaulted, SlotState::Default),
+        };
+        if !memory.settle(tile, tag) {
+            return Admit::Stale;
+        }
+        slot.state = state;
+        Admit::Admitted
+    }
+
+    /// Notes that reading `tile` failed: its tag says missing (readers use a coarser level for
+    /// it) and it will be wanted again from tick `retry_at`.
     pub fn mark_failed(&mut self, tile: TileId, kind: FaultKind, retry_at: u64) {
+        let memory = Arc::clone(&self.memory);
         if let Some(slot) = self.level_slot_mut(tile) {
-            if slot.state != TileState::Resident {
+            if !slot.state.readable() && memory.settle(tile, SlotState::Missing) {
                 slot.state = TileState::Failed { kind, retry_at };
             }
         }
     }
 
-    /// Offers the texels of `tile`.
-    pub fn admit(&mut self, tile: TileId, data: Vec<u8>) -> Admit {
-        let Some(level) = self.levels.get(tile.level as usize) else { return Admit::Stale };
-        let tile_bytes = level.tile_bytes;
-        if data.len() != tile_bytes {
-            return Admit::WrongSize;
-        }
-        let (budget, used) = (self.budget, self.resident_bytes);
-        let Some(slot) = self.level_slot_mut(tile) else { return Admit::Stale };
-        if slot.data.is_none() {
-            if used + tile_bytes > budget {
-                return Admit::OverBudget;
-            }
-            slot.data = Some(data);
-            self.resident_bytes += tile_bytes;
-            self.peak_bytes = self.peak_bytes.max(self.resident_bytes);
-        } else {
-            slot.data = Some(data);
-        }
+    /// A read of `tile` started too late (its slot had moved on) or found the slot busy: it is
+    /// wanted again if its slot still expects it.
+    pub fn mark_not_read(&mut self, tile: TileId) {
         if let Some(slot) = self.level_slot_mut(tile) {
-            slot.state = TileState::Resident;
+            if slot.state == TileState::Loading {
+                slot.state = TileState::Absent;
+            }
         }
-        Admit::Admitted
     }
 
-    /// The texels of `tile` if it is resident.
-    pub fn texels(&self, tile: TileId) -> Option<&[u8]> {
-        let slot = self.level_slot(tile)?;
-        (slot.state == TileState::Resident).then_some(slot.data.as_deref()?)
+    /// Copies bytes of `tile`'s slot, starting `offset` bytes into the tile, if it is readable.
+    pub fn read(&self, tile: TileId, offset: usize, out: &mut [u8]) -> bool {
+        self.state(tile).readable() && self.memory.read_settled(tile, offset, out)
     }
 
     /// Tiles of level `k`'s mem region that should be read at tick `now`: absent, loading (still
-    /// wanted, so their priority is refreshed) or failed with their retry time reached.
+    /// wanted, so their priority is refreshed) or failed with their retry time reached, in slots
+    /// already given to them.
     pub fn wanted(&self, k: u32, now: u64) -> Vec<TileId> {
         let level = &self.levels[k as usize];
         let mut out = Vec::new();
         for t in level.mem.t0..level.mem.t1 {
             for s in level.mem.s0..level.mem.s1 {
-                let want = match level.slots[level.slot_index([s, t])].state {
-                    TileState::Absent | TileState::Loading => true,
-                    TileState::Failed { retry_at, .. } => retry_at <= now,
-                    TileState::Resident => false,
-                };
+                let slot = &level.slots[level.slot_index([s, t])];
+                let want = slot.assigned
+                    && match slot.state {
+                        TileState::Absent | TileState::Loading => true,
+                        TileState::Failed { retry_at, .. } => retry_at <= now,
+                        TileState::Resident | TileState::Defaulted => false,
+                    };
                 if want {
                     out.push(TileId::new(k, s as u64, t as u64));
                 }
@@ -235,19 +251,18 @@ impl TileCache {
         out
     }
 
-    /// Bytes of resident tiles now.
+    /// Bytes of level `k`'s tiles.
+    pub fn tile_bytes(&self, k: u32) -> usize {
+        self.tile_bytes[k as usize]
+    }
+
+    /// Bytes of the slots of every level that hold a readable tile now.
     pub fn resident_bytes(&self) -> usize {
-        self.resident_bytes
-    }
-
-    /// Most bytes of resident tiles ever held.
-    pub fn peak_bytes(&self) -> usize {
-        self.peak_bytes
-    }
-
-    /// The byte budget.
-    pub fn budget(&self) -> usize {
-        self.budget
+        self.levels
+            .iter()
+            .zip(&self.tile_bytes)
+            .map(|(l, b)| l.slots.iter().filter(|s| s.state.readable()).count() * b)
+            .sum()
     }
 }
 
@@ -257,60 +272,71 @@ mod tests {
     use crate::geom::mem_grid;
     use crate::texel::TexelFormat;
 
-    fn cache(budget: usize) -> (TextureDesc, TileCache) {
+    fn cache() -> TileCache {
         let desc = TextureDesc::new([256, 256], 32, TexelFormat::L8, [16, 16]).unwrap();
         let grids: Vec<[u64; 2]> =
             desc.levels().iter().map(|l| mem_grid(l.size, l.tile, desc.clip_size(), 1)).collect();
-        let cache = TileCache::new(&desc, &grids, budget);
-        (desc, cache)
+        let memory = Arc::new(ImageMemory::anonymous(crate::clip::memory_shape(&desc, &grids), desc.format()).unwrap());
+        TileCache::new(&desc, &grids, memory)
+    }
+
+    fn fill(c: &TileCache, tile: TileId, byte: u8) {
+        c.memory().fill(tile, |b| b.fill(byte)).expect("the slot is the tile's");
     }
 
     #[test]
     fn tiles_move_through_loading_resident_and_leave_with_the_mem_region() {
-        let (_, mut c) = cache(1 << 20);
+        let mut c = cache();
         assert_eq!(c.grid(0), [4, 4]);
         c.set_mem_region(0, Rect::new(2, 2, 6, 6));
         assert_eq!(c.wanted(0, 0).len(), 16);
         let tile = TileId::new(0, 3, 4);
         c.mark_loading(tile);
         assert_eq!(c.state(tile), TileState::Loading);
-        assert_eq!(c.admit(tile, vec![7; 256]), Admit::Admitted);
-        assert_eq!(c.texels(tile).unwrap()[0], 7);
+        fill(&c, tile, 7);
+        assert_eq!(c.admit(tile, Delivered::Tile), Admit::Admitted);
+        let mut b = [0u8; 4];
+        assert!(c.read(tile, 0, &mut b));
+        assert_eq!(b, [7; 4]);
         assert_eq!(c.wanted(0, 0).len(), 15);
         assert_eq!(c.resident_bytes(), 256);
         // Moving by one tile keeps (3, 4) (same slot) and evicts nothing else resident.
         assert_eq!(c.set_mem_region(0, Rect::new(3, 2, 7, 6)), 0);
         assert_eq!(c.state(tile), TileState::Resident);
-        // Moving away evicts it; a late copy of it is stale.
+        // Moving away evicts it; a late read of it finds its slot given away and changes nothing.
         assert_eq!(c.set_mem_region(0, Rect::new(8, 8, 12, 12)), 1);
         assert_eq!(c.resident_bytes(), 0);
         assert_eq!(c.state(tile), TileState::Absent);
-        assert_eq!(c.admit(tile, vec![7; 256]), Admit::Stale);
-        assert_eq!(c.peak_bytes(), 256);
+        assert!(c.memory().fill(tile, |b| b.fill(9)).is_none(), "the slot belongs to another tile now");
+        assert_eq!(c.admit(tile, Delivered::Tile), Admit::Stale);
     }
 
     #[test]
-    fn the_byte_budget_is_never_exceeded() {
-        let (_, mut c) = cache(3 * 256);
+    fn a_settled_slot_is_never_handed_to_a_read() {
+        let mut c = cache();
         c.set_mem_region(0, Rect::new(0, 0, 4, 4));
-        let results: Vec<Admit> = (0..4).map(|s| c.admit(TileId::new(0, s, 0), vec![0; 256])).collect();
-        assert_eq!(results[..3], [Admit::Admitted; 3]);
-        assert_eq!(results[3], Admit::OverBudget);
-        assert_eq!(c.resident_bytes(), 768);
-        assert_eq!(c.admit(TileId::new(0, 0, 1), vec![0; 255]), Admit::WrongSize);
-        // Replacing a resident tile costs nothing extra.
-        assert_eq!(c.admit(TileId::new(0, 0, 0), vec![1; 256]), Admit::Admitted);
-        assert_eq!(c.resident_bytes(), 768);
+        let tile = TileId::new(0, 1, 1);
+        fill(&c, tile, 1);
+        assert_eq!(c.admit(tile, Delivered::Default), Admit::Admitted);
+        assert_eq!(c.state(tile), TileState::Defaulted);
+        assert!(c.memory().fill(tile, |b| b.fill(2)).is_none());
+        let mut b = [0u8; 1];
+        assert!(c.read(tile, 255, &mut b));
+        assert_eq!(b, [1]);
     }
 
     #[test]
     fn failed_tiles_are_wanted_again_at_their_retry_tick() {
-        let (_, mut c) = cache(1 << 20);
+        let mut c = cache();
         c.set_mem_region(0, Rect::new(0, 0, 1, 1));
         let tile = TileId::new(0, 0, 0);
         c.mark_failed(tile, FaultKind::Missing, 5);
         assert!(c.wanted(0, 4).is_empty());
         assert_eq!(c.wanted(0, 5), vec![tile]);
-        assert!(c.texels(tile).is_none());
+        assert!(!c.read(tile, 0, &mut [0u8; 1]));
+        // A retry may fill the slot (its claim stayed loading) and settle it.
+        fill(&c, tile, 3);
+        assert_eq!(c.admit(tile, Delivered::Tile), Admit::Admitted);
+        assert!(c.read(tile, 0, &mut [0u8; 1]));
     }
 }

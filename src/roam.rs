@@ -242,26 +242,31 @@ pub struct FrameReport {
     pub frame: u64,
     /// Level-0 centre applied.
     pub centre: [i64; 2],
-    /// Texel bytes copied into windows.
+    /// Texel bytes the tick wrote other than by tile reads (0: tiles are read straight into
+    /// their slots).
     pub bytes_copied: u64,
-    /// Tiles read into the cache.
+    /// Tile bytes read into the slots.
+    pub bytes_read: u64,
+    /// Tiles read into their slots.
     pub tiles_read: u64,
     /// Min LOD after the frame.
     pub min_lod: f64,
     /// Levels renderers could not use.
     pub disabled_levels: Vec<u32>,
-    /// Whether the copy budget ran out with work left.
+    /// Whether the tick's budget ran out with finished reads left for the next tick.
     pub over_budget: bool,
 }
 
 /// Totals over a roam.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Totals {
-    /// Texel bytes copied into windows.
+    /// Texel bytes the ticks wrote other than by tile reads (0).
     pub bytes_copied: u64,
-    /// Tiles read into the cache.
+    /// Tile bytes read into the slots.
+    pub bytes_read: u64,
+    /// Tiles read into their slots.
     pub tiles_read: u64,
-    /// Frames whose copy budget ran out with work left.
+    /// Frames whose tick budget ran out with finished reads left.
     pub ticks_over_budget: u64,
     /// Frames with at least one level disabled.
     pub frames_with_disabled_level: u64,
@@ -338,7 +343,10 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
         let p = options.flight.position(startf, frame);
         let clamp = |x: f64, n: u64| (x.floor() as i64).clamp(0, n as i64 - 1);
         let centre = [clamp(p[0], size[0]), clamp(p[1], size[1])];
+        let (copied0, read0) = (map.stats().tick_texel_bytes, map.stats().queue.bytes_read);
         let r = map.tick(centre, None);
+        let copied = map.stats().tick_texel_bytes - copied0;
+        let read = map.stats().queue.bytes_read.saturating_sub(read0);
         if options.wait_for_reads {
             map.wait_for_reads();
         } else if let Some(fps) = fps {
@@ -349,14 +357,16 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
                 None => totals.late_frames += 1,
             }
         }
-        totals.bytes_copied += r.bytes_copied;
+        totals.bytes_copied += copied;
+        totals.bytes_read += read;
         totals.tiles_read += r.tiles_read;
         totals.ticks_over_budget += r.over_budget as u64;
         totals.frames_with_disabled_level += !r.disabled_levels.is_empty() as u64;
         frames.push(FrameReport {
             frame,
             centre: r.centre,
-            bytes_copied: r.bytes_copied,
+            bytes_copied: copied,
+            bytes_read: read,
             tiles_read: r.tiles_read,
             min_lod: r.min_lod,
             disabled_levels: r.disabled_levels,

@@ -167,10 +167,12 @@ pub fn sample_clipmap(map: &Clipmap, filter: Filter, u: f64, v: f64, lod: f64) -
     sample_published(&mut ClipFetch(map), map.min_lod(), filter, u, v, lod)
 }
 
-/// A mapping as a reader sees it ([`Client`]): each texel read under its level's seqlock, and
-/// only from the published valid region.
+/// A mapping as a reader sees it ([`Client`]): one snapshot for the whole sample, each texel read
+/// under its slot's tag, and only from the published valid region (a missing tile's texels come
+/// from a coarser level).
 struct MappedFetch<'a> {
     client: &'a Client,
+    snap: crate::shm::Snapshot,
     format: TexelFormat,
     buf: Vec<u8>,
 }
@@ -185,7 +187,8 @@ impl Fetch for MappedFetch<'_> {
     }
 
     fn texel(&mut self, level: u32, s: i64, t: i64) -> Option<[f32; 4]> {
-        self.client.read_region(level as usize, s, t, 1, 1, &mut self.buf).ok()?;
+        let texel = crate::geom::Rect::new(s, t, s + 1, t + 1);
+        self.client.read_region_in(&self.snap, level as usize, texel, &mut self.buf).ok()?;
         Some(self.format.decode(&self.buf))
     }
 }
@@ -196,8 +199,9 @@ impl Fetch for MappedFetch<'_> {
 /// sampler cannot decode.
 pub fn sample_mapping(client: &Client, filter: Filter, u: f64, v: f64, lod: f64) -> Option<Sample> {
     let format = crate::shm::layout::format_from_code(client.format_code)?;
-    let min_lod = client.snapshot().min_lod;
-    let mut src = MappedFetch { client, format, buf: vec![0; client.bytes_per_texel] };
+    let snap = client.try_snapshot().ok()?;
+    let min_lod = snap.min_lod;
+    let mut src = MappedFetch { client, snap, format, buf: vec![0; client.bytes_per_texel] };
     sample_published(&mut src, min_lod, filter, u, v, lod)
 }
 

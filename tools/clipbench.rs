@@ -175,7 +175,7 @@ fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool, format: clipmap:
                 "[{i}/{n}] clip {} border {} budget {} speed {} {}: PSNR min {}, {:.2}% coarser",
                 r.clip_size,
                 r.invalid_border,
-                r.budget_ms.map(|b| format!("{b} ms")).unwrap_or_else(|| "unlimited".into()),
+                r.disk_tiles.map(|b| format!("{b} tiles/frame")).unwrap_or_else(|| "ideal".into()),
                 r.speed,
                 r.flight,
                 r.psnr_min.map(|p| format!("{p:.1} dB")).unwrap_or_else(|| "inf".into()),

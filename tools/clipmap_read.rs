@@ -113,7 +113,7 @@ fn main() -> ExitCode {
     let mut step = 0u64;
     while counts.check.passed + counts.check.failed < cli.reads && Instant::now() < deadline {
         step += 1;
-        counts.check.step(&client, &mut rng, cli.block.max(1), &mut buf);
+        counts.check.step(&client, &mut rng, cli.block.max(1), &mut buf, &clipmap::source::procedural::hash);
         if cli.drive && last_request.elapsed() >= Duration::from_millis(4) {
             let size = client.levels[0].size;
             let (c, v) = flight(counts.requests, size);

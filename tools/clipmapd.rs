@@ -55,10 +55,15 @@ struct Cli {
     /// Control socket path (default: clipmap-NAME.sock in the mapping's directory).
     #[arg(long)]
     socket: Option<PathBuf>,
-    /// Permission bits of the mapping, octal (600: owner only).
+    /// Permission bits of the texel mapping (and, unless --request-mode, of the request
+    /// mapping), octal (600: owner only; 640: the group reads texels but cannot write anything).
     #[arg(long, default_value = "600", value_parser = parse_mode)]
     shm_mode: u32,
-    /// Copy budget per tick in milliseconds, or `off`.
+    /// Permission bits of the request mapping, octal (e.g. 660 with --shm-mode 640: the group
+    /// reads texels and requests centres, but cannot write texels).
+    #[arg(long, value_parser = parse_mode)]
+    request_mode: Option<u32>,
+    /// Bound on each tick's own work in milliseconds, or `off`.
     #[arg(long, default_value = "6", value_parser = parse_budget)]
     budget_ms: Budget,
     /// Update ticks per second.
@@ -112,6 +117,7 @@ fn options(cli: &Cli, default_name: &str) -> Result<Options, Failure> {
     }
     o.socket = cli.socket.clone().unwrap_or_else(|| service::default_socket(&o.shm_dir, &name));
     o.shm_mode = cli.shm_mode;
+    o.request_mode = cli.request_mode;
     o.budget_ms = cli.budget_ms.0;
     o.tick_hz = cli.tick_hz;
     o.invalid_border = cli.border;

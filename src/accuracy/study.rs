@@ -1,23 +1,21 @@
 //! One flight of the study: move the clipmap's centre along a flight, keep the camera above the
 //! centre, render every frame from the full mipmap and from the clipmap, and measure.
 //!
-//! Copy costs come from a fixed cost table ([`COST`]), so a budget in milliseconds means the same
-//! amount of copying on every machine and the study is reproducible; the engine benchmark measures
-//! real copy speed separately.
+//! What limits the service once nothing is copied is tile delivery. The study models storage as a
+//! simulated disk that delivers at most `disk_tiles` tiles per frame, each one frame after it was
+//! asked for (the read queues' bound on delivered reads, with the study waiting for the reads each
+//! frame), so a case means the same on every machine and the study is reproducible. At 60 frames
+//! a second a disk of `n` tiles per frame of `b` bytes each reads `60 n b` bytes a second.
 
 use super::cache::CachedSource;
 use super::render::{render_clipmap_levels, render_mipmap, Camera, Pixel};
-use crate::clip::{Clipmap, CostTable, Settings};
+use crate::clip::{Clipmap, Settings};
 use crate::roam::{Flight, Procedural};
 use crate::sample::Filter;
 use crate::source::{HashSource, TerrainSource, TextureDesc, TileSource};
 use crate::texel::TexelFormat;
 use serde::Serialize;
 use std::sync::Arc;
-
-/// The fixed copy-cost model of the study: 2 µs per band, 50 ns per line, 0.25 ns per byte
-/// (about 4 GB/s).
-pub const COST: (f64, f64, f64) = (2000.0, 50.0, 0.25);
 
 /// What to fly and how to look.
 #[derive(Clone, Debug, Serialize)]
@@ -32,8 +30,8 @@ pub struct Case {
     pub tile: u64,
     /// Invalid border.
     pub invalid_border: u64,
-    /// Copy budget per frame in ms under the fixed cost model (`None`: unlimited).
-    pub budget_ms: Option<f64>,
+    /// Tiles the simulated disk delivers per frame (`None`: every tile asked for, at once).
+    pub disk_tiles: Option<u64>,
     /// The flight (speed in level-0 texels per frame).
     pub flight: String,
     /// Frames.
@@ -62,7 +60,7 @@ fn format_name<S: serde::Serializer>(f: &TexelFormat, s: S) -> Result<S::Ok, S::
 }
 
 impl Case {
-    /// A small default case: terrain 2^16, clip 512, 256x192 pixels, unlimited budget.
+    /// A small default case: terrain 2^16, clip 512, 256x192 pixels, an ideal disk.
     pub fn small() -> Self {
         Case {
             source: Procedural::Terrain,
@@ -70,7 +68,7 @@ impl Case {
             clip_size: 512,
             tile: 128,
             invalid_border: 8,
-            budget_ms: None,
+            disk_tiles: None,
             flight: "straight:8:30".into(),
             frames: 6,
             display: [256, 192],
@@ -96,10 +94,10 @@ pub struct FrameMetrics {
     /// Share of ground pixels drawn from a coarser level than the reference used.
     pub coarser_pixel_share: f64,
     /// Bytes copied into windows this frame.
-    pub bytes_copied: u64,
+    pub bytes_read: u64,
     /// Tiles read this frame.
     pub tiles_read: u64,
-    /// The copy budget ran out this frame.
+    /// The disk delivered as many tiles as it can this frame (more were waiting).
     pub over_budget: bool,
     /// Min LOD after the tick.
     pub min_lod: f64,
@@ -119,10 +117,10 @@ pub struct Outcome {
     /// Mean share of pixels from a coarser level than ideal.
     pub coarser_pixel_share: f64,
     /// Total bytes copied.
-    pub bytes_copied: u64,
+    pub bytes_read: u64,
     /// Total tiles read.
     pub tiles_read: u64,
-    /// Frames over budget.
+    /// Frames on which the disk was the limit.
     pub ticks_over_budget: u64,
     /// Engine resident bytes at the end.
     pub resident_bytes: u64,
@@ -191,11 +189,12 @@ pub fn run(case: &Case, mut keep: impl FnMut(u64, &Camera, &[Pixel], &[Pixel])) 
     let flight: Flight = case.flight.parse()?;
     let src = source(case)?;
     let reference = CachedSource::new(src.clone(), 512);
-    let settings = Settings {
-        budget_ns: case.budget_ms.map(|ms| (ms * 1e6) as u64),
-        cost: Some(CostTable::fixed(COST.0, COST.1, COST.2)),
-        ..Settings::default()
-    };
+    let mut settings = Settings { budget_ns: None, ..Settings::default() };
+    if let Some(n) = case.disk_tiles {
+        let n = n.max(1) as usize;
+        settings.limits.max_in_flight_reads = n;
+        settings.limits.max_ready_reads = n;
+    }
     let mut map = Clipmap::new(src, settings)?;
     let start = [case.size as f64 / 2.0, case.size as f64 / 2.0];
     let heading = {
@@ -207,23 +206,22 @@ pub fn run(case: &Case, mut keep: impl FnMut(u64, &Camera, &[Pixel], &[Pixel])) 
             (b[1] - a[1]).atan2(b[0] - a[0]).to_degrees()
         }
     };
-    // Warm up at the start with no budget and an ideal disk, so frame 0 shows the steady state.
+    // Warm up at the start until nothing more arrives, so frame 0 shows the steady state.
     let first = flight.position(start, 0);
     let first = [first[0].floor() as i64, first[1].floor() as i64];
-    map.set_budget_ns(None);
-    for _ in 0..64 {
+    for _ in 0..4096 {
         let r = map.tick(first, None);
         map.wait_for_reads();
-        if r.min_lod == 0.0 && r.bytes_copied == 0 && r.tiles_read == 0 {
+        if r.min_lod == 0.0 && r.tiles_read == 0 {
             break;
         }
     }
-    map.set_budget_ns(case.budget_ms.map(|ms| (ms * 1e6) as u64));
     let mut frames = Vec::new();
     for f in 0..case.frames {
         let foot = flight.position(start, f);
         let centre = [foot[0].floor() as i64, foot[1].floor() as i64];
         let report = map.tick(centre, None);
+        let disk_limited = case.disk_tiles.is_some_and(|n| report.tiles_read >= n.max(1));
         if case.wait_for_reads {
             map.wait_for_reads();
         }
@@ -253,9 +251,9 @@ pub fn run(case: &Case, mut keep: impl FnMut(u64, &Camera, &[Pixel], &[Pixel])) 
             psnr,
             max_error,
             coarser_pixel_share: coarser,
-            bytes_copied: report.bytes_copied,
+            bytes_read: report.tiles_read * map.desc().tile_bytes(0) as u64,
             tiles_read: report.tiles_read,
-            over_budget: report.over_budget,
+            over_budget: disk_limited,
             min_lod: report.min_lod,
         });
     }
@@ -264,7 +262,7 @@ pub fn run(case: &Case, mut keep: impl FnMut(u64, &Camera, &[Pixel], &[Pixel])) 
         psnr_min,
         max_error: frames.iter().map(|f| f.max_error).max().unwrap_or(0),
         coarser_pixel_share: frames.iter().map(|f| f.coarser_pixel_share).sum::<f64>() / frames.len().max(1) as f64,
-        bytes_copied: frames.iter().map(|f| f.bytes_copied).sum(),
+        bytes_read: frames.iter().map(|f| f.bytes_read).sum(),
         tiles_read: frames.iter().map(|f| f.tiles_read).sum(),
         ticks_over_budget: frames.iter().filter(|f| f.over_budget).count() as u64,
         resident_bytes: map.resident_bytes(),

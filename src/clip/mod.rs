@@ -1,34 +1,36 @@
-//! The clipmap: per-level toroidal windows kept filled around a moving centre.
+//! The clipmap: per-level image caches (toroidal grids of whole tiles) kept filled around a
+//! moving centre, and what renderers may read of them.
 //!
-//! Owns the update tick. Each tick it takes finished reads into the tile cache, moves every
-//! level's mem region and asks the read queues for the tiles now wanted, then brings windows up to
-//! date coarse levels first within a copy budget (estimated from a [`CostTable`]), and finally
-//! moves min LOD past any level it could not bring up to date (load control, docs/ARCHITECTURE.md §6).
+//! Owns the update tick. Each tick it takes finished reads (each already in its slot), moves
+//! every level's regions to the new centre, publishes — once, as one snapshot — each level's
+//! valid region as far as the tiles under it are settled, with min LOD moved past any level whose
+//! region is not whole yet (load control, docs/ARCHITECTURE.md §6), and only then gives the slots
+//! of tiles that left their mem region to the tiles that entered it and asks the read queues for
+//! them. The tick itself writes no texel: reads write tiles straight into their slots.
 //!
-//! The invariant it keeps: **every texel inside a published valid region equals the source
-//! texel**. Each tick first shrinks every published region to texels that stay correct and will
-//! not be overwritten, publishes, writes new texels only outside the published regions (into the
-//! invalid border or the part of a level not yet published), and only then publishes the grown
-//! regions. The [`Publisher`] hook sees both publications; the shared-memory layer plugs in
-//! there. Geometry is [`crate::geom`]'s, tiles are [`crate::cache`]'s and reads
-//! [`crate::queue`]'s.
+//! The invariant it keeps: **every texel inside a published valid region is in a settled slot**
+//! (ready, the default tile, or missing, which readers see in the slot's tag and serve from a
+//! coarser level), and a slot is given to another tile only after a snapshot that no longer
+//! covers its old tile. Geometry is [`crate::geom`]'s, slots are [`crate::cache`]'s and
+//! [`crate::shm::memory`]'s, reads [`crate::queue`]'s.
 
 pub mod load;
 pub mod stats;
-mod window;
 
-pub use load::{next_min_lod, target_min_lod, CostTable};
+pub use load::{next_min_lod, target_min_lod};
 pub use stats::{FaultCounts, Stats, TickReport};
 
-use crate::cache::{Admit, TileCache};
-use crate::geom::{aligned_centre, level_grid, tile_texels, LevelFrame, LevelShape, Rect};
+use crate::cache::{Admit, TileCache, TileState};
+use crate::geom::{aligned_centre, level_grid, tile_texels, tiles_covering, LevelFrame, LevelShape, Rect};
 use crate::limits::Limits;
-use crate::queue::{priority, QueueError, ReadQueues, ReadRequest};
-use crate::source::{TextureDesc, TileSource};
+use crate::queue::{priority, Completion, Outcome, QueueError, ReadQueues, ReadRequest};
+use crate::shm::layout::{self, Shape};
+use crate::shm::{ImageMemory, Publication, PublishedLevel};
+use crate::source::{TextureDesc, TileId, TileSource};
+use std::collections::VecDeque;
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 use thiserror::Error;
-use window::Window;
-pub use window::{Store, WindowStore};
 
 /// Run-time settings of a clipmap.
 #[derive(Clone, Debug)]
@@ -39,7 +41,8 @@ pub struct Settings {
     /// ([`TileSource::stream_of`], by default tile column S mod n). Use the source's
     /// [`TileSource::stream_servers`] to give each configured server its own queue.
     pub streams: usize,
-    /// Copy budget per tick in nanoseconds of estimated cost; `None` copies everything.
+    /// Bound on the time one tick spends on its own work (taking finished reads, in
+    /// nanoseconds); reads left over are taken by the next tick. `None`: unbounded.
     pub budget_ns: Option<u64>,
     /// Ticks to fade one level back in after it is up to date again (0: at once).
     pub fade_ticks: u32,
@@ -54,8 +57,6 @@ pub struct Settings {
     pub centre_alignment: u64,
     /// Ticks to wait before reading a failed tile again.
     pub retry_after_ticks: u64,
-    /// Copy costs; `None` measures this machine at start-up.
-    pub cost: Option<CostTable>,
     /// Bounds on queues and memory.
     pub limits: Limits,
 }
@@ -70,7 +71,6 @@ impl Default for Settings {
             max_centre_step: None,
             centre_alignment: 1,
             retry_after_ticks: 4,
-            cost: None,
             limits: Limits::default(),
         }
     }
@@ -84,35 +84,28 @@ pub enum ClipError {
     /// The read queues could not start.
     #[error(transparent)]
     Queue(#[from] QueueError),
-    /// The windows would take more memory than allowed.
-    #[error("clip windows need {needed} bytes: the limit is {limit} bytes (Limits::window_bytes); choose a smaller clip size")]
-    WindowBytes { needed: usize, limit: usize },
-    /// Caller-supplied window memory does not match the texture.
-    #[error("window memory for level {level}: found {found} bytes, expected {expected} (the window of a {dims:?}-texel buffer); supply one store per level, sized by Clipmap::window_bytes")]
-    WindowStore { level: usize, found: usize, expected: usize, dims: [u64; 2] },
-    /// Caller-supplied window memory has the wrong number of levels.
-    #[error("window memory for {found} levels supplied: the texture has {expected} levels")]
-    WindowStores { found: usize, expected: usize },
+    /// The image caches would take more memory than allowed.
+    #[error("the image caches need {needed} bytes: the limit is {limit} bytes (Limits::cache_bytes); choose a smaller clip size, larger tiles or a smaller mem region")]
+    CacheBytes { needed: u64, limit: u64 },
+    /// The image caches cannot be laid out or mapped.
+    #[error("cannot make the image caches: {0}")]
+    Memory(String),
+    /// Caller-supplied memory is laid out for another texture or other grids.
+    #[error("the image-cache memory supplied is laid out as {found:?}: this texture and its settings need {expected:?}; make it from Clipmap::memory_shape")]
+    MemoryShape { found: Box<Shape>, expected: Box<Shape> },
 }
 
-/// When the [`Publisher`] is called within a tick.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Phase {
-    /// Valid regions shrunk to what stays correct; no texel written yet this tick.
-    BeforeWrites,
-    /// Texels written; valid regions grown to what is now correct.
-    AfterWrites,
-}
-
-/// Receives each publication of the levels' state (for the shared-memory layer, or tests).
-pub trait Publisher {
-    /// Called twice per tick; read the state through `clipmap`'s accessors.
-    fn publish(&mut self, phase: Phase, clipmap: &Clipmap);
-}
-
-impl<F: FnMut(Phase, &Clipmap)> Publisher for F {
-    fn publish(&mut self, phase: Phase, clipmap: &Clipmap) {
-        self(phase, clipmap)
+/// The layout of the image caches of `desc` with mem grids `grids` (one per level).
+pub fn memory_shape(desc: &TextureDesc, grids: &[[u64; 2]]) -> Shape {
+    Shape {
+        bytes_per_texel: desc.bytes_per_texel() as u64,
+        clip_size: desc.clip_size(),
+        levels: desc
+            .levels()
+            .iter()
+            .zip(grids)
+            .map(|(l, &grid)| layout::LevelShape { size: l.size, tile: l.tile, grid })
+            .collect(),
     }
 }
 
@@ -123,30 +116,43 @@ pub struct LevelView<'a> {
     pub level: u32,
     /// Level size in texels.
     pub size: [u64; 2],
-    /// Clip size (the toroidal period).
+    /// Clip size.
     pub clip: u64,
-    /// Buffer size in texels per axis.
-    pub dims: [u64; 2],
+    /// Tile size in texels.
+    pub tile: [u64; 2],
+    /// Slots per axis of the level's grid.
+    pub grid: [u64; 2],
     /// Bytes per texel.
     pub bpt: usize,
-    /// Published valid region: texels readers may read.
+    /// Published valid region: texels readers may read (where their tiles are readable).
     pub valid: Rect,
-    /// The toroidal buffer: texel (s, t) at byte `((t mod clip) * dims[0] + s mod clip) * bpt`.
-    pub texels: &'a Store,
     /// The level's current centre.
     pub centre: [i64; 2],
+    cache: &'a TileCache,
 }
 
 impl LevelView<'_> {
-    /// The texel at (s, t) if it lies in the published valid region.
+    /// The tile holding texel (s, t).
+    pub fn tile_of(&self, s: i64, t: i64) -> TileId {
+        TileId::new(self.level, s.div_euclid(self.tile[0] as i64) as u64, t.div_euclid(self.tile[1] as i64) as u64)
+    }
+
+    /// The state of the tile holding texel (s, t).
+    pub fn tile_state(&self, s: i64, t: i64) -> TileState {
+        self.cache.state(self.tile_of(s, t))
+    }
+
+    /// The texel at (s, t) if it lies in the published valid region and its tile is readable (a
+    /// missing tile's texels come from a coarser level).
     pub fn texel(&self, s: i64, t: i64) -> Option<Texel> {
         if !self.valid.contains(s, t) {
             return None;
         }
-        let i = crate::geom::window_index(s, t, self.clip, self.dims) * self.bpt;
+        let tile = self.tile_of(s, t);
+        let (tw, th) = (self.tile[0] as i64, self.tile[1] as i64);
+        let i = ((t - tile.t as i64 * th) * tw + (s - tile.s as i64 * tw)) as usize * self.bpt;
         let mut texel = Texel { bytes: [0; 16], len: self.bpt.min(16) as u8 };
-        self.texels.read(i, &mut texel.bytes[..texel.len as usize]);
-        Some(texel)
+        self.cache.read(tile, i, &mut texel.bytes[..texel.len as usize]).then_some(texel)
     }
 }
 
@@ -166,19 +172,22 @@ impl std::ops::Deref for Texel {
 
 struct Level {
     shape: LevelShape,
-    window: Window,
     centre_override: Option<[i64; 2]>,
     frame: LevelFrame,
+    /// What the last snapshot published.
+    published: Rect,
+    updated_tick: u64,
 }
 
 /// A clip texture being kept up to date around a centre.
 pub struct Clipmap {
     desc: TextureDesc,
     settings: Settings,
-    cost: CostTable,
     cache: TileCache,
     queues: ReadQueues,
     levels: Vec<Level>,
+    /// Finished reads not yet taken (a tick's budget ran out).
+    backlog: VecDeque<Completion>,
     centre: Option<[i64; 2]>,
     border: u64,
     min_lod: f64,
@@ -187,91 +196,74 @@ pub struct Clipmap {
 }
 
 impl Clipmap {
-    /// A clipmap of `source`'s texture with nothing resident yet (min LOD above every level).
+    /// A clipmap of `source`'s texture with nothing resident yet (min LOD above every level),
+    /// its image caches in private memory.
     pub fn new(source: Arc<dyn TileSource>, settings: Settings) -> Result<Self, ClipError> {
-        Self::build(source, settings, None)
+        let shape = Self::shape_for(source.desc(), &settings);
+        let memory = ImageMemory::anonymous(shape, source.desc().format()).map_err(ClipError::Memory)?;
+        Self::with_memory(source, settings, Arc::new(memory))
     }
 
-    /// Bytes of each level's window for `desc` (what [`with_windows`](Self::with_windows) wants).
-    pub fn window_bytes(desc: &TextureDesc) -> Vec<usize> {
+    /// The mem grid of each level of `desc` under `settings` (lookahead, or the configuration's
+    /// mem regions).
+    pub fn grids(desc: &TextureDesc, settings: &Settings) -> Vec<[u64; 2]> {
         let clip = desc.clip_size();
         desc.levels()
             .iter()
-            .map(|l| {
-                let d = Window::dims(l.size, clip);
-                (d[0] * d[1]) as usize * desc.bytes_per_texel()
-            })
+            .enumerate()
+            .map(|(k, l)| level_grid(l.size, l.tile, clip, settings.lookahead, desc.mem_grid(k as u32)))
             .collect()
     }
 
-    /// [`new`](Self::new), keeping each level's window in caller-supplied memory (one store per
-    /// level, of [`window_bytes`](Self::window_bytes) bytes), such as a shared mapping: texels
-    /// are then written once, where readers read them.
-    pub fn with_windows(
-        source: Arc<dyn TileSource>,
-        settings: Settings,
-        stores: Vec<Box<dyn WindowStore>>,
-    ) -> Result<Self, ClipError> {
-        Self::build(source, settings, Some(stores))
+    /// The layout of the image caches a clipmap of `desc` under `settings` keeps (what
+    /// [`with_memory`](Self::with_memory) wants, e.g. for [`crate::shm::Writer::create`]).
+    pub fn shape_for(desc: &TextureDesc, settings: &Settings) -> Shape {
+        memory_shape(desc, &Self::grids(desc, settings))
     }
 
-    fn build(
+    /// [`new`](Self::new), keeping the image caches in `memory` (laid out by
+    /// [`shape_for`](Self::shape_for)), such as the service's mapping: tiles are then read
+    /// straight to where renderers read them.
+    pub fn with_memory(
         source: Arc<dyn TileSource>,
         settings: Settings,
-        stores: Option<Vec<Box<dyn WindowStore>>>,
+        memory: Arc<ImageMemory>,
     ) -> Result<Self, ClipError> {
         let desc = source.desc().clone();
-        let mut stores: Vec<Option<Box<dyn WindowStore>>> = match stores {
-            None => desc.levels().iter().map(|_| None).collect(),
-            Some(v) => {
-                if v.len() != desc.level_count() {
-                    return Err(ClipError::WindowStores { found: v.len(), expected: desc.level_count() });
-                }
-                let want = Self::window_bytes(&desc);
-                for (k, (st, &expected)) in v.iter().zip(&want).enumerate() {
-                    if st.len() != expected {
-                        let dims = Window::dims(desc.levels()[k].size, desc.clip_size());
-                        return Err(ClipError::WindowStore { level: k, found: st.len(), expected, dims });
-                    }
-                }
-                v.into_iter().map(Some).collect()
-            }
-        };
-        let bpt = desc.bytes_per_texel();
-        let clip = desc.clip_size();
-        let needed: usize =
-            desc.levels().iter().map(|l| (clip.min(l.size[0]) * clip.min(l.size[1])) as usize * bpt).sum();
-        if needed > settings.limits.window_bytes {
-            return Err(ClipError::WindowBytes { needed, limit: settings.limits.window_bytes });
+        let grids = Self::grids(&desc, &settings);
+        let expected = memory_shape(&desc, &grids);
+        if *memory.shape() != expected {
+            return Err(ClipError::MemoryShape { found: Box::new(memory.shape().clone()), expected: Box::new(expected) });
         }
+        let needed = memory.total_bytes();
+        let limit = settings.limits.cache_bytes as u64;
+        if needed > limit {
+            return Err(ClipError::CacheBytes { needed, limit });
+        }
+        let clip = desc.clip_size();
         let levels: Vec<Level> = desc
             .levels()
             .iter()
-            .enumerate()
-            .map(|(k, l)| {
-                let grid = level_grid(l.size, l.tile, clip, settings.lookahead, desc.mem_grid(k as u32));
-                let shape = LevelShape { size: l.size, tile: l.tile, clip, grid };
-                Level {
-                    shape,
-                    window: Window::new(k as u32, l.size, clip, l.tile, bpt, stores[k].take()),
-                    centre_override: None,
-                    frame: LevelFrame { centre: [0, 0], tex: Rect::EMPTY, valid: Rect::EMPTY, mem: Rect::EMPTY },
-                }
+            .zip(&grids)
+            .map(|(l, &grid)| Level {
+                shape: LevelShape { size: l.size, tile: l.tile, clip, grid },
+                centre_override: None,
+                frame: LevelFrame { centre: [0, 0], tex: Rect::EMPTY, valid: Rect::EMPTY, mem: Rect::EMPTY },
+                published: Rect::EMPTY,
+                updated_tick: 0,
             })
             .collect();
-        let grids: Vec<[u64; 2]> = levels.iter().map(|l| l.shape.grid).collect();
-        let cache = TileCache::new(&desc, &grids, settings.limits.cache_bytes);
-        let queues = ReadQueues::new(source, settings.streams, settings.limits)?;
-        let cost = settings.cost.unwrap_or_else(|| CostTable::measure(bpt));
+        let cache = TileCache::new(&desc, &grids, Arc::clone(&memory));
+        let queues = ReadQueues::new(source, memory, settings.streams, settings.limits)?;
         Ok(Clipmap {
             border: desc.invalid_border(),
             min_lod: desc.level_count() as f64,
             desc,
             settings,
-            cost,
             cache,
             queues,
             levels,
+            backlog: VecDeque::new(),
             centre: None,
             tick: 0,
             stats: Stats::default(),
@@ -283,19 +275,14 @@ impl Clipmap {
         &self.desc
     }
 
-    /// The copy-cost table in use.
-    pub fn cost(&self) -> &CostTable {
-        &self.cost
+    /// The image caches' memory.
+    pub fn memory(&self) -> &Arc<ImageMemory> {
+        self.cache.memory()
     }
 
     /// Counters so far.
     pub fn stats(&self) -> &Stats {
         &self.stats
-    }
-
-    /// How the reads' tile buffers were served: handed back by evictions, or freshly allocated.
-    pub fn read_buffers(&self) -> crate::queue::PoolCounts {
-        self.queues.buffer_counts()
     }
 
     /// Each read queue's counters, in stream-server order (their sum is `stats().queue`).
@@ -325,7 +312,7 @@ impl Clipmap {
         self.border = border.min((self.desc.clip_size() - 1) / 2);
     }
 
-    /// Sets the copy budget per tick (estimated ns; `None`: unlimited).
+    /// Sets the bound on a tick's own work (ns; `None`: unbounded).
     pub fn set_budget_ns(&mut self, budget: Option<u64>) {
         self.settings.budget_ns = budget;
     }
@@ -342,11 +329,12 @@ impl Clipmap {
             level: k,
             size: l.shape.size,
             clip: l.shape.clip,
-            dims: l.window.dims,
-            bpt: l.window.bpt,
-            valid: l.window.published,
-            texels: &l.window.buf,
+            tile: l.shape.tile,
+            grid: l.shape.grid,
+            bpt: self.desc.bytes_per_texel(),
+            valid: l.published,
             centre: l.frame.centre,
+            cache: &self.cache,
         }
     }
 
@@ -355,9 +343,15 @@ impl Clipmap {
         self.levels.len()
     }
 
-    /// Bytes held in tiles and windows now.
+    /// Bytes of the image caches (every slot of every level, the tags and the header): what
+    /// this clipmap holds, whatever is in it.
     pub fn resident_bytes(&self) -> u64 {
-        (self.cache.resident_bytes() + self.levels.iter().map(|l| l.window.bytes()).sum::<usize>()) as u64
+        self.cache.memory().total_bytes()
+    }
+
+    /// Bytes of the slots that hold a readable tile now.
+    pub fn readable_bytes(&self) -> u64 {
+        self.cache.resident_bytes() as u64
     }
 
     /// Blocks until every read that can start has finished (tests and offline simulation; not
@@ -369,16 +363,7 @@ impl Clipmap {
     /// One update tick towards `centre` (level-0 texels), moving at `velocity` level-0 texels per
     /// tick if given (else the change since the last tick).
     pub fn tick(&mut self, centre: [i64; 2], velocity: Option<[i64; 2]>) -> TickReport {
-        self.tick_with(centre, velocity, &mut |_: Phase, _: &Clipmap| {})
-    }
-
-    /// [`tick`](Self::tick), calling `publisher` at both publications.
-    pub fn tick_with(
-        &mut self,
-        centre: [i64; 2],
-        velocity: Option<[i64; 2]>,
-        publisher: &mut dyn Publisher,
-    ) -> TickReport {
+        let started = Instant::now();
         self.tick += 1;
         self.stats.ticks += 1;
         // Whatever a renderer asked for (any i64 through the mapping or the socket): bounded
@@ -390,42 +375,63 @@ impl Clipmap {
         self.centre = Some(centre);
         let mut report = TickReport { centre, ..TickReport::default() };
 
-        report.tiles_read = self.take_reads();
-        self.move_regions(centre, velocity);
-
-        for level in &mut self.levels {
-            let w = &mut level.window;
-            w.content = w.content.intersect(&level.frame.tex);
-            w.published = w.published.intersect(&w.content).intersect(&level.frame.valid);
-        }
-        self.stats.publications += 1;
-        publisher.publish(Phase::BeforeWrites, self);
-
-        let (spent, over) = self.copy_within_budget(&mut report);
-        report.over_budget = over;
-        report.estimated_copy_ns = spent;
-        self.stats.estimated_copy_ns += spent;
-        if over {
+        let (taken, left) = self.take_reads(started);
+        report.tiles_read = taken;
+        report.over_budget = left > 0;
+        if left > 0 {
             self.stats.ticks_over_budget += 1;
+            self.stats.reads_deferred += left as u64;
         }
+        let velocities = self.move_frames(centre, velocity);
 
-        let complete: Vec<bool> = self.levels.iter().map(|l| l.window.content.contains_rect(&l.frame.valid)).collect();
-        for level in &mut self.levels {
-            level.window.published = level.frame.valid.intersect(&level.window.content);
+        // Publish what is settled under each valid region, once, as one snapshot.
+        let mut complete = Vec::with_capacity(self.levels.len());
+        for k in 0..self.levels.len() {
+            let region = self.settled_region(k);
+            let level = &mut self.levels[k];
+            complete.push(region == level.frame.valid || level.frame.valid.is_empty());
+            if region != level.published {
+                level.published = region;
+                level.updated_tick = self.tick;
+            }
+            if region != level.frame.valid && !level.frame.valid.is_empty() {
+                self.stats.levels_waiting_for_tiles += 1;
+            }
         }
         self.update_min_lod(&complete);
-        self.stats.publications += 1;
-        publisher.publish(Phase::AfterWrites, self);
+        self.publish();
+
+        // Only now may slots of tiles that left their mem region go to the tiles that entered.
+        self.request_tiles(&velocities);
 
         report.min_lod = self.min_lod;
         report.disabled_levels = (0..self.levels.len() as u32).filter(|&k| ((k + 1) as f64) <= self.min_lod).collect();
         if !report.disabled_levels.is_empty() {
             self.stats.ticks_with_disabled_level += 1;
         }
-        report.valid = self.levels.iter().map(|l| l.window.published).collect();
+        report.valid = self.levels.iter().map(|l| l.published).collect();
         self.stats.queue = self.queues.stats();
+        self.stats.tick_texel_bytes = self.cache.memory().copied_texel_bytes();
         self.stats.peak_resident_bytes = self.stats.peak_resident_bytes.max(self.resident_bytes());
+        report.tick_ns = started.elapsed().as_nanos() as u64;
+        self.stats.tick_ns += report.tick_ns;
         report
+    }
+
+    fn publish(&mut self) {
+        let p = Publication {
+            min_lod: self.min_lod,
+            tick: self.tick,
+            invalid_border: self.border,
+            centre: self.centre.unwrap_or([0, 0]),
+            levels: self
+                .levels
+                .iter()
+                .map(|l| PublishedLevel { centre: l.frame.centre, valid: l.published, updated_tick: l.updated_tick })
+                .collect(),
+        };
+        self.cache.memory().publish(&p);
+        self.stats.publications += 1;
     }
 
     fn clamp_centre(&mut self, want: [i64; 2]) -> [i64; 2] {
@@ -439,94 +445,122 @@ impl Clipmap {
         got
     }
 
-    /// Takes finished reads into the cache; returns the number admitted.
-    fn take_reads(&mut self) -> u64 {
+    /// Takes finished reads (each already in its slot) until the tick's budget is spent; returns
+    /// (taken, left for the next tick).
+    fn take_reads(&mut self, started: Instant) -> (u64, usize) {
+        self.backlog.extend(self.queues.drain());
+        let budget = self.settings.budget_ns.map(Duration::from_nanos);
         let mut admitted = 0;
-        for done in self.queues.drain() {
-            match done.result {
-                Ok(texels) => match self.cache.admit(done.tile, texels) {
-                    Admit::Admitted => admitted += 1,
+        let mut n = 0u32;
+        while let Some(done) = self.backlog.pop_front() {
+            match done.outcome {
+                Outcome::Filled(delivered) => match self.cache.admit(done.tile, delivered) {
+                    Admit::Admitted => {
+                        admitted += 1;
+                        if delivered == crate::source::Delivered::Default {
+                            self.stats.default_tiles += 1;
+                        }
+                    }
                     Admit::Stale => self.stats.late_tiles += 1,
-                    Admit::OverBudget => self.stats.tiles_over_cache_budget += 1,
-                    Admit::WrongSize => self.stats.read_faults.add(crate::source::FaultKind::Corrupt),
                 },
-                Err(e) => {
+                Outcome::NotWanted => {
+                    self.stats.late_tiles += 1;
+                    self.cache.mark_not_read(done.tile);
+                }
+                Outcome::Failed(e) => {
                     tracing::debug!("tile read failed: {e}");
                     self.stats.read_faults.add(e.kind());
                     self.cache.mark_failed(done.tile, e.kind(), self.tick + self.settings.retry_after_ticks);
                 }
             }
+            n += 1;
+            if n % 16 == 0 && budget.is_some_and(|b| started.elapsed() >= b) {
+                break;
+            }
         }
         self.stats.tiles_read += admitted;
-        admitted
+        (admitted, self.backlog.len())
     }
 
-    /// Moves every level's regions to the new centre and asks for the tiles now wanted.
-    fn move_regions(&mut self, centre: [i64; 2], velocity: [i64; 2]) {
-        let count = self.levels.len();
-        let mut wanted = Vec::new();
+    /// Moves every level's frame to the new centre; returns each level's velocity in its texels.
+    fn move_frames(&mut self, centre: [i64; 2], velocity: [i64; 2]) -> Vec<[i64; 2]> {
+        let mut out = Vec::with_capacity(self.levels.len());
         for (k, level) in self.levels.iter_mut().enumerate() {
             let k32 = k as u32;
             let c =
                 level.centre_override.unwrap_or_else(|| aligned_centre(centre, k32, self.settings.centre_alignment));
             let v = velocity.map(|x| if x != 0 && (x >> k32.min(63)) == 0 { x.signum() } else { x >> k32.min(63) });
             level.frame = level.shape.frame(c, self.border, v);
-            let queues = &self.queues;
-            self.stats.tiles_evicted +=
-                self.cache.set_mem_region_recycling(k32, level.frame.mem, |buf| queues.recycle(buf));
+            out.push(v);
+        }
+        out
+    }
+
+    /// The part of level `k`'s valid region whose tiles are all settled: the whole region when
+    /// they are, else the largest rectangle of settled tiles grown from the centre's tile (empty
+    /// when that tile is not settled).
+    fn settled_region(&self, k: usize) -> Rect {
+        let level = &self.levels[k];
+        let valid = level.frame.valid;
+        if valid.is_empty() {
+            return Rect::EMPTY;
+        }
+        let tile = level.shape.tile;
+        let tiles = tiles_covering(valid, tile);
+        let settled = |s: i64, t: i64| self.cache.state(TileId::new(k as u32, s as u64, t as u64)).settled();
+        let all = |r: Rect| (r.t0..r.t1).all(|t| (r.s0..r.s1).all(|s| settled(s, t)));
+        if all(tiles) {
+            return valid;
+        }
+        let c = level.frame.centre;
+        let cs = c[0].clamp(valid.s0, valid.s1 - 1).div_euclid(tile[0] as i64);
+        let ct = c[1].clamp(valid.t0, valid.t1 - 1).div_euclid(tile[1] as i64);
+        if !settled(cs, ct) {
+            return Rect::EMPTY;
+        }
+        let mut r = Rect::new(cs, ct, cs + 1, ct + 1);
+        loop {
+            let mut grew = false;
+            if r.s0 > tiles.s0 && all(Rect::new(r.s0 - 1, r.t0, r.s0, r.t1)) {
+                r.s0 -= 1;
+                grew = true;
+            }
+            if r.s1 < tiles.s1 && all(Rect::new(r.s1, r.t0, r.s1 + 1, r.t1)) {
+                r.s1 += 1;
+                grew = true;
+            }
+            if r.t0 > tiles.t0 && all(Rect::new(r.s0, r.t0 - 1, r.s1, r.t0)) {
+                r.t0 -= 1;
+                grew = true;
+            }
+            if r.t1 < tiles.t1 && all(Rect::new(r.s0, r.t1, r.s1, r.t1 + 1)) {
+                r.t1 += 1;
+                grew = true;
+            }
+            if !grew {
+                break;
+            }
+        }
+        let (tw, th) = (tile[0] as i64, tile[1] as i64);
+        valid.intersect(&Rect::new(r.s0 * tw, r.t0 * th, r.s1 * tw, r.t1 * th))
+    }
+
+    /// Gives the slots of tiles that left each mem region to the tiles that entered, and asks
+    /// the read queues for every tile wanted now.
+    fn request_tiles(&mut self, velocities: &[[i64; 2]]) {
+        let count = self.levels.len();
+        let mut wanted = Vec::new();
+        for (k, level) in self.levels.iter().enumerate() {
+            let k32 = k as u32;
+            self.stats.tiles_evicted += self.cache.set_mem_region(k32, level.frame.mem);
             for tile in self.cache.wanted(k32, self.tick) {
                 let texels = tile_texels(level.shape.size, level.shape.tile, [tile.s, tile.t]);
-                let p = priority(k32, count, texels, level.frame.valid, level.shape.clip, v);
+                let p = priority(k32, count, texels, level.frame.valid, level.shape.clip, velocities[k]);
                 wanted.push(ReadRequest { tile, priority: p });
                 self.cache.mark_loading(tile);
             }
         }
         self.queues.update(&wanted);
-    }
-
-    /// Copies bands coarse levels first: first what makes each valid region complete, then the
-    /// invalid borders, until the budget is spent. Returns (estimated ns, budget ran out).
-    fn copy_within_budget(&mut self, report: &mut TickReport) -> (f64, bool) {
-        let budget = self.settings.budget_ns.map_or(f64::INFINITY, |b| b as f64);
-        let mut spent = 0.0;
-        let mut over = false;
-        for pass in 0..2 {
-            for level in self.levels.iter_mut().rev() {
-                let goal = if pass == 0 { level.frame.valid } else { level.frame.tex };
-                let w = &mut level.window;
-                while let Some(band) = w.next_band(&goal) {
-                    let line_bytes = band.line_texels() * w.bpt as u64;
-                    let affordable = self.cost.lines_within(budget - spent, line_bytes);
-                    let ready = w.resident_depth(&band, band.depth.min(affordable), &self.cache);
-                    if ready == 0 {
-                        if affordable == 0 {
-                            over = true;
-                            self.stats.levels_out_of_budget += 1;
-                        } else {
-                            self.stats.levels_waiting_for_tiles += 1;
-                        }
-                        break;
-                    }
-                    let rect = band.rect(ready);
-                    if !rect.intersect(&w.published).is_empty() {
-                        self.stats.writes_into_published += 1;
-                    }
-                    let Some(bytes) = w.copy_rect(rect, &self.cache) else { break };
-                    w.grow(&band, ready);
-                    spent += self.cost.band_ns(ready, line_bytes);
-                    report.bytes_copied += bytes;
-                    self.stats.bytes_copied += bytes;
-                    self.stats.bands_copied += 1;
-                }
-                if over {
-                    break;
-                }
-            }
-            if over {
-                break;
-            }
-        }
-        (spent, over)
     }
 
     fn update_min_lod(&mut self, complete: &[bool]) {

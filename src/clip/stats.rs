@@ -44,26 +44,25 @@ impl FaultCounts {
 pub struct Stats {
     /// Update ticks run.
     pub ticks: u64,
-    /// Texel bytes copied from tiles into windows.
-    pub bytes_copied: u64,
-    /// Bands copied.
-    pub bands_copied: u64,
-    /// Tiles read and admitted to the cache.
+    /// Texel bytes written into the slots other than by tile reads (measured at the mapping's
+    /// write primitive; update ticks write none).
+    pub tick_texel_bytes: u64,
+    /// Tiles read into their slots and settled.
     pub tiles_read: u64,
+    /// Of those, slots given the configuration's default tile.
+    pub default_tiles: u64,
     /// Reads that failed, by kind.
     pub read_faults: FaultCounts,
     /// Tiles that arrived after leaving their mem region (discarded).
     pub late_tiles: u64,
-    /// Tiles refused because the cache's byte budget was spent.
-    pub tiles_over_cache_budget: u64,
-    /// Resident tiles evicted because their mem region moved.
+    /// Settled tiles whose slots went to other tiles because their mem region moved.
     pub tiles_evicted: u64,
-    /// Ticks on which the copy budget ran out with work left.
+    /// Ticks whose budget ran out with finished reads left for the next tick.
     pub ticks_over_budget: u64,
-    /// Level updates stopped by a tile that was not resident.
+    /// Finished reads left for a later tick by a spent budget.
+    pub reads_deferred: u64,
+    /// Level publications short of the whole valid region because tiles were still loading.
     pub levels_waiting_for_tiles: u64,
-    /// Level updates stopped by the copy budget.
-    pub levels_out_of_budget: u64,
     /// Ticks with at least one level disabled (below min LOD).
     pub ticks_with_disabled_level: u64,
     /// Times min LOD was raised.
@@ -72,14 +71,11 @@ pub struct Stats {
     pub min_lod_fades: u64,
     /// Ticks on which the centre's speed was clamped.
     pub centre_clamps: u64,
-    /// Publications of the levels' state (two per tick).
+    /// Snapshots published (one per tick).
     pub publications: u64,
-    /// Texel writes that landed inside a published valid region. Always 0; counted so that
-    /// tests can prove it.
-    pub writes_into_published: u64,
-    /// Estimated copy time spent, all ticks (ns).
-    pub estimated_copy_ns: f64,
-    /// Most bytes held in tiles and windows together.
+    /// Time the ticks themselves took, all ticks (ns).
+    pub tick_ns: u64,
+    /// Most bytes the image caches held (their whole memory).
     pub peak_resident_bytes: u64,
     /// The read queues' counters (summed over stream servers).
     pub queue: QueueStats,
@@ -90,18 +86,16 @@ pub struct Stats {
 pub struct TickReport {
     /// Level-0 centre applied (after any speed clamp).
     pub centre: [i64; 2],
-    /// Texel bytes copied this tick.
-    pub bytes_copied: u64,
-    /// Tiles admitted this tick.
+    /// Tiles settled this tick.
     pub tiles_read: u64,
     /// Min LOD after the tick.
     pub min_lod: f64,
     /// Levels renderers may not use after the tick (finer than min LOD).
     pub disabled_levels: Vec<u32>,
-    /// Whether the copy budget ran out with work left.
+    /// Whether the tick's budget ran out with finished reads left for the next tick.
     pub over_budget: bool,
-    /// Estimated copy time spent (ns).
-    pub estimated_copy_ns: f64,
+    /// Time the tick took (ns).
+    pub tick_ns: u64,
     /// Published valid region per level after the tick.
     pub valid: Vec<Rect>,
 }

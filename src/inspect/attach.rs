@@ -196,7 +196,7 @@ pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Resu
             centre: st.centre,
             valid: st.valid,
             enabled: st.enabled,
-            invalid_border: st.invalid_border,
+            invalid_border: snap.invalid_border,
         })
         .collect();
     Ok(Status {

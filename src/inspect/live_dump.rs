@@ -118,7 +118,7 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDump
             window: [window.s0, window.t0, window.s1, window.t1],
             valid: st.valid,
             enabled: st.enabled,
-            invalid_border: st.invalid_border,
+            invalid_border: snap.invalid_border,
             png,
             pixels: frame.pixels,
             texels_per_pixel: frame.scale,

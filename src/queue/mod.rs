@@ -1,10 +1,13 @@
 //! Read queues: one per stream server, reading tiles asynchronously in priority order.
 //!
-//! Owns getting tiles from a [`TileSource`] into memory without ever blocking the update tick:
-//! the synchronous [`ReadQueues`] front (used by [`crate::clip`]) sends each queue's runner the
-//! tiles wanted now with fresh [priorities](fn@priority), and drains finished reads from a channel.
-//! Where tiles are kept is [`crate::cache`]'s business; which tiles are wanted is decided by the
-//! caller from [`crate::geom`].
+//! Owns getting tiles from a [`TileSource`] into their slots of the image caches
+//! ([`ImageMemory`]) without ever blocking the update tick: the synchronous [`ReadQueues`] front
+//! (used by [`crate::clip`]) sends each queue's runner the tiles wanted now with fresh
+//! [priorities](fn@priority), and drains finished reads from a channel. A read writes its tile
+//! straight into the slot (`pread` into the mapping, a decoder or generator writing there), under
+//! the slot's claim ([`ImageMemory::fill`]); nothing is copied afterwards. Which slot a tile has
+//! is [`crate::cache`]'s business; which tiles are wanted is decided by the caller from
+//! [`crate::geom`].
 //!
 //! Design: each queue is a cloneable handle (a bounded command sender) plus a private runner task
 //! owning all of the queue's state, on a small tokio runtime; blocking reads run on
@@ -16,15 +19,14 @@
 //! channel capacity. A tile leaving every mem region is dropped from the queue at the next update
 //! (counted as stale); a tile wanted while its read runs is coalesced with it.
 
-pub mod pool;
 pub mod priority;
 mod runner;
 
-pub use pool::{BufferPool, PoolCounts};
 pub use priority::{priority, Priority};
 
 use crate::limits::Limits;
-use crate::source::{SourceError, TileId, TileSource};
+use crate::shm::ImageMemory;
+use crate::source::{Delivered, SourceError, TileId, TileSource};
 use runner::{Command, Event, Runner};
 use serde::Serialize;
 use std::sync::mpsc as std_mpsc;
@@ -41,13 +43,24 @@ pub struct ReadRequest {
     pub priority: Priority,
 }
 
+/// How a read ended.
+#[derive(Debug)]
+pub enum Outcome {
+    /// The tile's slot holds what was read.
+    Filled(Delivered),
+    /// The slot no longer belonged to the tile when the read started: nothing was read.
+    NotWanted,
+    /// The read failed; the slot holds no promise.
+    Failed(SourceError),
+}
+
 /// A finished read.
 #[derive(Debug)]
 pub struct Completion {
     /// The tile read.
     pub tile: TileId,
-    /// Its texels, or why there are none.
-    pub result: Result<Vec<u8>, SourceError>,
+    /// How it ended.
+    pub outcome: Outcome,
 }
 
 /// Counters of one queue (or the sum over queues).
@@ -126,12 +139,16 @@ pub struct ReadQueues {
     drained: Vec<usize>,
     counters: Vec<QueueStats>,
     skipped: u64,
-    pool: BufferPool,
 }
 
 impl ReadQueues {
-    /// Starts `streams` queues reading from `source`, on a runtime of their own.
-    pub fn new(source: Arc<dyn TileSource>, streams: usize, limits: Limits) -> Result<Self, QueueError> {
+    /// Starts `streams` queues reading from `source` into `memory`, on a runtime of their own.
+    pub fn new(
+        source: Arc<dyn TileSource>,
+        memory: Arc<ImageMemory>,
+        streams: usize,
+        limits: Limits,
+    ) -> Result<Self, QueueError> {
         if streams == 0 || streams > limits.max_streams {
             return Err(QueueError::Streams { streams, max: limits.max_streams });
         }
@@ -143,12 +160,10 @@ impl ReadQueues {
             .build()
             .map_err(QueueError::Runtime)?;
         let (tx, events) = std_mpsc::channel();
-        // Enough spare buffers for a few rounds of reads in flight; evictions beyond are freed.
-        let pool = BufferPool::new(16 * streams * limits.max_in_flight_reads.max(1));
         let handles = (0..streams)
             .map(|stream| {
                 let (commands, rx) = mpsc::channel(limits.queue_commands.max(1));
-                let runner = Runner::new(stream, rx, tx.clone(), Arc::clone(&source), limits, pool.clone());
+                let runner = Runner::new(stream, rx, tx.clone(), Arc::clone(&source), Arc::clone(&memory), limits);
                 runtime.spawn(runner.run());
                 QueueHandle { commands }
             })
@@ -161,7 +176,6 @@ impl ReadQueues {
             drained: vec![0; streams],
             counters: vec![QueueStats::default(); streams],
             skipped: 0,
-            pool,
         })
     }
 
@@ -190,16 +204,6 @@ impl ReadQueues {
                 Err(_) => self.skipped += 1,
             }
         }
-    }
-
-    /// Hands a tile buffer that is no longer needed (an evicted tile's) back for later reads.
-    pub fn recycle(&self, buf: Vec<u8>) {
-        self.pool.give(buf);
-    }
-
-    /// How the reads' buffers were served so far.
-    pub fn buffer_counts(&self) -> PoolCounts {
-        self.pool.counts()
     }
 
     /// Takes every finished read, oldest first. Never blocks.

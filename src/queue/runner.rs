@@ -4,8 +4,9 @@
 //! delivered but not yet taken, and the queue's counters. Nothing else touches them: the handle
 //! only sends commands. Reads run on `spawn_blocking` threads, never on the async workers.
 
-use super::{BufferPool, Completion, Priority, QueueStats, ReadRequest};
+use super::{Completion, Outcome, Priority, QueueStats, ReadRequest};
 use crate::limits::Limits;
+use crate::shm::ImageMemory;
 use crate::source::{SourceError, TileId, TileSource};
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::mpsc as std_mpsc;
@@ -35,6 +36,7 @@ pub(super) struct Runner {
     pub commands: mpsc::Receiver<Command>,
     pub events: std_mpsc::Sender<Event>,
     pub source: Arc<dyn TileSource>,
+    pub memory: Arc<ImageMemory>,
     pub limits: Limits,
     pending: Vec<ReadRequest>,
     in_flight: HashSet<TileId>,
@@ -43,7 +45,6 @@ pub(super) struct Runner {
     reads: JoinSet<Completion>,
     flushes: Vec<oneshot::Sender<()>>,
     stats: QueueStats,
-    pool: BufferPool,
 }
 
 impl Runner {
@@ -52,14 +53,15 @@ impl Runner {
         commands: mpsc::Receiver<Command>,
         events: std_mpsc::Sender<Event>,
         source: Arc<dyn TileSource>,
+        memory: Arc<ImageMemory>,
         limits: Limits,
-        pool: BufferPool,
     ) -> Self {
         Runner {
             stream,
             commands,
             events,
             source,
+            memory,
             limits,
             pending: Vec::new(),
             in_flight: HashSet::new(),
@@ -67,7 +69,6 @@ impl Runner {
             reads: JoinSet::new(),
             flushes: Vec::new(),
             stats: QueueStats::default(),
-            pool,
         }
     }
 
@@ -86,11 +87,13 @@ impl Runner {
                     let Ok(done) = joined else { continue };
                     self.in_flight.remove(&done.tile);
                     self.delivered.push_back(done.tile);
-                    if let Ok(texels) = &done.result {
-                        self.stats.reads_done += 1;
-                        self.stats.bytes_read += texels.len() as u64;
-                    } else {
-                        self.stats.reads_failed += 1;
+                    match &done.outcome {
+                        Outcome::Filled(_) => {
+                            self.stats.reads_done += 1;
+                            self.stats.bytes_read += self.source.desc().tile_bytes(done.tile.level) as u64;
+                        }
+                        Outcome::Failed(_) => self.stats.reads_failed += 1,
+                        Outcome::NotWanted => self.stats.stale_dropped += 1,
                     }
                     if self.events.send(Event::Done(done)).is_err() {
                         break;
@@ -112,20 +115,25 @@ impl Runner {
             let request = self.pending.remove(0);
             let tile = request.tile;
             let source = Arc::clone(&self.source);
-            let pool = self.pool.clone();
+            let memory = Arc::clone(&self.memory);
             self.in_flight.insert(tile);
             self.stats.reads_started += 1;
             self.reads.spawn(async move {
                 let read = tokio::task::spawn_blocking(move || {
-                    // A reused buffer holds old texels: the source overwrites every byte on success,
-                    // and on failure the buffer is dropped with the error.
-                    let mut buf = pool.take(source.desc().tile_bytes(tile.level));
-                    source.read_tile(tile, &mut buf).map(|()| buf)
+                    // Straight into the tile's slot, under its claim: nothing is copied later.
+                    match memory.fill(tile, |slot| source.read_into(tile, slot)) {
+                        None => Outcome::NotWanted,
+                        Some(Ok(delivered)) => Outcome::Filled(delivered),
+                        Some(Err(e)) => Outcome::Failed(e),
+                    }
                 });
-                let result = read.await.unwrap_or_else(|e| {
-                    Err(SourceError::Io { tile, source: std::io::Error::other(format!("tile read task failed: {e}")) })
+                let outcome = read.await.unwrap_or_else(|e| {
+                    Outcome::Failed(SourceError::Io {
+                        tile,
+                        source: std::io::Error::other(format!("tile read task failed: {e}")),
+                    })
                 });
-                Completion { tile, result }
+                Completion { tile, outcome }
             });
         }
     }

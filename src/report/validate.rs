@@ -140,9 +140,14 @@ pub fn unservable_shape(plan: &plan::ClipTexturePlan) -> Option<String> {
     match crate::source::file::texture_desc(plan) {
         Err(e) => Some(e.to_string()),
         Ok(desc) => {
-            let needed: usize = crate::clip::Clipmap::window_bytes(&desc).iter().sum();
-            (needed > limits.window_bytes)
-                .then(|| crate::clip::ClipError::WindowBytes { needed, limit: limits.window_bytes }.to_string())
+            let shape = crate::clip::Clipmap::shape_for(&desc, &crate::clip::Settings::default());
+            match crate::shm::layout::place(&shape) {
+                None => Some(crate::clip::ClipError::Memory(crate::shm::memory::shape_error(&shape)).to_string()),
+                Some(p) => {
+                    let (needed, limit) = (p.total_bytes, limits.cache_bytes as u64);
+                    (needed > limit).then(|| crate::clip::ClipError::CacheBytes { needed, limit }.to_string())
+                }
+            }
         }
     }
 }

@@ -43,6 +43,8 @@ pub struct Options {
     pub socket: PathBuf,
     /// Permission bits of the mapping (0o600: owner only).
     pub shm_mode: u32,
+    /// Permission bits of the request mapping (`None`: the same as `shm_mode`).
+    pub request_mode: Option<u32>,
     /// Copy budget per tick in milliseconds (`None`: unlimited).
     pub budget_ms: Option<f64>,
     /// Update ticks per second.
@@ -71,6 +73,7 @@ impl Options {
             socket: default_socket(&shm_dir, name),
             shm_dir,
             shm_mode: 0o600,
+            request_mode: None,
             budget_ms: Some(6.0),
             tick_hz: 60.0,
             invalid_border: None,
@@ -106,6 +109,13 @@ impl Options {
                 "--shm-mode {:o}: expected read-write for the owner and no execute bits (e.g. 600, 640, 660)",
                 self.shm_mode
             ));
+        }
+        if let Some(m) = self.request_mode {
+            if m & !0o666 != 0 || m & 0o600 != 0o600 {
+                return bad(format!(
+                    "--request-mode {m:o}: expected read-write for the owner and no execute bits (e.g. 600, 660)"
+                ));
+            }
         }
         // sockaddr_un holds 108 bytes including the terminating NUL.
         if self.socket.as_os_str().len() > 100 {

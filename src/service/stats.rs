@@ -39,11 +39,11 @@ pub struct TickStats {
     pub budget_ms: Option<f64>,
     /// Invalid border in use.
     pub invalid_border: u64,
-    /// Texel bytes newly published in the mapping (the engine writes them there itself).
+    /// Texel bytes read into the mapping's slots (tile reads write there directly).
     pub bytes_published: u64,
-    /// Level-state publications written to the mapping.
+    /// Snapshots published in the mapping (one per tick).
     pub publications: u64,
-    /// Bytes held in tiles and windows.
+    /// Bytes of the image caches (the whole mapping).
     pub resident_bytes: u64,
     /// Per level: the published valid region `[s0, t0, s1, t1]`.
     pub valid: Vec<[i64; 4]>,
@@ -128,7 +128,7 @@ impl ServiceStats {
         let e = &t.engine;
         let c = &self.control;
         let q = &e.queue;
-        let rows: [(&str, &str, &str, f64); 30] = [
+        let rows: [(&str, &str, &str, f64); 29] = [
             ("ticks_total", "counter", "Update ticks run", e.ticks as f64),
             ("tick_overruns_total", "counter", "Ticks longer than the tick period", t.tick_overruns as f64),
             (
@@ -139,14 +139,14 @@ impl ServiceStats {
             ),
             ("tick_busy_seconds_total", "counter", "Seconds spent inside update ticks", t.tick_busy_s),
             ("uptime_seconds", "gauge", "Seconds since start", t.uptime_s),
-            ("bytes_copied_total", "counter", "Texel bytes copied from tiles into windows", e.bytes_copied as f64),
+            ("tick_texel_bytes_total", "counter", "Texel bytes written into the mapping other than by tile reads", e.tick_texel_bytes as f64),
             (
                 "bytes_published_total",
                 "counter",
-                "Texel bytes newly published in the mapping",
+                "Texel bytes read into the mapping's slots",
                 t.bytes_published as f64,
             ),
-            ("publications_total", "counter", "Level-state publications", t.publications as f64),
+            ("publications_total", "counter", "Snapshots published", t.publications as f64),
             ("tiles_read_total", "counter", "Tiles read and admitted", e.tiles_read as f64),
             ("read_faults_total", "counter", "Tile reads that failed", e.read_faults.total() as f64),
             ("late_tiles_total", "counter", "Tiles that arrived after leaving their region", e.late_tiles as f64),
@@ -183,12 +183,6 @@ impl ServiceStats {
             ("control_connections_open", "gauge", "Control connections open", c.open as f64),
             ("control_requests_ok_total", "counter", "Control requests answered OK", c.ok as f64),
             ("control_requests_err_total", "counter", "Control requests answered ERR", c.errors as f64),
-            (
-                "writes_into_published_total",
-                "counter",
-                "Writes inside a published region (always 0)",
-                e.writes_into_published as f64,
-            ),
         ];
         let mut out = String::new();
         for (name, kind, help, v) in rows {

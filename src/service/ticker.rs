@@ -1,16 +1,16 @@
 //! The tick loop: a dedicated thread that owns the [`Clipmap`] (synchronous, with its own small
-//! read runtime) and the [`Mirror`] into the mapping, and runs one update tick per period.
+//! read runtime, its image caches in the mapping) and the mapping's [`Writer`], and runs one
+//! update tick per period.
 //!
 //! Handle and runner: [`Ticker`] is the cloneable handle (a bounded command sender and a watch on
 //! the latest [`TickStats`]); the runner owns every piece of mutable state, without locks. Each
-//! tick takes the newest renderer request from the mapping, then ticks the engine, which
-//! publishes through the mirror and beats the heartbeat. Commands (budget, border, centre, stop)
+//! tick takes the newest renderer request from the request mapping, then ticks the engine, which
+//! publishes its snapshot into the mapping, and beats the heartbeat. Commands (budget, border, centre, stop)
 //! are taken between ticks and answered through a one-shot reply.
 
 use super::stats::TickStats;
 use super::{Options, ServiceError};
 use crate::clip::{Clipmap, Settings};
-use crate::shm::mirror::{shape_of_desc, Mirror};
 use crate::shm::Writer;
 use crate::source::TileSource;
 use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
@@ -124,7 +124,7 @@ impl Ticker {
 
 struct Runner {
     clipmap: Clipmap,
-    mirror: Mirror,
+    writer: Writer,
     commands: mpsc::Receiver<Command>,
     stats_tx: watch::Sender<TickStats>,
     period: Duration,
@@ -152,14 +152,19 @@ impl Runner {
             ..Settings::default()
         };
         // Refused before anything is created in the shared directory.
-        let needed: usize = Clipmap::window_bytes(&desc).iter().sum();
-        if needed > settings.limits.window_bytes {
-            return Err(crate::clip::ClipError::WindowBytes { needed, limit: settings.limits.window_bytes }.into());
+        let shape = Clipmap::shape_for(&desc, &settings);
+        let placement = crate::shm::layout::place(&shape)
+            .ok_or_else(|| crate::clip::ClipError::Memory(crate::shm::memory::shape_error(&shape)))?;
+        let limit = settings.limits.cache_bytes as u64;
+        if placement.total_bytes > limit {
+            return Err(crate::clip::ClipError::CacheBytes { needed: placement.total_bytes, limit }.into());
         }
-        // The engine keeps its windows in the mapping itself: each texel is copied once, from a
-        // tile straight to where renderers read it.
-        let writer = Writer::create(&o.shm_dir, &o.name, shape_of_desc(&desc), desc.format(), o.shm_mode)?;
-        let mut clipmap = match Clipmap::with_windows(source, settings, writer.window_stores()) {
+        // The engine keeps its image caches in the mapping itself: each tile is read straight
+        // into its slot, where renderers read it, and nothing is copied afterwards.
+        let period_ns = (1e9 / o.tick_hz).round() as u64;
+        let request_mode = o.request_mode.unwrap_or(o.shm_mode);
+        let writer = Writer::create(&o.shm_dir, &o.name, shape, desc.format(), o.shm_mode, request_mode, period_ns)?;
+        let mut clipmap = match Clipmap::with_memory(source, settings, writer.memory()) {
             Ok(c) => c,
             Err(e) => {
                 // Leave nothing behind that looks like a service.
@@ -170,20 +175,19 @@ impl Runner {
         if let Some(b) = o.invalid_border {
             clipmap.set_invalid_border(b);
         }
-        let mirror = Mirror::direct(writer, &clipmap)?;
         let started = Started {
-            mapping: mirror.writer().path().to_path_buf(),
+            mapping: writer.path().to_path_buf(),
             size: desc.size(),
             clip_size: desc.clip_size(),
             levels: desc.level_count(),
             format: desc.format().short_name(),
-            mapping_bytes: mirror.writer().placement().total_bytes,
+            mapping_bytes: writer.placement().total_bytes,
         };
         let size = desc.size();
         let stats = TickStats { tick_hz: o.tick_hz, budget_ms: o.budget_ms, ..TickStats::default() };
         let runner = Runner {
             clipmap,
-            mirror,
+            writer,
             commands,
             stats_tx,
             period: Duration::from_secs_f64(1.0 / o.tick_hz),
@@ -210,7 +214,7 @@ impl Runner {
                 if now >= next {
                     break;
                 }
-                if now >= last_start + min_gap && self.mirror.writer().request_count() != self.last_request {
+                if now >= last_start + min_gap && self.writer.request_count() != self.last_request {
                     self.stats.ticks_on_request += 1;
                     break;
                 }
@@ -232,7 +236,7 @@ impl Runner {
             }
         }
         tracing::info!(ticks = self.stats.engine.ticks, "tick loop stopping; closing the mapping");
-        self.mirror.into_writer().close();
+        self.writer.close();
     }
 
     fn apply(&mut self, cmd: Command) {
@@ -263,7 +267,7 @@ impl Runner {
     }
 
     fn tick(&mut self) {
-        if let Some(req) = self.mirror.writer().request() {
+        if let Some(req) = self.writer.request() {
             if req.count != self.last_request {
                 self.last_request = req.count;
                 self.centre = req.centre;
@@ -277,7 +281,8 @@ impl Runner {
             }
         }
         let t0 = Instant::now();
-        let report = self.clipmap.tick_with(self.centre, self.velocity, &mut self.mirror);
+        let report = self.clipmap.tick(self.centre, self.velocity);
+        self.writer.heartbeat();
         let s = &mut self.stats;
         s.tick_busy_s += t0.elapsed().as_secs_f64();
         s.uptime_s = self.started.elapsed().as_secs_f64();
@@ -285,8 +290,8 @@ impl Runner {
         s.min_lod = report.min_lod;
         s.levels_disabled = report.disabled_levels.len() as u64;
         s.invalid_border = self.clipmap.invalid_border();
-        s.bytes_published = self.mirror.bytes_copied;
-        s.publications = self.mirror.publications;
+        s.bytes_published = self.clipmap.stats().queue.bytes_read;
+        s.publications = self.clipmap.stats().publications;
         s.resident_bytes = self.clipmap.resident_bytes();
         s.valid = report.valid.iter().map(|r| [r.s0, r.t0, r.s1, r.t1]).collect();
         s.engine = self.clipmap.stats().clone();

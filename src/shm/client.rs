@@ -1,10 +1,12 @@
-//! The reader side: attach to a mapping (checking magic, version and every size before trusting
-//! anything), take consistent snapshots of the level states, read texels inside published valid
-//! regions, request a centre, and notice a stale or replaced service.
+//! The reader side: attach to a texel mapping read-only (checking magic, version and every size
+//! before trusting anything), take consistent snapshots of the published state (checked before
+//! any address arithmetic), read texels from ready slots under their tags, request a centre
+//! through the request mapping, and notice a stale or replaced service.
 
-use super::layout::{self, desc, header, request, state};
+use super::layout::{self, desc, header, request, snapshot, state, tag, LevelShape, SlotState, MAX_RETRIES};
 use super::raw::Region;
-use super::{check_name, map_path, ShmError};
+use super::{check_name, map_path, request_path, ShmError};
+use crate::geom::Rect;
 use std::fs::OpenOptions;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
@@ -16,47 +18,69 @@ use std::time::Duration;
 pub struct LevelDesc {
     /// Level size.
     pub size: [u64; 2],
-    /// Window byte offset in the mapping.
-    pub offset: u64,
-    /// Window bytes.
-    pub bytes: u64,
-    /// Window size in texels.
-    pub window: [u64; 2],
+    /// Tile size.
+    pub tile: [u64; 2],
+    /// Slots per axis.
+    pub grid: [u64; 2],
+    /// Bytes of one slot.
+    pub slot_bytes: u64,
+    /// Byte offset of the tags.
+    pub tags: u64,
+    /// Byte offset of the slots.
+    pub slots: u64,
     /// True for pyramid levels (resident whole).
     pub pyramid: bool,
+}
+
+impl LevelDesc {
+    fn shape(&self) -> LevelShape {
+        LevelShape { size: self.size, tile: self.tile, grid: self.grid }
+    }
 }
 
 /// One level's published state.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LevelState {
-    /// Sequence number it was read at (even).
-    pub seq: u64,
     /// Centre.
     pub centre: [i64; 2],
-    /// Valid region `[s0, s1) x [t0, t1)`.
+    /// Valid region `[s0, s1) x [t0, t1)` (all 0 when disabled).
     pub valid: [i64; 4],
     /// Renderers may use the level.
     pub enabled: bool,
-    /// Invalid border.
-    pub invalid_border: u64,
     /// Tick of the last change.
     pub updated_tick: u64,
 }
 
 impl LevelState {
-    /// Whether (s, t) is inside the valid region.
+    /// Whether (s, t) is inside the valid region of an enabled level.
     pub fn contains(&self, s: i64, t: i64) -> bool {
         self.enabled && s >= self.valid[0] && s < self.valid[2] && t >= self.valid[1] && t < self.valid[3]
     }
+
+    /// The valid region as a rectangle (empty when disabled).
+    pub fn rect(&self) -> Rect {
+        if self.enabled {
+            Rect::new(self.valid[0], self.valid[1], self.valid[2], self.valid[3])
+        } else {
+            Rect::EMPTY
+        }
+    }
 }
 
-/// A consistent copy of every level's state.
-#[derive(Clone, Debug, Default)]
+/// A consistent copy of the whole published state (one seqlock: every level and min LOD from the
+/// same tick).
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Snapshot {
+    /// Sequence number it was read at (even).
+    pub seq: u64,
     /// Finest level renderers may use.
     pub min_lod: f64,
-    /// Tick of the global state.
+    /// Tick of the snapshot (0 before the first).
     pub tick: u64,
+    /// Invalid border in use.
+    pub invalid_border: u64,
+    /// Level-0 centre of that tick.
+    pub centre: [i64; 2],
     /// Per level.
     pub levels: Vec<LevelState>,
 }
@@ -67,17 +91,34 @@ pub enum ReadError {
     /// The level does not exist.
     #[error("level {0} does not exist")]
     NoLevel(usize),
-    /// The region is not inside the published valid region (right now).
+    /// The region is not inside the level's valid region in the snapshot.
     #[error("the region is not inside level {0}'s published valid region")]
     NotValid(usize),
-    /// The writer kept changing the level; try again or use a coarser level.
+    /// A tile under the region could not be read by the service: use a coarser level there.
+    #[error("level {level} tile ({s}, {t}) is missing: use a coarser level for its texels")]
+    Missing {
+        /// Level.
+        level: usize,
+        /// Tile column.
+        s: i64,
+        /// Tile row.
+        t: i64,
+    },
+    /// A slot no longer holds what the snapshot says: take a new snapshot.
+    #[error("level {0} moved on since the snapshot: take a new one")]
+    Stale(usize),
+    /// The writer kept changing what was read; try again next frame or use a coarser level.
     #[error("level {0} kept changing while it was read")]
     Busy(usize),
+    /// The published state is outside its bounds: the mapping is corrupt or hostile.
+    #[error("corrupt mapping: {0}")]
+    Corrupt(String),
 }
 
 /// A reader attached to one mapping.
 pub struct Client {
     region: Region,
+    request: Option<Region>,
     path: PathBuf,
     inode: (u64, u64),
     /// Bytes per texel.
@@ -90,6 +131,8 @@ pub struct Client {
     pub levels: Vec<LevelDesc>,
     /// The writer's generation at attach time.
     pub generation: u64,
+    /// The service's tick period (0 when the writer did not say).
+    pub tick_period: Duration,
 }
 
 impl std::fmt::Debug for Client {
@@ -103,42 +146,51 @@ fn invalid(path: &Path, reason: impl Into<String>) -> ShmError {
 }
 
 impl Client {
-    /// Attaches to the mapping `name` in `dir`.
+    /// Attaches to the mapping `name` in `dir` (and its request mapping, when it may be written).
     pub fn attach(dir: &Path, name: &str) -> Result<Client, ShmError> {
         check_name(name)?;
         let path = map_path(dir, name);
         if !path.exists() {
             return Err(ShmError::NotFound { name: name.to_string(), dir: dir.to_path_buf() });
         }
-        Self::attach_path(&path)
+        let mut client = Self::attach_path(&path)?;
+        client.open_requests(&request_path(dir, name));
+        Ok(client)
     }
 
-    /// Attaches to a mapping file.
+    /// Attaches to a texel mapping file, read-only; requests then go nowhere unless the request
+    /// mapping beside it (`.req` for `.map`) can be opened for writing.
     pub fn attach_path(path: &Path) -> Result<Client, ShmError> {
-        let file = OpenOptions::new().read(true).write(true).open(path).map_err(super::io(path))?;
+        let file = OpenOptions::new().read(true).open(path).map_err(super::io(path))?;
         let meta = file.metadata().map_err(super::io(path))?;
-        if (meta.len() as usize) < layout::header::END {
+        if !meta.is_file() {
+            return Err(invalid(path, "not a regular file"));
+        }
+        if meta.len() < layout::header::END as u64 {
             return Err(invalid(
                 path,
                 format!("truncated: {} bytes, a mapping has at least {}", meta.len(), layout::header::END),
             ));
         }
-        let region = Region::map(&file).map_err(super::io(path))?;
+        let region = Region::map_read_only(&file).map_err(super::io(path))?;
         let mut magic = [0u8; 8];
         region.read(header::MAGIC, &mut magic);
         fence(Ordering::Acquire);
+        if magic == *b"CLIPMAP1" {
+            return Err(invalid(
+                path,
+                "layout version 1 (a texel-window mapping of an older clipmapd); this client reads layout 2 only: run the service of this release",
+            ));
+        }
         if magic != layout::MAGIC {
             return Err(invalid(
                 path,
-                format!("wrong magic {magic:02x?}: not a clipmap mapping (expected \"CLIPMAP1\")"),
+                format!("wrong magic {magic:02x?}: not a clipmap mapping (expected \"CLIPMAP2\")"),
             ));
         }
         let version = region.read_u32(header::VERSION);
         if version != layout::VERSION {
-            return Err(invalid(
-                path,
-                format!("layout version {version}; this client reads version {}", layout::VERSION),
-            ));
+            return Err(invalid(path, format!("layout version {version}; this client reads version {}", layout::VERSION)));
         }
         let total = region.read_u64(header::TOTAL_BYTES);
         if total != meta.len() {
@@ -148,41 +200,63 @@ impl Client {
         let clip = region.read_u32(header::CLIP_SIZE) as u64;
         let count = region.read_u32(header::LEVEL_COUNT) as usize;
         if bpt == 0 || bpt > 64 || clip == 0 || count == 0 || count > layout::MAX_LEVELS {
-            return Err(invalid(
-                path,
-                format!("implausible header: {bpt} bytes per texel, clip {clip}, {count} levels"),
-            ));
+            return Err(invalid(path, format!("implausible header: {bpt} bytes per texel, clip {clip}, {count} levels (expected 1..=64, > 0, 1..=32)")));
         }
         let header_bytes = region.read_u32(header::HEADER_BYTES) as u64;
-        let mut levels = Vec::with_capacity(count);
+        if header_bytes < layout::header::END as u64 || header_bytes % layout::PAGE != 0 {
+            return Err(invalid(path, format!("header bytes {header_bytes}: expected a multiple of 4096 of at least {}", layout::header::END)));
+        }
+        let size0 = [region.read_u64(header::LEVEL0_S), region.read_u64(header::LEVEL0_T)];
+        if size0.iter().any(|&e| e == 0 || e > crate::limits::MAX_TEXTURE_SIZE) {
+            return Err(invalid(path, format!("level 0 is {size0:?} texels: expected 1..={} a side", crate::limits::MAX_TEXTURE_SIZE)));
+        }
+        let mut levels: Vec<LevelDesc> = Vec::with_capacity(count);
+        let mut end = header_bytes;
         for i in 0..count {
             let b = header::LEVEL_DESCS + i * layout::DESC_BYTES;
+            let g = |o: usize| region.read_u64(b + o);
             let d = LevelDesc {
-                size: [region.read_u64(b + desc::SIZE_S), region.read_u64(b + desc::SIZE_T)],
-                offset: region.read_u64(b + desc::WINDOW_OFFSET),
-                bytes: region.read_u64(b + desc::WINDOW_BYTES),
-                window: [region.read_u64(b + desc::WINDOW_S), region.read_u64(b + desc::WINDOW_T)],
-                pyramid: region.read_u64(b + desc::KIND) == 1,
+                size: [g(desc::SIZE_S), g(desc::SIZE_T)],
+                tile: [g(desc::TILE_S), g(desc::TILE_T)],
+                grid: [g(desc::GRID_S), g(desc::GRID_T)],
+                slot_bytes: g(desc::SLOT_BYTES),
+                tags: g(desc::TAGS_OFFSET),
+                slots: g(desc::SLOTS_OFFSET),
+                pyramid: g(desc::KIND) == 1,
             };
-            let want = d.window[0].checked_mul(d.window[1]).and_then(|x| x.checked_mul(bpt));
-            let end = d.offset.checked_add(d.bytes);
-            let ok = want == Some(d.bytes)
-                && end.is_some_and(|e| e <= total)
-                && d.offset >= header_bytes
-                && d.offset % layout::PAGE == 0
-                && levels.last().is_none_or(|p: &LevelDesc| p.offset + p.bytes <= d.offset)
-                && d.window[0] == d.size[0].min(clip)
-                && d.window[1] == d.size[1].min(clip);
-            if !ok {
-                return Err(invalid(path, format!("level {i}'s window description is inconsistent: {d:?}")));
+            let bad = |why: String| invalid(path, format!("level {i}'s description is inconsistent: {why} ({d:?})"));
+            let want = crate::source::level_size(size0, i as u32);
+            if d.size != want {
+                return Err(bad(format!("size {:?}, expected {want:?} (level 0 halved {i} times)", d.size)));
             }
+            layout::check_level(&d.shape(), clip, bpt).map_err(bad)?;
+            if d.slot_bytes != d.tile[0] * d.tile[1] * bpt {
+                return Err(bad(format!("slot bytes {}, expected tile width x height x {bpt}", d.slot_bytes)));
+            }
+            if d.pyramid != (d.size[0] <= clip && d.size[1] <= clip) || g(desc::KIND) > 1 {
+                return Err(bad(format!("kind {} does not match the level's size against clip {clip}", g(desc::KIND))));
+            }
+            let n = d.grid[0] * d.grid[1];
+            let tags_end = n.checked_mul(layout::TAG_BYTES as u64).and_then(|x| x.checked_add(d.tags));
+            let slots_end = n.checked_mul(d.slot_bytes).and_then(|x| x.checked_add(d.slots));
+            let ok = d.tags >= end
+                && d.tags % layout::PAGE == 0
+                && d.slots % layout::PAGE == 0
+                && tags_end.is_some_and(|e| e <= d.slots)
+                && slots_end.is_some_and(|e| e <= total);
+            if !ok {
+                return Err(bad(format!("tags at {} and slots at {} do not lie in order inside the {total}-byte mapping after byte {end}", d.tags, d.slots)));
+            }
+            end = slots_end.unwrap_or(total);
             levels.push(d);
         }
         Ok(Client {
             inode: (meta.dev(), meta.ino()),
             generation: region.read_u64(header::GENERATION),
             format_code: region.read_u32(header::TEXEL_FORMAT),
+            tick_period: Duration::from_nanos(region.read_u64(header::TICK_PERIOD_NS)),
             region,
+            request: None,
             path: path.to_path_buf(),
             bytes_per_texel: bpt as usize,
             clip_size: clip,
@@ -190,150 +264,266 @@ impl Client {
         })
     }
 
+    /// Opens the request mapping `path` for writing, if it is one of this mapping's.
+    fn open_requests(&mut self, path: &Path) {
+        let Ok(file) = OpenOptions::new().read(true).write(true).open(path) else { return };
+        if file.metadata().map(|m| m.len() != layout::REQUEST_BYTES || !m.is_file()).unwrap_or(true) {
+            return;
+        }
+        let Ok(region) = Region::map(&file) else { return };
+        let mut magic = [0u8; 8];
+        region.read(request::MAGIC, &mut magic);
+        if magic == layout::REQUEST_MAGIC && region.read_u64(request::GENERATION) == self.generation {
+            self.request = Some(region);
+        }
+    }
+
     /// The mapping file.
     pub fn path(&self) -> &Path {
         &self.path
     }
 
-    /// Reads one level's state consistently (`None` if the writer kept it busy).
-    pub fn level_state(&self, level: usize) -> Option<LevelState> {
-        let b = header::LEVEL_STATES + level * layout::STATE_BYTES;
+    /// True when requests can be made through the request mapping.
+    pub fn can_request(&self) -> bool {
+        self.request.is_some()
+    }
+
+    /// A consistent, checked copy of the whole published state; `Busy` when the writer kept it
+    /// locked for [`MAX_RETRIES`] attempts, `Corrupt` when what is published is outside its
+    /// bounds.
+    pub fn try_snapshot(&self) -> Result<Snapshot, ReadError> {
         let r = &self.region;
-        for _ in 0..1000 {
-            let s1 = r.load(b + state::SEQ, Ordering::Acquire);
+        let b = header::SNAPSHOT;
+        for _ in 0..MAX_RETRIES {
+            let s1 = r.load(b + snapshot::SEQ, Ordering::Acquire);
+            if s1 & 1 == 1 {
+                std::thread::yield_now();
+                continue;
+            }
+            let g = |o: usize| r.load(b + o, Ordering::Relaxed);
+            let mut snap = Snapshot {
+                seq: s1,
+                min_lod: f64::from_bits(g(snapshot::MIN_LOD)),
+                tick: g(snapshot::TICK),
+                invalid_border: g(snapshot::INVALID_BORDER),
+                centre: [g(snapshot::CENTRE_S) as i64, g(snapshot::CENTRE_T) as i64],
+                levels: Vec::with_capacity(self.levels.len()),
+            };
+            let mut enabled_codes = Vec::with_capacity(self.levels.len());
+            for k in 0..self.levels.len() {
+                let o = snapshot::LEVELS + k * layout::STATE_BYTES;
+                let e = g(o + state::ENABLED);
+                enabled_codes.push(e);
+                snap.levels.push(LevelState {
+                    centre: [g(o + state::CENTRE_S) as i64, g(o + state::CENTRE_T) as i64],
+                    valid: [
+                        g(o + state::VALID_S0) as i64,
+                        g(o + state::VALID_T0) as i64,
+                        g(o + state::VALID_S1) as i64,
+                        g(o + state::VALID_T1) as i64,
+                    ],
+                    enabled: e == 1,
+                    updated_tick: g(o + state::UPDATED_TICK),
+                });
+            }
+            fence(Ordering::Acquire);
+            if r.load(b + snapshot::SEQ, Ordering::Relaxed) != s1 {
+                continue;
+            }
+            self.check_snapshot(&snap, &enabled_codes)?;
+            return Ok(snap);
+        }
+        Err(ReadError::Busy(0))
+    }
+
+    fn check_snapshot(&self, snap: &Snapshot, enabled: &[u64]) -> Result<(), ReadError> {
+        let n = self.levels.len() as f64;
+        if !snap.min_lod.is_finite() || snap.min_lod < 0.0 || snap.min_lod > n {
+            return Err(ReadError::Corrupt(format!("min LOD {} outside 0..={n}", snap.min_lod)));
+        }
+        for (k, (l, &e)) in snap.levels.iter().zip(enabled).enumerate() {
+            if e > 1 {
+                return Err(ReadError::Corrupt(format!("level {k}: enabled is {e}, expected 0 or 1")));
+            }
+            if l.enabled {
+                layout::check_region(&self.levels[k].shape(), l.valid)
+                    .map_err(|why| ReadError::Corrupt(format!("level {k}: {why}")))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// [`try_snapshot`](Self::try_snapshot), or an empty snapshot (nothing usable: min LOD the
+    /// level count) when the writer is busy or the state is corrupt.
+    pub fn snapshot(&self) -> Snapshot {
+        self.try_snapshot().unwrap_or_else(|_| Snapshot {
+            min_lod: self.levels.len() as f64,
+            levels: vec![LevelState::default(); self.levels.len()],
+            ..Snapshot::default()
+        })
+    }
+
+    /// One level's state from a fresh snapshot.
+    pub fn level_state(&self, level: usize) -> Option<LevelState> {
+        self.try_snapshot().ok()?.levels.get(level).copied()
+    }
+
+    /// Reads a slot's tag consistently: (sequence, tile, state).
+    fn tag(&self, d: &LevelDesc, slot: u64) -> Option<(u64, [i64; 2], Option<SlotState>)> {
+        let b = (d.tags + slot * layout::TAG_BYTES as u64) as usize;
+        let r = &self.region;
+        for _ in 0..MAX_RETRIES {
+            let s1 = r.load(b + tag::SEQ, Ordering::Acquire);
             if s1 & 1 == 1 {
                 std::hint::spin_loop();
                 continue;
             }
-            let g = |o: usize| r.load(b + o, Ordering::Relaxed);
-            let st = LevelState {
-                seq: s1,
-                centre: [g(state::CENTRE_S) as i64, g(state::CENTRE_T) as i64],
-                valid: [
-                    g(state::VALID_S0) as i64,
-                    g(state::VALID_T0) as i64,
-                    g(state::VALID_S1) as i64,
-                    g(state::VALID_T1) as i64,
-                ],
-                enabled: g(state::ENABLED) == 1,
-                invalid_border: g(state::INVALID_BORDER),
-                updated_tick: g(state::UPDATED_TICK),
-            };
+            let tile = [r.load(b + tag::TILE_S, Ordering::Relaxed) as i64, r.load(b + tag::TILE_T, Ordering::Relaxed) as i64];
+            let st = SlotState::from_code(r.load(b + tag::STATE, Ordering::Relaxed));
             fence(Ordering::Acquire);
-            if r.load(b + state::SEQ, Ordering::Relaxed) == s1 {
-                return Some(st);
+            if r.load(b + tag::SEQ, Ordering::Relaxed) == s1 {
+                return Some((s1, tile, st));
             }
         }
         None
     }
 
-    /// A consistent copy of every level's state (each level consistent on its own, as the writer
-    /// publishes levels one by one).
-    pub fn snapshot(&self) -> Snapshot {
-        let r = &self.region;
-        let (mut min_lod, mut tick) = (0.0, 0);
-        for _ in 0..1000 {
-            let s1 = r.load(header::GLOBAL_SEQ, Ordering::Acquire);
-            if s1 & 1 == 1 {
-                continue;
-            }
-            min_lod = f64::from_bits(r.load(header::MIN_LOD, Ordering::Relaxed));
-            tick = r.load(header::TICK, Ordering::Relaxed);
-            fence(Ordering::Acquire);
-            if r.load(header::GLOBAL_SEQ, Ordering::Relaxed) == s1 {
-                break;
+    /// Copies the texels of `rect` of `level` (rows in increasing t, s fastest, row pitch
+    /// `rect.width()` texels) into `out`, tile by tile, each copy checked against its slot's tag.
+    /// The region must lie inside the level's valid region in `snap`.
+    pub fn read_region_in(&self, snap: &Snapshot, level: usize, rect: Rect, out: &mut [u8]) -> Result<(), ReadError> {
+        let d = *self.levels.get(level).ok_or(ReadError::NoLevel(level))?;
+        let st = snap.levels.get(level).ok_or(ReadError::NoLevel(level))?;
+        let bpt = self.bytes_per_texel;
+        let (w, h) = (rect.width(), rect.height());
+        if out.len() as u64 != w * h * bpt as u64 {
+            return Err(ReadError::Corrupt(format!("buffer of {} bytes for a {w}x{h} region", out.len())));
+        }
+        if w == 0 || h == 0 {
+            return Ok(());
+        }
+        if !st.rect().contains_rect(&rect) {
+            return Err(ReadError::NotValid(level));
+        }
+        let tiles = crate::geom::tiles_covering(rect, d.tile);
+        let (tw, th) = (d.tile[0] as i64, d.tile[1] as i64);
+        for ts in tiles.s0..tiles.s1 {
+            for tt in tiles.t0..tiles.t1 {
+                let part = rect.intersect(&Rect::new(ts * tw, tt * th, (ts + 1) * tw, (tt + 1) * th));
+                let slot = layout::slot_index(d.grid, [ts, tt]);
+                self.copy_from_slot(&d, level, slot, [ts, tt], part, rect, out)?;
             }
         }
-        let levels = (0..self.levels.len()).map(|l| self.level_state(l).unwrap_or_default()).collect();
-        Snapshot { min_lod, tick, levels }
+        Ok(())
     }
 
-    /// Copies the `w` x `h` texels of `level` whose first is (s0, t0) into `out` (rows in
-    /// increasing t, s fastest). The region must lie inside the published valid region; the copy
-    /// is validated against the level's sequence counter and retried if the writer moved.
-    pub fn read_region(
+    #[allow(clippy::too_many_arguments)]
+    fn copy_from_slot(
         &self,
+        d: &LevelDesc,
         level: usize,
-        s0: i64,
-        t0: i64,
-        w: u64,
-        h: u64,
+        slot: u64,
+        tile: [i64; 2],
+        part: Rect,
+        rect: Rect,
         out: &mut [u8],
-    ) -> Result<LevelState, ReadError> {
-        let d = *self.levels.get(level).ok_or(ReadError::NoLevel(level))?;
+    ) -> Result<(), ReadError> {
         let bpt = self.bytes_per_texel;
-        assert_eq!(out.len() as u64, w * h * bpt as u64, "read_region: buffer size does not match the region");
-        let b = header::LEVEL_STATES + level * layout::STATE_BYTES;
-        for _ in 0..64 {
-            let Some(st) = self.level_state(level) else { continue };
-            if w == 0 || h == 0 {
-                return Ok(st);
+        let (tw, th) = (d.tile[0] as i64, d.tile[1] as i64);
+        let b = (d.tags + slot * layout::TAG_BYTES as u64) as usize;
+        let base = d.slots + slot * d.slot_bytes;
+        for _ in 0..MAX_RETRIES {
+            let Some((seq, held, state)) = self.tag(d, slot) else { return Err(ReadError::Busy(level)) };
+            if held != tile {
+                return Err(ReadError::Stale(level));
             }
-            if !(st.contains(s0, t0) && st.contains(s0 + w as i64 - 1, t0 + h as i64 - 1)) {
-                return Err(ReadError::NotValid(level));
+            match state {
+                Some(s) if s.readable() => {}
+                Some(SlotState::Missing) => return Err(ReadError::Missing { level, s: tile[0], t: tile[1] }),
+                _ => return Err(ReadError::Stale(level)),
             }
-            let clip = self.clip_size as i64;
-            for row in 0..h as i64 {
-                let t = t0 + row;
-                let slot_t = t.rem_euclid(clip) as u64;
-                let mut s = s0;
-                let mut done = 0u64;
-                while done < w {
-                    let slot_s = s.rem_euclid(clip) as u64;
-                    let run = (w - done).min(d.window[0] - slot_s);
-                    let src = d.offset + (slot_t * d.window[0] + slot_s) * bpt as u64;
-                    let dst = ((row as u64 * w + done) as usize) * bpt;
-                    self.region.read(src as usize, &mut out[dst..dst + run as usize * bpt]);
-                    done += run;
-                    s += run as i64;
-                }
+            let run = part.width() as usize * bpt;
+            for t in part.t0..part.t1 {
+                let src = base + (((t - tile[1] * th) * tw + (part.s0 - tile[0] * tw)) as u64) * bpt as u64;
+                let dst = (((t - rect.t0) as u64 * rect.width() + (part.s0 - rect.s0) as u64) as usize) * bpt;
+                self.region.read(src as usize, &mut out[dst..dst + run]);
             }
             fence(Ordering::Acquire);
-            if self.region.load(b + state::SEQ, Ordering::Relaxed) == st.seq {
-                return Ok(st);
+            if self.region.load(b + tag::SEQ, Ordering::Relaxed) == seq {
+                return Ok(());
             }
         }
         Err(ReadError::Busy(level))
     }
 
+    /// Copies the `w` x `h` texels of `level` whose first is (s0, t0) into `out` from a fresh
+    /// snapshot (taking one more if the first is stale), returning the snapshot used.
+    pub fn read_region(&self, level: usize, s0: i64, t0: i64, w: u64, h: u64, out: &mut [u8]) -> Result<Snapshot, ReadError> {
+        let far = 1i64 << 40;
+        if !(-far..far).contains(&s0) || !(-far..far).contains(&t0) || w > 1 << 30 || h > 1 << 30 {
+            return Err(ReadError::NotValid(level));
+        }
+        let rect = Rect::new(s0, t0, s0 + w as i64, t0 + h as i64);
+        let mut last = ReadError::Busy(level);
+        for _ in 0..4 {
+            let snap = self.try_snapshot()?;
+            match self.read_region_in(&snap, level, rect, out) {
+                Ok(()) => return Ok(snap),
+                Err(ReadError::Stale(_)) => last = ReadError::Stale(level),
+                Err(e) => return Err(e),
+            }
+        }
+        Err(last)
+    }
+
+    /// The bytes of texel (s, t) of `level` from a fresh snapshot.
+    pub fn texel(&self, level: usize, s: i64, t: i64) -> Result<Vec<u8>, ReadError> {
+        let mut out = vec![0u8; self.bytes_per_texel];
+        self.read_region(level, s, t, 1, 1, &mut out)?;
+        Ok(out)
+    }
+
     /// Samples the mapping with the reference sampler ([`crate::sample::sample_mapping`]): point,
     /// bilinear or trilinear at (u, v) in level-0 texel units and `lod`, raised to the published
-    /// min LOD and to the finest level whose valid region holds the footprint.
+    /// min LOD and to the finest level whose valid region (and tiles) hold the footprint.
     pub fn sample(&self, filter: crate::sample::Filter, u: f64, v: f64, lod: f64) -> Option<crate::sample::Sample> {
         crate::sample::sample_mapping(self, filter, u, v, lod)
     }
 
     /// Asks the service to centre the clipmap at `centre` (level-0 texels), with an optional
-    /// velocity (level-0 texels per second).
-    pub fn request_centre(&self, centre: [i64; 2], velocity: [f64; 2]) {
-        let b = header::REQUEST;
-        let r = &self.region;
+    /// velocity (level-0 texels per second). `false` when this client cannot write requests
+    /// (the request mapping is missing or not writable: use the control socket's `CENTRE`).
+    pub fn request_centre(&self, centre: [i64; 2], velocity: [f64; 2]) -> bool {
+        let Some(r) = &self.request else { return false };
         // Take the request seqlock (odd), write, release (even). Several renderers serialise here.
         // A renderer that died holding it (odd for longer than any write takes) is overruled: the
-        // lock is reset to even, so one crashed renderer cannot silence the others.
+        // counter is advanced from that odd value to the next even one, never moved backwards.
         let mut odd_since: Option<(u64, std::time::Instant)> = None;
         loop {
-            let s = r.load(b + request::SEQ, Ordering::Relaxed);
+            let s = r.load(request::SEQ, Ordering::Relaxed);
             if s & 1 == 1 {
                 match odd_since {
                     Some((seen, at)) if seen == s && at.elapsed() > Duration::from_millis(100) => {
-                        let _ = r.compare_exchange(b + request::SEQ, s, s + 1);
+                        let _ = r.compare_exchange(request::SEQ, s, s.wrapping_add(1));
                         odd_since = None;
                     }
-                    Some((seen, _)) if seen == s => {}
+                    Some((seen, _)) if seen == s => std::thread::yield_now(),
                     _ => odd_since = Some((s, std::time::Instant::now())),
                 }
+                continue;
             }
-            if s & 1 == 0 && r.compare_exchange(b + request::SEQ, s, s + 1).is_ok() {
-                r.store(b + request::CENTRE_S, centre[0] as u64, Ordering::Relaxed);
-                r.store(b + request::CENTRE_T, centre[1] as u64, Ordering::Relaxed);
-                r.store(b + request::VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
-                r.store(b + request::VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
-                r.store(b + request::CLIENT_PID, std::process::id() as u64, Ordering::Relaxed);
-                let c = r.load(b + request::COUNT, Ordering::Relaxed);
-                r.store(b + request::COUNT, c + 1, Ordering::Relaxed);
-                r.store(b + request::SEQ, s + 2, Ordering::Release);
-                return;
+            if r.compare_exchange(request::SEQ, s, s.wrapping_add(1)).is_ok() {
+                // The field stores below must not become visible before the odd counter.
+                fence(Ordering::Release);
+                r.store(request::CENTRE_S, centre[0] as u64, Ordering::Relaxed);
+                r.store(request::CENTRE_T, centre[1] as u64, Ordering::Relaxed);
+                r.store(request::VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
+                r.store(request::VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
+                r.store(request::CLIENT_PID, std::process::id() as u64, Ordering::Relaxed);
+                let c = r.load(request::COUNT, Ordering::Relaxed);
+                r.store(request::COUNT, c.wrapping_add(1), Ordering::Relaxed);
+                r.store(request::SEQ, s.wrapping_add(2), Ordering::Release);
+                return true;
             }
             std::hint::spin_loop();
         }
@@ -356,7 +546,7 @@ impl Client {
 
     /// True when the writer shut down cleanly.
     pub fn closed(&self) -> bool {
-        self.region.read_u32(header::FLAGS) & 1 == 1
+        self.region.load(header::FLAGS, Ordering::Acquire) & 1 == 1
     }
 
     /// True when the name now points at another mapping (the service restarted): reattach.

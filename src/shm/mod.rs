@@ -1,25 +1,28 @@
 //! The shared-memory access layer: one mapping per clip texture, which any renderer process reads
 //! without copies or locks (docs/ARCHITECTURE.md §5, `docs/SHM.md`).
 //!
-//! Owns the layout ([`layout`]), the only `unsafe` code of the crate ([`raw`]), the writer side
-//! used by the service ([`writer`], [`mirror`]) and the reader side used by clients
-//! ([`client`]). It leaves deciding *what* to publish to the engine ([`crate::clip`]).
+//! Owns the layout ([`layout`], version 2), the only `unsafe` code of the crate (the private
+//! `raw` module), the image caches' memory with the writer's side of the slot protocol
+//! ([`memory`]), the mappings' names and files ([`writer`], [`names`]) and the reader side used by
+//! clients ([`client`]). It leaves deciding *what* to hold and publish to the engine
+//! ([`crate::clip`]).
 //!
-//! The invariant every part keeps: the writer never writes texels inside a currently published
-//! valid region. It writes outside, then publishes a larger region under the level's seqlock.
+//! The invariant every part keeps: a slot's bytes are written only while its tag says loading,
+//! and no published valid region covers a slot that is not settled.
 
 pub mod client;
 pub mod layout;
-pub mod mirror;
+pub mod memory;
 pub mod names;
-pub mod raw;
+mod raw;
 pub mod verify;
 pub mod writer;
 
 #[cfg(test)]
 mod tests;
 
-pub use client::{Client, LevelState, Snapshot};
+pub use client::{Client, LevelState, ReadError, Snapshot};
+pub use memory::{ImageMemory, Publication, PublishedLevel};
 pub use writer::Writer;
 
 use std::path::{Path, PathBuf};
@@ -111,6 +114,11 @@ pub fn check_name(name: &str) -> Result<(), ShmError> {
 /// The mapping file of a name.
 pub fn map_path(dir: &Path, name: &str) -> PathBuf {
     dir.join(format!("clipmap-{name}.map"))
+}
+
+/// The request mapping of a name (written by renderers).
+pub fn request_path(dir: &Path, name: &str) -> PathBuf {
+    dir.join(format!("clipmap-{name}.req"))
 }
 
 /// The lock file of a name (held by the running service).

@@ -8,13 +8,18 @@
 #[cfg(target_endian = "big")]
 compile_error!("the shared-memory layout is little-endian; big-endian targets are not supported");
 
-use memmap2::MmapRaw;
+use memmap2::{MmapMut, MmapRaw};
 use std::fs::File;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// A shared mapping of a whole file.
+/// A shared mapping of a whole file (or an anonymous one, for an engine without a service).
 pub struct Region {
     map: MmapRaw,
+    writable: bool,
+    /// Bytes copied in by [`Region::write`] into the range `counted` (texel bytes written other
+    /// than by a tile read into its slot).
+    copied: AtomicU64,
+    counted: std::ops::Range<usize>,
 }
 
 impl std::fmt::Debug for Region {
@@ -27,17 +32,30 @@ impl Region {
     /// Maps `file` read-write and shared.
     pub fn map(file: &File) -> std::io::Result<Region> {
         let map = MmapRaw::map_raw(file)?;
-        Ok(Region { map })
+        Ok(Region { map, writable: true, copied: AtomicU64::new(0), counted: 0..0 })
     }
 
-    /// Length in bytes.
-    pub fn len(&self) -> usize {
-        self.map.len()
+    /// Maps `file` read-only and shared: loads only (a reader of the texel mapping).
+    pub fn map_read_only(file: &File) -> std::io::Result<Region> {
+        let map = memmap2::MmapOptions::new().map_raw_read_only(file)?;
+        Ok(Region { map, writable: false, copied: AtomicU64::new(0), counted: 0..0 })
     }
 
-    /// True for an empty mapping.
-    pub fn is_empty(&self) -> bool {
-        self.map.len() == 0
+    /// A private anonymous mapping of `len` zero bytes (an engine's image caches in-process).
+    pub fn anonymous(len: usize) -> std::io::Result<Region> {
+        let map = MmapRaw::from(MmapMut::map_anon(len.max(1))?);
+        Ok(Region { map, writable: true, copied: AtomicU64::new(0), counted: 0..0 })
+    }
+
+    /// Counts the bytes [`write`](Self::write) copies into `range` from now on (the texel slots),
+    /// for [`copied_bytes`](Self::copied_bytes).
+    pub fn count_writes_into(&mut self, range: std::ops::Range<usize>) {
+        self.counted = range;
+    }
+
+    /// Bytes [`write`](Self::write) copied into the counted range so far.
+    pub fn copied_bytes(&self) -> u64 {
+        self.copied.load(Ordering::Relaxed)
     }
 
     fn check(&self, offset: usize, len: usize, align: usize) {
@@ -51,6 +69,10 @@ impl Region {
             (self.map.as_ptr() as usize + offset) % align == 0,
             "shared-memory access at {offset} is not {align}-byte aligned"
         );
+    }
+
+    fn check_writable(&self) {
+        assert!(self.writable, "write to a read-only mapping");
     }
 
     fn atomic(&self, offset: usize) -> &AtomicU64 {
@@ -70,16 +92,19 @@ impl Region {
 
     /// Atomically stores `value` at `offset`.
     pub fn store(&self, offset: usize, value: u64, order: Ordering) {
+        self.check_writable();
         self.atomic(offset).store(value, order)
     }
 
     /// Atomically adds to the u64 at `offset`, returning the previous value.
     pub fn fetch_add(&self, offset: usize, value: u64, order: Ordering) -> u64 {
+        self.check_writable();
         self.atomic(offset).fetch_add(value, order)
     }
 
     /// Atomic compare-and-exchange of the u64 at `offset`.
     pub fn compare_exchange(&self, offset: usize, current: u64, new: u64) -> Result<u64, u64> {
+        self.check_writable();
         self.atomic(offset).compare_exchange(current, new, Ordering::AcqRel, Ordering::Acquire)
     }
 
@@ -100,12 +125,37 @@ impl Region {
     /// Copies bytes into the mapping. Only the writer calls this, and only for bytes outside
     /// every published valid region and outside the seqlocked fields (docs/SHM.md).
     pub fn write(&self, offset: usize, src: &[u8]) {
+        self.check_writable();
         self.check(offset, src.len(), 1);
+        let end = offset + src.len();
+        let counted = end.min(self.counted.end).saturating_sub(offset.max(self.counted.start));
+        self.copied.fetch_add(counted as u64, Ordering::Relaxed);
         // SAFETY: `check` proved offset..offset+len lies inside the live mapping, which is mapped
         // writable. The destination is written through a raw pointer (no reference is created);
         // `src` is a private buffer of this process, so the ranges cannot overlap. Readers in
         // other processes never rely on these bytes until a later seqlock publication says so.
         unsafe { std::ptr::copy_nonoverlapping(src.as_ptr(), self.map.as_mut_ptr().add(offset), src.len()) }
+    }
+
+    /// Lends the bytes `offset..offset + len` to `fill` as a mutable slice, so that a tile read
+    /// (a `pread`, a decoder, a procedural generator) writes straight into the mapping.
+    ///
+    /// # Safety
+    /// For as long as `fill` runs, no other code in this process may access these bytes (the
+    /// caller holds the only claim on them: [`super::memory`] hands each slot to one read at a
+    /// time through a compare-and-swap on the slot's claim), and other processes may only read
+    /// them under the slot's tag protocol (they map the file read-only, and discard what they read
+    /// while the tag says loading).
+    pub unsafe fn fill<R>(&self, offset: usize, len: usize, fill: impl FnOnce(&mut [u8]) -> R) -> R {
+        self.check_writable();
+        self.check(offset, len, 1);
+        // SAFETY: `check` proved offset..offset+len lies inside the live mapping, which is mapped
+        // writable (`check_writable`) and stays mapped while `self` is borrowed. The caller
+        // guarantees (this function's contract) that nothing else in this process reads or writes
+        // these bytes while the slice lives, so the slice is the only access and may be `&mut`;
+        // `u8` has no invalid values, so whatever the bytes hold is a valid `[u8]`.
+        let bytes = unsafe { std::slice::from_raw_parts_mut(self.map.as_mut_ptr().add(offset), len) };
+        fill(bytes)
     }
 
     /// Reads a little-endian u32 (static fields only).
@@ -120,10 +170,5 @@ impl Region {
         let mut b = [0u8; 8];
         self.read(offset, &mut b);
         u64::from_le_bytes(b)
-    }
-
-    /// Makes the mapping's contents durable for other processes that map the file later.
-    pub fn flush(&self) -> std::io::Result<()> {
-        self.map.flush()
     }
 }

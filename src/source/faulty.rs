@@ -130,9 +130,13 @@ impl TileSource for FaultySource {
     }
 
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        self.read_into(tile, out).map(|_| ())
+    }
+
+    fn read_into(&self, tile: TileId, out: &mut [u8]) -> Result<super::Delivered, SourceError> {
         self.reads.fetch_add(1, Ordering::SeqCst);
         let Some(fault) = self.fault_for(tile) else {
-            return self.inner.read_tile(tile, out);
+            return self.inner.read_into(tile, out);
         };
         self.injected.fetch_add(1, Ordering::SeqCst);
         let expected = out.len() as u64;
@@ -153,7 +157,7 @@ impl TileSource for FaultySource {
             Fault::Io => Err(SourceError::Io { tile, source: std::io::Error::other("injected I/O error") }),
             Fault::Slow(delay) => {
                 std::thread::sleep(delay);
-                self.inner.read_tile(tile, out)
+                self.inner.read_into(tile, out)
             }
         }
     }

@@ -425,6 +425,10 @@ impl TileSource for FileSource {
     }
 
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        self.read_into(tile, out).map(|_| ())
+    }
+
+    fn read_into(&self, tile: TileId, out: &mut [u8]) -> Result<super::Delivered, SourceError> {
         check_request(&self.desc, tile, out)?;
         self.reads.fetch_add(1, Ordering::Relaxed);
         let result = match self.read_file(tile, out) {
@@ -432,9 +436,9 @@ impl TileSource for FileSource {
                 let default = self.defaults[tile.level as usize].as_deref().unwrap_or_default();
                 out.copy_from_slice(default);
                 self.default_tiles.fetch_add(1, Ordering::Relaxed);
-                Ok(())
+                Ok(super::Delivered::Default)
             }
-            other => other,
+            other => other.map(|()| super::Delivered::Tile),
         };
         if result.is_ok() {
             self.bytes_read.fetch_add(out.len() as u64, Ordering::Relaxed);

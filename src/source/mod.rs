@@ -19,6 +19,7 @@ mod synthetic;
 
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};
 pub use faulty::{Fault, FaultRule, FaultySource};
+
 pub use file::{FileSource, FileSourceError, FileStats};
 pub use synthetic::{HashSource, TerrainSource};
 
@@ -130,6 +131,16 @@ impl SourceError {
     }
 }
 
+/// What a successful read put into the buffer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Delivered {
+    /// The tile's own texels.
+    Tile,
+    /// The configuration's default tile, in place of a tile whose file is missing or short.
+    Default,
+}
+
 /// Something tiles can be read from. Reads block (disk, network, computation): callers run them
 /// off async worker threads (the read queue uses `spawn_blocking`).
 pub trait TileSource: Send + Sync {
@@ -141,6 +152,12 @@ pub trait TileSource: Send + Sync {
     /// been written (buffers are reused, so a byte left alone would be an old tile's); on error
     /// `out` holds no promise.
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError>;
+
+    /// [`read_tile`](Self::read_tile), saying what `out` got: the tile itself, or the
+    /// configuration's default tile standing in for a tile that does not exist.
+    fn read_into(&self, tile: TileId, out: &mut [u8]) -> Result<Delivered, SourceError> {
+        self.read_tile(tile, out).map(|()| Delivered::Tile)
+    }
 
     /// Number of stream servers (separate disks, one read queue each) the source is laid out
     /// for; 1 when it has no notion of them.

@@ -12,7 +12,7 @@
 use super::data::{Gdal, Prepared};
 use super::{quantile, Size, Stat};
 use anyhow::Context;
-use clipmap::clip::{Clipmap, CostTable, Settings};
+use clipmap::clip::{Clipmap, Settings};
 use clipmap::geom::{default_centre, tex_region};
 use clipmap::limits::Limits;
 use clipmap::plan;
@@ -61,7 +61,7 @@ pub struct Flight {
 }
 
 fn settings() -> Settings {
-    let mut s = Settings { budget_ns: None, cost: Some(CostTable::fixed(200.0, 10.0, 0.1)), ..Settings::default() };
+    let mut s = Settings { budget_ns: None, ..Settings::default() };
     s.limits.max_pending_reads = 4096;
     s.limits.max_ready_reads = 4096;
     s

@@ -12,7 +12,7 @@
 use super::data::{shape, Prepared};
 use super::{proc_self, Size, Stat};
 use anyhow::Context;
-use clipmap::clip::{Clipmap, CostTable, Settings};
+use clipmap::clip::{Clipmap, Settings};
 use clipmap::limits::Limits;
 use clipmap::plan;
 use clipmap::source::{FileSource, SourceError, TextureDesc, TileId, TileSource};
@@ -109,7 +109,7 @@ fn jumps(n: u64, clip: u64) -> Vec<[i64; 2]> {
 fn engine_run(source: &Arc<FileSource>, centres: &[[i64; 2]]) -> anyhow::Result<(f64, Vec<TileId>, u64)> {
     let rec = Arc::new(Recording { inner: Arc::clone(source), log: Mutex::new(Vec::new()) });
     let mut settings =
-        Settings { budget_ns: Some(0), cost: Some(CostTable::fixed(200.0, 10.0, 0.1)), ..Settings::default() };
+        Settings { budget_ns: Some(0), ..Settings::default() };
     settings.limits.max_pending_reads = 4096;
     settings.limits.max_ready_reads = 4096;
     let mut map = Clipmap::new(Arc::clone(&rec) as Arc<dyn TileSource>, settings)?;

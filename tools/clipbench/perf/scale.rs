@@ -116,7 +116,7 @@ fn fly(clip: u64, tile: u64, seconds: f64, lookahead: Option<u64>) -> anyhow::Re
         tick_p50_s: quantile(&times, 0.5),
         tick_p99_s: quantile(&times, 0.99),
         tick_max_s: quantile(&times, 1.0),
-        bytes_copied_per_s: (after.bytes_copied - before.bytes_copied) as f64 / wall,
+        bytes_copied_per_s: (after.tick_texel_bytes - before.tick_texel_bytes) as f64 / wall,
         tiles_read_per_s: (after.tiles_read - before.tiles_read) as f64 / wall,
         texels_flown_per_s: (speed as u64 * ticks) as f64 / wall,
         cpu_cores_used: cpu / wall,

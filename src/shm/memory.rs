@@ -1,0 +1,340 @@
+//! The image caches' memory: one layout-2 mapping (a file the service publishes, or anonymous
+//! memory for an engine without a service) holding every level's grid of tile slots, their tags
+//! and the published snapshot.
+//!
+//! Owns the writer's side of the slot protocol (docs/SHM.md, "The writer's invariant"):
+//! - each slot has a private **claim** (an atomic in this process, not in the mapping) naming the
+//!   tile the engine assigned to it and whether it is loading, being filled by one read, or
+//!   settled. A read fills a slot only after taking the claim from loading to busy by
+//!   compare-and-swap, so at most one read writes a slot at a time, and never a settled one;
+//! - the engine reassigns a slot only when no read holds it, storing the tag (loading, new tile)
+//!   before the claim, so a reader sees the tag change before any byte does;
+//! - the tick publishes the snapshot once, whole, under its seqlock.
+//!
+//! It decides nothing about which tiles to hold ([`crate::cache`]) nor when to publish
+//! ([`crate::clip`]).
+
+use super::layout::{self, header, snapshot, state, tag, Placement, Shape, SlotState};
+use super::raw::Region;
+use crate::geom::Rect;
+use crate::source::TileId;
+use crate::texel::TexelFormat;
+use std::sync::atomic::{fence, AtomicU64, Ordering};
+
+const UNASSIGNED: u64 = u64::MAX;
+const LOADING: u64 = 0;
+const BUSY: u64 = 1;
+const SETTLED: u64 = 2;
+
+fn key(tile: [i64; 2]) -> u64 {
+    // Tile indices are below 2^27 (levels are at most 2^26 texels a side): 28 bits each.
+    ((tile[0] as u64 & 0x0FFF_FFFF) << 30) | ((tile[1] as u64 & 0x0FFF_FFFF) << 2)
+}
+
+/// What [`ImageMemory::assign`] did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Assign {
+    /// The slot now belongs to the tile (loading).
+    Assigned,
+    /// A read is filling the slot with its previous tile right now: try again next tick.
+    Busy,
+}
+
+/// One level's state as the tick publishes it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PublishedLevel {
+    /// Level centre.
+    pub centre: [i64; 2],
+    /// Valid region, half-open `[s0, s1) x [t0, t1)`; empty when the level is disabled.
+    pub valid: Rect,
+    /// Tick of the level's last change.
+    pub updated_tick: u64,
+}
+
+/// The whole published state of one tick.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Publication {
+    /// Min LOD.
+    pub min_lod: f64,
+    /// The tick.
+    pub tick: u64,
+    /// Invalid border in use.
+    pub invalid_border: u64,
+    /// Level-0 centre.
+    pub centre: [i64; 2],
+    /// Per level.
+    pub levels: Vec<PublishedLevel>,
+}
+
+/// A layout-2 mapping as the engine's image caches.
+pub struct ImageMemory {
+    region: Region,
+    placement: Placement,
+    shape: Shape,
+    claims: Vec<Vec<AtomicU64>>,
+}
+
+impl std::fmt::Debug for ImageMemory {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ImageMemory").field("bytes", &self.placement.total_bytes).field("shape", &self.shape).finish()
+    }
+}
+
+/// Why a shape cannot be laid out.
+pub fn shape_error(shape: &Shape) -> String {
+    for (k, l) in shape.levels.iter().enumerate() {
+        if let Err(e) = layout::check_level(l, shape.clip_size, shape.bytes_per_texel) {
+            return format!("level {k}: {e}");
+        }
+    }
+    format!(
+        "{} levels, clip {}, {} bytes per texel: too many levels or too many bytes",
+        shape.levels.len(),
+        shape.clip_size,
+        shape.bytes_per_texel
+    )
+}
+
+impl ImageMemory {
+    /// Image caches in private anonymous memory (an engine without a service).
+    pub fn anonymous(shape: Shape, format: TexelFormat) -> Result<ImageMemory, String> {
+        let placement = layout::place(&shape).ok_or_else(|| shape_error(&shape))?;
+        let len = usize::try_from(placement.total_bytes).map_err(|_| "the mapping does not fit in memory".to_string())?;
+        let region = Region::anonymous(len).map_err(|e| format!("cannot map {len} bytes: {e}"))?;
+        let memory = Self::over(region, placement, shape);
+        memory.init(format, 0, 0);
+        Ok(memory)
+    }
+
+    /// Image caches over a mapping already sized to `placement` (the service's file).
+    pub(super) fn over(mut region: Region, placement: Placement, shape: Shape) -> ImageMemory {
+        let first = placement.levels.first().map_or(0, |l| l.slots) as usize;
+        region.count_writes_into(first..placement.total_bytes as usize);
+        let claims = placement
+            .levels
+            .iter()
+            .map(|l| (0..l.slot_count).map(|_| AtomicU64::new(UNASSIGNED)).collect())
+            .collect();
+        ImageMemory { region, placement, shape, claims }
+    }
+
+    /// Writes the static header (everything but the magic, which [`finish`](Self::finish)
+    /// writes last).
+    pub(super) fn init(&self, format: TexelFormat, tick_period_ns: u64, generation: u64) {
+        let r = &self.region;
+        let put32 = |off: usize, v: u32| r.write(off, &v.to_le_bytes());
+        let put64 = |off: usize, v: u64| r.write(off, &v.to_le_bytes());
+        put32(header::VERSION, layout::VERSION);
+        put32(header::HEADER_BYTES, self.placement.header_bytes as u32);
+        put64(header::TOTAL_BYTES, self.placement.total_bytes);
+        put32(header::TEXEL_FORMAT, layout::format_code(format));
+        put32(header::BYTES_PER_TEXEL, self.shape.bytes_per_texel as u32);
+        put32(header::CLIP_SIZE, self.shape.clip_size as u32);
+        put32(header::LEVEL_COUNT, self.shape.levels.len() as u32);
+        put64(header::LEVEL0_S, self.shape.levels[0].size[0]);
+        put64(header::LEVEL0_T, self.shape.levels[0].size[1]);
+        put32(header::WRITER_PID, std::process::id());
+        put64(header::GENERATION, generation);
+        put64(header::TICK_PERIOD_NS, tick_period_ns);
+        for (i, (l, p)) in self.shape.levels.iter().zip(&self.placement.levels).enumerate() {
+            let b = header::LEVEL_DESCS + i * layout::DESC_BYTES;
+            use layout::desc as d;
+            for (off, v) in [
+                (d::SIZE_S, l.size[0]),
+                (d::SIZE_T, l.size[1]),
+                (d::TILE_S, l.tile[0]),
+                (d::TILE_T, l.tile[1]),
+                (d::GRID_S, l.grid[0]),
+                (d::GRID_T, l.grid[1]),
+                (d::SLOT_BYTES, p.slot_bytes),
+                (d::TAGS_OFFSET, p.tags),
+                (d::SLOTS_OFFSET, p.slots),
+                (d::KIND, p.kind),
+            ] {
+                put64(b + off, v);
+            }
+        }
+        // Before the first tick nothing may be used: min LOD is the level count.
+        let s = header::SNAPSHOT;
+        r.store(s + snapshot::MIN_LOD, (self.shape.levels.len() as f64).to_bits(), Ordering::Relaxed);
+        fence(Ordering::Release);
+        r.write(header::MAGIC, &layout::MAGIC);
+    }
+
+    /// The static shape.
+    pub fn shape(&self) -> &Shape {
+        &self.shape
+    }
+
+    /// Where everything lies.
+    pub fn placement(&self) -> &Placement {
+        &self.placement
+    }
+
+    pub(super) fn region(&self) -> &Region {
+        &self.region
+    }
+
+    /// Texel bytes written into the slots other than by a tile read filling its slot (0 unless
+    /// something copies texels: update ticks write none).
+    pub fn copied_texel_bytes(&self) -> u64 {
+        self.region.copied_bytes()
+    }
+
+    fn slot_of(&self, level: u32, tile: [i64; 2]) -> (usize, u64) {
+        let grid = self.shape.levels[level as usize].grid;
+        (level as usize, layout::slot_index(grid, tile))
+    }
+
+    fn store_tag(&self, level: usize, slot: u64, tile: [i64; 2], st: SlotState) {
+        let b = self.placement.levels[level].tag_offset(slot) as usize;
+        let r = &self.region;
+        let seq = r.load(b + tag::SEQ, Ordering::Relaxed);
+        r.store(b + tag::SEQ, seq.wrapping_add(1), Ordering::Relaxed);
+        fence(Ordering::Release);
+        r.store(b + tag::TILE_S, tile[0] as u64, Ordering::Relaxed);
+        r.store(b + tag::TILE_T, tile[1] as u64, Ordering::Relaxed);
+        r.store(b + tag::STATE, st as u64, Ordering::Relaxed);
+        r.store(b + tag::SEQ, seq.wrapping_add(2), Ordering::Release);
+    }
+
+    /// Gives `tile`'s slot to `tile` (loading): its tag first, then its claim. Refused while a
+    /// read fills the slot. Only the engine calls this, and only for a slot whose old tile no
+    /// published region covers.
+    pub fn assign(&self, level: u32, tile: [i64; 2]) -> Assign {
+        let (k, slot) = self.slot_of(level, tile);
+        let claim = &self.claims[k][slot as usize];
+        let now = claim.load(Ordering::Acquire);
+        if now != UNASSIGNED && now & 3 == BUSY {
+            return Assign::Busy;
+        }
+        self.store_tag(k, slot, tile, SlotState::Loading);
+        match claim.compare_exchange(now, key(tile) | LOADING, Ordering::AcqRel, Ordering::Acquire) {
+            Ok(_) => Assign::Assigned,
+            // A read took the old tile's claim in between: the tag already says loading (nothing
+            // readable), and the engine assigns again next tick.
+            Err(_) => Assign::Busy,
+        }
+    }
+
+    /// Frees a slot (its level's mem region no longer covers it). Refused while a read fills it.
+    pub fn release(&self, level: u32, slot: u64) -> Assign {
+        let claim = &self.claims[level as usize][slot as usize];
+        let now = claim.load(Ordering::Acquire);
+        if now == UNASSIGNED {
+            return Assign::Assigned;
+        }
+        if now & 3 == BUSY {
+            return Assign::Busy;
+        }
+        self.store_tag(level as usize, slot, [-1, -1], SlotState::Empty);
+        match claim.compare_exchange(now, UNASSIGNED, Ordering::AcqRel, Ordering::Acquire) {
+            Ok(_) => Assign::Assigned,
+            Err(_) => Assign::Busy,
+        }
+    }
+
+    /// Lets a read fill `tile`'s slot: `fill` gets the slot's bytes (one whole tile) if the slot
+    /// is assigned to `tile` and loading; `None` (nothing called) when it is not (the tile left
+    /// its mem region, or it is settled, or another read fills it).
+    pub fn fill<R>(&self, tile: TileId, fill: impl FnOnce(&mut [u8]) -> R) -> Option<R> {
+        let st = [tile.s as i64, tile.t as i64];
+        let level = tile.level;
+        if level as usize >= self.claims.len() {
+            return None;
+        }
+        let (k, slot) = self.slot_of(level, st);
+        let claim = &self.claims[k][slot as usize];
+        let want = key(st) | LOADING;
+        claim.compare_exchange(want, key(st) | BUSY, Ordering::AcqRel, Ordering::Relaxed).ok()?;
+        let p = &self.placement.levels[k];
+        let offset = p.slot_offset(slot) as usize;
+        // SAFETY: the claim is now `BUSY` for this slot, which only this call could set (the
+        // compare-and-swap above succeeded from `LOADING`), and until it is stored back below:
+        // no other read can take it (they compare from `LOADING`), the engine neither reassigns
+        // nor releases a busy slot (`assign`/`release` refuse `BUSY`), and in-process readers
+        // copy a slot's bytes only while its claim is `SETTLED` (`read_settled`). So nothing else
+        // in this process touches these bytes while `fill` runs. Other processes map the file
+        // read-only and, by the tag protocol, discard what they read from a slot whose tag says
+        // loading (the tag was set to loading in `assign`, before the claim).
+        let out = unsafe { self.region.fill(offset, p.slot_bytes as usize, fill) };
+        claim.store(want, Ordering::Release);
+        Some(out)
+    }
+
+    /// Marks `tile` settled after a read filled its slot: ready (or the default tile), or
+    /// missing. `false` when the slot no longer belongs to the tile (a late read: nothing
+    /// changed).
+    pub fn settle(&self, tile: TileId, st: SlotState) -> bool {
+        let t = [tile.s as i64, tile.t as i64];
+        let (k, slot) = self.slot_of(tile.level, t);
+        let claim = &self.claims[k][slot as usize];
+        if st == SlotState::Missing {
+            // The claim stays loading, so that a later retry may fill the slot; readers skip it.
+            if claim.load(Ordering::Acquire) != key(t) | LOADING {
+                return false;
+            }
+            self.store_tag(k, slot, t, st);
+            return true;
+        }
+        if claim.compare_exchange(key(t) | LOADING, key(t) | SETTLED, Ordering::AcqRel, Ordering::Relaxed).is_err() {
+            return false;
+        }
+        self.store_tag(k, slot, t, st);
+        true
+    }
+
+    /// Copies bytes of a settled slot (in-process readers: the sampler over the engine, dumps).
+    /// `false` when the slot does not hold `tile` settled.
+    pub fn read_settled(&self, tile: TileId, offset: usize, out: &mut [u8]) -> bool {
+        let t = [tile.s as i64, tile.t as i64];
+        if tile.level as usize >= self.claims.len() {
+            return false;
+        }
+        let (k, slot) = self.slot_of(tile.level, t);
+        if self.claims[k][slot as usize].load(Ordering::Acquire) != key(t) | SETTLED {
+            return false;
+        }
+        let p = &self.placement.levels[k];
+        if offset + out.len() > p.slot_bytes as usize {
+            return false;
+        }
+        // A settled slot changes only through `assign`/`release`, which the engine calls from its
+        // tick (`&mut` of the engine), never while an in-process reader holds it.
+        self.region.read(p.slot_offset(slot) as usize + offset, out);
+        true
+    }
+
+    /// Publishes the whole state of a tick under the snapshot's seqlock.
+    pub fn publish(&self, p: &Publication) {
+        let r = &self.region;
+        let b = header::SNAPSHOT;
+        let seq = r.load(b + snapshot::SEQ, Ordering::Relaxed);
+        r.store(b + snapshot::SEQ, seq.wrapping_add(1), Ordering::Relaxed);
+        fence(Ordering::Release);
+        r.store(b + snapshot::MIN_LOD, p.min_lod.to_bits(), Ordering::Relaxed);
+        r.store(b + snapshot::TICK, p.tick, Ordering::Relaxed);
+        r.store(b + snapshot::INVALID_BORDER, p.invalid_border, Ordering::Relaxed);
+        r.store(b + snapshot::CENTRE_S, p.centre[0] as u64, Ordering::Relaxed);
+        r.store(b + snapshot::CENTRE_T, p.centre[1] as u64, Ordering::Relaxed);
+        for (k, l) in p.levels.iter().enumerate() {
+            let o = b + snapshot::LEVELS + k * layout::STATE_BYTES;
+            let v = if l.valid.is_empty() { Rect::EMPTY } else { l.valid };
+            let enabled = !v.is_empty();
+            let coords = if enabled { [v.s0, v.t0, v.s1, v.t1] } else { [0; 4] };
+            r.store(o + state::CENTRE_S, l.centre[0] as u64, Ordering::Relaxed);
+            r.store(o + state::CENTRE_T, l.centre[1] as u64, Ordering::Relaxed);
+            for (i, c) in coords.iter().enumerate() {
+                r.store(o + state::VALID_S0 + 8 * i, *c as u64, Ordering::Relaxed);
+            }
+            r.store(o + state::ENABLED, u64::from(enabled), Ordering::Relaxed);
+            r.store(o + state::UPDATED_TICK, l.updated_tick, Ordering::Relaxed);
+        }
+        r.store(b + snapshot::SEQ, seq.wrapping_add(2), Ordering::Release);
+    }
+
+    /// Bytes of the whole mapping.
+    pub fn total_bytes(&self) -> u64 {
+        self.placement.total_bytes
+    }
+}
