@@ -510,7 +510,6 @@ mod tests {
     fn a_roam_reports_every_frame_and_totals_that_add_up() {
         let flight: Flight = "straight:40:30".parse().unwrap();
         let mut options = RoamOptions::procedural(Procedural::Hash, 1 << 16, 64, 32, 4, flight, 25).unwrap();
-        options.settings.cost = Some(crate::clip::CostTable::fixed(100.0, 10.0, 1.0));
         options.budget_ms = Some(0.03);
         let report = run(options).unwrap();
         assert_eq!(report.frames.len(), 25);

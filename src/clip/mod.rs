@@ -233,7 +233,10 @@ impl Clipmap {
         let grids = Self::grids(&desc, &settings);
         let expected = memory_shape(&desc, &grids);
         if *memory.shape() != expected {
-            return Err(ClipError::MemoryShape { found: Box::new(memory.shape().clone()), expected: Box::new(expected) });
+            return Err(ClipError::MemoryShape {
+                found: Box::new(memory.shape().clone()),
+                expected: Box::new(expected),
+            });
         }
         let needed = memory.total_bytes();
         let limit = settings.limits.cache_bytes as u64;

@@ -10,6 +10,21 @@ fn source() -> Arc<FaultySource> {
     Arc::new(FaultySource::new(Arc::new(HashSource::new(desc))))
 }
 
+/// Image caches for the queue tests: level 0's grid covers tiles (0..16, 0..16), every slot
+/// assigned to its tile so that reads may fill them.
+fn memory(src: &FaultySource) -> Arc<ImageMemory> {
+    let desc = src.desc();
+    let grids: Vec<[u64; 2]> =
+        desc.levels().iter().map(|l| crate::geom::tiles_in_level(l.size, l.tile).map(|n| n.min(16))).collect();
+    let m = ImageMemory::anonymous(crate::clip::memory_shape(desc, &grids), desc.format()).unwrap();
+    for s in 0..16 {
+        for t in 0..16 {
+            m.assign(0, [s, t]);
+        }
+    }
+    Arc::new(m)
+}
+
 fn limits(pending: usize, in_flight: usize) -> Limits {
     Limits {
         max_pending_reads: pending,
@@ -43,7 +58,7 @@ fn run_to_end(q: &mut ReadQueues, wanted: &[ReadRequest]) -> Vec<Completion> {
 #[test]
 fn reads_follow_priority_order_one_at_a_time() {
     let src = source();
-    let mut q = ReadQueues::new(src.clone(), 1, limits(64, 1)).unwrap();
+    let mut q = ReadQueues::new(src.clone(), memory(&src), 1, limits(64, 1)).unwrap();
     let wanted = [request(3, 0, 30), request(1, 0, 10), request(2, 0, 20), request(0, 0, 5)];
     let order: Vec<u64> = run_to_end(&mut q, &wanted).iter().map(|c| c.tile.s).collect();
     assert_eq!(order, vec![0, 1, 2, 3]);
@@ -56,16 +71,22 @@ fn reads_follow_priority_order_one_at_a_time() {
 fn completed_tiles_hold_the_source_texels_and_failures_are_typed() {
     let src = source();
     src.add(FaultRule::tile(TileId::new(0, 1, 1), Fault::Missing));
-    let mut q = ReadQueues::new(src.clone(), 2, limits(64, 4)).unwrap();
+    let memory = memory(&src);
+    let mut q = ReadQueues::new(src.clone(), Arc::clone(&memory), 2, limits(64, 4)).unwrap();
     let done = run_to_end(&mut q, &[request(0, 0, 0), request(1, 1, 0)]);
     assert_eq!(done.len(), 2);
     for c in done {
         if c.tile.s == 1 {
-            assert!(matches!(c.result, Err(SourceError::Missing { .. })));
+            assert!(matches!(c.outcome, Outcome::Failed(SourceError::Missing { .. })));
         } else {
+            assert!(matches!(c.outcome, Outcome::Filled(Delivered::Tile)), "{:?}", c.outcome);
+            // The read went straight into the tile's slot.
             let mut want = vec![0u8; 64];
             src.read_tile(c.tile, &mut want).unwrap();
-            assert_eq!(c.result.unwrap(), want);
+            assert!(memory.settle(c.tile, crate::shm::layout::SlotState::Ready));
+            let mut got = vec![0u8; 64];
+            assert!(memory.read_settled(c.tile, 0, &mut got));
+            assert_eq!(got, want);
         }
     }
 }
@@ -74,7 +95,7 @@ fn completed_tiles_hold_the_source_texels_and_failures_are_typed() {
 fn requests_for_a_tile_being_read_are_coalesced() {
     let src = source();
     src.add(FaultRule::tile(TileId::new(0, 0, 0), Fault::Slow(Duration::from_millis(100))));
-    let mut q = ReadQueues::new(src.clone(), 1, limits(64, 2)).unwrap();
+    let mut q = ReadQueues::new(src.clone(), memory(&src), 1, limits(64, 2)).unwrap();
     // Asked for three times, twice in one update and again while the read runs.
     q.update(&[request(0, 0, 1), request(0, 0, 0)]);
     q.update(&[request(0, 0, 0)]);
@@ -88,7 +109,7 @@ fn requests_for_a_tile_being_read_are_coalesced() {
 #[test]
 fn requests_that_left_every_mem_region_are_dropped_and_counted() {
     let src = source();
-    let mut q = ReadQueues::new(src.clone(), 1, limits(64, 1)).unwrap();
+    let mut q = ReadQueues::new(src.clone(), memory(&src), 1, limits(64, 1)).unwrap();
     // One read can be outstanding (running or undrained), so nine of these ten wait ...
     let first: Vec<ReadRequest> = (0..10).map(|s| request(s, 0, s)).collect();
     q.update(&first);
@@ -106,7 +127,7 @@ fn requests_that_left_every_mem_region_are_dropped_and_counted() {
 fn queue_length_stays_within_its_bound_when_the_centre_jumps_every_tick() {
     let src = source();
     let bound = 16;
-    let mut q = ReadQueues::new(src.clone(), 3, limits(bound, 2)).unwrap();
+    let mut q = ReadQueues::new(src.clone(), memory(&src), 3, limits(bound, 2)).unwrap();
     let mut max_seen = 0;
     for tick in 0..40u64 {
         // A jump: a fresh 10 x 10 block of tiles, 100 requests for 3 queues of 16.
@@ -128,6 +149,6 @@ fn queue_length_stays_within_its_bound_when_the_centre_jumps_every_tick() {
 
 #[test]
 fn bad_stream_counts_are_refused() {
-    let err = ReadQueues::new(source(), 0, Limits::default()).err().unwrap();
+    let err = ReadQueues::new(source(), memory(&source()), 0, Limits::default()).err().unwrap();
     assert_eq!(err.to_string(), "0 stream servers requested: expected 1..=64");
 }

@@ -1,7 +1,7 @@
 //! Sampling identity: the clipmap samples like the full mipmap wherever it holds the texels.
 
 use super::*;
-use crate::clip::{CostTable, Settings};
+use crate::clip::Settings;
 use crate::source::{Fault, FaultRule, FaultySource, HashSource, TextureDesc};
 use std::sync::Arc;
 
@@ -9,7 +9,7 @@ fn setup(size: u64, clip: u64, centre: [i64; 2]) -> (Arc<dyn TileSource>, Clipma
     let desc =
         TextureDesc::new([size, size], clip, TexelFormat::RGBA8, [16, 16]).unwrap().with_invalid_border(2).unwrap();
     let src: Arc<dyn TileSource> = Arc::new(HashSource::new(desc));
-    let settings = Settings { budget_ns: None, cost: Some(CostTable::fixed(1.0, 1.0, 0.0)), ..Settings::default() };
+    let settings = Settings { budget_ns: None, ..Settings::default() };
     let mut map = Clipmap::new(src.clone(), settings).unwrap();
     for _ in 0..8 {
         map.tick(centre, Some([0, 0]));
@@ -77,7 +77,7 @@ fn disabled_levels_are_never_sampled() {
     let desc = TextureDesc::new([512, 512], 32, TexelFormat::RGBA8, [16, 16]).unwrap();
     let inner: Arc<dyn TileSource> = Arc::new(HashSource::new(desc));
     let src = Arc::new(FaultySource::new(inner.clone()));
-    let settings = Settings { budget_ns: None, cost: Some(CostTable::fixed(1.0, 1.0, 0.0)), ..Settings::default() };
+    let settings = Settings { budget_ns: None, ..Settings::default() };
     let mut map = Clipmap::new(src.clone(), settings).unwrap();
     src.add(FaultRule::level(0, Fault::Missing));
     for _ in 0..6 {

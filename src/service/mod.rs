@@ -86,7 +86,9 @@ impl ServiceError {
         match self {
             ServiceError::BadOption(_)
             | ServiceError::Texture(_)
-            | ServiceError::Engine(crate::clip::ClipError::CacheBytes { .. } | crate::clip::ClipError::MemoryShape { .. }) => crate::report::exit::BAD_INPUT,
+            | ServiceError::Engine(
+                crate::clip::ClipError::CacheBytes { .. } | crate::clip::ClipError::MemoryShape { .. },
+            ) => crate::report::exit::BAD_INPUT,
             _ => crate::report::exit::COULD_NOT_RUN,
         }
     }

@@ -117,8 +117,8 @@ pub enum ReadError {
 
 /// A reader attached to one mapping.
 pub struct Client {
-    region: Region,
-    request: Option<Region>,
+    pub(super) region: Region,
+    pub(super) request: Option<Region>,
     path: PathBuf,
     inode: (u64, u64),
     /// Bytes per texel.
@@ -190,7 +190,10 @@ impl Client {
         }
         let version = region.read_u32(header::VERSION);
         if version != layout::VERSION {
-            return Err(invalid(path, format!("layout version {version}; this client reads version {}", layout::VERSION)));
+            return Err(invalid(
+                path,
+                format!("layout version {version}; this client reads version {}", layout::VERSION),
+            ));
         }
         let total = region.read_u64(header::TOTAL_BYTES);
         if total != meta.len() {
@@ -204,11 +207,17 @@ impl Client {
         }
         let header_bytes = region.read_u32(header::HEADER_BYTES) as u64;
         if header_bytes < layout::header::END as u64 || header_bytes % layout::PAGE != 0 {
-            return Err(invalid(path, format!("header bytes {header_bytes}: expected a multiple of 4096 of at least {}", layout::header::END)));
+            return Err(invalid(
+                path,
+                format!("header bytes {header_bytes}: expected a multiple of 4096 of at least {}", layout::header::END),
+            ));
         }
         let size0 = [region.read_u64(header::LEVEL0_S), region.read_u64(header::LEVEL0_T)];
         if size0.iter().any(|&e| e == 0 || e > crate::limits::MAX_TEXTURE_SIZE) {
-            return Err(invalid(path, format!("level 0 is {size0:?} texels: expected 1..={} a side", crate::limits::MAX_TEXTURE_SIZE)));
+            return Err(invalid(
+                path,
+                format!("level 0 is {size0:?} texels: expected 1..={} a side", crate::limits::MAX_TEXTURE_SIZE),
+            ));
         }
         let mut levels: Vec<LevelDesc> = Vec::with_capacity(count);
         let mut end = header_bytes;
@@ -245,7 +254,10 @@ impl Client {
                 && tags_end.is_some_and(|e| e <= d.slots)
                 && slots_end.is_some_and(|e| e <= total);
             if !ok {
-                return Err(bad(format!("tags at {} and slots at {} do not lie in order inside the {total}-byte mapping after byte {end}", d.tags, d.slots)));
+                return Err(bad(format!(
+                    "tags at {} and slots at {} do not lie in order inside the {total}-byte mapping after byte {end}",
+                    d.tags, d.slots
+                )));
             }
             end = slots_end.unwrap_or(total);
             levels.push(d);
@@ -378,7 +390,8 @@ impl Client {
                 std::hint::spin_loop();
                 continue;
             }
-            let tile = [r.load(b + tag::TILE_S, Ordering::Relaxed) as i64, r.load(b + tag::TILE_T, Ordering::Relaxed) as i64];
+            let tile =
+                [r.load(b + tag::TILE_S, Ordering::Relaxed) as i64, r.load(b + tag::TILE_T, Ordering::Relaxed) as i64];
             let st = SlotState::from_code(r.load(b + tag::STATE, Ordering::Relaxed));
             fence(Ordering::Acquire);
             if r.load(b + tag::SEQ, Ordering::Relaxed) == s1 {
@@ -458,7 +471,15 @@ impl Client {
 
     /// Copies the `w` x `h` texels of `level` whose first is (s0, t0) into `out` from a fresh
     /// snapshot (taking one more if the first is stale), returning the snapshot used.
-    pub fn read_region(&self, level: usize, s0: i64, t0: i64, w: u64, h: u64, out: &mut [u8]) -> Result<Snapshot, ReadError> {
+    pub fn read_region(
+        &self,
+        level: usize,
+        s0: i64,
+        t0: i64,
+        w: u64,
+        h: u64,
+        out: &mut [u8],
+    ) -> Result<Snapshot, ReadError> {
         let far = 1i64 << 40;
         if !(-far..far).contains(&s0) || !(-far..far).contains(&t0) || w > 1 << 30 || h > 1 << 30 {
             return Err(ReadError::NotValid(level));

@@ -328,7 +328,10 @@ pub fn check_level(l: &LevelShape, clip: u64, bpt: u64) -> Result<(), String> {
     }
     let pyramid = w <= clip && h <= clip;
     if pyramid && l.grid != n {
-        return Err(format!("a pyramid level ({w}x{h}, clip {clip}) must hold all its {n:?} tiles, not a {:?} grid", l.grid));
+        return Err(format!(
+            "a pyramid level ({w}x{h}, clip {clip}) must hold all its {n:?} tiles, not a {:?} grid",
+            l.grid
+        ));
     }
     l.tile[0]
         .checked_mul(l.tile[1])
@@ -372,7 +375,10 @@ pub fn check_region(l: &LevelShape, r: [i64; 4]) -> Result<Rect, String> {
     let [s0, t0, s1, t1] = r;
     let inside = |lo: i64, hi: i64, size: u64| 0 <= lo && lo < hi && hi as u64 <= size;
     if !inside(s0, s1, l.size[0]) || !inside(t0, t1, l.size[1]) {
-        return Err(format!("valid region {r:?} is not a non-empty rectangle inside the {}x{} level", l.size[0], l.size[1]));
+        return Err(format!(
+            "valid region {r:?} is not a non-empty rectangle inside the {}x{} level",
+            l.size[0], l.size[1]
+        ));
     }
     let rect = Rect::new(s0, t0, s1, t1);
     let tiles = crate::geom::tiles_covering(rect, l.tile);
@@ -439,7 +445,7 @@ mod tests {
 
     #[test]
     fn slots_wrap_euclidean_and_regions_are_checked() {
-        assert_eq!(slot_index([6, 5], [7, 11]), 5 + 1);
+        assert_eq!(slot_index([6, 5], [7, 11]), 6 + 1);
         assert_eq!(slot_index([6, 5], [-1, -1]), 4 * 6 + 5);
         let l = LevelShape { size: [4096, 4096], tile: [256, 256], grid: [6, 6] };
         assert!(check_region(&l, [100, 100, 1124, 1124]).is_ok());

@@ -99,7 +99,8 @@ impl ImageMemory {
     /// Image caches in private anonymous memory (an engine without a service).
     pub fn anonymous(shape: Shape, format: TexelFormat) -> Result<ImageMemory, String> {
         let placement = layout::place(&shape).ok_or_else(|| shape_error(&shape))?;
-        let len = usize::try_from(placement.total_bytes).map_err(|_| "the mapping does not fit in memory".to_string())?;
+        let len =
+            usize::try_from(placement.total_bytes).map_err(|_| "the mapping does not fit in memory".to_string())?;
         let region = Region::anonymous(len).map_err(|e| format!("cannot map {len} bytes: {e}"))?;
         let memory = Self::over(region, placement, shape);
         memory.init(format, 0, 0);
@@ -110,11 +111,8 @@ impl ImageMemory {
     pub(super) fn over(mut region: Region, placement: Placement, shape: Shape) -> ImageMemory {
         let first = placement.levels.first().map_or(0, |l| l.slots) as usize;
         region.count_writes_into(first..placement.total_bytes as usize);
-        let claims = placement
-            .levels
-            .iter()
-            .map(|l| (0..l.slot_count).map(|_| AtomicU64::new(UNASSIGNED)).collect())
-            .collect();
+        let claims =
+            placement.levels.iter().map(|l| (0..l.slot_count).map(|_| AtomicU64::new(UNASSIGNED)).collect()).collect();
         ImageMemory { region, placement, shape, claims }
     }
 

@@ -1,11 +1,14 @@
-//! Tests of the shared-memory layer: every texel a client reads inside a published valid region
-//! equals the `hash` texel, while the writer moves the centre in another thread; hostile
-//! mappings are refused; names are exclusive and taken over after a crash.
+//! Tests of the shared-memory layer (layout 2): every texel a client reads inside a published
+//! valid region equals the `hash` texel while the engine flies in another thread; after any walk
+//! every tile under a published region is settled in its slot and no such slot is written while
+//! the snapshot stands; a missing tile costs a coarser level for that tile only; hostile mappings
+//! are refused; names are exclusive and taken over after a crash.
 
 use super::*;
-use crate::clip::{Clipmap, CostTable, Settings};
-use crate::source::procedural::hash;
-use crate::source::{HashSource, TextureDesc};
+use crate::clip::{Clipmap, Settings};
+use crate::geom::{tiles_covering, Rect};
+use crate::source::procedural::{hash, splitmix64};
+use crate::source::{Fault, FaultRule, FaultySource, HashSource, TextureDesc, TileId, TileSource};
 use crate::texel::TexelFormat;
 use std::os::unix::fs::PermissionsExt;
 use std::path::Path;
@@ -17,167 +20,225 @@ fn desc(size: u64, clip: u64, tile: u64) -> TextureDesc {
 }
 
 fn settings() -> Settings {
-    Settings { budget_ns: None, cost: Some(CostTable::fixed(100.0, 10.0, 1.0)), fade_ticks: 1, ..Settings::default() }
+    Settings { budget_ns: None, fade_ticks: 1, ..Settings::default() }
 }
 
-fn engine(size: u64, clip: u64, tile: u64) -> Clipmap {
-    Clipmap::new(Arc::new(HashSource::new(desc(size, clip, tile))), settings()).unwrap()
+/// A service's engine: its image caches in a mapping `name` in `dir`.
+fn service(dir: &Path, name: &str, source: Arc<dyn TileSource>) -> (Clipmap, Writer) {
+    let shape = Clipmap::shape_for(source.desc(), &settings());
+    let w = Writer::create(dir, name, shape, source.desc().format(), 0o600, 0o600, 16_666_667).unwrap();
+    let map = Clipmap::with_memory(source, settings(), w.memory()).unwrap();
+    (map, w)
 }
 
-/// An engine and its mirror in `dir`: copying from private windows, or (`direct`) with the
-/// engine's windows in the mapping itself, as the service runs it.
-fn engine_and_mirror(
-    dir: &Path,
-    name: &str,
-    size: u64,
-    clip: u64,
-    tile: u64,
-    direct: bool,
-) -> (Clipmap, mirror::Mirror) {
-    if direct {
-        let d = desc(size, clip, tile);
-        let writer = Writer::create(dir, name, mirror::shape_of_desc(&d), d.format(), 0o600).unwrap();
-        let map = Clipmap::with_windows(Arc::new(HashSource::new(d)), settings(), writer.window_stores()).unwrap();
-        let m = mirror::Mirror::direct(writer, &map).unwrap();
-        (map, m)
-    } else {
-        let map = engine(size, clip, tile);
-        let m = mirror::Mirror::create(dir, name, &map, 0o600).unwrap();
-        (map, m)
-    }
+fn hash_service(dir: &Path, name: &str, size: u64, clip: u64, tile: u64) -> (Clipmap, Writer) {
+    service(dir, name, Arc::new(HashSource::new(desc(size, clip, tile))))
 }
 
-/// Reads random texels inside the published regions and checks them; returns (reads, mismatches).
+/// Reads random blocks inside the published regions and checks them; returns (texels, wrong).
 fn read_and_check(c: &Client, rng: &mut u64, reads: u64) -> (u64, u64) {
-    let bpt = c.bytes_per_texel;
-    let (mut ok, mut bad) = (0, 0);
-    let mut got = vec![0u8; bpt * 4];
-    let mut want = vec![0u8; bpt];
-    let mut next = || {
-        *rng = crate::source::procedural::splitmix64(*rng);
-        *rng
-    };
+    let mut check = verify::HashCheck::default();
+    let mut buf = Vec::new();
     for _ in 0..reads {
-        let level = (next() % c.levels.len() as u64) as usize;
-        let Some(st) = c.level_state(level) else { continue };
-        if !st.enabled || st.valid[2] - st.valid[0] < 2 || st.valid[3] - st.valid[1] < 2 {
+        check.step(c, rng, 5, &mut buf, &hash);
+    }
+    if let Some(f) = &check.first_failure {
+        eprintln!("first failure: {f}");
+    }
+    (check.passed, check.failed)
+}
+
+/// The oracle of the writer's invariant, checked against the mapping as a reader sees it: every
+/// tile under every published region is in its slot, settled; returns each such slot's tag
+/// sequence, to compare later.
+fn tiles_under_published(c: &Client) -> Vec<(usize, u64, u64)> {
+    let snap = c.try_snapshot().unwrap();
+    let mut out = Vec::new();
+    for (k, st) in snap.levels.iter().enumerate() {
+        if !st.enabled {
             continue;
         }
-        let s = st.valid[0] + (next() % (st.valid[2] - st.valid[0] - 1) as u64) as i64;
-        let t = st.valid[1] + (next() % (st.valid[3] - st.valid[1] - 1) as u64) as i64;
-        if c.read_region(level, s, t, 2, 2, &mut got).is_err() {
-            continue;
-        }
-        for (i, (ds, dt)) in [(0, 0), (1, 0), (0, 1), (1, 1)].into_iter().enumerate() {
-            hash(level as u32, (s + ds) as u64, (t + dt) as u64, &mut want);
-            if got[i * bpt..(i + 1) * bpt] == want[..] {
-                ok += 1;
-            } else {
-                bad += 1;
+        let d = c.levels[k];
+        let tiles = tiles_covering(st.rect(), d.tile);
+        for t in tiles.t0..tiles.t1 {
+            for s in tiles.s0..tiles.s1 {
+                let slot = layout::slot_index(d.grid, [s, t]);
+                let b = (d.tags + slot * layout::TAG_BYTES as u64) as usize;
+                let seq = c.region.load(b + layout::tag::SEQ, Ordering::Acquire);
+                let tile = [
+                    c.region.load(b + layout::tag::TILE_S, Ordering::Relaxed) as i64,
+                    c.region.load(b + layout::tag::TILE_T, Ordering::Relaxed) as i64,
+                ];
+                let state = layout::SlotState::from_code(c.region.load(b + layout::tag::STATE, Ordering::Relaxed));
+                assert_eq!(seq % 2, 0, "level {k} slot {slot}: tag being written under a published region");
+                assert_eq!(tile, [s, t], "level {k}: the slot of tile ({s}, {t}) holds another tile");
+                assert!(state.is_some_and(|x| x.settled()), "level {k} tile ({s}, {t}) is {state:?}");
+                out.push((k, slot, seq));
             }
         }
     }
-    (ok, bad)
+    out
 }
 
 #[test]
-fn a_client_reads_exactly_the_hash_texels_while_the_centre_moves() {
-    client_reads_hash_texels(false);
-}
-
-#[test]
-fn a_client_reads_exactly_the_hash_texels_when_the_engine_writes_into_the_mapping() {
-    client_reads_hash_texels(true);
-}
-
-fn client_reads_hash_texels(direct: bool) {
+fn after_any_walk_every_tile_under_a_published_region_is_settled_and_untouched_until_the_next_snapshot() {
     let dir = tempfile::tempdir().unwrap();
-    let (mut map, mut mirror) = engine_and_mirror(dir.path(), "t1", 1 << 14, 256, 64, direct);
-    let client = Client::attach(dir.path(), "t1").unwrap();
-    let mut rng = 7u64;
-    let mut centre = [100i64, 8000];
-    let mut total = (0, 0);
-    for tick in 0..200 {
-        centre = match tick % 50 {
-            0 => [(crate::source::procedural::splitmix64(tick) % (1 << 14)) as i64, centre[1]],
-            _ => [centre[0] + 3, centre[1] - 2],
+    let (mut map, _w) = hash_service(dir.path(), "walk", 1 << 12, 128, 32);
+    let c = Client::attach(dir.path(), "walk").unwrap();
+    let mut rng = 11u64;
+    let mut centre = [2000i64, 2000];
+    let (mut checked, mut texels) = (0, 0);
+    for tick in 0..120 {
+        rng = splitmix64(rng);
+        // Steps, reversals and jumps larger than the window.
+        let step = match rng % 8 {
+            0 => [(rng >> 8) as i64 % 3000 - 1500, (rng >> 20) as i64 % 3000 - 1500],
+            1..=3 => [37, -21],
+            4 | 5 => [-40, 13],
+            _ => [0, 90],
         };
-        map.tick_with(centre, None, &mut mirror);
+        centre = [(centre[0] + step[0]).clamp(0, 4095), (centre[1] + step[1]).clamp(0, 4095)];
+        map.tick(centre, None);
+        let before = tiles_under_published(&c);
+        // Reads complete while this snapshot stands: none may touch a slot it covers.
         map.wait_for_reads();
-        let (ok, bad) = read_and_check(&client, &mut rng, 200);
-        total = (total.0 + ok, total.1 + bad);
+        let after: Vec<u64> = before
+            .iter()
+            .map(|&(k, slot, _)| {
+                let d = c.levels[k];
+                c.region.load((d.tags + slot * layout::TAG_BYTES as u64) as usize, Ordering::Acquire)
+            })
+            .collect();
+        for (&(k, slot, seq), now) in before.iter().zip(after) {
+            assert_eq!(seq, now, "tick {tick}: level {k} slot {slot} changed under the published snapshot");
+        }
+        checked += before.len();
+        let (ok, bad) = read_and_check(&c, &mut rng, 20);
+        assert_eq!(bad, 0, "tick {tick}");
+        texels += ok;
     }
-    assert_eq!(total.1, 0, "mismatched texels");
-    assert!(total.0 > 50_000, "too few texels were checked: {}", total.0);
+    assert!(checked > 1000 && texels > 1000, "{checked} tiles, {texels} texels checked");
+    assert_eq!(map.stats().tick_texel_bytes, 0, "ticks write no texels");
 }
 
 #[test]
 fn concurrent_readers_never_see_a_wrong_texel() {
-    concurrent_readers(false);
-}
-
-#[test]
-fn concurrent_readers_never_see_a_wrong_texel_when_the_engine_writes_into_the_mapping() {
-    concurrent_readers(true);
-}
-
-fn concurrent_readers(direct: bool) {
     let dir = tempfile::tempdir().unwrap();
-    let (mut map, mut mirror) = engine_and_mirror(dir.path(), "t2", 1 << 16, 128, 32, direct);
+    let (mut map, _w) = hash_service(dir.path(), "race", 1 << 13, 256, 64);
     let stop = Arc::new(AtomicBool::new(false));
-    let counts = Arc::new((AtomicU64::new(0), AtomicU64::new(0)));
+    let total = Arc::new(AtomicU64::new(0));
     let readers: Vec<_> = (0..2)
         .map(|i| {
-            let (stop, counts, path) = (stop.clone(), counts.clone(), dir.path().to_path_buf());
+            let (stop, total) = (Arc::clone(&stop), Arc::clone(&total));
+            let dir = dir.path().to_path_buf();
             std::thread::spawn(move || {
-                let c = Client::attach(&path, "t2").unwrap();
-                let mut rng = 99 + i;
+                let c = Client::attach(&dir, "race").unwrap();
+                let mut rng = 100 + i;
+                let mut bad = 0;
                 while !stop.load(Ordering::Relaxed) {
-                    let (ok, bad) = read_and_check(&c, &mut rng, 100);
-                    counts.0.fetch_add(ok, Ordering::Relaxed);
-                    counts.1.fetch_add(bad, Ordering::Relaxed);
+                    let (ok, b) = read_and_check(&c, &mut rng, 50);
+                    total.fetch_add(ok, Ordering::Relaxed);
+                    bad += b;
                 }
+                bad
             })
         })
         .collect();
-    let mut centre = [30_000i64, 30_000];
-    for tick in 0..600u64 {
-        // Fast flight, reversals and jumps larger than the window.
-        centre = match tick % 150 {
-            0 => [centre[0] + 5000, centre[1] - 3000],
-            75 => [centre[0] - 40, centre[1]],
-            _ if tick % 150 > 75 => [centre[0] - 9, centre[1] + 7],
-            _ => [centre[0] + 9, centre[1] + 7],
+    let mut centre = [4000i64, 4000];
+    let mut rng = 5u64;
+    for tick in 0..400 {
+        rng = splitmix64(rng);
+        centre = if tick % 50 == 49 {
+            [(rng % 8000) as i64, ((rng >> 20) % 8000) as i64]
+        } else {
+            [(centre[0] + 23).min(8000), (centre[1] - 17).max(0)]
         };
-        map.tick_with(centre, None, &mut mirror);
-        if tick % 5 == 0 {
+        map.tick(centre, None);
+        if tick % 3 == 0 {
             map.wait_for_reads();
         }
     }
     stop.store(true, Ordering::Relaxed);
-    for r in readers {
-        r.join().unwrap();
-    }
-    let (ok, bad) = (counts.0.load(Ordering::Relaxed), counts.1.load(Ordering::Relaxed));
-    assert_eq!(bad, 0, "{bad} mismatches out of {}", ok + bad);
-    assert!(ok > 10_000, "too few reads: {ok}");
+    let bad: u64 = readers.into_iter().map(|h| h.join().unwrap()).sum();
+    assert_eq!(bad, 0);
+    assert!(total.load(Ordering::Relaxed) > 1000, "readers checked {} texels", total.load(Ordering::Relaxed));
 }
 
 #[test]
-fn the_mapping_is_owner_only_and_the_name_is_exclusive() {
+fn a_missing_tile_costs_a_coarser_level_for_that_tile_only() {
     let dir = tempfile::tempdir().unwrap();
-    let map = engine(1024, 64, 32);
-    let first = mirror::Mirror::create(dir.path(), "excl", &map, 0o600).unwrap();
-    let mode = std::fs::metadata(map_path(dir.path(), "excl")).unwrap().permissions().mode();
-    assert_eq!(mode & 0o777, 0o600);
-    match mirror::Mirror::create(dir.path(), "excl", &map, 0o600) {
+    let d = desc(1 << 12, 128, 32);
+    let faulty = Arc::new(FaultySource::new(Arc::new(HashSource::new(d))));
+    // Tile (63, 63) of level 0: under the window centred at (2040, 2040).
+    faulty.add(FaultRule::tile(TileId::new(0, 63, 63), Fault::Missing));
+    let (mut map, _w) = service(dir.path(), "hole", faulty);
+    let c = Client::attach(dir.path(), "hole").unwrap();
+    for _ in 0..10 {
+        map.tick([2040, 2040], None);
+        map.wait_for_reads();
+    }
+    let snap = c.try_snapshot().unwrap();
+    assert_eq!(snap.min_lod, 0.0, "a missing tile does not disable its level");
+    let valid = snap.levels[0].rect();
+    assert!(valid.contains(63 * 32, 63 * 32) && valid.width() > 100, "{valid:?}");
+    let mut texel = vec![0u8; 4];
+    let hole = Rect::new(63 * 32 + 5, 63 * 32 + 5, 63 * 32 + 6, 63 * 32 + 6);
+    assert_eq!(c.read_region_in(&snap, 0, hole, &mut texel), Err(ReadError::Missing { level: 0, s: 63, t: 63 }));
+    // Every other tile of the level is served.
+    let next = Rect::new(64 * 32 + 1, 63 * 32 + 1, 64 * 32 + 2, 63 * 32 + 2);
+    c.read_region_in(&snap, 0, next, &mut texel).unwrap();
+    let mut want = vec![0u8; 4];
+    hash(0, next.s0 as u64, next.t0 as u64, &mut want);
+    assert_eq!(texel, want);
+    // The sampler serves the hole from level 1, its neighbour from level 0.
+    use crate::sample::Filter;
+    let at_hole = c.sample(Filter::Point, hole.s0 as f64 + 0.5, hole.t0 as f64 + 0.5, 0.0).unwrap();
+    let beside = c.sample(Filter::Point, next.s0 as f64 + 0.5, next.t0 as f64 + 0.5, 0.0).unwrap();
+    assert_eq!((at_hole.lod, beside.lod), (1.0, 0.0));
+}
+
+#[test]
+fn a_region_across_tiles_and_the_toroidal_wrap_reads_equal_to_the_source() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, _w) = hash_service(dir.path(), "wrap", 1 << 12, 128, 32);
+    let c = Client::attach(dir.path(), "wrap").unwrap();
+    // Fly far enough that the grid has wrapped, then read the whole valid region of level 0.
+    for i in 0..40 {
+        map.tick([1000 + 37 * i, 1000 + 29 * i], None);
+        map.wait_for_reads();
+    }
+    let snap = c.try_snapshot().unwrap();
+    let r = snap.levels[0].rect();
+    let tiles = tiles_covering(r, [32, 32]);
+    assert!(tiles.s0 % 6 != 0 || tiles.t0 % 6 != 0, "the region starts off the grid's first slot: {tiles:?}");
+    let mut out = vec![0u8; (r.area() * 4) as usize];
+    c.read_region_in(&snap, 0, r, &mut out).unwrap();
+    let mut want = vec![0u8; 4];
+    for (i, got) in out.chunks_exact(4).enumerate() {
+        let (s, t) = (r.s0 as u64 + i as u64 % r.width(), r.t0 as u64 + i as u64 / r.width());
+        hash(0, s, t, &mut want);
+        assert_eq!(got, want.as_slice(), "texel ({s}, {t})");
+    }
+}
+
+#[test]
+fn the_mapping_is_owner_only_read_only_for_readers_and_the_name_is_exclusive() {
+    let dir = tempfile::tempdir().unwrap();
+    let shape = Clipmap::shape_for(&desc(1024, 64, 32), &settings());
+    let mk = || Writer::create(dir.path(), "excl", shape.clone(), TexelFormat::RGBA8, 0o640, 0o600, 1_000_000);
+    let first = mk().unwrap();
+    let mode = |p: std::path::PathBuf| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode(map_path(dir.path(), "excl")), 0o640);
+    assert_eq!(mode(request_path(dir.path(), "excl")), 0o600);
+    match mk() {
         Err(ShmError::AlreadyRunning { pid, .. }) => assert_eq!(pid, std::process::id()),
         other => panic!("expected AlreadyRunning, got {other:?}"),
     }
     // A writer that goes away without closing (as in a crash) releases the name.
     let old = Client::attach(dir.path(), "excl").unwrap();
+    assert!(old.can_request());
     drop(first);
-    let _second = mirror::Mirror::create(dir.path(), "excl", &map, 0o600).unwrap();
+    let _second = mk().unwrap();
     assert!(old.replaced(), "the old client must notice the new mapping");
     let new = Client::attach(dir.path(), "excl").unwrap();
     assert_ne!(new.generation, old.generation);
@@ -186,223 +247,115 @@ fn the_mapping_is_owner_only_and_the_name_is_exclusive() {
 #[test]
 fn hostile_mappings_are_refused_with_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
-    let map = engine(1024, 64, 32);
-    let w = mirror::Mirror::create(dir.path(), "good", &map, 0o600).unwrap();
-    let good = std::fs::read(w.writer().path()).unwrap();
-    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
-        (
-            "magic",
-            {
-                let mut b = good.clone();
-                b[0] = b'X';
-                b
-            },
-            "wrong magic",
-        ),
-        (
-            "version",
-            {
-                let mut b = good.clone();
-                b[8] = 9;
-                b
-            },
-            "layout version 9",
-        ),
-        ("truncated", good[..good.len() - 4096].to_vec(), "the header says"),
-        ("tiny", good[..100].to_vec(), "truncated"),
-        (
-            "levels",
-            {
-                let mut b = good.clone();
-                b[36] = 200;
-                b
-            },
-            "implausible header",
-        ),
-        (
-            "window",
-            {
-                let mut b = good.clone();
-                b[layout::header::LEVEL_DESCS + 16] ^= 0x10;
-                b
-            },
-            "inconsistent",
-        ),
+    let (mut map, w) = hash_service(dir.path(), "good", 1024, 64, 32);
+    for _ in 0..10 {
+        map.tick([500, 500], None);
+        map.wait_for_reads();
+    }
+    assert_eq!(map.min_lod(), 0.0);
+    let good = std::fs::read(w.path()).unwrap();
+    let put = |b: &mut Vec<u8>, at: usize, v: u64| b[at..at + 8].copy_from_slice(&v.to_le_bytes());
+    let snap_level0 = layout::header::SNAPSHOT + layout::snapshot::LEVELS;
+    let d0 = layout::header::LEVEL_DESCS;
+    let cases: Vec<(&str, Box<dyn Fn(&mut Vec<u8>)>, &str)> = vec![
+        ("magic", Box::new(|b| b[0] = b'X'), "wrong magic"),
+        ("v1", Box::new(|b| b[..8].copy_from_slice(b"CLIPMAP1")), "layout version 1"),
+        ("version", Box::new(|b| b[8] = 9), "layout version 9"),
+        ("truncated", Box::new(|b| b.truncate(b.len() - 4096)), "the header says"),
+        ("tiny", Box::new(|b| b.truncate(100)), "truncated"),
+        ("levels", Box::new(|b| b[36] = 200), "implausible header"),
+        ("grid0", Box::new(move |b| put(b, d0 + layout::desc::GRID_S, 0)), "inconsistent"),
+        ("grid-huge", Box::new(move |b| put(b, d0 + layout::desc::GRID_S, 1 << 40)), "inconsistent"),
+        ("slots-past-end", Box::new(move |b| put(b, d0 + layout::desc::SLOTS_OFFSET, 1 << 50)), "inconsistent"),
     ];
-    for (name, bytes, want) in cases {
+    for (name, corrupt, want) in cases {
+        let mut bytes = good.clone();
+        corrupt(&mut bytes);
         let p = dir.path().join(format!("clipmap-{name}.map"));
         std::fs::write(&p, &bytes).unwrap();
         let err = Client::attach(dir.path(), name).unwrap_err().to_string();
         assert!(err.contains(want), "{name}: {err}");
+    }
+    // Published state outside its bounds: attaching works, every read is refused as corrupt.
+    let published: Vec<(&str, Box<dyn Fn(&mut Vec<u8>)>)> = vec![
+        ("outside", Box::new(move |b| put(b, snap_level0 + layout::state::VALID_S1, 5000))),
+        ("far", Box::new(move |b| put(b, snap_level0 + layout::state::VALID_S0, (-(1i64 << 62)) as u64))),
+        ("huge", Box::new(move |b| put(b, snap_level0 + layout::state::VALID_S1, 1 << 62))),
+        ("nan", Box::new(move |b| put(b, layout::header::SNAPSHOT + layout::snapshot::MIN_LOD, f64::NAN.to_bits()))),
+        ("enabled", Box::new(move |b| put(b, snap_level0 + layout::state::ENABLED, 7))),
+    ];
+    for (name, corrupt) in published {
+        let mut bytes = good.clone();
+        corrupt(&mut bytes);
+        let p = dir.path().join(format!("clipmap-{name}.map"));
+        std::fs::write(&p, &bytes).unwrap();
+        let c = Client::attach(dir.path(), name).unwrap();
+        assert!(matches!(c.try_snapshot(), Err(ReadError::Corrupt(_))), "{name}");
+        assert!(c.texel(0, 500, 500).is_err(), "{name}");
+        assert!(c.sample(crate::sample::Filter::Bilinear, 500.0, 500.0, 0.0).is_none(), "{name}");
     }
     assert!(matches!(Client::attach(dir.path(), "absent"), Err(ShmError::NotFound { .. })));
     assert!(matches!(Client::attach(dir.path(), "../x"), Err(ShmError::BadName(_))));
 }
 
 #[test]
-fn a_renderer_request_reaches_the_writer() {
+fn a_renderer_request_reaches_the_writer_and_a_dead_renderer_does_not_silence_the_others() {
+    use std::os::unix::fs::FileExt;
     let dir = tempfile::tempdir().unwrap();
-    let map = engine(1024, 64, 32);
-    let m = mirror::Mirror::create(dir.path(), "req", &map, 0o600).unwrap();
-    assert_eq!(m.writer().request(), None);
+    let (_map, w) = hash_service(dir.path(), "req", 1024, 64, 32);
+    assert_eq!(w.request(), None);
     let c = Client::attach(dir.path(), "req").unwrap();
-    c.request_centre([123, -45], [1.5, 0.0]);
-    c.request_centre([124, -46], [1.5, 0.0]);
-    let r = m.writer().request().unwrap();
+    assert!(c.request_centre([123, -45], [1.5, 0.0]));
+    assert!(c.request_centre([124, -46], [1.5, 0.0]));
+    let r = w.request().unwrap();
     assert_eq!((r.centre, r.velocity, r.count), ([124, -46], [1.5, 0.0], 2));
-    m.into_writer().close();
+    // A renderer killed between taking the lock (odd) and releasing it.
+    let f = std::fs::OpenOptions::new().write(true).open(w.request_path()).unwrap();
+    f.write_all_at(&5u64.to_le_bytes(), layout::request::SEQ as u64).unwrap();
+    assert_eq!(w.request(), None, "a half-written request is never taken");
+    assert!(c.request_centre([7, 8], [0.0, 0.0]));
+    let r = w.request().unwrap();
+    assert_eq!(r.centre, [7, 8]);
+    let seq = c.request.as_ref().unwrap().load(layout::request::SEQ, Ordering::Acquire);
+    assert_eq!(seq, 8, "taken over from 5 to 6, then 7 and 8: never backwards");
+    w.close();
     assert!(c.closed());
 }
 
 #[test]
-fn a_renderer_that_died_holding_the_request_lock_does_not_silence_the_others() {
-    use std::os::unix::fs::FileExt;
-    let dir = tempfile::tempdir().unwrap();
-    let map = engine(1024, 64, 32);
-    let m = mirror::Mirror::create(dir.path(), "dead", &map, 0o600).unwrap();
-    let c = Client::attach(dir.path(), "dead").unwrap();
-    c.request_centre([1, 2], [0.0, 0.0]);
-    // A renderer killed between taking the lock (odd) and releasing it.
-    let f = std::fs::OpenOptions::new().write(true).open(m.writer().path()).unwrap();
-    f.write_all_at(&3u64.to_le_bytes(), (layout::header::REQUEST + layout::request::SEQ) as u64).unwrap();
-    assert_eq!(m.writer().request(), None, "a half-written request is never taken");
-    c.request_centre([7, 8], [0.0, 0.0]);
-    let r = m.writer().request().unwrap();
-    assert_eq!(r.centre, [7, 8]);
-}
-
-#[test]
-fn direct_windows_must_match_the_texture_and_a_private_engine_is_not_direct() {
-    let dir = tempfile::tempdir().unwrap();
+fn memory_of_another_shape_is_refused() {
     let d = desc(1024, 64, 32);
-    let writer = Writer::create(dir.path(), "shape", mirror::shape_of_desc(&d), d.format(), 0o600).unwrap();
-    // Stores of another texture (clip 32) do not fit this one (clip 64).
-    let other = desc(1024, 32, 32);
-    let w2 = Writer::create(dir.path(), "other", mirror::shape_of_desc(&other), other.format(), 0o600).unwrap();
-    let Err(err) = Clipmap::with_windows(Arc::new(HashSource::new(d.clone())), settings(), w2.window_stores()) else {
-        panic!("stores of another texture were accepted")
+    let other = Clipmap::shape_for(&desc(1024, 32, 32), &settings());
+    let memory = Arc::new(ImageMemory::anonymous(other, d.format()).unwrap());
+    let Err(err) = Clipmap::with_memory(Arc::new(HashSource::new(d)), settings(), memory) else {
+        panic!("memory of another texture was accepted")
     };
-    let msg = err.to_string();
-    assert!(msg.contains("level 0") && msg.contains("found 4096 bytes, expected 16384"), "{msg}");
-    let mut fewer = writer.window_stores();
-    fewer.pop();
-    let Err(err) = Clipmap::with_windows(Arc::new(HashSource::new(d.clone())), settings(), fewer) else {
-        panic!("too few stores were accepted")
-    };
-    assert!(err.to_string().contains("supplied"), "{err}");
-    // An engine with private windows cannot be published without copies.
-    let private = engine(1024, 64, 32);
-    let err = mirror::Mirror::direct(writer, &private).unwrap_err();
-    assert!(err.to_string().contains("private memory"), "{err}");
-}
-
-#[test]
-fn a_direct_engine_samples_what_a_private_one_samples() {
-    let dir = tempfile::tempdir().unwrap();
-    let (mut a, mut ma) = engine_and_mirror(dir.path(), "sa", 1 << 12, 128, 32, true);
-    let mut b = engine(1 << 12, 128, 32);
-    let mut c = [1000i64, 1500];
-    for _ in 0..40 {
-        c = [c[0] + 13, c[1] - 7];
-        a.tick_with(c, None, &mut ma);
-        b.tick(c, None);
-        a.wait_for_reads();
-        b.wait_for_reads();
-    }
-    for k in 0..a.level_count() as u32 {
-        let (va, vb) = (a.level(k), b.level(k));
-        assert_eq!(va.valid, vb.valid, "level {k}");
-        assert!(va.texels.as_slice().is_none() && vb.texels.as_slice().is_some());
-        for t in va.valid.t0..va.valid.t1 {
-            for s in va.valid.s0..va.valid.s1 {
-                assert_eq!(va.texel(s, t), vb.texel(s, t), "level {k} ({s}, {t})");
-            }
-        }
-    }
-    assert!(ma.bytes_copied > 0);
-}
-
-/// Checks, just before each after-writes publication (when the engine has written this tick's
-/// texels but not yet published them), that every texel the mapping publishes still holds its
-/// `hash` value: a write into a published slot is caught even when no reader happened to race
-/// it.
-struct CheckBeforePublishing<'a> {
-    mirror: &'a mut mirror::Mirror,
-    client: &'a Client,
-    checked: u64,
-    bad: u64,
-}
-
-impl crate::clip::Publisher for CheckBeforePublishing<'_> {
-    fn publish(&mut self, phase: crate::clip::Phase, clipmap: &Clipmap) {
-        if phase == crate::clip::Phase::AfterWrites {
-            let bpt = self.client.bytes_per_texel;
-            let mut want = vec![0u8; bpt];
-            for k in 0..self.client.levels.len() {
-                let Some(st) = self.client.level_state(k) else { continue };
-                let [s0, t0, s1, t1] = st.valid;
-                if !st.enabled || s1 <= s0 || t1 <= t0 {
-                    continue;
-                }
-                let mut got = vec![0u8; ((s1 - s0) * (t1 - t0)) as usize * bpt];
-                self.client.read_region(k, s0, t0, (s1 - s0) as u64, (t1 - t0) as u64, &mut got).unwrap();
-                for (i, px) in got.chunks(bpt).enumerate() {
-                    let (s, t) = (s0 + i as i64 % (s1 - s0), t0 + i as i64 / (s1 - s0));
-                    hash(k as u32, s as u64, t as u64, &mut want);
-                    self.checked += 1;
-                    self.bad += u64::from(px != &want[..]);
-                }
-            }
-        }
-        self.mirror.publish(phase, clipmap);
-    }
-}
-
-#[test]
-fn the_engine_never_writes_a_slot_the_mapping_publishes() {
-    let dir = tempfile::tempdir().unwrap();
-    let (mut map, mut mirror) = engine_and_mirror(dir.path(), "inv", 1 << 12, 64, 16, true);
-    let client = Client::attach(dir.path(), "inv").unwrap();
-    let mut check = CheckBeforePublishing { mirror: &mut mirror, client: &client, checked: 0, bad: 0 };
-    let mut c = [2000i64, 2000];
-    for tick in 0..120u64 {
-        // Steady moves, reversals, and a jump larger than the window every 40 ticks.
-        c = match tick % 40 {
-            0 => [c[0] + 300, c[1] - 200],
-            20..=29 => [c[0] - 5, c[1] + 3],
-            _ => [c[0] + 6, c[1] + 2],
-        };
-        map.tick_with(c, None, &mut check);
-        map.wait_for_reads();
-    }
-    assert_eq!(check.bad, 0, "{} published texels were overwritten before publication", check.bad);
-    assert!(check.checked > 100_000, "too few texels checked: {}", check.checked);
+    assert!(err.to_string().contains("laid out as"), "{err}");
 }
 
 #[test]
 fn a_client_samples_the_mapping_exactly_as_the_engine_is_sampled() {
     use crate::sample::{sample_clipmap, Filter, MipmapSampler};
     let dir = tempfile::tempdir().unwrap();
-    let (mut map, mut mirror) = engine_and_mirror(dir.path(), "smp", 1 << 12, 128, 32, true);
+    let (mut map, _w) = hash_service(dir.path(), "smp", 1 << 12, 128, 32);
     let client = Client::attach(dir.path(), "smp").unwrap();
     let full_source = HashSource::new(desc(1 << 12, 128, 32));
     let mut full = MipmapSampler::new(&full_source);
     let mut c = [1500i64, 2500];
     let mut rng = 3u64;
     let mut next = || {
-        rng = crate::source::procedural::splitmix64(rng);
+        rng = splitmix64(rng);
         rng
     };
     let (mut compared, mut coarser) = (0, 0);
     for tick in 0..30 {
         c = [c[0] + 11, c[1] - 9];
-        map.tick_with(c, None, &mut mirror);
+        map.tick(c, None);
         map.wait_for_reads();
         if tick < 5 {
             continue;
         }
         for _ in 0..100 {
-            // Around the centre, out to a few windows away, at LODs from 0 to 6.
             let u = c[0] as f64 + (next() % 1200) as f64 - 600.0 + (next() % 1000) as f64 / 1000.0;
             let v = c[1] as f64 + (next() % 1200) as f64 - 600.0 + (next() % 1000) as f64 / 1000.0;
             let lod = (next() % 600) as f64 / 100.0;

@@ -271,4 +271,3 @@ fn create_tmp(dir: &Path, name: &str, ext: &str, mode: u32) -> Result<(PathBuf, 
     let (path, source) = last.expect("tried at least once");
     Err(ShmError::Io { path, source })
 }
-

@@ -192,11 +192,7 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
         .sum();
     let settings = Settings::default();
     let budget = cache_budget(&desc, settings.lookahead);
-    let mut settings = Settings {
-        budget_ns: None,
-        centre_alignment: setup.centre_alignment,
-        ..settings
-    };
+    let mut settings = Settings { budget_ns: None, centre_alignment: setup.centre_alignment, ..settings };
     settings.limits.cache_bytes = budget as usize;
     settings.limits.max_pending_reads = 4096;
     settings.limits.max_ready_reads = 4096;

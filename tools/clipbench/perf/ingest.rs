@@ -108,8 +108,7 @@ fn jumps(n: u64, clip: u64) -> Vec<[i64; 2]> {
 /// One engine run: seconds and the tiles read, in order.
 fn engine_run(source: &Arc<FileSource>, centres: &[[i64; 2]]) -> anyhow::Result<(f64, Vec<TileId>, u64)> {
     let rec = Arc::new(Recording { inner: Arc::clone(source), log: Mutex::new(Vec::new()) });
-    let mut settings =
-        Settings { budget_ns: Some(0), ..Settings::default() };
+    let mut settings = Settings { budget_ns: Some(0), ..Settings::default() };
     settings.limits.max_pending_reads = 4096;
     settings.limits.max_ready_reads = 4096;
     let mut map = Clipmap::new(Arc::clone(&rec) as Arc<dyn TileSource>, settings)?;

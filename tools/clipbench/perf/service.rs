@@ -35,7 +35,8 @@ fn reader(shm_dir: &std::path::Path, clip: u64, requests: usize) -> anyhow::Resu
     let c = Client::attach(shm_dir, "perf").map_err(|e| anyhow::anyhow!("attaching: {e}"))?;
     let base = [1i64 << 19, 1 << 19];
     let border = c.snapshot().invalid_border;
-    let complete = |st: &clipmap::shm::LevelState| st.enabled && (st.valid[2] - st.valid[0]) as u64 + 2 * border >= clip;
+    let complete =
+        |st: &clipmap::shm::LevelState| st.enabled && (st.valid[2] - st.valid[0]) as u64 + 2 * border >= clip;
     c.request_centre(base, [0.0, 0.0]);
     let t = Instant::now();
     while !(c.level_state(0).is_some_and(|s| s.centre == base && complete(&s))) {
