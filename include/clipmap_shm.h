@@ -74,6 +74,11 @@
 #define CLIPMAP_H_SNAPSHOT 128           /* the snapshot, 2112 bytes */
 #define CLIPMAP_H_LEVEL_DESCS 2240       /* 32 level descriptors of CLIPMAP_DESC_BYTES */
 #define CLIPMAP_H_END 6336               /* end of the fixed header */
+/* Snapshot fields as absolute offsets (the names layout 1 gave them). */
+#define CLIPMAP_H_GLOBAL_SEQ 128         /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ */
+#define CLIPMAP_H_MIN_LOD 136            /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_MIN_LOD */
+#define CLIPMAP_H_TICK 144               /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_TICK */
+#define CLIPMAP_H_LEVEL_STATES 192       /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_LEVELS */
 
 /* Snapshot fields (relative to CLIPMAP_H_SNAPSHOT), all u64-sized and atomic, one seqlock. */
 #define CLIPMAP_SNAP_SEQ 0               /* u64: odd while the writer changes the snapshot */
@@ -151,6 +156,11 @@
 _Static_assert(CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAPSHOT_BYTES == CLIPMAP_H_LEVEL_DESCS, "snapshot size");
 _Static_assert(CLIPMAP_SNAP_LEVELS + CLIPMAP_MAX_LEVELS * CLIPMAP_STATE_BYTES == CLIPMAP_SNAPSHOT_BYTES, "states");
 _Static_assert(CLIPMAP_H_LEVEL_DESCS + CLIPMAP_MAX_LEVELS * CLIPMAP_DESC_BYTES == CLIPMAP_H_END, "descs");
+_Static_assert(CLIPMAP_H_GLOBAL_SEQ == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ &&
+                   CLIPMAP_H_MIN_LOD == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_MIN_LOD &&
+                   CLIPMAP_H_TICK == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_TICK &&
+                   CLIPMAP_H_LEVEL_STATES == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_LEVELS,
+               "absolute snapshot offsets");
 #endif
 
 /* Return codes of clipmap_snapshot, clipmap_read_region and the tag functions. */
@@ -397,10 +407,11 @@ static inline int clipmap_check_static(struct clipmap_map *m, const char *path) 
                            (unsigned long long)kind, pyramid, pyramid ? "pyramid" : "stack");
         d->pyramid = pyramid;
         uint64_t sb, count, tags_bytes, tags_end, slots_bytes, slots_end;
-        if (!clipmap_mul(d->tile[0], d->tile[1], &sb) || !clipmap_mul(sb, bpt, &sb) || sb != d->slot_bytes)
-            CLIPMAP_REFUSE("level %u: slot bytes %llu, expected tile %llux%llu x %llu bytes per texel", k,
+        int sb_ok = clipmap_mul(d->tile[0], d->tile[1], &sb) && clipmap_mul(sb, bpt, &sb);
+        if (!sb_ok || sb != d->slot_bytes)
+            CLIPMAP_REFUSE("level %u: slot bytes %llu, expected tile %llux%llu x %llu bytes per texel%s", k,
                            (unsigned long long)d->slot_bytes, (unsigned long long)d->tile[0],
-                           (unsigned long long)d->tile[1], (unsigned long long)bpt);
+                           (unsigned long long)d->tile[1], (unsigned long long)bpt, sb_ok ? "" : " (overflows 64 bits)");
         if (!clipmap_mul(d->grid[0], d->grid[1], &count) || !clipmap_mul(count, CLIPMAP_TAG_BYTES, &tags_bytes) ||
             !clipmap_mul(count, d->slot_bytes, &slots_bytes))
             CLIPMAP_REFUSE("level %u: grid %llux%llu of %llu-byte slots overflows", k, (unsigned long long)d->grid[0],
