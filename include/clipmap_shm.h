@@ -163,7 +163,7 @@ _Static_assert(CLIPMAP_H_GLOBAL_SEQ == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ &&
                "absolute snapshot offsets");
 #endif
 
-/* Return codes of clipmap_snapshot, clipmap_read_region and the tag functions. */
+/* Return codes of clipmap_snapshot, clipmap_read_region and clipmap_tag_try. */
 enum {
     CLIPMAP_OK = 0,
     CLIPMAP_NOT_VALID = 1, /* no such level, level disabled, or not inside its published region */
@@ -218,7 +218,7 @@ struct clipmap_snapshot {
     int64_t centre[2];       /* level-0 centre */
     uint32_t level_count;
     struct clipmap_level_state levels[CLIPMAP_MAX_LEVELS];
-    char error[200];         /* why clipmap_snapshot returned CLIPMAP_CORRUPT */
+    char error[200];         /* why clipmap_snapshot last returned CLIPMAP_BUSY or CLIPMAP_CORRUPT */
 };
 
 static inline uint64_t clipmap_splitmix64(uint64_t x) {
@@ -574,7 +574,7 @@ static inline int clipmap_snapshot(const struct clipmap_map *m, struct clipmap_s
 
 /* The address of texel (s, t) of `level` in the slot its tile maps to, or NULL when the level
  * does not exist or (s, t) is outside it. It says nothing about what the slot holds: use the
- * tag protocol (clipmap_tag_begin / clipmap_tag_end) around any copy. */
+ * tag protocol (clipmap_tag_try / clipmap_tag_end) around any copy. */
 static inline const unsigned char *clipmap_texel_ptr(const struct clipmap_map *m, uint32_t level, int64_t s,
                                                      int64_t t) {
     if (level >= m->level_count || s < 0 || t < 0) return NULL;
@@ -586,37 +586,30 @@ static inline const unsigned char *clipmap_texel_ptr(const struct clipmap_map *m
     return m->base + d->slots_offset + slot * d->slot_bytes + in * m->bytes_per_texel;
 }
 
-/* Step 2 of reading a tile (docs/SHM.md, "Reading consistently"): waits for an even tag sequence
- * of the slot of tile (S, T) and checks what it names. CLIPMAP_OK (ready or default; *seq set:
- * copy, then call clipmap_tag_end), CLIPMAP_MISSING, CLIPMAP_STALE (another tile, loading, empty
- * or an unknown state), CLIPMAP_BUSY. `level` must exist. */
-static inline int clipmap_tag_begin(const struct clipmap_map *m, uint32_t level, int64_t S, int64_t T,
-                                    uint64_t *seq) {
+/* One attempt at step 2 of reading a tile (docs/SHM.md, "Reading consistently"): loads the tag
+ * of tile (S, T)'s slot. CLIPMAP_OK (ready or default; *seq set: copy, then clipmap_tag_end),
+ * CLIPMAP_MISSING, CLIPMAP_STALE (another tile, loading, empty or an unknown state), or
+ * CLIPMAP_BUSY (the tag was odd or changed while read: try again). `level` must exist. */
+static inline int clipmap_tag_try(const struct clipmap_map *m, uint32_t level, int64_t S, int64_t T, uint64_t *seq) {
     const struct clipmap_level_desc *d = &m->levels[level];
     size_t tag = (size_t)(d->tags_offset + clipmap_slot_index(d, S, T) * CLIPMAP_TAG_BYTES);
-    for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES; attempt++) {
-        uint64_t s1 = clipmap_load(m, tag + CLIPMAP_T_SEQ, __ATOMIC_ACQUIRE);
-        if (s1 & 1) {
-            clipmap_pause();
-            continue;
-        }
-        int64_t ts = (int64_t)clipmap_load(m, tag + CLIPMAP_T_TILE_S, __ATOMIC_RELAXED);
-        int64_t tt = (int64_t)clipmap_load(m, tag + CLIPMAP_T_TILE_T, __ATOMIC_RELAXED);
-        uint64_t state = clipmap_load(m, tag + CLIPMAP_T_STATE, __ATOMIC_RELAXED);
-        if (ts == S && tt == T && (state == CLIPMAP_SLOT_READY || state == CLIPMAP_SLOT_DEFAULT)) {
-            *seq = s1;
-            return CLIPMAP_OK;
-        }
-        /* A verdict other than "copy" stands only if the tag did not change while it was read. */
-        __atomic_thread_fence(__ATOMIC_ACQUIRE);
-        if (clipmap_load(m, tag + CLIPMAP_T_SEQ, __ATOMIC_RELAXED) != s1) continue;
-        return ts == S && tt == T && state == CLIPMAP_SLOT_MISSING ? CLIPMAP_MISSING : CLIPMAP_STALE;
+    uint64_t s1 = clipmap_load(m, tag + CLIPMAP_T_SEQ, __ATOMIC_ACQUIRE);
+    if (s1 & 1) return CLIPMAP_BUSY;
+    int64_t ts = (int64_t)clipmap_load(m, tag + CLIPMAP_T_TILE_S, __ATOMIC_RELAXED);
+    int64_t tt = (int64_t)clipmap_load(m, tag + CLIPMAP_T_TILE_T, __ATOMIC_RELAXED);
+    uint64_t state = clipmap_load(m, tag + CLIPMAP_T_STATE, __ATOMIC_RELAXED);
+    if (ts == S && tt == T && (state == CLIPMAP_SLOT_READY || state == CLIPMAP_SLOT_DEFAULT)) {
+        *seq = s1; /* confirmed by clipmap_tag_end after the copy */
+        return CLIPMAP_OK;
     }
-    return CLIPMAP_BUSY;
+    /* Any other verdict stands only if the tag did not change while it was read. */
+    __atomic_thread_fence(__ATOMIC_ACQUIRE);
+    if (clipmap_load(m, tag + CLIPMAP_T_SEQ, __ATOMIC_RELAXED) != s1) return CLIPMAP_BUSY;
+    return ts == S && tt == T && state == CLIPMAP_SLOT_MISSING ? CLIPMAP_MISSING : CLIPMAP_STALE;
 }
 
 /* Step 4: 1 when the tag of tile (S, T)'s slot still has sequence `seq` after the copy (the copy
- * stands), 0 when the slot changed meanwhile (discard the copy and retry from clipmap_tag_begin). */
+ * stands), 0 when the slot changed meanwhile (discard the copy and retry from clipmap_tag_try). */
 static inline int clipmap_tag_end(const struct clipmap_map *m, uint32_t level, int64_t S, int64_t T, uint64_t seq) {
     const struct clipmap_level_desc *d = &m->levels[level];
     size_t tag = (size_t)(d->tags_offset + clipmap_slot_index(d, S, T) * CLIPMAP_TAG_BYTES);
@@ -653,10 +646,14 @@ static inline int clipmap_read_region(const struct clipmap_map *m, const struct 
             uint64_t sa = S * tw > us0 ? S * tw : us0, sbnd = (S + 1) * tw < us1 ? (S + 1) * tw : us1;
             const unsigned char *slot =
                 m->base + d->slots_offset + clipmap_slot_index(d, (int64_t)S, (int64_t)T) * d->slot_bytes;
-            int done = 0;
+            int done = 0; /* one budget of CLIPMAP_MAX_RETRIES attempts per tile */
             for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES && !done; attempt++) {
                 uint64_t seq;
-                int rc = clipmap_tag_begin(m, level, (int64_t)S, (int64_t)T, &seq);
+                int rc = clipmap_tag_try(m, level, (int64_t)S, (int64_t)T, &seq);
+                if (rc == CLIPMAP_BUSY) {
+                    clipmap_pause();
+                    continue;
+                }
                 if (rc != CLIPMAP_OK) return rc;
                 for (uint64_t t = ta; t < tb; t++)
                     memcpy(out + ((t - ut0) * w + (sa - us0)) * bpt,

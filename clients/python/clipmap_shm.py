@@ -458,13 +458,18 @@ def main(argv):
         print(f"usage: {argv[0]} MAPPING READS [SEED [SECONDS]]", file=sys.stderr)
         return 2
     try:
+        reads = int(argv[2])
+        rng = [(int(argv[3]) if len(argv) > 3 else 1) & M64]
+        seconds = float(argv[4]) if len(argv) > 4 else 120.0
+    except ValueError as e:
+        print(f"usage: {argv[0]} MAPPING READS [SEED [SECONDS]]: {e}", file=sys.stderr)
+        return 2
+    try:
         m = Mapping(argv[1])
     except (ClipmapError, OSError, ValueError) as e:
         print(f"clipmap_shm: {e}", file=sys.stderr)
         return 2
-    reads = int(argv[2])
-    rng = [int(argv[3]) if len(argv) > 3 else 1]
-    give_up = time.monotonic() + (float(argv[4]) if len(argv) > 4 else 120.0)
+    give_up = time.monotonic() + seconds
     passed = failed = busy = stale = missing = moved = idle = blocks = crossing = 0
     bpt = m.bpt
     snap = None
