@@ -16,6 +16,9 @@
  *   }
  *   clipmap_close(&m);
  *
+ * A renderer asks for a centre through the request mapping: clipmap_request_open(req_path, &m,
+ * &r), then clipmap_request_centre(&r, s, t, vs, vt).
+ *
  * Every value read from the mapping is checked before it is used in address arithmetic, so a
  * corrupt or hostile mapping gives an error, never an out-of-bounds access. (A file truncated
  * after it was mapped still raises SIGBUS on access, as with any mmap.)
@@ -678,6 +681,119 @@ static inline uint64_t clipmap_heartbeat_age_ms(const struct clipmap_map *m) {
 /* 1 when the writer shut down cleanly (flag bit 0). */
 static inline int clipmap_closed(const struct clipmap_map *m) {
     return (int)(clipmap_load(m, CLIPMAP_H_FLAGS, __ATOMIC_ACQUIRE) & 1);
+}
+
+/* The request mapping (DIR/clipmap-NAME.req), mapped read-write: how a renderer asks for a
+ * centre. */
+struct clipmap_request {
+    unsigned char *base;
+    size_t len;
+    char error[320];
+};
+
+/* Maps the request mapping `path` read-write and checks its magic, version, size and that its
+ * generation equals the texel mapping's `m` (else the files belong to different starts of the
+ * service: open both again). 0 on success, else -1 with r->error set. */
+static inline int clipmap_request_open(const char *path, const struct clipmap_map *m, struct clipmap_request *r) {
+    memset(r, 0, sizeof *r);
+#ifdef O_CLOEXEC
+    int fd = open(path, O_RDWR | O_CLOEXEC);
+#else
+    int fd = open(path, O_RDWR);
+#endif
+    struct stat st;
+    if (fd < 0 || fstat(fd, &st) != 0) {
+        snprintf(r->error, sizeof r->error, "%s: %s", path, strerror(errno));
+        if (fd >= 0) close(fd);
+        return -1;
+    }
+    if (!S_ISREG(st.st_mode) || (uint64_t)st.st_size != CLIPMAP_REQUEST_BYTES) {
+        snprintf(r->error, sizeof r->error, "%s: %lld bytes: expected a regular file of %u bytes", path,
+                 (long long)st.st_size, CLIPMAP_REQUEST_BYTES);
+        close(fd);
+        return -1;
+    }
+    void *p = mmap(NULL, CLIPMAP_REQUEST_BYTES, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+    close(fd);
+    if (p == MAP_FAILED) {
+        snprintf(r->error, sizeof r->error, "%s: mmap: %s", path, strerror(errno));
+        return -1;
+    }
+    r->base = (unsigned char *)p;
+    r->len = CLIPMAP_REQUEST_BYTES;
+    uint32_t version;
+    uint64_t generation;
+    memcpy(&version, r->base + CLIPMAP_R_VERSION, 4);
+    memcpy(&generation, r->base + CLIPMAP_R_GENERATION, 8);
+    char magic[9];
+    for (int i = 0; i < 8; i++) magic[i] = r->base[i] >= 32 && r->base[i] < 127 ? (char)r->base[i] : '?';
+    magic[8] = 0;
+    if (memcmp(r->base + CLIPMAP_R_MAGIC, CLIPMAP_REQUEST_MAGIC, 8) != 0 || version != CLIPMAP_VERSION)
+        snprintf(r->error, sizeof r->error, "%s: magic \"%s\", version %u: expected \"%s\", version %u", path, magic,
+                 version, CLIPMAP_REQUEST_MAGIC, CLIPMAP_VERSION);
+    else if (generation != m->generation)
+        snprintf(r->error, sizeof r->error,
+                 "%s: generation %llu, the texel mapping's is %llu: they belong to different starts of the service",
+                 path, (unsigned long long)generation, (unsigned long long)m->generation);
+    else
+        return 0;
+    munmap(r->base, r->len);
+    r->base = NULL;
+    return -1;
+}
+
+static inline uint64_t clipmap_now_ms_(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
+}
+
+/* Asks for centre (s, t) (level-0 texels) with velocity (vs, vt) (texels per second, 0 when
+ * unknown), under the request seqlock: compare-and-swap from even v to v + 1, write, store v + 2.
+ * A counter left odd for more than 100 ms (a renderer died mid-write) is advanced to even.
+ * CLIPMAP_OK, or CLIPMAP_BUSY after about a second of other renderers holding it. */
+static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, int64_t t, double vs, double vt) {
+    uint64_t *seq = (uint64_t *)(void *)(r->base + CLIPMAP_R_SEQ);
+    uint64_t odd = 0, odd_since = 0, start = clipmap_now_ms_();
+    for (;;) {
+        uint64_t v = __atomic_load_n(seq, __ATOMIC_RELAXED);
+        if (v & 1) {
+            uint64_t now = clipmap_now_ms_();
+            if (v != odd) {
+                odd = v;
+                odd_since = now;
+            } else if (now - odd_since > 100) {
+                uint64_t expect = v; /* forward only: from that odd value to the next even one */
+                __atomic_compare_exchange_n(seq, &expect, v + 1, 0, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED);
+                odd = 0;
+            }
+            if (now - start > 1000) return CLIPMAP_BUSY;
+            clipmap_pause();
+            continue;
+        }
+        uint64_t expect = v;
+        if (!__atomic_compare_exchange_n(seq, &expect, v + 1, 0, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED)) continue;
+        __atomic_thread_fence(__ATOMIC_RELEASE);
+        uint64_t bits_s, bits_t;
+        memcpy(&bits_s, &vs, 8);
+        memcpy(&bits_t, &vt, 8);
+#define CLIPMAP_RSTORE_(off, val) __atomic_store_n((uint64_t *)(void *)(r->base + (off)), (val), __ATOMIC_RELAXED)
+        CLIPMAP_RSTORE_(CLIPMAP_R_CENTRE_S, (uint64_t)s);
+        CLIPMAP_RSTORE_(CLIPMAP_R_CENTRE_T, (uint64_t)t);
+        CLIPMAP_RSTORE_(CLIPMAP_R_VEL_S, bits_s);
+        CLIPMAP_RSTORE_(CLIPMAP_R_VEL_T, bits_t);
+        CLIPMAP_RSTORE_(CLIPMAP_R_CLIENT_PID, (uint64_t)getpid());
+        uint64_t count = __atomic_load_n((uint64_t *)(void *)(r->base + CLIPMAP_R_COUNT), __ATOMIC_RELAXED);
+        CLIPMAP_RSTORE_(CLIPMAP_R_COUNT, count + 1);
+#undef CLIPMAP_RSTORE_
+        __atomic_store_n(seq, v + 2, __ATOMIC_RELEASE);
+        return CLIPMAP_OK;
+    }
+}
+
+static inline void clipmap_request_close(struct clipmap_request *r) {
+    if (r->base) munmap(r->base, r->len);
+    r->base = NULL;
 }
 
 #endif /* CLIPMAP_SHM_H */

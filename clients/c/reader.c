@@ -57,9 +57,25 @@ int main(int argc, char **argv) {
         fprintf(stderr, "clipmap reader: %s\n", m.error);
         return 2;
     }
-    unsigned long long reads = strtoull(argv[2], NULL, 10);
-    uint64_t rng = argc > 3 ? strtoull(argv[3], NULL, 10) : 1;
-    double seconds = argc > 4 ? atof(argv[4]) : 120.0;
+    char *end;
+    unsigned long long reads = strtoull(argv[2], &end, 10);
+    int bad = *argv[2] == 0 || *end != 0;
+    uint64_t rng = 1;
+    if (argc > 3) {
+        rng = strtoull(argv[3], &end, 10);
+        bad |= *argv[3] == 0 || *end != 0;
+    }
+    double seconds = 120.0;
+    if (argc > 4) {
+        seconds = strtod(argv[4], &end);
+        bad |= *argv[4] == 0 || *end != 0;
+    }
+    if (bad) {
+        fprintf(stderr, "usage: %s MAPPING READS [SEED [SECONDS]]: READS and SEED are integers, SECONDS a number\n",
+                argv[0]);
+        clipmap_close(&m);
+        return 2;
+    }
     uint64_t bpt = m.bytes_per_texel;
     unsigned long long passed = 0, failed = 0, busy = 0, stale = 0, missing = 0, moved = 0, idle = 0;
     unsigned long long blocks = 0, crossing = 0;

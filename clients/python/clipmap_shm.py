@@ -18,6 +18,9 @@ served by `clipmapd --source hash` and checks every texel:
 prints "N passed, M failed (...)"; exit status 0 no mismatch, 1 a mismatch, 2 the mapping was
 refused (at open, or published state out of bounds), with the reason on standard error.
 
+Requests: Python has no compare-and-swap on a mapping, so it cannot take the request
+mapping's seqlock; a Python renderer asks for a centre through the control socket (`CENTRE s t`).
+
 Consistency: the snapshot and every slot tag are read under their seqlocks (sequence read
 before and after, accepted only when even and equal), with 8-byte loads of the sequences
 through a native memoryview. Python has no memory fences; on x86-64 (loads are not reordered
