@@ -1,18 +1,36 @@
 /* clipmap_shm.h: read a clip texture published by clipmapd in shared memory.
  *
- * Layout version 1, documented in docs/SHM.md; this header follows that page alone. Header-only,
- * C11 plus the GCC/Clang __atomic builtins, POSIX mmap. Little-endian hosts only.
+ * Layout version 2, documented in docs/SHM.md; this header follows that page alone. Header-only,
+ * C99/C11 plus the GCC/Clang __atomic builtins, POSIX mmap, 64-bit little-endian hosts.
  *
  * Use:
- *   struct clipmap_map m; char err[256];
- *   if (clipmap_open(path, &m, err, sizeof err) != 0) { fprintf(stderr, "%s\n", err); ... }
- *   struct clipmap_level_state st;
- *   if (clipmap_level_state(&m, level, &st) == 0 && st.enabled) { ...inside st.valid... }
- *   clipmap_read_region(&m, level, s0, t0, w, h, buf);   // 0: consistent copy
+ *   struct clipmap_map m;
+ *   if (clipmap_open(path, &m) != 0) { fprintf(stderr, "%s\n", m.error); ... }
+ *   struct clipmap_snapshot snap;
+ *   int rc = clipmap_snapshot(&m, &snap);         // CLIPMAP_OK, _BUSY or _CORRUPT (snap.error)
+ *   if (rc == CLIPMAP_OK && snap.levels[k].enabled) {
+ *       rc = clipmap_read_region(&m, &snap, k, s0, t0, w, h, buf);   // buf: w * h * bpt bytes
+ *       // CLIPMAP_OK: a consistent copy. _NOT_VALID: outside the level's published region.
+ *       // _MISSING: a tile could not be read (use a coarser level). _STALE: take a new snapshot.
+ *       // _BUSY: the writer kept a tag locked (try again later or use a coarser level).
+ *   }
  *   clipmap_close(&m);
+ *
+ * A renderer asks for a centre through the request mapping: clipmap_request_open(req_path, &m,
+ * &r), then clipmap_request_centre(&r, s, t, vs, vt).
+ *
+ * Every value read from the mapping is checked before it is used in address arithmetic, so a
+ * corrupt or hostile mapping gives an error, never an out-of-bounds access. (A file truncated
+ * after it was mapped still raises SIGBUS on access, as with any mmap.)
  */
 #ifndef CLIPMAP_SHM_H
 #define CLIPMAP_SHM_H
+
+/* POSIX names (clock_gettime, O_CLOEXEC) under a strict -std=c99/c11; only effective when this
+ * header comes before any system header. */
+#if !defined(_POSIX_C_SOURCE) && !defined(_GNU_SOURCE) && !defined(_DEFAULT_SOURCE)
+#define _POSIX_C_SOURCE 200809L
+#endif
 
 #include <errno.h>
 #include <fcntl.h>
@@ -27,35 +45,103 @@
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
 #error "the clipmap shared-memory layout is little-endian"
 #endif
+#if defined(__SIZEOF_POINTER__) && __SIZEOF_POINTER__ < 8
+#error "clipmap_shm.h needs a 64-bit host (64-bit atomic loads, 64-bit offsets)"
+#endif
 
-#define CLIPMAP_MAGIC "CLIPMAP1"
-#define CLIPMAP_VERSION 1u
+#define CLIPMAP_MAGIC "CLIPMAP2"
+#define CLIPMAP_REQUEST_MAGIC "CLIPREQ2"
+#define CLIPMAP_VERSION 2u
 #define CLIPMAP_PAGE 4096u
 #define CLIPMAP_MAX_LEVELS 32u
+#define CLIPMAP_MAX_RETRIES 64           /* attempts at one seqlocked read (snapshot or tag) */
+#define CLIPMAP_REQUEST_BYTES 4096u      /* size of the request mapping */
 
-/* Header (byte offsets from the start of the mapping). */
-#define CLIPMAP_H_MAGIC 0           /* u8[8] "CLIPMAP1" */
-#define CLIPMAP_H_VERSION 8         /* u32 */
-#define CLIPMAP_H_HEADER_BYTES 12   /* u32: bytes before the first window */
-#define CLIPMAP_H_TOTAL_BYTES 16    /* u64: size of the mapping */
-#define CLIPMAP_H_TEXEL_FORMAT 24   /* u32 */
-#define CLIPMAP_H_BYTES_PER_TEXEL 28 /* u32 */
-#define CLIPMAP_H_CLIP_SIZE 32      /* u32 */
-#define CLIPMAP_H_LEVEL_COUNT 36    /* u32 */
-#define CLIPMAP_H_LEVEL0_S 40       /* u64 */
-#define CLIPMAP_H_LEVEL0_T 48       /* u64 */
-#define CLIPMAP_H_WRITER_PID 56     /* u32 */
-#define CLIPMAP_H_FLAGS 60          /* u32: bit 0 clean shutdown */
-#define CLIPMAP_H_HEARTBEAT 64      /* u64 atomic: ticks */
-#define CLIPMAP_H_HEARTBEAT_MS 72   /* u64 atomic: ms since the Unix epoch */
-#define CLIPMAP_H_GENERATION 80     /* u64 */
-#define CLIPMAP_H_GLOBAL_SEQ 88     /* u64 atomic seqlock of MIN_LOD and TICK */
-#define CLIPMAP_H_MIN_LOD 96        /* f64 bits */
-#define CLIPMAP_H_TICK 104          /* u64 */
-#define CLIPMAP_H_REQUEST 128       /* request block */
-#define CLIPMAP_H_LEVEL_DESCS 192   /* 32 descriptors of 64 bytes */
-#define CLIPMAP_H_LEVEL_STATES (CLIPMAP_H_LEVEL_DESCS + 32 * 64) /* 32 states of 128 bytes */
-#define CLIPMAP_H_END (CLIPMAP_H_LEVEL_STATES + 32 * 128)
+/* Texel mapping header (byte offsets from the start of the mapping). */
+#define CLIPMAP_H_MAGIC 0                /* u8[8] "CLIPMAP2" */
+#define CLIPMAP_H_VERSION 8              /* u32: 2 */
+#define CLIPMAP_H_HEADER_BYTES 12        /* u32: offset of level 0's tags (multiple of 4096) */
+#define CLIPMAP_H_TOTAL_BYTES 16         /* u64: size of the mapping (= the file size) */
+#define CLIPMAP_H_TEXEL_FORMAT 24        /* u32: CLIPMAP_FORMAT_* */
+#define CLIPMAP_H_BYTES_PER_TEXEL 28     /* u32: 1..64 */
+#define CLIPMAP_H_CLIP_SIZE 32           /* u32 */
+#define CLIPMAP_H_LEVEL_COUNT 36         /* u32: 1..32 */
+#define CLIPMAP_H_LEVEL0_S 40            /* u64: level-0 width */
+#define CLIPMAP_H_LEVEL0_T 48            /* u64: level-0 height */
+#define CLIPMAP_H_WRITER_PID 56          /* u32 */
+#define CLIPMAP_H_HEARTBEAT 64           /* u64 atomic: incremented every tick */
+#define CLIPMAP_H_HEARTBEAT_MS 72        /* u64 atomic: ms since the Unix epoch of the last tick */
+#define CLIPMAP_H_GENERATION 80          /* u64: unique to each start of the writer */
+#define CLIPMAP_H_FLAGS 88               /* u64 atomic: bit 0 clean shutdown */
+#define CLIPMAP_H_TICK_PERIOD_NS 96      /* u64 */
+#define CLIPMAP_H_SNAPSHOT 128           /* the snapshot, 2112 bytes */
+#define CLIPMAP_H_LEVEL_DESCS 2240       /* 32 level descriptors of CLIPMAP_DESC_BYTES */
+#define CLIPMAP_H_END 6336               /* end of the fixed header */
+/* Snapshot fields as absolute offsets (the names layout 1 gave them). */
+#define CLIPMAP_H_GLOBAL_SEQ 128         /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ */
+#define CLIPMAP_H_MIN_LOD 136            /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_MIN_LOD */
+#define CLIPMAP_H_TICK 144               /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_TICK */
+#define CLIPMAP_H_LEVEL_STATES 192       /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_LEVELS */
+
+/* Snapshot fields (relative to CLIPMAP_H_SNAPSHOT), all u64-sized and atomic, one seqlock. */
+#define CLIPMAP_SNAP_SEQ 0               /* u64: odd while the writer changes the snapshot */
+#define CLIPMAP_SNAP_MIN_LOD 8           /* f64 bits */
+#define CLIPMAP_SNAP_TICK 16             /* u64: 0 before the first publication */
+#define CLIPMAP_SNAP_INVALID_BORDER 24   /* u64 */
+#define CLIPMAP_SNAP_CENTRE_S 32         /* i64: level-0 centre applied by that tick */
+#define CLIPMAP_SNAP_CENTRE_T 40         /* i64 */
+#define CLIPMAP_SNAP_LEVELS 64           /* level states, CLIPMAP_STATE_BYTES each */
+#define CLIPMAP_SNAPSHOT_BYTES 2112
+
+/* Level state fields (relative to the state). */
+#define CLIPMAP_STATE_BYTES 64
+#define CLIPMAP_S_CENTRE_S 0             /* i64: level centre, level texels */
+#define CLIPMAP_S_CENTRE_T 8             /* i64 */
+#define CLIPMAP_S_VALID_S0 16            /* i64: valid region s0 <= s < s1, t0 <= t < t1 */
+#define CLIPMAP_S_VALID_T0 24            /* i64 */
+#define CLIPMAP_S_VALID_S1 32            /* i64 */
+#define CLIPMAP_S_VALID_T1 40            /* i64 */
+#define CLIPMAP_S_ENABLED 48             /* u64: 1 usable (region non-empty), 0 not */
+#define CLIPMAP_S_UPDATED_TICK 56        /* u64 */
+
+/* Level descriptor fields (relative to the descriptor), static u64s. */
+#define CLIPMAP_DESC_BYTES 128
+#define CLIPMAP_D_SIZE_S 0               /* level width: level 0's halved k times, at least 1 */
+#define CLIPMAP_D_SIZE_T 8               /* level height */
+#define CLIPMAP_D_TILE_S 16              /* tile width TW */
+#define CLIPMAP_D_TILE_T 24              /* tile height TH */
+#define CLIPMAP_D_GRID_S 32              /* grid width GW (slots per row) */
+#define CLIPMAP_D_GRID_T 40              /* grid height GH */
+#define CLIPMAP_D_SLOT_BYTES 48          /* TW * TH * bytes per texel */
+#define CLIPMAP_D_TAGS_OFFSET 56         /* multiple of 4096 */
+#define CLIPMAP_D_SLOTS_OFFSET 64        /* multiple of 4096 */
+#define CLIPMAP_D_KIND 72                /* 0 stack, 1 pyramid */
+
+/* Slot tag fields (relative to the tag at tags_offset + CLIPMAP_TAG_BYTES * slot), atomic. */
+#define CLIPMAP_TAG_BYTES 32
+#define CLIPMAP_T_SEQ 0                  /* u64: odd while the writer changes the tag */
+#define CLIPMAP_T_TILE_S 8               /* i64: tile S the slot holds */
+#define CLIPMAP_T_TILE_T 16              /* i64: tile T */
+#define CLIPMAP_T_STATE 24               /* u64: CLIPMAP_SLOT_* */
+
+/* Slot states (CLIPMAP_T_STATE). */
+#define CLIPMAP_SLOT_EMPTY 0u
+#define CLIPMAP_SLOT_LOADING 1u
+#define CLIPMAP_SLOT_READY 2u
+#define CLIPMAP_SLOT_MISSING 3u
+#define CLIPMAP_SLOT_DEFAULT 4u
+
+/* Request mapping fields (DIR/clipmap-NAME.req, CLIPMAP_REQUEST_BYTES bytes). */
+#define CLIPMAP_R_MAGIC 0                /* u8[8] "CLIPREQ2" */
+#define CLIPMAP_R_VERSION 8              /* u32: 2 */
+#define CLIPMAP_R_GENERATION 16          /* u64: equals CLIPMAP_H_GENERATION of its texel mapping */
+#define CLIPMAP_R_SEQ 64                 /* u64 atomic seqlock (renderers take it by CAS) */
+#define CLIPMAP_R_CENTRE_S 72            /* i64: requested level-0 centre */
+#define CLIPMAP_R_CENTRE_T 80            /* i64 */
+#define CLIPMAP_R_VEL_S 88               /* f64 bits: level-0 texels per second */
+#define CLIPMAP_R_VEL_T 96               /* f64 bits */
+#define CLIPMAP_R_CLIENT_PID 104         /* u64 */
+#define CLIPMAP_R_COUNT 112              /* u64: requests made */
 
 /* Texel format codes (CLIPMAP_H_TEXEL_FORMAT); 16-bit components are little-endian. */
 #define CLIPMAP_FORMAT_OTHER 0u
@@ -69,63 +155,73 @@
 #define CLIPMAP_FORMAT_RGB16 9u
 #define CLIPMAP_FORMAT_RGBA16 10u
 
-#define CLIPMAP_DESC_BYTES 64
-#define CLIPMAP_D_SIZE_S 0
-#define CLIPMAP_D_SIZE_T 8
-#define CLIPMAP_D_WINDOW_OFFSET 16
-#define CLIPMAP_D_WINDOW_BYTES 24
-#define CLIPMAP_D_WINDOW_S 32
-#define CLIPMAP_D_WINDOW_T 40
-#define CLIPMAP_D_KIND 48 /* 0 stack, 1 pyramid */
+#if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
+_Static_assert(CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAPSHOT_BYTES == CLIPMAP_H_LEVEL_DESCS, "snapshot size");
+_Static_assert(CLIPMAP_SNAP_LEVELS + CLIPMAP_MAX_LEVELS * CLIPMAP_STATE_BYTES == CLIPMAP_SNAPSHOT_BYTES, "states");
+_Static_assert(CLIPMAP_H_LEVEL_DESCS + CLIPMAP_MAX_LEVELS * CLIPMAP_DESC_BYTES == CLIPMAP_H_END, "descs");
+_Static_assert(CLIPMAP_H_GLOBAL_SEQ == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ &&
+                   CLIPMAP_H_MIN_LOD == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_MIN_LOD &&
+                   CLIPMAP_H_TICK == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_TICK &&
+                   CLIPMAP_H_LEVEL_STATES == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_LEVELS,
+               "absolute snapshot offsets");
+#endif
 
-#define CLIPMAP_STATE_BYTES 128
-#define CLIPMAP_S_SEQ 0
-#define CLIPMAP_S_CENTRE_S 8
-#define CLIPMAP_S_CENTRE_T 16
-#define CLIPMAP_S_VALID_S0 24
-#define CLIPMAP_S_VALID_T0 32
-#define CLIPMAP_S_VALID_S1 40
-#define CLIPMAP_S_VALID_T1 48
-#define CLIPMAP_S_ENABLED 56
-#define CLIPMAP_S_INVALID_BORDER 64
-#define CLIPMAP_S_UPDATED_TICK 72
-#define CLIPMAP_S_ORIGIN_S 80
-#define CLIPMAP_S_ORIGIN_T 88
-
-#define CLIPMAP_R_SEQ 0
-#define CLIPMAP_R_CENTRE_S 8
-#define CLIPMAP_R_CENTRE_T 16
-#define CLIPMAP_R_VEL_S 24
-#define CLIPMAP_R_VEL_T 32
-#define CLIPMAP_R_CLIENT_PID 40
-#define CLIPMAP_R_COUNT 48
-
-struct clipmap_level_desc {
-    uint64_t size[2];   /* level size in texels */
-    uint64_t offset;    /* window byte offset in the mapping */
-    uint64_t bytes;     /* window bytes */
-    uint64_t window[2]; /* window size in texels: min(clip, size) */
-    int pyramid;        /* 1: resident whole */
+/* Return codes of clipmap_snapshot, clipmap_read_region and clipmap_tag_try. */
+enum {
+    CLIPMAP_OK = 0,
+    CLIPMAP_NOT_VALID = 1, /* no such level, level disabled, or not inside its published region */
+    CLIPMAP_MISSING = 2,   /* a tile of the region could not be read: use a coarser level */
+    CLIPMAP_BUSY = 3,      /* CLIPMAP_MAX_RETRIES attempts found the writer mid-change */
+    CLIPMAP_STALE = 4,     /* a slot holds another tile (or is loading): take a new snapshot */
+    CLIPMAP_CORRUPT = 5    /* published state outside its bounds */
 };
 
-struct clipmap_level_state {
-    uint64_t seq;
-    int64_t centre[2];
-    int64_t valid[4]; /* s0, t0, s1, t1: s0 <= s < s1, t0 <= t < t1 */
-    int enabled;
-    uint64_t invalid_border;
-    uint64_t updated_tick;
+/* One level's static description, checked by clipmap_open. */
+struct clipmap_level_desc {
+    uint64_t size[2];     /* level size in texels */
+    uint64_t tile[2];     /* TW, TH */
+    uint64_t grid[2];     /* GW, GH */
+    uint64_t slot_bytes;  /* TW * TH * bytes per texel */
+    uint64_t slot_count;  /* GW * GH */
+    uint64_t tags_offset; /* byte offset of slot 0's tag */
+    uint64_t slots_offset;/* byte offset of slot 0 */
+    int pyramid;          /* 1: the grid holds every tile of the level */
 };
 
 struct clipmap_map {
-    unsigned char *base;
+    const unsigned char *base; /* the read-only mapping */
     size_t len;
     uint32_t bytes_per_texel;
     uint32_t clip_size;
     uint32_t level_count;
-    uint32_t texel_format;
+    uint32_t texel_format;     /* CLIPMAP_FORMAT_* */
+    uint32_t writer_pid;
+    uint64_t header_bytes;
+    uint64_t size[2];          /* level-0 size */
     uint64_t generation;
+    uint64_t tick_period_ns;
     struct clipmap_level_desc levels[CLIPMAP_MAX_LEVELS];
+    char error[320];           /* why clipmap_open failed */
+};
+
+/* One level's published state. */
+struct clipmap_level_state {
+    int64_t centre[2];
+    int64_t valid[4]; /* s0, t0, s1, t1: s0 <= s < s1, t0 <= t < t1 */
+    int enabled;
+    uint64_t updated_tick;
+};
+
+/* A consistent copy of the snapshot. */
+struct clipmap_snapshot {
+    uint64_t seq;            /* the (even) sequence it was read at */
+    double min_lod;
+    uint64_t tick;           /* 0: nothing published yet */
+    uint64_t invalid_border;
+    int64_t centre[2];       /* level-0 centre */
+    uint32_t level_count;
+    struct clipmap_level_state levels[CLIPMAP_MAX_LEVELS];
+    char error[200];         /* why clipmap_snapshot last returned CLIPMAP_BUSY or CLIPMAP_CORRUPT */
 };
 
 static inline uint64_t clipmap_splitmix64(uint64_t x) {
@@ -141,6 +237,22 @@ static inline uint64_t clipmap_hash_value(uint32_t level, uint64_t s, uint64_t t
     return clipmap_splitmix64(((uint64_t)level << 58) | (t << 29) | s);
 }
 
+/* Bytes per texel of a known format code; 0 for CLIPMAP_FORMAT_OTHER or an unknown code. */
+static inline uint32_t clipmap_format_bytes(uint32_t code) {
+    switch (code) {
+    case CLIPMAP_FORMAT_L8: return 1;
+    case CLIPMAP_FORMAT_RGB8: return 3;
+    case CLIPMAP_FORMAT_RGBA8: return 4;
+    case CLIPMAP_FORMAT_RGB565: return 2;
+    case CLIPMAP_FORMAT_RGBA5551: return 2;
+    case CLIPMAP_FORMAT_L16: return 2;
+    case CLIPMAP_FORMAT_LA16: return 4;
+    case CLIPMAP_FORMAT_RGB16: return 6;
+    case CLIPMAP_FORMAT_RGBA16: return 8;
+    default: return 0;
+    }
+}
+
 static inline uint32_t clipmap_u32(const struct clipmap_map *m, size_t off) {
     uint32_t v;
     memcpy(&v, m->base + off, 4);
@@ -153,164 +265,535 @@ static inline uint64_t clipmap_u64(const struct clipmap_map *m, size_t off) {
     return v;
 }
 
-/* Atomic 8-byte load of a field the writer changes. */
+/* Atomic 8-byte load of a field the writer changes (off must be 8-aligned and inside). */
 static inline uint64_t clipmap_load(const struct clipmap_map *m, size_t off, int order) {
     return __atomic_load_n((const uint64_t *)(const void *)(m->base + off), order);
 }
 
-/* Maps `path` and checks magic, version and every size. 0 on success; else -1 with `err` set. */
-static inline int clipmap_open(const char *path, struct clipmap_map *m, char *err, size_t errlen) {
-    memset(m, 0, sizeof *m);
-    int fd = open(path, O_RDWR);
-    if (fd < 0) fd = open(path, O_RDONLY);
-    if (fd < 0) {
-        snprintf(err, errlen, "%s: %s", path, strerror(errno));
-        return -1;
-    }
-    struct stat st;
-    if (fstat(fd, &st) != 0) {
-        snprintf(err, errlen, "%s: %s", path, strerror(errno));
-        close(fd);
-        return -1;
-    }
-    if ((uint64_t)st.st_size < CLIPMAP_H_END) {
-        snprintf(err, errlen, "%s: truncated: %lld bytes, a mapping has at least %d", path, (long long)st.st_size,
-                 CLIPMAP_H_END);
-        close(fd);
-        return -1;
-    }
-    int prot = PROT_READ | ((fcntl(fd, F_GETFL) & O_ACCMODE) == O_RDWR ? PROT_WRITE : 0);
-    void *p = mmap(NULL, (size_t)st.st_size, prot, MAP_SHARED, fd, 0);
-    close(fd);
-    if (p == MAP_FAILED) {
-        snprintf(err, errlen, "%s: mmap: %s", path, strerror(errno));
-        return -1;
-    }
-    m->base = (unsigned char *)p;
-    m->len = (size_t)st.st_size;
-#define CLIPMAP_FAIL(...)                   \
-    do {                                    \
-        snprintf(err, errlen, __VA_ARGS__); \
-        munmap(m->base, m->len);            \
-        m->base = NULL;                     \
-        return -1;                          \
+static inline void clipmap_pause(void) {
+#if defined(__x86_64__) || defined(__i386__)
+    __builtin_ia32_pause();
+#elif defined(__aarch64__)
+    __asm__ __volatile__("yield");
+#endif
+}
+
+/* Overflow-checked a + b and a * b: 0 on overflow. */
+static inline int clipmap_add(uint64_t a, uint64_t b, uint64_t *r) { return !__builtin_add_overflow(a, b, r); }
+static inline int clipmap_mul(uint64_t a, uint64_t b, uint64_t *r) { return !__builtin_mul_overflow(a, b, r); }
+
+static inline uint64_t clipmap_div_ceil(uint64_t a, uint64_t b) { return a / b + (a % b != 0); }
+
+/* Euclidean a mod n (n > 0). */
+static inline uint64_t clipmap_mod(int64_t a, uint64_t n) {
+    if (a >= 0) return (uint64_t)a % n;
+    uint64_t r = (uint64_t)(-(a + 1)) % n; /* -(a+1) cannot overflow */
+    return n - 1 - r;
+}
+
+/* Floor of a / n (n > 0). */
+static inline int64_t clipmap_floor_div(int64_t a, uint64_t n) {
+    if (n > (uint64_t)INT64_MAX) return a >= 0 ? 0 : -1;
+    int64_t q = a / (int64_t)n;
+    if (a % (int64_t)n < 0) q--;
+    return q;
+}
+
+/* Slot index of tile (S, T): (T mod GH) * GW + (S mod GW), Euclidean. */
+static inline uint64_t clipmap_slot_index(const struct clipmap_level_desc *d, int64_t S, int64_t T) {
+    return clipmap_mod(T, d->grid[1]) * d->grid[0] + clipmap_mod(S, d->grid[0]);
+}
+
+/* Checks the static fields of the mapping at m->base (m->len bytes) as docs/SHM.md, "What a
+ * reader checks", lists them; fills m. 0 on success, else -1 with m->error set. */
+static inline int clipmap_check_static(struct clipmap_map *m, const char *path) {
+#define CLIPMAP_REFUSE(...)                                                          \
+    do {                                                                             \
+        int n_ = snprintf(m->error, sizeof m->error, "%s: ", path);                  \
+        if (n_ < 0 || (size_t)n_ >= sizeof m->error) n_ = 0;                         \
+        snprintf(m->error + n_, sizeof m->error - (size_t)n_, __VA_ARGS__);          \
+        return -1;                                                                   \
     } while (0)
-    if (memcmp(m->base + CLIPMAP_H_MAGIC, CLIPMAP_MAGIC, 8) != 0)
-        CLIPMAP_FAIL("%s: wrong magic: not a clipmap mapping (expected \"CLIPMAP1\")", path);
-    __atomic_thread_fence(__ATOMIC_ACQUIRE);
+    if (m->len < CLIPMAP_H_END)
+        CLIPMAP_REFUSE("truncated: %zu bytes, a mapping has at least %d", m->len, CLIPMAP_H_END);
+    if (memcmp(m->base + CLIPMAP_H_MAGIC, CLIPMAP_MAGIC, 7) != 0) {
+        char shown[40];
+        size_t k = 0;
+        for (int i = 0; i < 8; i++) {
+            unsigned c = m->base[i];
+            k += (size_t)snprintf(shown + k, sizeof shown - k, c >= 32 && c < 127 && c != '"' && c != '\\' ? "%c" : "\\x%02x", c);
+        }
+        CLIPMAP_REFUSE("wrong magic \"%s\": not a clipmap mapping (expected \"%s\")", shown, CLIPMAP_MAGIC);
+    }
     uint32_t version = clipmap_u32(m, CLIPMAP_H_VERSION);
-    if (version != CLIPMAP_VERSION)
-        CLIPMAP_FAIL("%s: layout version %u; this reader reads version %u", path, version, CLIPMAP_VERSION);
+    if (m->base[7] != '2' || version != CLIPMAP_VERSION)
+        CLIPMAP_REFUSE("layout version %u (magic \"CLIPMAP%c\"); this reader reads layout version %u only",
+                       version, m->base[7] >= 32 && m->base[7] < 127 ? m->base[7] : '?', CLIPMAP_VERSION);
     uint64_t total = clipmap_u64(m, CLIPMAP_H_TOTAL_BYTES);
     if (total != (uint64_t)m->len)
-        CLIPMAP_FAIL("%s: the header says %llu bytes but the file has %llu", path, (unsigned long long)total,
-                     (unsigned long long)m->len);
+        CLIPMAP_REFUSE("the header says %llu bytes but the file has %zu (truncated or padded)",
+                       (unsigned long long)total, m->len);
+    uint64_t hb = clipmap_u32(m, CLIPMAP_H_HEADER_BYTES);
+    if (hb % CLIPMAP_PAGE != 0 || hb < CLIPMAP_H_END || hb > total)
+        CLIPMAP_REFUSE("header bytes %llu: expected a multiple of %u, at least %d and at most the %llu bytes of the mapping",
+                       (unsigned long long)hb, CLIPMAP_PAGE, CLIPMAP_H_END, (unsigned long long)total);
+    m->header_bytes = hb;
     m->bytes_per_texel = clipmap_u32(m, CLIPMAP_H_BYTES_PER_TEXEL);
     m->clip_size = clipmap_u32(m, CLIPMAP_H_CLIP_SIZE);
     m->level_count = clipmap_u32(m, CLIPMAP_H_LEVEL_COUNT);
     m->texel_format = clipmap_u32(m, CLIPMAP_H_TEXEL_FORMAT);
+    m->writer_pid = clipmap_u32(m, CLIPMAP_H_WRITER_PID);
+    m->size[0] = clipmap_u64(m, CLIPMAP_H_LEVEL0_S);
+    m->size[1] = clipmap_u64(m, CLIPMAP_H_LEVEL0_T);
     m->generation = clipmap_u64(m, CLIPMAP_H_GENERATION);
-    if (m->bytes_per_texel == 0 || m->bytes_per_texel > 64 || m->clip_size == 0 || m->level_count == 0 ||
-        m->level_count > CLIPMAP_MAX_LEVELS)
-        CLIPMAP_FAIL("%s: implausible header: %u bytes per texel, clip %u, %u levels", path, m->bytes_per_texel,
-                     m->clip_size, m->level_count);
-    uint64_t header_bytes = clipmap_u32(m, CLIPMAP_H_HEADER_BYTES);
-    uint64_t prev_end = header_bytes;
-    for (uint32_t i = 0; i < m->level_count; i++) {
-        size_t b = CLIPMAP_H_LEVEL_DESCS + (size_t)i * CLIPMAP_DESC_BYTES;
-        struct clipmap_level_desc *d = &m->levels[i];
+    m->tick_period_ns = clipmap_u64(m, CLIPMAP_H_TICK_PERIOD_NS);
+    uint64_t bpt = m->bytes_per_texel, clip = m->clip_size;
+    if (bpt < 1 || bpt > 64) CLIPMAP_REFUSE("%llu bytes per texel: expected 1 to 64", (unsigned long long)bpt);
+    uint32_t fb = clipmap_format_bytes(m->texel_format);
+    if (fb != 0 && fb != bpt)
+        CLIPMAP_REFUSE("texel format %u has %u bytes per texel, the header says %llu", m->texel_format, fb,
+                       (unsigned long long)bpt);
+    if (clip == 0) CLIPMAP_REFUSE("clip size 0: expected at least 1");
+    if (m->level_count < 1 || m->level_count > CLIPMAP_MAX_LEVELS)
+        CLIPMAP_REFUSE("%u levels: expected 1 to %u", m->level_count, CLIPMAP_MAX_LEVELS);
+    if (m->size[0] == 0 || m->size[1] == 0)
+        CLIPMAP_REFUSE("level 0 is %llux%llu: expected a non-zero size", (unsigned long long)m->size[0],
+                       (unsigned long long)m->size[1]);
+    uint64_t prev_end = hb;
+    for (uint32_t k = 0; k < m->level_count; k++) {
+        size_t b = CLIPMAP_H_LEVEL_DESCS + (size_t)k * CLIPMAP_DESC_BYTES;
+        struct clipmap_level_desc *d = &m->levels[k];
         d->size[0] = clipmap_u64(m, b + CLIPMAP_D_SIZE_S);
         d->size[1] = clipmap_u64(m, b + CLIPMAP_D_SIZE_T);
-        d->offset = clipmap_u64(m, b + CLIPMAP_D_WINDOW_OFFSET);
-        d->bytes = clipmap_u64(m, b + CLIPMAP_D_WINDOW_BYTES);
-        d->window[0] = clipmap_u64(m, b + CLIPMAP_D_WINDOW_S);
-        d->window[1] = clipmap_u64(m, b + CLIPMAP_D_WINDOW_T);
-        d->pyramid = clipmap_u64(m, b + CLIPMAP_D_KIND) == 1;
-        uint64_t ws = d->size[0] < m->clip_size ? d->size[0] : m->clip_size;
-        uint64_t wt = d->size[1] < m->clip_size ? d->size[1] : m->clip_size;
-        int ok = d->window[0] == ws && d->window[1] == wt && ws <= (1u << 16) && wt <= (1u << 16) &&
-                 d->bytes == ws * wt * m->bytes_per_texel && d->offset % CLIPMAP_PAGE == 0 && d->offset >= prev_end &&
-                 d->offset <= total && d->bytes <= total - d->offset;
-        if (!ok) CLIPMAP_FAIL("%s: level %u's window description is inconsistent", path, i);
-        prev_end = d->offset + d->bytes;
+        d->tile[0] = clipmap_u64(m, b + CLIPMAP_D_TILE_S);
+        d->tile[1] = clipmap_u64(m, b + CLIPMAP_D_TILE_T);
+        d->grid[0] = clipmap_u64(m, b + CLIPMAP_D_GRID_S);
+        d->grid[1] = clipmap_u64(m, b + CLIPMAP_D_GRID_T);
+        d->slot_bytes = clipmap_u64(m, b + CLIPMAP_D_SLOT_BYTES);
+        d->tags_offset = clipmap_u64(m, b + CLIPMAP_D_TAGS_OFFSET);
+        d->slots_offset = clipmap_u64(m, b + CLIPMAP_D_SLOTS_OFFSET);
+        uint64_t kind = clipmap_u64(m, b + CLIPMAP_D_KIND);
+        for (int a = 0; a < 2; a++) {
+            uint64_t want = m->size[a] >> k;
+            if (want == 0) want = 1;
+            if (d->size[a] != want)
+                CLIPMAP_REFUSE("level %u is %llux%llu: expected level 0's %llux%llu halved %u times", k,
+                               (unsigned long long)d->size[0], (unsigned long long)d->size[1],
+                               (unsigned long long)m->size[0], (unsigned long long)m->size[1], k);
+        }
+        if (d->tile[0] == 0 || d->tile[1] == 0 || d->grid[0] == 0 || d->grid[1] == 0)
+            CLIPMAP_REFUSE("level %u: tile %llux%llu, grid %llux%llu: expected non-zero tiles and grids", k,
+                           (unsigned long long)d->tile[0], (unsigned long long)d->tile[1],
+                           (unsigned long long)d->grid[0], (unsigned long long)d->grid[1]);
+        int pyramid = d->size[0] <= clip && d->size[1] <= clip;
+        for (int a = 0; a < 2; a++) {
+            uint64_t n = clipmap_div_ceil(d->size[a], d->tile[a]);
+            uint64_t win = d->size[a] < clip ? d->size[a] : clip;
+            uint64_t least = clipmap_div_ceil(win, d->tile[a]) + 1;
+            if (least > n) least = n;
+            if (d->grid[a] > n)
+                CLIPMAP_REFUSE("level %u: grid %llux%llu is larger than the level's %llu tiles along axis %d", k,
+                               (unsigned long long)d->grid[0], (unsigned long long)d->grid[1],
+                               (unsigned long long)n, a);
+            if (d->grid[a] < least)
+                CLIPMAP_REFUSE("level %u: grid %llux%llu cannot hold a %llu-texel window (needs %llu along axis %d)", k,
+                               (unsigned long long)d->grid[0], (unsigned long long)d->grid[1],
+                               (unsigned long long)clip, (unsigned long long)least, a);
+            if (pyramid && d->grid[a] != n)
+                CLIPMAP_REFUSE("level %u: a pyramid level's grid %llux%llu must hold all its %llu tiles along axis %d",
+                               k, (unsigned long long)d->grid[0], (unsigned long long)d->grid[1],
+                               (unsigned long long)n, a);
+        }
+        if (kind != (uint64_t)pyramid)
+            CLIPMAP_REFUSE("level %u (%llux%llu, clip %llu): kind %llu, expected %d (%s)", k,
+                           (unsigned long long)d->size[0], (unsigned long long)d->size[1], (unsigned long long)clip,
+                           (unsigned long long)kind, pyramid, pyramid ? "pyramid" : "stack");
+        d->pyramid = pyramid;
+        uint64_t sb, count, tags_bytes, tags_end, slots_bytes, slots_end;
+        int sb_ok = clipmap_mul(d->tile[0], d->tile[1], &sb) && clipmap_mul(sb, bpt, &sb);
+        if (!sb_ok || sb != d->slot_bytes)
+            CLIPMAP_REFUSE("level %u: slot bytes %llu, expected tile %llux%llu x %llu bytes per texel%s", k,
+                           (unsigned long long)d->slot_bytes, (unsigned long long)d->tile[0],
+                           (unsigned long long)d->tile[1], (unsigned long long)bpt, sb_ok ? "" : " (overflows 64 bits)");
+        if (!clipmap_mul(d->grid[0], d->grid[1], &count) || !clipmap_mul(count, CLIPMAP_TAG_BYTES, &tags_bytes) ||
+            !clipmap_mul(count, d->slot_bytes, &slots_bytes))
+            CLIPMAP_REFUSE("level %u: grid %llux%llu of %llu-byte slots overflows", k, (unsigned long long)d->grid[0],
+                           (unsigned long long)d->grid[1], (unsigned long long)d->slot_bytes);
+        d->slot_count = count;
+        if (d->tags_offset % CLIPMAP_PAGE != 0 || d->tags_offset < prev_end ||
+            !clipmap_add(d->tags_offset, tags_bytes, &tags_end) || tags_end > total)
+            CLIPMAP_REFUSE("level %u: tags at %llu (%llu bytes): expected a page-aligned offset at or after %llu, "
+                           "ending inside the %llu-byte mapping", k, (unsigned long long)d->tags_offset,
+                           (unsigned long long)tags_bytes, (unsigned long long)prev_end, (unsigned long long)total);
+        if (d->slots_offset % CLIPMAP_PAGE != 0 || d->slots_offset < tags_end ||
+            !clipmap_add(d->slots_offset, slots_bytes, &slots_end) || slots_end > total)
+            CLIPMAP_REFUSE("level %u: slots at %llu (%llu bytes): expected a page-aligned offset at or after the tags' "
+                           "end %llu, ending inside the %llu-byte mapping", k, (unsigned long long)d->slots_offset,
+                           (unsigned long long)slots_bytes, (unsigned long long)tags_end, (unsigned long long)total);
+        prev_end = slots_end;
     }
-#undef CLIPMAP_FAIL
+#undef CLIPMAP_REFUSE
+    return 0;
+}
+
+/* Maps `path` read-only and checks every static field. 0 on success; else -1 with m->error
+ * naming what was found and what was expected (and nothing left mapped). */
+static inline int clipmap_open(const char *path, struct clipmap_map *m) {
+    memset(m, 0, sizeof *m);
+#ifdef O_CLOEXEC
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+#else
+    int fd = open(path, O_RDONLY);
+#endif
+    if (fd < 0) {
+        snprintf(m->error, sizeof m->error, "%s: %s", path, strerror(errno));
+        return -1;
+    }
+    struct stat st;
+    if (fstat(fd, &st) != 0) {
+        snprintf(m->error, sizeof m->error, "%s: %s", path, strerror(errno));
+        close(fd);
+        return -1;
+    }
+    if (!S_ISREG(st.st_mode)) {
+        snprintf(m->error, sizeof m->error, "%s: not a regular file", path);
+        close(fd);
+        return -1;
+    }
+    if ((uint64_t)st.st_size < CLIPMAP_H_END) {
+        snprintf(m->error, sizeof m->error, "%s: truncated: %lld bytes, a mapping has at least %d", path,
+                 (long long)st.st_size, CLIPMAP_H_END);
+        close(fd);
+        return -1;
+    }
+    void *p = mmap(NULL, (size_t)st.st_size, PROT_READ, MAP_SHARED, fd, 0);
+    close(fd);
+    if (p == MAP_FAILED) {
+        snprintf(m->error, sizeof m->error, "%s: mmap: %s", path, strerror(errno));
+        return -1;
+    }
+    m->base = (const unsigned char *)p;
+    m->len = (size_t)st.st_size;
+    __atomic_thread_fence(__ATOMIC_ACQUIRE);
+    if (clipmap_check_static(m, path) != 0) {
+        munmap((void *)m->base, m->len);
+        m->base = NULL;
+        m->len = 0;
+        return -1;
+    }
     return 0;
 }
 
 static inline void clipmap_close(struct clipmap_map *m) {
-    if (m->base) munmap(m->base, m->len);
+    if (m->base) munmap((void *)m->base, m->len);
     m->base = NULL;
+    m->len = 0;
 }
 
-/* A consistent copy of one level's state (seqlock). 0 on success, -1 if the writer kept it busy
- * (or died in the middle of a publication). */
-static inline int clipmap_level_state(const struct clipmap_map *m, uint32_t level, struct clipmap_level_state *out) {
-    if (level >= m->level_count) return -1;
-    size_t b = CLIPMAP_H_LEVEL_STATES + (size_t)level * CLIPMAP_STATE_BYTES;
-    for (int tries = 0; tries < 1000; tries++) {
-        uint64_t s1 = clipmap_load(m, b + CLIPMAP_S_SEQ, __ATOMIC_ACQUIRE);
-        if (s1 & 1) continue;
-        out->seq = s1;
-        out->centre[0] = (int64_t)clipmap_load(m, b + CLIPMAP_S_CENTRE_S, __ATOMIC_RELAXED);
-        out->centre[1] = (int64_t)clipmap_load(m, b + CLIPMAP_S_CENTRE_T, __ATOMIC_RELAXED);
-        for (int i = 0; i < 4; i++)
-            out->valid[i] = (int64_t)clipmap_load(m, b + CLIPMAP_S_VALID_S0 + 8 * (size_t)i, __ATOMIC_RELAXED);
-        out->enabled = clipmap_load(m, b + CLIPMAP_S_ENABLED, __ATOMIC_RELAXED) == 1;
-        out->invalid_border = clipmap_load(m, b + CLIPMAP_S_INVALID_BORDER, __ATOMIC_RELAXED);
-        out->updated_tick = clipmap_load(m, b + CLIPMAP_S_UPDATED_TICK, __ATOMIC_RELAXED);
-        __atomic_thread_fence(__ATOMIC_ACQUIRE);
-        if (clipmap_load(m, b + CLIPMAP_S_SEQ, __ATOMIC_RELAXED) == s1) return 0;
+/* Whether an enabled level's region is one a writer publishes: inside the level, non-empty, and
+ * spanning at most GW x GH tiles. */
+static inline int clipmap_region_ok(const struct clipmap_level_desc *d, const int64_t v[4]) {
+    for (int a = 0; a < 2; a++) {
+        int64_t lo = v[a], hi = v[a + 2];
+        if (lo < 0 || hi <= lo || (uint64_t)hi > d->size[a]) return 0;
+        uint64_t tiles = ((uint64_t)hi - 1) / d->tile[a] - (uint64_t)lo / d->tile[a] + 1;
+        if (tiles > d->grid[a]) return 0;
     }
-    return -1;
+    return 1;
 }
 
-static inline int64_t clipmap_mod(int64_t a, int64_t n) {
-    int64_t r = a % n;
-    return r < 0 ? r + n : r;
-}
-
-/* Copies the w x h texels of `level` starting at (s0, t0) into `out` (rows in increasing t, s
- * fastest). 0: a consistent copy of texels inside the published valid region; 1: the region is
- * not (now) inside the valid region; -1: the level kept changing. */
-static inline int clipmap_read_region(const struct clipmap_map *m, uint32_t level, int64_t s0, int64_t t0, uint64_t w,
-                                      uint64_t h, unsigned char *out) {
-    if (level >= m->level_count) return 1;
-    const struct clipmap_level_desc *d = &m->levels[level];
-    size_t b = CLIPMAP_H_LEVEL_STATES + (size_t)level * CLIPMAP_STATE_BYTES;
-    uint64_t bpt = m->bytes_per_texel;
-    int64_t clip = (int64_t)m->clip_size;
-    for (int tries = 0; tries < 64; tries++) {
-        struct clipmap_level_state st;
-        if (clipmap_level_state(m, level, &st) != 0) continue;
-        if (!st.enabled || s0 < st.valid[0] || t0 < st.valid[1] || s0 + (int64_t)w > st.valid[2] ||
-            t0 + (int64_t)h > st.valid[3])
-            return 1;
-        for (uint64_t row = 0; row < h; row++) {
-            uint64_t slot_t = (uint64_t)clipmap_mod(t0 + (int64_t)row, clip);
-            uint64_t done = 0;
-            while (done < w) {
-                uint64_t slot_s = (uint64_t)clipmap_mod(s0 + (int64_t)done, clip);
-                uint64_t run = w - done;
-                if (run > d->window[0] - slot_s) run = d->window[0] - slot_s;
-                memcpy(out + (row * w + done) * bpt, m->base + d->offset + (slot_t * d->window[0] + slot_s) * bpt,
-                       run * bpt);
-                done += run;
-            }
+/* Takes a consistent copy of the snapshot (seqlock, at most CLIPMAP_MAX_RETRIES attempts) and
+ * checks it. CLIPMAP_OK: *snap is the new snapshot. CLIPMAP_BUSY (the writer kept it locked) or
+ * CLIPMAP_CORRUPT (published state outside its bounds): *snap keeps what it held, except that
+ * snap->error says why. */
+static inline int clipmap_snapshot(const struct clipmap_map *m, struct clipmap_snapshot *snap) {
+    const size_t b = CLIPMAP_H_SNAPSHOT;
+    const uint32_t n = m->level_count;
+    struct clipmap_snapshot x;
+    uint64_t enabled[CLIPMAP_MAX_LEVELS], lod_bits = 0;
+    int got = 0;
+    memset(&x, 0, sizeof x);
+    for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES && !got; attempt++) {
+        uint64_t s1 = clipmap_load(m, b + CLIPMAP_SNAP_SEQ, __ATOMIC_ACQUIRE);
+        if (s1 & 1) {
+            clipmap_pause();
+            continue;
+        }
+        lod_bits = clipmap_load(m, b + CLIPMAP_SNAP_MIN_LOD, __ATOMIC_RELAXED);
+        x.tick = clipmap_load(m, b + CLIPMAP_SNAP_TICK, __ATOMIC_RELAXED);
+        x.invalid_border = clipmap_load(m, b + CLIPMAP_SNAP_INVALID_BORDER, __ATOMIC_RELAXED);
+        x.centre[0] = (int64_t)clipmap_load(m, b + CLIPMAP_SNAP_CENTRE_S, __ATOMIC_RELAXED);
+        x.centre[1] = (int64_t)clipmap_load(m, b + CLIPMAP_SNAP_CENTRE_T, __ATOMIC_RELAXED);
+        for (uint32_t k = 0; k < n; k++) {
+            size_t l = b + CLIPMAP_SNAP_LEVELS + (size_t)k * CLIPMAP_STATE_BYTES;
+            struct clipmap_level_state *s = &x.levels[k];
+            s->centre[0] = (int64_t)clipmap_load(m, l + CLIPMAP_S_CENTRE_S, __ATOMIC_RELAXED);
+            s->centre[1] = (int64_t)clipmap_load(m, l + CLIPMAP_S_CENTRE_T, __ATOMIC_RELAXED);
+            for (int i = 0; i < 4; i++)
+                s->valid[i] = (int64_t)clipmap_load(m, l + CLIPMAP_S_VALID_S0 + 8 * (size_t)i, __ATOMIC_RELAXED);
+            enabled[k] = clipmap_load(m, l + CLIPMAP_S_ENABLED, __ATOMIC_RELAXED);
+            s->updated_tick = clipmap_load(m, l + CLIPMAP_S_UPDATED_TICK, __ATOMIC_RELAXED);
         }
         __atomic_thread_fence(__ATOMIC_ACQUIRE);
-        if (clipmap_load(m, b + CLIPMAP_S_SEQ, __ATOMIC_RELAXED) == st.seq) return 0;
+        if (clipmap_load(m, b + CLIPMAP_SNAP_SEQ, __ATOMIC_RELAXED) == s1) {
+            got = 1;
+            x.seq = s1;
+        }
     }
-    return -1;
+    if (!got) {
+        snprintf(snap->error, sizeof snap->error, "the writer kept the snapshot locked for %d attempts",
+                 CLIPMAP_MAX_RETRIES);
+        return CLIPMAP_BUSY;
+    }
+    x.level_count = n;
+    memcpy(&x.min_lod, &lod_bits, 8);
+    if (!(x.min_lod >= 0.0 && x.min_lod <= (double)n)) { /* refuses NaN too; infinities are out of range */
+        snprintf(snap->error, sizeof snap->error, "published min LOD %g (bits %016llx): expected a finite value in 0..=%u",
+                 x.min_lod, (unsigned long long)lod_bits, n);
+        return CLIPMAP_CORRUPT;
+    }
+    for (uint32_t k = 0; k < n; k++) {
+        struct clipmap_level_state *s = &x.levels[k];
+        const struct clipmap_level_desc *d = &m->levels[k];
+        if (enabled[k] > 1) {
+            snprintf(snap->error, sizeof snap->error, "level %u: published enabled flag %llu: expected 0 or 1", k,
+                     (unsigned long long)enabled[k]);
+            return CLIPMAP_CORRUPT;
+        }
+        s->enabled = enabled[k] == 1;
+        if (s->enabled && !clipmap_region_ok(d, s->valid)) {
+            snprintf(snap->error, sizeof snap->error,
+                     "level %u: published region [%lld, %lld) x [%lld, %lld): expected a non-empty rectangle "
+                     "inside the %llux%llu level spanning at most %llux%llu tiles", k, (long long)s->valid[0],
+                     (long long)s->valid[2], (long long)s->valid[1], (long long)s->valid[3],
+                     (unsigned long long)d->size[0], (unsigned long long)d->size[1],
+                     (unsigned long long)d->grid[0], (unsigned long long)d->grid[1]);
+            return CLIPMAP_CORRUPT;
+        }
+    }
+    memcpy(snap, &x, sizeof x);
+    return CLIPMAP_OK;
 }
 
-/* Milliseconds since the writer's last heartbeat. */
+/* The address of texel (s, t) of `level` in the slot its tile maps to, or NULL when the level
+ * does not exist or (s, t) is outside it. It says nothing about what the slot holds: use the
+ * tag protocol (clipmap_tag_try / clipmap_tag_end) around any copy. */
+static inline const unsigned char *clipmap_texel_ptr(const struct clipmap_map *m, uint32_t level, int64_t s,
+                                                     int64_t t) {
+    if (level >= m->level_count || s < 0 || t < 0) return NULL;
+    const struct clipmap_level_desc *d = &m->levels[level];
+    if ((uint64_t)s >= d->size[0] || (uint64_t)t >= d->size[1]) return NULL;
+    uint64_t S = (uint64_t)s / d->tile[0], T = (uint64_t)t / d->tile[1];
+    uint64_t slot = (T % d->grid[1]) * d->grid[0] + S % d->grid[0];
+    uint64_t in = ((uint64_t)t - T * d->tile[1]) * d->tile[0] + ((uint64_t)s - S * d->tile[0]);
+    return m->base + d->slots_offset + slot * d->slot_bytes + in * m->bytes_per_texel;
+}
+
+/* One attempt at step 2 of reading a tile (docs/SHM.md, "Reading consistently"): loads the tag
+ * of tile (S, T)'s slot. CLIPMAP_OK (ready or default; *seq set: copy, then clipmap_tag_end),
+ * CLIPMAP_MISSING, CLIPMAP_STALE (another tile, loading, empty or an unknown state), or
+ * CLIPMAP_BUSY (the tag was odd or changed while read: try again). `level` must exist. */
+static inline int clipmap_tag_try(const struct clipmap_map *m, uint32_t level, int64_t S, int64_t T, uint64_t *seq) {
+    const struct clipmap_level_desc *d = &m->levels[level];
+    size_t tag = (size_t)(d->tags_offset + clipmap_slot_index(d, S, T) * CLIPMAP_TAG_BYTES);
+    uint64_t s1 = clipmap_load(m, tag + CLIPMAP_T_SEQ, __ATOMIC_ACQUIRE);
+    if (s1 & 1) return CLIPMAP_BUSY;
+    int64_t ts = (int64_t)clipmap_load(m, tag + CLIPMAP_T_TILE_S, __ATOMIC_RELAXED);
+    int64_t tt = (int64_t)clipmap_load(m, tag + CLIPMAP_T_TILE_T, __ATOMIC_RELAXED);
+    uint64_t state = clipmap_load(m, tag + CLIPMAP_T_STATE, __ATOMIC_RELAXED);
+    if (ts == S && tt == T && (state == CLIPMAP_SLOT_READY || state == CLIPMAP_SLOT_DEFAULT)) {
+        *seq = s1; /* confirmed by clipmap_tag_end after the copy */
+        return CLIPMAP_OK;
+    }
+    /* Any other verdict stands only if the tag did not change while it was read. */
+    __atomic_thread_fence(__ATOMIC_ACQUIRE);
+    if (clipmap_load(m, tag + CLIPMAP_T_SEQ, __ATOMIC_RELAXED) != s1) return CLIPMAP_BUSY;
+    return ts == S && tt == T && state == CLIPMAP_SLOT_MISSING ? CLIPMAP_MISSING : CLIPMAP_STALE;
+}
+
+/* Step 4: 1 when the tag of tile (S, T)'s slot still has sequence `seq` after the copy (the copy
+ * stands), 0 when the slot changed meanwhile (discard the copy and retry from clipmap_tag_try). */
+static inline int clipmap_tag_end(const struct clipmap_map *m, uint32_t level, int64_t S, int64_t T, uint64_t seq) {
+    const struct clipmap_level_desc *d = &m->levels[level];
+    size_t tag = (size_t)(d->tags_offset + clipmap_slot_index(d, S, T) * CLIPMAP_TAG_BYTES);
+    __atomic_thread_fence(__ATOMIC_ACQUIRE);
+    return clipmap_load(m, tag + CLIPMAP_T_SEQ, __ATOMIC_RELAXED) == seq;
+}
+
+/* Copies the w x h texels of `level` from (s0, t0) into `out` (row-major, rows in increasing t,
+ * row pitch w * bytes per texel), tile by tile across tile edges and the toroidal wrap, each
+ * tile under its tag protocol. The rectangle must lie inside the level's region in `snap`.
+ * CLIPMAP_OK: a consistent copy. CLIPMAP_NOT_VALID: no such level, disabled, or outside the
+ * region. CLIPMAP_MISSING: a tile could not be read (use a coarser level). CLIPMAP_STALE: a
+ * slot holds another tile (take a new snapshot). CLIPMAP_BUSY: a tag stayed locked or kept
+ * changing for CLIPMAP_MAX_RETRIES attempts. CLIPMAP_CORRUPT: `snap` was not accepted by
+ * clipmap_snapshot. On anything but CLIPMAP_OK, `out` holds unspecified bytes. */
+static inline int clipmap_read_region(const struct clipmap_map *m, const struct clipmap_snapshot *snap,
+                                      uint32_t level, int64_t s0, int64_t t0, uint64_t w, uint64_t h,
+                                      unsigned char *out) {
+    if (level >= m->level_count || level >= snap->level_count) return CLIPMAP_NOT_VALID;
+    const struct clipmap_level_desc *d = &m->levels[level];
+    const struct clipmap_level_state *st = &snap->levels[level];
+    if (st->enabled != 1) return st->enabled == 0 ? CLIPMAP_NOT_VALID : CLIPMAP_CORRUPT;
+    if (!clipmap_region_ok(d, st->valid)) return CLIPMAP_CORRUPT;
+    if (w == 0 || h == 0) return CLIPMAP_OK;
+    /* Inside [v0, v1): s0 >= v0, s0 < v1 and w <= v1 - s0 (no overflow: v1 - s0 > 0). */
+    if (s0 < st->valid[0] || s0 >= st->valid[2] || w > (uint64_t)(st->valid[2] - s0) || t0 < st->valid[1] ||
+        t0 >= st->valid[3] || h > (uint64_t)(st->valid[3] - t0))
+        return CLIPMAP_NOT_VALID;
+    const uint64_t bpt = m->bytes_per_texel, tw = d->tile[0], th = d->tile[1];
+    const uint64_t us0 = (uint64_t)s0, ut0 = (uint64_t)t0, us1 = us0 + w, ut1 = ut0 + h;
+    for (uint64_t T = ut0 / th; T <= (ut1 - 1) / th; T++) {
+        uint64_t ta = T * th > ut0 ? T * th : ut0, tb = (T + 1) * th < ut1 ? (T + 1) * th : ut1;
+        for (uint64_t S = us0 / tw; S <= (us1 - 1) / tw; S++) {
+            uint64_t sa = S * tw > us0 ? S * tw : us0, sbnd = (S + 1) * tw < us1 ? (S + 1) * tw : us1;
+            const unsigned char *slot =
+                m->base + d->slots_offset + clipmap_slot_index(d, (int64_t)S, (int64_t)T) * d->slot_bytes;
+            int done = 0; /* one budget of CLIPMAP_MAX_RETRIES attempts per tile */
+            for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES && !done; attempt++) {
+                uint64_t seq;
+                int rc = clipmap_tag_try(m, level, (int64_t)S, (int64_t)T, &seq);
+                if (rc == CLIPMAP_BUSY) {
+                    clipmap_pause();
+                    continue;
+                }
+                if (rc != CLIPMAP_OK) return rc;
+                for (uint64_t t = ta; t < tb; t++)
+                    memcpy(out + ((t - ut0) * w + (sa - us0)) * bpt,
+                           slot + ((t - T * th) * tw + (sa - S * tw)) * bpt, (size_t)((sbnd - sa) * bpt));
+                done = clipmap_tag_end(m, level, (int64_t)S, (int64_t)T, seq);
+            }
+            if (!done) return CLIPMAP_BUSY;
+        }
+    }
+    return CLIPMAP_OK;
+}
+
+/* Milliseconds since the writer's last heartbeat (0 if it is in the future). */
 static inline uint64_t clipmap_heartbeat_age_ms(const struct clipmap_map *m) {
     struct timespec ts;
     clock_gettime(CLOCK_REALTIME, &ts);
     uint64_t now = (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
     uint64_t beat = clipmap_load(m, CLIPMAP_H_HEARTBEAT_MS, __ATOMIC_ACQUIRE);
     return now > beat ? now - beat : 0;
+}
+
+/* 1 when the writer shut down cleanly (flag bit 0). */
+static inline int clipmap_closed(const struct clipmap_map *m) {
+    return (int)(clipmap_load(m, CLIPMAP_H_FLAGS, __ATOMIC_ACQUIRE) & 1);
+}
+
+/* The request mapping (DIR/clipmap-NAME.req), mapped read-write: how a renderer asks for a
+ * centre. */
+struct clipmap_request {
+    unsigned char *base;
+    size_t len;
+    char error[320];
+};
+
+/* Maps the request mapping `path` read-write and checks its magic, version, size and that its
+ * generation equals the texel mapping's `m` (else the files belong to different starts of the
+ * service: open both again). 0 on success, else -1 with r->error set. */
+static inline int clipmap_request_open(const char *path, const struct clipmap_map *m, struct clipmap_request *r) {
+    memset(r, 0, sizeof *r);
+#ifdef O_CLOEXEC
+    int fd = open(path, O_RDWR | O_CLOEXEC);
+#else
+    int fd = open(path, O_RDWR);
+#endif
+    struct stat st;
+    if (fd < 0 || fstat(fd, &st) != 0) {
+        snprintf(r->error, sizeof r->error, "%s: %s", path, strerror(errno));
+        if (fd >= 0) close(fd);
+        return -1;
+    }
+    if (!S_ISREG(st.st_mode) || (uint64_t)st.st_size != CLIPMAP_REQUEST_BYTES) {
+        snprintf(r->error, sizeof r->error, "%s: %lld bytes: expected a regular file of %u bytes", path,
+                 (long long)st.st_size, CLIPMAP_REQUEST_BYTES);
+        close(fd);
+        return -1;
+    }
+    void *p = mmap(NULL, CLIPMAP_REQUEST_BYTES, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+    close(fd);
+    if (p == MAP_FAILED) {
+        snprintf(r->error, sizeof r->error, "%s: mmap: %s", path, strerror(errno));
+        return -1;
+    }
+    r->base = (unsigned char *)p;
+    r->len = CLIPMAP_REQUEST_BYTES;
+    uint32_t version;
+    uint64_t generation;
+    memcpy(&version, r->base + CLIPMAP_R_VERSION, 4);
+    memcpy(&generation, r->base + CLIPMAP_R_GENERATION, 8);
+    char magic[9];
+    for (int i = 0; i < 8; i++) magic[i] = r->base[i] >= 32 && r->base[i] < 127 ? (char)r->base[i] : '?';
+    magic[8] = 0;
+    if (memcmp(r->base + CLIPMAP_R_MAGIC, CLIPMAP_REQUEST_MAGIC, 8) != 0 || version != CLIPMAP_VERSION)
+        snprintf(r->error, sizeof r->error, "%s: magic \"%s\", version %u: expected \"%s\", version %u", path, magic,
+                 version, CLIPMAP_REQUEST_MAGIC, CLIPMAP_VERSION);
+    else if (generation != m->generation)
+        snprintf(r->error, sizeof r->error,
+                 "%s: generation %llu, the texel mapping's is %llu: they belong to different starts of the service",
+                 path, (unsigned long long)generation, (unsigned long long)m->generation);
+    else
+        return 0;
+    munmap(r->base, r->len);
+    r->base = NULL;
+    return -1;
+}
+
+static inline uint64_t clipmap_now_ms_(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
+}
+
+/* Asks for centre (s, t) (level-0 texels) with velocity (vs, vt) (texels per second, 0 when
+ * unknown), under the request seqlock: compare-and-swap from even v to v + 1, write, store v + 2.
+ * A counter left odd for more than 100 ms (a renderer died mid-write) is advanced to even.
+ * CLIPMAP_OK, or CLIPMAP_BUSY after about a second of other renderers holding it. */
+static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, int64_t t, double vs, double vt) {
+    uint64_t *seq = (uint64_t *)(void *)(r->base + CLIPMAP_R_SEQ);
+    uint64_t odd = 0, odd_since = 0, start = clipmap_now_ms_();
+    for (;;) {
+        uint64_t v = __atomic_load_n(seq, __ATOMIC_RELAXED);
+        if (v & 1) {
+            uint64_t now = clipmap_now_ms_();
+            if (v != odd) {
+                odd = v;
+                odd_since = now;
+            } else if (now - odd_since > 100) {
+                uint64_t expect = v; /* forward only: from that odd value to the next even one */
+                __atomic_compare_exchange_n(seq, &expect, v + 1, 0, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED);
+                odd = 0;
+            }
+            if (now - start > 1000) return CLIPMAP_BUSY;
+            clipmap_pause();
+            continue;
+        }
+        uint64_t expect = v;
+        if (!__atomic_compare_exchange_n(seq, &expect, v + 1, 0, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED)) continue;
+        __atomic_thread_fence(__ATOMIC_RELEASE);
+        uint64_t bits_s, bits_t;
+        memcpy(&bits_s, &vs, 8);
+        memcpy(&bits_t, &vt, 8);
+#define CLIPMAP_RSTORE_(off, val) __atomic_store_n((uint64_t *)(void *)(r->base + (off)), (val), __ATOMIC_RELAXED)
+        CLIPMAP_RSTORE_(CLIPMAP_R_CENTRE_S, (uint64_t)s);
+        CLIPMAP_RSTORE_(CLIPMAP_R_CENTRE_T, (uint64_t)t);
+        CLIPMAP_RSTORE_(CLIPMAP_R_VEL_S, bits_s);
+        CLIPMAP_RSTORE_(CLIPMAP_R_VEL_T, bits_t);
+        CLIPMAP_RSTORE_(CLIPMAP_R_CLIENT_PID, (uint64_t)getpid());
+        uint64_t count = __atomic_load_n((uint64_t *)(void *)(r->base + CLIPMAP_R_COUNT), __ATOMIC_RELAXED);
+        CLIPMAP_RSTORE_(CLIPMAP_R_COUNT, count + 1);
+#undef CLIPMAP_RSTORE_
+        __atomic_store_n(seq, v + 2, __ATOMIC_RELEASE);
+        return CLIPMAP_OK;
+    }
+}
+
+static inline void clipmap_request_close(struct clipmap_request *r) {
+    if (r->base) munmap(r->base, r->len);
+    r->base = NULL;
 }
 
 #endif /* CLIPMAP_SHM_H */

@@ -1,14 +1,51 @@
-/* reader.c: reads random texels inside the published valid regions of a clip texture served by
- * `clipmapd --source hash` and checks every one against the verification texture.
+/* reader.c: reads random texel blocks inside the published valid regions of a clip texture served
+ * by `clipmapd --source hash` and checks every texel against the verification texture.
  *
  *   cc -O2 -I include clients/c/reader.c -o reader
  *   ./reader /dev/shm/clipmap-hash.map 1000000 [seed [seconds]]
  *
- * Stops after READS texels or SECONDS seconds (default 120), whichever comes first.
- * Prints "N passed, M failed". Exit status: 0 all passed, 1 a mismatch, 2 could not read. */
+ * Stops after READS texels or SECONDS seconds (default 120), whichever comes first. Blocks are
+ * small (up to 8x8), large (up to 128x128) or placed across a tile corner, so reads cross tile
+ * edges and the grid's toroidal wrap. Blocks over a missing tile, or that find the writer busy or
+ * the snapshot stale, are skipped (and the snapshot taken again), not failures.
+ * Prints "N passed, M failed (...)". Exit status: 0 no mismatch, 1 a mismatch, 2 the mapping was
+ * refused (at open, or published state out of bounds), with the reason on stderr. */
 #include "clipmap_shm.h"
 
 #include <stdlib.h>
+
+enum { SMALL = 8, LARGE = 128 };
+
+static uint64_t next(uint64_t *rng) {
+    *rng = clipmap_splitmix64(*rng);
+    return *rng;
+}
+
+/* A random extent [lo, lo + n) inside [v0, v1) along one axis, tile size `tile`: mode 0 small,
+ * 1 large, 2 across a tile edge where the region has one. */
+static void pick(uint64_t *rng, int mode, int64_t v0, int64_t v1, uint64_t tile, int64_t *lo, uint64_t *n) {
+    uint64_t span = (uint64_t)(v1 - v0);
+    if (mode == 2) {
+        /* The first tile edge at or after a random texel; a block a few texels either side. */
+        int64_t at = v0 + (int64_t)(next(rng) % span);
+        uint64_t e = ((uint64_t)at / tile + 1) * tile;
+        if (e > (uint64_t)v0 && e < (uint64_t)v1) {
+            uint64_t before = 1 + next(rng) % SMALL, after = 1 + next(rng) % SMALL;
+            int64_t a = (int64_t)e - (int64_t)before;
+            if (a < v0) a = v0;
+            uint64_t b = e + after;
+            if (b > (uint64_t)v1) b = (uint64_t)v1;
+            *lo = a;
+            *n = b - (uint64_t)a;
+            return;
+        }
+        mode = 0;
+    }
+    uint64_t most = mode == 0 ? SMALL : LARGE;
+    uint64_t w = 1 + next(rng) % (span < most ? span : most);
+    *lo = v0 + (int64_t)(next(rng) % (span - w + 1));
+    *n = w;
+}
 
 int main(int argc, char **argv) {
     if (argc < 3) {
@@ -16,52 +53,118 @@ int main(int argc, char **argv) {
         return 2;
     }
     struct clipmap_map m;
-    char err[512];
-    if (clipmap_open(argv[1], &m, err, sizeof err) != 0) {
-        fprintf(stderr, "clipmap reader: %s\n", err);
+    if (clipmap_open(argv[1], &m) != 0) {
+        fprintf(stderr, "clipmap reader: %s\n", m.error);
         return 2;
     }
-    unsigned long long reads = strtoull(argv[2], NULL, 10);
-    uint64_t rng = argc > 3 ? strtoull(argv[3], NULL, 10) : 1;
+    char *end;
+    unsigned long long reads = strtoull(argv[2], &end, 10);
+    int bad = *argv[2] == 0 || *end != 0;
+    uint64_t rng = 1;
+    if (argc > 3) {
+        rng = strtoull(argv[3], &end, 10);
+        bad |= *argv[3] == 0 || *end != 0;
+    }
+    double seconds = 120.0;
+    if (argc > 4) {
+        seconds = strtod(argv[4], &end);
+        bad |= *argv[4] == 0 || *end != 0;
+    }
+    if (bad) {
+        fprintf(stderr, "usage: %s MAPPING READS [SEED [SECONDS]]: READS and SEED are integers, SECONDS a number\n",
+                argv[0]);
+        clipmap_close(&m);
+        return 2;
+    }
     uint64_t bpt = m.bytes_per_texel;
-    unsigned long long passed = 0, failed = 0, busy = 0;
-    enum { BLOCK = 8 };
-    unsigned char buf[BLOCK * BLOCK * 64];
-    time_t give_up = time(NULL) + (argc > 4 ? atol(argv[4]) : 120);
-    while (passed + failed < reads && time(NULL) < give_up) {
-        rng = clipmap_splitmix64(rng);
-        uint32_t level = (uint32_t)(rng % m.level_count);
-        struct clipmap_level_state st;
-        if (clipmap_level_state(&m, level, &st) != 0) {
-            busy++;
+    unsigned long long passed = 0, failed = 0, busy = 0, stale = 0, missing = 0, moved = 0, idle = 0;
+    unsigned long long blocks = 0, crossing = 0;
+    unsigned char *buf = malloc((size_t)LARGE * LARGE * 64);
+    if (!buf) {
+        fprintf(stderr, "clipmap reader: out of memory\n");
+        return 2;
+    }
+    struct clipmap_snapshot snap;
+    memset(&snap, 0, sizeof snap);
+    int have = 0;
+    struct timespec t0, now;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    for (unsigned long long iter = 0; passed + failed < reads; iter++) {
+        if ((iter & 63) == 0) {
+            clock_gettime(CLOCK_MONOTONIC, &now);
+            if ((double)(now.tv_sec - t0.tv_sec) + 1e-9 * (double)(now.tv_nsec - t0.tv_nsec) >= seconds) break;
+        }
+        if (!have || (iter & 255) == 0) {
+            int rc = clipmap_snapshot(&m, &snap);
+            if (rc == CLIPMAP_CORRUPT) {
+                fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], snap.error);
+                free(buf);
+                clipmap_close(&m);
+                return 2;
+            }
+            if (rc == CLIPMAP_BUSY) {
+                busy++;
+                if (!have) continue;
+            } else {
+                have = 1;
+            }
+        }
+        uint32_t level = (uint32_t)(next(&rng) % m.level_count);
+        const struct clipmap_level_state *st = &snap.levels[level];
+        if (!st->enabled) {
+            idle++;
             continue;
         }
-        if (!st.enabled || st.valid[2] <= st.valid[0] || st.valid[3] <= st.valid[1]) continue;
-        uint64_t vw = (uint64_t)(st.valid[2] - st.valid[0]), vh = (uint64_t)(st.valid[3] - st.valid[1]);
-        uint64_t w = vw < BLOCK ? vw : BLOCK, h = vh < BLOCK ? vh : BLOCK;
-        rng = clipmap_splitmix64(rng);
-        int64_t s0 = st.valid[0] + (int64_t)(rng % (vw - w + 1));
-        rng = clipmap_splitmix64(rng);
-        int64_t t0 = st.valid[1] + (int64_t)(rng % (vh - h + 1));
-        if (clipmap_read_region(&m, level, s0, t0, w, h, buf) != 0) continue;
-        for (uint64_t i = 0; i < w * h; i++) {
-            uint64_t s = (uint64_t)s0 + i % w, t = (uint64_t)t0 + i / w;
-            uint64_t v = clipmap_hash_value(level, s, t);
-            int ok = 1;
-            for (uint64_t k = 0; k < bpt; k++)
-                if (buf[i * bpt + k] != (unsigned char)(v >> (8 * (k % 8)))) ok = 0;
-            if (ok) {
-                passed++;
-            } else {
-                if (failed == 0)
-                    fprintf(stderr, "clipmap reader: level %u texel (%llu, %llu) differs\n", level,
-                            (unsigned long long)s, (unsigned long long)t);
-                failed++;
+        const struct clipmap_level_desc *d = &m.levels[level];
+        int mode = (int)(next(&rng) % 3);
+        int64_t s0, t0b;
+        uint64_t w, h;
+        pick(&rng, mode, st->valid[0], st->valid[2], d->tile[0], &s0, &w);
+        pick(&rng, mode, st->valid[1], st->valid[3], d->tile[1], &t0b, &h);
+        int rc = clipmap_read_region(&m, &snap, level, s0, t0b, w, h, buf);
+        if (rc != CLIPMAP_OK) {
+            switch (rc) {
+            case CLIPMAP_MISSING: missing++; break;
+            case CLIPMAP_BUSY: busy++; break;
+            case CLIPMAP_STALE: stale++; break;
+            case CLIPMAP_NOT_VALID: moved++; break;
+            default:
+                fprintf(stderr, "clipmap reader: level %u: read_region refused the snapshot (%d)\n", level, rc);
+                free(buf);
+                clipmap_close(&m);
+                return 2;
+            }
+            have = 0; /* take a new snapshot */
+            continue;
+        }
+        blocks++;
+        if ((uint64_t)s0 / d->tile[0] != ((uint64_t)s0 + w - 1) / d->tile[0] ||
+            (uint64_t)t0b / d->tile[1] != ((uint64_t)t0b + h - 1) / d->tile[1])
+            crossing++;
+        for (uint64_t j = 0; j < h; j++) {
+            for (uint64_t i = 0; i < w; i++) {
+                uint64_t s = (uint64_t)s0 + i, t = (uint64_t)t0b + j;
+                uint64_t v = clipmap_hash_value(level, s, t);
+                const unsigned char *got = buf + (j * w + i) * bpt;
+                int ok = 1;
+                for (uint64_t k = 0; k < bpt; k++)
+                    if (got[k] != (unsigned char)(v >> (8 * (k % 8)))) ok = 0;
+                if (ok) {
+                    passed++;
+                } else {
+                    if (failed == 0)
+                        fprintf(stderr, "clipmap reader: level %u texel (%llu, %llu) differs\n", level,
+                                (unsigned long long)s, (unsigned long long)t);
+                    failed++;
+                }
             }
         }
     }
-    printf("%llu passed, %llu failed (%llu busy, heartbeat age %llu ms)\n", passed, failed, busy,
+    printf("%llu passed, %llu failed (%llu blocks, %llu across tiles; skipped: %llu busy, %llu stale, %llu missing, "
+           "%llu moved, %llu disabled; heartbeat age %llu ms)\n",
+           passed, failed, blocks, crossing, busy, stale, missing, moved, idle,
            (unsigned long long)clipmap_heartbeat_age_ms(&m));
+    free(buf);
     clipmap_close(&m);
     return failed == 0 ? 0 : 1;
 }

@@ -1,39 +1,87 @@
 #!/usr/bin/env python3
-"""Read a clip texture published by clipmapd in shared memory (layout version 1, docs/SHM.md).
+"""Read a clip texture published by clipmapd in shared memory (layout version 2, docs/SHM.md).
 
-Standard library only (mmap, struct). As a program it reads random texels inside the published
-valid regions of a texture served by `clipmapd --source hash` and checks each one:
+Standard library only (mmap, struct). As a module:
+
+    m = Mapping(path)                 # maps read-only, checks every static field (Refused)
+    snap = m.snapshot()               # Busy or Corrupt on failure; m keeps the last good one
+    data = m.read_region(level, s0, t0, w, h)   # bytes, rows in increasing t, s fastest
+    # raises NotValid (outside the level's published region), Missing (a tile could not be read:
+    # use a coarser level), Stale (a slot holds another tile: take a new snapshot), Busy
+    m.texel(level, s, t)              # one texel's bytes
+
+As a program it reads random texel blocks inside the published valid regions of a texture
+served by `clipmapd --source hash` and checks every texel:
 
     python3 clients/python/clipmap_shm.py /dev/shm/clipmap-hash.map 100000 [seed [seconds]]
 
-prints "N passed, M failed"; exit status 0 all passed, 1 a mismatch, 2 could not read.
+prints "N passed, M failed (...)"; exit status 0 no mismatch, 1 a mismatch, 2 the mapping was
+refused (at open, or published state out of bounds), with the reason on standard error.
 
-Consistency: every state is read under its seqlock (sequence read before and after, accepted only
-when even and equal). Python has no memory fences; on x86-64 (loads are not reordered with other
-loads) that is enough, elsewhere treat this module as a reference, not a production reader.
+Requests: Python has no compare-and-swap on a mapping, so it cannot take the request
+mapping's seqlock; a Python renderer asks for a centre through the control socket (`CENTRE s t`).
+
+Consistency: the snapshot and every slot tag are read under their seqlocks (sequence read
+before and after, accepted only when even and equal), with 8-byte loads of the sequences
+through a native memoryview. Python has no memory fences; on x86-64 (loads are not reordered
+with other loads) that is enough, elsewhere treat this module as a reference, not a production
+reader.
 """
 
 import mmap
 import os
+import stat
 import struct
 import sys
 import time
 
-MAGIC = b"CLIPMAP1"
-VERSION = 1
+MAGIC = b"CLIPMAP2"
+REQUEST_MAGIC = b"CLIPREQ2"
+VERSION = 2
 PAGE = 4096
 MAX_LEVELS = 32
+MAX_RETRIES = 64
+REQUEST_BYTES = 4096
 
 # Header offsets.
-H_VERSION, H_HEADER_BYTES, H_TOTAL_BYTES = 8, 12, 16
+H_MAGIC, H_VERSION, H_HEADER_BYTES, H_TOTAL_BYTES = 0, 8, 12, 16
 H_TEXEL_FORMAT, H_BYTES_PER_TEXEL, H_CLIP_SIZE, H_LEVEL_COUNT = 24, 28, 32, 36
-H_FLAGS, H_HEARTBEAT, H_HEARTBEAT_MS, H_GENERATION = 60, 64, 72, 80
-H_GLOBAL_SEQ, H_MIN_LOD, H_TICK = 88, 96, 104
-H_LEVEL_DESCS = 192
-DESC_BYTES = 64
-H_LEVEL_STATES = H_LEVEL_DESCS + MAX_LEVELS * DESC_BYTES
-STATE_BYTES = 128
-H_END = H_LEVEL_STATES + MAX_LEVELS * STATE_BYTES
+H_LEVEL0_S, H_LEVEL0_T, H_WRITER_PID = 40, 48, 56
+H_HEARTBEAT, H_HEARTBEAT_MS, H_GENERATION, H_FLAGS, H_TICK_PERIOD_NS = 64, 72, 80, 88, 96
+H_SNAPSHOT = SNAPSHOT = 128
+
+# Snapshot fields, relative to H_SNAPSHOT (one seqlock over all of them).
+SNAP_SEQ, SNAP_MIN_LOD, SNAP_TICK, SNAP_INVALID_BORDER = 0, 8, 16, 24
+SNAP_CENTRE_S, SNAP_CENTRE_T, SNAP_LEVELS = 32, 40, 64
+STATE_BYTES = 64
+SNAPSHOT_BYTES = SNAP_LEVELS + MAX_LEVELS * STATE_BYTES
+
+# The same fields as absolute offsets (the names layout 1 used for them).
+H_GLOBAL_SEQ = H_SNAPSHOT + SNAP_SEQ
+H_MIN_LOD = H_SNAPSHOT + SNAP_MIN_LOD
+H_TICK = H_SNAPSHOT + SNAP_TICK
+H_LEVEL_STATES = H_SNAPSHOT + SNAP_LEVELS
+
+# Level state fields, relative to the state.
+S_CENTRE_S, S_CENTRE_T, S_VALID_S0, S_VALID_T0, S_VALID_S1, S_VALID_T1 = 0, 8, 16, 24, 32, 40
+S_ENABLED, S_UPDATED_TICK = 48, 56
+
+H_LEVEL_DESCS = LEVEL_DESCS = H_SNAPSHOT + SNAPSHOT_BYTES
+DESC_BYTES = 128
+H_END = H_LEVEL_DESCS + MAX_LEVELS * DESC_BYTES
+
+# Level descriptor fields (static u64s), relative to the descriptor.
+DESC_SIZE_S, DESC_SIZE_T, DESC_TILE_S, DESC_TILE_T, DESC_GRID_S, DESC_GRID_T = 0, 8, 16, 24, 32, 40
+DESC_SLOT_BYTES, DESC_TAGS_OFFSET, DESC_SLOTS_OFFSET, DESC_KIND = 48, 56, 64, 72
+
+# Slot tags (at tags_offset + TAG_BYTES * slot), every field atomic.
+TAG_BYTES = 32
+TAG_SEQ, TAG_TILE_S, TAG_TILE_T, TAG_STATE = 0, 8, 16, 24
+SLOT_EMPTY, SLOT_LOADING, SLOT_READY, SLOT_MISSING, SLOT_DEFAULT = 0, 1, 2, 3, 4
+
+# Request mapping (DIR/clipmap-NAME.req).
+REQ_MAGIC, REQ_VERSION, REQ_GENERATION, REQ_SEQ = 0, 8, 16, 64
+REQ_CENTRE_S, REQ_CENTRE_T, REQ_VEL_S, REQ_VEL_T, REQ_CLIENT_PID, REQ_COUNT = 72, 80, 88, 96, 104, 112
 
 # Texel format codes (H_TEXEL_FORMAT): code -> (name, bytes per texel); 0 is any other format.
 # 16-bit components are little-endian.
@@ -46,7 +94,35 @@ M64 = (1 << 64) - 1
 
 
 class ClipmapError(Exception):
-    """The mapping cannot be used."""
+    """Base of every error of this module."""
+
+
+class Refused(ClipmapError):
+    """The mapping cannot be used: its static fields are not those of a layout-2 mapping."""
+
+
+class Corrupt(ClipmapError):
+    """Published state outside its bounds."""
+
+
+class ReadError(ClipmapError):
+    """A read did not give texels (see the subclasses)."""
+
+
+class NotValid(ReadError):
+    """No such level, the level is disabled, or the region is outside its published region."""
+
+
+class Missing(ReadError):
+    """A tile of the region could not be read: use a coarser level for it."""
+
+
+class Busy(ReadError):
+    """The writer kept the snapshot or a tag locked for MAX_RETRIES attempts."""
+
+
+class Stale(ReadError):
+    """A slot holds another tile (or is loading): take a new snapshot."""
 
 
 def splitmix64(x):
@@ -58,55 +134,79 @@ def splitmix64(x):
 
 def hash_texel(level, s, t, bpt):
     """The verification texel at (level, s, t): byte i is byte i % 8 of the little-endian hash."""
-    v = splitmix64((level << 58) | (t << 29) | s).to_bytes(8, "little")
-    return bytes(v[i % 8] for i in range(bpt))
+    v = splitmix64(((level << 58) | (t << 29) | s) & M64).to_bytes(8, "little")
+    return (v * 8)[:bpt]
 
 
-class Clipmap:
-    """One attached mapping."""
+def _signed(v):
+    return v - (1 << 64) if v >> 63 else v
+
+
+def _ceil_div(a, b):
+    return -(-a // b)
+
+
+class LevelDesc:
+    """One level's static description."""
+
+    __slots__ = ("size", "tile", "grid", "slot_bytes", "slot_count", "tags", "slots", "pyramid")
+
+    def slot_index(self, S, T):
+        """The slot of tile (S, T): (T mod GH) * GW + (S mod GW), Euclidean."""
+        return (T % self.grid[1]) * self.grid[0] + (S % self.grid[0])
+
+    def region_ok(self, v):
+        """Whether an enabled level's region is inside the level, non-empty, and spans at most
+        GW x GH tiles."""
+        for a in (0, 1):
+            lo, hi = v[a], v[a + 2]
+            if not (0 <= lo < hi <= self.size[a]):
+                return False
+            if (hi - 1) // self.tile[a] - lo // self.tile[a] + 1 > self.grid[a]:
+                return False
+        return True
+
+
+class LevelState:
+    __slots__ = ("centre", "valid", "enabled", "updated_tick")
+
+    def __repr__(self):
+        return f"LevelState(centre={self.centre}, valid={self.valid}, enabled={self.enabled})"
+
+
+class Snapshot:
+    """A consistent copy of the snapshot: min_lod, tick, invalid_border, centre, levels."""
+
+    __slots__ = ("seq", "min_lod", "tick", "invalid_border", "centre", "levels")
+
+
+class Mapping:
+    """One texel mapping, mapped read-only; every static field checked (Refused otherwise)."""
 
     def __init__(self, path):
         self.path = path
-        with open(path, "rb") as f:
-            size = os.fstat(f.fileno()).st_size
+        self.mm = None
+        self.q = None
+        self.snap = None
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+        try:
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode):
+                raise Refused(f"{path}: not a regular file")
+            size = st.st_size
             if size < H_END:
-                raise ClipmapError(f"{path}: truncated: {size} bytes, a mapping has at least {H_END}")
-            self.mm = mmap.mmap(f.fileno(), size, access=mmap.ACCESS_READ)
-        m = self.mm
-        if m[0:8] != MAGIC:
-            raise ClipmapError(f'{path}: wrong magic {bytes(m[0:8])!r}: not a clipmap mapping (expected "CLIPMAP1")')
-        version = self._u32(H_VERSION)
-        if version != VERSION:
-            raise ClipmapError(f"{path}: layout version {version}; this reader reads version {VERSION}")
-        total = self._u64(H_TOTAL_BYTES)
-        if total != size:
-            raise ClipmapError(f"{path}: the header says {total} bytes but the file has {size}")
-        self.bpt = self._u32(H_BYTES_PER_TEXEL)
-        self.clip = self._u32(H_CLIP_SIZE)
-        self.count = self._u32(H_LEVEL_COUNT)
-        self.format = self._u32(H_TEXEL_FORMAT)
-        self.generation = self._u64(H_GENERATION)
-        if not (0 < self.bpt <= 64 and self.clip > 0 and 0 < self.count <= MAX_LEVELS):
-            raise ClipmapError(
-                f"{path}: implausible header: {self.bpt} bytes per texel, clip {self.clip}, {self.count} levels"
-            )
-        prev_end = self._u32(H_HEADER_BYTES)
-        self.levels = []
-        for i in range(self.count):
-            b = H_LEVEL_DESCS + i * DESC_BYTES
-            ss, st, off, nbytes, ws, wt, kind = struct.unpack_from("<7Q", m, b)
-            ok = (
-                ws == min(ss, self.clip)
-                and wt == min(st, self.clip)
-                and nbytes == ws * wt * self.bpt
-                and off % PAGE == 0
-                and off >= prev_end
-                and off + nbytes <= total
-            )
-            if not ok:
-                raise ClipmapError(f"{path}: level {i}'s window description is inconsistent")
-            prev_end = off + nbytes
-            self.levels.append({"size": (ss, st), "offset": off, "window": (ws, wt), "pyramid": kind == 1})
+                raise Refused(f"{path}: truncated: {size} bytes, a mapping has at least {H_END}")
+            self.mm = mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ)
+        finally:
+            os.close(fd)
+        try:
+            self._check(size)
+        except Refused:
+            self.close()
+            raise
+        # Native 8-byte loads (one load instruction each) for the fields the writer changes.
+        # (Only whole 8-byte words: a file whose size is not a multiple of 8 still maps.)
+        self.q = memoryview(self.mm)[: size // 8 * 8].cast("Q")
 
     def _u32(self, off):
         return struct.unpack_from("<I", self.mm, off)[0]
@@ -114,50 +214,246 @@ class Clipmap:
     def _u64(self, off):
         return struct.unpack_from("<Q", self.mm, off)[0]
 
-    def level_state(self, level):
-        """A consistent copy of one level's state, or None if the writer kept it busy."""
-        b = H_LEVEL_STATES + level * STATE_BYTES
-        for _ in range(1000):
-            s1 = self._u64(b)
+    def _check(self, size):
+        path, m = self.path, self.mm
+        if m[0:7] != MAGIC[:7]:
+            raise Refused(f"{path}: wrong magic {bytes(m[0:8])!r}: not a clipmap mapping (expected {MAGIC.decode()!r})")
+        version = self._u32(H_VERSION)
+        if m[7:8] != MAGIC[7:8] or version != VERSION:
+            raise Refused(f"{path}: layout version {version} (magic {bytes(m[0:8])!r}); "
+                          f"this reader reads layout version {VERSION} only")
+        total = self._u64(H_TOTAL_BYTES)
+        if total != size:
+            raise Refused(f"{path}: the header says {total} bytes but the file has {size} (truncated or padded)")
+        hb = self._u32(H_HEADER_BYTES)
+        if hb % PAGE or hb < H_END or hb > total:
+            raise Refused(f"{path}: header bytes {hb}: expected a multiple of {PAGE}, at least {H_END} "
+                          f"and at most the {total} bytes of the mapping")
+        self.header_bytes = hb
+        self.bpt = bpt = self._u32(H_BYTES_PER_TEXEL)
+        self.clip = clip = self._u32(H_CLIP_SIZE)
+        self.count = n = self._u32(H_LEVEL_COUNT)
+        self.format = self._u32(H_TEXEL_FORMAT)
+        self.writer_pid = self._u32(H_WRITER_PID)
+        self.size = (self._u64(H_LEVEL0_S), self._u64(H_LEVEL0_T))
+        self.generation = self._u64(H_GENERATION)
+        self.tick_period_ns = self._u64(H_TICK_PERIOD_NS)
+        if not 1 <= bpt <= 64:
+            raise Refused(f"{path}: {bpt} bytes per texel: expected 1 to 64")
+        if self.format in FORMATS and FORMATS[self.format][1] != bpt:
+            raise Refused(f"{path}: texel format {self.format} has {FORMATS[self.format][1]} bytes per texel, "
+                          f"the header says {bpt}")
+        if clip == 0:
+            raise Refused(f"{path}: clip size 0: expected at least 1")
+        if not 1 <= n <= MAX_LEVELS:
+            raise Refused(f"{path}: {n} levels: expected 1 to {MAX_LEVELS}")
+        if 0 in self.size:
+            raise Refused(f"{path}: level 0 is {self.size[0]}x{self.size[1]}: expected a non-zero size")
+        prev_end = hb
+        self.levels = []
+        for k in range(n):
+            f = struct.unpack_from("<10Q", m, H_LEVEL_DESCS + k * DESC_BYTES)
+            d = LevelDesc()
+            d.size, d.tile, d.grid = (f[0], f[1]), (f[2], f[3]), (f[4], f[5])
+            d.slot_bytes, d.tags, d.slots, kind = f[6], f[7], f[8], f[9]
+            want = tuple(max(1, self.size[a] >> k) for a in (0, 1))
+            if d.size != want:
+                raise Refused(f"{path}: level {k} is {d.size[0]}x{d.size[1]}: expected level 0's "
+                              f"{self.size[0]}x{self.size[1]} halved {k} times")
+            if 0 in d.tile or 0 in d.grid:
+                raise Refused(f"{path}: level {k}: tile {d.tile[0]}x{d.tile[1]}, grid {d.grid[0]}x{d.grid[1]}: "
+                              "expected non-zero tiles and grids")
+            d.pyramid = d.size[0] <= clip and d.size[1] <= clip
+            for a in (0, 1):
+                tiles = _ceil_div(d.size[a], d.tile[a])
+                least = min(_ceil_div(min(clip, d.size[a]), d.tile[a]) + 1, tiles)
+                g = f"grid {d.grid[0]}x{d.grid[1]}"
+                if d.grid[a] > tiles:
+                    raise Refused(f"{path}: level {k}: {g} is larger than the level's {tiles} tiles along axis {a}")
+                if d.grid[a] < least:
+                    raise Refused(f"{path}: level {k}: {g} cannot hold a {clip}-texel window "
+                                  f"(needs {least} along axis {a})")
+                if d.pyramid and d.grid[a] != tiles:
+                    raise Refused(f"{path}: level {k}: a pyramid level's {g} must hold all its {tiles} tiles "
+                                  f"along axis {a}")
+            if kind != int(d.pyramid):
+                raise Refused(f"{path}: level {k} ({d.size[0]}x{d.size[1]}, clip {clip}): kind {kind}, "
+                              f"expected {int(d.pyramid)} ({'pyramid' if d.pyramid else 'stack'})")
+            sb = d.tile[0] * d.tile[1] * bpt
+            if sb > M64 or sb != d.slot_bytes:
+                raise Refused(f"{path}: level {k}: slot bytes {d.slot_bytes}, expected tile "
+                              f"{d.tile[0]}x{d.tile[1]} x {bpt} bytes per texel"
+                              + (" (overflows 64 bits)" if sb > M64 else ""))
+            d.slot_count = d.grid[0] * d.grid[1]
+            tags_bytes, slots_bytes = d.slot_count * TAG_BYTES, d.slot_count * d.slot_bytes
+            if d.slot_count > M64 or tags_bytes > M64 or slots_bytes > M64:
+                raise Refused(f"{path}: level {k}: grid {d.grid[0]}x{d.grid[1]} of {d.slot_bytes}-byte slots "
+                              "overflows")
+            tags_end = d.tags + tags_bytes
+            if d.tags % PAGE or d.tags < prev_end or tags_end > total:
+                raise Refused(f"{path}: level {k}: tags at {d.tags} ({tags_bytes} bytes): expected a page-aligned "
+                              f"offset at or after {prev_end}, ending inside the {total}-byte mapping")
+            slots_end = d.slots + slots_bytes
+            if d.slots % PAGE or d.slots < tags_end or slots_end > total:
+                raise Refused(f"{path}: level {k}: slots at {d.slots} ({slots_bytes} bytes): expected a "
+                              f"page-aligned offset at or after the tags' end {tags_end}, ending inside the "
+                              f"{total}-byte mapping")
+            prev_end = slots_end
+            self.levels.append(d)
+
+    def snapshot(self):
+        """A consistent, checked copy of the snapshot; also kept as self.snap. Busy when the writer
+        kept it locked (self.snap unchanged), Corrupt when published state is out of bounds."""
+        q, n = self.q, self.count
+        b = H_SNAPSHOT // 8
+        for _ in range(MAX_RETRIES):
+            s1 = q[b]
             if s1 & 1:
                 continue
-            cs, ct, s0, t0, s1v, t1, enabled = struct.unpack_from("<7q", self.mm, b + 8)
-            if self._u64(b) == s1:
-                return {"seq": s1, "centre": (cs, ct), "valid": (s0, t0, s1v, t1), "enabled": enabled == 1}
-        return None
+            head = q[b + 1: b + 6].tolist()
+            states = q[b + SNAP_LEVELS // 8: b + (SNAP_LEVELS + n * STATE_BYTES) // 8].tolist()
+            if q[b] == s1:
+                break
+        else:
+            raise Busy(f"the writer kept the snapshot locked for {MAX_RETRIES} attempts")
+        snap = Snapshot()
+        snap.seq = s1
+        snap.min_lod = struct.unpack("<d", struct.pack("<Q", head[0]))[0]
+        snap.tick, snap.invalid_border = head[1], head[2]
+        snap.centre = (_signed(head[3]), _signed(head[4]))
+        if not 0.0 <= snap.min_lod <= n:  # refuses NaN and infinities too
+            raise Corrupt(f"published min LOD {snap.min_lod!r} (bits {head[0]:016x}): expected a finite value "
+                          f"in 0..={n}")
+        snap.levels = []
+        for k in range(n):
+            f = states[8 * k: 8 * k + 8]
+            st = LevelState()
+            st.centre = (_signed(f[0]), _signed(f[1]))
+            st.valid = tuple(_signed(x) for x in f[2:6])
+            st.updated_tick = f[7]
+            if f[6] > 1:
+                raise Corrupt(f"level {k}: published enabled flag {f[6]}: expected 0 or 1")
+            st.enabled = f[6] == 1
+            d = self.levels[k]
+            if st.enabled and not d.region_ok(st.valid):
+                v = st.valid
+                raise Corrupt(f"level {k}: published region [{v[0]}, {v[2]}) x [{v[1]}, {v[3]}): expected a "
+                              f"non-empty rectangle inside the {d.size[0]}x{d.size[1]} level spanning at most "
+                              f"{d.grid[0]}x{d.grid[1]} tiles")
+            snap.levels.append(st)
+        self.snap = snap
+        return snap
 
-    def read_region(self, level, s0, t0, w, h):
-        """Bytes of the w x h texels from (s0, t0) (rows in increasing t), or None when the region is
-        not inside the published valid region or the level kept changing."""
+    def texel_offset(self, level, s, t):
+        """Byte offset in the mapping of texel (s, t) of `level` in the slot its tile maps to
+        (None outside the level). Says nothing about what the slot holds: see read_region."""
+        if not 0 <= level < self.count:
+            return None
         d = self.levels[level]
-        ws, off, bpt, clip = d["window"][0], d["offset"], self.bpt, self.clip
-        b = H_LEVEL_STATES + level * STATE_BYTES
-        for _ in range(64):
-            st = self.level_state(level)
-            if st is None:
-                continue
-            v = st["valid"]
-            if not (st["enabled"] and v[0] <= s0 and v[1] <= t0 and s0 + w <= v[2] and t0 + h <= v[3]):
-                return None
-            out = bytearray()
-            for row in range(h):
-                slot_t = (t0 + row) % clip
-                done = 0
-                while done < w:
-                    slot_s = (s0 + done) % clip
-                    run = min(w - done, ws - slot_s)
-                    a = off + (slot_t * ws + slot_s) * bpt
-                    out += self.mm[a : a + run * bpt]
-                    done += run
-            if self._u64(b) == st["seq"]:
-                return bytes(out)
-        return None
+        if not (0 <= s < d.size[0] and 0 <= t < d.size[1]):
+            return None
+        S, T = s // d.tile[0], t // d.tile[1]
+        return d.slots + d.slot_index(S, T) * d.slot_bytes + ((t - T * d.tile[1]) * d.tile[0] + s - S * d.tile[0]) * self.bpt
+
+    def read_region(self, level, s0, t0, w, h, snap=None):
+        """The w x h texels of `level` from (s0, t0), as bytes (rows in increasing t, s fastest,
+        row pitch w * bpt), read tile by tile under each slot's tag. `snap` defaults to the last
+        snapshot taken (one is taken if there is none). Raises NotValid, Missing, Stale or Busy."""
+        snap = snap or self.snap or self.snapshot()
+        if not 0 <= level < min(self.count, len(snap.levels)):
+            raise NotValid(f"level {level} does not exist")
+        st, d = snap.levels[level], self.levels[level]
+        v = st.valid
+        if not st.enabled:
+            raise NotValid(f"level {level} is disabled")
+        if w <= 0 or h <= 0:
+            return b""
+        if not (v[0] <= s0 and s0 + w <= v[2] and v[1] <= t0 and t0 + h <= v[3]):
+            raise NotValid(f"[{s0}, {s0 + w}) x [{t0}, {t0 + h}) is not inside level {level}'s published region "
+                           f"[{v[0]}, {v[2]}) x [{v[1]}, {v[3]})")
+        bpt, (tw, th), mm, q = self.bpt, d.tile, self.mm, self.q
+        out = bytearray(w * h * bpt)
+        for T in range(t0 // th, (t0 + h - 1) // th + 1):
+            ta, tb = max(t0, T * th), min(t0 + h, (T + 1) * th)
+            for S in range(s0 // tw, (s0 + w - 1) // tw + 1):
+                sa, sb = max(s0, S * tw), min(s0 + w, (S + 1) * tw)
+                slot = d.slot_index(S, T)
+                tag = (d.tags + slot * TAG_BYTES) // 8
+                base = d.slots + slot * d.slot_bytes
+                run = (sb - sa) * bpt
+                for _ in range(MAX_RETRIES):
+                    seq = q[tag]
+                    if seq & 1:
+                        continue
+                    ts, tt, state = _signed(q[tag + 1]), _signed(q[tag + 2]), q[tag + 3]
+                    if ts == S and tt == T and state in (SLOT_READY, SLOT_DEFAULT):
+                        for t in range(ta, tb):
+                            src = base + ((t - T * th) * tw + (sa - S * tw)) * bpt
+                            dst = ((t - t0) * w + (sa - s0)) * bpt
+                            out[dst:dst + run] = mm[src:src + run]
+                        if q[tag] == seq:
+                            break
+                        continue
+                    if q[tag] != seq:
+                        continue
+                    if ts == S and tt == T and state == SLOT_MISSING:
+                        raise Missing(f"level {level} tile ({S}, {T}) is missing")
+                    raise Stale(f"level {level} tile ({S}, {T}): its slot holds tile ({ts}, {tt}) in state {state}")
+                else:
+                    raise Busy(f"level {level} tile ({S}, {T}): the tag stayed locked for {MAX_RETRIES} attempts")
+        return bytes(out)
+
+    def texel(self, level, s, t, snap=None):
+        """One texel's bytes (see read_region)."""
+        return self.read_region(level, s, t, 1, 1, snap)
 
     def heartbeat_age_ms(self):
-        return max(0, int(time.time() * 1000) - self._u64(H_HEARTBEAT_MS))
+        return max(0, int(time.time() * 1000) - self.q[H_HEARTBEAT_MS // 8])
+
+    def closed(self):
+        """True when the writer shut down cleanly (flag bit 0)."""
+        return bool(self.q[H_FLAGS // 8] & 1)
 
     def close(self):
-        self.mm.close()
+        if self.q is not None:
+            self.q.release()
+            self.q = None
+        if self.mm is not None:
+            self.mm.close()
+            self.mm = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+Clipmap = Mapping  # the layout-1 name
+
+SMALL, LARGE = 8, 128
+
+
+def _pick(rng, mode, v0, v1, tile):
+    """A random extent (lo, n) inside [v0, v1): mode 0 small, 1 large, 2 across a tile edge."""
+    span = v1 - v0
+    if mode == 2:
+        rng[0] = splitmix64(rng[0])
+        at = v0 + rng[0] % span
+        e = (at // tile + 1) * tile
+        if v0 < e < v1:
+            rng[0] = splitmix64(rng[0])
+            before = 1 + rng[0] % SMALL
+            rng[0] = splitmix64(rng[0])
+            after = 1 + rng[0] % SMALL
+            a, b = max(v0, e - before), min(v1, e + after)
+            return a, b - a
+        mode = 0
+    most = SMALL if mode == 0 else LARGE
+    rng[0] = splitmix64(rng[0])
+    w = 1 + rng[0] % min(span, most)
+    rng[0] = splitmix64(rng[0])
+    return v0 + rng[0] % (span - w + 1), w
 
 
 def main(argv):
@@ -165,45 +461,81 @@ def main(argv):
         print(f"usage: {argv[0]} MAPPING READS [SEED [SECONDS]]", file=sys.stderr)
         return 2
     try:
-        c = Clipmap(argv[1])
-    except (ClipmapError, OSError) as e:
+        reads = int(argv[2])
+        rng = [(int(argv[3]) if len(argv) > 3 else 1) & M64]
+        seconds = float(argv[4]) if len(argv) > 4 else 120.0
+    except ValueError as e:
+        print(f"usage: {argv[0]} MAPPING READS [SEED [SECONDS]]: {e}", file=sys.stderr)
+        return 2
+    try:
+        m = Mapping(argv[1])
+    except (ClipmapError, OSError, ValueError) as e:
         print(f"clipmap_shm: {e}", file=sys.stderr)
         return 2
-    reads = int(argv[2])
-    rng = int(argv[3]) if len(argv) > 3 else 1
-    passed = failed = 0
-    give_up = time.time() + (float(argv[4]) if len(argv) > 4 else 120.0)
-    block = 8
-    while passed + failed < reads and time.time() < give_up:
-        rng = splitmix64(rng)
-        level = rng % c.count
-        st = c.level_state(level)
-        if st is None or not st["enabled"]:
+    give_up = time.monotonic() + seconds
+    passed = failed = busy = stale = missing = moved = idle = blocks = crossing = 0
+    bpt = m.bpt
+    snap = None
+    it = 0
+    while passed + failed < reads and time.monotonic() < give_up:
+        it += 1
+        if snap is None or it % 256 == 0:
+            try:
+                snap = m.snapshot()
+            except Busy:
+                busy += 1
+                if snap is None:
+                    continue
+            except Corrupt as e:
+                print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
+                m.close()
+                return 2
+        rng[0] = splitmix64(rng[0])
+        level = rng[0] % m.count
+        st = snap.levels[level]
+        if not st.enabled:
+            idle += 1
             continue
-        v = st["valid"]
-        vw, vh = v[2] - v[0], v[3] - v[1]
-        if vw <= 0 or vh <= 0:
-            continue
-        w, h = min(vw, block), min(vh, block)
-        rng = splitmix64(rng)
-        s0 = v[0] + rng % (vw - w + 1)
-        rng = splitmix64(rng)
-        t0 = v[1] + rng % (vh - h + 1)
-        got = c.read_region(level, s0, t0, w, h)
-        if got is None:
-            continue
-        for i in range(w * h):
-            s, t = s0 + i % w, t0 + i // w
-            if got[i * c.bpt : (i + 1) * c.bpt] == hash_texel(level, s, t, c.bpt):
-                passed += 1
+        d = m.levels[level]
+        rng[0] = splitmix64(rng[0])
+        mode = rng[0] % 3
+        v = st.valid
+        s0, w = _pick(rng, mode, v[0], v[2], d.tile[0])
+        t0, h = _pick(rng, mode, v[1], v[3], d.tile[1])
+        try:
+            got = m.read_region(level, s0, t0, w, h, snap)
+        except ReadError as e:
+            if isinstance(e, Missing):
+                missing += 1
+            elif isinstance(e, Busy):
+                busy += 1
+            elif isinstance(e, Stale):
+                stale += 1
             else:
-                if failed == 0:
-                    print(f"clipmap_shm: level {level} texel ({s}, {t}) differs", file=sys.stderr)
-                failed += 1
-    print(f"{passed} passed, {failed} failed")
-    c.close()
+                moved += 1
+            snap = None
+            continue
+        blocks += 1
+        if s0 // d.tile[0] != (s0 + w - 1) // d.tile[0] or t0 // d.tile[1] != (t0 + h - 1) // d.tile[1]:
+            crossing += 1
+        i = 0
+        for t in range(t0, t0 + h):
+            for s in range(s0, s0 + w):
+                if got[i:i + bpt] == hash_texel(level, s, t, bpt):
+                    passed += 1
+                else:
+                    if failed == 0:
+                        print(f"clipmap_shm: level {level} texel ({s}, {t}) differs", file=sys.stderr)
+                    failed += 1
+                i += bpt
+    print(f"{passed} passed, {failed} failed ({blocks} blocks, {crossing} across tiles; skipped: {busy} busy, "
+          f"{stale} stale, {missing} missing, {moved} moved, {idle} disabled; heartbeat age {m.heartbeat_age_ms()} ms)")
+    m.close()
     return 0 if failed == 0 else 1
 
+
+if sys.byteorder != "little":  # the layout is little-endian; native loads are used for atomics
+    raise ImportError("clipmap_shm reads the little-endian clipmap layout on little-endian hosts only")
 
 if __name__ == "__main__":
     sys.exit(main(sys.argv))
