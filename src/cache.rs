@@ -187,15 +187,16 @@ impl TileCache {
         }
     }
 
-    /// Takes a finished read: its slot is settled as ready (or the default tile).
-    pub fn admit(&mut self, tile: TileId, delivered: Delivered) -> Admit {
+    /// Takes a finished read, which filled the slot in `generation`: its slot is settled as
+    /// ready (or the default tile).
+    pub fn admit(&mut self, tile: TileId, generation: u64, delivered: Delivered) -> Admit {
         let memory = Arc::clone(&self.memory);
         let Some(slot) = self.level_slot_mut(tile) else { return Admit::Stale };
         let (state, tag) = match delivered {
             Delivered::Tile => (TileState::Resident, SlotState::Ready),
             Delivered::Default => (TileState::Defaulted, SlotState::Default),
         };
-        if !memory.settle(tile, tag) {
+        if !memory.settle(tile, generation, tag) {
             return Admit::Stale;
         }
         slot.state = state;
@@ -204,12 +205,17 @@ impl TileCache {
 
     /// Notes that reading `tile` failed: its tag says missing (readers use a coarser level for
     /// it) and it will be wanted again from tick `retry_at`.
-    pub fn mark_failed(&mut self, tile: TileId, kind: FaultKind, retry_at: u64) {
+    pub fn mark_failed(&mut self, tile: TileId, generation: Option<u64>, kind: FaultKind, retry_at: u64) {
         let memory = Arc::clone(&self.memory);
-        if let Some(slot) = self.level_slot_mut(tile) {
-            if !slot.state.readable() && memory.settle(tile, SlotState::Missing) {
-                slot.state = TileState::Failed { kind, retry_at };
-            }
+        let Some(slot) = self.level_slot_mut(tile) else { return };
+        if slot.state.readable() {
+            return;
+        }
+        let generation = generation.or_else(|| memory.loading_generation(tile));
+        if generation.is_some_and(|g| memory.settle(tile, g, SlotState::Missing)) {
+            slot.state = TileState::Failed { kind, retry_at };
+        } else if slot.state == TileState::Loading {
+            slot.state = TileState::Absent;
         }
     }
 
@@ -280,8 +286,8 @@ mod tests {
         TileCache::new(&desc, &grids, memory)
     }
 
-    fn fill(c: &TileCache, tile: TileId, byte: u8) {
-        c.memory().fill(tile, |b| b.fill(byte)).expect("the slot is the tile's");
+    fn fill(c: &TileCache, tile: TileId, byte: u8) -> u64 {
+        c.memory().fill(tile, |b| b.fill(byte)).expect("the slot is the tile's").0
     }
 
     #[test]
@@ -293,8 +299,8 @@ mod tests {
         let tile = TileId::new(0, 3, 4);
         c.mark_loading(tile);
         assert_eq!(c.state(tile), TileState::Loading);
-        fill(&c, tile, 7);
-        assert_eq!(c.admit(tile, Delivered::Tile), Admit::Admitted);
+        let g = fill(&c, tile, 7);
+        assert_eq!(c.admit(tile, g, Delivered::Tile), Admit::Admitted);
         let mut b = [0u8; 4];
         assert!(c.read(tile, 0, &mut b));
         assert_eq!(b, [7; 4]);
@@ -308,7 +314,13 @@ mod tests {
         assert_eq!(c.resident_bytes(), 0);
         assert_eq!(c.state(tile), TileState::Absent);
         assert!(c.memory().fill(tile, |b| b.fill(9)).is_none(), "the slot belongs to another tile now");
-        assert_eq!(c.admit(tile, Delivered::Tile), Admit::Stale);
+        assert_eq!(c.admit(tile, g, Delivered::Tile), Admit::Stale);
+        // Back in the same slot, a late completion of the first read does not settle it.
+        c.set_mem_region(0, Rect::new(2, 2, 6, 6));
+        assert_eq!(c.admit(tile, g, Delivered::Tile), Admit::Stale, "an earlier generation's read");
+        let g2 = fill(&c, tile, 8);
+        assert!(g2 > g);
+        assert_eq!(c.admit(tile, g2, Delivered::Tile), Admit::Admitted);
     }
 
     #[test]
@@ -316,8 +328,8 @@ mod tests {
         let mut c = cache();
         c.set_mem_region(0, Rect::new(0, 0, 4, 4));
         let tile = TileId::new(0, 1, 1);
-        fill(&c, tile, 1);
-        assert_eq!(c.admit(tile, Delivered::Default), Admit::Admitted);
+        let g = fill(&c, tile, 1);
+        assert_eq!(c.admit(tile, g, Delivered::Default), Admit::Admitted);
         assert_eq!(c.state(tile), TileState::Defaulted);
         assert!(c.memory().fill(tile, |b| b.fill(2)).is_none());
         let mut b = [0u8; 1];
@@ -330,13 +342,13 @@ mod tests {
         let mut c = cache();
         c.set_mem_region(0, Rect::new(0, 0, 1, 1));
         let tile = TileId::new(0, 0, 0);
-        c.mark_failed(tile, FaultKind::Missing, 5);
+        c.mark_failed(tile, None, FaultKind::Missing, 5);
         assert!(c.wanted(0, 4).is_empty());
         assert_eq!(c.wanted(0, 5), vec![tile]);
         assert!(!c.read(tile, 0, &mut [0u8; 1]));
         // A retry may fill the slot (its claim stayed loading) and settle it.
-        fill(&c, tile, 3);
-        assert_eq!(c.admit(tile, Delivered::Tile), Admit::Admitted);
+        let g = fill(&c, tile, 3);
+        assert_eq!(c.admit(tile, g, Delivered::Tile), Admit::Admitted);
         assert!(c.read(tile, 0, &mut [0u8; 1]));
     }
 }

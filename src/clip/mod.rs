@@ -457,7 +457,7 @@ impl Clipmap {
         let mut n = 0u32;
         while let Some(done) = self.backlog.pop_front() {
             match done.outcome {
-                Outcome::Filled(delivered) => match self.cache.admit(done.tile, delivered) {
+                Outcome::Filled(generation, delivered) => match self.cache.admit(done.tile, generation, delivered) {
                     Admit::Admitted => {
                         admitted += 1;
                         if delivered == crate::source::Delivered::Default {
@@ -470,10 +470,11 @@ impl Clipmap {
                     self.stats.late_tiles += 1;
                     self.cache.mark_not_read(done.tile);
                 }
-                Outcome::Failed(e) => {
+                Outcome::Failed(generation, e) => {
                     tracing::debug!("tile read failed: {e}");
                     self.stats.read_faults.add(e.kind());
-                    self.cache.mark_failed(done.tile, e.kind(), self.tick + self.settings.retry_after_ticks);
+                    let retry_at = self.tick + self.settings.retry_after_ticks;
+                    self.cache.mark_failed(done.tile, generation, e.kind(), retry_at);
                 }
             }
             n += 1;

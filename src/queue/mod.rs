@@ -46,12 +46,13 @@ pub struct ReadRequest {
 /// How a read ended.
 #[derive(Debug)]
 pub enum Outcome {
-    /// The tile's slot holds what was read.
-    Filled(Delivered),
+    /// The tile's slot holds what was read, filled in this generation of the slot's claim.
+    Filled(u64, Delivered),
     /// The slot no longer belonged to the tile when the read started: nothing was read.
     NotWanted,
-    /// The read failed; the slot holds no promise.
-    Failed(SourceError),
+    /// The read failed (in this generation of the slot's claim, when it got that far); the slot
+    /// holds no promise.
+    Failed(Option<u64>, SourceError),
 }
 
 /// A finished read.

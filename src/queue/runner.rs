@@ -88,11 +88,11 @@ impl Runner {
                     self.in_flight.remove(&done.tile);
                     self.delivered.push_back(done.tile);
                     match &done.outcome {
-                        Outcome::Filled(_) => {
+                        Outcome::Filled(..) => {
                             self.stats.reads_done += 1;
                             self.stats.bytes_read += self.source.desc().tile_bytes(done.tile.level) as u64;
                         }
-                        Outcome::Failed(_) => self.stats.reads_failed += 1,
+                        Outcome::Failed(..) => self.stats.reads_failed += 1,
                         Outcome::NotWanted => self.stats.stale_dropped += 1,
                     }
                     if self.events.send(Event::Done(done)).is_err() {
@@ -123,12 +123,12 @@ impl Runner {
                     // Straight into the tile's slot, under its claim: nothing is copied later.
                     match memory.fill(tile, |slot| source.read_into(tile, slot)) {
                         None => Outcome::NotWanted,
-                        Some(Ok(delivered)) => Outcome::Filled(delivered),
-                        Some(Err(e)) => Outcome::Failed(e),
+                        Some((generation, Ok(delivered))) => Outcome::Filled(generation, delivered),
+                        Some((generation, Err(e))) => Outcome::Failed(Some(generation), e),
                     }
                 });
                 let outcome = read.await.unwrap_or_else(|e| {
-                    Outcome::Failed(SourceError::Io {
+                    Outcome::Failed(None, SourceError::Io {
                         tile,
                         source: std::io::Error::other(format!("tile read task failed: {e}")),
                     })

@@ -77,13 +77,13 @@ fn completed_tiles_hold_the_source_texels_and_failures_are_typed() {
     assert_eq!(done.len(), 2);
     for c in done {
         if c.tile.s == 1 {
-            assert!(matches!(c.outcome, Outcome::Failed(SourceError::Missing { .. })));
+            assert!(matches!(c.outcome, Outcome::Failed(Some(_), SourceError::Missing { .. })));
         } else {
-            assert!(matches!(c.outcome, Outcome::Filled(Delivered::Tile)), "{:?}", c.outcome);
+            let Outcome::Filled(g, Delivered::Tile) = c.outcome else { panic!("{:?}", c.outcome) };
             // The read went straight into the tile's slot.
             let mut want = vec![0u8; 64];
             src.read_tile(c.tile, &mut want).unwrap();
-            assert!(memory.settle(c.tile, crate::shm::layout::SlotState::Ready));
+            assert!(memory.settle(c.tile, g, crate::shm::layout::SlotState::Ready));
             let mut got = vec![0u8; 64];
             assert!(memory.read_settled(c.tile, 0, &mut got));
             assert_eq!(got, want);

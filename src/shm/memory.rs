@@ -3,10 +3,13 @@
 //! and the published snapshot.
 //!
 //! Owns the writer's side of the slot protocol (docs/SHM.md, "The writer's invariant"):
-//! - each slot has a private **claim** (an atomic in this process, not in the mapping) naming the
-//!   tile the engine assigned to it and whether it is loading, being filled by one read, or
-//!   settled. A read fills a slot only after taking the claim from loading to busy by
-//!   compare-and-swap, so at most one read writes a slot at a time, and never a settled one;
+//! - each slot has a private **claim** (atomics in this process, not in the mapping): the tile the
+//!   engine assigned to it, a generation counted up by every assignment, and whether it is
+//!   loading, being filled by one read, or settled. A read fills a slot only after taking the
+//!   claim from loading to busy by compare-and-swap, so at most one read writes a slot at a time,
+//!   and never a settled one; a finished read settles the slot only under the generation it
+//!   filled it in, so a late completion of an earlier assignment of the same tile cannot mark
+//!   another read's bytes ready;
 //! - the engine reassigns a slot only when no read holds it, storing the tag (loading, new tile)
 //!   before the claim, so a reader sees the tag change before any byte does;
 //! - the tick publishes the snapshot once, whole, under its seqlock.
@@ -21,10 +24,21 @@ use crate::source::TileId;
 use crate::texel::TexelFormat;
 use std::sync::atomic::{fence, AtomicU64, Ordering};
 
-const UNASSIGNED: u64 = u64::MAX;
 const LOADING: u64 = 0;
 const BUSY: u64 = 1;
 const SETTLED: u64 = 2;
+const UNASSIGNED: u64 = 3;
+const NO_TILE: u64 = u64::MAX;
+
+/// The state bits of a claim word (the rest is the generation).
+fn state_of(claim: u64) -> u64 {
+    claim & 3
+}
+
+/// A claim word: generation and state.
+fn word(generation: u64, state: u64) -> u64 {
+    (generation << 2) | state
+}
 
 fn key(tile: [i64; 2]) -> u64 {
     // Tile indices are below 2^27 (levels are at most 2^26 texels a side): 28 bits each.
@@ -71,7 +85,10 @@ pub struct ImageMemory {
     region: Region,
     placement: Placement,
     shape: Shape,
+    /// Per level and slot: generation << 2 | state.
     claims: Vec<Vec<AtomicU64>>,
+    /// Per level and slot: the key of the tile assigned.
+    keys: Vec<Vec<AtomicU64>>,
 }
 
 impl std::fmt::Debug for ImageMemory {
@@ -111,9 +128,11 @@ impl ImageMemory {
     pub(super) fn over(mut region: Region, placement: Placement, shape: Shape) -> ImageMemory {
         let first = placement.levels.first().map_or(0, |l| l.slots) as usize;
         region.count_writes_into(first..placement.total_bytes as usize);
-        let claims =
-            placement.levels.iter().map(|l| (0..l.slot_count).map(|_| AtomicU64::new(UNASSIGNED)).collect()).collect();
-        ImageMemory { region, placement, shape, claims }
+        let per_slot = |v: u64| -> Vec<Vec<AtomicU64>> {
+            placement.levels.iter().map(|l| (0..l.slot_count).map(|_| AtomicU64::new(v)).collect()).collect()
+        };
+        let (claims, keys) = (per_slot(UNASSIGNED), per_slot(NO_TILE));
+        ImageMemory { region, placement, shape, claims, keys }
     }
 
     /// Writes the static header (everything but the magic, which [`finish`](Self::finish)
@@ -196,46 +215,32 @@ impl ImageMemory {
         r.store(b + tag::SEQ, seq.wrapping_add(2), Ordering::Release);
     }
 
-    /// Gives `tile`'s slot to `tile` (loading): its tag first, then its claim. Refused while a
-    /// read fills the slot. Only the engine calls this, and only for a slot whose old tile no
-    /// published region covers.
+    /// Gives `tile`'s slot to `tile` (loading): its tag first, then its claim (tile, then a new
+    /// generation). Refused while a read fills the slot. Only the engine calls this, and only for
+    /// a slot whose old tile no published region covers.
     pub fn assign(&self, level: u32, tile: [i64; 2]) -> Assign {
         let (k, slot) = self.slot_of(level, tile);
         let claim = &self.claims[k][slot as usize];
         let now = claim.load(Ordering::Acquire);
-        if now != UNASSIGNED && now & 3 == BUSY {
+        if state_of(now) == BUSY {
             return Assign::Busy;
         }
         self.store_tag(k, slot, tile, SlotState::Loading);
-        match claim.compare_exchange(now, key(tile) | LOADING, Ordering::AcqRel, Ordering::Acquire) {
+        self.keys[k][slot as usize].store(key(tile), Ordering::Release);
+        match claim.compare_exchange(now, word((now >> 2) + 1, LOADING), Ordering::AcqRel, Ordering::Acquire) {
             Ok(_) => Assign::Assigned,
             // A read took the old tile's claim in between: the tag already says loading (nothing
-            // readable), and the engine assigns again next tick.
-            Err(_) => Assign::Busy,
-        }
-    }
-
-    /// Frees a slot (its level's mem region no longer covers it). Refused while a read fills it.
-    pub fn release(&self, level: u32, slot: u64) -> Assign {
-        let claim = &self.claims[level as usize][slot as usize];
-        let now = claim.load(Ordering::Acquire);
-        if now == UNASSIGNED {
-            return Assign::Assigned;
-        }
-        if now & 3 == BUSY {
-            return Assign::Busy;
-        }
-        self.store_tag(level as usize, slot, [-1, -1], SlotState::Empty);
-        match claim.compare_exchange(now, UNASSIGNED, Ordering::AcqRel, Ordering::Acquire) {
-            Ok(_) => Assign::Assigned,
+            // readable), the read's completion no longer matches the key, and the engine assigns
+            // again next tick.
             Err(_) => Assign::Busy,
         }
     }
 
     /// Lets a read fill `tile`'s slot: `fill` gets the slot's bytes (one whole tile) if the slot
     /// is assigned to `tile` and loading; `None` (nothing called) when it is not (the tile left
-    /// its mem region, or it is settled, or another read fills it).
-    pub fn fill<R>(&self, tile: TileId, fill: impl FnOnce(&mut [u8]) -> R) -> Option<R> {
+    /// its mem region, or it is settled, or another read fills it). Returns the generation the
+    /// slot was filled in, for [`settle`](Self::settle), with what `fill` returned.
+    pub fn fill<R>(&self, tile: TileId, fill: impl FnOnce(&mut [u8]) -> R) -> Option<(u64, R)> {
         let st = [tile.s as i64, tile.t as i64];
         let level = tile.level;
         if level as usize >= self.claims.len() {
@@ -243,43 +248,67 @@ impl ImageMemory {
         }
         let (k, slot) = self.slot_of(level, st);
         let claim = &self.claims[k][slot as usize];
-        let want = key(st) | LOADING;
-        claim.compare_exchange(want, key(st) | BUSY, Ordering::AcqRel, Ordering::Relaxed).ok()?;
+        let now = claim.load(Ordering::Acquire);
+        if state_of(now) != LOADING || self.keys[k][slot as usize].load(Ordering::Acquire) != key(st) {
+            return None;
+        }
+        // From the generation read above: an assignment since then changed it, and this fails.
+        claim.compare_exchange(now, word(now >> 2, BUSY), Ordering::AcqRel, Ordering::Relaxed).ok()?;
         let p = &self.placement.levels[k];
         let offset = p.slot_offset(slot) as usize;
         // SAFETY: the claim is now `BUSY` for this slot, which only this call could set (the
         // compare-and-swap above succeeded from `LOADING`), and until it is stored back below:
         // no other read can take it (they compare from `LOADING`), the engine neither reassigns
-        // nor releases a busy slot (`assign`/`release` refuse `BUSY`), and in-process readers
-        // copy a slot's bytes only while its claim is `SETTLED` (`read_settled`). So nothing else
-        // in this process touches these bytes while `fill` runs. Other processes map the file
-        // read-only and, by the tag protocol, discard what they read from a slot whose tag says
-        // loading (the tag was set to loading in `assign`, before the claim).
+        // nor settles a busy slot (`assign` refuses `BUSY`, `settle` compares from `LOADING`), and
+        // in-process readers copy a slot's bytes only while its claim is `SETTLED`
+        // (`read_settled`). So nothing else in this process touches these bytes while `fill`
+        // runs. Other processes map the file read-only and, by the tag protocol, discard what they
+        // read from a slot whose tag says loading (the tag was set to loading in `assign`, before
+        // the claim).
         let out = unsafe { self.region.fill(offset, p.slot_bytes as usize, fill) };
-        claim.store(want, Ordering::Release);
-        Some(out)
+        claim.store(now, Ordering::Release);
+        Some((now >> 2, out))
     }
 
-    /// Marks `tile` settled after a read filled its slot: ready (or the default tile), or
-    /// missing. `false` when the slot no longer belongs to the tile (a late read: nothing
-    /// changed).
-    pub fn settle(&self, tile: TileId, st: SlotState) -> bool {
+    /// Marks `tile` settled after a read filled its slot in `generation`: ready (or the default
+    /// tile), or missing. `false` when the slot no longer belongs to that assignment of the tile
+    /// (a late read: nothing changed).
+    pub fn settle(&self, tile: TileId, generation: u64, st: SlotState) -> bool {
         let t = [tile.s as i64, tile.t as i64];
+        if tile.level as usize >= self.claims.len() {
+            return false;
+        }
         let (k, slot) = self.slot_of(tile.level, t);
         let claim = &self.claims[k][slot as usize];
+        if self.keys[k][slot as usize].load(Ordering::Acquire) != key(t) {
+            return false;
+        }
+        let loading = word(generation, LOADING);
         if st == SlotState::Missing {
             // The claim stays loading, so that a later retry may fill the slot; readers skip it.
-            if claim.load(Ordering::Acquire) != key(t) | LOADING {
+            if claim.load(Ordering::Acquire) != loading {
                 return false;
             }
             self.store_tag(k, slot, t, st);
             return true;
         }
-        if claim.compare_exchange(key(t) | LOADING, key(t) | SETTLED, Ordering::AcqRel, Ordering::Relaxed).is_err() {
+        if claim.compare_exchange(loading, word(generation, SETTLED), Ordering::AcqRel, Ordering::Relaxed).is_err() {
             return false;
         }
         self.store_tag(k, slot, t, st);
         true
+    }
+
+    /// The generation of `tile`'s slot if it is assigned to the tile and loading (a read that
+    /// failed before filling it settles it missing under this).
+    pub fn loading_generation(&self, tile: TileId) -> Option<u64> {
+        let t = [tile.s as i64, tile.t as i64];
+        if tile.level as usize >= self.claims.len() {
+            return None;
+        }
+        let (k, slot) = self.slot_of(tile.level, t);
+        let now = self.claims[k][slot as usize].load(Ordering::Acquire);
+        (state_of(now) == LOADING && self.keys[k][slot as usize].load(Ordering::Acquire) == key(t)).then_some(now >> 2)
     }
 
     /// Copies bytes of a settled slot (in-process readers: the sampler over the engine, dumps).
@@ -290,15 +319,16 @@ impl ImageMemory {
             return false;
         }
         let (k, slot) = self.slot_of(tile.level, t);
-        if self.claims[k][slot as usize].load(Ordering::Acquire) != key(t) | SETTLED {
+        let settled = state_of(self.claims[k][slot as usize].load(Ordering::Acquire)) == SETTLED;
+        if !settled || self.keys[k][slot as usize].load(Ordering::Acquire) != key(t) {
             return false;
         }
         let p = &self.placement.levels[k];
         if offset + out.len() > p.slot_bytes as usize {
             return false;
         }
-        // A settled slot changes only through `assign`/`release`, which the engine calls from its
-        // tick (`&mut` of the engine), never while an in-process reader holds it.
+        // A settled slot changes only through `assign`, which the engine calls from its tick
+        // (`&mut` of the engine), never while an in-process reader holds it.
         self.region.read(p.slot_offset(slot) as usize + offset, out);
         true
     }
