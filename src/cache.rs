@@ -178,10 +178,12 @@ impl TileCache {
         (slot.tile == Some(st) && slot.assigned).then_some(slot)
     }
 
-    /// Notes that `tile` was requested (ignored unless it is absent or failed in its mem region).
+    /// Notes that `tile` was requested (ignored unless it is absent). A failed tile that is read
+    /// again stays failed (published as missing, readers use a coarser level) until the retry
+    /// settles it.
     pub fn mark_loading(&mut self, tile: TileId) {
         if let Some(slot) = self.level_slot_mut(tile) {
-            if matches!(slot.state, TileState::Absent | TileState::Failed { .. }) {
+            if slot.state == TileState::Absent {
                 slot.state = TileState::Loading;
             }
         }

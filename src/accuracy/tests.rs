@@ -39,13 +39,19 @@ fn a_smaller_clip_size_never_improves_the_picture() {
 #[test]
 fn a_slower_disk_or_a_faster_flight_draws_more_pixels_coarser() {
     let at = |tiles: u64, speed: f64| {
-        let c = Case { disk_tiles: Some(tiles), flight: format!("straight:{speed}:30"), frames: 4, ..case(256, 128) };
+        let c = Case {
+            disk_tiles: Some(tiles),
+            wait_for_reads: true,
+            flight: format!("straight:{speed}:30"),
+            frames: 6,
+            ..case(256, 128)
+        };
         run(&c, |_, _, _, _| {}).unwrap().coarser_pixel_share
     };
-    let (loose, tight) = (at(64, 16.0), at(1, 16.0));
+    let (loose, tight) = (at(64, 64.0), at(1, 64.0));
     assert!(tight > loose, "tight {tight} <= loose {loose}");
-    assert!(tight > 0.0, "one tile a frame cannot keep up with 16 texels per frame");
-    let (slow, fast) = (at(2, 2.0), at(2, 64.0));
+    assert!(tight > 0.0, "one tile a frame cannot keep up with 64 texels per frame");
+    let (slow, fast) = (at(2, 2.0), at(2, 128.0));
     assert!(fast > slow, "fast {fast} <= slow {slow}");
 }
 

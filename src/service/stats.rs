@@ -204,8 +204,8 @@ mod tests {
         let s = ServiceStats { name: "x".into(), tick: TickStats::default(), control: ControlStats::default() };
         let text = s.prometheus();
         let samples: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).collect();
-        assert_eq!(samples.len(), 30);
+        assert_eq!(samples.len(), 29);
         assert!(samples.iter().all(|l| l.starts_with("clipmapd_") && l.contains("{name=\"x\"} ")));
-        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 30);
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 29);
     }
 }
