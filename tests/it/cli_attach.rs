@@ -1,8 +1,8 @@
 //! `cliptex attach` against a mapping published by this test process (the service's writer and
-//! engine mirror, without the service around them).
+//! engine, without the service around them).
 
-use clipmap::clip::{Clipmap, CostTable, Settings};
-use clipmap::shm::mirror::Mirror;
+use clipmap::clip::{Clipmap, Settings};
+use clipmap::shm::Writer;
 use clipmap::source::{HashSource, TextureDesc};
 use clipmap::texel::TexelFormat;
 use std::process::Command;
@@ -19,11 +19,12 @@ fn attach_once_json_reports_every_level_as_published() {
     let dir = tempfile::tempdir().unwrap();
     let desc =
         TextureDesc::new([4096, 4096], 256, TexelFormat::RGBA8, [64, 64]).unwrap().with_invalid_border(8).unwrap();
-    let settings = Settings { budget_ns: None, cost: Some(CostTable::fixed(100.0, 10.0, 1.0)), ..Settings::default() };
-    let mut map = Clipmap::new(Arc::new(HashSource::new(desc)), settings).unwrap();
-    let mut mirror = Mirror::create(dir.path(), "att", &map, 0o600).unwrap();
+    let settings = Settings { budget_ns: None, ..Settings::default() };
+    let shape = Clipmap::shape_for(&desc, &settings);
+    let writer = Writer::create(dir.path(), "att", shape, desc.format(), 0o600, 0o600, 16_666_667).unwrap();
+    let mut map = Clipmap::with_memory(Arc::new(HashSource::new(desc)), settings, writer.memory()).unwrap();
     for _ in 0..6 {
-        map.tick_with([1000, 3000], None, &mut mirror);
+        map.tick([1000, 3000], None);
         map.wait_for_reads();
     }
     let d = dir.path().to_str().unwrap();

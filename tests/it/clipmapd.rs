@@ -559,7 +559,10 @@ fn the_demo_writes_its_pictures_and_a_summary_and_exits() {
 
 #[test]
 fn the_c_header_and_the_python_reader_agree_with_the_layout() {
-    use clipmap::shm::layout::{desc, header, request, state, DESC_BYTES, MAX_LEVELS, PAGE, STATE_BYTES, VERSION};
+    use clipmap::shm::layout::{
+        desc, header, request, snapshot, state, tag, DESC_BYTES, MAX_LEVELS, MAX_RETRIES, PAGE, REQUEST_BYTES,
+        STATE_BYTES, TAG_BYTES, VERSION,
+    };
     let h = std::fs::read_to_string(Path::new(ROOT).join("include/clipmap_shm.h")).unwrap();
     let define = |name: &str| -> usize {
         let line = h
@@ -573,6 +576,8 @@ fn the_c_header_and_the_python_reader_agree_with_the_layout() {
         ("CLIPMAP_VERSION", VERSION as usize),
         ("CLIPMAP_PAGE", PAGE as usize),
         ("CLIPMAP_MAX_LEVELS", MAX_LEVELS),
+        ("CLIPMAP_MAX_RETRIES", MAX_RETRIES),
+        ("CLIPMAP_REQUEST_BYTES", REQUEST_BYTES as usize),
         ("CLIPMAP_H_VERSION", header::VERSION),
         ("CLIPMAP_H_HEADER_BYTES", header::HEADER_BYTES),
         ("CLIPMAP_H_TOTAL_BYTES", header::TOTAL_BYTES),
@@ -583,25 +588,22 @@ fn the_c_header_and_the_python_reader_agree_with_the_layout() {
         ("CLIPMAP_H_LEVEL0_S", header::LEVEL0_S),
         ("CLIPMAP_H_LEVEL0_T", header::LEVEL0_T),
         ("CLIPMAP_H_WRITER_PID", header::WRITER_PID),
-        ("CLIPMAP_H_FLAGS", header::FLAGS),
         ("CLIPMAP_H_HEARTBEAT", header::HEARTBEAT),
         ("CLIPMAP_H_HEARTBEAT_MS", header::HEARTBEAT_MS),
         ("CLIPMAP_H_GENERATION", header::GENERATION),
-        ("CLIPMAP_H_GLOBAL_SEQ", header::GLOBAL_SEQ),
-        ("CLIPMAP_H_MIN_LOD", header::MIN_LOD),
-        ("CLIPMAP_H_TICK", header::TICK),
-        ("CLIPMAP_H_REQUEST", header::REQUEST),
+        ("CLIPMAP_H_FLAGS", header::FLAGS),
+        ("CLIPMAP_H_TICK_PERIOD_NS", header::TICK_PERIOD_NS),
+        ("CLIPMAP_H_SNAPSHOT", header::SNAPSHOT),
         ("CLIPMAP_H_LEVEL_DESCS", header::LEVEL_DESCS),
-        ("CLIPMAP_DESC_BYTES", DESC_BYTES),
+        ("CLIPMAP_H_END", header::END),
+        ("CLIPMAP_SNAP_SEQ", snapshot::SEQ),
+        ("CLIPMAP_SNAP_MIN_LOD", snapshot::MIN_LOD),
+        ("CLIPMAP_SNAP_TICK", snapshot::TICK),
+        ("CLIPMAP_SNAP_INVALID_BORDER", snapshot::INVALID_BORDER),
+        ("CLIPMAP_SNAP_CENTRE_S", snapshot::CENTRE_S),
+        ("CLIPMAP_SNAP_CENTRE_T", snapshot::CENTRE_T),
+        ("CLIPMAP_SNAP_LEVELS", snapshot::LEVELS),
         ("CLIPMAP_STATE_BYTES", STATE_BYTES),
-        ("CLIPMAP_D_SIZE_S", desc::SIZE_S),
-        ("CLIPMAP_D_SIZE_T", desc::SIZE_T),
-        ("CLIPMAP_D_WINDOW_OFFSET", desc::WINDOW_OFFSET),
-        ("CLIPMAP_D_WINDOW_BYTES", desc::WINDOW_BYTES),
-        ("CLIPMAP_D_WINDOW_S", desc::WINDOW_S),
-        ("CLIPMAP_D_WINDOW_T", desc::WINDOW_T),
-        ("CLIPMAP_D_KIND", desc::KIND),
-        ("CLIPMAP_S_SEQ", state::SEQ),
         ("CLIPMAP_S_CENTRE_S", state::CENTRE_S),
         ("CLIPMAP_S_CENTRE_T", state::CENTRE_T),
         ("CLIPMAP_S_VALID_S0", state::VALID_S0),
@@ -609,10 +611,25 @@ fn the_c_header_and_the_python_reader_agree_with_the_layout() {
         ("CLIPMAP_S_VALID_S1", state::VALID_S1),
         ("CLIPMAP_S_VALID_T1", state::VALID_T1),
         ("CLIPMAP_S_ENABLED", state::ENABLED),
-        ("CLIPMAP_S_INVALID_BORDER", state::INVALID_BORDER),
         ("CLIPMAP_S_UPDATED_TICK", state::UPDATED_TICK),
-        ("CLIPMAP_S_ORIGIN_S", state::ORIGIN_S),
-        ("CLIPMAP_S_ORIGIN_T", state::ORIGIN_T),
+        ("CLIPMAP_DESC_BYTES", DESC_BYTES),
+        ("CLIPMAP_D_SIZE_S", desc::SIZE_S),
+        ("CLIPMAP_D_SIZE_T", desc::SIZE_T),
+        ("CLIPMAP_D_TILE_S", desc::TILE_S),
+        ("CLIPMAP_D_TILE_T", desc::TILE_T),
+        ("CLIPMAP_D_GRID_S", desc::GRID_S),
+        ("CLIPMAP_D_GRID_T", desc::GRID_T),
+        ("CLIPMAP_D_SLOT_BYTES", desc::SLOT_BYTES),
+        ("CLIPMAP_D_TAGS_OFFSET", desc::TAGS_OFFSET),
+        ("CLIPMAP_D_SLOTS_OFFSET", desc::SLOTS_OFFSET),
+        ("CLIPMAP_D_KIND", desc::KIND),
+        ("CLIPMAP_TAG_BYTES", TAG_BYTES),
+        ("CLIPMAP_T_SEQ", tag::SEQ),
+        ("CLIPMAP_T_TILE_S", tag::TILE_S),
+        ("CLIPMAP_T_TILE_T", tag::TILE_T),
+        ("CLIPMAP_T_STATE", tag::STATE),
+        ("CLIPMAP_R_VERSION", request::VERSION),
+        ("CLIPMAP_R_GENERATION", request::GENERATION),
         ("CLIPMAP_R_SEQ", request::SEQ),
         ("CLIPMAP_R_CENTRE_S", request::CENTRE_S),
         ("CLIPMAP_R_CENTRE_T", request::CENTRE_T),
@@ -624,27 +641,62 @@ fn the_c_header_and_the_python_reader_agree_with_the_layout() {
     for (name, want) in pairs {
         assert_eq!(define(name), *want, "{name}");
     }
-    // The derived offsets, and Python's copy of them, computed by Python itself.
+    use clipmap::shm::layout::SlotState as S;
+    for (name, st) in [
+        ("CLIPMAP_SLOT_EMPTY", S::Empty),
+        ("CLIPMAP_SLOT_LOADING", S::Loading),
+        ("CLIPMAP_SLOT_READY", S::Ready),
+        ("CLIPMAP_SLOT_MISSING", S::Missing),
+        ("CLIPMAP_SLOT_DEFAULT", S::Default),
+    ] {
+        assert_eq!(define(name), st as usize, "{name}");
+    }
+    // Python's copy of them, computed by Python itself.
     let py = Command::new("python3")
         .arg("-c")
         .arg(
             "import sys; sys.path.insert(0, sys.argv[1]); import clipmap_shm as c; \
-             print(c.H_LEVEL_STATES, c.H_END, c.H_GLOBAL_SEQ, c.H_HEARTBEAT_MS, c.DESC_BYTES, c.STATE_BYTES)",
+             print(c.H_SNAPSHOT, c.H_LEVEL_DESCS, c.H_END, c.H_TICK_PERIOD_NS, c.DESC_BYTES, c.STATE_BYTES, \
+             c.TAG_BYTES, c.DESC_SLOTS_OFFSET, c.TAG_STATE, c.S_UPDATED_TICK, c.SNAP_CENTRE_T, c.MAX_RETRIES)",
         )
         .arg(Path::new(ROOT).join("clients/python"))
         .output()
         .unwrap();
     assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
     let want = format!(
-        "{} {} {} {} {} {}",
-        header::LEVEL_STATES,
+        "{} {} {} {} {} {} {} {} {} {} {} {}",
+        header::SNAPSHOT,
+        header::LEVEL_DESCS,
         header::END,
-        header::GLOBAL_SEQ,
-        header::HEARTBEAT_MS,
+        header::TICK_PERIOD_NS,
         DESC_BYTES,
-        STATE_BYTES
+        STATE_BYTES,
+        TAG_BYTES,
+        desc::SLOTS_OFFSET,
+        tag::STATE,
+        state::UPDATED_TICK,
+        snapshot::CENTRE_T,
+        MAX_RETRIES
     );
     assert_eq!(String::from_utf8_lossy(&py.stdout).trim(), want);
+}
+
+#[test]
+fn the_c_and_python_readers_pass_the_independent_fixture_mappings() {
+    // An independent layout-2 writer (tests/fixtures/make_mapping.py) makes valid, missing-tile
+    // and hostile mappings; both readers must read the first all right, skip missing tiles and
+    // refuse each hostile one (exit 2, never a crash or a hang).
+    let out = Command::new("bash")
+        .arg(Path::new(ROOT).join("tests/fixtures/check_readers.sh"))
+        .args(["--quick", "--no-asan"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "stdout:\n{}\nstderr:\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 #[test]
