@@ -22,10 +22,11 @@ Requests: Python has no compare-and-swap on a mapping, so it cannot take the req
 mapping's seqlock; a Python renderer asks for a centre through the control socket (`CENTRE s t`).
 
 Consistency: the snapshot and every slot tag are read under their seqlocks (sequence read
-before and after, accepted only when even and equal), with 8-byte loads of the sequences
-through a native memoryview. Python has no memory fences; on x86-64 (loads are not reordered
-with other loads) that is enough, elsewhere treat this module as a reference, not a production
-reader.
+before and after, accepted only when even and equal). Every field the writer changes is loaded
+through a native memoryview (one 8-byte load each; struct's "<Q" is not promised to be one
+load). Python has no memory fences; on x86-64 (loads are not reordered with other loads) that
+is enough, elsewhere treat this module as a reference, not a production reader. A file
+truncated after it was mapped raises SIGBUS on access, as with any mmap.
 """
 
 import mmap
