@@ -291,14 +291,6 @@ static inline uint64_t clipmap_mod(int64_t a, uint64_t n) {
     return n - 1 - r;
 }
 
-/* Floor of a / n (n > 0). */
-static inline int64_t clipmap_floor_div(int64_t a, uint64_t n) {
-    if (n > (uint64_t)INT64_MAX) return a >= 0 ? 0 : -1;
-    int64_t q = a / (int64_t)n;
-    if (a % (int64_t)n < 0) q--;
-    return q;
-}
-
 /* Slot index of tile (S, T): (T mod GH) * GW + (S mod GW), Euclidean. */
 static inline uint64_t clipmap_slot_index(const struct clipmap_level_desc *d, int64_t S, int64_t T) {
     return clipmap_mod(T, d->grid[1]) * d->grid[0] + clipmap_mod(S, d->grid[0]);
@@ -440,10 +432,11 @@ static inline int clipmap_check_static(struct clipmap_map *m, const char *path) 
  * naming what was found and what was expected (and nothing left mapped). */
 static inline int clipmap_open(const char *path, struct clipmap_map *m) {
     memset(m, 0, sizeof *m);
+    /* O_NONBLOCK: a FIFO given as the path must not block the open (it is refused below). */
 #ifdef O_CLOEXEC
-    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    int fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
 #else
-    int fd = open(path, O_RDONLY);
+    int fd = open(path, O_RDONLY | O_NONBLOCK);
 #endif
     if (fd < 0) {
         snprintf(m->error, sizeof m->error, "%s: %s", path, strerror(errno));
@@ -697,9 +690,9 @@ struct clipmap_request {
 static inline int clipmap_request_open(const char *path, const struct clipmap_map *m, struct clipmap_request *r) {
     memset(r, 0, sizeof *r);
 #ifdef O_CLOEXEC
-    int fd = open(path, O_RDWR | O_CLOEXEC);
+    int fd = open(path, O_RDWR | O_NONBLOCK | O_CLOEXEC);
 #else
-    int fd = open(path, O_RDWR);
+    int fd = open(path, O_RDWR | O_NONBLOCK);
 #endif
     struct stat st;
     if (fd < 0 || fstat(fd, &st) != 0) {

@@ -22,10 +22,11 @@ Requests: Python has no compare-and-swap on a mapping, so it cannot take the req
 mapping's seqlock; a Python renderer asks for a centre through the control socket (`CENTRE s t`).
 
 Consistency: the snapshot and every slot tag are read under their seqlocks (sequence read
-before and after, accepted only when even and equal), with 8-byte loads of the sequences
-through a native memoryview. Python has no memory fences; on x86-64 (loads are not reordered
-with other loads) that is enough, elsewhere treat this module as a reference, not a production
-reader.
+before and after, accepted only when even and equal). Every field the writer changes is loaded
+through a native memoryview (one 8-byte load each; struct's "<Q" is not promised to be one
+load). Python has no memory fences; on x86-64 (loads are not reordered with other loads) that
+is enough, elsewhere treat this module as a reference, not a production reader. A file
+truncated after it was mapped raises SIGBUS on access, as with any mmap.
 """
 
 import mmap
@@ -188,7 +189,8 @@ class Mapping:
         self.mm = None
         self.q = None
         self.snap = None
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+        # O_NONBLOCK: a FIFO given as the path must not block the open (it is refused below).
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
         try:
             st = os.fstat(fd)
             if not stat.S_ISREG(st.st_mode):
