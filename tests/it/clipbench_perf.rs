@@ -1,6 +1,7 @@
 //! `clipbench perf --smoke --no-gdal --json` runs every comparison at tiny sizes and keeps its
-//! JSON contract: the five top-level ratios exist, four are positive numbers and
-//! `speedup_vs_gdal` is null without GDAL. No timing is asserted.
+//! JSON contract: the top-level ratios exist and are positive numbers, `tick_texel_bytes` is 0
+//! (layout 2: ticks write no texels), `speedup_vs_gdal` is null without GDAL, and
+//! `update_vs_memcpy` is gone (there is nothing left to copy). No timing is asserted.
 
 use std::process::Command;
 
@@ -22,10 +23,15 @@ fn run_perf(dir: &std::path::Path, extra: &[&str]) -> serde_json::Value {
 fn perf_json_has_the_contract_fields() {
     let dir = tempfile::tempdir().unwrap();
     let v = run_perf(dir.path(), &["--no-gdal"]);
-    for field in ["update_vs_memcpy", "ingest_vs_read", "speedup_vs_full_reload", "memory_vs_formula"] {
+    for field in ["direction_ratio", "ingest_vs_read", "speedup_vs_full_reload", "memory_vs_formula"] {
         let x = v[field].as_f64().unwrap_or_else(|| panic!("{field} is not a number: {}", v[field]));
         assert!(x.is_finite() && x > 0.0, "{field} = {x}");
     }
+    assert!(v["direction_ratio"].as_f64().unwrap() >= 1.0, "slowest over fastest");
+    assert_eq!(v["tick_texel_bytes"], 0, "ticks write no texels");
+    assert!(v.get("update_vs_memcpy").is_none(), "update_vs_memcpy is retired");
+    let shown = v["scale"]["level0_shown_share"].as_f64().expect("scale.level0_shown_share");
+    assert!((0.0..=1.0).contains(&shown), "{shown}");
     assert!(v.get("speedup_vs_gdal").is_some_and(|g| g.is_null()), "speedup_vs_gdal: {:?}", v.get("speedup_vs_gdal"));
     // Details are there for every comparison, and the scratch data is gone.
     for detail in ["engine", "memory", "ingest", "flight", "scale", "service", "machine"] {

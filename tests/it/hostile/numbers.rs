@@ -168,7 +168,7 @@ fn a_clip_size_whose_windows_exceed_the_limit_is_refused_before_anything_is_crea
         a[i + 1] = v.into();
     }
     let a: Vec<&str> = a.iter().map(String::as_str).collect();
-    fails(d, CLIPMAPD, &a, 1, &["clip windows need", "the limit is"]);
+    fails(d, CLIPMAPD, &a, 1, &["the image caches need", "the limit is"]);
     let left: Vec<_> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert!(left.is_empty(), "nothing created in the shared directory: {left:?}");
 }

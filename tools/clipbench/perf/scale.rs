@@ -1,7 +1,9 @@
 //! Scale: a 2^26 x 2^26 procedural texture flown at 1000 level-0 texels per tick along +s, 60
 //! ticks a second in real time (each tick starts at its slot; reads run in the background as in
-//! the service), with the default copy budget and load control. Counts ticks over budget, ticks
-//! with disabled levels, late ticks (longer than the tick period) and the throughput; then the
+//! the service, straight into their slots), with the default tick budget and load control.
+//! Counts the share of ticks after the first second on which level 0 is published
+//! (`level0_shown_share`), ticks with disabled levels, late ticks (longer than the tick period)
+//! and the throughput; then the
 //! same flight, shorter, with a lookahead of tiles that covers two ticks of motion, to show
 //! whether reading ahead is what limits it.
 
@@ -26,6 +28,8 @@ pub struct Scale {
     pub ticks: u64,
     pub ticks_over_budget: u64,
     pub ticks_with_disabled_levels: u64,
+    /// Share of the ticks after the first second on which level 0 is published (min LOD below 1).
+    pub level0_shown_share: f64,
     /// Most levels disabled at once.
     pub max_disabled_levels: usize,
     /// Mean min LOD over the ticks (0: level 0 always shown).
@@ -35,7 +39,8 @@ pub struct Scale {
     pub tick_p50_s: f64,
     pub tick_p99_s: f64,
     pub tick_max_s: f64,
-    pub bytes_copied_per_s: f64,
+    /// Texel bytes the ticks wrote other than by tile reads (0: tiles go straight into slots).
+    pub tick_texel_bytes: u64,
     pub tiles_read_per_s: f64,
     /// Level-0 texels the centre moved per second of wall time.
     pub texels_flown_per_s: f64,
@@ -80,6 +85,7 @@ fn fly(clip: u64, tile: u64, seconds: f64, lookahead: Option<u64>) -> anyhow::Re
     let ticks = (seconds * hz) as u64;
     let (mut times, mut over, mut disabled, mut max_disabled, mut lod_sum, mut late) =
         (Vec::new(), 0u64, 0u64, 0usize, 0.0, 0u64);
+    let (mut shown, mut after_first_second) = (0u64, 0u64);
     let cpu_before = super::proc_self().cpu_s;
     let start = Instant::now();
     for i in 0..ticks {
@@ -94,6 +100,10 @@ fn fly(clip: u64, tile: u64, seconds: f64, lookahead: Option<u64>) -> anyhow::Re
         disabled += !r.disabled_levels.is_empty() as u64;
         max_disabled = max_disabled.max(r.disabled_levels.len());
         lod_sum += r.min_lod;
+        if i >= hz as u64 {
+            after_first_second += 1;
+            shown += u64::from(r.min_lod < 1.0);
+        }
     }
     let wall = start.elapsed().as_secs_f64();
     let cpu = super::proc_self().cpu_s - cpu_before;
@@ -110,13 +120,14 @@ fn fly(clip: u64, tile: u64, seconds: f64, lookahead: Option<u64>) -> anyhow::Re
         ticks,
         ticks_over_budget: over,
         ticks_with_disabled_levels: disabled,
+        level0_shown_share: if after_first_second == 0 { 0.0 } else { shown as f64 / after_first_second as f64 },
         max_disabled_levels: max_disabled,
         mean_min_lod: lod_sum / ticks.max(1) as f64,
         late_ticks: late,
         tick_p50_s: quantile(&times, 0.5),
         tick_p99_s: quantile(&times, 0.99),
         tick_max_s: quantile(&times, 1.0),
-        bytes_copied_per_s: (after.tick_texel_bytes - before.tick_texel_bytes) as f64 / wall,
+        tick_texel_bytes: after.tick_texel_bytes - before.tick_texel_bytes,
         tiles_read_per_s: (after.tiles_read - before.tiles_read) as f64 / wall,
         texels_flown_per_s: (speed as u64 * ticks) as f64 / wall,
         cpu_cores_used: cpu / wall,
