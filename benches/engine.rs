@@ -52,8 +52,7 @@ fn strip_copy(c: &mut Criterion) {
 
 fn residency(c: &mut Criterion) {
     let desc = TextureDesc::new([1 << 26; 2], 2048, TexelFormat::RGBA8, [256; 2]).unwrap();
-    let shapes: Vec<LevelShape> =
-        desc.levels().iter().map(|l| LevelShape::new(l.size, l.tile, 2048, 1)).collect();
+    let shapes: Vec<LevelShape> = desc.levels().iter().map(|l| LevelShape::new(l.size, l.tile, 2048, 1)).collect();
     let mut centre = [1i64 << 25; 2];
     c.bench_function("residency_all_levels_2^26", |b| {
         b.iter(|| {
@@ -106,8 +105,7 @@ fn strip_copy_resident(c: &mut Criterion) {
 /// back by a ready-read bound of 1, so no tile is read while timing).
 fn priority_refresh(c: &mut Criterion) {
     let desc = TextureDesc::new([1 << 26; 2], 2048, TexelFormat::RGBA8, [256; 2]).unwrap();
-    let shapes: Vec<LevelShape> =
-        desc.levels().iter().map(|l| LevelShape::new(l.size, l.tile, 2048, 1)).collect();
+    let shapes: Vec<LevelShape> = desc.levels().iter().map(|l| LevelShape::new(l.size, l.tile, 2048, 1)).collect();
     let levels = shapes.len();
     let mut group = c.benchmark_group("priority_refresh");
     let mut centre = [1i64 << 25; 2];
@@ -132,7 +130,8 @@ fn priority_refresh(c: &mut Criterion) {
     let small = TextureDesc::new([1 << 20; 2], 512, TexelFormat::RGBA8, [128; 2]).unwrap();
     let limits = Limits { max_pending_reads: 4096, max_ready_reads: 1, ..Limits::default() };
     let grids = Clipmap::grids(&small, &Settings::default());
-    let memory = clipmap::shm::ImageMemory::anonymous(clipmap::clip::memory_shape(&small, &grids), small.format()).unwrap();
+    let memory =
+        clipmap::shm::ImageMemory::anonymous(clipmap::clip::memory_shape(&small, &grids), small.format()).unwrap();
     let mut queues = ReadQueues::new(Arc::new(HashSource::new(small)), Arc::new(memory), 1, limits).unwrap();
     let tiles: Vec<TileId> =
         (0..32u64).flat_map(|t| (0..32u64).map(move |s| TileId::new(0, 4000 + s, 4000 + t))).collect();

@@ -415,7 +415,7 @@ pub fn human(report: &RoamReport) -> String {
     let _ = writeln!(
         o,
         "{:>6} {:>22} {:>14} {:>7} {:>7} {:>6}  disabled",
-        "frame", "centre", "bytes copied", "tiles", "min LOD", "over"
+        "frame", "centre", "bytes read", "tiles", "min LOD", "over"
     );
     for f in &report.frames {
         let disabled = match (f.disabled_levels.first(), f.disabled_levels.last()) {
@@ -428,7 +428,7 @@ pub fn human(report: &RoamReport) -> String {
             "{:>6} {:>22} {:>14} {:>7} {:>7.2} {:>6}  {}",
             f.frame,
             format!("({}, {})", f.centre[0], f.centre[1]),
-            f.bytes_copied,
+            f.bytes_read,
             f.tiles_read,
             f.min_lod,
             if f.over_budget { "yes" } else { "" },
@@ -439,10 +439,11 @@ pub fn human(report: &RoamReport) -> String {
     let _ = writeln!(o, "totals:");
     let _ = writeln!(
         o,
-        "  bytes copied                {} ({})",
-        t.bytes_copied,
-        crate::report::human_bytes(t.bytes_copied as u128)
+        "  bytes read                  {} ({}), straight into the image caches' slots",
+        t.bytes_read,
+        crate::report::human_bytes(t.bytes_read as u128)
     );
+    let _ = writeln!(o, "  texel bytes copied by ticks {}", t.bytes_copied);
     let _ = writeln!(o, "  tiles read                  {}", t.tiles_read);
     let _ = writeln!(o, "  ticks over budget           {}", t.ticks_over_budget);
     let _ = writeln!(o, "  frames with disabled level  {}", t.frames_with_disabled_level);
@@ -451,7 +452,7 @@ pub fn human(report: &RoamReport) -> String {
     }
     let _ = writeln!(
         o,
-        "  peak resident bytes         {} ({})",
+        "  image caches (peak)         {} ({})",
         t.peak_resident_bytes,
         crate::report::human_bytes(t.peak_resident_bytes as u128)
     );

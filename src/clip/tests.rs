@@ -238,7 +238,10 @@ fn each_fault_kind_costs_its_tiles_a_coarser_level_never_a_wrong_texel_and_heals
             }
             map.wait_for_reads();
             let v = map.level(0);
-            if r.min_lod == 0.0 && v.texel(v.valid.s0, v.valid.t0).is_some() && v.texel(v.valid.s1 - 1, v.valid.t1 - 1).is_some() {
+            if r.min_lod == 0.0
+                && v.texel(v.valid.s0, v.valid.t0).is_some()
+                && v.texel(v.valid.s1 - 1, v.valid.t1 - 1).is_some()
+            {
                 healed_after = Some(n);
                 break;
             }

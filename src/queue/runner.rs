@@ -128,10 +128,10 @@ impl Runner {
                     }
                 });
                 let outcome = read.await.unwrap_or_else(|e| {
-                    Outcome::Failed(None, SourceError::Io {
-                        tile,
-                        source: std::io::Error::other(format!("tile read task failed: {e}")),
-                    })
+                    Outcome::Failed(
+                        None,
+                        SourceError::Io { tile, source: std::io::Error::other(format!("tile read task failed: {e}")) },
+                    )
                 });
                 Completion { tile, outcome }
             });

@@ -92,3 +92,78 @@ fn missing_tiles_are_never_sampled() {
     let want = mip.sample(Filter::Trilinear, 256.5, 256.5, got.lod).unwrap();
     assert_eq!(got.rgba.map(f32::to_bits), want.map(f32::to_bits));
 }
+
+fn mapped_desc() -> TextureDesc {
+    TextureDesc::new([1 << 12; 2], 128, TexelFormat::RGBA8, [32, 32]).unwrap().with_invalid_border(4).unwrap()
+}
+
+/// A service's engine without the service: its image caches in a mapping `name` in `dir`.
+fn mapped_service(dir: &std::path::Path, name: &str) -> (Clipmap, crate::shm::Writer) {
+    let settings = Settings { budget_ns: None, fade_ticks: 1, ..Settings::default() };
+    let source: Arc<dyn TileSource> = Arc::new(HashSource::new(mapped_desc()));
+    let shape = Clipmap::shape_for(source.desc(), &settings);
+    let w = crate::shm::Writer::create(dir, name, shape, source.desc().format(), 0o600, 0o600, 16_666_667).unwrap();
+    let map = Clipmap::with_memory(source, settings, w.memory()).unwrap();
+    (map, w)
+}
+
+#[test]
+fn a_client_samples_the_mapping_exactly_as_the_engine_is_sampled() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, _w) = mapped_service(dir.path(), "smp");
+    let client = Client::attach(dir.path(), "smp").unwrap();
+    let full_source = HashSource::new(mapped_desc());
+    let mut full = MipmapSampler::new(&full_source);
+    let mut c = [1500i64, 2500];
+    let mut rng = 3u64;
+    let mut next = || {
+        rng = crate::source::procedural::splitmix64(rng);
+        rng
+    };
+    let (mut compared, mut coarser) = (0, 0);
+    for tick in 0..30 {
+        c = [c[0] + 11, c[1] - 9];
+        map.tick(c, None);
+        map.wait_for_reads();
+        if tick < 5 {
+            continue;
+        }
+        for _ in 0..100 {
+            let u = c[0] as f64 + (next() % 1200) as f64 - 600.0 + (next() % 1000) as f64 / 1000.0;
+            let v = c[1] as f64 + (next() % 1200) as f64 - 600.0 + (next() % 1000) as f64 / 1000.0;
+            let lod = (next() % 600) as f64 / 100.0;
+            let filter = [Filter::Point, Filter::Bilinear, Filter::Trilinear][(next() % 3) as usize];
+            let from_engine = sample_clipmap(&map, filter, u, v, lod).expect("the engine holds every footprint");
+            let from_mapping = sample_mapping(&client, filter, u, v, lod).expect("the mapping holds every footprint");
+            assert_eq!(from_mapping, from_engine, "{filter:?} at ({u}, {v}) lod {lod}");
+            let reference = full.sample(filter, u, v, from_mapping.lod).unwrap();
+            assert_eq!(from_mapping.rgba, reference, "{filter:?} at ({u}, {v}) lod {}", from_mapping.lod);
+            compared += 1;
+            coarser += usize::from(from_mapping.lod > lod);
+        }
+    }
+    assert_eq!(compared, 2500);
+    assert!(coarser > 0, "some samples fall outside the finer windows and use a coarser level");
+}
+
+#[test]
+fn a_missing_tile_in_the_mapping_is_sampled_from_the_next_level_its_neighbours_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let settings = Settings { budget_ns: None, ..Settings::default() };
+    let faulty = Arc::new(FaultySource::new(Arc::new(HashSource::new(mapped_desc()))));
+    faulty.add(FaultRule::tile(crate::source::TileId::new(0, 63, 63), Fault::Missing));
+    let shape = Clipmap::shape_for(faulty.desc(), &settings);
+    let w = crate::shm::Writer::create(dir.path(), "hole", shape, TexelFormat::RGBA8, 0o600, 0o600, 1_000_000).unwrap();
+    let mut map = Clipmap::with_memory(faulty, settings, w.memory()).unwrap();
+    for _ in 0..10 {
+        map.tick([2040, 2040], None);
+        map.wait_for_reads();
+    }
+    let client = crate::shm::Client::attach(dir.path(), "hole").unwrap();
+    let (hole, beside) = ((63.0 * 32.0 + 5.5, 63.0 * 32.0 + 5.5), (64.0 * 32.0 + 1.5, 63.0 * 32.0 + 1.5));
+    let at = |(u, v): (f64, f64)| sample_mapping(&client, Filter::Point, u, v, 0.0).unwrap();
+    assert_eq!((at(hole).lod, at(beside).lod), (1.0, 0.0));
+    // The engine samples the same.
+    let engine = |(u, v): (f64, f64)| sample_clipmap(&map, Filter::Point, u, v, 0.0).unwrap();
+    assert_eq!((engine(hole), engine(beside)), (at(hole), at(beside)));
+}

@@ -504,13 +504,6 @@ impl Client {
         Ok(out)
     }
 
-    /// Samples the mapping with the reference sampler ([`crate::sample::sample_mapping`]): point,
-    /// bilinear or trilinear at (u, v) in level-0 texel units and `lod`, raised to the published
-    /// min LOD and to the finest level whose valid region (and tiles) hold the footprint.
-    pub fn sample(&self, filter: crate::sample::Filter, u: f64, v: f64, lod: f64) -> Option<crate::sample::Sample> {
-        crate::sample::sample_mapping(self, filter, u, v, lod)
-    }
-
     /// Asks the service to centre the clipmap at `centre` (level-0 texels), with an optional
     /// velocity (level-0 texels per second). `false` when this client cannot write requests
     /// (the request mapping is missing or not writable: use the control socket's `CENTRE`).

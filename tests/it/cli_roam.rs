@@ -34,9 +34,14 @@ fn u(v: &Value) -> u64 {
 fn contract(r: &Value, frames: usize) -> (i64, u64, Vec<i64>, Vec<[i64; 2]>, Vec<u64>) {
     let clip = u(&r["clip_size"]) as i64;
     let bpt = u(&r["bytes_per_texel"]);
-    for key in
-        ["bytes_copied", "bytes_read", "tiles_read", "ticks_over_budget", "frames_with_disabled_level", "peak_resident_bytes"]
-    {
+    for key in [
+        "bytes_copied",
+        "bytes_read",
+        "tiles_read",
+        "ticks_over_budget",
+        "frames_with_disabled_level",
+        "peak_resident_bytes",
+    ] {
         u(&r["totals"][key]);
     }
     let rows = r["frames"].as_array().expect("frames is a list");
@@ -58,7 +63,15 @@ fn contract(r: &Value, frames: usize) -> (i64, u64, Vec<i64>, Vec<[i64; 2]>, Vec
 
 /// Each stack level's mem region (tiles) for level-0 centre `c` moving by `v` texels a tick, as
 /// the engine places it (lookahead 1, centres aligned to `align`).
-fn mem_regions(levels: &[i64], clip: i64, tile: i64, border: u64, align: u64, c: [i64; 2], v: [i64; 2]) -> Vec<clipmap::geom::Rect> {
+fn mem_regions(
+    levels: &[i64],
+    clip: i64,
+    tile: i64,
+    border: u64,
+    align: u64,
+    c: [i64; 2],
+    v: [i64; 2],
+) -> Vec<clipmap::geom::Rect> {
     levels
         .iter()
         .enumerate()
@@ -80,7 +93,8 @@ fn assert_steady_tiles(r: &Value, frames: usize, steady: usize, tile: i64, borde
     let (clip, _, levels, centres, tiles) = contract(r, frames);
     let regions: Vec<Vec<clipmap::geom::Rect>> = (0..frames)
         .map(|f| {
-            let v = if f == 0 { [0, 0] } else { [centres[f][0] - centres[f - 1][0], centres[f][1] - centres[f - 1][1]] };
+            let v =
+                if f == 0 { [0, 0] } else { [centres[f][0] - centres[f - 1][0], centres[f][1] - centres[f - 1][1]] };
             mem_regions(&levels, clip, tile, border, align, centres[f], v)
         })
         .collect();
@@ -200,8 +214,14 @@ fn the_default_output_is_a_table_with_totals() {
     let text = String::from_utf8(out.stdout).unwrap();
     assert!(text.contains("clip size 128, 4 bytes per texel"), "{d}");
     assert!(text.lines().any(|l| l.trim_start().starts_with("frame")), "{d}");
-    for key in ["bytes copied", "tiles read", "ticks over budget", "frames with disabled level", "peak resident bytes"]
-    {
+    for key in [
+        "bytes read",
+        "texel bytes copied by ticks",
+        "tiles read",
+        "ticks over budget",
+        "frames with disabled level",
+        "image caches (peak)",
+    ] {
         assert!(text.contains(key), "missing {key}\n{d}");
     }
     let rows = text.lines().filter(|l| l.split_whitespace().next().is_some_and(|w| w.parse::<u64>().is_ok()));

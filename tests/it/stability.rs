@@ -15,11 +15,7 @@ fn engine(size: [u64; 2], clip: u64, tile: u64, format: TexelFormat) -> (Clipmap
     let border = ((clip - 1) / 2).min(4);
     let desc = TextureDesc::new(size, clip, format, [tile, tile]).unwrap().with_invalid_border(border).unwrap();
     let src = Arc::new(HashSource::new(desc));
-    let settings = Settings {
-        budget_ns: None,
-        fade_ticks: 1,
-        ..Settings::default()
-    };
+    let settings = Settings { budget_ns: None, fade_ticks: 1, ..Settings::default() };
     (Clipmap::new(src.clone(), settings).unwrap(), src)
 }
 
