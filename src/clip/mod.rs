@@ -478,7 +478,7 @@ impl Clipmap {
                 }
             }
             n += 1;
-            if n % 16 == 0 && budget.is_some_and(|b| started.elapsed() >= b) {
+            if n.is_multiple_of(16) && budget.is_some_and(|b| started.elapsed() >= b) {
                 break;
             }
         }

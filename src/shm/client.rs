@@ -206,7 +206,7 @@ impl Client {
             return Err(invalid(path, format!("implausible header: {bpt} bytes per texel, clip {clip}, {count} levels (expected 1..=64, > 0, 1..=32)")));
         }
         let header_bytes = region.read_u32(header::HEADER_BYTES) as u64;
-        if header_bytes < layout::header::END as u64 || header_bytes % layout::PAGE != 0 {
+        if header_bytes < layout::header::END as u64 || !header_bytes.is_multiple_of(layout::PAGE) {
             return Err(invalid(
                 path,
                 format!("header bytes {header_bytes}: expected a multiple of 4096 of at least {}", layout::header::END),
@@ -249,8 +249,8 @@ impl Client {
             let tags_end = n.checked_mul(layout::TAG_BYTES as u64).and_then(|x| x.checked_add(d.tags));
             let slots_end = n.checked_mul(d.slot_bytes).and_then(|x| x.checked_add(d.slots));
             let ok = d.tags >= end
-                && d.tags % layout::PAGE == 0
-                && d.slots % layout::PAGE == 0
+                && d.tags.is_multiple_of(layout::PAGE)
+                && d.slots.is_multiple_of(layout::PAGE)
                 && tags_end.is_some_and(|e| e <= d.slots)
                 && slots_end.is_some_and(|e| e <= total);
             if !ok {

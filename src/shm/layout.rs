@@ -411,7 +411,7 @@ mod tests {
 
     #[test]
     fn header_fits_and_levels_are_page_aligned_in_order() {
-        assert!(header::END <= 8192);
+        const { assert!(header::END <= 8192) };
         let p = place(&shape(16384, 1024, 256, 4)).unwrap();
         assert_eq!(p.header_bytes, 8192);
         let mut end = p.header_bytes;

@@ -34,6 +34,8 @@ pub struct HashCheck {
     pub missing: u64,
     /// Steps that found no usable level.
     pub idle: u64,
+    /// Snapshots checked for consistency (every level from min LOD up published).
+    pub snapshots: u64,
     /// The first failure, described.
     pub first_failure: Option<String>,
 }
@@ -62,6 +64,16 @@ impl HashCheck {
                 return;
             }
         };
+        // One snapshot, one moment: every level from min LOD up is published.
+        self.snapshots += 1;
+        let first = snap.min_lod.ceil() as usize;
+        if let Some(k) = (first..snap.levels.len()).find(|&k| !snap.levels[k].enabled) {
+            self.fail(format!(
+                "inconsistent snapshot of tick {}: min LOD {} but level {k} is not published",
+                snap.tick, snap.min_lod
+            ));
+            return;
+        }
         let st = snap.levels[level];
         if !st.enabled {
             self.idle += 1;

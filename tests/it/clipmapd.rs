@@ -242,6 +242,11 @@ fn with_aligned_level_centres_a_driving_reader_still_sees_only_right_texels() {
     assert_eq!(failed, 0, "{failed} mismatches\n{}\n{}", String::from_utf8_lossy(&out.stderr), svc.dump());
     assert!(out.status.success(), "{:?}\n{}", out.status, String::from_utf8_lossy(&out.stderr));
     assert!(passed > 10_000, "only {passed} texels checked");
+    // Every snapshot it took was checked whole: each level from min LOD up published.
+    let first = String::from_utf8_lossy(&out.stdout).lines().next().unwrap_or_default().to_string();
+    let line: serde_json::Value = serde_json::from_str(&first).unwrap_or_else(|e| panic!("{e}: {first}"));
+    let snapshots = line["snapshots"].as_u64().unwrap_or_else(|| panic!("no snapshot count: {first}"));
+    assert!(snapshots > 1000, "only {snapshots} snapshots checked");
     let stats = json_reply(&svc.ask("STATS"));
     assert_eq!(stats["engine"]["tick_texel_bytes"], 0, "{stats}");
 }
