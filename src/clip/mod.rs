@@ -415,6 +415,7 @@ impl Clipmap {
         report.valid = self.levels.iter().map(|l| l.published).collect();
         self.stats.queue = self.queues.stats();
         self.stats.tick_texel_bytes = self.cache.memory().copied_texel_bytes();
+        self.stats.slots_reassigned_under_published = self.cache.memory().invariant_violations();
         self.stats.peak_resident_bytes = self.stats.peak_resident_bytes.max(self.resident_bytes());
         report.tick_ns = started.elapsed().as_nanos() as u64;
         self.stats.tick_ns += report.tick_ns;

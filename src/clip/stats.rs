@@ -73,6 +73,10 @@ pub struct Stats {
     pub centre_clamps: u64,
     /// Snapshots published (one per tick).
     pub publications: u64,
+    /// Slots given to another tile while the current snapshot still covered their settled tile:
+    /// the writer's invariant, checked at every assignment (always 0; counted so that tests and
+    /// `STATS` can prove it).
+    pub slots_reassigned_under_published: u64,
     /// Time the ticks themselves took, all ticks (ns).
     pub tick_ns: u64,
     /// Most bytes the image caches held (their whole memory).

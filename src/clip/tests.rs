@@ -125,6 +125,7 @@ fn walk(
     settle(&mut map, c, 60);
     prop_assert!(check_published(&map).map_err(TestCaseError::fail)? > 0);
     prop_assert_eq!(map.stats().tick_texel_bytes, 0);
+    prop_assert_eq!(map.stats().slots_reassigned_under_published, 0);
     Ok(())
 }
 

@@ -45,6 +45,10 @@ fn key(tile: [i64; 2]) -> u64 {
     ((tile[0] as u64 & 0x0FFF_FFFF) << 30) | ((tile[1] as u64 & 0x0FFF_FFFF) << 2)
 }
 
+fn tile_of_key(key: u64) -> [i64; 2] {
+    [((key >> 30) & 0x0FFF_FFFF) as i64, ((key >> 2) & 0x0FFF_FFFF) as i64]
+}
+
 /// What [`ImageMemory::assign`] did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Assign {
@@ -89,6 +93,12 @@ pub struct ImageMemory {
     claims: Vec<Vec<AtomicU64>>,
     /// Per level and slot: the key of the tile assigned.
     keys: Vec<Vec<AtomicU64>>,
+    /// Per level, the tiles under the region of the snapshot published last (the writer's own
+    /// record, to check its invariant at every assignment).
+    published_tiles: std::sync::Mutex<Vec<Rect>>,
+    /// Assignments of a slot whose settled tile the current snapshot still covers (the writer's
+    /// invariant says: never).
+    violations: AtomicU64,
 }
 
 impl std::fmt::Debug for ImageMemory {
@@ -132,7 +142,8 @@ impl ImageMemory {
             placement.levels.iter().map(|l| (0..l.slot_count).map(|_| AtomicU64::new(v)).collect()).collect()
         };
         let (claims, keys) = (per_slot(UNASSIGNED), per_slot(NO_TILE));
-        ImageMemory { region, placement, shape, claims, keys }
+        let published_tiles = std::sync::Mutex::new(vec![Rect::EMPTY; shape.levels.len()]);
+        ImageMemory { region, placement, shape, claims, keys, published_tiles, violations: AtomicU64::new(0) }
     }
 
     /// Writes the static header (everything but the magic, which [`finish`](Self::finish)
@@ -224,6 +235,14 @@ impl ImageMemory {
         let now = claim.load(Ordering::Acquire);
         if state_of(now) == BUSY {
             return Assign::Busy;
+        }
+        let old = self.keys[k][slot as usize].load(Ordering::Acquire);
+        if state_of(now) == SETTLED && old != NO_TILE {
+            let [s, t] = tile_of_key(old);
+            let covered = self.published_tiles.lock().map(|p| p[k].contains(s, t)).unwrap_or(false);
+            if covered {
+                self.violations.fetch_add(1, Ordering::Relaxed);
+            }
         }
         self.store_tag(k, slot, tile, SlotState::Loading);
         self.keys[k][slot as usize].store(key(tile), Ordering::Release);
@@ -333,8 +352,19 @@ impl ImageMemory {
         true
     }
 
+    /// Assignments so far of a slot whose settled tile the current snapshot still covered: the
+    /// writer's invariant, checked where it could break (0 unless the engine is wrong).
+    pub fn invariant_violations(&self) -> u64 {
+        self.violations.load(Ordering::Relaxed)
+    }
+
     /// Publishes the whole state of a tick under the snapshot's seqlock.
     pub fn publish(&self, p: &Publication) {
+        if let Ok(mut tiles) = self.published_tiles.lock() {
+            for (k, l) in p.levels.iter().enumerate() {
+                tiles[k] = crate::geom::tiles_covering(l.valid, self.shape.levels[k].tile);
+            }
+        }
         let r = &self.region;
         let b = header::SNAPSHOT;
         let seq = r.load(b + snapshot::SEQ, Ordering::Relaxed);

@@ -119,6 +119,48 @@ fn after_any_walk_every_tile_under_a_published_region_is_settled_and_untouched_u
     }
     assert!(checked > 1000 && texels > 1000, "{checked} tiles, {texels} texels checked");
     assert_eq!(map.stats().tick_texel_bytes, 0, "ticks write no texels");
+    assert_eq!(map.stats().slots_reassigned_under_published, 0);
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::test_runner::Config {
+        cases: 24,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x5107),
+        failure_persistence: None,
+        ..proptest::test_runner::Config::default()
+    })]
+
+    /// The oracle, over random shapes and walks: after every tick every tile under a published
+    /// region is settled in its own slot, and no such slot changes while the reads of that
+    /// publication complete.
+    #[test]
+    fn no_slot_under_a_published_region_is_written_during_its_publication(
+        size_log in 7u32..=12,
+        clip_log in 4u32..=8,
+        tile_log in 2u32..=6,
+        steps in proptest::collection::vec((-300i64..300, -300i64..300, proptest::bool::ANY), 1..30),
+    ) {
+        let (size, clip, tile) = (1u64 << size_log, 1u64 << clip_log.min(size_log), 1u64 << tile_log.min(clip_log));
+        let dir = tempfile::tempdir().unwrap();
+        let (mut map, _w) = hash_service(dir.path(), "prop", size, clip, tile);
+        let c = Client::attach(dir.path(), "prop").unwrap();
+        let mut centre = [(size / 2) as i64; 2];
+        for (ds, dt, wait) in steps {
+            centre = [centre[0] + ds, centre[1] + dt];
+            map.tick(centre, None);
+            let before = tiles_under_published(&c);
+            if wait {
+                map.wait_for_reads();
+            }
+            for &(k, slot, seq) in &before {
+                let d = c.levels[k];
+                let now = c.region.load((d.tags + slot * layout::TAG_BYTES as u64) as usize, Ordering::Acquire);
+                proptest::prop_assert_eq!(seq, now, "level {} slot {} changed under its publication", k, slot);
+            }
+        }
+        proptest::prop_assert_eq!(map.stats().tick_texel_bytes, 0);
+        proptest::prop_assert_eq!(map.stats().slots_reassigned_under_published, 0);
+    }
 }
 
 #[test]

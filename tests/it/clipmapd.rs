@@ -229,6 +229,7 @@ fn readers_in_rust_c_and_python_verify_every_texel_while_the_centre_moves_fast()
     let stats = json_reply(&svc.ask("STATS"));
     assert!(stats["requests_seen"].as_u64().unwrap() > 100, "the driver's requests must arrive: {stats}");
     assert_eq!(stats["engine"]["tick_texel_bytes"], 0, "ticks write no texels: {stats}");
+    assert_eq!(stats["engine"]["slots_reassigned_under_published"], 0, "{stats}");
     assert!(stats["engine"]["tiles_read"].as_u64().unwrap() > 100, "{stats}");
 }
 
