@@ -133,8 +133,8 @@ pub mod desc {
     pub const TAGS_OFFSET: usize = 56;
     /// Byte offset of the level's slots (a multiple of 4096).
     pub const SLOTS_OFFSET: usize = 64;
-    /// 0: stack level (a toroidal grid around the centre), 1: pyramid level (one slot, the
-    /// whole level).
+    /// 0: stack level (a toroidal grid around the centre), 1: pyramid level (no larger than the
+    /// clip size; its grid holds every tile of the level).
     pub const KIND: usize = 72;
 }
 

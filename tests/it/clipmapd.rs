@@ -660,6 +660,7 @@ fn the_c_header_and_the_python_reader_agree_with_the_layout() {
     }
     // Python's copy of them, computed by Python itself.
     let py = Command::new("python3")
+        .env("PYTHONDONTWRITEBYTECODE", "1")
         .arg("-c")
         .arg(
             "import sys; sys.path.insert(0, sys.argv[1]); import clipmap_shm as c; \
