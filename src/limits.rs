@@ -74,10 +74,10 @@ pub struct Limits {
     /// Capacity of each queue's command channel; an update that does not fit is skipped (and
     /// counted) rather than blocking the tick.
     pub queue_commands: usize,
-    /// Most bytes of tiles held in main memory, all levels together.
+    /// Most bytes of the image caches, all levels together: the whole mapping (every level's grid
+    /// of tiles, their tags and the header). Layout 1 bounded tiles (1 GiB) and texel windows
+    /// (2 GiB) apart; layout 2 holds the tiles only, under this one bound.
     pub cache_bytes: usize,
-    /// Most bytes of clip windows (all levels together) a clipmap may allocate.
-    pub window_bytes: usize,
     /// Most stream servers (read queues).
     pub max_streams: usize,
     /// Most tile files a file source keeps open at once (least recently used closed first; 0
@@ -92,8 +92,7 @@ impl Default for Limits {
             max_in_flight_reads: 4,
             max_ready_reads: 256,
             queue_commands: 8,
-            cache_bytes: 1 << 30,
-            window_bytes: 2 << 30,
+            cache_bytes: 3 << 30,
             max_streams: 64,
             max_open_files: 64,
         }

@@ -115,8 +115,8 @@ fn plural(n: usize) -> &'static str {
 
 /// Adds an error when a valid plan is not one the service serves: the very checks
 /// [`crate::source::FileSource::new`] and the service make when `clipmapd` starts (level chain,
-/// tile size and count bounds, every default tile a regular file of one tile, the windows within
-/// [`crate::limits::Limits::window_bytes`]), so that `validate`, `check` and `clipmapd` accept
+/// tile size and count bounds, every default tile a regular file of one tile, the image caches within
+/// [`crate::limits::Limits::cache_bytes`]), so that `validate`, `check` and `clipmapd` accept
 /// the same configurations.
 fn servable(l: &mut plan::Loaded<plan::ClipTexturePlan>) {
     let Some(p) = &l.plan else { return };
