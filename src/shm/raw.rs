@@ -8,7 +8,7 @@
 #[cfg(target_endian = "big")]
 compile_error!("the shared-memory layout is little-endian; big-endian targets are not supported");
 
-use memmap2::{MmapMut, MmapRaw};
+use memmap2::MmapRaw;
 use std::fs::File;
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -35,6 +35,13 @@ impl Region {
         Ok(Region { map, writable: true, copied: AtomicU64::new(0), counted: 0..0 })
     }
 
+    /// [`map`](Self::map), with every page faulted in now (the service's texel mapping: tile
+    /// reads then write into memory that is already there, instead of faulting page by page).
+    pub fn map_populated(file: &File) -> std::io::Result<Region> {
+        let map = memmap2::MmapOptions::new().populate().map_raw(file)?;
+        Ok(Region { map, writable: true, copied: AtomicU64::new(0), counted: 0..0 })
+    }
+
     /// Maps `file` read-only and shared: loads only (a reader of the texel mapping).
     pub fn map_read_only(file: &File) -> std::io::Result<Region> {
         let map = memmap2::MmapOptions::new().map_raw_read_only(file)?;
@@ -43,7 +50,7 @@ impl Region {
 
     /// A private anonymous mapping of `len` zero bytes (an engine's image caches in-process).
     pub fn anonymous(len: usize) -> std::io::Result<Region> {
-        let map = MmapRaw::from(MmapMut::map_anon(len.max(1))?);
+        let map = MmapRaw::from(memmap2::MmapOptions::new().len(len.max(1)).populate().map_anon()?);
         Ok(Region { map, writable: true, copied: AtomicU64::new(0), counted: 0..0 })
     }
 

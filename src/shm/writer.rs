@@ -113,7 +113,7 @@ impl Writer {
         };
         let made = (|| {
             file.set_len(placement.total_bytes).map_err(io(&tmp))?;
-            let region = Region::map(&file).map_err(io(&tmp))?;
+            let region = Region::map_populated(&file).map_err(io(&tmp))?;
             let id = names::Identity::of(&file.metadata().map_err(io(&tmp))?);
             Ok::<_, ShmError>((region, id))
         })();

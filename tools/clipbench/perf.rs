@@ -3,8 +3,8 @@
 //! Prepares its own data in a scratch directory (a hash pyramid written with the preparation
 //! library, and for GDAL a tiled GeoTIFF with overviews of the same level 0), then measures,
 //! several runs each, medians and spreads:
-//! - `direction_ratio`: the slowest over the fastest median tick (the tick and the reads it asks
-//!   for) of the +s, +t and diagonal steady flights, and `tick_texel_bytes`, texel bytes the ticks
+//! - `direction_ratio`: the slowest over the fastest median update tick (the tick alone; its reads
+//!   run in the background) of the +s, +t and diagonal steady flights, and `tick_texel_bytes`, texel bytes the ticks
 //!   wrote other than by tile reads (`clipbench engine`, run as a child process so that its
 //!   memory figures are its own);
 //! - `ingest_vs_read`: tiles per second through the engine's tile path (file source, read
@@ -188,7 +188,7 @@ pub struct Memory {
 /// Everything `clipbench perf` measured.
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
-    /// Slowest / fastest median tick of the +s, +t and diagonal steady flights (goal <= 1.25).
+    /// Slowest / fastest median update tick of the +s, +t and diagonal steady flights (goal <= 1.25).
     pub direction_ratio: f64,
     /// Texel bytes written by update ticks outside tile reads (goal 0).
     pub tick_texel_bytes: u64,
@@ -210,8 +210,9 @@ pub struct Report {
     pub ingest: ingest::Ingest,
     pub flight: flight::Flight,
     pub scale: scale::Scale,
-    /// The same flight with a lookahead covering two ticks of motion.
-    pub scale_lookahead: scale::Scale,
+    /// The same flight with the default square lookahead of 1 (`scale` reads two ticks of
+    /// motion ahead along it).
+    pub scale_default: scale::Scale,
     pub service: service::Latency,
 }
 
@@ -336,7 +337,7 @@ pub fn run(args: &Args) -> anyhow::Result<Report> {
     let flight = flight::measure(&prepared, size, runs, gdal.as_ref().map_err(|s| s.as_str()))?;
     drop(scratch);
     progress(json, "2^26 flight in real time");
-    let (scale, scale_lookahead) = scale::measure(size)?;
+    let (scale, scale_default) = scale::measure(size)?;
     progress(json, "service latency");
     let service = service::measure(size)?;
 
@@ -357,7 +358,7 @@ pub fn run(args: &Args) -> anyhow::Result<Report> {
         ingest,
         flight,
         scale,
-        scale_lookahead,
+        scale_default,
         service,
     })
 }

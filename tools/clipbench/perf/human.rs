@@ -36,7 +36,7 @@ pub fn table(r: &Report) -> String {
         .join(", ");
     let _ = writeln!(
         o,
-        "| direction_ratio (slowest / fastest median tick with its reads) | {:.2} | <= 1.25 | {} | {} | |",
+        "| direction_ratio (slowest / fastest median update tick) | {:.2} | <= 1.25 | {} | {} | |",
         r.direction_ratio,
         met(r.direction_ratio <= 1.25),
         per_flight
@@ -133,7 +133,7 @@ pub fn table(r: &Report) -> String {
         ms(f.reload_construct_s.median),
         ms(f.reload_frame_s.median - f.reload_construct_s.median)
     );
-    for sc in [&r.scale, &r.scale_lookahead] {
+    for sc in [&r.scale, &r.scale_default] {
         let _ = writeln!(
             o,
             "scale: 2^26 texels, clip {}, lookahead {}, {} texels per tick at {} ticks/s for {:.1} s: {} ticks, level 0 shown on {:.1}% after the first second (goal >= 99%), {} over budget, {} with disabled levels (at most {}, mean min LOD {:.2}), {} late; tick p50 {} p99 {}; {} texel bytes written by ticks, {:.0} tiles/s read; {:.2} cores busy",

@@ -4,7 +4,7 @@
 //! Counts the share of ticks after the first second on which level 0 is published
 //! (`level0_shown_share`), ticks with disabled levels, late ticks (longer than the tick period)
 //! and the throughput; then the
-//! same flight, shorter, with a lookahead of tiles that covers two ticks of motion, to show
+//! flight first with each stack level's mem region sized for its motion, then with the default lookahead, to show
 //! whether reading ahead is what limits it.
 
 use super::{quantile, Size};
@@ -16,7 +16,8 @@ use std::time::{Duration, Instant};
 /// What the real-time flight measured.
 #[derive(Clone, Debug, Serialize)]
 pub struct Scale {
-    /// Extra tile rows and columns read ahead.
+    /// Extra tile columns read ahead along the motion at level 0 (1 across it; the default
+    /// square lookahead when both are 1).
     pub lookahead: u64,
     pub texture: u64,
     pub clip: u64,
@@ -49,27 +50,44 @@ pub struct Scale {
     pub cpu_cores_used: f64,
 }
 
-/// The default flight, and the same with a lookahead of two ticks of motion.
+/// The flight with each stack level's mem region sized for its motion (what a configuration for
+/// this flight gives with `mem_region_size`: two ticks of motion read ahead along +s, the default
+/// one spare tile across it), and the same flight with the default square lookahead of 1, which
+/// a tile read cannot keep up with at this speed (a tile enters the mem region a quarter of a
+/// tick before it is needed).
 pub fn measure(size: Size) -> anyhow::Result<(Scale, Scale)> {
     let (clip, tile, seconds, again) = match size {
         Size::Full => (2048, 256, 60.0, 20.0),
         Size::Quick => (2048, 256, 5.0, 3.0),
         Size::Smoke => (256, 64, 0.5, 0.5),
     };
-    let plain = fly(clip, tile, seconds, None)?;
-    let ahead = fly(clip, tile, again, Some((2 * 1000u64).div_ceil(tile)))?;
-    Ok((plain, ahead))
+    let ahead = fly(clip, tile, seconds, Some((2 * 1000u64).div_ceil(tile)))?;
+    let plain = fly(clip, tile, again, None)?;
+    Ok((ahead, plain))
 }
 
-fn fly(clip: u64, tile: u64, seconds: f64, lookahead: Option<u64>) -> anyhow::Result<Scale> {
+fn fly(clip: u64, tile: u64, seconds: f64, ahead: Option<u64>) -> anyhow::Result<Scale> {
     let texture = 1u64 << 26;
     let (speed, hz) = (1000i64, 60.0);
-    let source = procedural_source(Procedural::Hash, texture, clip, tile)?;
-    let mut settings = Settings::default();
-    if let Some(l) = lookahead {
-        settings.lookahead = l;
-    }
-    let lookahead = settings.lookahead;
+    let plain = procedural_source(Procedural::Hash, texture, clip, tile)?;
+    let settings = Settings::default();
+    let source: std::sync::Arc<dyn clipmap::source::TileSource> = match ahead {
+        None => plain,
+        Some(extra) => {
+            // Per stack level: the window's tiles plus one, plus `extra` tiles of two ticks of
+            // motion at level 0, halving per level (at least the default one) along s.
+            let desc = plain.desc().clone();
+            let grids = (0..desc.level_count() as u32)
+                .map(|k| {
+                    let l = desc.level(k);
+                    let across = |a: usize| clip.min(l.size[a]).div_ceil(l.tile[a]) + 1;
+                    desc.is_stack(k).then(|| [across(0) + (extra >> k).max(1), across(1) + 1])
+                })
+                .collect();
+            std::sync::Arc::new(clipmap::source::HashSource::new(desc.with_mem_grids(grids)))
+        }
+    };
+    let lookahead = ahead.unwrap_or(settings.lookahead);
     let budget_ms = settings.budget_ns.unwrap_or(0) as f64 / 1e6;
     let mut map = Clipmap::new(source, settings)?;
     // Start where the whole flight stays inside the texture, filled (untimed).
