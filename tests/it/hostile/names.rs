@@ -142,13 +142,26 @@ fn second_starts_on_the_same_name_or_socket_never_unpublish_the_running_service(
 fn shm_mode_gives_exactly_the_permissions_asked_whatever_the_umask() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
-    for (mode, want) in [("640", 0o640), ("660", 0o660), ("600", 0o600)] {
-        let name = format!("m{mode}");
-        let s = Service::spawn(d, &name, &HASH, &["--shm-mode", mode], "umask 077;");
+    // The request mapping follows --shm-mode unless --request-mode says otherwise: 640 with
+    // request mode 660 lets the group request centres without being able to write texels.
+    for (mode, req, want, want_req) in [
+        ("640", None, 0o640, 0o640),
+        ("660", None, 0o660, 0o660),
+        ("600", None, 0o600, 0o600),
+        ("640", Some("660"), 0o640, 0o660),
+    ] {
+        let name = format!("m{mode}{}", req.unwrap_or(""));
+        let mut args = vec!["--shm-mode", mode];
+        args.extend(req.map(|r| ["--request-mode", r]).iter().flatten());
+        let s = Service::spawn(d, &name, &HASH, &args, "umask 077;");
         s.wait_ready();
-        for f in [format!("clipmap-{name}.map"), format!("clipmap-{name}.lock")] {
+        for (f, want) in [
+            (format!("clipmap-{name}.map"), want),
+            (format!("clipmap-{name}.lock"), want),
+            (format!("clipmap-{name}.req"), want_req),
+        ] {
             let m = std::fs::metadata(d.join(&f)).unwrap().permissions().mode() & 0o777;
-            assert_eq!(m, want, "{f} with --shm-mode {mode} under umask 077: {m:o}");
+            assert_eq!(m, want, "{f} with --shm-mode {mode} --request-mode {req:?} under umask 077: {m:o}");
         }
         let sock = std::fs::metadata(&s.socket).unwrap().permissions().mode() & 0o777;
         assert_eq!(sock, 0o600, "the control socket stays owner-only");
