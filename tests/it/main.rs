@@ -28,5 +28,6 @@ mod config_tokens;
 mod examples;
 mod fuzz_regressions;
 mod hostile;
+mod remote;
 mod sixteen_bit;
 mod stability;
