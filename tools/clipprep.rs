@@ -339,14 +339,20 @@ fn publish(cli: &Cli, url: &str, cancel: &AtomicBool) -> Result<(Outcome, (u64, 
 }
 
 #[cfg(feature = "remote")]
-fn remote_upload(cli: &Cli, url: &str, config_out: &Path, cancel: &AtomicBool) -> Result<(Outcome, (u64, u64)), Publish> {
+fn remote_upload(
+    cli: &Cli,
+    url: &str,
+    config_out: &Path,
+    cancel: &AtomicBool,
+) -> Result<(Outcome, (u64, u64)), Publish> {
     use clipmap::source::remote::{Location, Remote, RemoteOptions};
     let url = url.trim_end_matches('/');
     if let Err(e) = Location::parse(&format!("{url}/x")) {
         return Err(Publish::Other(1, format!("--out: {e}")));
     }
     let opts = RemoteOptions::from_env().map_err(|e| Publish::Other(1, e.to_string()))?;
-    let remote = Remote::new(RemoteOptions { cache_dir: None, ..opts }).map_err(|e| Publish::Other(2, e.to_string()))?;
+    let remote =
+        Remote::new(RemoteOptions { cache_dir: None, ..opts }).map_err(|e| Publish::Other(2, e.to_string()))?;
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
     let stage = std::env::temp_dir().join(format!("clipprep-upload-{}-{nanos}", std::process::id()));
     let outcome = prepare(cli, &stage, cancel).map_err(Publish::Prep);
@@ -363,7 +369,10 @@ fn remote_upload(cli: &Cli, url: &str, config_out: &Path, cancel: &AtomicBool) -
 
 #[cfg(not(feature = "remote"))]
 fn remote_upload(_: &Cli, url: &str, _: &Path, _: &AtomicBool) -> Result<(Outcome, (u64, u64)), Publish> {
-    Err(Publish::Other(2, format!("--out {url}: this build cannot write remote locations (build with the `remote` feature, the default)")))
+    Err(Publish::Other(
+        2,
+        format!("--out {url}: this build cannot write remote locations (build with the `remote` feature, the default)"),
+    ))
 }
 
 /// Sets `flag` on Ctrl-C or SIGTERM, so the run stops between bands and removes its partial

@@ -19,7 +19,9 @@ pub const REMOTE_SCHEMES: [&str; 3] = ["http://", "https://", "s3://"];
 
 /// Whether `name` is a remote location (`http://`, `https://` or `s3://`, case-insensitive).
 pub fn is_remote_name(name: &str) -> bool {
-    REMOTE_SCHEMES.iter().any(|s| name.len() >= s.len() && name.as_bytes()[..s.len()].eq_ignore_ascii_case(s.as_bytes()))
+    REMOTE_SCHEMES
+        .iter()
+        .any(|s| name.len() >= s.len() && name.as_bytes()[..s.len()].eq_ignore_ascii_case(s.as_bytes()))
 }
 
 /// Whether a resolved file name is a remote location (see [`is_remote_name`]).

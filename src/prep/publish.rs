@@ -27,7 +27,11 @@ pub fn point_config_at(text: &str, is_ct: bool, base: &str, stream_bases: &[Stri
                 .split_whitespace()
                 .enumerate()
                 .map(|(i, s)| {
-                    let b = if stream_bases.is_empty() { base } else { stream_bases[i % stream_bases.len()].trim_end_matches('/') };
+                    let b = if stream_bases.is_empty() {
+                        base
+                    } else {
+                        stream_bases[i % stream_bases.len()].trim_end_matches('/')
+                    };
                     format!("{b}/{s}")
                 })
                 .collect();

@@ -152,9 +152,10 @@ fn read_service(dir: &Path, name: &str, seconds: u32) -> (u64, u64, Output) {
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    let line = stdout.lines().find(|l| l.contains(" passed, ")).unwrap_or_else(|| {
-        panic!("no counts from the reader:\n{stdout}\n{}", String::from_utf8_lossy(&out.stderr))
-    });
+    let line = stdout
+        .lines()
+        .find(|l| l.contains(" passed, "))
+        .unwrap_or_else(|| panic!("no counts from the reader:\n{stdout}\n{}", String::from_utf8_lossy(&out.stderr)));
     let mut w = line.split_whitespace();
     let passed = w.next().unwrap().parse().unwrap();
     let failed = w.nth(1).unwrap().parse().unwrap();
@@ -231,8 +232,12 @@ fn each_fault_ends_in_a_retry_a_missing_tile_or_an_error_never_in_wrong_texels()
     let nginx = Nginx::serve(&pyr);
     let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
     let ct = point_config_at(&pyr, &dir.path().join("cfg"), &proxy.url(), &[]);
-    let src = RemoteSource::new(load(&ct), &Limits::default(), RemoteOptions { timeout: Duration::from_millis(400), ..quick_opts() })
-        .unwrap();
+    let src = RemoteSource::new(
+        load(&ct),
+        &Limits::default(),
+        RemoteOptions { timeout: Duration::from_millis(400), ..quick_opts() },
+    )
+    .unwrap();
     let id = TileId::new(0, 1, 2);
     let once = |f: Fault| Schedule { faults: vec![f], then: Vec::new(), every: 0 };
     for fault in [
@@ -331,7 +336,8 @@ fn cliptex_check_over_http_gives_the_local_table() {
     let ct = point_config_at(&pyr, &d.join("cfg"), &nginx.url(), &[]);
     let local_ct = pyr.join("pyr.ct");
     let check = |ct: &Path| {
-        let (out, desc) = exec_bounded(d, CLIPTEX, &["check", ct.to_str().unwrap(), "--json"], &[], Duration::from_secs(60));
+        let (out, desc) =
+            exec_bounded(d, CLIPTEX, &["check", ct.to_str().unwrap(), "--json"], &[], Duration::from_secs(60));
         assert_eq!(out.status.code(), Some(1), "some tiles cannot be served:\n{desc}");
         let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
         (v["totals"].clone(), v["levels"].as_array().unwrap().len())
@@ -354,8 +360,21 @@ fn a_pyramid_uploaded_to_s3_by_clipprep_is_checked_and_served_to_two_services_at
     let envs: Vec<(&str, &str)> = env.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
     let cfg = d.join("cfg");
     let args = [
-        "--source", "hash", "--size", "2048", "--tile", "64", "--clip", "256", "--format", "rgba8", "--json",
-        "--out", "s3://tiles/pyr", "--config-out", cfg.to_str().unwrap(),
+        "--source",
+        "hash",
+        "--size",
+        "2048",
+        "--tile",
+        "64",
+        "--clip",
+        "256",
+        "--format",
+        "rgba8",
+        "--json",
+        "--out",
+        "s3://tiles/pyr",
+        "--config-out",
+        cfg.to_str().unwrap(),
     ];
     let (out, desc) = exec_bounded(d, CLIPPREP, &args, &envs, Duration::from_secs(120));
     assert!(out.status.success(), "{desc}");
@@ -364,7 +383,8 @@ fn a_pyramid_uploaded_to_s3_by_clipprep_is_checked_and_served_to_two_services_at
     assert_eq!(v["location"], "s3://tiles/pyr");
     assert!(!desc.contains("testing-secret-never-printed"), "the secret is never printed:\n{desc}");
     let ct = cfg.join("pyr.ct");
-    let (out, desc) = exec_bounded(d, CLIPTEX, &["check", ct.to_str().unwrap(), "--json"], &envs, Duration::from_secs(120));
+    let (out, desc) =
+        exec_bounded(d, CLIPTEX, &["check", ct.to_str().unwrap(), "--json"], &envs, Duration::from_secs(120));
     assert!(out.status.success(), "every uploaded tile is there:\n{desc}");
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["totals"]["present"], report["totals"]["tiles"], "{report}");

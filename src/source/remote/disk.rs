@@ -163,7 +163,8 @@ mod tests {
     #[test]
     fn ranges_survive_a_reopen_and_the_bound_removes_the_least_recently_used() {
         let dir = tempfile::tempdir().unwrap();
-        let c = DiskCache::open(dir.path(), 3 * (4 + 16 + 100)).unwrap();
+        // Room for three files: 4 bytes of key length, a key of up to 22 bytes, 100 bytes.
+        let c = DiskCache::open(dir.path(), 3 * (4 + 22 + 100)).unwrap();
         let k = |i: u64| key("http://h:1/obj", i * 100, 100);
         for i in 0..3 {
             c.put(&k(i), &[i as u8; 100]);

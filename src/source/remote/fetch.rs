@@ -206,7 +206,12 @@ impl Fetcher {
         }
         drop(st);
         me.result.get().cloned().unwrap_or_else(|| {
-            Err(ReadError::Failed { location: me.object.clone(), why: "no result".into(), attempts: 0, timed_out: false })
+            Err(ReadError::Failed {
+                location: me.object.clone(),
+                why: "no result".into(),
+                attempts: 0,
+                timed_out: false,
+            })
         })
     }
 
@@ -383,7 +388,11 @@ mod tests {
             self.gets.lock().unwrap().push((start, len));
             if self.fail_first.load(Ordering::SeqCst) > 0 {
                 self.fail_first.fetch_sub(1, Ordering::SeqCst);
-                return Err(Failure::Transient { why: "503".into(), retry_after: Some(Duration::from_millis(1)), timed_out: false });
+                return Err(Failure::Transient {
+                    why: "503".into(),
+                    retry_after: Some(Duration::from_millis(1)),
+                    timed_out: false,
+                });
             }
             let o = self.objects.get(&loc.target).ok_or(Failure::NotFound)?;
             let s = (start as usize).min(o.len());
@@ -481,7 +490,8 @@ mod tests {
         assert!(matches!(f.read(&missing, 0, 1), Err(ReadError::NotFound { .. })));
         assert_eq!(f.counters.retries.load(Ordering::Relaxed), 2, "a 404 is final");
         let m = mem(0, 100);
-        let f = fetcher(m.clone(), RemoteOptions { retries: 3, backoff: Duration::from_millis(1), ..Default::default() });
+        let f =
+            fetcher(m.clone(), RemoteOptions { retries: 3, backoff: Duration::from_millis(1), ..Default::default() });
         match f.read(&loc, 0, 1) {
             Err(ReadError::Failed { attempts, .. }) => assert_eq!(attempts, 4),
             other => panic!("{other:?}"),

@@ -94,26 +94,36 @@ fn content_range(headers: &reqwest::header::HeaderMap) -> Option<(u64, u64, Opti
     Some((a.parse().ok()?, b.parse().ok()?, total))
 }
 
-/// Reads the body, failing if it holds more than `max` bytes; stops reading at `stop` bytes.
-async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<BytesMut, Failure> {
-    let mut buf = BytesMut::with_capacity(stop.min(max).min(64 << 20) as usize);
-    while (buf.len() as u64) < stop {
+/// Reads the body, failing if it holds more than `max` bytes; stops reading at `stop` bytes. A
+/// body that arrives in one piece is kept as it came (no copy).
+async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<Bytes, Failure> {
+    let mut parts: Vec<Bytes> = Vec::new();
+    let mut len = 0u64;
+    while len < stop {
         match resp.chunk().await {
             Ok(Some(c)) => {
-                if buf.len() as u64 + c.len() as u64 > max {
+                if len + c.len() as u64 > max {
                     return Err(Failure::transient(format!("the body holds more than the {max} bytes announced")));
                 }
-                buf.extend_from_slice(&c);
+                len += c.len() as u64;
+                parts.push(c);
             }
             Ok(None) => break,
             Err(e) => {
                 let timed_out = e.is_timeout();
-                let why = format!("the body was cut after {} bytes: {}", buf.len(), root_cause(&e));
+                let why = format!("the body was cut after {len} bytes: {}", root_cause(&e));
                 return Err(Failure::Transient { why, retry_after: None, timed_out });
             }
         }
     }
-    Ok(buf)
+    if parts.len() == 1 {
+        return Ok(parts.pop().unwrap_or_default());
+    }
+    let mut buf = BytesMut::with_capacity(len as usize);
+    for p in parts {
+        buf.extend_from_slice(&p);
+    }
+    Ok(buf.freeze())
 }
 
 async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Result<Got, Failure> {
@@ -143,7 +153,7 @@ async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Resu
             if (buf.len() as u64) < want {
                 return Err(Failure::transient(format!("the body ended after {} of {want} bytes", buf.len())));
             }
-            Ok(Got { bytes: buf.freeze(), object_len: total })
+            Ok(Got { bytes: buf, object_len: total })
         }
         StatusCode::OK => {
             let announced = headers.get(CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok());
@@ -157,9 +167,12 @@ async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Resu
             let buf = body(&mut resp, announced.unwrap_or(MAX_WHOLE_OBJECT), stop).await?;
             let got = buf.len() as u64;
             if got < stop && announced.is_some_and(|n| got < n) {
-                return Err(Failure::transient(format!("the body ended after {got} of {} bytes", announced.unwrap_or(0))));
+                return Err(Failure::transient(format!(
+                    "the body ended after {got} of {} bytes",
+                    announced.unwrap_or(0)
+                )));
             }
-            let bytes = buf.freeze();
+            let bytes = buf;
             let from = (start as usize).min(bytes.len());
             let to = (stop as usize).min(bytes.len());
             let object_len = if got < stop { Some(got) } else { announced };

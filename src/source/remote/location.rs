@@ -93,7 +93,10 @@ mod tests {
         assert_eq!((h.scheme.clone(), h.endpoint.as_str()), (Scheme::Http, "http://127.0.0.1:8080"));
         assert_eq!(Location::parse("https://example.org/a").unwrap().endpoint, "https://example.org:443");
         let s = Location::parse("s3://tiles/pyr/L00/r000.c001.raw").unwrap();
-        assert_eq!((s.endpoint.as_str(), s.bucket.as_str(), s.target.as_str()), ("s3://tiles", "tiles", "pyr/L00/r000.c001.raw"));
+        assert_eq!(
+            (s.endpoint.as_str(), s.bucket.as_str(), s.target.as_str()),
+            ("s3://tiles", "tiles", "pyr/L00/r000.c001.raw")
+        );
         assert_eq!(s.to_string(), "s3://tiles/pyr/L00/r000.c001.raw");
     }
 

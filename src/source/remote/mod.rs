@@ -193,7 +193,9 @@ impl Remote {
     ) -> Result<(), SourceError> {
         let bad = |problem: String| SourceError::Undecodable { tile, path: location.to_path_buf(), problem };
         if offset != 0 {
-            return Err(bad(format!("its tile is placed at byte {offset}, but a compressed file holds one whole tile")));
+            return Err(bad(format!(
+                "its tile is placed at byte {offset}, but a compressed file holds one whole tile"
+            )));
         }
         let bound = zstd::zstd_safe::compress_bound(out.len()) as u64;
         let packed = self.read_upto(name, 0, bound + 1).map_err(|e| source_error(tile, e))?;
@@ -302,7 +304,6 @@ impl RemoteSource {
                 LevelKind::IcacheNotOpened { .. } => level_endpoint.push(None),
             }
         }
-        drop(add);
         Ok(RemoteSource { files, remote, endpoints, index, level_endpoint })
     }
 

@@ -82,13 +82,14 @@ impl RemoteOptions {
     /// The defaults, changed by the variables `get` returns.
     pub fn from_vars(get: impl Fn(&str) -> Option<String>) -> Result<Self, OptionsError> {
         let mut o = RemoteOptions::default();
-        let num = |var: &'static str, min: u64, max: u64, expected: &'static str| -> Result<Option<u64>, OptionsError> {
-            let Some(v) = get(var) else { return Ok(None) };
-            match v.trim().parse::<u64>() {
-                Ok(n) if (min..=max).contains(&n) => Ok(Some(n)),
-                _ => Err(OptionsError { var, found: v, expected }),
-            }
-        };
+        let num =
+            |var: &'static str, min: u64, max: u64, expected: &'static str| -> Result<Option<u64>, OptionsError> {
+                let Some(v) = get(var) else { return Ok(None) };
+                match v.trim().parse::<u64>() {
+                    Ok(n) if (min..=max).contains(&n) => Ok(Some(n)),
+                    _ => Err(OptionsError { var, found: v, expected }),
+                }
+            };
         let ms = Duration::from_millis;
         if let Some(n) = num("CLIPMAP_REMOTE_TIMEOUT_MS", 1, 3_600_000, "milliseconds from 1 to 3600000")? {
             o.timeout = ms(n);
@@ -149,7 +150,11 @@ mod tests {
 
     #[test]
     fn backoff_doubles_up_to_the_bound_and_jitter_keeps_at_least_half() {
-        let o = RemoteOptions { backoff: Duration::from_millis(100), backoff_max: Duration::from_millis(350), ..Default::default() };
+        let o = RemoteOptions {
+            backoff: Duration::from_millis(100),
+            backoff_max: Duration::from_millis(350),
+            ..Default::default()
+        };
         assert_eq!(o.backoff_for(1, 0.999_999).as_millis(), 99);
         assert_eq!(o.backoff_for(2, 0.0), Duration::from_millis(100));
         assert_eq!(o.backoff_for(3, 0.0), Duration::from_millis(175), "400 is capped at 350, then halved");

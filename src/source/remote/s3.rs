@@ -65,11 +65,10 @@ impl S3 {
             max_retries: self.opts.retries as usize,
             retry_timeout: self.opts.timeout.saturating_mul(self.opts.retries + 1),
         };
-        let store = b
-            .with_client_options(client)
-            .with_retry(retry)
-            .build()
-            .map_err(|e| Failure::Fatal(format!("cannot make the S3 client for bucket {bucket}: {}", sanitize(&e))))?;
+        let store =
+            b.with_client_options(client).with_retry(retry).build().map_err(|e| {
+                Failure::Fatal(format!("cannot make the S3 client for bucket {bucket}: {}", sanitize(&e)))
+            })?;
         let store = Arc::new(store);
         m.insert(bucket.to_string(), Arc::clone(&store));
         Ok(store)
@@ -77,7 +76,8 @@ impl S3 {
 
     fn limit(&self) -> Duration {
         // object_store retries inside one call.
-        self.opts.timeout.saturating_mul(self.opts.retries + 1) + self.opts.backoff_max.saturating_mul(self.opts.retries)
+        self.opts.timeout.saturating_mul(self.opts.retries + 1)
+            + self.opts.backoff_max.saturating_mul(self.opts.retries)
     }
 }
 

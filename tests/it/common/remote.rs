@@ -25,7 +25,10 @@ fn wait_listening(port: u16, what: &str, log: &Path) {
         }
         std::thread::sleep(Duration::from_millis(25));
     }
-    panic!("{what} did not listen on port {port} within 30 s; its log:\n{}", std::fs::read_to_string(log).unwrap_or_default());
+    panic!(
+        "{what} did not listen on port {port} within 30 s; its log:\n{}",
+        std::fs::read_to_string(log).unwrap_or_default()
+    );
 }
 
 fn find_program(names: &[&str], install: &str) -> PathBuf {
@@ -151,8 +154,12 @@ impl Moto {
     /// Makes a bucket (S3 `CreateBucket`, which moto accepts unsigned).
     pub fn create_bucket(&self, bucket: &str) {
         let mut s = TcpStream::connect(("127.0.0.1", self.port)).unwrap();
-        write!(s, "PUT /{bucket} HTTP/1.1\r\nHost: 127.0.0.1:{}\r\nContent-Length: 0\r\nConnection: close\r\n\r\n", self.port)
-            .unwrap();
+        write!(
+            s,
+            "PUT /{bucket} HTTP/1.1\r\nHost: 127.0.0.1:{}\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
+            self.port
+        )
+        .unwrap();
         let mut reply = String::new();
         s.read_to_string(&mut reply).unwrap();
         assert!(reply.starts_with("HTTP/1.1 200"), "CreateBucket {bucket}: {reply}");
@@ -212,7 +219,7 @@ impl Schedule {
             return *f;
         }
         let j = i - self.faults.len() as u64;
-        if self.every == 0 || self.then.is_empty() || j % self.every != 0 {
+        if self.every == 0 || self.then.is_empty() || !j.is_multiple_of(self.every) {
             return Fault::Pass;
         }
         self.then[((j / self.every) % self.then.len() as u64) as usize]
@@ -243,7 +250,8 @@ impl FaultProxy {
         let schedule = Arc::new(Mutex::new(schedule));
         let stop = Arc::new(AtomicBool::new(false));
         {
-            let (requests, injected, schedule, stop) = (requests.clone(), injected.clone(), schedule.clone(), stop.clone());
+            let (requests, injected, schedule, stop) =
+                (requests.clone(), injected.clone(), schedule.clone(), stop.clone());
             std::thread::spawn(move || {
                 for conn in listener.incoming() {
                     if stop.load(Ordering::SeqCst) {
@@ -352,7 +360,13 @@ fn serve(
     let head = String::from_utf8_lossy(head).into_owned();
     let rewrite_length = |n: usize| -> String {
         head.lines()
-            .map(|l| if l.to_ascii_lowercase().starts_with("content-length:") { format!("Content-Length: {n}") } else { l.to_string() })
+            .map(|l| {
+                if l.to_ascii_lowercase().starts_with("content-length:") {
+                    format!("Content-Length: {n}")
+                } else {
+                    l.to_string()
+                }
+            })
             .collect::<Vec<_>>()
             .join("\r\n")
     };
