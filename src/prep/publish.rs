@@ -16,9 +16,12 @@ pub fn point_config_at(text: &str, is_ct: bool, base: &str, stream_bases: &[Stri
     let base = base.trim_end_matches('/');
     let has_streams = text.lines().any(|l| l.starts_with("s_stream"));
     let mut out = String::new();
+    let mut based = false;
     for line in text.lines() {
-        if is_ct && line == "tile_files" {
+        // In the manual's order: `tile_base` before the file lists.
+        if is_ct && !based && (line == "icache_files" || line == "tile_files") {
             out.push_str(&format!("tile_base {base}/\n"));
+            based = true;
         }
         if let Some(f) = line.strip_prefix("tile_format ").filter(|_| !is_ct && !has_streams) {
             out.push_str(&format!("tile_format {base}/{f}\n"));
@@ -129,6 +132,6 @@ mod tests {
         assert!(p.contains("s_stream http://a:1/pyr/stream0/ http://b:2/pyr/stream1/\n"), "{p}");
         let ct = "ct_version2.0\nicache_files\n\tL00.ic\ntile_files\n\tpyramid/L05.raw\n";
         let p = point_config_at(ct, true, "http://h:1/pyr", &[]);
-        assert!(p.contains("icache_files\n\tL00.ic\ntile_base http://h:1/pyr/\ntile_files\n"), "{p}");
+        assert!(p.contains("tile_base http://h:1/pyr/\nicache_files\n\tL00.ic\ntile_files\n"), "{p}");
     }
 }

@@ -383,6 +383,8 @@ fn a_pyramid_uploaded_to_s3_by_clipprep_is_checked_and_served_to_two_services_at
     assert_eq!(v["location"], "s3://tiles/pyr");
     assert!(!desc.contains("testing-secret-never-printed"), "the secret is never printed:\n{desc}");
     let ct = cfg.join("pyr.ct");
+    let (out, desc) = exec(d, CLIPTEX, &["validate", ct.to_str().unwrap()]);
+    assert!(out.status.success() && !desc.contains(": warning:"), "the written configuration is clean:\n{desc}");
     let (out, desc) =
         exec_bounded(d, CLIPTEX, &["check", ct.to_str().unwrap(), "--json"], &envs, Duration::from_secs(120));
     assert!(out.status.success(), "every uploaded tile is there:\n{desc}");
@@ -429,4 +431,52 @@ fn the_disk_cache_serves_tiles_after_a_restart_without_the_server() {
     assert_eq!((st.cache_hits, st.requests), (tiles.len() as u64, 0), "{st:?}");
     // A tile not in the cache needs the server, which is gone: an error, not a stall.
     assert!(read_checked(&second, TileId::new(1, 0, 0)).is_err());
+}
+
+#[test]
+fn s3_reads_through_a_faulty_proxy_are_retried_and_serve_only_right_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let moto = Moto::start();
+    moto.create_bucket("faulty");
+    let cfg = d.join("cfg");
+    let env = moto.env();
+    let envs: Vec<(&str, &str)> = env.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let args = [
+        "--source",
+        "hash",
+        "--size",
+        "1024",
+        "--tile",
+        "64",
+        "--clip",
+        "256",
+        "--format",
+        "rgba8",
+        "--quiet",
+        "--out",
+        "s3://faulty/pyr",
+        "--config-out",
+        cfg.to_str().unwrap(),
+    ];
+    let (out, desc) = exec_bounded(d, CLIPPREP, &args, &envs, Duration::from_secs(120));
+    assert!(out.status.success(), "{desc}");
+    // Every fourth request to the store fails, each kind of fault in turn.
+    let faults = vec![Fault::Unavailable, Fault::Reset, Fault::Truncate, Fault::ServerError, Fault::Slow(700)];
+    let proxy = FaultProxy::start(moto.port, Schedule { faults: Vec::new(), then: faults, every: 4 }, 0);
+    let mut env: Vec<(String, String)> = env.into_iter().filter(|(k, _)| k != "AWS_ENDPOINT_URL").collect();
+    env.push(("AWS_ENDPOINT_URL".into(), proxy.url()));
+    for (k, v) in [
+        ("CLIPMAP_REMOTE_TIMEOUT_MS", "400"),
+        ("CLIPMAP_REMOTE_BACKOFF_MS", "2"),
+        ("CLIPMAP_REMOTE_BACKOFF_MAX_MS", "30"),
+    ] {
+        env.push((k.into(), v.into()));
+    }
+    let svc = Service::start(d, "s3faulty", &cfg.join("pyr.ct"), &env);
+    let (passed, failed, out) = read_service(d, "s3faulty", 3);
+    assert_eq!(failed, 0, "{}\n{}", String::from_utf8_lossy(&out.stderr), svc.log());
+    assert!(passed > 10_000, "{passed}");
+    assert!(svc.stats()["engine"]["tiles_read"].as_u64().unwrap() > 0);
+    assert!(proxy.injected.lock().unwrap().len() >= 5, "faults were injected: {:?}", proxy.injected.lock().unwrap());
 }

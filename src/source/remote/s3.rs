@@ -5,8 +5,10 @@
 //! printed or logged; an error names the location only.
 //!
 //! `object_store` retries what is worth retrying itself (with the options' backoff, which it
-//! jitters) and checks the `Content-Range` of every answer; this backend checks the length of
-//! what arrives, says where an object ends, and classifies what is left.
+//! jitters; a body cut short is read on from where it stopped) and checks the `Content-Range`
+//! of every answer; what fails after its retries is final here. This backend checks the length
+//! of what arrives (a mismatch is retried by the fetcher's loop), says where an object ends, and
+//! classifies what is left.
 
 use super::fetch::{Backend, Failure, Got};
 use super::location::Location;
@@ -103,9 +105,8 @@ fn failure(e: object_store::Error) -> Failure {
                 // The object ends before the range starts.
                 return Failure::Fatal(format!("range not satisfiable: {text}"));
             }
-            // object_store has retried already; one more round of ours covers a body cut
-            // after its retries.
-            Failure::transient(text)
+            // object_store has retried already (the request and a body cut short alike).
+            Failure::Fatal(text)
         }
     }
 }
