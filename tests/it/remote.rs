@@ -480,3 +480,44 @@ fn s3_reads_through_a_faulty_proxy_are_retried_and_serve_only_right_texels() {
     assert!(svc.stats()["engine"]["tiles_read"].as_u64().unwrap() > 0);
     assert!(proxy.injected.lock().unwrap().len() >= 5, "faults were injected: {:?}", proxy.injected.lock().unwrap());
 }
+
+#[test]
+fn a_slow_endpoint_holds_back_only_its_own_read_queue() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pyr = prepare(&d.join("pyr"), 4096, 64, 256, &["--streams", "2"]);
+    let nginx = Nginx::serve(&pyr);
+    // Stream server 0 answers every request half a second late; stream server 1 at once.
+    let slow = FaultProxy::start(nginx.port, Schedule::pass(), 500);
+    let ct = point_config_at(&pyr, &d.join("cfg"), &nginx.url(), &[slow.url(), nginx.url()]);
+    let svc = Service::start(d, "slowep", &ct, &[]);
+    let (_, failed, out) = read_service(d, "slowep", 3);
+    assert_eq!(failed, 0, "{}\n{}", String::from_utf8_lossy(&out.stderr), svc.log());
+    let stats = svc.stats();
+    let streams = stats["streams"].as_array().unwrap();
+    assert_eq!(streams.len(), 2, "{stats}");
+    let done = |i: usize| streams[i]["reads_done"].as_u64().unwrap();
+    println!("reads done: slow endpoint {}, fast endpoint {}", done(0), done(1));
+    // The slow queue keeps its few reads in flight for 500 ms each; the other is not held.
+    assert!(done(1) > 4 * done(0).max(1), "the fast endpoint's queue reads on: {stats}");
+    assert!(done(0) > 0, "the slow endpoint is read too: {stats}");
+}
+
+#[test]
+fn clipbench_remote_prints_its_contract_fields_and_reads_no_wrong_texel() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = ["remote", "--smoke", "--json", "--dir", dir.path().to_str().unwrap()];
+    let (out, desc) = exec_bounded(dir.path(), env!("CARGO_BIN_EXE_clipbench"), &args, &[], Duration::from_secs(300));
+    assert_eq!(out.status.code(), Some(0), "{desc}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {desc}"));
+    for key in ["tiles_per_s_local", "tiles_per_s_http", "tiles_per_s_s3", "in_flight", "wrong_texels"] {
+        assert!(v.get(key).is_some_and(|x| x.is_number()), "`{key}` missing or not a number: {v}");
+    }
+    for key in ["tiles_per_s_local", "tiles_per_s_http", "tiles_per_s_s3"] {
+        assert!(v[key].as_f64().unwrap() > 0.0, "{key}: {v}");
+    }
+    assert_eq!(v["wrong_texels"], 0, "{v}");
+    assert_eq!(v["failed_reads"], 0, "{v}");
+    assert!(v["in_flight"].as_u64().unwrap() >= 1, "{v}");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "the scratch directory is removed: {desc}");
+}

@@ -31,6 +31,10 @@ pub struct Args {
     /// A 4096-texel texture and short runs (about a minute in all).
     #[arg(long)]
     quick: bool,
+    /// A tiny texture and depths up to 16: checks that the benchmark runs (for tests); the
+    /// figures mean little.
+    #[arg(long, hide = true, conflicts_with = "quick")]
+    smoke: bool,
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
@@ -294,12 +298,19 @@ fn remote_source(ct: &Path, in_flight: u64) -> anyhow::Result<RemoteSource> {
 }
 
 fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
-    let (n, tile) = if args.quick { (4096, 256) } else { (8192, 256) };
-    let passes = if args.quick { 2 } else { 4 };
+    let (n, tile) = if args.smoke {
+        (512, 64)
+    } else if args.quick {
+        (4096, 256)
+    } else {
+        (8192, 256)
+    };
+    let passes = if args.quick || args.smoke { 2 } else { 4 };
+    let depths: &[u64] = if args.smoke { &[1, 4, 16] } else { &[1, 2, 4, 8, 16, 24, 32, 48, 64, 96, 128, 192, 256] };
     let layout = Layout::new(Spec {
         width: n,
         height: n,
-        clip: 512,
+        clip: if args.smoke { 128 } else { 512 },
         tile,
         format: TexelFormat::RGBA8,
         tiles_in_file: (1, 1),
@@ -382,7 +393,7 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
         prep::publish::write_pointed_config(&root, &dir.join("slow"), &format!("http://127.0.0.1:{proxy}"), &[])?;
     let mut sweep = Vec::new();
     let mut found = None;
-    for depth in [1u64, 2, 4, 8, 16, 24, 32, 48, 64, 96, 128, 192, 256] {
+    for &depth in depths {
         let slow = remote_source(&slow_ct, depth)?;
         // Enough reads for every thread to wait for 16 round trips: warm-up is a small part.
         let passes = (depth as usize * 16).div_ceil(tiles.len()).max(1);
