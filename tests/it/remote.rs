@@ -521,3 +521,41 @@ fn clipbench_remote_prints_its_contract_fields_and_reads_no_wrong_texel() {
     assert!(v["in_flight"].as_u64().unwrap() >= 1, "{v}");
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "the scratch directory is removed: {desc}");
 }
+
+#[test]
+fn clipprep_uploads_with_http_put_and_the_tiles_are_read_back_by_ranged_gets() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let root = d.join("www");
+    std::fs::create_dir_all(&root).unwrap();
+    let nginx = Nginx::serve_writable(&root);
+    let base = format!("{}/pyr", nginx.url());
+    let cfg = d.join("cfg");
+    let args = [
+        "--source",
+        "hash",
+        "--size",
+        "256",
+        "--tile",
+        "64",
+        "--clip",
+        "64",
+        "--format",
+        "rgba8",
+        "--json",
+        "--out",
+        &base,
+        "--config-out",
+        cfg.to_str().unwrap(),
+    ];
+    let (out, desc) = exec_bounded(d, CLIPPREP, &args, &[], Duration::from_secs(120));
+    assert!(out.status.success(), "{desc}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["location"], base.as_str(), "{v}");
+    assert!(root.join("pyr/pyr.ct").is_file() && root.join("pyr/L00/r000.c000.raw").is_file(), "the files arrived");
+    let src = RemoteSource::new(load(&cfg.join("pyr.ct")), &Limits::default(), quick_opts()).unwrap();
+    for id in every_tile(&src) {
+        read_checked(&src, id).unwrap_or_else(|e| panic!("{id}: {e}"));
+    }
+    assert_eq!(src.stats().failures, 0);
+}

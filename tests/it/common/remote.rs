@@ -60,6 +60,15 @@ pub struct Nginx {
 impl Nginx {
     /// Starts nginx (one process, no daemon, everything under a temporary directory).
     pub fn serve(root: &Path) -> Nginx {
+        Nginx::serve_with(root, "")
+    }
+
+    /// Like [`Nginx::serve`], and files may be written with HTTP PUT (the DAV module).
+    pub fn serve_writable(root: &Path) -> Nginx {
+        Nginx::serve_with(root, "dav_methods PUT; create_full_put_path on; client_max_body_size 0;")
+    }
+
+    fn serve_with(root: &Path, location: &str) -> Nginx {
         let exe = find_program(&["nginx", "/usr/sbin/nginx"], "install Debian's nginx: apt-get install nginx");
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
@@ -71,7 +80,7 @@ impl Nginx {
             "daemon off;\nmaster_process off;\nworker_processes 1;\npid {d}/nginx.pid;\nerror_log {d}/error.log warn;\n\
              events {{ worker_connections 512; }}\n\
              http {{\n  access_log off;\n  client_body_temp_path {d}/body;\n  proxy_temp_path {d}/proxy;\n  fastcgi_temp_path {d}/fastcgi;\n  uwsgi_temp_path {d}/uwsgi;\n  scgi_temp_path {d}/scgi;\n  keepalive_requests 100000;\n  sendfile on;\n  tcp_nodelay on;\n\
-               server {{\n    listen 127.0.0.1:{port};\n    root {root};\n    location / {{ }}\n  }}\n}}\n",
+               server {{\n    listen 127.0.0.1:{port};\n    root {root};\n    location / {{ {location} }}\n  }}\n}}\n",
             d = d.display(),
             root = root.display()
         );
