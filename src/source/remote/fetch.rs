@@ -44,14 +44,76 @@ impl Failure {
     }
 }
 
-/// What one ranged read returned: bytes from the range's start. Fewer bytes than asked only when
-/// the object ends there (`object_len` then says where); a body cut short is a [`Failure`].
+/// What one ranged read returned: bytes from the range's start, in the pieces they arrived in
+/// (never copied into one buffer on the way). Fewer bytes than asked only when the object ends
+/// there (`object_len` then says where); a body cut short is a [`Failure`].
 #[derive(Clone, Debug)]
 pub struct Got {
     /// The bytes.
-    pub bytes: Bytes,
+    pub bytes: Segments,
     /// The object's length, when known.
     pub object_len: Option<u64>,
+}
+
+/// Bytes in pieces, in order.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Segments(pub Vec<Bytes>);
+
+impl From<Bytes> for Segments {
+    fn from(b: Bytes) -> Self {
+        Segments(vec![b])
+    }
+}
+
+impl Segments {
+    /// Bytes in all.
+    pub fn len(&self) -> usize {
+        self.0.iter().map(Bytes::len).sum()
+    }
+
+    /// True when there are no bytes.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Bytes `from..to` (within [`Segments::len`]), without copying.
+    pub fn slice(&self, from: usize, to: usize) -> Segments {
+        let mut out = Vec::new();
+        let mut at = 0usize;
+        for p in &self.0 {
+            let (a, b) = (at, at + p.len());
+            at = b;
+            if b <= from || a >= to {
+                continue;
+            }
+            out.push(p.slice(from.max(a) - a..to.min(b) - a));
+        }
+        Segments(out)
+    }
+
+    /// Copies every byte into `out`, which is [`Segments::len`] long.
+    pub fn copy_to(&self, out: &mut [u8]) {
+        let mut at = 0;
+        for p in &self.0 {
+            out[at..at + p.len()].copy_from_slice(p);
+            at += p.len();
+        }
+    }
+
+    /// The bytes in one piece (copied only when there are several).
+    pub fn to_bytes(&self) -> Bytes {
+        match self.0.as_slice() {
+            [] => Bytes::new(),
+            [one] => one.clone(),
+            _ => {
+                let mut v = Vec::with_capacity(self.len());
+                for p in &self.0 {
+                    v.extend_from_slice(p);
+                }
+                Bytes::from(v)
+            }
+        }
+    }
 }
 
 /// A protocol that reads remote objects: one attempt per call, blocking, bounded by the
@@ -131,7 +193,7 @@ struct Req {
     loc: Location,
     start: u64,
     len: u64,
-    result: OnceLock<Result<Bytes, ReadError>>,
+    result: OnceLock<Result<Segments, ReadError>>,
 }
 
 #[derive(Default)]
@@ -182,7 +244,7 @@ impl Fetcher {
 
     /// Bytes `[start, start + len)` of `loc`: waits for a slot of its endpoint, merges with the
     /// adjacent waiting ranges of the same object, retries.
-    pub fn read(&self, loc: &Location, start: u64, len: u64) -> Result<Bytes, ReadError> {
+    pub fn read(&self, loc: &Location, start: u64, len: u64) -> Result<Segments, ReadError> {
         let ep = self.endpoint(&loc.endpoint);
         let me = Arc::new(Req { object: loc.to_string(), loc: loc.clone(), start, len, result: OnceLock::new() });
         let mut st = ep.state.lock().unwrap_or_else(|e| e.into_inner());
@@ -230,7 +292,7 @@ impl Fetcher {
                     let from = (r.start - start) as usize;
                     let to = from + r.len as usize;
                     if g.bytes.len() >= to {
-                        Ok(g.bytes.slice(from..to))
+                        Ok(g.bytes.slice(from, to))
                     } else {
                         Err(ReadError::Short {
                             location: r.object.clone(),
@@ -397,7 +459,9 @@ mod tests {
             let o = self.objects.get(&loc.target).ok_or(Failure::NotFound)?;
             let s = (start as usize).min(o.len());
             let e = ((start + len) as usize).min(o.len());
-            Ok(Got { bytes: Bytes::copy_from_slice(&o[s..e]), object_len: Some(o.len() as u64) })
+            // In pieces of 100 bytes, as a body arrives in chunks.
+            let parts = o[s..e].chunks(100).map(Bytes::copy_from_slice).collect();
+            Ok(Got { bytes: Segments(parts), object_len: Some(o.len() as u64) })
         }
         fn head(&self, loc: &Location) -> Result<u64, Failure> {
             self.objects.get(&loc.target).map(|o| o.len() as u64).ok_or(Failure::NotFound)
@@ -453,7 +517,7 @@ mod tests {
         m.release.notify_all();
         for t in threads {
             let (start, got) = t.join().unwrap();
-            assert_eq!(got.as_ref(), expected(start, 256).as_slice(), "range at {start}");
+            assert_eq!(got.to_bytes().as_ref(), expected(start, 256).as_slice(), "range at {start}");
         }
         let gets = m.gets.lock().unwrap().clone();
         assert_eq!(gets, vec![(3000, 256), (0, 2048)], "the eight adjacent waiting ranges share one request");
@@ -484,7 +548,7 @@ mod tests {
         let m = mem(0, 2);
         let f = fetcher(m.clone(), RemoteOptions { backoff: Duration::from_millis(1), ..Default::default() });
         let loc = Location::parse("http://h:1/o").unwrap();
-        assert_eq!(f.read(&loc, 10, 20).unwrap().as_ref(), expected(10, 20).as_slice());
+        assert_eq!(f.read(&loc, 10, 20).unwrap().to_bytes().as_ref(), expected(10, 20).as_slice());
         assert_eq!(f.counters.retries.load(Ordering::Relaxed), 2);
         let missing = Location::parse("http://h:1/nothing").unwrap();
         assert!(matches!(f.read(&missing, 0, 1), Err(ReadError::NotFound { .. })));
@@ -496,6 +560,18 @@ mod tests {
             Err(ReadError::Failed { attempts, .. }) => assert_eq!(attempts, 4),
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn segments_slice_across_pieces_without_losing_a_byte() {
+        let s = Segments((0..5u8).map(|i| Bytes::from(vec![i; 3])).collect());
+        assert_eq!(s.len(), 15);
+        let mid = s.slice(2, 11);
+        assert_eq!(mid.to_bytes().as_ref(), &[0, 1, 1, 1, 2, 2, 2, 3, 3]);
+        let mut out = [9u8; 9];
+        mid.copy_to(&mut out);
+        assert_eq!(out, [0, 1, 1, 1, 2, 2, 2, 3, 3]);
+        assert!(s.slice(15, 15).is_empty());
     }
 
     #[test]

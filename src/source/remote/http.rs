@@ -7,11 +7,11 @@
 //! `416` means the object ends before the range starts. Anything else is a [`Failure`],
 //! classified for the retry loop.
 
-use super::fetch::{Backend, Failure, Got};
+use super::fetch::{Backend, Failure, Got, Segments};
 use super::location::Location;
 use super::options::RemoteOptions;
 use super::runtime::block;
-use bytes::{Bytes, BytesMut};
+use bytes::Bytes;
 use reqwest::header::{CONTENT_LENGTH, CONTENT_RANGE, RANGE, RETRY_AFTER};
 use reqwest::StatusCode;
 use std::time::Duration;
@@ -94,9 +94,9 @@ fn content_range(headers: &reqwest::header::HeaderMap) -> Option<(u64, u64, Opti
     Some((a.parse().ok()?, b.parse().ok()?, total))
 }
 
-/// Reads the body, failing if it holds more than `max` bytes; stops reading at `stop` bytes. A
-/// body that arrives in one piece is kept as it came (no copy).
-async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<Bytes, Failure> {
+/// Reads the body, failing if it holds more than `max` bytes; stops reading at `stop` bytes. The
+/// pieces are kept as they came (no copy).
+async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<Segments, Failure> {
     let mut parts: Vec<Bytes> = Vec::new();
     let mut len = 0u64;
     while len < stop {
@@ -116,14 +116,7 @@ async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<Bytes
             }
         }
     }
-    if parts.len() == 1 {
-        return Ok(parts.pop().unwrap_or_default());
-    }
-    let mut buf = BytesMut::with_capacity(len as usize);
-    for p in parts {
-        buf.extend_from_slice(&p);
-    }
-    Ok(buf.freeze())
+    Ok(Segments(parts))
 }
 
 async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Result<Got, Failure> {
@@ -172,18 +165,17 @@ async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Resu
                     announced.unwrap_or(0)
                 )));
             }
-            let bytes = buf;
-            let from = (start as usize).min(bytes.len());
-            let to = (stop as usize).min(bytes.len());
+            let from = (start as usize).min(buf.len());
+            let to = (stop as usize).min(buf.len());
             let object_len = if got < stop { Some(got) } else { announced };
-            Ok(Got { bytes: bytes.slice(from..to), object_len })
+            Ok(Got { bytes: buf.slice(from, to), object_len })
         }
         StatusCode::RANGE_NOT_SATISFIABLE => {
             let total = headers
                 .get(CONTENT_RANGE)
                 .and_then(|v| v.to_str().ok())
                 .and_then(|v| v.trim().strip_prefix("bytes */")?.parse::<u64>().ok());
-            Ok(Got { bytes: Bytes::new(), object_len: total })
+            Ok(Got { bytes: Segments::default(), object_len: total })
         }
         s if s.is_success() => Err(Failure::Fatal(format!("unexpected answer HTTP {s} to a range request"))),
         s => Err(status_failure(s, &headers)),
@@ -193,7 +185,7 @@ async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Resu
 impl Backend for Http {
     fn get(&self, loc: &Location, start: u64, len: u64) -> Result<Got, Failure> {
         if len == 0 {
-            return Ok(Got { bytes: Bytes::new(), object_len: None });
+            return Ok(Got { bytes: Segments::default(), object_len: None });
         }
         let client = self.client()?;
         let url = loc.target.clone();

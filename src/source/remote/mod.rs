@@ -16,7 +16,7 @@ pub mod options;
 mod runtime;
 pub mod s3;
 
-pub use fetch::{Backend, Failure, Fetcher, ReadError};
+pub use fetch::{Backend, Failure, Fetcher, Got, ReadError, Segments};
 pub use location::{Location, LocationError, Scheme};
 pub use options::{OptionsError, RemoteOptions};
 
@@ -112,7 +112,7 @@ impl Remote {
     /// first), with retries; not merged with other reads.
     pub fn read_upto(&self, name: &str, start: u64, max: u64) -> Result<bytes::Bytes, ReadError> {
         let loc = parse(name)?;
-        self.fetcher.with_retries(&loc, name, |b| b.get(&loc, start, max)).map(|g| g.bytes)
+        self.fetcher.with_retries(&loc, name, |b| b.get(&loc, start, max)).map(|g| g.bytes.to_bytes())
     }
 
     /// The length of the object `name` (HEAD), with retries.
@@ -155,7 +155,7 @@ impl RemoteReader for Remote {
         if bytes.len() != out.len() {
             return Err(SourceError::Short { tile, expected: out.len() as u64, got: bytes.len() as u64 });
         }
-        out.copy_from_slice(&bytes);
+        bytes.copy_to(out);
         if let Some(c) = &self.cache {
             c.put(&key, out);
         }

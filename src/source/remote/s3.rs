@@ -10,7 +10,7 @@
 //! of what arrives (a mismatch is retried by the fetcher's loop), says where an object ends, and
 //! classifies what is left.
 
-use super::fetch::{Backend, Failure, Got};
+use super::fetch::{Backend, Failure, Got, Segments};
 use super::location::Location;
 use super::options::RemoteOptions;
 use super::runtime::block;
@@ -114,7 +114,7 @@ fn failure(e: object_store::Error) -> Failure {
 impl Backend for S3 {
     fn get(&self, loc: &Location, start: u64, len: u64) -> Result<Got, Failure> {
         if len == 0 {
-            return Ok(Got { bytes: Bytes::new(), object_len: None });
+            return Ok(Got { bytes: Segments::default(), object_len: None });
         }
         let store = self.store(&loc.bucket)?;
         let p = path(loc)?;
@@ -126,7 +126,7 @@ impl Backend for S3 {
                     let f = failure(e);
                     if matches!(&f, Failure::Fatal(t) if t.starts_with("range not satisfiable")) {
                         let size = store.head(&p).await.ok().map(|m| m.size);
-                        return Ok(Got { bytes: Bytes::new(), object_len: size });
+                        return Ok(Got { bytes: Segments::default(), object_len: size });
                     }
                     return Err(f);
                 }
@@ -145,7 +145,7 @@ impl Backend for S3 {
             if range.end < start + len && range.end != size {
                 return Err(Failure::transient(format!("the answer ends at byte {} of {size}", range.end)));
             }
-            Ok(Got { bytes, object_len: Some(size) })
+            Ok(Got { bytes: bytes.into(), object_len: Some(size) })
         })
     }
 
