@@ -559,3 +559,25 @@ fn clipprep_uploads_with_http_put_and_the_tiles_are_read_back_by_ranged_gets() {
     }
     assert_eq!(src.stats().failures, 0);
 }
+
+#[test]
+fn a_remote_default_tile_stands_in_for_tiles_the_server_does_not_have() {
+    let dir = tempfile::tempdir().unwrap();
+    // A sparse pyramid: levels 0 and 1 exist only around the inset; each .ic names a default
+    // tile, which the rewritten configuration reads from the server too.
+    let pyr = prepare(&dir.path().join("pyr"), 2048, 64, 128, &["--inset", "1000,600,1200,700", "--inset-level", "2"]);
+    let nginx = Nginx::serve(&pyr);
+    let ct = point_config_at(&pyr, &dir.path().join("cfg"), &nginx.url(), &[]);
+    let ic = std::fs::read_to_string(dir.path().join("cfg/L00.ic")).unwrap();
+    assert!(ic.contains(&format!("default_tile {}/L00.default.raw", nginx.url())), "{ic}");
+    let src = RemoteSource::new(load(&ct), &Limits::default(), quick_opts()).unwrap();
+    assert!(src.files().has_default_tile(0), "read from the server at start-up");
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    // Far from the inset: absent on the server (404), served from the default tile.
+    src.read_tile(TileId::new(0, 0, 0), &mut buf).unwrap();
+    assert_eq!(buf, std::fs::read(pyr.join("L00.default.raw")).unwrap());
+    assert_eq!(src.files().stats().default_tiles, 1);
+    // Inside the inset: the tile itself.
+    read_checked(&src, TileId::new(0, 1100 / 64, 650 / 64)).unwrap();
+    assert_eq!(src.files().stats().default_tiles, 1);
+}
