@@ -18,6 +18,9 @@
 mod engine;
 #[path = "clipbench/perf.rs"]
 mod perf;
+#[cfg(feature = "remote")]
+#[path = "clipbench/remote.rs"]
+mod remote;
 
 use clap::{Parser, Subcommand};
 use clipmap::accuracy::sweep;
@@ -33,6 +36,7 @@ use std::process::ExitCode;
     after_help = "\
 Examples:
   clipbench perf --quick --json
+  clipbench remote --quick --json
   clipbench engine --quick
   clipbench accuracy --quick --out study
 
@@ -80,6 +84,18 @@ Examples:
   clipbench perf --quick --json
   clipbench perf --runs 7 --dir /var/tmp")]
     Perf(perf::Args),
+    /// Tiles per second from local files, loopback HTTP (nginx) and loopback S3 (moto) in one
+    /// run, and the requests in flight that hide an added latency per request.
+    #[cfg(feature = "remote")]
+    #[command(after_help = "\
+Examples:
+  clipbench remote --quick --json
+  clipbench remote --depth 32 --latency-ms 50
+
+Needs nginx (apt-get install nginx) and moto (pip install 'moto[server]'); starts both on
+loopback ports and stops them at the end. Exit status: 0 ok, 1 a wrong texel was read, 2 the
+benchmark could not run.")]
+    Remote(remote::Args),
     /// Speed against accuracy: sweep the knobs, render each frame twice, measure the difference.
     #[command(after_help = "\
 Examples:
@@ -119,6 +135,8 @@ fn main() -> ExitCode {
             format.texel(),
         ),
         Command::Perf(args) => perf::main(args),
+        #[cfg(feature = "remote")]
+        Command::Remote(args) => remote::main(args),
         Command::Engine { quick, runs, json, smoke, centre_alignment } => {
             match engine::engine(engine_size(quick, smoke), runs, centre_alignment) {
                 Ok(r) => {

@@ -9,10 +9,8 @@ use clap::{Parser, ValueEnum};
 use clipmap::plan;
 use clipmap::report::{exit, EnvArgs};
 use clipmap::service::{self, demo, ControlLimits, Options, Procedural};
-use clipmap::source::FileSource;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::Arc;
 use std::time::Duration;
 
 #[derive(Parser)]
@@ -184,10 +182,10 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             let Some(plan) = loaded.plan else {
                 return Err(bad(anyhow::anyhow!("{} is not a valid clip texture configuration", path.display())));
             };
-            let src =
-                FileSource::new(plan, &clipmap::limits::Limits::default()).map_err(|e| bad(anyhow::anyhow!("{e}")))?;
+            let src = clipmap::source::open_plan(plan, &clipmap::limits::Limits::default())
+                .map_err(|e| bad(anyhow::anyhow!("{e}")))?;
             let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "clip".into());
-            (Arc::new(src) as Arc<dyn clipmap::source::TileSource>, stem)
+            (src, stem)
         }
         (None, Some(kind)) => {
             let (kind, name) = match kind {

@@ -108,9 +108,16 @@ struct Cli {
     /// nearest instead of refusing it.
     #[arg(long)]
     reduce_depth: bool,
-    /// Output directory (created; the .ct is at its top).
-    #[arg(long, value_name = "DIR")]
+    /// Output directory (created; the .ct is at its top), or a remote location
+    /// (s3://BUCKET/PREFIX, or an http(s):// URL that accepts PUT) to upload the pyramid to:
+    /// it is prepared in a temporary directory, every file uploaded, and a configuration that
+    /// reads the tiles from there written to --config-out.
+    #[arg(long, value_name = "DIR|URL")]
     out: PathBuf,
+    /// With a remote --out: the local directory for the .ct and .ic files that read the
+    /// uploaded tiles (configuration files are read from local disk only).
+    #[arg(long, value_name = "DIR")]
+    config_out: Option<PathBuf>,
     /// Print a JSON summary on stdout: ct, levels, bytes, seconds, files, ...
     #[arg(long)]
     json: bool,
@@ -213,7 +220,7 @@ struct Outcome {
     layout: Layout,
 }
 
-fn prepare(cli: &Cli, cancel: &AtomicBool) -> Result<Outcome, PrepError> {
+fn prepare(cli: &Cli, out: &Path, cancel: &AtomicBool) -> Result<Outcome, PrepError> {
     let started = Instant::now();
     let limits = Limits { max_memory_bytes: cli.max_memory << 20, ..Limits::default() };
     let format = cli.format.texel();
@@ -288,7 +295,7 @@ fn prepare(cli: &Cli, cancel: &AtomicBool) -> Result<Outcome, PrepError> {
         description.push(format!("Coarser levels: {f} filter on {light}."));
     }
     let name = cli.name.clone().unwrap_or_else(|| default_name(&cli.out));
-    let staging = Staging::begin(&cli.out, cli.force)?;
+    let staging = Staging::begin(out, cli.force)?;
     let bar = if cli.quiet || !std::io::stderr().is_terminal() {
         ProgressBar::hidden()
     } else {
@@ -302,13 +309,70 @@ fn prepare(cli: &Cli, cancel: &AtomicBool) -> Result<Outcome, PrepError> {
         b
     };
     let job = Job { layout: layout.clone(), source, filter, linear_light: cli.linear_light, name, description, limits };
-    let summary = clipmap::prep::run(job, staging.path(), cancel, &cli.out, &|n| bar.inc(n))?;
+    let summary = clipmap::prep::run(job, staging.path(), cancel, out, &|n| bar.inc(n))?;
     bar.finish_and_clear();
     if cancel.load(Ordering::Relaxed) {
-        return Err(PrepError::Interrupted { dir: cli.out.clone() });
+        return Err(PrepError::Interrupted { dir: out.to_path_buf() });
     }
     staging.commit()?;
-    Ok(Outcome { ct: cli.out.join(&summary.ct), summary, seconds: started.elapsed().as_secs_f64(), layout })
+    Ok(Outcome { ct: out.join(&summary.ct), summary, seconds: started.elapsed().as_secs_f64(), layout })
+}
+
+enum Publish {
+    #[cfg_attr(not(feature = "remote"), allow(dead_code))]
+    Prep(PrepError),
+    Other(i32, String),
+}
+
+/// A remote `--out`: prepares into a temporary directory, uploads every file to `url`, writes
+/// the configuration that reads them from there into `--config-out`, removes the temporary
+/// directory. Returns the outcome (its `.ct` the one in `--config-out`) and the files and bytes
+/// uploaded.
+fn publish(cli: &Cli, url: &str, cancel: &AtomicBool) -> Result<(Outcome, (u64, u64)), Publish> {
+    let Some(config_out) = &cli.config_out else {
+        return Err(Publish::Other(
+            1,
+            format!("--out {url} is a remote location: give --config-out DIR, the local directory for the .ct and .ic files that read the uploaded tiles"),
+        ));
+    };
+    remote_upload(cli, url, config_out, cancel)
+}
+
+#[cfg(feature = "remote")]
+fn remote_upload(
+    cli: &Cli,
+    url: &str,
+    config_out: &Path,
+    cancel: &AtomicBool,
+) -> Result<(Outcome, (u64, u64)), Publish> {
+    use clipmap::source::remote::{Location, Remote, RemoteOptions};
+    let url = url.trim_end_matches('/');
+    if let Err(e) = Location::parse(&format!("{url}/x")) {
+        return Err(Publish::Other(1, format!("--out: {e}")));
+    }
+    let opts = RemoteOptions::from_env().map_err(|e| Publish::Other(1, e.to_string()))?;
+    let remote =
+        Remote::new(RemoteOptions { cache_dir: None, ..opts }).map_err(|e| Publish::Other(2, e.to_string()))?;
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+    let stage = std::env::temp_dir().join(format!("clipprep-upload-{}-{nanos}", std::process::id()));
+    let outcome = prepare(cli, &stage, cancel).map_err(Publish::Prep);
+    let result = outcome.and_then(|o| {
+        let up = clipmap::prep::publish::upload(&stage, url, &remote, &|_| {})
+            .map_err(|e| Publish::Other(2, format!("{e}; the pyramid was not fully uploaded")))?;
+        let ct = clipmap::prep::publish::write_pointed_config(&stage, config_out, url, &[])
+            .map_err(|e| Publish::Other(2, format!("writing the configuration into {}: {e}", config_out.display())))?;
+        Ok((Outcome { ct, ..o }, up))
+    });
+    let _ = std::fs::remove_dir_all(&stage);
+    result
+}
+
+#[cfg(not(feature = "remote"))]
+fn remote_upload(_: &Cli, url: &str, _: &Path, _: &AtomicBool) -> Result<(Outcome, (u64, u64)), Publish> {
+    Err(Publish::Other(
+        2,
+        format!("--out {url}: this build cannot write remote locations (build with the `remote` feature, the default)"),
+    ))
 }
 
 /// Sets `flag` on Ctrl-C or SIGTERM, so the run stops between bands and removes its partial
@@ -349,7 +413,23 @@ fn main() -> ExitCode {
     if let Err(e) = watch_signals(cancel.clone()) {
         eprintln!("clipprep: warning: {e:#}; Ctrl-C will stop the run without cleaning up");
     }
-    match prepare(&cli, &cancel) {
+    let url = cli.out.to_str().filter(|u| clipmap::plan::is_remote_name(u)).map(str::to_string);
+    let mut uploaded = None;
+    let result = match &url {
+        None => prepare(&cli, &cli.out, &cancel),
+        Some(url) => match publish(&cli, url, &cancel) {
+            Ok((o, u)) => {
+                uploaded = Some(u);
+                Ok(o)
+            }
+            Err(Publish::Prep(e)) => Err(e),
+            Err(Publish::Other(code, why)) => {
+                eprintln!("clipprep: error: {why}");
+                return ExitCode::from(code as u8);
+            }
+        },
+    };
+    match result {
         Ok(o) => {
             let s = &o.summary;
             let mib = s.bytes as f64 / (1u64 << 20) as f64;
@@ -373,6 +453,12 @@ fn main() -> ExitCode {
                     "absent_tiles": s.absent_tiles,
                     "buffer_bytes": s.buffer_bytes,
                 });
+                let mut v = v;
+                if let (Some(url), Some((files, bytes))) = (&url, uploaded) {
+                    v["location"] = serde_json::json!(url);
+                    v["uploaded_files"] = serde_json::json!(files);
+                    v["uploaded_bytes"] = serde_json::json!(bytes);
+                }
                 println!("{v}");
             } else if !cli.quiet {
                 println!(
@@ -386,6 +472,9 @@ fn main() -> ExitCode {
                     o.seconds,
                     mib / o.seconds.max(1e-9)
                 );
+            }
+            if let (Some(url), Some((files, bytes)), false) = (&url, uploaded, cli.json || cli.quiet) {
+                println!("uploaded {files} files ({bytes} bytes) to {url}; {} reads them from there", o.ct.display());
             }
             ExitCode::SUCCESS
         }

@@ -7,10 +7,8 @@ use clipmap::config::FileKind;
 use clipmap::plan;
 use clipmap::report::{self, check, exit, info, validate, EnvArgs};
 use clipmap::roam;
-use clipmap::source::FileSource;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::Arc;
 
 #[derive(Parser)]
 #[command(
@@ -381,8 +379,8 @@ fn roam(args: RoamArgs) -> i32 {
                 Ok((p, _)) => p,
                 Err(c) => return c,
             };
-            match FileSource::new(plan, &clipmap::limits::Limits::default()) {
-                Ok(src) => roam::RoamOptions::over(Arc::new(src), flight, args.frames),
+            match clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()) {
+                Ok(src) => roam::RoamOptions::over(src, flight, args.frames),
                 Err(e) => {
                     eprintln!("cliptex roam: {e}");
                     return exit::BAD_INPUT;
@@ -465,17 +463,17 @@ fn dump(args: DumpArgs) -> i32 {
         let e = dump::DumpError::NoLevel { level: args.level, last: count.saturating_sub(1) };
         return dump::finish(Err(e), args.json, args.quiet, "cliptex");
     }
-    let src = match FileSource::new(plan, &clipmap::limits::Limits::default()) {
+    let locator = plan.clone();
+    let src = match clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()) {
         Ok(src) => src,
         Err(e) => {
             eprintln!("cliptex dump: {e}");
             return exit::BAD_INPUT;
         }
     };
-    use clipmap::source::TileSource;
     let d = src.desc().level(args.level);
     let read = |id, buf: &mut [u8]| src.read_tile(id, buf);
-    let file_of = |id: clipmap::source::TileId| src.plan().locate(id.level, id.s, id.t).ok().map(|l| l.path);
+    let file_of = |id: clipmap::source::TileId| locator.locate(id.level, id.s, id.t).ok().map(|l| l.path);
     let tiles = dump::LevelTiles {
         level: Some(args.level),
         size: d.size,

@@ -775,6 +775,21 @@ fn load_level_ic(
     sources: &mut BTreeMap<PathBuf, Vec<u8>>,
 ) -> Option<super::ImageCachePlan> {
     let level = ctx.level.map(|l| l.0).unwrap_or(0);
+    if super::is_remote(path) {
+        diags.push(
+            Diagnostic::new(
+                Severity::Error,
+                "remote-icache-file",
+                ct_path,
+                span,
+                format!("the image cache file of level {level} is a remote location; configuration files are read from local disk only"),
+            )
+            .found(path.display().to_string())
+            .expected("a local .ic file name")
+            .hint("keep the .ct and its .ic files local, and name the tiles remotely: a URL as the .ic's tile_base, stream servers or tile_format (docs/CONFIG.md §15)"),
+        );
+        return None;
+    }
     let src = match super::read_source(path, &opts.limits) {
         Ok(s) => s,
         Err(e) => {

@@ -49,6 +49,11 @@ impl<'a> Reader<'a> {
         self.diags.push(d);
     }
 
+    /// Whether a finding with `code` at `span` has been reported about this file already.
+    pub fn reported(&self, code: &str, span: Option<Span>) -> bool {
+        self.diags.items.iter().any(|d| d.code == code && d.span == span && d.path == self.file.path)
+    }
+
     /// A new finding about this file.
     pub fn diag(&self, sev: Severity, code: &'static str, span: Option<Span>, msg: impl Into<String>) -> Diagnostic {
         Diagnostic::new(sev, code, &self.file.path, span, msg)

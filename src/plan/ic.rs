@@ -415,6 +415,9 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
                     r.push(portability(d));
                 }
             }
+            for item in &items {
+                naming::note_remote(&mut r, item.span, &item.value, "the stream server");
+            }
             streams[i] = items.into_iter().map(|s| s.value).collect();
         }
     }
@@ -430,7 +433,9 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
                 );
                 r.push(d);
             }
-            Some(anchor(&dir, &format!("{cache_name}{}", w.value)))
+            let name = format!("{cache_name}{}", w.value);
+            naming::note_remote(&mut r, w.span, &name, "the default tile");
+            Some(anchor(&dir, &name))
         }
         _ => None,
     };

@@ -18,7 +18,7 @@ mod tile;
 mod values;
 
 pub use env::Env;
-pub use naming::TileNaming;
+pub use naming::{is_remote, is_remote_name, TileNaming, REMOTE_SCHEMES};
 pub use tile::{TileError, TileLocation};
 
 use crate::config::{self, Diagnostic, Diagnostics, FileKind, Limits, Severity};

@@ -13,9 +13,46 @@ use crate::config::{Severity, Span, Spanned};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
-/// Joins a relative name to `dir`; leaves absolute names alone.
+/// The schemes of remote locations (docs/CONFIG.md §15): a name that starts with one of these
+/// is a URL, used as written (never anchored to a directory).
+pub const REMOTE_SCHEMES: [&str; 3] = ["http://", "https://", "s3://"];
+
+/// Whether `name` is a remote location (`http://`, `https://` or `s3://`, case-insensitive).
+pub fn is_remote_name(name: &str) -> bool {
+    REMOTE_SCHEMES
+        .iter()
+        .any(|s| name.len() >= s.len() && name.as_bytes()[..s.len()].eq_ignore_ascii_case(s.as_bytes()))
+}
+
+/// Whether a resolved file name is a remote location (see [`is_remote_name`]).
+pub fn is_remote(path: &Path) -> bool {
+    path.to_str().is_some_and(is_remote_name)
+}
+
+/// Notes that `value` (the field at `span`, after expansion) is a remote location: an extension
+/// Performer would not follow, so a portability finding (an error under `--strict`).
+pub fn note_remote(r: &mut Reader<'_>, span: Span, value: &str, what: &str) {
+    // A field read twice (no-.ic mode names tiles and pyramid files with one format) is
+    // reported once.
+    if !is_remote_name(value) || r.reported("remote-location", Some(span)) {
+        return;
+    }
+    let d = r
+        .diag(
+            Severity::Note,
+            "remote-location",
+            Some(span),
+            format!("{what} is a remote location, an extension of this reader; Performer 3.0 would take it for a relative file name"),
+        )
+        .found(value.to_string())
+        .hint("for files Performer must read, copy the tiles to a local disk and name them by path");
+    r.push(super::portability(d));
+}
+
+/// Joins a relative name to `dir`; leaves absolute names and remote locations
+/// ([`is_remote_name`]) alone.
 pub fn anchor(dir: &Path, name: &str) -> PathBuf {
-    if name.starts_with('/') {
+    if name.starts_with('/') || is_remote_name(name) {
         PathBuf::from(name)
     } else {
         dir.join(name)
@@ -25,6 +62,7 @@ pub fn anchor(dir: &Path, name: &str) -> PathBuf {
 /// Expands `$VAR` at the start of a field, reporting what deserves a message.
 pub fn expand_field(r: &mut Reader<'_>, field: &Spanned<String>, env: &Env) -> String {
     let x = env::expand(&field.value, env);
+    note_remote(r, field.span, &x.value, "the name");
     let var = x.variable.clone().unwrap_or_default();
     match x.outcome {
         Outcome::Plain | Outcome::DefaultUsed => {}

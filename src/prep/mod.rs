@@ -32,6 +32,7 @@ pub mod jpeg_check;
 pub mod layout;
 pub mod output;
 pub mod pipeline;
+pub mod publish;
 pub mod sink;
 pub mod source;
 pub mod tiff_stream;

@@ -132,6 +132,9 @@ pub struct CheckReport {
 type FileState = Result<u64, Problem>;
 
 fn probe(path: &Path) -> FileState {
+    if crate::plan::is_remote(path) {
+        return remote_probe::length(path);
+    }
     match crate::open::regular(path) {
         Ok((_, m)) => Ok(m.len()),
         Err(e) if e.kind() == io::ErrorKind::NotFound => Err(Problem::Missing),
@@ -145,6 +148,10 @@ fn probe(path: &Path) -> FileState {
 /// frames are good; `buf` is reused between files.
 fn probe_compressed(path: &Path, offset: u64, tile: u64, buf: &mut Vec<u8>) -> FileState {
     use crate::source::{SourceError, TileId};
+    if crate::plan::is_remote(path) {
+        buf.resize(tile as usize, 0);
+        return remote_probe::decode(path, offset, buf);
+    }
     let (file, meta) = match crate::open::regular(path) {
         Ok(f) => f,
         Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(Problem::Missing),
@@ -161,12 +168,83 @@ fn probe_compressed(path: &Path, offset: u64, tile: u64, buf: &mut Vec<u8>) -> F
 
 fn check_default(ic: &ImageCachePlan, path: &Path) -> DefaultTileCheck {
     let tile = ic.tile_bytes();
-    let error = match crate::open::regular(path) {
-        Err(e) => Some(e.to_string()),
-        Ok((_, m)) if m.len() == tile || (ic.header_offset > 0 && m.len() == tile + ic.header_offset) => None,
-        Ok((_, m)) => Some(format!("{} bytes: expected {tile} (one tile)", m.len())),
+    let len = if crate::plan::is_remote(path) {
+        remote_probe::length_or_error(path)
+    } else {
+        crate::open::regular(path).map(|(_, m)| m.len()).map_err(|e| e.to_string())
+    };
+    let error = match len {
+        Err(e) => Some(e),
+        Ok(n) if n == tile || (ic.header_offset > 0 && n == tile + ic.header_offset) => None,
+        Ok(n) => Some(format!("{n} bytes: expected {tile} (one tile)")),
     };
     DefaultTileCheck { path: path.to_path_buf(), usable: error.is_none(), error }
+}
+
+/// Remote locations, checked the way [`crate::source::remote`] reads them: the length of an
+/// object by HEAD, a compressed tile by reading and decoding it; one reader (and its connections)
+/// for the whole check, with the `CLIPMAP_REMOTE_*` options.
+#[cfg(feature = "remote")]
+mod remote_probe {
+    use super::{FileState, Problem};
+    use crate::source::remote::{ReadError, Remote, RemoteOptions};
+    use std::path::Path;
+    use std::sync::OnceLock;
+
+    fn remote() -> Result<&'static Remote, String> {
+        static R: OnceLock<Result<Remote, String>> = OnceLock::new();
+        R.get_or_init(|| {
+            let opts = RemoteOptions::from_env().map_err(|e| e.to_string())?;
+            Remote::new(RemoteOptions { cache_dir: None, ..opts }).map_err(|e| e.to_string())
+        })
+        .as_ref()
+        .map_err(|e| e.clone())
+    }
+
+    pub fn length_or_error(path: &Path) -> Result<u64, String> {
+        remote()?.length(&path.to_string_lossy()).map_err(|e| e.to_string())
+    }
+
+    pub fn length(path: &Path) -> FileState {
+        let Ok(r) = remote() else { return Err(Problem::Unreadable) };
+        match r.length(&path.to_string_lossy()) {
+            Ok(n) => Ok(n),
+            Err(ReadError::NotFound { .. }) => Err(Problem::Missing),
+            Err(_) => Err(Problem::Unreadable),
+        }
+    }
+
+    pub fn decode(path: &Path, offset: u64, buf: &mut [u8]) -> FileState {
+        use crate::source::{RemoteReader, SourceError, TileId};
+        let Ok(r) = remote() else { return Err(Problem::Unreadable) };
+        match r.read_range(TileId::new(0, 0, 0), path, offset, buf) {
+            Ok(()) => Ok(offset + buf.len() as u64),
+            Err(SourceError::Undecodable { .. }) => Err(Problem::Corrupt),
+            Err(SourceError::Missing { .. }) => Err(Problem::Missing),
+            Err(_) => Err(Problem::Unreadable),
+        }
+    }
+}
+
+/// Without the `remote` feature a remote location cannot be opened.
+#[cfg(not(feature = "remote"))]
+mod remote_probe {
+    use super::{FileState, Problem};
+    use std::path::Path;
+
+    const WHY: &str = "a remote location, and this build cannot read them (the `remote` feature)";
+
+    pub fn length_or_error(_: &Path) -> Result<u64, String> {
+        Err(WHY.to_string())
+    }
+
+    pub fn length(_: &Path) -> FileState {
+        Err(Problem::Unreadable)
+    }
+
+    pub fn decode(_: &Path, _: u64, _: &mut [u8]) -> FileState {
+        Err(Problem::Unreadable)
+    }
 }
 
 /// Number of tiles of every level (for a progress bar's length).

@@ -129,7 +129,7 @@ fn servable(l: &mut plan::Loaded<plan::ClipTexturePlan>) {
 /// Why the service would refuse to start on `plan` (see [`servable`]), or `None`.
 pub fn unservable(plan: &plan::ClipTexturePlan) -> Option<String> {
     unservable_shape(plan).or_else(|| {
-        crate::source::FileSource::new(plan.clone(), &crate::limits::Limits::default()).err().map(|e| e.to_string())
+        crate::source::open_plan(plan.clone(), &crate::limits::Limits::default()).err().map(|e| e.to_string())
     })
 }
 

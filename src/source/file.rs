@@ -149,6 +149,29 @@ struct LevelStreams {
     servers: Vec<usize>,
 }
 
+/// Reads what a plan names at remote locations (`http://`, `https://`, `s3://`,
+/// [`crate::plan::is_remote`]) for a [`FileSource`]: the `remote` feature's
+/// [`crate::source::remote`] implements it.
+pub trait RemoteReader: Send + Sync {
+    /// Fills `out` with the bytes of `location` from byte `offset` on (one tile; a compressed
+    /// tile file is one whole object, decoded).
+    fn read_range(&self, tile: TileId, location: &Path, offset: u64, out: &mut [u8]) -> Result<(), SourceError>;
+
+    /// Reads a small whole object (a default tile) whose length is one of `allowed`.
+    fn read_sized(&self, location: &Path, allowed: &[u64]) -> Result<Vec<u8>, crate::open::SizedError>;
+}
+
+/// The error for a remote location that a source without a [`RemoteReader`] was asked for.
+fn no_remote(location: &Path) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::Unsupported,
+        format!(
+            "{} is a remote location, and this source reads local files only: open the plan with clipmap::source::open_plan (built with the `remote` feature, the default)",
+            location.display()
+        ),
+    )
+}
+
 /// Tiles read from the files a clip-texture plan names.
 pub struct FileSource {
     plan: ClipTexturePlan,
@@ -157,6 +180,7 @@ pub struct FileSource {
     streams: Vec<Option<LevelStreams>>,
     stream_names: Vec<String>,
     handles: Mutex<Handles>,
+    remote: Option<Arc<dyn RemoteReader>>,
     reads: AtomicU64,
     bytes_read: AtomicU64,
     default_tiles: AtomicU64,
@@ -208,11 +232,24 @@ pub fn texture_desc(plan: &ClipTexturePlan) -> Result<TextureDesc, FileSourceErr
 
 /// Reads an image cache's default tile: exactly one tile, or one tile after the header. Only a
 /// regular file of one of those two lengths is read (never more than a tile and its header).
-fn read_default(level: u32, ic: &ImageCachePlan, path: &Path) -> Result<Arc<[u8]>, FileSourceError> {
+fn read_default(
+    level: u32,
+    ic: &ImageCachePlan,
+    path: &Path,
+    remote: Option<&dyn RemoteReader>,
+) -> Result<Arc<[u8]>, FileSourceError> {
     let expected = ic.tile_bytes();
     let with_header = expected.saturating_add(ic.header_offset);
     let allowed: &[u64] = if ic.header_offset > 0 { &[expected, with_header] } else { &[expected] };
-    let bytes = crate::open::read_sized(path, allowed).map_err(|e| match e {
+    let read = if crate::plan::is_remote(path) {
+        match remote {
+            Some(r) => r.read_sized(path, allowed),
+            None => Err(crate::open::SizedError::Io(no_remote(path))),
+        }
+    } else {
+        crate::open::read_sized(path, allowed)
+    };
+    let bytes = read.map_err(|e| match e {
         crate::open::SizedError::Io(source) => {
             FileSourceError::DefaultTileRead { level, path: path.to_path_buf(), source }
         }
@@ -234,6 +271,16 @@ impl FileSource {
     /// A source over `plan`'s files. Reads every default tile now (Performer does too), sharing
     /// one buffer between levels that name the same file.
     pub fn new(plan: ClipTexturePlan, limits: &Limits) -> Result<Self, FileSourceError> {
+        Self::with_remote(plan, limits, None)
+    }
+
+    /// A source over `plan`'s files that reads the remote locations among them through
+    /// `remote` (without one, a remote tile is an I/O error saying so).
+    pub fn with_remote(
+        plan: ClipTexturePlan,
+        limits: &Limits,
+        remote: Option<Arc<dyn RemoteReader>>,
+    ) -> Result<Self, FileSourceError> {
         let desc = texture_desc(&plan)?;
         let mut read: HashMap<PathBuf, Arc<[u8]>> = HashMap::new();
         let mut defaults = Vec::with_capacity(plan.levels.len());
@@ -250,7 +297,7 @@ impl FileSource {
                 Some(path) => match read.get(path) {
                     Some(d) if d.len() as u64 == ic.tile_bytes() => Some(Arc::clone(d)),
                     _ => {
-                        let d = read_default(l.level, ic, path)?;
+                        let d = read_default(l.level, ic, path, remote.as_deref())?;
                         read.insert(path.clone(), Arc::clone(&d));
                         Some(d)
                     }
@@ -279,6 +326,7 @@ impl FileSource {
             streams,
             stream_names,
             handles: Mutex::new(Handles { bound: limits.max_open_files, clock: 0, open: HashMap::new() }),
+            remote,
             reads: AtomicU64::new(0),
             bytes_read: AtomicU64::new(0),
             default_tiles: AtomicU64::new(0),
@@ -334,6 +382,12 @@ impl FileSource {
         })?;
         if loc.length != out.len() as u64 {
             return Err(SourceError::Corrupt { tile, expected: out.len() as u64, found: loc.length });
+        }
+        if crate::plan::is_remote(&loc.path) {
+            return match &self.remote {
+                Some(r) => r.read_range(tile, &loc.path, loc.offset, out),
+                None => Err(SourceError::Io { tile, source: no_remote(&loc.path) }),
+            };
         }
         let file = self.handle(&loc.path).map_err(|e| io_error(tile, e))?;
         read_stored(&file, &loc.path, tile, loc.offset, out)

@@ -15,12 +15,13 @@ pub mod desc;
 pub mod faulty;
 pub mod file;
 pub mod procedural;
+#[cfg(feature = "remote")]
+pub mod remote;
 mod synthetic;
 
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};
 pub use faulty::{Fault, FaultRule, FaultySource};
-
-pub use file::{FileSource, FileSourceError, FileStats};
+pub use file::{FileSource, FileSourceError, FileStats, RemoteReader};
 pub use synthetic::{HashSource, TerrainSource};
 
 use serde::Serialize;
@@ -188,4 +189,56 @@ pub fn check_request(desc: &TextureDesc, tile: TileId, out: &[u8]) -> Result<(),
         return Err(SourceError::BufferSize { tile, expected, found: out.len() });
     }
     Ok(())
+}
+
+/// Why [`open_plan`] cannot serve a plan.
+#[derive(Debug, Error)]
+pub enum OpenPlanError {
+    /// The plan cannot be served (its levels, a default tile).
+    #[error(transparent)]
+    Files(#[from] FileSourceError),
+    /// A remote source could not be set up (its options, its disk cache).
+    #[error("{0}")]
+    Remote(String),
+    /// The plan names remote locations, and this build cannot read them.
+    #[error("{path} names remote locations (http://, https://, s3://), and this build cannot read them: build with the `remote` feature (on by default)", path = path.display())]
+    NoRemote {
+        /// The `.ct`.
+        path: std::path::PathBuf,
+    },
+}
+
+/// The source a plan is served from: a [`FileSource`] when it names local files only, a
+/// [`remote::RemoteSource`] (remote options from the `CLIPMAP_REMOTE_*` variables) when it
+/// names a remote location.
+pub fn open_plan(
+    plan: crate::plan::ClipTexturePlan,
+    limits: &crate::limits::Limits,
+) -> Result<std::sync::Arc<dyn TileSource>, OpenPlanError> {
+    #[cfg(feature = "remote")]
+    {
+        if remote::plan_is_remote(&plan) {
+            let opts = remote::RemoteOptions::from_env().map_err(|e| OpenPlanError::Remote(e.to_string()))?;
+            let src = remote::RemoteSource::new(plan, limits, opts).map_err(|e| match e {
+                remote::RemoteSourceError::Plan(p) => OpenPlanError::Files(p),
+                other => OpenPlanError::Remote(other.to_string()),
+            })?;
+            return Ok(std::sync::Arc::new(src));
+        }
+    }
+    #[cfg(not(feature = "remote"))]
+    {
+        let named = plan.levels.iter().any(|l| match &l.kind {
+            crate::plan::LevelKind::Icache(ic) => {
+                ic.locate(0, 0, 0).is_ok_and(|loc| crate::plan::is_remote(&loc.path))
+                    || ic.streams.iter().flatten().any(|s| crate::plan::is_remote_name(s))
+            }
+            crate::plan::LevelKind::Pyramid(p) => p.path.as_deref().is_some_and(crate::plan::is_remote),
+            _ => false,
+        });
+        if named {
+            return Err(OpenPlanError::NoRemote { path: plan.path.clone() });
+        }
+    }
+    Ok(std::sync::Arc::new(FileSource::new(plan, limits)?))
 }

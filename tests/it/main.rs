@@ -28,5 +28,7 @@ mod config_tokens;
 mod examples;
 mod fuzz_regressions;
 mod hostile;
+#[cfg(feature = "remote")]
+mod remote;
 mod sixteen_bit;
 mod stability;

@@ -1,0 +1,586 @@
+//! Reading byte ranges of remote objects: one [`Endpoint`] per scheme-host-port (or S3 bucket),
+//! each with a bound on its requests in flight; adjacent ranges of one object that wait for the
+//! same endpoint are read by one merged request; every request is retried with backoff and
+//! jitter when its failure is worth retrying.
+//!
+//! The calling threads are the engine's blocking read threads: a read waits (bounded by the
+//! timeouts and retries of the requests ahead of it) for a request slot of its endpoint, then
+//! reads its own range together with the waiting ranges adjacent to it. A slow endpoint holds
+//! only its own slots, so reads of other endpoints go on.
+
+use super::location::Location;
+use super::options::RemoteOptions;
+use bytes::Bytes;
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex, OnceLock};
+use std::time::Duration;
+
+/// One attempt's failure, as a backend classifies it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Failure {
+    /// The object does not exist (404, 410, S3 NoSuchKey): not retried.
+    NotFound,
+    /// Access refused (401, 403): not retried.
+    Denied(String),
+    /// Worth retrying (5xx, 408, 429, a reset or timed-out connection, a truncated or
+    /// mis-sized body), after `retry_after` when the server said so.
+    Transient {
+        /// What happened.
+        why: String,
+        /// The server's `Retry-After`, if any.
+        retry_after: Option<Duration>,
+        /// The attempt ran out of time.
+        timed_out: bool,
+    },
+    /// Not worth retrying (another 4xx, a location that cannot be read).
+    Fatal(String),
+}
+
+impl Failure {
+    /// A transient failure without `Retry-After`.
+    pub fn transient(why: impl Into<String>) -> Failure {
+        Failure::Transient { why: why.into(), retry_after: None, timed_out: false }
+    }
+}
+
+/// What one ranged read returned: bytes from the range's start, in the pieces they arrived in
+/// (never copied into one buffer on the way). Fewer bytes than asked only when the object ends
+/// there (`object_len` then says where); a body cut short is a [`Failure`].
+#[derive(Clone, Debug)]
+pub struct Got {
+    /// The bytes.
+    pub bytes: Segments,
+    /// The object's length, when known.
+    pub object_len: Option<u64>,
+}
+
+/// Bytes in pieces, in order.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Segments(pub Vec<Bytes>);
+
+impl From<Bytes> for Segments {
+    fn from(b: Bytes) -> Self {
+        Segments(vec![b])
+    }
+}
+
+impl Segments {
+    /// Bytes in all.
+    pub fn len(&self) -> usize {
+        self.0.iter().map(Bytes::len).sum()
+    }
+
+    /// True when there are no bytes.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Bytes `from..to` (within [`Segments::len`]), without copying.
+    pub fn slice(&self, from: usize, to: usize) -> Segments {
+        let mut out = Vec::new();
+        let mut at = 0usize;
+        for p in &self.0 {
+            let (a, b) = (at, at + p.len());
+            at = b;
+            if b <= from || a >= to {
+                continue;
+            }
+            out.push(p.slice(from.max(a) - a..to.min(b) - a));
+        }
+        Segments(out)
+    }
+
+    /// Copies every byte into `out`, which is [`Segments::len`] long.
+    pub fn copy_to(&self, out: &mut [u8]) {
+        let mut at = 0;
+        for p in &self.0 {
+            out[at..at + p.len()].copy_from_slice(p);
+            at += p.len();
+        }
+    }
+
+    /// The bytes in one piece (copied only when there are several).
+    pub fn to_bytes(&self) -> Bytes {
+        match self.0.as_slice() {
+            [] => Bytes::new(),
+            [one] => one.clone(),
+            _ => {
+                let mut v = Vec::with_capacity(self.len());
+                for p in &self.0 {
+                    v.extend_from_slice(p);
+                }
+                Bytes::from(v)
+            }
+        }
+    }
+}
+
+/// A protocol that reads remote objects: one attempt per call, blocking, bounded by the
+/// options' timeouts.
+pub trait Backend: Send + Sync {
+    /// Bytes `[start, start + len)` of `loc`.
+    fn get(&self, loc: &Location, start: u64, len: u64) -> Result<Got, Failure>;
+    /// The object's length (a HEAD request).
+    fn head(&self, loc: &Location) -> Result<u64, Failure>;
+    /// Stores `bytes` as the object `loc`.
+    fn put(&self, loc: &Location, bytes: Bytes) -> Result<(), Failure>;
+}
+
+/// Why a range could not be read, after retries.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ReadError {
+    /// The object does not exist.
+    #[error("{location}: not found")]
+    NotFound {
+        /// The object.
+        location: String,
+    },
+    /// Access refused.
+    #[error("{location}: access refused: {why}")]
+    Denied {
+        /// The object.
+        location: String,
+        /// The server's answer.
+        why: String,
+    },
+    /// The object ends before the range does.
+    #[error("{location}: the object ends {got} bytes into the range of {expected}")]
+    Short {
+        /// The object.
+        location: String,
+        /// Bytes of the range that exist.
+        got: u64,
+        /// Bytes asked for.
+        expected: u64,
+    },
+    /// Every attempt failed (or the failure was not worth retrying).
+    #[error("{location}: {why} (after {attempts} attempt{s})", s = if *attempts == 1 { "" } else { "s" })]
+    Failed {
+        /// The object.
+        location: String,
+        /// The last failure.
+        why: String,
+        /// Attempts made.
+        attempts: u32,
+        /// The last attempt ran out of time.
+        timed_out: bool,
+    },
+}
+
+/// Counters of remote reads since the source was opened.
+#[derive(Debug, Default)]
+pub struct Counters {
+    /// Requests sent (retries included).
+    pub requests: AtomicU64,
+    /// Retries.
+    pub retries: AtomicU64,
+    /// Ranges read by a request merged with another range.
+    pub merged: AtomicU64,
+    /// Bytes received.
+    pub bytes: AtomicU64,
+    /// Ranges that failed after retries.
+    pub failures: AtomicU64,
+    /// Ranges served from the disk cache.
+    pub cache_hits: AtomicU64,
+    /// Most requests in flight at once to one endpoint.
+    pub peak_in_flight: AtomicU64,
+}
+
+/// A range a reading thread waits for.
+struct Req {
+    object: String,
+    loc: Location,
+    start: u64,
+    len: u64,
+    result: OnceLock<Result<Segments, ReadError>>,
+}
+
+#[derive(Default)]
+struct EpState {
+    in_flight: usize,
+    waiting: Vec<Arc<Req>>,
+}
+
+/// One endpoint: its slots and the ranges waiting for them.
+#[derive(Default)]
+struct Endpoint {
+    state: Mutex<EpState>,
+    wake: Condvar,
+}
+
+/// Reads ranges through a backend per scheme, one [`Endpoint`] per endpoint.
+pub struct Fetcher {
+    opts: RemoteOptions,
+    endpoints: Mutex<HashMap<String, Arc<Endpoint>>>,
+    http: Arc<dyn Backend>,
+    s3: Arc<dyn Backend>,
+    /// The counters.
+    pub counters: Counters,
+}
+
+impl Fetcher {
+    /// A fetcher over the two backends.
+    pub fn new(opts: RemoteOptions, http: Arc<dyn Backend>, s3: Arc<dyn Backend>) -> Fetcher {
+        Fetcher { opts, endpoints: Mutex::new(HashMap::new()), http, s3, counters: Counters::default() }
+    }
+
+    /// The options.
+    pub fn options(&self) -> &RemoteOptions {
+        &self.opts
+    }
+
+    fn backend(&self, loc: &Location) -> &dyn Backend {
+        match loc.scheme {
+            super::location::Scheme::Http => self.http.as_ref(),
+            super::location::Scheme::S3 => self.s3.as_ref(),
+        }
+    }
+
+    fn endpoint(&self, key: &str) -> Arc<Endpoint> {
+        let mut m = self.endpoints.lock().unwrap_or_else(|e| e.into_inner());
+        Arc::clone(m.entry(key.to_string()).or_default())
+    }
+
+    /// Bytes `[start, start + len)` of `loc`: waits for a slot of its endpoint, merges with the
+    /// adjacent waiting ranges of the same object, retries.
+    pub fn read(&self, loc: &Location, start: u64, len: u64) -> Result<Segments, ReadError> {
+        let ep = self.endpoint(&loc.endpoint);
+        let me = Arc::new(Req { object: loc.to_string(), loc: loc.clone(), start, len, result: OnceLock::new() });
+        let mut st = ep.state.lock().unwrap_or_else(|e| e.into_inner());
+        st.waiting.push(Arc::clone(&me));
+        loop {
+            if me.result.get().is_some() {
+                break;
+            }
+            if st.in_flight < self.opts.in_flight.max(1) {
+                let batch = take_batch(&mut st.waiting, &me, self.opts.merge_bytes);
+                st.in_flight += 1;
+                self.counters.peak_in_flight.fetch_max(st.in_flight as u64, Ordering::Relaxed);
+                drop(st);
+                self.run_batch(&batch);
+                st = ep.state.lock().unwrap_or_else(|e| e.into_inner());
+                st.in_flight -= 1;
+                ep.wake.notify_all();
+                break;
+            }
+            st = ep.wake.wait(st).unwrap_or_else(|e| e.into_inner());
+        }
+        drop(st);
+        me.result.get().cloned().unwrap_or_else(|| {
+            Err(ReadError::Failed {
+                location: me.object.clone(),
+                why: "no result".into(),
+                attempts: 0,
+                timed_out: false,
+            })
+        })
+    }
+
+    /// Reads the merged range of `batch` (sorted, adjacent) and hands each range its bytes.
+    fn run_batch(&self, batch: &[Arc<Req>]) {
+        let first = &batch[0];
+        let start = first.start;
+        let end = batch.iter().map(|r| r.start + r.len).max().unwrap_or(start);
+        if batch.len() > 1 {
+            self.counters.merged.fetch_add(batch.len() as u64, Ordering::Relaxed);
+        }
+        let got = self.with_retries(&first.loc, &first.object, |b| b.get(&first.loc, start, end - start));
+        for r in batch {
+            let result = match &got {
+                Ok(g) => {
+                    let from = (r.start - start) as usize;
+                    let to = from + r.len as usize;
+                    if g.bytes.len() >= to {
+                        Ok(g.bytes.slice(from, to))
+                    } else {
+                        Err(ReadError::Short {
+                            location: r.object.clone(),
+                            got: (g.bytes.len().saturating_sub(from)) as u64,
+                            expected: r.len,
+                        })
+                    }
+                }
+                Err(e) => Err(e.clone()),
+            };
+            if result.is_err() {
+                self.counters.failures.fetch_add(1, Ordering::Relaxed);
+            }
+            let _ = r.result.set(result);
+        }
+    }
+
+    /// Runs `attempt` until it succeeds, fails for good or runs out of retries.
+    pub fn with_retries<T>(
+        &self,
+        loc: &Location,
+        object: &str,
+        attempt: impl Fn(&dyn Backend) -> Result<T, Failure>,
+    ) -> Result<T, ReadError>
+    where
+        T: GotBytes,
+    {
+        let backend = self.backend(loc);
+        let mut n = 0u32;
+        loop {
+            n += 1;
+            self.counters.requests.fetch_add(1, Ordering::Relaxed);
+            match attempt(backend) {
+                Ok(v) => {
+                    self.counters.bytes.fetch_add(v.byte_count(), Ordering::Relaxed);
+                    return Ok(v);
+                }
+                Err(Failure::NotFound) => return Err(ReadError::NotFound { location: object.to_string() }),
+                Err(Failure::Denied(why)) => return Err(ReadError::Denied { location: object.to_string(), why }),
+                Err(Failure::Fatal(why)) => {
+                    return Err(ReadError::Failed { location: object.to_string(), why, attempts: n, timed_out: false })
+                }
+                Err(Failure::Transient { why, retry_after, timed_out }) => {
+                    if n > self.opts.retries {
+                        return Err(ReadError::Failed { location: object.to_string(), why, attempts: n, timed_out });
+                    }
+                    self.counters.retries.fetch_add(1, Ordering::Relaxed);
+                    let backoff = self.opts.backoff_for(n, jitter());
+                    let wait = retry_after.map_or(backoff, |r| r.min(self.opts.backoff_max).max(backoff));
+                    tracing::debug!(location = %object, attempt = n, ?wait, "remote read failed ({why}); retrying");
+                    std::thread::sleep(wait);
+                }
+            }
+        }
+    }
+}
+
+/// Results whose bytes are counted.
+pub trait GotBytes {
+    /// Bytes received.
+    fn byte_count(&self) -> u64;
+}
+
+impl GotBytes for Got {
+    fn byte_count(&self) -> u64 {
+        self.bytes.len() as u64
+    }
+}
+
+impl GotBytes for u64 {
+    fn byte_count(&self) -> u64 {
+        0
+    }
+}
+
+impl GotBytes for () {
+    fn byte_count(&self) -> u64 {
+        0
+    }
+}
+
+/// Takes `me` and the waiting ranges of the same object adjacent to it (a contiguous run, at
+/// most `merge_bytes` in all unless `me` alone is larger) out of `waiting`, sorted by start.
+fn take_batch(waiting: &mut Vec<Arc<Req>>, me: &Arc<Req>, merge_bytes: u64) -> Vec<Arc<Req>> {
+    let mut same: Vec<Arc<Req>> = waiting.iter().filter(|r| r.object == me.object).cloned().collect();
+    same.sort_by_key(|r| r.start);
+    let at = same.iter().position(|r| Arc::ptr_eq(r, me)).unwrap_or(0);
+    let (mut lo, mut hi) = (at, at);
+    let mut bytes = me.len;
+    loop {
+        let mut grew = false;
+        if hi + 1 < same.len() {
+            let (a, b) = (&same[hi], &same[hi + 1]);
+            if b.start == a.start + a.len && bytes + b.len <= merge_bytes {
+                hi += 1;
+                bytes += b.len;
+                grew = true;
+            }
+        }
+        if lo > 0 {
+            let (a, b) = (&same[lo - 1], &same[lo]);
+            if a.start + a.len == b.start && bytes + a.len <= merge_bytes {
+                lo -= 1;
+                bytes += a.len;
+                grew = true;
+            }
+        }
+        if !grew {
+            break;
+        }
+    }
+    let batch: Vec<Arc<Req>> = same[lo..=hi].to_vec();
+    waiting.retain(|r| !batch.iter().any(|b| Arc::ptr_eq(b, r)));
+    batch
+}
+
+/// A number in [0, 1) for jitter (not for anything that needs good randomness).
+fn jitter() -> f64 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u64(std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64));
+    (h.finish() >> 11) as f64 / (1u64 << 53) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::AtomicUsize;
+
+    /// A backend over one in-memory object per name, answering each get after `delay` and
+    /// failing the first `fail_first` attempts with 503.
+    struct Mem {
+        objects: HashMap<String, Vec<u8>>,
+        delay: Duration,
+        fail_first: AtomicUsize,
+        gets: Mutex<Vec<(u64, u64)>>,
+        concurrent: AtomicUsize,
+        peak: AtomicUsize,
+        /// While true, every get waits (so that a test can line ranges up behind it).
+        hold: Mutex<bool>,
+        release: Condvar,
+    }
+
+    impl Backend for Mem {
+        fn get(&self, loc: &Location, start: u64, len: u64) -> Result<Got, Failure> {
+            let now = self.concurrent.fetch_add(1, Ordering::SeqCst) + 1;
+            self.peak.fetch_max(now, Ordering::SeqCst);
+            let mut held = self.hold.lock().unwrap();
+            while *held {
+                held = self.release.wait(held).unwrap();
+            }
+            drop(held);
+            std::thread::sleep(self.delay);
+            self.concurrent.fetch_sub(1, Ordering::SeqCst);
+            self.gets.lock().unwrap().push((start, len));
+            if self.fail_first.load(Ordering::SeqCst) > 0 {
+                self.fail_first.fetch_sub(1, Ordering::SeqCst);
+                return Err(Failure::Transient {
+                    why: "503".into(),
+                    retry_after: Some(Duration::from_millis(1)),
+                    timed_out: false,
+                });
+            }
+            let o = self.objects.get(&loc.target).ok_or(Failure::NotFound)?;
+            let s = (start as usize).min(o.len());
+            let e = ((start + len) as usize).min(o.len());
+            // In pieces of 100 bytes, as a body arrives in chunks.
+            let parts = o[s..e].chunks(100).map(Bytes::copy_from_slice).collect();
+            Ok(Got { bytes: Segments(parts), object_len: Some(o.len() as u64) })
+        }
+        fn head(&self, loc: &Location) -> Result<u64, Failure> {
+            self.objects.get(&loc.target).map(|o| o.len() as u64).ok_or(Failure::NotFound)
+        }
+        fn put(&self, _: &Location, _: Bytes) -> Result<(), Failure> {
+            Err(Failure::Fatal("read-only".into()))
+        }
+    }
+
+    fn fetcher(mem: Arc<Mem>, opts: RemoteOptions) -> Fetcher {
+        Fetcher::new(opts, mem.clone(), mem)
+    }
+
+    fn mem(delay_ms: u64, fail_first: usize) -> Arc<Mem> {
+        let object: Vec<u8> = (0..4096u32).map(|i| (i * 7 % 251) as u8).collect();
+        Arc::new(Mem {
+            objects: [("http://h:1/o".to_string(), object)].into_iter().collect(),
+            delay: Duration::from_millis(delay_ms),
+            fail_first: AtomicUsize::new(fail_first),
+            gets: Mutex::new(Vec::new()),
+            concurrent: AtomicUsize::new(0),
+            peak: AtomicUsize::new(0),
+            hold: Mutex::new(false),
+            release: Condvar::new(),
+        })
+    }
+
+    fn expected(start: u64, len: u64) -> Vec<u8> {
+        (start as u32..(start + len) as u32).map(|i| (i * 7 % 251) as u8).collect()
+    }
+
+    #[test]
+    fn ranges_waiting_together_are_merged_and_each_gets_its_own_bytes() {
+        let m = mem(0, 0);
+        *m.hold.lock().unwrap() = true;
+        let f = Arc::new(fetcher(m.clone(), RemoteOptions { in_flight: 1, ..Default::default() }));
+        let loc = Location::parse("http://h:1/o").unwrap();
+        let spawn = |start: u64| {
+            let (f, loc) = (f.clone(), loc.clone());
+            std::thread::spawn(move || (start, f.read(&loc, start, 256).unwrap()))
+        };
+        // One read holds the only slot while eight adjacent ranges queue behind it.
+        let mut threads = vec![spawn(3000)];
+        while m.concurrent.load(Ordering::SeqCst) == 0 {
+            std::thread::yield_now();
+        }
+        threads.extend((0..8u64).map(|i| spawn(i * 256)));
+        let ep = f.endpoint(&loc.endpoint);
+        while ep.state.lock().unwrap().waiting.len() < 8 {
+            std::thread::yield_now();
+        }
+        *m.hold.lock().unwrap() = false;
+        m.release.notify_all();
+        for t in threads {
+            let (start, got) = t.join().unwrap();
+            assert_eq!(got.to_bytes().as_ref(), expected(start, 256).as_slice(), "range at {start}");
+        }
+        let gets = m.gets.lock().unwrap().clone();
+        assert_eq!(gets, vec![(3000, 256), (0, 2048)], "the eight adjacent waiting ranges share one request");
+        assert_eq!(f.counters.merged.load(Ordering::Relaxed), 8);
+        assert_eq!(m.peak.load(Ordering::SeqCst), 1, "one request in flight at most");
+    }
+
+    #[test]
+    fn the_bound_on_requests_in_flight_holds_per_endpoint() {
+        let m = mem(20, 0);
+        let f = Arc::new(fetcher(m.clone(), RemoteOptions { in_flight: 3, merge_bytes: 0, ..Default::default() }));
+        let loc = Location::parse("http://h:1/o").unwrap();
+        let threads: Vec<_> = (0..12u64)
+            .map(|i| {
+                let (f, loc) = (f.clone(), loc.clone());
+                std::thread::spawn(move || f.read(&loc, i * 300, 100).unwrap())
+            })
+            .collect();
+        for t in threads {
+            t.join().unwrap();
+        }
+        assert!(m.peak.load(Ordering::SeqCst) <= 3, "peak {}", m.peak.load(Ordering::SeqCst));
+        assert_eq!(m.gets.lock().unwrap().len(), 12, "ranges that are not adjacent are not merged");
+    }
+
+    #[test]
+    fn transient_failures_are_retried_and_not_found_is_not() {
+        let m = mem(0, 2);
+        let f = fetcher(m.clone(), RemoteOptions { backoff: Duration::from_millis(1), ..Default::default() });
+        let loc = Location::parse("http://h:1/o").unwrap();
+        assert_eq!(f.read(&loc, 10, 20).unwrap().to_bytes().as_ref(), expected(10, 20).as_slice());
+        assert_eq!(f.counters.retries.load(Ordering::Relaxed), 2);
+        let missing = Location::parse("http://h:1/nothing").unwrap();
+        assert!(matches!(f.read(&missing, 0, 1), Err(ReadError::NotFound { .. })));
+        assert_eq!(f.counters.retries.load(Ordering::Relaxed), 2, "a 404 is final");
+        let m = mem(0, 100);
+        let f =
+            fetcher(m.clone(), RemoteOptions { retries: 3, backoff: Duration::from_millis(1), ..Default::default() });
+        match f.read(&loc, 0, 1) {
+            Err(ReadError::Failed { attempts, .. }) => assert_eq!(attempts, 4),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn segments_slice_across_pieces_without_losing_a_byte() {
+        let s = Segments((0..5u8).map(|i| Bytes::from(vec![i; 3])).collect());
+        assert_eq!(s.len(), 15);
+        let mid = s.slice(2, 11);
+        assert_eq!(mid.to_bytes().as_ref(), &[0, 1, 1, 1, 2, 2, 2, 3, 3]);
+        let mut out = [9u8; 9];
+        mid.copy_to(&mut out);
+        assert_eq!(out, [0, 1, 1, 1, 2, 2, 2, 3, 3]);
+        assert!(s.slice(15, 15).is_empty());
+    }
+
+    #[test]
+    fn a_range_past_the_end_of_the_object_is_short() {
+        let f = fetcher(mem(0, 0), RemoteOptions::default());
+        let loc = Location::parse("http://h:1/o").unwrap();
+        match f.read(&loc, 4000, 256) {
+            Err(ReadError::Short { got, expected, .. }) => assert_eq!((got, expected), (96, 256)),
+            other => panic!("{other:?}"),
+        }
+    }
+}

@@ -1,0 +1,365 @@
+//! Tiles from HTTP(S) servers and S3-compatible object stores (the `remote` feature).
+//!
+//! A configuration names a remote location wherever it names a tile file: a URL as an `.ic`'s
+//! `tile_base`, a stream server, a `tile_format`, a `default_tile`, or a `.ct`'s `tile_base` /
+//! `tile_files` / `tile_format` (docs/CONFIG.md §15). [`RemoteSource`] serves such a plan: it is
+//! a [`FileSource`] whose remote locations are read through a [`Remote`] (ranged reads, merged
+//! when adjacent, bounded per endpoint, retried; an optional disk cache), and whose stream
+//! servers are the plan's endpoints, so that the engine gives every endpoint its own read queue
+//! and a slow endpoint holds back only its own tiles.
+
+pub mod disk;
+pub mod fetch;
+pub mod http;
+pub mod location;
+pub mod options;
+mod runtime;
+pub mod s3;
+
+pub use fetch::{Backend, Failure, Fetcher, Got, ReadError, Segments};
+pub use location::{Location, LocationError, Scheme};
+pub use options::{OptionsError, RemoteOptions};
+
+use super::file::{FileSource, FileSourceError, RemoteReader};
+use super::{SourceError, TextureDesc, TileId, TileSource};
+use crate::limits::Limits;
+use crate::open::SizedError;
+use crate::plan::{ClipTexturePlan, LevelKind};
+use serde::Serialize;
+use std::collections::HashMap;
+use std::io;
+use std::path::Path;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+
+/// Counters of a remote source since it was opened.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct RemoteStats {
+    /// Requests sent, retries included.
+    pub requests: u64,
+    /// Retries.
+    pub retries: u64,
+    /// Ranges read by a merged request.
+    pub merged: u64,
+    /// Bytes received.
+    pub bytes: u64,
+    /// Ranges that failed after retries.
+    pub failures: u64,
+    /// Ranges served from the disk cache.
+    pub cache_hits: u64,
+    /// Most requests in flight at once to one endpoint.
+    pub peak_in_flight: u64,
+}
+
+/// Reads remote locations: the fetcher and the disk cache.
+pub struct Remote {
+    fetcher: Fetcher,
+    cache: Option<disk::DiskCache>,
+}
+
+fn io_failure(tile: TileId, kind: io::ErrorKind, text: String) -> SourceError {
+    SourceError::Io { tile, source: io::Error::new(kind, text) }
+}
+
+fn source_error(tile: TileId, e: ReadError) -> SourceError {
+    match e {
+        ReadError::NotFound { .. } => SourceError::Missing { tile },
+        ReadError::Denied { .. } => SourceError::PermissionDenied { tile },
+        ReadError::Short { got, expected, .. } => SourceError::Short { tile, expected, got },
+        e @ ReadError::Failed { timed_out, .. } => {
+            io_failure(tile, if timed_out { io::ErrorKind::TimedOut } else { io::ErrorKind::Other }, e.to_string())
+        }
+    }
+}
+
+impl Remote {
+    /// HTTP and S3 backends with `opts`, and the disk cache it names (made if absent).
+    pub fn new(opts: RemoteOptions) -> io::Result<Remote> {
+        let cache = match &opts.cache_dir {
+            Some(dir) => Some(disk::DiskCache::open(dir, opts.cache_bytes)?),
+            None => None,
+        };
+        let http: Arc<dyn Backend> = Arc::new(http::Http::new(&opts));
+        let s3: Arc<dyn Backend> = Arc::new(s3::S3::new(&opts));
+        Ok(Remote { fetcher: Fetcher::new(opts, http, s3), cache })
+    }
+
+    /// Over given backends (tests, benchmarks).
+    pub fn with_backends(opts: RemoteOptions, http: Arc<dyn Backend>, s3: Arc<dyn Backend>) -> Remote {
+        Remote { fetcher: Fetcher::new(opts, http, s3), cache: None }
+    }
+
+    /// The fetcher.
+    pub fn fetcher(&self) -> &Fetcher {
+        &self.fetcher
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> RemoteStats {
+        let c = &self.fetcher.counters;
+        RemoteStats {
+            requests: c.requests.load(Ordering::Relaxed),
+            retries: c.retries.load(Ordering::Relaxed),
+            merged: c.merged.load(Ordering::Relaxed),
+            bytes: c.bytes.load(Ordering::Relaxed),
+            failures: c.failures.load(Ordering::Relaxed),
+            cache_hits: c.cache_hits.load(Ordering::Relaxed),
+            peak_in_flight: c.peak_in_flight.load(Ordering::Relaxed),
+        }
+    }
+
+    /// The bytes of `name` from `start` on, at most `max` of them (fewer when the object ends
+    /// first), with retries; not merged with other reads.
+    pub fn read_upto(&self, name: &str, start: u64, max: u64) -> Result<bytes::Bytes, ReadError> {
+        let loc = parse(name)?;
+        self.fetcher.with_retries(&loc, name, |b| b.get(&loc, start, max)).map(|g| g.bytes.to_bytes())
+    }
+
+    /// The length of the object `name` (HEAD), with retries.
+    pub fn length(&self, name: &str) -> Result<u64, ReadError> {
+        let loc = parse(name)?;
+        self.fetcher.with_retries(&loc, name, |b| b.head(&loc))
+    }
+
+    /// Stores `bytes` as the object `name`, with retries.
+    pub fn put(&self, name: &str, bytes: bytes::Bytes) -> Result<(), ReadError> {
+        let loc = parse(name)?;
+        self.fetcher.with_retries(&loc, name, |b| b.put(&loc, bytes.clone()))
+    }
+}
+
+fn parse(name: &str) -> Result<Location, ReadError> {
+    Location::parse(name).map_err(|e| ReadError::Failed {
+        location: name.to_string(),
+        why: e.problem.clone(),
+        attempts: 0,
+        timed_out: false,
+    })
+}
+
+impl RemoteReader for Remote {
+    fn read_range(&self, tile: TileId, location: &Path, offset: u64, out: &mut [u8]) -> Result<(), SourceError> {
+        let name = location.to_string_lossy();
+        if super::file::is_compressed(location) {
+            return self.read_compressed(tile, &name, location, offset, out);
+        }
+        let key = disk::key(&name, offset, out.len() as u64);
+        if let Some(c) = &self.cache {
+            if c.get(&key, out) {
+                self.fetcher.counters.cache_hits.fetch_add(1, Ordering::Relaxed);
+                return Ok(());
+            }
+        }
+        let loc = Location::parse(&name).map_err(|e| io_failure(tile, io::ErrorKind::InvalidInput, e.to_string()))?;
+        let bytes = self.fetcher.read(&loc, offset, out.len() as u64).map_err(|e| source_error(tile, e))?;
+        if bytes.len() != out.len() {
+            return Err(SourceError::Short { tile, expected: out.len() as u64, got: bytes.len() as u64 });
+        }
+        bytes.copy_to(out);
+        if let Some(c) = &self.cache {
+            c.put(&key, out);
+        }
+        Ok(())
+    }
+
+    fn read_sized(&self, location: &Path, allowed: &[u64]) -> Result<Vec<u8>, SizedError> {
+        let name = location.to_string_lossy();
+        let max = allowed.iter().copied().max().unwrap_or(0);
+        let bytes = self.read_upto(&name, 0, max.saturating_add(1)).map_err(|e| {
+            let kind = match e {
+                ReadError::NotFound { .. } => io::ErrorKind::NotFound,
+                ReadError::Denied { .. } => io::ErrorKind::PermissionDenied,
+                _ => io::ErrorKind::Other,
+            };
+            SizedError::Io(io::Error::new(kind, e.to_string()))
+        })?;
+        if !allowed.contains(&(bytes.len() as u64)) {
+            return Err(SizedError::Length(bytes.len() as u64));
+        }
+        Ok(bytes.to_vec())
+    }
+}
+
+impl Remote {
+    /// A compressed tile object (one zstd frame of one tile, docs/COMPRESSED-TILES.md), read
+    /// whole (at most what one tile compresses to) and decoded.
+    fn read_compressed(
+        &self,
+        tile: TileId,
+        name: &str,
+        location: &Path,
+        offset: u64,
+        out: &mut [u8],
+    ) -> Result<(), SourceError> {
+        let bad = |problem: String| SourceError::Undecodable { tile, path: location.to_path_buf(), problem };
+        if offset != 0 {
+            return Err(bad(format!(
+                "its tile is placed at byte {offset}, but a compressed file holds one whole tile"
+            )));
+        }
+        let bound = zstd::zstd_safe::compress_bound(out.len()) as u64;
+        let packed = self.read_upto(name, 0, bound + 1).map_err(|e| source_error(tile, e))?;
+        if packed.len() as u64 > bound {
+            return Err(bad(format!("the object holds more than one {}-byte tile compresses to", out.len())));
+        }
+        match zstd::bulk::decompress_to_buffer(&packed, out) {
+            Ok(n) if n == out.len() => Ok(()),
+            Ok(n) => Err(bad(format!("it decodes to {n} bytes, expected one tile of {}", out.len()))),
+            Err(e) => Err(bad(format!("it is not one zstd frame of a {}-byte tile ({e})", out.len()))),
+        }
+    }
+}
+
+/// The endpoint key of a resolved name: `scheme://authority` of a URL (lowercase), `s3://bucket`,
+/// or `file` for a local path. Cheap: no full URL parse.
+pub fn endpoint_key(name: &str) -> String {
+    if !crate::plan::is_remote_name(name) {
+        return "file".to_string();
+    }
+    let (scheme, rest) = name.split_once("://").unwrap_or(("", name));
+    let authority = rest.split('/').next().unwrap_or("");
+    format!("{}://{}", scheme.to_ascii_lowercase(), authority.to_ascii_lowercase())
+}
+
+/// Whether `plan` names any remote location (a tile, a default tile, a stream server, a
+/// pyramid file).
+pub fn plan_is_remote(plan: &ClipTexturePlan) -> bool {
+    plan.levels.iter().any(|l| match &l.kind {
+        LevelKind::Icache(ic) => {
+            ic.default_tile.as_deref().is_some_and(crate::plan::is_remote)
+                || ic.streams.iter().flatten().any(|s| crate::plan::is_remote_name(s))
+                || ic.locate(0, 0, 0).is_ok_and(|loc| crate::plan::is_remote(&loc.path))
+        }
+        LevelKind::Pyramid(p) => p.path.as_deref().is_some_and(crate::plan::is_remote),
+        LevelKind::IcacheNotOpened { .. } => false,
+    })
+}
+
+/// Why a remote source cannot be opened.
+#[derive(Debug, thiserror::Error)]
+pub enum RemoteSourceError {
+    /// The plan cannot be served.
+    #[error(transparent)]
+    Plan(#[from] FileSourceError),
+    /// A `CLIPMAP_REMOTE_*` variable is wrong.
+    #[error(transparent)]
+    Options(#[from] OptionsError),
+    /// The disk cache cannot be opened.
+    #[error("the remote disk cache (CLIPMAP_REMOTE_CACHE_DIR) cannot be used: {0}")]
+    Cache(io::Error),
+}
+
+/// A plan's tiles from remote locations (and from local files, for the names that are paths):
+/// one stream server per endpoint.
+pub struct RemoteSource {
+    files: FileSource,
+    remote: Arc<Remote>,
+    endpoints: Vec<String>,
+    index: HashMap<String, usize>,
+    /// Each level's endpoint when all its tiles share one (levels without stream servers).
+    level_endpoint: Vec<Option<usize>>,
+}
+
+impl RemoteSource {
+    /// A source over `plan` with the remote options `opts`. Reads every default tile now.
+    pub fn new(plan: ClipTexturePlan, limits: &Limits, opts: RemoteOptions) -> Result<Self, RemoteSourceError> {
+        let remote = Arc::new(Remote::new(opts).map_err(RemoteSourceError::Cache)?);
+        Self::with_remote(plan, limits, remote)
+    }
+
+    /// A source over `plan` reading through `remote`.
+    pub fn with_remote(plan: ClipTexturePlan, limits: &Limits, remote: Arc<Remote>) -> Result<Self, RemoteSourceError> {
+        let files = FileSource::with_remote(plan, limits, Some(Arc::clone(&remote) as Arc<dyn RemoteReader>))?;
+        let mut endpoints: Vec<String> = Vec::new();
+        let mut index = HashMap::new();
+        let mut add = |key: String, endpoints: &mut Vec<String>| -> usize {
+            *index.entry(key.clone()).or_insert_with(|| {
+                endpoints.push(key);
+                endpoints.len() - 1
+            })
+        };
+        let mut level_endpoint = Vec::new();
+        let plan = files.plan();
+        for l in &plan.levels {
+            match &l.kind {
+                LevelKind::Icache(ic) => {
+                    let n = ic.tile_count();
+                    // Sample the tiles of the first row and column: every stream server of
+                    // the level is among them, and every prefix a name format has.
+                    let mut keys: Vec<String> = (0..n[0].min(64))
+                        .map(|s| (s, 0))
+                        .chain((0..n[1].min(64)).map(|t| (0, t)))
+                        .filter_map(|(s, t)| ic.locate(s, t, 0).ok())
+                        .map(|loc| endpoint_key(&loc.path.to_string_lossy()))
+                        .collect();
+                    keys.dedup();
+                    let ids: Vec<usize> = keys.into_iter().map(|k| add(k, &mut endpoints)).collect();
+                    let single = ic.streams.iter().all(|s| s.is_empty()) && ids.windows(2).all(|w| w[0] == w[1]);
+                    level_endpoint.push(if single { ids.first().copied() } else { None });
+                }
+                LevelKind::Pyramid(p) => {
+                    let key = p.path.as_deref().map_or("file".to_string(), |p| endpoint_key(&p.to_string_lossy()));
+                    level_endpoint.push(Some(add(key, &mut endpoints)));
+                }
+                LevelKind::IcacheNotOpened { .. } => level_endpoint.push(None),
+            }
+        }
+        Ok(RemoteSource { files, remote, endpoints, index, level_endpoint })
+    }
+
+    /// The endpoints (one stream server each), in server order.
+    pub fn endpoints(&self) -> &[String] {
+        &self.endpoints
+    }
+
+    /// The file source underneath (plan, default tiles, file counters).
+    pub fn files(&self) -> &FileSource {
+        &self.files
+    }
+
+    /// The remote reader.
+    pub fn remote(&self) -> &Arc<Remote> {
+        &self.remote
+    }
+
+    /// Counters of remote reads so far.
+    pub fn stats(&self) -> RemoteStats {
+        self.remote.stats()
+    }
+
+    fn endpoint_of(&self, tile: TileId) -> usize {
+        if let Some(Some(e)) = self.level_endpoint.get(tile.level as usize) {
+            return *e;
+        }
+        match self.files.plan().locate(tile.level, tile.s, tile.t) {
+            Ok(loc) => {
+                let key = endpoint_key(&loc.path.to_string_lossy());
+                self.index.get(&key).copied().unwrap_or_else(|| {
+                    use std::hash::{Hash, Hasher};
+                    let mut h = std::collections::hash_map::DefaultHasher::new();
+                    key.hash(&mut h);
+                    h.finish() as usize % self.endpoints.len().max(1)
+                })
+            }
+            Err(_) => 0,
+        }
+    }
+}
+
+impl TileSource for RemoteSource {
+    fn desc(&self) -> &TextureDesc {
+        self.files.desc()
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        self.files.read_tile(tile, out)
+    }
+
+    fn stream_servers(&self) -> usize {
+        self.endpoints.len().max(1)
+    }
+
+    fn stream_of(&self, tile: TileId, streams: usize) -> usize {
+        self.endpoint_of(tile) % streams.max(1)
+    }
+}

@@ -1,0 +1,163 @@
+//! The S3 backend: `object_store`'s Amazon S3 client, one per bucket, configured from the usual
+//! `AWS_*` environment variables (`AWS_ACCESS_KEY_ID`, `AWS_SECRET_ACCESS_KEY`,
+//! `AWS_SESSION_TOKEN`, `AWS_REGION` / `AWS_DEFAULT_REGION`, `AWS_ENDPOINT_URL` /
+//! `AWS_ENDPOINT`, `AWS_ALLOW_HTTP`, ...). Credentials are handed to the client and never
+//! printed or logged; an error names the location only.
+//!
+//! `object_store` retries what is worth retrying itself (with the options' backoff, which it
+//! jitters; a body cut short is read on from where it stopped) and checks the `Content-Range`
+//! of every answer; what fails after its retries is final here. This backend checks the length
+//! of what arrives (a mismatch is retried by the fetcher's loop), says where an object ends, and
+//! classifies what is left.
+
+use super::fetch::{Backend, Failure, Got, Segments};
+use super::location::Location;
+use super::options::RemoteOptions;
+use super::runtime::block;
+use bytes::Bytes;
+use object_store::aws::{AmazonS3, AmazonS3Builder};
+use object_store::path::Path as ObjectPath;
+use object_store::{ClientOptions, GetOptions, GetRange, ObjectStore, ObjectStoreExt, PutPayload, RetryConfig};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// Reads and writes objects of S3-compatible stores.
+pub struct S3 {
+    opts: RemoteOptions,
+    stores: Mutex<HashMap<String, Arc<AmazonS3>>>,
+}
+
+impl S3 {
+    /// A backend with the options' timeouts and retries (no store is made before it is used).
+    pub fn new(opts: &RemoteOptions) -> S3 {
+        S3 { opts: opts.clone(), stores: Mutex::new(HashMap::new()) }
+    }
+
+    fn store(&self, bucket: &str) -> Result<Arc<AmazonS3>, Failure> {
+        let mut m = self.stores.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(s) = m.get(bucket) {
+            return Ok(Arc::clone(s));
+        }
+        super::runtime::install_crypto();
+        let mut b = AmazonS3Builder::from_env().with_bucket_name(bucket);
+        // AWS_ENDPOINT_URL is the name the AWS tools use; object_store reads AWS_ENDPOINT.
+        let endpoint = std::env::var("AWS_ENDPOINT_URL").or_else(|_| std::env::var("AWS_ENDPOINT")).ok();
+        if let Some(e) = &endpoint {
+            b = b.with_endpoint(e.clone());
+        }
+        if std::env::var("AWS_REGION").is_err() {
+            if let Ok(r) = std::env::var("AWS_DEFAULT_REGION") {
+                b = b.with_region(r);
+            }
+        }
+        // A plain-HTTP endpoint that the environment names was chosen on purpose (a store on a
+        // private network, a test server).
+        let plain = endpoint.as_deref().is_some_and(|e| e.to_ascii_lowercase().starts_with("http://"));
+        let client = ClientOptions::new()
+            .with_timeout(self.opts.timeout)
+            .with_connect_timeout(self.opts.connect_timeout)
+            .with_allow_http(plain || std::env::var("AWS_ALLOW_HTTP").is_ok_and(|v| v.eq_ignore_ascii_case("true")));
+        let retry = RetryConfig {
+            backoff: object_store::BackoffConfig {
+                init_backoff: self.opts.backoff.max(Duration::from_millis(1)),
+                max_backoff: self.opts.backoff_max.max(Duration::from_millis(1)),
+                base: 2.0,
+            },
+            max_retries: self.opts.retries as usize,
+            retry_timeout: self.opts.timeout.saturating_mul(self.opts.retries + 1),
+        };
+        let store =
+            b.with_client_options(client).with_retry(retry).build().map_err(|e| {
+                Failure::Fatal(format!("cannot make the S3 client for bucket {bucket}: {}", sanitize(&e)))
+            })?;
+        let store = Arc::new(store);
+        m.insert(bucket.to_string(), Arc::clone(&store));
+        Ok(store)
+    }
+
+    fn limit(&self) -> Duration {
+        // object_store retries inside one call.
+        self.opts.timeout.saturating_mul(self.opts.retries + 1)
+            + self.opts.backoff_max.saturating_mul(self.opts.retries)
+    }
+}
+
+fn path(loc: &Location) -> Result<ObjectPath, Failure> {
+    ObjectPath::parse(&loc.target).map_err(|e| Failure::Fatal(format!("not an object key: {e}")))
+}
+
+/// An `object_store` error in words, without anything but the error's own text (which names
+/// the key and the status, never credentials).
+fn sanitize(e: &object_store::Error) -> String {
+    e.to_string()
+}
+
+fn failure(e: object_store::Error) -> Failure {
+    match e {
+        object_store::Error::NotFound { .. } => Failure::NotFound,
+        object_store::Error::PermissionDenied { .. } | object_store::Error::Unauthenticated { .. } => {
+            Failure::Denied(sanitize(&e))
+        }
+        other => {
+            let text = sanitize(&other);
+            if text.contains("416") || text.contains("Range Not Satisfiable") || text.contains("InvalidRange") {
+                // The object ends before the range starts.
+                return Failure::Fatal(format!("range not satisfiable: {text}"));
+            }
+            // object_store has retried already (the request and a body cut short alike).
+            Failure::Fatal(text)
+        }
+    }
+}
+
+impl Backend for S3 {
+    fn get(&self, loc: &Location, start: u64, len: u64) -> Result<Got, Failure> {
+        if len == 0 {
+            return Ok(Got { bytes: Segments::default(), object_len: None });
+        }
+        let store = self.store(&loc.bucket)?;
+        let p = path(loc)?;
+        block(self.limit(), async move {
+            let options = GetOptions { range: Some(GetRange::Bounded(start..start + len)), ..Default::default() };
+            let r = match store.get_opts(&p, options).await {
+                Ok(r) => r,
+                Err(e) => {
+                    let f = failure(e);
+                    if matches!(&f, Failure::Fatal(t) if t.starts_with("range not satisfiable")) {
+                        let size = store.head(&p).await.ok().map(|m| m.size);
+                        return Ok(Got { bytes: Segments::default(), object_len: size });
+                    }
+                    return Err(f);
+                }
+            };
+            let (range, size) = (r.range.clone(), r.meta.size);
+            let bytes = r.bytes().await.map_err(failure)?;
+            if range.start != start || bytes.len() as u64 != range.end - range.start {
+                return Err(Failure::transient(format!(
+                    "asked for bytes {start}..{}, got {} bytes of {}..{}",
+                    start + len,
+                    bytes.len(),
+                    range.start,
+                    range.end
+                )));
+            }
+            if range.end < start + len && range.end != size {
+                return Err(Failure::transient(format!("the answer ends at byte {} of {size}", range.end)));
+            }
+            Ok(Got { bytes: bytes.into(), object_len: Some(size) })
+        })
+    }
+
+    fn head(&self, loc: &Location) -> Result<u64, Failure> {
+        let store = self.store(&loc.bucket)?;
+        let p = path(loc)?;
+        block(self.limit(), async move { store.head(&p).await.map(|m| m.size).map_err(failure) })
+    }
+
+    fn put(&self, loc: &Location, bytes: Bytes) -> Result<(), Failure> {
+        let store = self.store(&loc.bucket)?;
+        let p = path(loc)?;
+        block(self.limit(), async move { store.put(&p, PutPayload::from(bytes)).await.map(|_| ()).map_err(failure) })
+    }
+}

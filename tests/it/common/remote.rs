@@ -1,0 +1,408 @@
+//! Servers on loopback for the remote-tile tests: Debian's `nginx` serving a directory (range
+//! requests), an S3-compatible server (`moto[server]` from PyPI), and a fault-injecting HTTP
+//! proxy put in front of either. `.ci/run` installs nginx and moto; a test that needs one that
+//! is missing fails saying what to install.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{Shutdown, TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// A free loopback port (bound, then released for the server to take).
+pub fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+fn wait_listening(port: u16, what: &str, log: &Path) {
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(30) {
+        if TcpStream::connect(("127.0.0.1", port)).is_ok() {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(25));
+    }
+    panic!(
+        "{what} did not listen on port {port} within 30 s; its log:\n{}",
+        std::fs::read_to_string(log).unwrap_or_default()
+    );
+}
+
+fn find_program(names: &[&str], install: &str) -> PathBuf {
+    for n in names {
+        let p = Path::new(n);
+        if p.is_absolute() && p.exists() {
+            return p.to_path_buf();
+        }
+        if let Some(path) = std::env::var_os("PATH") {
+            for d in std::env::split_paths(&path) {
+                let c = d.join(n);
+                if c.is_file() {
+                    return c;
+                }
+            }
+        }
+    }
+    panic!("{} is needed for this test and was not found: {install} (.ci/run does it)", names[0]);
+}
+
+/// `nginx` serving `root` on a loopback port; stopped on drop.
+pub struct Nginx {
+    child: Child,
+    /// Its port.
+    pub port: u16,
+    dir: tempfile::TempDir,
+}
+
+impl Nginx {
+    /// Starts nginx (one process, no daemon, everything under a temporary directory).
+    pub fn serve(root: &Path) -> Nginx {
+        Nginx::serve_with(root, "")
+    }
+
+    /// Like [`Nginx::serve`], and files may be written with HTTP PUT (the DAV module).
+    pub fn serve_writable(root: &Path) -> Nginx {
+        Nginx::serve_with(root, "dav_methods PUT; create_full_put_path on; client_max_body_size 0;")
+    }
+
+    fn serve_with(root: &Path, location: &str) -> Nginx {
+        let exe = find_program(&["nginx", "/usr/sbin/nginx"], "install Debian's nginx: apt-get install nginx");
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let port = free_port();
+        for sub in ["body", "proxy", "fastcgi", "uwsgi", "scgi"] {
+            std::fs::create_dir_all(d.join(sub)).unwrap();
+        }
+        let conf = format!(
+            "daemon off;\nmaster_process off;\nworker_processes 1;\npid {d}/nginx.pid;\nerror_log {d}/error.log warn;\n\
+             events {{ worker_connections 512; }}\n\
+             http {{\n  access_log off;\n  client_body_temp_path {d}/body;\n  proxy_temp_path {d}/proxy;\n  fastcgi_temp_path {d}/fastcgi;\n  uwsgi_temp_path {d}/uwsgi;\n  scgi_temp_path {d}/scgi;\n  keepalive_requests 100000;\n  sendfile on;\n  tcp_nodelay on;\n\
+               server {{\n    listen 127.0.0.1:{port};\n    root {root};\n    location / {{ {location} }}\n  }}\n}}\n",
+            d = d.display(),
+            root = root.display()
+        );
+        std::fs::write(d.join("nginx.conf"), conf).unwrap();
+        let log = d.join("stderr.log");
+        let child = Command::new(exe)
+            .args(["-p", d.to_str().unwrap(), "-e", d.join("error.log").to_str().unwrap(), "-c"])
+            .arg(d.join("nginx.conf"))
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .expect("nginx starts");
+        let n = Nginx { child, port, dir };
+        wait_listening(port, "nginx", &n.dir.path().join("error.log"));
+        n
+    }
+
+    /// `http://127.0.0.1:PORT`.
+    pub fn url(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+}
+
+impl Drop for Nginx {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// An S3-compatible server (`moto[server]`) on a loopback port; stopped on drop.
+pub struct Moto {
+    child: Child,
+    /// Its port.
+    pub port: u16,
+    log: PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+impl Moto {
+    /// Starts `moto_server` (or `python3 -m moto.server`).
+    pub fn start() -> Moto {
+        let dir = tempfile::tempdir().unwrap();
+        let port = free_port();
+        let log = dir.path().join("moto.log");
+        let python = find_program(&["python3"], "install python3");
+        let ok = Command::new(&python)
+            .args(["-c", "import moto.server"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(ok, "moto is needed for this test and was not found: pip install 'moto[server]' (.ci/run does it)");
+        let child = Command::new(python)
+            .args(["-m", "moto.server", "-H", "127.0.0.1", "-p", &port.to_string()])
+            .stdout(std::fs::File::create(&log).unwrap())
+            .stderr(std::fs::File::create(dir.path().join("moto.err")).unwrap())
+            .spawn()
+            .expect("moto starts");
+        let m = Moto { child, port, log: dir.path().join("moto.err"), _dir: dir };
+        wait_listening(port, "moto", &m.log);
+        m
+    }
+
+    /// `http://127.0.0.1:PORT`.
+    pub fn url(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+
+    /// The `AWS_*` variables that point a client at this server.
+    pub fn env(&self) -> Vec<(String, String)> {
+        vec![
+            ("AWS_ACCESS_KEY_ID".into(), "testing-key-id".into()),
+            ("AWS_SECRET_ACCESS_KEY".into(), "testing-secret-never-printed".into()),
+            ("AWS_REGION".into(), "us-east-1".into()),
+            ("AWS_ENDPOINT_URL".into(), self.url()),
+        ]
+    }
+
+    /// Makes a bucket (S3 `CreateBucket`, which moto accepts unsigned).
+    pub fn create_bucket(&self, bucket: &str) {
+        let mut s = TcpStream::connect(("127.0.0.1", self.port)).unwrap();
+        write!(
+            s,
+            "PUT /{bucket} HTTP/1.1\r\nHost: 127.0.0.1:{}\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
+            self.port
+        )
+        .unwrap();
+        let mut reply = String::new();
+        s.read_to_string(&mut reply).unwrap();
+        assert!(reply.starts_with("HTTP/1.1 200"), "CreateBucket {bucket}: {reply}");
+    }
+}
+
+impl Drop for Moto {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// What the fault proxy does to one request.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fault {
+    /// Forwards it untouched.
+    Pass,
+    /// Answers 404 itself.
+    NotFound,
+    /// Answers 500 itself.
+    ServerError,
+    /// Answers 503 with `Retry-After: 1`.
+    Unavailable,
+    /// Forwards it after this many milliseconds.
+    Slow(u64),
+    /// Closes the connection without an answer (a reset).
+    Reset,
+    /// Forwards the head and half the body, then closes.
+    Truncate,
+    /// Forwards the answer with a `Content-Length` larger than its body, then closes.
+    LongLength,
+    /// Forwards the answer with a `Content-Length` smaller than its body.
+    ShortLength,
+}
+
+/// The proxy's schedule: request `i` (from 0) gets `faults[i]` while `i < faults.len()`, then
+/// `then` (every `every`-th request, the others pass).
+#[derive(Clone, Debug)]
+pub struct Schedule {
+    /// The first requests' faults, in order.
+    pub faults: Vec<Fault>,
+    /// Faults after those, in rotation, applied to every `every`-th request.
+    pub then: Vec<Fault>,
+    /// See `then` (0: pass everything after `faults`).
+    pub every: u64,
+}
+
+impl Schedule {
+    /// Every request passes.
+    pub fn pass() -> Schedule {
+        Schedule { faults: Vec::new(), then: Vec::new(), every: 0 }
+    }
+
+    fn fault(&self, i: u64) -> Fault {
+        if let Some(f) = self.faults.get(i as usize) {
+            return *f;
+        }
+        let j = i - self.faults.len() as u64;
+        if self.every == 0 || self.then.is_empty() || !j.is_multiple_of(self.every) {
+            return Fault::Pass;
+        }
+        self.then[((j / self.every) % self.then.len() as u64) as usize]
+    }
+}
+
+/// A loopback HTTP proxy in front of `upstream` that injects faults (and an optional delay on
+/// every request); one connection per request (`Connection: close`). Stops on drop.
+pub struct FaultProxy {
+    /// Its port.
+    pub port: u16,
+    /// Requests seen.
+    pub requests: Arc<AtomicU64>,
+    /// Faults injected, by kind.
+    pub injected: Arc<Mutex<Vec<Fault>>>,
+    schedule: Arc<Mutex<Schedule>>,
+    stop: Arc<AtomicBool>,
+}
+
+impl FaultProxy {
+    /// A proxy to `127.0.0.1:upstream` following `schedule`, delaying every request by
+    /// `delay_ms`.
+    pub fn start(upstream: u16, schedule: Schedule, delay_ms: u64) -> FaultProxy {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let port = listener.local_addr().unwrap().port();
+        let requests = Arc::new(AtomicU64::new(0));
+        let injected = Arc::new(Mutex::new(Vec::new()));
+        let schedule = Arc::new(Mutex::new(schedule));
+        let stop = Arc::new(AtomicBool::new(false));
+        {
+            let (requests, injected, schedule, stop) =
+                (requests.clone(), injected.clone(), schedule.clone(), stop.clone());
+            std::thread::spawn(move || {
+                for conn in listener.incoming() {
+                    if stop.load(Ordering::SeqCst) {
+                        break;
+                    }
+                    let Ok(conn) = conn else { continue };
+                    let (requests, injected, schedule) = (requests.clone(), injected.clone(), schedule.clone());
+                    std::thread::spawn(move || {
+                        let _ = serve(conn, upstream, delay_ms, &requests, &injected, &schedule);
+                    });
+                }
+            });
+        }
+        FaultProxy { port, requests, injected, schedule, stop }
+    }
+
+    /// `http://127.0.0.1:PORT`.
+    pub fn url(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+
+    /// Replaces the schedule (its request numbers count from the requests seen so far).
+    pub fn set(&self, mut schedule: Schedule) {
+        let seen = self.requests.load(Ordering::SeqCst) as usize;
+        let mut faults = vec![Fault::Pass; seen];
+        faults.append(&mut schedule.faults);
+        schedule.faults = faults;
+        *self.schedule.lock().unwrap() = schedule;
+    }
+}
+
+impl Drop for FaultProxy {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        let _ = TcpStream::connect(("127.0.0.1", self.port));
+    }
+}
+
+/// Reads one request head (and its body, by Content-Length) from `r`.
+fn read_request(r: &mut BufReader<TcpStream>) -> std::io::Result<Option<Vec<u8>>> {
+    let mut head = Vec::new();
+    let mut len = 0usize;
+    loop {
+        let mut line = String::new();
+        if r.read_line(&mut line)? == 0 {
+            return Ok(None);
+        }
+        if let Some(v) = line.to_ascii_lowercase().strip_prefix("content-length:") {
+            len = v.trim().parse().unwrap_or(0);
+        }
+        let lower = line.to_ascii_lowercase();
+        if lower.starts_with("connection:") {
+            continue;
+        }
+        if line == "\r\n" {
+            head.extend_from_slice(b"Connection: close\r\n\r\n");
+            break;
+        }
+        head.extend_from_slice(line.as_bytes());
+    }
+    let mut body = vec![0u8; len];
+    r.read_exact(&mut body)?;
+    head.extend_from_slice(&body);
+    Ok(Some(head))
+}
+
+fn serve(
+    conn: TcpStream,
+    upstream: u16,
+    delay_ms: u64,
+    requests: &AtomicU64,
+    injected: &Mutex<Vec<Fault>>,
+    schedule: &Mutex<Schedule>,
+) -> std::io::Result<()> {
+    let mut r = BufReader::new(conn.try_clone()?);
+    let mut out = conn;
+    let Some(req) = read_request(&mut r)? else { return Ok(()) };
+    let i = requests.fetch_add(1, Ordering::SeqCst);
+    let fault = schedule.lock().unwrap().fault(i);
+    if fault != Fault::Pass {
+        injected.lock().unwrap().push(fault);
+    }
+    if delay_ms > 0 {
+        std::thread::sleep(Duration::from_millis(delay_ms));
+    }
+    let canned = |status: &str, extra: &str| {
+        format!("HTTP/1.1 {status}\r\nContent-Length: 0\r\n{extra}Connection: close\r\n\r\n").into_bytes()
+    };
+    match fault {
+        Fault::NotFound => return out.write_all(&canned("404 Not Found", "")),
+        Fault::ServerError => return out.write_all(&canned("500 Internal Server Error", "")),
+        Fault::Unavailable => return out.write_all(&canned("503 Service Unavailable", "Retry-After: 1\r\n")),
+        Fault::Reset => {
+            // Closed with the request unread past its head: no answer at all.
+            return out.shutdown(Shutdown::Both);
+        }
+        Fault::Slow(ms) => std::thread::sleep(Duration::from_millis(ms)),
+        _ => {}
+    }
+    let mut up = TcpStream::connect(("127.0.0.1", upstream))?;
+    up.write_all(&req)?;
+    let mut resp = Vec::new();
+    up.read_to_end(&mut resp)?;
+    let split = resp.windows(4).position(|w| w == b"\r\n\r\n").map_or(resp.len(), |p| p + 4);
+    let (head, body) = resp.split_at(split);
+    let head = String::from_utf8_lossy(head).into_owned();
+    let rewrite_length = |n: usize| -> String {
+        head.lines()
+            .map(|l| {
+                if l.to_ascii_lowercase().starts_with("content-length:") {
+                    format!("Content-Length: {n}")
+                } else {
+                    l.to_string()
+                }
+            })
+            .collect::<Vec<_>>()
+            .join("\r\n")
+    };
+    match fault {
+        Fault::Truncate => {
+            out.write_all(head.as_bytes())?;
+            out.write_all(&body[..body.len() / 2])?;
+        }
+        Fault::LongLength => {
+            out.write_all(rewrite_length(body.len() + 100).as_bytes())?;
+            out.write_all(body)?;
+        }
+        Fault::ShortLength => {
+            out.write_all(rewrite_length(body.len().saturating_sub(10)).as_bytes())?;
+            out.write_all(body)?;
+        }
+        _ => {
+            out.write_all(head.as_bytes())?;
+            out.write_all(body)?;
+        }
+    }
+    out.flush()?;
+    out.shutdown(Shutdown::Write)
+}
+
+/// Writes the configuration of the pyramid prepared in `src` into `dst`, every tile read from
+/// `base` (and stream server i from `stream_bases[i % len]`); returns the `.ct`.
+pub fn point_config_at(src: &Path, dst: &Path, base: &str, stream_bases: &[String]) -> PathBuf {
+    clipmap::prep::publish::write_pointed_config(src, dst, base, stream_bases).expect("the configuration is rewritten")
+}

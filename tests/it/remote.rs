@@ -1,0 +1,583 @@
+//! Tiles from HTTP servers and S3-compatible stores, end to end on loopback: Debian's nginx
+//! serving a prepared hash pyramid (range requests), moto as the S3 store, and a fault proxy in
+//! the test injecting 404, 500, 503 with Retry-After, slow answers, resets, truncated bodies and
+//! wrong Content-Lengths. Every texel is checked against the hash texture, through the library
+//! and through `clipmapd` with `clipmap-read`. nginx and moto are installed by `.ci/run`; a test
+//! that cannot find one fails saying what to install.
+
+use crate::common::remote::{point_config_at, Fault, FaultProxy, Moto, Nginx, Schedule};
+use crate::common::{exec, exec_bounded, NO_IC_CT};
+use clipmap::limits::Limits;
+use clipmap::plan;
+use clipmap::source::procedural::hash;
+use clipmap::source::remote::{RemoteOptions, RemoteSource};
+use clipmap::source::{SourceError, TileId, TileSource};
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const CLIPPREP: &str = env!("CARGO_BIN_EXE_clipprep");
+const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
+const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
+const READER: &str = env!("CARGO_BIN_EXE_clipmap-read");
+
+/// Prepares a hash pyramid (RGBA8) in `dir` with extra clipprep options; returns `dir`.
+fn prepare(dir: &Path, size: u64, tile: u64, clip: u64, extra: &[&str]) -> PathBuf {
+    let (s, t, c) = (size.to_string(), tile.to_string(), clip.to_string());
+    let mut args = vec!["--source", "hash", "--size", &s, "--tile", &t, "--clip", &c, "--format", "rgba8", "--quiet"];
+    args.extend_from_slice(extra);
+    args.extend_from_slice(&["--out", dir.to_str().unwrap()]);
+    let (out, d) = exec(Path::new("."), CLIPPREP, &args);
+    assert!(out.status.success(), "{d}");
+    dir.to_path_buf()
+}
+
+fn load(ct: &Path) -> plan::ClipTexturePlan {
+    let l = plan::load_clip_texture(ct, &plan::Options::default()).unwrap();
+    let rendered = l.render();
+    l.plan.unwrap_or_else(|| panic!("{} should load:\n{rendered}", ct.display()))
+}
+
+/// Short timeouts and backoffs, so that faults resolve quickly.
+fn quick_opts() -> RemoteOptions {
+    RemoteOptions {
+        timeout: Duration::from_millis(1500),
+        connect_timeout: Duration::from_millis(500),
+        retries: 3,
+        backoff: Duration::from_millis(2),
+        backoff_max: Duration::from_millis(40),
+        ..RemoteOptions::default()
+    }
+}
+
+/// Every texel of `buf` (tile `id`, `w` x `h`, RGBA8) against the hash texture.
+fn assert_hash_tile(id: TileId, w: u64, h: u64, buf: &[u8]) {
+    let mut want = [0u8; 4];
+    for y in 0..h {
+        for x in 0..w {
+            hash(id.level, id.s * w + x, id.t * h + y, &mut want);
+            let at = ((y * w + x) * 4) as usize;
+            assert_eq!(&buf[at..at + 4], &want, "{id}: texel ({x}, {y}) of the tile is wrong");
+        }
+    }
+}
+
+fn every_tile(src: &dyn TileSource) -> Vec<TileId> {
+    let d = src.desc();
+    (0..d.level_count() as u32)
+        .flat_map(|k| {
+            let t = d.level(k).tiles();
+            (0..t[1]).flat_map(move |tt| (0..t[0]).map(move |s| TileId::new(k, s, tt)))
+        })
+        .collect()
+}
+
+fn read_checked(src: &dyn TileSource, id: TileId) -> Result<(), SourceError> {
+    let d = src.desc().level(id.level);
+    let mut buf = vec![0u8; src.desc().tile_bytes(id.level)];
+    src.read_tile(id, &mut buf)?;
+    assert_hash_tile(id, d.tile[0], d.tile[1], &buf);
+    Ok(())
+}
+
+/// A running `clipmapd` over a configuration, killed on drop.
+struct Service {
+    child: Child,
+    socket: PathBuf,
+    err: PathBuf,
+}
+
+impl Service {
+    fn start(dir: &Path, name: &str, ct: &Path, envs: &[(String, String)]) -> Service {
+        let socket = dir.join(format!("{name}.sock"));
+        let err = dir.join(format!("{name}.err"));
+        let child = Command::new(CLIPMAPD)
+            .arg(ct)
+            .args(["--tick-hz", "60", "--name", name, "--shm-dir", dir.to_str().unwrap(), "--socket"])
+            .arg(&socket)
+            .envs(envs.iter().map(|(k, v)| (k.as_str(), v.as_str())))
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&err).unwrap())
+            .spawn()
+            .unwrap();
+        let mut s = Service { child, socket, err };
+        let t = Instant::now();
+        loop {
+            if let Ok(r) = s.try_ask("PING") {
+                if r.starts_with("OK pong") {
+                    return s;
+                }
+            }
+            if let Ok(Some(st)) = s.child.try_wait() {
+                panic!("clipmapd exited ({st}):\n{}", s.log());
+            }
+            assert!(t.elapsed() < Duration::from_secs(30), "the service did not come up:\n{}", s.log());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.err).unwrap_or_default()
+    }
+
+    fn try_ask(&self, line: &str) -> std::io::Result<String> {
+        let mut s = UnixStream::connect(&self.socket)?;
+        s.set_read_timeout(Some(Duration::from_secs(10)))?;
+        writeln!(s, "{line}")?;
+        let mut reply = String::new();
+        BufReader::new(s).read_line(&mut reply)?;
+        Ok(reply.trim_end().to_string())
+    }
+
+    fn stats(&self) -> serde_json::Value {
+        let r = self.try_ask("STATS").unwrap();
+        serde_json::from_str(r.strip_prefix("OK ").unwrap_or_else(|| panic!("{r}"))).unwrap()
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Runs a driving reader for `seconds`; returns (passed, failed) texel counts.
+fn read_service(dir: &Path, name: &str, seconds: u32) -> (u64, u64, Output) {
+    let out = Command::new(READER)
+        .args(["--name", name, "--shm-dir", dir.to_str().unwrap(), "--drive", "--seconds", &seconds.to_string()])
+        .args(["--reads", "1000000000000"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    let line = stdout
+        .lines()
+        .find(|l| l.contains(" passed, "))
+        .unwrap_or_else(|| panic!("no counts from the reader:\n{stdout}\n{}", String::from_utf8_lossy(&out.stderr)));
+    let mut w = line.split_whitespace();
+    let passed = w.next().unwrap().parse().unwrap();
+    let failed = w.nth(1).unwrap().parse().unwrap();
+    (passed, failed, out)
+}
+
+#[test]
+fn remote_names_are_kept_as_written_and_strict_validation_calls_them_an_extension() {
+    let fx = crate::common::Fixture::new();
+    let text = NO_IC_CT.replace("tile_format t.%d", "tile_format http://127.0.0.1:9/tiles/t.%d");
+    let ct = fx.write("t.ct", &text);
+    let l = plan::load_clip_texture(&ct, &crate::common::opts()).unwrap();
+    let p = l.plan.as_ref().unwrap_or_else(|| panic!("{}", l.render()));
+    let loc = p.locate(0, 3, 2).unwrap();
+    assert_eq!(loc.path, Path::new("http://127.0.0.1:9/tiles/t.4096.r2.c3.raw"), "not anchored to the .ct's directory");
+    let d = crate::common::expect(
+        &l.diagnostics,
+        "remote-location",
+        clipmap::config::Severity::Note,
+        Some((7, 13)),
+        &["remote location", "extension", "Performer"],
+    );
+    assert!(d.portability);
+    let (out, desc) = exec(fx.dir.path(), CLIPTEX, &["validate", "--strict", ct.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1), "--strict refuses the extension:\n{desc}");
+    assert!(desc.contains("is a remote location, an extension") && desc.matches("7:13").count() == 1, "{desc}");
+    let (out, desc) = exec(fx.dir.path(), CLIPTEX, &["validate", ct.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "without --strict it is a note:\n{desc}");
+
+    // Stream servers and tile bases may be URLs too; an .ic file may not.
+    let ic = "ic_version2.0\next_format PFTEX_PACK_8\nint_format PFTEX_RGB_8\nimg_format PFTEX_RGB\nicache_size 1024 1024 1\ntile_size 256 256 1\ntex_region_size 512 512 1\ntile_base s3://bucket/tiles/\ns_stream http://a:1/ http://b:2/\n";
+    let (plan_ic, d) = crate::common::ic_ok(ic);
+    assert_eq!(d.items.iter().filter(|x| x.code == "remote-location").count(), 3, "{}", crate::common::listing(&d));
+    assert_eq!(plan_ic.locate(1, 0, 0).unwrap().path, Path::new("http://b:2/s3://bucket/tiles/.1024.r000.c001.raw888"));
+    let ct = "ct_version2.0\next_format PFTEX_PACK_8\nint_format PFTEX_RGB_8\nimg_format PFTEX_RGB\nvirt_size 4096 4096 1\nclip_size 512\nicache_format http://h/l%d.ic\nicache_params PFCLIPTEX_FNAMEARG_LEVEL\n";
+    let d = crate::common::ct_err(ct);
+    crate::common::expect(&d, "remote-icache-file", clipmap::config::Severity::Error, Some((7, 15)), &["local"]);
+}
+
+#[test]
+fn nginx_serves_a_prepared_pyramid_by_byte_ranges_and_adjacent_ranges_are_merged() {
+    let dir = tempfile::tempdir().unwrap();
+    // Four tiles to a file along S and T: tiles are byte ranges of shared files.
+    let pyr = prepare(&dir.path().join("pyr"), 1024, 64, 128, &["--tiles-per-file", "4x4"]);
+    let nginx = Nginx::serve(&pyr);
+    let ct = point_config_at(&pyr, &dir.path().join("cfg"), &nginx.url(), &[]);
+    let opts = RemoteOptions { in_flight: 1, ..quick_opts() };
+    let src = RemoteSource::new(load(&ct), &Limits::default(), opts).unwrap();
+    assert_eq!(src.endpoints(), [format!("http://127.0.0.1:{}", nginx.port)]);
+    let tiles = every_tile(&src);
+    // Eight readers taking neighbouring tiles in turn, and one request slot: ranges of one
+    // file line up behind the slot and are merged.
+    std::thread::scope(|s| {
+        for j in 0..8 {
+            let (src, tiles) = (&src, &tiles);
+            s.spawn(move || {
+                for &id in tiles.iter().skip(j).step_by(8) {
+                    read_checked(src, id).unwrap_or_else(|e| panic!("{id}: {e}"));
+                }
+            });
+        }
+    });
+    let st = src.stats();
+    assert!(st.merged > 0, "adjacent ranges waiting together are merged: {st:?}");
+    assert!(st.requests < tiles.len() as u64, "fewer requests than tiles: {st:?} for {} tiles", tiles.len());
+    assert_eq!((st.failures, st.retries), (0, 0), "{st:?}");
+    assert_eq!(st.peak_in_flight, 1, "the endpoint's bound holds: {st:?}");
+}
+
+#[test]
+fn each_fault_ends_in_a_retry_a_missing_tile_or_an_error_never_in_wrong_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    let pyr = prepare(&dir.path().join("pyr"), 256, 64, 64, &[]);
+    let nginx = Nginx::serve(&pyr);
+    let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
+    let ct = point_config_at(&pyr, &dir.path().join("cfg"), &proxy.url(), &[]);
+    let src = RemoteSource::new(
+        load(&ct),
+        &Limits::default(),
+        RemoteOptions { timeout: Duration::from_millis(400), ..quick_opts() },
+    )
+    .unwrap();
+    let id = TileId::new(0, 1, 2);
+    let once = |f: Fault| Schedule { faults: vec![f], then: Vec::new(), every: 0 };
+    for fault in [
+        Fault::ServerError,
+        Fault::Unavailable,
+        Fault::Slow(1500),
+        Fault::Reset,
+        Fault::Truncate,
+        Fault::LongLength,
+        Fault::ShortLength,
+    ] {
+        let before = src.stats();
+        proxy.set(once(fault));
+        read_checked(&src, id).unwrap_or_else(|e| panic!("{fault:?} once, then healthy: {e}"));
+        let after = src.stats();
+        assert_eq!(after.retries - before.retries, 1, "{fault:?}: one retry: {after:?}");
+    }
+    // A 404 is final: the tile is missing (no default tile here), nothing is retried.
+    let before = src.stats();
+    proxy.set(once(Fault::NotFound));
+    assert!(matches!(read_checked(&src, id), Err(SourceError::Missing { .. })));
+    assert_eq!(src.stats().retries, before.retries);
+    // A fault on every attempt: an error after the retries, never bytes.
+    for fault in [Fault::Truncate, Fault::ShortLength, Fault::Unavailable, Fault::Slow(1000)] {
+        let before = src.stats();
+        proxy.set(Schedule { faults: Vec::new(), then: vec![fault], every: 1 });
+        let e = read_checked(&src, id).expect_err("every attempt fails");
+        assert!(matches!(e, SourceError::Io { .. }), "{fault:?}: {e}");
+        assert_eq!(src.stats().retries - before.retries, 3, "{fault:?}: all retries used");
+        if let Fault::Slow(_) = fault {
+            assert!(e.to_string().contains("timed out"), "{e}");
+        }
+    }
+    proxy.set(Schedule::pass());
+    read_checked(&src, id).unwrap();
+    let injected = proxy.injected.lock().unwrap().len();
+    assert!(injected >= 8 + 4 * 4, "{injected} faults injected");
+}
+
+#[test]
+fn a_service_behind_a_faulty_proxy_and_a_healthy_endpoint_serves_only_right_texels_and_keeps_ticking() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pyr = prepare(&d.join("pyr"), 4096, 64, 256, &["--streams", "2"]);
+    let nginx = Nginx::serve(&pyr);
+    // Stream server 0 through a proxy that breaks every third request (every kind of fault in
+    // turn), stream server 1 straight to nginx: two endpoints, two read queues.
+    let faults = vec![
+        Fault::NotFound,
+        Fault::ServerError,
+        Fault::Unavailable,
+        Fault::Slow(700),
+        Fault::Reset,
+        Fault::Truncate,
+        Fault::LongLength,
+        Fault::ShortLength,
+    ];
+    let proxy = FaultProxy::start(nginx.port, Schedule { faults: Vec::new(), then: faults, every: 3 }, 0);
+    let ct = point_config_at(&pyr, &d.join("cfg"), &nginx.url(), &[proxy.url(), nginx.url()]);
+    let envs: Vec<(String, String)> = [
+        ("CLIPMAP_REMOTE_TIMEOUT_MS", "300"),
+        ("CLIPMAP_REMOTE_RETRIES", "2"),
+        ("CLIPMAP_REMOTE_BACKOFF_MS", "2"),
+        ("CLIPMAP_REMOTE_BACKOFF_MAX_MS", "30"),
+    ]
+    .iter()
+    .map(|(k, v)| (k.to_string(), v.to_string()))
+    .collect();
+    let svc = Service::start(d, "faulty", &ct, &envs);
+    let before = svc.stats();
+    let (passed, failed, out) = read_service(d, "faulty", 3);
+    assert_eq!(failed, 0, "{}\n{}", String::from_utf8_lossy(&out.stderr), svc.log());
+    assert!(passed > 10_000, "{passed} texels checked");
+    let after = svc.stats();
+    let ticks = |v: &serde_json::Value| v["engine"]["ticks"].as_u64().unwrap();
+    assert!(ticks(&after) > ticks(&before) + 60, "the tick goes on: {before}\n{after}");
+    let streams = after["streams"].as_array().unwrap();
+    assert_eq!(streams.len(), 2, "one read queue per endpoint: {after}");
+    for q in streams {
+        assert!(q["reads_done"].as_u64().unwrap() > 0, "both endpoints read: {after}");
+    }
+    assert!(proxy.injected.lock().unwrap().len() >= 8, "faults were injected: {:?}", proxy.injected.lock().unwrap());
+}
+
+#[test]
+fn cliptex_check_over_http_gives_the_local_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pyr = prepare(&d.join("pyr"), 512, 64, 128, &[]);
+    // Damage: one tile gone, one cut short.
+    std::fs::remove_file(pyr.join("L00/r001.c002.raw")).unwrap();
+    let f = pyr.join("L00/r003.c003.raw");
+    let len = std::fs::metadata(&f).unwrap().len();
+    std::fs::OpenOptions::new().write(true).open(&f).unwrap().set_len(len / 2).unwrap();
+    let nginx = Nginx::serve(&pyr);
+    let ct = point_config_at(&pyr, &d.join("cfg"), &nginx.url(), &[]);
+    let local_ct = pyr.join("pyr.ct");
+    let check = |ct: &Path| {
+        let (out, desc) =
+            exec_bounded(d, CLIPTEX, &["check", ct.to_str().unwrap(), "--json"], &[], Duration::from_secs(60));
+        assert_eq!(out.status.code(), Some(1), "some tiles cannot be served:\n{desc}");
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        (v["totals"].clone(), v["levels"].as_array().unwrap().len())
+    };
+    let (remote, levels) = check(&ct);
+    assert_eq!(check(&local_ct), (remote.clone(), levels), "the same table, local or remote");
+    assert_eq!((remote["missing"].as_u64(), remote["short"].as_u64()), (Some(1), Some(1)), "{remote}");
+    let (out, desc) = exec(d, CLIPTEX, &["check", ct.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(desc.contains("Missing: http://127.0.0.1:") && desc.contains("Short: http://"), "{desc}");
+}
+
+#[test]
+fn a_pyramid_uploaded_to_s3_by_clipprep_is_checked_and_served_to_two_services_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let moto = Moto::start();
+    moto.create_bucket("tiles");
+    let env = moto.env();
+    let envs: Vec<(&str, &str)> = env.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let cfg = d.join("cfg");
+    let args = [
+        "--source",
+        "hash",
+        "--size",
+        "2048",
+        "--tile",
+        "64",
+        "--clip",
+        "256",
+        "--format",
+        "rgba8",
+        "--json",
+        "--out",
+        "s3://tiles/pyr",
+        "--config-out",
+        cfg.to_str().unwrap(),
+    ];
+    let (out, desc) = exec_bounded(d, CLIPPREP, &args, &envs, Duration::from_secs(120));
+    assert!(out.status.success(), "{desc}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["uploaded_files"].as_u64().unwrap() > 1000, "{v}");
+    assert_eq!(v["location"], "s3://tiles/pyr");
+    assert!(!desc.contains("testing-secret-never-printed"), "the secret is never printed:\n{desc}");
+    let ct = cfg.join("pyr.ct");
+    let (out, desc) = exec(d, CLIPTEX, &["validate", ct.to_str().unwrap()]);
+    assert!(out.status.success() && !desc.contains(": warning:"), "the written configuration is clean:\n{desc}");
+    let (out, desc) =
+        exec_bounded(d, CLIPTEX, &["check", ct.to_str().unwrap(), "--json"], &envs, Duration::from_secs(120));
+    assert!(out.status.success(), "every uploaded tile is there:\n{desc}");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["totals"]["present"], report["totals"]["tiles"], "{report}");
+
+    let a = Service::start(d, "s3a", &ct, &env);
+    let b = Service::start(d, "s3b", &ct, &env);
+    let (ra, rb) = std::thread::scope(|s| {
+        let ra = s.spawn(|| read_service(d, "s3a", 3));
+        let rb = s.spawn(|| read_service(d, "s3b", 3));
+        (ra.join().unwrap(), rb.join().unwrap())
+    });
+    for (name, (passed, failed, out), svc) in [("s3a", ra, &a), ("s3b", rb, &b)] {
+        assert_eq!(failed, 0, "{name}: {}\n{}", String::from_utf8_lossy(&out.stderr), svc.log());
+        assert!(passed > 10_000, "{name}: {passed}");
+        assert!(svc.stats()["engine"]["tiles_read"].as_u64().unwrap() > 0);
+        assert!(!svc.log().contains("testing-secret-never-printed"), "{name} never logs the secret");
+    }
+}
+
+#[test]
+fn the_disk_cache_serves_tiles_after_a_restart_without_the_server() {
+    let dir = tempfile::tempdir().unwrap();
+    let pyr = prepare(&dir.path().join("pyr"), 256, 64, 64, &[]);
+    let cache = dir.path().join("cache");
+    let nginx = Nginx::serve(&pyr);
+    let ct = point_config_at(&pyr, &dir.path().join("cfg"), &nginx.url(), &[]);
+    let opts = RemoteOptions { cache_dir: Some(cache.clone()), ..quick_opts() };
+    let first = RemoteSource::new(load(&ct), &Limits::default(), opts.clone()).unwrap();
+    let tiles: Vec<TileId> = every_tile(&first).into_iter().filter(|t| t.level == 0).collect();
+    for &id in &tiles {
+        read_checked(&first, id).unwrap();
+    }
+    assert_eq!(first.stats().cache_hits, 0);
+    drop(first);
+    drop(nginx);
+    // The pyramid's small levels are read at start-up by nobody: only level 0 is asked for.
+    let second = RemoteSource::new(load(&ct), &Limits::default(), RemoteOptions { retries: 0, ..opts }).unwrap();
+    for &id in &tiles {
+        read_checked(&second, id).unwrap_or_else(|e| panic!("{id} from the cache: {e}"));
+    }
+    let st = second.stats();
+    assert_eq!((st.cache_hits, st.requests), (tiles.len() as u64, 0), "{st:?}");
+    // A tile not in the cache needs the server, which is gone: an error, not a stall.
+    assert!(read_checked(&second, TileId::new(1, 0, 0)).is_err());
+}
+
+#[test]
+fn s3_reads_through_a_faulty_proxy_are_retried_and_serve_only_right_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let moto = Moto::start();
+    moto.create_bucket("faulty");
+    let cfg = d.join("cfg");
+    let env = moto.env();
+    let envs: Vec<(&str, &str)> = env.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let args = [
+        "--source",
+        "hash",
+        "--size",
+        "1024",
+        "--tile",
+        "64",
+        "--clip",
+        "256",
+        "--format",
+        "rgba8",
+        "--quiet",
+        "--out",
+        "s3://faulty/pyr",
+        "--config-out",
+        cfg.to_str().unwrap(),
+    ];
+    let (out, desc) = exec_bounded(d, CLIPPREP, &args, &envs, Duration::from_secs(120));
+    assert!(out.status.success(), "{desc}");
+    // Every fourth request to the store fails, each kind of fault in turn.
+    let faults = vec![Fault::Unavailable, Fault::Reset, Fault::Truncate, Fault::ServerError, Fault::Slow(700)];
+    let proxy = FaultProxy::start(moto.port, Schedule { faults: Vec::new(), then: faults, every: 4 }, 0);
+    let mut env: Vec<(String, String)> = env.into_iter().filter(|(k, _)| k != "AWS_ENDPOINT_URL").collect();
+    env.push(("AWS_ENDPOINT_URL".into(), proxy.url()));
+    for (k, v) in [
+        ("CLIPMAP_REMOTE_TIMEOUT_MS", "400"),
+        ("CLIPMAP_REMOTE_BACKOFF_MS", "2"),
+        ("CLIPMAP_REMOTE_BACKOFF_MAX_MS", "30"),
+    ] {
+        env.push((k.into(), v.into()));
+    }
+    let svc = Service::start(d, "s3faulty", &cfg.join("pyr.ct"), &env);
+    let (passed, failed, out) = read_service(d, "s3faulty", 3);
+    assert_eq!(failed, 0, "{}\n{}", String::from_utf8_lossy(&out.stderr), svc.log());
+    assert!(passed > 10_000, "{passed}");
+    assert!(svc.stats()["engine"]["tiles_read"].as_u64().unwrap() > 0);
+    assert!(proxy.injected.lock().unwrap().len() >= 5, "faults were injected: {:?}", proxy.injected.lock().unwrap());
+}
+
+#[test]
+fn a_slow_endpoint_holds_back_only_its_own_read_queue() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pyr = prepare(&d.join("pyr"), 4096, 64, 256, &["--streams", "2"]);
+    let nginx = Nginx::serve(&pyr);
+    // Stream server 0 answers every request half a second late; stream server 1 at once.
+    let slow = FaultProxy::start(nginx.port, Schedule::pass(), 500);
+    let ct = point_config_at(&pyr, &d.join("cfg"), &nginx.url(), &[slow.url(), nginx.url()]);
+    let svc = Service::start(d, "slowep", &ct, &[]);
+    let (_, failed, out) = read_service(d, "slowep", 3);
+    assert_eq!(failed, 0, "{}\n{}", String::from_utf8_lossy(&out.stderr), svc.log());
+    let stats = svc.stats();
+    let streams = stats["streams"].as_array().unwrap();
+    assert_eq!(streams.len(), 2, "{stats}");
+    let done = |i: usize| streams[i]["reads_done"].as_u64().unwrap();
+    println!("reads done: slow endpoint {}, fast endpoint {}", done(0), done(1));
+    // The slow queue keeps its few reads in flight for 500 ms each; the other is not held.
+    assert!(done(1) > 4 * done(0).max(1), "the fast endpoint's queue reads on: {stats}");
+    assert!(done(0) > 0, "the slow endpoint is read too: {stats}");
+}
+
+#[test]
+fn clipbench_remote_prints_its_contract_fields_and_reads_no_wrong_texel() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = ["remote", "--smoke", "--json", "--dir", dir.path().to_str().unwrap()];
+    let (out, desc) = exec_bounded(dir.path(), env!("CARGO_BIN_EXE_clipbench"), &args, &[], Duration::from_secs(300));
+    assert_eq!(out.status.code(), Some(0), "{desc}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {desc}"));
+    for key in ["tiles_per_s_local", "tiles_per_s_http", "tiles_per_s_s3", "in_flight", "wrong_texels"] {
+        assert!(v.get(key).is_some_and(|x| x.is_number()), "`{key}` missing or not a number: {v}");
+    }
+    for key in ["tiles_per_s_local", "tiles_per_s_http", "tiles_per_s_s3"] {
+        assert!(v[key].as_f64().unwrap() > 0.0, "{key}: {v}");
+    }
+    assert_eq!(v["wrong_texels"], 0, "{v}");
+    assert_eq!(v["failed_reads"], 0, "{v}");
+    assert!(v["in_flight"].as_u64().unwrap() >= 1, "{v}");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "the scratch directory is removed: {desc}");
+}
+
+#[test]
+fn clipprep_uploads_with_http_put_and_the_tiles_are_read_back_by_ranged_gets() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let root = d.join("www");
+    std::fs::create_dir_all(&root).unwrap();
+    let nginx = Nginx::serve_writable(&root);
+    let base = format!("{}/pyr", nginx.url());
+    let cfg = d.join("cfg");
+    let args = [
+        "--source",
+        "hash",
+        "--size",
+        "256",
+        "--tile",
+        "64",
+        "--clip",
+        "64",
+        "--format",
+        "rgba8",
+        "--json",
+        "--out",
+        &base,
+        "--config-out",
+        cfg.to_str().unwrap(),
+    ];
+    let (out, desc) = exec_bounded(d, CLIPPREP, &args, &[], Duration::from_secs(120));
+    assert!(out.status.success(), "{desc}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["location"], base.as_str(), "{v}");
+    assert!(root.join("pyr/pyr.ct").is_file() && root.join("pyr/L00/r000.c000.raw").is_file(), "the files arrived");
+    let src = RemoteSource::new(load(&cfg.join("pyr.ct")), &Limits::default(), quick_opts()).unwrap();
+    for id in every_tile(&src) {
+        read_checked(&src, id).unwrap_or_else(|e| panic!("{id}: {e}"));
+    }
+    assert_eq!(src.stats().failures, 0);
+}
+
+#[test]
+fn a_remote_default_tile_stands_in_for_tiles_the_server_does_not_have() {
+    let dir = tempfile::tempdir().unwrap();
+    // A sparse pyramid: levels 0 and 1 exist only around the inset; each .ic names a default
+    // tile, which the rewritten configuration reads from the server too.
+    let pyr = prepare(&dir.path().join("pyr"), 2048, 64, 128, &["--inset", "1000,600,1200,700", "--inset-level", "2"]);
+    let nginx = Nginx::serve(&pyr);
+    let ct = point_config_at(&pyr, &dir.path().join("cfg"), &nginx.url(), &[]);
+    let ic = std::fs::read_to_string(dir.path().join("cfg/L00.ic")).unwrap();
+    assert!(ic.contains(&format!("default_tile {}/L00.default.raw", nginx.url())), "{ic}");
+    let src = RemoteSource::new(load(&ct), &Limits::default(), quick_opts()).unwrap();
+    assert!(src.files().has_default_tile(0), "read from the server at start-up");
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    // Far from the inset: absent on the server (404), served from the default tile.
+    src.read_tile(TileId::new(0, 0, 0), &mut buf).unwrap();
+    assert_eq!(buf, std::fs::read(pyr.join("L00.default.raw")).unwrap());
+    assert_eq!(src.files().stats().default_tiles, 1);
+    // Inside the inset: the tile itself.
+    read_checked(&src, TileId::new(0, 1100 / 64, 650 / 64)).unwrap();
+    assert_eq!(src.files().stats().default_tiles, 1);
+}

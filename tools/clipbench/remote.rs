@@ -1,0 +1,485 @@
+//! `clipbench remote`: tiles per second from local files, from loopback HTTP (nginx) and from a
+//! loopback S3-compatible store (moto), in the same run over the same hash pyramid; and the
+//! number of requests in flight that hides an added latency per request (a delaying proxy in
+//! front of nginx, measured against the same proxy without the delay, so that the relay's own
+//! cost is not counted as latency).
+//!
+//! Every tile read is checked against the hash texture at 64 texels (its corners among them);
+//! `wrong_texels` counts the texels that differ, over all sources. Reads are made the way the
+//! engine's read queues make them: `depth` threads, each reading one tile at a time through
+//! [`TileSource::read_tile`].
+
+use clipmap::limits::Limits;
+use clipmap::plan;
+use clipmap::prep::{self, Filter, Job, Layout, Source, Spec};
+use clipmap::source::procedural::hash;
+use clipmap::source::remote::{Remote, RemoteOptions, RemoteSource};
+use clipmap::source::{FileSource, TileId, TileSource};
+use clipmap::texel::TexelFormat;
+use serde::Serialize;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Options of `clipbench remote`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// A 4096-texel texture and short runs (about a minute in all).
+    #[arg(long)]
+    quick: bool,
+    /// A tiny texture and depths up to 16: checks that the benchmark runs (for tests); the
+    /// figures mean little.
+    #[arg(long, hide = true, conflicts_with = "quick")]
+    smoke: bool,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+    /// Reads in flight (threads, and requests per endpoint) for the three rates.
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=256))]
+    depth: u64,
+    /// Latency the delaying proxy adds to each request, milliseconds.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    latency_ms: u64,
+    /// Scratch directory (a fresh subdirectory, removed at the end).
+    #[arg(long)]
+    dir: Option<PathBuf>,
+}
+
+/// One depth of the latency sweep.
+#[derive(Clone, Debug, Serialize)]
+pub struct DepthRate {
+    pub in_flight: u64,
+    pub tiles_per_s: f64,
+}
+
+/// What `clipbench remote` measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub texture: u64,
+    pub tile: u64,
+    pub tile_bytes: u64,
+    pub tiles_per_run: u64,
+    /// Reads in flight for the three rates.
+    pub depth: u64,
+    pub tiles_per_s_local: f64,
+    pub tiles_per_s_http: f64,
+    pub tiles_per_s_s3: f64,
+    /// HTTP rate / local rate.
+    pub http_vs_local: f64,
+    /// Latency added per request by the delaying proxy.
+    pub added_latency_ms: u64,
+    /// Tiles per second through the proxy without added latency, at `depth` (the relay's ceiling).
+    pub tiles_per_s_relay: f64,
+    /// Smallest number of requests in flight whose rate through the delaying proxy reached 90 %
+    /// of `tiles_per_s_relay`; when none did (`latency_hidden` false), the one with the highest
+    /// rate.
+    pub in_flight: u64,
+    /// The highest rate through the delaying proxy, over the depths tried.
+    pub tiles_per_s_delayed_best: f64,
+    pub latency_hidden: bool,
+    pub latency_sweep: Vec<DepthRate>,
+    /// Texels that differ from the hash texture, over every tile read by every source.
+    pub wrong_texels: u64,
+    /// Reads that failed (after retries), over every source.
+    pub failed_reads: u64,
+    pub requests_http: u64,
+    pub merged_http: u64,
+}
+
+struct Killed(Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn free_port() -> anyhow::Result<u16> {
+    Ok(TcpListener::bind("127.0.0.1:0")?.local_addr()?.port())
+}
+
+fn wait_port(port: u16, what: &str) -> anyhow::Result<()> {
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(30) {
+        if TcpStream::connect(("127.0.0.1", port)).is_ok() {
+            return Ok(());
+        }
+        std::thread::sleep(Duration::from_millis(25));
+    }
+    anyhow::bail!("{what} did not listen on port {port} within 30 s")
+}
+
+fn program(names: &[&str]) -> Option<PathBuf> {
+    for n in names {
+        let p = Path::new(n);
+        if p.is_absolute() && p.is_file() {
+            return Some(p.to_path_buf());
+        }
+        for d in std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default()) {
+            if d.join(n).is_file() {
+                return Some(d.join(n));
+            }
+        }
+    }
+    None
+}
+
+fn nginx(root: &Path, dir: &Path) -> anyhow::Result<(Killed, u16)> {
+    let exe = program(&["nginx", "/usr/sbin/nginx"])
+        .ok_or_else(|| anyhow::anyhow!("nginx is needed and was not found: install it (apt-get install nginx)"))?;
+    let port = free_port()?;
+    for sub in ["body", "proxy", "fastcgi", "uwsgi", "scgi"] {
+        std::fs::create_dir_all(dir.join(sub))?;
+    }
+    let d = dir.display();
+    let conf = format!(
+        "daemon off;\nmaster_process off;\nworker_processes 1;\npid {d}/nginx.pid;\nerror_log {d}/error.log warn;\n\
+         events {{ worker_connections 1024; }}\nhttp {{\n access_log off;\n client_body_temp_path {d}/body;\n proxy_temp_path {d}/proxy;\n fastcgi_temp_path {d}/fastcgi;\n uwsgi_temp_path {d}/uwsgi;\n scgi_temp_path {d}/scgi;\n keepalive_requests 1000000;\n sendfile on;\n tcp_nodelay on;\n server {{ listen 127.0.0.1:{port}; root {}; location / {{ }} }}\n}}\n",
+        root.display()
+    );
+    std::fs::write(dir.join("nginx.conf"), conf)?;
+    let child = Command::new(exe)
+        .args(["-p", &d.to_string(), "-e", &format!("{d}/error.log"), "-c", &format!("{d}/nginx.conf")])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()?;
+    let k = Killed(child);
+    wait_port(port, "nginx")?;
+    Ok((k, port))
+}
+
+fn moto() -> anyhow::Result<(Killed, u16)> {
+    let ok = Command::new("python3")
+        .args(["-c", "import moto.server"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    anyhow::ensure!(ok, "moto is needed and was not found: install it (pip install 'moto[server]')");
+    let port = free_port()?;
+    let child = Command::new("python3")
+        .args(["-m", "moto.server", "-H", "127.0.0.1", "-p", &port.to_string()])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()?;
+    let k = Killed(child);
+    wait_port(port, "moto")?;
+    let mut s = TcpStream::connect(("127.0.0.1", port))?;
+    write!(s, "PUT /clipbench HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nContent-Length: 0\r\nConnection: close\r\n\r\n")?;
+    let mut reply = String::new();
+    s.read_to_string(&mut reply)?;
+    anyhow::ensure!(reply.starts_with("HTTP/1.1 200"), "moto refused to make the bucket: {reply}");
+    Ok((k, port))
+}
+
+/// A keep-alive HTTP proxy to `upstream` that holds every request `delay` before forwarding it.
+fn delaying_proxy(upstream: u16, delay: Duration, stop: Arc<AtomicBool>) -> anyhow::Result<u16> {
+    let listener = TcpListener::bind("127.0.0.1:0")?;
+    let port = listener.local_addr()?.port();
+    std::thread::spawn(move || {
+        for conn in listener.incoming() {
+            if stop.load(Ordering::Relaxed) {
+                break;
+            }
+            let Ok(conn) = conn else { continue };
+            std::thread::spawn(move || {
+                let _ = relay(conn, upstream, delay);
+            });
+        }
+    });
+    Ok(port)
+}
+
+fn read_head(r: &mut BufReader<TcpStream>) -> std::io::Result<Option<(Vec<u8>, usize)>> {
+    let mut head = Vec::new();
+    let mut len = 0usize;
+    loop {
+        let mut line = String::new();
+        if r.read_line(&mut line)? == 0 {
+            return Ok(None);
+        }
+        if let Some(v) = line.to_ascii_lowercase().strip_prefix("content-length:") {
+            len = v.trim().parse().unwrap_or(0);
+        }
+        head.extend_from_slice(line.as_bytes());
+        if line == "\r\n" {
+            return Ok(Some((head, len)));
+        }
+    }
+}
+
+fn relay(client: TcpStream, upstream: u16, delay: Duration) -> std::io::Result<()> {
+    client.set_nodelay(true)?;
+    let mut from_client = BufReader::new(client.try_clone()?);
+    let mut to_client = client;
+    let up = TcpStream::connect(("127.0.0.1", upstream))?;
+    up.set_nodelay(true)?;
+    let mut from_up = BufReader::new(up.try_clone()?);
+    let mut to_up = up;
+    let mut body = Vec::new();
+    while let Some((head, len)) = read_head(&mut from_client)? {
+        body.resize(len, 0);
+        from_client.read_exact(&mut body)?;
+        std::thread::sleep(delay);
+        to_up.write_all(&head)?;
+        to_up.write_all(&body)?;
+        let Some((rhead, rlen)) = read_head(&mut from_up)? else { return Ok(()) };
+        let head_only = head.starts_with(b"HEAD ");
+        body.resize(if head_only { 0 } else { rlen }, 0);
+        from_up.read_exact(&mut body)?;
+        to_client.write_all(&rhead)?;
+        to_client.write_all(&body)?;
+    }
+    Ok(())
+}
+
+/// Reads `tiles` with `depth` threads; returns tiles per second (of tiles read), wrong texels (64
+/// checked per tile) and failed reads.
+fn rate(src: &dyn TileSource, tiles: &[TileId], depth: u64, passes: usize) -> (f64, u64, u64) {
+    let next = AtomicUsize::new(0);
+    let wrong = AtomicU64::new(0);
+    let failed = AtomicU64::new(0);
+    let total = tiles.len() * passes;
+    let bpt = src.desc().format().bytes_per_texel() as usize;
+    let start = Instant::now();
+    std::thread::scope(|s| {
+        for _ in 0..depth {
+            s.spawn(|| {
+                let mut buf = Vec::new();
+                let mut want = vec![0u8; bpt];
+                loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    if i >= total {
+                        break;
+                    }
+                    let id = tiles[i % tiles.len()];
+                    let d = src.desc().level(id.level);
+                    buf.resize(src.desc().tile_bytes(id.level), 0);
+                    if src.read_tile(id, &mut buf).is_err() {
+                        failed.fetch_add(1, Ordering::Relaxed);
+                        continue;
+                    }
+                    let (w, h) = (d.tile[0], d.tile[1]);
+                    let mut bad = 0;
+                    for k in 0..64u64 {
+                        let (x, y) = match k {
+                            0 => (0, 0),
+                            1 => (w - 1, h - 1),
+                            _ => (clipmap::source::procedural::splitmix64(i as u64 * 64 + k) % w, (k * 7919) % h),
+                        };
+                        hash(id.level, id.s * w + x, id.t * h + y, &mut want);
+                        let at = ((y * w + x) as usize) * bpt;
+                        bad += (buf[at..at + bpt] != want[..]) as u64;
+                    }
+                    wrong.fetch_add(bad, Ordering::Relaxed);
+                }
+            });
+        }
+    });
+    let secs = start.elapsed().as_secs_f64().max(1e-9);
+    let ok = total as u64 - failed.load(Ordering::Relaxed);
+    (ok as f64 / secs, wrong.load(Ordering::Relaxed), failed.load(Ordering::Relaxed))
+}
+
+fn open_plan(ct: &Path) -> anyhow::Result<plan::ClipTexturePlan> {
+    let loaded = plan::load_clip_texture(ct, &plan::Options::default())?;
+    let rendered = loaded.render();
+    loaded.plan.ok_or_else(|| anyhow::anyhow!("{}: {rendered}", ct.display()))
+}
+
+fn remote_source(ct: &Path, in_flight: u64) -> anyhow::Result<RemoteSource> {
+    let opts = RemoteOptions { in_flight: in_flight as usize, ..RemoteOptions::default() };
+    Ok(RemoteSource::new(open_plan(ct)?, &Limits::default(), opts)?)
+}
+
+fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
+    let (n, tile) = if args.smoke {
+        (512, 64)
+    } else if args.quick {
+        (4096, 256)
+    } else {
+        (8192, 256)
+    };
+    let passes = if args.quick || args.smoke { 2 } else { 4 };
+    let depths: &[u64] = if args.smoke { &[1, 4, 16] } else { &[1, 2, 4, 8, 16, 24, 32, 48, 64, 96, 128, 192, 256] };
+    let layout = Layout::new(Spec {
+        width: n,
+        height: n,
+        clip: if args.smoke { 128 } else { 512 },
+        tile,
+        format: TexelFormat::RGBA8,
+        tiles_in_file: (1, 1),
+        header_bytes: 0,
+        streams: None,
+        inset: None,
+        compression: None,
+    })?;
+    let root = dir.join("pyramid");
+    let job = Job {
+        layout,
+        source: Source::Hash,
+        filter: Filter::Box,
+        linear_light: false,
+        name: "hash".into(),
+        description: vec!["clipbench remote".into()],
+        limits: prep::Limits::default(),
+    };
+    let summary = prep::run(job, &root, &AtomicBool::new(false), dir, &|_| {})?;
+    let local_ct = root.join(&summary.ct);
+
+    let (_nginx, http_port) = nginx(&root, &dir.join("nginx"))?;
+    let (_moto, s3_port) = moto()?;
+    // The benchmark's own store: these variables are this process's, set before any thread
+    // reads them.
+    std::env::set_var("AWS_ACCESS_KEY_ID", "clipbench");
+    std::env::set_var("AWS_SECRET_ACCESS_KEY", "clipbench");
+    std::env::set_var("AWS_REGION", "us-east-1");
+    std::env::set_var("AWS_ENDPOINT_URL", format!("http://127.0.0.1:{s3_port}"));
+    let uploader = Remote::new(RemoteOptions::default())?;
+    prep::publish::upload(&root, "s3://clipbench/pyr", &uploader, &|_| {}).map_err(|e| anyhow::anyhow!(e))?;
+
+    let http_base = format!("http://127.0.0.1:{http_port}");
+    let http_ct = prep::publish::write_pointed_config(&root, &dir.join("http"), &http_base, &[])?;
+    let s3_ct = prep::publish::write_pointed_config(&root, &dir.join("s3"), "s3://clipbench/pyr", &[])?;
+
+    let local = FileSource::new(open_plan(&local_ct)?, &Limits::default())?;
+    let desc = local.desc().clone();
+    let tiles: Vec<TileId> = (0..desc.level_count() as u32)
+        .filter(|&k| desc.level(k).tile == [tile, tile])
+        .flat_map(|k| {
+            let t = desc.level(k).tiles();
+            (0..t[1]).flat_map(move |tt| (0..t[0]).map(move |s| TileId::new(k, s, tt)))
+        })
+        .collect();
+    let (mut wrong, mut failed) = (0, 0);
+    // Warm: every file once (page cache, connections).
+    let (_, w, f) = rate(&local, &tiles, args.depth, 1);
+    wrong += w;
+    failed += f;
+    let (local_rate, w, f) = rate(&local, &tiles, args.depth, passes);
+    wrong += w;
+    failed += f;
+    let http = remote_source(&http_ct, args.depth)?;
+    let (_, w, f) = rate(&http, &tiles, args.depth, 1);
+    wrong += w;
+    failed += f;
+    let (http_rate, w, f) = rate(&http, &tiles, args.depth, passes);
+    wrong += w;
+    failed += f;
+    let s3 = remote_source(&s3_ct, args.depth)?;
+    let (s3_rate, w, f) = rate(&s3, &tiles, args.depth, 1);
+    wrong += w;
+    failed += f;
+
+    let stop = Arc::new(AtomicBool::new(false));
+    // The proxy's own ceiling: the same relay without the added latency, at `depth`.
+    let direct = delaying_proxy(http_port, Duration::ZERO, stop.clone())?;
+    let direct_ct =
+        prep::publish::write_pointed_config(&root, &dir.join("relay"), &format!("http://127.0.0.1:{direct}"), &[])?;
+    let relay = remote_source(&direct_ct, args.depth)?;
+    let (_, w, f) = rate(&relay, &tiles, args.depth, 1);
+    wrong += w;
+    failed += f;
+    let (relay_rate, w, f) = rate(&relay, &tiles, args.depth, 1);
+    wrong += w;
+    failed += f;
+    let proxy = delaying_proxy(http_port, Duration::from_millis(args.latency_ms), stop.clone())?;
+    let slow_ct =
+        prep::publish::write_pointed_config(&root, &dir.join("slow"), &format!("http://127.0.0.1:{proxy}"), &[])?;
+    let mut sweep = Vec::new();
+    let mut found = None;
+    for &depth in depths {
+        let slow = remote_source(&slow_ct, depth)?;
+        // Enough reads for every thread to wait for 16 round trips: warm-up is a small part.
+        let passes = (depth as usize * 16).div_ceil(tiles.len()).max(1);
+        let (r, w, f) = rate(&slow, &tiles, depth, passes);
+        wrong += w;
+        failed += f;
+        sweep.push(DepthRate { in_flight: depth, tiles_per_s: r });
+        if r >= 0.9 * relay_rate {
+            found = Some(depth);
+            break;
+        }
+    }
+    stop.store(true, Ordering::Relaxed);
+    let best = sweep
+        .iter()
+        .max_by(|a, b| a.tiles_per_s.total_cmp(&b.tiles_per_s))
+        .cloned()
+        .unwrap_or(DepthRate { in_flight: 1, tiles_per_s: 0.0 });
+    let st = http.stats();
+    Ok(Report {
+        texture: n,
+        tile,
+        tile_bytes: desc.tile_bytes(0) as u64,
+        tiles_per_run: (tiles.len() * passes) as u64,
+        depth: args.depth,
+        tiles_per_s_local: local_rate,
+        tiles_per_s_http: http_rate,
+        tiles_per_s_s3: s3_rate,
+        http_vs_local: http_rate / local_rate.max(1e-9),
+        added_latency_ms: args.latency_ms,
+        tiles_per_s_relay: relay_rate,
+        in_flight: found.unwrap_or(best.in_flight),
+        tiles_per_s_delayed_best: best.tiles_per_s,
+        latency_hidden: found.is_some(),
+        latency_sweep: sweep,
+        wrong_texels: wrong,
+        failed_reads: failed,
+        requests_http: st.requests,
+        merged_http: st.merged,
+    })
+}
+
+fn human(r: &Report) -> String {
+    let mut o = format!(
+        "texture {0}x{0}, tiles {1}x{1} ({2} bytes), {3} tiles a run, {4} reads in flight\n\
+         local files   {5:>10.0} tiles/s\nloopback HTTP {6:>10.0} tiles/s ({7:.2} of local)\nloopback S3   {8:>10.0} tiles/s\n",
+        r.texture, r.tile, r.tile_bytes, r.tiles_per_run, r.depth, r.tiles_per_s_local, r.tiles_per_s_http, r.http_vs_local, r.tiles_per_s_s3
+    );
+    o.push_str(&format!("+{} ms per request:", r.added_latency_ms));
+    for d in &r.latency_sweep {
+        o.push_str(&format!(" {}:{:.0}", d.in_flight, d.tiles_per_s));
+    }
+    o.push_str(&format!(
+        "\n{} requests in flight {} the added latency (90 % of the relay's {:.0} tiles/s without it)\nwrong texels: {}, failed reads: {}\n",
+        r.in_flight,
+        if r.latency_hidden { "hide" } else { "do not hide" },
+        r.tiles_per_s_relay,
+        r.wrong_texels,
+        r.failed_reads
+    ));
+    o
+}
+
+/// Runs the benchmark; the exit status (0 ok, 1 wrong texels were read, 2 could not run).
+pub fn main(args: Args) -> u8 {
+    let base = args.dir.clone().unwrap_or_else(std::env::temp_dir);
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+    let dir = base.join(format!("clipbench-remote-{}-{nanos}", std::process::id()));
+    if let Err(e) = std::fs::create_dir_all(&dir) {
+        eprintln!("clipbench remote: cannot make {}: {e}", dir.display());
+        return 2;
+    }
+    let result = measure(&args, &dir);
+    let _ = std::fs::remove_dir_all(&dir);
+    match result {
+        Ok(r) => {
+            clipmap::report::emit(args.json, &r, human);
+            if r.wrong_texels > 0 {
+                1
+            } else {
+                0
+            }
+        }
+        Err(e) => {
+            eprintln!("clipbench remote: {e:#}");
+            2
+        }
+    }
+}
