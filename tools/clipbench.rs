@@ -1,6 +1,6 @@
 //! `clipbench`: measured studies of the clipmap, run on demand (not part of the test suite).
 //!
-//! `clipbench accuracy` sweeps clip size, invalid border, update budget, flight speed and shape,
+//! `clipbench accuracy` sweeps clip size, invalid border, disk speed (tiles a frame), flight speed and shape,
 //! renders every frame from the full mipmap and from the clipmap, and writes the table, CSV,
 //! plots and `ACCURACY.md` where `--out` says (the repository's `docs/` only when asked for
 //! with `--out docs`; by default a directory under the system's temporary directory).
@@ -190,7 +190,7 @@ fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool, format: clipmap:
     let rows = match sweep::run(quick, format, |i, n, r| {
         if show {
             eprintln!(
-                "[{i}/{n}] clip {} border {} budget {} speed {} {}: PSNR min {}, {:.2}% coarser",
+                "[{i}/{n}] clip {} border {} disk {} speed {} {}: PSNR min {}, {:.2}% coarser",
                 r.clip_size,
                 r.invalid_border,
                 r.disk_tiles.map(|b| format!("{b} tiles/frame")).unwrap_or_else(|| "ideal".into()),
