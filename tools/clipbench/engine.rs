@@ -189,7 +189,7 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
             border: 8,
             bytes_per_texel: 4,
             speed: 64,
-            frames_per_run: 16,
+            frames_per_run: 32,
             runs,
             centre_alignment,
         }
@@ -223,18 +223,32 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
 
     let d = setup.speed;
     let align = setup.centre_alignment;
-    let mut flights = Vec::new();
-    for (direction, v) in [("+s", [d, 0]), ("+t", [0, d]), ("diagonal", [d, d])] {
-        // One untimed tick to turn the mem regions towards the motion and fetch ahead.
-        map.tick([c[0] + v[0], c[1] + v[1]], Some(v));
-        map.wait_for_reads();
-        let mut before = mem_regions(&desc, &grids, [c[0] + v[0], c[1] + v[1]], v, align);
-        c = [c[0] + v[0], c[1] + v[1]];
-        let copied0 = map.stats().tick_texel_bytes;
-        let (mut run_tick, mut run_with_reads, mut all_ticks) = (Vec::new(), Vec::new(), Vec::new());
-        let (mut tiles, mut exact, mut n) = (0u64, 0u64, 0u64);
-        let mut tiles_per_run = 0;
-        for _ in 0..runs {
+    // The three directions take turns within every run (in a rotating order), so that whatever
+    // the machine does meanwhile falls on all three alike.
+    let dirs: [(&'static str, [i64; 2]); 3] = [("+s", [d, 0]), ("+t", [0, d]), ("diagonal", [d, d])];
+    #[derive(Default)]
+    struct Acc {
+        run_tick: Vec<f64>,
+        run_with_reads: Vec<f64>,
+        all_ticks: Vec<f64>,
+        tiles: u64,
+        exact: u64,
+        n: u64,
+        tiles_per_run: u64,
+        copied: u64,
+    }
+    let mut acc: Vec<Acc> = (0..3).map(|_| Acc::default()).collect();
+    for run in 0..runs {
+        for i in 0..3 {
+            let which = (i + run) % 3;
+            let v = dirs[which].1;
+            // One untimed tick to turn the mem regions towards the motion and fetch ahead.
+            map.tick([c[0] + v[0], c[1] + v[1]], Some(v));
+            map.wait_for_reads();
+            let mut before = mem_regions(&desc, &grids, [c[0] + v[0], c[1] + v[1]], v, align);
+            c = [c[0] + v[0], c[1] + v[1]];
+            let copied0 = map.stats().tick_texel_bytes;
+            let a = &mut acc[which];
             let (mut secs, mut ticks, mut run_tiles) = (0f64, Vec::new(), 0u64);
             for _ in 0..setup.frames_per_run {
                 let next = [c[0] + v[0], c[1] + v[1]];
@@ -247,31 +261,35 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
                 anyhow::ensure!(r.min_lod == 0.0, "a level fell behind during the steady flight: {r:?}");
                 // The tiles taken now are those that entered the mem regions one tick ago.
                 let now = mem_regions(&desc, &grids, next, v, align);
-                let came = entering(&now, &before);
-                exact += came;
-                tiles += r.tiles_read;
+                a.exact += entering(&now, &before);
+                a.tiles += r.tiles_read;
                 run_tiles += r.tiles_read;
-                n += 1;
+                a.n += 1;
                 before = now;
                 c = next;
             }
-            tiles_per_run = run_tiles;
-            run_tick.push(median(&ticks));
-            all_ticks.extend(ticks);
-            run_with_reads.push(secs / setup.frames_per_run as f64);
+            a.tiles_per_run = run_tiles;
+            a.run_tick.push(median(&ticks));
+            a.all_ticks.extend(ticks);
+            a.run_with_reads.push(secs / setup.frames_per_run as f64);
+            a.copied += map.stats().tick_texel_bytes - copied0;
         }
-        flights.push(Flight {
-            direction,
-            median_tick_s: median(&all_ticks),
-            run_tick_s: run_tick,
-            median_tick_with_reads_s: median(&run_with_reads),
-            tiles_per_run,
-            mean_tiles_per_tick: tiles as f64 / n as f64,
-            mean_exact_tiles_per_tick: exact as f64 / n as f64,
-            tile_excess: tiles.abs_diff(exact),
-            tick_texel_bytes: map.stats().tick_texel_bytes - copied0,
-        });
     }
+    let flights: Vec<Flight> = dirs
+        .iter()
+        .zip(acc)
+        .map(|(&(direction, _), a)| Flight {
+            direction,
+            median_tick_s: median(&a.all_ticks),
+            run_tick_s: a.run_tick,
+            median_tick_with_reads_s: median(&a.run_with_reads),
+            tiles_per_run: a.tiles_per_run,
+            mean_tiles_per_tick: a.tiles as f64 / a.n.max(1) as f64,
+            mean_exact_tiles_per_tick: a.exact as f64 / a.n.max(1) as f64,
+            tile_excess: a.tiles.abs_diff(a.exact),
+            tick_texel_bytes: a.copied,
+        })
+        .collect();
     let engine_peak = map.stats().peak_resident_bytes;
     let hwm = vm_hwm()?;
     let tick_texel_bytes = map.stats().tick_texel_bytes;
