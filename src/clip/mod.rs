@@ -555,10 +555,16 @@ impl Clipmap {
     fn request_tiles(&mut self, velocities: &[[i64; 2]]) {
         let count = self.levels.len();
         let mut wanted = Vec::new();
+        // A tile whose finished read waits in the backlog (a spent budget) is in its slot already:
+        // asking for it again would read it twice.
+        let waiting: std::collections::HashSet<TileId> = self.backlog.iter().map(|c| c.tile).collect();
         for (k, level) in self.levels.iter().enumerate() {
             let k32 = k as u32;
             self.stats.tiles_evicted += self.cache.set_mem_region(k32, level.frame.mem);
             for tile in self.cache.wanted(k32, self.tick) {
+                if waiting.contains(&tile) {
+                    continue;
+                }
                 let texels = tile_texels(level.shape.size, level.shape.tile, [tile.s, tile.t]);
                 let p = priority(k32, count, texels, level.frame.valid, level.shape.clip, velocities[k]);
                 wanted.push(ReadRequest { tile, priority: p });

@@ -330,3 +330,26 @@ fn queue_length_stays_bounded_and_stale_requests_are_dropped_under_jumps() {
     assert!(map.stats().late_tiles + q.stale_dropped > 0);
     let _ = TileId::new(0, 0, 0);
 }
+
+#[test]
+fn a_spent_budget_defers_finished_reads_without_reading_their_tiles_again() {
+    // A budget of zero takes 16 finished reads a tick; the rest wait in the backlog, already in
+    // their slots. They must not be asked for again meanwhile.
+    let inner = hash_source([4096, 4096], 256, 16, 0, TexelFormat::L8);
+    let src = Arc::new(FaultySource::new(inner));
+    let mut map = Clipmap::new(src.clone(), settings(Some(0))).unwrap();
+    let mut over = 0;
+    for _ in 0..200 {
+        let r = map.tick([2000, 2000], Some([0, 0]));
+        over += u64::from(r.over_budget);
+        if r.min_lod == 0.0 && !r.over_budget {
+            break;
+        }
+        map.wait_for_reads();
+    }
+    assert!(over > 0, "the budget deferred some reads");
+    assert_eq!(map.min_lod(), 0.0, "every level complete in the end");
+    let distinct = map.stats().tiles_read;
+    assert_eq!(src.reads(), distinct, "every tile read once: {} reads for {distinct} tiles", src.reads());
+    assert!(check_published(&map).unwrap() > 0);
+}
