@@ -3,6 +3,15 @@
 //! Owns the pending requests (sorted by priority, bounded), the reads in flight, the completions
 //! delivered but not yet taken, and the queue's counters. Nothing else touches them: the handle
 //! only sends commands. Reads run on `spawn_blocking` threads, never on the async workers.
+//!
+//! Each blocking task reads a run of requests, the most urgent first, rather than one: a task per
+//! read cost two thread wake-ups and switches per tile, about as much CPU as reading a 256 KiB
+//! tile from the page cache (the ingest benchmark went from 0.62..0.75 of plain sequential reads
+//! to 0.78..0.89 with runs). The pending requests are shared out among the free read slots
+//! (`max_in_flight_reads`), at most [`MAX_BATCH`] a task. The price: a request that becomes more
+//! urgent waits until a slot's run ends (at most `MAX_BATCH` reads, about a millisecond from the
+//! page cache), and a tile of a run that left its mem region meanwhile is not read, because its
+//! slot's claim moved to another tile (`ImageMemory::fill` refuses it, counted stale).
 
 use super::{Completion, Outcome, Priority, QueueStats, ReadRequest};
 use crate::limits::Limits;
@@ -15,6 +24,9 @@ use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinSet;
 
 /// What the handle asks of the runner.
+/// Most requests one blocking task reads in a row (see the module's documentation).
+pub(super) const MAX_BATCH: usize = 16;
+
 pub(super) enum Command {
     /// The tiles wanted now, with fresh priorities; `drained` completions were taken since the
     /// last update.
@@ -42,7 +54,7 @@ pub(super) struct Runner {
     in_flight: HashSet<TileId>,
     /// Completions sent but not yet reported taken, oldest first.
     delivered: VecDeque<TileId>,
-    reads: JoinSet<Completion>,
+    reads: JoinSet<Vec<Completion>>,
     flushes: Vec<oneshot::Sender<()>>,
     stats: QueueStats,
 }
@@ -84,18 +96,22 @@ impl Runner {
                     Some(Command::Flush(reply)) => self.flushes.push(reply),
                 },
                 Some(joined) = self.reads.join_next(), if !self.reads.is_empty() => {
-                    let Ok(done) = joined else { continue };
-                    self.in_flight.remove(&done.tile);
-                    self.delivered.push_back(done.tile);
-                    match &done.outcome {
-                        Outcome::Filled(..) => {
-                            self.stats.reads_done += 1;
-                            self.stats.bytes_read += self.source.desc().tile_bytes(done.tile.level) as u64;
+                    let Ok(batch) = joined else { continue };
+                    let mut gone = false;
+                    for done in batch {
+                        self.in_flight.remove(&done.tile);
+                        self.delivered.push_back(done.tile);
+                        match &done.outcome {
+                            Outcome::Filled(..) => {
+                                self.stats.reads_done += 1;
+                                self.stats.bytes_read += self.source.desc().tile_bytes(done.tile.level) as u64;
+                            }
+                            Outcome::Failed(..) => self.stats.reads_failed += 1,
+                            Outcome::NotWanted => self.stats.stale_dropped += 1,
                         }
-                        Outcome::Failed(..) => self.stats.reads_failed += 1,
-                        Outcome::NotWanted => self.stats.stale_dropped += 1,
+                        gone |= self.events.send(Event::Done(done)).is_err();
                     }
-                    if self.events.send(Event::Done(done)).is_err() {
+                    if gone {
                         break;
                     }
                     self.publish_counters();
@@ -106,34 +122,55 @@ impl Runner {
 
     fn can_start(&self) -> bool {
         !self.pending.is_empty()
-            && self.in_flight.len() < self.limits.max_in_flight_reads.max(1)
+            && self.reads.len() < self.limits.max_in_flight_reads.max(1)
             && self.in_flight.len() + self.delivered.len() < self.limits.max_ready_reads.max(1)
     }
 
     fn start_reads(&mut self) {
         while self.can_start() {
-            let request = self.pending.remove(0);
-            let tile = request.tile;
+            // One blocking task reads a run of the most urgent requests, one after the other, so
+            // that a read costs no thread hand-off (about as much CPU as the read itself when
+            // tiles come from the page cache): the pending requests are shared among the free
+            // read slots, at most `MAX_BATCH` each.
+            let slots = self.limits.max_in_flight_reads.max(1).saturating_sub(self.reads.len()).max(1);
+            let room = self.limits.max_ready_reads.max(1) - self.in_flight.len() - self.delivered.len();
+            let n = self.pending.len().div_ceil(slots).clamp(1, MAX_BATCH).min(room);
+            let batch: Vec<TileId> = self.pending.drain(..n).map(|r| r.tile).collect();
+            for &tile in &batch {
+                self.in_flight.insert(tile);
+            }
+            self.stats.reads_started += batch.len() as u64;
             let source = Arc::clone(&self.source);
             let memory = Arc::clone(&self.memory);
-            self.in_flight.insert(tile);
-            self.stats.reads_started += 1;
             self.reads.spawn(async move {
+                let tiles = batch.clone();
                 let read = tokio::task::spawn_blocking(move || {
-                    // Straight into the tile's slot, under its claim: nothing is copied later.
-                    match memory.fill(tile, |slot| source.read_into(tile, slot)) {
-                        None => Outcome::NotWanted,
-                        Some((generation, Ok(delivered))) => Outcome::Filled(generation, delivered),
-                        Some((generation, Err(e))) => Outcome::Failed(Some(generation), e),
-                    }
+                    batch
+                        .into_iter()
+                        .map(|tile| {
+                            // Straight into the tile's slot, under its claim: nothing is copied later.
+                            let outcome = match memory.fill(tile, |slot| source.read_into(tile, slot)) {
+                                None => Outcome::NotWanted,
+                                Some((generation, Ok(delivered))) => Outcome::Filled(generation, delivered),
+                                Some((generation, Err(e))) => Outcome::Failed(Some(generation), e),
+                            };
+                            Completion { tile, outcome }
+                        })
+                        .collect::<Vec<_>>()
                 });
-                let outcome = read.await.unwrap_or_else(|e| {
-                    Outcome::Failed(
-                        None,
-                        SourceError::Io { tile, source: std::io::Error::other(format!("tile read task failed: {e}")) },
-                    )
-                });
-                Completion { tile, outcome }
+                read.await.unwrap_or_else(|e| {
+                    let failed = |tile| Completion {
+                        tile,
+                        outcome: Outcome::Failed(
+                            None,
+                            SourceError::Io {
+                                tile,
+                                source: std::io::Error::other(format!("tile read task failed: {e}")),
+                            },
+                        ),
+                    };
+                    tiles.into_iter().map(failed).collect()
+                })
             });
         }
     }

@@ -152,3 +152,27 @@ fn bad_stream_counts_are_refused() {
     let err = ReadQueues::new(source(), memory(&source()), 0, Limits::default()).err().unwrap();
     assert_eq!(err.to_string(), "0 stream servers requested: expected 1..=64");
 }
+
+#[test]
+fn one_read_slot_reads_a_run_in_priority_order_and_skips_tiles_whose_slot_moved() {
+    let src = source();
+    // The first tile is slow, so the rest of the run waits behind it while its slots change hands.
+    src.add(FaultRule::tile(TileId::new(0, 0, 0), Fault::Slow(Duration::from_millis(200))));
+    let memory = memory(&src);
+    let limits = Limits { max_ready_reads: 64, ..limits(64, 1) };
+    let mut q = ReadQueues::new(src.clone(), Arc::clone(&memory), 1, limits).unwrap();
+    let wanted: Vec<ReadRequest> = (0..6).map(|s| request(s, 0, s * 10)).collect();
+    q.update(&wanted);
+    std::thread::sleep(Duration::from_millis(50));
+    // Tiles (3, 0) and (5, 0) leave their mem region while the run is under way: their slots go
+    // to the tiles 16 columns on (the grid is 16 wide).
+    memory.assign(0, [19, 0]);
+    memory.assign(0, [21, 0]);
+    q.flush();
+    let done = q.drain();
+    let order: Vec<(u64, bool)> = done.iter().map(|c| (c.tile.s, matches!(c.outcome, Outcome::Filled(..)))).collect();
+    assert_eq!(order, vec![(0, true), (1, true), (2, true), (3, false), (4, true), (5, false)]);
+    assert_eq!(src.reads(), 4, "the two tiles whose slots moved are not read");
+    let stats = q.stats();
+    assert_eq!((stats.reads_started, stats.reads_done, stats.stale_dropped), (6, 4, 2));
+}

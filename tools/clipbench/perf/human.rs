@@ -122,6 +122,14 @@ pub fn table(r: &Report) -> String {
     );
     let _ = writeln!(
         o,
+        "ingest, reads into their places (one after the other, each tile into its own place of {}): {:.0} tiles/s, {:.2} of plain reads; the engine {:.2} of them",
+        mib(i.in_place_buffer_bytes as f64),
+        i.read_in_place_tiles_per_s.median,
+        i.in_place_vs_read.median,
+        i.engine_vs_in_place.median
+    );
+    let _ = writeln!(
+        o,
         "flight: {} frames of ({}, {}) texels, clip {}, {} levels; engine tick alone {} of it; engine frames below level 0: {}; full reload: construct {} + fill {} per frame",
         f.frames,
         f.velocity[0],

@@ -8,6 +8,13 @@
 //! in the same order, with `std::fs::read`. Both read the page cache (every file is read once
 //! before timing); when `/proc/sys/vm/drop_caches` can be written, one cold pair is measured
 //! too.
+//!
+//! A third side explains the first two: the same reads again, one after the other, but each into
+//! its own place in a buffer as large as the engine's image caches (`pread` at the tile's place,
+//! as the engine's slots are), so that every tile lands in memory that is not in the CPU caches,
+//! as a tile that is kept must. `std::fs::read` instead reuses one freed buffer that stays in the
+//! CPU's caches (a read that keeps nothing); the gap between the two baselines is what writing
+//! the tiles where they stay costs in memory traffic, before any engine overhead.
 
 use super::data::{shape, Prepared};
 use super::{proc_self, Size, Stat};
@@ -17,6 +24,7 @@ use clipmap::limits::Limits;
 use clipmap::plan;
 use clipmap::source::{FileSource, SourceError, TextureDesc, TileId, TileSource};
 use serde::Serialize;
+use std::os::unix::fs::FileExt;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -71,6 +79,15 @@ pub struct Ingest {
     pub read_tiles_per_s: Stat,
     /// Per run: engine / plain reads.
     pub ratio: Stat,
+    /// The same files read one after the other, each into its own place of a buffer of
+    /// `in_place_buffer_bytes` (the engine's image caches' size), tiles per second.
+    pub read_in_place_tiles_per_s: Stat,
+    /// Per run: reads into their places / plain reads: the cost of writing tiles into memory
+    /// that is not in the CPU's caches, without any engine.
+    pub in_place_vs_read: Stat,
+    /// Per run: engine / reads into their places.
+    pub engine_vs_in_place: Stat,
+    pub in_place_buffer_bytes: u64,
     /// Minor page faults and CPU time (all threads) per tile, each side.
     pub engine_faults_per_tile: Stat,
     pub read_faults_per_tile: Stat,
@@ -106,7 +123,7 @@ fn jumps(n: u64, clip: u64) -> Vec<[i64; 2]> {
 }
 
 /// One engine run: seconds and the tiles read, in order.
-fn engine_run(source: &Arc<FileSource>, centres: &[[i64; 2]]) -> anyhow::Result<(f64, Vec<TileId>, u64)> {
+fn engine_run(source: &Arc<FileSource>, centres: &[[i64; 2]]) -> anyhow::Result<(f64, Vec<TileId>, u64, u64)> {
     let rec = Arc::new(Recording { inner: Arc::clone(source), log: Mutex::new(Vec::new()) });
     // No tick budget: every finished read is taken at the next tick (nothing is copied in layout
     // 2, so the tick's work is the tile path's own bookkeeping).
@@ -123,9 +140,28 @@ fn engine_run(source: &Arc<FileSource>, centres: &[[i64; 2]]) -> anyhow::Result<
     map.tick(*centres.last().expect("at least one jump"), Some([0, 0]));
     let secs = t.elapsed().as_secs_f64();
     let admitted = map.stats().tiles_read;
+    let memory_bytes = map.memory().total_bytes();
     drop(map);
     let log = std::mem::take(&mut *rec.log.lock().unwrap_or_else(|e| e.into_inner()));
-    Ok((secs, log, admitted))
+    Ok((secs, log, admitted, memory_bytes))
+}
+
+/// Reads `paths` one after the other, tile `i` at byte `(i * tile_bytes) mod` the buffer's
+/// length (rounded down to whole places of `tile_bytes`, at least each file's length) of
+/// `buffer`, which is touched beforehand.
+fn read_in_place_run(paths: &[PathBuf], tile_bytes: usize, buffer: &mut [u8]) -> anyhow::Result<f64> {
+    let places = (buffer.len() / tile_bytes).max(1);
+    anyhow::ensure!(buffer.len() >= tile_bytes, "the in-place buffer holds less than one tile");
+    let t = Instant::now();
+    for (i, p) in paths.iter().enumerate() {
+        let at = (i % places) * tile_bytes;
+        let file = std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?;
+        let len = file.metadata().with_context(|| format!("reading {}", p.display()))?.len() as usize;
+        anyhow::ensure!(len <= tile_bytes, "{} holds {len} bytes, more than one tile ({tile_bytes})", p.display());
+        file.read_exact_at(&mut buffer[at..at + len], 0).with_context(|| format!("reading {}", p.display()))?;
+    }
+    std::hint::black_box(&*buffer);
+    Ok(t.elapsed().as_secs_f64())
 }
 
 fn read_run(paths: &[PathBuf]) -> anyhow::Result<f64> {
@@ -154,21 +190,30 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
         prepared.root.join(prepared.layout.tile(level, tile.s, tile.t).path)
     };
     // Warm the page cache with every file the flight reads (and the engine's first run).
-    let (_, warm, _) = engine_run(&source, &centres)?;
+    let (_, warm, _, memory_bytes) = engine_run(&source, &centres)?;
     let warm_paths: Vec<PathBuf> = warm.iter().map(|&t| path_of(t)).collect();
     read_run(&warm_paths)?;
+    // Places as large as the largest tile of any level (the pyramid's whole levels are one tile).
+    let tile_bytes = (0..source.desc().level_count() as u32).map(|k| source.desc().tile_bytes(k)).max().unwrap_or(1);
+    // Touched once (as the engine's mapping is populated), so that no read faults pages in.
+    let mut in_place_map =
+        memmap2::MmapOptions::new().len((memory_bytes as usize).max(tile_bytes)).populate().map_anon()?;
+    let in_place: &mut [u8] = &mut in_place_map;
+    read_in_place_run(&warm_paths, tile_bytes, in_place)?;
 
     let (mut eng, mut plain, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut placed, mut placed_vs_read, mut eng_vs_placed) = (Vec::new(), Vec::new(), Vec::new());
     let (mut tiles_per_run, mut bytes_per_run) = (0, 0);
     let (mut ef, mut rf, mut ec, mut rc) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for _ in 0..runs {
         let p0 = proc_self();
-        let (e, log, _) = engine_run(&source, &centres)?;
+        let (e, log, _, _) = engine_run(&source, &centres)?;
         let p1 = proc_self();
         let paths: Vec<PathBuf> = log.iter().map(|&t| path_of(t)).collect();
         let p2 = proc_self();
         let plain_s = read_run(&paths)?;
         let p3 = proc_self();
+        let placed_s = read_in_place_run(&paths, tile_bytes, in_place)?;
         let tiles = log.len().max(1) as f64;
         ef.push((p1.minor_faults - p0.minor_faults) as f64 / tiles);
         rf.push((p3.minor_faults - p2.minor_faults) as f64 / tiles);
@@ -180,11 +225,16 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
         eng.push(e_rate);
         plain.push(p_rate);
         ratio.push(e_rate / p_rate);
+        let placed_rate = log.len() as f64 / placed_s;
+        placed.push(placed_rate);
+        placed_vs_read.push(placed_rate / p_rate);
+        eng_vs_placed.push(e_rate / placed_rate);
     }
+    drop(in_place_map);
 
     let drop_ok = drop_caches();
     let cold = if drop_ok {
-        let (e, log, _) = engine_run(&source, &centres)?;
+        let (e, log, _, _) = engine_run(&source, &centres)?;
         let paths: Vec<PathBuf> = log.iter().map(|&t| path_of(t)).collect();
         drop_caches();
         let p = read_run(&paths)?;
@@ -206,6 +256,10 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
         engine_tiles_per_s: Stat::of(eng),
         read_tiles_per_s: Stat::of(plain),
         ratio: Stat::of(ratio),
+        read_in_place_tiles_per_s: Stat::of(placed),
+        in_place_vs_read: Stat::of(placed_vs_read),
+        engine_vs_in_place: Stat::of(eng_vs_placed),
+        in_place_buffer_bytes: memory_bytes,
         engine_faults_per_tile: Stat::of(ef),
         read_faults_per_tile: Stat::of(rf),
         engine_cpu_us_per_tile: Stat::of(ec),
