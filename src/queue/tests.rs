@@ -176,3 +176,53 @@ fn one_read_slot_reads_a_run_in_priority_order_and_skips_tiles_whose_slot_moved(
     let stats = q.stats();
     assert_eq!((stats.reads_started, stats.reads_done, stats.stale_dropped), (6, 4, 2));
 }
+
+/// Panics the first time it is asked for tile (2, 0) of level 0; reads every other tile (and that
+/// one afterwards) from its inner source.
+struct PanicsOnOne(Arc<FaultySource>, std::sync::atomic::AtomicBool);
+
+impl TileSource for PanicsOnOne {
+    fn desc(&self) -> &TextureDesc {
+        self.0.desc()
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        if tile == TileId::new(0, 2, 0) && !self.1.swap(true, std::sync::atomic::Ordering::Relaxed) {
+            panic!("a source bug");
+        }
+        self.0.read_tile(tile, out)
+    }
+}
+
+#[test]
+fn a_read_thread_that_panics_fails_the_rest_of_its_run_and_the_queue_goes_on() {
+    let src = source();
+    let memory = memory(&src);
+    let panics: Arc<dyn TileSource> = Arc::new(PanicsOnOne(src.clone(), Default::default()));
+    let limits = Limits { max_ready_reads: 64, ..limits(64, 1) };
+    let mut q = ReadQueues::new(panics, memory, 1, limits).unwrap();
+    let wanted: Vec<ReadRequest> = (0..5).map(|s| request(s, 0, s * 10)).collect();
+    q.update(&wanted);
+    q.flush();
+    let mut done: Vec<(u64, &str)> = q
+        .drain()
+        .iter()
+        .map(|c| {
+            let what = match &c.outcome {
+                Outcome::Filled(..) => "filled",
+                Outcome::Failed(None, SourceError::Io { .. }) => "failed",
+                _ => "other",
+            };
+            (c.tile.s, what)
+        })
+        .collect();
+    done.sort();
+    assert_eq!(done, vec![(0, "filled"), (1, "filled"), (2, "failed"), (3, "failed"), (4, "failed")]);
+    // The queue still reads, and the tile whose read panicked gave its slot back: asked for again,
+    // the failed tiles come in.
+    q.update(&[request(2, 0, 0), request(3, 0, 1), request(4, 0, 2)]);
+    q.flush();
+    let again: Vec<bool> = q.drain().iter().map(|c| matches!(c.outcome, Outcome::Filled(..))).collect();
+    assert_eq!(again, vec![true, true, true]);
+    assert_eq!(q.stats().reads_failed, 3);
+}

@@ -284,8 +284,17 @@ impl ImageMemory {
         // runs. Other processes map the file read-only and, by the tag protocol, discard what they
         // read from a slot whose tag says loading (the tag was set to loading in `assign`, before
         // the claim).
+        // Gives the claim back however `fill` ends: a source that panics leaves the slot loading
+        // (its bytes no promise), for another read to fill, instead of busy for ever.
+        struct GiveBack<'a>(&'a AtomicU64, u64);
+        impl Drop for GiveBack<'_> {
+            fn drop(&mut self) {
+                self.0.store(self.1, Ordering::Release);
+            }
+        }
+        let give_back = GiveBack(claim, now);
         let out = unsafe { self.region.fill(offset, p.slot_bytes as usize, fill) };
-        claim.store(now, Ordering::Release);
+        drop(give_back);
         Some((now >> 2, out))
     }
 

@@ -50,12 +50,7 @@ impl Region {
 
     /// A private anonymous mapping of `len` zero bytes (an engine's image caches in-process).
     pub fn anonymous(len: usize) -> std::io::Result<Region> {
-        let map = MmapRaw::from(memmap2::MmapOptions::new().len(len.max(1)).map_anon()?);
-        // Faults every page in for writing now, as the service's mapping is (tile reads then
-        // write into memory that is already there: mapped with MAP_POPULATE instead, reads took 4
-        // page faults a 256 KiB tile). Kernels before 5.14 lack the advice: pages then fault in
-        // on their first write, which costs time, not correctness.
-        let _ = map.advise(memmap2::Advice::PopulateWrite);
+        let map = MmapRaw::from(memmap2::MmapOptions::new().len(len.max(1)).populate().map_anon()?);
         Ok(Region { map, writable: true, copied: AtomicU64::new(0), counted: 0..0 })
     }
 

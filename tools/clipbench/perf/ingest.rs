@@ -88,7 +88,8 @@ pub struct Ingest {
     /// Per run: engine / reads into their places.
     pub engine_vs_in_place: Stat,
     pub in_place_buffer_bytes: u64,
-    /// Minor page faults and CPU time (all threads) per tile, each side.
+    /// Minor page faults and CPU time (all threads) per tile, each side (the engine's during its
+    /// flight, not while its image caches are made and populated).
     pub engine_faults_per_tile: Stat,
     pub read_faults_per_tile: Stat,
     pub engine_cpu_us_per_tile: Stat,
@@ -122,8 +123,22 @@ fn jumps(n: u64, clip: u64) -> Vec<[i64; 2]> {
     out
 }
 
-/// One engine run: seconds and the tiles read, in order.
-fn engine_run(source: &Arc<FileSource>, centres: &[[i64; 2]]) -> anyhow::Result<(f64, Vec<TileId>, u64, u64)> {
+/// What one engine run measured.
+struct EngineRun {
+    /// Seconds of the flight (ticks and waits; the clipmap is made before and dropped after).
+    secs: f64,
+    /// The tiles read, in order.
+    log: Vec<TileId>,
+    /// Bytes of the clipmap's image caches.
+    memory_bytes: u64,
+    /// Minor page faults and CPU seconds (all threads) during the flight alone: making the
+    /// clipmap populates its image caches (a fault a page), which is not tile ingest.
+    faults: u64,
+    cpu_s: f64,
+}
+
+/// One engine run.
+fn engine_run(source: &Arc<FileSource>, centres: &[[i64; 2]]) -> anyhow::Result<EngineRun> {
     let rec = Arc::new(Recording { inner: Arc::clone(source), log: Mutex::new(Vec::new()) });
     // No tick budget: every finished read is taken at the next tick (nothing is copied in layout
     // 2, so the tick's work is the tile path's own bookkeeping).
@@ -131,6 +146,7 @@ fn engine_run(source: &Arc<FileSource>, centres: &[[i64; 2]]) -> anyhow::Result<
     settings.limits.max_pending_reads = 4096;
     settings.limits.max_ready_reads = 4096;
     let mut map = Clipmap::new(Arc::clone(&rec) as Arc<dyn TileSource>, settings)?;
+    let p0 = proc_self();
     let t = Instant::now();
     for &c in centres {
         map.tick(c, Some([0, 0]));
@@ -139,11 +155,11 @@ fn engine_run(source: &Arc<FileSource>, centres: &[[i64; 2]]) -> anyhow::Result<
     // Takes the last reads into the cache.
     map.tick(*centres.last().expect("at least one jump"), Some([0, 0]));
     let secs = t.elapsed().as_secs_f64();
-    let admitted = map.stats().tiles_read;
+    let p1 = proc_self();
     let memory_bytes = map.memory().total_bytes();
     drop(map);
     let log = std::mem::take(&mut *rec.log.lock().unwrap_or_else(|e| e.into_inner()));
-    Ok((secs, log, admitted, memory_bytes))
+    Ok(EngineRun { secs, log, memory_bytes, faults: p1.minor_faults - p0.minor_faults, cpu_s: p1.cpu_s - p0.cpu_s })
 }
 
 /// Reads `paths` one after the other, tile `i` at byte `(i * tile_bytes) mod` the buffer's
@@ -190,7 +206,8 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
         prepared.root.join(prepared.layout.tile(level, tile.s, tile.t).path)
     };
     // Warm the page cache with every file the flight reads (and the engine's first run).
-    let (_, warm, _, memory_bytes) = engine_run(&source, &centres)?;
+    let first = engine_run(&source, &centres)?;
+    let (warm, memory_bytes) = (first.log, first.memory_bytes);
     let warm_paths: Vec<PathBuf> = warm.iter().map(|&t| path_of(t)).collect();
     read_run(&warm_paths)?;
     // Places as large as the largest tile of any level (the pyramid's whole levels are one tile).
@@ -206,18 +223,17 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
     let (mut tiles_per_run, mut bytes_per_run) = (0, 0);
     let (mut ef, mut rf, mut ec, mut rc) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for _ in 0..runs {
-        let p0 = proc_self();
-        let (e, log, _, _) = engine_run(&source, &centres)?;
-        let p1 = proc_self();
+        let run = engine_run(&source, &centres)?;
+        let (e, log) = (run.secs, run.log);
         let paths: Vec<PathBuf> = log.iter().map(|&t| path_of(t)).collect();
         let p2 = proc_self();
         let plain_s = read_run(&paths)?;
         let p3 = proc_self();
         let placed_s = read_in_place_run(&paths, tile_bytes, in_place)?;
         let tiles = log.len().max(1) as f64;
-        ef.push((p1.minor_faults - p0.minor_faults) as f64 / tiles);
+        ef.push(run.faults as f64 / tiles);
         rf.push((p3.minor_faults - p2.minor_faults) as f64 / tiles);
-        ec.push((p1.cpu_s - p0.cpu_s) * 1e6 / tiles);
+        ec.push(run.cpu_s * 1e6 / tiles);
         rc.push((p3.cpu_s - p2.cpu_s) * 1e6 / tiles);
         tiles_per_run = log.len();
         bytes_per_run = log.iter().map(|t| source.desc().tile_bytes(t.level) as u64).sum();
@@ -234,7 +250,8 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
 
     let drop_ok = drop_caches();
     let cold = if drop_ok {
-        let (e, log, _, _) = engine_run(&source, &centres)?;
+        let run = engine_run(&source, &centres)?;
+        let (e, log) = (run.secs, run.log);
         let paths: Vec<PathBuf> = log.iter().map(|&t| path_of(t)).collect();
         drop_caches();
         let p = read_run(&paths)?;
