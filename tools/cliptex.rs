@@ -145,6 +145,14 @@ Examples:
         /// Invalid border (with --eye-height) [default: 8, or the .ct's].
         #[arg(long)]
         invalid_border: Option<u64>,
+        /// Tile size of the stack levels (texels, square), for the image caches `clipmapd` maps
+        /// (for a .ct, its .ic's tile_size).
+        #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u64).range(1..=65536))]
+        tile: u64,
+        /// Spare tile rows and columns each stack level's grid keeps beyond its window (the
+        /// engine's default; an .ic's mem_region_size sets a grid of its own).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(0..=64))]
+        lookahead: u64,
         /// Print memory for texture sizes 2^10 to 2^26 at once.
         #[arg(long)]
         table: bool,
@@ -577,6 +585,8 @@ fn run(cli: Cli) -> i32 {
             texel_metres,
             tradeoff,
             invalid_border,
+            tile,
+            lookahead,
             table,
             json,
             env,
@@ -620,6 +630,8 @@ fn run(cli: Cli) -> i32 {
                 texel_metres,
                 tradeoff,
                 invalid_border,
+                tile,
+                lookahead,
             };
             match report::plan::compute(&req) {
                 Ok(p) => {

@@ -30,6 +30,26 @@ pub struct Request {
     pub invalid_border: u64,
     /// The `.ct` the sizes came from (`cliptex plan FILE.ct`).
     pub from: Option<std::path::PathBuf>,
+    /// Tile size of the stack levels (texels, square), for the image caches.
+    pub tile: u64,
+    /// Spare tile rows and columns each stack level's grid keeps beyond its window.
+    pub lookahead: u64,
+}
+
+/// The image caches the engine and `clipmapd` keep (layout 2): every stack level a grid of whole
+/// tiles, every pyramid level whole, a tag per slot and the header, as the mapping lays them out.
+#[derive(Clone, Debug, Serialize)]
+pub struct ImageCaches {
+    /// Stack levels' tile size (clamped to each level).
+    pub tile_size: u64,
+    /// Spare tile rows and columns beyond the window.
+    pub lookahead: u64,
+    /// Level 0's grid of slots (tiles across, down).
+    pub level0_grid: [u64; 2],
+    /// Bytes of the slots (the texels).
+    pub slot_bytes: u64,
+    /// Bytes of the whole mapping (slots, tags, header, page rounding).
+    pub bytes: u64,
 }
 
 /// The answer.
@@ -58,6 +78,35 @@ pub struct Plan {
     /// Virtual-level parameters, when an eye height was given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub virtual_levels: Option<VirtualParams>,
+    /// What the engine would hold (`null` when it cannot serve the texture: larger than 2^26
+    /// texels a side, or more levels than a mapping describes).
+    pub image_caches: Option<ImageCaches>,
+}
+
+/// The image caches of a `size` texture with clip size `clip` (layout 2), or `None` when the
+/// engine cannot lay them out.
+pub fn image_caches(size: [u64; 2], clip: u64, texel_bytes: u64, tile: u64, lookahead: u64) -> Option<ImageCaches> {
+    use crate::shm::layout::{place, LevelShape, Shape};
+    if size[0].max(size[1]) > crate::limits::MAX_TEXTURE_SIZE || tile == 0 {
+        return None;
+    }
+    let levels: Vec<LevelShape> = (0..crate::source::level_count(size) as u32)
+        .map(|k| {
+            let ls = crate::source::level_size(size, k);
+            let stack = ls[0] > clip || ls[1] > clip;
+            let t = if stack { [tile.min(ls[0]), tile.min(ls[1])] } else { ls };
+            LevelShape { size: ls, tile: t, grid: crate::geom::mem_grid(ls, t, clip, lookahead) }
+        })
+        .collect();
+    let level0_grid = levels[0].grid;
+    let placed = place(&Shape { bytes_per_texel: texel_bytes, clip_size: clip, levels })?;
+    Some(ImageCaches {
+        tile_size: tile,
+        lookahead,
+        level0_grid,
+        slot_bytes: placed.slot_bytes(),
+        bytes: placed.total_bytes,
+    })
 }
 
 /// Update bandwidth at a centre speed.
@@ -123,7 +172,10 @@ pub fn compute(r: &Request) -> Result<Plan, SizingError> {
             tradeoff: r.tradeoff,
         })
     });
+    let clip = 1u64 << memory.log2_clip;
+    let image_caches = image_caches(r.size, clip, r.texel_bytes, r.tile, r.lookahead);
     Ok(Plan {
+        image_caches,
         from: r.from.clone(),
         size: long,
         clip_size: 1 << memory.log2_clip,
@@ -180,13 +232,25 @@ pub fn human(p: &Plan, r: &Request) -> String {
         if m.pyramid_levels == 1 { "" } else { "s" },
     ));
     o.push_str(&format!("clipmap      {} texels, {}\n", grouped(m.clipmap_texels), human_bytes(m.clipmap_bytes)));
+    match &p.image_caches {
+        Some(ic) => o.push_str(&format!(
+            "image caches {} mapped by clipmapd ({} of texels): {}-texel tiles, lookahead {}, level 0 a {}x{} grid of whole tiles, pyramid levels whole\n",
+            human_bytes(ic.bytes as u128),
+            human_bytes(ic.slot_bytes as u128),
+            ic.tile_size,
+            ic.lookahead,
+            ic.level0_grid[0],
+            ic.level0_grid[1]
+        )),
+        None => o.push_str("image caches none: the engine serves textures up to 2^26 texels a side\n"),
+    }
     o.push_str(&format!("full mipmap  {} texels, {}\n", grouped(m.mipmap_texels), human_bytes(m.mipmap_bytes)));
     o.push_str(&format!(
         "saving       the clipmap is 1/{:.0} of the mipmap\n",
         m.mipmap_texels as f64 / m.clipmap_texels as f64
     ));
     if let Some(u) = &p.update {
-        o.push_str(&format!("update       at {} texels/s of centre motion: {:.3} Mtexel/s, {}/s into the windows (diagonal motion up to twice)\n", u.speed, u.texels_per_second / 1e6, human_bytes(u.bytes_per_second as u128)));
+        o.push_str(&format!("update       at {} texels/s of centre motion: {:.3} Mtexel/s, {}/s of new texels entering the windows, read as whole tiles (diagonal motion up to twice)\n", u.speed, u.texels_per_second / 1e6, human_bytes(u.bytes_per_second as u128)));
     }
     if let Some(d) = &p.display {
         o.push_str(&format!("display      {} px wide: clip {} is the usual choice ({}), clip {} is pixel-exact with trilinear filtering ({})\n", d.width, d.usual_clip, human_bytes(d.usual_bytes), d.exact_clip, human_bytes(d.exact_bytes)));

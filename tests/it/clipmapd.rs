@@ -761,3 +761,25 @@ fn a_renderer_request_is_published_without_waiting_for_the_next_period() {
     assert!(after["tick_busy_s"].as_f64().unwrap() > 0.0, "{after}");
     assert!(svc.ask("STATS PROM").starts_with("OK prometheus"));
 }
+
+#[test]
+fn cliptex_plan_sizes_the_image_caches_as_the_service_maps_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // The same texture as `Service::spawn`'s: hash (RGBA8), 65536, clip 256, tiles of 64.
+    let _svc = Service::start(d, "planned", &[]);
+    let mapped = std::fs::metadata(d.join("clipmap-planned.map")).unwrap().len();
+    let out = Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(["plan", "--size", "65536", "--clip", "256", "--tile", "64", "--texel-bytes", "4", "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(j["image_caches"]["bytes"].as_u64(), Some(mapped), "{j}");
+    // Brute force: 8 stack levels (65536 down to 512) each a grid of (256/64 + 1 + 1)^2 = 36
+    // tiles of 64^2 texels; 9 pyramid levels (256 down to 1) whole; 4 bytes a texel.
+    let stack = 8 * 36 * 64 * 64 * 4u64;
+    let pyramid: u64 = (0..9).map(|k| (256u64 >> k) * (256 >> k) * 4).sum();
+    assert_eq!(j["image_caches"]["slot_bytes"].as_u64(), Some(stack + pyramid), "{j}");
+    assert_eq!(j["image_caches"]["level0_grid"], serde_json::json!([6, 6]));
+}
