@@ -28,6 +28,7 @@
 //! | [`report`] | what the tools print: validation reports, info, tile locations, dumps, pictures and their labels (below the service) |
 //! | [`inspect`] | a running service seen from outside: `cliptex attach` and `dump --attach` (the top of the stack) |
 //! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
+//! | [`growing`] | growing textures: patches, the fixed tile grid anchored at a world origin, the R*-tree index, tile rebuilds |
 //!
 //! ## Invariants
 //!
@@ -41,6 +42,7 @@ pub mod cache;
 pub mod clip;
 pub mod config;
 pub mod geom;
+pub mod growing;
 pub mod inspect;
 pub mod limits;
 pub mod open;

@@ -275,15 +275,6 @@ impl ImageMemory {
         claim.compare_exchange(now, word(now >> 2, BUSY), Ordering::AcqRel, Ordering::Relaxed).ok()?;
         let p = &self.placement.levels[k];
         let offset = p.slot_offset(slot) as usize;
-        // SAFETY: the claim is now `BUSY` for this slot, which only this call could set (the
-        // compare-and-swap above succeeded from `LOADING`), and until it is stored back below:
-        // no other read can take it (they compare from `LOADING`), the engine neither reassigns
-        // nor settles a busy slot (`assign` refuses `BUSY`, `settle` compares from `LOADING`), and
-        // in-process readers copy a slot's bytes only while its claim is `SETTLED`
-        // (`read_settled`). So nothing else in this process touches these bytes while `fill`
-        // runs. Other processes map the file read-only and, by the tag protocol, discard what they
-        // read from a slot whose tag says loading (the tag was set to loading in `assign`, before
-        // the claim).
         // Gives the claim back however `fill` ends: a source that panics leaves the slot loading
         // (its bytes no promise), for another read to fill, instead of busy for ever.
         struct GiveBack<'a>(&'a AtomicU64, u64);
@@ -293,6 +284,16 @@ impl ImageMemory {
             }
         }
         let give_back = GiveBack(claim, now);
+        // SAFETY: the claim is now `BUSY` for this slot, which only this call could set (the
+        // compare-and-swap above succeeded from `LOADING`), and until `give_back` stores it back
+        // (after `fill` returns, or while it unwinds):
+        // no other read can take it (they compare from `LOADING`), the engine neither reassigns
+        // nor settles a busy slot (`assign` refuses `BUSY`, `settle` compares from `LOADING`), and
+        // in-process readers copy a slot's bytes only while its claim is `SETTLED`
+        // (`read_settled`). So nothing else in this process touches these bytes while `fill`
+        // runs. Other processes map the file read-only and, by the tag protocol, discard what they
+        // read from a slot whose tag says loading (the tag was set to loading in `assign`, before
+        // the claim).
         let out = unsafe { self.region.fill(offset, p.slot_bytes as usize, fill) };
         drop(give_back);
         Some((now >> 2, out))

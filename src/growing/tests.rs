@@ -1,0 +1,267 @@
+//! Growing textures against an oracle computed here from the patches alone (no index, no tiles):
+//! overlaps resolved by rating then time, growth in every direction and across the origin, new
+//! levels with the top rebuilt, bounded steps, and every refused input.
+
+use super::index::PatchIndex;
+use super::rebuild::Rebuilder;
+use super::*;
+use proptest::prelude::*;
+use std::collections::HashMap;
+
+fn grid(tile: u64) -> Grid {
+    Grid::new([0.0, 0.0], 1.0, tile, 1, 1).unwrap()
+}
+
+/// A patch of `w` x `h` pixels `fill(x, y)` with `m` = (id, box, time, rating).
+fn patch(g: &Grid, m: (u64, [f64; 4], u64, f64), w: u32, h: u32, fill: impl Fn(u32, u32) -> u8) -> Patch {
+    let (id, b, time, rating) = m;
+    let texels = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| fill(x, y)).collect();
+    let bbox = WorldBox { min: [b[0], b[1]], max: [b[2], b[3]] };
+    Patch::new(g, PatchMeta { id, bbox, time, rating }, w, h, texels).unwrap()
+}
+
+fn meta(id: u64, b: [f64; 4]) -> PatchMeta {
+    PatchMeta { id, bbox: WorldBox { min: [b[0], b[1]], max: [b[2], b[3]] }, time: 0, rating: 0.0 }
+}
+
+/// One random patch: x, y, width, height (world), rating, time, pixels across, down, a seed.
+type Spec = (f64, f64, f64, f64, u8, u8, u32, u32, u8);
+
+/// The oracle: level-0 texel (i, j), from every patch, without the index. A patch holds the texel
+/// when the texel's centre lies in its box; the winner has the highest (rating, time, id); it is
+/// sampled at pixel floor((centre - min) / (max - min) * size), clamped.
+fn oracle0(g: &Grid, patches: &[Patch], i: i64, j: i64) -> Option<u8> {
+    let (cx, cy) =
+        (g.origin[0] + (i as f64 + 0.5) / g.texels_per_unit, g.origin[1] + (j as f64 + 0.5) / g.texels_per_unit);
+    let holds = |p: &&Patch| p.bbox.min[0] <= cx && cx < p.bbox.max[0] && p.bbox.min[1] <= cy && cy < p.bbox.max[1];
+    let best = patches
+        .iter()
+        .filter(holds)
+        .max_by(|a, b| (a.rating, a.time, a.id).partial_cmp(&(b.rating, b.time, b.id)).unwrap())?;
+    let px = (((cx - best.bbox.min[0]) / (best.bbox.max[0] - best.bbox.min[0])) * best.width as f64).floor() as i64;
+    let py = (((cy - best.bbox.min[1]) / (best.bbox.max[1] - best.bbox.min[1])) * best.height as f64).floor() as i64;
+    let (px, py) = (px.clamp(0, best.width as i64 - 1), py.clamp(0, best.height as i64 - 1));
+    Some(best.texels[(py * best.width as i64 + px) as usize])
+}
+
+/// The oracle at level k: the rounded average of the level k-1 texels under it that have data.
+fn oracle(
+    g: &Grid,
+    patches: &[Patch],
+    k: u32,
+    i: i64,
+    j: i64,
+    memo: &mut HashMap<(u32, i64, i64), Option<u8>>,
+) -> Option<u8> {
+    if k == 0 {
+        return oracle0(g, patches, i, j);
+    }
+    if let Some(v) = memo.get(&(k, i, j)) {
+        return *v;
+    }
+    let below: Vec<u64> = [(0, 0), (1, 0), (0, 1), (1, 1)]
+        .iter()
+        .filter_map(|&(dx, dy)| oracle(g, patches, k - 1, 2 * i + dx, 2 * j + dy, memo))
+        .map(u64::from)
+        .collect();
+    let v =
+        (!below.is_empty()).then(|| ((below.iter().sum::<u64>() + below.len() as u64 / 2) / below.len() as u64) as u8);
+    memo.insert((k, i, j), v);
+    v
+}
+
+/// Ingests every patch, steps the rebuild to the end (at most `per_step` tiles a step), and
+/// checks every tile of every level over the extent (one tile of margin) against the oracle.
+fn build_and_check(g: &Grid, patches: &[Patch], per_step: usize) -> (PatchIndex, Rebuilder) {
+    let mut index = PatchIndex::new();
+    let mut rb = Rebuilder::new(*g);
+    for p in patches {
+        let p = index.insert(p.clone());
+        rb.patch_added(&index, &p);
+        // Steps interleave with ingest, as in the service.
+        let done = rb.step(&index, per_step);
+        assert!(done.len() <= per_step);
+    }
+    let mut steps = 0;
+    while rb.pending() > 0 {
+        let done = rb.step(&index, per_step);
+        assert!(!done.is_empty() && done.len() <= per_step);
+        assert!(done.windows(2).all(|w| w[0].0 <= w[1].0), "lower levels first within a step: {done:?}");
+        steps += 1;
+        assert!(steps < 100_000, "the rebuild ends");
+    }
+    let levels = rb.levels();
+    assert_eq!(levels, index.levels(g));
+    let e = index.extent().unwrap();
+    let mut memo = HashMap::new();
+    let n = g.tile as i64;
+    for k in 0..levels {
+        let [s0, t0, s1, t1] = g.tiles_over(g.texels_in(&e), k).unwrap_or([0, 0, 0, 0]);
+        for t in t0 - 1..t1 + 1 {
+            for s in s0 - 1..s1 + 1 {
+                let tile = rb.tile(k, s, t);
+                for y in 0..n {
+                    for x in 0..n {
+                        let want = oracle(g, patches, k, s * n + x, t * n + y, &mut memo);
+                        let got = tile.and_then(|tl| {
+                            let i = (y * n + x) as usize;
+                            tl.has_data[i].then(|| tl.texels[i])
+                        });
+                        assert_eq!(got, want, "level {k} tile ({s}, {t}) texel ({x}, {y})");
+                    }
+                }
+            }
+        }
+    }
+    // The top level holds the whole extent in at most 2 x 2 tiles (one unless it crosses the origin).
+    let top = g.tiles_over(g.texels_in(&e), levels - 1).unwrap();
+    assert!(top[2] - top[0] <= 2 && top[3] - top[1] <= 2, "top level tiles {top:?}");
+    (index, rb)
+}
+
+#[test]
+fn overlaps_are_resolved_by_rating_then_time() {
+    let g = grid(4);
+    // Three patches over texels 0..8: a low-rated new one, a high-rated old one on the left half,
+    // and an equally high-rated newer one on the right half overlapping it by two texels.
+    let low = patch(&g, (1, [0.0, 0.0, 8.0, 4.0], 30, 1.0), 8, 4, |_, _| 10);
+    let old = patch(&g, (2, [0.0, 0.0, 5.0, 4.0], 10, 5.0), 5, 4, |_, _| 20);
+    let newer = patch(&g, (3, [3.0, 0.0, 8.0, 4.0], 20, 5.0), 5, 4, |_, _| 30);
+    let (_, rb) = build_and_check(&g, &[low, old, newer], 1);
+    let row: Vec<u8> = (0..8).map(|x| rb.tile(0, x / 4, 0).unwrap().texels[(x % 4) as usize]).collect();
+    // Texels 0..3 only the old high-rated one and the low one: old wins; 3..5 both high: newer
+    // wins the tie on time; 5..8 newer.
+    assert_eq!(row, vec![20, 20, 20, 30, 30, 30, 30, 30]);
+}
+
+#[test]
+fn a_patch_is_sampled_at_each_texel_centre() {
+    let g = grid(4);
+    // A 2x1 image over 4 texels: each pixel covers two texels.
+    let p = patch(&g, (1, [0.0, 0.0, 4.0, 1.0], 0, 0.0), 2, 1, |x, _| 100 + x as u8);
+    let (_, rb) = build_and_check(&g, &[p], 8);
+    let t = rb.tile(0, 0, 0).unwrap();
+    assert_eq!(&t.texels[..4], &[100, 100, 101, 101]);
+    assert_eq!(&t.has_data[..4], &[true; 4]);
+    assert!(!t.has_data[4], "the row above has no patch");
+}
+
+#[test]
+fn growth_left_right_up_down_and_across_the_origin_adds_levels_and_rebuilds_the_top() {
+    let g = grid(4);
+    let seed = |i: u64| move |x: u32, y: u32| (i as u32 * 37 + x * 5 + y * 11) as u8;
+    let mut patches = vec![patch(&g, (0, [1.0, 1.0, 3.0, 3.0], 0, 1.0), 2, 2, seed(0))];
+    let mut levels = vec![];
+    for (i, b) in [
+        [6.0, 1.0, 12.0, 3.0],    // right
+        [-9.0, 0.0, -1.0, 2.0],   // left, across the origin
+        [0.0, 10.0, 4.0, 30.0],   // up
+        [2.0, -40.0, 3.0, -20.0], // down
+        [-70.0, 60.0, -60.0, 70.0],
+    ]
+    .iter()
+    .enumerate()
+    {
+        patches.push(patch(&g, (i as u64 + 1, *b, i as u64 + 1, 1.0), 3, 5, seed(i as u64 + 1)));
+        let (index, rb) = build_and_check(&g, &patches, 3);
+        levels.push(rb.levels());
+        assert_eq!(index.len(), patches.len());
+    }
+    assert!(levels.windows(2).all(|w| w[0] <= w[1]), "levels only grow: {levels:?}");
+    assert!(levels.last().unwrap() > levels.first().unwrap(), "growth added levels: {levels:?}");
+}
+
+#[test]
+fn bad_patches_and_grids_are_refused_with_what_was_found() {
+    let g = grid(4);
+    let mk = |b: [f64; 4], w: u32, h: u32, n: usize, rating: f64| {
+        Patch::new(&g, PatchMeta { rating, ..meta(7, b) }, w, h, vec![0; n])
+    };
+    assert!(matches!(mk([0.0, 0.0, f64::NAN, 1.0], 1, 1, 1, 0.0), Err(GrowError::NotFinite { id: 7, .. })));
+    assert!(matches!(mk([0.0, 0.0, f64::INFINITY, 1.0], 1, 1, 1, 0.0), Err(GrowError::NotFinite { .. })));
+    assert!(matches!(mk([1.0, 0.0, 1.0, 1.0], 1, 1, 1, 0.0), Err(GrowError::EmptyBox { axis: 'x', .. })));
+    assert!(matches!(mk([0.0, 2.0, 1.0, 1.0], 1, 1, 1, 0.0), Err(GrowError::EmptyBox { axis: 'y', .. })));
+    assert!(matches!(mk([0.0, 0.0, 1e9, 1.0], 1, 1, 1, 0.0), Err(GrowError::Absurd { axis: 'x', .. })));
+    assert!(matches!(mk([1e13, 0.0, 1e13 + 1.0, 1.0], 1, 1, 1, 0.0), Err(GrowError::Absurd { .. })));
+    assert!(matches!(mk([0.0, 0.0, 1.0, 1.0], 0, 1, 0, 0.0), Err(GrowError::ImageSize { .. })));
+    assert!(matches!(mk([0.0, 0.0, 1.0, 1.0], 70_000, 1, 70_000, 0.0), Err(GrowError::ImageSize { .. })));
+    let wrong = mk([0.0, 0.0, 1.0, 1.0], 2, 2, 3, 0.0);
+    assert_eq!(wrong, Err(GrowError::TexelBytes { id: 7, width: 2, height: 2, bpt: 1, expected: 4, found: 3 }));
+    assert!(wrong.unwrap_err().to_string().contains("expected 4"));
+    assert!(matches!(mk([0.0, 0.0, 1.0, 1.0], 1, 1, 1, f64::NAN), Err(GrowError::Rating { .. })));
+    // Between two texel centres: nothing would ever show.
+    assert!(matches!(mk([0.6, 0.0, 1.4, 1.0], 1, 1, 1, 0.0), Err(GrowError::NoTexel { .. })));
+    for bad in [
+        Grid::new([f64::NAN, 0.0], 1.0, 4, 1, 1),
+        Grid::new([0.0, 0.0], 0.0, 4, 1, 1),
+        Grid::new([0.0, 0.0], f64::INFINITY, 4, 1, 1),
+        Grid::new([0.0, 0.0], 1.0, 6, 1, 1),
+        Grid::new([0.0, 0.0], 1.0, 8192, 1, 1),
+        Grid::new([0.0, 0.0], 1.0, 4, 3, 2),
+        Grid::new([0.0, 0.0], 1.0, 4, 0, 1),
+        Grid::new([0.0, 0.0], 1.0, 4, 4, 3),
+    ] {
+        assert!(matches!(bad, Err(GrowError::Grid { .. })), "{bad:?}");
+    }
+}
+
+#[test]
+fn sixteen_bit_components_average_per_component() {
+    let g = Grid::new([0.0, 0.0], 1.0, 2, 4, 2).unwrap();
+    let px = |a: u16, b: u16| [a.to_le_bytes(), b.to_le_bytes()].concat();
+    let texels = [px(1000, 60000), px(3001, 40000), px(2000, 0), px(4000, 1)].concat();
+    let p = Patch::new(&g, meta(1, [0.0, 0.0, 2.0, 2.0]), 2, 2, texels).unwrap();
+    let mut index = PatchIndex::new();
+    let far = Patch::new(&g, meta(2, [6.0, 0.0, 7.0, 1.0]), 1, 1, px(9, 9)).unwrap();
+    let mut rb = Rebuilder::new(g);
+    for q in [p, far] {
+        let q = index.insert(q);
+        rb.patch_added(&index, &q);
+    }
+    while rb.pending() > 0 {
+        rb.step(&index, 100);
+    }
+    // Level 1 tile (0, 0) texel (0, 0) is the average of the four 16-bit texels, per component.
+    let t = rb.tile(1, 0, 0).unwrap();
+    let a = u16::from_le_bytes([t.texels[0], t.texels[1]]);
+    let b = u16::from_le_bytes([t.texels[2], t.texels[3]]);
+    assert_eq!((a, b), ((1000 + 3001 + 2000 + 4000 + 2) / 4, ((60000u32 + 40000 + 1 + 2) / 4) as u16));
+}
+
+fn arb_patches() -> impl Strategy<Value = Vec<Spec>> {
+    prop::collection::vec(
+        (-24.0f64..24.0, -24.0f64..24.0, 0.5f64..12.0, 0.5f64..12.0, 0u8..3, 0u8..5, 1u32..4, 1u32..4, any::<u8>()),
+        1..6,
+    )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+    #[test]
+    fn every_tile_of_every_level_matches_the_oracle(
+        specs in arb_patches(),
+        tile in prop::sample::select(vec![2u64, 4, 8]),
+        res in prop::sample::select(vec![0.5f64, 1.0, 1.5]),
+        origin in (-3.0f64..3.0, -3.0f64..3.0),
+        per_step in 1usize..9,
+    ) {
+        let g = Grid::new([origin.0, origin.1], res, tile, 1, 1).unwrap();
+        let mut patches = Vec::new();
+        for (i, &(x, y, w, h, rating, time, pw, ph, base)) in specs.iter().enumerate() {
+            let texels = (0..pw * ph).map(|n| base.wrapping_add((n % pw * 7 + n / pw * 13) as u8)).collect();
+            let b = WorldBox { min: [x, y], max: [x + w, y + h] };
+            match Patch::new(&g, PatchMeta { id: i as u64, bbox: b, time: time as u64, rating: rating as f64 }, pw, ph, texels) {
+                Ok(p) => patches.push(p),
+                // Smaller than a texel of this grid: refused, and rightly (checked below).
+                Err(GrowError::NoTexel { .. }) => {
+                    let [i0, j0, i1, j1] = g.texels_in(&b);
+                    prop_assert!(i0 >= i1 || j0 >= j1);
+                }
+                Err(e) => panic!("{e}"),
+            }
+        }
+        prop_assume!(!patches.is_empty());
+        build_and_check(&g, &patches, per_step);
+    }
+}
