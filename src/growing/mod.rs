@@ -20,6 +20,7 @@
 //! `[S * tile, (S + 1) * tile)` per axis, so a tile of level k covers 2 x 2 tiles of level k-1.
 
 pub mod index;
+pub mod input;
 pub mod rebuild;
 
 #[cfg(test)]
