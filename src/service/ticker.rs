@@ -149,7 +149,7 @@ impl Runner {
             // One read queue per stream server the configuration names.
             streams: source.stream_servers(),
             centre_alignment: o.centre_alignment,
-            ..Settings::default()
+            ..Settings::default().with_paging(&o.paging)
         };
         // Refused before anything is created in the shared directory.
         let shape = Clipmap::shape_for(&desc, &settings);
