@@ -23,7 +23,7 @@ pub(crate) fn crossed(mid: i64, v: i64, edge: u64) -> bool {
 }
 
 /// One axis: the tiles `[lo, hi)` needed, the centre `mid` and its velocity, last tick's origin.
-fn axis(lo: i64, hi: i64, mid: i64, v: i64, edge: u64, grid: u64, tiles: u64, previous: Option<i64>) -> i64 {
+fn axis((lo, hi): (i64, i64), mid: i64, v: i64, edge: u64, grid: u64, tiles: u64, previous: Option<i64>) -> i64 {
     let (first, last) = origins(lo, hi, grid, tiles);
     match previous {
         None => ring::centred(lo, hi, mid, edge, grid, tiles),
@@ -40,8 +40,8 @@ impl Prefetch for Direction {
         let prev_s = (!previous.is_empty() && previous.width() == g[0]).then_some(previous.s0);
         let prev_t = (!previous.is_empty() && previous.height() == g[1]).then_some(previous.t0);
         let mid = ring::middle(tex);
-        let s = axis(need.s0, need.s1, mid[0], velocity[0], shape.tile[0], g[0], n[0], prev_s);
-        let t = axis(need.t0, need.t1, mid[1], velocity[1], shape.tile[1], g[1], n[1], prev_t);
+        let s = axis((need.s0, need.s1), mid[0], velocity[0], shape.tile[0], g[0], n[0], prev_s);
+        let t = axis((need.t0, need.t1), mid[1], velocity[1], shape.tile[1], g[1], n[1], prev_t);
         Rect::new(s, t, s + g[0] as i64, t + g[1] as i64)
     }
 }

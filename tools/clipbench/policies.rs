@@ -47,6 +47,9 @@ pub struct Args {
     /// Only these eviction policies (`none`: no pool; default: none, lru, shift).
     #[arg(long, value_delimiter = ',')]
     eviction: Vec<String>,
+    /// The pool's budget instead of 1.5 times the grids' bytes (k, m, g suffixes: KiB, MiB, GiB).
+    #[arg(long, value_name = "BYTES", value_parser = clipmap::paging::parse_bytes)]
+    pool_bytes: Option<u64>,
     /// Only these flights (straight, turning, zigzag, hover, fast_straight, jumps, turn_around).
     #[arg(long, value_delimiter = ',')]
     flight: Vec<String>,
@@ -178,6 +181,7 @@ fn setup(args: &Args) -> Setup {
     // The pool is inclusive (it keeps copies of tiles the grids hold too): half as much again
     // as the grids leaves room for tiles beyond them, far less than a flight reads.
     let pool_tiles = (grid_bytes * 3 / 2).div_ceil(tile_bytes);
+    let pool_bytes = args.pool_bytes.unwrap_or(pool_tiles * tile_bytes);
     Setup {
         size_name,
         size,
@@ -187,7 +191,7 @@ fn setup(args: &Args) -> Setup {
         tile_bytes,
         ticks,
         disk_tiles_per_tick: disk,
-        pool_bytes: pool_tiles * tile_bytes,
+        pool_bytes,
         grid_bytes,
         max_centre_step: args.max_centre_step,
     }
