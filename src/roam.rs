@@ -392,8 +392,10 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
         });
     }
     totals.peak_resident_bytes = map.stats().peak_resident_bytes;
-    totals.pool_hits = map.stats().pool.hits;
-    totals.pool_hit_rate = map.stats().pool.hit_rate();
+    // The pool's own counters (the statistics' copy is taken during the last tick).
+    let pool = map.pool().map(|p| p.stats()).unwrap_or_default();
+    totals.pool_hits = pool.hits;
+    totals.pool_hit_rate = pool.hit_rate();
     Ok(RoamReport {
         clip_size: desc.clip_size(),
         bytes_per_texel: desc.bytes_per_texel(),

@@ -249,8 +249,12 @@ fn run(
         }
     }
     anyhow::ensure!(settled, "{name}: the clipmap never settled at its start");
+    // The pool's own counters, between reads (the copy in the clipmap's statistics is taken
+    // during a tick, while that tick's first reads may already run).
+    let pool = |map: &Clipmap| map.pool().map(|p| p.stats()).unwrap_or_default();
     let reads0 = disk.reads();
     let stats0 = map.stats().clone();
+    let pool0 = pool(&map);
     let (mut disabled, mut lod_sum, mut peak, mut lag) = (0u64, 0.0f64, map.resident_bytes(), 0u64);
     for tick in 1..=s.ticks {
         let want = at(tick);
@@ -261,8 +265,9 @@ fn run(
         peak = peak.max(map.resident_bytes());
     }
     let st = map.stats();
+    let pool1 = pool(&map);
     anyhow::ensure!(map.memory().total_bytes() == s.grid_bytes, "the grids' mapping is not the size planned");
-    let (hits, misses) = (st.pool.hits - stats0.pool.hits, st.pool.misses - stats0.pool.misses);
+    let (hits, misses) = (pool1.hits - pool0.hits, pool1.misses - pool0.misses);
     Ok(Row {
         prefetch: prefetch.name(),
         eviction: eviction.map_or("none", |e| e.name()),
@@ -273,7 +278,7 @@ fn run(
         ticks_with_disabled_level: disabled,
         mean_min_lod: lod_sum / s.ticks as f64,
         pool_hits: hits,
-        pool_evicted: st.pool.evicted - stats0.pool.evicted,
+        pool_evicted: pool1.evicted - pool0.evicted,
         grid_evictions: st.tiles_evicted - stats0.tiles_evicted,
         reads_put_off: st.reads_put_off - stats0.reads_put_off,
         centre_clamps: st.centre_clamps - stats0.centre_clamps,
