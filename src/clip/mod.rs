@@ -11,7 +11,8 @@
 //! The invariant it keeps: **every texel inside a published valid region is in a settled slot**
 //! (ready, the default tile, or missing, which readers see in the slot's tag and serve from a
 //! coarser level), and a slot is given to another tile only after a snapshot that no longer
-//! covers its old tile. Geometry is [`crate::geom`]'s, slots are [`crate::cache`]'s and
+//! covers its old tile. Geometry is [`crate::geom`]'s, where each mem region lies (the prefetch
+//! policy) and the second-level tile pool [`crate::paging`]'s, slots are [`crate::cache`]'s and
 //! [`crate::shm::memory`]'s, reads [`crate::queue`]'s.
 
 pub mod load;

@@ -87,7 +87,8 @@ pub struct Stats {
     /// Reads the source put off (a simulated disk had spent its reads for the tick); their
     /// tiles stayed wanted.
     pub reads_put_off: u64,
-    /// The second-level tile pool's counters (all 0 without a pool).
+    /// The second-level tile pool's counters (all 0 without a pool), as of the end of the last
+    /// tick: the reads it asked for run on meanwhile ([`super::Clipmap::pool`] has the live ones).
     pub pool: PoolStats,
 }
 
