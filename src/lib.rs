@@ -16,6 +16,7 @@
 //! | [`geom`] | pure level geometry: centres, tex / valid / mem regions, toroidal addressing |
 //! | [`limits`] | every bound the paging engine keeps (queue lengths, reads in flight, bytes) |
 //! | [`queue`] | per-stream-server async read queues: priorities, coalescing, stale drops |
+//! | [`paging`] | paging policies: where each grid's spare tiles go (ring, direction), and a second-level tile pool with its eviction (LRU, shift) |
 //! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
 //! | [`clip`] | per-level toroidal windows, the update tick, load control (min LOD), statistics |
 //! | [`shm`] | the shared-memory layout, writer and client (the only `unsafe` code) |
@@ -46,6 +47,7 @@ pub mod growing;
 pub mod inspect;
 pub mod limits;
 pub mod open;
+pub mod paging;
 pub mod plan;
 pub mod prep;
 pub mod queue;

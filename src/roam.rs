@@ -255,6 +255,8 @@ pub struct FrameReport {
     pub disabled_levels: Vec<u32>,
     /// Whether the tick's budget ran out with finished reads left for the next tick.
     pub over_budget: bool,
+    /// Whether the speed clamp (`--max-centre-step`) held the centre back this frame.
+    pub clamped: bool,
 }
 
 /// Totals over a roam.
@@ -274,6 +276,12 @@ pub struct Totals {
     pub peak_resident_bytes: u64,
     /// Frames that took longer than the frame clock's period (0 without a clock).
     pub late_frames: u64,
+    /// Frames on which the speed clamp held the centre back.
+    pub centre_clamps: u64,
+    /// Reads served from the second-level tile pool (0 without one).
+    pub pool_hits: u64,
+    /// Pool hits over reads that delivered a tile.
+    pub pool_hit_rate: f64,
 }
 
 /// The result of a roam.
@@ -296,6 +304,8 @@ pub struct RoamReport {
     pub fps: Option<f64>,
     /// Level centres were aligned to multiples of this many level texels (1: texel-exact).
     pub centre_alignment: u64,
+    /// The paging policies, the pool's budget and the centre clamp flown with.
+    pub paging: crate::paging::PagingOptions,
     /// Per frame.
     pub frames: Vec<FrameReport>,
     /// Totals.
@@ -322,6 +332,12 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
     let mut settings = options.settings;
     settings.budget_ns = options.budget_ms.map(|ms| (ms.max(0.0) * 1e6) as u64);
     let settings_alignment = settings.centre_alignment.max(1);
+    let paging = crate::paging::PagingOptions {
+        prefetch: settings.prefetch,
+        eviction: settings.eviction,
+        pool_bytes: settings.pool_bytes,
+        max_centre_step: settings.max_centre_step,
+    };
     let mut map = Clipmap::new(options.source, settings)?;
     if let Some(border) = options.invalid_border {
         map.set_invalid_border(border);
@@ -362,6 +378,7 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
         totals.tiles_read += r.tiles_read;
         totals.ticks_over_budget += r.over_budget as u64;
         totals.frames_with_disabled_level += !r.disabled_levels.is_empty() as u64;
+        totals.centre_clamps += r.clamped as u64;
         frames.push(FrameReport {
             frame,
             centre: r.centre,
@@ -371,9 +388,14 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
             min_lod: r.min_lod,
             disabled_levels: r.disabled_levels,
             over_budget: r.over_budget,
+            clamped: r.clamped,
         });
     }
     totals.peak_resident_bytes = map.stats().peak_resident_bytes;
+    // The pool's own counters (the statistics' copy is taken during the last tick).
+    let pool = map.pool().map(|p| p.stats()).unwrap_or_default();
+    totals.pool_hits = pool.hits;
+    totals.pool_hit_rate = pool.hit_rate();
     Ok(RoamReport {
         clip_size: desc.clip_size(),
         bytes_per_texel: desc.bytes_per_texel(),
@@ -383,6 +405,7 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
         pacing,
         fps,
         centre_alignment: settings_alignment,
+        paging,
         frames,
         totals,
         stats: map.stats().clone(),
@@ -412,6 +435,14 @@ pub fn human(report: &RoamReport) -> String {
     if report.centre_alignment > 1 {
         let _ = writeln!(o, "level centres aligned to multiples of {} level texels", report.centre_alignment);
     }
+    let p = &report.paging;
+    let pool = if p.pool_bytes == 0 {
+        "no tile pool".to_string()
+    } else {
+        format!("tile pool {} ({} eviction)", crate::report::human_bytes(p.pool_bytes as u128), p.eviction)
+    };
+    let clamp = p.max_centre_step.map(|c| format!("; centre step clamped to {c} texels a frame")).unwrap_or_default();
+    let _ = writeln!(o, "paging: {} prefetch, {pool}{clamp}", p.prefetch);
     let _ = writeln!(
         o,
         "{:>6} {:>22} {:>14} {:>7} {:>7} {:>6}  disabled",
@@ -450,11 +481,25 @@ pub fn human(report: &RoamReport) -> String {
     if report.fps.is_some() {
         let _ = writeln!(o, "  late frames                 {}", t.late_frames);
     }
+    if let Some(step) = report.paging.max_centre_step {
+        let _ = writeln!(o, "  centre clamps               {} (frames held to {step} texels a frame)", t.centre_clamps);
+    }
+    if report.paging.pool_bytes > 0 {
+        let _ = writeln!(
+            o,
+            "  pool hits                   {} (hit rate {:.3}), {} evicted, peak {}",
+            t.pool_hits,
+            t.pool_hit_rate,
+            report.stats.pool.evicted,
+            crate::report::human_bytes(report.stats.pool.peak_bytes as u128)
+        );
+    }
     let _ = writeln!(
         o,
-        "  image caches (peak)         {} ({})",
+        "  image caches (peak)         {} ({}){}",
         t.peak_resident_bytes,
-        crate::report::human_bytes(t.peak_resident_bytes as u128)
+        crate::report::human_bytes(t.peak_resident_bytes as u128),
+        if report.paging.pool_bytes > 0 { ", with the pool's tiles" } else { "" }
     );
     let faults = report.stats.read_faults.total();
     if faults > 0 {

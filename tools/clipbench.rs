@@ -12,12 +12,19 @@
 //! ingest against plain reads, per-frame cost against GDAL and against full reloads, memory
 //! against the formula, a 2^26 flight in real time, service latency) and prints ratios.
 //!
+//! `clipbench policies` flies the standard flights under every combination of prefetch policy
+//! (ring, direction) and second-level pool eviction (none, LRU, shift) over a simulated disk
+//! and a pool budget that forces eviction, and prints tiles read, hit rate, peak resident bytes,
+//! ticks with a disabled level and mean min LOD for each.
+//!
 //! Exit status: 0 ok, 1 bad input, 2 the tool could not run.
 
 #[path = "clipbench/engine.rs"]
 mod engine;
 #[path = "clipbench/perf.rs"]
 mod perf;
+#[path = "clipbench/policies.rs"]
+mod policies;
 #[cfg(feature = "remote")]
 #[path = "clipbench/remote.rs"]
 mod remote;
@@ -36,6 +43,7 @@ use std::process::ExitCode;
     after_help = "\
 Examples:
   clipbench perf --quick --json
+  clipbench policies --quick --json
   clipbench remote --quick --json
   clipbench engine --quick
   clipbench accuracy --quick --out study
@@ -84,6 +92,16 @@ Examples:
   clipbench perf --quick --json
   clipbench perf --runs 7 --dir /var/tmp")]
     Perf(perf::Args),
+    /// Paging policies side by side: ring or direction-aware prefetch, LRU or shift eviction
+    /// of a second-level tile pool, on the standard flights over a simulated disk.
+    #[command(after_help = "\
+Examples:
+  clipbench policies --quick --json
+  clipbench policies                     # the table in docs/BENCHMARKS.md
+  clipbench policies --prefetch direction --eviction none,shift --max-centre-step 32
+
+Deterministic: a simulated disk of a few tiles a tick, reads in lock step with the ticks.")]
+    Policies(policies::Args),
     /// Tiles per second from local files, loopback HTTP (nginx) and loopback S3 (moto) in one
     /// run, and the requests in flight that hide an added latency per request.
     #[cfg(feature = "remote")]
@@ -135,6 +153,7 @@ fn main() -> ExitCode {
             format.texel(),
         ),
         Command::Perf(args) => perf::main(args),
+        Command::Policies(args) => policies::main(args),
         #[cfg(feature = "remote")]
         Command::Remote(args) => remote::main(args),
         Command::Engine { quick, runs, json, smoke, centre_alignment } => {

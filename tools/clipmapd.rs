@@ -88,6 +88,8 @@ struct Cli {
     #[arg(long, default_value = "clipmapd-demo", requires = "demo")]
     out: PathBuf,
     #[command(flatten)]
+    paging: clipmap::report::PagingArgs,
+    #[command(flatten)]
     env: EnvArgs,
     /// Frames the demo's client flies.
     #[arg(long, default_value_t = 240, requires = "demo", hide = true)]
@@ -172,7 +174,7 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
         println!("level 0 usable at the centre in {} of {} frames", r.frames_sharp, r.frames);
         return Ok(());
     }
-    let (source, default_name) = match (&cli.config, cli.source) {
+    let (source, default_name, paging) = match (&cli.config, cli.source) {
         (Some(path), _) => {
             let o = cli.env.options().map_err(|e| Failure(exit::COULD_NOT_RUN, anyhow::anyhow!(e)))?;
             // Displayed once: the error's text already holds its source.
@@ -182,10 +184,12 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             let Some(plan) = loaded.plan else {
                 return Err(bad(anyhow::anyhow!("{} is not a valid clip texture configuration", path.display())));
             };
+            // The configuration's `#clipmap` lines, under the command line's flags.
+            let paging = plan.paging;
             let src = clipmap::source::open_plan(plan, &clipmap::limits::Limits::default())
                 .map_err(|e| bad(anyhow::anyhow!("{e}")))?;
             let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "clip".into());
-            (src, stem)
+            (src, stem, paging)
         }
         (None, Some(kind)) => {
             let (kind, name) = match kind {
@@ -194,19 +198,33 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             };
             let src = service::procedural_source(kind, cli.size, cli.clip, cli.tile)
                 .map_err(|e| Failure(e.exit_code(), e.into()))?;
-            (src, name.to_string())
+            (src, name.to_string(), clipmap::paging::PagingOptions::default())
         }
         (None, None) => {
             return Err(bad(anyhow::anyhow!("give a configuration (CONFIG.ct), --source hash|terrain, or --demo")))
         }
     };
-    let options = options(&cli, &default_name)?;
+    let mut options = options(&cli, &default_name)?;
+    options.paging = cli.paging.over(paging);
     let summary = service::run(source, options, shutdown_signal(int, term), |s| {
         println!("clipmapd: serving {} ({} levels, clip {})", s.mapping.display(), s.levels, s.clip_size);
     })
     .await
     .map_err(|e| Failure(e.exit_code(), e.into()))?;
-    println!("clipmapd: stopped after {} ticks", summary.stats.tick.engine.ticks);
+    let e = &summary.stats.tick.engine;
+    println!("clipmapd: stopped after {} ticks", e.ticks);
+    if e.centre_clamps > 0 {
+        println!("clipmapd: the centre's step was clamped on {} ticks (--max-centre-step)", e.centre_clamps);
+    }
+    if e.pool.budget_bytes > 0 {
+        println!(
+            "clipmapd: tile pool: {} hits, hit rate {:.3}, {} evicted, peak {} bytes",
+            e.pool.hits,
+            e.pool.hit_rate(),
+            e.pool.evicted,
+            e.pool.peak_bytes
+        );
+    }
     Ok(())
 }
 

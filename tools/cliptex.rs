@@ -326,6 +326,8 @@ struct RoamArgs {
     #[arg(long)]
     json: bool,
     #[command(flatten)]
+    paging: clipmap::report::PagingArgs,
+    #[command(flatten)]
     env: EnvArgs,
 }
 
@@ -381,12 +383,15 @@ fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ClipTexturePlan, Vec<clipma
 
 fn roam(args: RoamArgs) -> i32 {
     let flight = args.flight;
+    let mut paging_base = clipmap::paging::PagingOptions::default();
     let options = match (&args.config, args.source) {
         (Some(file), _) => {
             let plan = match load(file, &args.env) {
                 Ok((p, _)) => p,
                 Err(c) => return c,
             };
+            // The configuration's `#clipmap` lines, under the command line's flags.
+            paging_base = plan.paging;
             match clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()) {
                 Ok(src) => roam::RoamOptions::over(src, flight, args.frames),
                 Err(e) => {
@@ -414,7 +419,7 @@ fn roam(args: RoamArgs) -> i32 {
             return exit::BAD_INPUT;
         }
     };
-    let mut settings = options.settings;
+    let mut settings = options.settings.with_paging(&args.paging.over(paging_base));
     settings.centre_alignment = args.centre_alignment;
     let options = roam::RoamOptions {
         settings,

@@ -11,7 +11,8 @@
 //! The invariant it keeps: **every texel inside a published valid region is in a settled slot**
 //! (ready, the default tile, or missing, which readers see in the slot's tag and serve from a
 //! coarser level), and a slot is given to another tile only after a snapshot that no longer
-//! covers its old tile. Geometry is [`crate::geom`]'s, slots are [`crate::cache`]'s and
+//! covers its old tile. Geometry is [`crate::geom`]'s, where each mem region lies (the prefetch
+//! policy) and the second-level tile pool [`crate::paging`]'s, slots are [`crate::cache`]'s and
 //! [`crate::shm::memory`]'s, reads [`crate::queue`]'s.
 
 pub mod load;
@@ -23,10 +24,11 @@ pub use stats::{FaultCounts, Stats, TickReport};
 use crate::cache::{Admit, TileCache, TileState};
 use crate::geom::{aligned_centre, level_grid, tile_texels, tiles_covering, LevelFrame, LevelShape, Rect};
 use crate::limits::Limits;
+use crate::paging::{EvictionKind, PoolSource, PrefetchKind};
 use crate::queue::{priority, Completion, Outcome, QueueError, ReadQueues, ReadRequest};
 use crate::shm::layout::{self, Shape};
 use crate::shm::{ImageMemory, Publication, PublishedLevel};
-use crate::source::{TextureDesc, TileId, TileSource};
+use crate::source::{SourceError, TextureDesc, TileId, TileSource};
 use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -57,6 +59,14 @@ pub struct Settings {
     pub centre_alignment: u64,
     /// Ticks to wait before reading a failed tile again.
     pub retry_after_ticks: u64,
+    /// Where each level's grid puts its spare tiles ([`crate::paging`]).
+    pub prefetch: PrefetchKind,
+    /// Bytes of tiles a second-level pool keeps in process memory beyond the grids
+    /// ([`PoolSource`]; 0: no pool). Counted with the image caches against
+    /// `limits.cache_bytes`.
+    pub pool_bytes: u64,
+    /// Which pooled tile goes first when a new one does not fit.
+    pub eviction: EvictionKind,
     /// Bounds on queues and memory.
     pub limits: Limits,
 }
@@ -71,7 +81,23 @@ impl Default for Settings {
             max_centre_step: None,
             centre_alignment: 1,
             retry_after_ticks: 4,
+            prefetch: PrefetchKind::default(),
+            pool_bytes: 0,
+            eviction: EvictionKind::default(),
             limits: Limits::default(),
+        }
+    }
+}
+
+impl Settings {
+    /// These settings with the user's paging choices (prefetch, pool, eviction, centre clamp).
+    pub fn with_paging(self, p: &crate::paging::PagingOptions) -> Settings {
+        Settings {
+            prefetch: p.prefetch,
+            eviction: p.eviction,
+            pool_bytes: p.pool_bytes,
+            max_centre_step: p.max_centre_step,
+            ..self
         }
     }
 }
@@ -85,7 +111,7 @@ pub enum ClipError {
     #[error(transparent)]
     Queue(#[from] QueueError),
     /// The image caches would take more memory than allowed.
-    #[error("the image caches need {needed} bytes: the limit is {limit} bytes (Limits::cache_bytes); choose a smaller clip size, larger tiles or a smaller mem region")]
+    #[error("the image caches need {needed} bytes, any tile pool's budget included: the limit is {limit} bytes (Limits::cache_bytes); choose a smaller clip size, larger tiles, a smaller mem region or a smaller pool")]
     CacheBytes { needed: u64, limit: u64 },
     /// The image caches cannot be laid out or mapped.
     #[error("cannot make the image caches: {0}")]
@@ -188,6 +214,8 @@ pub struct Clipmap {
     levels: Vec<Level>,
     /// Finished reads not yet taken (a tick's budget ran out).
     backlog: VecDeque<Completion>,
+    /// The second-level tile pool the queues read through, if any.
+    pool: Option<Arc<PoolSource>>,
     centre: Option<[i64; 2]>,
     border: u64,
     min_lod: f64,
@@ -238,7 +266,7 @@ impl Clipmap {
                 expected: Box::new(expected),
             });
         }
-        let needed = memory.total_bytes();
+        let needed = memory.total_bytes().saturating_add(settings.pool_bytes);
         let limit = settings.limits.cache_bytes as u64;
         if needed > limit {
             return Err(ClipError::CacheBytes { needed, limit });
@@ -257,7 +285,13 @@ impl Clipmap {
             })
             .collect();
         let cache = TileCache::new(&desc, &grids, Arc::clone(&memory));
-        let queues = ReadQueues::new(source, memory, settings.streams, settings.limits)?;
+        let pool = (settings.pool_bytes > 0)
+            .then(|| Arc::new(PoolSource::new(source.clone(), settings.pool_bytes, settings.eviction)));
+        let reader: Arc<dyn TileSource> = match &pool {
+            Some(p) => p.clone(),
+            None => source,
+        };
+        let queues = ReadQueues::new(reader, memory, settings.streams, settings.limits)?;
         Ok(Clipmap {
             border: desc.invalid_border(),
             min_lod: desc.level_count() as f64,
@@ -267,6 +301,7 @@ impl Clipmap {
             queues,
             levels,
             backlog: VecDeque::new(),
+            pool,
             centre: None,
             tick: 0,
             stats: Stats::default(),
@@ -346,10 +381,15 @@ impl Clipmap {
         self.levels.len()
     }
 
-    /// Bytes of the image caches (every slot of every level, the tags and the header): what
-    /// this clipmap holds, whatever is in it.
+    /// Bytes of the image caches (every slot of every level, the tags and the header), whatever
+    /// is in them, plus the tiles the second-level pool holds now: what this clipmap holds.
     pub fn resident_bytes(&self) -> u64 {
-        self.cache.memory().total_bytes()
+        self.cache.memory().total_bytes() + self.pool.as_ref().map_or(0, |p| p.stats().bytes)
+    }
+
+    /// The second-level tile pool, if the settings ask for one.
+    pub fn pool(&self) -> Option<&Arc<PoolSource>> {
+        self.pool.as_ref()
     }
 
     /// Bytes of the slots that hold a readable tile now.
@@ -372,11 +412,12 @@ impl Clipmap {
         // Whatever a renderer asked for (any i64 through the mapping or the socket): bounded
         // before any arithmetic, so that no difference or product of them can overflow.
         let far = crate::limits::MAX_CENTRE;
+        let clamps = self.stats.centre_clamps;
         let centre = self.clamp_centre(centre.map(|c| c.clamp(-far, far)));
         let velocity = velocity.map(|v| v.map(|x| x.clamp(-far, far)));
         let velocity = velocity.unwrap_or_else(|| self.centre.map_or([0, 0], |c| [centre[0] - c[0], centre[1] - c[1]]));
         self.centre = Some(centre);
-        let mut report = TickReport { centre, ..TickReport::default() };
+        let mut report = TickReport { centre, clamped: self.stats.centre_clamps > clamps, ..TickReport::default() };
 
         let (taken, left) = self.take_reads(started);
         report.tiles_read = taken;
@@ -386,6 +427,9 @@ impl Clipmap {
             self.stats.reads_deferred += left as u64;
         }
         let velocities = self.move_frames(centre, velocity);
+        if let Some(pool) = &self.pool {
+            pool.hint(centre, velocity, self.levels.iter().map(|l| l.frame.mem).collect());
+        }
 
         // Publish what is settled under each valid region, once, as one snapshot.
         let mut complete = Vec::with_capacity(self.levels.len());
@@ -416,6 +460,9 @@ impl Clipmap {
         self.stats.queue = self.queues.stats();
         self.stats.tick_texel_bytes = self.cache.memory().copied_texel_bytes();
         self.stats.slots_reassigned_under_published = self.cache.memory().invariant_violations();
+        if let Some(pool) = &self.pool {
+            self.stats.pool = pool.stats();
+        }
         self.stats.peak_resident_bytes = self.stats.peak_resident_bytes.max(self.resident_bytes());
         report.tick_ns = started.elapsed().as_nanos() as u64;
         self.stats.tick_ns += report.tick_ns;
@@ -467,6 +514,11 @@ impl Clipmap {
                     }
                     Admit::Stale => self.stats.late_tiles += 1,
                 },
+                // A simulated disk spent its reads for the tick: the tile stays wanted.
+                Outcome::Failed(_, SourceError::Busy { .. }) => {
+                    self.stats.reads_put_off += 1;
+                    self.cache.mark_not_read(done.tile);
+                }
                 Outcome::NotWanted => {
                     self.stats.late_tiles += 1;
                     self.cache.mark_not_read(done.tile);
@@ -495,7 +547,9 @@ impl Clipmap {
             let c =
                 level.centre_override.unwrap_or_else(|| aligned_centre(centre, k32, self.settings.centre_alignment));
             let v = velocity.map(|x| if x != 0 && (x >> k32.min(63)) == 0 { x.signum() } else { x >> k32.min(63) });
+            let previous = level.frame.mem;
             level.frame = level.shape.frame(c, self.border, v);
+            level.frame.mem = self.settings.prefetch.policy().mem_region(&level.shape, level.frame.tex, v, previous);
             out.push(v);
         }
         out

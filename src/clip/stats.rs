@@ -3,6 +3,7 @@
 //! Owns the counters only; [`super`] increments them.
 
 use crate::geom::Rect;
+use crate::paging::PoolStats;
 use crate::queue::QueueStats;
 use crate::source::FaultKind;
 use serde::Serialize;
@@ -83,6 +84,12 @@ pub struct Stats {
     pub peak_resident_bytes: u64,
     /// The read queues' counters (summed over stream servers).
     pub queue: QueueStats,
+    /// Reads the source put off (a simulated disk had spent its reads for the tick); their
+    /// tiles stayed wanted.
+    pub reads_put_off: u64,
+    /// The second-level tile pool's counters (all 0 without a pool), as of the end of the last
+    /// tick: the reads it asked for run on meanwhile ([`super::Clipmap::pool`] has the live ones).
+    pub pool: PoolStats,
 }
 
 /// What one tick did.
@@ -90,6 +97,8 @@ pub struct Stats {
 pub struct TickReport {
     /// Level-0 centre applied (after any speed clamp).
     pub centre: [i64; 2],
+    /// Whether the speed clamp (`Settings::max_centre_step`) moved the centre this tick.
+    pub clamped: bool,
     /// Tiles settled this tick.
     pub tiles_read: u64,
     /// Min LOD after the tick.

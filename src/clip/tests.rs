@@ -310,6 +310,107 @@ fn centre_speed_is_clamped_and_counted() {
 }
 
 #[test]
+fn the_clamp_is_reported_on_the_tick_it_acts() {
+    let mut s = settings(None);
+    s.max_centre_step = Some(10);
+    let mut map = Clipmap::new(hash_source([1 << 12, 1 << 12], 32, 16, 0, TexelFormat::L8), s).unwrap();
+    assert!(!map.tick([100, 100], None).clamped, "the first centre is taken as given");
+    assert!(!map.tick([108, 92], None).clamped);
+    assert!(map.tick([130, 92], None).clamped);
+    assert_eq!(map.stats().centre_clamps, 1);
+}
+
+/// A clipmap over the hash texture read through a disk of `per_tick` tiles a tick, in lock step.
+fn over_disk(per_tick: u64, s: Settings) -> (Arc<crate::source::ThrottledSource>, Clipmap) {
+    let inner = hash_source([1 << 12, 1 << 12], 64, 16, 0, TexelFormat::L8);
+    let disk = Arc::new(crate::source::ThrottledSource::new(inner, per_tick));
+    let mut s = s;
+    s.limits.max_in_flight_reads = 1;
+    s.limits.max_ready_reads = 4096;
+    let map = Clipmap::new(disk.clone(), s).unwrap();
+    (disk, map)
+}
+
+fn disk_step(disk: &crate::source::ThrottledSource, map: &mut Clipmap, c: [i64; 2]) -> TickReport {
+    disk.next_tick();
+    let r = map.tick(c, None);
+    map.wait_for_reads();
+    r
+}
+
+#[test]
+fn a_slow_disk_puts_reads_off_and_the_levels_come_in_as_they_arrive() {
+    let (disk, mut map) = over_disk(5, settings(None));
+    let mut ticks = 0;
+    let mut errors = Vec::new();
+    while map.min_lod() > 0.0 && ticks < 500 {
+        let r = disk_step(&disk, &mut map, [2000, 2000]);
+        assert!(r.tiles_read <= 5, "at most 5 tiles a tick: {}", r.tiles_read);
+        if let Err(e) = check_published(&map) {
+            errors.push(e);
+        }
+        ticks += 1;
+    }
+    assert!(errors.is_empty(), "{errors:?}");
+    assert_eq!(map.min_lod(), 0.0);
+    // The spare tiles too, then one more tick to take the last reads.
+    while disk_step(&disk, &mut map, [2000, 2000]).tiles_read > 0 {}
+    map.tick([2000, 2000], None);
+    let st = map.stats();
+    assert!(st.reads_put_off > 0 && ticks > 10, "{ticks} ticks, {} put off", st.reads_put_off);
+    assert_eq!(st.read_faults.total(), 0, "a busy disk is no fault");
+    assert_eq!(disk.reads(), st.tiles_read, "each tile read once");
+}
+
+#[test]
+fn a_pool_serves_a_return_flight_from_memory_and_the_tick_writes_no_texel() {
+    let pooled = Settings { pool_bytes: 600 * 256, ..settings(None) };
+    let mut reads = Vec::new();
+    for s in [settings(None), pooled] {
+        let (disk, mut map) = over_disk(64, s);
+        let mut errors = Vec::new();
+        // Out along +s for 40 tiles and back.
+        for i in (0..80).chain((0..80).rev()) {
+            disk_step(&disk, &mut map, [1000 + 8 * i, 2000]);
+            if let Err(e) = check_published(&map) {
+                errors.push(e);
+            }
+        }
+        assert!(errors.is_empty(), "{errors:?}");
+        let st = map.stats();
+        assert_eq!(st.tick_texel_bytes, 0);
+        assert_eq!(st.slots_reassigned_under_published, 0);
+        assert!(st.pool.bytes <= st.pool.budget_bytes);
+        reads.push((disk.reads(), st.pool.hits));
+    }
+    let ((bare, no_hits), (pooled, hits)) = (reads[0], reads[1]);
+    assert_eq!(no_hits, 0);
+    assert!(hits > 0 && pooled < bare, "disk reads {bare} without a pool, {pooled} with ({hits} hits)");
+}
+
+#[test]
+fn every_prefetch_policy_keeps_the_published_texels_right_on_a_zigzag() {
+    for prefetch in crate::paging::PrefetchKind::ALL {
+        let (disk, mut map) = over_disk(6, Settings { prefetch, ..settings(None) });
+        let mut errors = Vec::new();
+        for i in 0..120i64 {
+            let t = if (i / 15) % 2 == 0 { i % 15 } else { 15 - i % 15 };
+            disk_step(&disk, &mut map, [1000 + 9 * i, 2000 + 11 * t]);
+            if let Err(e) = check_published(&map) {
+                errors.push(format!("{prefetch}: {e}"));
+            }
+        }
+        assert!(errors.is_empty(), "{errors:?}");
+        assert_eq!(map.stats().slots_reassigned_under_published, 0, "{prefetch}");
+        for k in 0..map.level_count() as u32 {
+            let mem = map.cache.mem_region(k);
+            let need = crate::geom::tiles_covering(map.levels[k as usize].frame.tex, map.level(k).tile);
+            assert!(mem.contains_rect(&need), "{prefetch}: level {k}: {mem:?} does not hold {need:?}");
+        }
+    }
+}
+
+#[test]
 fn queue_length_stays_bounded_and_stale_requests_are_dropped_under_jumps() {
     let mut s = settings(None);
     s.limits.max_pending_reads = 8;

@@ -6,10 +6,13 @@
 
 use super::diag::{Diagnostic, Diagnostics, Severity, Span};
 use super::lexer::{shorten, Lexer, Word};
-use super::syntax::{Entry, Spanned, SyntaxFile, Value};
+use super::syntax::{Entry, Extension, Spanned, SyntaxFile, Value};
 use super::tokens::{self, ArgShape, FileKind, TokenDef, TokenId};
 use super::Limits;
 use std::path::Path;
+
+/// The first word of an extension line: a comment to Performer 3.0 (`#`), whatever follows.
+pub const EXTENSION_MARK: &str = "#clipmap";
 
 struct Parser<'a, 'p> {
     lx: Lexer<'a>,
@@ -18,6 +21,7 @@ struct Parser<'a, 'p> {
     limits: &'p Limits,
     diags: Diagnostics,
     entries: Vec<Entry>,
+    extensions: Vec<Extension>,
     stopped: bool,
 }
 
@@ -30,6 +34,7 @@ pub fn parse(src: &[u8], path: &Path, kind: FileKind, limits: &Limits) -> (Synta
         limits,
         diags: Diagnostics::default(),
         entries: Vec::new(),
+        extensions: Vec::new(),
         stopped: false,
     };
     if src.len() > limits.max_file_bytes {
@@ -45,7 +50,7 @@ pub fn parse(src: &[u8], path: &Path, kind: FileKind, limits: &Limits) -> (Synta
     } else {
         p.run();
     }
-    let file = SyntaxFile { path: path.to_path_buf(), kind, entries: p.entries };
+    let file = SyntaxFile { path: path.to_path_buf(), kind, entries: p.entries, extensions: p.extensions };
     (file, p.diags)
 }
 
@@ -125,6 +130,10 @@ impl<'a> Parser<'a, '_> {
                 return;
             }
             let Some(text) = self.text(&w) else { continue };
+            if text == EXTENSION_MARK {
+                self.extension(w.span);
+                continue;
+            }
             if tokens::is_comment_start(&text) {
                 self.lx.skip_line(w.span.line);
                 continue;
@@ -142,6 +151,20 @@ impl<'a> Parser<'a, '_> {
                 self.stopped = true;
             }
         }
+    }
+
+    /// Reads the words after `#clipmap` on its line (at most a few: the rest is skipped).
+    fn extension(&mut self, span: Span) {
+        let mut words = Vec::new();
+        while self.lx.peek().is_some_and(|w| w.span.line == span.line) {
+            let w = self.lx.next_word().expect("peeked");
+            if words.len() < 4 {
+                if let Some(t) = self.text(&w) {
+                    words.push(Spanned { value: t, span: w.span });
+                }
+            }
+        }
+        self.extensions.push(Extension { span, words });
     }
 
     fn unknown(&mut self, text: &str, span: Span) {

@@ -55,6 +55,16 @@ impl Entry {
     }
 }
 
+/// One line of this engine's extension (docs/CONFIG.md §16): a comment to Performer, whose
+/// first word is `#clipmap`, then a setting and its value.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Extension {
+    /// Where `#clipmap` was written.
+    pub span: Span,
+    /// The words after it on its line (the setting, then its value), as written.
+    pub words: Vec<Spanned<String>>,
+}
+
 /// A parsed file.
 #[derive(Clone, Debug)]
 pub struct SyntaxFile {
@@ -64,6 +74,8 @@ pub struct SyntaxFile {
     pub kind: FileKind,
     /// Every entry, in file order.
     pub entries: Vec<Entry>,
+    /// Every `#clipmap` extension line, in file order.
+    pub extensions: Vec<Extension>,
 }
 
 impl SyntaxFile {

@@ -171,6 +171,7 @@ pub fn build(
     let look_f = r.int(TokenId::Lookahead);
     let lookahead = values::non_negative(&mut r, &look_f, "lookahead", 1, &mut defaulted, "lookahead");
     let read_func = ic::read_func(&mut r);
+    let paging = super::paging::read(&mut r);
     let tile_f = r.int3(TokenId::TileSize);
     let tile_size = match &tile_f {
         Field::Absent => None,
@@ -343,6 +344,7 @@ pub fn build(
         header_offset,
         page_size,
         lookahead,
+        paging,
         read_func,
         tile_size,
         icache_mode,

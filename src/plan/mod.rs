@@ -12,6 +12,7 @@ mod fields;
 pub mod formats;
 mod ic;
 mod naming;
+mod paging;
 pub mod params;
 pub mod printf;
 mod tile;
@@ -219,6 +220,9 @@ pub struct ClipTexturePlan {
     pub page_size: i64,
     /// Lookahead passed to the image caches.
     pub lookahead: u64,
+    /// Paging policies, pool budget and centre clamp from the `#clipmap` extension lines
+    /// (docs/CONFIG.md §16; the defaults without any).
+    pub paging: crate::paging::PagingOptions,
     /// Custom read function, if named.
     pub read_func: Option<ReadFunc>,
     /// `tile_size` of the `.ct` (used in no-`.ic` mode).

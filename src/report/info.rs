@@ -66,6 +66,10 @@ pub struct ClipTextureInfo<'a> {
     pub header_offset: u64,
     /// Lookahead.
     pub lookahead: u64,
+    /// The paging settings of the `#clipmap` lines (docs/CONFIG.md §16), when they differ from
+    /// the defaults.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub paging: Option<crate::paging::PagingOptions>,
     /// Page size.
     pub page_size: i64,
     /// How the `.ic` files are named.
@@ -149,6 +153,7 @@ pub fn clip_texture<'a>(plan: &'a ClipTexturePlan, warnings: &'a [Diagnostic]) -
         is_virtual: plan.is_virtual,
         header_offset: plan.header_offset,
         lookahead: plan.lookahead,
+        paging: (plan.paging != crate::paging::PagingOptions::default()).then_some(plan.paging),
         page_size: plan.page_size,
         icache_mode: plan.icache_mode,
         tile_mode: plan.tile_mode,
@@ -214,6 +219,14 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
     ));
     o.push_str(&format!("header_offset  {}{}\n", plan.header_offset, mark(d, "header_offset")));
     o.push_str(&format!("lookahead      {}{}\n", plan.lookahead, mark(d, "lookahead")));
+    let p = &plan.paging;
+    if *p != crate::paging::PagingOptions::default() {
+        let clamp = p.max_centre_step.map_or("off".to_string(), |c| format!("{c} texels a tick"));
+        o.push_str(&format!(
+            "paging         prefetch {}, pool {} bytes ({} eviction), centre step {clamp}  (#clipmap)\n",
+            p.prefetch, p.pool_bytes, p.eviction
+        ));
+    }
     o.push_str(&format!("page_size      {}{}\n", plan.page_size, mark(d, "page_size")));
     o.push_str(&format!("naming         .ic files: {:?}, pyramid files: {:?}\n", plan.icache_mode, plan.tile_mode));
     let bpt = plan.bytes_per_texel as u128;

@@ -5,11 +5,13 @@ pub mod check;
 pub mod dump;
 pub mod info;
 pub mod label;
+mod paging_args;
 pub mod picture;
 pub mod plan;
 pub mod validate;
 
 use crate::plan::{Env, Options};
+pub use paging_args::PagingArgs;
 
 /// An `--env` argument that is not `NAME=VALUE`.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

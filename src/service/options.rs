@@ -54,6 +54,8 @@ pub struct Options {
     /// Level centres aligned to multiples of this many level texels (1: texel-exact; see
     /// [`crate::clip::Settings::centre_alignment`]).
     pub centre_alignment: u64,
+    /// Paging policies, the second-level pool's budget and the centre clamp.
+    pub paging: crate::paging::PagingOptions,
     /// Control socket bounds.
     pub control: ControlLimits,
 }
@@ -78,6 +80,7 @@ impl Options {
             tick_hz: 60.0,
             invalid_border: None,
             centre_alignment: 1,
+            paging: crate::paging::PagingOptions::default(),
             control: ControlLimits::default(),
         }
     }

@@ -149,15 +149,16 @@ impl Runner {
             // One read queue per stream server the configuration names.
             streams: source.stream_servers(),
             centre_alignment: o.centre_alignment,
-            ..Settings::default()
+            ..Settings::default().with_paging(&o.paging)
         };
         // Refused before anything is created in the shared directory.
         let shape = Clipmap::shape_for(&desc, &settings);
         let placement = crate::shm::layout::place(&shape)
             .ok_or_else(|| crate::clip::ClipError::Memory(crate::shm::memory::shape_error(&shape)))?;
         let limit = settings.limits.cache_bytes as u64;
-        if placement.total_bytes > limit {
-            return Err(crate::clip::ClipError::CacheBytes { needed: placement.total_bytes, limit }.into());
+        let needed = placement.total_bytes.saturating_add(settings.pool_bytes);
+        if needed > limit {
+            return Err(crate::clip::ClipError::CacheBytes { needed, limit }.into());
         }
         // The engine keeps its image caches in the mapping itself: each tile is read straight
         // into its slot, where renderers read it, and nothing is copied afterwards.

@@ -18,11 +18,13 @@ pub mod procedural;
 #[cfg(feature = "remote")]
 pub mod remote;
 mod synthetic;
+pub mod throttle;
 
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};
 pub use faulty::{Fault, FaultRule, FaultySource};
 pub use file::{FileSource, FileSourceError, FileStats, RemoteReader};
 pub use synthetic::{HashSource, TerrainSource};
+pub use throttle::ThrottledSource;
 
 use serde::Serialize;
 use std::fmt;
@@ -102,6 +104,10 @@ pub enum SourceError {
     /// The caller's buffer is not one tile long.
     #[error("{tile}: buffer holds {found} bytes, expected {expected}")]
     BufferSize { tile: TileId, expected: usize, found: usize },
+    /// The source cannot read now (a simulated disk spent its reads for the tick,
+    /// [`ThrottledSource`]): not a fault, the tile stays wanted and is asked for again.
+    #[error("{tile}: put off: the source reads at most {per_tick} tiles a tick")]
+    Busy { tile: TileId, per_tick: u64 },
 }
 
 impl SourceError {
@@ -112,7 +118,7 @@ impl SourceError {
             SourceError::Short { .. } => FaultKind::Short,
             SourceError::Corrupt { .. } | SourceError::Undecodable { .. } => FaultKind::Corrupt,
             SourceError::PermissionDenied { .. } => FaultKind::PermissionDenied,
-            SourceError::Io { .. } => FaultKind::Io,
+            SourceError::Io { .. } | SourceError::Busy { .. } => FaultKind::Io,
             SourceError::OutOfRange { .. } | SourceError::BufferSize { .. } => FaultKind::BadRequest,
         }
     }
@@ -127,7 +133,8 @@ impl SourceError {
             | SourceError::PermissionDenied { tile }
             | SourceError::Io { tile, .. }
             | SourceError::OutOfRange { tile, .. }
-            | SourceError::BufferSize { tile, .. } => *tile,
+            | SourceError::BufferSize { tile, .. }
+            | SourceError::Busy { tile, .. } => *tile,
         }
     }
 }

@@ -508,3 +508,31 @@ const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 fn num_u128(v: &Value) -> u128 {
     v.as_u64().map(u128::from).unwrap_or_else(|| v.as_str().unwrap().parse().unwrap())
 }
+
+#[test]
+fn info_shows_the_paging_extension_and_validate_strict_accepts_it() {
+    let s = Setup::new();
+    write_ct(&s);
+    let before = run(CLIPTEX, &["validate", "--strict", "--json", &s.rel("x.ct")], s.cwd());
+    let path = s.conf.path("x.ct");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let text =
+        text.replacen("ct_version2.0\n", "ct_version2.0\n#clipmap prefetch direction\n#clipmap pool_bytes 64m\n", 1);
+    std::fs::write(&path, text).unwrap();
+    let out = run(CLIPTEX, &["info", &s.rel("x.ct")], s.cwd());
+    out.status(0);
+    out.check(
+        out.stdout.contains(
+            "paging         prefetch direction, pool 67108864 bytes (lru eviction), centre step off  (#clipmap)",
+        ),
+        "the paging line",
+    );
+    let j = run(CLIPTEX, &["info", "--json", &s.rel("x.ct")], s.cwd()).json();
+    assert_eq!(j["paging"]["prefetch"], "direction");
+    assert_eq!(j["paging"]["pool_bytes"], 64 << 20);
+    // Performer reads the lines as comments: nothing more for --strict to say.
+    let after = run(CLIPTEX, &["validate", "--strict", "--json", &s.rel("x.ct")], s.cwd());
+    after.status(before.code);
+    let count = |o: &Out| o.json().to_string().matches("\"code\"").count();
+    assert_eq!(count(&after), count(&before), "no new finding\n{}", after.context());
+}

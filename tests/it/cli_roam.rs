@@ -62,7 +62,9 @@ fn contract(r: &Value, frames: usize) -> (i64, u64, Vec<i64>, Vec<[i64; 2]>, Vec
 }
 
 /// Each stack level's mem region (tiles) for level-0 centre `c` moving by `v` texels a tick, as
-/// the engine places it (lookahead 1, centres aligned to `align`).
+/// the engine places it (lookahead 1, centres aligned to `align`, the default prefetch policy,
+/// which also sees last frame's regions `previous`).
+#[allow(clippy::too_many_arguments)]
 fn mem_regions(
     levels: &[i64],
     clip: i64,
@@ -71,7 +73,9 @@ fn mem_regions(
     align: u64,
     c: [i64; 2],
     v: [i64; 2],
+    previous: &[clipmap::geom::Rect],
 ) -> Vec<clipmap::geom::Rect> {
+    let policy = clipmap::paging::PrefetchKind::default().policy();
     levels
         .iter()
         .enumerate()
@@ -81,7 +85,9 @@ fn mem_regions(
             let t = tile.min(size) as u64;
             let shape = clipmap::geom::LevelShape::new([size as u64; 2], [t, t], clip as u64, 1);
             let lv = v.map(|x| if x != 0 && (x >> k32) == 0 { x.signum() } else { x >> k32 });
-            shape.frame(clipmap::geom::aligned_centre(c, k32, align), border, lv).mem
+            let frame = shape.frame(clipmap::geom::aligned_centre(c, k32, align), border, lv);
+            let before = previous.get(k).copied().unwrap_or(clipmap::geom::Rect::EMPTY);
+            policy.mem_region(&shape, frame.tex, lv, before)
         })
         .collect()
 }
@@ -91,13 +97,12 @@ fn mem_regions(
 /// no tile is read twice, nothing is reloaded whole.
 fn assert_steady_tiles(r: &Value, frames: usize, steady: usize, tile: i64, border: u64, align: u64) -> u64 {
     let (clip, _, levels, centres, tiles) = contract(r, frames);
-    let regions: Vec<Vec<clipmap::geom::Rect>> = (0..frames)
-        .map(|f| {
-            let v =
-                if f == 0 { [0, 0] } else { [centres[f][0] - centres[f - 1][0], centres[f][1] - centres[f - 1][1]] };
-            mem_regions(&levels, clip, tile, border, align, centres[f], v)
-        })
-        .collect();
+    let mut regions: Vec<Vec<clipmap::geom::Rect>> = Vec::with_capacity(frames);
+    for f in 0..frames {
+        let v = if f == 0 { [0, 0] } else { [centres[f][0] - centres[f - 1][0], centres[f][1] - centres[f - 1][1]] };
+        let previous = if f == 0 { Vec::new() } else { regions[f - 1].clone() };
+        regions.push(mem_regions(&levels, clip, tile, border, align, centres[f], v, &previous));
+    }
     let mut moved = 0;
     for f in steady..frames {
         let entered: u64 = regions[f - 1]

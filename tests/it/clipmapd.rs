@@ -783,3 +783,43 @@ fn cliptex_plan_sizes_the_image_caches_as_the_service_maps_them() {
     assert_eq!(j["image_caches"]["slot_bytes"].as_u64(), Some(stack + pyramid), "{j}");
     assert_eq!(j["image_caches"]["level0_grid"], serde_json::json!([6, 6]));
 }
+
+#[test]
+fn paging_flags_reach_the_engine_and_the_clamp_and_pool_are_counted_in_stats() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "paging", &["--pool-bytes", "4m", "--eviction", "shift", "--max-centre-step", "16"]);
+    assert!(svc.ask("CENTRE 40000 40000").starts_with("OK"));
+    // The centre moves at most 16 texels a tick towards the request: clamped on many ticks.
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let stats = loop {
+        let stats = json_reply(&svc.ask("STATS"));
+        if stats["engine"]["centre_clamps"].as_u64().unwrap_or(0) >= 3 || std::time::Instant::now() > deadline {
+            break stats;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let e = &stats["engine"];
+    assert!(e["centre_clamps"].as_u64().unwrap() >= 3, "the clamp acts and is counted: {stats}");
+    assert_eq!(e["pool"]["budget_bytes"], 4 << 20, "{stats}");
+    assert!(e["pool"]["misses"].as_u64().unwrap() > 0, "reads go through the pool: {stats}");
+    assert!(e["pool"]["bytes"].as_u64().unwrap() <= 4 << 20, "{stats}");
+    assert_eq!(e["tick_texel_bytes"], 0, "{stats}");
+}
+
+#[test]
+fn a_pool_past_the_memory_limit_is_refused_before_anything_is_created() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let shm = d.join("shm");
+    std::fs::create_dir(&shm).unwrap();
+    let out = Command::new(CLIPMAPD)
+        .args(["--source", "hash", "--size", "65536", "--clip", "256", "--tile", "64", "--name", "big"])
+        .args(["--shm-dir", shm.to_str().unwrap(), "--pool-bytes", "4g"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("tile pool's budget included") && err.contains("smaller pool"), "{err}");
+    assert_eq!(std::fs::read_dir(&shm).unwrap().count(), 0, "nothing created");
+}

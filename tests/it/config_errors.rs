@@ -290,3 +290,39 @@ fn manual_misspelling_icache_base_suggests_image_cache_base_not_tile_base() {
     let x = expect(&d, "unknown-param", Severity::Error, Some((8, 15)), &["PFCLIPTEX_FNAMEARG_ICACHE_BASE"]);
     assert_eq!(x.hint.as_deref(), Some("did you mean `PFCLIPTEX_FNAMEARG_IMAGE_CACHE_BASE`?"));
 }
+
+#[test]
+fn paging_extension_lines_are_read_and_performer_sees_comments() {
+    use clipmap::paging::{EvictionKind, PrefetchKind};
+    let (p, d) = ct_ok(&format!(
+        "{NO_IC_CT}#clipmap prefetch direction\n#clipmap eviction shift\n#clipmap pool_bytes 64m\n#clipmap max_centre_step 32\n# clipmap prefetch ahead\n"
+    ));
+    clean(&d);
+    assert_eq!(p.paging.prefetch, PrefetchKind::Direction, "`# clipmap` (with a space) is a plain comment");
+    assert_eq!(p.paging.eviction, EvictionKind::Shift);
+    assert_eq!(p.paging.pool_bytes, 64 << 20);
+    assert_eq!(p.paging.max_centre_step, Some(32));
+    // Without any: the defaults (the comparison's winners).
+    let (p, _) = ct_ok(NO_IC_CT);
+    assert_eq!(p.paging, clipmap::paging::PagingOptions::default());
+    assert_eq!(p.paging.prefetch, PrefetchKind::Ring);
+    assert_eq!(p.paging.pool_bytes, 0);
+}
+
+#[test]
+fn paging_extension_errors_say_where_and_what_was_expected() {
+    let d = ct_err(&format!("{NO_IC_CT}#clipmap prefetch sideways\n"));
+    expect(&d, "bad-extension-value", Severity::Error, Some((10, 19)), &["sideways", "`ring`, `direction` or `ahead`"]);
+    let d = ct_err(&format!("{NO_IC_CT}#clipmap evicton lru\n"));
+    expect(&d, "unknown-extension", Severity::Error, Some((10, 10)), &["evicton", "did you mean `eviction`?"]);
+    let d = ct_err(&format!("{NO_IC_CT}#clipmap pool_bytes lots\n"));
+    expect(&d, "bad-extension-value", Severity::Error, Some((10, 21)), &["lots", "byte count"]);
+    let d = ct_err(&format!("{NO_IC_CT}#clipmap pool_bytes\n"));
+    expect(&d, "missing-value", Severity::Error, Some((10, 10)), &["pool_bytes"]);
+    let d = ct_err(&format!("{NO_IC_CT}#clipmap\n"));
+    expect(&d, "extension-empty", Severity::Error, Some((10, 1)), &["pool_bytes"]);
+    let d = ct_err(&format!("{NO_IC_CT}#clipmap eviction lru shift\n"));
+    expect(&d, "extension-extra-words", Severity::Error, Some((10, 23)), &["shift", "one setting"]);
+    let d = ct_err(&format!("{NO_IC_CT}#clipmap max_centre_step 0\n"));
+    expect(&d, "bad-extension-value", Severity::Error, Some((10, 26)), &["above 0"]);
+}

@@ -14,6 +14,7 @@ mod cli_dump;
 mod cli_roam;
 mod cli_snapshots;
 mod clipbench_perf;
+mod clipbench_policies;
 mod clipmapd;
 mod clipprep;
 mod config_build_errors;
