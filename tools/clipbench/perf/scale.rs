@@ -9,6 +9,7 @@
 
 use super::{quantile, Size};
 use clipmap::clip::{Clipmap, Settings};
+use clipmap::paging::PrefetchKind;
 use clipmap::service::{procedural_source, Procedural};
 use serde::Serialize;
 use std::time::{Duration, Instant};
@@ -19,6 +20,8 @@ pub struct Scale {
     /// Extra tile columns read ahead along the motion at level 0 (1 across it; the default
     /// square lookahead when both are 1).
     pub lookahead: u64,
+    /// Where the spare tiles go (`ahead` for the mem region sized for the flight).
+    pub prefetch: PrefetchKind,
     pub texture: u64,
     pub clip: u64,
     pub tile: u64,
@@ -70,7 +73,11 @@ fn fly(clip: u64, tile: u64, seconds: f64, ahead: Option<u64>) -> anyhow::Result
     let texture = 1u64 << 26;
     let (speed, hz) = (1000i64, 60.0);
     let plain = procedural_source(Procedural::Hash, texture, clip, tile)?;
-    let settings = Settings::default();
+    // A mem region sized for this flight puts its spare tiles ahead of the motion (the `ahead`
+    // prefetch policy, `--prefetch ahead`): the default ring would split them around the window
+    // and read only half as far ahead. The default flight keeps every default.
+    let prefetch = if ahead.is_some() { PrefetchKind::Ahead } else { PrefetchKind::default() };
+    let settings = Settings { prefetch, ..Settings::default() };
     let source: std::sync::Arc<dyn clipmap::source::TileSource> = match ahead {
         None => plain,
         Some(extra) => {
@@ -128,6 +135,7 @@ fn fly(clip: u64, tile: u64, seconds: f64, ahead: Option<u64>) -> anyhow::Result
     let after = map.stats();
     Ok(Scale {
         lookahead,
+        prefetch,
         texture,
         clip,
         tile,
