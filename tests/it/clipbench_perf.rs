@@ -3,20 +3,12 @@
 //! (layout 2: ticks write no texels), `speedup_vs_gdal` is null without GDAL, and
 //! `update_vs_memcpy` is gone (there is nothing left to copy). No timing is asserted.
 
-use std::process::Command;
-
 fn run_perf(dir: &std::path::Path, extra: &[&str]) -> serde_json::Value {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_clipbench"));
-    cmd.args(["perf", "--smoke", "--json", "--runs", "2", "--dir"]).arg(dir).args(extra);
-    let out = cmd.output().expect("clipbench runs");
-    let show = format!(
-        "command: {cmd:?}\nstatus: {}\nstdout:\n{}\nstderr:\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "{show}");
-    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{show}"))
+    let head: [&std::ffi::OsStr; 6] =
+        ["perf".as_ref(), "--smoke".as_ref(), "--json".as_ref(), "--runs".as_ref(), "2".as_ref(), "--dir".as_ref()];
+    let args: Vec<&std::ffi::OsStr> =
+        head.into_iter().chain([dir.as_os_str()]).chain(extra.iter().map(|a| a.as_ref())).collect();
+    crate::common::clipbench_json(&args)
 }
 
 #[test]

@@ -4,20 +4,10 @@
 //! simulation is deterministic (two runs print the same rows), and the figures are consistent
 //! with each other (no pool: no hits and nothing resident beyond the grids).
 
-use std::process::Command;
-
 fn run(extra: &[&str]) -> serde_json::Value {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_clipbench"));
-    cmd.args(["policies", "--smoke", "--json"]).args(extra);
-    let out = cmd.output().expect("clipbench runs");
-    let show = format!(
-        "command: {cmd:?}\nstatus: {}\nstdout:\n{}\nstderr:\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "{show}");
-    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{show}"))
+    let args: Vec<&std::ffi::OsStr> =
+        ["policies", "--smoke", "--json"].iter().chain(extra).map(|a| a.as_ref()).collect();
+    crate::common::clipbench_json(&args)
 }
 
 #[test]

@@ -291,3 +291,19 @@ pub fn exec_bounded(
     assert!(!hung, "hung for more than {limit:?}:\n{d}");
     (out, d)
 }
+
+/// Runs `clipbench ARGS`, insists that it succeeds and prints one JSON value, and returns it;
+/// on failure the panic shows the command, its status and both outputs.
+pub fn clipbench_json(args: &[&std::ffi::OsStr]) -> serde_json::Value {
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_clipbench"));
+    cmd.args(args);
+    let out = cmd.output().expect("clipbench runs");
+    let show = format!(
+        "command: {cmd:?}\nstatus: {}\nstdout:\n{}\nstderr:\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "{show}");
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{show}"))
+}
