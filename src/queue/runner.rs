@@ -6,8 +6,8 @@
 //!
 //! Each blocking task reads a run of requests, the most urgent first, rather than one: a task per
 //! read cost two thread wake-ups and switches per tile, about as much CPU as reading a 256 KiB
-//! tile from the page cache (the engine's CPU per tile in the ingest benchmark fell from 105..125
-//! to 65..85 µs). The pending requests are shared out among the free read slots
+//! tile from the page cache (the engine's CPU per tile in the ingest benchmark fell from medians
+//! of 100..125 to 75..90 µs). The pending requests are shared out among the free read slots
 //! (`max_in_flight_reads`), at most [`MAX_BATCH`] a task. Each read is reported the moment it
 //! ends (a channel to this runner), not at the end of its run, and its thread then yields the
 //! core, so that the update tick, waiting for a core on a small machine, is not kept waiting for
