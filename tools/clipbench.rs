@@ -17,10 +17,15 @@
 //! and a pool budget that forces eviction, and prints tiles read, hit rate, peak resident bytes,
 //! ticks with a disabled level and mean min LOD for each.
 //!
+//! `clipbench growing` streams 4000 x 3000 patches into a growing texture and reports tile
+//! rebuilds per second for 256² and 512² tiles beside the decode rate of the same patches.
+//!
 //! Exit status: 0 ok, 1 bad input, 2 the tool could not run.
 
 #[path = "clipbench/engine.rs"]
 mod engine;
+#[path = "clipbench/growing.rs"]
+mod growing;
 #[path = "clipbench/perf.rs"]
 mod perf;
 #[path = "clipbench/policies.rs"]
@@ -44,6 +49,7 @@ use std::process::ExitCode;
 Examples:
   clipbench perf --quick --json
   clipbench policies --quick --json
+  clipbench growing --quick --json
   clipbench remote --quick --json
   clipbench engine --quick
   clipbench accuracy --quick --out study
@@ -102,6 +108,16 @@ Examples:
 
 Deterministic: a simulated disk of a few tiles a tick, reads in lock step with the ticks.")]
     Policies(policies::Args),
+    /// Growing textures: tile rebuilds per second while 4000x3000 patches stream in, for 256²
+    /// and 512² tiles, beside the decode rate of the same patches.
+    #[command(after_help = "\
+Examples:
+  clipbench growing --quick --json
+  clipbench growing                      # the figures in docs/BENCHMARKS.md
+
+Prints tiles_per_s_256, tiles_per_s_512 and ingest_mb_per_s (texel MB/s through decode and
+rebuild), each run's tiles and seconds, and the flexible-clipmap paper's figures beside them.")]
+    Growing(growing::Args),
     /// Tiles per second from local files, loopback HTTP (nginx) and loopback S3 (moto) in one
     /// run, and the requests in flight that hide an added latency per request.
     #[cfg(feature = "remote")]
@@ -154,6 +170,7 @@ fn main() -> ExitCode {
         ),
         Command::Perf(args) => perf::main(args),
         Command::Policies(args) => policies::main(args),
+        Command::Growing(args) => growing::main(args),
         #[cfg(feature = "remote")]
         Command::Remote(args) => remote::main(args),
         Command::Engine { quick, runs, json, smoke, centre_alignment } => {

@@ -143,10 +143,10 @@ pub fn decode_image(
     }
     let comps = grid.bytes_per_texel / grid.component_bytes;
     let texels: Vec<u8> = match (comps, want16) {
-        (1, false) => img.to_luma8().into_raw(),
-        (2, false) => img.to_luma_alpha8().into_raw(),
-        (3, false) => img.to_rgb8().into_raw(),
-        (4, false) => img.to_rgba8().into_raw(),
+        (1, false) => img.into_luma8().into_raw(),
+        (2, false) => img.into_luma_alpha8().into_raw(),
+        (3, false) => img.into_rgb8().into_raw(),
+        (4, false) => img.into_rgba8().into_raw(),
         (1, true) => img.to_luma16().into_raw().iter().flat_map(|v| v.to_le_bytes()).collect(),
         (2, true) => img.to_luma_alpha16().into_raw().iter().flat_map(|v| v.to_le_bytes()).collect(),
         (3, true) => img.to_rgb16().into_raw().iter().flat_map(|v| v.to_le_bytes()).collect(),

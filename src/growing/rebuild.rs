@@ -3,6 +3,7 @@
 
 use super::index::PatchIndex;
 use super::{Grid, Patch};
+use rayon::prelude::*;
 use std::collections::{BTreeSet, HashMap};
 use std::sync::Arc;
 
@@ -17,46 +18,128 @@ pub struct Tile {
     pub texels: Vec<u8>,
     /// One flag per texel.
     pub has_data: Vec<bool>,
+    /// How many flags are set (counted once, when the tile is built).
+    filled: usize,
 }
 
 impl Tile {
     fn empty(grid: &Grid) -> Tile {
         let n = (grid.tile * grid.tile) as usize;
-        Tile { texels: vec![0; n * grid.bytes_per_texel], has_data: vec![false; n] }
+        Tile { texels: vec![0; n * grid.bytes_per_texel], has_data: vec![false; n], filled: 0 }
+    }
+
+    /// The tile from its texels and flags (`has_data.len()` texels).
+    pub fn new(texels: Vec<u8>, has_data: Vec<bool>) -> Tile {
+        Tile { texels, has_data, filled: 0 }.counted()
+    }
+
+    /// Counts the flags, while they are still in the caches.
+    fn counted(mut self) -> Tile {
+        self.filled = self.has_data.iter().filter(|&&d| d).count();
+        self
     }
 
     /// Whether any texel has data.
     pub fn any_data(&self) -> bool {
-        self.has_data.iter().any(|&d| d)
+        self.filled > 0
+    }
+
+    /// Whether every texel has data.
+    pub fn full(&self) -> bool {
+        self.filled == self.has_data.len()
     }
 }
 
 /// Level-0 tile (s, t) from the patches of `index` that meet it: each texel from the winning
 /// patch ([`Patch::beats`]) among those whose box holds the texel's centre, sampled there.
+///
+/// Painted rather than searched: the candidates are laid down worst first, each over the texels
+/// whose centres its box holds (a rectangle, found per axis from the same centre arithmetic as
+/// [`Grid::texel_centre`] and [`WorldBox::contains`]), with its pixel column per texel column
+/// worked out once; the winner is laid down last. The result is the same texel for texel.
 pub fn level0_tile(grid: &Grid, index: &PatchIndex, s: i64, t: i64) -> Tile {
     let mut out = Tile::empty(grid);
-    let candidates = index.for_tile(grid, 0, s, t);
+    let mut candidates: Vec<(usize, &Arc<Patch>)> = index.for_tile(grid, 0, s, t).into_iter().enumerate().collect();
     if candidates.is_empty() {
         return out;
     }
-    let (n, bpt) = (grid.tile as i64, grid.bytes_per_texel);
-    for y in 0..n {
-        for x in 0..n {
-            let p = grid.texel_centre(s * n + x, t * n + y);
-            let mut best: Option<&Arc<Patch>> = None;
-            for c in &candidates {
-                if c.bbox.contains(p) && best.is_none_or(|b| c.beats(b)) {
-                    best = Some(c);
+    // Worst first; among equals (same rating, time and id) the earliest last, as a search keeping
+    // the first of equals would pick it.
+    candidates.sort_by(|(ia, a), (ib, b)| {
+        a.rating.total_cmp(&b.rating).then(a.time.cmp(&b.time)).then(a.id.cmp(&b.id)).then(ib.cmp(ia))
+    });
+    let (n, bpt) = (grid.tile as usize, grid.bytes_per_texel);
+    let base = [s * n as i64, t * n as i64];
+    let mut cols: Vec<usize> = Vec::with_capacity(n);
+    for (_, c) in candidates {
+        let (Some([x0, x1]), Some([y0, y1])) = (span(grid, c, 0, base[0], n), span(grid, c, 1, base[1], n)) else {
+            continue;
+        };
+        let w = c.width as usize;
+        cols.clear();
+        cols.extend((x0..x1).map(|x| pixel(c, 0, grid.texel_centre(base[0] + x as i64, 0)[0]) * bpt));
+        for y in y0..y1 {
+            let v = pixel(c, 1, grid.texel_centre(0, base[1] + y as i64)[1]);
+            let src = &c.texels[v * w * bpt..(v + 1) * w * bpt];
+            let row = &mut out.texels[(y * n + x0) * bpt..(y * n + x1) * bpt];
+            match bpt {
+                1 => gather::<1>(row, src, &cols),
+                2 => gather::<2>(row, src, &cols),
+                3 => gather::<3>(row, src, &cols),
+                4 => gather::<4>(row, src, &cols),
+                6 => gather::<6>(row, src, &cols),
+                8 => gather::<8>(row, src, &cols),
+                _ => {
+                    for (dst, &u) in row.chunks_exact_mut(bpt).zip(&cols) {
+                        dst.copy_from_slice(&src[u..u + bpt]);
+                    }
                 }
             }
-            if let Some(b) = best {
-                let i = (y * n + x) as usize;
-                out.texels[i * bpt..(i + 1) * bpt].copy_from_slice(b.sample(p, bpt));
-                out.has_data[i] = true;
-            }
+            out.has_data[y * n + x0..y * n + x1].fill(true);
         }
     }
-    out
+    out.counted()
+}
+
+/// Texels of `B` bytes from `src` at byte offsets `cols` into `row`, in order (a copy of a known
+/// size per texel, not a call).
+fn gather<const B: usize>(row: &mut [u8], src: &[u8], cols: &[usize]) {
+    for (dst, &u) in row.chunks_exact_mut(B).zip(cols) {
+        let texel: [u8; B] = src[u..u + B].try_into().expect("B bytes");
+        dst.copy_from_slice(&texel);
+    }
+}
+
+/// The texels `[a, b)` of a tile (its first level-0 texel along `axis` is `base`, `n` texels a
+/// side) whose centres lie in the patch's box along that axis; `None` when none do. Starts from
+/// the closed form and corrects it by the centre test itself, so it agrees with
+/// [`WorldBox::contains`] at every edge, whatever the rounding.
+fn span(grid: &Grid, p: &Patch, axis: usize, base: i64, n: usize) -> Option<[usize; 2]> {
+    let centre = |i: i64| if axis == 0 { grid.texel_centre(i, 0)[0] } else { grid.texel_centre(0, i)[1] };
+    // The first texel whose centre is at or past `v`: the centres grow with the index, so the
+    // texels inside [min, max) are those from threshold(min) up to threshold(max).
+    let threshold = |v: f64| {
+        let mut i = ((v - grid.origin[axis]) * grid.texels_per_unit - 0.5).ceil() as i64;
+        while centre(i - 1) >= v {
+            i -= 1;
+        }
+        while centre(i) < v {
+            i += 1;
+        }
+        i
+    };
+    let end = base + n as i64;
+    let a = threshold(p.bbox.min[axis]).clamp(base, end);
+    let b = threshold(p.bbox.max[axis]).clamp(base, end);
+    (a < b).then(|| [(a - base) as usize, (b - base) as usize])
+}
+
+/// The patch's pixel (column for axis 0, row for axis 1) at world coordinate `c` inside its box:
+/// as [`Patch::sample`] picks it.
+fn pixel(p: &Patch, axis: usize, c: f64) -> usize {
+    let size = if axis == 0 { p.width } else { p.height } as i64;
+    let (min, max) = (p.bbox.min[axis], p.bbox.max[axis]);
+    (((c - min) / (max - min) * size as f64) as i64).clamp(0, size - 1) as usize
 }
 
 /// Tile (s, t) of level k > 0 from its four children of level k-1 (`children[dy][dx]` is child
@@ -64,50 +147,135 @@ pub fn level0_tile(grid: &Grid, index: &PatchIndex, s: i64, t: i64) -> Tile {
 /// per component, of the children's texels under it that have data.
 pub fn parent_tile(grid: &Grid, children: [[Option<&Tile>; 2]; 2]) -> Tile {
     let mut out = Tile::empty(grid);
-    let n = grid.tile as usize;
+    let (n, h) = (grid.tile as usize, grid.tile as usize / 2);
     let (bpt, cb) = (grid.bytes_per_texel, grid.component_bytes);
     let comps = bpt / cb;
-    let mut sum = vec![0u64; comps];
-    for y in 0..n {
-        for x in 0..n {
-            // The 2x2 texels of level k-1 under (x, y), all in one child.
-            let (cx, cy) = ((2 * x) / n, (2 * y) / n);
-            let Some(child) = children[cy][cx] else { continue };
-            let (bx, by) = ((2 * x) % n, (2 * y) % n);
-            sum.iter_mut().for_each(|v| *v = 0);
-            let mut count = 0u64;
-            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                let i = (by + dy) * n + bx + dx;
-                if !child.has_data[i] {
-                    continue;
+    // Tiles of one texel: the parent's only texel lies over the four children's only texels.
+    if n == 1 {
+        let under: Vec<(&Tile, usize)> = children.iter().flatten().flatten().map(|c| (*c, 0)).collect();
+        average(&under, &mut out, 0, comps, cb);
+        return out.counted();
+    }
+    let mut under: Vec<(&Tile, usize)> = Vec::with_capacity(4);
+    for (cy, row) in children.iter().enumerate() {
+        for (cx, child) in row.iter().enumerate() {
+            let Some(child) = child else { continue };
+            if cb == 1 && child.full() {
+                // The common case, a child with data everywhere: whole rows of 8-bit texels.
+                let rows = QuadrantRows { n, h, cx, cy };
+                match bpt {
+                    1 => rows.average8::<1>(child, &mut out),
+                    2 => rows.average8::<2>(child, &mut out),
+                    3 => rows.average8::<3>(child, &mut out),
+                    4 => rows.average8::<4>(child, &mut out),
+                    b => rows.average8_any(b, child, &mut out),
                 }
-                count += 1;
-                for (c, v) in sum.iter_mut().enumerate() {
-                    let at = i * bpt + c * cb;
-                    *v += if cb == 1 {
-                        child.texels[at] as u64
-                    } else {
-                        u16::from_le_bytes([child.texels[at], child.texels[at + 1]]) as u64
-                    };
-                }
-            }
-            if count == 0 {
                 continue;
             }
-            let o = y * n + x;
-            out.has_data[o] = true;
-            for (c, v) in sum.iter().enumerate() {
-                let avg = (v + count / 2) / count;
-                let at = o * bpt + c * cb;
-                if cb == 1 {
-                    out.texels[at] = avg as u8;
-                } else {
-                    out.texels[at..at + 2].copy_from_slice(&(avg as u16).to_le_bytes());
+            for y in 0..h {
+                let o_row = (cy * h + y) * n + cx * h;
+                let i_row = 2 * y * n;
+                for x in 0..h {
+                    let (i, o) = (i_row + 2 * x, o_row + x);
+                    let quad = [i, i + 1, i + n, i + n + 1];
+                    let d = &child.has_data;
+                    if cb == 1 && d[quad[0]] && d[quad[1]] && d[quad[2]] && d[quad[3]] {
+                        // The common case: four 8-bit texels with data, averaged in place.
+                        let t = &child.texels;
+                        let dst = &mut out.texels[o * bpt..(o + 1) * bpt];
+                        for (c, v) in dst.iter_mut().enumerate() {
+                            let sum = t[quad[0] * bpt + c] as u32
+                                + t[quad[1] * bpt + c] as u32
+                                + t[quad[2] * bpt + c] as u32
+                                + t[quad[3] * bpt + c] as u32;
+                            *v = ((sum + 2) / 4) as u8;
+                        }
+                        out.has_data[o] = true;
+                        continue;
+                    }
+                    under.clear();
+                    under.extend(quad.iter().filter(|&&q| d[q]).map(|&q| (*child, q)));
+                    average(&under, &mut out, o, comps, cb);
                 }
             }
         }
     }
-    out
+    out.counted()
+}
+
+/// The quadrant of a parent tile (`n` texels a side, `h` = n / 2) that child (`cx`, `cy`) covers.
+struct QuadrantRows {
+    n: usize,
+    h: usize,
+    cx: usize,
+    cy: usize,
+}
+
+impl QuadrantRows {
+    /// The quadrant from a child whose texels all have data, 8-bit components, `B` bytes a
+    /// texel: each texel the rounded average of the 2 x 2 below it.
+    fn average8<const B: usize>(&self, child: &Tile, out: &mut Tile) {
+        let (n, h) = (self.n, self.h);
+        for y in 0..h {
+            let r0 = &child.texels[2 * y * n * B..(2 * y + 1) * n * B];
+            let r1 = &child.texels[(2 * y + 1) * n * B..(2 * y + 2) * n * B];
+            let o = ((self.cy * h + y) * n + self.cx * h) * B;
+            let dst = &mut out.texels[o..o + h * B];
+            for ((d, a), b) in dst.chunks_exact_mut(B).zip(r0.chunks_exact(2 * B)).zip(r1.chunks_exact(2 * B)) {
+                for c in 0..B {
+                    let sum = a[c] as u16 + a[B + c] as u16 + b[c] as u16 + b[B + c] as u16;
+                    d[c] = ((sum + 2) / 4) as u8;
+                }
+            }
+            out.has_data[o / B..o / B + h].fill(true);
+        }
+    }
+
+    /// [`Self::average8`] for any number of bytes a texel.
+    fn average8_any(&self, bpt: usize, child: &Tile, out: &mut Tile) {
+        let (n, h) = (self.n, self.h);
+        for y in 0..h {
+            for x in 0..h {
+                let i = 2 * y * n + 2 * x;
+                let o = (self.cy * h + y) * n + self.cx * h + x;
+                for c in 0..bpt {
+                    let t = |q: usize| child.texels[q * bpt + c] as u16;
+                    out.texels[o * bpt + c] = ((t(i) + t(i + 1) + t(i + n) + t(i + n + 1) + 2) / 4) as u8;
+                }
+                out.has_data[o] = true;
+            }
+        }
+    }
+}
+
+/// Texel `o` of `out` as the rounded average, per component, of the texels `under` (tile and
+/// texel index; all with data); left without data when `under` is empty.
+fn average(under: &[(&Tile, usize)], out: &mut Tile, o: usize, comps: usize, cb: usize) {
+    if under.is_empty() {
+        return;
+    }
+    let (bpt, count) = (comps * cb, under.len() as u64);
+    for c in 0..comps {
+        let sum: u64 = under
+            .iter()
+            .map(|&(t, i)| {
+                let at = i * bpt + c * cb;
+                if cb == 1 {
+                    t.texels[at] as u64
+                } else {
+                    u16::from_le_bytes([t.texels[at], t.texels[at + 1]]) as u64
+                }
+            })
+            .sum();
+        let avg = (sum + count / 2) / count;
+        let at = o * bpt + c * cb;
+        if cb == 1 {
+            out.texels[at] = avg as u8;
+        } else {
+            out.texels[at..at + 2].copy_from_slice(&(avg as u16).to_le_bytes());
+        }
+    }
+    out.has_data[o] = true;
 }
 
 /// The tiles of a growing texture and those waiting to be rebuilt.
@@ -172,32 +340,49 @@ impl Rebuilder {
 
     /// Rebuilds at most `max` waiting tiles, lowest level first (a parent after its children);
     /// returns the tiles rebuilt, in order. A tile with no data is dropped rather than kept.
+    /// The waiting tiles of one level are built side by side (rayon): none reads another.
     pub fn step(&mut self, index: &PatchIndex, max: usize) -> Vec<TileKey> {
         let mut done = Vec::new();
         while done.len() < max {
-            let Some((k, t, s)) = self.dirty.pop_first() else { break };
-            let tile = if k == 0 {
-                level0_tile(&self.grid, index, s, t)
-            } else {
-                let child = |dx: i64, dy: i64| self.tiles.get(&(k - 1, 2 * s + dx, 2 * t + dy));
-                parent_tile(&self.grid, [[child(0, 0), child(1, 0)], [child(0, 1), child(1, 1)]])
-            };
-            let changed = match (tile.any_data(), self.tiles.get(&(k, s, t))) {
-                (true, Some(old)) => *old != tile,
-                (true, None) => true,
-                (false, old) => old.is_some(),
-            };
-            if tile.any_data() {
-                self.tiles.insert((k, s, t), tile);
-            } else {
-                self.tiles.remove(&(k, s, t));
+            let Some(&(k, _, _)) = self.dirty.first() else { break };
+            let mut batch = Vec::new();
+            while batch.len() < max - done.len() {
+                match self.dirty.first() {
+                    Some(&(level, t, s)) if level == k => {
+                        self.dirty.pop_first();
+                        batch.push((k, s, t));
+                    }
+                    _ => break,
+                }
             }
-            if changed {
-                self.mark_parent(k, s, t);
+            let built: Vec<Tile> = batch.par_iter().map(|&(k, s, t)| self.build(index, k, s, t)).collect();
+            for ((k, s, t), tile) in batch.into_iter().zip(built) {
+                let changed = match (tile.any_data(), self.tiles.get(&(k, s, t))) {
+                    (true, Some(old)) => *old != tile,
+                    (true, None) => true,
+                    (false, old) => old.is_some(),
+                };
+                if tile.any_data() {
+                    self.tiles.insert((k, s, t), tile);
+                } else {
+                    self.tiles.remove(&(k, s, t));
+                }
+                if changed {
+                    self.mark_parent(k, s, t);
+                }
+                done.push((k, s, t));
             }
-            done.push((k, s, t));
         }
         done
+    }
+
+    /// Tile (s, t) of level k from what is built below it (level 0: from the patches).
+    fn build(&self, index: &PatchIndex, k: u32, s: i64, t: i64) -> Tile {
+        if k == 0 {
+            return level0_tile(&self.grid, index, s, t);
+        }
+        let child = |dx: i64, dy: i64| self.tiles.get(&(k - 1, 2 * s + dx, 2 * t + dy));
+        parent_tile(&self.grid, [[child(0, 0), child(1, 0)], [child(0, 1), child(1, 1)]])
     }
 
     /// Tile (s, t) of level k as built (`None`: no data there, or not built yet).
