@@ -22,6 +22,7 @@
 pub mod index;
 pub mod input;
 pub mod rebuild;
+pub mod store;
 
 #[cfg(test)]
 mod tests;

@@ -281,9 +281,11 @@ fn average(under: &[(&Tile, usize)], out: &mut Tile, o: usize, comps: usize, cb:
 /// The tiles of a growing texture and those waiting to be rebuilt.
 pub struct Rebuilder {
     grid: Grid,
-    tiles: HashMap<TileKey, Tile>,
+    tiles: HashMap<TileKey, Arc<Tile>>,
     /// Waiting, in rebuild order: by level, then T, then S.
     dirty: BTreeSet<(u32, i64, i64)>,
+    /// Tiles whose content changed (or that were dropped) since [`Rebuilder::take_changed`].
+    changed: BTreeSet<TileKey>,
     /// Levels the texture has.
     levels: u32,
 }
@@ -291,7 +293,44 @@ pub struct Rebuilder {
 impl Rebuilder {
     /// Nothing built yet.
     pub fn new(grid: Grid) -> Self {
-        Rebuilder { grid, tiles: HashMap::new(), dirty: BTreeSet::new(), levels: 0 }
+        Rebuilder::restore(grid, HashMap::new(), 0)
+    }
+
+    /// Tiles built earlier (read back from a store) and the levels the texture had then.
+    pub fn restore(grid: Grid, tiles: HashMap<TileKey, Arc<Tile>>, levels: u32) -> Self {
+        Rebuilder { grid, tiles, dirty: BTreeSet::new(), changed: BTreeSet::new(), levels }
+    }
+
+    /// Marks every tile of every level that `patch` may change, whatever is built now: what a
+    /// restart does for the patches whose rebuild it cannot know finished (a tile rebuilt before
+    /// a crash would otherwise look unchanged, and its parent would never learn of the patch).
+    pub fn mark_footprint(&mut self, index: &PatchIndex, patch: &Patch) {
+        self.patch_added(index, patch);
+        for k in 1..self.levels {
+            if let Some([s0, t0, s1, t1]) = PatchIndex::tiles_of(&self.grid, patch, k) {
+                for t in t0..t1 {
+                    for s in s0..s1 {
+                        self.dirty.insert((k, t, s));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Marks tile (s, t) of level k to be rebuilt (a damaged file, say).
+    pub fn mark_tile(&mut self, k: u32, s: i64, t: i64) {
+        self.dirty.insert((k, t, s));
+    }
+
+    /// The tiles whose content changed or that were dropped since the last call, in key order
+    /// (what a store must write or delete).
+    pub fn take_changed(&mut self) -> Vec<TileKey> {
+        std::mem::take(&mut self.changed).into_iter().collect()
+    }
+
+    /// Puts back tiles [`Rebuilder::take_changed`] handed out that could not be saved.
+    pub fn unsaved(&mut self, keys: impl IntoIterator<Item = TileKey>) {
+        self.changed.extend(keys);
     }
 
     /// The grid.
@@ -358,16 +397,17 @@ impl Rebuilder {
             let built: Vec<Tile> = batch.par_iter().map(|&(k, s, t)| self.build(index, k, s, t)).collect();
             for ((k, s, t), tile) in batch.into_iter().zip(built) {
                 let changed = match (tile.any_data(), self.tiles.get(&(k, s, t))) {
-                    (true, Some(old)) => *old != tile,
+                    (true, Some(old)) => **old != tile,
                     (true, None) => true,
                     (false, old) => old.is_some(),
                 };
                 if tile.any_data() {
-                    self.tiles.insert((k, s, t), tile);
+                    self.tiles.insert((k, s, t), Arc::new(tile));
                 } else {
                     self.tiles.remove(&(k, s, t));
                 }
                 if changed {
+                    self.changed.insert((k, s, t));
                     self.mark_parent(k, s, t);
                 }
                 done.push((k, s, t));
@@ -381,13 +421,23 @@ impl Rebuilder {
         if k == 0 {
             return level0_tile(&self.grid, index, s, t);
         }
-        let child = |dx: i64, dy: i64| self.tiles.get(&(k - 1, 2 * s + dx, 2 * t + dy));
+        let child = |dx: i64, dy: i64| self.tiles.get(&(k - 1, 2 * s + dx, 2 * t + dy)).map(|t| &**t);
         parent_tile(&self.grid, [[child(0, 0), child(1, 0)], [child(0, 1), child(1, 1)]])
     }
 
     /// Tile (s, t) of level k as built (`None`: no data there, or not built yet).
-    pub fn tile(&self, k: u32, s: i64, t: i64) -> Option<&Tile> {
+    pub fn tile(&self, k: u32, s: i64, t: i64) -> Option<&Arc<Tile>> {
         self.tiles.get(&(k, s, t))
+    }
+
+    /// Number of tiles built (with data).
+    pub fn len(&self) -> usize {
+        self.tiles.len()
+    }
+
+    /// Whether no tile is built.
+    pub fn is_empty(&self) -> bool {
+        self.tiles.is_empty()
     }
 
     /// Every built tile's key.

@@ -1,0 +1,577 @@
+//! A growing texture on disk: its grid, every accepted patch, the rebuilt tiles, and how far the
+//! rebuild is known to have gone, so that a restart keeps everything and a crash (kill -9 or a
+//! power cut) in the middle of a rebuild loses nothing that was acknowledged.
+//!
+//! ```text
+//! DIR/grid.json                  {"version": 1, "origin": [x, y], "texels_per_unit": r,
+//!                                 "tile": 256, "format": "rgb8"}
+//! DIR/patches/0000000007.texels  the patch's texels in the grid's format, row-major
+//! DIR/patches/0000000007.json    {"id": 7, "bbox": [...], "time": t, "rating": r,
+//!                                 "width": w, "height": h}: the patch's commit record
+//! DIR/tiles/K/T_S.tile           a rebuilt tile (header, texels, one bit a texel for data)
+//! DIR/state.json                 {"applied": 7, "levels": 5}: every patch up to 7 is in the
+//!                                 tiles on disk, and the texture had 5 levels then
+//! ```
+//!
+//! **Writes.** Every file is written to a temporary name in its directory and renamed over the
+//! target, so a reader (or a restart) sees the old file or the new one, never a part. A patch is
+//! acknowledged ([`Growing::add`] returns) only when its texels and then its record are synced
+//! and the directory entry is synced too; the record is written last, so a crash between the two
+//! leaves a texels file without a record, which the next open deletes (the patch was never
+//! acknowledged). Tiles are not synced one by one: `state.json` moves forward only when nothing
+//! waits to be rebuilt or saved, and only after a sync of the whole file system (`syncfs`), so
+//! every tile it vouches for is durable.
+//!
+//! **Restart.** [`Growing::open`] reads the grid, every patch (into the R*-tree), every tile, and
+//! the state; then marks the whole footprint of every patch newer than `applied` at every level
+//! (a tile rebuilt before the crash would otherwise look unchanged, and its parent never learn of
+//! the patch). Tiles written after the last checkpoint are therefore rebuilt, and a tile file
+//! that is damaged (a power cut before it reached the disk) is rebuilt too, whether or not a
+//! replayed patch covers it.
+//!
+//! The working set is every tile, in memory (read back at open): a store of N tiles needs N tile
+//! sizes of memory. Keeping only what rebuilds and readers need is the next step (see
+//! docs/GROWING.md, "Limits").
+
+use super::index::PatchIndex;
+use super::rebuild::{Rebuilder, Tile, TileKey};
+use super::{Grid, GrowError, Patch, PatchMeta, WorldBox};
+use crate::texel::TexelFormat;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use thiserror::Error;
+
+/// Magic bytes at the start of a tile file.
+pub const TILE_MAGIC: [u8; 8] = *b"CLIPGT01";
+/// Bytes of a tile file's header: magic, level (u32), S (i64), T (i64), tile (u32), bytes per
+/// texel (u32), texels with data (u64); all little-endian.
+pub const TILE_HEADER: usize = 8 + 4 + 8 + 8 + 4 + 4 + 8;
+
+/// The texel formats a growing texture takes: 1 to 4 components of 8 or 16 bits.
+pub const FORMATS: [(&str, TexelFormat); 7] = [
+    ("l8", TexelFormat::L8),
+    ("rgb8", TexelFormat::RGB8),
+    ("rgba8", TexelFormat::RGBA8),
+    ("l16", TexelFormat::L16),
+    ("la16", TexelFormat::LA16),
+    ("rgb16", TexelFormat::RGB16),
+    ("rgba16", TexelFormat::RGBA16),
+];
+
+/// The format called `name`, with what a grid needs of it (bytes a texel, bytes a component).
+pub fn format_named(name: &str) -> Option<(TexelFormat, usize, usize)> {
+    FORMATS.iter().find(|(n, _)| *n == name).map(|&(_, f)| {
+        let bpt = f.bytes_per_texel() as usize;
+        (f, bpt, f.component_bits() as usize / 8)
+    })
+}
+
+/// What can go wrong with a store.
+#[derive(Debug, Error)]
+pub enum StoreError {
+    /// A file or directory could not be read or written.
+    #[error("{path}: {what}: {source}")]
+    Io {
+        path: PathBuf,
+        what: &'static str,
+        #[source]
+        source: io::Error,
+    },
+    /// A file holds something else than the store wrote.
+    #[error(
+        "{path}: {problem}; the growing texture's directory is damaged (restore it from a copy, or start a new one)"
+    )]
+    Damaged { path: PathBuf, problem: String },
+    /// The directory is not a growing texture, or already is one.
+    #[error("{path}: {problem}")]
+    NotAStore { path: PathBuf, problem: String },
+    /// The grid is refused.
+    #[error("{0}")]
+    Grid(GrowError),
+    /// The patch is refused (nothing was kept).
+    #[error("{0}")]
+    Patch(GrowError),
+}
+
+fn io_err<'a>(path: &'a Path, what: &'static str) -> impl FnOnce(io::Error) -> StoreError + 'a {
+    move |source| StoreError::Io { path: path.to_path_buf(), what, source }
+}
+
+/// `grid.json`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct GridFile {
+    pub version: u32,
+    pub origin: [f64; 2],
+    pub texels_per_unit: f64,
+    pub tile: u64,
+    pub format: String,
+}
+
+/// A patch's commit record.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+struct PatchRecord {
+    id: u64,
+    bbox: [f64; 4],
+    time: u64,
+    rating: f64,
+    width: u32,
+    height: u32,
+}
+
+/// `state.json`.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Default)]
+#[serde(deny_unknown_fields)]
+struct State {
+    applied: u64,
+    levels: u32,
+}
+
+/// A growing texture kept in a directory: the index, the rebuild and the files behind them.
+pub struct Growing {
+    dir: PathBuf,
+    grid: Grid,
+    format: TexelFormat,
+    index: PatchIndex,
+    rebuild: Rebuilder,
+    /// The next patch's id (ids start at 1).
+    next_id: u64,
+    /// Every patch up to this id is in the tiles on disk.
+    applied: u64,
+    /// Patches replayed at open.
+    replayed: usize,
+}
+
+/// A patch as handed in, before the store gives it an id.
+#[derive(Clone, Debug)]
+pub struct NewPatch {
+    pub bbox: WorldBox,
+    pub time: u64,
+    pub rating: f64,
+    pub width: u32,
+    pub height: u32,
+    pub texels: Vec<u8>,
+}
+
+impl Growing {
+    /// A new growing texture in `dir` (created if needed; it must be empty, or not exist).
+    pub fn create(
+        dir: &Path,
+        origin: [f64; 2],
+        texels_per_unit: f64,
+        tile: u64,
+        format: &str,
+    ) -> Result<Growing, StoreError> {
+        let Some((texel, bpt, cb)) = format_named(format) else {
+            let names: Vec<&str> = FORMATS.iter().map(|f| f.0).collect();
+            return Err(StoreError::NotAStore {
+                path: dir.to_path_buf(),
+                problem: format!(
+                    "the texel format {format:?} is not one a growing texture takes; expected one of {}",
+                    names.join(", ")
+                ),
+            });
+        };
+        let grid = Grid::new(origin, texels_per_unit, tile, bpt, cb).map_err(StoreError::Grid)?;
+        std::fs::create_dir_all(dir).map_err(io_err(dir, "could not create the directory"))?;
+        let mut entries = std::fs::read_dir(dir).map_err(io_err(dir, "could not list the directory"))?;
+        if entries.next().is_some() {
+            return Err(StoreError::NotAStore {
+                path: dir.to_path_buf(),
+                problem: "the directory is not empty; a new growing texture needs an empty (or new) directory (to add to an existing one, open it instead)".into(),
+            });
+        }
+        for sub in ["patches", "tiles"] {
+            let p = dir.join(sub);
+            std::fs::create_dir(&p).map_err(io_err(&p, "could not create the directory"))?;
+        }
+        let file = GridFile { version: 1, origin, texels_per_unit, tile, format: format.to_string() };
+        write_json(&dir.join("state.json"), &State::default())?;
+        // grid.json last: a directory without it is not a store, and is refused by `open`.
+        write_json(&dir.join("grid.json"), &file)?;
+        sync_dir(dir)?;
+        Ok(Growing {
+            dir: dir.to_path_buf(),
+            grid,
+            format: texel,
+            index: PatchIndex::new(),
+            rebuild: Rebuilder::new(grid),
+            next_id: 1,
+            applied: 0,
+            replayed: 0,
+        })
+    }
+
+    /// The growing texture in `dir`, as it was left (see the module documentation).
+    pub fn open(dir: &Path) -> Result<Growing, StoreError> {
+        let grid_path = dir.join("grid.json");
+        let text = match std::fs::read(&grid_path) {
+            Ok(t) => t,
+            Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(StoreError::NotAStore {
+                path: dir.to_path_buf(),
+                problem:
+                    "no grid.json here: this is not a growing texture (create one with `cliptex grow DIR --create ...`)"
+                        .into(),
+            }),
+            Err(e) => return Err(io_err(&grid_path, "could not read")(e)),
+        };
+        let file: GridFile = serde_json::from_slice(&text).map_err(|e| StoreError::Damaged {
+            path: grid_path.clone(),
+            problem: format!("not a grid description ({e})"),
+        })?;
+        if file.version != 1 {
+            return Err(StoreError::Damaged {
+                path: grid_path,
+                problem: format!("version {} where this build reads version 1", file.version),
+            });
+        }
+        let Some((format, bpt, cb)) = format_named(&file.format) else {
+            return Err(StoreError::Damaged {
+                path: grid_path,
+                problem: format!("unknown texel format {:?}", file.format),
+            });
+        };
+        let grid = Grid::new(file.origin, file.texels_per_unit, file.tile, bpt, cb).map_err(StoreError::Grid)?;
+        let state_path = dir.join("state.json");
+        let state: State =
+            serde_json::from_slice(&std::fs::read(&state_path).map_err(io_err(&state_path, "could not read"))?)
+                .map_err(|e| StoreError::Damaged {
+                    path: state_path.clone(),
+                    problem: format!("not a rebuild state ({e})"),
+                })?;
+
+        // Patches, in id order; a texels file without its record was never acknowledged.
+        let pdir = dir.join("patches");
+        let mut records = Vec::new();
+        let mut texels_only = Vec::new();
+        for entry in std::fs::read_dir(&pdir).map_err(io_err(&pdir, "could not list"))? {
+            let path = entry.map_err(io_err(&pdir, "could not list"))?.path();
+            let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+            if let Some(id) = name.strip_suffix(".json").and_then(|n| n.parse::<u64>().ok()) {
+                records.push((id, path));
+            } else if let Some(id) = name.strip_suffix(".texels").and_then(|n| n.parse::<u64>().ok()) {
+                texels_only.push((id, path));
+            } else if name.contains(".tmp") {
+                let _ = std::fs::remove_file(&path);
+            }
+        }
+        records.sort();
+        let known: std::collections::HashSet<u64> = records.iter().map(|r| r.0).collect();
+        for (id, path) in texels_only {
+            if !known.contains(&id) {
+                tracing::warn!(path = %path.display(), "removing the texels of a patch that was never acknowledged");
+                std::fs::remove_file(&path).map_err(io_err(&path, "could not remove"))?;
+            }
+        }
+        let mut index = PatchIndex::new();
+        let mut replay = Vec::new();
+        for (id, path) in &records {
+            let rec: PatchRecord =
+                serde_json::from_slice(&std::fs::read(path).map_err(io_err(path, "could not read"))?).map_err(|e| {
+                    StoreError::Damaged { path: path.clone(), problem: format!("not a patch record ({e})") }
+                })?;
+            if rec.id != *id {
+                return Err(StoreError::Damaged {
+                    path: path.clone(),
+                    problem: format!("it says id {} in a file named for {id}", rec.id),
+                });
+            }
+            let tpath = pdir.join(format!("{id:010}.texels"));
+            let texels = std::fs::read(&tpath).map_err(io_err(&tpath, "could not read the patch's texels"))?;
+            let [x0, y0, x1, y1] = rec.bbox;
+            let meta = PatchMeta {
+                id: *id,
+                bbox: WorldBox { min: [x0, y0], max: [x1, y1] },
+                time: rec.time,
+                rating: rec.rating,
+            };
+            let patch = Patch::new(&grid, meta, rec.width, rec.height, texels).map_err(|e| StoreError::Damaged {
+                path: path.clone(),
+                problem: format!("the patch is refused now: {e}"),
+            })?;
+            let patch = index.insert(patch);
+            if *id > state.applied {
+                replay.push(patch);
+            }
+        }
+
+        // Tiles; a damaged one is dropped and rebuilt.
+        let mut tiles = HashMap::new();
+        let tdir = dir.join("tiles");
+        let mut damaged = Vec::new();
+        for level in std::fs::read_dir(&tdir).map_err(io_err(&tdir, "could not list"))? {
+            let ldir = level.map_err(io_err(&tdir, "could not list"))?.path();
+            let Some(k) = ldir.file_name().and_then(|n| n.to_str()).and_then(|n| n.parse::<u32>().ok()) else {
+                continue;
+            };
+            for entry in std::fs::read_dir(&ldir).map_err(io_err(&ldir, "could not list"))? {
+                let path = entry.map_err(io_err(&ldir, "could not list"))?.path();
+                let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("").to_string();
+                if name.contains(".tmp") {
+                    let _ = std::fs::remove_file(&path);
+                    continue;
+                }
+                let Some((t, s)) = name.strip_suffix(".tile").and_then(|n| n.split_once('_')) else { continue };
+                let (Ok(t), Ok(s)) = (t.parse::<i64>(), s.parse::<i64>()) else { continue };
+                match read_tile(&path, &grid, (k, s, t)) {
+                    Ok(tile) => {
+                        tiles.insert((k, s, t), Arc::new(tile));
+                    }
+                    Err(problem) => {
+                        tracing::warn!(path = %path.display(), %problem, "a damaged tile file: rebuilding it");
+                        damaged.push((k, s, t));
+                    }
+                }
+            }
+        }
+        let mut rebuild = Rebuilder::restore(grid, tiles, state.levels);
+        for p in &replay {
+            rebuild.mark_footprint(&index, p);
+        }
+        for (k, s, t) in damaged {
+            rebuild.mark_tile(k, s, t);
+        }
+        let next_id = records.last().map_or(1, |r| r.0 + 1);
+        Ok(Growing {
+            dir: dir.to_path_buf(),
+            grid,
+            format,
+            index,
+            rebuild,
+            next_id,
+            applied: state.applied,
+            replayed: replay.len(),
+        })
+    }
+
+    /// Checks `p`, keeps it on disk, indexes it and marks what it changes; returns its id. When
+    /// this returns, the patch survives any crash. A refused patch leaves nothing behind.
+    pub fn add(&mut self, p: NewPatch) -> Result<u64, StoreError> {
+        let id = self.next_id;
+        let meta = PatchMeta { id, bbox: p.bbox, time: p.time, rating: p.rating };
+        let patch = Patch::new(&self.grid, meta, p.width, p.height, p.texels).map_err(StoreError::Patch)?;
+        let pdir = self.dir.join("patches");
+        let tpath = pdir.join(format!("{id:010}.texels"));
+        let rpath = pdir.join(format!("{id:010}.json"));
+        write_file(&tpath, &patch.texels, true)?;
+        let rec = PatchRecord {
+            id,
+            bbox: [patch.bbox.min[0], patch.bbox.min[1], patch.bbox.max[0], patch.bbox.max[1]],
+            time: patch.time,
+            rating: patch.rating,
+            width: patch.width,
+            height: patch.height,
+        };
+        if let Err(e) = write_json(&rpath, &rec).and_then(|_| sync_dir(&pdir)) {
+            let _ = std::fs::remove_file(&rpath);
+            let _ = std::fs::remove_file(&tpath);
+            return Err(e);
+        }
+        self.next_id += 1;
+        let patch = self.index.insert(patch);
+        self.rebuild.patch_added(&self.index, &patch);
+        Ok(id)
+    }
+
+    /// Rebuilds at most `max` waiting tiles and saves those that changed; when nothing waits any
+    /// more, records (after a file-system sync) that every patch so far is in the tiles. Returns
+    /// the tiles rebuilt. A tile that could not be saved stays waiting to be saved, and the
+    /// error is returned.
+    pub fn step(&mut self, max: usize) -> Result<Vec<TileKey>, StoreError> {
+        let done = self.rebuild.step(&self.index, max);
+        self.save_changed()?;
+        if self.rebuild.pending() == 0 && self.applied + 1 < self.next_id {
+            self.checkpoint()?;
+        }
+        Ok(done)
+    }
+
+    /// Rebuilds until nothing waits (at most `per_step` tiles a step).
+    pub fn finish(&mut self, per_step: usize) -> Result<usize, StoreError> {
+        let mut n = 0;
+        while self.rebuild.pending() > 0 || self.applied + 1 < self.next_id {
+            n += self.step(per_step.max(1))?.len();
+        }
+        Ok(n)
+    }
+
+    fn save_changed(&mut self) -> Result<(), StoreError> {
+        let keys = self.rebuild.take_changed();
+        for (i, &(k, s, t)) in keys.iter().enumerate() {
+            let path = self.tile_path(k, s, t);
+            let saved = match self.rebuild.tile(k, s, t) {
+                Some(tile) => {
+                    let ldir = path.parent().expect("a tile path has a directory");
+                    std::fs::create_dir_all(ldir)
+                        .map_err(io_err(ldir, "could not create the directory"))
+                        .and_then(|_| write_file(&path, &tile_bytes(&self.grid, (k, s, t), tile), false))
+                }
+                None => match std::fs::remove_file(&path) {
+                    Ok(()) => Ok(()),
+                    Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(()),
+                    Err(e) => Err(io_err(&path, "could not remove")(e)),
+                },
+            };
+            if let Err(e) = saved {
+                self.rebuild.unsaved(keys[i..].iter().copied());
+                return Err(e);
+            }
+        }
+        Ok(())
+    }
+
+    fn checkpoint(&mut self) -> Result<(), StoreError> {
+        let d = std::fs::File::open(&self.dir).map_err(io_err(&self.dir, "could not open"))?;
+        rustix::fs::syncfs(&d).map_err(|e| io_err(&self.dir, "could not sync the file system")(e.into()))?;
+        let state = State { applied: self.next_id - 1, levels: self.rebuild.levels() };
+        write_json(&self.dir.join("state.json"), &state)?;
+        self.applied = state.applied;
+        Ok(())
+    }
+
+    fn tile_path(&self, k: u32, s: i64, t: i64) -> PathBuf {
+        self.dir.join("tiles").join(k.to_string()).join(format!("{t}_{s}.tile"))
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// The texel format.
+    pub fn format(&self) -> TexelFormat {
+        self.format
+    }
+
+    /// The patches and their R*-tree.
+    pub fn index(&self) -> &PatchIndex {
+        &self.index
+    }
+
+    /// The tiles and the rebuild.
+    pub fn rebuild(&self) -> &Rebuilder {
+        &self.rebuild
+    }
+
+    /// Tile (s, t) of level k as built (`None`: no data there, or not built yet).
+    pub fn tile(&self, k: u32, s: i64, t: i64) -> Option<&Arc<Tile>> {
+        self.rebuild.tile(k, s, t)
+    }
+
+    /// Levels the texture has now.
+    pub fn levels(&self) -> u32 {
+        self.rebuild.levels()
+    }
+
+    /// Tiles waiting to be rebuilt.
+    pub fn pending(&self) -> usize {
+        self.rebuild.pending()
+    }
+
+    /// The last patch known to be in the tiles on disk (0: none).
+    pub fn applied(&self) -> u64 {
+        self.applied
+    }
+
+    /// Patches whose rebuild `open` had to redo.
+    pub fn replayed(&self) -> usize {
+        self.replayed
+    }
+
+    /// The directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+}
+
+/// A tile file's bytes.
+fn tile_bytes(grid: &Grid, (k, s, t): TileKey, tile: &Tile) -> Vec<u8> {
+    let n = (grid.tile * grid.tile) as usize;
+    let mut out = Vec::with_capacity(TILE_HEADER + tile.texels.len() + n.div_ceil(8));
+    out.extend_from_slice(&TILE_MAGIC);
+    out.extend_from_slice(&k.to_le_bytes());
+    out.extend_from_slice(&s.to_le_bytes());
+    out.extend_from_slice(&t.to_le_bytes());
+    out.extend_from_slice(&(grid.tile as u32).to_le_bytes());
+    out.extend_from_slice(&(grid.bytes_per_texel as u32).to_le_bytes());
+    out.extend_from_slice(&(tile.has_data.iter().filter(|&&d| d).count() as u64).to_le_bytes());
+    out.extend_from_slice(&tile.texels);
+    let mut bits = vec![0u8; n.div_ceil(8)];
+    for (i, _) in tile.has_data.iter().enumerate().filter(|(_, &d)| d) {
+        bits[i / 8] |= 1 << (i % 8);
+    }
+    out.extend_from_slice(&bits);
+    out
+}
+
+/// A tile file, checked against the grid and the key its name gives.
+fn read_tile(path: &Path, grid: &Grid, key: TileKey) -> Result<Tile, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("could not read: {e}"))?;
+    let n = (grid.tile * grid.tile) as usize;
+    let texel_bytes = n * grid.bytes_per_texel;
+    let want = TILE_HEADER + texel_bytes + n.div_ceil(8);
+    if bytes.len() != want {
+        return Err(format!("{} bytes where a tile of this grid has {want}", bytes.len()));
+    }
+    if bytes[..8] != TILE_MAGIC {
+        return Err("it does not start with CLIPGT01".into());
+    }
+    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
+    let i64_at = |o: usize| i64::from_le_bytes(bytes[o..o + 8].try_into().expect("8 bytes"));
+    let found = (u32_at(8), i64_at(12), i64_at(20));
+    if found != key {
+        return Err(format!("it holds tile {found:?} (level, S, T) where its name says {key:?}"));
+    }
+    if (u32_at(28) as u64, u32_at(32) as usize) != (grid.tile, grid.bytes_per_texel) {
+        return Err(format!(
+            "a tile of {} texels and {} bytes a texel where the grid has {} and {}",
+            u32_at(28),
+            u32_at(32),
+            grid.tile,
+            grid.bytes_per_texel
+        ));
+    }
+    let filled = u64::from_le_bytes(bytes[36..44].try_into().expect("8 bytes")) as usize;
+    let texels = bytes[TILE_HEADER..TILE_HEADER + texel_bytes].to_vec();
+    let bits = &bytes[TILE_HEADER + texel_bytes..];
+    let has_data: Vec<bool> = (0..n).map(|i| bits[i / 8] & (1 << (i % 8)) != 0).collect();
+    let tile = Tile::new(texels, has_data);
+    if !tile.any_data() || tile.has_data.iter().filter(|&&d| d).count() != filled {
+        return Err(format!("its header says {filled} texels with data, its flags say otherwise"));
+    }
+    Ok(tile)
+}
+
+/// Writes `path` whole or not at all: a temporary file beside it, renamed over it (synced first
+/// when `sync`).
+fn write_file(path: &Path, bytes: &[u8], sync: bool) -> Result<(), StoreError> {
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("file");
+    let tmp = path.with_file_name(format!(".{name}.tmp{}", std::process::id()));
+    let written = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        if sync {
+            f.sync_all()?;
+        }
+        std::fs::rename(&tmp, path)
+    })();
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io_err(path, "could not write")(e));
+    }
+    Ok(())
+}
+
+fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), StoreError> {
+    let mut text = serde_json::to_vec_pretty(value).expect("store records serialise");
+    text.push(b'\n');
+    write_file(path, &text, true)
+}
+
+fn sync_dir(dir: &Path) -> Result<(), StoreError> {
+    std::fs::File::open(dir).and_then(|d| d.sync_all()).map_err(io_err(dir, "could not sync the directory"))
+}
