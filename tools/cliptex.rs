@@ -2,6 +2,9 @@
 //!
 //! Exit status: 0 ok, 1 the input is bad, 2 the tool could not run.
 
+#[path = "cliptex/grow.rs"]
+mod grow;
+
 use clap::{Parser, Subcommand};
 use clipmap::config::FileKind;
 use clipmap::plan;
@@ -27,6 +30,7 @@ Examples:
   cliptex check my.ct --json
   cliptex dump my.ct --level 2 --out level2.png
   cliptex dump --attach terrain --out-dir pictures
+  cliptex grow add survey flight1/*.json
 
 Exit status: 0 ok, 1 the input is bad, 2 the tool could not run."
 )]
@@ -53,6 +57,18 @@ Exit status: 0 every file valid, 1 some file invalid, 2 some file could not be r
         /// (for CI on a machine without the data volume).
         #[arg(long)]
         ct_only: bool,
+    },
+    /// A growing texture in a directory: create it, add georeferenced patches, rebuild, status,
+    /// pictures (docs/GROWING.md).
+    #[command(after_help = "\
+Examples:
+  cliptex grow create survey --origin 0,0 --texels-per-unit 1 --tile 256 --format rgb8
+  cliptex grow add survey flight1/*.json
+  cliptex grow status survey --json
+  cliptex grow dump survey --level 0 --out level0.png")]
+    Grow {
+        #[command(subcommand)]
+        cmd: grow::GrowCommand,
     },
     /// A live view of a running service (levels, centres, valid regions, min LOD, tick rate, read queues).
     #[command(after_help = "\
@@ -533,6 +549,7 @@ fn run(cli: Cli) -> i32 {
     match cli.command {
         Command::Check { file, json, quiet, env } => check(&file, json, quiet, &env),
         Command::Roam(args) => roam(args),
+        Command::Grow { cmd } => grow::run(cmd),
         Command::Dump(args) => dump(args),
         Command::Attach { name, shm_dir, socket, once, json, interval } => {
             let dir = shm_dir.unwrap_or_else(clipmap::shm::default_dir);

@@ -214,7 +214,7 @@ impl Growing {
             Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(StoreError::NotAStore {
                 path: dir.to_path_buf(),
                 problem:
-                    "no grid.json here: this is not a growing texture (create one with `cliptex grow DIR --create ...`)"
+                    "no grid.json here: this is not a growing texture (create one with `cliptex grow create DIR ...`)"
                         .into(),
             }),
             Err(e) => return Err(io_err(&grid_path, "could not read")(e)),

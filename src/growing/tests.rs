@@ -411,7 +411,7 @@ mod store {
         let e = Growing::create(&dir.path().join("c"), [0.0, 0.0], 0.0, 4, "l8").err().unwrap().to_string();
         assert!(e.contains("texels per unit"), "{e}");
         let e = Growing::open(dir.path()).err().unwrap().to_string();
-        assert!(e.contains("no grid.json") && e.contains("--create"), "{e}");
+        assert!(e.contains("no grid.json") && e.contains("cliptex grow create"), "{e}");
         std::fs::write(root.join("state.json"), "{\"applied\": \"x\"}").unwrap();
         let e = Growing::open(&root).err().unwrap().to_string();
         assert!(e.contains("state.json") && e.contains("damaged"), "{e}");

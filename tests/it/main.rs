@@ -28,6 +28,7 @@ mod config_plan;
 mod config_tokens;
 mod examples;
 mod fuzz_regressions;
+mod growing;
 mod hostile;
 #[cfg(feature = "remote")]
 mod remote;
