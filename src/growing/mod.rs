@@ -14,7 +14,8 @@
 //! level-0 texels per unit along both axes, and texel (0, 0) of level 0 has its lower corner at
 //! `origin`. Texel (i, j) of level 0 covers world `[origin + i / r, origin + (i + 1) / r)` per
 //! axis; a patch supplies the texel when the texel's **centre** lies in the patch's box, and the
-//! patch is sampled at that centre (nearest texel of the patch image). Level k texel (i, j) is the
+//! patch is sampled at that centre (nearest texel of the patch image, whose first row is the top
+//! of the box, its largest y, and first column its left edge, as in image files and GeoTIFFs). Level k texel (i, j) is the
 //! average of level k-1 texels (2i..2i+2, 2j..2j+2) that have data, per component; a texel with
 //! no data below it has none. Tile (S, T) of level k holds level-k texels
 //! `[S * tile, (S + 1) * tile)` per axis, so a tile of level k covers 2 x 2 tiles of level k-1.
@@ -200,7 +201,8 @@ pub struct Patch {
     /// Image width and height in pixels.
     pub width: u32,
     pub height: u32,
-    /// Row-major texels from the box's min corner, `width * height * bytes_per_texel` bytes.
+    /// Row-major texels, the first row along the box's top edge (largest y), each row from its
+    /// left edge (smallest x), as image files store them: `width * height * bytes_per_texel` bytes.
     pub texels: Vec<u8>,
 }
 
@@ -266,7 +268,7 @@ impl Patch {
     /// The patch's texel nearest to world point `p` (which must lie in its box).
     pub fn sample(&self, p: [f64; 2], bpt: usize) -> &[u8] {
         let u = ((p[0] - self.bbox.min[0]) / (self.bbox.max[0] - self.bbox.min[0]) * self.width as f64) as i64;
-        let v = ((p[1] - self.bbox.min[1]) / (self.bbox.max[1] - self.bbox.min[1]) * self.height as f64) as i64;
+        let v = ((self.bbox.max[1] - p[1]) / (self.bbox.max[1] - self.bbox.min[1]) * self.height as f64) as i64;
         let (u, v) = (u.clamp(0, self.width as i64 - 1) as usize, v.clamp(0, self.height as i64 - 1) as usize);
         let at = (v * self.width as usize + u) * bpt;
         &self.texels[at..at + bpt]

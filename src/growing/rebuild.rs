@@ -139,7 +139,9 @@ fn span(grid: &Grid, p: &Patch, axis: usize, base: i64, n: usize) -> Option<[usi
 fn pixel(p: &Patch, axis: usize, c: f64) -> usize {
     let size = if axis == 0 { p.width } else { p.height } as i64;
     let (min, max) = (p.bbox.min[axis], p.bbox.max[axis]);
-    (((c - min) / (max - min) * size as f64) as i64).clamp(0, size - 1) as usize
+    // Columns count from the box's left edge, rows from its top (the largest y), as in image files.
+    let from_edge = if axis == 0 { c - min } else { max - c };
+    ((from_edge / (max - min) * size as f64) as i64).clamp(0, size - 1) as usize
 }
 
 /// Tile (s, t) of level k > 0 from its four children of level k-1 (`children[dy][dx]` is child

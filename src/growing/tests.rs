@@ -29,7 +29,8 @@ type Spec = (f64, f64, f64, f64, u8, u8, u32, u32, u8);
 
 /// The oracle: level-0 texel (i, j), from every patch, without the index. A patch holds the texel
 /// when the texel's centre lies in its box; the winner has the highest (rating, time, id); it is
-/// sampled at pixel floor((centre - min) / (max - min) * size), clamped.
+/// sampled at column floor((cx - min x) / (max x - min x) * width) and row
+/// floor((max y - cy) / (max y - min y) * height) (row 0 at the top), clamped.
 fn oracle0(g: &Grid, patches: &[Patch], i: i64, j: i64) -> Option<u8> {
     let (cx, cy) =
         (g.origin[0] + (i as f64 + 0.5) / g.texels_per_unit, g.origin[1] + (j as f64 + 0.5) / g.texels_per_unit);
@@ -39,7 +40,7 @@ fn oracle0(g: &Grid, patches: &[Patch], i: i64, j: i64) -> Option<u8> {
         .filter(holds)
         .max_by(|a, b| (a.rating, a.time, a.id).partial_cmp(&(b.rating, b.time, b.id)).unwrap())?;
     let px = (((cx - best.bbox.min[0]) / (best.bbox.max[0] - best.bbox.min[0])) * best.width as f64).floor() as i64;
-    let py = (((cy - best.bbox.min[1]) / (best.bbox.max[1] - best.bbox.min[1])) * best.height as f64).floor() as i64;
+    let py = (((best.bbox.max[1] - cy) / (best.bbox.max[1] - best.bbox.min[1])) * best.height as f64).floor() as i64;
     let (px, py) = (px.clamp(0, best.width as i64 - 1), py.clamp(0, best.height as i64 - 1));
     Some(best.texels[(py * best.width as i64 + px) as usize])
 }
@@ -144,6 +145,11 @@ fn a_patch_is_sampled_at_each_texel_centre() {
     assert_eq!(&t.texels[..4], &[100, 100, 101, 101]);
     assert_eq!(&t.has_data[..4], &[true; 4]);
     assert!(!t.has_data[4], "the row above has no patch");
+    // Row 0 of an image is the top of its box (the largest y), as in image files.
+    let p = patch(&g, (1, [0.0, 0.0, 1.0, 2.0], 0, 0.0), 1, 2, |_, y| 200 + y as u8);
+    let (_, rb) = build_and_check(&g, &[p], 8);
+    let t = rb.tile(0, 0, 0).unwrap();
+    assert_eq!((t.texels[0], t.texels[4]), (201, 200), "texel (0, 0) from the bottom row, (0, 1) from the top");
 }
 
 #[test]

@@ -29,7 +29,7 @@ fn patch(bbox: [f64; 4], time: u64, rating: f64, w: u32, h: u32, seed: u32) -> P
 fn write(fx: &Fixture, name: &str, p: &P, png: bool) {
     let src = if png {
         let img = image::GrayImage::from_raw(p.w, p.h, p.texels.clone()).unwrap();
-        // Image row 0 is the patch's first row of texels (the box's min y), as raw texels are.
+        // Image row 0 is the top of the box (its largest y), for PNGs and raw texels alike.
         img.save(fx.path(&format!("{name}.png"))).unwrap();
         format!("\"image\": \"{name}.png\"")
     } else {
@@ -64,7 +64,7 @@ fn oracle0(ps: &[P], o: [f64; 2], r: f64, i0: i64, j0: i64, w: usize, h: usize) 
                 let px =
                     (((c[0] - p.bbox[0]) / (p.bbox[2] - p.bbox[0])) * p.w as f64).floor().clamp(0.0, p.w as f64 - 1.0);
                 let py =
-                    (((c[1] - p.bbox[1]) / (p.bbox[3] - p.bbox[1])) * p.h as f64).floor().clamp(0.0, p.h as f64 - 1.0);
+                    (((p.bbox[3] - c[1]) / (p.bbox[3] - p.bbox[1])) * p.h as f64).floor().clamp(0.0, p.h as f64 - 1.0);
                 out[y * w + x] = Some(p.texels[py as usize * p.w as usize + px as usize]);
             }
         }

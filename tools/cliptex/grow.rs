@@ -83,6 +83,22 @@ still added (exit status 1 if any was refused).")]
         #[arg(long)]
         json: bool,
     },
+    /// Write a set of overlapping aerial-style PNG patches with their sidecars (a strip survey
+    /// over a procedural terrain, and one re-shot with a better rating) to try the rest on.
+    #[command(after_help = "\
+Examples:
+  cliptex grow example patches
+  cliptex grow example patches --count 10 --size 640x480")]
+    Example {
+        /// Directory for patch-NN.png and patch-NN.json (created).
+        out: PathBuf,
+        /// How many patches in the strip (a re-shot patch comes on top).
+        #[arg(long, default_value_t = 6)]
+        count: u32,
+        /// Pixels of each patch, WxH (one world unit a pixel).
+        #[arg(long, default_value = "512x384", value_parser = parse_size)]
+        size: [u32; 2],
+    },
     /// The grid, patches, levels, extent, tiles and what waits.
     Status {
         dir: PathBuf,
@@ -151,6 +167,17 @@ struct Added {
 struct Refused {
     file: String,
     error: String,
+}
+
+fn parse_size(text: &str) -> Result<[u32; 2], String> {
+    let bad = || format!("`{text}` is not WxH (e.g. 512x384), each side 8 to 8192");
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(bad)?;
+    let (w, h): (u32, u32) = (w.trim().parse().map_err(|_| bad())?, h.trim().parse().map_err(|_| bad())?);
+    if (8..=8192).contains(&w) && (8..=8192).contains(&h) {
+        Ok([w, h])
+    } else {
+        Err(bad())
+    }
 }
 
 fn parse_pair(text: &str) -> Result<[f64; 2], String> {
@@ -312,6 +339,16 @@ pub fn run(cmd: GrowCommand) -> i32 {
             clipmap::report::emit(json, &status(&g), human);
             exit::OK
         }
+        GrowCommand::Example { out, count, size } => match example(&out, count, size) {
+            Ok(n) => {
+                println!("{}: {n} patches (patch-00.json ...); add them with `cliptex grow add DIR {}`", out.display(), out.display());
+                exit::OK
+            }
+            Err(e) => {
+                eprintln!("cliptex grow example: {e}");
+                exit::COULD_NOT_RUN
+            }
+        },
         GrowCommand::Status { dir, json } => match open(&dir) {
             Ok(g) => {
                 clipmap::report::emit(json, &status(&g), human);
@@ -414,4 +451,48 @@ fn dump(g: &Growing, level: u32, out: &Path, max_side: u64) -> i32 {
             exit::COULD_NOT_RUN
         }
     }
+}
+
+/// The example survey: `count` patches along a strip that crosses the origin, alternately
+/// shifted up and down, each overlapping the last by about a third; then one re-shot over the
+/// middle of the strip, later and with a better rating, in warmer colours so that it shows where
+/// it won. Pixels are a procedural terrain, one world unit a pixel. Returns the patches written.
+fn example(out: &Path, count: u32, [w, h]: [u32; 2]) -> Result<u32, String> {
+    use clipmap::source::procedural::Terrain;
+    use clipmap::texel::TexelFormat;
+    std::fs::create_dir_all(out).map_err(|e| format!("{}: could not create: {e}", out.display()))?;
+    let terrain = Terrain::new(14, 7);
+    let step = (w as i64 * 2) / 3;
+    let x_start = -(step * count as i64) / 2;
+    let mut boxes: Vec<([i64; 2], u64, f64, bool)> = (0..count as i64)
+        .map(|i| ([x_start + i * step, -(h as i64) / 2 + if i % 2 == 0 { 0 } else { h as i64 / 4 }], i as u64, 1.0, false))
+        .collect();
+    boxes.push(([-(w as i64) / 2, -(h as i64) / 3], count as u64, 2.0, true));
+    for (n, &([x0, y0], time, rating, warm)) in boxes.iter().enumerate() {
+        let img = image::RgbImage::from_fn(w, h, |x, y| {
+            // Row 0 is the top of the box (its largest y).
+            let (s, t) = ((x0 + x as i64 + 8192) as u64, (y0 + (h - 1 - y) as i64 + 8192) as u64);
+            let mut px = [0u8; 3];
+            terrain.texel(0, s, t, TexelFormat::RGB8, &mut px);
+            if warm {
+                px = [px[0].saturating_add(60), px[1], px[2] / 2];
+            }
+            image::Rgb(px)
+        });
+        let name = format!("patch-{n:02}");
+        let png = out.join(format!("{name}.png"));
+        clipmap::save::atomically(&png, |f| img.write_to(f, image::ImageFormat::Png).map_err(clipmap::save::image_io))
+            .map_err(|e| format!("{}: could not write: {e}", png.display()))?;
+        let side = serde_json::json!({
+            "bbox": [x0, y0, x0 + w as i64, y0 + h as i64],
+            "time": time,
+            "rating": rating,
+            "image": format!("{name}.png"),
+        });
+        let json = out.join(format!("{name}.json"));
+        let text = serde_json::to_string_pretty(&side).expect("a sidecar serialises") + "\n";
+        clipmap::save::atomically(&json, |f| std::io::Write::write_all(f, text.as_bytes()))
+            .map_err(|e| format!("{}: could not write: {e}", json.display()))?;
+    }
+    Ok(boxes.len() as u32)
 }
