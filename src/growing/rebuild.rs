@@ -16,26 +16,105 @@ pub type TileKey = (u32, i64, i64);
 pub struct Tile {
     /// `tile * tile * bytes_per_texel` bytes, row-major.
     pub texels: Vec<u8>,
-    /// One flag per texel.
-    pub has_data: Vec<bool>,
+    /// One flag per texel: whether it has data.
+    pub has_data: Flags,
     /// How many flags are set (counted once, when the tile is built).
     filled: usize,
+}
+
+/// One bit a texel, row-major, in 64-bit words (bit i of word i / 64 for texel i).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Flags {
+    words: Vec<u64>,
+    len: usize,
+}
+
+impl Flags {
+    /// `len` flags, all clear.
+    pub fn new(len: usize) -> Flags {
+        Flags { words: vec![0; len.div_ceil(64)], len }
+    }
+
+    /// Flags from bytes of 8 flags each (bit i % 8 of byte i / 8), as tile files store them.
+    pub fn from_bytes(bytes: &[u8], len: usize) -> Flags {
+        let mut f = Flags::new(len);
+        for (w, chunk) in f.words.iter_mut().zip(bytes.chunks(8)) {
+            let mut b = [0u8; 8];
+            b[..chunk.len()].copy_from_slice(chunk);
+            *w = u64::from_le_bytes(b);
+        }
+        if len % 64 != 0 {
+            if let Some(last) = f.words.last_mut() {
+                *last &= (1u64 << (len % 64)) - 1;
+            }
+        }
+        f
+    }
+
+    /// The flags as bytes of 8 (see [`Flags::from_bytes`]), `len.div_ceil(8)` of them.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out: Vec<u8> = self.words.iter().flat_map(|w| w.to_le_bytes()).collect();
+        out.truncate(self.len.div_ceil(8));
+        out
+    }
+
+    /// Number of flags.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Flag `i`.
+    pub fn get(&self, i: usize) -> bool {
+        self.words[i / 64] >> (i % 64) & 1 == 1
+    }
+
+    /// Sets flag `i`.
+    pub fn set(&mut self, i: usize) {
+        self.words[i / 64] |= 1 << (i % 64);
+    }
+
+    /// Sets flags `a..b`, a word at a time.
+    pub fn set_run(&mut self, a: usize, b: usize) {
+        let mut i = a;
+        while i < b {
+            let (w, bit) = (i / 64, i % 64);
+            let take = (64 - bit).min(b - i);
+            let mask = if take == 64 { u64::MAX } else { ((1u64 << take) - 1) << bit };
+            self.words[w] |= mask;
+            i += take;
+        }
+    }
+
+    /// Number of flags set.
+    pub fn count(&self) -> usize {
+        self.words.iter().map(|w| w.count_ones() as usize).sum()
+    }
 }
 
 impl Tile {
     fn empty(grid: &Grid) -> Tile {
         let n = (grid.tile * grid.tile) as usize;
-        Tile { texels: vec![0; n * grid.bytes_per_texel], has_data: vec![false; n], filled: 0 }
+        Tile { texels: vec![0; n * grid.bytes_per_texel], has_data: Flags::new(n), filled: 0 }
     }
 
-    /// The tile from its texels and flags (`has_data.len()` texels).
-    pub fn new(texels: Vec<u8>, has_data: Vec<bool>) -> Tile {
+    /// The tile from its texels and flags.
+    pub fn new(texels: Vec<u8>, has_data: Flags) -> Tile {
         Tile { texels, has_data, filled: 0 }.counted()
     }
 
-    /// Counts the flags, while they are still in the caches.
+    /// Whether texel `i` (row-major) has data.
+    pub fn has(&self, i: usize) -> bool {
+        self.has_data.get(i)
+    }
+
+    /// Counts the flags.
     fn counted(mut self) -> Tile {
-        self.filled = self.has_data.iter().filter(|&&d| d).count();
+        self.filled = self.has_data.count();
         self
     }
 
@@ -78,10 +157,18 @@ pub fn level0_tile(grid: &Grid, index: &PatchIndex, s: i64, t: i64) -> Tile {
         let w = c.width as usize;
         cols.clear();
         cols.extend((x0..x1).map(|x| pixel(c, 0, grid.texel_centre(base[0] + x as i64, 0)[0]) * bpt));
+        // A patch at the grid's resolution (and aligned to it) maps a run of texels to a run of
+        // pixels: its rows are copied whole.
+        let run = cols.windows(2).all(|p| p[1] == p[0] + bpt);
         for y in y0..y1 {
             let v = pixel(c, 1, grid.texel_centre(0, base[1] + y as i64)[1]);
             let src = &c.texels[v * w * bpt..(v + 1) * w * bpt];
             let row = &mut out.texels[(y * n + x0) * bpt..(y * n + x1) * bpt];
+            if run {
+                row.copy_from_slice(&src[cols[0]..cols[0] + row.len()]);
+                out.has_data.set_run(y * n + x0, y * n + x1);
+                continue;
+            }
             match bpt {
                 1 => gather::<1>(row, src, &cols),
                 2 => gather::<2>(row, src, &cols),
@@ -95,7 +182,7 @@ pub fn level0_tile(grid: &Grid, index: &PatchIndex, s: i64, t: i64) -> Tile {
                     }
                 }
             }
-            out.has_data[y * n + x0..y * n + x1].fill(true);
+            out.has_data.set_run(y * n + x0, y * n + x1);
         }
     }
     out.counted()
@@ -180,8 +267,8 @@ pub fn parent_tile(grid: &Grid, children: [[Option<&Tile>; 2]; 2]) -> Tile {
                 for x in 0..h {
                     let (i, o) = (i_row + 2 * x, o_row + x);
                     let quad = [i, i + 1, i + n, i + n + 1];
-                    let d = &child.has_data;
-                    if cb == 1 && d[quad[0]] && d[quad[1]] && d[quad[2]] && d[quad[3]] {
+                    let d = |q: usize| child.has(q);
+                    if cb == 1 && d(quad[0]) && d(quad[1]) && d(quad[2]) && d(quad[3]) {
                         // The common case: four 8-bit texels with data, averaged in place.
                         let t = &child.texels;
                         let dst = &mut out.texels[o * bpt..(o + 1) * bpt];
@@ -192,11 +279,11 @@ pub fn parent_tile(grid: &Grid, children: [[Option<&Tile>; 2]; 2]) -> Tile {
                                 + t[quad[3] * bpt + c] as u32;
                             *v = ((sum + 2) / 4) as u8;
                         }
-                        out.has_data[o] = true;
+                        out.has_data.set(o);
                         continue;
                     }
                     under.clear();
-                    under.extend(quad.iter().filter(|&&q| d[q]).map(|&q| (*child, q)));
+                    under.extend(quad.iter().filter(|&&q| d(q)).map(|&q| (*child, q)));
                     average(&under, &mut out, o, comps, cb);
                 }
             }
@@ -218,18 +305,23 @@ impl QuadrantRows {
     /// texel: each texel the rounded average of the 2 x 2 below it.
     fn average8<const B: usize>(&self, child: &Tile, out: &mut Tile) {
         let (n, h) = (self.n, self.h);
+        // Each pair of rows summed down first (a loop the compiler vectorises), then pairs of
+        // neighbouring texels across.
+        let mut down = vec![0u16; n * B];
         for y in 0..h {
             let r0 = &child.texels[2 * y * n * B..(2 * y + 1) * n * B];
             let r1 = &child.texels[(2 * y + 1) * n * B..(2 * y + 2) * n * B];
+            for ((d, &a), &b) in down.iter_mut().zip(r0).zip(r1) {
+                *d = a as u16 + b as u16;
+            }
             let o = ((self.cy * h + y) * n + self.cx * h) * B;
             let dst = &mut out.texels[o..o + h * B];
-            for ((d, a), b) in dst.chunks_exact_mut(B).zip(r0.chunks_exact(2 * B)).zip(r1.chunks_exact(2 * B)) {
+            for (d, pair) in dst.chunks_exact_mut(B).zip(down.chunks_exact(2 * B)) {
                 for c in 0..B {
-                    let sum = a[c] as u16 + a[B + c] as u16 + b[c] as u16 + b[B + c] as u16;
-                    d[c] = ((sum + 2) / 4) as u8;
+                    d[c] = ((pair[c] + pair[B + c] + 2) / 4) as u8;
                 }
             }
-            out.has_data[o / B..o / B + h].fill(true);
+            out.has_data.set_run(o / B, o / B + h);
         }
     }
 
@@ -244,7 +336,7 @@ impl QuadrantRows {
                     let t = |q: usize| child.texels[q * bpt + c] as u16;
                     out.texels[o * bpt + c] = ((t(i) + t(i + 1) + t(i + n) + t(i + n + 1) + 2) / 4) as u8;
                 }
-                out.has_data[o] = true;
+                out.has_data.set(o);
             }
         }
     }
@@ -277,7 +369,7 @@ fn average(under: &[(&Tile, usize)], out: &mut Tile, o: usize, comps: usize, cb:
             out.texels[at..at + 2].copy_from_slice(&(avg as u16).to_le_bytes());
         }
     }
-    out.has_data[o] = true;
+    out.has_data.set(o);
 }
 
 /// The tiles of a growing texture and those waiting to be rebuilt.

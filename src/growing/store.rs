@@ -34,7 +34,7 @@
 //! docs/GROWING.md, "Limits").
 
 use super::index::PatchIndex;
-use super::rebuild::{Rebuilder, Tile, TileKey};
+use super::rebuild::{Flags, Rebuilder, Tile, TileKey};
 use super::{Grid, GrowError, Patch, PatchMeta, WorldBox};
 use crate::texel::TexelFormat;
 use serde::{Deserialize, Serialize};
@@ -498,12 +498,10 @@ fn tile_bytes(grid: &Grid, (k, s, t): TileKey, tile: &Tile) -> Vec<u8> {
     out.extend_from_slice(&t.to_le_bytes());
     out.extend_from_slice(&(grid.tile as u32).to_le_bytes());
     out.extend_from_slice(&(grid.bytes_per_texel as u32).to_le_bytes());
-    out.extend_from_slice(&(tile.has_data.iter().filter(|&&d| d).count() as u64).to_le_bytes());
+    out.extend_from_slice(&(tile.has_data.count() as u64).to_le_bytes());
     out.extend_from_slice(&tile.texels);
-    let mut bits = vec![0u8; n.div_ceil(8)];
-    for (i, _) in tile.has_data.iter().enumerate().filter(|(_, &d)| d) {
-        bits[i / 8] |= 1 << (i % 8);
-    }
+    let bits = tile.has_data.to_bytes();
+    debug_assert_eq!(bits.len(), n.div_ceil(8));
     out.extend_from_slice(&bits);
     out
 }
@@ -538,9 +536,8 @@ fn read_tile(path: &Path, grid: &Grid, key: TileKey) -> Result<Tile, String> {
     let filled = u64::from_le_bytes(bytes[36..44].try_into().expect("8 bytes")) as usize;
     let texels = bytes[TILE_HEADER..TILE_HEADER + texel_bytes].to_vec();
     let bits = &bytes[TILE_HEADER + texel_bytes..];
-    let has_data: Vec<bool> = (0..n).map(|i| bits[i / 8] & (1 << (i % 8)) != 0).collect();
-    let tile = Tile::new(texels, has_data);
-    if !tile.any_data() || tile.has_data.iter().filter(|&&d| d).count() != filled {
+    let tile = Tile::new(texels, Flags::from_bytes(bits, n));
+    if !tile.any_data() || tile.has_data.count() != filled {
         return Err(format!("its header says {filled} texels with data, its flags say otherwise"));
     }
     Ok(tile)

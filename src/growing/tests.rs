@@ -106,7 +106,7 @@ fn build_and_check(g: &Grid, patches: &[Patch], per_step: usize) -> (PatchIndex,
                         let want = oracle(g, patches, k, s * n + x, t * n + y, &mut memo);
                         let got = tile.and_then(|tl| {
                             let i = (y * n + x) as usize;
-                            tl.has_data[i].then(|| tl.texels[i])
+                            tl.has(i).then(|| tl.texels[i])
                         });
                         assert_eq!(got, want, "level {k} tile ({s}, {t}) texel ({x}, {y})");
                     }
@@ -143,8 +143,8 @@ fn a_patch_is_sampled_at_each_texel_centre() {
     let (_, rb) = build_and_check(&g, &[p], 8);
     let t = rb.tile(0, 0, 0).unwrap();
     assert_eq!(&t.texels[..4], &[100, 100, 101, 101]);
-    assert_eq!(&t.has_data[..4], &[true; 4]);
-    assert!(!t.has_data[4], "the row above has no patch");
+    assert!((0..4).all(|i| t.has(i)));
+    assert!(!t.has(4), "the row above has no patch");
     // Row 0 of an image is the top of its box (the largest y), as in image files.
     let p = patch(&g, (1, [0.0, 0.0, 1.0, 2.0], 0, 0.0), 1, 2, |_, y| 200 + y as u8);
     let (_, rb) = build_and_check(&g, &[p], 8);
@@ -421,5 +421,25 @@ mod store {
         std::fs::write(root.join("state.json"), "{\"applied\": \"x\"}").unwrap();
         let e = Growing::open(&root).err().unwrap().to_string();
         assert!(e.contains("state.json") && e.contains("damaged"), "{e}");
+    }
+}
+
+proptest! {
+    /// Runs of flags set word by word, and the bytes tile files store, against one bool a flag.
+    #[test]
+    fn flags_match_one_bool_a_flag(len in 1usize..300, runs in prop::collection::vec((0usize..300, 0usize..300), 0..6)) {
+        let mut f = rebuild::Flags::new(len);
+        let mut want = vec![false; len];
+        for (a, b) in runs {
+            let (a, b) = (a.min(len), b.min(len));
+            let (a, b) = (a.min(b), a.max(b));
+            f.set_run(a, b);
+            want[a..b].iter_mut().for_each(|w| *w = true);
+        }
+        prop_assert_eq!((0..len).map(|i| f.get(i)).collect::<Vec<_>>(), want.clone());
+        prop_assert_eq!(f.count(), want.iter().filter(|&&w| w).count());
+        let back = rebuild::Flags::from_bytes(&f.to_bytes(), len);
+        prop_assert_eq!(&back, &f);
+        prop_assert_eq!(f.to_bytes().len(), len.div_ceil(8));
     }
 }

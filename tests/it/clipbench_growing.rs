@@ -16,8 +16,11 @@ fn growing_json_has_the_rates_and_runs_that_explain_them() {
     let runs = v["runs"].as_array().unwrap();
     assert_eq!(runs.iter().map(|r| r["tile"].as_u64().unwrap()).collect::<Vec<_>>(), vec![256, 512]);
     for (run, field) in runs.iter().zip(["tiles_per_s_256", "tiles_per_s_512"]) {
-        let (tiles, l0, secs) =
-            (run["tiles_rebuilt"].as_f64().unwrap(), run["level0_tiles"].as_f64().unwrap(), run["seconds"].as_f64().unwrap());
+        let (tiles, l0, secs) = (
+            run["tiles_rebuilt"].as_f64().unwrap(),
+            run["level0_tiles"].as_f64().unwrap(),
+            run["seconds"].as_f64().unwrap(),
+        );
         assert!(l0 >= 1.0 && tiles > l0, "parents are rebuilt too: {run}");
         assert!((tiles / secs - v[field].as_f64().unwrap()).abs() < 1e-6 * tiles / secs, "{field} is tiles / seconds");
         assert!(run["levels"].as_u64().unwrap() >= 2, "{run}");

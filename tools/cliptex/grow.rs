@@ -341,7 +341,11 @@ pub fn run(cmd: GrowCommand) -> i32 {
         }
         GrowCommand::Example { out, count, size } => match example(&out, count, size) {
             Ok(n) => {
-                println!("{}: {n} patches (patch-00.json ...); add them with `cliptex grow add DIR {}`", out.display(), out.display());
+                println!(
+                    "{}: {n} patches (patch-00.json ...); add them with `cliptex grow add DIR {}`",
+                    out.display(),
+                    out.display()
+                );
                 exit::OK
             }
             Err(e) => {
@@ -432,7 +436,7 @@ fn dump(g: &Growing, level: u32, out: &Path, max_side: u64) -> i32 {
         let (i, j) = (s0 * n + x as i64, t0 * n + (h - 1 - y as i64));
         let Some(tile) = g.tile(level, i.div_euclid(n), j.div_euclid(n)) else { return image::Rgba([0, 0, 0, 0]) };
         let at = (j.rem_euclid(n) * n + i.rem_euclid(n)) as usize;
-        if !tile.has_data[at] {
+        if !tile.has(at) {
             return image::Rgba([0, 0, 0, 0]);
         }
         image::Rgba(clipmap::report::picture::texel_rgba(format, &tile.texels[at * bpt..(at + 1) * bpt]))
@@ -465,7 +469,9 @@ fn example(out: &Path, count: u32, [w, h]: [u32; 2]) -> Result<u32, String> {
     let step = (w as i64 * 2) / 3;
     let x_start = -(step * count as i64) / 2;
     let mut boxes: Vec<([i64; 2], u64, f64, bool)> = (0..count as i64)
-        .map(|i| ([x_start + i * step, -(h as i64) / 2 + if i % 2 == 0 { 0 } else { h as i64 / 4 }], i as u64, 1.0, false))
+        .map(|i| {
+            ([x_start + i * step, -(h as i64) / 2 + if i % 2 == 0 { 0 } else { h as i64 / 4 }], i as u64, 1.0, false)
+        })
         .collect();
     boxes.push(([-(w as i64) / 2, -(h as i64) / 3], count as u64, 2.0, true));
     for (n, &([x0, y0], time, rating, warm)) in boxes.iter().enumerate() {
