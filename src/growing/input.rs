@@ -194,6 +194,39 @@ pub fn patch(
     Patch::new(grid, meta, width, height, texels).map_err(|e| InputError::Patch(e, where_.to_string()))
 }
 
+/// The patch a sidecar file describes, with the image (relative to the sidecar's directory) or
+/// raw texels (the sidecar's name with `.raw` for `.json`) it names, read and checked against
+/// `grid`; errors name the sidecar.
+pub fn read_sidecar(grid: &Grid, file: &std::path::Path, max_bytes: u64) -> Result<super::store::NewPatch, InputError> {
+    let where_ = file.display().to_string();
+    let text = std::fs::read(file)
+        .map_err(|e| InputError::Sidecar { where_: where_.clone(), problem: format!("could not read it: {e}") })?;
+    let desc = sidecar(&text, &where_)?;
+    let data_path = data_file(file, &desc);
+    let bytes = std::fs::read(&data_path).map_err(|e| InputError::Sidecar {
+        where_: where_.clone(),
+        problem: format!("could not read {}: {e}", data_path.display()),
+    })?;
+    let p = patch(grid, 0, &desc, &bytes, max_bytes, &where_)?;
+    Ok(super::store::NewPatch {
+        bbox: p.bbox,
+        time: p.time,
+        rating: p.rating,
+        width: p.width,
+        height: p.height,
+        texels: p.texels,
+    })
+}
+
+/// The file a sidecar's data is in: its `image`, relative to the sidecar's directory, or the
+/// sidecar's own name with `.raw`.
+pub fn data_file(sidecar_path: &std::path::Path, desc: &Sidecar) -> std::path::PathBuf {
+    match &desc.image {
+        Some(name) => sidecar_path.parent().unwrap_or(std::path::Path::new(".")).join(name),
+        None => sidecar_path.with_extension("raw"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

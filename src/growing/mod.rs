@@ -24,6 +24,7 @@ pub mod index;
 pub mod input;
 pub mod rebuild;
 pub mod store;
+pub mod watch;
 
 #[cfg(test)]
 mod tests;

@@ -88,6 +88,9 @@ pub enum StoreError {
     /// The directory is not a growing texture, or already is one.
     #[error("{path}: {problem}")]
     NotAStore { path: PathBuf, problem: String },
+    /// Another writer holds the directory.
+    #[error("{path}: another process (pid {holder}) is adding to or rebuilding this growing texture; wait for it, or stop it (only one writer at a time; `cliptex grow status` and `dump` may look meanwhile)")]
+    Busy { path: PathBuf, holder: String },
     /// The grid is refused.
     #[error("{0}")]
     Grid(GrowError),
@@ -121,6 +124,10 @@ struct PatchRecord {
     rating: f64,
     width: u32,
     height: u32,
+    /// Where it came from, when a watcher took it from a directory (`NAME#DIGEST`), so that a
+    /// restart does not take the same file twice.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    source: Option<String>,
 }
 
 /// `state.json`.
@@ -144,6 +151,11 @@ pub struct Growing {
     applied: u64,
     /// Patches replayed at open.
     replayed: usize,
+    /// The writer's lock (`DIR/lock`, an exclusive `flock` held while this lives); `None` for a
+    /// read-only handle.
+    lock: Option<std::fs::File>,
+    /// The `source` of every patch that has one.
+    sources: std::collections::HashSet<String>,
 }
 
 /// A patch as handed in, before the store gives it an id.
@@ -185,6 +197,7 @@ impl Growing {
                 problem: "the directory is not empty; a new growing texture needs an empty (or new) directory (to add to an existing one, open it instead)".into(),
             });
         }
+        let lock = take_lock(dir)?;
         for sub in ["patches", "tiles"] {
             let p = dir.join(sub);
             std::fs::create_dir(&p).map_err(io_err(&p, "could not create the directory"))?;
@@ -203,11 +216,26 @@ impl Growing {
             next_id: 1,
             applied: 0,
             replayed: 0,
+            lock: Some(lock),
+            sources: Default::default(),
         })
     }
 
-    /// The growing texture in `dir`, as it was left (see the module documentation).
+    /// The growing texture in `dir`, as it was left (see the module documentation), to add to
+    /// and rebuild: one writer at a time (an exclusive lock on `DIR/lock`; a second writer is
+    /// refused with the first one's process id).
     pub fn open(dir: &Path) -> Result<Growing, StoreError> {
+        Growing::open_as(dir, true)
+    }
+
+    /// The growing texture in `dir` to look at, while a writer may be at work: nothing is locked,
+    /// deleted or written; [`Growing::add`] and [`Growing::step`] refuse. What it shows is what
+    /// the files held when it read them (each file whole).
+    pub fn open_read_only(dir: &Path) -> Result<Growing, StoreError> {
+        Growing::open_as(dir, false)
+    }
+
+    fn open_as(dir: &Path, write: bool) -> Result<Growing, StoreError> {
         let grid_path = dir.join("grid.json");
         let text = match std::fs::read(&grid_path) {
             Ok(t) => t,
@@ -236,6 +264,7 @@ impl Growing {
             });
         };
         let grid = Grid::new(file.origin, file.texels_per_unit, file.tile, bpt, cb).map_err(StoreError::Grid)?;
+        let lock = if write { Some(take_lock(dir)?) } else { None };
         let state_path = dir.join("state.json");
         let state: State =
             serde_json::from_slice(&std::fs::read(&state_path).map_err(io_err(&state_path, "could not read"))?)
@@ -255,20 +284,21 @@ impl Growing {
                 records.push((id, path));
             } else if let Some(id) = name.strip_suffix(".texels").and_then(|n| n.parse::<u64>().ok()) {
                 texels_only.push((id, path));
-            } else if name.contains(".tmp") {
+            } else if name.contains(".tmp") && write {
                 let _ = std::fs::remove_file(&path);
             }
         }
         records.sort();
         let known: std::collections::HashSet<u64> = records.iter().map(|r| r.0).collect();
         for (id, path) in texels_only {
-            if !known.contains(&id) {
+            if !known.contains(&id) && write {
                 tracing::warn!(path = %path.display(), "removing the texels of a patch that was never acknowledged");
                 std::fs::remove_file(&path).map_err(io_err(&path, "could not remove"))?;
             }
         }
         let mut index = PatchIndex::new();
         let mut replay = Vec::new();
+        let mut sources = std::collections::HashSet::new();
         for (id, path) in &records {
             let rec: PatchRecord =
                 serde_json::from_slice(&std::fs::read(path).map_err(io_err(path, "could not read"))?).map_err(|e| {
@@ -279,6 +309,9 @@ impl Growing {
                     path: path.clone(),
                     problem: format!("it says id {} in a file named for {id}", rec.id),
                 });
+            }
+            if let Some(s) = &rec.source {
+                sources.insert(s.clone());
             }
             let tpath = pdir.join(format!("{id:010}.texels"));
             let texels = std::fs::read(&tpath).map_err(io_err(&tpath, "could not read the patch's texels"))?;
@@ -312,7 +345,9 @@ impl Growing {
                 let path = entry.map_err(io_err(&ldir, "could not list"))?.path();
                 let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("").to_string();
                 if name.contains(".tmp") {
-                    let _ = std::fs::remove_file(&path);
+                    if write {
+                        let _ = std::fs::remove_file(&path);
+                    }
                     continue;
                 }
                 let Some((t, s)) = name.strip_suffix(".tile").and_then(|n| n.split_once('_')) else { continue };
@@ -345,12 +380,20 @@ impl Growing {
             next_id,
             applied: state.applied,
             replayed: replay.len(),
+            lock,
+            sources,
         })
     }
 
     /// Checks `p`, keeps it on disk, indexes it and marks what it changes; returns its id. When
     /// this returns, the patch survives any crash. A refused patch leaves nothing behind.
     pub fn add(&mut self, p: NewPatch) -> Result<u64, StoreError> {
+        self.add_from(p, None)
+    }
+
+    /// [`Growing::add`], recording where the patch came from (see [`Growing::has_source`]).
+    pub fn add_from(&mut self, p: NewPatch, source: Option<String>) -> Result<u64, StoreError> {
+        self.writable()?;
         let id = self.next_id;
         let meta = PatchMeta { id, bbox: p.bbox, time: p.time, rating: p.rating };
         let patch = Patch::new(&self.grid, meta, p.width, p.height, p.texels).map_err(StoreError::Patch)?;
@@ -365,6 +408,7 @@ impl Growing {
             rating: patch.rating,
             width: patch.width,
             height: patch.height,
+            source: source.clone(),
         };
         if let Err(e) = write_json(&rpath, &rec).and_then(|_| sync_dir(&pdir)) {
             let _ = std::fs::remove_file(&rpath);
@@ -372,6 +416,7 @@ impl Growing {
             return Err(e);
         }
         self.next_id += 1;
+        self.sources.extend(source);
         let patch = self.index.insert(patch);
         self.rebuild.patch_added(&self.index, &patch);
         Ok(id)
@@ -382,6 +427,7 @@ impl Growing {
     /// the tiles rebuilt. A tile that could not be saved stays waiting to be saved, and the
     /// error is returned.
     pub fn step(&mut self, max: usize) -> Result<Vec<TileKey>, StoreError> {
+        self.writable()?;
         let done = self.rebuild.step(&self.index, max);
         self.save_changed()?;
         if self.rebuild.pending() == 0 && self.applied + 1 < self.next_id {
@@ -397,6 +443,16 @@ impl Growing {
             n += self.step(per_step.max(1))?.len();
         }
         Ok(n)
+    }
+
+    fn writable(&self) -> Result<(), StoreError> {
+        match self.lock {
+            Some(_) => Ok(()),
+            None => Err(StoreError::NotAStore {
+                path: self.dir.clone(),
+                problem: "opened to look at only: open it to write (no other writer at work) to add or rebuild".into(),
+            }),
+        }
     }
 
     fn save_changed(&mut self) -> Result<(), StoreError> {
@@ -440,6 +496,11 @@ impl Growing {
     /// The grid.
     pub fn grid(&self) -> &Grid {
         &self.grid
+    }
+
+    /// Whether a patch was added from `source` (what [`Growing::add_from`] recorded).
+    pub fn has_source(&self, source: &str) -> bool {
+        self.sources.contains(source)
     }
 
     /// The texel format.
@@ -486,6 +547,31 @@ impl Growing {
     pub fn dir(&self) -> &Path {
         &self.dir
     }
+}
+
+/// Takes `DIR/lock` (created if needed) exclusively, without waiting, and writes this process's
+/// id into it; refused, naming the holder, while another writer holds it.
+fn take_lock(dir: &Path) -> Result<std::fs::File, StoreError> {
+    use rustix::fs::{flock, FlockOperation};
+    let path = dir.join("lock");
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(io_err(&path, "could not open the lock file"))?;
+    if let Err(e) = flock(&f, FlockOperation::NonBlockingLockExclusive) {
+        if e == rustix::io::Errno::WOULDBLOCK {
+            let holder = std::fs::read_to_string(&path).unwrap_or_default();
+            return Err(StoreError::Busy { path: dir.to_path_buf(), holder: holder.trim().to_string() });
+        }
+        return Err(io_err(&path, "could not lock")(e.into()));
+    }
+    f.set_len(0)
+        .and_then(|_| f.write_all(std::process::id().to_string().as_bytes()))
+        .map_err(io_err(&path, "could not write"))?;
+    Ok(f)
 }
 
 /// A tile file's bytes.

@@ -349,3 +349,81 @@ fn bad_patches_are_refused_with_their_file_and_leave_nothing_behind() {
     assert_eq!(out.status.code(), Some(1), "{d}");
     assert!(String::from_utf8_lossy(&out.stderr).contains("not empty"), "{d}");
 }
+
+#[test]
+fn a_watched_directory_takes_patches_as_they_appear_and_one_writer_at_a_time() {
+    let fx = Fixture::new();
+    let (o, r, tile) = ([0.0, 0.0], 1.0, 8);
+    let (out, d) = exec(fx.dir.path(), CLIPTEX, &["grow", "create", "tex", "--tile", "8", "--format", "l8"]);
+    assert!(out.status.success(), "{d}");
+    let log = std::fs::File::create(fx.path("watch.log")).unwrap();
+    let mut child = std::process::Command::new(CLIPTEX)
+        .current_dir(fx.dir.path())
+        .args(["grow", "watch", "tex", "incoming", "--interval", "0.02", "--per-step", "7"])
+        .stdout(log.try_clone().unwrap())
+        .stderr(log)
+        .spawn()
+        .unwrap();
+    let ps = survey(false);
+    let wait_for = |applied: u64| {
+        let start = std::time::Instant::now();
+        loop {
+            let st = status(fx.dir.path(), "tex");
+            if st["applied"].as_u64() == Some(applied) && st["pending"].as_u64() == Some(0) {
+                return st;
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(60),
+                "the watcher took {st}\n{}",
+                std::fs::read_to_string(fx.path("watch.log")).unwrap()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    while !fx.path("incoming").exists() {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // As a writer should: the data first, the sidecar renamed into place last.
+    for (n, p) in ps.iter().enumerate() {
+        write(&fx, &format!("p{n}"), p, n % 2 == 0);
+        let data = if n % 2 == 0 { format!("p{n}.png") } else { format!("p{n}.raw") };
+        std::fs::rename(fx.path(&data), fx.path(&format!("incoming/{data}"))).unwrap();
+        std::fs::rename(fx.path(&format!("p{n}.json")), fx.path(&format!("incoming/p{n}.json"))).unwrap();
+        if n == 2 {
+            std::fs::write(fx.path("incoming/bad.raw"), [0u8]).unwrap();
+            fx.write("incoming/bad.json", r#"{"bbox": [0, 0, 0, 4], "raw": {"width": 1, "height": 1}}"#);
+        }
+    }
+    wait_for(ps.len() as u64);
+    // While it runs, another writer is refused, and lookers are not.
+    write(&fx, "extra", &ps[0], false);
+    let (out, d) = exec(fx.dir.path(), CLIPTEX, &["grow", "add", "tex", "extra.json"]);
+    assert_eq!(out.status.code(), Some(1), "{d}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains(&format!("another process (pid {})", child.id())), "{d}");
+    check_every_level(&fx, "tex", &ps, o, r, tile);
+    let err = std::fs::read_to_string(fx.path("incoming/rejected/bad.error.txt")).unwrap();
+    assert!(err.contains("bad.json") && err.contains("empty or inverted along x"), "{err}");
+    assert!(fx.path("incoming/rejected/bad.raw").exists());
+    for n in 0..ps.len() {
+        assert!(fx.path(&format!("incoming/done/p{n}.json")).exists(), "p{n} moved to done/");
+    }
+    assert!(fx.path("incoming/done/p1.raw").exists() && fx.path("incoming/done/p0.png").exists());
+    // The same sidecar again, byte for byte (a crash after the patch was kept): taken once.
+    std::fs::copy(fx.path("incoming/done/p1.json"), fx.path("incoming/p1.json")).unwrap();
+    std::fs::copy(fx.path("incoming/done/p1.raw"), fx.path("incoming/p1.raw")).unwrap();
+    let start = std::time::Instant::now();
+    while fx.path("incoming/p1.json").exists() {
+        assert!(start.elapsed() < Duration::from_secs(30), "the watcher moves it");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(status(fx.dir.path(), "tex")["patches"], ps.len());
+    let kill = std::process::Command::new("kill").args(["-TERM", &child.id().to_string()]).status().unwrap();
+    assert!(kill.success());
+    let st = child.wait().unwrap();
+    let log = std::fs::read_to_string(fx.path("watch.log")).unwrap();
+    assert!(st.success(), "{log}");
+    assert!(log.contains("p1.json: already added"), "{log}");
+    // Its lock is gone with it.
+    let (out, d) = exec(fx.dir.path(), CLIPTEX, &["grow", "add", "tex", "extra.json"]);
+    assert!(out.status.success(), "{d}");
+}

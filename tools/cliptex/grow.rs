@@ -6,8 +6,8 @@
 //! 2 the tool could not run (an unreadable or unwritable directory).
 
 use clap::Subcommand;
-use clipmap::growing::input::{self, InputError};
-use clipmap::growing::store::{Growing, NewPatch, StoreError};
+use clipmap::growing::input;
+use clipmap::growing::store::{Growing, StoreError};
 use clipmap::report::exit;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -72,6 +72,39 @@ still added (exit status 1 if any was refused).")]
         /// Print JSON.
         #[arg(long)]
         json: bool,
+    },
+    /// Watch a directory for patches: every *.json sidecar that appears is taken, then moved to
+    /// INCOMING/done/ (or INCOMING/rejected/ with NAME.error.txt saying why), and the tiles are
+    /// rebuilt a bounded number per round, until SIGINT or SIGTERM (or, with --once, until
+    /// nothing waits).
+    #[command(after_help = "\
+Examples:
+  cliptex grow watch survey incoming &
+  cp strip-0042.png incoming/ && cp strip-0042.json incoming/.strip-0042.json && mv incoming/.strip-0042.json incoming/strip-0042.json
+  cliptex grow watch survey incoming --once     # take what is there, rebuild, exit
+
+Put the image first and the sidecar last (renamed into place): a sidecar is taken as soon as it
+appears. The same sidecar, byte for byte, is taken once, even across a crash.")]
+    Watch {
+        /// The growing texture's directory.
+        dir: PathBuf,
+        /// The directory to watch (created if needed).
+        incoming: PathBuf,
+        /// Seconds between looks when idle.
+        #[arg(long, default_value_t = 0.2)]
+        interval: f64,
+        /// Tiles rebuilt per round.
+        #[arg(long, default_value_t = 256)]
+        per_step: usize,
+        /// Sidecars taken per round.
+        #[arg(long, default_value_t = 16)]
+        per_round: usize,
+        /// Largest patch, in bytes of texels (k, m, g suffixes).
+        #[arg(long, default_value = "1g", value_parser = clipmap::paging::parse_bytes)]
+        max_patch_bytes: u64,
+        /// Take what waits, rebuild everything, and exit.
+        #[arg(long)]
+        once: bool,
     },
     /// Rebuild whatever waits (after --no-rebuild, or after a crash).
     Rebuild {
@@ -256,6 +289,13 @@ fn open(dir: &Path) -> Result<Growing, i32> {
     })
 }
 
+fn open_to_look(dir: &Path) -> Result<Growing, i32> {
+    Growing::open_read_only(dir).map_err(|e| {
+        eprintln!("cliptex grow: {e}");
+        store_exit(&e)
+    })
+}
+
 /// Runs one `cliptex grow` subcommand; returns the exit status.
 pub fn run(cmd: GrowCommand) -> i32 {
     match cmd {
@@ -286,7 +326,7 @@ pub fn run(cmd: GrowCommand) -> i32 {
             let (mut added, mut refused) = (Vec::new(), Vec::new());
             for file in files {
                 let shown = file.display().to_string();
-                match read_patch(&g, &file, max_patch_bytes).map_err(|e| e.to_string()).and_then(|p| {
+                match input::read_sidecar(g.grid(), &file, max_patch_bytes).map_err(|e| e.to_string()).and_then(|p| {
                     g.add(p).map_err(|e| match e {
                         StoreError::Io { .. } => format!("could not keep it: {e}"),
                         e => format!("{shown}: {e}"),
@@ -327,6 +367,17 @@ pub fn run(cmd: GrowCommand) -> i32 {
                 exit::BAD_INPUT
             }
         }
+        GrowCommand::Watch { dir, incoming, interval, per_step, per_round, max_patch_bytes, once } => {
+            let mut g = match open(&dir) {
+                Ok(g) => g,
+                Err(c) => return c,
+            };
+            if let Err(e) = std::fs::create_dir_all(&incoming) {
+                eprintln!("cliptex grow watch: {}: could not create: {e}", incoming.display());
+                return exit::COULD_NOT_RUN;
+            }
+            watch(&mut g, &incoming, interval, per_step, per_round.max(1), max_patch_bytes, once)
+        }
         GrowCommand::Rebuild { dir, per_step, json } => {
             let mut g = match open(&dir) {
                 Ok(g) => g,
@@ -353,14 +404,14 @@ pub fn run(cmd: GrowCommand) -> i32 {
                 exit::COULD_NOT_RUN
             }
         },
-        GrowCommand::Status { dir, json } => match open(&dir) {
+        GrowCommand::Status { dir, json } => match open_to_look(&dir) {
             Ok(g) => {
                 clipmap::report::emit(json, &status(&g), human);
                 exit::OK
             }
             Err(c) => c,
         },
-        GrowCommand::Dump { dir, level, out, max_side } => match open(&dir) {
+        GrowCommand::Dump { dir, level, out, max_side } => match open_to_look(&dir) {
             Ok(g) => dump(&g, level, &out, max_side),
             Err(c) => c,
         },
@@ -387,25 +438,6 @@ fn sidecars(paths: &[PathBuf]) -> Result<Vec<PathBuf>, String> {
         }
     }
     Ok(out)
-}
-
-/// A patch from its sidecar and the file it names, checked (not yet given an id).
-fn read_patch(g: &Growing, file: &Path, max_bytes: u64) -> Result<NewPatch, InputError> {
-    let where_ = file.display().to_string();
-    let text = std::fs::read(file)
-        .map_err(|e| InputError::Sidecar { where_: where_.clone(), problem: format!("could not read it: {e}") })?;
-    let desc = input::sidecar(&text, &where_)?;
-    let base = file.parent().unwrap_or(Path::new("."));
-    let data_path = match &desc.image {
-        Some(name) => base.join(name),
-        None => file.with_extension("raw"),
-    };
-    let bytes = std::fs::read(&data_path).map_err(|e| InputError::Sidecar {
-        where_: where_.clone(),
-        problem: format!("could not read {}: {e}", data_path.display()),
-    })?;
-    let p = input::patch(g.grid(), 0, &desc, &bytes, max_bytes, &where_)?;
-    Ok(NewPatch { bbox: p.bbox, time: p.time, rating: p.rating, width: p.width, height: p.height, texels: p.texels })
 }
 
 fn dump(g: &Growing, level: u32, out: &Path, max_side: u64) -> i32 {
@@ -501,4 +533,79 @@ fn example(out: &Path, count: u32, [w, h]: [u32; 2]) -> Result<u32, String> {
             .map_err(|e| format!("{}: could not write: {e}", json.display()))?;
     }
     Ok(boxes.len() as u32)
+}
+
+/// The watch loop: rounds of intake and bounded rebuilds, a pause when idle, until a signal (or,
+/// with `once`, until nothing waits).
+fn watch(
+    g: &mut Growing,
+    incoming: &Path,
+    interval: f64,
+    per_step: usize,
+    per_round: usize,
+    max_bytes: u64,
+    once: bool,
+) -> i32 {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    let rt = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("cliptex grow watch: could not start: {e}");
+            return exit::COULD_NOT_RUN;
+        }
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let idle = std::time::Duration::from_secs_f64(interval.clamp(0.01, 60.0));
+    println!("watching {} for patches into {} (SIGINT or SIGTERM stops)", incoming.display(), g.dir().display());
+    rt.block_on(async {
+        let flag = Arc::clone(&stop);
+        tokio::spawn(async move {
+            let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+                Ok(t) => t,
+                Err(_) => return,
+            };
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = term.recv() => {}
+            }
+            flag.store(true, Ordering::SeqCst);
+        });
+        loop {
+            tokio::task::yield_now().await;
+            if stop.load(Ordering::SeqCst) {
+                break;
+            }
+            let r = match clipmap::growing::watch::round(g, incoming, max_bytes, per_round) {
+                Ok(r) => r,
+                Err(e) => {
+                    eprintln!("cliptex grow watch: {e}");
+                    return exit::COULD_NOT_RUN;
+                }
+            };
+            for (name, id) in &r.added {
+                println!("{name}: added as patch {id}");
+            }
+            for name in &r.already {
+                println!("{name}: already added (moved to done/)");
+            }
+            for (_, why) in &r.refused {
+                eprintln!("cliptex grow watch: refused: {why}");
+            }
+            let busy = g.pending() > 0 || g.applied() < g.index().len() as u64;
+            if busy {
+                if let Err(e) = g.step(per_step.max(1)) {
+                    eprintln!("cliptex grow watch: {e}");
+                    return exit::COULD_NOT_RUN;
+                }
+            } else if r.added.is_empty() && r.refused.is_empty() && r.already.is_empty() {
+                if once {
+                    break;
+                }
+                tokio::time::sleep(idle).await;
+            }
+        }
+        print!("{}", human(&status(g)));
+        exit::OK
+    })
 }
