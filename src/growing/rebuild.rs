@@ -43,7 +43,7 @@ impl Flags {
             b[..chunk.len()].copy_from_slice(chunk);
             *w = u64::from_le_bytes(b);
         }
-        if len % 64 != 0 {
+        if !len.is_multiple_of(64) {
             if let Some(last) = f.words.last_mut() {
                 *last &= (1u64 << (len % 64)) - 1;
             }

@@ -418,6 +418,11 @@ mod store {
         assert!(e.contains("texels per unit"), "{e}");
         let e = Growing::open(dir.path()).err().unwrap().to_string();
         assert!(e.contains("no grid.json") && e.contains("cliptex grow create"), "{e}");
+        // One writer at a time; lookers are welcome.
+        let e = Growing::open(&root).err().unwrap();
+        assert!(matches!(e, StoreError::Busy { .. }) && e.to_string().contains(&std::process::id().to_string()), "{e}");
+        assert_eq!(Growing::open_read_only(&root).unwrap().index().len(), 1);
+        drop(g);
         std::fs::write(root.join("state.json"), "{\"applied\": \"x\"}").unwrap();
         let e = Growing::open(&root).err().unwrap().to_string();
         assert!(e.contains("state.json") && e.contains("damaged"), "{e}");
