@@ -208,6 +208,7 @@ pub fn read_sidecar(grid: &Grid, file: &std::path::Path, max_bytes: u64) -> Resu
         problem: format!("could not read {}: {e}", data_path.display()),
     })?;
     let p = patch(grid, 0, &desc, &bytes, max_bytes, &where_)?;
+    let encoded = desc.image.is_some().then_some(bytes);
     Ok(super::store::NewPatch {
         bbox: p.bbox,
         time: p.time,
@@ -215,6 +216,7 @@ pub fn read_sidecar(grid: &Grid, file: &std::path::Path, max_bytes: u64) -> Resu
         width: p.width,
         height: p.height,
         texels: p.texels,
+        encoded,
     })
 }
 

@@ -41,6 +41,21 @@ pub const MAX_GRID_EXTENT_TEXELS: f64 = (1u64 << 40) as f64;
 /// Largest patch image side, in pixels.
 pub const MAX_PATCH_PIXELS: u32 = 1 << 16;
 
+/// FNV-1a, 64 bits: a stable digest (the same in every build and version, unlike std's hasher)
+/// for recognising bytes again; not for security.
+pub fn digest(bytes: &[u8]) -> u64 {
+    digest_from(bytes, 0xCBF2_9CE4_8422_2325)
+}
+
+/// [`digest`] continued from an earlier digest `h`.
+pub fn digest_from(bytes: &[u8], mut h: u64) -> u64 {
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01B3);
+    }
+    h
+}
+
 /// An axis-aligned box in world units: `min` inclusive, `max` exclusive.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct WorldBox {

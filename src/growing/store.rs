@@ -5,7 +5,8 @@
 //! ```text
 //! DIR/grid.json                  {"version": 1, "origin": [x, y], "texels_per_unit": r,
 //!                                 "tile": 256, "format": "rgb8"}
-//! DIR/patches/0000000007.texels  the patch's texels in the grid's format, row-major
+//! DIR/patches/0000000007.texels  the patch's texels in the grid's format, row-major, or
+//! DIR/patches/0000000007.image   the image file it came from (decoded again at open)
 //! DIR/patches/0000000007.json    {"id": 7, "bbox": [...], "time": t, "rating": r,
 //!                                 "width": w, "height": h}: the patch's commit record
 //! DIR/tiles/K/T_S.tile           a rebuilt tile (header, texels, one bit a texel for data)
@@ -128,6 +129,10 @@ struct PatchRecord {
     /// restart does not take the same file twice.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     source: Option<String>,
+    /// Set when the patch is kept as its image file (`ID.image`): the digest of the texels it
+    /// decoded to, checked when it is decoded again.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    image_digest: Option<String>,
 }
 
 /// `state.json`.
@@ -167,6 +172,9 @@ pub struct NewPatch {
     pub width: u32,
     pub height: u32,
     pub texels: Vec<u8>,
+    /// The image file the texels were decoded from, kept instead of the texels (a JPEG is a
+    /// tenth of its texels: a tenth of the bytes to sync before the patch is acknowledged).
+    pub encoded: Option<Vec<u8>>,
 }
 
 impl Growing {
@@ -282,7 +290,9 @@ impl Growing {
             let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
             if let Some(id) = name.strip_suffix(".json").and_then(|n| n.parse::<u64>().ok()) {
                 records.push((id, path));
-            } else if let Some(id) = name.strip_suffix(".texels").and_then(|n| n.parse::<u64>().ok()) {
+            } else if let Some(id) =
+                name.strip_suffix(".texels").or_else(|| name.strip_suffix(".image")).and_then(|n| n.parse::<u64>().ok())
+            {
                 texels_only.push((id, path));
             } else if name.contains(".tmp") && write {
                 let _ = std::fs::remove_file(&path);
@@ -313,8 +323,33 @@ impl Growing {
             if let Some(s) = &rec.source {
                 sources.insert(s.clone());
             }
-            let tpath = pdir.join(format!("{id:010}.texels"));
-            let texels = std::fs::read(&tpath).map_err(io_err(&tpath, "could not read the patch's texels"))?;
+            let mut redo = false;
+            let texels = match &rec.image_digest {
+                None => {
+                    let tpath = pdir.join(format!("{id:010}.texels"));
+                    std::fs::read(&tpath).map_err(io_err(&tpath, "could not read the patch's texels"))?
+                }
+                Some(want) => {
+                    let ipath = pdir.join(format!("{id:010}.image"));
+                    let bytes = std::fs::read(&ipath).map_err(io_err(&ipath, "could not read the patch's image"))?;
+                    let (w, h, texels) =
+                        super::input::decode_image(&grid, &bytes, u64::MAX, &ipath.display().to_string())
+                            .map_err(|e| StoreError::Damaged { path: ipath.clone(), problem: e.to_string() })?;
+                    if (w, h) != (rec.width, rec.height) {
+                        return Err(StoreError::Damaged {
+                            path: ipath,
+                            problem: format!("a {w}x{h} image where the record says {}x{}", rec.width, rec.height),
+                        });
+                    }
+                    // Another decoder version may round differently: then the patch's tiles are
+                    // rebuilt from what it decodes to now, so tiles and patches agree again.
+                    if *want != format!("{:016x}", super::digest(&texels)) {
+                        tracing::warn!(path = %ipath.display(), "the image decodes to other texels than when it was added: rebuilding its tiles");
+                        redo = true;
+                    }
+                    texels
+                }
+            };
             let [x0, y0, x1, y1] = rec.bbox;
             let meta = PatchMeta {
                 id: *id,
@@ -327,7 +362,7 @@ impl Growing {
                 problem: format!("the patch is refused now: {e}"),
             })?;
             let patch = index.insert(patch);
-            if *id > state.applied {
+            if *id > state.applied || redo {
                 replay.push(patch);
             }
         }
@@ -398,9 +433,19 @@ impl Growing {
         let meta = PatchMeta { id, bbox: p.bbox, time: p.time, rating: p.rating };
         let patch = Patch::new(&self.grid, meta, p.width, p.height, p.texels).map_err(StoreError::Patch)?;
         let pdir = self.dir.join("patches");
-        let tpath = pdir.join(format!("{id:010}.texels"));
         let rpath = pdir.join(format!("{id:010}.json"));
-        write_file(&tpath, &patch.texels, true)?;
+        let (tpath, image_digest) = match &p.encoded {
+            Some(bytes) => {
+                let path = pdir.join(format!("{id:010}.image"));
+                write_file(&path, bytes, true)?;
+                (path, Some(format!("{:016x}", super::digest(&patch.texels))))
+            }
+            None => {
+                let path = pdir.join(format!("{id:010}.texels"));
+                write_file(&path, &patch.texels, true)?;
+                (path, None)
+            }
+        };
         let rec = PatchRecord {
             id,
             bbox: [patch.bbox.min[0], patch.bbox.min[1], patch.bbox.max[0], patch.bbox.max[1]],
@@ -409,6 +454,7 @@ impl Growing {
             width: patch.width,
             height: patch.height,
             source: source.clone(),
+            image_digest,
         };
         if let Err(e) = write_json(&rpath, &rec).and_then(|_| sync_dir(&pdir)) {
             let _ = std::fs::remove_file(&rpath);

@@ -279,7 +279,15 @@ mod store {
 
     fn new_patch(b: [f64; 4], time: u64, rating: f64, w: u32, h: u32, seed: u8) -> NewPatch {
         let texels = (0..w * h).map(|n| seed.wrapping_add((n % w * 5 + n / w * 11) as u8)).collect();
-        NewPatch { bbox: WorldBox { min: [b[0], b[1]], max: [b[2], b[3]] }, time, rating, width: w, height: h, texels }
+        NewPatch {
+            bbox: WorldBox { min: [b[0], b[1]], max: [b[2], b[3]] },
+            time,
+            rating,
+            width: w,
+            height: h,
+            texels,
+            encoded: None,
+        }
     }
 
     /// A few overlapping patches around the origin (ids 1.. as the store gives them).

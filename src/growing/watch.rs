@@ -26,15 +26,6 @@ pub struct Round {
     pub already: Vec<String>,
 }
 
-/// FNV-1a, 64 bits: a stable digest for recognising a sidecar again (not for security).
-fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01B3);
-    }
-    h
-}
-
 /// The sidecars waiting in `incoming`, by name.
 pub fn waiting(incoming: &Path) -> std::io::Result<Vec<PathBuf>> {
     let mut out: Vec<PathBuf> = std::fs::read_dir(incoming)?
@@ -70,7 +61,7 @@ pub fn round(g: &mut Growing, incoming: &Path, max_bytes: u64, max: usize) -> Re
         };
         let data = sidecar(&text, &name).ok().map(|d| data_file(&file, &d));
         let data_len = data.as_ref().and_then(|d| std::fs::metadata(d).ok()).map_or(0, |m| m.len());
-        let source = format!("{name}#{:016x}", fnv1a(&data_len.to_le_bytes(), fnv1a(&text, 0xCBF2_9CE4_8422_2325)));
+        let source = format!("{name}#{:016x}", super::digest_from(&data_len.to_le_bytes(), super::digest(&text)));
         if g.has_source(&source) {
             move_to(incoming, "done", &file, data.as_deref(), None)?;
             r.already.push(name);

@@ -17,6 +17,7 @@ use anyhow::Context;
 use clipmap::growing::index::PatchIndex;
 use clipmap::growing::input::decode_image;
 use clipmap::growing::rebuild::Rebuilder;
+use clipmap::growing::store::{Growing, NewPatch};
 use clipmap::growing::{Grid, Patch, PatchMeta, WorldBox};
 use serde::Serialize;
 use std::time::Instant;
@@ -57,6 +58,16 @@ pub struct Run {
     pub vs_paper: f64,
 }
 
+/// The run with the store on disk.
+#[derive(Debug, Serialize)]
+pub struct Stored {
+    pub tile: u64,
+    pub tiles_rebuilt: usize,
+    pub seconds: f64,
+    pub cpu_seconds: f64,
+    pub tiles_per_s: f64,
+}
+
 /// The whole report.
 #[derive(Debug, Serialize)]
 pub struct Report {
@@ -73,6 +84,8 @@ pub struct Report {
     /// Texel megabytes per second through decode and rebuild at 256² tiles, end to end.
     pub ingest_mb_per_s: f64,
     pub runs: Vec<Run>,
+    /// 256² tiles with the store on disk (patches synced, tiles written).
+    pub stored: Stored,
     pub paper_tiles_per_s_256: f64,
     pub paper_tiles_per_s_512: f64,
     pub goal_vs_paper: f64,
@@ -182,6 +195,38 @@ fn run(args: &Args) -> anyhow::Result<Report> {
             vs_paper: tiles_per_s / paper,
         });
     }
+    // The same at 256² with the store on disk, as `cliptex grow` keeps it: each patch synced
+    // before it counts, every changed tile written, a checkpoint at the end.
+    let stored = {
+        let dir = std::env::temp_dir().join(format!("clipbench-growing-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut g = Growing::create(&dir, [0.0, 0.0], 1.0, 256, "rgb8").context("the store")?;
+        let news: Vec<NewPatch> = decoded
+            .iter()
+            .zip(&jpegs)
+            .map(|((m, pw, ph, t), (_, jpeg))| NewPatch {
+                bbox: m.bbox,
+                time: m.time,
+                rating: m.rating,
+                width: *pw,
+                height: *ph,
+                texels: t.clone(),
+                encoded: Some(jpeg.clone()),
+            })
+            .collect();
+        let (started, cpu0) = (Instant::now(), crate::perf::proc_self().cpu_s);
+        let mut tiles = 0;
+        for p in news {
+            g.add(p).context("adding a patch")?;
+            tiles += g.step(args.per_tick).context("a rebuild step")?.len();
+        }
+        tiles += g.finish(args.per_tick).context("the rebuild")?;
+        let seconds = started.elapsed().as_secs_f64();
+        let cpu_seconds = crate::perf::proc_self().cpu_s - cpu0;
+        drop(g);
+        let _ = std::fs::remove_dir_all(&dir);
+        Stored { tile: 256, tiles_rebuilt: tiles, seconds, cpu_seconds, tiles_per_s: tiles as f64 / seconds }
+    };
     let end_to_end = decode_seconds + runs[0].seconds;
     Ok(Report {
         patches: jpegs.len(),
@@ -195,6 +240,7 @@ fn run(args: &Args) -> anyhow::Result<Report> {
         tiles_per_s_512: runs[1].tiles_per_s,
         ingest_mb_per_s: texel_bytes as f64 / end_to_end / 1e6,
         runs,
+        stored,
         paper_tiles_per_s_256: 428.0,
         paper_tiles_per_s_512: 151.0,
         goal_vs_paper: 10.0,
@@ -239,6 +285,12 @@ fn print_table(r: &Report) -> String {
             run.vs_paper
         );
     }
+    let s = &r.stored;
+    let _ = writeln!(
+        o,
+        "with the store on disk ({}² tiles): {} rebuilt in {:.3} s ({:.2} CPU s), {:.0} tiles/s",
+        s.tile, s.tiles_rebuilt, s.seconds, s.cpu_seconds, s.tiles_per_s
+    );
     let _ = writeln!(
         o,
         "ingest (decode, then rebuild at 256² tiles): {:.1} MB/s of texels; goal: {}x the paper's tile rates",
