@@ -1,0 +1,117 @@
+//! The flight in one JSON object (`--json`) or a few lines, and the tolerance frames are held to.
+
+use crate::flight::FlightReport;
+use crate::upload::Method;
+use clipmap::sample::Filter;
+use serde_json::{json, Value};
+
+/// How far a GPU frame may be from the reference renderer's frame of the same snapshot
+/// (docs/GPU.md, "Tolerance", says how these were chosen from measured differences).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Tolerance {
+    /// Lowest PSNR of a frame over its ground pixels, dB (`None`: every frame identical).
+    pub psnr_floor: Option<f64>,
+    /// Largest channel difference of any pixel, 8-bit units.
+    pub max_error: u16,
+}
+
+impl Tolerance {
+    /// The tolerance for a filter: nearest sampling is bit-exact; filtered sampling differs only
+    /// by the rounding of f32 shader arithmetic against the reference's f64 coordinates.
+    pub fn for_filter(filter: Filter) -> Tolerance {
+        match filter {
+            Filter::Point => Tolerance { psnr_floor: None, max_error: 0 },
+            Filter::Bilinear | Filter::Trilinear => Tolerance { psnr_floor: Some(45.0), max_error: 32 },
+        }
+    }
+
+    /// Whether a flight's worst frame is within.
+    pub fn holds(&self, psnr_min: Option<f64>, max_error: u16) -> bool {
+        let psnr_ok = match (psnr_min, self.psnr_floor) {
+            (None, _) => true,
+            (Some(_), None) => false,
+            (Some(p), Some(floor)) => p >= floor,
+        };
+        psnr_ok && max_error <= self.max_error
+    }
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (mut s, mut n) = (0.0, 0u64);
+    for x in v {
+        s += x;
+        n += 1;
+    }
+    if n == 0 {
+        0.0
+    } else {
+        s / n as f64
+    }
+}
+
+/// Filter name as the command line spells it.
+pub fn filter_name(f: Filter) -> &'static str {
+    match f {
+        Filter::Point => "point",
+        Filter::Bilinear => "bilinear",
+        Filter::Trilinear => "trilinear",
+    }
+}
+
+/// Everything `--json` prints.
+pub struct Context<'a> {
+    /// Adapter description.
+    pub adapter: &'a str,
+    /// Filter.
+    pub filter: Filter,
+    /// Upload method.
+    pub method: Method,
+    /// Upload budget.
+    pub budget: Option<u64>,
+    /// Flight spec.
+    pub flight: &'a str,
+    /// Image size.
+    pub display: [u32; 2],
+    /// Compared with the reference.
+    pub compared: bool,
+}
+
+/// The JSON summary. Per-frame means of uploads leave out frame 0, which uploads everything.
+pub fn json(c: &Context, r: &FlightReport) -> Value {
+    let frames = &r.frames;
+    let steady: Vec<_> = if frames.len() > 1 { frames[1..].iter().collect() } else { frames.iter().collect() };
+    let psnr_min = frames.iter().filter_map(|f| f.psnr).min_by(|a, b| a.total_cmp(b));
+    let max_error = frames.iter().map(|f| f.max_error).max().unwrap_or(0);
+    let tol = Tolerance::for_filter(c.filter);
+    json!({
+        "adapter": c.adapter,
+        "frames": frames.len(),
+        "psnr_min": psnr_min,
+        "max_error": max_error,
+        "compared": c.compared,
+        "tolerance": tol,
+        "within_tolerance": c.compared && tol.holds(psnr_min, max_error),
+        "pixels_differing_max": frames.iter().map(|f| f.pixels_differing).max().unwrap_or(0),
+        "upload_method": c.method,
+        "upload_budget": c.budget,
+        "upload_bytes_per_frame": mean(steady.iter().map(|f| f.upload.bytes as f64)),
+        "theory_strip_bytes_per_frame": mean(steady.iter().map(|f| f.upload.theory_bytes as f64)),
+        "tile_bound_bytes_per_frame": mean(steady.iter().map(|f| f.upload.bound_bytes as f64)),
+        "upload_writes_per_frame": mean(steady.iter().map(|f| f.upload.writes as f64)),
+        "first_frame_upload_bytes": frames.first().map(|f| f.upload.bytes).unwrap_or(0),
+        "frames_over_bound": frames.iter().skip(1).filter(|f| f.upload.bytes > f.upload.bound_bytes).count(),
+        "frames_over_budget": frames.iter().filter(|f| c.budget.is_some_and(|b| f.upload.bytes > b)).count(),
+        "upload_ms": mean(steady.iter().map(|f| f.upload.ms)),
+        "frame_ms": mean(frames.iter().map(|f| f.draw_ms)),
+        "cpu_reference_ms": if c.compared { Some(mean(frames.iter().map(|f| f.reference_ms))) } else { None },
+        "reattaches": r.reattaches,
+        "frames_with_disabled_level": frames.iter().filter(|f| f.levels_disabled > 0).count(),
+        "frames_unsettled": frames.iter().filter(|f| !f.settled).count(),
+        "filter": filter_name(c.filter),
+        "flight": c.flight,
+        "display": c.display,
+        "texture": r.texture,
+        "pictures": r.pictures,
+        "per_frame": frames,
+    })
+}
