@@ -72,7 +72,8 @@ struct Cli {
     /// Upload method: whole tiles into their slots, or the entering strips cut from the tiles.
     #[arg(long, value_enum, default_value = "tiles")]
     upload: Method,
-    /// Upload budget per frame, texel bytes (whole tiles; with --upload tiles).
+    /// Upload budget per frame, texel bytes (whole tiles, coarse levels first; a tile larger than
+    /// the budget goes alone; with --upload tiles).
     #[arg(long)]
     upload_budget: Option<u64>,
     /// Write every frame as PNG (gpu-NNN.png, and reference-NNN.png when comparing) here.

@@ -100,7 +100,7 @@ pub fn json(c: &Context, r: &FlightReport) -> Value {
         "upload_writes_per_frame": mean(steady.iter().map(|f| f.upload.writes as f64)),
         "first_frame_upload_bytes": frames.first().map(|f| f.upload.bytes).unwrap_or(0),
         "frames_over_bound": frames.iter().skip(1).filter(|f| f.upload.bytes > f.upload.bound_bytes).count(),
-        "frames_over_budget": frames.iter().filter(|f| c.budget.is_some_and(|b| f.upload.bytes > b)).count(),
+        "frames_over_budget": frames.iter().filter(|f| c.budget.is_some_and(|b| f.upload.bytes > b && f.upload.writes > 1)).count(),
         "upload_ms": mean(steady.iter().map(|f| f.upload.ms)),
         "frame_ms": mean(frames.iter().map(|f| f.draw_ms)),
         "cpu_reference_ms": if c.compared { Some(mean(frames.iter().map(|f| f.reference_ms))) } else { None },

@@ -3,7 +3,8 @@
 //! - **tiles**: the GPU layer of a level mirrors its image cache: every tile under the published
 //!   valid region that the GPU slot does not hold yet is copied whole, from its slot in the
 //!   mapping into the GPU slot `(S mod GW, T mod GH)`, and the slot's tag on the GPU names it.
-//!   An upload budget is a whole number of tiles: coarse levels first, nearest the centre first.
+//!   An upload budget is a whole number of tiles: coarse levels first, nearest the centre first
+//!   (a tile larger than the budget goes alone in a frame of its own).
 //! - **rects**: only the texels entering the valid region since the last frame (the strips of
 //!   the new region less the old), cut tile by tile from the published slots with the tile's row
 //!   pitch, at the same texel positions (the texture is toroidal per texel, period GW TW x GH TH).
@@ -183,7 +184,8 @@ impl Uploader {
                 if self.held[k][slot] == (tile, true) {
                     continue;
                 }
-                if self.budget.is_some_and(|b| spent + tile_bytes > b) {
+                // A tile larger than the whole budget still goes, alone, so that every tile arrives.
+                if self.budget.is_some_and(|b| spent > 0 && spent + tile_bytes > b) {
                     st.over_budget += 1;
                     continue;
                 }

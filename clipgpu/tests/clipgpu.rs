@@ -205,7 +205,7 @@ fn it_reattaches_when_clipmapd_restarts_and_keeps_matching() {
 fn a_level_disabled_mid_flight_falls_back_to_coarser_levels_with_no_stale_texels() {
     let dir = tempfile::tempdir().unwrap();
     // A tiny tick budget: after each jump the finer levels wait, disabled, for their tiles.
-    let _s = Service::start(dir.path(), "jump", &["--budget", "0.001"]);
+    let _s = Service::start(dir.path(), "jump", &["--budget-ms", "0.001"]);
     let d = dir.path().to_str().unwrap();
     let j = json(&["--name", "jump", "--shm-dir", d, "--flight", "jump:3:1500", "--no-settle", "--frames", "12", "--size", "128x96"]);
     assert!(j["frames_with_disabled_level"].as_u64().unwrap() >= 1, "{}", j["per_frame"]);
