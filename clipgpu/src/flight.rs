@@ -60,12 +60,8 @@ pub struct FrameRecord {
     pub levels_disabled: u32,
     /// The snapshot applied the centre (and, with settling, min LOD was 0).
     pub settled: bool,
-    /// PSNR over the ground pixels against the reference (`None`: identical or not compared).
-    pub psnr: Option<f64>,
-    /// Largest channel difference over every pixel (8-bit units).
-    pub max_error: u16,
-    /// Pixels that differ at all.
-    pub pixels_differing: u64,
+    /// Against the reference renderer (all zero when not compared).
+    pub diff: FrameDiff,
     /// The upload.
     pub upload: UploadStats,
     /// Drawing and reading back the frame, milliseconds.
@@ -264,9 +260,7 @@ pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<Fligh
             min_lod: snap.min_lod,
             levels_disabled: snap.levels.iter().filter(|l| !l.enabled).count() as u32,
             settled: settled(&snap, centre, o.settle),
-            psnr: None,
-            max_error: 0,
-            pixels_differing: 0,
+            diff: FrameDiff::default(),
             upload,
             draw_ms,
             reference_ms: 0.0,
@@ -277,10 +271,7 @@ pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<Fligh
             let t = Instant::now();
             let want = render_mapping(&cam, &at.client, &snap, o.filter);
             rec.reference_ms = t.elapsed().as_secs_f64() * 1000.0;
-            let (psnr, max_error, differing) = compare_frame(&want, &rgba);
-            rec.psnr = psnr;
-            rec.max_error = max_error;
-            rec.pixels_differing = differing;
+            rec.diff = compare_frame(&cam, at.renderer.levels.len(), o.filter, &want, &rgba);
             reference_img = Some(clipmap::accuracy::render::to_image(&cam, &want));
         }
         if let Some(dir) = &o.out_dir {
@@ -302,9 +293,50 @@ pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<Fligh
     Ok(report)
 }
 
-/// (PSNR over the reference's ground pixels as the accuracy study measures it, the largest
-/// channel difference over every pixel, sky included, and how many pixels differ at all).
-pub fn compare_frame(want: &[Pixel], got_rgba: &[u8]) -> (Option<f64>, u16, u64) {
+/// How a GPU frame differs from the reference frame of the same snapshot.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct FrameDiff {
+    /// PSNR over the reference's ground pixels as the accuracy study measures it (`None`: equal).
+    pub psnr: Option<f64>,
+    /// Largest channel difference over every pixel, sky included (8-bit units).
+    pub max_error: u16,
+    /// Pixels that differ at all.
+    pub differing: u64,
+    /// Of those, pixels whose reference coordinates lie on a texel edge (or the LOD on a level
+    /// boundary) to within f32 rounding, where the shader's f32 and the reference's f64 may pick
+    /// different texels.
+    pub at_edges: u64,
+    /// Largest channel difference over the pixels not at an edge.
+    pub max_error_off_edges: u16,
+    /// PSNR over the ground pixels not at an edge (`None`: those are equal).
+    pub psnr_off_edges: Option<f64>,
+}
+
+/// Whether pixel (i, j)'s footprint lies, to within f32 rounding, where the filter's choice of
+/// texels or levels changes: a texel edge of some level (texel centres for the bilinear filters)
+/// or a LOD boundary.
+fn at_edge(cam: &Camera, i: u32, j: u32, levels: usize, filter: Filter) -> bool {
+    let Some(fp) = cam.footprint(i, j) else { return true };
+    let far = (fp.uv[0] - cam.eye[0]).hypot(fp.uv[1] - cam.eye[1]) + cam.eye[2];
+    // f32 carries 24 bits: a few operations on coordinates `far` texels from the eye.
+    let eps = 2e-6 * far + 1e-5;
+    let off = if filter == Filter::Point { 0.0 } else { 0.5 };
+    for k in 0..levels {
+        let scale = (1u64 << k) as f64;
+        for c in fp.uv {
+            let x = c / scale - off;
+            if (x - x.round()).abs() * scale < eps {
+                return true;
+            }
+        }
+    }
+    let lod = fp.lod.max(0.0);
+    let boundary = if filter == Filter::Trilinear { lod.round() } else { lod.floor() + 0.5 };
+    (lod - boundary).abs() < 1e-4
+}
+
+/// Compares a GPU frame (RGBA8 rows) with the reference's pixels.
+pub fn compare_frame(cam: &Camera, levels: usize, filter: Filter, want: &[Pixel], got_rgba: &[u8]) -> FrameDiff {
     let got: Vec<Pixel> = want
         .iter()
         .zip(got_rgba.chunks_exact(4))
@@ -314,12 +346,27 @@ pub fn compare_frame(want: &[Pixel], got_rgba: &[u8]) -> (Option<f64>, u16, u64)
         })
         .collect();
     let (psnr, ground_max, _) = compare(want, &got);
-    let mut max = ground_max;
-    let mut differing = 0;
-    for (w, g) in want.iter().zip(&got) {
-        let d = (0..3).map(|c| w.rgba[c].abs_diff(g.rgba[c]) as u16).max().unwrap_or(0);
-        max = max.max(d);
-        differing += u64::from(d > 0);
+    let mut d = FrameDiff { psnr, max_error: ground_max, ..FrameDiff::default() };
+    let (mut sq, mut n) = (0f64, 0u64);
+    for (idx, (w, g)) in want.iter().zip(&got).enumerate() {
+        let e = (0..3).map(|c| w.rgba[c].abs_diff(g.rgba[c]) as u16).max().unwrap_or(0);
+        d.max_error = d.max_error.max(e);
+        let (i, j) = (idx as u32 % cam.width, idx as u32 / cam.width);
+        let edge = e > 0 && at_edge(cam, i, j, levels, filter);
+        d.differing += u64::from(e > 0);
+        d.at_edges += u64::from(edge);
+        if edge {
+            continue;
+        }
+        d.max_error_off_edges = d.max_error_off_edges.max(e);
+        if w.ground {
+            for c in 0..3 {
+                let x = w.rgba[c].abs_diff(g.rgba[c]) as f64;
+                sq += x * x;
+                n += 1;
+            }
+        }
     }
-    (psnr, max, differing)
+    d.psnr_off_edges = if sq == 0.0 || n == 0 { None } else { Some(10.0 * (255.0f64 * 255.0 / (sq / n as f64)).log10()) };
+    d
 }

@@ -195,9 +195,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         );
         if o.compare {
             println!(
-                "  against the reference renderer: PSNR min {}, max error {} ({}; tolerance: PSNR >= {}, max error <= {})",
+                "  against the reference renderer: PSNR min {}, max error {}; {} pixels at texel edges; off the edges PSNR min {}, max error {} ({}: PSNR >= {}, max error <= {} off the edges)",
                 j["psnr_min"].as_f64().map(|p| format!("{p:.1} dB")).unwrap_or_else(|| "identical".into()),
                 j["max_error"],
+                j["pixels_at_edges"],
+                j["psnr_min_off_edges"].as_f64().map(|p| format!("{p:.1} dB")).unwrap_or_else(|| "identical".into()),
+                j["max_error_off_edges"],
                 if j["within_tolerance"].as_bool() == Some(true) { "within tolerance" } else { "OUTSIDE the tolerance" },
                 tol.psnr_floor.map(|p| format!("{p} dB")).unwrap_or_else(|| "identical".into()),
                 tol.max_error
