@@ -330,7 +330,8 @@ fn at_edge(cam: &Camera, i: u32, j: u32, levels: usize, filter: Filter) -> bool 
             }
         }
     }
-    let lod = fp.lod.max(0.0);
+    // The unclamped LOD: a LOD clamped to 0 (or raised to min LOD) is the same in both.
+    let lod = fp.lod;
     let boundary = if filter == Filter::Trilinear { lod.round() } else { lod.floor() + 0.5 };
     (lod - boundary).abs() < 1e-4
 }
