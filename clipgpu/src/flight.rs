@@ -368,6 +368,7 @@ pub fn compare_frame(cam: &Camera, levels: usize, filter: Filter, want: &[Pixel]
             }
         }
     }
-    d.psnr_off_edges = if sq == 0.0 || n == 0 { None } else { Some(10.0 * (255.0f64 * 255.0 / (sq / n as f64)).log10()) };
+    d.psnr_off_edges =
+        if sq == 0.0 || n == 0 { None } else { Some(10.0 * (255.0f64 * 255.0 / (sq / n as f64)).log10()) };
     d
 }

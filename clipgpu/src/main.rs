@@ -118,12 +118,17 @@ fn parse_point(s: &str) -> Result<[f64; 2], String> {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     if cli.upload_budget.is_some() && cli.upload == Method::Rects {
-        return Err(BadInput("--upload-budget applies to --upload tiles (whole tiles within the budget); drop one of them".into()).into());
+        return Err(BadInput(
+            "--upload-budget applies to --upload tiles (whole tiles within the budget); drop one of them".into(),
+        )
+        .into());
     }
     if cli.upload_budget == Some(0) {
         return Err(BadInput("--upload-budget 0: expected at least one tile's bytes".into()).into());
     }
-    for (what, v, lo, hi) in [("--eye-height", cli.eye_height, 1e-3, 1e9), ("--pitch", cli.pitch, 1.0, 90.0), ("--fov", cli.fov, 1.0, 170.0)] {
+    for (what, v, lo, hi) in
+        [("--eye-height", cli.eye_height, 1e-3, 1e9), ("--pitch", cli.pitch, 1.0, 90.0), ("--fov", cli.fov, 1.0, 170.0)]
+    {
         if !(v.is_finite() && (lo..=hi).contains(&v)) {
             return Err(BadInput(format!("{what} {v}: expected {lo} to {hi}")).into());
         }
@@ -210,7 +215,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             println!("  reattached {} time(s) after the service restarted", report.reattaches);
         }
         if !report.pictures.is_empty() {
-            println!("  frames written to {}", report.pictures[0].parent().unwrap_or(std::path::Path::new(".")).display());
+            println!(
+                "  frames written to {}",
+                report.pictures[0].parent().unwrap_or(std::path::Path::new(".")).display()
+            );
         }
     }
     Ok(())

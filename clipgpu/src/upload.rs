@@ -117,7 +117,10 @@ impl Uploader {
         Uploader {
             method,
             budget,
-            held: levels.iter().map(|l| vec![([i64::MIN, i64::MIN], false); (l.grid[0] * l.grid[1]) as usize]).collect(),
+            held: levels
+                .iter()
+                .map(|l| vec![([i64::MIN, i64::MIN], false); (l.grid[0] * l.grid[1]) as usize])
+                .collect(),
             region: vec![Rect::EMPTY; levels.len()],
             previous: vec![Rect::EMPTY; levels.len()],
             bpt,

@@ -39,10 +39,11 @@ struct Service {
 impl Service {
     fn start(dir: &Path, name: &str, extra: &[&str]) -> Service {
         let socket = dir.join(format!("{name}.sock"));
-        let mut args: Vec<String> = ["--source", "hash", "--size", "8192", "--clip", "256", "--tile", "64", "--tick-hz", "120"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
+        let mut args: Vec<String> =
+            ["--source", "hash", "--size", "8192", "--clip", "256", "--tile", "64", "--tick-hz", "120"]
+                .iter()
+                .map(|s| s.to_string())
+                .collect();
         args.extend(["--name".into(), name.into(), "--shm-dir".into(), dir.to_str().unwrap().into()]);
         args.extend(["--socket".into(), socket.to_str().unwrap().into()]);
         args.extend(extra.iter().map(|s| s.to_string()));
@@ -101,13 +102,9 @@ fn frames(j: &Value) -> &Vec<Value> {
 
 fn assert_within_tolerance(j: &Value) {
     assert_eq!(
-        j["within_tolerance"],
-        true,
+        j["within_tolerance"], true,
         "off the texel edges: psnr_min {} max_error {} (tolerance {}); per frame {}",
-        j["psnr_min_off_edges"],
-        j["max_error_off_edges"],
-        j["tolerance"],
-        j["per_frame"]
+        j["psnr_min_off_edges"], j["max_error_off_edges"], j["tolerance"], j["per_frame"]
     );
 }
 
@@ -116,7 +113,8 @@ fn the_demo_prints_its_json_and_matches_the_reference_renderer_within_the_strips
     let out = tempfile::tempdir().unwrap();
     let o = out.path().join("frames");
     let j = json(&["--demo", "--frames", "8", "--size", "128x96", "--out", o.to_str().unwrap()]);
-    for key in ["adapter", "frames", "psnr_min", "max_error", "upload_bytes_per_frame", "theory_strip_bytes_per_frame"] {
+    for key in ["adapter", "frames", "psnr_min", "max_error", "upload_bytes_per_frame", "theory_strip_bytes_per_frame"]
+    {
         assert!(j.get(key).is_some(), "no `{key}` in {j}");
     }
     assert!(!j["adapter"].as_str().unwrap().is_empty());
@@ -178,11 +176,29 @@ fn an_upload_budget_is_never_exceeded_and_the_frames_fall_back_until_the_tiles_a
     let d = dir.path().to_str().unwrap();
     let budget = 8 * 64 * 64 * 4;
     let b = budget.to_string();
-    let j = json(&["--name", "budget", "--shm-dir", d, "--upload-budget", &b, "--frames", "30", "--size", "128x96", "--flight", "hover", "--filter", "point"]);
+    let j = json(&[
+        "--name",
+        "budget",
+        "--shm-dir",
+        d,
+        "--upload-budget",
+        &b,
+        "--frames",
+        "30",
+        "--size",
+        "128x96",
+        "--flight",
+        "hover",
+        "--filter",
+        "point",
+    ]);
     assert_eq!(j["frames_over_budget"], 0);
     let fr = frames(&j);
     assert!(fr[0]["upload"]["over_budget"].as_u64().unwrap() > 0, "the first frame needs more than the budget");
-    assert!(fr[0]["diff"]["max_error"].as_u64().unwrap() > 0, "without all its tiles the first frame is coarser than the reference");
+    assert!(
+        fr[0]["diff"]["max_error"].as_u64().unwrap() > 0,
+        "without all its tiles the first frame is coarser than the reference"
+    );
     let last = fr.last().unwrap();
     assert_eq!(last["upload"]["over_budget"], 0, "hovering, every tile has arrived by the last frame");
     assert_eq!(last["diff"]["max_error_off_edges"], 0, "{last}");
@@ -217,7 +233,19 @@ fn a_level_disabled_mid_flight_falls_back_to_coarser_levels_with_no_stale_texels
     // A tiny tick budget: after each jump the finer levels wait, disabled, for their tiles.
     let _s = Service::start(dir.path(), "jump", &["--budget-ms", "0.001"]);
     let d = dir.path().to_str().unwrap();
-    let j = json(&["--name", "jump", "--shm-dir", d, "--flight", "jump:3:1500", "--no-settle", "--frames", "12", "--size", "128x96"]);
+    let j = json(&[
+        "--name",
+        "jump",
+        "--shm-dir",
+        d,
+        "--flight",
+        "jump:3:1500",
+        "--no-settle",
+        "--frames",
+        "12",
+        "--size",
+        "128x96",
+    ]);
     assert!(j["frames_with_disabled_level"].as_u64().unwrap() >= 1, "{}", j["per_frame"]);
     assert_within_tolerance(&j);
 }
@@ -229,7 +257,10 @@ fn bad_input_and_a_service_that_never_comes_back_are_explained() {
     let out = clipgpu(&["--name", "nobody", "--shm-dir", d]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(err.contains("no service of that name") && err.contains("clipmap-nobody.map") && err.contains("clipmapd"), "{err}");
+    assert!(
+        err.contains("no service of that name") && err.contains("clipmap-nobody.map") && err.contains("clipmapd"),
+        "{err}"
+    );
     let out = clipgpu(&["--name", "x", "--frames", "zero"]);
     assert_eq!(out.status.code(), Some(1));
     let out = clipgpu(&["--demo", "--upload", "rects", "--upload-budget", "1000"]);
@@ -243,7 +274,21 @@ fn bad_input_and_a_service_that_never_comes_back_are_explained() {
 
     let mut s = Service::start(dir.path(), "gone", &[]);
     let gpu = Command::new(CLIPGPU)
-        .args(["--name", "gone", "--shm-dir", d, "--frames", "200", "--frame-ms", "20", "--size", "64x48", "--reattach-s", "1", "--no-compare"])
+        .args([
+            "--name",
+            "gone",
+            "--shm-dir",
+            d,
+            "--frames",
+            "200",
+            "--frame-ms",
+            "20",
+            "--size",
+            "64x48",
+            "--reattach-s",
+            "1",
+            "--no-compare",
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -258,7 +303,12 @@ fn bad_input_and_a_service_that_never_comes_back_are_explained() {
 
 #[test]
 fn without_a_vulkan_driver_the_error_says_how_to_get_one() {
-    let out = Command::new(CLIPGPU).args(["--demo"]).env("VK_ICD_FILENAMES", "/nonexistent/none.json").env("VK_DRIVER_FILES", "/nonexistent/none.json").output().unwrap();
+    let out = Command::new(CLIPGPU)
+        .args(["--demo"])
+        .env("VK_ICD_FILENAMES", "/nonexistent/none.json")
+        .env("VK_DRIVER_FILES", "/nonexistent/none.json")
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("no Vulkan adapter") && err.contains("mesa-vulkan-drivers"), "{err}");
