@@ -65,6 +65,25 @@ impl Service {
         panic!("clipmapd {args:?} did not answer on its socket within 30 s");
     }
 
+    /// Waits until a renderer's requests have reached the service (clipgpu is flying).
+    fn wait_for_requests(&self) {
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(30) {
+            if let Ok(mut c) = UnixStream::connect(&self.socket) {
+                if writeln!(c, "STATS").is_ok() {
+                    let mut line = String::new();
+                    let _ = BufReader::new(c).read_line(&mut line);
+                    let stats: Value = serde_json::from_str(line.trim_start_matches("OK ").trim()).unwrap_or(Value::Null);
+                    if stats["requests_seen"].as_u64().unwrap_or(0) > 2 {
+                        return;
+                    }
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        panic!("no renderer's request reached the service within 30 s");
+    }
+
     fn kill(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
@@ -215,7 +234,7 @@ fn it_reattaches_when_clipmapd_restarts_and_keeps_matching() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(800));
+    s.wait_for_requests();
     s.kill();
     std::thread::sleep(Duration::from_millis(300));
     let _s2 = Service::start(dir.path(), "again", &[]);
@@ -293,7 +312,7 @@ fn bad_input_and_a_service_that_never_comes_back_are_explained() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(600));
+    s.wait_for_requests();
     s.kill();
     let out = gpu.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
