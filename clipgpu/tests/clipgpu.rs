@@ -73,7 +73,8 @@ impl Service {
                 if writeln!(c, "STATS").is_ok() {
                     let mut line = String::new();
                     let _ = BufReader::new(c).read_line(&mut line);
-                    let stats: Value = serde_json::from_str(line.trim_start_matches("OK ").trim()).unwrap_or(Value::Null);
+                    let stats: Value =
+                        serde_json::from_str(line.trim_start_matches("OK ").trim()).unwrap_or(Value::Null);
                     if stats["requests_seen"].as_u64().unwrap_or(0) > 2 {
                         return;
                     }
