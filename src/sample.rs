@@ -172,7 +172,7 @@ pub fn sample_clipmap(map: &Clipmap, filter: Filter, u: f64, v: f64, lod: f64) -
 /// from a coarser level).
 struct MappedFetch<'a> {
     client: &'a Client,
-    snap: crate::shm::Snapshot,
+    snap: &'a crate::shm::Snapshot,
     format: TexelFormat,
     buf: Vec<u8>,
 }
@@ -188,7 +188,7 @@ impl Fetch for MappedFetch<'_> {
 
     fn texel(&mut self, level: u32, s: i64, t: i64) -> Option<[f32; 4]> {
         let texel = crate::geom::Rect::new(s, t, s + 1, t + 1);
-        self.client.read_region_in(&self.snap, level as usize, texel, &mut self.buf).ok()?;
+        self.client.read_region_in(self.snap, level as usize, texel, &mut self.buf).ok()?;
         Some(self.format.decode(&self.buf))
     }
 }
@@ -198,8 +198,21 @@ impl Fetch for MappedFetch<'_> {
 /// regions); `None` when nothing holds the footprint, or the mapping's texel format is one the
 /// sampler cannot decode.
 pub fn sample_mapping(client: &Client, filter: Filter, u: f64, v: f64, lod: f64) -> Option<Sample> {
-    let format = crate::shm::layout::format_from_code(client.format_code)?;
     let snap = client.try_snapshot().ok()?;
+    sample_mapping_in(client, &snap, filter, u, v, lod)
+}
+
+/// [`sample_mapping`] against a snapshot the caller took (so that many samples, a whole frame,
+/// see one published state, as a renderer that uploads once a frame does).
+pub fn sample_mapping_in(
+    client: &Client,
+    snap: &crate::shm::Snapshot,
+    filter: Filter,
+    u: f64,
+    v: f64,
+    lod: f64,
+) -> Option<Sample> {
+    let format = crate::shm::layout::format_from_code(client.format_code)?;
     let min_lod = snap.min_lod;
     let mut src = MappedFetch { client, snap, format, buf: vec![0; client.bytes_per_texel] };
     sample_published(&mut src, min_lod, filter, u, v, lod)

@@ -3,7 +3,8 @@
 //! trilinear filtering (or point / bilinear) through [`crate::sample`].
 
 use crate::clip::Clipmap;
-use crate::sample::{sample_clipmap, Filter, MipmapSampler};
+use crate::sample::{sample_clipmap, sample_mapping_in, Filter, MipmapSampler};
+use crate::shm::{Client, Snapshot};
 use crate::source::TileSource;
 use rayon::prelude::*;
 
@@ -34,7 +35,8 @@ pub struct Footprint {
 }
 
 impl Camera {
-    fn basis(&self) -> ([f64; 3], [f64; 3], [f64; 3]) {
+    /// The forward, right and up unit vectors (right-handed, up towards +z when level).
+    pub fn basis(&self) -> ([f64; 3], [f64; 3], [f64; 3]) {
         let (h, p) = (self.heading_deg.to_radians(), self.pitch_deg.to_radians());
         let forward = [h.cos() * p.cos(), h.sin() * p.cos(), -p.sin()];
         let right = [h.sin(), -h.cos(), 0.0];
@@ -172,6 +174,31 @@ pub fn render_clipmap_levels(cam: &Camera, map: &Clipmap, filter: Filter, window
             _ => SKY,
         })
         .collect()
+}
+
+/// Renders from a service's mapping as a reader sees it in one snapshot (`snap`, taken by the
+/// caller): the same camera, LOD and sampling as [`render_clipmap`], through
+/// [`crate::sample::sample_mapping_in`]. The GPU client (`clipgpu`) compares its frames with this.
+pub fn render_mapping(cam: &Camera, client: &Client, snap: &Snapshot, filter: Filter) -> Vec<Pixel> {
+    let size = client.levels[0].size;
+    let last = client.levels.len() as f64 - 1.0;
+    let rows: Vec<Vec<Pixel>> = (0..cam.height)
+        .into_par_iter()
+        .map(|j| {
+            (0..cam.width)
+                .map(|i| match cam.footprint(i, j) {
+                    Some(fp) if in_texture(fp.uv, size) => {
+                        match sample_mapping_in(client, snap, filter, fp.uv[0], fp.uv[1], fp.lod.clamp(0.0, last)) {
+                            Some(s) => ground(s.rgba, s.lod),
+                            None => ground(BLACK, last),
+                        }
+                    }
+                    _ => SKY,
+                })
+                .collect()
+        })
+        .collect();
+    rows.concat()
 }
 
 /// Pixels to an RGBA image.

@@ -167,3 +167,23 @@ fn a_missing_tile_in_the_mapping_is_sampled_from_the_next_level_its_neighbours_n
     let engine = |(u, v): (f64, f64)| sample_clipmap(&map, Filter::Point, u, v, 0.0).unwrap();
     assert_eq!((engine(hole), engine(beside)), (at(hole), at(beside)));
 }
+
+#[test]
+fn a_frame_rendered_from_one_snapshot_of_the_mapping_equals_the_engine_render() {
+    use crate::accuracy::render::{render_clipmap, render_mapping, Camera};
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, _w) = mapped_service(dir.path(), "frame");
+    let client = Client::attach(dir.path(), "frame").unwrap();
+    for i in 0..12 {
+        map.tick([1800 + 13 * i, 2100 - 7 * i], None);
+        map.wait_for_reads();
+    }
+    let snap = client.try_snapshot().unwrap();
+    let cam = Camera::following([1956.0, 2016.0], 20.0, 30.0, 40.0, 60.0, [64, 48]);
+    for filter in [Filter::Point, Filter::Trilinear] {
+        let engine = render_clipmap(&cam, &map, filter);
+        let mapped = render_mapping(&cam, &client, &snap, filter);
+        assert_eq!(mapped, engine, "{filter:?}");
+        assert!(mapped.iter().filter(|p| p.ground).count() > 64 * 20, "the camera sees the ground");
+    }
+}

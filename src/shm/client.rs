@@ -469,6 +469,25 @@ impl Client {
         Err(ReadError::Busy(level))
     }
 
+    /// Copies the whole tile `tile` (S, T) of `level` into `out` (TW x TH texels in the slot's
+    /// own order, row pitch TW) under its slot's tag, whether or not the tile lies inside a
+    /// published valid region: for renderers that mirror the image cache slot for slot (the GPU
+    /// client, `clipgpu`). `Stale` when the slot holds another tile or is not ready, `Missing`
+    /// when the service could not read the tile, `NotValid` for a tile outside the level.
+    pub fn read_tile(&self, level: usize, tile: [i64; 2], out: &mut [u8]) -> Result<(), ReadError> {
+        let d = *self.levels.get(level).ok_or(ReadError::NoLevel(level))?;
+        if out.len() as u64 != d.slot_bytes {
+            return Err(ReadError::Corrupt(format!("buffer of {} bytes for a {}-byte tile", out.len(), d.slot_bytes)));
+        }
+        let across = [d.size[0].div_ceil(d.tile[0]) as i64, d.size[1].div_ceil(d.tile[1]) as i64];
+        if tile[0] < 0 || tile[1] < 0 || tile[0] >= across[0] || tile[1] >= across[1] {
+            return Err(ReadError::NotValid(level));
+        }
+        let (tw, th) = (d.tile[0] as i64, d.tile[1] as i64);
+        let rect = Rect::new(tile[0] * tw, tile[1] * th, (tile[0] + 1) * tw, (tile[1] + 1) * th);
+        self.copy_from_slot(&d, level, layout::slot_index(d.grid, tile), tile, rect, rect, out)
+    }
+
     /// Copies the `w` x `h` texels of `level` whose first is (s0, t0) into `out` from a fresh
     /// snapshot (taking one more if the first is stale), returning the snapshot used.
     pub fn read_region(

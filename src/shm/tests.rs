@@ -386,3 +386,33 @@ fn texel_format_codes_round_trip() {
     assert_eq!(layout::format_from_code(0), None);
     assert_eq!(layout::format_from_code(99), None);
 }
+
+#[test]
+fn a_whole_tile_reads_under_its_tag_inside_or_outside_the_published_region() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, _w) = hash_service(dir.path(), "tile", 1 << 12, 128, 32);
+    let c = Client::attach(dir.path(), "tile").unwrap();
+    for _ in 0..10 {
+        map.tick([2040, 2040], None);
+        map.wait_for_reads();
+    }
+    let snap = c.try_snapshot().unwrap();
+    let valid = snap.levels[0].rect();
+    let tiles = tiles_covering(valid, [32, 32]);
+    // An edge tile of the region: part of it lies outside the valid region, all of it is read.
+    let edge = [tiles.s0, tiles.t0];
+    assert!(valid.s0 > edge[0] * 32, "the region starts inside its first tile: {valid:?}");
+    let mut out = vec![0u8; 32 * 32 * 4];
+    c.read_tile(0, edge, &mut out).unwrap();
+    let mut want = vec![0u8; 4];
+    for (i, got) in out.chunks_exact(4).enumerate() {
+        let (s, t) = (edge[0] as u64 * 32 + i as u64 % 32, edge[1] as u64 * 32 + i as u64 / 32);
+        hash(0, s, t, &mut want);
+        assert_eq!(got, want.as_slice(), "texel ({s}, {t})");
+    }
+    // A tile the grid does not hold, one outside the level, a wrong buffer.
+    assert_eq!(c.read_tile(0, [edge[0] + 20, edge[1]], &mut out), Err(ReadError::Stale(0)));
+    assert_eq!(c.read_tile(0, [-1, 0], &mut out), Err(ReadError::NotValid(0)));
+    assert_eq!(c.read_tile(0, [128, 0], &mut out), Err(ReadError::NotValid(0)));
+    assert!(matches!(c.read_tile(0, edge, &mut out[..10]), Err(ReadError::Corrupt(_))));
+}

@@ -1,0 +1,374 @@
+//! The reference flight against a running service: every frame asks for the centre under the
+//! camera, waits for the snapshot that applies it, uploads what the GPU lacks, draws, and (unless
+//! told not to) renders the same snapshot with the reference renderer
+//! (`clipmap::accuracy::render::render_mapping`) and compares. Notices a service that stopped or
+//! was replaced and attaches to the next one.
+
+use crate::gpu::{shapes, Gpu, Renderer};
+use crate::upload::{check_format, Method, UploadStats, Uploader};
+use crate::BadInput;
+use anyhow::{anyhow, Context, Result};
+use clipmap::accuracy::render::{render_mapping, Camera, Pixel};
+use clipmap::accuracy::study::{compare, Case};
+use clipmap::roam::Flight;
+use clipmap::sample::Filter;
+use clipmap::shm::{Client, ShmError, Snapshot};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// How to fly.
+#[derive(Clone, Debug)]
+pub struct FlightOptions {
+    /// The flight, camera and image size (the accuracy study's case; its texture fields are the
+    /// service's business and ignored here).
+    pub case: Case,
+    /// Texture filter.
+    pub filter: Filter,
+    /// Upload method.
+    pub method: Method,
+    /// Upload budget in texel bytes per frame.
+    pub budget: Option<u64>,
+    /// Where frames go as PNG (GPU frames, and the reference's when comparing).
+    pub out_dir: Option<PathBuf>,
+    /// Render the reference too and compare.
+    pub compare: bool,
+    /// Wait for each frame's centre to be settled (min LOD 0) before drawing, up to `wait`.
+    pub settle: bool,
+    /// The longest wait for a frame's snapshot.
+    pub wait: Duration,
+    /// How long to wait for a stopped service to come back.
+    pub reattach: Duration,
+    /// Pause between frames.
+    pub frame_pause: Duration,
+    /// Where the flight starts (level-0 texels; `None`: the texture's centre).
+    pub start: Option<[f64; 2]>,
+}
+
+/// One frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameRecord {
+    /// Frame number.
+    pub frame: u64,
+    /// Level-0 centre asked for.
+    pub centre: [i64; 2],
+    /// The snapshot's tick.
+    pub tick: u64,
+    /// The snapshot's min LOD.
+    pub min_lod: f64,
+    /// Levels disabled in the snapshot.
+    pub levels_disabled: u32,
+    /// The snapshot applied the centre (and, with settling, min LOD was 0).
+    pub settled: bool,
+    /// Against the reference renderer (all zero when not compared).
+    pub diff: FrameDiff,
+    /// The upload.
+    pub upload: UploadStats,
+    /// Drawing and reading back the frame, milliseconds.
+    pub draw_ms: f64,
+    /// The reference renderer on the CPU, milliseconds (0 when not compared).
+    pub reference_ms: f64,
+    /// A new service was attached before this frame.
+    pub reattached: bool,
+}
+
+/// What a flight did.
+#[derive(Clone, Debug, Serialize)]
+pub struct FlightReport {
+    /// Per frame.
+    pub frames: Vec<FrameRecord>,
+    /// Services attached after the first.
+    pub reattaches: u32,
+    /// PNG files written.
+    pub pictures: Vec<PathBuf>,
+    /// The mapping's levels, clip size, tile size of level 0, level-0 size.
+    pub texture: TextureInfo,
+}
+
+/// The texture as the mapping describes it.
+#[derive(Clone, Debug, Serialize)]
+pub struct TextureInfo {
+    /// Level-0 size.
+    pub size: [u64; 2],
+    /// Clip size.
+    pub clip: u64,
+    /// Tile size (level 0).
+    pub tile: [u64; 2],
+    /// Levels.
+    pub levels: usize,
+    /// Bytes per texel as published.
+    pub bytes_per_texel: usize,
+}
+
+/// Names of services published in `dir` (for the error that says which exist).
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .map(|rd| {
+            rd.filter_map(|e| e.ok())
+                .filter_map(|e| {
+                    let n = e.file_name().to_string_lossy().to_string();
+                    n.strip_prefix("clipmap-").and_then(|r| r.strip_suffix(".map")).map(str::to_string)
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+/// Attaches by name; a clear error for a name that is not there or a mapping that is refused.
+pub fn attach(dir: &Path, name: &str) -> Result<Client> {
+    match Client::attach(dir, name) {
+        Ok(c) => {
+            check_format(&c).map_err(|e| anyhow!(BadInput(e.to_string())))?;
+            if !c.can_request() {
+                return Err(anyhow!(
+                    "{}: the request mapping beside it cannot be written by this user, and clipgpu asks \
+                     for its centres through it: run clipgpu as the service's user, or start clipmapd \
+                     with --request-mode 660 and a shared group",
+                    c.path().display()
+                ));
+            }
+            Ok(c)
+        }
+        Err(ShmError::NotFound { .. }) => {
+            let found = names_in(dir);
+            let found = if found.is_empty() { "none".to_string() } else { found.join(", ") };
+            Err(anyhow!(BadInput(format!(
+                "--name {name}: no service of that name in {} (expected {}; services found there: {found}); \
+                 start one with `clipmapd --source terrain --name {name}`, or pass the service's --shm-dir",
+                dir.display(),
+                dir.join(format!("clipmap-{name}.map")).display()
+            ))))
+        }
+        Err(e @ ShmError::BadName(..)) => Err(anyhow!(BadInput(format!("--name {name}: {e}")))),
+        Err(e) => Err(anyhow!(e).context(format!("attaching to the service {name} in {}", dir.display()))),
+    }
+}
+
+fn gone(c: &Client) -> bool {
+    let stale = (c.tick_period * 20).max(Duration::from_secs(1));
+    c.closed() || c.replaced() || c.heartbeat_age() > stale
+}
+
+/// Waits for a new service (another generation) on the name.
+fn reattach(dir: &Path, name: &str, old: u64, within: Duration, frame: u64) -> Result<Client> {
+    let t0 = Instant::now();
+    while t0.elapsed() < within {
+        if let Ok(c) = attach(dir, name) {
+            if c.generation != old && !gone(&c) {
+                return Ok(c);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    Err(anyhow!(
+        "the service {name} stopped at frame {frame} and no new one published {} within {:.1} s: \
+         restart clipmapd, or give clipgpu longer with --reattach-s",
+        dir.join(format!("clipmap-{name}.map")).display(),
+        within.as_secs_f64()
+    ))
+}
+
+/// The GPU's state for one attached service.
+struct Attached {
+    client: Client,
+    renderer: Renderer,
+    uploader: Uploader,
+}
+
+impl Attached {
+    fn new(gpu: &Gpu, client: Client, o: &FlightOptions, reuse: Option<Renderer>) -> Result<Attached> {
+        let levels = shapes(&client);
+        let renderer = match reuse {
+            Some(r) if r.levels == levels => {
+                r.clear_tags(gpu);
+                r
+            }
+            _ => Renderer::new(gpu, levels)?,
+        };
+        let uploader = Uploader::new(&renderer.levels, client.bytes_per_texel, o.method, o.budget);
+        Ok(Attached { client, renderer, uploader })
+    }
+}
+
+fn settled(snap: &Snapshot, centre: [i64; 2], settle: bool) -> bool {
+    snap.tick > 0 && snap.centre == centre && (!settle || snap.min_lod == 0.0)
+}
+
+/// Flies `o` against the service `name` in `dir`.
+pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<FlightReport> {
+    let flight: Flight = o.case.flight.parse().map_err(|e| anyhow!(BadInput(format!("--flight: {e}"))))?;
+    let client = attach(dir, name)?;
+    let d0 = client.levels[0];
+    let texture = TextureInfo {
+        size: d0.size,
+        clip: client.clip_size,
+        tile: d0.tile,
+        levels: client.levels.len(),
+        bytes_per_texel: client.bytes_per_texel,
+    };
+    let mut at = Attached::new(gpu, client, o, None)?;
+    let start = o.start.unwrap_or([d0.size[0] as f64 / 2.0, d0.size[1] as f64 / 2.0]);
+    let heading = {
+        let (a, b) = (flight.position(start, 0), flight.position(start, 1));
+        if (b[0] - a[0]).abs() + (b[1] - a[1]).abs() < 1e-9 {
+            0.0
+        } else {
+            (b[1] - a[1]).atan2(b[0] - a[0]).to_degrees()
+        }
+    };
+    if let Some(dir) = &o.out_dir {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating the picture directory {}", dir.display()))?;
+    }
+    let mut report = FlightReport { frames: Vec::new(), reattaches: 0, pictures: Vec::new(), texture };
+    for f in 0..o.case.frames {
+        let foot = flight.position(start, f);
+        let centre = [foot[0].floor() as i64, foot[1].floor() as i64];
+        let velocity = {
+            let n = flight.position(start, f + 1);
+            [(n[0] - foot[0]) * 60.0, (n[1] - foot[1]) * 60.0]
+        };
+        let mut reattached = false;
+        at.client.request_centre(centre, velocity);
+        let t0 = Instant::now();
+        let mut snap;
+        loop {
+            if gone(&at.client) {
+                let client = reattach(dir, name, at.client.generation, o.reattach, f)?;
+                let Attached { renderer, .. } = at;
+                at = Attached::new(gpu, client, o, Some(renderer))?;
+                report.reattaches += 1;
+                reattached = true;
+                at.client.request_centre(centre, velocity);
+            }
+            snap = at.client.snapshot();
+            if settled(&snap, centre, o.settle) || t0.elapsed() > o.wait {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let upload = at.uploader.upload(gpu, &at.renderer, &at.client, &snap)?;
+        let cam = Camera::following(foot, o.case.eye_height, heading, o.case.pitch_deg, o.case.fov_deg, o.case.display);
+        let t = Instant::now();
+        let rgba = at.renderer.draw(gpu, &cam, &snap, o.filter)?;
+        let draw_ms = t.elapsed().as_secs_f64() * 1000.0;
+        let mut rec = FrameRecord {
+            frame: f,
+            centre,
+            tick: snap.tick,
+            min_lod: snap.min_lod,
+            levels_disabled: snap.levels.iter().filter(|l| !l.enabled).count() as u32,
+            settled: settled(&snap, centre, o.settle),
+            diff: FrameDiff::default(),
+            upload,
+            draw_ms,
+            reference_ms: 0.0,
+            reattached,
+        };
+        let mut reference_img = None;
+        if o.compare {
+            let t = Instant::now();
+            let want = render_mapping(&cam, &at.client, &snap, o.filter);
+            rec.reference_ms = t.elapsed().as_secs_f64() * 1000.0;
+            rec.diff = compare_frame(&cam, at.renderer.levels.len(), o.filter, &want, &rgba);
+            reference_img = Some(clipmap::accuracy::render::to_image(&cam, &want));
+        }
+        if let Some(dir) = &o.out_dir {
+            let path = dir.join(format!("gpu-{f:03}.png"));
+            let img = image::RgbaImage::from_raw(cam.width, cam.height, rgba).context("frame size")?;
+            img.save(&path).with_context(|| format!("writing {}", path.display()))?;
+            report.pictures.push(path);
+            if let Some(img) = reference_img {
+                let path = dir.join(format!("reference-{f:03}.png"));
+                img.save(&path).with_context(|| format!("writing {}", path.display()))?;
+                report.pictures.push(path);
+            }
+        }
+        report.frames.push(rec);
+        if !o.frame_pause.is_zero() {
+            std::thread::sleep(o.frame_pause);
+        }
+    }
+    Ok(report)
+}
+
+/// How a GPU frame differs from the reference frame of the same snapshot.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct FrameDiff {
+    /// PSNR over the reference's ground pixels as the accuracy study measures it (`None`: equal).
+    pub psnr: Option<f64>,
+    /// Largest channel difference over every pixel, sky included (8-bit units).
+    pub max_error: u16,
+    /// Pixels that differ at all.
+    pub differing: u64,
+    /// Of those, pixels whose reference coordinates lie on a texel edge (or the LOD on a level
+    /// boundary) to within f32 rounding, where the shader's f32 and the reference's f64 may pick
+    /// different texels.
+    pub at_edges: u64,
+    /// Largest channel difference over the pixels not at an edge.
+    pub max_error_off_edges: u16,
+    /// PSNR over the ground pixels not at an edge (`None`: those are equal).
+    pub psnr_off_edges: Option<f64>,
+}
+
+/// Whether pixel (i, j)'s footprint lies, to within f32 rounding, where the filter's choice of
+/// texels or levels changes: a texel edge of some level (texel centres for the bilinear filters)
+/// or a LOD boundary.
+fn at_edge(cam: &Camera, i: u32, j: u32, levels: usize, filter: Filter) -> bool {
+    let Some(fp) = cam.footprint(i, j) else { return true };
+    let far = (fp.uv[0] - cam.eye[0]).hypot(fp.uv[1] - cam.eye[1]) + cam.eye[2];
+    // f32 carries 24 bits: a few operations on coordinates `far` texels from the eye.
+    let eps = 2e-6 * far + 1e-5;
+    let off = if filter == Filter::Point { 0.0 } else { 0.5 };
+    for k in 0..levels {
+        let scale = (1u64 << k) as f64;
+        for c in fp.uv {
+            let x = c / scale - off;
+            if (x - x.round()).abs() * scale < eps {
+                return true;
+            }
+        }
+    }
+    // The unclamped LOD: a LOD clamped to 0 (or raised to min LOD) is the same in both.
+    let lod = fp.lod;
+    let boundary = if filter == Filter::Trilinear { lod.round() } else { lod.floor() + 0.5 };
+    (lod - boundary).abs() < 1e-4
+}
+
+/// Compares a GPU frame (RGBA8 rows) with the reference's pixels.
+pub fn compare_frame(cam: &Camera, levels: usize, filter: Filter, want: &[Pixel], got_rgba: &[u8]) -> FrameDiff {
+    let got: Vec<Pixel> = want
+        .iter()
+        .zip(got_rgba.chunks_exact(4))
+        .map(|(w, g)| {
+            let rgba = [g[0], g[1], g[2], g[3]];
+            Pixel { rgba, rgba16: rgba.map(|c| c as u16 * 257), lod: w.lod, ground: w.ground }
+        })
+        .collect();
+    let (psnr, ground_max, _) = compare(want, &got);
+    let mut d = FrameDiff { psnr, max_error: ground_max, ..FrameDiff::default() };
+    let (mut sq, mut n) = (0f64, 0u64);
+    for (idx, (w, g)) in want.iter().zip(&got).enumerate() {
+        let e = (0..3).map(|c| w.rgba[c].abs_diff(g.rgba[c]) as u16).max().unwrap_or(0);
+        d.max_error = d.max_error.max(e);
+        let (i, j) = (idx as u32 % cam.width, idx as u32 / cam.width);
+        let edge = e > 0 && at_edge(cam, i, j, levels, filter);
+        d.differing += u64::from(e > 0);
+        d.at_edges += u64::from(edge);
+        if edge {
+            continue;
+        }
+        d.max_error_off_edges = d.max_error_off_edges.max(e);
+        if w.ground {
+            for c in 0..3 {
+                let x = w.rgba[c].abs_diff(g.rgba[c]) as f64;
+                sq += x * x;
+                n += 1;
+            }
+        }
+    }
+    d.psnr_off_edges =
+        if sq == 0.0 || n == 0 { None } else { Some(10.0 * (255.0f64 * 255.0 / (sq / n as f64)).log10()) };
+    d
+}

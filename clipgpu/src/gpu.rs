@@ -1,0 +1,392 @@
+//! The GPU side: a headless wgpu device (Vulkan), one texture array layer per clipmap level that
+//! mirrors the level's image cache slot for slot, a storage buffer of the slots' tags as this
+//! client holds them, and the ground-plane pipeline of `ground.wgsl` drawing into an offscreen
+//! RGBA8 target that is read back.
+
+use anyhow::{anyhow, Context, Result};
+use clipmap::accuracy::render::Camera;
+use clipmap::sample::Filter;
+use clipmap::shm::{Client, Snapshot};
+
+/// At most this many levels (the mapping's bound, docs/SHM.md).
+pub const MAX_LEVELS: usize = 32;
+const LEVEL_BYTES: usize = 48;
+const FRAME_HEAD_BYTES: usize = 96;
+
+/// The adapter, device and queue.
+pub struct Gpu {
+    /// Adapter name, backend and driver, as the JSON reports it.
+    pub adapter: String,
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
+}
+
+impl Gpu {
+    /// The first Vulkan adapter (lavapipe on a machine without a GPU); an error that says how to
+    /// get one when there is none.
+    pub fn new() -> Result<Gpu> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
+            backends: wgpu::Backends::VULKAN,
+            ..wgpu::InstanceDescriptor::new_without_display_handle()
+        });
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            ..Default::default()
+        }))
+        .map_err(|e| {
+            anyhow!(
+                "no Vulkan adapter found ({e}): clipgpu needs a Vulkan driver; on Debian or Ubuntu \
+                 `apt-get install mesa-vulkan-drivers` installs lavapipe, a software one \
+                 (expected a file /usr/share/vulkan/icd.d/lvp_icd*.json afterwards)"
+            )
+        })?;
+        let info = adapter.get_info();
+        let name = format!("{} ({:?}, {} {})", info.name, info.backend, info.driver, info.driver_info);
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("clipgpu"),
+            required_limits: wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits()),
+            ..Default::default()
+        }))
+        .with_context(|| format!("the adapter {name} refused a device"))?;
+        Ok(Gpu { adapter: name, device, queue })
+    }
+
+    /// Waits for everything submitted so far.
+    pub fn wait(&self) -> Result<()> {
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("waiting for the GPU: {e}"))?;
+        Ok(())
+    }
+}
+
+/// One level's static shape on the GPU.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LevelShape {
+    /// Level size in texels.
+    pub size: [u64; 2],
+    /// Tile size.
+    pub tile: [u64; 2],
+    /// Slots per axis.
+    pub grid: [u64; 2],
+    /// Index of the level's first slot in the tag buffer.
+    pub tag_base: u32,
+}
+
+/// The textures, tags and pipeline for one mapping's shape.
+pub struct Renderer {
+    /// Levels.
+    pub levels: Vec<LevelShape>,
+    texture: wgpu::Texture,
+    tags: wgpu::Buffer,
+    frame: wgpu::Buffer,
+    bind: wgpu::BindGroup,
+    pipeline: wgpu::RenderPipeline,
+    target: Option<(wgpu::Texture, wgpu::Buffer, [u32; 2])>,
+    /// Slots of all levels.
+    pub slot_count: usize,
+}
+
+/// The shape of a mapping's levels (what [`Renderer::new`] builds for).
+pub fn shapes(client: &Client) -> Vec<LevelShape> {
+    let mut base = 0u32;
+    client
+        .levels
+        .iter()
+        .map(|d| {
+            let s = LevelShape { size: d.size, tile: d.tile, grid: d.grid, tag_base: base };
+            base += (d.grid[0] * d.grid[1]) as u32;
+            s
+        })
+        .collect()
+}
+
+fn push_i32(out: &mut Vec<u8>, v: [i64; 4]) {
+    for x in v {
+        out.extend_from_slice(&(x as i32).to_le_bytes());
+    }
+}
+
+fn push_f32(out: &mut Vec<u8>, v: [f64; 4]) {
+    for x in v {
+        out.extend_from_slice(&(x as f32).to_le_bytes());
+    }
+}
+
+impl Renderer {
+    /// Textures sized for `levels` (a layer each, as large as the largest image cache).
+    pub fn new(gpu: &Gpu, levels: Vec<LevelShape>) -> Result<Renderer> {
+        if levels.is_empty() || levels.len() > MAX_LEVELS {
+            return Err(anyhow!("{} levels: expected 1 to {MAX_LEVELS}", levels.len()));
+        }
+        let w = levels.iter().map(|l| l.tile[0] * l.grid[0]).max().unwrap_or(1);
+        let h = levels.iter().map(|l| l.tile[1] * l.grid[1]).max().unwrap_or(1);
+        let lim = gpu.device.limits();
+        if w > lim.max_texture_dimension_2d as u64 || h > lim.max_texture_dimension_2d as u64 {
+            return Err(anyhow!(
+                "an image cache of {w}x{h} texels is larger than the adapter's textures ({} a side): \
+                 use a smaller clip size or mem_region_size",
+                lim.max_texture_dimension_2d
+            ));
+        }
+        let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("image caches"),
+            size: wgpu::Extent3d { width: w as u32, height: h as u32, depth_or_array_layers: levels.len() as u32 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba8Unorm,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let slot_count: usize = levels.iter().map(|l| (l.grid[0] * l.grid[1]) as usize).sum();
+        let tags = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("slot tags"),
+            size: (slot_count.max(1) * 16) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let frame = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("frame"),
+            size: (FRAME_HEAD_BYTES + MAX_LEVELS * LEVEL_BYTES) as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let shader = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("ground.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("ground.wgsl").into()),
+        });
+        let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::FRAGMENT,
+            ty,
+            count: None,
+        };
+        let layout = gpu.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("clipmap"),
+            entries: &[
+                entry(
+                    0,
+                    wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                ),
+                entry(
+                    1,
+                    wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                ),
+                entry(
+                    2,
+                    wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
+                        multisampled: false,
+                    },
+                ),
+            ],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("clipmap"),
+            layout: &layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: frame.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: tags.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&view) },
+            ],
+        });
+        let pipeline_layout = gpu.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("ground"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = gpu.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("ground"),
+            layout: Some(&pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &shader,
+                entry_point: Some("vs"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState::default(),
+            depth_stencil: None,
+            multisample: wgpu::MultisampleState::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &shader,
+                entry_point: Some("fs"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: wgpu::TextureFormat::Rgba8Uint,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let r = Renderer { levels, texture, tags, frame, bind, pipeline, target: None, slot_count };
+        r.clear_tags(gpu);
+        Ok(r)
+    }
+
+    /// Marks every slot empty (nothing held).
+    pub fn clear_tags(&self, gpu: &Gpu) {
+        let mut empty = Vec::with_capacity(self.slot_count * 16);
+        for _ in 0..self.slot_count {
+            push_i32(&mut empty, [i32::MIN as i64, i32::MIN as i64, 0, 0]);
+        }
+        if !empty.is_empty() {
+            gpu.queue.write_buffer(&self.tags, 0, &empty);
+        }
+    }
+
+    /// Writes the tags of slots `first..first + tags.len()` (tile S, T, held).
+    pub fn write_tags(&self, gpu: &Gpu, first: usize, tags: &[([i64; 2], bool)]) {
+        let mut bytes = Vec::with_capacity(tags.len() * 16);
+        for &(tile, held) in tags {
+            push_i32(&mut bytes, [tile[0], tile[1], held as i64, 0]);
+        }
+        gpu.queue.write_buffer(&self.tags, (first * 16) as u64, &bytes);
+    }
+
+    /// Writes RGBA8 texels of a `w` x `h` rectangle at (x, y) of level `k`'s layer.
+    pub fn write_texels(&self, gpu: &Gpu, k: usize, at: [u32; 2], size: [u32; 2], rgba: &[u8]) {
+        gpu.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &self.texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d { x: at[0], y: at[1], z: k as u32 },
+                aspect: wgpu::TextureAspect::All,
+            },
+            rgba,
+            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(size[0] * 4), rows_per_image: Some(size[1]) },
+            wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
+        );
+    }
+
+    /// Submits what was written (uploads go with the next submission otherwise).
+    pub fn flush(&self, gpu: &Gpu) {
+        gpu.queue.submit(std::iter::empty());
+    }
+
+    fn frame_bytes(&self, cam: &Camera, snap: &Snapshot, filter: Filter) -> Vec<u8> {
+        let mut b = Vec::with_capacity(FRAME_HEAD_BYTES + MAX_LEVELS * LEVEL_BYTES);
+        let (ei, et) = (cam.eye[0].floor(), cam.eye[1].floor());
+        let tan = (cam.fov_deg.to_radians() / 2.0).tan();
+        push_f32(&mut b, [cam.eye[0] - ei, cam.eye[1] - et, cam.eye[2], tan]);
+        push_i32(&mut b, [ei as i64, et as i64, cam.width as i64, cam.height as i64]);
+        let (f, r, u) = cam.basis();
+        push_f32(&mut b, [f[0], f[1], f[2], 0.0]);
+        push_f32(&mut b, [r[0], r[1], r[2], 0.0]);
+        push_f32(&mut b, [u[0], u[1], u[2], 0.0]);
+        let filter = match filter {
+            Filter::Point => 0.0,
+            Filter::Bilinear => 1.0,
+            Filter::Trilinear => 2.0,
+        };
+        push_f32(&mut b, [snap.min_lod, self.levels.len() as f64, filter, 0.0]);
+        for k in 0..MAX_LEVELS {
+            match (self.levels.get(k), snap.levels.get(k)) {
+                (Some(l), Some(st)) => {
+                    push_i32(&mut b, st.valid);
+                    push_i32(&mut b, [l.size[0] as i64, l.size[1] as i64, st.enabled as i64, l.tag_base as i64]);
+                    push_i32(&mut b, [l.tile[0] as i64, l.tile[1] as i64, l.grid[0] as i64, l.grid[1] as i64]);
+                }
+                _ => b.extend_from_slice(&[0u8; LEVEL_BYTES]),
+            }
+        }
+        b
+    }
+
+    /// Draws the camera's view from what the textures hold under `snap` and reads it back:
+    /// RGBA8, rows top to bottom.
+    pub fn draw(&mut self, gpu: &Gpu, cam: &Camera, snap: &Snapshot, filter: Filter) -> Result<Vec<u8>> {
+        gpu.queue.write_buffer(&self.frame, 0, &self.frame_bytes(cam, snap, filter));
+        let size = [cam.width, cam.height];
+        let pitch = (cam.width * 4).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        if self.target.as_ref().is_none_or(|t| t.2 != size) {
+            let tex = gpu.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("frame"),
+                size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: wgpu::TextureFormat::Rgba8Uint,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+                view_formats: &[],
+            });
+            let buf = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("readback"),
+                size: (pitch * size[1]) as u64,
+                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                mapped_at_creation: false,
+            });
+            self.target = Some((tex, buf, size));
+        }
+        let (tex, buf, _) = self.target.as_ref().expect("made above");
+        let view = tex.create_view(&wgpu::TextureViewDescriptor::default());
+        let mut enc = gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        {
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("ground"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: None,
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &self.bind, &[]);
+            pass.draw(0..3, 0..1);
+        }
+        enc.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture: tex,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: buf,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(pitch),
+                    rows_per_image: Some(size[1]),
+                },
+            },
+            wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
+        );
+        gpu.queue.submit([enc.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        buf.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        gpu.wait()?;
+        rx.recv().context("the GPU dropped the read-back")?.map_err(|e| anyhow!("reading the frame back: {e}"))?;
+        let mut out = Vec::with_capacity((size[0] * size[1] * 4) as usize);
+        {
+            let data = buf.slice(..).get_mapped_range().map_err(|e| anyhow!("reading the frame back: {e}"))?;
+            for row in data.chunks(pitch as usize).take(size[1] as usize) {
+                out.extend_from_slice(&row[..(size[0] * 4) as usize]);
+            }
+        }
+        buf.unmap();
+        Ok(out)
+    }
+}

@@ -1,0 +1,236 @@
+//! `clipgpu`: the GPU client (docs/GPU.md). `clipgpu --demo --json` runs on its own; `clipgpu
+//! --name NAME` flies against a running `clipmapd`.
+
+use clap::Parser;
+use clipgpu::flight::{fly, FlightOptions};
+use clipgpu::gpu::Gpu;
+use clipgpu::summary::{self, Tolerance};
+use clipgpu::upload::Method;
+use clipgpu::{exit_code, BadInput};
+use clipmap::accuracy::study::Case;
+use clipmap::sample::Filter;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum FilterArg {
+    Point,
+    Bilinear,
+    Trilinear,
+}
+
+/// A headless GPU renderer (wgpu, Vulkan) of a clipmapd service: uploads only the tiles that
+/// entered the published valid regions, samples with the clipmap rule in a fragment shader, and
+/// compares every frame with the reference software renderer.
+///
+/// Examples:
+///   clipgpu --demo --json                        # its own service, the reference flight, JSON
+///   clipgpu --name terrain --out frames          # against `clipmapd --source terrain --name terrain`
+///   clipgpu --name hash --filter point --frames 30 --upload rects
+#[derive(Parser, Debug)]
+#[command(name = "clipgpu", version, verbatim_doc_comment)]
+struct Cli {
+    /// Start a service of its own on the reference flight's procedural texture (terrain 2^16,
+    /// clip 512, tiles of 128) and fly against it.
+    #[arg(long, conflicts_with = "name")]
+    demo: bool,
+    /// The service's name (`clipmapd --name`).
+    #[arg(long, required_unless_present = "demo")]
+    name: Option<String>,
+    /// The service's --shm-dir (default /dev/shm, else the temporary directory).
+    #[arg(long)]
+    shm_dir: Option<PathBuf>,
+    /// Print one JSON object (docs/GPU.md, "JSON") instead of a summary.
+    #[arg(long)]
+    json: bool,
+    /// The flight (straight:SPEED[:ANGLE], circle:RADIUS:SPEED, zigzag:SPEED:PERIOD, hover,
+    /// jump:EVERY:DIST; speeds in level-0 texels per frame).
+    #[arg(long, default_value = "straight:8:30")]
+    flight: String,
+    /// Frames to fly (the accuracy study's reference flight has 6).
+    #[arg(long, default_value_t = 24)]
+    frames: u64,
+    /// Image size WIDTHxHEIGHT in pixels.
+    #[arg(long, default_value = "256x192", value_parser = parse_size)]
+    size: [u32; 2],
+    /// Eye height above the ground, level-0 texels.
+    #[arg(long, default_value_t = 24.0)]
+    eye_height: f64,
+    /// Pitch below the horizon, degrees.
+    #[arg(long, default_value_t = 35.0)]
+    pitch: f64,
+    /// Horizontal field of view, degrees.
+    #[arg(long, default_value_t = 60.0)]
+    fov: f64,
+    /// Where the flight starts, S,T in level-0 texels (default: the texture's centre).
+    #[arg(long, value_parser = parse_point)]
+    start: Option<[f64; 2]>,
+    /// Texture filter.
+    #[arg(long, value_enum, default_value = "trilinear")]
+    filter: FilterArg,
+    /// Upload method: whole tiles into their slots, or the entering strips cut from the tiles.
+    #[arg(long, value_enum, default_value = "tiles")]
+    upload: Method,
+    /// Upload budget per frame, texel bytes (whole tiles, coarse levels first; a tile larger than
+    /// the budget goes alone; with --upload tiles).
+    #[arg(long)]
+    upload_budget: Option<u64>,
+    /// Write every frame as PNG (gpu-NNN.png, and reference-NNN.png when comparing) here.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Do not render the reference frames (no comparison; for timing the GPU alone).
+    #[arg(long)]
+    no_compare: bool,
+    /// Draw as soon as the service applied each frame's centre, without waiting for min LOD 0.
+    #[arg(long)]
+    no_settle: bool,
+    /// The longest wait for a frame's snapshot, ms.
+    #[arg(long, default_value_t = 5000)]
+    wait_ms: u64,
+    /// How long to wait for a stopped service to come back, seconds.
+    #[arg(long, default_value_t = 10.0)]
+    reattach_s: f64,
+    /// Pause between frames, ms.
+    #[arg(long, default_value_t = 0)]
+    frame_ms: u64,
+}
+
+fn parse_size(s: &str) -> Result<[u32; 2], String> {
+    let bad = || format!("`{s}`: expected WIDTHxHEIGHT, each 1 to 4096 pixels (e.g. 256x192)");
+    let (w, h) = s.split_once('x').ok_or_else(bad)?;
+    let (w, h): (u32, u32) = (w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?);
+    if !(1..=4096).contains(&w) || !(1..=4096).contains(&h) {
+        return Err(bad());
+    }
+    Ok([w, h])
+}
+
+fn parse_point(s: &str) -> Result<[f64; 2], String> {
+    let bad = || format!("`{s}`: expected S,T in level-0 texels (e.g. 32768,32768)");
+    let (a, b) = s.split_once(',').ok_or_else(bad)?;
+    let (a, b): (f64, f64) = (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
+    if !a.is_finite() || !b.is_finite() {
+        return Err(bad());
+    }
+    Ok([a, b])
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    if cli.upload_budget.is_some() && cli.upload == Method::Rects {
+        return Err(BadInput(
+            "--upload-budget applies to --upload tiles (whole tiles within the budget); drop one of them".into(),
+        )
+        .into());
+    }
+    if cli.upload_budget == Some(0) {
+        return Err(BadInput("--upload-budget 0: expected at least one tile's bytes".into()).into());
+    }
+    for (what, v, lo, hi) in
+        [("--eye-height", cli.eye_height, 1e-3, 1e9), ("--pitch", cli.pitch, 1.0, 90.0), ("--fov", cli.fov, 1.0, 170.0)]
+    {
+        if !(v.is_finite() && (lo..=hi).contains(&v)) {
+            return Err(BadInput(format!("{what} {v}: expected {lo} to {hi}")).into());
+        }
+    }
+    if cli.frames == 0 || cli.frames > 100_000 {
+        return Err(BadInput(format!("--frames {}: expected 1 to 100000", cli.frames)).into());
+    }
+    let filter = match cli.filter {
+        FilterArg::Point => Filter::Point,
+        FilterArg::Bilinear => Filter::Bilinear,
+        FilterArg::Trilinear => Filter::Trilinear,
+    };
+    let mut case = Case::small();
+    case.flight = cli.flight.clone();
+    case.frames = cli.frames;
+    case.display = cli.size;
+    case.eye_height = cli.eye_height;
+    case.pitch_deg = cli.pitch;
+    case.fov_deg = cli.fov;
+    let o = FlightOptions {
+        case,
+        filter,
+        method: cli.upload,
+        budget: cli.upload_budget,
+        out_dir: cli.out.clone().or_else(|| cli.demo.then(|| PathBuf::from("clipgpu-demo"))),
+        compare: !cli.no_compare,
+        settle: !cli.no_settle,
+        wait: Duration::from_millis(cli.wait_ms),
+        reattach: Duration::from_secs_f64(cli.reattach_s.clamp(0.0, 3600.0)),
+        frame_pause: Duration::from_millis(cli.frame_ms),
+        start: cli.start,
+    };
+    o.case.flight.parse::<clipmap::roam::Flight>().map_err(|e| BadInput(format!("--flight {}: {e}", o.case.flight)))?;
+    let gpu = Gpu::new()?;
+    let report = if cli.demo {
+        clipgpu::demo::demo(&gpu, &o)?
+    } else {
+        let dir = cli.shm_dir.clone().unwrap_or_else(clipmap::shm::default_dir);
+        fly(&gpu, &dir, cli.name.as_deref().unwrap_or_default(), &o)?
+    };
+    let ctx = summary::Context {
+        adapter: &gpu.adapter,
+        filter,
+        method: cli.upload,
+        budget: cli.upload_budget,
+        flight: &cli.flight,
+        display: cli.size,
+        compared: o.compare,
+    };
+    let j = summary::json(&ctx, &report);
+    if cli.json {
+        println!("{}", serde_json::to_string_pretty(&j)?);
+    } else {
+        let tol = Tolerance::for_filter(filter);
+        println!("clipgpu: {} frames on {}", report.frames.len(), gpu.adapter);
+        println!(
+            "  uploads: {:.0} bytes a frame ({}), the entering strips {:.0}, the tile-rounded bound {:.0}; first frame {}",
+            j["upload_bytes_per_frame"].as_f64().unwrap_or(0.0),
+            serde_json::to_string(&cli.upload)?.trim_matches('"'),
+            j["theory_strip_bytes_per_frame"].as_f64().unwrap_or(0.0),
+            j["tile_bound_bytes_per_frame"].as_f64().unwrap_or(0.0),
+            j["first_frame_upload_bytes"]
+        );
+        println!(
+            "  times: draw {:.2} ms, upload {:.2} ms, CPU reference {:.2} ms a frame",
+            j["frame_ms"].as_f64().unwrap_or(0.0),
+            j["upload_ms"].as_f64().unwrap_or(0.0),
+            j["cpu_reference_ms"].as_f64().unwrap_or(0.0)
+        );
+        if o.compare {
+            println!(
+                "  against the reference renderer: PSNR min {}, max error {}; {} pixels at texel edges; off the edges PSNR min {}, max error {} ({}: PSNR >= {}, max error <= {} off the edges)",
+                j["psnr_min"].as_f64().map(|p| format!("{p:.1} dB")).unwrap_or_else(|| "identical".into()),
+                j["max_error"],
+                j["pixels_at_edges"],
+                j["psnr_min_off_edges"].as_f64().map(|p| format!("{p:.1} dB")).unwrap_or_else(|| "identical".into()),
+                j["max_error_off_edges"],
+                if j["within_tolerance"].as_bool() == Some(true) { "within tolerance" } else { "OUTSIDE the tolerance" },
+                tol.psnr_floor.map(|p| format!("{p} dB")).unwrap_or_else(|| "identical".into()),
+                tol.max_error
+            );
+        }
+        if report.reattaches > 0 {
+            println!("  reattached {} time(s) after the service restarted", report.reattaches);
+        }
+        if !report.pictures.is_empty() {
+            println!(
+                "  frames written to {}",
+                report.pictures[0].parent().unwrap_or(std::path::Path::new(".")).display()
+            );
+        }
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli: Cli = clipmap::report::exit::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("clipgpu: {e:#}");
+            ExitCode::from(exit_code(&e))
+        }
+    }
+}

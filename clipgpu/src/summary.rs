@@ -1,0 +1,127 @@
+//! The flight in one JSON object (`--json`) or a few lines, and the tolerance frames are held to.
+
+use crate::flight::{FlightReport, FrameRecord};
+use crate::upload::Method;
+use clipmap::sample::Filter;
+use serde_json::{json, Value};
+
+/// How far a GPU frame may be from the reference renderer's frame of the same snapshot
+/// (docs/GPU.md, "Tolerance", says how these were chosen from measured differences). Pixels
+/// whose footprint lies on a texel edge or a LOD boundary to within f32 rounding are counted
+/// apart (`at_edges`): there the shader's f32 and the reference's f64 may pick another texel.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Tolerance {
+    /// Lowest PSNR of a frame over its ground pixels off the edges, dB (`None`: they must be
+    /// identical).
+    pub psnr_floor: Option<f64>,
+    /// Largest channel difference of a pixel off the edges, 8-bit units.
+    pub max_error: u16,
+}
+
+impl Tolerance {
+    /// Nearest sampling: identical off the edges. Filtered: the rounding of f32 filter weights.
+    pub fn for_filter(filter: Filter) -> Tolerance {
+        match filter {
+            Filter::Point => Tolerance { psnr_floor: None, max_error: 0 },
+            Filter::Bilinear | Filter::Trilinear => Tolerance { psnr_floor: Some(70.0), max_error: 2 },
+        }
+    }
+
+    /// Whether every frame is within.
+    pub fn holds(&self, frames: &[FrameRecord]) -> bool {
+        frames.iter().all(|f| {
+            let psnr_ok = match (f.diff.psnr_off_edges, self.psnr_floor) {
+                (None, _) => true,
+                (Some(_), None) => false,
+                (Some(p), Some(floor)) => p >= floor,
+            };
+            psnr_ok && f.diff.max_error_off_edges <= self.max_error
+        })
+    }
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (mut s, mut n) = (0.0, 0u64);
+    for x in v {
+        s += x;
+        n += 1;
+    }
+    if n == 0 {
+        0.0
+    } else {
+        s / n as f64
+    }
+}
+
+/// Filter name as the command line spells it.
+pub fn filter_name(f: Filter) -> &'static str {
+    match f {
+        Filter::Point => "point",
+        Filter::Bilinear => "bilinear",
+        Filter::Trilinear => "trilinear",
+    }
+}
+
+/// Everything `--json` prints.
+pub struct Context<'a> {
+    /// Adapter description.
+    pub adapter: &'a str,
+    /// Filter.
+    pub filter: Filter,
+    /// Upload method.
+    pub method: Method,
+    /// Upload budget.
+    pub budget: Option<u64>,
+    /// Flight spec.
+    pub flight: &'a str,
+    /// Image size.
+    pub display: [u32; 2],
+    /// Compared with the reference.
+    pub compared: bool,
+}
+
+/// The JSON summary. Per-frame means leave out frame 0, which uploads everything (and on some
+/// drivers compiles the pipeline at its first draw).
+pub fn json(c: &Context, r: &FlightReport) -> Value {
+    let frames = &r.frames;
+    let steady: Vec<_> = if frames.len() > 1 { frames[1..].iter().collect() } else { frames.iter().collect() };
+    let psnr_min = frames.iter().filter_map(|f| f.diff.psnr).min_by(|a, b| a.total_cmp(b));
+    let psnr_off = frames.iter().filter_map(|f| f.diff.psnr_off_edges).min_by(|a, b| a.total_cmp(b));
+    let max_error = frames.iter().map(|f| f.diff.max_error).max().unwrap_or(0);
+    let tol = Tolerance::for_filter(c.filter);
+    json!({
+        "adapter": c.adapter,
+        "frames": frames.len(),
+        "psnr_min": psnr_min,
+        "max_error": max_error,
+        "compared": c.compared,
+        "tolerance": tol,
+        "within_tolerance": c.compared && tol.holds(frames),
+        "psnr_min_off_edges": psnr_off,
+        "max_error_off_edges": frames.iter().map(|f| f.diff.max_error_off_edges).max().unwrap_or(0),
+        "pixels_differing_max": frames.iter().map(|f| f.diff.differing).max().unwrap_or(0),
+        "pixels_at_edges": frames.iter().map(|f| f.diff.at_edges).sum::<u64>(),
+        "upload_method": c.method,
+        "upload_budget": c.budget,
+        "upload_bytes_per_frame": mean(steady.iter().map(|f| f.upload.bytes as f64)),
+        "theory_strip_bytes_per_frame": mean(steady.iter().map(|f| f.upload.theory_bytes as f64)),
+        "tile_bound_bytes_per_frame": mean(steady.iter().map(|f| f.upload.bound_bytes as f64)),
+        "upload_writes_per_frame": mean(steady.iter().map(|f| f.upload.writes as f64)),
+        "first_frame_upload_bytes": frames.first().map(|f| f.upload.bytes).unwrap_or(0),
+        "frames_over_bound": frames.iter().skip(1).filter(|f| f.upload.bytes > f.upload.bound_bytes).count(),
+        "frames_over_budget": frames.iter().filter(|f| c.budget.is_some_and(|b| f.upload.bytes > b && f.upload.writes > 1)).count(),
+        "upload_ms": mean(steady.iter().map(|f| f.upload.ms)),
+        "frame_ms": mean(steady.iter().map(|f| f.draw_ms)),
+        "first_frame_ms": frames.first().map(|f| f.draw_ms),
+        "cpu_reference_ms": if c.compared { Some(mean(steady.iter().map(|f| f.reference_ms))) } else { None },
+        "reattaches": r.reattaches,
+        "frames_with_disabled_level": frames.iter().filter(|f| f.levels_disabled > 0).count(),
+        "frames_unsettled": frames.iter().filter(|f| !f.settled).count(),
+        "filter": filter_name(c.filter),
+        "flight": c.flight,
+        "display": c.display,
+        "texture": r.texture,
+        "pictures": r.pictures,
+        "per_frame": frames,
+    })
+}

@@ -1,0 +1,323 @@
+//! What goes to the GPU each frame. Two methods (docs/GPU.md says which is the default and why):
+//!
+//! - **tiles**: the GPU layer of a level mirrors its image cache: every tile under the published
+//!   valid region that the GPU slot does not hold yet is copied whole, from its slot in the
+//!   mapping into the GPU slot `(S mod GW, T mod GH)`, and the slot's tag on the GPU names it.
+//!   An upload budget is a whole number of tiles: coarse levels first, nearest the centre first
+//!   (a tile larger than the budget goes alone in a frame of its own).
+//! - **rects**: only the texels entering the valid region since the last frame (the strips of
+//!   the new region less the old), cut tile by tile from the published slots with the tile's row
+//!   pitch, at the same texel positions (the texture is toroidal per texel, period GW TW x GH TH).
+//!
+//! Both leave the GPU holding, for each enabled level, every texel of the published valid region
+//! (or, under a budget, tell the shader through the tags which tiles it does not hold yet).
+
+use crate::gpu::{Gpu, LevelShape, Renderer};
+use anyhow::{anyhow, Result};
+use clipmap::geom::{tiles_covering, Rect};
+use clipmap::shm::{Client, ReadError, Snapshot};
+use std::time::Instant;
+
+/// The upload method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Whole tiles into their slots.
+    Tiles,
+    /// The entering strips, cut from the tiles.
+    Rects,
+}
+
+/// What one frame's upload did.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct UploadStats {
+    /// Texel bytes sent to the GPU (as published: bytes per texel of the mapping).
+    pub bytes: u64,
+    /// Texel bytes of the strips that entered the valid regions since the last frame.
+    pub theory_bytes: u64,
+    /// The tile-rounded bound of the tiles method: the tiles each strip touches, whole.
+    pub bound_bytes: u64,
+    /// `write_texture` calls.
+    pub writes: u64,
+    /// Tiles (or tile pieces, for rects) that could not be read this frame (stale, busy).
+    pub deferred: u64,
+    /// Tiles the budget left for a later frame.
+    pub over_budget: u64,
+    /// Tiles the service could not read (their texels come from a coarser level).
+    pub missing: u64,
+    /// Bytes of slot tags written.
+    pub tag_bytes: u64,
+    /// Wall-clock milliseconds: reading the mapping, converting, queueing and submitting.
+    pub ms: f64,
+}
+
+/// The GPU's copy of each level, as far as this client knows.
+pub struct Uploader {
+    method: Method,
+    budget: Option<u64>,
+    /// Per level, per slot: the tile held and whether its texels are there.
+    held: Vec<Vec<([i64; 2], bool)>>,
+    /// Per level: the region whose texels the GPU holds (rects).
+    region: Vec<Rect>,
+    /// Per level: the valid region of the previous frame's snapshot (for the strips).
+    previous: Vec<Rect>,
+    bpt: usize,
+    tile_buf: Vec<u8>,
+    rgba: Vec<u8>,
+}
+
+/// `a` less `b` as at most four rectangles (above, below, left, right of their intersection).
+pub fn minus(a: Rect, b: Rect) -> Vec<Rect> {
+    let i = a.intersect(&b);
+    if i.is_empty() {
+        return if a.is_empty() { vec![] } else { vec![a] };
+    }
+    [
+        Rect::new(a.s0, a.t0, a.s1, i.t0),
+        Rect::new(a.s0, i.t1, a.s1, a.t1),
+        Rect::new(a.s0, i.t0, i.s0, i.t1),
+        Rect::new(i.s1, i.t0, a.s1, i.t1),
+    ]
+    .into_iter()
+    .filter(|r| !r.is_empty())
+    .collect()
+}
+
+/// Published bytes per texel to RGBA8 for the GPU: 8-bit formats of 1 to 4 components, the
+/// missing components 0 (as `clipmap::texel::TexelFormat::decode` reads them).
+fn expand(bpt: usize, src: &[u8], out: &mut Vec<u8>) {
+    out.clear();
+    if bpt == 4 {
+        out.extend_from_slice(src);
+        return;
+    }
+    for t in src.chunks_exact(bpt) {
+        let mut px = [0u8; 4];
+        px[..bpt].copy_from_slice(t);
+        out.extend_from_slice(&px);
+    }
+}
+
+/// Whether clipgpu can upload a mapping's texel format; the error says what it found.
+pub fn check_format(client: &Client) -> Result<()> {
+    use clipmap::texel::ComponentType;
+    match clipmap::shm::layout::format_from_code(client.format_code) {
+        Some(f) if f.ctype == ComponentType::U8 && (1..=4).contains(&f.components.count()) => Ok(()),
+        found => Err(anyhow!(
+            "{}: texel format {} is not one clipgpu uploads (expected an 8-bit format: L8, LA8, RGB8 or RGBA8)",
+            client.path().display(),
+            found.map(|f| f.short_name()).unwrap_or_else(|| format!("code {}", client.format_code))
+        )),
+    }
+}
+
+impl Uploader {
+    /// Nothing held yet.
+    pub fn new(levels: &[LevelShape], bpt: usize, method: Method, budget: Option<u64>) -> Uploader {
+        Uploader {
+            method,
+            budget,
+            held: levels
+                .iter()
+                .map(|l| vec![([i64::MIN, i64::MIN], false); (l.grid[0] * l.grid[1]) as usize])
+                .collect(),
+            region: vec![Rect::EMPTY; levels.len()],
+            previous: vec![Rect::EMPTY; levels.len()],
+            bpt,
+            tile_buf: Vec::new(),
+            rgba: Vec::new(),
+        }
+    }
+
+    /// Brings the GPU up to `snap`: uploads what it lacks of every enabled level's valid region.
+    pub fn upload(&mut self, gpu: &Gpu, r: &Renderer, client: &Client, snap: &Snapshot) -> Result<UploadStats> {
+        let t0 = Instant::now();
+        let mut st = UploadStats::default();
+        let bpt = self.bpt as u64;
+        for (k, l) in r.levels.iter().enumerate() {
+            let now = snap.levels[k].rect();
+            for strip in minus(now, self.previous[k]) {
+                st.theory_bytes += strip.area() * bpt;
+                st.bound_bytes += tiles_covering(strip, l.tile).area() * l.tile[0] * l.tile[1] * bpt;
+            }
+            self.previous[k] = now;
+        }
+        let mut changed: Vec<(usize, usize)> = Vec::new();
+        match self.method {
+            Method::Tiles => self.tiles(gpu, r, client, snap, &mut st, &mut changed),
+            Method::Rects => self.rects(gpu, r, client, snap, &mut st, &mut changed),
+        }
+        for (k, slot) in changed {
+            let first = r.levels[k].tag_base as usize + slot;
+            r.write_tags(gpu, first, &self.held[k][slot..slot + 1]);
+            st.tag_bytes += 16;
+        }
+        r.flush(gpu);
+        gpu.wait()?;
+        st.ms = t0.elapsed().as_secs_f64() * 1000.0;
+        Ok(st)
+    }
+
+    fn tiles(
+        &mut self,
+        gpu: &Gpu,
+        r: &Renderer,
+        client: &Client,
+        snap: &Snapshot,
+        st: &mut UploadStats,
+        changed: &mut Vec<(usize, usize)>,
+    ) {
+        let mut spent = 0u64;
+        // Coarse levels first: under a budget the finer ones fall back on them.
+        for k in (0..r.levels.len()).rev() {
+            let l = r.levels[k];
+            let state = snap.levels[k];
+            if !state.enabled {
+                continue;
+            }
+            let tiles = tiles_covering(state.rect(), l.tile);
+            let mut order: Vec<[i64; 2]> =
+                (tiles.t0..tiles.t1).flat_map(|t| (tiles.s0..tiles.s1).map(move |s| [s, t])).collect();
+            let (ts, tt) = (l.tile[0] as i64, l.tile[1] as i64);
+            let c = state.centre;
+            order.sort_by_key(|&[s, t]| (s * ts + ts / 2 - c[0]).abs().max((t * tt + tt / 2 - c[1]).abs()));
+            let tile_bytes = l.tile[0] * l.tile[1] * self.bpt as u64;
+            for tile in order {
+                let slot = clipmap::shm::layout::slot_index(l.grid, tile) as usize;
+                if self.held[k][slot] == (tile, true) {
+                    continue;
+                }
+                // A tile larger than the whole budget still goes, alone, so that every tile arrives.
+                if self.budget.is_some_and(|b| spent > 0 && spent + tile_bytes > b) {
+                    st.over_budget += 1;
+                    continue;
+                }
+                self.tile_buf.resize(tile_bytes as usize, 0);
+                match client.read_tile(k, tile, &mut self.tile_buf) {
+                    Ok(()) => {
+                        expand(self.bpt, &self.tile_buf, &mut self.rgba);
+                        let at = [(slot as u64 % l.grid[0]) * l.tile[0], (slot as u64 / l.grid[0]) * l.tile[1]];
+                        r.write_texels(
+                            gpu,
+                            k,
+                            [at[0] as u32, at[1] as u32],
+                            [l.tile[0] as u32, l.tile[1] as u32],
+                            &self.rgba,
+                        );
+                        st.bytes += tile_bytes;
+                        st.writes += 1;
+                        spent += tile_bytes;
+                        self.held[k][slot] = (tile, true);
+                    }
+                    Err(ReadError::Missing { .. }) => {
+                        st.missing += 1;
+                        if self.held[k][slot] == (tile, false) {
+                            continue;
+                        }
+                        self.held[k][slot] = (tile, false);
+                    }
+                    Err(_) => {
+                        st.deferred += 1;
+                        if !self.held[k][slot].1 {
+                            continue;
+                        }
+                        self.held[k][slot] = ([i64::MIN, i64::MIN], false);
+                    }
+                }
+                changed.push((k, slot));
+            }
+        }
+    }
+
+    fn rects(
+        &mut self,
+        gpu: &Gpu,
+        r: &Renderer,
+        client: &Client,
+        snap: &Snapshot,
+        st: &mut UploadStats,
+        changed: &mut Vec<(usize, usize)>,
+    ) {
+        for (k, l) in r.levels.iter().enumerate() {
+            let state = snap.levels[k];
+            if !state.enabled {
+                continue;
+            }
+            let now = state.rect();
+            let (tw, th) = (l.tile[0] as i64, l.tile[1] as i64);
+            let period = [l.tile[0] * l.grid[0], l.tile[1] * l.grid[1]];
+            let mut failed = false;
+            for strip in minus(now, self.region[k]) {
+                let tiles = tiles_covering(strip, l.tile);
+                for tt in tiles.t0..tiles.t1 {
+                    for ts in tiles.s0..tiles.s1 {
+                        let piece = strip.intersect(&Rect::new(ts * tw, tt * th, (ts + 1) * tw, (tt + 1) * th));
+                        let slot = clipmap::shm::layout::slot_index(l.grid, [ts, tt]) as usize;
+                        self.tile_buf.resize((piece.area() as usize) * self.bpt, 0);
+                        let ok = match client.read_region_in(snap, k, piece, &mut self.tile_buf) {
+                            Ok(()) => {
+                                expand(self.bpt, &self.tile_buf, &mut self.rgba);
+                                let at = [piece.s0 as u64 % period[0], piece.t0 as u64 % period[1]];
+                                r.write_texels(
+                                    gpu,
+                                    k,
+                                    [at[0] as u32, at[1] as u32],
+                                    [piece.width() as u32, piece.height() as u32],
+                                    &self.rgba,
+                                );
+                                st.bytes += piece.area() * self.bpt as u64;
+                                st.writes += 1;
+                                true
+                            }
+                            Err(ReadError::Missing { .. }) => {
+                                st.missing += 1;
+                                false
+                            }
+                            Err(_) => {
+                                st.deferred += 1;
+                                failed = true;
+                                false
+                            }
+                        };
+                        let tag = ([ts, tt], ok);
+                        if self.held[k][slot] != tag {
+                            self.held[k][slot] = tag;
+                            changed.push((k, slot));
+                        }
+                    }
+                }
+            }
+            // A piece that could not be read is tried again with the whole region next frame.
+            self.region[k] = if failed { Rect::EMPTY } else { now };
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_region_less_another_is_the_strips_that_entered() {
+        let a = Rect::new(10, 10, 30, 30);
+        assert_eq!(minus(a, a), vec![]);
+        assert_eq!(minus(a, Rect::EMPTY), vec![a]);
+        assert_eq!(minus(a, Rect::new(100, 100, 120, 120)), vec![a]);
+        // Moved by (+3, -2): a strip of 3 columns on the right, 2 rows at the top.
+        let old = Rect::new(7, 12, 27, 32);
+        let strips = minus(a, old);
+        assert_eq!(strips.iter().map(|r| r.area()).sum::<u64>(), a.area() - a.intersect(&old).area());
+        assert_eq!(strips, vec![Rect::new(10, 10, 30, 12), Rect::new(27, 12, 30, 30)]);
+    }
+
+    #[test]
+    fn published_texels_expand_to_rgba_with_missing_components_zero() {
+        let mut out = Vec::new();
+        expand(3, &[1, 2, 3, 4, 5, 6], &mut out);
+        assert_eq!(out, vec![1, 2, 3, 0, 4, 5, 6, 0]);
+        expand(1, &[9, 8], &mut out);
+        assert_eq!(out, vec![9, 0, 0, 0, 8, 0, 0, 0]);
+        expand(4, &[1, 2, 3, 4], &mut out);
+        assert_eq!(out, vec![1, 2, 3, 4]);
+    }
+}

@@ -1,0 +1,335 @@
+//! `clipgpu` end to end on whatever Vulkan adapter the machine has (lavapipe in CI): the real
+//! binary against its own demo service and against the real `clipmapd` on the hash texture —
+//! frames against the reference renderer, uploads against the strips, a restart, a level
+//! disabled mid-flight, an upload budget, and bad input. A machine without a Vulkan driver fails
+//! these tests with clipgpu's message saying how to install one.
+
+use serde_json::Value;
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const CLIPGPU: &str = env!("CARGO_BIN_EXE_clipgpu");
+
+/// The workspace's `clipmapd` (built beside this test's binaries; built here if it is not).
+fn clipmapd() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let dir = exe.parent().and_then(Path::parent).unwrap().to_path_buf();
+    let bin = dir.join("clipmapd");
+    if !bin.exists() {
+        let st = Command::new(env!("CARGO"))
+            .args(["build", "-p", "clipmap", "--bin", "clipmapd"])
+            .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+            .status()
+            .unwrap();
+        assert!(st.success(), "building clipmapd for the tests failed");
+    }
+    assert!(bin.exists(), "no clipmapd at {}", bin.display());
+    bin
+}
+
+/// A running `clipmapd --source hash`, killed on drop.
+struct Service {
+    child: Child,
+    socket: PathBuf,
+}
+
+impl Service {
+    fn start(dir: &Path, name: &str, extra: &[&str]) -> Service {
+        let socket = dir.join(format!("{name}.sock"));
+        let mut args: Vec<String> =
+            ["--source", "hash", "--size", "8192", "--clip", "256", "--tile", "64", "--tick-hz", "120"]
+                .iter()
+                .map(|s| s.to_string())
+                .collect();
+        args.extend(["--name".into(), name.into(), "--shm-dir".into(), dir.to_str().unwrap().into()]);
+        args.extend(["--socket".into(), socket.to_str().unwrap().into()]);
+        args.extend(extra.iter().map(|s| s.to_string()));
+        let child = Command::new(clipmapd()).args(&args).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
+        let s = Service { child, socket };
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(30) {
+            if let Ok(mut c) = UnixStream::connect(&s.socket) {
+                if writeln!(c, "PING").is_ok() {
+                    let mut line = String::new();
+                    let _ = BufReader::new(c).read_line(&mut line);
+                    if line.starts_with("OK pong") {
+                        return s;
+                    }
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        panic!("clipmapd {args:?} did not answer on its socket within 30 s");
+    }
+
+    /// Waits until a renderer's requests have reached the service (clipgpu is flying).
+    fn wait_for_requests(&self) {
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(30) {
+            if let Ok(mut c) = UnixStream::connect(&self.socket) {
+                if writeln!(c, "STATS").is_ok() {
+                    let mut line = String::new();
+                    let _ = BufReader::new(c).read_line(&mut line);
+                    let stats: Value =
+                        serde_json::from_str(line.trim_start_matches("OK ").trim()).unwrap_or(Value::Null);
+                    if stats["requests_seen"].as_u64().unwrap_or(0) > 2 {
+                        return;
+                    }
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        panic!("no renderer's request reached the service within 30 s");
+    }
+
+    fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+fn clipgpu(args: &[&str]) -> Output {
+    Command::new(CLIPGPU).args(args).output().unwrap()
+}
+
+/// Runs clipgpu with `--json`, asserts it succeeded and returns the JSON.
+fn json(args: &[&str]) -> Value {
+    let mut all = args.to_vec();
+    all.push("--json");
+    let out = clipgpu(&all);
+    assert!(
+        out.status.success(),
+        "clipgpu {all:?} exited {:?}\nstderr:\n{}",
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("clipgpu printed no JSON ({e}):\n{}", String::from_utf8_lossy(&out.stdout)))
+}
+
+fn frames(j: &Value) -> &Vec<Value> {
+    j["per_frame"].as_array().expect("per_frame")
+}
+
+fn assert_within_tolerance(j: &Value) {
+    assert_eq!(
+        j["within_tolerance"], true,
+        "off the texel edges: psnr_min {} max_error {} (tolerance {}); per frame {}",
+        j["psnr_min_off_edges"], j["max_error_off_edges"], j["tolerance"], j["per_frame"]
+    );
+}
+
+#[test]
+fn the_demo_prints_its_json_and_matches_the_reference_renderer_within_the_strips() {
+    let out = tempfile::tempdir().unwrap();
+    let o = out.path().join("frames");
+    let j = json(&["--demo", "--frames", "8", "--size", "128x96", "--out", o.to_str().unwrap()]);
+    for key in ["adapter", "frames", "psnr_min", "max_error", "upload_bytes_per_frame", "theory_strip_bytes_per_frame"]
+    {
+        assert!(j.get(key).is_some(), "no `{key}` in {j}");
+    }
+    assert!(!j["adapter"].as_str().unwrap().is_empty());
+    assert_eq!(j["frames"], 8);
+    assert_within_tolerance(&j);
+    assert_eq!(j["frames_unsettled"], 0);
+    assert!(j["theory_strip_bytes_per_frame"].as_f64().unwrap() > 0.0, "the flight moves");
+    assert!(j["first_frame_upload_bytes"].as_u64().unwrap() > 0);
+    // Whole tiles: within the tiles the entering strips touch, every frame.
+    for f in frames(&j).iter().skip(1) {
+        let u = &f["upload"];
+        assert!(u["bytes"].as_u64() <= u["bound_bytes"].as_u64(), "frame {}: {u}", f["frame"]);
+    }
+    let img = image::open(o.join("gpu-007.png")).unwrap();
+    assert_eq!((img.width(), img.height()), (128, 96));
+    assert!(o.join("reference-007.png").exists());
+}
+
+#[test]
+fn nearest_filtering_is_bit_exact_against_the_reference_on_the_hash_texture() {
+    let dir = tempfile::tempdir().unwrap();
+    let _s = Service::start(dir.path(), "near", &[]);
+    let d = dir.path().to_str().unwrap();
+    let j = json(&["--name", "near", "--shm-dir", d, "--filter", "point", "--frames", "6", "--size", "128x96"]);
+    // Identical but where a pixel's footprint lies on a texel edge to within f32 rounding.
+    assert_within_tolerance(&j);
+    assert_eq!(j["psnr_min_off_edges"], Value::Null, "{}", j["per_frame"]);
+    assert_eq!(j["max_error_off_edges"], 0);
+    assert!(j["pixels_at_edges"].as_u64().unwrap() <= 6, "{}", j["pixels_at_edges"]);
+}
+
+#[test]
+fn trilinear_frames_match_the_reference_on_the_hash_texture() {
+    let dir = tempfile::tempdir().unwrap();
+    let _s = Service::start(dir.path(), "tri", &[]);
+    let d = dir.path().to_str().unwrap();
+    let j = json(&["--name", "tri", "--shm-dir", d, "--frames", "6", "--size", "128x96", "--flight", "circle:300:12"]);
+    assert_within_tolerance(&j);
+    assert_eq!(j["frames_over_bound"], 0);
+}
+
+#[test]
+fn rects_upload_exactly_the_entering_strips() {
+    let dir = tempfile::tempdir().unwrap();
+    let _s = Service::start(dir.path(), "rects", &[]);
+    let d = dir.path().to_str().unwrap();
+    let j = json(&["--name", "rects", "--shm-dir", d, "--upload", "rects", "--frames", "6", "--size", "128x96"]);
+    assert_within_tolerance(&j);
+    for f in frames(&j) {
+        let u = &f["upload"];
+        assert_eq!(u["bytes"], u["theory_bytes"], "frame {}: {u}", f["frame"]);
+    }
+}
+
+#[test]
+fn an_upload_budget_is_never_exceeded_and_the_frames_fall_back_until_the_tiles_arrive() {
+    let dir = tempfile::tempdir().unwrap();
+    let _s = Service::start(dir.path(), "budget", &[]);
+    let d = dir.path().to_str().unwrap();
+    let budget = 8 * 64 * 64 * 4;
+    let b = budget.to_string();
+    let j = json(&[
+        "--name",
+        "budget",
+        "--shm-dir",
+        d,
+        "--upload-budget",
+        &b,
+        "--frames",
+        "30",
+        "--size",
+        "128x96",
+        "--flight",
+        "hover",
+        "--filter",
+        "point",
+    ]);
+    assert_eq!(j["frames_over_budget"], 0);
+    let fr = frames(&j);
+    assert!(fr[0]["upload"]["over_budget"].as_u64().unwrap() > 0, "the first frame needs more than the budget");
+    assert!(
+        fr[0]["diff"]["max_error"].as_u64().unwrap() > 0,
+        "without all its tiles the first frame is coarser than the reference"
+    );
+    let last = fr.last().unwrap();
+    assert_eq!(last["upload"]["over_budget"], 0, "hovering, every tile has arrived by the last frame");
+    assert_eq!(last["diff"]["max_error_off_edges"], 0, "{last}");
+}
+
+#[test]
+fn it_reattaches_when_clipmapd_restarts_and_keeps_matching() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = Service::start(dir.path(), "again", &[]);
+    let d = dir.path().to_str().unwrap().to_string();
+    let gpu = Command::new(CLIPGPU)
+        .args(["--name", "again", "--shm-dir", &d, "--frames", "40", "--frame-ms", "40", "--size", "128x96", "--json"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    s.wait_for_requests();
+    s.kill();
+    std::thread::sleep(Duration::from_millis(300));
+    let _s2 = Service::start(dir.path(), "again", &[]);
+    let out = gpu.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(j["frames"], 40);
+    assert!(j["reattaches"].as_u64().unwrap() >= 1, "{}", j["reattaches"]);
+    assert_within_tolerance(&j);
+}
+
+#[test]
+fn a_level_disabled_mid_flight_falls_back_to_coarser_levels_with_no_stale_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    // A tiny tick budget: after each jump the finer levels wait, disabled, for their tiles.
+    let _s = Service::start(dir.path(), "jump", &["--budget-ms", "0.001"]);
+    let d = dir.path().to_str().unwrap();
+    let j = json(&[
+        "--name",
+        "jump",
+        "--shm-dir",
+        d,
+        "--flight",
+        "jump:3:1500",
+        "--no-settle",
+        "--frames",
+        "12",
+        "--size",
+        "128x96",
+    ]);
+    assert!(j["frames_with_disabled_level"].as_u64().unwrap() >= 1, "{}", j["per_frame"]);
+    assert_within_tolerance(&j);
+}
+
+#[test]
+fn bad_input_and_a_service_that_never_comes_back_are_explained() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let out = clipgpu(&["--name", "nobody", "--shm-dir", d]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("no service of that name") && err.contains("clipmap-nobody.map") && err.contains("clipmapd"),
+        "{err}"
+    );
+    let out = clipgpu(&["--name", "x", "--frames", "zero"]);
+    assert_eq!(out.status.code(), Some(1));
+    let out = clipgpu(&["--demo", "--upload", "rects", "--upload-budget", "1000"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--upload tiles"));
+    let out = clipgpu(&["--demo", "--flight", "sideways:3"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown flight"));
+    let out = clipgpu(&[]);
+    assert_eq!(out.status.code(), Some(1), "neither --name nor --demo");
+
+    let mut s = Service::start(dir.path(), "gone", &[]);
+    let gpu = Command::new(CLIPGPU)
+        .args([
+            "--name",
+            "gone",
+            "--shm-dir",
+            d,
+            "--frames",
+            "200",
+            "--frame-ms",
+            "20",
+            "--size",
+            "64x48",
+            "--reattach-s",
+            "1",
+            "--no-compare",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    s.wait_for_requests();
+    s.kill();
+    let out = gpu.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("stopped at frame") && err.contains("--reattach-s"), "{err}");
+}
+
+#[test]
+fn without_a_vulkan_driver_the_error_says_how_to_get_one() {
+    let out = Command::new(CLIPGPU)
+        .args(["--demo"])
+        .env("VK_ICD_FILENAMES", "/nonexistent/none.json")
+        .env("VK_DRIVER_FILES", "/nonexistent/none.json")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("no Vulkan adapter") && err.contains("mesa-vulkan-drivers"), "{err}");
+}
