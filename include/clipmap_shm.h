@@ -76,7 +76,8 @@
 #define CLIPMAP_H_TICK_PERIOD_NS 96      /* u64 */
 #define CLIPMAP_H_SNAPSHOT 128           /* the snapshot, 2112 bytes */
 #define CLIPMAP_H_LEVEL_DESCS 2240       /* 32 level descriptors of CLIPMAP_DESC_BYTES */
-#define CLIPMAP_H_END 6336               /* end of the fixed header */
+#define CLIPMAP_H_GROWTH 6336            /* the growth block, CLIPMAP_GROWTH_BYTES (growing textures) */
+#define CLIPMAP_H_END 6464               /* end of the fixed header */
 /* Snapshot fields as absolute offsets (the names layout 1 gave them). */
 #define CLIPMAP_H_GLOBAL_SEQ 128         /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ */
 #define CLIPMAP_H_MIN_LOD 136            /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_MIN_LOD */
@@ -116,6 +117,26 @@
 #define CLIPMAP_D_TAGS_OFFSET 56         /* multiple of 4096 */
 #define CLIPMAP_D_SLOTS_OFFSET 64        /* multiple of 4096 */
 #define CLIPMAP_D_KIND 72                /* 0 stack, 1 pyramid */
+
+/* Growth block fields (relative to CLIPMAP_H_GROWTH), all u64-sized and atomic, one seqlock.
+ * All zero for a texture that does not grow. A growing texture is served in a fixed frame, so
+ * addresses never move as it grows: read this block again (no reattaching) to follow it. */
+#define CLIPMAP_GROWTH_BYTES 128
+#define CLIPMAP_G_SEQ 0                  /* u64: odd while the writer changes the block */
+#define CLIPMAP_G_GROWING 8              /* u64: 1 for a growing texture, else 0 */
+#define CLIPMAP_G_EXTENT_S0 16           /* i64: data extent, level-0 texels: s0 <= s < s1 */
+#define CLIPMAP_G_EXTENT_T0 24           /* i64: t0 <= t < t1 (all 0: no data yet) */
+#define CLIPMAP_G_EXTENT_S1 32           /* i64 */
+#define CLIPMAP_G_EXTENT_T1 40           /* i64 */
+#define CLIPMAP_G_DATA_LEVELS 48         /* u64: levels the data has grown */
+#define CLIPMAP_G_PATCHES 56             /* u64: patches accepted */
+#define CLIPMAP_G_TILES_REBUILT 64       /* u64 */
+#define CLIPMAP_G_TILES_PENDING 72       /* u64 */
+#define CLIPMAP_G_TILES_REPLACED 80      /* u64: rebuilt tiles replaced in their slots */
+#define CLIPMAP_G_WORLD_S0 88            /* f64 bits: world x of level-0 texel (0, 0)'s lower-left corner */
+#define CLIPMAP_G_WORLD_T0 96            /* f64 bits: world y of it */
+#define CLIPMAP_G_TEXELS_PER_UNIT 104    /* f64 bits: level-0 texels per world unit */
+#define CLIPMAP_G_OUTSIDE_FRAME 112      /* u64: patches lying (partly) outside the frame */
 
 /* Slot tag fields (relative to the tag at tags_offset + CLIPMAP_TAG_BYTES * slot), atomic. */
 #define CLIPMAP_TAG_BYTES 32
@@ -158,7 +179,8 @@
 #if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
 _Static_assert(CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAPSHOT_BYTES == CLIPMAP_H_LEVEL_DESCS, "snapshot size");
 _Static_assert(CLIPMAP_SNAP_LEVELS + CLIPMAP_MAX_LEVELS * CLIPMAP_STATE_BYTES == CLIPMAP_SNAPSHOT_BYTES, "states");
-_Static_assert(CLIPMAP_H_LEVEL_DESCS + CLIPMAP_MAX_LEVELS * CLIPMAP_DESC_BYTES == CLIPMAP_H_END, "descs");
+_Static_assert(CLIPMAP_H_LEVEL_DESCS + CLIPMAP_MAX_LEVELS * CLIPMAP_DESC_BYTES == CLIPMAP_H_GROWTH, "descs");
+_Static_assert(CLIPMAP_H_GROWTH + CLIPMAP_GROWTH_BYTES == CLIPMAP_H_END, "growth block");
 _Static_assert(CLIPMAP_H_GLOBAL_SEQ == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ &&
                    CLIPMAP_H_MIN_LOD == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_MIN_LOD &&
                    CLIPMAP_H_TICK == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_TICK &&
@@ -222,6 +244,16 @@ struct clipmap_snapshot {
     uint32_t level_count;
     struct clipmap_level_state levels[CLIPMAP_MAX_LEVELS];
     char error[200];         /* why clipmap_snapshot last returned CLIPMAP_BUSY or CLIPMAP_CORRUPT */
+};
+
+/* A growing texture's growth block (clipmap_growth). */
+struct clipmap_growth {
+    int growing;            /* 0: the texture does not grow (the rest is zero) */
+    int64_t extent[4];      /* s0, t0, s1, t1 of the data, level-0 texels (all 0: none yet) */
+    uint64_t data_levels, patches, tiles_rebuilt, tiles_pending, tiles_replaced, outside_frame;
+    double world_origin[2]; /* world coordinates of level-0 texel (0, 0)'s lower-left corner */
+    double texels_per_unit;
+    char error[200];        /* why clipmap_growth returned CLIPMAP_BUSY or CLIPMAP_CORRUPT */
 };
 
 static inline uint64_t clipmap_splitmix64(uint64_t x) {
@@ -565,6 +597,65 @@ static inline int clipmap_snapshot(const struct clipmap_map *m, struct clipmap_s
         }
     }
     memcpy(snap, &x, sizeof x);
+    return CLIPMAP_OK;
+}
+
+/* Reads the growth block consistently into *g and checks it: CLIPMAP_OK, CLIPMAP_BUSY (the writer
+ * kept it locked for CLIPMAP_MAX_RETRIES attempts) or CLIPMAP_CORRUPT (an extent outside the
+ * frame, a world origin or resolution that is not finite and positive); g->error says why. */
+static inline int clipmap_growth(const struct clipmap_map *m, struct clipmap_growth *g) {
+    const size_t b = CLIPMAP_H_GROWTH;
+    uint64_t v[16];
+    int got = 0;
+    for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES && !got; attempt++) {
+        uint64_t s1 = clipmap_load(m, b + CLIPMAP_G_SEQ, __ATOMIC_ACQUIRE);
+        if (s1 & 1) {
+            clipmap_pause();
+            continue;
+        }
+        for (int i = 1; i < 15; i++) v[i] = clipmap_load(m, b + 8 * (size_t)i, __ATOMIC_RELAXED);
+        __atomic_thread_fence(__ATOMIC_ACQUIRE);
+        got = clipmap_load(m, b + CLIPMAP_G_SEQ, __ATOMIC_RELAXED) == s1;
+    }
+    if (!got) {
+        snprintf(g->error, sizeof g->error, "the writer kept the growth block locked for %d attempts", CLIPMAP_MAX_RETRIES);
+        return CLIPMAP_BUSY;
+    }
+    memset(g, 0, sizeof *g);
+    if (v[CLIPMAP_G_GROWING / 8] > 1) {
+        snprintf(g->error, sizeof g->error, "growth block: growing is %llu, expected 0 or 1",
+                 (unsigned long long)v[CLIPMAP_G_GROWING / 8]);
+        return CLIPMAP_CORRUPT;
+    }
+    g->growing = v[CLIPMAP_G_GROWING / 8] == 1;
+    if (!g->growing) return CLIPMAP_OK;
+    for (int i = 0; i < 4; i++) g->extent[i] = (int64_t)v[CLIPMAP_G_EXTENT_S0 / 8 + i];
+    g->data_levels = v[CLIPMAP_G_DATA_LEVELS / 8];
+    g->patches = v[CLIPMAP_G_PATCHES / 8];
+    g->tiles_rebuilt = v[CLIPMAP_G_TILES_REBUILT / 8];
+    g->tiles_pending = v[CLIPMAP_G_TILES_PENDING / 8];
+    g->tiles_replaced = v[CLIPMAP_G_TILES_REPLACED / 8];
+    g->outside_frame = v[CLIPMAP_G_OUTSIDE_FRAME / 8];
+    memcpy(&g->world_origin[0], &v[CLIPMAP_G_WORLD_S0 / 8], 8);
+    memcpy(&g->world_origin[1], &v[CLIPMAP_G_WORLD_T0 / 8], 8);
+    memcpy(&g->texels_per_unit, &v[CLIPMAP_G_TEXELS_PER_UNIT / 8], 8);
+    const int64_t *e = g->extent;
+    int empty = !e[0] && !e[1] && !e[2] && !e[3];
+    if (!empty && !(e[0] >= 0 && e[0] < e[2] && (uint64_t)e[2] <= m->size[0] && e[1] >= 0 && e[1] < e[3] &&
+                    (uint64_t)e[3] <= m->size[1])) {
+        snprintf(g->error, sizeof g->error, "growth block: extent [%lld, %lld) x [%lld, %lld) is not inside the %llux%llu frame",
+                 (long long)e[0], (long long)e[2], (long long)e[1], (long long)e[3], (unsigned long long)m->size[0],
+                 (unsigned long long)m->size[1]);
+        return CLIPMAP_CORRUPT;
+    }
+    /* isfinite without <math.h>: x - x is 0 only for finite x. */
+    double w0 = g->world_origin[0], w1 = g->world_origin[1], r = g->texels_per_unit;
+    if (!(w0 - w0 == 0.0 && w1 - w1 == 0.0 && r - r == 0.0 && r > 0.0) || g->data_levels > 64) {
+        snprintf(g->error, sizeof g->error, "growth block: world origin (%g, %g), %g texels a unit, %llu data levels: "
+                 "expected finite numbers, a resolution above 0 and at most 64 levels", w0, w1, r,
+                 (unsigned long long)g->data_levels);
+        return CLIPMAP_CORRUPT;
+    }
     return CLIPMAP_OK;
 }
 

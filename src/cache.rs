@@ -221,6 +221,23 @@ impl TileCache {
         }
     }
 
+    /// A resident tile whose replacement in place failed (its slot was settled missing): readers
+    /// use a coarser level for it, and it is wanted again from tick `retry_at`.
+    pub fn mark_replacement_failed(&mut self, tile: TileId, kind: FaultKind, retry_at: u64) {
+        if let Some(slot) = self.level_slot_mut(tile) {
+            slot.state = TileState::Failed { kind, retry_at };
+        }
+    }
+
+    /// A failed tile is wanted again from tick `now` on (its source has new data for it).
+    pub fn retry_now(&mut self, tile: TileId, now: u64) {
+        if let Some(slot) = self.level_slot_mut(tile) {
+            if let TileState::Failed { kind, .. } = slot.state {
+                slot.state = TileState::Failed { kind, retry_at: now };
+            }
+        }
+    }
+
     /// A read of `tile` started too late (its slot had moved on) or found the slot busy: it is
     /// wanted again if its slot still expects it.
     pub fn mark_not_read(&mut self, tile: TileId) {

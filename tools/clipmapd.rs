@@ -11,6 +11,7 @@ use clipmap::report::{exit, EnvArgs};
 use clipmap::service::{self, demo, ControlLimits, Options, Procedural};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::time::Duration;
 
 #[derive(Parser)]
@@ -24,6 +25,7 @@ Examples:
   clipmapd --demo
   clipmapd --source hash --size 65536 --clip 1024 --name verify
   clipmapd --source terrain --size 1048576 --clip 2048 --budget-ms 4 --tick-hz 60
+  clipmapd --growing survey.grow --incoming drops --size 1048576 --clip 1024
   echo STATS | socat - UNIX-CONNECT:/dev/shm/clipmap-verify.sock
 
 Environment: RUST_LOG sets the log filter (default info); logs go to standard error.
@@ -35,7 +37,19 @@ struct Cli {
     /// Serve a procedural texture instead of a configuration.
     #[arg(long, value_enum, conflicts_with = "config")]
     source: Option<SourceArg>,
-    /// Procedural texture size, texels a side (a power of two).
+    /// Serve a growing texture (a store made by `cliptex grow create`, docs/GROWING.md) while it
+    /// grows: patches arrive on the control socket (`PATCH`) and in --incoming.
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["config", "source"])]
+    growing: Option<PathBuf>,
+    /// With --growing: a directory watched for patches (sidecar .json files beside their
+    /// images), moved to done/ or rejected/ once taken.
+    #[arg(long, value_name = "DIR", requires = "growing")]
+    incoming: Option<PathBuf>,
+    /// With --growing: the most bytes of texels one patch may have.
+    #[arg(long, default_value_t = 256 << 20, requires = "growing")]
+    max_patch_bytes: u64,
+    /// Procedural texture size, texels a side (a power of two); with --growing, the frame the
+    /// texture is served in, centred on its grid's origin.
     #[arg(long, default_value_t = 65536)]
     size: u64,
     /// Procedural clip size.
@@ -174,7 +188,36 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
         println!("level 0 usable at the centre in {} of {} frames", r.frames_sharp, r.frames);
         return Ok(());
     }
+    let mut grower = None;
     let (source, default_name, paging) = match (&cli.config, cli.source) {
+        (None, None) if cli.growing.is_some() => {
+            let dir = cli.growing.clone().unwrap_or_default();
+            let store = clipmap::growing::store::Growing::open(&dir).map_err(|e| {
+                let code = match e {
+                    clipmap::growing::store::StoreError::Busy { .. }
+                    | clipmap::growing::store::StoreError::Io { .. } => exit::COULD_NOT_RUN,
+                    _ => exit::BAD_INPUT,
+                };
+                Failure(code, anyhow::anyhow!("{e}"))
+            })?;
+            let frame = clipmap::growing::serve::Frame::new(cli.size, store.grid().tile)
+                .map_err(|e| bad(anyhow::anyhow!("--size {}: {e}", cli.size)))?;
+            let opts = clipmap::growing::serve::GrowerOptions {
+                incoming: cli.incoming.clone(),
+                max_patch_bytes: cli.max_patch_bytes,
+                ..Default::default()
+            };
+            if let Some(d) = &opts.incoming {
+                if !d.is_dir() {
+                    return Err(bad(anyhow::anyhow!("--incoming {}: not a directory", d.display())));
+                }
+            }
+            let (src, g, _join) = clipmap::growing::serve::start(store, frame, cli.clip, opts)
+                .map_err(|e| bad(anyhow::anyhow!("{}: {e}", dir.display())))?;
+            grower = Some(g);
+            let stem = dir.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "growing".into());
+            (src as Arc<dyn clipmap::source::TileSource>, stem, clipmap::paging::PagingOptions::default())
+        }
         (Some(path), _) => {
             let o = cli.env.options().map_err(|e| Failure(exit::COULD_NOT_RUN, anyhow::anyhow!(e)))?;
             // Displayed once: the error's text already holds its source.
@@ -201,11 +244,14 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             (src, name.to_string(), clipmap::paging::PagingOptions::default())
         }
         (None, None) => {
-            return Err(bad(anyhow::anyhow!("give a configuration (CONFIG.ct), --source hash|terrain, or --demo")))
+            return Err(bad(anyhow::anyhow!(
+                "give a configuration (CONFIG.ct), --source hash|terrain, --growing DIR, or --demo"
+            )))
         }
     };
     let mut options = options(&cli, &default_name)?;
     options.paging = cli.paging.over(paging);
+    options.growing = grower;
     let summary = service::run(source, options, shutdown_signal(int, term), |s| {
         println!("clipmapd: serving {} ({} levels, clip {})", s.mapping.display(), s.levels, s.clip_size);
     })

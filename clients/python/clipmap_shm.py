@@ -15,7 +15,8 @@ served by `clipmapd --source hash` and checks every texel:
 
     python3 clients/python/clipmap_shm.py /dev/shm/clipmap-hash.map 100000 [seed [seconds]]
 
-prints "N passed, M failed (...)"; exit status 0 no mismatch, 1 a mismatch, 2 the mapping was
+prints "N passed, M failed (...)"; `python3 clients/python/clipmap_shm.py MAPPING --growth`
+prints a growing texture's growth block as JSON (null when it does not grow). Exit status 0 no mismatch, 1 a mismatch, 2 the mapping was
 refused (at open, or published state out of bounds), with the reason on standard error.
 
 Requests: Python has no compare-and-swap on a mapping, so it cannot take the request
@@ -69,7 +70,13 @@ S_ENABLED, S_UPDATED_TICK = 48, 56
 
 H_LEVEL_DESCS = LEVEL_DESCS = H_SNAPSHOT + SNAPSHOT_BYTES
 DESC_BYTES = 128
-H_END = H_LEVEL_DESCS + MAX_LEVELS * DESC_BYTES
+# The growth block (growing textures; all zero otherwise), u64 fields under one seqlock.
+H_GROWTH = H_LEVEL_DESCS + MAX_LEVELS * DESC_BYTES
+GROWTH_BYTES = 128
+H_END = H_GROWTH + GROWTH_BYTES
+G_SEQ, G_GROWING, G_EXTENT_S0, G_EXTENT_T0, G_EXTENT_S1, G_EXTENT_T1 = 0, 8, 16, 24, 32, 40
+G_DATA_LEVELS, G_PATCHES, G_TILES_REBUILT = 48, 56, 64
+G_TILES_PENDING, G_TILES_REPLACED, G_WORLD_S0, G_WORLD_T0, G_TEXELS_PER_UNIT, G_OUTSIDE_FRAME = 72, 80, 88, 96, 104, 112
 
 # Level descriptor fields (static u64s), relative to the descriptor.
 DESC_SIZE_S, DESC_SIZE_T, DESC_TILE_S, DESC_TILE_T, DESC_GRID_S, DESC_GRID_T = 0, 8, 16, 24, 32, 40
@@ -346,6 +353,44 @@ class Mapping:
         self.snap = snap
         return snap
 
+    def growth(self):
+        """A growing texture's growth block as a dict (extent, data_levels, patches, tiles_rebuilt,
+        tiles_pending, tiles_replaced, world_origin, texels_per_unit, outside_frame), or None for a
+        texture that does not grow. Read again to follow growth: addresses never move. Busy when
+        the writer kept it locked, Corrupt when its values are impossible."""
+        q = self.q
+        b = H_GROWTH // 8
+        for _ in range(MAX_RETRIES):
+            s1 = q[b]
+            if s1 & 1:
+                continue
+            f = q[b: b + GROWTH_BYTES // 8].tolist()
+            if q[b] == s1:
+                break
+        else:
+            raise Busy(f"the writer kept the growth block locked for {MAX_RETRIES} attempts")
+        if f[1] > 1:
+            raise Corrupt(f"growth block: growing is {f[1]}, expected 0 or 1")
+        if f[1] == 0:
+            return None
+        fl = lambda i: struct.unpack("<d", struct.pack("<Q", f[i]))[0]
+        g = {
+            "extent": [_signed(x) for x in f[2:6]],
+            "data_levels": f[6], "patches": f[7], "tiles_rebuilt": f[8], "tiles_pending": f[9],
+            "tiles_replaced": f[10], "world_origin": [fl(11), fl(12)], "texels_per_unit": fl(13),
+            "outside_frame": f[14],
+        }
+        e = g["extent"]
+        w, h = self.levels[0].size
+        if e != [0, 0, 0, 0] and not (0 <= e[0] < e[2] <= w and 0 <= e[1] < e[3] <= h):
+            raise Corrupt(f"growth block: extent {e} is not inside the {w}x{h} frame")
+        finite = all(abs(v) < float("inf") for v in g["world_origin"] + [g["texels_per_unit"]])
+        if not finite or not g["texels_per_unit"] > 0 or g["data_levels"] > 64:
+            raise Corrupt(f"growth block: world origin {g['world_origin']}, {g['texels_per_unit']} texels a unit, "
+                          f"{g['data_levels']} data levels: expected finite numbers, a resolution above 0, "
+                          f"at most 64 levels")
+        return g
+
     def texel_offset(self, level, s, t):
         """Byte offset in the mapping of texel (s, t) of `level` in the slot its tile maps to
         (None outside the level). Says nothing about what the slot holds: see read_region."""
@@ -459,6 +504,16 @@ def _pick(rng, mode, v0, v1, tile):
 
 
 def main(argv):
+    if len(argv) == 3 and argv[2] == "--growth":
+        # python3 clipmap_shm.py MAPPING --growth: the growth block as JSON (null: not growing).
+        import json
+        try:
+            m = Mapping(argv[1])
+            print(json.dumps(m.growth(), sort_keys=True))
+        except (ClipmapError, OSError, ValueError) as e:
+            print(f"clipmap_shm: {e}", file=sys.stderr)
+            return 2
+        return 0
     if len(argv) < 3:
         print(f"usage: {argv[0]} MAPPING READS [SEED [SECONDS]]", file=sys.stderr)
         return 2

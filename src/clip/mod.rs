@@ -221,6 +221,12 @@ pub struct Clipmap {
     min_lod: f64,
     tick: u64,
     stats: Stats,
+    /// The source itself (not through the pool): what [`Clipmap::refresh`]ed tiles are read from.
+    source: Arc<dyn TileSource>,
+    /// Tiles whose texels changed at the source, waiting to be replaced in their slots, in order.
+    refresh: VecDeque<TileId>,
+    /// The same tiles, to ask for each once.
+    refreshing: std::collections::HashSet<TileId>,
 }
 
 impl Clipmap {
@@ -289,7 +295,7 @@ impl Clipmap {
             .then(|| Arc::new(PoolSource::new(source.clone(), settings.pool_bytes, settings.eviction)));
         let reader: Arc<dyn TileSource> = match &pool {
             Some(p) => p.clone(),
-            None => source,
+            None => source.clone(),
         };
         let queues = ReadQueues::new(reader, memory, settings.streams, settings.limits)?;
         Ok(Clipmap {
@@ -305,7 +311,94 @@ impl Clipmap {
             centre: None,
             tick: 0,
             stats: Stats::default(),
+            source,
+            refresh: VecDeque::new(),
+            refreshing: Default::default(),
         })
+    }
+
+    /// Says that the source's texels of `tiles` changed (a growing texture rebuilt them): each
+    /// one the clipmap holds is read again, straight into its slot, by the coming ticks (bounded by
+    /// the tick's budget; at least one a tick), while its level stays published: the slot's tag
+    /// says loading while its bytes change, so readers fall back to a coarser level for that tile
+    /// only, or discard what they copied. A tile whose read is under way is replaced once it has
+    /// settled (its read may have started before the change); one whose read failed (a tile with
+    /// no data yet) is read again at once; one the clipmap does not hold needs nothing (its read,
+    /// when it enters a mem region, sees the change).
+    pub fn refresh(&mut self, tiles: impl IntoIterator<Item = TileId>) {
+        for t in tiles {
+            if (t.level as usize) < self.levels.len() && self.refreshing.insert(t) {
+                self.refresh.push_back(t);
+            }
+        }
+    }
+
+    /// Whether the clipmap holds `tile` in a slot (loading, settled or failed).
+    pub fn holds(&self, tile: TileId) -> bool {
+        (tile.level as usize) < self.levels.len() && self.cache.state(tile) != TileState::Absent
+    }
+
+    /// Tiles waiting to be replaced in their slots.
+    pub fn refresh_pending(&self) -> usize {
+        self.refresh.len()
+    }
+
+    /// Replaces waiting [`refresh`](Self::refresh)ed tiles in their slots until the tick's budget
+    /// is spent (one at least); returns how many were replaced.
+    fn replace_tiles(&mut self, started: Instant) -> u64 {
+        let budget = self.settings.budget_ns.map(Duration::from_nanos);
+        let mut replaced = 0;
+        for _ in 0..self.refresh.len() {
+            if replaced > 0 && budget.is_some_and(|b| started.elapsed() >= b) {
+                break;
+            }
+            let Some(tile) = self.refresh.pop_front() else { break };
+            match self.cache.state(tile) {
+                TileState::Loading => {
+                    // Its read may predate the change: replace it after it settles.
+                    self.refresh.push_back(tile);
+                    continue;
+                }
+                TileState::Resident | TileState::Defaulted => {}
+                TileState::Failed { .. } => {
+                    // Read again at once (not after the retry delay): the source has its data now.
+                    self.refreshing.remove(&tile);
+                    self.cache.retry_now(tile, self.tick);
+                    continue;
+                }
+                TileState::Absent => {
+                    self.refreshing.remove(&tile);
+                    continue;
+                }
+            }
+            self.refreshing.remove(&tile);
+            let source = &self.source;
+            let Some((generation, result)) = self.cache.memory().replace(tile, |out| source.read_into(tile, out))
+            else {
+                continue;
+            };
+            let memory = self.cache.memory().clone();
+            match result {
+                Ok(delivered) => {
+                    let st = match delivered {
+                        crate::source::Delivered::Tile => layout::SlotState::Ready,
+                        crate::source::Delivered::Default => layout::SlotState::Default,
+                    };
+                    memory.settle(tile, generation, st);
+                    self.stats.queue.bytes_read += self.desc.tile_bytes(tile.level) as u64;
+                    replaced += 1;
+                }
+                Err(e) => {
+                    tracing::debug!("tile replacement failed: {e}");
+                    self.stats.read_faults.add(e.kind());
+                    memory.settle(tile, generation, layout::SlotState::Missing);
+                    let retry_at = self.tick + self.settings.retry_after_ticks;
+                    self.cache.mark_replacement_failed(tile, e.kind(), retry_at);
+                }
+            }
+        }
+        self.stats.tiles_replaced += replaced;
+        replaced
     }
 
     /// The texture.
@@ -425,6 +518,9 @@ impl Clipmap {
         if left > 0 {
             self.stats.ticks_over_budget += 1;
             self.stats.reads_deferred += left as u64;
+        }
+        if !self.refresh.is_empty() {
+            report.tiles_replaced = self.replace_tiles(started);
         }
         let velocities = self.move_frames(centre, velocity);
         if let Some(pool) = &self.pool {

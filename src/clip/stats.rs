@@ -58,6 +58,9 @@ pub struct Stats {
     pub late_tiles: u64,
     /// Settled tiles whose slots went to other tiles because their mem region moved.
     pub tiles_evicted: u64,
+    /// Settled tiles read again into their slots in place because the source's texels changed
+    /// (a growing texture, [`super::Clipmap::refresh`]).
+    pub tiles_replaced: u64,
     /// Ticks whose budget ran out with finished reads left for the next tick.
     pub ticks_over_budget: u64,
     /// Finished reads left for a later tick by a spent budget.
@@ -101,6 +104,8 @@ pub struct TickReport {
     pub clamped: bool,
     /// Tiles settled this tick.
     pub tiles_read: u64,
+    /// Tiles replaced in their slots this tick ([`super::Clipmap::refresh`]).
+    pub tiles_replaced: u64,
     /// Min LOD after the tick.
     pub min_lod: f64,
     /// Levels renderers may not use after the tick (finer than min LOD).

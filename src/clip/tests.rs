@@ -454,3 +454,60 @@ fn a_spent_budget_defers_finished_reads_without_reading_their_tiles_again() {
     assert_eq!(src.reads(), distinct, "every tile read once: {} reads for {distinct} tiles", src.reads());
     assert!(check_published(&map).unwrap() > 0);
 }
+
+/// A hash texture whose texels of level 0 are offset by a version that the test bumps (a texture
+/// whose tiles change at the source, as a growing one's do).
+struct Versioned {
+    inner: HashSource,
+    version: std::sync::atomic::AtomicU8,
+}
+
+impl TileSource for Versioned {
+    fn desc(&self) -> &TextureDesc {
+        self.inner.desc()
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        self.inner.read_tile(tile, out)?;
+        let v = self.version.load(std::sync::atomic::Ordering::Relaxed);
+        if tile.level == 0 {
+            out.iter_mut().for_each(|b| *b = b.wrapping_add(v));
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn refreshed_tiles_are_replaced_in_their_slots_while_their_level_stays_published() {
+    let desc = TextureDesc::new([1024, 1024], 64, TexelFormat::RGBA8, [16, 16]).unwrap();
+    let src = Arc::new(Versioned { inner: HashSource::new(desc), version: Default::default() });
+    let mut map = Clipmap::new(src.clone(), settings(None)).unwrap();
+    for _ in 0..4 {
+        map.tick([500, 500], None);
+        map.wait_for_reads();
+    }
+    map.tick([500, 500], None);
+    let valid = map.level(0).valid;
+    assert!(!valid.is_empty() && map.min_lod() == 0.0);
+    let at = |map: &Clipmap| map.level(0).texel(valid.s0, valid.t0).map(|t| t.to_vec());
+    let before = at(&map).unwrap();
+    src.version.store(7, std::sync::atomic::Ordering::Relaxed);
+    let tile = map.level(0).tile_of(valid.s0, valid.t0);
+    // An absent tile asks for nothing; a held one is replaced by the next tick, the level staying
+    // published throughout.
+    map.refresh([tile, TileId::new(0, 60, 60)]);
+    assert_eq!(map.refresh_pending(), 2);
+    let report = map.tick([500, 500], None);
+    assert_eq!((report.tiles_replaced, map.refresh_pending()), (1, 0));
+    assert_eq!(report.valid[0], valid, "level 0 stayed published");
+    let after = at(&map).unwrap();
+    assert_eq!(after, before.iter().map(|b| b.wrapping_add(7)).collect::<Vec<_>>());
+    // Its neighbour was not asked for, and keeps the old texels.
+    let other = map.level(0).tile_of(valid.s0 + 16, valid.t0);
+    assert_ne!(other, tile);
+    let mut want = [0u8; 4];
+    hash(0, (valid.s0 + 16) as u64, valid.t0 as u64, &mut want);
+    assert_eq!(map.level(0).texel(valid.s0 + 16, valid.t0).unwrap().to_vec(), want.to_vec());
+    assert_eq!(map.stats().tiles_replaced, 1);
+    assert_eq!(map.stats().slots_reassigned_under_published, 0);
+}

@@ -207,7 +207,19 @@ pub fn read_sidecar(grid: &Grid, file: &std::path::Path, max_bytes: u64) -> Resu
         where_: where_.clone(),
         problem: format!("could not read {}: {e}", data_path.display()),
     })?;
-    let p = patch(grid, 0, &desc, &bytes, max_bytes, &where_)?;
+    new_patch(grid, &desc, bytes, max_bytes, &where_)
+}
+
+/// The patch `desc` describes, from `bytes` (its image file's content, or its raw texels),
+/// checked against `grid`; errors say `where_`.
+pub fn new_patch(
+    grid: &Grid,
+    desc: &Sidecar,
+    bytes: Vec<u8>,
+    max_bytes: u64,
+    where_: &str,
+) -> Result<super::store::NewPatch, InputError> {
+    let p = patch(grid, 0, desc, &bytes, max_bytes, where_)?;
     let encoded = desc.image.is_some().then_some(bytes);
     Ok(super::store::NewPatch {
         bbox: p.bbox,

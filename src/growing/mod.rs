@@ -23,6 +23,7 @@
 pub mod index;
 pub mod input;
 pub mod rebuild;
+pub mod serve;
 pub mod store;
 pub mod watch;
 

@@ -161,6 +161,8 @@ pub struct Growing {
     lock: Option<std::fs::File>,
     /// The `source` of every patch that has one.
     sources: std::collections::HashSet<String>,
+    /// Tiles changed and saved since [`Growing::take_saved`] last took them.
+    saved: Vec<TileKey>,
 }
 
 /// A patch as handed in, before the store gives it an id.
@@ -226,6 +228,7 @@ impl Growing {
             replayed: 0,
             lock: Some(lock),
             sources: Default::default(),
+            saved: Vec::new(),
         })
     }
 
@@ -417,6 +420,7 @@ impl Growing {
             replayed: replay.len(),
             lock,
             sources,
+            saved: Vec::new(),
         })
     }
 
@@ -520,9 +524,11 @@ impl Growing {
             };
             if let Err(e) = saved {
                 self.rebuild.unsaved(keys[i..].iter().copied());
+                self.saved.extend_from_slice(&keys[..i]);
                 return Err(e);
             }
         }
+        self.saved.extend(keys);
         Ok(())
     }
 
@@ -542,6 +548,17 @@ impl Growing {
     /// The grid.
     pub fn grid(&self) -> &Grid {
         &self.grid
+    }
+
+    /// The tiles whose texels changed (rebuilt differently, or gone) and were saved since the
+    /// last call: what a service serving the texture must replace.
+    pub fn take_saved(&mut self) -> Vec<TileKey> {
+        std::mem::take(&mut self.saved)
+    }
+
+    /// Patches added so far (the last id given).
+    pub fn patches(&self) -> u64 {
+        self.next_id - 1
     }
 
     /// Whether a patch was added from `source` (what [`Growing::add_from`] recorded).

@@ -89,6 +89,8 @@ pub struct Status {
     pub streams: Vec<StreamRow>,
     /// Why there are no stream figures (`null` when there are).
     pub streams_error: Option<String>,
+    /// A growing texture's growth block (`null` for a texture that does not grow).
+    pub growth: Option<crate::shm::layout::Growth>,
 }
 
 /// Why a `STATS` request got no statistics.
@@ -185,6 +187,10 @@ pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Resu
         (Err(e), _) | (_, Err(e)) => (Vec::new(), Some(e.to_string())),
     };
     let snap = c.snapshot();
+    let growth = c.growth().unwrap_or_else(|e| {
+        tracing::warn!("{}: growth block: {e}", c.path().display());
+        None
+    });
     let levels = snap
         .levels
         .iter()
@@ -214,6 +220,7 @@ pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Resu
         socket: socket.display().to_string(),
         streams,
         streams_error,
+        growth,
     })
 }
 
@@ -231,6 +238,23 @@ pub fn human(s: &Status) -> String {
         s.clip_size,
         s.bytes_per_texel
     );
+    if let Some(g) = &s.growth {
+        let e = g.extent;
+        let extent = if e == [0; 4] {
+            "no data yet".to_string()
+        } else {
+            format!("data over [{}, {}) x [{}, {})", e[0], e[2], e[1], e[3])
+        };
+        o.push_str(&format!(
+            "growing: {extent}  {} data levels  {} patches  tiles rebuilt {}, waiting {}, replaced in their slots {}{}\n\n",
+            g.data_levels,
+            g.patches,
+            g.tiles_rebuilt,
+            g.tiles_pending,
+            g.tiles_replaced,
+            if g.outside_frame > 0 { format!("  ({} patches reach outside the frame)", g.outside_frame) } else { String::new() }
+        ));
+    }
     o.push_str(
         "level  size                kind     centre                  valid region                              use\n",
     );

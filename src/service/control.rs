@@ -36,6 +36,8 @@ pub struct Context {
     pub counters: ControlCounters,
     /// Set to true to stop the service.
     pub stop: watch::Sender<bool>,
+    /// A growing texture's grower (the `PATCH` commands), if the texture grows.
+    pub grower: Option<crate::growing::serve::Grower>,
 }
 
 impl Context {
@@ -148,7 +150,7 @@ async fn connection(stream: UnixStream, ctx: Arc<Context>, _permit: OwnedSemapho
             Ok(Err(_)) | Ok(Ok(0)) => break,
             Ok(Ok(_)) if line.last() == Some(&b'\n') => {
                 line.pop();
-                answer(&ctx, &line).await
+                answer(&ctx, &line, &mut rd).await
             }
             Ok(Ok(_)) if line.len() > limits.max_line => {
                 ControlCounters::bump(&ctx.counters.long_lines);
@@ -168,7 +170,7 @@ async fn connection(stream: UnixStream, ctx: Arc<Context>, _permit: OwnedSemapho
     ctx.counters.open.fetch_sub(1, std::sync::atomic::Ordering::Relaxed);
 }
 
-async fn answer(ctx: &Context, line: &[u8]) -> (String, Flow) {
+async fn answer(ctx: &Context, line: &[u8], rd: &mut BufReader<tokio::net::unix::OwnedReadHalf>) -> (String, Flow) {
     let req = match protocol::parse(line) {
         Ok(r) => r,
         Err(e) => return (format!("ERR {e}"), Flow::Continue),
@@ -185,6 +187,42 @@ async fn answer(ctx: &Context, line: &[u8]) -> (String, Flow) {
         Request::Budget(ms) => (command(ctx, |tx| Command::Budget(ms, tx)).await, Flow::Continue),
         Request::Border(b) => (command(ctx, |tx| Command::Border(b, tx)).await, Flow::Continue),
         Request::Centre(c) => (command(ctx, |tx| Command::Centre(c, tx)).await, Flow::Continue),
+        Request::PatchFile(path) => (patch(ctx, Patch::File(path.into())).await, Flow::Continue),
+        Request::PatchData { bytes, json } => {
+            let Some(g) = &ctx.grower else {
+                return (
+                    "ERR PATCH: this service's texture does not grow (start clipmapd --growing DIR)".into(),
+                    Flow::Close,
+                );
+            };
+            if bytes > g.max_patch_bytes {
+                return (
+                    format!(
+                        "ERR PATCH DATA: {bytes} bytes announced; the most is {} (--max-patch-bytes); closing",
+                        g.max_patch_bytes
+                    ),
+                    Flow::Close,
+                );
+            }
+            let mut data = Vec::with_capacity(bytes as usize);
+            let mut limited = (&mut *rd).take(bytes);
+            let read = limited.read_to_end(&mut data);
+            match tokio::time::timeout(ctx.limits.idle, read).await {
+                Ok(Ok(n)) if n as u64 == bytes => (patch(ctx, Patch::Data(json, data)).await, Flow::Continue),
+                Ok(Ok(n)) => (
+                    format!("ERR PATCH DATA: {n} of {bytes} bytes arrived before the end of input; nothing was taken"),
+                    Flow::Close,
+                ),
+                Ok(Err(e)) => (format!("ERR PATCH DATA: reading the bytes: {e}; nothing was taken"), Flow::Close),
+                Err(_) => (
+                    format!(
+                        "ERR PATCH DATA: the bytes did not arrive within {} ms; nothing was taken; closing",
+                        ctx.limits.idle.as_millis()
+                    ),
+                    Flow::Close,
+                ),
+            }
+        }
         Request::Quit => ("OK bye".into(), Flow::Close),
         Request::Shutdown => {
             tracing::info!("shutdown requested on the control socket");
@@ -203,6 +241,43 @@ async fn command(ctx: &Context, make: impl FnOnce(oneshot::Sender<String>) -> Co
         Ok(Ok(text)) => format!("OK {text}"),
         Ok(Err(_)) => "ERR the tick loop has stopped".into(),
         Err(_) => "ERR the tick loop did not answer in time".into(),
+    }
+}
+
+enum Patch {
+    File(PathBuf),
+    Data(String, Vec<u8>),
+}
+
+/// Reads and checks a patch (off the async workers: decoding is work), hands it to the grower and
+/// waits for its answer: `OK patch <id>` once it is durable.
+async fn patch(ctx: &Context, p: Patch) -> String {
+    let Some(g) = ctx.grower.clone() else {
+        return "ERR PATCH: this service's texture does not grow (start clipmapd --growing DIR)".into();
+    };
+    let grid = g.grid();
+    let max = g.max_patch_bytes;
+    let read = tokio::task::spawn_blocking(move || match p {
+        Patch::File(path) => crate::growing::input::read_sidecar(&grid, &path, max),
+        Patch::Data(json, bytes) => crate::growing::input::sidecar(json.as_bytes(), "the request")
+            .and_then(|d| crate::growing::input::new_patch(&grid, &d, bytes, max, "the request")),
+    })
+    .await;
+    let new = match read {
+        Ok(Ok(n)) => n,
+        Ok(Err(e)) => return format!("ERR PATCH: {e}; nothing was taken"),
+        Err(_) => return "ERR PATCH: reading the patch failed unexpectedly; nothing was taken".into(),
+    };
+    let (tx, rx) = oneshot::channel();
+    if !g.send(crate::growing::serve::GrowCommand::Add { patch: new, source: None, reply: tx }) {
+        return "ERR PATCH: the grower is busy or has stopped; try again".into();
+    }
+    // Keeping a patch syncs it to disk: allow longer than a tick command.
+    match tokio::time::timeout(ctx.limits.reply_timeout * 6, rx).await {
+        Ok(Ok(Ok(id))) => format!("OK patch {id}"),
+        Ok(Ok(Err(e))) => format!("ERR PATCH: {e}; nothing was taken"),
+        Ok(Err(_)) => "ERR PATCH: the grower has stopped".into(),
+        Err(_) => "ERR PATCH: the grower did not answer in time (the patch may still be taken)".into(),
     }
 }
 
@@ -228,6 +303,7 @@ fn status(ctx: &Context) -> String {
         "budget_ms": t.budget_ms,
         "invalid_border": t.invalid_border,
         "valid": t.valid,
+        "growth": t.growth,
     })
     .to_string()
 }

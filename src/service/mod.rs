@@ -186,6 +186,7 @@ pub async fn run(
         limits: options.control,
         counters: Default::default(),
         stop: stop_tx,
+        grower: options.growing.clone(),
     });
     let server = tokio::spawn(control::serve(listener, ctx.clone()));
     let mut ticks = ticker.watch();

@@ -58,6 +58,9 @@ pub struct Options {
     pub paging: crate::paging::PagingOptions,
     /// Control socket bounds.
     pub control: ControlLimits,
+    /// A growing texture's grower (docs/GROWING.md): the service then replaces rebuilt tiles in
+    /// their slots, publishes the growth block, and takes patches on the control socket.
+    pub growing: Option<crate::growing::serve::Grower>,
 }
 
 /// The default control socket of a name: `clipmap-<name>.sock` beside the mapping.
@@ -82,6 +85,7 @@ impl Options {
             centre_alignment: 1,
             paging: crate::paging::PagingOptions::default(),
             control: ControlLimits::default(),
+            growing: None,
         }
     }
 
@@ -126,6 +130,12 @@ impl Options {
         }
         if !self.shm_dir.is_dir() {
             return bad(format!("--shm-dir {}: not a directory", self.shm_dir.display()));
+        }
+        if self.growing.is_some() && self.paging.pool_bytes > 0 {
+            return bad(format!(
+                "--pool-bytes {}: a growing texture's tiles change as patches arrive, and a pool would serve old ones; leave the pool off",
+                self.paging.pool_bytes
+            ));
         }
         let c = &self.control;
         if c.max_connections == 0 || c.max_connections > MAX_CONNECTIONS {

@@ -26,13 +26,24 @@ pub enum Request {
     Quit,
     /// `SHUTDOWN`: stops the service.
     Shutdown,
+    /// `PATCH FILE <path>`: a growing texture takes the patch a sidecar file on the service's
+    /// machine describes (docs/GROWING.md); `OK patch <id>` once it is durable.
+    PatchFile(String),
+    /// `PATCH DATA <bytes> <json>`: the same with the description on the line and the image's
+    /// (or raw texels') bytes, exactly `<bytes>` of them, right after it.
+    PatchData {
+        /// Bytes that follow the line.
+        bytes: u64,
+        /// The description (JSON, one line).
+        json: String,
+    },
 }
 
 pub use crate::limits::MAX_BUDGET_MS;
 
 /// The commands, for error messages.
 pub const COMMANDS: &str =
-    "PING, STATUS, STATS, STATS PROM, BUDGET <ms>|off, BORDER <texels>, CENTRE <s> <t>, QUIT, SHUTDOWN";
+    "PING, STATUS, STATS, STATS PROM, BUDGET <ms>|off, BORDER <texels>, CENTRE <s> <t>, PATCH FILE <path>, PATCH DATA <bytes> <json>, QUIT, SHUTDOWN";
 
 /// Why a request line was refused; its text is the message of the `ERR` reply (words quoted
 /// from the request are cut to 40 characters).
@@ -69,6 +80,9 @@ pub enum BadRequest {
     /// No such command.
     #[error("unknown command `{0}`; expected one of {COMMANDS}")]
     Unknown(String),
+    /// A `PATCH` request of the wrong shape.
+    #[error("usage: PATCH FILE <path of a sidecar .json> or PATCH DATA <bytes> <json description> followed by the bytes ({0})")]
+    Patch(String),
 }
 
 /// Parses one line (without its newline; a trailing `\r` is ignored).
@@ -114,6 +128,26 @@ pub fn parse(line: &[u8]) -> Result<Request, BadRequest> {
             let p = |w: &str| w.parse::<i64>().map_err(|_| BadRequest::Centre(clip(w)));
             Ok(Request::Centre([p(args[0])?, p(args[1])?]))
         }
+        "PATCH" => {
+            let mode = args.first().map(|w| w.to_ascii_uppercase());
+            match (mode.as_deref(), args.len()) {
+                (Some("FILE"), n) if n >= 2 => {
+                    // The path is the rest of the line after `FILE` (it may hold spaces).
+                    let rest = line.trim_start();
+                    let rest = rest[rest.find(char::is_whitespace).unwrap_or(rest.len())..].trim_start();
+                    let path = rest[4..].trim();
+                    Ok(Request::PatchFile(path.to_string()))
+                }
+                (Some("DATA"), n) if n >= 3 => {
+                    let bytes = args[1]
+                        .parse::<u64>()
+                        .map_err(|_| BadRequest::Patch(format!("`{}` is not a byte count", clip(args[1]))))?;
+                    let at = line.find('{').ok_or_else(|| BadRequest::Patch("no JSON description".into()))?;
+                    Ok(Request::PatchData { bytes, json: line[at..].trim_end().to_string() })
+                }
+                _ => Err(BadRequest::Patch(format!("got {} argument(s)", args.len()))),
+            }
+        }
         "QUIT" => arity(0, "QUIT").map(|_| Request::Quit),
         "SHUTDOWN" => arity(0, "SHUTDOWN").map(|_| Request::Shutdown),
         _ => Err(BadRequest::Unknown(clip(&cmd))),
@@ -147,6 +181,11 @@ mod tests {
             ("center 1 2", Request::Centre([1, 2])),
             ("  QUIT  ", Request::Quit),
             ("SHUTDOWN", Request::Shutdown),
+            ("PATCH FILE /tmp/a b.json", Request::PatchFile("/tmp/a b.json".into())),
+            (
+                "patch data 12 {\"bbox\": [0, 0, 1, 1]}",
+                Request::PatchData { bytes: 12, json: "{\"bbox\": [0, 0, 1, 1]}".into() },
+            ),
         ];
         for (line, want) in cases {
             assert_eq!(parse(line.as_bytes()).as_ref(), Ok(want), "{line}");
@@ -169,13 +208,17 @@ mod tests {
             (b"CENTRE 1 99999999999999999999", "not an integer"),
             (b"STATS JSON", "usage: STATS"),
             (b"PING now", "takes 0 arguments"),
+            (b"PATCH", "usage: PATCH FILE"),
+            (b"PATCH FILE", "usage: PATCH FILE"),
+            (b"PATCH DATA x {}", "`x` is not a byte count"),
+            (b"PATCH DATA 3 nojson", "no JSON description"),
         ];
         for (line, want) in cases {
             let err = parse(line).unwrap_err().to_string();
             assert!(err.contains(want), "{:?}: {err}", String::from_utf8_lossy(line));
         }
         let long = format!("X{}", "y".repeat(5000));
-        assert!(parse(long.as_bytes()).unwrap_err().to_string().len() < 200, "error replies stay short");
+        assert!(parse(long.as_bytes()).unwrap_err().to_string().len() < 260, "error replies stay short");
         assert_eq!(parse(b"BUDGET 0").unwrap_err(), BadRequest::Budget("0".into()));
         assert_eq!(parse(b"").unwrap_err(), BadRequest::Empty);
     }

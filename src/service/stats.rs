@@ -52,6 +52,9 @@ pub struct TickStats {
     /// Per stream server (read queue), in server order: queue lengths and reads, the same
     /// counters as `engine.queue` sums.
     pub streams: Vec<QueueStats>,
+    /// A growing texture's growth block as last published (`null` for a texture that does not
+    /// grow).
+    pub growth: Option<crate::shm::layout::Growth>,
 }
 
 /// The control server's counters (plain atomics: connections update them concurrently).

@@ -134,6 +134,8 @@ struct Runner {
     last_request: u64,
     stats: TickStats,
     started: Instant,
+    /// A growing texture's shared state, and the growth block's last published values.
+    growing: Option<(Arc<crate::growing::serve::Served>, Option<crate::shm::layout::Growth>)>,
 }
 
 impl Runner {
@@ -144,13 +146,18 @@ impl Runner {
         stats_tx: watch::Sender<TickStats>,
     ) -> Result<(Runner, Started), ServiceError> {
         let desc = source.desc().clone();
-        let settings = Settings {
+        let mut settings = Settings {
             budget_ns: o.budget_ms.map(|ms| (ms * 1e6) as u64),
             // One read queue per stream server the configuration names.
             streams: source.stream_servers(),
             centre_alignment: o.centre_alignment,
             ..Settings::default().with_paging(&o.paging)
         };
+        if o.growing.is_some() {
+            // A growing texture's tile without data is read again when data arrives for it
+            // (`Clipmap::refresh`), not on a timer.
+            settings.retry_after_ticks = u64::MAX / 4;
+        }
         // Refused before anything is created in the shared directory.
         let shape = Clipmap::shape_for(&desc, &settings);
         let placement = crate::shm::layout::place(&shape)
@@ -198,6 +205,7 @@ impl Runner {
             last_request: 0,
             stats,
             started: Instant::now(),
+            growing: o.growing.as_ref().map(|g| (g.served().clone(), None)),
         };
         Ok((runner, started))
     }
@@ -281,8 +289,25 @@ impl Runner {
                 self.stats.requests_seen = req.count;
             }
         }
+        if let Some((served, _)) = &self.growing {
+            let changed = served.take_changed(self.clipmap.desc());
+            self.clipmap.refresh(changed);
+            if self.stats.engine.ticks.is_multiple_of(256) {
+                let c = &self.clipmap;
+                served.retain_partial(|t| c.holds(t));
+            }
+        }
         let t0 = Instant::now();
         let report = self.clipmap.tick(self.centre, self.velocity);
+        if let Some((served, last)) = &mut self.growing {
+            let (_, mut g) = served.growth();
+            g.tiles_replaced = self.clipmap.stats().tiles_replaced;
+            if *last != Some(g) {
+                self.writer.memory().publish_growth(&g);
+                *last = Some(g);
+                self.stats.growth = Some(g);
+            }
+        }
         self.writer.heartbeat();
         let s = &mut self.stats;
         s.tick_busy_s += t0.elapsed().as_secs_f64();

@@ -375,6 +375,76 @@ impl Client {
         })
     }
 
+    /// A growing texture's growth block (docs/SHM.md, "Growth block"), read consistently and
+    /// checked: `Ok(None)` for a texture that does not grow, `Busy` when the writer kept it locked
+    /// for [`MAX_RETRIES`] attempts, `Corrupt` when its values are impossible. Readers follow
+    /// growth without reattaching: the frame, and so every address, never changes.
+    pub fn growth(&self) -> Result<Option<layout::Growth>, ReadError> {
+        use layout::growth as g;
+        let r = &self.region;
+        let b = header::GROWTH;
+        for _ in 0..MAX_RETRIES {
+            let s1 = r.load(b + g::SEQ, Ordering::Acquire);
+            if s1 & 1 == 1 {
+                std::thread::yield_now();
+                continue;
+            }
+            let v = |o: usize| r.load(b + o, Ordering::Relaxed);
+            let growing = v(g::GROWING);
+            let out = layout::Growth {
+                extent: [
+                    v(g::EXTENT_S0) as i64,
+                    v(g::EXTENT_T0) as i64,
+                    v(g::EXTENT_S1) as i64,
+                    v(g::EXTENT_T1) as i64,
+                ],
+                data_levels: v(g::DATA_LEVELS),
+                patches: v(g::PATCHES),
+                tiles_rebuilt: v(g::TILES_REBUILT),
+                tiles_pending: v(g::TILES_PENDING),
+                tiles_replaced: v(g::TILES_REPLACED),
+                world_origin: [f64::from_bits(v(g::WORLD_S0)), f64::from_bits(v(g::WORLD_T0))],
+                texels_per_unit: f64::from_bits(v(g::TEXELS_PER_UNIT)),
+                outside_frame: v(g::OUTSIDE_FRAME),
+            };
+            fence(Ordering::Acquire);
+            if r.load(b + g::SEQ, Ordering::Relaxed) != s1 {
+                continue;
+            }
+            return match growing {
+                0 => Ok(None),
+                1 => self.check_growth(&out).map(|()| Some(out)),
+                other => Err(ReadError::Corrupt(format!("growth block: growing is {other}, expected 0 or 1"))),
+            };
+        }
+        Err(ReadError::Busy(0))
+    }
+
+    fn check_growth(&self, g: &layout::Growth) -> Result<(), ReadError> {
+        let [w, h] = self.levels[0].size;
+        let [s0, t0, s1, t1] = g.extent;
+        let inside = 0 <= s0 && s0 < s1 && s1 as u64 <= w && 0 <= t0 && t0 < t1 && t1 as u64 <= h;
+        if !(g.extent == [0; 4] || inside) {
+            return Err(ReadError::Corrupt(format!(
+                "growth block: extent {:?} is not empty and not inside the {w}x{h} frame",
+                g.extent
+            )));
+        }
+        if !(g.world_origin.iter().all(|v| v.is_finite()) && g.texels_per_unit.is_finite() && g.texels_per_unit > 0.0) {
+            return Err(ReadError::Corrupt(format!(
+                "growth block: world origin {:?} and {} texels per unit are not finite and positive",
+                g.world_origin, g.texels_per_unit
+            )));
+        }
+        if g.data_levels > 64 {
+            return Err(ReadError::Corrupt(format!(
+                "growth block: {} data levels, expected at most 64",
+                g.data_levels
+            )));
+        }
+        Ok(())
+    }
+
     /// One level's state from a fresh snapshot.
     pub fn level_state(&self, level: usize) -> Option<LevelState> {
         self.try_snapshot().ok()?.levels.get(level).copied()

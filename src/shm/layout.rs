@@ -66,8 +66,76 @@ pub mod header {
     pub const SNAPSHOT: usize = 128;
     /// Level descriptors (static after creation), [`super::DESC_BYTES`] each.
     pub const LEVEL_DESCS: usize = SNAPSHOT + super::snapshot::LEVELS + super::MAX_LEVELS * super::STATE_BYTES;
+    /// The growth block ([`super::growth`]): what a growing texture holds so far, under its own
+    /// seqlock (all zero for a texture that does not grow).
+    pub const GROWTH: usize = LEVEL_DESCS + super::MAX_LEVELS * super::DESC_BYTES;
     /// End of the fixed header.
-    pub const END: usize = LEVEL_DESCS + super::MAX_LEVELS * super::DESC_BYTES;
+    pub const END: usize = GROWTH + super::GROWTH_BYTES;
+}
+
+/// Bytes of the growth block.
+pub const GROWTH_BYTES: usize = 128;
+/// Growth block fields, relative to [`header::GROWTH`]; every field 8 bytes, all atomic, all under
+/// the sequence counter at offset 0. A growing texture (docs/GROWING.md) is served in a fixed
+/// frame of level-0 texels whose centre is the grid's origin, so no address ever moves as it grows;
+/// this block says which part of the frame has data and how far the texture has grown.
+pub mod growth {
+    /// `u64` sequence counter (odd while the writer changes the block).
+    pub const SEQ: usize = 0;
+    /// `u64` 1 when the texture grows (the fields below mean something), 0 otherwise.
+    pub const GROWING: usize = 8;
+    /// `i64` extent of the data in level-0 texels of the frame, half-open: s0 <= s < s1,
+    /// t0 <= t < t1 (all 0 when there is no data yet; clipped to the frame).
+    pub const EXTENT_S0: usize = 16;
+    /// `i64`.
+    pub const EXTENT_T0: usize = 24;
+    /// `i64`.
+    pub const EXTENT_S1: usize = 32;
+    /// `i64`.
+    pub const EXTENT_T1: usize = 40;
+    /// `u64` levels the texture's data has grown (its own pyramid: level 0 up to the level whose
+    /// 2 x 2 tiles around the origin hold every patch); the mapping's levels above are averages
+    /// of these.
+    pub const DATA_LEVELS: usize = 48;
+    /// `u64` patches accepted so far (each durable on disk).
+    pub const PATCHES: usize = 56;
+    /// `u64` tiles rebuilt so far (every level).
+    pub const TILES_REBUILT: usize = 64;
+    /// `u64` tiles waiting to be rebuilt.
+    pub const TILES_PENDING: usize = 72;
+    /// `u64` tiles replaced in their slots so far (a rebuilt tile that was resident).
+    pub const TILES_REPLACED: usize = 80;
+    /// `f64` bits: world x of the frame's level-0 texel (0, 0) lower-left corner.
+    pub const WORLD_S0: usize = 88;
+    /// `f64` bits: world y of the same corner.
+    pub const WORLD_T0: usize = 96;
+    /// `f64` bits: level-0 texels per world unit.
+    pub const TEXELS_PER_UNIT: usize = 104;
+    /// `u64` patches lying (partly) outside the frame: their texels there are not served.
+    pub const OUTSIDE_FRAME: usize = 112;
+}
+
+/// The growth block's values (see [`growth`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Growth {
+    /// Extent of the data, level-0 texels of the frame `[s0, t0, s1, t1)` (all 0: no data).
+    pub extent: [i64; 4],
+    /// Levels the data has grown.
+    pub data_levels: u64,
+    /// Patches accepted.
+    pub patches: u64,
+    /// Tiles rebuilt.
+    pub tiles_rebuilt: u64,
+    /// Tiles waiting to be rebuilt.
+    pub tiles_pending: u64,
+    /// Tiles replaced in their slots.
+    pub tiles_replaced: u64,
+    /// World coordinates of the frame's level-0 texel (0, 0) lower-left corner.
+    pub world_origin: [f64; 2],
+    /// Level-0 texels per world unit.
+    pub texels_per_unit: f64,
+    /// Patches lying (partly) outside the frame.
+    pub outside_frame: u64,
 }
 
 /// Snapshot fields, relative to [`header::SNAPSHOT`]; every field 8 bytes, all atomic, all

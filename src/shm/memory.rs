@@ -17,7 +17,7 @@
 //! It decides nothing about which tiles to hold ([`crate::cache`]) nor when to publish
 //! ([`crate::clip`]).
 
-use super::layout::{self, header, snapshot, state, tag, Placement, Shape, SlotState};
+use super::layout::{self, growth, header, snapshot, state, tag, Placement, Shape, SlotState};
 use super::raw::Region;
 use crate::geom::Rect;
 use crate::source::TileId;
@@ -399,6 +399,54 @@ impl ImageMemory {
             r.store(o + state::UPDATED_TICK, l.updated_tick, Ordering::Relaxed);
         }
         r.store(b + snapshot::SEQ, seq.wrapping_add(2), Ordering::Release);
+    }
+
+    /// Publishes a growing texture's growth block under its seqlock.
+    pub fn publish_growth(&self, g: &layout::Growth) {
+        let r = &self.region;
+        let b = header::GROWTH;
+        let seq = r.load(b + growth::SEQ, Ordering::Relaxed);
+        r.store(b + growth::SEQ, seq.wrapping_add(1), Ordering::Relaxed);
+        fence(Ordering::Release);
+        let put = |o: usize, v: u64| r.store(b + o, v, Ordering::Relaxed);
+        put(growth::GROWING, 1);
+        for (i, v) in g.extent.iter().enumerate() {
+            put(growth::EXTENT_S0 + 8 * i, *v as u64);
+        }
+        put(growth::DATA_LEVELS, g.data_levels);
+        put(growth::PATCHES, g.patches);
+        put(growth::TILES_REBUILT, g.tiles_rebuilt);
+        put(growth::TILES_PENDING, g.tiles_pending);
+        put(growth::TILES_REPLACED, g.tiles_replaced);
+        put(growth::WORLD_S0, g.world_origin[0].to_bits());
+        put(growth::WORLD_T0, g.world_origin[1].to_bits());
+        put(growth::TEXELS_PER_UNIT, g.texels_per_unit.to_bits());
+        put(growth::OUTSIDE_FRAME, g.outside_frame);
+        r.store(b + growth::SEQ, seq.wrapping_add(2), Ordering::Release);
+    }
+
+    /// Rewrites `tile`'s settled slot in place (a growing texture's rebuilt tile): its tag goes
+    /// to loading first (readers of this tile fall back to a coarser level, or discard what they
+    /// copied, while the bytes change), then the slot is filled as a read fills it, under a new
+    /// generation; the caller settles it ([`settle`](Self::settle)) with what `fill` returned.
+    /// `None` (nothing written) unless the slot holds `tile` settled. Only the engine calls this,
+    /// from its tick, as it calls [`assign`](Self::assign): never while an in-process reader
+    /// holds the slot.
+    pub(crate) fn replace<R>(&self, tile: TileId, fill: impl FnOnce(&mut [u8]) -> R) -> Option<(u64, R)> {
+        let t = [tile.s as i64, tile.t as i64];
+        if tile.level as usize >= self.claims.len() {
+            return None;
+        }
+        let (k, slot) = self.slot_of(tile.level, t);
+        let claim = &self.claims[k][slot as usize];
+        let now = claim.load(Ordering::Acquire);
+        if state_of(now) != SETTLED || self.keys[k][slot as usize].load(Ordering::Acquire) != key(t) {
+            return None;
+        }
+        // The tag first: no reader trusts the slot's bytes from here on.
+        self.store_tag(k, slot, t, SlotState::Loading);
+        claim.compare_exchange(now, word((now >> 2) + 1, LOADING), Ordering::AcqRel, Ordering::Acquire).ok()?;
+        self.fill(tile, fill)
     }
 
     /// Bytes of the whole mapping.

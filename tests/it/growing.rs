@@ -11,22 +11,22 @@ const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
 
 /// One patch as the test writes it: box (world units), time, rating, size, grey texels.
 #[derive(Clone)]
-struct P {
-    bbox: [f64; 4],
-    time: u64,
-    rating: f64,
-    w: u32,
-    h: u32,
-    texels: Vec<u8>,
+pub(crate) struct P {
+    pub(crate) bbox: [f64; 4],
+    pub(crate) time: u64,
+    pub(crate) rating: f64,
+    pub(crate) w: u32,
+    pub(crate) h: u32,
+    pub(crate) texels: Vec<u8>,
 }
 
-fn patch(bbox: [f64; 4], time: u64, rating: f64, w: u32, h: u32, seed: u32) -> P {
+pub(crate) fn patch(bbox: [f64; 4], time: u64, rating: f64, w: u32, h: u32, seed: u32) -> P {
     let texels = (0..w * h).map(|n| ((n % w) * 3 + (n / w) * 7 + seed * 41) as u8).collect();
     P { bbox, time, rating, w, h, texels }
 }
 
 /// Writes `p` as `NAME.json` with raw texels, or with a grey PNG when `png`.
-fn write(fx: &Fixture, name: &str, p: &P, png: bool) {
+pub(crate) fn write(fx: &Fixture, name: &str, p: &P, png: bool) {
     let src = if png {
         let img = image::GrayImage::from_raw(p.w, p.h, p.texels.clone()).unwrap();
         // Image row 0 is the top of the box (its largest y), for PNGs and raw texels alike.
@@ -50,7 +50,7 @@ fn write(fx: &Fixture, name: &str, p: &P, png: bool) {
 /// holds its centre with the highest (rating, time, order added), sampled at pixel
 /// floor((centre - min) / (max - min) * size); `None` where no patch holds it. Over level-0
 /// texels [i0, i0 + w) x [j0, j0 + h), grid origin `o`, `r` texels a unit.
-fn oracle0(ps: &[P], o: [f64; 2], r: f64, i0: i64, j0: i64, w: usize, h: usize) -> Vec<Option<u8>> {
+pub(crate) fn oracle0(ps: &[P], o: [f64; 2], r: f64, i0: i64, j0: i64, w: usize, h: usize) -> Vec<Option<u8>> {
     let mut out = vec![None; w * h];
     for y in 0..h {
         for x in 0..w {
@@ -74,7 +74,7 @@ fn oracle0(ps: &[P], o: [f64; 2], r: f64, i0: i64, j0: i64, w: usize, h: usize) 
 
 /// The next level up: each texel the rounded average of the texels under it that have data.
 /// `lo` holds texels [i0, ..) x [j0, ..) (both even), `w` x `h`.
-fn coarser(lo: &[Option<u8>], w: usize, h: usize) -> Vec<Option<u8>> {
+pub(crate) fn coarser(lo: &[Option<u8>], w: usize, h: usize) -> Vec<Option<u8>> {
     let (w2, h2) = (w / 2, h / 2);
     (0..w2 * h2)
         .map(|n| {

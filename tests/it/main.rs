@@ -30,6 +30,7 @@ mod config_tokens;
 mod examples;
 mod fuzz_regressions;
 mod growing;
+mod growing_service;
 mod hostile;
 #[cfg(feature = "remote")]
 mod remote;
