@@ -113,7 +113,18 @@ pub struct GridFile {
     pub texels_per_unit: f64,
     pub tile: u64,
     pub format: String,
+    /// Level-0 texels over which patch edges are feathered (the optional blend; absent or 0: the
+    /// best patch wins each texel outright).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub feather: f64,
 }
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
+/// The widest feather a growing texture takes, in level-0 texels.
+pub const MAX_FEATHER: f64 = 4096.0;
 
 /// A patch's commit record.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -188,6 +199,27 @@ impl Growing {
         tile: u64,
         format: &str,
     ) -> Result<Growing, StoreError> {
+        Growing::create_feathered(dir, origin, texels_per_unit, tile, format, 0.0)
+    }
+
+    /// [`Growing::create`], feathering patch edges over `feather` level-0 texels (0 to
+    /// [`MAX_FEATHER`]; 0: off), see [`super::rebuild::level0_tile_feathered`].
+    pub fn create_feathered(
+        dir: &Path,
+        origin: [f64; 2],
+        texels_per_unit: f64,
+        tile: u64,
+        format: &str,
+        feather: f64,
+    ) -> Result<Growing, StoreError> {
+        if !(feather.is_finite() && (0.0..=MAX_FEATHER).contains(&feather)) {
+            return Err(StoreError::NotAStore {
+                path: dir.to_path_buf(),
+                problem: format!(
+                    "the feather {feather} is not a width in level-0 texels from 0 (off) to {MAX_FEATHER}"
+                ),
+            });
+        }
         let Some((texel, bpt, cb)) = format_named(format) else {
             let names: Vec<&str> = FORMATS.iter().map(|f| f.0).collect();
             return Err(StoreError::NotAStore {
@@ -212,7 +244,7 @@ impl Growing {
             let p = dir.join(sub);
             std::fs::create_dir(&p).map_err(io_err(&p, "could not create the directory"))?;
         }
-        let file = GridFile { version: 1, origin, texels_per_unit, tile, format: format.to_string() };
+        let file = GridFile { version: 1, origin, texels_per_unit, tile, format: format.to_string(), feather };
         write_json(&dir.join("state.json"), &State::default())?;
         // grid.json last: a directory without it is not a store, and is refused by `open`.
         write_json(&dir.join("grid.json"), &file)?;
@@ -222,7 +254,11 @@ impl Growing {
             grid,
             format: texel,
             index: PatchIndex::new(),
-            rebuild: Rebuilder::new(grid),
+            rebuild: {
+                let mut r = Rebuilder::new(grid);
+                r.set_feather(feather);
+                r
+            },
             next_id: 1,
             applied: 0,
             replayed: 0,
@@ -401,7 +437,14 @@ impl Growing {
                 }
             }
         }
+        if !(file.feather.is_finite() && (0.0..=MAX_FEATHER).contains(&file.feather)) {
+            return Err(StoreError::Damaged {
+                path: dir.join("grid.json"),
+                problem: format!("feather {}: expected 0 (off) to {MAX_FEATHER} level-0 texels", file.feather),
+            });
+        }
         let mut rebuild = Rebuilder::restore(grid, tiles, state.levels);
+        rebuild.set_feather(file.feather);
         for p in &replay {
             rebuild.mark_footprint(&index, p);
         }
@@ -564,6 +607,11 @@ impl Growing {
     /// Whether a patch was added from `source` (what [`Growing::add_from`] recorded).
     pub fn has_source(&self, source: &str) -> bool {
         self.sources.contains(source)
+    }
+
+    /// Level-0 texels over which patch edges are feathered (0: off).
+    pub fn feather(&self) -> f64 {
+        self.rebuild.feather()
     }
 
     /// The texel format.

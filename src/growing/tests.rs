@@ -272,6 +272,116 @@ proptest! {
     }
 }
 
+/// The feathered oracle of level-0 texel (i, j), from every patch, without the index: the patches
+/// holding the centre, best (rating, time, id) first, each over the next with opacity
+/// min(1, d / feather) (d: texels from the centre to the patch's nearest edge; the last opaque),
+/// rounded half up.
+fn feathered0(g: &Grid, patches: &[Patch], i: i64, j: i64, feather: f64) -> Option<u8> {
+    let c = [g.origin[0] + (i as f64 + 0.5) / g.texels_per_unit, g.origin[1] + (j as f64 + 0.5) / g.texels_per_unit];
+    let mut holding: Vec<&Patch> = patches
+        .iter()
+        .filter(|p| p.bbox.min[0] <= c[0] && c[0] < p.bbox.max[0] && p.bbox.min[1] <= c[1] && c[1] < p.bbox.max[1])
+        .collect();
+    holding.sort_by(|a, b| (b.rating, b.time, b.id).partial_cmp(&(a.rating, a.time, a.id)).unwrap());
+    let n = holding.len();
+    if n == 0 {
+        return None;
+    }
+    let (mut v, mut rest) = (0.0f64, 1.0f64);
+    for (k, p) in holding.iter().enumerate() {
+        let b = &p.bbox;
+        let d = (c[0] - b.min[0]).min(b.max[0] - c[0]).min(c[1] - b.min[1]).min(b.max[1] - c[1]);
+        let a = if k + 1 == n { 1.0 } else { (d * g.texels_per_unit / feather).min(1.0) };
+        let px =
+            (((c[0] - b.min[0]) / (b.max[0] - b.min[0])) * p.width as f64).floor().clamp(0.0, p.width as f64 - 1.0);
+        let py =
+            (((b.max[1] - c[1]) / (b.max[1] - b.min[1])) * p.height as f64).floor().clamp(0.0, p.height as f64 - 1.0);
+        v += rest * a * p.texels[py as usize * p.width as usize + px as usize] as f64;
+        rest *= 1.0 - a;
+        if a >= 1.0 {
+            break;
+        }
+    }
+    Some((v + 0.5).floor() as u8)
+}
+
+#[test]
+fn feathered_edges_fade_a_patch_into_what_lies_beneath_it() {
+    // A dark patch under a bright one rated higher: across the bright one's left edge the texels
+    // ramp from dark to bright over the feather's width, instead of a step.
+    let g = grid(16);
+    let under = patch(&g, (1, [0.0, -20.0, 32.0, 28.0], 0, 0.0), 32, 8, |_, _| 0);
+    let over = patch(&g, (2, [8.0, -20.0, 32.0, 28.0], 0, 1.0), 24, 8, |_, _| 200);
+    let mut index = PatchIndex::new();
+    let mut rb = Rebuilder::new(g);
+    rb.set_feather(4.0);
+    for p in [under, over] {
+        let p = index.insert(p);
+        rb.patch_added(&index, &p);
+    }
+    while rb.pending() > 0 {
+        rb.step(&index, 64);
+    }
+    let row: Vec<u8> = (0..16).map(|x| rb.tile(0, 0, 0).unwrap().texels[4 * 16 + x]).collect();
+    // Texel x's centre is x + 0.5: 0.5 .. 3.5 texels inside the bright patch at x = 8 .. 11.
+    assert_eq!(&row[..8], &[0; 8]);
+    assert_eq!(&row[8..13], &[25, 75, 125, 175, 200]);
+    // Without the feather, a step.
+    let mut rb0 = Rebuilder::new(g);
+    for p in index.patches() {
+        rb0.patch_added(&index, p);
+    }
+    while rb0.pending() > 0 {
+        rb0.step(&index, 64);
+    }
+    assert_eq!(rb0.tile(0, 0, 0).unwrap().texels[4 * 16 + 8], 200);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+    #[test]
+    fn feathered_level_0_matches_its_oracle(
+        specs in arb_patches(),
+        feather in prop::sample::select(vec![0.5f64, 2.0, 5.0]),
+        res in prop::sample::select(vec![0.5f64, 1.0, 1.5]),
+        origin in (-3.0f64..3.0, -3.0f64..3.0),
+    ) {
+        let g = Grid::new([origin.0, origin.1], res, 4, 1, 1).unwrap();
+        let mut index = PatchIndex::new();
+        let mut rb = Rebuilder::new(g);
+        rb.set_feather(feather);
+        let mut patches = Vec::new();
+        for (i, &(x, y, w, h, rating, time, pw, ph, base)) in specs.iter().enumerate() {
+            let texels = (0..pw * ph).map(|n| base.wrapping_add((n % pw * 37 + n / pw * 91) as u8)).collect();
+            let b = WorldBox { min: [x, y], max: [x + w, y + h] };
+            if let Ok(p) = Patch::new(&g, PatchMeta { id: i as u64, bbox: b, time: time as u64, rating: rating as f64 }, pw, ph, texels) {
+                let p = index.insert(p);
+                rb.patch_added(&index, &p);
+                patches.push((*p).clone());
+            }
+        }
+        prop_assume!(!patches.is_empty());
+        while rb.pending() > 0 {
+            rb.step(&index, 64);
+        }
+        let e = index.extent().unwrap();
+        let [s0, t0, s1, t1] = g.tiles_over(g.texels_in(&e), 0).unwrap();
+        for t in t0..t1 {
+            for s in s0..s1 {
+                let tile = rb.tile(0, s, t);
+                for y in 0..4i64 {
+                    for x in 0..4i64 {
+                        let i = (y * 4 + x) as usize;
+                        let got = tile.and_then(|tl| tl.has(i).then(|| tl.texels[i]));
+                        prop_assert_eq!(got, feathered0(&g, &patches, s * 4 + x, t * 4 + y, feather), "tile ({}, {}) texel ({}, {})", s, t, x, y);
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// The store: what survives a restart, a crash mid-rebuild, a damaged tile, a refused patch.
 mod store {
     use super::super::store::{Growing, NewPatch, StoreError};
@@ -310,6 +420,20 @@ mod store {
         assert_eq!(got.rebuild().len(), want.len(), "tiles with data");
         for &(k, s, t) in want.keys() {
             assert_eq!(got.tile(k, s, t).map(|t| &**t), want.tile(k, s, t).map(|t| &**t), "tile {k} ({s}, {t})");
+        }
+    }
+
+    #[test]
+    fn the_feather_is_kept_and_refused_out_of_range() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path().join("f");
+        let g = Growing::create_feathered(&root, [0.0, 0.0], 1.0, 4, "l8", 3.5).unwrap();
+        assert_eq!(g.feather(), 3.5);
+        drop(g);
+        assert_eq!(Growing::open(&root).unwrap().feather(), 3.5);
+        for bad in [-1.0, f64::NAN, 1e9] {
+            let e = Growing::create_feathered(&dir.path().join("x"), [0.0, 0.0], 1.0, 4, "l8", bad).err().unwrap();
+            assert!(e.to_string().contains("is not a width in level-0 texels"), "{e}");
         }
     }
 

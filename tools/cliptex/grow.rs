@@ -36,6 +36,10 @@ Examples:
         /// Texel format: l8, rgb8, rgba8, l16, la16, rgb16, rgba16.
         #[arg(long, default_value = "rgb8")]
         format: String,
+        /// Blend patch edges over this many level-0 texels (each patch fades into what lies
+        /// beneath it towards its box's edge; 0: the best patch wins each texel outright).
+        #[arg(long, default_value_t = 0.0)]
+        feather: f64,
     },
     /// Add patches: each a JSON sidecar naming its image (PNG, JPEG, TIFF) or raw texels, or a
     /// directory whose *.json sidecars are all taken. Each patch is on disk before it is
@@ -164,6 +168,8 @@ pub struct Status {
     pub tile: u64,
     pub origin: [f64; 2],
     pub texels_per_unit: f64,
+    /// Level-0 texels over which patch edges are blended (0: off).
+    pub feather: f64,
     pub patches: usize,
     pub levels: u32,
     /// The union of the patches' boxes, world units (null while empty).
@@ -240,6 +246,7 @@ pub fn status(g: &Growing) -> Status {
         tile: grid.tile,
         origin: grid.origin,
         texels_per_unit: grid.texels_per_unit,
+        feather: g.feather(),
         patches: g.index().len(),
         levels: g.levels(),
         extent: extent.map(|e| [e.min[0], e.min[1], e.max[0], e.max[1]]),
@@ -256,13 +263,14 @@ fn human(s: &Status) -> String {
     let ext =
         s.extent.map_or("none yet".to_string(), |e| format!("[{}, {}) x [{}, {}) world units", e[0], e[2], e[1], e[3]));
     format!(
-        "{}: {} texels, {}² tiles, origin ({}, {}), {} texels a unit\n  patches {}  levels {}  extent {}\n  tiles {} (per level {:?})  waiting {}  applied up to patch {}{}\n",
+        "{}: {} texels, {}² tiles, origin ({}, {}), {} texels a unit{}\n  patches {}  levels {}  extent {}\n  tiles {} (per level {:?})  waiting {}  applied up to patch {}{}\n",
         s.dir,
         s.format,
         s.tile,
         s.origin[0],
         s.origin[1],
         s.texels_per_unit,
+        if s.feather > 0.0 { format!(", edges feathered over {} texels", s.feather) } else { String::new() },
         s.patches,
         s.levels,
         ext,
@@ -299,8 +307,8 @@ fn open_to_look(dir: &Path) -> Result<Growing, i32> {
 /// Runs one `cliptex grow` subcommand; returns the exit status.
 pub fn run(cmd: GrowCommand) -> i32 {
     match cmd {
-        GrowCommand::Create { dir, origin, texels_per_unit, tile, format } => {
-            match Growing::create(&dir, origin, texels_per_unit, tile, &format) {
+        GrowCommand::Create { dir, origin, texels_per_unit, tile, format, feather } => {
+            match Growing::create_feathered(&dir, origin, texels_per_unit, tile, &format, feather) {
                 Ok(g) => {
                     print!("{}", human(&status(&g)));
                     exit::OK
