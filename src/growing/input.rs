@@ -70,9 +70,15 @@ pub enum InputError {
     /// The image could not be decoded.
     #[error("{where_}: the image could not be decoded: {problem}")]
     Decode { where_: String, problem: String },
-    /// The patch itself is refused.
-    #[error("{where_}: {0}", where_ = .1)]
+    /// The patch itself is refused (a patch read here has no id yet: id 0 is not named).
+    #[error("{where_}: {}", without_id(.0), where_ = .1)]
     Patch(GrowError, String),
+}
+
+/// A refusal's text without "patch 0: " (a patch being read has no id yet; its file names it).
+fn without_id(e: &GrowError) -> String {
+    let text = e.to_string();
+    text.strip_prefix("patch 0: ").map(str::to_string).unwrap_or(text)
 }
 
 /// Reads a description (`where_` names it in errors: a file path, or "the request").

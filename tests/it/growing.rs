@@ -326,6 +326,7 @@ fn bad_patches_are_refused_with_their_file_and_leave_nothing_behind() {
         assert_eq!(out.status.code(), Some(1), "{d}");
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains(&format!("{name}.json")) && err.contains(words), "{name}: {err}");
+        assert!(!err.contains("patch 0"), "a patch being read has no id to name: {err}");
     }
     // A 16-bit PNG into an 8-bit texture: refused, not scaled.
     image::ImageBuffer::<image::Luma<u16>, _>::from_raw(2, 2, vec![1u16, 2, 3, 4])
