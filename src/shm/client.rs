@@ -306,15 +306,10 @@ impl Client {
     pub fn try_snapshot(&self) -> Result<Snapshot, ReadError> {
         let r = &self.region;
         let b = header::SNAPSHOT;
-        for _ in 0..MAX_RETRIES {
-            let s1 = r.load(b + snapshot::SEQ, Ordering::Acquire);
-            if s1 & 1 == 1 {
-                std::thread::yield_now();
-                continue;
-            }
+        let read = || {
             let g = |o: usize| r.load(b + o, Ordering::Relaxed);
             let mut snap = Snapshot {
-                seq: s1,
+                seq: 0,
                 min_lod: f64::from_bits(g(snapshot::MIN_LOD)),
                 tick: g(snapshot::TICK),
                 invalid_border: g(snapshot::INVALID_BORDER),
@@ -338,14 +333,32 @@ impl Client {
                     updated_tick: g(o + state::UPDATED_TICK),
                 });
             }
-            fence(Ordering::Acquire);
-            if r.load(b + snapshot::SEQ, Ordering::Relaxed) != s1 {
+            (snap, enabled_codes)
+        };
+        let (seq, (mut snap, enabled_codes)) = self.seqlocked(b + snapshot::SEQ, read).ok_or(ReadError::Busy(0))?;
+        snap.seq = seq;
+        self.check_snapshot(&snap, &enabled_codes)?;
+        Ok(snap)
+    }
+
+    /// Runs `read` under the seqlock whose counter is at `seq`: between an even counter and the
+    /// same counter again after an acquire fence. `None` after [`MAX_RETRIES`] attempts (the
+    /// writer kept it locked); else the counter it read at and what `read` returned.
+    fn seqlocked<T>(&self, seq: usize, mut read: impl FnMut() -> T) -> Option<(u64, T)> {
+        let r = &self.region;
+        for _ in 0..MAX_RETRIES {
+            let s1 = r.load(seq, Ordering::Acquire);
+            if s1 & 1 == 1 {
+                std::thread::yield_now();
                 continue;
             }
-            self.check_snapshot(&snap, &enabled_codes)?;
-            return Ok(snap);
+            let v = read();
+            fence(Ordering::Acquire);
+            if r.load(seq, Ordering::Relaxed) == s1 {
+                return Some((s1, v));
+            }
         }
-        Err(ReadError::Busy(0))
+        None
     }
 
     fn check_snapshot(&self, snap: &Snapshot, enabled: &[u64]) -> Result<(), ReadError> {
@@ -383,14 +396,8 @@ impl Client {
         use layout::growth as g;
         let r = &self.region;
         let b = header::GROWTH;
-        for _ in 0..MAX_RETRIES {
-            let s1 = r.load(b + g::SEQ, Ordering::Acquire);
-            if s1 & 1 == 1 {
-                std::thread::yield_now();
-                continue;
-            }
+        let read = || {
             let v = |o: usize| r.load(b + o, Ordering::Relaxed);
-            let growing = v(g::GROWING);
             let out = layout::Growth {
                 extent: [
                     v(g::EXTENT_S0) as i64,
@@ -407,17 +414,14 @@ impl Client {
                 texels_per_unit: f64::from_bits(v(g::TEXELS_PER_UNIT)),
                 outside_frame: v(g::OUTSIDE_FRAME),
             };
-            fence(Ordering::Acquire);
-            if r.load(b + g::SEQ, Ordering::Relaxed) != s1 {
-                continue;
-            }
-            return match growing {
-                0 => Ok(None),
-                1 => self.check_growth(&out).map(|()| Some(out)),
-                other => Err(ReadError::Corrupt(format!("growth block: growing is {other}, expected 0 or 1"))),
-            };
+            (v(g::GROWING), out)
+        };
+        let (_, (growing, out)) = self.seqlocked(b + g::SEQ, read).ok_or(ReadError::Busy(0))?;
+        match growing {
+            0 => Ok(None),
+            1 => self.check_growth(&out).map(|()| Some(out)),
+            other => Err(ReadError::Corrupt(format!("growth block: growing is {other}, expected 0 or 1"))),
         }
-        Err(ReadError::Busy(0))
     }
 
     fn check_growth(&self, g: &layout::Growth) -> Result<(), ReadError> {

@@ -356,8 +356,8 @@ impl ImageMemory {
         if offset + out.len() > p.slot_bytes as usize {
             return false;
         }
-        // A settled slot changes only through `assign`, which the engine calls from its tick
-        // (`&mut` of the engine), never while an in-process reader holds it.
+        // A settled slot changes only through `assign` or `replace`, which the engine calls from
+        // its tick (`&mut` of the engine), never while an in-process reader holds it.
         self.region.read(p.slot_offset(slot) as usize + offset, out);
         true
     }
