@@ -335,6 +335,40 @@ fn hostile_mappings_are_refused_with_a_clear_error() {
         assert!(matches!(c.try_snapshot(), Err(ReadError::Corrupt(_))), "{name}");
         assert!(c.texel(0, 500, 500).is_err(), "{name}");
     }
+    // A growth block that is impossible: refused as corrupt by the growth reader, and nothing else
+    // is affected. A texture that does not grow reads as `None`; a good block reads back whole.
+    assert_eq!(Client::attach(dir.path(), "good").unwrap().growth().unwrap(), None);
+    let g0 = layout::header::GROWTH;
+    let good_growth = layout::Growth {
+        extent: [10, 20, 30, 40],
+        data_levels: 3,
+        patches: 2,
+        world_origin: [-512.0, 7.5],
+        texels_per_unit: 2.0,
+        ..Default::default()
+    };
+    w.memory().publish_growth(&good_growth);
+    let grown = std::fs::read(w.path()).unwrap();
+    std::fs::write(dir.path().join("clipmap-grown.map"), &grown).unwrap();
+    assert_eq!(Client::attach(dir.path(), "grown").unwrap().growth().unwrap(), Some(good_growth));
+    let growth: Vec<(&str, Box<dyn Fn(&mut Vec<u8>)>, &str)> = vec![
+        ("g-flag", Box::new(move |b| put(b, g0 + layout::growth::GROWING, 7)), "growing is 7"),
+        ("g-out", Box::new(move |b| put(b, g0 + layout::growth::EXTENT_S1, 5000)), "not inside the 1024x1024 frame"),
+        ("g-far", Box::new(move |b| put(b, g0 + layout::growth::EXTENT_S0, (-(1i64 << 62)) as u64)), "not inside"),
+        ("g-nan", Box::new(move |b| put(b, g0 + layout::growth::TEXELS_PER_UNIT, f64::NAN.to_bits())), "not finite"),
+        ("g-levels", Box::new(move |b| put(b, g0 + layout::growth::DATA_LEVELS, 1 << 40)), "data levels"),
+    ];
+    for (name, corrupt, want) in growth {
+        let mut bytes = grown.clone();
+        corrupt(&mut bytes);
+        std::fs::write(dir.path().join(format!("clipmap-{name}.map")), &bytes).unwrap();
+        let c = Client::attach(dir.path(), name).unwrap();
+        match c.growth() {
+            Err(ReadError::Corrupt(e)) => assert!(e.contains(want), "{name}: {e}"),
+            other => panic!("{name}: {other:?}"),
+        }
+        assert!(c.try_snapshot().is_ok(), "{name}: the snapshot is unaffected");
+    }
     assert!(matches!(Client::attach(dir.path(), "absent"), Err(ShmError::NotFound { .. })));
     assert!(matches!(Client::attach(dir.path(), "../x"), Err(ShmError::BadName(_))));
 }

@@ -279,6 +279,29 @@ fn readers_show_the_growth(fx: &Fixture, svc: &Service, g: &clipmap::shm::layout
     assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
     let got: serde_json::Value = serde_json::from_slice(&c.stdout).unwrap();
     assert_eq!(numbers(got), want, "C");
+    // A copy with an impossible growth block: both readers refuse it (exit 2) and say why.
+    let mut bytes = std::fs::read(&mapping).unwrap();
+    let at = clipmap::shm::layout::header::GROWTH + clipmap::shm::layout::growth::EXTENT_S1;
+    bytes[at..at + 8].copy_from_slice(&5000u64.to_le_bytes());
+    let bad = fx.path("clipmap-bad.map");
+    std::fs::write(&bad, &bytes).unwrap();
+    for (what, out) in [
+        ("C", Command::new(&exe).arg(&bad).output().unwrap()),
+        (
+            "Python",
+            Command::new("python3")
+                .env("PYTHONDONTWRITEBYTECODE", "1")
+                .arg(root.join("clients/python/clipmap_shm.py"))
+                .arg(&bad)
+                .arg("--growth")
+                .output()
+                .unwrap(),
+        ),
+    ] {
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{what}: {err}");
+        assert!(err.contains("not inside the 512x512 frame"), "{what}: {err}");
+    }
     let dir = fx.dir.path().to_str().unwrap();
     let sock = svc.socket.to_str().unwrap();
     let (out, d) = exec(
