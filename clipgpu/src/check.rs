@@ -105,8 +105,9 @@ fn hit(cam: &Camera, x: f64, y: f64) -> Option<([f64; 2], [f64; 2])> {
     Some((c, dc))
 }
 
-/// The footprint of pixel (i, j) as the shader computes it, in f64, with bounds on the shader's
-/// errors: (uv, bound on |Δu|, |Δv|; lod unclamped, bound on |Δ lod|).
+/// The footprint of pixel (i, j) as the shader computes it, in f64 (`Camera::footprint`'s
+/// arithmetic, relative to the eye's foot), with bounds on the shader's errors: (uv, bound on
+/// |Δu|, |Δv|; lod unclamped, bound on |Δ lod|).
 fn footprint_bound(cam: &Camera, i: u32, j: u32) -> Option<([f64; 2], [f64; 2], f64, f64)> {
     let (x, y) = (i as f64 + 0.5, j as f64 + 0.5);
     let (c, dc) = hit(cam, x, y)?;
@@ -143,11 +144,17 @@ pub fn geometry(cam: &Camera, levels: &[LevelShape], frame: &Frame) -> GeometryD
     for j in 0..cam.height {
         for i in 0..cam.width {
             let gpu = frame.footprint((j * cam.width + i) as usize);
-            let cpu = footprint_bound(cam, i, j).filter(|f| on_texture(f.0));
-            let (Some((guv, glod)), Some((uv, duv, lod, dlod))) = (gpu, cpu) else {
+            // The reference's own footprint (`Camera::footprint`), and the bounds for this pixel.
+            let cpu = cam.footprint(i, j).filter(|f| on_texture(f.uv));
+            let (Some((guv, glod)), Some(fp)) = (gpu, cpu) else {
                 g.ground_mismatch += u64::from(gpu.is_some() != cpu.is_some());
                 continue;
             };
+            let Some((_, duv, _, dlod)) = footprint_bound(cam, i, j) else {
+                g.ground_mismatch += 1;
+                continue;
+            };
+            let (uv, lod) = (fp.uv, fp.lod);
             g.compared += 1;
             for k in 0..2 {
                 let e = (guv[k] - uv[k]).abs();
