@@ -175,6 +175,8 @@ struct MappedFetch<'a> {
     snap: &'a crate::shm::Snapshot,
     format: TexelFormat,
     buf: Vec<u8>,
+    /// A further restriction of the texels available (level, s, t), if any.
+    held: Option<&'a dyn Fn(u32, i64, i64) -> bool>,
 }
 
 impl Fetch for MappedFetch<'_> {
@@ -187,6 +189,9 @@ impl Fetch for MappedFetch<'_> {
     }
 
     fn texel(&mut self, level: u32, s: i64, t: i64) -> Option<[f32; 4]> {
+        if self.held.is_some_and(|held| !held(level, s, t)) {
+            return None;
+        }
         let texel = crate::geom::Rect::new(s, t, s + 1, t + 1);
         self.client.read_region_in(self.snap, level as usize, texel, &mut self.buf).ok()?;
         Some(self.format.decode(&self.buf))
@@ -212,9 +217,25 @@ pub fn sample_mapping_in(
     v: f64,
     lod: f64,
 ) -> Option<Sample> {
+    sample_mapping_held(client, snap, None, filter, u, v, lod)
+}
+
+/// [`sample_mapping_in`] where a texel is available only if, besides being published, `held`
+/// says so (level, s, t): a renderer that mirrors the mapping and holds less of it for a while
+/// (an upload budget, say) checks its own sampling against this with its own notion of what it
+/// holds.
+pub fn sample_mapping_held(
+    client: &Client,
+    snap: &crate::shm::Snapshot,
+    held: Option<&dyn Fn(u32, i64, i64) -> bool>,
+    filter: Filter,
+    u: f64,
+    v: f64,
+    lod: f64,
+) -> Option<Sample> {
     let format = crate::shm::layout::format_from_code(client.format_code)?;
     let min_lod = snap.min_lod;
-    let mut src = MappedFetch { client, snap, format, buf: vec![0; client.bytes_per_texel] };
+    let mut src = MappedFetch { client, snap, format, buf: vec![0; client.bytes_per_texel], held };
     sample_published(&mut src, min_lod, filter, u, v, lod)
 }
 

@@ -4,6 +4,7 @@
 //! (`clipmap::accuracy::render::render_mapping`) and compares. Notices a service that stopped or
 //! was replaced and attaches to the next one.
 
+use crate::check::{self, GeometryDiff, SamplingDiff};
 use crate::gpu::{shapes, Gpu, Renderer};
 use crate::upload::{check_format, Method, UploadStats, Uploader};
 use crate::BadInput;
@@ -68,6 +69,9 @@ pub struct FrameRecord {
     pub draw_ms: f64,
     /// The reference renderer on the CPU, milliseconds (0 when not compared).
     pub reference_ms: f64,
+    /// The checks at the GPU's coordinates (the CPU sampler again, and the geometry),
+    /// milliseconds (0 when not compared).
+    pub check_ms: f64,
     /// A new service was attached before this frame.
     pub reattached: bool,
 }
@@ -180,14 +184,15 @@ struct Attached {
 impl Attached {
     fn new(gpu: &Gpu, client: Client, o: &FlightOptions, reuse: Option<Renderer>) -> Result<Attached> {
         let levels = shapes(&client);
+        let texels = check_format(&client).map_err(|e| anyhow!(BadInput(e.to_string())))?;
         let renderer = match reuse {
-            Some(r) if r.levels == levels => {
+            Some(r) if r.levels == levels && r.texels == texels => {
                 r.clear_tags(gpu);
                 r
             }
-            _ => Renderer::new(gpu, levels)?,
+            _ => Renderer::new(gpu, levels, texels)?,
         };
-        let uploader = Uploader::new(&renderer.levels, client.bytes_per_texel, o.method, o.budget);
+        let uploader = Uploader::new(&renderer.levels, client.bytes_per_texel, texels, o.method, o.budget);
         Ok(Attached { client, renderer, uploader })
     }
 }
@@ -248,10 +253,14 @@ pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<Fligh
             }
             std::thread::sleep(Duration::from_millis(2));
         }
-        let upload = at.uploader.upload(gpu, &at.renderer, &at.client, &snap)?;
+        let upload = gpu.checked(
+            &format!("uploading frame {f}'s texels"),
+            "the texture array may be too large for this adapter's memory: use a smaller clip size",
+            || at.uploader.upload(gpu, &at.renderer, &at.client, &snap),
+        )??;
         let cam = Camera::following(foot, o.case.eye_height, heading, o.case.pitch_deg, o.case.fov_deg, o.case.display);
         let t = Instant::now();
-        let rgba = at.renderer.draw(gpu, &cam, &snap, o.filter)?;
+        let frame = at.renderer.draw(gpu, &cam, &snap, o.filter)?;
         let draw_ms = t.elapsed().as_secs_f64() * 1000.0;
         let mut rec = FrameRecord {
             frame: f,
@@ -264,6 +273,7 @@ pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<Fligh
             upload,
             draw_ms,
             reference_ms: 0.0,
+            check_ms: 0.0,
             reattached,
         };
         let mut reference_img = None;
@@ -271,12 +281,17 @@ pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<Fligh
             let t = Instant::now();
             let want = render_mapping(&cam, &at.client, &snap, o.filter);
             rec.reference_ms = t.elapsed().as_secs_f64() * 1000.0;
-            rec.diff = compare_frame(&cam, at.renderer.levels.len(), o.filter, &want, &rgba);
+            rec.diff = compare_frame(&cam, at.renderer.levels.len(), o.filter, &want, &frame.rgba);
+            let t = Instant::now();
+            let levels = &at.renderer.levels;
+            rec.diff.at_gpu_coords = check::sampling(&at.client, &snap, levels, at.uploader.held(), o.filter, &frame);
+            rec.diff.geometry = check::geometry(&cam, levels, &frame);
+            rec.check_ms = t.elapsed().as_secs_f64() * 1000.0;
             reference_img = Some(clipmap::accuracy::render::to_image(&cam, &want));
         }
         if let Some(dir) = &o.out_dir {
             let path = dir.join(format!("gpu-{f:03}.png"));
-            let img = image::RgbaImage::from_raw(cam.width, cam.height, rgba).context("frame size")?;
+            let img = image::RgbaImage::from_raw(cam.width, cam.height, frame.rgba).context("frame size")?;
             img.save(&path).with_context(|| format!("writing {}", path.display()))?;
             report.pictures.push(path);
             if let Some(img) = reference_img {
@@ -310,6 +325,10 @@ pub struct FrameDiff {
     pub max_error_off_edges: u16,
     /// PSNR over the ground pixels not at an edge (`None`: those are equal).
     pub psnr_off_edges: Option<f64>,
+    /// The CPU sampler at the GPU's own coordinates and LOD against the GPU's pixels.
+    pub at_gpu_coords: SamplingDiff,
+    /// The GPU's coordinates and LOD against the f64 camera's.
+    pub geometry: GeometryDiff,
 }
 
 /// Whether pixel (i, j)'s footprint lies, to within f32 rounding, where the filter's choice of

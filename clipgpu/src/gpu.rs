@@ -1,12 +1,17 @@
 //! The GPU side: a headless wgpu device (Vulkan), one texture array layer per clipmap level that
 //! mirrors the level's image cache slot for slot, a storage buffer of the slots' tags as this
 //! client holds them, and the ground-plane pipeline of `ground.wgsl` drawing into an offscreen
-//! RGBA8 target that is read back.
+//! RGBA8 target that is read back, with two more targets saying where each pixel sampled.
+//!
+//! Every device operation runs inside error scopes ([`Gpu::checked`]) and an uncaptured-error
+//! handler is installed, so a validation or out-of-memory error is an error with its context, not
+//! wgpu's default panic.
 
 use anyhow::{anyhow, Context, Result};
 use clipmap::accuracy::render::Camera;
 use clipmap::sample::Filter;
 use clipmap::shm::{Client, Snapshot};
+use std::sync::{Arc, Mutex};
 
 /// At most this many levels (the mapping's bound, docs/SHM.md).
 pub const MAX_LEVELS: usize = 32;
@@ -19,6 +24,17 @@ pub struct Gpu {
     pub adapter: String,
     pub(crate) device: wgpu::Device,
     pub(crate) queue: wgpu::Queue,
+    /// Errors no scope caught (the handler wgpu calls instead of panicking).
+    uncaptured: Arc<Mutex<Vec<String>>>,
+}
+
+/// A wgpu error as text: what it was and the driver's description.
+fn describe(e: &wgpu::Error) -> String {
+    match e {
+        wgpu::Error::OutOfMemory { .. } => "the GPU is out of memory".to_string(),
+        wgpu::Error::Validation { description, .. } => format!("validation error: {}", description.trim()),
+        wgpu::Error::Internal { description, .. } => format!("internal error: {}", description.trim()),
+    }
 }
 
 impl Gpu {
@@ -48,13 +64,105 @@ impl Gpu {
             ..Default::default()
         }))
         .with_context(|| format!("the adapter {name} refused a device"))?;
-        Ok(Gpu { adapter: name, device, queue })
+        let uncaptured = Arc::new(Mutex::new(Vec::new()));
+        let sink = uncaptured.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            if let Ok(mut v) = sink.lock() {
+                v.push(describe(&e));
+            }
+        }));
+        Ok(Gpu { adapter: name, device, queue, uncaptured })
+    }
+
+    /// Runs `f` (device work: creating resources, writing, submitting) inside out-of-memory,
+    /// validation and internal error scopes; an error any of them caught, or that reached the
+    /// uncaptured-error handler meanwhile, is returned as `what` failed, with the driver's
+    /// description and `hint` (how to avoid it).
+    pub fn checked<T>(&self, what: &str, hint: &str, f: impl FnOnce() -> T) -> Result<T> {
+        let internal = self.device.push_error_scope(wgpu::ErrorFilter::Internal);
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let out = f();
+        let errors = [validation.pop(), oom.pop(), internal.pop()].map(pollster::block_on);
+        let mut found: Vec<String> = errors.iter().flatten().map(describe).collect();
+        if let Ok(mut v) = self.uncaptured.lock() {
+            found.append(&mut v);
+        }
+        if found.is_empty() {
+            return Ok(out);
+        }
+        let hint = if hint.is_empty() { String::new() } else { format!("; {hint}") };
+        Err(anyhow!("{what} failed on {}: {}{hint}", self.adapter, found.join("; ")))
+    }
+
+    /// The adapter's largest 2D texture side.
+    pub fn max_texture_side(&self) -> u32 {
+        self.device.limits().max_texture_dimension_2d
     }
 
     /// Waits for everything submitted so far.
     pub fn wait(&self) -> Result<()> {
         self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("waiting for the GPU: {e}"))?;
         Ok(())
+    }
+}
+
+/// What the GPU holds per texel: the published components, 8 or 16 bits each, widened to four.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Texels {
+    /// RGBA8 (`Rgba8Uint`), from L8, RGB8, RGBA8.
+    Bits8,
+    /// RGBA16 (`Rgba16Uint`), from L16, LA16, RGB16, RGBA16.
+    Bits16,
+}
+
+impl Texels {
+    fn format(self) -> wgpu::TextureFormat {
+        match self {
+            Texels::Bits8 => wgpu::TextureFormat::Rgba8Uint,
+            Texels::Bits16 => wgpu::TextureFormat::Rgba16Uint,
+        }
+    }
+
+    /// Bytes of one texel on the GPU.
+    pub fn bytes(self) -> u32 {
+        match self {
+            Texels::Bits8 => 4,
+            Texels::Bits16 => 8,
+        }
+    }
+
+    /// Component value c to [0, 1], as `clipmap::texel::TexelFormat::decode` computes it.
+    fn decode_table(self) -> Vec<u8> {
+        let v: Vec<f32> = match self {
+            Texels::Bits8 => (0..=255u32).map(|c| c as u8 as f32 / 255.0).collect(),
+            Texels::Bits16 => (0..=65535u32).map(|c| c as u16 as f32 / 65535.0).collect(),
+        };
+        v.iter().flat_map(|x| x.to_le_bytes()).collect()
+    }
+}
+
+/// A frame read back: the pixels, and per pixel where the shader sampled.
+pub struct Frame {
+    /// RGBA8, rows top to bottom.
+    pub rgba: Vec<u8>,
+    /// Per pixel: level-0 texel s, t and their fractions times 2^24 (u = s + fs 2^-24 exactly).
+    pub at: Vec<[u32; 4]>,
+    /// Per pixel: its LOD clamped to the levels (before min LOD); negative for sky.
+    pub lod: Vec<f32>,
+}
+
+impl Frame {
+    /// Pixel `n`'s footprint as the shader used it (`None`: sky): (u, v) in level-0 texels,
+    /// exactly, and the LOD.
+    pub fn footprint(&self, n: usize) -> Option<([f64; 2], f64)> {
+        let lod = self.lod[n];
+        if lod < 0.0 {
+            return None;
+        }
+        let a = self.at[n];
+        let c = |i: u32, q: u32| i as i32 as f64 + q as f64 / (1u64 << 24) as f64;
+        Some(([c(a[0], a[2]), c(a[1], a[3])], lod as f64))
     }
 }
 
@@ -75,12 +183,14 @@ pub struct LevelShape {
 pub struct Renderer {
     /// Levels.
     pub levels: Vec<LevelShape>,
+    /// What a texel is on the GPU.
+    pub texels: Texels,
     texture: wgpu::Texture,
     tags: wgpu::Buffer,
     frame: wgpu::Buffer,
     bind: wgpu::BindGroup,
     pipeline: wgpu::RenderPipeline,
-    target: Option<(wgpu::Texture, wgpu::Buffer, [u32; 2])>,
+    target: Option<Target>,
     /// Slots of all levels.
     pub slot_count: usize,
 }
@@ -99,6 +209,17 @@ pub fn shapes(client: &Client) -> Vec<LevelShape> {
         .collect()
 }
 
+/// The three render targets of a frame size and their read-back buffers.
+struct Target {
+    size: [u32; 2],
+    /// (texture, read-back buffer, bytes a pixel, bytes a row in the buffer).
+    planes: Vec<(wgpu::Texture, wgpu::Buffer, u32, u32)>,
+}
+
+/// The targets' formats: the colour, where it sampled, its LOD.
+const TARGETS: [(wgpu::TextureFormat, u32); 3] =
+    [(wgpu::TextureFormat::Rgba8Uint, 4), (wgpu::TextureFormat::Rgba32Uint, 16), (wgpu::TextureFormat::R32Float, 4)];
+
 fn push_i32(out: &mut Vec<u8>, v: [i64; 4]) {
     for x in v {
         out.extend_from_slice(&(x as i32).to_le_bytes());
@@ -113,7 +234,15 @@ fn push_f32(out: &mut Vec<u8>, v: [f64; 4]) {
 
 impl Renderer {
     /// Textures sized for `levels` (a layer each, as large as the largest image cache).
-    pub fn new(gpu: &Gpu, levels: Vec<LevelShape>) -> Result<Renderer> {
+    pub fn new(gpu: &Gpu, levels: Vec<LevelShape>, texels: Texels) -> Result<Renderer> {
+        gpu.checked(
+            "creating the textures, buffers and pipeline",
+            "the image caches may be too large for this adapter: use a smaller clip size",
+            || Renderer::build(gpu, levels, texels),
+        )?
+    }
+
+    fn build(gpu: &Gpu, levels: Vec<LevelShape>, texels: Texels) -> Result<Renderer> {
         if levels.is_empty() || levels.len() > MAX_LEVELS {
             return Err(anyhow!("{} levels: expected 1 to {MAX_LEVELS}", levels.len()));
         }
@@ -133,7 +262,7 @@ impl Renderer {
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba8Unorm,
+            format: texels.format(),
             usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
             view_formats: &[],
         });
@@ -150,6 +279,14 @@ impl Renderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        let table = texels.decode_table();
+        let decode = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("decode"),
+            size: table.len() as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        gpu.queue.write_buffer(&decode, 0, &table);
         let shader = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("ground.wgsl"),
             source: wgpu::ShaderSource::Wgsl(include_str!("ground.wgsl").into()),
@@ -182,9 +319,17 @@ impl Renderer {
                 entry(
                     2,
                     wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        sample_type: wgpu::TextureSampleType::Uint,
                         view_dimension: wgpu::TextureViewDimension::D2Array,
                         multisampled: false,
+                    },
+                ),
+                entry(
+                    3,
+                    wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
                     },
                 ),
             ],
@@ -200,6 +345,7 @@ impl Renderer {
                 wgpu::BindGroupEntry { binding: 0, resource: frame.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 1, resource: tags.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&view) },
+                wgpu::BindGroupEntry { binding: 3, resource: decode.as_entire_binding() },
             ],
         });
         let pipeline_layout = gpu.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -223,16 +369,14 @@ impl Renderer {
                 module: &shader,
                 entry_point: Some("fs"),
                 compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: wgpu::TextureFormat::Rgba8Uint,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
+                targets: &TARGETS.map(|(format, _)| {
+                    Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })
+                }),
             }),
             multiview_mask: None,
             cache: None,
         });
-        let r = Renderer { levels, texture, tags, frame, bind, pipeline, target: None, slot_count };
+        let r = Renderer { levels, texels, texture, tags, frame, bind, pipeline, target: None, slot_count };
         r.clear_tags(gpu);
         Ok(r)
     }
@@ -257,7 +401,7 @@ impl Renderer {
         gpu.queue.write_buffer(&self.tags, (first * 16) as u64, &bytes);
     }
 
-    /// Writes RGBA8 texels of a `w` x `h` rectangle at (x, y) of level `k`'s layer.
+    /// Writes texels (RGBA, [`Texels`]) of a `w` x `h` rectangle at (x, y) of level `k`'s layer.
     pub fn write_texels(&self, gpu: &Gpu, k: usize, at: [u32; 2], size: [u32; 2], rgba: &[u8]) {
         gpu.queue.write_texture(
             wgpu::TexelCopyTextureInfo {
@@ -267,7 +411,11 @@ impl Renderer {
                 aspect: wgpu::TextureAspect::All,
             },
             rgba,
-            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(size[0] * 4), rows_per_image: Some(size[1]) },
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(size[0] * self.texels.bytes()),
+                rows_per_image: Some(size[1]),
+            },
             wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
         );
     }
@@ -306,46 +454,100 @@ impl Renderer {
         b
     }
 
-    /// Draws the camera's view from what the textures hold under `snap` and reads it back:
-    /// RGBA8, rows top to bottom.
-    pub fn draw(&mut self, gpu: &Gpu, cam: &Camera, snap: &Snapshot, filter: Filter) -> Result<Vec<u8>> {
+    /// Draws the camera's view from what the textures hold under `snap` and reads it back.
+    pub fn draw(&mut self, gpu: &Gpu, cam: &Camera, snap: &Snapshot, filter: Filter) -> Result<Frame> {
+        let size = [cam.width, cam.height];
+        let max = gpu.max_texture_side();
+        let what = format!("drawing a frame of {}x{} pixels", size[0], size[1]);
+        let hint = format!("this adapter's render targets are at most {max} pixels a side: use a smaller --size");
+        let planes = gpu.checked(&what, &hint, || self.render(gpu, cam, snap, filter))??;
+        gpu.wait()?;
+        let mut out = Vec::new();
+        for (_, buf, bpp, pitch) in &planes.planes {
+            let (tx, rx) = std::sync::mpsc::channel();
+            buf.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+                let _ = tx.send(r);
+            });
+            gpu.wait()?;
+            rx.recv().context("the GPU dropped the read-back")?.map_err(|e| anyhow!("reading the frame back: {e}"))?;
+            let mut bytes = Vec::with_capacity((size[0] * size[1] * bpp) as usize);
+            {
+                let data = buf.slice(..).get_mapped_range().map_err(|e| anyhow!("reading the frame back: {e}"))?;
+                for row in data.chunks(*pitch as usize).take(size[1] as usize) {
+                    bytes.extend_from_slice(&row[..(size[0] * bpp) as usize]);
+                }
+            }
+            buf.unmap();
+            out.push(bytes);
+        }
+        self.target = Some(planes);
+        let lod = out.pop().unwrap_or_default();
+        let at = out.pop().unwrap_or_default();
+        let rgba = out.pop().unwrap_or_default();
+        let word = |b: &[u8]| u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+        Ok(Frame {
+            rgba,
+            at: at.chunks_exact(16).map(|p| [word(&p[0..]), word(&p[4..]), word(&p[8..]), word(&p[12..])]).collect(),
+            lod: lod.chunks_exact(4).map(|p| f32::from_bits(word(p))).collect(),
+        })
+    }
+
+    /// Records and submits the frame's pass and copies; returns the targets (made here when the
+    /// frame size changed).
+    fn render(&mut self, gpu: &Gpu, cam: &Camera, snap: &Snapshot, filter: Filter) -> Result<Target> {
         gpu.queue.write_buffer(&self.frame, 0, &self.frame_bytes(cam, snap, filter));
         let size = [cam.width, cam.height];
-        let pitch = (cam.width * 4).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-        if self.target.as_ref().is_none_or(|t| t.2 != size) {
-            let tex = gpu.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("frame"),
-                size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format: wgpu::TextureFormat::Rgba8Uint,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-                view_formats: &[],
-            });
-            let buf = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("readback"),
-                size: (pitch * size[1]) as u64,
-                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-                mapped_at_creation: false,
-            });
-            self.target = Some((tex, buf, size));
-        }
-        let (tex, buf, _) = self.target.as_ref().expect("made above");
-        let view = tex.create_view(&wgpu::TextureViewDescriptor::default());
+        let target = match self.target.take() {
+            Some(t) if t.size == size => t,
+            _ => Target {
+                size,
+                planes: TARGETS
+                    .iter()
+                    .map(|&(format, bpp)| {
+                        let pitch = (size[0] * bpp).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
+                            * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+                        let tex = gpu.device.create_texture(&wgpu::TextureDescriptor {
+                            label: Some("frame"),
+                            size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
+                            mip_level_count: 1,
+                            sample_count: 1,
+                            dimension: wgpu::TextureDimension::D2,
+                            format,
+                            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+                            view_formats: &[],
+                        });
+                        let buf = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                            label: Some("readback"),
+                            size: (pitch as u64) * size[1] as u64,
+                            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                            mapped_at_creation: false,
+                        });
+                        (tex, buf, bpp, pitch)
+                    })
+                    .collect(),
+            },
+        };
+        let views: Vec<wgpu::TextureView> =
+            target.planes.iter().map(|p| p.0.create_view(&wgpu::TextureViewDescriptor::default())).collect();
         let mut enc = gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
         {
+            let attachments: Vec<Option<wgpu::RenderPassColorAttachment>> = views
+                .iter()
+                .map(|view| {
+                    Some(wgpu::RenderPassColorAttachment {
+                        view,
+                        depth_slice: None,
+                        resolve_target: None,
+                        ops: wgpu::Operations {
+                            load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                            store: wgpu::StoreOp::Store,
+                        },
+                    })
+                })
+                .collect();
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("ground"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
+                color_attachments: &attachments,
                 depth_stencil_attachment: None,
                 timestamp_writes: None,
                 occlusion_query_set: None,
@@ -355,38 +557,26 @@ impl Renderer {
             pass.set_bind_group(0, &self.bind, &[]);
             pass.draw(0..3, 0..1);
         }
-        enc.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo {
-                texture: tex,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            wgpu::TexelCopyBufferInfo {
-                buffer: buf,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(pitch),
-                    rows_per_image: Some(size[1]),
+        for (tex, buf, _, pitch) in &target.planes {
+            enc.copy_texture_to_buffer(
+                wgpu::TexelCopyTextureInfo {
+                    texture: tex,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
                 },
-            },
-            wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
-        );
-        gpu.queue.submit([enc.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        buf.slice(..).map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        gpu.wait()?;
-        rx.recv().context("the GPU dropped the read-back")?.map_err(|e| anyhow!("reading the frame back: {e}"))?;
-        let mut out = Vec::with_capacity((size[0] * size[1] * 4) as usize);
-        {
-            let data = buf.slice(..).get_mapped_range().map_err(|e| anyhow!("reading the frame back: {e}"))?;
-            for row in data.chunks(pitch as usize).take(size[1] as usize) {
-                out.extend_from_slice(&row[..(size[0] * 4) as usize]);
-            }
+                wgpu::TexelCopyBufferInfo {
+                    buffer: buf,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(*pitch),
+                        rows_per_image: Some(size[1]),
+                    },
+                },
+                wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
+            );
         }
-        buf.unmap();
-        Ok(out)
+        gpu.queue.submit([enc.finish()]);
+        Ok(target)
     }
 }

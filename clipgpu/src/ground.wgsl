@@ -30,8 +30,12 @@ struct Frame {
 @group(0) @binding(0) var<uniform> fr: Frame;
 // Per slot of every level: the tile S, T the GPU copy holds, and 1 when its texels are there.
 @group(0) @binding(1) var<storage, read> tags: array<vec4<i32>>;
-// One layer per level: the level's image cache, slot (i, j) at texels (i TW, j TH).
-@group(0) @binding(2) var cache: texture_2d_array<f32>;
+// One layer per level: the level's image cache, slot (i, j) at texels (i TW, j TH); the texels'
+// components as published (8 or 16 bits, unsigned).
+@group(0) @binding(2) var cache: texture_2d_array<u32>;
+// Component value c to [0, 1] as `TexelFormat::decode` computes it on the CPU (c / 255 or
+// c / 65535, rounded once): a table, so that no GPU division rounds differently.
+@group(0) @binding(3) var<storage, read> decode: array<f32>;
 
 @vertex
 fn vs(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
@@ -71,7 +75,8 @@ fn available(k: i32, s: i32, t: i32) -> bool {
 fn load(k: i32, s: i32, t: i32) -> vec4<f32> {
     let l = fr.levels[k];
     let p = vec2<i32>(s % (l.tile.x * l.tile.z), t % (l.tile.y * l.tile.w));
-    return textureLoad(cache, p, k, 0);
+    let c = textureLoad(cache, p, k, 0);
+    return vec4<f32>(decode[c.x], decode[c.y], decode[c.z], decode[c.w]);
 }
 
 fn lerp4(a: vec4<f32>, b: vec4<f32>, f: f32) -> vec4<f32> {
@@ -83,37 +88,59 @@ struct Got {
     rgba: vec4<f32>,
 };
 
-// Level-k coordinate of the pixel's u (or v): integer part `base`, fraction-carrying part `rel`.
-fn split(eye_int: i32, rel0: f32, k: i32) -> vec2<f32> {
-    let scale = f32(1 << u32(k));
-    let rem = eye_int & ((1 << u32(k)) - 1);
-    return vec2<f32>(f32(eye_int >> u32(k)), (f32(rem) + rel0) / scale);
-}
+// The pixel's ground coordinates, exactly: level-0 texel `i` (integer) plus `f` in [0, 1), a
+// multiple of 2^-24. The sampler below works from these with integer addressing and one rounded
+// f32 operation per filter weight, so the CPU sampler given u = i + f (exact in f64) makes the
+// same choices and weights (docs/GPU.md, "What is bit-exact").
+struct Coord {
+    i: vec2<i32>,
+    f: vec2<f32>,
+};
 
-fn point(k: i32, rel: vec2<f32>) -> Got {
+fn point(k: i32, c: Coord) -> Got {
     let l = fr.levels[k];
-    let bs = split(fr.eye_int.x, rel.x, k);
-    let bt = split(fr.eye_int.y, rel.y, k);
-    let s = clamp(i32(bs.x) + i32(floor(bs.y)), 0, l.size.x - 1);
-    let t = clamp(i32(bt.x) + i32(floor(bt.y)), 0, l.size.y - 1);
+    // floor((i + f) / 2^k) = i >> k, as f < 1.
+    let s = clamp(c.i.x >> u32(k), 0, l.size.x - 1);
+    let t = clamp(c.i.y >> u32(k), 0, l.size.y - 1);
     if !available(k, s, t) {
         return Got(false, vec4<f32>(0.0));
     }
     return Got(true, load(k, s, t));
 }
 
-fn bilinear(k: i32, rel: vec2<f32>) -> Got {
+// Level k's bilinear cell along one axis: x = (i + f) / 2^k - 1/2 = x0 + w, x0 an integer, w in
+// [0, 1]. With r = i mod 2^k, w 2^k = r - 2^(k-1) + f when r + f >= 2^(k-1), else r + 2^(k-1) + f:
+// one f32 addition (correctly rounded), then an exact scaling by 2^-k.
+struct Cell {
+    x0: i32,
+    w: f32,
+};
+
+fn cell(i: i32, f: f32, k: i32) -> Cell {
+    let r = i & ((1 << u32(k)) - 1);
+    let base = i >> u32(k);
+    let half = ldexp(1.0, k - 1);
+    var up = f >= 0.5;
+    if k > 0 {
+        up = r >= (1 << u32(k - 1));
+    }
+    var a = f32(r) + half;
+    var x0 = base - 1;
+    if up {
+        a = f32(r) - half;
+        x0 = base;
+    }
+    return Cell(x0, ldexp(a + f, -k));
+}
+
+fn bilinear(k: i32, c: Coord) -> Got {
     let l = fr.levels[k];
-    let bs = split(fr.eye_int.x, rel.x, k);
-    let bt = split(fr.eye_int.y, rel.y, k);
-    let x = bs.y - 0.5;
-    let y = bt.y - 0.5;
-    let x0 = floor(x);
-    let y0 = floor(y);
-    let fx = x - x0;
-    let fy = y - y0;
-    let s0 = i32(bs.x) + i32(x0);
-    let t0 = i32(bt.x) + i32(y0);
+    let cx = cell(c.i.x, c.f.x, k);
+    let cy = cell(c.i.y, c.f.y, k);
+    let s0 = cx.x0;
+    let t0 = cy.x0;
+    let fx = cx.w;
+    let fy = cy.w;
     let sa = clamp(s0, 0, l.size.x - 1);
     let sb = clamp(s0 + 1, 0, l.size.x - 1);
     let ta = clamp(t0, 0, l.size.y - 1);
@@ -123,28 +150,34 @@ fn bilinear(k: i32, rel: vec2<f32>) -> Got {
     }
     let a = load(k, sa, ta);
     let b = load(k, sb, ta);
-    let c = load(k, sa, tb);
+    let cc = load(k, sa, tb);
     let d = load(k, sb, tb);
-    return Got(true, lerp4(lerp4(a, b, fx), lerp4(c, d, fx), fy));
+    return Got(true, lerp4(lerp4(a, b, fx), lerp4(cc, d, fx), fy));
 }
 
-fn filtered(mode: i32, rel: vec2<f32>, lod_in: f32) -> Got {
+// floor(lod + 0.5) without the rounding of the sum.
+fn nearest_level(lod: f32) -> i32 {
+    let k = floor(lod);
+    return i32(k) + select(0, 1, lod - k >= 0.5);
+}
+
+fn filtered(mode: i32, c: Coord, lod_in: f32) -> Got {
     let last = i32(fr.params.y) - 1;
     let lod = clamp(lod_in, 0.0, f32(last));
-    let nearest = min(i32(floor(lod + 0.5)), last);
+    let nearest = min(nearest_level(lod), last);
     if mode == 0 {
-        return point(nearest, rel);
+        return point(nearest, c);
     }
     if mode == 1 {
-        return bilinear(nearest, rel);
+        return bilinear(nearest, c);
     }
     let k = i32(floor(lod));
     let f = lod - f32(k);
-    let fine = bilinear(k, rel);
+    let fine = bilinear(k, c);
     if !fine.ok || f == 0.0 || k == last {
         return fine;
     }
-    let coarse = bilinear(k + 1, rel);
+    let coarse = bilinear(k + 1, c);
     if !coarse.ok {
         return coarse;
     }
@@ -159,14 +192,41 @@ fn quantise(v: f32) -> u32 {
 
 const SKY: vec4<u32> = vec4<u32>(140u, 180u, 230u, 255u);
 
+struct Out {
+    // The pixel, RGBA8.
+    @location(0) rgba: vec4<u32>,
+    // Where it sampled: level-0 texel s, t (as u32 bits) and the fractions f s, f t times 2^24.
+    @location(1) at: vec4<u32>,
+    // The pixel's LOD (clamped to the levels, before min LOD); -1 for sky.
+    @location(2) lod: f32,
+};
+
+fn sky() -> Out {
+    return Out(SKY, vec4<u32>(0u), -1.0);
+}
+
+// Level-0 coordinate eye_int + rel as an integer and a fraction in [0, 1) rounded down to a
+// multiple of 2^-24 (a no-op wherever |rel| >= 1, where rel's own ulp is coarser), as 2^24 times
+// the fraction.
+struct Split {
+    i: i32,
+    q: u32,
+};
+
+fn split(eye_int: i32, rel: f32) -> Split {
+    let fl = floor(rel);
+    let q = floor(ldexp(rel - fl, 24));
+    return Split(eye_int + i32(fl), u32(q));
+}
+
 @fragment
-fn fs(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<u32> {
+fn fs(@builtin(position) pos: vec4<f32>) -> Out {
     // The pixel's centre: wgpu's fragment position is (i + 0.5, j + 0.5), y down.
     let x = pos.x;
     let y = pos.y;
     let c = ground(x, y);
     if c.z == 0.0 {
-        return SKY;
+        return sky();
     }
     var dx = ground(x + 1.0, y);
     if dx.z == 0.0 {
@@ -177,37 +237,42 @@ fn fs(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<u32> {
         dy = ground(x, y - 1.0);
     }
     if dx.z == 0.0 || dy.z == 0.0 {
-        return SKY;
+        return sky();
     }
     let rho = max(max(length(dx.xy - c.xy), length(dy.xy - c.xy)), 1e-12);
     let rel = vec2<f32>(fr.eye.x + c.x, fr.eye.y + c.y);
-    let u = f32(fr.eye_int.x) + rel.x;
-    let v = f32(fr.eye_int.y) + rel.y;
+    let su = split(fr.eye_int.x, rel.x);
+    let sv = split(fr.eye_int.y, rel.y);
+    let q = vec2<u32>(su.q, sv.q);
+    let co = Coord(vec2<i32>(su.i, sv.i), vec2<f32>(ldexp(f32(q.x), -24), ldexp(f32(q.y), -24)));
     let size = fr.levels[0].size;
-    if u < 0.0 || v < 0.0 || u >= f32(size.x) || v >= f32(size.y) {
-        return SKY;
+    // u = i + f with f in [0, 1): u >= 0 exactly when i >= 0, u < size when i < size.
+    if co.i.x < 0 || co.i.y < 0 || co.i.x >= size.x || co.i.y >= size.y {
+        return sky();
     }
     let count = i32(fr.params.y);
     let last = f32(count - 1);
     let mode = i32(fr.params.z);
     // The reference clamps the pixel's LOD to the levels, then samples at max(lod, min LOD).
-    let lod = clamp(max(clamp(log2(rho), 0.0, last), fr.params.x), 0.0, last);
-    var got = filtered(mode, rel, lod);
+    let pixel_lod = clamp(log2(rho), 0.0, last);
+    let lod = clamp(max(pixel_lod, fr.params.x), 0.0, last);
+    var got = filtered(mode, co, lod);
     if !got.ok {
-        var first = i32(floor(lod + 0.5)) + 1;
+        var first = nearest_level(lod) + 1;
         if mode == 2 {
             first = i32(ceil(lod));
         }
         for (var k = first; k < count; k++) {
-            got = filtered(mode, rel, f32(k));
+            got = filtered(mode, co, f32(k));
             if got.ok {
                 break;
             }
         }
     }
+    let at = vec4<u32>(bitcast<u32>(co.i.x), bitcast<u32>(co.i.y), q.x, q.y);
     if !got.ok {
-        return vec4<u32>(0u, 0u, 0u, 255u);
+        return Out(vec4<u32>(0u, 0u, 0u, 255u), at, pixel_lod);
     }
-    let q = got.rgba;
-    return vec4<u32>(quantise(q.x), quantise(q.y), quantise(q.z), quantise(q.w));
+    let p = got.rgba;
+    return Out(vec4<u32>(quantise(p.x), quantise(p.y), quantise(p.z), quantise(p.w)), at, pixel_lod);
 }

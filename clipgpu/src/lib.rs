@@ -6,6 +6,7 @@
 //! compares every frame with the reference software renderer on the same snapshot
 //! (docs/GPU.md).
 
+pub mod check;
 pub mod demo;
 pub mod flight;
 pub mod gpu;

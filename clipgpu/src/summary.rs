@@ -9,6 +9,8 @@ use serde_json::{json, Value};
 /// (docs/GPU.md, "Tolerance", says how these were chosen from measured differences). Pixels
 /// whose footprint lies on a texel edge or a LOD boundary to within f32 rounding are counted
 /// apart (`at_edges`): there the shader's f32 and the reference's f64 may pick another texel.
+/// Those pixels are not let off: the same frame is also checked at the GPU's own coordinates
+/// (every pixel, `sampling_max_error`) and the coordinates against their f32 bound.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Tolerance {
     /// Lowest PSNR of a frame over its ground pixels off the edges, dB (`None`: they must be
@@ -16,18 +18,28 @@ pub struct Tolerance {
     pub psnr_floor: Option<f64>,
     /// Largest channel difference of a pixel off the edges, 8-bit units.
     pub max_error: u16,
+    /// Largest channel difference of any pixel from the CPU sampler run at the GPU's own
+    /// coordinates and LOD (0: bit-exact on every pixel).
+    pub sampling_max_error: u16,
 }
+
+/// The largest difference allowed at the GPU's coordinates with the bilinear filters (8-bit
+/// units), where the shader's blends may be fused into multiply-adds (docs/GPU.md).
+pub const SAMPLING_FILTERED: u16 = 1;
 
 impl Tolerance {
     /// Nearest sampling: identical off the edges. Filtered: the rounding of f32 filter weights.
     pub fn for_filter(filter: Filter) -> Tolerance {
         match filter {
-            Filter::Point => Tolerance { psnr_floor: None, max_error: 0 },
-            Filter::Bilinear | Filter::Trilinear => Tolerance { psnr_floor: Some(70.0), max_error: 2 },
+            Filter::Point => Tolerance { psnr_floor: None, max_error: 0, sampling_max_error: 0 },
+            Filter::Bilinear | Filter::Trilinear => {
+                Tolerance { psnr_floor: Some(70.0), max_error: 2, sampling_max_error: SAMPLING_FILTERED }
+            }
         }
     }
 
-    /// Whether every frame is within.
+    /// Whether every frame is within: off the edges against the f64 reference, on every pixel
+    /// at the GPU's coordinates, and the coordinates within their f32 bound.
     pub fn holds(&self, frames: &[FrameRecord]) -> bool {
         frames.iter().all(|f| {
             let psnr_ok = match (f.diff.psnr_off_edges, self.psnr_floor) {
@@ -35,7 +47,10 @@ impl Tolerance {
                 (Some(_), None) => false,
                 (Some(p), Some(floor)) => p >= floor,
             };
-            psnr_ok && f.diff.max_error_off_edges <= self.max_error
+            psnr_ok
+                && f.diff.max_error_off_edges <= self.max_error
+                && f.diff.at_gpu_coords.max_error <= self.sampling_max_error
+                && f.diff.geometry.bound_ratio <= 1.0
         })
     }
 }
@@ -101,6 +116,13 @@ pub fn json(c: &Context, r: &FlightReport) -> Value {
         "max_error_off_edges": frames.iter().map(|f| f.diff.max_error_off_edges).max().unwrap_or(0),
         "pixels_differing_max": frames.iter().map(|f| f.diff.differing).max().unwrap_or(0),
         "pixels_at_edges": frames.iter().map(|f| f.diff.at_edges).sum::<u64>(),
+        "pixels_compared_at_gpu_coords": frames.iter().map(|f| f.diff.at_gpu_coords.compared).sum::<u64>(),
+        "pixels_differing_at_gpu_coords": frames.iter().map(|f| f.diff.at_gpu_coords.differing).sum::<u64>(),
+        "max_error_at_gpu_coords": frames.iter().map(|f| f.diff.at_gpu_coords.max_error).max().unwrap_or(0),
+        "max_coord_error_texels": frames.iter().map(|f| f.diff.geometry.max_coord_error).fold(0.0, f64::max),
+        "max_lod_error": frames.iter().map(|f| f.diff.geometry.max_lod_error).fold(0.0, f64::max),
+        "coord_error_bound_ratio": frames.iter().map(|f| f.diff.geometry.bound_ratio).fold(0.0, f64::max),
+        "pixels_ground_mismatch": frames.iter().map(|f| f.diff.geometry.ground_mismatch).sum::<u64>(),
         "upload_method": c.method,
         "upload_budget": c.budget,
         "upload_bytes_per_frame": mean(steady.iter().map(|f| f.upload.bytes as f64)),
@@ -114,6 +136,7 @@ pub fn json(c: &Context, r: &FlightReport) -> Value {
         "frame_ms": mean(steady.iter().map(|f| f.draw_ms)),
         "first_frame_ms": frames.first().map(|f| f.draw_ms),
         "cpu_reference_ms": if c.compared { Some(mean(steady.iter().map(|f| f.reference_ms))) } else { None },
+        "check_ms": if c.compared { Some(mean(steady.iter().map(|f| f.check_ms))) } else { None },
         "reattaches": r.reattaches,
         "frames_with_disabled_level": frames.iter().filter(|f| f.levels_disabled > 0).count(),
         "frames_unsettled": frames.iter().filter(|f| !f.settled).count(),

@@ -12,7 +12,7 @@
 //! Both leave the GPU holding, for each enabled level, every texel of the published valid region
 //! (or, under a budget, tell the shader through the tags which tiles it does not hold yet).
 
-use crate::gpu::{Gpu, LevelShape, Renderer};
+use crate::gpu::{Gpu, LevelShape, Renderer, Texels};
 use anyhow::{anyhow, Result};
 use clipmap::geom::{tiles_covering, Rect};
 use clipmap::shm::{Client, ReadError, Snapshot};
@@ -62,6 +62,8 @@ pub struct Uploader {
     /// Per level: the valid region of the previous frame's snapshot (for the strips).
     previous: Vec<Rect>,
     bpt: usize,
+    /// Bytes of one published component (1 or 2).
+    component: usize,
     tile_buf: Vec<u8>,
     rgba: Vec<u8>,
 }
@@ -83,28 +85,39 @@ pub fn minus(a: Rect, b: Rect) -> Vec<Rect> {
     .collect()
 }
 
-/// Published bytes per texel to RGBA8 for the GPU: 8-bit formats of 1 to 4 components, the
-/// missing components 0 (as `clipmap::texel::TexelFormat::decode` reads them).
-fn expand(bpt: usize, src: &[u8], out: &mut Vec<u8>) {
+/// Published texels (`bpt` bytes, components of `component` bytes, little-endian) to four
+/// components of the same width for the GPU (RGBA8 or RGBA16), as
+/// `clipmap::texel::TexelFormat::decode` reads them: L is (L, L, L, 1), LA is (L, L, L, A), RGB is
+/// (R, G, B, 1).
+fn expand(bpt: usize, component: usize, src: &[u8], out: &mut Vec<u8>) {
     out.clear();
-    if bpt == 4 {
+    let n = bpt / component;
+    if n == 4 {
         out.extend_from_slice(src);
         return;
     }
+    let one = [0xffu8; 2];
+    let one = &one[..component];
     for t in src.chunks_exact(bpt) {
-        let mut px = [0u8; 4];
-        px[..bpt].copy_from_slice(t);
-        out.extend_from_slice(&px);
+        let c = |i: usize| &t[i * component..(i + 1) * component];
+        let (l, a) = (c(0), if n == 2 { c(1) } else { one });
+        match n {
+            3 => [c(0), c(1), c(2), one].iter().for_each(|x| out.extend_from_slice(x)),
+            _ => [l, l, l, a].iter().for_each(|x| out.extend_from_slice(x)),
+        }
     }
 }
 
-/// Whether clipgpu can upload a mapping's texel format; the error says what it found.
-pub fn check_format(client: &Client) -> Result<()> {
+/// What the GPU holds for a mapping's texel format; the error says what it found when clipgpu
+/// cannot upload it.
+pub fn check_format(client: &Client) -> Result<Texels> {
     use clipmap::texel::ComponentType;
     match clipmap::shm::layout::format_from_code(client.format_code) {
-        Some(f) if f.ctype == ComponentType::U8 && (1..=4).contains(&f.components.count()) => Ok(()),
+        Some(f) if f.ctype == ComponentType::U8 && (1..=4).contains(&f.components.count()) => Ok(Texels::Bits8),
+        Some(f) if f.ctype == ComponentType::U16 && (1..=4).contains(&f.components.count()) => Ok(Texels::Bits16),
         found => Err(anyhow!(
-            "{}: texel format {} is not one clipgpu uploads (expected an 8-bit format: L8, LA8, RGB8 or RGBA8)",
+            "{}: texel format {} is not one clipgpu uploads (expected 8 or 16 bits a component: L8, RGB8, \
+             RGBA8, L16, LA16, RGB16 or RGBA16)",
             client.path().display(),
             found.map(|f| f.short_name()).unwrap_or_else(|| format!("code {}", client.format_code))
         )),
@@ -113,7 +126,7 @@ pub fn check_format(client: &Client) -> Result<()> {
 
 impl Uploader {
     /// Nothing held yet.
-    pub fn new(levels: &[LevelShape], bpt: usize, method: Method, budget: Option<u64>) -> Uploader {
+    pub fn new(levels: &[LevelShape], bpt: usize, texels: Texels, method: Method, budget: Option<u64>) -> Uploader {
         Uploader {
             method,
             budget,
@@ -124,9 +137,16 @@ impl Uploader {
             region: vec![Rect::EMPTY; levels.len()],
             previous: vec![Rect::EMPTY; levels.len()],
             bpt,
+            component: texels.bytes() as usize / 4,
             tile_buf: Vec::new(),
             rgba: Vec::new(),
         }
+    }
+
+    /// Per level, per slot: the tile the GPU slot holds and whether its texels are there (the
+    /// GPU's tags).
+    pub fn held(&self) -> &[Vec<([i64; 2], bool)>] {
+        &self.held
     }
 
     /// Brings the GPU up to `snap`: uploads what it lacks of every enabled level's valid region.
@@ -195,7 +215,7 @@ impl Uploader {
                 self.tile_buf.resize(tile_bytes as usize, 0);
                 match client.read_tile(k, tile, &mut self.tile_buf) {
                     Ok(()) => {
-                        expand(self.bpt, &self.tile_buf, &mut self.rgba);
+                        expand(self.bpt, self.component, &self.tile_buf, &mut self.rgba);
                         let at = [(slot as u64 % l.grid[0]) * l.tile[0], (slot as u64 / l.grid[0]) * l.tile[1]];
                         r.write_texels(
                             gpu,
@@ -256,7 +276,7 @@ impl Uploader {
                         self.tile_buf.resize((piece.area() as usize) * self.bpt, 0);
                         let ok = match client.read_region_in(snap, k, piece, &mut self.tile_buf) {
                             Ok(()) => {
-                                expand(self.bpt, &self.tile_buf, &mut self.rgba);
+                                expand(self.bpt, self.component, &self.tile_buf, &mut self.rgba);
                                 let at = [piece.s0 as u64 % period[0], piece.t0 as u64 % period[1]];
                                 r.write_texels(
                                     gpu,
@@ -311,13 +331,42 @@ mod tests {
     }
 
     #[test]
-    fn published_texels_expand_to_rgba_with_missing_components_zero() {
+    fn published_texels_expand_to_rgba_as_the_cpu_decodes_them() {
         let mut out = Vec::new();
-        expand(3, &[1, 2, 3, 4, 5, 6], &mut out);
-        assert_eq!(out, vec![1, 2, 3, 0, 4, 5, 6, 0]);
-        expand(1, &[9, 8], &mut out);
-        assert_eq!(out, vec![9, 0, 0, 0, 8, 0, 0, 0]);
-        expand(4, &[1, 2, 3, 4], &mut out);
+        expand(3, 1, &[1, 2, 3, 4, 5, 6], &mut out);
+        assert_eq!(out, vec![1, 2, 3, 255, 4, 5, 6, 255]);
+        expand(1, 1, &[9, 8], &mut out);
+        assert_eq!(out, vec![9, 9, 9, 255, 8, 8, 8, 255]);
+        expand(4, 1, &[1, 2, 3, 4], &mut out);
         assert_eq!(out, vec![1, 2, 3, 4]);
+        // 16 bits a component, little-endian components kept whole: L16, LA16, RGB16, RGBA16.
+        expand(2, 2, &[0x34, 0x12, 0xff, 0xee], &mut out);
+        assert_eq!(
+            out,
+            vec![0x34, 0x12, 0x34, 0x12, 0x34, 0x12, 255, 255, 0xff, 0xee, 0xff, 0xee, 0xff, 0xee, 255, 255]
+        );
+        expand(4, 2, &[1, 2, 3, 4], &mut out);
+        assert_eq!(out, vec![1, 2, 1, 2, 1, 2, 3, 4]);
+        expand(6, 2, &[1, 2, 3, 4, 5, 6], &mut out);
+        assert_eq!(out, vec![1, 2, 3, 4, 5, 6, 255, 255]);
+        expand(8, 2, &[1, 2, 3, 4, 5, 6, 7, 8], &mut out);
+        assert_eq!(out, vec![1, 2, 3, 4, 5, 6, 7, 8]);
+        // Each as the CPU decodes it.
+        use clipmap::texel::TexelFormat as F;
+        for (f, texel, component) in [
+            (F::L8, vec![77u8], 1),
+            (F::RGB8, vec![1, 2, 3], 1),
+            (F::L16, vec![0x34, 0x12], 2),
+            (F::LA16, vec![0x34, 0x12, 7, 9], 2),
+            (F::RGB16, vec![1, 2, 3, 4, 5, 6], 2),
+        ] {
+            expand(texel.len(), component, &texel, &mut out);
+            let max = if component == 1 { 255.0 } else { 65535.0 };
+            let got: Vec<f32> = out
+                .chunks_exact(component)
+                .map(|c| if component == 1 { c[0] as f32 } else { u16::from_le_bytes([c[0], c[1]]) as f32 } / max)
+                .collect();
+            assert_eq!(got, f.decode(&texel).to_vec(), "{f}");
+        }
     }
 }

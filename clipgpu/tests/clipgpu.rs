@@ -122,10 +122,37 @@ fn frames(j: &Value) -> &Vec<Value> {
 
 fn assert_within_tolerance(j: &Value) {
     assert_eq!(
-        j["within_tolerance"], true,
-        "off the texel edges: psnr_min {} max_error {} (tolerance {}); per frame {}",
-        j["psnr_min_off_edges"], j["max_error_off_edges"], j["tolerance"], j["per_frame"]
+        j["within_tolerance"],
+        true,
+        "off the texel edges: psnr_min {} max_error {}; at the GPU's coordinates: max error {}; coordinates: {} \
+         of their bound (tolerance {}); per frame {}",
+        j["psnr_min_off_edges"],
+        j["max_error_off_edges"],
+        j["max_error_at_gpu_coords"],
+        j["coord_error_bound_ratio"],
+        j["tolerance"],
+        j["per_frame"]
     );
+    // The checks ran on every ground pixel of every frame, and the geometry held its bound.
+    assert!(j["pixels_compared_at_gpu_coords"].as_u64().unwrap() > 0, "{}", j["per_frame"]);
+    let ratio = j["coord_error_bound_ratio"].as_f64().unwrap();
+    assert!(ratio > 0.0 && ratio <= 1.0, "coordinates against their f32 bound: {ratio}");
+    assert!(j["max_coord_error_texels"].as_f64().unwrap() < 0.01, "{}", j["max_coord_error_texels"]);
+}
+
+/// With point filtering the CPU sampler at the GPU's coordinates gives the GPU's frame on every
+/// pixel of every frame, texel edges included.
+fn assert_bit_exact_at_gpu_coords(j: &Value) {
+    assert_eq!(j["pixels_differing_at_gpu_coords"], 0, "{}", j["per_frame"]);
+    assert_eq!(j["max_error_at_gpu_coords"], 0);
+    for f in frames(j) {
+        let d = &f["diff"];
+        assert!(
+            d["at_gpu_coords"]["compared"].as_u64() >= d["geometry"]["compared"].as_u64(),
+            "frame {}: every pixel that is ground for both is checked: {d}",
+            f["frame"]
+        );
+    }
 }
 
 #[test]
@@ -133,8 +160,17 @@ fn the_demo_prints_its_json_and_matches_the_reference_renderer_within_the_strips
     let out = tempfile::tempdir().unwrap();
     let o = out.path().join("frames");
     let j = json(&["--demo", "--frames", "8", "--size", "128x96", "--out", o.to_str().unwrap()]);
-    for key in ["adapter", "frames", "psnr_min", "max_error", "upload_bytes_per_frame", "theory_strip_bytes_per_frame"]
-    {
+    for key in [
+        "adapter",
+        "frames",
+        "psnr_min",
+        "max_error",
+        "upload_bytes_per_frame",
+        "theory_strip_bytes_per_frame",
+        "pixels_differing_at_gpu_coords",
+        "max_coord_error_texels",
+        "max_lod_error",
+    ] {
         assert!(j.get(key).is_some(), "no `{key}` in {j}");
     }
     assert!(!j["adapter"].as_str().unwrap().is_empty());
@@ -159,11 +195,16 @@ fn nearest_filtering_is_bit_exact_against_the_reference_on_the_hash_texture() {
     let _s = Service::start(dir.path(), "near", &[]);
     let d = dir.path().to_str().unwrap();
     let j = json(&["--name", "near", "--shm-dir", d, "--filter", "point", "--frames", "6", "--size", "128x96"]);
-    // Identical but where a pixel's footprint lies on a texel edge to within f32 rounding.
+    // Against the f64 reference: identical but where a pixel's footprint lies on a texel edge to
+    // within f32 rounding.
     assert_within_tolerance(&j);
     assert_eq!(j["psnr_min_off_edges"], Value::Null, "{}", j["per_frame"]);
     assert_eq!(j["max_error_off_edges"], 0);
     assert!(j["pixels_at_edges"].as_u64().unwrap() <= 6, "{}", j["pixels_at_edges"]);
+    // At the GPU's own coordinates: identical on every pixel, those included.
+    assert_bit_exact_at_gpu_coords(&j);
+    // This camera sees no sky: every pixel of the 6 frames was checked.
+    assert_eq!(j["pixels_compared_at_gpu_coords"], 6 * 128 * 96);
 }
 
 #[test]
@@ -173,6 +214,9 @@ fn trilinear_frames_match_the_reference_on_the_hash_texture() {
     let d = dir.path().to_str().unwrap();
     let j = json(&["--name", "tri", "--shm-dir", d, "--frames", "6", "--size", "128x96", "--flight", "circle:300:12"]);
     assert_within_tolerance(&j);
+    // The tolerance allows one unit at the GPU's coordinates for a driver that fuses the blends
+    // into multiply-adds; lavapipe does not, and is bit-exact there too (docs/GPU.md).
+    assert_eq!(j["pixels_differing_at_gpu_coords"], 0, "{}", j["per_frame"]);
     assert_eq!(j["frames_over_bound"], 0);
 }
 
@@ -222,6 +266,9 @@ fn an_upload_budget_is_never_exceeded_and_the_frames_fall_back_until_the_tiles_a
     let last = fr.last().unwrap();
     assert_eq!(last["upload"]["over_budget"], 0, "hovering, every tile has arrived by the last frame");
     assert_eq!(last["diff"]["max_error_off_edges"], 0, "{last}");
+    // While tiles are late the frame is coarser than the reference, but exactly what the clipmap
+    // rule gives over the tiles the GPU holds: bit-exact at its coordinates on every frame.
+    assert_bit_exact_at_gpu_coords(&j);
 }
 
 #[test]
@@ -319,6 +366,56 @@ fn bad_input_and_a_service_that_never_comes_back_are_explained() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("stopped at frame") && err.contains("--reattach-s"), "{err}");
+}
+
+#[test]
+fn a_gpu_validation_error_is_an_error_message_and_exit_status_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let _s = Service::start(dir.path(), "big", &[]);
+    let d = dir.path().to_str().unwrap();
+    // Wider than any adapter's textures (lavapipe's limit is 16384): wgpu's validation refuses
+    // the render target.
+    let out = clipgpu(&["--name", "big", "--shm-dir", d, "--size", "40000x2", "--frames", "1", "--no-compare"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(
+        err.contains("drawing a frame of 40000x2 pixels failed") && err.contains("validation error"),
+        "where and what: {err}"
+    );
+    assert!(err.contains("use a smaller --size") && err.contains("at most"), "how to fix: {err}");
+}
+
+#[test]
+fn a_16_bit_texture_uploads_as_rgba16_and_samples_exactly() {
+    // --out: the demo writes its pictures somewhere, by default into the working directory.
+    let out = tempfile::tempdir().unwrap();
+    let o = out.path().to_str().unwrap();
+    let j = json(&[
+        "--demo",
+        "--demo-format",
+        "rgba16",
+        "--filter",
+        "point",
+        "--frames",
+        "3",
+        "--size",
+        "96x64",
+        "--out",
+        o,
+    ]);
+    assert_eq!(j["texture"]["bytes_per_texel"], 8);
+    assert_within_tolerance(&j);
+    assert_bit_exact_at_gpu_coords(&j);
+    assert_eq!(j["max_error_off_edges"], 0);
+    // L16 and RGB8 widen to four components (L, L, L, 1) and (R, G, B, 1), as the CPU decodes them.
+    for (format, bytes) in [("l16", 2), ("rgb8", 3)] {
+        let j = json(&["--demo", "--demo-format", format, "--frames", "3", "--size", "96x64", "--out", o]);
+        assert_eq!(j["texture"]["bytes_per_texel"], bytes);
+        assert_within_tolerance(&j);
+        assert_eq!(j["pixels_differing_at_gpu_coords"], 0, "{format}: {}", j["per_frame"]);
+        assert!(j["theory_strip_bytes_per_frame"].as_f64().unwrap() > 0.0);
+    }
 }
 
 #[test]

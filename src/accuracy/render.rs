@@ -3,7 +3,7 @@
 //! trilinear filtering (or point / bilinear) through [`crate::sample`].
 
 use crate::clip::Clipmap;
-use crate::sample::{sample_clipmap, sample_mapping_in, Filter, MipmapSampler};
+use crate::sample::{sample_clipmap, sample_mapping_held, Filter, MipmapSampler};
 use crate::shm::{Client, Snapshot};
 use crate::source::TileSource;
 use rayon::prelude::*;
@@ -180,25 +180,59 @@ pub fn render_clipmap_levels(cam: &Camera, map: &Clipmap, filter: Filter, window
 /// caller): the same camera, LOD and sampling as [`render_clipmap`], through
 /// [`crate::sample::sample_mapping_in`]. The GPU client (`clipgpu`) compares its frames with this.
 pub fn render_mapping(cam: &Camera, client: &Client, snap: &Snapshot, filter: Filter) -> Vec<Pixel> {
-    let size = client.levels[0].size;
-    let last = client.levels.len() as f64 - 1.0;
     let rows: Vec<Vec<Pixel>> = (0..cam.height)
         .into_par_iter()
         .map(|j| {
             (0..cam.width)
                 .map(|i| match cam.footprint(i, j) {
-                    Some(fp) if in_texture(fp.uv, size) => {
-                        match sample_mapping_in(client, snap, filter, fp.uv[0], fp.uv[1], fp.lod.clamp(0.0, last)) {
-                            Some(s) => ground(s.rgba, s.lod),
-                            None => ground(BLACK, last),
-                        }
-                    }
-                    _ => SKY,
+                    Some(fp) => mapping_pixel(client, snap, None, filter, fp.uv, fp.lod),
+                    None => SKY,
                 })
                 .collect()
         })
         .collect();
     rows.concat()
+}
+
+/// One pixel of [`render_mapping`] whose footprint is `uv` and `lod` (unclamped); `held`
+/// restricts the texels available further (see [`crate::sample::sample_mapping_held`]).
+fn mapping_pixel(
+    client: &Client,
+    snap: &Snapshot,
+    held: Option<&(dyn Fn(u32, i64, i64) -> bool + Sync)>,
+    filter: Filter,
+    uv: [f64; 2],
+    lod: f64,
+) -> Pixel {
+    let last = client.levels.len() as f64 - 1.0;
+    if !in_texture(uv, client.levels[0].size) {
+        return SKY;
+    }
+    let held = held.map(|h| h as &dyn Fn(u32, i64, i64) -> bool);
+    match sample_mapping_held(client, snap, held, filter, uv[0], uv[1], lod.clamp(0.0, last)) {
+        Some(s) => ground(s.rgba, s.lod),
+        None => ground(BLACK, last),
+    }
+}
+
+/// [`render_mapping`]'s pixels at footprints given rather than computed from a camera: pixel `n`
+/// is sky for `None`, else shaded at `Some((uv, lod))` exactly as [`render_mapping`] shades a
+/// pixel with that footprint. A renderer that computes its footprints itself (the GPU client, in
+/// f32) checks its sampling with this at its own coordinates; `held` as in
+/// [`crate::sample::sample_mapping_held`].
+pub fn render_mapping_at(
+    client: &Client,
+    snap: &Snapshot,
+    held: Option<&(dyn Fn(u32, i64, i64) -> bool + Sync)>,
+    filter: Filter,
+    at: &[Option<([f64; 2], f64)>],
+) -> Vec<Pixel> {
+    at.par_iter()
+        .map(|p| match *p {
+            Some((uv, lod)) => mapping_pixel(client, snap, held, filter, uv, lod),
+            None => SKY,
+        })
+        .collect()
 }
 
 /// Pixels to an RGBA image.

@@ -187,3 +187,34 @@ fn a_frame_rendered_from_one_snapshot_of_the_mapping_equals_the_engine_render() 
         assert!(mapped.iter().filter(|p| p.ground).count() > 64 * 20, "the camera sees the ground");
     }
 }
+
+#[test]
+fn a_frame_rendered_at_given_footprints_equals_the_camera_render_and_held_texels_restrict_it() {
+    use crate::accuracy::render::{render_mapping, render_mapping_at, Camera};
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, _w) = mapped_service(dir.path(), "at");
+    let client = Client::attach(dir.path(), "at").unwrap();
+    for i in 0..12 {
+        map.tick([1800 + 13 * i, 2100 - 7 * i], None);
+        map.wait_for_reads();
+    }
+    let snap = client.try_snapshot().unwrap();
+    let cam = Camera::following([1956.0, 2016.0], 20.0, 30.0, 40.0, 60.0, [64, 48]);
+    let at: Vec<_> = (0..48)
+        .flat_map(|j| (0..64).map(move |i| (i, j)))
+        .map(|(i, j)| cam.footprint(i, j).map(|f| (f.uv, f.lod)))
+        .collect();
+    for filter in [Filter::Point, Filter::Trilinear] {
+        let want = render_mapping(&cam, &client, &snap, filter);
+        assert_eq!(render_mapping_at(&client, &snap, None, filter, &at), want, "{filter:?}");
+        // Holding nothing of level 0: every pixel from level 1 or coarser.
+        let no_level_0 = |k: u32, _s: i64, _t: i64| k > 0;
+        let coarser = render_mapping_at(&client, &snap, Some(&no_level_0), filter, &at);
+        let finest = |lod: f64| if filter == Filter::Point { (lod + 0.5).floor() } else { lod.floor() };
+        assert!(coarser.iter().filter(|p| p.ground).all(|p| finest(p.lod) >= 1.0), "{filter:?}");
+        assert!(coarser.iter().zip(&want).any(|(c, w)| c.rgba != w.rgba), "{filter:?}: level 0 was used");
+        let (u, v, lod) = (1960.25, 2030.5, 0.0);
+        let held = sample_mapping_held(&client, &snap, Some(&no_level_0), filter, u, v, lod).unwrap();
+        assert_eq!(Some(held), sample_mapping_in(&client, &snap, filter, u, v, 1.0), "{filter:?}");
+    }
+}
