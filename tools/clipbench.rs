@@ -48,6 +48,7 @@ use std::process::ExitCode;
     after_help = "\
 Examples:
   clipbench perf --quick --json
+  clipbench ingest --json
   clipbench policies --quick --json
   clipbench growing --quick --json
   clipbench remote --quick --json
@@ -98,6 +99,13 @@ Examples:
   clipbench perf --quick --json
   clipbench perf --runs 7 --dir /var/tmp")]
     Perf(perf::Args),
+    /// Tile ingest alone: tiles per second through the engine's tile path against plain reads
+    /// of the same files (the `ingest` part of `clipbench perf`, with the same sizes).
+    #[command(after_help = "\
+Examples:
+  clipbench ingest --json
+  clipbench ingest --quick --runs 9")]
+    Ingest(perf::IngestArgs),
     /// Paging policies side by side: ring or direction-aware prefetch, LRU or shift eviction
     /// of a second-level tile pool, on the standard flights over a simulated disk.
     #[command(after_help = "\
@@ -169,6 +177,7 @@ fn main() -> ExitCode {
             format.texel(),
         ),
         Command::Perf(args) => perf::main(args),
+        Command::Ingest(args) => perf::ingest_main(args),
         Command::Policies(args) => policies::main(args),
         Command::Growing(args) => growing::main(args),
         #[cfg(feature = "remote")]

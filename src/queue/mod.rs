@@ -136,8 +136,8 @@ pub struct ReadQueues {
     runtime: Option<tokio::runtime::Runtime>,
     handles: Vec<QueueHandle>,
     events: std_mpsc::Receiver<Event>,
-    /// Completions taken per stream since the last update sent to it.
-    drained: Vec<usize>,
+    /// Tiles whose completions were taken, per stream, since the last update sent to it.
+    drained: Vec<Vec<TileId>>,
     counters: Vec<QueueStats>,
     skipped: u64,
 }
@@ -174,7 +174,7 @@ impl ReadQueues {
             runtime: Some(runtime),
             handles,
             events,
-            drained: vec![0; streams],
+            drained: vec![Vec::new(); streams],
             counters: vec![QueueStats::default(); streams],
             skipped: 0,
         })
@@ -199,10 +199,18 @@ impl ReadQueues {
             per_stream[self.stream_of(r.tile)].push(*r);
         }
         for (stream, wanted) in per_stream.into_iter().enumerate() {
-            let drained = self.drained[stream];
+            let drained = std::mem::take(&mut self.drained[stream]);
             match self.handles[stream].commands.try_send(Command::Update { wanted, drained }) {
-                Ok(()) => self.drained[stream] = 0,
-                Err(_) => self.skipped += 1,
+                Ok(()) => {}
+                Err(e) => {
+                    // Kept for the next update that fits.
+                    if let mpsc::error::TrySendError::Full(Command::Update { drained, .. })
+                    | mpsc::error::TrySendError::Closed(Command::Update { drained, .. }) = e
+                    {
+                        self.drained[stream] = drained;
+                    }
+                    self.skipped += 1;
+                }
             }
         }
     }
@@ -214,7 +222,7 @@ impl ReadQueues {
             match event {
                 Event::Done(c) => {
                     let stream = self.stream_of(c.tile);
-                    self.drained[stream] += 1;
+                    self.drained[stream].push(c.tile);
                     done.push(c);
                 }
                 Event::Counters { stream, stats } => self.counters[stream] = stats,

@@ -9,10 +9,16 @@
 //! tile from the page cache (the engine's CPU per tile in the ingest benchmark fell from medians
 //! of 100..125 to 75..90 µs). The pending requests are shared out among the free read slots
 //! (`max_in_flight_reads`), at most [`MAX_BATCH`] a task. Each read is reported the moment it
-//! ends (a channel to this runner), not at the end of its run, and its thread then yields the
-//! core, so that the update tick, waiting for a core on a small machine, is not kept waiting for
-//! a run of reads that decode or generate tiles and never block (without the yield the real-time
-//! flight's tick p99 went from 0.9 to 5 ms on two cores). The price: a request that becomes more
+//! ends, straight to the owner's channel (which the update tick drains without blocking), not at
+//! the end of its run and not through this runner: waking the runner for every tile cost a
+//! thread wake-up per tile again (an inter-processor interrupt on a virtual machine, and the
+//! runner's own turn on a core). The runner books a run's reads when its task ends; the owner
+//! tells it which tiles it took ([`Command::Update`]'s `drained`), so a tile taken before its
+//! run ended is known as taken. A reading thread yields the core once it has read for
+//! [`YIELD_AFTER`] since its last yield, so that the update tick, waiting for a core on a small
+//! machine, is not kept waiting for a run of reads that decode or generate tiles and never block
+//! (without any yield the real-time flight's tick p99 went from 0.9 to 5 ms on two cores; a yield
+//! after every tile cost a context switch a tile when tiles come from the page cache). The price: a request that becomes more
 //! urgent waits until a slot's run ends (at most `MAX_BATCH` reads, about a millisecond from the
 //! page cache); a tile of a run that left its mem region meanwhile is not read, because its slot's
 //! claim moved to another tile (`ImageMemory::fill` refuses it, counted stale).
@@ -21,20 +27,36 @@ use super::{Completion, Outcome, Priority, QueueStats, ReadRequest};
 use crate::limits::Limits;
 use crate::shm::ImageMemory;
 use crate::source::{SourceError, TileId, TileSource};
-use std::collections::{HashMap, HashSet, VecDeque};
+use std::collections::{HashMap, HashSet};
 use std::sync::mpsc as std_mpsc;
 use std::sync::Arc;
 use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinSet;
 
-/// What the handle asks of the runner.
 /// Most requests one blocking task reads in a row (see the module's documentation).
 pub(super) const MAX_BATCH: usize = 16;
 
+/// How long a reading thread reads before it yields the core (see the module's documentation):
+/// about a tile generated or decoded, a few tiles from the page cache.
+pub(super) const YIELD_AFTER: std::time::Duration = std::time::Duration::from_micros(250);
+
+/// How a reported read ended, for the runner's counters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Ended {
+    Filled,
+    Failed,
+    NotWanted,
+}
+
+/// The reads of one run reported so far, in order (shared by the run's thread and its task, so
+/// that a thread that panics still leaves a true record).
+type Reported = Arc<std::sync::Mutex<Vec<(TileId, Ended)>>>;
+
+/// What the handle asks of the runner.
 pub(super) enum Command {
-    /// The tiles wanted now, with fresh priorities; `drained` completions were taken since the
-    /// last update.
-    Update { wanted: Vec<ReadRequest>, drained: usize },
+    /// The tiles wanted now, with fresh priorities; the owner took the completions of `drained`
+    /// since the last update.
+    Update { wanted: Vec<ReadRequest>, drained: Vec<TileId> },
     /// Answer once no read runs and none can start before the owner takes completions.
     Flush(oneshot::Sender<()>),
 }
@@ -55,15 +77,14 @@ pub(super) struct Runner {
     pub memory: Arc<ImageMemory>,
     pub limits: Limits,
     pending: Vec<ReadRequest>,
+    /// Tiles of runs not yet ended (reported to the owner or not).
     in_flight: HashSet<TileId>,
-    /// Completions sent but not yet reported taken, oldest first.
-    delivered: VecDeque<TileId>,
-    /// One task per run of reads; each ends with the tiles it did not report (all of them when
-    /// its thread panicked, none otherwise).
-    reads: JoinSet<Vec<TileId>>,
-    /// Each read's completion, sent by its thread the moment it ends.
-    done_tx: mpsc::UnboundedSender<Completion>,
-    done_rx: mpsc::UnboundedReceiver<Completion>,
+    /// Completions of ended runs not yet taken by the owner.
+    delivered: HashSet<TileId>,
+    /// Tiles the owner took while their run had not ended: booked when it ends.
+    taken_early: HashSet<TileId>,
+    /// One task per run of reads; each ends with its batch and what its thread reported.
+    reads: JoinSet<(Vec<TileId>, Reported)>,
     flushes: Vec<oneshot::Sender<()>>,
     stats: QueueStats,
 }
@@ -77,7 +98,6 @@ impl Runner {
         memory: Arc<ImageMemory>,
         limits: Limits,
     ) -> Self {
-        let (done_tx, done_rx) = mpsc::unbounded_channel();
         Runner {
             stream,
             commands,
@@ -87,10 +107,9 @@ impl Runner {
             limits,
             pending: Vec::new(),
             in_flight: HashSet::new(),
-            delivered: VecDeque::new(),
+            delivered: HashSet::new(),
+            taken_early: HashSet::new(),
             reads: JoinSet::new(),
-            done_tx,
-            done_rx,
             flushes: Vec::new(),
             stats: QueueStats::default(),
         }
@@ -107,27 +126,27 @@ impl Runner {
                     Some(Command::Update { wanted, drained }) => self.update(wanted, drained),
                     Some(Command::Flush(reply)) => self.flushes.push(reply),
                 },
-                Some(done) = self.done_rx.recv() => {
-                    if !self.finished(done) {
-                        break;
-                    }
-                    self.publish_counters();
-                }
                 Some(joined) = self.reads.join_next(), if !self.reads.is_empty() => {
-                    // Its completions were sent before it ended: take them first.
-                    let mut alive = true;
-                    while let Ok(done) = self.done_rx.try_recv() {
-                        alive &= self.finished(done);
+                    // The task returns its batch whether its thread ended or panicked.
+                    let Ok((batch, reported)) = joined else { continue };
+                    let reported = std::mem::take(&mut *reported.lock().unwrap_or_else(|e| e.into_inner()));
+                    for &(tile, ended) in &reported {
+                        self.booked(tile, ended);
                     }
-                    let mut unreported = joined.unwrap_or_default();
-                    unreported.retain(|t| self.in_flight.contains(t));
+                    // A thread that panicked reported some of its tiles: the runner fails the others.
+                    let unreported: Vec<TileId> = if reported.len() == batch.len() {
+                        Vec::new()
+                    } else {
+                        let done: HashSet<TileId> = reported.iter().map(|&(t, _)| t).collect();
+                        batch.into_iter().filter(|t| !done.contains(t) && self.in_flight.contains(t)).collect()
+                    };
                     for tile in unreported {
                         let source = std::io::Error::other("the tile read's thread failed (panicked)");
                         let outcome = Outcome::Failed(None, SourceError::Io { tile, source });
-                        alive &= self.finished(Completion { tile, outcome });
-                    }
-                    if !alive {
-                        break;
+                        if self.events.send(Event::Done(Completion { tile, outcome })).is_err() {
+                            return;
+                        }
+                        self.booked(tile, Ended::Failed);
                     }
                     self.publish_counters();
                 }
@@ -135,19 +154,22 @@ impl Runner {
         }
     }
 
-    /// Books a finished read and hands it to the owner; false when the owner is gone.
-    fn finished(&mut self, done: Completion) -> bool {
-        self.in_flight.remove(&done.tile);
-        self.delivered.push_back(done.tile);
-        match &done.outcome {
-            Outcome::Filled(..) => {
-                self.stats.reads_done += 1;
-                self.stats.bytes_read += self.source.desc().tile_bytes(done.tile.level) as u64;
-            }
-            Outcome::Failed(..) => self.stats.reads_failed += 1,
-            Outcome::NotWanted => self.stats.stale_dropped += 1,
+    /// Books a read its run reported to the owner: delivered, until the owner says it took it
+    /// (already, when it did before the run ended).
+    fn booked(&mut self, tile: TileId, ended: Ended) {
+        // A tile taken early left the reads in flight then (and may be in a new run by now).
+        if !self.taken_early.remove(&tile) {
+            self.in_flight.remove(&tile);
+            self.delivered.insert(tile);
         }
-        self.events.send(Event::Done(done)).is_ok()
+        match ended {
+            Ended::Filled => {
+                self.stats.reads_done += 1;
+                self.stats.bytes_read += self.source.desc().tile_bytes(tile.level) as u64;
+            }
+            Ended::Failed => self.stats.reads_failed += 1,
+            Ended::NotWanted => self.stats.stale_dropped += 1,
+        }
     }
 
     fn can_start(&self) -> bool {
@@ -172,33 +194,40 @@ impl Runner {
             self.stats.reads_started += batch.len() as u64;
             let source = Arc::clone(&self.source);
             let memory = Arc::clone(&self.memory);
-            let done = self.done_tx.clone();
+            let events = self.events.clone();
+            let reported: Reported = Arc::default();
+            let record = Arc::clone(&reported);
             self.reads.spawn(async move {
                 let tiles = batch.clone();
-                let read = tokio::task::spawn_blocking(move || {
+                // Whether the thread ends or panics, what it reported is in `reported`.
+                let _ = tokio::task::spawn_blocking(move || {
+                    let mut since_yield = std::time::Instant::now();
                     for tile in batch {
                         // Straight into the tile's slot, under its claim: nothing is copied later.
-                        let outcome = match memory.fill(tile, |slot| source.read_into(tile, slot)) {
-                            None => Outcome::NotWanted,
-                            Some((generation, Ok(delivered))) => Outcome::Filled(generation, delivered),
-                            Some((generation, Err(e))) => Outcome::Failed(Some(generation), e),
+                        let (outcome, ended) = match memory.fill(tile, |slot| source.read_into(tile, slot)) {
+                            None => (Outcome::NotWanted, Ended::NotWanted),
+                            Some((generation, Ok(delivered))) => {
+                                (Outcome::Filled(generation, delivered), Ended::Filled)
+                            }
+                            Some((generation, Err(e))) => (Outcome::Failed(Some(generation), e), Ended::Failed),
                         };
-                        // Reported at once, not at the end of the run: the tick takes it next.
-                        if done.send(Completion { tile, outcome }).is_err() {
+                        // Reported at once and straight to the owner: the tick takes it next.
+                        if events.send(Event::Done(Completion { tile, outcome })).is_err() {
                             return;
                         }
+                        record.lock().unwrap_or_else(|e| e.into_inner()).push((tile, ended));
                         // Lets a waiting thread (the update tick) have the core now rather than at
                         // the end of this thread's time slice: a run of reads that decode or
                         // generate tiles never blocks, and would otherwise delay the tick by
                         // milliseconds on a machine with few cores.
-                        std::thread::yield_now();
+                        if since_yield.elapsed() >= YIELD_AFTER {
+                            std::thread::yield_now();
+                            since_yield = std::time::Instant::now();
+                        }
                     }
-                });
-                // A panicked thread reported some of its tiles: the runner fails the others.
-                match read.await {
-                    Ok(()) => Vec::new(),
-                    Err(_) => tiles,
-                }
+                })
+                .await;
+                (tiles, reported)
             });
         }
     }
@@ -216,9 +245,13 @@ impl Runner {
 
     /// Replaces the pending set by `wanted`: stale requests are dropped, tiles already being read
     /// are coalesced, priorities refreshed, and the queue cut to its bound.
-    fn update(&mut self, wanted: Vec<ReadRequest>, drained: usize) {
-        for _ in 0..drained.min(self.delivered.len()) {
-            self.delivered.pop_front();
+    fn update(&mut self, wanted: Vec<ReadRequest>, drained: Vec<TileId>) {
+        for tile in drained {
+            // Taken before its run ended: the run books it as taken when it ends. The tile leaves
+            // the reads in flight now, so that it can be asked for (and read) again at once.
+            if !self.delivered.remove(&tile) && self.in_flight.remove(&tile) {
+                self.taken_early.insert(tile);
+            }
         }
         let busy: HashSet<TileId> = self.in_flight.iter().chain(self.delivered.iter()).copied().collect();
         let mut fresh: HashMap<TileId, Priority> = HashMap::with_capacity(wanted.len());

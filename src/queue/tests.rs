@@ -226,3 +226,45 @@ fn a_read_thread_that_panics_fails_the_rest_of_its_run_and_the_queue_goes_on() {
     assert_eq!(again, vec![true, true, true]);
     assert_eq!(q.stats().reads_failed, 3);
 }
+
+#[test]
+fn a_tile_taken_before_its_run_ends_can_be_asked_for_and_read_again_at_once() {
+    let src = source();
+    // The run reads (0, 0) at once, then waits on the slow (1, 0).
+    src.add(FaultRule::tile(TileId::new(0, 1, 0), Fault::Slow(Duration::from_millis(300))));
+    let memory = memory(&src);
+    let limits = Limits { max_ready_reads: 2, ..limits(64, 1) };
+    let mut q = ReadQueues::new(src.clone(), Arc::clone(&memory), 1, limits).unwrap();
+    q.update(&[request(0, 0, 0), request(1, 0, 10)]);
+    // (0, 0) is reported straight to the owner while its run still reads (1, 0).
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let first = loop {
+        let done = q.drain();
+        if !done.is_empty() {
+            break done;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the first read of the run was not reported before the run ended"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    assert_eq!(first.iter().map(|c| c.tile.s).collect::<Vec<_>>(), vec![0]);
+    // Wanted again before the run ended: not coalesced with the old read, read again once the
+    // queue's only read slot is free.
+    q.update(&[request(0, 0, 0), request(1, 0, 10)]);
+    q.flush();
+    let mut rest: Vec<(u64, bool)> =
+        q.drain().iter().map(|c| (c.tile.s, matches!(c.outcome, Outcome::Filled(..)))).collect();
+    rest.sort();
+    assert_eq!(rest, vec![(0, true), (1, true)]);
+    assert_eq!(src.reads(), 3);
+    let stats = q.stats();
+    assert_eq!((stats.reads_done, stats.coalesced), (3, 1), "only (1, 0), whose read ran, is coalesced");
+    // Everything taken: the ready bound (2) holds nothing back, so both new reads run.
+    q.update(&[request(2, 0, 0), request(3, 0, 1)]);
+    q.update(&[request(2, 0, 0), request(3, 0, 1)]);
+    q.flush();
+    assert_eq!(q.drain().len(), 2);
+    assert_eq!(q.stats().in_flight, 0);
+}

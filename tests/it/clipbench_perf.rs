@@ -33,3 +33,30 @@ fn perf_json_has_the_contract_fields() {
     assert!(v["ingest"]["tiles_per_run"].as_u64().unwrap() > 0);
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "scratch data left behind");
 }
+
+#[test]
+fn ingest_alone_reports_the_perf_figure_with_its_baselines() {
+    let dir = tempfile::tempdir().unwrap();
+    let args: Vec<&std::ffi::OsStr> = vec![
+        "ingest".as_ref(),
+        "--smoke".as_ref(),
+        "--json".as_ref(),
+        "--runs".as_ref(),
+        "2".as_ref(),
+        "--dir".as_ref(),
+        dir.path().as_os_str(),
+    ];
+    let v = crate::common::clipbench_json(&args);
+    let ratio = v["ingest_vs_read"].as_f64().expect("ingest_vs_read");
+    assert!(ratio.is_finite() && ratio > 0.0, "{ratio}");
+    assert_eq!(v["ingest"]["ratio"]["median"].as_f64(), Some(ratio), "the figure is the runs' median");
+    for baseline in
+        ["read_in_place_tiles_per_s", "read_parallel_tiles_per_s", "engine_switches_per_tile", "engine_tick_share"]
+    {
+        let samples = v["ingest"][baseline]["samples"].as_array().unwrap_or_else(|| panic!("no ingest.{baseline}"));
+        assert_eq!(samples.len(), 2, "ingest.{baseline}: one sample a run");
+    }
+    assert!(v["ingest"]["parallel_threads"].as_u64().unwrap() >= 1);
+    assert!(v["machine"].is_object());
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "scratch data left behind");
+}

@@ -392,7 +392,10 @@ fn a_watched_directory_takes_patches_as_they_appear_and_one_writer_at_a_time() {
         std::fs::rename(fx.path(&format!("p{n}.json")), fx.path(&format!("incoming/p{n}.json"))).unwrap();
         if n == 2 {
             std::fs::write(fx.path("incoming/bad.raw"), [0u8]).unwrap();
-            fx.write("incoming/bad.json", r#"{"bbox": [0, 0, 0, 4], "raw": {"width": 1, "height": 1}}"#);
+            // Renamed into place like the others (written in place, the watcher could see it
+            // still empty, which is a different refusal).
+            fx.write("bad.json", r#"{"bbox": [0, 0, 0, 4], "raw": {"width": 1, "height": 1}}"#);
+            std::fs::rename(fx.path("bad.json"), fx.path("incoming/bad.json")).unwrap();
         }
     }
     wait_for(ps.len() as u64);

@@ -64,6 +64,61 @@ pub struct Args {
     no_gdal: bool,
 }
 
+/// Options of `clipbench ingest`.
+#[derive(clap::Args, Debug)]
+pub struct IngestArgs {
+    /// The small size of `clipbench perf --quick`.
+    #[arg(long)]
+    quick: bool,
+    /// Tiny sizes: checks that the comparison runs (for tests); the figures mean little.
+    #[arg(long, hide = true, conflicts_with = "quick")]
+    smoke: bool,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// Runs (default 5; 3 with --quick or --smoke).
+    #[arg(long)]
+    runs: Option<usize>,
+    /// Scratch directory for the prepared data (a fresh subdirectory, removed at the end).
+    #[arg(long)]
+    dir: Option<PathBuf>,
+}
+
+/// `clipbench ingest`: exit status 0 when it measured, 2 when it could not.
+pub fn ingest_main(args: IngestArgs) -> u8 {
+    let size = if args.smoke {
+        Size::Smoke
+    } else if args.quick {
+        Size::Quick
+    } else {
+        Size::Full
+    };
+    let runs = args.runs.unwrap_or(if size == Size::Full { 5 } else { 3 }).max(1);
+    let measured = (|| {
+        let load_start = loadavg();
+        let scratch = Scratch::new(args.dir.clone())?;
+        let prepared = data::prepare(&scratch.0, size, None)?;
+        let ingest = ingest::measure(&prepared, size, runs)?;
+        anyhow::Ok((ingest, machine(load_start)))
+    })();
+    match measured {
+        Ok((ingest, machine)) => {
+            if args.json {
+                let v =
+                    serde_json::json!({ "ingest_vs_read": ingest.ratio.median, "ingest": ingest, "machine": machine });
+                println!("{}", serde_json::to_string_pretty(&v).expect("report serialises"));
+            } else {
+                print!("{}", human::ingest_table(&ingest, &machine));
+            }
+            0
+        }
+        Err(e) => {
+            eprintln!("clipbench ingest: {e:#}");
+            2
+        }
+    }
+}
+
 /// How large a run is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -116,6 +171,9 @@ pub struct ProcSelf {
     pub minor_faults: u64,
     /// User plus system CPU seconds (all threads; the kernel counts in 1/100 s).
     pub cpu_s: f64,
+    /// Context switches, voluntary and not, summed over the threads alive now (a thread that
+    /// ended took its count with it).
+    pub switches: u64,
 }
 
 pub fn proc_self() -> ProcSelf {
@@ -125,7 +183,24 @@ pub fn proc_self() -> ProcSelf {
     let f: Vec<u64> =
         stat.rsplit_once(')').map_or("", |(_, r)| r).split_whitespace().map(|x| x.parse().unwrap_or(0)).collect();
     let at = |i: usize| f.get(i).copied().unwrap_or(0);
-    ProcSelf { minor_faults: at(7), cpu_s: (at(11) + at(12)) as f64 / 100.0 }
+    ProcSelf { minor_faults: at(7), cpu_s: (at(11) + at(12)) as f64 / 100.0, switches: thread_switches() }
+}
+
+fn thread_switches() -> u64 {
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else { return 0 };
+    let mut sum = 0;
+    for task in tasks.flatten() {
+        let status = std::fs::read_to_string(task.path().join("status")).unwrap_or_default();
+        for line in status.lines() {
+            if let Some(v) = line
+                .strip_prefix("voluntary_ctxt_switches:")
+                .or_else(|| line.strip_prefix("nonvoluntary_ctxt_switches:"))
+            {
+                sum += v.trim().parse::<u64>().unwrap_or(0);
+            }
+        }
+    }
+    sum
 }
 
 /// The machine the figures come from.

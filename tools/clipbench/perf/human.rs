@@ -1,7 +1,8 @@
 //! `clipbench perf`'s human output: a Markdown table of the five ratios with their goals,
 //! medians and spreads, then one line per detail (ingest, flight, scale, service).
 
-use super::Report;
+use super::ingest::Ingest;
+use super::{Machine, Report};
 
 fn mib(b: f64) -> String {
     format!("{:.1} MiB", b / (1u64 << 20) as f64)
@@ -48,18 +49,7 @@ pub fn table(r: &Report) -> String {
         met(r.tick_texel_bytes == 0)
     );
     let i = &r.ingest;
-    let _ = writeln!(
-        o,
-        "| ingest_vs_read ({} tiles of {} per run, page cache) | {:.2} | >= 0.9 | {} | {:.0} vs {:.0} tiles/s | ratio {:.2} .. {:.2} |",
-        i.tiles_per_run,
-        mib(i.tile_bytes as f64),
-        r.ingest_vs_read,
-        met(r.ingest_vs_read >= 0.9),
-        i.engine_tiles_per_s.median,
-        i.read_tiles_per_s.median,
-        i.ratio.min,
-        i.ratio.max
-    );
+    o.push_str(&ingest_row(i));
     let f = &r.flight;
     match (&f.speedup_vs_gdal, &f.gdal_frame_s) {
         (Some(s), Some(g)) => {
@@ -103,31 +93,7 @@ pub fn table(r: &Report) -> String {
         mm.hwm_ratio
     );
     let _ = writeln!(o);
-    let _ = writeln!(
-        o,
-        "ingest: drop_caches {}{}",
-        if i.cold.is_some() { "possible" } else { "not possible" },
-        i.cold.as_ref().map_or(String::new(), |c| format!(
-            "; cold (after dropping caches): engine {:.0} tiles/s, plain reads {:.0} tiles/s, ratio {:.2}",
-            c.engine_tiles_per_s, c.read_tiles_per_s, c.ratio
-        ))
-    );
-    let _ = writeln!(
-        o,
-        "ingest per tile: engine {:.0} minor faults, {:.1} µs CPU; plain reads {:.0} minor faults, {:.1} µs CPU",
-        i.engine_faults_per_tile.median,
-        i.engine_cpu_us_per_tile.median,
-        i.read_faults_per_tile.median,
-        i.read_cpu_us_per_tile.median
-    );
-    let _ = writeln!(
-        o,
-        "ingest, reads into their places (one after the other, each tile into its own place of {}): {:.0} tiles/s, {:.2} of plain reads; the engine {:.2} of them",
-        mib(i.in_place_buffer_bytes as f64),
-        i.read_in_place_tiles_per_s.median,
-        i.in_place_vs_read.median,
-        i.engine_vs_in_place.median
-    );
+    o.push_str(&ingest_details(i));
     let _ = writeln!(
         o,
         "flight: {} frames of ({}, {}) texels, clip {}, {} levels; engine tick alone {} of it; engine frames below level 0: {}; full reload: construct {} + fill {} per frame",
@@ -176,5 +142,89 @@ pub fn table(r: &Report) -> String {
         ms(sv.complete_p99_s),
         sv.snapshot_ns
     );
+    o
+}
+
+/// The ingest figure's table row.
+fn ingest_row(i: &Ingest) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let met = |ok: bool| if ok { "yes" } else { "**no**" };
+    let _ = writeln!(
+        o,
+        "| ingest_vs_read ({} tiles of {} per run, page cache) | {:.2} | >= 0.9 | {} | {:.0} vs {:.0} tiles/s | ratio {:.2} .. {:.2} |",
+        i.tiles_per_run,
+        mib(i.tile_bytes as f64),
+        i.ratio.median,
+        met(i.ratio.median >= 0.9),
+        i.engine_tiles_per_s.median,
+        i.read_tiles_per_s.median,
+        i.ratio.min,
+        i.ratio.max
+    );
+    o
+}
+
+/// The ingest comparison's detail lines.
+fn ingest_details(i: &Ingest) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "ingest: drop_caches {}{}",
+        if i.cold.is_some() { "possible" } else { "not possible" },
+        i.cold.as_ref().map_or(String::new(), |c| format!(
+            "; cold (after dropping caches): engine {:.0} tiles/s, plain reads {:.0} tiles/s, ratio {:.2}",
+            c.engine_tiles_per_s, c.read_tiles_per_s, c.ratio
+        ))
+    );
+    let _ = writeln!(
+        o,
+        "ingest per tile: engine {:.0} minor faults, {:.1} µs CPU, {:.2} context switches ({:.1} % of its flight in ticks); plain reads {:.0} minor faults, {:.1} µs CPU, {:.2} context switches",
+        i.engine_faults_per_tile.median,
+        i.engine_cpu_us_per_tile.median,
+        i.engine_switches_per_tile.median,
+        i.engine_tick_share.median * 100.0,
+        i.read_faults_per_tile.median,
+        i.read_cpu_us_per_tile.median,
+        i.read_switches_per_tile.median
+    );
+    let _ = writeln!(
+        o,
+        "ingest, reads into their places (one after the other, each tile into its own place of {}): {:.0} tiles/s, {:.2} of plain reads; the engine {:.2} of them",
+        mib(i.in_place_buffer_bytes as f64),
+        i.read_in_place_tiles_per_s.median,
+        i.in_place_vs_read.median,
+        i.engine_vs_in_place.median
+    );
+    let _ = writeln!(
+        o,
+        "ingest, the same reads into their places shared out among {} threads reading at once: {:.0} tiles/s, {:.2} of plain reads",
+        i.parallel_threads,
+        i.read_parallel_tiles_per_s.median,
+        i.parallel_vs_read.median
+    );
+    o
+}
+
+/// `clipbench ingest`'s output: the ingest row of `clipbench perf`'s table, then its details.
+pub fn ingest_table(i: &Ingest, m: &Machine) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "clipbench ingest ({} runs); machine: {} cores, {}; load average {} at the start, {} at the end",
+        i.ratio.samples.len(),
+        m.nproc,
+        m.cpu,
+        m.load_start,
+        m.load_end
+    );
+    let _ = writeln!(o);
+    let _ = writeln!(o, "| figure | ratio | goal | met | median | spread (min .. max) |");
+    let _ = writeln!(o, "|---|---:|---|---|---|---|");
+    o.push_str(&ingest_row(i));
+    let _ = writeln!(o);
+    o.push_str(&ingest_details(i));
     o
 }

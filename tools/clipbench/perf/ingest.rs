@@ -88,12 +88,23 @@ pub struct Ingest {
     /// Per run: engine / reads into their places.
     pub engine_vs_in_place: Stat,
     pub in_place_buffer_bytes: u64,
+    /// The reads into their places shared out among `parallel_threads` threads reading at once
+    /// (one a core), tiles per second, and that over plain reads: how far more reading threads
+    /// can go on this machine before any engine cost.
+    pub parallel_threads: usize,
+    pub read_parallel_tiles_per_s: Stat,
+    pub parallel_vs_read: Stat,
     /// Minor page faults and CPU time (all threads) per tile, each side (the engine's during its
     /// flight, not while its image caches are made and populated).
     pub engine_faults_per_tile: Stat,
     pub read_faults_per_tile: Stat,
     pub engine_cpu_us_per_tile: Stat,
     pub read_cpu_us_per_tile: Stat,
+    /// Context switches per tile (all threads), each side: what thread hand-offs cost.
+    pub engine_switches_per_tile: Stat,
+    pub read_switches_per_tile: Stat,
+    /// Share of the engine's flight spent in its ticks (the rest waits for reads).
+    pub engine_tick_share: Stat,
     /// Whether the page cache could be dropped (`/proc/sys/vm/drop_caches` writable).
     pub drop_caches: bool,
     pub cold: Option<Cold>,
@@ -135,6 +146,10 @@ struct EngineRun {
     /// clipmap populates its image caches (a fault a page), which is not tile ingest.
     faults: u64,
     cpu_s: f64,
+    /// Context switches of the threads alive at the flight's end (the reading threads included).
+    switches: u64,
+    /// Seconds of the flight spent in ticks (the rest is waiting for reads).
+    tick_s: f64,
 }
 
 /// One engine run.
@@ -148,18 +163,30 @@ fn engine_run(source: &Arc<FileSource>, centres: &[[i64; 2]]) -> anyhow::Result<
     let mut map = Clipmap::new(Arc::clone(&rec) as Arc<dyn TileSource>, settings)?;
     let p0 = proc_self();
     let t = Instant::now();
+    let mut tick_s = 0.0;
     for &c in centres {
+        let at = Instant::now();
         map.tick(c, Some([0, 0]));
+        tick_s += at.elapsed().as_secs_f64();
         map.wait_for_reads();
     }
     // Takes the last reads into the cache.
     map.tick(*centres.last().expect("at least one jump"), Some([0, 0]));
     let secs = t.elapsed().as_secs_f64();
     let p1 = proc_self();
+
     let memory_bytes = map.memory().total_bytes();
     drop(map);
     let log = std::mem::take(&mut *rec.log.lock().unwrap_or_else(|e| e.into_inner()));
-    Ok(EngineRun { secs, log, memory_bytes, faults: p1.minor_faults - p0.minor_faults, cpu_s: p1.cpu_s - p0.cpu_s })
+    Ok(EngineRun {
+        secs,
+        log,
+        memory_bytes,
+        faults: p1.minor_faults - p0.minor_faults,
+        cpu_s: p1.cpu_s - p0.cpu_s,
+        switches: p1.switches.saturating_sub(p0.switches),
+        tick_s,
+    })
 }
 
 /// Reads `paths` one after the other, tile `i` at byte `(i * tile_bytes) mod` the buffer's
@@ -177,6 +204,33 @@ fn read_in_place_run(paths: &[PathBuf], tile_bytes: usize, buffer: &mut [u8]) ->
         file.read_exact_at(&mut buffer[at..at + len], 0).with_context(|| format!("reading {}", p.display()))?;
     }
     std::hint::black_box(&*buffer);
+    Ok(t.elapsed().as_secs_f64())
+}
+
+/// [`read_in_place_run`] shared out among `threads` threads reading at once, each its own
+/// contiguous share of `paths` into its own share of `buffer`: what the machine's copies allow
+/// when every core reads, without any engine.
+fn read_in_place_parallel_run(
+    paths: &[PathBuf],
+    tile_bytes: usize,
+    buffer: &mut [u8],
+    threads: usize,
+) -> anyhow::Result<f64> {
+    let threads = threads.clamp(1, paths.len().max(1));
+    let per_paths = paths.len().div_ceil(threads).max(1);
+    // Each thread's share of the buffer, in whole tiles.
+    let per_buffer = (buffer.len() / threads / tile_bytes).max(1) * tile_bytes;
+    anyhow::ensure!(per_buffer * threads <= buffer.len(), "the in-place buffer holds less than one tile per thread");
+    let t = Instant::now();
+    std::thread::scope(|scope| {
+        let runs: Vec<_> = paths
+            .chunks(per_paths)
+            .zip(buffer.chunks_mut(per_buffer))
+            .map(|(paths, buffer)| scope.spawn(move || read_in_place_run(paths, tile_bytes, buffer)))
+            .collect();
+        runs.into_iter()
+            .try_for_each(|r| r.join().map_err(|_| anyhow::anyhow!("a reading thread panicked"))?.map(|_| ()))
+    })?;
     Ok(t.elapsed().as_secs_f64())
 }
 
@@ -220,8 +274,11 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
 
     let (mut eng, mut plain, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
     let (mut placed, mut placed_vs_read, mut eng_vs_placed) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut parallel, mut parallel_vs_read) = (Vec::new(), Vec::new());
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let (mut tiles_per_run, mut bytes_per_run) = (0, 0);
     let (mut ef, mut rf, mut ec, mut rc) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut es, mut rs, mut ts) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..runs {
         let run = engine_run(&source, &centres)?;
         let (e, log) = (run.secs, run.log);
@@ -230,11 +287,15 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
         let plain_s = read_run(&paths)?;
         let p3 = proc_self();
         let placed_s = read_in_place_run(&paths, tile_bytes, in_place)?;
+        let parallel_s = read_in_place_parallel_run(&paths, tile_bytes, in_place, threads)?;
         let tiles = log.len().max(1) as f64;
         ef.push(run.faults as f64 / tiles);
         rf.push((p3.minor_faults - p2.minor_faults) as f64 / tiles);
         ec.push(run.cpu_s * 1e6 / tiles);
         rc.push((p3.cpu_s - p2.cpu_s) * 1e6 / tiles);
+        es.push(run.switches as f64 / tiles);
+        ts.push(run.tick_s / e);
+        rs.push(p3.switches.saturating_sub(p2.switches) as f64 / tiles);
         tiles_per_run = log.len();
         bytes_per_run = log.iter().map(|t| source.desc().tile_bytes(t.level) as u64).sum();
         let (e_rate, p_rate) = (log.len() as f64 / e, log.len() as f64 / plain_s);
@@ -245,6 +306,9 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
         placed.push(placed_rate);
         placed_vs_read.push(placed_rate / p_rate);
         eng_vs_placed.push(e_rate / placed_rate);
+        let parallel_rate = log.len() as f64 / parallel_s;
+        parallel.push(parallel_rate);
+        parallel_vs_read.push(parallel_rate / p_rate);
     }
     drop(in_place_map);
 
@@ -276,11 +340,17 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize) -> anyhow::Result<I
         read_in_place_tiles_per_s: Stat::of(placed),
         in_place_vs_read: Stat::of(placed_vs_read),
         engine_vs_in_place: Stat::of(eng_vs_placed),
+        parallel_threads: threads,
+        read_parallel_tiles_per_s: Stat::of(parallel),
+        parallel_vs_read: Stat::of(parallel_vs_read),
         in_place_buffer_bytes: memory_bytes,
         engine_faults_per_tile: Stat::of(ef),
         read_faults_per_tile: Stat::of(rf),
         engine_cpu_us_per_tile: Stat::of(ec),
         read_cpu_us_per_tile: Stat::of(rc),
+        engine_switches_per_tile: Stat::of(es),
+        read_switches_per_tile: Stat::of(rs),
+        engine_tick_share: Stat::of(ts),
         drop_caches: drop_ok,
         cold,
     })
