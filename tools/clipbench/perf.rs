@@ -86,14 +86,8 @@ pub struct IngestArgs {
 
 /// `clipbench ingest`: exit status 0 when it measured, 2 when it could not.
 pub fn ingest_main(args: IngestArgs) -> u8 {
-    let size = if args.smoke {
-        Size::Smoke
-    } else if args.quick {
-        Size::Quick
-    } else {
-        Size::Full
-    };
-    let runs = args.runs.unwrap_or(if size == Size::Full { 5 } else { 3 }).max(1);
+    let size = Size::of(args.quick, args.smoke);
+    let runs = size.runs(args.runs);
     let measured = (|| {
         let load_start = loadavg();
         let scratch = Scratch::new(args.dir.clone())?;
@@ -126,6 +120,24 @@ pub enum Size {
     Full,
     Quick,
     Smoke,
+}
+
+impl Size {
+    /// The size `--quick` / `--smoke` ask for (`--smoke` wins; clap refuses both together).
+    fn of(quick: bool, smoke: bool) -> Size {
+        if smoke {
+            Size::Smoke
+        } else if quick {
+            Size::Quick
+        } else {
+            Size::Full
+        }
+    }
+
+    /// Runs per measurement: `asked`, else 5 at the full size and 3 otherwise; at least 1.
+    fn runs(self, asked: Option<usize>) -> usize {
+        asked.unwrap_or(if self == Size::Full { 5 } else { 3 }).max(1)
+    }
 }
 
 /// Median and spread of a measurement's runs.
@@ -376,14 +388,8 @@ fn progress(json: bool, what: &str) {
 pub fn run(args: &Args) -> anyhow::Result<Report> {
     let started = Instant::now();
     let load_start = loadavg();
-    let size = if args.smoke {
-        Size::Smoke
-    } else if args.quick {
-        Size::Quick
-    } else {
-        Size::Full
-    };
-    let runs = args.runs.unwrap_or(if size == Size::Full { 5 } else { 3 }).max(1);
+    let size = Size::of(args.quick, args.smoke);
+    let runs = size.runs(args.runs);
     let mut command = String::from("clipbench perf");
     for (on, flag) in [(args.quick, " --quick"), (args.smoke, " --smoke"), (args.no_gdal, " --no-gdal")] {
         if on {
