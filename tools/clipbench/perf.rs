@@ -38,10 +38,10 @@ use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
 
-/// Options of `clipbench perf`.
+/// The size, runs, output and scratch options `clipbench perf` and `clipbench ingest` share.
 #[derive(clap::Args, Debug)]
-pub struct Args {
-    /// Small sizes and short runs (under two minutes in all).
+pub struct Common {
+    /// Small sizes and short runs (`perf`: under two minutes in all).
     #[arg(long)]
     quick: bool,
     /// Tiny sizes: checks that every comparison runs (for tests); the figures mean little.
@@ -56,6 +56,13 @@ pub struct Args {
     /// Scratch directory for the prepared data (a fresh subdirectory, removed at the end).
     #[arg(long)]
     dir: Option<PathBuf>,
+}
+
+/// Options of `clipbench perf`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    #[command(flatten)]
+    common: Common,
     /// Install GDAL (`apt-get install -y gdal-bin python3-gdal`) if it is missing.
     #[arg(long)]
     install_peers: bool,
@@ -67,25 +74,12 @@ pub struct Args {
 /// Options of `clipbench ingest`.
 #[derive(clap::Args, Debug)]
 pub struct IngestArgs {
-    /// The small size of `clipbench perf --quick`.
-    #[arg(long)]
-    quick: bool,
-    /// Tiny sizes: checks that the comparison runs (for tests); the figures mean little.
-    #[arg(long, hide = true, conflicts_with = "quick")]
-    smoke: bool,
-    /// Print one JSON object instead of a table.
-    #[arg(long)]
-    json: bool,
-    /// Runs (default 5; 3 with --quick or --smoke).
-    #[arg(long)]
-    runs: Option<usize>,
-    /// Scratch directory for the prepared data (a fresh subdirectory, removed at the end).
-    #[arg(long)]
-    dir: Option<PathBuf>,
+    #[command(flatten)]
+    common: Common,
 }
 
 /// `clipbench ingest`: exit status 0 when it measured, 2 when it could not.
-pub fn ingest_main(args: IngestArgs) -> u8 {
+pub fn ingest_main(IngestArgs { common: args }: IngestArgs) -> u8 {
     let size = Size::of(args.quick, args.smoke);
     let runs = size.runs(args.runs);
     let measured = (|| {
@@ -388,19 +382,19 @@ fn progress(json: bool, what: &str) {
 pub fn run(args: &Args) -> anyhow::Result<Report> {
     let started = Instant::now();
     let load_start = loadavg();
-    let size = Size::of(args.quick, args.smoke);
-    let runs = size.runs(args.runs);
+    let (c, size) = (&args.common, Size::of(args.common.quick, args.common.smoke));
+    let runs = size.runs(c.runs);
     let mut command = String::from("clipbench perf");
-    for (on, flag) in [(args.quick, " --quick"), (args.smoke, " --smoke"), (args.no_gdal, " --no-gdal")] {
+    for (on, flag) in [(c.quick, " --quick"), (c.smoke, " --smoke"), (args.no_gdal, " --no-gdal")] {
         if on {
             command.push_str(flag);
         }
     }
-    if let Some(r) = args.runs {
+    if let Some(r) = c.runs {
         command.push_str(&format!(" --runs {r}"));
     }
     let gdal = if args.no_gdal { Err("--no-gdal".to_string()) } else { data::find_gdal(args.install_peers) };
-    let json = args.json;
+    let json = c.json;
 
     progress(json, "engine flights by direction, memory (child process)");
     let engine = engine_child(size, runs)?;
@@ -408,7 +402,7 @@ pub fn run(args: &Args) -> anyhow::Result<Report> {
     let tick_texel_bytes = field(&engine, &["tick_texel_bytes"])? as u64;
     let memory = memory(&engine)?;
 
-    let scratch = Scratch::new(args.dir.clone())?;
+    let scratch = Scratch::new(c.dir.clone())?;
     progress(json, &format!("preparing data in {}", scratch.0.display()));
     let prepared = data::prepare(&scratch.0, size, gdal.as_ref().ok())?;
 
@@ -448,7 +442,7 @@ pub fn run(args: &Args) -> anyhow::Result<Report> {
 pub fn main(args: Args) -> u8 {
     match run(&args) {
         Ok(r) => {
-            if args.json {
+            if args.common.json {
                 println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
             } else {
                 print!("{}", human::table(&r));
