@@ -29,6 +29,7 @@ use crate::shm::ImageMemory;
 use crate::source::{Delivered, SourceError, TileId, TileSource};
 use runner::{Command, Event, Runner};
 use serde::Serialize;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc as std_mpsc;
 use std::sync::Arc;
 use thiserror::Error;
@@ -122,10 +123,18 @@ pub enum QueueError {
     Streams { streams: usize, max: usize },
 }
 
-/// A cloneable handle to one queue's runner.
-#[derive(Clone, Debug)]
+/// One queue's runner as its owner holds it: the command channel and what the owner knows of
+/// the runner's state.
+#[derive(Debug)]
 pub struct QueueHandle {
     commands: mpsc::Sender<Command>,
+    /// Updates sent (taken by the channel).
+    sent: u64,
+    /// Whether the last update sent asked for nothing (it left nothing pending): another that asks
+    /// for nothing and gives back nothing would change nothing, and is not sent.
+    sent_nothing: bool,
+    /// The updates the runner had taken when it was last idle (its [`Runner`] stores it).
+    idle: Arc<AtomicU64>,
 }
 
 /// The read queues of one texture, one per stream server. The source chooses each tile's queue
@@ -164,9 +173,18 @@ impl ReadQueues {
         let handles = (0..streams)
             .map(|stream| {
                 let (commands, rx) = mpsc::channel(limits.queue_commands.max(1));
-                let runner = Runner::new(stream, rx, tx.clone(), Arc::clone(&source), Arc::clone(&memory), limits);
+                let idle = Arc::new(AtomicU64::new(0));
+                let runner = Runner::new(
+                    stream,
+                    rx,
+                    tx.clone(),
+                    Arc::clone(&source),
+                    Arc::clone(&memory),
+                    limits,
+                    Arc::clone(&idle),
+                );
                 runtime.spawn(runner.run());
-                QueueHandle { commands }
+                QueueHandle { commands, sent: 0, sent_nothing: false, idle }
             })
             .collect();
         Ok(ReadQueues {
@@ -193,15 +211,25 @@ impl ReadQueues {
 
     /// Tells every queue which tiles are wanted now (all of them: a tile not listed is dropped
     /// from its queue). Never blocks: a queue whose command channel is full skips this update.
+    /// A queue told last time that nothing is wanted is not told so again while no completion
+    /// was taken since (it would change nothing), so a clipmap at rest wakes no queue.
     pub fn update(&mut self, wanted: &[ReadRequest]) {
         let mut per_stream: Vec<Vec<ReadRequest>> = vec![Vec::new(); self.handles.len()];
         for r in wanted {
             per_stream[self.stream_of(r.tile)].push(*r);
         }
         for (stream, wanted) in per_stream.into_iter().enumerate() {
+            let nothing = wanted.is_empty();
+            let handle = &mut self.handles[stream];
+            if nothing && handle.sent_nothing && self.drained[stream].is_empty() {
+                continue;
+            }
             let drained = std::mem::take(&mut self.drained[stream]);
-            match self.handles[stream].commands.try_send(Command::Update { wanted, drained }) {
-                Ok(()) => {}
+            match handle.commands.try_send(Command::Update { wanted, drained }) {
+                Ok(()) => {
+                    handle.sent += 1;
+                    handle.sent_nothing = nothing;
+                }
                 Err(e) => {
                     // Kept for the next update that fits.
                     if let mpsc::error::TrySendError::Full(Command::Update { drained, .. })
@@ -236,6 +264,11 @@ impl ReadQueues {
     pub fn flush(&mut self) {
         let mut replies = Vec::new();
         for h in &self.handles {
+            // Idle since it took the last update sent: nothing runs or can start there, and what
+            // it read is in the event channel already (the runner stores this last, releasing).
+            if h.idle.load(Ordering::Acquire) == h.sent {
+                continue;
+            }
             let (tx, rx) = oneshot::channel();
             if h.commands.blocking_send(Command::Flush(tx)).is_ok() {
                 replies.push(rx);

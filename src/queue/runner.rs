@@ -28,6 +28,7 @@ use crate::limits::Limits;
 use crate::shm::ImageMemory;
 use crate::source::{SourceError, TileId, TileSource};
 use std::collections::{HashMap, HashSet};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc as std_mpsc;
 use std::sync::Arc;
 use tokio::sync::{mpsc, oneshot};
@@ -87,6 +88,12 @@ pub(super) struct Runner {
     reads: JoinSet<(Vec<TileId>, Reported)>,
     flushes: Vec<oneshot::Sender<()>>,
     stats: QueueStats,
+    /// Updates taken so far.
+    updates: u64,
+    /// The number of updates taken when this runner last was idle (no read running, none that
+    /// can start before the owner takes completions): the owner's flush needs no round trip
+    /// while it equals the updates it sent (see [`answer_flushes`](Self::answer_flushes)).
+    idle: Arc<AtomicU64>,
 }
 
 impl Runner {
@@ -97,6 +104,7 @@ impl Runner {
         source: Arc<dyn TileSource>,
         memory: Arc<ImageMemory>,
         limits: Limits,
+        idle: Arc<AtomicU64>,
     ) -> Self {
         Runner {
             stream,
@@ -112,6 +120,8 @@ impl Runner {
             reads: JoinSet::new(),
             flushes: Vec::new(),
             stats: QueueStats::default(),
+            updates: 0,
+            idle,
         }
     }
 
@@ -123,7 +133,10 @@ impl Runner {
             tokio::select! {
                 command = self.commands.recv() => match command {
                     None => break,
-                    Some(Command::Update { wanted, drained }) => self.update(wanted, drained),
+                    Some(Command::Update { wanted, drained }) => {
+                        self.updates += 1;
+                        self.update(wanted, drained);
+                    }
                     Some(Command::Flush(reply)) => self.flushes.push(reply),
                 },
                 Some(joined) = self.reads.join_next(), if !self.reads.is_empty() => {
@@ -240,6 +253,11 @@ impl Runner {
             for reply in self.flushes.drain(..) {
                 let _ = reply.send(());
             }
+            // Idle until the next update: reads start only from pending requests, which only an
+            // update adds, and `delivered` (which can hold the reads back) only an update empties.
+            // Stored after every completion of this state was sent and every counter published
+            // (release), so an owner that sees it (acquire) finds them in its channel.
+            self.idle.store(self.updates, Ordering::Release);
         }
     }
 

@@ -268,3 +268,41 @@ fn a_tile_taken_before_its_run_ends_can_be_asked_for_and_read_again_at_once() {
     assert_eq!(q.drain().len(), 2);
     assert_eq!(q.stats().in_flight, 0);
 }
+
+#[test]
+fn a_queue_at_rest_is_not_told_again_and_a_flush_still_waits_for_every_read() {
+    let src = source();
+    src.add(FaultRule::tile(TileId::new(0, 2, 0), Fault::Slow(Duration::from_millis(100))));
+    let mut q = ReadQueues::new(src.clone(), memory(&src), 1, limits(64, 2)).unwrap();
+    let sent = |q: &ReadQueues| q.handles[0].sent;
+    q.flush();
+    assert_eq!(sent(&q), 0);
+    q.update(&[request(0, 0, 0), request(1, 0, 0)]);
+    assert_eq!(sent(&q), 1);
+    q.flush();
+    assert_eq!(q.handles[0].idle.load(Ordering::Acquire), 1, "idle since the one update, after the flush");
+    assert_eq!(q.drain().len(), 2);
+    // Nothing wanted, but two completions given back: told.
+    q.update(&[]);
+    assert_eq!(sent(&q), 2);
+    // Nothing wanted and nothing given back, after an update that asked for nothing: not told.
+    q.update(&[]);
+    q.update(&[]);
+    assert_eq!(sent(&q), 2);
+    q.flush();
+    assert_eq!(q.handles[0].idle.load(Ordering::Acquire), 2);
+    q.flush();
+    assert!(q.drain().is_empty());
+    // Asked for a slow tile: told at once, and a flush right after waits for its read, although
+    // the runner was idle before.
+    q.update(&[request(2, 0, 0)]);
+    assert_eq!(sent(&q), 3);
+    q.flush();
+    let done = q.drain();
+    assert_eq!(done.iter().map(|c| c.tile).collect::<Vec<_>>(), vec![TileId::new(0, 2, 0)]);
+    assert_eq!(src.reads(), 3);
+    assert_eq!(q.stats().reads_done, 3);
+    // Asked for nothing again, but that is news to the queue (it had the slow tile pending).
+    q.update(&[]);
+    assert_eq!(sent(&q), 4);
+}
