@@ -6,10 +6,12 @@
 //!     source, ticked until every level is complete (tiles read and windows filled anew).
 //!
 //! All three start warm on the flight's first frame (untimed) and read the prepared files from
-//! the page cache. The windows are the engine's tex regions ([`tex_region`] of each level's
+//! the page cache: each run reads its side's files once just before it ([`warm`]; the pyramid
+//! for (a) and (c), the GeoTIFF for (b)), since a virtual machine may page out file pages left
+//! untouched for a few seconds. The windows are the engine's tex regions ([`tex_region`] of each level's
 //! centre, level 0's shifted right by the level).
 
-use super::data::{Gdal, Prepared};
+use super::data::{warm, Gdal, Prepared};
 use super::{quantile, Size, Stat};
 use anyhow::Context;
 use clipmap::clip::{Clipmap, Settings};
@@ -101,6 +103,7 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize, gdal: Result<&Gdal,
     // (a) incremental.
     let (mut eng_runs, mut eng_all, mut degraded, mut tick_runs) = (Vec::new(), Vec::new(), 0u64, Vec::new());
     for _ in 0..runs {
+        warm(&prepared.root)?;
         let mut map = Clipmap::new(Arc::clone(&source), settings())?;
         fill(&mut map, centre(0))?;
         let (mut times, mut ticks) = (Vec::with_capacity(frames), Vec::with_capacity(frames));
@@ -124,6 +127,7 @@ pub fn measure(prepared: &Prepared, size: Size, runs: usize, gdal: Result<&Gdal,
     let reload_at: Vec<usize> = (1..=frames).filter(|i| i % every == 0).collect();
     let (mut reload_runs, mut construct_runs) = (Vec::new(), Vec::new());
     for _ in 0..runs {
+        warm(&prepared.root)?;
         let (mut total, mut construct) = (Vec::new(), Vec::new());
         for &i in &reload_at {
             let t = Instant::now();
@@ -228,5 +232,6 @@ fn run_gdal(
     let body = serde_json::json!({ "tif": tif, "sizes": sizes, "runs": runs, "frames": windows });
     std::fs::write(&spec, serde_json::to_vec(&body)?)?;
     let what = format!("the GDAL reader ({} {})", g.python.display(), script.display());
+    warm(tif)?;
     super::child_json(std::process::Command::new(&g.python).arg(&script).arg(&spec), &what)
 }
