@@ -250,14 +250,15 @@ impl Runner {
         // its reads still holds its read slot until it is joined, and the requests waiting for
         // that slot could start.
         if self.in_flight.is_empty() && self.reads.is_empty() && !self.can_start() {
-            for reply in self.flushes.drain(..) {
-                let _ = reply.send(());
-            }
             // Idle until the next update: reads start only from pending requests, which only an
             // update adds, and `delivered` (which can hold the reads back) only an update empties.
             // Stored after every completion of this state was sent and every counter published
-            // (release), so an owner that sees it (acquire) finds them in its channel.
+            // (release), so an owner that sees it (acquire) finds them in its channel; and before
+            // the flushes are answered, so an owner woken by an answer sees it too.
             self.idle.store(self.updates, Ordering::Release);
+            for reply in self.flushes.drain(..) {
+                let _ = reply.send(());
+            }
         }
     }
 
