@@ -291,7 +291,6 @@ fn a_queue_at_rest_is_not_told_again_and_a_flush_still_waits_for_every_read() {
     assert_eq!(sent(&q), 2);
     q.flush();
     assert_eq!(q.handles[0].idle.load(Ordering::Acquire), 2);
-    q.flush();
     assert!(q.drain().is_empty());
     // Asked for a slow tile: told at once, and a flush right after waits for its read, although
     // the runner was idle before.

@@ -118,30 +118,18 @@ pub fn prepare(dir: &Path, size: Size, gdal: Option<&Gdal>) -> anyhow::Result<Pr
 
 /// Reads every regular file at or below `path` once, so that what a timed run reads next is in
 /// the page cache: some virtual machines page out file pages untouched for a few seconds (DAMON
-/// proactive reclaim), which turned a part of the "warm" flight's reads into disk reads. Returns
-/// the bytes read.
-pub fn warm(path: &Path) -> anyhow::Result<u64> {
-    let mut buf = vec![0u8; 1 << 20];
-    let mut total = 0;
-    let mut todo = vec![path.to_path_buf()];
-    while let Some(p) = todo.pop() {
-        let meta = std::fs::metadata(&p).with_context(|| format!("warming {}", p.display()))?;
-        if meta.is_dir() {
-            for entry in std::fs::read_dir(&p).with_context(|| format!("warming {}", p.display()))? {
-                todo.push(entry?.path());
-            }
-        } else if meta.is_file() {
-            let mut f = std::fs::File::open(&p).with_context(|| format!("warming {}", p.display()))?;
-            loop {
-                let n = std::io::Read::read(&mut f, &mut buf).with_context(|| format!("warming {}", p.display()))?;
-                if n == 0 {
-                    break;
-                }
-                total += n as u64;
-            }
-        }
+/// proactive reclaim), which turned a part of the "warm" flight's reads into disk reads.
+pub fn warm(path: &Path) -> anyhow::Result<()> {
+    let what = || format!("warming {}", path.display());
+    let files = if path.is_dir() {
+        prep::publish::files_under(path).with_context(what)?.into_iter().map(|f| path.join(f)).collect()
+    } else {
+        vec![path.to_path_buf()]
+    };
+    for f in files {
+        std::io::copy(&mut std::fs::File::open(&f).with_context(what)?, &mut std::io::sink()).with_context(what)?;
     }
-    Ok(total)
+    Ok(())
 }
 
 fn run(cmd: &mut Command) -> anyhow::Result<()> {
