@@ -337,6 +337,7 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
         eviction: settings.eviction,
         pool_bytes: settings.pool_bytes,
         max_centre_step: settings.max_centre_step,
+        grid_budget: settings.grid_budget,
     };
     let mut map = Clipmap::new(options.source, settings)?;
     if let Some(border) = options.invalid_border {

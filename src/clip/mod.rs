@@ -24,8 +24,8 @@ pub use stats::{FaultCounts, Stats, TickReport};
 use crate::cache::{Admit, TileCache, TileState};
 use crate::geom::{aligned_centre, level_grid, tile_texels, tiles_covering, LevelFrame, LevelShape, Rect};
 use crate::limits::Limits;
-use crate::paging::{EvictionKind, PoolSource, PrefetchKind};
-use crate::queue::{priority, Completion, Outcome, QueueError, ReadQueues, ReadRequest};
+use crate::paging::{adaptive, EvictionKind, PoolSource, PrefetchKind};
+use crate::queue::{priority, soonest_first, Completion, Outcome, QueueError, ReadQueues, ReadRequest};
 use crate::shm::layout::{self, Shape};
 use crate::shm::{ImageMemory, Publication, PublishedLevel};
 use crate::source::{SourceError, TextureDesc, TileId, TileSource};
@@ -69,6 +69,11 @@ pub struct Settings {
     pub eviction: EvictionKind,
     /// Bounds on queues and memory.
     pub limits: Limits,
+    /// Bytes the grids of levels without a configured mem region may take under the adaptive
+    /// policy (`None`: [`crate::paging::adaptive::DEFAULT_BUDGET_FACTOR`] times the bytes of the
+    /// lookahead-1 grids), capped by `limits.cache_bytes` less the pool. The fixed policies
+    /// size grids from `lookahead` and ignore it.
+    pub grid_budget: Option<u64>,
 }
 
 impl Default for Settings {
@@ -85,6 +90,7 @@ impl Default for Settings {
             pool_bytes: 0,
             eviction: EvictionKind::default(),
             limits: Limits::default(),
+            grid_budget: None,
         }
     }
 }
@@ -97,6 +103,7 @@ impl Settings {
             eviction: p.eviction,
             pool_bytes: p.pool_bytes,
             max_centre_step: p.max_centre_step,
+            grid_budget: p.grid_budget,
             ..self
         }
     }
@@ -227,6 +234,20 @@ pub struct Clipmap {
     refresh: VecDeque<TileId>,
     /// The same tiles, to ask for each once.
     refreshing: std::collections::HashSet<TileId>,
+    /// The adaptive policy's measurements and choices (`None` for the fixed policies).
+    controller: Option<Controller>,
+}
+
+/// What the adaptive policy measures and chose ([`crate::paging::adaptive`]).
+#[derive(Debug, Default)]
+struct Controller {
+    motion: adaptive::Motion,
+    latency: adaptive::Latency,
+    /// The tick each tile being read was first asked for, and whether its level was whole then.
+    asked: std::collections::HashMap<TileId, (u64, bool)>,
+    /// Each level's lead now and the lead its motion needed (level texels per axis).
+    lead: Vec<[u64; 2]>,
+    needed: Vec<[u64; 2]>,
 }
 
 impl Clipmap {
@@ -242,11 +263,38 @@ impl Clipmap {
     /// mem regions).
     pub fn grids(desc: &TextureDesc, settings: &Settings) -> Vec<[u64; 2]> {
         let clip = desc.clip_size();
-        desc.levels()
+        let fixed: Vec<[u64; 2]> = desc
+            .levels()
             .iter()
             .enumerate()
             .map(|(k, l)| level_grid(l.size, l.tile, clip, settings.lookahead, desc.mem_grid(k as u32)))
-            .collect()
+            .collect();
+        if settings.prefetch != PrefetchKind::Adaptive {
+            return fixed;
+        }
+        // Levels whose configuration fixes a mem region keep it; the others share the budget.
+        let free: Vec<usize> = (0..fixed.len()).filter(|&k| desc.mem_grid(k as u32).is_none()).collect();
+        let bytes = |k: usize, g: [u64; 2]| g[0] * g[1] * desc.tile_bytes(k as u32) as u64;
+        let base: u64 = free
+            .iter()
+            .map(|&k| {
+                let l = desc.level(k as u32);
+                bytes(k, crate::geom::mem_grid(l.size, l.tile, clip, 1))
+            })
+            .sum();
+        let fixed_bytes: u64 = (0..fixed.len()).filter(|k| !free.contains(k)).map(|k| bytes(k, fixed[k])).sum();
+        let cap = (settings.limits.cache_bytes as u64).saturating_sub(settings.pool_bytes).saturating_sub(fixed_bytes);
+        let budget = settings
+            .grid_budget
+            .unwrap_or(base.saturating_mul(crate::paging::adaptive::DEFAULT_BUDGET_FACTOR))
+            .min(cap);
+        let levels: Vec<_> = free.iter().map(|&k| (desc.level(k as u32).size, desc.level(k as u32).tile)).collect();
+        let (grids, _) = crate::paging::adaptive::budget_grids(&levels, clip, |i| bytes(free[i], [1, 1]), budget);
+        let mut out = fixed;
+        for (i, &k) in free.iter().enumerate() {
+            out[k] = grids[i];
+        }
+        out
     }
 
     /// The layout of the image caches a clipmap of `desc` under `settings` keeps (what
@@ -298,6 +346,7 @@ impl Clipmap {
             None => source.clone(),
         };
         let queues = ReadQueues::new(reader, memory, settings.streams, settings.limits)?;
+        let (settings_prefetch, level_count) = (settings.prefetch, levels.len());
         Ok(Clipmap {
             border: desc.invalid_border(),
             min_lod: desc.level_count() as f64,
@@ -314,6 +363,11 @@ impl Clipmap {
             source,
             refresh: VecDeque::new(),
             refreshing: Default::default(),
+            controller: (settings_prefetch == PrefetchKind::Adaptive).then(|| Controller {
+                lead: vec![[0, 0]; level_count],
+                needed: vec![[0, 0]; level_count],
+                ..Controller::default()
+            }),
         })
     }
 
@@ -543,6 +597,8 @@ impl Clipmap {
         }
         self.update_min_lod(&complete);
         self.publish();
+        self.stats.paging = self.paging_report(&complete);
+        self.stats.read_latency_ticks = self.controller.as_ref().map_or(0.0, |c| c.latency.ticks);
 
         // Only now may slots of tiles that left their mem region go to the tiles that entered.
         self.request_tiles(&velocities);
@@ -604,6 +660,11 @@ impl Clipmap {
                 Outcome::Filled(generation, delivered) => match self.cache.admit(done.tile, generation, delivered) {
                     Admit::Admitted => {
                         admitted += 1;
+                        if let Some(c) = &mut self.controller {
+                            if let Some((at, true)) = c.asked.remove(&done.tile) {
+                                c.latency.sample(self.tick.saturating_sub(at));
+                            }
+                        }
                         if delivered == crate::source::Delivered::Default {
                             self.stats.default_tiles += 1;
                         }
@@ -638,6 +699,10 @@ impl Clipmap {
     /// Moves every level's frame to the new centre; returns each level's velocity in its texels.
     fn move_frames(&mut self, centre: [i64; 2], velocity: [i64; 2]) -> Vec<[i64; 2]> {
         let mut out = Vec::with_capacity(self.levels.len());
+        if let Some(c) = &mut self.controller {
+            // A move of more than a window is a jump: the read-ahead restarts centred.
+            c.motion.update(velocity, self.desc.clip_size());
+        }
         for (k, level) in self.levels.iter_mut().enumerate() {
             let k32 = k as u32;
             let c =
@@ -645,7 +710,26 @@ impl Clipmap {
             let v = velocity.map(|x| if x != 0 && (x >> k32.min(63)) == 0 { x.signum() } else { x >> k32.min(63) });
             let previous = level.frame.mem;
             level.frame = level.shape.frame(c, self.border, v);
-            level.frame.mem = self.settings.prefetch.policy().mem_region(&level.shape, level.frame.tex, v, previous);
+            level.frame.mem = match &mut self.controller {
+                None => self.settings.prefetch.policy().mem_region(&level.shape, level.frame.tex, v, previous),
+                Some(ctl) => {
+                    let smooth = ctl.motion.at_level(k32);
+                    let speed = ctl.motion.speed_at_level(k32);
+                    let jump = velocity.map(|x| x.unsigned_abs() > self.desc.clip_size());
+                    let mut lead = [0; 2];
+                    for a in 0..2 {
+                        // The smoothed speed, or this tick's when it is faster (a flight that
+                        // speeds up is led at once) and no jump.
+                        let now = if jump[a] { 0.0 } else { v[a].unsigned_abs() as f64 };
+                        let need = adaptive::lead_texels(speed[a].max(now), ctl.latency.ticks);
+                        ctl.needed[k][a] = need;
+                        // A still axis (or one just recentred by a jump) holds no lead.
+                        lead[a] = if smooth[a] == 0 { 0 } else { adaptive::held_lead(ctl.lead[k][a], need) };
+                    }
+                    ctl.lead[k] = lead;
+                    adaptive::region(&level.shape, level.frame.tex, smooth, lead)
+                }
+            };
             out.push(v);
         }
         out
@@ -716,12 +800,64 @@ impl Clipmap {
                     continue;
                 }
                 let texels = tile_texels(level.shape.size, level.shape.tile, [tile.s, tile.t]);
-                let p = priority(k32, count, texels, level.frame.valid, level.shape.clip, velocities[k]);
+                let p = if self.controller.is_some() {
+                    soonest_first(k32, count, texels, level.frame.valid, level.shape.clip, velocities[k])
+                } else {
+                    priority(k32, count, texels, level.frame.valid, level.shape.clip, velocities[k])
+                };
                 wanted.push(ReadRequest { tile, priority: p });
                 self.cache.mark_loading(tile);
+                if let Some(c) = &mut self.controller {
+                    // Asked again every tick while it loads: the latency counts from the first.
+                    // Only reads asked for while the level was whole measure the latency the
+                    // read-ahead plans with: while it fills (a start, a jump, a source that
+                    // cannot keep up) reads wait behind each other, which a lead cannot cure.
+                    let whole = level.published == level.frame.valid;
+                    c.asked.entry(tile).or_insert((self.tick, whole));
+                }
             }
         }
         self.queues.update(&wanted);
+        if let Some(c) = &mut self.controller {
+            // Tiles that left their mem region (their requests dropped) never come back, and a
+            // failed read is asked for afresh after its retry delay: forget both.
+            let cache = &self.cache;
+            c.asked.retain(|&t, _| cache.state(t) == TileState::Loading);
+        }
+    }
+
+    /// Each level's paging this tick and why, from the controller's choices and whether each
+    /// level's valid region is whole (`complete`).
+    fn paging_report(&self, complete: &[bool]) -> Vec<adaptive::LevelPaging> {
+        let backlog = self.queues.stats().pending > 0;
+        self.levels
+            .iter()
+            .enumerate()
+            .map(|(k, l)| {
+                let Some(c) = &self.controller else {
+                    return adaptive::LevelPaging { grid: l.shape.grid, ..Default::default() };
+                };
+                let speed = c.motion.speed_at_level(k as u32).map(|x| x.ceil() as u64);
+                let speed = if c.motion.at_level(k as u32) == [0, 0] { [0, 0] } else { speed };
+                let mut reason = adaptive::reason(&l.shape, speed, c.needed[k], complete[k]);
+                if reason == adaptive::Reason::BudgetBound && backlog && !complete[k] {
+                    reason = adaptive::Reason::SourceBound;
+                }
+                let need = tiles_covering(l.frame.tex, l.shape.tile);
+                let (m, dir) = (l.frame.mem, c.motion.at_level(k as u32));
+                let beyond = |a: usize| match dir[a].signum() {
+                    1 => (if a == 0 { m.s1 - need.s1 } else { m.t1 - need.t1 }).max(0) as u64,
+                    -1 => (if a == 0 { need.s0 - m.s0 } else { need.t0 - m.t0 }).max(0) as u64,
+                    _ => 0,
+                };
+                adaptive::LevelPaging {
+                    lead_tiles: [beyond(0), beyond(1)],
+                    lead_texels: c.lead[k],
+                    grid: l.shape.grid,
+                    reason,
+                }
+            })
+            .collect()
     }
 
     fn update_min_lod(&mut self, complete: &[bool]) {

@@ -3,6 +3,7 @@
 //! Owns the counters only; [`super`] increments them.
 
 use crate::geom::Rect;
+use crate::paging::adaptive::LevelPaging;
 use crate::paging::PoolStats;
 use crate::queue::QueueStats;
 use crate::source::FaultKind;
@@ -93,6 +94,12 @@ pub struct Stats {
     /// The second-level tile pool's counters (all 0 without a pool), as of the end of the last
     /// tick: the reads it asked for run on meanwhile ([`super::Clipmap::pool`] has the live ones).
     pub pool: PoolStats,
+    /// Each level's paging as the last tick chose it: read-ahead in tiles, grid, and why
+    /// ([`crate::paging::adaptive`]; reason `fixed` for the fixed policies).
+    pub paging: Vec<LevelPaging>,
+    /// The read latency the adaptive controller plans with (ticks from asking for a tile to
+    /// taking it, held at its recent peak; 0 for the fixed policies).
+    pub read_latency_ticks: f64,
 }
 
 /// What one tick did.

@@ -511,3 +511,79 @@ fn refreshed_tiles_are_replaced_in_their_slots_while_their_level_stays_published
     assert_eq!(map.stats().tiles_replaced, 1);
     assert_eq!(map.stats().slots_reassigned_under_published, 0);
 }
+
+/// Flies the adaptive policy along +s at `speed` level-0 texels a tick over a disk reading
+/// `per_tick` tiles a tick, from a settled start; returns the clipmap and the level-0 paging of
+/// the last tick.
+fn adaptive_flight(per_tick: u64, speed: i64, ticks: i64) -> (Clipmap, crate::paging::adaptive::LevelPaging) {
+    let s = Settings { prefetch: PrefetchKind::Adaptive, ..settings(None) };
+    let (disk, mut map) = over_disk(per_tick, s);
+    for _ in 0..400 {
+        if disk_step(&disk, &mut map, [1000, 2000]).min_lod == 0.0 {
+            break;
+        }
+    }
+    let mut errors = Vec::new();
+    for i in 1..=ticks {
+        disk_step(&disk, &mut map, [1000 + speed * i, 2000]);
+        if let Err(e) = check_published(&map) {
+            errors.push(e);
+        }
+    }
+    assert!(errors.is_empty(), "{errors:?}");
+    assert_eq!(map.stats().slots_reassigned_under_published, 0);
+    let p = map.stats().paging[0];
+    (map, p)
+}
+
+#[test]
+fn adaptive_paging_hovers_as_the_ring_and_reads_ahead_when_moving() {
+    use crate::paging::adaptive::Reason;
+    let (map, hover) = adaptive_flight(1000, 0, 10);
+    assert_eq!(hover.reason, Reason::Hover);
+    assert_eq!(hover.lead_tiles, [0, 0]);
+    // At hover the mem region is the lookahead-1 ring, whatever the larger grid.
+    let ring = Settings { prefetch: PrefetchKind::Ring, ..settings(None) };
+    let fixed = Clipmap::grids(map.desc(), &ring);
+    assert_eq!(map.cache.mem_region(0).width(), fixed[0][0]);
+    assert!(map.level(0).grid[0] > fixed[0][0], "the budget gives level 0 a larger grid");
+    let (map, moving) = adaptive_flight(1000, 24, 40);
+    assert_eq!(moving.reason, Reason::KeepingUp, "{moving:?}");
+    assert!(moving.lead_texels[0] >= 24 && moving.lead_tiles[0] >= 1, "{moving:?}");
+    assert_eq!((moving.lead_texels[1], moving.lead_tiles[1]), (0, 0), "{moving:?}");
+    assert_eq!(map.min_lod(), 0.0);
+}
+
+#[test]
+fn adaptive_paging_says_source_bound_when_the_disk_cannot_keep_up() {
+    use crate::paging::adaptive::Reason;
+    let (map, p) = adaptive_flight(2, 40, 60);
+    assert!(map.min_lod() > 0.0, "two tiles a tick cannot keep level 0 at 40 texels a tick");
+    assert!(matches!(p.reason, Reason::SourceBound | Reason::BudgetBound), "{p:?}");
+    assert!(map.stats().read_latency_ticks > 1.0, "put-off reads are late: {}", map.stats().read_latency_ticks);
+}
+
+#[test]
+fn adaptive_lead_grows_with_latency() {
+    // The same flight over a slower disk: reads wait longer, so the lead is longer.
+    let (fast, a) = adaptive_flight(1000, 16, 40);
+    let (slow, b) = adaptive_flight(12, 16, 40);
+    assert!(slow.stats().read_latency_ticks > fast.stats().read_latency_ticks);
+    assert!(b.lead_texels[0] > a.lead_texels[0], "{a:?} {b:?}");
+}
+
+#[test]
+fn adaptive_paging_recentres_after_a_jump() {
+    use crate::paging::adaptive::Reason;
+    let s = Settings { prefetch: PrefetchKind::Adaptive, ..settings(None) };
+    let (disk, mut map) = over_disk(1000, s);
+    for i in 0..30 {
+        disk_step(&disk, &mut map, [1000 + 20 * i, 2000]);
+    }
+    assert!(map.stats().paging[0].lead_texels[0] > 0);
+    disk_step(&disk, &mut map, [3000, 1000]);
+    assert_eq!(map.stats().paging[0].lead_texels, [0, 0]);
+    assert_eq!(map.stats().paging[0].lead_tiles, [0, 0]);
+    assert_eq!(map.stats().paging[0].reason, Reason::Hover);
+    check_published(&map).unwrap();
+}

@@ -15,6 +15,7 @@
 //! still [`crate::cache`]'s and [`crate::clip`]'s business (a slot is given to another tile only
 //! after a snapshot that no longer covers its old one).
 
+pub mod adaptive;
 pub mod ahead;
 pub mod direction;
 pub mod lru;
@@ -60,7 +61,6 @@ pub(crate) fn needed(shape: &LevelShape, tex: Rect) -> (Rect, [u64; 2]) {
 #[serde(rename_all = "snake_case")]
 pub enum PrefetchKind {
     /// Spare tiles around the window on both axes, margins balanced ([`ring::Ring`]).
-    #[default]
     Ring,
     /// Spare tiles put ahead of the motion when the centre crosses a tile boundary, held
     /// otherwise (Luo and Duan; [`direction::Direction`]).
@@ -68,6 +68,10 @@ pub enum PrefetchKind {
     /// Spare tiles ahead of the motion at every moving tick (the former placement;
     /// [`ahead::Ahead`]).
     Ahead,
+    /// Read-ahead sized each tick from the measured motion and read latency, within grids sized
+    /// from a memory budget ([`adaptive`]).
+    #[default]
+    Adaptive,
 }
 
 /// The eviction policies of the second-level pool. The default, [`EvictionKind::Lru`], is the
@@ -84,7 +88,8 @@ pub enum EvictionKind {
 
 impl PrefetchKind {
     /// Every policy, in the order reports list them.
-    pub const ALL: [PrefetchKind; 3] = [PrefetchKind::Ring, PrefetchKind::Direction, PrefetchKind::Ahead];
+    pub const ALL: [PrefetchKind; 4] =
+        [PrefetchKind::Ring, PrefetchKind::Direction, PrefetchKind::Ahead, PrefetchKind::Adaptive];
 
     /// The policy.
     pub fn policy(self) -> &'static dyn Prefetch {
@@ -92,6 +97,7 @@ impl PrefetchKind {
             PrefetchKind::Ring => &ring::Ring,
             PrefetchKind::Direction => &direction::Direction,
             PrefetchKind::Ahead => &ahead::Ahead,
+            PrefetchKind::Adaptive => &adaptive::Adaptive,
         }
     }
 
@@ -101,6 +107,7 @@ impl PrefetchKind {
             PrefetchKind::Ring => "ring",
             PrefetchKind::Direction => "direction",
             PrefetchKind::Ahead => "ahead",
+            PrefetchKind::Adaptive => "adaptive",
         }
     }
 }
@@ -157,7 +164,12 @@ impl FromStr for PrefetchKind {
             "ring" => Ok(PrefetchKind::Ring),
             "direction" => Ok(PrefetchKind::Direction),
             "ahead" => Ok(PrefetchKind::Ahead),
-            _ => Err(PolicyError { what: "prefetch", found: s.into(), expected: "`ring`, `direction` or `ahead`" }),
+            "adaptive" => Ok(PrefetchKind::Adaptive),
+            _ => Err(PolicyError {
+                what: "prefetch",
+                found: s.into(),
+                expected: "`ring`, `direction`, `ahead` or `adaptive`",
+            }),
         }
     }
 }
@@ -214,6 +226,9 @@ pub struct PagingOptions {
     pub pool_bytes: u64,
     /// Most level-0 texels the centre moves per tick along each axis (`None`: unclamped).
     pub max_centre_step: Option<u64>,
+    /// Bytes the adaptive policy's grids may take (`None`: the default budget,
+    /// [`adaptive::DEFAULT_BUDGET_FACTOR`] times the lookahead-1 grids).
+    pub grid_budget: Option<u64>,
 }
 
 /// A byte count as written on a command line or in a configuration: digits with an optional

@@ -22,7 +22,7 @@
 pub mod priority;
 mod runner;
 
-pub use priority::{priority, Priority};
+pub use priority::{priority, soonest_first, Priority};
 
 use crate::limits::Limits;
 use crate::shm::ImageMemory;

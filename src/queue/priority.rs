@@ -46,9 +46,40 @@ pub fn priority(level: u32, levels: usize, texels: Rect, valid: Rect, clip: u64,
     Priority { rank, eta: distance.div_ceil(speed) }
 }
 
+/// The adaptive policy's order: a tile the level's valid region touches keeps [`priority`]
+/// (coarser levels first, so that a coarse level stands in for the finer ones), and every other
+/// tile — read-ahead — comes after all of those, soonest needed first across levels (ties:
+/// coarser first), so that read-ahead fills the capacity the window leaves and never delays it.
+pub fn soonest_first(level: u32, levels: usize, texels: Rect, valid: Rect, clip: u64, velocity: [i64; 2]) -> Priority {
+    let p = priority(level, levels, texels, valid, clip, velocity);
+    let inside = gap(texels.s0, texels.s1, valid.s0, valid.s1).max(gap(texels.t0, texels.t1, valid.t0, valid.t1)) == 0;
+    if inside {
+        return p;
+    }
+    let above = (levels as u64).min(u32::MAX as u64);
+    let rank = above.saturating_add(p.eta).min(u32::MAX as u64) as u32;
+    Priority { rank, eta: p.rank as u64 }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn soonest_first_reads_every_needed_tile_before_any_read_ahead() {
+        let needed_fine = soonest_first(0, 8, Rect::new(120, 120, 136, 136), VALID, 64, [4, 0]);
+        let ahead_coarse = soonest_first(5, 8, Rect::new(216, 150, 232, 166), VALID, 64, [4, 0]);
+        let ahead_fine_near = soonest_first(0, 8, Rect::new(200, 150, 216, 166), VALID, 64, [4, 0]);
+        let ahead_fine_far = soonest_first(0, 8, Rect::new(260, 150, 276, 166), VALID, 64, [4, 0]);
+        assert!(needed_fine < ahead_coarse && needed_fine < ahead_fine_near);
+        assert!(ahead_fine_near < ahead_coarse, "sooner first, whatever the level");
+        assert!(ahead_coarse < ahead_fine_far);
+        // Inside the valid region: the plain order.
+        assert_eq!(needed_fine, priority(0, 8, Rect::new(120, 120, 136, 136), VALID, 64, [4, 0]));
+        // Extremes do not overflow.
+        let far = soonest_first(0, usize::MAX, Rect::new(68, 150, 84, 166), VALID, u64::MAX, [1, 0]);
+        assert_eq!(far.rank, u32::MAX);
+    }
 
     const VALID: Rect = Rect::new(100, 100, 200, 200);
 

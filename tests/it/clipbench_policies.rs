@@ -15,12 +15,19 @@ fn policies_json_has_a_row_per_flight_and_combination() {
     let v = run(&[]);
     let rows = v["rows"].as_array().expect("rows");
     let flights = ["straight", "turning", "zigzag", "hover", "fast_straight", "jumps", "turn_around"];
-    assert_eq!(rows.len(), flights.len() * 3 * 3, "7 flights x (ring, direction, ahead) x (none, lru, shift)");
-    let grid = v["setup"]["grid_bytes"].as_u64().expect("setup.grid_bytes");
+    assert_eq!(
+        rows.len(),
+        flights.len() * 4 * 3,
+        "7 flights x (ring, direction, ahead, adaptive) x (none, lru, shift)"
+    );
+    let fixed_grid = v["setup"]["grid_bytes"].as_u64().expect("setup.grid_bytes");
+    let adaptive_grid = v["setup"]["adaptive_grid_bytes"].as_u64().expect("setup.adaptive_grid_bytes");
     let pool = v["setup"]["pool_bytes"].as_u64().expect("setup.pool_bytes");
-    assert!(grid > 0 && pool > 0);
+    assert!(fixed_grid > 0 && pool > 0);
+    assert!(adaptive_grid > fixed_grid && adaptive_grid <= 2 * fixed_grid, "{adaptive_grid} against {fixed_grid}");
     for f in flights {
-        for p in ["ring", "direction", "ahead"] {
+        for p in ["ring", "direction", "ahead", "adaptive"] {
+            let grid = if p == "adaptive" { adaptive_grid } else { fixed_grid };
             for e in ["none", "lru", "shift"] {
                 let row = rows
                     .iter()

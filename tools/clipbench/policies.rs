@@ -2,7 +2,7 @@
 //!
 //! Flies the standard flights (straight, turning, zig-zag, hover, fast straight, sudden jumps,
 //! a turn-around) over the hash texture once for every combination of prefetch policy (ring,
-//! direction) and eviction policy of the second-level pool (LRU, shift; and no pool, for a
+//! direction, ahead, adaptive) and eviction policy of the second-level pool (LRU, shift; and no pool, for a
 //! baseline), under a pool budget that forces eviction, and reports per run: tiles read from the
 //! disk, the pool's hit rate, peak resident bytes (the grids' whole mapping plus the pool's
 //! tiles), ticks with a disabled level and the mean min LOD.
@@ -41,7 +41,7 @@ pub struct Args {
     /// offset clamp; counted in `centre_clamps`).
     #[arg(long)]
     max_centre_step: Option<u64>,
-    /// Only these prefetch policies (default: both).
+    /// Only these prefetch policies (default: all four).
     #[arg(long, value_delimiter = ',')]
     prefetch: Vec<PrefetchKind>,
     /// Only these eviction policies (`none`: no pool; default: none, lru, shift).
@@ -73,8 +73,12 @@ pub struct Setup {
     pub disk_tiles_per_tick: u64,
     /// The pool's hard budget (bytes of tiles).
     pub pool_bytes: u64,
-    /// Bytes of the image caches' mapping (every grid, the pyramid, the header).
+    /// Bytes of the image caches' mapping (every grid, the pyramid, the header) of the fixed
+    /// policies (lookahead 1).
     pub grid_bytes: u64,
+    /// The same for `adaptive`, whose grids take the default budget (twice the lookahead-1
+    /// grids).
+    pub adaptive_grid_bytes: u64,
     pub max_centre_step: Option<u64>,
 }
 
@@ -176,8 +180,12 @@ fn setup(args: &Args) -> Setup {
     };
     let desc = desc(size, clip, tile);
     let tile_bytes = desc.tile_bytes(0) as u64;
-    let shape = Clipmap::shape_for(&desc, &Settings::default());
-    let grid_bytes = clipmap::shm::layout::place(&shape).map_or(0, |p| p.total_bytes);
+    let mapping = |prefetch| {
+        let shape = Clipmap::shape_for(&desc, &Settings { prefetch, ..Settings::default() });
+        clipmap::shm::layout::place(&shape).map_or(0, |p| p.total_bytes)
+    };
+    let grid_bytes = mapping(PrefetchKind::Ring);
+    let adaptive_grid_bytes = mapping(PrefetchKind::Adaptive);
     // The pool is inclusive (it keeps copies of tiles the grids hold too): half as much again
     // as the grids leaves room for tiles beyond them, far less than a flight reads.
     let pool_tiles = (grid_bytes * 3 / 2).div_ceil(tile_bytes);
@@ -193,6 +201,7 @@ fn setup(args: &Args) -> Setup {
         disk_tiles_per_tick: disk,
         pool_bytes,
         grid_bytes,
+        adaptive_grid_bytes,
         max_centre_step: args.max_centre_step,
     }
 }
@@ -266,7 +275,8 @@ fn run(
     }
     let st = map.stats();
     let pool1 = pool(&map);
-    anyhow::ensure!(map.memory().total_bytes() == s.grid_bytes, "the grids' mapping is not the size planned");
+    let planned = if prefetch == PrefetchKind::Adaptive { s.adaptive_grid_bytes } else { s.grid_bytes };
+    anyhow::ensure!(map.memory().total_bytes() == planned, "the grids' mapping is not the size planned");
     let (hits, misses) = (pool1.hits - pool0.hits, pool1.misses - pool0.misses);
     Ok(Row {
         prefetch: prefetch.name(),
