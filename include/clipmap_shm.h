@@ -34,6 +34,7 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <sched.h>
 #include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -311,6 +312,11 @@ static inline void clipmap_pause(void) {
 #endif
 }
 
+/* Between attempts at the snapshot or the growth block: give the processor away. The writer holds
+ * those locks for microseconds, but for longer when it is descheduled meanwhile; 64 attempts of
+ * a bare spin can run out in that time, 64 yields let it finish. */
+static inline void clipmap_yield_(void) { sched_yield(); }
+
 /* Overflow-checked a + b and a * b: 0 on overflow. */
 static inline int clipmap_add(uint64_t a, uint64_t b, uint64_t *r) { return !__builtin_add_overflow(a, b, r); }
 static inline int clipmap_mul(uint64_t a, uint64_t b, uint64_t *r) { return !__builtin_mul_overflow(a, b, r); }
@@ -542,7 +548,7 @@ static inline int clipmap_snapshot(const struct clipmap_map *m, struct clipmap_s
     for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES && !got; attempt++) {
         uint64_t s1 = clipmap_load(m, b + CLIPMAP_SNAP_SEQ, __ATOMIC_ACQUIRE);
         if (s1 & 1) {
-            clipmap_pause();
+            clipmap_yield_();
             continue;
         }
         lod_bits = clipmap_load(m, b + CLIPMAP_SNAP_MIN_LOD, __ATOMIC_RELAXED);
@@ -611,7 +617,7 @@ static inline int clipmap_growth(const struct clipmap_map *m, struct clipmap_gro
     for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES && !got; attempt++) {
         uint64_t s1 = clipmap_load(m, b + CLIPMAP_G_SEQ, __ATOMIC_ACQUIRE);
         if (s1 & 1) {
-            clipmap_pause();
+            clipmap_yield_();
             continue;
         }
         for (int i = 1; i < 15; i++) v[i] = clipmap_load(m, b + 8 * (size_t)i, __ATOMIC_RELAXED);
