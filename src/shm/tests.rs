@@ -559,3 +559,109 @@ fn a_whole_tile_reads_under_its_tag_inside_or_outside_the_published_region() {
     assert_eq!(c.read_tile(0, [128, 0], &mut out), Err(ReadError::NotValid(0)));
     assert!(matches!(c.read_tile(0, edge, &mut out[..10]), Err(ReadError::Corrupt(_))));
 }
+
+/// docs/SHM.md lists every byte range of the header, the snapshot, the descriptors, the growth
+/// block and the request mapping; the ranges it calls reserved are zero, in a mapping that has
+/// been published and requested through.
+#[test]
+fn every_byte_the_contract_calls_reserved_is_zero() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, w) = hash_service(dir.path(), "zero", 1000, 64, 32);
+    let c = Client::attach(dir.path(), "zero").unwrap();
+    for i in 0..8 {
+        assert!(c.request_centre([400 + i, 300], [1.0, -1.0]));
+        map.tick([400 + i, 300], None);
+        map.wait_for_reads();
+    }
+    let m = std::fs::read(w.path()).unwrap();
+    let zero = |what: &str, r: std::ops::Range<usize>| {
+        assert!(m[r.clone()].iter().all(|&b| b == 0), "{what} {r:?} is not zero");
+    };
+    use layout::{header as h, snapshot as s};
+    zero("header: the u32 pid's upper half", h::WRITER_PID + 4..h::HEARTBEAT);
+    zero("header", h::TICK_PERIOD_NS + 8..h::SNAPSHOT);
+    zero("snapshot", h::SNAPSHOT + s::CENTRE_T + 8..h::SNAPSHOT + s::LEVELS);
+    let n = c.levels.len();
+    let states = h::SNAPSHOT + s::LEVELS;
+    zero("level states past the level count", states + n * layout::STATE_BYTES..h::LEVEL_DESCS);
+    for k in 0..n {
+        let d = h::LEVEL_DESCS + k * layout::DESC_BYTES;
+        zero("descriptor", d + layout::desc::KIND + 8..d + layout::DESC_BYTES);
+    }
+    zero("descriptors past the level count", h::LEVEL_DESCS + n * layout::DESC_BYTES..h::GROWTH);
+    zero("growth block (a texture that does not grow)", h::GROWTH..h::END);
+    let header_bytes = u32::from_le_bytes(m[h::HEADER_BYTES..h::HEADER_BYTES + 4].try_into().unwrap()) as usize;
+    assert_eq!(header_bytes, 8192);
+    zero("after the growth block", h::END..header_bytes);
+    let mut end = header_bytes;
+    for d in &c.levels {
+        zero("before a level's tags", end..d.tags as usize);
+        let tags_end = (d.tags + d.grid[0] * d.grid[1] * layout::TAG_BYTES as u64) as usize;
+        zero("between a level's tags and its slots", tags_end..d.slots as usize);
+        end = (d.slots + d.grid[0] * d.grid[1] * d.slot_bytes) as usize;
+    }
+    zero("after the last level", end..m.len());
+    let r = std::fs::read(w.request_path()).unwrap();
+    assert_eq!(r.len(), 4096);
+    let rzero = |what: &str, x: std::ops::Range<usize>| assert!(r[x.clone()].iter().all(|&b| b == 0), "{what} {x:?}");
+    use layout::request as q;
+    rzero("request: after the version", q::VERSION + 4..q::GENERATION);
+    rzero("request: before the lock word", q::GENERATION + 8..q::SEQ);
+    rzero("request: after the count", q::COUNT + 8..4096);
+    assert_eq!(u64::from_le_bytes(r[q::CLIENT_PID..q::CLIENT_PID + 8].try_into().unwrap()), std::process::id() as u64);
+}
+
+/// docs/SHM.md: a level is level 0 halved k times rounding down (at least 1); level k's centre is
+/// level 0's shifted right by k (floor, for negative centres too); a window starts `clip / 2`
+/// texels before its centre and is translated to stay inside the level; published centres are
+/// not clamped to the texture.
+#[test]
+fn level_sizes_round_down_centres_shift_by_floor_and_are_published_unclamped() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = TextureDesc::new([1000, 333], 64, TexelFormat::RGBA8, [32, 32]).unwrap().with_invalid_border(4).unwrap();
+    let (mut map, _w) = service(dir.path(), "odd", Arc::new(HashSource::new(d)));
+    let c = Client::attach(dir.path(), "odd").unwrap();
+    let sizes: Vec<[u64; 2]> = c.levels.iter().map(|l| l.size).collect();
+    assert_eq!(&sizes[..4], &[[1000, 333], [500, 166], [250, 83], [125, 41]]);
+    assert_eq!(sizes.last(), Some(&[1, 1]));
+    assert_eq!(sizes.len(), 10, "down to 1 x 1: as many levels as the longer edge has bits");
+    let settle = |map: &mut Clipmap, centre: [i64; 2]| {
+        for _ in 0..12 {
+            map.tick(centre, None);
+            map.wait_for_reads();
+        }
+    };
+    // An even clip size: the window of a centre c is [c - 32, c + 32).
+    settle(&mut map, [500, 200]);
+    let snap = c.try_snapshot().unwrap();
+    assert_eq!(snap.levels[0].valid, [468 + 4, 168 + 4, 532 - 4, 232 - 4], "the window less the border");
+    assert_eq!(snap.levels[1].centre, [250, 100]);
+    // A centre outside the texture: published as given (floor-shifted per level), the windows
+    // clamped to the edge (no border against it).
+    settle(&mut map, [-3, 5000]);
+    let snap = c.try_snapshot().unwrap();
+    assert_eq!(snap.centre, [-3, 5000], "the level-0 centre is not clamped");
+    assert_eq!(snap.levels[0].centre, [-3, 5000]);
+    assert_eq!(snap.levels[1].centre, [-2, 2500], "-3 >> 1 = -2: floor");
+    assert_eq!(snap.levels[2].centre, [-1, 1250]);
+    assert_eq!(snap.levels[0].valid, [0, 333 - 64 + 4, 64 - 4, 333]);
+}
+
+/// docs/SHM.md: min LOD rises at once and falls by a fifth of the distance to its target each
+/// tick (x0.8 of the distance) while that is at least a level, then by 0.2 a tick.
+#[test]
+fn min_lod_falls_by_the_documented_steps() {
+    assert_eq!(Settings::default().fade_ticks, 5, "the service's fade");
+    let mut lod = 3.0;
+    let mut seen = vec![lod];
+    while lod > 0.0 {
+        lod = crate::clip::next_min_lod(lod, 0, 5);
+        seen.push(lod);
+    }
+    for w in seen.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let want = if a >= 1.0 { a * 0.8 } else { (a - 0.2).max(0.0) };
+        assert!((b - want).abs() < 1e-12, "{a} -> {b}, documented {want}: {seen:?}");
+    }
+    assert_eq!(crate::clip::next_min_lod(0.5, 4, 5), 4.0, "a rise is at once");
+}
