@@ -89,11 +89,9 @@ impl Writer {
         };
         match lock.try_lock() {
             Ok(()) => {}
-            Err(std::fs::TryLockError::WouldBlock) => {
-                let e = held(&lock, &lock_path, name);
-                drop_lock();
-                return Err(e);
-            }
+            // Someone else holds it (even one we just created: a start racing this one), so it is
+            // theirs: left in place, or they would hold a lock on a removed file.
+            Err(std::fs::TryLockError::WouldBlock) => return Err(held(&lock, &lock_path, name)),
             Err(std::fs::TryLockError::Error(e)) => {
                 drop_lock();
                 return Err(ShmError::Io { path: lock_path, source: e });
