@@ -34,6 +34,8 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <sched.h>
+#include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <string.h>
@@ -156,7 +158,7 @@
 #define CLIPMAP_R_MAGIC 0                /* u8[8] "CLIPREQ2" */
 #define CLIPMAP_R_VERSION 8              /* u32: 2 */
 #define CLIPMAP_R_GENERATION 16          /* u64: equals CLIPMAP_H_GENERATION of its texel mapping */
-#define CLIPMAP_R_SEQ 64                 /* u64 atomic seqlock (renderers take it by CAS) */
+#define CLIPMAP_R_SEQ 64                 /* u64 atomic lock word (renderers take it by CAS; odd: holder pid in bits 1..31) */
 #define CLIPMAP_R_CENTRE_S 72            /* i64: requested level-0 centre */
 #define CLIPMAP_R_CENTRE_T 80            /* i64 */
 #define CLIPMAP_R_VEL_S 88               /* f64 bits: level-0 texels per second */
@@ -309,6 +311,11 @@ static inline void clipmap_pause(void) {
     __asm__ __volatile__("yield");
 #endif
 }
+
+/* Between attempts at the snapshot or the growth block: give the processor away. The writer holds
+ * those locks for microseconds, but for longer when it is descheduled meanwhile; 64 attempts of
+ * a bare spin can run out in that time, 64 yields let it finish. */
+static inline void clipmap_yield_(void) { sched_yield(); }
 
 /* Overflow-checked a + b and a * b: 0 on overflow. */
 static inline int clipmap_add(uint64_t a, uint64_t b, uint64_t *r) { return !__builtin_add_overflow(a, b, r); }
@@ -541,7 +548,7 @@ static inline int clipmap_snapshot(const struct clipmap_map *m, struct clipmap_s
     for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES && !got; attempt++) {
         uint64_t s1 = clipmap_load(m, b + CLIPMAP_SNAP_SEQ, __ATOMIC_ACQUIRE);
         if (s1 & 1) {
-            clipmap_pause();
+            clipmap_yield_();
             continue;
         }
         lod_bits = clipmap_load(m, b + CLIPMAP_SNAP_MIN_LOD, __ATOMIC_RELAXED);
@@ -610,7 +617,7 @@ static inline int clipmap_growth(const struct clipmap_map *m, struct clipmap_gro
     for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES && !got; attempt++) {
         uint64_t s1 = clipmap_load(m, b + CLIPMAP_G_SEQ, __ATOMIC_ACQUIRE);
         if (s1 & 1) {
-            clipmap_pause();
+            clipmap_yield_();
             continue;
         }
         for (int i = 1; i < 15; i++) v[i] = clipmap_load(m, b + 8 * (size_t)i, __ATOMIC_RELAXED);
@@ -832,13 +839,34 @@ static inline uint64_t clipmap_now_ms_(void) {
     return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
 }
 
+/* Whether `pid` names a live process (kill with signal 0: EPERM means it exists). */
+static inline int clipmap_process_alive_(uint32_t pid) {
+    if (pid == 0) return 0;
+    return kill((pid_t)pid, 0) == 0 || errno == EPERM;
+}
+
+/* The request lock word (CLIPMAP_R_SEQ, docs/SHM.md "Request mapping"): even, nobody writes;
+ * odd, a renderer holds it, its pid in bits 1..31 and the epoch it took in bits 32..63. */
+#define CLIPMAP_REQUEST_TAKEOVER_MS 100u  /* odd this long, unchanged, before its owner is looked at */
+#define CLIPMAP_REQUEST_WAIT_MS 1000u     /* how long to wait for a live owner before CLIPMAP_BUSY */
+static inline uint64_t clipmap_request_locked_(uint64_t free_word, uint32_t pid) {
+    return (free_word & ~(uint64_t)0xFFFFFFFFu) | (((uint64_t)pid & 0x7FFFFFFFu) << 1) | 1u;
+}
+static inline uint64_t clipmap_request_released_(uint64_t held) { return ((held >> 32) + 1u) << 32; }
+static inline uint32_t clipmap_request_owner_(uint64_t held) { return (uint32_t)((held >> 1) & 0x7FFFFFFFu); }
+
 /* Asks for centre (s, t) (level-0 texels) with velocity (vs, vt) (texels per second, 0 when
- * unknown), under the request seqlock: compare-and-swap from even v to v + 1, write, store v + 2.
- * A counter left odd for more than 100 ms (a renderer died mid-write) is advanced to even.
- * CLIPMAP_OK, or CLIPMAP_BUSY after about a second of other renderers holding it. */
+ * unknown), under the request lock: compare-and-swap from an even word w to
+ * clipmap_request_locked_(w, pid), write the fields, compare-and-swap to the next epoch. A word
+ * left odd for more than 100 ms whose owner is no live process (a renderer died mid-write) is
+ * advanced to the next epoch; a live owner is never overruled, however long it stalls.
+ * CLIPMAP_OK, or CLIPMAP_BUSY after about a second of a live renderer holding it (or when this
+ * renderer's lock was taken from it, which happens only if its pid is not visible to the others:
+ * renderers must share a pid namespace). */
 static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, int64_t t, double vs, double vt) {
     uint64_t *seq = (uint64_t *)(void *)(r->base + CLIPMAP_R_SEQ);
     uint64_t odd = 0, odd_since = 0, start = clipmap_now_ms_();
+    uint32_t pid = (uint32_t)getpid();
     for (;;) {
         uint64_t v = __atomic_load_n(seq, __ATOMIC_RELAXED);
         if (v & 1) {
@@ -846,17 +874,20 @@ static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, i
             if (v != odd) {
                 odd = v;
                 odd_since = now;
-            } else if (now - odd_since > 100) {
-                uint64_t expect = v; /* forward only: from that odd value to the next even one */
-                __atomic_compare_exchange_n(seq, &expect, v + 1, 0, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED);
-                odd = 0;
+            } else if (now - odd_since > CLIPMAP_REQUEST_TAKEOVER_MS) {
+                if (!clipmap_process_alive_(clipmap_request_owner_(v))) {
+                    uint64_t expect = v; /* forward only: from that odd word to the next epoch */
+                    __atomic_compare_exchange_n(seq, &expect, clipmap_request_released_(v), 0, __ATOMIC_ACQ_REL,
+                                                __ATOMIC_RELAXED);
+                }
+                odd_since = now;
             }
-            if (now - start > 1000) return CLIPMAP_BUSY;
+            if (now - start > CLIPMAP_REQUEST_WAIT_MS) return CLIPMAP_BUSY;
             clipmap_pause();
             continue;
         }
-        uint64_t expect = v;
-        if (!__atomic_compare_exchange_n(seq, &expect, v + 1, 0, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED)) continue;
+        uint64_t expect = v, mine = clipmap_request_locked_(v, pid);
+        if (!__atomic_compare_exchange_n(seq, &expect, mine, 0, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED)) continue;
         __atomic_thread_fence(__ATOMIC_RELEASE);
         uint64_t bits_s, bits_t;
         memcpy(&bits_s, &vs, 8);
@@ -866,12 +897,15 @@ static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, i
         CLIPMAP_RSTORE_(CLIPMAP_R_CENTRE_T, (uint64_t)t);
         CLIPMAP_RSTORE_(CLIPMAP_R_VEL_S, bits_s);
         CLIPMAP_RSTORE_(CLIPMAP_R_VEL_T, bits_t);
-        CLIPMAP_RSTORE_(CLIPMAP_R_CLIENT_PID, (uint64_t)getpid());
+        CLIPMAP_RSTORE_(CLIPMAP_R_CLIENT_PID, (uint64_t)pid);
         uint64_t count = __atomic_load_n((uint64_t *)(void *)(r->base + CLIPMAP_R_COUNT), __ATOMIC_RELAXED);
         CLIPMAP_RSTORE_(CLIPMAP_R_COUNT, count + 1);
 #undef CLIPMAP_RSTORE_
-        __atomic_store_n(seq, v + 2, __ATOMIC_RELEASE);
-        return CLIPMAP_OK;
+        expect = mine; /* release: never over a word someone else stored */
+        if (__atomic_compare_exchange_n(seq, &expect, clipmap_request_released_(mine), 0, __ATOMIC_ACQ_REL,
+                                        __ATOMIC_RELAXED))
+            return CLIPMAP_OK;
+        return CLIPMAP_BUSY;
     }
 }
 

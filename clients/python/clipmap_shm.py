@@ -20,7 +20,7 @@ prints a growing texture's growth block as JSON (null when it does not grow). Ex
 refused (at open, or published state out of bounds), with the reason on standard error.
 
 Requests: Python has no compare-and-swap on a mapping, so it cannot take the request
-mapping's seqlock; a Python renderer asks for a centre through the control socket (`CENTRE s t`).
+mapping's lock word; a Python renderer asks for a centre through the control socket (`CENTRE s t`).
 
 Consistency: the snapshot and every slot tag are read under their seqlocks (sequence read
 before and after, accepted only when even and equal). Every field the writer changes is loaded
@@ -90,6 +90,10 @@ SLOT_EMPTY, SLOT_LOADING, SLOT_READY, SLOT_MISSING, SLOT_DEFAULT = 0, 1, 2, 3, 4
 # Request mapping (DIR/clipmap-NAME.req).
 REQ_MAGIC, REQ_VERSION, REQ_GENERATION, REQ_SEQ = 0, 8, 16, 64
 REQ_CENTRE_S, REQ_CENTRE_T, REQ_VEL_S, REQ_VEL_T, REQ_CLIENT_PID, REQ_COUNT = 72, 80, 88, 96, 104, 112
+# The request lock word (REQ_SEQ; docs/SHM.md, "Request mapping"): odd while a renderer holds it,
+# with its pid in bits 1..31; a word odd for REQUEST_TAKEOVER_MS is taken over only when that pid
+# is no live process; a renderer gives up after REQUEST_WAIT_MS. This module writes no requests.
+REQUEST_TAKEOVER_MS, REQUEST_WAIT_MS = 100, 1000
 
 # Texel format codes (H_TEXEL_FORMAT): code -> (name, bytes per texel); 0 is any other format.
 # 16-bit components are little-endian.

@@ -186,7 +186,7 @@ pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Resu
         },
         (Err(e), _) | (_, Err(e)) => (Vec::new(), Some(e.to_string())),
     };
-    let snap = c.snapshot();
+    let snap = c.checked_snapshot()?;
     let growth = c.growth().unwrap_or_else(|e| {
         tracing::warn!("{}: growth block: {e}", c.path().display());
         None

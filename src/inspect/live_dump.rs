@@ -102,7 +102,7 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDump
         path: out_dir.to_path_buf(),
         message: format!("{e}; --out-dir must be a directory that can be created or written"),
     })?;
-    let snap = client.snapshot();
+    let snap = client.checked_snapshot()?;
     let mut levels = Vec::with_capacity(client.levels.len());
     for (k, d) in client.levels.iter().enumerate() {
         let st = snap.levels[k];

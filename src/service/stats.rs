@@ -29,6 +29,12 @@ pub struct TickStats {
     pub centre: [i64; 2],
     /// Renderer requests seen through the mapping (the request block's count).
     pub requests_seen: u64,
+    /// Times the request mapping was found not whole (shorter than its 4096 bytes: truncated by a
+    /// process that can write it); each is reported once in the log, and requests are ignored
+    /// while it lasts.
+    pub request_faults: u64,
+    /// The first such report (`null` when there was none).
+    pub request_fault: Option<String>,
     /// Centres set through the control socket.
     pub socket_centres: u64,
     /// Finest level renderers may use.

@@ -289,6 +289,7 @@ impl Runner {
                 self.stats.requests_seen = req.count;
             }
         }
+        (self.stats.request_faults, self.stats.request_fault) = self.writer.request_faults();
         if let Some((served, _)) = &self.growing {
             let changed = served.take_changed(self.clipmap.desc());
             self.clipmap.refresh(changed);

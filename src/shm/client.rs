@@ -141,6 +141,35 @@ impl std::fmt::Debug for Client {
     }
 }
 
+/// Opens `path` (read-only, or read-write) without blocking and checks on the open descriptor
+/// that it is a regular file: a FIFO planted at a mapping's name would otherwise block the open
+/// until someone writes to it, and a device would be mapped.
+fn open_regular(path: &Path, write: bool) -> Result<std::fs::File, ShmError> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let file = OpenOptions::new()
+        .read(true)
+        .write(write)
+        .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
+        .open(path)
+        .map_err(super::io(path))?;
+    let meta = file.metadata().map_err(super::io(path))?;
+    if !meta.is_file() {
+        return Err(invalid(
+            path,
+            format!(
+                "it is {}, not a regular file: not a mapping (something else took the name)",
+                crate::open::kind_of(&meta)
+            ),
+        ));
+    }
+    Ok(file)
+}
+
+/// Whether `pid` names a live process (0 never does).
+fn process_alive(pid: u32) -> bool {
+    pid != 0 && Path::new(&format!("/proc/{pid}")).exists()
+}
+
 fn invalid(path: &Path, reason: impl Into<String>) -> ShmError {
     ShmError::Invalid { path: path.to_path_buf(), reason: reason.into() }
 }
@@ -160,12 +189,12 @@ impl Client {
 
     /// Attaches to a texel mapping file, read-only; requests then go nowhere unless the request
     /// mapping beside it (`.req` for `.map`) can be opened for writing.
+    ///
+    /// The file is opened without blocking and its type checked on the open descriptor before
+    /// anything is mapped, so a FIFO or device planted at the name is refused at once.
     pub fn attach_path(path: &Path) -> Result<Client, ShmError> {
-        let file = OpenOptions::new().read(true).open(path).map_err(super::io(path))?;
+        let file = open_regular(path, false)?;
         let meta = file.metadata().map_err(super::io(path))?;
-        if !meta.is_file() {
-            return Err(invalid(path, "not a regular file"));
-        }
         if meta.len() < layout::header::END as u64 {
             return Err(invalid(
                 path,
@@ -204,6 +233,19 @@ impl Client {
         let count = region.read_u32(header::LEVEL_COUNT) as usize;
         if bpt == 0 || bpt > 64 || clip == 0 || count == 0 || count > layout::MAX_LEVELS {
             return Err(invalid(path, format!("implausible header: {bpt} bytes per texel, clip {clip}, {count} levels (expected 1..=64, > 0, 1..=32)")));
+        }
+        let format_code = region.read_u32(header::TEXEL_FORMAT);
+        if let Some(f) = layout::format_from_code(format_code) {
+            if u64::from(f.bytes_per_texel()) != bpt {
+                return Err(invalid(
+                    path,
+                    format!(
+                        "texel format {format_code} ({}) has {} bytes per texel, the header says {bpt}",
+                        f.short_name(),
+                        f.bytes_per_texel()
+                    ),
+                ));
+            }
         }
         let header_bytes = region.read_u32(header::HEADER_BYTES) as u64;
         if header_bytes < layout::header::END as u64 || !header_bytes.is_multiple_of(layout::PAGE) {
@@ -265,7 +307,7 @@ impl Client {
         Ok(Client {
             inode: (meta.dev(), meta.ino()),
             generation: region.read_u64(header::GENERATION),
-            format_code: region.read_u32(header::TEXEL_FORMAT),
+            format_code,
             tick_period: Duration::from_nanos(region.read_u64(header::TICK_PERIOD_NS)),
             region,
             request: None,
@@ -278,8 +320,8 @@ impl Client {
 
     /// Opens the request mapping `path` for writing, if it is one of this mapping's.
     fn open_requests(&mut self, path: &Path) {
-        let Ok(file) = OpenOptions::new().read(true).write(true).open(path) else { return };
-        if file.metadata().map(|m| m.len() != layout::REQUEST_BYTES || !m.is_file()).unwrap_or(true) {
+        let Ok(file) = open_regular(path, true) else { return };
+        if file.metadata().map(|m| m.len() != layout::REQUEST_BYTES).unwrap_or(true) {
             return;
         }
         let Ok(region) = Region::map(&file) else { return };
@@ -376,6 +418,25 @@ impl Client {
             }
         }
         Ok(())
+    }
+
+    /// A consistent snapshot whose published state passes every check, for the tools that show
+    /// or draw it (`cliptex attach`, `cliptex dump --attach`): a writer that is busy is tried
+    /// again for up to a second, and published state outside its bounds (a NaN min LOD, a region
+    /// outside its level) refuses the mapping, as the C and Python readers refuse it, instead of
+    /// being shown as "every level disabled".
+    pub fn checked_snapshot(&self) -> Result<Snapshot, ShmError> {
+        let start = std::time::Instant::now();
+        loop {
+            match self.try_snapshot() {
+                Ok(s) => return Ok(s),
+                Err(ReadError::Corrupt(why)) => {
+                    return Err(invalid(&self.path, format!("published state outside its bounds: {why}; the mapping is corrupt or was written by something other than clipmapd")))
+                }
+                Err(_) if start.elapsed() < Duration::from_secs(1) => std::thread::sleep(Duration::from_millis(1)),
+                Err(_) => return Err(ShmError::Busy { path: self.path.clone(), ms: start.elapsed().as_millis() as u64 }),
+            }
+        }
     }
 
     /// [`try_snapshot`](Self::try_snapshot), or an empty snapshot (nothing usable: min LOD the
@@ -599,38 +660,51 @@ impl Client {
 
     /// Asks the service to centre the clipmap at `centre` (level-0 texels), with an optional
     /// velocity (level-0 texels per second). `false` when this client cannot write requests
-    /// (the request mapping is missing or not writable: use the control socket's `CENTRE`).
+    /// (the request mapping is missing or not writable: use the control socket's `CENTRE`), or
+    /// when another renderer that is still alive held the request lock for
+    /// [`request_lock::WAIT_MS`](layout::request_lock::WAIT_MS) (try again next frame).
     pub fn request_centre(&self, centre: [i64; 2], velocity: [f64; 2]) -> bool {
+        use layout::request_lock as lock;
         let Some(r) = &self.request else { return false };
-        // Take the request seqlock (odd), write, release (even). Several renderers serialise here.
-        // A renderer that died holding it (odd for longer than any write takes) is overruled: the
-        // counter is advanced from that odd value to the next even one, never moved backwards.
+        let pid = std::process::id();
+        let start = std::time::Instant::now();
+        let wait = Duration::from_millis(lock::WAIT_MS);
+        // Take the lock word (docs/SHM.md, "Request mapping"): odd with our pid, write, release
+        // to the next epoch. A word left odd by a renderer that died (its pid is no live
+        // process) is advanced after a while; a live owner is waited for, never overruled.
         let mut odd_since: Option<(u64, std::time::Instant)> = None;
         loop {
-            let s = r.load(request::SEQ, Ordering::Relaxed);
-            if s & 1 == 1 {
+            let w = r.load(request::SEQ, Ordering::Relaxed);
+            if w & 1 == 1 {
                 match odd_since {
-                    Some((seen, at)) if seen == s && at.elapsed() > Duration::from_millis(100) => {
-                        let _ = r.compare_exchange(request::SEQ, s, s.wrapping_add(1));
-                        odd_since = None;
+                    Some((seen, at)) if seen == w && at.elapsed() > Duration::from_millis(lock::TAKEOVER_MS) => {
+                        if !process_alive(lock::owner(w)) {
+                            let _ = r.compare_exchange(request::SEQ, w, lock::released(w));
+                        }
+                        odd_since = Some((w, std::time::Instant::now()));
                     }
-                    Some((seen, _)) if seen == s => std::thread::yield_now(),
-                    _ => odd_since = Some((s, std::time::Instant::now())),
+                    Some((seen, _)) if seen == w => {}
+                    _ => odd_since = Some((w, std::time::Instant::now())),
                 }
+                if start.elapsed() > wait {
+                    return false;
+                }
+                std::thread::yield_now();
                 continue;
             }
-            if r.compare_exchange(request::SEQ, s, s.wrapping_add(1)).is_ok() {
-                // The field stores below must not become visible before the odd counter.
+            let mine = lock::locked(w, pid);
+            if r.compare_exchange(request::SEQ, w, mine).is_ok() {
+                // The field stores below must not become visible before the odd word.
                 fence(Ordering::Release);
                 r.store(request::CENTRE_S, centre[0] as u64, Ordering::Relaxed);
                 r.store(request::CENTRE_T, centre[1] as u64, Ordering::Relaxed);
                 r.store(request::VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
                 r.store(request::VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
-                r.store(request::CLIENT_PID, std::process::id() as u64, Ordering::Relaxed);
+                r.store(request::CLIENT_PID, u64::from(pid), Ordering::Relaxed);
                 let c = r.load(request::COUNT, Ordering::Relaxed);
                 r.store(request::COUNT, c.wrapping_add(1), Ordering::Relaxed);
-                r.store(request::SEQ, s.wrapping_add(2), Ordering::Release);
-                return true;
+                // Release (compare-and-swap: never over a word someone else stored).
+                return r.compare_exchange(request::SEQ, mine, lock::released(mine)).is_ok();
             }
             std::hint::spin_loop();
         }

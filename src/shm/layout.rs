@@ -263,8 +263,8 @@ pub mod request {
     pub const VERSION: usize = 8;
     /// `u64` the generation of the texel mapping this request file belongs to.
     pub const GENERATION: usize = 16;
-    /// `u64` (atomic) sequence counter (even: stable); a renderer takes it with compare-and-swap
-    /// from even v to v + 1, writes, and stores v + 2.
+    /// `u64` (atomic) sequence counter and lock word (even: stable; odd: a renderer holds it
+    /// and its process id is in bits 1..=31; see [`super::request_lock`]).
     pub const SEQ: usize = 64;
     /// `i64` requested centre, level-0 texels.
     pub const CENTRE_S: usize = 72;
@@ -278,6 +278,39 @@ pub mod request {
     pub const CLIENT_PID: usize = 104;
     /// `u64` number of requests made (monotonic).
     pub const COUNT: usize = 112;
+}
+
+/// The request mapping's lock word (`request::SEQ`), as pure arithmetic.
+///
+/// Even: nobody writes the request (any even value). Odd: a renderer holds it, and bits 1..=31
+/// are its process id, bits 32..=63 the epoch of the word it took. A renderer takes the word with
+/// a compare-and-swap from an even `w` to [`locked(w, pid)`](locked), writes the fields, and
+/// releases it with a compare-and-swap from its locked word to [`released`] of it (the next
+/// epoch, low half zero): the word never returns to a value the service saw before, and never
+/// moves backwards. A word left odd for more than [`TAKEOVER_MS`] whose owner is not a live
+/// process (a renderer that died mid-write) may be advanced by anyone with the same
+/// compare-and-swap from it to `released` of it. An owner that is alive is never overruled,
+/// however long it stalls: overruling it would let its late stores mix with the next request.
+pub mod request_lock {
+    /// How long a word must stay odd, unchanged, before its owner is looked at.
+    pub const TAKEOVER_MS: u64 = 100;
+    /// How long a renderer waits for a word held by a live owner before giving up for now.
+    pub const WAIT_MS: u64 = 1000;
+
+    /// The word a renderer of process `pid` stores to take the even word `free`.
+    pub fn locked(free: u64, pid: u32) -> u64 {
+        (free & !0xFFFF_FFFF) | ((u64::from(pid) & 0x7FFF_FFFF) << 1) | 1
+    }
+
+    /// The word that releases (or takes over) the odd word `held`: the next epoch.
+    pub fn released(held: u64) -> u64 {
+        (held >> 32).wrapping_add(1) << 32
+    }
+
+    /// The process id an odd word records (0: none, as an older renderer's counter may give).
+    pub fn owner(held: u64) -> u32 {
+        ((held >> 1) & 0x7FFF_FFFF) as u32
+    }
 }
 
 /// Texel format codes in the header.

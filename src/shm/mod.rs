@@ -74,6 +74,14 @@ pub enum ShmError {
         /// What is wrong.
         reason: String,
     },
+    /// The writer kept its published state locked through every attempt for a second.
+    #[error("{}: the service kept its published state locked for {ms} ms (it may be stuck or overloaded); try again", path.display())]
+    Busy {
+        /// The mapping file.
+        path: PathBuf,
+        /// How long it was tried.
+        ms: u64,
+    },
     /// The shape cannot be laid out.
     #[error("cannot lay out the mapping: {0}")]
     Shape(String),

@@ -87,13 +87,31 @@ pub fn create_new(path: &Path, mode: u32) -> io::Result<File> {
     Ok(file)
 }
 
+/// Refuses an entry that [`check_own_file`] refuses, and also one with more than one hard link:
+/// a name that is only another name of some file (a victim linked into the shared directory), so
+/// that writing to it would write into that file.
+pub fn check_own_single_file(path: &Path, meta: &Metadata) -> Result<(), ShmError> {
+    check_own_file(path, meta)?;
+    if meta.nlink() != 1 {
+        return Err(ShmError::Foreign {
+            path: path.to_path_buf(),
+            why: format!(
+                "it is a regular file with {} hard links (a name linked to another file, which would be written through it), not a file this service made; remove it or choose another --name",
+                meta.nlink()
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// Opens the existing `path` read-write without following a symbolic link and without blocking,
-/// when it is a regular file owned by this user; the checks are made before the open (so no
-/// device or FIFO is ever opened) and again on the open file (so a swap in between is caught).
+/// when it is a regular file owned by this user with no other hard link (so nothing written to
+/// it lands in another file); the checks are made before the open (so no device or FIFO is ever
+/// opened) and again on the open file (so a swap in between is caught).
 pub fn open_own(path: &Path) -> Result<File, ShmError> {
     let io_err = |source| ShmError::Io { path: path.to_path_buf(), source };
     let before = std::fs::symlink_metadata(path).map_err(io_err)?;
-    check_own_file(path, &before)?;
+    check_own_single_file(path, &before)?;
     let file = OpenOptions::new()
         .read(true)
         .write(true)
@@ -106,7 +124,7 @@ pub fn open_own(path: &Path) -> Result<File, ShmError> {
             _ => io_err(e),
         })?;
     let after = file.metadata().map_err(io_err)?;
-    check_own_file(path, &after)?;
+    check_own_single_file(path, &after)?;
     if Identity::of(&before) != Identity::of(&after) {
         return Err(ShmError::Foreign { path: path.to_path_buf(), why: "it was replaced while being opened".into() });
     }

@@ -384,17 +384,126 @@ fn a_renderer_request_reaches_the_writer_and_a_dead_renderer_does_not_silence_th
     assert!(c.request_centre([124, -46], [1.5, 0.0]));
     let r = w.request().unwrap();
     assert_eq!((r.centre, r.velocity, r.count), ([124, -46], [1.5, 0.0], 2));
-    // A renderer killed between taking the lock (odd) and releasing it.
+    // A renderer killed between taking the lock (odd, with its pid) and releasing it.
     let f = std::fs::OpenOptions::new().write(true).open(w.request_path()).unwrap();
-    f.write_all_at(&5u64.to_le_bytes(), layout::request::SEQ as u64).unwrap();
+    let held = layout::request_lock::locked(3 << 32, dead_pid());
+    f.write_all_at(&held.to_le_bytes(), layout::request::SEQ as u64).unwrap();
     assert_eq!(w.request(), None, "a half-written request is never taken");
     assert!(c.request_centre([7, 8], [0.0, 0.0]));
     let r = w.request().unwrap();
     assert_eq!(r.centre, [7, 8]);
     let seq = c.request.as_ref().unwrap().load(layout::request::SEQ, Ordering::Acquire);
-    assert_eq!(seq, 8, "taken over from 5 to 6, then 7 and 8: never backwards");
+    assert_eq!(seq, 5 << 32, "taken over from epoch 3 to 4, then the request: epoch 5; never backwards");
     w.close();
     assert!(c.closed());
+}
+
+/// The pid of a process that has exited (and been reaped): no live process has it for a while.
+fn dead_pid() -> u32 {
+    let mut child = std::process::Command::new("true").spawn().unwrap();
+    let pid = child.id();
+    child.wait().unwrap();
+    pid
+}
+
+#[test]
+fn a_stalled_renderer_holding_the_request_lock_is_never_overruled_so_no_request_is_a_mix() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_map, w) = hash_service(dir.path(), "stall", 1024, 64, 32);
+    let c = Client::attach(dir.path(), "stall").unwrap();
+    assert!(c.request_centre([1, 2], [0.0, 0.0]));
+    let r = c.request.as_ref().unwrap();
+    let q = layout::request::SEQ;
+    // A renderer (alive: this process) takes the lock word and stalls half way through its
+    // stores, far longer than the 100 ms after which a dead renderer's lock is taken over.
+    let free = r.load(q, Ordering::Acquire);
+    let mine = layout::request_lock::locked(free, std::process::id());
+    assert_eq!(r.compare_exchange(q, free, mine), Ok(free));
+    r.store(layout::request::CENTRE_S, 1000, Ordering::Relaxed);
+    // Another renderer meanwhile: it waits for the live owner (bounded) and gives up, leaving the
+    // word and the fields alone.
+    let other = Client::attach(dir.path(), "stall").unwrap();
+    let t = std::time::Instant::now();
+    let taken = std::thread::scope(|s| s.spawn(|| other.request_centre([-5, -6], [0.0, 0.0])).join().unwrap());
+    assert!(!taken, "a live renderer's lock was taken over after {:?}", t.elapsed());
+    assert!(t.elapsed() >= std::time::Duration::from_millis(layout::request_lock::WAIT_MS));
+    assert_eq!(r.load(q, Ordering::Acquire), mine, "the stalled renderer still holds the word");
+    assert_eq!(w.request(), None, "nothing is taken while the word is held (the service keeps its centre)");
+    // The stalled renderer wakes up, finishes its stores and releases the word: the service
+    // reads exactly its request, and the word moved forward only.
+    r.store(layout::request::CENTRE_T, 2000, Ordering::Relaxed);
+    let count = r.load(layout::request::COUNT, Ordering::Relaxed);
+    r.store(layout::request::COUNT, count + 1, Ordering::Relaxed);
+    let next = layout::request_lock::released(mine);
+    assert_eq!(r.compare_exchange(q, mine, next), Ok(mine), "nobody stored over its word");
+    assert!(next > free);
+    let got = w.request().unwrap();
+    assert_eq!((got.centre, got.count), ([1000, 2000], 2));
+    // And the other renderer's next request goes through.
+    assert!(other.request_centre([-5, -6], [0.0, 0.0]));
+    assert_eq!(w.request().unwrap().centre, [-5, -6]);
+}
+
+#[test]
+fn a_request_mapping_truncated_by_a_renderer_never_faults_the_writer_and_is_reported_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_map, w) = hash_service(dir.path(), "trunc", 1024, 64, 32);
+    let c = Client::attach(dir.path(), "trunc").unwrap();
+    assert!(c.request_centre([10, 20], [0.0, 0.0]));
+    assert_eq!(w.request().unwrap().centre, [10, 20]);
+    let f = std::fs::OpenOptions::new().write(true).open(w.request_path()).unwrap();
+    f.set_len(100).unwrap();
+    // A mapped request file would raise SIGBUS here (the page past the end is gone).
+    for _ in 0..5 {
+        assert_eq!(w.request(), None);
+        assert_eq!(w.request_count(), 0);
+    }
+    let (n, first) = w.request_faults();
+    assert_eq!(n, 1, "reported once, not on every read");
+    let first = first.unwrap();
+    assert!(first.contains("clipmap-trunc.req") && first.contains("100 bytes, expected 4096"), "{first}");
+    // Whole again (a renderer re-creates its contents): read again, still one report.
+    f.set_len(layout::REQUEST_BYTES).unwrap();
+    use std::os::unix::fs::FileExt;
+    f.write_all_at(&9u64.to_le_bytes(), layout::request::COUNT as u64).unwrap();
+    assert_eq!(w.request().map(|r| r.count), Some(9));
+    assert_eq!(w.request_faults().0, 1);
+}
+
+#[test]
+fn a_request_is_taken_only_when_two_copies_agree() {
+    use std::os::unix::fs::FileExt;
+    let dir = tempfile::tempdir().unwrap();
+    let (_map, w) = hash_service(dir.path(), "copies", 1024, 64, 32);
+    let f = std::fs::OpenOptions::new().read(true).write(true).open(w.request_path()).unwrap();
+    // A renderer that writes requests as fast as it can while the service reads: every request
+    // read is one whole request (centre t = -centre s, count = centre s), never a mix.
+    let stop = AtomicBool::new(false);
+    std::thread::scope(|s| {
+        s.spawn(|| {
+            let c = Client::attach(dir.path(), "copies").unwrap();
+            let mut i = 1i64;
+            while !stop.load(Ordering::Relaxed) {
+                assert!(c.request_centre([i, -i], [i as f64, 0.0]));
+                i += 1;
+            }
+        });
+        let mut seen = 0;
+        let t = std::time::Instant::now();
+        while seen < 2000 && t.elapsed() < std::time::Duration::from_secs(20) {
+            if let Some(r) = w.request() {
+                assert_eq!(r.centre[1], -r.centre[0], "{r:?}");
+                assert_eq!(r.velocity[0], r.centre[0] as f64, "{r:?}");
+                assert_eq!(r.count as i64, r.centre[0], "{r:?}");
+                seen += 1;
+            }
+        }
+        stop.store(true, Ordering::Relaxed);
+        assert!(seen > 0);
+    });
+    let mut b = [0u8; 8];
+    f.read_exact_at(&mut b, layout::request::SEQ as u64).unwrap();
+    assert_eq!(u64::from_le_bytes(b) & 1, 0);
 }
 
 #[test]
@@ -449,4 +558,110 @@ fn a_whole_tile_reads_under_its_tag_inside_or_outside_the_published_region() {
     assert_eq!(c.read_tile(0, [-1, 0], &mut out), Err(ReadError::NotValid(0)));
     assert_eq!(c.read_tile(0, [128, 0], &mut out), Err(ReadError::NotValid(0)));
     assert!(matches!(c.read_tile(0, edge, &mut out[..10]), Err(ReadError::Corrupt(_))));
+}
+
+/// docs/SHM.md lists every byte range of the header, the snapshot, the descriptors, the growth
+/// block and the request mapping; the ranges it calls reserved are zero, in a mapping that has
+/// been published and requested through.
+#[test]
+fn every_byte_the_contract_calls_reserved_is_zero() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, w) = hash_service(dir.path(), "zero", 1000, 64, 32);
+    let c = Client::attach(dir.path(), "zero").unwrap();
+    for i in 0..8 {
+        assert!(c.request_centre([400 + i, 300], [1.0, -1.0]));
+        map.tick([400 + i, 300], None);
+        map.wait_for_reads();
+    }
+    let m = std::fs::read(w.path()).unwrap();
+    let zero = |what: &str, r: std::ops::Range<usize>| {
+        assert!(m[r.clone()].iter().all(|&b| b == 0), "{what} {r:?} is not zero");
+    };
+    use layout::{header as h, snapshot as s};
+    zero("header: the u32 pid's upper half", h::WRITER_PID + 4..h::HEARTBEAT);
+    zero("header", h::TICK_PERIOD_NS + 8..h::SNAPSHOT);
+    zero("snapshot", h::SNAPSHOT + s::CENTRE_T + 8..h::SNAPSHOT + s::LEVELS);
+    let n = c.levels.len();
+    let states = h::SNAPSHOT + s::LEVELS;
+    zero("level states past the level count", states + n * layout::STATE_BYTES..h::LEVEL_DESCS);
+    for k in 0..n {
+        let d = h::LEVEL_DESCS + k * layout::DESC_BYTES;
+        zero("descriptor", d + layout::desc::KIND + 8..d + layout::DESC_BYTES);
+    }
+    zero("descriptors past the level count", h::LEVEL_DESCS + n * layout::DESC_BYTES..h::GROWTH);
+    zero("growth block (a texture that does not grow)", h::GROWTH..h::END);
+    let header_bytes = u32::from_le_bytes(m[h::HEADER_BYTES..h::HEADER_BYTES + 4].try_into().unwrap()) as usize;
+    assert_eq!(header_bytes, 8192);
+    zero("after the growth block", h::END..header_bytes);
+    let mut end = header_bytes;
+    for d in &c.levels {
+        zero("before a level's tags", end..d.tags as usize);
+        let tags_end = (d.tags + d.grid[0] * d.grid[1] * layout::TAG_BYTES as u64) as usize;
+        zero("between a level's tags and its slots", tags_end..d.slots as usize);
+        end = (d.slots + d.grid[0] * d.grid[1] * d.slot_bytes) as usize;
+    }
+    zero("after the last level", end..m.len());
+    let r = std::fs::read(w.request_path()).unwrap();
+    assert_eq!(r.len(), 4096);
+    let rzero = |what: &str, x: std::ops::Range<usize>| assert!(r[x.clone()].iter().all(|&b| b == 0), "{what} {x:?}");
+    use layout::request as q;
+    rzero("request: after the version", q::VERSION + 4..q::GENERATION);
+    rzero("request: before the lock word", q::GENERATION + 8..q::SEQ);
+    rzero("request: after the count", q::COUNT + 8..4096);
+    assert_eq!(u64::from_le_bytes(r[q::CLIENT_PID..q::CLIENT_PID + 8].try_into().unwrap()), std::process::id() as u64);
+}
+
+/// docs/SHM.md: a level is level 0 halved k times rounding down (at least 1); level k's centre is
+/// level 0's shifted right by k (floor, for negative centres too); a window starts `clip / 2`
+/// texels before its centre and is translated to stay inside the level; published centres are
+/// not clamped to the texture.
+#[test]
+fn level_sizes_round_down_centres_shift_by_floor_and_are_published_unclamped() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = TextureDesc::new([1000, 333], 64, TexelFormat::RGBA8, [32, 32]).unwrap().with_invalid_border(4).unwrap();
+    let (mut map, _w) = service(dir.path(), "odd", Arc::new(HashSource::new(d)));
+    let c = Client::attach(dir.path(), "odd").unwrap();
+    let sizes: Vec<[u64; 2]> = c.levels.iter().map(|l| l.size).collect();
+    assert_eq!(&sizes[..4], &[[1000, 333], [500, 166], [250, 83], [125, 41]]);
+    assert_eq!(sizes.last(), Some(&[1, 1]));
+    assert_eq!(sizes.len(), 10, "down to 1 x 1: as many levels as the longer edge has bits");
+    let settle = |map: &mut Clipmap, centre: [i64; 2]| {
+        for _ in 0..12 {
+            map.tick(centre, None);
+            map.wait_for_reads();
+        }
+    };
+    // An even clip size: the window of a centre c is [c - 32, c + 32).
+    settle(&mut map, [500, 200]);
+    let snap = c.try_snapshot().unwrap();
+    assert_eq!(snap.levels[0].valid, [468 + 4, 168 + 4, 532 - 4, 232 - 4], "the window less the border");
+    assert_eq!(snap.levels[1].centre, [250, 100]);
+    // A centre outside the texture: published as given (floor-shifted per level), the windows
+    // clamped to the edge (no border against it).
+    settle(&mut map, [-3, 5000]);
+    let snap = c.try_snapshot().unwrap();
+    assert_eq!(snap.centre, [-3, 5000], "the level-0 centre is not clamped");
+    assert_eq!(snap.levels[0].centre, [-3, 5000]);
+    assert_eq!(snap.levels[1].centre, [-2, 2500], "-3 >> 1 = -2: floor");
+    assert_eq!(snap.levels[2].centre, [-1, 1250]);
+    assert_eq!(snap.levels[0].valid, [0, 333 - 64 + 4, 64 - 4, 333]);
+}
+
+/// docs/SHM.md: min LOD rises at once and falls by a fifth of the distance to its target each
+/// tick (x0.8 of the distance) while that is at least a level, then by 0.2 a tick.
+#[test]
+fn min_lod_falls_by_the_documented_steps() {
+    assert_eq!(Settings::default().fade_ticks, 5, "the service's fade");
+    let mut lod = 3.0;
+    let mut seen = vec![lod];
+    while lod > 0.0 {
+        lod = crate::clip::next_min_lod(lod, 0, 5);
+        seen.push(lod);
+    }
+    for w in seen.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let want = if a >= 1.0 { a * 0.8 } else { (a - 0.2).max(0.0) };
+        assert!((b - want).abs() < 1e-12, "{a} -> {b}, documented {want}: {seen:?}");
+    }
+    assert_eq!(crate::clip::next_min_lod(0.5, 4, 5), 4.0, "a rise is at once");
 }

@@ -11,7 +11,7 @@ use crate::texel::TexelFormat;
 use std::fs::File;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{fence, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 /// A renderer's request.
@@ -28,7 +28,8 @@ pub struct Request {
 /// The writer of one mapping.
 pub struct Writer {
     memory: Arc<ImageMemory>,
-    requests: Region,
+    requests: File,
+    request_fault: std::sync::Mutex<RequestFault>,
     path: PathBuf,
     req_path: PathBuf,
     lock_path: PathBuf,
@@ -42,6 +43,17 @@ impl std::fmt::Debug for Writer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Writer").field("path", &self.path).field("shape", self.memory.shape()).finish()
     }
+}
+
+/// What went wrong reading the request mapping.
+#[derive(Debug, Default)]
+struct RequestFault {
+    /// The file is not whole now (reported when it became so).
+    now: bool,
+    /// Times it was found not whole.
+    count: u64,
+    /// The first report.
+    first: Option<String>,
 }
 
 fn now_ms() -> u64 {
@@ -65,16 +77,43 @@ impl Writer {
         check_name(name)?;
         let placement = layout::place(&shape).ok_or_else(|| ShmError::Shape(shape_error(&shape)))?;
         let lock_path = lock_path(dir, name);
-        let lock = open_lock(&lock_path, mode)?;
+        let (lock, lock_made) = open_lock(&lock_path, mode)?;
+        let lock_id = names::Identity::of(&lock.metadata().map_err(io(&lock_path))?);
+        // From here on a failed start removes what it made, and only that: a lock file it
+        // created (never one that was there before), its temporary files, and a mapping or
+        // request mapping only while the name still is its own.
+        let drop_lock = || {
+            if lock_made {
+                names::remove_if_same(&lock_path, lock_id);
+            }
+        };
         match lock.try_lock() {
             Ok(()) => {}
+            // Someone else holds it (even one we just created: a start racing this one), so it is
+            // theirs: left in place, or they would hold a lock on a removed file.
             Err(std::fs::TryLockError::WouldBlock) => return Err(held(&lock, &lock_path, name)),
-            Err(std::fs::TryLockError::Error(e)) => return Err(ShmError::Io { path: lock_path, source: e }),
+            Err(std::fs::TryLockError::Error(e)) => {
+                drop_lock();
+                return Err(ShmError::Io { path: lock_path, source: e });
+            }
+        }
+        // A live service whose lock file was removed still holds its lock on the removed file,
+        // so taking the new one proves nothing: its mapping says whether it runs. Such a start
+        // is refused before it changes anything.
+        let path = map_path(dir, name);
+        if let Some(pid) = live_publisher(&path) {
+            drop_lock();
+            return Err(ShmError::AlreadyRunning { name: name.to_string(), pid });
         }
         // Ours (checked by `open_lock`) and locked by us: record our pid, nothing else.
-        lock.set_len(0).map_err(io(&lock_path))?;
-        lock.write_all_at(std::process::id().to_string().as_bytes(), 0).map_err(io(&lock_path))?;
-        let lock_id = names::Identity::of(&lock.metadata().map_err(io(&lock_path))?);
+        let recorded = lock
+            .set_len(0)
+            .and_then(|()| lock.write_all_at(std::process::id().to_string().as_bytes(), 0))
+            .map_err(io(&lock_path));
+        if let Err(e) = recorded {
+            drop_lock();
+            return Err(e);
+        }
 
         let nanos = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
@@ -83,31 +122,38 @@ impl Writer {
         let generation = crate::source::procedural::splitmix64(nanos ^ ((std::process::id() as u64) << 40));
 
         // The request mapping first: once the texel mapping appears, its companion is there.
+        // The service never maps it: it reads it with `pread` (see `request`), so a writer of
+        // the file that truncates it cannot make the service fault.
         let req_path = request_path(dir, name);
-        let (req_tmp, req_file) = create_tmp(dir, name, "req", request_mode)?;
+        let (req_tmp, req_file) = match create_tmp(dir, name, "req", request_mode) {
+            Ok(x) => x,
+            Err(e) => {
+                drop_lock();
+                return Err(e);
+            }
+        };
         let made = (|| {
             req_file.set_len(layout::REQUEST_BYTES).map_err(io(&req_tmp))?;
-            let region = Region::map(&req_file).map_err(io(&req_tmp))?;
-            region.write(request::VERSION, &layout::VERSION.to_le_bytes());
-            region.write(request::GENERATION, &generation.to_le_bytes());
-            std::sync::atomic::fence(Ordering::Release);
-            region.write(request::MAGIC, &layout::REQUEST_MAGIC);
+            req_file.write_all_at(&layout::VERSION.to_le_bytes(), request::VERSION as u64).map_err(io(&req_tmp))?;
+            req_file.write_all_at(&generation.to_le_bytes(), request::GENERATION as u64).map_err(io(&req_tmp))?;
+            req_file.write_all_at(&layout::REQUEST_MAGIC, request::MAGIC as u64).map_err(io(&req_tmp))?;
             let id = names::Identity::of(&req_file.metadata().map_err(io(&req_tmp))?);
-            Ok::<_, ShmError>((region, id))
+            Ok::<_, ShmError>(id)
         })();
-        let (requests, req_id) = match made.and_then(|r| place_file(&req_tmp, &req_path).map(|()| r)) {
+        let req_id = match made.and_then(|r| place_file(&req_tmp, &req_path).map(|()| r)) {
             Ok(r) => r,
             Err(e) => {
                 let _ = std::fs::remove_file(&req_tmp);
+                drop_lock();
                 return Err(e);
             }
         };
 
-        let path = map_path(dir, name);
         let (tmp, file) = match create_tmp(dir, name, "map", mode) {
             Ok(x) => x,
             Err(e) => {
                 names::remove_if_same(&req_path, req_id);
+                drop_lock();
                 return Err(e);
             }
         };
@@ -122,6 +168,7 @@ impl Writer {
             Err(e) => {
                 let _ = std::fs::remove_file(&tmp);
                 names::remove_if_same(&req_path, req_id);
+                drop_lock();
                 return Err(e);
             }
         };
@@ -132,13 +179,13 @@ impl Writer {
         if let Err(e) = place_file(&tmp, &path) {
             let _ = std::fs::remove_file(&tmp);
             names::remove_if_same(&req_path, req_id);
-            // The lock file is ours and held: leave it for the next start (it is not removed,
-            // so a service starting meanwhile never holds a lock on an unlinked file).
+            drop_lock();
             return Err(e);
         }
         Ok(Writer {
             memory: Arc::new(memory),
-            requests,
+            requests: req_file,
+            request_fault: std::sync::Mutex::new(RequestFault::default()),
             path,
             req_path,
             lock_path,
@@ -182,32 +229,97 @@ impl Writer {
         r.store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
     }
 
-    /// How many requests renderers have made so far (one atomic load: cheap enough to poll
-    /// while waiting for the next tick).
+    /// How many requests renderers have made so far (one 8-byte `pread`: cheap enough to poll
+    /// while waiting for the next tick). The value only says whether to tick early; the request
+    /// itself is read consistently by [`request`](Self::request).
     pub fn request_count(&self) -> u64 {
-        self.requests.load(request::COUNT, Ordering::Acquire)
+        let mut b = [0u8; 8];
+        match self.requests.read_at(&mut b, request::COUNT as u64) {
+            Ok(8) => u64::from_le_bytes(b),
+            _ => 0,
+        }
     }
 
     /// Reads the latest renderer request, if a consistent one is there.
+    ///
+    /// The request mapping is writable by every renderer allowed to request (a group with
+    /// `--request-mode 660`), so the service never maps it: it copies the whole 4096 bytes with
+    /// `pread` (a file that shrank gives a short read, never a fault), twice, and takes the
+    /// request only when both copies hold the same even sequence counter and the same fields
+    /// (a renderer's write overlapping either copy changes the counter). A file that is not
+    /// whole is reported once ([`request_faults`](Self::request_faults) and a warning in the
+    /// log) and its requests are ignored until it is whole again.
     pub fn request(&self) -> Option<Request> {
-        let r = &self.requests;
+        let fields = request::SEQ..request::COUNT + 8;
+        let mut a = [0u8; layout::REQUEST_BYTES as usize];
+        let mut b = [0u8; layout::REQUEST_BYTES as usize];
         for _ in 0..layout::MAX_RETRIES {
-            let s1 = r.load(request::SEQ, Ordering::Acquire);
-            if s1 & 1 == 1 {
-                std::hint::spin_loop();
+            if let Err(why) = self.read_requests(&mut a).and_then(|()| self.read_requests(&mut b)) {
+                self.fault(why);
+                return None;
+            }
+            self.fault_cleared();
+            let word = |buf: &[u8], o: usize| u64::from_le_bytes(buf[o..o + 8].try_into().expect("8 bytes"));
+            if word(&a, request::SEQ) & 1 == 1 || a[fields.clone()] != b[fields.clone()] {
+                std::thread::yield_now();
                 continue;
             }
-            let cs = r.load(request::CENTRE_S, Ordering::Relaxed) as i64;
-            let ct = r.load(request::CENTRE_T, Ordering::Relaxed) as i64;
-            let vs = f64::from_bits(r.load(request::VEL_S, Ordering::Relaxed));
-            let vt = f64::from_bits(r.load(request::VEL_T, Ordering::Relaxed));
-            let count = r.load(request::COUNT, Ordering::Relaxed);
-            fence(Ordering::Acquire);
-            if r.load(request::SEQ, Ordering::Relaxed) == s1 {
-                return (count > 0).then_some(Request { centre: [cs, ct], velocity: [vs, vt], count });
-            }
+            let count = word(&a, request::COUNT);
+            return (count > 0).then(|| Request {
+                centre: [word(&a, request::CENTRE_S) as i64, word(&a, request::CENTRE_T) as i64],
+                velocity: [f64::from_bits(word(&a, request::VEL_S)), f64::from_bits(word(&a, request::VEL_T))],
+                count,
+            });
         }
         None
+    }
+
+    /// One whole copy of the request mapping, or why there is none.
+    fn read_requests(&self, buf: &mut [u8; layout::REQUEST_BYTES as usize]) -> Result<(), String> {
+        let mut done = 0;
+        while done < buf.len() {
+            match self.requests.read_at(&mut buf[done..], done as u64) {
+                Ok(0) => {
+                    return Err(format!(
+                        "{}: {done} bytes, expected {} (a process that can write it truncated it); renderers' requests are ignored until it is whole again, the control socket's CENTRE still works",
+                        self.req_path.display(),
+                        layout::REQUEST_BYTES
+                    ))
+                }
+                Ok(n) => done += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(format!("{}: cannot be read: {e}", self.req_path.display())),
+            }
+        }
+        Ok(())
+    }
+
+    fn fault(&self, why: String) {
+        let mut f = self.request_fault.lock().unwrap_or_else(|p| p.into_inner());
+        if !f.now {
+            f.now = true;
+            f.count += 1;
+            tracing::warn!("request mapping {why}");
+            f.first.get_or_insert(why);
+        }
+    }
+
+    fn fault_cleared(&self) {
+        let mut f = self.request_fault.lock().unwrap_or_else(|p| p.into_inner());
+        if f.now {
+            f.now = false;
+            tracing::warn!(
+                "request mapping {}: whole again; renderers' requests are read again",
+                self.req_path.display()
+            );
+        }
+    }
+
+    /// How many times the request mapping was found not whole (each time reported once, not
+    /// every tick), and the first report.
+    pub fn request_faults(&self) -> (u64, Option<String>) {
+        let f = self.request_fault.lock().unwrap_or_else(|p| p.into_inner());
+        (f.count, f.first.clone())
     }
 
     /// Marks a clean shutdown and removes the names (readers keep their mappings and see the
@@ -233,10 +345,12 @@ fn place_file(tmp: &Path, path: &Path) -> Result<(), ShmError> {
 
 /// Opens (creating it with exactly `mode` if absent) the lock file of a name: never through a
 /// symbolic link, never a file that is not a regular file of this user.
-fn open_lock(path: &Path, mode: u32) -> Result<File, ShmError> {
+/// Also says whether this call created it. An existing one with another hard link is refused
+/// too: the pid written into it would land in the file it is linked to.
+fn open_lock(path: &Path, mode: u32) -> Result<(File, bool), ShmError> {
     match names::create_new(path, mode) {
-        Ok(f) => Ok(f),
-        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => names::open_own(path),
+        Ok(f) => Ok((f, true)),
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => names::open_own(path).map(|f| (f, false)),
         Err(e) => Err(ShmError::Io { path: path.to_path_buf(), source: e }),
     }
 }
@@ -253,6 +367,35 @@ fn held(lock: &File, path: &Path, name: &str) -> ShmError {
         }
         _ => ShmError::LockHeld { path: path.to_path_buf(), recorded },
     }
+}
+
+/// How long a mapping's heartbeat may stand still while its writer still counts as running, at
+/// least: a live service's heartbeat has been seen to pause for a quarter of a second, and one
+/// ticking slowly beats once a period (ten periods are allowed when that is longer).
+pub const LIVE_HEARTBEAT_MS: u64 = 10_000;
+
+/// The process id of a service that still publishes the mapping at `path`: a regular file of
+/// this user with this layout's magic, not marked closed, whose writer (not this process) is a
+/// live process and whose heartbeat moved within [`LIVE_HEARTBEAT_MS`] (or ten tick periods).
+/// Read with `pread` from a descriptor opened without following links or blocking, so nothing
+/// planted there can fault or hang the check; anything else is `None` (a dead service's mapping,
+/// which is replaced, or something `place_file` refuses).
+fn live_publisher(path: &Path) -> Option<u32> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let meta = std::fs::symlink_metadata(path).ok()?;
+    names::check_own_file(path, &meta).ok()?;
+    let flags = rustix::fs::OFlags::NOFOLLOW | rustix::fs::OFlags::NONBLOCK;
+    let file = std::fs::OpenOptions::new().read(true).custom_flags(flags.bits() as i32).open(path).ok()?;
+    let mut h = [0u8; 104];
+    file.read_exact_at(&mut h, 0).ok()?;
+    let u64_at = |o: usize| u64::from_le_bytes(h[o..o + 8].try_into().expect("8 bytes"));
+    let pid = u32::from_le_bytes(h[header::WRITER_PID..header::WRITER_PID + 4].try_into().expect("4 bytes"));
+    if h[..8] != layout::MAGIC || u64_at(header::FLAGS) & 1 == 1 || pid == 0 || pid == std::process::id() {
+        return None;
+    }
+    let window = LIVE_HEARTBEAT_MS.max(u64_at(header::TICK_PERIOD_NS).saturating_mul(10) / 1_000_000);
+    let fresh = now_ms().saturating_sub(u64_at(header::HEARTBEAT_MS)) <= window;
+    (fresh && Path::new(&format!("/proc/{pid}")).exists()).then_some(pid)
 }
 
 /// Creates a mapping's temporary file `.clipmap-NAME.EXT.PID.N` with exactly `mode`, never

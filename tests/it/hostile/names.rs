@@ -192,3 +192,72 @@ fn a_group_member_writing_extreme_requests_cannot_crash_the_service() {
     let t1 = s.stats()["engine"]["ticks"].as_u64().unwrap_or(0);
     assert!(t1 > t0, "the service keeps ticking ({t0} -> {t1})");
 }
+
+#[test]
+fn a_hard_link_planted_at_the_lock_name_is_refused_and_the_linked_file_untouched() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let v = victim(d);
+    std::fs::hard_link(&v, d.join("clipmap-n.lock")).unwrap();
+    let p = place(d, "n");
+    fails(d, CLIPMAPD, &args(&p), 2, &["clipmap-n.lock", "2 hard links", "remove it or choose another --name"]);
+    untouched(&v);
+    assert_eq!(std::fs::metadata(&v).unwrap().nlink(), 2, "the link is left alone");
+    assert!(!d.join("clipmap-n.map").exists() && !d.join("clipmap-n.req").exists());
+}
+
+#[test]
+fn a_second_start_after_the_lock_file_was_deleted_leaves_the_running_service_published() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let first = Service::start(d, "one", &HASH, &[]);
+    let (map, req, lock) = (d.join("clipmap-one.map"), d.join("clipmap-one.req"), d.join("clipmap-one.lock"));
+    let ino = |p: &Path| std::fs::metadata(p).unwrap().ino();
+    let (map_ino, req_ino) = (ino(&map), ino(&req));
+    let generation = clipmap::shm::Client::attach(d, "one").unwrap().generation;
+    std::fs::remove_file(&lock).unwrap();
+    // The same name and the same socket: the new lock file proves nothing (the running service
+    // holds its lock on the removed file), its mapping does.
+    let p = place(d, "one");
+    let pid = first.child.id().to_string();
+    fails(d, CLIPMAPD, &args(&p), 2, &["already publishes `one`", &format!("process {pid}")]);
+    assert!(first.alive(), "the first service still answers");
+    assert_eq!((ino(&map), ino(&req)), (map_ino, req_ino), "its mapping and request mapping are the ones published");
+    assert!(!lock.exists(), "the failed start removed the lock file it made, and only that");
+    let c = clipmap::shm::Client::attach(d, "one").expect("readers still find the running service");
+    assert_eq!(c.generation, generation);
+    assert!(c.can_request());
+    let left: Vec<_> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    assert!(!left.iter().any(|n| n.starts_with(".clipmap")), "no temporary left: {left:?}");
+}
+
+#[test]
+fn a_request_mapping_truncated_by_a_group_member_does_not_kill_the_service() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let s = Service::start(d, "t", &HASH, &["--shm-mode", "640", "--request-mode", "660"]);
+    let req = d.join("clipmap-t.req");
+    let f = std::fs::OpenOptions::new().write(true).open(&req).unwrap();
+    f.set_len(0).unwrap();
+    // Reported (once) within a few ticks; the service keeps ticking.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    let mut stats = s.stats();
+    while stats["request_faults"].as_u64() != Some(1) && std::time::Instant::now() < deadline {
+        assert!(s.alive(), "the service died: {}", std::fs::read_to_string(&s.err).unwrap_or_default());
+        std::thread::yield_now();
+        stats = s.stats();
+    }
+    assert_eq!(stats["request_faults"], 1, "{stats}");
+    let why = stats["request_fault"].as_str().unwrap_or_default().to_string();
+    assert!(why.contains("clipmap-t.req") && why.contains("0 bytes, expected 4096"), "{why}");
+    let t0 = stats["engine"]["ticks"].as_u64().unwrap();
+    while s.stats()["engine"]["ticks"].as_u64().unwrap_or(0) < t0 + 10 && std::time::Instant::now() < deadline {
+        std::thread::yield_now();
+    }
+    let after = s.stats();
+    assert!(after["engine"]["ticks"].as_u64().unwrap() >= t0 + 10, "the service keeps ticking: {after}");
+    assert_eq!(after["request_faults"], 1, "reported once, not every tick");
+    assert!(s.alive());
+    let log = std::fs::read_to_string(&s.err).unwrap_or_default();
+    assert_eq!(log.matches("clipmap-t.req: 0 bytes").count(), 1, "one warning in the log:\n{log}");
+}
