@@ -275,19 +275,8 @@ impl Clipmap {
         // Levels whose configuration fixes a mem region keep it; the others share the budget.
         let free: Vec<usize> = (0..fixed.len()).filter(|&k| desc.mem_grid(k as u32).is_none()).collect();
         let bytes = |k: usize, g: [u64; 2]| g[0] * g[1] * desc.tile_bytes(k as u32) as u64;
-        let base: u64 = free
-            .iter()
-            .map(|&k| {
-                let l = desc.level(k as u32);
-                bytes(k, crate::geom::mem_grid(l.size, l.tile, clip, 1))
-            })
-            .sum();
-        let fixed_bytes: u64 = (0..fixed.len()).filter(|k| !free.contains(k)).map(|k| bytes(k, fixed[k])).sum();
-        let cap = (settings.limits.cache_bytes as u64).saturating_sub(settings.pool_bytes).saturating_sub(fixed_bytes);
-        let budget = settings
-            .grid_budget
-            .unwrap_or(base.saturating_mul(crate::paging::adaptive::DEFAULT_BUDGET_FACTOR))
-            .min(cap);
+        let (total, fixed_bytes) = Self::budget_parts(desc, settings);
+        let budget = total.saturating_sub(fixed_bytes);
         let levels: Vec<_> = free.iter().map(|&k| (desc.level(k as u32).size, desc.level(k as u32).tile)).collect();
         let (grids, _) = crate::paging::adaptive::budget_grids(&levels, clip, |i| bytes(free[i], [1, 1]), budget);
         let mut out = fixed;
@@ -295,6 +284,38 @@ impl Clipmap {
             out[k] = grids[i];
         }
         out
+    }
+
+    /// The bytes the adaptive policy's grids may take, all levels together (`None` for the fixed
+    /// policies): `settings.grid_budget`, or by default [`adaptive::DEFAULT_BUDGET_FACTOR`] times
+    /// the bytes of the lookahead-1 grids of the levels no configuration fixes plus the bytes of
+    /// those it fixes (which keep their grids), capped by `limits.cache_bytes` less the pool.
+    pub fn grid_budget(desc: &TextureDesc, settings: &Settings) -> Option<u64> {
+        if settings.prefetch != PrefetchKind::Adaptive {
+            return None;
+        }
+        Some(Self::budget_parts(desc, settings).0)
+    }
+
+    /// (the adaptive grids' whole budget, the bytes of the levels whose grids a configuration
+    /// fixes within it).
+    fn budget_parts(desc: &TextureDesc, settings: &Settings) -> (u64, u64) {
+        let clip = desc.clip_size();
+        let bytes = |k: u32, g: [u64; 2]| g[0] * g[1] * desc.tile_bytes(k) as u64;
+        let (mut base, mut fixed) = (0u64, 0u64);
+        for (k, l) in desc.levels().iter().enumerate() {
+            let k = k as u32;
+            match desc.mem_grid(k) {
+                None => base = base.saturating_add(bytes(k, crate::geom::mem_grid(l.size, l.tile, clip, 1))),
+                Some(_) => {
+                    let g = level_grid(l.size, l.tile, clip, settings.lookahead, desc.mem_grid(k));
+                    fixed = fixed.saturating_add(bytes(k, g));
+                }
+            }
+        }
+        let cap = (settings.limits.cache_bytes as u64).saturating_sub(settings.pool_bytes);
+        let default = base.saturating_mul(adaptive::DEFAULT_BUDGET_FACTOR).saturating_add(fixed);
+        (settings.grid_budget.unwrap_or(default).min(cap), fixed)
     }
 
     /// The layout of the image caches a clipmap of `desc` under `settings` keeps (what

@@ -24,6 +24,13 @@ fn perf_json_has_the_contract_fields() {
     assert!(v.get("update_vs_memcpy").is_none(), "update_vs_memcpy is retired");
     let shown = v["scale"]["level0_shown_share"].as_f64().expect("scale.level0_shown_share");
     assert!((0.0..=1.0).contains(&shown), "{shown}");
+    // The untuned flight runs the defaults: the adaptive policy, within its grid budget.
+    let d = &v["scale_default"];
+    assert_eq!(d["prefetch"], "adaptive", "{d}");
+    let (peak, budget) = (d["peak_resident_bytes"].as_u64().unwrap(), d["grid_budget_bytes"].as_u64().unwrap());
+    assert!(peak > 0 && peak <= budget + (1 << 20), "peak {peak} beyond the grid budget {budget} (plus the header)");
+    assert!(d["level0_paging"]["reason"].is_string(), "{d}");
+    assert!(v["scale"]["grid_budget_bytes"].is_null(), "the hand-sized flight is fixed");
     assert!(v.get("speedup_vs_gdal").is_some_and(|g| g.is_null()), "speedup_vs_gdal: {:?}", v.get("speedup_vs_gdal"));
     // Details are there for every comparison, and the scratch data is gone.
     for detail in ["engine", "memory", "ingest", "flight", "scale", "service", "machine"] {

@@ -110,8 +110,9 @@ pub fn table(r: &Report) -> String {
     for sc in [&r.scale, &r.scale_default] {
         let _ = writeln!(
             o,
-            "scale: 2^26 texels, clip {}, lookahead {}, {} texels per tick at {} ticks/s for {:.1} s: {} ticks, level 0 shown on {:.1}% after the first second (goal >= 99%), {} over budget, {} with disabled levels (at most {}, mean min LOD {:.2}), {} late; tick p50 {} p99 {}; {} texel bytes written by ticks, {:.0} tiles/s read; {:.2} cores busy",
+            "scale: 2^26 texels, clip {}, {} prefetch, lookahead {}, {} texels per tick at {} ticks/s for {:.1} s: {} ticks, level 0 shown on {:.1}% after the first second (goal >= 99%), {} over budget, {} with disabled levels (at most {}, mean min LOD {:.2}), {} late; tick p50 {} p99 {}; {} texel bytes written by ticks, {:.0} tiles/s read; {:.2} cores busy; peak {:.1} MiB of grids{}",
             sc.clip,
+            sc.prefetch,
             sc.lookahead,
             sc.texels_per_tick,
             sc.tick_hz,
@@ -127,7 +128,11 @@ pub fn table(r: &Report) -> String {
             ms(sc.tick_p99_s),
             sc.tick_texel_bytes,
             sc.tiles_read_per_s,
-            sc.cpu_cores_used
+            sc.cpu_cores_used,
+            sc.peak_resident_bytes as f64 / (1u64 << 20) as f64,
+            sc.grid_budget_bytes
+                .map(|b| format!(" (budget {:.1} MiB; level 0 {:?})", b as f64 / (1u64 << 20) as f64, sc.level0_paging))
+                .unwrap_or_default()
         );
     }
     let sv = &r.service;

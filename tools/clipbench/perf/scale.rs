@@ -4,8 +4,9 @@
 //! Counts the share of ticks after the first second on which level 0 is published
 //! (`level0_shown_share`), ticks with disabled levels, late ticks (longer than the tick period)
 //! and the throughput; then the
-//! flight first with each stack level's mem region sized for its motion, then with the default lookahead, to show
-//! whether reading ahead is what limits it.
+//! flight first with each stack level's mem region sized by hand for its motion (`scale`), then
+//! with every default (`scale_default`: the adaptive policy, which sizes its grids from the
+//! default budget and its read-ahead from the motion and the reads' latency it measures).
 
 use super::{quantile, Size};
 use clipmap::clip::{Clipmap, Settings};
@@ -51,13 +52,21 @@ pub struct Scale {
     /// CPU time of this process (update tick and tile reads) per second of the flight: 2.0 on two
     /// cores means the machine, not the engine's pacing, is the limit.
     pub cpu_cores_used: f64,
+    /// Most bytes the image caches held (their whole mapping).
+    pub peak_resident_bytes: u64,
+    /// The adaptive policy's grid budget (null for the fixed policies): the default, twice the
+    /// lookahead-1 grids, when no flag gives one.
+    pub grid_budget_bytes: Option<u64>,
+    /// Level 0's paging at the end of the flight (lead, grid, reason).
+    pub level0_paging: Option<clipmap::paging::adaptive::LevelPaging>,
+    /// The read latency the controller planned with at the end (ticks; 0 for fixed policies).
+    pub read_latency_ticks: f64,
 }
 
 /// The flight with each stack level's mem region sized for its motion (what a configuration for
 /// this flight gives with `mem_region_size`: two ticks of motion read ahead along +s, the default
-/// one spare tile across it), and the same flight with the default square lookahead of 1, which
-/// a tile read cannot keep up with at this speed (a tile enters the mem region a quarter of a
-/// tick before it is needed).
+/// one spare tile across it), and the same flight with every default (no tuning: the adaptive
+/// policy).
 pub fn measure(size: Size) -> anyhow::Result<(Scale, Scale)> {
     let (clip, tile, seconds, again) = match size {
         Size::Full => (2048, 256, 60.0, 20.0),
@@ -96,6 +105,7 @@ fn fly(clip: u64, tile: u64, seconds: f64, ahead: Option<u64>) -> anyhow::Result
     };
     let lookahead = ahead.unwrap_or(settings.lookahead);
     let budget_ms = settings.budget_ns.unwrap_or(0) as f64 / 1e6;
+    let grid_budget_bytes = Clipmap::grid_budget(source.desc(), &settings);
     let mut map = Clipmap::new(source, settings)?;
     // Start where the whole flight stays inside the texture, filled (untimed).
     let mut c = [(texture / 4) as i64, (texture / 2) as i64];
@@ -157,5 +167,9 @@ fn fly(clip: u64, tile: u64, seconds: f64, ahead: Option<u64>) -> anyhow::Result
         tiles_read_per_s: (after.tiles_read - before.tiles_read) as f64 / wall,
         texels_flown_per_s: (speed as u64 * ticks) as f64 / wall,
         cpu_cores_used: cpu / wall,
+        peak_resident_bytes: after.peak_resident_bytes,
+        grid_budget_bytes,
+        level0_paging: after.paging.first().copied(),
+        read_latency_ticks: after.read_latency_ticks,
     })
 }
