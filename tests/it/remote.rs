@@ -2,8 +2,9 @@
 //! serving a prepared hash pyramid (range requests), moto as the S3 store, and a fault proxy in
 //! the test injecting 404, 500, 503 with Retry-After, slow answers, resets, truncated bodies,
 //! wrong Content-Lengths, `200` error pages, answers for other ranges and answers that ignore
-//! the range; a hostile S3 stand-in on a loopback socket. Every texel is checked against the
-//! hash texture, through the library and through `clipmapd` with `clipmap-read`. nginx and moto are installed by
+//! the range; a hostile S3 stand-in on a loopback socket; a disk cache whose files are replaced
+//! by FIFOs, links and altered bytes. Every texel is checked against the hash texture, through
+//! the library and through `clipmapd` with `clipmap-read`. nginx and moto are installed by
 //! `.ci/run`; a test that cannot find one fails saying what to install.
 
 use crate::common::remote::{point_config_at, Fault, FaultProxy, Moto, Nginx, Schedule};
@@ -733,4 +734,147 @@ fn an_s3_answer_of_200_or_of_another_range_to_a_ranged_get_is_refused() {
         Err(ReadError::Failed { why, .. }) => assert!(why.contains("Requested 100..356, got 101..357"), "{why}"),
         other => panic!("another range is refused: {other:?}"),
     }
+}
+
+/// The `.tile` files of a cache directory.
+fn cache_files(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "tile"))
+        .collect();
+    v.sort();
+    v
+}
+
+/// Reads `ids` through a source with the disk cache `cache` (one at a time); returns each
+/// tile's cache file, found as the file each read added.
+fn cache_tiles(src: &RemoteSource, cache: &Path, ids: &[TileId]) -> Vec<PathBuf> {
+    ids.iter()
+        .map(|&id| {
+            let before = cache_files(cache);
+            read_checked(src, id).unwrap();
+            let after = cache_files(cache);
+            let new: Vec<PathBuf> = after.into_iter().filter(|p| !before.contains(p)).collect();
+            assert_eq!(new.len(), 1, "{id}: one file cached");
+            new[0].clone()
+        })
+        .collect()
+}
+
+/// Runs `f` on another thread and waits for it at most `limit`: a read that hangs fails the
+/// test instead of hanging it.
+fn bounded<T: Send + 'static>(limit: Duration, what: &str, f: impl FnOnce() -> T + Send + 'static) -> T {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(f());
+    });
+    rx.recv_timeout(limit).unwrap_or_else(|_| panic!("{what} did not end within {limit:?}"))
+}
+
+/// Replaces the cache files of tiles 0 to 2 with a FIFO, a link to `/dev/zero` and a link to
+/// tile 3's file (a regular file and a valid entry, of another range).
+fn plant_in_cache(files: &[PathBuf]) {
+    std::fs::remove_file(&files[0]).unwrap();
+    rustix::fs::mkfifoat(rustix::fs::CWD, &files[0], rustix::fs::Mode::from_raw_mode(0o600)).unwrap();
+    std::fs::remove_file(&files[1]).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", &files[1]).unwrap();
+    std::fs::remove_file(&files[2]).unwrap();
+    std::os::unix::fs::symlink(&files[3], &files[2]).unwrap();
+}
+
+#[test]
+fn cached_tiles_replaced_by_a_fifo_or_links_to_dev_zero_are_dropped_and_read_again_without_hanging() {
+    let dir = tempfile::tempdir().unwrap();
+    let pyr = prepare(&dir.path().join("pyr"), 256, 64, 64, &[]);
+    let cache = dir.path().join("cache");
+    let nginx = Nginx::serve(&pyr);
+    let ct = point_config_at(&pyr, &dir.path().join("cfg"), &nginx.url(), &[]);
+    let opts = RemoteOptions { cache_dir: Some(cache.clone()), ..quick_opts() };
+    let ids = [TileId::new(0, 0, 0), TileId::new(0, 1, 0), TileId::new(0, 2, 0), TileId::new(0, 3, 0)];
+    let src = RemoteSource::new(load(&ct), &Limits::default(), opts.clone()).unwrap();
+    let files = cache_tiles(&src, &cache, &ids);
+    // Under a running source. The FIFO is read first: before the fix its read hung for good
+    // (and the link to /dev/zero grew memory without bound).
+    plant_in_cache(&files);
+    let read_all = move |src: RemoteSource| {
+        for id in ids {
+            read_checked(&src, id).unwrap_or_else(|e| panic!("{id}: {e}"));
+        }
+        src
+    };
+    let src = bounded(Duration::from_secs(20), "reading the tiles over a hostile cache", move || read_all(src));
+    let st = src.stats();
+    assert_eq!((st.cache_dropped, st.cache_hits, st.requests), (3, 1, 7), "three dropped and read again: {st:?}");
+    // Replaced by what was read again: a regular file each, served from now on.
+    for f in &files[..3] {
+        let m = std::fs::symlink_metadata(f).unwrap();
+        assert!(m.file_type().is_file(), "{}: {m:?}", f.display());
+    }
+    let src = read_all(src);
+    assert_eq!(src.stats().cache_hits, 5, "{:?}", src.stats());
+    drop(src);
+    // Planted while no source runs: dropped when the cache is opened.
+    plant_in_cache(&files);
+    let src = RemoteSource::new(load(&ct), &Limits::default(), opts).unwrap();
+    assert_eq!(src.stats().cache_dropped, 3, "{:?}", src.stats());
+    let src = bounded(Duration::from_secs(20), "reading the tiles after a reopen", move || read_all(src));
+    let st = src.stats();
+    assert_eq!((st.cache_dropped, st.cache_hits, st.requests), (3, 1, 3), "{st:?}");
+    for f in &files[..3] {
+        assert!(std::fs::symlink_metadata(f).unwrap().file_type().is_file(), "{}", f.display());
+    }
+}
+
+#[test]
+fn a_cached_tile_with_altered_bytes_of_the_same_length_is_dropped_and_read_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let pyr = prepare(&dir.path().join("pyr"), 256, 64, 64, &[]);
+    let cache = dir.path().join("cache");
+    let nginx = Nginx::serve(&pyr);
+    let ct = point_config_at(&pyr, &dir.path().join("cfg"), &nginx.url(), &[]);
+    let opts = RemoteOptions { cache_dir: Some(cache.clone()), ..quick_opts() };
+    let id = TileId::new(0, 2, 1);
+    let src = RemoteSource::new(load(&ct), &Limits::default(), opts).unwrap();
+    let file = cache_tiles(&src, &cache, &[id]).remove(0);
+    read_checked(&src, id).unwrap();
+    assert_eq!(src.stats().cache_hits, 1);
+    // One texel changed in place: same length, same key.
+    let mut bytes = std::fs::read(&file).unwrap();
+    let at = bytes.len() - 5;
+    bytes[at] ^= 0x40;
+    std::fs::write(&file, &bytes).unwrap();
+    let before = src.stats();
+    read_checked(&src, id).unwrap_or_else(|e| panic!("read again from the server: {e}"));
+    let st = src.stats();
+    assert_eq!((st.cache_dropped, st.cache_hits, st.requests - before.requests), (1, 1, 1), "{st:?}");
+    // The entry read again is good.
+    read_checked(&src, id).unwrap();
+    assert_eq!(src.stats().cache_hits, 2);
+}
+
+#[test]
+fn cache_temporaries_are_created_exclusively_and_a_link_planted_at_their_name_is_never_written_through() {
+    use clipmap::source::remote::disk::{key, DiskCache};
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let victim = dir.path().join("victim");
+    std::fs::write(&victim, b"the victim's own bytes").unwrap();
+    let c = DiskCache::open(&cache, 1 << 20).unwrap();
+    let k = key("http://127.0.0.1:9/t.raw", 0, 100);
+    c.put(&k, &[1u8; 100]);
+    let entry = cache_files(&cache).remove(0);
+    // The next temporary names this process would use, each a link to the victim.
+    let pid = std::process::id();
+    for n in 1..5 {
+        let name = format!("{}.tmp.{pid}.{n}", entry.file_name().unwrap().to_str().unwrap());
+        std::os::unix::fs::symlink(&victim, cache.join(name)).unwrap();
+    }
+    c.put(&k, &[2u8; 100]);
+    assert_eq!(std::fs::read(&victim).unwrap(), b"the victim's own bytes", "never written through a link");
+    let m = std::fs::symlink_metadata(&entry).unwrap();
+    assert!(m.file_type().is_file(), "the entry is a file of its own, not a link: {m:?}");
+    let mut out = [0u8; 100];
+    assert!(c.get(&k, &mut out) && out == [2u8; 100], "stored under a name no one had");
+    assert_eq!(c.dropped(), 0);
 }
