@@ -4,10 +4,13 @@
 //! Only regular files are opened. The open itself never blocks (`O_NONBLOCK`, so a FIFO with no
 //! writer or a device that waits is not a hang), then `fstat` decides: a FIFO, a device, a
 //! directory or a socket is refused with [`not_regular`]'s error, naming what it is; a regular
-//! file gets its blocking mode back. Symbolic links are followed (tile trees are often links into
-//! other disks); what they lead to is what is checked. Reads are bounded by what the caller's
-//! format implies ([`read_bounded`], [`read_sized`]); nothing here reads a file whole without a
-//! bound.
+//! file gets its blocking mode back. A "regular" file of the kernel's pseudo-filesystems (`/proc`,
+//! `/sys`, debugfs, tracefs: `/proc/kmsg`, `trace_pipe`) is refused too, found by `fstatfs`:
+//! such files claim a length of 0 and their reads block until the kernel has something to say
+//! (or never end), and none of them holds a texture. Symbolic links are followed (tile trees are
+//! often links into other disks); what they lead to is what is checked. Reads are bounded by
+//! what the caller's format implies ([`read_bounded`], [`read_sized`]); nothing here reads a
+//! file whole without a bound.
 //!
 //! What a file holds is left to the callers; names in shared directories (the service's mapping,
 //! lock and socket) are [`crate::shm::names`]'s business: those are never followed at all.
@@ -45,14 +48,42 @@ pub fn not_regular(meta: &Metadata) -> io::Error {
     io::Error::new(io::ErrorKind::InvalidInput, format!("{}, not a regular file", kind_of(meta)))
 }
 
+/// The kernel's pseudo-filesystems whose files are not data: their `statfs` magic numbers
+/// (`linux/magic.h`) and names.
+const PSEUDO_FILESYSTEMS: [(i64, &str); 4] =
+    [(0x9fa0, "proc (/proc)"), (0x6265_6572, "sysfs (/sys)"), (0x6462_6720, "debugfs"), (0x7472_6163, "tracefs")];
+
+/// The name of the kernel pseudo-filesystem `file` lives on, if it does.
+pub fn pseudo_filesystem(file: &File) -> io::Result<Option<&'static str>> {
+    let st = rustix::fs::fstatfs(file)?;
+    // The field is a C long on most targets and an unsigned 32-bit number on a few.
+    #[allow(clippy::unnecessary_cast)]
+    let magic = st.f_type as i64;
+    Ok(PSEUDO_FILESYSTEMS.iter().find(|(m, _)| *m == magic).map(|(_, name)| *name))
+}
+
+/// The error for a file of a kernel pseudo-filesystem (kind [`io::ErrorKind::InvalidInput`]).
+pub fn not_data(filesystem: &str) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::InvalidInput,
+        format!(
+            "a file of the kernel's {filesystem} filesystem, not a regular file of data (its reads can block or never end); name a file on a disk"
+        ),
+    )
+}
+
 /// Opens `path` for reading if it is (or a symbolic link leads to) a regular file; returns the
 /// file and its metadata. Never blocks on a FIFO or device: those, directories and sockets are
-/// refused with [`not_regular`]'s error.
+/// refused with [`not_regular`]'s error, and files of the kernel's pseudo-filesystems
+/// (`/proc/kmsg`, whose reads block) with [`not_data`]'s, before anything is read.
 pub fn regular(path: &Path) -> io::Result<(File, Metadata)> {
     let file = OpenOptions::new().read(true).custom_flags(OFlags::NONBLOCK.bits() as i32).open(path)?;
     let meta = file.metadata()?;
     if !meta.is_file() {
         return Err(not_regular(&meta));
+    }
+    if let Some(fs) = pseudo_filesystem(&file)? {
+        return Err(not_data(fs));
     }
     let flags = rustix::fs::fcntl_getfl(&file)?;
     rustix::fs::fcntl_setfl(&file, flags - OFlags::NONBLOCK)?;
@@ -122,6 +153,22 @@ mod tests {
         let z = dir.path().join("z");
         std::os::unix::fs::symlink("/dev/zero", &z).unwrap();
         assert!(read_bounded(&z, 100).is_err());
+    }
+
+    #[test]
+    fn files_of_proc_and_sys_are_refused_before_a_read() {
+        for p in ["/proc/version", "/proc/self/status", "/sys/kernel/mm/transparent_hugepage/enabled"] {
+            if !Path::new(p).exists() {
+                continue;
+            }
+            let e = regular(Path::new(p)).unwrap_err();
+            assert_eq!(e.kind(), io::ErrorKind::InvalidInput, "{p}: {e}");
+            assert!(e.to_string().contains("filesystem, not a regular file of data"), "{p}: {e}");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("a");
+        std::fs::write(&f, b"x").unwrap();
+        assert_eq!(pseudo_filesystem(&File::open(&f).unwrap()).unwrap(), None, "a file on a disk is data");
     }
 
     #[test]

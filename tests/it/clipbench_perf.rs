@@ -67,3 +67,21 @@ fn ingest_alone_reports_the_perf_figure_with_its_baselines() {
     assert!(v["machine"].is_object());
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "scratch data left behind");
 }
+
+#[test]
+fn clipbench_engine_counts_no_tile_excess_in_any_direction() {
+    // The engine reads exactly the tiles that enter its mem regions. The benchmark's model once
+    // placed the regions with spare tiles ahead of the motion rather than as the engine's
+    // prefetch policy (ring) does, and reported an excess of 0, 12 and 11 tiles for these three
+    // quick flights.
+    let args: Vec<&std::ffi::OsStr> =
+        ["engine", "--quick", "--runs", "3", "--json"].iter().map(|a| a.as_ref()).collect();
+    let v = crate::common::clipbench_json(&args);
+    let flights = v["flights"].as_array().expect("flights");
+    assert_eq!(flights.len(), 3, "{v}");
+    for f in flights {
+        assert!(f["tiles_per_run"].as_u64().unwrap() > 0, "the flight reads tiles: {f}");
+        assert_eq!(f["tile_excess"], 0, "{}: {f}", f["direction"]);
+        assert_eq!(f["mean_tiles_per_tick"], f["mean_exact_tiles_per_tick"], "{f}");
+    }
+}

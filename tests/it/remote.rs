@@ -1,9 +1,11 @@
 //! Tiles from HTTP servers and S3-compatible stores, end to end on loopback: Debian's nginx
 //! serving a prepared hash pyramid (range requests), moto as the S3 store, and a fault proxy in
-//! the test injecting 404, 500, 503 with Retry-After, slow answers, resets, truncated bodies and
-//! wrong Content-Lengths. Every texel is checked against the hash texture, through the library
-//! and through `clipmapd` with `clipmap-read`. nginx and moto are installed by `.ci/run`; a test
-//! that cannot find one fails saying what to install.
+//! the test injecting 404, 500, 503 with Retry-After, slow answers, resets, truncated bodies,
+//! wrong Content-Lengths, `200` error pages, answers for other ranges and answers that ignore
+//! the range; a hostile S3 stand-in on a loopback socket; a disk cache whose files are replaced
+//! by FIFOs, links and altered bytes. Every texel is checked against the hash texture, through
+//! the library and through `clipmapd` with `clipmap-read`. nginx and moto are installed by
+//! `.ci/run`; a test that cannot find one fails saying what to install.
 
 use crate::common::remote::{point_config_at, Fault, FaultProxy, Moto, Nginx, Schedule};
 use crate::common::{exec, exec_bounded, NO_IC_CT};
@@ -580,4 +582,299 @@ fn a_remote_default_tile_stands_in_for_tiles_the_server_does_not_have() {
     // Inside the inset: the tile itself.
     read_checked(&src, TileId::new(0, 1100 / 64, 650 / 64)).unwrap();
     assert_eq!(src.files().stats().default_tiles, 1);
+}
+
+#[test]
+fn a_200_answer_with_an_html_error_page_to_a_ranged_get_is_refused_never_served_as_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    // One tile to a file: a tile is the whole object, bytes 0 to 16383.
+    let pyr = prepare(&dir.path().join("pyr"), 256, 64, 64, &[]);
+    let nginx = Nginx::serve(&pyr);
+    let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
+    let ct = point_config_at(&pyr, &dir.path().join("cfg"), &proxy.url(), &[]);
+    let src = RemoteSource::new(load(&ct), &Limits::default(), quick_opts()).unwrap();
+    let id = TileId::new(0, 1, 2);
+    let tile = src.desc().tile_bytes(0);
+    let pages = [
+        // Longer than the tile: its first bytes were served as texels.
+        Fault::Page { len: tile + 3000, html: true },
+        // The same, not called HTML: its length is not the object's (HEAD).
+        Fault::Page { len: tile + 3000, html: false },
+        // Exactly a tile long: its type gives it away.
+        Fault::Page { len: tile, html: true },
+        // Shorter than the tile: it was taken for a file cut short.
+        Fault::Page { len: 300, html: false },
+    ];
+    for page in pages {
+        let before = src.stats();
+        proxy.set(Schedule { faults: vec![page], then: Vec::new(), every: 0 });
+        read_checked(&src, id).unwrap_or_else(|e| panic!("{page:?} once, then a right answer: {e}"));
+        assert_eq!(src.stats().retries - before.retries, 1, "{page:?}: refused and asked again");
+    }
+    for page in pages {
+        let before = src.stats();
+        proxy.set(Schedule { faults: Vec::new(), then: vec![page], every: 1 });
+        let e = read_checked(&src, id).expect_err("every answer is a page");
+        assert!(matches!(e, SourceError::Io { .. }), "{page:?}: a counted fault, not a short file: {e}");
+        assert!(e.to_string().contains("HTTP 200"), "{page:?}: says what came: {e}");
+        assert_eq!(src.stats().retries - before.retries, 3, "{page:?}: all retries used");
+    }
+    proxy.set(Schedule::pass());
+    read_checked(&src, id).unwrap();
+}
+
+#[test]
+fn a_206_answer_for_another_range_is_refused_and_a_whole_object_answer_is_cut_right() {
+    let dir = tempfile::tempdir().unwrap();
+    // Sixteen tiles to a file: tiles are byte ranges inside objects.
+    let pyr = prepare(&dir.path().join("pyr"), 512, 64, 128, &["--tiles-per-file", "4x4"]);
+    let nginx = Nginx::serve(&pyr);
+    let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
+    let ct = point_config_at(&pyr, &dir.path().join("cfg"), &proxy.url(), &[]);
+    let src = RemoteSource::new(load(&ct), &Limits::default(), quick_opts()).unwrap();
+    let id = TileId::new(0, 2, 3);
+    let before = src.stats();
+    proxy.set(Schedule { faults: vec![Fault::OtherRange], then: Vec::new(), every: 0 });
+    read_checked(&src, id).unwrap_or_else(|e| panic!("another range once, then the right one: {e}"));
+    assert_eq!(src.stats().retries - before.retries, 1);
+    let before = src.stats();
+    proxy.set(Schedule { faults: Vec::new(), then: vec![Fault::OtherRange], every: 1 });
+    let e = read_checked(&src, id).expect_err("every answer is for another range");
+    assert!(matches!(e, SourceError::Io { .. }) && e.to_string().contains("Content-Range"), "{e}");
+    assert_eq!(src.stats().retries - before.retries, 3);
+    // A server that ignores ranges: the whole object, checked against HEAD, then cut.
+    let before = src.stats();
+    proxy.set(Schedule { faults: Vec::new(), then: vec![Fault::IgnoreRange], every: 1 });
+    for id in [TileId::new(0, 0, 0), TileId::new(0, 3, 1), TileId::new(0, 6, 7), TileId::new(1, 1, 2)] {
+        read_checked(&src, id).unwrap_or_else(|e| panic!("{id} from a whole-object answer: {e}"));
+    }
+    assert_eq!(src.stats().retries, before.retries, "{:?}", src.stats());
+}
+
+/// A loopback server standing in for an S3 store: one object `s3://hostile/KIND` of 4096 bytes
+/// (`i * 7 % 251`) for each kind of answer to a ranged GET: `right` (206, the range asked for),
+/// `html` (200 and an error page), `other` (206 for the range one byte further on). Serves at
+/// most `max` connections.
+fn hostile_s3(max: usize) -> u16 {
+    use std::io::Read;
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        let object: Vec<u8> = (0..4096u32).map(|i| (i * 7 % 251) as u8).collect();
+        for conn in listener.incoming().take(max) {
+            let Ok(mut conn) = conn else { continue };
+            conn.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+            let mut head = Vec::new();
+            let mut byte = [0u8; 1];
+            while !head.ends_with(b"\r\n\r\n") && head.len() < 65536 {
+                match conn.read(&mut byte) {
+                    Ok(1) => head.push(byte[0]),
+                    _ => break,
+                }
+            }
+            let head = String::from_utf8_lossy(&head).to_ascii_lowercase();
+            let path = head.split_whitespace().nth(1).unwrap_or("").to_string();
+            let range = head.lines().find_map(|l| l.strip_prefix("range: bytes=")).and_then(|r| {
+                let (a, b) = r.trim().split_once('-')?;
+                Some((a.parse::<usize>().ok()?, b.parse::<usize>().ok()?))
+            });
+            let (a, b) = range.unwrap_or((0, object.len() - 1));
+            let meta = "ETag: \"e1\"\r\nLast-Modified: Wed, 01 Jan 2025 00:00:00 GMT\r\nConnection: close\r\n";
+            let answer = |status: &str, extra: String, body: &[u8]| {
+                let mut v =
+                    format!("HTTP/1.1 {status}\r\nContent-Length: {}\r\n{extra}{meta}\r\n", body.len()).into_bytes();
+                v.extend_from_slice(body);
+                v
+            };
+            let reply = if path.ends_with("/html") {
+                let mut page = b"<html><body>503 Service Unavailable</body></html>".to_vec();
+                page.resize(8192, b' ');
+                answer("200 OK", "Content-Type: text/html\r\n".into(), &page)
+            } else {
+                let (a, b) = if path.ends_with("/other") { (a + 1, b + 1) } else { (a, b) };
+                let b = b.min(object.len() - 1);
+                answer(
+                    "206 Partial Content",
+                    format!("Content-Range: bytes {a}-{b}/{}\r\n", object.len()),
+                    &object[a..=b],
+                )
+            };
+            let _ = conn.write_all(&reply);
+        }
+    });
+    port
+}
+
+#[test]
+fn an_s3_answer_of_200_or_of_another_range_to_a_ranged_get_is_refused() {
+    use clipmap::source::remote::{http::Http, s3::S3, Location, ReadError, Remote};
+    use std::sync::Arc;
+    let port = hostile_s3(64);
+    let opts = RemoteOptions { retries: 1, ..quick_opts() };
+    let vars = [
+        ("AWS_ACCESS_KEY_ID", "testing-key-id"),
+        ("AWS_SECRET_ACCESS_KEY", "testing-secret"),
+        ("AWS_REGION", "us-east-1"),
+        ("AWS_ENDPOINT_URL", &format!("http://127.0.0.1:{port}")),
+    ]
+    .iter()
+    .map(|(k, v)| (k.to_string(), v.to_string()))
+    .collect();
+    let remote = Remote::with_backends(opts.clone(), Arc::new(Http::new(&opts)), Arc::new(S3::with_vars(&opts, vars)));
+    let read = |kind: &str| remote.fetcher().read(&Location::parse(&format!("s3://hostile/{kind}")).unwrap(), 100, 256);
+    // The server is reached and a right answer is used: the refusals below are its answers'.
+    let want: Vec<u8> = (100..356u32).map(|i| (i * 7 % 251) as u8).collect();
+    assert_eq!(read("right").unwrap().to_bytes().as_ref(), want.as_slice());
+    // object_store refuses a 200 to a ranged GET, and a Content-Range other than the one asked.
+    match read("html") {
+        Err(ReadError::Failed { why, .. }) => assert!(why.contains("non-partial response"), "{why}"),
+        other => panic!("a 200 with a page is refused: {other:?}"),
+    }
+    match read("other") {
+        Err(ReadError::Failed { why, .. }) => assert!(why.contains("Requested 100..356, got 101..357"), "{why}"),
+        other => panic!("another range is refused: {other:?}"),
+    }
+}
+
+/// The `.tile` files of a cache directory.
+fn cache_files(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "tile"))
+        .collect();
+    v.sort();
+    v
+}
+
+/// Reads `ids` through a source with the disk cache `cache` (one at a time); returns each
+/// tile's cache file, found as the file each read added.
+fn cache_tiles(src: &RemoteSource, cache: &Path, ids: &[TileId]) -> Vec<PathBuf> {
+    ids.iter()
+        .map(|&id| {
+            let before = cache_files(cache);
+            read_checked(src, id).unwrap();
+            let after = cache_files(cache);
+            let new: Vec<PathBuf> = after.into_iter().filter(|p| !before.contains(p)).collect();
+            assert_eq!(new.len(), 1, "{id}: one file cached");
+            new[0].clone()
+        })
+        .collect()
+}
+
+/// Runs `f` on another thread and waits for it at most `limit`: a read that hangs fails the
+/// test instead of hanging it.
+fn bounded<T: Send + 'static>(limit: Duration, what: &str, f: impl FnOnce() -> T + Send + 'static) -> T {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(f());
+    });
+    rx.recv_timeout(limit).unwrap_or_else(|_| panic!("{what} did not end within {limit:?}"))
+}
+
+/// Replaces the cache files of tiles 0 to 2 with a FIFO, a link to `/dev/zero` and a link to
+/// tile 3's file (a regular file and a valid entry, of another range).
+fn plant_in_cache(files: &[PathBuf]) {
+    std::fs::remove_file(&files[0]).unwrap();
+    rustix::fs::mkfifoat(rustix::fs::CWD, &files[0], rustix::fs::Mode::from_raw_mode(0o600)).unwrap();
+    std::fs::remove_file(&files[1]).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", &files[1]).unwrap();
+    std::fs::remove_file(&files[2]).unwrap();
+    std::os::unix::fs::symlink(&files[3], &files[2]).unwrap();
+}
+
+#[test]
+fn cached_tiles_replaced_by_a_fifo_or_links_to_dev_zero_are_dropped_and_read_again_without_hanging() {
+    let dir = tempfile::tempdir().unwrap();
+    let pyr = prepare(&dir.path().join("pyr"), 256, 64, 64, &[]);
+    let cache = dir.path().join("cache");
+    let nginx = Nginx::serve(&pyr);
+    let ct = point_config_at(&pyr, &dir.path().join("cfg"), &nginx.url(), &[]);
+    let opts = RemoteOptions { cache_dir: Some(cache.clone()), ..quick_opts() };
+    let ids = [TileId::new(0, 0, 0), TileId::new(0, 1, 0), TileId::new(0, 2, 0), TileId::new(0, 3, 0)];
+    let src = RemoteSource::new(load(&ct), &Limits::default(), opts.clone()).unwrap();
+    let files = cache_tiles(&src, &cache, &ids);
+    // Under a running source. The FIFO is read first: before the fix its read hung for good
+    // (and the link to /dev/zero grew memory without bound).
+    plant_in_cache(&files);
+    let read_all = move |src: RemoteSource| {
+        for id in ids {
+            read_checked(&src, id).unwrap_or_else(|e| panic!("{id}: {e}"));
+        }
+        src
+    };
+    let src = bounded(Duration::from_secs(20), "reading the tiles over a hostile cache", move || read_all(src));
+    let st = src.stats();
+    assert_eq!((st.cache_dropped, st.cache_hits, st.requests), (3, 1, 7), "three dropped and read again: {st:?}");
+    // Replaced by what was read again: a regular file each, served from now on.
+    for f in &files[..3] {
+        let m = std::fs::symlink_metadata(f).unwrap();
+        assert!(m.file_type().is_file(), "{}: {m:?}", f.display());
+    }
+    let src = read_all(src);
+    assert_eq!(src.stats().cache_hits, 5, "{:?}", src.stats());
+    drop(src);
+    // Planted while no source runs: dropped when the cache is opened.
+    plant_in_cache(&files);
+    let src = RemoteSource::new(load(&ct), &Limits::default(), opts).unwrap();
+    assert_eq!(src.stats().cache_dropped, 3, "{:?}", src.stats());
+    let src = bounded(Duration::from_secs(20), "reading the tiles after a reopen", move || read_all(src));
+    let st = src.stats();
+    assert_eq!((st.cache_dropped, st.cache_hits, st.requests), (3, 1, 3), "{st:?}");
+    for f in &files[..3] {
+        assert!(std::fs::symlink_metadata(f).unwrap().file_type().is_file(), "{}", f.display());
+    }
+}
+
+#[test]
+fn a_cached_tile_with_altered_bytes_of_the_same_length_is_dropped_and_read_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let pyr = prepare(&dir.path().join("pyr"), 256, 64, 64, &[]);
+    let cache = dir.path().join("cache");
+    let nginx = Nginx::serve(&pyr);
+    let ct = point_config_at(&pyr, &dir.path().join("cfg"), &nginx.url(), &[]);
+    let opts = RemoteOptions { cache_dir: Some(cache.clone()), ..quick_opts() };
+    let id = TileId::new(0, 2, 1);
+    let src = RemoteSource::new(load(&ct), &Limits::default(), opts).unwrap();
+    let file = cache_tiles(&src, &cache, &[id]).remove(0);
+    read_checked(&src, id).unwrap();
+    assert_eq!(src.stats().cache_hits, 1);
+    // One texel changed in place: same length, same key.
+    let mut bytes = std::fs::read(&file).unwrap();
+    let at = bytes.len() - 5;
+    bytes[at] ^= 0x40;
+    std::fs::write(&file, &bytes).unwrap();
+    let before = src.stats();
+    read_checked(&src, id).unwrap_or_else(|e| panic!("read again from the server: {e}"));
+    let st = src.stats();
+    assert_eq!((st.cache_dropped, st.cache_hits, st.requests - before.requests), (1, 1, 1), "{st:?}");
+    // The entry read again is good.
+    read_checked(&src, id).unwrap();
+    assert_eq!(src.stats().cache_hits, 2);
+}
+
+#[test]
+fn cache_temporaries_are_created_exclusively_and_a_link_planted_at_their_name_is_never_written_through() {
+    use clipmap::source::remote::disk::{key, DiskCache};
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let victim = dir.path().join("victim");
+    std::fs::write(&victim, b"the victim's own bytes").unwrap();
+    let c = DiskCache::open(&cache, 1 << 20).unwrap();
+    let k = key("http://127.0.0.1:9/t.raw", 0, 100);
+    c.put(&k, &[1u8; 100]);
+    let entry = cache_files(&cache).remove(0);
+    // The next temporary names this process would use, each a link to the victim.
+    let pid = std::process::id();
+    for n in 1..5 {
+        let name = format!("{}.tmp.{pid}.{n}", entry.file_name().unwrap().to_str().unwrap());
+        std::os::unix::fs::symlink(&victim, cache.join(name)).unwrap();
+    }
+    c.put(&k, &[2u8; 100]);
+    assert_eq!(std::fs::read(&victim).unwrap(), b"the victim's own bytes", "never written through a link");
+    let m = std::fs::symlink_metadata(&entry).unwrap();
+    assert!(m.file_type().is_file(), "the entry is a file of its own, not a link: {m:?}");
+    let mut out = [0u8; 100];
+    assert!(c.get(&k, &mut out) && out == [2u8; 100], "stored under a name no one had");
+    assert_eq!(c.dropped(), 0);
 }

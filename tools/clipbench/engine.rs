@@ -7,8 +7,9 @@
 //!   reads it asks for go on in the background, straight into their slots, and are waited for
 //!   between ticks without being timed), and `direction_ratio`, the slowest flight's over the
 //!   fastest's; beside it the tick together with its reads;
-//! - tiles read per tick against the exact tiles that enter the mem regions, and the texel bytes
-//!   the ticks themselves wrote (`tick_texel_bytes`, measured at the mapping's write primitive);
+//! - tiles read per tick against the exact tiles that enter the mem regions (placed as the
+//!   engine's prefetch policy places them), and the texel bytes the ticks themselves wrote
+//!   (`tick_texel_bytes`, measured at the mapping's write primitive);
 //! - peak resident memory (`VmHWM` growth) against the image caches' formula: every stack level's
 //!   grid of tiles, every pyramid level whole, and the header.
 //!
@@ -17,6 +18,7 @@
 use anyhow::Context;
 use clipmap::clip::{Clipmap, Settings};
 use clipmap::geom::{aligned_centre, LevelShape, Rect};
+use clipmap::paging::Prefetch;
 use clipmap::source::{HashSource, TextureDesc, TileSource};
 use clipmap::texel::TexelFormat;
 use serde::Serialize;
@@ -53,8 +55,10 @@ struct Flight {
     /// Mean tiles read per tick, and the exact tiles entering the mem regions per tick.
     mean_tiles_per_tick: f64,
     mean_exact_tiles_per_tick: f64,
-    /// |tiles read - tiles entering| over the flight: reads asked for by a tick are taken by the
-    /// next, so one tick's worth may straddle each end of the flight; anything more is waste.
+    /// |tiles read - tiles entering| over the flight, each tick's reads against the tiles that
+    /// entered the mem regions (placed by the engine's prefetch policy) one tick before, when
+    /// they were asked for: 0 when the engine reads exactly what enters; anything else is waste
+    /// or a tile missed.
     tile_excess: u64,
     /// Texel bytes the ticks of this flight wrote other than by tile reads.
     tick_texel_bytes: u64,
@@ -110,16 +114,26 @@ fn proc_status(field: &str) -> anyhow::Result<u64> {
     Ok(kib * 1024)
 }
 
-/// Each level's mem region (tiles) for level-0 centre `c` moving `v` texels a tick, as the engine
-/// places it.
-fn mem_regions(desc: &TextureDesc, grids: &[[u64; 2]], c: [i64; 2], v: [i64; 2], align: u64) -> Vec<Rect> {
+/// Each level's mem region (tiles) for level-0 centre `c` moving `v` texels a tick, placed as the
+/// engine places it: its prefetch policy (`Settings::prefetch`, ring by default) over the level's
+/// tex region and velocity, given the level's mem region of the tick before (`previous`).
+fn mem_regions(
+    desc: &TextureDesc,
+    grids: &[[u64; 2]],
+    policy: &dyn Prefetch,
+    c: [i64; 2],
+    v: [i64; 2],
+    align: u64,
+    previous: &[Rect],
+) -> Vec<Rect> {
     (0..desc.level_count())
         .map(|k| {
             let l = desc.level(k as u32);
             let shape = LevelShape { size: l.size, tile: l.tile, clip: desc.clip_size(), grid: grids[k] };
             let k32 = k as u32;
             let lv = v.map(|x| if x != 0 && (x >> k32) == 0 { x.signum() } else { x >> k32 });
-            shape.frame(aligned_centre(c, k32, align), desc.invalid_border(), lv).mem
+            let tex = shape.frame(aligned_centre(c, k32, align), desc.invalid_border(), lv).tex;
+            policy.mem_region(&shape, tex, lv, previous.get(k).copied().unwrap_or(Rect::EMPTY))
         })
         .collect()
 }
@@ -201,6 +215,7 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
     settings.limits.max_pending_reads = 4096;
     settings.limits.max_ready_reads = 4096;
     let grids = Clipmap::grids(&desc, &settings);
+    let policy = settings.prefetch.policy();
     let formula = formula_bytes(&desc, &grids);
     let source: Arc<dyn TileSource> = Arc::new(HashSource::new(desc.clone()));
     let rss_before = proc_status("VmRSS:")?;
@@ -220,6 +235,8 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
         map.wait_for_reads();
     }
     let settle_s = started.elapsed().as_secs_f64();
+    // The engine's mem regions as of its last tick (the settled, still centre).
+    let mut last = mem_regions(&desc, &grids, policy, c, [0, 0], setup.centre_alignment, &[]);
 
     let d = setup.speed;
     let align = setup.centre_alignment;
@@ -245,8 +262,11 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
             // One untimed tick to turn the mem regions towards the motion and fetch ahead.
             map.tick([c[0] + v[0], c[1] + v[1]], Some(v));
             map.wait_for_reads();
-            let mut before = mem_regions(&desc, &grids, [c[0] + v[0], c[1] + v[1]], v, align);
             c = [c[0] + v[0], c[1] + v[1]];
+            // A tick asks for the tiles that entered its mem regions; the next tick takes them.
+            let now = mem_regions(&desc, &grids, policy, c, v, align, &last);
+            let mut asked = entering(&now, &last);
+            last = now;
             let copied0 = map.stats().tick_texel_bytes;
             let a = &mut acc[which];
             let (mut secs, mut ticks, mut run_tiles) = (0f64, Vec::new(), 0u64);
@@ -260,12 +280,13 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
                 ticks.push(dt_tick);
                 anyhow::ensure!(r.min_lod == 0.0, "a level fell behind during the steady flight: {r:?}");
                 // The tiles taken now are those that entered the mem regions one tick ago.
-                let now = mem_regions(&desc, &grids, next, v, align);
-                a.exact += entering(&now, &before);
+                a.exact += asked;
                 a.tiles += r.tiles_read;
                 run_tiles += r.tiles_read;
                 a.n += 1;
-                before = now;
+                let now = mem_regions(&desc, &grids, policy, next, v, align, &last);
+                asked = entering(&now, &last);
+                last = now;
                 c = next;
             }
             a.tiles_per_run = run_tiles;

@@ -2,17 +2,19 @@
 //! answer checked before a byte of it is used.
 //!
 //! A `206` must carry the `Content-Range` asked for (or one that ends where the object ends)
-//! and exactly that many body bytes; a `200` (a server that ignores ranges) is read up to the end
-//! of the range and no further, and only for objects of at most [`MAX_WHOLE_OBJECT`] bytes; a
-//! `416` means the object ends before the range starts. Anything else is a [`Failure`],
-//! classified for the retry loop.
+//! and exactly that many body bytes. A `200` is an answer that ignores the range, and is used
+//! only when it is the whole object: not an HTML page (`Content-Type: text/html`, what an error
+//! page of a proxy or a misconfigured server is), at most [`MAX_WHOLE_OBJECT`] bytes, and of
+//! exactly the object's size as a `HEAD` gives it (its `Content-Length`, if any, and its body
+//! alike); the range is then cut out of it. A `416` means the object ends before the range
+//! starts. Anything else is a [`Failure`], classified for the retry loop.
 
 use super::fetch::{Backend, Failure, Got, Segments};
 use super::location::Location;
 use super::options::RemoteOptions;
 use super::runtime::block;
 use bytes::Bytes;
-use reqwest::header::{CONTENT_LENGTH, CONTENT_RANGE, RANGE, RETRY_AFTER};
+use reqwest::header::{CONTENT_LENGTH, CONTENT_RANGE, CONTENT_TYPE, RANGE, RETRY_AFTER};
 use reqwest::StatusCode;
 use std::time::Duration;
 
@@ -149,6 +151,17 @@ async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Resu
             Ok(Got { bytes: buf, object_len: total })
         }
         StatusCode::OK => {
+            // The server ignored the range. Only the whole object will do: an error page sent
+            // with 200 (a proxy's, a misconfigured server's) is never cut up into texels.
+            let html = headers
+                .get(CONTENT_TYPE)
+                .and_then(|v| v.to_str().ok())
+                .is_some_and(|v| v.trim().to_ascii_lowercase().starts_with("text/html"));
+            if html {
+                return Err(Failure::transient(
+                    "HTTP 200 with an HTML page (Content-Type text/html) to a range request: an error page, not the object",
+                ));
+            }
             let announced = headers.get(CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok());
             if announced.is_some_and(|n| n > MAX_WHOLE_OBJECT) {
                 return Err(Failure::Fatal(format!(
@@ -156,19 +169,36 @@ async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Resu
                     announced.unwrap_or(0)
                 )));
             }
-            let stop = start + len;
-            let buf = body(&mut resp, announced.unwrap_or(MAX_WHOLE_OBJECT), stop).await?;
-            let got = buf.len() as u64;
-            if got < stop && announced.is_some_and(|n| got < n) {
+            let size = head(&client, &url).await.map_err(|f| {
+                let why = match f {
+                    Failure::NotFound => "not found".to_string(),
+                    Failure::Denied(w) | Failure::Fatal(w) | Failure::Transient { why: w, .. } => w,
+                };
+                Failure::transient(format!(
+                    "HTTP 200 to a range request, and the object's size to check it against is unknown (HEAD: {why})"
+                ))
+            })?;
+            if announced.is_some_and(|n| n != size) {
                 return Err(Failure::transient(format!(
-                    "the body ended after {got} of {} bytes",
+                    "HTTP 200 to a range request with Content-Length {}, but the object holds {size} bytes (HEAD): not the object",
                     announced.unwrap_or(0)
                 )));
             }
-            let from = (start as usize).min(buf.len());
-            let to = (stop as usize).min(buf.len());
-            let object_len = if got < stop { Some(got) } else { announced };
-            Ok(Got { bytes: buf.slice(from, to), object_len })
+            if size > MAX_WHOLE_OBJECT {
+                return Err(Failure::Fatal(format!(
+                    "the server ignores range requests and the object holds {size} bytes, more than {MAX_WHOLE_OBJECT} read whole"
+                )));
+            }
+            let buf = body(&mut resp, size, size.saturating_add(1)).await?;
+            let got = buf.len() as u64;
+            if got != size {
+                return Err(Failure::transient(format!(
+                    "HTTP 200 to a range request with a body of {got} bytes, but the object holds {size} (HEAD)"
+                )));
+            }
+            let from = start.min(size) as usize;
+            let to = start.saturating_add(len).min(size) as usize;
+            Ok(Got { bytes: buf.slice(from, to), object_len: Some(size) })
         }
         StatusCode::RANGE_NOT_SATISFIABLE => {
             let total = headers
@@ -180,6 +210,19 @@ async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Resu
         s if s.is_success() => Err(Failure::Fatal(format!("unexpected answer HTTP {s} to a range request"))),
         s => Err(status_failure(s, &headers)),
     }
+}
+
+/// The object's length, from the `Content-Length` of a `HEAD`.
+async fn head(client: &reqwest::Client, url: &str) -> Result<u64, Failure> {
+    let resp = client.head(url).send().await.map_err(request_failure)?;
+    let status = resp.status();
+    if !status.is_success() {
+        return Err(status_failure(status, resp.headers()));
+    }
+    resp.headers()
+        .get(CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok()?.parse::<u64>().ok())
+        .ok_or_else(|| Failure::Fatal("the answer to HEAD has no Content-Length".into()))
 }
 
 impl Backend for Http {
@@ -195,17 +238,7 @@ impl Backend for Http {
     fn head(&self, loc: &Location) -> Result<u64, Failure> {
         let client = self.client()?;
         let url = loc.target.clone();
-        block(self.timeout, async move {
-            let resp = client.head(&url).send().await.map_err(request_failure)?;
-            let status = resp.status();
-            if !status.is_success() {
-                return Err(status_failure(status, resp.headers()));
-            }
-            resp.headers()
-                .get(CONTENT_LENGTH)
-                .and_then(|v| v.to_str().ok()?.parse::<u64>().ok())
-                .ok_or_else(|| Failure::Fatal("the answer to HEAD has no Content-Length".into()))
-        })
+        block(self.timeout, async move { head(&client, &url).await })
     }
 
     fn put(&self, loc: &Location, bytes: Bytes) -> Result<(), Failure> {

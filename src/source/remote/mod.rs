@@ -47,6 +47,9 @@ pub struct RemoteStats {
     pub failures: u64,
     /// Ranges served from the disk cache.
     pub cache_hits: u64,
+    /// Cached ranges whose file failed a check (not a regular file of this user, a link, a
+    /// wrong length, key or checksum): dropped and read from the store again, never served.
+    pub cache_dropped: u64,
     /// Most requests in flight at once to one endpoint.
     pub peak_in_flight: u64,
 }
@@ -104,6 +107,7 @@ impl Remote {
             bytes: c.bytes.load(Ordering::Relaxed),
             failures: c.failures.load(Ordering::Relaxed),
             cache_hits: c.cache_hits.load(Ordering::Relaxed),
+            cache_dropped: self.cache.as_ref().map_or(0, disk::DiskCache::dropped),
             peak_in_flight: c.peak_in_flight.load(Ordering::Relaxed),
         }
     }

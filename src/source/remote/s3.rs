@@ -5,17 +5,19 @@
 //! printed or logged; an error names the location only.
 //!
 //! `object_store` retries what is worth retrying itself (with the options' backoff, which it
-//! jitters; a body cut short is read on from where it stopped) and checks the `Content-Range`
-//! of every answer; what fails after its retries is final here. This backend checks the length
-//! of what arrives (a mismatch is retried by the fetcher's loop), says where an object ends, and
-//! classifies what is left.
+//! jitters; a body cut short is read on from where it stopped) and checks every answer to a
+//! ranged GET: anything but a `206` is refused ("Received non-partial response when range
+//! requested": a `200` with an error page is never read), and the `Content-Range` must be
+//! exactly the range asked for (cut at the object's end); what fails after its retries is
+//! final here. This backend checks the length of what arrives (a mismatch is retried by the
+//! fetcher's loop), says where an object ends, and classifies what is left.
 
 use super::fetch::{Backend, Failure, Got, Segments};
 use super::location::Location;
 use super::options::RemoteOptions;
 use super::runtime::block;
 use bytes::Bytes;
-use object_store::aws::{AmazonS3, AmazonS3Builder};
+use object_store::aws::{AmazonS3, AmazonS3Builder, AmazonS3ConfigKey};
 use object_store::path::Path as ObjectPath;
 use object_store::{ClientOptions, GetOptions, GetRange, ObjectStore, ObjectStoreExt, PutPayload, RetryConfig};
 use std::collections::HashMap;
@@ -25,13 +27,41 @@ use std::time::Duration;
 /// Reads and writes objects of S3-compatible stores.
 pub struct S3 {
     opts: RemoteOptions,
+    /// The `AWS_*` variables, when not those of the process environment.
+    vars: Option<Vec<(String, String)>>,
     stores: Mutex<HashMap<String, Arc<AmazonS3>>>,
 }
 
 impl S3 {
-    /// A backend with the options' timeouts and retries (no store is made before it is used).
+    /// A backend with the options' timeouts and retries (no store is made before it is used),
+    /// configured from the process environment's `AWS_*` variables.
     pub fn new(opts: &RemoteOptions) -> S3 {
-        S3 { opts: opts.clone(), stores: Mutex::new(HashMap::new()) }
+        S3 { opts: opts.clone(), vars: None, stores: Mutex::new(HashMap::new()) }
+    }
+
+    /// Like [`S3::new`], configured from `vars` (`AWS_*` names and values) instead of the
+    /// process environment, which is left alone (tests, several stores in one process).
+    pub fn with_vars(opts: &RemoteOptions, vars: Vec<(String, String)>) -> S3 {
+        S3 { opts: opts.clone(), vars: Some(vars), stores: Mutex::new(HashMap::new()) }
+    }
+
+    fn var(&self, name: &str) -> Option<String> {
+        match &self.vars {
+            Some(vars) => vars.iter().find(|(k, _)| k == name).map(|(_, v)| v.clone()),
+            None => std::env::var(name).ok(),
+        }
+    }
+
+    fn builder(&self) -> AmazonS3Builder {
+        let Some(vars) = &self.vars else { return AmazonS3Builder::from_env() };
+        // What `from_env` does, over the given variables.
+        let mut b = AmazonS3Builder::new();
+        for (k, v) in vars {
+            if let Ok(key) = k.to_ascii_lowercase().parse::<AmazonS3ConfigKey>() {
+                b = b.with_config(key, v);
+            }
+        }
+        b
     }
 
     fn store(&self, bucket: &str) -> Result<Arc<AmazonS3>, Failure> {
@@ -40,14 +70,14 @@ impl S3 {
             return Ok(Arc::clone(s));
         }
         super::runtime::install_crypto();
-        let mut b = AmazonS3Builder::from_env().with_bucket_name(bucket);
+        let mut b = self.builder().with_bucket_name(bucket);
         // AWS_ENDPOINT_URL is the name the AWS tools use; object_store reads AWS_ENDPOINT.
-        let endpoint = std::env::var("AWS_ENDPOINT_URL").or_else(|_| std::env::var("AWS_ENDPOINT")).ok();
+        let endpoint = self.var("AWS_ENDPOINT_URL").or_else(|| self.var("AWS_ENDPOINT"));
         if let Some(e) = &endpoint {
             b = b.with_endpoint(e.clone());
         }
-        if std::env::var("AWS_REGION").is_err() {
-            if let Ok(r) = std::env::var("AWS_DEFAULT_REGION") {
+        if self.var("AWS_REGION").is_none() {
+            if let Some(r) = self.var("AWS_DEFAULT_REGION") {
                 b = b.with_region(r);
             }
         }
@@ -57,7 +87,7 @@ impl S3 {
         let client = ClientOptions::new()
             .with_timeout(self.opts.timeout)
             .with_connect_timeout(self.opts.connect_timeout)
-            .with_allow_http(plain || std::env::var("AWS_ALLOW_HTTP").is_ok_and(|v| v.eq_ignore_ascii_case("true")));
+            .with_allow_http(plain || self.var("AWS_ALLOW_HTTP").is_some_and(|v| v.eq_ignore_ascii_case("true")));
         let retry = RetryConfig {
             backoff: object_store::BackoffConfig {
                 init_backoff: self.opts.backoff.max(Duration::from_millis(1)),

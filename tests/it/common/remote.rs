@@ -203,6 +203,21 @@ pub enum Fault {
     LongLength,
     /// Forwards the answer with a `Content-Length` smaller than its body.
     ShortLength,
+    /// Answers a GET itself with `200 OK` and a page of `len` bytes, of type `text/html` when
+    /// `html` (an error page of a proxy or a misconfigured server), else
+    /// `application/octet-stream`; a HEAD is forwarded.
+    Page {
+        /// The page's length.
+        len: usize,
+        /// Sent as `text/html`.
+        html: bool,
+    },
+    /// Forwards a GET without its `Range` header, so that the server answers `200 OK` with the
+    /// whole object (a server that ignores ranges).
+    IgnoreRange,
+    /// Forwards a GET asking for the range one byte further on, so that the server answers
+    /// `206` for a range that was not asked for.
+    OtherRange,
 }
 
 /// The proxy's schedule: request `i` (from 0) gets `faults[i]` while `i < faults.len()`, then
@@ -358,8 +373,26 @@ fn serve(
             return out.shutdown(Shutdown::Both);
         }
         Fault::Slow(ms) => std::thread::sleep(Duration::from_millis(ms)),
+        Fault::Page { len, html } if req.starts_with(b"GET ") => {
+            let kind = if html { "text/html" } else { "application/octet-stream" };
+            let mut page = b"<html><head><title>502 Bad Gateway</title></head><body>".to_vec();
+            page.resize(len, b' ');
+            out.write_all(
+                format!(
+                    "HTTP/1.1 200 OK\r\nContent-Type: {kind}\r\nContent-Length: {len}\r\nConnection: close\r\n\r\n"
+                )
+                .as_bytes(),
+            )?;
+            out.write_all(&page)?;
+            out.flush()?;
+            return out.shutdown(Shutdown::Write);
+        }
         _ => {}
     }
+    let req = match fault {
+        Fault::IgnoreRange | Fault::OtherRange if req.starts_with(b"GET ") => rewrite_range(&req, fault),
+        _ => req,
+    };
     let mut up = TcpStream::connect(("127.0.0.1", upstream))?;
     up.write_all(&req)?;
     let mut resp = Vec::new();
@@ -399,6 +432,26 @@ fn serve(
     }
     out.flush()?;
     out.shutdown(Shutdown::Write)
+}
+
+/// A GET's head without its `Range` line ([`Fault::IgnoreRange`]) or with the range moved one
+/// byte on ([`Fault::OtherRange`]).
+fn rewrite_range(req: &[u8], fault: Fault) -> Vec<u8> {
+    let text = String::from_utf8_lossy(req);
+    let mut out = String::new();
+    for line in text.split_inclusive("\r\n") {
+        let lower = line.to_ascii_lowercase();
+        let Some(spec) = lower.strip_prefix("range: bytes=") else {
+            out.push_str(line);
+            continue;
+        };
+        if fault == Fault::OtherRange {
+            let (a, b) = spec.trim().split_once('-').unwrap();
+            let (a, b): (u64, u64) = (a.parse().unwrap(), b.parse().unwrap());
+            out.push_str(&format!("Range: bytes={}-{}\r\n", a + 1, b + 1));
+        }
+    }
+    out.into_bytes()
 }
 
 /// Writes the configuration of the pyramid prepared in `src` into `dst`, every tile read from

@@ -206,3 +206,54 @@ fn a_compressed_tile_cut_after_its_frame_header_is_corrupt_for_check_and_the_ser
     }
     assert!(s.stats()["engine"]["read_faults"]["corrupt"].as_u64().unwrap_or(0) > 0, "{}", s.stats());
 }
+
+/// A `/proc` file for the cases below: `/proc/kmsg` (a "regular" file of length 0 whose reads
+/// block until the kernel logs something) when it exists and this user may open it; otherwise
+/// `/proc/version`, which reads at once and is refused all the same. Says which it chose.
+fn proc_file() -> &'static str {
+    // Opening /proc/kmsg does not block and reads nothing; only a read would.
+    let kmsg = "/proc/kmsg";
+    let chosen = if std::fs::File::open(kmsg).is_ok() { kmsg } else { "/proc/version" };
+    eprintln!("the /proc file of this test: {chosen}");
+    chosen
+}
+
+#[test]
+fn a_configuration_naming_proc_kmsg_is_refused_by_every_tool_at_once() {
+    let proc = proc_file();
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let said = "a file of the kernel's proc (/proc) filesystem, not a regular file of data";
+    // Named on the command line as the .ct, and through a link.
+    let link = d.join("t.ct");
+    std::os::unix::fs::symlink(proc, &link).unwrap();
+    for ct in [proc, link.to_str().unwrap()] {
+        for (prog, args) in [
+            (CLIPTEX, vec!["validate", ct]),
+            (CLIPTEX, vec!["info", ct]),
+            (CLIPTEX, vec!["check", ct]),
+            (CLIPMAPD, vec![ct, "--shm-dir", d.to_str().unwrap(), "--name", "kmsg"]),
+        ] {
+            let t = Instant::now();
+            let (out, desc) = run(d, prog, &args);
+            assert!(t.elapsed() < Duration::from_secs(10), "{proc}: not at once:\n{desc}");
+            assert_eq!(out.status.code(), Some(2), "{proc}: cannot be read:\n{desc}");
+            assert!(desc.contains(said) && desc.contains(ct), "{proc}: says what and where:\n{desc}");
+        }
+    }
+    // A level .ic named by a .ct.
+    let p = prepared(d);
+    replace_with_link(&p.join("L00.ic"), proc);
+    let (out, desc) = run(d, CLIPTEX, &["validate", p.join("hash256.ct").to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1), "{proc}:\n{desc}");
+    assert!(desc.contains(said), "{proc}:\n{desc}");
+    // A default tile.
+    let p2 = d.join("p2");
+    copy_tree(&Path::new(ROOT).join("config_examples/prepared"), &p2);
+    let ct = with_default_tile(&p2, proc);
+    let c = ct.to_str().unwrap();
+    let err = fails(d, CLIPMAPD, &[c, "--shm-dir", d.to_str().unwrap(), "--name", "kd"], 1, &[proc]);
+    assert!(err.contains(said), "{proc}: {err}");
+    let out = fails(d, CLIPTEX, &["check", c], 1, &[proc]);
+    assert!(out.contains("proc (/proc) filesystem"), "{proc}: {out}");
+}
