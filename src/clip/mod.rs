@@ -544,6 +544,12 @@ impl Clipmap {
         }
     }
 
+    /// Each level's mem region (tile indices) as the last tick placed it: the tiles its grid
+    /// holds or is reading.
+    pub fn mem_regions(&self) -> Vec<Rect> {
+        (0..self.levels.len() as u32).map(|k| self.cache.mem_region(k)).collect()
+    }
+
     /// Number of levels.
     pub fn level_count(&self) -> usize {
         self.levels.len()

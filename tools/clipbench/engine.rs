@@ -216,6 +216,9 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
     settings.limits.max_ready_reads = 4096;
     let grids = Clipmap::grids(&desc, &settings);
     let policy = settings.prefetch.policy();
+    // The adaptive policy's regions depend on the latency it measures: the engine's own regions
+    // are the model then (the count still shows any tile read twice or read without entering).
+    let adaptive = settings.prefetch == clipmap::paging::PrefetchKind::Adaptive;
     let formula = formula_bytes(&desc, &grids);
     let source: Arc<dyn TileSource> = Arc::new(HashSource::new(desc.clone()));
     let rss_before = proc_status("VmRSS:")?;
@@ -236,7 +239,11 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
     }
     let settle_s = started.elapsed().as_secs_f64();
     // The engine's mem regions as of its last tick (the settled, still centre).
-    let mut last = mem_regions(&desc, &grids, policy, c, [0, 0], setup.centre_alignment, &[]);
+    let mut last = if adaptive {
+        map.mem_regions()
+    } else {
+        mem_regions(&desc, &grids, policy, c, [0, 0], setup.centre_alignment, &[])
+    };
 
     let d = setup.speed;
     let align = setup.centre_alignment;
@@ -264,7 +271,7 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
             map.wait_for_reads();
             c = [c[0] + v[0], c[1] + v[1]];
             // A tick asks for the tiles that entered its mem regions; the next tick takes them.
-            let now = mem_regions(&desc, &grids, policy, c, v, align, &last);
+            let now = if adaptive { map.mem_regions() } else { mem_regions(&desc, &grids, policy, c, v, align, &last) };
             let mut asked = entering(&now, &last);
             last = now;
             let copied0 = map.stats().tick_texel_bytes;
@@ -284,7 +291,8 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
                 a.tiles += r.tiles_read;
                 run_tiles += r.tiles_read;
                 a.n += 1;
-                let now = mem_regions(&desc, &grids, policy, next, v, align, &last);
+                let now =
+                    if adaptive { map.mem_regions() } else { mem_regions(&desc, &grids, policy, next, v, align, &last) };
                 asked = entering(&now, &last);
                 last = now;
                 c = next;
