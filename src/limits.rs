@@ -58,6 +58,12 @@ pub const MAX_IDLE_MS: u64 = 86_400_000;
 /// Most frames one `cliptex roam` flies (a report line each).
 pub const MAX_ROAM_FRAMES: u64 = 10_000_000;
 
+/// Largest `--max-patch-bytes` (`clipmapd --growing`, `cliptex grow add` and `watch`): 4 GiB of
+/// texels in one patch. A patch is held in memory whole (its bytes as they arrive, then its
+/// texels), and the decoder's own bound is a few times this, so a larger value would only let one
+/// request take the machine's memory.
+pub const MAX_PATCH_BYTES: u64 = 4 << 30;
+
 use serde::Serialize;
 
 /// Bounds on the engine's queues, reads and memory. Each is a hard limit, not a hint.
