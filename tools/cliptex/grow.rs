@@ -397,6 +397,9 @@ pub fn run(cmd: GrowCommand) -> i32 {
                 Ok(g) => g,
                 Err(c) => return c,
             };
+            for (path, problem) in g.damaged() {
+                eprintln!("cliptex grow rebuild: {}: damaged ({problem}); rebuilding it", path.display());
+            }
             if let Err(e) = g.finish(per_step) {
                 eprintln!("cliptex grow rebuild: {e}");
                 return store_exit(&e);

@@ -358,6 +358,103 @@ fn max_patch_bytes_beyond_its_bound_is_refused_at_start() {
 }
 
 #[test]
+fn a_state_json_of_four_billion_levels_is_refused_as_damaged() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    store_with_patch(d);
+    std::fs::write(d.join("tex/state.json"), r#"{"applied": 0, "levels": 4294967295}"#).unwrap();
+    for sub in ["status", "rebuild"] {
+        fails_limited(d, 2, CLIPTEX, &["grow", sub, "tex"], 1, &["state.json", "4294967295 levels", "at most 64"]);
+    }
+}
+
+#[test]
+fn store_files_that_are_fifos_do_not_block_the_tools_or_the_service() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let tex = store_with_patch(d);
+    // A tile that is a FIFO is damaged: rebuilt, and a regular file again.
+    let tile = first_tile(&tex);
+    std::fs::remove_file(&tile).unwrap();
+    mkfifo(&tile);
+    let (o, desc, _) = limited(d, 4, CLIPTEX, &["grow", "rebuild", "tex"]);
+    assert_eq!(o.status.code(), Some(0), "{desc}");
+    assert!(std::fs::symlink_metadata(&tile).unwrap().is_file(), "the tile was rebuilt: {desc}");
+    // A state.json that is a FIFO: refused at once by the tools and the service.
+    std::fs::remove_file(tex.join("state.json")).unwrap();
+    mkfifo(&tex.join("state.json"));
+    fails_limited(d, 4, CLIPTEX, &["grow", "status", "tex"], 1, &["state.json", "a FIFO"]);
+    fails_limited(d, 4, CLIPTEX, &["grow", "rebuild", "tex"], 1, &["state.json", "a FIFO"]);
+    let sock = d.join("s.sock");
+    fails_limited(
+        d,
+        4,
+        CLIPMAPD,
+        &["--growing", "tex", "--socket", s(&sock), "--shm-dir", s(d), "--name", "fifostore", "--size", "512"],
+        1,
+        &["state.json", "a FIFO"],
+    );
+}
+
+fn first_tile(tex: &Path) -> PathBuf {
+    let l0 = tex.join("tiles/0");
+    let mut tiles: Vec<PathBuf> = std::fs::read_dir(&l0).unwrap().map(|e| e.unwrap().path()).collect();
+    tiles.sort();
+    tiles.into_iter().find(|p| p.extension().is_some_and(|x| x == "tile")).expect("a level-0 tile")
+}
+
+#[test]
+fn store_files_linked_to_dev_zero_or_sparse_are_not_read_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let tex = store_with_patch(d);
+    let mut tiles: Vec<PathBuf> = std::fs::read_dir(tex.join("tiles/0")).unwrap().map(|e| e.unwrap().path()).collect();
+    tiles.sort();
+    let (a, b) = (&tiles[0], &tiles[1]);
+    let len = std::fs::metadata(a).unwrap().len();
+    std::fs::remove_file(a).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", a).unwrap();
+    std::fs::OpenOptions::new().write(true).open(b).unwrap().set_len(3 << 30).unwrap();
+    // Under a 2 GiB limit, so that reading either whole fails instead of taking 3 GB; both are
+    // refused for what they are before a byte is read, and rebuilt.
+    let (o, desc, said) = limited(d, 2, CLIPTEX, &["grow", "rebuild", "tex"]);
+    assert_eq!(o.status.code(), Some(0), "{desc}");
+    assert!(said.contains("a character device"), "{desc}");
+    assert!(said.contains(&format!("3221225472 bytes where a tile of this grid has {len}")), "{desc}");
+    for t in [a, b] {
+        let m = std::fs::symlink_metadata(t).unwrap();
+        assert!(m.is_file() && m.len() == len, "{} rebuilt: {m:?}", t.display());
+    }
+    // A patch's record or its image linked to a device: the store is damaged, nothing is read.
+    let rec = tex.join("patches/0000000001.json");
+    let kept = std::fs::read(&rec).unwrap();
+    std::fs::remove_file(&rec).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", &rec).unwrap();
+    fails_limited(d, 2, CLIPTEX, &["grow", "status", "tex"], 1, &["0000000001.json", "a character device"]);
+    std::fs::remove_file(&rec).unwrap();
+    std::fs::write(&rec, kept).unwrap();
+    let img = tex.join("patches/0000000001.image");
+    std::fs::OpenOptions::new().write(true).open(&img).unwrap().set_len(3 << 30).unwrap();
+    fails_limited(d, 2, CLIPTEX, &["grow", "status", "tex"], 1, &["0000000001.image", "3221225472 bytes"]);
+}
+
+#[test]
+fn a_lock_planted_as_a_symlink_is_refused_and_its_target_untouched() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let tex = store_with_patch(d);
+    let victim = d.join("victim.txt");
+    std::fs::write(&victim, "precious\n").unwrap();
+    std::fs::remove_file(tex.join("lock")).unwrap();
+    std::os::unix::fs::symlink(&victim, tex.join("lock")).unwrap();
+    fails_limited(d, 4, CLIPTEX, &["grow", "rebuild", "tex"], 2, &["lock", "symbolic link"]);
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), "precious\n");
+    std::fs::remove_file(tex.join("lock")).unwrap();
+    mkfifo(&tex.join("lock"));
+    fails_limited(d, 4, CLIPTEX, &["grow", "rebuild", "tex"], 2, &["lock", "a FIFO"]);
+}
+
+#[test]
 fn an_incoming_directory_that_is_or_holds_or_lies_in_the_store_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
