@@ -225,8 +225,7 @@ pub fn parse_max_patch_bytes(text: &str) -> Result<u64, String> {
     Ok(n)
 }
 
-/// Most bytes a sidecar (a patch description) may have: it is a few lines of JSON.
-pub const MAX_SIDECAR_BYTES: u64 = 64 << 10;
+pub use crate::limits::MAX_SIDECAR_BYTES;
 
 /// Where the files a sidecar names may be.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -100,13 +100,7 @@ pub enum StoreError {
     Patch(GrowError),
 }
 
-/// Most bytes of the store's own small files (`grid.json`, `state.json`, a patch's record): a
-/// longer one is damaged, and refused from its length before it is read.
-pub const MAX_RECORD_BYTES: u64 = 64 << 10;
-
-/// Most levels a store may say it has: far more than a grid of 2^40 texels (the farthest a patch
-/// may be from the origin) in tiles of one texel needs.
-pub const MAX_LEVELS: u32 = 64;
+pub use crate::limits::{MAX_GROWING_LEVELS as MAX_LEVELS, MAX_RECORD_BYTES};
 
 /// Reads one of the store's small files with the one checked open (regular files only, never
 /// blocking on a FIFO or a device, at most [`MAX_RECORD_BYTES`]).
