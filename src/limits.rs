@@ -58,6 +58,24 @@ pub const MAX_IDLE_MS: u64 = 86_400_000;
 /// Most frames one `cliptex roam` flies (a report line each).
 pub const MAX_ROAM_FRAMES: u64 = 10_000_000;
 
+/// Largest `--max-patch-bytes` (`clipmapd --growing`, `cliptex grow add` and `watch`): 4 GiB of
+/// texels in one patch. A patch is held in memory whole (its bytes as they arrive, then its
+/// texels), and the decoder's own bound is a few times this, so a larger value would only let one
+/// request take the machine's memory.
+pub const MAX_PATCH_BYTES: u64 = 4 << 30;
+
+/// Most bytes of a patch's sidecar (its JSON description): a few lines; a longer one is refused
+/// from its length before it is read.
+pub const MAX_SIDECAR_BYTES: u64 = 64 << 10;
+
+/// Most bytes of a growing texture's own small files (`grid.json`, `state.json`, a patch's
+/// record): a longer one is damaged, refused from its length before it is read.
+pub const MAX_RECORD_BYTES: u64 = 64 << 10;
+
+/// Most levels a growing texture's `state.json` may say it has: far more than a grid of 2^40
+/// texels (the farthest a patch may be from the origin) in tiles of one texel needs.
+pub const MAX_GROWING_LEVELS: u32 = 64;
+
 use serde::Serialize;
 
 /// Bounds on the engine's queues, reads and memory. Each is a hard limit, not a hint.

@@ -116,6 +116,93 @@ pub fn read_sized(path: &Path, allowed: &[u64]) -> Result<Vec<u8>, SizedError> {
     Ok(buf)
 }
 
+/// Reads the regular file `path` when it holds at most `max` bytes. A longer file is refused
+/// from its length ([`SizedError::Length`]) before anything is read, so a sparse file of
+/// gigabytes costs nothing; a file that grows while it is read is cut at `max + 1` bytes and
+/// refused the same way. Allocates no more than the file's length (at most `max + 1` bytes).
+pub fn read_capped(path: &Path, max: u64) -> Result<Vec<u8>, SizedError> {
+    let (file, meta) = regular(path).map_err(SizedError::Io)?;
+    read_open_capped(file, &meta, max)
+}
+
+/// [`read_capped`] for a file already opened with [`regular`] or [`regular_in`].
+pub fn read_open_capped(file: File, meta: &Metadata, max: u64) -> Result<Vec<u8>, SizedError> {
+    if meta.len() > max {
+        return Err(SizedError::Length(meta.len()));
+    }
+    let mut buf = Vec::with_capacity(meta.len() as usize);
+    file.take(max.saturating_add(1)).read_to_end(&mut buf).map_err(SizedError::Io)?;
+    if buf.len() as u64 > max {
+        return Err(SizedError::Length(buf.len() as u64));
+    }
+    Ok(buf)
+}
+
+/// Opens `name`, a relative path inside the directory `dir`, for reading if it is a regular file,
+/// without ever leaving `dir`: `name` must be made of plain names only (no `..`, `.`, no root),
+/// and no symbolic link is followed along it (every component is opened with `O_NOFOLLOW`
+/// relative to the one before). `dir` itself is opened as given. Never blocks on a FIFO or a
+/// device: those, directories, sockets and links are refused with an error that says what the
+/// component is.
+pub fn regular_in(dir: &Path, name: &Path) -> io::Result<(File, Metadata)> {
+    use rustix::fs::{openat, Mode, CWD};
+    use std::path::Component;
+    let parts: Vec<&std::ffi::OsStr> = name
+        .components()
+        .map(|c| match c {
+            Component::Normal(n) => Ok(n),
+            _ => Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!(
+                    "`{}` is not a path inside the directory (only plain names: no `..`, no `.`, not absolute)",
+                    name.display()
+                ),
+            )),
+        })
+        .collect::<io::Result<_>>()?;
+    let Some((last, dirs)) = parts.split_last() else {
+        return Err(io::Error::new(io::ErrorKind::InvalidInput, "an empty file name"));
+    };
+    let base = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
+    let mut at = openat(CWD, base, OFlags::RDONLY | OFlags::DIRECTORY | OFlags::CLOEXEC, Mode::empty())?;
+    let link = |e: rustix::io::Errno, what: &std::ffi::OsStr| -> io::Error {
+        if e == rustix::io::Errno::LOOP || e == rustix::io::Errno::NOTDIR {
+            io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!(
+                    "`{}` is a symbolic link or not a directory; links are not followed here",
+                    Path::new(what).display()
+                ),
+            )
+        } else {
+            e.into()
+        }
+    };
+    for d in dirs {
+        at = openat(&at, *d, OFlags::RDONLY | OFlags::DIRECTORY | OFlags::NOFOLLOW | OFlags::CLOEXEC, Mode::empty())
+            .map_err(|e| link(e, d))?;
+    }
+    let fd = openat(&at, *last, OFlags::RDONLY | OFlags::NOFOLLOW | OFlags::NONBLOCK | OFlags::CLOEXEC, Mode::empty())
+        .map_err(|e| {
+            if e == rustix::io::Errno::LOOP {
+                io::Error::new(io::ErrorKind::InvalidInput, "a symbolic link; links are not followed here")
+            } else {
+                e.into()
+            }
+        })?;
+    let file = File::from(fd);
+    let meta = file.metadata()?;
+    if !meta.is_file() {
+        return Err(not_regular(&meta));
+    }
+    if let Some(fs) = pseudo_filesystem(&file)? {
+        return Err(not_data(fs));
+    }
+    let flags = rustix::fs::fcntl_getfl(&file)?;
+    rustix::fs::fcntl_setfl(&file, flags - OFlags::NONBLOCK)?;
+    Ok((file, meta))
+}
+
 /// Why [`read_sized`] read nothing.
 #[derive(Debug)]
 pub enum SizedError {
@@ -169,6 +256,40 @@ mod tests {
         let f = dir.path().join("a");
         std::fs::write(&f, b"x").unwrap();
         assert_eq!(pseudo_filesystem(&File::open(&f).unwrap()).unwrap(), None, "a file on a disk is data");
+    }
+
+    #[test]
+    fn read_capped_refuses_long_and_sparse_files_from_their_length() {
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("sparse");
+        std::fs::File::create(&f).unwrap().set_len(2 << 30).unwrap();
+        assert!(matches!(read_capped(&f, 1 << 20), Err(SizedError::Length(n)) if n == 2 << 30));
+        std::fs::write(&f, b"12345").unwrap();
+        assert_eq!(read_capped(&f, 5).unwrap(), b"12345");
+        assert!(matches!(read_capped(&f, 4), Err(SizedError::Length(5))));
+        assert!(matches!(read_capped(Path::new("/dev/zero"), 4), Err(SizedError::Io(_))));
+    }
+
+    #[test]
+    fn regular_in_stays_inside_its_directory() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::create_dir(d.join("sub")).unwrap();
+        std::fs::write(d.join("sub/a"), b"a").unwrap();
+        std::fs::write(d.join("b"), b"b").unwrap();
+        assert!(regular_in(d, Path::new("sub/a")).unwrap().0.metadata().unwrap().is_file());
+        assert!(regular_in(d, Path::new("b")).is_ok());
+        for bad in ["../b", "/etc/hostname", "sub/../b", "./b", ""] {
+            let e = regular_in(&d.join("sub"), Path::new(bad)).unwrap_err();
+            assert_eq!(e.kind(), io::ErrorKind::InvalidInput, "{bad}: {e}");
+        }
+        std::os::unix::fs::symlink(d.join("b"), d.join("sub/l")).unwrap();
+        assert!(regular_in(&d.join("sub"), Path::new("l")).unwrap_err().to_string().contains("symbolic link"));
+        std::os::unix::fs::symlink(d.join("sub"), d.join("ls")).unwrap();
+        assert!(regular_in(d, Path::new("ls/a")).unwrap_err().to_string().contains("symbolic link"));
+        let fifo = d.join("f");
+        rustix::fs::mkfifoat(rustix::fs::CWD, &fifo, rustix::fs::Mode::from_raw_mode(0o600)).unwrap();
+        assert!(regular_in(d, Path::new("f")).unwrap_err().to_string().contains("a FIFO"));
     }
 
     #[test]

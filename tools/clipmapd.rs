@@ -45,8 +45,9 @@ struct Cli {
     /// images), moved to done/ or rejected/ once taken.
     #[arg(long, value_name = "DIR", requires = "growing")]
     incoming: Option<PathBuf>,
-    /// With --growing: the most bytes of texels one patch may have.
-    #[arg(long, default_value_t = 256 << 20, requires = "growing")]
+    /// With --growing: the most bytes of texels one patch may have (k, m, g suffixes; 1 to 4g).
+    /// `PATCH DATA` requests in flight hold at most twice this, all connections together.
+    #[arg(long, default_value = "256m", value_parser = clipmap::growing::input::parse_max_patch_bytes, requires = "growing")]
     max_patch_bytes: u64,
     /// Procedural texture size, texels a side (a power of two); with --growing, the frame the
     /// texture is served in, centred on its grid's origin.
@@ -192,6 +193,15 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
     let (source, default_name, paging) = match (&cli.config, cli.source) {
         (None, None) if cli.growing.is_some() => {
             let dir = cli.growing.clone().unwrap_or_default();
+            if let Some(d) = &cli.incoming {
+                if !d.is_dir() {
+                    return Err(bad(anyhow::anyhow!("--incoming {}: not a directory", d.display())));
+                }
+                if dir.is_dir() {
+                    clipmap::growing::watch::check_apart(&dir, d)
+                        .map_err(|e| bad(anyhow::anyhow!("--incoming {}: {e}", d.display())))?;
+                }
+            }
             let store = clipmap::growing::store::Growing::open(&dir).map_err(|e| {
                 let code = match e {
                     clipmap::growing::store::StoreError::Busy { .. }
@@ -207,11 +217,6 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
                 max_patch_bytes: cli.max_patch_bytes,
                 ..Default::default()
             };
-            if let Some(d) = &opts.incoming {
-                if !d.is_dir() {
-                    return Err(bad(anyhow::anyhow!("--incoming {}: not a directory", d.display())));
-                }
-            }
             let (src, g, _join) = clipmap::growing::serve::start(store, frame, cli.clip, opts)
                 .map_err(|e| bad(anyhow::anyhow!("{}: {e}", dir.display())))?;
             grower = Some(g);

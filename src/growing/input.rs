@@ -64,6 +64,9 @@ pub enum InputError {
     /// The image is too large to take.
     #[error("{where_}: the image is {width}x{height} pixels, {bytes} bytes of texels; the most is {max_side} a side and {max_bytes} bytes")]
     TooLarge { where_: String, width: u32, height: u32, bytes: u64, max_side: u32, max_bytes: u64 },
+    /// The image file itself is larger than a patch may be.
+    #[error("{where_}: the image file has {bytes} bytes; the most taken is {max_bytes} (--max-patch-bytes)")]
+    FileTooLarge { where_: String, bytes: u64, max_bytes: u64 },
     /// The image's bits per component do not fit the grid's.
     #[error("{where_}: the image has {found}; the texture's texels are {expected}: convert the image, or grow a texture of that format")]
     Depth { where_: String, found: String, expected: String },
@@ -103,6 +106,14 @@ pub fn decode_image(
     where_: &str,
 ) -> Result<(u32, u32, Vec<u8>), InputError> {
     let w = || where_.to_string();
+    // The JPEG decoder fills what a cut file lacks with grey and reports success: walk it from
+    // its SOI to its EOI marker first, as `clipprep` does.
+    if crate::prep::jpeg_check::is_jpeg(bytes) {
+        crate::prep::jpeg_check::check(bytes).map_err(|e| InputError::Decode {
+            where_: w(),
+            problem: format!("{e}; the JPEG is truncated or corrupt"),
+        })?;
+    }
     let reader = image::ImageReader::new(Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| InputError::Format { where_: w(), problem: e.to_string() })?;
@@ -200,19 +211,103 @@ pub fn patch(
     Patch::new(grid, meta, width, height, texels).map_err(|e| InputError::Patch(e, where_.to_string()))
 }
 
+/// Parses a `--max-patch-bytes` value (a byte count, `k`, `m`, `g` suffixes allowed) and checks it
+/// against [`crate::limits::MAX_PATCH_BYTES`]: 1 byte to 4 GiB.
+pub fn parse_max_patch_bytes(text: &str) -> Result<u64, String> {
+    let n = crate::paging::parse_bytes(text)?;
+    let max = crate::limits::MAX_PATCH_BYTES;
+    if n == 0 || n > max {
+        return Err(format!(
+            "{n} bytes is not a patch size this build takes: expected 1 to {max} ({} GiB, MAX_PATCH_BYTES); a patch is held in memory whole while it is checked",
+            max >> 30
+        ));
+    }
+    Ok(n)
+}
+
+pub use crate::limits::MAX_SIDECAR_BYTES;
+
+/// Where the files a sidecar names may be.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Paths {
+    /// Inside the sidecar's own directory: its `image` is a relative path of plain names (no
+    /// `..`, not absolute), and no symbolic link is followed, neither to the sidecar nor along
+    /// its data's path. For every sidecar someone else may have written (a watched directory,
+    /// `cliptex grow add`).
+    Inside,
+    /// Anywhere this process can read, links followed: the owner's own request on the control
+    /// socket (`PATCH FILE`).
+    Anywhere,
+}
+
+/// Most bytes an image file may have for `texel_bytes` bytes of texels: twice its texels and a
+/// MiB (a PNG or TIFF of noise is a little larger than its texels, a JPEG at quality 100 up to
+/// about 1.5 times). Checked when a patch is added and when a store reads it back.
+pub fn max_image_file_bytes(texel_bytes: u64) -> u64 {
+    texel_bytes.saturating_mul(2).saturating_add(1 << 20)
+}
+
 /// The patch a sidecar file describes, with the image (relative to the sidecar's directory) or
 /// raw texels (the sidecar's name with `.raw` for `.json`) it names, read and checked against
-/// `grid`; errors name the sidecar.
-pub fn read_sidecar(grid: &Grid, file: &std::path::Path, max_bytes: u64) -> Result<super::store::NewPatch, InputError> {
+/// `grid`; errors name the sidecar. Every file is opened with the one checked open
+/// ([`crate::open`]: regular files only, never blocking on a FIFO or device) and its length is
+/// checked before it is read: the sidecar at most [`MAX_SIDECAR_BYTES`], an image at most
+/// `max_bytes`, raw texels exactly their size. `paths` says where its files may be.
+pub fn read_sidecar(
+    grid: &Grid,
+    file: &std::path::Path,
+    max_bytes: u64,
+    paths: Paths,
+) -> Result<super::store::NewPatch, InputError> {
+    use crate::open::SizedError;
     let where_ = file.display().to_string();
-    let text = std::fs::read(file)
-        .map_err(|e| InputError::Sidecar { where_: where_.clone(), problem: format!("could not read it: {e}") })?;
+    let dir = file.parent().unwrap_or(std::path::Path::new("."));
+    let open = |path: &std::path::Path| -> std::io::Result<(std::fs::File, std::fs::Metadata)> {
+        match paths {
+            Paths::Anywhere => crate::open::regular(path),
+            Paths::Inside => {
+                let rel = path.strip_prefix(dir).unwrap_or(path);
+                crate::open::regular_in(dir, rel)
+            }
+        }
+    };
+    let read = |path: &std::path::Path, max: u64, what: &str| -> Result<Vec<u8>, InputError> {
+        let problem =
+            match open(path).map_err(SizedError::Io).and_then(|(f, m)| crate::open::read_open_capped(f, &m, max)) {
+                Ok(bytes) => return Ok(bytes),
+                Err(SizedError::Io(e)) => format!("could not read {what} {}: {e}", path.display()),
+                Err(SizedError::Length(n)) => {
+                    format!("{what} {} holds {n} bytes; the most taken is {max}", path.display())
+                }
+            };
+        Err(InputError::Sidecar { where_: where_.clone(), problem })
+    };
+    let text = match paths {
+        Paths::Anywhere => read(file, MAX_SIDECAR_BYTES, "the description")?,
+        Paths::Inside => {
+            let name = std::path::Path::new(file.file_name().unwrap_or_default());
+            read(&dir.join(name), MAX_SIDECAR_BYTES, "the description")?
+        }
+    };
     let desc = sidecar(&text, &where_)?;
+    if let (Paths::Inside, Some(image)) = (paths, &desc.image) {
+        let p = std::path::Path::new(image);
+        if !p.components().all(|c| matches!(c, std::path::Component::Normal(_))) || image.is_empty() {
+            return Err(InputError::Sidecar {
+                where_,
+                problem: format!(
+                    "its \"image\" {image:?} is not a path inside the sidecar's directory; give a file name relative to it, without `..` (images elsewhere are taken only by `PATCH FILE` on the control socket)"
+                ),
+            });
+        }
+    }
     let data_path = data_file(file, &desc);
-    let bytes = std::fs::read(&data_path).map_err(|e| InputError::Sidecar {
-        where_: where_.clone(),
-        problem: format!("could not read {}: {e}", data_path.display()),
-    })?;
+    let max = match desc.raw {
+        Some(RawSize { width, height }) => (width as u64 * height as u64 * grid.bytes_per_texel as u64).min(max_bytes),
+        None => max_bytes,
+    };
+    let what = if desc.raw.is_some() { "the raw texels" } else { "the image" };
+    let bytes = read(&data_path, max, what)?;
     new_patch(grid, &desc, bytes, max_bytes, &where_)
 }
 
@@ -225,7 +320,21 @@ pub fn new_patch(
     max_bytes: u64,
     where_: &str,
 ) -> Result<super::store::NewPatch, InputError> {
+    if desc.image.is_some() && bytes.len() as u64 > max_bytes {
+        return Err(InputError::FileTooLarge { where_: where_.to_string(), bytes: bytes.len() as u64, max_bytes });
+    }
     let p = patch(grid, 0, desc, &bytes, max_bytes, where_)?;
+    if desc.image.is_some() && bytes.len() as u64 > max_image_file_bytes(p.texels.len() as u64) {
+        return Err(InputError::Decode {
+            where_: where_.to_string(),
+            problem: format!(
+                "the image file has {} bytes for {} bytes of texels; the most kept is {} (twice its texels and a MiB)",
+                bytes.len(),
+                p.texels.len(),
+                max_image_file_bytes(p.texels.len() as u64)
+            ),
+        });
+    }
     let encoded = desc.image.is_some().then_some(bytes);
     Ok(super::store::NewPatch {
         bbox: p.bbox,
@@ -300,6 +409,52 @@ mod tests {
         assert!(matches!(desc(both), Err(InputError::Source { found: "both", .. })));
         let e = desc("{").unwrap_err().to_string();
         assert!(e.starts_with("d.json: ") && e.contains("\"bbox\""), "{e}");
+    }
+
+    fn jpeg(w: u32, h: u32) -> Vec<u8> {
+        let img = image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 5) as u8, (y * 3) as u8, 90]));
+        let mut out = Cursor::new(Vec::new());
+        img.write_to(&mut out, image::ImageFormat::Jpeg).unwrap();
+        out.into_inner()
+    }
+
+    #[test]
+    fn a_jpeg_without_its_end_marker_or_cut_short_is_refused_not_filled_with_grey() {
+        let rgb = Grid::new([0.0, 0.0], 1.0, 4, 3, 1).unwrap();
+        let j = jpeg(64, 48);
+        assert_eq!(decode_image(&rgb, &j, 1 << 20, "a.jpg").unwrap().0, 64);
+        for cut in [j.len() - 2, j.len() - 40, j.len() * 3 / 4] {
+            let e = decode_image(&rgb, &j[..cut], 1 << 20, "cut.jpg").unwrap_err();
+            assert!(matches!(e, InputError::Decode { .. }) && e.to_string().contains("ends early"), "{cut}: {e}");
+        }
+    }
+
+    #[test]
+    fn a_sidecar_image_with_dotdot_or_absolute_is_refused_unless_the_owner_asks() {
+        let rgb = Grid::new([0.0, 0.0], 1.0, 4, 3, 1).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::create_dir(d.join("in")).unwrap();
+        std::fs::write(d.join("secret.jpg"), jpeg(8, 8)).unwrap();
+        let abs = d.join("secret.jpg").display().to_string();
+        for image in ["../secret.jpg", abs.as_str(), "./../secret.jpg", ""] {
+            let side = d.join("in/s.json");
+            std::fs::write(&side, format!(r#"{{"bbox": [0, 0, 8, 8], "image": "{image}"}}"#)).unwrap();
+            let e = read_sidecar(&rgb, &side, 1 << 20, Paths::Inside).unwrap_err().to_string();
+            assert!(e.contains("not a path inside the sidecar's directory"), "{image}: {e}");
+        }
+        let side = d.join("in/own.json");
+        std::fs::write(&side, format!(r#"{{"bbox": [0, 0, 8, 8], "image": "{abs}"}}"#)).unwrap();
+        assert_eq!(read_sidecar(&rgb, &side, 1 << 20, Paths::Anywhere).unwrap().width, 8);
+    }
+
+    #[test]
+    fn max_patch_bytes_is_bounded() {
+        assert_eq!(parse_max_patch_bytes("256m").unwrap(), 256 << 20);
+        assert_eq!(parse_max_patch_bytes("4g").unwrap(), crate::limits::MAX_PATCH_BYTES);
+        for bad in ["0", "4294967297", "18446744073709551615", "1099511627776"] {
+            assert!(parse_max_patch_bytes(bad).unwrap_err().contains("MAX_PATCH_BYTES"), "{bad}");
+        }
     }
 
     #[test]

@@ -481,6 +481,9 @@ impl Default for GrowerOptions {
     }
 }
 
+/// The unit of [`Grower::in_flight`]'s permits: one KiB.
+pub const IN_FLIGHT_UNIT: u64 = 1 << 10;
+
 /// The grower's handle: send it patches; it stops when told or when every handle is gone.
 #[derive(Clone, Debug)]
 pub struct Grower {
@@ -488,6 +491,12 @@ pub struct Grower {
     served: Arc<Served>,
     /// Largest patch accepted, in bytes of texels.
     pub max_patch_bytes: u64,
+    /// Bytes of `PATCH DATA` requests in flight, all connections together: twice
+    /// `max_patch_bytes`, in permits of [`IN_FLIGHT_UNIT`] bytes. A request holds its share
+    /// from before its first byte is read until its patch is decoded and handed over.
+    pub in_flight: Arc<tokio::sync::Semaphore>,
+    /// The bound `in_flight` keeps, in bytes.
+    pub max_in_flight_bytes: u64,
 }
 
 impl Grower {
@@ -536,7 +545,15 @@ pub fn start(
     served.set_growth(&store, 0, outside(&store));
     let (tx, rx) = mpsc::sync_channel(64);
     let source = Arc::new(GrowingSource { desc, served: served.clone() });
-    let handle = Grower { commands: tx, served: served.clone(), max_patch_bytes: options.max_patch_bytes };
+    let max_patch_bytes = options.max_patch_bytes.clamp(1, crate::limits::MAX_PATCH_BYTES);
+    let max_in_flight_bytes = max_patch_bytes * 2;
+    let handle = Grower {
+        commands: tx,
+        served: served.clone(),
+        max_patch_bytes,
+        in_flight: Arc::new(tokio::sync::Semaphore::new(max_in_flight_bytes.div_ceil(IN_FLIGHT_UNIT) as usize)),
+        max_in_flight_bytes,
+    };
     let join = std::thread::Builder::new()
         .name("clipmapd-grow".into())
         .spawn(move || {

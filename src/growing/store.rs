@@ -100,6 +100,28 @@ pub enum StoreError {
     Patch(GrowError),
 }
 
+pub use crate::limits::{MAX_GROWING_LEVELS as MAX_LEVELS, MAX_RECORD_BYTES};
+
+/// Reads one of the store's small files with the one checked open (regular files only, never
+/// blocking on a FIFO or a device, at most [`MAX_RECORD_BYTES`]).
+fn read_record(path: &Path) -> Result<Vec<u8>, StoreError> {
+    crate::open::read_capped(path, MAX_RECORD_BYTES).map_err(|e| sized_err(path, "could not read", MAX_RECORD_BYTES, e))
+}
+
+fn sized_err(path: &Path, what: &'static str, max: u64, e: crate::open::SizedError) -> StoreError {
+    match e {
+        crate::open::SizedError::Io(source) if source.kind() == io::ErrorKind::InvalidInput => StoreError::Damaged {
+            path: path.to_path_buf(),
+            problem: format!("{source} where the store keeps a regular file"),
+        },
+        crate::open::SizedError::Io(source) => StoreError::Io { path: path.to_path_buf(), what, source },
+        crate::open::SizedError::Length(n) => StoreError::Damaged {
+            path: path.to_path_buf(),
+            problem: format!("{n} bytes where this file has at most {max}"),
+        },
+    }
+}
+
 fn io_err<'a>(path: &'a Path, what: &'static str) -> impl FnOnce(io::Error) -> StoreError + 'a {
     move |source| StoreError::Io { path: path.to_path_buf(), what, source }
 }
@@ -167,6 +189,8 @@ pub struct Growing {
     applied: u64,
     /// Patches replayed at open.
     replayed: usize,
+    /// Tile files found damaged at open (and marked to be rebuilt), with what was wrong.
+    damaged: Vec<(PathBuf, String)>,
     /// The writer's lock (`DIR/lock`, an exclusive `flock` held while this lives); `None` for a
     /// read-only handle.
     lock: Option<std::fs::File>,
@@ -262,6 +286,7 @@ impl Growing {
             next_id: 1,
             applied: 0,
             replayed: 0,
+            damaged: Vec::new(),
             lock: Some(lock),
             sources: Default::default(),
             saved: Vec::new(),
@@ -284,15 +309,15 @@ impl Growing {
 
     fn open_as(dir: &Path, write: bool) -> Result<Growing, StoreError> {
         let grid_path = dir.join("grid.json");
-        let text = match std::fs::read(&grid_path) {
+        let text = match crate::open::read_capped(&grid_path, MAX_RECORD_BYTES) {
             Ok(t) => t,
-            Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(StoreError::NotAStore {
+            Err(crate::open::SizedError::Io(e)) if e.kind() == io::ErrorKind::NotFound => return Err(StoreError::NotAStore {
                 path: dir.to_path_buf(),
                 problem:
                     "no grid.json here: this is not a growing texture (create one with `cliptex grow create DIR ...`)"
                         .into(),
             }),
-            Err(e) => return Err(io_err(&grid_path, "could not read")(e)),
+            Err(e) => return Err(sized_err(&grid_path, "could not read", MAX_RECORD_BYTES, e)),
         };
         let file: GridFile = serde_json::from_slice(&text).map_err(|e| StoreError::Damaged {
             path: grid_path.clone(),
@@ -313,12 +338,16 @@ impl Growing {
         let grid = Grid::new(file.origin, file.texels_per_unit, file.tile, bpt, cb).map_err(StoreError::Grid)?;
         let lock = if write { Some(take_lock(dir)?) } else { None };
         let state_path = dir.join("state.json");
-        let state: State =
-            serde_json::from_slice(&std::fs::read(&state_path).map_err(io_err(&state_path, "could not read"))?)
-                .map_err(|e| StoreError::Damaged {
-                    path: state_path.clone(),
-                    problem: format!("not a rebuild state ({e})"),
-                })?;
+        let state: State = serde_json::from_slice(&read_record(&state_path)?).map_err(|e| StoreError::Damaged {
+            path: state_path.clone(),
+            problem: format!("not a rebuild state ({e})"),
+        })?;
+        if state.levels > MAX_LEVELS {
+            return Err(StoreError::Damaged {
+                path: state_path,
+                problem: format!("it says {} levels; a growing texture has at most {MAX_LEVELS}", state.levels),
+            });
+        }
 
         // Patches, in id order; a texels file without its record was never acknowledged.
         let pdir = dir.join("patches");
@@ -349,10 +378,10 @@ impl Growing {
         let mut replay = Vec::new();
         let mut sources = std::collections::HashSet::new();
         for (id, path) in &records {
-            let rec: PatchRecord =
-                serde_json::from_slice(&std::fs::read(path).map_err(io_err(path, "could not read"))?).map_err(|e| {
-                    StoreError::Damaged { path: path.clone(), problem: format!("not a patch record ({e})") }
-                })?;
+            let rec: PatchRecord = serde_json::from_slice(&read_record(path)?).map_err(|e| StoreError::Damaged {
+                path: path.clone(),
+                problem: format!("not a patch record ({e})"),
+            })?;
             if rec.id != *id {
                 return Err(StoreError::Damaged {
                     path: path.clone(),
@@ -363,16 +392,42 @@ impl Growing {
                 sources.insert(s.clone());
             }
             let mut redo = false;
+            // What the record says the texels are, bounded before anything is read: a file of
+            // another length (a sparse giant, a link to a device) is damaged, never read whole.
+            let texel_bytes = rec.width as u64 * rec.height as u64 * grid.bytes_per_texel as u64;
+            if rec.width > super::MAX_PATCH_PIXELS
+                || rec.height > super::MAX_PATCH_PIXELS
+                || texel_bytes > crate::limits::MAX_PATCH_BYTES
+            {
+                return Err(StoreError::Damaged {
+                    path: path.clone(),
+                    problem: format!(
+                        "a {}x{} patch; the most is {} a side and {} bytes of texels",
+                        rec.width,
+                        rec.height,
+                        super::MAX_PATCH_PIXELS,
+                        crate::limits::MAX_PATCH_BYTES
+                    ),
+                });
+            }
             let texels = match &rec.image_digest {
                 None => {
                     let tpath = pdir.join(format!("{id:010}.texels"));
-                    std::fs::read(&tpath).map_err(io_err(&tpath, "could not read the patch's texels"))?
+                    crate::open::read_sized(&tpath, &[texel_bytes]).map_err(|e| match e {
+                        crate::open::SizedError::Length(n) => StoreError::Damaged {
+                            path: tpath.clone(),
+                            problem: format!("{n} bytes where the record says {texel_bytes}"),
+                        },
+                        e => sized_err(&tpath, "could not read the patch's texels", texel_bytes, e),
+                    })?
                 }
                 Some(want) => {
                     let ipath = pdir.join(format!("{id:010}.image"));
-                    let bytes = std::fs::read(&ipath).map_err(io_err(&ipath, "could not read the patch's image"))?;
+                    let max = super::input::max_image_file_bytes(texel_bytes);
+                    let bytes = crate::open::read_capped(&ipath, max)
+                        .map_err(|e| sized_err(&ipath, "could not read the patch's image", max, e))?;
                     let (w, h, texels) =
-                        super::input::decode_image(&grid, &bytes, u64::MAX, &ipath.display().to_string())
+                        super::input::decode_image(&grid, &bytes, texel_bytes.max(1), &ipath.display().to_string())
                             .map_err(|e| StoreError::Damaged { path: ipath.clone(), problem: e.to_string() })?;
                     if (w, h) != (rec.width, rec.height) {
                         return Err(StoreError::Damaged {
@@ -410,6 +465,7 @@ impl Growing {
         let mut tiles = HashMap::new();
         let tdir = dir.join("tiles");
         let mut damaged = Vec::new();
+        let mut damaged_files = Vec::new();
         for level in std::fs::read_dir(&tdir).map_err(io_err(&tdir, "could not list"))? {
             let ldir = level.map_err(io_err(&tdir, "could not list"))?.path();
             let Some(k) = ldir.file_name().and_then(|n| n.to_str()).and_then(|n| n.parse::<u32>().ok()) else {
@@ -433,6 +489,7 @@ impl Growing {
                     Err(problem) => {
                         tracing::warn!(path = %path.display(), %problem, "a damaged tile file: rebuilding it");
                         damaged.push((k, s, t));
+                        damaged_files.push((path.clone(), problem));
                     }
                 }
             }
@@ -461,6 +518,7 @@ impl Growing {
             next_id,
             applied: state.applied,
             replayed: replay.len(),
+            damaged: damaged_files,
             lock,
             sources,
             saved: Vec::new(),
@@ -649,6 +707,12 @@ impl Growing {
         self.applied
     }
 
+    /// Tile files `open` found damaged (a wrong length, not a regular file, ...) and marked to be
+    /// rebuilt, with what was wrong with each.
+    pub fn damaged(&self) -> &[(PathBuf, String)] {
+        &self.damaged
+    }
+
     /// Patches whose rebuild `open` had to redo.
     pub fn replayed(&self) -> usize {
         self.replayed
@@ -664,22 +728,45 @@ impl Growing {
 /// id into it; refused, naming the holder, while another writer holds it.
 fn take_lock(dir: &Path) -> Result<std::fs::File, StoreError> {
     use rustix::fs::{flock, FlockOperation};
+    use std::io::Read;
+    use std::os::unix::fs::OpenOptionsExt;
     let path = dir.join("lock");
+    // Never through a link, never blocking on a FIFO: a lock planted as a link would have the
+    // pid written into its target.
     let mut f = std::fs::OpenOptions::new()
         .read(true)
         .write(true)
         .create(true)
         .truncate(false)
+        .custom_flags((rustix::fs::OFlags::NOFOLLOW | rustix::fs::OFlags::NONBLOCK).bits() as i32)
         .open(&path)
-        .map_err(io_err(&path, "could not open the lock file"))?;
+        .map_err(|e| match e.raw_os_error() {
+            Some(code) if code == rustix::io::Errno::LOOP.raw_os_error() => StoreError::Io {
+                path: path.clone(),
+                what: "it is a symbolic link where the store keeps its lock file (never followed); remove it",
+                source: e,
+            },
+            _ => io_err(&path, "could not open the lock file")(e),
+        })?;
+    let meta = f.metadata().map_err(io_err(&path, "could not look at the lock file"))?;
+    if !meta.is_file() {
+        return Err(StoreError::Io {
+            path,
+            what: "it is not the store's lock file (a regular file); remove it",
+            source: crate::open::not_regular(&meta),
+        });
+    }
     if let Err(e) = flock(&f, FlockOperation::NonBlockingLockExclusive) {
         if e == rustix::io::Errno::WOULDBLOCK {
-            let holder = std::fs::read_to_string(&path).unwrap_or_default();
+            let mut holder = String::new();
+            let _ = (&f).take(64).read_to_string(&mut holder);
             return Err(StoreError::Busy { path: dir.to_path_buf(), holder: holder.trim().to_string() });
         }
         return Err(io_err(&path, "could not lock")(e.into()));
     }
+    use std::io::{Seek, SeekFrom};
     f.set_len(0)
+        .and_then(|_| f.seek(SeekFrom::Start(0)).map(|_| ()))
         .and_then(|_| f.write_all(std::process::id().to_string().as_bytes()))
         .map_err(io_err(&path, "could not write"))?;
     Ok(f)
@@ -705,13 +792,15 @@ fn tile_bytes(grid: &Grid, (k, s, t): TileKey, tile: &Tile) -> Vec<u8> {
 
 /// A tile file, checked against the grid and the key its name gives.
 fn read_tile(path: &Path, grid: &Grid, key: TileKey) -> Result<Tile, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("could not read: {e}"))?;
     let n = (grid.tile * grid.tile) as usize;
     let texel_bytes = n * grid.bytes_per_texel;
     let want = TILE_HEADER + texel_bytes + n.div_ceil(8);
-    if bytes.len() != want {
-        return Err(format!("{} bytes where a tile of this grid has {want}", bytes.len()));
-    }
+    // Its length is checked before it is read (a sparse giant or a link to a device is damaged,
+    // never read), and a FIFO is refused without blocking.
+    let bytes = crate::open::read_sized(path, &[want as u64]).map_err(|e| match e {
+        crate::open::SizedError::Io(e) => format!("could not read: {e}"),
+        crate::open::SizedError::Length(n) => format!("{n} bytes where a tile of this grid has {want}"),
+    })?;
     if bytes[..8] != TILE_MAGIC {
         return Err("it does not start with CLIPGT01".into());
     }
@@ -746,7 +835,9 @@ fn write_file(path: &Path, bytes: &[u8], sync: bool) -> Result<(), StoreError> {
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("file");
     let tmp = path.with_file_name(format!(".{name}.tmp{}", std::process::id()));
     let written = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
+        // A fresh file, never through a link or over something planted at the name.
+        let _ = std::fs::remove_file(&tmp);
+        let mut f = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp)?;
         f.write_all(bytes)?;
         if sync {
             f.sync_all()?;

@@ -173,6 +173,11 @@ async fn connection(stream: UnixStream, ctx: Arc<Context>, _permit: OwnedSemapho
 async fn answer(ctx: &Context, line: &[u8], rd: &mut BufReader<tokio::net::unix::OwnedReadHalf>) -> (String, Flow) {
     let req = match protocol::parse(line) {
         Ok(r) => r,
+        // The bytes that follow a PATCH DATA line are never read as requests: a line that cannot
+        // say how many there are ends the connection.
+        Err(e) if protocol::announces_data(line) => {
+            return (format!("ERR {e}; closing (nothing was taken)"), Flow::Close)
+        }
         Err(e) => return (format!("ERR {e}"), Flow::Continue),
     };
     match req {
@@ -204,11 +209,33 @@ async fn answer(ctx: &Context, line: &[u8], rd: &mut BufReader<tokio::net::unix:
                     Flow::Close,
                 );
             }
-            let mut data = Vec::with_capacity(bytes as usize);
+            // Every PATCH DATA in flight, all connections together, holds its share of the
+            // grower's bound until its patch is decoded and handed over; one that cannot have it
+            // within the idle time is refused. The buffer grows as bytes arrive, so an announced
+            // size that never comes costs nothing.
+            let share = bytes.div_ceil(crate::growing::serve::IN_FLIGHT_UNIT) as u32;
+            let permit = match tokio::time::timeout(ctx.limits.idle, g.in_flight.clone().acquire_many_owned(share)).await {
+                Ok(Ok(p)) => p,
+                _ => {
+                    return (
+                        format!(
+                            "ERR PATCH DATA: {bytes} bytes announced while the {} bytes of patches the service holds in flight at once (twice --max-patch-bytes) stayed taken for {} ms; nothing was taken; try again later; closing",
+                            g.max_in_flight_bytes,
+                            ctx.limits.idle.as_millis()
+                        ),
+                        Flow::Close,
+                    )
+                }
+            };
+            let mut data = Vec::with_capacity(bytes.min(64 << 10) as usize);
             let mut limited = (&mut *rd).take(bytes);
             let read = limited.read_to_end(&mut data);
             match tokio::time::timeout(ctx.limits.idle, read).await {
-                Ok(Ok(n)) if n as u64 == bytes => (patch(ctx, Patch::Data(json, data)).await, Flow::Continue),
+                Ok(Ok(n)) if n as u64 == bytes => {
+                    let reply = patch(ctx, Patch::Data(json, data)).await;
+                    drop(permit);
+                    (reply, Flow::Continue)
+                }
                 Ok(Ok(n)) => (
                     format!("ERR PATCH DATA: {n} of {bytes} bytes arrived before the end of input; nothing was taken"),
                     Flow::Close,
@@ -258,7 +285,10 @@ async fn patch(ctx: &Context, p: Patch) -> String {
     let grid = g.grid();
     let max = g.max_patch_bytes;
     let read = tokio::task::spawn_blocking(move || match p {
-        Patch::File(path) => crate::growing::input::read_sidecar(&grid, &path, max),
+        // The owner's own request: the sidecar's image may be anywhere it can read.
+        Patch::File(path) => {
+            crate::growing::input::read_sidecar(&grid, &path, max, crate::growing::input::Paths::Anywhere)
+        }
         Patch::Data(json, bytes) => crate::growing::input::sidecar(json.as_bytes(), "the request")
             .and_then(|d| crate::growing::input::new_patch(&grid, &d, bytes, max, "the request")),
     })

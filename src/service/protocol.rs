@@ -154,6 +154,16 @@ pub fn parse(line: &[u8]) -> Result<Request, BadRequest> {
     }
 }
 
+/// Whether `line` is a `PATCH DATA` request, well formed or not: bytes follow such a line, so a
+/// refused one closes the connection rather than read those bytes as requests.
+pub fn announces_data(line: &[u8]) -> bool {
+    let mut words = line.split(|b| b.is_ascii_whitespace()).filter(|w| !w.is_empty());
+    matches!(
+        (words.next(), words.next()),
+        (Some(a), Some(b)) if a.eq_ignore_ascii_case(b"PATCH") && b.eq_ignore_ascii_case(b"DATA")
+    )
+}
+
 /// At most 40 characters of a word, for error messages (replies stay short whatever was sent).
 fn clip(w: &str) -> String {
     let mut s: String = w.chars().take(40).filter(|c| !c.is_control()).collect();
@@ -217,6 +227,10 @@ mod tests {
             let err = parse(line).unwrap_err().to_string();
             assert!(err.contains(want), "{:?}: {err}", String::from_utf8_lossy(line));
         }
+        for line in [&b"PATCH DATA 9 nojson"[..], b"patch  data x {}", b" PATCH DATA", b"PATCH\tDATA 5"] {
+            assert!(parse(line).is_err() && announces_data(line), "{:?}", String::from_utf8_lossy(line));
+        }
+        assert!(!announces_data(b"PATCH FILE x") && !announces_data(b"PATCHDATA 1 {}") && !announces_data(b""));
         let long = format!("X{}", "y".repeat(5000));
         assert!(parse(long.as_bytes()).unwrap_err().to_string().len() < 260, "error replies stay short");
         assert_eq!(parse(b"BUDGET 0").unwrap_err(), BadRequest::Budget("0".into()));

@@ -32,6 +32,7 @@ mod fuzz_regressions;
 mod growing;
 mod growing_service;
 mod hostile;
+mod patch_fuzz_props;
 #[cfg(feature = "remote")]
 mod remote;
 mod sixteen_bit;

@@ -67,8 +67,8 @@ still added (exit status 1 if any was refused).")]
         /// Only keep and index the patches; rebuild later (`cliptex grow rebuild`).
         #[arg(long)]
         no_rebuild: bool,
-        /// Largest patch, in bytes of texels (k, m, g suffixes).
-        #[arg(long, default_value = "1g", value_parser = clipmap::paging::parse_bytes)]
+        /// Largest patch, in bytes of texels (k, m, g suffixes; 1 to 4g).
+        #[arg(long, default_value = "1g", value_parser = clipmap::growing::input::parse_max_patch_bytes)]
         max_patch_bytes: u64,
         /// Tiles rebuilt per step.
         #[arg(long, default_value_t = 256)]
@@ -103,8 +103,8 @@ appears. The same sidecar, byte for byte, is taken once, even across a crash.")]
         /// Sidecars taken per round.
         #[arg(long, default_value_t = 16)]
         per_round: usize,
-        /// Largest patch, in bytes of texels (k, m, g suffixes).
-        #[arg(long, default_value = "1g", value_parser = clipmap::paging::parse_bytes)]
+        /// Largest patch, in bytes of texels (k, m, g suffixes; 1 to 4g).
+        #[arg(long, default_value = "1g", value_parser = clipmap::growing::input::parse_max_patch_bytes)]
         max_patch_bytes: u64,
         /// Take what waits, rebuild everything, and exit.
         #[arg(long)]
@@ -334,12 +334,14 @@ pub fn run(cmd: GrowCommand) -> i32 {
             let (mut added, mut refused) = (Vec::new(), Vec::new());
             for file in files {
                 let shown = file.display().to_string();
-                match input::read_sidecar(g.grid(), &file, max_patch_bytes).map_err(|e| e.to_string()).and_then(|p| {
-                    g.add(p).map_err(|e| match e {
-                        StoreError::Io { .. } => format!("could not keep it: {e}"),
-                        e => format!("{shown}: {e}"),
-                    })
-                }) {
+                match input::read_sidecar(g.grid(), &file, max_patch_bytes, input::Paths::Inside)
+                    .map_err(|e| e.to_string())
+                    .and_then(|p| {
+                        g.add(p).map_err(|e| match e {
+                            StoreError::Io { .. } => format!("could not keep it: {e}"),
+                            e => format!("{shown}: {e}"),
+                        })
+                    }) {
                     Ok(id) => {
                         if !json {
                             println!("{shown}: added as patch {id}");
@@ -384,6 +386,10 @@ pub fn run(cmd: GrowCommand) -> i32 {
                 eprintln!("cliptex grow watch: {}: could not create: {e}", incoming.display());
                 return exit::COULD_NOT_RUN;
             }
+            if let Err(e) = clipmap::growing::watch::check_apart(&dir, &incoming) {
+                eprintln!("cliptex grow watch: {e}");
+                return exit::BAD_INPUT;
+            }
             watch(&mut g, &incoming, interval, per_step, per_round.max(1), max_patch_bytes, once)
         }
         GrowCommand::Rebuild { dir, per_step, json } => {
@@ -391,6 +397,9 @@ pub fn run(cmd: GrowCommand) -> i32 {
                 Ok(g) => g,
                 Err(c) => return c,
             };
+            for (path, problem) in g.damaged() {
+                eprintln!("cliptex grow rebuild: {}: damaged ({problem}); rebuilding it", path.display());
+            }
             if let Err(e) = g.finish(per_step) {
                 eprintln!("cliptex grow rebuild: {e}");
                 return store_exit(&e);

@@ -10,6 +10,7 @@
 
 mod exits;
 mod files;
+mod growing;
 mod images;
 mod names;
 mod numbers;
