@@ -739,6 +739,11 @@ impl Clipmap {
             level.frame = level.shape.frame(c, self.border, v);
             level.frame.mem = match &mut self.controller {
                 None => self.settings.prefetch.policy().mem_region(&level.shape, level.frame.tex, v, previous),
+                // A grid a configuration fixes (`mem_region_size`, or its lookahead) is held whole,
+                // as the configuration says, its spare tiles around the window: reported fixed.
+                Some(_) if self.desc.mem_grid(k32).is_some() => {
+                    PrefetchKind::Ring.policy().mem_region(&level.shape, level.frame.tex, v, previous)
+                }
                 Some(ctl) => {
                     let smooth = ctl.motion.at_level(k32);
                     let speed = ctl.motion.speed_at_level(k32);
@@ -861,7 +866,7 @@ impl Clipmap {
             .iter()
             .enumerate()
             .map(|(k, l)| {
-                let Some(c) = &self.controller else {
+                let Some(c) = self.controller.as_ref().filter(|_| self.desc.mem_grid(k as u32).is_none()) else {
                     return adaptive::LevelPaging { grid: l.shape.grid, ..Default::default() };
                 };
                 let speed = c.motion.speed_at_level(k as u32).map(|x| x.ceil() as u64);
