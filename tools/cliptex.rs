@@ -165,10 +165,12 @@ Examples:
         /// (for a .ct, its .ic's tile_size).
         #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u64).range(1..=65536))]
         tile: u64,
-        /// Spare tile rows and columns each stack level's grid keeps beyond its window (the
-        /// engine's default; an .ic's mem_region_size sets a grid of its own).
-        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(0..=64))]
-        lookahead: u64,
+        /// Spare tile rows and columns each stack level's grid keeps beyond its window: fixed
+        /// grids (as `--prefetch ring|direction|ahead` keep). Without it, the grids the default
+        /// adaptive policy sizes from its default budget (twice the lookahead-1 grids); an .ic's
+        /// mem_region_size sets a grid of its own.
+        #[arg(long, value_parser = clap::value_parser!(u64).range(0..=64))]
+        lookahead: Option<u64>,
         /// Print memory for texture sizes 2^10 to 2^26 at once.
         #[arg(long)]
         table: bool,

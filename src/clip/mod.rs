@@ -248,6 +248,8 @@ struct Controller {
     /// Each level's lead now and the lead its motion needed (level texels per axis).
     lead: Vec<[u64; 2]>,
     needed: Vec<[u64; 2]>,
+    /// Latency samples taken so far.
+    samples: u64,
 }
 
 impl Clipmap {
@@ -679,6 +681,7 @@ impl Clipmap {
     /// (taken, left for the next tick).
     fn take_reads(&mut self, started: Instant) -> (u64, usize) {
         self.backlog.extend(self.queues.drain());
+        let sampled = self.controller.as_ref().map(|c| c.samples);
         let budget = self.settings.budget_ns.map(Duration::from_nanos);
         let mut admitted = 0;
         let mut n = 0u32;
@@ -690,6 +693,7 @@ impl Clipmap {
                         if let Some(c) = &mut self.controller {
                             if let Some((at, true)) = c.asked.remove(&done.tile) {
                                 c.latency.sample(self.tick.saturating_sub(at));
+                                c.samples += 1;
                             }
                         }
                         if delivered == crate::source::Delivered::Default {
@@ -720,6 +724,11 @@ impl Clipmap {
             }
         }
         self.stats.tiles_read += admitted;
+        if let Some(c) = &mut self.controller {
+            if sampled == Some(c.samples) {
+                c.latency.rest();
+            }
+        }
         (admitted, self.backlog.len())
     }
 
@@ -882,6 +891,9 @@ impl Clipmap {
                     -1 => (if a == 0 { need.s0 - m.s0 } else { need.t0 - m.t0 }).max(0) as u64,
                     _ => 0,
                 };
+                if reason == adaptive::Reason::Fixed {
+                    return adaptive::LevelPaging { grid: l.shape.grid, ..Default::default() };
+                }
                 adaptive::LevelPaging {
                     lead_tiles: [beyond(0), beyond(1)],
                     lead_texels: c.lead[k],

@@ -154,7 +154,8 @@ pub fn budget_grids(
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Reason {
-    /// A fixed policy or fixed grids: nothing is adapted.
+    /// A fixed policy, a grid a configuration fixes, or a grid that holds the whole level (a
+    /// pyramid level): nothing is adapted.
     #[default]
     Fixed,
     /// Still: the ring of the default grid.
@@ -264,11 +265,22 @@ impl Default for Latency {
     }
 }
 
+/// The most ticks of latency the controller plans with (10 s at 60 ticks a second): a read that
+/// took longer says the source is down, not how far to read ahead.
+pub const MAX_LATENCY_TICKS: f64 = 600.0;
+
 impl Latency {
     /// Takes one read's latency (ticks).
     pub fn sample(&mut self, ticks: u64) {
-        let x = (ticks as f64).max(INITIAL_LATENCY_TICKS);
+        let x = (ticks as f64).clamp(INITIAL_LATENCY_TICKS, MAX_LATENCY_TICKS);
         self.ticks = if x >= self.ticks { x } else { self.ticks + (x - self.ticks) / 20.0 };
+    }
+
+    /// A tick that measured no read: the estimate decays by a sixty-fourth of its distance from
+    /// one tick, so that a peak measured while reads queued (a fill, a source that could not keep
+    /// up) does not stay the plan for good.
+    pub fn rest(&mut self) {
+        self.ticks += (INITIAL_LATENCY_TICKS - self.ticks) / 64.0;
     }
 }
 
@@ -286,11 +298,15 @@ pub fn held_lead(previous: u64, needed: u64) -> u64 {
 /// in texels the motion calls for, `whole` whether the level's valid region is whole. The grid
 /// holds a lead of at most its spare tiles beyond the window's.
 pub fn reason(shape: &LevelShape, speed: [u64; 2], needed: [u64; 2], whole: bool) -> Reason {
+    let n = tiles_in_level(shape.size, shape.tile);
+    if shape.grid[0] >= n[0] && shape.grid[1] >= n[1] {
+        // The grid holds the whole level (a pyramid level, or a small one): nothing to page.
+        return Reason::Fixed;
+    }
     if speed == [0, 0] {
         return Reason::Hover;
     }
     let touch = mem_grid(shape.size, shape.tile, shape.clip, 0);
-    let n = tiles_in_level(shape.size, shape.tile);
     for a in 0..2 {
         // A window at the level's edge on an axis (the grid holds the whole axis) never needs more.
         if shape.grid[a] >= n[a] {
@@ -425,6 +441,12 @@ mod tests {
             l.sample(1);
         }
         assert!((l.ticks - 1.0).abs() < 0.01);
+        l.sample(1_000_000);
+        assert_eq!(l.ticks, MAX_LATENCY_TICKS, "bounded");
+        for _ in 0..600 {
+            l.rest();
+        }
+        assert!(l.ticks < 2.0, "a peak decays at rest: {}", l.ticks);
     }
 
     #[test]

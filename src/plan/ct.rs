@@ -169,6 +169,7 @@ pub fn build(
     let page_f = r.int(TokenId::PageSize);
     let page_size = ic::page_size(&mut r, &page_f, None, &mut defaulted);
     let look_f = r.int(TokenId::Lookahead);
+    let lookahead_given = matches!(look_f, Field::Given(..));
     let lookahead = values::non_negative(&mut r, &look_f, "lookahead", 1, &mut defaulted, "lookahead");
     let read_func = ic::read_func(&mut r);
     let paging = super::paging::read(&mut r);
@@ -277,6 +278,7 @@ pub fn build(
                     header_offset,
                     clip_size: clip,
                     lookahead,
+                    lookahead_given,
                     page_size,
                     read_func: read_func.clone(),
                     span,
@@ -292,7 +294,9 @@ pub fn build(
                 let ctx = Context {
                     clip_size: Some(clip),
                     page_size: Some(page_size),
-                    lookahead: Some(lookahead),
+                    // A lookahead the .ct does not give is each .ic's default (the same 1),
+                    // marked defaulted there, so the engine may size that level's grid.
+                    lookahead: lookahead_given.then_some(lookahead),
                     read_func: read_func.clone(),
                     level: Some((level, size)),
                     texel: Some(texel),

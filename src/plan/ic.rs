@@ -662,6 +662,9 @@ pub struct Synth<'a> {
     pub clip_size: u64,
     /// Lookahead.
     pub lookahead: u64,
+    /// Whether the `.ct` gave the lookahead (else it is the default, and the level's grid is
+    /// the engine's to size).
+    pub lookahead_given: bool,
     /// Page size.
     pub page_size: i64,
     /// Read function.
@@ -728,7 +731,11 @@ impl Synth<'_> {
             naming: self.naming,
             streams: Default::default(),
             default_tile: None,
-            defaulted: vec!["tiles_in_file", "tex_size", "mem_region"],
+            defaulted: if self.lookahead_given {
+                vec!["tiles_in_file", "tex_size", "mem_region"]
+            } else {
+                vec!["tiles_in_file", "tex_size", "mem_region", "lookahead"]
+            },
         })
     }
 }

@@ -32,8 +32,9 @@ pub struct Request {
     pub from: Option<std::path::PathBuf>,
     /// Tile size of the stack levels (texels, square), for the image caches.
     pub tile: u64,
-    /// Spare tile rows and columns each stack level's grid keeps beyond its window.
-    pub lookahead: u64,
+    /// Spare tile rows and columns each stack level's grid keeps beyond its window (fixed
+    /// grids), or `None`: the grids the default adaptive policy sizes from its default budget.
+    pub lookahead: Option<u64>,
 }
 
 /// The image caches the engine and `clipmapd` keep (layout 2): every stack level a grid of whole
@@ -42,8 +43,13 @@ pub struct Request {
 pub struct ImageCaches {
     /// Stack levels' tile size (clamped to each level).
     pub tile_size: u64,
-    /// Spare tile rows and columns beyond the window.
+    /// Spare tile rows and columns beyond the window (1 under the adaptive policy: its budget
+    /// is counted from the lookahead-1 grids).
     pub lookahead: u64,
+    /// `adaptive` (the default: grids sized from the budget) or `fixed` (`--lookahead` given).
+    pub grids: &'static str,
+    /// The adaptive grids' budget, bytes of slots (null for fixed grids).
+    pub grid_budget_bytes: Option<u64>,
     /// Level 0's grid of slots (tiles across, down).
     pub level0_grid: [u64; 2],
     /// Bytes of the slots (the texels).
@@ -83,26 +89,55 @@ pub struct Plan {
     pub image_caches: Option<ImageCaches>,
 }
 
-/// The image caches of a `size` texture with clip size `clip` (layout 2), or `None` when the
-/// engine cannot lay them out.
-pub fn image_caches(size: [u64; 2], clip: u64, texel_bytes: u64, tile: u64, lookahead: u64) -> Option<ImageCaches> {
+/// The image caches of a `size` texture with clip size `clip` (layout 2), as `clipmapd` maps them
+/// for a procedural source: with `lookahead` fixed grids, without it the adaptive policy's grids
+/// from its default budget (the same rule as `Clipmap::grids`); `None` when the engine cannot lay
+/// them out.
+pub fn image_caches(
+    size: [u64; 2],
+    clip: u64,
+    texel_bytes: u64,
+    tile: u64,
+    lookahead: Option<u64>,
+) -> Option<ImageCaches> {
     use crate::shm::layout::{place, LevelShape, Shape};
     if size[0].max(size[1]) > crate::limits::MAX_TEXTURE_SIZE || tile == 0 {
         return None;
     }
-    let levels: Vec<LevelShape> = (0..crate::source::level_count(size) as u32)
+    let shapes: Vec<([u64; 2], [u64; 2])> = (0..crate::source::level_count(size) as u32)
         .map(|k| {
             let ls = crate::source::level_size(size, k);
             let stack = ls[0] > clip || ls[1] > clip;
-            let t = if stack { [tile.min(ls[0]), tile.min(ls[1])] } else { ls };
-            LevelShape { size: ls, tile: t, grid: crate::geom::mem_grid(ls, t, clip, lookahead) }
+            (ls, if stack { [tile.min(ls[0]), tile.min(ls[1])] } else { ls })
         })
         .collect();
+    let tile_bytes = |k: usize| shapes[k].1[0] * shapes[k].1[1] * texel_bytes;
+    let (grids, budget) = match lookahead {
+        Some(l) => (shapes.iter().map(|&(ls, t)| crate::geom::mem_grid(ls, t, clip, l)).collect::<Vec<_>>(), None),
+        None => {
+            let base: u64 = shapes
+                .iter()
+                .enumerate()
+                .map(|(k, &(ls, t))| {
+                    let g = crate::geom::mem_grid(ls, t, clip, 1);
+                    g[0].saturating_mul(g[1]).saturating_mul(tile_bytes(k))
+                })
+                .fold(0u64, u64::saturating_add);
+            let budget = base
+                .saturating_mul(crate::paging::adaptive::DEFAULT_BUDGET_FACTOR)
+                .min(crate::limits::Limits::default().cache_bytes as u64);
+            (crate::paging::adaptive::budget_grids(&shapes, clip, tile_bytes, budget).0, Some(budget))
+        }
+    };
+    let levels: Vec<LevelShape> =
+        shapes.iter().zip(&grids).map(|(&(size, tile), &grid)| LevelShape { size, tile, grid }).collect();
     let level0_grid = levels[0].grid;
     let placed = place(&Shape { bytes_per_texel: texel_bytes, clip_size: clip, levels })?;
     Some(ImageCaches {
         tile_size: tile,
-        lookahead,
+        lookahead: lookahead.unwrap_or(1),
+        grids: if lookahead.is_some() { "fixed" } else { "adaptive" },
+        grid_budget_bytes: budget,
         level0_grid,
         slot_bytes: placed.slot_bytes(),
         bytes: placed.total_bytes,
@@ -234,11 +269,14 @@ pub fn human(p: &Plan, r: &Request) -> String {
     o.push_str(&format!("clipmap      {} texels, {}\n", grouped(m.clipmap_texels), human_bytes(m.clipmap_bytes)));
     match &p.image_caches {
         Some(ic) => o.push_str(&format!(
-            "image caches {} mapped by clipmapd ({} of texels): {}-texel tiles, lookahead {}, level 0 a {}x{} grid of whole tiles, pyramid levels whole\n",
+            "image caches {} mapped by clipmapd ({} of texels): {}-texel tiles, {}, level 0 a {}x{} grid of whole tiles, pyramid levels whole\n",
             human_bytes(ic.bytes as u128),
             human_bytes(ic.slot_bytes as u128),
             ic.tile_size,
-            ic.lookahead,
+            match ic.grid_budget_bytes {
+                Some(b) => format!("adaptive grids within a budget of {} (twice lookahead 1)", human_bytes(b as u128)),
+                None => format!("lookahead {}", ic.lookahead),
+            },
             ic.level0_grid[0],
             ic.level0_grid[1]
         )),

@@ -215,13 +215,24 @@ pub fn texture_desc(plan: &ClipTexturePlan) -> Result<TextureDesc, FileSourceErr
     let desc_err = |source| FileSourceError::Desc { path: plan.path.clone(), source };
     let size = [plan.virt_size[0], plan.virt_size[1]];
     let desc = TextureDesc::from_levels(size, plan.clip_size, plan.texel, levels).map_err(desc_err)?;
-    // The mem region each image cache's configuration gives (its `mem_region_size`, or the
-    // region its `lookahead` implies): the engine holds exactly that many tiles (raised to what
-    // covers the window, if less).
+    // The mem region each image cache's configuration fixes (its `mem_region_size`, or the
+    // region a lookahead it or the .ct gives implies): the engine holds exactly that many tiles
+    // (raised to what covers the window, if less).
     let grids = plan
         .levels
         .iter()
         .map(|l| match &l.kind {
+            // Fixed when the configuration says how large: a `mem_region_size`, or a lookahead
+            // given in the .ic or the .ct. Otherwise the engine's policy sizes it (the adaptive
+            // policy from its budget; the fixed ones give the same lookahead-1 grid).
+            LevelKind::Icache(ic)
+                if ic.defaulted.contains(&"mem_region")
+                    && ic.defaulted.contains(&"lookahead")
+                    && [ic.mem_region[0], ic.mem_region[1]]
+                        == crate::geom::mem_grid(l.size, [ic.tile_size[0], ic.tile_size[1]], plan.clip_size, 1) =>
+            {
+                None
+            }
             LevelKind::Icache(ic) => Some([ic.mem_region[0], ic.mem_region[1]]),
             _ => None,
         })

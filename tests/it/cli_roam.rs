@@ -324,9 +324,14 @@ fn a_configured_lookahead_or_mem_region_changes_what_the_engine_reads_and_holds(
     };
     // The image caches are the mapping: a slot per grid tile (a tile of 12288 bytes is three
     // pages, so a grid's slots differ by whole tiles), tags and header alike in every case.
-    // lookahead 1 (the default): a 3 x 3 grid at level 0, never crossed by the short flight.
-    let (tiles, held) = roam("", "");
+    // lookahead 1, given: a 3 x 3 grid at level 0, never crossed by the short flight.
+    let (tiles, held) = roam("lookahead 1\n", "");
     assert_eq!(tiles, 9 + 4 + 7);
+    // No lookahead given: the adaptive policy sizes level 0's grid from its budget (here the whole
+    // 4 x 4 level), and reads, on this slow flight, what the lookahead-1 ring reads.
+    let (tiles, budgeted) = roam("", "");
+    assert_eq!(tiles, 9 + 4 + 7);
+    assert_eq!(budgeted, held + 7 * tile, "a 4 x 4 grid at level 0");
     // lookahead 0: a 2 x 2 grid; the 40-texel flight crosses one tile column, read as it comes.
     assert_eq!(roam("lookahead 0\n", ""), (4 + 2 + 4 + 7, held - 5 * tile));
     // lookahead 3: the grid grows to the whole 4 x 4 level.

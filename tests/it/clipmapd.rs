@@ -776,12 +776,43 @@ fn cliptex_plan_sizes_the_image_caches_as_the_service_maps_them() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(j["image_caches"]["bytes"].as_u64(), Some(mapped), "{j}");
-    // Brute force: 8 stack levels (65536 down to 512) each a grid of (256/64 + 1 + 1)^2 = 36
-    // tiles of 64^2 texels; 9 pyramid levels (256 down to 1) whole; 4 bytes a texel.
-    let stack = 8 * 36 * 64 * 64 * 4u64;
+    // Brute force. With `--lookahead 1` (fixed grids): 8 stack levels (65536 down to 512) each a
+    // grid of (256/64 + 1 + 1)^2 = 36 tiles of 64^2 texels; 9 pyramid levels (256 down to 1)
+    // whole; 4 bytes a texel.
+    let tile = 64 * 64 * 4u64;
+    let stack = 8 * 36 * tile;
     let pyramid: u64 = (0..9).map(|k| (256u64 >> k) * (256 >> k) * 4).sum();
-    assert_eq!(j["image_caches"]["slot_bytes"].as_u64(), Some(stack + pyramid), "{j}");
-    assert_eq!(j["image_caches"]["level0_grid"], serde_json::json!([6, 6]));
+    let fixed = Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args([
+            "plan",
+            "--size",
+            "65536",
+            "--clip",
+            "256",
+            "--tile",
+            "64",
+            "--texel-bytes",
+            "4",
+            "--lookahead",
+            "1",
+            "--json",
+        ])
+        .output()
+        .unwrap();
+    let f: serde_json::Value = serde_json::from_slice(&fixed.stdout).unwrap();
+    assert_eq!(f["image_caches"]["slot_bytes"].as_u64(), Some(stack + pyramid), "{f}");
+    assert_eq!(f["image_caches"]["level0_grid"], serde_json::json!([6, 6]));
+    assert_eq!(f["image_caches"]["grids"], "fixed");
+    // The service's default (adaptive): level k's grid is 6 + (E >> k) tiles a side (at most its
+    // 1024 >> k tiles), with the largest E whose slots fit in twice the fixed grids' bytes.
+    let budget = 2 * (stack + pyramid);
+    let bytes = |e: u64| (0..8).map(|k| (6 + (e >> k)).min(1024 >> k).pow(2) * tile).sum::<u64>() + pyramid;
+    let e = (0..1024u64).take_while(|&e| bytes(e) <= budget).last().unwrap();
+    assert!(e > 0);
+    assert_eq!(j["image_caches"]["grids"], "adaptive");
+    assert_eq!(j["image_caches"]["grid_budget_bytes"].as_u64(), Some(budget), "{j}");
+    assert_eq!(j["image_caches"]["slot_bytes"].as_u64(), Some(bytes(e)), "{j}");
+    assert_eq!(j["image_caches"]["level0_grid"], serde_json::json!([6 + e, 6 + e]));
 }
 
 #[test]

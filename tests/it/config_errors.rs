@@ -305,14 +305,20 @@ fn paging_extension_lines_are_read_and_performer_sees_comments() {
     // Without any: the defaults (the comparison's winners).
     let (p, _) = ct_ok(NO_IC_CT);
     assert_eq!(p.paging, clipmap::paging::PagingOptions::default());
-    assert_eq!(p.paging.prefetch, PrefetchKind::Ring);
+    assert_eq!(p.paging.prefetch, PrefetchKind::Adaptive);
     assert_eq!(p.paging.pool_bytes, 0);
 }
 
 #[test]
 fn paging_extension_errors_say_where_and_what_was_expected() {
     let d = ct_err(&format!("{NO_IC_CT}#clipmap prefetch sideways\n"));
-    expect(&d, "bad-extension-value", Severity::Error, Some((10, 19)), &["sideways", "`ring`, `direction` or `ahead`"]);
+    expect(
+        &d,
+        "bad-extension-value",
+        Severity::Error,
+        Some((10, 19)),
+        &["sideways", "`ring`, `direction`, `ahead` or `adaptive`"],
+    );
     let d = ct_err(&format!("{NO_IC_CT}#clipmap evicton lru\n"));
     expect(&d, "unknown-extension", Severity::Error, Some((10, 10)), &["evicton", "did you mean `eviction`?"]);
     let d = ct_err(&format!("{NO_IC_CT}#clipmap pool_bytes lots\n"));

@@ -291,8 +291,11 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
                 a.tiles += r.tiles_read;
                 run_tiles += r.tiles_read;
                 a.n += 1;
-                let now =
-                    if adaptive { map.mem_regions() } else { mem_regions(&desc, &grids, policy, next, v, align, &last) };
+                let now = if adaptive {
+                    map.mem_regions()
+                } else {
+                    mem_regions(&desc, &grids, policy, next, v, align, &last)
+                };
                 asked = entering(&now, &last);
                 last = now;
                 c = next;
