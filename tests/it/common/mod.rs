@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod exercise;
+pub mod flight;
 pub mod remote;
 
 use clipmap::config::{self, Diagnostic, Diagnostics, FileKind, Limits, Severity, SyntaxFile};
