@@ -946,3 +946,34 @@ fn a_source_delay_beyond_its_bound_is_refused_with_status_1() {
     assert!(err.contains("--source-delay-ms") && err.contains("10001"), "{err}");
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "nothing created");
 }
+
+#[test]
+fn a_window_that_moves_past_the_grids_spare_tiles_in_a_tick_says_beyond_grid_and_shows_only_right_texels() {
+    use crate::common::flight::{fly, reason, Control};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // The smallest grids (a budget below the lookahead-1 grids gives those): level 0 holds 6
+    // tiles an axis, one spare beyond the 5 its window can touch, 64 texels.
+    let svc = Service::start(d, "past", &["--grid-budget", "1"]);
+    let reader = rust_reader(d, "past", &["--reads", "1000000000000", "--seconds", "3"]).spawn().unwrap();
+    let mut c = Control::open(&svc.socket);
+    let (mut beyond, mut samples) = (0u32, 0u32);
+    let mut seen = std::collections::BTreeMap::<String, u32>::new();
+    // 12000 texels a second: 100 level-0 texels a tick at 120 ticks a second, past the spare 64.
+    fly(&mut c, 32768, (8192, 57344), 12000.0, 2.0, 8, |st, flown| {
+        if flown < 0.3 {
+            return;
+        }
+        samples += 1;
+        let r = reason(st, 0);
+        *seen.entry(r.clone()).or_default() += 1;
+        beyond += u32::from(r == "beyond_grid");
+        assert_eq!(st["engine"]["paging"][0]["grid"], serde_json::json!([6, 6]), "{st}");
+    });
+    eprintln!("level 0 reasons over {samples} samples: {seen:?}");
+    assert!(beyond * 2 > samples, "level 0 moves beyond its grid on most of the flight: {seen:?}");
+    let out = reader.wait_with_output().unwrap();
+    let (passed, failed) = counts(&out, "rust reader");
+    assert_eq!(failed, 0, "{failed} wrong texels\n{}\n{}", String::from_utf8_lossy(&out.stderr), svc.dump());
+    assert!(passed > 10_000, "only {passed} texels checked");
+}
