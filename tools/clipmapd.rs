@@ -109,7 +109,14 @@ struct Cli {
     /// Frames the demo's client flies.
     #[arg(long, default_value_t = 240, requires = "demo", hide = true)]
     demo_frames: u32,
+    /// Tests: every tile read waits this many milliseconds before it reaches the source (a slow
+    /// disk or link in front of any source), so that load control can be seen through the service.
+    #[arg(long, value_name = "MS", hide = true, value_parser = clap::value_parser!(u64).range(0..=MAX_SOURCE_DELAY_MS))]
+    source_delay_ms: Option<u64>,
 }
+
+/// The most `--source-delay-ms` takes (a read queue's reads wait at most this long each).
+const MAX_SOURCE_DELAY_MS: u64 = 10_000;
 
 #[derive(Clone, Copy, ValueEnum)]
 enum SourceArg {
@@ -253,6 +260,16 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
                 "give a configuration (CONFIG.ct), --source hash|terrain, --growing DIR, or --demo"
             )))
         }
+    };
+    let source = match cli.source_delay_ms {
+        Some(ms) if ms > 0 => {
+            use clipmap::source::{Fault, FaultRule, FaultySource};
+            let slow = FaultySource::new(source);
+            slow.add(FaultRule::everywhere(Fault::Slow(Duration::from_millis(ms))));
+            tracing::info!(delay_ms = ms, "every tile read is delayed (--source-delay-ms)");
+            Arc::new(slow) as Arc<dyn clipmap::source::TileSource>
+        }
+        _ => source,
     };
     let mut options = options(&cli, &default_name)?;
     options.paging = cli.paging.over(paging);

@@ -1,8 +1,10 @@
 //! `cliptex attach`: a live view of a running service, read straight from its shared-memory
 //! mapping (levels, centres, valid regions, min LOD, heartbeat, tick rate), plus each read
 //! queue's length and throughput from the control socket's `STATS` reply (sampled at both ends
-//! of the interval).
+//! of the interval), and each level's paging as the service's last tick chose it (read-ahead,
+//! grid and why, with the read latency planned with; from the later reply).
 
+use crate::paging::adaptive::LevelPaging;
 use crate::service::ServiceStats;
 use crate::shm::{Client, ShmError};
 use serde::Serialize;
@@ -56,6 +58,10 @@ pub struct LevelRow {
     pub enabled: bool,
     /// Invalid border.
     pub invalid_border: u64,
+    /// The level's paging as the service's last tick chose it (`lead_tiles`, `lead_texels`,
+    /// `grid`, `reason`; from `STATS`, `null` when the socket did not answer: see
+    /// `streams_error`).
+    pub paging: Option<LevelPaging>,
 }
 
 /// A status view.
@@ -89,6 +95,9 @@ pub struct Status {
     pub streams: Vec<StreamRow>,
     /// Why there are no stream figures (`null` when there are).
     pub streams_error: Option<String>,
+    /// The read latency the adaptive controller plans with, in ticks (0 for a fixed policy;
+    /// `null` when the socket did not answer).
+    pub read_latency_ticks: Option<f64>,
     /// A growing texture's growth block (`null` for a texture that does not grow).
     pub growth: Option<crate::shm::layout::Growth>,
 }
@@ -186,6 +195,7 @@ pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Resu
         },
         (Err(e), _) | (_, Err(e)) => (Vec::new(), Some(e.to_string())),
     };
+    let engine = after.as_ref().ok().map(|a| &a.tick.engine);
     let snap = c.checked_snapshot()?;
     let growth = c.growth().unwrap_or_else(|e| {
         tracing::warn!("{}: growth block: {e}", c.path().display());
@@ -203,6 +213,7 @@ pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Resu
             valid: st.valid,
             enabled: st.enabled,
             invalid_border: snap.invalid_border,
+            paging: engine.and_then(|e| e.paging.get(k).copied()),
         })
         .collect();
     Ok(Status {
@@ -220,6 +231,7 @@ pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Resu
         socket: socket.display().to_string(),
         streams,
         streams_error,
+        read_latency_ticks: engine.map(|e| e.read_latency_ticks),
         growth,
     })
 }
@@ -276,6 +288,8 @@ pub fn human(s: &Status) -> String {
         ));
     }
     o.push('\n');
+    o.push_str(&paging_table(s));
+    o.push('\n');
     match &s.streams_error {
         Some(e) => o.push_str(&format!("read queues: no figures ({e})\n")),
         None => {
@@ -295,6 +309,29 @@ pub fn human(s: &Status) -> String {
                 ));
             }
         }
+    }
+    o
+}
+
+/// The paging part of the human form: per level the reason, the read-ahead (tiles the mem region
+/// holds beyond the window, and the level texels asked for) and the grid, on s x t.
+fn paging_table(s: &Status) -> String {
+    let Some(latency) = s.read_latency_ticks else {
+        return format!("paging: no figures ({})\n", s.streams_error.as_deref().unwrap_or("no STATS reply"));
+    };
+    let mut o = format!("paging  read latency {latency:.1} ticks\n");
+    o.push_str("level  reason         lead tiles  lead texels    grid\n");
+    for l in &s.levels {
+        let Some(p) = &l.paging else { continue };
+        let x = |v: [u64; 2]| format!("{}x{}", v[0], v[1]);
+        o.push_str(&format!(
+            "{:<6} {:<14} {:<11} {:<14} {}\n",
+            l.level,
+            p.reason.name(),
+            x(p.lead_tiles),
+            x(p.lead_texels),
+            x(p.grid)
+        ));
     }
     o
 }
@@ -328,5 +365,65 @@ mod tests {
         let back = typed(serde_json::to_value(&a).unwrap());
         assert_eq!(back.tick.streams, a.tick.streams);
         assert_eq!(back.name, "x");
+    }
+
+    #[test]
+    fn each_levels_reason_lead_and_grid_are_shown_with_the_read_latency() {
+        use crate::paging::adaptive::Reason;
+        let row = |level, paging| LevelRow {
+            level,
+            size: [1024, 1024],
+            pyramid: false,
+            centre: [512, 512],
+            valid: [0, 0, 256, 256],
+            enabled: true,
+            invalid_border: 8,
+            paging,
+        };
+        let bound =
+            LevelPaging { lead_tiles: [2, 0], lead_texels: [320, 0], grid: [8, 8], reason: Reason::SourceBound };
+        let mut s = Status {
+            mapping: "m".into(),
+            generation: 1,
+            tick: 9,
+            min_lod: 1.0,
+            heartbeat: 9,
+            heartbeat_age_ms: 1,
+            ticks_per_second: 60.0,
+            closed: false,
+            clip_size: 256,
+            bytes_per_texel: 4,
+            levels: vec![
+                row(0, Some(bound)),
+                row(1, Some(LevelPaging { grid: [7, 7], reason: Reason::Hover, ..bound })),
+            ],
+            socket: "s".into(),
+            streams: Vec::new(),
+            streams_error: None,
+            read_latency_ticks: Some(4.25),
+            growth: None,
+        };
+        let text = human(&s);
+        assert!(text.contains("paging  read latency 4.2 ticks\n"), "{text}");
+        assert!(text.contains("level  reason         lead tiles  lead texels    grid\n"), "{text}");
+        assert!(text.contains("0      source_bound   2x0         320x0          8x8\n"), "{text}");
+        assert!(text.contains("1      hover          2x0         320x0          7x7\n"), "{text}");
+        let v = serde_json::to_value(&s).unwrap();
+        assert_eq!(v["read_latency_ticks"], 4.25);
+        assert_eq!(
+            v["levels"][0]["paging"],
+            serde_json::json!({"lead_tiles": [2, 0], "lead_texels": [320, 0], "grid": [8, 8], "reason": "source_bound"})
+        );
+        // Without a STATS reply: no paging figures, and why.
+        s.read_latency_ticks = None;
+        s.streams_error = Some("control socket s: refused".into());
+        s.levels.iter_mut().for_each(|l| l.paging = None);
+        let text = human(&s);
+        assert!(text.contains("paging: no figures (control socket s: refused)"), "{text}");
+        let v = serde_json::to_value(&s).unwrap();
+        assert_eq!(
+            (v["read_latency_ticks"].clone(), v["levels"][1]["paging"].clone()),
+            (serde_json::Value::Null, serde_json::Value::Null)
+        );
     }
 }

@@ -137,7 +137,7 @@ impl ServiceStats {
         let e = &t.engine;
         let c = &self.control;
         let q = &e.queue;
-        let rows: [(&str, &str, &str, f64); 29] = [
+        let rows: [(&str, &str, &str, f64); 30] = [
             ("ticks_total", "counter", "Update ticks run", e.ticks as f64),
             ("tick_overruns_total", "counter", "Ticks longer than the tick period", t.tick_overruns as f64),
             (
@@ -184,6 +184,12 @@ impl ServiceStats {
             ),
             ("min_lod", "gauge", "Finest level renderers may use", t.min_lod),
             ("min_lod_raises_total", "counter", "Times min LOD was raised", e.min_lod_raises as f64),
+            (
+                "read_latency_ticks",
+                "gauge",
+                "Read latency the adaptive paging plans with, ticks from asking for a tile to taking it",
+                e.read_latency_ticks,
+            ),
             ("invalid_border_texels", "gauge", "Invalid border in use", t.invalid_border as f64),
             ("resident_bytes", "gauge", "Bytes in tiles and windows", t.resident_bytes as f64),
             ("requests_seen_total", "counter", "Centre requests made through the mapping", t.requests_seen as f64),
@@ -200,6 +206,60 @@ impl ServiceStats {
                 self.name
             ));
         }
+        out.push_str(&self.paging_prometheus());
+        out
+    }
+
+    /// The per-level paging families (nothing before the first tick): the read-ahead on each
+    /// axis in tiles and in level texels, the grid, and the reason as one 0/1 sample per reason
+    /// (the current one 1), labels `name`, `level` (and `axis` s or t, or `reason`).
+    fn paging_prometheus(&self) -> String {
+        use crate::paging::adaptive::Reason;
+        let paging = &self.tick.engine.paging;
+        if paging.is_empty() {
+            return String::new();
+        }
+        let name = &self.name;
+        let mut out = String::new();
+        type PerAxis = fn(&crate::paging::adaptive::LevelPaging) -> [u64; 2];
+        let axes: [(&str, &str, PerAxis); 3] = [
+            ("paging_lead_tiles", "Tiles the mem region holds beyond the window along the motion", |p| p.lead_tiles),
+            ("paging_lead_texels", "Read-ahead the adaptive paging asked for beyond the window, level texels", |p| {
+                p.lead_texels
+            }),
+            ("paging_grid_tiles", "Tiles of the level's grid", |p| p.grid),
+        ];
+        for (metric, help, get) in axes {
+            out.push_str(&format!("# HELP clipmapd_{metric} {help}\n# TYPE clipmapd_{metric} gauge\n"));
+            for (k, p) in paging.iter().enumerate() {
+                for (a, axis) in ["s", "t"].iter().enumerate() {
+                    out.push_str(&format!(
+                        "clipmapd_{metric}{{name=\"{name}\",level=\"{k}\",axis=\"{axis}\"}} {}\n",
+                        get(p)[a]
+                    ));
+                }
+            }
+        }
+        let reasons = [
+            Reason::Fixed,
+            Reason::Hover,
+            Reason::KeepingUp,
+            Reason::SourceBound,
+            Reason::BudgetBound,
+            Reason::BeyondGrid,
+        ];
+        out.push_str(
+            "# HELP clipmapd_paging_reason Why the level reads ahead as far as it does (1: the current reason)\n# TYPE clipmapd_paging_reason gauge\n",
+        );
+        for (k, p) in paging.iter().enumerate() {
+            for r in reasons {
+                out.push_str(&format!(
+                    "clipmapd_paging_reason{{name=\"{name}\",level=\"{k}\",reason=\"{}\"}} {}\n",
+                    r.name(),
+                    u8::from(p.reason == r)
+                ));
+            }
+        }
         out
     }
 }
@@ -213,8 +273,38 @@ mod tests {
         let s = ServiceStats { name: "x".into(), tick: TickStats::default(), control: ControlStats::default() };
         let text = s.prometheus();
         let samples: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).collect();
-        assert_eq!(samples.len(), 29);
+        assert_eq!(samples.len(), 30);
         assert!(samples.iter().all(|l| l.starts_with("clipmapd_") && l.contains("{name=\"x\"} ")));
-        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 29);
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 30);
+    }
+
+    #[test]
+    fn prometheus_text_has_each_levels_lead_grid_and_reason_and_the_latency() {
+        use crate::paging::adaptive::{LevelPaging, Reason};
+        let mut s = ServiceStats { name: "x".into(), ..ServiceStats::default() };
+        s.tick.engine.read_latency_ticks = 4.5;
+        s.tick.engine.paging = vec![
+            LevelPaging { lead_tiles: [2, 0], lead_texels: [320, 0], grid: [8, 8], reason: Reason::SourceBound },
+            LevelPaging { grid: [7, 7], reason: Reason::Hover, ..LevelPaging::default() },
+        ];
+        let text = s.prometheus();
+        for want in [
+            "clipmapd_read_latency_ticks{name=\"x\"} 4.5",
+            "clipmapd_paging_lead_tiles{name=\"x\",level=\"0\",axis=\"s\"} 2",
+            "clipmapd_paging_lead_texels{name=\"x\",level=\"0\",axis=\"s\"} 320",
+            "clipmapd_paging_lead_texels{name=\"x\",level=\"0\",axis=\"t\"} 0",
+            "clipmapd_paging_grid_tiles{name=\"x\",level=\"1\",axis=\"t\"} 7",
+            "clipmapd_paging_reason{name=\"x\",level=\"0\",reason=\"source_bound\"} 1",
+            "clipmapd_paging_reason{name=\"x\",level=\"0\",reason=\"hover\"} 0",
+            "clipmapd_paging_reason{name=\"x\",level=\"1\",reason=\"hover\"} 1",
+        ] {
+            assert!(text.lines().any(|l| l == want), "{want} missing:\n{text}");
+        }
+        // Per family one HELP and one TYPE; 30 plain metrics, 3 x 2 levels x 2 axes, 2 x 6 reasons.
+        let samples = text.lines().filter(|l| !l.starts_with('#')).count();
+        assert_eq!(samples, 30 + 12 + 12);
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 34);
+        let ones = text.lines().filter(|l| l.starts_with("clipmapd_paging_reason") && l.ends_with(" 1")).count();
+        assert_eq!(ones, 2, "one current reason a level");
     }
 }

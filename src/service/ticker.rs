@@ -11,6 +11,7 @@
 use super::stats::TickStats;
 use super::{Options, ServiceError};
 use crate::clip::{Clipmap, Settings};
+use crate::paging::adaptive::{LevelPaging, Reason};
 use crate::shm::Writer;
 use crate::source::TileSource;
 use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
@@ -136,6 +137,8 @@ struct Runner {
     started: Instant,
     /// A growing texture's shared state, and the growth block's last published values.
     growing: Option<(Arc<crate::growing::serve::Served>, Option<crate::shm::layout::Growth>)>,
+    /// Each level's paging reason as last logged (the log says when one changes).
+    reasons: Vec<Reason>,
 }
 
 impl Runner {
@@ -206,6 +209,7 @@ impl Runner {
             stats,
             started: Instant::now(),
             growing: o.growing.as_ref().map(|g| (g.served().clone(), None)),
+            reasons: Vec::new(),
         };
         Ok((runner, started))
     }
@@ -323,6 +327,56 @@ impl Runner {
         s.valid = report.valid.iter().map(|r| [r.s0, r.t0, r.s1, r.t1]).collect();
         s.engine = self.clipmap.stats().clone();
         s.streams = self.clipmap.stream_stats();
+        log_reason_changes(&mut self.reasons, &s.engine.paging, s.engine.read_latency_ticks, s.engine.ticks);
         self.stats_tx.send_replace(s.clone());
+    }
+}
+
+/// Logs each level whose paging reason differs from the one in `last` (one line a change, never
+/// one a tick), and remembers the new reasons. The first tick only sets where they start (every
+/// level `hover`, or `fixed`: nothing to say). Returns the levels logged.
+fn log_reason_changes(last: &mut Vec<Reason>, paging: &[LevelPaging], latency: f64, tick: u64) -> Vec<usize> {
+    let mut changed = Vec::new();
+    for (k, p) in paging.iter().enumerate() {
+        let Some(was) = last.get(k).copied() else { continue };
+        if was == p.reason {
+            continue;
+        }
+        changed.push(k);
+        tracing::info!(
+            tick,
+            level = k,
+            reason = p.reason.name(),
+            was = was.name(),
+            lead_tiles = ?p.lead_tiles,
+            lead_texels = ?p.lead_texels,
+            grid = ?p.grid,
+            read_latency_ticks = latency,
+            "paging reason changed"
+        );
+    }
+    *last = paging.iter().map(|p| p.reason).collect();
+    changed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_paging_reason_is_logged_when_it_changes_not_every_tick() {
+        let p = |reason| LevelPaging { reason, grid: [8, 8], ..LevelPaging::default() };
+        let mut last = Vec::new();
+        let hover = [p(Reason::Hover), p(Reason::Hover)];
+        assert_eq!(
+            log_reason_changes(&mut last, &hover, 1.0, 1),
+            Vec::<usize>::new(),
+            "the first tick: where it starts"
+        );
+        assert_eq!(log_reason_changes(&mut last, &hover, 1.0, 2), Vec::<usize>::new());
+        let bound = [p(Reason::SourceBound), p(Reason::Hover)];
+        assert_eq!(log_reason_changes(&mut last, &bound, 4.0, 3), vec![0]);
+        assert_eq!(log_reason_changes(&mut last, &bound, 4.0, 4), Vec::<usize>::new());
+        assert_eq!(last, vec![Reason::SourceBound, Reason::Hover]);
     }
 }

@@ -44,11 +44,15 @@ fn attach_once_json_reports_every_level_as_published() {
     assert_eq!(v["streams"], serde_json::json!([]));
     let why = v["streams_error"].as_str().unwrap();
     assert!(why.contains("clipmap-att.sock"), "{why}");
+    // Nor paging figures: those come from STATS too.
+    assert_eq!(v["read_latency_ticks"], serde_json::Value::Null);
+    assert!(levels.iter().all(|l| l["paging"].is_null()), "{v}");
 
     let (code, out, _) = run(&["attach", "att", "--shm-dir", d, "--once", "--interval", "0.05"]);
     assert_eq!(code, 0);
     assert!(out.contains("level  size") && out.contains("4096x4096") && out.contains("["), "{out}");
     assert!(out.contains("read queues: no figures (control socket"), "{out}");
+    assert!(out.contains("paging: no figures (control socket"), "{out}");
 
     let (code, _, err) = run(&["attach", "absent", "--shm-dir", d, "--once"]);
     assert_eq!(code, 2);

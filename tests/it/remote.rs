@@ -878,3 +878,53 @@ fn cache_temporaries_are_created_exclusively_and_a_link_planted_at_their_name_is
     assert!(c.get(&k, &mut out) && out == [2u8; 100], "stored under a name no one had");
     assert_eq!(c.dropped(), 0);
 }
+
+#[test]
+fn a_service_behind_a_delaying_proxy_shows_coarser_levels_only_right_texels_and_says_source_bound() {
+    use crate::common::flight::{all_at_rest, fly, reason, wait_stats, Control};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pyr = prepare(&d.join("pyr"), 4096, 64, 256, &[]);
+    let nginx = Nginx::serve(&pyr);
+    // Every tile request waits 60 ms in the proxy: a link far slower than the flight below asks for.
+    let slow = FaultProxy::start(nginx.port, Schedule::pass(), 60);
+    let ct = point_config_at(&pyr, &d.join("cfg"), &slow.url(), &[]);
+    let svc = Service::start(d, "link", &ct, &[]);
+    let mut c = Control::open(&svc.socket);
+    let (st, ok) =
+        wait_stats(&mut c, Duration::from_secs(30), |st| st["min_lod"].as_f64() == Some(0.0) && all_at_rest(st));
+    assert!(ok, "at rest, before the flight: every level hovers, level 0 shown\n{st}\n{}", svc.log());
+    let reader = Command::new(READER)
+        .args(["--name", "link", "--shm-dir", d.to_str().unwrap(), "--seconds", "4", "--reads", "1000000000000"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let (mut bound, mut coarse, mut samples) = (0u32, 0u32, 0u32);
+    let mut seen = std::collections::BTreeMap::<String, u32>::new();
+    // 3000 texels a second (50 level-0 texels a tick at 60 ticks a second), back and forth.
+    fly(&mut c, 2048, (512, 3584), 3000.0, 3.0, 8, |st, flown| {
+        if flown < 0.3 {
+            return;
+        }
+        samples += 1;
+        let r = reason(st, 0);
+        *seen.entry(r.clone()).or_default() += 1;
+        bound += u32::from(r == "source_bound");
+        coarse += u32::from(st["min_lod"].as_f64().unwrap() > 0.0);
+    });
+    eprintln!("level 0 reasons over {samples} samples: {seen:?}; min LOD above 0 in {coarse}");
+    assert!(bound * 2 > samples, "level 0 is source-bound on most of the flight: {seen:?}");
+    assert!(coarse * 2 > samples, "coarser levels are shown on most of the flight: {coarse} of {samples}");
+    let (st, ok) =
+        wait_stats(&mut c, Duration::from_secs(30), |st| st["min_lod"].as_f64() == Some(0.0) && all_at_rest(st));
+    assert!(ok, "at rest again: every level hovers and level 0 is shown again\n{st}");
+    let out = reader.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let line = stdout.lines().find(|l| l.contains(" passed, ")).unwrap_or_else(|| panic!("no counts: {stdout}"));
+    let mut w = line.split_whitespace();
+    let (passed, failed): (u64, u64) = (w.next().unwrap().parse().unwrap(), w.nth(1).unwrap().parse().unwrap());
+    assert_eq!(failed, 0, "{}\n{}", String::from_utf8_lossy(&out.stderr), svc.log());
+    assert!(passed > 10_000, "only {passed} texels checked");
+    assert!(slow.requests.load(std::sync::atomic::Ordering::SeqCst) > 0, "the tiles came through the proxy");
+}

@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod exercise;
+pub mod flight;
 pub mod patch_exercise;
 pub mod remote;
 
