@@ -163,7 +163,12 @@ fn one_read_slot_reads_a_run_in_priority_order_and_skips_tiles_whose_slot_moved(
     let mut q = ReadQueues::new(src.clone(), Arc::clone(&memory), 1, limits).unwrap();
     let wanted: Vec<ReadRequest> = (0..6).map(|s| request(s, 0, s * 10)).collect();
     q.update(&wanted);
-    std::thread::sleep(Duration::from_millis(50));
+    // Until the slow read of the first tile has begun (counted before its delay).
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while src.injected() == 0 {
+        assert!(std::time::Instant::now() < deadline, "the run did not start");
+        std::thread::sleep(Duration::from_millis(1));
+    }
     // Tiles (3, 0) and (5, 0) leave their mem region while the run is under way: their slots go
     // to the tiles 16 columns on (the grid is 16 wide).
     memory.assign(0, [19, 0]);

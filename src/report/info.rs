@@ -21,9 +21,10 @@ pub struct LevelRow {
     /// The pyramid file (absolute), or null (image cache levels, unnamed pyramid levels).
     pub tile_file: Option<PathBuf>,
     /// Tile size in texels (a pyramid level is one tile). Null (unknown) when the level's `.ic`
-    /// was not opened (`--ct-only`), as for the fields below.
+    /// was not opened (`--ct-only`), as for the fields below but `tex_region`.
     pub tile_size: Option<[u64; 2]>,
-    /// Tex region in texels.
+    /// Tex region in texels. Inside a clip texture it is min(clip_size, level size) per side,
+    /// which the `.ct` alone fixes: known under `--ct-only` too.
     pub tex_region: Option<[u64; 2]>,
     /// Mem region in tiles.
     pub mem_region: Option<[u64; 2]>,
@@ -113,7 +114,8 @@ pub fn level_rows(plan: &ClipTexturePlan) -> Vec<LevelRow> {
                 icache_config: Some(path.clone()),
                 tile_file: None,
                 tile_size: None,
-                tex_region: None,
+                // As the .ic's plan sets it (a differing `tex_region_size` there is not used).
+                tex_region: Some([l.size[0].min(plan.clip_size), l.size[1].min(plan.clip_size)]),
                 mem_region: None,
                 header_offset: None,
                 tiles: None,

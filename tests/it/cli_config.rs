@@ -444,6 +444,43 @@ fn ct_only_checks_a_ct_whose_ic_files_are_absent_and_lists_them_resolved() {
 }
 
 #[test]
+fn info_ct_only_gives_the_tex_region_the_ct_fixes() {
+    // Inside a clip texture an image cache level's tex region is min(clip_size, level size),
+    // whatever its .ic says: `info --ct-only` once left it null (`?`) with the other .ic values,
+    // for levels smaller than the clip size too. It must equal what the full `info` reports.
+    let s = Setup::new();
+    s.conf.write_level_ics("ic/l", 2048, 256, 128);
+    s.conf.write(
+        "x.ct",
+        format!(
+            "ct_version2.0\n{RGB8}virt_size 2048 2048 1\nclip_size 512\nsmallest_icache 256 256 1\n\
+             icache_format ic/l.%d.ic\nicache_params PFCLIPTEX_FNAMEARG_LEVEL_SIZE\n\
+             tile_format pyr/%d.raw\ntile_params PFCLIPTEX_FNAMEARG_LEVEL_SIZE\n"
+        ),
+    );
+    let ct = s.rel("x.ct");
+    let full = run(CLIPTEX, &["info", "--json", &ct], s.cwd()).status(0).json();
+    let only = run(CLIPTEX, &["info", "--ct-only", "--json", &ct], s.cwd()).status(0).json();
+    let (full, only) = (full["levels"].as_array().unwrap(), only["levels"].as_array().unwrap());
+    assert_eq!(full.len(), only.len());
+    let want = [[512, 512], [512, 512], [512, 512], [256, 256]];
+    for (i, w) in want.iter().enumerate() {
+        assert_eq!(only[i]["kind"], "icache", "{}", only[i]);
+        assert_eq!(only[i]["icache_opened"], false, "{}", only[i]);
+        assert_eq!(full[i]["tex_region"], serde_json::json!(w), "level {i}, full: {}", full[i]);
+        assert_eq!(only[i]["tex_region"], full[i]["tex_region"], "level {i}, .ct only: {}", only[i]);
+        // What only the .ic gives stays unknown.
+        assert!(only[i]["tile_size"].is_null() && only[i]["mem_region"].is_null(), "{}", only[i]);
+    }
+    // The level table shows it too: level 3 (256x256) has its tex region, its tile is `?`.
+    let out = run(CLIPTEX, &["info", "--ct-only", &ct], s.cwd());
+    out.status(0);
+    let row = out.stdout.lines().find(|l| l.starts_with("3 ")).expect("a row for level 3");
+    let cols: Vec<&str> = row.split_whitespace().collect();
+    out.check(cols[1..5] == ["256x256", "icache", "?", "256x256"], &format!("level 3 row: {row}"));
+}
+
+#[test]
 fn plan_of_a_non_square_texture_equals_the_level_by_level_formula() {
     let s = Setup::new();
     // Brute force: Performer's levels halve both sides until the short side is 1; level k keeps

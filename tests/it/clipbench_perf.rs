@@ -2,6 +2,10 @@
 //! JSON contract: the top-level ratios exist and are positive numbers, `tick_texel_bytes` is 0
 //! (layout 2: ticks write no texels), `speedup_vs_gdal` is null without GDAL, and
 //! `update_vs_memcpy` is gone (there is nothing left to copy). No timing is asserted.
+//! `--install-peers` sends the installer's output to standard error, not into the JSON.
+
+#[path = "../../tools/clipbench/perf/install.rs"]
+mod install;
 
 fn run_perf(dir: &std::path::Path, extra: &[&str]) -> serde_json::Value {
     let head: [&std::ffi::OsStr; 6] =
@@ -19,7 +23,20 @@ fn perf_json_has_the_contract_fields() {
         let x = v[field].as_f64().unwrap_or_else(|| panic!("{field} is not a number: {}", v[field]));
         assert!(x.is_finite() && x > 0.0, "{field} = {x}");
     }
-    assert!(v["direction_ratio"].as_f64().unwrap() >= 1.0, "slowest over fastest");
+    // direction_ratio is the slowest flight's median tick over the fastest's, recomputed here
+    // from the engine's per-flight figures (and it is the engine's own figure, carried over).
+    let medians: Vec<f64> = v["engine"]["flights"]
+        .as_array()
+        .expect("engine.flights")
+        .iter()
+        .map(|f| f["median_tick_s"].as_f64().unwrap_or_else(|| panic!("no median_tick_s: {f}")))
+        .collect();
+    assert!(medians.len() >= 2 && medians.iter().all(|m| *m > 0.0), "{medians:?}");
+    let slowest = medians.iter().copied().fold(0.0, f64::max);
+    let fastest = medians.iter().copied().fold(f64::INFINITY, f64::min);
+    let ratio = v["direction_ratio"].as_f64().unwrap();
+    assert!((ratio - slowest / fastest).abs() <= 1e-9 * ratio, "{ratio} against {slowest} / {fastest} ({medians:?})");
+    assert_eq!(v["engine"]["direction_ratio"].as_f64(), Some(ratio), "the engine's figure");
     assert_eq!(v["tick_texel_bytes"], 0, "ticks write no texels");
     assert!(v.get("update_vs_memcpy").is_none(), "update_vs_memcpy is retired");
     let shown = v["scale"]["level0_shown_share"].as_f64().expect("scale.level0_shown_share");
@@ -84,4 +101,28 @@ fn clipbench_engine_counts_no_tile_excess_in_any_direction() {
         assert_eq!(f["tile_excess"], 0, "{}: {f}", f["direction"]);
         assert_eq!(f["mean_tiles_per_tick"], f["mean_exact_tiles_per_tick"], "{f}");
     }
+}
+
+/// The installer as `clipbench perf --install-peers` runs it (the same code), here a shell that
+/// writes a line to each of its outputs. Run by the test below in a child process of this test
+/// binary, whose outputs it then reads; run alone it passes without checking anything.
+#[test]
+#[ignore = "run in a child process by perf_install_peers_sends_the_installers_output_to_stderr"]
+fn installer_child() {
+    install::run("sh".as_ref(), &["-c", "echo installer-stdout; echo installer-stderr >&2"]).unwrap();
+}
+
+#[test]
+fn perf_install_peers_sends_the_installers_output_to_stderr() {
+    // apt-get once wrote its progress to standard output, into `clipbench perf --json`'s JSON.
+    // (The binary cannot be made to install here: it finds GDAL where it is installed.)
+    let exe = std::env::current_exe().unwrap();
+    let args = ["--ignored", "--exact", "clipbench_perf::installer_child", "--nocapture", "--test-threads=1"];
+    let cwd = std::env::temp_dir();
+    let (out, show) =
+        crate::common::exec_bounded(&cwd, exe.to_str().unwrap(), &args, &[], std::time::Duration::from_secs(60));
+    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success() && stdout.contains("1 passed"), "the child test ran and passed:\n{show}");
+    assert!(!stdout.contains("installer-stdout"), "the installer wrote to standard output:\n{show}");
+    assert!(stderr.contains("installer-stdout") && stderr.contains("installer-stderr"), "{show}");
 }

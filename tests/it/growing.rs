@@ -381,7 +381,15 @@ fn a_watched_directory_takes_patches_as_they_appear_and_one_writer_at_a_time() {
             std::thread::sleep(Duration::from_millis(20));
         }
     };
+    // Until the watcher has made the drop directory: bounded, and not after it has exited.
+    let start = std::time::Instant::now();
     while !fx.path("incoming").exists() {
+        let exited = child.try_wait().unwrap();
+        assert!(
+            exited.is_none() && start.elapsed() < Duration::from_secs(60),
+            "the watcher made no incoming/ (exited: {exited:?})\n{}",
+            std::fs::read_to_string(fx.path("watch.log")).unwrap()
+        );
         std::thread::sleep(Duration::from_millis(10));
     }
     // As a writer should: the data first, the sidecar renamed into place last.

@@ -451,7 +451,12 @@ fn a_growing_texture_is_served_while_it_grows_and_every_texel_read_matches_the_p
     let want = &wants[ps.len()];
     for centre in [[256, 256], [150, 260], [256, 120], [300, 300]] {
         assert!(c.request_centre(centre, [0.0, 0.0]));
-        std::thread::sleep(Duration::from_millis(300));
+        // Until level 0 is published at the new centre (bounded), then settled there.
+        let t = Instant::now();
+        while c.level_state(0).is_none_or(|l| l.centre != centre) {
+            assert!(t.elapsed() < Duration::from_secs(20), "{centre:?} was never published\n{}", svc.log());
+            std::thread::sleep(Duration::from_millis(10));
+        }
         settle(&svc, &c, ps.len() as u64);
         assert!(check_all(&c, want) > 0, "data around {centre:?}");
     }

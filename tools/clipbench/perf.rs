@@ -28,6 +28,8 @@ mod flight;
 mod human;
 #[path = "perf/ingest.rs"]
 mod ingest;
+#[path = "perf/install.rs"]
+mod install;
 #[path = "perf/scale.rs"]
 mod scale;
 #[path = "perf/service.rs"]
@@ -63,7 +65,8 @@ pub struct Common {
 pub struct Args {
     #[command(flatten)]
     common: Common,
-    /// Install GDAL (`apt-get install -y gdal-bin python3-gdal`) if it is missing.
+    /// Install GDAL (`apt-get install -y gdal-bin python3-gdal`) if it is missing; apt-get's
+    /// output goes to standard error (standard output carries the report alone).
     #[arg(long)]
     install_peers: bool,
     /// Skip the GDAL comparison (`speedup_vs_gdal` is then null).

@@ -182,7 +182,7 @@ fn a_group_member_writing_extreme_requests_cannot_crash_the_service() {
         ([0, 0], [0.0, 0.0]),
     ] {
         client.request_centre(centre, velocity);
-        std::thread::sleep(std::time::Duration::from_millis(100));
+        s.wait_ticks(2); // a whole tick with that request
         assert!(
             s.alive(),
             "the service died on a request of centre {centre:?}, velocity {velocity:?}:\n{}",

@@ -126,7 +126,7 @@ fn a_centre_at_the_ends_of_i64_on_the_socket_is_clamped_not_a_crash() {
     ] {
         let r = super::service::ask(&s.socket, line);
         assert!(r.starts_with("OK"), "{line}: {r}");
-        std::thread::sleep(std::time::Duration::from_millis(100));
+        s.wait_ticks(2); // a whole tick with that centre
         assert!(s.alive(), "{line}: {}", std::fs::read_to_string(&s.err).unwrap_or_default());
     }
 }

@@ -103,6 +103,18 @@ impl Service {
         let r = ask(&self.socket, "STATS");
         serde_json::from_str(r.strip_prefix("OK ").unwrap_or("null")).unwrap_or(serde_json::Value::Null)
     }
+
+    /// Waits (bounded by [`LIMIT`]) until `n` more ticks are counted, so that what was asked
+    /// before has been taken by a tick; returns at once when the service stops answering.
+    pub fn wait_ticks(&self, n: u64) {
+        let ticks = || self.stats()["engine"]["ticks"].as_u64();
+        let Some(t0) = ticks() else { return };
+        let t = Instant::now();
+        while ticks().is_some_and(|now| now < t0 + n) {
+            assert!(t.elapsed() < LIMIT, "fewer than {n} ticks in {LIMIT:?}");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
 }
 
 impl Drop for Service {

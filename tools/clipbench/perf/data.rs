@@ -45,18 +45,15 @@ fn lookup() -> Result<Gdal, String> {
     Ok(Gdal { python, translate, addo })
 }
 
-/// GDAL's tools, installed first with `apt-get` if `install` and missing; `Err` says why not.
+/// GDAL's tools, installed first with `apt-get` if `install` and missing (its output on standard
+/// error); `Err` says why not.
 pub fn find_gdal(install: bool) -> Result<Gdal, String> {
     match lookup() {
         Ok(g) => Ok(g),
         Err(why) if install => {
-            let status = Command::new("apt-get")
-                .args(["install", "-y", "gdal-bin", "python3-gdal"])
-                .status()
-                .map_err(|e| format!("{why}; apt-get: {e}"))?;
-            if !status.success() {
-                return Err(format!("{why}; apt-get install gdal-bin python3-gdal failed ({status})"));
-            }
+            // Its output goes to standard error, so that `--json` output stays parseable.
+            super::install::run("apt-get".as_ref(), &["install", "-y", "gdal-bin", "python3-gdal"])
+                .map_err(|e| format!("{why}; {e}"))?;
             lookup()
         }
         Err(why) => Err(format!("{why} (pass --install-peers)")),
