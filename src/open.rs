@@ -78,6 +78,12 @@ pub fn not_data(filesystem: &str) -> io::Error {
 /// (`/proc/kmsg`, whose reads block) with [`not_data`]'s, before anything is read.
 pub fn regular(path: &Path) -> io::Result<(File, Metadata)> {
     let file = OpenOptions::new().read(true).custom_flags(OFlags::NONBLOCK.bits() as i32).open(path)?;
+    data_file(file)
+}
+
+/// The checks every open of this module ends with, on a file opened without blocking: a regular
+/// file, not of a pseudo-filesystem; then blocking mode restored.
+fn data_file(file: File) -> io::Result<(File, Metadata)> {
     let meta = file.metadata()?;
     if !meta.is_file() {
         return Err(not_regular(&meta));
@@ -190,17 +196,7 @@ pub fn regular_in(dir: &Path, name: &Path) -> io::Result<(File, Metadata)> {
                 e.into()
             }
         })?;
-    let file = File::from(fd);
-    let meta = file.metadata()?;
-    if !meta.is_file() {
-        return Err(not_regular(&meta));
-    }
-    if let Some(fs) = pseudo_filesystem(&file)? {
-        return Err(not_data(fs));
-    }
-    let flags = rustix::fs::fcntl_getfl(&file)?;
-    rustix::fs::fcntl_setfl(&file, flags - OFlags::NONBLOCK)?;
-    Ok((file, meta))
+    data_file(File::from(fd))
 }
 
 /// Why [`read_sized`] read nothing.
