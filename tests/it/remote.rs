@@ -521,6 +521,14 @@ fn clipbench_remote_prints_its_contract_fields_and_reads_no_wrong_texel() {
     assert_eq!(v["wrong_texels"], 0, "{v}");
     assert_eq!(v["failed_reads"], 0, "{v}");
     assert!(v["in_flight"].as_u64().unwrap() >= 1, "{v}");
+    // The real-time flight through the delaying proxy, every default.
+    let f = &v["remote_flight"];
+    assert_eq!(f["prefetch"], "adaptive", "{f}");
+    let share = f["level0_shown_share"].as_f64().expect("remote_flight.level0_shown_share");
+    assert!((0.0..=1.0).contains(&share), "{f}");
+    assert!(f["texels_per_s"].as_f64().unwrap() > 0.0 && f["added_latency_ms"].as_u64().unwrap() > 0, "{f}");
+    assert!(f["texels_checked"].as_u64().unwrap() > 0, "{f}");
+    assert_eq!(f["wrong_texels"], 0, "{f}");
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "the scratch directory is removed: {desc}");
 }
 

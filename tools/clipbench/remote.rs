@@ -47,6 +47,9 @@ pub struct Args {
     /// Scratch directory (a fresh subdirectory, removed at the end).
     #[arg(long)]
     dir: Option<PathBuf>,
+    /// Level-0 texels a tick of the real-time flight (`remote_flight`), 60 ticks a second.
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(i64).range(1..=4096))]
+    flight_speed: i64,
 }
 
 /// One depth of the latency sweep.
@@ -88,6 +91,33 @@ pub struct Report {
     pub failed_reads: u64,
     pub requests_http: u64,
     pub merged_http: u64,
+    /// A real-time flight through the delaying proxy with every default (the adaptive policy).
+    pub remote_flight: RemoteFlight,
+}
+
+/// A flight of the engine over loopback HTTP with `added_latency_ms` per request, every setting
+/// its default, 60 ticks a second in real time, back and forth along s.
+#[derive(Clone, Debug, Serialize)]
+pub struct RemoteFlight {
+    pub texels_per_tick: i64,
+    pub tick_hz: f64,
+    /// Level-0 texels a second the centre moves.
+    pub texels_per_s: f64,
+    pub added_latency_ms: u64,
+    pub seconds: f64,
+    pub ticks: u64,
+    /// Share of the ticks after the first second on which level 0 is published (goal >= 0.95).
+    pub level0_shown_share: f64,
+    pub mean_min_lod: f64,
+    pub ticks_with_disabled_levels: u64,
+    /// The prefetch policy flown (the default).
+    pub prefetch: clipmap::paging::PrefetchKind,
+    /// The read latency the controller planned with at the end (ticks).
+    pub read_latency_ticks: f64,
+    /// Published level-0 texels checked against the hash texture (five a tick), and how many
+    /// differed.
+    pub texels_checked: u64,
+    pub wrong_texels: u64,
 }
 
 struct Killed(Child);
@@ -406,6 +436,14 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
             break;
         }
     }
+    let flight_s = if args.smoke {
+        1.5
+    } else if args.quick {
+        6.0
+    } else {
+        20.0
+    };
+    let remote_flight = fly(&slow_ct, args.latency_ms, flight_s, args.flight_speed)?;
     stop.store(true, Ordering::Relaxed);
     let best = sweep
         .iter()
@@ -433,6 +471,80 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
         failed_reads: failed,
         requests_http: st.requests,
         merged_http: st.merged,
+        remote_flight,
+    })
+}
+
+/// Flies a clipmap with every default setting over the source `ct` names (through the delaying
+/// proxy) for `seconds` in real time at 60 ticks a second, `speed` level-0 texels a tick (32 by
+/// default: 1920 a second), back and forth along s between a clip size from either edge; checks
+/// five published level-0 texels a tick against the hash texture.
+fn fly(ct: &Path, latency_ms: u64, seconds: f64, speed: i64) -> anyhow::Result<RemoteFlight> {
+    use clipmap::clip::{Clipmap, Settings};
+    let src: Arc<dyn TileSource> =
+        Arc::new(RemoteSource::new(open_plan(ct)?, &Limits::default(), RemoteOptions::default())?);
+    let desc = src.desc().clone();
+    let settings = Settings::default();
+    let prefetch = settings.prefetch;
+    let mut map = Clipmap::new(src, settings)?;
+    let (size, clip) = (desc.size()[0] as i64, desc.clip_size() as i64);
+    let (lo, hi) = (clip, (size - clip).max(clip + 1));
+    let hz = 60.0;
+    let at = |i: i64| {
+        let span = hi - lo;
+        let x = (i * speed).rem_euclid(2 * span);
+        [lo + if x <= span { x } else { 2 * span - x }, size / 2]
+    };
+    // Settle at the start (untimed).
+    for _ in 0..3000 {
+        if map.tick(at(0), Some([0, 0])).min_lod == 0.0 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let period = Duration::from_secs_f64(1.0 / hz);
+    let ticks = (seconds * hz) as u64;
+    let (mut shown, mut after, mut lod_sum, mut disabled, mut checked, mut wrong) = (0u64, 0u64, 0.0, 0u64, 0u64, 0u64);
+    let bpt = desc.bytes_per_texel();
+    let mut want = vec![0u8; bpt];
+    let start = Instant::now();
+    for i in 0..ticks {
+        std::thread::sleep((start + period * i as u32).saturating_duration_since(Instant::now()));
+        let r = map.tick(at(i as i64 + 1), None);
+        lod_sum += r.min_lod;
+        disabled += u64::from(!r.disabled_levels.is_empty());
+        if i >= hz as u64 {
+            after += 1;
+            shown += u64::from(r.min_lod < 1.0);
+        }
+        let v = map.level(0);
+        let g = v.valid;
+        if !g.is_empty() {
+            let mid = [(g.s0 + g.s1) / 2, (g.t0 + g.t1) / 2];
+            for [s, t] in [[g.s0, g.t0], [g.s1 - 1, g.t0], [g.s0, g.t1 - 1], [g.s1 - 1, g.t1 - 1], mid] {
+                if let Some(texel) = v.texel(s, t) {
+                    hash(0, s as u64, t as u64, &mut want);
+                    checked += 1;
+                    wrong += u64::from(&texel[..] != &want[..]);
+                }
+            }
+        }
+    }
+    let wall = start.elapsed().as_secs_f64();
+    Ok(RemoteFlight {
+        texels_per_tick: speed,
+        tick_hz: hz,
+        texels_per_s: speed as f64 * hz,
+        added_latency_ms: latency_ms,
+        seconds: wall,
+        ticks,
+        level0_shown_share: if after == 0 { 0.0 } else { shown as f64 / after as f64 },
+        mean_min_lod: lod_sum / ticks.max(1) as f64,
+        ticks_with_disabled_levels: disabled,
+        prefetch,
+        read_latency_ticks: map.stats().read_latency_ticks,
+        texels_checked: checked,
+        wrong_texels: wrong,
     })
 }
 
@@ -454,6 +566,22 @@ fn human(r: &Report) -> String {
         r.wrong_texels,
         r.failed_reads
     ));
+    let f = &r.remote_flight;
+    o.push_str(&format!(
+        "real-time flight through +{} ms per request, {} prefetch, {} texels a tick at {} ticks/s ({:.0} texels/s) for {:.1} s: level 0 shown on {:.1}% of the ticks after the first second (goal >= 95%), mean min LOD {:.2}, {} ticks with a disabled level, planned latency {:.1} ticks; {} of {} published texels wrong\n",
+        f.added_latency_ms,
+        f.prefetch,
+        f.texels_per_tick,
+        f.tick_hz,
+        f.texels_per_s,
+        f.seconds,
+        f.level0_shown_share * 100.0,
+        f.mean_min_lod,
+        f.ticks_with_disabled_levels,
+        f.read_latency_ticks,
+        f.wrong_texels,
+        f.texels_checked
+    ));
     o
 }
 
@@ -471,7 +599,7 @@ pub fn main(args: Args) -> u8 {
     match result {
         Ok(r) => {
             clipmap::report::emit(args.json, &r, human);
-            if r.wrong_texels > 0 {
+            if r.wrong_texels > 0 || r.remote_flight.wrong_texels > 0 {
                 1
             } else {
                 0
