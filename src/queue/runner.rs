@@ -78,12 +78,15 @@ pub(super) struct Runner {
     pub memory: Arc<ImageMemory>,
     pub limits: Limits,
     pending: Vec<ReadRequest>,
-    /// Tiles of runs not yet ended (reported to the owner or not).
-    in_flight: HashSet<TileId>,
-    /// Completions of ended runs not yet taken by the owner.
-    delivered: HashSet<TileId>,
-    /// Tiles the owner took while their run had not ended: booked when it ends.
-    taken_early: HashSet<TileId>,
+    /// For each tile, the reads of it started whose completions the owner has not yet said it
+    /// took (running, or reported and waiting in the owner's channel). A count, not a flag: a
+    /// tile taken before its run ended may be read again by a second run while the first still
+    /// runs, and both completions may be taken before either run ends.
+    owed: HashMap<TileId, u32>,
+    /// The sum of `owed`: reads running or undrained, bounded by `max_ready_reads`.
+    owed_total: usize,
+    /// Reads in runs whose task has not been joined yet.
+    running: usize,
     /// One task per run of reads; each ends with its batch and what its thread reported.
     reads: JoinSet<(Vec<TileId>, Reported)>,
     flushes: Vec<oneshot::Sender<()>>,
@@ -114,9 +117,9 @@ impl Runner {
             memory,
             limits,
             pending: Vec::new(),
-            in_flight: HashSet::new(),
-            delivered: HashSet::new(),
-            taken_early: HashSet::new(),
+            owed: HashMap::new(),
+            owed_total: 0,
+            running: 0,
             reads: JoinSet::new(),
             flushes: Vec::new(),
             stats: QueueStats::default(),
@@ -142,16 +145,18 @@ impl Runner {
                 Some(joined) = self.reads.join_next(), if !self.reads.is_empty() => {
                     // The task returns its batch whether its thread ended or panicked.
                     let Ok((batch, reported)) = joined else { continue };
+                    self.running -= batch.len();
                     let reported = std::mem::take(&mut *reported.lock().unwrap_or_else(|e| e.into_inner()));
                     for &(tile, ended) in &reported {
                         self.booked(tile, ended);
                     }
-                    // A thread that panicked reported some of its tiles: the runner fails the others.
+                    // A thread that panicked reported some of its tiles: the runner fails the others
+                    // (a batch names a tile once), which the owner takes like any completion.
                     let unreported: Vec<TileId> = if reported.len() == batch.len() {
                         Vec::new()
                     } else {
                         let done: HashSet<TileId> = reported.iter().map(|&(t, _)| t).collect();
-                        batch.into_iter().filter(|t| !done.contains(t) && self.in_flight.contains(t)).collect()
+                        batch.into_iter().filter(|t| !done.contains(t)).collect()
                     };
                     for tile in unreported {
                         let source = std::io::Error::other("the tile read's thread failed (panicked)");
@@ -167,14 +172,9 @@ impl Runner {
         }
     }
 
-    /// Books a read its run reported to the owner: delivered, until the owner says it took it
-    /// (already, when it did before the run ended).
+    /// Counts a read its run reported to the owner (whose completion stays owed until the owner
+    /// says it took it, which it may have done already).
     fn booked(&mut self, tile: TileId, ended: Ended) {
-        // A tile taken early left the reads in flight then (and may be in a new run by now).
-        if !self.taken_early.remove(&tile) {
-            self.in_flight.remove(&tile);
-            self.delivered.insert(tile);
-        }
         match ended {
             Ended::Filled => {
                 self.stats.reads_done += 1;
@@ -188,7 +188,7 @@ impl Runner {
     fn can_start(&self) -> bool {
         !self.pending.is_empty()
             && self.reads.len() < self.limits.max_in_flight_reads.max(1)
-            && self.in_flight.len() + self.delivered.len() < self.limits.max_ready_reads.max(1)
+            && self.owed_total < self.limits.max_ready_reads.max(1)
     }
 
     fn start_reads(&mut self) {
@@ -198,12 +198,14 @@ impl Runner {
             // tiles come from the page cache): the pending requests are shared among the free
             // read slots, at most `MAX_BATCH` each.
             let slots = self.limits.max_in_flight_reads.max(1).saturating_sub(self.reads.len()).max(1);
-            let room = self.limits.max_ready_reads.max(1) - self.in_flight.len() - self.delivered.len();
+            let room = self.limits.max_ready_reads.max(1) - self.owed_total;
             let n = self.pending.len().div_ceil(slots).clamp(1, MAX_BATCH).min(room);
             let batch: Vec<TileId> = self.pending.drain(..n).map(|r| r.tile).collect();
             for &tile in &batch {
-                self.in_flight.insert(tile);
+                *self.owed.entry(tile).or_default() += 1;
             }
+            self.owed_total += batch.len();
+            self.running += batch.len();
             self.stats.reads_started += batch.len() as u64;
             let source = Arc::clone(&self.source);
             let memory = Arc::clone(&self.memory);
@@ -249,9 +251,10 @@ impl Runner {
         // Every run's task joined, not only every read reported: a task that has reported all
         // its reads still holds its read slot until it is joined, and the requests waiting for
         // that slot could start.
-        if self.in_flight.is_empty() && self.reads.is_empty() && !self.can_start() {
+        if self.reads.is_empty() && !self.can_start() {
             // Idle until the next update: reads start only from pending requests, which only an
-            // update adds, and `delivered` (which can hold the reads back) only an update empties.
+            // update adds, and the owed completions (which can hold the reads back) only an
+            // update pays off.
             // Stored after every completion of this state was sent and every counter published
             // (release), so an owner that sees it (acquire) finds them in its channel; and before
             // the flushes are answered, so an owner woken by an answer sees it too.
@@ -266,16 +269,19 @@ impl Runner {
     /// are coalesced, priorities refreshed, and the queue cut to its bound.
     fn update(&mut self, wanted: Vec<ReadRequest>, drained: Vec<TileId>) {
         for tile in drained {
-            // Taken before its run ended: the run books it as taken when it ends. The tile leaves
-            // the reads in flight now, so that it can be asked for (and read) again at once.
-            if !self.delivered.remove(&tile) && self.in_flight.remove(&tile) {
-                self.taken_early.insert(tile);
+            // Taken, whether or not its run has ended: the tile may be asked for (and read) again
+            // at once unless another read of it is still owed.
+            if let std::collections::hash_map::Entry::Occupied(mut owed) = self.owed.entry(tile) {
+                *owed.get_mut() -= 1;
+                self.owed_total -= 1;
+                if *owed.get() == 0 {
+                    owed.remove();
+                }
             }
         }
-        let busy: HashSet<TileId> = self.in_flight.iter().chain(self.delivered.iter()).copied().collect();
         let mut fresh: HashMap<TileId, Priority> = HashMap::with_capacity(wanted.len());
         for r in wanted {
-            if busy.contains(&r.tile) {
+            if self.owed.contains_key(&r.tile) {
                 self.stats.coalesced += 1;
                 continue;
             }
@@ -299,7 +305,7 @@ impl Runner {
 
     fn publish_counters(&mut self) {
         self.stats.pending = self.pending.len() as u64;
-        self.stats.in_flight = self.in_flight.len() as u64;
+        self.stats.in_flight = self.running as u64;
         let _ = self.events.send(Event::Counters { stream: self.stream, stats: self.stats.clone() });
     }
 }

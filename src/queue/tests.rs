@@ -310,3 +310,79 @@ fn a_queue_at_rest_is_not_told_again_and_a_flush_still_waits_for_every_read() {
     q.update(&[]);
     assert_eq!(sent(&q), 4);
 }
+
+/// A source whose reads of the tiles in `closed` wait until they are opened.
+struct Gated(Arc<FaultySource>, std::sync::Mutex<std::collections::HashSet<TileId>>, std::sync::Condvar);
+
+impl Gated {
+    fn new(src: Arc<FaultySource>, closed: &[TileId]) -> Arc<Self> {
+        Arc::new(Gated(src, std::sync::Mutex::new(closed.iter().copied().collect()), std::sync::Condvar::new()))
+    }
+
+    fn open(&self, tile: TileId) {
+        self.1.lock().unwrap().remove(&tile);
+        self.2.notify_all();
+    }
+}
+
+impl TileSource for Gated {
+    fn desc(&self) -> &TextureDesc {
+        self.0.desc()
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        let mut closed = self.1.lock().unwrap();
+        while closed.contains(&tile) {
+            closed = self.2.wait(closed).unwrap();
+        }
+        drop(closed);
+        self.0.read_tile(tile, out)
+    }
+}
+
+/// Drains `q` until `done` holds a completion of each of `tiles` (ten seconds at most).
+fn drain_until(q: &mut ReadQueues, done: &mut Vec<Completion>, tiles: &[TileId]) {
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while !tiles.iter().all(|t| done.iter().any(|c| c.tile == *t)) {
+        assert!(std::time::Instant::now() < deadline, "no completion of {tiles:?}: {done:?}");
+        done.extend(q.drain());
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+#[test]
+fn a_tile_read_twice_in_runs_that_overlap_and_taken_both_times_before_they_end_can_be_read_again() {
+    // Found under load behind a slow link: the second read of a tile, taken early like the
+    // first, was booked as undelivered for ever, so every later request for it was coalesced
+    // with nothing and its level waited for the tile for ever.
+    let [x, z, w, q_] = [0, 1, 2, 3].map(|s| TileId::new(0, s, 0));
+    let src = source();
+    let gated = Gated::new(src.clone(), &[z, q_]);
+    let limits = Limits { max_ready_reads: 64, ..limits(64, 2) };
+    let mut q = ReadQueues::new(gated.clone(), memory(&src), 1, limits).unwrap();
+    // Two read slots, three requests: one run reads x then waits on z, another reads w.
+    q.update(&[request(0, 0, 0), request(1, 0, 1), request(2, 0, 2)]);
+    let mut done = Vec::new();
+    drain_until(&mut q, &mut done, &[x, w]);
+    // x taken while its run waits on z, and wanted again: a second run reads it, then waits on q_.
+    q.update(&[request(0, 0, 0), request(3, 0, 1)]);
+    let mut again = Vec::new();
+    drain_until(&mut q, &mut again, &[x]);
+    // The second read of x taken too, while both runs still wait.
+    q.update(&[]);
+    gated.open(z);
+    gated.open(q_);
+    drain_until(&mut q, &mut again, &[z, q_]);
+    q.update(&[]);
+    q.flush();
+    assert!(q.drain().is_empty());
+    // Every read of x was taken: asked for once more, it is read once more.
+    q.update(&[request(0, 0, 0)]);
+    q.flush();
+    let last: Vec<TileId> = q.drain().iter().map(|c| c.tile).collect();
+    assert_eq!(last, vec![x], "{:?}", q.stats());
+    q.update(&[]);
+    q.flush();
+    q.drain();
+    assert_eq!(q.stats().in_flight, 0);
+}
