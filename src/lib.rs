@@ -27,6 +27,7 @@
 //! | [`sizing`] | memory and bandwidth arithmetic, clip-size and virtual-level recommendations |
 //! | [`save`] | writing a result file completely or not at all (temporary, sync, rename) |
 //! | [`report`] | what the tools print: validation reports, info, tile locations, dumps, pictures and their labels (below the service) |
+//! | [`demo`] | `clipmapd --demo`: the service, a small flying client and pictures of what it saw (a client of the rest, the top floor) |
 //! | [`inspect`] | a running service seen from outside: `cliptex attach` and `dump --attach` (the top of the stack) |
 //! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
 //! | [`growing`] | growing textures: patches, the fixed tile grid anchored at a world origin, the R*-tree index, tile rebuilds |
@@ -42,6 +43,7 @@ pub mod accuracy;
 pub mod cache;
 pub mod clip;
 pub mod config;
+pub mod demo;
 pub mod geom;
 pub mod growing;
 pub mod inspect;
@@ -60,3 +62,4 @@ pub mod shm;
 pub mod sizing;
 pub mod source;
 pub mod texel;
+pub mod tile;

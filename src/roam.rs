@@ -7,7 +7,7 @@
 //! printing belong to the tool.
 
 use crate::clip::{ClipError, Clipmap, Settings, Stats};
-use crate::source::{DescError, HashSource, TerrainSource, TextureDesc, TileSource};
+use crate::source::{DescError, TextureDesc, TileSource};
 use crate::texel::TexelFormat;
 use serde::Serialize;
 use std::str::FromStr;
@@ -137,15 +137,7 @@ impl Flight {
     }
 }
 
-/// Which procedural texture to fly over.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Procedural {
-    /// The verification texture (docs/ARCHITECTURE.md §11).
-    Hash,
-    /// Smooth fractal terrain.
-    Terrain,
-}
+pub use crate::source::Procedural;
 
 /// Everything a roam needs.
 pub struct RoamOptions {
@@ -188,11 +180,7 @@ impl RoamOptions {
     ) -> Result<Self, RoamError> {
         let desc =
             TextureDesc::new([size, size], clip, TexelFormat::RGBA8, [tile, tile])?.with_invalid_border(border)?;
-        let source: Arc<dyn TileSource> = match kind {
-            Procedural::Hash => Arc::new(HashSource::new(desc)),
-            Procedural::Terrain => Arc::new(TerrainSource::new(desc, 1)),
-        };
-        Ok(Self::over(source, flight, frames))
+        Ok(Self::over(kind.source(desc), flight, frames))
     }
 
     /// A roam over any tile source (a [`crate::source::FileSource`], say) with Performer's 6 ms

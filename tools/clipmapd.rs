@@ -6,9 +6,10 @@
 
 use anyhow::Context as _;
 use clap::{Parser, ValueEnum};
+use clipmap::demo;
 use clipmap::plan;
 use clipmap::report::{exit, EnvArgs};
-use clipmap::service::{self, demo, ControlLimits, Options, Procedural};
+use clipmap::service::{self, ControlLimits, Options, Procedural};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;

@@ -149,8 +149,8 @@ struct Cli {
     /// File stem of the .ct (default: the output directory's name).
     #[arg(long)]
     name: Option<String>,
-    /// Seed of the terrain source.
-    #[arg(long, default_value_t = 1)]
+    /// Seed of the terrain source (default: the built-in terrain's, as every tool serves it).
+    #[arg(long, default_value_t = clipmap::source::TERRAIN_SEED)]
     seed: u64,
     /// Sparse inset: a level-0 region S0,T0,S1,T1 (texels, S1 and T1 exclusive) outside which
     /// the levels finer than --inset-level are absent (a default tile stands in), with a border

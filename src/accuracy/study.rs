@@ -12,7 +12,7 @@ use super::render::{render_clipmap_levels, render_mipmap, Camera, Pixel};
 use crate::clip::{Clipmap, Settings};
 use crate::roam::{Flight, Procedural};
 use crate::sample::Filter;
-use crate::source::{HashSource, TerrainSource, TextureDesc, TileSource};
+use crate::source::{TextureDesc, TileSource};
 use crate::texel::TexelFormat;
 use serde::Serialize;
 use std::sync::Arc;
@@ -178,10 +178,7 @@ pub fn compare_at(reference: &[Pixel], test: &[Pixel], bits: u32) -> (Option<f64
 pub fn source(case: &Case) -> Result<Arc<dyn TileSource>, StudyError> {
     let desc = TextureDesc::new([case.size, case.size], case.clip_size, case.format, [case.tile, case.tile])?
         .with_invalid_border(case.invalid_border)?;
-    Ok(match case.source {
-        Procedural::Hash => Arc::new(HashSource::new(desc)),
-        Procedural::Terrain => Arc::new(TerrainSource::new(desc, 1)),
-    })
+    Ok(case.source.source(desc))
 }
 
 /// Runs one case; `keep` receives (frame, reference, clipmap render) for pictures.

@@ -4,9 +4,9 @@
 
 use crate::geom::Rect;
 use crate::paging::adaptive::LevelPaging;
-use crate::paging::PoolStats;
 use crate::queue::QueueStats;
 use crate::source::FaultKind;
+use crate::source::PoolStats;
 use serde::Serialize;
 
 /// Read failures by kind.

@@ -14,7 +14,7 @@
 //! size from its header (at most [`MAX_PATCH_PIXELS`] a side, and at most `max_bytes` of texels),
 //! then the patch itself ([`Patch::new`]).
 
-use super::{Grid, GrowError, Patch, PatchMeta, WorldBox, MAX_PATCH_PIXELS};
+use super::{Grid, GrowError, NewPatch, Patch, PatchMeta, WorldBox, MAX_PATCH_PIXELS};
 use serde::Deserialize;
 use std::io::Cursor;
 use thiserror::Error;
@@ -253,12 +253,7 @@ pub fn max_image_file_bytes(texel_bytes: u64) -> u64 {
 /// ([`crate::open`]: regular files only, never blocking on a FIFO or device) and its length is
 /// checked before it is read: the sidecar at most [`MAX_SIDECAR_BYTES`], an image at most
 /// `max_bytes`, raw texels exactly their size. `paths` says where its files may be.
-pub fn read_sidecar(
-    grid: &Grid,
-    file: &std::path::Path,
-    max_bytes: u64,
-    paths: Paths,
-) -> Result<super::store::NewPatch, InputError> {
+pub fn read_sidecar(grid: &Grid, file: &std::path::Path, max_bytes: u64, paths: Paths) -> Result<NewPatch, InputError> {
     use crate::open::SizedError;
     let where_ = file.display().to_string();
     let dir = file.parent().unwrap_or(std::path::Path::new("."));
@@ -319,7 +314,7 @@ pub fn new_patch(
     bytes: Vec<u8>,
     max_bytes: u64,
     where_: &str,
-) -> Result<super::store::NewPatch, InputError> {
+) -> Result<NewPatch, InputError> {
     if desc.image.is_some() && bytes.len() as u64 > max_bytes {
         return Err(InputError::FileTooLarge { where_: where_.to_string(), bytes: bytes.len() as u64, max_bytes });
     }
@@ -336,7 +331,7 @@ pub fn new_patch(
         });
     }
     let encoded = desc.image.is_some().then_some(bytes);
-    Ok(super::store::NewPatch {
+    Ok(NewPatch {
         bbox: p.bbox,
         time: p.time,
         rating: p.rating,

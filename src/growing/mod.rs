@@ -63,14 +63,21 @@ pub fn digest_from(bytes: &[u8], mut h: u64) -> u64 {
         last[..rest.len()].copy_from_slice(rest);
         h = (h ^ u64::from_le_bytes(last)).wrapping_mul(PRIME);
     }
-    splitmix(h ^ bytes.len() as u64)
+    crate::tile::mix64(h ^ bytes.len() as u64)
 }
 
-/// The splitmix64 finaliser: spreads every input bit over the output.
-fn splitmix(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
+/// A patch as handed in, before the store gives it an id.
+#[derive(Clone, Debug)]
+pub struct NewPatch {
+    pub bbox: WorldBox,
+    pub time: u64,
+    pub rating: f64,
+    pub width: u32,
+    pub height: u32,
+    pub texels: Vec<u8>,
+    /// The image file the texels were decoded from, kept instead of the texels (a JPEG is a
+    /// tenth of its texels: a tenth of the bytes to sync before the patch is acknowledged).
+    pub encoded: Option<Vec<u8>>,
 }
 
 /// An axis-aligned box in world units: `min` inclusive, `max` exclusive.

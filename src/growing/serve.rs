@@ -23,8 +23,9 @@
 //! ([`crate::clip::Clipmap::refresh`]).
 
 use super::rebuild::{parent_tile, Tile, TileKey};
-use super::store::{Growing, NewPatch, StoreError};
+use super::store::{Growing, StoreError};
 use super::Grid;
+use super::NewPatch;
 use crate::shm::layout::Growth;
 use crate::source::{check_request, DescError, SourceError, TextureDesc, TileId, TileSource};
 use std::collections::HashMap;

@@ -36,7 +36,7 @@
 
 use super::index::PatchIndex;
 use super::rebuild::{Flags, Rebuilder, Tile, TileKey};
-use super::{Grid, GrowError, Patch, PatchMeta, WorldBox};
+use super::{Grid, GrowError, NewPatch, Patch, PatchMeta, WorldBox};
 use crate::texel::TexelFormat;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -198,20 +198,6 @@ pub struct Growing {
     sources: std::collections::HashSet<String>,
     /// Tiles changed and saved since [`Growing::take_saved`] last took them.
     saved: Vec<TileKey>,
-}
-
-/// A patch as handed in, before the store gives it an id.
-#[derive(Clone, Debug)]
-pub struct NewPatch {
-    pub bbox: WorldBox,
-    pub time: u64,
-    pub rating: f64,
-    pub width: u32,
-    pub height: u32,
-    pub texels: Vec<u8>,
-    /// The image file the texels were decoded from, kept instead of the texels (a JPEG is a
-    /// tenth of its texels: a tenth of the bytes to sync before the patch is acknowledged).
-    pub encoded: Option<Vec<u8>>,
 }
 
 impl Growing {

@@ -384,7 +384,8 @@ proptest! {
 
 /// The store: what survives a restart, a crash mid-rebuild, a damaged tile, a refused patch.
 mod store {
-    use super::super::store::{Growing, NewPatch, StoreError};
+    use super::super::store::{Growing, StoreError};
+    use super::super::NewPatch;
     use super::*;
 
     fn new_patch(b: [f64; 4], time: u64, rating: f64, w: u32, h: u32, seed: u8) -> NewPatch {

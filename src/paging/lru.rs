@@ -17,7 +17,7 @@ impl Eviction for Lru {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::source::TileId;
+    use crate::tile::TileId;
 
     #[test]
     fn the_least_recently_used_tile_goes_first_whatever_the_motion() {

@@ -5,11 +5,11 @@
 //! ([`ring`]: spare tiles around the window, the default; [`direction`]: spare tiles put ahead
 //! when the centre crosses a tile boundary, held otherwise; [`ahead`]: spare tiles ahead at
 //! every moving tick, the engine's former placement), and [`Eviction`] ([`lru`]: least recently used
-//! first; [`shift`]: farthest behind the direction of motion first), plus the pool itself
-//! ([`pool::PoolSource`], a [`crate::source::TileSource`] wrapper under a hard byte budget).
+//! first; [`shift`]: farthest behind the direction of motion first). The pool those rank is a
+//! source in front of a source ([`crate::source::PoolSource`]), so it lives with the sources.
 //! The comparison is `clipbench policies` (docs/BENCHMARKS.md, ## Policies).
 //!
-//! Everything here but the pool is pure: a prefetch policy is a function of the level's shape,
+//! Everything here is pure: a prefetch policy is a function of the level's shape,
 //! its tex region, its motion and last tick's mem region; an eviction policy ranks the pool's
 //! tiles given the motion the clipmap last reported ([`Motion`]). Which slots change and when is
 //! still [`crate::cache`]'s and [`crate::clip`]'s business (a slot is given to another tile only
@@ -19,14 +19,11 @@ pub mod adaptive;
 pub mod ahead;
 pub mod direction;
 pub mod lru;
-pub mod pool;
 pub mod ring;
 pub mod shift;
 
-pub use pool::{PoolSource, PoolStats};
-
 use crate::geom::{tiles_covering, tiles_in_level, LevelShape, Rect};
-use crate::source::TileId;
+use crate::tile::TileId;
 use serde::Serialize;
 use std::fmt;
 use std::str::FromStr;

@@ -59,7 +59,7 @@ mod tests {
     use super::*;
     use crate::geom::Rect;
     use crate::paging::lru::Lru;
-    use crate::source::TileId;
+    use crate::tile::TileId;
 
     /// Evicts every candidate in turn; returns the tiles in the order they went.
     fn order(policy: &dyn Eviction, mut pool: Vec<Candidate>, motion: &Motion) -> Vec<(u32, u64)> {

@@ -1,7 +1,9 @@
 //! Sparse insets: the levels finer than an inset level exist only inside a region of the texture
 //! (the inset) and a border around it; elsewhere their tiles are absent.
 //!
-//! Geometry only; [`super::sink`] skips absent tiles and [`super::border`] fills the border.
+//! The inset's vocabulary only: which tiles of a sparse level hold what. [`super::layout`] works
+//! out each level's [`SparseLevel`] from its level table, [`super::sink`] skips absent tiles and
+//! [`super::border`] fills the border.
 //! For each sparse level k (k < K, the inset level):
 //!
 //! - *inset tiles*: every tile that overlaps the inset, `[s0, s1) x [t0, t1)` in level-0
@@ -15,9 +17,6 @@
 //!   (all zeros: black, transparent) that readers use in their place.
 //!
 //! Level K and every coarser level are complete.
-
-use super::error::PrepError;
-use super::layout::{Layout, Level, LevelKind};
 
 /// A region of level 0 with finer levels than the rest of the texture.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -91,113 +90,5 @@ impl SparseLevel {
         } else {
             TileRole::Absent
         }
-    }
-}
-
-impl Inset {
-    /// Checks the inset against the level table: a non-empty region inside level 0, and an inset
-    /// level K >= 1 such that every level finer than K is an image-cache level.
-    pub fn check(&self, layout: &Layout) -> Result<(), PrepError> {
-        let (w, h) = (layout.spec.width, layout.spec.height);
-        if self.s0 >= self.s1 || self.t0 >= self.t1 || self.s1 > w || self.t1 > h {
-            return Err(PrepError::Geometry(format!(
-                "the inset {},{},{},{} is not a non-empty region of the {w}x{h} texture; expected S0,T0,S1,T1 with S0 < S1 <= {w} and T0 < T1 <= {h} (level-0 texels, S1 and T1 exclusive)",
-                self.s0, self.t0, self.s1, self.t1
-            )));
-        }
-        let ics = layout.image_cache_levels().count() as u32;
-        if self.level == 0 || self.level > ics || (self.level as usize) >= layout.levels.len() {
-            return Err(PrepError::Geometry(format!(
-                "--inset-level {} leaves no sparse level or makes a pyramid level sparse; this texture has {ics} image-cache levels, so expected an inset level from 1 to {ics}",
-                self.level
-            )));
-        }
-        Ok(())
-    }
-
-    /// The tiles of `level` if it is sparse (finer than the inset level), `None` if complete.
-    pub fn sparse(&self, layout: &Layout, level: &Level) -> Option<SparseLevel> {
-        if level.index >= self.level || level.kind != LevelKind::ImageCache {
-            return None;
-        }
-        let k = level.index;
-        let (tw, th) = (level.tile_w, level.tile_h);
-        let scale_out = |v: u64| v.div_ceil(1 << k);
-        let inset = TileRect {
-            s0: (self.s0 >> k) / tw,
-            t0: (self.t0 >> k) / th,
-            s1: scale_out(self.s1).div_ceil(tw),
-            t1: scale_out(self.t1).div_ceil(th),
-        };
-        let clip = layout.spec.clip;
-        let border_tiles = clip.div_ceil(tw).max(clip.div_ceil(th));
-        let written = TileRect {
-            s0: inset.s0.saturating_sub(border_tiles),
-            t0: inset.t0.saturating_sub(border_tiles),
-            s1: (inset.s1 + border_tiles).min(level.tiles_s()),
-            t1: (inset.t1 + border_tiles).min(level.tiles_t()),
-        };
-        Some(SparseLevel { inset, written, border_tiles })
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::prep::layout::Spec;
-    use crate::texel::TexelFormat;
-
-    fn layout(size: u64, clip: u64, tile: u64) -> Layout {
-        Layout::new(Spec {
-            width: size,
-            height: size,
-            clip,
-            tile,
-            format: TexelFormat::L8,
-            tiles_in_file: (1, 1),
-            header_bytes: 0,
-            streams: None,
-            inset: None,
-            compression: None,
-        })
-        .unwrap()
-    }
-
-    #[test]
-    fn inset_tiles_round_outwards_and_the_border_is_a_clip_size_wide() {
-        let l = layout(4096, 256, 64);
-        let inset = Inset { s0: 1000, t0: 2000, s1: 1100, t1: 2001, level: 2 };
-        inset.check(&l).unwrap();
-        let l0 = inset.sparse(&l, &l.levels[0]).unwrap();
-        assert_eq!(l0.inset, TileRect { s0: 15, t0: 31, s1: 18, t1: 32 });
-        assert_eq!(l0.border_tiles, 4);
-        assert_eq!(l0.written, TileRect { s0: 11, t0: 27, s1: 22, t1: 36 });
-        assert_eq!(l0.role(15, 31), TileRole::Source);
-        assert_eq!(l0.role(11, 35), TileRole::Border);
-        assert_eq!(l0.role(10, 31), TileRole::Absent);
-        let l1 = inset.sparse(&l, &l.levels[1]).unwrap();
-        // Level 1: columns 500 .. 550, rows 1000 .. 1001 (1001 rounded out).
-        assert_eq!(l1.inset, TileRect { s0: 7, t0: 15, s1: 9, t1: 16 });
-        assert!(inset.sparse(&l, &l.levels[2]).is_none());
-    }
-
-    #[test]
-    fn the_border_is_clamped_to_the_level() {
-        let l = layout(1024, 256, 128);
-        let inset = Inset { s0: 0, t0: 0, s1: 1, t1: 1, level: 1 };
-        let l0 = inset.sparse(&l, &l.levels[0]).unwrap();
-        assert_eq!(l0.written, TileRect { s0: 0, t0: 0, s1: 3, t1: 3 });
-    }
-
-    #[test]
-    fn an_empty_region_or_a_sparse_pyramid_level_is_refused() {
-        let l = layout(1024, 256, 128);
-        let empty = Inset { s0: 10, t0: 0, s1: 10, t1: 5, level: 1 };
-        assert!(empty.check(&l).unwrap_err().to_string().contains("non-empty"));
-        // 1024 with clip 256: image caches 1024 and 512 only.
-        let deep = Inset { s0: 0, t0: 0, s1: 8, t1: 8, level: 3 };
-        assert!(deep.check(&l).unwrap_err().to_string().contains("from 1 to 2"));
-        let zero = Inset { level: 0, ..deep };
-        assert!(zero.check(&l).is_err());
     }
 }

@@ -16,7 +16,7 @@
 //! ```
 
 use super::error::{next_power_of_two, PrepError};
-use super::inset::{Inset, SparseLevel, TileRole};
+use super::inset::{Inset, SparseLevel, TileRect, TileRole};
 use crate::texel::TexelFormat;
 use std::path::PathBuf;
 
@@ -227,14 +227,14 @@ impl Layout {
         let layout =
             Layout { spec, levels, smallest_icache: smallest, smallest_icache_is_default: smallest == default };
         if let Some(inset) = &layout.spec.inset {
-            inset.check(&layout)?;
+            layout.check_inset(inset)?;
         }
         Ok(layout)
     }
 
     /// The tiles of `level` if the layout has an inset and the level is finer than its level.
     pub fn sparse(&self, level: &Level) -> Option<SparseLevel> {
-        self.spec.inset.as_ref().and_then(|i| i.sparse(self, level))
+        self.spec.inset.as_ref().and_then(|i| self.sparse_of(i, level))
     }
 
     /// What tile (s, t) of `level` holds.
@@ -376,6 +376,53 @@ impl Layout {
     }
 }
 
+impl Layout {
+    /// Checks an inset against the level table: a non-empty region inside level 0, and an inset
+    /// level K >= 1 such that every level finer than K is an image-cache level.
+    fn check_inset(&self, region: &Inset) -> Result<(), PrepError> {
+        let (w, h) = (self.spec.width, self.spec.height);
+        let Inset { s0, t0, s1, t1, level } = *region;
+        if s0 >= s1 || t0 >= t1 || s1 > w || t1 > h {
+            return Err(PrepError::Geometry(format!(
+                "the inset {s0},{t0},{s1},{t1} is not a non-empty region of the {w}x{h} texture; expected S0,T0,S1,T1 with S0 < S1 <= {w} and T0 < T1 <= {h} (level-0 texels, S1 and T1 exclusive)"
+            )));
+        }
+        let ics = self.image_cache_levels().count() as u32;
+        if level == 0 || level > ics || (level as usize) >= self.levels.len() {
+            return Err(PrepError::Geometry(format!(
+                "--inset-level {level} leaves no sparse level or makes a pyramid level sparse; this texture has {ics} image-cache levels, so expected an inset level from 1 to {ics}"
+            )));
+        }
+        Ok(())
+    }
+
+    /// The tiles of `level` under the inset `region` if the level is sparse (finer than the inset
+    /// level), `None` if it is complete.
+    fn sparse_of(&self, region: &Inset, level: &Level) -> Option<SparseLevel> {
+        if level.index >= region.level || level.kind != LevelKind::ImageCache {
+            return None;
+        }
+        let k = level.index;
+        let (tw, th) = (level.tile_w, level.tile_h);
+        let scale_out = |v: u64| v.div_ceil(1 << k);
+        let inset = TileRect {
+            s0: (region.s0 >> k) / tw,
+            t0: (region.t0 >> k) / th,
+            s1: scale_out(region.s1).div_ceil(tw),
+            t1: scale_out(region.t1).div_ceil(th),
+        };
+        let clip = self.spec.clip;
+        let border_tiles = clip.div_ceil(tw).max(clip.div_ceil(th));
+        let written = TileRect {
+            s0: inset.s0.saturating_sub(border_tiles),
+            t0: inset.t0.saturating_sub(border_tiles),
+            s1: (inset.s1 + border_tiles).min(level.tiles_s()),
+            t1: (inset.t1 + border_tiles).min(level.tiles_t()),
+        };
+        Some(SparseLevel { inset, written, border_tiles })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -451,5 +498,59 @@ mod tests {
     fn non_powers_of_two_are_refused_with_the_next_power() {
         let e = Layout::new(spec(256, 256, 100, 64)).unwrap_err();
         assert!(e.to_string().contains("128"), "{e}");
+    }
+
+    fn inset_layout(size: u64, clip: u64, tile: u64) -> Layout {
+        Layout::new(Spec {
+            width: size,
+            height: size,
+            clip,
+            tile,
+            format: TexelFormat::L8,
+            tiles_in_file: (1, 1),
+            header_bytes: 0,
+            streams: None,
+            inset: None,
+            compression: None,
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn inset_tiles_round_outwards_and_the_border_is_a_clip_size_wide() {
+        let l = inset_layout(4096, 256, 64);
+        let inset = Inset { s0: 1000, t0: 2000, s1: 1100, t1: 2001, level: 2 };
+        l.check_inset(&inset).unwrap();
+        let l0 = l.sparse_of(&inset, &l.levels[0]).unwrap();
+        assert_eq!(l0.inset, TileRect { s0: 15, t0: 31, s1: 18, t1: 32 });
+        assert_eq!(l0.border_tiles, 4);
+        assert_eq!(l0.written, TileRect { s0: 11, t0: 27, s1: 22, t1: 36 });
+        assert_eq!(l0.role(15, 31), TileRole::Source);
+        assert_eq!(l0.role(11, 35), TileRole::Border);
+        assert_eq!(l0.role(10, 31), TileRole::Absent);
+        let l1 = l.sparse_of(&inset, &l.levels[1]).unwrap();
+        // Level 1: columns 500 .. 550, rows 1000 .. 1001 (1001 rounded out).
+        assert_eq!(l1.inset, TileRect { s0: 7, t0: 15, s1: 9, t1: 16 });
+        assert!(l.sparse_of(&inset, &l.levels[2]).is_none());
+    }
+
+    #[test]
+    fn the_border_is_clamped_to_the_level() {
+        let l = inset_layout(1024, 256, 128);
+        let inset = Inset { s0: 0, t0: 0, s1: 1, t1: 1, level: 1 };
+        let l0 = l.sparse_of(&inset, &l.levels[0]).unwrap();
+        assert_eq!(l0.written, TileRect { s0: 0, t0: 0, s1: 3, t1: 3 });
+    }
+
+    #[test]
+    fn an_empty_region_or_a_sparse_pyramid_level_is_refused() {
+        let l = inset_layout(1024, 256, 128);
+        let empty = Inset { s0: 10, t0: 0, s1: 10, t1: 5, level: 1 };
+        assert!(l.check_inset(&empty).unwrap_err().to_string().contains("non-empty"));
+        // 1024 with clip 256: image caches 1024 and 512 only.
+        let deep = Inset { s0: 0, t0: 0, s1: 8, t1: 8, level: 3 };
+        assert!(l.check_inset(&deep).unwrap_err().to_string().contains("from 1 to 2"));
+        let zero = Inset { level: 0, ..deep };
+        assert!(l.check_inset(&zero).is_err());
     }
 }

@@ -23,6 +23,7 @@
 //! This module does not read configuration files; checking what it wrote is left to
 //! [`crate::config`] and the plan.
 
+pub mod band;
 pub mod border;
 pub mod configfile;
 pub mod error;

@@ -2,6 +2,7 @@
 //! in bands of tile rows cascading down the levels, so memory is bounded by a few bands of
 //! level-0 width, never by the texture size.
 
+use super::band::BandSource;
 use super::border::write_borders;
 use super::configfile::{ct_text, ic_text};
 use super::error::PrepError;
@@ -10,7 +11,7 @@ use super::inset::TileRole;
 use super::layout::{Layout, Level, LevelKind};
 use super::sink::write_tile_part;
 use super::sink::LevelWriter;
-use super::source::{BandSource, HashLevel, OpenedImage, TerrainLevel0};
+use super::source::{HashLevel, OpenedImage, TerrainLevel0};
 use super::Limits;
 use crate::source::procedural::{hash_region, Terrain};
 use rayon::prelude::*;

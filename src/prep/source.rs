@@ -10,6 +10,7 @@
 //! chosen format (16-bit samples, a format of 8 bits or fewer per component) is refused unless
 //! the reduction is asked for ([`OpenedImage::reduce_depth`]); it then rounds to nearest.
 
+use super::band::{encode_rgba16, encode_rgba8, widen, BandSource};
 use super::error::PrepError;
 use super::tiff_stream::TiffStream;
 use super::Limits;
@@ -18,12 +19,6 @@ use crate::texel::{ComponentType, Components, TexelFormat};
 use image::{DynamicImage, GenericImageView, ImageDecoder, ImageReader};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
-
-/// Produces the rows of one level, band by band, in increasing t.
-pub trait BandSource: Send {
-    /// Fills rows `t0 .. t0 + rows` (each `width * bpt` bytes, s fastest) into `out`.
-    fn fill(&mut self, t0: u64, rows: usize, out: &mut [u8]) -> Result<(), PrepError>;
-}
 
 /// The verification texture of one level (docs/ARCHITECTURE.md §11).
 pub struct HashLevel {
@@ -108,11 +103,6 @@ fn pixel16(image: &DynamicImage, x: u32, y: u32) -> [u16; 4] {
     }
 }
 
-/// An 8-bit pixel on the 16-bit scale (times 257, exact).
-pub fn widen(p: [u8; 4]) -> [u16; 4] {
-    p.map(|v| v as u16 * 257)
-}
-
 impl BandSource for MemoryImage {
     fn fill(&mut self, t0: u64, _rows: usize, out: &mut [u8]) -> Result<(), PrepError> {
         let bpt = self.format.bytes_per_texel() as usize;
@@ -137,51 +127,6 @@ impl BandSource for MemoryImage {
             }
         });
         Ok(())
-    }
-}
-
-/// Encodes an 8-bit RGBA pixel into `format`.
-pub fn encode_rgba8(format: TexelFormat, p: [u8; 4], out: &mut [u8]) {
-    if format == TexelFormat::RGBA8 {
-        out.copy_from_slice(&p);
-    } else if format == TexelFormat::RGB8 {
-        out.copy_from_slice(&p[..3]);
-    } else {
-        let f = |v: u8| v as f32 / 255.0;
-        format.encode([f(p[0]), f(p[1]), f(p[2]), f(p[3])], out);
-    }
-}
-
-/// Encodes a 16-bit RGBA pixel into `format`: 16-bit formats take the samples as they are,
-/// 8-bit formats the samples rounded to nearest (v / 257), packed formats their encoding.
-/// One-component formats take the luminance (Rec. 709 weights; a grey pixel's value exactly).
-pub fn encode_rgba16(format: TexelFormat, p: [u16; 4], out: &mut [u8]) {
-    let lum = || -> f64 {
-        if p[0] == p[1] && p[1] == p[2] {
-            p[0] as f64
-        } else {
-            0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64
-        }
-    };
-    let chans: [f64; 4] = match format.components {
-        Components::One => [lum(), 0.0, 0.0, 0.0],
-        Components::Two => [lum(), p[3] as f64, 0.0, 0.0],
-        Components::Three => [p[0] as f64, p[1] as f64, p[2] as f64, 0.0],
-        Components::Four => p.map(|v| v as f64),
-    };
-    let n = format.components.count() as usize;
-    match format.ctype {
-        ComponentType::U16 => {
-            for (o, c) in out.chunks_exact_mut(2).zip(&chans[..n]) {
-                o.copy_from_slice(&(c.round().clamp(0.0, 65535.0) as u16).to_le_bytes());
-            }
-        }
-        ComponentType::U8 => {
-            for (o, c) in out.iter_mut().zip(&chans[..n]) {
-                *o = (c / 257.0).round().clamp(0.0, 255.0) as u8;
-            }
-        }
-        _ => format.encode(p.map(|v| v as f32 / 65535.0), out),
     }
 }
 

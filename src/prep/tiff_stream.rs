@@ -8,8 +8,8 @@
 //! (planar, palette, CMYK, float, or a single strip larger than the memory limit) are left to the
 //! in-memory decoder.
 
+use super::band::{encode_rgba16, encode_rgba8, widen, BandSource};
 use super::error::PrepError;
-use super::source::{encode_rgba16, encode_rgba8, widen, BandSource};
 use super::Limits;
 use crate::texel::{ComponentType, TexelFormat};
 use std::fs::File;

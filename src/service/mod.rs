@@ -8,14 +8,13 @@
 //! | [`control`] | the owner-only Unix control socket (tokio): one task per connection, bounded |
 //! | [`protocol`] | the control socket's line protocol, as pure functions |
 //! | [`stats`] | statistics: JSON and Prometheus text |
-//! | [`demo`] | `clipmapd --demo`: a built-in texture, a small flying client, pictures |
 //!
 //! The entry point [`run`] takes its shutdown signal as an argument (a future), so the binary
 //! passes SIGINT/SIGTERM and tests pass whatever they like. Reading configuration files and
-//! tiles is left to [`crate::source`]; the layout and its `unsafe` access to [`crate::shm`].
+//! tiles is left to [`crate::source`]; the layout and its `unsafe` access to [`crate::shm`]. The
+//! demo (`clipmapd --demo`, [`crate::demo`]) is a client of this module like any other.
 
 pub mod control;
-pub mod demo;
 pub mod options;
 pub mod protocol;
 pub mod stats;
@@ -25,7 +24,7 @@ pub use options::{default_socket, ControlLimits, Options};
 pub use stats::ServiceStats;
 pub use ticker::{Started, Ticker};
 
-use crate::source::{HashSource, TerrainSource, TextureDesc, TileSource};
+use crate::source::{TextureDesc, TileSource};
 use crate::texel::TexelFormat;
 use std::future::Future;
 use std::path::PathBuf;
@@ -94,17 +93,7 @@ impl ServiceError {
     }
 }
 
-/// A built-in procedural texture.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Procedural {
-    /// The verification texture (docs/ARCHITECTURE.md §11): every texel checkable by any reader.
-    Hash,
-    /// Smooth fractal terrain, for pictures.
-    Terrain,
-}
-
-/// The seed of the built-in terrain.
-pub const TERRAIN_SEED: u64 = 7;
+pub use crate::source::{Procedural, TERRAIN_SEED};
 
 /// A procedural RGBA8 texture `size` texels a side with clip size `clip` and `tile`-texel tiles.
 pub fn procedural_source(
@@ -121,10 +110,7 @@ pub fn procedural_source(
     let desc = TextureDesc::new([size, size], clip, TexelFormat::RGBA8, [tile, tile])?;
     let border = (clip / 32).clamp(1, 16);
     let desc = desc.with_invalid_border(border.min((clip.saturating_sub(1)) / 2))?;
-    Ok(match kind {
-        Procedural::Hash => Arc::new(HashSource::new(desc)),
-        Procedural::Terrain => Arc::new(TerrainSource::new(desc, TERRAIN_SEED)),
-    })
+    Ok(kind.source(desc))
 }
 
 /// What a service did, returned when it stops.

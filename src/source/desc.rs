@@ -9,6 +9,7 @@ use serde::Serialize;
 use thiserror::Error;
 
 pub use crate::limits::MAX_TEXTURE_SIZE;
+pub use crate::tile::{level_count, level_size};
 
 /// One mipmap level: its size and the size of the tiles it is read in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -68,17 +69,6 @@ pub struct TextureDesc {
     levels: Vec<LevelDesc>,
     /// Per level, the mem region (tiles per axis) its configuration asks for, if any.
     mem_grids: Vec<Option<[u64; 2]>>,
-}
-
-/// Size of level `k` of a texture whose level 0 is `size`: each edge halved k times, at least 1.
-pub fn level_size(size: [u64; 2], k: u32) -> [u64; 2] {
-    [(size[0] >> k.min(63)).max(1), (size[1] >> k.min(63)).max(1)]
-}
-
-/// Number of levels of a full mipmap of `size`: down to 1 x 1.
-pub fn level_count(size: [u64; 2]) -> usize {
-    let edge = size[0].max(size[1]).max(1);
-    (64 - edge.leading_zeros()) as usize
 }
 
 impl TextureDesc {

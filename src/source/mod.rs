@@ -14,45 +14,23 @@
 pub mod desc;
 pub mod faulty;
 pub mod file;
+pub mod pool;
 pub mod procedural;
 #[cfg(feature = "remote")]
 pub mod remote;
 mod synthetic;
 pub mod throttle;
 
+pub use crate::tile::TileId;
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};
 pub use faulty::{Fault, FaultRule, FaultySource};
 pub use file::{FileSource, FileSourceError, FileStats, RemoteReader};
-pub use synthetic::{HashSource, TerrainSource};
+pub use pool::{PoolSource, PoolStats};
+pub use synthetic::{HashSource, Procedural, TerrainSource, TERRAIN_SEED};
 pub use throttle::ThrottledSource;
 
 use serde::Serialize;
-use std::fmt;
 use thiserror::Error;
-
-/// A tile: level, tile column S and tile row T.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
-pub struct TileId {
-    /// Mipmap level (0 is the finest).
-    pub level: u32,
-    /// Tile column S (texels S*tile_width ..).
-    pub s: u64,
-    /// Tile row T (texels T*tile_height ..).
-    pub t: u64,
-}
-
-impl TileId {
-    /// Tile (s, t) of `level`.
-    pub fn new(level: u32, s: u64, t: u64) -> Self {
-        TileId { level, s, t }
-    }
-}
-
-impl fmt::Display for TileId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "level {} tile ({}, {})", self.level, self.s, self.t)
-    }
-}
 
 /// What went wrong reading a tile, without its details: used for counting and fault injection.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]

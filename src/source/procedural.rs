@@ -15,23 +15,7 @@
 
 use crate::texel::TexelFormat;
 
-/// SplitMix64 finaliser (all arithmetic wrapping on 64 bits), as in docs/ARCHITECTURE.md §11.
-#[inline]
-pub fn splitmix64(x: u64) -> u64 {
-    let mut z = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
-/// The 64-bit hash behind the verification texel at (level, s, t).
-///
-/// `s` and `t` must be below 2^29 and `level` below 64 for the key to be unique; textures up to
-/// 2^26 texels a side satisfy this with room to spare.
-#[inline]
-pub fn hash_value(level: u32, s: u64, t: u64) -> u64 {
-    splitmix64(((level as u64) << 58) | (t << 29) | s)
-}
+pub use crate::tile::{hash_value, splitmix64};
 
 /// Writes the verification texel at (level, s, t) into `out` (any length: byte i is byte i mod 8
 /// of [`hash_value`], little-endian).
@@ -203,14 +187,6 @@ impl Terrain {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn splitmix64_matches_the_reference_sequence() {
-        // Reference values of the SplitMix64 generator seeded with 0: its first outputs are
-        // splitmix64(0), splitmix64(0x9E37..15), ... (Vigna's public-domain reference).
-        assert_eq!(splitmix64(0), 0xE220_A839_7B1D_CDAF);
-        assert_eq!(splitmix64(0x9E37_79B9_7F4A_7C15), 0x6E78_9E6A_A1B9_65F4);
-    }
 
     #[test]
     fn hash_texel_is_the_low_bytes_of_the_key() {

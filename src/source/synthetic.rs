@@ -6,6 +6,33 @@
 
 use super::procedural::{hash_region, Terrain};
 use super::{check_request, SourceError, TextureDesc, TileId, TileSource};
+use serde::Serialize;
+use std::sync::Arc;
+
+/// The seed of the built-in terrain, the same in every tool (`clipmapd --source terrain`,
+/// `cliptex roam --source terrain`, `clipprep --source terrain` without `--seed`, the demo, the
+/// accuracy study): one flag, one texture.
+pub const TERRAIN_SEED: u64 = 1;
+
+/// A built-in procedural texture.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Procedural {
+    /// The verification texture (docs/ARCHITECTURE.md §11): every texel checkable by any reader.
+    Hash,
+    /// Smooth fractal terrain ([`TERRAIN_SEED`]), for pictures and accuracy studies.
+    Terrain,
+}
+
+impl Procedural {
+    /// The texture of this kind with the shape `desc`.
+    pub fn source(self, desc: TextureDesc) -> Arc<dyn TileSource> {
+        match self {
+            Procedural::Hash => Arc::new(HashSource::new(desc)),
+            Procedural::Terrain => Arc::new(TerrainSource::new(desc, TERRAIN_SEED)),
+        }
+    }
+}
 
 /// Visits the part of `tile` that lies inside its level: calls `row(t, s0, width, bytes)` for each
 /// texel row, where `bytes` is the row's slice of `out`. Texels outside the level are zeroed.

@@ -514,7 +514,7 @@ fn example(out: &Path, count: u32, [w, h]: [u32; 2]) -> Result<u32, String> {
     use clipmap::source::procedural::Terrain;
     use clipmap::texel::TexelFormat;
     std::fs::create_dir_all(out).map_err(|e| format!("{}: could not create: {e}", out.display()))?;
-    let terrain = Terrain::new(14, 7);
+    let terrain = Terrain::new(14, clipmap::source::TERRAIN_SEED);
     let step = (w as i64 * 2) / 3;
     let x_start = -(step * count as i64) / 2;
     let mut boxes: Vec<([i64; 2], u64, f64, bool)> = (0..count as i64)

@@ -11,9 +11,10 @@
 //! Bounds: the pool never holds more than its budget in tile bytes (a tile larger than the
 //! budget is not kept); the bookkeeping is a few dozen bytes a tile beside it.
 
-use super::{Candidate, Eviction, EvictionKind, Motion};
+use super::{Delivered, SourceError, TextureDesc, TileSource};
 use crate::geom::Rect;
-use crate::source::{Delivered, SourceError, TextureDesc, TileId, TileSource};
+use crate::paging::{Candidate, Eviction, EvictionKind, Motion};
+use crate::tile::TileId;
 use serde::Serialize;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard};

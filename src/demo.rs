@@ -6,10 +6,12 @@
 //! every picture captioned and its outlines and colours explained in a legend (drawn by
 //! [`crate::report::picture`] and [`crate::report::label`]).
 //!
-//! Everything it shows is read back through [`crate::shm::Client`], as any renderer would.
+//! Everything it shows is read back through [`crate::shm::Client`], as any renderer would: the
+//! demo is a client of the library on the top floor, above the service, the sampler, the
+//! accuracy study's camera and the pictures, none of which the service itself imports.
 
-use super::{procedural_source, run, Options, Procedural, ServiceError, ServiceStats};
 use crate::report::{label, picture};
+use crate::service::{procedural_source, run, Options, Procedural, ServiceError, ServiceStats};
 use crate::shm::{Client, Snapshot};
 use image::{Rgb, RgbImage};
 use std::os::unix::fs::DirBuilderExt;
@@ -62,7 +64,7 @@ pub async fn demo(o: DemoOptions) -> Result<DemoReport, ServiceError> {
     let _ = std::fs::remove_dir_all(&shm_dir);
     std::fs::DirBuilder::new().mode(0o700).create(&shm_dir).map_err(|e| out_err(&shm_dir, &e))?;
     let mut options = Options::new("demo");
-    options.socket = super::default_socket(&shm_dir, "demo");
+    options.socket = crate::service::default_socket(&shm_dir, "demo");
     options.shm_dir = shm_dir.clone();
     options.tick_hz = 120.0;
     options.budget_ms = Some(3.0);
@@ -100,7 +102,7 @@ pub async fn demo(o: DemoOptions) -> Result<DemoReport, ServiceError> {
 /// A level-0 point on a coast of the demo's terrain (the flight starts there: more to see).
 fn coast(size: u64) -> [i64; 2] {
     let log2 = 64 - (size - 1).max(1).leading_zeros();
-    let terrain = crate::source::procedural::Terrain::new(log2, super::TERRAIN_SEED);
+    let terrain = crate::source::procedural::Terrain::new(log2, crate::source::TERRAIN_SEED);
     let step = (size / 48).max(1);
     let mut best = ([size as i64 / 2; 2], f64::MAX);
     for i in 8..40 {
