@@ -39,6 +39,8 @@
 //! - Texel addressing is done in 64-bit integers; world coordinates in f64.
 //! - There is no `unsafe` code outside the shared-memory access layer.
 
+#![deny(unsafe_code)]
+
 pub mod accuracy;
 pub mod cache;
 pub mod clip;

@@ -22,6 +22,8 @@
 //!
 //! Exit status: 0 ok, 1 bad input, 2 the tool could not run.
 
+#![forbid(unsafe_code)]
+
 #[path = "clipbench/engine.rs"]
 mod engine;
 #[path = "clipbench/growing.rs"]

@@ -6,6 +6,8 @@
 //! Exit status: 0 every texel matched, 1 a mismatch (or a bad command line), 2 the mapping could
 //! not be read.
 
+#![forbid(unsafe_code)]
+
 use clap::Parser;
 use clipmap::shm::verify::HashCheck;
 use clipmap::shm::{Client, ShmError};

@@ -4,6 +4,8 @@
 //!
 //! Exit status: 0 ok, 1 the input is bad, 2 the service could not run.
 
+#![forbid(unsafe_code)]
+
 use anyhow::Context as _;
 use clap::{Parser, ValueEnum};
 use clipmap::demo;

@@ -2,6 +2,8 @@
 //! procedural source. A thin shell over [`clipmap::prep`]: arguments, progress, signals, and
 //! the summary; exit codes 0 (ok), 1 (bad input), 2 (could not run).
 
+#![forbid(unsafe_code)]
+
 use anyhow::Context;
 use clap::{Parser, ValueEnum};
 use clipmap::prep::error::next_power_of_two;

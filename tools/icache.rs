@@ -2,6 +2,8 @@
 //!
 //! Exit status: 0 ok, 1 the input is bad, 2 the tool could not run.
 
+#![forbid(unsafe_code)]
+
 use clap::{Parser, Subcommand};
 use clipmap::config::FileKind;
 use clipmap::plan;

@@ -6,6 +6,8 @@
 //! compares every frame with the reference software renderer on the same snapshot
 //! (docs/GPU.md).
 
+#![forbid(unsafe_code)]
+
 pub mod check;
 pub mod demo;
 pub mod flight;

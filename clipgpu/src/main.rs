@@ -1,6 +1,8 @@
 //! `clipgpu`: the GPU client (docs/GPU.md). `clipgpu --demo --json` runs on its own; `clipgpu
 //! --name NAME` flies against a running `clipmapd`.
 
+#![forbid(unsafe_code)]
+
 use clap::Parser;
 use clipgpu::flight::{fly, FlightOptions};
 use clipgpu::gpu::Gpu;

@@ -46,8 +46,9 @@ impl FaultCounts {
 pub struct Stats {
     /// Update ticks run.
     pub ticks: u64,
-    /// Texel bytes written into the slots other than by tile reads (measured at the mapping's
-    /// write primitive; update ticks write none).
+    /// Texel bytes the update tick wrote into slots itself (the mapping has no copy path: slot
+    /// bytes are written only by tile reads; only a growing texture's rebuilt tiles are read on
+    /// the tick, so this is 0 for every texture that does not grow).
     pub tick_texel_bytes: u64,
     /// Tiles read into their slots and settled.
     pub tiles_read: u64,

@@ -202,9 +202,8 @@ impl Client {
             ));
         }
         let region = Region::map_read_only(&file).map_err(super::io(path))?;
-        let mut magic = [0u8; 8];
-        region.read(header::MAGIC, &mut magic);
-        fence(Ordering::Acquire);
+        // The writer stores the magic last with a release store: acquire it, then the header.
+        let magic = region.load(header::MAGIC, Ordering::Acquire).to_le_bytes();
         if magic == *b"CLIPMAP1" {
             return Err(invalid(
                 path,
@@ -325,8 +324,7 @@ impl Client {
             return;
         }
         let Ok(region) = Region::map(&file) else { return };
-        let mut magic = [0u8; 8];
-        region.read(request::MAGIC, &mut magic);
+        let magic = region.load(request::MAGIC, Ordering::Acquire).to_le_bytes();
         if magic == layout::REQUEST_MAGIC && region.read_u64(request::GENERATION) == self.generation {
             self.request = Some(region);
         }
@@ -566,6 +564,7 @@ impl Client {
     }
 
     #[allow(clippy::too_many_arguments)]
+    #[allow(unsafe_code)] // the seqlocked copy of a tile's texels (SAFETY below)
     fn copy_from_slot(
         &self,
         d: &LevelDesc,
@@ -594,7 +593,12 @@ impl Client {
             for t in part.t0..part.t1 {
                 let src = base + (((t - tile[1] * th) * tw + (part.s0 - tile[0] * tw)) as u64) * bpt as u64;
                 let dst = (((t - rect.t0) as u64 * rect.width() + (part.s0 - rect.s0) as u64) as usize) * bpt;
-                self.region.read(src as usize, &mut out[dst..dst + run]);
+                // SAFETY: the tag said this tile, readable, under sequence `seq`; the writer (the
+                // service's thread or process) writes a slot's bytes only after moving its tag to
+                // loading, so a copy that overlapped a write sees `seq` moved below and is
+                // discarded, never returned. The copy itself goes through raw pointers into `out`,
+                // a private buffer (`Region::read`'s contract).
+                unsafe { self.region.read(src as usize, &mut out[dst..dst + run]) };
             }
             fence(Ordering::Acquire);
             if self.region.load(b + tag::SEQ, Ordering::Relaxed) == seq {

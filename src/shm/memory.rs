@@ -99,6 +99,9 @@ pub struct ImageMemory {
     /// Assignments of a slot whose settled tile the current snapshot still covers (the writer's
     /// invariant says: never).
     violations: AtomicU64,
+    /// Slot bytes rewritten by [`replace`](Self::replace), the one writer of texels that runs on
+    /// the engine's tick (a growing texture's rebuilt tiles).
+    replaced_bytes: AtomicU64,
 }
 
 impl std::fmt::Debug for ImageMemory {
@@ -135,23 +138,30 @@ impl ImageMemory {
     }
 
     /// Image caches over a mapping already sized to `placement` (the service's file).
-    pub(super) fn over(mut region: Region, placement: Placement, shape: Shape) -> ImageMemory {
-        let first = placement.levels.first().map_or(0, |l| l.slots) as usize;
-        region.count_writes_into(first..placement.total_bytes as usize);
+    pub(super) fn over(region: Region, placement: Placement, shape: Shape) -> ImageMemory {
         let per_slot = |v: u64| -> Vec<Vec<AtomicU64>> {
             placement.levels.iter().map(|l| (0..l.slot_count).map(|_| AtomicU64::new(v)).collect()).collect()
         };
         let (claims, keys) = (per_slot(UNASSIGNED), per_slot(NO_TILE));
         let published_tiles = std::sync::Mutex::new(vec![Rect::EMPTY; shape.levels.len()]);
-        ImageMemory { region, placement, shape, claims, keys, published_tiles, violations: AtomicU64::new(0) }
+        ImageMemory {
+            region,
+            placement,
+            shape,
+            claims,
+            keys,
+            published_tiles,
+            violations: AtomicU64::new(0),
+            replaced_bytes: AtomicU64::new(0),
+        }
     }
 
     /// Writes the static header (everything but the magic, which [`finish`](Self::finish)
     /// writes last).
     pub(super) fn init(&self, format: TexelFormat, tick_period_ns: u64, generation: u64) {
         let r = &self.region;
-        let put32 = |off: usize, v: u32| r.write(off, &v.to_le_bytes());
-        let put64 = |off: usize, v: u64| r.write(off, &v.to_le_bytes());
+        let put32 = |off: usize, v: u32| r.write_u32(off, v);
+        let put64 = |off: usize, v: u64| r.store(off, v, Ordering::Relaxed);
         put32(header::VERSION, layout::VERSION);
         put32(header::HEADER_BYTES, self.placement.header_bytes as u32);
         put64(header::TOTAL_BYTES, self.placement.total_bytes);
@@ -185,8 +195,9 @@ impl ImageMemory {
         // Before the first tick nothing may be used: min LOD is the level count.
         let s = header::SNAPSHOT;
         r.store(s + snapshot::MIN_LOD, (self.shape.levels.len() as f64).to_bits(), Ordering::Relaxed);
-        fence(Ordering::Release);
-        r.write(header::MAGIC, &layout::MAGIC);
+        // The magic last, with a release store: a reader that loads it (acquire) sees every
+        // field above.
+        r.store(header::MAGIC, u64::from_le_bytes(layout::MAGIC), Ordering::Release);
     }
 
     /// The static shape.
@@ -203,10 +214,12 @@ impl ImageMemory {
         &self.region
     }
 
-    /// Texel bytes written into the slots other than by a tile read filling its slot (0 unless
-    /// something copies texels: update ticks write none).
+    /// Texel bytes the engine's tick wrote into slots itself. The mapping has no copy path: slot
+    /// bytes are written only by [`fill`](Self::fill), lent to a tile read. Reads run on the
+    /// queues' threads, except [`replace`](Self::replace) (a growing texture's rebuilt tile,
+    /// read on the tick), whose bytes are counted here; 0 for every texture that does not grow.
     pub fn copied_texel_bytes(&self) -> u64 {
-        self.region.copied_bytes()
+        self.replaced_bytes.load(Ordering::Relaxed)
     }
 
     fn slot_of(&self, level: u32, tile: [i64; 2]) -> (usize, u64) {
@@ -229,7 +242,7 @@ impl ImageMemory {
     /// Gives `tile`'s slot to `tile` (loading): its tag first, then its claim (tile, then a new
     /// generation). Refused while a read fills the slot. Only the engine calls this, and only for
     /// a slot whose old tile no published region covers.
-    pub fn assign(&self, level: u32, tile: [i64; 2]) -> Assign {
+    pub(crate) fn assign(&self, level: u32, tile: [i64; 2]) -> Assign {
         let (k, slot) = self.slot_of(level, tile);
         let claim = &self.claims[k][slot as usize];
         let now = claim.load(Ordering::Acquire);
@@ -259,7 +272,8 @@ impl ImageMemory {
     /// is assigned to `tile` and loading; `None` (nothing called) when it is not (the tile left
     /// its mem region, or it is settled, or another read fills it). Returns the generation the
     /// slot was filled in, for [`settle`](Self::settle), with what `fill` returned.
-    pub fn fill<R>(&self, tile: TileId, fill: impl FnOnce(&mut [u8]) -> R) -> Option<(u64, R)> {
+    #[allow(unsafe_code)] // the one call that lends a slot's bytes to a read (SAFETY below)
+    pub(crate) fn fill<R>(&self, tile: TileId, fill: impl FnOnce(&mut [u8]) -> R) -> Option<(u64, R)> {
         let st = [tile.s as i64, tile.t as i64];
         let level = tile.level;
         if level as usize >= self.claims.len() {
@@ -302,7 +316,7 @@ impl ImageMemory {
     /// Marks `tile` settled after a read filled its slot in `generation`: ready (or the default
     /// tile), or missing. `false` when the slot no longer belongs to that assignment of the tile
     /// (a late read: nothing changed).
-    pub fn settle(&self, tile: TileId, generation: u64, st: SlotState) -> bool {
+    pub(crate) fn settle(&self, tile: TileId, generation: u64, st: SlotState) -> bool {
         let t = [tile.s as i64, tile.t as i64];
         if tile.level as usize >= self.claims.len() {
             return false;
@@ -330,7 +344,7 @@ impl ImageMemory {
 
     /// The generation of `tile`'s slot if it is assigned to the tile and loading (a read that
     /// failed before filling it settles it missing under this).
-    pub fn loading_generation(&self, tile: TileId) -> Option<u64> {
+    pub(crate) fn loading_generation(&self, tile: TileId) -> Option<u64> {
         let t = [tile.s as i64, tile.t as i64];
         if tile.level as usize >= self.claims.len() {
             return None;
@@ -342,7 +356,8 @@ impl ImageMemory {
 
     /// Copies bytes of a settled slot (in-process readers: the sampler over the engine, dumps).
     /// `false` when the slot does not hold `tile` settled.
-    pub fn read_settled(&self, tile: TileId, offset: usize, out: &mut [u8]) -> bool {
+    #[allow(unsafe_code)] // the one copy out of a settled slot in process (SAFETY below)
+    pub(crate) fn read_settled(&self, tile: TileId, offset: usize, out: &mut [u8]) -> bool {
         let t = [tile.s as i64, tile.t as i64];
         if tile.level as usize >= self.claims.len() {
             return false;
@@ -356,9 +371,10 @@ impl ImageMemory {
         if offset + out.len() > p.slot_bytes as usize {
             return false;
         }
-        // A settled slot changes only through `assign` or `replace`, which the engine calls from
-        // its tick (`&mut` of the engine), never while an in-process reader holds it.
-        self.region.read(p.slot_offset(slot) as usize + offset, out);
+        // SAFETY: a settled slot's bytes change only through `assign` or `replace` (then `fill`),
+        // which only the engine's tick calls (crate-private, with `&mut` of the engine), never
+        // while an in-process reader copies a slot; other processes map the file read-only.
+        unsafe { self.region.read(p.slot_offset(slot) as usize + offset, out) };
         true
     }
 
@@ -369,7 +385,7 @@ impl ImageMemory {
     }
 
     /// Publishes the whole state of a tick under the snapshot's seqlock.
-    pub fn publish(&self, p: &Publication) {
+    pub(crate) fn publish(&self, p: &Publication) {
         if let Ok(mut tiles) = self.published_tiles.lock() {
             for (k, l) in p.levels.iter().enumerate() {
                 tiles[k] = crate::geom::tiles_covering(l.valid, self.shape.levels[k].tile);
@@ -402,7 +418,7 @@ impl ImageMemory {
     }
 
     /// Publishes a growing texture's growth block under its seqlock.
-    pub fn publish_growth(&self, g: &layout::Growth) {
+    pub(crate) fn publish_growth(&self, g: &layout::Growth) {
         let r = &self.region;
         let b = header::GROWTH;
         let seq = r.load(b + growth::SEQ, Ordering::Relaxed);
@@ -446,7 +462,9 @@ impl ImageMemory {
         // The tag first: no reader trusts the slot's bytes from here on.
         self.store_tag(k, slot, t, SlotState::Loading);
         claim.compare_exchange(now, word((now >> 2) + 1, LOADING), Ordering::AcqRel, Ordering::Acquire).ok()?;
-        self.fill(tile, fill)
+        let filled = self.fill(tile, fill)?;
+        self.replaced_bytes.fetch_add(self.placement.levels[k].slot_bytes, Ordering::Relaxed);
+        Some(filled)
     }
 
     /// Bytes of the whole mapping.

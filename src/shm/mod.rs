@@ -14,6 +14,7 @@ pub mod client;
 pub mod layout;
 pub mod memory;
 pub mod names;
+#[allow(unsafe_code)] // the one module of raw pointer access; each block argues its SAFETY
 mod raw;
 pub mod verify;
 pub mod writer;

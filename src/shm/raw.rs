@@ -10,16 +10,12 @@ compile_error!("the shared-memory layout is little-endian; big-endian targets ar
 
 use memmap2::MmapRaw;
 use std::fs::File;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
 /// A shared mapping of a whole file (or an anonymous one, for an engine without a service).
 pub struct Region {
     map: MmapRaw,
     writable: bool,
-    /// Bytes copied in by [`Region::write`] into the range `counted` (texel bytes written other
-    /// than by a tile read into its slot).
-    copied: AtomicU64,
-    counted: std::ops::Range<usize>,
 }
 
 impl std::fmt::Debug for Region {
@@ -32,37 +28,26 @@ impl Region {
     /// Maps `file` read-write and shared.
     pub fn map(file: &File) -> std::io::Result<Region> {
         let map = MmapRaw::map_raw(file)?;
-        Ok(Region { map, writable: true, copied: AtomicU64::new(0), counted: 0..0 })
+        Ok(Region { map, writable: true })
     }
 
     /// [`map`](Self::map), with every page faulted in now (the service's texel mapping: tile
     /// reads then write into memory that is already there, instead of faulting page by page).
     pub fn map_populated(file: &File) -> std::io::Result<Region> {
         let map = memmap2::MmapOptions::new().populate().map_raw(file)?;
-        Ok(Region { map, writable: true, copied: AtomicU64::new(0), counted: 0..0 })
+        Ok(Region { map, writable: true })
     }
 
     /// Maps `file` read-only and shared: loads only (a reader of the texel mapping).
     pub fn map_read_only(file: &File) -> std::io::Result<Region> {
         let map = memmap2::MmapOptions::new().map_raw_read_only(file)?;
-        Ok(Region { map, writable: false, copied: AtomicU64::new(0), counted: 0..0 })
+        Ok(Region { map, writable: false })
     }
 
     /// A private anonymous mapping of `len` zero bytes (an engine's image caches in-process).
     pub fn anonymous(len: usize) -> std::io::Result<Region> {
         let map = MmapRaw::from(memmap2::MmapOptions::new().len(len.max(1)).populate().map_anon()?);
-        Ok(Region { map, writable: true, copied: AtomicU64::new(0), counted: 0..0 })
-    }
-
-    /// Counts the bytes [`write`](Self::write) copies into `range` from now on (the texel slots),
-    /// for [`copied_bytes`](Self::copied_bytes).
-    pub fn count_writes_into(&mut self, range: std::ops::Range<usize>) {
-        self.counted = range;
-    }
-
-    /// Bytes [`write`](Self::write) copied into the counted range so far.
-    pub fn copied_bytes(&self) -> u64 {
-        self.copied.load(Ordering::Relaxed)
+        Ok(Region { map, writable: true })
     }
 
     fn check(&self, offset: usize, len: usize, align: usize) {
@@ -92,6 +77,12 @@ impl Region {
         unsafe { AtomicU64::from_ptr(self.map.as_mut_ptr().add(offset).cast::<u64>()) }
     }
 
+    fn atomic32(&self, offset: usize) -> &AtomicU32 {
+        self.check(offset, 4, 4);
+        // SAFETY: as in `atomic`, for 4 bytes at a 4-byte aligned address inside the mapping.
+        unsafe { AtomicU32::from_ptr(self.map.as_mut_ptr().add(offset).cast::<u32>()) }
+    }
+
     /// Atomically loads the u64 at `offset`.
     pub fn load(&self, offset: usize, order: Ordering) -> u64 {
         self.atomic(offset).load(order)
@@ -115,33 +106,22 @@ impl Region {
         self.atomic(offset).compare_exchange(current, new, Ordering::AcqRel, Ordering::Acquire)
     }
 
-    /// Copies bytes out of the mapping.
+    /// Copies bytes out of the mapping (texels: a slot's bytes).
     ///
-    /// The bytes may be changing under another process's writes; callers follow the seqlock
-    /// protocol (docs/SHM.md) and discard what they copied when the sequence counter moved.
-    pub fn read(&self, offset: usize, out: &mut [u8]) {
+    /// # Safety
+    /// Either nothing writes these bytes while they are copied (an in-process reader of a slot
+    /// whose claim is settled: only the engine's tick reassigns it), or the caller is a seqlock
+    /// reader: it read the slot's tag before the copy, reads it again after (acquire), and
+    /// discards the copy when the tag moved, because the only writer of a slot's bytes (a tile
+    /// read, in this process or the service's) moves the tag to loading first (docs/SHM.md).
+    pub unsafe fn read(&self, offset: usize, out: &mut [u8]) {
         self.check(offset, out.len(), 1);
         // SAFETY: `check` proved offset..offset+len lies inside the live mapping. The source is
-        // read through a raw pointer (no reference to shared bytes is created); `u8` has no
-        // invalid values, so whatever a concurrent writer leaves there is a valid `u8`, and the
-        // protocol makes the caller discard a copy that overlapped a write. `out` is a distinct
-        // private buffer, so the ranges cannot overlap.
+        // read through a raw pointer (no reference to shared bytes is created) and `u8` has no
+        // invalid values, so whatever a writer leaves there is a valid `u8`; a copy that may have
+        // overlapped a write is never used (the caller's contract). `out` is a distinct private
+        // buffer, so the ranges cannot overlap.
         unsafe { std::ptr::copy_nonoverlapping(self.map.as_ptr().add(offset), out.as_mut_ptr(), out.len()) }
-    }
-
-    /// Copies bytes into the mapping. Only the writer calls this, and only for bytes outside
-    /// every published valid region and outside the seqlocked fields (docs/SHM.md).
-    pub fn write(&self, offset: usize, src: &[u8]) {
-        self.check_writable();
-        self.check(offset, src.len(), 1);
-        let end = offset + src.len();
-        let counted = end.min(self.counted.end).saturating_sub(offset.max(self.counted.start));
-        self.copied.fetch_add(counted as u64, Ordering::Relaxed);
-        // SAFETY: `check` proved offset..offset+len lies inside the live mapping, which is mapped
-        // writable. The destination is written through a raw pointer (no reference is created);
-        // `src` is a private buffer of this process, so the ranges cannot overlap. Readers in
-        // other processes never rely on these bytes until a later seqlock publication says so.
-        unsafe { std::ptr::copy_nonoverlapping(src.as_ptr(), self.map.as_mut_ptr().add(offset), src.len()) }
     }
 
     /// Lends the bytes `offset..offset + len` to `fill` as a mutable slice, so that a tile read
@@ -165,17 +145,21 @@ impl Region {
         fill(bytes)
     }
 
-    /// Reads a little-endian u32 (static fields only).
+    /// Reads a little-endian u32 (static fields, read after the magic's acquire load): an
+    /// atomic load, so that a writer that breaks the protocol cannot make it a data race.
     pub fn read_u32(&self, offset: usize) -> u32 {
-        let mut b = [0u8; 4];
-        self.read(offset, &mut b);
-        u32::from_le_bytes(b)
+        self.atomic32(offset).load(Ordering::Relaxed)
     }
 
-    /// Reads a little-endian u64 (static fields only).
+    /// Reads a little-endian u64 (static fields; see [`read_u32`](Self::read_u32)).
     pub fn read_u64(&self, offset: usize) -> u64 {
-        let mut b = [0u8; 8];
-        self.read(offset, &mut b);
-        u64::from_le_bytes(b)
+        self.atomic(offset).load(Ordering::Relaxed)
+    }
+
+    /// Writes a little-endian u32 (static fields, before the magic is published): an atomic
+    /// store.
+    pub fn write_u32(&self, offset: usize, value: u32) {
+        self.check_writable();
+        self.atomic32(offset).store(value, Ordering::Relaxed)
     }
 }
