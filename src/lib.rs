@@ -28,6 +28,7 @@
 //! | [`save`] | writing a result file completely or not at all (temporary, sync, rename) |
 //! | [`report`] | what the tools print: validation reports, info, tile locations, dumps, pictures and their labels (below the service) |
 //! | [`demo`] | `clipmapd --demo`: the service, a small flying client and pictures of what it saw (a client of the rest, the top floor) |
+//! | `cli` | the command line the binaries share (`--env`, paging flags, `validate`'s arguments, the parse that exits 1 on usage errors); the `cli` feature, on by default |
 //! | [`inspect`] | a running service seen from outside: `cliptex attach` and `dump --attach` (the top of the stack) |
 //! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
 //! | [`growing`] | growing textures: patches, the fixed tile grid anchored at a world origin, the R*-tree index, tile rebuilds |
@@ -43,6 +44,8 @@
 
 pub mod accuracy;
 pub mod cache;
+#[cfg(feature = "cli")]
+pub mod cli;
 pub mod clip;
 pub mod config;
 pub mod demo;

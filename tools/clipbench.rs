@@ -169,7 +169,7 @@ Examples:
 }
 
 fn main() -> ExitCode {
-    let cli: Cli = clipmap::report::exit::parse();
+    let cli: Cli = clipmap::cli::parse();
     let code = match cli.command {
         Command::Accuracy { quick, out, json, quiet, format } => accuracy(
             quick,

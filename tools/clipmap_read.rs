@@ -92,7 +92,7 @@ fn flight(i: u64, size: [u64; 2]) -> ([i64; 2], [f64; 2]) {
 
 fn main() -> ExitCode {
     // The tools' rule: a usage error is bad input (1), as a wrong texel is.
-    let cli: Cli = clipmap::report::exit::parse();
+    let cli: Cli = clipmap::cli::parse();
     let start = Instant::now();
     let deadline = start + Duration::from_secs_f64(cli.seconds);
     let mut client = loop {

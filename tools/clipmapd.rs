@@ -8,9 +8,10 @@
 
 use anyhow::Context as _;
 use clap::{Parser, ValueEnum};
+use clipmap::cli::EnvArgs;
 use clipmap::demo;
 use clipmap::plan;
-use clipmap::report::{exit, EnvArgs};
+use clipmap::report::exit;
 use clipmap::service::{self, ControlLimits, Options, Procedural};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -106,7 +107,7 @@ struct Cli {
     #[arg(long, default_value = "clipmapd-demo", requires = "demo")]
     out: PathBuf,
     #[command(flatten)]
-    paging: clipmap::report::PagingArgs,
+    paging: clipmap::cli::PagingArgs,
     #[command(flatten)]
     env: EnvArgs,
     /// Frames the demo's client flies.
@@ -320,7 +321,7 @@ fn parse_mode(text: &str) -> Result<u32, String> {
 }
 
 fn main() -> ExitCode {
-    let cli: Cli = exit::parse();
+    let cli: Cli = clipmap::cli::parse();
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     // Colour codes only for a person at a terminal, never into a log file or a pipe.

@@ -410,7 +410,7 @@ fn watch_signals(flag: Arc<AtomicBool>) -> anyhow::Result<()> {
 }
 
 fn main() -> ExitCode {
-    let cli: Cli = clipmap::report::exit::parse();
+    let cli: Cli = clipmap::cli::parse();
     let cancel = Arc::new(AtomicBool::new(false));
     if let Err(e) = watch_signals(cancel.clone()) {
         eprintln!("clipprep: warning: {e:#}; Ctrl-C will stop the run without cleaning up");

@@ -8,9 +8,10 @@
 mod grow;
 
 use clap::{Parser, Subcommand};
+use clipmap::cli::{self as cmdline, EnvArgs};
 use clipmap::config::FileKind;
 use clipmap::plan;
-use clipmap::report::{self, check, exit, info, validate, EnvArgs};
+use clipmap::report::{self, check, exit, info, validate};
 use clipmap::roam;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -54,7 +55,7 @@ Examples:
 Exit status: 0 every file valid, 1 some file invalid, 2 some file could not be read.")]
     Validate {
         #[command(flatten)]
-        args: validate::ValidateArgs,
+        args: cmdline::ValidateArgs,
         /// Check each .ct alone: the .ic files it names are resolved and printed, not opened
         /// (for CI on a machine without the data volume).
         #[arg(long)]
@@ -346,7 +347,7 @@ struct RoamArgs {
     #[arg(long)]
     json: bool,
     #[command(flatten)]
-    paging: clipmap::report::PagingArgs,
+    paging: clipmap::cli::PagingArgs,
     #[command(flatten)]
     env: EnvArgs,
 }
@@ -358,7 +359,7 @@ enum ProceduralArg {
 }
 
 fn main() -> ExitCode {
-    let cli: Cli = exit::parse();
+    let cli: Cli = cmdline::parse();
     ExitCode::from(run(cli) as u8)
 }
 
@@ -591,7 +592,7 @@ fn run(cli: Cli) -> i32 {
                 }
             }
         }
-        Command::Validate { args, ct_only } => validate::cli(&args, FileKind::ClipTexture, "cliptex", ct_only),
+        Command::Validate { args, ct_only } => cmdline::validate(&args, FileKind::ClipTexture, "cliptex", ct_only),
         Command::Info { file, json, env, ct_only } => match env.load_clip_texture(&file, "cliptex", ct_only) {
             Err(c) => c,
             Ok((p, warnings)) => {

@@ -5,9 +5,10 @@
 #![forbid(unsafe_code)]
 
 use clap::{Parser, Subcommand};
+use clipmap::cli::{self as cmdline, EnvArgs};
 use clipmap::config::FileKind;
 use clipmap::plan;
-use clipmap::report::{self, dump, exit, info, validate, EnvArgs};
+use clipmap::report::{self, dump, exit, info};
 use clipmap::source::TileId;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -41,7 +42,7 @@ Examples:
   icache validate --quiet --env DATA=/mnt/terrain ic/*.ic
 
 Exit status: 0 every file valid, 1 some file invalid, 2 some file could not be read.")]
-    Validate(validate::ValidateArgs),
+    Validate(cmdline::ValidateArgs),
     /// Print every value (defaults marked).
     #[command(after_help = "\
 Examples:
@@ -117,7 +118,7 @@ Exit status: 0 found, 1 no such tile or an invalid .ic, 2 the tool could not run
 }
 
 fn main() -> ExitCode {
-    ExitCode::from(run(exit::parse()) as u8)
+    ExitCode::from(run(cmdline::parse()) as u8)
 }
 
 fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clipmap::config::Diagnostic>), i32> {
@@ -156,7 +157,7 @@ fn dump(file: &Path, region: Option<[u64; 4]>, out: &Path, json: bool, quiet: bo
 
 fn run(cli: Cli) -> i32 {
     match cli.command {
-        Command::Validate(args) => validate::cli(&args, FileKind::ImageCache, "icache", false),
+        Command::Validate(args) => cmdline::validate(&args, FileKind::ImageCache, "icache", false),
         Command::Dump { file, region, out, json, quiet, env } => dump(&file, region, &out, json, quiet, &env),
         Command::Info { file, json, env } => match load(&file, &env) {
             Err(c) => c,

@@ -206,7 +206,6 @@ impl std::ops::Deref for Texel {
 
 struct Level {
     shape: LevelShape,
-    centre_override: Option<[i64; 2]>,
     frame: LevelFrame,
     /// What the last snapshot published.
     published: Rect,
@@ -356,7 +355,6 @@ impl Clipmap {
             .zip(&grids)
             .map(|(l, &grid)| Level {
                 shape: LevelShape { size: l.size, tile: l.tile, clip, grid },
-                centre_override: None,
                 frame: LevelFrame { centre: [0, 0], tex: Rect::EMPTY, valid: Rect::EMPTY, mem: Rect::EMPTY },
                 published: Rect::EMPTY,
                 updated_tick: 0,
@@ -526,11 +524,6 @@ impl Clipmap {
         self.settings.budget_ns = budget;
     }
 
-    /// Gives level `k` its own centre (level texels), or `None` to follow level 0's.
-    pub fn set_level_centre(&mut self, k: u32, centre: Option<[i64; 2]>) {
-        self.levels[k as usize].centre_override = centre;
-    }
-
     /// Level `k` as published.
     pub fn level(&self, k: u32) -> LevelView<'_> {
         let l = &self.levels[k as usize];
@@ -567,11 +560,6 @@ impl Clipmap {
     /// The second-level tile pool, if the settings ask for one.
     pub fn pool(&self) -> Option<&Arc<PoolSource>> {
         self.pool.as_ref()
-    }
-
-    /// Bytes of the slots that hold a readable tile now.
-    pub fn readable_bytes(&self) -> u64 {
-        self.cache.resident_bytes() as u64
     }
 
     /// Blocks until every read that can start has finished (tests and offline simulation; not
@@ -742,8 +730,7 @@ impl Clipmap {
         }
         for (k, level) in self.levels.iter_mut().enumerate() {
             let k32 = k as u32;
-            let c =
-                level.centre_override.unwrap_or_else(|| aligned_centre(centre, k32, self.settings.centre_alignment));
+            let c = aligned_centre(centre, k32, self.settings.centre_alignment);
             let v = velocity.map(|x| if x != 0 && (x >> k32.min(63)) == 0 { x.signum() } else { x >> k32.min(63) });
             let previous = level.frame.mem;
             level.frame = level.shape.frame(c, self.border, v);

@@ -299,25 +299,6 @@ pub fn load_image_cache(path: &Path, opts: &Options) -> Result<Loaded<ImageCache
     Ok(Loaded { plan, diagnostics: diags, sources })
 }
 
-/// Guesses a file's kind from its first token (`ct_version…` / `ic_version…`), then from its
-/// extension. Used by tools to point users at the right command.
-pub fn sniff_kind(src: &[u8], path: &Path) -> Option<FileKind> {
-    let mut lx = config::lexer::Lexer::new(src);
-    while let Some(w) = lx.next_word() {
-        match w.text() {
-            Some(t) if config::tokens::is_comment_start(t) => lx.skip_line(w.span.line),
-            Some(t) if t.starts_with("ct_version") => return Some(FileKind::ClipTexture),
-            Some(t) if t.starts_with("ic_version") => return Some(FileKind::ImageCache),
-            _ => break,
-        }
-    }
-    match path.extension().and_then(|e| e.to_str()) {
-        Some("ct") => Some(FileKind::ClipTexture),
-        Some("ic") => Some(FileKind::ImageCache),
-        _ => None,
-    }
-}
-
 /// Checks the version token of a file: it must come first (a warning otherwise, as in 3.0).
 fn check_version(r: &mut fields::Reader<'_>, kind: FileKind) {
     let want = match kind {

@@ -203,34 +203,3 @@ fn one(path: &Path, kind: FileKind, strict: bool, opts: &Options) -> FileReport 
         },
     }
 }
-
-/// The arguments of `cliptex validate` and `icache validate`.
-#[derive(Clone, Debug, clap::Args)]
-pub struct ValidateArgs {
-    /// The configuration files.
-    #[arg(required = true)]
-    pub files: Vec<PathBuf>,
-    /// Also fail on warnings and on anything Performer 3.0 would not read as intended.
-    #[arg(long)]
-    pub strict: bool,
-    /// Print a JSON report instead of text.
-    #[arg(long)]
-    pub json: bool,
-    /// Print only the invalid files.
-    #[arg(long, short)]
-    pub quiet: bool,
-    #[command(flatten)]
-    pub env: super::EnvArgs,
-}
-
-/// Runs a `validate` subcommand: prints the report and returns the exit status. `ct_only`
-/// (`cliptex validate --ct-only`) checks each `.ct` without opening the `.ic` files it names.
-pub fn cli(args: &ValidateArgs, kind: FileKind, tool: &str, ct_only: bool) -> i32 {
-    let opts = match args.env.reader_options(tool) {
-        Ok(o) => plan::Options { ct_only, ..o },
-        Err(code) => return code,
-    };
-    let r = run(&args.files, kind, args.strict, &opts);
-    super::emit(args.json, &r, |r| r.human(args.quiet));
-    r.exit_code()
-}
