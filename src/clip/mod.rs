@@ -582,7 +582,8 @@ impl Clipmap {
         let velocity = velocity.map(|v| v.map(|x| x.clamp(-far, far)));
         let velocity = velocity.unwrap_or_else(|| self.centre.map_or([0, 0], |c| [centre[0] - c[0], centre[1] - c[1]]));
         self.centre = Some(centre);
-        let mut report = TickReport { centre, clamped: self.stats.centre_clamps > clamps, ..TickReport::default() };
+        let mut report =
+            TickReport { centre, clamped: self.stats.centre_clamps > clamps, velocity, ..TickReport::default() };
 
         let (taken, left) = self.take_reads(started);
         report.tiles_read = taken;

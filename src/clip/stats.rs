@@ -110,6 +110,9 @@ pub struct TickReport {
     pub centre: [i64; 2],
     /// Whether the speed clamp (`Settings::max_centre_step`) moved the centre this tick.
     pub clamped: bool,
+    /// Level-0 texels per tick the look-ahead used: the velocity given, or else the centre's
+    /// change since the last tick (0 on the first).
+    pub velocity: [i64; 2],
     /// Tiles settled this tick.
     pub tiles_read: u64,
     /// Tiles replaced in their slots this tick ([`super::Clipmap::refresh`]).

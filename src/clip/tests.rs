@@ -320,6 +320,19 @@ fn the_clamp_is_reported_on_the_tick_it_acts() {
     assert_eq!(map.stats().centre_clamps, 1);
 }
 
+/// docs/SHM.md, "What the service does with a request": a tick given no velocity (the service
+/// passes none when a request's both components are 0 per tick) looks ahead along the centre's
+/// change since the last tick; a velocity given is used as given.
+#[test]
+fn without_a_velocity_the_look_ahead_follows_the_centres_change_since_the_last_tick() {
+    let mut map = Clipmap::new(hash_source([1 << 12, 1 << 12], 32, 16, 0, TexelFormat::L8), settings(None)).unwrap();
+    assert_eq!(map.tick([1000, 1000], None).velocity, [0, 0], "the first tick has no last centre");
+    assert_eq!(map.tick([1030, 990], None).velocity, [30, -10]);
+    assert_eq!(map.tick([1030, 990], Some([7, -3])).velocity, [7, -3], "a velocity given is used as given");
+    assert_eq!(map.tick([1030, 990], None).velocity, [0, 0], "standing still");
+    assert_eq!(map.tick([1020, 995], None).velocity, [-10, 5]);
+}
+
 /// A clipmap over the hash texture read through a disk of `per_tick` tiles a tick, in lock step.
 fn over_disk(per_tick: u64, s: Settings) -> (Arc<crate::source::ThrottledSource>, Clipmap) {
     let inner = hash_source([1 << 12, 1 << 12], 64, 16, 0, TexelFormat::L8);

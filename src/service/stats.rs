@@ -29,6 +29,10 @@ pub struct TickStats {
     pub centre: [i64; 2],
     /// Renderer requests seen through the mapping (the request block's count).
     pub requests_seen: u64,
+    /// The latest request's velocity as the look-ahead takes it, in level-0 texels per tick
+    /// (divided by the tick rate, rounded, clamped to 2^26, NaN and infinities 0); `null` when
+    /// there is none, both are 0 or a `CENTRE` cleared it: the centre's change is used instead.
+    pub request_velocity: Option<[i64; 2]>,
     /// Times the request mapping was found not whole (shorter than its 4096 bytes: truncated by a
     /// process that can write it); each is reported once in the log, and requests are ignored
     /// while it lasts.

@@ -272,6 +272,7 @@ impl Runner {
             Command::Centre(c, reply) => {
                 self.centre = c;
                 self.velocity = None;
+                self.stats.request_velocity = None;
                 self.stats.socket_centres += 1;
                 let _ = reply.send(format!("centre {} {}", c[0], c[1]));
             }
@@ -284,12 +285,8 @@ impl Runner {
             if req.count != self.last_request {
                 self.last_request = req.count;
                 self.centre = req.centre;
-                // Anything a renderer (or a member of the mapping's group) wrote: bounded to a
-                // texture's width per tick before the engine does arithmetic with it.
-                let max = crate::source::MAX_TEXTURE_SIZE as f64;
-                let per_tick = |v: f64| if v.is_finite() { (v / self.hz).round().clamp(-max, max) as i64 } else { 0 };
-                let v = [per_tick(req.velocity[0]), per_tick(req.velocity[1])];
-                self.velocity = (v != [0, 0]).then_some(v);
+                self.velocity = velocity_per_tick(req.velocity, self.hz);
+                self.stats.request_velocity = self.velocity;
                 self.stats.requests_seen = req.count;
             }
         }
@@ -332,6 +329,18 @@ impl Runner {
     }
 }
 
+/// A request's velocity (level-0 texels per second, docs/SHM.md "What the service does with a
+/// request") as the engine takes it: divided by the tick rate `hz` and rounded to texels per tick,
+/// clamped to `MAX_TEXTURE_SIZE` (2^26) a tick, NaN and infinities read as 0. `None` when both
+/// are 0: the engine then uses the centre's change since the last tick. Anything a renderer (or a
+/// member of the mapping's group) wrote is bounded here, before the engine does arithmetic with it.
+fn velocity_per_tick(velocity: [f64; 2], hz: f64) -> Option<[i64; 2]> {
+    let max = crate::source::MAX_TEXTURE_SIZE as f64;
+    let per_tick = |v: f64| if v.is_finite() { (v / hz).round().clamp(-max, max) as i64 } else { 0 };
+    let v = velocity.map(per_tick);
+    (v != [0, 0]).then_some(v)
+}
+
 /// Logs each level whose paging reason differs from the one in `last` (one line a change, never
 /// one a tick), and remembers the new reasons. The first tick only sets where they start (every
 /// level `hover`, or `fixed`: nothing to say). Returns the levels logged.
@@ -362,6 +371,77 @@ fn log_reason_changes(last: &mut Vec<Reason>, paging: &[LevelPaging], latency: f
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// docs/SHM.md, "What the service does with a request": the velocity (level-0 texels per
+    /// second) is divided by the tick rate and rounded to texels per tick (halves away from zero),
+    /// clamped to 2^26 a tick, NaN and infinities read as 0; both 0 is no velocity at all (the
+    /// engine then follows the centre's change).
+    #[test]
+    fn a_requests_velocity_is_divided_by_the_tick_rate_rounded_clamped_and_nan_or_infinite_reads_zero() {
+        let max = 1i64 << 26;
+        assert_eq!(crate::source::MAX_TEXTURE_SIZE as i64, max);
+        assert_eq!(velocity_per_tick([600.0, -120.0], 60.0), Some([10, -2]));
+        assert_eq!(velocity_per_tick([100.0, 0.0], 4.0), Some([25, 0]), "one component may be 0");
+        assert_eq!(velocity_per_tick([10.0, -6.0], 4.0), Some([3, -2]), "2.5 and -1.5: halves away from zero");
+        assert_eq!(velocity_per_tick([10.0, -9.9], 4.0), Some([3, -2]), "-2.475: to the nearest");
+        assert_eq!(velocity_per_tick([1.0, -1.9], 4.0), None, "0.25 and -0.475 round to 0: no velocity");
+        assert_eq!(velocity_per_tick([0.0, -0.0], 60.0), None, "0: unknown");
+        assert_eq!(velocity_per_tick([1e300, -1e300], 60.0), Some([max, -max]), "clamped to 2^26 a tick");
+        assert_eq!(velocity_per_tick([f64::MAX, -f64::MAX], 1.0), Some([max, -max]));
+        assert_eq!(
+            velocity_per_tick([(max as f64 + 2.0) * 2.0, 0.0], 2.0),
+            Some([max, 0]),
+            "clamped after the division"
+        );
+        assert_eq!(velocity_per_tick([(max as f64 - 1.0) * 2.0, 0.0], 2.0), Some([max - 1, 0]));
+        assert_eq!(velocity_per_tick([f64::NAN, 120.0], 60.0), Some([0, 2]), "NaN reads as 0");
+        assert_eq!(velocity_per_tick([f64::INFINITY, f64::NEG_INFINITY], 60.0), None, "infinities read as 0");
+        assert_eq!(velocity_per_tick([f64::NEG_INFINITY, 60.0], 60.0), Some([0, 1]));
+        assert_eq!(velocity_per_tick([f64::NAN, f64::NAN], 60.0), None);
+    }
+
+    /// The tick loop takes each new request's velocity through [`velocity_per_tick`] at its own
+    /// tick rate (`request_velocity` in `STATS`), keeps it until the next request, and a `CENTRE`
+    /// clears it.
+    #[test]
+    fn the_tick_loop_takes_a_requests_velocity_per_tick_and_a_centre_command_clears_it() {
+        use crate::source::{HashSource, TextureDesc};
+        let dir = tempfile::tempdir().unwrap();
+        let desc = TextureDesc::new([4096, 4096], 128, crate::texel::TexelFormat::RGBA8, [32, 32]).unwrap();
+        let options = Options { shm_dir: dir.path().to_path_buf(), tick_hz: 4.0, ..Options::new("vel") };
+        let (ticker, _, join) = Ticker::start(Arc::new(HashSource::new(desc)), &options).unwrap();
+        let client = crate::shm::Client::attach(dir.path(), "vel").unwrap();
+        let mut asked = 0;
+        let mut request = |velocity: [f64; 2]| {
+            assert!(client.request_centre([2000, 2000], velocity), "the request lock is free");
+            asked += 1;
+            let deadline = Instant::now() + Duration::from_secs(20);
+            loop {
+                let stats = ticker.stats();
+                if stats.requests_seen == asked {
+                    return stats.request_velocity;
+                }
+                assert!(Instant::now() < deadline, "request {asked} not taken in 20 s: {}", stats.requests_seen);
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        };
+        assert_eq!(request([100.0, -1e300]), Some([25, -(1 << 26)]), "at 4 ticks a second");
+        assert_eq!(request([f64::NAN, f64::INFINITY]), None);
+        assert_eq!(request([-10.0, 1.0]), Some([-3, 0]));
+        assert_eq!(request([0.0, 0.0]), None);
+        assert_eq!(request([40.0, 8.0]), Some([10, 2]));
+        let (tx, rx) = oneshot::channel();
+        ticker.send(Command::Centre([100, 100], tx)).unwrap();
+        assert_eq!(rx.blocking_recv().unwrap(), "centre 100 100");
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while ticker.stats().socket_centres == 0 {
+            assert!(Instant::now() < deadline, "no tick published the CENTRE in 20 s");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(ticker.stats().request_velocity, None, "a CENTRE clears the request's velocity");
+        ticker.send(Command::Stop).unwrap();
+        join.join().unwrap();
+    }
 
     #[test]
     fn a_paging_reason_is_logged_when_it_changes_not_every_tick() {

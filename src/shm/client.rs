@@ -13,6 +13,39 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{fence, Ordering};
 use std::time::Duration;
 
+/// This thread's seqlocked reads so far, for the tests of "Reading consistently" (docs/SHM.md):
+/// attempts at the snapshot or the growth block and the yields between them, attempts at a tag
+/// and the pause hints between them.
+#[cfg(test)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(super) struct Tally {
+    /// Attempts at the snapshot or the growth block.
+    pub locked_attempts: u64,
+    /// `std::thread::yield_now()` calls between those attempts.
+    pub yields: u64,
+    /// Attempts at a slot's tag.
+    pub tag_attempts: u64,
+    /// Pause hints (`std::hint::spin_loop()`) between those attempts.
+    pub spins: u64,
+}
+
+#[cfg(test)]
+thread_local! {
+    pub(super) static TALLY: std::cell::Cell<Tally> = std::cell::Cell::new(Tally::default());
+}
+
+/// Counts one event of [`Tally`] on this thread (tests only; nothing in other builds).
+macro_rules! tally {
+    ($field:ident) => {
+        #[cfg(test)]
+        TALLY.with(|t| {
+            let mut n = t.get();
+            n.$field += 1;
+            t.set(n);
+        });
+    };
+}
+
 /// One level's static description.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LevelDesc {
@@ -384,11 +417,16 @@ impl Client {
     /// Runs `read` under the seqlock whose counter is at `seq`: between an even counter and the
     /// same counter again after an acquire fence. `None` after [`MAX_RETRIES`] attempts (the
     /// writer kept it locked); else the counter it read at and what `read` returned.
+    ///
+    /// Between two attempts that found the counter odd it gives the processor away
+    /// (`yield_now`): the writer may have been descheduled while it holds the lock.
     fn seqlocked<T>(&self, seq: usize, mut read: impl FnMut() -> T) -> Option<(u64, T)> {
         let r = &self.region;
         for _ in 0..MAX_RETRIES {
+            tally!(locked_attempts);
             let s1 = r.load(seq, Ordering::Acquire);
             if s1 & 1 == 1 {
+                tally!(yields);
                 std::thread::yield_now();
                 continue;
             }
@@ -513,25 +551,20 @@ impl Client {
         self.try_snapshot().ok()?.levels.get(level).copied()
     }
 
-    /// Reads a slot's tag consistently: (sequence, tile, state).
-    fn tag(&self, d: &LevelDesc, slot: u64) -> Option<(u64, [i64; 2], Option<SlotState>)> {
+    /// One attempt at reading a slot's tag consistently: (sequence, tile, state), or `None` when
+    /// the writer holds the tag (odd) or changed it while it was read.
+    fn tag_once(&self, d: &LevelDesc, slot: u64) -> Option<(u64, [i64; 2], Option<SlotState>)> {
         let b = (d.tags + slot * layout::TAG_BYTES as u64) as usize;
         let r = &self.region;
-        for _ in 0..MAX_RETRIES {
-            let s1 = r.load(b + tag::SEQ, Ordering::Acquire);
-            if s1 & 1 == 1 {
-                std::hint::spin_loop();
-                continue;
-            }
-            let tile =
-                [r.load(b + tag::TILE_S, Ordering::Relaxed) as i64, r.load(b + tag::TILE_T, Ordering::Relaxed) as i64];
-            let st = SlotState::from_code(r.load(b + tag::STATE, Ordering::Relaxed));
-            fence(Ordering::Acquire);
-            if r.load(b + tag::SEQ, Ordering::Relaxed) == s1 {
-                return Some((s1, tile, st));
-            }
+        let s1 = r.load(b + tag::SEQ, Ordering::Acquire);
+        if s1 & 1 == 1 {
+            return None;
         }
-        None
+        let tile =
+            [r.load(b + tag::TILE_S, Ordering::Relaxed) as i64, r.load(b + tag::TILE_T, Ordering::Relaxed) as i64];
+        let st = SlotState::from_code(r.load(b + tag::STATE, Ordering::Relaxed));
+        fence(Ordering::Acquire);
+        (r.load(b + tag::SEQ, Ordering::Relaxed) == s1).then_some((s1, tile, st))
     }
 
     /// Copies the texels of `rect` of `level` (rows in increasing t, s fastest, row pitch
@@ -579,14 +612,23 @@ impl Client {
         let (tw, th) = (d.tile[0] as i64, d.tile[1] as i64);
         let b = (d.tags + slot * layout::TAG_BYTES as u64) as usize;
         let base = d.slots + slot * d.slot_bytes;
+        // One budget of [`MAX_RETRIES`] attempts per tile, whether the tag was held or the copy
+        // raced a reload; a tag held by the writer (stored in nanoseconds) costs a pause hint.
         for _ in 0..MAX_RETRIES {
-            let Some((seq, held, state)) = self.tag(d, slot) else { return Err(ReadError::Busy(level)) };
+            tally!(tag_attempts);
+            let Some((seq, held, state)) = self.tag_once(d, slot) else {
+                tally!(spins);
+                std::hint::spin_loop();
+                continue;
+            };
             if held != tile {
                 return Err(ReadError::Stale(level));
             }
             match state {
                 Some(s) if s.readable() => {}
                 Some(SlotState::Missing) => return Err(ReadError::Missing { level, s: tile[0], t: tile[1] }),
+                // Loading (for a growing texture, the tile rebuilt in place), empty or unknown:
+                // never waited for; the caller takes a new snapshot or uses a coarser level.
                 _ => return Err(ReadError::Stale(level)),
             }
             let run = part.width() as usize * bpt;
@@ -645,7 +687,10 @@ impl Client {
         let rect = Rect::new(s0, t0, s0 + w as i64, t0 + h as i64);
         let mut last = ReadError::Busy(level);
         for _ in 0..4 {
-            let snap = self.try_snapshot()?;
+            // A snapshot the writer kept locked makes this level busy for now (a coarser one, or
+            // the next frame).
+            let snap =
+                self.try_snapshot().map_err(|e| if let ReadError::Busy(_) = e { ReadError::Busy(level) } else { e })?;
             match self.read_region_in(&snap, level, rect, out) {
                 Ok(()) => return Ok(snap),
                 Err(ReadError::Stale(_)) => last = ReadError::Stale(level),

@@ -24,8 +24,9 @@ pub const PAGE: u64 = 4096;
 pub const MAX_LEVELS: usize = 32;
 /// Bytes of the request mapping.
 pub const REQUEST_BYTES: u64 = 4096;
-/// Most attempts a reader makes at one seqlocked read (the snapshot or a tag) before it gives up
-/// for now: the writer holds a lock for microseconds, so more means the writer is stuck or gone.
+/// Most attempts a reader makes at one seqlocked read (the snapshot, the growth block or a tag)
+/// before it gives up for now: the writer holds a lock for microseconds, so more means the writer
+/// is stuck or gone.
 pub const MAX_RETRIES: usize = 64;
 
 /// Header field offsets of the texel mapping.

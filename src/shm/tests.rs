@@ -665,3 +665,134 @@ fn min_lod_falls_by_the_documented_steps() {
     }
     assert_eq!(crate::clip::next_min_lod(0.5, 4, 5), 4.0, "a rise is at once");
 }
+
+/// Counts this thread's seqlocked reads from zero while `f` runs (`client::Tally`).
+fn tallied<R>(f: impl FnOnce() -> R) -> (R, client::Tally) {
+    client::TALLY.with(|t| t.set(client::Tally::default()));
+    let r = f();
+    (r, client::TALLY.with(|t| t.get()))
+}
+
+/// docs/SHM.md, "Reading consistently" step 2: a tag that names its tile and says loading under a
+/// published region (a growing texture's tile being rebuilt in place, `ImageMemory::replace`) is
+/// neither waited nor retried for: one look at the tag and the level is stale for that tile,
+/// `read_region` gives up after its 4 snapshots, and the sampler takes that tile's texels from
+/// the next level while the tile beside it is still read from level 0. Once the tile is settled
+/// again it is read as before.
+#[test]
+fn a_tile_loading_under_a_published_region_falls_back_to_a_coarser_level_without_waiting_or_retrying() {
+    use crate::sample::{sample_mapping_in, Filter};
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, w) = hash_service(dir.path(), "rebuild", 1 << 12, 128, 32);
+    let c = Client::attach(dir.path(), "rebuild").unwrap();
+    for _ in 0..10 {
+        map.tick([2040, 2040], None);
+        map.wait_for_reads();
+    }
+    let snap = c.try_snapshot().unwrap();
+    assert_eq!(snap.min_lod, 0.0);
+    let tile = TileId::new(0, 63, 63);
+    let inside = Rect::new(63 * 32 + 5, 63 * 32 + 5, 63 * 32 + 6, 63 * 32 + 6);
+    let beside = Rect::new(64 * 32 + 1, 63 * 32 + 1, 64 * 32 + 2, 63 * 32 + 2);
+    assert!(snap.levels[0].rect().contains_rect(&inside) && snap.levels[0].rect().contains_rect(&beside));
+    let (mut texel, mut want) = (vec![0u8; 4], vec![0u8; 4]);
+    let point =
+        |r: Rect, lod: f64| sample_mapping_in(&c, &snap, Filter::Point, r.s0 as f64 + 0.5, r.t0 as f64 + 0.5, lod);
+    let memory = w.memory();
+    let (generation, ()) = memory
+        .replace(tile, |_| {
+            // The tag now says (63, 63) loading, under level 0's published region.
+            let (got, n) = tallied(|| c.read_region_in(&snap, 0, inside, &mut texel));
+            assert_eq!(got, Err(ReadError::Stale(0)), "a loading tile is not read");
+            assert_eq!((n.tag_attempts, n.spins), (1, 0), "one look at the tag, no pause, no retry: {n:?}");
+            let (got, n) = tallied(|| c.read_region(0, inside.s0, inside.t0, 1, 1, &mut texel));
+            assert_eq!(got.map(|_| ()), Err(ReadError::Stale(0)), "read_region: stale after its snapshots");
+            assert_eq!(n, client::Tally { locked_attempts: 4, yields: 0, tag_attempts: 4, spins: 0 }, "4 snapshots");
+            c.read_region_in(&snap, 0, beside, &mut texel).unwrap();
+            hash(0, beside.s0 as u64, beside.t0 as u64, &mut want);
+            assert_eq!(texel, want, "the tile beside it is served");
+            let fell_back = point(inside, 0.0).expect("level 1 holds the footprint");
+            assert_eq!(fell_back.lod, 1.0, "the loading tile's texels come from the next level");
+            assert_eq!(Some(fell_back), point(inside, 1.0));
+            assert_eq!(point(beside, 0.0).map(|x| x.lod), Some(0.0), "only that tile falls back");
+        })
+        .expect("tile (63, 63) is settled in its slot under the published region");
+    assert!(memory.settle(tile, generation, layout::SlotState::Ready));
+    c.read_region_in(&snap, 0, inside, &mut texel).unwrap();
+    hash(0, inside.s0 as u64, inside.t0 as u64, &mut want);
+    assert_eq!(texel, want, "ready again: read from its slot");
+    assert_eq!(point(inside, 0.0).map(|x| x.lod), Some(0.0));
+}
+
+/// docs/SHM.md, "Retries are bounded": facing a sequence counter the writer holds odd, a reader
+/// makes 64 attempts (`MAX_RETRIES`) and gives up for now with `Busy`, yielding the processor
+/// between attempts at the snapshot and at the growth block and issuing only the pause hint
+/// between attempts at a tag; a snapshot it already holds still reads. `checked_snapshot` tries
+/// again for a second before it reports the service busy. Once the counter is even again every
+/// read succeeds.
+#[test]
+fn a_counter_held_odd_costs_64_paused_attempts_and_then_busy_never_an_endless_spin() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, w) = hash_service(dir.path(), "held", 1 << 12, 128, 32);
+    let c = Client::attach(dir.path(), "held").unwrap();
+    for _ in 0..10 {
+        map.tick([2040, 2040], None);
+        map.wait_for_reads();
+    }
+    let memory = w.memory();
+    let r = memory.region();
+    let hold = |at: usize| {
+        let seq = r.load(at, Ordering::Relaxed);
+        assert_eq!(seq % 2, 0);
+        r.store(at, seq + 1, Ordering::Release);
+        move || r.store(at, seq + 2, Ordering::Release)
+    };
+    let n_tries = layout::MAX_RETRIES as u64;
+    assert_eq!(n_tries, 64);
+    let snap = c.try_snapshot().unwrap();
+    let inside = Rect::new(63 * 32 + 5, 63 * 32 + 5, 63 * 32 + 6, 63 * 32 + 6);
+    let mut texel = vec![0u8; 4];
+
+    // The snapshot.
+    let release = hold(layout::header::SNAPSHOT + layout::snapshot::SEQ);
+    let (got, n) = tallied(|| c.try_snapshot());
+    assert_eq!(got.map(|_| ()), Err(ReadError::Busy(0)));
+    assert_eq!(n, client::Tally { locked_attempts: n_tries, yields: n_tries, ..Default::default() }, "a yield each");
+    assert_eq!(c.read_region(2, 500, 500, 1, 1, &mut texel).map(|_| ()), Err(ReadError::Busy(2)), "the level is busy");
+    c.read_region_in(&snap, 0, inside, &mut texel).expect("the snapshot it had still reads");
+    let started = std::time::Instant::now();
+    let (got, n) = tallied(|| c.checked_snapshot());
+    let waited = started.elapsed();
+    match got {
+        Err(e @ ShmError::Busy { ms, .. }) => {
+            assert!(ms >= 1000 && waited >= std::time::Duration::from_secs(1), "gave up after {ms} ms ({waited:?})");
+            assert!(e.to_string().contains("kept its published state locked"), "{e}");
+        }
+        other => panic!("a snapshot held odd for ever: {other:?}"),
+    }
+    assert!(n.locked_attempts >= 2 * n_tries && n.locked_attempts % n_tries == 0, "whole rounds of 64: {n:?}");
+    assert_eq!(n.yields, n.locked_attempts);
+    release();
+    assert!(c.try_snapshot().is_ok() && c.checked_snapshot().is_ok());
+
+    // The growth block (all zero: a texture that does not grow).
+    let release = hold(layout::header::GROWTH + layout::growth::SEQ);
+    let (got, n) = tallied(|| c.growth());
+    assert_eq!(got, Err(ReadError::Busy(0)));
+    assert_eq!(n, client::Tally { locked_attempts: n_tries, yields: n_tries, ..Default::default() }, "a yield each");
+    release();
+    assert_eq!(c.growth(), Ok(None));
+
+    // A tag under the published region.
+    let d = c.levels[0];
+    let slot = layout::slot_index(d.grid, [63, 63]);
+    let release = hold((d.tags + slot * layout::TAG_BYTES as u64) as usize + layout::tag::SEQ);
+    let (got, n) = tallied(|| c.read_region_in(&snap, 0, inside, &mut texel));
+    assert_eq!(got, Err(ReadError::Busy(0)));
+    assert_eq!(n, client::Tally { tag_attempts: n_tries, spins: n_tries, ..Default::default() }, "a pause hint each");
+    release();
+    c.read_region_in(&snap, 0, inside, &mut texel).unwrap();
+    let mut want = vec![0u8; 4];
+    hash(0, inside.s0 as u64, inside.t0 as u64, &mut want);
+    assert_eq!(texel, want);
+}
