@@ -46,7 +46,7 @@ impl TileState {
 
 /// What happened to a finished read offered to the cache.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Admit {
+pub(crate) enum Admit {
     /// The slot holds the tile now.
     Admitted,
     /// The tile left the mem region (or its slot was given to another) while it was read.
@@ -122,7 +122,7 @@ impl TileCache {
     /// given to the tile that now maps to it (tag to loading, then claim). Call only after a
     /// publication that no longer covers the tiles that left. A slot a read is still filling
     /// keeps its old tile until a later call. Returns the number of settled tiles evicted.
-    pub fn set_mem_region(&mut self, k: u32, mem: Rect) -> u64 {
+    pub(crate) fn set_mem_region(&mut self, k: u32, mem: Rect) -> u64 {
         let memory = Arc::clone(&self.memory);
         let level = &mut self.levels[k as usize];
         debug_assert!(mem.width() <= level.grid[0] && mem.height() <= level.grid[1], "mem region larger than grid");
@@ -181,7 +181,7 @@ impl TileCache {
     /// Notes that `tile` was requested (ignored unless it is absent). A failed tile that is read
     /// again stays failed (published as missing, readers use a coarser level) until the retry
     /// settles it.
-    pub fn mark_loading(&mut self, tile: TileId) {
+    pub(crate) fn mark_loading(&mut self, tile: TileId) {
         if let Some(slot) = self.level_slot_mut(tile) {
             if slot.state == TileState::Absent {
                 slot.state = TileState::Loading;
@@ -191,7 +191,7 @@ impl TileCache {
 
     /// Takes a finished read, which filled the slot in `generation`: its slot is settled as
     /// ready (or the default tile).
-    pub fn admit(&mut self, tile: TileId, generation: u64, delivered: Delivered) -> Admit {
+    pub(crate) fn admit(&mut self, tile: TileId, generation: u64, delivered: Delivered) -> Admit {
         let memory = Arc::clone(&self.memory);
         let Some(slot) = self.level_slot_mut(tile) else { return Admit::Stale };
         let (state, tag) = match delivered {
@@ -207,7 +207,7 @@ impl TileCache {
 
     /// Notes that reading `tile` failed: its tag says missing (readers use a coarser level for
     /// it) and it will be wanted again from tick `retry_at`.
-    pub fn mark_failed(&mut self, tile: TileId, generation: Option<u64>, kind: FaultKind, retry_at: u64) {
+    pub(crate) fn mark_failed(&mut self, tile: TileId, generation: Option<u64>, kind: FaultKind, retry_at: u64) {
         let memory = Arc::clone(&self.memory);
         let Some(slot) = self.level_slot_mut(tile) else { return };
         if slot.state.readable() {
@@ -223,14 +223,14 @@ impl TileCache {
 
     /// A resident tile whose replacement in place failed (its slot was settled missing): readers
     /// use a coarser level for it, and it is wanted again from tick `retry_at`.
-    pub fn mark_replacement_failed(&mut self, tile: TileId, kind: FaultKind, retry_at: u64) {
+    pub(crate) fn mark_replacement_failed(&mut self, tile: TileId, kind: FaultKind, retry_at: u64) {
         if let Some(slot) = self.level_slot_mut(tile) {
             slot.state = TileState::Failed { kind, retry_at };
         }
     }
 
     /// A failed tile is wanted again from tick `now` on (its source has new data for it).
-    pub fn retry_now(&mut self, tile: TileId, now: u64) {
+    pub(crate) fn retry_now(&mut self, tile: TileId, now: u64) {
         if let Some(slot) = self.level_slot_mut(tile) {
             if let TileState::Failed { kind, .. } = slot.state {
                 slot.state = TileState::Failed { kind, retry_at: now };
@@ -240,7 +240,7 @@ impl TileCache {
 
     /// A read of `tile` started too late (its slot had moved on) or found the slot busy: it is
     /// wanted again if its slot still expects it.
-    pub fn mark_not_read(&mut self, tile: TileId) {
+    pub(crate) fn mark_not_read(&mut self, tile: TileId) {
         if let Some(slot) = self.level_slot_mut(tile) {
             if slot.state == TileState::Loading {
                 slot.state = TileState::Absent;

@@ -61,7 +61,7 @@ impl EnvArgs {
     }
 
     /// Reader options, or exit status 1 (a bad `--env` value) with the reason on standard error.
-    pub fn reader_options(&self, tool: &str) -> Result<Options, i32> {
+    pub(crate) fn reader_options(&self, tool: &str) -> Result<Options, i32> {
         self.options().map_err(|e| {
             eprintln!("{tool}: {e}");
             exit::BAD_INPUT
@@ -160,7 +160,7 @@ pub fn validate(args: &ValidateArgs, kind: FileKind, tool: &str, ct_only: bool) 
 
 /// The exit status of a command-line parse error: 0 for `--help` and `--version` (which
 /// clap reports as errors), [`exit::BAD_INPUT`] for usage errors (clap's own default is 2).
-pub fn of_clap(e: &clap::Error) -> i32 {
+pub(crate) fn of_clap(e: &clap::Error) -> i32 {
     use clap::error::ErrorKind;
     match e.kind() {
         ErrorKind::DisplayHelp | ErrorKind::DisplayVersion => exit::OK,

@@ -43,17 +43,17 @@ pub const MAX_GRID_TILES: u64 = 1 << 16;
 /// Farthest a clip centre (and a velocity per tick) may be from the origin, level-0 texels, on
 /// each axis: requests beyond are clamped to it. Far outside any texture (at most 2^26), yet far
 /// from where differences and products of centres overflow 64 bits.
-pub const MAX_CENTRE: i64 = 1 << 40;
+pub(crate) const MAX_CENTRE: i64 = 1 << 40;
 
 /// Most control connections a service may be told to accept at once (`--max-connections`).
-pub const MAX_CONNECTIONS: usize = 4096;
+pub(crate) const MAX_CONNECTIONS: usize = 4096;
 
 /// Smallest copy budget per tick, milliseconds: a smaller one would round to no work at all and
 /// freeze every update.
 pub const MIN_BUDGET_MS: f64 = 0.001;
 
 /// Longest idle time of a control connection, milliseconds (`--idle-ms`): one day.
-pub const MAX_IDLE_MS: u64 = 86_400_000;
+pub(crate) const MAX_IDLE_MS: u64 = 86_400_000;
 
 /// Most frames one `cliptex roam` flies (a report line each).
 pub const MAX_ROAM_FRAMES: u64 = 10_000_000;

@@ -197,7 +197,7 @@ fn main() -> ExitCode {
             }
         }
     };
-    ExitCode::from(code)
+    clipmap::report::exit::status(code as i32)
 }
 
 fn engine_size(quick: bool, smoke: bool) -> engine::Size {

@@ -9,6 +9,7 @@
 #![forbid(unsafe_code)]
 
 use clap::Parser;
+use clipmap::report::exit;
 use clipmap::shm::verify::HashCheck;
 use clipmap::shm::{Client, ShmError};
 use std::path::PathBuf;
@@ -103,7 +104,7 @@ fn main() -> ExitCode {
             }
             Err(e) => {
                 eprintln!("clipmap-read: {e}");
-                return ExitCode::from(2);
+                return exit::status(exit::COULD_NOT_RUN);
             }
         }
     };
@@ -141,7 +142,7 @@ fn main() -> ExitCode {
                         Err(ShmError::NotFound { .. }) => {}
                         Err(e) => {
                             eprintln!("clipmap-read: reattaching: {e}");
-                            return ExitCode::from(2);
+                            return exit::status(exit::COULD_NOT_RUN);
                         }
                     }
                 }
@@ -156,8 +157,8 @@ fn main() -> ExitCode {
         eprintln!("clipmap-read: first failure: {f}");
     }
     if counts.check.failed == 0 {
-        ExitCode::SUCCESS
+        exit::status(exit::OK)
     } else {
-        ExitCode::from(1)
+        exit::status(exit::BAD_INPUT)
     }
 }

@@ -332,14 +332,14 @@ fn main() -> ExitCode {
         Ok(rt) => rt,
         Err(e) => {
             eprintln!("clipmapd: cannot start the runtime: {e}");
-            return ExitCode::from(exit::COULD_NOT_RUN as u8);
+            return exit::status(exit::COULD_NOT_RUN);
         }
     };
     match rt.block_on(serve(cli)) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) => exit::status(exit::OK),
         Err(Failure(code, e)) => {
             eprintln!("clipmapd: {e:#}");
-            ExitCode::from(code as u8)
+            exit::status(code)
         }
     }
 }

@@ -427,7 +427,7 @@ fn main() -> ExitCode {
             Err(Publish::Prep(e)) => Err(e),
             Err(Publish::Other(code, why)) => {
                 eprintln!("clipprep: error: {why}");
-                return ExitCode::from(code as u8);
+                return clipmap::report::exit::status(code);
             }
         },
     };
@@ -478,11 +478,11 @@ fn main() -> ExitCode {
             if let (Some(url), Some((files, bytes)), false) = (&url, uploaded, cli.json || cli.quiet) {
                 println!("uploaded {files} files ({bytes} bytes) to {url}; {} reads them from there", o.ct.display());
             }
-            ExitCode::SUCCESS
+            clipmap::report::exit::status(clipmap::report::exit::OK)
         }
         Err(e) => {
             eprintln!("clipprep: error: {e}");
-            ExitCode::from(e.exit_code() as u8)
+            clipmap::report::exit::status(e.exit_code())
         }
     }
 }

@@ -360,7 +360,7 @@ enum ProceduralArg {
 
 fn main() -> ExitCode {
     let cli: Cli = cmdline::parse();
-    ExitCode::from(run(cli) as u8)
+    exit::status(run(cli))
 }
 
 /// `--budget-ms`: milliseconds of at least `MIN_BUDGET_MS` (less rounds to no work), or `inf` /

@@ -118,7 +118,7 @@ Exit status: 0 found, 1 no such tile or an invalid .ic, 2 the tool could not run
 }
 
 fn main() -> ExitCode {
-    ExitCode::from(run(cmdline::parse()) as u8)
+    exit::status(run(cmdline::parse()))
 }
 
 fn load(file: &Path, env: &EnvArgs) -> Result<(plan::ImageCachePlan, Vec<clipmap::config::Diagnostic>), i32> {

@@ -27,11 +27,13 @@ impl std::fmt::Display for BadInput {
 
 impl std::error::Error for BadInput {}
 
-/// The exit status for an error: 1 for bad input, 2 for anything that kept clipgpu from running.
-pub fn exit_code(e: &anyhow::Error) -> u8 {
+/// The exit status for an error, by the tools' rule (`clipmap::report::exit`): bad input, or
+/// anything that kept clipgpu from running.
+pub fn exit_code(e: &anyhow::Error) -> i32 {
+    use clipmap::report::exit;
     if e.chain().any(|c| c.is::<BadInput>()) {
-        1
+        exit::BAD_INPUT
     } else {
-        2
+        exit::COULD_NOT_RUN
     }
 }

@@ -261,10 +261,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
 fn main() -> ExitCode {
     let cli: Cli = clipmap::cli::parse();
     match run(cli) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) => clipmap::report::exit::status(clipmap::report::exit::OK),
         Err(e) => {
             eprintln!("clipgpu: {e:#}");
-            ExitCode::from(exit_code(&e))
+            clipmap::report::exit::status(exit_code(&e))
         }
     }
 }

@@ -7,7 +7,7 @@ use std::sync::{Arc, Mutex};
 
 /// Caches up to `capacity` tiles of `inner` (cleared whole when full: the study's access pattern
 /// moves slowly, so a simple policy suffices).
-pub struct CachedSource {
+pub(crate) struct CachedSource {
     inner: Arc<dyn TileSource>,
     tiles: Mutex<HashMap<TileId, Arc<Vec<u8>>>>,
     capacity: usize,

@@ -124,7 +124,7 @@ fn in_texture(uv: [f64; 2], size: [u64; 2]) -> bool {
 }
 
 /// Renders from the full mipmap (the ground truth).
-pub fn render_mipmap(cam: &Camera, source: &dyn TileSource, filter: Filter) -> Vec<Pixel> {
+pub(crate) fn render_mipmap(cam: &Camera, source: &dyn TileSource, filter: Filter) -> Vec<Pixel> {
     let size = source.desc().size();
     let last = source.desc().level_count() as f64 - 1.0;
     let rows: Vec<Vec<Pixel>> = (0..cam.height)
@@ -155,7 +155,12 @@ pub fn render_clipmap(cam: &Camera, map: &Clipmap, filter: Filter) -> Vec<Pixel>
 
 /// Renders from the clipmap seeing only the levels `lod_offset .. lod_offset + effective` (a
 /// virtual clip texture, docs/PERFORMER-REFERENCE.md §2.7): the LOD asked for is clamped into that window.
-pub fn render_clipmap_levels(cam: &Camera, map: &Clipmap, filter: Filter, window: Option<(u32, u32)>) -> Vec<Pixel> {
+pub(crate) fn render_clipmap_levels(
+    cam: &Camera,
+    map: &Clipmap,
+    filter: Filter,
+    window: Option<(u32, u32)>,
+) -> Vec<Pixel> {
     let size = map.desc().size();
     let count = map.level_count() as f64;
     let (lo, last) = match window {

@@ -151,7 +151,7 @@ pub fn compare(reference: &[Pixel], test: &[Pixel]) -> (Option<f64>, u16, f64) {
 
 /// Compares a frame with its reference at `bits` (8 or 16) per channel: PSNR against the peak
 /// of that depth (255 or 65535), the largest channel error in its units.
-pub fn compare_at(reference: &[Pixel], test: &[Pixel], bits: u32) -> (Option<f64>, u16, f64) {
+pub(crate) fn compare_at(reference: &[Pixel], test: &[Pixel], bits: u32) -> (Option<f64>, u16, f64) {
     let deep = bits >= 16;
     let peak = if deep { 65535.0f64 } else { 255.0 };
     let (mut sq, mut n, mut max, mut coarser, mut ground) = (0f64, 0u64, 0u16, 0u64, 0u64);

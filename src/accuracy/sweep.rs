@@ -132,7 +132,7 @@ pub fn run(
 }
 
 /// Rows as CSV.
-pub fn csv(rows: &[Row]) -> String {
+pub(crate) fn csv(rows: &[Row]) -> String {
     let mut o = String::from("clip_size,display_width,invalid_border,disk_tiles,speed,flight,psnr_min,max_error,coarser_pixel_share,bytes_read,tiles_read,ticks_over_budget,resident_bytes,frames,effective_levels\n");
     for r in rows {
         let _ = writeln!(
@@ -159,7 +159,7 @@ pub fn csv(rows: &[Row]) -> String {
 }
 
 /// A line chart as SVG: one series per (label, points).
-pub fn svg_chart(
+pub(crate) fn svg_chart(
     title: &str,
     x_label: &str,
     y_label: &str,

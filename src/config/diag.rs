@@ -24,7 +24,7 @@ pub struct Span {
 
 impl Span {
     /// The span of the start of the file.
-    pub const START: Span = Span { line: 1, col: 1, offset: 0, len: 0 };
+    pub(crate) const START: Span = Span { line: 1, col: 1, offset: 0, len: 0 };
 }
 
 /// How bad a finding is.

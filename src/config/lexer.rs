@@ -28,7 +28,7 @@ impl Word<'_> {
 }
 
 /// Shortens a string for a message (at most 60 characters).
-pub fn shorten(s: &str) -> String {
+pub(crate) fn shorten(s: &str) -> String {
     if s.chars().count() <= 60 {
         s.to_string()
     } else {
@@ -38,7 +38,7 @@ pub fn shorten(s: &str) -> String {
 }
 
 /// A lazy word iterator with one word of look-ahead.
-pub struct Lexer<'a> {
+pub(crate) struct Lexer<'a> {
     src: &'a [u8],
     pos: usize,
     line: u32,
@@ -78,12 +78,12 @@ impl<'a> Lexer<'a> {
     }
 
     /// The next word.
-    pub fn next_word(&mut self) -> Option<Word<'a>> {
+    pub(crate) fn next_word(&mut self) -> Option<Word<'a>> {
         self.peeked.take().or_else(|| self.scan())
     }
 
     /// The next word, without consuming it.
-    pub fn peek(&mut self) -> Option<&Word<'a>> {
+    pub(crate) fn peek(&mut self) -> Option<&Word<'a>> {
         if self.peeked.is_none() {
             self.peeked = self.scan();
         }
@@ -92,7 +92,7 @@ impl<'a> Lexer<'a> {
 
     /// Skips the rest of the line `line` (a comment). A comment ended by the end of the file is
     /// fine.
-    pub fn skip_line(&mut self, line: u32) {
+    pub(crate) fn skip_line(&mut self, line: u32) {
         if let Some(p) = &self.peeked {
             if p.span.line != line {
                 return;

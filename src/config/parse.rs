@@ -12,7 +12,7 @@ use super::Limits;
 use std::path::Path;
 
 /// The first word of an extension line: a comment to Performer 3.0 (`#`), whatever follows.
-pub const EXTENSION_MARK: &str = "#clipmap";
+pub(crate) const EXTENSION_MARK: &str = "#clipmap";
 
 struct Parser<'a, 'p> {
     lx: Lexer<'a>,
@@ -548,7 +548,7 @@ impl<'a> Parser<'a, '_> {
 
 /// Why a word is not a C `%d` integer.
 #[derive(Debug, PartialEq, Eq)]
-pub enum IntError {
+pub(crate) enum IntError {
     /// Not an optional sign followed by decimal digits.
     NotANumber,
     /// Does not fit in 64 bits.
@@ -556,7 +556,7 @@ pub enum IntError {
 }
 
 /// Parses a whole word as a C-style decimal integer (optional sign, digits).
-pub fn parse_c_int(text: &str) -> Result<i64, IntError> {
+pub(crate) fn parse_c_int(text: &str) -> Result<i64, IntError> {
     use nom::character::complete::{digit1, one_of};
     use nom::combinator::{all_consuming, opt, recognize};
     use nom::sequence::pair;

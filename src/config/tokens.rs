@@ -16,7 +16,7 @@ pub enum FileKind {
 
 impl FileKind {
     /// Human name of the kind.
-    pub fn noun(self) -> &'static str {
+    pub(crate) fn noun(self) -> &'static str {
         match self {
             FileKind::ClipTexture => "clip texture (.ct)",
             FileKind::ImageCache => "image cache (.ic)",
@@ -203,18 +203,18 @@ pub fn preferred_name(id: TokenId, kind: FileKind) -> &'static str {
 /// True when `word` starts a comment where a token is expected. The symbolic markers (`#`, `;`,
 /// `//`) start a comment even when glued to the text (`#note`); the word markers (`comment`,
 /// `rem`) only as whole words, so `remote.raw` is a file name, not a comment.
-pub fn is_comment_start(word: &str) -> bool {
+pub(crate) fn is_comment_start(word: &str) -> bool {
     word.starts_with('#') || word.starts_with(';') || word.starts_with("//") || word == "comment" || word == "rem"
 }
 
 /// True when `word` starts a comment inside a list or between numbers. Here a word starting with
 /// `//` longer than the marker (`//server/share`) is a value, not a comment.
-pub fn is_comment_in_value_position(word: &str) -> bool {
+pub(crate) fn is_comment_in_value_position(word: &str) -> bool {
     word.starts_with('#') || word.starts_with(';') || word == "//" || word == "comment" || word == "rem"
 }
 
 /// Suggests the closest token name allowed in `kind` for a misspelled word.
-pub fn suggest(word: &str, kind: FileKind) -> Option<&'static str> {
+pub(crate) fn suggest(word: &str, kind: FileKind) -> Option<&'static str> {
     let mut best: Option<(f64, &'static str)> = None;
     for d in TOKENS {
         let allowed = match kind {

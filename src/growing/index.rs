@@ -60,7 +60,7 @@ impl PatchIndex {
     }
 
     /// The patches whose boxes meet `b` (touching counts), in the order they came.
-    pub fn meeting(&self, b: &WorldBox) -> Vec<&Arc<Patch>> {
+    pub(crate) fn meeting(&self, b: &WorldBox) -> Vec<&Arc<Patch>> {
         let env = AABB::from_corners(b.min, b.max);
         let mut found: Vec<usize> = self.tree.locate_in_envelope_intersecting(&env).map(|e| e.data).collect();
         found.sort_unstable();
@@ -68,14 +68,14 @@ impl PatchIndex {
     }
 
     /// The patches tile (s, t) of level `k` needs: those whose boxes meet the tile's.
-    pub fn for_tile(&self, grid: &Grid, k: u32, s: i64, t: i64) -> Vec<&Arc<Patch>> {
+    pub(crate) fn for_tile(&self, grid: &Grid, k: u32, s: i64, t: i64) -> Vec<&Arc<Patch>> {
         self.meeting(&grid.tile_box(k, s, t))
     }
 
     /// The level-`k` tiles `patch` may change, `[s0, s1) x [t0, t1)`, one texel wider on each
     /// side than the texels whose centres it covers (so that rounding at the box's edges never
     /// leaves out a tile); `None` when it covers no texel centre.
-    pub fn tiles_of(grid: &Grid, patch: &Patch, k: u32) -> Option<[i64; 4]> {
+    pub(crate) fn tiles_of(grid: &Grid, patch: &Patch, k: u32) -> Option<[i64; 4]> {
         let [i0, j0, i1, j1] = grid.texels_in(&patch.bbox);
         if i0 >= i1 || j0 >= j1 {
             return None;

@@ -243,7 +243,7 @@ pub enum Paths {
 /// Most bytes an image file may have for `texel_bytes` bytes of texels: twice its texels and a
 /// MiB (a PNG or TIFF of noise is a little larger than its texels, a JPEG at quality 100 up to
 /// about 1.5 times). Checked when a patch is added and when a store reads it back.
-pub fn max_image_file_bytes(texel_bytes: u64) -> u64 {
+pub(crate) fn max_image_file_bytes(texel_bytes: u64) -> u64 {
     texel_bytes.saturating_mul(2).saturating_add(1 << 20)
 }
 
@@ -344,7 +344,7 @@ pub fn new_patch(
 
 /// The file a sidecar's data is in: its `image`, relative to the sidecar's directory, or the
 /// sidecar's own name with `.raw`.
-pub fn data_file(sidecar_path: &std::path::Path, desc: &Sidecar) -> std::path::PathBuf {
+pub(crate) fn data_file(sidecar_path: &std::path::Path, desc: &Sidecar) -> std::path::PathBuf {
     match &desc.image {
         Some(name) => sidecar_path.parent().unwrap_or(std::path::Path::new(".")).join(name),
         None => sidecar_path.with_extension("raw"),

@@ -34,24 +34,24 @@ use thiserror::Error;
 
 /// Largest number of level-0 texels a patch may cover along an axis of the grid: larger would
 /// mean an absurd resolution (or box) for one image.
-pub const MAX_PATCH_SPAN_TEXELS: f64 = (1u64 << 26) as f64;
+pub(crate) const MAX_PATCH_SPAN_TEXELS: f64 = (1u64 << 26) as f64;
 
 /// Farthest (in level-0 texels) a patch may lie from the grid's origin along an axis.
-pub const MAX_GRID_EXTENT_TEXELS: f64 = (1u64 << 40) as f64;
+pub(crate) const MAX_GRID_EXTENT_TEXELS: f64 = (1u64 << 40) as f64;
 
 /// Largest patch image side, in pixels.
-pub const MAX_PATCH_PIXELS: u32 = 1 << 16;
+pub(crate) const MAX_PATCH_PIXELS: u32 = 1 << 16;
 
 /// A stable 64-bit digest (the same in every build and version, unlike std's hasher) for
 /// recognising bytes again; not for security. FNV-1a's step taken a little-endian 64-bit word at a
 /// time (the last word zero-padded), then the length mixed in, so a patch's 36 MB of texels take
 /// milliseconds.
-pub fn digest(bytes: &[u8]) -> u64 {
+pub(crate) fn digest(bytes: &[u8]) -> u64 {
     digest_from(bytes, 0xCBF2_9CE4_8422_2325)
 }
 
 /// [`digest`] continued from an earlier digest `h`.
-pub fn digest_from(bytes: &[u8], mut h: u64) -> u64 {
+pub(crate) fn digest_from(bytes: &[u8], mut h: u64) -> u64 {
     const PRIME: u64 = 0x0000_0100_0000_01B3;
     let mut words = bytes.chunks_exact(8);
     for w in &mut words {
@@ -179,7 +179,7 @@ impl Grid {
     }
 
     /// World coordinates of the centre of level-0 texel (i, j).
-    pub fn texel_centre(&self, i: i64, j: i64) -> [f64; 2] {
+    pub(crate) fn texel_centre(&self, i: i64, j: i64) -> [f64; 2] {
         [
             self.origin[0] + (i as f64 + 0.5) / self.texels_per_unit,
             self.origin[1] + (j as f64 + 0.5) / self.texels_per_unit,
@@ -205,7 +205,7 @@ impl Grid {
     }
 
     /// The world box of tile (s, t) of level `k` (what patches it may need).
-    pub fn tile_box(&self, k: u32, s: i64, t: i64) -> WorldBox {
+    pub(crate) fn tile_box(&self, k: u32, s: i64, t: i64) -> WorldBox {
         let span = ((self.tile as i64) << k) as f64 / self.texels_per_unit;
         WorldBox {
             min: [self.origin[0] + s as f64 * span, self.origin[1] + t as f64 * span],

@@ -8,7 +8,7 @@ use std::collections::{BTreeSet, HashMap};
 use std::sync::Arc;
 
 /// A tile's key: level, S, T.
-pub type TileKey = (u32, i64, i64);
+pub(crate) type TileKey = (u32, i64, i64);
 
 /// A rebuilt tile: its texels, and which of them have data (`false`: no patch covers the texel,
 /// or nothing below it has data; its bytes are zero).
@@ -36,7 +36,7 @@ impl Flags {
     }
 
     /// Flags from bytes of 8 flags each (bit i % 8 of byte i / 8), as tile files store them.
-    pub fn from_bytes(bytes: &[u8], len: usize) -> Flags {
+    pub(crate) fn from_bytes(bytes: &[u8], len: usize) -> Flags {
         let mut f = Flags::new(len);
         for (w, chunk) in f.words.iter_mut().zip(bytes.chunks(8)) {
             let mut b = [0u8; 8];
@@ -79,7 +79,7 @@ impl Flags {
     }
 
     /// Sets flags `a..b`, a word at a time.
-    pub fn set_run(&mut self, a: usize, b: usize) {
+    pub(crate) fn set_run(&mut self, a: usize, b: usize) {
         let mut i = a;
         while i < b {
             let (w, bit) = (i / 64, i % 64);
@@ -119,7 +119,7 @@ impl Tile {
     }
 
     /// Whether any texel has data.
-    pub fn any_data(&self) -> bool {
+    pub(crate) fn any_data(&self) -> bool {
         self.filled > 0
     }
 
@@ -136,7 +136,7 @@ impl Tile {
 /// whose centres its box holds (a rectangle, found per axis from the same centre arithmetic as
 /// [`Grid::texel_centre`] and [`WorldBox::contains`]), with its pixel column per texel column
 /// worked out once; the winner is laid down last. The result is the same texel for texel.
-pub fn level0_tile(grid: &Grid, index: &PatchIndex, s: i64, t: i64) -> Tile {
+pub(crate) fn level0_tile(grid: &Grid, index: &PatchIndex, s: i64, t: i64) -> Tile {
     let mut out = Tile::empty(grid);
     let mut candidates: Vec<(usize, &Arc<Patch>)> = index.for_tile(grid, 0, s, t).into_iter().enumerate().collect();
     if candidates.is_empty() {
@@ -239,7 +239,7 @@ fn pixel(p: &Patch, axis: usize, c: f64) -> usize {
 /// f64, rounded half up. Deep inside the best patch (`d >= feather`) this is the best patch's
 /// texel, as without the blend; towards its edge it fades into what lies beneath it, so patch
 /// edges leave no seam. Searched per texel rather than painted: the blend is the slower path.
-pub fn level0_tile_feathered(grid: &Grid, index: &PatchIndex, s: i64, t: i64, feather: f64) -> Tile {
+pub(crate) fn level0_tile_feathered(grid: &Grid, index: &PatchIndex, s: i64, t: i64, feather: f64) -> Tile {
     let mut out = Tile::empty(grid);
     let mut cands: Vec<&Arc<Patch>> = index.for_tile(grid, 0, s, t);
     if cands.is_empty() {
@@ -297,7 +297,7 @@ pub fn level0_tile_feathered(grid: &Grid, index: &PatchIndex, s: i64, t: i64, fe
 /// Tile (s, t) of level k > 0 from its four children of level k-1 (`children[dy][dx]` is child
 /// (2s + dx, 2t + dy); `None` for a child with no data at all): each texel the rounded average,
 /// per component, of the children's texels under it that have data.
-pub fn parent_tile(grid: &Grid, children: [[Option<&Tile>; 2]; 2]) -> Tile {
+pub(crate) fn parent_tile(grid: &Grid, children: [[Option<&Tile>; 2]; 2]) -> Tile {
     let mut out = Tile::empty(grid);
     let (n, h) = (grid.tile as usize, grid.tile as usize / 2);
     let (bpt, cb) = (grid.bytes_per_texel, grid.component_bytes);
@@ -456,13 +456,13 @@ impl Rebuilder {
     }
 
     /// Tiles built earlier (read back from a store) and the levels the texture had then.
-    pub fn restore(grid: Grid, tiles: HashMap<TileKey, Arc<Tile>>, levels: u32) -> Self {
+    pub(crate) fn restore(grid: Grid, tiles: HashMap<TileKey, Arc<Tile>>, levels: u32) -> Self {
         Rebuilder { grid, tiles, dirty: BTreeSet::new(), changed: BTreeSet::new(), levels, feather: 0.0 }
     }
 
     /// Feathers patch edges over `texels` level-0 texels from now on ([`level0_tile_feathered`];
     /// 0: off). Tiles built before keep what they hold until rebuilt.
-    pub fn set_feather(&mut self, texels: f64) {
+    pub(crate) fn set_feather(&mut self, texels: f64) {
         self.feather = if texels.is_finite() && texels > 0.0 { texels } else { 0.0 };
     }
 
@@ -474,7 +474,7 @@ impl Rebuilder {
     /// Marks every tile of every level that `patch` may change, whatever is built now: what a
     /// restart does for the patches whose rebuild it cannot know finished (a tile rebuilt before
     /// a crash would otherwise look unchanged, and its parent would never learn of the patch).
-    pub fn mark_footprint(&mut self, index: &PatchIndex, patch: &Patch) {
+    pub(crate) fn mark_footprint(&mut self, index: &PatchIndex, patch: &Patch) {
         self.patch_added(index, patch);
         for k in 1..self.levels {
             if let Some([s0, t0, s1, t1]) = PatchIndex::tiles_of(&self.grid, patch, k) {
@@ -488,18 +488,18 @@ impl Rebuilder {
     }
 
     /// Marks tile (s, t) of level k to be rebuilt (a damaged file, say).
-    pub fn mark_tile(&mut self, k: u32, s: i64, t: i64) {
+    pub(crate) fn mark_tile(&mut self, k: u32, s: i64, t: i64) {
         self.dirty.insert((k, t, s));
     }
 
     /// The tiles whose content changed or that were dropped since the last call, in key order
     /// (what a store must write or delete).
-    pub fn take_changed(&mut self) -> Vec<TileKey> {
+    pub(crate) fn take_changed(&mut self) -> Vec<TileKey> {
         std::mem::take(&mut self.changed).into_iter().collect()
     }
 
     /// Puts back tiles [`Rebuilder::take_changed`] handed out that could not be saved.
-    pub fn unsaved(&mut self, keys: impl IntoIterator<Item = TileKey>) {
+    pub(crate) fn unsaved(&mut self, keys: impl IntoIterator<Item = TileKey>) {
         self.changed.extend(keys);
     }
 

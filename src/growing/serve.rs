@@ -67,7 +67,7 @@ impl Frame {
 
     /// The frame's level-0 texels `[s0, t0, s1, t1)` of store texels `[i0, j0, i1, j1)`, clipped to
     /// the frame; `None` when nothing is left.
-    pub fn clip_level0(&self, texels: [i64; 4]) -> Option<[i64; 4]> {
+    pub(crate) fn clip_level0(&self, texels: [i64; 4]) -> Option<[i64; 4]> {
         let (o, n) = (self.offset(0), self.size() as i64);
         let c = |v: i64| (v.saturating_add(o)).clamp(0, n);
         let r = [c(texels[0]), c(texels[1]), c(texels[2]), c(texels[3])];
@@ -132,7 +132,7 @@ impl Served {
     /// [`crate::clip::Clipmap::refresh`]; `desc` is the frame's texture. A changed store tile
     /// changes the frame tiles of its level under it, and any frame tile of a finer level under
     /// it that was served with texels taken from coarser levels (those are rebuilt after it).
-    pub fn take_changed(&self, desc: &TextureDesc) -> Vec<TileId> {
+    pub(crate) fn take_changed(&self, desc: &TextureDesc) -> Vec<TileId> {
         let (changed, partial) = {
             let mut s = self.lock();
             let changed = std::mem::take(&mut s.changed);
@@ -188,7 +188,7 @@ impl Served {
     }
 
     /// Forgets partly served tiles `keep` says no (tiles the clipmap no longer holds).
-    pub fn retain_partial(&self, keep: impl Fn(TileId) -> bool) {
+    pub(crate) fn retain_partial(&self, keep: impl Fn(TileId) -> bool) {
         self.lock().partial.retain(|&t| keep(t));
     }
 
@@ -397,7 +397,7 @@ impl std::fmt::Debug for GrowingSource {
 impl GrowingSource {
     /// The frame's texture: `frame` for a store of `grid` and `format`, clip size `clip`, the
     /// store's tiles, an invalid border of `clip / 32` (1 to 16).
-    pub fn desc_for(
+    pub(crate) fn desc_for(
         frame: Frame,
         grid: &Grid,
         format: crate::texel::TexelFormat,
@@ -483,7 +483,7 @@ impl Default for GrowerOptions {
 }
 
 /// The unit of [`Grower::in_flight`]'s permits: one KiB.
-pub const IN_FLIGHT_UNIT: u64 = 1 << 10;
+pub(crate) const IN_FLIGHT_UNIT: u64 = 1 << 10;
 
 /// The grower's handle: send it patches; it stops when told or when every handle is gone.
 #[derive(Clone, Debug)]

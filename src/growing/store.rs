@@ -46,10 +46,10 @@ use std::sync::Arc;
 use thiserror::Error;
 
 /// Magic bytes at the start of a tile file.
-pub const TILE_MAGIC: [u8; 8] = *b"CLIPGT01";
+pub(crate) const TILE_MAGIC: [u8; 8] = *b"CLIPGT01";
 /// Bytes of a tile file's header: magic, level (u32), S (i64), T (i64), tile (u32), bytes per
 /// texel (u32), texels with data (u64); all little-endian.
-pub const TILE_HEADER: usize = 8 + 4 + 8 + 8 + 4 + 4 + 8;
+pub(crate) const TILE_HEADER: usize = 8 + 4 + 8 + 8 + 4 + 4 + 8;
 
 /// The texel formats a growing texture takes: 1 to 4 components of 8 or 16 bits.
 pub const FORMATS: [(&str, TexelFormat); 7] = [
@@ -63,7 +63,7 @@ pub const FORMATS: [(&str, TexelFormat); 7] = [
 ];
 
 /// The format called `name`, with what a grid needs of it (bytes a texel, bytes a component).
-pub fn format_named(name: &str) -> Option<(TexelFormat, usize, usize)> {
+pub(crate) fn format_named(name: &str) -> Option<(TexelFormat, usize, usize)> {
     FORMATS.iter().find(|(n, _)| *n == name).map(|&(_, f)| {
         let bpt = f.bytes_per_texel() as usize;
         (f, bpt, f.component_bits() as usize / 8)
@@ -129,7 +129,7 @@ fn io_err<'a>(path: &'a Path, what: &'static str) -> impl FnOnce(io::Error) -> S
 /// `grid.json`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct GridFile {
+pub(crate) struct GridFile {
     pub version: u32,
     pub origin: [f64; 2],
     pub texels_per_unit: f64,
@@ -146,7 +146,7 @@ fn is_zero(v: &f64) -> bool {
 }
 
 /// The widest feather a growing texture takes, in level-0 texels.
-pub const MAX_FEATHER: f64 = 4096.0;
+pub(crate) const MAX_FEATHER: f64 = 4096.0;
 
 /// A patch's commit record.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -518,7 +518,7 @@ impl Growing {
     }
 
     /// [`Growing::add`], recording where the patch came from (see [`Growing::has_source`]).
-    pub fn add_from(&mut self, p: NewPatch, source: Option<String>) -> Result<u64, StoreError> {
+    pub(crate) fn add_from(&mut self, p: NewPatch, source: Option<String>) -> Result<u64, StoreError> {
         self.writable()?;
         let id = self.next_id;
         let meta = PatchMeta { id, bbox: p.bbox, time: p.time, rating: p.rating };
@@ -639,7 +639,7 @@ impl Growing {
 
     /// The tiles whose texels changed (rebuilt differently, or gone) and were saved since the
     /// last call: what a service serving the texture must replace.
-    pub fn take_saved(&mut self) -> Vec<TileKey> {
+    pub(crate) fn take_saved(&mut self) -> Vec<TileKey> {
         std::mem::take(&mut self.saved)
     }
 
@@ -649,7 +649,7 @@ impl Growing {
     }
 
     /// Whether a patch was added from `source` (what [`Growing::add_from`] recorded).
-    pub fn has_source(&self, source: &str) -> bool {
+    pub(crate) fn has_source(&self, source: &str) -> bool {
         self.sources.contains(source)
     }
 

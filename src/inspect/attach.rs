@@ -104,7 +104,7 @@ pub struct Status {
 
 /// Why a `STATS` request got no statistics.
 #[derive(Debug, thiserror::Error)]
-pub enum StatsError {
+pub(crate) enum StatsError {
     /// Connecting, writing or reading failed (or timed out).
     #[error("control socket {}: {source}", socket.display())]
     Io {
@@ -135,7 +135,7 @@ pub enum StatsError {
 
 /// Sends `STATS` to the control socket and reads the reply into the service's own statistics
 /// type (the struct the service serialised).
-pub fn ask_stats(socket: &Path) -> Result<ServiceStats, StatsError> {
+pub(crate) fn ask_stats(socket: &Path) -> Result<ServiceStats, StatsError> {
     let fail = |source: std::io::Error| StatsError::Io { socket: socket.to_path_buf(), source };
     let mut s = UnixStream::connect(socket).map_err(fail)?;
     s.set_read_timeout(Some(STATS_TIMEOUT)).map_err(fail)?;

@@ -16,7 +16,7 @@ use thiserror::Error;
 
 pub use crate::limits::MAX_LEVEL_PIXELS;
 /// Side of `view.png` and `rings.png` in pixels.
-pub const VIEW_PIXELS: u32 = 512;
+pub(crate) const VIEW_PIXELS: u32 = 512;
 /// Pixels of margin around each level picture, where the outlines go.
 const MARGIN: u32 = 2;
 

@@ -24,11 +24,11 @@ use crate::geom::{mem_grid, tiles_in_level, LevelShape, Rect};
 use serde::Serialize;
 
 /// The default grid budget, as a multiple of the bytes of the default (lookahead 1) grids.
-pub const DEFAULT_BUDGET_FACTOR: u64 = 2;
+pub(crate) const DEFAULT_BUDGET_FACTOR: u64 = 2;
 
 /// Ticks of latency assumed before any read has been measured (a read asked for at the end of
 /// one tick is taken at the start of the next at the earliest).
-pub const INITIAL_LATENCY_TICKS: f64 = 1.0;
+pub(crate) const INITIAL_LATENCY_TICKS: f64 = 1.0;
 
 /// Adaptive placement as a pure policy: the lead of a one-tick latency (what the engine uses
 /// before it has measured reads, and what `clipbench policies` compares with no measurements).
@@ -101,7 +101,7 @@ pub fn region(shape: &LevelShape, tex: Rect, velocity: [i64; 2], lead: [u64; 2])
 /// each the lookahead-1 grid plus `E >> k` tiles per axis (at most the level's tiles), with the
 /// largest `E` whose grids fit in `budget` bytes. Returns the grids and `E`. A budget below the
 /// lookahead-1 grids gives those grids (`E` = 0).
-pub fn budget_grids(
+pub(crate) fn budget_grids(
     levels: &[([u64; 2], [u64; 2])],
     clip: u64,
     tile_bytes: impl Fn(usize) -> u64,
@@ -233,13 +233,13 @@ impl Motion {
     }
 
     /// The smoothed speed in level `k`'s texels a tick, per axis.
-    pub fn speed_at_level(&self, k: u32) -> [f64; 2] {
+    pub(crate) fn speed_at_level(&self, k: u32) -> [f64; 2] {
         self.velocity.map(|x| x.abs() / (1u64 << k.min(62)) as f64)
     }
 
     /// The smoothed velocity in level `k`'s texels, rounded away from 0 to whole texels (a level
     /// whose texels move less than one a tick still moves).
-    pub fn at_level(&self, k: u32) -> [i64; 2] {
+    pub(crate) fn at_level(&self, k: u32) -> [i64; 2] {
         self.velocity.map(|x| {
             let y = x / (1u64 << k.min(62)) as f64;
             if y == 0.0 {
@@ -267,7 +267,7 @@ impl Default for Latency {
 
 /// The most ticks of latency the controller plans with (10 s at 60 ticks a second): a read that
 /// took longer says the source is down, not how far to read ahead.
-pub const MAX_LATENCY_TICKS: f64 = 600.0;
+pub(crate) const MAX_LATENCY_TICKS: f64 = 600.0;
 
 impl Latency {
     /// Takes one read's latency (ticks).
@@ -286,7 +286,7 @@ impl Latency {
 
 /// The lead (texels) a level keeps: it grows at once and shrinks by at most a sixteenth a tick,
 /// so that a speed that wavers does not read and evict the same tiles over and over.
-pub fn held_lead(previous: u64, needed: u64) -> u64 {
+pub(crate) fn held_lead(previous: u64, needed: u64) -> u64 {
     if needed >= previous {
         needed
     } else {

@@ -6,7 +6,7 @@ use crate::config::{Diagnostic, Diagnostics, Severity, Span, Spanned, SyntaxFile
 
 /// A field as found in the file.
 #[derive(Clone, Debug)]
-pub enum Field<T> {
+pub(crate) enum Field<T> {
     /// Given, with the span of its token.
     Given(T, Span),
     /// Not in the file.
@@ -25,7 +25,7 @@ impl<T> Field<T> {
     }
 
     /// True when absent (not when broken).
-    pub fn is_absent(&self) -> bool {
+    pub(crate) fn is_absent(&self) -> bool {
         matches!(self, Field::Absent)
     }
 }
@@ -55,7 +55,13 @@ impl<'a> Reader<'a> {
     }
 
     /// A new finding about this file.
-    pub fn diag(&self, sev: Severity, code: &'static str, span: Option<Span>, msg: impl Into<String>) -> Diagnostic {
+    pub(crate) fn diag(
+        &self,
+        sev: Severity,
+        code: &'static str,
+        span: Option<Span>,
+        msg: impl Into<String>,
+    ) -> Diagnostic {
         Diagnostic::new(sev, code, &self.file.path, span, msg)
     }
 
@@ -78,7 +84,7 @@ impl<'a> Reader<'a> {
     }
 
     /// Reports a token that may appear only once.
-    pub fn unique(&mut self, id: TokenId, what: &str) {
+    pub(crate) fn unique(&mut self, id: TokenId, what: &str) {
         let all: Vec<_> = self.file.all(id).collect();
         if all.len() > 1 {
             let second = all[1];
@@ -107,7 +113,7 @@ impl<'a> Reader<'a> {
     }
 
     /// Up to three integers (last wins).
-    pub fn int3(&mut self, id: TokenId) -> Field<Vec<Spanned<i64>>> {
+    pub(crate) fn int3(&mut self, id: TokenId) -> Field<Vec<Spanned<i64>>> {
         self.repeated_scalar(id);
         match self.file.last(id) {
             None => Field::Absent,
@@ -174,7 +180,7 @@ impl<'a> Reader<'a> {
     }
 
     /// Span of the first entry of a token, if any.
-    pub fn span_of(&self, id: TokenId) -> Option<Span> {
+    pub(crate) fn span_of(&self, id: TokenId) -> Option<Span> {
         self.file.first(id).map(|e| e.span)
     }
 }

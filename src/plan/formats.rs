@@ -4,7 +4,7 @@
 use crate::texel::{ComponentType, Components, PackedType, TexelFormat};
 
 /// External (on-disk component type) format names with their GL value.
-pub const EXT_FORMATS: &[(&str, u32)] = &[
+pub(crate) const EXT_FORMATS: &[(&str, u32)] = &[
     ("PFTEX_PACK_8", 5121),
     ("PFTEX_UNSIGNED_BYTE", 5121),
     ("GL_UNSIGNED_BYTE", 5121),
@@ -33,7 +33,7 @@ pub const EXT_FORMATS: &[(&str, u32)] = &[
 ];
 
 /// Internal (hardware) format names with their GL value.
-pub const INT_FORMATS: &[(&str, u32)] = &[
+pub(crate) const INT_FORMATS: &[(&str, u32)] = &[
     ("PFTEX_I_8", 32832),
     ("PFTEX_I_16", 32845),
     ("PFTEX_IA_8", 32837),
@@ -89,7 +89,7 @@ pub const INT_FORMATS: &[(&str, u32)] = &[
 ];
 
 /// Image (component layout) format names with their GL value and component count.
-pub const IMG_FORMATS: &[(&str, u32, u32)] = &[
+pub(crate) const IMG_FORMATS: &[(&str, u32, u32)] = &[
     ("PFTEX_RGB", 6407, 3),
     ("GL_RGB", 6407, 3),
     ("PFTEX_RGBA", 6408, 4),
@@ -176,7 +176,7 @@ pub fn resolve(which: Which, word: &str) -> Result<FormatValue, FormatRefusal> {
 }
 
 /// Component count of an image format value.
-pub fn components_of(img_value: u32) -> Option<u32> {
+pub(crate) fn components_of(img_value: u32) -> Option<u32> {
     IMG_FORMATS.iter().find(|&&(_, v, _)| v == img_value).map(|&(_, _, c)| c)
 }
 

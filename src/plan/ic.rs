@@ -35,7 +35,7 @@ impl Context {
 }
 
 /// Resolves the three format tokens (shared with the `.ct` builder).
-pub fn read_formats(
+pub(crate) fn read_formats(
     r: &mut Reader<'_>,
     defaulted_ok: bool,
 ) -> Option<(FormatValue, FormatValue, FormatValue, TexelFormat)> {
@@ -647,7 +647,7 @@ pub fn read_func(r: &mut Reader<'_>) -> Option<ReadFunc> {
 }
 
 /// Synthesises the image cache of a level in no-`.ic` mode (docs/PERFORMER-REFERENCE.md §1.6).
-pub struct Synth<'a> {
+pub(crate) struct Synth<'a> {
     /// Level and its size.
     pub level: (u32, [u64; 2]),
     /// Texel format (ext, int, img, texel).

@@ -255,7 +255,7 @@ impl ClipTexturePlan {
 
     /// True when some level's `.ic` was not opened ([`Options::ct_only`]): such a plan describes
     /// the configuration but cannot be served or checked against data.
-    pub fn is_ct_only(&self) -> bool {
+    pub(crate) fn is_ct_only(&self) -> bool {
         self.levels.iter().any(|l| matches!(l.kind, LevelKind::IcacheNotOpened { .. }))
     }
 }

@@ -31,7 +31,7 @@ pub fn is_remote(path: &Path) -> bool {
 
 /// Notes that `value` (the field at `span`, after expansion) is a remote location: an extension
 /// Performer would not follow, so a portability finding (an error under `--strict`).
-pub fn note_remote(r: &mut Reader<'_>, span: Span, value: &str, what: &str) {
+pub(crate) fn note_remote(r: &mut Reader<'_>, span: Span, value: &str, what: &str) {
     // A field read twice (no-.ic mode names tiles and pyramid files with one format) is
     // reported once.
     if !is_remote_name(value) || r.reported("remote-location", Some(span)) {
@@ -51,7 +51,7 @@ pub fn note_remote(r: &mut Reader<'_>, span: Span, value: &str, what: &str) {
 
 /// Joins a relative name to `dir`; leaves absolute names and remote locations
 /// ([`is_remote_name`]) alone.
-pub fn anchor(dir: &Path, name: &str) -> PathBuf {
+pub(crate) fn anchor(dir: &Path, name: &str) -> PathBuf {
     if name.starts_with('/') || is_remote_name(name) {
         PathBuf::from(name)
     } else {
@@ -60,7 +60,7 @@ pub fn anchor(dir: &Path, name: &str) -> PathBuf {
 }
 
 /// Expands `$VAR` at the start of a field, reporting what deserves a message.
-pub fn expand_field(r: &mut Reader<'_>, field: &Spanned<String>, env: &Env) -> String {
+pub(crate) fn expand_field(r: &mut Reader<'_>, field: &Spanned<String>, env: &Env) -> String {
     let x = env::expand(&field.value, env);
     note_remote(r, field.span, &x.value, "the name");
     let var = x.variable.clone().unwrap_or_default();
@@ -102,7 +102,7 @@ pub fn expand_field(r: &mut Reader<'_>, field: &Spanned<String>, env: &Env) -> S
 
 /// Where a parameter list is used, which decides the parameters it may name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Scope {
+pub(crate) enum Scope {
     /// `.ct` `icache_params`: names of level `.ic` files.
     CtIcache,
     /// `.ct` `tile_params` for pyramid files (in no-`.ic` mode also image cache tiles).

@@ -7,7 +7,7 @@ use crate::config::{Severity, Span};
 use crate::paging::{parse_bytes, EvictionKind, PagingOptions, PrefetchKind};
 
 /// The settings an extension line may give.
-pub const SETTINGS: [&str; 4] = ["prefetch", "eviction", "pool_bytes", "max_centre_step"];
+pub(crate) const SETTINGS: [&str; 4] = ["prefetch", "eviction", "pool_bytes", "max_centre_step"];
 
 /// The paging options of the file's `#clipmap` lines (the defaults where none is given; the
 /// last of repeated settings wins).

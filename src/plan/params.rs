@@ -31,7 +31,7 @@ pub enum Param {
 const IC: &str = "PFIMAGECACHE_TILE_FILENAMEARG_";
 
 /// Every accepted spelling.
-pub const NAMES: &[(&str, Param)] = &[
+pub(crate) const NAMES: &[(&str, Param)] = &[
     ("PFIMAGECACHE_TILE_FILENAMEARG_VSIZE_S", Param::VsizeS),
     ("PFIMAGECACHE_TILE_FILENAMEARG_VSIZE_T", Param::VsizeT),
     ("PFIMAGECACHE_TILE_FILENAMEARG_VSIZE_R", Param::VsizeR),
@@ -54,17 +54,17 @@ pub const NAMES: &[(&str, Param)] = &[
 
 impl Param {
     /// Looks a spelling up.
-    pub fn from_name(name: &str) -> Option<Param> {
+    pub(crate) fn from_name(name: &str) -> Option<Param> {
         NAMES.iter().find(|(n, _)| *n == name).map(|&(_, p)| p)
     }
 
     /// True for the clip-texture-only spellings (`PFCLIPTEX_…`), which an `.ic` refuses.
-    pub fn is_cliptex_spelling(name: &str) -> bool {
+    pub(crate) fn is_cliptex_spelling(name: &str) -> bool {
         name.starts_with("PFCLIPTEX_")
     }
 
     /// The closest known spelling, for "did you mean".
-    pub fn suggest(name: &str) -> Option<&'static str> {
+    pub(crate) fn suggest(name: &str) -> Option<&'static str> {
         // The clip texture manual's own examples misspell this one; string similarity alone
         // would point at the tile base instead.
         if name == "PFCLIPTEX_FNAMEARG_ICACHE_BASE" {
@@ -79,7 +79,7 @@ impl Param {
     }
 
     /// The argument type the parameter provides.
-    pub fn arg_type(self) -> ArgType {
+    pub(crate) fn arg_type(self) -> ArgType {
         match self {
             Param::StreamServerName | Param::CacheName | Param::ImageCacheBase => ArgType::Str,
             _ => ArgType::Int,
@@ -87,7 +87,7 @@ impl Param {
     }
 
     /// The canonical image-cache spelling (for messages).
-    pub fn canonical(self) -> String {
+    pub(crate) fn canonical(self) -> String {
         match self {
             Param::Level => "PFCLIPTEX_FNAMEARG_LEVEL".into(),
             Param::ImageCacheBase => "PFCLIPTEX_FNAMEARG_IMAGE_CACHE_BASE".into(),
@@ -106,7 +106,7 @@ impl Param {
 
 /// A parameter list entry with its spelling and place.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct ParamRef {
+pub(crate) struct ParamRef {
     /// The meaning.
     pub param: Param,
     /// As written.

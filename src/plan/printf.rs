@@ -17,7 +17,7 @@ use nom::IResult;
 
 /// The type of argument a conversion consumes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ArgType {
+pub(crate) enum ArgType {
     /// `d i u x X o c`.
     Int,
     /// `s`.
@@ -43,7 +43,7 @@ pub struct Conversion {
 
 impl Conversion {
     /// The argument type this conversion needs.
-    pub fn arg_type(&self) -> ArgType {
+    pub(crate) fn arg_type(&self) -> ArgType {
         if self.conv == 's' {
             ArgType::Str
         } else {

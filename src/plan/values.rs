@@ -6,7 +6,7 @@ use crate::config::{Severity, Span, Spanned};
 
 /// How to check a three-number size.
 #[derive(Clone, Copy, Debug)]
-pub struct SizeRule {
+pub(crate) struct SizeRule {
     /// Each component must be a power of two.
     pub pow2: bool,
     /// Largest value of S and T.
@@ -18,12 +18,17 @@ pub struct SizeRule {
 }
 
 /// The next power of two at or above `v` (for hints).
-pub fn next_pow2(v: u64) -> u64 {
+pub(crate) fn next_pow2(v: u64) -> u64 {
     v.checked_next_power_of_two().unwrap_or(u64::MAX)
 }
 
 /// Checks a three-number size. Returns `None` (having reported why) when it is unusable.
-pub fn size3(r: &mut Reader<'_>, field: &Field<Vec<Spanned<i64>>>, name: &str, rule: SizeRule) -> Option<[u64; 3]> {
+pub(crate) fn size3(
+    r: &mut Reader<'_>,
+    field: &Field<Vec<Spanned<i64>>>,
+    name: &str,
+    rule: SizeRule,
+) -> Option<[u64; 3]> {
     let (vals, span) = match field {
         Field::Given(v, s) => (v, *s),
         _ => return None,
@@ -126,7 +131,7 @@ pub fn size3(r: &mut Reader<'_>, field: &Field<Vec<Spanned<i64>>>, name: &str, r
 }
 
 /// A non-negative integer with a default. Negative values are errors.
-pub fn non_negative(
+pub(crate) fn non_negative(
     r: &mut Reader<'_>,
     field: &Field<Spanned<i64>>,
     name: &str,
@@ -153,7 +158,7 @@ pub fn non_negative(
 }
 
 /// The span of a field's token, if given.
-pub fn span_of<T>(field: &Field<T>) -> Option<Span> {
+pub(crate) fn span_of<T>(field: &Field<T>) -> Option<Span> {
     match field {
         Field::Given(_, s) => Some(*s),
         _ => None,

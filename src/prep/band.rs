@@ -9,7 +9,7 @@ use super::error::PrepError;
 use crate::texel::{ComponentType, Components, TexelFormat};
 
 /// Produces the rows of one level, band by band, in increasing t.
-pub trait BandSource: Send {
+pub(crate) trait BandSource: Send {
     /// Fills rows `t0 .. t0 + rows` (each `width * bpt` bytes, s fastest) into `out`.
     fn fill(&mut self, t0: u64, rows: usize, out: &mut [u8]) -> Result<(), PrepError>;
 }
@@ -20,7 +20,7 @@ pub fn widen(p: [u8; 4]) -> [u16; 4] {
 }
 
 /// Encodes an 8-bit RGBA pixel into `format`.
-pub fn encode_rgba8(format: TexelFormat, p: [u8; 4], out: &mut [u8]) {
+pub(crate) fn encode_rgba8(format: TexelFormat, p: [u8; 4], out: &mut [u8]) {
     if format == TexelFormat::RGBA8 {
         out.copy_from_slice(&p);
     } else if format == TexelFormat::RGB8 {
@@ -34,7 +34,7 @@ pub fn encode_rgba8(format: TexelFormat, p: [u8; 4], out: &mut [u8]) {
 /// Encodes a 16-bit RGBA pixel into `format`: 16-bit formats take the samples as they are,
 /// 8-bit formats the samples rounded to nearest (v / 257), packed formats their encoding.
 /// One-component formats take the luminance (Rec. 709 weights; a grey pixel's value exactly).
-pub fn encode_rgba16(format: TexelFormat, p: [u16; 4], out: &mut [u8]) {
+pub(crate) fn encode_rgba16(format: TexelFormat, p: [u16; 4], out: &mut [u8]) {
     let lum = || -> f64 {
         if p[0] == p[1] && p[1] == p[2] {
             p[0] as f64

@@ -59,7 +59,7 @@ impl LevelReader<'_> {
 }
 
 /// Writes every border tile of every sparse level under `root`; returns the number written.
-pub fn write_borders(root: &Path, layout: &Layout, total_bytes: u64) -> Result<u64, PrepError> {
+pub(crate) fn write_borders(root: &Path, layout: &Layout, total_bytes: u64) -> Result<u64, PrepError> {
     let Some(inset) = layout.spec.inset else {
         return Ok(0);
     };

@@ -14,7 +14,7 @@ use std::fmt::Write;
 
 /// The `ext_format`, `int_format` and `img_format` names of a texel format, or `None` when this
 /// tool does not write that format.
-pub fn format_names(f: TexelFormat) -> Option<(&'static str, &'static str, &'static str)> {
+pub(crate) fn format_names(f: TexelFormat) -> Option<(&'static str, &'static str, &'static str)> {
     Some(match (f.components, f.ctype) {
         (Components::One, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "GL_LUMINANCE8_EXT", "PFTEX_LUMINANCE"),
         (Components::Three, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "PFTEX_RGB_8", "PFTEX_RGB"),
@@ -92,7 +92,7 @@ pub fn ct_text(layout: &Layout, description: &[String]) -> String {
 }
 
 /// The `.ic` text of an image-cache level.
-pub fn ic_text(layout: &Layout, level: &Level, ct_name: &str) -> String {
+pub(crate) fn ic_text(layout: &Layout, level: &Level, ct_name: &str) -> String {
     assert_eq!(level.kind, LevelKind::ImageCache, "only image-cache levels have an .ic");
     let spec = &layout.spec;
     let mut out = String::new();

@@ -119,7 +119,7 @@ pub enum PrepError {
 
 impl PrepError {
     /// True when the input (arguments, image) is at fault rather than the environment.
-    pub fn is_bad_input(&self) -> bool {
+    pub(crate) fn is_bad_input(&self) -> bool {
         matches!(
             self,
             PrepError::NotPowerOfTwo { .. }

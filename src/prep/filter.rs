@@ -71,7 +71,7 @@ impl Channels {
     }
 
     /// Unpacks one texel into its integer components (as f32).
-    pub fn unpack(&self, texel: &[u8], out: &mut [f32]) {
+    pub(crate) fn unpack(&self, texel: &[u8], out: &mut [f32]) {
         match self.packing {
             Packing::Bytes => {
                 for (o, &b) in out.iter_mut().zip(texel) {
@@ -100,7 +100,7 @@ impl Channels {
     }
 
     /// Packs components (rounded half up and clamped to their range) into one texel.
-    pub fn pack(&self, comps: &[f32], out: &mut [u8]) {
+    pub(crate) fn pack(&self, comps: &[f32], out: &mut [u8]) {
         let q = |i: usize| (comps[i] + 0.5).floor().clamp(0.0, self.max[i]) as u16;
         match self.packing {
             Packing::Bytes => {
@@ -168,7 +168,7 @@ fn taps(filter: Filter) -> Vec<(i64, f32)> {
 }
 
 /// Reduces one level to the next (half the width and half the height), row by row.
-pub struct Downsampler {
+pub(crate) struct Downsampler {
     ch: Channels,
     linear: bool,
     src_w: u64,
@@ -210,7 +210,7 @@ impl Downsampler {
     }
 
     /// Bytes of one destination row.
-    pub fn dst_row_bytes(&self) -> usize {
+    pub(crate) fn dst_row_bytes(&self) -> usize {
         self.dst_w as usize * self.ch.bpt
     }
 

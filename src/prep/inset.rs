@@ -82,7 +82,7 @@ pub struct SparseLevel {
 
 impl SparseLevel {
     /// The role of tile (s, t).
-    pub fn role(&self, s: u64, t: u64) -> TileRole {
+    pub(crate) fn role(&self, s: u64, t: u64) -> TileRole {
         if self.inset.contains(s, t) {
             TileRole::Source
         } else if self.written.contains(s, t) {

@@ -22,7 +22,7 @@ use std::path::PathBuf;
 
 /// Performer raises any smaller `invalid_border` to this (docs/PERFORMER-REFERENCE.md §1.4), so a clip window
 /// must be larger than twice it.
-pub const MIN_INVALID_BORDER: u64 = 8;
+pub(crate) const MIN_INVALID_BORDER: u64 = 8;
 
 /// What the user asked for, before any derivation.
 #[derive(Clone, Debug)]
@@ -90,12 +90,12 @@ pub struct Level {
 
 impl Level {
     /// Tiles along S.
-    pub fn tiles_s(&self) -> u64 {
+    pub(crate) fn tiles_s(&self) -> u64 {
         self.width / self.tile_w
     }
 
     /// Tiles along T.
-    pub fn tiles_t(&self) -> u64 {
+    pub(crate) fn tiles_t(&self) -> u64 {
         self.height / self.tile_h
     }
 
@@ -238,17 +238,17 @@ impl Layout {
     }
 
     /// What tile (s, t) of `level` holds.
-    pub fn tile_role(&self, level: &Level, s: u64, t: u64) -> TileRole {
+    pub(crate) fn tile_role(&self, level: &Level, s: u64, t: u64) -> TileRole {
         self.sparse(level).map_or(TileRole::Source, |sp| sp.role(s, t))
     }
 
     /// The default tile of a sparse image-cache level, relative to the `.ct` (beside its `.ic`).
-    pub fn default_tile_file(level: u32) -> String {
+    pub(crate) fn default_tile_file(level: u32) -> String {
         format!("L{level:02}.default.raw")
     }
 
     /// Texels written over all levels (all of them, less the absent tiles of sparse levels).
-    pub fn written_texels(&self) -> u64 {
+    pub(crate) fn written_texels(&self) -> u64 {
         self.levels
             .iter()
             .map(|l| match self.sparse(l) {
@@ -279,22 +279,22 @@ impl Layout {
     }
 
     /// The `.ic` file of an image-cache level, relative to the `.ct`.
-    pub fn ic_file(level: u32) -> String {
+    pub(crate) fn ic_file(level: u32) -> String {
         format!("L{level:02}.ic")
     }
 
     /// The directory of an image-cache level's tiles (inside each stream directory, if any).
-    pub fn level_dir(level: u32) -> String {
+    pub(crate) fn level_dir(level: u32) -> String {
         format!("L{level:02}")
     }
 
     /// The file of a pyramid level, relative to the `.ct`.
-    pub fn pyramid_file(level: u32) -> String {
+    pub(crate) fn pyramid_file(level: u32) -> String {
         format!("pyramid/L{level:02}.raw")
     }
 
     /// The name (path prefix, with its trailing `/`) of stream server `i`.
-    pub fn stream_name(i: u32) -> String {
+    pub(crate) fn stream_name(i: u32) -> String {
         format!("stream{i}/")
     }
 
@@ -306,7 +306,7 @@ impl Layout {
     }
 
     /// The extension of image-cache tile files: `.raw`, or `.raw.zst` when compressed.
-    pub fn tile_extension(&self) -> &'static str {
+    pub(crate) fn tile_extension(&self) -> &'static str {
         match self.spec.compression {
             None => ".raw",
             Some(Compression::Zstd(_)) => ".raw.zst",

@@ -87,7 +87,7 @@ fn write_file(path: &Path, text: &str, total: u64) -> Result<(), PrepError> {
 
 /// Memory one band of level-0 rows takes in the cascade (source band, level-0 writer band, and
 /// the halving bands below), checked against the limit before anything is written.
-pub fn band_memory(layout: &Layout) -> u64 {
+pub(crate) fn band_memory(layout: &Layout) -> u64 {
     let l0 = &layout.levels[0];
     3 * l0.tile_h * l0.width * layout.bpt()
 }
@@ -104,7 +104,7 @@ fn pyramid_band(layout: &Layout, level: &Level, limits: &Limits) -> u64 {
 /// The hash source writes image-cache levels tile by tile (a tile per worker thread) and pyramid
 /// levels in bands, so its memory does not grow with the texture's width. Filtered sources run
 /// the band cascade: [`band_memory`], which grows with the level-0 width.
-pub fn buffer_memory(layout: &Layout, source: &Source, limits: &Limits) -> u64 {
+pub(crate) fn buffer_memory(layout: &Layout, source: &Source, limits: &Limits) -> u64 {
     let pyramid: u64 = layout.pyramid_levels().map(|l| pyramid_band(layout, l, limits)).sum();
     match source {
         Source::Hash => {

@@ -16,7 +16,7 @@ use std::io::{Seek, SeekFrom, Write};
 use std::path::Path;
 
 /// Buffers and writes the rows of one level.
-pub struct LevelWriter<'a> {
+pub(crate) struct LevelWriter<'a> {
     root: &'a Path,
     layout: &'a Layout,
     level: Level,
@@ -51,12 +51,12 @@ impl<'a> LevelWriter<'a> {
     }
 
     /// Rows per band.
-    pub fn band_rows(&self) -> usize {
+    pub(crate) fn band_rows(&self) -> usize {
         self.band_rows
     }
 
     /// Bytes of one row.
-    pub fn row_bytes(&self) -> usize {
+    pub(crate) fn row_bytes(&self) -> usize {
         self.row_bytes
     }
 
@@ -131,7 +131,7 @@ impl<'a> LevelWriter<'a> {
 /// with the file's header in front when the layout has one. `total_bytes` is the size of the
 /// whole output, for a full-disk message.
 #[allow(clippy::too_many_arguments)]
-pub fn write_tile_part(
+pub(crate) fn write_tile_part(
     root: &Path,
     layout: &Layout,
     level: &Level,

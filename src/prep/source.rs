@@ -21,7 +21,7 @@ use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 /// The verification texture of one level (docs/ARCHITECTURE.md §11).
-pub struct HashLevel {
+pub(crate) struct HashLevel {
     /// Level index.
     pub level: u32,
     /// Level width.
@@ -42,7 +42,7 @@ impl BandSource for HashLevel {
 
 /// Level 0 of the terrain texture: its colours, or for the 16-bit luminance formats (`l16`,
 /// `la16`) its heights (0..=1 as 0..=65535, alpha opaque): a height map.
-pub struct TerrainLevel0 {
+pub(crate) struct TerrainLevel0 {
     /// The terrain.
     pub terrain: Terrain,
     /// Level-0 width.
@@ -73,7 +73,7 @@ impl BandSource for TerrainLevel0 {
 }
 
 /// An image decoded into memory (any format the `image` crate reads).
-pub struct MemoryImage {
+pub(crate) struct MemoryImage {
     image: DynamicImage,
     format: TexelFormat,
     /// Level-0 width (image width, or padded).
@@ -179,7 +179,7 @@ impl OpenedImage {
 
     /// A band source producing level 0 of `padded_width` in `format` (refused by
     /// [`check_depth`](Self::check_depth) when the image is deeper than the format).
-    pub fn into_source(self, format: TexelFormat, padded_width: u64) -> Result<Box<dyn BandSource>, PrepError> {
+    pub(crate) fn into_source(self, format: TexelFormat, padded_width: u64) -> Result<Box<dyn BandSource>, PrepError> {
         self.check_depth(format)?;
         let deep = self.bits == 16 || format.ctype == ComponentType::U16;
         Ok(match self.opener {

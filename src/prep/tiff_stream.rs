@@ -20,7 +20,7 @@ use tiff::tags::Tag;
 use tiff::ColorType;
 
 /// An open TIFF whose rows can be streamed.
-pub struct TiffStream {
+pub(crate) struct TiffStream {
     path: PathBuf,
     decoder: Decoder<BufReader<File>>,
     width: u32,
@@ -52,7 +52,7 @@ fn is_tiff(path: &Path) -> bool {
 impl TiffStream {
     /// Opens `path` if it is a TIFF this module can stream; `Ok(None)` for anything else
     /// (including TIFF layouts left to the in-memory decoder).
-    pub fn try_open(path: &Path, limits: &Limits) -> Result<Option<TiffStream>, PrepError> {
+    pub(crate) fn try_open(path: &Path, limits: &Limits) -> Result<Option<TiffStream>, PrepError> {
         if !is_tiff(path) {
             return Ok(None);
         }
@@ -114,7 +114,7 @@ impl TiffStream {
     }
 
     /// A band source for level 0 in `format`, `padded_width` texels wide.
-    pub fn into_source(self, format: TexelFormat, padded_width: u64) -> TiffSource {
+    pub(crate) fn into_source(self, format: TexelFormat, padded_width: u64) -> TiffSource {
         TiffSource { stream: self, format, width: padded_width }
     }
 
@@ -202,7 +202,7 @@ impl TiffStream {
 }
 
 /// Level 0 from a streamed TIFF.
-pub struct TiffSource {
+pub(crate) struct TiffSource {
     stream: TiffStream,
     format: TexelFormat,
     width: u64,

@@ -126,7 +126,7 @@ pub enum QueueError {
 /// One queue's runner as its owner holds it: the command channel and what the owner knows of
 /// the runner's state.
 #[derive(Debug)]
-pub struct QueueHandle {
+pub(crate) struct QueueHandle {
     commands: mpsc::Sender<Command>,
     /// Updates sent (taken by the channel).
     sent: u64,
@@ -281,7 +281,7 @@ impl ReadQueues {
 
     /// Each queue's counters, in stream-server order, as of the last [`drain`](Self::drain)
     /// (`updates_skipped` is counted only in the sum of [`stats`](Self::stats)).
-    pub fn stream_stats(&self) -> Vec<QueueStats> {
+    pub(crate) fn stream_stats(&self) -> Vec<QueueStats> {
         self.counters.clone()
     }
 

@@ -201,7 +201,7 @@ mod remote_probe {
         .map_err(|e| e.clone())
     }
 
-    pub fn length_or_error(path: &Path) -> Result<u64, String> {
+    pub(crate) fn length_or_error(path: &Path) -> Result<u64, String> {
         remote()?.length(&path.to_string_lossy()).map_err(|e| e.to_string())
     }
 
@@ -234,7 +234,7 @@ mod remote_probe {
 
     const WHY: &str = "a remote location, and this build cannot read them (the `remote` feature)";
 
-    pub fn length_or_error(_: &Path) -> Result<u64, String> {
+    pub(crate) fn length_or_error(_: &Path) -> Result<u64, String> {
         Err(WHY.to_string())
     }
 

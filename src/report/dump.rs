@@ -56,7 +56,7 @@ impl DumpError {
 }
 
 /// The error for an output file that could not be written, with the likely fix.
-pub fn write_error(path: &Path, e: impl std::fmt::Display) -> DumpError {
+pub(crate) fn write_error(path: &Path, e: impl std::fmt::Display) -> DumpError {
     let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
     let message = match parent {
         Some(dir) if !dir.is_dir() => {
@@ -78,7 +78,7 @@ pub fn parse_region(text: &str) -> Result<[u64; 4], DumpError> {
 }
 
 /// Reads one tile into a buffer of one tile.
-pub type ReadTile<'a> = dyn Fn(TileId, &mut [u8]) -> Result<(), SourceError> + 'a;
+pub(crate) type ReadTile<'a> = dyn Fn(TileId, &mut [u8]) -> Result<(), SourceError> + 'a;
 
 /// One level's geometry and its tile reader.
 pub struct LevelTiles<'a> {
@@ -138,7 +138,7 @@ pub struct DumpReport {
 }
 
 /// Checks the region (the whole level when `None`) against the level and [`MAX_DUMP_TEXELS`].
-pub fn choose_region(
+pub(crate) fn choose_region(
     level: Option<u32>,
     size: [u64; 2],
     region: Option<[u64; 4]>,

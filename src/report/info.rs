@@ -90,7 +90,7 @@ fn two(a: [u64; 3]) -> [u64; 2] {
 }
 
 /// The level table of a clip texture.
-pub fn level_rows(plan: &ClipTexturePlan) -> Vec<LevelRow> {
+pub(crate) fn level_rows(plan: &ClipTexturePlan) -> Vec<LevelRow> {
     plan.levels
         .iter()
         .map(|l| match &l.kind {
@@ -355,7 +355,7 @@ pub fn image_cache_human(plan: &ImageCachePlan) -> String {
 }
 
 /// The human form of a tile location.
-pub fn tile_human(loc: &TileLocation) -> String {
+pub(crate) fn tile_human(loc: &TileLocation) -> String {
     let mut o = format!("path    {}\noffset  {}\nlength  {}\n", loc.path.display(), loc.offset, loc.length);
     if !loc.stream.is_empty() {
         o.push_str(&format!("stream  {}\n", loc.stream));

@@ -51,7 +51,7 @@ pub fn emit<T: serde::Serialize + ?Sized>(json: bool, value: &T, human: impl FnO
 }
 
 /// Formats a byte count the way a person reads it (KiB, MiB, GiB, TiB).
-pub fn human_bytes(bytes: u128) -> String {
+pub(crate) fn human_bytes(bytes: u128) -> String {
     const UNITS: [&str; 6] = ["B", "KiB", "MiB", "GiB", "TiB", "PiB"];
     let mut v = bytes as f64;
     let mut u = 0;
@@ -77,4 +77,13 @@ pub mod exit {
     /// The tool could not run: a file that cannot be opened or read, an output that cannot be
     /// written (a full disk), a name taken, no service to attach to, an interruption.
     pub const COULD_NOT_RUN: i32 = 2;
+
+    /// The process exit status of one of the codes above (every binary ends through this): a
+    /// code outside them is a defect of the tool, reported as [`COULD_NOT_RUN`].
+    pub fn status(code: i32) -> std::process::ExitCode {
+        match code {
+            OK | BAD_INPUT | COULD_NOT_RUN => std::process::ExitCode::from(code as u8),
+            _ => std::process::ExitCode::from(COULD_NOT_RUN as u8),
+        }
+    }
 }

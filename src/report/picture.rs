@@ -35,7 +35,7 @@ pub const VALID_EDGE: [u8; 3] = [255, 0, 0];
 pub const WINDOW_EDGE: [u8; 3] = [255, 255, 0];
 
 /// Whether a format carries alpha (its pictures are RGBA, others RGB).
-pub fn has_alpha(format: TexelFormat) -> bool {
+pub(crate) fn has_alpha(format: TexelFormat) -> bool {
     matches!(format.components, Components::Two | Components::Four)
 }
 
@@ -62,7 +62,7 @@ pub fn texel_rgba(format: Option<TexelFormat>, texel: &[u8]) -> [u8; 4] {
 /// One texel as 16-bit RGBA, for the 16-bit pictures of 16-bit formats: 16-bit components are
 /// copied exactly (luminance to grey, alpha 65535 where absent); other formats are
 /// [`texel_rgba`] scaled by 257.
-pub fn texel_rgba16(format: Option<TexelFormat>, texel: &[u8]) -> [u16; 4] {
+pub(crate) fn texel_rgba16(format: Option<TexelFormat>, texel: &[u8]) -> [u16; 4] {
     match format {
         Some(f) if f.ctype == ComponentType::U16 => {
             let w = |i: usize| u16::from_le_bytes([texel[2 * i], texel[2 * i + 1]]);
@@ -79,7 +79,7 @@ pub fn texel_rgba16(format: Option<TexelFormat>, texel: &[u8]) -> [u16; 4] {
 
 /// The stand-in painted where a texel could not be read (a missing tile): magenta and black
 /// squares of 8 pixels, impossible to mistake for data.
-pub fn missing_pattern(x: u32, y: u32) -> [u8; 4] {
+pub(crate) fn missing_pattern(x: u32, y: u32) -> [u8; 4] {
     if (x / 8 + y / 8).is_multiple_of(2) {
         [255, 0, 255, 255]
     } else {
@@ -132,7 +132,7 @@ impl Frame {
 /// outside the level; the window outlined in yellow and the valid region in red, each outline
 /// one pixel outside its rectangle.
 #[allow(clippy::too_many_arguments)]
-pub fn draw_level(
+pub(crate) fn draw_level(
     img: &mut RgbImage,
     x0: u32,
     y0: u32,
@@ -189,7 +189,7 @@ pub fn draw_level(
 }
 
 /// Draws level `k` of a mapping as published in `snap` over `frame` (see [`draw_level`]).
-pub fn draw_published_level(
+pub(crate) fn draw_published_level(
     img: &mut RgbImage,
     x0: u32,
     y0: u32,
@@ -212,7 +212,13 @@ pub fn draw_published_level(
 /// the texture as a renderer would sample it (the finest level available at each pixel, no
 /// coarser than min LOD) and the same view coloured by that level (texture luminance mixed in).
 /// Pixels no level covers stay black.
-pub fn view_and_rings(client: &Client, snap: &Snapshot, centre: [i64; 2], n: u32, extent: i64) -> (RgbImage, RgbImage) {
+pub(crate) fn view_and_rings(
+    client: &Client,
+    snap: &Snapshot,
+    centre: [i64; 2],
+    n: u32,
+    extent: i64,
+) -> (RgbImage, RgbImage) {
     let bpt = client.bytes_per_texel;
     let format = format_from_code(client.format_code);
     let step = (extent / n as i64).max(1);

@@ -224,7 +224,7 @@ pub fn compute(r: &Request) -> Result<Plan, SizingError> {
 }
 
 /// Groups digits in threes for reading.
-pub fn grouped(v: u128) -> String {
+pub(crate) fn grouped(v: u128) -> String {
     let s = v.to_string();
     let mut out = String::new();
     for (i, c) in s.chars().enumerate() {

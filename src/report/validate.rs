@@ -43,7 +43,7 @@ pub struct NamedIcache {
 }
 
 /// The `.ic` files a `.ct`-only plan names, by level.
-pub fn named_icaches(plan: &plan::ClipTexturePlan) -> Vec<NamedIcache> {
+pub(crate) fn named_icaches(plan: &plan::ClipTexturePlan) -> Vec<NamedIcache> {
     plan.levels
         .iter()
         .filter_map(|l| match &l.kind {
@@ -127,7 +127,7 @@ fn servable(l: &mut plan::Loaded<plan::ClipTexturePlan>) {
 }
 
 /// Why the service would refuse to start on `plan` (see [`servable`]), or `None`.
-pub fn unservable(plan: &plan::ClipTexturePlan) -> Option<String> {
+pub(crate) fn unservable(plan: &plan::ClipTexturePlan) -> Option<String> {
     unservable_shape(plan).or_else(|| {
         crate::source::open_plan(plan.clone(), &crate::limits::Limits::default()).err().map(|e| e.to_string())
     })

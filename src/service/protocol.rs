@@ -42,7 +42,7 @@ pub enum Request {
 pub use crate::limits::MAX_BUDGET_MS;
 
 /// The commands, for error messages.
-pub const COMMANDS: &str =
+pub(crate) const COMMANDS: &str =
     "PING, STATUS, STATS, STATS PROM, BUDGET <ms>|off, BORDER <texels>, CENTRE <s> <t>, PATCH FILE <path>, PATCH DATA <bytes> <json>, QUIT, SHUTDOWN";
 
 /// Why a request line was refused; its text is the message of the `ERR` reply (words quoted
@@ -156,7 +156,7 @@ pub fn parse(line: &[u8]) -> Result<Request, BadRequest> {
 
 /// Whether `line` is a `PATCH DATA` request, well formed or not: bytes follow such a line, so a
 /// refused one closes the connection rather than read those bytes as requests.
-pub fn announces_data(line: &[u8]) -> bool {
+pub(crate) fn announces_data(line: &[u8]) -> bool {
     let mut words = line.split(|b| b.is_ascii_whitespace()).filter(|w| !w.is_empty());
     matches!(
         (words.next(), words.next()),

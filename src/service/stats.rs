@@ -101,7 +101,7 @@ pub struct ControlStats {
 
 impl ControlCounters {
     /// Adds one to a counter.
-    pub fn bump(c: &AtomicU64) {
+    pub(crate) fn bump(c: &AtomicU64) {
         c.fetch_add(1, Ordering::Relaxed);
     }
 

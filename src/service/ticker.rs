@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::{oneshot, watch};
 
 /// Commands waiting for the tick loop, at most (a full queue answers "busy", never blocks).
-pub const COMMAND_QUEUE: usize = 64;
+pub(crate) const COMMAND_QUEUE: usize = 64;
 
 /// What the tick loop is asked to do between ticks.
 #[derive(Debug)]

@@ -461,7 +461,7 @@ impl Client {
     /// again for up to a second, and published state outside its bounds (a NaN min LOD, a region
     /// outside its level) refuses the mapping, as the C and Python readers refuse it, instead of
     /// being shown as "every level disabled".
-    pub fn checked_snapshot(&self) -> Result<Snapshot, ShmError> {
+    pub(crate) fn checked_snapshot(&self) -> Result<Snapshot, ShmError> {
         let start = std::time::Instant::now();
         loop {
             match self.try_snapshot() {

@@ -239,7 +239,7 @@ pub enum SlotState {
 
 impl SlotState {
     /// The state of a tag's `STATE` value (`None` for a value no writer writes).
-    pub fn from_code(code: u64) -> Option<SlotState> {
+    pub(crate) fn from_code(code: u64) -> Option<SlotState> {
         [SlotState::Empty, SlotState::Loading, SlotState::Ready, SlotState::Missing, SlotState::Default]
             .into_iter()
             .find(|s| *s as u64 == code)
@@ -378,12 +378,12 @@ pub struct LevelPlace {
 
 impl LevelPlace {
     /// Byte offset of slot `index`.
-    pub fn slot_offset(&self, index: u64) -> u64 {
+    pub(crate) fn slot_offset(&self, index: u64) -> u64 {
         self.slots + index * self.slot_bytes
     }
 
     /// Byte offset of slot `index`'s tag.
-    pub fn tag_offset(&self, index: u64) -> u64 {
+    pub(crate) fn tag_offset(&self, index: u64) -> u64 {
         self.tags + index * TAG_BYTES as u64
     }
 }
@@ -413,7 +413,7 @@ pub fn slot_index(grid: [u64; 2], tile: [i64; 2]) -> u64 {
 
 /// Whether a level's static description is one a writer of this layout makes: non-zero tiles, a grid no larger than the level's tiles and large enough for a window
 /// of the clip size at any alignment, and a pyramid level (no larger than the clip size) whole. `Err` says what is wrong.
-pub fn check_level(l: &LevelShape, clip: u64, bpt: u64) -> Result<(), String> {
+pub(crate) fn check_level(l: &LevelShape, clip: u64, bpt: u64) -> Result<(), String> {
     let [w, h] = l.size;
     if w == 0 || h == 0 || l.tile[0] == 0 || l.tile[1] == 0 || l.grid[0] == 0 || l.grid[1] == 0 {
         return Err(format!("a zero size: level {w}x{h}, tile {:?}, grid {:?}", l.tile, l.grid));
@@ -473,7 +473,7 @@ pub fn place(shape: &Shape) -> Option<Placement> {
 /// Whether a published valid region is one a writer of this layout publishes for a level of
 /// `l`'s shape: inside the level, and spanning no more tiles than the grid has slots per axis (so
 /// the tiles under it have distinct slots). `Err` says what is wrong.
-pub fn check_region(l: &LevelShape, r: [i64; 4]) -> Result<Rect, String> {
+pub(crate) fn check_region(l: &LevelShape, r: [i64; 4]) -> Result<Rect, String> {
     let [s0, t0, s1, t1] = r;
     let inside = |lo: i64, hi: i64, size: u64| 0 <= lo && lo < hi && hi as u64 <= size;
     if !inside(s0, s1, l.size[0]) || !inside(t0, t1, l.size[1]) {

@@ -51,7 +51,7 @@ fn tile_of_key(key: u64) -> [i64; 2] {
 
 /// What [`ImageMemory::assign`] did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Assign {
+pub(crate) enum Assign {
     /// The slot now belongs to the tile (loading).
     Assigned,
     /// A read is filling the slot with its previous tile right now: try again next tick.
@@ -111,7 +111,7 @@ impl std::fmt::Debug for ImageMemory {
 }
 
 /// Why a shape cannot be laid out.
-pub fn shape_error(shape: &Shape) -> String {
+pub(crate) fn shape_error(shape: &Shape) -> String {
     for (k, l) in shape.levels.iter().enumerate() {
         if let Err(e) = layout::check_level(l, shape.clip_size, shape.bytes_per_texel) {
             return format!("level {k}: {e}");
@@ -206,7 +206,7 @@ impl ImageMemory {
     }
 
     /// Where everything lies.
-    pub fn placement(&self) -> &Placement {
+    pub(crate) fn placement(&self) -> &Placement {
         &self.placement
     }
 
@@ -218,7 +218,7 @@ impl ImageMemory {
     /// bytes are written only by [`fill`](Self::fill), lent to a tile read. Reads run on the
     /// queues' threads, except [`replace`](Self::replace) (a growing texture's rebuilt tile,
     /// read on the tick), whose bytes are counted here; 0 for every texture that does not grow.
-    pub fn copied_texel_bytes(&self) -> u64 {
+    pub(crate) fn copied_texel_bytes(&self) -> u64 {
         self.replaced_bytes.load(Ordering::Relaxed)
     }
 
@@ -380,7 +380,7 @@ impl ImageMemory {
 
     /// Assignments so far of a slot whose settled tile the current snapshot still covered: the
     /// writer's invariant, checked where it could break (0 unless the engine is wrong).
-    pub fn invariant_violations(&self) -> u64 {
+    pub(crate) fn invariant_violations(&self) -> u64 {
         self.violations.load(Ordering::Relaxed)
     }
 

@@ -108,7 +108,7 @@ pub fn default_dir() -> PathBuf {
 }
 
 /// Checks a publication name.
-pub fn check_name(name: &str) -> Result<(), ShmError> {
+pub(crate) fn check_name(name: &str) -> Result<(), ShmError> {
     let ok = !name.is_empty()
         && name.len() <= 64
         && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
@@ -121,17 +121,17 @@ pub fn check_name(name: &str) -> Result<(), ShmError> {
 }
 
 /// The mapping file of a name.
-pub fn map_path(dir: &Path, name: &str) -> PathBuf {
+pub(crate) fn map_path(dir: &Path, name: &str) -> PathBuf {
     dir.join(format!("clipmap-{name}.map"))
 }
 
 /// The request mapping of a name (written by renderers).
-pub fn request_path(dir: &Path, name: &str) -> PathBuf {
+pub(crate) fn request_path(dir: &Path, name: &str) -> PathBuf {
     dir.join(format!("clipmap-{name}.req"))
 }
 
 /// The lock file of a name (held by the running service).
-pub fn lock_path(dir: &Path, name: &str) -> PathBuf {
+pub(crate) fn lock_path(dir: &Path, name: &str) -> PathBuf {
     dir.join(format!("clipmap-{name}.lock"))
 }
 

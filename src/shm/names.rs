@@ -19,7 +19,7 @@ use std::os::unix::fs::{MetadataExt, OpenOptionsExt, PermissionsExt};
 use std::path::Path;
 
 /// This process's effective user id.
-pub fn euid() -> u32 {
+pub(crate) fn euid() -> u32 {
     rustix::process::geteuid().as_raw()
 }
 
@@ -59,7 +59,7 @@ fn foreign(path: &Path, meta: &Metadata, what: &str) -> ShmError {
 
 /// Refuses an existing entry that is not a regular file owned by this user (a symbolic link
 /// included: it is not followed).
-pub fn check_own_file(path: &Path, meta: &Metadata) -> Result<(), ShmError> {
+pub(crate) fn check_own_file(path: &Path, meta: &Metadata) -> Result<(), ShmError> {
     if !meta.file_type().is_file() {
         return Err(foreign(path, meta, "not a regular file this service made; remove it or choose another --name"));
     }
@@ -75,7 +75,7 @@ pub fn check_own_file(path: &Path, meta: &Metadata) -> Result<(), ShmError> {
 
 /// Creates `path` (which must not exist; a symbolic link there counts as existing) read-write
 /// with exactly `mode`.
-pub fn create_new(path: &Path, mode: u32) -> io::Result<File> {
+pub(crate) fn create_new(path: &Path, mode: u32) -> io::Result<File> {
     let file = OpenOptions::new()
         .read(true)
         .write(true)
@@ -90,7 +90,7 @@ pub fn create_new(path: &Path, mode: u32) -> io::Result<File> {
 /// Refuses an entry that [`check_own_file`] refuses, and also one with more than one hard link:
 /// a name that is only another name of some file (a victim linked into the shared directory), so
 /// that writing to it would write into that file.
-pub fn check_own_single_file(path: &Path, meta: &Metadata) -> Result<(), ShmError> {
+pub(crate) fn check_own_single_file(path: &Path, meta: &Metadata) -> Result<(), ShmError> {
     check_own_file(path, meta)?;
     if meta.nlink() != 1 {
         return Err(ShmError::Foreign {
@@ -108,7 +108,7 @@ pub fn check_own_single_file(path: &Path, meta: &Metadata) -> Result<(), ShmErro
 /// when it is a regular file owned by this user with no other hard link (so nothing written to
 /// it lands in another file); the checks are made before the open (so no device or FIFO is ever
 /// opened) and again on the open file (so a swap in between is caught).
-pub fn open_own(path: &Path) -> Result<File, ShmError> {
+pub(crate) fn open_own(path: &Path) -> Result<File, ShmError> {
     let io_err = |source| ShmError::Io { path: path.to_path_buf(), source };
     let before = std::fs::symlink_metadata(path).map_err(io_err)?;
     check_own_single_file(path, &before)?;
@@ -135,7 +135,7 @@ pub fn open_own(path: &Path) -> Result<File, ShmError> {
 
 /// Removes `path` only if it still is the file `id` (this process's): a name someone else has
 /// taken since is left alone.
-pub fn remove_if_same(path: &Path, id: Identity) {
+pub(crate) fn remove_if_same(path: &Path, id: Identity) {
     if let Ok(m) = std::fs::symlink_metadata(path) {
         if Identity::of(&m) == id {
             let _ = std::fs::remove_file(path);
@@ -145,7 +145,7 @@ pub fn remove_if_same(path: &Path, id: Identity) {
 
 /// Renames `from` to `to`, failing with [`io::ErrorKind::AlreadyExists`] rather than replacing
 /// anything at `to`.
-pub fn rename_no_replace(from: &Path, to: &Path) -> io::Result<()> {
+pub(crate) fn rename_no_replace(from: &Path, to: &Path) -> io::Result<()> {
     use rustix::fs::{renameat_with, RenameFlags, CWD};
     match renameat_with(CWD, from, CWD, to, RenameFlags::NOREPLACE) {
         Ok(()) => Ok(()),

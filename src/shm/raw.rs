@@ -13,7 +13,7 @@ use std::fs::File;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
 /// A shared mapping of a whole file (or an anonymous one, for an engine without a service).
-pub struct Region {
+pub(crate) struct Region {
     map: MmapRaw,
     writable: bool,
 }
@@ -33,13 +33,13 @@ impl Region {
 
     /// [`map`](Self::map), with every page faulted in now (the service's texel mapping: tile
     /// reads then write into memory that is already there, instead of faulting page by page).
-    pub fn map_populated(file: &File) -> std::io::Result<Region> {
+    pub(crate) fn map_populated(file: &File) -> std::io::Result<Region> {
         let map = memmap2::MmapOptions::new().populate().map_raw(file)?;
         Ok(Region { map, writable: true })
     }
 
     /// Maps `file` read-only and shared: loads only (a reader of the texel mapping).
-    pub fn map_read_only(file: &File) -> std::io::Result<Region> {
+    pub(crate) fn map_read_only(file: &File) -> std::io::Result<Region> {
         let map = memmap2::MmapOptions::new().map_raw_read_only(file)?;
         Ok(Region { map, writable: false })
     }
@@ -101,7 +101,7 @@ impl Region {
     }
 
     /// Atomic compare-and-exchange of the u64 at `offset`.
-    pub fn compare_exchange(&self, offset: usize, current: u64, new: u64) -> Result<u64, u64> {
+    pub(crate) fn compare_exchange(&self, offset: usize, current: u64, new: u64) -> Result<u64, u64> {
         self.check_writable();
         self.atomic(offset).compare_exchange(current, new, Ordering::AcqRel, Ordering::Acquire)
     }
@@ -147,18 +147,18 @@ impl Region {
 
     /// Reads a little-endian u32 (static fields, read after the magic's acquire load): an
     /// atomic load, so that a writer that breaks the protocol cannot make it a data race.
-    pub fn read_u32(&self, offset: usize) -> u32 {
+    pub(crate) fn read_u32(&self, offset: usize) -> u32 {
         self.atomic32(offset).load(Ordering::Relaxed)
     }
 
     /// Reads a little-endian u64 (static fields; see [`read_u32`](Self::read_u32)).
-    pub fn read_u64(&self, offset: usize) -> u64 {
+    pub(crate) fn read_u64(&self, offset: usize) -> u64 {
         self.atomic(offset).load(Ordering::Relaxed)
     }
 
     /// Writes a little-endian u32 (static fields, before the magic is published): an atomic
     /// store.
-    pub fn write_u32(&self, offset: usize, value: u32) {
+    pub(crate) fn write_u32(&self, offset: usize, value: u32) {
         self.check_writable();
         self.atomic32(offset).store(value, Ordering::Relaxed)
     }

@@ -8,7 +8,7 @@
 use super::client::{Client, ReadError};
 
 /// The texel a verified texture should hold at (level, s, t), written into the buffer.
-pub type Oracle<'a> = &'a dyn Fn(u32, u64, u64, &mut [u8]);
+pub(crate) type Oracle<'a> = &'a dyn Fn(u32, u64, u64, &mut [u8]);
 
 /// A small deterministic random generator for picking blocks (splitmix64 steps).
 fn next(state: &mut u64) -> u64 {

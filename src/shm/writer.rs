@@ -212,7 +212,7 @@ impl Writer {
     }
 
     /// Where every level lies.
-    pub fn placement(&self) -> &Placement {
+    pub(crate) fn placement(&self) -> &Placement {
         self.memory.placement()
     }
 
@@ -232,7 +232,7 @@ impl Writer {
     /// How many requests renderers have made so far (one 8-byte `pread`: cheap enough to poll
     /// while waiting for the next tick). The value only says whether to tick early; the request
     /// itself is read consistently by [`request`](Self::request).
-    pub fn request_count(&self) -> u64 {
+    pub(crate) fn request_count(&self) -> u64 {
         let mut b = [0u8; 8];
         match self.requests.read_at(&mut b, request::COUNT as u64) {
             Ok(8) => u64::from_le_bytes(b),
@@ -372,7 +372,7 @@ fn held(lock: &File, path: &Path, name: &str) -> ShmError {
 /// How long a mapping's heartbeat may stand still while its writer still counts as running, at
 /// least: a live service's heartbeat has been seen to pause for a quarter of a second, and one
 /// ticking slowly beats once a period (ten periods are allowed when that is longer).
-pub const LIVE_HEARTBEAT_MS: u64 = 10_000;
+pub(crate) const LIVE_HEARTBEAT_MS: u64 = 10_000;
 
 /// The process id of a service that still publishes the mapping at `path`: a regular file of
 /// this user with this layout's magic, not marked closed, whose writer (not this process) is a

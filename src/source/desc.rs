@@ -93,7 +93,7 @@ impl TextureDesc {
     /// A texture with explicitly described levels (as read from a plan). Levels must be the full
     /// mipmap chain of `size` down to 1 x 1, or, for a non-square texture, the chain down to where
     /// the short side is 1 (as Performer 3.0 builds it).
-    pub fn from_levels(
+    pub(crate) fn from_levels(
         size: [u64; 2],
         clip_size: u64,
         format: TexelFormat,
@@ -169,7 +169,7 @@ impl TextureDesc {
     }
 
     /// The mem region level `k`'s configuration asks for, if any.
-    pub fn mem_grid(&self, k: u32) -> Option<[u64; 2]> {
+    pub(crate) fn mem_grid(&self, k: u32) -> Option<[u64; 2]> {
         self.mem_grids.get(k as usize).copied().flatten()
     }
 

@@ -190,7 +190,7 @@ pub struct FileSource {
 /// The texture a plan describes: level sizes from the plan, image-cache levels in their tile
 /// size and configured mem region, pyramid levels as one tile; the invalid border clamped so that one texel of each stack
 /// window stays readable (Performer raises it to at least 8, more than a tiny clip size allows).
-pub fn texture_desc(plan: &ClipTexturePlan) -> Result<TextureDesc, FileSourceError> {
+pub(crate) fn texture_desc(plan: &ClipTexturePlan) -> Result<TextureDesc, FileSourceError> {
     if plan.virt_size[2] > 1 {
         return Err(FileSourceError::Depth { path: plan.path.clone(), depth: plan.virt_size[2] });
     }
@@ -287,7 +287,7 @@ impl FileSource {
 
     /// A source over `plan`'s files that reads the remote locations among them through
     /// `remote` (without one, a remote tile is an I/O error saying so).
-    pub fn with_remote(
+    pub(crate) fn with_remote(
         plan: ClipTexturePlan,
         limits: &Limits,
         remote: Option<Arc<dyn RemoteReader>>,
@@ -406,7 +406,7 @@ impl FileSource {
 }
 
 /// Whether `path` names a compressed tile file (`rRRR.cCCC.raw.zst`, docs/COMPRESSED-TILES.md).
-pub fn is_compressed(path: &Path) -> bool {
+pub(crate) fn is_compressed(path: &Path) -> bool {
     path.extension().is_some_and(|e| e == "zst")
 }
 

@@ -161,7 +161,7 @@ pub trait TileSource: Send + Sync {
 
 /// Checks that `tile` exists in `desc` and that `out` is one tile long: the common preamble of
 /// every [`TileSource::read_tile`].
-pub fn check_request(desc: &TextureDesc, tile: TileId, out: &[u8]) -> Result<(), SourceError> {
+pub(crate) fn check_request(desc: &TextureDesc, tile: TileId, out: &[u8]) -> Result<(), SourceError> {
     if tile.level as usize >= desc.level_count() {
         return Err(SourceError::OutOfRange { tile, tiles: [0, 0], levels: desc.level_count() });
     }

@@ -33,11 +33,11 @@ pub fn key(location: &str, offset: u64, len: u64) -> String {
 }
 
 /// The first bytes of every cache file (the format's version is its last byte).
-pub const MAGIC: [u8; 8] = *b"clipmapC";
+pub(crate) const MAGIC: [u8; 8] = *b"clipmapC";
 
 /// Bytes before the key: magic, key length (u32), data length (u64), checksum (u64), all
 /// little-endian.
-pub const HEADER: usize = 8 + 4 + 8 + 8;
+pub(crate) const HEADER: usize = 8 + 4 + 8 + 8;
 
 /// Attempts at a fresh temporary name before a range is left uncached.
 const TEMPORARY_ATTEMPTS: u32 = 16;
@@ -62,7 +62,7 @@ fn file_name(key: &str) -> String {
 /// lane always changes the checksum; any other change (bits flipped, bytes overwritten, a torn
 /// write, another entry's bytes) goes unnoticed with a chance of about 2^-64. It is not a
 /// cryptographic hash: someone who can write the cache directory can forge an entry.
-pub fn checksum(key: &[u8], data: &[u8]) -> u64 {
+pub(crate) fn checksum(key: &[u8], data: &[u8]) -> u64 {
     use crate::source::procedural::splitmix64;
     let mut lanes = [
         splitmix64(key.len() as u64),

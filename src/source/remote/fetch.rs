@@ -39,7 +39,7 @@ pub enum Failure {
 
 impl Failure {
     /// A transient failure without `Retry-After`.
-    pub fn transient(why: impl Into<String>) -> Failure {
+    pub(crate) fn transient(why: impl Into<String>) -> Failure {
         Failure::Transient { why: why.into(), retry_after: None, timed_out: false }
     }
 }
@@ -92,7 +92,7 @@ impl Segments {
     }
 
     /// Copies every byte into `out`, which is [`Segments::len`] long.
-    pub fn copy_to(&self, out: &mut [u8]) {
+    pub(crate) fn copy_to(&self, out: &mut [u8]) {
         let mut at = 0;
         for p in &self.0 {
             out[at..at + p.len()].copy_from_slice(p);
@@ -311,7 +311,7 @@ impl Fetcher {
     }
 
     /// Runs `attempt` until it succeeds, fails for good or runs out of retries.
-    pub fn with_retries<T>(
+    pub(crate) fn with_retries<T>(
         &self,
         loc: &Location,
         object: &str,
@@ -351,7 +351,7 @@ impl Fetcher {
 }
 
 /// Results whose bytes are counted.
-pub trait GotBytes {
+pub(crate) trait GotBytes {
     /// Bytes received.
     fn byte_count(&self) -> u64;
 }

@@ -19,7 +19,7 @@ use reqwest::StatusCode;
 use std::time::Duration;
 
 /// Largest object read whole from a server that does not answer range requests.
-pub const MAX_WHOLE_OBJECT: u64 = 256 << 20;
+pub(crate) const MAX_WHOLE_OBJECT: u64 = 256 << 20;
 
 /// Ranged reads over HTTP(S).
 pub struct Http {

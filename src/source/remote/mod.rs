@@ -114,7 +114,7 @@ impl Remote {
 
     /// The bytes of `name` from `start` on, at most `max` of them (fewer when the object ends
     /// first), with retries; not merged with other reads.
-    pub fn read_upto(&self, name: &str, start: u64, max: u64) -> Result<bytes::Bytes, ReadError> {
+    pub(crate) fn read_upto(&self, name: &str, start: u64, max: u64) -> Result<bytes::Bytes, ReadError> {
         let loc = parse(name)?;
         self.fetcher.with_retries(&loc, name, |b| b.get(&loc, start, max)).map(|g| g.bytes.to_bytes())
     }
@@ -216,7 +216,7 @@ impl Remote {
 
 /// The endpoint key of a resolved name: `scheme://authority` of a URL (lowercase), `s3://bucket`,
 /// or `file` for a local path. Cheap: no full URL parse.
-pub fn endpoint_key(name: &str) -> String {
+pub(crate) fn endpoint_key(name: &str) -> String {
     if !crate::plan::is_remote_name(name) {
         return "file".to_string();
     }
@@ -227,7 +227,7 @@ pub fn endpoint_key(name: &str) -> String {
 
 /// Whether `plan` names any remote location (a tile, a default tile, a stream server, a
 /// pyramid file).
-pub fn plan_is_remote(plan: &ClipTexturePlan) -> bool {
+pub(crate) fn plan_is_remote(plan: &ClipTexturePlan) -> bool {
     plan.levels.iter().any(|l| match &l.kind {
         LevelKind::Icache(ic) => {
             ic.default_tile.as_deref().is_some_and(crate::plan::is_remote)
@@ -272,7 +272,11 @@ impl RemoteSource {
     }
 
     /// A source over `plan` reading through `remote`.
-    pub fn with_remote(plan: ClipTexturePlan, limits: &Limits, remote: Arc<Remote>) -> Result<Self, RemoteSourceError> {
+    pub(crate) fn with_remote(
+        plan: ClipTexturePlan,
+        limits: &Limits,
+        remote: Arc<Remote>,
+    ) -> Result<Self, RemoteSourceError> {
         let files = FileSource::with_remote(plan, limits, Some(Arc::clone(&remote) as Arc<dyn RemoteReader>))?;
         let mut endpoints: Vec<String> = Vec::new();
         let mut index = HashMap::new();

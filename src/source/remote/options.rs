@@ -80,7 +80,7 @@ impl RemoteOptions {
     }
 
     /// The defaults, changed by the variables `get` returns.
-    pub fn from_vars(get: impl Fn(&str) -> Option<String>) -> Result<Self, OptionsError> {
+    pub(crate) fn from_vars(get: impl Fn(&str) -> Option<String>) -> Result<Self, OptionsError> {
         let mut o = RemoteOptions::default();
         let num =
             |var: &'static str, min: u64, max: u64, expected: &'static str| -> Result<Option<u64>, OptionsError> {
@@ -122,7 +122,7 @@ impl RemoteOptions {
     }
 
     /// The backoff before retry `attempt` (1 for the first retry), jittered by `unit` in [0, 1).
-    pub fn backoff_for(&self, attempt: u32, unit: f64) -> Duration {
+    pub(crate) fn backoff_for(&self, attempt: u32, unit: f64) -> Duration {
         let base = self.backoff.saturating_mul(1u32 << attempt.saturating_sub(1).min(20)).min(self.backoff_max);
         base.mul_f64(0.5 + 0.5 * unit.clamp(0.0, 1.0))
     }

@@ -41,7 +41,7 @@ pub fn block<T: Send + 'static>(
 }
 
 /// Installs the process's TLS provider (ring) once, for `https://` and the S3 client.
-pub fn install_crypto() {
+pub(crate) fn install_crypto() {
     static DONE: OnceLock<()> = OnceLock::new();
     DONE.get_or_init(|| {
         // Another part of the process may have installed one already: that one is kept.
