@@ -199,6 +199,9 @@ pub struct LevelPaging {
     pub grid: [u64; 2],
     /// Why.
     pub reason: Reason,
+    /// The read latency this level's lead plans with (ticks): the slowest of the stream servers
+    /// that read its tiles ([`StreamLatencies::level`]; 0 for a fixed level).
+    pub read_latency_ticks: f64,
 }
 
 /// The centre's motion, smoothed: level-0 texels a tick per axis.
@@ -281,6 +284,73 @@ impl Latency {
     /// up) does not stay the plan for good.
     pub fn rest(&mut self) {
         self.ticks += (INITIAL_LATENCY_TICKS - self.ticks) / 64.0;
+    }
+}
+
+/// Each stream server's read latency, and which stream servers read each level's tiles: a level
+/// plans its lead with the slowest of its own streams, so a slow stream lengthens the leads of
+/// the levels it serves and no other's. With one stream every level plans with its latency.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StreamLatencies {
+    /// Per stream server, in server order.
+    streams: Vec<Latency>,
+    /// Per level, per stream server: whether the server reads some tile of the level asked for
+    /// so far.
+    levels: Vec<Vec<bool>>,
+}
+
+impl StreamLatencies {
+    /// `streams` stream servers (at least one) serving `levels` levels, nothing measured yet.
+    pub fn new(streams: usize, levels: usize) -> Self {
+        let streams = streams.max(1);
+        StreamLatencies { streams: vec![Latency::default(); streams], levels: vec![vec![false; streams]; levels] }
+    }
+
+    /// Notes that stream server `stream` reads a tile of level `level` (ignored out of range).
+    pub fn note(&mut self, level: usize, stream: usize) {
+        if let Some(on) = self.levels.get_mut(level).and_then(|l| l.get_mut(stream)) {
+            *on = true;
+        }
+    }
+
+    /// Takes one read's latency (ticks) on stream server `stream` (ignored out of range).
+    pub fn sample(&mut self, stream: usize, ticks: u64) {
+        if let Some(l) = self.streams.get_mut(stream) {
+            l.sample(ticks);
+        }
+    }
+
+    /// A tick on which stream server `stream` measured no read ([`Latency::rest`]).
+    pub fn rest(&mut self, stream: usize) {
+        if let Some(l) = self.streams.get_mut(stream) {
+            l.rest();
+        }
+    }
+
+    /// Number of stream servers.
+    pub fn stream_count(&self) -> usize {
+        self.streams.len()
+    }
+
+    /// Each stream server's latency (ticks), in server order.
+    pub fn per_stream(&self) -> Vec<f64> {
+        self.streams.iter().map(|l| l.ticks).collect()
+    }
+
+    /// The stream servers known to read level `level`'s tiles (none before it asked for one).
+    pub fn streams_of(&self, level: usize) -> impl Iterator<Item = usize> + '_ {
+        self.levels.get(level).into_iter().flat_map(|l| l.iter().enumerate().filter(|(_, &on)| on).map(|(s, _)| s))
+    }
+
+    /// The latency level `level` plans with (ticks): the slowest of the stream servers that read
+    /// its tiles, or of all of them before it has asked for a tile.
+    pub fn level(&self, level: usize) -> f64 {
+        self.streams_of(level).map(|s| self.streams[s].ticks).reduce(f64::max).unwrap_or_else(|| self.slowest())
+    }
+
+    /// The slowest stream server's latency (ticks).
+    pub fn slowest(&self) -> f64 {
+        self.streams.iter().map(|l| l.ticks).fold(INITIAL_LATENCY_TICKS, f64::max)
     }
 }
 
@@ -447,6 +517,57 @@ mod tests {
             l.rest();
         }
         assert!(l.ticks < 2.0, "a peak decays at rest: {}", l.ticks);
+    }
+
+    #[test]
+    fn each_level_plans_with_the_slowest_of_its_own_streams() {
+        // Levels 0 and 2 read from stream 0, level 1 from stream 1, level 3 from both; level 4
+        // has asked for nothing yet.
+        let mut l = StreamLatencies::new(2, 5);
+        for (level, stream) in [(0, 0), (2, 0), (1, 1), (3, 0), (3, 1)] {
+            l.note(level, stream);
+        }
+        l.note(9, 0);
+        l.note(0, 7);
+        // Stream 0 slow (6 ticks a read), stream 1 fast (1 tick).
+        for _ in 0..10 {
+            l.sample(0, 6);
+            l.sample(1, 1);
+        }
+        assert_eq!(l.per_stream(), vec![6.0, 1.0]);
+        assert_eq!([0, 1, 2, 3, 4].map(|k| l.level(k)), [6.0, 1.0, 6.0, 6.0, 6.0]);
+        assert_eq!(l.streams_of(3).collect::<Vec<_>>(), vec![0, 1]);
+        // The slow stream's levels get the longer lead; the fast stream's are not inflated.
+        let speed = 200.0;
+        assert_eq!(lead_texels(speed, l.level(0)), 1200);
+        assert_eq!(lead_texels(speed, l.level(1)), lead_texels(speed, INITIAL_LATENCY_TICKS));
+        // Swapped: the other levels are the slow ones.
+        let mut swapped = StreamLatencies::new(2, 2);
+        swapped.note(0, 0);
+        swapped.note(1, 1);
+        swapped.sample(1, 6);
+        assert_eq!([swapped.level(0), swapped.level(1)], [1.0, 6.0]);
+        // Resting one stream leaves the other's estimate alone.
+        l.rest(0);
+        assert!(l.level(0) < 6.0);
+        assert_eq!(l.level(1), 1.0);
+        assert_eq!(l.slowest(), l.level(0));
+    }
+
+    #[test]
+    fn one_stream_plans_every_level_with_its_latency() {
+        let mut l = StreamLatencies::new(1, 3);
+        let mut one = Latency::default();
+        l.note(1, 0);
+        for x in [3, 1, 7, 2] {
+            l.sample(0, x);
+            one.sample(x);
+            assert_eq!([l.level(0), l.level(1), l.level(2), l.slowest()], [one.ticks; 4]);
+        }
+        l.rest(0);
+        one.rest();
+        assert_eq!([l.level(0), l.level(1), l.slowest()], [one.ticks; 3]);
+        assert_eq!(StreamLatencies::new(0, 1).stream_count(), 1);
     }
 
     #[test]
