@@ -242,8 +242,11 @@ pub struct Clipmap {
 #[derive(Debug, Default)]
 struct Controller {
     motion: adaptive::Motion,
-    /// Each stream server's read latency, and which servers read each level's tiles.
-    latency: adaptive::StreamLatencies,
+    /// Each stream server's read latency and tile rate, and which servers read each level's
+    /// tiles.
+    latency: adaptive::StreamMeasures,
+    /// Tiles first asked of each stream server since its rate last took a tick's counts.
+    asked_now: Vec<u64>,
     /// The tick each tile being read was first asked for, whether its level was whole then, and
     /// the stream server that reads it.
     asked: std::collections::HashMap<TileId, (u64, bool, usize)>,
@@ -389,7 +392,8 @@ impl Clipmap {
             controller: (settings_prefetch == PrefetchKind::Adaptive).then(|| Controller {
                 lead: vec![[0, 0]; level_count],
                 needed: vec![[0, 0]; level_count],
-                latency: adaptive::StreamLatencies::new(streams, level_count),
+                latency: adaptive::StreamMeasures::new(streams, level_count),
+                asked_now: vec![0; streams],
                 ..Controller::default()
             }),
         })
@@ -684,8 +688,10 @@ impl Clipmap {
     /// (taken, left for the next tick).
     fn take_reads(&mut self, started: Instant) -> (u64, usize) {
         self.backlog.extend(self.queues.drain());
-        // The stream servers that measured a read this tick.
-        let mut sampled = vec![false; self.controller.as_ref().map_or(0, |c| c.latency.stream_count())];
+        // The stream servers that measured a read this tick, and the tiles each delivered.
+        let streams = self.controller.as_ref().map_or(0, |c| c.latency.stream_count());
+        let mut sampled = vec![false; streams];
+        let mut taken = vec![0u64; streams];
         let budget = self.settings.budget_ns.map(Duration::from_nanos);
         let mut admitted = 0;
         let mut n = 0u32;
@@ -695,11 +701,12 @@ impl Clipmap {
                     Admit::Admitted => {
                         admitted += 1;
                         if let Some(c) = &mut self.controller {
-                            if let Some((at, true, stream)) = c.asked.remove(&done.tile) {
-                                c.latency.sample(stream, self.tick.saturating_sub(at));
-                                if let Some(s) = sampled.get_mut(stream) {
-                                    *s = true;
+                            if let Some((at, whole, stream)) = c.asked.remove(&done.tile) {
+                                if whole {
+                                    c.latency.sample(stream, self.tick.saturating_sub(at));
+                                    sampled[stream] = true;
                                 }
+                                taken[stream] += 1;
                             }
                         }
                         if delivered == crate::source::Delivered::Default {
@@ -733,6 +740,10 @@ impl Clipmap {
         if let Some(c) = &mut self.controller {
             for (stream, _) in sampled.iter().enumerate().filter(|(_, &measured)| !measured) {
                 c.latency.rest(stream);
+            }
+            for (stream, &d) in taken.iter().enumerate() {
+                let asked = std::mem::take(&mut c.asked_now[stream]);
+                c.latency.count(stream, asked, d);
             }
         }
         (admitted, self.backlog.len())
@@ -865,6 +876,7 @@ impl Clipmap {
                     if let std::collections::hash_map::Entry::Vacant(e) = c.asked.entry(tile) {
                         let stream = self.queues.stream_of(tile);
                         c.latency.note(k, stream);
+                        c.asked_now[stream] += 1;
                         e.insert((self.tick, whole, stream));
                     }
                 }
@@ -902,7 +914,11 @@ impl Clipmap {
                 } else {
                     pending.iter().any(|&p| p)
                 };
-                if reason == adaptive::Reason::BudgetBound && backlog && !complete[k] {
+                // A lead the grid cannot hold is the budget's doing only while the source keeps
+                // up: reads waiting in the level's queues, or a queue delivering less than is
+                // asked of it (a rate a lead cannot raise), make it the source's.
+                let source_short = backlog || c.latency.level_short(k);
+                if reason == adaptive::Reason::BudgetBound && source_short && !complete[k] {
                     reason = adaptive::Reason::SourceBound;
                 }
                 let need = tiles_covering(l.frame.tex, l.shape.tile);

@@ -559,7 +559,9 @@ fn adaptive_paging_says_source_bound_when_the_disk_cannot_keep_up() {
     use crate::paging::adaptive::Reason;
     let (map, p) = adaptive_flight(2, 40, 60);
     assert!(map.min_lod() > 0.0, "two tiles a tick cannot keep level 0 at 40 texels a tick");
-    assert!(matches!(p.reason, Reason::SourceBound | Reason::BudgetBound), "{p:?}");
+    // The disk delivers two of the many tiles a tick the flight asks for: whatever the lead and
+    // the grid, the rate is short.
+    assert_eq!(p.reason, Reason::SourceBound, "{p:?}");
     assert!(map.stats().read_latency_ticks > 1.0, "put-off reads are late: {}", map.stats().read_latency_ticks);
 }
 

@@ -200,7 +200,7 @@ pub struct LevelPaging {
     /// Why.
     pub reason: Reason,
     /// The read latency this level's lead plans with (ticks): the slowest of the stream servers
-    /// that read its tiles ([`StreamLatencies::level`]; 0 for a fixed level).
+    /// that read its tiles ([`StreamMeasures::level`]; 0 for a fixed level).
     pub read_latency_ticks: f64,
 }
 
@@ -287,23 +287,84 @@ impl Latency {
     }
 }
 
-/// Each stream server's read latency, and which stream servers read each level's tiles: a level
-/// plans its lead with the slowest of its own streams, so a slow stream lengthens the leads of
-/// the levels it serves and no other's. With one stream every level plans with its latency.
+/// Weight of a new tick's count in a smoothed [`TileRate`] (about the last eight ticks).
+const RATE_WEIGHT: f64 = 0.125;
+
+/// The share of the tiles asked of a stream server it must deliver to count as keeping up.
+pub const KEEPING_UP_SHARE: f64 = 0.75;
+
+/// A stream server's measured tile rate: the tiles first asked of it and the tiles it delivered,
+/// a tick each, smoothed over about eight ticks.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TileRate {
+    /// Tiles asked for a tick (each tile once, however often it is asked again while it loads).
+    pub asked: f64,
+    /// Tiles delivered (read and taken) a tick.
+    pub delivered: f64,
+}
+
+impl TileRate {
+    /// Takes one tick's counts.
+    pub fn update(&mut self, asked: u64, delivered: u64) {
+        self.asked += RATE_WEIGHT * (asked as f64 - self.asked);
+        self.delivered += RATE_WEIGHT * (delivered as f64 - self.delivered);
+    }
+
+    /// Whether the server delivers less than [`KEEPING_UP_SHARE`] of the tiles asked of it, at
+    /// least one tile a tick being asked: it cannot keep up at any lead (the tiles it does not
+    /// deliver leave their mem regions unread, or wait).
+    pub fn short(&self) -> bool {
+        self.asked >= 1.0 && self.delivered < KEEPING_UP_SHARE * self.asked
+    }
+}
+
+/// Each stream server's read latency and tile rate, and which stream servers read each level's
+/// tiles: a level plans its lead with the slowest of its own streams, so a slow stream lengthens
+/// the leads of the levels it serves and no other's. With one stream every level plans with its
+/// latency.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct StreamLatencies {
+pub struct StreamMeasures {
     /// Per stream server, in server order.
     streams: Vec<Latency>,
+    /// Per stream server, in server order.
+    rates: Vec<TileRate>,
     /// Per level, per stream server: whether the server reads some tile of the level asked for
     /// so far.
     levels: Vec<Vec<bool>>,
 }
 
-impl StreamLatencies {
+impl StreamMeasures {
     /// `streams` stream servers (at least one) serving `levels` levels, nothing measured yet.
     pub fn new(streams: usize, levels: usize) -> Self {
         let streams = streams.max(1);
-        StreamLatencies { streams: vec![Latency::default(); streams], levels: vec![vec![false; streams]; levels] }
+        StreamMeasures {
+            streams: vec![Latency::default(); streams],
+            rates: vec![TileRate::default(); streams],
+            levels: vec![vec![false; streams]; levels],
+        }
+    }
+
+    /// Takes one tick's tile counts of stream server `stream` (ignored out of range).
+    pub fn count(&mut self, stream: usize, asked: u64, delivered: u64) {
+        if let Some(r) = self.rates.get_mut(stream) {
+            r.update(asked, delivered);
+        }
+    }
+
+    /// Each stream server's tile rate, in server order.
+    pub fn rates(&self) -> &[TileRate] {
+        &self.rates
+    }
+
+    /// Whether a stream server that reads level `level`'s tiles (any server, before it has asked
+    /// for a tile) delivers less than is asked of it ([`TileRate::short`]).
+    pub fn level_short(&self, level: usize) -> bool {
+        let mut own = self.streams_of(level).peekable();
+        if own.peek().is_some() {
+            own.any(|s| self.rates[s].short())
+        } else {
+            self.rates.iter().any(|r| r.short())
+        }
     }
 
     /// Notes that stream server `stream` reads a tile of level `level` (ignored out of range).
@@ -523,7 +584,7 @@ mod tests {
     fn each_level_plans_with_the_slowest_of_its_own_streams() {
         // Levels 0 and 2 read from stream 0, level 1 from stream 1, level 3 from both; level 4
         // has asked for nothing yet.
-        let mut l = StreamLatencies::new(2, 5);
+        let mut l = StreamMeasures::new(2, 5);
         for (level, stream) in [(0, 0), (2, 0), (1, 1), (3, 0), (3, 1)] {
             l.note(level, stream);
         }
@@ -542,7 +603,7 @@ mod tests {
         assert_eq!(lead_texels(speed, l.level(0)), 1200);
         assert_eq!(lead_texels(speed, l.level(1)), lead_texels(speed, INITIAL_LATENCY_TICKS));
         // Swapped: the other levels are the slow ones.
-        let mut swapped = StreamLatencies::new(2, 2);
+        let mut swapped = StreamMeasures::new(2, 2);
         swapped.note(0, 0);
         swapped.note(1, 1);
         swapped.sample(1, 6);
@@ -555,8 +616,32 @@ mod tests {
     }
 
     #[test]
+    fn a_stream_is_short_when_it_delivers_less_than_is_asked_of_it() {
+        let mut m = StreamMeasures::new(2, 3);
+        m.note(0, 0);
+        m.note(1, 1);
+        for _ in 0..40 {
+            // Stream 0 asked 20 tiles a tick, delivers 2; stream 1 delivers what it is asked.
+            m.count(0, 20, 2);
+            m.count(1, 20, 20);
+        }
+        assert!(m.rates()[0].short() && !m.rates()[1].short(), "{:?}", m.rates());
+        assert_eq!([m.level_short(0), m.level_short(1), m.level_short(2)], [true, false, true]);
+        // A burst asked at one tick and delivered at the next is not short once it has passed.
+        let mut burst = TileRate::default();
+        burst.update(500, 0);
+        burst.update(0, 500);
+        for _ in 0..8 {
+            burst.update(10, 10);
+        }
+        assert!(!burst.short(), "{burst:?}");
+        // Nothing asked: never short.
+        assert!(!TileRate::default().short());
+    }
+
+    #[test]
     fn one_stream_plans_every_level_with_its_latency() {
-        let mut l = StreamLatencies::new(1, 3);
+        let mut l = StreamMeasures::new(1, 3);
         let mut one = Latency::default();
         l.note(1, 0);
         for x in [3, 1, 7, 2] {
@@ -567,7 +652,7 @@ mod tests {
         l.rest(0);
         one.rest();
         assert_eq!([l.level(0), l.level(1), l.slowest()], [one.ticks; 3]);
-        assert_eq!(StreamLatencies::new(0, 1).stream_count(), 1);
+        assert_eq!(StreamMeasures::new(0, 1).stream_count(), 1);
     }
 
     #[test]
