@@ -6,7 +6,8 @@
 //! tiles ([`lead_tiles`]). The speed is the centre's motion smoothed over a few ticks
 //! ([`Motion`]: a reversal takes the new direction at once, a jump recentres), the latency the
 //! ticks from asking for a tile to taking it, held at its recent peak and decaying slowly
-//! ([`Latency`]). The mem region ([`region`]) is then the ring of the default (lookahead-1) grid,
+//! ([`Latency`]), measured per stream server: each level plans with the slowest of the servers
+//! that read its tiles ([`StreamMeasures`], which also measures each server's tile rate). The mem region ([`region`]) is then the ring of the default (lookahead-1) grid,
 //! extended ahead of the motion until the lead lies beyond the window, as far as the grid allows:
 //! at hover and on slow flights it is the ring itself (no more tiles read than the ring reads),
 //! on a fast straight flight it is `ahead` with the needed distance, and after a jump it is
@@ -162,10 +163,13 @@ pub enum Reason {
     Hover,
     /// Moving, with the whole lead the motion and the latency call for.
     KeepingUp,
-    /// Moving, its window not whole while the lead is what it needs: the source does not
-    /// deliver fast enough.
+    /// Moving, its window not whole while the lead is what it needs, or the lead needed more
+    /// than the grid's spare tiles while the level's stream servers have reads waiting or
+    /// deliver less than is asked of them ([`TileRate::short`]): the source does not deliver
+    /// fast enough.
     SourceBound,
-    /// The lead needed is more than the grid's spare tiles: the memory budget limits it.
+    /// The lead needed is more than the grid's spare tiles while the source keeps up: the memory
+    /// budget limits it.
     BudgetBound,
     /// The window moves more than the grid's spare tiles in one tick: no read-ahead can keep it.
     BeyondGrid,
@@ -427,7 +431,9 @@ pub fn held_lead(previous: u64, needed: u64) -> u64 {
 
 /// The reason for one level's paging: `speed` level texels a tick on an axis, `needed` the lead
 /// in texels the motion calls for, `whole` whether the level's valid region is whole. The grid
-/// holds a lead of at most its spare tiles beyond the window's.
+/// holds a lead of at most its spare tiles beyond the window's. The clipmap turns a
+/// [`Reason::BudgetBound`] of a level that is not whole into [`Reason::SourceBound`] when the
+/// level's stream servers do not keep up (this function does not see them).
 pub fn reason(shape: &LevelShape, speed: [u64; 2], needed: [u64; 2], whole: bool) -> Reason {
     let n = tiles_in_level(shape.size, shape.tile);
     if shape.grid[0] >= n[0] && shape.grid[1] >= n[1] {
