@@ -242,14 +242,17 @@ pub struct Clipmap {
 #[derive(Debug, Default)]
 struct Controller {
     motion: adaptive::Motion,
-    latency: adaptive::Latency,
-    /// The tick each tile being read was first asked for, and whether its level was whole then.
-    asked: std::collections::HashMap<TileId, (u64, bool)>,
+    /// Each stream server's read latency and tile rate, and which servers read each level's
+    /// tiles.
+    latency: adaptive::StreamMeasures,
+    /// Tiles first asked of each stream server since its rate last took a tick's counts.
+    asked_now: Vec<u64>,
+    /// The tick each tile being read was first asked for, whether its level was whole then, and
+    /// the stream server that reads it.
+    asked: std::collections::HashMap<TileId, (u64, bool, usize)>,
     /// Each level's lead now and the lead its motion needed (level texels per axis).
     lead: Vec<[u64; 2]>,
     needed: Vec<[u64; 2]>,
-    /// Latency samples taken so far.
-    samples: u64,
 }
 
 impl Clipmap {
@@ -368,7 +371,7 @@ impl Clipmap {
             None => source.clone(),
         };
         let queues = ReadQueues::new(reader, memory, settings.streams, settings.limits)?;
-        let (settings_prefetch, level_count) = (settings.prefetch, levels.len());
+        let (settings_prefetch, level_count, streams) = (settings.prefetch, levels.len(), queues.streams());
         Ok(Clipmap {
             border: desc.invalid_border(),
             min_lod: desc.level_count() as f64,
@@ -388,6 +391,8 @@ impl Clipmap {
             controller: (settings_prefetch == PrefetchKind::Adaptive).then(|| Controller {
                 lead: vec![[0, 0]; level_count],
                 needed: vec![[0, 0]; level_count],
+                latency: adaptive::StreamMeasures::new(streams, level_count),
+                asked_now: vec![0; streams],
                 ..Controller::default()
             }),
         })
@@ -617,7 +622,9 @@ impl Clipmap {
         self.update_min_lod(&complete);
         self.publish();
         self.stats.paging = self.paging_report(&complete);
-        self.stats.read_latency_ticks = self.controller.as_ref().map_or(0.0, |c| c.latency.ticks);
+        self.stats.read_latency_ticks = self.controller.as_ref().map_or(0.0, |c| c.latency.slowest());
+        self.stats.stream_read_latency_ticks =
+            self.controller.as_ref().map_or_else(|| vec![0.0; self.queues.streams()], |c| c.latency.per_stream());
 
         // Only now may slots of tiles that left their mem region go to the tiles that entered.
         self.request_tiles(&velocities);
@@ -671,7 +678,10 @@ impl Clipmap {
     /// (taken, left for the next tick).
     fn take_reads(&mut self, started: Instant) -> (u64, usize) {
         self.backlog.extend(self.queues.drain());
-        let sampled = self.controller.as_ref().map(|c| c.samples);
+        // The stream servers that measured a read this tick, and the tiles each delivered.
+        let streams = self.controller.as_ref().map_or(0, |c| c.latency.stream_count());
+        let mut sampled = vec![false; streams];
+        let mut taken = vec![0u64; streams];
         let budget = self.settings.budget_ns.map(Duration::from_nanos);
         let mut admitted = 0;
         let mut n = 0u32;
@@ -681,9 +691,12 @@ impl Clipmap {
                     Admit::Admitted => {
                         admitted += 1;
                         if let Some(c) = &mut self.controller {
-                            if let Some((at, true)) = c.asked.remove(&done.tile) {
-                                c.latency.sample(self.tick.saturating_sub(at));
-                                c.samples += 1;
+                            if let Some((at, whole, stream)) = c.asked.remove(&done.tile) {
+                                if whole {
+                                    c.latency.sample(stream, self.tick.saturating_sub(at));
+                                    sampled[stream] = true;
+                                }
+                                taken[stream] += 1;
                             }
                         }
                         if delivered == crate::source::Delivered::Default {
@@ -715,8 +728,12 @@ impl Clipmap {
         }
         self.stats.tiles_read += admitted;
         if let Some(c) = &mut self.controller {
-            if sampled == Some(c.samples) {
-                c.latency.rest();
+            for (stream, _) in sampled.iter().enumerate().filter(|(_, &measured)| !measured) {
+                c.latency.rest(stream);
+            }
+            for (stream, &d) in taken.iter().enumerate() {
+                let asked = std::mem::take(&mut c.asked_now[stream]);
+                c.latency.count(stream, asked, d);
             }
         }
         (admitted, self.backlog.len())
@@ -746,12 +763,14 @@ impl Clipmap {
                     let smooth = ctl.motion.at_level(k32);
                     let speed = ctl.motion.speed_at_level(k32);
                     let jump = velocity.map(|x| x.unsigned_abs() > self.desc.clip_size());
+                    // The latency of the stream servers that read this level's tiles.
+                    let latency = ctl.latency.level(k);
                     let mut lead = [0; 2];
                     for a in 0..2 {
                         // The smoothed speed, or this tick's when it is faster (a flight that
                         // speeds up is led at once) and no jump.
                         let now = if jump[a] { 0.0 } else { v[a].unsigned_abs() as f64 };
-                        let need = adaptive::lead_texels(speed[a].max(now), ctl.latency.ticks);
+                        let need = adaptive::lead_texels(speed[a].max(now), latency);
                         ctl.needed[k][a] = need;
                         // A still axis (or one just recentred by a jump) holds no lead.
                         lead[a] = if smooth[a] == 0 { 0 } else { adaptive::held_lead(ctl.lead[k][a], need) };
@@ -843,7 +862,12 @@ impl Clipmap {
                     // read-ahead plans with: while it fills (a start, a jump, a source that
                     // cannot keep up) reads wait behind each other, which a lead cannot cure.
                     let whole = level.published == level.frame.valid;
-                    c.asked.entry(tile).or_insert((self.tick, whole));
+                    if let std::collections::hash_map::Entry::Vacant(e) = c.asked.entry(tile) {
+                        let stream = self.queues.stream_of(tile);
+                        c.latency.note(k, stream);
+                        c.asked_now[stream] += 1;
+                        e.insert((self.tick, whole, stream));
+                    }
                 }
             }
         }
@@ -859,7 +883,8 @@ impl Clipmap {
     /// Each level's paging this tick and why, from the controller's choices and whether each
     /// level's valid region is whole (`complete`).
     fn paging_report(&self, complete: &[bool]) -> Vec<adaptive::LevelPaging> {
-        let backlog = self.queues.stats().pending > 0;
+        // Reads waiting in each stream server's queue.
+        let pending: Vec<bool> = self.queues.stream_stats().iter().map(|q| q.pending > 0).collect();
         self.levels
             .iter()
             .enumerate()
@@ -870,7 +895,19 @@ impl Clipmap {
                 let speed = c.motion.speed_at_level(k as u32).map(|x| x.ceil() as u64);
                 let speed = if c.motion.at_level(k as u32) == [0, 0] { [0, 0] } else { speed };
                 let mut reason = adaptive::reason(&l.shape, speed, c.needed[k], complete[k]);
-                if reason == adaptive::Reason::BudgetBound && backlog && !complete[k] {
+                // Reads of this level's tiles wait in their stream servers' queues (any server's
+                // before the level has asked for a tile).
+                let mut streams = c.latency.streams_of(k).peekable();
+                let backlog = if streams.peek().is_some() {
+                    streams.any(|s| pending.get(s).copied().unwrap_or(false))
+                } else {
+                    pending.iter().any(|&p| p)
+                };
+                // A lead the grid cannot hold is the budget's doing only while the source keeps
+                // up: reads waiting in the level's queues, or a queue delivering less than is
+                // asked of it (a rate a lead cannot raise), make it the source's.
+                let source_short = backlog || c.latency.level_short(k);
+                if reason == adaptive::Reason::BudgetBound && source_short && !complete[k] {
                     reason = adaptive::Reason::SourceBound;
                 }
                 let need = tiles_covering(l.frame.tex, l.shape.tile);
@@ -888,6 +925,7 @@ impl Clipmap {
                     lead_texels: c.lead[k],
                     grid: l.shape.grid,
                     reason,
+                    read_latency_ticks: c.latency.level(k),
                 }
             })
             .collect()

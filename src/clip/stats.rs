@@ -99,8 +99,13 @@ pub struct Stats {
     /// ([`crate::paging::adaptive`]; reason `fixed` for the fixed policies).
     pub paging: Vec<LevelPaging>,
     /// The read latency the adaptive controller plans with (ticks from asking for a tile to
-    /// taking it, held at its recent peak; 0 for the fixed policies).
+    /// taking it, held at its recent peak; 0 for the fixed policies): the slowest stream
+    /// server's, [`stream_read_latency_ticks`](Self::stream_read_latency_ticks) has each one's.
     pub read_latency_ticks: f64,
+    /// Each stream server's read latency, in server order (ticks, as `read_latency_ticks`; 0
+    /// for the fixed policies). A level plans with the slowest of the servers that read its
+    /// tiles (`paging[].read_latency_ticks`).
+    pub stream_read_latency_ticks: Vec<f64>,
 }
 
 /// What one tick did.

@@ -39,6 +39,9 @@ pub struct StreamRow {
     pub tiles_per_second: f64,
     /// Bytes delivered per second over the sampling interval.
     pub bytes_per_second: f64,
+    /// The read latency the adaptive controller measured on this stream server, in ticks (from
+    /// the later reply; 0 for a fixed policy, `null` when the reply has none: an older clipmapd).
+    pub read_latency_ticks: Option<f64>,
 }
 
 /// One level as published.
@@ -158,6 +161,7 @@ fn stream_rows(before: &ServiceStats, after: &ServiceStats, dt: f64) -> Result<V
         return Err("the service's STATS reply has no `streams` (an older clipmapd)".into());
     }
     let rate = |a: u64, b: u64| if dt > 0.0 { a.saturating_sub(b) as f64 / dt } else { 0.0 };
+    let latency = &after.tick.engine.stream_read_latency_ticks;
     Ok(a.iter()
         .enumerate()
         .map(|(i, q)| {
@@ -173,6 +177,7 @@ fn stream_rows(before: &ServiceStats, after: &ServiceStats, dt: f64) -> Result<V
                 dropped: q.stale_dropped + q.overflow_dropped,
                 tiles_per_second: rate(q.reads_done, p.reads_done),
                 bytes_per_second: rate(q.bytes_read, p.bytes_read),
+                read_latency_ticks: latency.get(i).copied(),
             }
         })
         .collect())
@@ -293,10 +298,13 @@ pub fn human(s: &Status) -> String {
     match &s.streams_error {
         Some(e) => o.push_str(&format!("read queues: no figures ({e})\n")),
         None => {
-            o.push_str("stream  pending  in flight  peak  reads done  failed  dropped   tiles/s     MiB/s\n");
+            o.push_str(
+                "stream  pending  in flight  peak  reads done  failed  dropped   tiles/s     MiB/s  latency (ticks)\n",
+            );
             for q in &s.streams {
+                let latency = q.read_latency_ticks.map_or_else(|| "-".to_string(), |l| format!("{l:.1}"));
                 o.push_str(&format!(
-                    "{:<7} {:>7}  {:>9}  {:>4}  {:>10}  {:>6}  {:>7}  {:>8.1}  {:>8.2}\n",
+                    "{:<7} {:>7}  {:>9}  {:>4}  {:>10}  {:>6}  {:>7}  {:>8.1}  {:>8.2}  {:>15}\n",
                     q.stream,
                     q.pending,
                     q.in_flight,
@@ -305,7 +313,8 @@ pub fn human(s: &Status) -> String {
                     q.reads_failed,
                     q.dropped,
                     q.tiles_per_second,
-                    q.bytes_per_second / (1024.0 * 1024.0)
+                    q.bytes_per_second / (1024.0 * 1024.0),
+                    latency
                 ));
             }
         }
@@ -348,7 +357,7 @@ mod tests {
         let b = typed(
             serde_json::json!({"name": "x", "streams": [{"reads_done": 10, "bytes_read": 1000}, {"reads_done": 0}]}),
         );
-        let a = typed(serde_json::json!({"name": "x", "streams": [
+        let a = typed(serde_json::json!({"name": "x", "engine": {"stream_read_latency_ticks": [3.5]}, "streams": [
             {"reads_done": 30, "bytes_read": 5000, "pending": 7, "in_flight": 2, "peak_pending": 9,
              "stale_dropped": 1, "overflow_dropped": 2, "reads_failed": 1},
             {"reads_done": 4}
@@ -359,6 +368,8 @@ mod tests {
         assert_eq!((r.pending, r.in_flight, r.peak_pending, r.dropped, r.reads_failed), (7, 2, 9, 3, 1));
         assert_eq!((r.tiles_per_second, r.bytes_per_second), (10.0, 2000.0));
         assert_eq!(rows[1].tiles_per_second, 2.0);
+        // Each stream's latency from the later reply; none where it has none (an older clipmapd).
+        assert_eq!((rows[0].read_latency_ticks, rows[1].read_latency_ticks), (Some(3.5), None));
         let e = stream_rows(&a, &typed(serde_json::json!({})), 1.0).unwrap_err();
         assert!(e.contains("no `streams`"), "{e}");
         // What the service serialises reads back to the same figures.
@@ -380,8 +391,13 @@ mod tests {
             invalid_border: 8,
             paging,
         };
-        let bound =
-            LevelPaging { lead_tiles: [2, 0], lead_texels: [320, 0], grid: [8, 8], reason: Reason::SourceBound };
+        let bound = LevelPaging {
+            lead_tiles: [2, 0],
+            lead_texels: [320, 0],
+            grid: [8, 8],
+            reason: Reason::SourceBound,
+            read_latency_ticks: 4.25,
+        };
         let mut s = Status {
             mapping: "m".into(),
             generation: 1,
@@ -398,7 +414,19 @@ mod tests {
                 row(1, Some(LevelPaging { grid: [7, 7], reason: Reason::Hover, ..bound })),
             ],
             socket: "s".into(),
-            streams: Vec::new(),
+            streams: vec![StreamRow {
+                stream: 0,
+                pending: 1,
+                in_flight: 2,
+                peak_pending: 3,
+                reads_done: 4,
+                reads_failed: 0,
+                bytes_read: 5,
+                dropped: 0,
+                tiles_per_second: 6.0,
+                bytes_per_second: 0.0,
+                read_latency_ticks: Some(4.25),
+            }],
             streams_error: None,
             read_latency_ticks: Some(4.25),
             growth: None,
@@ -408,11 +436,13 @@ mod tests {
         assert!(text.contains("level  reason         lead tiles  lead texels    grid\n"), "{text}");
         assert!(text.contains("0      source_bound   2x0         320x0          8x8\n"), "{text}");
         assert!(text.contains("1      hover          2x0         320x0          7x7\n"), "{text}");
+        assert!(text.contains("latency (ticks)\n0             1          2     3           4       0        0       6.0      0.00              4.2\n"), "{text}");
         let v = serde_json::to_value(&s).unwrap();
         assert_eq!(v["read_latency_ticks"], 4.25);
+        assert_eq!(v["streams"][0]["read_latency_ticks"], 4.25);
         assert_eq!(
             v["levels"][0]["paging"],
-            serde_json::json!({"lead_tiles": [2, 0], "lead_texels": [320, 0], "grid": [8, 8], "reason": "source_bound"})
+            serde_json::json!({"lead_tiles": [2, 0], "lead_texels": [320, 0], "grid": [8, 8], "reason": "source_bound", "read_latency_ticks": 4.25})
         );
         // Without a STATS reply: no paging figures, and why.
         s.read_latency_ticks = None;

@@ -6,7 +6,8 @@
 //! tiles ([`lead_tiles`]). The speed is the centre's motion smoothed over a few ticks
 //! ([`Motion`]: a reversal takes the new direction at once, a jump recentres), the latency the
 //! ticks from asking for a tile to taking it, held at its recent peak and decaying slowly
-//! ([`Latency`]). The mem region ([`region`]) is then the ring of the default (lookahead-1) grid,
+//! ([`Latency`]), measured per stream server: each level plans with the slowest of the servers
+//! that read its tiles ([`StreamMeasures`], which also measures each server's tile rate). The mem region ([`region`]) is then the ring of the default (lookahead-1) grid,
 //! extended ahead of the motion until the lead lies beyond the window, as far as the grid allows:
 //! at hover and on slow flights it is the ring itself (no more tiles read than the ring reads),
 //! on a fast straight flight it is `ahead` with the needed distance, and after a jump it is
@@ -162,10 +163,13 @@ pub enum Reason {
     Hover,
     /// Moving, with the whole lead the motion and the latency call for.
     KeepingUp,
-    /// Moving, its window not whole while the lead is what it needs: the source does not
-    /// deliver fast enough.
+    /// Moving, its window not whole while the lead is what it needs, or the lead needed more
+    /// than the grid's spare tiles while the level's stream servers have reads waiting or
+    /// deliver less than is asked of them ([`TileRate::short`]): the source does not deliver
+    /// fast enough.
     SourceBound,
-    /// The lead needed is more than the grid's spare tiles: the memory budget limits it.
+    /// The lead needed is more than the grid's spare tiles while the source keeps up: the memory
+    /// budget limits it.
     BudgetBound,
     /// The window moves more than the grid's spare tiles in one tick: no read-ahead can keep it.
     BeyondGrid,
@@ -199,6 +203,9 @@ pub struct LevelPaging {
     pub grid: [u64; 2],
     /// Why.
     pub reason: Reason,
+    /// The read latency this level's lead plans with (ticks): the slowest of the stream servers
+    /// that read its tiles ([`StreamMeasures::level`]; 0 for a fixed level).
+    pub read_latency_ticks: f64,
 }
 
 /// The centre's motion, smoothed: level-0 texels a tick per axis.
@@ -284,6 +291,134 @@ impl Latency {
     }
 }
 
+/// Weight of a new tick's count in a smoothed [`TileRate`] (about the last eight ticks).
+const RATE_WEIGHT: f64 = 0.125;
+
+/// The share of the tiles asked of a stream server it must deliver to count as keeping up.
+pub const KEEPING_UP_SHARE: f64 = 0.75;
+
+/// A stream server's measured tile rate: the tiles first asked of it and the tiles it delivered,
+/// a tick each, smoothed over about eight ticks.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TileRate {
+    /// Tiles asked for a tick (each tile once, however often it is asked again while it loads).
+    pub asked: f64,
+    /// Tiles delivered (read and taken) a tick.
+    pub delivered: f64,
+}
+
+impl TileRate {
+    /// Takes one tick's counts.
+    pub fn update(&mut self, asked: u64, delivered: u64) {
+        self.asked += RATE_WEIGHT * (asked as f64 - self.asked);
+        self.delivered += RATE_WEIGHT * (delivered as f64 - self.delivered);
+    }
+
+    /// Whether the server delivers less than [`KEEPING_UP_SHARE`] of the tiles asked of it, at
+    /// least one tile a tick being asked: it cannot keep up at any lead (the tiles it does not
+    /// deliver leave their mem regions unread, or wait).
+    pub fn short(&self) -> bool {
+        self.asked >= 1.0 && self.delivered < KEEPING_UP_SHARE * self.asked
+    }
+}
+
+/// Each stream server's read latency and tile rate, and which stream servers read each level's
+/// tiles: a level plans its lead with the slowest of its own streams, so a slow stream lengthens
+/// the leads of the levels it serves and no other's. With one stream every level plans with its
+/// latency.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StreamMeasures {
+    /// Per stream server, in server order.
+    streams: Vec<Latency>,
+    /// Per stream server, in server order.
+    rates: Vec<TileRate>,
+    /// Per level, per stream server: whether the server reads some tile of the level asked for
+    /// so far.
+    levels: Vec<Vec<bool>>,
+}
+
+impl StreamMeasures {
+    /// `streams` stream servers (at least one) serving `levels` levels, nothing measured yet.
+    pub fn new(streams: usize, levels: usize) -> Self {
+        let streams = streams.max(1);
+        StreamMeasures {
+            streams: vec![Latency::default(); streams],
+            rates: vec![TileRate::default(); streams],
+            levels: vec![vec![false; streams]; levels],
+        }
+    }
+
+    /// Takes one tick's tile counts of stream server `stream` (ignored out of range).
+    pub fn count(&mut self, stream: usize, asked: u64, delivered: u64) {
+        if let Some(r) = self.rates.get_mut(stream) {
+            r.update(asked, delivered);
+        }
+    }
+
+    /// Each stream server's tile rate, in server order.
+    pub fn rates(&self) -> &[TileRate] {
+        &self.rates
+    }
+
+    /// Whether a stream server that reads level `level`'s tiles (any server, before it has asked
+    /// for a tile) delivers less than is asked of it ([`TileRate::short`]).
+    pub fn level_short(&self, level: usize) -> bool {
+        let mut own = self.streams_of(level).peekable();
+        if own.peek().is_some() {
+            own.any(|s| self.rates[s].short())
+        } else {
+            self.rates.iter().any(|r| r.short())
+        }
+    }
+
+    /// Notes that stream server `stream` reads a tile of level `level` (ignored out of range).
+    pub fn note(&mut self, level: usize, stream: usize) {
+        if let Some(on) = self.levels.get_mut(level).and_then(|l| l.get_mut(stream)) {
+            *on = true;
+        }
+    }
+
+    /// Takes one read's latency (ticks) on stream server `stream` (ignored out of range).
+    pub fn sample(&mut self, stream: usize, ticks: u64) {
+        if let Some(l) = self.streams.get_mut(stream) {
+            l.sample(ticks);
+        }
+    }
+
+    /// A tick on which stream server `stream` measured no read ([`Latency::rest`]).
+    pub fn rest(&mut self, stream: usize) {
+        if let Some(l) = self.streams.get_mut(stream) {
+            l.rest();
+        }
+    }
+
+    /// Number of stream servers.
+    pub fn stream_count(&self) -> usize {
+        self.streams.len()
+    }
+
+    /// Each stream server's latency (ticks), in server order.
+    pub fn per_stream(&self) -> Vec<f64> {
+        self.streams.iter().map(|l| l.ticks).collect()
+    }
+
+    /// The stream servers known to read level `level`'s tiles (none before it asked for one).
+    pub fn streams_of(&self, level: usize) -> impl Iterator<Item = usize> + '_ {
+        self.levels.get(level).into_iter().flat_map(|l| l.iter().enumerate().filter(|(_, &on)| on).map(|(s, _)| s))
+    }
+
+    /// The latency level `level` plans with (ticks): the slowest of the stream servers that read
+    /// its tiles, or of all of them before it has asked for a tile.
+    pub fn level(&self, level: usize) -> f64 {
+        self.streams_of(level).map(|s| self.streams[s].ticks).reduce(f64::max).unwrap_or_else(|| self.slowest())
+    }
+
+    /// The slowest stream server's latency (ticks).
+    pub fn slowest(&self) -> f64 {
+        self.streams.iter().map(|l| l.ticks).fold(INITIAL_LATENCY_TICKS, f64::max)
+    }
+}
+
 /// The lead (texels) a level keeps: it grows at once and shrinks by at most a sixteenth a tick,
 /// so that a speed that wavers does not read and evict the same tiles over and over.
 pub(crate) fn held_lead(previous: u64, needed: u64) -> u64 {
@@ -296,7 +431,9 @@ pub(crate) fn held_lead(previous: u64, needed: u64) -> u64 {
 
 /// The reason for one level's paging: `speed` level texels a tick on an axis, `needed` the lead
 /// in texels the motion calls for, `whole` whether the level's valid region is whole. The grid
-/// holds a lead of at most its spare tiles beyond the window's.
+/// holds a lead of at most its spare tiles beyond the window's. The clipmap turns a
+/// [`Reason::BudgetBound`] of a level that is not whole into [`Reason::SourceBound`] when the
+/// level's stream servers do not keep up (this function does not see them).
 pub fn reason(shape: &LevelShape, speed: [u64; 2], needed: [u64; 2], whole: bool) -> Reason {
     let n = tiles_in_level(shape.size, shape.tile);
     if shape.grid[0] >= n[0] && shape.grid[1] >= n[1] {
@@ -447,6 +584,81 @@ mod tests {
             l.rest();
         }
         assert!(l.ticks < 2.0, "a peak decays at rest: {}", l.ticks);
+    }
+
+    #[test]
+    fn each_level_plans_with_the_slowest_of_its_own_streams() {
+        // Levels 0 and 2 read from stream 0, level 1 from stream 1, level 3 from both; level 4
+        // has asked for nothing yet.
+        let mut l = StreamMeasures::new(2, 5);
+        for (level, stream) in [(0, 0), (2, 0), (1, 1), (3, 0), (3, 1)] {
+            l.note(level, stream);
+        }
+        l.note(9, 0);
+        l.note(0, 7);
+        // Stream 0 slow (6 ticks a read), stream 1 fast (1 tick).
+        for _ in 0..10 {
+            l.sample(0, 6);
+            l.sample(1, 1);
+        }
+        assert_eq!(l.per_stream(), vec![6.0, 1.0]);
+        assert_eq!([0, 1, 2, 3, 4].map(|k| l.level(k)), [6.0, 1.0, 6.0, 6.0, 6.0]);
+        assert_eq!(l.streams_of(3).collect::<Vec<_>>(), vec![0, 1]);
+        // The slow stream's levels get the longer lead; the fast stream's are not inflated.
+        let speed = 200.0;
+        assert_eq!(lead_texels(speed, l.level(0)), 1200);
+        assert_eq!(lead_texels(speed, l.level(1)), lead_texels(speed, INITIAL_LATENCY_TICKS));
+        // Swapped: the other levels are the slow ones.
+        let mut swapped = StreamMeasures::new(2, 2);
+        swapped.note(0, 0);
+        swapped.note(1, 1);
+        swapped.sample(1, 6);
+        assert_eq!([swapped.level(0), swapped.level(1)], [1.0, 6.0]);
+        // Resting one stream leaves the other's estimate alone.
+        l.rest(0);
+        assert!(l.level(0) < 6.0);
+        assert_eq!(l.level(1), 1.0);
+        assert_eq!(l.slowest(), l.level(0));
+    }
+
+    #[test]
+    fn a_stream_is_short_when_it_delivers_less_than_is_asked_of_it() {
+        let mut m = StreamMeasures::new(2, 3);
+        m.note(0, 0);
+        m.note(1, 1);
+        for _ in 0..40 {
+            // Stream 0 asked 20 tiles a tick, delivers 2; stream 1 delivers what it is asked.
+            m.count(0, 20, 2);
+            m.count(1, 20, 20);
+        }
+        assert!(m.rates()[0].short() && !m.rates()[1].short(), "{:?}", m.rates());
+        assert_eq!([m.level_short(0), m.level_short(1), m.level_short(2)], [true, false, true]);
+        // A burst asked at one tick and delivered at the next is not short once it has passed.
+        let mut burst = TileRate::default();
+        burst.update(500, 0);
+        burst.update(0, 500);
+        for _ in 0..8 {
+            burst.update(10, 10);
+        }
+        assert!(!burst.short(), "{burst:?}");
+        // Nothing asked: never short.
+        assert!(!TileRate::default().short());
+    }
+
+    #[test]
+    fn one_stream_plans_every_level_with_its_latency() {
+        let mut l = StreamMeasures::new(1, 3);
+        let mut one = Latency::default();
+        l.note(1, 0);
+        for x in [3, 1, 7, 2] {
+            l.sample(0, x);
+            one.sample(x);
+            assert_eq!([l.level(0), l.level(1), l.level(2), l.slowest()], [one.ticks; 4]);
+        }
+        l.rest(0);
+        one.rest();
+        assert_eq!([l.level(0), l.level(1), l.slowest()], [one.ticks; 3]);
+        assert_eq!(StreamMeasures::new(0, 1).stream_count(), 1);
     }
 
     #[test]

@@ -158,3 +158,21 @@ impl Options {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::paging::{PagingOptions, PrefetchKind};
+
+    /// `clipmapd` and the GPU client's demo service (`clipgpu --demo`) start from these
+    /// defaults: both page adaptively unless told otherwise.
+    #[test]
+    fn the_default_service_pages_adaptively() {
+        let o = Options::new("x");
+        assert_eq!(o.paging, PagingOptions::default());
+        assert_eq!(o.paging.prefetch, PrefetchKind::Adaptive);
+        let settings = crate::clip::Settings::default().with_paging(&o.paging);
+        assert_eq!(settings.prefetch, PrefetchKind::Adaptive);
+        assert_eq!(settings.grid_budget, None, "the default budget");
+    }
+}

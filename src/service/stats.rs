@@ -210,7 +210,24 @@ impl ServiceStats {
                 self.name
             ));
         }
+        out.push_str(&self.stream_latency_prometheus());
         out.push_str(&self.paging_prometheus());
+        out
+    }
+
+    /// Each stream server's read latency the adaptive paging measured (ticks), label `stream`
+    /// (nothing before the first tick).
+    fn stream_latency_prometheus(&self) -> String {
+        let latency = &self.tick.engine.stream_read_latency_ticks;
+        if latency.is_empty() {
+            return String::new();
+        }
+        let mut out = String::from(
+            "# HELP clipmapd_stream_read_latency_ticks Read latency the adaptive paging measured on the stream server, ticks from asking for a tile to taking it\n# TYPE clipmapd_stream_read_latency_ticks gauge\n",
+        );
+        for (i, l) in latency.iter().enumerate() {
+            out.push_str(&format!("clipmapd_stream_read_latency_ticks{{name=\"{}\",stream=\"{i}\"}} {l}\n", self.name));
+        }
         out
     }
 
@@ -287,13 +304,22 @@ mod tests {
         use crate::paging::adaptive::{LevelPaging, Reason};
         let mut s = ServiceStats { name: "x".into(), ..ServiceStats::default() };
         s.tick.engine.read_latency_ticks = 4.5;
+        s.tick.engine.stream_read_latency_ticks = vec![4.5, 1.25];
         s.tick.engine.paging = vec![
-            LevelPaging { lead_tiles: [2, 0], lead_texels: [320, 0], grid: [8, 8], reason: Reason::SourceBound },
+            LevelPaging {
+                lead_tiles: [2, 0],
+                lead_texels: [320, 0],
+                grid: [8, 8],
+                reason: Reason::SourceBound,
+                read_latency_ticks: 4.5,
+            },
             LevelPaging { grid: [7, 7], reason: Reason::Hover, ..LevelPaging::default() },
         ];
         let text = s.prometheus();
         for want in [
             "clipmapd_read_latency_ticks{name=\"x\"} 4.5",
+            "clipmapd_stream_read_latency_ticks{name=\"x\",stream=\"0\"} 4.5",
+            "clipmapd_stream_read_latency_ticks{name=\"x\",stream=\"1\"} 1.25",
             "clipmapd_paging_lead_tiles{name=\"x\",level=\"0\",axis=\"s\"} 2",
             "clipmapd_paging_lead_texels{name=\"x\",level=\"0\",axis=\"s\"} 320",
             "clipmapd_paging_lead_texels{name=\"x\",level=\"0\",axis=\"t\"} 0",
@@ -304,10 +330,11 @@ mod tests {
         ] {
             assert!(text.lines().any(|l| l == want), "{want} missing:\n{text}");
         }
-        // Per family one HELP and one TYPE; 30 plain metrics, 3 x 2 levels x 2 axes, 2 x 6 reasons.
+        // Per family one HELP and one TYPE; 30 plain metrics, 2 streams' latencies, 3 x 2 levels
+        // x 2 axes, 2 x 6 reasons.
         let samples = text.lines().filter(|l| !l.starts_with('#')).count();
-        assert_eq!(samples, 30 + 12 + 12);
-        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 34);
+        assert_eq!(samples, 30 + 2 + 12 + 12);
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 35);
         let ones = text.lines().filter(|l| l.starts_with("clipmapd_paging_reason") && l.ends_with(" 1")).count();
         assert_eq!(ones, 2, "one current reason a level");
     }

@@ -361,6 +361,7 @@ fn log_reason_changes(last: &mut Vec<Reason>, paging: &[LevelPaging], latency: f
             lead_texels = ?p.lead_texels,
             grid = ?p.grid,
             read_latency_ticks = latency,
+            level_read_latency_ticks = p.read_latency_ticks,
             "paging reason changed"
         );
     }

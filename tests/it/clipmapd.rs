@@ -927,9 +927,15 @@ fn a_source_that_cannot_keep_up_shows_coarser_levels_only_right_texels_and_says_
     // The latency planned with is measured only from reads asked for while their level was whole
     // (queueing behind a backlog is not a latency a lead cures): here at least the initial tick.
     assert!(after["engine"]["read_latency_ticks"].as_f64().unwrap() >= 1.0, "{after}");
+    // One stream server: its latency is the one every level plans with.
+    let per_stream = after["engine"]["stream_read_latency_ticks"].as_array().expect("per-stream latency");
+    assert_eq!(per_stream.len(), 1, "{after}");
+    assert_eq!(per_stream[0], after["engine"]["read_latency_ticks"], "{after}");
+    assert_eq!(after["engine"]["paging"][0]["read_latency_ticks"], per_stream[0], "{after}");
     // `cliptex attach` said so too, mid-flight.
     let v: serde_json::Value = serde_json::from_str(&attach_output(during.expect("attached mid-flight"))).unwrap();
     assert!(v["read_latency_ticks"].as_f64().unwrap() >= 1.0, "{v}");
+    assert_eq!(v["streams"][0]["read_latency_ticks"], v["read_latency_ticks"], "{v}");
     assert!(v["min_lod"].as_f64().unwrap() > 0.0, "coarser levels shown: {v}");
     let level0 = &v["levels"][0]["paging"];
     assert_eq!(level0["reason"], "source_bound", "{v}");
