@@ -156,6 +156,17 @@ pub enum Compression {
     Zstd,
 }
 
+impl std::fmt::Display for Compression {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Compression::None => "uncompressed",
+            Compression::Lzw => "LZW",
+            Compression::Deflate => "DEFLATE",
+            Compression::Zstd => "ZSTD",
+        })
+    }
+}
+
 /// Where a level's texels come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -165,6 +176,76 @@ pub enum LevelOrigin {
     Ifd { ifd: usize, tile: [u64; 2], compression: Compression, predictor: bool },
     /// Built at open from level `from` by the 2 x 2 box filter.
     Built { from: u32 },
+}
+
+/// A COG's texture and the origin of each level ([`CogSource::info`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct CogInfo {
+    /// The file.
+    pub path: PathBuf,
+    /// Level-0 size in texels.
+    pub size: [u64; 2],
+    /// The clip size it is served with.
+    pub clip_size: u64,
+    /// The texel format (8-bit samples as stored).
+    pub format: TexelFormat,
+    /// Every level, finest first.
+    pub levels: Vec<CogLevelInfo>,
+    /// Why the overviews stop being used before the coarsest level, when levels are built.
+    pub built_because: Option<String>,
+}
+
+/// One level of a [`CogInfo`].
+#[derive(Clone, Debug, Serialize)]
+pub struct CogLevelInfo {
+    /// The level.
+    pub level: u32,
+    /// Its size in texels.
+    pub size: [u64; 2],
+    /// The tiles it is read in.
+    pub tile: [u64; 2],
+    /// Where its texels come from.
+    pub origin: LevelOrigin,
+}
+
+impl CogInfo {
+    /// The text `cliptex info` prints.
+    pub fn human(&self) -> String {
+        use std::fmt::Write;
+        let mut out = format!(
+            "{}: tiled TIFF served as it is: {} x {} texels, {}, clip size {}\n{:<6} {:<13} {:<13} from\n",
+            self.path.display(),
+            self.size[0],
+            self.size[1],
+            self.format,
+            self.clip_size,
+            "level",
+            "size",
+            "tile"
+        );
+        for l in &self.levels {
+            let from = match l.origin {
+                LevelOrigin::Ifd { ifd, tile, compression, predictor } => format!(
+                    "IFD {ifd}, {} x {} tiles, {compression}{}",
+                    tile[0],
+                    tile[1],
+                    if predictor { ", predictor 2" } else { "" }
+                ),
+                LevelOrigin::Built { from } => format!("built at open from level {from} (2 x 2 box)"),
+            };
+            let _ = writeln!(
+                out,
+                "{:<6} {:<13} {:<13} {from}",
+                l.level,
+                format!("{} x {}", l.size[0], l.size[1]),
+                format!("{} x {}", l.tile[0], l.tile[1])
+            );
+        }
+        if let Some(why) = &self.built_because {
+            let _ = writeln!(out, "levels are built because {why}");
+        }
+        out
+    }
 }
 
 /// Byte order and TIFF flavour of a file.
@@ -314,6 +395,7 @@ pub struct CogSource {
     desc: TextureDesc,
     levels: Vec<Level>,
     origins: Vec<LevelOrigin>,
+    built_because: Option<String>,
 }
 
 impl std::fmt::Debug for CogSource {
@@ -391,6 +473,24 @@ impl CogSource {
         &self.origins
     }
 
+    /// The texture served and where each level comes from, for `cliptex info`.
+    pub fn info(&self) -> CogInfo {
+        let levels = (0..self.desc.level_count())
+            .map(|k| {
+                let l = self.desc.level(k as u32);
+                CogLevelInfo { level: k as u32, size: l.size, tile: l.tile, origin: self.origins[k] }
+            })
+            .collect();
+        CogInfo {
+            path: self.path.clone(),
+            size: self.desc.size(),
+            clip_size: self.desc.clip_size(),
+            format: self.desc.format(),
+            levels,
+            built_because: self.built_because.clone(),
+        }
+    }
+
     fn from_images(
         path: &Path,
         file: File,
@@ -425,7 +525,7 @@ impl CogSource {
                     format!("IFD {} is an overview beyond the {n} levels of a {size:?} texture", image.ifd)
                 } else {
                     format!(
-                        "IFD {} (overview {k}) is {:?} texels, expected {expected:?} (level 0's halved and rounded down)",
+                        "IFD {} (overview {k}) is {:?} texels, expected {expected:?} (level 0's halved and rounded down); it and the overviews after it are not used",
                         image.ifd, level.size
                     )
                 };
@@ -470,7 +570,8 @@ impl CogSource {
         let desc = TextureDesc::from_levels(size, clip_size, format, descs).map_err(desc_err)?;
         let border = (clip_size / 32).clamp(1, 16).min(clip_size.saturating_sub(1) / 2);
         let desc = desc.with_invalid_border(border).map_err(desc_err)?;
-        Ok(CogSource { path: path.to_path_buf(), file, layout, desc, levels, origins })
+        let built_because = (used < n).then_some(why);
+        Ok(CogSource { path: path.to_path_buf(), file, layout, desc, levels, origins, built_because })
     }
 
     /// Builds the levels past the last usable image from it, once.

@@ -251,3 +251,26 @@ fn cog_truncated_files_give_errors_never_wrong_texels() {
     }
     assert!(opened > 0 && failed_reads > 0, "some cuts open, and their lost tiles fail: {opened} {failed_reads}");
 }
+
+#[test]
+fn cliptex_info_shows_where_each_level_of_a_cog_comes_from() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(["info"])
+        .arg(fixture("rgba_100x75.tif"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{out:?}");
+    assert!(text.contains("100 x 75 texels, rgba8, clip size 1024"), "{text}");
+    assert!(text.contains("0      100 x 75      100 x 75      IFD 0, 32 x 32 tiles, uncompressed"), "{text}");
+    assert!(text.contains("1      50 x 37       50 x 37       built at open from level 0 (2 x 2 box)"), "{text}");
+    assert!(text.contains("IFD 1 (overview 1) is [50, 38] texels, expected [50, 37]"), "{text}");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(["info", "--json"])
+        .arg(fixture("grey_1000x700.tif"))
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["levels"][2]["origin"]["ifd"]["compression"], "deflate", "{v}");
+    assert_eq!(v["levels"][3]["origin"]["built"]["from"], 2, "{v}");
+}
