@@ -92,12 +92,13 @@ struct Case {
     ifd_levels: usize,
 }
 
-const CASES: [Case; 5] = [
+const CASES: [Case; 6] = [
     Case { name: "rgb_512x384", bpt: 3, ifd_levels: 3 },
     Case { name: "grey_1000x700", bpt: 1, ifd_levels: 3 },
     Case { name: "grey_500x350", bpt: 1, ifd_levels: 3 },
     // Tiles decoded in place (the height is a multiple of 128), the last column partial.
     Case { name: "grey_200x256", bpt: 1, ifd_levels: 2 },
+    Case { name: "bigtiff_200x256", bpt: 1, ifd_levels: 2 },
     // Overview 1 is 50 x 38 (gdaladdo rounds up), level 1 is 50 x 37: everything past level 0
     // is built.
     Case { name: "rgba_100x75", bpt: 4, ifd_levels: 1 },
