@@ -870,6 +870,13 @@ fn image_level(path: &Path, file: &File, layout: Layout, image: &Image) -> Resul
             format!("image {width} x {height} in tiles of {tw} x {th}: every size must be at least 1"),
         )));
     }
+    if width > super::MAX_TEXTURE_SIZE || height > super::MAX_TEXTURE_SIZE {
+        return Err(unsupported(
+            "ImageWidth (256) x ImageLength (257)",
+            format!("{width} x {height}"),
+            "at most 2^26 (MAX_TEXTURE_SIZE) texels a side",
+        ));
+    }
     let spp = get(277, "SamplesPerPixel (277)")?.unwrap_or(1);
     let format = match spp {
         1 => TexelFormat::L8,
