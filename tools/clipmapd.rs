@@ -36,7 +36,8 @@ Environment: RUST_LOG sets the log filter (default info); logs go to standard er
 Exit status: 0 ok, 1 the input is bad, 2 the service could not run."
 )]
 struct Cli {
-    /// A clip-texture configuration (.ct).
+    /// A clip-texture configuration (.ct), or a tiled GeoTIFF / Cloud-Optimized GeoTIFF served
+    /// as it is (8-bit grey, RGB or RGBA; served with --clip).
     config: Option<PathBuf>,
     /// Serve a procedural texture instead of a configuration.
     #[arg(long, value_enum, conflicts_with = "config")]
@@ -57,7 +58,7 @@ struct Cli {
     /// texture is served in, centred on its grid's origin.
     #[arg(long, default_value_t = 65536)]
     size: u64,
-    /// Procedural clip size.
+    /// Clip size of a procedural texture or a tiled GeoTIFF.
     #[arg(long, default_value_t = 1024)]
     clip: u64,
     /// Procedural tile size.
@@ -233,6 +234,11 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             grower = Some(g);
             let stem = dir.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "growing".into());
             (src as Arc<dyn clipmap::source::TileSource>, stem, clipmap::paging::PagingOptions::default())
+        }
+        (Some(path), _) if clipmap::source::cog::is_tiff(path) => {
+            let src = clipmap::source::CogSource::open(path, cli.clip).map_err(|e| bad(anyhow::anyhow!("{e}")))?;
+            let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "clip".into());
+            (Arc::new(src) as Arc<dyn clipmap::source::TileSource>, stem, clipmap::paging::PagingOptions::default())
         }
         (Some(path), _) => {
             let o = cli.env.options().map_err(|e| Failure(exit::COULD_NOT_RUN, anyhow::anyhow!(e)))?;

@@ -107,7 +107,7 @@ Examples:
   cliptex info my.ct --env DATA=/mnt/terrain
   cliptex info --ct-only my.ct     # the level table without opening the .ic files")]
     Info {
-        /// The .ct file.
+        /// The .ct file, or a tiled GeoTIFF / COG (the texture it is served as, clip size 1024).
         file: PathBuf,
         /// Print JSON instead of text.
         #[arg(long)]
@@ -593,6 +593,20 @@ fn run(cli: Cli) -> i32 {
             }
         }
         Command::Validate { args, ct_only } => cmdline::validate(&args, FileKind::ClipTexture, "cliptex", ct_only),
+        // A tiled GeoTIFF / COG: the texture it is served as (clipmapd's default clip size).
+        Command::Info { file, json, .. } if clipmap::source::cog::is_tiff(&file) => {
+            match clipmap::source::CogSource::open(&file, 1024) {
+                Err(e) => {
+                    eprintln!("cliptex: {e}");
+                    exit::BAD_INPUT
+                }
+                Ok(src) => {
+                    let info = src.info();
+                    report::emit(json, &info, |_| info.human());
+                    exit::OK
+                }
+            }
+        }
         Command::Info { file, json, env, ct_only } => match env.load_clip_texture(&file, "cliptex", ct_only) {
             Err(c) => c,
             Ok((p, warnings)) => {

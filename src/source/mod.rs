@@ -2,7 +2,7 @@
 //!
 //! Owns texel *values* and the unit they are read in: the [`TileSource`] trait, its typed
 //! [`SourceError`], the [`TextureDesc`] a source serves, the tile files a plan names
-//! ([`FileSource`]), the procedural sources ([`HashSource`], [`TerrainSource`]) and a
+//! ([`FileSource`]), tiled GeoTIFFs and COGs served as they are ([`CogSource`]), the procedural sources ([`HashSource`], [`TerrainSource`]) and a
 //! fault-injecting wrapper ([`FaultySource`]). Residency, queues and
 //! windows belong to later modules ([`crate::cache`], [`crate::queue`], [`crate::clip`]).
 //!
@@ -11,6 +11,7 @@
 //! `((t - T*tile[1]) * tile[0] + (s - S*tile[0])) * bytes_per_texel`. Texels of an edge tile that
 //! lie outside the level are zero.
 
+pub mod cog;
 pub mod desc;
 pub mod faulty;
 pub mod file;
@@ -22,6 +23,7 @@ mod synthetic;
 pub mod throttle;
 
 pub use crate::tile::TileId;
+pub use cog::{CogError, CogSource};
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};
 pub use faulty::{Fault, FaultRule, FaultySource};
 pub use file::{FileSource, FileSourceError, FileStats, RemoteReader};
@@ -66,6 +68,10 @@ pub enum SourceError {
     /// one tile.
     #[error("{tile}: compressed tile {path} cannot be used: {problem}; restore the file or prepare the pyramid again (clipprep --zstd)", path = path.display())]
     Undecodable { tile: TileId, path: std::path::PathBuf, problem: String },
+    /// A tile of a TIFF ([`CogSource`]) whose stored bytes cannot be used: its index entry or
+    /// bytes out of place, or data that does not decode to one tile.
+    #[error("{tile}: {path}: {problem}; the file is damaged or was changed while served: restore it", path = path.display())]
+    Chunk { tile: TileId, path: std::path::PathBuf, problem: String },
     /// The tile may not be read.
     #[error("{tile}: permission denied")]
     PermissionDenied { tile: TileId },
@@ -94,7 +100,9 @@ impl SourceError {
         match self {
             SourceError::Missing { .. } => FaultKind::Missing,
             SourceError::Short { .. } => FaultKind::Short,
-            SourceError::Corrupt { .. } | SourceError::Undecodable { .. } => FaultKind::Corrupt,
+            SourceError::Corrupt { .. } | SourceError::Undecodable { .. } | SourceError::Chunk { .. } => {
+                FaultKind::Corrupt
+            }
             SourceError::PermissionDenied { .. } => FaultKind::PermissionDenied,
             SourceError::Io { .. } | SourceError::Busy { .. } => FaultKind::Io,
             SourceError::OutOfRange { .. } | SourceError::BufferSize { .. } => FaultKind::BadRequest,
@@ -108,6 +116,7 @@ impl SourceError {
             | SourceError::Short { tile, .. }
             | SourceError::Corrupt { tile, .. }
             | SourceError::Undecodable { tile, .. }
+            | SourceError::Chunk { tile, .. }
             | SourceError::PermissionDenied { tile }
             | SourceError::Io { tile, .. }
             | SourceError::OutOfRange { tile, .. }

@@ -759,6 +759,26 @@ fn a_ct_configuration_is_served_from_its_tile_files_one_read_queue_per_stream_se
 }
 
 #[test]
+fn a_cog_is_served_as_it_is() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let tif = Path::new(ROOT).join("tests/fixtures/cog/rgb_512x384.tif");
+    let svc = Service::spawn_with(d, "cog", &[tif.to_str().unwrap(), "--clip", "128"], &[]);
+    svc.wait_ready();
+    assert_eq!(json_reply(&svc.ask("STATUS"))["levels"], 10, "{}", svc.dump());
+    let t = Instant::now();
+    while json_reply(&svc.ask("STATS"))["engine"]["tiles_read"].as_u64().unwrap() == 0 {
+        assert!(t.elapsed() < Duration::from_secs(20), "no tile read\n{}", svc.dump());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // A layout it does not serve is refused before anything is created, naming the tag.
+    let u16 = Path::new(ROOT).join("tests/fixtures/cog/u16_64x64.tif");
+    let out = Command::new(CLIPMAPD).arg(&u16).args(["--shm-dir", d.to_str().unwrap()]).output().unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("BitsPerSample (258) is [16]"), "{out:?}");
+}
+
+#[test]
 fn a_renderer_request_is_published_without_waiting_for_the_next_period() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

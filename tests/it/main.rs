@@ -18,6 +18,7 @@ mod clipbench_perf;
 mod clipbench_policies;
 mod clipmapd;
 mod clipprep;
+mod cog;
 mod config_build_errors;
 mod config_errors;
 mod config_fuzz_props;

@@ -1,0 +1,1100 @@
+//! [`CogSource`]: a local tiled GeoTIFF or Cloud-Optimized GeoTIFF served as it is, with no
+//! preparation step (issue #34's local foundation).
+//!
+//! Owns reading a TIFF's header and IFD chain (classic TIFF and BigTIFF, either byte order),
+//! checking each image's layout against what is served (refusals name the IFD, the tag, the value
+//! found and what is supported), mapping the full-resolution image and its internal overviews to
+//! the texture's levels, building the levels coarser than the smallest usable overview once at
+//! open, and decoding tiles (none, LZW, DEFLATE, ZSTD; horizontal predictor) into the caller's
+//! slot buffer.
+//!
+//! The tile index (TileOffsets, TileByteCounts) is never read whole: open reads the header and the
+//! IFD entries only, and each tile read fetches its own two index values with positioned reads, so
+//! a COG with millions of tiles opens as fast as a small one and reads run in parallel without a
+//! lock.
+//!
+//! Orientation: as `clipprep` makes a texture of an image, t counts up from the image's bottom
+//! row: texel (s, t) of a level is pixel (column s, row H - 1 - t) of its image. A texture tile
+//! is the TIFF tile's size; when the image height is a multiple of the TIFF tile height the
+//! texture tile (S, T) is exactly TIFF tile (S, rows - 1 - T), decoded straight into the slot and
+//! its rows reversed in place. Otherwise (and for pyramid levels, one tile the size of the level)
+//! a texture tile straddles two TIFF tile rows, which are decoded into a per-thread buffer and
+//! copied.
+//!
+//! Levels: IFD 0 is level 0; reduced-resolution IFDs (NewSubfileType bit 0) follow in the file
+//! largest first, overview i being level i when its size is exactly [`level_size`] of level 0
+//! at i. `gdaladdo` rounds overview sizes up (a 100 x 75 image gets a 50 x 38 overview where
+//! level 1 is 50 x 37), so the first overview that does not match, and every one after it, is not used:
+//! the levels from there on are built at open from the last matching image by the same 2 x 2 box
+//! filter `clipprep` uses (`floor((a + b + c + d + 2) / 4)` per component, edges clamped), which
+//! is refused when that image has more than [`MAX_BUILT_TEXELS`] texels. Transparency masks
+//! (NewSubfileType bit 2) and further pages are skipped.
+//!
+//! Sparse tiles (offset or byte count 0, as GDAL's `SPARSE_OK` writes them) are
+//! [`SourceError::Missing`] when read; a level built at open reads them as zeros (GDAL's value
+//! for them). Not yet: remote objects, 16-bit and float samples, JPEG, GDAL_NODATA and masks.
+
+use super::{
+    check_request, level_count, level_size, DescError, LevelDesc, SourceError, TextureDesc, TileId, TileSource,
+};
+use crate::texel::TexelFormat;
+use serde::Serialize;
+use std::cell::RefCell;
+use std::fs::File;
+use std::io;
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+
+/// The most texels of the image the levels coarser than the smallest usable overview are built
+/// from at open (4096 x 4096): it is decoded whole.
+pub const MAX_BUILT_TEXELS: u64 = 1 << 24;
+
+/// The most IFDs followed along the chain.
+const MAX_IFDS: usize = 64;
+
+/// The most entries one IFD may have.
+const MAX_ENTRIES: u64 = 4096;
+
+/// What open reads of a TIFF's structure at most, all IFDs together.
+const MAX_STRUCTURE_BYTES: u64 = 1 << 20;
+
+/// Why a file cannot be served as a COG.
+#[derive(Debug, Error)]
+pub enum CogError {
+    /// The file cannot be opened or read.
+    #[error("{path}: {source}", path = path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: io::Error,
+    },
+    /// Not a TIFF.
+    #[error("{path}: not a TIFF: it starts with {found}, expected II*\\0 or MM\\0* (TIFF) or II+\\0 or MM\\0+ (BigTIFF)", path = path.display())]
+    NotTiff {
+        /// The file.
+        path: PathBuf,
+        /// Its first bytes.
+        found: String,
+    },
+    /// The TIFF structure is damaged.
+    #[error("{path}: {at}: {problem}; the file is damaged or truncated: restore it or write it again (gdal_translate -of COG)", path = path.display())]
+    Malformed {
+        /// The file.
+        path: PathBuf,
+        /// Where (the header, an IFD, a tag).
+        at: String,
+        /// What is wrong.
+        problem: String,
+    },
+    /// A layout this source does not serve.
+    #[error("{path}: IFD {ifd}: {tag} is {found}: supported: {supported}", path = path.display())]
+    Unsupported {
+        /// The file.
+        path: PathBuf,
+        /// The IFD (0 the full-resolution image).
+        ifd: usize,
+        /// The tag, by name and number.
+        tag: &'static str,
+        /// The value found.
+        found: String,
+        /// What is served.
+        supported: &'static str,
+    },
+    /// Coarser levels that would have to be built from too large an image.
+    #[error("{path}: {why}; levels {from} to {last} would be built at open from level {base} ({base_size:?} texels), more than {MAX_BUILT_TEXELS} texels: add overviews whose sizes are level 0's halved and rounded down (gdaladdo, or gdal_translate -of COG from a size that halves evenly)", path = path.display())]
+    TooLargeToBuild {
+        /// The file.
+        path: PathBuf,
+        /// Why the overviews stop ("IFD 3 (overview 3) is [125, 88] texels, expected [125, 87]", or
+        /// "it has no overviews").
+        why: String,
+        /// The first level to build.
+        from: u32,
+        /// The last level.
+        last: u32,
+        /// The level they would be built from.
+        base: u32,
+        /// Its size.
+        base_size: [u64; 2],
+    },
+    /// A tile of the image the coarser levels are built from could not be read.
+    #[error("{path}: building levels {from}.. at open: {source}", path = path.display())]
+    Build {
+        /// The file.
+        path: PathBuf,
+        /// The first level built.
+        from: u32,
+        /// Why.
+        #[source]
+        source: SourceError,
+    },
+    /// The levels do not form a texture the engine serves.
+    #[error("{path}: the levels cannot be served: {source}", path = path.display())]
+    Desc {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with them.
+        #[source]
+        source: DescError,
+    },
+}
+
+/// How tile bytes are compressed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Compression {
+    /// Stored as they are (1).
+    None,
+    /// LZW (5), GDAL's COG default.
+    Lzw,
+    /// DEFLATE (8 or 32946), zlib-wrapped.
+    Deflate,
+    /// Zstandard (50000).
+    Zstd,
+}
+
+impl std::fmt::Display for Compression {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Compression::None => "uncompressed",
+            Compression::Lzw => "LZW",
+            Compression::Deflate => "DEFLATE",
+            Compression::Zstd => "ZSTD",
+        })
+    }
+}
+
+/// Where a level's texels come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LevelOrigin {
+    /// An image of the file: IFD `ifd`, in tiles of `tile` texels, compressed with
+    /// `compression`, with the horizontal predictor when `predictor` is set.
+    Ifd { ifd: usize, tile: [u64; 2], compression: Compression, predictor: bool },
+    /// Built at open from level `from` by the 2 x 2 box filter.
+    Built { from: u32 },
+}
+
+/// A COG's texture and the origin of each level ([`CogSource::info`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct CogInfo {
+    /// The file.
+    pub path: PathBuf,
+    /// Level-0 size in texels.
+    pub size: [u64; 2],
+    /// The clip size it is served with.
+    pub clip_size: u64,
+    /// The texel format (8-bit samples as stored).
+    pub format: TexelFormat,
+    /// Every level, finest first.
+    pub levels: Vec<CogLevelInfo>,
+    /// Why the overviews stop being used before the coarsest level, when levels are built.
+    pub built_because: Option<String>,
+}
+
+/// One level of a [`CogInfo`].
+#[derive(Clone, Debug, Serialize)]
+pub struct CogLevelInfo {
+    /// The level.
+    pub level: u32,
+    /// Its size in texels.
+    pub size: [u64; 2],
+    /// The tiles it is read in.
+    pub tile: [u64; 2],
+    /// Where its texels come from.
+    pub origin: LevelOrigin,
+}
+
+impl CogInfo {
+    /// The text `cliptex info` prints.
+    pub fn human(&self) -> String {
+        use std::fmt::Write;
+        let mut out = format!(
+            "{}: tiled TIFF served as it is: {} x {} texels, {}, clip size {}\n{:<6} {:<13} {:<13} from\n",
+            self.path.display(),
+            self.size[0],
+            self.size[1],
+            self.format,
+            self.clip_size,
+            "level",
+            "size",
+            "tile"
+        );
+        for l in &self.levels {
+            let from = match l.origin {
+                LevelOrigin::Ifd { ifd, tile, compression, predictor } => format!(
+                    "IFD {ifd}, {} x {} tiles, {compression}{}",
+                    tile[0],
+                    tile[1],
+                    if predictor { ", predictor 2" } else { "" }
+                ),
+                LevelOrigin::Built { from } => format!("built at open from level {from} (2 x 2 box)"),
+            };
+            let _ = writeln!(
+                out,
+                "{:<6} {:<13} {:<13} {from}",
+                l.level,
+                format!("{} x {}", l.size[0], l.size[1]),
+                format!("{} x {}", l.tile[0], l.tile[1])
+            );
+        }
+        if let Some(why) = &self.built_because {
+            let _ = writeln!(out, "levels are built because {why}");
+        }
+        out
+    }
+}
+
+/// Byte order and TIFF flavour of a file.
+#[derive(Clone, Copy, Debug)]
+struct Layout {
+    little: bool,
+    big: bool,
+}
+
+impl Layout {
+    fn u16(&self, b: &[u8]) -> u16 {
+        let a = [b[0], b[1]];
+        if self.little {
+            u16::from_le_bytes(a)
+        } else {
+            u16::from_be_bytes(a)
+        }
+    }
+
+    fn u32(&self, b: &[u8]) -> u32 {
+        let a = [b[0], b[1], b[2], b[3]];
+        if self.little {
+            u32::from_le_bytes(a)
+        } else {
+            u32::from_be_bytes(a)
+        }
+    }
+
+    fn u64(&self, b: &[u8]) -> u64 {
+        let a = [b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]];
+        if self.little {
+            u64::from_le_bytes(a)
+        } else {
+            u64::from_be_bytes(a)
+        }
+    }
+
+    /// An offset-sized field: 4 bytes in TIFF, 8 in BigTIFF.
+    fn offset(&self, b: &[u8]) -> u64 {
+        if self.big {
+            self.u64(b)
+        } else {
+            self.u32(b) as u64
+        }
+    }
+
+    /// The value field of an entry: 4 bytes in TIFF, 8 in BigTIFF.
+    fn field(&self) -> usize {
+        if self.big {
+            8
+        } else {
+            4
+        }
+    }
+
+    /// An unsigned value of TIFF type `ty` (BYTE, SHORT, LONG, LONG8) from its bytes.
+    fn value(&self, ty: u16, b: &[u8]) -> u64 {
+        match ty {
+            1 => b[0] as u64,
+            3 => self.u16(b) as u64,
+            4 | 13 => self.u32(b) as u64,
+            _ => self.u64(b),
+        }
+    }
+}
+
+/// Bytes of one value of an unsigned integer TIFF type, `None` for other types.
+fn unsigned_size(ty: u16) -> Option<u64> {
+    match ty {
+        1 => Some(1),
+        3 => Some(2),
+        4 | 13 => Some(4),
+        16 | 18 => Some(8),
+        _ => None,
+    }
+}
+
+/// One IFD entry: tag, type, count and its raw value field (the value itself when it fits,
+/// else the offset of its values).
+#[derive(Clone, Copy, Debug)]
+struct Entry {
+    tag: u16,
+    ty: u16,
+    count: u64,
+    field: [u8; 8],
+}
+
+/// An array of unsigned values in the file (a tile index), read one value at a time.
+#[derive(Clone, Copy, Debug)]
+struct Array {
+    ty: u16,
+    size: u64,
+    count: u64,
+    /// The values, when they fit in the entry.
+    inline: Option<[u8; 8]>,
+    /// Where they are, when they do not.
+    at: u64,
+}
+
+/// A level served from an image of the file.
+#[derive(Clone, Debug)]
+struct IfdLevel {
+    ifd: usize,
+    size: [u64; 2],
+    tile: [u64; 2],
+    across: u64,
+    compression: Compression,
+    predictor: bool,
+    offsets: Array,
+    counts: Array,
+}
+
+impl IfdLevel {
+    /// Tile rows of the image.
+    fn rows(&self) -> u64 {
+        self.size[1].div_ceil(self.tile[1])
+    }
+}
+
+/// A level: tiles of the file, or texels built at open (rows in increasing t, whole level).
+#[derive(Clone, Debug)]
+enum Level {
+    Ifd(IfdLevel),
+    Built(Vec<u8>),
+}
+
+/// What an IFD says about its image (the tags this source reads).
+struct Image {
+    ifd: usize,
+    subfile: u64,
+    entries: Vec<Entry>,
+}
+
+thread_local! {
+    /// Each reading thread's buffer for a tile's stored bytes.
+    static PACKED: RefCell<Vec<u8>> = const { RefCell::new(Vec::new()) };
+    /// Each reading thread's buffer for a whole decoded TIFF tile, when a texture tile is not
+    /// one TIFF tile.
+    static CHUNK: RefCell<Vec<u8>> = const { RefCell::new(Vec::new()) };
+}
+
+/// A local tiled GeoTIFF or COG served as a clip texture.
+pub struct CogSource {
+    path: PathBuf,
+    file: File,
+    layout: Layout,
+    desc: TextureDesc,
+    levels: Vec<Level>,
+    origins: Vec<LevelOrigin>,
+    built_because: Option<String>,
+}
+
+impl std::fmt::Debug for CogSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CogSource").field("path", &self.path).field("desc", &self.desc).finish_non_exhaustive()
+    }
+}
+
+/// Whether `path` is a file that starts like a TIFF or BigTIFF (unreadable files are not).
+pub fn is_tiff(path: &Path) -> bool {
+    let mut magic = [0u8; 4];
+    crate::open::regular(path).and_then(|(f, _)| f.read_exact_at(&mut magic, 0)).is_ok()
+        && matches!(&magic, b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+")
+}
+
+/// Reads `len` bytes at `offset`, or says what is missing.
+fn read_at(file: &File, offset: u64, len: usize, what: &str) -> Result<Vec<u8>, (String, String)> {
+    let mut buf = vec![0u8; len];
+    file.read_exact_at(&mut buf, offset).map_err(|e| {
+        let problem = if e.kind() == io::ErrorKind::UnexpectedEof {
+            let size = file.metadata().map(|m| m.len()).unwrap_or(0);
+            format!("{len} bytes at byte {offset} run past the end of the file ({size} bytes)")
+        } else {
+            e.to_string()
+        };
+        (what.to_string(), problem)
+    })?;
+    Ok(buf)
+}
+
+impl CogSource {
+    /// Opens the tiled TIFF `path` as a texture of clip size `clip_size`: reads its header and
+    /// IFDs, checks every image used, and builds the levels coarser than the smallest usable
+    /// overview.
+    pub fn open(path: &Path, clip_size: u64) -> Result<Self, CogError> {
+        let io_err = |source| CogError::Io { path: path.to_path_buf(), source };
+        let (file, _) = crate::open::regular(path).map_err(io_err)?;
+        let malformed = |(at, problem): (String, String)| CogError::Malformed { path: path.to_path_buf(), at, problem };
+        let mut head = [0u8; 16];
+        let got = read_prefix(&file, &mut head).map_err(io_err)?;
+        let layout = match &head[..4.min(got)] {
+            b"II*\0" => Layout { little: true, big: false },
+            b"MM\0*" => Layout { little: false, big: false },
+            b"II+\0" => Layout { little: true, big: true },
+            b"MM\0+" => Layout { little: false, big: true },
+            other => return Err(CogError::NotTiff { path: path.to_path_buf(), found: format!("{other:02x?}") }),
+        };
+        if layout.big && got < 16 || !layout.big && got < 8 {
+            return Err(malformed(("the header".into(), format!("the file has only {got} bytes"))));
+        }
+        if layout.big && (layout.u16(&head[4..]) != 8 || layout.u16(&head[6..]) != 0) {
+            return Err(malformed((
+                "the BigTIFF header".into(),
+                format!(
+                    "offset size {} and {} found, expected 8 and 0",
+                    layout.u16(&head[4..]),
+                    layout.u16(&head[6..])
+                ),
+            )));
+        }
+        let first = if layout.big { layout.u64(&head[8..]) } else { layout.u32(&head[4..]) as u64 };
+        let images = read_ifds(&file, layout, first).map_err(malformed)?;
+        let mut src = CogSource::from_images(path, file, layout, images, clip_size)?;
+        src.build_coarse()?;
+        Ok(src)
+    }
+
+    /// The file served.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Where each level's texels come from, level 0 first.
+    pub fn origins(&self) -> &[LevelOrigin] {
+        &self.origins
+    }
+
+    /// The texture served and where each level comes from, for `cliptex info`.
+    pub fn info(&self) -> CogInfo {
+        let levels = (0..self.desc.level_count())
+            .map(|k| {
+                let l = self.desc.level(k as u32);
+                CogLevelInfo { level: k as u32, size: l.size, tile: l.tile, origin: self.origins[k] }
+            })
+            .collect();
+        CogInfo {
+            path: self.path.clone(),
+            size: self.desc.size(),
+            clip_size: self.desc.clip_size(),
+            format: self.desc.format(),
+            levels,
+            built_because: self.built_because.clone(),
+        }
+    }
+
+    fn from_images(
+        path: &Path,
+        file: File,
+        layout: Layout,
+        images: Vec<Image>,
+        clip_size: u64,
+    ) -> Result<Self, CogError> {
+        let full = &images[0];
+        let (format, level0) = image_level(path, &file, layout, full)?;
+        let size = level0.size;
+        let n = level_count(size);
+        let mut levels = vec![Level::Ifd(level0)];
+        let mut why = String::from("it has no overviews");
+        for image in images.iter().skip(1) {
+            if image.subfile & 4 != 0 || image.subfile & 1 == 0 {
+                continue; // a mask or another page
+            }
+            let k = levels.len() as u32;
+            let (f, level) = image_level(path, &file, layout, image)?;
+            if f != format {
+                return Err(CogError::Unsupported {
+                    path: path.to_path_buf(),
+                    ifd: image.ifd,
+                    tag: "SamplesPerPixel (277)",
+                    found: format!("{} ({f})", f.components.count()),
+                    supported: "the full-resolution image's, in every overview",
+                });
+            }
+            let expected = level_size(size, k);
+            if levels.len() >= n || level.size != expected {
+                why = if levels.len() >= n {
+                    format!("IFD {} is an overview beyond the {n} levels of a {size:?} texture", image.ifd)
+                } else {
+                    format!(
+                        "IFD {} (overview {k}) is {:?} texels, expected {expected:?} (level 0's halved and rounded down); it and the overviews after it are not used",
+                        image.ifd, level.size
+                    )
+                };
+                break;
+            }
+            levels.push(Level::Ifd(level));
+            why = String::from("it has no smaller overviews");
+        }
+        let used = levels.len();
+        if used < n {
+            let base = used as u32 - 1;
+            let base_size = level_size(size, base);
+            if base_size[0] * base_size[1] > MAX_BUILT_TEXELS {
+                return Err(CogError::TooLargeToBuild {
+                    path: path.to_path_buf(),
+                    why,
+                    from: used as u32,
+                    last: n as u32 - 1,
+                    base,
+                    base_size,
+                });
+            }
+        }
+        let mut origins = Vec::with_capacity(n);
+        let mut descs = Vec::with_capacity(n);
+        let mut last_tile = [1, 1];
+        for k in 0..n as u32 {
+            let ls = level_size(size, k);
+            let origin = match levels.get(k as usize) {
+                Some(Level::Ifd(l)) => {
+                    last_tile = l.tile;
+                    LevelOrigin::Ifd { ifd: l.ifd, tile: l.tile, compression: l.compression, predictor: l.predictor }
+                }
+                _ => LevelOrigin::Built { from: used as u32 - 1 },
+            };
+            let stack = ls[0] > clip_size || ls[1] > clip_size;
+            let tile = if stack { [last_tile[0].min(ls[0]), last_tile[1].min(ls[1])] } else { ls };
+            descs.push(LevelDesc { size: ls, tile });
+            origins.push(origin);
+        }
+        let desc_err = |source| CogError::Desc { path: path.to_path_buf(), source };
+        let desc = TextureDesc::from_levels(size, clip_size, format, descs).map_err(desc_err)?;
+        let border = (clip_size / 32).clamp(1, 16).min(clip_size.saturating_sub(1) / 2);
+        let desc = desc.with_invalid_border(border).map_err(desc_err)?;
+        let built_because = (used < n).then_some(why);
+        Ok(CogSource { path: path.to_path_buf(), file, layout, desc, levels, origins, built_because })
+    }
+
+    /// Builds the levels past the last usable image from it, once.
+    fn build_coarse(&mut self) -> Result<(), CogError> {
+        let n = self.desc.level_count();
+        let used = self.levels.len();
+        if used >= n {
+            return Ok(());
+        }
+        let base = used as u32 - 1;
+        let bpt = self.desc.bytes_per_texel();
+        let Some(Level::Ifd(lv)) = self.levels.last().cloned() else { return Ok(()) };
+        let size = lv.size;
+        let mut texels = vec![0u8; (size[0] * size[1]) as usize * bpt];
+        let whole = TileId::new(base, 0, 0);
+        self.fill_region(&lv, whole, [0, 0], size, &mut texels, size[0] as usize, true)
+            .map_err(|source| CogError::Build { path: self.path.clone(), from: used as u32, source })?;
+        let mut size = size;
+        for _ in used..n {
+            let (next, next_size) = match self.levels.last() {
+                Some(Level::Built(t)) => halve(t, size, bpt),
+                _ => halve(&texels, size, bpt),
+            };
+            self.levels.push(Level::Built(next));
+            size = next_size;
+        }
+        Ok(())
+    }
+
+    /// One value of a tile index.
+    fn index_value(&self, a: &Array, i: u64, tile: TileId) -> Result<u64, SourceError> {
+        if i >= a.count {
+            let problem = format!("the tile index has {} entries, tile {i} asked for", a.count);
+            return Err(SourceError::Chunk { tile, path: self.path.clone(), problem });
+        }
+        if let Some(b) = a.inline {
+            let at = (i * a.size) as usize;
+            return Ok(self.layout.value(a.ty, &b[at..]));
+        }
+        let mut b = [0u8; 8];
+        let at = a.at + i * a.size;
+        match self.file.read_exact_at(&mut b[..a.size as usize], at) {
+            Ok(()) => Ok(self.layout.value(a.ty, &b)),
+            Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => {
+                let len = self.file.metadata().map(|m| m.len()).unwrap_or(0);
+                let problem = format!("its tile index entry at byte {at} lies past the end of the file ({len} bytes)");
+                Err(SourceError::Chunk { tile, path: self.path.clone(), problem })
+            }
+            Err(e) => Err(super::file::io_error(tile, e)),
+        }
+    }
+
+    /// Decodes TIFF tile `index` of `lv` into `dst` (one whole TIFF tile, rows top-down as
+    /// stored), undoing the predictor.
+    fn decode(&self, lv: &IfdLevel, index: u64, tile: TileId, dst: &mut [u8]) -> Result<(), SourceError> {
+        let offset = self.index_value(&lv.offsets, index, tile)?;
+        let count = self.index_value(&lv.counts, index, tile)?;
+        if offset == 0 || count == 0 {
+            return Err(SourceError::Missing { tile });
+        }
+        let bad = |problem: String| SourceError::Chunk { tile, path: self.path.clone(), problem };
+        let need = dst.len() as u64;
+        let short = |e: io::Error, len: u64| {
+            if e.kind() == io::ErrorKind::UnexpectedEof {
+                let size = self.file.metadata().map(|m| m.len()).unwrap_or(0);
+                SourceError::Short { tile, expected: len, got: size.saturating_sub(offset).min(len) }
+            } else {
+                super::file::io_error(tile, e)
+            }
+        };
+        if lv.compression == Compression::None {
+            if count < need {
+                return Err(bad(format!(
+                    "IFD {} tile {index} holds {count} bytes, expected {need} (one uncompressed tile)",
+                    lv.ifd
+                )));
+            }
+            self.file.read_exact_at(dst, offset).map_err(|e| short(e, need))?;
+        } else {
+            // The most a tile's compressed bytes can sensibly take.
+            let bound = need.saturating_mul(2).saturating_add(4096);
+            if count > bound {
+                return Err(bad(format!(
+                    "IFD {} tile {index} holds {count} bytes, more than a {need}-byte tile compresses to ({bound} at most)",
+                    lv.ifd
+                )));
+            }
+            PACKED.with(|cell| {
+                let packed = &mut *cell.borrow_mut();
+                packed.resize(count as usize, 0);
+                self.file.read_exact_at(packed, offset).map_err(|e| short(e, count))?;
+                let got = decompress(lv.compression, packed, dst)
+                    .map_err(|p| bad(format!("IFD {} tile {index} ({count} bytes at byte {offset}): {p}", lv.ifd)))?;
+                if got != dst.len() {
+                    return Err(bad(format!(
+                        "IFD {} tile {index} ({count} bytes at byte {offset}) decodes to {got} bytes, expected {need}",
+                        lv.ifd
+                    )));
+                }
+                Ok(())
+            })?;
+        }
+        if lv.predictor {
+            let bpt = self.desc.bytes_per_texel();
+            for row in dst.chunks_exact_mut(lv.tile[0] as usize * bpt) {
+                for i in bpt..row.len() {
+                    row[i] = row[i].wrapping_add(row[i - bpt]);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Fills the `w x h` texels from `(s0, t0)` of level `lv` into `out` (rows in increasing t,
+    /// `stride` texels apart), from every TIFF tile they touch; texels of `out` outside the region
+    /// are left alone. A sparse TIFF tile is [`SourceError::Missing`], or zeros with
+    /// `sparse_zero`.
+    #[allow(clippy::too_many_arguments)]
+    fn fill_region(
+        &self,
+        lv: &IfdLevel,
+        tile: TileId,
+        [s0, t0]: [u64; 2],
+        [w, h]: [u64; 2],
+        out: &mut [u8],
+        stride: usize,
+        sparse_zero: bool,
+    ) -> Result<(), SourceError> {
+        let bpt = self.desc.bytes_per_texel();
+        let [tw, th] = lv.tile;
+        let height = lv.size[1];
+        // Image rows y_lo..=y_hi (top-down) hold texture rows t0 + h - 1 down to t0.
+        let (y_lo, y_hi) = (height - (t0 + h), height - 1 - t0);
+        let chunk_bytes = (tw * th) as usize * bpt;
+        CHUNK.with(|cell| {
+            let chunk = &mut *cell.borrow_mut();
+            chunk.resize(chunk_bytes, 0);
+            for cy in y_lo / th..=y_hi / th {
+                for cx in s0 / tw..=(s0 + w - 1) / tw {
+                    match self.decode(lv, cy * lv.across + cx, tile, chunk) {
+                        Ok(()) => {}
+                        Err(SourceError::Missing { .. }) if sparse_zero => chunk.fill(0),
+                        Err(e) => return Err(e),
+                    }
+                    let (xa, xb) = (s0.max(cx * tw), (s0 + w).min((cx + 1) * tw));
+                    let len = (xb - xa) as usize * bpt;
+                    for y in y_lo.max(cy * th)..=y_hi.min((cy + 1) * th - 1) {
+                        let r = (height - 1 - y - t0) as usize;
+                        let from = (((y - cy * th) * tw + xa - cx * tw) as usize) * bpt;
+                        let to = (r * stride + (xa - s0) as usize) * bpt;
+                        out[to..to + len].copy_from_slice(&chunk[from..from + len]);
+                    }
+                }
+            }
+            Ok(())
+        })
+    }
+}
+
+/// Reads up to `buf.len()` bytes from the start of `file`; returns how many there were.
+fn read_prefix(file: &File, buf: &mut [u8]) -> io::Result<usize> {
+    let mut got = 0;
+    while got < buf.len() {
+        match file.read_at(&mut buf[got..], got as u64) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(got)
+}
+
+/// Reads the IFD chain from `first`: every IFD's entries, none of the arrays they point to.
+fn read_ifds(file: &File, layout: Layout, first: u64) -> Result<Vec<Image>, (String, String)> {
+    let mut images = Vec::new();
+    let mut next = first;
+    let mut seen = std::collections::HashSet::new();
+    let mut read_total = 0u64;
+    while next != 0 {
+        let ifd = images.len();
+        let at = format!("IFD {ifd} at byte {next}");
+        if ifd >= MAX_IFDS {
+            return Err((at, format!("the chain has more than {MAX_IFDS} IFDs")));
+        }
+        if !seen.insert(next) {
+            return Err((at, "the IFD chain loops back to an IFD already read".into()));
+        }
+        let count_size = if layout.big { 8 } else { 2 };
+        let head = read_at(file, next, count_size, &at)?;
+        let count = if layout.big { layout.u64(&head) } else { layout.u16(&head) as u64 };
+        if count == 0 || count > MAX_ENTRIES {
+            return Err((at, format!("{count} entries, expected 1 to {MAX_ENTRIES}")));
+        }
+        let entry_size = if layout.big { 20 } else { 12 };
+        let len = count * entry_size + layout.field() as u64;
+        read_total += len;
+        if read_total > MAX_STRUCTURE_BYTES {
+            return Err((at, format!("the IFDs take more than {MAX_STRUCTURE_BYTES} bytes")));
+        }
+        let body = read_at(file, next + count_size as u64, len as usize, &at)?;
+        let mut entries = Vec::with_capacity(count as usize);
+        for e in body.chunks_exact(entry_size as usize).take(count as usize) {
+            let tag = layout.u16(&e[0..]);
+            let ty = layout.u16(&e[2..]);
+            let (count, value) =
+                if layout.big { (layout.u64(&e[4..]), &e[12..20]) } else { (layout.u32(&e[4..]) as u64, &e[8..12]) };
+            let mut field = [0u8; 8];
+            field[..value.len()].copy_from_slice(value);
+            entries.push(Entry { tag, ty, count, field });
+        }
+        let mut image = Image { ifd, subfile: 0, entries };
+        image.subfile = scalar(file, layout, &image, 254, "NewSubfileType (254)")?.unwrap_or(0);
+        images.push(image);
+        next = layout.offset(&body[(count * entry_size) as usize..]);
+    }
+    if images.is_empty() {
+        return Err(("the header".into(), "it names no IFD (offset 0)".into()));
+    }
+    Ok(images)
+}
+
+/// The unsigned values of tag `tag` (at most `max` of them), `None` when the IFD lacks it.
+fn values(
+    file: &File,
+    layout: Layout,
+    image: &Image,
+    tag: u16,
+    name: &str,
+    max: u64,
+) -> Result<Option<Vec<u64>>, (String, String)> {
+    let Some(e) = image.entries.iter().find(|e| e.tag == tag) else { return Ok(None) };
+    let at = format!("IFD {} tag {name}", image.ifd);
+    let Some(size) = unsigned_size(e.ty) else {
+        return Err((at, format!("type {} found, expected an unsigned integer type", e.ty)));
+    };
+    if e.count == 0 || e.count > max {
+        return Err((at, format!("{} values, expected 1 to {max}", e.count)));
+    }
+    let bytes = if e.count * size <= layout.field() as u64 {
+        e.field[..(e.count * size) as usize].to_vec()
+    } else {
+        read_at(file, layout.offset(&e.field), (e.count * size) as usize, &at)?
+    };
+    Ok(Some(bytes.chunks_exact(size as usize).map(|b| layout.value(e.ty, b)).collect()))
+}
+
+/// The single unsigned value of tag `tag`, `None` when the IFD lacks it.
+fn scalar(file: &File, layout: Layout, image: &Image, tag: u16, name: &str) -> Result<Option<u64>, (String, String)> {
+    Ok(values(file, layout, image, tag, name, 1)?.map(|v| v[0]))
+}
+
+/// The tile index array of tag `tag`, without reading it.
+fn array(layout: Layout, image: &Image, tag: u16, name: &str, count: u64) -> Result<Array, (String, String)> {
+    let at = format!("IFD {} tag {name}", image.ifd);
+    let Some(e) = image.entries.iter().find(|e| e.tag == tag) else {
+        return Err((at, "missing, required in a tiled image".into()));
+    };
+    let size = match e.ty {
+        3 | 4 | 16 => unsigned_size(e.ty).unwrap_or(8),
+        ty => return Err((at, format!("type {ty} found, expected SHORT (3), LONG (4) or LONG8 (16)"))),
+    };
+    if e.count != count {
+        return Err((at, format!("{} values, expected {count} (one per tile)", e.count)));
+    }
+    let inline = (count * size <= layout.field() as u64).then_some(e.field);
+    Ok(Array { ty: e.ty, size, count, inline, at: layout.offset(&e.field) })
+}
+
+/// Checks one image's layout and describes it as a level: its texel format and tiles.
+fn image_level(path: &Path, file: &File, layout: Layout, image: &Image) -> Result<(TexelFormat, IfdLevel), CogError> {
+    let malformed = |(at, problem): (String, String)| CogError::Malformed { path: path.to_path_buf(), at, problem };
+    let unsupported = |tag, found: String, supported| CogError::Unsupported {
+        path: path.to_path_buf(),
+        ifd: image.ifd,
+        tag,
+        found,
+        supported,
+    };
+    let get = |tag: u16, name: &str| scalar(file, layout, image, tag, name).map_err(malformed);
+    let required = |tag: u16, name: &str| {
+        get(tag, name)?.ok_or_else(|| malformed((format!("IFD {} tag {name}", image.ifd), "missing".into())))
+    };
+    let width = required(256, "ImageWidth (256)")?;
+    let height = required(257, "ImageLength (257)")?;
+    let (Some(tw), Some(th)) = (get(322, "TileWidth (322)")?, get(323, "TileLength (323)")?) else {
+        return Err(unsupported(
+            "TileWidth (322)",
+            "absent: the image is stored in strips".into(),
+            "tiled images (gdal_translate -of COG, or -co TILED=YES)",
+        ));
+    };
+    if width == 0 || height == 0 || tw == 0 || th == 0 {
+        return Err(malformed((
+            format!("IFD {}", image.ifd),
+            format!("image {width} x {height} in tiles of {tw} x {th}: every size must be at least 1"),
+        )));
+    }
+    if width > super::MAX_TEXTURE_SIZE || height > super::MAX_TEXTURE_SIZE {
+        return Err(unsupported(
+            "ImageWidth (256) x ImageLength (257)",
+            format!("{width} x {height}"),
+            "at most 2^26 (MAX_TEXTURE_SIZE) texels a side",
+        ));
+    }
+    let spp = get(277, "SamplesPerPixel (277)")?.unwrap_or(1);
+    let format = match spp {
+        1 => TexelFormat::L8,
+        3 => TexelFormat::RGB8,
+        4 => TexelFormat::RGBA8,
+        n => return Err(unsupported("SamplesPerPixel (277)", n.to_string(), "1 (grey), 3 (RGB) or 4 (RGBA)")),
+    };
+    let list = |tag: u16, name: &str| values(file, layout, image, tag, name, 16).map_err(malformed);
+    let bits = list(258, "BitsPerSample (258)")?.unwrap_or(vec![1]);
+    if bits.iter().any(|&b| b != 8) {
+        return Err(unsupported("BitsPerSample (258)", format!("{bits:?}"), "8 bits per sample"));
+    }
+    if let Some(sf) = list(339, "SampleFormat (339)")? {
+        if sf.iter().any(|&f| f != 1) {
+            return Err(unsupported("SampleFormat (339)", format!("{sf:?}"), "1 (unsigned integer)"));
+        }
+    }
+    let planar = get(284, "PlanarConfiguration (284)")?.unwrap_or(1);
+    if planar != 1 && spp > 1 {
+        return Err(unsupported(
+            "PlanarConfiguration (284)",
+            format!("{planar} (separate planes)"),
+            "1 (chunky: samples of a pixel together; gdal_translate -co INTERLEAVE=PIXEL)",
+        ));
+    }
+    let photometric = get(262, "PhotometricInterpretation (262)")?;
+    let ok_photometric = match spp {
+        1 => photometric.unwrap_or(1) == 1,
+        _ => photometric == Some(2),
+    };
+    if !ok_photometric {
+        return Err(unsupported(
+            "PhotometricInterpretation (262)",
+            photometric.map_or("absent".into(), |p| p.to_string()),
+            "1 (grey, zero is black) with 1 sample, 2 (RGB) with 3 or 4",
+        ));
+    }
+    let compression = match get(259, "Compression (259)")?.unwrap_or(1) {
+        1 => Compression::None,
+        5 => Compression::Lzw,
+        8 | 32946 => Compression::Deflate,
+        50000 => Compression::Zstd,
+        c => {
+            let name = match c {
+                6 | 7 => " (JPEG)",
+                32773 => " (PackBits)",
+                34887 => " (LERC)",
+                34925 => " (LZMA)",
+                50001 => " (WebP)",
+                _ => "",
+            };
+            return Err(unsupported(
+                "Compression (259)",
+                format!("{c}{name}"),
+                "1 (none), 5 (LZW), 8 or 32946 (DEFLATE), 50000 (ZSTD)",
+            ));
+        }
+    };
+    let predictor = match get(317, "Predictor (317)")?.unwrap_or(1) {
+        1 => false,
+        2 => true,
+        p => return Err(unsupported("Predictor (317)", p.to_string(), "1 (none) or 2 (horizontal differencing)")),
+    };
+    let tile_bytes = tw.saturating_mul(th).saturating_mul(spp);
+    if tile_bytes > crate::limits::MAX_TILE_BYTES {
+        return Err(unsupported(
+            "TileWidth (322) x TileLength (323)",
+            format!("{tw} x {th} ({tile_bytes} bytes a tile)"),
+            "tiles of at most MAX_TILE_BYTES bytes",
+        ));
+    }
+    let across = width.div_ceil(tw);
+    let tiles = across * height.div_ceil(th);
+    let offsets = array(layout, image, 324, "TileOffsets (324)", tiles).map_err(malformed)?;
+    let counts = array(layout, image, 325, "TileByteCounts (325)", tiles).map_err(malformed)?;
+    let level = IfdLevel {
+        ifd: image.ifd,
+        size: [width, height],
+        tile: [tw, th],
+        across,
+        compression,
+        predictor,
+        offsets,
+        counts,
+    };
+    Ok((format, level))
+}
+
+/// Decompresses `packed` into `out`; returns the bytes written (at most `out.len()`).
+fn decompress(c: Compression, packed: &[u8], out: &mut [u8]) -> Result<usize, String> {
+    match c {
+        Compression::None => {
+            let n = packed.len().min(out.len());
+            out[..n].copy_from_slice(&packed[..n]);
+            Ok(n)
+        }
+        Compression::Lzw => {
+            let mut d = weezl::decode::Decoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8);
+            let (mut inp, mut done) = (packed, 0);
+            while done < out.len() {
+                let r = d.decode_bytes(inp, &mut out[done..]);
+                inp = &inp[r.consumed_in..];
+                done += r.consumed_out;
+                match r.status {
+                    Ok(weezl::LzwStatus::Ok) if r.consumed_in + r.consumed_out > 0 => {}
+                    Ok(_) => break,
+                    Err(e) => return Err(format!("not valid LZW data ({e})")),
+                }
+            }
+            Ok(done)
+        }
+        Compression::Deflate => {
+            let mut d = flate2::Decompress::new(true);
+            match d.decompress(packed, out, flate2::FlushDecompress::Finish) {
+                Ok(_) => Ok(d.total_out() as usize),
+                Err(e) => Err(format!("not valid DEFLATE data ({e})")),
+            }
+        }
+        Compression::Zstd => {
+            zstd::bulk::decompress_to_buffer(packed, out).map_err(|e| format!("not a valid zstd frame ({e})"))
+        }
+    }
+}
+
+/// The next coarser level of `src` (`size` texels, `bpt` bytes each, rows in increasing t) by
+/// `clipprep`'s 2 x 2 box filter: `floor((a + b + c + d + 2) / 4)` per byte, edges clamped.
+fn halve(src: &[u8], size: [u64; 2], bpt: usize) -> (Vec<u8>, [u64; 2]) {
+    let [w, h] = [size[0] as usize, size[1] as usize];
+    let (w2, h2) = ((w / 2).max(1), (h / 2).max(1));
+    let mut out = vec![0u8; w2 * h2 * bpt];
+    for j in 0..h2 {
+        let (r0, r1) = (2 * j, (2 * j + 1).min(h - 1));
+        for i in 0..w2 {
+            let (c0, c1) = (2 * i, (2 * i + 1).min(w - 1));
+            for b in 0..bpt {
+                let at = |r: usize, c: usize| src[(r * w + c) * bpt + b] as u32;
+                let sum = at(r0, c0) + at(r0, c1) + at(r1, c0) + at(r1, c1);
+                out[(j * w2 + i) * bpt + b] = ((sum + 2) / 4) as u8;
+            }
+        }
+    }
+    (out, [w2 as u64, h2 as u64])
+}
+
+impl TileSource for CogSource {
+    fn desc(&self) -> &TextureDesc {
+        &self.desc
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        check_request(&self.desc, tile, out)?;
+        let d = self.desc.level(tile.level);
+        let bpt = self.desc.bytes_per_texel();
+        let [tw, th] = d.tile;
+        let (s0, t0) = (tile.s * tw, tile.t * th);
+        let (w, h) = ((d.size[0] - s0).min(tw), (d.size[1] - t0).min(th));
+        match &self.levels[tile.level as usize] {
+            Level::Built(texels) => {
+                if w < tw || h < th {
+                    out.fill(0);
+                }
+                let (lw, len) = (d.size[0] as usize, w as usize * bpt);
+                for r in 0..h as usize {
+                    let from = ((t0 as usize + r) * lw + s0 as usize) * bpt;
+                    out[r * tw as usize * bpt..][..len].copy_from_slice(&texels[from..from + len]);
+                }
+                Ok(())
+            }
+            Level::Ifd(lv) if lv.tile == d.tile && lv.size[1] % lv.tile[1] == 0 => {
+                // One TIFF tile, decoded in place: its rows reversed, columns past the image's
+                // right edge zeroed.
+                let index = (lv.rows() - 1 - tile.t) * lv.across + tile.s;
+                self.decode(lv, index, tile, out)?;
+                let row = tw as usize * bpt;
+                for r in 0..th as usize / 2 {
+                    let (top, bottom) = out.split_at_mut((th as usize - 1 - r) * row);
+                    top[r * row..(r + 1) * row].swap_with_slice(&mut bottom[..row]);
+                }
+                if w < tw {
+                    for line in out.chunks_exact_mut(row) {
+                        line[w as usize * bpt..].fill(0);
+                    }
+                }
+                Ok(())
+            }
+            Level::Ifd(lv) => {
+                if w < tw || h < th {
+                    out.fill(0);
+                }
+                self.fill_region(lv, tile, [s0, t0], [w, h], out, tw as usize, false)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn halving_is_clipprep_box_filter_with_clamped_edges() {
+        // 3 x 2 grey: the odd column is dropped, as level_size floors.
+        let src = [0u8, 10, 200, 1, 3, 255];
+        let (out, size) = halve(&src, [3, 2], 1);
+        assert_eq!(size, [1, 1]);
+        assert_eq!(out, [(14 + 2) / 4]);
+        // 1 x 3: the single column is its own neighbour.
+        let (out, size) = halve(&[4, 8, 100], [1, 3], 1);
+        assert_eq!((out, size), (vec![(4 + 4 + 8 + 8 + 2) / 4], [1, 1]));
+    }
+
+    #[test]
+    fn lzw_round_trips_through_the_tiff_variant() {
+        let data: Vec<u8> = (0..5000u32).map(|i| (i * 7 % 251) as u8).collect();
+        let packed = weezl::encode::Encoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8).encode(&data).unwrap();
+        let mut out = vec![0u8; data.len()];
+        assert_eq!(decompress(Compression::Lzw, &packed, &mut out), Ok(data.len()));
+        assert_eq!(out, data);
+        assert!(decompress(Compression::Lzw, &[0xff; 64], &mut out).is_err_and(|e| e.contains("LZW")));
+    }
+}

@@ -1,0 +1,277 @@
+//! COGs and tiled GeoTIFFs written by GDAL (tests/fixtures/cog, README.md there) served by
+//! `CogSource`: level 0 is the image bottom-up, texel for texel; overview levels are GDAL's own
+//! decode of the overviews; coarser levels are the box filter of the last one; sparse tiles are
+//! missing; refused layouts name the tag; a truncated file gives errors, never wrong texels.
+
+use clipmap::source::cog::LevelOrigin;
+use clipmap::source::{CogError, CogSource, SourceError, TileId, TileSource};
+use std::path::{Path, PathBuf};
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cog").join(name)
+}
+
+/// Sample `c` of pixel `(x, y)` (y from the top row) of every fixture image (README.md).
+fn formula(x: u64, y: u64, c: usize) -> u8 {
+    (match c {
+        0 => (x + 2 * y) & 255,
+        1 => ((x >> 4) * 16 + (y >> 4) * 7) & 255,
+        2 => (x ^ y) & 255,
+        _ => 255 - ((x + y) >> 2 & 255),
+    }) as u8
+}
+
+/// Level `k` of `src`, read tile by tile, as whole rows in increasing t; the first error of a
+/// tile that cannot be read. Texels of edge tiles outside the level must be zero.
+fn level(src: &dyn TileSource, k: u32) -> Result<Vec<u8>, SourceError> {
+    let desc = src.desc();
+    let l = *desc.level(k);
+    let bpt = desc.bytes_per_texel();
+    let (w, h) = (l.size[0] as usize, l.size[1] as usize);
+    let mut texels = vec![0u8; w * h * bpt];
+    let mut buf = vec![0u8; desc.tile_bytes(k)];
+    let tiles = l.tiles();
+    for tt in 0..tiles[1] {
+        for ts in 0..tiles[0] {
+            buf.fill(0xa5);
+            src.read_tile(TileId::new(k, ts, tt), &mut buf)?;
+            let [tw, th] = [l.tile[0] as usize, l.tile[1] as usize];
+            for r in 0..th {
+                for c in 0..tw {
+                    let (s, t) = (ts as usize * tw + c, tt as usize * th + r);
+                    let texel = &buf[(r * tw + c) * bpt..][..bpt];
+                    if s < w && t < h {
+                        texels[(t * w + s) * bpt..][..bpt].copy_from_slice(texel);
+                    } else {
+                        assert!(
+                            texel.iter().all(|&b| b == 0),
+                            "level {k} texel ({s}, {t}) outside the level: {texel:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+    Ok(texels)
+}
+
+/// GDAL's decode of IFD `i` of `name` (NAME.i.png) as `bpt`-byte texels, rows in increasing t.
+fn gdal_level(name: &str, i: usize, bpt: usize) -> (Vec<u8>, [u64; 2]) {
+    let img = image::open(fixture(&format!("{name}.{i}.png"))).unwrap();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let bytes = match bpt {
+        1 => img.to_luma8().into_raw(),
+        3 => img.to_rgb8().into_raw(),
+        _ => img.to_rgba8().into_raw(),
+    };
+    let row = w * bpt;
+    let flipped = (0..h).rev().flat_map(|y| bytes[y * row..(y + 1) * row].to_vec()).collect();
+    (flipped, [w as u64, h as u64])
+}
+
+/// The 2 x 2 box filter of `clipprep`, written out again: floor((a + b + c + d + 2) / 4).
+fn box_halve(src: &[u8], [w, h]: [u64; 2], bpt: usize) -> Vec<u8> {
+    let (w2, h2) = ((w / 2).max(1), (h / 2).max(1));
+    let mut out = Vec::new();
+    for j in 0..h2 {
+        for i in 0..w2 {
+            for b in 0..bpt {
+                let at = |s: u64, t: u64| src[((t.min(h - 1) * w + s.min(w - 1)) as usize) * bpt + b] as u32;
+                let sum = at(2 * i, 2 * j) + at(2 * i + 1, 2 * j) + at(2 * i, 2 * j + 1) + at(2 * i + 1, 2 * j + 1);
+                out.push(((sum + 2) / 4) as u8);
+            }
+        }
+    }
+    out
+}
+
+struct Case {
+    name: &'static str,
+    bpt: usize,
+    /// IFDs that are levels 0, 1, ...
+    ifd_levels: usize,
+}
+
+const CASES: [Case; 6] = [
+    Case { name: "rgb_512x384", bpt: 3, ifd_levels: 3 },
+    Case { name: "grey_1000x700", bpt: 1, ifd_levels: 3 },
+    Case { name: "grey_500x350", bpt: 1, ifd_levels: 3 },
+    // Tiles decoded in place (the height is a multiple of 128), the last column partial.
+    Case { name: "grey_200x256", bpt: 1, ifd_levels: 2 },
+    Case { name: "bigtiff_200x256", bpt: 1, ifd_levels: 2 },
+    // Overview 1 is 50 x 38 (gdaladdo rounds up), level 1 is 50 x 37: everything past level 0
+    // is built.
+    Case { name: "rgba_100x75", bpt: 4, ifd_levels: 1 },
+];
+
+#[test]
+fn cog_levels_are_the_image_bottom_up_gdal_overviews_and_box_filtered_rest() {
+    for case in &CASES {
+        // A small clip size reads stack levels in TIFF tiles; a large one reads every level as
+        // one tile (assembled from several TIFF tiles).
+        for clip in [64, 4096] {
+            let src = CogSource::open(&fixture(&format!("{}.tif", case.name)), clip)
+                .unwrap_or_else(|e| panic!("{}: {e}", case.name));
+            let desc = src.desc().clone();
+            assert_eq!(desc.bytes_per_texel(), case.bpt, "{}", case.name);
+            let ctx = format!("{} clip {clip}", case.name);
+            // Level 0: the formula, image row H - 1 - t, and GDAL's decode.
+            let [w, h] = desc.size();
+            let l0 = level(&src, 0).unwrap_or_else(|e| panic!("{ctx}: {e}"));
+            for t in 0..h {
+                for s in 0..w {
+                    for c in 0..case.bpt {
+                        let got = l0[((t * w + s) as usize) * case.bpt + c];
+                        assert_eq!(got, formula(s, h - 1 - t, c), "{ctx}: texel ({s}, {t}) sample {c}");
+                    }
+                }
+            }
+            let (gdal0, size0) = gdal_level(case.name, 0, case.bpt);
+            assert_eq!((size0, &gdal0), ([w, h], &l0), "{ctx}: level 0 against GDAL");
+            let mut prev = l0;
+            for k in 1..desc.level_count() as u32 {
+                let got = level(&src, k).unwrap_or_else(|e| panic!("{ctx} level {k}: {e}"));
+                let size = desc.level(k).size;
+                if (k as usize) < case.ifd_levels {
+                    assert!(matches!(src.origins()[k as usize], LevelOrigin::Ifd { ifd, .. } if ifd == k as usize));
+                    let (gdal, gsize) = gdal_level(case.name, k as usize, case.bpt);
+                    assert_eq!(gsize, size, "{ctx}: overview {k} size");
+                    assert!(gdal == got, "{ctx}: level {k} differs from GDAL's overview");
+                } else {
+                    let from = case.ifd_levels as u32 - 1;
+                    assert_eq!(src.origins()[k as usize], LevelOrigin::Built { from }, "{ctx}: level {k}");
+                    let want = box_halve(&prev, desc.level(k - 1).size, case.bpt);
+                    assert!(want == got, "{ctx}: level {k} is not the box filter of level {}", k - 1);
+                }
+                prev = got;
+            }
+        }
+    }
+}
+
+#[test]
+fn cog_sparse_tiles_are_missing_and_built_levels_read_them_as_zero() {
+    let src = CogSource::open(&fixture("sparse_512x512.tif"), 128).unwrap();
+    let desc = src.desc().clone();
+    assert_eq!(desc.level(0).tile, [128, 128]);
+    let mut buf = vec![0u8; desc.tile_bytes(0)];
+    for tt in 0..4 {
+        for ts in 0..4 {
+            let r = src.read_tile(TileId::new(0, ts, tt), &mut buf);
+            // Pixels x >= 256, y < 256 are zero, left out: texture tiles S >= 2, T >= 2.
+            if ts >= 2 && tt >= 2 {
+                assert!(matches!(r, Err(SourceError::Missing { .. })), "tile ({ts}, {tt}): {r:?}");
+                continue;
+            }
+            r.unwrap_or_else(|e| panic!("tile ({ts}, {tt}): {e}"));
+            for (i, &v) in buf.iter().enumerate() {
+                let (s, t) = (ts * 128 + i as u64 % 128, tt * 128 + i as u64 / 128);
+                let y = 511 - t;
+                let want = if s >= 256 && y < 256 { 0 } else { formula(s, y, 0) };
+                assert_eq!(v, want, "texel ({s}, {t})");
+            }
+        }
+    }
+    // Level 1 is built from level 0, its sparse quarter as zeros.
+    assert_eq!(src.origins()[1], LevelOrigin::Built { from: 0 });
+    let l1 = level(&src, 1).unwrap();
+    assert_eq!(l1[200 * 256 + 200], 0, "top-right quarter");
+    assert_ne!(l1[10 * 256 + 10], 0, "bottom-left quarter");
+}
+
+#[test]
+fn cog_refuses_what_it_does_not_serve_naming_the_tag() {
+    let e = CogSource::open(&fixture("u16_64x64.tif"), 64).unwrap_err();
+    assert!(matches!(e, CogError::Unsupported { ifd: 0, .. }), "{e}");
+    assert!(e.to_string().contains("IFD 0: BitsPerSample (258) is [16]: supported: 8 bits per sample"), "{e}");
+    let e = CogSource::open(&fixture("strips_64x64.tif"), 64).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("IFD 0: TileWidth (322) is absent: the image is stored in strips: supported: tiled images"),
+        "{e}"
+    );
+    let e = CogSource::open(&fixture("README.md"), 64).unwrap_err();
+    assert!(matches!(e, CogError::NotTiff { .. }), "{e}");
+    assert!(e.to_string().contains("not a TIFF: it starts with [23, 20, 43, 4f]"), "{e}");
+}
+
+#[test]
+fn cog_truncated_files_give_errors_never_wrong_texels() {
+    let name = "rgb_512x384";
+    let full = std::fs::read(fixture(&format!("{name}.tif"))).unwrap();
+    let reference = CogSource::open(&fixture(&format!("{name}.tif")), 64).unwrap();
+    let want: Vec<Vec<u8>> =
+        (0..reference.desc().level_count() as u32).map(|k| level(&reference, k).unwrap()).collect();
+    let dir = tempfile::tempdir().unwrap();
+    let len = full.len();
+    let mut opened = 0;
+    let mut failed_reads = 0;
+    for cut in [0, 3, 8, 100, 200, 300, 500, 800, 1000, 4000, len / 4, len / 2, 3 * len / 4, len - 1] {
+        let path = dir.path().join(format!("cut{cut}.tif"));
+        std::fs::write(&path, &full[..cut]).unwrap();
+        let src = match CogSource::open(&path, 64) {
+            Ok(s) => s,
+            Err(e) => {
+                let text = e.to_string();
+                assert!(text.contains(&path.display().to_string()), "{text}");
+                continue;
+            }
+        };
+        opened += 1;
+        let desc = src.desc().clone();
+        for k in 0..desc.level_count() as u32 {
+            let l = *desc.level(k);
+            let mut buf = vec![0u8; desc.tile_bytes(k)];
+            let whole = &want[k as usize];
+            let bpt = desc.bytes_per_texel();
+            for tt in 0..l.tiles()[1] {
+                for ts in 0..l.tiles()[0] {
+                    match src.read_tile(TileId::new(k, ts, tt), &mut buf) {
+                        Err(e) => {
+                            failed_reads += 1;
+                            assert!(
+                                matches!(e, SourceError::Short { .. } | SourceError::Chunk { .. }),
+                                "cut {cut}: {e}"
+                            );
+                        }
+                        Ok(()) => {
+                            // Every delivered texel is the full file's.
+                            let [tw, th] = [l.tile[0] as usize, l.tile[1] as usize];
+                            for r in 0..th.min(l.size[1] as usize - tt as usize * th) {
+                                let t = tt as usize * th + r;
+                                let cols = tw.min(l.size[0] as usize - ts as usize * tw);
+                                let at = (t * l.size[0] as usize + ts as usize * tw) * bpt;
+                                let got = &buf[r * tw * bpt..][..cols * bpt];
+                                assert!(got == &whole[at..at + cols * bpt], "cut {cut}: level {k} tile ({ts}, {tt})");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(opened > 0 && failed_reads > 0, "some cuts open, and their lost tiles fail: {opened} {failed_reads}");
+}
+
+#[test]
+fn cliptex_info_shows_where_each_level_of_a_cog_comes_from() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(["info"])
+        .arg(fixture("rgba_100x75.tif"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{out:?}");
+    assert!(text.contains("100 x 75 texels, rgba8, clip size 1024"), "{text}");
+    assert!(text.contains("0      100 x 75      100 x 75      IFD 0, 32 x 32 tiles, uncompressed"), "{text}");
+    assert!(text.contains("1      50 x 37       50 x 37       built at open from level 0 (2 x 2 box)"), "{text}");
+    assert!(text.contains("IFD 1 (overview 1) is [50, 38] texels, expected [50, 37]"), "{text}");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(["info", "--json"])
+        .arg(fixture("grey_1000x700.tif"))
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["levels"][2]["origin"]["ifd"]["compression"], "deflate", "{v}");
+    assert_eq!(v["levels"][3]["origin"]["built"]["from"], 2, "{v}");
+}
