@@ -13,6 +13,13 @@
 //! a COG with millions of tiles opens as fast as a small one and reads run in parallel without a
 //! lock.
 //!
+//! Why not the `tiff` crate (which `clipprep` uses to stream GeoTIFFs): its decoder reads every
+//! IFD's whole TileOffsets and TileByteCounts arrays when it opens an image, and it reads a tile
+//! through `&mut self` (one seek position), so a COG of millions of tiles would cost its whole
+//! index at open and every tile read would take a lock. The structure parsed here is small
+//! (header, IFD entries); decompression is left to the maintained crates the `tiff` crate itself
+//! uses (`weezl` for LZW, `flate2` for DEFLATE) and `zstd`.
+//!
 //! Orientation: as `clipprep` makes a texture of an image, t counts up from the image's bottom
 //! row: texel (s, t) of a level is pixel (column s, row H - 1 - t) of its image. A texture tile
 //! is the TIFF tile's size; when the image height is a multiple of the TIFF tile height the
