@@ -243,8 +243,8 @@ fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool, format: clipmap:
                 r.disk_tiles.map(|b| format!("{b} tiles/frame")).unwrap_or_else(|| "ideal".into()),
                 r.speed,
                 r.flight,
-                r.psnr_min.map(|p| format!("{p:.1} dB")).unwrap_or_else(|| "inf".into()),
-                r.coarser_pixel_share * 100.0
+                r.summary.psnr_min.map(|p| format!("{p:.1} dB")).unwrap_or_else(|| "inf".into()),
+                r.summary.coarser_pixel_share * 100.0
             );
         }
     }) {

@@ -110,15 +110,23 @@ pub struct Outcome {
     pub case: Case,
     /// Per frame.
     pub frames: Vec<FrameMetrics>,
-    /// Worst PSNR (`None` when every frame is identical to the reference).
+    /// The flight's figures.
+    #[serde(flatten)]
+    pub summary: Summary,
+}
+
+/// A flight's figures, summed or worst over its frames (an [`Outcome`]'s, and a sweep row's).
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    /// Worst PSNR in dB (`None` when every frame is identical to the reference).
     pub psnr_min: Option<f64>,
-    /// Worst channel error.
+    /// Worst channel error (8-bit units; 16-bit units for a 16-bit format).
     pub max_error: u16,
     /// Mean share of pixels from a coarser level than ideal.
     pub coarser_pixel_share: f64,
-    /// Total bytes copied.
+    /// Bytes copied over the flight.
     pub bytes_read: u64,
-    /// Total tiles read.
+    /// Tiles read over the flight.
     pub tiles_read: u64,
     /// Frames on which the disk was the limit.
     pub ticks_over_budget: u64,
@@ -255,7 +263,7 @@ pub fn run(case: &Case, mut keep: impl FnMut(u64, &Camera, &[Pixel], &[Pixel])) 
         });
     }
     let psnr_min = frames.iter().filter_map(|f| f.psnr).min_by(|a, b| a.total_cmp(b));
-    Ok(Outcome {
+    let summary = Summary {
         psnr_min,
         max_error: frames.iter().map(|f| f.max_error).max().unwrap_or(0),
         coarser_pixel_share: frames.iter().map(|f| f.coarser_pixel_share).sum::<f64>() / frames.len().max(1) as f64,
@@ -263,7 +271,6 @@ pub fn run(case: &Case, mut keep: impl FnMut(u64, &Camera, &[Pixel], &[Pixel])) 
         tiles_read: frames.iter().map(|f| f.tiles_read).sum(),
         ticks_over_budget: frames.iter().filter(|f| f.over_budget).count() as u64,
         resident_bytes: map.resident_bytes(),
-        frames,
-        case: case.clone(),
-    })
+    };
+    Ok(Outcome { summary, frames, case: case.clone() })
 }

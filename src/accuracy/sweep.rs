@@ -27,20 +27,9 @@ pub struct Row {
     pub speed: f64,
     /// Flight spec.
     pub flight: String,
-    /// Worst PSNR in dB (`null` when every frame is identical to the reference).
-    pub psnr_min: Option<f64>,
-    /// Worst channel error (8-bit units; 16-bit units for a 16-bit format).
-    pub max_error: u16,
-    /// Mean share of pixels from a coarser level than ideal.
-    pub coarser_pixel_share: f64,
-    /// Bytes copied over the flight.
-    pub bytes_read: u64,
-    /// Tiles read over the flight.
-    pub tiles_read: u64,
-    /// Frames on which the disk was the limit.
-    pub ticks_over_budget: u64,
-    /// Engine resident bytes.
-    pub resident_bytes: u64,
+    /// The flight's figures (worst PSNR, errors, reads, resident bytes).
+    #[serde(flatten)]
+    pub summary: study::Summary,
     /// Frames flown.
     pub frames: u64,
     /// Levels addressable at once (virtual clip texture), `null` for all.
@@ -59,13 +48,7 @@ impl Row {
             tile_bytes: o.case.tile * o.case.tile * o.case.format.bytes_per_texel() as u64,
             speed,
             flight: o.case.flight.clone(),
-            psnr_min: o.psnr_min,
-            max_error: o.max_error,
-            coarser_pixel_share: o.coarser_pixel_share,
-            bytes_read: o.bytes_read,
-            tiles_read: o.tiles_read,
-            ticks_over_budget: o.ticks_over_budget,
-            resident_bytes: o.resident_bytes,
+            summary: o.summary.clone(),
             frames: o.case.frames,
             effective_levels: o.case.effective_levels,
             format: o.case.format.short_name(),
@@ -144,13 +127,13 @@ pub(crate) fn csv(rows: &[Row]) -> String {
             r.disk_tiles.map(|b| b.to_string()).unwrap_or_default(),
             r.speed,
             r.flight,
-            r.psnr_min.map(|p| format!("{p:.3}")).unwrap_or_else(|| "inf".into()),
-            r.max_error,
-            r.coarser_pixel_share,
-            r.bytes_read,
-            r.tiles_read,
-            r.ticks_over_budget,
-            r.resident_bytes,
+            r.summary.psnr_min.map(|p| format!("{p:.3}")).unwrap_or_else(|| "inf".into()),
+            r.summary.max_error,
+            r.summary.coarser_pixel_share,
+            r.summary.bytes_read,
+            r.summary.tiles_read,
+            r.summary.ticks_over_budget,
+            r.summary.resident_bytes,
             r.frames,
             r.effective_levels.map(|e| e.to_string()).unwrap_or_default()
         );
@@ -343,9 +326,10 @@ pub fn write_outputs(rows: &[Row], dir: &Path, quick: bool, command: &str) -> st
         .iter()
         .filter(|r| r.disk_tiles.is_none() && r.invalid_border == 8 && r.flight.starts_with("straight"))
         .collect();
-    let by_clip: Vec<(f64, f64)> = base_clip.iter().map(|r| (r.clip_size as f64, psnr_plot(r.psnr_min))).collect();
+    let by_clip: Vec<(f64, f64)> =
+        base_clip.iter().map(|r| (r.clip_size as f64, psnr_plot(r.summary.psnr_min))).collect();
     let coarser_clip: Vec<(f64, f64)> =
-        base_clip.iter().map(|r| (r.clip_size as f64, r.coarser_pixel_share * 100.0)).collect();
+        base_clip.iter().map(|r| (r.clip_size as f64, r.summary.coarser_pixel_share * 100.0)).collect();
     write_whole(
         &dir.join("psnr_vs_clip.svg"),
         svg_chart(
@@ -366,7 +350,7 @@ pub fn write_outputs(rows: &[Row], dir: &Path, quick: bool, command: &str) -> st
             let pts = rows
                 .iter()
                 .filter(|r| r.speed == sp && r.flight.starts_with("straight") && r.disk_tiles.is_some())
-                .map(|r| (r.disk_tiles.unwrap_or(0) as f64, r.coarser_pixel_share * 100.0))
+                .map(|r| (r.disk_tiles.unwrap_or(0) as f64, r.summary.coarser_pixel_share * 100.0))
                 .collect();
             (format!("{sp} texels/frame"), pts)
         })
@@ -409,12 +393,12 @@ pub fn report(rows: &[Row], quick: bool, command: &str) -> String {
             r.speed,
             r.flight,
             r.effective_levels.map(|e| format!("{e} (virtual, pitch 15°)")).unwrap_or_else(|| "all".into()),
-            r.psnr_min.map(|p| format!("{p:.1}")).unwrap_or_else(|| "∞ (identical)".into()),
-            r.max_error,
-            r.coarser_pixel_share * 100.0,
-            r.bytes_read as f64 / 1e6,
-            r.tiles_read,
-            r.ticks_over_budget
+            r.summary.psnr_min.map(|p| format!("{p:.1}")).unwrap_or_else(|| "∞ (identical)".into()),
+            r.summary.max_error,
+            r.summary.coarser_pixel_share * 100.0,
+            r.summary.bytes_read as f64 / 1e6,
+            r.summary.tiles_read,
+            r.summary.ticks_over_budget
         );
     }
     o

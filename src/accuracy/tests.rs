@@ -30,8 +30,12 @@ fn a_smaller_clip_size_never_improves_the_picture() {
     let mut last_share = -1.0;
     for clip in [512u64, 128, 32] {
         let o = run(&case(clip, 128), |_, _, _, _| {}).unwrap();
-        assert!(o.coarser_pixel_share >= last_share, "clip {clip}: {} < {last_share}", o.coarser_pixel_share);
-        last_share = o.coarser_pixel_share;
+        assert!(
+            o.summary.coarser_pixel_share >= last_share,
+            "clip {clip}: {} < {last_share}",
+            o.summary.coarser_pixel_share
+        );
+        last_share = o.summary.coarser_pixel_share;
     }
     assert!(last_share > 0.01, "a 32-texel clip for a 128-pixel view must draw some pixels coarser");
 }
@@ -46,7 +50,7 @@ fn a_slower_disk_or_a_faster_flight_draws_more_pixels_coarser() {
             frames: 6,
             ..case(256, 128)
         };
-        run(&c, |_, _, _, _| {}).unwrap().coarser_pixel_share
+        run(&c, |_, _, _, _| {}).unwrap().summary.coarser_pixel_share
     };
     let (loose, tight) = (at(64, 64.0), at(1, 64.0));
     assert!(tight > loose, "tight {tight} <= loose {loose}");
@@ -63,8 +67,12 @@ fn a_virtual_clip_texture_with_few_effective_levels_loses_the_far_field() {
     let few = Case { effective_levels: Some(2), pitch_deg: 15.0, ..case(256, 128) };
     let o_all = run(&all, |_, _, _, _| {}).unwrap();
     let o_few = run(&few, |_, _, _, _| {}).unwrap();
-    assert_eq!((o_all.psnr_min, o_all.max_error), (None, 0), "all levels addressable: identical");
-    assert!(o_few.max_error > 0 && o_few.psnr_min.is_some(), "{:?}", (o_few.psnr_min, o_few.max_error));
+    assert_eq!((o_all.summary.psnr_min, o_all.summary.max_error), (None, 0), "all levels addressable: identical");
+    assert!(
+        o_few.summary.max_error > 0 && o_few.summary.psnr_min.is_some(),
+        "{:?}",
+        (o_few.summary.psnr_min, o_few.summary.max_error)
+    );
 }
 
 #[test]
@@ -72,10 +80,11 @@ fn a_wider_invalid_border_never_improves_the_picture() {
     let mut last = -1.0;
     for border in [8u64, 16, 32] {
         let o = run(&Case { invalid_border: border, ..case(128, 128) }, |_, _, _, _| {}).unwrap();
-        assert!(o.coarser_pixel_share >= last, "border {border}: {} < {last}", o.coarser_pixel_share);
-        last = o.coarser_pixel_share;
+        assert!(o.summary.coarser_pixel_share >= last, "border {border}: {} < {last}", o.summary.coarser_pixel_share);
+        last = o.summary.coarser_pixel_share;
     }
-    let narrow = run(&Case { invalid_border: 8, ..case(128, 128) }, |_, _, _, _| {}).unwrap().coarser_pixel_share;
+    let narrow =
+        run(&Case { invalid_border: 8, ..case(128, 128) }, |_, _, _, _| {}).unwrap().summary.coarser_pixel_share;
     assert!(last > narrow, "a 32-texel border must cost more than an 8-texel one: {last} vs {narrow}");
 }
 
@@ -86,11 +95,11 @@ fn a_sixteen_bit_texture_is_compared_at_sixteen_bits() {
     // Identical frames stay identical at 16 bits; a case that differs measures against 65535.
     let same = Case { format: TexelFormat::L16, ..case(256, 128) };
     let o = run(&same, |_, _, _, _| {}).unwrap();
-    assert_eq!((o.psnr_min, o.max_error), (None, 0), "{:?}", o.frames);
+    assert_eq!((o.summary.psnr_min, o.summary.max_error), (None, 0), "{:?}", o.frames);
     let few = Case { effective_levels: Some(2), pitch_deg: 15.0, format: TexelFormat::RGBA16, ..case(256, 128) };
     let mut pairs = Vec::new();
     let o = run(&few, |_, _, want, got| pairs.push((want.to_vec(), got.to_vec()))).unwrap();
-    assert!(o.max_error > 255, "errors in 16-bit units: {}", o.max_error);
+    assert!(o.summary.max_error > 255, "errors in 16-bit units: {}", o.summary.max_error);
     // The same frames at 8 bits: errors 257 times smaller (within rounding), and the PSNR nearly
     // the same, the peak scaling with the errors.
     let (want, got) = &pairs[0];

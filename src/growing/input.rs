@@ -331,15 +331,7 @@ pub fn new_patch(
         });
     }
     let encoded = desc.image.is_some().then_some(bytes);
-    Ok(NewPatch {
-        bbox: p.bbox,
-        time: p.time,
-        rating: p.rating,
-        width: p.width,
-        height: p.height,
-        texels: p.texels,
-        encoded,
-    })
+    Ok(NewPatch { patch: p, encoded })
 }
 
 /// The file a sidecar's data is in: its `image`, relative to the sidecar's directory, or the
@@ -440,7 +432,7 @@ mod tests {
         }
         let side = d.join("in/own.json");
         std::fs::write(&side, format!(r#"{{"bbox": [0, 0, 8, 8], "image": "{abs}"}}"#)).unwrap();
-        assert_eq!(read_sidecar(&rgb, &side, 1 << 20, Paths::Anywhere).unwrap().width, 8);
+        assert_eq!(read_sidecar(&rgb, &side, 1 << 20, Paths::Anywhere).unwrap().patch.width, 8);
     }
 
     #[test]

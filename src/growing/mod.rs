@@ -66,15 +66,13 @@ pub(crate) fn digest_from(bytes: &[u8], mut h: u64) -> u64 {
     crate::tile::mix64(h ^ bytes.len() as u64)
 }
 
-/// A patch as handed in, before the store gives it an id.
+/// A patch as handed in, before the store gives it an id: the patch (its `id` is not used: the
+/// store gives the next one, and checks the rest again against its own grid), and the image file
+/// its texels were decoded from, if any.
 #[derive(Clone, Debug)]
 pub struct NewPatch {
-    pub bbox: WorldBox,
-    pub time: u64,
-    pub rating: f64,
-    pub width: u32,
-    pub height: u32,
-    pub texels: Vec<u8>,
+    /// The patch.
+    pub patch: Patch,
     /// The image file the texels were decoded from, kept instead of the texels (a JPEG is a
     /// tenth of its texels: a tenth of the bytes to sync before the patch is acknowledged).
     pub encoded: Option<Vec<u8>>,

@@ -521,11 +521,12 @@ impl Growing {
     pub(crate) fn add_from(&mut self, p: NewPatch, source: Option<String>) -> Result<u64, StoreError> {
         self.writable()?;
         let id = self.next_id;
-        let meta = PatchMeta { id, bbox: p.bbox, time: p.time, rating: p.rating };
-        let patch = Patch::new(&self.grid, meta, p.width, p.height, p.texels).map_err(StoreError::Patch)?;
+        let NewPatch { patch: given, encoded } = p;
+        let meta = PatchMeta { id, bbox: given.bbox, time: given.time, rating: given.rating };
+        let patch = Patch::new(&self.grid, meta, given.width, given.height, given.texels).map_err(StoreError::Patch)?;
         let pdir = self.dir.join("patches");
         let rpath = pdir.join(format!("{id:010}.json"));
-        let (tpath, image_digest) = match &p.encoded {
+        let (tpath, image_digest) = match &encoded {
             Some(bytes) => {
                 let path = pdir.join(format!("{id:010}.image"));
                 write_file(&path, bytes, true)?;

@@ -390,15 +390,16 @@ mod store {
 
     fn new_patch(b: [f64; 4], time: u64, rating: f64, w: u32, h: u32, seed: u8) -> NewPatch {
         let texels = (0..w * h).map(|n| seed.wrapping_add((n % w * 5 + n / w * 11) as u8)).collect();
-        NewPatch {
+        let patch = Patch {
+            id: 0,
             bbox: WorldBox { min: [b[0], b[1]], max: [b[2], b[3]] },
             time,
             rating,
             width: w,
             height: h,
             texels,
-            encoded: None,
-        }
+        };
+        NewPatch { patch, encoded: None }
     }
 
     /// A few overlapping patches around the origin (ids 1.. as the store gives them).
@@ -540,7 +541,7 @@ mod store {
         }
         assert_eq!(files(&root.join("patches")), before);
         let mut ok = new_patch([0.0, 0.0, 4.0, 4.0], 0, 0.0, 2, 2, 0);
-        ok.texels = vec![9; 12];
+        ok.patch.texels = vec![9; 12];
         assert_eq!(g.add(ok).unwrap(), 1, "refused patches take no id");
 
         let e = Growing::create(&root, [0.0, 0.0], 1.0, 4, "rgb8").err().unwrap().to_string();

@@ -28,137 +28,13 @@ pub fn build(
     let formats = ic::read_formats(&mut r, false);
 
     let virt_f = r.int3(TokenId::Size);
-    if virt_f.is_absent() {
-        let d = r
-            .diag(Severity::Error, "missing-mandatory", Some(Span::START), "`virt_size` is missing; it is mandatory")
-            .hint("add `virt_size S T 1` (the level-0 size in texels)");
-        r.push(d);
-    }
-    let virt = values::size3(
-        &mut r,
-        &virt_f,
-        "virt_size",
-        SizeRule { pow2: true, max: limits.max_texture_size, allow_two: true, r_is_one: true },
-    );
+    let virt = virt_size(&mut r, &virt_f, limits.max_texture_size);
 
     let clip_f = r.int(TokenId::ClipSize);
-    let clip = match &clip_f {
-        Field::Absent => {
-            let d = r
-                .diag(
-                    Severity::Error,
-                    "missing-mandatory",
-                    Some(Span::START),
-                    "`clip_size` is missing; it is mandatory",
-                )
-                .hint("add `clip_size N` (a power of two, usually the display width)");
-            r.push(d);
-            None
-        }
-        Field::Broken => None,
-        Field::Given(v, _) => {
-            if v.value <= 0 {
-                let d = r
-                    .diag(Severity::Error, "clip-size-not-positive", Some(v.span), "`clip_size` must be positive")
-                    .found(v.value.to_string())
-                    .expected("a positive power of two");
-                r.push(d);
-                None
-            } else if !(v.value as u64).is_power_of_two() {
-                let u = v.value as u64;
-                let d = r
-                    .diag(
-                        Severity::Error,
-                        "clip-size-not-power-of-two",
-                        Some(v.span),
-                        "`clip_size` must be a power of two",
-                    )
-                    .found(v.value.to_string())
-                    .hint(format!(
-                        "the nearest powers of two are {} and {}",
-                        values::next_pow2(u) / 2,
-                        values::next_pow2(u)
-                    ));
-                r.push(d);
-                None
-            } else if v.value as u64 > limits.max_texture_size {
-                let d = r
-                    .diag(
-                        Severity::Error,
-                        "clip-size-too-large",
-                        Some(v.span),
-                        "`clip_size` is larger than this reader's limit",
-                    )
-                    .found(v.value.to_string());
-                r.push(d);
-                None
-            } else {
-                Some(v.value as u64)
-            }
-        }
-    };
-    if let (Some(v), Some(c)) = (virt, clip) {
-        if v[0].min(v[1]) < c {
-            let d = r
-                .diag(
-                    Severity::Warning,
-                    "clip-larger-than-texture",
-                    values::span_of(&clip_f),
-                    format!("`clip_size` {c} is larger than the texture's smaller side ({})", v[0].min(v[1])),
-                )
-                .hint(
-                    "a clip size above the texture size keeps the whole texture resident; lower it to the texture size",
-                );
-            r.push(d);
-        }
-    }
+    let clip = clip_size(&mut r, &clip_f, virt, limits.max_texture_size);
 
     let border_f = r.int(TokenId::InvalidBorder);
-    let invalid_border = match &border_f {
-        Field::Absent => {
-            defaulted.push("invalid_border");
-            Some(8)
-        }
-        Field::Broken => None,
-        Field::Given(v, _) if v.value < 0 => {
-            let d = r
-                .diag(Severity::Error, "negative-value", Some(v.span), "`invalid_border` cannot be negative")
-                .found(v.value.to_string())
-                .expected("8 or more");
-            r.push(d);
-            None
-        }
-        Field::Given(v, _) if v.value < 8 => {
-            let d = r
-                .diag(
-                    Severity::Warning,
-                    "border-raised",
-                    Some(v.span),
-                    format!(
-                        "`invalid_border` {} is below the minimum of 8; it is raised to 8, as Performer does",
-                        v.value
-                    ),
-                )
-                .hint("write `invalid_border 8` (or more) to say what is used");
-            r.push(d);
-            Some(8)
-        }
-        Field::Given(v, _) => Some(v.value as u64),
-    };
-    if let (Some(b), Some(c)) = (invalid_border, clip) {
-        if 2 * b >= c && c > 0 {
-            let d = r
-                .diag(
-                    Severity::Error,
-                    "border-too-wide",
-                    values::span_of(&border_f).or(values::span_of(&clip_f)),
-                    format!("an invalid border of {b} on each side leaves nothing of a {c}-texel clip window"),
-                )
-                .expected(format!("an invalid border below {}", c / 2))
-                .hint("raise clip_size or lower invalid_border");
-            r.push(d);
-        }
-    }
+    let invalid_border = invalid_border(&mut r, &border_f, clip, &clip_f, &mut defaulted);
 
     let eff_f = r.int(TokenId::EffectiveLevels);
     let effective = positive_u32(&mut r, &eff_f, "effective_levels", 16, &mut defaulted);
@@ -203,39 +79,7 @@ pub fn build(
     let (Some(virt), Some(clip), Some(smallest)) = (virt, clip, smallest) else {
         return None;
     };
-    // Level layout.
-    let n_icache = (virt[0] / smallest[0]).trailing_zeros() + 1;
-    let mut sizes: Vec<[u64; 2]> = (0..n_icache).map(|l| [virt[0] >> l, virt[1] >> l]).collect();
-    let mut p = [smallest[0] / 2, smallest[1] / 2];
-    while p[0] > 0 && p[1] > 0 {
-        sizes.push(p);
-        p = [p[0] / 2, p[1] / 2];
-    }
-    if sizes.len() as u32 > limits.max_levels {
-        let d = r.diag(
-            Severity::Error,
-            "too-many-levels",
-            values::span_of(&virt_f),
-            format!("the texture has {} levels; at most {} are supported", sizes.len(), limits.max_levels),
-        );
-        r.push(d);
-        return None;
-    }
-    if virt[0] != virt[1] && (virt[0].max(virt[1]) / virt[0].min(virt[1])) > 1 {
-        let last = sizes[sizes.len() - 1];
-        if last != [1, 1] {
-            let d = r.diag(
-                Severity::Note,
-                "non-square-pyramid-end",
-                values::span_of(&virt_f),
-                format!(
-                    "as in Performer, the pyramid of a non-square texture ends at {}x{}, not 1x1",
-                    last[0], last[1]
-                ),
-            );
-            r.push(d);
-        }
-    }
+    let (sizes, n_icache) = level_sizes(&mut r, virt, smallest, limits.max_levels, &virt_f)?;
 
     // Level .ic files.
     let icache_names = level_names(
@@ -309,21 +153,7 @@ pub fn build(
         } else {
             let idx = l - n_icache as usize;
             let path = pyramid_names.as_ref().and_then(|v| v.get(idx).cloned().flatten()).map(|(p, _)| p);
-            let Some(length) = size[0].checked_mul(size[1]).and_then(|n| n.checked_mul(texel.bytes_per_texel() as u64))
-            else {
-                diags.push(
-                    Diagnostic::new(
-                        Severity::Error,
-                        "level-too-large",
-                        &file.path,
-                        file.first(TokenId::Size).map(|e| e.span),
-                        format!("pyramid level {level} ({}x{}) does not fit in a 64-bit byte count", size[0], size[1]),
-                    )
-                    .hint("a pyramid level is read whole: lower smallest_icache or clip_size"),
-                );
-                return None;
-            };
-            levels.push(Level { level, size, kind: LevelKind::Pyramid(PyramidTile { path, header_offset, length }) });
+            levels.push(pyramid_level(file, diags, (level, size), path, header_offset, texel.bytes_per_texel())?);
         }
     }
     if levels.len() != sizes.len() {
@@ -357,6 +187,216 @@ pub fn build(
         levels,
         defaulted,
     })
+}
+
+/// `clip_size`: mandatory, a positive power of two within `max_size`; warns when it is larger
+/// than the texture's smaller side.
+fn clip_size(r: &mut Reader<'_>, clip_f: &Field<Spanned<i64>>, virt: Option<[u64; 3]>, max_size: u64) -> Option<u64> {
+    let clip = match clip_f {
+        Field::Absent => {
+            let d = r
+                .diag(
+                    Severity::Error,
+                    "missing-mandatory",
+                    Some(Span::START),
+                    "`clip_size` is missing; it is mandatory",
+                )
+                .hint("add `clip_size N` (a power of two, usually the display width)");
+            r.push(d);
+            None
+        }
+        Field::Broken => None,
+        Field::Given(v, _) => {
+            if v.value <= 0 {
+                let d = r
+                    .diag(Severity::Error, "clip-size-not-positive", Some(v.span), "`clip_size` must be positive")
+                    .found(v.value.to_string())
+                    .expected("a positive power of two");
+                r.push(d);
+                None
+            } else if !(v.value as u64).is_power_of_two() {
+                let u = v.value as u64;
+                let d = r
+                    .diag(
+                        Severity::Error,
+                        "clip-size-not-power-of-two",
+                        Some(v.span),
+                        "`clip_size` must be a power of two",
+                    )
+                    .found(v.value.to_string())
+                    .hint(format!(
+                        "the nearest powers of two are {} and {}",
+                        values::next_pow2(u) / 2,
+                        values::next_pow2(u)
+                    ));
+                r.push(d);
+                None
+            } else if v.value as u64 > max_size {
+                let d = r
+                    .diag(
+                        Severity::Error,
+                        "clip-size-too-large",
+                        Some(v.span),
+                        "`clip_size` is larger than this reader's limit",
+                    )
+                    .found(v.value.to_string());
+                r.push(d);
+                None
+            } else {
+                Some(v.value as u64)
+            }
+        }
+    };
+    if let (Some(v), Some(c)) = (virt, clip) {
+        if v[0].min(v[1]) < c {
+            let d = r
+                .diag(
+                    Severity::Warning,
+                    "clip-larger-than-texture",
+                    values::span_of(clip_f),
+                    format!("`clip_size` {c} is larger than the texture's smaller side ({})", v[0].min(v[1])),
+                )
+                .hint(
+                    "a clip size above the texture size keeps the whole texture resident; lower it to the texture size",
+                );
+            r.push(d);
+        }
+    }
+    clip
+}
+
+/// `invalid_border`: 8 by default, raised to 8 as Performer does, and narrower than half the
+/// clip window.
+fn invalid_border(
+    r: &mut Reader<'_>,
+    border_f: &Field<Spanned<i64>>,
+    clip: Option<u64>,
+    clip_f: &Field<Spanned<i64>>,
+    defaulted: &mut Vec<&'static str>,
+) -> Option<u64> {
+    let invalid_border = match border_f {
+        Field::Absent => {
+            defaulted.push("invalid_border");
+            Some(8)
+        }
+        Field::Broken => None,
+        Field::Given(v, _) if v.value < 0 => {
+            let d = r
+                .diag(Severity::Error, "negative-value", Some(v.span), "`invalid_border` cannot be negative")
+                .found(v.value.to_string())
+                .expected("8 or more");
+            r.push(d);
+            None
+        }
+        Field::Given(v, _) if v.value < 8 => {
+            let d = r
+                .diag(
+                    Severity::Warning,
+                    "border-raised",
+                    Some(v.span),
+                    format!(
+                        "`invalid_border` {} is below the minimum of 8; it is raised to 8, as Performer does",
+                        v.value
+                    ),
+                )
+                .hint("write `invalid_border 8` (or more) to say what is used");
+            r.push(d);
+            Some(8)
+        }
+        Field::Given(v, _) => Some(v.value as u64),
+    };
+    if let (Some(b), Some(c)) = (invalid_border, clip) {
+        if 2 * b >= c && c > 0 {
+            let d = r
+                .diag(
+                    Severity::Error,
+                    "border-too-wide",
+                    values::span_of(border_f).or(values::span_of(clip_f)),
+                    format!("an invalid border of {b} on each side leaves nothing of a {c}-texel clip window"),
+                )
+                .expected(format!("an invalid border below {}", c / 2))
+                .hint("raise clip_size or lower invalid_border");
+            r.push(d);
+        }
+    }
+    invalid_border
+}
+
+/// The level layout (docs/PERFORMER-REFERENCE.md §1.14): the sizes of every level, finest
+/// first, and how many of them are image-cache levels (down to `smallest`); the rest are
+/// pyramid levels, halving to the end.
+fn level_sizes(
+    r: &mut Reader<'_>,
+    virt: [u64; 3],
+    smallest: [u64; 3],
+    max_levels: u32,
+    virt_f: &Field<Vec<Spanned<i64>>>,
+) -> Option<(Vec<[u64; 2]>, u32)> {
+    let n_icache = (virt[0] / smallest[0]).trailing_zeros() + 1;
+    let mut sizes: Vec<[u64; 2]> = (0..n_icache).map(|l| [virt[0] >> l, virt[1] >> l]).collect();
+    let mut p = [smallest[0] / 2, smallest[1] / 2];
+    while p[0] > 0 && p[1] > 0 {
+        sizes.push(p);
+        p = [p[0] / 2, p[1] / 2];
+    }
+    if sizes.len() as u32 > max_levels {
+        let d = r.diag(
+            Severity::Error,
+            "too-many-levels",
+            values::span_of(virt_f),
+            format!("the texture has {} levels; at most {} are supported", sizes.len(), max_levels),
+        );
+        r.push(d);
+        return None;
+    }
+    if virt[0] != virt[1] && (virt[0].max(virt[1]) / virt[0].min(virt[1])) > 1 {
+        let last = sizes[sizes.len() - 1];
+        if last != [1, 1] {
+            let d = r.diag(
+                Severity::Note,
+                "non-square-pyramid-end",
+                values::span_of(virt_f),
+                format!(
+                    "as in Performer, the pyramid of a non-square texture ends at {}x{}, not 1x1",
+                    last[0], last[1]
+                ),
+            );
+            r.push(d);
+        }
+    }
+    Some((sizes, n_icache))
+}
+
+/// `virt_size`: mandatory, powers of two within `max_size`.
+fn virt_size(r: &mut Reader<'_>, virt_f: &Field<Vec<Spanned<i64>>>, max_size: u64) -> Option<[u64; 3]> {
+    let rule = SizeRule { pow2: true, max: max_size, allow_two: true, r_is_one: true };
+    values::mandatory_size3(r, virt_f, "virt_size", "add `virt_size S T 1` (the level-0 size in texels)", rule)
+}
+
+/// Pyramid level `level` of `size`, read whole from `path` after `header_offset` bytes; refused
+/// when its byte count does not fit in 64 bits.
+fn pyramid_level(
+    file: &SyntaxFile,
+    diags: &mut Diagnostics,
+    (level, size): (u32, [u64; 2]),
+    path: Option<PathBuf>,
+    header_offset: u64,
+    bytes_per_texel: u32,
+) -> Option<Level> {
+    let Some(length) = size[0].checked_mul(size[1]).and_then(|n| n.checked_mul(bytes_per_texel as u64)) else {
+        diags.push(
+            Diagnostic::new(
+                Severity::Error,
+                "level-too-large",
+                &file.path,
+                file.first(TokenId::Size).map(|e| e.span),
+                format!("pyramid level {level} ({}x{}) does not fit in a 64-bit byte count", size[0], size[1]),
+            )
+            .hint("a pyramid level is read whole: lower smallest_icache or clip_size"),
+        );
+        return None;
+    };
+    Some(Level { level, size, kind: LevelKind::Pyramid(PyramidTile { path, header_offset, length }) })
 }
 
 fn positive_u32(

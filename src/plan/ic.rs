@@ -6,7 +6,7 @@ use super::formats::{self, FormatRefusal, FormatValue, Which};
 use super::naming::{self, anchor, Scope, TileNaming};
 use super::values::{self, SizeRule};
 use super::{check_version, portability, ImageCachePlan, Options, ReadFunc};
-use crate::config::{Diagnostics, FileKind, Severity, Span, SyntaxFile, TokenId, Value};
+use crate::config::{Diagnostics, FileKind, Severity, Span, Spanned, SyntaxFile, TokenId, Value};
 use crate::texel::TexelFormat;
 use std::path::{Path, PathBuf};
 
@@ -144,32 +144,17 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
     let limits = &opts.limits;
 
     let size_f = r.int3(TokenId::Size);
-    if size_f.is_absent() {
-        let d = r
-            .diag(Severity::Error, "missing-mandatory", Some(Span::START), "`icache_size` is missing; it is mandatory")
-            .hint("add `icache_size S T 1` (the size of this level in texels)");
-        r.push(d);
-    }
-    let size = values::size3(
+    let rule = SizeRule { pow2: true, max: limits.max_texture_size, allow_two: true, r_is_one: true };
+    let size = values::mandatory_size3(
         &mut r,
         &size_f,
         "icache_size",
-        SizeRule { pow2: true, max: limits.max_texture_size, allow_two: true, r_is_one: true },
+        "add `icache_size S T 1` (the size of this level in texels)",
+        rule,
     );
-
     let tile_f = r.int3(TokenId::TileSize);
-    if tile_f.is_absent() {
-        let d = r
-            .diag(Severity::Error, "missing-mandatory", Some(Span::START), "`tile_size` is missing; it is mandatory")
-            .hint("add `tile_size W H 1`; Performer 3.0 does not check this and fails later with \"memregion too small for texregion\"");
-        r.push(d);
-    }
-    let tile = values::size3(
-        &mut r,
-        &tile_f,
-        "tile_size",
-        SizeRule { pow2: false, max: limits.max_tile_size, allow_two: true, r_is_one: true },
-    );
+    let rule = SizeRule { pow2: false, max: limits.max_tile_size, allow_two: true, r_is_one: true };
+    let tile = values::mandatory_size3(&mut r, &tile_f, "tile_size", "add `tile_size W H 1`; Performer 3.0 does not check this and fails later with \"memregion too small for texregion\"", rule);
 
     let tif_f = r.int3(TokenId::TilesInFile);
     let tiles_in_file = match &tif_f {
@@ -195,7 +180,66 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
     let page_size = page_size(&mut r, &page_f, ctx.page_size, &mut defaulted);
     let read_func = read_func(&mut r).or_else(|| ctx.read_func.clone());
 
-    // Tile size must divide the cache size.
+    check_tiles_divide(&mut r, size, tile, &tile_f);
+    check_against_clip_texture(&mut r, ctx, size, &size_f, &formats);
+
+    let tex_region = tex_region(&mut r, ctx.clip_size, size, limits.max_texture_size);
+    let tex_size = tex_size(&mut r, tex_region, limits.max_texture_size, &mut defaulted);
+
+    let mem_f = r.int3(TokenId::MemRegionSize);
+    let mem_region = match (size, tile, tex_region, lookahead) {
+        (Some(sz), Some(tl), Some(tr), Some(la)) => {
+            mem_region(&mut r, &mem_f, sz, tl, tr, la, limits.max_mem_region_tiles, &mut defaulted)
+        }
+        _ => None,
+    };
+
+    // Naming.
+    let dir = file.path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let base_f = r.base(TokenId::TileBase);
+    let cache_name = match &base_f {
+        Field::Given(b, _) => naming::expand_field(&mut r, b, &opts.env),
+        _ => String::new(),
+    };
+    let naming = tile_naming(&mut r, opts, &cache_name, &dir, &mut defaulted);
+
+    let streams = stream_lists(&mut r, file);
+
+    let default_tile = default_tile(&mut r, &cache_name, &dir);
+    let _ = file.all(TokenId::NumStreams).count();
+
+    let (ext, int, img, texel) = formats?;
+    Some(ImageCachePlan {
+        path: Some(file.path.clone()),
+        bytes_per_texel: texel.bytes_per_texel(),
+        ext_format: ext,
+        int_format: int,
+        img_format: img,
+        texel,
+        size: size?,
+        tile_size: tile?,
+        tiles_in_file: tiles_in_file?,
+        header_offset: header_offset?,
+        tex_region: tex_region?,
+        tex_size: tex_size?,
+        mem_region: mem_region?,
+        lookahead: lookahead?,
+        page_size: page_size?,
+        read_func,
+        naming: naming?,
+        streams,
+        default_tile,
+        defaulted,
+    })
+}
+
+/// The tile size must divide the cache size on both axes.
+fn check_tiles_divide(
+    r: &mut Reader<'_>,
+    size: Option<[u64; 3]>,
+    tile: Option<[u64; 3]>,
+    tile_f: &Field<Vec<Spanned<i64>>>,
+) {
     if let (Some(sz), Some(tl)) = (size, tile) {
         for i in 0..2 {
             if tl[i] > sz[i] || sz[i] % tl[i] != 0 {
@@ -204,7 +248,7 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
                     .diag(
                         Severity::Error,
                         "tile-does-not-divide",
-                        values::span_of(&tile_f),
+                        values::span_of(tile_f),
                         format!("{axis} of `tile_size` ({}) does not divide the cache size ({})", tl[i], sz[i]),
                     )
                     .hint("the cache size must be a whole number of tiles; choose a tile size that divides it");
@@ -212,16 +256,26 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
             }
         }
     }
-    // Level match with the clip texture.
+}
+
+/// Inside a clip texture, the image cache must describe its level: that level's size and the
+/// clip texture's texel format.
+fn check_against_clip_texture(
+    r: &mut Reader<'_>,
+    ctx: &Context,
+    size: Option<[u64; 3]>,
+    size_f: &Field<Vec<Spanned<i64>>>,
+    formats: &Option<(FormatValue, FormatValue, FormatValue, TexelFormat)>,
+) {
     if let (Some((level, lsize)), Some(sz)) = (ctx.level, size) {
         if [sz[0], sz[1]] != lsize {
             let d = r
-                .diag(Severity::Error, "icache-size-mismatch", values::span_of(&size_f), format!("this image cache is {}x{} but level {level} of the clip texture is {}x{}", sz[0], sz[1], lsize[0], lsize[1]))
+                .diag(Severity::Error, "icache-size-mismatch", values::span_of(size_f), format!("this image cache is {}x{} but level {level} of the clip texture is {}x{}", sz[0], sz[1], lsize[0], lsize[1]))
                 .hint("each level's .ic must describe that level: check the file list order (largest first) or the format's level parameter");
             r.push(d);
         }
     }
-    if let (Some(want), Some((_, _, _, have))) = (ctx.texel, &formats) {
+    if let (Some(want), Some((_, _, _, have))) = (ctx.texel, formats) {
         if want.bytes_per_texel() != have.bytes_per_texel() {
             let d = r
                 .diag(Severity::Error, "format-mismatch", r.span_of(TokenId::ExtFormat), format!("this image cache stores {} ({} bytes per texel) but the clip texture is {} ({} bytes per texel)", have, have.bytes_per_texel(), want, want.bytes_per_texel()))
@@ -237,10 +291,13 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
             r.push(d);
         }
     }
+}
 
-    // Tex region: inside a clip texture min(clip, size); standalone from the file.
+/// The tex region: inside a clip texture min(clip_size, icache_size) (a value in the file is
+/// not used); standalone, `tex_region_size` from the file, within the cache.
+fn tex_region(r: &mut Reader<'_>, clip_size: Option<u64>, size: Option<[u64; 3]>, max_size: u64) -> Option<[u64; 3]> {
     let tex_f = r.int3(TokenId::TexRegionSize);
-    let tex_region = match (ctx.clip_size, size) {
+    let tex_region = match (clip_size, size) {
         (Some(clip), Some(sz)) => {
             let want = [clip.min(sz[0]) as i64, clip.min(sz[1]) as i64];
             if let Field::Given(v, span) = &tex_f.clone() {
@@ -268,10 +325,10 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
                 r.push(d);
             }
             let tr = values::size3(
-                &mut r,
+                r,
                 &tex_f,
                 "tex_region_size",
-                SizeRule { pow2: false, max: limits.max_texture_size, allow_two: true, r_is_one: true },
+                SizeRule { pow2: false, max: max_size, allow_two: true, r_is_one: true },
             );
             if let (Some(tr), Some(sz)) = (tr, size) {
                 if tr[0] > sz[0] || tr[1] > sz[1] {
@@ -287,6 +344,17 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
             tr
         }
     };
+    tex_region
+}
+
+/// The destination texture's size: `tex_size`, or the tex region when that is a power of two;
+/// it must hold the whole tex region.
+fn tex_size(
+    r: &mut Reader<'_>,
+    tex_region: Option<[u64; 3]>,
+    max_size: u64,
+    defaulted: &mut Vec<&'static str>,
+) -> Option<[u64; 3]> {
     let texsize_f = r.int3(TokenId::TexSize);
     let tex_size = match (&texsize_f, tex_region) {
         (Field::Absent, Some(tr)) => {
@@ -312,10 +380,10 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
         (Field::Absent, None) => None,
         (f, tr) => {
             let ts = values::size3(
-                &mut r,
+                r,
                 f,
                 "tex_size",
-                SizeRule { pow2: true, max: limits.max_texture_size, allow_two: true, r_is_one: true },
+                SizeRule { pow2: true, max: max_size, allow_two: true, r_is_one: true },
             );
             if let (Some(ts), Some(tr)) = (ts, tr) {
                 if ts[0] < tr[0] || ts[1] < tr[1] {
@@ -336,31 +404,26 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
             ts
         }
     };
+    tex_size
+}
 
-    let mem_f = r.int3(TokenId::MemRegionSize);
-    let mem_region = match (size, tile, tex_region, lookahead) {
-        (Some(sz), Some(tl), Some(tr), Some(la)) => {
-            mem_region(&mut r, &mem_f, sz, tl, tr, la, limits.max_mem_region_tiles, &mut defaulted)
-        }
-        _ => None,
-    };
-
-    // Naming.
-    let dir = file.path.parent().map(Path::to_path_buf).unwrap_or_default();
-    let base_f = r.base(TokenId::TileBase);
-    let cache_name = match &base_f {
-        Field::Given(b, _) => naming::expand_field(&mut r, b, &opts.env),
-        _ => String::new(),
-    };
+/// How tiles are named: `tile_format` and `tile_params` (the default format without them).
+fn tile_naming(
+    r: &mut Reader<'_>,
+    opts: &Options,
+    cache_name: &str,
+    dir: &Path,
+    defaulted: &mut Vec<&'static str>,
+) -> Option<TileNaming> {
     let fmt_f = r.word(TokenId::TileFormat, None);
     let params_f = r.list(TokenId::TileParams, None);
     let naming = match &fmt_f {
         Field::Given(f, _) => {
-            let expanded = naming::expand_field(&mut r, f, &opts.env);
+            let expanded = naming::expand_field(r, f, &opts.env);
             let params = params_f.value().cloned().unwrap_or_default();
             let pspan = values::span_of(&params_f);
-            naming::check_format(&mut r, f, &expanded, &params, pspan, Scope::Ic).map(|(fmt, refs)| {
-                TileNaming::new(fmt, refs.iter().map(|p| p.param).collect(), cache_name.clone(), dir.clone())
+            naming::check_format(r, f, &expanded, &params, pspan, Scope::Ic).map(|(fmt, refs)| {
+                TileNaming::new(fmt, refs.iter().map(|p| p.param).collect(), cache_name.to_string(), dir.to_path_buf())
             })
         }
         Field::Absent => {
@@ -378,11 +441,15 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
                 }
             }
             defaulted.push("tile_format");
-            Some(TileNaming::default_format(cache_name.clone(), dir.clone()))
+            Some(TileNaming::default_format(cache_name.to_string(), dir.to_path_buf()))
         }
         Field::Broken => None,
     };
+    naming
+}
 
+/// The stream server lists of the three axes (`s_streams`, `t_streams`, `r_streams`).
+fn stream_lists(r: &mut Reader<'_>, file: &SyntaxFile) -> [Vec<String>; 3] {
     let mut streams: [Vec<String>; 3] = Default::default();
     for (i, id) in [TokenId::SStreams, TokenId::TStreams, TokenId::RStreams].into_iter().enumerate() {
         if let Field::Given(items, span) = r.list(id, None) {
@@ -416,13 +483,17 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
                 }
             }
             for item in &items {
-                naming::note_remote(&mut r, item.span, &item.value, "the stream server");
+                naming::note_remote(r, item.span, &item.value, "the stream server");
             }
             streams[i] = items.into_iter().map(|s| s.value).collect();
         }
     }
+    streams
+}
 
-    let default_tile = match r.word(TokenId::DefaultTile, None) {
+/// `default_tile`, after the cache name, anchored at the `.ic`'s directory.
+fn default_tile(r: &mut Reader<'_>, cache_name: &str, dir: &Path) -> Option<PathBuf> {
+    match r.word(TokenId::DefaultTile, None) {
         Field::Given(w, _) => {
             if w.value.starts_with('$') {
                 let d = r.diag(
@@ -434,36 +505,11 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
                 r.push(d);
             }
             let name = format!("{cache_name}{}", w.value);
-            naming::note_remote(&mut r, w.span, &name, "the default tile");
-            Some(anchor(&dir, &name))
+            naming::note_remote(r, w.span, &name, "the default tile");
+            Some(anchor(dir, &name))
         }
         _ => None,
-    };
-    let _ = file.all(TokenId::NumStreams).count();
-
-    let (ext, int, img, texel) = formats?;
-    Some(ImageCachePlan {
-        path: Some(file.path.clone()),
-        bytes_per_texel: texel.bytes_per_texel(),
-        ext_format: ext,
-        int_format: int,
-        img_format: img,
-        texel,
-        size: size?,
-        tile_size: tile?,
-        tiles_in_file: tiles_in_file?,
-        header_offset: header_offset?,
-        tex_region: tex_region?,
-        tex_size: tex_size?,
-        mem_region: mem_region?,
-        lookahead: lookahead?,
-        page_size: page_size?,
-        read_func,
-        naming: naming?,
-        streams,
-        default_tile,
-        defaulted,
-    })
+    }
 }
 
 /// The mem region (docs/PERFORMER-REFERENCE.md §1.10): computed per axis when absent, checked when given.

@@ -22,6 +22,28 @@ pub(crate) fn next_pow2(v: u64) -> u64 {
     v.checked_next_power_of_two().unwrap_or(u64::MAX)
 }
 
+/// Checks a mandatory three-number size: a missing one is an error with `hint` (what to add).
+pub(crate) fn mandatory_size3(
+    r: &mut Reader<'_>,
+    field: &Field<Vec<Spanned<i64>>>,
+    name: &str,
+    hint: &str,
+    rule: SizeRule,
+) -> Option<[u64; 3]> {
+    if field.is_absent() {
+        let d = r
+            .diag(
+                Severity::Error,
+                "missing-mandatory",
+                Some(Span::START),
+                format!("`{name}` is missing; it is mandatory"),
+            )
+            .hint(hint.to_string());
+        r.push(d);
+    }
+    size3(r, field, name, rule)
+}
+
 /// Checks a three-number size. Returns `None` (having reported why) when it is unusable.
 pub(crate) fn size3(
     r: &mut Reader<'_>,

@@ -49,6 +49,26 @@ pub struct Spec {
     pub compression: Option<Compression>,
 }
 
+impl Spec {
+    /// A plain RGB8 texture of `width` x `height`: one tile per file, no header, streams, inset
+    /// or compression (the tests' starting point).
+    #[cfg(test)]
+    pub(crate) fn plain(width: u64, height: u64, clip: u64, tile: u64) -> Spec {
+        Spec {
+            width,
+            height,
+            clip,
+            tile,
+            format: TexelFormat::RGB8,
+            tiles_in_file: (1, 1),
+            header_bytes: 0,
+            streams: None,
+            inset: None,
+            compression: None,
+        }
+    }
+}
+
 /// How image-cache tiles are compressed: an extension of this crate, which Performer cannot read.
 ///
 /// Each tile is one file holding one zstd frame of the raw tile (the bytes Performer's layout
@@ -428,18 +448,7 @@ mod tests {
     use super::*;
 
     fn spec(w: u64, h: u64, clip: u64, tile: u64) -> Spec {
-        Spec {
-            width: w,
-            height: h,
-            clip,
-            tile,
-            format: TexelFormat::RGB8,
-            tiles_in_file: (1, 1),
-            header_bytes: 0,
-            streams: None,
-            inset: None,
-            compression: None,
-        }
+        Spec::plain(w, h, clip, tile)
     }
 
     #[test]

@@ -121,12 +121,8 @@ impl TileSource for FaultySource {
         self.inner.desc()
     }
 
-    fn stream_servers(&self) -> usize {
-        self.inner.stream_servers()
-    }
-
-    fn stream_of(&self, tile: TileId, streams: usize) -> usize {
-        self.inner.stream_of(tile, streams)
+    fn wrapped(&self) -> Option<&dyn TileSource> {
+        Some(&*self.inner)
     }
 
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {

@@ -8,7 +8,6 @@ use crate::clip::{Clipmap, Settings};
 use crate::plan::{self, ClipTexturePlan};
 use crate::prep::{self, Filter, Job, Layout, Spec};
 use crate::source::{FaultKind, HashSource};
-use crate::texel::TexelFormat;
 use std::os::unix::fs::PermissionsExt;
 use std::sync::atomic::AtomicBool;
 
@@ -27,18 +26,7 @@ fn prepare(
 
 /// A square RGB8 texture, one tile per file, no header, streams, inset or compression.
 fn spec(size: u64, clip: u64, tile: u64) -> Spec {
-    Spec {
-        width: size,
-        height: size,
-        clip,
-        tile,
-        format: TexelFormat::RGB8,
-        tiles_in_file: (1, 1),
-        header_bytes: 0,
-        streams: None,
-        inset: None,
-        compression: None,
-    }
+    Spec::plain(size, size, clip, tile)
 }
 
 /// Prepares the hash texture of `spec` under `dir`; returns the `.ct`.

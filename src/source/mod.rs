@@ -154,17 +154,27 @@ pub trait TileSource: Send + Sync {
         self.read_tile(tile, out).map(|()| Delivered::Tile)
     }
 
-    /// Number of stream servers (separate disks, one read queue each) the source is laid out
-    /// for; 1 when it has no notion of them.
-    fn stream_servers(&self) -> usize {
-        1
+    /// The source this one wraps (a cache, a throttle, a fault injector in front of the real
+    /// source), whose stream layout it keeps; `None` for a source of its own.
+    fn wrapped(&self) -> Option<&dyn TileSource> {
+        None
     }
 
-    /// Which of `streams` read queues should read `tile` (`streams` >= 1). The default is the
-    /// tile column modulo the number of queues; [`FileSource`] answers with the stream server its
-    /// configuration names for the tile.
+    /// Number of stream servers (separate disks, one read queue each) the source is laid out
+    /// for: the [`wrapped`](Self::wrapped) source's, or 1 when it has no notion of them.
+    fn stream_servers(&self) -> usize {
+        self.wrapped().map_or(1, |inner| inner.stream_servers())
+    }
+
+    /// Which of `streams` read queues should read `tile` (`streams` >= 1): the
+    /// [`wrapped`](Self::wrapped) source's answer, or by default the tile column modulo the number
+    /// of queues; [`FileSource`] answers with the stream server its configuration names for the
+    /// tile.
     fn stream_of(&self, tile: TileId, streams: usize) -> usize {
-        (tile.s % streams.max(1) as u64) as usize
+        match self.wrapped() {
+            Some(inner) => inner.stream_of(tile, streams),
+            None => (tile.s % streams.max(1) as u64) as usize,
+        }
     }
 }
 

@@ -202,12 +202,8 @@ impl TileSource for PoolSource {
         Ok(delivered)
     }
 
-    fn stream_servers(&self) -> usize {
-        self.inner.stream_servers()
-    }
-
-    fn stream_of(&self, tile: TileId, streams: usize) -> usize {
-        self.inner.stream_of(tile, streams)
+    fn wrapped(&self) -> Option<&dyn TileSource> {
+        Some(&*self.inner)
     }
 }
 

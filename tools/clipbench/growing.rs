@@ -206,12 +206,15 @@ fn run(args: &Args) -> anyhow::Result<Report> {
             .iter()
             .zip(&jpegs)
             .map(|((m, pw, ph, t), (_, jpeg))| NewPatch {
-                bbox: m.bbox,
-                time: m.time,
-                rating: m.rating,
-                width: *pw,
-                height: *ph,
-                texels: t.clone(),
+                patch: Patch {
+                    id: 0,
+                    bbox: m.bbox,
+                    time: m.time,
+                    rating: m.rating,
+                    width: *pw,
+                    height: *ph,
+                    texels: t.clone(),
+                },
                 encoded: Some(jpeg.clone()),
             })
             .collect();

@@ -31,8 +31,12 @@ pub fn exercise_patch(data: &[u8], dir: &Path) {
     let taken = input::sidecar(json, "the request")
         .and_then(|d| input::new_patch(&grid, &d, payload.to_vec(), MAX_BYTES, "the request").map(|p| (d, p)));
     if let Ok((d, p)) = &taken {
-        assert_eq!(p.texels.len(), p.width as usize * p.height as usize * bpt, "texels of the size the patch says");
-        assert!(p.texels.len() as u64 <= MAX_BYTES, "no more texels than the bound");
+        assert_eq!(
+            p.patch.texels.len(),
+            p.patch.width as usize * p.patch.height as usize * bpt,
+            "texels of the size the patch says"
+        );
+        assert!(p.patch.texels.len() as u64 <= MAX_BYTES, "no more texels than the bound");
         if d.image.is_some() && clipmap::prep::jpeg_check::is_jpeg(payload) {
             assert!(clipmap::prep::jpeg_check::check(payload).is_ok(), "a cut JPEG is never taken");
         }
