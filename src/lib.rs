@@ -15,6 +15,7 @@
 //! | [`source`] | texel values: procedural textures (and tile files, through the plan) |
 //! | [`geom`] | pure level geometry: centres, tex / valid / mem regions, toroidal addressing |
 //! | [`limits`] | every bound the paging engine keeps (queue lengths, reads in flight, bytes) |
+//! | [`runtime`] | the process's one tokio runtime (read queues, remote requests, the service, the tools) and its thread bounds |
 //! | [`queue`] | per-stream-server async read queues: priorities, coalescing, stale drops |
 //! | [`paging`] | paging policies: where each grid's spare tiles go (ring, direction), and a second-level tile pool with its eviction (LRU, shift) |
 //! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
@@ -60,6 +61,7 @@ pub mod prep;
 pub mod queue;
 pub mod report;
 pub mod roam;
+pub mod runtime;
 pub mod sample;
 pub mod save;
 pub mod service;

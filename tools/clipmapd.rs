@@ -334,16 +334,14 @@ fn main() -> ExitCode {
     use std::io::IsTerminal;
     let ansi = std::io::stderr().is_terminal();
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).init();
-    let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() {
-        Ok(rt) => rt,
+    // The process's one runtime: the service, its read queues and remote reads share it.
+    match clipmap::runtime::block_on(serve(cli)) {
         Err(e) => {
-            eprintln!("clipmapd: cannot start the runtime: {e}");
-            return exit::status(exit::COULD_NOT_RUN);
+            eprintln!("clipmapd: {e}");
+            exit::status(exit::COULD_NOT_RUN)
         }
-    };
-    match rt.block_on(serve(cli)) {
-        Ok(()) => exit::status(exit::OK),
-        Err(Failure(code, e)) => {
+        Ok(Ok(())) => exit::status(exit::OK),
+        Ok(Err(Failure(code, e))) => {
             eprintln!("clipmapd: {e:#}");
             exit::status(code)
         }

@@ -380,8 +380,8 @@ fn remote_upload(_: &Cli, url: &str, _: &Path, _: &AtomicBool) -> Result<(Outcom
 /// Sets `flag` on Ctrl-C or SIGTERM, so the run stops between bands and removes its partial
 /// output instead of dying mid-write. The handlers are registered before this returns.
 fn watch_signals(flag: Arc<AtomicBool>) -> anyhow::Result<()> {
-    let rt =
-        tokio::runtime::Builder::new_current_thread().enable_all().build().context("starting the signal watcher")?;
+    // A task on the process's one runtime (which remote uploads use too).
+    let rt = clipmap::runtime::shared().context("starting the signal watcher")?;
     #[cfg(unix)]
     let (mut int, mut term) = {
         use tokio::signal::unix::{signal, SignalKind};
@@ -391,21 +391,16 @@ fn watch_signals(flag: Arc<AtomicBool>) -> anyhow::Result<()> {
             signal(SignalKind::terminate()).context("watching SIGTERM")?,
         )
     };
-    std::thread::Builder::new()
-        .name("signals".into())
-        .spawn(move || {
-            rt.block_on(async move {
-                #[cfg(unix)]
-                tokio::select! {
-                    _ = int.recv() => {}
-                    _ = term.recv() => {}
-                }
-                #[cfg(not(unix))]
-                let _ = tokio::signal::ctrl_c().await;
-                flag.store(true, Ordering::Relaxed);
-            })
-        })
-        .context("starting the signal watcher")?;
+    rt.spawn(async move {
+        #[cfg(unix)]
+        tokio::select! {
+            _ = int.recv() => {}
+            _ = term.recv() => {}
+        }
+        #[cfg(not(unix))]
+        let _ = tokio::signal::ctrl_c().await;
+        flag.store(true, Ordering::Relaxed);
+    });
     Ok(())
 }
 

@@ -23,12 +23,7 @@ pub fn demo(gpu: &Gpu, o: &FlightOptions) -> Result<FlightReport> {
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let service = std::thread::spawn(move || -> Result<()> {
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .context("starting the demo service's runtime")?;
-        rt.block_on(clipmap::service::run(
+        clipmap::runtime::block_on(clipmap::service::run(
             source,
             options,
             async {
@@ -38,6 +33,7 @@ pub fn demo(gpu: &Gpu, o: &FlightOptions) -> Result<FlightReport> {
                 let _ = ready_tx.send(());
             },
         ))
+        .context("starting the demo service's runtime")?
         .map_err(|e| anyhow!("the demo service: {e}"))?;
         Ok(())
     });

@@ -10,8 +10,8 @@
 //! [`crate::geom`].
 //!
 //! Design: each queue is a cloneable handle (a bounded command sender) plus a private runner task
-//! owning all of the queue's state, on a small tokio runtime; blocking reads run on
-//! `spawn_blocking`. Completions come back over a channel that the tick drains when it runs, so
+//! owning all of the queue's state, on the process's runtime ([`crate::runtime`]); blocking reads
+//! run on `spawn_blocking`. Completions come back over a channel that the tick drains when it runs, so
 //! the tick stays synchronous and deterministic: [`ReadQueues::flush`] waits until every read that
 //! could start has finished, which lets tests step reads and ticks in lock step.
 //!
@@ -115,7 +115,7 @@ impl QueueStats {
 /// Why the queues could not start.
 #[derive(Debug, Error)]
 pub enum QueueError {
-    /// The async runtime could not be built.
+    /// The process's async runtime could not be built.
     #[error("cannot start the read-queue runtime: {0}")]
     Runtime(#[source] std::io::Error),
     /// A stream count of 0 or above the limit.
@@ -142,7 +142,10 @@ pub(crate) struct QueueHandle {
 /// follows its configuration's stream servers), so a tile always goes to the same queue.
 pub struct ReadQueues {
     source: Arc<dyn TileSource>,
-    runtime: Option<tokio::runtime::Runtime>,
+    /// The runners' tasks on the shared runtime, stopped when the queues are dropped.
+    runners: Vec<tokio::task::JoinHandle<()>>,
+    /// Disconnected once every runner's task has ended (each holds a sender until it is dropped).
+    runners_gone: std_mpsc::Receiver<()>,
     handles: Vec<QueueHandle>,
     events: std_mpsc::Receiver<Event>,
     /// Tiles whose completions were taken, per stream, since the last update sent to it.
@@ -152,7 +155,7 @@ pub struct ReadQueues {
 }
 
 impl ReadQueues {
-    /// Starts `streams` queues reading from `source` into `memory`, on a runtime of their own.
+    /// Starts `streams` queues reading from `source` into `memory`, on the process's runtime.
     pub fn new(
         source: Arc<dyn TileSource>,
         memory: Arc<ImageMemory>,
@@ -162,14 +165,12 @@ impl ReadQueues {
         if streams == 0 || streams > limits.max_streams {
             return Err(QueueError::Streams { streams, max: limits.max_streams });
         }
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .max_blocking_threads(streams * limits.max_in_flight_reads.max(1))
-            .thread_name("clipmap-read")
-            .enable_all()
-            .build()
-            .map_err(QueueError::Runtime)?;
+        // Reads in flight are bounded by each runner (`max_in_flight_reads`), threads by the
+        // shared runtime (`runtime::MAX_BLOCKING_THREADS`).
+        let runtime = crate::runtime::shared().map_err(QueueError::Runtime)?;
         let (tx, events) = std_mpsc::channel();
+        let (alive, runners_gone) = std_mpsc::channel::<()>();
+        let mut runners = Vec::with_capacity(streams);
         let handles = (0..streams)
             .map(|stream| {
                 let (commands, rx) = mpsc::channel(limits.queue_commands.max(1));
@@ -183,13 +184,18 @@ impl ReadQueues {
                     limits,
                     Arc::clone(&idle),
                 );
-                runtime.spawn(runner.run());
+                let alive = alive.clone();
+                runners.push(runtime.spawn(async move {
+                    let _alive = alive;
+                    runner.run().await
+                }));
                 QueueHandle { commands, sent: 0, sent_nothing: false, idle }
             })
             .collect();
         Ok(ReadQueues {
             source,
-            runtime: Some(runtime),
+            runners,
+            runners_gone,
             handles,
             events,
             drained: vec![Vec::new(); streams],
@@ -295,11 +301,22 @@ impl ReadQueues {
     }
 }
 
+/// How long dropping the queues waits for their runners' tasks to end (they end within a poll;
+/// this only bounds a runtime with no free worker).
+const STOP_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
+
 impl Drop for ReadQueues {
     fn drop(&mut self) {
-        // Reads already running finish on their own threads; nothing waits for them.
-        if let Some(rt) = self.runtime.take() {
-            rt.shutdown_background();
+        // The runners stop, and their state (the source, the memory, the reads' tasks) is dropped
+        // before this returns. Reads already running finish on their own threads (a read cannot
+        // be stopped midway), and each stops at the end of its current tile: the completion
+        // channel's receiver, dropped with these queues, refuses its report. Nothing waits for them.
+        for runner in &self.runners {
+            runner.abort();
+        }
+        let gone = crate::runtime::wait(|| self.runners_gone.recv_timeout(STOP_WAIT));
+        if let Err(std_mpsc::RecvTimeoutError::Timeout) = gone {
+            tracing::warn!("read queues dropped: a runner did not stop within {STOP_WAIT:?}");
         }
     }
 }

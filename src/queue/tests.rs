@@ -386,3 +386,33 @@ fn a_tile_read_twice_in_runs_that_overlap_and_taken_both_times_before_they_end_c
     q.drain();
     assert_eq!(q.stats().in_flight, 0);
 }
+
+#[test]
+fn dropped_queues_stop_their_runners_at_once_and_a_running_read_stops_after_its_tile() {
+    let z = TileId::new(0, 0, 0);
+    let src = source();
+    let gated = Gated::new(src.clone(), &[z]);
+    let memory = memory(&src);
+    let limits = Limits { max_ready_reads: 64, ..limits(64, 1) };
+    let mut q = ReadQueues::new(gated.clone(), Arc::clone(&memory), 2, limits).unwrap();
+    // The test's and each runner's.
+    assert_eq!(Arc::strong_count(&memory), 3);
+    // One run of z then (0, 2, 0), on stream 0's only read slot: it waits on z.
+    q.update(&[request(0, 0, 0), request(2, 0, 1)]);
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while Arc::strong_count(&memory) < 4 {
+        assert!(std::time::Instant::now() < deadline, "the run never started");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    drop(q);
+    // The runners (and their hold on the memory) are gone when the drop returns; the run's
+    // thread still holds it, stuck in its read.
+    assert_eq!(Arc::strong_count(&memory), 2);
+    gated.open(z);
+    while Arc::strong_count(&memory) > 1 {
+        assert!(std::time::Instant::now() < deadline, "the run never ended");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    // z was read; the next tile of the run was not: nobody was left to take it.
+    assert_eq!(src.reads(), 1);
+}

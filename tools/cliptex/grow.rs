@@ -565,7 +565,8 @@ fn watch(
 ) -> i32 {
     use std::sync::atomic::{AtomicBool, Ordering};
     use std::sync::Arc;
-    let rt = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+    // The process's one runtime: the signal watcher runs on its workers, the rounds on this thread.
+    let rt = match clipmap::runtime::shared() {
         Ok(rt) => rt,
         Err(e) => {
             eprintln!("cliptex grow watch: could not start: {e}");

@@ -311,6 +311,14 @@ impl Fetcher {
     }
 
     /// Runs `attempt` until it succeeds, fails for good or runs out of retries.
+    ///
+    /// The retries are `backon`'s blocking retry: it is maintained, small (one dependency,
+    /// `fastrand`, for the jitter), runs on the calling thread without a runtime, and takes the
+    /// three things this needs as plain closures: which failures to retry (`when`: only
+    /// [`Failure::Transient`]), the backoff (an exponential one with jitter,
+    /// [`RemoteOptions::backoff_policy`]), and a hook before each wait (`notify`), where the retry
+    /// is counted and the server's `Retry-After` is obeyed. object_store's own retry
+    /// configuration would serve the S3 backend only, and only for requests it sends itself.
     pub(crate) fn with_retries<T>(
         &self,
         loc: &Location,
@@ -320,31 +328,40 @@ impl Fetcher {
     where
         T: GotBytes,
     {
+        use backon::BlockingRetryable;
         let backend = self.backend(loc);
-        let mut n = 0u32;
-        loop {
-            n += 1;
+        let attempts = std::cell::Cell::new(0u32);
+        let result = (|| {
+            attempts.set(attempts.get() + 1);
             self.counters.requests.fetch_add(1, Ordering::Relaxed);
-            match attempt(backend) {
-                Ok(v) => {
-                    self.counters.bytes.fetch_add(v.byte_count(), Ordering::Relaxed);
-                    return Ok(v);
-                }
-                Err(Failure::NotFound) => return Err(ReadError::NotFound { location: object.to_string() }),
-                Err(Failure::Denied(why)) => return Err(ReadError::Denied { location: object.to_string(), why }),
-                Err(Failure::Fatal(why)) => {
-                    return Err(ReadError::Failed { location: object.to_string(), why, attempts: n, timed_out: false })
-                }
-                Err(Failure::Transient { why, retry_after, timed_out }) => {
-                    if n > self.opts.retries {
-                        return Err(ReadError::Failed { location: object.to_string(), why, attempts: n, timed_out });
-                    }
-                    self.counters.retries.fetch_add(1, Ordering::Relaxed);
-                    let backoff = self.opts.backoff_for(n, jitter());
-                    let wait = retry_after.map_or(backoff, |r| r.min(self.opts.backoff_max).max(backoff));
-                    tracing::debug!(location = %object, attempt = n, ?wait, "remote read failed ({why}); retrying");
-                    std::thread::sleep(wait);
-                }
+            attempt(backend)
+        })
+        .retry(self.opts.backoff_policy())
+        .when(|f| matches!(f, Failure::Transient { .. }))
+        .notify(|f, backoff| {
+            self.counters.retries.fetch_add(1, Ordering::Relaxed);
+            let Failure::Transient { why, retry_after, .. } = f else { return };
+            // `backon` sleeps the backoff next; a longer `Retry-After` (bounded) is slept here.
+            let wait = self.opts.wait_for(backoff, *retry_after);
+            tracing::debug!(location = %object, attempt = attempts.get(), ?wait, "remote read failed ({why}); retrying");
+            if wait > backoff {
+                std::thread::sleep(wait - backoff);
+            }
+        })
+        .call();
+        let n = attempts.get();
+        match result {
+            Ok(v) => {
+                self.counters.bytes.fetch_add(v.byte_count(), Ordering::Relaxed);
+                Ok(v)
+            }
+            Err(Failure::NotFound) => Err(ReadError::NotFound { location: object.to_string() }),
+            Err(Failure::Denied(why)) => Err(ReadError::Denied { location: object.to_string(), why }),
+            Err(Failure::Fatal(why)) => {
+                Err(ReadError::Failed { location: object.to_string(), why, attempts: n, timed_out: false })
+            }
+            Err(Failure::Transient { why, timed_out, .. }) => {
+                Err(ReadError::Failed { location: object.to_string(), why, attempts: n, timed_out })
             }
         }
     }
@@ -409,14 +426,6 @@ fn take_batch(waiting: &mut Vec<Arc<Req>>, me: &Arc<Req>, merge_bytes: u64) -> V
     batch
 }
 
-/// A number in [0, 1) for jitter (not for anything that needs good randomness).
-fn jitter() -> f64 {
-    use std::hash::{BuildHasher, Hasher};
-    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
-    h.write_u64(std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64));
-    (h.finish() >> 11) as f64 / (1u64 << 53) as f64
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -433,6 +442,8 @@ mod tests {
         peak: AtomicUsize,
         /// While true, every get waits (so that a test can line ranges up behind it).
         hold: Mutex<bool>,
+        /// The `Retry-After` of each failure.
+        retry_after: Mutex<Duration>,
         release: Condvar,
     }
 
@@ -452,7 +463,7 @@ mod tests {
                 self.fail_first.fetch_sub(1, Ordering::SeqCst);
                 return Err(Failure::Transient {
                     why: "503".into(),
-                    retry_after: Some(Duration::from_millis(1)),
+                    retry_after: Some(*self.retry_after.lock().unwrap()),
                     timed_out: false,
                 });
             }
@@ -486,6 +497,7 @@ mod tests {
             peak: AtomicUsize::new(0),
             hold: Mutex::new(false),
             release: Condvar::new(),
+            retry_after: Mutex::new(Duration::from_millis(1)),
         })
     }
 
@@ -560,6 +572,28 @@ mod tests {
             Err(ReadError::Failed { attempts, .. }) => assert_eq!(attempts, 4),
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn retry_after_is_waited_for_up_to_the_longest_backoff() {
+        let loc = Location::parse("http://h:1/o").unwrap();
+        let quick = RemoteOptions { backoff: Duration::from_millis(1), ..Default::default() };
+        // Asked to wait 300 ms: the retry comes no sooner.
+        let m = mem(0, 1);
+        *m.retry_after.lock().unwrap() = Duration::from_millis(300);
+        let f = fetcher(m.clone(), RemoteOptions { backoff_max: Duration::from_secs(5), ..quick.clone() });
+        let t = std::time::Instant::now();
+        assert_eq!(f.read(&loc, 0, 10).unwrap().len(), 10);
+        assert!(t.elapsed() >= Duration::from_millis(300), "{:?}", t.elapsed());
+        assert_eq!(f.counters.retries.load(Ordering::Relaxed), 1);
+        // Asked to wait a minute: obeyed only up to the longest backoff.
+        let m = mem(0, 1);
+        *m.retry_after.lock().unwrap() = Duration::from_secs(60);
+        let f = fetcher(m.clone(), RemoteOptions { backoff_max: Duration::from_millis(20), ..quick });
+        let t = std::time::Instant::now();
+        assert_eq!(f.read(&loc, 0, 10).unwrap().len(), 10);
+        assert!(t.elapsed() >= Duration::from_millis(20) && t.elapsed() < Duration::from_secs(30), "{:?}", t.elapsed());
+        assert_eq!(m.gets.lock().unwrap().len(), 2);
     }
 
     #[test]

@@ -2,6 +2,7 @@
 //! reads, with their defaults and the environment variables that change them
 //! (docs/RELIABILITY.md "Remote reads").
 
+use backon::ExponentialBuilder;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -121,10 +122,25 @@ impl RemoteOptions {
         Ok(o)
     }
 
-    /// The backoff before retry `attempt` (1 for the first retry), jittered by `unit` in [0, 1).
-    pub(crate) fn backoff_for(&self, attempt: u32, unit: f64) -> Duration {
-        let base = self.backoff.saturating_mul(1u32 << attempt.saturating_sub(1).min(20)).min(self.backoff_max);
-        base.mul_f64(0.5 + 0.5 * unit.clamp(0.0, 1.0))
+    /// The retries' backoffs, as `backon` draws them: before retry n (1 for the first), a wait
+    /// drawn uniformly between half of `min(backoff × 2^(n-1), backoff_max)` and all of it, and
+    /// at most [`retries`](Self::retries) of them. (`backon`'s jitter adds up to one more delay to
+    /// its delay, so its delays are the halves.)
+    pub(crate) fn backoff_policy(&self) -> ExponentialBuilder {
+        let first = self.backoff.min(self.backoff_max);
+        ExponentialBuilder::new()
+            .with_min_delay(first / 2)
+            .with_max_delay(self.backoff_max / 2)
+            .with_factor(2.0)
+            .with_jitter()
+            .with_max_times(self.retries as usize)
+    }
+
+    /// The wait before a retry whose backoff is `backoff`, when the server asked for
+    /// `retry_after`: what it asked, up to [`backoff_max`](Self::backoff_max), and never less
+    /// than the backoff.
+    pub(crate) fn wait_for(&self, backoff: Duration, retry_after: Option<Duration>) -> Duration {
+        retry_after.map_or(backoff, |r| r.min(self.backoff_max).max(backoff))
     }
 }
 
@@ -150,14 +166,44 @@ mod tests {
 
     #[test]
     fn backoff_doubles_up_to_the_bound_and_jitter_keeps_at_least_half() {
+        use backon::BackoffBuilder;
         let o = RemoteOptions {
+            retries: 5,
             backoff: Duration::from_millis(100),
             backoff_max: Duration::from_millis(350),
             ..Default::default()
         };
-        assert_eq!(o.backoff_for(1, 0.999_999).as_millis(), 99);
-        assert_eq!(o.backoff_for(2, 0.0), Duration::from_millis(100));
-        assert_eq!(o.backoff_for(3, 0.0), Duration::from_millis(175), "400 is capped at 350, then halved");
-        assert_eq!(o.backoff_for(30, 0.0), Duration::from_millis(175));
+        // The bound before retry n: 100, 200, then 400 capped at 350.
+        let bounds = [100u64, 200, 350, 350, 350].map(Duration::from_millis);
+        let slack = Duration::from_micros(10);
+        let (mut lowest, mut highest) = ([f64::MAX; 5], [0f64; 5]);
+        for seed in 0..200 {
+            let waits: Vec<Duration> = o.backoff_policy().with_jitter_seed(seed).build().collect();
+            assert_eq!(waits.len(), 5, "one wait per retry, no more");
+            for (n, (w, b)) in waits.iter().zip(bounds).enumerate() {
+                assert!(*w + slack >= b / 2 && *w <= b + slack, "retry {}: {w:?} outside [{:?}, {b:?}]", n + 1, b / 2);
+                let f = w.as_secs_f64() / b.as_secs_f64();
+                lowest[n] = lowest[n].min(f);
+                highest[n] = highest[n].max(f);
+            }
+        }
+        for n in 0..5 {
+            assert!(lowest[n] < 0.6 && highest[n] > 0.9, "retry {}: jitter spread {}..{}", n + 1, lowest[n], highest[n]);
+        }
+        let none = RemoteOptions { retries: 0, ..o.clone() };
+        assert_eq!(none.backoff_policy().build().count(), 0, "no retries, no waits");
+        // A first backoff above the bound starts at the bound.
+        let over = RemoteOptions { backoff: Duration::from_secs(9), ..o.clone() };
+        assert!(over.backoff_policy().build().all(|w| w <= Duration::from_millis(350) + slack));
+    }
+
+    #[test]
+    fn retry_after_is_obeyed_up_to_the_longest_backoff_and_never_shortens_one() {
+        let o = RemoteOptions { backoff_max: Duration::from_millis(350), ..Default::default() };
+        let ms = Duration::from_millis;
+        assert_eq!(o.wait_for(ms(80), None), ms(80));
+        assert_eq!(o.wait_for(ms(80), Some(ms(200))), ms(200));
+        assert_eq!(o.wait_for(ms(80), Some(ms(60_000))), ms(350), "bounded by backoff_max");
+        assert_eq!(o.wait_for(ms(80), Some(ms(1))), ms(80), "never shorter than the backoff");
     }
 }

@@ -1,33 +1,20 @@
-//! The runtime remote requests run on: two worker threads of their own, so that a read blocks
-//! only its calling thread (an engine read thread, a tool's thread) and never needs to be
-//! called from inside some other runtime.
+//! Remote requests run on the process's runtime ([`crate::runtime`]): a read blocks only its
+//! calling thread (an engine read thread, a tool's thread) while its request runs there.
 
 use super::fetch::Failure;
 use std::future::Future;
 use std::sync::OnceLock;
 use std::time::Duration;
 
-fn runtime() -> Result<&'static tokio::runtime::Runtime, Failure> {
-    static RT: OnceLock<Result<tokio::runtime::Runtime, String>> = OnceLock::new();
-    RT.get_or_init(|| {
-        tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .thread_name("clipmap-remote")
-            .enable_all()
-            .build()
-            .map_err(|e| format!("cannot start the runtime of remote reads: {e}"))
-    })
-    .as_ref()
-    .map_err(|e| Failure::Fatal(e.clone()))
-}
-
-/// Runs `fut` on the remote runtime and waits for it, at most `limit` (plus a second of grace:
-/// the request's own timeout should end it first).
+/// Runs `fut` on the process's runtime and waits for it, at most `limit` (plus a second of
+/// grace: the request's own timeout should end it first). Called from async code (a runtime's
+/// worker thread), it hands that worker's other tasks over first ([`crate::runtime::wait`]), so
+/// the wait never starves the runtime it waits for.
 pub fn block<T: Send + 'static>(
     limit: Duration,
     fut: impl Future<Output = Result<T, Failure>> + Send + 'static,
 ) -> Result<T, Failure> {
-    let rt = runtime()?;
+    let rt = crate::runtime::shared().map_err(|e| Failure::Fatal(format!("remote reads: {e}")))?;
     let (tx, rx) = std::sync::mpsc::sync_channel(1);
     let bounded = limit.saturating_add(Duration::from_secs(1));
     rt.spawn(async move {
@@ -37,7 +24,8 @@ pub fn block<T: Send + 'static>(
         };
         let _ = tx.send(r);
     });
-    rx.recv().unwrap_or_else(|_| Err(Failure::Fatal("the request's task ended without an answer".into())))
+    crate::runtime::wait(|| rx.recv())
+        .unwrap_or_else(|_| Err(Failure::Fatal("the request's task ended without an answer".into())))
 }
 
 /// Installs the process's TLS provider (ring) once, for `https://` and the S3 client.

@@ -92,8 +92,7 @@ pub fn measure(size: Size) -> anyhow::Result<Latency> {
     let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
     let (res_tx, res_rx) = std::sync::mpsc::channel();
     let shm_dir = dir.0.clone();
-    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
-    rt.block_on(run(
+    clipmap::runtime::block_on(run(
         source,
         o,
         async {
@@ -105,7 +104,7 @@ pub fn measure(size: Size) -> anyhow::Result<Latency> {
                 let _ = done_tx.send(());
             });
         },
-    ))
+    ))?
     .map_err(|e| anyhow::anyhow!("the service: {e}"))?;
     let (published, full, snapshot_ns) = res_rx.recv().context("the reader thread ended without a result")??;
     Ok(Latency {
