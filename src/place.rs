@@ -189,7 +189,17 @@ mod tests {
 
     #[test]
     fn local_names_are_paths_as_given() {
-        for name in ["/data/t/r000.c001.raw", "tiles/r000.c001.raw", "../up/x.raw", "./a/../b", "http:/one-slash", "s3:/x", "", "file://x", "httpx://h/p"] {
+        for name in [
+            "/data/t/r000.c001.raw",
+            "tiles/r000.c001.raw",
+            "../up/x.raw",
+            "./a/../b",
+            "http:/one-slash",
+            "s3:/x",
+            "",
+            "file://x",
+            "httpx://h/p",
+        ] {
             let p = Place::parse(name);
             assert_eq!(p, local(name), "{name}");
             assert_eq!(p.as_local(), Some(Path::new(name)));

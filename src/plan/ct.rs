@@ -5,12 +5,12 @@
 use super::fields::{Field, Reader};
 use super::ic::{self, Context, Synth};
 use super::naming::{self, anchor, Scope, TileNaming};
-use crate::place::Place;
 use super::params::{Param, ParamRef};
 use super::printf::{Arg, Format};
 use super::values::{self, SizeRule};
 use super::{check_version, portability, ClipTexturePlan, GroupMode, Level, LevelKind, Options, PyramidTile};
 use crate::config::{self, Diagnostic, Diagnostics, FileKind, Severity, Span, Spanned, SyntaxFile, TokenId};
+use crate::place::Place;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 

@@ -2,9 +2,9 @@
 //! (docs/PERFORMER-REFERENCE.md §1.9, §1.11, §1.12).
 
 use super::params::Param;
-use crate::place::{Place, RemoteName};
 use super::printf::Arg;
 use super::{ClipTexturePlan, ImageCachePlan, LevelKind};
+use crate::place::{Place, RemoteName};
 use serde::Serialize;
 
 /// The place of one tile's texels.

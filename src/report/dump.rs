@@ -374,7 +374,9 @@ impl<'a> IcacheTiles<'a> {
         let (default, note) = match &plan.default_tile {
             None => (None, None),
             // This reader reads local files only (the service reads remote ones).
-            Some(p @ Place::Remote(_)) => (None, Some(format!("default tile {p}: a remote location, not read here; not used"))),
+            Some(p @ Place::Remote(_)) => {
+                (None, Some(format!("default tile {p}: a remote location, not read here; not used")))
+            }
             Some(Place::Local(p)) => {
                 let allowed = [expected, expected.saturating_add(plan.header_offset)];
                 match crate::open::read_sized(p, &allowed) {

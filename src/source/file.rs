@@ -258,9 +258,7 @@ fn read_default(
         (Place::Remote(name), None) => Err(crate::open::SizedError::Io(no_remote(name))),
     };
     let bytes = read.map_err(|e| match e {
-        crate::open::SizedError::Io(source) => {
-            FileSourceError::DefaultTileRead { level, path: path.clone(), source }
-        }
+        crate::open::SizedError::Io(source) => FileSourceError::DefaultTileRead { level, path: path.clone(), source },
         crate::open::SizedError::Length(found) => FileSourceError::DefaultTileSize {
             level,
             path: path.clone(),

@@ -4,9 +4,9 @@
 use crate::common;
 
 use clipmap::config::Severity;
+use clipmap::place::Place;
 use clipmap::plan::{self, LevelKind, Options};
 use common::*;
-use clipmap::place::Place;
 use std::path::PathBuf;
 
 fn ic(body: &str) -> String {
@@ -37,7 +37,10 @@ fn the_default_tile_name_of_the_image_cache_manual() {
          tile_base usr/data/Terrain/TerrainTexture/texture\ns_stream /\n"));
     clean(&d);
     let loc = p.locate(16, 4, 0).unwrap();
-    assert_eq!(loc.path, Place::Local(PathBuf::from("/usr/data/Terrain/TerrainTexture/texture.16384.r004.c016.raw888")));
+    assert_eq!(
+        loc.path,
+        Place::Local(PathBuf::from("/usr/data/Terrain/TerrainTexture/texture.16384.r004.c016.raw888"))
+    );
     assert_eq!(loc.stream, "/");
     assert_eq!((loc.offset, loc.length), (0, 512 * 512 * 3));
 }

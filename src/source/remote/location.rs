@@ -112,6 +112,16 @@ mod tests {
     }
 
     #[test]
+    fn a_remote_name_parses_as_its_text_does() {
+        for name in ["HTTP://h:1/x", "s3://b/k", "S3://b/k/", "https://h/a/../b", "http://"] {
+            let r = RemoteName::parse(name).unwrap();
+            assert_eq!(Location::of(&r), Location::parse(name), "{name}");
+        }
+        assert_eq!(Location::of(&RemoteName::parse("S3://B/k").unwrap()).unwrap().endpoint, "s3://B");
+        assert!(Location::parse("/local/x").unwrap_err().problem.contains("scheme"));
+    }
+
+    #[test]
     fn unusable_names_say_what_is_wrong() {
         for (name, word) in [
             ("s3://bucket", "no object key"),

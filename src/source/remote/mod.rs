@@ -357,3 +357,17 @@ impl TileSource for RemoteSource {
         self.endpoint_of(tile) % streams.max(1)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn endpoint_keys_are_the_scheme_and_authority_in_lowercase_or_file() {
+        assert_eq!(endpoint_key(&Place::parse("HTTP://Host:8080/A/b.raw")), "http://host:8080");
+        assert_eq!(endpoint_key(&Place::parse("https://h")), "https://h");
+        assert_eq!(endpoint_key(&Place::parse("S3://Bucket/k")), "s3://bucket");
+        assert_eq!(endpoint_key(&Place::parse("/data/http://x")), "file");
+        assert_eq!(endpoint_key(&Place::anchored(std::path::Path::new("/d"), "t/r0.raw")), "file");
+    }
+}
