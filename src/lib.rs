@@ -8,6 +8,7 @@
 //!
 //! | module | owns |
 //! |---|---|
+//! | [`place`] | where a named file lives: a local path or a remote location, decided once where the name enters |
 //! | [`open`] | the one way to open a file a configuration names: regular files only, never blocking |
 //! | [`config`] | text → syntax tree with a span for every value; no arithmetic, no other files |
 //! | [`plan`] | syntax tree → validated, immutable plan: levels, formats, file names, byte offsets |
@@ -56,6 +57,7 @@ pub mod inspect;
 pub mod limits;
 pub mod open;
 pub mod paging;
+pub mod place;
 pub mod plan;
 pub mod prep;
 pub mod queue;

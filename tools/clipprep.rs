@@ -410,7 +410,7 @@ fn main() -> ExitCode {
     if let Err(e) = watch_signals(cancel.clone()) {
         eprintln!("clipprep: warning: {e:#}; Ctrl-C will stop the run without cleaning up");
     }
-    let url = cli.out.to_str().filter(|u| clipmap::plan::is_remote_name(u)).map(str::to_string);
+    let url = clipmap::place::Place::from_path(cli.out.clone()).remote().map(|u| u.to_string());
     let mut uploaded = None;
     let result = match &url {
         None => prepare(&cli, &cli.out, &cancel),

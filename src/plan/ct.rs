@@ -10,6 +10,7 @@ use super::printf::{Arg, Format};
 use super::values::{self, SizeRule};
 use super::{check_version, portability, ClipTexturePlan, GroupMode, Level, LevelKind, Options, PyramidTile};
 use crate::config::{self, Diagnostic, Diagnostics, FileKind, Severity, Span, Spanned, SyntaxFile, TokenId};
+use crate::place::Place;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -132,7 +133,7 @@ pub fn build(
             } else {
                 let (path, span) = icache_names.as_ref()?.get(l)?.clone()?;
                 if opts.ct_only {
-                    levels.push(Level { level, size, kind: LevelKind::IcacheNotOpened { path } });
+                    levels.push(Level { level, size, kind: LevelKind::IcacheNotOpened { path: path.into_path_buf() } });
                     continue;
                 }
                 let ctx = Context {
@@ -626,7 +627,7 @@ fn level_names(
     tile_base: &str,
     dir: &Path,
     opts: &Options,
-) -> Option<Vec<Option<(PathBuf, Option<Span>)>>> {
+) -> Option<Vec<Option<(Place, Option<Span>)>>> {
     let (fmt_id, params_id, files_id, base, gname) = match group {
         Group::Icache => (TokenId::IcacheFormat, TokenId::IcacheParams, TokenId::IcacheFiles, icache_base, "icache"),
         Group::Tile => (TokenId::TileFormat, TokenId::TileParams, TokenId::TileFiles, tile_base, "tile"),
@@ -812,7 +813,7 @@ fn no_ic_naming(
 
 /// Reads, parses and builds the `.ic` of one level.
 fn load_level_ic(
-    path: &Path,
+    path: &Place,
     span: Option<Span>,
     ct_path: &Path,
     ctx: &Context,
@@ -821,7 +822,7 @@ fn load_level_ic(
     sources: &mut BTreeMap<PathBuf, Vec<u8>>,
 ) -> Option<super::ImageCachePlan> {
     let level = ctx.level.map(|l| l.0).unwrap_or(0);
-    if super::is_remote(path) {
+    let Place::Local(path) = path else {
         diags.push(
             Diagnostic::new(
                 Severity::Error,
@@ -830,12 +831,12 @@ fn load_level_ic(
                 span,
                 format!("the image cache file of level {level} is a remote location; configuration files are read from local disk only"),
             )
-            .found(path.display().to_string())
+            .found(path.to_string())
             .expected("a local .ic file name")
             .hint("keep the .ct and its .ic files local, and name the tiles remotely: a URL as the .ic's tile_base, stream servers or tile_format (docs/CONFIG.md §15)"),
         );
         return None;
-    }
+    };
     let src = match super::read_source(path, &opts.limits) {
         Ok(s) => s,
         Err(e) => {

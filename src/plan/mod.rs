@@ -19,10 +19,11 @@ mod tile;
 mod values;
 
 pub use env::Env;
-pub use naming::{is_remote, is_remote_name, TileNaming, REMOTE_SCHEMES};
+pub use naming::TileNaming;
 pub use tile::{TileError, TileLocation};
 
 use crate::config::{self, Diagnostic, Diagnostics, FileKind, Limits, Severity};
+use crate::place::Place;
 use crate::texel::TexelFormat;
 use formats::FormatValue;
 use serde::Serialize;
@@ -129,8 +130,8 @@ pub struct ImageCachePlan {
     pub naming: TileNaming,
     /// Stream server path prefixes per axis (S, T, R).
     pub streams: [Vec<String>; 3],
-    /// The default tile's file (absolute), if any.
-    pub default_tile: Option<PathBuf>,
+    /// The default tile's file (absolute, or a remote location), if any.
+    pub default_tile: Option<Place>,
     /// Fields that took their default value.
     pub defaulted: Vec<&'static str>,
 }
@@ -150,8 +151,8 @@ pub enum GroupMode {
 /// A pyramid level's single tile.
 #[derive(Clone, Debug, Serialize)]
 pub struct PyramidTile {
-    /// The file (absolute), or `None` when the configuration names none.
-    pub path: Option<PathBuf>,
+    /// The file (absolute, or a remote location), or `None` when the configuration names none.
+    pub path: Option<Place>,
     /// Bytes skipped at the start of the file.
     pub header_offset: u64,
     /// Bytes of texels.

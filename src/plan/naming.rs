@@ -10,31 +10,16 @@ use super::fields::Reader;
 use super::params::{Param, ParamRef};
 use super::printf::{Arg, ArgType, Format};
 use crate::config::{Severity, Span, Spanned};
+use crate::place::{Place, RemoteName};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
-
-/// The schemes of remote locations (docs/CONFIG.md §15): a name that starts with one of these
-/// is a URL, used as written (never anchored to a directory).
-pub const REMOTE_SCHEMES: [&str; 3] = ["http://", "https://", "s3://"];
-
-/// Whether `name` is a remote location (`http://`, `https://` or `s3://`, case-insensitive).
-pub fn is_remote_name(name: &str) -> bool {
-    REMOTE_SCHEMES
-        .iter()
-        .any(|s| name.len() >= s.len() && name.as_bytes()[..s.len()].eq_ignore_ascii_case(s.as_bytes()))
-}
-
-/// Whether a resolved file name is a remote location (see [`is_remote_name`]).
-pub fn is_remote(path: &Path) -> bool {
-    path.to_str().is_some_and(is_remote_name)
-}
 
 /// Notes that `value` (the field at `span`, after expansion) is a remote location: an extension
 /// Performer would not follow, so a portability finding (an error under `--strict`).
 pub(crate) fn note_remote(r: &mut Reader<'_>, span: Span, value: &str, what: &str) {
     // A field read twice (no-.ic mode names tiles and pyramid files with one format) is
     // reported once.
-    if !is_remote_name(value) || r.reported("remote-location", Some(span)) {
+    if RemoteName::parse(value).is_none() || r.reported("remote-location", Some(span)) {
         return;
     }
     let d = r
@@ -49,14 +34,11 @@ pub(crate) fn note_remote(r: &mut Reader<'_>, span: Span, value: &str, what: &st
     r.push(super::portability(d));
 }
 
-/// Joins a relative name to `dir`; leaves absolute names and remote locations
-/// ([`is_remote_name`]) alone.
-pub(crate) fn anchor(dir: &Path, name: &str) -> PathBuf {
-    if name.starts_with('/') || is_remote_name(name) {
-        PathBuf::from(name)
-    } else {
-        dir.join(name)
-    }
+/// Where a rendered or listed name lives: the one place the plan decides local or remote
+/// ([`Place::anchored`]: a relative local name is joined to `dir`; absolute names and remote
+/// locations, docs/CONFIG.md §15, are kept as written).
+pub(crate) fn anchor(dir: &Path, name: &str) -> Place {
+    Place::anchored(dir, name)
 }
 
 /// Expands `$VAR` at the start of a field, reporting what deserves a message.
@@ -279,8 +261,8 @@ impl TileNaming {
         TileNaming { format: parsed.text.clone(), default_format: false, params, cache_name, dir, parsed }
     }
 
-    /// Renders a name with a value for each parameter.
-    pub fn render(&self, value: impl Fn(Param) -> Arg) -> PathBuf {
+    /// Renders a name with a value for each parameter, anchored ([`anchor`]).
+    pub fn render(&self, value: impl Fn(Param) -> Arg) -> Place {
         let args: Vec<Arg> = self.params.iter().map(|&p| value(p)).collect();
         anchor(&self.dir, &self.parsed.render(&args))
     }

@@ -4,14 +4,14 @@
 use super::params::Param;
 use super::printf::Arg;
 use super::{ClipTexturePlan, ImageCachePlan, LevelKind};
+use crate::place::{Place, RemoteName};
 use serde::Serialize;
-use std::path::PathBuf;
 
 /// The place of one tile's texels.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
 pub struct TileLocation {
-    /// The file.
-    pub path: PathBuf,
+    /// The file: a local path (absolute) or a remote location.
+    pub path: Place,
     /// Byte offset of the tile's first texel in the file.
     pub offset: u64,
     /// Bytes of texels.
@@ -167,5 +167,28 @@ impl ClipTexturePlan {
                 Ok(TileLocation { path, offset: p.header_offset, length: p.length, stream: String::new(), queue: None })
             }
         }
+    }
+}
+
+impl ImageCachePlan {
+    /// Whether the cache names a remote location: its default tile, a stream server (a prefix of
+    /// tile names), or its tiles' names themselves (tile 0's stands for all: only a stream
+    /// server's prefix can make names of one cache differ in kind).
+    pub fn names_remote(&self) -> bool {
+        self.default_tile.as_ref().is_some_and(|p| p.remote().is_some())
+            || self.streams.iter().flatten().any(|s| RemoteName::parse(s).is_some())
+            || self.locate(0, 0, 0).is_ok_and(|loc| loc.path.remote().is_some())
+    }
+}
+
+impl ClipTexturePlan {
+    /// Whether the plan names any remote location (a tile, a default tile, a stream server, a
+    /// pyramid file): then it is served through the `remote` feature's source.
+    pub fn names_remote(&self) -> bool {
+        self.levels.iter().any(|l| match &l.kind {
+            LevelKind::Icache(ic) => ic.names_remote(),
+            LevelKind::Pyramid(p) => p.path.as_ref().is_some_and(|p| p.remote().is_some()),
+            LevelKind::IcacheNotOpened { .. } => false,
+        })
     }
 }

@@ -8,12 +8,13 @@
 //! reading their texels, and decodes every compressed tile as the service would. Printing is
 //! the tool's business, apart from the text rendering here.
 
+use crate::place::Place;
 use crate::plan::{ClipTexturePlan, ImageCachePlan, LevelKind, TileLocation};
 use serde::Serialize;
 use std::collections::HashMap;
 use std::fmt::Write;
 use std::io;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 pub use crate::limits::MAX_LISTED_PROBLEMS;
 
@@ -41,7 +42,7 @@ pub struct TileProblem {
     /// Tile row.
     pub t: u64,
     /// The file (absent when the level names none).
-    pub path: Option<PathBuf>,
+    pub path: Option<Place>,
     /// What is wrong.
     pub problem: Problem,
     /// Whether the level's default tile stands in for it.
@@ -52,7 +53,7 @@ pub struct TileProblem {
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
 pub struct DefaultTileCheck {
     /// The file.
-    pub path: PathBuf,
+    pub path: Place,
     /// Whether it can be served (readable, one tile long, or one tile after the header).
     pub usable: bool,
     /// Why not, when it cannot.
@@ -131,10 +132,11 @@ pub struct CheckReport {
 /// What opening a file found: its length, or the problem every tile in it has.
 type FileState = Result<u64, Problem>;
 
-fn probe(path: &Path) -> FileState {
-    if crate::plan::is_remote(path) {
-        return remote_probe::length(path);
-    }
+fn probe(place: &Place) -> FileState {
+    let path = match place {
+        Place::Local(path) => path,
+        Place::Remote(name) => return remote_probe::length(name),
+    };
     match crate::open::regular(path) {
         Ok((_, m)) => Ok(m.len()),
         Err(e) if e.kind() == io::ErrorKind::NotFound => Err(Problem::Missing),
@@ -146,12 +148,15 @@ fn probe(path: &Path) -> FileState {
 /// one `tile`-byte tile. Decoded the very way the service reads it
 /// ([`crate::source::file::read_stored`]), so that `check` and the service agree on which
 /// frames are good; `buf` is reused between files.
-fn probe_compressed(path: &Path, offset: u64, tile: u64, buf: &mut Vec<u8>) -> FileState {
+fn probe_compressed(place: &Place, offset: u64, tile: u64, buf: &mut Vec<u8>) -> FileState {
     use crate::source::{SourceError, TileId};
-    if crate::plan::is_remote(path) {
-        buf.resize(tile as usize, 0);
-        return remote_probe::decode(path, offset, buf);
-    }
+    let path = match place {
+        Place::Local(path) => path,
+        Place::Remote(name) => {
+            buf.resize(tile as usize, 0);
+            return remote_probe::decode(name, offset, buf);
+        }
+    };
     let (file, meta) = match crate::open::regular(path) {
         Ok(f) => f,
         Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(Problem::Missing),
@@ -166,19 +171,18 @@ fn probe_compressed(path: &Path, offset: u64, tile: u64, buf: &mut Vec<u8>) -> F
     }
 }
 
-fn check_default(ic: &ImageCachePlan, path: &Path) -> DefaultTileCheck {
+fn check_default(ic: &ImageCachePlan, place: &Place) -> DefaultTileCheck {
     let tile = ic.tile_bytes();
-    let len = if crate::plan::is_remote(path) {
-        remote_probe::length_or_error(path)
-    } else {
-        crate::open::regular(path).map(|(_, m)| m.len()).map_err(|e| e.to_string())
+    let len = match place {
+        Place::Local(path) => crate::open::regular(path).map(|(_, m)| m.len()).map_err(|e| e.to_string()),
+        Place::Remote(name) => remote_probe::length_or_error(name),
     };
     let error = match len {
         Err(e) => Some(e),
         Ok(n) if n == tile || (ic.header_offset > 0 && n == tile + ic.header_offset) => None,
         Ok(n) => Some(format!("{n} bytes: expected {tile} (one tile)")),
     };
-    DefaultTileCheck { path: path.to_path_buf(), usable: error.is_none(), error }
+    DefaultTileCheck { path: place.clone(), usable: error.is_none(), error }
 }
 
 /// Remote locations, checked the way [`crate::source::remote`] reads them: the length of an
@@ -187,8 +191,8 @@ fn check_default(ic: &ImageCachePlan, path: &Path) -> DefaultTileCheck {
 #[cfg(feature = "remote")]
 mod remote_probe {
     use super::{FileState, Problem};
+    use crate::place::RemoteName;
     use crate::source::remote::{ReadError, Remote, RemoteOptions};
-    use std::path::Path;
     use std::sync::OnceLock;
 
     fn remote() -> Result<&'static Remote, String> {
@@ -201,23 +205,23 @@ mod remote_probe {
         .map_err(|e| e.clone())
     }
 
-    pub(crate) fn length_or_error(path: &Path) -> Result<u64, String> {
-        remote()?.length(&path.to_string_lossy()).map_err(|e| e.to_string())
+    pub(crate) fn length_or_error(name: &RemoteName) -> Result<u64, String> {
+        remote()?.length(name.as_str()).map_err(|e| e.to_string())
     }
 
-    pub fn length(path: &Path) -> FileState {
+    pub fn length(name: &RemoteName) -> FileState {
         let Ok(r) = remote() else { return Err(Problem::Unreadable) };
-        match r.length(&path.to_string_lossy()) {
+        match r.length(name.as_str()) {
             Ok(n) => Ok(n),
             Err(ReadError::NotFound { .. }) => Err(Problem::Missing),
             Err(_) => Err(Problem::Unreadable),
         }
     }
 
-    pub fn decode(path: &Path, offset: u64, buf: &mut [u8]) -> FileState {
+    pub fn decode(name: &RemoteName, offset: u64, buf: &mut [u8]) -> FileState {
         use crate::source::{RemoteReader, SourceError, TileId};
         let Ok(r) = remote() else { return Err(Problem::Unreadable) };
-        match r.read_range(TileId::new(0, 0, 0), path, offset, buf) {
+        match r.read_range(TileId::new(0, 0, 0), name, offset, buf) {
             Ok(()) => Ok(offset + buf.len() as u64),
             Err(SourceError::Undecodable { .. }) => Err(Problem::Corrupt),
             Err(SourceError::Missing { .. }) => Err(Problem::Missing),
@@ -230,19 +234,19 @@ mod remote_probe {
 #[cfg(not(feature = "remote"))]
 mod remote_probe {
     use super::{FileState, Problem};
-    use std::path::Path;
+    use crate::place::RemoteName;
 
     const WHY: &str = "a remote location, and this build cannot read them (the `remote` feature)";
 
-    pub(crate) fn length_or_error(_: &Path) -> Result<u64, String> {
+    pub(crate) fn length_or_error(_: &RemoteName) -> Result<u64, String> {
         Err(WHY.to_string())
     }
 
-    pub fn length(_: &Path) -> FileState {
+    pub fn length(_: &RemoteName) -> FileState {
         Err(Problem::Unreadable)
     }
 
-    pub fn decode(_: &Path, _: u64, _: &mut [u8]) -> FileState {
+    pub fn decode(_: &RemoteName, _: u64, _: &mut [u8]) -> FileState {
         Err(Problem::Unreadable)
     }
 }
@@ -262,7 +266,7 @@ pub fn tile_count(plan: &ClipTexturePlan) -> u64 {
 /// Checks every tile of `plan`; `progress` is told the number of tiles checked since its last
 /// call.
 pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
-    let mut files: HashMap<PathBuf, FileState> = HashMap::new();
+    let mut files: HashMap<Place, FileState> = HashMap::new();
     let mut problems = Vec::new();
     let mut not_listed = 0u64;
     let mut levels = Vec::with_capacity(plan.levels.len());
@@ -287,7 +291,7 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
                 let loc: Option<TileLocation> = plan.locate(l.level, s, t).ok();
                 let state = match &loc {
                     None => Err(Problem::Missing),
-                    Some(loc) if crate::source::file::is_compressed(&loc.path) => *files
+                    Some(loc) if crate::source::file::compressed_extension(loc.path.extension()) => *files
                         .entry(loc.path.clone())
                         .or_insert_with(|| probe_compressed(&loc.path, loc.offset, loc.length, &mut scratch)),
                     Some(loc) => {
@@ -367,12 +371,12 @@ pub fn human(r: &CheckReport, quiet: bool) -> String {
             );
             if let Some(d) = l.default_tile.as_ref().filter(|d| !d.usable) {
                 let why = d.error.as_deref().unwrap_or("unusable");
-                let _ = writeln!(o, "      default tile {} cannot be used: {why}", d.path.display());
+                let _ = writeln!(o, "      default tile {} cannot be used: {why}", d.path);
             }
         }
     }
     for p in r.problems.iter().filter(|p| !p.default_covered || !quiet) {
-        let path = p.path.as_ref().map_or("(no file named)".into(), |p| p.display().to_string());
+        let path = p.path.as_ref().map_or("(no file named)".into(), |p| p.to_string());
         let covered = if p.default_covered { " (default tile used)" } else { "" };
         let _ = writeln!(o, "level {} tile ({}, {}): {:?}: {path}{covered}", p.level, p.s, p.t, p.problem);
     }

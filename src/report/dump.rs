@@ -10,6 +10,7 @@
 
 use super::picture;
 use crate::geom::{tile_texels, tiles_covering, Rect};
+use crate::place::Place;
 use crate::plan::ImageCachePlan;
 use crate::source::{FaultKind, SourceError, TileId};
 use crate::texel::{ComponentType, Components, TexelFormat};
@@ -93,7 +94,7 @@ pub struct LevelTiles<'a> {
     /// Reads tile (S, T) into a buffer of one tile.
     pub read: &'a ReadTile<'a>,
     /// The file a tile is read from, for messages (`None` where the configuration names none).
-    pub file_of: &'a dyn Fn(TileId) -> Option<PathBuf>,
+    pub file_of: &'a dyn Fn(TileId) -> Option<Place>,
 }
 
 /// A tile that could not be read.
@@ -191,7 +192,7 @@ pub fn read_region(src: &LevelTiles, region: Rect) -> (DynamicImage, u64, Vec<Mi
             if let Err(e) = &result {
                 let text = e.to_string();
                 let problem = text.strip_prefix(&format!("{id}: ")).unwrap_or(&text).to_string();
-                let path = (src.file_of)(id).map(|p| p.display().to_string());
+                let path = (src.file_of)(id).map(|p| p.to_string());
                 missing.push(MissingTile { s: id.s, t: id.t, kind: e.kind(), problem, path });
             }
             let texels = tile_texels(src.size, src.tile, [id.s, id.t]).intersect(&region);
@@ -372,7 +373,11 @@ impl<'a> IcacheTiles<'a> {
         let expected = plan.tile_bytes();
         let (default, note) = match &plan.default_tile {
             None => (None, None),
-            Some(p) => {
+            // This reader reads local files only (the service reads remote ones).
+            Some(p @ Place::Remote(_)) => {
+                (None, Some(format!("default tile {p}: a remote location, not read here; not used")))
+            }
+            Some(Place::Local(p)) => {
                 let allowed = [expected, expected.saturating_add(plan.header_offset)];
                 match crate::open::read_sized(p, &allowed) {
                     Ok(b) if b.len() as u64 == expected => (Some(b), None),
@@ -413,8 +418,10 @@ impl<'a> IcacheTiles<'a> {
         if loc.length != out.len() as u64 {
             return Err(SourceError::Corrupt { tile, expected: out.len() as u64, found: loc.length });
         }
-        let (f, _) = crate::open::regular(&loc.path).map_err(|e| crate::source::file::io_error(tile, e))?;
-        crate::source::file::read_stored(&f, &loc.path, tile, loc.offset, out)
+        // A remote tile is not read here: missing, as a file that is not there.
+        let Place::Local(path) = &loc.path else { return Err(SourceError::Missing { tile }) };
+        let (f, _) = crate::open::regular(path).map_err(|e| crate::source::file::io_error(tile, e))?;
+        crate::source::file::read_stored(&f, path, tile, loc.offset, out)
     }
 }
 
@@ -449,7 +456,7 @@ mod tests {
             }
             Ok(())
         };
-        let file_of = |id: TileId| Some(PathBuf::from(format!("t{}{}", id.s, id.t)));
+        let file_of = |id: TileId| Some(Place::parse(&format!("t{}{}", id.s, id.t)));
         let src = LevelTiles {
             level: Some(0),
             size: [8, 8],

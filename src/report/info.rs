@@ -3,6 +3,7 @@
 
 use super::human_bytes;
 use crate::config::{Diagnostic, Severity};
+use crate::place::Place;
 use crate::plan::{ClipTexturePlan, ImageCachePlan, LevelKind, TileLocation};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -19,7 +20,7 @@ pub struct LevelRow {
     /// The level's `.ic` file (absolute), or null (pyramid levels, no-`.ic` mode).
     pub icache_config: Option<PathBuf>,
     /// The pyramid file (absolute), or null (image cache levels, unnamed pyramid levels).
-    pub tile_file: Option<PathBuf>,
+    pub tile_file: Option<Place>,
     /// Tile size in texels (a pyramid level is one tile). Null (unknown) when the level's `.ic`
     /// was not opened (`--ct-only`), as for the fields below but `tex_region`.
     pub tile_size: Option<[u64; 2]>,
@@ -173,10 +174,18 @@ fn mark(defaulted: &[&str], key: &str) -> &'static str {
     }
 }
 
-fn rel(p: &Option<PathBuf>, base: &std::path::Path) -> String {
+fn rel(p: Option<&std::path::Path>, base: &std::path::Path) -> String {
     match p {
         None => "-".into(),
         Some(p) => p.strip_prefix(base).unwrap_or(p).display().to_string(),
+    }
+}
+
+/// A tile file as [`rel`] writes a path; a remote location as written.
+fn rel_place(p: &Option<Place>, base: &std::path::Path) -> String {
+    match p {
+        Some(Place::Remote(name)) => name.to_string(),
+        p => rel(p.as_ref().and_then(Place::as_local), base),
     }
 }
 
@@ -248,7 +257,7 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
     o.push_str("\nlevel  size              kind     tile          tex region   mem region  file\n");
     let pair = |v: Option<[u64; 2]>| v.map(|[a, b]| format!("{a}x{b}")).unwrap_or_else(|| "?".into());
     for r in level_rows(plan) {
-        let file = if r.kind == "icache" { rel(&r.icache_config, dir) } else { rel(&r.tile_file, dir) };
+        let file = if r.kind == "icache" { rel(r.icache_config.as_deref(), dir) } else { rel_place(&r.tile_file, dir) };
         let file = if r.kind == "icache" && r.icache_config.is_none() {
             "(no .ic: synthesised)".to_string()
         } else if !r.icache_opened {
@@ -346,17 +355,17 @@ pub fn image_cache_human(plan: &ImageCachePlan) -> String {
         }
     }
     if let Some(dt) = &plan.default_tile {
-        o.push_str(&format!("default_tile   {}\n", dt.display()));
+        o.push_str(&format!("default_tile   {dt}\n"));
     }
     if let Ok(loc) = plan.locate(0, 0, 0) {
-        o.push_str(&format!("tile (0, 0)    {} @ {} (+{} bytes)\n", loc.path.display(), loc.offset, loc.length));
+        o.push_str(&format!("tile (0, 0)    {} @ {} (+{} bytes)\n", loc.path, loc.offset, loc.length));
     }
     o
 }
 
 /// The human form of a tile location.
 pub(crate) fn tile_human(loc: &TileLocation) -> String {
-    let mut o = format!("path    {}\noffset  {}\nlength  {}\n", loc.path.display(), loc.offset, loc.length);
+    let mut o = format!("path    {}\noffset  {}\nlength  {}\n", loc.path, loc.offset, loc.length);
     if !loc.stream.is_empty() {
         o.push_str(&format!("stream  {}\n", loc.stream));
     }

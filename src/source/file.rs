@@ -21,6 +21,7 @@
 
 use super::{check_request, DescError, LevelDesc, SourceError, TextureDesc, TileId, TileSource};
 use crate::limits::Limits;
+use crate::place::{Place, RemoteName};
 use crate::plan::{ClipTexturePlan, ImageCachePlan, LevelKind, TileError};
 use serde::Serialize;
 use std::collections::HashMap;
@@ -63,23 +64,23 @@ pub enum FileSourceError {
         depth: u64,
     },
     /// A default tile that cannot be read.
-    #[error("default tile {path} of level {level}: {source}", path = path.display())]
+    #[error("default tile {path} of level {level}: {source}")]
     DefaultTileRead {
         /// The level whose `.ic` names it.
         level: u32,
         /// The file.
-        path: PathBuf,
+        path: Place,
         /// Why.
         #[source]
         source: io::Error,
     },
     /// A default tile of the wrong size.
-    #[error("default tile {path} of level {level} holds {found} bytes: expected {expected} (one {w}x{h} tile), or that plus the {header}-byte header", path = path.display())]
+    #[error("default tile {path} of level {level} holds {found} bytes: expected {expected} (one {w}x{h} tile), or that plus the {header}-byte header")]
     DefaultTileSize {
         /// The level whose `.ic` names it.
         level: u32,
         /// The file.
-        path: PathBuf,
+        path: Place,
         /// Its length.
         found: u64,
         /// One tile's bytes.
@@ -149,25 +150,24 @@ struct LevelStreams {
     servers: Vec<usize>,
 }
 
-/// Reads what a plan names at remote locations (`http://`, `https://`, `s3://`,
-/// [`crate::plan::is_remote`]) for a [`FileSource`]: the `remote` feature's
-/// [`crate::source::remote`] implements it.
+/// Reads what a plan names at remote locations (`http://`, `https://`, `s3://`: a
+/// [`Place::Remote`]) for a [`FileSource`]: the `remote` feature's [`crate::source::remote`]
+/// implements it.
 pub trait RemoteReader: Send + Sync {
     /// Fills `out` with the bytes of `location` from byte `offset` on (one tile; a compressed
     /// tile file is one whole object, decoded).
-    fn read_range(&self, tile: TileId, location: &Path, offset: u64, out: &mut [u8]) -> Result<(), SourceError>;
+    fn read_range(&self, tile: TileId, location: &RemoteName, offset: u64, out: &mut [u8]) -> Result<(), SourceError>;
 
     /// Reads a small whole object (a default tile) whose length is one of `allowed`.
-    fn read_sized(&self, location: &Path, allowed: &[u64]) -> Result<Vec<u8>, crate::open::SizedError>;
+    fn read_sized(&self, location: &RemoteName, allowed: &[u64]) -> Result<Vec<u8>, crate::open::SizedError>;
 }
 
 /// The error for a remote location that a source without a [`RemoteReader`] was asked for.
-fn no_remote(location: &Path) -> io::Error {
+fn no_remote(location: &RemoteName) -> io::Error {
     io::Error::new(
         io::ErrorKind::Unsupported,
         format!(
-            "{} is a remote location, and this source reads local files only: open the plan with clipmap::source::open_plan (built with the `remote` feature, the default)",
-            location.display()
+            "{location} is a remote location, and this source reads local files only: open the plan with clipmap::source::open_plan (built with the `remote` feature, the default)",
         ),
     )
 }
@@ -246,27 +246,22 @@ pub(crate) fn texture_desc(plan: &ClipTexturePlan) -> Result<TextureDesc, FileSo
 fn read_default(
     level: u32,
     ic: &ImageCachePlan,
-    path: &Path,
+    path: &Place,
     remote: Option<&dyn RemoteReader>,
 ) -> Result<Arc<[u8]>, FileSourceError> {
     let expected = ic.tile_bytes();
     let with_header = expected.saturating_add(ic.header_offset);
     let allowed: &[u64] = if ic.header_offset > 0 { &[expected, with_header] } else { &[expected] };
-    let read = if crate::plan::is_remote(path) {
-        match remote {
-            Some(r) => r.read_sized(path, allowed),
-            None => Err(crate::open::SizedError::Io(no_remote(path))),
-        }
-    } else {
-        crate::open::read_sized(path, allowed)
+    let read = match (path, remote) {
+        (Place::Local(p), _) => crate::open::read_sized(p, allowed),
+        (Place::Remote(name), Some(r)) => r.read_sized(name, allowed),
+        (Place::Remote(name), None) => Err(crate::open::SizedError::Io(no_remote(name))),
     };
     let bytes = read.map_err(|e| match e {
-        crate::open::SizedError::Io(source) => {
-            FileSourceError::DefaultTileRead { level, path: path.to_path_buf(), source }
-        }
+        crate::open::SizedError::Io(source) => FileSourceError::DefaultTileRead { level, path: path.clone(), source },
         crate::open::SizedError::Length(found) => FileSourceError::DefaultTileSize {
             level,
-            path: path.to_path_buf(),
+            path: path.clone(),
             found,
             expected,
             w: ic.tile_size[0],
@@ -293,7 +288,7 @@ impl FileSource {
         remote: Option<Arc<dyn RemoteReader>>,
     ) -> Result<Self, FileSourceError> {
         let desc = texture_desc(&plan)?;
-        let mut read: HashMap<PathBuf, Arc<[u8]>> = HashMap::new();
+        let mut read: HashMap<Place, Arc<[u8]>> = HashMap::new();
         let mut defaults = Vec::with_capacity(plan.levels.len());
         let mut stream_names: Vec<String> = Vec::new();
         let mut streams = Vec::with_capacity(plan.levels.len());
@@ -394,20 +389,31 @@ impl FileSource {
         if loc.length != out.len() as u64 {
             return Err(SourceError::Corrupt { tile, expected: out.len() as u64, found: loc.length });
         }
-        if crate::plan::is_remote(&loc.path) {
-            return match &self.remote {
-                Some(r) => r.read_range(tile, &loc.path, loc.offset, out),
-                None => Err(SourceError::Io { tile, source: no_remote(&loc.path) }),
-            };
-        }
-        let file = self.handle(&loc.path).map_err(|e| io_error(tile, e))?;
-        read_stored(&file, &loc.path, tile, loc.offset, out)
+        let path = match &loc.path {
+            Place::Local(path) => path,
+            Place::Remote(name) => {
+                return match &self.remote {
+                    Some(r) => r.read_range(tile, name, loc.offset, out),
+                    None => Err(SourceError::Io { tile, source: no_remote(name) }),
+                };
+            }
+        };
+        let file = self.handle(path).map_err(|e| io_error(tile, e))?;
+        read_stored(&file, path, tile, loc.offset, out)
     }
 }
 
-/// Whether `path` names a compressed tile file (`rRRR.cCCC.raw.zst`, docs/COMPRESSED-TILES.md).
+/// The extension of a compressed tile file (`rRRR.cCCC.raw.zst`, docs/COMPRESSED-TILES.md).
+const COMPRESSED: &str = "zst";
+
+/// Whether `path` names a compressed tile file.
 pub(crate) fn is_compressed(path: &Path) -> bool {
-    path.extension().is_some_and(|e| e == "zst")
+    path.extension().is_some_and(|e| e == COMPRESSED)
+}
+
+/// Whether a name (a local or remote [`Place`]) with this extension is a compressed tile file.
+pub(crate) fn compressed_extension(extension: Option<&str>) -> bool {
+    extension == Some(COMPRESSED)
 }
 
 /// Reads the tile stored at byte `offset` of `file` (opened from `path`) into `out`, which is one

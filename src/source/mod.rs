@@ -221,7 +221,7 @@ pub fn open_plan(
 ) -> Result<std::sync::Arc<dyn TileSource>, OpenPlanError> {
     #[cfg(feature = "remote")]
     {
-        if remote::plan_is_remote(&plan) {
+        if plan.names_remote() {
             let opts = remote::RemoteOptions::from_env().map_err(|e| OpenPlanError::Remote(e.to_string()))?;
             let src = remote::RemoteSource::new(plan, limits, opts).map_err(|e| match e {
                 remote::RemoteSourceError::Plan(p) => OpenPlanError::Files(p),
@@ -232,15 +232,7 @@ pub fn open_plan(
     }
     #[cfg(not(feature = "remote"))]
     {
-        let named = plan.levels.iter().any(|l| match &l.kind {
-            crate::plan::LevelKind::Icache(ic) => {
-                ic.locate(0, 0, 0).is_ok_and(|loc| crate::plan::is_remote(&loc.path))
-                    || ic.streams.iter().flatten().any(|s| crate::plan::is_remote_name(s))
-            }
-            crate::plan::LevelKind::Pyramid(p) => p.path.as_deref().is_some_and(crate::plan::is_remote),
-            _ => false,
-        });
-        if named {
+        if plan.names_remote() {
             return Err(OpenPlanError::NoRemote { path: plan.path.clone() });
         }
     }

@@ -4,6 +4,7 @@
 use crate::common;
 
 use clipmap::config::Severity;
+use clipmap::place::Place;
 use clipmap::plan::{self, LevelKind, Options};
 use common::*;
 use std::path::PathBuf;
@@ -21,7 +22,7 @@ fn ic_in(fx: &Fixture, rel: &str, text: &str, o: &Options) -> plan::ImageCachePl
 }
 
 fn tile0(p: &plan::ImageCachePlan) -> PathBuf {
-    p.locate(0, 0, 0).unwrap().path
+    p.locate(0, 0, 0).unwrap().path.as_local().expect("a local name").to_path_buf()
 }
 
 const SIZE: &str = "icache_size 1024 1024 1\ntile_size 256 256 1\ntex_region_size 512 512 1\n";
@@ -36,7 +37,10 @@ fn the_default_tile_name_of_the_image_cache_manual() {
          tile_base usr/data/Terrain/TerrainTexture/texture\ns_stream /\n"));
     clean(&d);
     let loc = p.locate(16, 4, 0).unwrap();
-    assert_eq!(loc.path, PathBuf::from("/usr/data/Terrain/TerrainTexture/texture.16384.r004.c016.raw888"));
+    assert_eq!(
+        loc.path,
+        Place::Local(PathBuf::from("/usr/data/Terrain/TerrainTexture/texture.16384.r004.c016.raw888"))
+    );
     assert_eq!(loc.stream, "/");
     assert_eq!((loc.offset, loc.length), (0, 512 * 512 * 3));
 }
@@ -52,7 +56,7 @@ fn tile_byte_offset_with_tiles_in_file_and_header() {
     let loc = p.locate(6, 9, 0).unwrap();
     assert_eq!(loc.offset, 1180672);
     assert_eq!(loc.length, 196608);
-    assert!(loc.path.ends_with("f.1.2"), "{}", loc.path.display());
+    assert!(loc.path.as_local().unwrap().ends_with("f.1.2"), "{}", loc.path);
     // The first tile of a file starts right after the header; the last one before the next file.
     assert_eq!(p.locate(4, 8, 0).unwrap().offset, 1024);
     assert_eq!(p.locate(7, 11, 0).unwrap().offset, 1024 + 15 * 196608);
@@ -72,7 +76,7 @@ fn tile_name_parameters_take_their_image_cache_meanings() {
          PFIMAGECACHE_TILE_FILENAMEARG_FILENUM_S PFIMAGECACHE_TILE_FILENAMEARG_FILENUM_T PFIMAGECACHE_TILE_FILENAMEARG_FILENUM_R\n",
     ));
     let loc = p.locate(5, 3, 0).unwrap();
-    assert!(loc.path.ends_with("cache/2048.1024.1/5.3.0/1280.384.0/2.1.0"), "{}", loc.path.display());
+    assert!(loc.path.as_local().unwrap().ends_with("cache/2048.1024.1/5.3.0/1280.384.0/2.1.0"), "{}", loc.path);
 }
 
 #[test]
@@ -83,7 +87,7 @@ fn printf_flags_width_and_precision_render_like_c() {
          PFIMAGECACHE_TILE_FILENAMEARG_VSIZE_S PFIMAGECACHE_TILE_FILENAMEARG_VSIZE_S\n"
     )));
     let loc = p.locate(2, 3, 0).unwrap();
-    assert!(loc.path.ends_with("r003_c2  | 1024|400|%"), "{}", loc.path.display());
+    assert!(loc.path.as_local().unwrap().ends_with("r003_c2  | 1024|400|%"), "{}", loc.path);
 }
 
 #[test]
@@ -97,7 +101,7 @@ fn streams_are_chosen_by_tile_index_modulo_the_server_count() {
         assert_eq!(loc.stream, want);
         assert_eq!(loc.queue, Some((0, (s % 3) as usize)));
         // The default format puts the stream directly before the cache name.
-        assert!(loc.path.starts_with(&want), "{}", loc.path.display());
+        assert!(loc.path.as_local().unwrap().starts_with(&want), "{}", loc.path);
     }
 }
 
@@ -198,9 +202,9 @@ fn default_tile_is_prefixed_by_the_base_and_not_expanded() {
     let fx = Fixture::new();
     let o = opts_with(&[("X", "/x")]);
     let p = ic_in(&fx, "a/d.ic", &ic(&format!("{SIZE}tile_base /d/elev\ndefault_tile _sea.lum\n")), &o);
-    assert_eq!(p.default_tile, Some(PathBuf::from("/d/elev_sea.lum")));
+    assert_eq!(p.default_tile, Some(Place::Local(PathBuf::from("/d/elev_sea.lum"))));
     let p = ic_in(&fx, "a/d.ic", &ic(&format!("{SIZE}default_tile blank.raw\n")), &o);
-    assert_eq!(p.default_tile, Some(fx.path("a/blank.raw")));
+    assert_eq!(p.default_tile, Some(Place::Local(fx.path("a/blank.raw"))));
     let text = ic(&format!("{SIZE}default_tile $X/blank.raw\n"));
     let l = plan::load_image_cache(&fx.write("a/e.ic", &text), &o).unwrap();
     expect(
@@ -210,7 +214,7 @@ fn default_tile_is_prefixed_by_the_base_and_not_expanded() {
         Some((8, 14)),
         &["not environment-expanded"],
     );
-    assert_eq!(l.plan.unwrap().default_tile, Some(fx.path("a/$X/blank.raw")));
+    assert_eq!(l.plan.unwrap().default_tile, Some(Place::Local(fx.path("a/$X/blank.raw"))));
 }
 
 /// A clip texture of 2048 with two image cache levels, written with `naming` lines.
@@ -233,7 +237,7 @@ fn pyramid_paths(p: &plan::ClipTexturePlan) -> Vec<Option<PathBuf>> {
     p.levels
         .iter()
         .filter_map(|l| match &l.kind {
-            LevelKind::Pyramid(t) => Some(t.path.clone()),
+            LevelKind::Pyramid(t) => Some(t.path.clone().map(|p| p.as_local().expect("a local name").to_path_buf())),
             LevelKind::Icache(_) | LevelKind::IcacheNotOpened { .. } => None,
         })
         .collect()
@@ -258,7 +262,7 @@ fn relative_names_are_anchored_to_the_directory_of_the_file_that_names_them() {
     assert_eq!(pyramid_paths(&p)[9], Some(fx.path("conf/../pyr/11.raw")));
     // The tiles of each level's .ic are anchored to the .ic's directory, not the .ct's.
     let loc = p.locate(0, 0, 0).unwrap();
-    assert!(loc.path.starts_with(fx.path("conf/ic/tiles")), "{}", loc.path.display());
+    assert!(loc.path.as_local().unwrap().starts_with(fx.path("conf/ic/tiles")), "{}", loc.path);
 }
 
 #[test]

@@ -1,6 +1,8 @@
 //! Remote locations: `http(s)://HOST[:PORT]/PATH` and `s3://BUCKET/KEY`, parsed once per read
-//! from the file name a plan renders.
+//! from the [`RemoteName`] a plan renders (which already carries its scheme: the one place a
+//! name's kind is recognised is [`crate::place`]).
 
+use crate::place::{RemoteName, RemoteScheme};
 use std::fmt;
 
 /// Which protocol reads a location.
@@ -39,10 +41,22 @@ pub struct LocationError {
 impl Location {
     /// Parses `name` (a URL a plan rendered).
     pub fn parse(name: &str) -> Result<Location, LocationError> {
+        match RemoteName::parse(name) {
+            Some(remote) => Location::of(&remote),
+            None => Err(LocationError {
+                name: name.to_string(),
+                problem: "the scheme is neither http, https nor s3".to_string(),
+            }),
+        }
+    }
+
+    /// Parses a remote name (its scheme already told apart, [`crate::place`]) into endpoint
+    /// and target.
+    pub fn of(remote: &RemoteName) -> Result<Location, LocationError> {
+        let name = remote.as_str();
         let bad = |problem: &str| LocationError { name: name.to_string(), problem: problem.to_string() };
-        let lower = name.get(..8).unwrap_or(name).to_ascii_lowercase();
-        if lower.starts_with("s3://") {
-            let rest = &name[5..];
+        if remote.scheme() == RemoteScheme::S3 {
+            let rest = remote.rest();
             let (bucket, key) = rest.split_once('/').ok_or_else(|| bad("no object key after the bucket"))?;
             if bucket.is_empty() {
                 return Err(bad("the bucket name is empty"));
@@ -59,9 +73,6 @@ impl Location {
                 target: key.to_string(),
                 bucket: bucket.to_string(),
             });
-        }
-        if !(lower.starts_with("http://") || lower.starts_with("https://")) {
-            return Err(bad("the scheme is neither http, https nor s3"));
         }
         let url = reqwest::Url::parse(name).map_err(|e| bad(&e.to_string()))?;
         let host = url.host_str().filter(|h| !h.is_empty()).ok_or_else(|| bad("no host"))?;
@@ -98,6 +109,16 @@ mod tests {
             ("s3://tiles", "tiles", "pyr/L00/r000.c001.raw")
         );
         assert_eq!(s.to_string(), "s3://tiles/pyr/L00/r000.c001.raw");
+    }
+
+    #[test]
+    fn a_remote_name_parses_as_its_text_does() {
+        for name in ["HTTP://h:1/x", "s3://b/k", "S3://b/k/", "https://h/a/../b", "http://"] {
+            let r = RemoteName::parse(name).unwrap();
+            assert_eq!(Location::of(&r), Location::parse(name), "{name}");
+        }
+        assert_eq!(Location::of(&RemoteName::parse("S3://B/k").unwrap()).unwrap().endpoint, "s3://B");
+        assert!(Location::parse("/local/x").unwrap_err().problem.contains("scheme"));
     }
 
     #[test]

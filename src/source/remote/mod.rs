@@ -24,11 +24,11 @@ use super::file::{FileSource, FileSourceError, RemoteReader};
 use super::{SourceError, TextureDesc, TileId, TileSource};
 use crate::limits::Limits;
 use crate::open::SizedError;
+use crate::place::{Place, RemoteName};
 use crate::plan::{ClipTexturePlan, LevelKind};
 use serde::Serialize;
 use std::collections::HashMap;
 use std::io;
-use std::path::Path;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
@@ -142,19 +142,19 @@ fn parse(name: &str) -> Result<Location, ReadError> {
 }
 
 impl RemoteReader for Remote {
-    fn read_range(&self, tile: TileId, location: &Path, offset: u64, out: &mut [u8]) -> Result<(), SourceError> {
-        let name = location.to_string_lossy();
-        if super::file::is_compressed(location) {
-            return self.read_compressed(tile, &name, location, offset, out);
+    fn read_range(&self, tile: TileId, location: &RemoteName, offset: u64, out: &mut [u8]) -> Result<(), SourceError> {
+        let name = location.as_str();
+        if super::file::compressed_extension(location.extension()) {
+            return self.read_compressed(tile, location, offset, out);
         }
-        let key = disk::key(&name, offset, out.len() as u64);
+        let key = disk::key(name, offset, out.len() as u64);
         if let Some(c) = &self.cache {
             if c.get(&key, out) {
                 self.fetcher.counters.cache_hits.fetch_add(1, Ordering::Relaxed);
                 return Ok(());
             }
         }
-        let loc = Location::parse(&name).map_err(|e| io_failure(tile, io::ErrorKind::InvalidInput, e.to_string()))?;
+        let loc = Location::of(location).map_err(|e| io_failure(tile, io::ErrorKind::InvalidInput, e.to_string()))?;
         let bytes = self.fetcher.read(&loc, offset, out.len() as u64).map_err(|e| source_error(tile, e))?;
         if bytes.len() != out.len() {
             return Err(SourceError::Short { tile, expected: out.len() as u64, got: bytes.len() as u64 });
@@ -166,10 +166,9 @@ impl RemoteReader for Remote {
         Ok(())
     }
 
-    fn read_sized(&self, location: &Path, allowed: &[u64]) -> Result<Vec<u8>, SizedError> {
-        let name = location.to_string_lossy();
+    fn read_sized(&self, location: &RemoteName, allowed: &[u64]) -> Result<Vec<u8>, SizedError> {
         let max = allowed.iter().copied().max().unwrap_or(0);
-        let bytes = self.read_upto(&name, 0, max.saturating_add(1)).map_err(|e| {
+        let bytes = self.read_upto(location.as_str(), 0, max.saturating_add(1)).map_err(|e| {
             let kind = match e {
                 ReadError::NotFound { .. } => io::ErrorKind::NotFound,
                 ReadError::Denied { .. } => io::ErrorKind::PermissionDenied,
@@ -190,12 +189,12 @@ impl Remote {
     fn read_compressed(
         &self,
         tile: TileId,
-        name: &str,
-        location: &Path,
+        location: &RemoteName,
         offset: u64,
         out: &mut [u8],
     ) -> Result<(), SourceError> {
-        let bad = |problem: String| SourceError::Undecodable { tile, path: location.to_path_buf(), problem };
+        let name = location.as_str();
+        let bad = |problem: String| SourceError::Undecodable { tile, path: location.as_str().into(), problem };
         if offset != 0 {
             return Err(bad(format!(
                 "its tile is placed at byte {offset}, but a compressed file holds one whole tile"
@@ -214,29 +213,16 @@ impl Remote {
     }
 }
 
-/// The endpoint key of a resolved name: `scheme://authority` of a URL (lowercase), `s3://bucket`,
+/// The endpoint key of a tile's place: `scheme://authority` of a URL (lowercase), `s3://bucket`,
 /// or `file` for a local path. Cheap: no full URL parse.
-pub(crate) fn endpoint_key(name: &str) -> String {
-    if !crate::plan::is_remote_name(name) {
-        return "file".to_string();
-    }
-    let (scheme, rest) = name.split_once("://").unwrap_or(("", name));
-    let authority = rest.split('/').next().unwrap_or("");
-    format!("{}://{}", scheme.to_ascii_lowercase(), authority.to_ascii_lowercase())
-}
-
-/// Whether `plan` names any remote location (a tile, a default tile, a stream server, a
-/// pyramid file).
-pub(crate) fn plan_is_remote(plan: &ClipTexturePlan) -> bool {
-    plan.levels.iter().any(|l| match &l.kind {
-        LevelKind::Icache(ic) => {
-            ic.default_tile.as_deref().is_some_and(crate::plan::is_remote)
-                || ic.streams.iter().flatten().any(|s| crate::plan::is_remote_name(s))
-                || ic.locate(0, 0, 0).is_ok_and(|loc| crate::plan::is_remote(&loc.path))
+pub(crate) fn endpoint_key(place: &Place) -> String {
+    match place {
+        Place::Local(_) => "file".to_string(),
+        Place::Remote(name) => {
+            let authority = name.rest().split('/').next().unwrap_or("");
+            format!("{}{}", name.scheme().prefix(), authority.to_ascii_lowercase())
         }
-        LevelKind::Pyramid(p) => p.path.as_deref().is_some_and(crate::plan::is_remote),
-        LevelKind::IcacheNotOpened { .. } => false,
-    })
+    }
 }
 
 /// Why a remote source cannot be opened.
@@ -298,7 +284,7 @@ impl RemoteSource {
                         .map(|s| (s, 0))
                         .chain((0..n[1].min(64)).map(|t| (0, t)))
                         .filter_map(|(s, t)| ic.locate(s, t, 0).ok())
-                        .map(|loc| endpoint_key(&loc.path.to_string_lossy()))
+                        .map(|loc| endpoint_key(&loc.path))
                         .collect();
                     keys.dedup();
                     let ids: Vec<usize> = keys.into_iter().map(|k| add(k, &mut endpoints)).collect();
@@ -306,7 +292,7 @@ impl RemoteSource {
                     level_endpoint.push(if single { ids.first().copied() } else { None });
                 }
                 LevelKind::Pyramid(p) => {
-                    let key = p.path.as_deref().map_or("file".to_string(), |p| endpoint_key(&p.to_string_lossy()));
+                    let key = p.path.as_ref().map_or("file".to_string(), endpoint_key);
                     level_endpoint.push(Some(add(key, &mut endpoints)));
                 }
                 LevelKind::IcacheNotOpened { .. } => level_endpoint.push(None),
@@ -341,7 +327,7 @@ impl RemoteSource {
         }
         match self.files.plan().locate(tile.level, tile.s, tile.t) {
             Ok(loc) => {
-                let key = endpoint_key(&loc.path.to_string_lossy());
+                let key = endpoint_key(&loc.path);
                 self.index.get(&key).copied().unwrap_or_else(|| {
                     use std::hash::{Hash, Hasher};
                     let mut h = std::collections::hash_map::DefaultHasher::new();
@@ -369,5 +355,19 @@ impl TileSource for RemoteSource {
 
     fn stream_of(&self, tile: TileId, streams: usize) -> usize {
         self.endpoint_of(tile) % streams.max(1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn endpoint_keys_are_the_scheme_and_authority_in_lowercase_or_file() {
+        assert_eq!(endpoint_key(&Place::parse("HTTP://Host:8080/A/b.raw")), "http://host:8080");
+        assert_eq!(endpoint_key(&Place::parse("https://h")), "https://h");
+        assert_eq!(endpoint_key(&Place::parse("S3://Bucket/k")), "s3://bucket");
+        assert_eq!(endpoint_key(&Place::parse("/data/http://x")), "file");
+        assert_eq!(endpoint_key(&Place::anchored(std::path::Path::new("/d"), "t/r0.raw")), "file");
     }
 }

@@ -1,0 +1,267 @@
+//! Where a named file lives: on a local disk or at a remote location.
+//!
+//! A configuration, or a user on the command line, names tile files by text; a name that starts
+//! with `http://`, `https://` or `s3://` (any case) is a remote location, used exactly as
+//! written, and any other name is a local path. That decision is made once, where a name enters
+//! (the plan anchoring a name it renders, a tool reading its argument), by making a [`Place`];
+//! everything downstream matches on the type instead of looking at the text again.
+//!
+//! A place gives back its exact original text (`Display`, and `Serialize` as a string), so error
+//! messages and JSON reports read as the name was written. The remote stack (the `remote`
+//! feature) parses a [`RemoteName`] further into endpoint and key; this room only tells the two
+//! kinds apart, so it stands on the ground floor and every build has it.
+
+use serde::{Serialize, Serializer};
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// The protocol a remote name is written with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum RemoteScheme {
+    /// `http://`
+    Http,
+    /// `https://`
+    Https,
+    /// `s3://`: an S3-compatible object store.
+    S3,
+}
+
+impl RemoteScheme {
+    /// Every scheme.
+    pub const ALL: [RemoteScheme; 3] = [RemoteScheme::Http, RemoteScheme::Https, RemoteScheme::S3];
+
+    /// The prefix that introduces a name of this scheme, in lowercase (`http://`, ...).
+    pub fn prefix(self) -> &'static str {
+        match self {
+            RemoteScheme::Http => "http://",
+            RemoteScheme::Https => "https://",
+            RemoteScheme::S3 => "s3://",
+        }
+    }
+
+    /// The scheme `name` starts with (case-insensitive), if any.
+    fn of(name: &str) -> Option<RemoteScheme> {
+        RemoteScheme::ALL.into_iter().find(|s| {
+            let p = s.prefix().as_bytes();
+            name.len() >= p.len() && name.as_bytes()[..p.len()].eq_ignore_ascii_case(p)
+        })
+    }
+}
+
+/// A remote location's name, as written (`HTTP://Host/x` stays so), with its scheme.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct RemoteName {
+    scheme: RemoteScheme,
+    text: String,
+}
+
+impl RemoteName {
+    /// `name` as a remote name, when it starts with a remote scheme (case-insensitive).
+    pub fn parse(name: &str) -> Option<RemoteName> {
+        RemoteScheme::of(name).map(|scheme| RemoteName { scheme, text: name.to_string() })
+    }
+
+    /// The scheme.
+    pub fn scheme(&self) -> RemoteScheme {
+        self.scheme
+    }
+
+    /// The whole name, as written.
+    pub fn as_str(&self) -> &str {
+        &self.text
+    }
+
+    /// What follows the scheme's `://`.
+    pub fn rest(&self) -> &str {
+        &self.text[self.scheme.prefix().len()..]
+    }
+
+    /// The name's last `.`-suffix as a path would have it (`zst` for `.../r000.c000.raw.zst`).
+    pub fn extension(&self) -> Option<&str> {
+        Path::new(&self.text).extension().and_then(|e| e.to_str())
+    }
+}
+
+impl fmt::Display for RemoteName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.text)
+    }
+}
+
+/// Where a named file lives: a local path, or a remote location.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Place {
+    /// A file on a local disk.
+    Local(PathBuf),
+    /// An object at a remote location (`http://`, `https://`, `s3://`).
+    Remote(RemoteName),
+}
+
+impl Place {
+    /// The place `name` names: remote when it starts with a remote scheme, else a local path
+    /// (used as given, relative or not).
+    pub fn parse(name: &str) -> Place {
+        match RemoteName::parse(name) {
+            Some(r) => Place::Remote(r),
+            None => Place::Local(PathBuf::from(name)),
+        }
+    }
+
+    /// The place a path given as such names (a command-line argument, a path a caller built):
+    /// remote when its text is a remote name, else that path.
+    pub fn from_path(path: PathBuf) -> Place {
+        match path.to_str().and_then(RemoteName::parse) {
+            Some(r) => Place::Remote(r),
+            None => Place::Local(path),
+        }
+    }
+
+    /// The place `name` names, a relative local name joined to `dir` (the directory of the file
+    /// that named it); absolute names and remote locations are kept as written.
+    pub fn anchored(dir: &Path, name: &str) -> Place {
+        match Place::parse(name) {
+            Place::Local(p) if !name.starts_with('/') => Place::Local(dir.join(p)),
+            place => place,
+        }
+    }
+
+    /// The local path, when the place is local.
+    pub fn as_local(&self) -> Option<&Path> {
+        match self {
+            Place::Local(p) => Some(p),
+            Place::Remote(_) => None,
+        }
+    }
+
+    /// The remote name, when the place is remote.
+    pub fn remote(&self) -> Option<&RemoteName> {
+        match self {
+            Place::Local(_) => None,
+            Place::Remote(r) => Some(r),
+        }
+    }
+
+    /// The name's last `.`-suffix (`zst` for a compressed tile file), local or remote.
+    pub fn extension(&self) -> Option<&str> {
+        match self {
+            Place::Local(p) => p.extension().and_then(|e| e.to_str()),
+            Place::Remote(r) => r.extension(),
+        }
+    }
+
+    /// The name as a path (a remote name's text unchanged): for records that keep the name of a
+    /// file that is never read through the place, such as a `.ic` a `.ct`-only plan did not open.
+    pub fn into_path_buf(self) -> PathBuf {
+        match self {
+            Place::Local(p) => p,
+            Place::Remote(r) => PathBuf::from(r.text),
+        }
+    }
+}
+
+impl fmt::Display for Place {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Place::Local(p) => fmt::Display::fmt(&p.display(), f),
+            Place::Remote(r) => f.write_str(&r.text),
+        }
+    }
+}
+
+/// As the name's text: a local path exactly as a `PathBuf` serializes, a remote name as written.
+impl Serialize for Place {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            Place::Local(p) => p.serialize(s),
+            Place::Remote(r) => s.serialize_str(&r.text),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn local(p: &str) -> Place {
+        Place::Local(PathBuf::from(p))
+    }
+
+    #[test]
+    fn local_names_are_paths_as_given() {
+        for name in [
+            "/data/t/r000.c001.raw",
+            "tiles/r000.c001.raw",
+            "../up/x.raw",
+            "./a/../b",
+            "http:/one-slash",
+            "s3:/x",
+            "",
+            "file://x",
+            "httpx://h/p",
+        ] {
+            let p = Place::parse(name);
+            assert_eq!(p, local(name), "{name}");
+            assert_eq!(p.as_local(), Some(Path::new(name)));
+            assert!(p.remote().is_none());
+            assert_eq!(p.to_string(), name);
+        }
+    }
+
+    #[test]
+    fn remote_names_keep_their_text_and_scheme() {
+        for (name, scheme, rest) in [
+            ("http://h:8080/pyr/L00/r000.c001.raw", RemoteScheme::Http, "h:8080/pyr/L00/r000.c001.raw"),
+            ("https://example.org/a/../b", RemoteScheme::Https, "example.org/a/../b"),
+            ("s3://bucket/key/x.raw.zst", RemoteScheme::S3, "bucket/key/x.raw.zst"),
+            ("HTTP://Host/X", RemoteScheme::Http, "Host/X"),
+            ("hTtPs://h//double", RemoteScheme::Https, "h//double"),
+            ("S3://B/k", RemoteScheme::S3, "B/k"),
+            ("http://", RemoteScheme::Http, ""),
+        ] {
+            let p = Place::parse(name);
+            let r = p.remote().unwrap_or_else(|| panic!("{name} is remote"));
+            assert_eq!((r.scheme(), r.rest(), r.as_str()), (scheme, rest, name));
+            assert_eq!(p.as_local(), None);
+            assert_eq!(p.to_string(), name);
+            assert_eq!(Place::from_path(PathBuf::from(name)), p);
+        }
+        assert_eq!(Place::parse("s3://b/k/t.raw.zst").extension(), Some("zst"));
+        assert_eq!(Place::parse("http://h/t.raw").extension(), Some("raw"));
+    }
+
+    #[test]
+    fn anchoring_joins_relative_local_names_only() {
+        let dir = Path::new("/cfg/dir");
+        assert_eq!(Place::anchored(dir, "t/r0.raw"), local("/cfg/dir/t/r0.raw"));
+        assert_eq!(Place::anchored(dir, "../t/r0.raw"), local("/cfg/dir/../t/r0.raw"));
+        assert_eq!(Place::anchored(dir, "/abs/r0.raw"), local("/abs/r0.raw"));
+        assert_eq!(Place::anchored(dir, "Https://h/x").to_string(), "Https://h/x");
+        assert!(Place::anchored(dir, "s3://b/k").remote().is_some());
+        assert_eq!(Place::anchored(dir, "http:/x"), local("/cfg/dir/http:/x"));
+    }
+
+    #[test]
+    fn serializes_as_the_text_a_path_would() {
+        for name in ["/a/b c/r0.raw", "rel/x", "http://h/x%20y", "S3://b/k"] {
+            let place = serde_json::to_string(&Place::parse(name)).unwrap();
+            assert_eq!(place, serde_json::to_string(&PathBuf::from(name)).unwrap(), "{name}");
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn the_text_comes_back_and_the_kind_follows_the_prefix(
+            prefix in prop::sample::select(vec!["", "/", "./", "../", "http://", "HTTPS://", "s3://", "S3:/", "http:"]),
+            body in "[a-zA-Z0-9._/:%-]{0,24}",
+        ) {
+            let name = format!("{prefix}{body}");
+            let place = Place::parse(&name);
+            prop_assert_eq!(place.to_string(), name.clone());
+            let lower = name.to_ascii_lowercase();
+            let remote = ["http://", "https://", "s3://"].iter().any(|s| lower.starts_with(s));
+            prop_assert_eq!(place.remote().is_some(), remote);
+            prop_assert_eq!(Place::from_path(PathBuf::from(&name)), place);
+        }
+    }
+}
