@@ -6,7 +6,9 @@
 //! valid region as far as the tiles under it are settled, with min LOD moved past any level whose
 //! region is not whole yet (load control, docs/ARCHITECTURE.md §6), and only then gives the slots
 //! of tiles that left their mem region to the tiles that entered it and asks the read queues for
-//! them. The tick itself writes no texel: reads write tiles straight into their slots.
+//! them. The tick itself writes no texel: reads write tiles straight into their slots, on the
+//! read queues' threads, a growing texture's rebuilt tiles included ([`Clipmap::refresh`]: the
+//! tick reopens a resident tile's slot and asks the queues for it).
 //!
 //! The invariant it keeps: **every texel inside a published valid region is in a settled slot**
 //! (ready, the default tile, or missing, which readers see in the slot's tag and serve from a

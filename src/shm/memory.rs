@@ -4,14 +4,16 @@
 //!
 //! Owns the writer's side of the slot protocol (docs/SHM.md, "The writer's invariant"):
 //! - each slot has a private **claim** (atomics in this process, not in the mapping): the tile the
-//!   engine assigned to it, a generation counted up by every assignment, and whether it is
-//!   loading, being filled by one read, or settled. A read fills a slot only after taking the
-//!   claim from loading to busy by compare-and-swap, so at most one read writes a slot at a time,
-//!   and never a settled one; a finished read settles the slot only under the generation it
-//!   filled it in, so a late completion of an earlier assignment of the same tile cannot mark
-//!   another read's bytes ready;
+//!   engine assigned to it, a generation counted up by every assignment (and reopening), and
+//!   whether it is loading, being filled by one read, or settled. A read fills a slot only after
+//!   taking the claim from loading to busy by compare-and-swap, so at most one read writes a slot
+//!   at a time, and never a settled one; a finished read settles the slot only under the
+//!   generation it filled it in, so a late completion of an earlier assignment of the same tile
+//!   cannot mark another read's bytes ready;
 //! - the engine reassigns a slot only when no read holds it, storing the tag (loading, new tile)
-//!   before the claim, so a reader sees the tag change before any byte does;
+//!   before the claim, so a reader sees the tag change before any byte does; it reopens a settled
+//!   slot for new texels of the same tile ([`ImageMemory::replace`], a growing texture) the same
+//!   way, tag first, and a read then fills it like any other;
 //! - the tick publishes the snapshot once, whole, under its seqlock.
 //!
 //! It decides nothing about which tiles to hold ([`crate::cache`]) nor when to publish

@@ -140,7 +140,7 @@ impl PoolSource {
 
     /// Drops `tile` if it is held (its texels changed at the inner source): the next read of it
     /// reads the inner source again. Not counted as an eviction.
-    pub fn forget(&self, tile: TileId) {
+    pub(crate) fn forget(&self, tile: TileId) {
         let mut st = self.lock();
         if let Some(old) = st.entries.remove(&tile) {
             st.stats.bytes -= old.data.len() as u64;
