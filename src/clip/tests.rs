@@ -532,6 +532,27 @@ fn refreshed_tiles_are_replaced_in_their_slots_while_their_level_stays_published
     assert_eq!(map.stats().slots_reassigned_under_published, 0);
 }
 
+/// With a second-level tile pool in front of the source, a refreshed tile's replacement read
+/// reaches the source (the pool's copy is dropped), so the slot gets the new texels.
+#[test]
+fn a_refreshed_tile_is_read_from_the_source_not_from_the_pool() {
+    let desc = TextureDesc::new([1024, 1024], 64, TexelFormat::RGBA8, [16, 16]).unwrap();
+    let src = Arc::new(Versioned { inner: HashSource::new(desc), version: Default::default() });
+    let mut map = Clipmap::new(src.clone(), Settings { pool_bytes: 4 << 20, ..settings(None) }).unwrap();
+    settle(&mut map, [500, 500], 50);
+    let valid = map.level(0).valid;
+    let tile = map.level(0).tile_of(valid.s0, valid.t0);
+    assert!(map.pool().unwrap().contains(tile), "the pool holds the tile's first read");
+    let before = map.level(0).texel(valid.s0, valid.t0).unwrap().to_vec();
+    src.version.store(3, std::sync::atomic::Ordering::Relaxed);
+    map.refresh([tile]);
+    map.tick([500, 500], None);
+    map.wait_for_reads();
+    assert_eq!(map.tick([500, 500], None).tiles_replaced, 1);
+    let after = map.level(0).texel(valid.s0, valid.t0).unwrap().to_vec();
+    assert_eq!(after, before.iter().map(|b| b.wrapping_add(3)).collect::<Vec<_>>());
+}
+
 /// A [`Versioned`] texture whose reads record the thread they run on and, while the gate is
 /// closed, wait for it to open, except on the thread that ticks (so that a read there, which the
 /// tick must never do, is recorded rather than hung).
