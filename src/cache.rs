@@ -2,10 +2,11 @@
 //!
 //! Owns, for every level, which tile each slot of its grid should hold (tile (S, T) lives in slot
 //! (S mod grid width, T mod grid height)) and what the engine knows of it (absent, loading,
-//! resident, defaulted, failed). The slots' bytes and tags live in an [`ImageMemory`] (the
-//! service's mapping, or anonymous memory): reads write there directly, and this module only moves
-//! claims ([`ImageMemory::assign`], [`ImageMemory::settle`]). It decides nothing about *which*
-//! region to hold ([`crate::geom`]) nor how tiles are read ([`crate::queue`]).
+//! resident, defaulted, failed, replacing). The slots' bytes and tags live in an [`ImageMemory`]
+//! (the service's mapping, or anonymous memory): reads write there directly, and this module only
+//! moves claims ([`ImageMemory::assign`], [`ImageMemory::replace`], [`ImageMemory::settle`]). It
+//! decides nothing about *which* region to hold ([`crate::geom`]) nor how tiles are read
+//! ([`crate::queue`]).
 
 use crate::geom::{wrap, Rect};
 use crate::shm::layout::SlotState;
@@ -30,12 +31,17 @@ pub enum TileState {
     /// The last read failed (readers use a coarser level for it); it is asked for again from
     /// tick `retry_at` on.
     Failed { kind: FaultKind, retry_at: u64 },
+    /// Was resident (or defaulted) and is being read again into its slot, in place, because its
+    /// texels changed at the source ([`crate::clip::Clipmap::refresh`]): asked of the read queues
+    /// like any tile. Settled (its level stays published), not readable: the slot's tag says
+    /// loading, so readers use a coarser level for this tile until the read settles it.
+    Replacing,
 }
 
 impl TileState {
     /// True when nothing more is expected for the tile now (it can be published).
     pub fn settled(self) -> bool {
-        matches!(self, TileState::Resident | TileState::Defaulted | TileState::Failed { .. })
+        matches!(self, TileState::Resident | TileState::Defaulted | TileState::Failed { .. } | TileState::Replacing)
     }
 
     /// True when its texels may be read.
@@ -49,6 +55,9 @@ impl TileState {
 pub(crate) enum Admit {
     /// The slot holds the tile now.
     Admitted,
+    /// The slot holds the tile's new texels now: a replacement in place
+    /// ([`TileCache::replace`]) ended.
+    Replaced,
     /// The tile left the mem region (or its slot was given to another) while it was read.
     Stale,
 }
@@ -201,8 +210,13 @@ impl TileCache {
         if !memory.settle(tile, generation, tag) {
             return Admit::Stale;
         }
+        let replaced = slot.state == TileState::Replacing;
         slot.state = state;
-        Admit::Admitted
+        if replaced {
+            Admit::Replaced
+        } else {
+            Admit::Admitted
+        }
     }
 
     /// Notes that reading `tile` failed: its tag says missing (readers use a coarser level for
@@ -221,12 +235,21 @@ impl TileCache {
         }
     }
 
-    /// A resident tile whose replacement in place failed (its slot was settled missing): readers
-    /// use a coarser level for it, and it is wanted again from tick `retry_at`.
-    pub(crate) fn mark_replacement_failed(&mut self, tile: TileId, kind: FaultKind, retry_at: u64) {
-        if let Some(slot) = self.level_slot_mut(tile) {
-            slot.state = TileState::Failed { kind, retry_at };
+    /// Opens resident (or defaulted) `tile`'s slot to be read again in place
+    /// ([`ImageMemory::replace`]: tag loading, claim loading under a new generation): the tile
+    /// is [`TileState::Replacing`], wanted from the read queues like any tile, and its read's
+    /// completion settles it again ([`admit`](Self::admit), or [`mark_failed`](Self::mark_failed):
+    /// missing, read again from its retry tick). `false` (nothing changed) unless the tile is
+    /// resident or defaulted in its slot. Call only from the tick, after no in-process reader
+    /// can hold the slot.
+    pub(crate) fn replace(&mut self, tile: TileId) -> bool {
+        let memory = Arc::clone(&self.memory);
+        let Some(slot) = self.level_slot_mut(tile) else { return false };
+        if !slot.state.readable() || memory.replace(tile).is_none() {
+            return false;
         }
+        slot.state = TileState::Replacing;
+        true
     }
 
     /// A failed tile is wanted again from tick `now` on (its source has new data for it).
@@ -253,9 +276,9 @@ impl TileCache {
         self.state(tile).readable() && self.memory.read_settled(tile, offset, out)
     }
 
-    /// Tiles of level `k`'s mem region that should be read at tick `now`: absent, loading (still
-    /// wanted, so their priority is refreshed) or failed with their retry time reached, in slots
-    /// already given to them.
+    /// Tiles of level `k`'s mem region that should be read at tick `now`: absent, loading or
+    /// replacing (still wanted, so their priority is refreshed) or failed with their retry time
+    /// reached, in slots already given to them.
     pub fn wanted(&self, k: u32, now: u64) -> Vec<TileId> {
         let level = &self.levels[k as usize];
         let mut out = Vec::new();
@@ -264,7 +287,7 @@ impl TileCache {
                 let slot = &level.slots[level.slot_index([s, t])];
                 let want = slot.assigned
                     && match slot.state {
-                        TileState::Absent | TileState::Loading => true,
+                        TileState::Absent | TileState::Loading | TileState::Replacing => true,
                         TileState::Failed { retry_at, .. } => retry_at <= now,
                         TileState::Resident | TileState::Defaulted => false,
                     };

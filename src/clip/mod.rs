@@ -6,7 +6,9 @@
 //! valid region as far as the tiles under it are settled, with min LOD moved past any level whose
 //! region is not whole yet (load control, docs/ARCHITECTURE.md §6), and only then gives the slots
 //! of tiles that left their mem region to the tiles that entered it and asks the read queues for
-//! them. The tick itself writes no texel: reads write tiles straight into their slots.
+//! them. The tick itself writes no texel: reads write tiles straight into their slots, on the
+//! read queues' threads, a growing texture's rebuilt tiles included ([`Clipmap::refresh`]: the
+//! tick reopens a resident tile's slot and asks the queues for it).
 //!
 //! The invariant it keeps: **every texel inside a published valid region is in a settled slot**
 //! (ready, the default tile, or missing, which readers see in the slot's tag and serve from a
@@ -111,6 +113,12 @@ impl Settings {
 }
 
 pub use crate::limits::MAX_CENTRE_ALIGNMENT;
+
+/// Most [`Clipmap::refresh`]ed tiles being replaced at once, per read slot of the queues
+/// (`streams` times `Limits::max_in_flight_reads`): a run of reads each (a queue's thread reads
+/// up to 16 tiles in a row), so that the replacements keep the queues busy while few tiles at a
+/// time fall back to a coarser level.
+const MAX_REPLACING_PER_READ_SLOT: usize = 16;
 
 /// Why a clipmap could not be built.
 #[derive(Debug, Error)]
@@ -228,12 +236,13 @@ pub struct Clipmap {
     min_lod: f64,
     tick: u64,
     stats: Stats,
-    /// The source itself (not through the pool): what [`Clipmap::refresh`]ed tiles are read from.
-    source: Arc<dyn TileSource>,
     /// Tiles whose texels changed at the source, waiting to be replaced in their slots, in order.
     refresh: VecDeque<TileId>,
     /// The same tiles, to ask for each once.
     refreshing: std::collections::HashSet<TileId>,
+    /// Tiles being replaced in their slots ([`TileState::Replacing`]): their reads asked of the
+    /// queues, not yet taken.
+    replacing: std::collections::HashSet<TileId>,
     /// The adaptive policy's measurements and choices (`None` for the fixed policies).
     controller: Option<Controller>,
 }
@@ -385,9 +394,9 @@ impl Clipmap {
             centre: None,
             tick: 0,
             stats: Stats::default(),
-            source,
             refresh: VecDeque::new(),
             refreshing: Default::default(),
+            replacing: Default::default(),
             controller: (settings_prefetch == PrefetchKind::Adaptive).then(|| Controller {
                 lead: vec![[0, 0]; level_count],
                 needed: vec![[0, 0]; level_count],
@@ -399,16 +408,25 @@ impl Clipmap {
     }
 
     /// Says that the source's texels of `tiles` changed (a growing texture rebuilt them): each
-    /// one the clipmap holds is read again, straight into its slot, by the coming ticks (bounded by
-    /// the tick's budget; at least one a tick), while its level stays published: the slot's tag
+    /// one the clipmap holds resident (or defaulted) is read again into its slot, in place, through
+    /// the read queues like any tile (same priorities, same queues and bounds, counted in the
+    /// queues' counters), while its level stays published: a coming tick opens the slot (its tag
     /// says loading while its bytes change, so readers fall back to a coarser level for that tile
-    /// only, or discard what they copied. A tile whose read is under way is replaced once it has
-    /// settled (its read may have started before the change); one whose read failed (a tile with
-    /// no data yet) is read again at once; one the clipmap does not hold needs nothing (its read,
-    /// when it enters a mem region, sees the change).
+    /// only, or discard what they copied) and asks for the tile, a queue's thread reads it into the
+    /// slot, and the tick that takes the read settles it, ready (or the default tile), or missing
+    /// if the read failed (read again after the retry delay). At most 16 tiles per read slot of the
+    /// queues (a run of reads each) are replaced at once. A tile
+    /// whose read is under way (a first read or a replacement) is replaced once it has settled
+    /// (its read may have started before the change); one whose read failed (a tile with no data
+    /// yet) is read again at once; one the clipmap does not hold needs nothing (its read, when it
+    /// enters a mem region, sees the change). A tile that leaves its mem region while it is
+    /// replaced is dropped like any read. A second-level pool's copy of each tile is dropped.
     pub fn refresh(&mut self, tiles: impl IntoIterator<Item = TileId>) {
         for t in tiles {
             if (t.level as usize) < self.levels.len() && self.refreshing.insert(t) {
+                if let Some(pool) = &self.pool {
+                    pool.forget(t);
+                }
                 self.refresh.push_back(t);
             }
         }
@@ -419,23 +437,27 @@ impl Clipmap {
         (tile.level as usize) < self.levels.len() && self.cache.state(tile) != TileState::Absent
     }
 
-    /// Tiles waiting to be replaced in their slots.
+    /// Tiles waiting to be replaced in their slots, or being replaced (their reads not yet taken).
     pub fn refresh_pending(&self) -> usize {
-        self.refresh.len()
+        self.refresh.len() + self.replacing.len()
     }
 
-    /// Replaces waiting [`refresh`](Self::refresh)ed tiles in their slots until the tick's budget
-    /// is spent (one at least); returns how many were replaced.
-    fn replace_tiles(&mut self, started: Instant) -> u64 {
-        let budget = self.settings.budget_ns.map(Duration::from_nanos);
-        let mut replaced = 0;
+    /// Opens the slots of waiting [`refresh`](Self::refresh)ed tiles for their new texels (the
+    /// read queues are asked for them with the tick's other reads), up to the bound on
+    /// replacements under way. The tick reads nothing itself.
+    fn replace_tiles(&mut self) {
+        // Replacements that ended, or left with their mem region (their requests dropped).
+        let cache = &self.cache;
+        self.replacing.retain(|&t| cache.state(t) == TileState::Replacing);
+        let slots = self.queues.streams() * self.settings.limits.max_in_flight_reads.max(1);
+        let bound = slots.saturating_mul(MAX_REPLACING_PER_READ_SLOT);
         for _ in 0..self.refresh.len() {
-            if replaced > 0 && budget.is_some_and(|b| started.elapsed() >= b) {
+            if self.replacing.len() >= bound {
                 break;
             }
             let Some(tile) = self.refresh.pop_front() else { break };
             match self.cache.state(tile) {
-                TileState::Loading => {
+                TileState::Loading | TileState::Replacing => {
                     // Its read may predate the change: replace it after it settles.
                     self.refresh.push_back(tile);
                     continue;
@@ -453,33 +475,15 @@ impl Clipmap {
                 }
             }
             self.refreshing.remove(&tile);
-            let source = &self.source;
-            let Some((generation, result)) = self.cache.memory().replace(tile, |out| source.read_into(tile, out))
-            else {
-                continue;
-            };
-            let memory = self.cache.memory().clone();
-            match result {
-                Ok(delivered) => {
-                    let st = match delivered {
-                        crate::source::Delivered::Tile => layout::SlotState::Ready,
-                        crate::source::Delivered::Default => layout::SlotState::Default,
-                    };
-                    memory.settle(tile, generation, st);
-                    self.stats.queue.bytes_read += self.desc.tile_bytes(tile.level) as u64;
-                    replaced += 1;
-                }
-                Err(e) => {
-                    tracing::debug!("tile replacement failed: {e}");
-                    self.stats.read_faults.add(e.kind());
-                    memory.settle(tile, generation, layout::SlotState::Missing);
-                    let retry_at = self.tick + self.settings.retry_after_ticks;
-                    self.cache.mark_replacement_failed(tile, e.kind(), retry_at);
-                }
+            // No read of it is under way (it is settled): a pooled copy dropped now cannot come
+            // back with the old texels.
+            if let Some(pool) = &self.pool {
+                pool.forget(tile);
+            }
+            if self.cache.replace(tile) {
+                self.replacing.insert(tile);
             }
         }
-        self.stats.tiles_replaced += replaced;
-        replaced
     }
 
     /// The texture.
@@ -590,15 +594,16 @@ impl Clipmap {
         let mut report =
             TickReport { centre, clamped: self.stats.centre_clamps > clamps, velocity, ..TickReport::default() };
 
-        let (taken, left) = self.take_reads(started);
+        let (taken, replaced, left) = self.take_reads(started);
         report.tiles_read = taken;
+        report.tiles_replaced = replaced;
         report.over_budget = left > 0;
         if left > 0 {
             self.stats.ticks_over_budget += 1;
             self.stats.reads_deferred += left as u64;
         }
-        if !self.refresh.is_empty() {
-            report.tiles_replaced = self.replace_tiles(started);
+        if !self.refresh.is_empty() || !self.replacing.is_empty() {
+            self.replace_tiles();
         }
         let velocities = self.move_frames(centre, velocity);
         if let Some(pool) = &self.pool {
@@ -636,7 +641,6 @@ impl Clipmap {
         }
         report.valid = self.levels.iter().map(|l| l.published).collect();
         self.stats.queue = self.queues.stats();
-        self.stats.tick_texel_bytes = self.cache.memory().copied_texel_bytes();
         self.stats.slots_reassigned_under_published = self.cache.memory().invariant_violations();
         if let Some(pool) = &self.pool {
             self.stats.pool = pool.stats();
@@ -675,8 +679,8 @@ impl Clipmap {
     }
 
     /// Takes finished reads (each already in its slot) until the tick's budget is spent; returns
-    /// (taken, left for the next tick).
-    fn take_reads(&mut self, started: Instant) -> (u64, usize) {
+    /// (tiles admitted, tiles replaced in their slots, left for the next tick).
+    fn take_reads(&mut self, started: Instant) -> (u64, u64, usize) {
         self.backlog.extend(self.queues.drain());
         // The stream servers that measured a read this tick, and the tiles each delivered.
         let streams = self.controller.as_ref().map_or(0, |c| c.latency.stream_count());
@@ -684,6 +688,7 @@ impl Clipmap {
         let mut taken = vec![0u64; streams];
         let budget = self.settings.budget_ns.map(Duration::from_nanos);
         let mut admitted = 0;
+        let mut replaced = 0;
         let mut n = 0u32;
         while let Some(done) = self.backlog.pop_front() {
             match done.outcome {
@@ -703,6 +708,8 @@ impl Clipmap {
                             self.stats.default_tiles += 1;
                         }
                     }
+                    // A refreshed tile's new texels (not a read the paging asked for).
+                    Admit::Replaced => replaced += 1,
                     Admit::Stale => self.stats.late_tiles += 1,
                 },
                 // A simulated disk spent its reads for the tick: the tile stays wanted.
@@ -727,6 +734,7 @@ impl Clipmap {
             }
         }
         self.stats.tiles_read += admitted;
+        self.stats.tiles_replaced += replaced;
         if let Some(c) = &mut self.controller {
             for (stream, _) in sampled.iter().enumerate().filter(|(_, &measured)| !measured) {
                 c.latency.rest(stream);
@@ -736,7 +744,7 @@ impl Clipmap {
                 c.latency.count(stream, asked, d);
             }
         }
-        (admitted, self.backlog.len())
+        (admitted, replaced, self.backlog.len())
     }
 
     /// Moves every level's frame to the new centre; returns each level's velocity in its texels.
@@ -856,7 +864,10 @@ impl Clipmap {
                 };
                 wanted.push(ReadRequest { tile, priority: p });
                 self.cache.mark_loading(tile);
-                if let Some(c) = &mut self.controller {
+                // A tile replaced in its slot is no paging read: the read-ahead's latency is not
+                // measured on it.
+                let replacing = self.replacing.contains(&tile);
+                if let Some(c) = self.controller.as_mut().filter(|_| !replacing) {
                     // Asked again every tick while it loads: the latency counts from the first.
                     // Only reads asked for while the level was whole measure the latency the
                     // read-ahead plans with: while it fills (a start, a jump, a source that

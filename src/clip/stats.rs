@@ -46,9 +46,10 @@ impl FaultCounts {
 pub struct Stats {
     /// Update ticks run.
     pub ticks: u64,
-    /// Texel bytes the update tick wrote into slots itself (the mapping has no copy path: slot
-    /// bytes are written only by tile reads; only a growing texture's rebuilt tiles are read on
-    /// the tick, so this is 0 for every texture that does not grow).
+    /// Texel bytes the update tick wrote into slots itself: always 0. The mapping has no copy
+    /// path, and slot bytes are written only by tile reads on the read queues' threads, a growing
+    /// texture's rebuilt tiles included ([`super::Clipmap::refresh`]); kept as the figure that
+    /// shows it.
     pub tick_texel_bytes: u64,
     /// Tiles read into their slots and settled.
     pub tiles_read: u64,
@@ -61,7 +62,8 @@ pub struct Stats {
     /// Settled tiles whose slots went to other tiles because their mem region moved.
     pub tiles_evicted: u64,
     /// Settled tiles read again into their slots in place because the source's texels changed
-    /// (a growing texture, [`super::Clipmap::refresh`]).
+    /// (a growing texture, [`super::Clipmap::refresh`]): replacement reads taken, ready or
+    /// default (a failed one is counted in `read_faults`).
     pub tiles_replaced: u64,
     /// Ticks whose budget ran out with finished reads left for the next tick.
     pub ticks_over_budget: u64,
@@ -120,7 +122,7 @@ pub struct TickReport {
     pub velocity: [i64; 2],
     /// Tiles settled this tick.
     pub tiles_read: u64,
-    /// Tiles replaced in their slots this tick ([`super::Clipmap::refresh`]).
+    /// Tiles replaced in their slots this tick: replacement reads taken ([`super::Clipmap::refresh`]).
     pub tiles_replaced: u64,
     /// Min LOD after the tick.
     pub min_lod: f64,

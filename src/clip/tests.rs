@@ -506,10 +506,17 @@ fn refreshed_tiles_are_replaced_in_their_slots_while_their_level_stays_published
     let before = at(&map).unwrap();
     src.version.store(7, std::sync::atomic::Ordering::Relaxed);
     let tile = map.level(0).tile_of(valid.s0, valid.t0);
-    // An absent tile asks for nothing; a held one is replaced by the next tick, the level staying
-    // published throughout.
+    // An absent tile asks for nothing; a held one is opened by the next tick (readers fall back
+    // for it) and asked of the read queues, and replaced by the tick that takes its read, the
+    // level staying published throughout.
     map.refresh([tile, TileId::new(0, 60, 60)]);
     assert_eq!(map.refresh_pending(), 2);
+    let report = map.tick([500, 500], None);
+    assert_eq!((report.tiles_replaced, map.refresh_pending()), (0, 1));
+    assert_eq!(report.valid[0], valid, "level 0 stayed published");
+    assert_eq!(map.level(0).tile_state(valid.s0, valid.t0), crate::cache::TileState::Replacing);
+    assert_eq!(at(&map), None, "the tile being replaced is not read");
+    map.wait_for_reads();
     let report = map.tick([500, 500], None);
     assert_eq!((report.tiles_replaced, map.refresh_pending()), (1, 0));
     assert_eq!(report.valid[0], valid, "level 0 stayed published");
@@ -523,6 +530,206 @@ fn refreshed_tiles_are_replaced_in_their_slots_while_their_level_stays_published
     assert_eq!(map.level(0).texel(valid.s0 + 16, valid.t0).unwrap().to_vec(), want.to_vec());
     assert_eq!(map.stats().tiles_replaced, 1);
     assert_eq!(map.stats().slots_reassigned_under_published, 0);
+}
+
+/// With a second-level tile pool in front of the source, a refreshed tile's replacement read
+/// reaches the source (the pool's copy is dropped), so the slot gets the new texels.
+#[test]
+fn a_refreshed_tile_is_read_from_the_source_not_from_the_pool() {
+    let desc = TextureDesc::new([1024, 1024], 64, TexelFormat::RGBA8, [16, 16]).unwrap();
+    let src = Arc::new(Versioned { inner: HashSource::new(desc), version: Default::default() });
+    let mut map = Clipmap::new(src.clone(), Settings { pool_bytes: 4 << 20, ..settings(None) }).unwrap();
+    settle(&mut map, [500, 500], 50);
+    let valid = map.level(0).valid;
+    let tile = map.level(0).tile_of(valid.s0, valid.t0);
+    assert!(map.pool().unwrap().contains(tile), "the pool holds the tile's first read");
+    let before = map.level(0).texel(valid.s0, valid.t0).unwrap().to_vec();
+    src.version.store(3, std::sync::atomic::Ordering::Relaxed);
+    map.refresh([tile]);
+    map.tick([500, 500], None);
+    map.wait_for_reads();
+    assert_eq!(map.tick([500, 500], None).tiles_replaced, 1);
+    let after = map.level(0).texel(valid.s0, valid.t0).unwrap().to_vec();
+    assert_eq!(after, before.iter().map(|b| b.wrapping_add(3)).collect::<Vec<_>>());
+}
+
+/// A [`Versioned`] texture whose reads record the thread they run on and, while the gate is
+/// closed, wait for it to open, except on the thread that ticks (so that a read there, which the
+/// tick must never do, is recorded rather than hung).
+struct Gated {
+    inner: Versioned,
+    tick_thread: std::thread::ThreadId,
+    /// Whether reads may proceed, and its condition.
+    open: std::sync::Mutex<bool>,
+    opened: std::sync::Condvar,
+    /// Each read's tile and thread, in order.
+    reads: std::sync::Mutex<Vec<(TileId, std::thread::ThreadId)>>,
+}
+
+impl Gated {
+    fn new(desc: TextureDesc) -> Self {
+        Gated {
+            inner: Versioned { inner: HashSource::new(desc), version: Default::default() },
+            tick_thread: std::thread::current().id(),
+            open: std::sync::Mutex::new(true),
+            opened: std::sync::Condvar::new(),
+            reads: Default::default(),
+        }
+    }
+
+    fn set_open(&self, open: bool) {
+        *self.open.lock().unwrap() = open;
+        self.opened.notify_all();
+    }
+
+    /// The tiles read on the thread that ticks.
+    fn read_on_tick_thread(&self) -> Vec<TileId> {
+        self.reads.lock().unwrap().iter().filter(|(_, th)| *th == self.tick_thread).map(|(t, _)| *t).collect()
+    }
+
+    fn reads_of(&self, tile: TileId) -> usize {
+        self.reads.lock().unwrap().iter().filter(|(t, _)| *t == tile).count()
+    }
+}
+
+impl TileSource for Gated {
+    fn desc(&self) -> &TextureDesc {
+        self.inner.desc()
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        let me = std::thread::current().id();
+        self.reads.lock().unwrap().push((tile, me));
+        if me != self.tick_thread {
+            let mut open = self.open.lock().unwrap();
+            while !*open {
+                open = self.opened.wait(open).unwrap();
+            }
+        }
+        self.inner.read_tile(tile, out)
+    }
+}
+
+/// Every texel of level-0 `tile` as the map serves it, `None` where it serves none.
+fn tile_texels_served(map: &Clipmap, tile: TileId) -> Vec<Option<Vec<u8>>> {
+    let v = map.level(0);
+    let (tw, th) = (v.tile[0] as i64, v.tile[1] as i64);
+    let (s0, t0) = (tile.s as i64 * tw, tile.t as i64 * th);
+    (t0..t0 + th).flat_map(|t| (s0..s0 + tw).map(move |s| (s, t))).map(|(s, t)| v.texel(s, t).map(|x| x.to_vec())).collect()
+}
+
+/// A refreshed tile is read again by a read queue's thread, never by the thread that ticks: while
+/// that read is held up, ticks go on, the level stays published and only that tile falls back;
+/// once it is taken, every texel of the tile is the source's new one, and the read is counted
+/// in the queues' counters like any other.
+#[test]
+fn a_refreshed_tile_is_read_on_a_queue_thread_not_the_tick_and_gets_the_new_texels() {
+    let desc = TextureDesc::new([1024, 1024], 64, TexelFormat::RGBA8, [16, 16]).unwrap();
+    let src = Arc::new(Gated::new(desc));
+    let mut map = Clipmap::new(src.clone(), settings(None)).unwrap();
+    settle(&mut map, [500, 500], 50);
+    let valid = map.level(0).valid;
+    let tile = map.level(0).tile_of(valid.s0 + 20, valid.t0 + 20);
+    let neighbour = map.level(0).tile_of(valid.s0 + 36, valid.t0 + 20);
+    assert_ne!(tile, neighbour);
+    let old = tile_texels_served(&map, neighbour);
+    assert!(old.iter().all(Option::is_some));
+    assert!(src.read_on_tick_thread().is_empty());
+    let (reads_before, bytes_before) = (map.stats().queue.reads_done, map.stats().queue.bytes_read);
+
+    let read_before = src.reads_of(tile);
+    src.inner.version.store(9, std::sync::atomic::Ordering::Relaxed);
+    src.set_open(false);
+    map.refresh([tile]);
+    for _ in 0..5 {
+        let r = map.tick([500, 500], None);
+        assert_eq!(r.tiles_replaced, 0);
+        assert_eq!(r.valid[0], valid, "level 0 stays published while its tile is replaced");
+        assert!(src.read_on_tick_thread().is_empty(), "the tick read {:?} itself", src.read_on_tick_thread());
+        assert_eq!(map.refresh_pending(), 1);
+        assert!(tile_texels_served(&map, tile).iter().all(Option::is_none), "the tile falls back meanwhile");
+        assert_eq!(tile_texels_served(&map, neighbour), old, "its neighbour is served as before");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let waited = std::time::Instant::now();
+    while src.reads_of(tile) == read_before && waited.elapsed() < Duration::from_secs(20) {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(src.reads_of(tile) - read_before, 1, "one read of it, under way on a queue's thread");
+
+    src.set_open(true);
+    map.wait_for_reads();
+    let r = map.tick([500, 500], None);
+    assert_eq!((r.tiles_replaced, map.refresh_pending()), (1, 0));
+    assert_eq!(r.valid[0], valid);
+    let mut want = [0u8; 4];
+    let (tw, th) = (16, 16);
+    let got = tile_texels_served(&map, tile);
+    for (i, texel) in got.iter().enumerate() {
+        let (s, t) = (tile.s * tw + i as u64 % tw, tile.t * th + i as u64 / tw);
+        hash(0, s, t, &mut want);
+        let new: Vec<u8> = want.iter().map(|b| b.wrapping_add(9)).collect();
+        assert_eq!(texel.as_deref(), Some(new.as_slice()), "texel ({s}, {t})");
+    }
+    assert_eq!(tile_texels_served(&map, neighbour), old, "a tile not refreshed keeps its texels");
+    assert!(src.read_on_tick_thread().is_empty());
+    let st = map.stats();
+    assert_eq!(st.tiles_replaced, 1);
+    assert_eq!(st.tick_texel_bytes, 0, "the tick wrote no texel");
+    assert_eq!(st.queue.reads_done - reads_before, 1, "the replacement is a queue read");
+    assert_eq!(st.queue.bytes_read - bytes_before, 16 * 16 * 4);
+    assert_eq!(st.slots_reassigned_under_published, 0);
+}
+
+/// A replacement whose read fails leaves the tile missing (published, served from a coarser
+/// level) and reads it again after the retry delay; one whose tile leaves its mem region while it
+/// is read is dropped, and its late read changes nothing.
+#[test]
+fn a_failed_replacement_is_retried_and_one_that_leaves_its_mem_region_is_dropped() {
+    let desc = TextureDesc::new([1024, 1024], 64, TexelFormat::RGBA8, [16, 16]).unwrap();
+    let faulty = Arc::new(FaultySource::new(Arc::new(HashSource::new(desc))));
+    let mut map = Clipmap::new(faulty.clone(), settings(None)).unwrap();
+    settle(&mut map, [500, 500], 50);
+    let valid = map.level(0).valid;
+    let tile = map.level(0).tile_of(valid.s0 + 20, valid.t0 + 20);
+    faulty.add(FaultRule::tile(tile, Fault::Missing));
+    map.refresh([tile]);
+    map.tick([500, 500], None);
+    map.wait_for_reads();
+    let r = map.tick([500, 500], None);
+    assert_eq!((r.tiles_replaced, map.refresh_pending()), (0, 0));
+    assert_eq!(r.valid[0], valid, "a failed tile is settled: the level stays published");
+    assert!(matches!(map.level(0).tile_state(valid.s0 + 20, valid.t0 + 20), crate::cache::TileState::Failed { .. }));
+    assert_eq!(map.stats().read_faults.missing, 1);
+    check_published(&map).unwrap();
+    // Read again after the retry delay (2 ticks), and settled ready.
+    faulty.clear();
+    for _ in 0..4 {
+        map.tick([500, 500], None);
+        map.wait_for_reads();
+    }
+    map.tick([500, 500], None);
+    assert_eq!(map.level(0).tile_state(valid.s0 + 20, valid.t0 + 20), crate::cache::TileState::Resident);
+    assert_eq!(check_published(&map).map(|n| n > 0), Ok(true));
+
+    // Held up at the source, then the view jumps away: the replacement is dropped.
+    let gated = Arc::new(Gated::new(map.desc().clone()));
+    let mut map = Clipmap::new(gated.clone(), settings(None)).unwrap();
+    settle(&mut map, [500, 500], 50);
+    let tile = map.level(0).tile_of(500, 500);
+    gated.set_open(false);
+    map.refresh([tile]);
+    map.tick([500, 500], None);
+    assert_eq!(map.refresh_pending(), 1);
+    map.tick([900, 900], None);
+    assert!(!map.holds(tile));
+    map.tick([900, 900], None);
+    assert_eq!(map.refresh_pending(), 0, "a replacement that left its mem region is no longer pending");
+    gated.set_open(true);
+    settle(&mut map, [900, 900], 50);
+    assert_eq!(map.stats().tiles_replaced, 0);
+    assert_eq!(map.stats().slots_reassigned_under_published, 0);
+    check_published(&map).unwrap();
 }
 
 /// Flies the adaptive policy along +s at `speed` level-0 texels a tick over a disk reading

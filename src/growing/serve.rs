@@ -19,8 +19,8 @@
 //! with its other texels taken from the finest coarser level that has data there (nearest), so a
 //! renderer that samples it gets the finest data there is. Such a tile's texels depend only on the
 //! store's data inside its own footprint, so a tile changes exactly when a store tile of its level
-//! under it changes; the service replaces resident tiles in their slots then
-//! ([`crate::clip::Clipmap::refresh`]).
+//! under it changes; the service replaces resident tiles in their slots then, read again through
+//! the read queues like any tile ([`crate::clip::Clipmap::refresh`]).
 
 use super::rebuild::{parent_tile, Tile, TileKey};
 use super::store::{Growing, StoreError};

@@ -7,7 +7,10 @@
 //! straight into the slot (`pread` into the mapping, a decoder or generator writing there), under
 //! the slot's claim ([`ImageMemory::fill`]); nothing is copied afterwards. Which slot a tile has
 //! is [`crate::cache`]'s business; which tiles are wanted is decided by the caller from
-//! [`crate::geom`].
+//! [`crate::geom`]. A tile whose texels changed at the source (a growing texture's rebuilt tile,
+//! [`crate::clip::Clipmap::refresh`]) is read again the same way: the engine reopens its settled
+//! slot ([`ImageMemory::replace`]) and asks for it like any other tile; the queues do not tell
+//! the two apart.
 //!
 //! Design: each queue is a cloneable handle (a bounded command sender) plus a private runner task
 //! owning all of the queue's state, on the process's runtime ([`crate::runtime`]); blocking reads

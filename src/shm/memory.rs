@@ -4,14 +4,16 @@
 //!
 //! Owns the writer's side of the slot protocol (docs/SHM.md, "The writer's invariant"):
 //! - each slot has a private **claim** (atomics in this process, not in the mapping): the tile the
-//!   engine assigned to it, a generation counted up by every assignment, and whether it is
-//!   loading, being filled by one read, or settled. A read fills a slot only after taking the
-//!   claim from loading to busy by compare-and-swap, so at most one read writes a slot at a time,
-//!   and never a settled one; a finished read settles the slot only under the generation it
-//!   filled it in, so a late completion of an earlier assignment of the same tile cannot mark
-//!   another read's bytes ready;
+//!   engine assigned to it, a generation counted up by every assignment (and reopening), and
+//!   whether it is loading, being filled by one read, or settled. A read fills a slot only after
+//!   taking the claim from loading to busy by compare-and-swap, so at most one read writes a slot
+//!   at a time, and never a settled one; a finished read settles the slot only under the
+//!   generation it filled it in, so a late completion of an earlier assignment of the same tile
+//!   cannot mark another read's bytes ready;
 //! - the engine reassigns a slot only when no read holds it, storing the tag (loading, new tile)
-//!   before the claim, so a reader sees the tag change before any byte does;
+//!   before the claim, so a reader sees the tag change before any byte does; it reopens a settled
+//!   slot for new texels of the same tile ([`ImageMemory::replace`], a growing texture) the same
+//!   way, tag first, and a read then fills it like any other;
 //! - the tick publishes the snapshot once, whole, under its seqlock.
 //!
 //! It decides nothing about which tiles to hold ([`crate::cache`]) nor when to publish
@@ -99,9 +101,6 @@ pub struct ImageMemory {
     /// Assignments of a slot whose settled tile the current snapshot still covers (the writer's
     /// invariant says: never).
     violations: AtomicU64,
-    /// Slot bytes rewritten by [`replace`](Self::replace), the one writer of texels that runs on
-    /// the engine's tick (a growing texture's rebuilt tiles).
-    replaced_bytes: AtomicU64,
 }
 
 impl std::fmt::Debug for ImageMemory {
@@ -152,7 +151,6 @@ impl ImageMemory {
             keys,
             published_tiles,
             violations: AtomicU64::new(0),
-            replaced_bytes: AtomicU64::new(0),
         }
     }
 
@@ -212,14 +210,6 @@ impl ImageMemory {
 
     pub(super) fn region(&self) -> &Region {
         &self.region
-    }
-
-    /// Texel bytes the engine's tick wrote into slots itself. The mapping has no copy path: slot
-    /// bytes are written only by [`fill`](Self::fill), lent to a tile read. Reads run on the
-    /// queues' threads, except [`replace`](Self::replace) (a growing texture's rebuilt tile,
-    /// read on the tick), whose bytes are counted here; 0 for every texture that does not grow.
-    pub(crate) fn copied_texel_bytes(&self) -> u64 {
-        self.replaced_bytes.load(Ordering::Relaxed)
     }
 
     fn slot_of(&self, level: u32, tile: [i64; 2]) -> (usize, u64) {
@@ -371,9 +361,11 @@ impl ImageMemory {
         if offset + out.len() > p.slot_bytes as usize {
             return false;
         }
-        // SAFETY: a settled slot's bytes change only through `assign` or `replace` (then `fill`),
-        // which only the engine's tick calls (crate-private, with `&mut` of the engine), never
-        // while an in-process reader copies a slot; other processes map the file read-only.
+        // SAFETY: a settled slot's bytes change only after `assign` or `replace` took its claim
+        // from settled to loading (then a read's `fill`), which only the engine's tick calls
+        // (crate-private, with `&mut` of the engine), never while an in-process reader copies a
+        // slot; a reader that comes after finds the claim no longer settled, above. Other
+        // processes map the file read-only.
         unsafe { self.region.read(p.slot_offset(slot) as usize + offset, out) };
         true
     }
@@ -441,14 +433,16 @@ impl ImageMemory {
         r.store(b + growth::SEQ, seq.wrapping_add(2), Ordering::Release);
     }
 
-    /// Rewrites `tile`'s settled slot in place (a growing texture's rebuilt tile): its tag goes
-    /// to loading first (readers of this tile fall back to a coarser level, or discard what they
-    /// copied, while the bytes change), then the slot is filled as a read fills it, under a new
-    /// generation; the caller settles it ([`settle`](Self::settle)) with what `fill` returned.
-    /// `None` (nothing written) unless the slot holds `tile` settled. Only the engine calls this,
-    /// from its tick, as it calls [`assign`](Self::assign): never while an in-process reader
-    /// holds the slot.
-    pub(crate) fn replace<R>(&self, tile: TileId, fill: impl FnOnce(&mut [u8]) -> R) -> Option<(u64, R)> {
+    /// Opens `tile`'s settled slot to be read again in place (a growing texture's rebuilt tile,
+    /// [`crate::clip::Clipmap::refresh`]): its tag goes to loading (readers of this tile fall back
+    /// to a coarser level, or discard what they copied, until it settles again) and then its claim
+    /// to loading under a new generation, the tile and the slot unchanged. The new bytes then come
+    /// as any tile's do: a read queue's thread fills the slot ([`fill`](Self::fill)) and the
+    /// engine settles it ([`settle`](Self::settle)) under the generation returned here. `None`
+    /// (nothing changed) unless the slot holds `tile` settled. Only the engine calls this, from
+    /// its tick, as it calls [`assign`](Self::assign): never while an in-process reader holds the
+    /// slot, and a settled claim is never held by a read, so no byte is written here.
+    pub(crate) fn replace(&self, tile: TileId) -> Option<u64> {
         let t = [tile.s as i64, tile.t as i64];
         if tile.level as usize >= self.claims.len() {
             return None;
@@ -461,10 +455,9 @@ impl ImageMemory {
         }
         // The tag first: no reader trusts the slot's bytes from here on.
         self.store_tag(k, slot, t, SlotState::Loading);
-        claim.compare_exchange(now, word((now >> 2) + 1, LOADING), Ordering::AcqRel, Ordering::Acquire).ok()?;
-        let filled = self.fill(tile, fill)?;
-        self.replaced_bytes.fetch_add(self.placement.levels[k].slot_bytes, Ordering::Relaxed);
-        Some(filled)
+        let generation = (now >> 2) + 1;
+        claim.compare_exchange(now, word(generation, LOADING), Ordering::AcqRel, Ordering::Acquire).ok()?;
+        Some(generation)
     }
 
     /// Bytes of the whole mapping.

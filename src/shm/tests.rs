@@ -699,8 +699,10 @@ fn a_tile_loading_under_a_published_region_falls_back_to_a_coarser_level_without
     let point =
         |r: Rect, lod: f64| sample_mapping_in(&c, &snap, Filter::Point, r.s0 as f64 + 0.5, r.t0 as f64 + 0.5, lod);
     let memory = w.memory();
-    let (generation, ()) = memory
-        .replace(tile, |_| {
+    // The tick opens the slot (tag loading), then a read fills it as any read does.
+    let generation = memory.replace(tile).expect("tile (63, 63) is settled in its slot under the published region");
+    let (filled, ()) = memory
+        .fill(tile, |_| {
             // The tag now says (63, 63) loading, under level 0's published region.
             let (got, n) = tallied(|| c.read_region_in(&snap, 0, inside, &mut texel));
             assert_eq!(got, Err(ReadError::Stale(0)), "a loading tile is not read");
@@ -716,7 +718,8 @@ fn a_tile_loading_under_a_published_region_falls_back_to_a_coarser_level_without
             assert_eq!(Some(fell_back), point(inside, 1.0));
             assert_eq!(point(beside, 0.0).map(|x| x.lod), Some(0.0), "only that tile falls back");
         })
-        .expect("tile (63, 63) is settled in its slot under the published region");
+        .expect("the opened slot is lent to one read");
+    assert_eq!(filled, generation);
     assert!(memory.settle(tile, generation, layout::SlotState::Ready));
     c.read_region_in(&snap, 0, inside, &mut texel).unwrap();
     hash(0, inside.s0 as u64, inside.t0 as u64, &mut want);

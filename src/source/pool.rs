@@ -138,6 +138,16 @@ impl PoolSource {
         self.lock().entries.contains_key(&tile)
     }
 
+    /// Drops `tile` if it is held (its texels changed at the inner source): the next read of it
+    /// reads the inner source again. Not counted as an eviction.
+    pub(crate) fn forget(&self, tile: TileId) {
+        let mut st = self.lock();
+        if let Some(old) = st.entries.remove(&tile) {
+            st.stats.bytes -= old.data.len() as u64;
+            st.stats.tiles = st.entries.len() as u64;
+        }
+    }
+
     /// Tiles evicted so far, in order (empty unless [`recording`](Self::recording)).
     pub fn evictions(&self) -> Vec<TileId> {
         self.lock().log.clone().unwrap_or_default()
