@@ -615,7 +615,10 @@ fn tile_texels_served(map: &Clipmap, tile: TileId) -> Vec<Option<Vec<u8>>> {
     let v = map.level(0);
     let (tw, th) = (v.tile[0] as i64, v.tile[1] as i64);
     let (s0, t0) = (tile.s as i64 * tw, tile.t as i64 * th);
-    (t0..t0 + th).flat_map(|t| (s0..s0 + tw).map(move |s| (s, t))).map(|(s, t)| v.texel(s, t).map(|x| x.to_vec())).collect()
+    (t0..t0 + th)
+        .flat_map(|t| (s0..s0 + tw).map(move |s| (s, t)))
+        .map(|(s, t)| v.texel(s, t).map(|x| x.to_vec()))
+        .collect()
 }
 
 /// A refreshed tile is read again by a read queue's thread, never by the thread that ticks: while

@@ -380,7 +380,7 @@ fn pyramid_level(
     file: &SyntaxFile,
     diags: &mut Diagnostics,
     (level, size): (u32, [u64; 2]),
-    path: Option<PathBuf>,
+    path: Option<Place>,
     header_offset: u64,
     bytes_per_texel: u32,
 ) -> Option<Level> {

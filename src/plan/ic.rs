@@ -7,6 +7,7 @@ use super::naming::{self, anchor, Scope, TileNaming};
 use super::values::{self, SizeRule};
 use super::{check_version, portability, ImageCachePlan, Options, ReadFunc};
 use crate::config::{Diagnostics, FileKind, Severity, Span, Spanned, SyntaxFile, TokenId, Value};
+use crate::place::Place;
 use crate::texel::TexelFormat;
 use std::path::{Path, PathBuf};
 
@@ -492,7 +493,7 @@ fn stream_lists(r: &mut Reader<'_>, file: &SyntaxFile) -> [Vec<String>; 3] {
 }
 
 /// `default_tile`, after the cache name, anchored at the `.ic`'s directory.
-fn default_tile(r: &mut Reader<'_>, cache_name: &str, dir: &Path) -> Option<PathBuf> {
+fn default_tile(r: &mut Reader<'_>, cache_name: &str, dir: &Path) -> Option<Place> {
     match r.word(TokenId::DefaultTile, None) {
         Field::Given(w, _) => {
             if w.value.starts_with('$') {

@@ -143,15 +143,7 @@ impl ImageMemory {
         };
         let (claims, keys) = (per_slot(UNASSIGNED), per_slot(NO_TILE));
         let published_tiles = std::sync::Mutex::new(vec![Rect::EMPTY; shape.levels.len()]);
-        ImageMemory {
-            region,
-            placement,
-            shape,
-            claims,
-            keys,
-            published_tiles,
-            violations: AtomicU64::new(0),
-        }
+        ImageMemory { region, placement, shape, claims, keys, published_tiles, violations: AtomicU64::new(0) }
     }
 
     /// Writes the static header (everything but the magic, which [`finish`](Self::finish)

@@ -188,7 +188,13 @@ mod tests {
             }
         }
         for n in 0..5 {
-            assert!(lowest[n] < 0.6 && highest[n] > 0.9, "retry {}: jitter spread {}..{}", n + 1, lowest[n], highest[n]);
+            assert!(
+                lowest[n] < 0.6 && highest[n] > 0.9,
+                "retry {}: jitter spread {}..{}",
+                n + 1,
+                lowest[n],
+                highest[n]
+            );
         }
         let none = RemoteOptions { retries: 0, ..o.clone() };
         assert_eq!(none.backoff_policy().build().count(), 0, "no retries, no waits");
