@@ -202,6 +202,9 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
         return Ok(());
     }
     let mut grower = None;
+    // The grower's thread, stopped and joined after the service: the step under way ends and the
+    // store is closed before the process exits.
+    let mut grower_thread = None;
     let (source, default_name, paging) = match (&cli.config, cli.source) {
         (None, None) if cli.growing.is_some() => {
             let dir = cli.growing.clone().unwrap_or_default();
@@ -229,8 +232,9 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
                 max_patch_bytes: cli.max_patch_bytes,
                 ..Default::default()
             };
-            let (src, g, _join) = clipmap::growing::serve::start(store, frame, cli.clip, opts)
+            let (src, g, join) = clipmap::growing::serve::start(store, frame, cli.clip, opts)
                 .map_err(|e| bad(anyhow::anyhow!("{}: {e}", dir.display())))?;
+            grower_thread = Some((g.clone(), join));
             grower = Some(g);
             let stem = dir.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "growing".into());
             (src as Arc<dyn clipmap::source::TileSource>, stem, clipmap::paging::PagingOptions::default())
@@ -287,8 +291,11 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
     let summary = service::run(source, options, shutdown_signal(int, term), |s| {
         println!("clipmapd: serving {} ({} levels, clip {})", s.mapping.display(), s.levels, s.clip_size);
     })
-    .await
-    .map_err(|e| Failure(e.exit_code(), e.into()))?;
+    .await;
+    if let Some((g, join)) = grower_thread {
+        stop_grower(g, join).await;
+    }
+    let summary = summary.map_err(|e| Failure(e.exit_code(), e.into()))?;
     let e = &summary.stats.tick.engine;
     println!("clipmapd: stopped after {} ticks", e.ticks);
     if e.centre_clamps > 0 {
@@ -304,6 +311,18 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
         );
     }
     Ok(())
+}
+
+/// Tells the grower to stop after the step under way and waits for its thread (off the runtime's
+/// workers: the step may be a long rebuild).
+async fn stop_grower(g: clipmap::growing::serve::Grower, join: std::thread::JoinHandle<()>) {
+    // A full command channel still stops it: the grower ends when every handle is gone.
+    g.send(clipmap::growing::serve::GrowCommand::Stop);
+    drop(g);
+    match tokio::task::spawn_blocking(move || join.join()).await {
+        Ok(Ok(())) => {}
+        _ => eprintln!("clipmapd: the grower's thread ended with a panic; the store keeps its last durable state"),
+    }
 }
 
 /// `--budget-ms`: milliseconds (checked against the service's bounds when it starts), or `off`.

@@ -294,204 +294,33 @@ impl Growing {
     }
 
     fn open_as(dir: &Path, write: bool) -> Result<Growing, StoreError> {
-        let grid_path = dir.join("grid.json");
-        let text = match crate::open::read_capped(&grid_path, MAX_RECORD_BYTES) {
-            Ok(t) => t,
-            Err(crate::open::SizedError::Io(e)) if e.kind() == io::ErrorKind::NotFound => return Err(StoreError::NotAStore {
-                path: dir.to_path_buf(),
-                problem:
-                    "no grid.json here: this is not a growing texture (create one with `cliptex grow create DIR ...`)"
-                        .into(),
-            }),
-            Err(e) => return Err(sized_err(&grid_path, "could not read", MAX_RECORD_BYTES, e)),
-        };
-        let file: GridFile = serde_json::from_slice(&text).map_err(|e| StoreError::Damaged {
-            path: grid_path.clone(),
-            problem: format!("not a grid description ({e})"),
-        })?;
-        if file.version != 1 {
-            return Err(StoreError::Damaged {
-                path: grid_path,
-                problem: format!("version {} where this build reads version 1", file.version),
-            });
-        }
-        let Some((format, bpt, cb)) = format_named(&file.format) else {
-            return Err(StoreError::Damaged {
-                path: grid_path,
-                problem: format!("unknown texel format {:?}", file.format),
-            });
-        };
-        let grid = Grid::new(file.origin, file.texels_per_unit, file.tile, bpt, cb).map_err(StoreError::Grid)?;
+        let (file, format, grid) = read_grid(dir)?;
         let lock = if write { Some(take_lock(dir)?) } else { None };
-        let state_path = dir.join("state.json");
-        let state: State = serde_json::from_slice(&read_record(&state_path)?).map_err(|e| StoreError::Damaged {
-            path: state_path.clone(),
-            problem: format!("not a rebuild state ({e})"),
-        })?;
-        if state.levels > MAX_LEVELS {
-            return Err(StoreError::Damaged {
-                path: state_path,
-                problem: format!("it says {} levels; a growing texture has at most {MAX_LEVELS}", state.levels),
-            });
-        }
+        let state = read_state(dir)?;
 
-        // Patches, in id order; a texels file without its record was never acknowledged.
+        // Patches, in id order; those past the last applied one (or decoding to other texels
+        // than when added) are replayed.
         let pdir = dir.join("patches");
-        let mut records = Vec::new();
-        let mut texels_only = Vec::new();
-        for entry in std::fs::read_dir(&pdir).map_err(io_err(&pdir, "could not list"))? {
-            let path = entry.map_err(io_err(&pdir, "could not list"))?.path();
-            let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
-            if let Some(id) = name.strip_suffix(".json").and_then(|n| n.parse::<u64>().ok()) {
-                records.push((id, path));
-            } else if let Some(id) =
-                name.strip_suffix(".texels").or_else(|| name.strip_suffix(".image")).and_then(|n| n.parse::<u64>().ok())
-            {
-                texels_only.push((id, path));
-            } else if name.contains(".tmp") && write {
-                let _ = std::fs::remove_file(&path);
-            }
-        }
-        records.sort();
-        let known: std::collections::HashSet<u64> = records.iter().map(|r| r.0).collect();
-        for (id, path) in texels_only {
-            if !known.contains(&id) && write {
-                tracing::warn!(path = %path.display(), "removing the texels of a patch that was never acknowledged");
-                std::fs::remove_file(&path).map_err(io_err(&path, "could not remove"))?;
-            }
-        }
+        let records = list_patches(&pdir, write)?;
         let mut index = PatchIndex::new();
         let mut replay = Vec::new();
         let mut sources = std::collections::HashSet::new();
         for (id, path) in &records {
-            let rec: PatchRecord = serde_json::from_slice(&read_record(path)?).map_err(|e| StoreError::Damaged {
-                path: path.clone(),
-                problem: format!("not a patch record ({e})"),
-            })?;
-            if rec.id != *id {
-                return Err(StoreError::Damaged {
-                    path: path.clone(),
-                    problem: format!("it says id {} in a file named for {id}", rec.id),
-                });
-            }
-            if let Some(s) = &rec.source {
-                sources.insert(s.clone());
-            }
-            let mut redo = false;
-            // What the record says the texels are, bounded before anything is read: a file of
-            // another length (a sparse giant, a link to a device) is damaged, never read whole.
-            let texel_bytes = rec.width as u64 * rec.height as u64 * grid.bytes_per_texel as u64;
-            if rec.width > super::MAX_PATCH_PIXELS
-                || rec.height > super::MAX_PATCH_PIXELS
-                || texel_bytes > crate::limits::MAX_PATCH_BYTES
-            {
-                return Err(StoreError::Damaged {
-                    path: path.clone(),
-                    problem: format!(
-                        "a {}x{} patch; the most is {} a side and {} bytes of texels",
-                        rec.width,
-                        rec.height,
-                        super::MAX_PATCH_PIXELS,
-                        crate::limits::MAX_PATCH_BYTES
-                    ),
-                });
-            }
-            let texels = match &rec.image_digest {
-                None => {
-                    let tpath = pdir.join(format!("{id:010}.texels"));
-                    crate::open::read_sized(&tpath, &[texel_bytes]).map_err(|e| match e {
-                        crate::open::SizedError::Length(n) => StoreError::Damaged {
-                            path: tpath.clone(),
-                            problem: format!("{n} bytes where the record says {texel_bytes}"),
-                        },
-                        e => sized_err(&tpath, "could not read the patch's texels", texel_bytes, e),
-                    })?
-                }
-                Some(want) => {
-                    let ipath = pdir.join(format!("{id:010}.image"));
-                    let max = super::input::max_image_file_bytes(texel_bytes);
-                    let bytes = crate::open::read_capped(&ipath, max)
-                        .map_err(|e| sized_err(&ipath, "could not read the patch's image", max, e))?;
-                    let (w, h, texels) =
-                        super::input::decode_image(&grid, &bytes, texel_bytes.max(1), &ipath.display().to_string())
-                            .map_err(|e| StoreError::Damaged { path: ipath.clone(), problem: e.to_string() })?;
-                    if (w, h) != (rec.width, rec.height) {
-                        return Err(StoreError::Damaged {
-                            path: ipath,
-                            problem: format!("a {w}x{h} image where the record says {}x{}", rec.width, rec.height),
-                        });
-                    }
-                    // Another decoder version may round differently: then the patch's tiles are
-                    // rebuilt from what it decodes to now, so tiles and patches agree again.
-                    if *want != format!("{:016x}", super::digest(&texels)) {
-                        tracing::warn!(path = %ipath.display(), "the image decodes to other texels than when it was added: rebuilding its tiles");
-                        redo = true;
-                    }
-                    texels
-                }
-            };
-            let [x0, y0, x1, y1] = rec.bbox;
-            let meta = PatchMeta {
-                id: *id,
-                bbox: WorldBox { min: [x0, y0], max: [x1, y1] },
-                time: rec.time,
-                rating: rec.rating,
-            };
-            let patch = Patch::new(&grid, meta, rec.width, rec.height, texels).map_err(|e| StoreError::Damaged {
-                path: path.clone(),
-                problem: format!("the patch is refused now: {e}"),
-            })?;
+            let (patch, source, redo) = load_patch(&grid, &pdir, *id, path)?;
+            sources.extend(source);
             let patch = index.insert(patch);
             if *id > state.applied || redo {
                 replay.push(patch);
             }
         }
 
-        // Tiles; a damaged one is dropped and rebuilt.
-        let mut tiles = HashMap::new();
-        let tdir = dir.join("tiles");
-        let mut damaged = Vec::new();
-        let mut damaged_files = Vec::new();
-        for level in std::fs::read_dir(&tdir).map_err(io_err(&tdir, "could not list"))? {
-            let ldir = level.map_err(io_err(&tdir, "could not list"))?.path();
-            let Some(k) = ldir.file_name().and_then(|n| n.to_str()).and_then(|n| n.parse::<u32>().ok()) else {
-                continue;
-            };
-            for entry in std::fs::read_dir(&ldir).map_err(io_err(&ldir, "could not list"))? {
-                let path = entry.map_err(io_err(&ldir, "could not list"))?.path();
-                let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("").to_string();
-                if name.contains(".tmp") {
-                    if write {
-                        let _ = std::fs::remove_file(&path);
-                    }
-                    continue;
-                }
-                let Some((t, s)) = name.strip_suffix(".tile").and_then(|n| n.split_once('_')) else { continue };
-                let (Ok(t), Ok(s)) = (t.parse::<i64>(), s.parse::<i64>()) else { continue };
-                match read_tile(&path, &grid, (k, s, t)) {
-                    Ok(tile) => {
-                        tiles.insert((k, s, t), Arc::new(tile));
-                    }
-                    Err(problem) => {
-                        tracing::warn!(path = %path.display(), %problem, "a damaged tile file: rebuilding it");
-                        damaged.push((k, s, t));
-                        damaged_files.push((path.clone(), problem));
-                    }
-                }
-            }
-        }
-        if !(file.feather.is_finite() && (0.0..=MAX_FEATHER).contains(&file.feather)) {
-            return Err(StoreError::Damaged {
-                path: dir.join("grid.json"),
-                problem: format!("feather {}: expected 0 (off) to {MAX_FEATHER} level-0 texels", file.feather),
-            });
-        }
-        let mut rebuild = Rebuilder::restore(grid, tiles, state.levels);
+        let tiles = load_tiles(&dir.join("tiles"), &grid, write)?;
+        let mut rebuild = Rebuilder::restore(grid, tiles.good, state.levels);
         rebuild.set_feather(file.feather);
         for p in &replay {
             rebuild.mark_footprint(&index, p);
         }
-        for (k, s, t) in damaged {
+        for (k, s, t) in tiles.damaged {
             rebuild.mark_tile(k, s, t);
         }
         let next_id = records.last().map_or(1, |r| r.0 + 1);
@@ -504,7 +333,7 @@ impl Growing {
             next_id,
             applied: state.applied,
             replayed: replay.len(),
-            damaged: damaged_files,
+            damaged: tiles.damaged_files,
             lock,
             sources,
             saved: Vec::new(),
@@ -709,6 +538,216 @@ impl Growing {
     pub fn dir(&self) -> &Path {
         &self.dir
     }
+}
+
+/// `grid.json`: the grid description, its texel format and the grid it makes, every value checked.
+fn read_grid(dir: &Path) -> Result<(GridFile, TexelFormat, Grid), StoreError> {
+    let grid_path = dir.join("grid.json");
+    let text = match crate::open::read_capped(&grid_path, MAX_RECORD_BYTES) {
+        Ok(t) => t,
+        Err(crate::open::SizedError::Io(e)) if e.kind() == io::ErrorKind::NotFound => {
+            return Err(StoreError::NotAStore {
+                path: dir.to_path_buf(),
+                problem:
+                    "no grid.json here: this is not a growing texture (create one with `cliptex grow create DIR ...`)"
+                        .into(),
+            })
+        }
+        Err(e) => return Err(sized_err(&grid_path, "could not read", MAX_RECORD_BYTES, e)),
+    };
+    let file: GridFile = serde_json::from_slice(&text).map_err(|e| StoreError::Damaged {
+        path: grid_path.clone(),
+        problem: format!("not a grid description ({e})"),
+    })?;
+    if file.version != 1 {
+        return Err(StoreError::Damaged {
+            path: grid_path,
+            problem: format!("version {} where this build reads version 1", file.version),
+        });
+    }
+    let Some((format, bpt, cb)) = format_named(&file.format) else {
+        return Err(StoreError::Damaged {
+            path: grid_path,
+            problem: format!("unknown texel format {:?}", file.format),
+        });
+    };
+    if !(file.feather.is_finite() && (0.0..=MAX_FEATHER).contains(&file.feather)) {
+        return Err(StoreError::Damaged {
+            path: grid_path,
+            problem: format!("feather {}: expected 0 (off) to {MAX_FEATHER} level-0 texels", file.feather),
+        });
+    }
+    let grid = Grid::new(file.origin, file.texels_per_unit, file.tile, bpt, cb).map_err(StoreError::Grid)?;
+    Ok((file, format, grid))
+}
+
+/// `state.json`: how far the rebuild got.
+fn read_state(dir: &Path) -> Result<State, StoreError> {
+    let state_path = dir.join("state.json");
+    let state: State = serde_json::from_slice(&read_record(&state_path)?)
+        .map_err(|e| StoreError::Damaged { path: state_path.clone(), problem: format!("not a rebuild state ({e})") })?;
+    if state.levels > MAX_LEVELS {
+        return Err(StoreError::Damaged {
+            path: state_path,
+            problem: format!("it says {} levels; a growing texture has at most {MAX_LEVELS}", state.levels),
+        });
+    }
+    Ok(state)
+}
+
+/// The patch records in `pdir`, in id order. A texels or image file without its record was never
+/// acknowledged: a writer removes it, as it removes half-written temporary files.
+fn list_patches(pdir: &Path, write: bool) -> Result<Vec<(u64, PathBuf)>, StoreError> {
+    let mut records = Vec::new();
+    let mut texels_only = Vec::new();
+    for entry in std::fs::read_dir(pdir).map_err(io_err(pdir, "could not list"))? {
+        let path = entry.map_err(io_err(pdir, "could not list"))?.path();
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        if let Some(id) = name.strip_suffix(".json").and_then(|n| n.parse::<u64>().ok()) {
+            records.push((id, path));
+        } else if let Some(id) =
+            name.strip_suffix(".texels").or_else(|| name.strip_suffix(".image")).and_then(|n| n.parse::<u64>().ok())
+        {
+            texels_only.push((id, path));
+        } else if name.contains(".tmp") && write {
+            let _ = std::fs::remove_file(&path);
+        }
+    }
+    records.sort();
+    let known: std::collections::HashSet<u64> = records.iter().map(|r| r.0).collect();
+    for (id, path) in texels_only {
+        if !known.contains(&id) && write {
+            tracing::warn!(path = %path.display(), "removing the texels of a patch that was never acknowledged");
+            std::fs::remove_file(&path).map_err(io_err(&path, "could not remove"))?;
+        }
+    }
+    Ok(records)
+}
+
+/// Patch `id` from its record at `path` and its texels (or image) beside it: the patch, the
+/// source it names, and whether its tiles must be rebuilt because its image now decodes to other
+/// texels.
+fn load_patch(grid: &Grid, pdir: &Path, id: u64, path: &Path) -> Result<(Patch, Option<String>, bool), StoreError> {
+    let rec: PatchRecord = serde_json::from_slice(&read_record(path)?)
+        .map_err(|e| StoreError::Damaged { path: path.to_path_buf(), problem: format!("not a patch record ({e})") })?;
+    if rec.id != id {
+        return Err(StoreError::Damaged {
+            path: path.to_path_buf(),
+            problem: format!("it says id {} in a file named for {id}", rec.id),
+        });
+    }
+    // What the record says the texels are, bounded before anything is read: a file of another
+    // length (a sparse giant, a link to a device) is damaged, never read whole.
+    let texel_bytes = rec.width as u64 * rec.height as u64 * grid.bytes_per_texel as u64;
+    if rec.width > super::MAX_PATCH_PIXELS
+        || rec.height > super::MAX_PATCH_PIXELS
+        || texel_bytes > crate::limits::MAX_PATCH_BYTES
+    {
+        return Err(StoreError::Damaged {
+            path: path.to_path_buf(),
+            problem: format!(
+                "a {}x{} patch; the most is {} a side and {} bytes of texels",
+                rec.width,
+                rec.height,
+                super::MAX_PATCH_PIXELS,
+                crate::limits::MAX_PATCH_BYTES
+            ),
+        });
+    }
+    let (texels, redo) = match &rec.image_digest {
+        None => (read_patch_texels(&pdir.join(format!("{id:010}.texels")), texel_bytes)?, false),
+        Some(want) => read_patch_image(grid, &pdir.join(format!("{id:010}.image")), &rec, texel_bytes, want)?,
+    };
+    let [x0, y0, x1, y1] = rec.bbox;
+    let meta = PatchMeta { id, bbox: WorldBox { min: [x0, y0], max: [x1, y1] }, time: rec.time, rating: rec.rating };
+    let patch = Patch::new(grid, meta, rec.width, rec.height, texels).map_err(|e| StoreError::Damaged {
+        path: path.to_path_buf(),
+        problem: format!("the patch is refused now: {e}"),
+    })?;
+    Ok((patch, rec.source, redo))
+}
+
+/// A patch's raw texels: exactly `texel_bytes` of them.
+fn read_patch_texels(tpath: &Path, texel_bytes: u64) -> Result<Vec<u8>, StoreError> {
+    crate::open::read_sized(tpath, &[texel_bytes]).map_err(|e| match e {
+        crate::open::SizedError::Length(n) => StoreError::Damaged {
+            path: tpath.to_path_buf(),
+            problem: format!("{n} bytes where the record says {texel_bytes}"),
+        },
+        e => sized_err(tpath, "could not read the patch's texels", texel_bytes, e),
+    })
+}
+
+/// A patch kept as its image: decoded and checked against the record's size. `true` beside the
+/// texels when they differ from the digest taken when it was added.
+fn read_patch_image(
+    grid: &Grid,
+    ipath: &Path,
+    rec: &PatchRecord,
+    texel_bytes: u64,
+    want: &str,
+) -> Result<(Vec<u8>, bool), StoreError> {
+    let max = super::input::max_image_file_bytes(texel_bytes);
+    let bytes = crate::open::read_capped(ipath, max)
+        .map_err(|e| sized_err(ipath, "could not read the patch's image", max, e))?;
+    let (w, h, texels) = super::input::decode_image(grid, &bytes, texel_bytes.max(1), &ipath.display().to_string())
+        .map_err(|e| StoreError::Damaged { path: ipath.to_path_buf(), problem: e.to_string() })?;
+    if (w, h) != (rec.width, rec.height) {
+        return Err(StoreError::Damaged {
+            path: ipath.to_path_buf(),
+            problem: format!("a {w}x{h} image where the record says {}x{}", rec.width, rec.height),
+        });
+    }
+    // Another decoder version may round differently: then the patch's tiles are rebuilt from
+    // what it decodes to now, so tiles and patches agree again.
+    let redo = want != format!("{:016x}", super::digest(&texels));
+    if redo {
+        tracing::warn!(path = %ipath.display(), "the image decodes to other texels than when it was added: rebuilding its tiles");
+    }
+    Ok((texels, redo))
+}
+
+/// The built tiles found under `tiles/`: the readable ones, and the damaged ones to rebuild.
+struct LoadedTiles {
+    good: HashMap<TileKey, Arc<Tile>>,
+    damaged: Vec<TileKey>,
+    /// Each damaged file and what is wrong with it, for the report.
+    damaged_files: Vec<(PathBuf, String)>,
+}
+
+/// Reads every tile file under `tdir` (`LEVEL/T_S.tile`); a damaged one is dropped and rebuilt,
+/// other names are passed over, and a writer removes half-written temporary files.
+fn load_tiles(tdir: &Path, grid: &Grid, write: bool) -> Result<LoadedTiles, StoreError> {
+    let mut out = LoadedTiles { good: HashMap::new(), damaged: Vec::new(), damaged_files: Vec::new() };
+    for level in std::fs::read_dir(tdir).map_err(io_err(tdir, "could not list"))? {
+        let ldir = level.map_err(io_err(tdir, "could not list"))?.path();
+        let Some(k) = ldir.file_name().and_then(|n| n.to_str()).and_then(|n| n.parse::<u32>().ok()) else {
+            continue;
+        };
+        for entry in std::fs::read_dir(&ldir).map_err(io_err(&ldir, "could not list"))? {
+            let path = entry.map_err(io_err(&ldir, "could not list"))?.path();
+            let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("").to_string();
+            if name.contains(".tmp") {
+                if write {
+                    let _ = std::fs::remove_file(&path);
+                }
+                continue;
+            }
+            let Some((t, s)) = name.strip_suffix(".tile").and_then(|n| n.split_once('_')) else { continue };
+            let (Ok(t), Ok(s)) = (t.parse::<i64>(), s.parse::<i64>()) else { continue };
+            match read_tile(&path, grid, (k, s, t)) {
+                Ok(tile) => {
+                    out.good.insert((k, s, t), Arc::new(tile));
+                }
+                Err(problem) => {
+                    tracing::warn!(path = %path.display(), %problem, "a damaged tile file: rebuilding it");
+                    out.damaged.push((k, s, t));
+                    out.damaged_files.push((path.clone(), problem));
+                }
+            }
+        }
+    }
+    Ok(out)
 }
 
 /// Takes `DIR/lock` (created if needed) exclusively, without waiting, and writes this process's
