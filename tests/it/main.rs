@@ -33,6 +33,7 @@ mod fuzz_regressions;
 mod growing;
 mod growing_service;
 mod hostile;
+mod house;
 mod patch_fuzz_props;
 #[cfg(feature = "remote")]
 mod remote;
