@@ -195,15 +195,11 @@ pub fn build(
 fn clip_size(r: &mut Reader<'_>, clip_f: &Field<Spanned<i64>>, virt: Option<[u64; 3]>, max_size: u64) -> Option<u64> {
     let clip = match clip_f {
         Field::Absent => {
-            let d = r
-                .diag(
-                    Severity::Error,
-                    "missing-mandatory",
-                    Some(Span::START),
-                    "`clip_size` is missing; it is mandatory",
-                )
-                .hint("add `clip_size N` (a power of two, usually the display width)");
-            r.push(d);
+            values::missing(
+                r,
+                "`clip_size` is missing; it is mandatory",
+                "add `clip_size N` (a power of two, usually the display width)",
+            );
             None
         }
         Field::Broken => None,

@@ -96,15 +96,11 @@ pub(crate) fn read_formats(
             },
             Field::Absent => {
                 if !defaulted_ok {
-                    let d = r
-                        .diag(
-                            Severity::Error,
-                            "missing-mandatory",
-                            Some(Span::START),
-                            format!("`{name}` is missing; it is mandatory"),
-                        )
-                        .hint(format!("add `{name} …` (see docs/CONFIG.md for the names)"));
-                    r.push(d);
+                    values::missing(
+                        r,
+                        format!("`{name}` is missing; it is mandatory"),
+                        format!("add `{name} …` (see docs/CONFIG.md for the names)"),
+                    );
                 }
                 vals.push(None);
                 spans.push(None);
@@ -315,15 +311,11 @@ fn tex_region(r: &mut Reader<'_>, clip_size: Option<u64>, size: Option<[u64; 3]>
         (Some(_), None) => None,
         (None, _) => {
             if tex_f.is_absent() {
-                let d = r
-                    .diag(
-                        Severity::Error,
-                        "missing-mandatory",
-                        Some(Span::START),
-                        "`tex_region_size` is missing; a standalone image cache needs it",
-                    )
-                    .hint("add `tex_region_size W H 1` (the part of the cache kept in texture memory)");
-                r.push(d);
+                values::missing(
+                    r,
+                    "`tex_region_size` is missing; a standalone image cache needs it",
+                    "add `tex_region_size W H 1` (the part of the cache kept in texture memory)",
+                );
             }
             let tr = values::size3(
                 r,

@@ -31,17 +31,16 @@ pub(crate) fn mandatory_size3(
     rule: SizeRule,
 ) -> Option<[u64; 3]> {
     if field.is_absent() {
-        let d = r
-            .diag(
-                Severity::Error,
-                "missing-mandatory",
-                Some(Span::START),
-                format!("`{name}` is missing; it is mandatory"),
-            )
-            .hint(hint.to_string());
-        r.push(d);
+        missing(r, format!("`{name}` is missing; it is mandatory"), hint);
     }
     size3(r, field, name, rule)
+}
+
+/// Reports a mandatory field that is absent (`missing-mandatory`): `message` says which and why,
+/// `hint` what to add.
+pub(crate) fn missing(r: &mut Reader<'_>, message: impl Into<String>, hint: impl Into<String>) {
+    let d = r.diag(Severity::Error, "missing-mandatory", Some(Span::START), message).hint(hint);
+    r.push(d);
 }
 
 /// Checks a three-number size. Returns `None` (having reported why) when it is unusable.
