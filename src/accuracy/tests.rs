@@ -110,3 +110,28 @@ fn a_sixteen_bit_texture_is_compared_at_sixteen_bits() {
     assert!((p16 - p8).abs() < 0.5, "{p16} dB at 16 bits, {p8} dB at 8");
     assert_eq!(serde_json::to_value(&few).unwrap()["format"], "rgba16");
 }
+
+#[test]
+fn the_quick_sweep_reads_from_its_disk_and_a_slower_disk_draws_more_pixels_coarser() {
+    use super::sweep::{cases, Row};
+    // What a user runs first must show the trade: every finite-disk row reads tiles, and at the
+    // quick sweep's highest speed the slowest disk reads fewer of them and draws more pixels
+    // coarser than the fastest.
+    let disk: Vec<_> =
+        cases(true, crate::texel::TexelFormat::RGBA8).into_iter().filter(|(c, _)| c.disk_tiles.is_some()).collect();
+    let straight = |c: &super::study::Case| c.flight.starts_with("straight");
+    let top = disk.iter().filter(|(c, _)| straight(c)).map(|(_, s)| *s).fold(0.0, f64::max);
+    let mut at_top = Vec::new();
+    for (c, speed) in &disk {
+        let row = Row::from(&run(c, |_, _, _, _| {}).unwrap(), *speed);
+        assert!(row.summary.tiles_read > 0, "{} at {speed} texels a frame read no tile", c.flight);
+        if straight(c) && *speed == top {
+            at_top.push((c.disk_tiles.unwrap(), row.summary.tiles_read, row.summary.coarser_pixel_share));
+        }
+    }
+    at_top.sort_by_key(|r| r.0);
+    let (slow, fast) = (at_top.first().unwrap(), at_top.last().unwrap());
+    assert!(slow.0 < fast.0, "the quick sweep must have two disks at its top speed: {at_top:?}");
+    assert!(slow.1 < fast.1, "the slower disk read no fewer tiles: {at_top:?}");
+    assert!(slow.2 > fast.2, "the slower disk drew no more pixels coarser: {at_top:?}");
+}
