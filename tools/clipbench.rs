@@ -24,6 +24,8 @@
 
 #![forbid(unsafe_code)]
 
+#[path = "clipbench/cog.rs"]
+mod cog;
 #[path = "clipbench/engine.rs"]
 mod engine;
 #[path = "clipbench/growing.rs"]
@@ -54,6 +56,7 @@ Examples:
   clipbench policies --quick --json
   clipbench growing --quick --json
   clipbench remote --quick --json
+  clipbench cog --quick --json
   clipbench engine --quick
   clipbench accuracy --quick --out study
 
@@ -140,6 +143,16 @@ Needs nginx (apt-get install nginx) and moto (pip install 'moto[server]'); start
 loopback ports and stops them at the end. Exit status: 0 ok, 1 a wrong texel was read, 2 the
 benchmark could not run.")]
     Remote(remote::Args),
+    /// A Cloud-Optimized GeoTIFF served as it is, against GDAL reading the same tiles.
+    #[command(after_help = "\
+Examples:
+  clipbench cog --quick --json
+  clipbench cog --install-peers --passes 9
+
+Needs GDAL (gdal_translate and Python's osgeo.gdal; --install-peers runs apt-get). Writes a COG
+with GDAL, reads every level-0 tile with both, and compares the texels. Exit status: 0 ok, 1 a
+texel differs from GDAL's decode, 2 the benchmark could not run.")]
+    Cog(cog::Args),
     /// Speed against accuracy: sweep the knobs, render each frame twice, measure the difference.
     #[command(after_help = "\
 Examples:
@@ -184,6 +197,7 @@ fn main() -> ExitCode {
         Command::Growing(args) => growing::main(args),
         #[cfg(feature = "remote")]
         Command::Remote(args) => remote::main(args),
+        Command::Cog(args) => cog::main(args),
         Command::Engine { quick, runs, json, smoke, centre_alignment } => {
             match engine::engine(engine_size(quick, smoke), runs, centre_alignment) {
                 Ok(r) => {

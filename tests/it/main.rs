@@ -13,6 +13,7 @@ mod cli_config;
 mod cli_dump;
 mod cli_roam;
 mod cli_snapshots;
+mod clipbench_cog;
 mod clipbench_growing;
 mod clipbench_perf;
 mod clipbench_policies;

@@ -22,6 +22,8 @@
 
 #[path = "perf/data.rs"]
 mod data;
+
+pub use data::find_gdal;
 #[path = "perf/flight.rs"]
 mod flight;
 #[path = "perf/human.rs"]
