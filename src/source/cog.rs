@@ -17,8 +17,8 @@
 //! IFD's whole TileOffsets and TileByteCounts arrays when it opens an image, and it reads a tile
 //! through `&mut self` (one seek position), so a COG of millions of tiles would cost its whole
 //! index at open and every tile read would take a lock. The structure parsed here is small
-//! (header, IFD entries); decompression is left to the maintained crates the `tiff` crate itself
-//! uses (`weezl` for LZW, `flate2` for DEFLATE) and `zstd`.
+//! (header, IFD entries). DEFLATE goes to `flate2` (over `zlib-rs`, the fastest of its back ends
+//! here) and ZSTD to `zstd`; LZW to our own whole-tile decoder (`lzw.rs` says why not `weezl`).
 //!
 //! Orientation: as `clipprep` makes a texture of an image, t counts up from the image's bottom
 //! row: texel (s, t) of a level is pixel (column s, row H - 1 - t) of its image. A texture tile
@@ -980,21 +980,7 @@ fn decompress(c: Compression, packed: &[u8], out: &mut [u8]) -> Result<usize, St
             out[..n].copy_from_slice(&packed[..n]);
             Ok(n)
         }
-        Compression::Lzw => {
-            let mut d = weezl::decode::Decoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8);
-            let (mut inp, mut done) = (packed, 0);
-            while done < out.len() {
-                let r = d.decode_bytes(inp, &mut out[done..]);
-                inp = &inp[r.consumed_in..];
-                done += r.consumed_out;
-                match r.status {
-                    Ok(weezl::LzwStatus::Ok) if r.consumed_in + r.consumed_out > 0 => {}
-                    Ok(_) => break,
-                    Err(e) => return Err(format!("not valid LZW data ({e})")),
-                }
-            }
-            Ok(done)
-        }
+        Compression::Lzw => super::lzw::decode(packed, out).map_err(|e| format!("not valid LZW data ({e})")),
         Compression::Deflate => {
             let mut d = flate2::Decompress::new(true);
             match d.decompress(packed, out, flate2::FlushDecompress::Finish) {

@@ -15,6 +15,7 @@ pub mod cog;
 pub mod desc;
 pub mod faulty;
 pub mod file;
+mod lzw;
 pub mod pool;
 pub mod procedural;
 #[cfg(feature = "remote")]
