@@ -13,6 +13,7 @@ use clipmap::config::FileKind;
 use clipmap::plan;
 use clipmap::report::{self, check, exit, info, validate};
 use clipmap::roam;
+use clipmap::source::TileSource as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -255,7 +256,7 @@ Examples:
 Exit status: 0 every tile can be served (present, or covered by a default tile), 1 some cannot
 or the configuration is invalid, 2 the configuration cannot be read.")]
     Check {
-        /// The .ct file.
+        /// The .ct file, or a tiled GeoTIFF / COG (`.tif`, `.tiff`) served as it is.
         file: PathBuf,
         /// Print JSON instead of text.
         #[arg(long)]
@@ -270,7 +271,7 @@ or the configuration is invalid, 2 the configuration cannot be read.")]
 
 #[derive(clap::Args)]
 struct DumpArgs {
-    /// The .ct file whose tiles are read (or use --attach).
+    /// The .ct file whose tiles are read, or a tiled GeoTIFF / COG (or use --attach).
     #[arg(required_unless_present = "attach", conflicts_with = "attach", requires = "out")]
     config: Option<PathBuf>,
     /// Level to dump (0 is the finest).
@@ -488,6 +489,30 @@ fn dump(args: DumpArgs) -> i32 {
         return exit::BAD_INPUT;
     };
     let region = args.region;
+    if clipmap::source::cog::is_tiff(file) {
+        let src = match open_cog(file, "cliptex dump") {
+            Ok(s) => s,
+            Err(c) => return c,
+        };
+        let count = src.desc().level_count() as u32;
+        if args.level >= count {
+            let e = dump::DumpError::NoLevel { level: args.level, last: count.saturating_sub(1) };
+            return dump::finish(Err(e), args.json, args.quiet, "cliptex");
+        }
+        let d = src.desc().level(args.level);
+        let read = |id, buf: &mut [u8]| src.read_tile(id, buf);
+        let place = clipmap::place::Place::Local(file.clone());
+        let file_of = |_: clipmap::source::TileId| Some(place.clone());
+        let tiles = dump::LevelTiles {
+            level: Some(args.level),
+            size: d.size,
+            tile: d.tile,
+            format: src.desc().format(),
+            read: &read,
+            file_of: &file_of,
+        };
+        return dump::finish(dump::dump(file, &tiles, region, out), args.json, args.quiet, "cliptex");
+    }
     let plan = match load(file, &args.env) {
         Ok((p, _)) => p,
         Err(c) => return c,
@@ -519,8 +544,58 @@ fn dump(args: DumpArgs) -> i32 {
     dump::finish(dump::dump(file, &tiles, region, out), args.json, args.quiet, "cliptex")
 }
 
-fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
+/// `clipmapd`'s and `cliptex info`'s clip size for a COG served as it is.
+const COG_CLIP: u64 = 1024;
+
+/// Opens a tiled GeoTIFF / COG as `clipmapd` serves it; the error is printed for `tool`.
+fn open_cog(file: &Path, tool: &str) -> Result<clipmap::source::CogSource, i32> {
+    clipmap::source::CogSource::open(file, COG_CLIP).map_err(|e| {
+        eprintln!("{tool}: {e}");
+        exit::BAD_INPUT
+    })
+}
+
+/// A progress bar over `len` tiles on a terminal, hidden otherwise.
+fn tile_bar(len: u64, quiet: bool) -> indicatif::ProgressBar {
     use std::io::IsTerminal;
+    if !quiet && std::io::stderr().is_terminal() {
+        let bar = indicatif::ProgressBar::new(len);
+        if let Ok(style) = indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} tiles {eta}") {
+            bar.set_style(style);
+        }
+        bar
+    } else {
+        indicatif::ProgressBar::hidden()
+    }
+}
+
+/// `cliptex check FILE.tif`: every tile of every level read and decoded as the service would.
+fn check_cog(file: &Path, json: bool, quiet: bool) -> i32 {
+    let src = match open_cog(file, "cliptex check") {
+        Ok(s) => s,
+        Err(c) => return c,
+    };
+    let origins = src.origins().to_vec();
+    let kind_of = |k: u32| match origins.get(k as usize) {
+        Some(clipmap::source::cog::LevelOrigin::Built { .. }) => "built",
+        _ => "ifd",
+    };
+    let tiles: u64 = src.desc().levels().iter().map(|l| l.tiles().iter().product::<u64>()).sum();
+    let bar = tile_bar(tiles, quiet);
+    let report = check::run_source(file, &src, &kind_of, &|n| bar.inc(n));
+    bar.finish_and_clear();
+    report::emit(json, &report, |r| check::human(r, quiet));
+    if report.servable {
+        exit::OK
+    } else {
+        exit::BAD_INPUT
+    }
+}
+
+fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
+    if clipmap::source::cog::is_tiff(file) {
+        return check_cog(file, json, quiet);
+    }
     let plan = match load(file, env) {
         Ok((p, _)) => p,
         Err(c) => return c,
@@ -531,15 +606,7 @@ fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
         eprintln!("cliptex check: {}: the service cannot serve it: {why}", file.display());
         return exit::BAD_INPUT;
     }
-    let bar = if !quiet && std::io::stderr().is_terminal() {
-        let bar = indicatif::ProgressBar::new(check::tile_count(&plan));
-        if let Ok(style) = indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} tiles {eta}") {
-            bar.set_style(style);
-        }
-        bar
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
+    let bar = tile_bar(check::tile_count(&plan), quiet);
     let report = check::run(&plan, &|n| bar.inc(n));
     bar.finish_and_clear();
     report::emit(json, &report, |r| check::human(r, quiet));
@@ -594,19 +661,14 @@ fn run(cli: Cli) -> i32 {
         }
         Command::Validate { args, ct_only } => cmdline::validate(&args, FileKind::ClipTexture, "cliptex", ct_only),
         // A tiled GeoTIFF / COG: the texture it is served as (clipmapd's default clip size).
-        Command::Info { file, json, .. } if clipmap::source::cog::is_tiff(&file) => {
-            match clipmap::source::CogSource::open(&file, 1024) {
-                Err(e) => {
-                    eprintln!("cliptex: {e}");
-                    exit::BAD_INPUT
-                }
-                Ok(src) => {
-                    let info = src.info();
-                    report::emit(json, &info, |_| info.human());
-                    exit::OK
-                }
+        Command::Info { file, json, .. } if clipmap::source::cog::is_tiff(&file) => match open_cog(&file, "cliptex") {
+            Err(c) => c,
+            Ok(src) => {
+                let info = src.info();
+                report::emit(json, &info, |_| info.human());
+                exit::OK
             }
-        }
+        },
         Command::Info { file, json, env, ct_only } => match env.load_clip_texture(&file, "cliptex", ct_only) {
             Err(c) => c,
             Ok((p, warnings)) => {

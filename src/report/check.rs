@@ -47,6 +47,9 @@ pub struct TileProblem {
     pub problem: Problem,
     /// Whether the level's default tile stands in for it.
     pub default_covered: bool,
+    /// What the reader said, where it said more than the problem's name (a COG's damaged tile).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub detail: Option<String>,
 }
 
 /// An image cache's default tile, checked.
@@ -321,7 +324,15 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
                 counts.default_covered += covered as u64;
                 if problems.len() < MAX_LISTED_PROBLEMS {
                     let path = loc.map(|l| l.path);
-                    problems.push(TileProblem { level: l.level, s, t, path, problem, default_covered: covered });
+                    problems.push(TileProblem {
+                        level: l.level,
+                        s,
+                        t,
+                        path,
+                        problem,
+                        default_covered: covered,
+                        detail: None,
+                    });
                 } else {
                     not_listed += 1;
                 }
@@ -337,6 +348,71 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
     CheckReport {
         path: plan.path.clone(),
         servable: defaults_usable && totals.servable() == totals.tiles,
+        levels,
+        totals,
+        problems,
+        problems_not_listed: not_listed,
+    }
+}
+
+/// Checks every tile of a texture served as it is from one file (a COG): each tile is read and
+/// decoded as the service would read it (`TileSource::read_tile`), and sorted by what the read
+/// says. `kind_of` names each level's origin (`ifd`, `built`); `progress` is told the tiles
+/// checked since its last call.
+pub fn run_source(
+    path: &std::path::Path,
+    src: &dyn crate::source::TileSource,
+    kind_of: &dyn Fn(u32) -> &'static str,
+    progress: &dyn Fn(u64),
+) -> CheckReport {
+    use crate::source::{SourceError, TileId};
+    let (mut problems, mut not_listed) = (Vec::new(), 0u64);
+    let (mut levels, mut totals) = (Vec::new(), Counts::default());
+    let place = Place::Local(path.to_path_buf());
+    for (k, d) in src.desc().levels().iter().enumerate() {
+        let level = k as u32;
+        let mut counts = Counts::default();
+        let [ts, tt] = d.tiles();
+        let mut buf = vec![0u8; src.desc().tile_bytes(level)];
+        for t in 0..tt {
+            for s in 0..ts {
+                counts.tiles += 1;
+                let (problem, detail) = match src.read_tile(TileId { level, s, t }, &mut buf) {
+                    Ok(()) => {
+                        counts.present += 1;
+                        continue;
+                    }
+                    Err(SourceError::Missing { .. }) => (
+                        Problem::Missing,
+                        Some("sparse: the file holds no bytes for it (offset or byte count 0)".into()),
+                    ),
+                    Err(e @ SourceError::Short { .. }) => (Problem::Short, Some(e.to_string())),
+                    Err(e @ (SourceError::PermissionDenied { .. } | SourceError::Io { .. })) => {
+                        (Problem::Unreadable, Some(e.to_string()))
+                    }
+                    Err(e) => (Problem::Corrupt, Some(e.to_string())),
+                };
+                match problem {
+                    Problem::Missing => counts.missing += 1,
+                    Problem::Short => counts.short += 1,
+                    Problem::Unreadable => counts.unreadable += 1,
+                    Problem::Corrupt => counts.corrupt += 1,
+                }
+                if problems.len() < MAX_LISTED_PROBLEMS {
+                    let path = Some(place.clone());
+                    problems.push(TileProblem { level, s, t, path, problem, default_covered: false, detail });
+                } else {
+                    not_listed += 1;
+                }
+            }
+            progress(ts);
+        }
+        totals.add(&counts);
+        levels.push(LevelCheck { level, kind: kind_of(level), size: d.size, counts, default_tile: None });
+    }
+    CheckReport {
+        path: path.to_path_buf(),
+        servable: totals.servable() == totals.tiles,
         levels,
         totals,
         problems,
@@ -378,7 +454,8 @@ pub fn human(r: &CheckReport, quiet: bool) -> String {
     for p in r.problems.iter().filter(|p| !p.default_covered || !quiet) {
         let path = p.path.as_ref().map_or("(no file named)".into(), |p| p.to_string());
         let covered = if p.default_covered { " (default tile used)" } else { "" };
-        let _ = writeln!(o, "level {} tile ({}, {}): {:?}: {path}{covered}", p.level, p.s, p.t, p.problem);
+        let detail = p.detail.as_deref().map(|d| format!(" ({d})")).unwrap_or_default();
+        let _ = writeln!(o, "level {} tile ({}, {}): {:?}: {path}{covered}{detail}", p.level, p.s, p.t, p.problem);
     }
     if r.problems_not_listed > 0 {
         let _ = writeln!(o, "... and {} more problem tiles", r.problems_not_listed);
