@@ -167,9 +167,41 @@ struct Cli {
     /// stay raw.
     #[arg(long, value_name = "LEVEL", value_parser = clap::value_parser!(i32).range(1..=22))]
     zstd: Option<i32>,
+    /// Also write the prepared texture as one Cloud-Optimized GeoTIFF (level 0 and its
+    /// overviews, laid out as GDAL's COG driver lays it out), which GDAL, QGIS and
+    /// `clipmapd FILE.tif` read. 8-bit grey, RGB or RGBA; a local --out.
+    #[arg(long, value_name = "FILE.tif")]
+    cog: Option<PathBuf>,
+    /// Compression of the --cog file's tiles.
+    #[arg(long, value_enum, default_value = "deflate", requires = "cog")]
+    cog_compression: CogCompressionArg,
     /// Memory limit in MiB for a decoded input image and the band cascade.
     #[arg(long, value_name = "MIB", default_value_t = 512, value_parser = clap::value_parser!(u64).range(1..=clipmap::prep::MAX_MEMORY_MIB))]
     max_memory: u64,
+}
+
+/// `--cog-compression`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum CogCompressionArg {
+    None,
+    Deflate,
+    Zstd,
+}
+
+/// Writes the prepared texture at `o.ct` as the COG `path`.
+fn write_cog(o: &Outcome, path: &Path, c: CogCompressionArg) -> Result<clipmap::prep::cog::CogWritten, String> {
+    use clipmap::prep::cog::{self, CogCompression};
+    let loaded = clipmap::plan::load_clip_texture(&o.ct, &Default::default()).map_err(|e| e.to_string())?;
+    let Some(plan) = loaded.plan else {
+        return Err(format!("{} does not load:\n{}", o.ct.display(), loaded.render()));
+    };
+    let src = clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()).map_err(|e| e.to_string())?;
+    let compression = match c {
+        CogCompressionArg::None => CogCompression::None,
+        CogCompressionArg::Deflate => CogCompression::Deflate,
+        CogCompressionArg::Zstd => CogCompression::Zstd,
+    };
+    cog::write(src.as_ref(), path, o.layout.spec.tile, compression).map_err(|e| e.to_string())
 }
 
 fn parse_pair(text: &str, what: &str) -> Result<(u64, u64), PrepError> {
@@ -411,6 +443,18 @@ fn main() -> ExitCode {
         eprintln!("clipprep: warning: {e:#}; Ctrl-C will stop the run without cleaning up");
     }
     let url = clipmap::place::Place::from_path(cli.out.clone()).remote().map(|u| u.to_string());
+    if let Some(cog) = &cli.cog {
+        // Refused before any work: what --cog could not write, or where.
+        let refused = if url.is_some() {
+            Some("it is written from a local --out; prepare locally, then upload the file".to_string())
+        } else {
+            clipmap::prep::cog::check(cli.format.texel(), cli.tile).err().map(|e| e.to_string())
+        };
+        if let Some(why) = refused {
+            eprintln!("clipprep: error: --cog {}: {why}", cog.display());
+            return clipmap::report::exit::status(clipmap::report::exit::BAD_INPUT);
+        }
+    }
     let mut uploaded = None;
     let result = match &url {
         None => prepare(&cli, &cli.out, &cancel),
@@ -426,8 +470,17 @@ fn main() -> ExitCode {
             }
         },
     };
+    let result = result.map(|o| {
+        let cog = cli.cog.as_ref().map(|p| (p, write_cog(&o, p, cli.cog_compression)));
+        (o, cog)
+    });
     match result {
-        Ok(o) => {
+        Ok((_, Some((path, Err(why))))) => {
+            eprintln!("clipprep: error: --cog {}: {why} (the pyramid itself was written)", path.display());
+            clipmap::report::exit::status(clipmap::report::exit::COULD_NOT_RUN)
+        }
+        Ok((o, cog)) => {
+            let cog = cog.map(|(p, r)| (p, r.expect("an error returned above")));
             let s = &o.summary;
             let mib = s.bytes as f64 / (1u64 << 20) as f64;
             if cli.json {
@@ -451,6 +504,9 @@ fn main() -> ExitCode {
                     "buffer_bytes": s.buffer_bytes,
                 });
                 let mut v = v;
+                if let Some((path, w)) = &cog {
+                    v["cog"] = serde_json::json!({ "path": path, "images": w.images, "tiles": w.tiles, "bytes": w.bytes, "bigtiff": w.bigtiff });
+                }
                 if let (Some(url), Some((files, bytes))) = (&url, uploaded) {
                     v["location"] = serde_json::json!(url);
                     v["uploaded_files"] = serde_json::json!(files);
@@ -468,6 +524,16 @@ fn main() -> ExitCode {
                     mib,
                     o.seconds,
                     mib / o.seconds.max(1e-9)
+                );
+            }
+            if let (Some((path, w)), false) = (&cog, cli.json || cli.quiet) {
+                println!(
+                    "wrote {}: a COG of {} images ({} tiles, {} bytes{})",
+                    path.display(),
+                    w.images,
+                    w.tiles,
+                    w.bytes,
+                    if w.bigtiff { ", BigTIFF" } else { "" }
                 );
             }
             if let (Some(url), Some((files, bytes)), false) = (&url, uploaded, cli.json || cli.quiet) {

@@ -25,6 +25,7 @@
 
 pub mod band;
 pub mod border;
+pub mod cog;
 pub mod configfile;
 pub mod error;
 pub mod filter;

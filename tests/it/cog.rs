@@ -336,3 +336,80 @@ fn cliptex_dump_of_a_cog_level_is_gdals_own_decode() {
         assert_eq!(differ, 0, "{name} level {k}: pixels that differ from GDAL's decode");
     }
 }
+
+fn run<S: AsRef<std::ffi::OsStr>>(program: &str, args: &[S], dir: &Path) -> (std::process::ExitStatus, String) {
+    let out = std::process::Command::new(program).args(args).current_dir(dir).output().unwrap();
+    (out.status, format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr)))
+}
+
+fn pixels(path: &Path) -> image::RgbaImage {
+    image::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())).to_rgba8()
+}
+
+#[test]
+fn clipprep_cog_writes_a_cog_gdal_calls_one_and_every_reader_decodes_as_the_pyramid() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let prep = env!("CARGO_BIN_EXE_clipprep");
+    let cliptex = env!("CARGO_BIN_EXE_cliptex");
+    for (format, compression) in [("rgb8", "deflate"), ("rgba8", "zstd"), ("l8", "none")] {
+        let out = format!("pyr_{format}");
+        let cog = format!("{format}.tif");
+        let args = [
+            "--source",
+            "hash",
+            "--size",
+            "1024x512",
+            "--tile",
+            "128",
+            "--clip",
+            "256",
+            "--format",
+            format,
+            "--out",
+            &out,
+            "--cog",
+            &cog,
+            "--cog-compression",
+            compression,
+        ];
+        let (status, text) = run(prep, &args, d);
+        assert!(status.success(), "{format}: {text}");
+        assert!(text.contains(&format!("wrote {cog}: a COG of 4 images (43 tiles")), "{format}: {text}");
+        // GDAL calls it a COG, with the overviews halved down to one tile.
+        let (status, info) = run("gdalinfo", &[&cog], d);
+        assert!(status.success(), "{info}");
+        assert!(info.contains("LAYOUT=COG"), "{format}: {info}");
+        assert!(info.contains("Overviews: 512x256, 256x128, 128x64"), "{format}: {info}");
+        // Level 0 and each overview: GDAL's decode, our COG source's and the pyramid's are one picture.
+        let ct = format!("{out}/{out}.ct");
+        for k in 0..4u32 {
+            let level = k.to_string();
+            let (gdal, ours, pyramid) = (format!("g{k}.png"), format!("c{k}.png"), format!("p{k}.png"));
+            let mut args = vec!["-q".to_string(), "-of".into(), "PNG".into()];
+            if k > 0 {
+                args.extend(["-ovr".to_string(), (k - 1).to_string()]);
+            }
+            args.extend([cog.clone(), gdal.clone()]);
+            let (status, text) = run("gdal_translate", &args, d);
+            assert!(status.success(), "{text}");
+            for (file, png) in [(&cog, &ours), (&ct, &pyramid)] {
+                let (status, text) = run(cliptex, &["dump", file, "--level", &level, "--out", png], d);
+                assert!(status.success(), "{text}");
+            }
+            let (g, c, p) = (pixels(&d.join(&gdal)), pixels(&d.join(&ours)), pixels(&d.join(&pyramid)));
+            assert_eq!(g.dimensions(), p.dimensions(), "{format} level {k}");
+            assert!(g == p, "{format} level {k}: GDAL's decode of the COG differs from the pyramid");
+            assert!(c == p, "{format} level {k}: our decode of the COG differs from the pyramid");
+        }
+    }
+    // Refused before any work: a format a COG is not written from.
+    let args = [
+        "--source", "hash", "--size", "256", "--tile", "64", "--clip", "128", "--format", "rgb565", "--out", "x",
+        "--cog", "x.tif",
+    ];
+    let (status, text) = run(prep, &args, d);
+    assert_eq!(status.code(), Some(1), "{text}");
+    assert!(text.contains("--cog x.tif: texel format rgb565: a COG is written from l8, rgb8 or rgba8"), "{text}");
+    assert!(!d.join("x").exists(), "nothing is prepared when --cog is refused");
+}
