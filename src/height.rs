@@ -215,6 +215,11 @@ pub struct HeightFormat {
 }
 
 impl HeightFormat {
+    /// The format of the height verification texture (`clipmapd --source heights`,
+    /// docs/ELEVATION.md): `l32f` metres, nodata -32768.
+    pub const VERIFICATION: HeightFormat =
+        HeightFormat { storage: HeightStorage::F32, scale: 1.0, offset: 0.0, nodata: Some(-32768.0) };
+
     /// `l32f` metres, with an optional nodata value (a finite `f32`; NaN is never stored).
     pub fn float(nodata: Option<f64>) -> Result<Self, HeightError> {
         HeightFormat::new(HeightStorage::F32, 1.0, 0.0, nodata)

@@ -1,6 +1,8 @@
 //! Elevation textures (docs/ELEVATION.md): the `#clipmap height…` lines of a `.ct` (docs/CONFIG.md
 //! §17) read into the plan, each refusal saying where and what was expected, `cliptex validate
-//! --strict` flagging them as not Performer's, and `cliptex info` stating the level rule.
+//! --strict` flagging them as not Performer's, and `cliptex info` stating the level rule; the
+//! height verification texture served by the real `clipmapd`, every texel read through the Rust
+//! client equal to its definition.
 
 use crate::common;
 
@@ -8,8 +10,14 @@ use clipmap::config::Severity;
 use clipmap::height::{HeightStorage, LevelRule};
 use common::*;
 use serde_json::Value;
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
 
 const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
+const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
 
 /// `NO_IC_CT` with heights of `ext` (a GL type name) as one luminance component.
 fn height_ct(ext: &str, lines: &str) -> String {
@@ -113,4 +121,106 @@ fn validate_strict_flags_height_lines_and_info_states_the_level_rule() {
     assert_eq!(info["height"]["format"]["scale"], 0.01, "{info}");
     assert_eq!(info["height"]["format"]["offset"], -11000.0, "{info}");
     assert_eq!(info["height"]["format"]["nodata"], 0.0, "{info}");
+}
+
+/// A running `clipmapd`, killed on drop.
+struct Service {
+    child: Child,
+    err: PathBuf,
+}
+
+impl Service {
+    fn start(dir: &Path, name: &str, args: &[&str]) -> Service {
+        let socket = dir.join(format!("{name}.sock"));
+        let err = dir.join(format!("{name}.err"));
+        let child = Command::new(CLIPMAPD)
+            .args(args)
+            .args(["--tick-hz", "120", "--name", name, "--shm-dir", dir.to_str().unwrap(), "--socket"])
+            .arg(&socket)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&err).unwrap())
+            .spawn()
+            .unwrap();
+        let s = Service { child, err };
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(30) {
+            if let Ok(mut c) = UnixStream::connect(&socket) {
+                let mut line = String::new();
+                if writeln!(c, "PING").is_ok()
+                    && BufReader::new(c).read_line(&mut line).is_ok()
+                    && line.starts_with("OK")
+                {
+                    return s;
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        panic!("the service did not come up: {}", s.log());
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.err).unwrap_or_default()
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+#[test]
+fn every_height_served_by_clipmapd_equals_the_verification_texture() {
+    use clipmap::height::{HeightFormat, TileRange};
+    use clipmap::source::procedural::height_stored;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "heights", &["--source", "heights", "--size", "1024", "--clip", "128", "--tile", "64"]);
+    let c = clipmap::shm::Client::attach(d, "heights").expect("the mapping is there");
+    assert_eq!(c.bytes_per_texel, 4, "l32f");
+    let f = HeightFormat::VERIFICATION;
+    let (mut checked, mut nodata) = (0usize, 0usize);
+    for k in 0..c.levels.len() {
+        // Wait for the level's valid region, then read it whole.
+        let t = Instant::now();
+        let v = loop {
+            if let Some(st) = c.level_state(k) {
+                let [s0, t0, s1, t1] = st.valid;
+                if st.enabled && s1 > s0 && t1 > t0 {
+                    break st.valid;
+                }
+            }
+            assert!(t.elapsed() < Duration::from_secs(30), "level {k} never became valid\n{}", svc.log());
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        let [s0, t0, s1, t1] = v;
+        let (w, h) = ((s1 - s0) as u64, (t1 - t0) as u64);
+        let mut buf = vec![0u8; (w * h * 4) as usize];
+        c.read_region(k, s0, t0, w, h, &mut buf).expect("the valid region reads");
+        for (i, texel) in buf.chunks_exact(4).enumerate() {
+            let (s, t) = (s0 as u64 + i as u64 % w, t0 as u64 + i as u64 / w);
+            let want = height_stored(&f, k as u32, s, t) as f32;
+            let got = f32::from_le_bytes([texel[0], texel[1], texel[2], texel[3]]);
+            assert_eq!(got.to_bits(), want.to_bits(), "level {k} texel ({s}, {t}): {got} served, {want} defined");
+            nodata += f.is_nodata(got as f64) as usize;
+        }
+        checked += buf.len() / 4;
+        // The region's range as the height module reads it equals brute force over the definition.
+        let metres: Vec<f64> = (0..w * h)
+            .filter_map(|i| f.decode(height_stored(&f, k as u32, s0 as u64 + i % w, t0 as u64 + i / w)))
+            .collect();
+        let want = if metres.is_empty() {
+            TileRange::Empty
+        } else {
+            TileRange::Heights {
+                min: metres.iter().copied().fold(f64::INFINITY, f64::min),
+                max: metres.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            }
+        };
+        assert_eq!(f.tile_range(&buf).unwrap(), want, "level {k}");
+    }
+    assert!(checked > 128 * 128 * 3, "every level read: {checked} texels");
+    // One texel in sixteen is nodata.
+    assert!(nodata * 32 > checked && nodata * 8 < checked, "{nodata} of {checked}");
 }
