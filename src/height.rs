@@ -234,7 +234,8 @@ impl HeightFormat {
     /// that is not a value of the storage.
     pub fn new(storage: HeightStorage, scale: f64, offset: f64, nodata: Option<f64>) -> Result<Self, HeightError> {
         if !scale.is_finite() || scale <= 0.0 {
-            let why = if scale.is_nan() { "it is NaN".to_string() } else { "it must be finite and above zero".to_string() };
+            let why =
+                if scale.is_nan() { "it is NaN".to_string() } else { "it must be finite and above zero".to_string() };
             return Err(HeightError::Scale { scale, why });
         }
         if !offset.is_finite() {

@@ -431,3 +431,54 @@ fn names_round_trip() {
     assert_eq!(r, TileRange::Heights { min: -1.0, max: 2.0 });
     assert_eq!(TileRange::Empty.union(r), r);
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// Point-registered levels leave no crack between mesh rings: every coarser vertex is the
+    /// level-0 vertex at its position (`2^k` times its index), so the shared vertices of a fine
+    /// ring and the coarse ring around it are the same heights; and a fine boundary vertex
+    /// between two shared ones, snapped to the midpoint of the coarse edge, lies exactly on that
+    /// edge. The mean rule, by contrast, moves coarse vertices off the fine surface (checked so
+    /// that the test could fail).
+    #[test]
+    fn point_registered_levels_meet_the_finer_mesh_without_cracks(
+        log2 in 2u32..=5,
+        ks in prop::collection::vec(-11_264_000i32..=9_113_600, 32 * 32),
+    ) {
+        let n = 1usize << log2;
+        let fmt = HeightFormat::float(None).unwrap();
+        let level0: Vec<f64> = ks[..n * n].iter().map(|&k| k as f64 / 1024.0).collect();
+        let (mut level, mut size, mut k) = (level0.clone(), n, 0u32);
+        let mut mean = level0.clone();
+        let mut mean_moved = false;
+        while size > 1 {
+            let coarser = fmt.reduce_level(LevelRule::Point, &level, size, size).unwrap();
+            mean = fmt.reduce_level(LevelRule::Mean, &mean, size, size).unwrap();
+            let (fine, cs) = (size, size / 2);
+            k += 1;
+            for j in 0..cs {
+                for i in 0..cs {
+                    let v = coarser[j * cs + i];
+                    // The level-0 vertex under it, and the finer level's.
+                    prop_assert_eq!(v, level0[(j << k) * n + (i << k)]);
+                    prop_assert_eq!(v, level[(2 * j) * fine + 2 * i]);
+                    mean_moved |= mean[j * cs + i] != level0[(j << k) * n + (i << k)];
+                }
+            }
+            // The stitch along the coarse ring's edges: a fine vertex between two coarse vertices
+            // snapped to their midpoint is the coarse edge's height there (no T-junction gap).
+            for j in 0..cs {
+                for i in 0..cs.saturating_sub(1) {
+                    let (a, b) = (coarser[j * cs + i], coarser[j * cs + i + 1]);
+                    let (fa, fb) = (level[(2 * j) * fine + 2 * i], level[(2 * j) * fine + 2 * i + 2]);
+                    prop_assert_eq!((fa + fb) / 2.0, (a + b) / 2.0);
+                }
+            }
+            level = coarser;
+            size = cs;
+        }
+        // Random heights: the mean moves some coarse vertex off the fine surface.
+        prop_assert!(mean_moved);
+    }
+}

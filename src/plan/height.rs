@@ -90,7 +90,10 @@ pub fn read(r: &mut Reader<'_>, texel: Option<TexelFormat>) -> Option<HeightPlan
         match key.value.as_str() {
             "height" => match HeightStorage::from_short_name(&value.value) {
                 Some(s) => storage = Some((s, key.span)),
-                None => bad(r, "`l32f` (32-bit float metres), `l16` (unsigned 16-bit steps) or `l16i` (signed 16-bit steps)"),
+                None => bad(
+                    r,
+                    "`l32f` (32-bit float metres), `l16` (unsigned 16-bit steps) or `l16i` (signed 16-bit steps)",
+                ),
             },
             "height_scale" => match number(&value.value) {
                 Some(v) => scale = Some((v, key.span)),
@@ -103,7 +106,9 @@ pub fn read(r: &mut Reader<'_>, texel: Option<TexelFormat>) -> Option<HeightPlan
             "height_nodata" => match (value.value.as_str(), number(&value.value)) {
                 ("none", _) => nodata = None,
                 (_, Some(v)) => nodata = Some((v, key.span)),
-                _ => bad(r, "the stored value (not metres) that marks a texel without data, e.g. 0 or -32768, or `none`"),
+                _ => {
+                    bad(r, "the stored value (not metres) that marks a texel without data, e.g. 0 or -32768, or `none`")
+                }
             },
             _ => match LevelRule::from_name(&value.value) {
                 Some(rule) => levels = rule,
@@ -117,7 +122,12 @@ pub fn read(r: &mut Reader<'_>, texel: Option<TexelFormat>) -> Option<HeightPlan
     let Some((storage, at)) = storage else {
         if let Some((name, span)) = first_setting {
             let d = r
-                .diag(Severity::Error, "height-setting-without-height", Some(span), format!("`#clipmap {name}` without `#clipmap height`"))
+                .diag(
+                    Severity::Error,
+                    "height-setting-without-height",
+                    Some(span),
+                    format!("`#clipmap {name}` without `#clipmap height`"),
+                )
                 .expected("a `#clipmap height l32f|l16|l16i` line declaring the texture's heights")
                 .hint("add `#clipmap height l16` (or l32f, l16i), or remove the height settings");
             r.push(d);

@@ -42,7 +42,10 @@ fn height_lines_are_read_into_the_plan() {
 
     let (p, _) = ct_ok(&height_ct("GL_FLOAT", "#clipmap height l32f\n#clipmap height_nodata -32768\n"));
     let h = p.height.unwrap();
-    assert_eq!((h.format.storage(), h.format.nodata(), h.levels), (HeightStorage::F32, Some(-32768.0), LevelRule::Mean));
+    assert_eq!(
+        (h.format.storage(), h.format.nodata(), h.levels),
+        (HeightStorage::F32, Some(-32768.0), LevelRule::Mean)
+    );
     assert_eq!(p.texel.short_name(), "l32f");
 
     let (p, _) = ct_ok(&height_ct("GL_SHORT", "#clipmap height l16i\n#clipmap height_levels max\n"));
@@ -65,11 +68,23 @@ fn height_errors_say_where_and_what_was_expected() {
     let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", "#clipmap height l24\n"));
     expect(&d, "bad-extension-value", Severity::Error, Some((10, 17)), &["l24", "`l32f`", "`l16i`"]);
     let d = ct_err(&NO_IC_CT.replace("tile_size 256 256 1\n", "tile_size 256 256 1\n#clipmap height l16\n"));
-    expect(&d, "height-format-mismatch", Severity::Error, Some((10, 10)), &["rgb8", "GL_UNSIGNED_SHORT", "PFTEX_LUMINANCE"]);
+    expect(
+        &d,
+        "height-format-mismatch",
+        Severity::Error,
+        Some((10, 10)),
+        &["rgb8", "GL_UNSIGNED_SHORT", "PFTEX_LUMINANCE"],
+    );
     let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", "#clipmap height l32f\n"));
     expect(&d, "height-format-mismatch", Severity::Error, Some((10, 10)), &["l16 texels", "GL_FLOAT"]);
     let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", "#clipmap height_scale 0.01\n"));
-    expect(&d, "height-setting-without-height", Severity::Error, Some((10, 10)), &["height_scale", "#clipmap height l16"]);
+    expect(
+        &d,
+        "height-setting-without-height",
+        Severity::Error,
+        Some((10, 10)),
+        &["height_scale", "#clipmap height l16"],
+    );
     for bad in ["nan", "inf", "-infinity", "NaN", "1e999", "ten"] {
         let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", &format!("#clipmap height l16\n#clipmap height_scale {bad}\n")));
         expect(&d, "bad-extension-value", Severity::Error, Some((11, 23)), &[bad, "finite decimal number above zero"]);
