@@ -193,7 +193,7 @@ fn every_height_served_by_clipmapd_equals_the_verification_texture() {
     let d = dir.path();
     let svc = Service::start(d, "heights", &["--source", "heights", "--size", "1024", "--clip", "128", "--tile", "64"]);
     let c = clipmap::shm::Client::attach(d, "heights").expect("the mapping is there");
-    assert_eq!(c.bytes_per_texel, 4, "l32f");
+    assert_eq!((c.format_code, c.bytes_per_texel), (11, 4), "L32F in the mapping's header");
     let f = HeightFormat::VERIFICATION;
     let (mut checked, mut nodata) = (0usize, 0usize);
     for k in 0..c.levels.len() {
