@@ -177,6 +177,9 @@
 #define CLIPMAP_FORMAT_LA16 8u
 #define CLIPMAP_FORMAT_RGB16 9u
 #define CLIPMAP_FORMAT_RGBA16 10u
+/* One IEEE 754 32-bit float, and one signed 16-bit integer, little-endian (heights: docs/ELEVATION.md). */
+#define CLIPMAP_FORMAT_L32F 11u
+#define CLIPMAP_FORMAT_L16I 12u
 
 #if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
 _Static_assert(CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAPSHOT_BYTES == CLIPMAP_H_LEVEL_DESCS, "snapshot size");
@@ -283,6 +286,8 @@ static inline uint32_t clipmap_format_bytes(uint32_t code) {
     case CLIPMAP_FORMAT_LA16: return 4;
     case CLIPMAP_FORMAT_RGB16: return 6;
     case CLIPMAP_FORMAT_RGBA16: return 8;
+    case CLIPMAP_FORMAT_L32F: return 4;
+    case CLIPMAP_FORMAT_L16I: return 2;
     default: return 0;
     }
 }

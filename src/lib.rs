@@ -13,6 +13,7 @@
 //! | [`config`] | text → syntax tree with a span for every value; no arithmetic, no other files |
 //! | [`plan`] | syntax tree → validated, immutable plan: levels, formats, file names, byte offsets |
 //! | [`texel`] | texel formats, bytes per texel, colour encoding |
+//! | [`height`] | elevation: height encodings (`l32f`, `l16`, `l16i` with scale, offset, nodata), level rules for heights, per-tile height ranges |
 //! | [`source`] | texel values: procedural textures (and tile files, through the plan) |
 //! | [`geom`] | pure level geometry: centres, tex / valid / mem regions, toroidal addressing |
 //! | [`limits`] | every bound the paging engine keeps (queue lengths, reads in flight, bytes) |
@@ -53,6 +54,7 @@ pub mod config;
 pub mod demo;
 pub mod geom;
 pub mod growing;
+pub mod height;
 pub mod inspect;
 pub mod limits;
 pub mod open;

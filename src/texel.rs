@@ -134,6 +134,10 @@ impl TexelFormat {
         TexelFormat { components: Components::Four, ctype: ComponentType::Packed(PackedType::Rgba5551) };
     /// 16-bit luminance (heights, for terrain).
     pub const L16: TexelFormat = TexelFormat { components: Components::One, ctype: ComponentType::U16 };
+    /// Heights in 32-bit floats, metres (docs/ELEVATION.md).
+    pub const L32F: TexelFormat = TexelFormat { components: Components::One, ctype: ComponentType::F32 };
+    /// Heights in signed 16-bit steps (docs/ELEVATION.md; `L16` holds unsigned ones).
+    pub const L16I: TexelFormat = TexelFormat { components: Components::One, ctype: ComponentType::I16 };
     /// 16-bit luminance and alpha.
     pub const LA16: TexelFormat = TexelFormat { components: Components::Two, ctype: ComponentType::U16 };
     /// 16-bit RGB.
@@ -355,6 +359,8 @@ mod tests {
             .map(|f| f.short_name())
             .collect();
         assert_eq!(names, ["l16", "la16", "rgb16", "rgba16"]);
+        assert_eq!((TexelFormat::L32F.short_name(), TexelFormat::L32F.bytes_per_texel()), ("l32f".to_string(), 4));
+        assert_eq!((TexelFormat::L16I.short_name(), TexelFormat::L16I.bytes_per_texel()), ("l16i".to_string(), 2));
         assert_eq!(TexelFormat::RGBA16.component_bits(), 16);
         assert_eq!(TexelFormat::L8.component_bits(), 8);
         assert_eq!(TexelFormat::RGB565.component_bits(), 8);

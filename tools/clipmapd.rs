@@ -127,6 +127,8 @@ const MAX_SOURCE_DELAY_MS: u64 = 10_000;
 enum SourceArg {
     Hash,
     Terrain,
+    /// The height verification texture: l32f metres, nodata -32768 (docs/ELEVATION.md).
+    Heights,
 }
 
 /// A failure and its exit status.
@@ -264,6 +266,7 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             let (kind, name) = match kind {
                 SourceArg::Hash => (Procedural::Hash, "hash"),
                 SourceArg::Terrain => (Procedural::Terrain, "terrain"),
+                SourceArg::Heights => (Procedural::Heights, "heights"),
             };
             let src = service::procedural_source(kind, cli.size, cli.clip, cli.tile)
                 .map_err(|e| Failure(e.exit_code(), e.into()))?;
@@ -271,7 +274,7 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
         }
         (None, None) => {
             return Err(bad(anyhow::anyhow!(
-                "give a configuration (CONFIG.ct), --source hash|terrain, --growing DIR, or --demo"
+                "give a configuration (CONFIG.ct), --source hash|terrain|heights, --growing DIR, or --demo"
             )))
         }
     };

@@ -99,7 +99,7 @@ REQUEST_TAKEOVER_MS, REQUEST_WAIT_MS = 100, 1000
 # 16-bit components are little-endian.
 FORMATS = {
     1: ("l8", 1), 3: ("rgb8", 3), 4: ("rgba8", 4), 5: ("rgb565", 2), 6: ("rgba5551", 2),
-    7: ("l16", 2), 8: ("la16", 4), 9: ("rgb16", 6), 10: ("rgba16", 8),
+    7: ("l16", 2), 8: ("la16", 4), 9: ("rgb16", 6), 10: ("rgba16", 8), 11: ("l32f", 4), 12: ("l16i", 2),
 }
 
 M64 = (1 << 64) - 1

@@ -50,6 +50,7 @@ pub fn build(
     let lookahead = values::non_negative(&mut r, &look_f, "lookahead", 1, &mut defaulted, "lookahead");
     let read_func = ic::read_func(&mut r);
     let paging = super::paging::read(&mut r);
+    let height = super::height::read(&mut r, formats.as_ref().map(|f| f.3));
     let tile_f = r.int3(TokenId::TileSize);
     let tile_size = match &tile_f {
         Field::Absent => None,
@@ -180,6 +181,7 @@ pub fn build(
         page_size,
         lookahead,
         paging,
+        height,
         read_func,
         tile_size,
         icache_mode,

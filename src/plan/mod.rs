@@ -10,6 +10,7 @@ mod ct;
 pub mod env;
 mod fields;
 pub mod formats;
+mod height;
 mod ic;
 mod naming;
 mod paging;
@@ -19,6 +20,7 @@ mod tile;
 mod values;
 
 pub use env::Env;
+pub use height::{texel_of as height_texel, HeightPlan};
 pub use naming::TileNaming;
 pub use tile::{TileError, TileLocation};
 
@@ -224,6 +226,9 @@ pub struct ClipTexturePlan {
     /// Paging policies, pool budget and centre clamp from the `#clipmap` extension lines
     /// (docs/CONFIG.md §16; the defaults without any).
     pub paging: crate::paging::PagingOptions,
+    /// The heights the `#clipmap height…` lines declare (docs/CONFIG.md §17), `None` for a
+    /// texture of colours.
+    pub height: Option<HeightPlan>,
     /// Custom read function, if named.
     pub read_func: Option<ReadFunc>,
     /// `tile_size` of the `.ct` (used in no-`.ic` mode).

@@ -77,6 +77,8 @@ pub fn read(r: &mut Reader<'_>) -> PagingOptions {
                 _ if value.value == "off" => out.max_centre_step = None,
                 _ => bad(r, value.span, "a whole number of level-0 texels above 0, or `off`".into()),
             },
+            // The height lines (docs/CONFIG.md §17), read by `super::height`.
+            other if super::height::SETTINGS.contains(&other) => {}
             other => {
                 let mut d = r
                     .diag(
@@ -86,8 +88,14 @@ pub fn read(r: &mut Reader<'_>) -> PagingOptions {
                         format!("`{other}` is not a `#clipmap` setting"),
                     )
                     .found(other.to_string())
-                    .expected(format!("one of {}", SETTINGS.join(", ")));
-                if let Some(s) = SETTINGS.iter().find(|s| strsim::jaro_winkler(other, s) > 0.85) {
+                    .expected(format!("one of {}, {}", SETTINGS.join(", "), super::height::SETTINGS.join(", ")));
+                let best = SETTINGS
+                    .iter()
+                    .chain(&super::height::SETTINGS)
+                    .map(|s| (strsim::jaro_winkler(other, s), s))
+                    .filter(|(score, _)| *score > 0.85)
+                    .max_by(|a, b| a.0.total_cmp(&b.0));
+                if let Some((_, s)) = best {
                     d = d.hint(format!("did you mean `{s}`?"));
                 }
                 r.push(d);

@@ -72,6 +72,10 @@ pub struct ClipTextureInfo<'a> {
     /// the defaults.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub paging: Option<crate::paging::PagingOptions>,
+    /// The heights the `#clipmap height…` lines declare (storage, scale, offset, nodata, level
+    /// rule; docs/ELEVATION.md), absent for a texture of colours.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub height: Option<crate::plan::HeightPlan>,
     /// Page size.
     pub page_size: i64,
     /// How the `.ic` files are named.
@@ -157,6 +161,7 @@ pub fn clip_texture<'a>(plan: &'a ClipTexturePlan, warnings: &'a [Diagnostic]) -
         header_offset: plan.header_offset,
         lookahead: plan.lookahead,
         paging: (plan.paging != crate::paging::PagingOptions::default()).then_some(plan.paging),
+        height: plan.height,
         page_size: plan.page_size,
         icache_mode: plan.icache_mode,
         tile_mode: plan.tile_mode,
@@ -236,6 +241,24 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
         o.push_str(&format!(
             "paging         prefetch {}, pool {} bytes ({} eviction), centre step {clamp}  (#clipmap)\n",
             p.prefetch, p.pool_bytes, p.eviction
+        ));
+    }
+    if let Some(h) = &plan.height {
+        let f = &h.format;
+        let nodata = f.nodata().map_or("none".to_string(), |v| v.to_string());
+        let (lo, hi) = f.metre_bounds();
+        o.push_str(&format!(
+            "heights        {}: metres = stored x {} + {}, nodata {nodata}, {lo} m to {hi} m; levels {} ({})  (#clipmap)\n",
+            f.storage(),
+            f.scale(),
+            f.offset(),
+            h.levels,
+            match h.levels {
+                crate::height::LevelRule::Mean => "mean of the finer texels with data",
+                crate::height::LevelRule::Point => "point-registered: the finer texel at the even position",
+                crate::height::LevelRule::Min => "least of the finer texels with data",
+                crate::height::LevelRule::Max => "greatest of the finer texels with data",
+            }
         ));
     }
     o.push_str(&format!("page_size      {}{}\n", plan.page_size, mark(d, "page_size")));

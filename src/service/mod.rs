@@ -25,7 +25,6 @@ pub use stats::ServiceStats;
 pub use ticker::{Started, Ticker};
 
 use crate::source::{TextureDesc, TileSource};
-use crate::texel::TexelFormat;
 use std::future::Future;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -107,7 +106,7 @@ pub fn procedural_source(
             return Err(ServiceError::BadOption(format!("{what} {v}: expected a power of two")));
         }
     }
-    let desc = TextureDesc::new([size, size], clip, TexelFormat::RGBA8, [tile, tile])?;
+    let desc = TextureDesc::new([size, size], clip, kind.texel_format(), [tile, tile])?;
     let border = (clip / 32).clamp(1, 16);
     let desc = desc.with_invalid_border(border.min((clip.saturating_sub(1)) / 2))?;
     Ok(kind.source(desc))

@@ -327,6 +327,8 @@ pub fn format_code(f: crate::texel::TexelFormat) -> u32 {
         x if x == F::LA16 => 8,
         x if x == F::RGB16 => 9,
         x if x == F::RGBA16 => 10,
+        x if x == F::L32F => 11,
+        x if x == F::L16I => 12,
         _ => 0,
     }
 }
@@ -334,7 +336,7 @@ pub fn format_code(f: crate::texel::TexelFormat) -> u32 {
 /// The texel format of a `TEXEL_FORMAT` code; `None` for 0 (other) or an unknown code.
 pub fn format_from_code(code: u32) -> Option<crate::texel::TexelFormat> {
     use crate::texel::TexelFormat as F;
-    [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16]
+    [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16, F::L32F, F::L16I]
         .into_iter()
         .find(|&f| format_code(f) == code)
 }

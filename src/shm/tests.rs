@@ -520,12 +520,13 @@ fn memory_of_another_shape_is_refused() {
 #[test]
 fn texel_format_codes_round_trip() {
     use crate::texel::TexelFormat as F;
-    let all = [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16];
+    let all =
+        [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16, F::L32F, F::L16I];
     for f in all {
         assert_eq!(layout::format_from_code(layout::format_code(f)), Some(f));
     }
     // The codes are part of the mapping's format (include/clipmap_shm.h, docs/SHM.md).
-    assert_eq!(all.map(layout::format_code), [1, 3, 4, 5, 6, 7, 8, 9, 10]);
+    assert_eq!(all.map(layout::format_code), [1, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]);
     assert_eq!(layout::format_from_code(0), None);
     assert_eq!(layout::format_from_code(99), None);
 }

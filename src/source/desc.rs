@@ -158,6 +158,16 @@ impl TextureDesc {
         Ok(self)
     }
 
+    /// The same texture in another texel format (tile sizes in texels unchanged).
+    pub fn with_format(mut self, format: TexelFormat) -> Result<Self, DescError> {
+        let bytes = format.bytes_per_texel();
+        if !(1..=16).contains(&bytes) {
+            return Err(DescError::Format { format, bytes });
+        }
+        self.format = format;
+        Ok(self)
+    }
+
     /// The same texture with the mem regions (tiles per axis, one entry per level, `None`: the
     /// engine's lookahead decides) its configuration gives: an `.ic`'s `mem_region_size`, or the
     /// region computed from its `lookahead`. The engine raises a grid too small to cover the

@@ -184,9 +184,90 @@ impl Terrain {
     }
 }
 
+/// The height verification texture (docs/ELEVATION.md, "The height verification texture"):
+/// the stored value at (level, s, t) in `format`, computable by any reader from
+/// `h = hash_value(level, s, t)` alone, each level on its own like [`hash`]:
+///
+/// - nodata when the format has a nodata value and the top four bits of `h` are 0 (one texel in
+///   sixteen);
+/// - `l32f`: `k = h mod 20377601`, metres `(k - 11264000) / 1024`: -11000 m to +8900 m in steps of
+///   2^-10 m, every one exactly an `f32`;
+/// - `l16`, `l16i`: the low 16 bits of `h` (unsigned or signed);
+/// - a data value equal to the nodata value moves one step (to `k - 1`, or `k + 1` at `k = 0`;
+///   the low bit flipped for the 16-bit storages), so data never reads as nodata.
+pub fn height_stored(format: &crate::height::HeightFormat, level: u32, s: u64, t: u64) -> f64 {
+    use crate::height::HeightStorage;
+    const STEPS: u64 = 19_900 * 1024 + 1;
+    const BELOW: i64 = 11_000 * 1024;
+    let h = hash_value(level, s, t);
+    if let Some(nd) = format.nodata() {
+        if h >> 60 == 0 {
+            return nd;
+        }
+    }
+    match format.storage() {
+        HeightStorage::F32 => {
+            let k = (h % STEPS) as i64;
+            let v = (k - BELOW) as f64 / 1024.0;
+            if format.is_nodata(v) {
+                (if k > 0 { k - 1 - BELOW } else { k + 1 - BELOW }) as f64 / 1024.0
+            } else {
+                v
+            }
+        }
+        storage => {
+            let low = h as u16;
+            let v = |b: u16| if storage == HeightStorage::U16 { b as f64 } else { b as i16 as f64 };
+            if format.is_nodata(v(low)) {
+                v(low ^ 1)
+            } else {
+                v(low)
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn height_texels_are_in_range_exact_and_never_data_equal_to_nodata() {
+        use crate::height::{HeightFormat, HeightStorage};
+        let f = HeightFormat::float(Some(-32768.0)).unwrap();
+        let (mut nodata, mut lo, mut hi) = (0, f64::INFINITY, f64::NEG_INFINITY);
+        for i in 0..20_000u64 {
+            let v = height_stored(&f, (i % 5) as u32, i * 7919 % 100_003, i);
+            if f.is_nodata(v) {
+                nodata += 1;
+                continue;
+            }
+            assert_eq!(v as f32 as f64, v, "an f32");
+            assert_eq!((v * 1024.0).fract(), 0.0, "a 2^-10 step");
+            (lo, hi) = (lo.min(v), hi.max(v));
+        }
+        assert!((-11000.0..-10900.0).contains(&lo) && (8800.0..=8900.0).contains(&hi), "{lo} {hi}");
+        assert!((1000..1500).contains(&nodata), "about one in sixteen: {nodata}");
+        // The definition, by hand, for one texel.
+        let h = hash_value(3, 17, 5);
+        let want = if h >> 60 == 0 { -32768.0 } else { ((h % 20_377_601) as i64 - 11_264_000) as f64 / 1024.0 };
+        assert_eq!(height_stored(&f, 3, 17, 5), want);
+        // A nodata value among the data: every texel with data avoids it.
+        for storage in [HeightStorage::U16, HeightStorage::I16] {
+            let nd = (hash_value(0, 1, 1) as u16) as f64;
+            let nd = if storage == HeightStorage::I16 { (nd as u16 as i16) as f64 } else { nd };
+            let g = HeightFormat::new(storage, 0.01, 0.0, Some(nd)).unwrap();
+            let v = height_stored(&g, 0, 1, 1);
+            if hash_value(0, 1, 1) >> 60 != 0 {
+                assert_ne!(v, nd);
+                assert_eq!((v as i64 ^ nd as i64).abs(), 1, "the low bit flipped");
+            }
+        }
+        let f = HeightFormat::float(Some(height_stored(&HeightFormat::float(None).unwrap(), 0, 2, 2))).unwrap();
+        if hash_value(0, 2, 2) >> 60 != 0 {
+            assert!(!f.is_nodata(height_stored(&f, 0, 2, 2)));
+        }
+    }
 
     #[test]
     fn hash_texel_is_the_low_bytes_of_the_key() {

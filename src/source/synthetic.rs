@@ -4,8 +4,10 @@
 //! Owns cutting the per-texel functions of [`super::procedural`] into tiles; the texel values
 //! themselves are defined there.
 
-use super::procedural::{hash_region, Terrain};
+use super::procedural::{hash_region, height_stored, Terrain};
 use super::{check_request, SourceError, TextureDesc, TileId, TileSource};
+use crate::height::HeightFormat;
+use crate::texel::TexelFormat;
 use serde::Serialize;
 use std::sync::Arc;
 
@@ -22,6 +24,9 @@ pub enum Procedural {
     Hash,
     /// Smooth fractal terrain ([`TERRAIN_SEED`]), for pictures and accuracy studies.
     Terrain,
+    /// The height verification texture in `l32f` with nodata -32768 ([`HeightSource`],
+    /// docs/ELEVATION.md): every height checkable by any reader.
+    Heights,
 }
 
 impl Procedural {
@@ -30,7 +35,58 @@ impl Procedural {
         match self {
             Procedural::Hash => Arc::new(HashSource::new(desc)),
             Procedural::Terrain => Arc::new(TerrainSource::new(desc, TERRAIN_SEED)),
+            Procedural::Heights => Arc::new(HeightSource::new(desc, HeightFormat::VERIFICATION)),
         }
+    }
+
+    /// The texel format the kind is served in.
+    pub fn texel_format(self) -> TexelFormat {
+        match self {
+            Procedural::Hash | Procedural::Terrain => TexelFormat::RGBA8,
+            Procedural::Heights => TexelFormat::L32F,
+        }
+    }
+}
+
+/// The height verification texture ([`super::procedural::height_stored`]) in a height format:
+/// a tile is the stored values of its texels, the texels outside the level zero.
+#[derive(Clone, Debug)]
+pub struct HeightSource {
+    desc: TextureDesc,
+    format: HeightFormat,
+}
+
+impl HeightSource {
+    /// Heights of `format` in the shape of `desc` (served in the storage's texel format, `l32f`,
+    /// `l16` or `l16i`, whatever `desc` says).
+    pub fn new(desc: TextureDesc, format: HeightFormat) -> Self {
+        let texel = crate::plan::height_texel(format.storage());
+        // A one-component format of 2 or 4 bytes: always within a desc's 1..=16.
+        let desc = desc.clone().with_format(texel).unwrap_or(desc);
+        HeightSource { desc, format }
+    }
+
+    /// The height format.
+    pub fn format(&self) -> &HeightFormat {
+        &self.format
+    }
+}
+
+impl TileSource for HeightSource {
+    fn desc(&self) -> &TextureDesc {
+        &self.desc
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        check_request(&self.desc, tile, out)?;
+        let bpt = self.desc.bytes_per_texel();
+        for_each_row(&self.desc, tile, out, |t, s0, _w, bytes| {
+            for (i, texel) in bytes.chunks_exact_mut(bpt).enumerate() {
+                let v = height_stored(&self.format, tile.level, s0 + i as u64, t);
+                self.format.write(v, texel);
+            }
+        });
+        Ok(())
     }
 }
 
@@ -137,6 +193,29 @@ mod tests {
         assert!(e.to_string().contains("level 0 tile (4, 0)"), "{e}");
         let e = src.read_tile(TileId::new(0, 0, 0), &mut buf[1..]).unwrap_err();
         assert!(matches!(e, SourceError::BufferSize { expected: 1536, found: 1535, .. }));
+    }
+
+    #[test]
+    fn height_tiles_hold_the_verification_heights_to_the_far_corner_of_a_2_26_texture() {
+        use crate::height::{HeightFormat, HeightStorage};
+        // Made with a colour format of the same shape: served as l16i all the same.
+        let desc = TextureDesc::new([1 << 26, 1 << 26], 1024, TexelFormat::RGBA8, [64, 64]).unwrap();
+        let f = HeightFormat::new(HeightStorage::I16, 0.5, 100.0, Some(-32768.0)).unwrap();
+        let src = HeightSource::new(desc, f);
+        assert_eq!(src.desc().format(), TexelFormat::L16I);
+        assert_eq!(src.format(), &f);
+        let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+        let last = (1 << 26) / 64 - 1;
+        src.read_tile(TileId::new(0, last, last), &mut buf).unwrap();
+        let far = (1u64 << 26) - 1;
+        let at = (63 * 64 + 63) * 2;
+        let got = i16::from_le_bytes([buf[at], buf[at + 1]]) as f64;
+        assert_eq!(got, height_stored(&f, 0, far, far), "texel ({far}, {far})");
+        // And every texel of the tile, against the definition.
+        for (i, texel) in buf.chunks_exact(2).enumerate() {
+            let (s, t) = (last * 64 + i as u64 % 64, last * 64 + i as u64 / 64);
+            assert_eq!(f.read(texel), height_stored(&f, 0, s, t), "({s}, {t})");
+        }
     }
 
     #[test]

@@ -17,6 +17,7 @@ const FLOORS: &[(&str, u32)] = &[
     ("sizing", 1),
     ("place", 1),
     ("runtime", 1),
+    ("height", 1),
     ("config", 2),
     ("paging", 2),
     ("plan", 3),

@@ -29,6 +29,7 @@ mod config_lexical;
 mod config_paths;
 mod config_plan;
 mod config_tokens;
+mod elevation;
 mod examples;
 mod fuzz_regressions;
 mod growing;

@@ -389,7 +389,8 @@ fn the_mapping_format_codes_are_mirrored_by_the_c_header_and_the_python_reader()
     let header = std::fs::read_to_string(Path::new(ROOT).join("include/clipmap_shm.h")).unwrap();
     let python = std::fs::read_to_string(Path::new(ROOT).join("clients/python/clipmap_shm.py")).unwrap();
     let docs = std::fs::read_to_string(Path::new(ROOT).join("docs/SHM.md")).unwrap();
-    for f in [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16] {
+    for f in [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16, F::L32F, F::L16I]
+    {
         let code = format_code(f);
         assert_ne!(code, 0, "{f} has a code");
         assert_eq!(format_from_code(code), Some(f));

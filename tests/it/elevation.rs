@@ -1,0 +1,241 @@
+//! Elevation textures (docs/ELEVATION.md): the `#clipmap height…` lines of a `.ct` (docs/CONFIG.md
+//! §17) read into the plan, each refusal saying where and what was expected, `cliptex validate
+//! --strict` flagging them as not Performer's, and `cliptex info` stating the level rule; the
+//! height verification texture served by the real `clipmapd`, every texel read through the Rust
+//! client equal to its definition.
+
+use crate::common;
+
+use clipmap::config::Severity;
+use clipmap::height::{HeightStorage, LevelRule};
+use common::*;
+use serde_json::Value;
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
+const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
+
+/// `NO_IC_CT` with heights of `ext` (a GL type name) as one luminance component.
+fn height_ct(ext: &str, lines: &str) -> String {
+    NO_IC_CT
+        .replace("ext_format PFTEX_PACK_8", &format!("ext_format {ext}"))
+        .replace("int_format PFTEX_RGB_8", "int_format PFTEX_I_16")
+        .replace("img_format PFTEX_RGB", "img_format PFTEX_LUMINANCE")
+        + lines
+}
+
+#[test]
+fn height_lines_are_read_into_the_plan() {
+    let (p, _) = ct_ok(&height_ct(
+        "GL_UNSIGNED_SHORT",
+        "#clipmap height l16\n#clipmap height_scale 0.01\n#clipmap height_offset -11000\n#clipmap height_nodata 0\n#clipmap height_levels point\n",
+    ));
+    let h = p.height.expect("a height texture");
+    assert_eq!(h.format.storage(), HeightStorage::U16);
+    assert_eq!((h.format.scale(), h.format.offset(), h.format.nodata()), (0.01, -11000.0, Some(0.0)));
+    assert_eq!(h.levels, LevelRule::Point);
+    assert_eq!(p.texel.short_name(), "l16");
+
+    let (p, _) = ct_ok(&height_ct("GL_FLOAT", "#clipmap height l32f\n#clipmap height_nodata -32768\n"));
+    let h = p.height.unwrap();
+    assert_eq!(
+        (h.format.storage(), h.format.nodata(), h.levels),
+        (HeightStorage::F32, Some(-32768.0), LevelRule::Mean)
+    );
+    assert_eq!(p.texel.short_name(), "l32f");
+
+    let (p, _) = ct_ok(&height_ct("GL_SHORT", "#clipmap height l16i\n#clipmap height_levels max\n"));
+    assert_eq!(p.height.unwrap().format.storage(), HeightStorage::I16);
+    assert_eq!(p.texel.short_name(), "l16i");
+    // A colour texture has none.
+    assert!(ct_ok(NO_IC_CT).0.height.is_none());
+}
+
+#[test]
+fn height_lines_are_portability_findings() {
+    let (_, d) = ct_ok(&height_ct("GL_FLOAT", "#clipmap height l32f\n"));
+    let x = expect(&d, "height-extension", Severity::Warning, Some((10, 10)), &["Performer", "height"]);
+    assert!(x.portability);
+}
+
+#[test]
+fn height_errors_say_where_and_what_was_expected() {
+    // Line 10 is the first line after NO_IC_CT.
+    let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", "#clipmap height l24\n"));
+    expect(&d, "bad-extension-value", Severity::Error, Some((10, 17)), &["l24", "`l32f`", "`l16i`"]);
+    let d = ct_err(&NO_IC_CT.replace("tile_size 256 256 1\n", "tile_size 256 256 1\n#clipmap height l16\n"));
+    expect(
+        &d,
+        "height-format-mismatch",
+        Severity::Error,
+        Some((10, 10)),
+        &["rgb8", "GL_UNSIGNED_SHORT", "PFTEX_LUMINANCE"],
+    );
+    let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", "#clipmap height l32f\n"));
+    expect(&d, "height-format-mismatch", Severity::Error, Some((10, 10)), &["l16 texels", "GL_FLOAT"]);
+    let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", "#clipmap height_scale 0.01\n"));
+    expect(
+        &d,
+        "height-setting-without-height",
+        Severity::Error,
+        Some((10, 10)),
+        &["height_scale", "#clipmap height l16"],
+    );
+    for bad in ["nan", "inf", "-infinity", "NaN", "1e999", "ten"] {
+        let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", &format!("#clipmap height l16\n#clipmap height_scale {bad}\n")));
+        expect(&d, "bad-extension-value", Severity::Error, Some((11, 23)), &[bad, "finite decimal number above zero"]);
+    }
+    let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", "#clipmap height l16\n#clipmap height_scale 0\n"));
+    expect(&d, "bad-height-format", Severity::Error, Some((11, 10)), &["height scale 0", "above zero"]);
+    let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", "#clipmap height l16\n#clipmap height_scale -0.5\n"));
+    expect(&d, "bad-height-format", Severity::Error, Some((11, 10)), &["-0.5", "above zero"]);
+    let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", "#clipmap height l16\n#clipmap height_scale 1000\n"));
+    expect(&d, "bad-height-format", Severity::Error, Some((11, 10)), &["65535000 m", "past the"]);
+    let d = ct_err(&height_ct("GL_UNSIGNED_SHORT", "#clipmap height l16\n#clipmap height_nodata 70000\n"));
+    expect(&d, "bad-height-format", Severity::Error, Some((11, 10)), &["70000", "0..=65535", "stored value"]);
+    let d = ct_err(&height_ct("GL_FLOAT", "#clipmap height l32f\n#clipmap height_scale 0.01\n"));
+    expect(&d, "bad-height-format", Severity::Error, Some((11, 10)), &["l32f stores metres"]);
+    let d = ct_err(&height_ct("GL_SHORT", "#clipmap height l16i\n#clipmap height_levels median\n"));
+    expect(&d, "bad-extension-value", Severity::Error, Some((11, 24)), &["median", "`point`"]);
+    let d = ct_err(&height_ct("GL_SHORT", "#clipmap height_levls point\n"));
+    expect(&d, "unknown-extension", Severity::Error, Some((10, 10)), &["did you mean `height_levels`?"]);
+}
+
+#[test]
+fn validate_strict_flags_height_lines_and_info_states_the_level_rule() {
+    let fx = Fixture::new();
+    let ct = fx.write(
+        "h.ct",
+        height_ct(
+            "GL_UNSIGNED_SHORT",
+            "#clipmap height l16\n#clipmap height_scale 0.01\n#clipmap height_offset -11000\n#clipmap height_nodata 0\n#clipmap height_levels point\n",
+        ),
+    );
+    let ct = ct.to_str().unwrap();
+    let (out, d) = exec(fx.dir.path(), CLIPTEX, &["validate", ct]);
+    assert!(out.status.success(), "without --strict the lines are notes\n{d}");
+    let (out, d) = exec(fx.dir.path(), CLIPTEX, &["validate", ct, "--strict"]);
+    assert!(!out.status.success(), "--strict refuses what Performer does not know\n{d}");
+    assert!(d.contains("declares heights, which Performer 3.0 does not know"), "{d}");
+    assert!(d.contains("(1 error, 0 warnings)"), "one finding a file, at its first height line\n{d}");
+    let (out, d) = exec(fx.dir.path(), CLIPTEX, &["info", ct]);
+    assert!(out.status.success(), "{d}");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("levels point (point-registered"), "{text}");
+    assert!(text.contains("nodata 0"), "{text}");
+    let (out, d) = exec(fx.dir.path(), CLIPTEX, &["info", ct, "--json"]);
+    assert!(out.status.success(), "{d}");
+    let info: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(info["texel_format"], "l16");
+    assert_eq!(info["height"]["levels"], "point", "{info}");
+    assert_eq!(info["height"]["format"]["storage"], "u16", "{info}");
+    assert_eq!(info["height"]["format"]["scale"], 0.01, "{info}");
+    assert_eq!(info["height"]["format"]["offset"], -11000.0, "{info}");
+    assert_eq!(info["height"]["format"]["nodata"], 0.0, "{info}");
+}
+
+/// A running `clipmapd`, killed on drop.
+struct Service {
+    child: Child,
+    err: PathBuf,
+}
+
+impl Service {
+    fn start(dir: &Path, name: &str, args: &[&str]) -> Service {
+        let socket = dir.join(format!("{name}.sock"));
+        let err = dir.join(format!("{name}.err"));
+        let child = Command::new(CLIPMAPD)
+            .args(args)
+            .args(["--tick-hz", "120", "--name", name, "--shm-dir", dir.to_str().unwrap(), "--socket"])
+            .arg(&socket)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&err).unwrap())
+            .spawn()
+            .unwrap();
+        let s = Service { child, err };
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(30) {
+            if let Ok(mut c) = UnixStream::connect(&socket) {
+                let mut line = String::new();
+                if writeln!(c, "PING").is_ok()
+                    && BufReader::new(c).read_line(&mut line).is_ok()
+                    && line.starts_with("OK")
+                {
+                    return s;
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        panic!("the service did not come up: {}", s.log());
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.err).unwrap_or_default()
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+#[test]
+fn every_height_served_by_clipmapd_equals_the_verification_texture() {
+    use clipmap::height::{HeightFormat, TileRange};
+    use clipmap::source::procedural::height_stored;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "heights", &["--source", "heights", "--size", "1024", "--clip", "128", "--tile", "64"]);
+    let c = clipmap::shm::Client::attach(d, "heights").expect("the mapping is there");
+    assert_eq!((c.format_code, c.bytes_per_texel), (11, 4), "L32F in the mapping's header");
+    let f = HeightFormat::VERIFICATION;
+    let (mut checked, mut nodata) = (0usize, 0usize);
+    for k in 0..c.levels.len() {
+        // Wait for the level's valid region, then read it whole.
+        let t = Instant::now();
+        let v = loop {
+            if let Some(st) = c.level_state(k) {
+                let [s0, t0, s1, t1] = st.valid;
+                if st.enabled && s1 > s0 && t1 > t0 {
+                    break st.valid;
+                }
+            }
+            assert!(t.elapsed() < Duration::from_secs(30), "level {k} never became valid\n{}", svc.log());
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        let [s0, t0, s1, t1] = v;
+        let (w, h) = ((s1 - s0) as u64, (t1 - t0) as u64);
+        let mut buf = vec![0u8; (w * h * 4) as usize];
+        c.read_region(k, s0, t0, w, h, &mut buf).expect("the valid region reads");
+        for (i, texel) in buf.chunks_exact(4).enumerate() {
+            let (s, t) = (s0 as u64 + i as u64 % w, t0 as u64 + i as u64 / w);
+            let want = height_stored(&f, k as u32, s, t) as f32;
+            let got = f32::from_le_bytes([texel[0], texel[1], texel[2], texel[3]]);
+            assert_eq!(got.to_bits(), want.to_bits(), "level {k} texel ({s}, {t}): {got} served, {want} defined");
+            nodata += f.is_nodata(got as f64) as usize;
+        }
+        checked += buf.len() / 4;
+        // The region's range as the height module reads it equals brute force over the definition.
+        let metres: Vec<f64> = (0..w * h)
+            .filter_map(|i| f.decode(height_stored(&f, k as u32, s0 as u64 + i % w, t0 as u64 + i / w)))
+            .collect();
+        let want = if metres.is_empty() {
+            TileRange::Empty
+        } else {
+            TileRange::Heights {
+                min: metres.iter().copied().fold(f64::INFINITY, f64::min),
+                max: metres.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            }
+        };
+        assert_eq!(f.tile_range(&buf).unwrap(), want, "level {k}");
+    }
+    assert!(checked > 128 * 128 * 3, "every level read: {checked} texels");
+    // One texel in sixteen is nodata.
+    assert!(nodata * 32 > checked && nodata * 8 < checked, "{nodata} of {checked}");
+}
