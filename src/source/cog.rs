@@ -44,13 +44,16 @@
 use super::{
     check_request, level_count, level_size, DescError, LevelDesc, SourceError, TextureDesc, TileId, TileSource,
 };
+use crate::place::Place;
 use crate::texel::TexelFormat;
 use serde::Serialize;
 use std::cell::RefCell;
+use std::collections::HashMap;
 use std::fs::File;
 use std::io;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 use thiserror::Error;
 
 /// The most texels of the image the levels coarser than the smallest usable overview are built
@@ -65,6 +68,18 @@ const MAX_ENTRIES: u64 = 4096;
 
 /// What open reads of a TIFF's structure at most, all IFDs together.
 const MAX_STRUCTURE_BYTES: u64 = 1 << 20;
+
+/// The first bytes of a TIFF read at open, in one read (one ranged GET of a remote object): a
+/// COG written by GDAL has its header, ghost area and every IFD in them, and a small one its tile
+/// index too. Structure past them is read where it lies.
+pub const PREFIX_BYTES: u64 = 64 << 10;
+
+/// The bytes of a tile index read at once from a remote object, when its entries are first
+/// needed (the entries of about a tile row or more).
+pub const INDEX_CHUNK_BYTES: u64 = 4096;
+
+/// The most bytes one ranged read of adjacent tiles of a row takes (a remote object).
+const MAX_SPAN_BYTES: u64 = 8 << 20;
 
 /// Why a file cannot be served as a COG.
 #[derive(Debug, Error)]
@@ -138,6 +153,14 @@ pub enum CogError {
         #[source]
         source: SourceError,
     },
+    /// A remote object cannot be read, or this build cannot read remote objects.
+    #[error("{problem}")]
+    Remote {
+        /// The object.
+        path: PathBuf,
+        /// What happened, naming the object.
+        problem: String,
+    },
     /// The levels do not form a texture the engine serves.
     #[error("{path}: the levels cannot be served: {source}", path = path.display())]
     Desc {
@@ -200,6 +223,9 @@ pub struct CogInfo {
     pub levels: Vec<CogLevelInfo>,
     /// Why the overviews stop being used before the coarsest level, when levels are built.
     pub built_because: Option<String>,
+    /// The levels past the overviews are built when one is first read (a remote object, whose
+    /// open reads its structure only), not at open.
+    pub built_on_first_read: bool,
 }
 
 /// One level of a [`CogInfo`].
@@ -238,6 +264,9 @@ impl CogInfo {
                     tile[1],
                     if predictor { ", predictor 2" } else { "" }
                 ),
+                LevelOrigin::Built { from } if self.built_on_first_read => {
+                    format!("built when first read from level {from} (2 x 2 box)")
+                }
                 LevelOrigin::Built { from } => format!("built at open from level {from} (2 x 2 box)"),
             };
             let _ = writeln!(
@@ -372,11 +401,12 @@ impl IfdLevel {
     }
 }
 
-/// A level: tiles of the file, or texels built at open (rows in increasing t, whole level).
+/// A level: tiles of the file, or texels built from the last usable image (at open for a local
+/// file, when first read for a remote object).
 #[derive(Clone, Debug)]
 enum Level {
     Ifd(IfdLevel),
-    Built(Vec<u8>),
+    Built,
 }
 
 /// What an IFD says about its image (the tags this source reads).
@@ -384,6 +414,37 @@ struct Image {
     ifd: usize,
     subfile: u64,
     entries: Vec<Entry>,
+}
+
+/// What GDAL's ghost area (structural metadata right after the header) says about the tiles'
+/// framing: each tile preceded by its byte count (`BLOCK_LEADER=SIZE_AS_UINT4`, 4 bytes,
+/// little-endian) and followed by its last 4 bytes again (`BLOCK_TRAILER=LAST_4_BYTES_REPEATED`),
+/// unless the file was changed since (`KNOWN_INCOMPATIBLE_EDITION=YES`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Ghost {
+    leader: bool,
+    trailer: bool,
+}
+
+impl Ghost {
+    /// The ghost area at `at` of the file's first bytes `prefix`, if there is one.
+    fn parse(prefix: &[u8], at: usize) -> Ghost {
+        const KEY: &[u8] = b"GDAL_STRUCTURAL_METADATA_SIZE=";
+        let Some(rest) = prefix.get(at..).filter(|r| r.starts_with(KEY)) else { return Ghost::default() };
+        let digits = &rest[KEY.len()..];
+        let n = digits.iter().take_while(|b| b.is_ascii_digit()).count();
+        let Some(size) = std::str::from_utf8(&digits[..n]).ok().and_then(|d| d.parse::<usize>().ok()) else {
+            return Ghost::default();
+        };
+        // The size counts the bytes after the first line.
+        let Some(line) = rest.iter().position(|&b| b == b'\n') else { return Ghost::default() };
+        let text = &rest[(line + 1).min(rest.len())..(line + 1 + size).min(rest.len())];
+        let has = |s: &[u8]| text.windows(s.len()).any(|w| w == s);
+        if has(b"KNOWN_INCOMPATIBLE_EDITION=YES") {
+            return Ghost::default();
+        }
+        Ghost { leader: has(b"BLOCK_LEADER=SIZE_AS_UINT4"), trailer: has(b"BLOCK_TRAILER=LAST_4_BYTES_REPEATED") }
+    }
 }
 
 thread_local! {
@@ -394,15 +455,163 @@ thread_local! {
     static CHUNK: RefCell<Vec<u8>> = const { RefCell::new(Vec::new()) };
 }
 
-/// A local tiled GeoTIFF or COG served as a clip texture.
+/// Where a TIFF's bytes are read from: a local file (positioned reads, straight into the
+/// caller's buffer) or a remote object (ranged reads of the version seen at open).
+enum Store {
+    Local(File),
+    #[cfg(feature = "remote")]
+    Remote(super::remote::object::Object),
+}
+
+/// Why bytes of a [`Store`] cannot be read.
+enum StoreError {
+    /// The range runs past the end (of `size` bytes).
+    Eof { size: u64 },
+    /// A local read failed.
+    Io(io::Error),
+    /// A remote read failed, or the object changed.
+    #[cfg(feature = "remote")]
+    Remote(super::remote::object::ObjectError),
+}
+
+impl StoreError {
+    /// The problem in words, for a read of `len` bytes at `offset`.
+    fn problem(&self, offset: u64, len: u64) -> String {
+        match self {
+            StoreError::Eof { size } => {
+                format!("{len} bytes at byte {offset} run past the end of the file ({size} bytes)")
+            }
+            StoreError::Io(e) => e.to_string(),
+            #[cfg(feature = "remote")]
+            StoreError::Remote(e) => e.to_string(),
+        }
+    }
+
+    /// The failure of a read of `len` bytes at `offset` for `tile`.
+    #[cfg_attr(not(feature = "remote"), allow(unused_variables))]
+    fn for_tile(self, tile: TileId, path: &Path, offset: u64, len: u64) -> SourceError {
+        match self {
+            StoreError::Eof { size } => SourceError::Short { tile, expected: len, got: size.saturating_sub(offset).min(len) },
+            StoreError::Io(e) => super::file::io_error(tile, e),
+            #[cfg(feature = "remote")]
+            StoreError::Remote(super::remote::object::ObjectError::Read(e)) => super::remote::source_error(tile, e),
+            #[cfg(feature = "remote")]
+            StoreError::Remote(e) => SourceError::Chunk { tile, path: path.to_path_buf(), problem: e.to_string() },
+        }
+    }
+}
+
+impl Store {
+    /// The size of the file now (a remote object's at open).
+    fn size(&self) -> u64 {
+        match self {
+            Store::Local(f) => f.metadata().map(|m| m.len()).unwrap_or(0),
+            #[cfg(feature = "remote")]
+            Store::Remote(o) => o.size(),
+        }
+    }
+
+    fn is_remote(&self) -> bool {
+        !matches!(self, Store::Local(_))
+    }
+
+    /// Fills `buf` from byte `offset`.
+    fn read_exact_at(&self, buf: &mut [u8], offset: u64) -> Result<(), StoreError> {
+        match self {
+            Store::Local(f) => f.read_exact_at(buf, offset).map_err(|e| {
+                if e.kind() == io::ErrorKind::UnexpectedEof {
+                    StoreError::Eof { size: self.size() }
+                } else {
+                    StoreError::Io(e)
+                }
+            }),
+            #[cfg(feature = "remote")]
+            Store::Remote(o) => {
+                let end = offset.checked_add(buf.len() as u64);
+                if end.is_none_or(|e| e > o.size()) {
+                    return Err(StoreError::Eof { size: o.size() });
+                }
+                o.read(offset, buf.len() as u64).map_err(StoreError::Remote)?.copy_to(buf);
+                Ok(())
+            }
+        }
+    }
+
+    /// Bytes `[offset, offset + len)` in one piece (one ranged read of a remote object).
+    fn read_bytes(&self, offset: u64, len: u64) -> Result<Shared, StoreError> {
+        match self {
+            #[cfg(feature = "remote")]
+            Store::Remote(o) => {
+                if offset.checked_add(len).is_none_or(|e| e > o.size()) {
+                    return Err(StoreError::Eof { size: o.size() });
+                }
+                Ok(o.read(offset, len).map_err(StoreError::Remote)?.to_bytes().to_vec().into())
+            }
+            _ => {
+                let mut v = vec![0u8; len as usize];
+                self.read_exact_at(&mut v, offset)?;
+                Ok(v.into())
+            }
+        }
+    }
+}
+
+/// Bytes shared between readers (without the `bytes` crate, which only the `remote` feature
+/// brings).
+type Shared = Arc<[u8]>;
+
+/// A run of a file's bytes read at once: `bytes` from byte `start`.
+struct Span<'a> {
+    start: u64,
+    bytes: &'a [u8],
+}
+
+impl Span<'_> {
+    /// Bytes `[offset, offset + len)` when the span holds them all.
+    fn get(&self, offset: u64, len: u64) -> Option<&[u8]> {
+        let from = offset.checked_sub(self.start)?;
+        let to = from.checked_add(len)?;
+        self.bytes.get(from as usize..usize::try_from(to).ok()?)
+    }
+}
+
+/// The structure reader at open: the first bytes, then the store.
+struct Head<'a> {
+    store: &'a Store,
+    prefix: &'a [u8],
+}
+
+impl Head<'_> {
+    /// `len` bytes at `offset`, or what is wrong (where, what).
+    fn read_at(&self, offset: u64, len: usize, what: &str) -> Result<Vec<u8>, (String, String)> {
+        if let Some(b) = (Span { start: 0, bytes: self.prefix }).get(offset, len as u64) {
+            return Ok(b.to_vec());
+        }
+        let mut buf = vec![0u8; len];
+        self.store.read_exact_at(&mut buf, offset).map_err(|e| (what.to_string(), e.problem(offset, len as u64)))?;
+        Ok(buf)
+    }
+}
+
+/// A local tiled GeoTIFF or COG, or a remote one, served as a clip texture.
 pub struct CogSource {
     path: PathBuf,
-    file: File,
+    store: Store,
+    /// The file's first bytes ([`PREFIX_BYTES`] at most), kept: index entries and tiles in them
+    /// are read from here.
+    prefix: Vec<u8>,
     layout: Layout,
+    ghost: Ghost,
     desc: TextureDesc,
     levels: Vec<Level>,
     origins: Vec<LevelOrigin>,
     built_because: Option<String>,
+    /// Tile index chunks read so far (remote objects), by array offset and chunk number.
+    index: Mutex<HashMap<(u64, u64), Shared>>,
+    /// Read index entries in chunks (set for remote objects; tests set it for a local file).
+    chunked: bool,
+    /// The levels built from the last usable image, once built.
+    built: Mutex<Option<Arc<Vec<Vec<u8>>>>>,
 }
 
 impl std::fmt::Debug for CogSource {
@@ -418,19 +627,13 @@ pub fn is_tiff(path: &Path) -> bool {
         && matches!(&magic, b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+")
 }
 
-/// Reads `len` bytes at `offset`, or says what is missing.
-fn read_at(file: &File, offset: u64, len: usize, what: &str) -> Result<Vec<u8>, (String, String)> {
-    let mut buf = vec![0u8; len];
-    file.read_exact_at(&mut buf, offset).map_err(|e| {
-        let problem = if e.kind() == io::ErrorKind::UnexpectedEof {
-            let size = file.metadata().map(|m| m.len()).unwrap_or(0);
-            format!("{len} bytes at byte {offset} run past the end of the file ({size} bytes)")
-        } else {
-            e.to_string()
-        };
-        (what.to_string(), problem)
-    })?;
-    Ok(buf)
+/// Whether `place` is served as a TIFF: a local file that starts like one ([`is_tiff`]), or a
+/// remote name ending in `.tif` or `.tiff` (any case; nothing is read to tell).
+pub fn is_tiff_place(place: &Place) -> bool {
+    match place {
+        Place::Local(p) => is_tiff(p),
+        Place::Remote(r) => r.extension().is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff")),
+    }
 }
 
 impl CogSource {
@@ -440,15 +643,71 @@ impl CogSource {
     pub fn open(path: &Path, clip_size: u64) -> Result<Self, CogError> {
         let io_err = |source| CogError::Io { path: path.to_path_buf(), source };
         let (file, _) = crate::open::regular(path).map_err(io_err)?;
-        let malformed = |(at, problem): (String, String)| CogError::Malformed { path: path.to_path_buf(), at, problem };
-        let mut head = [0u8; 16];
-        let got = read_prefix(&file, &mut head).map_err(io_err)?;
+        let mut prefix = vec![0u8; PREFIX_BYTES as usize];
+        let got = read_prefix(&file, &mut prefix).map_err(io_err)?;
+        prefix.truncate(got);
+        let src = CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, clip_size)?;
+        src.built_levels(None).map_err(|source| CogError::Build {
+            path: path.to_path_buf(),
+            from: src.levels.iter().filter(|l| matches!(l, Level::Ifd(_))).count() as u32,
+            source,
+        })?;
+        Ok(src)
+    }
+
+    /// Opens `place`: a local file ([`CogSource::open`]) or a remote object read with the
+    /// remote options of the environment (`CLIPMAP_REMOTE_*`, docs/CONFIG.md §15).
+    pub fn open_place(place: &Place, clip_size: u64) -> Result<Self, CogError> {
+        match place {
+            Place::Local(p) => CogSource::open(p, clip_size),
+            #[cfg(feature = "remote")]
+            Place::Remote(name) => {
+                use super::remote::{Remote, RemoteOptions};
+                let path = PathBuf::from(name.as_str());
+                let remote_err = |problem: String| CogError::Remote { path: path.clone(), problem };
+                let opts = RemoteOptions::from_env().map_err(|e| remote_err(e.to_string()))?;
+                let remote = Remote::new(opts).map_err(|e| remote_err(format!("the remote disk cache: {e}")))?;
+                CogSource::open_remote(name, Arc::new(remote), clip_size)
+            }
+            #[cfg(not(feature = "remote"))]
+            Place::Remote(name) => Err(CogError::Remote {
+                path: PathBuf::from(name.as_str()),
+                problem: format!(
+                    "{name}: this build reads no remote objects: build it with the `remote` feature, or copy the file here"
+                ),
+            }),
+        }
+    }
+
+    /// Opens the remote object `name` through `remote` with one ranged read of its first
+    /// [`PREFIX_BYTES`] (more only for structure that lies past them); the tile index is read
+    /// in chunks as tiles are first read, and the levels past the overviews are built when one
+    /// is first read.
+    #[cfg(feature = "remote")]
+    pub fn open_remote(
+        name: &crate::place::RemoteName,
+        remote: Arc<super::remote::Remote>,
+        clip_size: u64,
+    ) -> Result<Self, CogError> {
+        use super::remote::object::Object;
+        let path = PathBuf::from(name.as_str());
+        let (object, prefix) = Object::open(remote, name, PREFIX_BYTES)
+            .map_err(|e| CogError::Remote { path: path.clone(), problem: e.to_string() })?;
+        let mut src = CogSource::from_store(path, Store::Remote(object), prefix.to_vec(), clip_size)?;
+        src.chunked = true;
+        Ok(src)
+    }
+
+    fn from_store(path: PathBuf, store: Store, prefix: Vec<u8>, clip_size: u64) -> Result<Self, CogError> {
+        let malformed = |(at, problem): (String, String)| CogError::Malformed { path: path.clone(), at, problem };
+        let head = &prefix[..prefix.len().min(16)];
+        let got = head.len();
         let layout = match &head[..4.min(got)] {
             b"II*\0" => Layout { little: true, big: false },
             b"MM\0*" => Layout { little: false, big: false },
             b"II+\0" => Layout { little: true, big: true },
             b"MM\0+" => Layout { little: false, big: true },
-            other => return Err(CogError::NotTiff { path: path.to_path_buf(), found: format!("{other:02x?}") }),
+            other => return Err(CogError::NotTiff { path: path.clone(), found: format!("{other:02x?}") }),
         };
         if layout.big && got < 16 || !layout.big && got < 8 {
             return Err(malformed(("the header".into(), format!("the file has only {got} bytes"))));
@@ -464,10 +723,25 @@ impl CogSource {
             )));
         }
         let first = if layout.big { layout.u64(&head[8..]) } else { layout.u32(&head[4..]) as u64 };
-        let images = read_ifds(&file, layout, first).map_err(malformed)?;
-        let mut src = CogSource::from_images(path, file, layout, images, clip_size)?;
-        src.build_coarse()?;
-        Ok(src)
+        let ghost = Ghost::parse(&prefix, if layout.big { 16 } else { 8 });
+        let reader = Head { store: &store, prefix: &prefix };
+        let images = read_ifds(&reader, layout, first).map_err(malformed)?;
+        let parts = CogSource::levels_of(&path, &reader, layout, images, clip_size)?;
+        let (desc, levels, origins, built_because) = parts;
+        Ok(CogSource {
+            path,
+            store,
+            prefix,
+            layout,
+            ghost,
+            desc,
+            levels,
+            origins,
+            built_because,
+            index: Mutex::new(HashMap::new()),
+            chunked: false,
+            built: Mutex::new(None),
+        })
     }
 
     /// The file served.
@@ -495,18 +769,20 @@ impl CogSource {
             format: self.desc.format(),
             levels,
             built_because: self.built_because.clone(),
+            built_on_first_read: self.store.is_remote(),
         }
     }
 
-    fn from_images(
+    #[allow(clippy::type_complexity)]
+    fn levels_of(
         path: &Path,
-        file: File,
+        head: &Head,
         layout: Layout,
         images: Vec<Image>,
         clip_size: u64,
-    ) -> Result<Self, CogError> {
+    ) -> Result<(TextureDesc, Vec<Level>, Vec<LevelOrigin>, Option<String>), CogError> {
         let full = &images[0];
-        let (format, level0) = image_level(path, &file, layout, full)?;
+        let (format, level0) = image_level(path, head, layout, full)?;
         let size = level0.size;
         let n = level_count(size);
         let mut levels = vec![Level::Ifd(level0)];
@@ -516,7 +792,7 @@ impl CogSource {
                 continue; // a mask or another page
             }
             let k = levels.len() as u32;
-            let (f, level) = image_level(path, &file, layout, image)?;
+            let (f, level) = image_level(path, head, layout, image)?;
             if f != format {
                 return Err(CogError::Unsupported {
                     path: path.to_path_buf(),
@@ -573,39 +849,42 @@ impl CogSource {
             descs.push(LevelDesc { size: ls, tile });
             origins.push(origin);
         }
+        levels.resize(n, Level::Built);
         let desc_err = |source| CogError::Desc { path: path.to_path_buf(), source };
         let desc = TextureDesc::from_levels(size, clip_size, format, descs).map_err(desc_err)?;
         let border = (clip_size / 32).clamp(1, 16).min(clip_size.saturating_sub(1) / 2);
         let desc = desc.with_invalid_border(border).map_err(desc_err)?;
         let built_because = (used < n).then_some(why);
-        Ok(CogSource { path: path.to_path_buf(), file, layout, desc, levels, origins, built_because })
+        Ok((desc, levels, origins, built_because))
     }
 
-    /// Builds the levels past the last usable image from it, once.
-    fn build_coarse(&mut self) -> Result<(), CogError> {
+    /// The levels past the last usable image, built from it the first time they are asked for
+    /// (by `tile`, or at open when `None`); a failure is not kept, the next read tries again.
+    fn built_levels(&self, tile: Option<TileId>) -> Result<Arc<Vec<Vec<u8>>>, SourceError> {
+        let mut slot = self.built.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(b) = &*slot {
+            return Ok(Arc::clone(b));
+        }
         let n = self.desc.level_count();
-        let used = self.levels.len();
-        if used >= n {
-            return Ok(());
+        let used = self.levels.iter().filter(|l| matches!(l, Level::Ifd(_))).count();
+        let mut out = Vec::new();
+        if used < n {
+            let base = used as u32 - 1;
+            let bpt = self.desc.bytes_per_texel();
+            let Some(Level::Ifd(lv)) = self.levels.get(used - 1) else { return Ok(Arc::new(out)) };
+            let mut size = lv.size;
+            let mut texels = vec![0u8; (size[0] * size[1]) as usize * bpt];
+            let whole = tile.unwrap_or(TileId::new(base, 0, 0));
+            self.fill_region(lv, whole, [0, 0], size, &mut texels, size[0] as usize, true)?;
+            for _ in used..n {
+                let (next, next_size) = halve(out.last().unwrap_or(&texels), size, bpt);
+                out.push(next);
+                size = next_size;
+            }
         }
-        let base = used as u32 - 1;
-        let bpt = self.desc.bytes_per_texel();
-        let Some(Level::Ifd(lv)) = self.levels.last().cloned() else { return Ok(()) };
-        let size = lv.size;
-        let mut texels = vec![0u8; (size[0] * size[1]) as usize * bpt];
-        let whole = TileId::new(base, 0, 0);
-        self.fill_region(&lv, whole, [0, 0], size, &mut texels, size[0] as usize, true)
-            .map_err(|source| CogError::Build { path: self.path.clone(), from: used as u32, source })?;
-        let mut size = size;
-        for _ in used..n {
-            let (next, next_size) = match self.levels.last() {
-                Some(Level::Built(t)) => halve(t, size, bpt),
-                _ => halve(&texels, size, bpt),
-            };
-            self.levels.push(Level::Built(next));
-            size = next_size;
-        }
-        Ok(())
+        let b = Arc::new(out);
+        *slot = Some(Arc::clone(&b));
+        Ok(b)
     }
 
     /// One value of a tile index.
@@ -618,37 +897,86 @@ impl CogSource {
             let at = (i * a.size) as usize;
             return Ok(self.layout.value(a.ty, &b[at..]));
         }
+        let at = a.at.saturating_add(i * a.size);
+        if let Some(b) = (Span { start: 0, bytes: &self.prefix }).get(at, a.size) {
+            return Ok(self.layout.value(a.ty, b));
+        }
+        let past_end = |len: u64| SourceError::Chunk {
+            tile,
+            path: self.path.clone(),
+            problem: format!("its tile index entry at byte {at} lies past the end of the file ({len} bytes)"),
+        };
+        if self.chunked {
+            let (chunk, from) = self.index_chunk(a, i, tile)?;
+            return Ok(self.layout.value(a.ty, &chunk[from..from + a.size as usize]));
+        }
         let mut b = [0u8; 8];
-        let at = a.at + i * a.size;
-        match self.file.read_exact_at(&mut b[..a.size as usize], at) {
+        match self.store.read_exact_at(&mut b[..a.size as usize], at) {
             Ok(()) => Ok(self.layout.value(a.ty, &b)),
-            Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => {
-                let len = self.file.metadata().map(|m| m.len()).unwrap_or(0);
-                let problem = format!("its tile index entry at byte {at} lies past the end of the file ({len} bytes)");
-                Err(SourceError::Chunk { tile, path: self.path.clone(), problem })
-            }
-            Err(e) => Err(super::file::io_error(tile, e)),
+            Err(StoreError::Eof { size }) => Err(past_end(size)),
+            Err(e) => Err(e.for_tile(tile, &self.path, at, a.size)),
         }
     }
 
+    /// The chunk of array `a` that holds entry `i`, read once ([`INDEX_CHUNK_BYTES`] of
+    /// entries, the array's last chunk shorter), and where entry `i` starts in it.
+    fn index_chunk(&self, a: &Array, i: u64, tile: TileId) -> Result<(Shared, usize), SourceError> {
+        let per = (INDEX_CHUNK_BYTES / a.size).max(1);
+        let j = i / per;
+        let from = ((i - j * per) * a.size) as usize;
+        let key = (a.at, j);
+        if let Some(c) = self.index.lock().unwrap_or_else(|e| e.into_inner()).get(&key) {
+            return Ok((Arc::clone(c), from));
+        }
+        let start = a.at.saturating_add(j * per * a.size);
+        let len = ((a.count - j * per).min(per)) * a.size;
+        let chunk = match self.store.read_bytes(start, len) {
+            Ok(c) => c,
+            Err(StoreError::Eof { size }) => {
+                return Err(SourceError::Chunk {
+                    tile,
+                    path: self.path.clone(),
+                    problem: format!(
+                        "its tile index entries at bytes {start}..{} lie past the end of the file ({size} bytes)",
+                        start.saturating_add(len)
+                    ),
+                })
+            }
+            Err(e) => return Err(e.for_tile(tile, &self.path, start, len)),
+        };
+        self.index.lock().unwrap_or_else(|e| e.into_inner()).insert(key, Arc::clone(&chunk));
+        Ok((chunk, from))
+    }
+
+    /// Where TIFF tile `index` of `lv` is stored: its offset and byte count.
+    fn tile_place(&self, lv: &IfdLevel, index: u64, tile: TileId) -> Result<(u64, u64), SourceError> {
+        Ok((self.index_value(&lv.offsets, index, tile)?, self.index_value(&lv.counts, index, tile)?))
+    }
+
+    /// The bytes framing a tile of `count` bytes at `offset`: GDAL's leader before it and
+    /// trailer after it, when the ghost area says they are there.
+    fn framing(&self, offset: u64, count: u64) -> (u64, u64) {
+        let lead = if self.ghost.leader && offset >= 4 { 4 } else { 0 };
+        let trail = if self.ghost.trailer && count >= 4 { 4 } else { 0 };
+        (lead, trail)
+    }
+
     /// Decodes TIFF tile `index` of `lv` into `dst` (one whole TIFF tile, rows top-down as
-    /// stored), undoing the predictor.
-    fn decode(&self, lv: &IfdLevel, index: u64, tile: TileId, dst: &mut [u8]) -> Result<(), SourceError> {
-        let offset = self.index_value(&lv.offsets, index, tile)?;
-        let count = self.index_value(&lv.counts, index, tile)?;
+    /// stored), undoing the predictor; its stored bytes come from `span` when it holds them.
+    fn decode(
+        &self,
+        lv: &IfdLevel,
+        index: u64,
+        tile: TileId,
+        dst: &mut [u8],
+        span: Option<&Span>,
+    ) -> Result<(), SourceError> {
+        let (offset, count) = self.tile_place(lv, index, tile)?;
         if offset == 0 || count == 0 {
             return Err(SourceError::Missing { tile });
         }
         let bad = |problem: String| SourceError::Chunk { tile, path: self.path.clone(), problem };
         let need = dst.len() as u64;
-        let short = |e: io::Error, len: u64| {
-            if e.kind() == io::ErrorKind::UnexpectedEof {
-                let size = self.file.metadata().map(|m| m.len()).unwrap_or(0);
-                SourceError::Short { tile, expected: len, got: size.saturating_sub(offset).min(len) }
-            } else {
-                super::file::io_error(tile, e)
-            }
-        };
         if lv.compression == Compression::None {
             if count < need {
                 return Err(bad(format!(
@@ -656,7 +984,6 @@ impl CogSource {
                     lv.ifd
                 )));
             }
-            self.file.read_exact_at(dst, offset).map_err(|e| short(e, need))?;
         } else {
             // The most a tile's compressed bytes can sensibly take.
             let bound = need.saturating_mul(2).saturating_add(4096);
@@ -666,11 +993,51 @@ impl CogSource {
                     lv.ifd
                 )));
             }
+        }
+        let prefix = Span { start: 0, bytes: &self.prefix };
+        let local = !self.store.is_remote();
+        if lv.compression == Compression::None && local && span.is_none() && prefix.get(offset, need).is_none() {
+            // Straight into the slot: no copy on the local path.
+            self.store.read_exact_at(dst, offset).map_err(|e| e.for_tile(tile, &self.path, offset, need))?;
+        } else {
+            let (lead, trail) = self.framing(offset, count);
+            let (from, len) = (offset - lead, lead + count + trail);
             PACKED.with(|cell| {
                 let packed = &mut *cell.borrow_mut();
-                packed.resize(count as usize, 0);
-                self.file.read_exact_at(packed, offset).map_err(|e| short(e, count))?;
-                let got = decompress(lv.compression, packed, dst)
+                match span.and_then(|s| s.get(from, len)).or_else(|| prefix.get(from, len)) {
+                    Some(b) => {
+                        packed.clear();
+                        packed.extend_from_slice(b);
+                    }
+                    None => {
+                        packed.resize(len as usize, 0);
+                        self.store
+                            .read_exact_at(packed, from)
+                            .map_err(|e| e.for_tile(tile, &self.path, from, len))?;
+                    }
+                }
+                let data_end = (lead + count) as usize;
+                if lead == 4 {
+                    let said = u32::from_le_bytes([packed[0], packed[1], packed[2], packed[3]]) as u64;
+                    if said != count {
+                        return Err(bad(format!(
+                            "IFD {} tile {index}: the 4 bytes before it (GDAL's BLOCK_LEADER) say {said} bytes, its TileByteCounts entry {count}",
+                            lv.ifd
+                        )));
+                    }
+                }
+                if trail == 4 && packed[data_end..data_end + 4] != packed[data_end - 4..data_end] {
+                    return Err(bad(format!(
+                        "IFD {} tile {index}: the 4 bytes after it (GDAL's BLOCK_TRAILER) are not its last 4 bytes",
+                        lv.ifd
+                    )));
+                }
+                let data = &packed[lead as usize..data_end];
+                if lv.compression == Compression::None {
+                    dst.copy_from_slice(&data[..dst.len()]);
+                    return Ok(());
+                }
+                let got = decompress(lv.compression, data, dst)
                     .map_err(|p| bad(format!("IFD {} tile {index} ({count} bytes at byte {offset}): {p}", lv.ifd)))?;
                 if got != dst.len() {
                     return Err(bad(format!(
@@ -690,6 +1057,45 @@ impl CogSource {
             }
         }
         Ok(())
+    }
+
+    /// The stored bytes of TIFF tiles `cx0..=cx1` of tile row `cy` in one read, when they lie
+    /// back to back (GDAL writes a row's tiles so) and are not all in the first bytes: a remote
+    /// object's one ranged GET instead of one a tile. `None` when they do not, or locally.
+    fn row_span(
+        &self,
+        lv: &IfdLevel,
+        cy: u64,
+        [cx0, cx1]: [u64; 2],
+        tile: TileId,
+    ) -> Result<Option<(u64, Shared)>, SourceError> {
+        if !self.store.is_remote() || cx1 <= cx0 {
+            return Ok(None);
+        }
+        let mut start = None;
+        let mut end = 0u64;
+        for cx in cx0..=cx1 {
+            let (offset, count) = self.tile_place(lv, cy * lv.across + cx, tile)?;
+            if offset == 0 || count == 0 {
+                return Ok(None);
+            }
+            let (lead, trail) = self.framing(offset, count);
+            let from = offset - lead;
+            match start {
+                None => start = Some(from),
+                Some(_) if from != end => return Ok(None),
+                Some(_) => {}
+            }
+            end = offset.saturating_add(count).saturating_add(trail);
+        }
+        let Some(start) = start else { return Ok(None) };
+        if end - start > MAX_SPAN_BYTES || (Span { start: 0, bytes: &self.prefix }).get(start, end - start).is_some() {
+            return Ok(None);
+        }
+        match self.store.read_bytes(start, end - start) {
+            Ok(b) => Ok(Some((start, b))),
+            Err(e) => Err(e.for_tile(tile, &self.path, start, end - start)),
+        }
     }
 
     /// Fills the `w x h` texels from `(s0, t0)` of level `lv` into `out` (rows in increasing t,
@@ -713,12 +1119,15 @@ impl CogSource {
         // Image rows y_lo..=y_hi (top-down) hold texture rows t0 + h - 1 down to t0.
         let (y_lo, y_hi) = (height - (t0 + h), height - 1 - t0);
         let chunk_bytes = (tw * th) as usize * bpt;
-        CHUNK.with(|cell| {
-            let chunk = &mut *cell.borrow_mut();
-            chunk.resize(chunk_bytes, 0);
+        let mut chunk = CHUNK.with(|cell| std::mem::take(&mut *cell.borrow_mut()));
+        chunk.resize(chunk_bytes, 0);
+        let result = (|| {
             for cy in y_lo / th..=y_hi / th {
-                for cx in s0 / tw..=(s0 + w - 1) / tw {
-                    match self.decode(lv, cy * lv.across + cx, tile, chunk) {
+                let (cx0, cx1) = (s0 / tw, (s0 + w - 1) / tw);
+                let row = self.row_span(lv, cy, [cx0, cx1], tile)?;
+                let span = row.as_ref().map(|(start, b)| Span { start: *start, bytes: b });
+                for cx in cx0..=cx1 {
+                    match self.decode(lv, cy * lv.across + cx, tile, &mut chunk, span.as_ref()) {
                         Ok(()) => {}
                         Err(SourceError::Missing { .. }) if sparse_zero => chunk.fill(0),
                         Err(e) => return Err(e),
@@ -734,7 +1143,9 @@ impl CogSource {
                 }
             }
             Ok(())
-        })
+        })();
+        CHUNK.with(|cell| *cell.borrow_mut() = chunk);
+        result
     }
 }
 
@@ -753,7 +1164,7 @@ fn read_prefix(file: &File, buf: &mut [u8]) -> io::Result<usize> {
 }
 
 /// Reads the IFD chain from `first`: every IFD's entries, none of the arrays they point to.
-fn read_ifds(file: &File, layout: Layout, first: u64) -> Result<Vec<Image>, (String, String)> {
+fn read_ifds(file: &Head, layout: Layout, first: u64) -> Result<Vec<Image>, (String, String)> {
     let mut images = Vec::new();
     let mut next = first;
     let mut seen = std::collections::HashSet::new();
@@ -768,7 +1179,7 @@ fn read_ifds(file: &File, layout: Layout, first: u64) -> Result<Vec<Image>, (Str
             return Err((at, "the IFD chain loops back to an IFD already read".into()));
         }
         let count_size = if layout.big { 8 } else { 2 };
-        let head = read_at(file, next, count_size, &at)?;
+        let head = file.read_at(next, count_size, &at)?;
         let count = if layout.big { layout.u64(&head) } else { layout.u16(&head) as u64 };
         if count == 0 || count > MAX_ENTRIES {
             return Err((at, format!("{count} entries, expected 1 to {MAX_ENTRIES}")));
@@ -779,7 +1190,7 @@ fn read_ifds(file: &File, layout: Layout, first: u64) -> Result<Vec<Image>, (Str
         if read_total > MAX_STRUCTURE_BYTES {
             return Err((at, format!("the IFDs take more than {MAX_STRUCTURE_BYTES} bytes")));
         }
-        let body = read_at(file, next + count_size as u64, len as usize, &at)?;
+        let body = file.read_at(next + count_size as u64, len as usize, &at)?;
         let mut entries = Vec::with_capacity(count as usize);
         for e in body.chunks_exact(entry_size as usize).take(count as usize) {
             let tag = layout.u16(&e[0..]);
@@ -803,7 +1214,7 @@ fn read_ifds(file: &File, layout: Layout, first: u64) -> Result<Vec<Image>, (Str
 
 /// The unsigned values of tag `tag` (at most `max` of them), `None` when the IFD lacks it.
 fn values(
-    file: &File,
+    file: &Head,
     layout: Layout,
     image: &Image,
     tag: u16,
@@ -821,13 +1232,13 @@ fn values(
     let bytes = if e.count * size <= layout.field() as u64 {
         e.field[..(e.count * size) as usize].to_vec()
     } else {
-        read_at(file, layout.offset(&e.field), (e.count * size) as usize, &at)?
+        file.read_at(layout.offset(&e.field), (e.count * size) as usize, &at)?
     };
     Ok(Some(bytes.chunks_exact(size as usize).map(|b| layout.value(e.ty, b)).collect()))
 }
 
 /// The single unsigned value of tag `tag`, `None` when the IFD lacks it.
-fn scalar(file: &File, layout: Layout, image: &Image, tag: u16, name: &str) -> Result<Option<u64>, (String, String)> {
+fn scalar(file: &Head, layout: Layout, image: &Image, tag: u16, name: &str) -> Result<Option<u64>, (String, String)> {
     Ok(values(file, layout, image, tag, name, 1)?.map(|v| v[0]))
 }
 
@@ -849,7 +1260,7 @@ fn array(layout: Layout, image: &Image, tag: u16, name: &str, count: u64) -> Res
 }
 
 /// Checks one image's layout and describes it as a level: its texel format and tiles.
-fn image_level(path: &Path, file: &File, layout: Layout, image: &Image) -> Result<(TexelFormat, IfdLevel), CogError> {
+fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Result<(TexelFormat, IfdLevel), CogError> {
     let malformed = |(at, problem): (String, String)| CogError::Malformed { path: path.to_path_buf(), at, problem };
     let unsupported = |tag, found: String, supported| CogError::Unsupported {
         path: path.to_path_buf(),
@@ -1041,7 +1452,10 @@ impl TileSource for CogSource {
         let (s0, t0) = (tile.s * tw, tile.t * th);
         let (w, h) = ((d.size[0] - s0).min(tw), (d.size[1] - t0).min(th));
         match &self.levels[tile.level as usize] {
-            Level::Built(texels) => {
+            Level::Built => {
+                let built = self.built_levels(Some(tile))?;
+                let used = self.desc.level_count() - built.len();
+                let texels = &built[tile.level as usize - used];
                 if w < tw || h < th {
                     out.fill(0);
                 }
@@ -1056,7 +1470,7 @@ impl TileSource for CogSource {
                 // One TIFF tile, decoded in place: its rows reversed, columns past the image's
                 // right edge zeroed.
                 let index = (lv.rows() - 1 - tile.t) * lv.across + tile.s;
-                self.decode(lv, index, tile, out)?;
+                self.decode(lv, index, tile, out, None)?;
                 let row = tw as usize * bpt;
                 for r in 0..th as usize / 2 {
                     let (top, bottom) = out.split_at_mut((th as usize - 1 - r) * row);
