@@ -10,6 +10,7 @@ mod grow;
 use clap::{Parser, Subcommand};
 use clipmap::cli::{self as cmdline, EnvArgs};
 use clipmap::config::FileKind;
+use clipmap::place::Place;
 use clipmap::plan;
 use clipmap::report::{self, check, exit, info, validate};
 use clipmap::roam;
@@ -594,8 +595,9 @@ fn run(cli: Cli) -> i32 {
         }
         Command::Validate { args, ct_only } => cmdline::validate(&args, FileKind::ClipTexture, "cliptex", ct_only),
         // A tiled GeoTIFF / COG: the texture it is served as (clipmapd's default clip size).
-        Command::Info { file, json, .. } if clipmap::source::cog::is_tiff(&file) => {
-            match clipmap::source::CogSource::open(&file, 1024) {
+        // A local file that starts like a TIFF, or an http(s):// or s3:// name ending in .tif / .tiff.
+        Command::Info { file, json, .. } if clipmap::source::cog::is_tiff_place(&Place::from_path(file.clone())) => {
+            match clipmap::source::CogSource::open_place(&Place::from_path(file.clone()), 1024) {
                 Err(e) => {
                     eprintln!("cliptex: {e}");
                     exit::BAD_INPUT

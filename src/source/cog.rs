@@ -1518,4 +1518,125 @@ mod tests {
         assert_eq!(out, data);
         assert!(decompress(Compression::Lzw, &[0xff; 64], &mut out).is_err_and(|e| e.contains("LZW")));
     }
+    /// A classic little-endian TIFF of `w x h` grey texels `(3x + 5y) & 255` in uncompressed
+    /// `t x t` tiles, its tile index (LONG arrays) placed after the tiles, past the first
+    /// [`PREFIX_BYTES`].
+    fn synthetic_tiff(w: u32, h: u32, t: u32) -> Vec<u8> {
+        let (across, down) = (w.div_ceil(t), h.div_ceil(t));
+        let tiles = across * down;
+        let mut f = b"II*\0".to_vec();
+        f.extend(8u32.to_le_bytes());
+        let entries: [(u16, u16, u32, u32); 9] = [
+            (256, 4, 1, w),
+            (257, 4, 1, h),
+            (258, 3, 1, 8),
+            (259, 3, 1, 1),
+            (262, 3, 1, 1),
+            (322, 4, 1, t),
+            (323, 4, 1, t),
+            (324, 4, tiles, 0),
+            (325, 4, tiles, 0),
+        ];
+        let data_at = 4096u32;
+        let tile_len = t * t;
+        let arrays_at = data_at + tiles * tile_len;
+        assert!(arrays_at as u64 > PREFIX_BYTES);
+        f.extend((entries.len() as u16).to_le_bytes());
+        for (tag, ty, count, value) in entries {
+            let value = match tag {
+                324 => arrays_at,
+                325 => arrays_at + 4 * tiles,
+                _ => value,
+            };
+            f.extend(tag.to_le_bytes());
+            f.extend(ty.to_le_bytes());
+            f.extend(count.to_le_bytes());
+            f.extend(value.to_le_bytes());
+        }
+        f.extend(0u32.to_le_bytes());
+        f.resize(data_at as usize, 0);
+        for i in 0..tiles {
+            let (cx, cy) = (i % across, i / across);
+            for r in 0..t {
+                for c in 0..t {
+                    let (x, y) = (cx * t + c, cy * t + r);
+                    f.push(if x < w && y < h { ((3 * x + 5 * y) & 255) as u8 } else { 0 });
+                }
+            }
+        }
+        for i in 0..tiles {
+            f.extend((data_at + i * tile_len).to_le_bytes());
+        }
+        for _ in 0..tiles {
+            f.extend(tile_len.to_le_bytes());
+        }
+        f
+    }
+
+    #[test]
+    fn the_tile_index_read_in_chunks_gives_every_entry_the_eager_reader_gives() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("big_index.tif");
+        // 80 x 70 tiles of 8 x 8: 5600 entries a array, 22 KiB of LONGs, past the first 64 KiB.
+        std::fs::write(&path, synthetic_tiff(640, 560, 8)).unwrap();
+        let eager = CogSource::open(&path, 64).unwrap();
+        let lazy = open_chunked(&path, 64);
+        let Level::Ifd(lv) = &eager.levels[0] else { panic!("level 0 is an image") };
+        for i in (0..lv.offsets.count).rev() {
+            let id = TileId::new(0, 0, 0);
+            assert_eq!(lazy.tile_place(lv, i, id).unwrap(), eager.tile_place(lv, i, id).unwrap(), "entry {i}");
+        }
+        let per = INDEX_CHUNK_BYTES / 4;
+        let chunks = lv.offsets.count.div_ceil(per) as usize;
+        assert_eq!(lazy.index.lock().unwrap().len(), 2 * chunks, "each chunk of both arrays read once");
+        // Every texel through the chunked index is the image's, bottom-up.
+        let desc = lazy.desc().clone();
+        let l0 = *desc.level(0);
+        let mut buf = vec![0u8; desc.tile_bytes(0)];
+        for tt in 0..l0.tiles()[1] {
+            for ts in 0..l0.tiles()[0] {
+                lazy.read_tile(TileId::new(0, ts, tt), &mut buf).unwrap();
+                for (j, &v) in buf.iter().enumerate() {
+                    let (s, t) = (ts * l0.tile[0] + j as u64 % l0.tile[0], tt * l0.tile[1] + j as u64 / l0.tile[0]);
+                    let y = 559 - t;
+                    assert_eq!(v, ((3 * s + 5 * y) & 255) as u8, "texel ({s}, {t})");
+                }
+            }
+        }
+        // An index that runs past the end of the file is an error naming where, not a texel.
+        let mut cut = std::fs::read(&path).unwrap();
+        cut.truncate(cut.len() - 100);
+        std::fs::write(&path, &cut).unwrap();
+        let src = open_chunked(&path, 4096);
+        let e = src.read_tile(TileId::new(0, 0, 0), &mut vec![0u8; src.desc().tile_bytes(0)]).unwrap_err();
+        assert!(matches!(e, SourceError::Chunk { .. }), "{e}");
+        assert!(e.to_string().contains("lie past the end of the file"), "{e}");
+    }
+
+    /// `path` opened as a remote object is (structure from the first bytes, the index read in
+    /// chunks, nothing built at open), over the local file.
+    fn open_chunked(path: &Path, clip: u64) -> CogSource {
+        let (file, _) = crate::open::regular(path).unwrap();
+        let mut prefix = vec![0u8; PREFIX_BYTES as usize];
+        let n = read_prefix(&file, &mut prefix).unwrap();
+        prefix.truncate(n);
+        let mut src = CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, clip).unwrap();
+        src.chunked = true;
+        src
+    }
+
+    #[test]
+    fn the_ghost_area_says_whether_tiles_have_a_leader_and_a_trailer() {
+        let area = |body: &str| {
+            let mut v = b"II*\0\x08\0\0\0".to_vec();
+            v.extend(format!("GDAL_STRUCTURAL_METADATA_SIZE={:06} bytes\n{body}", body.len()).bytes());
+            v
+        };
+        let gdal = area("LAYOUT=IFDS_BEFORE_DATA\nBLOCK_ORDER=ROW_MAJOR\nBLOCK_LEADER=SIZE_AS_UINT4\nBLOCK_TRAILER=LAST_4_BYTES_REPEATED\nKNOWN_INCOMPATIBLE_EDITION=NO\n ");
+        assert_eq!(Ghost::parse(&gdal, 8), Ghost { leader: true, trailer: true });
+        let edited = area("BLOCK_LEADER=SIZE_AS_UINT4\nBLOCK_TRAILER=LAST_4_BYTES_REPEATED\nKNOWN_INCOMPATIBLE_EDITION=YES\n");
+        assert_eq!(Ghost::parse(&edited, 8), Ghost::default(), "a file edited since GDAL wrote it");
+        assert_eq!(Ghost::parse(b"II*\0\x08\0\0\0\x03\0", 8), Ghost::default(), "no ghost area");
+        assert_eq!(Ghost::parse(&area("BLOCK_LEADER=SIZE_AS_UINT4\n"), 8), Ghost { leader: true, trailer: false });
+    }
 }
