@@ -78,6 +78,10 @@ pub const PREFIX_BYTES: u64 = 64 << 10;
 /// needed (the entries of about a tile row or more).
 pub const INDEX_CHUNK_BYTES: u64 = 4096;
 
+/// The most bytes one read of both tile index arrays' chunks of an entry takes (a remote object):
+/// the two arrays of an image of up to 32768 tiles (LONG entries) are then read whole at once.
+pub const MAX_INDEX_READ: u64 = 256 << 10;
+
 /// The most bytes one ranged read of adjacent tiles of a row takes (a remote object).
 const MAX_SPAN_BYTES: u64 = 8 << 20;
 
@@ -491,7 +495,9 @@ impl StoreError {
     #[cfg_attr(not(feature = "remote"), allow(unused_variables))]
     fn for_tile(self, tile: TileId, path: &Path, offset: u64, len: u64) -> SourceError {
         match self {
-            StoreError::Eof { size } => SourceError::Short { tile, expected: len, got: size.saturating_sub(offset).min(len) },
+            StoreError::Eof { size } => {
+                SourceError::Short { tile, expected: len, got: size.saturating_sub(offset).min(len) }
+            }
             StoreError::Io(e) => super::file::io_error(tile, e),
             #[cfg(feature = "remote")]
             StoreError::Remote(super::remote::object::ObjectError::Read(e)) => super::remote::source_error(tile, e),
@@ -632,7 +638,9 @@ pub fn is_tiff(path: &Path) -> bool {
 pub fn is_tiff_place(place: &Place) -> bool {
     match place {
         Place::Local(p) => is_tiff(p),
-        Place::Remote(r) => r.extension().is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff")),
+        Place::Remote(r) => {
+            r.extension().is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"))
+        }
     }
 }
 
@@ -948,8 +956,64 @@ impl CogSource {
         Ok((chunk, from))
     }
 
+    /// Reads the chunks of both index arrays that hold entry `i` with one read, when neither is
+    /// read yet and both lie within [`MAX_INDEX_READ`] bytes (GDAL writes an image's
+    /// TileByteCounts right after its TileOffsets): a tile's index then costs one request, and
+    /// every chunk of either array inside that read is kept.
+    fn index_pair(&self, lv: &IfdLevel, i: u64, tile: TileId) -> Result<(), SourceError> {
+        let (a, b) = (&lv.offsets, &lv.counts);
+        if a.inline.is_some() || b.inline.is_some() || i >= a.count || i >= b.count {
+            return Ok(());
+        }
+        let per = |x: &Array| (INDEX_CHUNK_BYTES / x.size).max(1);
+        // Chunk j of array x: its key, first byte and length.
+        let chunk = |x: &Array, j: u64| {
+            let start = x.at.saturating_add(j * per(x) * x.size);
+            ((x.at, j), start, ((x.count - j * per(x)).min(per(x))) * x.size)
+        };
+        let ((ka, sa, la), (kb, sb, lb)) = (chunk(a, i / per(a)), chunk(b, i / per(b)));
+        let prefix = Span { start: 0, bytes: &self.prefix };
+        if prefix.get(sa, la).is_some() || prefix.get(sb, lb).is_some() {
+            return Ok(());
+        }
+        // Both arrays whole when they fit in one read, else the two chunks, else nothing here.
+        let end = |x: &Array| x.at.saturating_add(x.count.saturating_mul(x.size));
+        let whole = (a.at.min(b.at), end(a).max(end(b)));
+        let pair = (sa.min(sb), sa.saturating_add(la).max(sb.saturating_add(lb)));
+        let (lo, hi) = if whole.1 - whole.0 <= MAX_INDEX_READ { whole } else { pair };
+        if hi - lo > MAX_INDEX_READ {
+            return Ok(());
+        }
+        {
+            let cache = self.index.lock().unwrap_or_else(|e| e.into_inner());
+            if cache.contains_key(&ka) || cache.contains_key(&kb) {
+                return Ok(());
+            }
+        }
+        let both = match self.store.read_bytes(lo, hi - lo) {
+            Ok(b) => b,
+            // Each chunk on its own then says what is wrong with it.
+            Err(StoreError::Eof { .. }) => return Ok(()),
+            Err(e) => return Err(e.for_tile(tile, &self.path, lo, hi - lo)),
+        };
+        let mut cache = self.index.lock().unwrap_or_else(|e| e.into_inner());
+        for x in [a, b] {
+            for j in 0..x.count.div_ceil(per(x)) {
+                let (key, start, len) = chunk(x, j);
+                if start >= lo && start.saturating_add(len) <= hi {
+                    let from = (start - lo) as usize;
+                    cache.entry(key).or_insert_with(|| Arc::from(&both[from..from + len as usize]));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Where TIFF tile `index` of `lv` is stored: its offset and byte count.
     fn tile_place(&self, lv: &IfdLevel, index: u64, tile: TileId) -> Result<(u64, u64), SourceError> {
+        if self.chunked {
+            self.index_pair(lv, index, tile)?;
+        }
         Ok((self.index_value(&lv.offsets, index, tile)?, self.index_value(&lv.counts, index, tile)?))
     }
 
@@ -1589,6 +1653,14 @@ mod tests {
         let per = INDEX_CHUNK_BYTES / 4;
         let chunks = lv.offsets.count.div_ceil(per) as usize;
         assert_eq!(lazy.index.lock().unwrap().len(), 2 * chunks, "each chunk of both arrays read once");
+        // The two arrays lie back to back (22400 bytes each, less than MAX_INDEX_READ together):
+        // the first entry asked for reads them whole, every chunk kept.
+        let lazy = open_chunked(&path, 64);
+        lazy.tile_place(lv, 4000, TileId::new(0, 0, 0)).unwrap();
+        let cache = lazy.index.lock().unwrap();
+        assert_eq!(cache.len(), 2 * chunks);
+        assert_eq!(cache[&(lv.counts.at, 5)].len(), (5600 - 5 * 1024) * 4, "the last chunk is short");
+        drop(cache);
         // Every texel through the chunked index is the image's, bottom-up.
         let desc = lazy.desc().clone();
         let l0 = *desc.level(0);
@@ -1634,7 +1706,8 @@ mod tests {
         };
         let gdal = area("LAYOUT=IFDS_BEFORE_DATA\nBLOCK_ORDER=ROW_MAJOR\nBLOCK_LEADER=SIZE_AS_UINT4\nBLOCK_TRAILER=LAST_4_BYTES_REPEATED\nKNOWN_INCOMPATIBLE_EDITION=NO\n ");
         assert_eq!(Ghost::parse(&gdal, 8), Ghost { leader: true, trailer: true });
-        let edited = area("BLOCK_LEADER=SIZE_AS_UINT4\nBLOCK_TRAILER=LAST_4_BYTES_REPEATED\nKNOWN_INCOMPATIBLE_EDITION=YES\n");
+        let edited =
+            area("BLOCK_LEADER=SIZE_AS_UINT4\nBLOCK_TRAILER=LAST_4_BYTES_REPEATED\nKNOWN_INCOMPATIBLE_EDITION=YES\n");
         assert_eq!(Ghost::parse(&edited, 8), Ghost::default(), "a file edited since GDAL wrote it");
         assert_eq!(Ghost::parse(b"II*\0\x08\0\0\0\x03\0", 8), Ghost::default(), "no ghost area");
         assert_eq!(Ghost::parse(&area("BLOCK_LEADER=SIZE_AS_UINT4\n"), 8), Ghost { leader: true, trailer: false });

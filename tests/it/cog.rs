@@ -7,7 +7,7 @@ use clipmap::source::cog::LevelOrigin;
 use clipmap::source::{CogError, CogSource, SourceError, TileId, TileSource};
 use std::path::{Path, PathBuf};
 
-fn fixture(name: &str) -> PathBuf {
+pub(crate) fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cog").join(name)
 }
 
@@ -23,7 +23,7 @@ fn formula(x: u64, y: u64, c: usize) -> u8 {
 
 /// Level `k` of `src`, read tile by tile, as whole rows in increasing t; the first error of a
 /// tile that cannot be read. Texels of edge tiles outside the level must be zero.
-fn level(src: &dyn TileSource, k: u32) -> Result<Vec<u8>, SourceError> {
+pub(crate) fn level(src: &dyn TileSource, k: u32) -> Result<Vec<u8>, SourceError> {
     let desc = src.desc();
     let l = *desc.level(k);
     let bpt = desc.bytes_per_texel();
@@ -56,7 +56,7 @@ fn level(src: &dyn TileSource, k: u32) -> Result<Vec<u8>, SourceError> {
 }
 
 /// GDAL's decode of IFD `i` of `name` (NAME.i.png) as `bpt`-byte texels, rows in increasing t.
-fn gdal_level(name: &str, i: usize, bpt: usize) -> (Vec<u8>, [u64; 2]) {
+pub(crate) fn gdal_level(name: &str, i: usize, bpt: usize) -> (Vec<u8>, [u64; 2]) {
     let img = image::open(fixture(&format!("{name}.{i}.png"))).unwrap();
     let (w, h) = (img.width() as usize, img.height() as usize);
     let bytes = match bpt {
@@ -85,14 +85,14 @@ fn box_halve(src: &[u8], [w, h]: [u64; 2], bpt: usize) -> Vec<u8> {
     out
 }
 
-struct Case {
-    name: &'static str,
-    bpt: usize,
+pub(crate) struct Case {
+    pub(crate) name: &'static str,
+    pub(crate) bpt: usize,
     /// IFDs that are levels 0, 1, ...
-    ifd_levels: usize,
+    pub(crate) ifd_levels: usize,
 }
 
-const CASES: [Case; 6] = [
+pub(crate) const CASES: [Case; 6] = [
     Case { name: "rgb_512x384", bpt: 3, ifd_levels: 3 },
     Case { name: "grey_1000x700", bpt: 1, ifd_levels: 3 },
     Case { name: "grey_500x350", bpt: 1, ifd_levels: 3 },
