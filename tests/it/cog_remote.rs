@@ -328,3 +328,63 @@ fn cliptex_info_of_a_cog_url_shows_its_levels_read_with_one_request() {
     assert!(!out.status.success(), "{desc}");
     assert!(desc.contains(&format!("{missing}: not found")), "{desc}");
 }
+
+/// One control-socket exchange with a `clipmapd` (None until it answers).
+fn ask(socket: &Path, line: &str) -> Option<String> {
+    use std::io::{BufRead, BufReader, Write};
+    let mut s = std::os::unix::net::UnixStream::connect(socket).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+    writeln!(s, "{line}").ok()?;
+    let mut reply = String::new();
+    BufReader::new(s).read_line(&mut reply).ok()?;
+    Some(reply.trim_end().to_string())
+}
+
+#[test]
+fn clipmapd_serves_a_cog_url_as_it_serves_the_file() {
+    let nginx = Nginx::serve(&fixture(""));
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let socket = d.join("cogurl.sock");
+    let err = d.join("cogurl.err");
+    let url = format!("{}/rgb_512x384.tif", nginx.url());
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_clipmapd"))
+        .args([url.as_str(), "--clip", "128", "--tick-hz", "60", "--name", "cogurl", "--shm-dir"])
+        .arg(d)
+        .arg("--socket")
+        .arg(&socket)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&err).unwrap())
+        .spawn()
+        .unwrap();
+    let log = || std::fs::read_to_string(&err).unwrap_or_default();
+    let json = |line: &str| -> serde_json::Value {
+        let r = ask(&socket, line).unwrap_or_default();
+        serde_json::from_str(r.strip_prefix("OK ").unwrap_or_else(|| panic!("{line}: {r}\n{}", log()))).unwrap()
+    };
+    let t = std::time::Instant::now();
+    while !ask(&socket, "PING").is_some_and(|r| r.starts_with("OK pong")) {
+        if let Ok(Some(st)) = child.try_wait() {
+            panic!("clipmapd exited ({st}):\n{}", log());
+        }
+        assert!(t.elapsed() < Duration::from_secs(30), "the service did not come up:\n{}", log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(json("STATUS")["levels"], 10, "the file's ten levels");
+    while json("STATS")["engine"]["tiles_read"].as_u64().unwrap() == 0 {
+        assert!(t.elapsed() < Duration::from_secs(30), "no tile read\n{}", log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    // An object that is not there is refused before anything is created, naming it.
+    let missing = format!("{}/nothing.tif", nginx.url());
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_clipmapd"))
+        .arg(&missing)
+        .args(["--shm-dir"])
+        .arg(d)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains(&format!("{missing}: not found")), "{out:?}");
+}
