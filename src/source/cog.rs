@@ -585,6 +585,9 @@ impl Span<'_> {
 struct Head<'a> {
     store: &'a Store,
     prefix: &'a [u8],
+    /// The first read that failed for another reason than the file's end (a remote object that
+    /// could not be read, or changed): open says so rather than calling the file damaged.
+    failed: RefCell<Option<String>>,
 }
 
 impl Head<'_> {
@@ -594,7 +597,13 @@ impl Head<'_> {
             return Ok(b.to_vec());
         }
         let mut buf = vec![0u8; len];
-        self.store.read_exact_at(&mut buf, offset).map_err(|e| (what.to_string(), e.problem(offset, len as u64)))?;
+        self.store.read_exact_at(&mut buf, offset).map_err(|e| {
+            let problem = e.problem(offset, len as u64);
+            if !matches!(e, StoreError::Eof { .. }) {
+                self.failed.borrow_mut().get_or_insert_with(|| problem.clone());
+            }
+            (what.to_string(), problem)
+        })?;
         Ok(buf)
     }
 }
@@ -732,9 +741,20 @@ impl CogSource {
         }
         let first = if layout.big { layout.u64(&head[8..]) } else { layout.u32(&head[4..]) as u64 };
         let ghost = Ghost::parse(&prefix, if layout.big { 16 } else { 8 });
-        let reader = Head { store: &store, prefix: &prefix };
-        let images = read_ifds(&reader, layout, first).map_err(malformed)?;
-        let parts = CogSource::levels_of(&path, &reader, layout, images, clip_size)?;
+        let reader = Head { store: &store, prefix: &prefix, failed: RefCell::new(None) };
+        let parts = read_ifds(&reader, layout, first)
+            .map_err(malformed)
+            .and_then(|images| CogSource::levels_of(&path, &reader, layout, images, clip_size));
+        let parts = match (parts, reader.failed.take()) {
+            (Ok(p), _) => p,
+            (Err(_), Some(problem)) => {
+                return Err(CogError::Remote {
+                    path: path.clone(),
+                    problem: format!("reading its structure: {problem}"),
+                })
+            }
+            (Err(e), None) => return Err(e),
+        };
         let (desc, levels, origins, built_because) = parts;
         Ok(CogSource {
             path,

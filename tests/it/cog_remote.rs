@@ -388,3 +388,31 @@ fn clipmapd_serves_a_cog_url_as_it_serves_the_file() {
     assert_eq!(out.status.code(), Some(1), "{out:?}");
     assert!(String::from_utf8_lossy(&out.stderr).contains(&format!("{missing}: not found")), "{out:?}");
 }
+
+#[test]
+fn an_ifd_past_the_first_64_kib_is_read_where_it_lies_and_a_failed_read_of_it_is_said_so() {
+    // The IFD moved to the end of the file, past the first 64 KiB.
+    let mut tiff = big_index_tiff(512, 512, 16);
+    let ifd = tiff[8..8 + 2 + 9 * 12 + 4].to_vec();
+    let at = tiff.len() as u32;
+    tiff.extend(ifd);
+    tiff[4..8].copy_from_slice(&at.to_le_bytes());
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("late.tif"), &tiff).unwrap();
+    let nginx = Nginx::serve(dir.path());
+    let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
+    let url = format!("{}/late.tif", proxy.url());
+    let remote = reader(&[]);
+    let src = open(&url, &remote, 64);
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    src.read_tile(TileId::new(0, 5, 6), &mut buf).unwrap();
+    let y = 511 - 6 * 16;
+    assert_eq!(buf[0], ((3 * 5 * 16 + 5 * y) & 255) as u8);
+    // Every request after the first fails: open says the object could not be read, not that
+    // the file is damaged.
+    proxy.set(Schedule { faults: vec![Fault::Pass], then: vec![Fault::ServerError], every: 1 });
+    let e = CogSource::open_remote(&RemoteName::parse(&url).unwrap(), remote, 64).unwrap_err();
+    let text = e.to_string();
+    assert!(text.contains("reading its structure") && text.contains("HTTP 500") && text.contains(&url), "{text}");
+    assert!(!text.contains("damaged"), "{text}");
+}
