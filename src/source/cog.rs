@@ -1,5 +1,6 @@
-//! [`CogSource`]: a local tiled GeoTIFF or Cloud-Optimized GeoTIFF served as it is, with no
-//! preparation step (issue #34's local foundation).
+//! [`CogSource`]: a tiled GeoTIFF or Cloud-Optimized GeoTIFF served as it is, with no
+//! preparation step: a local file, or (the `remote` feature) an `http(s)://` or `s3://` object
+//! read in byte ranges (docs/COG.md).
 //!
 //! Owns reading a TIFF's header and IFD chain (classic TIFF and BigTIFF, either byte order),
 //! checking each image's layout against what is served (refusals name the IFD, the tag, the value
@@ -8,10 +9,17 @@
 //! open, and decoding tiles (none, LZW, DEFLATE, ZSTD; horizontal predictor) into the caller's
 //! slot buffer.
 //!
-//! The tile index (TileOffsets, TileByteCounts) is never read whole: open reads the header and the
-//! IFD entries only, and each tile read fetches its own two index values with positioned reads, so
-//! a COG with millions of tiles opens as fast as a small one and reads run in parallel without a
-//! lock.
+//! The bytes come from a `Store`: a local file (positioned reads, an uncompressed tile straight
+//! into the slot) or a remote object (`remote::object::Object`: ranged reads, every one checked
+//! against the version, ETag or Last-Modified, and size seen at open). Open reads the first
+//! [`PREFIX_BYTES`] once and parses the header, GDAL's ghost area and the IFDs from them. The tile
+//! index (TileOffsets, TileByteCounts) is never read whole at open: entries in the first bytes are
+//! taken from there; a local file reads a tile's two entries with positioned reads; a remote
+//! object reads both arrays at once when they fit in [`MAX_INDEX_READ`], else chunks of
+//! [`INDEX_CHUNK_BYTES`], kept once read. So a COG with millions of tiles opens as fast as a
+//! small one, and reads run in parallel. Adjacent TIFF tiles of a row that one texture tile needs
+//! are one ranged read of a remote object. GDAL's block leader (the tile's byte count) and
+//! trailer (its last 4 bytes again) are checked where the ghost area announces them.
 //!
 //! Why not the `tiff` crate (which `clipprep` uses to stream GeoTIFFs): its decoder reads every
 //! IFD's whole TileOffsets and TileByteCounts arrays when it opens an image, and it reads a tile
@@ -39,7 +47,10 @@
 //!
 //! Sparse tiles (offset or byte count 0, as GDAL's `SPARSE_OK` writes them) are
 //! [`SourceError::Missing`] when read; a level built at open reads them as zeros (GDAL's value
-//! for them). Not yet: remote objects, 16-bit and float samples, JPEG, GDAL_NODATA and masks.
+//! for them). Not yet: 16-bit and float samples, JPEG, GDAL_NODATA and masks.
+//!
+//! The levels past the overviews are built at open for a local file, and when one is first read
+//! for a remote object (its open stays one request).
 
 use super::{
     check_request, level_count, level_size, DescError, LevelDesc, SourceError, TextureDesc, TileId, TileSource,
