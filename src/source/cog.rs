@@ -453,7 +453,7 @@ impl Ghost {
         };
         // The size counts the bytes after the first line.
         let Some(line) = rest.iter().position(|&b| b == b'\n') else { return Ghost::default() };
-        let text = &rest[(line + 1).min(rest.len())..(line + 1 + size).min(rest.len())];
+        let text = &rest[(line + 1).min(rest.len())..(line + 1).saturating_add(size).min(rest.len())];
         let has = |s: &[u8]| text.windows(s.len()).any(|w| w == s);
         if has(b"KNOWN_INCOMPATIBLE_EDITION=YES") {
             return Ghost::default();
@@ -1095,7 +1095,13 @@ impl CogSource {
             // Straight into the slot: no copy on the local path.
             self.store.read_exact_at(dst, offset).map_err(|e| e.for_tile(tile, &self.path, offset, need))?;
         } else {
-            let (lead, trail) = self.framing(offset, count);
+            // An uncompressed tile's bytes are one tile's; a byte count beyond that (which GDAL
+            // never writes) is not read, and leaves no framing to check.
+            let (stored, (lead, trail)) = match lv.compression {
+                Compression::None if count != need => (need, (0, 0)),
+                _ => (count, self.framing(offset, count)),
+            };
+            let count = stored;
             let (from, len) = (offset - lead, lead + count + trail);
             PACKED.with(|cell| {
                 let packed = &mut *cell.borrow_mut();

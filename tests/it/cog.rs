@@ -275,3 +275,39 @@ fn cliptex_info_shows_where_each_level_of_a_cog_comes_from() {
     assert_eq!(v["levels"][2]["origin"]["ifd"]["compression"], "deflate", "{v}");
     assert_eq!(v["levels"][3]["origin"]["built"]["from"], 2, "{v}");
 }
+
+#[test]
+fn cog_tiles_whose_gdal_leader_or_trailer_disagrees_are_refused_naming_it() {
+    let full = std::fs::read(fixture("grey_1000x700.tif")).unwrap();
+    // IFD 0's first tile (the image's top-left) is 1298 bytes at byte 4671, GDAL's leader (its
+    // byte count, 4 bytes little-endian) before it and its last 4 bytes again after it.
+    let (at, len) = (4671usize, 1298usize);
+    assert_eq!(full[at - 4..at], (len as u32).to_le_bytes(), "the fixture's layout");
+    assert_eq!(full[at + len..at + len + 4], full[at + len - 4..at + len], "the fixture's layout");
+    let dir = tempfile::tempdir().unwrap();
+    for (what, byte, name) in [("leader", at - 4, "BLOCK_LEADER"), ("trailer", at + len + 1, "BLOCK_TRAILER")] {
+        let mut bytes = full.clone();
+        bytes[byte] ^= 0x01;
+        let path = dir.path().join(format!("{what}.tif"));
+        std::fs::write(&path, &bytes).unwrap();
+        let src = CogSource::open(&path, 64).unwrap();
+        let desc = src.desc().clone();
+        let l = *desc.level(0);
+        let mut buf = vec![0u8; desc.tile_bytes(0)];
+        let mut refused = Vec::new();
+        for tt in 0..l.tiles()[1] {
+            for ts in 0..l.tiles()[0] {
+                if let Err(e) = src.read_tile(TileId::new(0, ts, tt), &mut buf) {
+                    assert!(matches!(e, SourceError::Chunk { .. }) && e.to_string().contains(name), "{what}: {e}");
+                    refused.push((ts, tt));
+                }
+            }
+        }
+        // Only texture tiles that hold texels of the top-left TIFF tile (t counted from the
+        // bottom: image row 699 - t).
+        let LevelOrigin::Ifd { tile: [tw, th], .. } = src.origins()[0] else { panic!("IFD 0") };
+        let [w, h] = l.tile;
+        let touches = |s: u64, t: u64| s * w < tw && 699 - (t * h + h - 1).min(699) < th;
+        assert!(!refused.is_empty() && refused.iter().all(|&(s, t)| touches(s, t)), "{what}: {refused:?}");
+    }
+}
