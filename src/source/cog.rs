@@ -16,7 +16,8 @@
 //! index (TileOffsets, TileByteCounts) is never read whole at open: entries in the first bytes are
 //! taken from there; a local file reads a tile's two entries with positioned reads; a remote
 //! object reads both arrays at once when they fit in [`MAX_INDEX_READ`], else chunks of
-//! [`INDEX_CHUNK_BYTES`], kept once read. So a COG with millions of tiles opens as fast as a
+//! [`INDEX_CHUNK_BYTES`], kept once read, and takes a tile's byte count from the offsets where
+//! GDAL's block leader confirms it (TileByteCounts then is not read). So a COG with millions of tiles opens as fast as a
 //! small one, and reads run in parallel. Adjacent TIFF tiles of a row that one texture tile needs
 //! are one ranged read of a remote object. GDAL's block leader (the tile's byte count) and
 //! trailer (its last 4 bytes again) are checked where the ghost area announces them.
@@ -1048,6 +1049,42 @@ impl CogSource {
         Ok((self.index_value(&lv.offsets, index, tile)?, self.index_value(&lv.counts, index, tile)?))
     }
 
+    /// A tile's place without its TileByteCounts entry, when reading that entry would cost a
+    /// request of its own (a remote index too large to read whole, the entry's chunk not read
+    /// yet) and GDAL's block leader will confirm it: an uncompressed tile holds one tile's
+    /// bytes, a compressed one those up to the next tile's leader (GDAL writes a level's tiles
+    /// back to back, each with its leader and trailer). [`CogSource::decode`] reads the entry
+    /// after all when the leader disagrees.
+    fn guessed_place(&self, lv: &IfdLevel, index: u64, need: u64, tile: TileId) -> Option<(u64, u64)> {
+        let (a, c) = (&lv.offsets, &lv.counts);
+        if !self.chunked || !self.ghost.leader || c.inline.is_some() || a.inline.is_some() {
+            return None;
+        }
+        if (Span { start: 0, bytes: &self.prefix }).get(c.at.saturating_add(index * c.size), c.size).is_some() {
+            return None;
+        }
+        self.index_pair(lv, index, tile).ok()?;
+        let per = |x: &Array| (INDEX_CHUNK_BYTES / x.size).max(1);
+        if self.index.lock().unwrap_or_else(|e| e.into_inner()).contains_key(&(c.at, index / per(c))) {
+            return None;
+        }
+        let offset = self.index_value(a, index, tile).ok()?;
+        if offset < 4 {
+            return None;
+        }
+        if lv.compression == Compression::None {
+            return Some((offset, need));
+        }
+        // The next entry, when it is in the same chunk of TileOffsets (no other request).
+        if index + 1 >= a.count || (index + 1) / per(a) != index / per(a) {
+            return None;
+        }
+        let next = self.index_value(a, index + 1, tile).ok()?;
+        let trail = if self.ghost.trailer { 4 } else { 0 };
+        let count = next.checked_sub(offset)?.checked_sub(4 + trail)?;
+        (count >= 4).then_some((offset, count))
+    }
+
     /// The bytes framing a tile of `count` bytes at `offset`: GDAL's leader before it and
     /// trailer after it, when the ghost area says they are there.
     fn framing(&self, offset: u64, count: u64) -> (u64, u64) {
@@ -1066,7 +1103,30 @@ impl CogSource {
         dst: &mut [u8],
         span: Option<&Span>,
     ) -> Result<(), SourceError> {
-        let (offset, count) = self.tile_place(lv, index, tile)?;
+        if span.is_none() {
+            if let Some(place) = self.guessed_place(lv, index, dst.len() as u64, tile) {
+                match self.decode_at(lv, index, tile, dst, span, place) {
+                    // The leader, trailer or decoder disagreed, or the guess ran past the end:
+                    // the TileByteCounts entry decides.
+                    Err(SourceError::Chunk { .. } | SourceError::Short { .. }) => {}
+                    r => return r,
+                }
+            }
+        }
+        let place = self.tile_place(lv, index, tile)?;
+        self.decode_at(lv, index, tile, dst, span, place)
+    }
+
+    /// [`CogSource::decode`] with the tile's offset and byte count given.
+    fn decode_at(
+        &self,
+        lv: &IfdLevel,
+        index: u64,
+        tile: TileId,
+        dst: &mut [u8],
+        span: Option<&Span>,
+        (offset, count): (u64, u64),
+    ) -> Result<(), SourceError> {
         if offset == 0 || count == 0 {
             return Err(SourceError::Missing { tile });
         }

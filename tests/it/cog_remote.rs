@@ -85,9 +85,24 @@ fn gdal_cogs_over_nginx_and_s3_give_gdal_s_texels_as_the_local_files_do() {
 /// tile index after the tiles (far past the first 64 KiB), TileByteCounts right after
 /// TileOffsets.
 fn big_index_tiff(w: u32, h: u32, t: u32) -> Vec<u8> {
+    tiled_tiff(w, h, t, false)
+}
+
+/// Like [`big_index_tiff`]; with `gdal`, laid out as GDAL writes a COG: a ghost area after the
+/// header announcing block leaders and trailers, and each tile framed by them.
+fn tiled_tiff(w: u32, h: u32, t: u32, gdal: bool) -> Vec<u8> {
     let (across, tiles) = (w.div_ceil(t), w.div_ceil(t) * h.div_ceil(t));
-    let (data_at, tile_len) = (4096u32, t * t);
-    let arrays_at = data_at + tiles * tile_len;
+    let tile_len = t * t;
+    let frame = if gdal { 8 } else { 0 };
+    let ghost = if gdal {
+        let body = "LAYOUT=IFDS_BEFORE_DATA\nBLOCK_ORDER=ROW_MAJOR\nBLOCK_LEADER=SIZE_AS_UINT4\nBLOCK_TRAILER=LAST_4_BYTES_REPEATED\nKNOWN_INCOMPATIBLE_EDITION=NO\n ";
+        format!("GDAL_STRUCTURAL_METADATA_SIZE={:06} bytes\n{body}", body.len()).into_bytes()
+    } else {
+        Vec::new()
+    };
+    let ifd_at = 8 + ghost.len() as u32;
+    let data_at = 4096u32;
+    let arrays_at = data_at + tiles * (tile_len + frame);
     let entries: [(u16, u16, u32, u32); 9] = [
         (256, 4, 1, w),
         (257, 4, 1, h),
@@ -99,7 +114,9 @@ fn big_index_tiff(w: u32, h: u32, t: u32) -> Vec<u8> {
         (324, 4, tiles, arrays_at),
         (325, 4, tiles, arrays_at + 4 * tiles),
     ];
-    let mut f = b"II*\0\x08\0\0\0".to_vec();
+    let mut f = b"II*\0".to_vec();
+    f.extend(ifd_at.to_le_bytes());
+    f.extend(&ghost);
     f.extend((entries.len() as u16).to_le_bytes());
     for (tag, ty, count, value) in entries {
         f.extend(tag.to_le_bytes());
@@ -110,16 +127,33 @@ fn big_index_tiff(w: u32, h: u32, t: u32) -> Vec<u8> {
     f.extend(0u32.to_le_bytes());
     f.resize(data_at as usize, 0);
     for i in 0..tiles {
+        if gdal {
+            f.extend(tile_len.to_le_bytes());
+        }
         for r in 0..t {
             for c in 0..t {
                 let (x, y) = ((i % across) * t + c, (i / across) * t + r);
                 f.push(((3 * x + 5 * y) & 255) as u8);
             }
         }
+        if gdal {
+            let last = f[f.len() - 4..].to_vec();
+            f.extend(last);
+        }
     }
-    f.extend((0..tiles).flat_map(|i| (data_at + i * tile_len).to_le_bytes()));
+    f.extend((0..tiles).flat_map(|i| (data_at + i * (tile_len + frame) + frame / 2).to_le_bytes()));
     f.extend((0..tiles).flat_map(|_| tile_len.to_le_bytes()));
     f
+}
+
+/// Texture tile `(s, t)` of level 0 of a [`tiled_tiff`] image `h` texels high, checked.
+fn assert_formula_tile(src: &CogSource, s: u64, t: u64, h: u64, buf: &[u8]) {
+    let l = src.desc().level(0);
+    for (j, &v) in buf.iter().enumerate() {
+        let (x, tt) = (s * l.tile[0] + j as u64 % l.tile[0], t * l.tile[1] + j as u64 / l.tile[0]);
+        let y = h - 1 - tt;
+        assert_eq!(v, ((3 * x + 5 * y) & 255) as u8, "texel ({x}, {tt})");
+    }
 }
 
 #[test]
@@ -128,6 +162,7 @@ fn a_remote_cog_opens_with_one_request_of_at_most_64_kib_and_a_first_tile_costs_
     std::fs::copy(fixture("rgb_512x384.tif"), dir.path().join("rgb.tif")).unwrap();
     // 2048 x 2048 in 16 x 16 tiles: 16384 tiles, two 64 KiB index arrays past the tiles.
     std::fs::write(dir.path().join("big_index.tif"), big_index_tiff(2048, 2048, 16)).unwrap();
+    std::fs::write(dir.path().join("gdal_like.tif"), tiled_tiff(2048, 2048, 8, true)).unwrap();
     let nginx = Nginx::serve(dir.path());
     let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
     let seen = || proxy.requests.load(Ordering::SeqCst);
@@ -174,13 +209,35 @@ fn a_remote_cog_opens_with_one_request_of_at_most_64_kib_and_a_first_tile_costs_
         // The first tile reads both arrays (128 KiB together, at most MAX_INDEX_READ) in one
         // request and its bytes in another; later tiles only their bytes.
         assert_eq!(cost, if i == 0 { 2 } else { 1 }, "tile ({s}, {t}) cost {cost} requests");
-        let l = src.desc().level(0);
-        for (j, &v) in buf.iter().enumerate() {
-            let (x, tt) = (s * l.tile[0] + j as u64 % l.tile[0], t * l.tile[1] + j as u64 / l.tile[0]);
-            let y = 2047 - tt;
-            assert_eq!(v, ((3 * x + 5 * y) & 255) as u8, "texel ({x}, {tt})");
-        }
+        assert_formula_tile(&src, s, t, 2048, &buf);
     }
+
+    // An index of 512 KiB (65536 tiles), framed as GDAL frames tiles: a first tile costs the
+    // chunk of TileOffsets that names it and its bytes, whose leader confirms its byte count
+    // (TileByteCounts is not read).
+    let before = seen();
+    let src = open(&format!("{}/gdal_like.tif", proxy.url()), &remote, 64);
+    assert_eq!(seen() - before, 1, "open is one request however large the index");
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    for (i, (s, t)) in [(100u64, 200u64), (101, 200), (7, 9)].into_iter().enumerate() {
+        let before = seen();
+        src.read_tile(TileId::new(0, s, t), &mut buf).unwrap();
+        let cost = seen() - before;
+        assert_eq!(cost, if i == 1 { 1 } else { 2 }, "tile ({s}, {t}) cost {cost} requests");
+        assert_formula_tile(&src, s, t, 2048, &buf);
+    }
+    // A leader that disagrees: TileByteCounts is read after all, and the tile refused.
+    let mut bad = tiled_tiff(2048, 2048, 8, true);
+    let index = (255 - 9) * 256 + 7;
+    let leader = 4096 + index * (64 + 8);
+    assert_eq!(bad[leader..leader + 4], 64u32.to_le_bytes());
+    bad[leader] = 65;
+    std::fs::write(dir.path().join("gdal_bad.tif"), &bad).unwrap();
+    let src = open(&format!("{}/gdal_bad.tif", proxy.url()), &remote, 64);
+    let e = src.read_tile(TileId::new(0, 7, 9), &mut buf).unwrap_err();
+    assert!(matches!(e, SourceError::Chunk { .. }) && e.to_string().contains("BLOCK_LEADER) say 65 bytes"), "{e}");
+    src.read_tile(TileId::new(0, 8, 9), &mut buf).unwrap();
+    assert_formula_tile(&src, 8, 9, 2048, &buf);
 }
 
 /// Replaces `path` with `bytes`, its modification time moved on (so that nginx's ETag, made of
