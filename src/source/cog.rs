@@ -563,20 +563,23 @@ impl Store {
                 if offset.checked_add(len).is_none_or(|e| e > o.size()) {
                     return Err(StoreError::Eof { size: o.size() });
                 }
-                Ok(o.read(offset, len).map_err(StoreError::Remote)?.to_bytes().to_vec().into())
+                let segments = o.read(offset, len).map_err(StoreError::Remote)?;
+                let mut v = vec![0u8; segments.len()];
+                segments.copy_to(&mut v);
+                Ok(Arc::new(v))
             }
             _ => {
                 let mut v = vec![0u8; len as usize];
                 self.read_exact_at(&mut v, offset)?;
-                Ok(v.into())
+                Ok(Arc::new(v))
             }
         }
     }
 }
 
-/// Bytes shared between readers (without the `bytes` crate, which only the `remote` feature
-/// brings).
-type Shared = Arc<[u8]>;
+/// Bytes shared between readers, read into their buffer once (without the `bytes` crate, which
+/// only the `remote` feature brings).
+type Shared = Arc<Vec<u8>>;
 
 /// A run of a file's bytes read at once: `bytes` from byte `start`.
 struct Span<'a> {
@@ -1034,7 +1037,7 @@ impl CogSource {
                 let (key, start, len) = chunk(x, j);
                 if start >= lo && start.saturating_add(len) <= hi {
                     let from = (start - lo) as usize;
-                    cache.entry(key).or_insert_with(|| Arc::from(&both[from..from + len as usize]));
+                    cache.entry(key).or_insert_with(|| Arc::new(both[from..from + len as usize].to_vec()));
                 }
             }
         }
