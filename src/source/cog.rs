@@ -603,7 +603,13 @@ struct Head<'a> {
     /// The first read that failed for another reason than the file's end (a remote object that
     /// could not be read, or changed): open says so rather than calling the file damaged.
     failed: RefCell<Option<String>>,
+    /// Runs of bytes past the prefix read so far ([`STRUCTURE_WINDOW`] at least each), so that
+    /// an IFD past the first bytes costs one read, not one for its count and one for its entries.
+    windows: RefCell<Vec<(u64, Vec<u8>)>>,
 }
+
+/// The least a read of structure past the first bytes takes (one request of a remote object).
+const STRUCTURE_WINDOW: u64 = 16 << 10;
 
 impl Head<'_> {
     /// `len` bytes at `offset`, or what is wrong (where, what).
@@ -611,7 +617,15 @@ impl Head<'_> {
         if let Some(b) = (Span { start: 0, bytes: self.prefix }).get(offset, len as u64) {
             return Ok(b.to_vec());
         }
-        let mut buf = vec![0u8; len];
+        for (start, bytes) in self.windows.borrow().iter() {
+            if let Some(b) = (Span { start: *start, bytes }).get(offset, len as u64) {
+                return Ok(b.to_vec());
+            }
+        }
+        // At least a window, not past the end of the file (a short read there is the error).
+        let size = self.store.size();
+        let wide = (len as u64).max(STRUCTURE_WINDOW.min(size.saturating_sub(offset)));
+        let mut buf = vec![0u8; wide as usize];
         self.store.read_exact_at(&mut buf, offset).map_err(|e| {
             let problem = e.problem(offset, len as u64);
             if !matches!(e, StoreError::Eof { .. }) {
@@ -619,7 +633,9 @@ impl Head<'_> {
             }
             (what.to_string(), problem)
         })?;
-        Ok(buf)
+        let out = buf[..len].to_vec();
+        self.windows.borrow_mut().push((offset, buf));
+        Ok(out)
     }
 }
 
@@ -756,7 +772,8 @@ impl CogSource {
         }
         let first = if layout.big { layout.u64(&head[8..]) } else { layout.u32(&head[4..]) as u64 };
         let ghost = Ghost::parse(&prefix, if layout.big { 16 } else { 8 });
-        let reader = Head { store: &store, prefix: &prefix, failed: RefCell::new(None) };
+        let reader =
+            Head { store: &store, prefix: &prefix, failed: RefCell::new(None), windows: RefCell::new(Vec::new()) };
         let parts = read_ifds(&reader, layout, first)
             .map_err(malformed)
             .and_then(|images| CogSource::levels_of(&path, &reader, layout, images, clip_size));

@@ -461,6 +461,7 @@ fn an_ifd_past_the_first_64_kib_is_read_where_it_lies_and_a_failed_read_of_it_is
     let url = format!("{}/late.tif", proxy.url());
     let remote = reader(&[]);
     let src = open(&url, &remote, 64);
+    assert_eq!(proxy.requests.load(Ordering::SeqCst), 2, "the first 64 KiB, then the IFD where it lies");
     let mut buf = vec![0u8; src.desc().tile_bytes(0)];
     src.read_tile(TileId::new(0, 5, 6), &mut buf).unwrap();
     let y = 511 - 6 * 16;
