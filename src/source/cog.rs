@@ -714,7 +714,9 @@ impl CogSource {
                 let path = PathBuf::from(name.as_str());
                 let remote_err = |problem: String| CogError::Remote { path: path.clone(), problem };
                 let opts = RemoteOptions::from_env().map_err(|e| remote_err(e.to_string()))?;
-                let remote = Remote::new(opts).map_err(|e| remote_err(format!("the remote disk cache: {e}")))?;
+                // COG ranges are not kept in the disk cache (docs/COG.md): none is opened.
+                let opts = RemoteOptions { cache_dir: None, ..opts };
+                let remote = Remote::new(opts).map_err(|e| remote_err(e.to_string()))?;
                 CogSource::open_remote(name, Arc::new(remote), clip_size)
             }
             #[cfg(not(feature = "remote"))]

@@ -3,9 +3,9 @@
 //!
 //! Opening it is one ranged GET of its first bytes: the answer's `Content-Range` gives the
 //! object's size (no HEAD), and its `ETag` (else `Last-Modified`) the version the object is
-//! read at. Every later range goes through the [`Fetcher`](super::Fetcher) (bounded per endpoint, merged with
-//! adjacent ranges waiting for the same endpoint, retried) and is checked against what open saw:
-//! a range of another size of object, or of another version, is refused
+//! read at. Every later range goes through the [`Fetcher`](super::Fetcher) (bounded per
+//! endpoint, merged with adjacent ranges waiting for the same endpoint, retried) and is checked
+//! against what open saw: a range of another size of object, or of another version, is refused
 //! ([`ObjectError::Changed`]), never patched into the bytes read before.
 
 use super::fetch::{ReadError, Segments};
