@@ -1186,19 +1186,19 @@ impl CogSource {
             let count = stored;
             let (from, len) = (offset - lead, lead + count + trail);
             PACKED.with(|cell| {
-                let packed = &mut *cell.borrow_mut();
-                match span.and_then(|s| s.get(from, len)).or_else(|| prefix.get(from, len)) {
-                    Some(b) => {
-                        packed.clear();
-                        packed.extend_from_slice(b);
-                    }
+                let mut buf = cell.borrow_mut();
+                // The bytes where they were read already (a row's span, the first bytes), else
+                // read into this thread's buffer.
+                let packed: &[u8] = match span.and_then(|s| s.get(from, len)).or_else(|| prefix.get(from, len)) {
+                    Some(b) => b,
                     None => {
-                        packed.resize(len as usize, 0);
+                        buf.resize(len as usize, 0);
                         self.store
-                            .read_exact_at(packed, from)
+                            .read_exact_at(&mut buf, from)
                             .map_err(|e| e.for_tile(tile, &self.path, from, len))?;
+                        &buf
                     }
-                }
+                };
                 let data_end = (lead + count) as usize;
                 if lead == 4 {
                     let said = u32::from_le_bytes([packed[0], packed[1], packed[2], packed[3]]) as u64;
