@@ -241,8 +241,12 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             let stem = dir.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "growing".into());
             (src as Arc<dyn clipmap::source::TileSource>, stem, clipmap::paging::PagingOptions::default())
         }
-        (Some(path), _) if clipmap::source::cog::is_tiff(path) => {
-            let src = clipmap::source::CogSource::open(path, cli.clip).map_err(|e| bad(anyhow::anyhow!("{e}")))?;
+        // A tiled GeoTIFF / COG: a local file that starts like one, or an http(s):// or s3://
+        // name ending in .tif / .tiff (read in ranges, docs/COG.md).
+        (Some(path), _) if clipmap::source::cog::is_tiff_place(&clipmap::place::Place::from_path(path.clone())) => {
+            let place = clipmap::place::Place::from_path(path.clone());
+            let src =
+                clipmap::source::CogSource::open_place(&place, cli.clip).map_err(|e| bad(anyhow::anyhow!("{e}")))?;
             let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "clip".into());
             (Arc::new(src) as Arc<dyn clipmap::source::TileSource>, stem, clipmap::paging::PagingOptions::default())
         }

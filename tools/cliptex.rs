@@ -10,6 +10,7 @@ mod grow;
 use clap::{Parser, Subcommand};
 use clipmap::cli::{self as cmdline, EnvArgs};
 use clipmap::config::FileKind;
+use clipmap::place::Place;
 use clipmap::plan;
 use clipmap::report::{self, check, exit, info, validate};
 use clipmap::roam;
@@ -489,7 +490,7 @@ fn dump(args: DumpArgs) -> i32 {
         return exit::BAD_INPUT;
     };
     let region = args.region;
-    if clipmap::source::cog::is_tiff(file) {
+    if is_cog(file) {
         let src = match open_cog(file, "cliptex dump") {
             Ok(s) => s,
             Err(c) => return c,
@@ -501,7 +502,7 @@ fn dump(args: DumpArgs) -> i32 {
         }
         let d = src.desc().level(args.level);
         let read = |id, buf: &mut [u8]| src.read_tile(id, buf);
-        let place = clipmap::place::Place::Local(file.clone());
+        let place = Place::from_path(file.clone());
         let file_of = |_: clipmap::source::TileId| Some(place.clone());
         let tiles = dump::LevelTiles {
             level: Some(args.level),
@@ -547,9 +548,16 @@ fn dump(args: DumpArgs) -> i32 {
 /// `clipmapd`'s and `cliptex info`'s clip size for a COG served as it is.
 const COG_CLIP: u64 = 1024;
 
-/// Opens a tiled GeoTIFF / COG as `clipmapd` serves it; the error is printed for `tool`.
+/// Whether `file` names a tiled GeoTIFF / COG: a local file that starts like a TIFF, or an
+/// http(s):// or s3:// name ending in .tif / .tiff.
+fn is_cog(file: &Path) -> bool {
+    clipmap::source::cog::is_tiff_place(&Place::from_path(file.to_path_buf()))
+}
+
+/// Opens a tiled GeoTIFF / COG, local or remote, as `clipmapd` serves it; the error is printed
+/// for `tool`.
 fn open_cog(file: &Path, tool: &str) -> Result<clipmap::source::CogSource, i32> {
-    clipmap::source::CogSource::open(file, COG_CLIP).map_err(|e| {
+    clipmap::source::CogSource::open_place(&Place::from_path(file.to_path_buf()), COG_CLIP).map_err(|e| {
         eprintln!("{tool}: {e}");
         exit::BAD_INPUT
     })
@@ -582,7 +590,7 @@ fn check_cog(file: &Path, json: bool, quiet: bool) -> i32 {
     };
     let tiles: u64 = src.desc().levels().iter().map(|l| l.tiles().iter().product::<u64>()).sum();
     let bar = tile_bar(tiles, quiet);
-    let report = check::run_source(file, &src, &kind_of, &|n| bar.inc(n));
+    let report = check::run_source(file, &Place::from_path(file.to_path_buf()), &src, &kind_of, &|n| bar.inc(n));
     bar.finish_and_clear();
     report::emit(json, &report, |r| check::human(r, quiet));
     if report.servable {
@@ -593,7 +601,7 @@ fn check_cog(file: &Path, json: bool, quiet: bool) -> i32 {
 }
 
 fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
-    if clipmap::source::cog::is_tiff(file) {
+    if is_cog(file) {
         return check_cog(file, json, quiet);
     }
     let plan = match load(file, env) {
@@ -661,7 +669,8 @@ fn run(cli: Cli) -> i32 {
         }
         Command::Validate { args, ct_only } => cmdline::validate(&args, FileKind::ClipTexture, "cliptex", ct_only),
         // A tiled GeoTIFF / COG: the texture it is served as (clipmapd's default clip size).
-        Command::Info { file, json, .. } if clipmap::source::cog::is_tiff(&file) => match open_cog(&file, "cliptex") {
+        // A local file that starts like a TIFF, or an http(s):// or s3:// name ending in .tif / .tiff.
+        Command::Info { file, json, .. } if is_cog(&file) => match open_cog(&file, "cliptex") {
             Err(c) => c,
             Ok(src) => {
                 let info = src.info();

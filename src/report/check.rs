@@ -361,6 +361,7 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
 /// checked since its last call.
 pub fn run_source(
     path: &std::path::Path,
+    place: &Place,
     src: &dyn crate::source::TileSource,
     kind_of: &dyn Fn(u32) -> &'static str,
     progress: &dyn Fn(u64),
@@ -368,7 +369,6 @@ pub fn run_source(
     use crate::source::{SourceError, TileId};
     let (mut problems, mut not_listed) = (Vec::new(), 0u64);
     let (mut levels, mut totals) = (Vec::new(), Counts::default());
-    let place = Place::Local(path.to_path_buf());
     for (k, d) in src.desc().levels().iter().enumerate() {
         let level = k as u32;
         let mut counts = Counts::default();

@@ -1,5 +1,6 @@
-//! [`CogSource`]: a local tiled GeoTIFF or Cloud-Optimized GeoTIFF served as it is, with no
-//! preparation step (issue #34's local foundation).
+//! [`CogSource`]: a tiled GeoTIFF or Cloud-Optimized GeoTIFF served as it is, with no
+//! preparation step: a local file, or (the `remote` feature) an `http(s)://` or `s3://` object
+//! read in byte ranges (docs/COG.md).
 //!
 //! Owns reading a TIFF's header and IFD chain (classic TIFF and BigTIFF, either byte order),
 //! checking each image's layout against what is served (refusals name the IFD, the tag, the value
@@ -8,10 +9,18 @@
 //! open, and decoding tiles (none, LZW, DEFLATE, ZSTD; horizontal predictor) into the caller's
 //! slot buffer.
 //!
-//! The tile index (TileOffsets, TileByteCounts) is never read whole: open reads the header and the
-//! IFD entries only, and each tile read fetches its own two index values with positioned reads, so
-//! a COG with millions of tiles opens as fast as a small one and reads run in parallel without a
-//! lock.
+//! The bytes come from a `Store`: a local file (positioned reads, an uncompressed tile straight
+//! into the slot) or a remote object (`remote::object::Object`: ranged reads, every one checked
+//! against the version, ETag or Last-Modified, and size seen at open). Open reads the first
+//! [`PREFIX_BYTES`] once and parses the header, GDAL's ghost area and the IFDs from them. The tile
+//! index (TileOffsets, TileByteCounts) is never read whole at open: entries in the first bytes are
+//! taken from there; a local file reads a tile's two entries with positioned reads; a remote
+//! object reads both arrays at once when they fit in [`MAX_INDEX_READ`], else chunks of
+//! [`INDEX_CHUNK_BYTES`], kept once read, and takes a tile's byte count from the offsets where
+//! GDAL's block leader confirms it (TileByteCounts then is not read). So a COG with millions of tiles opens as fast as a
+//! small one, and reads run in parallel. Adjacent TIFF tiles of a row that one texture tile needs
+//! are one ranged read of a remote object. GDAL's block leader (the tile's byte count) and
+//! trailer (its last 4 bytes again) are checked where the ghost area announces them.
 //!
 //! Why not the `tiff` crate (which `clipprep` uses to stream GeoTIFFs): its decoder reads every
 //! IFD's whole TileOffsets and TileByteCounts arrays when it opens an image, and it reads a tile
@@ -39,18 +48,24 @@
 //!
 //! Sparse tiles (offset or byte count 0, as GDAL's `SPARSE_OK` writes them) are
 //! [`SourceError::Missing`] when read; a level built at open reads them as zeros (GDAL's value
-//! for them). Not yet: remote objects, 16-bit and float samples, JPEG, GDAL_NODATA and masks.
+//! for them). Not yet: 16-bit and float samples, JPEG, GDAL_NODATA and masks.
+//!
+//! The levels past the overviews are built at open for a local file, and when one is first read
+//! for a remote object (its open stays one request).
 
 use super::{
     check_request, level_count, level_size, DescError, LevelDesc, SourceError, TextureDesc, TileId, TileSource,
 };
+use crate::place::Place;
 use crate::texel::TexelFormat;
 use serde::Serialize;
 use std::cell::RefCell;
+use std::collections::HashMap;
 use std::fs::File;
 use std::io;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 use thiserror::Error;
 
 /// The most texels of the image the levels coarser than the smallest usable overview are built
@@ -65,6 +80,22 @@ const MAX_ENTRIES: u64 = 4096;
 
 /// What open reads of a TIFF's structure at most, all IFDs together.
 const MAX_STRUCTURE_BYTES: u64 = 1 << 20;
+
+/// The first bytes of a TIFF read at open, in one read (one ranged GET of a remote object): a
+/// COG written by GDAL has its header, ghost area and every IFD in them, and a small one its tile
+/// index too. Structure past them is read where it lies.
+pub const PREFIX_BYTES: u64 = 64 << 10;
+
+/// The bytes of a tile index read at once from a remote object, when its entries are first
+/// needed (the entries of about a tile row or more).
+pub const INDEX_CHUNK_BYTES: u64 = 4096;
+
+/// The most bytes one read of both tile index arrays' chunks of an entry takes (a remote object):
+/// the two arrays of an image of up to 32768 tiles (LONG entries) are then read whole at once.
+pub const MAX_INDEX_READ: u64 = 256 << 10;
+
+/// The most bytes one ranged read of adjacent tiles of a row takes (a remote object).
+const MAX_SPAN_BYTES: u64 = 8 << 20;
 
 /// Why a file cannot be served as a COG.
 #[derive(Debug, Error)]
@@ -138,6 +169,14 @@ pub enum CogError {
         #[source]
         source: SourceError,
     },
+    /// A remote object cannot be read, or this build cannot read remote objects.
+    #[error("{problem}")]
+    Remote {
+        /// The object.
+        path: PathBuf,
+        /// What happened, naming the object.
+        problem: String,
+    },
     /// The levels do not form a texture the engine serves.
     #[error("{path}: the levels cannot be served: {source}", path = path.display())]
     Desc {
@@ -200,6 +239,9 @@ pub struct CogInfo {
     pub levels: Vec<CogLevelInfo>,
     /// Why the overviews stop being used before the coarsest level, when levels are built.
     pub built_because: Option<String>,
+    /// The levels past the overviews are built when one is first read (a remote object, whose
+    /// open reads its structure only), not at open.
+    pub built_on_first_read: bool,
 }
 
 /// One level of a [`CogInfo`].
@@ -238,6 +280,9 @@ impl CogInfo {
                     tile[1],
                     if predictor { ", predictor 2" } else { "" }
                 ),
+                LevelOrigin::Built { from } if self.built_on_first_read => {
+                    format!("built when first read from level {from} (2 x 2 box)")
+                }
                 LevelOrigin::Built { from } => format!("built at open from level {from} (2 x 2 box)"),
             };
             let _ = writeln!(
@@ -372,11 +417,12 @@ impl IfdLevel {
     }
 }
 
-/// A level: tiles of the file, or texels built at open (rows in increasing t, whole level).
+/// A level: tiles of the file, or texels built from the last usable image (at open for a local
+/// file, when first read for a remote object).
 #[derive(Clone, Debug)]
 enum Level {
     Ifd(IfdLevel),
-    Built(Vec<u8>),
+    Built,
 }
 
 /// What an IFD says about its image (the tags this source reads).
@@ -384,6 +430,37 @@ struct Image {
     ifd: usize,
     subfile: u64,
     entries: Vec<Entry>,
+}
+
+/// What GDAL's ghost area (structural metadata right after the header) says about the tiles'
+/// framing: each tile preceded by its byte count (`BLOCK_LEADER=SIZE_AS_UINT4`, 4 bytes,
+/// little-endian) and followed by its last 4 bytes again (`BLOCK_TRAILER=LAST_4_BYTES_REPEATED`),
+/// unless the file was changed since (`KNOWN_INCOMPATIBLE_EDITION=YES`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Ghost {
+    leader: bool,
+    trailer: bool,
+}
+
+impl Ghost {
+    /// The ghost area at `at` of the file's first bytes `prefix`, if there is one.
+    fn parse(prefix: &[u8], at: usize) -> Ghost {
+        const KEY: &[u8] = b"GDAL_STRUCTURAL_METADATA_SIZE=";
+        let Some(rest) = prefix.get(at..).filter(|r| r.starts_with(KEY)) else { return Ghost::default() };
+        let digits = &rest[KEY.len()..];
+        let n = digits.iter().take_while(|b| b.is_ascii_digit()).count();
+        let Some(size) = std::str::from_utf8(&digits[..n]).ok().and_then(|d| d.parse::<usize>().ok()) else {
+            return Ghost::default();
+        };
+        // The size counts the bytes after the first line.
+        let Some(line) = rest.iter().position(|&b| b == b'\n') else { return Ghost::default() };
+        let text = &rest[(line + 1).min(rest.len())..(line + 1).saturating_add(size).min(rest.len())];
+        let has = |s: &[u8]| text.windows(s.len()).any(|w| w == s);
+        if has(b"KNOWN_INCOMPATIBLE_EDITION=YES") {
+            return Ghost::default();
+        }
+        Ghost { leader: has(b"BLOCK_LEADER=SIZE_AS_UINT4"), trailer: has(b"BLOCK_TRAILER=LAST_4_BYTES_REPEATED") }
+    }
 }
 
 thread_local! {
@@ -394,15 +471,193 @@ thread_local! {
     static CHUNK: RefCell<Vec<u8>> = const { RefCell::new(Vec::new()) };
 }
 
-/// A local tiled GeoTIFF or COG served as a clip texture.
+/// Where a TIFF's bytes are read from: a local file (positioned reads, straight into the
+/// caller's buffer) or a remote object (ranged reads of the version seen at open).
+enum Store {
+    Local(File),
+    #[cfg(feature = "remote")]
+    Remote(super::remote::object::Object),
+}
+
+/// Why bytes of a [`Store`] cannot be read.
+enum StoreError {
+    /// The range runs past the end (of `size` bytes).
+    Eof { size: u64 },
+    /// A local read failed.
+    Io(io::Error),
+    /// A remote read failed, or the object changed.
+    #[cfg(feature = "remote")]
+    Remote(super::remote::object::ObjectError),
+}
+
+impl StoreError {
+    /// The problem in words, for a read of `len` bytes at `offset`.
+    fn problem(&self, offset: u64, len: u64) -> String {
+        match self {
+            StoreError::Eof { size } => {
+                format!("{len} bytes at byte {offset} run past the end of the file ({size} bytes)")
+            }
+            StoreError::Io(e) => e.to_string(),
+            #[cfg(feature = "remote")]
+            StoreError::Remote(e) => e.to_string(),
+        }
+    }
+
+    /// The failure of a read of `len` bytes at `offset` for `tile`.
+    #[cfg_attr(not(feature = "remote"), allow(unused_variables))]
+    fn for_tile(self, tile: TileId, path: &Path, offset: u64, len: u64) -> SourceError {
+        match self {
+            StoreError::Eof { size } => {
+                SourceError::Short { tile, expected: len, got: size.saturating_sub(offset).min(len) }
+            }
+            StoreError::Io(e) => super::file::io_error(tile, e),
+            #[cfg(feature = "remote")]
+            StoreError::Remote(super::remote::object::ObjectError::Read(e)) => super::remote::source_error(tile, e),
+            #[cfg(feature = "remote")]
+            StoreError::Remote(e) => SourceError::Chunk { tile, path: path.to_path_buf(), problem: e.to_string() },
+        }
+    }
+}
+
+impl Store {
+    /// The size of the file now (a remote object's at open).
+    fn size(&self) -> u64 {
+        match self {
+            Store::Local(f) => f.metadata().map(|m| m.len()).unwrap_or(0),
+            #[cfg(feature = "remote")]
+            Store::Remote(o) => o.size(),
+        }
+    }
+
+    fn is_remote(&self) -> bool {
+        !matches!(self, Store::Local(_))
+    }
+
+    /// Fills `buf` from byte `offset`.
+    fn read_exact_at(&self, buf: &mut [u8], offset: u64) -> Result<(), StoreError> {
+        match self {
+            Store::Local(f) => f.read_exact_at(buf, offset).map_err(|e| {
+                if e.kind() == io::ErrorKind::UnexpectedEof {
+                    StoreError::Eof { size: self.size() }
+                } else {
+                    StoreError::Io(e)
+                }
+            }),
+            #[cfg(feature = "remote")]
+            Store::Remote(o) => {
+                let end = offset.checked_add(buf.len() as u64);
+                if end.is_none_or(|e| e > o.size()) {
+                    return Err(StoreError::Eof { size: o.size() });
+                }
+                o.read(offset, buf.len() as u64).map_err(StoreError::Remote)?.copy_to(buf);
+                Ok(())
+            }
+        }
+    }
+
+    /// Bytes `[offset, offset + len)` in one piece (one ranged read of a remote object).
+    fn read_bytes(&self, offset: u64, len: u64) -> Result<Shared, StoreError> {
+        match self {
+            #[cfg(feature = "remote")]
+            Store::Remote(o) => {
+                if offset.checked_add(len).is_none_or(|e| e > o.size()) {
+                    return Err(StoreError::Eof { size: o.size() });
+                }
+                let segments = o.read(offset, len).map_err(StoreError::Remote)?;
+                let mut v = vec![0u8; segments.len()];
+                segments.copy_to(&mut v);
+                Ok(Arc::new(v))
+            }
+            _ => {
+                let mut v = vec![0u8; len as usize];
+                self.read_exact_at(&mut v, offset)?;
+                Ok(Arc::new(v))
+            }
+        }
+    }
+}
+
+/// Bytes shared between readers, read into their buffer once (without the `bytes` crate, which
+/// only the `remote` feature brings).
+type Shared = Arc<Vec<u8>>;
+
+/// A run of a file's bytes read at once: `bytes` from byte `start`.
+struct Span<'a> {
+    start: u64,
+    bytes: &'a [u8],
+}
+
+impl Span<'_> {
+    /// Bytes `[offset, offset + len)` when the span holds them all.
+    fn get(&self, offset: u64, len: u64) -> Option<&[u8]> {
+        let from = offset.checked_sub(self.start)?;
+        let to = from.checked_add(len)?;
+        self.bytes.get(from as usize..usize::try_from(to).ok()?)
+    }
+}
+
+/// The structure reader at open: the first bytes, then the store.
+struct Head<'a> {
+    store: &'a Store,
+    prefix: &'a [u8],
+    /// The first read that failed for another reason than the file's end (a remote object that
+    /// could not be read, or changed): open says so rather than calling the file damaged.
+    failed: RefCell<Option<String>>,
+    /// Runs of bytes past the prefix read so far ([`STRUCTURE_WINDOW`] at least each), so that
+    /// an IFD past the first bytes costs one read, not one for its count and one for its entries.
+    windows: RefCell<Vec<(u64, Vec<u8>)>>,
+}
+
+/// The least a read of structure past the first bytes takes (one request of a remote object).
+const STRUCTURE_WINDOW: u64 = 16 << 10;
+
+impl Head<'_> {
+    /// `len` bytes at `offset`, or what is wrong (where, what).
+    fn read_at(&self, offset: u64, len: usize, what: &str) -> Result<Vec<u8>, (String, String)> {
+        if let Some(b) = (Span { start: 0, bytes: self.prefix }).get(offset, len as u64) {
+            return Ok(b.to_vec());
+        }
+        for (start, bytes) in self.windows.borrow().iter() {
+            if let Some(b) = (Span { start: *start, bytes }).get(offset, len as u64) {
+                return Ok(b.to_vec());
+            }
+        }
+        // At least a window, not past the end of the file (a short read there is the error).
+        let size = self.store.size();
+        let wide = (len as u64).max(STRUCTURE_WINDOW.min(size.saturating_sub(offset)));
+        let mut buf = vec![0u8; wide as usize];
+        self.store.read_exact_at(&mut buf, offset).map_err(|e| {
+            let problem = e.problem(offset, len as u64);
+            if !matches!(e, StoreError::Eof { .. }) {
+                self.failed.borrow_mut().get_or_insert_with(|| problem.clone());
+            }
+            (what.to_string(), problem)
+        })?;
+        let out = buf[..len].to_vec();
+        self.windows.borrow_mut().push((offset, buf));
+        Ok(out)
+    }
+}
+
+/// A local tiled GeoTIFF or COG, or a remote one, served as a clip texture.
 pub struct CogSource {
     path: PathBuf,
-    file: File,
+    store: Store,
+    /// The file's first bytes ([`PREFIX_BYTES`] at most), kept: index entries and tiles in them
+    /// are read from here.
+    prefix: Vec<u8>,
     layout: Layout,
+    ghost: Ghost,
     desc: TextureDesc,
     levels: Vec<Level>,
     origins: Vec<LevelOrigin>,
     built_because: Option<String>,
+    /// Tile index chunks read so far (remote objects), by array offset and chunk number.
+    index: Mutex<HashMap<(u64, u64), Shared>>,
+    /// Read index entries in chunks (set for remote objects; tests set it for a local file).
+    chunked: bool,
+    /// The levels built from the last usable image, once built.
+    built: Mutex<Option<Arc<Vec<Vec<u8>>>>>,
 }
 
 impl std::fmt::Debug for CogSource {
@@ -418,19 +673,15 @@ pub fn is_tiff(path: &Path) -> bool {
         && matches!(&magic, b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+")
 }
 
-/// Reads `len` bytes at `offset`, or says what is missing.
-fn read_at(file: &File, offset: u64, len: usize, what: &str) -> Result<Vec<u8>, (String, String)> {
-    let mut buf = vec![0u8; len];
-    file.read_exact_at(&mut buf, offset).map_err(|e| {
-        let problem = if e.kind() == io::ErrorKind::UnexpectedEof {
-            let size = file.metadata().map(|m| m.len()).unwrap_or(0);
-            format!("{len} bytes at byte {offset} run past the end of the file ({size} bytes)")
-        } else {
-            e.to_string()
-        };
-        (what.to_string(), problem)
-    })?;
-    Ok(buf)
+/// Whether `place` is served as a TIFF: a local file that starts like one ([`is_tiff`]), or a
+/// remote name ending in `.tif` or `.tiff` (any case; nothing is read to tell).
+pub fn is_tiff_place(place: &Place) -> bool {
+    match place {
+        Place::Local(p) => is_tiff(p),
+        Place::Remote(r) => {
+            r.extension().is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"))
+        }
+    }
 }
 
 impl CogSource {
@@ -440,15 +691,73 @@ impl CogSource {
     pub fn open(path: &Path, clip_size: u64) -> Result<Self, CogError> {
         let io_err = |source| CogError::Io { path: path.to_path_buf(), source };
         let (file, _) = crate::open::regular(path).map_err(io_err)?;
-        let malformed = |(at, problem): (String, String)| CogError::Malformed { path: path.to_path_buf(), at, problem };
-        let mut head = [0u8; 16];
-        let got = read_prefix(&file, &mut head).map_err(io_err)?;
+        let mut prefix = vec![0u8; PREFIX_BYTES as usize];
+        let got = read_prefix(&file, &mut prefix).map_err(io_err)?;
+        prefix.truncate(got);
+        let src = CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, clip_size)?;
+        src.built_levels(None).map_err(|source| CogError::Build {
+            path: path.to_path_buf(),
+            from: src.levels.iter().filter(|l| matches!(l, Level::Ifd(_))).count() as u32,
+            source,
+        })?;
+        Ok(src)
+    }
+
+    /// Opens `place`: a local file ([`CogSource::open`]) or a remote object read with the
+    /// remote options of the environment (`CLIPMAP_REMOTE_*`, docs/CONFIG.md §15).
+    pub fn open_place(place: &Place, clip_size: u64) -> Result<Self, CogError> {
+        match place {
+            Place::Local(p) => CogSource::open(p, clip_size),
+            #[cfg(feature = "remote")]
+            Place::Remote(name) => {
+                use super::remote::{Remote, RemoteOptions};
+                let path = PathBuf::from(name.as_str());
+                let remote_err = |problem: String| CogError::Remote { path: path.clone(), problem };
+                let opts = RemoteOptions::from_env().map_err(|e| remote_err(e.to_string()))?;
+                // COG ranges are not kept in the disk cache (docs/COG.md): none is opened.
+                let opts = RemoteOptions { cache_dir: None, ..opts };
+                let remote = Remote::new(opts).map_err(|e| remote_err(e.to_string()))?;
+                CogSource::open_remote(name, Arc::new(remote), clip_size)
+            }
+            #[cfg(not(feature = "remote"))]
+            Place::Remote(name) => Err(CogError::Remote {
+                path: PathBuf::from(name.as_str()),
+                problem: format!(
+                    "{name}: this build reads no remote objects: build it with the `remote` feature, or copy the file here"
+                ),
+            }),
+        }
+    }
+
+    /// Opens the remote object `name` through `remote` with one ranged read of its first
+    /// [`PREFIX_BYTES`] (more only for structure that lies past them); the tile index is read
+    /// in chunks as tiles are first read, and the levels past the overviews are built when one
+    /// is first read.
+    #[cfg(feature = "remote")]
+    pub fn open_remote(
+        name: &crate::place::RemoteName,
+        remote: Arc<super::remote::Remote>,
+        clip_size: u64,
+    ) -> Result<Self, CogError> {
+        use super::remote::object::Object;
+        let path = PathBuf::from(name.as_str());
+        let (object, prefix) = Object::open(remote, name, PREFIX_BYTES)
+            .map_err(|e| CogError::Remote { path: path.clone(), problem: e.to_string() })?;
+        let mut src = CogSource::from_store(path, Store::Remote(object), prefix.to_vec(), clip_size)?;
+        src.chunked = true;
+        Ok(src)
+    }
+
+    fn from_store(path: PathBuf, store: Store, prefix: Vec<u8>, clip_size: u64) -> Result<Self, CogError> {
+        let malformed = |(at, problem): (String, String)| CogError::Malformed { path: path.clone(), at, problem };
+        let head = &prefix[..prefix.len().min(16)];
+        let got = head.len();
         let layout = match &head[..4.min(got)] {
             b"II*\0" => Layout { little: true, big: false },
             b"MM\0*" => Layout { little: false, big: false },
             b"II+\0" => Layout { little: true, big: true },
             b"MM\0+" => Layout { little: false, big: true },
-            other => return Err(CogError::NotTiff { path: path.to_path_buf(), found: format!("{other:02x?}") }),
+            other => return Err(CogError::NotTiff { path: path.clone(), found: format!("{other:02x?}") }),
         };
         if layout.big && got < 16 || !layout.big && got < 8 {
             return Err(malformed(("the header".into(), format!("the file has only {got} bytes"))));
@@ -464,10 +773,37 @@ impl CogSource {
             )));
         }
         let first = if layout.big { layout.u64(&head[8..]) } else { layout.u32(&head[4..]) as u64 };
-        let images = read_ifds(&file, layout, first).map_err(malformed)?;
-        let mut src = CogSource::from_images(path, file, layout, images, clip_size)?;
-        src.build_coarse()?;
-        Ok(src)
+        let ghost = Ghost::parse(&prefix, if layout.big { 16 } else { 8 });
+        let reader =
+            Head { store: &store, prefix: &prefix, failed: RefCell::new(None), windows: RefCell::new(Vec::new()) };
+        let parts = read_ifds(&reader, layout, first)
+            .map_err(malformed)
+            .and_then(|images| CogSource::levels_of(&path, &reader, layout, images, clip_size));
+        let parts = match (parts, reader.failed.take()) {
+            (Ok(p), _) => p,
+            (Err(_), Some(problem)) => {
+                return Err(CogError::Remote {
+                    path: path.clone(),
+                    problem: format!("reading its structure: {problem}"),
+                })
+            }
+            (Err(e), None) => return Err(e),
+        };
+        let (desc, levels, origins, built_because) = parts;
+        Ok(CogSource {
+            path,
+            store,
+            prefix,
+            layout,
+            ghost,
+            desc,
+            levels,
+            origins,
+            built_because,
+            index: Mutex::new(HashMap::new()),
+            chunked: false,
+            built: Mutex::new(None),
+        })
     }
 
     /// The file served.
@@ -495,18 +831,20 @@ impl CogSource {
             format: self.desc.format(),
             levels,
             built_because: self.built_because.clone(),
+            built_on_first_read: self.store.is_remote(),
         }
     }
 
-    fn from_images(
+    #[allow(clippy::type_complexity)]
+    fn levels_of(
         path: &Path,
-        file: File,
+        head: &Head,
         layout: Layout,
         images: Vec<Image>,
         clip_size: u64,
-    ) -> Result<Self, CogError> {
+    ) -> Result<(TextureDesc, Vec<Level>, Vec<LevelOrigin>, Option<String>), CogError> {
         let full = &images[0];
-        let (format, level0) = image_level(path, &file, layout, full)?;
+        let (format, level0) = image_level(path, head, layout, full)?;
         let size = level0.size;
         let n = level_count(size);
         let mut levels = vec![Level::Ifd(level0)];
@@ -516,7 +854,7 @@ impl CogSource {
                 continue; // a mask or another page
             }
             let k = levels.len() as u32;
-            let (f, level) = image_level(path, &file, layout, image)?;
+            let (f, level) = image_level(path, head, layout, image)?;
             if f != format {
                 return Err(CogError::Unsupported {
                     path: path.to_path_buf(),
@@ -573,39 +911,42 @@ impl CogSource {
             descs.push(LevelDesc { size: ls, tile });
             origins.push(origin);
         }
+        levels.resize(n, Level::Built);
         let desc_err = |source| CogError::Desc { path: path.to_path_buf(), source };
         let desc = TextureDesc::from_levels(size, clip_size, format, descs).map_err(desc_err)?;
         let border = (clip_size / 32).clamp(1, 16).min(clip_size.saturating_sub(1) / 2);
         let desc = desc.with_invalid_border(border).map_err(desc_err)?;
         let built_because = (used < n).then_some(why);
-        Ok(CogSource { path: path.to_path_buf(), file, layout, desc, levels, origins, built_because })
+        Ok((desc, levels, origins, built_because))
     }
 
-    /// Builds the levels past the last usable image from it, once.
-    fn build_coarse(&mut self) -> Result<(), CogError> {
+    /// The levels past the last usable image, built from it the first time they are asked for
+    /// (by `tile`, or at open when `None`); a failure is not kept, the next read tries again.
+    fn built_levels(&self, tile: Option<TileId>) -> Result<Arc<Vec<Vec<u8>>>, SourceError> {
+        let mut slot = self.built.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(b) = &*slot {
+            return Ok(Arc::clone(b));
+        }
         let n = self.desc.level_count();
-        let used = self.levels.len();
-        if used >= n {
-            return Ok(());
+        let used = self.levels.iter().filter(|l| matches!(l, Level::Ifd(_))).count();
+        let mut out = Vec::new();
+        if used < n {
+            let base = used as u32 - 1;
+            let bpt = self.desc.bytes_per_texel();
+            let Some(Level::Ifd(lv)) = self.levels.get(used - 1) else { return Ok(Arc::new(out)) };
+            let mut size = lv.size;
+            let mut texels = vec![0u8; (size[0] * size[1]) as usize * bpt];
+            let whole = tile.unwrap_or(TileId::new(base, 0, 0));
+            self.fill_region(lv, whole, [0, 0], size, &mut texels, size[0] as usize, true)?;
+            for _ in used..n {
+                let (next, next_size) = halve(out.last().unwrap_or(&texels), size, bpt);
+                out.push(next);
+                size = next_size;
+            }
         }
-        let base = used as u32 - 1;
-        let bpt = self.desc.bytes_per_texel();
-        let Some(Level::Ifd(lv)) = self.levels.last().cloned() else { return Ok(()) };
-        let size = lv.size;
-        let mut texels = vec![0u8; (size[0] * size[1]) as usize * bpt];
-        let whole = TileId::new(base, 0, 0);
-        self.fill_region(&lv, whole, [0, 0], size, &mut texels, size[0] as usize, true)
-            .map_err(|source| CogError::Build { path: self.path.clone(), from: used as u32, source })?;
-        let mut size = size;
-        for _ in used..n {
-            let (next, next_size) = match self.levels.last() {
-                Some(Level::Built(t)) => halve(t, size, bpt),
-                _ => halve(&texels, size, bpt),
-            };
-            self.levels.push(Level::Built(next));
-            size = next_size;
-        }
-        Ok(())
+        let b = Arc::new(out);
+        *slot = Some(Arc::clone(&b));
+        Ok(b)
     }
 
     /// One value of a tile index.
@@ -618,37 +959,201 @@ impl CogSource {
             let at = (i * a.size) as usize;
             return Ok(self.layout.value(a.ty, &b[at..]));
         }
+        let at = a.at.saturating_add(i * a.size);
+        if let Some(b) = (Span { start: 0, bytes: &self.prefix }).get(at, a.size) {
+            return Ok(self.layout.value(a.ty, b));
+        }
+        let past_end = |len: u64| SourceError::Chunk {
+            tile,
+            path: self.path.clone(),
+            problem: format!("its tile index entry at byte {at} lies past the end of the file ({len} bytes)"),
+        };
+        if self.chunked {
+            let (chunk, from) = self.index_chunk(a, i, tile)?;
+            return Ok(self.layout.value(a.ty, &chunk[from..from + a.size as usize]));
+        }
         let mut b = [0u8; 8];
-        let at = a.at + i * a.size;
-        match self.file.read_exact_at(&mut b[..a.size as usize], at) {
+        match self.store.read_exact_at(&mut b[..a.size as usize], at) {
             Ok(()) => Ok(self.layout.value(a.ty, &b)),
-            Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => {
-                let len = self.file.metadata().map(|m| m.len()).unwrap_or(0);
-                let problem = format!("its tile index entry at byte {at} lies past the end of the file ({len} bytes)");
-                Err(SourceError::Chunk { tile, path: self.path.clone(), problem })
-            }
-            Err(e) => Err(super::file::io_error(tile, e)),
+            Err(StoreError::Eof { size }) => Err(past_end(size)),
+            Err(e) => Err(e.for_tile(tile, &self.path, at, a.size)),
         }
     }
 
+    /// The chunk of array `a` that holds entry `i`, read once ([`INDEX_CHUNK_BYTES`] of
+    /// entries, the array's last chunk shorter), and where entry `i` starts in it.
+    fn index_chunk(&self, a: &Array, i: u64, tile: TileId) -> Result<(Shared, usize), SourceError> {
+        let per = (INDEX_CHUNK_BYTES / a.size).max(1);
+        let j = i / per;
+        let from = ((i - j * per) * a.size) as usize;
+        let key = (a.at, j);
+        if let Some(c) = self.index.lock().unwrap_or_else(|e| e.into_inner()).get(&key) {
+            return Ok((Arc::clone(c), from));
+        }
+        let start = a.at.saturating_add(j * per * a.size);
+        let len = ((a.count - j * per).min(per)) * a.size;
+        let chunk = match self.store.read_bytes(start, len) {
+            Ok(c) => c,
+            Err(StoreError::Eof { size }) => {
+                return Err(SourceError::Chunk {
+                    tile,
+                    path: self.path.clone(),
+                    problem: format!(
+                        "its tile index entries at bytes {start}..{} lie past the end of the file ({size} bytes)",
+                        start.saturating_add(len)
+                    ),
+                })
+            }
+            Err(e) => return Err(e.for_tile(tile, &self.path, start, len)),
+        };
+        self.index.lock().unwrap_or_else(|e| e.into_inner()).insert(key, Arc::clone(&chunk));
+        Ok((chunk, from))
+    }
+
+    /// Reads the chunks of both index arrays that hold entry `i` with one read, when neither is
+    /// read yet and both lie within [`MAX_INDEX_READ`] bytes (GDAL writes an image's
+    /// TileByteCounts right after its TileOffsets): a tile's index then costs one request, and
+    /// every chunk of either array inside that read is kept.
+    fn index_pair(&self, lv: &IfdLevel, i: u64, tile: TileId) -> Result<(), SourceError> {
+        let (a, b) = (&lv.offsets, &lv.counts);
+        if a.inline.is_some() || b.inline.is_some() || i >= a.count || i >= b.count {
+            return Ok(());
+        }
+        let per = |x: &Array| (INDEX_CHUNK_BYTES / x.size).max(1);
+        // Chunk j of array x: its key, first byte and length.
+        let chunk = |x: &Array, j: u64| {
+            let start = x.at.saturating_add(j * per(x) * x.size);
+            ((x.at, j), start, ((x.count - j * per(x)).min(per(x))) * x.size)
+        };
+        let ((ka, sa, la), (kb, sb, lb)) = (chunk(a, i / per(a)), chunk(b, i / per(b)));
+        let prefix = Span { start: 0, bytes: &self.prefix };
+        if prefix.get(sa, la).is_some() || prefix.get(sb, lb).is_some() {
+            return Ok(());
+        }
+        // Both arrays whole when they fit in one read, else the two chunks, else nothing here.
+        let end = |x: &Array| x.at.saturating_add(x.count.saturating_mul(x.size));
+        let whole = (a.at.min(b.at), end(a).max(end(b)));
+        let pair = (sa.min(sb), sa.saturating_add(la).max(sb.saturating_add(lb)));
+        let (lo, hi) = if whole.1 - whole.0 <= MAX_INDEX_READ { whole } else { pair };
+        if hi - lo > MAX_INDEX_READ {
+            return Ok(());
+        }
+        {
+            let cache = self.index.lock().unwrap_or_else(|e| e.into_inner());
+            if cache.contains_key(&ka) || cache.contains_key(&kb) {
+                return Ok(());
+            }
+        }
+        let both = match self.store.read_bytes(lo, hi - lo) {
+            Ok(b) => b,
+            // Each chunk on its own then says what is wrong with it.
+            Err(StoreError::Eof { .. }) => return Ok(()),
+            Err(e) => return Err(e.for_tile(tile, &self.path, lo, hi - lo)),
+        };
+        let mut cache = self.index.lock().unwrap_or_else(|e| e.into_inner());
+        for x in [a, b] {
+            for j in 0..x.count.div_ceil(per(x)) {
+                let (key, start, len) = chunk(x, j);
+                if start >= lo && start.saturating_add(len) <= hi {
+                    let from = (start - lo) as usize;
+                    cache.entry(key).or_insert_with(|| Arc::new(both[from..from + len as usize].to_vec()));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Where TIFF tile `index` of `lv` is stored: its offset and byte count.
+    fn tile_place(&self, lv: &IfdLevel, index: u64, tile: TileId) -> Result<(u64, u64), SourceError> {
+        if self.chunked {
+            self.index_pair(lv, index, tile)?;
+        }
+        Ok((self.index_value(&lv.offsets, index, tile)?, self.index_value(&lv.counts, index, tile)?))
+    }
+
+    /// A tile's place without its TileByteCounts entry, when reading that entry would cost a
+    /// request of its own (a remote index too large to read whole, the entry's chunk not read
+    /// yet) and GDAL's block leader will confirm it: an uncompressed tile holds one tile's
+    /// bytes, a compressed one those up to the next tile's leader (GDAL writes a level's tiles
+    /// back to back, each with its leader and trailer). [`CogSource::decode`] reads the entry
+    /// after all when the leader disagrees.
+    fn guessed_place(&self, lv: &IfdLevel, index: u64, need: u64, tile: TileId) -> Option<(u64, u64)> {
+        let (a, c) = (&lv.offsets, &lv.counts);
+        if !self.chunked || !self.ghost.leader || c.inline.is_some() || a.inline.is_some() {
+            return None;
+        }
+        if (Span { start: 0, bytes: &self.prefix }).get(c.at.saturating_add(index * c.size), c.size).is_some() {
+            return None;
+        }
+        self.index_pair(lv, index, tile).ok()?;
+        let per = |x: &Array| (INDEX_CHUNK_BYTES / x.size).max(1);
+        if self.index.lock().unwrap_or_else(|e| e.into_inner()).contains_key(&(c.at, index / per(c))) {
+            return None;
+        }
+        let offset = self.index_value(a, index, tile).ok()?;
+        if offset < 4 {
+            return None;
+        }
+        if lv.compression == Compression::None {
+            return Some((offset, need));
+        }
+        // The next entry, when it is in the same chunk of TileOffsets (no other request).
+        if index + 1 >= a.count || (index + 1) / per(a) != index / per(a) {
+            return None;
+        }
+        let next = self.index_value(a, index + 1, tile).ok()?;
+        let trail = if self.ghost.trailer { 4 } else { 0 };
+        let count = next.checked_sub(offset)?.checked_sub(4 + trail)?;
+        (count >= 4).then_some((offset, count))
+    }
+
+    /// The bytes framing a tile of `count` bytes at `offset`: GDAL's leader before it and
+    /// trailer after it, when the ghost area says they are there.
+    fn framing(&self, offset: u64, count: u64) -> (u64, u64) {
+        let lead = if self.ghost.leader && offset >= 4 { 4 } else { 0 };
+        let trail = if self.ghost.trailer && count >= 4 { 4 } else { 0 };
+        (lead, trail)
+    }
+
     /// Decodes TIFF tile `index` of `lv` into `dst` (one whole TIFF tile, rows top-down as
-    /// stored), undoing the predictor.
-    fn decode(&self, lv: &IfdLevel, index: u64, tile: TileId, dst: &mut [u8]) -> Result<(), SourceError> {
-        let offset = self.index_value(&lv.offsets, index, tile)?;
-        let count = self.index_value(&lv.counts, index, tile)?;
+    /// stored), undoing the predictor; its stored bytes come from `span` when it holds them.
+    fn decode(
+        &self,
+        lv: &IfdLevel,
+        index: u64,
+        tile: TileId,
+        dst: &mut [u8],
+        span: Option<&Span>,
+    ) -> Result<(), SourceError> {
+        if span.is_none() {
+            if let Some(place) = self.guessed_place(lv, index, dst.len() as u64, tile) {
+                match self.decode_at(lv, index, tile, dst, span, place) {
+                    // The leader, trailer or decoder disagreed, or the guess ran past the end:
+                    // the TileByteCounts entry decides.
+                    Err(SourceError::Chunk { .. } | SourceError::Short { .. }) => {}
+                    r => return r,
+                }
+            }
+        }
+        let place = self.tile_place(lv, index, tile)?;
+        self.decode_at(lv, index, tile, dst, span, place)
+    }
+
+    /// [`CogSource::decode`] with the tile's offset and byte count given.
+    fn decode_at(
+        &self,
+        lv: &IfdLevel,
+        index: u64,
+        tile: TileId,
+        dst: &mut [u8],
+        span: Option<&Span>,
+        (offset, count): (u64, u64),
+    ) -> Result<(), SourceError> {
         if offset == 0 || count == 0 {
             return Err(SourceError::Missing { tile });
         }
         let bad = |problem: String| SourceError::Chunk { tile, path: self.path.clone(), problem };
         let need = dst.len() as u64;
-        let short = |e: io::Error, len: u64| {
-            if e.kind() == io::ErrorKind::UnexpectedEof {
-                let size = self.file.metadata().map(|m| m.len()).unwrap_or(0);
-                SourceError::Short { tile, expected: len, got: size.saturating_sub(offset).min(len) }
-            } else {
-                super::file::io_error(tile, e)
-            }
-        };
         if lv.compression == Compression::None {
             if count < need {
                 return Err(bad(format!(
@@ -656,7 +1161,6 @@ impl CogSource {
                     lv.ifd
                 )));
             }
-            self.file.read_exact_at(dst, offset).map_err(|e| short(e, need))?;
         } else {
             // The most a tile's compressed bytes can sensibly take.
             let bound = need.saturating_mul(2).saturating_add(4096);
@@ -666,11 +1170,57 @@ impl CogSource {
                     lv.ifd
                 )));
             }
+        }
+        let prefix = Span { start: 0, bytes: &self.prefix };
+        let local = !self.store.is_remote();
+        if lv.compression == Compression::None && local && span.is_none() && prefix.get(offset, need).is_none() {
+            // Straight into the slot: no copy on the local path.
+            self.store.read_exact_at(dst, offset).map_err(|e| e.for_tile(tile, &self.path, offset, need))?;
+        } else {
+            // An uncompressed tile's bytes are one tile's; a byte count beyond that (which GDAL
+            // never writes) is not read, and leaves no framing to check.
+            let (stored, (lead, trail)) = match lv.compression {
+                Compression::None if count != need => (need, (0, 0)),
+                _ => (count, self.framing(offset, count)),
+            };
+            let count = stored;
+            let (from, len) = (offset - lead, lead + count + trail);
             PACKED.with(|cell| {
-                let packed = &mut *cell.borrow_mut();
-                packed.resize(count as usize, 0);
-                self.file.read_exact_at(packed, offset).map_err(|e| short(e, count))?;
-                let got = decompress(lv.compression, packed, dst)
+                let mut buf = cell.borrow_mut();
+                // The bytes where they were read already (a row's span, the first bytes), else
+                // read into this thread's buffer.
+                let packed: &[u8] = match span.and_then(|s| s.get(from, len)).or_else(|| prefix.get(from, len)) {
+                    Some(b) => b,
+                    None => {
+                        buf.resize(len as usize, 0);
+                        self.store
+                            .read_exact_at(&mut buf, from)
+                            .map_err(|e| e.for_tile(tile, &self.path, from, len))?;
+                        &buf
+                    }
+                };
+                let data_end = (lead + count) as usize;
+                if lead == 4 {
+                    let said = u32::from_le_bytes([packed[0], packed[1], packed[2], packed[3]]) as u64;
+                    if said != count {
+                        return Err(bad(format!(
+                            "IFD {} tile {index}: the 4 bytes before it (GDAL's BLOCK_LEADER) say {said} bytes, its TileByteCounts entry {count}",
+                            lv.ifd
+                        )));
+                    }
+                }
+                if trail == 4 && packed[data_end..data_end + 4] != packed[data_end - 4..data_end] {
+                    return Err(bad(format!(
+                        "IFD {} tile {index}: the 4 bytes after it (GDAL's BLOCK_TRAILER) are not its last 4 bytes",
+                        lv.ifd
+                    )));
+                }
+                let data = &packed[lead as usize..data_end];
+                if lv.compression == Compression::None {
+                    dst.copy_from_slice(&data[..dst.len()]);
+                    return Ok(());
+                }
+                let got = decompress(lv.compression, data, dst)
                     .map_err(|p| bad(format!("IFD {} tile {index} ({count} bytes at byte {offset}): {p}", lv.ifd)))?;
                 if got != dst.len() {
                     return Err(bad(format!(
@@ -690,6 +1240,45 @@ impl CogSource {
             }
         }
         Ok(())
+    }
+
+    /// The stored bytes of TIFF tiles `cx0..=cx1` of tile row `cy` in one read, when they lie
+    /// back to back (GDAL writes a row's tiles so) and are not all in the first bytes: a remote
+    /// object's one ranged GET instead of one a tile. `None` when they do not, or locally.
+    fn row_span(
+        &self,
+        lv: &IfdLevel,
+        cy: u64,
+        [cx0, cx1]: [u64; 2],
+        tile: TileId,
+    ) -> Result<Option<(u64, Shared)>, SourceError> {
+        if !self.store.is_remote() || cx1 <= cx0 {
+            return Ok(None);
+        }
+        let mut start = None;
+        let mut end = 0u64;
+        for cx in cx0..=cx1 {
+            let (offset, count) = self.tile_place(lv, cy * lv.across + cx, tile)?;
+            if offset == 0 || count == 0 {
+                return Ok(None);
+            }
+            let (lead, trail) = self.framing(offset, count);
+            let from = offset - lead;
+            match start {
+                None => start = Some(from),
+                Some(_) if from != end => return Ok(None),
+                Some(_) => {}
+            }
+            end = offset.saturating_add(count).saturating_add(trail);
+        }
+        let Some(start) = start else { return Ok(None) };
+        if end - start > MAX_SPAN_BYTES || (Span { start: 0, bytes: &self.prefix }).get(start, end - start).is_some() {
+            return Ok(None);
+        }
+        match self.store.read_bytes(start, end - start) {
+            Ok(b) => Ok(Some((start, b))),
+            Err(e) => Err(e.for_tile(tile, &self.path, start, end - start)),
+        }
     }
 
     /// Fills the `w x h` texels from `(s0, t0)` of level `lv` into `out` (rows in increasing t,
@@ -713,12 +1302,15 @@ impl CogSource {
         // Image rows y_lo..=y_hi (top-down) hold texture rows t0 + h - 1 down to t0.
         let (y_lo, y_hi) = (height - (t0 + h), height - 1 - t0);
         let chunk_bytes = (tw * th) as usize * bpt;
-        CHUNK.with(|cell| {
-            let chunk = &mut *cell.borrow_mut();
-            chunk.resize(chunk_bytes, 0);
+        let mut chunk = CHUNK.with(|cell| std::mem::take(&mut *cell.borrow_mut()));
+        chunk.resize(chunk_bytes, 0);
+        let result = (|| {
             for cy in y_lo / th..=y_hi / th {
-                for cx in s0 / tw..=(s0 + w - 1) / tw {
-                    match self.decode(lv, cy * lv.across + cx, tile, chunk) {
+                let (cx0, cx1) = (s0 / tw, (s0 + w - 1) / tw);
+                let row = self.row_span(lv, cy, [cx0, cx1], tile)?;
+                let span = row.as_ref().map(|(start, b)| Span { start: *start, bytes: b });
+                for cx in cx0..=cx1 {
+                    match self.decode(lv, cy * lv.across + cx, tile, &mut chunk, span.as_ref()) {
                         Ok(()) => {}
                         Err(SourceError::Missing { .. }) if sparse_zero => chunk.fill(0),
                         Err(e) => return Err(e),
@@ -734,7 +1326,9 @@ impl CogSource {
                 }
             }
             Ok(())
-        })
+        })();
+        CHUNK.with(|cell| *cell.borrow_mut() = chunk);
+        result
     }
 }
 
@@ -753,7 +1347,7 @@ fn read_prefix(file: &File, buf: &mut [u8]) -> io::Result<usize> {
 }
 
 /// Reads the IFD chain from `first`: every IFD's entries, none of the arrays they point to.
-fn read_ifds(file: &File, layout: Layout, first: u64) -> Result<Vec<Image>, (String, String)> {
+fn read_ifds(file: &Head, layout: Layout, first: u64) -> Result<Vec<Image>, (String, String)> {
     let mut images = Vec::new();
     let mut next = first;
     let mut seen = std::collections::HashSet::new();
@@ -768,7 +1362,7 @@ fn read_ifds(file: &File, layout: Layout, first: u64) -> Result<Vec<Image>, (Str
             return Err((at, "the IFD chain loops back to an IFD already read".into()));
         }
         let count_size = if layout.big { 8 } else { 2 };
-        let head = read_at(file, next, count_size, &at)?;
+        let head = file.read_at(next, count_size, &at)?;
         let count = if layout.big { layout.u64(&head) } else { layout.u16(&head) as u64 };
         if count == 0 || count > MAX_ENTRIES {
             return Err((at, format!("{count} entries, expected 1 to {MAX_ENTRIES}")));
@@ -779,7 +1373,7 @@ fn read_ifds(file: &File, layout: Layout, first: u64) -> Result<Vec<Image>, (Str
         if read_total > MAX_STRUCTURE_BYTES {
             return Err((at, format!("the IFDs take more than {MAX_STRUCTURE_BYTES} bytes")));
         }
-        let body = read_at(file, next + count_size as u64, len as usize, &at)?;
+        let body = file.read_at(next + count_size as u64, len as usize, &at)?;
         let mut entries = Vec::with_capacity(count as usize);
         for e in body.chunks_exact(entry_size as usize).take(count as usize) {
             let tag = layout.u16(&e[0..]);
@@ -803,7 +1397,7 @@ fn read_ifds(file: &File, layout: Layout, first: u64) -> Result<Vec<Image>, (Str
 
 /// The unsigned values of tag `tag` (at most `max` of them), `None` when the IFD lacks it.
 fn values(
-    file: &File,
+    file: &Head,
     layout: Layout,
     image: &Image,
     tag: u16,
@@ -821,13 +1415,13 @@ fn values(
     let bytes = if e.count * size <= layout.field() as u64 {
         e.field[..(e.count * size) as usize].to_vec()
     } else {
-        read_at(file, layout.offset(&e.field), (e.count * size) as usize, &at)?
+        file.read_at(layout.offset(&e.field), (e.count * size) as usize, &at)?
     };
     Ok(Some(bytes.chunks_exact(size as usize).map(|b| layout.value(e.ty, b)).collect()))
 }
 
 /// The single unsigned value of tag `tag`, `None` when the IFD lacks it.
-fn scalar(file: &File, layout: Layout, image: &Image, tag: u16, name: &str) -> Result<Option<u64>, (String, String)> {
+fn scalar(file: &Head, layout: Layout, image: &Image, tag: u16, name: &str) -> Result<Option<u64>, (String, String)> {
     Ok(values(file, layout, image, tag, name, 1)?.map(|v| v[0]))
 }
 
@@ -849,7 +1443,7 @@ fn array(layout: Layout, image: &Image, tag: u16, name: &str, count: u64) -> Res
 }
 
 /// Checks one image's layout and describes it as a level: its texel format and tiles.
-fn image_level(path: &Path, file: &File, layout: Layout, image: &Image) -> Result<(TexelFormat, IfdLevel), CogError> {
+fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Result<(TexelFormat, IfdLevel), CogError> {
     let malformed = |(at, problem): (String, String)| CogError::Malformed { path: path.to_path_buf(), at, problem };
     let unsupported = |tag, found: String, supported| CogError::Unsupported {
         path: path.to_path_buf(),
@@ -1027,7 +1621,10 @@ impl TileSource for CogSource {
         let (s0, t0) = (tile.s * tw, tile.t * th);
         let (w, h) = ((d.size[0] - s0).min(tw), (d.size[1] - t0).min(th));
         match &self.levels[tile.level as usize] {
-            Level::Built(texels) => {
+            Level::Built => {
+                let built = self.built_levels(Some(tile))?;
+                let used = self.desc.level_count() - built.len();
+                let texels = &built[tile.level as usize - used];
                 if w < tw || h < th {
                     out.fill(0);
                 }
@@ -1042,7 +1639,7 @@ impl TileSource for CogSource {
                 // One TIFF tile, decoded in place: its rows reversed, columns past the image's
                 // right edge zeroed.
                 let index = (lv.rows() - 1 - tile.t) * lv.across + tile.s;
-                self.decode(lv, index, tile, out)?;
+                self.decode(lv, index, tile, out, None)?;
                 let row = tw as usize * bpt;
                 for r in 0..th as usize / 2 {
                     let (top, bottom) = out.split_at_mut((th as usize - 1 - r) * row);
@@ -1089,5 +1686,135 @@ mod tests {
         assert_eq!(decompress(Compression::Lzw, &packed, &mut out), Ok(data.len()));
         assert_eq!(out, data);
         assert!(decompress(Compression::Lzw, &[0xff; 64], &mut out).is_err_and(|e| e.contains("LZW")));
+    }
+    /// A classic little-endian TIFF of `w x h` grey texels `(3x + 5y) & 255` in uncompressed
+    /// `t x t` tiles, its tile index (LONG arrays) placed after the tiles, past the first
+    /// [`PREFIX_BYTES`].
+    fn synthetic_tiff(w: u32, h: u32, t: u32) -> Vec<u8> {
+        let (across, down) = (w.div_ceil(t), h.div_ceil(t));
+        let tiles = across * down;
+        let mut f = b"II*\0".to_vec();
+        f.extend(8u32.to_le_bytes());
+        let entries: [(u16, u16, u32, u32); 9] = [
+            (256, 4, 1, w),
+            (257, 4, 1, h),
+            (258, 3, 1, 8),
+            (259, 3, 1, 1),
+            (262, 3, 1, 1),
+            (322, 4, 1, t),
+            (323, 4, 1, t),
+            (324, 4, tiles, 0),
+            (325, 4, tiles, 0),
+        ];
+        let data_at = 4096u32;
+        let tile_len = t * t;
+        let arrays_at = data_at + tiles * tile_len;
+        assert!(arrays_at as u64 > PREFIX_BYTES);
+        f.extend((entries.len() as u16).to_le_bytes());
+        for (tag, ty, count, value) in entries {
+            let value = match tag {
+                324 => arrays_at,
+                325 => arrays_at + 4 * tiles,
+                _ => value,
+            };
+            f.extend(tag.to_le_bytes());
+            f.extend(ty.to_le_bytes());
+            f.extend(count.to_le_bytes());
+            f.extend(value.to_le_bytes());
+        }
+        f.extend(0u32.to_le_bytes());
+        f.resize(data_at as usize, 0);
+        for i in 0..tiles {
+            let (cx, cy) = (i % across, i / across);
+            for r in 0..t {
+                for c in 0..t {
+                    let (x, y) = (cx * t + c, cy * t + r);
+                    f.push(if x < w && y < h { ((3 * x + 5 * y) & 255) as u8 } else { 0 });
+                }
+            }
+        }
+        for i in 0..tiles {
+            f.extend((data_at + i * tile_len).to_le_bytes());
+        }
+        for _ in 0..tiles {
+            f.extend(tile_len.to_le_bytes());
+        }
+        f
+    }
+
+    #[test]
+    fn the_tile_index_read_in_chunks_gives_every_entry_the_eager_reader_gives() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("big_index.tif");
+        // 80 x 70 tiles of 8 x 8: 5600 entries a array, 22 KiB of LONGs, past the first 64 KiB.
+        std::fs::write(&path, synthetic_tiff(640, 560, 8)).unwrap();
+        let eager = CogSource::open(&path, 64).unwrap();
+        let lazy = open_chunked(&path, 64);
+        let Level::Ifd(lv) = &eager.levels[0] else { panic!("level 0 is an image") };
+        for i in (0..lv.offsets.count).rev() {
+            let id = TileId::new(0, 0, 0);
+            assert_eq!(lazy.tile_place(lv, i, id).unwrap(), eager.tile_place(lv, i, id).unwrap(), "entry {i}");
+        }
+        let per = INDEX_CHUNK_BYTES / 4;
+        let chunks = lv.offsets.count.div_ceil(per) as usize;
+        assert_eq!(lazy.index.lock().unwrap().len(), 2 * chunks, "each chunk of both arrays read once");
+        // The two arrays lie back to back (22400 bytes each, less than MAX_INDEX_READ together):
+        // the first entry asked for reads them whole, every chunk kept.
+        let lazy = open_chunked(&path, 64);
+        lazy.tile_place(lv, 4000, TileId::new(0, 0, 0)).unwrap();
+        let cache = lazy.index.lock().unwrap();
+        assert_eq!(cache.len(), 2 * chunks);
+        assert_eq!(cache[&(lv.counts.at, 5)].len(), (5600 - 5 * 1024) * 4, "the last chunk is short");
+        drop(cache);
+        // Every texel through the chunked index is the image's, bottom-up.
+        let desc = lazy.desc().clone();
+        let l0 = *desc.level(0);
+        let mut buf = vec![0u8; desc.tile_bytes(0)];
+        for tt in 0..l0.tiles()[1] {
+            for ts in 0..l0.tiles()[0] {
+                lazy.read_tile(TileId::new(0, ts, tt), &mut buf).unwrap();
+                for (j, &v) in buf.iter().enumerate() {
+                    let (s, t) = (ts * l0.tile[0] + j as u64 % l0.tile[0], tt * l0.tile[1] + j as u64 / l0.tile[0]);
+                    let y = 559 - t;
+                    assert_eq!(v, ((3 * s + 5 * y) & 255) as u8, "texel ({s}, {t})");
+                }
+            }
+        }
+        // An index that runs past the end of the file is an error naming where, not a texel.
+        let mut cut = std::fs::read(&path).unwrap();
+        cut.truncate(cut.len() - 100);
+        std::fs::write(&path, &cut).unwrap();
+        let src = open_chunked(&path, 4096);
+        let e = src.read_tile(TileId::new(0, 0, 0), &mut vec![0u8; src.desc().tile_bytes(0)]).unwrap_err();
+        assert!(matches!(e, SourceError::Chunk { .. }), "{e}");
+        assert!(e.to_string().contains("lie past the end of the file"), "{e}");
+    }
+
+    /// `path` opened as a remote object is (structure from the first bytes, the index read in
+    /// chunks, nothing built at open), over the local file.
+    fn open_chunked(path: &Path, clip: u64) -> CogSource {
+        let (file, _) = crate::open::regular(path).unwrap();
+        let mut prefix = vec![0u8; PREFIX_BYTES as usize];
+        let n = read_prefix(&file, &mut prefix).unwrap();
+        prefix.truncate(n);
+        let mut src = CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, clip).unwrap();
+        src.chunked = true;
+        src
+    }
+
+    #[test]
+    fn the_ghost_area_says_whether_tiles_have_a_leader_and_a_trailer() {
+        let area = |body: &str| {
+            let mut v = b"II*\0\x08\0\0\0".to_vec();
+            v.extend(format!("GDAL_STRUCTURAL_METADATA_SIZE={:06} bytes\n{body}", body.len()).bytes());
+            v
+        };
+        let gdal = area("LAYOUT=IFDS_BEFORE_DATA\nBLOCK_ORDER=ROW_MAJOR\nBLOCK_LEADER=SIZE_AS_UINT4\nBLOCK_TRAILER=LAST_4_BYTES_REPEATED\nKNOWN_INCOMPATIBLE_EDITION=NO\n ");
+        assert_eq!(Ghost::parse(&gdal, 8), Ghost { leader: true, trailer: true });
+        let edited =
+            area("BLOCK_LEADER=SIZE_AS_UINT4\nBLOCK_TRAILER=LAST_4_BYTES_REPEATED\nKNOWN_INCOMPATIBLE_EDITION=YES\n");
+        assert_eq!(Ghost::parse(&edited, 8), Ghost::default(), "a file edited since GDAL wrote it");
+        assert_eq!(Ghost::parse(b"II*\0\x08\0\0\0\x03\0", 8), Ghost::default(), "no ghost area");
+        assert_eq!(Ghost::parse(&area("BLOCK_LEADER=SIZE_AS_UINT4\n"), 8), Ghost { leader: true, trailer: false });
     }
 }

@@ -7,7 +7,7 @@ use clipmap::source::cog::LevelOrigin;
 use clipmap::source::{CogError, CogSource, SourceError, TileId, TileSource};
 use std::path::{Path, PathBuf};
 
-fn fixture(name: &str) -> PathBuf {
+pub(crate) fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cog").join(name)
 }
 
@@ -23,7 +23,7 @@ fn formula(x: u64, y: u64, c: usize) -> u8 {
 
 /// Level `k` of `src`, read tile by tile, as whole rows in increasing t; the first error of a
 /// tile that cannot be read. Texels of edge tiles outside the level must be zero.
-fn level(src: &dyn TileSource, k: u32) -> Result<Vec<u8>, SourceError> {
+pub(crate) fn level(src: &dyn TileSource, k: u32) -> Result<Vec<u8>, SourceError> {
     let desc = src.desc();
     let l = *desc.level(k);
     let bpt = desc.bytes_per_texel();
@@ -56,7 +56,7 @@ fn level(src: &dyn TileSource, k: u32) -> Result<Vec<u8>, SourceError> {
 }
 
 /// GDAL's decode of IFD `i` of `name` (NAME.i.png) as `bpt`-byte texels, rows in increasing t.
-fn gdal_level(name: &str, i: usize, bpt: usize) -> (Vec<u8>, [u64; 2]) {
+pub(crate) fn gdal_level(name: &str, i: usize, bpt: usize) -> (Vec<u8>, [u64; 2]) {
     let img = image::open(fixture(&format!("{name}.{i}.png"))).unwrap();
     let (w, h) = (img.width() as usize, img.height() as usize);
     let bytes = match bpt {
@@ -85,14 +85,14 @@ fn box_halve(src: &[u8], [w, h]: [u64; 2], bpt: usize) -> Vec<u8> {
     out
 }
 
-struct Case {
-    name: &'static str,
-    bpt: usize,
+pub(crate) struct Case {
+    pub(crate) name: &'static str,
+    pub(crate) bpt: usize,
     /// IFDs that are levels 0, 1, ...
-    ifd_levels: usize,
+    pub(crate) ifd_levels: usize,
 }
 
-const CASES: [Case; 6] = [
+pub(crate) const CASES: [Case; 6] = [
     Case { name: "rgb_512x384", bpt: 3, ifd_levels: 3 },
     Case { name: "grey_1000x700", bpt: 1, ifd_levels: 3 },
     Case { name: "grey_500x350", bpt: 1, ifd_levels: 3 },
@@ -412,4 +412,40 @@ fn clipprep_cog_writes_a_cog_gdal_calls_one_and_every_reader_decodes_as_the_pyra
     assert_eq!(status.code(), Some(1), "{text}");
     assert!(text.contains("--cog x.tif: texel format rgb565: a COG is written from l8, rgb8 or rgba8"), "{text}");
     assert!(!d.join("x").exists(), "nothing is prepared when --cog is refused");
+}
+
+#[test]
+fn cog_tiles_whose_gdal_leader_or_trailer_disagrees_are_refused_naming_it() {
+    let full = std::fs::read(fixture("grey_1000x700.tif")).unwrap();
+    // IFD 0's first tile (the image's top-left) is 1298 bytes at byte 4671, GDAL's leader (its
+    // byte count, 4 bytes little-endian) before it and its last 4 bytes again after it.
+    let (at, len) = (4671usize, 1298usize);
+    assert_eq!(full[at - 4..at], (len as u32).to_le_bytes(), "the fixture's layout");
+    assert_eq!(full[at + len..at + len + 4], full[at + len - 4..at + len], "the fixture's layout");
+    let dir = tempfile::tempdir().unwrap();
+    for (what, byte, name) in [("leader", at - 4, "BLOCK_LEADER"), ("trailer", at + len + 1, "BLOCK_TRAILER")] {
+        let mut bytes = full.clone();
+        bytes[byte] ^= 0x01;
+        let path = dir.path().join(format!("{what}.tif"));
+        std::fs::write(&path, &bytes).unwrap();
+        let src = CogSource::open(&path, 64).unwrap();
+        let desc = src.desc().clone();
+        let l = *desc.level(0);
+        let mut buf = vec![0u8; desc.tile_bytes(0)];
+        let mut refused = Vec::new();
+        for tt in 0..l.tiles()[1] {
+            for ts in 0..l.tiles()[0] {
+                if let Err(e) = src.read_tile(TileId::new(0, ts, tt), &mut buf) {
+                    assert!(matches!(e, SourceError::Chunk { .. }) && e.to_string().contains(name), "{what}: {e}");
+                    refused.push((ts, tt));
+                }
+            }
+        }
+        // Only texture tiles that hold texels of the top-left TIFF tile (t counted from the
+        // bottom: image row 699 - t).
+        let LevelOrigin::Ifd { tile: [tw, th], .. } = src.origins()[0] else { panic!("IFD 0") };
+        let [w, h] = l.tile;
+        let touches = |s: u64, t: u64| s * w < tw && 699 - (t * h + h - 1).min(699) < th;
+        assert!(!refused.is_empty() && refused.iter().all(|&(s, t)| touches(s, t)), "{what}: {refused:?}");
+    }
 }

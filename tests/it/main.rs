@@ -20,6 +20,8 @@ mod clipbench_policies;
 mod clipmapd;
 mod clipprep;
 mod cog;
+#[cfg(feature = "remote")]
+mod cog_remote;
 mod config_build_errors;
 mod config_errors;
 mod config_fuzz_props;

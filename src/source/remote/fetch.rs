@@ -53,6 +53,21 @@ pub struct Got {
     pub bytes: Segments,
     /// The object's length, when known.
     pub object_len: Option<u64>,
+    /// The version of the object the bytes are of, when the store says: its `ETag`, else its
+    /// `Last-Modified` (as `ETag "..."` or `Last-Modified ...`). Two answers with different
+    /// validators are of two versions of the object and are never mixed.
+    pub validator: Option<String>,
+}
+
+/// Bytes of one range and what the answer said of the object they are of.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Versioned {
+    /// The bytes.
+    pub bytes: Segments,
+    /// The object's length, when the answer said.
+    pub object_len: Option<u64>,
+    /// The object's version ([`Got::validator`]), when the answer said.
+    pub validator: Option<String>,
 }
 
 /// Bytes in pieces, in order.
@@ -193,7 +208,7 @@ struct Req {
     loc: Location,
     start: u64,
     len: u64,
-    result: OnceLock<Result<Segments, ReadError>>,
+    result: OnceLock<Result<Versioned, ReadError>>,
 }
 
 #[derive(Default)]
@@ -245,6 +260,12 @@ impl Fetcher {
     /// Bytes `[start, start + len)` of `loc`: waits for a slot of its endpoint, merges with the
     /// adjacent waiting ranges of the same object, retries.
     pub fn read(&self, loc: &Location, start: u64, len: u64) -> Result<Segments, ReadError> {
+        self.read_versioned(loc, start, len).map(|v| v.bytes)
+    }
+
+    /// Like [`Fetcher::read`], with the object's length and version as the answer gave them
+    /// (the same for every range a merged request read).
+    pub fn read_versioned(&self, loc: &Location, start: u64, len: u64) -> Result<Versioned, ReadError> {
         let ep = self.endpoint(&loc.endpoint);
         let me = Arc::new(Req { object: loc.to_string(), loc: loc.clone(), start, len, result: OnceLock::new() });
         let mut st = ep.state.lock().unwrap_or_else(|e| e.into_inner());
@@ -292,7 +313,11 @@ impl Fetcher {
                     let from = (r.start - start) as usize;
                     let to = from + r.len as usize;
                     if g.bytes.len() >= to {
-                        Ok(g.bytes.slice(from, to))
+                        Ok(Versioned {
+                            bytes: g.bytes.slice(from, to),
+                            object_len: g.object_len,
+                            validator: g.validator.clone(),
+                        })
                     } else {
                         Err(ReadError::Short {
                             location: r.object.clone(),
@@ -472,7 +497,7 @@ mod tests {
             let e = ((start + len) as usize).min(o.len());
             // In pieces of 100 bytes, as a body arrives in chunks.
             let parts = o[s..e].chunks(100).map(Bytes::copy_from_slice).collect();
-            Ok(Got { bytes: Segments(parts), object_len: Some(o.len() as u64) })
+            Ok(Got { bytes: Segments(parts), object_len: Some(o.len() as u64), validator: None })
         }
         fn head(&self, loc: &Location) -> Result<u64, Failure> {
             self.objects.get(&loc.target).map(|o| o.len() as u64).ok_or(Failure::NotFound)

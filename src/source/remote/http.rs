@@ -14,7 +14,7 @@ use super::location::Location;
 use super::options::RemoteOptions;
 use super::runtime::block;
 use bytes::Bytes;
-use reqwest::header::{CONTENT_LENGTH, CONTENT_RANGE, CONTENT_TYPE, RANGE, RETRY_AFTER};
+use reqwest::header::{CONTENT_LENGTH, CONTENT_RANGE, CONTENT_TYPE, ETAG, LAST_MODIFIED, RANGE, RETRY_AFTER};
 use reqwest::StatusCode;
 use std::time::Duration;
 
@@ -96,6 +96,15 @@ fn content_range(headers: &reqwest::header::HeaderMap) -> Option<(u64, u64, Opti
     Some((a.parse().ok()?, b.parse().ok()?, total))
 }
 
+/// The object's version an answer names: its `ETag`, else its `Last-Modified`.
+fn validator(headers: &reqwest::header::HeaderMap) -> Option<String> {
+    let text = |name| headers.get(name).and_then(|v: &reqwest::header::HeaderValue| v.to_str().ok());
+    if let Some(tag) = text(ETAG) {
+        return Some(format!("ETag {}", tag.trim()));
+    }
+    text(LAST_MODIFIED).map(|m| format!("Last-Modified {}", m.trim()))
+}
+
 /// Reads the body, failing if it holds more than `max` bytes; stops reading at `stop` bytes. The
 /// pieces are kept as they came (no copy).
 async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<Segments, Failure> {
@@ -148,7 +157,7 @@ async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Resu
             if (buf.len() as u64) < want {
                 return Err(Failure::transient(format!("the body ended after {} of {want} bytes", buf.len())));
             }
-            Ok(Got { bytes: buf, object_len: total })
+            Ok(Got { bytes: buf, object_len: total, validator: validator(&headers) })
         }
         StatusCode::OK => {
             // The server ignored the range. Only the whole object will do: an error page sent
@@ -198,14 +207,14 @@ async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Resu
             }
             let from = start.min(size) as usize;
             let to = start.saturating_add(len).min(size) as usize;
-            Ok(Got { bytes: buf.slice(from, to), object_len: Some(size) })
+            Ok(Got { bytes: buf.slice(from, to), object_len: Some(size), validator: validator(&headers) })
         }
         StatusCode::RANGE_NOT_SATISFIABLE => {
             let total = headers
                 .get(CONTENT_RANGE)
                 .and_then(|v| v.to_str().ok())
                 .and_then(|v| v.trim().strip_prefix("bytes */")?.parse::<u64>().ok());
-            Ok(Got { bytes: Segments::default(), object_len: total })
+            Ok(Got { bytes: Segments::default(), object_len: total, validator: validator(&headers) })
         }
         s if s.is_success() => Err(Failure::Fatal(format!("unexpected answer HTTP {s} to a range request"))),
         s => Err(status_failure(s, &headers)),
@@ -228,7 +237,7 @@ async fn head(client: &reqwest::Client, url: &str) -> Result<u64, Failure> {
 impl Backend for Http {
     fn get(&self, loc: &Location, start: u64, len: u64) -> Result<Got, Failure> {
         if len == 0 {
-            return Ok(Got { bytes: Segments::default(), object_len: None });
+            return Ok(Got { bytes: Segments::default(), object_len: None, validator: None });
         }
         let client = self.client()?;
         let url = loc.target.clone();

@@ -12,11 +12,12 @@ pub mod disk;
 pub mod fetch;
 pub mod http;
 pub mod location;
+pub mod object;
 pub mod options;
 mod runtime;
 pub mod s3;
 
-pub use fetch::{Backend, Failure, Fetcher, Got, ReadError, Segments};
+pub use fetch::{Backend, Failure, Fetcher, Got, ReadError, Segments, Versioned};
 pub use location::{Location, LocationError, Scheme};
 pub use options::{OptionsError, RemoteOptions};
 
@@ -64,7 +65,7 @@ fn io_failure(tile: TileId, kind: io::ErrorKind, text: String) -> SourceError {
     SourceError::Io { tile, source: io::Error::new(kind, text) }
 }
 
-fn source_error(tile: TileId, e: ReadError) -> SourceError {
+pub(crate) fn source_error(tile: TileId, e: ReadError) -> SourceError {
     match e {
         ReadError::NotFound { .. } => SourceError::Missing { tile },
         ReadError::Denied { .. } => SourceError::PermissionDenied { tile },

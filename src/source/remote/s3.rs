@@ -144,7 +144,7 @@ fn failure(e: object_store::Error) -> Failure {
 impl Backend for S3 {
     fn get(&self, loc: &Location, start: u64, len: u64) -> Result<Got, Failure> {
         if len == 0 {
-            return Ok(Got { bytes: Segments::default(), object_len: None });
+            return Ok(Got { bytes: Segments::default(), object_len: None, validator: None });
         }
         let store = self.store(&loc.bucket)?;
         let p = path(loc)?;
@@ -156,12 +156,16 @@ impl Backend for S3 {
                     let f = failure(e);
                     if matches!(&f, Failure::Fatal(t) if t.starts_with("range not satisfiable")) {
                         let size = store.head(&p).await.ok().map(|m| m.size);
-                        return Ok(Got { bytes: Segments::default(), object_len: size });
+                        return Ok(Got { bytes: Segments::default(), object_len: size, validator: None });
                     }
                     return Err(f);
                 }
             };
             let (range, size) = (r.range.clone(), r.meta.size);
+            let validator = match &r.meta.e_tag {
+                Some(tag) => Some(format!("ETag {tag}")),
+                None => Some(format!("Last-Modified {}", r.meta.last_modified.to_rfc3339())),
+            };
             let bytes = r.bytes().await.map_err(failure)?;
             if range.start != start || bytes.len() as u64 != range.end - range.start {
                 return Err(Failure::transient(format!(
@@ -175,7 +179,7 @@ impl Backend for S3 {
             if range.end < start + len && range.end != size {
                 return Err(Failure::transient(format!("the answer ends at byte {} of {size}", range.end)));
             }
-            Ok(Got { bytes: bytes.into(), object_len: Some(size) })
+            Ok(Got { bytes: bytes.into(), object_len: Some(size), validator })
         })
     }
 

@@ -1,0 +1,131 @@
+//! One remote object read in ranges, all of one version: [`Object`] (a remote COG's bytes,
+//! `crate::source::cog`).
+//!
+//! Opening it is one ranged GET of its first bytes: the answer's `Content-Range` gives the
+//! object's size (no HEAD), and its `ETag` (else `Last-Modified`) the version the object is
+//! read at. Every later range goes through the [`Fetcher`](super::Fetcher) (bounded per
+//! endpoint, merged with adjacent ranges waiting for the same endpoint, retried) and is checked
+//! against what open saw: a range of another size of object, or of another version, is refused
+//! ([`ObjectError::Changed`]), never patched into the bytes read before.
+
+use super::fetch::{ReadError, Segments};
+use super::location::Location;
+use super::Remote;
+use crate::place::RemoteName;
+use bytes::Bytes;
+use std::sync::Arc;
+
+/// Why a range of an [`Object`] cannot be used.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ObjectError {
+    /// The read failed (after retries).
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    /// The object is not the one opened any more.
+    #[error("{name}: the object changed since it was opened ({was} at open, {now} now): its bytes are refused, never mixed with those read before; open it again (restart the service) to serve the new version")]
+    Changed {
+        /// The object.
+        name: String,
+        /// What open saw (validator or size).
+        was: String,
+        /// What the answer says now.
+        now: String,
+    },
+    /// The name is not a location that can be read.
+    #[error("{0}")]
+    Location(String),
+}
+
+/// A remote object read in ranges of the version seen at open.
+pub struct Object {
+    remote: Arc<Remote>,
+    loc: Location,
+    name: String,
+    size: u64,
+    validator: Option<String>,
+}
+
+impl std::fmt::Debug for Object {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Object")
+            .field("name", &self.name)
+            .field("size", &self.size)
+            .field("validator", &self.validator)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Object {
+    /// Opens `name` with one ranged GET of its first `prefix` bytes (fewer when the object is
+    /// smaller); returns the object and those bytes.
+    pub fn open(remote: Arc<Remote>, name: &RemoteName, prefix: u64) -> Result<(Object, Bytes), ObjectError> {
+        let loc = Location::of(name).map_err(|e| ObjectError::Location(e.to_string()))?;
+        let text = name.as_str().to_string();
+        let got = remote.fetcher().with_retries(&loc, &text, |b| b.get(&loc, 0, prefix.max(1)))?;
+        let size = match got.object_len {
+            Some(n) => n,
+            // A server that does not say (Content-Range `*`): asked once.
+            None => remote.length(&text)?,
+        };
+        let bytes = got.bytes.to_bytes();
+        if (bytes.len() as u64) < prefix.min(size) {
+            return Err(ObjectError::Read(ReadError::Short {
+                location: text,
+                got: bytes.len() as u64,
+                expected: prefix.min(size),
+            }));
+        }
+        let object = Object { remote, loc, name: text, size, validator: got.validator };
+        Ok((object, bytes))
+    }
+
+    /// The object's name as written.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Its size at open.
+    pub fn size(&self) -> u64 {
+        self.size
+    }
+
+    /// Its version at open (`ETag "..."` or `Last-Modified ...`), when the store named one.
+    pub fn validator(&self) -> Option<&str> {
+        self.validator.as_deref()
+    }
+
+    /// The remote reader (its counters).
+    pub fn remote(&self) -> &Arc<Remote> {
+        &self.remote
+    }
+
+    /// Bytes `[start, start + len)`, all of them, of the version opened.
+    pub fn read(&self, start: u64, len: u64) -> Result<Segments, ObjectError> {
+        let v = self.remote.fetcher().read_versioned(&self.loc, start, len)?;
+        if let Some(n) = v.object_len {
+            if n != self.size {
+                return Err(self.changed(format!("{} bytes", self.size), format!("{n} bytes")));
+            }
+        }
+        if let (Some(was), Some(now)) = (&self.validator, &v.validator) {
+            if was != now {
+                return Err(self.changed(was.clone(), now.clone()));
+            }
+        }
+        if self.validator.is_some() && v.validator.is_none() {
+            return Err(self.changed(self.validator.clone().unwrap_or_default(), "no validator".into()));
+        }
+        if v.bytes.len() as u64 != len {
+            return Err(ObjectError::Read(ReadError::Short {
+                location: self.name.clone(),
+                got: v.bytes.len() as u64,
+                expected: len,
+            }));
+        }
+        Ok(v.bytes)
+    }
+
+    fn changed(&self, was: String, now: String) -> ObjectError {
+        ObjectError::Changed { name: self.name.clone(), was, now }
+    }
+}

@@ -1,0 +1,476 @@
+//! Remote COGs: the GDAL-written fixtures (tests/fixtures/cog) served by nginx and by moto's S3
+//! server, read by `CogSource::open_remote`. Every texel equals the local source's and GDAL's
+//! own decode; open costs one request of at most 64 KiB counted at a proxy in front of the
+//! server, a first tile at most two more; adjacent tiles of a row are one request; an object
+//! replaced after open is refused and faults on the wire end in a retry or an error, never in
+//! a wrong texel.
+
+use crate::cog::{fixture, gdal_level, level, Case, CASES};
+use crate::common::exec;
+use crate::common::remote::{Fault, FaultProxy, Moto, Nginx, Schedule};
+use clipmap::place::RemoteName;
+use clipmap::source::cog::LevelOrigin;
+use clipmap::source::remote::http::Http;
+use clipmap::source::remote::s3::S3;
+use clipmap::source::remote::{Remote, RemoteOptions};
+use clipmap::source::{CogSource, SourceError, TileId, TileSource};
+use std::path::Path;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::{Duration, SystemTime};
+
+/// Short timeouts and backoffs, so that faults resolve quickly.
+fn quick_opts() -> RemoteOptions {
+    RemoteOptions {
+        timeout: Duration::from_millis(1500),
+        connect_timeout: Duration::from_millis(500),
+        retries: 3,
+        backoff: Duration::from_millis(2),
+        backoff_max: Duration::from_millis(40),
+        ..RemoteOptions::default()
+    }
+}
+
+/// A remote reader whose S3 backend is configured from `env` (a moto server's variables).
+fn reader(env: &[(String, String)]) -> Arc<Remote> {
+    let opts = quick_opts();
+    let http = Arc::new(Http::new(&opts));
+    let s3 = Arc::new(S3::with_vars(&opts, env.to_vec()));
+    Arc::new(Remote::with_backends(opts, http, s3))
+}
+
+fn open(url: &str, remote: &Arc<Remote>, clip: u64) -> CogSource {
+    CogSource::open_remote(&RemoteName::parse(url).unwrap(), Arc::clone(remote), clip)
+        .unwrap_or_else(|e| panic!("{url}: {e}"))
+}
+
+/// Every level of `src` equals the local file's, and the levels that are images of the file
+/// equal GDAL's decode of them.
+fn assert_gdal_texels(src: &CogSource, case: &Case, clip: u64, ctx: &str) {
+    let local = CogSource::open(&fixture(&format!("{}.tif", case.name)), clip).unwrap();
+    assert_eq!(src.desc(), local.desc(), "{ctx}");
+    for k in 0..src.desc().level_count() as u32 {
+        let got = level(src, k).unwrap_or_else(|e| panic!("{ctx} level {k}: {e}"));
+        if (k as usize) < case.ifd_levels {
+            let (gdal, size) = gdal_level(case.name, k as usize, case.bpt);
+            assert_eq!(size, src.desc().level(k).size, "{ctx} level {k}");
+            assert!(gdal == got, "{ctx}: level {k} differs from GDAL's decode");
+        }
+        assert!(level(&local, k).unwrap() == got, "{ctx}: level {k} differs from the local file's");
+    }
+}
+
+#[test]
+fn gdal_cogs_over_nginx_and_s3_give_gdal_s_texels_as_the_local_files_do() {
+    let nginx = Nginx::serve(&fixture(""));
+    let moto = Moto::start();
+    moto.create_bucket("cogs");
+    let remote = reader(&moto.env());
+    for case in &CASES {
+        let bytes = std::fs::read(fixture(&format!("{}.tif", case.name))).unwrap();
+        let s3 = format!("s3://cogs/{}.tif", case.name);
+        remote.put(&s3, bytes.into()).unwrap();
+        for url in [format!("{}/{}.tif", nginx.url(), case.name), s3] {
+            // Stack levels in TIFF tiles, and whole levels assembled from rows of TIFF tiles.
+            for clip in [64, 4096] {
+                let src = open(&url, &remote, clip);
+                assert_gdal_texels(&src, case, clip, &format!("{url} clip {clip}"));
+            }
+        }
+    }
+    assert_eq!(remote.stats().failures, 0);
+}
+
+/// A classic TIFF of `w x h` grey texels `(3x + 5y) & 255` in uncompressed `t x t` tiles, its
+/// tile index after the tiles (far past the first 64 KiB), TileByteCounts right after
+/// TileOffsets.
+fn big_index_tiff(w: u32, h: u32, t: u32) -> Vec<u8> {
+    tiled_tiff(w, h, t, false)
+}
+
+/// Like [`big_index_tiff`]; with `gdal`, laid out as GDAL writes a COG: a ghost area after the
+/// header announcing block leaders and trailers, and each tile framed by them.
+fn tiled_tiff(w: u32, h: u32, t: u32, gdal: bool) -> Vec<u8> {
+    let (across, tiles) = (w.div_ceil(t), w.div_ceil(t) * h.div_ceil(t));
+    let tile_len = t * t;
+    let frame = if gdal { 8 } else { 0 };
+    let ghost = if gdal {
+        let body = "LAYOUT=IFDS_BEFORE_DATA\nBLOCK_ORDER=ROW_MAJOR\nBLOCK_LEADER=SIZE_AS_UINT4\nBLOCK_TRAILER=LAST_4_BYTES_REPEATED\nKNOWN_INCOMPATIBLE_EDITION=NO\n ";
+        format!("GDAL_STRUCTURAL_METADATA_SIZE={:06} bytes\n{body}", body.len()).into_bytes()
+    } else {
+        Vec::new()
+    };
+    let ifd_at = 8 + ghost.len() as u32;
+    let data_at = 4096u32;
+    let arrays_at = data_at + tiles * (tile_len + frame);
+    let entries: [(u16, u16, u32, u32); 9] = [
+        (256, 4, 1, w),
+        (257, 4, 1, h),
+        (258, 3, 1, 8),
+        (259, 3, 1, 1),
+        (262, 3, 1, 1),
+        (322, 4, 1, t),
+        (323, 4, 1, t),
+        (324, 4, tiles, arrays_at),
+        (325, 4, tiles, arrays_at + 4 * tiles),
+    ];
+    let mut f = b"II*\0".to_vec();
+    f.extend(ifd_at.to_le_bytes());
+    f.extend(&ghost);
+    f.extend((entries.len() as u16).to_le_bytes());
+    for (tag, ty, count, value) in entries {
+        f.extend(tag.to_le_bytes());
+        f.extend(ty.to_le_bytes());
+        f.extend(count.to_le_bytes());
+        f.extend(value.to_le_bytes());
+    }
+    f.extend(0u32.to_le_bytes());
+    f.resize(data_at as usize, 0);
+    for i in 0..tiles {
+        if gdal {
+            f.extend(tile_len.to_le_bytes());
+        }
+        for r in 0..t {
+            for c in 0..t {
+                let (x, y) = ((i % across) * t + c, (i / across) * t + r);
+                f.push(((3 * x + 5 * y) & 255) as u8);
+            }
+        }
+        if gdal {
+            let last = f[f.len() - 4..].to_vec();
+            f.extend(last);
+        }
+    }
+    f.extend((0..tiles).flat_map(|i| (data_at + i * (tile_len + frame) + frame / 2).to_le_bytes()));
+    f.extend((0..tiles).flat_map(|_| tile_len.to_le_bytes()));
+    f
+}
+
+/// Texture tile `(s, t)` of level 0 of a [`tiled_tiff`] image `h` texels high, checked.
+fn assert_formula_tile(src: &CogSource, s: u64, t: u64, h: u64, buf: &[u8]) {
+    let l = src.desc().level(0);
+    for (j, &v) in buf.iter().enumerate() {
+        let (x, tt) = (s * l.tile[0] + j as u64 % l.tile[0], t * l.tile[1] + j as u64 / l.tile[0]);
+        let y = h - 1 - tt;
+        assert_eq!(v, ((3 * x + 5 * y) & 255) as u8, "texel ({x}, {tt})");
+    }
+}
+
+#[test]
+fn a_remote_cog_opens_with_one_request_of_at_most_64_kib_and_a_first_tile_costs_at_most_two_more() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::copy(fixture("rgb_512x384.tif"), dir.path().join("rgb.tif")).unwrap();
+    // 2048 x 2048 in 16 x 16 tiles: 16384 tiles, two 64 KiB index arrays past the tiles.
+    std::fs::write(dir.path().join("big_index.tif"), big_index_tiff(2048, 2048, 16)).unwrap();
+    std::fs::write(dir.path().join("gdal_like.tif"), tiled_tiff(2048, 2048, 8, true)).unwrap();
+    let nginx = Nginx::serve(dir.path());
+    let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
+    let seen = || proxy.requests.load(Ordering::SeqCst);
+
+    // GDAL's COG (93 100 bytes): header, ghost area, IFDs and tile index in the first 64 KiB.
+    let remote = reader(&[]);
+    let src = open(&format!("{}/rgb.tif", proxy.url()), &remote, 64);
+    assert_eq!(seen(), 1, "open is one request at the server");
+    assert!(remote.stats().bytes <= 64 << 10, "{:?}", remote.stats());
+    // Texture tile (0, 0) is the image's bottom-left TIFF tile, written last, past the first 64 KiB.
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    src.read_tile(TileId::new(0, 0, 0), &mut buf).unwrap();
+    let first = seen() - 1;
+    assert!((1..=2).contains(&first), "the first tile cost {first} requests");
+    let want = CogSource::open(&fixture("rgb_512x384.tif"), 64).unwrap();
+    let mut local = vec![0u8; buf.len()];
+    want.read_tile(TileId::new(0, 0, 0), &mut local).unwrap();
+    assert!(buf == local);
+
+    // A whole level assembled from several TIFF tiles: one request a row of tiles, not a tile.
+    let src = open(&format!("{}/rgb.tif", proxy.url()), &remote, 4096);
+    let LevelOrigin::Ifd { tile, .. } = src.origins()[0] else { panic!("level 0 is IFD 0") };
+    let (across, rows) = (512u64.div_ceil(tile[0]), 384u64.div_ceil(tile[1]));
+    assert!(across > 1, "{tile:?}");
+    let before = seen();
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    src.read_tile(TileId::new(0, 0, 0), &mut buf).unwrap();
+    let cost = seen() - before;
+    assert!(cost <= rows, "{cost} requests for {rows} rows of {across} tiles");
+    let want = CogSource::open(&fixture("rgb_512x384.tif"), 4096).unwrap();
+    let mut local = vec![0u8; buf.len()];
+    want.read_tile(TileId::new(0, 0, 0), &mut local).unwrap();
+    assert!(buf == local);
+
+    // A tile index of 128 KiB past the first 64 KiB: open reads none of it.
+    let before = seen();
+    let src = open(&format!("{}/big_index.tif", proxy.url()), &remote, 64);
+    assert_eq!(seen() - before, 1, "open is one request however large the index");
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    for (i, (s, t)) in [(77u64, 55u64), (78, 55), (3, 120)].into_iter().enumerate() {
+        let before = seen();
+        src.read_tile(TileId::new(0, s, t), &mut buf).unwrap();
+        let cost = seen() - before;
+        // The first tile reads both arrays (128 KiB together, at most MAX_INDEX_READ) in one
+        // request and its bytes in another; later tiles only their bytes.
+        assert_eq!(cost, if i == 0 { 2 } else { 1 }, "tile ({s}, {t}) cost {cost} requests");
+        assert_formula_tile(&src, s, t, 2048, &buf);
+    }
+
+    // An index of 512 KiB (65536 tiles), framed as GDAL frames tiles: a first tile costs the
+    // chunk of TileOffsets that names it and its bytes, whose leader confirms its byte count
+    // (TileByteCounts is not read).
+    let before = seen();
+    let src = open(&format!("{}/gdal_like.tif", proxy.url()), &remote, 64);
+    assert_eq!(seen() - before, 1, "open is one request however large the index");
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    for (i, (s, t)) in [(100u64, 200u64), (101, 200), (7, 9)].into_iter().enumerate() {
+        let before = seen();
+        src.read_tile(TileId::new(0, s, t), &mut buf).unwrap();
+        let cost = seen() - before;
+        assert_eq!(cost, if i == 1 { 1 } else { 2 }, "tile ({s}, {t}) cost {cost} requests");
+        assert_formula_tile(&src, s, t, 2048, &buf);
+    }
+    // A leader that disagrees: TileByteCounts is read after all, and the tile refused.
+    let mut bad = tiled_tiff(2048, 2048, 8, true);
+    let index = (255 - 9) * 256 + 7;
+    let leader = 4096 + index * (64 + 8);
+    assert_eq!(bad[leader..leader + 4], 64u32.to_le_bytes());
+    bad[leader] = 65;
+    std::fs::write(dir.path().join("gdal_bad.tif"), &bad).unwrap();
+    let src = open(&format!("{}/gdal_bad.tif", proxy.url()), &remote, 64);
+    let e = src.read_tile(TileId::new(0, 7, 9), &mut buf).unwrap_err();
+    assert!(matches!(e, SourceError::Chunk { .. }) && e.to_string().contains("BLOCK_LEADER) say 65 bytes"), "{e}");
+    src.read_tile(TileId::new(0, 8, 9), &mut buf).unwrap();
+    assert_formula_tile(&src, 8, 9, 2048, &buf);
+}
+
+/// Replaces `path` with `bytes`, its modification time moved on (so that nginx's ETag, made of
+/// the time and the size, changes even when the size does not).
+fn replace(path: &Path, bytes: &[u8]) {
+    std::fs::write(path, bytes).unwrap();
+    let f = std::fs::File::options().write(true).open(path).unwrap();
+    f.set_modified(SystemTime::now() + Duration::from_secs(1000)).unwrap();
+}
+
+/// Reads every tile of every level of `src` once the object was replaced: each read is the
+/// old object's texels (`want`) or an error saying it changed; returns how many said so.
+fn reads_after_replacement(src: &CogSource, want: &CogSource, ctx: &str) -> usize {
+    let mut refused = 0;
+    let desc = src.desc().clone();
+    for k in 0..desc.level_count() as u32 {
+        let tiles = desc.level(k).tiles();
+        let mut buf = vec![0u8; desc.tile_bytes(k)];
+        let mut expect = vec![0u8; desc.tile_bytes(k)];
+        for t in 0..tiles[1] {
+            for s in 0..tiles[0] {
+                let id = TileId::new(k, s, t);
+                match src.read_tile(id, &mut buf) {
+                    Ok(()) => {
+                        want.read_tile(id, &mut expect).unwrap();
+                        assert!(buf == expect, "{ctx}: {id} is not the opened object's");
+                    }
+                    Err(e) => {
+                        assert!(matches!(e, SourceError::Chunk { .. }), "{ctx}: {id}: {e}");
+                        let text = e.to_string();
+                        assert!(text.contains("changed since it was opened") && text.contains("ETag"), "{ctx}: {text}");
+                        refused += 1;
+                    }
+                }
+            }
+        }
+    }
+    refused
+}
+
+#[test]
+fn a_remote_cog_replaced_after_open_is_refused_never_mixed() {
+    let original = std::fs::read(fixture("rgb_512x384.tif")).unwrap();
+    // The same size, every byte past the first 64 KiB altered: tiles that would decode to other
+    // texels, or fail to.
+    let mut altered = original.clone();
+    for b in &mut altered[64 << 10..] {
+        *b ^= 0x5a;
+    }
+    let want = CogSource::open(&fixture("rgb_512x384.tif"), 64).unwrap();
+
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("rgb.tif");
+    std::fs::write(&path, &original).unwrap();
+    let nginx = Nginx::serve(dir.path());
+    let remote = reader(&[]);
+    let src = open(&format!("{}/rgb.tif", nginx.url()), &remote, 64);
+    replace(&path, &altered);
+    let refused = reads_after_replacement(&src, &want, "nginx");
+    assert!(refused > 0, "the tiles past the first 64 KiB are refused");
+
+    let moto = Moto::start();
+    moto.create_bucket("cogs");
+    let remote = reader(&moto.env());
+    remote.put("s3://cogs/rgb.tif", original.into()).unwrap();
+    let src = open("s3://cogs/rgb.tif", &remote, 64);
+    remote.put("s3://cogs/rgb.tif", altered.into()).unwrap();
+    let refused = reads_after_replacement(&src, &want, "s3");
+    assert!(refused > 0, "the tiles past the first 64 KiB are refused");
+}
+
+#[test]
+fn faults_on_the_wire_end_in_a_retry_or_an_error_never_in_a_wrong_texel() {
+    let nginx = Nginx::serve(&fixture(""));
+    // Small COGs lie mostly in the first 64 KiB read at open: every request after it, in turn,
+    // is cut, mis-sized, failed or passed.
+    let faults = vec![
+        Fault::Truncate,
+        Fault::Pass,
+        Fault::LongLength,
+        Fault::ShortLength,
+        Fault::Pass,
+        Fault::ServerError,
+        Fault::Reset,
+        Fault::Pass,
+    ];
+    let proxy = FaultProxy::start(nginx.port, Schedule { faults: vec![Fault::Pass], then: faults, every: 1 }, 0);
+    let remote = reader(&[]);
+    let (mut good, mut failed) = (0, 0);
+    for name in CASES.iter().map(|c| c.name) {
+        let want = CogSource::open(&fixture(&format!("{name}.tif")), 64).unwrap();
+        let src = match CogSource::open_remote(
+            &RemoteName::parse(&format!("{}/{name}.tif", proxy.url())).unwrap(),
+            Arc::clone(&remote),
+            64,
+        ) {
+            Ok(s) => s,
+            Err(e) => {
+                failed += 1;
+                assert!(e.to_string().contains(name), "{e}");
+                continue;
+            }
+        };
+        assert_eq!(src.desc(), want.desc());
+        let desc = src.desc().clone();
+        for k in 0..desc.level_count() as u32 {
+            let tiles = desc.level(k).tiles();
+            let (mut buf, mut expect) = (vec![0u8; desc.tile_bytes(k)], vec![0u8; desc.tile_bytes(k)]);
+            for t in 0..tiles[1] {
+                for s in 0..tiles[0] {
+                    let id = TileId::new(k, s, t);
+                    match src.read_tile(id, &mut buf) {
+                        Ok(()) => {
+                            want.read_tile(id, &mut expect).unwrap();
+                            assert!(buf == expect, "{name} {id}");
+                            good += 1;
+                        }
+                        Err(e) => {
+                            assert!(!matches!(e, SourceError::Missing { .. }), "{name} {id}: {e}");
+                            failed += 1;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let injected = proxy.injected.lock().unwrap().iter().filter(|f| **f != Fault::Pass).count();
+    assert!(injected > 10, "faults were injected: {injected}");
+    assert!(remote.stats().retries > 0, "{:?}", remote.stats());
+    assert!(good > 50, "{good} tiles read right, {failed} failed");
+}
+
+#[test]
+fn cliptex_info_of_a_cog_url_shows_its_levels_read_with_one_request() {
+    let nginx = Nginx::serve(&fixture(""));
+    let dir = tempfile::tempdir().unwrap();
+    let url = format!("{}/grey_1000x700.tif", nginx.url());
+    let (out, desc) = exec(dir.path(), env!("CARGO_BIN_EXE_cliptex"), &["info", &url]);
+    assert!(out.status.success(), "{desc}");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.starts_with(&format!("{url}: tiled TIFF served as it is: 1000 x 700 texels")), "{text}");
+    assert!(text.contains("built when first read from level 2 (2 x 2 box)"), "{text}");
+    let missing = format!("{}/nothing.tif", nginx.url());
+    let (out, desc) = exec(dir.path(), env!("CARGO_BIN_EXE_cliptex"), &["info", &missing]);
+    assert!(!out.status.success(), "{desc}");
+    assert!(desc.contains(&format!("{missing}: not found")), "{desc}");
+}
+
+/// One control-socket exchange with a `clipmapd` (None until it answers).
+fn ask(socket: &Path, line: &str) -> Option<String> {
+    use std::io::{BufRead, BufReader, Write};
+    let mut s = std::os::unix::net::UnixStream::connect(socket).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+    writeln!(s, "{line}").ok()?;
+    let mut reply = String::new();
+    BufReader::new(s).read_line(&mut reply).ok()?;
+    Some(reply.trim_end().to_string())
+}
+
+#[test]
+fn clipmapd_serves_a_cog_url_as_it_serves_the_file() {
+    let nginx = Nginx::serve(&fixture(""));
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let socket = d.join("cogurl.sock");
+    let err = d.join("cogurl.err");
+    let url = format!("{}/rgb_512x384.tif", nginx.url());
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_clipmapd"))
+        .args([url.as_str(), "--clip", "128", "--tick-hz", "60", "--name", "cogurl", "--shm-dir"])
+        .arg(d)
+        .arg("--socket")
+        .arg(&socket)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&err).unwrap())
+        .spawn()
+        .unwrap();
+    let log = || std::fs::read_to_string(&err).unwrap_or_default();
+    let json = |line: &str| -> serde_json::Value {
+        let r = ask(&socket, line).unwrap_or_default();
+        serde_json::from_str(r.strip_prefix("OK ").unwrap_or_else(|| panic!("{line}: {r}\n{}", log()))).unwrap()
+    };
+    let t = std::time::Instant::now();
+    while !ask(&socket, "PING").is_some_and(|r| r.starts_with("OK pong")) {
+        if let Ok(Some(st)) = child.try_wait() {
+            panic!("clipmapd exited ({st}):\n{}", log());
+        }
+        assert!(t.elapsed() < Duration::from_secs(30), "the service did not come up:\n{}", log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(json("STATUS")["levels"], 10, "the file's ten levels");
+    while json("STATS")["engine"]["tiles_read"].as_u64().unwrap() == 0 {
+        assert!(t.elapsed() < Duration::from_secs(30), "no tile read\n{}", log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    // An object that is not there is refused before anything is created, naming it.
+    let missing = format!("{}/nothing.tif", nginx.url());
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_clipmapd"))
+        .arg(&missing)
+        .args(["--shm-dir"])
+        .arg(d)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains(&format!("{missing}: not found")), "{out:?}");
+}
+
+#[test]
+fn an_ifd_past_the_first_64_kib_is_read_where_it_lies_and_a_failed_read_of_it_is_said_so() {
+    // The IFD moved to the end of the file, past the first 64 KiB.
+    let mut tiff = big_index_tiff(512, 512, 16);
+    let ifd = tiff[8..8 + 2 + 9 * 12 + 4].to_vec();
+    let at = tiff.len() as u32;
+    tiff.extend(ifd);
+    tiff[4..8].copy_from_slice(&at.to_le_bytes());
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("late.tif"), &tiff).unwrap();
+    let nginx = Nginx::serve(dir.path());
+    let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
+    let url = format!("{}/late.tif", proxy.url());
+    let remote = reader(&[]);
+    let src = open(&url, &remote, 64);
+    assert_eq!(proxy.requests.load(Ordering::SeqCst), 2, "the first 64 KiB, then the IFD where it lies");
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    src.read_tile(TileId::new(0, 5, 6), &mut buf).unwrap();
+    let y = 511 - 6 * 16;
+    assert_eq!(buf[0], ((3 * 5 * 16 + 5 * y) & 255) as u8);
+    // Every request after the first fails: open says the object could not be read, not that
+    // the file is damaged.
+    proxy.set(Schedule { faults: vec![Fault::Pass], then: vec![Fault::ServerError], every: 1 });
+    let e = CogSource::open_remote(&RemoteName::parse(&url).unwrap(), remote, 64).unwrap_err();
+    let text = e.to_string();
+    assert!(text.contains("reading its structure") && text.contains("HTTP 500") && text.contains(&url), "{text}");
+    assert!(!text.contains("damaged"), "{text}");
+}
