@@ -26,8 +26,9 @@
 //! IFD's whole TileOffsets and TileByteCounts arrays when it opens an image, and it reads a tile
 //! through `&mut self` (one seek position), so a COG of millions of tiles would cost its whole
 //! index at open and every tile read would take a lock. The structure parsed here is small
-//! (header, IFD entries). DEFLATE goes to `flate2` (over `zlib-rs`, the fastest of its back ends
-//! here) and ZSTD to `zstd`; LZW to our own whole-tile decoder (`lzw.rs` says why not `weezl`).
+//! (header, IFD entries). DEFLATE goes to `libdeflater` (libdeflate, the whole-buffer inflater
+//! GDAL uses; `flate2` over `zlib-rs` decoded at 0.95 of it) and ZSTD to `zstd`; LZW to our own
+//! whole-tile decoder (`lzw.rs` says why not `weezl`).
 //!
 //! Orientation: as `clipprep` makes a texture of an image, t counts up from the image's bottom
 //! row: texel (s, t) of a level is pixel (column s, row H - 1 - t) of its image. A texture tile
@@ -1576,9 +1577,12 @@ fn decompress(c: Compression, packed: &[u8], out: &mut [u8]) -> Result<usize, St
         }
         Compression::Lzw => super::lzw::decode(packed, out).map_err(|e| format!("not valid LZW data ({e})")),
         Compression::Deflate => {
-            let mut d = flate2::Decompress::new(true);
-            match d.decompress(packed, out, flate2::FlushDecompress::Finish) {
-                Ok(_) => Ok(d.total_out() as usize),
+            // One zlib stream a tile, inflated whole (libdeflate: the decoder GDAL uses).
+            match libdeflater::Decompressor::new().zlib_decompress(packed, out) {
+                Ok(n) => Ok(n),
+                Err(libdeflater::DecompressionError::InsufficientSpace) => {
+                    Err(format!("it decodes to more than the {} bytes of one tile", out.len()))
+                }
                 Err(e) => Err(format!("not valid DEFLATE data ({e})")),
             }
         }
