@@ -304,3 +304,36 @@ fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool, format: clipmap:
     }
     0
 }
+
+/// Runs a benchmark that checks texels in a fresh scratch directory under `base` (the system's
+/// temporary directory by default), removed at the end, and prints its report (JSON or text).
+/// The exit status: 0 ok, 1 `wrong` says a texel read was wrong, 2 it could not run.
+pub(crate) fn run_in_scratch<R: serde::Serialize>(
+    tool: &str,
+    base: Option<&std::path::Path>,
+    json: bool,
+    measure: impl FnOnce(&std::path::Path) -> anyhow::Result<R>,
+    human: impl FnOnce(&R) -> String,
+    wrong: impl FnOnce(&R) -> bool,
+) -> u8 {
+    let base = base.map_or_else(std::env::temp_dir, |b| b.to_path_buf());
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+    let dir = base.join(format!("clipbench-{tool}-{}-{nanos}", std::process::id()));
+    if let Err(e) = std::fs::create_dir_all(&dir) {
+        eprintln!("clipbench {tool}: cannot make {}: {e}", dir.display());
+        return 2;
+    }
+    let result = measure(&dir);
+    let _ = std::fs::remove_dir_all(&dir);
+    match result {
+        Ok(r) => {
+            let bad = wrong(&r);
+            clipmap::report::emit(json, &r, human);
+            u8::from(bad)
+        }
+        Err(e) => {
+            eprintln!("clipbench {tool}: {e:#}");
+            2
+        }
+    }
+}

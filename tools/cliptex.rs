@@ -466,7 +466,6 @@ fn roam(args: RoamArgs) -> i32 {
 
 fn dump(args: DumpArgs) -> i32 {
     use clipmap::inspect::live_dump;
-    use report::dump;
     if let Some(name) = &args.attach {
         let dir = args.shm_dir.clone().unwrap_or_else(clipmap::shm::default_dir);
         let out = args.out_dir.clone().unwrap_or_default();
@@ -489,40 +488,18 @@ fn dump(args: DumpArgs) -> i32 {
         eprintln!("cliptex dump: give a .ct file with --out FILE.png, or --attach NAME with --out-dir DIR");
         return exit::BAD_INPUT;
     };
-    let region = args.region;
     if is_cog(file) {
         let src = match open_cog(file, "cliptex dump") {
             Ok(s) => s,
             Err(c) => return c,
         };
-        let count = src.desc().level_count() as u32;
-        if args.level >= count {
-            let e = dump::DumpError::NoLevel { level: args.level, last: count.saturating_sub(1) };
-            return dump::finish(Err(e), args.json, args.quiet, "cliptex");
-        }
-        let d = src.desc().level(args.level);
-        let read = |id, buf: &mut [u8]| src.read_tile(id, buf);
         let place = Place::from_path(file.clone());
-        let file_of = |_: clipmap::source::TileId| Some(place.clone());
-        let tiles = dump::LevelTiles {
-            level: Some(args.level),
-            size: d.size,
-            tile: d.tile,
-            format: src.desc().format(),
-            read: &read,
-            file_of: &file_of,
-        };
-        return dump::finish(dump::dump(file, &tiles, region, out), args.json, args.quiet, "cliptex");
+        return dump_level(&args, file, out, &src, &|_| Some(place.clone()));
     }
     let plan = match load(file, &args.env) {
         Ok((p, _)) => p,
         Err(c) => return c,
     };
-    let count = plan.levels.len() as u32;
-    if args.level >= count {
-        let e = dump::DumpError::NoLevel { level: args.level, last: count.saturating_sub(1) };
-        return dump::finish(Err(e), args.json, args.quiet, "cliptex");
-    }
     let locator = plan.clone();
     let src = match clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()) {
         Ok(src) => src,
@@ -531,18 +508,35 @@ fn dump(args: DumpArgs) -> i32 {
             return exit::BAD_INPUT;
         }
     };
+    let file_of = |id: clipmap::source::TileId| locator.locate(id.level, id.s, id.t).ok().map(|l| l.path);
+    dump_level(&args, file, out, src.as_ref(), &file_of)
+}
+
+/// Dumps `--level` (and `--region`) of `src` to `out`; `file_of` names the file of a tile.
+fn dump_level(
+    args: &DumpArgs,
+    file: &Path,
+    out: &Path,
+    src: &dyn clipmap::source::TileSource,
+    file_of: &dyn Fn(clipmap::source::TileId) -> Option<Place>,
+) -> i32 {
+    use report::dump;
+    let count = src.desc().level_count() as u32;
+    if args.level >= count {
+        let e = dump::DumpError::NoLevel { level: args.level, last: count.saturating_sub(1) };
+        return dump::finish(Err(e), args.json, args.quiet, "cliptex");
+    }
     let d = src.desc().level(args.level);
     let read = |id, buf: &mut [u8]| src.read_tile(id, buf);
-    let file_of = |id: clipmap::source::TileId| locator.locate(id.level, id.s, id.t).ok().map(|l| l.path);
     let tiles = dump::LevelTiles {
         level: Some(args.level),
         size: d.size,
         tile: d.tile,
         format: src.desc().format(),
         read: &read,
-        file_of: &file_of,
+        file_of,
     };
-    dump::finish(dump::dump(file, &tiles, region, out), args.json, args.quiet, "cliptex")
+    dump::finish(dump::dump(file, &tiles, args.region, out), args.json, args.quiet, "cliptex")
 }
 
 /// `clipmapd`'s and `cliptex info`'s clip size for a COG served as it is.

@@ -381,27 +381,12 @@ fn human(r: &Report) -> String {
 }
 
 pub fn main(args: Args) -> u8 {
-    let base = args.dir.clone().unwrap_or_else(std::env::temp_dir);
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
-    let dir = base.join(format!("clipbench-cog-{}-{nanos}", std::process::id()));
-    if let Err(e) = std::fs::create_dir_all(&dir) {
-        eprintln!("clipbench cog: cannot make {}: {e}", dir.display());
-        return 2;
-    }
-    let result = measure(&args, &dir);
-    let _ = std::fs::remove_dir_all(&dir);
-    match result {
-        Ok(r) => {
-            clipmap::report::emit(args.json, &r, human);
-            if r.wrong_texels > 0 {
-                1
-            } else {
-                0
-            }
-        }
-        Err(e) => {
-            eprintln!("clipbench cog: {e:#}");
-            2
-        }
-    }
+    super::run_in_scratch(
+        "cog",
+        args.dir.as_deref(),
+        args.json,
+        |dir| measure(&args, dir),
+        human,
+        |r| r.wrong_texels > 0,
+    )
 }

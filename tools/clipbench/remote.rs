@@ -587,27 +587,12 @@ fn human(r: &Report) -> String {
 
 /// Runs the benchmark; the exit status (0 ok, 1 wrong texels were read, 2 could not run).
 pub fn main(args: Args) -> u8 {
-    let base = args.dir.clone().unwrap_or_else(std::env::temp_dir);
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
-    let dir = base.join(format!("clipbench-remote-{}-{nanos}", std::process::id()));
-    if let Err(e) = std::fs::create_dir_all(&dir) {
-        eprintln!("clipbench remote: cannot make {}: {e}", dir.display());
-        return 2;
-    }
-    let result = measure(&args, &dir);
-    let _ = std::fs::remove_dir_all(&dir);
-    match result {
-        Ok(r) => {
-            clipmap::report::emit(args.json, &r, human);
-            if r.wrong_texels > 0 || r.remote_flight.wrong_texels > 0 {
-                1
-            } else {
-                0
-            }
-        }
-        Err(e) => {
-            eprintln!("clipbench remote: {e:#}");
-            2
-        }
-    }
+    super::run_in_scratch(
+        "remote",
+        args.dir.as_deref(),
+        args.json,
+        |dir| measure(&args, dir),
+        human,
+        |r| r.wrong_texels > 0 || r.remote_flight.wrong_texels > 0,
+    )
 }
