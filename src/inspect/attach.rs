@@ -465,6 +465,18 @@ mod tests {
         s.levels.iter_mut().for_each(|l| l.paging = None);
         let text = human(&s);
         assert!(text.contains("paging: no figures (control socket s: refused)"), "{text}");
+        assert!(!text.contains("heights:"), "a colour texture shows no heights line\n{text}");
+        // A height texture: its heights block, one line, and in the JSON.
+        let f =
+            crate::height::HeightFormat::new(crate::height::HeightStorage::U16, 0.25, -500.0, Some(65535.0)).unwrap();
+        s.heights = Some(crate::shm::layout::Heights::of(&f, crate::height::LevelRule::Max));
+        let text = human(&s);
+        assert!(text.contains("heights: l16  metres = stored x 0.25 + -500  nodata 65535  levels max\n"), "{text}");
+        let v = serde_json::to_value(&s).unwrap();
+        assert_eq!(
+            v["heights"],
+            serde_json::json!({"storage": "u16", "scale": 0.25, "offset": -500.0, "nodata": 65535.0, "levels": "max"})
+        );
         let v = serde_json::to_value(&s).unwrap();
         assert_eq!(
             (v["read_latency_ticks"].clone(), v["levels"][1]["paging"].clone()),
