@@ -34,6 +34,8 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <float.h>
+#include <math.h>
 #include <sched.h>
 #include <signal.h>
 #include <stdint.h>
@@ -79,7 +81,8 @@
 #define CLIPMAP_H_SNAPSHOT 128           /* the snapshot, 2112 bytes */
 #define CLIPMAP_H_LEVEL_DESCS 2240       /* 32 level descriptors of CLIPMAP_DESC_BYTES */
 #define CLIPMAP_H_GROWTH 6336            /* the growth block, CLIPMAP_GROWTH_BYTES (growing textures) */
-#define CLIPMAP_H_END 6464               /* end of the fixed header */
+#define CLIPMAP_H_HEIGHTS 6464           /* the heights block, CLIPMAP_HEIGHTS_BYTES (static; all zero: not heights) */
+#define CLIPMAP_H_END 6528               /* end of the fixed header */
 /* Snapshot fields as absolute offsets (the names layout 1 gave them). */
 #define CLIPMAP_H_GLOBAL_SEQ 128         /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ */
 #define CLIPMAP_H_MIN_LOD 136            /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_MIN_LOD */
@@ -181,11 +184,27 @@
 #define CLIPMAP_FORMAT_L32F 11u
 #define CLIPMAP_FORMAT_L16I 12u
 
+/* Heights block fields (relative to CLIPMAP_H_HEIGHTS), static. All zero for a texture whose
+ * texels are not heights (a colour texture, or a writer from before the block). clipmap_open
+ * checks them and fills struct clipmap_map's height_* fields. */
+#define CLIPMAP_HEIGHTS_BYTES 64
+#define CLIPMAP_HT_IS_HEIGHTS 0          /* u32: 1 the texels are heights, 0 not */
+#define CLIPMAP_HT_RULE 4                /* u32: CLIPMAP_RULE_* */
+#define CLIPMAP_HT_SCALE 8               /* f64: metres of one stored step (1 for l32f) */
+#define CLIPMAP_HT_OFFSET 16             /* f64: metres of a stored 0 (0 for l32f) */
+#define CLIPMAP_HT_NODATA 24             /* f64: the stored value (not metres) marking no data; NaN: none */
+/* Level rules (CLIPMAP_HT_RULE): how each coarser level of heights is made from the finer one. */
+#define CLIPMAP_RULE_MEAN 0u
+#define CLIPMAP_RULE_POINT 1u
+#define CLIPMAP_RULE_MIN 2u
+#define CLIPMAP_RULE_MAX 3u
+
 #if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
+_Static_assert(CLIPMAP_H_GROWTH + CLIPMAP_GROWTH_BYTES == CLIPMAP_H_HEIGHTS, "growth block");
+_Static_assert(CLIPMAP_H_HEIGHTS + CLIPMAP_HEIGHTS_BYTES == CLIPMAP_H_END, "heights block");
 _Static_assert(CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAPSHOT_BYTES == CLIPMAP_H_LEVEL_DESCS, "snapshot size");
 _Static_assert(CLIPMAP_SNAP_LEVELS + CLIPMAP_MAX_LEVELS * CLIPMAP_STATE_BYTES == CLIPMAP_SNAPSHOT_BYTES, "states");
 _Static_assert(CLIPMAP_H_LEVEL_DESCS + CLIPMAP_MAX_LEVELS * CLIPMAP_DESC_BYTES == CLIPMAP_H_GROWTH, "descs");
-_Static_assert(CLIPMAP_H_GROWTH + CLIPMAP_GROWTH_BYTES == CLIPMAP_H_END, "growth block");
 _Static_assert(CLIPMAP_H_GLOBAL_SEQ == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ &&
                    CLIPMAP_H_MIN_LOD == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_MIN_LOD &&
                    CLIPMAP_H_TICK == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_TICK &&
@@ -227,6 +246,12 @@ struct clipmap_map {
     uint64_t size[2];          /* level-0 size */
     uint64_t generation;
     uint64_t tick_period_ns;
+    int heights;               /* 1: the texels are heights (the height_* fields mean something) */
+    uint32_t height_rule;      /* CLIPMAP_RULE_* */
+    double height_scale;       /* metres = stored x scale + offset */
+    double height_offset;
+    int height_has_nodata;     /* 1: height_nodata marks texels without data */
+    double height_nodata;      /* a stored value, not metres */
     struct clipmap_level_desc levels[CLIPMAP_MAX_LEVELS];
     char error[320];           /* why clipmap_open failed */
 };
@@ -340,6 +365,79 @@ static inline uint64_t clipmap_slot_index(const struct clipmap_level_desc *d, in
     return clipmap_mod(T, d->grid[1]) * d->grid[0] + clipmap_mod(S, d->grid[0]);
 }
 
+static inline double clipmap_f64_(uint64_t bits) {
+    double v;
+    memcpy(&v, &bits, 8);
+    return v;
+}
+
+/* Checks the heights block (docs/SHM.md, "Heights block") against the texel format and fills the
+ * height_* fields of m. 0 on success, else -1 with m->error saying where, what and what was
+ * expected. */
+static inline int clipmap_check_heights_(struct clipmap_map *m, const char *path) {
+#define CLIPMAP_REFUSE(...)                                                          \
+    do {                                                                             \
+        int n_ = snprintf(m->error, sizeof m->error, "%s: ", path);                  \
+        if (n_ < 0 || (size_t)n_ >= sizeof m->error) n_ = 0;                         \
+        snprintf(m->error + n_, sizeof m->error - (size_t)n_, __VA_ARGS__);          \
+        return -1;                                                                   \
+    } while (0)
+    const size_t b = CLIPMAP_H_HEIGHTS;
+    uint32_t flag = clipmap_u32(m, b + CLIPMAP_HT_IS_HEIGHTS), rule = clipmap_u32(m, b + CLIPMAP_HT_RULE);
+    uint64_t sb = clipmap_u64(m, b + CLIPMAP_HT_SCALE), ob = clipmap_u64(m, b + CLIPMAP_HT_OFFSET);
+    uint64_t nb = clipmap_u64(m, b + CLIPMAP_HT_NODATA);
+    double scale = clipmap_f64_(sb), offset = clipmap_f64_(ob), nodata = clipmap_f64_(nb);
+    m->heights = 0;
+    m->height_rule = 0;
+    m->height_scale = m->height_offset = m->height_nodata = 0.0;
+    m->height_has_nodata = 0;
+    if (flag == 0) {
+        if (rule != 0 || sb != 0 || ob != 0 || nb != 0)
+            CLIPMAP_REFUSE("heights block, byte %zu (heights flag): the texels are not heights but the block is not "
+                           "all zero; expected all zero", b + CLIPMAP_HT_IS_HEIGHTS);
+        return 0;
+    }
+    if (flag != 1)
+        CLIPMAP_REFUSE("heights block, byte %zu (heights flag): found %u, expected 0 (not heights) or 1 (heights)",
+                       b + CLIPMAP_HT_IS_HEIGHTS, flag);
+    uint32_t f = m->texel_format;
+    if (f != CLIPMAP_FORMAT_L32F && f != CLIPMAP_FORMAT_L16 && f != CLIPMAP_FORMAT_L16I)
+        CLIPMAP_REFUSE("heights block, byte %zu (heights flag): heights on texel format code %u, expected a height "
+                       "format: 11 (l32f), 7 (l16) or 12 (l16i)", b + CLIPMAP_HT_IS_HEIGHTS, f);
+    if (rule > CLIPMAP_RULE_MAX)
+        CLIPMAP_REFUSE("heights block, byte %zu (level rule): found %u, expected 0 (mean), 1 (point), 2 (min) or 3 (max)",
+                       b + CLIPMAP_HT_RULE, rule);
+    if (!isfinite(scale) || !(scale > 0.0))
+        CLIPMAP_REFUSE("heights block, byte %zu (scale): found %g, expected a finite number above zero",
+                       b + CLIPMAP_HT_SCALE, scale);
+    if (!isfinite(offset))
+        CLIPMAP_REFUSE("heights block, byte %zu (offset): found %g, expected a finite number", b + CLIPMAP_HT_OFFSET,
+                       offset);
+    if (f == CLIPMAP_FORMAT_L32F && (scale != 1.0 || offset != 0.0))
+        CLIPMAP_REFUSE("heights block, byte %zu (scale): l32f stores metres: found scale %g, offset %g, expected 1 and 0",
+                       b + CLIPMAP_HT_SCALE, scale, offset);
+    if (!isnan(nodata)) {
+        if (f == CLIPMAP_FORMAT_L32F) {
+            if (!isfinite(nodata) || fabs(nodata) > FLT_MAX || (double)(float)nodata != nodata)
+                CLIPMAP_REFUSE("heights block, byte %zu (nodata): found %g, expected a finite 32-bit float or NaN (none)",
+                               b + CLIPMAP_HT_NODATA, nodata);
+        } else {
+            double lo = f == CLIPMAP_FORMAT_L16 ? 0.0 : -32768.0, hi = f == CLIPMAP_FORMAT_L16 ? 65535.0 : 32767.0;
+            if (!isfinite(nodata) || nodata < lo || nodata > hi || nodata != (double)(long)nodata)
+                CLIPMAP_REFUSE("heights block, byte %zu (nodata): found %g, expected a whole number in %g..%g or NaN (none)",
+                               b + CLIPMAP_HT_NODATA, nodata, lo, hi);
+        }
+        m->height_has_nodata = 1;
+        m->height_nodata = nodata;
+    }
+    m->heights = 1;
+    m->height_rule = rule;
+    m->height_scale = scale;
+    m->height_offset = offset;
+    return 0;
+#undef CLIPMAP_REFUSE
+}
+
 /* Checks the static fields of the mapping at m->base (m->len bytes) as docs/SHM.md, "What a
  * reader checks", lists them; fills m. 0 on success, else -1 with m->error set. */
 static inline int clipmap_check_static(struct clipmap_map *m, const char *path) {
@@ -389,6 +487,7 @@ static inline int clipmap_check_static(struct clipmap_map *m, const char *path) 
     if (fb != 0 && fb != bpt)
         CLIPMAP_REFUSE("texel format %u has %u bytes per texel, the header says %llu", m->texel_format, fb,
                        (unsigned long long)bpt);
+    if (clipmap_check_heights_(m, path) != 0) return -1;
     if (clip == 0) CLIPMAP_REFUSE("clip size 0: expected at least 1");
     if (m->level_count < 1 || m->level_count > CLIPMAP_MAX_LEVELS)
         CLIPMAP_REFUSE("%u levels: expected 1 to %u", m->level_count, CLIPMAP_MAX_LEVELS);

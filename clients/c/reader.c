@@ -9,7 +9,13 @@
  * edges and the grid's toroidal wrap. Blocks over a missing tile, or that find the writer busy or
  * the snapshot stale, are skipped (and the snapshot taken again), not failures.
  * Prints "N passed, M failed (...)". Exit status: 0 no mismatch, 1 a mismatch, 2 the mapping was
- * refused (at open, or published state out of bounds), with the reason on stderr. */
+ * refused (at open, or published state out of bounds), with the reason on stderr.
+ *
+ *   ./reader MAPPING --heights
+ *
+ * prints what the header's heights block says, one line: "not heights", or "heights STORAGE
+ * scale S offset O nodata N|none levels RULE" (numbers as %.17g; the Python reader's --heights
+ * prints the same line). */
 #include "clipmap_shm.h"
 
 #include <stdlib.h>
@@ -56,6 +62,21 @@ int main(int argc, char **argv) {
     if (clipmap_open(argv[1], &m) != 0) {
         fprintf(stderr, "clipmap reader: %s\n", m.error);
         return 2;
+    }
+    if (strcmp(argv[2], "--heights") == 0) {
+        static const char *const rules[] = {"mean", "point", "min", "max"};
+        if (!m.heights) {
+            printf("not heights\n");
+        } else {
+            const char *storage = m.texel_format == CLIPMAP_FORMAT_L32F ? "l32f"
+                                  : m.texel_format == CLIPMAP_FORMAT_L16 ? "l16" : "l16i";
+            char nodata[40] = "none";
+            if (m.height_has_nodata) snprintf(nodata, sizeof nodata, "%.17g", m.height_nodata);
+            printf("heights %s scale %.17g offset %.17g nodata %s levels %s\n", storage, m.height_scale,
+                   m.height_offset, nodata, rules[m.height_rule]);
+        }
+        clipmap_close(&m);
+        return 0;
     }
     char *end;
     unsigned long long reads = strtoull(argv[2], &end, 10);

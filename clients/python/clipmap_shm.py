@@ -30,6 +30,7 @@ is enough, elsewhere treat this module as a reference, not a production reader. 
 truncated after it was mapped raises SIGBUS on access, as with any mmap.
 """
 
+import math
 import mmap
 import os
 import stat
@@ -73,7 +74,15 @@ DESC_BYTES = 128
 # The growth block (growing textures; all zero otherwise), u64 fields under one seqlock.
 H_GROWTH = H_LEVEL_DESCS + MAX_LEVELS * DESC_BYTES
 GROWTH_BYTES = 128
-H_END = H_GROWTH + GROWTH_BYTES
+# The heights block (static; all zero for a texture that is not heights): u32 flag, u32 level
+# rule, f64 scale, offset and nodata (a stored value; NaN: none).
+H_HEIGHTS = H_GROWTH + GROWTH_BYTES
+HEIGHTS_BYTES = 64
+H_END = H_HEIGHTS + HEIGHTS_BYTES
+HT_IS_HEIGHTS, HT_RULE, HT_SCALE, HT_OFFSET, HT_NODATA = 0, 4, 8, 16, 24
+# Level rule codes (HT_RULE) and the height storage of each texel format code.
+HEIGHT_RULES = ("mean", "point", "min", "max")
+HEIGHT_STORAGES = {11: "l32f", 7: "l16", 12: "l16i"}
 G_SEQ, G_GROWING, G_EXTENT_S0, G_EXTENT_T0, G_EXTENT_S1, G_EXTENT_T1 = 0, 8, 16, 24, 32, 40
 G_DATA_LEVELS, G_PATCHES, G_TILES_REBUILT = 48, 56, 64
 G_TILES_PENDING, G_TILES_REPLACED, G_WORLD_S0, G_WORLD_T0, G_TEXELS_PER_UNIT, G_OUTSIDE_FRAME = 72, 80, 88, 96, 104, 112
@@ -256,6 +265,7 @@ class Mapping:
         if self.format in FORMATS and FORMATS[self.format][1] != bpt:
             raise Refused(f"{path}: texel format {self.format} has {FORMATS[self.format][1]} bytes per texel, "
                           f"the header says {bpt}")
+        self.heights = self._heights(path)
         if clip == 0:
             raise Refused(f"{path}: clip size 0: expected at least 1")
         if not 1 <= n <= MAX_LEVELS:
@@ -313,6 +323,46 @@ class Mapping:
                               f"{total}-byte mapping")
             prev_end = slots_end
             self.levels.append(d)
+
+    def _heights(self, path):
+        """The heights block, checked: None when the texels are not heights, else a dict of
+        storage, scale, offset, nodata (a stored value, None: none) and levels (the rule)."""
+        b = H_HEIGHTS
+        flag, rule = self._u32(b + HT_IS_HEIGHTS), self._u32(b + HT_RULE)
+        raw = [self._u64(b + o) for o in (HT_SCALE, HT_OFFSET, HT_NODATA)]
+        scale, offset, nodata = (struct.unpack("<d", struct.pack("<Q", v))[0] for v in raw)
+        at = lambda field, name: f"{path}: heights block, byte {b + field} ({name})"
+        if flag == 0:
+            if rule or any(raw):
+                raise Refused(f"{at(HT_IS_HEIGHTS, 'heights flag')}: the texels are not heights but the "
+                              f"block is not all zero; expected all zero")
+            return None
+        if flag != 1:
+            raise Refused(f"{at(HT_IS_HEIGHTS, 'heights flag')}: found {flag}, expected 0 (not heights) or 1 (heights)")
+        storage = HEIGHT_STORAGES.get(self.format)
+        if storage is None:
+            raise Refused(f"{at(HT_IS_HEIGHTS, 'heights flag')}: heights on texel format code {self.format}, "
+                          f"expected a height format: 11 (l32f), 7 (l16) or 12 (l16i)")
+        if rule >= len(HEIGHT_RULES):
+            raise Refused(f"{at(HT_RULE, 'level rule')}: found {rule}, expected 0 (mean), 1 (point), 2 (min) or 3 (max)")
+        if not (math.isfinite(scale) and scale > 0):
+            raise Refused(f"{at(HT_SCALE, 'scale')}: found {scale}, expected a finite number above zero")
+        if not math.isfinite(offset):
+            raise Refused(f"{at(HT_OFFSET, 'offset')}: found {offset}, expected a finite number")
+        if storage == "l32f" and (scale != 1.0 or offset != 0.0):
+            raise Refused(f"{at(HT_SCALE, 'scale')}: l32f stores metres: found scale {scale}, offset {offset}, "
+                          f"expected 1 and 0")
+        if math.isnan(nodata):
+            nodata = None
+        elif storage == "l32f":
+            if not math.isfinite(nodata) or struct.unpack("<f", struct.pack("<f", nodata))[0] != nodata:
+                raise Refused(f"{at(HT_NODATA, 'nodata')}: found {nodata}, expected a finite 32-bit float or NaN (none)")
+        else:
+            lo, hi = (0, 65535) if storage == "l16" else (-32768, 32767)
+            if not math.isfinite(nodata) or nodata != int(nodata) or not lo <= nodata <= hi:
+                raise Refused(f"{at(HT_NODATA, 'nodata')}: found {nodata}, expected a whole number in {lo}..{hi} "
+                              f"or NaN (none)")
+        return {"storage": storage, "scale": scale, "offset": offset, "nodata": nodata, "levels": HEIGHT_RULES[rule]}
 
     def snapshot(self):
         """A consistent, checked copy of the snapshot; also kept as self.snap. Busy when the writer
@@ -508,6 +558,24 @@ def _pick(rng, mode, v0, v1, tile):
 
 
 def main(argv):
+    if len(argv) == 3 and argv[2] == "--heights":
+        # python3 clipmap_shm.py MAPPING --heights: the heights block, one line (the C reader's
+        # --heights prints the same): "not heights", or "heights STORAGE scale S offset O
+        # nodata N|none levels RULE" (numbers as %.17g).
+        try:
+            m = Mapping(argv[1])
+        except (ClipmapError, OSError, ValueError) as e:
+            print(f"clipmap_shm: {e}", file=sys.stderr)
+            return 2
+        h = m.heights
+        if h is None:
+            print("not heights")
+        else:
+            nodata = "none" if h["nodata"] is None else "%.17g" % h["nodata"]
+            print("heights %s scale %.17g offset %.17g nodata %s levels %s"
+                  % (h["storage"], h["scale"], h["offset"], nodata, h["levels"]))
+        m.close()
+        return 0
     if len(argv) == 3 and argv[2] == "--growth":
         # python3 clipmap_shm.py MAPPING --growth: the growth block as JSON (null: not growing).
         import json

@@ -103,6 +103,9 @@ pub struct Status {
     pub read_latency_ticks: Option<f64>,
     /// A growing texture's growth block (`null` for a texture that does not grow).
     pub growth: Option<crate::shm::layout::Growth>,
+    /// The heights block: storage, scale, offset, nodata (a stored value; `null`: none) and level
+    /// rule of a height texture (`null` for a texture that is not heights).
+    pub heights: Option<crate::shm::layout::Heights>,
 }
 
 /// Why a `STATS` request got no statistics.
@@ -238,6 +241,7 @@ pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Resu
         streams_error,
         read_latency_ticks: engine.map(|e| e.read_latency_ticks),
         growth,
+        heights: c.heights,
     })
 }
 
@@ -255,6 +259,16 @@ pub fn human(s: &Status) -> String {
         s.clip_size,
         s.bytes_per_texel
     );
+    if let Some(h) = &s.heights {
+        o.push_str(&format!(
+            "heights: {}  metres = stored x {} + {}  nodata {}  levels {}\n\n",
+            h.storage,
+            h.scale,
+            h.offset,
+            h.nodata.map_or_else(|| "none".to_string(), |v| v.to_string()),
+            h.levels
+        ));
+    }
     if let Some(g) = &s.growth {
         let e = g.extent;
         let extent = if e == [0; 4] {
@@ -430,6 +444,7 @@ mod tests {
             streams_error: None,
             read_latency_ticks: Some(4.25),
             growth: None,
+            heights: None,
         };
         let text = human(&s);
         assert!(text.contains("paging  read latency 4.2 ticks\n"), "{text}");
@@ -450,6 +465,18 @@ mod tests {
         s.levels.iter_mut().for_each(|l| l.paging = None);
         let text = human(&s);
         assert!(text.contains("paging: no figures (control socket s: refused)"), "{text}");
+        assert!(!text.contains("heights:"), "a colour texture shows no heights line\n{text}");
+        // A height texture: its heights block, one line, and in the JSON.
+        let f =
+            crate::height::HeightFormat::new(crate::height::HeightStorage::U16, 0.25, -500.0, Some(65535.0)).unwrap();
+        s.heights = Some(crate::shm::layout::Heights::of(&f, crate::height::LevelRule::Max));
+        let text = human(&s);
+        assert!(text.contains("heights: l16  metres = stored x 0.25 + -500  nodata 65535  levels max\n"), "{text}");
+        let v = serde_json::to_value(&s).unwrap();
+        assert_eq!(
+            v["heights"],
+            serde_json::json!({"storage": "u16", "scale": 0.25, "offset": -500.0, "nodata": 65535.0, "levels": "max"})
+        );
         let v = serde_json::to_value(&s).unwrap();
         assert_eq!(
             (v["read_latency_ticks"].clone(), v["levels"][1]["paging"].clone()),

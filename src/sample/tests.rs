@@ -102,7 +102,8 @@ fn mapped_service(dir: &std::path::Path, name: &str) -> (Clipmap, crate::shm::Wr
     let settings = Settings { budget_ns: None, fade_ticks: 1, ..Settings::default() };
     let source: Arc<dyn TileSource> = Arc::new(HashSource::new(mapped_desc()));
     let shape = Clipmap::shape_for(source.desc(), &settings);
-    let w = crate::shm::Writer::create(dir, name, shape, source.desc().format(), 0o600, 0o600, 16_666_667).unwrap();
+    let w =
+        crate::shm::Writer::create(dir, name, shape, source.desc().format(), 0o600, 0o600, 16_666_667, None).unwrap();
     let map = Clipmap::with_memory(source, settings, w.memory()).unwrap();
     (map, w)
 }
@@ -153,7 +154,8 @@ fn a_missing_tile_in_the_mapping_is_sampled_from_the_next_level_its_neighbours_n
     let faulty = Arc::new(FaultySource::new(Arc::new(HashSource::new(mapped_desc()))));
     faulty.add(FaultRule::tile(crate::source::TileId::new(0, 63, 63), Fault::Missing));
     let shape = Clipmap::shape_for(faulty.desc(), &settings);
-    let w = crate::shm::Writer::create(dir.path(), "hole", shape, TexelFormat::RGBA8, 0o600, 0o600, 1_000_000).unwrap();
+    let w = crate::shm::Writer::create(dir.path(), "hole", shape, TexelFormat::RGBA8, 0o600, 0o600, 1_000_000, None)
+        .unwrap();
     let mut map = Clipmap::with_memory(faulty, settings, w.memory()).unwrap();
     for _ in 0..10 {
         map.tick([2040, 2040], None);

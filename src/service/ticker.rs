@@ -174,7 +174,9 @@ impl Runner {
         // into its slot, where renderers read it, and nothing is copied afterwards.
         let period_ns = (1e9 / o.tick_hz).round() as u64;
         let request_mode = o.request_mode.unwrap_or(o.shm_mode);
-        let writer = Writer::create(&o.shm_dir, &o.name, shape, desc.format(), o.shm_mode, request_mode, period_ns)?;
+        let heights = source.heights().map(|h| crate::shm::layout::Heights::of(&h.format, h.levels));
+        let writer =
+            Writer::create(&o.shm_dir, &o.name, shape, desc.format(), o.shm_mode, request_mode, period_ns, heights)?;
         let mut clipmap = match Clipmap::with_memory(source, settings, writer.memory()) {
             Ok(c) => c,
             Err(e) => {

@@ -166,6 +166,9 @@ pub struct Client {
     pub generation: u64,
     /// The service's tick period (0 when the writer did not say).
     pub tick_period: Duration,
+    /// Whether the texels are heights, and their scale, offset, nodata value and level rule (the
+    /// header's heights block, checked at attach); `None` for a texture that is not heights.
+    pub heights: Option<layout::Heights>,
 }
 
 impl std::fmt::Debug for Client {
@@ -279,6 +282,18 @@ impl Client {
                 ));
             }
         }
+        let heights = {
+            use layout::heights as ht;
+            let b = header::HEIGHTS;
+            let block = layout::HeightsBlock {
+                is_heights: region.read_u32(b + ht::IS_HEIGHTS),
+                rule: region.read_u32(b + ht::RULE),
+                scale: region.read_u64(b + ht::SCALE),
+                offset: region.read_u64(b + ht::OFFSET),
+                nodata: region.read_u64(b + ht::NODATA),
+            };
+            layout::check_heights(format_code, &block).map_err(|why| invalid(path, why))?
+        };
         let header_bytes = region.read_u32(header::HEADER_BYTES) as u64;
         if header_bytes < layout::header::END as u64 || !header_bytes.is_multiple_of(layout::PAGE) {
             return Err(invalid(
@@ -341,6 +356,7 @@ impl Client {
             generation: region.read_u64(header::GENERATION),
             format_code,
             tick_period: Duration::from_nanos(region.read_u64(header::TICK_PERIOD_NS)),
+            heights,
             region,
             request: None,
             path: path.to_path_buf(),

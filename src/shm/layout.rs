@@ -70,8 +70,155 @@ pub mod header {
     /// The growth block ([`super::growth`]): what a growing texture holds so far, under its own
     /// seqlock (all zero for a texture that does not grow).
     pub const GROWTH: usize = LEVEL_DESCS + super::MAX_LEVELS * super::DESC_BYTES;
+    /// The heights block ([`super::heights`]): whether the texels are heights, and their scale,
+    /// offset, nodata value and level rule (all zero for a texture that is not heights). Static.
+    pub const HEIGHTS: usize = GROWTH + super::GROWTH_BYTES;
     /// End of the fixed header.
-    pub const END: usize = GROWTH + super::GROWTH_BYTES;
+    pub const END: usize = HEIGHTS + super::HEIGHTS_BYTES;
+}
+
+/// Bytes of the heights block.
+pub const HEIGHTS_BYTES: usize = 64;
+/// Heights block fields, relative to [`header::HEIGHTS`]; static (written before the mapping
+/// appears under its name). A mapping whose block is all zero says its texels are not heights:
+/// a colour texture, or a mapping of a writer from before the block (docs/SHM.md).
+pub mod heights {
+    /// `u32` 1 when the texels are heights (the fields below mean something), 0 otherwise.
+    pub const IS_HEIGHTS: usize = 0;
+    /// `u32` the level rule: 0 mean, 1 point, 2 min, 3 max ([`super::rule_code`]).
+    pub const RULE: usize = 4;
+    /// `f64` bits: metres of one stored step (1 for `l32f`).
+    pub const SCALE: usize = 8;
+    /// `f64` bits: metres of a stored 0 (0 for `l32f`).
+    pub const OFFSET: usize = 16;
+    /// `f64` bits: the stored value (not metres) that marks a texel without data; NaN: none.
+    pub const NODATA: usize = 24;
+}
+
+/// What the heights block says of a height texture (see [`heights`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Heights {
+    /// How the heights are stored (from the texel format code: 11 `l32f`, 7 `l16`, 12 `l16i`).
+    pub storage: crate::height::HeightStorage,
+    /// Metres of one stored step.
+    pub scale: f64,
+    /// Metres of a stored 0.
+    pub offset: f64,
+    /// The stored value that marks a texel without data (`None`: every texel has data).
+    pub nodata: Option<f64>,
+    /// How each coarser level is made from the finer one.
+    pub levels: crate::height::LevelRule,
+}
+
+impl Heights {
+    /// The block's values of a height format and level rule.
+    pub fn of(format: &crate::height::HeightFormat, levels: crate::height::LevelRule) -> Heights {
+        Heights {
+            storage: format.storage(),
+            scale: format.scale(),
+            offset: format.offset(),
+            nodata: format.nodata(),
+            levels,
+        }
+    }
+
+    /// The height format the block describes.
+    pub fn format(&self) -> crate::height::HeightFormat {
+        crate::height::HeightFormat::new(self.storage, self.scale, self.offset, self.nodata)
+            .expect("checked by check_heights or made from a HeightFormat")
+    }
+}
+
+/// The heights block's raw values, as a reader finds them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct HeightsBlock {
+    /// `IS_HEIGHTS`.
+    pub is_heights: u32,
+    /// `RULE`.
+    pub rule: u32,
+    /// `SCALE` bits.
+    pub scale: u64,
+    /// `OFFSET` bits.
+    pub offset: u64,
+    /// `NODATA` bits.
+    pub nodata: u64,
+}
+
+/// Checks a heights block against the texel format code: `Ok(None)` for a block all zero (not
+/// heights), `Ok(Some)` for a height texture whose values a writer of this layout writes, and
+/// `Err` saying where (the byte offset and field), what was found and what was expected.
+pub fn check_heights(format_code: u32, b: &HeightsBlock) -> Result<Option<Heights>, String> {
+    use crate::height::{HeightError, HeightFormat, HeightStorage};
+    let at = |field: usize, name: &str| format!("heights block, byte {} ({name})", header::HEIGHTS + field);
+    match b.is_heights {
+        0 => {
+            if *b != HeightsBlock::default() {
+                return Err(format!(
+                    "{}: the texels are not heights but the block is not all zero (rule {}, scale bits {:#x}, offset bits {:#x}, nodata bits {:#x}); expected all zero",
+                    at(heights::IS_HEIGHTS, "heights flag"),
+                    b.rule,
+                    b.scale,
+                    b.offset,
+                    b.nodata
+                ));
+            }
+            return Ok(None);
+        }
+        1 => {}
+        other => {
+            return Err(format!(
+                "{}: found {other}, expected 0 (not heights) or 1 (heights)",
+                at(heights::IS_HEIGHTS, "heights flag")
+            ))
+        }
+    }
+    let storage = match format_code {
+        11 => HeightStorage::F32,
+        7 => HeightStorage::U16,
+        12 => HeightStorage::I16,
+        other => {
+            return Err(format!(
+                "{}: heights on texel format code {other}, expected a height format: 11 (l32f), 7 (l16) or 12 (l16i)",
+                at(heights::IS_HEIGHTS, "heights flag")
+            ))
+        }
+    };
+    let levels = rule_from_code(b.rule).ok_or_else(|| {
+        format!(
+            "{}: found {}, expected 0 (mean), 1 (point), 2 (min) or 3 (max)",
+            at(heights::RULE, "level rule"),
+            b.rule
+        )
+    })?;
+    let (scale, offset, nodata) = (f64::from_bits(b.scale), f64::from_bits(b.offset), f64::from_bits(b.nodata));
+    if !scale.is_finite() || scale <= 0.0 {
+        return Err(format!("{}: found {scale}, expected a finite number above zero", at(heights::SCALE, "scale")));
+    }
+    if !offset.is_finite() {
+        return Err(format!("{}: found {offset}, expected a finite number", at(heights::OFFSET, "offset")));
+    }
+    let nodata = (!nodata.is_nan()).then_some(nodata);
+    match HeightFormat::new(storage, scale, offset, nodata) {
+        Ok(f) => Ok(Some(Heights::of(&f, levels))),
+        Err(e) => {
+            let (field, name) = match e {
+                HeightError::Offset { .. } => (heights::OFFSET, "offset"),
+                HeightError::Nodata { .. } => (heights::NODATA, "nodata"),
+                _ => (heights::SCALE, "scale"),
+            };
+            Err(format!("{}: {e}", at(field, name)))
+        }
+    }
+}
+
+/// The heights block's code of a level rule (its place in [`crate::height::LevelRule::ALL`]).
+pub fn rule_code(rule: crate::height::LevelRule) -> u32 {
+    crate::height::LevelRule::ALL.iter().position(|r| *r == rule).unwrap_or(0) as u32
+}
+
+/// The level rule of a heights block code; `None` for a code no writer writes.
+pub fn rule_from_code(code: u32) -> Option<crate::height::LevelRule> {
+    crate::height::LevelRule::ALL.get(code as usize).copied()
 }
 
 /// Bytes of the growth block.
@@ -545,6 +692,57 @@ mod tests {
         let mut huge = shape(1 << 20, 1 << 20, 1 << 20, 4);
         huge.bytes_per_texel = u64::MAX;
         assert!(place(&huge).is_none());
+    }
+
+    #[test]
+    fn the_heights_block_round_trips_and_every_bad_value_is_refused_with_its_place() {
+        use crate::height::{HeightFormat, HeightStorage, LevelRule};
+        const { assert!(header::HEIGHTS == 6464 && header::END <= 8192) };
+        let block = |h: &Heights| HeightsBlock {
+            is_heights: 1,
+            rule: rule_code(h.levels),
+            scale: h.scale.to_bits(),
+            offset: h.offset.to_bits(),
+            nodata: h.nodata.unwrap_or(f64::NAN).to_bits(),
+        };
+        for (code, f) in [
+            (11, HeightFormat::VERIFICATION),
+            (7, HeightFormat::new(HeightStorage::U16, 0.01, -11000.0, Some(0.0)).unwrap()),
+            (12, HeightFormat::new(HeightStorage::I16, 0.5, 0.0, None).unwrap()),
+        ] {
+            for rule in LevelRule::ALL {
+                let h = Heights::of(&f, rule);
+                assert_eq!(check_heights(code, &block(&h)), Ok(Some(h)));
+                assert_eq!(h.format(), f);
+            }
+        }
+        assert_eq!(check_heights(4, &HeightsBlock::default()), Ok(None), "all zero: not heights");
+        let good =
+            block(&Heights::of(&HeightFormat::new(HeightStorage::U16, 0.01, -11000.0, None).unwrap(), LevelRule::Min));
+        let refused = |code: u32, b: HeightsBlock, words: &[&str]| {
+            let e = check_heights(code, &b).expect_err("refused");
+            for w in words {
+                assert!(e.contains(w), "{e:?} lacks {w:?}");
+            }
+        };
+        refused(
+            7,
+            HeightsBlock { scale: f64::NAN.to_bits(), ..good },
+            &["byte 6472", "scale", "found NaN", "above zero"],
+        );
+        refused(7, HeightsBlock { scale: (-1.0f64).to_bits(), ..good }, &["byte 6472", "found -1"]);
+        refused(7, HeightsBlock { scale: 0, ..good }, &["byte 6472", "found 0"]);
+        refused(
+            7,
+            HeightsBlock { offset: f64::INFINITY.to_bits(), ..good },
+            &["byte 6480", "offset", "found inf", "finite"],
+        );
+        refused(7, HeightsBlock { rule: 4, ..good }, &["byte 6468", "level rule", "found 4", "3 (max)"]);
+        refused(7, HeightsBlock { is_heights: 2, ..good }, &["byte 6464", "found 2", "0 (not heights) or 1"]);
+        refused(7, HeightsBlock { nodata: 0.5f64.to_bits(), ..good }, &["byte 6488", "nodata", "whole number"]);
+        refused(4, good, &["byte 6464", "texel format code 4", "11 (l32f)"]);
+        refused(11, good, &["l32f stores metres"]);
+        refused(4, HeightsBlock { scale: 1, ..HeightsBlock::default() }, &["not all zero"]);
     }
 
     #[test]

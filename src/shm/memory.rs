@@ -132,7 +132,7 @@ impl ImageMemory {
             usize::try_from(placement.total_bytes).map_err(|_| "the mapping does not fit in memory".to_string())?;
         let region = Region::anonymous(len).map_err(|e| format!("cannot map {len} bytes: {e}"))?;
         let memory = Self::over(region, placement, shape);
-        memory.init(format, 0, 0);
+        memory.init(format, 0, 0, None);
         Ok(memory)
     }
 
@@ -148,7 +148,13 @@ impl ImageMemory {
 
     /// Writes the static header (everything but the magic, which [`finish`](Self::finish)
     /// writes last).
-    pub(super) fn init(&self, format: TexelFormat, tick_period_ns: u64, generation: u64) {
+    pub(super) fn init(
+        &self,
+        format: TexelFormat,
+        tick_period_ns: u64,
+        generation: u64,
+        heights: Option<&layout::Heights>,
+    ) {
         let r = &self.region;
         let put32 = |off: usize, v: u32| r.write_u32(off, v);
         let put64 = |off: usize, v: u64| r.store(off, v, Ordering::Relaxed);
@@ -181,6 +187,16 @@ impl ImageMemory {
             ] {
                 put64(b + off, v);
             }
+        }
+        // The heights block: all zero for a texture that is not heights.
+        if let Some(h) = heights {
+            use layout::heights as ht;
+            let b = header::HEIGHTS;
+            put32(b + ht::IS_HEIGHTS, 1);
+            put32(b + ht::RULE, layout::rule_code(h.levels));
+            put64(b + ht::SCALE, h.scale.to_bits());
+            put64(b + ht::OFFSET, h.offset.to_bits());
+            put64(b + ht::NODATA, h.nodata.unwrap_or(f64::NAN).to_bits());
         }
         // Before the first tick nothing may be used: min LOD is the level count.
         let s = header::SNAPSHOT;

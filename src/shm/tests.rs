@@ -26,7 +26,7 @@ fn settings() -> Settings {
 /// A service's engine: its image caches in a mapping `name` in `dir`.
 fn service(dir: &Path, name: &str, source: Arc<dyn TileSource>) -> (Clipmap, Writer) {
     let shape = Clipmap::shape_for(source.desc(), &settings());
-    let w = Writer::create(dir, name, shape, source.desc().format(), 0o600, 0o600, 16_666_667).unwrap();
+    let w = Writer::create(dir, name, shape, source.desc().format(), 0o600, 0o600, 16_666_667, None).unwrap();
     let map = Clipmap::with_memory(source, settings(), w.memory()).unwrap();
     (map, w)
 }
@@ -267,7 +267,7 @@ fn a_region_across_tiles_and_the_toroidal_wrap_reads_equal_to_the_source() {
 fn the_mapping_is_owner_only_read_only_for_readers_and_the_name_is_exclusive() {
     let dir = tempfile::tempdir().unwrap();
     let shape = Clipmap::shape_for(&desc(1024, 64, 32), &settings());
-    let mk = || Writer::create(dir.path(), "excl", shape.clone(), TexelFormat::RGBA8, 0o640, 0o600, 1_000_000);
+    let mk = || Writer::create(dir.path(), "excl", shape.clone(), TexelFormat::RGBA8, 0o640, 0o600, 1_000_000, None);
     let first = mk().unwrap();
     let mode = |p: std::path::PathBuf| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
     assert_eq!(mode(map_path(dir.path(), "excl")), 0o640);
@@ -590,10 +590,11 @@ fn every_byte_the_contract_calls_reserved_is_zero() {
         zero("descriptor", d + layout::desc::KIND + 8..d + layout::DESC_BYTES);
     }
     zero("descriptors past the level count", h::LEVEL_DESCS + n * layout::DESC_BYTES..h::GROWTH);
-    zero("growth block (a texture that does not grow)", h::GROWTH..h::END);
+    zero("growth block (a texture that does not grow)", h::GROWTH..h::HEIGHTS);
+    zero("heights block (a texture that is not heights)", h::HEIGHTS..h::END);
     let header_bytes = u32::from_le_bytes(m[h::HEADER_BYTES..h::HEADER_BYTES + 4].try_into().unwrap()) as usize;
     assert_eq!(header_bytes, 8192);
-    zero("after the growth block", h::END..header_bytes);
+    zero("after the heights block", h::END..header_bytes);
     let mut end = header_bytes;
     for d in &c.levels {
         zero("before a level's tags", end..d.tags as usize);

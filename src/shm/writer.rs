@@ -63,8 +63,10 @@ fn now_ms() -> u64 {
 impl Writer {
     /// Creates the mappings of `name` in `dir` for a texture of `shape`: the texel mapping with
     /// permission bits `mode` (0o600 by default: owner only) and the request mapping with
-    /// `request_mode`. Refuses when a live service holds the name; takes over cleanly from one
+    /// `request_mode`. `heights` says the texels are heights, with their scale, offset, nodata
+    /// value and level rule (the header's heights block; `None` for a colour texture). Refuses when a live service holds the name; takes over cleanly from one
     /// that died (its lock died with it).
+    #[allow(clippy::too_many_arguments)] // each is one static field of the header
     pub fn create(
         dir: &Path,
         name: &str,
@@ -73,6 +75,7 @@ impl Writer {
         mode: u32,
         request_mode: u32,
         tick_period_ns: u64,
+        heights: Option<layout::Heights>,
     ) -> Result<Writer, ShmError> {
         check_name(name)?;
         let placement = layout::place(&shape).ok_or_else(|| ShmError::Shape(shape_error(&shape)))?;
@@ -173,7 +176,7 @@ impl Writer {
             }
         };
         let memory = ImageMemory::over(region, placement, shape);
-        memory.init(format, tick_period_ns, generation);
+        memory.init(format, tick_period_ns, generation, heights.as_ref());
         memory.region().store(header::HEARTBEAT_MS, now_ms(), Ordering::Relaxed);
         // Visible under its name only once complete; readers of a previous mapping keep theirs.
         if let Err(e) = place_file(&tmp, &path) {

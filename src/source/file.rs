@@ -521,6 +521,10 @@ impl TileSource for FileSource {
         self.stream_names.len().max(1)
     }
 
+    fn heights(&self) -> Option<crate::plan::HeightPlan> {
+        self.plan.height
+    }
+
     fn stream_of(&self, tile: TileId, streams: usize) -> usize {
         let n = streams.max(1);
         match self.streams.get(tile.level as usize) {

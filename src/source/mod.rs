@@ -161,6 +161,12 @@ pub trait TileSource: Send + Sync {
         None
     }
 
+    /// Whether the texels are heights, and their scale, offset, nodata value and level rule (the
+    /// mapping's heights block): the [`wrapped`](Self::wrapped) source's, or `None` (colours).
+    fn heights(&self) -> Option<crate::plan::HeightPlan> {
+        self.wrapped().and_then(|inner| inner.heights())
+    }
+
     /// Number of stream servers (separate disks, one read queue each) the source is laid out
     /// for: the [`wrapped`](Self::wrapped) source's, or 1 when it has no notion of them.
     fn stream_servers(&self) -> usize {

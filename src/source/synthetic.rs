@@ -77,6 +77,12 @@ impl TileSource for HeightSource {
         &self.desc
     }
 
+    /// Its levels are each defined on their own (not made by a rule): it states the default
+    /// rule, `mean`.
+    fn heights(&self) -> Option<crate::plan::HeightPlan> {
+        Some(crate::plan::HeightPlan { format: self.format, levels: crate::height::LevelRule::default() })
+    }
+
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
         check_request(&self.desc, tile, out)?;
         let bpt = self.desc.bytes_per_texel();

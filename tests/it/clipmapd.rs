@@ -588,8 +588,8 @@ fn the_demo_writes_its_pictures_and_a_summary_and_exits() {
 #[test]
 fn the_c_header_and_the_python_reader_agree_with_the_layout() {
     use clipmap::shm::layout::{
-        desc, header, request, snapshot, state, tag, DESC_BYTES, MAX_LEVELS, MAX_RETRIES, PAGE, REQUEST_BYTES,
-        STATE_BYTES, TAG_BYTES, VERSION,
+        desc, header, heights, request, snapshot, state, tag, DESC_BYTES, HEIGHTS_BYTES, MAX_LEVELS, MAX_RETRIES, PAGE,
+        REQUEST_BYTES, STATE_BYTES, TAG_BYTES, VERSION,
     };
     let h = std::fs::read_to_string(Path::new(ROOT).join("include/clipmap_shm.h")).unwrap();
     let define = |name: &str| -> usize {
@@ -623,7 +623,14 @@ fn the_c_header_and_the_python_reader_agree_with_the_layout() {
         ("CLIPMAP_H_TICK_PERIOD_NS", header::TICK_PERIOD_NS),
         ("CLIPMAP_H_SNAPSHOT", header::SNAPSHOT),
         ("CLIPMAP_H_LEVEL_DESCS", header::LEVEL_DESCS),
+        ("CLIPMAP_H_HEIGHTS", header::HEIGHTS),
         ("CLIPMAP_H_END", header::END),
+        ("CLIPMAP_HEIGHTS_BYTES", HEIGHTS_BYTES),
+        ("CLIPMAP_HT_IS_HEIGHTS", heights::IS_HEIGHTS),
+        ("CLIPMAP_HT_RULE", heights::RULE),
+        ("CLIPMAP_HT_SCALE", heights::SCALE),
+        ("CLIPMAP_HT_OFFSET", heights::OFFSET),
+        ("CLIPMAP_HT_NODATA", heights::NODATA),
         ("CLIPMAP_SNAP_SEQ", snapshot::SEQ),
         ("CLIPMAP_SNAP_MIN_LOD", snapshot::MIN_LOD),
         ("CLIPMAP_SNAP_TICK", snapshot::TICK),

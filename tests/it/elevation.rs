@@ -18,6 +18,8 @@ use std::time::{Duration, Instant};
 
 const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
 const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
+const CLIPPREP: &str = env!("CARGO_BIN_EXE_clipprep");
+const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
 /// `NO_IC_CT` with heights of `ext` (a GL type name) as one luminance component.
 fn height_ct(ext: &str, lines: &str) -> String {
@@ -195,6 +197,13 @@ fn every_height_served_by_clipmapd_equals_the_verification_texture() {
     let c = clipmap::shm::Client::attach(d, "heights").expect("the mapping is there");
     assert_eq!((c.format_code, c.bytes_per_texel), (11, 4), "L32F in the mapping's header");
     let f = HeightFormat::VERIFICATION;
+    // The header's heights block says what the source has: l32f metres, nodata -32768, and the
+    // default level rule.
+    let h = c.heights.expect("the header says the texels are heights");
+    assert_eq!(h, clipmap::shm::layout::Heights::of(&f, LevelRule::Mean));
+    assert_eq!((h.storage, h.scale, h.offset, h.nodata), (HeightStorage::F32, 1.0, 0.0, Some(-32768.0)));
+    assert_eq!(h.format(), f);
+    heights_seen_by_every_reader(d, "heights", "heights l32f scale 1 offset 0 nodata -32768 levels mean");
     let (mut checked, mut nodata) = (0usize, 0usize);
     for k in 0..c.levels.len() {
         // Wait for the level's valid region, then read it whole.
@@ -238,4 +247,133 @@ fn every_height_served_by_clipmapd_equals_the_verification_texture() {
     assert!(checked > 128 * 128 * 3, "every level read: {checked} texels");
     // One texel in sixteen is nodata.
     assert!(nodata * 32 > checked && nodata * 8 < checked, "{nodata} of {checked}");
+}
+
+/// The heights block of the mapping `name` in `dir`, as `cliptex attach --json`, the C reader and
+/// the Python reader show it: each must say `line` (the readers' `--heights` line).
+fn heights_seen_by_every_reader(dir: &Path, name: &str, line: &str) {
+    let map = dir.join(format!("clipmap-{name}.map"));
+    let (out, d) = exec(
+        dir,
+        CLIPTEX,
+        &["attach", name, "--shm-dir", dir.to_str().unwrap(), "--once", "--json", "--interval", "0.05"],
+    );
+    assert!(out.status.success(), "{d}");
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let h = &v["heights"];
+    if line == "not heights" {
+        assert!(h.is_null(), "{v}");
+    } else {
+        let words: Vec<&str> = line.split(' ').collect();
+        let storage = match words[1] {
+            "l32f" => "f32",
+            "l16" => "u16",
+            _ => "i16",
+        };
+        assert_eq!(h["storage"], storage, "{h}");
+        assert_eq!(h["scale"].as_f64(), words[3].parse::<f64>().ok(), "{h}");
+        assert_eq!(h["offset"].as_f64(), words[5].parse::<f64>().ok(), "{h}");
+        assert_eq!(h["nodata"].as_f64(), words[7].parse::<f64>().ok(), "{h}");
+        assert_eq!(h["levels"], words[9], "{h}");
+    }
+    let reader = dir.join("reader");
+    if !reader.exists() {
+        let cc = Command::new(std::env::var("CC").unwrap_or_else(|_| "cc".into()))
+            .args(["-O1", "-Wall", "-Wextra", "-Werror", "-I"])
+            .arg(Path::new(ROOT).join("include"))
+            .arg(Path::new(ROOT).join("clients/c/reader.c"))
+            .arg("-o")
+            .arg(&reader)
+            .output()
+            .unwrap();
+        assert!(cc.status.success(), "{}", String::from_utf8_lossy(&cc.stderr));
+    }
+    let c = Command::new(&reader).arg(&map).arg("--heights").output().unwrap();
+    assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
+    assert_eq!(String::from_utf8_lossy(&c.stdout).trim(), line, "the C reader");
+    let py = Command::new("python3")
+        .env("PYTHONDONTWRITEBYTECODE", "1")
+        .arg(Path::new(ROOT).join("clients/python/clipmap_shm.py"))
+        .arg(&map)
+        .arg("--heights")
+        .output()
+        .unwrap();
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    assert_eq!(String::from_utf8_lossy(&py.stdout).trim(), line, "the Python reader");
+}
+
+/// A `.ct` of 16-bit luminance is not heights until its `#clipmap height` lines say so; with them
+/// the mapping's heights block carries the `.ct`'s scale, offset, nodata value and level rule, and
+/// every reader reads them. A damaged block is refused, saying where and what.
+#[test]
+fn a_ct_with_height_lines_publishes_its_heights_in_the_mapping_header() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("t");
+    let args = ["--source", "terrain", "--size", "256", "--tile", "32", "--clip", "64", "--format", "l16", "--json"];
+    let (o, log) = exec(d, CLIPPREP, &[&args[..], &["--out", out.to_str().unwrap()]].concat());
+    assert!(o.status.success(), "{log}");
+    let summary: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let ct = d.join(summary["ct"].as_str().unwrap());
+    {
+        let _svc = Service::start(d, "lum", &[ct.to_str().unwrap()]);
+        let c = clipmap::shm::Client::attach(d, "lum").unwrap();
+        assert_eq!((c.format_code, c.heights), (7, None), "16-bit luminance is not heights");
+        heights_seen_by_every_reader(d, "lum", "not heights");
+    }
+    let text = std::fs::read_to_string(&ct).unwrap()
+        + "#clipmap height l16\n#clipmap height_scale 0.25\n#clipmap height_offset -500\n#clipmap height_nodata 65535\n#clipmap height_levels max\n";
+    let hct = d.join("t/heights.ct");
+    std::fs::write(&hct, text).unwrap();
+    let svc = Service::start(d, "dem", &[hct.to_str().unwrap()]);
+    let c = clipmap::shm::Client::attach(d, "dem").unwrap();
+    let h = c.heights.unwrap_or_else(|| panic!("the header says heights\n{}", svc.log()));
+    assert_eq!(
+        (c.format_code, h.storage, h.scale, h.offset, h.nodata, h.levels),
+        (7, HeightStorage::U16, 0.25, -500.0, Some(65535.0), LevelRule::Max)
+    );
+    heights_seen_by_every_reader(d, "dem", "heights l16 scale 0.25 offset -500 nodata 65535 levels max");
+    drop(c);
+
+    // A copy of the mapping with one value damaged is refused by every reader, saying where and what.
+    use clipmap::shm::layout::{header, heights};
+    let bytes = std::fs::read(d.join("clipmap-dem.map")).unwrap();
+    let reserved = &bytes[header::HEIGHTS + heights::NODATA + 8..header::END];
+    assert!(reserved.iter().all(|&b| b == 0), "the block's reserved bytes are zero");
+    for (at, value, words) in [
+        (heights::SCALE, f64::NAN.to_bits(), ["byte 6472 (scale)", "found NaN", "above zero"]),
+        (heights::OFFSET, f64::INFINITY.to_bits(), ["byte 6480 (offset)", "found inf", "a finite number"]),
+        (heights::RULE, 9, ["byte 6468 (level rule)", "found 9", "3 (max)"]),
+    ] {
+        let mut b = bytes.clone();
+        let o = header::HEIGHTS + at;
+        if at == heights::RULE {
+            b[o..o + 4].copy_from_slice(&(value as u32).to_le_bytes());
+        } else {
+            b[o..o + 8].copy_from_slice(&value.to_le_bytes());
+        }
+        let bad = d.join("bad.map");
+        std::fs::write(&bad, &b).unwrap();
+        let e = clipmap::shm::Client::attach_path(&bad).expect_err("a damaged heights block is refused").to_string();
+        for w in words {
+            assert!(e.contains(w), "{e:?} lacks {w:?}");
+        }
+        let c = Command::new(d.join("reader")).arg(&bad).arg("--heights").output().unwrap();
+        let py = Command::new("python3")
+            .env("PYTHONDONTWRITEBYTECODE", "1")
+            .arg(Path::new(ROOT).join("clients/python/clipmap_shm.py"))
+            .arg(&bad)
+            .arg("--heights")
+            .output()
+            .unwrap();
+        for (who, o) in [("C", c), ("Python", py)] {
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(2), "{who}: {err}");
+            let lower = err.to_lowercase();
+            assert!(
+                lower.contains(&words[0].to_lowercase()) && lower.contains(&words[1].to_lowercase()),
+                "{who}: {err}"
+            );
+        }
+    }
 }

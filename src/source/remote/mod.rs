@@ -357,6 +357,10 @@ impl TileSource for RemoteSource {
     fn stream_of(&self, tile: TileId, streams: usize) -> usize {
         self.endpoint_of(tile) % streams.max(1)
     }
+
+    fn heights(&self) -> Option<crate::plan::HeightPlan> {
+        self.files.heights()
+    }
 }
 
 #[cfg(test)]
