@@ -89,7 +89,7 @@ fn layout_of(format: TexelFormat) -> Result<(u16, u16, Option<u16>), CogWriteErr
 /// side.
 pub fn check(format: TexelFormat, tile: u64) -> Result<(), CogWriteError> {
     layout_of(format)?;
-    if tile == 0 || tile % 16 != 0 || tile > 65520 {
+    if tile == 0 || !tile.is_multiple_of(16) || tile > 65520 {
         return Err(CogWriteError::Unsupported(format!(
             "a TIFF tile side of {tile}: it must be a multiple of 16 up to 65520 (choose --tile 256 or 512)"
         )));
