@@ -219,8 +219,9 @@ impl std::fmt::Display for Compression {
 #[serde(rename_all = "snake_case")]
 pub enum LevelOrigin {
     /// An image of the file: IFD `ifd`, in tiles of `tile` texels, compressed with
-    /// `compression`, with the horizontal predictor when `predictor` is set.
-    Ifd { ifd: usize, tile: [u64; 2], compression: Compression, predictor: bool },
+    /// `compression`, with a predictor when `predictor` is set (`predictor_tag`: the TIFF
+    /// Predictor, 2 horizontal differencing or 3 floating point; 1 none).
+    Ifd { ifd: usize, tile: [u64; 2], compression: Compression, predictor: bool, predictor_tag: u16 },
     /// Built at open from level `from` by the 2 x 2 box filter.
     Built { from: u32 },
 }
@@ -275,11 +276,15 @@ impl CogInfo {
         );
         for l in &self.levels {
             let from = match l.origin {
-                LevelOrigin::Ifd { ifd, tile, compression, predictor } => format!(
+                LevelOrigin::Ifd { ifd, tile, compression, predictor_tag, .. } => format!(
                     "IFD {ifd}, {} x {} tiles, {compression}{}",
                     tile[0],
                     tile[1],
-                    if predictor { ", predictor 2" } else { "" }
+                    match predictor_tag {
+                        2 => ", predictor 2",
+                        3 => ", predictor 3 (floating point)",
+                        _ => "",
+                    }
                 ),
                 LevelOrigin::Built { from } if self.built_on_first_read => {
                     format!("built when first read from level {from} (2 x 2 box)")
@@ -398,6 +403,30 @@ struct Array {
     at: u64,
 }
 
+/// How an image's samples are stored (BitsPerSample and SampleFormat).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Samples {
+    /// 8-bit unsigned integers.
+    U8,
+    /// 16-bit unsigned integers.
+    U16,
+    /// 16-bit signed integers (heights, `l16i`).
+    I16,
+    /// 32-bit IEEE floats (heights, `l32f`).
+    F32,
+}
+
+impl Samples {
+    /// Bytes of one sample.
+    fn bytes(self) -> usize {
+        match self {
+            Samples::U8 => 1,
+            Samples::U16 | Samples::I16 => 2,
+            Samples::F32 => 4,
+        }
+    }
+}
+
 /// A level served from an image of the file.
 #[derive(Clone, Debug)]
 struct IfdLevel {
@@ -406,7 +435,11 @@ struct IfdLevel {
     tile: [u64; 2],
     across: u64,
     compression: Compression,
-    predictor: bool,
+    /// The Predictor tag: 1 none, 2 horizontal differencing, 3 floating point.
+    predictor: u16,
+    samples: Samples,
+    /// Samples a pixel.
+    spp: usize,
     offsets: Array,
     counts: Array,
 }
@@ -659,6 +692,9 @@ pub struct CogSource {
     chunked: bool,
     /// The levels built from the last usable image, once built.
     built: Mutex<Option<Arc<Vec<Vec<u8>>>>>,
+    /// Whether the texels are heights (16-bit signed or 32-bit float samples), with the nodata
+    /// value of the GDAL_NODATA tag.
+    heights: Option<crate::plan::HeightPlan>,
 }
 
 impl std::fmt::Debug for CogSource {
@@ -777,9 +813,11 @@ impl CogSource {
         let ghost = Ghost::parse(&prefix, if layout.big { 16 } else { 8 });
         let reader =
             Head { store: &store, prefix: &prefix, failed: RefCell::new(None), windows: RefCell::new(Vec::new()) };
-        let parts = read_ifds(&reader, layout, first)
-            .map_err(malformed)
-            .and_then(|images| CogSource::levels_of(&path, &reader, layout, images, clip_size));
+        let mut nodata = None;
+        let parts = read_ifds(&reader, layout, first).map_err(malformed).and_then(|images| {
+            nodata = ascii(&reader, layout, &images[0], 42113, "GDAL_NODATA (42113)", 64).map_err(malformed)?;
+            CogSource::levels_of(&path, &reader, layout, images, clip_size)
+        });
         let parts = match (parts, reader.failed.take()) {
             (Ok(p), _) => p,
             (Err(_), Some(problem)) => {
@@ -791,6 +829,7 @@ impl CogSource {
             (Err(e), None) => return Err(e),
         };
         let (desc, levels, origins, built_because) = parts;
+        let heights = heights_of(&path, desc.format(), nodata.as_deref())?;
         Ok(CogSource {
             path,
             store,
@@ -804,6 +843,7 @@ impl CogSource {
             index: Mutex::new(HashMap::new()),
             chunked: false,
             built: Mutex::new(None),
+            heights,
         })
     }
 
@@ -903,7 +943,13 @@ impl CogSource {
             let origin = match levels.get(k as usize) {
                 Some(Level::Ifd(l)) => {
                     last_tile = l.tile;
-                    LevelOrigin::Ifd { ifd: l.ifd, tile: l.tile, compression: l.compression, predictor: l.predictor }
+                    LevelOrigin::Ifd {
+                        ifd: l.ifd,
+                        tile: l.tile,
+                        compression: l.compression,
+                        predictor: l.predictor != 1,
+                        predictor_tag: l.predictor,
+                    }
                 }
                 _ => LevelOrigin::Built { from: used as u32 - 1 },
             };
@@ -940,7 +986,7 @@ impl CogSource {
             let whole = tile.unwrap_or(TileId::new(base, 0, 0));
             self.fill_region(lv, whole, [0, 0], size, &mut texels, size[0] as usize, true)?;
             for _ in used..n {
-                let (next, next_size) = halve(out.last().unwrap_or(&texels), size, bpt);
+                let (next, next_size) = self.halve(out.last().unwrap_or(&texels), size);
                 out.push(next);
                 size = next_size;
             }
@@ -948,6 +994,38 @@ impl CogSource {
         let b = Arc::new(out);
         *slot = Some(Arc::clone(&b));
         Ok(b)
+    }
+
+    /// The next coarser level of `src` (`size` texels, rows in increasing t): heights by the
+    /// `mean` rule with nodata left out (docs/ELEVATION.md), colours by `clipprep`'s 2 x 2 box
+    /// filter on each sample.
+    fn halve(&self, src: &[u8], size: [u64; 2]) -> (Vec<u8>, [u64; 2]) {
+        let Some(plan) = &self.heights else {
+            let sample = if self.desc.format().ctype == crate::texel::ComponentType::U16 { 2 } else { 1 };
+            return halve(src, size, self.desc.bytes_per_texel(), sample);
+        };
+        let f = plan.format;
+        let n = f.bytes_per_texel();
+        let stored: Vec<f64> = src.chunks_exact(n).map(|b| f.read(b)).collect();
+        let [w, h] = [size[0] as usize, size[1] as usize];
+        let next = f.reduce_level(plan.levels, &stored, w, h).unwrap_or_default();
+        let mut out = vec![0u8; next.len() * n];
+        for (v, o) in next.iter().zip(out.chunks_exact_mut(n)) {
+            f.write(*v, o);
+        }
+        (out, [(w / 2).max(1) as u64, (h / 2).max(1) as u64])
+    }
+
+    /// Fills `texels` as GDAL reads a sparse tile: nodata heights, or zeros.
+    fn blank(&self, texels: &mut [u8]) {
+        match self.heights.and_then(|p| p.format.nodata().map(|v| (p.format, v))) {
+            Some((f, v)) => {
+                for t in texels.chunks_exact_mut(f.bytes_per_texel()) {
+                    f.write(v, t);
+                }
+            }
+            None => texels.fill(0),
+        }
     }
 
     /// One value of a tile index.
@@ -1232,14 +1310,7 @@ impl CogSource {
                 Ok(())
             })?;
         }
-        if lv.predictor {
-            let bpt = self.desc.bytes_per_texel();
-            for row in dst.chunks_exact_mut(lv.tile[0] as usize * bpt) {
-                for i in bpt..row.len() {
-                    row[i] = row[i].wrapping_add(row[i - bpt]);
-                }
-            }
-        }
+        finish_samples(lv, self.layout.little, dst);
         Ok(())
     }
 
@@ -1313,7 +1384,7 @@ impl CogSource {
                 for cx in cx0..=cx1 {
                     match self.decode(lv, cy * lv.across + cx, tile, &mut chunk, span.as_ref()) {
                         Ok(()) => {}
-                        Err(SourceError::Missing { .. }) if sparse_zero => chunk.fill(0),
+                        Err(SourceError::Missing { .. }) if sparse_zero => self.blank(&mut chunk),
                         Err(e) => return Err(e),
                     }
                     let (xa, xb) = (s0.max(cx * tw), (s0 + w).min((cx + 1) * tw));
@@ -1421,6 +1492,73 @@ fn values(
     Ok(Some(bytes.chunks_exact(size as usize).map(|b| layout.value(e.ty, b)).collect()))
 }
 
+/// The text of ASCII tag `tag` (at most `max` bytes, without its closing NUL), `None` when the
+/// IFD lacks it.
+fn ascii(
+    file: &Head,
+    layout: Layout,
+    image: &Image,
+    tag: u16,
+    name: &str,
+    max: u64,
+) -> Result<Option<String>, (String, String)> {
+    let Some(e) = image.entries.iter().find(|e| e.tag == tag) else { return Ok(None) };
+    let at = format!("IFD {} tag {name}", image.ifd);
+    if e.ty != 2 {
+        return Err((at, format!("type {} found, expected ASCII (2)", e.ty)));
+    }
+    if e.count == 0 || e.count > max {
+        return Err((at, format!("{} bytes, expected 1 to {max}", e.count)));
+    }
+    let bytes = if e.count <= layout.field() as u64 {
+        e.field[..e.count as usize].to_vec()
+    } else {
+        file.read_at(layout.offset(&e.field), e.count as usize, &at)?
+    };
+    let text = bytes.split(|&b| b == 0).next().unwrap_or_default();
+    match std::str::from_utf8(text) {
+        Ok(t) => Ok(Some(t.trim().to_string())),
+        Err(_) => Err((at, format!("bytes {text:02x?} are not ASCII text"))),
+    }
+}
+
+/// The heights a COG's samples are: 16-bit signed integers (`l16i`, metres, scale 1) and 32-bit
+/// floats (`l32f`) are heights, with the GDAL_NODATA tag's value as nodata (a NaN nodata means
+/// none: the mapping's heights block cannot name NaN, and NaN texels stay NaN); other formats
+/// are colours and their GDAL_NODATA is not used.
+fn heights_of(
+    path: &Path,
+    format: TexelFormat,
+    nodata: Option<&str>,
+) -> Result<Option<crate::plan::HeightPlan>, CogError> {
+    use crate::height::{HeightFormat, HeightStorage, LevelRule};
+    let storage = match format {
+        TexelFormat::L32F => HeightStorage::F32,
+        TexelFormat::L16I => HeightStorage::I16,
+        _ => return Ok(None),
+    };
+    let refuse = |found: String| {
+        CogError::Unsupported {
+        path: path.to_path_buf(),
+        ifd: 0,
+        tag: "GDAL_NODATA (42113)",
+        found,
+        supported: "a number that is a value of the samples (a whole number in -32768..32767 for 16-bit signed samples, a finite 32-bit float or nan for floats)",
+    }
+    };
+    let value = match nodata {
+        None => None,
+        Some(text) => match text.parse::<f64>() {
+            Ok(v) if v.is_nan() => None,
+            Ok(v) => Some(v),
+            Err(_) => return Err(refuse(format!("{text:?}"))),
+        },
+    };
+    let format =
+        HeightFormat::new(storage, 1.0, 0.0, value).map_err(|e| refuse(format!("{} ({e})", nodata.unwrap_or(""))))?;
+    Ok(Some(crate::plan::HeightPlan { format, levels: LevelRule::Mean }))
+}
+
 /// The single unsigned value of tag `tag`, `None` when the IFD lacks it.
 fn scalar(file: &Head, layout: Layout, image: &Image, tag: u16, name: &str) -> Result<Option<u64>, (String, String)> {
     Ok(values(file, layout, image, tag, name, 1)?.map(|v| v[0]))
@@ -1480,22 +1618,45 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
         ));
     }
     let spp = get(277, "SamplesPerPixel (277)")?.unwrap_or(1);
-    let format = match spp {
-        1 => TexelFormat::L8,
-        3 => TexelFormat::RGB8,
-        4 => TexelFormat::RGBA8,
-        n => return Err(unsupported("SamplesPerPixel (277)", n.to_string(), "1 (grey), 3 (RGB) or 4 (RGBA)")),
-    };
+    if !matches!(spp, 1 | 3 | 4) {
+        return Err(unsupported("SamplesPerPixel (277)", spp.to_string(), "1 (grey), 3 (RGB) or 4 (RGBA)"));
+    }
     let list = |tag: u16, name: &str| values(file, layout, image, tag, name, 16).map_err(malformed);
     let bits = list(258, "BitsPerSample (258)")?.unwrap_or(vec![1]);
-    if bits.iter().any(|&b| b != 8) {
-        return Err(unsupported("BitsPerSample (258)", format!("{bits:?}"), "8 bits per sample"));
-    }
-    if let Some(sf) = list(339, "SampleFormat (339)")? {
-        if sf.iter().any(|&f| f != 1) {
-            return Err(unsupported("SampleFormat (339)", format!("{sf:?}"), "1 (unsigned integer)"));
+    let sample_format = list(339, "SampleFormat (339)")?.unwrap_or(vec![1]);
+    let same = |v: &[u64]| v.iter().all(|&x| x == v[0]);
+    let samples = match (bits[0], sample_format[0]) {
+        _ if !same(&bits) || !same(&sample_format) => None,
+        (8, 1) => Some(Samples::U8),
+        (16, 1) => Some(Samples::U16),
+        (16, 2) => Some(Samples::I16),
+        (32, 3) => Some(Samples::F32),
+        _ => None,
+    };
+    let Some(samples) = samples else {
+        return Err(unsupported(
+            "BitsPerSample (258) / SampleFormat (339)",
+            format!("{bits:?} bits, sample format {sample_format:?}"),
+            "the same for every sample: 8 or 16 bits unsigned (format 1), 16 bits signed (format 2) or 32-bit floats (format 3)",
+        ));
+    };
+    let format = match (samples, spp) {
+        (Samples::U8, 1) => TexelFormat::L8,
+        (Samples::U8, 3) => TexelFormat::RGB8,
+        (Samples::U8, _) => TexelFormat::RGBA8,
+        (Samples::U16, 1) => TexelFormat::L16,
+        (Samples::U16, 3) => TexelFormat::RGB16,
+        (Samples::U16, _) => TexelFormat::RGBA16,
+        (Samples::I16, 1) => TexelFormat::L16I,
+        (Samples::F32, 1) => TexelFormat::L32F,
+        (_, n) => {
+            return Err(unsupported(
+                "SamplesPerPixel (277)",
+                n.to_string(),
+                "1 with 16-bit signed or 32-bit float samples (heights: l16i, l32f)",
+            ))
         }
-    }
+    };
     let planar = get(284, "PlanarConfiguration (284)")?.unwrap_or(1);
     if planar != 1 && spp > 1 {
         return Err(unsupported(
@@ -1538,11 +1699,17 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
         }
     };
     let predictor = match get(317, "Predictor (317)")?.unwrap_or(1) {
-        1 => false,
-        2 => true,
-        p => return Err(unsupported("Predictor (317)", p.to_string(), "1 (none) or 2 (horizontal differencing)")),
+        p @ (1 | 2) => p as u16,
+        3 if samples == Samples::F32 => 3,
+        p => {
+            return Err(unsupported(
+                "Predictor (317)",
+                format!("{p} with {} samples", format),
+                "1 (none), 2 (horizontal differencing), or 3 (floating point) with 32-bit float samples",
+            ))
+        }
     };
-    let tile_bytes = tw.saturating_mul(th).saturating_mul(spp);
+    let tile_bytes = tw.saturating_mul(th).saturating_mul(spp).saturating_mul(samples.bytes() as u64);
     if tile_bytes > crate::limits::MAX_TILE_BYTES {
         return Err(unsupported(
             "TileWidth (322) x TileLength (323)",
@@ -1561,10 +1728,66 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
         across,
         compression,
         predictor,
+        samples,
+        spp: spp as usize,
         offsets,
         counts,
     };
     Ok((format, level))
+}
+
+/// Turns a decoded TIFF tile's samples into texels: undoes the predictor and stores multi-byte
+/// samples little-endian (the texels' byte order), whatever the file's.
+fn finish_samples(lv: &IfdLevel, little: bool, dst: &mut [u8]) {
+    let n = lv.samples.bytes();
+    let row_bytes = lv.tile[0] as usize * lv.spp * n;
+    if lv.predictor == 3 {
+        // TIFF Technical Note 3: each row holds its samples' bytes in planes, most significant
+        // plane first, differenced byte by byte across the row with a stride of a pixel. The
+        // result does not depend on the file's byte order.
+        let mut planes = Vec::with_capacity(row_bytes);
+        for row in dst.chunks_exact_mut(row_bytes) {
+            for i in lv.spp..row.len() {
+                row[i] = row[i].wrapping_add(row[i - lv.spp]);
+            }
+            planes.clear();
+            planes.extend_from_slice(row);
+            let count = row.len() / n;
+            for (i, sample) in row.chunks_exact_mut(n).enumerate() {
+                for (b, byte) in sample.iter_mut().enumerate() {
+                    *byte = planes[(n - 1 - b) * count + i];
+                }
+            }
+        }
+        return;
+    }
+    if n > 1 && !little {
+        for sample in dst.chunks_exact_mut(n) {
+            sample.reverse();
+        }
+    }
+    if lv.predictor == 2 && n == 1 {
+        for row in dst.chunks_exact_mut(row_bytes) {
+            for i in lv.spp..row.len() {
+                row[i] = row[i].wrapping_add(row[i - lv.spp]);
+            }
+        }
+    } else if lv.predictor == 2 {
+        let stride = lv.spp * n;
+        for row in dst.chunks_exact_mut(row_bytes) {
+            for i in (stride..row.len()).step_by(n) {
+                let (before, this) = row.split_at_mut(i);
+                let prev = &before[i - stride..i - stride + n];
+                // A little-endian add of the sample to its left, carries within the sample.
+                let mut carry = 0u16;
+                for b in 0..n {
+                    let sum = this[b] as u16 + prev[b] as u16 + carry;
+                    this[b] = sum as u8;
+                    carry = sum >> 8;
+                }
+            }
+        }
+    }
 }
 
 /// Decompresses `packed` into `out`; returns the bytes written (at most `out.len()`).
@@ -1593,8 +1816,9 @@ fn decompress(c: Compression, packed: &[u8], out: &mut [u8]) -> Result<usize, St
 }
 
 /// The next coarser level of `src` (`size` texels, `bpt` bytes each, rows in increasing t) by
-/// `clipprep`'s 2 x 2 box filter: `floor((a + b + c + d + 2) / 4)` per byte, edges clamped.
-fn halve(src: &[u8], size: [u64; 2], bpt: usize) -> (Vec<u8>, [u64; 2]) {
+/// `clipprep`'s 2 x 2 box filter: `floor((a + b + c + d + 2) / 4)` per sample of `sample`
+/// bytes (1, or 2: little-endian 16-bit), edges clamped.
+fn halve(src: &[u8], size: [u64; 2], bpt: usize, sample: usize) -> (Vec<u8>, [u64; 2]) {
     let [w, h] = [size[0] as usize, size[1] as usize];
     let (w2, h2) = ((w / 2).max(1), (h / 2).max(1));
     let mut out = vec![0u8; w2 * h2 * bpt];
@@ -1602,10 +1826,17 @@ fn halve(src: &[u8], size: [u64; 2], bpt: usize) -> (Vec<u8>, [u64; 2]) {
         let (r0, r1) = (2 * j, (2 * j + 1).min(h - 1));
         for i in 0..w2 {
             let (c0, c1) = (2 * i, (2 * i + 1).min(w - 1));
-            for b in 0..bpt {
-                let at = |r: usize, c: usize| src[(r * w + c) * bpt + b] as u32;
-                let sum = at(r0, c0) + at(r0, c1) + at(r1, c0) + at(r1, c1);
-                out[(j * w2 + i) * bpt + b] = ((sum + 2) / 4) as u8;
+            for b in (0..bpt).step_by(sample) {
+                let at = |r: usize, c: usize| {
+                    let p = (r * w + c) * bpt + b;
+                    if sample == 2 {
+                        u16::from_le_bytes([src[p], src[p + 1]]) as u32
+                    } else {
+                        src[p] as u32
+                    }
+                };
+                let v = (at(r0, c0) + at(r0, c1) + at(r1, c0) + at(r1, c1) + 2) / 4;
+                out[(j * w2 + i) * bpt + b..][..sample].copy_from_slice(&v.to_le_bytes()[..sample]);
             }
         }
     }
@@ -1615,6 +1846,10 @@ fn halve(src: &[u8], size: [u64; 2], bpt: usize) -> (Vec<u8>, [u64; 2]) {
 impl TileSource for CogSource {
     fn desc(&self) -> &TextureDesc {
         &self.desc
+    }
+
+    fn heights(&self) -> Option<crate::plan::HeightPlan> {
+        self.heights
     }
 
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
@@ -1674,11 +1909,11 @@ mod tests {
     fn halving_is_clipprep_box_filter_with_clamped_edges() {
         // 3 x 2 grey: the odd column is dropped, as level_size floors.
         let src = [0u8, 10, 200, 1, 3, 255];
-        let (out, size) = halve(&src, [3, 2], 1);
+        let (out, size) = halve(&src, [3, 2], 1, 1);
         assert_eq!(size, [1, 1]);
         assert_eq!(out, [(14 + 2) / 4]);
         // 1 x 3: the single column is its own neighbour.
-        let (out, size) = halve(&[4, 8, 100], [1, 3], 1);
+        let (out, size) = halve(&[4, 8, 100], [1, 3], 1, 1);
         assert_eq!((out, size), (vec![(4 + 4 + 8 + 8 + 2) / 4], [1, 1]));
     }
 

@@ -779,10 +779,13 @@ fn a_cog_is_served_as_it_is() {
         std::thread::sleep(Duration::from_millis(20));
     }
     // A layout it does not serve is refused before anything is created, naming the tag.
-    let u16 = Path::new(ROOT).join("tests/fixtures/cog/u16_64x64.tif");
-    let out = Command::new(CLIPMAPD).arg(&u16).args(["--shm-dir", d.to_str().unwrap()]).output().unwrap();
+    let i32 = Path::new(ROOT).join("tests/fixtures/cog/i32_64x64.tif");
+    let out = Command::new(CLIPMAPD).arg(&i32).args(["--shm-dir", d.to_str().unwrap()]).output().unwrap();
     assert_eq!(out.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("BitsPerSample (258) is [16]"), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("BitsPerSample (258) / SampleFormat (339) is [32] bits"),
+        "{out:?}"
+    );
 }
 
 #[test]

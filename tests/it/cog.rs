@@ -181,9 +181,14 @@ fn cog_sparse_tiles_are_missing_and_built_levels_read_them_as_zero() {
 
 #[test]
 fn cog_refuses_what_it_does_not_serve_naming_the_tag() {
-    let e = CogSource::open(&fixture("u16_64x64.tif"), 64).unwrap_err();
+    let e = CogSource::open(&fixture("i32_64x64.tif"), 64).unwrap_err();
     assert!(matches!(e, CogError::Unsupported { ifd: 0, .. }), "{e}");
-    assert!(e.to_string().contains("IFD 0: BitsPerSample (258) is [16]: supported: 8 bits per sample"), "{e}");
+    assert!(
+        e.to_string().contains(
+            "IFD 0: BitsPerSample (258) / SampleFormat (339) is [32] bits, sample format [2]: supported: the same for every sample"
+        ),
+        "{e}"
+    );
     let e = CogSource::open(&fixture("strips_64x64.tif"), 64).unwrap_err();
     assert!(
         e.to_string()
@@ -193,6 +198,21 @@ fn cog_refuses_what_it_does_not_serve_naming_the_tag() {
     let e = CogSource::open(&fixture("README.md"), 64).unwrap_err();
     assert!(matches!(e, CogError::NotTiff { .. }), "{e}");
     assert!(e.to_string().contains("not a TIFF: it starts with [23, 20, 43, 4f]"), "{e}");
+}
+
+#[test]
+fn cog_16_bit_grey_is_served_as_l16_sample_for_sample() {
+    let src = CogSource::open(&fixture("u16_64x64.tif"), 64).unwrap();
+    assert_eq!(src.desc().format(), clipmap::texel::TexelFormat::L16);
+    assert!(src.heights().is_none(), "16-bit unsigned samples are grey, not heights");
+    let l0 = level(&src, 0).unwrap();
+    for t in 0..64u64 {
+        for s in 0..64u64 {
+            let i = ((t * 64 + s) * 2) as usize;
+            let want = formula(s, 63 - t, 0) as u16;
+            assert_eq!(u16::from_le_bytes([l0[i], l0[i + 1]]), want, "texel ({s}, {t})");
+        }
+    }
 }
 
 #[test]

@@ -22,6 +22,7 @@ mod clipprep;
 mod cog;
 #[cfg(feature = "remote")]
 mod cog_remote;
+mod cog_samples;
 mod config_build_errors;
 mod config_errors;
 mod config_fuzz_props;

@@ -1,0 +1,354 @@
+//! COGs of 16-bit and 32-bit float samples written by GDAL in the test (`gdal_translate -of
+//! COG` and the GTiff driver through GDAL's Python binding; `.ci/run` installs `gdal-bin` and
+//! `python3-gdal`): 16-bit unsigned colour, 16-bit signed and 32-bit float heights with
+//! GDAL_NODATA, predictors 2 and 3, a big-endian file. Level 0 equals the formula texel for
+//! texel; each overview equals GDAL's own decode of it; the levels built past the overviews are
+//! the `mean` rule (heights, nodata left out) or the 16-bit box filter (colour).
+
+use clipmap::height::HeightStorage;
+use clipmap::source::{CogSource, TileSource};
+use std::path::Path;
+use std::process::Command;
+
+/// The Python side: writes `NAME.tif` from the formula with the options given, then GDAL's
+/// decode of every IFD as `NAME.N.raw` (samples interleaved, little-endian, rows top-down).
+const WRITE: &str = r#"
+import struct, sys
+from osgeo import gdal
+gdal.UseExceptions()
+name, kind, w, h, bands, driver = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5]), sys.argv[6]
+opts = sys.argv[7:]
+code = {"u16": "H", "i16": "h", "f32": "f"}[kind]
+gtype = {"u16": gdal.GDT_UInt16, "i16": gdal.GDT_Int16, "f32": gdal.GDT_Float32}[kind]
+def value(x, y, c):
+    if kind == "u16":
+        return (x * 257 + y * 131 + c * 20000) & 0xFFFF
+    if (x * 7 + y * 3) % 16 == 0:
+        return -32768
+    if kind == "i16":
+        return (x * 97 + y * 61) % 60001 - 30000
+    # -11000 .. 8900 m in 2^-10 m steps: exact in a 32-bit float.
+    return -11000 + ((x * 7919 + y * 104729) % (19900 * 1024)) / 1024.0
+mem = gdal.GetDriverByName("MEM").Create("", w, h, bands, gtype)
+for b in range(bands):
+    band = mem.GetRasterBand(b + 1)
+    band.WriteRaster(0, 0, w, h, struct.pack("<%d%s" % (w * h, code), *[value(x, y, b) for y in range(h) for x in range(w)]))
+    if kind != "u16":
+        band.SetNoDataValue(-32768)
+    if bands >= 3:
+        band.SetColorInterpretation([gdal.GCI_RedBand, gdal.GCI_GreenBand, gdal.GCI_BlueBand, gdal.GCI_AlphaBand][b])
+gdal.Translate(name + ".tif", mem, format=driver, creationOptions=opts)
+ds = gdal.Open(name + ".tif")
+n = 1 + ds.GetRasterBand(1).GetOverviewCount()
+size = struct.calcsize(code)
+for i in range(n):
+    bands_ = [ds.GetRasterBand(b + 1) if i == 0 else ds.GetRasterBand(b + 1).GetOverview(i - 1) for b in range(bands)]
+    bw, bh = bands_[0].XSize, bands_[0].YSize
+    planes = [band.ReadRaster(0, 0, bw, bh) for band in bands_]
+    out = bytearray(bw * bh * bands * size)
+    for b, p in enumerate(planes):
+        for k in range(bw * bh):
+            out[(k * bands + b) * size:(k * bands + b + 1) * size] = p[k * size:(k + 1) * size]
+    open("%s.%d.raw" % (name, i), "wb").write(out)
+    print(bw, bh)
+"#;
+
+struct Case {
+    name: &'static str,
+    kind: &'static str,
+    size: [u64; 2],
+    bands: usize,
+    driver: &'static str,
+    options: &'static [&'static str],
+    /// The predictor the file must use (cliptex info's words).
+    predictor: &'static str,
+}
+
+const CASES: [Case; 5] = [
+    Case {
+        name: "f32_deflate_fp",
+        kind: "f32",
+        size: [300, 200],
+        bands: 1,
+        driver: "COG",
+        options: &[
+            "COMPRESS=DEFLATE",
+            "PREDICTOR=FLOATING_POINT",
+            "BLOCKSIZE=128",
+            "OVERVIEWS=AUTO",
+            "RESAMPLING=AVERAGE",
+        ],
+        predictor: ", predictor 3 (floating point)",
+    },
+    Case {
+        name: "f32_zstd_pred2",
+        kind: "f32",
+        size: [130, 90],
+        bands: 1,
+        driver: "COG",
+        options: &["COMPRESS=ZSTD", "PREDICTOR=STANDARD", "BLOCKSIZE=64", "OVERVIEWS=NONE"],
+        predictor: ", predictor 2",
+    },
+    Case {
+        name: "i16_lzw_pred2",
+        kind: "i16",
+        size: [300, 200],
+        bands: 1,
+        driver: "COG",
+        options: &["COMPRESS=LZW", "PREDICTOR=YES", "BLOCKSIZE=128", "OVERVIEWS=AUTO", "RESAMPLING=NEAREST"],
+        predictor: ", predictor 2",
+    },
+    Case {
+        name: "u16_rgb_zstd_pred2",
+        kind: "u16",
+        size: [256, 192],
+        bands: 3,
+        driver: "COG",
+        options: &["COMPRESS=ZSTD", "PREDICTOR=YES", "BLOCKSIZE=64", "OVERVIEWS=AUTO", "RESAMPLING=AVERAGE"],
+        predictor: ", predictor 2",
+    },
+    Case {
+        name: "f32_big_endian",
+        kind: "f32",
+        size: [100, 80],
+        bands: 1,
+        driver: "GTiff",
+        // Predictor 2, not 3: GDAL 3.6 does not read back its own big-endian files with the
+        // floating-point predictor (every value comes back wrong), so they are no reference.
+        options: &["TILED=YES", "BLOCKXSIZE=32", "BLOCKYSIZE=32", "COMPRESS=DEFLATE", "PREDICTOR=2", "ENDIANNESS=BIG"],
+        predictor: ", predictor 2",
+    },
+];
+
+/// A Python with GDAL's binding: Debian's (where `python3` on the PATH may be another), else
+/// the PATH's.
+fn python() -> &'static str {
+    let has_gdal =
+        |p: &str| Command::new(p).args(["-c", "from osgeo import gdal"]).output().is_ok_and(|o| o.status.success());
+    ["/usr/bin/python3", "python3"].into_iter().find(|p| has_gdal(p)).unwrap_or("python3")
+}
+
+/// Writes the case's file with GDAL in `dir`; returns the size of every IFD GDAL decoded.
+fn write(case: &Case, dir: &Path) -> Vec<[u64; 2]> {
+    let mut args = vec![
+        "-".to_string(),
+        case.name.into(),
+        case.kind.into(),
+        case.size[0].to_string(),
+        case.size[1].to_string(),
+        case.bands.to_string(),
+        case.driver.into(),
+    ];
+    args.extend(case.options.iter().map(|s| s.to_string()));
+    let mut child = Command::new(python())
+        .args(&args)
+        .current_dir(dir)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("python3 (with GDAL's binding, python3-gdal, which .ci/run installs)");
+    use std::io::Write;
+    child.stdin.take().unwrap().write_all(WRITE.as_bytes()).unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}: GDAL failed: {}", case.name, String::from_utf8_lossy(&out.stderr));
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let v: Vec<u64> = l.split(' ').map(|x| x.parse().unwrap()).collect();
+            [v[0], v[1]]
+        })
+        .collect()
+}
+
+/// Sample `c` of pixel (x, y) (y from the top row), as the Python formula writes it, as bytes.
+fn formula(kind: &str, x: u64, y: u64, c: u64) -> Vec<u8> {
+    if kind == "u16" {
+        return (((x * 257 + y * 131 + c * 20000) & 0xFFFF) as u16).to_le_bytes().to_vec();
+    }
+    let nodata = (x * 7 + y * 3) % 16 == 0;
+    match kind {
+        "i16" => (if nodata { -32768 } else { ((x * 97 + y * 61) % 60001) as i16 as i32 - 30000 } as i16)
+            .to_le_bytes()
+            .to_vec(),
+        _ => {
+            let v =
+                if nodata { -32768.0 } else { -11000.0 + ((x * 7919 + y * 104729) % (19900 * 1024)) as f64 / 1024.0 };
+            (v as f32).to_le_bytes().to_vec()
+        }
+    }
+}
+
+/// GDAL's decode of IFD `i`, rows turned to increasing t.
+fn gdal_ifd(dir: &Path, case: &Case, i: usize, size: [u64; 2], bpt: usize) -> Vec<u8> {
+    let raw = std::fs::read(dir.join(format!("{}.{i}.raw", case.name))).unwrap();
+    let row = size[0] as usize * bpt;
+    assert_eq!(raw.len(), row * size[1] as usize, "{} IFD {i}", case.name);
+    raw.chunks_exact(row).rev().flatten().copied().collect()
+}
+
+/// The 16-bit box filter of `clipprep`, written out again: floor((a + b + c + d + 2) / 4) per
+/// sample, edges clamped.
+fn box_halve_u16(src: &[u8], [w, h]: [u64; 2], samples: usize) -> Vec<u8> {
+    let mut out = Vec::new();
+    for j in 0..(h / 2).max(1) {
+        for i in 0..(w / 2).max(1) {
+            for c in 0..samples {
+                let at = |s: u64, t: u64| {
+                    let p = ((t.min(h - 1) * w + s.min(w - 1)) as usize * samples + c) * 2;
+                    u16::from_le_bytes([src[p], src[p + 1]]) as u32
+                };
+                let v =
+                    (at(2 * i, 2 * j) + at(2 * i + 1, 2 * j) + at(2 * i, 2 * j + 1) + at(2 * i + 1, 2 * j + 1) + 2) / 4;
+                out.extend_from_slice(&(v as u16).to_le_bytes());
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn cogs_of_16_bit_and_float_samples_are_their_formula_gdals_overviews_and_the_level_rule() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for case in &CASES {
+        let ifds = write(case, d);
+        let path = d.join(format!("{}.tif", case.name));
+        // A small clip size reads the stack levels in TIFF tiles, a large one every level whole.
+        for clip in [64, 512] {
+            let ctx = format!("{} (clip {clip})", case.name);
+            let src = CogSource::open(&path, clip).unwrap_or_else(|e| panic!("{ctx}: {e}"));
+            let bpt = src.desc().bytes_per_texel();
+            let sample = if case.kind == "f32" { 4 } else { 2 };
+            assert_eq!(bpt, case.bands * sample, "{ctx}");
+            let info = src.info().human();
+            assert!(info.contains(case.predictor), "{ctx}: {info}");
+            // Heights say so, with GDAL_NODATA as their nodata; colours do not.
+            match (case.kind, src.heights()) {
+                ("u16", None) => {}
+                ("i16", Some(p)) => {
+                    assert_eq!((p.format.storage(), p.format.nodata()), (HeightStorage::I16, Some(-32768.0)), "{ctx}")
+                }
+                ("f32", Some(p)) => {
+                    assert_eq!((p.format.storage(), p.format.nodata()), (HeightStorage::F32, Some(-32768.0)), "{ctx}")
+                }
+                (k, h) => panic!("{ctx}: {k} samples served with heights {h:?}"),
+            }
+            let [w, h] = case.size;
+            let mut want = Vec::new();
+            for t in 0..h {
+                for s in 0..w {
+                    for c in 0..case.bands as u64 {
+                        want.extend(formula(case.kind, s, h - 1 - t, c));
+                    }
+                }
+            }
+            let n = src.desc().level_count();
+            let mut size = [w, h];
+            for k in 0..n as u32 {
+                let got = super::cog::level(&src, k).unwrap_or_else(|e| panic!("{ctx}: level {k}: {e}"));
+                if k > 0 {
+                    want = if (k as usize) < ifds.len() {
+                        assert_eq!(ifds[k as usize], src.desc().level(k).size, "{ctx}: overview {k}'s size");
+                        gdal_ifd(d, case, k as usize, ifds[k as usize], bpt)
+                    } else if let Some(plan) = src.heights() {
+                        let f = plan.format;
+                        let stored: Vec<f64> = want.chunks_exact(bpt).map(|b| f.read(b)).collect();
+                        let next = f.reduce_level(plan.levels, &stored, size[0] as usize, size[1] as usize).unwrap();
+                        let mut out = vec![0u8; next.len() * bpt];
+                        for (v, o) in next.iter().zip(out.chunks_exact_mut(bpt)) {
+                            f.write(*v, o);
+                        }
+                        out
+                    } else {
+                        box_halve_u16(&want, size, case.bands)
+                    };
+                    size = src.desc().level(k).size;
+                }
+                assert_eq!(got.len(), want.len(), "{ctx}: level {k}");
+                let differ = got.chunks_exact(bpt).zip(want.chunks_exact(bpt)).filter(|(a, b)| a != b).count();
+                assert_eq!(differ, 0, "{ctx}: level {k}: {differ} texels differ");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_cog_whose_nodata_is_not_a_value_of_its_samples_is_refused_naming_the_tag() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let case = Case {
+        name: "i16_bad_nodata",
+        kind: "i16",
+        size: [64, 64],
+        bands: 1,
+        driver: "COG",
+        options: &["BLOCKSIZE=32", "OVERVIEWS=NONE"],
+        predictor: "",
+    };
+    write(&case, d);
+    // GDAL writes the nodata tag as the text it was given: make it one an i16 cannot hold.
+    let out = Command::new("gdal_edit.py").args(["-a_nodata", "40000.5", "i16_bad_nodata.tif"]).current_dir(d).output();
+    let Ok(out) = out else { panic!("gdal_edit.py (gdal-bin's Python scripts) is not installed") };
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let e = CogSource::open(&d.join("i16_bad_nodata.tif"), 64).unwrap_err().to_string();
+    assert!(e.contains("GDAL_NODATA (42113)") && e.contains("40000.5"), "{e}");
+}
+
+#[test]
+fn clipmapd_serves_a_float_dem_cog_as_heights_texel_for_texel() {
+    use std::time::{Duration, Instant};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let case = &CASES[0];
+    write(case, d);
+    let err = d.join("svc.err");
+    struct Kill(std::process::Child);
+    impl Drop for Kill {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let _service = Kill(
+        Command::new(env!("CARGO_BIN_EXE_clipmapd"))
+            .arg(d.join(format!("{}.tif", case.name)))
+            .args(["--clip", "128", "--tick-hz", "120", "--name", "dem", "--shm-dir", d.to_str().unwrap(), "--socket"])
+            .arg(d.join("dem.sock"))
+            .stdout(std::process::Stdio::null())
+            .stderr(std::fs::File::create(&err).unwrap())
+            .spawn()
+            .unwrap(),
+    );
+    let log = || std::fs::read_to_string(&err).unwrap_or_default();
+    let t = Instant::now();
+    let c = loop {
+        if let Ok(c) = clipmap::shm::Client::attach(d, "dem") {
+            break c;
+        }
+        assert!(t.elapsed() < Duration::from_secs(30), "no mapping\n{}", log());
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    // The header says l32f heights with the file's GDAL_NODATA.
+    let h = c.heights.unwrap_or_else(|| panic!("not heights\n{}", log()));
+    assert_eq!((c.format_code, h.storage, h.nodata), (11, HeightStorage::F32, Some(-32768.0)));
+    let valid = loop {
+        if let Some(st) = c.level_state(0) {
+            let [s0, t0, s1, t1] = st.valid;
+            if st.enabled && s1 > s0 && t1 > t0 {
+                break st.valid;
+            }
+        }
+        assert!(t.elapsed() < Duration::from_secs(30), "level 0 never became valid\n{}", log());
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    let [s0, t0, s1, t1] = valid;
+    let (w, hh) = ((s1 - s0) as u64, (t1 - t0) as u64);
+    let mut buf = vec![0u8; (w * hh * 4) as usize];
+    c.read_region(0, s0, t0, w, hh, &mut buf).expect("the valid region reads");
+    for (i, texel) in buf.chunks_exact(4).enumerate() {
+        let (s, t) = (s0 as u64 + i as u64 % w, t0 as u64 + i as u64 / w);
+        assert_eq!(texel, &formula("f32", s, case.size[1] - 1 - t, 0)[..], "texel ({s}, {t})");
+    }
+}
