@@ -78,6 +78,9 @@ const MAX_IFDS: usize = 64;
 
 /// The most entries one IFD may have.
 const MAX_ENTRIES: u64 = 4096;
+/// The most bytes of JPEGTables (347) read: four quantisation and four Huffman tables take
+/// under 2 KiB; 64 KiB allows anything a writer could mean.
+const MAX_JPEG_TABLES: u64 = 64 * 1024;
 
 /// What open reads of a TIFF's structure at most, all IFDs together.
 const MAX_STRUCTURE_BYTES: u64 = 1 << 20;
@@ -201,6 +204,9 @@ pub enum Compression {
     Deflate,
     /// Zstandard (50000).
     Zstd,
+    /// JPEG (7): baseline or progressive, grey or YCbCr (decoded to RGB), the IFD's
+    /// JPEGTables (347) spliced before each tile's stream.
+    Jpeg,
 }
 
 impl std::fmt::Display for Compression {
@@ -210,6 +216,7 @@ impl std::fmt::Display for Compression {
             Compression::Lzw => "LZW",
             Compression::Deflate => "DEFLATE",
             Compression::Zstd => "ZSTD",
+            Compression::Jpeg => "JPEG",
         })
     }
 }
@@ -437,6 +444,8 @@ struct IfdLevel {
     compression: Compression,
     /// The Predictor tag: 1 none, 2 horizontal differencing, 3 floating point.
     predictor: u16,
+    /// JPEGTables (347): the quantisation and Huffman tables the tiles' JPEG streams leave out.
+    jpeg_tables: Option<Arc<[u8]>>,
     samples: Samples,
     /// Samples a pixel.
     spp: usize,
@@ -1299,7 +1308,7 @@ impl CogSource {
                     dst.copy_from_slice(&data[..dst.len()]);
                     return Ok(());
                 }
-                let got = decompress(lv.compression, data, dst)
+                let got = decompress(lv.compression, lv.jpeg_tables.as_deref(), lv.tile, data, dst)
                     .map_err(|p| bad(format!("IFD {} tile {index} ({count} bytes at byte {offset}): {p}", lv.ifd)))?;
                 if got != dst.len() {
                     return Err(bad(format!(
@@ -1502,10 +1511,29 @@ fn ascii(
     name: &str,
     max: u64,
 ) -> Result<Option<String>, (String, String)> {
+    let Some(bytes) = raw_bytes(file, layout, image, tag, name, &[2], max)? else { return Ok(None) };
+    let text = bytes.split(|&b| b == 0).next().unwrap_or_default();
+    match std::str::from_utf8(text) {
+        Ok(t) => Ok(Some(t.trim().to_string())),
+        Err(_) => Err((format!("IFD {} tag {name}", image.ifd), format!("bytes {text:02x?} are not ASCII text"))),
+    }
+}
+
+/// The bytes of tag `tag`, of one of the byte-sized TIFF types `types` (2 ASCII, 7
+/// UNDEFINED), at most `max` of them; `None` when the IFD lacks it.
+fn raw_bytes(
+    file: &Head,
+    layout: Layout,
+    image: &Image,
+    tag: u16,
+    name: &str,
+    types: &[u16],
+    max: u64,
+) -> Result<Option<Vec<u8>>, (String, String)> {
     let Some(e) = image.entries.iter().find(|e| e.tag == tag) else { return Ok(None) };
     let at = format!("IFD {} tag {name}", image.ifd);
-    if e.ty != 2 {
-        return Err((at, format!("type {} found, expected ASCII (2)", e.ty)));
+    if !types.contains(&e.ty) {
+        return Err((at, format!("type {} found, expected {types:?}", e.ty)));
     }
     if e.count == 0 || e.count > max {
         return Err((at, format!("{} bytes, expected 1 to {max}", e.count)));
@@ -1515,11 +1543,7 @@ fn ascii(
     } else {
         file.read_at(layout.offset(&e.field), e.count as usize, &at)?
     };
-    let text = bytes.split(|&b| b == 0).next().unwrap_or_default();
-    match std::str::from_utf8(text) {
-        Ok(t) => Ok(Some(t.trim().to_string())),
-        Err(_) => Err((at, format!("bytes {text:02x?} are not ASCII text"))),
-    }
+    Ok(Some(bytes))
 }
 
 /// The heights a COG's samples are: 16-bit signed integers (`l16i`, metres, scale 1) and 32-bit
@@ -1665,26 +1689,15 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
             "1 (chunky: samples of a pixel together; gdal_translate -co INTERLEAVE=PIXEL)",
         ));
     }
-    let photometric = get(262, "PhotometricInterpretation (262)")?;
-    let ok_photometric = match spp {
-        1 => photometric.unwrap_or(1) == 1,
-        _ => photometric == Some(2),
-    };
-    if !ok_photometric {
-        return Err(unsupported(
-            "PhotometricInterpretation (262)",
-            photometric.map_or("absent".into(), |p| p.to_string()),
-            "1 (grey, zero is black) with 1 sample, 2 (RGB) with 3 or 4",
-        ));
-    }
     let compression = match get(259, "Compression (259)")?.unwrap_or(1) {
         1 => Compression::None,
         5 => Compression::Lzw,
+        7 => Compression::Jpeg,
         8 | 32946 => Compression::Deflate,
         50000 => Compression::Zstd,
         c => {
             let name = match c {
-                6 | 7 => " (JPEG)",
+                6 => " (old-style JPEG)",
                 32773 => " (PackBits)",
                 34887 => " (LERC)",
                 34925 => " (LZMA)",
@@ -1694,11 +1707,48 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
             return Err(unsupported(
                 "Compression (259)",
                 format!("{c}{name}"),
-                "1 (none), 5 (LZW), 8 or 32946 (DEFLATE), 50000 (ZSTD)",
+                "1 (none), 5 (LZW), 7 (JPEG), 8 or 32946 (DEFLATE), 50000 (ZSTD)",
             ));
         }
     };
+    let photometric = get(262, "PhotometricInterpretation (262)")?;
+    let jpeg = compression == Compression::Jpeg;
+    let ok_photometric = match (spp, jpeg) {
+        (1, _) => photometric.unwrap_or(1) == 1,
+        (3, true) => photometric == Some(6),
+        (_, true) => false,
+        _ => photometric == Some(2),
+    };
+    if !ok_photometric {
+        return Err(unsupported(
+            "PhotometricInterpretation (262)",
+            format!(
+                "{}{}",
+                photometric.map_or("absent".into(), |p| p.to_string()),
+                if jpeg { format!(" with {spp} JPEG-compressed samples") } else { String::new() }
+            ),
+            if jpeg {
+                "1 (grey) with 1 sample, 6 (YCbCr: gdal_translate -of COG -co COMPRESS=JPEG, or -co PHOTOMETRIC=YCBCR) with 3"
+            } else {
+                "1 (grey, zero is black) with 1 sample, 2 (RGB) with 3 or 4"
+            },
+        ));
+    }
+    if jpeg && samples != Samples::U8 {
+        return Err(unsupported(
+            "BitsPerSample (258) / SampleFormat (339)",
+            format!("{bits:?} bits, sample format {sample_format:?} with JPEG"),
+            "8-bit samples with JPEG (7)",
+        ));
+    }
+    let jpeg_tables = match jpeg {
+        true => raw_bytes(file, layout, image, 347, "JPEGTables (347)", &[7], MAX_JPEG_TABLES)
+            .map_err(malformed)?
+            .map(Arc::from),
+        false => None,
+    };
     let predictor = match get(317, "Predictor (317)")?.unwrap_or(1) {
+        _ if jpeg => 1,
         p @ (1 | 2) => p as u16,
         3 if samples == Samples::F32 => 3,
         p => {
@@ -1728,6 +1778,7 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
         across,
         compression,
         predictor,
+        jpeg_tables,
         samples,
         spp: spp as usize,
         offsets,
@@ -1791,8 +1842,16 @@ fn finish_samples(lv: &IfdLevel, little: bool, dst: &mut [u8]) {
 }
 
 /// Decompresses `packed` into `out`; returns the bytes written (at most `out.len()`).
-fn decompress(c: Compression, packed: &[u8], out: &mut [u8]) -> Result<usize, String> {
+/// A JPEG tile takes its IFD's tables and its size in texels (`tile`).
+fn decompress(
+    c: Compression,
+    tables: Option<&[u8]>,
+    tile: [u64; 2],
+    packed: &[u8],
+    out: &mut [u8],
+) -> Result<usize, String> {
     match c {
+        Compression::Jpeg => jpeg_tile(tables, tile, packed, out),
         Compression::None => {
             let n = packed.len().min(out.len());
             out[..n].copy_from_slice(&packed[..n]);
@@ -1813,6 +1872,54 @@ fn decompress(c: Compression, packed: &[u8], out: &mut [u8]) -> Result<usize, St
             zstd::bulk::decompress_to_buffer(packed, out).map_err(|e| format!("not a valid zstd frame ({e})"))
         }
     }
+}
+
+/// Decodes one JPEG-compressed tile of `tile` texels into `out` (grey, or RGB from YCbCr): the
+/// IFD's tables (without their end marker) then the tile's stream (without its start marker),
+/// as libtiff splices them. Returns the bytes written.
+fn jpeg_tile(tables: Option<&[u8]>, tile: [u64; 2], packed: &[u8], out: &mut [u8]) -> Result<usize, String> {
+    use zune_jpeg::zune_core::{bytestream::ZCursor, colorspace::ColorSpace, options::DecoderOptions};
+    const SOI: [u8; 2] = [0xFF, 0xD8];
+    const EOI: [u8; 2] = [0xFF, 0xD9];
+    if packed.len() < 4 || packed[..2] != SOI {
+        return Err(format!(
+            "not a JPEG stream: it starts with {:02x?}, expected ff d8",
+            &packed[..packed.len().min(2)]
+        ));
+    }
+    let stream: std::borrow::Cow<[u8]> = match tables {
+        Some(t) if t.len() >= 4 && t[..2] == SOI && t[t.len() - 2..] == EOI => {
+            let mut joined = Vec::with_capacity(t.len() + packed.len());
+            joined.extend_from_slice(&t[..t.len() - 2]);
+            joined.extend_from_slice(&packed[2..]);
+            std::borrow::Cow::Owned(joined)
+        }
+        Some(t) => {
+            return Err(format!(
+                "the JPEGTables (347) are not a tables-only JPEG stream ({} bytes, expected ff d8 ... ff d9)",
+                t.len()
+            ))
+        }
+        None => std::borrow::Cow::Borrowed(packed),
+    };
+    let components = out.len() as u64 / (tile[0] * tile[1]).max(1);
+    let space = if components == 1 { ColorSpace::Luma } else { ColorSpace::RGB };
+    let options = DecoderOptions::default()
+        .jpeg_set_out_colorspace(space)
+        .set_max_width(tile[0] as usize)
+        .set_max_height(tile[1] as usize);
+    let mut decoder = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(&stream[..]), options);
+    decoder.decode_headers().map_err(|e| format!("not a valid JPEG stream ({e:?})"))?;
+    let (w, h) = decoder.dimensions().unwrap_or((0, 0));
+    if [w as u64, h as u64] != tile {
+        return Err(format!("its JPEG stream is {w} x {h} pixels, expected the tile's {} x {}", tile[0], tile[1]));
+    }
+    let need = decoder.output_buffer_size().unwrap_or(0);
+    if need != out.len() {
+        return Err(format!("its JPEG stream decodes to {need} bytes, expected {} (one tile)", out.len()));
+    }
+    decoder.decode_into(out).map_err(|e| format!("not a valid JPEG stream ({e:?})"))?;
+    Ok(need)
 }
 
 /// The next coarser level of `src` (`size` texels, `bpt` bytes each, rows in increasing t) by
@@ -1922,9 +2029,9 @@ mod tests {
         let data: Vec<u8> = (0..5000u32).map(|i| (i * 7 % 251) as u8).collect();
         let packed = weezl::encode::Encoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8).encode(&data).unwrap();
         let mut out = vec![0u8; data.len()];
-        assert_eq!(decompress(Compression::Lzw, &packed, &mut out), Ok(data.len()));
+        assert_eq!(decompress(Compression::Lzw, None, [0, 0], &packed, &mut out), Ok(data.len()));
         assert_eq!(out, data);
-        assert!(decompress(Compression::Lzw, &[0xff; 64], &mut out).is_err_and(|e| e.contains("LZW")));
+        assert!(decompress(Compression::Lzw, None, [0, 0], &[0xff; 64], &mut out).is_err_and(|e| e.contains("LZW")));
     }
     /// A classic little-endian TIFF of `w x h` grey texels `(3x + 5y) & 255` in uncompressed
     /// `t x t` tiles, its tile index (LONG arrays) placed after the tiles, past the first
