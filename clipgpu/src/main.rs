@@ -63,7 +63,7 @@ struct Cli {
     demo_format: FormatArg,
     /// A height texture's false-colour range, MIN,MAX in metres (default: the heights block's
     /// range for l16 and l16i, -11000,8900 for l32f).
-    #[arg(long, value_parser = parse_range)]
+    #[arg(long, value_parser = parse_range, allow_hyphen_values = true)]
     height_range: Option<[f64; 2]>,
     /// The service's name (`clipmapd --name`).
     #[arg(long, required_unless_present = "demo")]
