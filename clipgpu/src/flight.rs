@@ -5,7 +5,8 @@
 //! was replaced and attaches to the next one.
 
 use crate::check::{self, GeometryDiff, SamplingDiff};
-use crate::gpu::{shapes, Gpu, Renderer};
+use crate::gpu::{shapes, Gpu, Renderer, Texels};
+use crate::heights::{self, HeightDiff, HeightShading};
 use crate::upload::{check_format, Method, UploadStats, Uploader};
 use crate::BadInput;
 use anyhow::{anyhow, Context, Result};
@@ -44,6 +45,8 @@ pub struct FlightOptions {
     pub frame_pause: Duration,
     /// Where the flight starts (level-0 texels; `None`: the texture's centre).
     pub start: Option<[f64; 2]>,
+    /// A height texture's false-colour range, metres (`None`: the format's, docs/GPU.md).
+    pub height_range: Option<[f64; 2]>,
 }
 
 /// One frame.
@@ -102,6 +105,8 @@ pub struct TextureInfo {
     pub levels: usize,
     /// Bytes per texel as published.
     pub bytes_per_texel: usize,
+    /// For heights: the format (from the mapping's heights block) and the false-colour range.
+    pub heights: Option<HeightShading>,
 }
 
 /// Names of services published in `dir` (for the error that says which exist).
@@ -181,18 +186,38 @@ struct Attached {
     uploader: Uploader,
 }
 
+/// How a height texture is drawn (`None` for colour); `--height-range` with a colour texture is
+/// bad input.
+fn shading(client: &Client, texels: Texels, o: &FlightOptions) -> Result<Option<HeightShading>> {
+    match (&client.heights, texels) {
+        (Some(h), Texels::Float32) => Ok(Some(HeightShading::new(h.format(), o.height_range))),
+        _ => match o.height_range {
+            Some(r) => Err(anyhow!(BadInput(format!(
+                "--height-range {},{}: {} serves colour, not heights (its heights block is zero); drop --height-range, \
+                 or attach to a height texture",
+                r[0],
+                r[1],
+                client.path().display()
+            )))),
+            None => Ok(None),
+        },
+    }
+}
+
 impl Attached {
     fn new(gpu: &Gpu, client: Client, o: &FlightOptions, reuse: Option<Renderer>) -> Result<Attached> {
         let levels = shapes(&client);
         let texels = check_format(&client).map_err(|e| anyhow!(BadInput(e.to_string())))?;
-        let renderer = match reuse {
+        let heights = shading(&client, texels, o)?;
+        let mut renderer = match reuse {
             Some(r) if r.levels == levels && r.texels == texels => {
                 r.clear_tags(gpu);
                 r
             }
             _ => Renderer::new(gpu, levels, texels)?,
         };
-        let uploader = Uploader::new(&renderer.levels, client.bytes_per_texel, texels, o.method, o.budget);
+        renderer.heights = heights;
+        let uploader = Uploader::new(&renderer.levels, client.bytes_per_texel, texels, heights, o.method, o.budget);
         Ok(Attached { client, renderer, uploader })
     }
 }
@@ -206,14 +231,10 @@ pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<Fligh
     let flight: Flight = o.case.flight.parse().map_err(|e| anyhow!(BadInput(format!("--flight: {e}"))))?;
     let client = attach(dir, name)?;
     let d0 = client.levels[0];
-    let texture = TextureInfo {
-        size: d0.size,
-        clip: client.clip_size,
-        tile: d0.tile,
-        levels: client.levels.len(),
-        bytes_per_texel: client.bytes_per_texel,
-    };
+    let (clip, levels, bytes_per_texel) = (client.clip_size, client.levels.len(), client.bytes_per_texel);
     let mut at = Attached::new(gpu, client, o, None)?;
+    let texture =
+        TextureInfo { size: d0.size, clip, tile: d0.tile, levels, bytes_per_texel, heights: at.renderer.heights };
     let start = o.start.unwrap_or([d0.size[0] as f64 / 2.0, d0.size[1] as f64 / 2.0]);
     let heading = {
         let (a, b) = (flight.position(start, 0), flight.position(start, 1));
@@ -279,12 +300,23 @@ pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<Fligh
         let mut reference_img = None;
         if o.compare {
             let t = Instant::now();
-            let want = render_mapping(&cam, &at.client, &snap, o.filter);
+            let want = match &at.renderer.heights {
+                Some(sh) => heights::render(&cam, &at.client, &snap, o.filter, sh),
+                None => render_mapping(&cam, &at.client, &snap, o.filter),
+            };
             rec.reference_ms = t.elapsed().as_secs_f64() * 1000.0;
             rec.diff = compare_frame(&cam, at.renderer.levels.len(), o.filter, &want, &frame.rgba);
             let t = Instant::now();
             let levels = &at.renderer.levels;
-            rec.diff.at_gpu_coords = check::sampling(&at.client, &snap, levels, at.uploader.held(), o.filter, &frame);
+            let held = at.uploader.held();
+            match &at.renderer.heights {
+                Some(sh) => {
+                    let (colours, h) = heights::check(&at.client, &snap, levels, held, o.filter, sh, &frame);
+                    rec.diff.at_gpu_coords = colours;
+                    rec.diff.heights = Some(h);
+                }
+                None => rec.diff.at_gpu_coords = check::sampling(&at.client, &snap, levels, held, o.filter, &frame),
+            }
             rec.diff.geometry = check::geometry(&cam, levels, &frame);
             rec.check_ms = t.elapsed().as_secs_f64() * 1000.0;
             reference_img = Some(clipmap::accuracy::render::to_image(&cam, &want));
@@ -329,6 +361,9 @@ pub struct FrameDiff {
     pub at_gpu_coords: SamplingDiff,
     /// The GPU's coordinates and LOD against the f64 camera's.
     pub geometry: GeometryDiff,
+    /// For heights: the GPU's sampled heights against the CPU's at the GPU's coordinates
+    /// (`None` for colour).
+    pub heights: Option<HeightDiff>,
 }
 
 /// Whether pixel (i, j)'s footprint lies, to within f32 rounding, where the filter's choice of

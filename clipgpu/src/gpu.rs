@@ -1,7 +1,8 @@
 //! The GPU side: a headless wgpu device (Vulkan), one texture array layer per clipmap level that
 //! mirrors the level's image cache slot for slot, a storage buffer of the slots' tags as this
 //! client holds them, and the ground-plane pipeline of `ground.wgsl` drawing into an offscreen
-//! RGBA8 target that is read back, with two more targets saying where each pixel sampled.
+//! RGBA8 target that is read back, with two more targets saying where each pixel sampled (and, for
+//! a height texture, a fourth with the sampled height).
 //!
 //! Every device operation runs inside error scopes ([`Gpu::checked`]) and an uncaptured-error
 //! handler is installed, so a validation or out-of-memory error is an error with its context, not
@@ -16,7 +17,7 @@ use std::sync::{Arc, Mutex};
 /// At most this many levels (the mapping's bound, docs/SHM.md).
 pub const MAX_LEVELS: usize = 32;
 const LEVEL_BYTES: usize = 48;
-const FRAME_HEAD_BYTES: usize = 96;
+const FRAME_HEAD_BYTES: usize = 112;
 
 /// The adapter, device and queue.
 pub struct Gpu {
@@ -107,13 +108,17 @@ impl Gpu {
     }
 }
 
-/// What the GPU holds per texel: the published components, 8 or 16 bits each, widened to four.
+/// What the GPU holds per texel: the published components, 8 or 16 bits each, widened to four;
+/// or heights in metres.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Texels {
     /// RGBA8 (`Rgba8Uint`), from L8, RGB8, RGBA8.
     Bits8,
     /// RGBA16 (`Rgba16Uint`), from L16, LA16, RGB16, RGBA16.
     Bits16,
+    /// Heights, metres in 32-bit floats (`R32Float`): `l32f` as published, `l16` and `l16i`
+    /// converted on upload (`crate::heights::HeightShading::to_gpu`).
+    Float32,
 }
 
 impl Texels {
@@ -121,25 +126,77 @@ impl Texels {
         match self {
             Texels::Bits8 => wgpu::TextureFormat::Rgba8Uint,
             Texels::Bits16 => wgpu::TextureFormat::Rgba16Uint,
+            Texels::Float32 => wgpu::TextureFormat::R32Float,
         }
     }
 
     /// Bytes of one texel on the GPU.
     pub fn bytes(self) -> u32 {
         match self {
-            Texels::Bits8 => 4,
+            Texels::Bits8 | Texels::Float32 => 4,
             Texels::Bits16 => 8,
         }
     }
 
-    /// Component value c to [0, 1], as `clipmap::texel::TexelFormat::decode` computes it.
-    fn decode_table(self) -> Vec<u8> {
+    /// Whether the texels are heights (the shader's `heights` variant).
+    pub fn heights(self) -> bool {
+        self == Texels::Float32
+    }
+
+    /// Component value c to [0, 1], as `clipmap::texel::TexelFormat::decode` computes it (no table
+    /// for heights).
+    fn decode_table(self) -> Option<Vec<u8>> {
         let v: Vec<f32> = match self {
             Texels::Bits8 => (0..=255u32).map(|c| c as u8 as f32 / 255.0).collect(),
             Texels::Bits16 => (0..=65535u32).map(|c| c as u16 as f32 / 65535.0).collect(),
+            Texels::Float32 => return None,
         };
-        v.iter().flat_map(|x| x.to_le_bytes()).collect()
+        Some(v.iter().flat_map(|x| x.to_le_bytes()).collect())
     }
+
+    /// The render targets: the colour, where it sampled, its LOD, and for heights the sampled
+    /// height (f32 bits) and what the pixel is.
+    fn targets(self) -> Vec<(wgpu::TextureFormat, u32)> {
+        let mut t = TARGETS.to_vec();
+        if self.heights() {
+            t.push((wgpu::TextureFormat::Rg32Uint, 8));
+        }
+        t
+    }
+}
+
+/// The shader for `texels`: ground.wgsl with the lines of the other variant's sections
+/// (`//#if colour` or `//#if heights` up to `//#end`) blanked, so that line numbers in a
+/// compiler's message are the file's.
+pub fn shader_source(texels: Texels) -> String {
+    let keep = if texels.heights() { "heights" } else { "colour" };
+    let mut out = String::new();
+    let mut section: Option<bool> = None;
+    for line in include_str!("ground.wgsl").lines() {
+        let t = line.trim();
+        if let Some(name) = t.strip_prefix("//#if ") {
+            section = Some(name.trim() == keep);
+        } else if t == "//#end" {
+            section = None;
+        } else if section != Some(false) {
+            out.push_str(line);
+        }
+        out.push('\n');
+    }
+    out
+}
+
+/// What a pixel of a height frame is (`Frame::height`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum HeightPixel {
+    /// Sky, or off the texture.
+    Sky,
+    /// The sampled height, metres (the shader's f32).
+    Metres(f32),
+    /// The filter touched a texel without data.
+    Nodata,
+    /// No level holds the footprint (nothing published yet).
+    Nothing,
 }
 
 /// A frame read back: the pixels, and per pixel where the shader sampled.
@@ -150,6 +207,9 @@ pub struct Frame {
     pub at: Vec<[u32; 4]>,
     /// Per pixel: its LOD clamped to the levels (before min LOD); negative for sky.
     pub lod: Vec<f32>,
+    /// Per pixel, for a height texture: the sampled height's f32 bits and what the pixel is (0
+    /// sky, 1 a height, 2 nodata, 3 nothing); empty for colour.
+    pub heights: Vec<[u32; 2]>,
 }
 
 impl Frame {
@@ -163,6 +223,19 @@ impl Frame {
         let a = self.at[n];
         let c = |i: u32, q: u32| i as i32 as f64 + q as f64 / (1u64 << 24) as f64;
         Some(([c(a[0], a[2]), c(a[1], a[3])], lod as f64))
+    }
+
+    /// Pixel `n` of a height frame; `None` for a colour frame or a status the shader never
+    /// writes.
+    pub fn height(&self, n: usize) -> Option<HeightPixel> {
+        let [bits, what] = *self.heights.get(n)?;
+        Some(match what {
+            0 => HeightPixel::Sky,
+            1 => HeightPixel::Metres(f32::from_bits(bits)),
+            2 => HeightPixel::Nodata,
+            3 => HeightPixel::Nothing,
+            _ => return None,
+        })
     }
 }
 
@@ -185,6 +258,8 @@ pub struct Renderer {
     pub levels: Vec<LevelShape>,
     /// What a texel is on the GPU.
     pub texels: Texels,
+    /// For heights: the nodata value and false-colour range the shader uses.
+    pub heights: Option<crate::heights::HeightShading>,
     texture: wgpu::Texture,
     tags: wgpu::Buffer,
     frame: wgpu::Buffer,
@@ -209,7 +284,7 @@ pub fn shapes(client: &Client) -> Vec<LevelShape> {
         .collect()
 }
 
-/// The three render targets of a frame size and their read-back buffers.
+/// The render targets of a frame size and their read-back buffers.
 struct Target {
     size: [u32; 2],
     /// (texture, read-back buffer, bytes a pixel, bytes a row in the buffer).
@@ -279,74 +354,86 @@ impl Renderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let table = texels.decode_table();
-        let decode = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("decode"),
-            size: table.len() as u64,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
+        let decode = texels.decode_table().map(|table| {
+            let decode = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("decode"),
+                size: table.len() as u64,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            gpu.queue.write_buffer(&decode, 0, &table);
+            decode
         });
-        gpu.queue.write_buffer(&decode, 0, &table);
         let shader = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("ground.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("ground.wgsl").into()),
+            label: Some(if texels.heights() { "ground.wgsl (heights)" } else { "ground.wgsl (colour)" }),
+            source: wgpu::ShaderSource::Wgsl(shader_source(texels).into()),
         });
+        let sample_type = if texels.heights() {
+            wgpu::TextureSampleType::Float { filterable: false }
+        } else {
+            wgpu::TextureSampleType::Uint
+        };
         let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::FRAGMENT,
             ty,
             count: None,
         };
-        let layout = gpu.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("clipmap"),
-            entries: &[
-                entry(
-                    0,
-                    wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                ),
-                entry(
-                    1,
-                    wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: true },
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                ),
-                entry(
-                    2,
-                    wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Uint,
-                        view_dimension: wgpu::TextureViewDimension::D2Array,
-                        multisampled: false,
-                    },
-                ),
-                entry(
-                    3,
-                    wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: true },
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                ),
-            ],
-        });
+        let mut entries = vec![
+            entry(
+                0,
+                wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+            ),
+            entry(
+                1,
+                wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Storage { read_only: true },
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+            ),
+            entry(
+                2,
+                wgpu::BindingType::Texture {
+                    sample_type,
+                    view_dimension: wgpu::TextureViewDimension::D2Array,
+                    multisampled: false,
+                },
+            ),
+        ];
+        if decode.is_some() {
+            entries.push(entry(
+                3,
+                wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Storage { read_only: true },
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+            ));
+        }
+        let layout = gpu
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("clipmap"), entries: &entries });
         let view = texture.create_view(&wgpu::TextureViewDescriptor {
             dimension: Some(wgpu::TextureViewDimension::D2Array),
             ..Default::default()
         });
+        let mut bound = vec![
+            wgpu::BindGroupEntry { binding: 0, resource: frame.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 1, resource: tags.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&view) },
+        ];
+        if let Some(decode) = &decode {
+            bound.push(wgpu::BindGroupEntry { binding: 3, resource: decode.as_entire_binding() });
+        }
         let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("clipmap"),
             layout: &layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: frame.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: tags.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&view) },
-                wgpu::BindGroupEntry { binding: 3, resource: decode.as_entire_binding() },
-            ],
+            entries: &bound,
         });
         let pipeline_layout = gpu.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("ground"),
@@ -369,14 +456,19 @@ impl Renderer {
                 module: &shader,
                 entry_point: Some("fs"),
                 compilation_options: Default::default(),
-                targets: &TARGETS.map(|(format, _)| {
-                    Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })
-                }),
+                targets: &texels
+                    .targets()
+                    .into_iter()
+                    .map(|(format, _)| {
+                        Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })
+                    })
+                    .collect::<Vec<_>>(),
             }),
             multiview_mask: None,
             cache: None,
         });
-        let r = Renderer { levels, texels, texture, tags, frame, bind, pipeline, target: None, slot_count };
+        let r =
+            Renderer { levels, texels, heights: None, texture, tags, frame, bind, pipeline, target: None, slot_count };
         r.clear_tags(gpu);
         Ok(r)
     }
@@ -441,6 +533,10 @@ impl Renderer {
             Filter::Trilinear => 2.0,
         };
         push_f32(&mut b, [snap.min_lod, self.levels.len() as f64, filter, 0.0]);
+        match &self.heights {
+            Some(h) => h.uniform().iter().for_each(|x| b.extend_from_slice(&x.to_le_bytes())),
+            None => b.extend_from_slice(&[0u8; 16]),
+        }
         for k in 0..MAX_LEVELS {
             match (self.levels.get(k), snap.levels.get(k)) {
                 (Some(l), Some(st)) => {
@@ -481,14 +577,19 @@ impl Renderer {
             out.push(bytes);
         }
         self.target = Some(planes);
-        let lod = out.pop().unwrap_or_default();
-        let at = out.pop().unwrap_or_default();
-        let rgba = out.pop().unwrap_or_default();
+        let mut out = out.into_iter();
+        let (rgba, at, lod, heights) = (
+            out.next().unwrap_or_default(),
+            out.next().unwrap_or_default(),
+            out.next().unwrap_or_default(),
+            out.next().unwrap_or_default(),
+        );
         let word = |b: &[u8]| u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
         Ok(Frame {
             rgba,
             at: at.chunks_exact(16).map(|p| [word(&p[0..]), word(&p[4..]), word(&p[8..]), word(&p[12..])]).collect(),
             lod: lod.chunks_exact(4).map(|p| f32::from_bits(word(p))).collect(),
+            heights: heights.chunks_exact(8).map(|p| [word(&p[0..]), word(&p[4..])]).collect(),
         })
     }
 
@@ -501,9 +602,11 @@ impl Renderer {
             Some(t) if t.size == size => t,
             _ => Target {
                 size,
-                planes: TARGETS
-                    .iter()
-                    .map(|&(format, bpp)| {
+                planes: self
+                    .texels
+                    .targets()
+                    .into_iter()
+                    .map(|(format, bpp)| {
                         let pitch = (size[0] * bpp).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
                             * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
                         let tex = gpu.device.create_texture(&wgpu::TextureDescriptor {
@@ -578,5 +681,35 @@ impl Renderer {
         }
         gpu.queue.submit([enc.finish()]);
         Ok(target)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_shader_variant_keeps_its_own_section_and_the_file_s_line_numbers() {
+        let file = include_str!("ground.wgsl");
+        let colour = shader_source(Texels::Bits8);
+        let heights = shader_source(Texels::Float32);
+        assert_eq!(shader_source(Texels::Bits16), colour);
+        for (name, src, cache, other) in [
+            ("colour", &colour, "texture_2d_array<u32>", "texture_2d_array<f32>"),
+            ("heights", &heights, "texture_2d_array<f32>", "texture_2d_array<u32>"),
+        ] {
+            assert_eq!(src.lines().count(), file.lines().count(), "{name}");
+            assert_eq!(src.matches("var cache").count(), 1, "{name}");
+            assert!(src.contains(cache) && !src.contains(other), "{name}");
+            assert_eq!(src.matches("struct Out {").count(), 1, "{name}");
+            assert_eq!(src.matches("fn load(").count(), 1, "{name}");
+            assert!(!src.contains("//#"), "{name}: a marker left in");
+            // The shared parts are the file's, line for line.
+            for (a, b) in src.lines().zip(file.lines()) {
+                assert!(a.is_empty() || a == b, "{name}: {a:?} is not the file's {b:?}");
+            }
+        }
+        assert!(colour.contains("var<storage, read> decode") && !heights.contains("var<storage, read> decode"));
+        assert!(heights.contains("@location(3) height") && !colour.contains("@location(3)"));
     }
 }

@@ -4,6 +4,12 @@
 // and lower neighbours, LOD from the larger difference), then samples with the clipmap rule of
 // `clipmap::sample` (min LOD, the finest level whose whole filter footprint is available, else a
 // coarser whole level), filtering by hand from texel loads so the arithmetic is the reference's.
+//
+// Two variants are made from this one source (`shader_source` in gpu.rs): the lines between the
+// marker comments `#if colour` and `#end` are kept for colour textures (unsigned components
+// decoded through a table), those between `#if heights` and `#end` for height textures
+// (`R32Float` metres drawn in false colour, with the sampled height written to a fourth target).
+// Everything else is shared.
 
 struct Level {
     // Published valid region s0, t0, s1, t1 (level texels).
@@ -24,18 +30,28 @@ struct Frame {
     up: vec4<f32>,
     // min LOD, level count, filter (0 point, 1 bilinear, 2 trilinear), unused.
     params: vec4<f32>,
+    // Heights: the nodata value as the texture holds it, 1 when there is one (else 0), the
+    // false-colour range's low end and 1 / (high - low), metres. Zero for colour textures.
+    heights: vec4<f32>,
     levels: array<Level, 32>,
 };
 
 @group(0) @binding(0) var<uniform> fr: Frame;
 // Per slot of every level: the tile S, T the GPU copy holds, and 1 when its texels are there.
 @group(0) @binding(1) var<storage, read> tags: array<vec4<i32>>;
-// One layer per level: the level's image cache, slot (i, j) at texels (i TW, j TH); the texels'
-// components as published (8 or 16 bits, unsigned).
+// One layer per level: the level's image cache, slot (i, j) at texels (i TW, j TH).
+//#if colour
+// The texels' components as published (8 or 16 bits, unsigned).
 @group(0) @binding(2) var cache: texture_2d_array<u32>;
 // Component value c to [0, 1] as `TexelFormat::decode` computes it on the CPU (c / 255 or
 // c / 65535, rounded once): a table, so that no GPU division rounds differently.
 @group(0) @binding(3) var<storage, read> decode: array<f32>;
+//#end
+//#if heights
+// Heights in metres (`l32f` as published; `l16`, `l16i` converted on upload), read with
+// `textureLoad` (a 32-bit float texture is not filterable).
+@group(0) @binding(2) var cache: texture_2d_array<f32>;
+//#end
 
 @vertex
 fn vs(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
@@ -72,19 +88,42 @@ fn available(k: i32, s: i32, t: i32) -> bool {
     return tag.x == ts && tag.y == tt && tag.z == 1;
 }
 
-fn load(k: i32, s: i32, t: i32) -> vec4<f32> {
+// Where texel (s, t) of level k lies in its layer.
+fn cache_at(k: i32, s: i32, t: i32) -> vec2<i32> {
     let l = fr.levels[k];
-    let p = vec2<i32>(s % (l.tile.x * l.tile.z), t % (l.tile.y * l.tile.w));
-    let c = textureLoad(cache, p, k, 0);
+    return vec2<i32>(s % (l.tile.x * l.tile.z), t % (l.tile.y * l.tile.w));
+}
+
+//#if colour
+fn load(k: i32, s: i32, t: i32) -> vec4<f32> {
+    let c = textureLoad(cache, cache_at(k, s, t), k, 0);
     return vec4<f32>(decode[c.x], decode[c.y], decode[c.z], decode[c.w]);
 }
+
+fn is_nodata(v: vec4<f32>) -> bool {
+    return false;
+}
+//#end
+//#if heights
+// The height in x (the other components stay 0 through the filters).
+fn load(k: i32, s: i32, t: i32) -> vec4<f32> {
+    return vec4<f32>(textureLoad(cache, cache_at(k, s, t), k, 0).x, 0.0, 0.0, 0.0);
+}
+
+fn is_nodata(v: vec4<f32>) -> bool {
+    return fr.heights.y != 0.0 && v.x == fr.heights.x;
+}
+//#end
 
 fn lerp4(a: vec4<f32>, b: vec4<f32>, f: f32) -> vec4<f32> {
     return a + (b - a) * f;
 }
 
+// ok: every texel the filter touched was available; nodata: one of them holds no data (heights:
+// the pixel shows nodata; a nodata texel does not make a level unavailable).
 struct Got {
     ok: bool,
+    nodata: bool,
     rgba: vec4<f32>,
 };
 
@@ -103,9 +142,10 @@ fn point(k: i32, c: Coord) -> Got {
     let s = clamp(c.i.x >> u32(k), 0, l.size.x - 1);
     let t = clamp(c.i.y >> u32(k), 0, l.size.y - 1);
     if !available(k, s, t) {
-        return Got(false, vec4<f32>(0.0));
+        return Got(false, false, vec4<f32>(0.0));
     }
-    return Got(true, load(k, s, t));
+    let v = load(k, s, t);
+    return Got(true, is_nodata(v), v);
 }
 
 // Level k's bilinear cell along one axis: x = (i + f) / 2^k - 1/2 = x0 + w, x0 an integer, w in
@@ -146,13 +186,14 @@ fn bilinear(k: i32, c: Coord) -> Got {
     let ta = clamp(t0, 0, l.size.y - 1);
     let tb = clamp(t0 + 1, 0, l.size.y - 1);
     if !(available(k, sa, ta) && available(k, sb, ta) && available(k, sa, tb) && available(k, sb, tb)) {
-        return Got(false, vec4<f32>(0.0));
+        return Got(false, false, vec4<f32>(0.0));
     }
     let a = load(k, sa, ta);
     let b = load(k, sb, ta);
     let cc = load(k, sa, tb);
     let d = load(k, sb, tb);
-    return Got(true, lerp4(lerp4(a, b, fx), lerp4(cc, d, fx), fy));
+    let nodata = is_nodata(a) || is_nodata(b) || is_nodata(cc) || is_nodata(d);
+    return Got(true, nodata, lerp4(lerp4(a, b, fx), lerp4(cc, d, fx), fy));
 }
 
 // floor(lod + 0.5) without the rounding of the sum.
@@ -181,7 +222,7 @@ fn filtered(mode: i32, c: Coord, lod_in: f32) -> Got {
     if !coarse.ok {
         return coarse;
     }
-    return Got(true, lerp4(fine.rgba, coarse.rgba, f));
+    return Got(true, fine.nodata || coarse.nodata, lerp4(fine.rgba, coarse.rgba, f));
 }
 
 fn quantise(v: f32) -> u32 {
@@ -191,7 +232,10 @@ fn quantise(v: f32) -> u32 {
 }
 
 const SKY: vec4<u32> = vec4<u32>(140u, 180u, 230u, 255u);
+// Ground where no level holds the footprint (nothing published yet).
+const BLACK: vec4<u32> = vec4<u32>(0u, 0u, 0u, 255u);
 
+//#if colour
 struct Out {
     // The pixel, RGBA8.
     @location(0) rgba: vec4<u32>,
@@ -204,6 +248,74 @@ struct Out {
 fn sky() -> Out {
     return Out(SKY, vec4<u32>(0u), -1.0);
 }
+
+fn shade(got: Got, at: vec4<u32>, lod: f32) -> Out {
+    if !got.ok {
+        return Out(BLACK, at, lod);
+    }
+    let p = got.rgba;
+    return Out(vec4<u32>(quantise(p.x), quantise(p.y), quantise(p.z), quantise(p.w)), at, lod);
+}
+//#end
+//#if heights
+struct Out {
+    // The pixel, RGBA8: the height in false colour, NODATA, or BLACK.
+    @location(0) rgba: vec4<u32>,
+    // Where it sampled: level-0 texel s, t (as u32 bits) and the fractions f s, f t times 2^24.
+    @location(1) at: vec4<u32>,
+    // The pixel's LOD (clamped to the levels, before min LOD); -1 for sky.
+    @location(2) lod: f32,
+    // The sampled height's f32 bits, and what the pixel is: 0 sky, 1 a height, 2 nodata (the
+    // filter touched a nodata texel), 3 no level holds the footprint.
+    @location(3) height: vec2<u32>,
+};
+
+// A pixel without data.
+const NODATA: vec4<u32> = vec4<u32>(255u, 0u, 255u, 255u);
+
+fn sky() -> Out {
+    return Out(SKY, vec4<u32>(0u), -1.0, vec2<u32>(0u, 0u));
+}
+
+// The false-colour ramp's stops, 8-bit values (exact in f32): low to high, every quarter.
+fn ramp_stop(i: i32) -> vec3<f32> {
+    switch i {
+        case 0: { return vec3<f32>(20.0, 40.0, 140.0); }
+        case 1: { return vec3<f32>(40.0, 120.0, 220.0); }
+        case 2: { return vec3<f32>(60.0, 160.0, 80.0); }
+        case 3: { return vec3<f32>(170.0, 130.0, 70.0); }
+        default: { return vec3<f32>(250.0, 250.0, 250.0); }
+    }
+}
+
+fn round_half_up(y: f32) -> u32 {
+    let r = floor(y);
+    return u32(r) + select(0u, 1u, y - r >= 0.5);
+}
+
+// Height h to false colour over the range (clamped): every operation correctly rounded (a
+// subtraction, products, exact scalings), as `HeightShading::colour` computes it on the CPU.
+fn false_colour(h: f32) -> vec4<u32> {
+    let x = clamp((h - fr.heights.z) * fr.heights.w, 0.0, 1.0) * 4.0;
+    let i = min(i32(floor(x)), 3);
+    let w = x - f32(i);
+    let a = ramp_stop(i);
+    let b = ramp_stop(i + 1);
+    let c = a + (b - a) * w;
+    return vec4<u32>(round_half_up(c.x), round_half_up(c.y), round_half_up(c.z), 255u);
+}
+
+fn shade(got: Got, at: vec4<u32>, lod: f32) -> Out {
+    if !got.ok {
+        return Out(BLACK, at, lod, vec2<u32>(0u, 3u));
+    }
+    if got.nodata {
+        return Out(NODATA, at, lod, vec2<u32>(0u, 2u));
+    }
+    let h = got.rgba.x;
+    return Out(false_colour(h), at, lod, vec2<u32>(bitcast<u32>(h), 1u));
+}
+//#end
 
 // Level-0 coordinate eye_int + rel as an integer and a fraction in [0, 1) rounded down to a
 // multiple of 2^-24 (a no-op wherever |rel| >= 1, where rel's own ulp is coarser), as 2^24 times
@@ -270,9 +382,5 @@ fn fs(@builtin(position) pos: vec4<f32>) -> Out {
         }
     }
     let at = vec4<u32>(bitcast<u32>(co.i.x), bitcast<u32>(co.i.y), q.x, q.y);
-    if !got.ok {
-        return Out(vec4<u32>(0u, 0u, 0u, 255u), at, pixel_lod);
-    }
-    let p = got.rgba;
-    return Out(vec4<u32>(quantise(p.x), quantise(p.y), quantise(p.z), quantise(p.w)), at, pixel_lod);
+    return shade(got, at, pixel_lod);
 }

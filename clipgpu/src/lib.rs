@@ -4,7 +4,8 @@
 //! accuracy study's reference flight over a textured ground plane with a fragment shader that
 //! applies the clipmap sampling rule (published valid regions, slot tags, min LOD; trilinear), and
 //! compares every frame with the reference software renderer on the same snapshot
-//! (docs/GPU.md).
+//! (docs/GPU.md). Height textures (`l32f`, `l16`, `l16i`) are drawn in false colour and their
+//! sampled heights compared in metres.
 
 #![forbid(unsafe_code)]
 
@@ -12,6 +13,7 @@ pub mod check;
 pub mod demo;
 pub mod flight;
 pub mod gpu;
+pub mod heights;
 pub mod summary;
 pub mod upload;
 

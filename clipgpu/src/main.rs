@@ -10,6 +10,7 @@ use clipgpu::summary::{self, Tolerance};
 use clipgpu::upload::Method;
 use clipgpu::{exit_code, BadInput};
 use clipmap::accuracy::study::Case;
+use clipmap::height::{HeightFormat, HeightStorage};
 use clipmap::sample::Filter;
 use clipmap::texel::TexelFormat;
 use std::path::PathBuf;
@@ -25,6 +26,13 @@ enum FormatArg {
     La16,
     Rgb16,
     Rgba16,
+    /// Heights: the height verification texture in `l32f` metres, nodata -32768.
+    #[value(alias = "heights")]
+    L32f,
+    /// Heights in `l16` steps of 0.25 m from -11000 m, nodata 0.
+    HeightsL16,
+    /// Heights in `l16i` steps of 0.5 m around 0 m, nodata -32768.
+    L16i,
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -49,9 +57,14 @@ struct Cli {
     /// clip 512, tiles of 128) and fly against it.
     #[arg(long, conflicts_with = "name")]
     demo: bool,
-    /// The demo texture's texel format (16-bit formats upload as RGBA16).
+    /// The demo texture's texel format (16-bit formats upload as RGBA16); l32f (or heights),
+    /// heights-l16 and l16i serve the height verification texture instead, drawn in false colour.
     #[arg(long, value_enum, default_value = "rgba8", requires = "demo")]
     demo_format: FormatArg,
+    /// A height texture's false-colour range, MIN,MAX in metres (default: the heights block's
+    /// range for l16 and l16i, -11000,8900 for l32f).
+    #[arg(long, value_parser = parse_range, allow_hyphen_values = true)]
+    height_range: Option<[f64; 2]>,
     /// The service's name (`clipmapd --name`).
     #[arg(long, required_unless_present = "demo")]
     name: Option<String>,
@@ -135,6 +148,13 @@ fn parse_point(s: &str) -> Result<[f64; 2], String> {
     Ok([a, b])
 }
 
+fn parse_range(s: &str) -> Result<[f64; 2], String> {
+    let bad = || format!("`{s}`: expected MIN,MAX in metres (e.g. -11000,8900)");
+    let (a, b) = s.split_once(',').ok_or_else(bad)?;
+    let (a, b): (f64, f64) = (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
+    clipgpu::heights::check_range([a, b]).map_err(|e| format!("`{s}`: {e}"))
+}
+
 fn run(cli: Cli) -> anyhow::Result<()> {
     if cli.upload_budget.is_some() && cli.upload == Method::Rects {
         return Err(BadInput(
@@ -167,6 +187,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     case.eye_height = cli.eye_height;
     case.pitch_deg = cli.pitch;
     case.fov_deg = cli.fov;
+    let mut demo_heights = None;
     case.format = match cli.demo_format {
         FormatArg::L8 => TexelFormat::L8,
         FormatArg::Rgb8 => TexelFormat::RGB8,
@@ -175,6 +196,16 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         FormatArg::La16 => TexelFormat::LA16,
         FormatArg::Rgb16 => TexelFormat::RGB16,
         FormatArg::Rgba16 => TexelFormat::RGBA16,
+        FormatArg::L32f | FormatArg::HeightsL16 | FormatArg::L16i => {
+            let f = match cli.demo_format {
+                FormatArg::L32f => Ok(HeightFormat::VERIFICATION),
+                FormatArg::HeightsL16 => HeightFormat::new(HeightStorage::U16, 0.25, -11000.0, Some(0.0)),
+                _ => HeightFormat::new(HeightStorage::I16, 0.5, 0.0, Some(-32768.0)),
+            }
+            .map_err(|e| anyhow::anyhow!("the demo's height format: {e}"))?;
+            demo_heights = Some(f);
+            TexelFormat::RGBA8
+        }
     };
     let o = FlightOptions {
         case,
@@ -188,11 +219,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         reattach: Duration::from_secs_f64(cli.reattach_s.clamp(0.0, 3600.0)),
         frame_pause: Duration::from_millis(cli.frame_ms),
         start: cli.start,
+        height_range: cli.height_range,
     };
     o.case.flight.parse::<clipmap::roam::Flight>().map_err(|e| BadInput(format!("--flight {}: {e}", o.case.flight)))?;
     let gpu = Gpu::new()?;
     let report = if cli.demo {
-        clipgpu::demo::demo(&gpu, &o)?
+        clipgpu::demo::demo(&gpu, &o, demo_heights)?
     } else {
         let dir = cli.shm_dir.clone().unwrap_or_else(clipmap::shm::default_dir);
         fly(&gpu, &dir, cli.name.as_deref().unwrap_or_default(), &o)?
@@ -205,12 +237,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         flight: &cli.flight,
         display: cli.size,
         compared: o.compare,
+        heights: report.texture.heights.is_some(),
     };
     let j = summary::json(&ctx, &report);
     if cli.json {
         println!("{}", serde_json::to_string_pretty(&j)?);
     } else {
-        let tol = Tolerance::for_filter(filter);
+        let tol = Tolerance::for_texture(filter, report.texture.heights.is_some());
         println!("clipgpu: {} frames on {}", report.frames.len(), gpu.adapter);
         println!(
             "  uploads: {:.0} bytes a frame ({}), the entering strips {:.0}, the tile-rounded bound {:.0}; first frame {}",
@@ -243,6 +276,22 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 j["max_coord_error_texels"].as_f64().unwrap_or(0.0),
                 j["max_lod_error"].as_f64().unwrap_or(0.0),
                 j["coord_error_bound_ratio"].as_f64().unwrap_or(0.0)
+            );
+        }
+        if let (Some(sh), true) = (&report.texture.heights, o.compare) {
+            let h = &j["heights"];
+            println!(
+                "  heights ({}, false colour over {} m to {} m): {} pixels compared at the GPU's coordinates, largest \
+                 error {:.3e} m ({:.2} of its f32 bound, {} outside it); {} nodata in both, {} disagreeing",
+                sh.format.storage(),
+                sh.range[0],
+                sh.range[1],
+                h["compared"],
+                h["max_error_m"].as_f64().unwrap_or(0.0),
+                h["bound_ratio"].as_f64().unwrap_or(0.0),
+                h["outside_bound"],
+                h["nodata"],
+                h["mismatch"]
             );
         }
         if report.reattaches > 0 {

@@ -19,8 +19,12 @@ pub struct Tolerance {
     /// Largest channel difference of a pixel off the edges, 8-bit units.
     pub max_error: u16,
     /// Largest channel difference of any pixel from the CPU sampler run at the GPU's own
-    /// coordinates and LOD (0: bit-exact on every pixel).
+    /// coordinates and LOD (0: bit-exact on every pixel); for heights, from the false colour of
+    /// the GPU's own height.
     pub sampling_max_error: u16,
+    /// Heights: every ground pixel's sampled height within its f32 bound of the CPU's at the
+    /// GPU's coordinates, and the two agreeing on which pixels are nodata (docs/GPU.md, "Heights").
+    pub heights: bool,
 }
 
 /// The largest difference allowed at the GPU's coordinates with the bilinear filters (8-bit
@@ -31,11 +35,26 @@ impl Tolerance {
     /// Nearest sampling: identical off the edges. Filtered: the rounding of f32 filter weights.
     pub fn for_filter(filter: Filter) -> Tolerance {
         match filter {
-            Filter::Point => Tolerance { psnr_floor: None, max_error: 0, sampling_max_error: 0 },
-            Filter::Bilinear | Filter::Trilinear => {
-                Tolerance { psnr_floor: Some(70.0), max_error: 2, sampling_max_error: SAMPLING_FILTERED }
-            }
+            Filter::Point => Tolerance { psnr_floor: None, max_error: 0, sampling_max_error: 0, heights: false },
+            Filter::Bilinear | Filter::Trilinear => Tolerance {
+                psnr_floor: Some(70.0),
+                max_error: 2,
+                sampling_max_error: SAMPLING_FILTERED,
+                heights: false,
+            },
         }
+    }
+
+    /// For a colour texture [`for_filter`](Self::for_filter); for heights, the heights within
+    /// their bound and the false colour within one unit (its blend may be fused), against the
+    /// f64 reference off the edges as a filtered colour texture (point included: the ramp's
+    /// blend).
+    pub fn for_texture(filter: Filter, heights: bool) -> Tolerance {
+        if !heights {
+            return Tolerance::for_filter(filter);
+        }
+        let max_error = if filter == Filter::Point { 1 } else { 2 };
+        Tolerance { psnr_floor: Some(70.0), max_error, sampling_max_error: SAMPLING_FILTERED, heights: true }
     }
 
     /// Whether every frame is within: off the edges against the f64 reference, on every pixel
@@ -51,6 +70,7 @@ impl Tolerance {
                 && f.diff.max_error_off_edges <= self.max_error
                 && f.diff.at_gpu_coords.max_error <= self.sampling_max_error
                 && f.diff.geometry.bound_ratio <= 1.0
+                && (!self.heights || f.diff.heights.as_ref().is_some_and(|h| h.mismatch == 0 && h.outside_bound == 0))
         })
     }
 }
@@ -93,6 +113,8 @@ pub struct Context<'a> {
     pub display: [u32; 2],
     /// Compared with the reference.
     pub compared: bool,
+    /// The texture is heights.
+    pub heights: bool,
 }
 
 /// The JSON summary. Per-frame means leave out frame 0, which uploads everything (and on some
@@ -103,8 +125,20 @@ pub fn json(c: &Context, r: &FlightReport) -> Value {
     let psnr_min = frames.iter().filter_map(|f| f.diff.psnr).min_by(|a, b| a.total_cmp(b));
     let psnr_off = frames.iter().filter_map(|f| f.diff.psnr_off_edges).min_by(|a, b| a.total_cmp(b));
     let max_error = frames.iter().map(|f| f.diff.max_error).max().unwrap_or(0);
-    let tol = Tolerance::for_filter(c.filter);
-    json!({
+    let tol = Tolerance::for_texture(c.filter, c.heights);
+    let hd: Vec<_> = frames.iter().filter_map(|f| f.diff.heights.as_ref()).collect();
+    let heights = (c.heights && c.compared).then(|| {
+        json!({
+            "compared": hd.iter().map(|h| h.compared).sum::<u64>(),
+            "nodata": hd.iter().map(|h| h.nodata).sum::<u64>(),
+            "nothing": hd.iter().map(|h| h.nothing).sum::<u64>(),
+            "mismatch": hd.iter().map(|h| h.mismatch).sum::<u64>(),
+            "max_error_m": hd.iter().map(|h| h.max_error_m).fold(0.0, f64::max),
+            "bound_ratio": hd.iter().map(|h| h.bound_ratio).fold(0.0, f64::max),
+            "outside_bound": hd.iter().map(|h| h.outside_bound).sum::<u64>(),
+        })
+    });
+    let mut j = json!({
         "adapter": c.adapter,
         "frames": frames.len(),
         "psnr_min": psnr_min,
@@ -146,5 +180,7 @@ pub fn json(c: &Context, r: &FlightReport) -> Value {
         "texture": r.texture,
         "pictures": r.pictures,
         "per_frame": frames,
-    })
+    });
+    j["heights"] = heights.unwrap_or(Value::Null);
+    j
 }

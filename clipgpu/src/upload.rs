@@ -13,6 +13,7 @@
 //! (or, under a budget, tell the shader through the tags which tiles it does not hold yet).
 
 use crate::gpu::{Gpu, LevelShape, Renderer, Texels};
+use crate::heights::HeightShading;
 use anyhow::{anyhow, Result};
 use clipmap::geom::{tiles_covering, Rect};
 use clipmap::shm::{Client, ReadError, Snapshot};
@@ -64,6 +65,8 @@ pub struct Uploader {
     bpt: usize,
     /// Bytes of one published component (1 or 2).
     component: usize,
+    /// Heights: how their texels go to the GPU.
+    heights: Option<HeightShading>,
     tile_buf: Vec<u8>,
     rgba: Vec<u8>,
 }
@@ -108,25 +111,45 @@ fn expand(bpt: usize, component: usize, src: &[u8], out: &mut Vec<u8>) {
     }
 }
 
-/// What the GPU holds for a mapping's texel format; the error says what it found when clipgpu
-/// cannot upload it.
+/// What the GPU holds for a mapping's texel format: heights (the mapping's heights block says
+/// so: `l32f`, `l16`, `l16i`) as `R32Float` metres, colours as RGBA8 or RGBA16; the error says
+/// what it found when clipgpu cannot upload it, and what it accepts.
 pub fn check_format(client: &Client) -> Result<Texels> {
     use clipmap::texel::ComponentType;
+    if client.heights.is_some() {
+        return Ok(Texels::Float32);
+    }
     match clipmap::shm::layout::format_from_code(client.format_code) {
         Some(f) if f.ctype == ComponentType::U8 && (1..=4).contains(&f.components.count()) => Ok(Texels::Bits8),
         Some(f) if f.ctype == ComponentType::U16 && (1..=4).contains(&f.components.count()) => Ok(Texels::Bits16),
-        found => Err(anyhow!(
-            "{}: texel format {} is not one clipgpu uploads (expected 8 or 16 bits a component: L8, RGB8, \
-             RGBA8, L16, LA16, RGB16 or RGBA16)",
-            client.path().display(),
-            found.map(|f| f.short_name()).unwrap_or_else(|| format!("code {}", client.format_code))
-        )),
+        found => {
+            let name = found.map(|f| f.short_name()).unwrap_or_else(|| format!("code {}", client.format_code));
+            let float = if matches!(found, Some(f) if f.ctype == ComponentType::F32 || f.ctype == ComponentType::I16) {
+                format!(" ({name} is drawn only as heights, and the mapping's heights block says these texels are not)")
+            } else {
+                String::new()
+            };
+            Err(anyhow!(
+                "{}: texel format {name} is not one clipgpu uploads{float}; expected colour of 8 or 16 bits a \
+                 component (L8, RGB8, RGBA8, L16, LA16, RGB16 or RGBA16), or heights (l32f, l16 or l16i with the \
+                 mapping's heights block, docs/ELEVATION.md); serve the texture in one of those",
+                client.path().display()
+            ))
+        }
     }
 }
 
 impl Uploader {
-    /// Nothing held yet.
-    pub fn new(levels: &[LevelShape], bpt: usize, texels: Texels, method: Method, budget: Option<u64>) -> Uploader {
+    /// Nothing held yet. `heights`: the height texture's shading (its texels go to the GPU by
+    /// [`HeightShading::to_gpu`]); `None` for colour.
+    pub fn new(
+        levels: &[LevelShape],
+        bpt: usize,
+        texels: Texels,
+        heights: Option<HeightShading>,
+        method: Method,
+        budget: Option<u64>,
+    ) -> Uploader {
         Uploader {
             method,
             budget,
@@ -138,8 +161,17 @@ impl Uploader {
             previous: vec![Rect::EMPTY; levels.len()],
             bpt,
             component: texels.bytes() as usize / 4,
+            heights,
             tile_buf: Vec::new(),
             rgba: Vec::new(),
+        }
+    }
+
+    /// The texels read (`tile_buf`) as the GPU holds them (`rgba`).
+    fn convert(&mut self) {
+        match &self.heights {
+            Some(h) => h.to_gpu(&self.tile_buf, &mut self.rgba),
+            None => expand(self.bpt, self.component, &self.tile_buf, &mut self.rgba),
         }
     }
 
@@ -215,7 +247,7 @@ impl Uploader {
                 self.tile_buf.resize(tile_bytes as usize, 0);
                 match client.read_tile(k, tile, &mut self.tile_buf) {
                     Ok(()) => {
-                        expand(self.bpt, self.component, &self.tile_buf, &mut self.rgba);
+                        self.convert();
                         let at = [(slot as u64 % l.grid[0]) * l.tile[0], (slot as u64 / l.grid[0]) * l.tile[1]];
                         r.write_texels(
                             gpu,
@@ -276,7 +308,7 @@ impl Uploader {
                         self.tile_buf.resize((piece.area() as usize) * self.bpt, 0);
                         let ok = match client.read_region_in(snap, k, piece, &mut self.tile_buf) {
                             Ok(()) => {
-                                expand(self.bpt, self.component, &self.tile_buf, &mut self.rgba);
+                                self.convert();
                                 let at = [piece.s0 as u64 % period[0], piece.t0 as u64 % period[1]];
                                 r.write_texels(
                                     gpu,

@@ -30,7 +30,7 @@ fn clipmapd() -> PathBuf {
     bin
 }
 
-/// A running `clipmapd --source hash`, killed on drop.
+/// A running `clipmapd` (`--source hash` unless told), killed on drop.
 struct Service {
     child: Child,
     socket: PathBuf,
@@ -38,9 +38,14 @@ struct Service {
 
 impl Service {
     fn start(dir: &Path, name: &str, extra: &[&str]) -> Service {
+        Service::start_source(dir, name, "hash", extra)
+    }
+
+    /// A running `clipmapd --source SOURCE` (hash, terrain or heights).
+    fn start_source(dir: &Path, name: &str, source: &str, extra: &[&str]) -> Service {
         let socket = dir.join(format!("{name}.sock"));
         let mut args: Vec<String> =
-            ["--source", "hash", "--size", "8192", "--clip", "256", "--tile", "64", "--tick-hz", "120"]
+            ["--source", source, "--size", "8192", "--clip", "256", "--tile", "64", "--tick-hz", "120"]
                 .iter()
                 .map(|s| s.to_string())
                 .collect();
@@ -429,4 +434,123 @@ fn without_a_vulkan_driver_the_error_says_how_to_get_one() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("no Vulkan adapter") && err.contains("mesa-vulkan-drivers"), "{err}");
+}
+
+/// The distinct colours of a picture.
+fn colours(path: &Path) -> std::collections::HashSet<[u8; 4]> {
+    image::open(path).unwrap().to_rgba8().pixels().map(|p| p.0).collect()
+}
+
+/// Every ground pixel's height within its f32 bound of the CPU's at the GPU's coordinates, the
+/// two agreeing on every pixel without data, and some of those (the verification texture has
+/// nodata in one texel in sixteen).
+fn assert_heights_match(j: &Value) {
+    let h = &j["heights"];
+    assert!(h["compared"].as_u64().unwrap() > 1000, "{h}");
+    assert_eq!(h["mismatch"], 0, "{h}");
+    assert_eq!(h["outside_bound"], 0, "{h}");
+    assert!(h["nodata"].as_u64().unwrap() > 0, "nodata pixels, shown by both: {h}");
+    assert!(h["bound_ratio"].as_f64().unwrap() <= 1.0, "{h}");
+    // Every frame was checked, and every ground pixel of it.
+    for f in frames(j) {
+        let d = &f["diff"];
+        let hd = &d["heights"];
+        let checked =
+            hd["compared"].as_u64().unwrap() + hd["nodata"].as_u64().unwrap() + hd["nothing"].as_u64().unwrap();
+        assert_eq!(Some(checked), d["at_gpu_coords"]["compared"].as_u64(), "frame {}: {d}", f["frame"]);
+    }
+    // The colour of each pixel is the false colour of the GPU's own height.
+    assert_eq!(j["pixels_differing_at_gpu_coords"], 0, "{}", j["per_frame"]);
+}
+
+#[test]
+fn a_height_texture_is_drawn_in_false_colour_and_its_heights_match_the_reference() {
+    let out = tempfile::tempdir().unwrap();
+    let o = out.path().to_str().unwrap();
+    let j = json(&["--demo", "--demo-format", "heights", "--frames", "3", "--size", "96x64", "--out", o]);
+    assert_eq!(j["texture"]["bytes_per_texel"], 4);
+    assert_eq!(j["texture"]["heights"]["format"]["storage"], "f32", "{}", j["texture"]);
+    assert_eq!(j["texture"]["heights"]["range"], serde_json::json!([-11000.0, 8900.0]));
+    assert_within_tolerance(&j);
+    assert_heights_match(&j);
+    // Trilinear: blended heights, so not all exact, but within the bound.
+    assert!(j["heights"]["max_error_m"].as_f64().unwrap() > 0.0, "{}", j["heights"]);
+    // Texels go up as published: the upload counts 4 bytes a texel.
+    let first_l32f = j["first_frame_upload_bytes"].as_u64().unwrap();
+    assert!(first_l32f > 0 && first_l32f.is_multiple_of(4), "{first_l32f}");
+    // Not uniform: many false colours, and the colour of nodata (magenta) among them.
+    let c = colours(&out.path().join("gpu-002.png"));
+    assert!(c.len() > 100, "{} distinct colours", c.len());
+    assert!(c.contains(&[255, 0, 255, 255]), "no nodata pixel drawn");
+    assert!(!c.contains(&[0, 0, 0, 255]), "every level was published: no black ground");
+
+    // Point filtering: each height is a texel as published, exactly.
+    let j =
+        json(&["--demo", "--demo-format", "l32f", "--filter", "point", "--frames", "2", "--size", "96x64", "--out", o]);
+    assert_within_tolerance(&j);
+    assert_heights_match(&j);
+    assert_eq!(j["heights"]["max_error_m"], 0.0, "{}", j["heights"]);
+
+    // l16i converted to metres on upload (2 bytes a texel published, counted as such), over a
+    // range of its own.
+    let j = json(&[
+        "--demo",
+        "--demo-format",
+        "l16i",
+        "--height-range",
+        "-2000,2000",
+        "--frames",
+        "2",
+        "--size",
+        "96x64",
+        "--out",
+        o,
+    ]);
+    assert_eq!(j["texture"]["bytes_per_texel"], 2);
+    assert_eq!(j["texture"]["heights"]["range"], serde_json::json!([-2000.0, 2000.0]));
+    // The same tiles as l32f's first frame, at 2 bytes a texel as published.
+    assert_eq!(j["first_frame_upload_bytes"].as_u64().unwrap() * 2, first_l32f);
+    assert_within_tolerance(&j);
+    assert_heights_match(&j);
+}
+
+#[test]
+fn the_height_verification_texture_of_clipmapd_matches_in_metres() {
+    let dir = tempfile::tempdir().unwrap();
+    let _s = Service::start_source(dir.path(), "dem", "heights", &[]);
+    let d = dir.path().to_str().unwrap();
+    let j = json(&["--name", "dem", "--shm-dir", d, "--frames", "3", "--size", "96x64", "--filter", "bilinear"]);
+    assert_eq!(j["texture"]["heights"]["format"]["nodata"], -32768.0, "{}", j["texture"]);
+    assert_within_tolerance(&j);
+    assert_heights_match(&j);
+}
+
+#[test]
+fn a_format_clipgpu_does_not_draw_is_refused_naming_what_it_found_and_what_it_accepts() {
+    use clipmap::source::{HashSource, TextureDesc};
+    use clipmap::texel::TexelFormat;
+    use std::sync::Arc;
+    // Packed RGB565, and 32-bit floats whose heights block says they are not heights.
+    for (format, found) in [(TexelFormat::RGB565, "rgb565"), (TexelFormat::L32F, "l32f is drawn only as heights")] {
+        let desc = TextureDesc::new([4096, 4096], 256, format, [64, 64]).unwrap();
+        let name = format!("refused-{}", format.short_name());
+        let out = clipgpu::demo::with_service(Arc::new(HashSource::new(desc)), &name, |dir, name| {
+            Ok(clipgpu(&["--name", name, "--shm-dir", dir.to_str().unwrap(), "--frames", "1"]))
+        })
+        .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains(&format!("clipmap-{name}.map")), "where: {err}");
+        assert!(err.contains(found), "what it found: {err}");
+        assert!(err.contains("RGBA16") && err.contains("l32f, l16 or l16i") && err.contains("heights block"), "{err}");
+    }
+    // A height range for a colour texture.
+    let out = clipgpu(&["--demo", "--height-range", "0,100", "--frames", "1", "--size", "32x32", "--no-compare"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("--height-range 0,100") && err.contains("serves colour"), "{err}");
+    let out = clipgpu(&["--demo", "--demo-format", "heights", "--height-range", "5,5"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("expected MIN,MAX"), "{err}");
 }
