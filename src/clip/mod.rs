@@ -231,6 +231,8 @@ pub struct Clipmap {
     backlog: VecDeque<Completion>,
     /// The second-level tile pool the queues read through, if any.
     pool: Option<Arc<PoolSource>>,
+    /// The source, as given (its counters: [`Clipmap::source`]).
+    source: Arc<dyn TileSource>,
     centre: Option<[i64; 2]>,
     border: u64,
     min_lod: f64,
@@ -391,6 +393,7 @@ impl Clipmap {
             levels,
             backlog: VecDeque::new(),
             pool,
+            source: source.clone(),
             centre: None,
             tick: 0,
             stats: Stats::default(),
@@ -494,6 +497,11 @@ impl Clipmap {
     /// The image caches' memory.
     pub fn memory(&self) -> &Arc<ImageMemory> {
         self.cache.memory()
+    }
+
+    /// The source the clipmap reads, as given to it (before any tile pool).
+    pub fn source(&self) -> &Arc<dyn TileSource> {
+        &self.source
     }
 
     /// Counters so far.

@@ -65,6 +65,12 @@ pub struct TickStats {
     /// A growing texture's growth block as last published (`null` for a texture that does not
     /// grow).
     pub growth: Option<crate::shm::layout::Growth>,
+    /// The remote reads of a source that reads over the network (HTTP or S3 tiles, a remote
+    /// COG): requests sent (retries included), retries, ranges read by a merged request, bytes
+    /// received, ranges that failed after retries, disk-cache hits and dropped cache files, the
+    /// most requests in flight to one endpoint; `null` for local files.
+    #[cfg(feature = "remote")]
+    pub remote: Option<crate::source::remote::RemoteStats>,
 }
 
 /// The control server's counters (plain atomics: connections update them concurrently).

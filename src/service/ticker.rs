@@ -326,6 +326,10 @@ impl Runner {
         s.valid = report.valid.iter().map(|r| [r.s0, r.t0, r.s1, r.t1]).collect();
         s.engine = self.clipmap.stats().clone();
         s.streams = self.clipmap.stream_stats();
+        #[cfg(feature = "remote")]
+        {
+            s.remote = self.clipmap.source().remote_stats();
+        }
         log_reason_changes(&mut self.reasons, &s.engine.paging, s.engine.read_latency_ticks, s.engine.ticks);
         self.stats_tx.send_replace(s.clone());
     }

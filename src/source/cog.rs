@@ -1959,6 +1959,14 @@ impl TileSource for CogSource {
         self.heights
     }
 
+    #[cfg(feature = "remote")]
+    fn remote_stats(&self) -> Option<super::remote::RemoteStats> {
+        match &self.store {
+            Store::Remote(o) => Some(o.remote().stats()),
+            Store::Local(_) => None,
+        }
+    }
+
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
         check_request(&self.desc, tile, out)?;
         let d = self.desc.level(tile.level);

@@ -167,6 +167,14 @@ pub trait TileSource: Send + Sync {
         self.wrapped().and_then(|inner| inner.heights())
     }
 
+    /// The counters of the remote reads (requests, retries, merged ranges, bytes, cache hits)
+    /// of a source that reads over the network: the [`wrapped`](Self::wrapped) source's, or
+    /// `None` for one that reads local files only.
+    #[cfg(feature = "remote")]
+    fn remote_stats(&self) -> Option<remote::RemoteStats> {
+        self.wrapped().and_then(|inner| inner.remote_stats())
+    }
+
     /// Number of stream servers (separate disks, one read queue each) the source is laid out
     /// for: the [`wrapped`](Self::wrapped) source's, or 1 when it has no notion of them.
     fn stream_servers(&self) -> usize {

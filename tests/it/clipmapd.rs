@@ -778,6 +778,8 @@ fn a_cog_is_served_as_it_is() {
         assert!(t.elapsed() < Duration::from_secs(20), "no tile read\n{}", svc.dump());
         std::thread::sleep(Duration::from_millis(20));
     }
+    // A local file reads nothing over the network.
+    assert!(json_reply(&svc.ask("STATS"))["remote"].is_null(), "{}", svc.dump());
     // A layout it does not serve is refused before anything is created, naming the tag.
     let i32 = Path::new(ROOT).join("tests/fixtures/cog/i32_64x64.tif");
     let out = Command::new(CLIPMAPD).arg(&i32).args(["--shm-dir", d.to_str().unwrap()]).output().unwrap();

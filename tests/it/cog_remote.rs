@@ -432,6 +432,16 @@ fn clipmapd_serves_a_cog_url_as_it_serves_the_file() {
         assert!(t.elapsed() < Duration::from_secs(30), "no tile read\n{}", log());
         std::thread::sleep(Duration::from_millis(20));
     }
+    // STATS counts the remote reads: the open's request and the tiles' ranges, and the bytes
+    // they brought (at least the open's first bytes of the 93 100-byte file).
+    let stats = json("STATS");
+    let remote = &stats["remote"];
+    let (requests, bytes) = (remote["requests"].as_u64().unwrap(), remote["bytes"].as_u64().unwrap());
+    assert!(requests >= 2 && bytes > 0 && bytes <= 93_100 * requests, "{remote}");
+    for field in ["retries", "merged", "failures", "cache_hits", "cache_dropped", "peak_in_flight"] {
+        assert!(remote[field].is_u64(), "{field}: {remote}");
+    }
+    assert_eq!(remote["failures"], 0, "{remote}");
     let _ = child.kill();
     let _ = child.wait();
     // An object that is not there is refused before anything is created, naming it.

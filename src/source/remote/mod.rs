@@ -34,7 +34,8 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 /// Counters of a remote source since it was opened.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct RemoteStats {
     /// Requests sent, retries included.
     pub requests: u64,
@@ -344,6 +345,10 @@ impl RemoteSource {
 impl TileSource for RemoteSource {
     fn desc(&self) -> &TextureDesc {
         self.files.desc()
+    }
+
+    fn remote_stats(&self) -> Option<RemoteStats> {
+        Some(self.stats())
     }
 
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
