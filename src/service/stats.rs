@@ -218,6 +218,24 @@ impl ServiceStats {
         }
         out.push_str(&self.stream_latency_prometheus());
         out.push_str(&self.paging_prometheus());
+        #[cfg(feature = "remote")]
+        if let Some(r) = &t.remote {
+            let remote = [
+                ("remote_requests_total", "counter", "Remote requests sent, retries included", r.requests),
+                ("remote_retries_total", "counter", "Remote requests retried", r.retries),
+                ("remote_merged_total", "counter", "Ranges read by a merged remote request", r.merged),
+                ("remote_bytes_total", "counter", "Bytes received from remote stores", r.bytes),
+                ("remote_failures_total", "counter", "Remote ranges that failed after retries", r.failures),
+                ("remote_cache_hits_total", "counter", "Ranges served from the disk cache", r.cache_hits),
+                ("remote_peak_in_flight", "gauge", "Most remote requests in flight to one endpoint", r.peak_in_flight),
+            ];
+            for (name, kind, help, v) in remote {
+                out.push_str(&format!(
+                    "# HELP clipmapd_{name} {help}\n# TYPE clipmapd_{name} {kind}\nclipmapd_{name}{{name=\"{}\"}} {v}\n",
+                    self.name
+                ));
+            }
+        }
         out
     }
 
@@ -303,6 +321,24 @@ mod tests {
         assert_eq!(samples.len(), 30);
         assert!(samples.iter().all(|l| l.starts_with("clipmapd_") && l.contains("{name=\"x\"} ")));
         assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 30);
+    }
+
+    #[cfg(feature = "remote")]
+    #[test]
+    fn prometheus_text_has_the_remote_counters_of_a_remote_source_only() {
+        let mut s = ServiceStats { name: "x".into(), ..ServiceStats::default() };
+        assert!(!s.prometheus().contains("remote"), "a local source has no remote counters");
+        s.tick.remote =
+            Some(crate::source::remote::RemoteStats { requests: 7, bytes: 4096, merged: 3, ..Default::default() });
+        let text = s.prometheus();
+        for want in [
+            "clipmapd_remote_requests_total{name=\"x\"} 7",
+            "clipmapd_remote_bytes_total{name=\"x\"} 4096",
+            "clipmapd_remote_merged_total{name=\"x\"} 3",
+            "clipmapd_remote_retries_total{name=\"x\"} 0",
+        ] {
+            assert!(text.contains(want), "{want} in\n{text}");
+        }
     }
 
     #[test]
