@@ -514,16 +514,21 @@ fn by_level(rows: &[HeightRow], surface: &str, rule: &str) -> Vec<(u32, u64, f64
 pub const CONCLUSIONS: &str = "\
 ### What the height rows say
 
-- Where the finest level is held, the sampled surface is the source's to the bit (error 0, level
-  0 in the by-level table) whatever the rule: the rules differ only in what coarser levels hold.
-- The error grows as the disk falls behind a fast flight: more pixels are drawn from coarser
-  levels (`coarser px`, `min LOD`), and a coarser level's surface is further from the source.
-- `mean` and `point` differ at every coarser level. On the smooth DEM both stay small and grow
-  with the level; `mean` averages the block, `point` keeps one of its texels (exact at its own
-  position, but sampled at the block's centre here). On the white-noise procedural heights any
-  coarser level is thousands of metres off either way: a coarser level of noise cannot stand for
-  it, which is why the verification texture defines each level on its own.
-- Nodata: the `mean` rule is nodata only where a whole block is, `point` wherever the even texel
-  is, so the two rules disagree with level 0 about nodata at different pixels
-  (`nodata mismatch`).
+- Where the finest level is held, the sampled surface is the source's to the bit (error 0 at
+  level 0 in the by-level table), whatever the rule: the rules differ only in what the coarser
+  levels hold. With an ideal disk almost every pixel is drawn from level 0, so the mean error is
+  millimetres on the DEM and the p99 is 0; the maximum comes from the few far pixels outside
+  level 0's window.
+- The error grows as the disk falls behind a fast flight: fewer tiles a frame leave levels
+  incomplete, load control raises min LOD, more pixels are drawn from coarser levels, and a
+  coarser level's surface is further from the source (`accuracy::tests::heights`).
+- `mean` and `point` differ at every coarser level, and `mean` is the closer surface: on the DEM
+  its error at each level is a third to a half of `point`'s. `point` keeps one texel of each block
+  as it is (exact at its own position; the sampler reads it at the block's centre, so the rows
+  include that half-texel shift); `mean` averages the block. `point` is for meshes that must meet
+  without cracks, not for the least error.
+- On the white-noise procedural heights any coarser level is kilometres off either way: a
+  coarser level of noise cannot stand for it (which is why the verification texture defines each
+  level on its own). Bilinear sampling reads nodata only where every weighed texel is nodata,
+  so nodata disagrees with level 0 at a handful of pixels at most (`nodata mismatch`).
 ";
