@@ -530,5 +530,6 @@ pub const CONCLUSIONS: &str = "\
 - On the white-noise procedural heights any coarser level is kilometres off either way: a
   coarser level of noise cannot stand for it (which is why the verification texture defines each
   level on its own). Bilinear sampling reads nodata only where every weighed texel is nodata,
-  so nodata disagrees with level 0 at a handful of pixels at most (`nodata mismatch`).
+  so nodata disagrees with level 0 at a few dozen pixels of a flight's millions at most
+  (`nodata mismatch`).
 ";

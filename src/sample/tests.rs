@@ -313,7 +313,7 @@ prop_compose! {
 /// A stored value of `format` from random bits: one in four the nodata value (when it has one).
 fn stored_from(format: &HeightFormat, bits: u64) -> f64 {
     if let Some(nd) = format.nodata() {
-        if bits % 4 == 0 {
+        if bits.is_multiple_of(4) {
             return nd;
         }
     }
