@@ -223,13 +223,9 @@ fn bilinear_height(
 
 /// The metres a weighted sum stands for: nodata when no texel with data weighs anything.
 fn weighted(acc: [f64; 2]) -> Option<f64> {
-    if acc[1] > 0.0 {
-        // Every weight of a full footprint summing to exactly 1 (as dyadic fractions do), the
-        // division is exact.
-        Some(if acc[1] == 1.0 { acc[0] } else { acc[0] / acc[1] })
-    } else {
-        None
-    }
+    // Weights summing to exactly 1 (every texel with data, dyadic fractions) leave the weighted
+    // sum as it is: dividing by 1 is exact.
+    (acc[1] > 0.0).then(|| acc[0] / acc[1])
 }
 
 fn filtered_height(
