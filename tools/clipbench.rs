@@ -1,8 +1,9 @@
 //! `clipbench`: measured studies of the clipmap, run on demand (not part of the test suite).
 //!
 //! `clipbench accuracy` sweeps clip size, invalid border, disk speed (tiles a frame), flight speed and shape,
-//! renders every frame from the full mipmap and from the clipmap, and writes the table, CSV,
-//! plots and `ACCURACY.md` where `--out` says (the repository's `docs/` only when asked for
+//! renders every frame from the full mipmap and from the clipmap, measures the vertical error of
+//! height textures (two surfaces, the `mean` and `point` level rules) against disk speed, and
+//! writes the tables, CSV, plots and `ACCURACY.md` where `--out` says (the repository's `docs/` only when asked for
 //! with `--out docs`; by default a directory under the system's temporary directory).
 //!
 //! `clipbench engine` measures update throughput against memcpy, bytes per tick against the
@@ -268,6 +269,27 @@ fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool, format: clipmap:
             return 1;
         }
     };
+    let heights = match clipmap::accuracy::heights::sweep(quick, |i, n, r| {
+        if show {
+            eprintln!(
+                "[heights {i}/{n}] {} {} disk {} speed {}: mean {:.4} m, p99 {:.4} m, max {:.4} m, {:.2}% coarser",
+                r.surface,
+                r.rule,
+                r.disk_tiles.map(|b| format!("{b} tiles/frame")).unwrap_or_else(|| "ideal".into()),
+                r.speed,
+                r.mean_m,
+                r.p99_m,
+                r.max_m,
+                r.coarser_pixel_share * 100.0
+            );
+        }
+    }) {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("clipbench accuracy: heights: {e}");
+            return 2;
+        }
+    };
     let fmt = if format == clipmap::texel::TexelFormat::RGBA8 {
         String::new()
     } else {
@@ -282,10 +304,17 @@ fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool, format: clipmap:
         eprintln!("clipbench accuracy: sample frames: {e}");
         return 2;
     }
-    match sweep::write_outputs(&rows, &dir, quick, &command) {
+    match sweep::write_outputs(&rows, &dir, quick, &command)
+        .and_then(|report| clipmap::accuracy::heights::write_outputs(&heights, &dir).map(|()| report))
+    {
         Ok(report) => {
             let path = out.join("ACCURACY.md");
-            let text = format!("{report}\n{}", sweep::CONCLUSIONS);
+            let text = format!(
+                "{report}\n{}\n{}\n{}",
+                sweep::CONCLUSIONS,
+                clipmap::accuracy::heights::report(&heights, quick, &command),
+                clipmap::accuracy::heights::CONCLUSIONS
+            );
             if let Err(e) = sweep::write_whole(&path, text) {
                 eprintln!("clipbench accuracy: cannot write {}: {e}", path.display());
                 return 2;

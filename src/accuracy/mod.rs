@@ -3,7 +3,8 @@
 //! source) and from the clipmap as published, and measures the difference (docs/ARCHITECTURE.md §10).
 //!
 //! Owns the camera and per-pixel LOD ([`render`]), the per-frame metrics and flights over a
-//! clipmap ([`study`]), and the parameter sweep ([`sweep`]). Sampling itself is
+//! clipmap ([`study`]), the parameter sweep ([`sweep`]) and the vertical error of height
+//! textures ([`heights`]). Sampling itself is
 //! [`crate::sample`]'s; moving the clipmap is [`crate::clip`]'s.
 //!
 //! Numerics: texel addressing is integer (i64/u64) everywhere; world positions, ray directions
@@ -13,6 +14,7 @@
 //! ([`study::Case::format`]; PSNR then against a peak of 65535).
 
 pub mod cache;
+pub mod heights;
 pub mod render;
 pub mod study;
 pub mod sweep;

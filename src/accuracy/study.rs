@@ -149,6 +149,9 @@ pub enum StudyError {
     /// An output could not be written.
     #[error("cannot write a picture: {0}")]
     Io(String),
+    /// A height texture could not be made.
+    #[error("height texture: {0}")]
+    Heights(String),
 }
 
 /// Compares a frame with its reference at 8 bits per channel: (PSNR, largest channel error,

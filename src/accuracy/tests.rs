@@ -135,3 +135,77 @@ fn the_quick_sweep_reads_from_its_disk_and_a_slower_disk_draws_more_pixels_coars
     assert!(slow.1 < fast.1, "the slower disk read no fewer tiles: {at_top:?}");
     assert!(slow.2 > fast.2, "the slower disk drew no more pixels coarser: {at_top:?}");
 }
+
+mod heights {
+    use crate::accuracy::heights::{run, HeightCase, HeightRow, Surface};
+    use crate::height::LevelRule;
+    use crate::source::{HeightLevels, TileSource};
+    use std::sync::Arc;
+
+    fn case(surface: Surface, rule: LevelRule, disk_tiles: Option<u64>, speed: f64) -> HeightCase {
+        HeightCase {
+            surface,
+            rule,
+            size: 1 << 10,
+            clip_size: 128,
+            tile: 32,
+            invalid_border: 4,
+            disk_tiles,
+            speed,
+            frames: 4,
+            display: [64, 48],
+            eye_height: 24.0,
+            pitch_deg: 35.0,
+            fov_deg: 60.0,
+        }
+    }
+
+    fn fly(surface: Surface, rule: LevelRule, flights: &[(Option<u64>, f64)]) -> Vec<HeightRow> {
+        let c = case(surface, rule, None, 8.0);
+        let source: Arc<dyn TileSource> =
+            Arc::new(HeightLevels::by_rule(c.desc().unwrap(), surface.format(), rule, surface.level0(c.size)).unwrap());
+        flights.iter().map(|&(disk, speed)| run(&case(surface, rule, disk, speed), source.clone()).unwrap()).collect()
+    }
+
+    #[test]
+    fn heights_drawn_from_level_0_are_the_source_and_a_slow_disk_at_speed_draws_them_further_off() {
+        let flights = [(None, 8.0), (Some(64), 64.0), (Some(1), 64.0)];
+        let dem_mean = fly(Surface::Dem, LevelRule::Mean, &flights);
+        let dem_point = fly(Surface::Dem, LevelRule::Point, &flights);
+        let noise_point = fly(Surface::Procedural, LevelRule::Point, &flights[2..]);
+        for r in dem_mean.iter().chain(&dem_point).chain(&noise_point) {
+            let what = format!("{} {} disk {:?} speed {}", r.surface, r.rule, r.disk_tiles, r.speed);
+            // Wherever level 0 is drawn, the surface is the source's exactly, whatever the rule.
+            let level0 = r.by_level.iter().find(|l| l.level == 0).expect("some pixels from level 0");
+            assert!(level0.pixels > 0 && level0.max_m == 0.0, "{what}: {level0:?}");
+            assert!(r.pixels > 1000, "{what}: the camera sees the ground: {}", r.pixels);
+            // Every coarser level drawn is off the source somewhere.
+            for l in r.by_level.iter().filter(|l| l.level > 0 && l.pixels > 100) {
+                assert!(l.max_m > 0.0, "{what}: level {} equals the source: {l:?}", l.level);
+            }
+        }
+        for rows in [&dem_mean, &dem_point] {
+            let (loose, tight) = (&rows[1], &rows[2]);
+            // The simulated disk is exercised: one tile a frame bounds the reads and lags.
+            assert!(tight.tiles_read > 0 && tight.ticks_over_budget > 0, "{tight:?}");
+            assert!(tight.tiles_read < loose.tiles_read, "{} < {}", tight.tiles_read, loose.tiles_read);
+            assert!(tight.min_lod_max > loose.min_lod_max, "{} {}", tight.min_lod_max, loose.min_lod_max);
+            let mean_level = |r: &HeightRow| {
+                r.by_level.iter().map(|l| l.level as f64 * l.pixels as f64).sum::<f64>() / r.pixels as f64
+            };
+            assert!(mean_level(tight) > mean_level(loose), "{tight:?}\n{loose:?}");
+            assert!(tight.mean_m > loose.mean_m, "{}: {} <= {}", tight.rule, tight.mean_m, loose.mean_m);
+        }
+        // The two rules' surfaces differ where a coarser level is drawn, on the same flight.
+        let (m, p) = (&dem_mean[2], &dem_point[2]);
+        assert_eq!(
+            m.by_level.iter().map(|l| l.pixels).collect::<Vec<_>>(),
+            p.by_level.iter().map(|l| l.pixels).collect::<Vec<_>>(),
+            "the same levels drawn"
+        );
+        assert!(m.mean_m != p.mean_m && m.max_m != p.max_m, "mean {m:?}\npoint {p:?}");
+        // White noise: coarser levels are kilometres off.
+        let n = &noise_point[0];
+        assert!(n.by_level.iter().any(|l| l.level > 0 && l.mean_m > 1000.0), "{n:?}");
+    }
+}

@@ -247,6 +247,8 @@ pub struct Clipmap {
     replacing: std::collections::HashSet<TileId>,
     /// The adaptive policy's measurements and choices (`None` for the fixed policies).
     controller: Option<Controller>,
+    /// The source's heights (`None`: colours), for the height sampler.
+    heights: Option<crate::plan::HeightPlan>,
 }
 
 /// What the adaptive policy measures and chose ([`crate::paging::adaptive`]).
@@ -383,7 +385,9 @@ impl Clipmap {
         };
         let queues = ReadQueues::new(reader, memory, settings.streams, settings.limits)?;
         let (settings_prefetch, level_count, streams) = (settings.prefetch, levels.len(), queues.streams());
+        let heights = source.heights();
         Ok(Clipmap {
+            heights,
             border: desc.invalid_border(),
             min_lod: desc.level_count() as f64,
             desc,
@@ -518,6 +522,12 @@ impl Clipmap {
     /// when none may be used yet).
     pub fn min_lod(&self) -> f64 {
         self.min_lod
+    }
+
+    /// Whether the texels are heights, and their format and level rule (the source's,
+    /// [`TileSource::heights`]); `None` for colours.
+    pub fn heights(&self) -> Option<crate::plan::HeightPlan> {
+        self.heights
     }
 
     /// The level-0 centre applied by the last tick.

@@ -29,7 +29,7 @@ pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_T
 pub use faulty::{Fault, FaultRule, FaultySource};
 pub use file::{FileSource, FileSourceError, FileStats, RemoteReader};
 pub use pool::{PoolSource, PoolStats};
-pub use synthetic::{HashSource, HeightSource, Procedural, TerrainSource, TERRAIN_SEED};
+pub use synthetic::{HashSource, HeightLevels, HeightSource, Procedural, TerrainSource, TERRAIN_SEED};
 pub use throttle::ThrottledSource;
 
 use serde::Serialize;

@@ -96,6 +96,132 @@ impl TileSource for HeightSource {
     }
 }
 
+/// A height texture held in memory, every level's stored values given (row by row, `t` the row),
+/// or level 0 given and the coarser levels made by a level rule ([`HeightFormat::reduce_level`]):
+/// for tests and the height accuracy study (a surface whose pyramid each rule builds).
+#[derive(Clone, Debug)]
+pub struct HeightLevels {
+    desc: TextureDesc,
+    format: HeightFormat,
+    rule: crate::height::LevelRule,
+    levels: Vec<Vec<f64>>,
+}
+
+impl HeightLevels {
+    /// Heights of `format` in the shape of `desc` (served in the storage's texel format), level
+    /// `k` holding `levels[k]`, stored values, `width x height` of that level. `rule` is what the
+    /// source states ([`TileSource::heights`]). Refused: a level count or a level's length other
+    /// than `desc`'s, and a value that is not a value of the storage.
+    pub fn new(
+        desc: TextureDesc,
+        format: HeightFormat,
+        rule: crate::height::LevelRule,
+        levels: Vec<Vec<f64>>,
+    ) -> Result<Self, String> {
+        let texel = crate::plan::height_texel(format.storage());
+        let desc = desc.with_format(texel).map_err(|e| e.to_string())?;
+        if levels.len() != desc.level_count() {
+            return Err(format!(
+                "height levels: {} levels given, the texture of {}x{} texels has {}; give one per level, finest first",
+                levels.len(),
+                desc.size()[0],
+                desc.size()[1],
+                desc.level_count()
+            ));
+        }
+        for (k, level) in levels.iter().enumerate() {
+            let size = desc.level(k as u32).size;
+            if level.len() as u64 != size[0] * size[1] {
+                return Err(format!(
+                    "height levels: level {k} holds {} values, expected {}x{} = {}",
+                    level.len(),
+                    size[0],
+                    size[1],
+                    size[0] * size[1]
+                ));
+            }
+            if let Some((i, v)) = level.iter().enumerate().find(|&(_, &v)| !is_stored_value(&format, v)) {
+                return Err(format!(
+                    "height levels: level {k} texel ({}, {}) holds {v}, which {} does not store; give stored values ({})",
+                    i as u64 % size[0],
+                    i as u64 / size[0],
+                    format.storage(),
+                    "HeightFormat::encode"
+                ));
+            }
+        }
+        Ok(HeightLevels { desc, format, rule, levels })
+    }
+
+    /// Level 0's stored values given (`width x height`, row by row), each coarser level made from
+    /// the finer one by `rule`.
+    pub fn by_rule(
+        desc: TextureDesc,
+        format: HeightFormat,
+        rule: crate::height::LevelRule,
+        level0: Vec<f64>,
+    ) -> Result<Self, String> {
+        let mut levels = vec![level0];
+        for k in 1..desc.level_count() {
+            let finer = desc.level(k as u32 - 1).size;
+            let next =
+                format.reduce_level(rule, &levels[k - 1], finer[0] as usize, finer[1] as usize).ok_or_else(|| {
+                    format!(
+                        "height levels: level {} holds {} values, expected {}x{}",
+                        k - 1,
+                        levels[k - 1].len(),
+                        finer[0],
+                        finer[1]
+                    )
+                })?;
+            levels.push(next);
+        }
+        HeightLevels::new(desc, format, rule, levels)
+    }
+
+    /// The stored value of texel (s, t) of `level`.
+    pub fn stored(&self, level: u32, s: u64, t: u64) -> f64 {
+        let w = self.desc.level(level).size[0];
+        self.levels[level as usize][(t * w + s) as usize]
+    }
+
+    /// The height format.
+    pub fn format(&self) -> &HeightFormat {
+        &self.format
+    }
+}
+
+/// Whether `v` is a value `format`'s storage holds.
+fn is_stored_value(format: &HeightFormat, v: f64) -> bool {
+    use crate::height::HeightStorage;
+    match format.storage() {
+        HeightStorage::F32 => v.is_finite() && v as f32 as f64 == v,
+        HeightStorage::U16 => v.fract() == 0.0 && (0.0..=65535.0).contains(&v),
+        HeightStorage::I16 => v.fract() == 0.0 && (-32768.0..=32767.0).contains(&v),
+    }
+}
+
+impl TileSource for HeightLevels {
+    fn desc(&self) -> &TextureDesc {
+        &self.desc
+    }
+
+    fn heights(&self) -> Option<crate::plan::HeightPlan> {
+        Some(crate::plan::HeightPlan { format: self.format, levels: self.rule })
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        check_request(&self.desc, tile, out)?;
+        let bpt = self.desc.bytes_per_texel();
+        for_each_row(&self.desc, tile, out, |t, s0, _w, bytes| {
+            for (i, texel) in bytes.chunks_exact_mut(bpt).enumerate() {
+                self.format.write(self.stored(tile.level, s0 + i as u64, t), texel);
+            }
+        });
+        Ok(())
+    }
+}
+
 /// Visits the part of `tile` that lies inside its level: calls `row(t, s0, width, bytes)` for each
 /// texel row, where `bytes` is the row's slice of `out`. Texels outside the level are zeroed.
 fn for_each_row(desc: &TextureDesc, tile: TileId, out: &mut [u8], mut row: impl FnMut(u64, u64, usize, &mut [u8])) {

@@ -101,6 +101,16 @@ fn clipbench_engine_counts_no_tile_excess_in_any_direction() {
         assert_eq!(f["tile_excess"], 0, "{}: {f}", f["direction"]);
         assert_eq!(f["mean_tiles_per_tick"], f["mean_exact_tiles_per_tick"], "{f}");
     }
+    // Heights flown beside colours: the same flights read the same tiles (4 bytes a texel both),
+    // and the ratio is the two formats' tick time per tile.
+    let formats = v["formats"].as_array().expect("formats");
+    let names: Vec<&str> = formats.iter().map(|f| f["format"].as_str().unwrap()).collect();
+    assert_eq!(names, ["rgba8", "l32f"], "{v}");
+    assert!(formats[0]["tiles"].as_u64().unwrap() > 0, "{v}");
+    assert_eq!(formats[0]["tiles"], formats[1]["tiles"], "{v}");
+    let per_tile = |i: usize| formats[i]["tick_per_tile_s"].as_f64().unwrap();
+    let ratio = v["l32f_vs_rgba8_tick_per_tile"].as_f64().unwrap();
+    assert!(per_tile(0) > 0.0 && (ratio - per_tile(1) / per_tile(0)).abs() < 1e-12, "{v}");
 }
 
 /// The installer as `clipbench perf --install-peers` runs it (the same code), here a shell that

@@ -11,7 +11,12 @@
 //!   engine's prefetch policy places them), and the texel bytes the ticks themselves wrote
 //!   (`tick_texel_bytes`, measured at the mapping's write primitive);
 //! - peak resident memory (`VmHWM` growth) against the image caches' formula: every stack level's
-//!   grid of tiles, every pyramid level whole, and the header.
+//!   grid of tiles, every pyramid level whole, and the header;
+//! - the same flights, after those figures, over two clipmaps side by side, one of `rgba8` colours
+//!   (the hash texture) and one of `l32f` heights (the height verification texture, 4 bytes a
+//!   texel too), their ticks taking turns: the update tick's time per tile read in each format
+//!   and `l32f_vs_rgba8_tick_per_tile`, their ratio (goal: at most 1.1, heights cost no more per
+//!   byte than colour).
 //!
 //! Exit status: 0 ok (goals met or not: the figures are the output), 2 the benchmark could not run.
 
@@ -19,7 +24,7 @@ use anyhow::Context;
 use clipmap::clip::{Clipmap, Settings};
 use clipmap::geom::{aligned_centre, LevelShape, Rect};
 use clipmap::paging::Prefetch;
-use clipmap::source::{HashSource, TextureDesc, TileSource};
+use clipmap::source::{HashSource, HeightSource, TextureDesc, TileSource};
 use clipmap::texel::TexelFormat;
 use serde::Serialize;
 use std::sync::Arc;
@@ -84,6 +89,28 @@ pub struct Report {
     resident_ratio: f64,
     settle_ticks: usize,
     settle_s: f64,
+    /// `rgba8` and `l32f` flown side by side (same flights, ticks taking turns).
+    formats: Vec<FormatRow>,
+    /// `l32f`'s update tick time per tile over `rgba8`'s (goal: at most 1.1).
+    l32f_vs_rgba8_tick_per_tile: f64,
+}
+
+/// One texel format of the side-by-side flights.
+#[derive(Clone, Debug, Serialize)]
+struct FormatRow {
+    /// Texel format (`rgba8`, `l32f`).
+    format: String,
+    /// What the texels are.
+    source: &'static str,
+    /// Median over runs of the run's update tick time (the tick alone) over the tiles its ticks
+    /// took (s a tile).
+    tick_per_tile_s: f64,
+    /// Each run's tick time per tile (s).
+    run_tick_per_tile_s: Vec<f64>,
+    /// Median update tick over every tick of every run (s).
+    median_tick_s: f64,
+    /// Tiles the ticks took, all runs.
+    tiles: u64,
 }
 
 fn median(v: &[f64]) -> f64 {
@@ -222,7 +249,7 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
     let formula = formula_bytes(&desc, &grids);
     let source: Arc<dyn TileSource> = Arc::new(HashSource::new(desc.clone()));
     let rss_before = proc_status("VmRSS:")?;
-    let mut map = Clipmap::new(source, settings)?;
+    let mut map = Clipmap::new(source, settings.clone())?;
     let mapping_bytes = map.resident_bytes();
 
     let mut c = [(setup.size / 2) as i64; 2];
@@ -326,6 +353,8 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
     let hwm = vm_hwm()?;
     let tick_texel_bytes = map.stats().tick_texel_bytes;
     drop(map);
+    let formats = side_by_side(&setup, &desc, settings, runs)?;
+    let tpt = |f: &str| formats.iter().find(|r| r.format == f).map_or(0.0, |r| r.tick_per_tile_s);
     let slowest = flights.iter().map(|f| f.median_tick_s).fold(0.0, f64::max);
     let fastest = flights.iter().map(|f| f.median_tick_s).fold(f64::INFINITY, f64::min);
     Ok(Report {
@@ -341,7 +370,91 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
         resident_ratio: hwm.saturating_sub(rss_before) as f64 / formula as f64,
         settle_ticks,
         settle_s,
+        l32f_vs_rgba8_tick_per_tile: if tpt("rgba8") > 0.0 { tpt("l32f") / tpt("rgba8") } else { 0.0 },
+        formats,
     })
+}
+
+/// Flies `rgba8` colours (the hash texture) and `l32f` heights (the height verification texture)
+/// of the shape of `desc` side by side: both clipmaps settle at the centre, then every run flies
+/// the three directions, each tick of one format followed by the same tick of the other (the
+/// order swapping each run), so that whatever the machine does meanwhile falls on both alike.
+fn side_by_side(setup: &Setup, desc: &TextureDesc, settings: Settings, runs: usize) -> anyhow::Result<Vec<FormatRow>> {
+    let colour: Arc<dyn TileSource> = Arc::new(HashSource::new(desc.clone()));
+    let heights: Arc<dyn TileSource> =
+        Arc::new(HeightSource::new(desc.clone(), clipmap::height::HeightFormat::VERIFICATION));
+    anyhow::ensure!(
+        heights.desc().bytes_per_texel() == desc.bytes_per_texel(),
+        "l32f and rgba8 texels differ in size ({} and {} bytes): the comparison is per byte",
+        heights.desc().bytes_per_texel(),
+        desc.bytes_per_texel()
+    );
+    let sources = [("rgba8", "hash texture", colour), ("l32f", "height verification texture", heights)];
+    let mut maps = Vec::new();
+    for (_, _, src) in &sources {
+        maps.push(Clipmap::new(src.clone(), settings.clone())?);
+    }
+    let mut c = [(setup.size / 2) as i64; 2];
+    for map in &mut maps {
+        for tick in 0.. {
+            let r = map.tick(c, Some([0, 0]));
+            if r.min_lod == 0.0 && tick > 0 {
+                break;
+            }
+            anyhow::ensure!(tick < 100, "the clipmap did not fill in 100 ticks (min LOD {})", r.min_lod);
+            map.wait_for_reads();
+        }
+    }
+    let d = setup.speed;
+    let dirs = [[d, 0], [0, d], [d, d]];
+    let mut run_secs = vec![Vec::new(); maps.len()];
+    let mut run_tiles = vec![Vec::new(); maps.len()];
+    let mut ticks = vec![Vec::new(); maps.len()];
+    for run in 0..runs {
+        let (mut secs, mut tiles) = (vec![0f64; maps.len()], vec![0u64; maps.len()]);
+        for i in 0..3 {
+            let v = dirs[(i + run) % 3];
+            for step in 0..=setup.frames_per_run {
+                let next = [c[0] + v[0], c[1] + v[1]];
+                for j in 0..maps.len() {
+                    let m = if run % 2 == 0 { j } else { maps.len() - 1 - j };
+                    let map = &mut maps[m];
+                    let t = Instant::now();
+                    let r = map.tick(next, Some(v));
+                    let dt = t.elapsed().as_secs_f64();
+                    map.wait_for_reads();
+                    // The first tick of a direction turns the mem regions: not timed.
+                    if step > 0 {
+                        anyhow::ensure!(r.min_lod == 0.0, "{}: a level fell behind: {r:?}", sources[m].0);
+                        secs[m] += dt;
+                        tiles[m] += r.tiles_read;
+                        ticks[m].push(dt);
+                    }
+                }
+                c = next;
+            }
+        }
+        for m in 0..maps.len() {
+            run_secs[m].push(secs[m]);
+            run_tiles[m].push(tiles[m]);
+        }
+    }
+    Ok(sources
+        .iter()
+        .enumerate()
+        .map(|(m, (format, source, _))| {
+            let per_tile: Vec<f64> =
+                run_secs[m].iter().zip(&run_tiles[m]).map(|(&s, &n)| s / n.max(1) as f64).collect();
+            FormatRow {
+                format: format.to_string(),
+                source,
+                tick_per_tile_s: median(&per_tile),
+                run_tick_per_tile_s: per_tile,
+                median_tick_s: median(&ticks[m]),
+                tiles: run_tiles[m].iter().sum(),
+            }
+        })
+        .collect())
 }
 
 fn mib(b: f64) -> String {
@@ -396,5 +509,18 @@ pub fn human(r: &Report) -> String {
         mib(r.mapping_bytes as f64),
         r.resident_ratio,
     );
+    let _ = writeln!(o, "side by side (same flights, ticks taking turns):");
+    for f in &r.formats {
+        let _ = writeln!(
+            o,
+            "  {:<6} {:<28} tick {:>8.3}ms, {:>8.3}µs a tile ({} tiles)",
+            f.format,
+            f.source,
+            f.median_tick_s * 1e3,
+            f.tick_per_tile_s * 1e6,
+            f.tiles
+        );
+    }
+    let _ = writeln!(o, "l32f / rgba8 update tick time per tile: {:.3}  (goal <= 1.1)", r.l32f_vs_rgba8_tick_per_tile);
     o
 }
