@@ -37,6 +37,7 @@ mod examples;
 mod fuzz_regressions;
 mod growing;
 mod growing_service;
+mod height_cracks;
 mod hostile;
 mod house;
 mod patch_fuzz_props;
