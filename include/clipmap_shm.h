@@ -198,6 +198,8 @@
 #define CLIPMAP_RULE_POINT 1u
 #define CLIPMAP_RULE_MIN 2u
 #define CLIPMAP_RULE_MAX 3u
+/* Every height a format holds lies within this many metres of zero (10,000 km). */
+#define CLIPMAP_HEIGHT_LIMIT_M 1.0e7
 
 #if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
 _Static_assert(CLIPMAP_H_GROWTH + CLIPMAP_GROWTH_BYTES == CLIPMAP_H_HEIGHTS, "growth block");
@@ -416,6 +418,25 @@ static inline int clipmap_check_heights_(struct clipmap_map *m, const char *path
     if (f == CLIPMAP_FORMAT_L32F && (scale != 1.0 || offset != 0.0))
         CLIPMAP_REFUSE("heights block, byte %zu (scale): l32f stores metres: found scale %g, offset %g, expected 1 and 0",
                        b + CLIPMAP_HT_SCALE, scale, offset);
+    if (f != CLIPMAP_FORMAT_L32F) {
+        /* What HeightFormat::new refuses (src/height.rs): heights past 10,000 km from zero, and
+         * steps too fine to be told apart at the heights' distance from zero. */
+        double lo = f == CLIPMAP_FORMAT_L16 ? 0.0 : -32768.0, hi = f == CLIPMAP_FORMAT_L16 ? 65535.0 : 32767.0;
+        double m_lo = lo * scale + offset, m_hi = hi * scale + offset;
+        if (fabs(m_lo) > CLIPMAP_HEIGHT_LIMIT_M || fabs(m_hi) > CLIPMAP_HEIGHT_LIMIT_M) {
+            int at_offset = fabs(offset) > CLIPMAP_HEIGHT_LIMIT_M;
+            CLIPMAP_REFUSE("heights block, byte %zu (%s): found scale %.17g, offset %.17g: %s then holds %.17g m to "
+                           "%.17g m, expected every height within 10000000 m of zero",
+                           b + (at_offset ? CLIPMAP_HT_OFFSET : CLIPMAP_HT_SCALE), at_offset ? "offset" : "scale",
+                           scale, offset, f == CLIPMAP_FORMAT_L16 ? "l16" : "l16i", m_lo, m_hi);
+        }
+        double big = fabs(m_lo) > fabs(m_hi) ? fabs(m_lo) : fabs(m_hi); /* no fmax: needs no -lm */
+        if (fabs(offset) > big) big = fabs(offset);
+        if (scale < big * DBL_EPSILON * 64.0)
+            CLIPMAP_REFUSE("heights block, byte %zu (scale): found %.17g, expected a step of at least %.17g: steps that "
+                           "small cannot be told apart at %.17g m from zero in 64-bit arithmetic",
+                           b + CLIPMAP_HT_SCALE, scale, big * DBL_EPSILON * 64.0, big);
+    }
     if (!isnan(nodata)) {
         if (f == CLIPMAP_FORMAT_L32F) {
             if (!isfinite(nodata) || fabs(nodata) > FLT_MAX || (double)(float)nodata != nodata)

@@ -83,6 +83,8 @@ HT_IS_HEIGHTS, HT_RULE, HT_SCALE, HT_OFFSET, HT_NODATA = 0, 4, 8, 16, 24
 # Level rule codes (HT_RULE) and the height storage of each texel format code.
 HEIGHT_RULES = ("mean", "point", "min", "max")
 HEIGHT_STORAGES = {11: "l32f", 7: "l16", 12: "l16i"}
+# Every height a format holds lies within this many metres of zero (10,000 km).
+HEIGHT_LIMIT_M = 1.0e7
 G_SEQ, G_GROWING, G_EXTENT_S0, G_EXTENT_T0, G_EXTENT_S1, G_EXTENT_T1 = 0, 8, 16, 24, 32, 40
 G_DATA_LEVELS, G_PATCHES, G_TILES_REBUILT = 48, 56, 64
 G_TILES_PENDING, G_TILES_REPLACED, G_WORLD_S0, G_WORLD_T0, G_TEXELS_PER_UNIT, G_OUTSIDE_FRAME = 72, 80, 88, 96, 104, 112
@@ -352,6 +354,20 @@ class Mapping:
         if storage == "l32f" and (scale != 1.0 or offset != 0.0):
             raise Refused(f"{at(HT_SCALE, 'scale')}: l32f stores metres: found scale {scale}, offset {offset}, "
                           f"expected 1 and 0")
+        if storage != "l32f":
+            # What HeightFormat::new refuses (src/height.rs): heights past 10,000 km from zero, and
+            # steps too fine to be told apart at the heights' distance from zero.
+            lo, hi = (0, 65535) if storage == "l16" else (-32768, 32767)
+            m_lo, m_hi = lo * scale + offset, hi * scale + offset
+            if abs(m_lo) > HEIGHT_LIMIT_M or abs(m_hi) > HEIGHT_LIMIT_M:
+                field, name = (HT_OFFSET, "offset") if abs(offset) > HEIGHT_LIMIT_M else (HT_SCALE, "scale")
+                raise Refused(f"{at(field, name)}: found scale {scale!r}, offset {offset!r}: {storage} then holds "
+                              f"{m_lo!r} m to {m_hi!r} m, expected every height within 10000000 m of zero")
+            big = max(abs(m_lo), abs(m_hi), abs(offset))
+            least = big * sys.float_info.epsilon * 64.0
+            if scale < least:
+                raise Refused(f"{at(HT_SCALE, 'scale')}: found {scale!r}, expected a step of at least {least!r}: "
+                              f"steps that small cannot be told apart at {big!r} m from zero in 64-bit arithmetic")
         if math.isnan(nodata):
             nodata = None
         elif storage == "l32f":
