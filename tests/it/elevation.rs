@@ -375,10 +375,7 @@ fn a_ct_with_height_lines_publishes_its_heights_in_the_mapping_header() {
             let err = String::from_utf8_lossy(&o.stderr);
             assert_eq!(o.status.code(), Some(2), "{who}: {err}");
             let lower = err.to_lowercase();
-            assert!(
-                words.iter().all(|w| lower.contains(&w.to_lowercase())),
-                "{who}: {err}"
-            );
+            assert!(words.iter().all(|w| lower.contains(&w.to_lowercase())), "{who}: {err}");
         }
     }
 }
