@@ -177,7 +177,7 @@ def _ceil_div(a, b):
 class LevelDesc:
     """One level's static description."""
 
-    __slots__ = ("size", "tile", "grid", "slot_bytes", "slot_count", "tags", "slots", "pyramid")
+    __slots__ = ("size", "tile", "grid", "slot_bytes", "slot_count", "tags", "slots", "pyramid", "ranges")
 
     def slot_index(self, S, T):
         """The slot of tile (S, T): (T mod GH) * GW + (S mod GW), Euclidean."""
