@@ -122,6 +122,13 @@
 #define CLIPMAP_D_TAGS_OFFSET 56         /* multiple of 4096 */
 #define CLIPMAP_D_SLOTS_OFFSET 64        /* multiple of 4096 */
 #define CLIPMAP_D_KIND 72                /* 0 stack, 1 pyramid */
+#define CLIPMAP_D_RANGES_OFFSET 80       /* multiple of 4096 between tags and slots; 0: not heights */
+
+/* Tile range entries (heights only): one per slot at ranges_offset + CLIPMAP_RANGE_BYTES * slot,
+ * f64 bits stored atomically, read under the slot's tag like texels (clipmap_tile_range). */
+#define CLIPMAP_RANGE_BYTES 16
+#define CLIPMAP_R_MIN 0                  /* f64 bits: least height in metres, nodata excluded (NaN: all nodata) */
+#define CLIPMAP_R_MAX 8                  /* f64 bits: greatest height in metres (NaN: all nodata) */
 
 /* Growth block fields (relative to CLIPMAP_H_GROWTH), all u64-sized and atomic, one seqlock.
  * All zero for a texture that does not grow. A growing texture is served in a fixed frame, so
@@ -198,6 +205,8 @@
 #define CLIPMAP_RULE_POINT 1u
 #define CLIPMAP_RULE_MIN 2u
 #define CLIPMAP_RULE_MAX 3u
+/* Every height a format holds lies within this many metres of zero (10,000 km). */
+#define CLIPMAP_HEIGHT_LIMIT_M 1.0e7
 
 #if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
 _Static_assert(CLIPMAP_H_GROWTH + CLIPMAP_GROWTH_BYTES == CLIPMAP_H_HEIGHTS, "growth block");
@@ -232,6 +241,7 @@ struct clipmap_level_desc {
     uint64_t tags_offset; /* byte offset of slot 0's tag */
     uint64_t slots_offset;/* byte offset of slot 0 */
     int pyramid;          /* 1: the grid holds every tile of the level */
+    uint64_t ranges_offset;/* byte offset of slot 0's tile range entry (0: none, not heights) */
 };
 
 struct clipmap_map {
@@ -416,6 +426,25 @@ static inline int clipmap_check_heights_(struct clipmap_map *m, const char *path
     if (f == CLIPMAP_FORMAT_L32F && (scale != 1.0 || offset != 0.0))
         CLIPMAP_REFUSE("heights block, byte %zu (scale): l32f stores metres: found scale %g, offset %g, expected 1 and 0",
                        b + CLIPMAP_HT_SCALE, scale, offset);
+    if (f != CLIPMAP_FORMAT_L32F) {
+        /* What HeightFormat::new refuses (src/height.rs): heights past 10,000 km from zero, and
+         * steps too fine to be told apart at the heights' distance from zero. */
+        double lo = f == CLIPMAP_FORMAT_L16 ? 0.0 : -32768.0, hi = f == CLIPMAP_FORMAT_L16 ? 65535.0 : 32767.0;
+        double m_lo = lo * scale + offset, m_hi = hi * scale + offset;
+        if (fabs(m_lo) > CLIPMAP_HEIGHT_LIMIT_M || fabs(m_hi) > CLIPMAP_HEIGHT_LIMIT_M) {
+            int at_offset = fabs(offset) > CLIPMAP_HEIGHT_LIMIT_M;
+            CLIPMAP_REFUSE("heights block, byte %zu (%s): found scale %.17g, offset %.17g: %s then holds %.17g m to "
+                           "%.17g m, expected every height within 10000000 m of zero",
+                           b + (at_offset ? CLIPMAP_HT_OFFSET : CLIPMAP_HT_SCALE), at_offset ? "offset" : "scale",
+                           scale, offset, f == CLIPMAP_FORMAT_L16 ? "l16" : "l16i", m_lo, m_hi);
+        }
+        double big = fabs(m_lo) > fabs(m_hi) ? fabs(m_lo) : fabs(m_hi); /* no fmax: needs no -lm */
+        if (fabs(offset) > big) big = fabs(offset);
+        if (scale < big * DBL_EPSILON * 64.0)
+            CLIPMAP_REFUSE("heights block, byte %zu (scale): found %.17g, expected a step of at least %.17g: steps that "
+                           "small cannot be told apart at %.17g m from zero in 64-bit arithmetic",
+                           b + CLIPMAP_HT_SCALE, scale, big * DBL_EPSILON * 64.0, big);
+    }
     if (!isnan(nodata)) {
         if (f == CLIPMAP_FORMAT_L32F) {
             if (!isfinite(nodata) || fabs(nodata) > FLT_MAX || (double)(float)nodata != nodata)
@@ -507,6 +536,7 @@ static inline int clipmap_check_static(struct clipmap_map *m, const char *path) 
         d->slot_bytes = clipmap_u64(m, b + CLIPMAP_D_SLOT_BYTES);
         d->tags_offset = clipmap_u64(m, b + CLIPMAP_D_TAGS_OFFSET);
         d->slots_offset = clipmap_u64(m, b + CLIPMAP_D_SLOTS_OFFSET);
+        d->ranges_offset = clipmap_u64(m, b + CLIPMAP_D_RANGES_OFFSET);
         uint64_t kind = clipmap_u64(m, b + CLIPMAP_D_KIND);
         for (int a = 0; a < 2; a++) {
             uint64_t want = m->size[a] >> k;
@@ -565,6 +595,21 @@ static inline int clipmap_check_static(struct clipmap_map *m, const char *path) 
             CLIPMAP_REFUSE("level %u: slots at %llu (%llu bytes): expected a page-aligned offset at or after the tags' "
                            "end %llu, ending inside the %llu-byte mapping", k, (unsigned long long)d->slots_offset,
                            (unsigned long long)slots_bytes, (unsigned long long)tags_end, (unsigned long long)total);
+        if (d->ranges_offset != 0) {
+            uint64_t ranges_bytes, ranges_end;
+            if (!m->heights)
+                CLIPMAP_REFUSE("level %u descriptor, byte %zu (tile ranges offset): found %llu, expected 0: the texels "
+                               "are not heights (heights block all zero)", k, b + CLIPMAP_D_RANGES_OFFSET,
+                               (unsigned long long)d->ranges_offset);
+            if (d->ranges_offset % CLIPMAP_PAGE != 0 || d->ranges_offset < tags_end ||
+                !clipmap_mul(count, CLIPMAP_RANGE_BYTES, &ranges_bytes) ||
+                !clipmap_add(d->ranges_offset, ranges_bytes, &ranges_end) || ranges_end > d->slots_offset)
+                CLIPMAP_REFUSE("level %u descriptor, byte %zu (tile ranges offset): found %llu, expected 0 or a multiple "
+                               "of 4096 at or after the tags' end (%llu) whose %llu entries of %d bytes end at or "
+                               "before the slots (%llu)", k, b + CLIPMAP_D_RANGES_OFFSET,
+                               (unsigned long long)d->ranges_offset, (unsigned long long)tags_end,
+                               (unsigned long long)count, CLIPMAP_RANGE_BYTES, (unsigned long long)d->slots_offset);
+        }
         prev_end = slots_end;
     }
 #undef CLIPMAP_REFUSE
@@ -813,6 +858,36 @@ static inline int clipmap_tag_end(const struct clipmap_map *m, uint32_t level, i
     size_t tag = (size_t)(d->tags_offset + clipmap_slot_index(d, S, T) * CLIPMAP_TAG_BYTES);
     __atomic_thread_fence(__ATOMIC_ACQUIRE);
     return clipmap_load(m, tag + CLIPMAP_T_SEQ, __ATOMIC_RELAXED) == seq;
+}
+
+/* The range of heights of tile (S, T) of `level` as the service published it beside the slot's
+ * tag (docs/SHM.md, "Tile ranges"), in metres, nodata excluded, read under the tag like texels.
+ * CLIPMAP_OK: *min and *max set (both NaN when every texel of the tile is nodata).
+ * CLIPMAP_NOT_VALID: no such level, or the mapping has no ranges (not heights).
+ * CLIPMAP_MISSING / CLIPMAP_STALE: the slot does not hold the tile ready or default.
+ * CLIPMAP_BUSY: the tag stayed locked or kept changing for CLIPMAP_MAX_RETRIES attempts. */
+static inline int clipmap_tile_range(const struct clipmap_map *m, uint32_t level, int64_t S, int64_t T, double *min,
+                                     double *max) {
+    if (level >= m->level_count || m->levels[level].ranges_offset == 0) return CLIPMAP_NOT_VALID;
+    const struct clipmap_level_desc *d = &m->levels[level];
+    size_t e = (size_t)(d->ranges_offset + clipmap_slot_index(d, S, T) * CLIPMAP_RANGE_BYTES);
+    for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES; attempt++) {
+        uint64_t seq;
+        int rc = clipmap_tag_try(m, level, S, T, &seq);
+        if (rc == CLIPMAP_BUSY) {
+            clipmap_pause();
+            continue;
+        }
+        if (rc != CLIPMAP_OK) return rc;
+        uint64_t lo = clipmap_load(m, e + CLIPMAP_R_MIN, __ATOMIC_RELAXED);
+        uint64_t hi = clipmap_load(m, e + CLIPMAP_R_MAX, __ATOMIC_RELAXED);
+        if (clipmap_tag_end(m, level, S, T, seq)) {
+            *min = clipmap_f64_(lo);
+            *max = clipmap_f64_(hi);
+            return CLIPMAP_OK;
+        }
+    }
+    return CLIPMAP_BUSY;
 }
 
 /* Copies the w x h texels of `level` from (s0, t0) into `out` (row-major, rows in increasing t,

@@ -176,6 +176,10 @@ Examples:
         /// mem_region_size sets a grid of its own.
         #[arg(long, value_parser = clap::value_parser!(u64).range(0..=64))]
         lookahead: Option<u64>,
+        /// The texels are heights (a .ct with `#clipmap height` lines says so itself): the image
+        /// caches also hold each level's tile height ranges, 16 bytes a slot.
+        #[arg(long)]
+        heights: bool,
         /// Print memory for texture sizes 2^10 to 2^26 at once.
         #[arg(long)]
         table: bool,
@@ -693,6 +697,7 @@ fn run(cli: Cli) -> i32 {
             invalid_border,
             tile,
             lookahead,
+            heights,
             table,
             json,
             env,
@@ -738,6 +743,7 @@ fn run(cli: Cli) -> i32 {
                 invalid_border,
                 tile,
                 lookahead,
+                heights: heights || from_ct.as_ref().is_some_and(|p| p.height.is_some()),
             };
             match report::plan::compute(&req) {
                 Ok(p) => {

@@ -15,7 +15,18 @@
  *
  * prints what the header's heights block says, one line: "not heights", or "heights STORAGE
  * scale S offset O nodata N|none levels RULE" (numbers as %.17g; the Python reader's --heights
- * prints the same line). */
+ * prints the same line).
+ *
+ *   ./reader MAPPING --ranges
+ *
+ * prints the published range of every tile a slot holds ready or default (clipmap_tile_range), one
+ * line each: "LEVEL S T MIN MAX" (metres as %.17g; "nan nan" when every texel is nodata), and
+ *
+ *   ./reader MAPPING --heights-region
+ *
+ * every enabled level's published region in metres: per level a line "level L region S0 T0 S1 T1",
+ * then one line per row (increasing t) of each texel's metres as %.17g or "nodata". Both exit 2
+ * for a mapping whose texels are not heights; the Python reader's options print the same. */
 #include "clipmap_shm.h"
 
 #include <stdlib.h>
@@ -62,6 +73,73 @@ int main(int argc, char **argv) {
     if (clipmap_open(argv[1], &m) != 0) {
         fprintf(stderr, "clipmap reader: %s\n", m.error);
         return 2;
+    }
+    if (strcmp(argv[2], "--ranges") == 0 || strcmp(argv[2], "--heights-region") == 0) {
+        if (!m.heights) {
+            fprintf(stderr, "clipmap reader: %s: the texels are not heights (heights block all zero)\n", argv[1]);
+            clipmap_close(&m);
+            return 2;
+        }
+        int rc = 0;
+        if (strcmp(argv[2], "--ranges") == 0) {
+            for (uint32_t k = 0; k < m.level_count; k++) {
+                const struct clipmap_level_desc *d = &m.levels[k];
+                for (uint64_t slot = 0; slot < d->slot_count; slot++) {
+                    size_t tag = (size_t)(d->tags_offset + slot * CLIPMAP_TAG_BYTES);
+                    int64_t S = (int64_t)clipmap_load(&m, tag + CLIPMAP_T_TILE_S, __ATOMIC_RELAXED);
+                    int64_t T = (int64_t)clipmap_load(&m, tag + CLIPMAP_T_TILE_T, __ATOMIC_RELAXED);
+                    double lo, hi;
+                    if (clipmap_tile_range(&m, k, S, T, &lo, &hi) == CLIPMAP_OK)
+                        printf("%u %lld %lld %.17g %.17g\n", k, (long long)S, (long long)T, lo, hi);
+                }
+            }
+        } else {
+            struct clipmap_snapshot snap;
+            if (clipmap_snapshot(&m, &snap) != CLIPMAP_OK) {
+                fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], snap.error);
+                rc = 2;
+            }
+            for (uint32_t k = 0; rc == 0 && k < snap.level_count; k++) {
+                const struct clipmap_level_state *st = &snap.levels[k];
+                if (!st->enabled) continue;
+                uint64_t w = (uint64_t)(st->valid[2] - st->valid[0]), h = (uint64_t)(st->valid[3] - st->valid[1]);
+                unsigned char *buf = malloc((size_t)(w * h * m.bytes_per_texel));
+                int r = buf ? clipmap_read_region(&m, &snap, k, st->valid[0], st->valid[1], w, h, buf) : -1;
+                if (r != CLIPMAP_OK) {
+                    fprintf(stderr, "clipmap reader: level %u region: read failed (%d)\n", k, r);
+                    free(buf);
+                    rc = 1;
+                    break;
+                }
+                printf("level %u region %lld %lld %lld %lld\n", k, (long long)st->valid[0], (long long)st->valid[1],
+                       (long long)st->valid[2], (long long)st->valid[3]);
+                for (uint64_t i = 0; i < w * h; i++) {
+                    const unsigned char *p = buf + i * m.bytes_per_texel;
+                    double v;
+                    if (m.texel_format == CLIPMAP_FORMAT_L32F) {
+                        float f;
+                        memcpy(&f, p, 4);
+                        v = f;
+                    } else if (m.texel_format == CLIPMAP_FORMAT_L16) {
+                        uint16_t u;
+                        memcpy(&u, p, 2);
+                        v = u;
+                    } else {
+                        int16_t x;
+                        memcpy(&x, p, 2);
+                        v = x;
+                    }
+                    if (m.height_has_nodata && v == m.height_nodata)
+                        printf("nodata");
+                    else
+                        printf("%.17g", v * m.height_scale + m.height_offset);
+                    putchar(i % w == w - 1 ? '\n' : ' ');
+                }
+                free(buf);
+            }
+        }
+        clipmap_close(&m);
+        return rc;
     }
     if (strcmp(argv[2], "--heights") == 0) {
         static const char *const rules[] = {"mean", "point", "min", "max"};

@@ -83,6 +83,8 @@ HT_IS_HEIGHTS, HT_RULE, HT_SCALE, HT_OFFSET, HT_NODATA = 0, 4, 8, 16, 24
 # Level rule codes (HT_RULE) and the height storage of each texel format code.
 HEIGHT_RULES = ("mean", "point", "min", "max")
 HEIGHT_STORAGES = {11: "l32f", 7: "l16", 12: "l16i"}
+# Every height a format holds lies within this many metres of zero (10,000 km).
+HEIGHT_LIMIT_M = 1.0e7
 G_SEQ, G_GROWING, G_EXTENT_S0, G_EXTENT_T0, G_EXTENT_S1, G_EXTENT_T1 = 0, 8, 16, 24, 32, 40
 G_DATA_LEVELS, G_PATCHES, G_TILES_REBUILT = 48, 56, 64
 G_TILES_PENDING, G_TILES_REPLACED, G_WORLD_S0, G_WORLD_T0, G_TEXELS_PER_UNIT, G_OUTSIDE_FRAME = 72, 80, 88, 96, 104, 112
@@ -90,6 +92,11 @@ G_TILES_PENDING, G_TILES_REPLACED, G_WORLD_S0, G_WORLD_T0, G_TEXELS_PER_UNIT, G_
 # Level descriptor fields (static u64s), relative to the descriptor.
 DESC_SIZE_S, DESC_SIZE_T, DESC_TILE_S, DESC_TILE_T, DESC_GRID_S, DESC_GRID_T = 0, 8, 16, 24, 32, 40
 DESC_SLOT_BYTES, DESC_TAGS_OFFSET, DESC_SLOTS_OFFSET, DESC_KIND = 48, 56, 64, 72
+# u64 byte offset of the level's tile ranges (heights only; 0: none), between its tags and slots.
+DESC_RANGES_OFFSET = 80
+# Tile range entries: one per slot at ranges + RANGE_BYTES * slot, f64 bits (metres, nodata
+# excluded; both NaN when every texel is nodata), read under the slot's tag like texels.
+RANGE_BYTES, RANGE_MIN, RANGE_MAX = 16, 0, 8
 
 # Slot tags (at tags_offset + TAG_BYTES * slot), every field atomic.
 TAG_BYTES = 32
@@ -170,7 +177,7 @@ def _ceil_div(a, b):
 class LevelDesc:
     """One level's static description."""
 
-    __slots__ = ("size", "tile", "grid", "slot_bytes", "slot_count", "tags", "slots", "pyramid")
+    __slots__ = ("size", "tile", "grid", "slot_bytes", "slot_count", "tags", "slots", "pyramid", "ranges")
 
     def slot_index(self, S, T):
         """The slot of tile (S, T): (T mod GH) * GW + (S mod GW), Euclidean."""
@@ -275,10 +282,10 @@ class Mapping:
         prev_end = hb
         self.levels = []
         for k in range(n):
-            f = struct.unpack_from("<10Q", m, H_LEVEL_DESCS + k * DESC_BYTES)
+            f = struct.unpack_from("<11Q", m, H_LEVEL_DESCS + k * DESC_BYTES)
             d = LevelDesc()
             d.size, d.tile, d.grid = (f[0], f[1]), (f[2], f[3]), (f[4], f[5])
-            d.slot_bytes, d.tags, d.slots, kind = f[6], f[7], f[8], f[9]
+            d.slot_bytes, d.tags, d.slots, kind, d.ranges = f[6], f[7], f[8], f[9], f[10]
             want = tuple(max(1, self.size[a] >> k) for a in (0, 1))
             if d.size != want:
                 raise Refused(f"{path}: level {k} is {d.size[0]}x{d.size[1]}: expected level 0's "
@@ -321,6 +328,15 @@ class Mapping:
                 raise Refused(f"{path}: level {k}: slots at {d.slots} ({slots_bytes} bytes): expected a "
                               f"page-aligned offset at or after the tags' end {tags_end}, ending inside the "
                               f"{total}-byte mapping")
+            if d.ranges:
+                at = f"{path}: level {k} descriptor, byte {H_LEVEL_DESCS + k * DESC_BYTES + DESC_RANGES_OFFSET} " \
+                     f"(tile ranges offset): found {d.ranges}"
+                if self.heights is None:
+                    raise Refused(f"{at}, expected 0: the texels are not heights (heights block all zero)")
+                if d.ranges % PAGE or d.ranges < tags_end or d.ranges + d.slot_count * RANGE_BYTES > d.slots:
+                    raise Refused(f"{at}, expected 0 or a multiple of 4096 at or after the tags' end ({tags_end}) "
+                                  f"whose {d.slot_count} entries of {RANGE_BYTES} bytes end at or before the slots "
+                                  f"({d.slots})")
             prev_end = slots_end
             self.levels.append(d)
 
@@ -352,6 +368,20 @@ class Mapping:
         if storage == "l32f" and (scale != 1.0 or offset != 0.0):
             raise Refused(f"{at(HT_SCALE, 'scale')}: l32f stores metres: found scale {scale}, offset {offset}, "
                           f"expected 1 and 0")
+        if storage != "l32f":
+            # What HeightFormat::new refuses (src/height.rs): heights past 10,000 km from zero, and
+            # steps too fine to be told apart at the heights' distance from zero.
+            lo, hi = (0, 65535) if storage == "l16" else (-32768, 32767)
+            m_lo, m_hi = lo * scale + offset, hi * scale + offset
+            if abs(m_lo) > HEIGHT_LIMIT_M or abs(m_hi) > HEIGHT_LIMIT_M:
+                field, name = (HT_OFFSET, "offset") if abs(offset) > HEIGHT_LIMIT_M else (HT_SCALE, "scale")
+                raise Refused(f"{at(field, name)}: found scale {scale!r}, offset {offset!r}: {storage} then holds "
+                              f"{m_lo!r} m to {m_hi!r} m, expected every height within 10000000 m of zero")
+            big = max(abs(m_lo), abs(m_hi), abs(offset))
+            least = big * sys.float_info.epsilon * 64.0
+            if scale < least:
+                raise Refused(f"{at(HT_SCALE, 'scale')}: found {scale!r}, expected a step of at least {least!r}: "
+                              f"steps that small cannot be told apart at {big!r} m from zero in 64-bit arithmetic")
         if math.isnan(nodata):
             nodata = None
         elif storage == "l32f":
@@ -504,6 +534,42 @@ class Mapping:
                     raise Busy(f"level {level} tile ({S}, {T}): the tag stayed locked for {MAX_RETRIES} attempts")
         return bytes(out)
 
+    def tile_range(self, level, S, T):
+        """The range of heights of tile (S, T) of `level` as the service published it beside the
+        slot's tag, read under the tag like texels: (min, max) in metres, nodata excluded, both
+        NaN when every texel of the tile is nodata. None when the texels are not heights (no
+        ranges) or the slot does not hold the tile ready or default. Raises Busy."""
+        if not 0 <= level < self.count:
+            raise NotValid(f"level {level} does not exist")
+        d = self.levels[level]
+        if not d.ranges:
+            return None
+        slot = d.slot_index(S, T)
+        tag = (d.tags + slot * TAG_BYTES) // 8
+        e = (d.ranges + slot * RANGE_BYTES) // 8
+        q = self.q
+        for _ in range(MAX_RETRIES):
+            seq = q[tag]
+            if seq & 1:
+                continue
+            ts, tt, state = _signed(q[tag + 1]), _signed(q[tag + 2]), q[tag + 3]
+            lo, hi = q[e + RANGE_MIN // 8], q[e + RANGE_MAX // 8]
+            if q[tag] != seq:
+                continue
+            if ts != S or tt != T or state not in (SLOT_READY, SLOT_DEFAULT):
+                return None
+            return tuple(struct.unpack("<d", struct.pack("<Q", v))[0] for v in (lo, hi))
+        raise Busy(f"level {level} tile ({S}, {T}): the tag stayed locked for {MAX_RETRIES} attempts")
+
+    def metres(self, texel):
+        """The height in metres of one texel's bytes (None: nodata); the texels must be heights."""
+        h = self.heights
+        fmt = {"l32f": "<f", "l16": "<H", "l16i": "<h"}[h["storage"]]
+        v = struct.unpack(fmt, texel)[0]
+        if h["nodata"] is not None and v == h["nodata"]:
+            return None
+        return v * h["scale"] + h["offset"]
+
     def texel(self, level, s, t, snap=None):
         """One texel's bytes (see read_region)."""
         return self.read_region(level, s, t, 1, 1, snap)
@@ -574,6 +640,41 @@ def main(argv):
             nodata = "none" if h["nodata"] is None else "%.17g" % h["nodata"]
             print("heights %s scale %.17g offset %.17g nodata %s levels %s"
                   % (h["storage"], h["scale"], h["offset"], nodata, h["levels"]))
+        m.close()
+        return 0
+    if len(argv) == 3 and argv[2] in ("--ranges", "--heights-region"):
+        # python3 clipmap_shm.py MAPPING --ranges: the published range of every tile held ready
+        # or default, one line each: "LEVEL S T MIN MAX" (metres as %.17g; nan nan: all nodata).
+        # --heights-region: every level's published region in metres, per level a line "level L
+        # region S0 T0 S1 T1" and then one line per row of the region (increasing t), each
+        # texel's metres as %.17g or "nodata". The C reader's options print the same.
+        try:
+            m = Mapping(argv[1])
+            if m.heights is None:
+                raise Refused(f"{argv[1]}: the texels are not heights (heights block all zero)")
+            if argv[2] == "--ranges":
+                for k, d in enumerate(m.levels):
+                    for slot in range(d.slot_count):
+                        tag = (d.tags + slot * TAG_BYTES) // 8
+                        S, T = _signed(m.q[tag + 1]), _signed(m.q[tag + 2])
+                        r = m.tile_range(k, S, T)
+                        if r is not None:
+                            print("%d %d %d %.17g %.17g" % (k, S, T, r[0], r[1]))
+            else:
+                snap = m.snapshot()
+                for k, st in enumerate(snap.levels):
+                    if not st.enabled:
+                        continue
+                    s0, t0, s1, t1 = st.valid
+                    got = m.read_region(k, s0, t0, s1 - s0, t1 - t0, snap)
+                    print("level %d region %d %d %d %d" % (k, s0, t0, s1, t1))
+                    b, w = m.bpt, s1 - s0
+                    for row in range(t1 - t0):
+                        hs = (m.metres(got[(row * w + i) * b:(row * w + i + 1) * b]) for i in range(w))
+                        print(" ".join("nodata" if v is None else "%.17g" % v for v in hs))
+        except (ClipmapError, OSError, ValueError) as e:
+            print(f"clipmap_shm: {e}", file=sys.stderr)
+            return 2
         m.close()
         return 0
     if len(argv) == 3 and argv[2] == "--growth":

@@ -65,6 +65,36 @@ pub struct LevelRow {
     /// `grid`, `reason`; from `STATS`, `null` when the socket did not answer: see
     /// `streams_error`).
     pub paging: Option<LevelPaging>,
+    /// A height texture's published tile ranges: one per tile its slots hold ready or default
+    /// (docs/SHM.md, "Tile ranges"); absent for a texture that is not heights.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tile_ranges: Option<Vec<TileRangeRow>>,
+}
+
+/// One tile's published range of heights.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct TileRangeRow {
+    /// Tile column S.
+    pub s: i64,
+    /// Tile row T.
+    pub t: i64,
+    /// Least height in metres, nodata excluded (`null`: every texel is nodata, or the tile holds
+    /// a texel that is not a finite height).
+    pub min: Option<f64>,
+    /// Greatest height in metres (`null` as for `min`).
+    pub max: Option<f64>,
+}
+
+impl TileRangeRow {
+    fn of(tile: [i64; 2], r: crate::height::TileRange) -> TileRangeRow {
+        let (min, max) = match r {
+            crate::height::TileRange::Heights { min, max } if min.is_finite() && max.is_finite() => {
+                (Some(min), Some(max))
+            }
+            _ => (None, None),
+        };
+        TileRangeRow { s: tile[0], t: tile[1], min, max }
+    }
 }
 
 /// A status view.
@@ -222,6 +252,9 @@ pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Resu
             enabled: st.enabled,
             invalid_border: snap.invalid_border,
             paging: engine.and_then(|e| e.paging.get(k).copied()),
+            tile_ranges: c
+                .heights
+                .map(|_| c.tile_ranges(k).into_iter().map(|(tile, r)| TileRangeRow::of(tile, r)).collect()),
         })
         .collect();
     Ok(Status {
@@ -404,6 +437,7 @@ mod tests {
             enabled: true,
             invalid_border: 8,
             paging,
+            tile_ranges: None,
         };
         let bound = LevelPaging {
             lead_tiles: [2, 0],

@@ -35,6 +35,9 @@ pub struct Request {
     /// Spare tile rows and columns each stack level's grid keeps beyond its window (fixed
     /// grids), or `None`: the grids the default adaptive policy sizes from its default budget.
     pub lookahead: Option<u64>,
+    /// The texels are heights: the mapping also holds each level's tile ranges (16 bytes a
+    /// slot, page-rounded; docs/SHM.md).
+    pub heights: bool,
 }
 
 /// The image caches the engine and `clipmapd` keep (layout 2): every stack level a grid of whole
@@ -54,8 +57,11 @@ pub struct ImageCaches {
     pub level0_grid: [u64; 2],
     /// Bytes of the slots (the texels).
     pub slot_bytes: u64,
-    /// Bytes of the whole mapping (slots, tags, header, page rounding).
+    /// Bytes of the whole mapping (slots, tags, tile ranges, header, page rounding).
     pub bytes: u64,
+    /// Bytes of the levels' tile ranges (a height texture: 16 a slot, each level's page-rounded;
+    /// 0 otherwise), included in `bytes`.
+    pub tile_range_bytes: u64,
 }
 
 /// The answer.
@@ -99,8 +105,9 @@ pub fn image_caches(
     texel_bytes: u64,
     tile: u64,
     lookahead: Option<u64>,
+    heights: bool,
 ) -> Option<ImageCaches> {
-    use crate::shm::layout::{place, LevelShape, Shape};
+    use crate::shm::layout::{place_with, LevelShape, Shape};
     if size[0].max(size[1]) > crate::limits::MAX_TEXTURE_SIZE || tile == 0 {
         return None;
     }
@@ -132,7 +139,8 @@ pub fn image_caches(
     let levels: Vec<LevelShape> =
         shapes.iter().zip(&grids).map(|(&(size, tile), &grid)| LevelShape { size, tile, grid }).collect();
     let level0_grid = levels[0].grid;
-    let placed = place(&Shape { bytes_per_texel: texel_bytes, clip_size: clip, levels })?;
+    let placed = place_with(&Shape { bytes_per_texel: texel_bytes, clip_size: clip, levels }, heights)?;
+    let tile_range_bytes = placed.levels.iter().map(|l| if l.ranges == 0 { 0 } else { l.slots - l.ranges }).sum();
     Some(ImageCaches {
         tile_size: tile,
         lookahead: lookahead.unwrap_or(1),
@@ -141,6 +149,7 @@ pub fn image_caches(
         level0_grid,
         slot_bytes: placed.slot_bytes(),
         bytes: placed.total_bytes,
+        tile_range_bytes,
     })
 }
 
@@ -208,7 +217,7 @@ pub fn compute(r: &Request) -> Result<Plan, SizingError> {
         })
     });
     let clip = 1u64 << memory.log2_clip;
-    let image_caches = image_caches(r.size, clip, r.texel_bytes, r.tile, r.lookahead);
+    let image_caches = image_caches(r.size, clip, r.texel_bytes, r.tile, r.lookahead, r.heights);
     Ok(Plan {
         image_caches,
         from: r.from.clone(),
@@ -269,9 +278,14 @@ pub fn human(p: &Plan, r: &Request) -> String {
     o.push_str(&format!("clipmap      {} texels, {}\n", grouped(m.clipmap_texels), human_bytes(m.clipmap_bytes)));
     match &p.image_caches {
         Some(ic) => o.push_str(&format!(
-            "image caches {} mapped by clipmapd ({} of texels): {}-texel tiles, {}, level 0 a {}x{} grid of whole tiles, pyramid levels whole\n",
+            "image caches {} mapped by clipmapd ({} of texels{}): {}-texel tiles, {}, level 0 a {}x{} grid of whole tiles, pyramid levels whole\n",
             human_bytes(ic.bytes as u128),
             human_bytes(ic.slot_bytes as u128),
+            if ic.tile_range_bytes > 0 {
+                format!(", {} of tile height ranges", human_bytes(ic.tile_range_bytes as u128))
+            } else {
+                String::new()
+            },
             ic.tile_size,
             match ic.grid_budget_bytes {
                 Some(b) => format!("adaptive grids within a budget of {} (twice lookahead 1)", human_bytes(b as u128)),

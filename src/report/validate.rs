@@ -141,7 +141,8 @@ pub fn unservable_shape(plan: &plan::ClipTexturePlan) -> Option<String> {
         Err(e) => Some(e.to_string()),
         Ok(desc) => {
             let shape = crate::clip::Clipmap::shape_for(&desc, &crate::clip::Settings::default());
-            match crate::shm::layout::place(&shape) {
+            // A height texture's mapping also holds each level's tile ranges.
+            match crate::shm::layout::place_with(&shape, plan.height.is_some()) {
                 None => Some(crate::clip::ClipError::Memory(crate::shm::memory::shape_error(&shape)).to_string()),
                 Some(p) => {
                     let (needed, limit) = (p.total_bytes, limits.cache_bytes as u64);

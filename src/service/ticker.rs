@@ -163,7 +163,8 @@ impl Runner {
         }
         // Refused before anything is created in the shared directory.
         let shape = Clipmap::shape_for(&desc, &settings);
-        let placement = crate::shm::layout::place(&shape)
+        let heights = source.heights().map(|h| crate::shm::layout::Heights::of(&h.format, h.levels));
+        let placement = crate::shm::layout::place_with(&shape, heights.is_some())
             .ok_or_else(|| crate::clip::ClipError::Memory(crate::shm::memory::shape_error(&shape)))?;
         let limit = settings.limits.cache_bytes as u64;
         let needed = placement.total_bytes.saturating_add(settings.pool_bytes);
@@ -174,7 +175,6 @@ impl Runner {
         // into its slot, where renderers read it, and nothing is copied afterwards.
         let period_ns = (1e9 / o.tick_hz).round() as u64;
         let request_mode = o.request_mode.unwrap_or(o.shm_mode);
-        let heights = source.heights().map(|h| crate::shm::layout::Heights::of(&h.format, h.levels));
         let writer =
             Writer::create(&o.shm_dir, &o.name, shape, desc.format(), o.shm_mode, request_mode, period_ns, heights)?;
         let mut clipmap = match Clipmap::with_memory(source, settings, writer.memory()) {

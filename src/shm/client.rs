@@ -63,6 +63,8 @@ pub struct LevelDesc {
     pub slots: u64,
     /// True for pyramid levels (resident whole).
     pub pyramid: bool,
+    /// Byte offset of the tile ranges (0: none; a height texture's levels have them).
+    pub ranges: u64,
 }
 
 impl LevelDesc {
@@ -321,6 +323,7 @@ impl Client {
                 tags: g(desc::TAGS_OFFSET),
                 slots: g(desc::SLOTS_OFFSET),
                 pyramid: g(desc::KIND) == 1,
+                ranges: g(desc::RANGES_OFFSET),
             };
             let bad = |why: String| invalid(path, format!("level {i}'s description is inconsistent: {why} ({d:?})"));
             let want = crate::source::level_size(size0, i as u32);
@@ -347,6 +350,31 @@ impl Client {
                     "tags at {} and slots at {} do not lie in order inside the {total}-byte mapping after byte {end}",
                     d.tags, d.slots
                 )));
+            }
+            if d.ranges != 0 {
+                let at = b + desc::RANGES_OFFSET;
+                let tags_end = tags_end.unwrap_or(u64::MAX);
+                let ranges_end = n.checked_mul(layout::RANGE_BYTES as u64).and_then(|x| x.checked_add(d.ranges));
+                if heights.is_none() {
+                    return Err(invalid(
+                        path,
+                        format!("level {i} descriptor, byte {at} (tile ranges offset): found {}, expected 0: the texels are not heights (heights block all zero)", d.ranges),
+                    ));
+                }
+                if !d.ranges.is_multiple_of(layout::PAGE)
+                    || d.ranges < tags_end
+                    || ranges_end.is_none_or(|e| e > d.slots)
+                {
+                    return Err(invalid(
+                        path,
+                        format!(
+                            "level {i} descriptor, byte {at} (tile ranges offset): found {}, expected 0 or a multiple of 4096 at or after the tags' end ({tags_end}) whose {n} entries of {} bytes end at or before the slots ({})",
+                            d.ranges,
+                            layout::RANGE_BYTES,
+                            d.slots
+                        ),
+                    ));
+                }
             }
             end = slots_end.unwrap_or(total);
             levels.push(d);
@@ -581,6 +609,63 @@ impl Client {
         let st = SlotState::from_code(r.load(b + tag::STATE, Ordering::Relaxed));
         fence(Ordering::Acquire);
         (r.load(b + tag::SEQ, Ordering::Relaxed) == s1).then_some((s1, tile, st))
+    }
+
+    /// The range of heights of tile `tile` (S, T) of `level` as the service published it beside
+    /// the slot's tag (docs/SHM.md, "Tile ranges"), read under the tag like texels: `Ok(None)` when
+    /// the texels are not heights (or the mapping has no ranges), or the slot does not hold the
+    /// tile ready or default (loading, missing, another tile: use a coarser level's range);
+    /// `Busy` when the writer kept the tag locked through [`MAX_RETRIES`] attempts. The range is
+    /// in metres, nodata excluded ([`TileRange::Empty`](crate::height::TileRange::Empty) when
+    /// every texel of the tile is nodata; -inf..inf for a tile holding a texel that is not a
+    /// finite height).
+    pub fn tile_range(&self, level: usize, tile: [i64; 2]) -> Result<Option<crate::height::TileRange>, ReadError> {
+        let d = *self.levels.get(level).ok_or(ReadError::NoLevel(level))?;
+        if d.ranges == 0 || self.heights.is_none() {
+            return Ok(None);
+        }
+        let slot = layout::slot_index(d.grid, tile);
+        let b = (d.tags + slot * layout::TAG_BYTES as u64) as usize;
+        let e = (d.ranges + slot * layout::RANGE_BYTES as u64) as usize;
+        for _ in 0..MAX_RETRIES {
+            tally!(tag_attempts);
+            let Some((seq, held, state)) = self.tag_once(&d, slot) else {
+                tally!(spins);
+                std::hint::spin_loop();
+                continue;
+            };
+            if held != tile || !state.is_some_and(SlotState::readable) {
+                return Ok(None);
+            }
+            let min = f64::from_bits(self.region.load(e + layout::range::MIN, Ordering::Relaxed));
+            let max = f64::from_bits(self.region.load(e + layout::range::MAX, Ordering::Relaxed));
+            fence(Ordering::Acquire);
+            if self.region.load(b + tag::SEQ, Ordering::Relaxed) == seq {
+                return Ok(Some(if min.is_nan() || max.is_nan() {
+                    crate::height::TileRange::Empty
+                } else {
+                    crate::height::TileRange::Heights { min, max }
+                }));
+            }
+        }
+        Err(ReadError::Busy(level))
+    }
+
+    /// The published range of every tile `level`'s slots hold ready or default, in slot order
+    /// (each read under its tag with [`tile_range`](Self::tile_range); a slot whose tag is
+    /// locked, loading or changing meanwhile is left out). Empty when the texels are not heights.
+    pub fn tile_ranges(&self, level: usize) -> Vec<([i64; 2], crate::height::TileRange)> {
+        let Some(d) = self.levels.get(level).copied() else { return Vec::new() };
+        if d.ranges == 0 || self.heights.is_none() {
+            return Vec::new();
+        }
+        (0..d.grid[0] * d.grid[1])
+            .filter_map(|slot| {
+                let (_, tile, _) = self.tag_once(&d, slot)?;
+                let r = self.tile_range(level, tile).ok()??;
+                Some((tile, r))
+            })
+            .collect()
     }
 
     /// Copies the texels of `rect` of `level` (rows in increasing t, s fastest, row pitch

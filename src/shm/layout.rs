@@ -352,6 +352,22 @@ pub mod desc {
     /// 0: stack level (a toroidal grid around the centre), 1: pyramid level (no larger than the
     /// clip size; its grid holds every tile of the level).
     pub const KIND: usize = 72;
+    /// Byte offset of the level's tile ranges ([`super::range`], a multiple of 4096, between the
+    /// tags and the slots); 0 when the texels are not heights.
+    pub const RANGES_OFFSET: usize = 80;
+}
+
+/// Bytes of one tile range entry (one per slot, at the level's ranges offset + 16 x slot).
+pub const RANGE_BYTES: usize = 16;
+/// Tile range entry fields, relative to the entry; each an `f64`'s bits stored atomically, read
+/// under the slot's tag like its texels (docs/SHM.md, "Tile ranges").
+pub mod range {
+    /// `f64` bits: the least height of the slot's tile in metres, nodata excluded (NaN when every
+    /// texel is nodata; -inf when the tile holds a texel that is not a finite height).
+    pub const MIN: usize = 0;
+    /// `f64` bits: the greatest height in metres (NaN when every texel is nodata; +inf when the
+    /// tile holds a texel that is not a finite height).
+    pub const MAX: usize = 8;
 }
 
 /// Bytes of one slot tag.
@@ -523,6 +539,8 @@ pub struct LevelPlace {
     pub slot_count: u64,
     /// 0 stack, 1 pyramid.
     pub kind: u64,
+    /// Byte offset of the tile ranges (0: none, the texels are not heights).
+    pub ranges: u64,
 }
 
 impl LevelPlace {
@@ -534,6 +552,11 @@ impl LevelPlace {
     /// Byte offset of slot `index`'s tag.
     pub(crate) fn tag_offset(&self, index: u64) -> u64 {
         self.tags + index * TAG_BYTES as u64
+    }
+
+    /// Byte offset of slot `index`'s tile range entry (`None`: the level has no ranges).
+    pub(crate) fn range_offset(&self, index: u64) -> Option<u64> {
+        (self.ranges != 0).then(|| self.ranges + index * RANGE_BYTES as u64)
     }
 }
 
@@ -592,9 +615,15 @@ pub(crate) fn check_level(l: &LevelShape, clip: u64, bpt: u64) -> Result<(), Str
     Ok(())
 }
 
-/// Lays a shape out. `None` when it has too many levels, a level fails [`check_level`] or the
-/// sizes overflow.
+/// Lays a shape out without tile ranges (a texture whose texels are not heights). `None` when it
+/// has too many levels, a level fails [`check_level`] or the sizes overflow.
 pub fn place(shape: &Shape) -> Option<Placement> {
+    place_with(shape, false)
+}
+
+/// Lays a shape out, with each level's tile ranges between its tags and its slots when `ranges`
+/// (a height texture: [`RANGE_BYTES`] a slot, page-rounded). `None` as for [`place`].
+pub fn place_with(shape: &Shape, ranges: bool) -> Option<Placement> {
     if shape.levels.is_empty()
         || shape.levels.len() > MAX_LEVELS
         || shape.bytes_per_texel == 0
@@ -611,9 +640,14 @@ pub fn place(shape: &Shape) -> Option<Placement> {
         let slot_count = l.grid[0].checked_mul(l.grid[1])?;
         let slot_bytes = l.tile[0].checked_mul(l.tile[1])?.checked_mul(shape.bytes_per_texel)?;
         let tags = at;
-        let slots = round(tags.checked_add(slot_count.checked_mul(TAG_BYTES as u64)?)?)?;
+        let tags_end = round(tags.checked_add(slot_count.checked_mul(TAG_BYTES as u64)?)?)?;
+        let (ranges_at, slots) = if ranges {
+            (tags_end, round(tags_end.checked_add(slot_count.checked_mul(RANGE_BYTES as u64)?)?)?)
+        } else {
+            (0, tags_end)
+        };
         let kind = u64::from(l.size[0] <= shape.clip_size && l.size[1] <= shape.clip_size);
-        levels.push(LevelPlace { tags, slots, slot_bytes, slot_count, kind });
+        levels.push(LevelPlace { tags, slots, slot_bytes, slot_count, kind, ranges: ranges_at });
         at = round(slots.checked_add(slot_count.checked_mul(slot_bytes)?)?)?;
     }
     Some(Placement { header_bytes, levels, total_bytes: at })
@@ -679,6 +713,26 @@ mod tests {
         assert_eq!(p.levels[0].slot_bytes, 256 * 256 * 4);
         assert_eq!((p.levels[3].kind, p.levels[4].kind), (0, 1));
         assert_eq!(p.levels[4].slot_count, 1);
+    }
+
+    #[test]
+    fn tile_ranges_lie_between_tags_and_slots_for_heights_only() {
+        let sh = shape(16384, 1024, 256, 4);
+        let plain = place(&sh).unwrap();
+        let ranged = place_with(&sh, true).unwrap();
+        assert!(plain.levels.iter().all(|l| l.ranges == 0 && l.range_offset(0).is_none()));
+        let mut extra = 0;
+        for (p, r) in plain.levels.iter().zip(&ranged.levels) {
+            assert_eq!(r.ranges % PAGE, 0);
+            assert!(r.ranges >= r.tags + r.slot_count * TAG_BYTES as u64, "after the tags");
+            assert!(r.ranges + r.slot_count * RANGE_BYTES as u64 <= r.slots, "before the slots");
+            // 16 bytes a slot, page-rounded: 36 slots take one page, as does a pyramid's one.
+            assert_eq!(r.slots - r.ranges, (r.slot_count * 16).div_ceil(PAGE) * PAGE);
+            assert_eq!(r.range_offset(3), Some(r.ranges + 48));
+            assert_eq!((r.slot_bytes, r.slot_count, r.kind), (p.slot_bytes, p.slot_count, p.kind));
+            extra += r.slots - r.ranges;
+        }
+        assert_eq!(ranged.total_bytes, plain.total_bytes + extra);
     }
 
     #[test]

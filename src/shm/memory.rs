@@ -101,6 +101,8 @@ pub struct ImageMemory {
     /// Assignments of a slot whose settled tile the current snapshot still covers (the writer's
     /// invariant says: never).
     violations: AtomicU64,
+    /// The height format of a height texture whose levels have tile ranges (`None`: no ranges).
+    heights: Option<crate::height::HeightFormat>,
 }
 
 impl std::fmt::Debug for ImageMemory {
@@ -131,19 +133,27 @@ impl ImageMemory {
         let len =
             usize::try_from(placement.total_bytes).map_err(|_| "the mapping does not fit in memory".to_string())?;
         let region = Region::anonymous(len).map_err(|e| format!("cannot map {len} bytes: {e}"))?;
-        let memory = Self::over(region, placement, shape);
+        let memory = Self::over(region, placement, shape, None);
         memory.init(format, 0, 0, None);
         Ok(memory)
     }
 
-    /// Image caches over a mapping already sized to `placement` (the service's file).
-    pub(super) fn over(region: Region, placement: Placement, shape: Shape) -> ImageMemory {
+    /// Image caches over a mapping already sized to `placement` (the service's file); `heights`
+    /// when the placement has tile ranges ([`layout::place_with`]), which every settled tile's
+    /// range is then published in.
+    pub(super) fn over(
+        region: Region,
+        placement: Placement,
+        shape: Shape,
+        heights: Option<crate::height::HeightFormat>,
+    ) -> ImageMemory {
+        debug_assert!(placement.levels.iter().all(|l| (l.ranges != 0) == heights.is_some()));
         let per_slot = |v: u64| -> Vec<Vec<AtomicU64>> {
             placement.levels.iter().map(|l| (0..l.slot_count).map(|_| AtomicU64::new(v)).collect()).collect()
         };
         let (claims, keys) = (per_slot(UNASSIGNED), per_slot(NO_TILE));
         let published_tiles = std::sync::Mutex::new(vec![Rect::EMPTY; shape.levels.len()]);
-        ImageMemory { region, placement, shape, claims, keys, published_tiles, violations: AtomicU64::new(0) }
+        ImageMemory { region, placement, shape, claims, keys, published_tiles, violations: AtomicU64::new(0), heights }
     }
 
     /// Writes the static header (everything but the magic, which [`finish`](Self::finish)
@@ -184,6 +194,7 @@ impl ImageMemory {
                 (d::TAGS_OFFSET, p.tags),
                 (d::SLOTS_OFFSET, p.slots),
                 (d::KIND, p.kind),
+                (d::RANGES_OFFSET, p.ranges),
             ] {
                 put64(b + off, v);
             }
@@ -333,11 +344,56 @@ impl ImageMemory {
             self.store_tag(k, slot, t, st);
             return true;
         }
-        if claim.compare_exchange(loading, word(generation, SETTLED), Ordering::AcqRel, Ordering::Relaxed).is_err() {
+        // Busy while the tile's range is computed from its bytes: no read fills the slot then
+        // (a read takes only a loading claim) and the engine neither reassigns nor reopens it.
+        if claim.compare_exchange(loading, word(generation, BUSY), Ordering::AcqRel, Ordering::Relaxed).is_err() {
             return false;
         }
+        self.publish_range(k, slot, tile);
+        claim.store(word(generation, SETTLED), Ordering::Release);
+        // Ready (or default) only after the range entry: a reader that sees the tag's new counter
+        // sees the entry too (the tag's counter is stored with release).
         self.store_tag(k, slot, t, st);
         true
+    }
+
+    /// Computes the range of heights of the tile in slot `slot` of level `k` from the slot's bytes
+    /// (the texels inside the level only; nodata excluded) and stores it in the slot's range
+    /// entry: NaN and NaN when every texel is nodata, -inf and +inf when a texel is not a finite
+    /// height (a corrupt tile: nothing can be culled by it). Nothing for a level without ranges.
+    /// Called by [`settle`](Self::settle) only, with the slot's claim busy and its tag loading.
+    #[allow(unsafe_code)] // the copy of a busy slot's bytes (SAFETY below)
+    fn publish_range(&self, k: usize, slot: u64, tile: TileId) {
+        let (Some(format), Some(at)) = (self.heights, self.placement.levels[k].range_offset(slot)) else {
+            return;
+        };
+        let p = &self.placement.levels[k];
+        let l = &self.shape.levels[k];
+        let bpt = self.shape.bytes_per_texel as usize;
+        let [tw, th] = [l.tile[0] as usize, l.tile[1] as usize];
+        // An edge tile's texels beyond the level's edge are no heights of the texture.
+        let w = (l.size[0] - (tile.s * l.tile[0]).min(l.size[0])).min(l.tile[0]) as usize;
+        let h = (l.size[1] - (tile.t * l.tile[1]).min(l.size[1])).min(l.tile[1]) as usize;
+        let mut bytes = vec![0u8; tw * th * bpt];
+        // SAFETY: the caller holds the slot's claim busy, which only `settle`'s compare-and-swap
+        // from this generation's loading set: no read fills the slot (`fill` takes only a loading
+        // claim), the engine does not reassign or reopen it (`assign` refuses busy, `replace`
+        // needs settled), and this is the engine's own thread. So the bytes do not change while
+        // they are copied into `bytes`, a private buffer.
+        unsafe { self.region.read(p.slot_offset(slot) as usize, &mut bytes) };
+        let range = (0..h).try_fold(crate::height::TileRange::Empty, |acc, row| {
+            format.tile_range(&bytes[row * tw * bpt..(row * tw + w) * bpt]).map(|r| acc.union(r))
+        });
+        let (min, max) = match range {
+            Ok(crate::height::TileRange::Heights { min, max }) => (min, max),
+            Ok(crate::height::TileRange::Empty) => (f64::NAN, f64::NAN),
+            Err(e) => {
+                tracing::warn!("level {k} tile ({}, {}): {e}; its published range is -inf..inf", tile.s, tile.t);
+                (f64::NEG_INFINITY, f64::INFINITY)
+            }
+        };
+        self.region.store(at as usize + layout::range::MIN, min.to_bits(), Ordering::Relaxed);
+        self.region.store(at as usize + layout::range::MAX, max.to_bits(), Ordering::Relaxed);
     }
 
     /// The generation of `tile`'s slot if it is assigned to the tile and loading (a read that

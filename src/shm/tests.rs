@@ -801,3 +801,102 @@ fn a_counter_held_odd_costs_64_paused_attempts_and_then_busy_never_an_endless_sp
     hash(0, inside.s0 as u64, inside.t0 as u64, &mut want);
     assert_eq!(texel, want);
 }
+
+/// A height texture's engine: the verification heights (`l32f`, nodata -32768) in a mapping
+/// `name` in `dir`, with tile ranges.
+fn height_service(dir: &Path, name: &str, size: u64, clip: u64, tile: u64) -> (Clipmap, Writer) {
+    use crate::height::{HeightFormat, LevelRule};
+    let d = TextureDesc::new([size, size], clip, TexelFormat::L32F, [tile, tile]).unwrap();
+    let source: Arc<dyn TileSource> = Arc::new(crate::source::HeightSource::new(d, HeightFormat::VERIFICATION));
+    let shape = Clipmap::shape_for(source.desc(), &settings());
+    let heights = Some(layout::Heights::of(&HeightFormat::VERIFICATION, LevelRule::Mean));
+    let w = Writer::create(dir, name, shape, TexelFormat::L32F, 0o600, 0o600, 16_666_667, heights).unwrap();
+    let map = Clipmap::with_memory(source, settings(), w.memory()).unwrap();
+    (map, w)
+}
+
+/// docs/SHM.md, "Tile ranges": every ready tile's published range equals the range of its texels
+/// (read through the same client, nodata excluded), a colour texture's levels have none, and a
+/// tile replaced in its slot never shows another fill's range: while its tag says loading the
+/// client gives no range, and a reader racing a writer that refills the slot with one height
+/// after another only ever sees a range whose minimum and maximum are the same fill's, never
+/// going back.
+#[test]
+fn a_tile_range_is_never_seen_for_another_fill_of_its_slot() {
+    use crate::height::{HeightFormat, TileRange};
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, w) = height_service(dir.path(), "ranges", 1 << 10, 128, 32);
+    let c = Client::attach(dir.path(), "ranges").unwrap();
+    for _ in 0..10 {
+        map.tick([512, 512], None);
+        map.wait_for_reads();
+    }
+    assert_eq!(c.try_snapshot().unwrap().min_lod, 0.0);
+    let f = HeightFormat::VERIFICATION;
+    let mut seen = 0;
+    for k in 0..c.levels.len() {
+        let d = c.levels[k];
+        assert!(d.ranges != 0 && d.ranges.is_multiple_of(layout::PAGE) && d.ranges < d.slots, "{d:?}");
+        for (tile, r) in c.tile_ranges(k) {
+            let mut bytes = vec![0u8; d.slot_bytes as usize];
+            c.read_tile(k, tile, &mut bytes).unwrap();
+            // Only the texels inside the level count (all of them here: 2^n sizes).
+            assert_eq!(r, f.tile_range(&bytes).unwrap(), "level {k} tile {tile:?}");
+            seen += 1;
+        }
+    }
+    assert!(seen >= 2 * 25, "ranges of every level's resident tiles: {seen}");
+    // A colour texture: no ranges anywhere.
+    let (mut hmap, _hw) = hash_service(dir.path(), "colour", 1 << 10, 128, 32);
+    hmap.tick([512, 512], None);
+    hmap.wait_for_reads();
+    let hc = Client::attach(dir.path(), "colour").unwrap();
+    assert!(hc.levels.iter().all(|d| d.ranges == 0));
+    assert_eq!(hc.tile_range(0, [16, 16]), Ok(None));
+
+    let memory = w.memory();
+    let tile = TileId::new(0, 16, 16);
+    let before = c.tile_range(0, [16, 16]).unwrap().expect("tile (16, 16) is ready");
+    let generation = memory.replace(tile).expect("settled in its slot");
+    assert_eq!(c.tile_range(0, [16, 16]), Ok(None), "no range while the tag says loading");
+    memory.fill(tile, |b| b.chunks_exact_mut(4).for_each(|x| x.copy_from_slice(&(-32768f32).to_le_bytes())));
+    assert_eq!(c.tile_range(0, [16, 16]), Ok(None), "nor while the bytes change");
+    assert!(memory.settle(tile, generation, layout::SlotState::Ready));
+    assert_eq!(c.tile_range(0, [16, 16]), Ok(Some(TileRange::Empty)), "all nodata now");
+    assert_ne!(before, TileRange::Empty);
+
+    // A reader racing the writer's refills of the slot: fill i holds the height i everywhere.
+    let stop = Arc::new(AtomicBool::new(false));
+    let reader = {
+        let (stop, path) = (Arc::clone(&stop), c.path().to_path_buf());
+        std::thread::spawn(move || {
+            let c = Client::attach_path(&path).unwrap();
+            let (mut last, mut ranges, mut none) = (f64::NEG_INFINITY, 0u64, 0u64);
+            while !stop.load(Ordering::Relaxed) {
+                match c.tile_range(0, [16, 16]) {
+                    Ok(Some(TileRange::Heights { min, max })) => {
+                        assert_eq!(min, max, "minimum and maximum of two fills");
+                        assert!(min >= last, "a range older than one seen before: {min} after {last}");
+                        last = min;
+                        ranges += 1;
+                    }
+                    Ok(Some(TileRange::Empty)) => assert_eq!(last, f64::NEG_INFINITY, "the nodata fill came first"),
+                    Ok(None) | Err(ReadError::Busy(_)) => none += 1,
+                    Err(e) => panic!("{e}"),
+                }
+            }
+            (ranges, none, last)
+        })
+    };
+    let fills = 2000;
+    for i in 1..=fills {
+        let g = memory.replace(tile).expect("settled");
+        memory.fill(tile, |b| b.chunks_exact_mut(4).for_each(|x| x.copy_from_slice(&(i as f32).to_le_bytes())));
+        assert!(memory.settle(tile, g, layout::SlotState::Ready));
+    }
+    stop.store(true, Ordering::Relaxed);
+    let (ranges, none, last) = reader.join().unwrap();
+    assert!(ranges > 0, "the reader saw ranges ({none} times none)");
+    assert_eq!(c.tile_range(0, [16, 16]), Ok(Some(TileRange::Heights { min: fills as f64, max: fills as f64 })));
+    assert!(last <= fills as f64);
+}

@@ -78,7 +78,8 @@ impl Writer {
         heights: Option<layout::Heights>,
     ) -> Result<Writer, ShmError> {
         check_name(name)?;
-        let placement = layout::place(&shape).ok_or_else(|| ShmError::Shape(shape_error(&shape)))?;
+        let placement =
+            layout::place_with(&shape, heights.is_some()).ok_or_else(|| ShmError::Shape(shape_error(&shape)))?;
         let lock_path = lock_path(dir, name);
         let (lock, lock_made) = open_lock(&lock_path, mode)?;
         let lock_id = names::Identity::of(&lock.metadata().map_err(io(&lock_path))?);
@@ -175,7 +176,7 @@ impl Writer {
                 return Err(e);
             }
         };
-        let memory = ImageMemory::over(region, placement, shape);
+        let memory = ImageMemory::over(region, placement, shape, heights.map(|h| h.format()));
         memory.init(format, tick_period_ns, generation, heights.as_ref());
         memory.region().store(header::HEARTBEAT_MS, now_ms(), Ordering::Relaxed);
         // Visible under its name only once complete; readers of a previous mapping keep theirs.

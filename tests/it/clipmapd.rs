@@ -658,6 +658,10 @@ fn the_c_header_and_the_python_reader_agree_with_the_layout() {
         ("CLIPMAP_D_TAGS_OFFSET", desc::TAGS_OFFSET),
         ("CLIPMAP_D_SLOTS_OFFSET", desc::SLOTS_OFFSET),
         ("CLIPMAP_D_KIND", desc::KIND),
+        ("CLIPMAP_D_RANGES_OFFSET", desc::RANGES_OFFSET),
+        ("CLIPMAP_RANGE_BYTES", clipmap::shm::layout::RANGE_BYTES),
+        ("CLIPMAP_R_MIN", clipmap::shm::layout::range::MIN),
+        ("CLIPMAP_R_MAX", clipmap::shm::layout::range::MAX),
         ("CLIPMAP_TAG_BYTES", TAG_BYTES),
         ("CLIPMAP_T_SEQ", tag::SEQ),
         ("CLIPMAP_T_TILE_S", tag::TILE_S),
@@ -693,14 +697,15 @@ fn the_c_header_and_the_python_reader_agree_with_the_layout() {
         .arg(
             "import sys; sys.path.insert(0, sys.argv[1]); import clipmap_shm as c; \
              print(c.H_SNAPSHOT, c.H_LEVEL_DESCS, c.H_END, c.H_TICK_PERIOD_NS, c.DESC_BYTES, c.STATE_BYTES, \
-             c.TAG_BYTES, c.DESC_SLOTS_OFFSET, c.TAG_STATE, c.S_UPDATED_TICK, c.SNAP_CENTRE_T, c.MAX_RETRIES)",
+             c.TAG_BYTES, c.DESC_SLOTS_OFFSET, c.TAG_STATE, c.S_UPDATED_TICK, c.SNAP_CENTRE_T, c.MAX_RETRIES, \
+             c.DESC_RANGES_OFFSET, c.RANGE_BYTES, c.RANGE_MIN, c.RANGE_MAX)",
         )
         .arg(Path::new(ROOT).join("clients/python"))
         .output()
         .unwrap();
     assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
     let want = format!(
-        "{} {} {} {} {} {} {} {} {} {} {} {}",
+        "{} {} {} {} {} {} {} {} {} {} {} {} {} {} {} {}",
         header::SNAPSHOT,
         header::LEVEL_DESCS,
         header::END,
@@ -712,7 +717,11 @@ fn the_c_header_and_the_python_reader_agree_with_the_layout() {
         tag::STATE,
         state::UPDATED_TICK,
         snapshot::CENTRE_T,
-        MAX_RETRIES
+        MAX_RETRIES,
+        desc::RANGES_OFFSET,
+        clipmap::shm::layout::RANGE_BYTES,
+        clipmap::shm::layout::range::MIN,
+        clipmap::shm::layout::range::MAX
     );
     assert_eq!(String::from_utf8_lossy(&py.stdout).trim(), want);
 }

@@ -320,6 +320,28 @@ fn a_ct_with_height_lines_publishes_its_heights_in_the_mapping_header() {
         let c = clipmap::shm::Client::attach(d, "lum").unwrap();
         assert_eq!((c.format_code, c.heights), (7, None), "16-bit luminance is not heights");
         heights_seen_by_every_reader(d, "lum", "not heights");
+        // No tile ranges: every level descriptor's offset 80 is 0, and `cliptex attach --json`
+        // shows no `tile_ranges`.
+        use clipmap::shm::layout::{desc, header, DESC_BYTES};
+        let b = std::fs::read(d.join("clipmap-lum.map")).unwrap();
+        for k in 0..c.levels.len() {
+            let o = header::LEVEL_DESCS + k * DESC_BYTES + desc::RANGES_OFFSET;
+            assert_eq!(b[o..o + 8], [0; 8], "level {k}");
+            assert_eq!(c.tile_ranges(k), vec![]);
+        }
+        let (o, log) = exec(
+            d,
+            CLIPTEX,
+            &["attach", "lum", "--shm-dir", d.to_str().unwrap(), "--once", "--json", "--interval", "0.05"],
+        );
+        assert!(o.status.success(), "{log}");
+        let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert!(v["levels"].as_array().unwrap().iter().all(|l| l.get("tile_ranges").is_none()), "{v}");
+        // A colour mapping whose descriptor claims ranges is refused by every reader.
+        let mut bad = b.clone();
+        let o = header::LEVEL_DESCS + desc::RANGES_OFFSET;
+        bad[o..o + 8].copy_from_slice(&c.levels[0].slots.to_le_bytes());
+        refused_by_every_reader(d, &bad, &["byte 2320 (tile ranges offset)", "expected 0", "not heights"]);
     }
     let text = std::fs::read_to_string(&ct).unwrap()
         + "#clipmap height l16\n#clipmap height_scale 0.25\n#clipmap height_offset -500\n#clipmap height_nodata 65535\n#clipmap height_levels max\n";
@@ -333,17 +355,31 @@ fn a_ct_with_height_lines_publishes_its_heights_in_the_mapping_header() {
         (7, HeightStorage::U16, 0.25, -500.0, Some(65535.0), LevelRule::Max)
     );
     heights_seen_by_every_reader(d, "dem", "heights l16 scale 0.25 offset -500 nodata 65535 levels max");
-    drop(c);
 
     // A copy of the mapping with one value damaged is refused by every reader, saying where and what.
-    use clipmap::shm::layout::{header, heights};
+    use clipmap::shm::layout::{desc, header, heights, DESC_BYTES};
     let bytes = std::fs::read(d.join("clipmap-dem.map")).unwrap();
+    // The tile ranges: level 1's off its page, or reaching into its slots.
+    let r = c.levels[1].ranges;
+    assert!(r != 0 && r < c.levels[1].slots, "an l16 height texture has ranges: {:?}", c.levels[1]);
+    let at = header::LEVEL_DESCS + DESC_BYTES + desc::RANGES_OFFSET;
+    for bad_offset in [r + 8, c.levels[1].slots] {
+        let mut b = bytes.clone();
+        b[at..at + 8].copy_from_slice(&bad_offset.to_le_bytes());
+        refused_by_every_reader(d, &b, &["byte 2448 (tile ranges offset)", "multiple of 4096", "before the slots"]);
+    }
+    drop(c);
     let reserved = &bytes[header::HEIGHTS + heights::NODATA + 8..header::END];
     assert!(reserved.iter().all(|&b| b == 0), "the block's reserved bytes are zero");
     for (at, value, words) in [
         (heights::SCALE, f64::NAN.to_bits(), ["byte 6472 (scale)", "found NaN", "above zero"]),
         (heights::OFFSET, f64::INFINITY.to_bits(), ["byte 6480 (offset)", "found inf", "a finite number"]),
         (heights::RULE, 9, ["byte 6468 (level rule)", "found 9", "3 (max)"]),
+        // What `HeightFormat::new` refuses: heights past 10,000 km from zero (blamed on the
+        // offset when it alone is that far), and steps too fine for the offset.
+        (heights::OFFSET, 2.0e7f64.to_bits(), ["byte 6480 (offset)", "20000000", "10000000 m"]),
+        (heights::SCALE, 200.0f64.to_bits(), ["byte 6472 (scale)", "200", "10000000 m"]),
+        (heights::SCALE, 1.0e-14f64.to_bits(), ["byte 6472 (scale)", "64-bit", "told apart"]),
     ] {
         let mut b = bytes.clone();
         let o = header::HEIGHTS + at;
@@ -370,10 +406,207 @@ fn a_ct_with_height_lines_publishes_its_heights_in_the_mapping_header() {
             let err = String::from_utf8_lossy(&o.stderr);
             assert_eq!(o.status.code(), Some(2), "{who}: {err}");
             let lower = err.to_lowercase();
-            assert!(
-                lower.contains(&words[0].to_lowercase()) && lower.contains(&words[1].to_lowercase()),
-                "{who}: {err}"
-            );
+            assert!(words.iter().all(|w| lower.contains(&w.to_lowercase())), "{who}: {err}");
         }
+    }
+}
+
+/// The brute-force range of tile (S, T) of `level` of the height verification texture: the
+/// metres of its texels inside the level, nodata excluded (`None`: all nodata).
+fn defined_range(level: u32, size: [u64; 2], tile: [u64; 2], st: [i64; 2]) -> Option<(f64, f64)> {
+    use clipmap::height::HeightFormat;
+    use clipmap::source::procedural::height_stored;
+    let f = HeightFormat::VERIFICATION;
+    let (s0, t0) = (st[0] as u64 * tile[0], st[1] as u64 * tile[1]);
+    let mut r: Option<(f64, f64)> = None;
+    for t in t0..(t0 + tile[1]).min(size[1]) {
+        for s in s0..(s0 + tile[0]).min(size[0]) {
+            if let Some(m) = f.decode(height_stored(&f, level, s, t)) {
+                r = Some(r.map_or((m, m), |(lo, hi)| (lo.min(m), hi.max(m))));
+            }
+        }
+    }
+    r
+}
+
+/// Runs a reader program, which must succeed; its standard output.
+fn reader_output(cmd: &mut Command, who: &str) -> String {
+    let o = cmd.env("PYTHONDONTWRITEBYTECODE", "1").output().unwrap();
+    assert!(o.status.success(), "{who}: {}", String::from_utf8_lossy(&o.stderr));
+    String::from_utf8(o.stdout).unwrap()
+}
+
+/// Issue #33's proof for tile ranges: through the real `clipmapd --source heights`, the published
+/// range of every ready tile of every level, as the Rust client, the C reader, the Python reader
+/// and `cliptex attach --json` read it, equals the brute-force range of the tile's texels as the
+/// height source defines them; every texel of every level's published region the C and Python
+/// readers read equals the definition; and `cliptex plan --heights` sizes the mapping, tile ranges
+/// included, to the byte.
+#[test]
+fn every_published_tile_range_equals_brute_force_through_every_reader() {
+    use clipmap::height::{HeightFormat, TileRange};
+    use clipmap::source::procedural::height_stored;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "ranges", &["--source", "heights", "--size", "1024", "--clip", "128", "--tile", "32"]);
+    let c = clipmap::shm::Client::attach(d, "ranges").expect("the mapping is there");
+    let t = Instant::now();
+    while c.try_snapshot().map_or(true, |s| s.min_lod != 0.0) {
+        assert!(t.elapsed() < Duration::from_secs(30), "the levels never became whole\n{}", svc.log());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let snap = c.try_snapshot().unwrap();
+    let map = d.join("clipmap-ranges.map");
+    let bytes = std::fs::read(&map).unwrap();
+    let u64_at = |o: usize| u64::from_le_bytes(bytes[o..o + 8].try_into().unwrap());
+    let want = |k: usize, st: [i64; 2]| defined_range(k as u32, c.levels[k].size, c.levels[k].tile, st);
+    let as_pair = |r: TileRange| match r {
+        TileRange::Empty => None,
+        TileRange::Heights { min, max } => Some((min, max)),
+    };
+
+    // The descriptors: each level's ranges between its tags and its slots, on a page.
+    let mut range_bytes = 0;
+    for (k, l) in c.levels.iter().enumerate() {
+        use clipmap::shm::layout::{desc, header, DESC_BYTES, PAGE, RANGE_BYTES, TAG_BYTES};
+        let r = u64_at(header::LEVEL_DESCS + k * DESC_BYTES + desc::RANGES_OFFSET);
+        let slots = l.grid[0] * l.grid[1];
+        assert_eq!(r, l.ranges);
+        assert!(r % PAGE == 0 && r >= l.tags + slots * TAG_BYTES as u64, "level {k}: {l:?}");
+        assert!(r + slots * RANGE_BYTES as u64 <= l.slots, "level {k}: {l:?}");
+        range_bytes += l.slots - r;
+    }
+
+    // The Rust client: every tile under every published region is ready with its range, and
+    // every range published equals brute force.
+    let mut rust = std::collections::BTreeMap::new();
+    for (k, st) in snap.levels.iter().enumerate() {
+        assert!(st.enabled, "level {k}");
+        for (tile, r) in c.tile_ranges(k) {
+            assert_eq!(as_pair(r), want(k, tile), "level {k} tile {tile:?}: published against defined");
+            assert_eq!(c.tile_range(k, tile), Ok(Some(r)));
+            rust.insert((k, tile), as_pair(r));
+        }
+        let [s0, t0, s1, t1] = st.valid;
+        let [tw, th] = [c.levels[k].tile[0] as i64, c.levels[k].tile[1] as i64];
+        for ts in s0 / tw..=(s1 - 1) / tw {
+            for tt in t0 / th..=(t1 - 1) / th {
+                assert!(rust.contains_key(&(k, [ts, tt])), "level {k} tile ({ts}, {tt}) under the region has a range");
+            }
+        }
+    }
+    assert!(rust.len() > 100, "{} tiles", rust.len());
+
+    // The C and Python readers: `--ranges` lines "LEVEL S T MIN MAX", each equal to brute force,
+    // covering every tile the Rust client found (the service stands still: nothing moves).
+    heights_seen_by_every_reader(d, "ranges", "heights l32f scale 1 offset 0 nodata -32768 levels mean");
+    let py_reader = Path::new(ROOT).join("clients/python/clipmap_shm.py");
+    for (who, out) in [
+        ("C", reader_output(Command::new(d.join("reader")).arg(&map).arg("--ranges"), "C")),
+        ("Python", reader_output(Command::new("python3").arg(&py_reader).arg(&map).arg("--ranges"), "Python")),
+    ] {
+        let mut n = 0;
+        for line in out.lines() {
+            let w: Vec<&str> = line.split(' ').collect();
+            assert_eq!(w.len(), 5, "{who}: {line:?}");
+            let (k, s, t) =
+                (w[0].parse::<usize>().unwrap(), w[1].parse::<i64>().unwrap(), w[2].parse::<i64>().unwrap());
+            let (lo, hi) = (w[3].parse::<f64>().unwrap(), w[4].parse::<f64>().unwrap());
+            let got = if lo.is_nan() && hi.is_nan() { None } else { Some((lo, hi)) };
+            assert_eq!(got, want(k, [s, t]), "{who}: level {k} tile ({s}, {t})");
+            n += rust.contains_key(&(k, [s, t])) as usize;
+        }
+        assert_eq!(n, rust.len(), "{who} read the range of every tile the Rust client read");
+    }
+
+    // Every texel of every level's published region, in metres, as the C and Python readers read it.
+    let f = HeightFormat::VERIFICATION;
+    for (who, out) in [
+        ("C", reader_output(Command::new(d.join("reader")).arg(&map).arg("--heights-region"), "C")),
+        ("Python", reader_output(Command::new("python3").arg(&py_reader).arg(&map).arg("--heights-region"), "Python")),
+    ] {
+        let mut lines = out.lines();
+        let (mut levels, mut texels, mut nodata) = (0, 0u64, 0u64);
+        while let Some(head) = lines.next() {
+            let w: Vec<i64> = head.split(' ').filter_map(|x| x.parse().ok()).collect();
+            assert!(head.starts_with("level ") && w.len() == 5, "{who}: {head:?}");
+            let (k, [s0, t0, s1, t1]) = (w[0] as usize, [w[1], w[2], w[3], w[4]]);
+            assert_eq!([s0, t0, s1, t1], snap.levels[k].valid, "{who}: level {k}'s region");
+            for t in t0..t1 {
+                let row: Vec<&str> = lines.next().expect("a row").split(' ').collect();
+                assert_eq!(row.len() as i64, s1 - s0, "{who}: level {k} row {t}");
+                for (i, v) in row.iter().enumerate() {
+                    let s = s0 + i as i64;
+                    let defined = f.decode(height_stored(&f, k as u32, s as u64, t as u64));
+                    let got = if *v == "nodata" { None } else { Some(v.parse::<f64>().unwrap()) };
+                    assert_eq!(got, defined, "{who}: level {k} texel ({s}, {t})");
+                    nodata += got.is_none() as u64;
+                    texels += 1;
+                }
+            }
+            levels += 1;
+        }
+        assert_eq!(levels, c.levels.len(), "{who}: every level");
+        assert!(texels > 128 * 128 * 3 && nodata * 32 > texels, "{who}: {texels} texels, {nodata} nodata");
+    }
+
+    // `cliptex attach --json`: each level's `tile_ranges`, null for an all-nodata tile.
+    let (out, log) = exec(
+        d,
+        CLIPTEX,
+        &["attach", "ranges", "--shm-dir", d.to_str().unwrap(), "--once", "--json", "--interval", "0.05"],
+    );
+    assert!(out.status.success(), "{log}");
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let mut shown = 0;
+    for (k, level) in v["levels"].as_array().unwrap().iter().enumerate() {
+        for e in level["tile_ranges"].as_array().unwrap_or_else(|| panic!("level {k}: {level}")) {
+            let st = [e["s"].as_i64().unwrap(), e["t"].as_i64().unwrap()];
+            let got = e["min"].as_f64().map(|lo| (lo, e["max"].as_f64().unwrap()));
+            assert_eq!(got, want(k, st), "attach: level {k} tile {st:?}");
+            assert_eq!(e["min"].is_null(), e["max"].is_null(), "{e}");
+            shown += 1;
+        }
+    }
+    assert!(shown >= rust.len(), "attach shows every ready tile: {shown} of {}", rust.len());
+
+    // `cliptex plan --heights` sizes the mapping as served, 16 bytes a slot of it tile ranges.
+    let plan = |extra: &[&str]| {
+        let args =
+            [&["plan", "--size", "1024", "--clip", "128", "--tile", "32", "--texel-bytes", "4", "--json"], extra]
+                .concat();
+        let (out, log) = exec(d, CLIPTEX, &args);
+        assert!(out.status.success(), "{log}");
+        serde_json::from_slice::<Value>(&out.stdout).unwrap()["image_caches"].clone()
+    };
+    let (with, without) = (plan(&["--heights"]), plan(&[]));
+    assert_eq!(with["bytes"].as_u64(), Some(bytes.len() as u64), "{with}");
+    assert_eq!(with["tile_range_bytes"].as_u64(), Some(range_bytes), "{with}");
+    assert_eq!(without["bytes"].as_u64(), Some(bytes.len() as u64 - range_bytes), "{without}");
+    assert_eq!(without["tile_range_bytes"].as_u64(), Some(0), "{without}");
+}
+
+/// `bytes`, written as a mapping, is refused by the Rust client, the C reader and the Python
+/// reader (exit 2), each message holding every one of `words` (case aside).
+fn refused_by_every_reader(d: &Path, bytes: &[u8], words: &[&str]) {
+    let bad = d.join("refused.map");
+    std::fs::write(&bad, bytes).unwrap();
+    let e = clipmap::shm::Client::attach_path(&bad).expect_err("refused").to_string();
+    let c = Command::new(d.join("reader")).arg(&bad).arg("--heights").output().unwrap();
+    let py = Command::new("python3")
+        .env("PYTHONDONTWRITEBYTECODE", "1")
+        .arg(Path::new(ROOT).join("clients/python/clipmap_shm.py"))
+        .arg(&bad)
+        .arg("--heights")
+        .output()
+        .unwrap();
+    assert_eq!((c.status.code(), py.status.code()), (Some(2), Some(2)), "{c:?} {py:?}");
+    for (who, msg) in [
+        ("Rust", e),
+        ("C", String::from_utf8_lossy(&c.stderr).into_owned()),
+        ("Python", String::from_utf8_lossy(&py.stderr).into_owned()),
+    ] {
+        let lower = msg.to_lowercase();
+        assert!(words.iter().all(|w| lower.contains(&w.to_lowercase())), "{who}: {msg}");
     }
 }
