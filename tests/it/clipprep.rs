@@ -1269,4 +1269,113 @@ mod heights {
         ]);
         assert!(e.contains("l32f stores metres"), "{e}");
     }
+
+    #[test]
+    fn cliptex_dump_draws_heights_in_false_colour_with_a_legend_of_the_regions_range() {
+        use clipmap::report::hypsometric::{fraction, ramp, Legend};
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("hd");
+        prep(
+            &out,
+            &[
+                "--source",
+                "heights",
+                "--size",
+                "128",
+                "--tile",
+                "32",
+                "--clip",
+                "32",
+                "--format",
+                "l32f",
+                "--height-nodata",
+                "-32768",
+            ],
+        );
+        let ct = out.join("hd.ct");
+        let ct = ct.to_str().unwrap();
+        let f = HeightFormat::VERIFICATION;
+        let (s0, t0, s1, t1) = (16u64, 8u64, 80u64, 56u64);
+        let metres = |s: u64, t: u64| f.decode(height_stored(&f, 0, s, t));
+        // The region's range, by brute force over the definition.
+        let all: Vec<f64> = (t0..t1).flat_map(|t| (s0..s1).filter_map(move |s| metres(s, t))).collect();
+        let (lo, hi) = all.iter().fold((f64::MAX, f64::MIN), |(a, b), &m| (a.min(m), b.max(m)));
+        let nodata = (t1 - t0) * (s1 - s0) - all.len() as u64;
+        assert!(nodata > 0, "the region has nodata texels");
+        for (extra, range) in
+            [(vec![], (lo, hi)), (vec!["--shade"], (lo, hi)), (vec!["--range", "-5000,5000"], (-5000.0, 5000.0))]
+        {
+            let png = dir.path().join("h.png");
+            let region = format!("{s0},{t0},{s1},{t1}");
+            let mut args =
+                vec!["dump", ct, "--level", "0", "--region", &region, "--out", png.to_str().unwrap(), "--json"];
+            args.extend(extra.iter().copied());
+            let json: Value = serde_json::from_str(&ok(CLIPTEX, &args)).unwrap();
+            let what = format!("cliptex dump {extra:?}");
+            let hl = &json["heights"];
+            assert_eq!(hl["range"][0].as_f64().unwrap(), range.0, "{what}: {json}");
+            assert_eq!(hl["range"][1].as_f64().unwrap(), range.1, "{what}: {json}");
+            assert_eq!(
+                (hl["region_range"][0].as_f64(), hl["region_range"][1].as_f64()),
+                (Some(lo), Some(hi)),
+                "{what}"
+            );
+            assert_eq!(hl["nodata_texels"].as_u64(), Some(nodata), "{what}");
+            assert_eq!(hl["labels"][0].as_str().unwrap(), format!("{:.2} m", range.0), "{what}");
+            let img = image::open(&png).unwrap().to_rgba8();
+            let h = (t1 - t0) as u32;
+            assert_eq!(json["pixels"], serde_json::json!([img.width(), img.height()]), "{what}");
+            let mut colours = std::collections::BTreeSet::new();
+            for t in t0..t1 {
+                for s in s0..s1 {
+                    let (x, y) = ((s - s0) as u32, (t1 - 1 - t) as u32);
+                    let p = img.get_pixel(x, y).0;
+                    colours.insert(p);
+                    match metres(s, t) {
+                        None => assert_eq!(p, [0, 0, 0, 0], "{what}: nodata texel ({s}, {t}) is transparent"),
+                        Some(m) if extra.is_empty() || extra[0] == "--range" => {
+                            let c = ramp(fraction(m, range.0, range.1));
+                            assert_eq!(p, [c[0], c[1], c[2], 255], "{what}: texel ({s}, {t}) at {m} m");
+                        }
+                        Some(_) => assert_eq!(p[3], 255, "{what}: texel ({s}, {t}) is opaque"),
+                    }
+                }
+            }
+            assert!(colours.len() > 100, "{what}: {} distinct colours", colours.len());
+            // The legend's bar runs from the colour of the range's lowest metres to its highest.
+            let lg = Legend::at(img.width(), h);
+            let c0 = ramp(0.0);
+            let c1 = ramp(1.0);
+            assert_eq!(img.get_pixel(lg.bar_x0, lg.bar_y0).0, [c0[0], c0[1], c0[2], 255], "{what}");
+            assert_eq!(img.get_pixel(lg.bar_x1 - 1, lg.bar_y1 - 1).0, [c1[0], c1[1], c1[2], 255], "{what}");
+            // The region's extremes take the bar's end colours (without --range or --shade).
+            if extra.is_empty() {
+                let at = |want: f64| {
+                    let (s, t) = (t0..t1)
+                        .flat_map(|t| (s0..s1).map(move |s| (s, t)))
+                        .find(|&(s, t)| metres(s, t) == Some(want))
+                        .unwrap();
+                    img.get_pixel((s - s0) as u32, (t1 - 1 - t) as u32).0
+                };
+                assert_eq!(at(lo), [c0[0], c0[1], c0[2], 255]);
+                assert_eq!(at(hi), [c1[0], c1[1], c1[2], 255]);
+            }
+            // The labels are drawn: black pixels under the bar.
+            let black = (lg.label_y..img.height())
+                .flat_map(|y| (0..img.width()).map(move |x| (x, y)))
+                .filter(|&(x, y)| img.get_pixel(x, y).0 == [0, 0, 0, 255])
+                .count();
+            assert!(black > 50, "{what}: {black} label pixels");
+        }
+        // --shade and --range are refused on a colour texture.
+        let colour = dir.path().join("c");
+        prep(&colour, &["--source", "hash", "--size", "64", "--tile", "32", "--clip", "32", "--format", "rgb8"]);
+        let cct = colour.join("c.ct");
+        let (o, d) = exec(
+            CLIPTEX,
+            &["dump", cct.to_str().unwrap(), "--shade", "--out", dir.path().join("x.png").to_str().unwrap()],
+        );
+        assert_eq!(o.status.code(), Some(1), "{d}");
+        assert!(String::from_utf8_lossy(&o.stderr).contains("--shade draws heights"), "{d}");
+    }
 }
