@@ -6,10 +6,13 @@
 
 use anyhow::Context;
 use clap::{Parser, ValueEnum};
+use clipmap::height::{HeightFormat, HeightStorage, LevelRule, NonFinite};
 use clipmap::prep::error::next_power_of_two;
 use clipmap::prep::output::Staging;
 use clipmap::prep::source::open_image;
+use clipmap::prep::tiff_stream::HeightTiff;
 use clipmap::prep::{Compression, Filter, Inset, Job, Layout, Limits, PrepError, Source, Spec};
+use clipmap::prep::{HeightInput, HeightPrep};
 use clipmap::texel::TexelFormat;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::io::IsTerminal;
@@ -25,6 +28,9 @@ enum SourceKind {
     Hash,
     /// Fractal terrain at level 0, coarser levels filtered.
     Terrain,
+    /// Heights: the height verification texture's level 0 (exactly computable texels, as
+    /// `clipmapd --source heights` serves it), coarser levels by --height-levels.
+    Heights,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -39,6 +45,9 @@ enum Format {
     La16,
     Rgb16,
     Rgba16,
+    // Heights (docs/ELEVATION.md): 32-bit float metres, signed 16-bit steps.
+    L32f,
+    L16i,
 }
 
 impl Format {
@@ -53,8 +62,34 @@ impl Format {
             Format::La16 => TexelFormat::LA16,
             Format::Rgb16 => TexelFormat::RGB16,
             Format::Rgba16 => TexelFormat::RGBA16,
+            Format::L32f => TexelFormat::L32F,
+            Format::L16i => TexelFormat::L16I,
         }
     }
+
+    /// The height storage of a format that can hold heights.
+    fn height_storage(self) -> Option<HeightStorage> {
+        match self {
+            Format::L32f => Some(HeightStorage::F32),
+            Format::L16 => Some(HeightStorage::U16),
+            Format::L16i => Some(HeightStorage::I16),
+            _ => None,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum LevelsArg {
+    Mean,
+    Point,
+    Min,
+    Max,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum NanArg {
+    Refuse,
+    Nodata,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -72,6 +107,9 @@ Examples:
   clipprep --source terrain --size 16384 --tile 256 --clip 1024 --format rgb8 --out terrain
   clipprep --source hash --size 65536x32768 --tile 512 --clip 2048 --format rgba8 --streams 4 --out verify
   clipprep --source terrain --size 8192 --tile 256 --clip 512 --format rgb8 --zstd 3 --out packed
+  clipprep --input dem.tif --format l16 --height-scale 0.01 --height-offset -500 --height-nodata 0 \\
+           --height-levels point --nan nodata --pad --tile 256 --clip 1024 --out dem
+  clipprep --source heights --size 4096 --format l32f --height-nodata -32768 --tile 256 --clip 512 --out heights
   clipprep --source terrain --size 8192 --tile 256 --clip 512 --format rgb8 \\
            --inset 2048,2048,4096,4096 --inset-level 2 --out inset
 
@@ -175,6 +213,26 @@ struct Cli {
     /// Compression of the --cog file's tiles.
     #[arg(long, value_enum, default_value = "deflate", requires = "cog")]
     cog_compression: CogCompressionArg,
+    /// Heights: the metres of one stored step of l16/l16i (stored x scale + offset = metres).
+    /// Any height option (or --format l32f/l16i, or --source heights) makes the texture heights:
+    /// --input is then a single-band elevation TIFF, the .ct carries `#clipmap height` lines.
+    #[arg(long, value_name = "M")]
+    height_scale: Option<f64>,
+    /// Heights: the metres of a stored 0 of l16/l16i.
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    height_offset: Option<f64>,
+    /// Heights: the stored value (not metres) that marks a texel without data (the input's
+    /// GDAL_NODATA pixels and padding become it).
+    #[arg(long, value_name = "V", allow_negative_numbers = true)]
+    height_nodata: Option<f64>,
+    /// Heights: how each coarser level is made: mean of the texels with data, point (the finer
+    /// texel at the even position: point-registered), min or max.
+    #[arg(long, value_enum, value_name = "RULE")]
+    height_levels: Option<LevelsArg>,
+    /// Heights: what a NaN or infinite input height becomes: refused (an error naming the pixel),
+    /// or the nodata value (needs --height-nodata).
+    #[arg(long, value_enum, value_name = "WHAT")]
+    nan: Option<NanArg>,
     /// Memory limit in MiB for a decoded input image and the band cascade.
     #[arg(long, value_name = "MIB", default_value_t = 512, value_parser = clap::value_parser!(u64).range(1..=clipmap::prep::MAX_MEMORY_MIB))]
     max_memory: u64,
@@ -247,6 +305,109 @@ fn default_name(out: &Path) -> String {
     }
 }
 
+/// The heights the options ask for (`None` for a colour texture): any height option, a height
+/// format other than `l16` (which alone keeps its 16-bit luminance meaning) or `--source heights`.
+fn height_prep(cli: &Cli) -> Result<Option<HeightPrep>, PrepError> {
+    let options = cli.height_scale.is_some()
+        || cli.height_offset.is_some()
+        || cli.height_nodata.is_some()
+        || cli.height_levels.is_some()
+        || cli.nan.is_some();
+    let asked =
+        options || matches!(cli.format, Format::L32f | Format::L16i) || matches!(cli.source, Some(SourceKind::Heights));
+    if !asked {
+        return Ok(None);
+    }
+    let fmt = cli.format.texel().short_name();
+    let Some(storage) = cli.format.height_storage() else {
+        return Err(PrepError::Geometry(format!(
+            "height options (or --source heights) were given with --format {fmt}, which holds colours; expected --format l32f, l16 or l16i for heights; choose one, or drop the height options"
+        )));
+    };
+    if let Some(kind @ (SourceKind::Hash | SourceKind::Terrain)) = cli.source {
+        let name = if matches!(kind, SourceKind::Hash) { "hash" } else { "terrain" };
+        return Err(PrepError::Geometry(format!(
+            "--source {name} is a colour source, but height options or --format {fmt} ask for heights; expected --source heights or --input DEM.tif; choose one, or drop the height options"
+        )));
+    }
+    let colour_only = [
+        (
+            "--filter lanczos3",
+            matches!(cli.filter, FilterArg::Lanczos3),
+            "coarser levels of heights are made by --height-levels",
+        ),
+        ("--linear-light", cli.linear_light, "heights are no sRGB colours"),
+        (
+            "--reduce-depth",
+            cli.reduce_depth,
+            "heights are converted by --height-scale and --height-offset, refused when out of range",
+        ),
+        ("--inset", cli.inset.is_some(), "sparse insets are not built for heights"),
+    ];
+    if let Some((flag, _, why)) = colour_only.iter().find(|c| c.1) {
+        return Err(PrepError::Geometry(format!(
+            "{flag} is for colour textures and this is a height texture (--format {fmt}): {why}; drop {flag}"
+        )));
+    }
+    let format = HeightFormat::new(
+        storage,
+        cli.height_scale.unwrap_or(1.0),
+        cli.height_offset.unwrap_or(0.0),
+        cli.height_nodata,
+    )
+    .map_err(|e| PrepError::Geometry(format!("--format {fmt} with the --height-* options given: {e}")))?;
+    let non_finite = match cli.nan {
+        Some(NanArg::Nodata) => {
+            if format.nodata().is_none() {
+                return Err(PrepError::Geometry(
+                    "--nan nodata stores NaN and infinite heights as the nodata value, and none was given; expected --height-nodata V (a stored value outside the data, e.g. -32768); pass it, or --nan refuse".into(),
+                ));
+            }
+            NonFinite::Nodata
+        }
+        Some(NanArg::Refuse) | None => NonFinite::Refuse,
+    };
+    let rule = match cli.height_levels {
+        Some(LevelsArg::Mean) | None => LevelRule::Mean,
+        Some(LevelsArg::Point) => LevelRule::Point,
+        Some(LevelsArg::Min) => LevelRule::Min,
+        Some(LevelsArg::Max) => LevelRule::Max,
+    };
+    Ok(Some(HeightPrep { format, rule, non_finite }))
+}
+
+/// The `.ct` comment lines that describe heights.
+fn height_description(h: &HeightPrep) -> Vec<String> {
+    let f = &h.format;
+    let nodata = f.nodata().map_or("none".to_string(), |v| v.to_string());
+    let range = match f.storage() {
+        HeightStorage::F32 => String::new(),
+        _ => {
+            let (lo, hi) = f.metre_bounds();
+            format!(", {lo} m to {hi} m")
+        }
+    };
+    let words = match h.rule {
+        LevelRule::Mean => "the mean of the finer texels with data",
+        LevelRule::Point => "point-registered, the finer texel at the even position",
+        LevelRule::Min => "the least finer height with data",
+        LevelRule::Max => "the greatest finer height with data",
+    };
+    let non_finite = match h.non_finite {
+        NonFinite::Refuse => "refused",
+        NonFinite::Nodata => "stored as nodata",
+    };
+    vec![
+        format!(
+            "Heights {}: scale {} m, offset {} m, nodata {nodata}{range}; non-finite input {non_finite}.",
+            f.storage(),
+            f.scale(),
+            f.offset()
+        ),
+        format!("Coarser levels: height rule {} ({words}).", h.rule),
+    ]
+}
+
 struct Outcome {
     ct: PathBuf,
     summary: clipmap::prep::Summary,
@@ -258,8 +419,37 @@ fn prepare(cli: &Cli, out: &Path, cancel: &AtomicBool) -> Result<Outcome, PrepEr
     let started = Instant::now();
     let limits = Limits { max_memory_bytes: cli.max_memory << 20, ..Limits::default() };
     let format = cli.format.texel();
-    let (source, (width, height), origin) = match (&cli.input, cli.source) {
-        (Some(path), _) => {
+    let heights = height_prep(cli)?;
+    let (source, (width, height), origin) = match (&cli.input, cli.source, heights) {
+        (Some(path), _, Some(prep)) => {
+            let tiff = HeightTiff::open(path, &limits)?;
+            let (w, h) = tiff.dimensions();
+            let size = if cli.pad {
+                if (w, h) != (next_power_of_two(w), next_power_of_two(h)) && prep.format.nodata().is_none() {
+                    return Err(PrepError::Geometry(format!(
+                        "--pad fills a height texture with the nodata value, and none was given; expected --height-nodata V for {} ({w}x{h}); pass it, or crop the elevation model to powers of two",
+                        path.display()
+                    )));
+                }
+                (next_power_of_two(w), next_power_of_two(h))
+            } else {
+                let hint = "; pass --pad (with --height-nodata) to pad it with nodata, or crop the elevation model";
+                check_pow2(format!("the width of {}", path.display()), w, hint)?;
+                check_pow2(format!("the height of {}", path.display()), h, hint)?;
+                (w, h)
+            };
+            let file = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let mut origin = format!("elevation model {file} ({w}x{h}, {} samples", tiff.sample());
+            if let Some(nd) = tiff.nodata() {
+                origin.push_str(&format!(", nodata {nd}"));
+            }
+            if size != (w, h) {
+                origin.push_str(&format!(", padded with nodata to {}x{}", size.0, size.1));
+            }
+            origin.push(')');
+            (Source::Heights { prep, input: HeightInput::Tiff(Box::new(tiff)) }, size, origin)
+        }
+        (Some(path), _, None) => {
             let mut img = open_image(path, &limits)?;
             img.reduce_depth = cli.reduce_depth;
             img.check_depth(format)?;
@@ -280,7 +470,7 @@ fn prepare(cli: &Cli, out: &Path, cancel: &AtomicBool) -> Result<Outcome, PrepEr
             origin.push(')');
             (Source::Image(img), size, origin)
         }
-        (None, Some(kind)) => {
+        (None, Some(kind), heights) => {
             let text = cli.size.as_deref().unwrap_or_default();
             let (w, h) = parse_pair(text, "--size")?;
             let hint = "; pass --size with a power of two";
@@ -291,9 +481,14 @@ fn prepare(cli: &Cli, out: &Path, cancel: &AtomicBool) -> Result<Outcome, PrepEr
                 SourceKind::Terrain => {
                     (Source::Terrain { seed: cli.seed }, (w, h), format!("the terrain source, seed {}", cli.seed))
                 }
+                SourceKind::Heights => {
+                    let prep = heights.expect("--source heights asks for heights");
+                    let origin = "the height verification source at level 0 (docs/ELEVATION.md)".to_string();
+                    (Source::Heights { prep, input: HeightInput::Verification }, (w, h), origin)
+                }
             }
         }
-        (None, None) => unreachable!("clap requires --input or --source"),
+        (None, None, _) => unreachable!("clap requires --input or --source"),
     };
     let tiles_in_file = match cli.tiles_per_file.split_once(['x', 'X', ',']) {
         Some(_) => parse_pair(&cli.tiles_per_file, "--tiles-per-file")?,
@@ -320,7 +515,9 @@ fn prepare(cli: &Cli, out: &Path, cancel: &AtomicBool) -> Result<Outcome, PrepEr
         FilterArg::Lanczos3 => Filter::Lanczos3,
     };
     let mut description = vec![format!("Prepared by clipprep {} from {origin}.", env!("CARGO_PKG_VERSION"))];
-    if !matches!(source, Source::Hash) {
+    if let Some(h) = &heights {
+        description.extend(height_description(h));
+    } else if !matches!(source, Source::Hash) {
         let f = match filter {
             Filter::Box => "2x2 box",
             Filter::Lanczos3 => "Lanczos-3",

@@ -289,6 +289,13 @@ struct DumpArgs {
     /// The PNG to write (with a .ct file).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Heights: hillshade the false-colour map (light from the north-west).
+    #[arg(long, conflicts_with = "attach")]
+    shade: bool,
+    /// Heights: the metres the colour bar spans, MIN,MAX (default: the region's least and
+    /// greatest height with data).
+    #[arg(long, value_name = "MIN,MAX", value_parser = report::dump::parse_range, conflicts_with = "attach", allow_hyphen_values = true)]
+    range: Option<[f64; 2]>,
     /// Picture a running service instead: its --name.
     #[arg(long, value_name = "NAME", requires = "out_dir", conflicts_with_all = ["region", "out"])]
     attach: Option<String>,
@@ -540,7 +547,22 @@ fn dump_level(
         read: &read,
         file_of,
     };
-    dump::finish(dump::dump(file, &tiles, args.region, out), args.json, args.quiet, "cliptex")
+    match src.heights() {
+        Some(h) => {
+            let view = dump::HeightView { format: h.format, range: args.range, shade: args.shade };
+            dump::finish(dump::dump_heights(file, &tiles, &view, args.region, out), args.json, args.quiet, "cliptex")
+        }
+        None if args.shade || args.range.is_some() => {
+            let flag = if args.shade { "--shade" } else { "--range" };
+            eprintln!(
+                "cliptex dump: {flag} draws heights, and {} is a colour texture ({}, no `#clipmap height` lines); expected a height texture (docs/ELEVATION.md); drop {flag}",
+                file.display(),
+                src.desc().format()
+            );
+            exit::BAD_INPUT
+        }
+        None => dump::finish(dump::dump(file, &tiles, args.region, out), args.json, args.quiet, "cliptex"),
+    }
 }
 
 /// `clipmapd`'s and `cliptex info`'s clip size for a COG served as it is.

@@ -9,6 +9,8 @@
 //! base, so a base would break the relative paths. Nothing here touches the file system.
 
 use super::layout::{Layout, Level, LevelKind};
+use crate::height::HeightStorage;
+use crate::plan::HeightPlan;
 use crate::texel::{ComponentType, Components, PackedType, TexelFormat};
 use std::fmt::Write;
 
@@ -26,6 +28,9 @@ pub(crate) fn format_names(f: TexelFormat) -> Option<(&'static str, &'static str
             ("PFTEX_UNSIGNED_SHORT_5_5_5_1", "PFTEX_RGB5_A1", "PFTEX_RGBA")
         }
         (Components::One, ComponentType::U16) => ("PFTEX_UNSIGNED_SHORT", "GL_LUMINANCE16_EXT", "PFTEX_LUMINANCE"),
+        // Heights (docs/ELEVATION.md): 32-bit float metres, signed 16-bit steps.
+        (Components::One, ComponentType::F32) => ("GL_FLOAT", "GL_LUMINANCE", "PFTEX_LUMINANCE"),
+        (Components::One, ComponentType::I16) => ("GL_SHORT", "GL_LUMINANCE16_EXT", "PFTEX_LUMINANCE"),
         (Components::Two, ComponentType::U16) => {
             ("PFTEX_UNSIGNED_SHORT", "GL_LUMINANCE16_ALPHA16_EXT", "PFTEX_LUMINANCE_ALPHA")
         }
@@ -42,8 +47,9 @@ fn formats(out: &mut String, f: TexelFormat) {
     let _ = writeln!(out, "img_format {img}");
 }
 
-/// The `.ct` text. `description` lines become comments (one `#` line each).
-pub fn ct_text(layout: &Layout, description: &[String]) -> String {
+/// The `.ct` text. `description` lines become comments (one `#` line each); a height texture's
+/// `#clipmap height` lines (docs/CONFIG.md §17) come last.
+pub fn ct_text(layout: &Layout, description: &[String], heights: Option<&HeightPlan>) -> String {
     let spec = &layout.spec;
     let mut out = String::new();
     out.push_str("ct_version2.0\n");
@@ -88,6 +94,22 @@ pub fn ct_text(layout: &Layout, description: &[String]) -> String {
         let _ = writeln!(out, "\t{}", Layout::pyramid_file(l.index));
     }
     let _ = writeln!(out, "tile_size {} {} 1", spec.tile, spec.tile);
+    if let Some(h) = heights {
+        let f = &h.format;
+        out.push_str("# Heights (docs/ELEVATION.md): metres = stored x scale + offset; nodata is a stored value.\n");
+        let _ = writeln!(out, "#clipmap height {}", f.storage());
+        if f.storage() != HeightStorage::F32 {
+            let _ = writeln!(out, "#clipmap height_scale {}", f.scale());
+            let _ = writeln!(out, "#clipmap height_offset {}", f.offset());
+        }
+        match f.nodata() {
+            Some(v) => {
+                let _ = writeln!(out, "#clipmap height_nodata {v}");
+            }
+            None => out.push_str("#clipmap height_nodata none\n"),
+        }
+        let _ = writeln!(out, "#clipmap height_levels {}", h.levels);
+    }
     out
 }
 
@@ -152,7 +174,9 @@ mod tests {
     #[test]
     fn every_written_format_reads_back_as_itself() {
         use TexelFormat as F;
-        for f in [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16] {
+        for f in
+            [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16, F::L32F, F::L16I]
+        {
             let (ext, int, img) = format_names(f).unwrap_or_else(|| panic!("{f} is written"));
             let e = resolve(Which::Ext, ext).unwrap().value;
             resolve(Which::Int, int).unwrap();

@@ -109,6 +109,26 @@ pub enum PrepError {
         /// Why.
         source: io::Error,
     },
+    /// An elevation input that is not one this tool reads as heights.
+    #[error("cannot read the heights of {path}: {message}")]
+    HeightInput {
+        /// The input.
+        path: PathBuf,
+        /// What was found, what was expected and how to fix it.
+        message: String,
+    },
+    /// A pixel of an elevation input that cannot be stored in the output's height format.
+    #[error("the input {path}, pixel ({x}, {y}) (column, row from the top): {message}")]
+    HeightPixel {
+        /// The input.
+        path: PathBuf,
+        /// Column.
+        x: u64,
+        /// Row, from the top of the image.
+        y: u64,
+        /// What was found, what was expected and how to fix it.
+        message: String,
+    },
     /// The run was interrupted (Ctrl-C or SIGTERM); nothing was left at the output path.
     #[error("interrupted; the partial output was removed and {dir} was left as it was")]
     Interrupted {
@@ -131,6 +151,8 @@ impl PrepError {
                 | PrepError::ImageTooLarge { .. }
                 | PrepError::OutputHoldsPyramid { .. }
                 | PrepError::OutputOccupied { .. }
+                | PrepError::HeightInput { .. }
+                | PrepError::HeightPixel { .. }
         )
     }
 

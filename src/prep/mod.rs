@@ -8,6 +8,7 @@
 //! | [`source`] | level texels: `hash` per level, `terrain` and images at level 0 |
 //! | [`tiff_stream`] | streaming TIFF input, strip by strip or tile row by tile row |
 //! | [`inset`] | sparse insets: which tiles of a finer level are inset, border or absent |
+//! | [`heights`] | heights: level 0 in a height format, coarser levels by the level rule |
 //! | [`filter`] | row-by-row 2:1 reduction (box, Lanczos-3, optional linear light) |
 //! | [`sink`] | cutting bands of rows into tiles and writing them at their offsets |
 //! | [`border`] | border tiles of sparse levels, magnified from the inset level |
@@ -29,6 +30,7 @@ pub mod cog;
 pub mod configfile;
 pub mod error;
 pub mod filter;
+pub mod heights;
 pub mod inset;
 pub mod jpeg_check;
 pub mod layout;
@@ -41,6 +43,7 @@ pub mod tiff_stream;
 
 pub use error::PrepError;
 pub use filter::Filter;
+pub use heights::{HeightInput, HeightPrep};
 pub use inset::{Inset, TileRole};
 pub use layout::{Compression, Layout, Level, LevelKind, Spec, TileLocation};
 pub use pipeline::{run, Job, Source, Summary};

@@ -7,6 +7,7 @@ use super::border::write_borders;
 use super::configfile::{ct_text, ic_text};
 use super::error::PrepError;
 use super::filter::{Channels, Downsampler, Filter};
+use super::heights::{HeightInput, HeightPrep, HeightReducer, VerificationLevel0};
 use super::inset::TileRole;
 use super::layout::{Layout, Level, LevelKind};
 use super::sink::write_tile_part;
@@ -30,6 +31,37 @@ pub enum Source {
     },
     /// An input image at level 0 (padded with zeros to the layout size); coarser levels filtered.
     Image(OpenedImage),
+    /// Heights (docs/ELEVATION.md): level 0 from `input` in the format of `prep`, coarser
+    /// levels made by its level rule (never the colour filter); the `.ct` carries the
+    /// `#clipmap height` lines. The layout's texel format is the storage's.
+    Heights {
+        /// Format, level rule and the handling of non-finite input.
+        prep: HeightPrep,
+        /// Where level-0 heights come from.
+        input: HeightInput,
+    },
+}
+
+/// Builds level k + 1 from the rows of level k: a colour filter, or a height level rule.
+enum Reducer {
+    Colour(Downsampler),
+    Height(HeightReducer),
+}
+
+impl Reducer {
+    fn dst_row_bytes(&self) -> usize {
+        match self {
+            Reducer::Colour(d) => d.dst_row_bytes(),
+            Reducer::Height(h) => h.dst_row_bytes(),
+        }
+    }
+
+    fn push(&mut self, row: &[u8], out: &mut Vec<u8>) -> usize {
+        match self {
+            Reducer::Colour(d) => d.push(row, out),
+            Reducer::Height(h) => h.push(row, out),
+        }
+    }
 }
 
 /// Everything one run needs.
@@ -190,6 +222,10 @@ pub fn run(
     let mut writers: Vec<LevelWriter> =
         layout.levels.iter().map(|l| LevelWriter::new(root, layout, l, job.limits.pyramid_band_bytes)).collect();
     let bpt = layout.bpt() as usize;
+    let height_plan = match &job.source {
+        Source::Heights { prep, .. } => Some(prep.plan()),
+        _ => None,
+    };
     match job.source {
         Source::Hash => {
             for (w, level) in writers.iter_mut().zip(&layout.levels) {
@@ -213,7 +249,11 @@ pub fn run(
                 progress(w.finish()?);
             }
         }
-        Source::Terrain { .. } | Source::Image(_) => {
+        Source::Terrain { .. } | Source::Image(_) | Source::Heights { .. } => {
+            let heights = match &job.source {
+                Source::Heights { prep, .. } => Some(*prep),
+                _ => None,
+            };
             let mut src: Box<dyn BandSource> = match job.source {
                 Source::Terrain { seed } => {
                     let log2 = layout.spec.width.max(layout.spec.height).trailing_zeros();
@@ -224,15 +264,37 @@ pub fn run(
                     })
                 }
                 Source::Image(img) => img.into_source(layout.spec.format, layout.spec.width)?,
+                Source::Heights { prep, input: HeightInput::Verification } => {
+                    Box::new(VerificationLevel0 { format: prep.format, width: layout.spec.width })
+                }
+                Source::Heights { prep, input: HeightInput::Tiff(tiff) } => {
+                    Box::new(tiff.into_source(prep.format, prep.non_finite, layout.spec.width))
+                }
                 Source::Hash => unreachable!("handled above"),
             };
-            let ch = Channels::of(layout.spec.format).ok_or_else(|| {
-                PrepError::Geometry(format!("texel format {} cannot be filtered", layout.spec.format))
-            })?;
-            let mut downs: Vec<Downsampler> = layout.levels[..layout.levels.len() - 1]
-                .iter()
-                .map(|l| Downsampler::new(ch, job.filter, job.linear_light, l.width, l.height))
-                .collect();
+            let finer = &layout.levels[..layout.levels.len() - 1];
+            let mut downs: Vec<Reducer> = match heights {
+                Some(h) => {
+                    let texel = crate::plan::height_texel(h.format.storage());
+                    if texel != layout.spec.format {
+                        return Err(PrepError::Geometry(format!(
+                            "heights stored as {} are {texel} texels, but the layout is of {} texels",
+                            h.format.storage(),
+                            layout.spec.format
+                        )));
+                    }
+                    finer.iter().map(|l| Reducer::Height(HeightReducer::new(h.format, h.rule, l.width))).collect()
+                }
+                None => {
+                    let ch = Channels::of(layout.spec.format).ok_or_else(|| {
+                        PrepError::Geometry(format!("texel format {} cannot be filtered", layout.spec.format))
+                    })?;
+                    finer
+                        .iter()
+                        .map(|l| Reducer::Colour(Downsampler::new(ch, job.filter, job.linear_light, l.width, l.height)))
+                        .collect()
+                }
+            };
             let l0 = &layout.levels[0];
             let band_rows = writers[0].band_rows();
             let row_bytes = writers[0].row_bytes();
@@ -262,7 +324,7 @@ pub fn run(
     for level in layout.image_cache_levels() {
         write_file(&root.join(Layout::ic_file(level.index)), &ic_text(layout, level, &ct_name), total)?;
     }
-    write_file(&root.join(&ct_name), &ct_text(layout, &job.description), total)?;
+    write_file(&root.join(&ct_name), &ct_text(layout, &job.description, height_plan.as_ref()), total)?;
     let (mut inset_tiles, mut absent_tiles) = (0, 0);
     for level in &layout.levels {
         if let Some(sp) = layout.sparse(level) {
@@ -291,7 +353,7 @@ fn feed(
     k: usize,
     row: &[u8],
     writers: &mut [LevelWriter],
-    downs: &mut [Downsampler],
+    downs: &mut [Reducer],
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(), PrepError> {
     progress(writers[k].push(row)?);

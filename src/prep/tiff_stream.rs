@@ -11,6 +11,7 @@
 use super::band::{encode_rgba16, encode_rgba8, widen, BandSource};
 use super::error::PrepError;
 use super::Limits;
+use crate::height::{HeightError, HeightFormat, NonFinite};
 use crate::texel::{ComponentType, TexelFormat};
 use std::fs::File;
 use std::io::{BufReader, Read};
@@ -245,6 +246,252 @@ impl BandSource for TiffSource {
             }
             for (texel, px) in row.chunks_exact_mut(bpt).zip(line.chunks_exact(4)) {
                 encode_rgba8(self.format, [px[0], px[1], px[2], px[3]], texel);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The GDAL_NODATA tag (ASCII): the value of a GeoTIFF's pixels without data.
+const GDAL_NODATA: u16 = 42113;
+
+/// A single-band elevation TIFF (or GeoTIFF), streamed one row of chunks at a time: 32- or
+/// 64-bit float, 8-, 16- or 32-bit signed or unsigned samples, taken as metres. Its GDAL_NODATA
+/// tag, when present, names the input's pixels without data.
+pub struct HeightTiff {
+    path: PathBuf,
+    decoder: Decoder<BufReader<File>>,
+    width: u32,
+    height: u32,
+    chunk_w: u32,
+    chunk_h: u32,
+    chunk_type: ChunkType,
+    /// The input's nodata value (GDAL_NODATA), as the samples hold it.
+    nodata: Option<f64>,
+    /// The sample type, in words (for messages).
+    sample: &'static str,
+    /// Decoded rows `cache_y0 .. cache_y0 + cache_rows`, full width.
+    cache: Vec<f64>,
+    cache_y0: u32,
+    cache_rows: u32,
+}
+
+impl HeightTiff {
+    /// Opens a single-band TIFF of heights. Refused, saying what was found and what to do: a
+    /// file that is no TIFF, more than one sample a pixel, a sample type that is no number of
+    /// metres, an unreadable GDAL_NODATA tag, and a row of chunks over the memory limit.
+    pub fn open(path: &Path, limits: &Limits) -> Result<HeightTiff, PrepError> {
+        let bad = |message: String| PrepError::HeightInput { path: path.into(), message };
+        if !is_tiff(path) {
+            let (file, _) =
+                crate::open::regular(path).map_err(|source| PrepError::ImageOpen { path: path.into(), source })?;
+            drop(file);
+            return Err(bad("it is not a TIFF; expected a single-band TIFF or GeoTIFF elevation model (convert it with e.g. gdal_translate -of GTiff)".into()));
+        }
+        let (file, _) =
+            crate::open::regular(path).map_err(|source| PrepError::ImageOpen { path: path.into(), source })?;
+        let mut decoder = Decoder::new(BufReader::new(file)).map_err(|e| err(path, e))?;
+        let (width, height) = decoder.dimensions().map_err(|e| err(path, e))?;
+        let colortype = decoder.colortype().map_err(|e| err(path, e))?;
+        let format: Option<Vec<u16>> = decoder.find_tag_unsigned_vec(Tag::SampleFormat).map_err(|e| err(path, e))?;
+        let format = format.and_then(|v| v.first().copied()).unwrap_or(1);
+        let sample = match (colortype, format) {
+            (ColorType::Gray(32), 3) => "32-bit float",
+            (ColorType::Gray(64), 3) => "64-bit float",
+            (ColorType::Gray(8), 1) => "8-bit unsigned",
+            (ColorType::Gray(16), 1) => "16-bit unsigned",
+            (ColorType::Gray(32), 1) => "32-bit unsigned",
+            (ColorType::Gray(8), 2) => "8-bit signed",
+            (ColorType::Gray(16), 2) => "16-bit signed",
+            (ColorType::Gray(32), 2) => "32-bit signed",
+            (other, f) => {
+                return Err(bad(format!(
+                    "its pixels are {other:?} with SampleFormat {f}; expected one band of float (SampleFormat 3) or signed or unsigned integer heights (e.g. gdal_translate -b 1 -ot Float32)"
+                )))
+            }
+        };
+        let nodata = match decoder.find_tag(Tag::Unknown(GDAL_NODATA)).map_err(|e| err(path, e))? {
+            None => None,
+            Some(v) => {
+                let text = v.into_string().map_err(|e| bad(format!("its GDAL_NODATA tag is not text ({e})")))?;
+                let text = text.trim_matches(|c: char| c == '\0' || c.is_whitespace());
+                let v = match text.to_ascii_lowercase().as_str() {
+                    "nan" | "-nan" => f64::NAN,
+                    t => t.parse::<f64>().map_err(|_| {
+                        bad(format!(
+                            "its GDAL_NODATA tag is '{text}', not a number; expected the value of its pixels without data, e.g. -9999 (set it with gdal_edit.py -a_nodata)"
+                        ))
+                    })?,
+                };
+                // As the samples hold it (a float tag of a 32-bit float band, rounded to f32).
+                Some(if sample == "32-bit float" { v as f32 as f64 } else { v })
+            }
+        };
+        let (chunk_w, chunk_h) = decoder.chunk_dimensions();
+        let chunk_type = decoder.get_chunk_type();
+        let row_bytes = chunk_h as u64 * width as u64 * 8;
+        if row_bytes > limits.max_memory_bytes / 4 {
+            return Err(bad(format!(
+                "one row of its {} ({chunk_h} rows of {width} pixels) takes {} MiB decoded, over a quarter of the memory limit of {} MiB; raise --max-memory, or rewrite it in smaller strips or tiles (gdal_translate -co TILED=YES)",
+                if chunk_type == ChunkType::Tile { "tiles" } else { "strips" },
+                row_bytes.div_ceil(1 << 20),
+                limits.max_memory_bytes >> 20
+            )));
+        }
+        Ok(HeightTiff {
+            path: path.into(),
+            decoder,
+            width,
+            height,
+            chunk_w,
+            chunk_h,
+            chunk_type,
+            nodata,
+            sample,
+            cache: Vec::new(),
+            cache_y0: 0,
+            cache_rows: 0,
+        })
+    }
+
+    /// Image size in pixels.
+    pub fn dimensions(&self) -> (u64, u64) {
+        (self.width as u64, self.height as u64)
+    }
+
+    /// The input's nodata value (its GDAL_NODATA tag), NaN when the tag says `nan`.
+    pub fn nodata(&self) -> Option<f64> {
+        self.nodata
+    }
+
+    /// The sample type in words (`32-bit float`, `16-bit signed`, ...).
+    pub fn sample(&self) -> &'static str {
+        self.sample
+    }
+
+    /// Decodes the row of chunks holding image row `y` into the cache.
+    fn load(&mut self, y: u32) -> Result<(), PrepError> {
+        let band = y / self.chunk_h;
+        let y0 = band * self.chunk_h;
+        let rows = self.chunk_h.min(self.height - y0);
+        let w = self.width as usize;
+        self.cache.clear();
+        self.cache.resize(rows as usize * w, 0.0);
+        let across = match self.chunk_type {
+            ChunkType::Strip => 1,
+            ChunkType::Tile => self.width.div_ceil(self.chunk_w),
+        };
+        for cx in 0..across {
+            let index = band * across + cx;
+            let (dw, dh) = self.decoder.chunk_data_dimensions(index);
+            let data = self.decoder.read_chunk(index).map_err(|e| err(&self.path, e))?;
+            let values: Vec<f64> = match data {
+                DecodingResult::F32(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::F64(v) => v,
+                DecodingResult::U8(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::U16(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::U32(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::I8(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::I16(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::I32(v) => v.into_iter().map(f64::from).collect(),
+                _ => return Err(err(&self.path, format!("chunk {index} decodes to samples of another type"))),
+            };
+            let x0 = (cx * self.chunk_w) as usize;
+            let (dw, dh) = (dw as usize, dh.min(rows) as usize);
+            if values.len() < dw * dh {
+                return Err(err(
+                    &self.path,
+                    format!("chunk {index} holds {} samples, fewer than its {dw}x{dh}", values.len()),
+                ));
+            }
+            for r in 0..dh {
+                self.cache[r * w + x0..r * w + x0 + dw].copy_from_slice(&values[r * dw..(r + 1) * dw]);
+            }
+        }
+        self.cache_y0 = y0;
+        self.cache_rows = rows;
+        Ok(())
+    }
+
+    /// Level 0 in `format`, `padded_width` texels wide: each pixel encoded by
+    /// [`HeightFormat::encode_with`], the input's nodata pixels (and the padding) stored as the
+    /// format's nodata value.
+    pub(crate) fn into_source(
+        self,
+        format: HeightFormat,
+        non_finite: NonFinite,
+        padded_width: u64,
+    ) -> HeightTiffSource {
+        HeightTiffSource { tiff: self, format, non_finite, width: padded_width }
+    }
+}
+
+/// Level 0 of heights from a streamed TIFF.
+pub(crate) struct HeightTiffSource {
+    tiff: HeightTiff,
+    format: HeightFormat,
+    non_finite: NonFinite,
+    width: u64,
+}
+
+impl HeightTiffSource {
+    /// The stored value of the pixel (x, y) holding `v`.
+    fn stored(&self, x: usize, y: u32, v: f64) -> Result<f64, PrepError> {
+        let pixel = |message: String| PrepError::HeightPixel {
+            path: self.tiff.path.clone(),
+            x: x as u64,
+            y: y as u64,
+            message,
+        };
+        let input_nodata = self.tiff.nodata.is_some_and(|nd| v == nd || (nd.is_nan() && v.is_nan()));
+        if input_nodata {
+            return self.format.nodata().ok_or_else(|| {
+                pixel(format!(
+                    "{v} is the input's nodata value (GDAL_NODATA) and the output declares none; pass --height-nodata V (a stored value outside the data) so such pixels stay without data"
+                ))
+            });
+        }
+        self.format.encode_with(v, self.non_finite).map_err(|e| {
+            let fix = match &e {
+                HeightError::NotFinite { .. } if self.format.nodata().is_none() => {
+                    "; with clipprep: pass --nan nodata with --height-nodata V to store such pixels as nodata, or fix the input"
+                }
+                HeightError::NotFinite { .. } => "; with clipprep: pass --nan nodata to store such pixels as nodata, or fix the input",
+                HeightError::OutOfRange { .. } => {
+                    "; with clipprep: pass a --height-scale and --height-offset whose range covers the data, or --format l32f"
+                }
+                HeightError::IsNodata { .. } => "; with clipprep: pass a --height-nodata outside the data's range",
+                _ => "",
+            };
+            pixel(format!("{e}{fix}"))
+        })
+    }
+}
+
+impl BandSource for HeightTiffSource {
+    fn fill(&mut self, t0: u64, rows: usize, out: &mut [u8]) -> Result<(), PrepError> {
+        let bpt = self.format.bytes_per_texel();
+        let row_bytes = self.width as usize * bpt;
+        let (iw, ih) = (self.tiff.width as usize, self.tiff.height as u64);
+        let pad = self.format.nodata().unwrap_or(0.0);
+        for i in 0..rows {
+            let row = &mut out[i * row_bytes..(i + 1) * row_bytes];
+            let t = t0 + i as u64;
+            if t >= ih {
+                for texel in row.chunks_exact_mut(bpt) {
+                    self.format.write(pad, texel);
+                }
+                continue;
+            }
+            let y = (ih - 1 - t) as u32;
+            let s = &self.tiff;
+            if !(s.cache_rows > 0 && y >= s.cache_y0 && y < s.cache_y0 + s.cache_rows) {
+                self.tiff.load(y)?;
+            }
+            let start = (y - self.tiff.cache_y0) as usize * iw;
+            for (x, texel) in row.chunks_exact_mut(bpt).enumerate() {
+                let v = if x < iw { self.stored(x, y, self.tiff.cache[start + x])? } else { pad };
+                self.format.write(v, texel);
             }
         }
         Ok(())

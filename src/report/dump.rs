@@ -136,6 +136,153 @@ pub struct DumpReport {
     pub tiles: u64,
     /// Tiles that could not be read (painted magenta and black).
     pub missing: Vec<MissingTile>,
+    /// A height texture's picture: its legend (absent for colour textures).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heights: Option<HeightLegend>,
+}
+
+/// The legend of a height picture (docs/ELEVATION.md): the map is the picture's top-left
+/// region-sized part, the legend the rows below it.
+#[derive(Clone, Debug, Serialize)]
+pub struct HeightLegend {
+    /// The storage (`l32f`, `l16`, `l16i`).
+    pub storage: String,
+    /// The colour bar's lowest and highest metres: the region's least and greatest height with
+    /// data, or `--range`; `null` when the region holds no data and no range was given.
+    pub range: Option<[f64; 2]>,
+    /// Whether the range came from `--range`.
+    pub range_given: bool,
+    /// The least and greatest height with data in the region, metres (`null`: none).
+    pub region_range: Option<[f64; 2]>,
+    /// Texels without data in the region.
+    pub nodata_texels: u64,
+    /// Whether the map is hillshaded.
+    pub shaded: bool,
+    /// The map's size in pixels (the region's; the picture is larger by the legend).
+    pub map: [u64; 2],
+    /// The legend's labels at the bar's ends.
+    pub labels: [String; 2],
+}
+
+/// What a height dump draws: the format, `--range` and `--shade`.
+#[derive(Clone, Copy, Debug)]
+pub struct HeightView {
+    /// The texture's height format.
+    pub format: crate::height::HeightFormat,
+    /// The colour bar's metres (default: the region's range).
+    pub range: Option<[f64; 2]>,
+    /// Hillshade the map.
+    pub shade: bool,
+}
+
+/// Parses `--range MIN,MAX` (metres, finite, MIN below MAX).
+pub fn parse_range(text: &str) -> Result<[f64; 2], String> {
+    let bad = || {
+        format!("--range `{text}`: expected MIN,MAX in metres, two finite numbers with MIN below MAX, e.g. -100,2500")
+    };
+    let (a, b) = text.split_once(',').ok_or_else(bad)?;
+    let num = |w: &str| w.trim().parse::<f64>().ok().filter(|v| v.is_finite());
+    match (num(a), num(b)) {
+        (Some(lo), Some(hi)) if lo < hi => Ok([lo, hi]),
+        _ => Err(bad()),
+    }
+}
+
+/// Dumps `region` of a level of heights to the PNG `out` in false colour with a legend
+/// ([`super::hypsometric`]): RGBA, nodata transparent, tiles that could not be read painted
+/// magenta and black.
+pub fn dump_heights(
+    file: &Path,
+    src: &LevelTiles,
+    view: &HeightView,
+    region: Option<[u64; 4]>,
+    out: &Path,
+) -> Result<DumpReport, DumpError> {
+    use super::hypsometric::{self, Texel};
+    let what = match src.level {
+        Some(k) => format!("level {k}, the whole level,"),
+        None => "the image cache, all of it,".to_string(),
+    };
+    let r = choose_region(src.level, src.size, region, &what)?;
+    let f = view.format;
+    let bpt = f.bytes_per_texel();
+    let (w, h) = (r.width() as usize, r.height() as usize);
+    let mut map = vec![Texel::Missing; w * h];
+    let tiles = tiles_covering(r, src.tile);
+    let mut buf = vec![0u8; (src.tile[0] * src.tile[1]) as usize * bpt];
+    let (mut read, mut missing) = (0, Vec::new());
+    for tt in tiles.t0..tiles.t1 {
+        for ts in tiles.s0..tiles.s1 {
+            let id = TileId::new(src.level.unwrap_or(0), ts as u64, tt as u64);
+            read += 1;
+            if let Err(e) = (src.read)(id, &mut buf) {
+                let text = e.to_string();
+                let problem = text.strip_prefix(&format!("{id}: ")).unwrap_or(&text).to_string();
+                let path = (src.file_of)(id).map(|p| p.to_string());
+                missing.push(MissingTile { s: id.s, t: id.t, kind: e.kind(), problem, path });
+                continue;
+            }
+            let texels = tile_texels(src.size, src.tile, [id.s, id.t]).intersect(&r);
+            for t in texels.t0..texels.t1 {
+                let y = (r.t1 - 1 - t) as usize;
+                for s in texels.s0..texels.s1 {
+                    let j = (((t as u64 - id.t * src.tile[1]) * src.tile[0] + (s as u64 - id.s * src.tile[0]))
+                        as usize)
+                        * bpt;
+                    map[y * w + (s - r.s0) as usize] = match f.decode(f.read(&buf[j..j + bpt])) {
+                        Some(m) if m.is_finite() => Texel::Height(m),
+                        _ => Texel::Nodata,
+                    };
+                }
+            }
+        }
+    }
+    let mut region_range: Option<[f64; 2]> = None;
+    let mut nodata_texels = 0;
+    for t in &map {
+        match *t {
+            Texel::Height(m) => {
+                region_range = Some(region_range.map_or([m, m], |[lo, hi]| [lo.min(m), hi.max(m)]));
+            }
+            Texel::Nodata => nodata_texels += 1,
+            Texel::Missing => {}
+        }
+    }
+    let range = view.range.or(region_range);
+    let img = hypsometric::picture(&map, w as u32, h as u32, range.map(|[a, b]| (a, b)), view.shade, |x, y| {
+        picture::missing_pattern(x, y)
+    });
+    let (pw, ph) = img.dimensions();
+    crate::save::atomically(out, |wr| {
+        DynamicImage::ImageRgba8(img).write_to(wr, image::ImageFormat::Png).map_err(crate::save::image_io)
+    })
+    .map_err(|e| write_error(out, e))?;
+    let labels = match range {
+        Some([a, b]) => [hypsometric::label(a), hypsometric::label(b)],
+        None => ["nodata".to_string(), "nodata".to_string()],
+    };
+    Ok(DumpReport {
+        file: file.display().to_string(),
+        level: src.level,
+        level_size: src.size,
+        region: [r.s0 as u64, r.t0 as u64, r.s1 as u64, r.t1 as u64],
+        format: src.format.short_name(),
+        png: out.display().to_string(),
+        colour: "rgba",
+        pixels: [pw as u64, ph as u64],
+        tiles: read,
+        missing,
+        heights: Some(HeightLegend {
+            storage: f.storage().short_name().to_string(),
+            range,
+            range_given: view.range.is_some(),
+            region_range,
+            nodata_texels,
+            shaded: view.shade,
+            map: [w as u64, h as u64],
+            labels,
+        }),
+    })
 }
 
 /// Checks the region (the whole level when `None`) against the level and [`MAX_DUMP_TEXELS`].
@@ -291,6 +438,7 @@ pub fn dump(file: &Path, src: &LevelTiles, region: Option<[u64; 4]>, out: &Path)
         pixels: [r.width(), r.height()],
         tiles,
         missing,
+        heights: None,
     })
 }
 
@@ -314,6 +462,21 @@ pub fn human(r: &DumpReport) -> String {
     for m in r.missing.iter().take(20) {
         let at = m.path.as_deref().map(|p| format!(" ({p})")).unwrap_or_default();
         o.push_str(&format!("  tile ({}, {}): {}{at}\n", m.s, m.t, m.problem));
+    }
+    if let Some(hl) = &r.heights {
+        let range = match (hl.range, hl.range_given) {
+            (Some([a, b]), true) => format!("{a} m to {b} m (--range)"),
+            (Some([a, b]), false) => format!("{a} m to {b} m (the region's)"),
+            (None, _) => "none (no texel with data)".to_string(),
+        };
+        o.push_str(&format!(
+            "heights {}: colours {range}, {} nodata texels (transparent){}; legend below the {}x{} map\n",
+            hl.storage,
+            hl.nodata_texels,
+            if hl.shaded { ", hillshaded" } else { "" },
+            hl.map[0],
+            hl.map[1]
+        ));
     }
     if r.missing.len() > 20 {
         o.push_str(&format!("  ... and {} more (--json lists every one)\n", r.missing.len() - 20));

@@ -3,6 +3,7 @@
 
 pub mod check;
 pub mod dump;
+pub mod hypsometric;
 pub mod info;
 pub mod label;
 pub mod picture;

@@ -952,3 +952,430 @@ fn a_wide_hash_texture_is_written_tile_by_tile_within_a_small_memory_limit() {
     );
     assert!(e.contains("one row of level-0 tiles"), "{e}");
 }
+
+// ---- Heights (docs/ELEVATION.md): `clipprep` writing l32f, l16 and l16i with the level rules.
+
+mod heights {
+    use super::*;
+    use clipmap::height::{HeightFormat, LevelRule};
+    use clipmap::source::procedural::height_stored;
+    use clipmap::source::TileId;
+
+    /// One level of stored heights: width, height, values (rows in increasing t, s fastest).
+    type Level = (usize, usize, Vec<f64>);
+
+    /// Every level of a prepared height texture, read through the plan and the file source
+    /// (each tile in turn), with the height format and rule its `.ct` declares.
+    fn read_heights(ct: &Path) -> (HeightFormat, LevelRule, Vec<Level>) {
+        let loaded = clipmap::plan::load_clip_texture(ct, &Default::default()).unwrap();
+        let rendered = loaded.render();
+        let plan = loaded.plan.unwrap_or_else(|| panic!("{} does not load:\n{rendered}", ct.display()));
+        let h = plan.height.expect("the .ct declares heights");
+        let src = clipmap::source::open_plan(plan, &Default::default()).unwrap();
+        let desc = src.desc().clone();
+        let b = h.format.bytes_per_texel();
+        let mut levels = Vec::new();
+        for (k, l) in desc.levels().iter().enumerate() {
+            let ([w, hh], [tw, th]) = (l.size, l.tile);
+            let mut v = vec![0f64; (w * hh) as usize];
+            let mut tile = vec![0u8; (tw * th) as usize * b];
+            for tt in 0..hh.div_ceil(th) {
+                for ts in 0..w.div_ceil(tw) {
+                    src.read_tile(TileId { level: k as u32, s: ts, t: tt }, &mut tile).unwrap();
+                    for r in 0..th.min(hh) {
+                        for c in 0..tw.min(w) {
+                            let (s, t) = (ts * tw + c, tt * th + r);
+                            v[(t * w + s) as usize] = h.format.read(&tile[((r * tw + c) as usize) * b..]);
+                        }
+                    }
+                }
+            }
+            levels.push((w as usize, hh as usize, v));
+        }
+        (h.format, h.levels, levels)
+    }
+
+    /// Asserts every level after the first is `rule` applied, by brute force with `height.rs`, to
+    /// the level above, the chain started from level 0 as written; compares stored values bit
+    /// for bit (an f64 holding an f32 or an integer).
+    fn assert_rule_chain(what: &str, format: &HeightFormat, rule: LevelRule, levels: &[Level]) {
+        let mut want = levels[0].2.clone();
+        let (mut w, mut h) = (levels[0].0, levels[0].1);
+        for (k, (lw, lh, got)) in levels.iter().enumerate().skip(1) {
+            want = format.reduce_level(rule, &want, w, h).unwrap();
+            (w, h) = ((w / 2).max(1), (h / 2).max(1));
+            assert_eq!((*lw, *lh), (w, h), "{what}: level {k} size");
+            for (i, (g, e)) in got.iter().zip(&want).enumerate() {
+                assert!(
+                    g.to_bits() == e.to_bits(),
+                    "{what}, rule {rule}: level {k} texel ({}, {}) is {g}, the rule gives {e}",
+                    i % w,
+                    i / w
+                );
+            }
+        }
+    }
+
+    fn prep_fails(args: &[&str]) -> String {
+        let (out, d) = exec(CLIPPREP, args);
+        assert_eq!(out.status.code(), Some(1), "expected a refusal (exit 1)\n{d}");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    }
+
+    #[test]
+    fn the_procedural_heights_obey_every_rule_at_every_level_in_every_storage() {
+        let dir = tempfile::tempdir().unwrap();
+        let cases: [(&str, &[&str]); 6] = [
+            ("l32f", &["--height-nodata", "-32768", "--height-levels", "mean"]),
+            ("l32f", &["--height-nodata", "-32768", "--height-levels", "point"]),
+            ("l32f", &["--height-nodata", "-32768", "--height-levels", "min"]),
+            ("l32f", &["--height-nodata", "-32768", "--height-levels", "max"]),
+            ("l16", &["--height-scale", "0.01", "--height-offset", "-300", "--height-nodata", "0"]),
+            ("l16i", &["--height-scale", "0.5", "--height-nodata", "-32768", "--height-levels", "min"]),
+        ];
+        for (i, (format, extra)) in cases.iter().enumerate() {
+            let out = dir.path().join(format!("h{i}"));
+            let mut args =
+                vec!["--source", "heights", "--size", "128x64", "--tile", "32", "--clip", "32", "--format", format];
+            args.extend_from_slice(extra);
+            let json = prep(&out, &args);
+            let ct = out.join(json["ct"].as_str().unwrap().rsplit('/').next().unwrap());
+            let (f, rule, levels) = read_heights(&ct);
+            let what = format!("--format {format} {}", extra.join(" "));
+            assert_eq!(f.storage().short_name(), *format, "{what}");
+            // Level 0 is the height verification texture's, texel by texel.
+            let (w, _, l0) = &levels[0];
+            for (i, v) in l0.iter().enumerate() {
+                let want = height_stored(&f, 0, (i % w) as u64, (i / w) as u64);
+                assert_eq!(v.to_bits(), want.to_bits(), "{what}: level 0 texel {i}");
+            }
+            assert!(l0.iter().any(|&v| f.is_nodata(v)), "{what}: the source has nodata texels");
+            assert_rule_chain(&what, &f, rule, &levels);
+            assert_eq!(levels.len(), 7, "{what}: 128x64 down to 2x1");
+            // `cliptex info` states the rule.
+            let info = ok(CLIPTEX, &["info", ct.to_str().unwrap()]);
+            assert!(info.contains(&format!("levels {rule}")), "{what}:\n{info}");
+        }
+        // The l32f verification heights with nodata -32768 are clipmapd's own at level 0.
+        let (f, _, levels) = read_heights(&dir.path().join("h0/h0.ct"));
+        assert_eq!(f, HeightFormat::VERIFICATION);
+        assert_eq!(levels[0].2[5 * 128 + 17], height_stored(&HeightFormat::VERIFICATION, 0, 17, 5));
+    }
+
+    /// Writes `values` (rows top-down, x fastest) as a single-band GeoTIFF of GDAL data type
+    /// `ty` (Float32 or Int16) through `gdal_translate`, from a raw file described by a VRT,
+    /// tiled 16 x 16 or in strips, with `nodata` as its GDAL_NODATA.
+    fn gdal_dem(
+        dir: &Path,
+        name: &str,
+        w: usize,
+        ty: &str,
+        values: &[f64],
+        nodata: Option<f64>,
+        tiled: bool,
+    ) -> PathBuf {
+        let h = values.len() / w;
+        let (raw, size): (Vec<u8>, usize) = match ty {
+            "Float32" => (values.iter().flat_map(|&v| (v as f32).to_le_bytes()).collect(), 4),
+            "Int16" => (values.iter().flat_map(|&v| (v as i16).to_le_bytes()).collect(), 2),
+            _ => panic!("{ty}"),
+        };
+        std::fs::write(dir.join(format!("{name}.raw")), raw).unwrap();
+        let vrt = format!(
+            r#"<VRTDataset rasterXSize="{w}" rasterYSize="{h}">
+  <VRTRasterBand dataType="{ty}" band="1" subClass="VRTRawRasterBand">
+    <SourceFilename relativetoVRT="1">{name}.raw</SourceFilename>
+    <ImageOffset>0</ImageOffset><PixelOffset>{size}</PixelOffset><LineOffset>{}</LineOffset><ByteOrder>LSB</ByteOrder>
+  </VRTRasterBand>
+</VRTDataset>"#,
+            w * size
+        );
+        std::fs::write(dir.join(format!("{name}.vrt")), vrt).unwrap();
+        let tif = dir.join(format!("{name}.tif"));
+        let mut args: Vec<String> = vec!["-q".into(), "-of".into(), "GTiff".into()];
+        if tiled {
+            args.extend(["-co", "TILED=YES", "-co", "BLOCKXSIZE=16", "-co", "BLOCKYSIZE=16"].map(String::from));
+        } else {
+            args.extend(["-co", "BLOCKYSIZE=5"].map(String::from));
+        }
+        if let Some(nd) = nodata {
+            args.extend(["-a_nodata".to_string(), nd.to_string()]);
+        }
+        args.extend([format!("{name}.vrt"), tif.to_str().unwrap().to_string()]);
+        let out = Command::new("gdal_translate").args(&args).current_dir(dir).output().expect("gdal_translate runs");
+        assert!(out.status.success(), "gdal_translate {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        tif
+    }
+
+    /// No `clipprep` staging directory or output left beside `out`.
+    fn assert_nothing_written(out: &Path) {
+        assert!(!out.exists(), "{} was written", out.display());
+        let name = out.file_name().unwrap().to_string_lossy().into_owned();
+        for e in std::fs::read_dir(out.parent().unwrap()).unwrap().flatten() {
+            let n = e.file_name().to_string_lossy().into_owned();
+            assert!(!(n.contains(&name) && e.path().is_dir()), "left behind: {n}");
+        }
+    }
+
+    #[test]
+    fn a_float_dem_from_gdal_with_nodata_and_a_nan_obeys_every_rule() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        // 40 x 36 pixels (padded to 64 x 64), quarter-metre heights, GDAL nodata -9999 on a
+        // diagonal band, one NaN at (5, 7).
+        let (w, h) = (40usize, 36usize);
+        let metres = |x: usize, y: usize| ((x * 37 + y * 101) % 2000) as f64 * 0.25 - 100.0;
+        let is_nd = |x: usize, y: usize| (x + y).is_multiple_of(11);
+        let values: Vec<f64> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                if (x, y) == (5, 7) {
+                    f64::NAN
+                } else if is_nd(x, y) {
+                    -9999.0
+                } else {
+                    metres(x, y)
+                }
+            })
+            .collect();
+        for tiled in [true, false] {
+            let name = if tiled { "tiled" } else { "strips" };
+            let tif = gdal_dem(d, name, w, "Float32", &values, Some(-9999.0), tiled);
+            let tif = tif.to_str().unwrap();
+            let base = ["--input", tif, "--pad", "--tile", "16", "--clip", "32", "--format", "l32f"];
+            // Refused by default, naming the pixel, the value and the fix; nothing written.
+            let out = d.join(format!("refused_{name}"));
+            let mut args = base.to_vec();
+            args.extend(["--height-nodata", "-32768", "--out", out.to_str().unwrap()]);
+            let e = prep_fails(&args);
+            assert!(e.contains("pixel (5, 7)") && e.contains("NaN") && e.contains("--nan nodata"), "{e}");
+            assert_nothing_written(&out);
+            // --nan nodata without a nodata value is refused before anything is read.
+            let mut args = base.to_vec();
+            args.extend(["--nan", "nodata", "--out", out.to_str().unwrap()]);
+            let e = prep_fails(&args);
+            assert!(e.contains("--height-nodata"), "{e}");
+            assert_nothing_written(&out);
+            for rule in ["mean", "point", "min", "max"] {
+                let out = d.join(format!("{name}_{rule}"));
+                let mut args = base.to_vec();
+                args.extend(["--height-nodata", "-32768", "--nan", "nodata", "--height-levels", rule]);
+                prep(&out, &args);
+                let (f, r, levels) = read_heights(&out.join(format!("{name}_{rule}.ct")));
+                assert_eq!(r.name(), rule);
+                let (lw, lh, l0) = &levels[0];
+                assert_eq!((*lw, *lh), (64, 64));
+                // Texel (s, t) is pixel (s, h - 1 - t); NaN, GDAL's nodata and the padding are nodata.
+                for (i, v) in l0.iter().enumerate() {
+                    let (s, t) = (i % lw, i / lw);
+                    let want = if s >= w || t >= h {
+                        -32768.0
+                    } else {
+                        let y = h - 1 - t;
+                        if (s, y) == (5, 7) || is_nd(s, y) {
+                            -32768.0
+                        } else {
+                            metres(s, y) as f32 as f64
+                        }
+                    };
+                    assert_eq!(v.to_bits(), want.to_bits(), "{name} {rule}: level 0 texel ({s}, {t})");
+                }
+                assert_rule_chain(&format!("{name} DEM"), &f, r, &levels);
+            }
+        }
+        // A 16-bit signed DEM in strips into l16i at half-metre steps, nodata kept.
+        let ints: Vec<f64> =
+            (0..32 * 32).map(|i| if i % 13 == 0 { -32768.0 } else { (i * 997 % 60_001) as f64 - 30_000.0 }).collect();
+        let tif = gdal_dem(d, "int16", 32, "Int16", &ints, Some(-32768.0), false);
+        let out = d.join("int16_out");
+        let args = ["--input", tif.to_str().unwrap(), "--tile", "16", "--clip", "32", "--format", "l16i"];
+        let mut a = args.to_vec();
+        a.extend(["--height-scale", "2", "--height-nodata", "-32768", "--height-levels", "max"]);
+        prep(&out, &a);
+        let (f, r, levels) = read_heights(&out.join("int16_out.ct"));
+        for (i, v) in levels[0].2.iter().enumerate() {
+            let (s, t) = (i % 32, i / 32);
+            let m = ints[(31 - t) * 32 + s];
+            let want = if m == -32768.0 { -32768.0 } else { (m / 2.0).round() };
+            assert_eq!(*v, want, "int16 texel ({s}, {t})");
+        }
+        assert_rule_chain("int16 DEM", &f, r, &levels);
+    }
+
+    #[test]
+    fn centimetre_l16_round_trips_at_both_ends_and_refuses_what_it_cannot_hold() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        // Every pixel at one end of l16's range with 0.01 m steps from -11000 m, or beside it.
+        let (lo, hi) = (-11000.0, -11000.0 + 65535.0 * 0.01);
+        let ends = [lo, lo + 0.01, lo + 0.02, hi - 0.02, hi - 0.01, hi];
+        let values: Vec<f64> = (0..32 * 32).map(|i| ends[i % ends.len()]).collect();
+        let tif = gdal_dem(d, "ends", 32, "Float32", &values, None, true);
+        let out = d.join("ends_out");
+        let base =
+            ["--tile", "16", "--clip", "32", "--format", "l16", "--height-scale", "0.01", "--height-offset", "-11000"];
+        let mut args = vec!["--input", tif.to_str().unwrap()];
+        args.extend_from_slice(&base);
+        prep(&out, &args);
+        let (f, _, levels) = read_heights(&out.join("ends_out.ct"));
+        let stored: Vec<f64> = [0.0, 1.0, 2.0, 65533.0, 65534.0, 65535.0].to_vec();
+        for (i, v) in levels[0].2.iter().enumerate() {
+            let (s, t) = (i % 32, i / 32);
+            let k = ((31 - t) * 32 + s) % ends.len();
+            assert_eq!(*v, stored[k], "texel ({s}, {t})");
+            // Decoded, each is within half a step of the metres asked for (the f32 input), and
+            // encodes back to itself.
+            let m = f.decode(*v).unwrap();
+            assert!((m - ends[k] as f32 as f64).abs() <= 0.005 + 1e-9, "texel ({s}, {t}): {m}");
+            assert_eq!(f.encode(m).unwrap(), *v);
+        }
+        // One step past the top is refused, naming the pixel, the value, the range and the fix.
+        let mut past = values.clone();
+        past[3 * 32 + 9] = hi + 0.01;
+        let tif = gdal_dem(d, "past", 32, "Float32", &past, None, true);
+        let out = d.join("past_out");
+        let mut args = vec!["--input", tif.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        args.extend_from_slice(&base);
+        let e = prep_fails(&args);
+        for want in ["pixel (9, 3)", "-10344.63", "-11000 m to -10344.65", "l16 with scale 0.01", "--format l32f"] {
+            assert!(e.contains(want), "missing {want:?}: {e}");
+        }
+        assert_nothing_written(&out);
+        // Height options on a colour format, and colour options on heights, are refused.
+        let e = prep_fails(&[
+            "--source", "heights", "--size", "64", "--tile", "16", "--clip", "32", "--format", "rgb8", "--out", "x",
+        ]);
+        assert!(e.contains("--format rgb8") && e.contains("l32f, l16 or l16i"), "{e}");
+        let e = prep_fails(&[
+            "--source", "heights", "--size", "64", "--tile", "16", "--clip", "32", "--format", "l32f", "--filter",
+            "lanczos3", "--out", "x",
+        ]);
+        assert!(e.contains("--filter lanczos3") && e.contains("--height-levels"), "{e}");
+        let e = prep_fails(&[
+            "--source",
+            "heights",
+            "--size",
+            "64",
+            "--tile",
+            "16",
+            "--clip",
+            "32",
+            "--format",
+            "l32f",
+            "--height-scale",
+            "2",
+            "--out",
+            "x",
+        ]);
+        assert!(e.contains("l32f stores metres"), "{e}");
+    }
+
+    #[test]
+    fn cliptex_dump_draws_heights_in_false_colour_with_a_legend_of_the_regions_range() {
+        use clipmap::report::hypsometric::{fraction, ramp, Legend};
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("hd");
+        prep(
+            &out,
+            &[
+                "--source",
+                "heights",
+                "--size",
+                "128",
+                "--tile",
+                "32",
+                "--clip",
+                "32",
+                "--format",
+                "l32f",
+                "--height-nodata",
+                "-32768",
+            ],
+        );
+        let ct = out.join("hd.ct");
+        let ct = ct.to_str().unwrap();
+        let f = HeightFormat::VERIFICATION;
+        let (s0, t0, s1, t1) = (16u64, 8u64, 80u64, 56u64);
+        let metres = |s: u64, t: u64| f.decode(height_stored(&f, 0, s, t));
+        // The region's range, by brute force over the definition.
+        let all: Vec<f64> = (t0..t1).flat_map(|t| (s0..s1).filter_map(move |s| metres(s, t))).collect();
+        let (lo, hi) = all.iter().fold((f64::MAX, f64::MIN), |(a, b), &m| (a.min(m), b.max(m)));
+        let nodata = (t1 - t0) * (s1 - s0) - all.len() as u64;
+        assert!(nodata > 0, "the region has nodata texels");
+        for (extra, range) in
+            [(vec![], (lo, hi)), (vec!["--shade"], (lo, hi)), (vec!["--range", "-5000,5000"], (-5000.0, 5000.0))]
+        {
+            let png = dir.path().join("h.png");
+            let region = format!("{s0},{t0},{s1},{t1}");
+            let mut args =
+                vec!["dump", ct, "--level", "0", "--region", &region, "--out", png.to_str().unwrap(), "--json"];
+            args.extend(extra.iter().copied());
+            let json: Value = serde_json::from_str(&ok(CLIPTEX, &args)).unwrap();
+            let what = format!("cliptex dump {extra:?}");
+            let hl = &json["heights"];
+            assert_eq!(hl["range"][0].as_f64().unwrap(), range.0, "{what}: {json}");
+            assert_eq!(hl["range"][1].as_f64().unwrap(), range.1, "{what}: {json}");
+            assert_eq!(
+                (hl["region_range"][0].as_f64(), hl["region_range"][1].as_f64()),
+                (Some(lo), Some(hi)),
+                "{what}"
+            );
+            assert_eq!(hl["nodata_texels"].as_u64(), Some(nodata), "{what}");
+            assert_eq!(hl["labels"][0].as_str().unwrap(), format!("{:.2} m", range.0), "{what}");
+            let img = image::open(&png).unwrap().to_rgba8();
+            let h = (t1 - t0) as u32;
+            assert_eq!(json["pixels"], serde_json::json!([img.width(), img.height()]), "{what}");
+            let mut colours = std::collections::BTreeSet::new();
+            for t in t0..t1 {
+                for s in s0..s1 {
+                    let (x, y) = ((s - s0) as u32, (t1 - 1 - t) as u32);
+                    let p = img.get_pixel(x, y).0;
+                    colours.insert(p);
+                    match metres(s, t) {
+                        None => assert_eq!(p, [0, 0, 0, 0], "{what}: nodata texel ({s}, {t}) is transparent"),
+                        Some(m) if extra.is_empty() || extra[0] == "--range" => {
+                            let c = ramp(fraction(m, range.0, range.1));
+                            assert_eq!(p, [c[0], c[1], c[2], 255], "{what}: texel ({s}, {t}) at {m} m");
+                        }
+                        Some(_) => assert_eq!(p[3], 255, "{what}: texel ({s}, {t}) is opaque"),
+                    }
+                }
+            }
+            assert!(colours.len() > 100, "{what}: {} distinct colours", colours.len());
+            // The legend's bar runs from the colour of the range's lowest metres to its highest.
+            let lg = Legend::at(img.width(), h);
+            let c0 = ramp(0.0);
+            let c1 = ramp(1.0);
+            assert_eq!(img.get_pixel(lg.bar_x0, lg.bar_y0).0, [c0[0], c0[1], c0[2], 255], "{what}");
+            assert_eq!(img.get_pixel(lg.bar_x1 - 1, lg.bar_y1 - 1).0, [c1[0], c1[1], c1[2], 255], "{what}");
+            // The region's extremes take the bar's end colours (without --range or --shade).
+            if extra.is_empty() {
+                let at = |want: f64| {
+                    let (s, t) = (t0..t1)
+                        .flat_map(|t| (s0..s1).map(move |s| (s, t)))
+                        .find(|&(s, t)| metres(s, t) == Some(want))
+                        .unwrap();
+                    img.get_pixel((s - s0) as u32, (t1 - 1 - t) as u32).0
+                };
+                assert_eq!(at(lo), [c0[0], c0[1], c0[2], 255]);
+                assert_eq!(at(hi), [c1[0], c1[1], c1[2], 255]);
+            }
+            // The labels are drawn: black pixels under the bar.
+            let black = (lg.label_y..img.height())
+                .flat_map(|y| (0..img.width()).map(move |x| (x, y)))
+                .filter(|&(x, y)| img.get_pixel(x, y).0 == [0, 0, 0, 255])
+                .count();
+            assert!(black > 50, "{what}: {black} label pixels");
+        }
+        // --shade and --range are refused on a colour texture.
+        let colour = dir.path().join("c");
+        prep(&colour, &["--source", "hash", "--size", "64", "--tile", "32", "--clip", "32", "--format", "rgb8"]);
+        let cct = colour.join("c.ct");
+        let (o, d) = exec(
+            CLIPTEX,
+            &["dump", cct.to_str().unwrap(), "--shade", "--out", dir.path().join("x.png").to_str().unwrap()],
+        );
+        assert_eq!(o.status.code(), Some(1), "{d}");
+        assert!(String::from_utf8_lossy(&o.stderr).contains("--shade draws heights"), "{d}");
+    }
+}
