@@ -1,17 +1,20 @@
 //! `clipbench cog`: tiles per second from a Cloud-Optimized GeoTIFF served as it is, against
-//! GDAL reading the same tiles of the same file, in the same run.
+//! GDAL reading the same tiles of the same file, in the same run; locally, then over loopback
+//! HTTP (`cog_http.rs`).
 //!
 //! The COG is written by GDAL (`gdal_translate -of COG`, LZW as GDAL's COG default unless
 //! `--compression` says otherwise, 256-texel blocks) from the procedural terrain texture (smooth, so it compresses as imagery does; RGB).
 //! Both sides read every level-0 tile, `passes` times, each pass on a fresh open (GDAL's block
-//! cache empty, our source holding no tiles); the file is in the page cache for both.
+//! cache empty, our source holding no tiles; opens timed apart); the file is in the page cache
+//! for both.
 //! - ours: `CogSource::read_tile` on `depth` threads (the engine's read queues read 4 at once),
 //!   and on one thread beside it;
 //! - GDAL: its Python binding, one `ReadRaster` a tile (pixel-interleaved), default settings as
 //!   its users run it, and again with `GDAL_NUM_THREADS=ALL_CPUS`.
 //!
-//! `wrong_texels` compares every level-0 texel we decode with GDAL's own decode of the same tile
-//! (an untimed pass), rows turned over (our t counts up from the image's bottom row).
+//! `wrong_texels` compares every level-0 texel we read, in every pass of every mode, with GDAL's
+//! own decode of the same tile (an untimed pass of GDAL's first), rows turned over (our t counts
+//! up from the image's bottom row).
 
 use clipmap::source::{CogSource, Procedural, TextureDesc, TileId, TileSource};
 use clipmap::texel::TexelFormat;
@@ -39,8 +42,8 @@ pub struct Args {
     /// Timed passes over every level-0 tile, each side (the median pass is reported).
     #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..=100))]
     passes: u64,
-    /// Install GDAL (`apt-get install -y gdal-bin python3-gdal`) if it is missing; apt-get's
-    /// output goes to standard error.
+    /// Install GDAL (`apt-get install -y gdal-bin python3-gdal`), and nginx and curl for the
+    /// HTTP half, if they are missing; apt-get's output goes to standard error.
     #[arg(long)]
     install_peers: bool,
     /// Scratch directory (a fresh subdirectory, removed at the end).
@@ -411,6 +414,8 @@ pub struct Http {
     pub tiles_per_s_gdal_http_default_env: f64,
     /// curl fetching the byte ranges of our pass, `depth` transfers at once (median pass).
     pub curl_ceiling_tiles_per_s: f64,
+    /// Our remote reader fetching the same ranges, the same threads, without decoding them.
+    pub tiles_per_s_http_fetch_only: f64,
     /// Requests of one pass of ours, open included (nginx's log).
     pub requests: u64,
     /// Bytes of one pass of ours, open included.
@@ -572,7 +577,7 @@ fn human(r: &Report) -> String {
         None => o.push_str("HTTP: not measured (nginx or curl missing)\n"),
         Some(h) => o.push_str(&format!(
             "HTTP (nginx on loopback): ours {:.0}, GDAL /vsicurl/ {:.0} (ALL_CPUS {:.0}; GDAL's defaults {:.0}): {:.2}x; \
-             curl, the same ranges {} at once, {:.0}: {:.2} of it\n\
+             curl, the same ranges {} at once, {:.0}: {:.2} of it (our reader fetching them without decoding: {:.0})\n\
              requests a pass: ours {} ({} bytes; open {} of {} bytes), GDAL {} ({} bytes; {} with its defaults)\n\
              faults ({:.0} % 503, {:.0} % cut): {:.0} against {:.0} through the same relay without them ({:.2}); \
              {} 503s and {} cuts injected, {} retries, {} reads failed\n",
@@ -584,6 +589,7 @@ fn human(r: &Report) -> String {
             r.depth,
             h.curl_ceiling_tiles_per_s,
             h.tiles_per_s_http / h.curl_ceiling_tiles_per_s,
+            h.tiles_per_s_http_fetch_only,
             h.requests,
             h.bytes,
             h.open_requests,

@@ -9,6 +9,8 @@
 //!   and with none of them (GDAL's defaults);
 //! - curl: the byte ranges our last pass fetched, exactly (from the log), `depth` transfers at
 //!   once over kept connections (`curl --parallel --parallel-max DEPTH`), one run a pass;
+//! - our remote reader fetching the same ranges with no decoding (where our HTTP path stands
+//!   against curl's, decoding aside);
 //! - faults: ours through a relay in front of nginx that answers 5 % of the requests `503` and
 //!   closes the connection half way through the body of 1 %, against the same relay with no
 //!   fault.
@@ -16,12 +18,13 @@
 use super::cog::{clip_of, gdal_passes, median, one_pass, Http, HttpRun};
 use super::serve::{program, AccessLog, Faults, Hit, Nginx, Proxy};
 use clipmap::place::RemoteName;
+use clipmap::source::remote::object::Object;
 use clipmap::source::remote::{Remote, RemoteOptions};
 use clipmap::source::CogSource;
 use std::fmt::Write as _;
 use std::path::Path;
 use std::process::Command;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -181,6 +184,39 @@ fn curl_passes(
     Ok(times)
 }
 
+/// Our remote reader fetching `ranges` of `url` (both ends included) on `depth` threads, with
+/// no decoding, once a pass: what our HTTP path costs where curl's does (seconds a pass).
+fn fetch_passes(url: &str, ranges: &[(u64, u64)], depth: u64, passes: u64) -> anyhow::Result<Vec<f64>> {
+    let name = RemoteName::parse(url).ok_or_else(|| anyhow::anyhow!("{url}: not a remote name"))?;
+    let opts = RemoteOptions::from_env().map_err(|e| anyhow::anyhow!("{e}"))?;
+    let remote = Arc::new(Remote::new(RemoteOptions { cache_dir: None, ..opts })?);
+    let (object, _) = Object::open(remote, &name, 1).map_err(|e| anyhow::anyhow!("opening {url}: {e}"))?;
+    let mut times = Vec::new();
+    for _ in 0..passes {
+        let next = AtomicUsize::new(0);
+        let t = Instant::now();
+        let failed = std::thread::scope(|scope| {
+            let workers: Vec<_> = (0..depth)
+                .map(|_| {
+                    scope.spawn(|| loop {
+                        let i = next.fetch_add(1, Ordering::Relaxed);
+                        let Some(&(a, b)) = ranges.get(i) else { return None };
+                        if let Err(e) = object.read(a, b - a + 1) {
+                            return Some(format!("bytes {a}-{b}: {e}"));
+                        }
+                    })
+                })
+                .collect();
+            workers.into_iter().find_map(|w| w.join().unwrap_or_else(|_| Some("a thread panicked".into())))
+        });
+        times.push(t.elapsed().as_secs_f64());
+        if let Some(e) = failed {
+            anyhow::bail!("fetching ranges of {url}: {e}");
+        }
+    }
+    Ok(times)
+}
+
 /// Requests a pass of a GDAL run (all its passes over their number, rounded).
 fn per_pass(hits: usize, passes: u64) -> u64 {
     (hits as f64 / passes as f64).round() as u64
@@ -229,8 +265,9 @@ pub fn measure(run: &HttpRun) -> anyhow::Result<Option<Http>> {
     let (gdal_all_s, _) = gdal(&all_cpus)?;
     let (gdal_default_s, gdal_default_hits) = gdal(&[])?;
 
-    // curl.
+    // curl, and our reader fetching the same ranges without decoding them.
     let curl_s = curl_passes(&curl, run.dir, &url, &ranges, run.depth, run.passes)?;
+    let fetch_s = fetch_passes(&url, &ranges, run.depth, run.passes)?;
 
     // Faults: the same relay with and without them.
     let stop = Arc::new(AtomicBool::new(false));
@@ -250,6 +287,7 @@ pub fn measure(run: &HttpRun) -> anyhow::Result<Option<Http>> {
         tiles_per_s_gdal_http_all_cpus: rate(&gdal_all_s),
         tiles_per_s_gdal_http_default_env: rate(&gdal_default_s),
         curl_ceiling_tiles_per_s: rate(&curl_s),
+        tiles_per_s_http_fetch_only: rate(&fetch_s),
         requests,
         bytes: open_bytes + pass_bytes,
         requests_gdal: per_pass(gdal_hits.len(), run.passes),
