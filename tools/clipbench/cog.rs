@@ -27,7 +27,7 @@ use std::time::Instant;
 /// Options of `clipbench cog`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// A 4096-texel COG (about 20 s in all).
+    /// A 4096-texel COG (about 40 s in all, the HTTP half included).
     #[arg(long)]
     quick: bool,
     /// A tiny COG: checks that the benchmark runs (for tests); the figures mean little.
