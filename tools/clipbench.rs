@@ -27,6 +27,9 @@
 
 #[path = "clipbench/cog.rs"]
 mod cog;
+#[cfg(feature = "remote")]
+#[path = "clipbench/cog_http.rs"]
+mod cog_http;
 #[path = "clipbench/engine.rs"]
 mod engine;
 #[path = "clipbench/growing.rs"]
@@ -38,6 +41,9 @@ mod policies;
 #[cfg(feature = "remote")]
 #[path = "clipbench/remote.rs"]
 mod remote;
+#[cfg(feature = "remote")]
+#[path = "clipbench/serve.rs"]
+mod serve;
 
 use clap::{Parser, Subcommand};
 use clipmap::accuracy::sweep;

@@ -1,8 +1,9 @@
 //! `clipbench cog --smoke --json` writes a COG with GDAL, reads every level-0 tile with the COG
-//! source and with GDAL, and keeps its JSON contract: the fields the COG issue names are there
-//! (numbers, or `null` for the HTTP ones not measured yet), and no texel differs from GDAL's own
-//! decode, in each compression the source reads. No timing is asserted. Needs GDAL (`.ci/run`
-//! installs `gdal-bin` and `python3-gdal`).
+//! source and with GDAL, locally and over loopback HTTP (nginx; GDAL through `/vsicurl/`, curl
+//! fetching the same ranges, faults injected by a relay), and keeps its JSON contract: the fields
+//! the COG issue names are numbers, the ratios are the ratios of the rates, open is one request
+//! of at most 64 KiB, and no texel differs from GDAL's own decode, in each compression the source
+//! reads. No timing is asserted. Needs GDAL, nginx and curl (`.ci/run` installs them).
 
 fn run_cog(extra: &[&str]) -> serde_json::Value {
     let dir = tempfile::tempdir().unwrap();
@@ -24,14 +25,34 @@ fn cog_json_has_the_contract_fields_and_no_texel_differs_from_gdal() {
         for field in [
             "tiles_per_s_http",
             "tiles_per_s_gdal_http",
+            "tiles_per_s_gdal_http_all_cpus",
             "curl_ceiling_tiles_per_s",
-            "requests",
-            "requests_gdal",
-            "open_requests",
-            "open_bytes",
+            "tiles_per_s_http_faults",
         ] {
-            assert!(v.get(field).is_some(), "{extra:?}: no field {field}: {v}");
+            let x = v[field].as_f64().unwrap_or_else(|| panic!("{extra:?}: {field} is not a number: {}", v[field]));
+            assert!(x.is_finite() && x > 0.0, "{extra:?}: {field} = {x}");
         }
+        let f = |k: &str| v[k].as_f64().unwrap();
+        let h = &v["http"];
+        for (ratio, over, under) in [
+            ("http_vs_curl", f("tiles_per_s_http"), f("curl_ceiling_tiles_per_s")),
+            ("http_vs_gdal", f("tiles_per_s_http"), f("tiles_per_s_gdal_http")),
+            ("faults_vs_clean", f("tiles_per_s_http_faults"), h["tiles_per_s_http_relay"].as_f64().unwrap()),
+        ] {
+            let want = over / under;
+            assert!((f(ratio) - want).abs() <= 1e-9 * want, "{extra:?}: {ratio} is not {over} / {under}: {v}");
+        }
+        assert_eq!(v["open_requests"], 1, "{extra:?}: open is one request: {v}");
+        let open_bytes = v["open_bytes"].as_u64().unwrap();
+        assert!((1..=65536).contains(&open_bytes), "{extra:?}: open read {open_bytes} bytes");
+        // A pass: the open, then at most a request a tile (the tile index lies in the first
+        // 64 KiB of so small a COG); every tile's bytes at least once.
+        let (requests, tiles) = (v["requests"].as_u64().unwrap(), v["cog"]["level0_tiles"].as_u64().unwrap());
+        assert!((2..=1 + tiles).contains(&requests), "{extra:?}: {requests} requests for {tiles} tiles: {v}");
+        assert!(h["bytes"].as_u64().unwrap() >= open_bytes, "{v}");
+        assert!(v["requests_gdal"].as_u64().unwrap() >= 1, "{v}");
+        assert_eq!(h["wrong_texels"], 0, "{extra:?}: {v}");
+        assert_eq!(h["failed_reads"], 0, "{extra:?}: {v}");
         assert_eq!(v["wrong_texels"], 0, "{extra:?}: {v}");
         assert_eq!(v["cog"]["level0_tiles"], 4, "{extra:?}: a 512-texel COG of 256-texel tiles");
         let ratio = v["tiles_per_s_local"].as_f64().unwrap() / v["tiles_per_s_gdal_local"].as_f64().unwrap();

@@ -1,17 +1,20 @@
 //! `clipbench cog`: tiles per second from a Cloud-Optimized GeoTIFF served as it is, against
-//! GDAL reading the same tiles of the same file, in the same run.
+//! GDAL reading the same tiles of the same file, in the same run; locally, then over loopback
+//! HTTP (`cog_http.rs`).
 //!
 //! The COG is written by GDAL (`gdal_translate -of COG`, LZW as GDAL's COG default unless
 //! `--compression` says otherwise, 256-texel blocks) from the procedural terrain texture (smooth, so it compresses as imagery does; RGB).
 //! Both sides read every level-0 tile, `passes` times, each pass on a fresh open (GDAL's block
-//! cache empty, our source holding no tiles); the file is in the page cache for both.
+//! cache empty, our source holding no tiles; opens timed apart); the file is in the page cache
+//! for both.
 //! - ours: `CogSource::read_tile` on `depth` threads (the engine's read queues read 4 at once),
 //!   and on one thread beside it;
 //! - GDAL: its Python binding, one `ReadRaster` a tile (pixel-interleaved), default settings as
 //!   its users run it, and again with `GDAL_NUM_THREADS=ALL_CPUS`.
 //!
-//! `wrong_texels` compares every level-0 texel we decode with GDAL's own decode of the same tile
-//! (an untimed pass), rows turned over (our t counts up from the image's bottom row).
+//! `wrong_texels` compares every level-0 texel we read, in every pass of every mode, with GDAL's
+//! own decode of the same tile (an untimed pass of GDAL's first), rows turned over (our t counts
+//! up from the image's bottom row).
 
 use clipmap::source::{CogSource, Procedural, TextureDesc, TileId, TileSource};
 use clipmap::texel::TexelFormat;
@@ -19,13 +22,12 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
 use std::time::Instant;
 
 /// Options of `clipbench cog`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// A 4096-texel COG (about 20 s in all).
+    /// A 4096-texel COG (about 40 s in all, the HTTP half included).
     #[arg(long)]
     quick: bool,
     /// A tiny COG: checks that the benchmark runs (for tests); the figures mean little.
@@ -40,8 +42,8 @@ pub struct Args {
     /// Timed passes over every level-0 tile, each side (the median pass is reported).
     #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..=100))]
     passes: u64,
-    /// Install GDAL (`apt-get install -y gdal-bin python3-gdal`) if it is missing; apt-get's
-    /// output goes to standard error.
+    /// Install GDAL (`apt-get install -y gdal-bin python3-gdal`), and nginx and curl for the
+    /// HTTP half, if they are missing; apt-get's output goes to standard error.
     #[arg(long)]
     install_peers: bool,
     /// Scratch directory (a fresh subdirectory, removed at the end).
@@ -83,7 +85,7 @@ impl Compression {
 }
 
 /// What `clipbench cog --json` prints. The fields the COG issue names are a contract; the
-/// HTTP ones are `null` until remote COGs are served.
+/// HTTP ones are `null` when nginx or curl is missing (or the build has no `remote` feature).
 #[derive(Debug, Serialize)]
 pub struct Report {
     /// Level-0 tiles a second, ours, `depth` threads (median pass).
@@ -92,21 +94,32 @@ pub struct Report {
     pub tiles_per_s_gdal_local: f64,
     /// Ours over GDAL's (goal >= 2).
     pub local_vs_gdal: f64,
-    /// Ours over the HTTP stack (`null`: remote COGs are not served yet).
+    /// Ours over loopback HTTP (nginx), `depth` threads (median pass).
     pub tiles_per_s_http: Option<f64>,
-    /// GDAL through `/vsicurl/` (`null`: not measured yet).
+    /// GDAL through `/vsicurl/`, one `ReadRaster` a tile (median pass).
     pub tiles_per_s_gdal_http: Option<f64>,
-    /// curl fetching the same ranges (`null`: not measured yet).
+    /// curl fetching the byte ranges our pass fetched, `depth` transfers at once.
     pub curl_ceiling_tiles_per_s: Option<f64>,
-    /// Requests (HTTP; `null` for local files).
+    /// Requests of one pass of ours over HTTP, open included.
     pub requests: Option<u64>,
-    /// GDAL's requests (HTTP; `null` for local files).
+    /// GDAL's requests for the same pass, open included.
     pub requests_gdal: Option<u64>,
-    /// Requests to open (HTTP; `null` for local files).
+    /// Requests to open over HTTP (goal: 1).
     pub open_requests: Option<u64>,
-    /// Bytes read to open (HTTP; `null` for local files).
+    /// Bytes read to open over HTTP (at most 65536).
     pub open_bytes: Option<u64>,
-    /// Level-0 texels we decode differently from GDAL (every tile, one pass).
+    /// Ours over GDAL's, HTTP (goal >= 2).
+    pub http_vs_gdal: Option<f64>,
+    /// Ours over the curl ceiling (goal >= 0.8).
+    pub http_vs_curl: Option<f64>,
+    /// GDAL through `/vsicurl/` with `GDAL_NUM_THREADS=ALL_CPUS`.
+    pub tiles_per_s_gdal_http_all_cpus: Option<f64>,
+    /// Ours over HTTP through a relay injecting faults.
+    pub tiles_per_s_http_faults: Option<f64>,
+    /// `tiles_per_s_http_faults` over the same relay's rate without faults (goal >= 0.8).
+    pub faults_vs_clean: Option<f64>,
+    /// Level-0 texels we decode differently from GDAL, over every tile of every pass in every
+    /// mode (local, HTTP, HTTP with faults).
     pub wrong_texels: u64,
     /// Ours on one thread.
     pub tiles_per_s_local_one_thread: f64,
@@ -114,6 +127,8 @@ pub struct Report {
     pub tiles_per_s_gdal_local_all_cpus: f64,
     /// Seconds to open the COG, ours (median; levels past the overviews built at open).
     pub open_s: f64,
+    /// The HTTP half in full.
+    pub http: Option<Http>,
     /// The COG.
     pub cog: CogShape,
     /// GDAL's version.
@@ -138,15 +153,20 @@ pub struct CogShape {
     pub level0_tiles: u64,
 }
 
-/// Reads every level-0 tile through GDAL's binding: `time` passes timed (each on a fresh open),
-/// or with `dump`, one untimed pass writing the tiles' bytes in order (t from the top, then s).
+/// Reads every level-0 tile through GDAL's binding: `passes` passes timed (each on a fresh open,
+/// the open itself timed apart; `/vsicurl/`'s cache emptied before each), and first, with
+/// `dump`, one untimed pass writing the tiles' bytes in order (t from the top, then s).
 const GDAL_TILES: &str = r#"
 import json, sys, time
 from osgeo import gdal
 gdal.UseExceptions()
 tif, tile, passes, dump = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 def read_all(out=None):
+    # Nothing kept from the pass before: /vsicurl/'s cache of ranges is process-wide.
+    gdal.VSICurlClearCache()
+    t0 = time.perf_counter()
     ds = gdal.Open(tif)
+    t1 = time.perf_counter()
     w, h, b = ds.RasterXSize, ds.RasterYSize, ds.RasterCount
     n = 0
     for by in range(h // tile):
@@ -158,47 +178,58 @@ def read_all(out=None):
                 out.write(buf)
             n += 1
     ds = None
-    return n
+    return n, t1 - t0, time.perf_counter() - t1
 if dump != "-":
     with open(dump, "wb") as f:
         read_all(f)
-times = []
+times, opens = [], []
 tiles = 0
 for _ in range(passes):
-    t = time.perf_counter()
-    tiles = read_all()
-    times.append(time.perf_counter() - t)
-print(json.dumps({"version": gdal.__version__, "tiles": tiles, "seconds": times}))
+    tiles, o, t = read_all()
+    times.append(t)
+    opens.append(o)
+print(json.dumps({"version": gdal.__version__, "tiles": tiles, "seconds": times, "open_seconds": opens}))
 "#;
 
 /// The clip size both sides use: level 0 is a stack level of whole tiles.
-fn clip_of(n: u64) -> u64 {
+pub(crate) fn clip_of(n: u64) -> u64 {
     (n / 2).min(1024)
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.total_cmp(b));
     v[v.len() / 2]
 }
 
-/// Runs the GDAL script; (version, tiles a pass, seconds a pass).
-fn gdal_passes(
+/// What the GDAL script measured.
+pub(crate) struct GdalRun {
+    pub version: String,
+    /// Tiles a pass.
+    pub tiles: u64,
+    /// Seconds a pass, reads only.
+    pub seconds: Vec<f64>,
+}
+
+/// Runs the GDAL script on `tif` (a path, or `/vsicurl/URL`) with `env` set.
+pub(crate) fn gdal_passes(
     python: &Path,
     script: &Path,
-    tif: &Path,
+    tif: &str,
     tile: u64,
     passes: u64,
     dump: Option<&Path>,
-    all_cpus: bool,
-) -> anyhow::Result<(String, u64, Vec<f64>)> {
+    env: &[(&str, &str)],
+) -> anyhow::Result<GdalRun> {
     let mut cmd = Command::new(python);
     cmd.arg(script).arg(tif).arg(tile.to_string()).arg(passes.to_string());
     cmd.arg(dump.map_or_else(|| "-".into(), |d| d.as_os_str().to_owned()));
-    if all_cpus {
-        cmd.env("GDAL_NUM_THREADS", "ALL_CPUS");
-    }
+    cmd.envs(env.iter().copied());
     let out = cmd.output()?;
-    anyhow::ensure!(out.status.success(), "GDAL's reads failed: {}", String::from_utf8_lossy(&out.stderr).trim());
+    anyhow::ensure!(
+        out.status.success(),
+        "GDAL's reads of {tif} failed: {}",
+        String::from_utf8_lossy(&out.stderr).trim()
+    );
     #[derive(serde::Deserialize)]
     struct Out {
         version: String,
@@ -206,7 +237,7 @@ fn gdal_passes(
         seconds: Vec<f64>,
     }
     let o: Out = serde_json::from_slice(&out.stdout)?;
-    Ok((o.version, o.tiles, o.seconds))
+    Ok(GdalRun { version: o.version, tiles: o.tiles, seconds: o.seconds })
 }
 
 /// Writes the terrain texture's level 0 as a PNG (top row first, as image files are) and GDAL's
@@ -246,67 +277,179 @@ fn make_cog(dir: &Path, translate: &Path, n: u64, tile: u64, args: &Args) -> any
     Ok(tif)
 }
 
-/// Our passes: every level-0 tile read on `depth` threads, each pass on a fresh open; (seconds
-/// a pass, seconds an open).
-fn our_passes(tif: &Path, n: u64, depth: u64, passes: u64) -> anyhow::Result<(Vec<f64>, Vec<f64>)> {
-    let (mut times, mut opens) = (Vec::new(), Vec::new());
-    for _ in 0..passes {
-        let t0 = Instant::now();
-        let src = Arc::new(CogSource::open(tif, clip_of(n))?);
-        opens.push(t0.elapsed().as_secs_f64());
-        let d = src.desc();
-        let [ts, tt] = d.level(0).tiles();
-        let bytes = d.tile_bytes(0);
-        let next = AtomicU64::new(0);
-        let t = Instant::now();
-        std::thread::scope(|scope| -> anyhow::Result<()> {
-            let workers: Vec<_> = (0..depth)
-                .map(|_| {
-                    scope.spawn(|| -> anyhow::Result<()> {
-                        let mut buf = vec![0u8; bytes];
-                        loop {
-                            let i = next.fetch_add(1, Ordering::Relaxed);
-                            if i >= ts * tt {
-                                return Ok(());
-                            }
-                            src.read_tile(TileId { level: 0, s: i % ts, t: i / ts }, &mut buf)?;
-                        }
-                    })
-                })
-                .collect();
-            for w in workers {
-                w.join().map_err(|_| anyhow::anyhow!("a reading thread panicked"))??;
-            }
-            Ok(())
-        })?;
-        times.push(t.elapsed().as_secs_f64());
-    }
-    Ok((times, opens))
+/// GDAL's decode of every level-0 tile (its dump: rows of blocks from the top, each tile's rows
+/// from the top), what every tile we read is compared with.
+pub(crate) struct Reference {
+    gdal: Vec<u8>,
+    n: u64,
+    tile: u64,
+    /// How far apart a sample may be (JPEG: two decoders).
+    tolerance: u8,
 }
 
-/// Level-0 texels of ours that differ from GDAL's dump by more than `tolerance` in some sample
-/// (tiles in GDAL's order: rows of blocks from the top, each tile's rows from the top).
-fn wrong_texels(tif: &Path, dump: &Path, n: u64, tile: u64, tolerance: u8) -> anyhow::Result<u64> {
-    let src = CogSource::open(tif, clip_of(n))?;
-    let gdal = std::fs::read(dump)?;
-    let (bpt, tiles, tb) = (3usize, n / tile, 3 * (tile * tile) as usize);
-    anyhow::ensure!(gdal.len() == tb * (tiles * tiles) as usize, "GDAL's dump is {} bytes", gdal.len());
-    let mut wrong = 0u64;
-    let mut ours = vec![0u8; tb];
-    for by in 0..tiles {
-        for bx in 0..tiles {
-            let theirs = &gdal[(by * tiles + bx) as usize * tb..][..tb];
-            src.read_tile(TileId { level: 0, s: bx, t: tiles - 1 - by }, &mut ours)?;
-            let row = bpt * tile as usize;
-            for r in 0..tile as usize {
-                let a = &ours[r * row..(r + 1) * row];
-                let b = &theirs[(tile as usize - 1 - r) * row..][..row];
-                let apart = |x: &[u8], y: &[u8]| x.iter().zip(y).any(|(p, q)| p.abs_diff(*q) > tolerance);
-                wrong += a.chunks(bpt).zip(b.chunks(bpt)).filter(|(x, y)| apart(x, y)).count() as u64;
+impl Reference {
+    /// Texels of our level-0 tile `id` (rows from the bottom) that differ from GDAL's by more
+    /// than the tolerance in some sample.
+    pub(crate) fn wrong(&self, id: TileId, ours: &[u8]) -> u64 {
+        let (tiles, tile, bpt) = (self.n / self.tile, self.tile as usize, 3usize);
+        let tb = bpt * tile * tile;
+        let by = tiles - 1 - id.t;
+        let theirs = &self.gdal[(by * tiles + id.s) as usize * tb..][..tb];
+        let row = bpt * tile;
+        let mut wrong = 0u64;
+        for r in 0..tile {
+            let a = &ours[r * row..(r + 1) * row];
+            let b = &theirs[(tile - 1 - r) * row..][..row];
+            if a == b {
+                continue;
             }
+            let apart = |x: &[u8], y: &[u8]| x.iter().zip(y).any(|(p, q)| p.abs_diff(*q) > self.tolerance);
+            wrong += a.chunks(bpt).zip(b.chunks(bpt)).filter(|(x, y)| apart(x, y)).count() as u64;
         }
+        wrong
     }
-    Ok(wrong)
+}
+
+/// One pass of ours over every level-0 tile of `src`.
+pub(crate) struct Pass {
+    pub seconds: f64,
+    /// Texels that differ from GDAL's decode.
+    pub wrong: u64,
+    /// Reads that failed, and the first failure.
+    pub failed: u64,
+    pub first_error: Option<String>,
+}
+
+/// Reads every level-0 tile of `src` on `depth` threads, as the engine's read queues do, each
+/// tile checked against `reference` (the check is inside the timed pass: a few microseconds a
+/// tile, the same in every mode).
+pub(crate) fn one_pass(src: &CogSource, depth: u64, reference: &Reference) -> Pass {
+    let d = src.desc();
+    let [ts, tt] = d.level(0).tiles();
+    let bytes = d.tile_bytes(0);
+    let next = AtomicU64::new(0);
+    let (wrong, failed) = (AtomicU64::new(0), AtomicU64::new(0));
+    let first_error = std::sync::Mutex::new(None);
+    let t = Instant::now();
+    std::thread::scope(|scope| {
+        for _ in 0..depth {
+            scope.spawn(|| {
+                let mut buf = vec![0u8; bytes];
+                loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    if i >= ts * tt {
+                        return;
+                    }
+                    let id = TileId { level: 0, s: i % ts, t: i / ts };
+                    match src.read_tile(id, &mut buf) {
+                        Ok(()) => {
+                            wrong.fetch_add(reference.wrong(id, &buf), Ordering::Relaxed);
+                        }
+                        Err(e) => {
+                            failed.fetch_add(1, Ordering::Relaxed);
+                            let mut f = first_error.lock().unwrap_or_else(|e| e.into_inner());
+                            f.get_or_insert_with(|| format!("level-0 tile ({}, {}): {e}", id.s, id.t));
+                        }
+                    }
+                }
+            });
+        }
+    });
+    Pass {
+        seconds: t.elapsed().as_secs_f64(),
+        wrong: wrong.into_inner(),
+        failed: failed.into_inner(),
+        first_error: first_error.into_inner().unwrap_or_else(|e| e.into_inner()),
+    }
+}
+
+/// Our local passes, each on a fresh open; (seconds a pass, seconds an open, wrong texels).
+fn our_passes(
+    tif: &Path,
+    n: u64,
+    depth: u64,
+    passes: u64,
+    reference: &Reference,
+) -> anyhow::Result<(Vec<f64>, Vec<f64>, u64)> {
+    let (mut times, mut opens, mut wrong) = (Vec::new(), Vec::new(), 0);
+    for _ in 0..passes {
+        let t0 = Instant::now();
+        let src = CogSource::open(tif, clip_of(n))?;
+        opens.push(t0.elapsed().as_secs_f64());
+        let p = one_pass(&src, depth, reference);
+        if let Some(e) = p.first_error {
+            anyhow::bail!("{}: {} reads failed; the first: {e}", tif.display(), p.failed);
+        }
+        times.push(p.seconds);
+        wrong += p.wrong;
+    }
+    Ok((times, opens, wrong))
+}
+
+/// What the HTTP half needs of the run (`cog_http.rs`).
+#[cfg_attr(not(feature = "remote"), allow(dead_code))]
+pub(crate) struct HttpRun<'a> {
+    pub dir: &'a Path,
+    pub tif: &'a Path,
+    pub n: u64,
+    pub tile: u64,
+    pub depth: u64,
+    pub passes: u64,
+    pub reference: &'a Reference,
+    pub python: &'a Path,
+    pub script: &'a Path,
+    pub install_peers: bool,
+}
+
+/// The HTTP half's figures (`null` in the JSON when nginx or curl is missing).
+#[derive(Debug, Default, Serialize)]
+pub struct Http {
+    /// Ours over HTTP, `depth` threads (median pass, open not included).
+    pub tiles_per_s_http: f64,
+    /// GDAL through `/vsicurl/`, one `ReadRaster` a tile, [`GDAL_HTTP_ENV`] set (median pass).
+    pub tiles_per_s_gdal_http: f64,
+    /// The same with `GDAL_NUM_THREADS=ALL_CPUS` too.
+    pub tiles_per_s_gdal_http_all_cpus: f64,
+    /// The same with none of GDAL's settings (GDAL's defaults).
+    pub tiles_per_s_gdal_http_default_env: f64,
+    /// curl fetching the byte ranges of our pass, `depth` transfers at once (median pass).
+    pub curl_ceiling_tiles_per_s: f64,
+    /// Our remote reader fetching the same ranges, the same threads, without decoding them.
+    pub tiles_per_s_http_fetch_only: f64,
+    /// Requests of one pass of ours, open included (nginx's log).
+    pub requests: u64,
+    /// Bytes of one pass of ours, open included.
+    pub bytes: u64,
+    /// GDAL's requests a pass (open included; all passes over the number of passes).
+    pub requests_gdal: u64,
+    pub bytes_gdal: u64,
+    /// GDAL's requests a pass with its defaults.
+    pub requests_gdal_default_env: u64,
+    /// Requests and bytes of our open.
+    pub open_requests: u64,
+    pub open_bytes: u64,
+    /// The largest and mean range of our pass (open excluded).
+    pub range_bytes_max: u64,
+    pub range_bytes_mean: f64,
+    /// What GDAL was given for `tiles_per_s_gdal_http`.
+    pub gdal_env: Vec<String>,
+    /// Ours through the relay the faults are injected by, with no fault (median pass).
+    pub tiles_per_s_http_relay: f64,
+    /// Ours through that relay injecting faults (median pass).
+    pub tiles_per_s_http_faults: f64,
+    /// Shares of requests answered 503, and cut (connection closed half way through the body).
+    pub fault_503_share: f64,
+    pub fault_cut_share: f64,
+    /// Faults injected, over all passes.
+    pub faults_503: u64,
+    pub faults_cut: u64,
+    /// Our retries and reads that failed after them, with faults.
+    pub retries: u64,
+    pub failed_reads: u64,
+    /// Texels that differ from GDAL's decode over every HTTP pass (clean, relay, faults).
+    pub wrong_texels: u64,
+    /// Our open over HTTP, seconds (median).
+    pub open_s: f64,
 }
 
 fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
@@ -323,33 +466,64 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
     let script = dir.join("gdal_tiles.py");
     std::fs::write(&script, GDAL_TILES)?;
     let dump = dir.join("gdal_tiles.raw");
+    let path = tif.to_string_lossy();
     // The untimed pass first: it also brings the file into the page cache for both sides.
-    let (version, gdal_tiles, gdal_s) = gdal_passes(&gdal.python, &script, &tif, tile, passes, Some(&dump), false)?;
+    let run = gdal_passes(&gdal.python, &script, &path, tile, passes, Some(&dump), &[])?;
+    let (version, gdal_tiles, gdal_s) = (run.version, run.tiles, run.seconds);
     let tolerance = if matches!(args.compression, Compression::Jpeg) { JPEG_TOLERANCE } else { 0 };
-    let wrong = wrong_texels(&tif, &dump, n, tile, tolerance)?;
+    let reference = Reference { gdal: std::fs::read(&dump)?, n, tile, tolerance };
+    let tb = 3 * (tile * tile) as usize;
+    anyhow::ensure!(
+        reference.gdal.len() == tb * ((n / tile) * (n / tile)) as usize,
+        "GDAL's dump is {} bytes",
+        reference.gdal.len()
+    );
     let _ = std::fs::remove_file(&dump);
-    let (_, _, gdal_all_s) = gdal_passes(&gdal.python, &script, &tif, tile, passes, None, true)?;
-    let (ours_s, opens) = our_passes(&tif, n, args.depth, passes)?;
-    let (one_s, _) = our_passes(&tif, n, 1, passes)?;
+    let gdal_all_s =
+        gdal_passes(&gdal.python, &script, &path, tile, passes, None, &[("GDAL_NUM_THREADS", "ALL_CPUS")])?.seconds;
+    let (ours_s, opens, mut wrong) = our_passes(&tif, n, args.depth, passes, &reference)?;
+    let (one_s, _, w) = our_passes(&tif, n, 1, passes, &reference)?;
+    wrong += w;
     let tiles = (n / tile) * (n / tile);
     anyhow::ensure!(gdal_tiles == tiles, "GDAL read {gdal_tiles} tiles a pass where the COG has {tiles}");
+    let http_run = HttpRun {
+        dir,
+        tif: &tif,
+        n,
+        tile,
+        depth: args.depth,
+        passes,
+        reference: &reference,
+        python: &gdal.python,
+        script: &script,
+        install_peers: args.install_peers,
+    };
+    let http = http_half(&http_run)?;
+    wrong += http.as_ref().map_or(0, |h| h.wrong_texels);
     let rate = |s: Vec<f64>| tiles as f64 / median(s);
     let (ours, theirs) = (rate(ours_s), rate(gdal_s));
+    let h = http.as_ref();
     Ok(Report {
         tiles_per_s_local: ours,
         tiles_per_s_gdal_local: theirs,
         local_vs_gdal: ours / theirs,
-        tiles_per_s_http: None,
-        tiles_per_s_gdal_http: None,
-        curl_ceiling_tiles_per_s: None,
-        requests: None,
-        requests_gdal: None,
-        open_requests: None,
-        open_bytes: None,
+        tiles_per_s_http: h.map(|h| h.tiles_per_s_http),
+        tiles_per_s_gdal_http: h.map(|h| h.tiles_per_s_gdal_http),
+        curl_ceiling_tiles_per_s: h.map(|h| h.curl_ceiling_tiles_per_s),
+        requests: h.map(|h| h.requests),
+        requests_gdal: h.map(|h| h.requests_gdal),
+        open_requests: h.map(|h| h.open_requests),
+        open_bytes: h.map(|h| h.open_bytes),
+        http_vs_gdal: h.map(|h| h.tiles_per_s_http / h.tiles_per_s_gdal_http),
+        http_vs_curl: h.map(|h| h.tiles_per_s_http / h.curl_ceiling_tiles_per_s),
+        tiles_per_s_gdal_http_all_cpus: h.map(|h| h.tiles_per_s_gdal_http_all_cpus),
+        tiles_per_s_http_faults: h.map(|h| h.tiles_per_s_http_faults),
+        faults_vs_clean: h.map(|h| h.tiles_per_s_http_faults / h.tiles_per_s_http_relay),
         wrong_texels: wrong,
         tiles_per_s_local_one_thread: rate(one_s),
         tiles_per_s_gdal_local_all_cpus: rate(gdal_all_s),
         open_s: median(opens),
+        http,
         cog: CogShape {
             size: n,
             tile,
@@ -366,8 +540,20 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
     })
 }
 
+/// The HTTP half, or `None` (with a note on standard error) when what it needs is missing.
+#[cfg(feature = "remote")]
+fn http_half(run: &HttpRun) -> anyhow::Result<Option<Http>> {
+    super::cog_http::measure(run)
+}
+
+#[cfg(not(feature = "remote"))]
+fn http_half(_: &HttpRun) -> anyhow::Result<Option<Http>> {
+    eprintln!("clipbench cog: this build reads no remote objects (the `remote` feature): the HTTP fields are null");
+    Ok(None)
+}
+
 fn human(r: &Report) -> String {
-    format!(
+    let mut o = format!(
         "COG {}x{} RGB, {}{}, {}-texel tiles ({} bytes), GDAL {}\n\
          level-0 tiles a second: ours {:.0} ({} threads; {:.0} on one), GDAL {:.0} (ALL_CPUS {:.0}): {:.2}x\n\
          open {:.3} s; texels that differ from GDAL's decode: {}\n",
@@ -386,7 +572,43 @@ fn human(r: &Report) -> String {
         r.local_vs_gdal,
         r.open_s,
         r.wrong_texels
-    )
+    );
+    match &r.http {
+        None => o.push_str("HTTP: not measured (nginx or curl missing)\n"),
+        Some(h) => o.push_str(&format!(
+            "HTTP (nginx on loopback): ours {:.0}, GDAL /vsicurl/ {:.0} (ALL_CPUS {:.0}; GDAL's defaults {:.0}): {:.2}x; \
+             curl, the same ranges {} at once, {:.0}: {:.2} of it (our reader fetching them without decoding: {:.0})\n\
+             requests a pass: ours {} ({} bytes; open {} of {} bytes), GDAL {} ({} bytes; {} with its defaults)\n\
+             faults ({:.0} % 503, {:.0} % cut): {:.0} against {:.0} through the same relay without them ({:.2}); \
+             {} 503s and {} cuts injected, {} retries, {} reads failed\n",
+            h.tiles_per_s_http,
+            h.tiles_per_s_gdal_http,
+            h.tiles_per_s_gdal_http_all_cpus,
+            h.tiles_per_s_gdal_http_default_env,
+            h.tiles_per_s_http / h.tiles_per_s_gdal_http,
+            r.depth,
+            h.curl_ceiling_tiles_per_s,
+            h.tiles_per_s_http / h.curl_ceiling_tiles_per_s,
+            h.tiles_per_s_http_fetch_only,
+            h.requests,
+            h.bytes,
+            h.open_requests,
+            h.open_bytes,
+            h.requests_gdal,
+            h.bytes_gdal,
+            h.requests_gdal_default_env,
+            h.fault_503_share * 100.0,
+            h.fault_cut_share * 100.0,
+            h.tiles_per_s_http_faults,
+            h.tiles_per_s_http_relay,
+            h.tiles_per_s_http_faults / h.tiles_per_s_http_relay,
+            h.faults_503,
+            h.faults_cut,
+            h.retries,
+            h.failed_reads
+        )),
+    }
+    o
 }
 
 pub fn main(args: Args) -> u8 {

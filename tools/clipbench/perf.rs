@@ -31,7 +31,7 @@ mod human;
 #[path = "perf/ingest.rs"]
 mod ingest;
 #[path = "perf/install.rs"]
-mod install;
+pub mod install;
 #[path = "perf/scale.rs"]
 mod scale;
 #[path = "perf/service.rs"]

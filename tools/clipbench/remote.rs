@@ -9,6 +9,7 @@
 //! engine's read queues make them: `depth` threads, each reading one tile at a time through
 //! [`TileSource::read_tile`].
 
+use super::serve::{free_port, wait_port, Faults, Killed, Nginx, Proxy};
 use clipmap::limits::Limits;
 use clipmap::plan;
 use clipmap::prep::{self, Filter, Job, Layout, Source, Spec};
@@ -17,10 +18,10 @@ use clipmap::source::remote::{Remote, RemoteOptions, RemoteSource};
 use clipmap::source::{FileSource, TileId, TileSource};
 use clipmap::texel::TexelFormat;
 use serde::Serialize;
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{TcpListener, TcpStream};
+use std::io::{Read, Write};
+use std::net::TcpStream;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -120,69 +121,6 @@ pub struct RemoteFlight {
     pub wrong_texels: u64,
 }
 
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn free_port() -> anyhow::Result<u16> {
-    Ok(TcpListener::bind("127.0.0.1:0")?.local_addr()?.port())
-}
-
-fn wait_port(port: u16, what: &str) -> anyhow::Result<()> {
-    let t = Instant::now();
-    while t.elapsed() < Duration::from_secs(30) {
-        if TcpStream::connect(("127.0.0.1", port)).is_ok() {
-            return Ok(());
-        }
-        std::thread::sleep(Duration::from_millis(25));
-    }
-    anyhow::bail!("{what} did not listen on port {port} within 30 s")
-}
-
-fn program(names: &[&str]) -> Option<PathBuf> {
-    for n in names {
-        let p = Path::new(n);
-        if p.is_absolute() && p.is_file() {
-            return Some(p.to_path_buf());
-        }
-        for d in std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default()) {
-            if d.join(n).is_file() {
-                return Some(d.join(n));
-            }
-        }
-    }
-    None
-}
-
-fn nginx(root: &Path, dir: &Path) -> anyhow::Result<(Killed, u16)> {
-    let exe = program(&["nginx", "/usr/sbin/nginx"])
-        .ok_or_else(|| anyhow::anyhow!("nginx is needed and was not found: install it (apt-get install nginx)"))?;
-    let port = free_port()?;
-    for sub in ["body", "proxy", "fastcgi", "uwsgi", "scgi"] {
-        std::fs::create_dir_all(dir.join(sub))?;
-    }
-    let d = dir.display();
-    let conf = format!(
-        "daemon off;\nmaster_process off;\nworker_processes 1;\npid {d}/nginx.pid;\nerror_log {d}/error.log warn;\n\
-         events {{ worker_connections 1024; }}\nhttp {{\n access_log off;\n client_body_temp_path {d}/body;\n proxy_temp_path {d}/proxy;\n fastcgi_temp_path {d}/fastcgi;\n uwsgi_temp_path {d}/uwsgi;\n scgi_temp_path {d}/scgi;\n keepalive_requests 1000000;\n sendfile on;\n tcp_nodelay on;\n server {{ listen 127.0.0.1:{port}; root {}; location / {{ }} }}\n}}\n",
-        root.display()
-    );
-    std::fs::write(dir.join("nginx.conf"), conf)?;
-    let child = Command::new(exe)
-        .args(["-p", &d.to_string(), "-e", &format!("{d}/error.log"), "-c", &format!("{d}/nginx.conf")])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()?;
-    let k = Killed(child);
-    wait_port(port, "nginx")?;
-    Ok((k, port))
-}
-
 fn moto() -> anyhow::Result<(Killed, u16)> {
     let ok = Command::new("python3")
         .args(["-c", "import moto.server"])
@@ -209,63 +147,7 @@ fn moto() -> anyhow::Result<(Killed, u16)> {
 
 /// A keep-alive HTTP proxy to `upstream` that holds every request `delay` before forwarding it.
 fn delaying_proxy(upstream: u16, delay: Duration, stop: Arc<AtomicBool>) -> anyhow::Result<u16> {
-    let listener = TcpListener::bind("127.0.0.1:0")?;
-    let port = listener.local_addr()?.port();
-    std::thread::spawn(move || {
-        for conn in listener.incoming() {
-            if stop.load(Ordering::Relaxed) {
-                break;
-            }
-            let Ok(conn) = conn else { continue };
-            std::thread::spawn(move || {
-                let _ = relay(conn, upstream, delay);
-            });
-        }
-    });
-    Ok(port)
-}
-
-fn read_head(r: &mut BufReader<TcpStream>) -> std::io::Result<Option<(Vec<u8>, usize)>> {
-    let mut head = Vec::new();
-    let mut len = 0usize;
-    loop {
-        let mut line = String::new();
-        if r.read_line(&mut line)? == 0 {
-            return Ok(None);
-        }
-        if let Some(v) = line.to_ascii_lowercase().strip_prefix("content-length:") {
-            len = v.trim().parse().unwrap_or(0);
-        }
-        head.extend_from_slice(line.as_bytes());
-        if line == "\r\n" {
-            return Ok(Some((head, len)));
-        }
-    }
-}
-
-fn relay(client: TcpStream, upstream: u16, delay: Duration) -> std::io::Result<()> {
-    client.set_nodelay(true)?;
-    let mut from_client = BufReader::new(client.try_clone()?);
-    let mut to_client = client;
-    let up = TcpStream::connect(("127.0.0.1", upstream))?;
-    up.set_nodelay(true)?;
-    let mut from_up = BufReader::new(up.try_clone()?);
-    let mut to_up = up;
-    let mut body = Vec::new();
-    while let Some((head, len)) = read_head(&mut from_client)? {
-        body.resize(len, 0);
-        from_client.read_exact(&mut body)?;
-        std::thread::sleep(delay);
-        to_up.write_all(&head)?;
-        to_up.write_all(&body)?;
-        let Some((rhead, rlen)) = read_head(&mut from_up)? else { return Ok(()) };
-        let head_only = head.starts_with(b"HEAD ");
-        body.resize(if head_only { 0 } else { rlen }, 0);
-        from_up.read_exact(&mut body)?;
-        to_client.write_all(&rhead)?;
-        to_client.write_all(&body)?;
-    }
-    Ok(())
+    Ok(Proxy::start(upstream, delay, Faults::default(), stop)?.port)
 }
 
 /// Reads `tiles` with `depth` threads; returns tiles per second (of tiles read), wrong texels (64
@@ -362,7 +244,8 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
     let summary = prep::run(job, &root, &AtomicBool::new(false), dir, &|_| {})?;
     let local_ct = root.join(&summary.ct);
 
-    let (_nginx, http_port) = nginx(&root, &dir.join("nginx"))?;
+    let nginx = Nginx::serve(&root, &dir.join("nginx"), None)?;
+    let http_port = nginx.port;
     let (_moto, s3_port) = moto()?;
     // The benchmark's own store: these variables are this process's, set before any thread
     // reads them.
