@@ -19,9 +19,11 @@
 
 pub mod load;
 pub mod stats;
+pub mod views;
 
 pub use load::{next_min_lod, target_min_lod};
 pub use stats::{FaultCounts, Stats, TickReport};
+pub use views::{demotion, ViewError, ViewId, MAX_VIEWS, PRIMARY};
 
 use crate::cache::{Admit, TileCache, TileState};
 use crate::geom::{aligned_centre, level_grid, tile_texels, tiles_covering, LevelFrame, LevelShape, Rect};
@@ -77,6 +79,11 @@ pub struct Settings {
     /// lookahead-1 grids), capped by `limits.cache_bytes` less the pool. The fixed policies
     /// size grids from `lookahead` and ignore it.
     pub grid_budget: Option<u64>,
+    /// Level-0 texels by which further views' windows may lie apart and still be held whole
+    /// ([`views`]): each level's grid gets `ceil((view_spread >> k) / tile)` more tiles per axis
+    /// (0: grids for one view; the views share what it holds). `cliptex plan`'s memory formula
+    /// counts them.
+    pub view_spread: u64,
 }
 
 impl Default for Settings {
@@ -94,6 +101,7 @@ impl Default for Settings {
             eviction: EvictionKind::default(),
             limits: Limits::default(),
             grid_budget: None,
+            view_spread: 0,
         }
     }
 }
@@ -249,6 +257,8 @@ pub struct Clipmap {
     controller: Option<Controller>,
     /// The source's heights (`None`: colours), for the height sampler.
     heights: Option<crate::plan::HeightPlan>,
+    /// Further views sharing the grids ([`views`]), and the primary's weight.
+    views: views::Views,
 }
 
 /// What the adaptive policy measures and chose ([`crate::paging::adaptive`]).
@@ -288,7 +298,7 @@ impl Clipmap {
             .map(|(k, l)| level_grid(l.size, l.tile, clip, settings.lookahead, desc.mem_grid(k as u32)))
             .collect();
         if settings.prefetch != PrefetchKind::Adaptive {
-            return fixed;
+            return views::spread_grids(desc, fixed, settings.view_spread);
         }
         // Levels whose configuration fixes a mem region keep it; the others share the budget.
         let free: Vec<usize> = (0..fixed.len()).filter(|&k| desc.mem_grid(k as u32).is_none()).collect();
@@ -301,7 +311,7 @@ impl Clipmap {
         for (i, &k) in free.iter().enumerate() {
             out[k] = grids[i];
         }
-        out
+        views::spread_grids(desc, out, settings.view_spread)
     }
 
     /// The bytes the adaptive policy's grids may take, all levels together (`None` for the fixed
@@ -399,6 +409,7 @@ impl Clipmap {
             pool,
             source: source.clone(),
             centre: None,
+            views: views::Views::default(),
             tick: 0,
             stats: Stats::default(),
             refresh: VecDeque::new(),
@@ -623,6 +634,7 @@ impl Clipmap {
         if !self.refresh.is_empty() || !self.replacing.is_empty() {
             self.replace_tiles();
         }
+        self.move_view_frames();
         let velocities = self.move_frames(centre, velocity);
         if let Some(pool) = &self.pool {
             pool.hint(centre, velocity, self.levels.iter().map(|l| l.frame.mem).collect());
@@ -643,6 +655,7 @@ impl Clipmap {
             }
         }
         self.update_min_lod(&complete);
+        self.publish_views();
         self.publish();
         self.stats.paging = self.paging_report(&complete);
         self.stats.read_latency_ticks = self.controller.as_ref().map_or(0.0, |c| c.latency.slowest());
@@ -768,6 +781,7 @@ impl Clipmap {
     /// Moves every level's frame to the new centre; returns each level's velocity in its texels.
     fn move_frames(&mut self, centre: [i64; 2], velocity: [i64; 2]) -> Vec<[i64; 2]> {
         let mut out = Vec::with_capacity(self.levels.len());
+        let others = self.views_windows();
         if let Some(c) = &mut self.controller {
             // A move of more than a window is a jump: the read-ahead restarts centred.
             c.motion.update(velocity, self.desc.clip_size());
@@ -778,12 +792,14 @@ impl Clipmap {
             let v = velocity.map(|x| if x != 0 && (x >> k32.min(63)) == 0 { x.signum() } else { x >> k32.min(63) });
             let previous = level.frame.mem;
             level.frame = level.shape.frame(c, self.border, v);
+            // With further views, the grid holds the union of their windows where it can.
+            let tex = views::mem_window(&level.shape, level.frame.tex, &others[k]);
             level.frame.mem = match &mut self.controller {
-                None => self.settings.prefetch.policy().mem_region(&level.shape, level.frame.tex, v, previous),
+                None => self.settings.prefetch.policy().mem_region(&level.shape, tex, v, previous),
                 // A grid a configuration fixes (`mem_region_size`, or its lookahead) is held whole,
                 // as the configuration says, its spare tiles around the window: reported fixed.
                 Some(_) if self.desc.mem_grid(k32).is_some() => {
-                    PrefetchKind::Ring.policy().mem_region(&level.shape, level.frame.tex, v, previous)
+                    PrefetchKind::Ring.policy().mem_region(&level.shape, tex, v, previous)
                 }
                 Some(ctl) => {
                     let smooth = ctl.motion.at_level(k32);
@@ -802,7 +818,7 @@ impl Clipmap {
                         lead[a] = if smooth[a] == 0 { 0 } else { adaptive::held_lead(ctl.lead[k][a], need) };
                     }
                     ctl.lead[k] = lead;
-                    adaptive::region(&level.shape, level.frame.tex, smooth, lead)
+                    adaptive::region(&level.shape, tex, smooth, lead)
                 }
             };
             out.push(v);
@@ -814,19 +830,29 @@ impl Clipmap {
     /// they are, else the largest rectangle of settled tiles grown from the centre's tile (empty
     /// when that tile is not settled).
     fn settled_region(&self, k: usize) -> Rect {
+        self.settled_in(k, &self.levels[k].frame)
+    }
+
+    /// [`settled_region`](Self::settled_region) of any view's `frame` of level `k`: only tiles
+    /// inside the level's new mem region count as settled (a tile about to leave it is not
+    /// published, so no slot the tick reassigns lies under a published region).
+    fn settled_in(&self, k: usize, frame: &LevelFrame) -> Rect {
         let level = &self.levels[k];
-        let valid = level.frame.valid;
+        let valid = frame.valid;
         if valid.is_empty() {
             return Rect::EMPTY;
         }
         let tile = level.shape.tile;
         let tiles = tiles_covering(valid, tile);
-        let settled = |s: i64, t: i64| self.cache.state(TileId::new(k as u32, s as u64, t as u64)).settled();
+        let mem = level.frame.mem;
+        let settled = |s: i64, t: i64| {
+            mem.contains(s, t) && self.cache.state(TileId::new(k as u32, s as u64, t as u64)).settled()
+        };
         let all = |r: Rect| (r.t0..r.t1).all(|t| (r.s0..r.s1).all(|s| settled(s, t)));
         if all(tiles) {
             return valid;
         }
-        let c = level.frame.centre;
+        let c = frame.centre;
         let cs = c[0].clamp(valid.s0, valid.s1 - 1).div_euclid(tile[0] as i64);
         let ct = c[1].clamp(valid.t0, valid.t1 - 1).div_euclid(tile[1] as i64);
         if !settled(cs, ct) {
@@ -867,8 +893,12 @@ impl Clipmap {
         // A tile whose finished read waits in the backlog (a spent budget) is in its slot already:
         // asking for it again would read it twice.
         let waiting: std::collections::HashSet<TileId> = self.backlog.iter().map(|c| c.tile).collect();
+        let views = self.views.live().next().is_some();
         for (k, level) in self.levels.iter().enumerate() {
             let k32 = k as u32;
+            if views {
+                self.stats.slots_reassigned_under_views += self.under_views_leaving(k, level.frame.mem);
+            }
             self.stats.tiles_evicted += self.cache.set_mem_region(k32, level.frame.mem);
             for tile in self.cache.wanted(k32, self.tick) {
                 if waiting.contains(&tile) {
@@ -880,6 +910,7 @@ impl Clipmap {
                 } else {
                     priority(k32, count, texels, level.frame.valid, level.shape.clip, velocities[k])
                 };
+                let p = if views { self.view_priority(k, texels, p, self.controller.is_some()) } else { p };
                 wanted.push(ReadRequest { tile, priority: p });
                 self.cache.mark_loading(tile);
                 // A tile replaced in its slot is no paging read: the read-ahead's latency is not

@@ -8,23 +8,28 @@ use crate::texel::TexelFormat;
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngSeed};
 
-fn hash_source(size: [u64; 2], clip: u64, tile: u64, border: u64, format: TexelFormat) -> Arc<HashSource> {
+pub(crate) fn hash_source(size: [u64; 2], clip: u64, tile: u64, border: u64, format: TexelFormat) -> Arc<HashSource> {
     let desc = TextureDesc::new(size, clip, format, [tile, tile]).unwrap().with_invalid_border(border).unwrap();
     Arc::new(HashSource::new(desc))
 }
 
-fn settings(budget_ns: Option<u64>) -> Settings {
+pub(crate) fn settings(budget_ns: Option<u64>) -> Settings {
     Settings { budget_ns, fade_ticks: 2, retry_after_ticks: 2, ..Settings::default() }
 }
 
 /// Every texel of every published valid region against the hash texture; at most `stride`-th
 /// texels of each row on very wide regions.
 pub(crate) fn check_published(map: &Clipmap) -> Result<u64, String> {
+    check_view(map, PRIMARY)
+}
+
+/// [`check_published`] of view `id`'s published regions.
+pub(crate) fn check_view(map: &Clipmap, id: ViewId) -> Result<u64, String> {
     let bpt = map.desc().bytes_per_texel();
     let mut want = vec![0u8; bpt];
     let mut checked = 0;
     for k in 0..map.level_count() as u32 {
-        let view = map.level(k);
+        let view = map.view_level(id, k).map_err(|e| e.to_string())?;
         let v = view.valid;
         let stride = (v.area() / 200_000).max(1) as i64;
         for t in v.t0..v.t1 {
@@ -35,16 +40,16 @@ pub(crate) fn check_published(map: &Clipmap) -> Result<u64, String> {
                 if matches!(state, crate::cache::TileState::Failed { .. }) {
                     // A missing tile: published as such, served from a coarser level.
                     if view.texel(s, t).is_some() {
-                        return Err(format!("level {k} texel ({s}, {t}): a missing tile's texel was served"));
+                        return Err(format!("view {id} level {k} texel ({s}, {t}): a missing tile's texel was served"));
                     }
                     s += stride;
                     continue;
                 }
-                let got = view
-                    .texel(s, t)
-                    .ok_or_else(|| format!("level {k} texel ({s}, {t}): published but its tile is {state:?}"))?;
+                let got = view.texel(s, t).ok_or_else(|| {
+                    format!("view {id} level {k} texel ({s}, {t}): published but its tile is {state:?}")
+                })?;
                 if *got != *want.as_slice() {
-                    return Err(format!("level {k} texel ({s}, {t}): got {got:?}, expected {want:?}"));
+                    return Err(format!("view {id} level {k} texel ({s}, {t}): got {got:?}, expected {want:?}"));
                 }
                 checked += 1;
                 s += stride;
@@ -334,7 +339,7 @@ fn without_a_velocity_the_look_ahead_follows_the_centres_change_since_the_last_t
 }
 
 /// A clipmap over the hash texture read through a disk of `per_tick` tiles a tick, in lock step.
-fn over_disk(per_tick: u64, s: Settings) -> (Arc<crate::source::ThrottledSource>, Clipmap) {
+pub(crate) fn over_disk(per_tick: u64, s: Settings) -> (Arc<crate::source::ThrottledSource>, Clipmap) {
     let inner = hash_source([1 << 12, 1 << 12], 64, 16, 0, TexelFormat::L8);
     let disk = Arc::new(crate::source::ThrottledSource::new(inner, per_tick));
     let mut s = s;
@@ -344,7 +349,7 @@ fn over_disk(per_tick: u64, s: Settings) -> (Arc<crate::source::ThrottledSource>
     (disk, map)
 }
 
-fn disk_step(disk: &crate::source::ThrottledSource, map: &mut Clipmap, c: [i64; 2]) -> TickReport {
+pub(crate) fn disk_step(disk: &crate::source::ThrottledSource, map: &mut Clipmap, c: [i64; 2]) -> TickReport {
     disk.next_tick();
     let r = map.tick(c, None);
     map.wait_for_reads();

@@ -1,0 +1,413 @@
+//! Further views of one clipmap: several viewers (a simulator's side windows, an overview beside a
+//! detail map) that keep their own centres, windows, published valid regions and min LOD while
+//! sharing the clipmap's grids, its read queues and every tile read (docs/VIEWS.md).
+//!
+//! The clipmap's own centre is the *primary* view (id 0), published in the mapping as always. A
+//! further view is added with a weight ([`Clipmap::add_view`]) and moved with
+//! [`Clipmap::move_view`]; each tick then:
+//! - places each level's mem region around the primary's window grown to the bounding box of
+//!   every further view's window the grid can hold with it (heaviest view first): the grid is
+//!   never asked to hold more tiles than it has, and the primary's window is always held;
+//! - publishes, for each view, the part of its valid region whose tiles are settled **and** stay
+//!   inside the new mem region, so that the slots the tick then reassigns never lie under any
+//!   view's published region (the layout-2 invariant, per view); a view whose window the grid
+//!   cannot hold whole shows a coarser level there, never a wrong texel;
+//! - moves each view's min LOD by its own complete levels (load control per view);
+//! - orders each tile's read by the most urgent view that wants it, a lighter view's reads put
+//!   [`demotion`] levels behind the heaviest view's, so that under a source too slow for all of
+//!   them a light view degrades (coarser) before a heavy one.
+//!
+//! Views that share a centre (stereo, several windows of one eye point) are one view: a reader of
+//! either reads the same publication, at no cost.
+
+use super::{Clipmap, LevelView};
+use crate::geom::{aligned_centre, tiles_covering, LevelFrame, LevelShape, Rect};
+use crate::queue::Priority;
+use crate::tile::TileId;
+
+/// A view's handle: 0 is the primary view (the clipmap's own centre); further views get the
+/// next free number.
+pub type ViewId = u32;
+
+/// The primary view: the clipmap's own centre ([`Clipmap::tick`]), the one the mapping publishes.
+pub const PRIMARY: ViewId = 0;
+
+/// Most views one clipmap keeps, the primary included.
+pub const MAX_VIEWS: usize = 64;
+
+/// Why a view could not be added, moved or weighted.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ViewError {
+    /// No such view.
+    #[error("view {0}: no such view (views are numbered from 0, the primary, in the order they were added; removed ones are gone)")]
+    Unknown(ViewId),
+    /// A weight that is not a positive finite number.
+    #[error("view weight {0}: expected a positive finite number, such as 1 or 3 (reads are shared out in proportion)")]
+    Weight(f64),
+    /// Too many views.
+    #[error("{MAX_VIEWS} views already: remove one first")]
+    Full,
+    /// The primary view cannot be removed.
+    #[error("view 0 is the primary view (the clipmap's own centre) and cannot be removed")]
+    Primary,
+}
+
+/// One level of a further view.
+#[derive(Clone, Debug)]
+pub(super) struct ViewLevel {
+    pub(super) frame: LevelFrame,
+    pub(super) published: Rect,
+    pub(super) updated_tick: u64,
+}
+
+/// A further view's state.
+#[derive(Clone, Debug)]
+pub(super) struct View {
+    pub(super) weight: f64,
+    /// Where the view asked to be, and its velocity (level-0 texels per tick), if it has moved.
+    pub(super) want: Option<([i64; 2], Option<[i64; 2]>)>,
+    pub(super) centre: Option<[i64; 2]>,
+    pub(super) velocity: [i64; 2],
+    pub(super) levels: Vec<ViewLevel>,
+    pub(super) min_lod: f64,
+}
+
+/// The views beside the primary one, and the primary's weight.
+#[derive(Clone, Debug)]
+pub(super) struct Views {
+    pub(super) primary_weight: f64,
+    /// Indexed by id less one; `None` once removed.
+    pub(super) others: Vec<Option<View>>,
+}
+
+impl Default for Views {
+    fn default() -> Self {
+        Views { primary_weight: 1.0, others: Vec::new() }
+    }
+}
+
+impl Views {
+    pub(super) fn live(&self) -> impl Iterator<Item = (ViewId, &View)> {
+        self.others.iter().enumerate().filter_map(|(i, v)| v.as_ref().map(|v| (i as ViewId + 1, v)))
+    }
+
+    fn heaviest(&self) -> f64 {
+        self.live().map(|(_, v)| v.weight).fold(self.primary_weight, f64::max)
+    }
+}
+
+/// The levels a view of weight `weight` has its reads put behind those of a view of weight
+/// `heaviest`: log2 of their ratio, rounded (0 for equal weights, 1 for 2:1, 2 for 3:1 and
+/// 4:1). A tile of level k wanted by the light view is read with the heavy view's tiles of level
+/// k − demotion, so under a source too slow for both the light view's finest levels wait and the
+/// heavy view keeps its own.
+pub fn demotion(weight: f64, heaviest: f64) -> u32 {
+    if !(weight > 0.0 && heaviest > weight) {
+        return 0;
+    }
+    (heaviest / weight).log2().round().clamp(0.0, 64.0) as u32
+}
+
+fn check_weight(weight: f64) -> Result<f64, ViewError> {
+    if weight.is_finite() && weight > 0.0 {
+        Ok(weight)
+    } else {
+        Err(ViewError::Weight(weight))
+    }
+}
+
+impl Clipmap {
+    /// Adds a view of weight `weight` (relative to the others'; the primary's is 1 unless
+    /// [`set_view_weight`](Self::set_view_weight) says otherwise). It has no centre, and
+    /// publishes nothing, until [`move_view`](Self::move_view) gives it one.
+    pub fn add_view(&mut self, weight: f64) -> Result<ViewId, ViewError> {
+        let weight = check_weight(weight)?;
+        let view = View {
+            weight,
+            want: None,
+            centre: None,
+            velocity: [0, 0],
+            levels: Vec::new(),
+            min_lod: self.levels.len() as f64,
+        };
+        if let Some(i) = self.views.others.iter().position(Option::is_none) {
+            self.views.others[i] = Some(view);
+            return Ok(i as ViewId + 1);
+        }
+        if self.views.others.len() + 1 >= MAX_VIEWS {
+            return Err(ViewError::Full);
+        }
+        self.views.others.push(Some(view));
+        Ok(self.views.others.len() as ViewId)
+    }
+
+    /// Removes a further view: from the next tick its windows no longer hold tiles in the grids.
+    pub fn remove_view(&mut self, id: ViewId) -> Result<(), ViewError> {
+        if id == PRIMARY {
+            return Err(ViewError::Primary);
+        }
+        self.view_mut(id)?;
+        self.views.others[id as usize - 1] = None;
+        while matches!(self.views.others.last(), Some(None)) {
+            self.views.others.pop();
+        }
+        Ok(())
+    }
+
+    /// Asks the next tick to move view `id` to `centre` (level-0 texels), moving at `velocity`
+    /// level-0 texels per tick if given (else its change since the view's last tick). The primary
+    /// view moves with [`tick`](Self::tick).
+    pub fn move_view(&mut self, id: ViewId, centre: [i64; 2], velocity: Option<[i64; 2]>) -> Result<(), ViewError> {
+        let far = crate::limits::MAX_CENTRE;
+        let view = self.view_mut(id)?;
+        view.want = Some((centre.map(|c| c.clamp(-far, far)), velocity.map(|v| v.map(|x| x.clamp(-far, far)))));
+        Ok(())
+    }
+
+    /// Sets a view's weight (the primary's too).
+    pub fn set_view_weight(&mut self, id: ViewId, weight: f64) -> Result<(), ViewError> {
+        let weight = check_weight(weight)?;
+        if id == PRIMARY {
+            self.views.primary_weight = weight;
+        } else {
+            self.view_mut(id)?.weight = weight;
+        }
+        Ok(())
+    }
+
+    /// The ids of the views, the primary first.
+    pub fn view_ids(&self) -> Vec<ViewId> {
+        std::iter::once(PRIMARY).chain(self.views.live().map(|(id, _)| id)).collect()
+    }
+
+    /// A view's weight.
+    pub fn view_weight(&self, id: ViewId) -> Result<f64, ViewError> {
+        if id == PRIMARY {
+            return Ok(self.views.primary_weight);
+        }
+        Ok(self.view(id)?.weight)
+    }
+
+    /// A view's min LOD (the level count until it has a complete level).
+    pub fn view_min_lod(&self, id: ViewId) -> Result<f64, ViewError> {
+        if id == PRIMARY {
+            return Ok(self.min_lod);
+        }
+        Ok(self.view(id)?.min_lod)
+    }
+
+    /// A view's level-0 centre as the last tick applied it.
+    pub fn view_centre(&self, id: ViewId) -> Result<Option<[i64; 2]>, ViewError> {
+        if id == PRIMARY {
+            return Ok(self.centre);
+        }
+        Ok(self.view(id)?.centre)
+    }
+
+    /// Level `k` of view `id` as published: its valid region and centre, over the shared grids.
+    pub fn view_level(&self, id: ViewId, k: u32) -> Result<LevelView<'_>, ViewError> {
+        if id == PRIMARY {
+            return Ok(self.level(k));
+        }
+        let view = self.view(id)?;
+        let mut out = self.level(k);
+        match view.levels.get(k as usize) {
+            Some(l) => {
+                out.valid = l.published;
+                out.centre = l.frame.centre;
+            }
+            None => {
+                out.valid = Rect::EMPTY;
+                out.centre = [0, 0];
+            }
+        }
+        Ok(out)
+    }
+
+    fn view(&self, id: ViewId) -> Result<&View, ViewError> {
+        (id as usize)
+            .checked_sub(1)
+            .and_then(|i| self.views.others.get(i))
+            .and_then(Option::as_ref)
+            .ok_or(ViewError::Unknown(id))
+    }
+
+    fn view_mut(&mut self, id: ViewId) -> Result<&mut View, ViewError> {
+        (id as usize)
+            .checked_sub(1)
+            .and_then(|i| self.views.others.get_mut(i))
+            .and_then(Option::as_mut)
+            .ok_or(ViewError::Unknown(id))
+    }
+
+    /// Moves every further view's frames to its asked-for centre (before the mem regions are
+    /// placed, so that they hold the views' windows).
+    pub(super) fn move_view_frames(&mut self) {
+        let (border, align) = (self.border, self.settings.centre_alignment);
+        let shapes: Vec<_> = self.levels.iter().map(|l| l.shape).collect();
+        for view in self.views.others.iter_mut().flatten() {
+            let Some((centre, velocity)) = view.want else { continue };
+            let velocity =
+                velocity.unwrap_or_else(|| view.centre.map_or([0, 0], |c| [centre[0] - c[0], centre[1] - c[1]]));
+            view.centre = Some(centre);
+            view.velocity = velocity;
+            if view.levels.len() != shapes.len() {
+                view.levels = shapes
+                    .iter()
+                    .map(|_| ViewLevel {
+                        frame: LevelFrame { centre: [0, 0], tex: Rect::EMPTY, valid: Rect::EMPTY, mem: Rect::EMPTY },
+                        published: Rect::EMPTY,
+                        updated_tick: 0,
+                    })
+                    .collect();
+            }
+            for (k, (level, shape)) in view.levels.iter_mut().zip(&shapes).enumerate() {
+                let k = k as u32;
+                let v = velocity.map(|x| if x != 0 && (x >> k.min(63)) == 0 { x.signum() } else { x >> k.min(63) });
+                level.frame = shape.frame(aligned_centre(centre, k, align), border, v);
+            }
+        }
+    }
+
+    /// Each level's further views' windows, heaviest view first (ties: in id order).
+    pub(super) fn views_windows(&self) -> Vec<Vec<Rect>> {
+        let mut live: Vec<(ViewId, &View)> = self.views.live().filter(|(_, v)| v.centre.is_some()).collect();
+        live.sort_by(|a, b| b.1.weight.total_cmp(&a.1.weight).then(a.0.cmp(&b.0)));
+        (0..self.levels.len())
+            .map(|k| {
+                live.iter()
+                    .filter_map(|(_, v)| v.levels.get(k).map(|l| l.frame.tex))
+                    .filter(|r| !r.is_empty())
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Publishes each further view's settled part of its valid regions, restricted to the new mem
+    /// regions, and moves its min LOD.
+    pub(super) fn publish_views(&mut self) {
+        let fade = self.settings.fade_ticks;
+        let count = self.levels.len();
+        let mut updates = Vec::new();
+        for (id, view) in self.views.live() {
+            if view.centre.is_none() {
+                continue;
+            }
+            let regions: Vec<Rect> = (0..count).map(|k| self.settled_in(k, &view.levels[k].frame)).collect();
+            updates.push((id, regions));
+        }
+        let tick = self.tick;
+        for (id, regions) in updates {
+            let view = self.views.others[id as usize - 1].as_mut().expect("a live view");
+            let mut complete = Vec::with_capacity(count);
+            for (level, region) in view.levels.iter_mut().zip(regions) {
+                complete.push(region == level.frame.valid || level.frame.valid.is_empty());
+                if region != level.published {
+                    level.published = region;
+                    level.updated_tick = tick;
+                }
+            }
+            let target = super::target_min_lod(&complete);
+            let fade = if view.min_lod >= count as f64 { 0 } else { fade };
+            view.min_lod = super::next_min_lod(view.min_lod, target, fade);
+        }
+    }
+
+    /// The most urgent priority any view gives `tile` (of level `k`, covering `texels`), each
+    /// view's put behind by its [`demotion`]: `primary` is the primary view's own.
+    pub(super) fn view_priority(&self, k: usize, texels: Rect, primary: Priority, adaptive: bool) -> Priority {
+        let count = self.levels.len();
+        let heaviest = self.views.heaviest();
+        let demote = |p: Priority, w: f64| Priority { rank: p.rank.saturating_add(demotion(w, heaviest)), ..p };
+        let mut best = demote(primary, self.views.primary_weight);
+        let clip = self.levels[k].shape.clip;
+        for (_, view) in self.views.live() {
+            let Some(l) = view.levels.get(k).filter(|_| view.centre.is_some()) else { continue };
+            let k32 = k as u32;
+            let v =
+                view.velocity.map(|x| if x != 0 && (x >> k32.min(63)) == 0 { x.signum() } else { x >> k32.min(63) });
+            let p = if adaptive {
+                crate::queue::soonest_first(k32, count, texels, l.frame.valid, clip, v)
+            } else {
+                crate::queue::priority(k32, count, texels, l.frame.valid, clip, v)
+            };
+            best = best.min(demote(p, view.weight));
+        }
+        best
+    }
+
+    /// Slots about to leave level `k`'s mem region `mem` whose tiles lie under a further view's
+    /// published region (always 0: the regions are restricted to the new mem regions).
+    pub(super) fn under_views_leaving(&self, k: usize, mem: Rect) -> u64 {
+        let old = self.cache.mem_region(k as u32);
+        if old == mem {
+            return 0;
+        }
+        let tile = self.levels[k].shape.tile;
+        let mut n = 0;
+        for (_, view) in self.views.live() {
+            let Some(l) = view.levels.get(k) else { continue };
+            let r = tiles_covering(l.published, tile).intersect(&old);
+            for t in r.t0..r.t1 {
+                for s in r.s0..r.s1 {
+                    let settled = self.cache.state(TileId::new(k as u32, s as u64, t as u64)).settled();
+                    if settled && !mem.contains(s, t) {
+                        n += 1;
+                    }
+                }
+            }
+        }
+        n
+    }
+}
+
+/// The window a level's mem region is placed around: the primary's window `tex`, grown to the
+/// bounding box of each further view's window in `others` (heaviest first) that the grid still
+/// holds with those before it. The primary's window is always held (the primary view first); a
+/// view left out shows the part of its window the grid holds, at a coarser level elsewhere.
+pub(super) fn mem_window(shape: &LevelShape, tex: Rect, others: &[Rect]) -> Rect {
+    let fits = |r: Rect| {
+        let need = tiles_covering(r, shape.tile);
+        need.width() <= shape.grid[0] && need.height() <= shape.grid[1]
+    };
+    let mut union = tex;
+    for &r in others {
+        let grown = bbox(union, r);
+        if fits(grown) {
+            union = grown;
+        }
+    }
+    union
+}
+
+/// The smallest rectangle holding both (either may be empty).
+fn bbox(a: Rect, b: Rect) -> Rect {
+    if a.is_empty() {
+        return b;
+    }
+    if b.is_empty() {
+        return a;
+    }
+    Rect::new(a.s0.min(b.s0), a.t0.min(b.t0), a.s1.max(b.s1), a.t1.max(b.t1))
+}
+
+/// `grids` (one per level of `desc`) widened to hold views whose level-0 windows lie up to
+/// `spread` texels apart: `ceil((spread >> k) / tile)` more tiles per axis at level k, no more
+/// than the level has.
+pub(super) fn spread_grids(desc: &crate::source::TextureDesc, mut grids: Vec<[u64; 2]>, spread: u64) -> Vec<[u64; 2]> {
+    if spread == 0 {
+        return grids;
+    }
+    for (k, g) in grids.iter_mut().enumerate() {
+        let l = desc.level(k as u32);
+        let n = crate::geom::tiles_in_level(l.size, l.tile);
+        let extra = spread >> (k as u32).min(63);
+        for a in 0..2 {
+            g[a] = g[a].saturating_add(extra.div_ceil(l.tile[a])).min(n[a]);
+        }
+    }
+    grids
+}
+
+#[cfg(test)]
+mod tests;
