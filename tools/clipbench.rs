@@ -18,6 +18,10 @@
 //! and a pool budget that forces eviction, and prints tiles read, hit rate, peak resident bytes,
 //! ticks with a disabled level and mean min LOD for each.
 //!
+//! `clipbench views` flies several views of one clipmap (near each other, far apart, weighted
+//! over a slow disk) against one view alone and against separate clipmaps, and prints tiles read,
+//! peak resident bytes, settle ticks and min LOD with their ratios and the goals met.
+//!
 //! `clipbench growing` streams 4000 x 3000 patches into a growing texture and reports tile
 //! rebuilds per second for 256² and 512² tiles beside the decode rate of the same patches.
 //!
@@ -44,6 +48,8 @@ mod remote;
 #[cfg(feature = "remote")]
 #[path = "clipbench/serve.rs"]
 mod serve;
+#[path = "clipbench/views.rs"]
+mod views;
 
 use clap::{Parser, Subcommand};
 use clipmap::accuracy::sweep;
@@ -62,6 +68,7 @@ Examples:
   clipbench ingest --json
   clipbench policies --quick --json
   clipbench growing --quick --json
+  clipbench views --quick --json
   clipbench remote --quick --json
   clipbench cog --quick --json
   clipbench engine --quick
@@ -138,6 +145,17 @@ Examples:
 Prints tiles_per_s_256, tiles_per_s_512 and ingest_mb_per_s (texel MB/s through decode and
 rebuild), each run's tiles and seconds, and the flexible-clipmap paper's figures beside them.")]
     Growing(growing::Args),
+    /// Several views of one clipmap: near each other, far apart, weighted over a slow disk,
+    /// against one view alone and against separate clipmaps (one per view).
+    #[command(after_help = "\
+Examples:
+  clipbench views --quick --json
+  clipbench views                        # the figures in docs/BENCHMARKS.md
+
+Deterministic: simulated disks, reads in lock step with the ticks. Prints, per scenario and
+design, tiles read, peak resident bytes, settle ticks and mean min LOD per view, their ratios
+against one view alone, and which goals are met.")]
+    Views(views::Args),
     /// Tiles per second from local files, loopback HTTP (nginx) and loopback S3 (moto) in one
     /// run, and the requests in flight that hide an added latency per request.
     #[cfg(feature = "remote")]
@@ -202,6 +220,7 @@ fn main() -> ExitCode {
         Command::Ingest(args) => perf::ingest_main(args),
         Command::Policies(args) => policies::main(args),
         Command::Growing(args) => growing::main(args),
+        Command::Views(args) => views::main(args),
         #[cfg(feature = "remote")]
         Command::Remote(args) => remote::main(args),
         Command::Cog(args) => cog::main(args),

@@ -17,6 +17,7 @@ mod clipbench_cog;
 mod clipbench_growing;
 mod clipbench_perf;
 mod clipbench_policies;
+mod clipbench_views;
 mod clipmapd;
 mod clipprep;
 mod cog;
