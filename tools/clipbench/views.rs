@@ -20,8 +20,8 @@
 //!   levels share no tile) in one clipmap whose grids hold both (`view_spread` = that distance),
 //!   over a disk that serves one view's need but not both's; weights 3:1 (`weights_3_1`, view 0
 //!   the heavy one) and 1:1 (`weights_1_1`), and view 0 alone with the same wide grids
-//!   (`one_view_same_grids`). `weighted_tight` flies the same over a disk of `ceil(one view's
-//!   need)`, just enough for one view.
+//!   (`one_view_same_grids`). `weighted_tight` flies the same over a disk of one tile a tick
+//!   less, about one view's need (a sensitivity run; the goal is checked on `weighted`).
 //!
 //! Every run has two phases. **Start**: every view placed at its start, standing still, ticking
 //! until nothing more arrives (three ticks in a row without a read reaching the disk or the pool
@@ -203,7 +203,8 @@ pub struct WeightedDisk {
     pub disk_tiles_per_tick: u64,
     /// Whether the disk is below both views' need (the scenario's premise).
     pub too_slow_for_both: bool,
-    /// `weighted_tight`'s disk: `ceil(one_view_need_per_tick)`, just enough for one view.
+    /// `weighted_tight`'s disk: one tile a tick less than `disk_tiles_per_tick` (at least 1), about
+    /// one view's need.
     pub tight_disk_tiles_per_tick: u64,
 }
 
@@ -784,7 +785,7 @@ pub fn report(args: &Args, mut progress: impl FnMut(&Row)) -> anyhow::Result<Rep
     let per_tick = |r: &Run| r.flight_tiles_read as f64 / wflight.ticks.max(1) as f64;
     let (one_need, both_need) = (per_tick(&need_one), per_tick(&need_both));
     let rate = ((1.25 * one_need).ceil() as u64).max(1);
-    let tight = (one_need.ceil() as u64).max(1);
+    let tight = rate.saturating_sub(1).max(1);
     let weighted_disk = WeightedDisk {
         one_view_need_per_tick: one_need,
         both_views_need_per_tick: both_need,
