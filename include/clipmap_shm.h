@@ -19,6 +19,17 @@
  * A renderer asks for a centre through the request mapping: clipmap_request_open(req_path, &m,
  * &r), then clipmap_request_centre(&r, s, t, vs, vt).
  *
+ * Views (docs/SHM.md, "Views"): a mapping may publish further views beside the primary one,
+ * `main` (the snapshot above), each with its own snapshot over the same slots:
+ *   struct clipmap_view v;
+ *   rc = clipmap_view_find(&m, "north", &v);     // CLIPMAP_OK, _NO_VIEW (v.error lists the views),
+ *                                                 // _BUSY or _CORRUPT ("main" is always found)
+ *   rc = clipmap_view_snapshot(&m, &v, &snap);    // as clipmap_snapshot, or CLIPMAP_REMOVED: the
+ *                                                 // view was removed since it was found
+ *   rc = clipmap_read_region(&m, &snap, k, ...);  // texels under the view's snapshot, as above
+ *   rc = clipmap_request_view_centre(&r, &v, s, t, vs, vt);
+ * clipmap_views(&m, &list) lists the views that exist.
+ *
  * Every value read from the mapping is checked before it is used in address arithmetic, so a
  * corrupt or hostile mapping gives an error, never an out-of-bounds access. (A file truncated
  * after it was mapped still raises SIGBUS on access, as with any mmap.)
@@ -78,6 +89,7 @@
 #define CLIPMAP_H_GENERATION 80          /* u64: unique to each start of the writer */
 #define CLIPMAP_H_FLAGS 88               /* u64 atomic: bit 0 clean shutdown */
 #define CLIPMAP_H_TICK_PERIOD_NS 96      /* u64 */
+#define CLIPMAP_H_VIEWS_OFFSET 104       /* u64: the views block (multiple of 4096, after every level's slots); 0: none */
 #define CLIPMAP_H_SNAPSHOT 128           /* the snapshot, 2112 bytes */
 #define CLIPMAP_H_LEVEL_DESCS 2240       /* 32 level descriptors of CLIPMAP_DESC_BYTES */
 #define CLIPMAP_H_GROWTH 6336            /* the growth block, CLIPMAP_GROWTH_BYTES (growing textures) */
@@ -175,6 +187,44 @@
 #define CLIPMAP_R_VEL_T 96               /* f64 bits */
 #define CLIPMAP_R_CLIENT_PID 104         /* u64 */
 #define CLIPMAP_R_COUNT 112              /* u64: requests made */
+#define CLIPMAP_R_VIEWS 512              /* view request record r at CLIPMAP_R_VIEWS + CLIPMAP_VIEW_REQUEST_BYTES * r */
+
+/* Views (docs/SHM.md, "Views"). The primary view, `main`, is the snapshot at CLIPMAP_H_SNAPSHOT;
+ * further views are view records of the views block at CLIPMAP_H_VIEWS_OFFSET (0: no block). */
+#define CLIPMAP_VIEWS_MAGIC "CLIPVIEW"
+#define CLIPMAP_VIEWS_VERSION 1u         /* the views block version this header reads */
+#define CLIPMAP_MAX_VIEWS 64u            /* view records N: 1..64 */
+#define CLIPMAP_VIEW_RECORD_BYTES 2240u
+#define CLIPMAP_VIEW_NAME_BYTES 32u      /* u8[32], NUL-padded: 1..31 of A-Z a-z 0-9 - _ . (never "main") */
+#define CLIPMAP_VIEW_NAME_MAX 31u
+#define CLIPMAP_VIEW_MAIN 0xFFFFFFFFu    /* struct clipmap_view's record for the primary view */
+/* Views block fields (relative to the block), static. */
+#define CLIPMAP_VB_MAGIC 0               /* u8[8] "CLIPVIEW" */
+#define CLIPMAP_VB_VERSION 8             /* u32: 1 */
+#define CLIPMAP_VB_RECORD_COUNT 12       /* u32: view records N, 1..64 */
+#define CLIPMAP_VB_RECORD_BYTES 16       /* u32: 2240 */
+#define CLIPMAP_VB_RECORDS 64            /* record r at CLIPMAP_VB_RECORDS + CLIPMAP_VIEW_RECORD_BYTES * r */
+/* View record fields (relative to the record), atomic; 0..128 under the record's seqlock. */
+#define CLIPMAP_V_SEQ 0                  /* u64: odd while the writer gives the record to a view or takes it back */
+#define CLIPMAP_V_STATE 8                /* u64: CLIPMAP_VIEW_FREE or CLIPMAP_VIEW_LIVE */
+#define CLIPMAP_V_INCARNATION 16         /* u64: incremented each time the record is given to a view */
+#define CLIPMAP_V_WEIGHT 24              /* f64 bits: positive, finite */
+#define CLIPMAP_V_NAME 64                /* u8[32] name, read as four u64 words */
+#define CLIPMAP_V_SNAPSHOT 128           /* the view's snapshot, CLIPMAP_SNAPSHOT_BYTES, laid out as CLIPMAP_H_SNAPSHOT's */
+#define CLIPMAP_VIEW_FREE 0u
+#define CLIPMAP_VIEW_LIVE 1u
+/* View request records (relative to CLIPMAP_R_VIEWS + CLIPMAP_VIEW_REQUEST_BYTES * r, r < 56): the
+ * main request's fields at the same distances from their lock word, and the view's incarnation. */
+#define CLIPMAP_VIEW_REQUEST_BYTES 64u
+#define CLIPMAP_MAX_VIEW_REQUESTS 56u    /* request records for view records 0..55 */
+#define CLIPMAP_VR_SEQ 0                 /* u64 atomic lock word (as CLIPMAP_R_SEQ) */
+#define CLIPMAP_VR_CENTRE_S 8            /* i64: requested level-0 centre */
+#define CLIPMAP_VR_CENTRE_T 16           /* i64 */
+#define CLIPMAP_VR_VEL_S 24              /* f64 bits: level-0 texels per second */
+#define CLIPMAP_VR_VEL_T 32              /* f64 bits */
+#define CLIPMAP_VR_CLIENT_PID 40         /* u64 */
+#define CLIPMAP_VR_COUNT 48              /* u64: requests made */
+#define CLIPMAP_VR_INCARNATION 56        /* u64: the incarnation of the view the request is for */
 
 /* Texel format codes (CLIPMAP_H_TEXEL_FORMAT); 16-bit components are little-endian. */
 #define CLIPMAP_FORMAT_OTHER 0u
@@ -219,16 +269,28 @@ _Static_assert(CLIPMAP_H_GLOBAL_SEQ == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ &&
                    CLIPMAP_H_TICK == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_TICK &&
                    CLIPMAP_H_LEVEL_STATES == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_LEVELS,
                "absolute snapshot offsets");
+_Static_assert(CLIPMAP_V_SNAPSHOT + CLIPMAP_SNAPSHOT_BYTES == CLIPMAP_VIEW_RECORD_BYTES, "view record size");
+_Static_assert(CLIPMAP_R_VIEWS + CLIPMAP_MAX_VIEW_REQUESTS * CLIPMAP_VIEW_REQUEST_BYTES == CLIPMAP_REQUEST_BYTES,
+               "view request records");
+_Static_assert(CLIPMAP_R_SEQ + CLIPMAP_VR_CENTRE_S == CLIPMAP_R_CENTRE_S &&
+                   CLIPMAP_R_SEQ + CLIPMAP_VR_CENTRE_T == CLIPMAP_R_CENTRE_T &&
+                   CLIPMAP_R_SEQ + CLIPMAP_VR_VEL_S == CLIPMAP_R_VEL_S &&
+                   CLIPMAP_R_SEQ + CLIPMAP_VR_VEL_T == CLIPMAP_R_VEL_T &&
+                   CLIPMAP_R_SEQ + CLIPMAP_VR_CLIENT_PID == CLIPMAP_R_CLIENT_PID &&
+                   CLIPMAP_R_SEQ + CLIPMAP_VR_COUNT == CLIPMAP_R_COUNT,
+               "a view request record's fields lie as the main request's");
 #endif
 
-/* Return codes of clipmap_snapshot, clipmap_read_region and clipmap_tag_try. */
+/* Return codes of clipmap_snapshot, clipmap_read_region, clipmap_tag_try and the view functions. */
 enum {
     CLIPMAP_OK = 0,
     CLIPMAP_NOT_VALID = 1, /* no such level, level disabled, or not inside its published region */
     CLIPMAP_MISSING = 2,   /* a tile of the region could not be read: use a coarser level */
     CLIPMAP_BUSY = 3,      /* CLIPMAP_MAX_RETRIES attempts found the writer mid-change */
     CLIPMAP_STALE = 4,     /* a slot holds another tile (or is loading): take a new snapshot */
-    CLIPMAP_CORRUPT = 5    /* published state outside its bounds */
+    CLIPMAP_CORRUPT = 5,   /* published state outside its bounds */
+    CLIPMAP_REMOVED = 6,   /* the view was removed (its record freed or given to another view) */
+    CLIPMAP_NO_VIEW = 7    /* no view of that name (the error lists the views that exist) */
 };
 
 /* One level's static description, checked by clipmap_open. */
@@ -263,6 +325,10 @@ struct clipmap_map {
     int height_has_nodata;     /* 1: height_nodata marks texels without data */
     double height_nodata;      /* a stored value, not metres */
     struct clipmap_level_desc levels[CLIPMAP_MAX_LEVELS];
+    uint64_t views_offset;     /* the views block (CLIPMAP_H_VIEWS_OFFSET); 0: none, only `main` */
+    uint32_t view_records;     /* its view records N (0: no block, or one of a magic or version not known) */
+    char views_error[320];     /* "": the block is usable (or absent); else why views other than `main`
+                                  cannot be read (a magic or version this header does not know) */
     char error[320];           /* why clipmap_open failed */
 };
 
@@ -294,6 +360,30 @@ struct clipmap_growth {
     double world_origin[2]; /* world coordinates of level-0 texel (0, 0)'s lower-left corner */
     double texels_per_unit;
     char error[200];        /* why clipmap_growth returned CLIPMAP_BUSY or CLIPMAP_CORRUPT */
+};
+
+/* A view, bound by clipmap_view_find: the primary view `main` (record CLIPMAP_VIEW_MAIN) or the view
+ * record `record` while it keeps the incarnation it had when it was found. */
+struct clipmap_view {
+    char name[CLIPMAP_VIEW_NAME_BYTES];
+    uint32_t record;         /* its view record; CLIPMAP_VIEW_MAIN for `main` */
+    uint64_t incarnation;    /* the record's incarnation when found (0 for `main`) */
+    double weight;           /* the view's weight (0 for `main`: the mapping does not publish it) */
+    size_t snapshot_offset;  /* byte offset of its snapshot in the mapping */
+    char error[2400];        /* why clipmap_view_find failed (CLIPMAP_NO_VIEW: with every view's name) */
+};
+
+/* The views that exist (clipmap_views): `main` first, then every live record's, in record order. */
+struct clipmap_view_info {
+    char name[CLIPMAP_VIEW_NAME_BYTES];
+    uint32_t record;         /* CLIPMAP_VIEW_MAIN for `main` */
+    uint64_t incarnation;
+    double weight;
+};
+struct clipmap_view_list {
+    uint32_t count;
+    struct clipmap_view_info views[1 + CLIPMAP_MAX_VIEWS];
+    char error[320];         /* why clipmap_views returned CLIPMAP_BUSY or CLIPMAP_CORRUPT */
 };
 
 static inline uint64_t clipmap_splitmix64(uint64_t x) {
@@ -467,6 +557,173 @@ static inline int clipmap_check_heights_(struct clipmap_map *m, const char *path
 #undef CLIPMAP_REFUSE
 }
 
+/* Writes the n bytes at p into out (len bytes) as text: printable ASCII as it is, any other byte (and
+ * the quote and backslash) as \xNN. */
+static inline void clipmap_show_(const unsigned char *p, size_t n, char *out, size_t len) {
+    size_t k = 0;
+    out[0] = 0;
+    for (size_t i = 0; i < n && k + 5 <= len; i++) {
+        unsigned c = p[i];
+        k += (size_t)snprintf(out + k, len - k, c >= 32 && c < 127 && c != '"' && c != '\\' ? "%c" : "\\x%02x", c);
+    }
+}
+
+/* Whether `c` may appear in a view's name: A-Z a-z 0-9 - _ . */
+static inline int clipmap_view_char_(unsigned char c) {
+    return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '-' || c == '_' ||
+           c == '.';
+}
+
+/* 1 when `name` (NUL-terminated) is a name a view record may carry: 1 to 31 of A-Z a-z 0-9 - _ .,
+ * not "main" (the primary view's). */
+static inline int clipmap_view_name_ok(const char *name) {
+    size_t n = 0;
+    for (; n <= CLIPMAP_VIEW_NAME_MAX && name[n] != 0; n++)
+        if (!clipmap_view_char_((unsigned char)name[n])) return 0;
+    return n >= 1 && n <= CLIPMAP_VIEW_NAME_MAX && strcmp(name, "main") != 0;
+}
+
+/* View record r's fields 0..128, as clipmap_view_record_ read and checked them. */
+struct clipmap_view_record_ {
+    uint64_t state;        /* CLIPMAP_VIEW_FREE or CLIPMAP_VIEW_LIVE */
+    uint64_t incarnation;
+    double weight;         /* checked for a live record only */
+    char name[CLIPMAP_VIEW_NAME_BYTES + 1]; /* NUL-terminated; checked for a live record only */
+};
+
+/* Reads the fields 0..128 of view record r (r < m->view_records) under the record's seqlock, at
+ * most CLIPMAP_MAX_RETRIES attempts with a yield between them, and checks them (docs/SHM.md,
+ * "Checks of the block"): a state 0 or 1; for a live record, a weight finite and above 0 and a
+ * name of 1 to 31 allowed characters followed by NULs only (never "main"). CLIPMAP_OK,
+ * CLIPMAP_BUSY or CLIPMAP_CORRUPT, with `error` (len bytes) naming the record, byte and field. */
+static inline int clipmap_view_record_(const struct clipmap_map *m, uint32_t r, struct clipmap_view_record_ *rec,
+                                       char *error, size_t len) {
+    const size_t b = (size_t)m->views_offset + CLIPMAP_VB_RECORDS + (size_t)r * CLIPMAP_VIEW_RECORD_BYTES;
+    uint64_t state = 0, inc = 0, wbits = 0, name[4] = {0, 0, 0, 0};
+    int got = 0;
+    for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES && !got; attempt++) {
+        uint64_t s1 = clipmap_load(m, b + CLIPMAP_V_SEQ, __ATOMIC_ACQUIRE);
+        if (s1 & 1) {
+            clipmap_yield_();
+            continue;
+        }
+        state = clipmap_load(m, b + CLIPMAP_V_STATE, __ATOMIC_RELAXED);
+        inc = clipmap_load(m, b + CLIPMAP_V_INCARNATION, __ATOMIC_RELAXED);
+        wbits = clipmap_load(m, b + CLIPMAP_V_WEIGHT, __ATOMIC_RELAXED);
+        for (int i = 0; i < 4; i++) name[i] = clipmap_load(m, b + CLIPMAP_V_NAME + 8 * (size_t)i, __ATOMIC_RELAXED);
+        __atomic_thread_fence(__ATOMIC_ACQUIRE);
+        got = clipmap_load(m, b + CLIPMAP_V_SEQ, __ATOMIC_RELAXED) == s1;
+    }
+    if (!got) {
+        snprintf(error, len, "view record %u: the writer kept it locked for %d attempts", r, CLIPMAP_MAX_RETRIES);
+        return CLIPMAP_BUSY;
+    }
+    unsigned char raw[CLIPMAP_VIEW_NAME_BYTES];
+    memcpy(raw, name, sizeof raw); /* little-endian: the words' bytes in order */
+    const unsigned long long at = (unsigned long long)b;
+    if (state > CLIPMAP_VIEW_LIVE) {
+        snprintf(error, len, "views block at %llu, record %u, byte %llu (state): found %llu, expected 0 (free) or 1 (live)",
+                 (unsigned long long)m->views_offset, r, at + CLIPMAP_V_STATE, (unsigned long long)state);
+        return CLIPMAP_CORRUPT;
+    }
+    memset(rec, 0, sizeof *rec);
+    rec->state = state;
+    rec->incarnation = inc;
+    rec->weight = clipmap_f64_(wbits);
+    memcpy(rec->name, raw, sizeof raw);
+    if (state != CLIPMAP_VIEW_LIVE) return CLIPMAP_OK;
+    if (!isfinite(rec->weight) || !(rec->weight > 0.0)) {
+        snprintf(error, len, "views block at %llu, record %u, byte %llu (weight): found %g (bits %016llx), expected a "
+                 "finite number above 0", (unsigned long long)m->views_offset, r, at + CLIPMAP_V_WEIGHT, rec->weight,
+                 (unsigned long long)wbits);
+        return CLIPMAP_CORRUPT;
+    }
+    size_t n = 0;
+    while (n < sizeof raw && raw[n] != 0) n++;
+    int ok = n >= 1 && n <= CLIPMAP_VIEW_NAME_MAX && !(n == 4 && memcmp(raw, "main", 4) == 0);
+    for (size_t i = 0; i < sizeof raw; i++)
+        if (i < n ? !clipmap_view_char_(raw[i]) : raw[i] != 0) ok = 0;
+    if (!ok) {
+        char shown[4 * CLIPMAP_VIEW_NAME_BYTES + 1];
+        clipmap_show_(raw, sizeof raw, shown, sizeof shown);
+        snprintf(error, len, "views block at %llu, record %u, byte %llu (name): found \"%s\", expected 1 to %u of "
+                 "A-Z a-z 0-9 - _ . followed by NULs only (never \"main\")", (unsigned long long)m->views_offset, r,
+                 at + CLIPMAP_V_NAME, shown, CLIPMAP_VIEW_NAME_MAX);
+        return CLIPMAP_CORRUPT;
+    }
+    return CLIPMAP_OK;
+}
+
+/* Checks the views block (docs/SHM.md, "Checks of the block") and sets m->views_offset,
+ * m->view_records and m->views_error; `slots_end` is the end of the last level's slots. 0 when
+ * the mapping may be used; -1 with m->error set when it is corrupt: an offset that is not 0, not a
+ * multiple of 4096, before `slots_end` or with the block past the end of the mapping; a block of
+ * version 1 with N outside 1..64, record bytes other than 2240, or a record that fails
+ * clipmap_view_record_'s checks (a record the writer keeps locked is checked when it is read). A
+ * magic or version this header does not know leaves `main` readable and every other view not
+ * (m->views_error says why), as a reader of layout 2 that ignores the block would. */
+static inline int clipmap_check_views_(struct clipmap_map *m, const char *path, uint64_t slots_end) {
+#define CLIPMAP_REFUSE(...)                                                          \
+    do {                                                                             \
+        int n_ = snprintf(m->error, sizeof m->error, "%s: ", path);                  \
+        if (n_ < 0 || (size_t)n_ >= sizeof m->error) n_ = 0;                         \
+        snprintf(m->error + n_, sizeof m->error - (size_t)n_, __VA_ARGS__);          \
+        return -1;                                                                   \
+    } while (0)
+    const uint64_t off = clipmap_u64(m, CLIPMAP_H_VIEWS_OFFSET), total = (uint64_t)m->len;
+    uint64_t head_end = 0, bytes, end = 0;
+    m->views_offset = 0;
+    m->view_records = 0;
+    m->views_error[0] = 0;
+    if (off == 0) return 0;
+    if (off % CLIPMAP_PAGE != 0 || off < slots_end || !clipmap_add(off, CLIPMAP_VB_RECORDS, &head_end) ||
+        head_end > total)
+        CLIPMAP_REFUSE("header byte %d (views block offset): found %llu, expected 0 (no views) or a multiple of %u at "
+                       "or after the end of the last level's slots (%llu), the block inside the %llu-byte mapping",
+                       CLIPMAP_H_VIEWS_OFFSET, (unsigned long long)off, CLIPMAP_PAGE, (unsigned long long)slots_end,
+                       (unsigned long long)total);
+    m->views_offset = off;
+    const unsigned char *vb = m->base + off;
+    uint32_t version = clipmap_u32(m, (size_t)off + CLIPMAP_VB_VERSION);
+    if (memcmp(vb + CLIPMAP_VB_MAGIC, CLIPMAP_VIEWS_MAGIC, 8) != 0) {
+        char shown[40];
+        clipmap_show_(vb + CLIPMAP_VB_MAGIC, 8, shown, sizeof shown);
+        snprintf(m->views_error, sizeof m->views_error, "views block at %llu, byte %llu (magic): found \"%s\", "
+                 "expected \"%s\"", (unsigned long long)off, (unsigned long long)off + CLIPMAP_VB_MAGIC, shown,
+                 CLIPMAP_VIEWS_MAGIC);
+        return 0;
+    }
+    if (version != CLIPMAP_VIEWS_VERSION) {
+        snprintf(m->views_error, sizeof m->views_error, "views block at %llu, byte %llu (version): found %u, this "
+                 "reader reads views block version %u only", (unsigned long long)off,
+                 (unsigned long long)off + CLIPMAP_VB_VERSION, version, CLIPMAP_VIEWS_VERSION);
+        return 0;
+    }
+    uint32_t n = clipmap_u32(m, (size_t)off + CLIPMAP_VB_RECORD_COUNT);
+    uint32_t rb = clipmap_u32(m, (size_t)off + CLIPMAP_VB_RECORD_BYTES);
+    if (n < 1 || n > CLIPMAP_MAX_VIEWS)
+        CLIPMAP_REFUSE("views block at %llu, byte %llu (view records): found %u, expected 1 to %u",
+                       (unsigned long long)off, (unsigned long long)off + CLIPMAP_VB_RECORD_COUNT, n, CLIPMAP_MAX_VIEWS);
+    if (rb != CLIPMAP_VIEW_RECORD_BYTES)
+        CLIPMAP_REFUSE("views block at %llu, byte %llu (record bytes): found %u, expected %u", (unsigned long long)off,
+                       (unsigned long long)off + CLIPMAP_VB_RECORD_BYTES, rb, CLIPMAP_VIEW_RECORD_BYTES);
+    bytes = CLIPMAP_VB_RECORDS + (uint64_t)n * CLIPMAP_VIEW_RECORD_BYTES; /* at most 143424: no overflow */
+    bytes = clipmap_div_ceil(bytes, CLIPMAP_PAGE) * CLIPMAP_PAGE;
+    if (!clipmap_add(off, bytes, &end) || end > total)
+        CLIPMAP_REFUSE("header byte %d (views block offset): found %llu, but the views block of %u records (%llu "
+                       "bytes) then ends at %llu, past the end of the %llu-byte mapping", CLIPMAP_H_VIEWS_OFFSET,
+                       (unsigned long long)off, n, (unsigned long long)bytes, (unsigned long long)end,
+                       (unsigned long long)total);
+    m->view_records = n;
+    for (uint32_t r = 0; r < n; r++) {
+        struct clipmap_view_record_ rec;
+        char why[300];
+        if (clipmap_view_record_(m, r, &rec, why, sizeof why) == CLIPMAP_CORRUPT) CLIPMAP_REFUSE("%s", why);
+    }
+    return 0;
+#undef CLIPMAP_REFUSE
+}
+
 /* Checks the static fields of the mapping at m->base (m->len bytes) as docs/SHM.md, "What a
  * reader checks", lists them; fills m. 0 on success, else -1 with m->error set. */
 static inline int clipmap_check_static(struct clipmap_map *m, const char *path) {
@@ -613,7 +870,7 @@ static inline int clipmap_check_static(struct clipmap_map *m, const char *path) 
         prev_end = slots_end;
     }
 #undef CLIPMAP_REFUSE
-    return 0;
+    return clipmap_check_views_(m, path, prev_end); /* prev_end: the end of the last level's slots */
 }
 
 /* Maps `path` read-only and checks every static field. 0 on success; else -1 with m->error
@@ -683,12 +940,10 @@ static inline int clipmap_region_ok(const struct clipmap_level_desc *d, const in
     return 1;
 }
 
-/* Takes a consistent copy of the snapshot (seqlock, at most CLIPMAP_MAX_RETRIES attempts) and
- * checks it. CLIPMAP_OK: *snap is the new snapshot. CLIPMAP_BUSY (the writer kept it locked) or
- * CLIPMAP_CORRUPT (published state outside its bounds): *snap keeps what it held, except that
- * snap->error says why. */
-static inline int clipmap_snapshot(const struct clipmap_map *m, struct clipmap_snapshot *snap) {
-    const size_t b = CLIPMAP_H_SNAPSHOT;
+/* Takes a consistent copy of the snapshot at byte offset b (CLIPMAP_H_SNAPSHOT for `main`, a view
+ * record's CLIPMAP_V_SNAPSHOT for another view; every snapshot is laid out the same) and checks
+ * it, as clipmap_snapshot says. `b` must lie CLIPMAP_SNAPSHOT_BYTES inside the mapping. */
+static inline int clipmap_snapshot_at_(const struct clipmap_map *m, size_t b, struct clipmap_snapshot *snap) {
     const uint32_t n = m->level_count;
     struct clipmap_snapshot x;
     uint64_t enabled[CLIPMAP_MAX_LEVELS], lod_bits = 0;
@@ -751,6 +1006,165 @@ static inline int clipmap_snapshot(const struct clipmap_map *m, struct clipmap_s
                      (unsigned long long)d->grid[0], (unsigned long long)d->grid[1]);
             return CLIPMAP_CORRUPT;
         }
+    }
+    memcpy(snap, &x, sizeof x);
+    return CLIPMAP_OK;
+}
+
+/* Takes a consistent copy of the primary view's snapshot (seqlock, at most CLIPMAP_MAX_RETRIES
+ * attempts) and checks it. CLIPMAP_OK: *snap is the new snapshot. CLIPMAP_BUSY (the writer kept it
+ * locked) or CLIPMAP_CORRUPT (published state outside its bounds): *snap keeps what it held,
+ * except that snap->error says why. */
+static inline int clipmap_snapshot(const struct clipmap_map *m, struct clipmap_snapshot *snap) {
+    return clipmap_snapshot_at_(m, CLIPMAP_H_SNAPSHOT, snap);
+}
+
+/* Lists the views that exist into *list: `main` first, then each live view record's in record
+ * order (each record read under its seqlock). CLIPMAP_OK; CLIPMAP_BUSY (a record stayed locked);
+ * CLIPMAP_CORRUPT (a record fails its checks, or the views block has a magic or version this
+ * header does not read). On anything but CLIPMAP_OK the list holds `main` alone and list->error
+ * says why. */
+static inline int clipmap_views(const struct clipmap_map *m, struct clipmap_view_list *list) {
+    memset(list, 0, sizeof *list);
+    memcpy(list->views[0].name, "main", 5);
+    list->views[0].record = CLIPMAP_VIEW_MAIN;
+    list->count = 1;
+    if (m->views_error[0]) {
+        snprintf(list->error, sizeof list->error, "%s", m->views_error);
+        return CLIPMAP_CORRUPT;
+    }
+    for (uint32_t r = 0; r < m->view_records; r++) {
+        struct clipmap_view_record_ rec;
+        int rc = clipmap_view_record_(m, r, &rec, list->error, sizeof list->error);
+        if (rc != CLIPMAP_OK) {
+            list->count = 1;
+            return rc;
+        }
+        if (rec.state != CLIPMAP_VIEW_LIVE) continue;
+        struct clipmap_view_info *v = &list->views[list->count++];
+        memcpy(v->name, rec.name, sizeof v->name);
+        v->record = r;
+        v->incarnation = rec.incarnation;
+        v->weight = rec.weight;
+    }
+    return CLIPMAP_OK;
+}
+
+/* Binds *v to the view called `name` (docs/SHM.md, "Finding a view by name"): "main" is the
+ * primary view (the snapshot at CLIPMAP_H_SNAPSHOT, always there); any other name is looked for
+ * among the live view records, read under their seqlocks, and the record and its incarnation are
+ * kept. CLIPMAP_OK; CLIPMAP_NO_VIEW (not a view name, or no live record carries it: v->error
+ * names the views that exist); CLIPMAP_BUSY (no record carries it but one stayed locked: try
+ * again); CLIPMAP_CORRUPT (a record fails its checks, or the views block has a magic or version
+ * this header does not read). v->error says why on anything but CLIPMAP_OK. */
+static inline int clipmap_view_find(const struct clipmap_map *m, const char *name, struct clipmap_view *v) {
+    memset(v, 0, sizeof *v);
+    if (strcmp(name, "main") == 0) {
+        memcpy(v->name, "main", 5);
+        v->record = CLIPMAP_VIEW_MAIN;
+        v->snapshot_offset = CLIPMAP_H_SNAPSHOT;
+        return CLIPMAP_OK;
+    }
+    if (!clipmap_view_name_ok(name)) {
+        char shown[4 * 40 + 1];
+        clipmap_show_((const unsigned char *)name, strnlen(name, 40), shown, sizeof shown);
+        snprintf(v->error, sizeof v->error, "\"%s\" is not a view name: expected \"main\" or 1 to %u of "
+                 "A-Z a-z 0-9 - _ .", shown, CLIPMAP_VIEW_NAME_MAX);
+        return CLIPMAP_NO_VIEW;
+    }
+    if (m->views_error[0]) {
+        snprintf(v->error, sizeof v->error, "%s", m->views_error);
+        return CLIPMAP_CORRUPT;
+    }
+    /* The names met on the way, for the error: "main, a, b" (at most 64 x 33 bytes). */
+    char names[CLIPMAP_MAX_VIEWS * (CLIPMAP_VIEW_NAME_BYTES + 2) + 8] = "main";
+    size_t k = 4;
+    int busy = -1;
+    for (uint32_t r = 0; r < m->view_records; r++) {
+        struct clipmap_view_record_ rec;
+        char why[300];
+        int rc = clipmap_view_record_(m, r, &rec, why, sizeof why);
+        if (rc == CLIPMAP_BUSY) {
+            busy = (int)r;
+            continue;
+        }
+        if (rc != CLIPMAP_OK) {
+            snprintf(v->error, sizeof v->error, "%s", why);
+            return rc;
+        }
+        if (rec.state != CLIPMAP_VIEW_LIVE) continue;
+        if (strcmp(rec.name, name) == 0) {
+            memcpy(v->name, rec.name, sizeof v->name);
+            v->record = r;
+            v->incarnation = rec.incarnation;
+            v->weight = rec.weight;
+            v->snapshot_offset = (size_t)m->views_offset + CLIPMAP_VB_RECORDS + (size_t)r * CLIPMAP_VIEW_RECORD_BYTES +
+                                 CLIPMAP_V_SNAPSHOT;
+            return CLIPMAP_OK;
+        }
+        k += (size_t)snprintf(names + k, sizeof names - k, ", %s", rec.name); /* fits: 64 names of <= 31 */
+    }
+    if (busy >= 0) {
+        snprintf(v->error, sizeof v->error, "no live view record is called \"%s\" but view record %d stayed locked "
+                 "for %d attempts", name, busy, CLIPMAP_MAX_RETRIES);
+        return CLIPMAP_BUSY;
+    }
+    snprintf(v->error, sizeof v->error, "no view \"%s\"%s; the views are: %s", name,
+             m->views_offset == 0 ? " (the mapping has no views block)" : "", names);
+    return CLIPMAP_NO_VIEW;
+}
+
+/* Whether the view *v is still the one clipmap_view_find bound: its record live with the same
+ * incarnation (read under the record's seqlock). CLIPMAP_OK (always for `main`); CLIPMAP_REMOVED
+ * (the record was freed or given to another view); CLIPMAP_BUSY (the record stayed locked);
+ * CLIPMAP_CORRUPT (it fails its checks); CLIPMAP_NOT_VALID (*v was not bound to a record of this
+ * mapping). `error` (len bytes) says why on anything but CLIPMAP_OK. */
+static inline int clipmap_view_alive(const struct clipmap_map *m, const struct clipmap_view *v, char *error,
+                                     size_t len) {
+    if (v->record == CLIPMAP_VIEW_MAIN) return CLIPMAP_OK;
+    if (v->record >= m->view_records) {
+        snprintf(error, len, "view \"%s\" (record %u) is not a view record of this mapping (%u records)", v->name,
+                 v->record, m->view_records);
+        return CLIPMAP_NOT_VALID;
+    }
+    struct clipmap_view_record_ rec;
+    int rc = clipmap_view_record_(m, v->record, &rec, error, len);
+    if (rc != CLIPMAP_OK) return rc;
+    if (rec.state != CLIPMAP_VIEW_LIVE) {
+        snprintf(error, len, "view \"%s\" was removed: its record %u is free", v->name, v->record);
+        return CLIPMAP_REMOVED;
+    }
+    if (rec.incarnation != v->incarnation) {
+        snprintf(error, len, "view \"%s\" was removed: its record %u went from incarnation %llu to %llu (view \"%s\")",
+                 v->name, v->record, (unsigned long long)v->incarnation, (unsigned long long)rec.incarnation, rec.name);
+        return CLIPMAP_REMOVED;
+    }
+    return CLIPMAP_OK;
+}
+
+/* Takes a consistent, checked copy of view *v's snapshot (docs/SHM.md, "Reading a view's
+ * snapshot"): for `main`, clipmap_snapshot; for a view record, its snapshot under its own sequence
+ * counter, then the record's state and incarnation under the record's seqlock. CLIPMAP_OK: *snap is
+ * the view's new snapshot (read texels under it with clipmap_read_region). CLIPMAP_REMOVED: the
+ * view was removed (the copy is not used). CLIPMAP_BUSY, CLIPMAP_CORRUPT as clipmap_snapshot's (a
+ * record that fails its checks is CLIPMAP_CORRUPT too); CLIPMAP_NOT_VALID: *v is not bound to
+ * this mapping. On anything but CLIPMAP_OK, *snap keeps what it held except that snap->error says
+ * why. A snapshot whose tick is 0 means the view has published nothing yet. */
+static inline int clipmap_view_snapshot(const struct clipmap_map *m, const struct clipmap_view *v,
+                                        struct clipmap_snapshot *snap) {
+    if (v->record == CLIPMAP_VIEW_MAIN) return clipmap_snapshot(m, snap);
+    if (v->record >= m->view_records) return clipmap_view_alive(m, v, snap->error, sizeof snap->error);
+    struct clipmap_snapshot x;
+    memset(&x, 0, sizeof x);
+    int rc = clipmap_snapshot_at_(m, v->snapshot_offset, &x);
+    /* Removed comes first: a record given to another view may be mid-way through its new snapshot. */
+    int alive = clipmap_view_alive(m, v, snap->error, sizeof snap->error);
+    if (alive != CLIPMAP_OK) return alive;
+    if (rc != CLIPMAP_OK) {
+        int n_ = snprintf(snap->error, sizeof snap->error, "view \"%s\": ", v->name);
+        if (n_ < 0 || (size_t)n_ >= sizeof snap->error) n_ = 0;
+        snprintf(snap->error + n_, sizeof snap->error - (size_t)n_, "%s", x.error);
+        return rc;
     }
     memcpy(snap, &x, sizeof x);
     return CLIPMAP_OK;
@@ -1034,16 +1448,12 @@ static inline uint64_t clipmap_request_locked_(uint64_t free_word, uint32_t pid)
 static inline uint64_t clipmap_request_released_(uint64_t held) { return ((held >> 32) + 1u) << 32; }
 static inline uint32_t clipmap_request_owner_(uint64_t held) { return (uint32_t)((held >> 1) & 0x7FFFFFFFu); }
 
-/* Asks for centre (s, t) (level-0 texels) with velocity (vs, vt) (texels per second, 0 when
- * unknown), under the request lock: compare-and-swap from an even word w to
- * clipmap_request_locked_(w, pid), write the fields, compare-and-swap to the next epoch. A word
- * left odd for more than 100 ms whose owner is no live process (a renderer died mid-write) is
- * advanced to the next epoch; a live owner is never overruled, however long it stalls.
- * CLIPMAP_OK, or CLIPMAP_BUSY after about a second of a live renderer holding it (or when this
- * renderer's lock was taken from it, which happens only if its pid is not visible to the others:
- * renderers must share a pid namespace). */
-static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, int64_t t, double vs, double vt) {
-    uint64_t *seq = (uint64_t *)(void *)(r->base + CLIPMAP_R_SEQ);
+/* The request protocol at the lock word at byte `at` of the request mapping (CLIPMAP_R_SEQ for the
+ * main request, a view request record's for a view; the fields lie at the same distances from it,
+ * CLIPMAP_VR_*); with `view`, the incarnation is stored too (CLIPMAP_VR_INCARNATION). */
+static inline int clipmap_request_at_(struct clipmap_request *r, size_t at, int view, uint64_t incarnation, int64_t s,
+                                      int64_t t, double vs, double vt) {
+    uint64_t *seq = (uint64_t *)(void *)(r->base + at + CLIPMAP_VR_SEQ);
     uint64_t odd = 0, odd_since = 0, start = clipmap_now_ms_();
     uint32_t pid = (uint32_t)getpid();
     for (;;) {
@@ -1071,14 +1481,15 @@ static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, i
         uint64_t bits_s, bits_t;
         memcpy(&bits_s, &vs, 8);
         memcpy(&bits_t, &vt, 8);
-#define CLIPMAP_RSTORE_(off, val) __atomic_store_n((uint64_t *)(void *)(r->base + (off)), (val), __ATOMIC_RELAXED)
-        CLIPMAP_RSTORE_(CLIPMAP_R_CENTRE_S, (uint64_t)s);
-        CLIPMAP_RSTORE_(CLIPMAP_R_CENTRE_T, (uint64_t)t);
-        CLIPMAP_RSTORE_(CLIPMAP_R_VEL_S, bits_s);
-        CLIPMAP_RSTORE_(CLIPMAP_R_VEL_T, bits_t);
-        CLIPMAP_RSTORE_(CLIPMAP_R_CLIENT_PID, (uint64_t)pid);
-        uint64_t count = __atomic_load_n((uint64_t *)(void *)(r->base + CLIPMAP_R_COUNT), __ATOMIC_RELAXED);
-        CLIPMAP_RSTORE_(CLIPMAP_R_COUNT, count + 1);
+#define CLIPMAP_RSTORE_(off, val) __atomic_store_n((uint64_t *)(void *)(r->base + at + (off)), (val), __ATOMIC_RELAXED)
+        CLIPMAP_RSTORE_(CLIPMAP_VR_CENTRE_S, (uint64_t)s);
+        CLIPMAP_RSTORE_(CLIPMAP_VR_CENTRE_T, (uint64_t)t);
+        CLIPMAP_RSTORE_(CLIPMAP_VR_VEL_S, bits_s);
+        CLIPMAP_RSTORE_(CLIPMAP_VR_VEL_T, bits_t);
+        CLIPMAP_RSTORE_(CLIPMAP_VR_CLIENT_PID, (uint64_t)pid);
+        if (view) CLIPMAP_RSTORE_(CLIPMAP_VR_INCARNATION, incarnation);
+        uint64_t count = __atomic_load_n((uint64_t *)(void *)(r->base + at + CLIPMAP_VR_COUNT), __ATOMIC_RELAXED);
+        CLIPMAP_RSTORE_(CLIPMAP_VR_COUNT, count + 1);
 #undef CLIPMAP_RSTORE_
         expect = mine; /* release: never over a word someone else stored */
         if (__atomic_compare_exchange_n(seq, &expect, clipmap_request_released_(mine), 0, __ATOMIC_ACQ_REL,
@@ -1086,6 +1497,36 @@ static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, i
             return CLIPMAP_OK;
         return CLIPMAP_BUSY;
     }
+}
+
+/* Asks for centre (s, t) (level-0 texels) with velocity (vs, vt) (texels per second, 0 when
+ * unknown), under the request lock: compare-and-swap from an even word w to
+ * clipmap_request_locked_(w, pid), write the fields, compare-and-swap to the next epoch. A word
+ * left odd for more than 100 ms whose owner is no live process (a renderer died mid-write) is
+ * advanced to the next epoch; a live owner is never overruled, however long it stalls.
+ * CLIPMAP_OK, or CLIPMAP_BUSY after about a second of a live renderer holding it (or when this
+ * renderer's lock was taken from it, which happens only if its pid is not visible to the others:
+ * renderers must share a pid namespace). */
+static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, int64_t t, double vs, double vt) {
+    return clipmap_request_at_(r, CLIPMAP_R_SEQ, 0, 0, s, t, vs, vt);
+}
+
+/* Asks for view *v's centre as clipmap_request_centre does for `main` (which it is for `main`),
+ * under the lock word of the view's request record (CLIPMAP_R_VIEWS + CLIPMAP_VIEW_REQUEST_BYTES x
+ * record), storing the incarnation clipmap_view_find kept with the fields: the service ignores a
+ * request for an incarnation that is no longer the record's (a removed view). CLIPMAP_OK,
+ * CLIPMAP_BUSY as clipmap_request_centre's; CLIPMAP_NOT_VALID (r->error says why) when the view's
+ * record has no request record (records 56 to 63: ask through the control socket, `VIEW CENTRE`). */
+static inline int clipmap_request_view_centre(struct clipmap_request *r, const struct clipmap_view *v, int64_t s,
+                                              int64_t t, double vs, double vt) {
+    if (v->record == CLIPMAP_VIEW_MAIN) return clipmap_request_centre(r, s, t, vs, vt);
+    if (v->record >= CLIPMAP_MAX_VIEW_REQUESTS) {
+        snprintf(r->error, sizeof r->error, "view \"%s\" is view record %u: the request mapping has request records "
+                 "for view records 0 to %u only", v->name, v->record, CLIPMAP_MAX_VIEW_REQUESTS - 1);
+        return CLIPMAP_NOT_VALID;
+    }
+    return clipmap_request_at_(r, CLIPMAP_R_VIEWS + (size_t)v->record * CLIPMAP_VIEW_REQUEST_BYTES, 1, v->incarnation,
+                               s, t, vs, vt);
 }
 
 static inline void clipmap_request_close(struct clipmap_request *r) {

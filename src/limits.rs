@@ -173,3 +173,7 @@ impl Default for PrepLimits {
         PrepLimits { max_memory_bytes: 512 << 20, pyramid_band_bytes: 16 << 20 }
     }
 }
+
+/// Most views one clip texture keeps, the primary included (docs/VIEWS.md): the engine's bound,
+/// and one view record in the mapping for each further view.
+pub const MAX_VIEWS: usize = 16;

@@ -61,12 +61,16 @@ struct Cli {
     /// Random seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// The view to read (docs/VIEWS.md): `main`, the primary, or a further view's name.
+    #[arg(long, default_value = "main")]
+    view: String,
 }
 
 #[derive(Default, serde::Serialize)]
 struct Counts {
     #[serde(flatten)]
     check: HashCheck,
+    view: String,
     stale_seen: u64,
     reattached: u64,
     requests: u64,
@@ -74,10 +78,12 @@ struct Counts {
 }
 
 fn attach(cli: &Cli) -> Result<Client, ShmError> {
-    match &cli.path {
+    let mut c = match &cli.path {
         Some(p) => Client::attach_path(p),
         None => Client::attach(&cli.shm_dir.clone().unwrap_or_else(clipmap::shm::default_dir), &cli.name),
-    }
+    }?;
+    c.bind_view(&cli.view)?;
+    Ok(c)
 }
 
 /// The driver's flight: fast steps, a reversal every 150 requests and a jump every 400.
@@ -99,7 +105,7 @@ fn main() -> ExitCode {
     let mut client = loop {
         match attach(&cli) {
             Ok(c) => break c,
-            Err(ShmError::NotFound { .. }) if cli.follow && Instant::now() < deadline => {
+            Err(ShmError::NotFound { .. } | ShmError::NoView { .. }) if cli.follow && Instant::now() < deadline => {
                 std::thread::sleep(Duration::from_millis(20))
             }
             Err(e) => {
@@ -108,7 +114,7 @@ fn main() -> ExitCode {
             }
         }
     };
-    let mut counts = Counts::default();
+    let mut counts = Counts { view: cli.view.clone(), ..Counts::default() };
     let mut rng = clipmap::source::procedural::splitmix64(cli.seed ^ std::process::id() as u64);
     let mut buf = Vec::new();
     let mut stale = false;
@@ -139,7 +145,7 @@ fn main() -> ExitCode {
                             stale = false;
                         }
                         Ok(_) => {}
-                        Err(ShmError::NotFound { .. }) => {}
+                        Err(ShmError::NotFound { .. } | ShmError::NoView { .. }) => {}
                         Err(e) => {
                             eprintln!("clipmap-read: reattaching: {e}");
                             return exit::status(exit::COULD_NOT_RUN);

@@ -95,6 +95,15 @@ struct Cli {
     /// ALIGNMENT - 1 texels of each level's valid region on the side the view moves towards.
     #[arg(long, default_value_t = 1)]
     centre_alignment: u64,
+    /// A further view of the texture, NAME or NAME:WEIGHT (repeatable; docs/VIEWS.md): its own
+    /// centre, published regions and min LOD over the shared grids. Readers attach to it by name
+    /// (`main` is the primary); `VIEW ADD` on the control socket adds one at run time.
+    #[arg(long = "view", value_name = "NAME[:WEIGHT]", value_parser = parse_view)]
+    views: Vec<(String, f64)>,
+    /// Level-0 texels by which views may lie apart and all be held whole: each level's grid
+    /// grows by that many texels (halved per level) per axis (0: grids for one view).
+    #[arg(long, default_value_t = 0, value_name = "TEXELS")]
+    view_spread: u64,
     /// Close control connections idle for this many milliseconds.
     #[arg(long, default_value_t = 30_000)]
     idle_ms: u64,
@@ -151,6 +160,8 @@ fn options(cli: &Cli, default_name: &str) -> Result<Options, Failure> {
     o.tick_hz = cli.tick_hz;
     o.invalid_border = cli.border;
     o.centre_alignment = cli.centre_alignment;
+    o.views = cli.views.clone();
+    o.view_spread = cli.view_spread;
     o.control = ControlLimits {
         idle: Duration::from_millis(cli.idle_ms),
         max_connections: cli.max_connections,
@@ -372,4 +383,24 @@ fn main() -> ExitCode {
             exit::status(code)
         }
     }
+}
+
+/// `--view NAME[:WEIGHT]`.
+fn parse_view(s: &str) -> Result<(String, f64), String> {
+    let (name, weight) = match s.split_once(':') {
+        Some((n, w)) => {
+            let w: f64 = w.parse().map_err(|_| format!("weight `{w}`: expected a positive number such as 1 or 3"))?;
+            (n, w)
+        }
+        None => (s, 1.0),
+    };
+    clipmap::shm::layout::views::check_name(name)?;
+    if !(w_ok(weight)) {
+        return Err(format!("weight {weight}: expected a positive finite number such as 1 or 3"));
+    }
+    Ok((name.to_string(), weight))
+}
+
+fn w_ok(w: f64) -> bool {
+    w.is_finite() && w > 0.0
 }

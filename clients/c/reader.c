@@ -26,7 +26,24 @@
  *
  * every enabled level's published region in metres: per level a line "level L region S0 T0 S1 T1",
  * then one line per row (increasing t) of each texel's metres as %.17g or "nodata". Both exit 2
- * for a mapping whose texels are not heights; the Python reader's options print the same. */
+ * for a mapping whose texels are not heights; the Python reader's options print the same.
+ *
+ * Views (docs/SHM.md, "Views"): `--view NAME`, anywhere after MAPPING, reads that view's snapshot
+ * instead of the primary view's (`main`, the default) and checks the texels under its regions the
+ * same way; the summary line ends with "view NAME". A name no view carries is refused (exit 2)
+ * with the names of the views that exist; a view removed while it is read ends the run with the
+ * summary, "view NAME was removed: ..." on stderr and exit status 3.
+ *
+ *   ./reader MAPPING --views
+ *
+ * lists the views that exist, one line each: "view main primary", then "view NAME record R
+ * incarnation I weight W" for each live view record in record order, and
+ *
+ *   ./reader MAPPING --snapshot [--view NAME]
+ *
+ * prints the view's snapshot: its line as --views prints it, "tick T min_lod X centre S T border B",
+ * then one line per level: "level K centre S T region S0 T0 S1 T1 enabled E tick U" (floats as
+ * %.17g; exit 3 when the view was removed). The Python reader's options print the same. */
 #include "clipmap_shm.h"
 
 #include <stdlib.h>
@@ -64,15 +81,78 @@ static void pick(uint64_t *rng, int mode, int64_t v0, int64_t v1, uint64_t tile,
     *n = w;
 }
 
+/* A view's line of --views and --snapshot. */
+static void print_view(const char *name, uint32_t record, uint64_t incarnation, double weight) {
+    if (record == CLIPMAP_VIEW_MAIN)
+        printf("view %s primary\n", name);
+    else
+        printf("view %s record %u incarnation %llu weight %.17g\n", name, record, (unsigned long long)incarnation,
+               weight);
+}
+
 int main(int argc, char **argv) {
+    /* --view NAME, anywhere after MAPPING: taken out of argv, which then reads as before. */
+    const char *view_name = "main";
+    int kept = 0;
+    for (int i = 0; i < argc; i++) {
+        if (i > 0 && strcmp(argv[i], "--view") == 0) {
+            if (i + 1 >= argc) {
+                fprintf(stderr, "usage: %s MAPPING READS [SEED [SECONDS]] [--view NAME]: --view needs a name\n", argv[0]);
+                return 2;
+            }
+            view_name = argv[++i];
+            continue;
+        }
+        argv[kept++] = argv[i];
+    }
+    argc = kept;
+    argv[argc] = NULL;
     if (argc < 3) {
-        fprintf(stderr, "usage: %s MAPPING READS [SEED [SECONDS]]\n", argv[0]);
+        fprintf(stderr, "usage: %s MAPPING READS [SEED [SECONDS]] [--view NAME]\n", argv[0]);
         return 2;
     }
     struct clipmap_map m;
     if (clipmap_open(argv[1], &m) != 0) {
         fprintf(stderr, "clipmap reader: %s\n", m.error);
         return 2;
+    }
+    if (strcmp(argv[2], "--views") == 0) {
+        static struct clipmap_view_list list;
+        int rc = clipmap_views(&m, &list);
+        if (rc != CLIPMAP_OK) {
+            fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], list.error);
+        } else {
+            for (uint32_t i = 0; i < list.count; i++)
+                print_view(list.views[i].name, list.views[i].record, list.views[i].incarnation, list.views[i].weight);
+        }
+        clipmap_close(&m);
+        return rc == CLIPMAP_OK ? 0 : 2;
+    }
+    static struct clipmap_view view;
+    if (clipmap_view_find(&m, view_name, &view) != CLIPMAP_OK) {
+        fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], view.error);
+        clipmap_close(&m);
+        return 2;
+    }
+    if (strcmp(argv[2], "--snapshot") == 0) {
+        struct clipmap_snapshot snap;
+        int rc = clipmap_view_snapshot(&m, &view, &snap);
+        if (rc != CLIPMAP_OK) {
+            fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], snap.error);
+            clipmap_close(&m);
+            return rc == CLIPMAP_REMOVED ? 3 : 2;
+        }
+        print_view(view.name, view.record, view.incarnation, view.weight);
+        printf("tick %llu min_lod %.17g centre %lld %lld border %llu\n", (unsigned long long)snap.tick, snap.min_lod,
+               (long long)snap.centre[0], (long long)snap.centre[1], (unsigned long long)snap.invalid_border);
+        for (uint32_t k = 0; k < snap.level_count; k++) {
+            const struct clipmap_level_state *st = &snap.levels[k];
+            printf("level %u centre %lld %lld region %lld %lld %lld %lld enabled %d tick %llu\n", k,
+                   (long long)st->centre[0], (long long)st->centre[1], (long long)st->valid[0], (long long)st->valid[1],
+                   (long long)st->valid[2], (long long)st->valid[3], st->enabled, (unsigned long long)st->updated_tick);
+        }
+        clipmap_close(&m);
+        return 0;
     }
     if (strcmp(argv[2], "--ranges") == 0 || strcmp(argv[2], "--heights-region") == 0) {
         if (!m.heights) {
@@ -95,9 +175,10 @@ int main(int argc, char **argv) {
             }
         } else {
             struct clipmap_snapshot snap;
-            if (clipmap_snapshot(&m, &snap) != CLIPMAP_OK) {
+            int src = clipmap_view_snapshot(&m, &view, &snap);
+            if (src != CLIPMAP_OK) {
                 fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], snap.error);
-                rc = 2;
+                rc = src == CLIPMAP_REMOVED ? 3 : 2;
             }
             for (uint32_t k = 0; rc == 0 && k < snap.level_count; k++) {
                 const struct clipmap_level_state *st = &snap.levels[k];
@@ -170,8 +251,8 @@ int main(int argc, char **argv) {
         bad |= *argv[4] == 0 || *end != 0;
     }
     if (bad) {
-        fprintf(stderr, "usage: %s MAPPING READS [SEED [SECONDS]]: READS and SEED are integers, SECONDS a number\n",
-                argv[0]);
+        fprintf(stderr, "usage: %s MAPPING READS [SEED [SECONDS]] [--view NAME]: READS and SEED are integers, SECONDS "
+                "a number\n", argv[0]);
         clipmap_close(&m);
         return 2;
     }
@@ -185,7 +266,7 @@ int main(int argc, char **argv) {
     }
     struct clipmap_snapshot snap;
     memset(&snap, 0, sizeof snap);
-    int have = 0;
+    int have = 0, removed = 0;
     struct timespec t0, now;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     for (unsigned long long iter = 0; passed + failed < reads; iter++) {
@@ -194,7 +275,12 @@ int main(int argc, char **argv) {
             if ((double)(now.tv_sec - t0.tv_sec) + 1e-9 * (double)(now.tv_nsec - t0.tv_nsec) >= seconds) break;
         }
         if (!have || (iter & 255) == 0) {
-            int rc = clipmap_snapshot(&m, &snap);
+            int rc = clipmap_view_snapshot(&m, &view, &snap);
+            if (rc == CLIPMAP_REMOVED) {
+                fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], snap.error);
+                removed = 1;
+                break;
+            }
             if (rc == CLIPMAP_CORRUPT) {
                 fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], snap.error);
                 free(buf);
@@ -260,10 +346,10 @@ int main(int argc, char **argv) {
         }
     }
     printf("%llu passed, %llu failed (%llu blocks, %llu across tiles; skipped: %llu busy, %llu stale, %llu missing, "
-           "%llu moved, %llu disabled; heartbeat age %llu ms)\n",
+           "%llu moved, %llu disabled; heartbeat age %llu ms; view %s)\n",
            passed, failed, blocks, crossing, busy, stale, missing, moved, idle,
-           (unsigned long long)clipmap_heartbeat_age_ms(&m));
+           (unsigned long long)clipmap_heartbeat_age_ms(&m), view.name);
     free(buf);
     clipmap_close(&m);
-    return failed == 0 ? 0 : 1;
+    return failed != 0 ? 1 : removed ? 3 : 0;
 }

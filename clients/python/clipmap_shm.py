@@ -10,6 +10,16 @@ Standard library only (mmap, struct). As a module:
     # use a coarser level), Stale (a slot holds another tile: take a new snapshot), Busy
     m.texel(level, s, t)              # one texel's bytes
 
+Views (docs/SHM.md, "Views"): besides the primary view, `main` (the snapshot above), a mapping may
+publish further views, each with its own snapshot over the same slots:
+
+    m.view_names()                    # ["main", ...]: the live view records' names, in record order
+    v = m.view("north")               # NoView (lists the views), Busy, Corrupt; "main" always exists
+    snap = v.snapshot()               # as Mapping.snapshot, or Removed: the view was removed
+    data = v.read_region(level, s0, t0, w, h)   # texels under the view's snapshot
+    m.snapshot(view="north")          # the same as m.view("north").snapshot()
+    request_centre(socket_path, s, t, view="north")   # through the control socket (below)
+
 As a program it reads random texel blocks inside the published valid regions of a texture
 served by `clipmapd --source hash` and checks every texel:
 
@@ -18,9 +28,13 @@ served by `clipmapd --source hash` and checks every texel:
 prints "N passed, M failed (...)"; `python3 clients/python/clipmap_shm.py MAPPING --growth`
 prints a growing texture's growth block as JSON (null when it does not grow). Exit status 0 no mismatch, 1 a mismatch, 2 the mapping was
 refused (at open, or published state out of bounds), with the reason on standard error.
+`--view NAME` (anywhere after MAPPING) reads that view instead of `main` (exit 2 listing the views
+when there is none of that name, 3 when it is removed while it is read); `MAPPING --views` lists the
+views, `MAPPING --snapshot [--view NAME]` prints a view's snapshot (as the C reader's do).
 
 Requests: Python has no compare-and-swap on a mapping, so it cannot take the request
-mapping's lock word; a Python renderer asks for a centre through the control socket (`CENTRE s t`).
+mapping's lock words; a Python renderer asks for a centre through the control socket
+(`request_centre`: `CENTRE s t`, or `VIEW CENTRE NAME s t` for a view).
 
 Consistency: the snapshot and every slot tag are read under their seqlocks (sequence read
 before and after, accepted only when even and equal). Every field the writer changes is loaded
@@ -33,6 +47,7 @@ truncated after it was mapped raises SIGBUS on access, as with any mmap.
 import math
 import mmap
 import os
+import socket
 import stat
 import struct
 import sys
@@ -51,6 +66,8 @@ H_MAGIC, H_VERSION, H_HEADER_BYTES, H_TOTAL_BYTES = 0, 8, 12, 16
 H_TEXEL_FORMAT, H_BYTES_PER_TEXEL, H_CLIP_SIZE, H_LEVEL_COUNT = 24, 28, 32, 36
 H_LEVEL0_S, H_LEVEL0_T, H_WRITER_PID = 40, 48, 56
 H_HEARTBEAT, H_HEARTBEAT_MS, H_GENERATION, H_FLAGS, H_TICK_PERIOD_NS = 64, 72, 80, 88, 96
+# u64 byte offset of the views block (a multiple of 4096, after every level's slots); 0: none.
+H_VIEWS_OFFSET = 104
 H_SNAPSHOT = SNAPSHOT = 128
 
 # Snapshot fields, relative to H_SNAPSHOT (one seqlock over all of them).
@@ -106,6 +123,25 @@ SLOT_EMPTY, SLOT_LOADING, SLOT_READY, SLOT_MISSING, SLOT_DEFAULT = 0, 1, 2, 3, 4
 # Request mapping (DIR/clipmap-NAME.req).
 REQ_MAGIC, REQ_VERSION, REQ_GENERATION, REQ_SEQ = 0, 8, 16, 64
 REQ_CENTRE_S, REQ_CENTRE_T, REQ_VEL_S, REQ_VEL_T, REQ_CLIENT_PID, REQ_COUNT = 72, 80, 88, 96, 104, 112
+# View request record r at REQ_VIEWS + VIEW_REQUEST_BYTES * r (r < MAX_VIEW_REQUESTS): the main
+# request's fields at the same distances from their lock word, and the view's incarnation.
+REQ_VIEWS, VIEW_REQUEST_BYTES, MAX_VIEW_REQUESTS = 512, 64, 56
+VR_SEQ, VR_CENTRE_S, VR_CENTRE_T, VR_VEL_S, VR_VEL_T, VR_CLIENT_PID, VR_COUNT, VR_INCARNATION = 0, 8, 16, 24, 32, 40, 48, 56
+
+# Views (docs/SHM.md, "Views"): the primary view, "main", is the snapshot at H_SNAPSHOT; further
+# views are the view records of the views block at H_VIEWS_OFFSET.
+VIEWS_MAGIC = b"CLIPVIEW"
+VIEWS_VERSION = 1
+MAX_VIEWS = 64  # view records N: 1..64
+VIEW_RECORD_BYTES = 2240
+VIEW_NAME_BYTES, VIEW_NAME_MAX = 32, 31  # u8[32], NUL-padded: 1..31 of A-Z a-z 0-9 - _ . (never "main")
+VIEW_NAME_CHARS = frozenset(b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_.")
+# Views block fields (relative to the block): record r at VB_RECORDS + VIEW_RECORD_BYTES * r.
+VB_MAGIC, VB_VERSION, VB_RECORD_COUNT, VB_RECORD_BYTES, VB_RECORDS = 0, 8, 12, 16, 64
+# View record fields (relative to the record); 0..128 under the record's seqlock (V_SEQ).
+V_SEQ, V_STATE, V_INCARNATION, V_WEIGHT, V_NAME, V_SNAPSHOT = 0, 8, 16, 24, 64, 128
+VIEW_FREE, VIEW_LIVE = 0, 1
+
 # The request lock word (REQ_SEQ; docs/SHM.md, "Request mapping"): odd while a renderer holds it,
 # with its pid in bits 1..31; a word odd for REQUEST_TAKEOVER_MS is taken over only when that pid
 # is no live process; a renderer gives up after REQUEST_WAIT_MS. This module writes no requests.
@@ -151,6 +187,20 @@ class Busy(ReadError):
 
 class Stale(ReadError):
     """A slot holds another tile (or is loading): take a new snapshot."""
+
+
+class NoView(ClipmapError):
+    """No view of that name (the message lists the views that exist), or not a view name."""
+
+
+class Removed(ClipmapError):
+    """The view was removed: its record was freed or given to another view since it was found."""
+
+
+def view_name_ok(name):
+    """Whether `name` is a name a view record may carry: 1 to 31 of A-Z a-z 0-9 - _ ., not "main"."""
+    b = name.encode("utf-8", "replace") if isinstance(name, str) else bytes(name)
+    return 1 <= len(b) <= VIEW_NAME_MAX and all(c in VIEW_NAME_CHARS for c in b) and b != b"main"
 
 
 def splitmix64(x):
@@ -206,6 +256,88 @@ class Snapshot:
     """A consistent copy of the snapshot: min_lod, tick, invalid_border, centre, levels."""
 
     __slots__ = ("seq", "min_lod", "tick", "invalid_border", "centre", "levels")
+
+
+class View:
+    """A view bound by Mapping.view(name): the primary view `main` (record None) or a view record
+    while it keeps the incarnation it had when it was found. snapshot() raises Removed once the
+    record is freed or given to another view."""
+
+    __slots__ = ("mapping", "name", "record", "incarnation", "weight", "offset", "snap")
+
+    def __repr__(self):
+        return (f"View({self.name!r}, record={self.record}, incarnation={self.incarnation}, "
+                f"weight={self.weight})")
+
+    def alive(self):
+        """Raises Removed when the view was removed (its record free, or another incarnation),
+        Busy when the record stayed locked, Corrupt when it fails its checks."""
+        if self.record is None:
+            return
+        state, inc, _, name = self.mapping._view_record(self.record)
+        if state != VIEW_LIVE:
+            raise Removed(f'view "{self.name}" was removed: its record {self.record} is free')
+        if inc != self.incarnation:
+            raise Removed(f'view "{self.name}" was removed: its record {self.record} went from incarnation '
+                          f'{self.incarnation} to {inc} (view "{name}")')
+
+    def snapshot(self):
+        """A consistent, checked copy of the view's snapshot (docs/SHM.md, "Reading a view's
+        snapshot"): the record's snapshot under its own sequence counter, then the record's state
+        and incarnation under the record's seqlock. Also kept as self.snap. Raises Removed (the
+        copy is not used), Busy or Corrupt (self.snap unchanged). Tick 0: nothing published yet."""
+        m = self.mapping
+        if self.record is None:
+            self.snap = m.snapshot()
+            return self.snap
+        err = None
+        try:
+            snap = m._snapshot_at(self.offset)
+        except (Busy, Corrupt) as e:
+            err = e
+        self.alive()  # removed comes first: a record given to another view may be mid-way through its snapshot
+        if err is not None:
+            raise type(err)(f'view "{self.name}": {err}')
+        self.snap = snap
+        return snap
+
+    def read_region(self, level, s0, t0, w, h, snap=None):
+        """Mapping.read_region under this view's snapshot (`snap`, else the last one taken, else a
+        new one)."""
+        return self.mapping.read_region(level, s0, t0, w, h, snap or self.snap or self.snapshot())
+
+    def texel(self, level, s, t, snap=None):
+        return self.read_region(level, s, t, 1, 1, snap)
+
+
+def request_centre(socket_path, s, t, view=None, timeout=5.0):
+    """Asks the service for a level-0 centre through its control socket: `CENTRE s t` for the
+    primary view (view None or "main"), `VIEW CENTRE NAME s t` for another (a name or a View).
+    Python has no compare-and-swap on a mapping, so it cannot take the request mapping's lock
+    words (docs/SHM.md); the socket's command does the same for anyone who can reach it. Returns
+    the reply line ("OK ..."); raises NoView for a name that is no view name, ClipmapError on an
+    ERR reply, OSError when the socket cannot be reached."""
+    name = view.name if isinstance(view, View) else view
+    if name is None or name == "main":
+        line = f"CENTRE {int(s)} {int(t)}\n"
+    elif view_name_ok(name):
+        line = f"VIEW CENTRE {name} {int(s)} {int(t)}\n"
+    else:
+        raise NoView(f'"{name}" is not a view name: expected "main" or 1 to {VIEW_NAME_MAX} of A-Z a-z 0-9 - _ .')
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as c:
+        c.settimeout(timeout)
+        c.connect(socket_path)
+        c.sendall(line.encode())
+        reply = b""
+        while not reply.endswith(b"\n"):
+            got = c.recv(4096)
+            if not got:
+                break
+            reply += got
+    reply = reply.decode("utf-8", "replace").rstrip("\r\n")
+    if not reply.startswith("OK"):
+        raise ClipmapError(f"{socket_path}: {line.strip()}: {reply or 'no reply'}")
+    return reply
 
 
 class Mapping:
@@ -339,6 +471,157 @@ class Mapping:
                                   f"({d.slots})")
             prev_end = slots_end
             self.levels.append(d)
+        self._check_views(prev_end)
+
+    def _check_views(self, slots_end):
+        """Checks the views block (docs/SHM.md, "Checks of the block") and sets views_offset,
+        view_records and views_error. Refused for an offset that is not 0, not a multiple of 4096,
+        before `slots_end` (the end of the last level's slots) or with the block past the end of
+        the mapping; for a version-1 block with N outside 1..64, record bytes other than 2240, or
+        a record that fails its checks (one the writer keeps locked is checked when it is read).
+        A magic or version this reader does not know leaves "main" readable and every other view
+        not (views_error says why), as a reader of layout 2 that ignores the block would."""
+        path, m, total = self.path, self.mm, len(self.mm)
+        off = self._u64(H_VIEWS_OFFSET)
+        self.views_offset, self.view_records, self.views_error = 0, 0, None
+        if off == 0:
+            return
+        if off % PAGE or off < slots_end or off + VB_RECORDS > total:
+            raise Refused(f"{path}: header byte {H_VIEWS_OFFSET} (views block offset): found {off}, expected 0 (no "
+                          f"views) or a multiple of {PAGE} at or after the end of the last level's slots "
+                          f"({slots_end}), the block inside the {total}-byte mapping")
+        self.views_offset = off
+        magic = bytes(m[off + VB_MAGIC:off + VB_MAGIC + 8])
+        version = self._u32(off + VB_VERSION)
+        if magic != VIEWS_MAGIC:
+            self.views_error = (f"views block at {off}, byte {off + VB_MAGIC} (magic): found {magic!r}, "
+                                f"expected {VIEWS_MAGIC.decode()!r}")
+            return
+        if version != VIEWS_VERSION:
+            self.views_error = (f"views block at {off}, byte {off + VB_VERSION} (version): found {version}, "
+                                f"this reader reads views block version {VIEWS_VERSION} only")
+            return
+        n, rb = self._u32(off + VB_RECORD_COUNT), self._u32(off + VB_RECORD_BYTES)
+        if not 1 <= n <= MAX_VIEWS:
+            raise Refused(f"{path}: views block at {off}, byte {off + VB_RECORD_COUNT} (view records): found {n}, "
+                          f"expected 1 to {MAX_VIEWS}")
+        if rb != VIEW_RECORD_BYTES:
+            raise Refused(f"{path}: views block at {off}, byte {off + VB_RECORD_BYTES} (record bytes): found {rb}, "
+                          f"expected {VIEW_RECORD_BYTES}")
+        size = _ceil_div(VB_RECORDS + n * VIEW_RECORD_BYTES, PAGE) * PAGE
+        if off + size > total:
+            raise Refused(f"{path}: header byte {H_VIEWS_OFFSET} (views block offset): found {off}, but the views "
+                          f"block of {n} records ({size} bytes) then ends at {off + size}, past the end of the "
+                          f"{total}-byte mapping")
+        self.view_records = n
+        q = memoryview(m)[off:off + size].cast("Q")  # the records' words, before self.q exists
+        try:
+            for r in range(n):
+                try:
+                    self._view_record(r, q, off)
+                except Busy:
+                    pass
+                except Corrupt as e:
+                    raise Refused(f"{path}: {e}") from None
+        finally:
+            q.release()
+
+    def _view_record(self, r, q=None, base=None):
+        """View record r's fields 0..128 read under the record's seqlock and checked: (state,
+        incarnation, weight, name). Busy when the writer kept it locked for MAX_RETRIES attempts;
+        Corrupt for a state other than 0 or 1 or, on a live record, a weight not finite and above
+        0 or a name not 1 to 31 allowed characters followed by NULs only (or "main")."""
+        if q is None:
+            q, base = self.q, 0
+        at = self.views_offset + VB_RECORDS + r * VIEW_RECORD_BYTES
+        b = (at - base) // 8
+        for _ in range(MAX_RETRIES):
+            s1 = q[b]
+            if s1 & 1:
+                continue
+            f = q[b + 1: b + V_NAME // 8 + 4].tolist()
+            if q[b] == s1:
+                break
+        else:
+            raise Busy(f"view record {r}: the writer kept it locked for {MAX_RETRIES} attempts")
+        state, inc, wbits = f[0], f[1], f[2]
+        raw = b"".join(x.to_bytes(8, "little") for x in f[V_NAME // 8 - 1:])
+        where = f"views block at {self.views_offset}, record {r}, byte"
+        if state > VIEW_LIVE:
+            raise Corrupt(f"{where} {at + V_STATE} (state): found {state}, expected 0 (free) or 1 (live)")
+        weight = struct.unpack("<d", struct.pack("<Q", wbits))[0]
+        n = raw.find(b"\0")
+        n = len(raw) if n < 0 else n
+        name = raw[:n].decode("ascii", "replace")
+        if state != VIEW_LIVE:
+            return state, inc, weight, name
+        if not (math.isfinite(weight) and weight > 0):
+            raise Corrupt(f"{where} {at + V_WEIGHT} (weight): found {weight!r} (bits {wbits:016x}), expected a "
+                          f"finite number above 0")
+        if not (view_name_ok(raw[:n]) and not any(raw[n:])):
+            raise Corrupt(f"{where} {at + V_NAME} (name): found {raw!r}, expected 1 to {VIEW_NAME_MAX} of "
+                          f"A-Z a-z 0-9 - _ . followed by NULs only (never \"main\")")
+        return state, inc, weight, name
+
+    def views(self):
+        """The views that exist: [View] with `main` first, then one per live view record in record
+        order (each record read under its seqlock). Busy when a record stayed locked, Corrupt when
+        one fails its checks or the views block has a magic or version this reader does not read."""
+        out = [self._main_view()]
+        if self.views_error:
+            raise Corrupt(self.views_error)
+        for r in range(self.view_records):
+            state, inc, weight, name = self._view_record(r)
+            if state == VIEW_LIVE:
+                out.append(self._bind(r, inc, weight, name))
+        return out
+
+    def view_names(self):
+        """The names of the views that exist: "main", then each live view record's in record order."""
+        return [v.name for v in self.views()]
+
+    def _main_view(self):
+        v = View()
+        v.mapping, v.name, v.record, v.incarnation, v.weight, v.offset, v.snap = self, "main", None, 0, 0.0, H_SNAPSHOT, None
+        return v
+
+    def _bind(self, r, inc, weight, name):
+        v = View()
+        v.mapping, v.name, v.record, v.incarnation, v.weight, v.snap = self, name, r, inc, weight, None
+        v.offset = self.views_offset + VB_RECORDS + r * VIEW_RECORD_BYTES + V_SNAPSHOT
+        return v
+
+    def view(self, name):
+        """Binds the view called `name` (docs/SHM.md, "Finding a view by name"): "main" is the
+        primary view; any other name is looked for among the live view records (each read under
+        its seqlock), and the record and its incarnation are kept. Raises NoView (not a view name,
+        or no live record carries it: the message names the views that exist), Busy (no record
+        carries it but one stayed locked), Corrupt (a record fails its checks, or the views block
+        has a magic or version this reader does not read)."""
+        if name == "main":
+            return self._main_view()
+        if not view_name_ok(name):
+            raise NoView(f'"{name}" is not a view name: expected "main" or 1 to {VIEW_NAME_MAX} of '
+                         f"A-Z a-z 0-9 - _ .")
+        if self.views_error:
+            raise Corrupt(self.views_error)
+        names, busy = ["main"], None
+        for r in range(self.view_records):
+            try:
+                state, inc, weight, got = self._view_record(r)
+            except Busy:
+                busy = r
+                continue
+            if state != VIEW_LIVE:
+                continue
+            if got == name:
+                return self._bind(r, inc, weight, got)
+            names.append(got)
+        if busy is not None:
+            raise Busy(f'no live view record is called "{name}" but view record {busy} stayed locked for '
+                       f'{MAX_RETRIES} attempts')
+        none = " (the mapping has no views block)" if self.views_offset == 0 else ""
+        raise NoView(f'no view "{name}"{none}; the views are: {", ".join(names)}')
 
     def _heights(self, path):
         """The heights block, checked: None when the texels are not heights, else a dict of
@@ -394,11 +677,21 @@ class Mapping:
                               f"or NaN (none)")
         return {"storage": storage, "scale": scale, "offset": offset, "nodata": nodata, "levels": HEIGHT_RULES[rule]}
 
-    def snapshot(self):
-        """A consistent, checked copy of the snapshot; also kept as self.snap. Busy when the writer
-        kept it locked (self.snap unchanged), Corrupt when published state is out of bounds."""
+    def snapshot(self, view=None):
+        """A consistent, checked copy of the primary view's snapshot; also kept as self.snap. Busy
+        when the writer kept it locked (self.snap unchanged), Corrupt when published state is out
+        of bounds. With `view` (a name or a View other than "main"): that view's snapshot, as
+        View.snapshot (Removed, too; self.snap is left alone)."""
+        if view is not None and view != "main" and not (isinstance(view, View) and view.record is None):
+            return (self.view(view) if isinstance(view, str) else view).snapshot()
+        self.snap = self._snapshot_at(H_SNAPSHOT)
+        return self.snap
+
+    def _snapshot_at(self, at):
+        """The snapshot at byte offset `at` (H_SNAPSHOT for "main", a view record's V_SNAPSHOT for
+        another view: every snapshot is laid out the same), consistent and checked."""
         q, n = self.q, self.count
-        b = H_SNAPSHOT // 8
+        b = at // 8
         for _ in range(MAX_RETRIES):
             s1 = q[b]
             if s1 & 1:
@@ -434,7 +727,6 @@ class Mapping:
                               f"non-empty rectangle inside the {d.size[0]}x{d.size[1]} level spanning at most "
                               f"{d.grid[0]}x{d.grid[1]} tiles")
             snap.levels.append(st)
-        self.snap = snap
         return snap
 
     def growth(self):
@@ -623,7 +915,60 @@ def _pick(rng, mode, v0, v1, tile):
     return v0 + rng[0] % (span - w + 1), w
 
 
+def _view_line(v):
+    """A view's line of --views and --snapshot (the C reader prints the same)."""
+    if v.record is None:
+        return f"view {v.name} primary"
+    return "view %s record %d incarnation %d weight %.17g" % (v.name, v.record, v.incarnation, v.weight)
+
+
 def main(argv):
+    # --view NAME, anywhere after MAPPING: taken out of argv, which then reads as before.
+    view_name, rest, i = "main", [], 0
+    while i < len(argv):
+        if i > 0 and argv[i] == "--view":
+            if i + 1 >= len(argv):
+                print(f"usage: {argv[0]} MAPPING READS [SEED [SECONDS]] [--view NAME]: --view needs a name",
+                      file=sys.stderr)
+                return 2
+            view_name = argv[i + 1]
+            i += 2
+            continue
+        rest.append(argv[i])
+        i += 1
+    argv = rest
+    if len(argv) == 3 and argv[2] == "--views":
+        # python3 clipmap_shm.py MAPPING --views: "view main primary", then "view NAME record R
+        # incarnation I weight W" per live view record (the C reader's --views prints the same).
+        try:
+            with Mapping(argv[1]) as m:
+                for v in m.views():
+                    print(_view_line(v))
+        except (ClipmapError, OSError, ValueError) as e:
+            print(f"clipmap_shm: {e}", file=sys.stderr)
+            return 2
+        return 0
+    if len(argv) == 3 and argv[2] == "--snapshot":
+        # python3 clipmap_shm.py MAPPING --snapshot [--view NAME]: the view's line, "tick T min_lod X
+        # centre S T border B", then "level K centre S T region S0 T0 S1 T1 enabled E tick U" per
+        # level (the C reader's --snapshot prints the same).
+        try:
+            with Mapping(argv[1]) as m:
+                v = m.view(view_name)
+                snap = v.snapshot()
+                print(_view_line(v))
+                print("tick %d min_lod %.17g centre %d %d border %d"
+                      % (snap.tick, snap.min_lod, snap.centre[0], snap.centre[1], snap.invalid_border))
+                for k, st in enumerate(snap.levels):
+                    print("level %d centre %d %d region %d %d %d %d enabled %d tick %d"
+                          % ((k,) + st.centre + st.valid + (int(st.enabled), st.updated_tick)))
+        except Removed as e:
+            print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
+            return 3
+        except (ClipmapError, OSError, ValueError) as e:
+            print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
+            return 2
+        return 0
     if len(argv) == 3 and argv[2] == "--heights":
         # python3 clipmap_shm.py MAPPING --heights: the heights block, one line (the C reader's
         # --heights prints the same): "not heights", or "heights STORAGE scale S offset O
@@ -650,6 +995,7 @@ def main(argv):
         # texel's metres as %.17g or "nodata". The C reader's options print the same.
         try:
             m = Mapping(argv[1])
+            view = m.view(view_name)
             if m.heights is None:
                 raise Refused(f"{argv[1]}: the texels are not heights (heights block all zero)")
             if argv[2] == "--ranges":
@@ -661,7 +1007,7 @@ def main(argv):
                         if r is not None:
                             print("%d %d %d %.17g %.17g" % (k, S, T, r[0], r[1]))
             else:
-                snap = m.snapshot()
+                snap = view.snapshot()
                 for k, st in enumerate(snap.levels):
                     if not st.enabled:
                         continue
@@ -672,6 +1018,9 @@ def main(argv):
                     for row in range(t1 - t0):
                         hs = (m.metres(got[(row * w + i) * b:(row * w + i + 1) * b]) for i in range(w))
                         print(" ".join("nodata" if v is None else "%.17g" % v for v in hs))
+        except Removed as e:
+            print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
+            return 3
         except (ClipmapError, OSError, ValueError) as e:
             print(f"clipmap_shm: {e}", file=sys.stderr)
             return 2
@@ -688,30 +1037,41 @@ def main(argv):
             return 2
         return 0
     if len(argv) < 3:
-        print(f"usage: {argv[0]} MAPPING READS [SEED [SECONDS]]", file=sys.stderr)
+        print(f"usage: {argv[0]} MAPPING READS [SEED [SECONDS]] [--view NAME]", file=sys.stderr)
         return 2
     try:
         reads = int(argv[2])
         rng = [(int(argv[3]) if len(argv) > 3 else 1) & M64]
         seconds = float(argv[4]) if len(argv) > 4 else 120.0
     except ValueError as e:
-        print(f"usage: {argv[0]} MAPPING READS [SEED [SECONDS]]: {e}", file=sys.stderr)
+        print(f"usage: {argv[0]} MAPPING READS [SEED [SECONDS]] [--view NAME]: {e}", file=sys.stderr)
         return 2
     try:
         m = Mapping(argv[1])
     except (ClipmapError, OSError, ValueError) as e:
         print(f"clipmap_shm: {e}", file=sys.stderr)
         return 2
+    try:
+        view = m.view(view_name)
+    except ClipmapError as e:
+        print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
+        m.close()
+        return 2
     give_up = time.monotonic() + seconds
     passed = failed = busy = stale = missing = moved = idle = blocks = crossing = 0
     bpt = m.bpt
     snap = None
+    removed = False
     it = 0
     while passed + failed < reads and time.monotonic() < give_up:
         it += 1
         if snap is None or it % 256 == 0:
             try:
-                snap = m.snapshot()
+                snap = view.snapshot()
+            except Removed as e:
+                print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
+                removed = True
+                break
             except Busy:
                 busy += 1
                 if snap is None:
@@ -759,9 +1119,10 @@ def main(argv):
                     failed += 1
                 i += bpt
     print(f"{passed} passed, {failed} failed ({blocks} blocks, {crossing} across tiles; skipped: {busy} busy, "
-          f"{stale} stale, {missing} missing, {moved} moved, {idle} disabled; heartbeat age {m.heartbeat_age_ms()} ms)")
+          f"{stale} stale, {missing} missing, {moved} moved, {idle} disabled; heartbeat age {m.heartbeat_age_ms()} ms; "
+          f"view {view.name})")
     m.close()
-    return 0 if failed == 0 else 1
+    return 1 if failed else 3 if removed else 0
 
 
 if sys.byteorder != "little":  # the layout is little-endian; native loads are used for atomics

@@ -695,6 +695,7 @@ impl Clipmap {
                 .collect(),
         };
         self.cache.memory().publish(&p);
+        self.store_view_publications();
         self.stats.publications += 1;
     }
 

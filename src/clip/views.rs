@@ -32,8 +32,7 @@ pub type ViewId = u32;
 /// The primary view: the clipmap's own centre ([`Clipmap::tick`]), the one the mapping publishes.
 pub const PRIMARY: ViewId = 0;
 
-/// Most views one clipmap keeps, the primary included.
-pub const MAX_VIEWS: usize = 64;
+pub use crate::limits::MAX_VIEWS;
 
 /// Why a view could not be added, moved or weighted.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -47,6 +46,9 @@ pub enum ViewError {
     /// Too many views.
     #[error("{MAX_VIEWS} views already: remove one first")]
     Full,
+    /// A name that is not allowed, or taken.
+    #[error("{0}")]
+    Name(String),
     /// The primary view cannot be removed.
     #[error("view 0 is the primary view (the clipmap's own centre) and cannot be removed")]
     Primary,
@@ -63,6 +65,8 @@ pub(super) struct ViewLevel {
 /// A further view's state.
 #[derive(Clone, Debug)]
 pub(super) struct View {
+    /// Its name in the mapping (`None`: unnamed, an engine without a service).
+    pub(super) name: Option<String>,
     pub(super) weight: f64,
     /// Where the view asked to be, and its velocity (level-0 texels per tick), if it has moved.
     pub(super) want: Option<([i64; 2], Option<[i64; 2]>)>,
@@ -121,8 +125,40 @@ impl Clipmap {
     /// [`set_view_weight`](Self::set_view_weight) says otherwise). It has no centre, and
     /// publishes nothing, until [`move_view`](Self::move_view) gives it one.
     pub fn add_view(&mut self, weight: f64) -> Result<ViewId, ViewError> {
+        self.add_view_as(None, weight)
+    }
+
+    /// [`add_view`](Self::add_view) named `name` (1 to 31 of `A-Z a-z 0-9 - _ .`, not `main`,
+    /// not another live view's): the mapping's record of the view carries the name, and readers
+    /// find the view by it.
+    pub fn add_named_view(&mut self, name: &str, weight: f64) -> Result<ViewId, ViewError> {
+        crate::shm::layout::views::check_name(name).map_err(ViewError::Name)?;
+        if self.views.live().any(|(_, v)| v.name.as_deref() == Some(name)) {
+            return Err(ViewError::Name(format!("view `{name}` exists already: remove it first or choose another name")));
+        }
+        self.add_view_as(Some(name.to_string()), weight)
+    }
+
+    /// A view's id by name (`main`: the primary).
+    pub fn view_named(&self, name: &str) -> Option<ViewId> {
+        if name == crate::shm::layout::views::PRIMARY_NAME {
+            return Some(PRIMARY);
+        }
+        self.views.live().find(|(_, v)| v.name.as_deref() == Some(name)).map(|(id, _)| id)
+    }
+
+    /// A view's name (`main` for the primary; `None` for an unnamed or unknown view).
+    pub fn view_name(&self, id: ViewId) -> Option<&str> {
+        if id == PRIMARY {
+            return Some(crate::shm::layout::views::PRIMARY_NAME);
+        }
+        self.view(id).ok().and_then(|v| v.name.as_deref())
+    }
+
+    fn add_view_as(&mut self, name: Option<String>, weight: f64) -> Result<ViewId, ViewError> {
         let weight = check_weight(weight)?;
         let view = View {
+            name,
             weight,
             want: None,
             centre: None,
@@ -130,15 +166,19 @@ impl Clipmap {
             levels: Vec::new(),
             min_lod: self.levels.len() as f64,
         };
-        if let Some(i) = self.views.others.iter().position(Option::is_none) {
-            self.views.others[i] = Some(view);
-            return Ok(i as ViewId + 1);
+        let id = match self.views.others.iter().position(Option::is_none) {
+            Some(i) => i + 1,
+            None if self.views.others.len() + 1 >= MAX_VIEWS => return Err(ViewError::Full),
+            None => {
+                self.views.others.push(None);
+                self.views.others.len()
+            }
+        };
+        if let Some(name) = &view.name {
+            self.cache.memory().open_view(id, name, view.weight);
         }
-        if self.views.others.len() + 1 >= MAX_VIEWS {
-            return Err(ViewError::Full);
-        }
-        self.views.others.push(Some(view));
-        Ok(self.views.others.len() as ViewId)
+        self.views.others[id - 1] = Some(view);
+        Ok(id as ViewId)
     }
 
     /// Removes a further view: from the next tick its windows no longer hold tiles in the grids.
@@ -148,6 +188,8 @@ impl Clipmap {
         }
         self.view_mut(id)?;
         self.views.others[id as usize - 1] = None;
+        // Its regions stop protecting slots only now: its record says free first.
+        self.cache.memory().close_view(id as usize);
         while matches!(self.views.others.last(), Some(None)) {
             self.views.others.pop();
         }
@@ -171,6 +213,7 @@ impl Clipmap {
             self.views.primary_weight = weight;
         } else {
             self.view_mut(id)?.weight = weight;
+            self.cache.memory().set_view_weight(id as usize, weight);
         }
         Ok(())
     }
@@ -310,6 +353,30 @@ impl Clipmap {
             let target = super::target_min_lod(&complete);
             let fade = if view.min_lod >= count as f64 { 0 } else { fade };
             view.min_lod = super::next_min_lod(view.min_lod, target, fade);
+        }
+    }
+
+    /// Stores every further view's publication in the image memory (its mapping record), before
+    /// the tick reassigns any slot.
+    pub(super) fn store_view_publications(&self) {
+        for (id, view) in self.views.live() {
+            let Some(centre) = view.centre else { continue };
+            let p = crate::shm::Publication {
+                min_lod: view.min_lod,
+                tick: self.tick,
+                invalid_border: self.border,
+                centre,
+                levels: view
+                    .levels
+                    .iter()
+                    .map(|l| crate::shm::PublishedLevel {
+                        centre: l.frame.centre,
+                        valid: l.published,
+                        updated_tick: l.updated_tick,
+                    })
+                    .collect(),
+            };
+            self.cache.memory().publish_view(id as usize, &p);
         }
     }
 

@@ -62,6 +62,9 @@ pub struct ImageCaches {
     /// Bytes of the levels' tile ranges (a height texture: 16 a slot, each level's page-rounded;
     /// 0 otherwise), included in `bytes`.
     pub tile_range_bytes: u64,
+    /// Bytes of the views block (one record for each further view the service may keep;
+    /// docs/VIEWS.md), included in `bytes`: the only cost of views that share the grids.
+    pub views_block_bytes: u64,
 }
 
 /// The answer.
@@ -139,7 +142,8 @@ pub fn image_caches(
     let levels: Vec<LevelShape> =
         shapes.iter().zip(&grids).map(|(&(size, tile), &grid)| LevelShape { size, tile, grid }).collect();
     let level0_grid = levels[0].grid;
-    let placed = place_with(&Shape { bytes_per_texel: texel_bytes, clip_size: clip, levels }, heights)?;
+    let placed = place_with(&Shape { bytes_per_texel: texel_bytes, clip_size: clip, levels }, heights)
+        .and_then(|p| crate::shm::layout::with_views(p, crate::shm::layout::views::SERVICE_RECORDS))?;
     let tile_range_bytes = placed.levels.iter().map(|l| if l.ranges == 0 { 0 } else { l.slots - l.ranges }).sum();
     Some(ImageCaches {
         tile_size: tile,
@@ -150,6 +154,7 @@ pub fn image_caches(
         slot_bytes: placed.slot_bytes(),
         bytes: placed.total_bytes,
         tile_range_bytes,
+        views_block_bytes: placed.total_bytes - placed.views,
     })
 }
 

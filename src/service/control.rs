@@ -192,6 +192,13 @@ async fn answer(ctx: &Context, line: &[u8], rd: &mut BufReader<tokio::net::unix:
         Request::Budget(ms) => (command(ctx, |tx| Command::Budget(ms, tx)).await, Flow::Continue),
         Request::Border(b) => (command(ctx, |tx| Command::Border(b, tx)).await, Flow::Continue),
         Request::Centre(c) => (command(ctx, |tx| Command::Centre(c, tx)).await, Flow::Continue),
+        Request::ViewAdd(name, w) => (fallible(ctx, |tx| Command::ViewAdd(name, w, tx)).await, Flow::Continue),
+        Request::ViewRemove(name) => (fallible(ctx, |tx| Command::ViewRemove(name, tx)).await, Flow::Continue),
+        Request::ViewCentre(name, c) => (fallible(ctx, |tx| Command::ViewCentre(name, c, tx)).await, Flow::Continue),
+        Request::ViewWeight(name, w) => (fallible(ctx, |tx| Command::ViewWeight(name, w, tx)).await, Flow::Continue),
+        Request::Views => {
+            (format!("OK {}", serde_json::to_string(&ctx.stats().tick.views).unwrap_or_default()), Flow::Continue)
+        }
         Request::PatchFile(path) => (patch(ctx, Patch::File(path.into())).await, Flow::Continue),
         Request::PatchData { bytes, json } => {
             let Some(g) = &ctx.grower else {
@@ -266,6 +273,23 @@ async fn command(ctx: &Context, make: impl FnOnce(oneshot::Sender<String>) -> Co
     }
     match tokio::time::timeout(ctx.limits.reply_timeout, rx).await {
         Ok(Ok(text)) => format!("OK {text}"),
+        Ok(Err(_)) => "ERR the tick loop has stopped".into(),
+        Err(_) => "ERR the tick loop did not answer in time".into(),
+    }
+}
+
+/// [`command`] for a command that may be refused: `OK text` or `ERR why`.
+async fn fallible(
+    ctx: &Context,
+    make: impl FnOnce(oneshot::Sender<Result<String, String>>) -> Command,
+) -> String {
+    let (tx, rx) = oneshot::channel();
+    if let Err(e) = ctx.ticker.send(make(tx)) {
+        return format!("ERR {e}");
+    }
+    match tokio::time::timeout(ctx.limits.reply_timeout, rx).await {
+        Ok(Ok(Ok(text))) => format!("OK {text}"),
+        Ok(Ok(Err(why))) => format!("ERR {why}"),
         Ok(Err(_)) => "ERR the tick loop has stopped".into(),
         Err(_) => "ERR the tick loop did not answer in time".into(),
     }

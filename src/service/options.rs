@@ -61,6 +61,11 @@ pub struct Options {
     /// A growing texture's grower (docs/GROWING.md): the service then replaces rebuilt tiles in
     /// their slots, publishes the growth block, and takes patches on the control socket.
     pub growing: Option<crate::growing::serve::Grower>,
+    /// Further views to start with (docs/VIEWS.md): name and weight each.
+    pub views: Vec<(String, f64)>,
+    /// Level-0 texels by which views may lie apart and all be held whole by the shared grids
+    /// ([`crate::clip::Settings::view_spread`]; 0: grids for one view).
+    pub view_spread: u64,
 }
 
 /// The default control socket of a name: `clipmap-<name>.sock` beside the mapping.
@@ -86,6 +91,8 @@ impl Options {
             paging: crate::paging::PagingOptions::default(),
             control: ControlLimits::default(),
             growing: None,
+            views: Vec::new(),
+            view_spread: 0,
         }
     }
 
@@ -93,6 +100,25 @@ impl Options {
     pub fn check(&self) -> Result<(), ServiceError> {
         let bad = |m: String| Err(ServiceError::BadOption(m));
         crate::shm::check_name(&self.name).map_err(|e| ServiceError::BadOption(e.to_string()))?;
+        for (i, (name, weight)) in self.views.iter().enumerate() {
+            crate::shm::layout::views::check_name(name).map_err(|e| ServiceError::BadOption(format!("--view {name}: {e}")))?;
+            if !(weight.is_finite() && *weight > 0.0) {
+                return bad(format!("--view {name}:{weight}: expected a positive finite weight such as 1 or 3"));
+            }
+            if self.views[..i].iter().any(|(n, _)| n == name) {
+                return bad(format!("--view {name} given twice: each view needs its own name"));
+            }
+        }
+        if self.views.len() >= crate::limits::MAX_VIEWS {
+            return bad(format!(
+                "{} --view options: at most {} views besides main",
+                self.views.len(),
+                crate::limits::MAX_VIEWS - 1
+            ));
+        }
+        if self.view_spread > crate::limits::MAX_TEXTURE_SIZE {
+            return bad(format!("--view-spread {}: expected 0 to {} level-0 texels", self.view_spread, crate::limits::MAX_TEXTURE_SIZE));
+        }
         if !(self.tick_hz.is_finite() && self.tick_hz >= 1.0 && self.tick_hz <= 1000.0) {
             return bad(format!("--tick-hz {}: expected 1 to 1000 ticks per second", self.tick_hz));
         }

@@ -22,6 +22,16 @@ pub enum Request {
     Border(u64),
     /// `CENTRE <s> <t>` (or `CENTER`): the level-0 clip centre.
     Centre([i64; 2]),
+    /// `VIEW ADD <name> [<weight>]`: a further view (docs/VIEWS.md), weight 1 by default.
+    ViewAdd(String, f64),
+    /// `VIEW REMOVE <name>`.
+    ViewRemove(String),
+    /// `VIEW CENTRE <name> <s> <t>` (or `CENTER`): a view's level-0 centre (`main`: the primary).
+    ViewCentre(String, [i64; 2]),
+    /// `VIEW WEIGHT <name> <weight>`.
+    ViewWeight(String, f64),
+    /// `VIEWS`: `OK {json}`, the views and their figures.
+    Views,
     /// `QUIT`: closes this connection.
     Quit,
     /// `SHUTDOWN`: stops the service.
@@ -43,7 +53,7 @@ pub use crate::limits::MAX_BUDGET_MS;
 
 /// The commands, for error messages.
 pub(crate) const COMMANDS: &str =
-    "PING, STATUS, STATS, STATS PROM, BUDGET <ms>|off, BORDER <texels>, CENTRE <s> <t>, PATCH FILE <path>, PATCH DATA <bytes> <json>, QUIT, SHUTDOWN";
+    "PING, STATUS, STATS, STATS PROM, BUDGET <ms>|off, BORDER <texels>, CENTRE <s> <t>, VIEW ..., VIEWS, PATCH FILE <path>, PATCH DATA <bytes> <json>, QUIT, SHUTDOWN";
 
 /// Why a request line was refused; its text is the message of the `ERR` reply (words quoted
 /// from the request are cut to 40 characters).
@@ -80,6 +90,9 @@ pub enum BadRequest {
     /// No such command.
     #[error("unknown command `{0}`; expected one of {COMMANDS}")]
     Unknown(String),
+    /// A `VIEW` request of the wrong shape, or a bad name or weight.
+    #[error("{0}; usage: VIEW ADD <name> [<weight>], VIEW REMOVE <name>, VIEW CENTRE <name> <s> <t>, VIEW WEIGHT <name> <weight>")]
+    View(String),
     /// A `PATCH` request of the wrong shape.
     #[error("usage: PATCH FILE <path of a sidecar .json> or PATCH DATA <bytes> <json description> followed by the bytes ({0})")]
     Patch(String),
@@ -148,9 +161,53 @@ pub fn parse(line: &[u8]) -> Result<Request, BadRequest> {
                 _ => Err(BadRequest::Patch(format!("got {} argument(s)", args.len()))),
             }
         }
+        "VIEW" => view(args),
+        "VIEWS" => arity(0, "VIEWS").map(|_| Request::Views),
         "QUIT" => arity(0, "QUIT").map(|_| Request::Quit),
         "SHUTDOWN" => arity(0, "SHUTDOWN").map(|_| Request::Shutdown),
         _ => Err(BadRequest::Unknown(clip(&cmd))),
+    }
+}
+
+/// `VIEW ...` (the words after `VIEW`).
+fn view(args: &[&str]) -> Result<Request, BadRequest> {
+    let bad = |why: String| BadRequest::View(why);
+    let name = |w: &str, main_ok: bool| -> Result<String, BadRequest> {
+        if main_ok && w == crate::shm::layout::views::PRIMARY_NAME {
+            return Ok(w.to_string());
+        }
+        crate::shm::layout::views::check_name(w).map_err(|why| bad(clip_owned(why)))?;
+        Ok(w.to_string())
+    };
+    let weight = |w: &str| -> Result<f64, BadRequest> {
+        match w.parse::<f64>() {
+            Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+            _ => Err(bad(format!("weight `{}`: expected a positive finite number such as 1 or 3", clip(w)))),
+        }
+    };
+    let sub = args.first().map(|w| w.to_ascii_uppercase());
+    match (sub.as_deref(), &args[1.min(args.len())..]) {
+        (Some("ADD"), [n]) => Ok(Request::ViewAdd(name(n, false)?, 1.0)),
+        (Some("ADD"), [n, w]) => Ok(Request::ViewAdd(name(n, false)?, weight(w)?)),
+        (Some("REMOVE"), [n]) => Ok(Request::ViewRemove(name(n, false)?)),
+        (Some("CENTRE" | "CENTER"), [n, s, t]) => {
+            let p = |w: &str| w.parse::<i64>().map_err(|_| bad(format!("`{}` is not an integer", clip(w))));
+            Ok(Request::ViewCentre(name(n, true)?, [p(s)?, p(t)?]))
+        }
+        (Some("WEIGHT"), [n, w]) => Ok(Request::ViewWeight(name(n, true)?, weight(w)?)),
+        (Some(other @ ("ADD" | "REMOVE" | "CENTRE" | "CENTER" | "WEIGHT")), rest) => {
+            Err(bad(format!("VIEW {other} with {} argument(s)", rest.len())))
+        }
+        (Some(other), _) => Err(bad(format!("unknown VIEW command `{}`", clip(other)))),
+        (None, _) => Err(bad("VIEW alone".to_string())),
+    }
+}
+
+fn clip_owned(s: String) -> String {
+    if s.chars().count() > 200 {
+        s.chars().take(200).collect()
+    } else {
+        s
     }
 }
 
@@ -191,6 +248,13 @@ mod tests {
             ("center 1 2", Request::Centre([1, 2])),
             ("  QUIT  ", Request::Quit),
             ("SHUTDOWN", Request::Shutdown),
+            ("VIEW ADD left", Request::ViewAdd("left".into(), 1.0)),
+            ("view add sensor.1 3", Request::ViewAdd("sensor.1".into(), 3.0)),
+            ("VIEW REMOVE left", Request::ViewRemove("left".into())),
+            ("VIEW CENTRE left -5 7", Request::ViewCentre("left".into(), [-5, 7])),
+            ("VIEW center main 1 2", Request::ViewCentre("main".into(), [1, 2])),
+            ("VIEW WEIGHT right 0.5", Request::ViewWeight("right".into(), 0.5)),
+            ("VIEWS", Request::Views),
             ("PATCH FILE /tmp/a b.json", Request::PatchFile("/tmp/a b.json".into())),
             (
                 "patch data 12 {\"bbox\": [0, 0, 1, 1]}",
@@ -222,6 +286,19 @@ mod tests {
             (b"PATCH FILE", "usage: PATCH FILE"),
             (b"PATCH DATA x {}", "`x` is not a byte count"),
             (b"PATCH DATA 3 nojson", "no JSON description"),
+            (b"VIEW", "VIEW alone"),
+            (b"VIEW JUMP a", "unknown VIEW command `JUMP`"),
+            (b"VIEW ADD", "VIEW ADD with 0 argument(s)"),
+            (b"VIEW ADD main", "the primary view's own"),
+            (b"VIEW ADD a/b", "expected 1 to 31 of"),
+            (b"VIEW ADD abcdefghijklmnopqrstuvwxyz0123456", "expected 1 to 31 of"),
+            (b"VIEW ADD a 0", "weight `0`"),
+            (b"VIEW ADD a NaN", "weight `NaN`"),
+            (b"VIEW ADD a -2", "weight `-2`"),
+            (b"VIEW REMOVE main", "the primary view's own"),
+            (b"VIEW CENTRE a 1", "VIEW CENTRE with 2 argument(s)"),
+            (b"VIEW CENTRE a 1 x", "`x` is not an integer"),
+            (b"VIEWS x", "takes 0 arguments"),
         ];
         for (line, want) in cases {
             let err = parse(line).unwrap_err().to_string();

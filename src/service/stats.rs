@@ -71,6 +71,9 @@ pub struct TickStats {
     /// most requests in flight to one endpoint; `null` for local files.
     #[cfg(feature = "remote")]
     pub remote: Option<crate::source::remote::RemoteStats>,
+    /// Each view (docs/VIEWS.md), the primary (`main`) first: its name, weight, centre, min LOD
+    /// and published regions.
+    pub views: Vec<ViewStats>,
 }
 
 /// The control server's counters (plain atomics: connections update them concurrently).
@@ -380,4 +383,21 @@ mod tests {
         let ones = text.lines().filter(|l| l.starts_with("clipmapd_paging_reason") && l.ends_with(" 1")).count();
         assert_eq!(ones, 2, "one current reason a level");
     }
+}
+
+/// One view's figures in `STATS` and `VIEWS`.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ViewStats {
+    /// Its name (`main`: the primary).
+    pub name: String,
+    /// Its weight.
+    pub weight: f64,
+    /// Its level-0 centre as the last tick applied it (`null` before its first).
+    pub centre: Option<[i64; 2]>,
+    /// Its min LOD.
+    pub min_lod: f64,
+    /// Its levels renderers may not use now.
+    pub levels_disabled: u64,
+    /// Its published valid region per level, `[s0, t0, s1, t1]`.
+    pub valid: Vec<[i64; 4]>,
 }

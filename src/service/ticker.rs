@@ -10,7 +10,7 @@
 
 use super::stats::TickStats;
 use super::{Options, ServiceError};
-use crate::clip::{Clipmap, Settings};
+use crate::clip::{Clipmap, Settings, ViewId, PRIMARY};
 use crate::paging::adaptive::{LevelPaging, Reason};
 use crate::shm::Writer;
 use crate::source::TileSource;
@@ -32,6 +32,14 @@ pub enum Command {
     Border(u64, oneshot::Sender<String>),
     /// Moves the clip centre (level-0 texels).
     Centre([i64; 2], oneshot::Sender<String>),
+    /// Adds a named view of a weight (docs/VIEWS.md); replies `Err` with why not.
+    ViewAdd(String, f64, oneshot::Sender<Result<String, String>>),
+    /// Removes a view.
+    ViewRemove(String, oneshot::Sender<Result<String, String>>),
+    /// Moves a view's centre (`main`: the primary's, as `Centre`).
+    ViewCentre(String, [i64; 2], oneshot::Sender<Result<String, String>>),
+    /// Sets a view's weight.
+    ViewWeight(String, f64, oneshot::Sender<Result<String, String>>),
     /// Stops after closing the mapping.
     Stop,
 }
@@ -139,6 +147,16 @@ struct Runner {
     growing: Option<(Arc<crate::growing::serve::Served>, Option<crate::shm::layout::Growth>)>,
     /// Each level's paging reason as last logged (the log says when one changes).
     reasons: Vec<Reason>,
+    /// Each further view's centre and velocity as asked for, and its last request's count.
+    view_state: std::collections::BTreeMap<ViewId, ViewState>,
+}
+
+/// A further view's centre as asked for (socket or request record).
+#[derive(Clone, Debug, Default)]
+struct ViewState {
+    centre: Option<[i64; 2]>,
+    velocity: Option<[i64; 2]>,
+    last_request: u64,
 }
 
 impl Runner {
@@ -156,6 +174,7 @@ impl Runner {
             centre_alignment: o.centre_alignment,
             ..Settings::default().with_paging(&o.paging)
         };
+        settings.view_spread = o.view_spread;
         if o.growing.is_some() {
             // A growing texture's tile without data is read again when data arrives for it
             // (`Clipmap::refresh`), not on a timer.
@@ -165,6 +184,7 @@ impl Runner {
         let shape = Clipmap::shape_for(&desc, &settings);
         let heights = source.heights().map(|h| crate::shm::layout::Heights::of(&h.format, h.levels));
         let placement = crate::shm::layout::place_with(&shape, heights.is_some())
+            .and_then(|p| crate::shm::layout::with_views(p, crate::shm::layout::views::SERVICE_RECORDS))
             .ok_or_else(|| crate::clip::ClipError::Memory(crate::shm::memory::shape_error(&shape)))?;
         let limit = settings.limits.cache_bytes as u64;
         let needed = placement.total_bytes.saturating_add(settings.pool_bytes);
@@ -212,7 +232,15 @@ impl Runner {
             started: Instant::now(),
             growing: o.growing.as_ref().map(|g| (g.served().clone(), None)),
             reasons: Vec::new(),
+            view_state: Default::default(),
         };
+        let mut runner = runner;
+        for (name, weight) in &o.views {
+            if let Err(why) = runner.add_view(name, *weight) {
+                runner.writer.close();
+                return Err(ServiceError::BadOption(format!("--view {name}: {why}")));
+            }
+        }
         Ok((runner, started))
     }
 
@@ -278,7 +306,84 @@ impl Runner {
                 self.stats.socket_centres += 1;
                 let _ = reply.send(format!("centre {} {}", c[0], c[1]));
             }
+            Command::ViewAdd(name, weight, reply) => {
+                let r = self.add_view(&name, weight);
+                let _ = reply.send(r);
+            }
+            Command::ViewRemove(name, reply) => {
+                let r = match self.clipmap.view_named(&name).filter(|&id| id != PRIMARY) {
+                    None => Err(self.no_view(&name)),
+                    Some(id) => {
+                        self.view_state.remove(&id);
+                        self.clipmap.remove_view(id).map(|()| format!("view {name} removed")).map_err(|e| e.to_string())
+                    }
+                };
+                if r.is_ok() {
+                    tracing::info!(view = %name, "view removed");
+                }
+                let _ = reply.send(r);
+            }
+            Command::ViewCentre(name, c, reply) => {
+                let r = match self.clipmap.view_named(&name) {
+                    None => Err(self.no_view(&name)),
+                    Some(PRIMARY) => {
+                        self.centre = c;
+                        self.velocity = None;
+                        self.stats.request_velocity = None;
+                        self.stats.socket_centres += 1;
+                        Ok(format!("view main centre {} {}", c[0], c[1]))
+                    }
+                    Some(id) => {
+                        let st = self.view_state.entry(id).or_default();
+                        st.centre = Some(c);
+                        st.velocity = None;
+                        self.stats.socket_centres += 1;
+                        Ok(format!("view {name} centre {} {}", c[0], c[1]))
+                    }
+                };
+                let _ = reply.send(r);
+            }
+            Command::ViewWeight(name, w, reply) => {
+                let r = match self.clipmap.view_named(&name) {
+                    None => Err(self.no_view(&name)),
+                    Some(id) => self
+                        .clipmap
+                        .set_view_weight(id, w)
+                        .map(|()| format!("view {name} weight {w}"))
+                        .map_err(|e| e.to_string()),
+                };
+                let _ = reply.send(r);
+            }
             Command::Stop => {}
+        }
+    }
+
+    /// Adds a named view, centred where the primary is until it is told otherwise.
+    fn add_view(&mut self, name: &str, weight: f64) -> Result<String, String> {
+        let id = self.clipmap.add_named_view(name, weight).map_err(|e| e.to_string())?;
+        self.view_state.insert(id, ViewState { centre: Some(self.centre), ..ViewState::default() });
+        tracing::info!(view = %name, weight, "view added");
+        Ok(format!("view {name} added, weight {weight}"))
+    }
+
+    /// The error for a view name no view has, naming those that exist.
+    fn no_view(&self, name: &str) -> String {
+        let names: Vec<&str> = self.clipmap.view_ids().into_iter().filter_map(|id| self.clipmap.view_name(id)).collect();
+        format!("no view `{name}`: the views are {}", names.join(", "))
+    }
+
+    /// Takes each further view's request record (docs/SHM.md, "Asking for a view's centre"):
+    /// a new request for the view's current incarnation moves it.
+    fn take_view_requests(&mut self) {
+        let reqs = self.writer.view_requests();
+        for (id, st) in self.view_state.iter_mut() {
+            let Some(req) = reqs.get(*id as usize - 1).copied().flatten() else { continue };
+            let incarnation = self.writer.memory().view_incarnation(*id as usize);
+            if req.count != st.last_request && Some(req.incarnation) == incarnation {
+                st.last_request = req.count;
+                st.centre = Some(req.centre);
+                st.velocity = velocity_per_tick(req.velocity, self.hz);
+            }
         }
     }
 
@@ -301,8 +406,15 @@ impl Runner {
                 served.retain_partial(|t| c.holds(t));
             }
         }
+        self.take_view_requests();
+        for (&id, st) in &self.view_state {
+            if let Some(c) = st.centre {
+                let _ = self.clipmap.move_view(id, c, st.velocity);
+            }
+        }
         let t0 = Instant::now();
         let report = self.clipmap.tick(self.centre, self.velocity);
+        self.stats.views = self.view_stats();
         if let Some((served, last)) = &mut self.growing {
             let (_, mut g) = served.growth();
             g.tiles_replaced = self.clipmap.stats().tiles_replaced;
@@ -332,6 +444,31 @@ impl Runner {
         }
         log_reason_changes(&mut self.reasons, &s.engine.paging, s.engine.read_latency_ticks, s.engine.ticks);
         self.stats_tx.send_replace(s.clone());
+    }
+}
+
+impl Runner {
+    /// Each view's figures, the primary first.
+    fn view_stats(&self) -> Vec<super::stats::ViewStats> {
+        let m = &self.clipmap;
+        m.view_ids()
+            .into_iter()
+            .map(|id| {
+                let levels = m.level_count();
+                let min_lod = m.view_min_lod(id).unwrap_or(levels as f64);
+                super::stats::ViewStats {
+                    name: m.view_name(id).unwrap_or("").to_string(),
+                    weight: m.view_weight(id).unwrap_or(1.0),
+                    centre: m.view_centre(id).ok().flatten(),
+                    min_lod,
+                    levels_disabled: (0..levels as u32).filter(|&k| ((k + 1) as f64) <= min_lod).count() as u64,
+                    valid: (0..levels as u32)
+                        .map(|k| m.view_level(id, k).map(|l| l.valid).unwrap_or(crate::geom::Rect::EMPTY))
+                        .map(|r| [r.s0, r.t0, r.s1, r.t1])
+                        .collect(),
+                }
+            })
+            .collect()
     }
 }
 

@@ -148,6 +148,10 @@ pub enum ReadError {
     /// The published state is outside its bounds: the mapping is corrupt or hostile.
     #[error("corrupt mapping: {0}")]
     Corrupt(String),
+    /// The view the client is bound to was removed from the service (its record freed or given
+    /// to another view): bind to a view again ([`Client::bind_view`]).
+    #[error("view `{0}` was removed from the service: bind to a view that exists (Client::view_names)")]
+    ViewRemoved(String),
 }
 
 /// A reader attached to one mapping.
@@ -171,6 +175,11 @@ pub struct Client {
     /// Whether the texels are heights, and their scale, offset, nodata value and level rule (the
     /// header's heights block, checked at attach); `None` for a texture that is not heights.
     pub heights: Option<layout::Heights>,
+    /// The views block (checked at attach): its offset and record count; `None` when the mapping
+    /// has none (only the primary view, `main`).
+    pub(super) views: Option<(usize, usize)>,
+    /// The view the snapshot is read from (`None`: the primary, `main`).
+    pub(super) view: Option<super::client_views::Binding>,
 }
 
 impl std::fmt::Debug for Client {
@@ -204,11 +213,11 @@ fn open_regular(path: &Path, write: bool) -> Result<std::fs::File, ShmError> {
 }
 
 /// Whether `pid` names a live process (0 never does).
-fn process_alive(pid: u32) -> bool {
+pub(super) fn process_alive(pid: u32) -> bool {
     pid != 0 && Path::new(&format!("/proc/{pid}")).exists()
 }
 
-fn invalid(path: &Path, reason: impl Into<String>) -> ShmError {
+pub(super) fn invalid(path: &Path, reason: impl Into<String>) -> ShmError {
     ShmError::Invalid { path: path.to_path_buf(), reason: reason.into() }
 }
 
@@ -379,7 +388,10 @@ impl Client {
             end = slots_end.unwrap_or(total);
             levels.push(d);
         }
+        let views = super::client_views::check_block(&region, end, total).map_err(|why| invalid(path, why))?;
         Ok(Client {
+            views,
+            view: None,
             inode: (meta.dev(), meta.ino()),
             generation: region.read_u64(header::GENERATION),
             format_code,
@@ -422,7 +434,7 @@ impl Client {
     /// bounds.
     pub fn try_snapshot(&self) -> Result<Snapshot, ReadError> {
         let r = &self.region;
-        let b = header::SNAPSHOT;
+        let b = self.snapshot_base();
         let read = || {
             let g = |o: usize| r.load(b + o, Ordering::Relaxed);
             let mut snap = Snapshot {
@@ -454,6 +466,8 @@ impl Client {
         };
         let (seq, (mut snap, enabled_codes)) = self.seqlocked(b + snapshot::SEQ, read).ok_or(ReadError::Busy(0))?;
         snap.seq = seq;
+        // A view's snapshot counts only while the view is still the one bound (read after it).
+        self.check_bound()?;
         self.check_snapshot(&snap, &enabled_codes)?;
         Ok(snap)
     }
@@ -464,7 +478,7 @@ impl Client {
     ///
     /// Between two attempts that found the counter odd it gives the processor away
     /// (`yield_now`): the writer may have been descheduled while it holds the lock.
-    fn seqlocked<T>(&self, seq: usize, mut read: impl FnMut() -> T) -> Option<(u64, T)> {
+    pub(super) fn seqlocked<T>(&self, seq: usize, mut read: impl FnMut() -> T) -> Option<(u64, T)> {
         let r = &self.region;
         for _ in 0..MAX_RETRIES {
             tally!(locked_attempts);
@@ -814,6 +828,9 @@ impl Client {
     /// when another renderer that is still alive held the request lock for
     /// [`request_lock::WAIT_MS`](layout::request_lock::WAIT_MS) (try again next frame).
     pub fn request_centre(&self, centre: [i64; 2], velocity: [f64; 2]) -> bool {
+        if let Some(b) = &self.view {
+            return self.request_view_centre(b, centre, velocity);
+        }
         use layout::request_lock as lock;
         let Some(r) = &self.request else { return false };
         let pid = std::process::id();

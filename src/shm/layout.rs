@@ -63,6 +63,9 @@ pub mod header {
     pub const FLAGS: usize = 88;
     /// `u64` the tick period in nanoseconds (the tick rate is 1e9 / this).
     pub const TICK_PERIOD_NS: usize = 96;
+    /// `u64` byte offset of the views block ([`super::views`]; a multiple of 4096 after every
+    /// level's slots), 0 when the mapping has none.
+    pub const VIEWS_OFFSET: usize = 104;
     /// The snapshot: every level's state and min LOD under one seqlock.
     pub const SNAPSHOT: usize = 128;
     /// Level descriptors (static after creation), [`super::DESC_BYTES`] each.
@@ -419,6 +422,109 @@ impl SlotState {
     }
 }
 
+/// The views block (docs/SHM.md, "Views"): further views' names, weights and snapshots, at the
+/// header's [`header::VIEWS_OFFSET`]. Added to layout 2 without changing its version (a reader
+/// that ignores it reads the primary view, `main`, at [`header::SNAPSHOT`]); it has its own.
+pub mod views {
+    /// `[u8; 8]` magic.
+    pub const MAGIC: usize = 0;
+    /// `u32` views block version.
+    pub const VERSION: usize = 8;
+    /// `u32` view records in the block.
+    pub const RECORDS: usize = 12;
+    /// `u32` bytes of one record.
+    pub const RECORD_BYTES_AT: usize = 16;
+    /// Where record 0 starts.
+    pub const FIRST: usize = 64;
+    /// The magic bytes.
+    pub const MAGIC_BYTES: [u8; 8] = *b"CLIPVIEW";
+    /// This block's version.
+    pub const BLOCK_VERSION: u32 = 1;
+    /// Bytes of one record: its fields, then its snapshot.
+    pub const RECORD_BYTES: usize = SNAPSHOT + super::header::LEVEL_DESCS - super::header::SNAPSHOT;
+    /// Most records a block may have.
+    pub const MAX_RECORDS: usize = 64;
+    /// Records the service's mappings have: one per further view the engine keeps.
+    pub const SERVICE_RECORDS: usize = 15;
+    const _: () = assert!(SERVICE_RECORDS == crate::limits::MAX_VIEWS - 1);
+    /// Most bytes of a view's name (NUL-padded to [`NAME_BYTES`]).
+    pub const MAX_NAME: usize = 31;
+    /// The name of the primary view.
+    pub const PRIMARY_NAME: &str = "main";
+
+    /// Record fields, relative to the record.
+    /// `u64` the record's sequence counter (odd while the writer changes fields 0..128).
+    pub const SEQ: usize = 0;
+    /// `u64` 0 free, 1 live.
+    pub const STATE: usize = 8;
+    /// `u64` incremented each time the record is given to a view.
+    pub const INCARNATION: usize = 16;
+    /// `f64` bits: the view's weight.
+    pub const WEIGHT: usize = 24;
+    /// `[u8; 32]` the name, NUL-padded, as four `u64` words.
+    pub const NAME: usize = 64;
+    /// Bytes of the name field.
+    pub const NAME_BYTES: usize = 32;
+    /// The view's snapshot, laid out as the one at [`super::header::SNAPSHOT`].
+    pub const SNAPSHOT: usize = 128;
+
+    /// Bytes of a block of `records` records, page-rounded.
+    pub fn block_bytes(records: usize) -> u64 {
+        ((FIRST + records * RECORD_BYTES) as u64).div_ceil(super::PAGE) * super::PAGE
+    }
+
+    /// Offset of record `r` from the block.
+    pub fn record(r: usize) -> usize {
+        FIRST + r * RECORD_BYTES
+    }
+
+    /// Request records in the request mapping: one per view record, at
+    /// [`REQUEST_BASE`] + [`REQUEST_RECORD_BYTES`] x r.
+    pub const REQUEST_BASE: usize = 512;
+    /// Bytes of one request record.
+    pub const REQUEST_RECORD_BYTES: usize = 64;
+    /// Most request records the request mapping holds.
+    pub const MAX_REQUEST_RECORDS: usize = (super::REQUEST_BYTES as usize - REQUEST_BASE) / REQUEST_RECORD_BYTES;
+    /// Request record fields, relative to the record: the lock word (as
+    /// [`super::request::SEQ`]).
+    pub const REQ_SEQ: usize = 0;
+    /// `i64` requested centre s.
+    pub const REQ_CENTRE_S: usize = 8;
+    /// `i64` requested centre t.
+    pub const REQ_CENTRE_T: usize = 16;
+    /// `f64` bits: velocity s (level-0 texels per second).
+    pub const REQ_VEL_S: usize = 24;
+    /// `f64` bits: velocity t.
+    pub const REQ_VEL_T: usize = 32;
+    /// `u64` requester's process id.
+    pub const REQ_CLIENT_PID: usize = 40;
+    /// `u64` requests made.
+    pub const REQ_COUNT: usize = 48;
+    /// `u64` the incarnation of the view the request is for.
+    pub const REQ_INCARNATION: usize = 56;
+
+    /// Offset of request record `r` in the request mapping.
+    pub fn request(r: usize) -> usize {
+        REQUEST_BASE + r * REQUEST_RECORD_BYTES
+    }
+
+    /// Whether `name` is one a view may have: 1 to [`MAX_NAME`] of `A-Z a-z 0-9 - _ .`, and not
+    /// [`PRIMARY_NAME`] (the primary view's). `Err` says what is wrong and what is expected.
+    pub fn check_name(name: &str) -> Result<(), String> {
+        if name == PRIMARY_NAME {
+            return Err(format!("view name `{name}` is the primary view's own; choose another for a further view"));
+        }
+        let ok = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.');
+        if name.is_empty() || name.len() > MAX_NAME || !name.chars().all(ok) {
+            let shown: String = name.chars().take(40).collect();
+            return Err(format!(
+                "view name `{shown}`: expected 1 to {MAX_NAME} of A-Z a-z 0-9 - _ . (such as left, right or sensor.1)"
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Request mapping fields (its own small file, written by renderers).
 pub mod request {
     /// `[u8; 8]` magic `CLIPREQ2`.
@@ -567,6 +673,10 @@ pub struct Placement {
     pub header_bytes: u64,
     /// Per level.
     pub levels: Vec<LevelPlace>,
+    /// Byte offset of the views block ([`views`]; 0: none).
+    pub views: u64,
+    /// View records in the views block (0: none).
+    pub view_records: u64,
     /// Whole mapping.
     pub total_bytes: u64,
 }
@@ -650,7 +760,20 @@ pub fn place_with(shape: &Shape, ranges: bool) -> Option<Placement> {
         levels.push(LevelPlace { tags, slots, slot_bytes, slot_count, kind, ranges: ranges_at });
         at = round(slots.checked_add(slot_count.checked_mul(slot_bytes)?)?)?;
     }
-    Some(Placement { header_bytes, levels, total_bytes: at })
+    Some(Placement { header_bytes, levels, views: 0, view_records: 0, total_bytes: at })
+}
+
+/// `p` with a views block of `records` records (1..=[`views::MAX_RECORDS`]) after its last
+/// level: the service's mappings ([`views::SERVICE_RECORDS`]). `None` when `records` is out of
+/// range or the size overflows.
+pub fn with_views(mut p: Placement, records: usize) -> Option<Placement> {
+    if records == 0 || records > views::MAX_RECORDS {
+        return None;
+    }
+    p.views = p.total_bytes;
+    p.view_records = records as u64;
+    p.total_bytes = p.total_bytes.checked_add(views::block_bytes(records))?;
+    Some(p)
 }
 
 /// Whether a published valid region is one a writer of this layout publishes for a level of

@@ -95,9 +95,10 @@ pub struct ImageMemory {
     claims: Vec<Vec<AtomicU64>>,
     /// Per level and slot: the key of the tile assigned.
     keys: Vec<Vec<AtomicU64>>,
-    /// Per level, the tiles under the region of the snapshot published last (the writer's own
-    /// record, to check its invariant at every assignment).
-    published_tiles: std::sync::Mutex<Vec<Rect>>,
+    /// Per view (0 the primary, v the further view v) and level, the tiles under the region of
+    /// the snapshot published last (the writer's own record, to check its invariant, for every
+    /// view at once, at every assignment).
+    published_tiles: std::sync::Mutex<Vec<Vec<Rect>>>,
     /// Assignments of a slot whose settled tile the current snapshot still covers (the writer's
     /// invariant says: never).
     violations: AtomicU64,
@@ -152,7 +153,7 @@ impl ImageMemory {
             placement.levels.iter().map(|l| (0..l.slot_count).map(|_| AtomicU64::new(v)).collect()).collect()
         };
         let (claims, keys) = (per_slot(UNASSIGNED), per_slot(NO_TILE));
-        let published_tiles = std::sync::Mutex::new(vec![Rect::EMPTY; shape.levels.len()]);
+        let published_tiles = std::sync::Mutex::new(vec![vec![Rect::EMPTY; shape.levels.len()]]);
         ImageMemory { region, placement, shape, claims, keys, published_tiles, violations: AtomicU64::new(0), heights }
     }
 
@@ -211,7 +212,21 @@ impl ImageMemory {
         }
         // Before the first tick nothing may be used: min LOD is the level count.
         let s = header::SNAPSHOT;
-        r.store(s + snapshot::MIN_LOD, (self.shape.levels.len() as f64).to_bits(), Ordering::Relaxed);
+        let none = (self.shape.levels.len() as f64).to_bits();
+        r.store(s + snapshot::MIN_LOD, none, Ordering::Relaxed);
+        // The views block: every record free, its snapshot showing nothing.
+        if self.placement.views != 0 {
+            use layout::views as v;
+            let b = self.placement.views as usize;
+            put64(header::VIEWS_OFFSET, self.placement.views);
+            put64(b + v::MAGIC, u64::from_le_bytes(v::MAGIC_BYTES));
+            put32(b + v::VERSION, v::BLOCK_VERSION);
+            put32(b + v::RECORDS, self.placement.view_records as u32);
+            put32(b + v::RECORD_BYTES_AT, v::RECORD_BYTES as u32);
+            for rec in 0..self.placement.view_records as usize {
+                r.store(b + v::record(rec) + v::SNAPSHOT + snapshot::MIN_LOD, none, Ordering::Relaxed);
+            }
+        }
         // The magic last, with a release store: a reader that loads it (acquire) sees every
         // field above.
         r.store(header::MAGIC, u64::from_le_bytes(layout::MAGIC), Ordering::Release);
@@ -261,7 +276,8 @@ impl ImageMemory {
         let old = self.keys[k][slot as usize].load(Ordering::Acquire);
         if state_of(now) == SETTLED && old != NO_TILE {
             let [s, t] = tile_of_key(old);
-            let covered = self.published_tiles.lock().map(|p| p[k].contains(s, t)).unwrap_or(false);
+            let covered =
+                self.published_tiles.lock().map(|p| p.iter().any(|v| v[k].contains(s, t))).unwrap_or(false);
             if covered {
                 self.violations.fetch_add(1, Ordering::Relaxed);
             }
@@ -442,13 +458,110 @@ impl ImageMemory {
 
     /// Publishes the whole state of a tick under the snapshot's seqlock.
     pub(crate) fn publish(&self, p: &Publication) {
+        self.publish_view(0, p);
+    }
+
+    /// Byte offset of view `view`'s record (`None`: the primary, 0, has none; or the mapping
+    /// has no record for it).
+    fn view_record(&self, view: usize) -> Option<usize> {
+        let r = view.checked_sub(1)?;
+        (self.placement.views != 0 && (r as u64) < self.placement.view_records)
+            .then(|| self.placement.views as usize + layout::views::record(r))
+    }
+
+    /// Publishes view `view`'s state of a tick under its snapshot's seqlock: the primary's (0) at
+    /// the header's snapshot, a further view's in its record (kept only in the writer's own
+    /// record of published tiles when the mapping has no record for it).
+    pub(crate) fn publish_view(&self, view: usize, p: &Publication) {
         if let Ok(mut tiles) = self.published_tiles.lock() {
+            if tiles.len() <= view {
+                tiles.resize(view + 1, vec![Rect::EMPTY; self.shape.levels.len()]);
+            }
             for (k, l) in p.levels.iter().enumerate() {
-                tiles[k] = crate::geom::tiles_covering(l.valid, self.shape.levels[k].tile);
+                tiles[view][k] = crate::geom::tiles_covering(l.valid, self.shape.levels[k].tile);
             }
         }
+        let b = match view {
+            0 => header::SNAPSHOT,
+            v => match self.view_record(v) {
+                Some(rec) => rec + layout::views::SNAPSHOT,
+                None => return,
+            },
+        };
+        self.store_snapshot(b, p);
+    }
+
+    /// A further view's regions stop counting for the invariant (the view was removed), and its
+    /// record, if any, is freed: its snapshot shows nothing, its state says free.
+    pub(crate) fn close_view(&self, view: usize) {
+        if let Ok(mut tiles) = self.published_tiles.lock() {
+            if let Some(t) = tiles.get_mut(view) {
+                t.iter_mut().for_each(|r| *r = Rect::EMPTY);
+            }
+        }
+        let Some(rec) = self.view_record(view) else { return };
+        use layout::views as v;
         let r = &self.region;
-        let b = header::SNAPSHOT;
+        self.record_locked(rec, || r.store(rec + v::STATE, 0, Ordering::Relaxed));
+        let levels = self.shape.levels.len();
+        let empty = Publication {
+            min_lod: levels as f64,
+            levels: vec![PublishedLevel::default(); levels],
+            ..Publication::default()
+        };
+        self.store_snapshot(rec + v::SNAPSHOT, &empty);
+    }
+
+    /// Gives view `view`'s record to a view named `name` (checked by the caller) of weight
+    /// `weight`: returns its new incarnation, or `None` when the mapping has no record for it.
+    pub(crate) fn open_view(&self, view: usize, name: &str, weight: f64) -> Option<u64> {
+        let rec = self.view_record(view)?;
+        use layout::views as v;
+        let r = &self.region;
+        let mut bytes = [0u8; v::NAME_BYTES];
+        let n = name.len().min(v::MAX_NAME);
+        bytes[..n].copy_from_slice(&name.as_bytes()[..n]);
+        let incarnation = r.load(rec + v::INCARNATION, Ordering::Relaxed).wrapping_add(1);
+        self.record_locked(rec, || {
+            r.store(rec + v::STATE, 1, Ordering::Relaxed);
+            r.store(rec + v::INCARNATION, incarnation, Ordering::Relaxed);
+            r.store(rec + v::WEIGHT, weight.to_bits(), Ordering::Relaxed);
+            for (i, w) in bytes.chunks_exact(8).enumerate() {
+                r.store(rec + v::NAME + 8 * i, u64::from_le_bytes(w.try_into().expect("8 bytes")), Ordering::Relaxed);
+            }
+        });
+        Some(incarnation)
+    }
+
+    /// A further view's record's incarnation, when its record is live (`None`: no record, or free).
+    pub(crate) fn view_incarnation(&self, view: usize) -> Option<u64> {
+        let rec = self.view_record(view)?;
+        let r = &self.region;
+        (r.load(rec + layout::views::STATE, Ordering::Acquire) == 1)
+            .then(|| r.load(rec + layout::views::INCARNATION, Ordering::Relaxed))
+    }
+
+    /// Sets a further view's weight in its record.
+    pub(crate) fn set_view_weight(&self, view: usize, weight: f64) {
+        let Some(rec) = self.view_record(view) else { return };
+        let r = &self.region;
+        self.record_locked(rec, || r.store(rec + layout::views::WEIGHT, weight.to_bits(), Ordering::Relaxed));
+    }
+
+    /// Runs `write` with the record's sequence counter odd.
+    fn record_locked(&self, rec: usize, write: impl FnOnce()) {
+        let r = &self.region;
+        let at = rec + layout::views::SEQ;
+        let seq = r.load(at, Ordering::Relaxed);
+        r.store(at, seq.wrapping_add(1), Ordering::Relaxed);
+        fence(Ordering::Release);
+        write();
+        r.store(at, seq.wrapping_add(2), Ordering::Release);
+    }
+
+    /// Stores a snapshot at `b` under its seqlock.
+    fn store_snapshot(&self, b: usize, p: &Publication) {
+        let r = &self.region;
         let seq = r.load(b + snapshot::SEQ, Ordering::Relaxed);
         r.store(b + snapshot::SEQ, seq.wrapping_add(1), Ordering::Relaxed);
         fence(Ordering::Release);

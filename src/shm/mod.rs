@@ -11,6 +11,7 @@
 //! and no published valid region covers a slot that is not settled.
 
 pub mod client;
+mod client_views;
 pub mod layout;
 pub mod memory;
 pub mod names;
@@ -60,6 +61,17 @@ pub enum ShmError {
     #[error("invalid name `{0}`: use 1 to 64 letters, digits, `-`, `_` or `.`")]
     BadName(String),
     /// No mapping of this name exists.
+    /// The mapping publishes no view of that name (yet: a service adds its `--view`s just after
+    /// it publishes the mapping).
+    #[error("{}: no view `{view}`: the service publishes {}", path.display(), views.join(", "))]
+    NoView {
+        /// The mapping.
+        path: PathBuf,
+        /// The view asked for.
+        view: String,
+        /// The views there are.
+        views: Vec<String>,
+    },
     #[error("no clip texture `{name}` is published in {}: is the service running (and is --shm-dir the same)?", dir.display())]
     NotFound {
         /// The name.

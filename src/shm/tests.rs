@@ -580,7 +580,13 @@ fn every_byte_the_contract_calls_reserved_is_zero() {
     };
     use layout::{header as h, snapshot as s};
     zero("header: the u32 pid's upper half", h::WRITER_PID + 4..h::HEARTBEAT);
-    zero("header", h::TICK_PERIOD_NS + 8..h::SNAPSHOT);
+    zero("header", h::VIEWS_OFFSET + 8..h::SNAPSHOT);
+    // The views block: its header's reserved bytes, and every free record whole.
+    let vb = u64::from_le_bytes(m[h::VIEWS_OFFSET..h::VIEWS_OFFSET + 8].try_into().unwrap()) as usize;
+    assert!(vb > 0 && vb % 4096 == 0, "the service's mappings have a views block: {vb}");
+    zero("views block", vb + 20..vb + layout::views::FIRST);
+    let rec = vb + layout::views::record(0);
+    zero("free view record", rec..rec + layout::views::SNAPSHOT);
     zero("snapshot", h::SNAPSHOT + s::CENTRE_T + 8..h::SNAPSHOT + s::LEVELS);
     let n = c.levels.len();
     let states = h::SNAPSHOT + s::LEVELS;
@@ -602,7 +608,14 @@ fn every_byte_the_contract_calls_reserved_is_zero() {
         zero("between a level's tags and its slots", tags_end..d.slots as usize);
         end = (d.slots + d.grid[0] * d.grid[1] * d.slot_bytes) as usize;
     }
-    zero("after the last level", end..m.len());
+    zero("after the last level", end..vb);
+    let records = layout::views::SERVICE_RECORDS;
+    for r in 0..records {
+        let rec = vb + layout::views::record(r);
+        zero("a view record's reserved bytes", rec + 32..rec + 64);
+        zero("a free view record's name", rec + 64..rec + 128);
+    }
+    zero("after the views block", vb + layout::views::record(records)..m.len());
     let r = std::fs::read(w.request_path()).unwrap();
     assert_eq!(r.len(), 4096);
     let rzero = |what: &str, x: std::ops::Range<usize>| assert!(r[x.clone()].iter().all(|&b| b == 0), "{what} {x:?}");

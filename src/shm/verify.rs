@@ -37,6 +37,8 @@ pub struct HashCheck {
     /// Snapshots checked for consistency (every level from min LOD up published).
     pub snapshots: u64,
     /// The first failure, described.
+    /// Snapshots refused because the view read was removed from the service.
+    pub view_removed: u64,
     pub first_failure: Option<String>,
 }
 
@@ -57,6 +59,10 @@ impl HashCheck {
             Ok(s) => s,
             Err(ReadError::Corrupt(why)) => {
                 self.fail(format!("inconsistent published state: {why}"));
+                return;
+            }
+            Err(ReadError::ViewRemoved(_)) => {
+                self.view_removed += 1;
                 return;
             }
             Err(_) => {

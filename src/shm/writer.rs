@@ -39,6 +39,19 @@ pub struct Writer {
     req_id: names::Identity,
 }
 
+/// A renderer's request for a further view's centre, as read from its request record.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct ViewRequest {
+    /// Level-0 centre.
+    pub centre: [i64; 2],
+    /// Velocity, level-0 texels per second.
+    pub velocity: [f64; 2],
+    /// Requests made to this record.
+    pub count: u64,
+    /// The view incarnation it is for.
+    pub incarnation: u64,
+}
+
 impl std::fmt::Debug for Writer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Writer").field("path", &self.path).field("shape", self.memory.shape()).finish()
@@ -78,8 +91,11 @@ impl Writer {
         heights: Option<layout::Heights>,
     ) -> Result<Writer, ShmError> {
         check_name(name)?;
-        let placement =
-            layout::place_with(&shape, heights.is_some()).ok_or_else(|| ShmError::Shape(shape_error(&shape)))?;
+        // Every mapping of the service has a views block, one record per further view the engine
+        // may keep (docs/SHM.md, "Views").
+        let placement = layout::place_with(&shape, heights.is_some())
+            .and_then(|p| layout::with_views(p, layout::views::SERVICE_RECORDS))
+            .ok_or_else(|| ShmError::Shape(shape_error(&shape)))?;
         let lock_path = lock_path(dir, name);
         let (lock, lock_made) = open_lock(&lock_path, mode)?;
         let lock_id = names::Identity::of(&lock.metadata().map_err(io(&lock_path))?);
@@ -276,6 +292,39 @@ impl Writer {
             });
         }
         None
+    }
+
+    /// Each view request record's latest consistent request (docs/SHM.md, "Asking for a view's
+    /// centre"), in record order (`None`: no request yet, or it was being written both times it
+    /// was read). Read with `pread`, twice, as [`request`](Self::request) reads the main one.
+    pub(crate) fn view_requests(&self) -> Vec<Option<ViewRequest>> {
+        use layout::views as v;
+        let n = (self.memory.placement().view_records as usize).min(v::MAX_REQUEST_RECORDS);
+        let mut a = [0u8; layout::REQUEST_BYTES as usize];
+        let mut b = [0u8; layout::REQUEST_BYTES as usize];
+        if n == 0 || self.read_requests(&mut a).and_then(|()| self.read_requests(&mut b)).is_err() {
+            return vec![None; n];
+        }
+        let word = |buf: &[u8], o: usize| u64::from_le_bytes(buf[o..o + 8].try_into().expect("8 bytes"));
+        (0..n)
+            .map(|r| {
+                let base = v::request(r);
+                let fields = base..base + v::REQUEST_RECORD_BYTES;
+                if word(&a, base + v::REQ_SEQ) & 1 == 1 || a[fields.clone()] != b[fields] {
+                    return None;
+                }
+                let count = word(&a, base + v::REQ_COUNT);
+                (count > 0).then(|| ViewRequest {
+                    centre: [word(&a, base + v::REQ_CENTRE_S) as i64, word(&a, base + v::REQ_CENTRE_T) as i64],
+                    velocity: [
+                        f64::from_bits(word(&a, base + v::REQ_VEL_S)),
+                        f64::from_bits(word(&a, base + v::REQ_VEL_T)),
+                    ],
+                    count,
+                    incarnation: word(&a, base + v::REQ_INCARNATION),
+                })
+            })
+            .collect()
     }
 
     /// One whole copy of the request mapping, or why there is none.

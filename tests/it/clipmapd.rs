@@ -1075,3 +1075,78 @@ fn a_window_that_moves_past_the_grids_spare_tiles_in_a_tick_says_beyond_grid_and
     assert_eq!(failed, 0, "{failed} wrong texels\n{}\n{}", String::from_utf8_lossy(&out.stderr), svc.dump());
     assert!(passed > 10_000, "only {passed} texels checked");
 }
+
+#[test]
+fn four_views_fly_at_once_read_by_readers_in_rust_c_and_python_every_texel_right() {
+    // Four views of one service (docs/VIEWS.md): `main`; `near`, added on the command line and
+    // driven through its own request record by a Rust reader; `far`, added on the socket and
+    // moved far away (the shared grids cannot hold it whole: it shows coarser levels, never a
+    // wrong texel); `stereo`, on main's centre. A Rust, a C and a Python reader each read one view
+    // while the views move; a fifth view is added mid-flight, read and removed.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "views", &["--budget-ms", "2", "--view", "near:3", "--view-spread", "256"]);
+    let map = d.join("clipmap-views.map");
+    let creader = c_reader(d);
+    assert!(svc.ask("VIEW ADD far 1").starts_with("OK view far added"));
+    assert!(svc.ask("VIEW ADD stereo").starts_with("OK"));
+    assert!(svc.ask("VIEW CENTRE far 60000 3000").starts_with("OK view far centre 60000 3000"));
+    assert!(svc.ask("VIEW ADD near").contains("exists already"), "names are unique");
+    assert!(svc.ask("VIEW REMOVE nobody").contains("no view `nobody`: the views are main, near, far, stereo"));
+    assert!(svc.ask("VIEW ADD main").starts_with("ERR"), "main is the primary's name");
+    let secs = "3";
+    let readers: Vec<(String, Child)> = vec![
+        (
+            "rust main (driving)".into(),
+            rust_reader(d, "views", &["--drive", "--reads", "1000000000000", "--seconds", secs]).spawn().unwrap(),
+        ),
+        (
+            "rust near (driving near)".into(),
+            rust_reader(d, "views", &["--view", "near", "--drive", "--reads", "1000000000000", "--seconds", secs])
+                .spawn()
+                .unwrap(),
+        ),
+        (
+            "c far".into(),
+            Command::new(&creader)
+                .arg(&map)
+                .args(["1000000000000", "5", secs, "--view", "far"])
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap(),
+        ),
+        ("python stereo".into(), python_reader().arg(&map).args(["1000000000000", "7", secs, "--view", "stereo"]).spawn().unwrap()),
+    ];
+    // Mid-flight: a fifth view comes, is read, and goes.
+    std::thread::sleep(Duration::from_millis(700));
+    assert!(svc.ask("VIEW ADD late 2").starts_with("OK"));
+    assert!(svc.ask("VIEW CENTRE late 20000 20000").starts_with("OK"));
+    let late = rust_reader(d, "views", &["--view", "late", "--reads", "1000000000000", "--seconds", "1"]).output().unwrap();
+    let (late_passed, late_failed) = counts(&late, "rust late");
+    assert_eq!(late_failed, 0, "late: {}", String::from_utf8_lossy(&late.stderr));
+    assert!(svc.ask("VIEW REMOVE late").starts_with("OK view late removed"));
+    let gone = rust_reader(d, "views", &["--view", "late", "--seconds", "1"]).output().unwrap();
+    assert!(!gone.status.success() && String::from_utf8_lossy(&gone.stderr).contains("no view `late`"));
+    let mut total = late_passed;
+    for (what, child) in readers {
+        let out = child.wait_with_output().unwrap();
+        let (passed, failed) = counts(&out, &what);
+        assert_eq!(failed, 0, "{what}: {failed} mismatches\n{}\n{}", String::from_utf8_lossy(&out.stderr), svc.dump());
+        assert!(out.status.success(), "{what}: {:?}\n{}", out.status, String::from_utf8_lossy(&out.stderr));
+        assert!(passed > 1_000, "{what}: only {passed} texels checked");
+        total += passed;
+    }
+    eprintln!("five views: {total} texels checked, none wrong");
+    let stats = json_reply(&svc.ask("STATS"));
+    assert_eq!(stats["engine"]["slots_reassigned_under_published"], 0, "{stats}");
+    assert_eq!(stats["engine"]["slots_reassigned_under_views"], 0, "{stats}");
+    let views: Vec<&str> = stats["views"].as_array().unwrap().iter().map(|v| v["name"].as_str().unwrap()).collect();
+    assert_eq!(views, ["main", "near", "far", "stereo"], "{stats}");
+    let list = json_reply(&svc.ask("VIEWS"));
+    let near = &list[1];
+    assert_eq!(near["weight"], 3.0);
+    assert_ne!(near["centre"], list[0]["centre"], "near follows its own requests, not main's: {list}");
+    let far = &list[2];
+    assert!(far["min_lod"].as_f64().unwrap() >= 1.0, "far is not held whole at level 0: {list}");
+}

@@ -1,0 +1,248 @@
+//! The reader's side of views (docs/SHM.md, "Views"): checking the views block at attach, finding
+//! a view by name, reading its snapshot instead of the primary's, noticing that it was removed,
+//! and asking for its centre through its request record.
+
+use super::client::{invalid, process_alive, Client, ReadError};
+use super::layout::{self, header, views as v};
+use super::raw::Region;
+use super::ShmError;
+use std::path::Path;
+use std::sync::atomic::{fence, Ordering};
+use std::time::Duration;
+
+/// The view a client reads: its record, and the incarnation it had when the client bound to it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(super) struct Binding {
+    pub(super) name: String,
+    pub(super) record: usize,
+    pub(super) incarnation: u64,
+}
+
+/// One view record's fields 0..128, as read under its seqlock.
+#[derive(Clone, Debug, PartialEq)]
+struct Record {
+    live: bool,
+    incarnation: u64,
+    weight: f64,
+    name: String,
+}
+
+/// Checks the views block the header names, if any: `Ok(None)` when the mapping has none,
+/// `Ok(Some((offset, records)))` when it is one this reader knows, `Err` saying which field holds
+/// what and what was expected. `slots_end` is the end of the last level's slots, `total` the
+/// mapping's size.
+pub(super) fn check_block(region: &Region, slots_end: u64, total: u64) -> Result<Option<(usize, usize)>, String> {
+    let at = region.read_u64(header::VIEWS_OFFSET);
+    if at == 0 {
+        return Ok(None);
+    }
+    let field = |o: usize, name: &str| format!("views block (header byte {} says it is at {at}), byte {} ({name})", header::VIEWS_OFFSET, at + o as u64);
+    if !at.is_multiple_of(layout::PAGE) || at < slots_end || at.checked_add(v::FIRST as u64).is_none_or(|e| e > total) {
+        return Err(format!(
+            "header byte {} (views block offset): found {at}, expected 0 or a multiple of 4096 at or after the end of the last level's slots ({slots_end}) and inside the {total}-byte mapping",
+            header::VIEWS_OFFSET
+        ));
+    }
+    let b = at as usize;
+    let magic = region.read_u64(b + v::MAGIC).to_le_bytes();
+    if magic != v::MAGIC_BYTES {
+        return Err(format!("{}: found {magic:02x?}, expected \"CLIPVIEW\"", field(v::MAGIC, "magic")));
+    }
+    let version = region.read_u32(b + v::VERSION);
+    if version != v::BLOCK_VERSION {
+        return Err(format!(
+            "{}: found {version}, this reader knows version {}: use a reader of the service's release",
+            field(v::VERSION, "views block version"),
+            v::BLOCK_VERSION
+        ));
+    }
+    let records = region.read_u32(b + v::RECORDS) as usize;
+    if records == 0 || records > v::MAX_RECORDS {
+        return Err(format!("{}: found {records}, expected 1..={}", field(v::RECORDS, "view records"), v::MAX_RECORDS));
+    }
+    let bytes = region.read_u32(b + v::RECORD_BYTES_AT) as usize;
+    if bytes != v::RECORD_BYTES {
+        return Err(format!("{}: found {bytes}, expected {}", field(v::RECORD_BYTES_AT, "record bytes"), v::RECORD_BYTES));
+    }
+    if at.checked_add(v::block_bytes(records)).is_none_or(|e| e > total) {
+        return Err(format!(
+            "{}: {records} records of {bytes} bytes end past the {total}-byte mapping",
+            field(v::RECORDS, "view records")
+        ));
+    }
+    Ok(Some((b, records)))
+}
+
+impl Client {
+    /// Attaches to the mapping `name` in `dir` and binds to its view `view` (`main`: the primary).
+    pub fn attach_view(dir: &Path, name: &str, view: &str) -> Result<Client, ShmError> {
+        let mut c = Client::attach(dir, name)?;
+        c.bind_view(view)?;
+        Ok(c)
+    }
+
+    /// Reads snapshots (and makes requests) for the view named `view` from now on: `main` is the
+    /// primary view (the header's snapshot); another name must be a live view's, else the error
+    /// names the views there are.
+    pub fn bind_view(&mut self, view: &str) -> Result<(), ShmError> {
+        if view == v::PRIMARY_NAME {
+            self.view = None;
+            return Ok(());
+        }
+        v::check_name(view).map_err(|why| invalid(self.path(), why))?;
+        let found = self.records()?.into_iter().find(|(_, r)| r.live && r.name == view);
+        match found {
+            Some((record, r)) => {
+                self.view = Some(Binding { name: view.to_string(), record, incarnation: r.incarnation });
+                Ok(())
+            }
+            None => Err(ShmError::NoView {
+                path: self.path().to_path_buf(),
+                view: view.to_string(),
+                views: self.view_names()?,
+            }),
+        }
+    }
+
+    /// The view the client reads (`main` for the primary).
+    pub fn view_name(&self) -> &str {
+        self.view.as_ref().map_or(v::PRIMARY_NAME, |b| b.name.as_str())
+    }
+
+    /// The names of the views the service publishes now, `main` first, then each live record's
+    /// in record order.
+    pub fn view_names(&self) -> Result<Vec<String>, ShmError> {
+        let mut out = vec![v::PRIMARY_NAME.to_string()];
+        out.extend(self.records()?.into_iter().filter(|(_, r)| r.live).map(|(_, r)| r.name));
+        Ok(out)
+    }
+
+    /// The views now live, with their weights: `(name, weight)`, `main` first (its weight is not
+    /// in the mapping: reported as 1).
+    pub fn view_weights(&self) -> Result<Vec<(String, f64)>, ShmError> {
+        let mut out = vec![(v::PRIMARY_NAME.to_string(), 1.0)];
+        out.extend(self.records()?.into_iter().filter(|(_, r)| r.live).map(|(_, r)| (r.name, r.weight)));
+        Ok(out)
+    }
+
+    /// The byte offset of the snapshot the client reads: the header's, or its view record's.
+    pub(super) fn snapshot_base(&self) -> usize {
+        match (&self.view, self.views) {
+            (Some(b), Some((at, _))) => at + v::record(b.record) + v::SNAPSHOT,
+            _ => header::SNAPSHOT,
+        }
+    }
+
+    /// `Err(ViewRemoved)` when the bound view's record is no longer live with the incarnation it
+    /// had at binding; `Ok` for the primary.
+    pub(super) fn check_bound(&self) -> Result<(), ReadError> {
+        let Some(b) = &self.view else { return Ok(()) };
+        match self.record(b.record) {
+            Ok(Some(r)) if r.live && r.incarnation == b.incarnation => Ok(()),
+            Ok(_) => Err(ReadError::ViewRemoved(b.name.clone())),
+            Err(ReadError::Corrupt(why)) => Err(ReadError::Corrupt(why)),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Every record, checked.
+    fn records(&self) -> Result<Vec<(usize, Record)>, ShmError> {
+        let Some((_, n)) = self.views else { return Ok(Vec::new()) };
+        let mut out = Vec::with_capacity(n);
+        for i in 0..n {
+            match self.record(i) {
+                Ok(Some(r)) => out.push((i, r)),
+                Ok(None) => {}
+                Err(ReadError::Corrupt(why)) => return Err(invalid(self.path(), why)),
+                Err(_) => return Err(ShmError::Busy { path: self.path().to_path_buf(), ms: 0 }),
+            }
+        }
+        Ok(out)
+    }
+
+    /// Record `i` read under its seqlock and checked (`Ok(None)`: no views block or no such
+    /// record).
+    fn record(&self, i: usize) -> Result<Option<Record>, ReadError> {
+        let Some((at, n)) = self.views else { return Ok(None) };
+        if i >= n {
+            return Ok(None);
+        }
+        let rec = at + v::record(i);
+        let r = &self.region;
+        let read = || {
+            let g = |o: usize| r.load(rec + o, Ordering::Relaxed);
+            let name: Vec<u8> = (0..v::NAME_BYTES / 8).flat_map(|w| g(v::NAME + 8 * w).to_le_bytes()).collect();
+            (g(v::STATE), g(v::INCARNATION), g(v::WEIGHT), name)
+        };
+        let (_, (state, incarnation, weight, name)) = self.seqlocked(rec + v::SEQ, read).ok_or(ReadError::Busy(0))?;
+        let at_field = |o: usize, what: &str| format!("view record {i}, byte {} ({what})", rec + o);
+        match state {
+            0 => return Ok(Some(Record { live: false, incarnation, weight: 0.0, name: String::new() })),
+            1 => {}
+            other => return Err(ReadError::Corrupt(format!("{}: found {other}, expected 0 (free) or 1 (live)", at_field(v::STATE, "state")))),
+        }
+        let weight = f64::from_bits(weight);
+        if !weight.is_finite() || weight <= 0.0 {
+            return Err(ReadError::Corrupt(format!("{}: found {weight}, expected a finite number above 0", at_field(v::WEIGHT, "weight"))));
+        }
+        let len = name.iter().position(|&c| c == 0).unwrap_or(name.len());
+        let text = std::str::from_utf8(&name[..len]).ok().filter(|t| v::check_name(t).is_ok() && name[len..].iter().all(|&c| c == 0));
+        let Some(text) = text else {
+            return Err(ReadError::Corrupt(format!(
+                "{}: found {:?}, expected 1 to {} of A-Z a-z 0-9 - _ . (not main) followed by NULs only",
+                at_field(v::NAME, "name"),
+                String::from_utf8_lossy(&name),
+                v::MAX_NAME
+            )));
+        };
+        Ok(Some(Record { live: true, incarnation, weight, name: text.to_string() }))
+    }
+
+    /// [`Client::request_centre`] for a bound view: its request record, with the view's
+    /// incarnation, under the same lock-word protocol as the primary's request.
+    pub(super) fn request_view_centre(&self, b: &Binding, centre: [i64; 2], velocity: [f64; 2]) -> bool {
+        use layout::request_lock as lock;
+        let Some(r) = &self.request else { return false };
+        if b.record >= v::MAX_REQUEST_RECORDS {
+            return false;
+        }
+        let base = v::request(b.record);
+        let pid = std::process::id();
+        let start = std::time::Instant::now();
+        let mut odd_since: Option<(u64, std::time::Instant)> = None;
+        loop {
+            let w = r.load(base + v::REQ_SEQ, Ordering::Relaxed);
+            if w & 1 == 1 {
+                match odd_since {
+                    Some((seen, at)) if seen == w && at.elapsed() > Duration::from_millis(lock::TAKEOVER_MS) => {
+                        if !process_alive(lock::owner(w)) {
+                            let _ = r.compare_exchange(base + v::REQ_SEQ, w, lock::released(w));
+                        }
+                        odd_since = Some((w, std::time::Instant::now()));
+                    }
+                    Some((seen, _)) if seen == w => {}
+                    _ => odd_since = Some((w, std::time::Instant::now())),
+                }
+                if start.elapsed() > Duration::from_millis(lock::WAIT_MS) {
+                    return false;
+                }
+                std::thread::yield_now();
+                continue;
+            }
+            let mine = lock::locked(w, pid);
+            if r.compare_exchange(base + v::REQ_SEQ, w, mine).is_ok() {
+                fence(Ordering::Release);
+                r.store(base + v::REQ_CENTRE_S, centre[0] as u64, Ordering::Relaxed);
+                r.store(base + v::REQ_CENTRE_T, centre[1] as u64, Ordering::Relaxed);
+                r.store(base + v::REQ_VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
+                r.store(base + v::REQ_VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
+                r.store(base + v::REQ_CLIENT_PID, u64::from(pid), Ordering::Relaxed);
+                r.store(base + v::REQ_INCARNATION, b.incarnation, Ordering::Relaxed);
+                let c = r.load(base + v::REQ_COUNT, Ordering::Relaxed);
+                r.store(base + v::REQ_COUNT, c.wrapping_add(1), Ordering::Relaxed);
+                return r.compare_exchange(base + v::REQ_SEQ, mine, lock::released(mine)).is_ok();
+            }
+            std::hint::spin_loop();
+        }
+    }
+}
