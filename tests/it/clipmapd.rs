@@ -1150,3 +1150,23 @@ fn four_views_fly_at_once_read_by_readers_in_rust_c_and_python_every_texel_right
     let far = &list[2];
     assert!(far["min_lod"].as_f64().unwrap() >= 1.0, "far is not held whole at level 0: {list}");
 }
+
+#[test]
+fn the_c_and_python_readers_read_views_of_the_independent_fixture_mappings() {
+    // The views block written by an independent writer (tests/fixtures/make_mapping.py --view):
+    // each view's snapshot and texels read exactly, every corrupt variant refused naming its
+    // field, unknown and removed views reported, view requests landing in their records.
+    let out = tempfile::tempdir().unwrap();
+    let run = Command::new("bash")
+        .arg(Path::new(ROOT).join("tests/fixtures/check_views.sh"))
+        .arg(out.path())
+        .arg("--no-asan")
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "stdout:\n{}\nstderr:\n{}",
+        String::from_utf8_lossy(&run.stdout),
+        String::from_utf8_lossy(&run.stderr)
+    );
+}
