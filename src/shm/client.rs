@@ -828,52 +828,10 @@ impl Client {
     /// when another renderer that is still alive held the request lock for
     /// [`request_lock::WAIT_MS`](layout::request_lock::WAIT_MS) (try again next frame).
     pub fn request_centre(&self, centre: [i64; 2], velocity: [f64; 2]) -> bool {
-        if let Some(b) = &self.view {
-            return self.request_view_centre(b, centre, velocity);
-        }
-        use layout::request_lock as lock;
-        let Some(r) = &self.request else { return false };
-        let pid = std::process::id();
-        let start = std::time::Instant::now();
-        let wait = Duration::from_millis(lock::WAIT_MS);
-        // Take the lock word (docs/SHM.md, "Request mapping"): odd with our pid, write, release
-        // to the next epoch. A word left odd by a renderer that died (its pid is no live
-        // process) is advanced after a while; a live owner is waited for, never overruled.
-        let mut odd_since: Option<(u64, std::time::Instant)> = None;
-        loop {
-            let w = r.load(request::SEQ, Ordering::Relaxed);
-            if w & 1 == 1 {
-                match odd_since {
-                    Some((seen, at)) if seen == w && at.elapsed() > Duration::from_millis(lock::TAKEOVER_MS) => {
-                        if !process_alive(lock::owner(w)) {
-                            let _ = r.compare_exchange(request::SEQ, w, lock::released(w));
-                        }
-                        odd_since = Some((w, std::time::Instant::now()));
-                    }
-                    Some((seen, _)) if seen == w => {}
-                    _ => odd_since = Some((w, std::time::Instant::now())),
-                }
-                if start.elapsed() > wait {
-                    return false;
-                }
-                std::thread::yield_now();
-                continue;
-            }
-            let mine = lock::locked(w, pid);
-            if r.compare_exchange(request::SEQ, w, mine).is_ok() {
-                // The field stores below must not become visible before the odd word.
-                fence(Ordering::Release);
-                r.store(request::CENTRE_S, centre[0] as u64, Ordering::Relaxed);
-                r.store(request::CENTRE_T, centre[1] as u64, Ordering::Relaxed);
-                r.store(request::VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
-                r.store(request::VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
-                r.store(request::CLIENT_PID, u64::from(pid), Ordering::Relaxed);
-                let c = r.load(request::COUNT, Ordering::Relaxed);
-                r.store(request::COUNT, c.wrapping_add(1), Ordering::Relaxed);
-                // Release (compare-and-swap: never over a word someone else stored).
-                return r.compare_exchange(request::SEQ, mine, lock::released(mine)).is_ok();
-            }
-            std::hint::spin_loop();
+        match &self.view {
+            Some(b) => self.request_view_centre(b, centre, velocity),
+            // The main request's fields lie as a view request record's, from its lock word on.
+            None => self.request_at(request::SEQ, None, centre, velocity),
         }
     }
 

@@ -199,14 +199,23 @@ impl Client {
     }
 
     /// [`Client::request_centre`] for a bound view: its request record, with the view's
-    /// incarnation, under the same lock-word protocol as the primary's request.
+    /// incarnation.
     pub(super) fn request_view_centre(&self, b: &Binding, centre: [i64; 2], velocity: [f64; 2]) -> bool {
-        use layout::request_lock as lock;
-        let Some(r) = &self.request else { return false };
         if b.record >= v::MAX_REQUEST_RECORDS {
             return false;
         }
-        let base = v::request(b.record);
+        self.request_at(v::request(b.record), Some(b.incarnation), centre, velocity)
+    }
+
+    /// One request under the lock word at `base` of the request mapping (docs/SHM.md, "Request
+    /// mapping"), its fields at the offsets of a view request record (the main request's lie
+    /// the same way from its lock word at 64): take the word odd with our pid, store, release to
+    /// the next epoch. A word left odd by a renderer that died (its pid is no live process) is
+    /// advanced after a while; a live owner is waited for, never overruled. `incarnation` is
+    /// stored for a view's request.
+    pub(super) fn request_at(&self, base: usize, incarnation: Option<u64>, centre: [i64; 2], velocity: [f64; 2]) -> bool {
+        use layout::request_lock as lock;
+        let Some(r) = &self.request else { return false };
         let pid = std::process::id();
         let start = std::time::Instant::now();
         let mut odd_since: Option<(u64, std::time::Instant)> = None;
@@ -231,15 +240,19 @@ impl Client {
             }
             let mine = lock::locked(w, pid);
             if r.compare_exchange(base + v::REQ_SEQ, w, mine).is_ok() {
+                // The field stores below must not become visible before the odd word.
                 fence(Ordering::Release);
                 r.store(base + v::REQ_CENTRE_S, centre[0] as u64, Ordering::Relaxed);
                 r.store(base + v::REQ_CENTRE_T, centre[1] as u64, Ordering::Relaxed);
                 r.store(base + v::REQ_VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
                 r.store(base + v::REQ_VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
                 r.store(base + v::REQ_CLIENT_PID, u64::from(pid), Ordering::Relaxed);
-                r.store(base + v::REQ_INCARNATION, b.incarnation, Ordering::Relaxed);
+                if let Some(i) = incarnation {
+                    r.store(base + v::REQ_INCARNATION, i, Ordering::Relaxed);
+                }
                 let c = r.load(base + v::REQ_COUNT, Ordering::Relaxed);
                 r.store(base + v::REQ_COUNT, c.wrapping_add(1), Ordering::Relaxed);
+                // Release (compare-and-swap: never over a word someone else stored).
                 return r.compare_exchange(base + v::REQ_SEQ, mine, lock::released(mine)).is_ok();
             }
             std::hint::spin_loop();

@@ -503,6 +503,16 @@ pub mod views {
     /// `u64` the incarnation of the view the request is for.
     pub const REQ_INCARNATION: usize = 56;
 
+    // The main request's fields lie at the same offsets from its lock word.
+    const _: () = assert!(
+        super::request::CENTRE_S - super::request::SEQ == REQ_CENTRE_S
+            && super::request::CENTRE_T - super::request::SEQ == REQ_CENTRE_T
+            && super::request::VEL_S - super::request::SEQ == REQ_VEL_S
+            && super::request::VEL_T - super::request::SEQ == REQ_VEL_T
+            && super::request::CLIENT_PID - super::request::SEQ == REQ_CLIENT_PID
+            && super::request::COUNT - super::request::SEQ == REQ_COUNT
+    );
+
     /// Offset of request record `r` in the request mapping.
     pub fn request(r: usize) -> usize {
         REQUEST_BASE + r * REQUEST_RECORD_BYTES

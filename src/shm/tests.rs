@@ -906,6 +906,10 @@ fn a_tile_range_is_never_seen_for_another_fill_of_its_slot() {
         let g = memory.replace(tile).expect("settled");
         memory.fill(tile, |b| b.chunks_exact_mut(4).for_each(|x| x.copy_from_slice(&(i as f32).to_le_bytes())));
         assert!(memory.settle(tile, g, layout::SlotState::Ready));
+        if i % 50 == 0 {
+            // A settled moment the reader can see on any scheduler (two cores, under load).
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
     }
     stop.store(true, Ordering::Relaxed);
     let (ranges, none, last) = reader.join().unwrap();
