@@ -91,6 +91,9 @@ Examples:
         /// default, clipmap-NAME.sock beside the mapping).
         #[arg(long)]
         socket: Option<PathBuf>,
+        /// The view to show (docs/VIEWS.md): `main`, the primary, or a further view's name.
+        #[arg(long, default_value = "main")]
+        view: String,
         /// Print one view and exit.
         #[arg(long)]
         once: bool,
@@ -651,15 +654,16 @@ fn run(cli: Cli) -> i32 {
         Command::Roam(args) => roam(args),
         Command::Grow { cmd } => grow::run(cmd),
         Command::Dump(args) => dump(args),
-        Command::Attach { name, shm_dir, socket, once, json, interval } => {
+        Command::Attach { name, shm_dir, socket, once, json, interval, view } => {
             let dir = shm_dir.unwrap_or_else(clipmap::shm::default_dir);
             let socket = socket.unwrap_or_else(|| clipmap::service::default_socket(&dir, &name));
             let every = std::time::Duration::from_secs_f64(interval.clamp(0.05, 3600.0));
             let live = !once && !json && std::io::IsTerminal::is_terminal(&std::io::stdout());
             loop {
-                match clipmap::inspect::attach::status(
+                match clipmap::inspect::attach::status_of_view(
                     &dir,
                     &name,
+                    &view,
                     every.min(std::time::Duration::from_millis(250)).max(if live {
                         every
                     } else {

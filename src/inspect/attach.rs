@@ -136,6 +136,11 @@ pub struct Status {
     /// The heights block: storage, scale, offset, nodata (a stored value; `null`: none) and level
     /// rule of a height texture (`null` for a texture that is not heights).
     pub heights: Option<crate::shm::layout::Heights>,
+    /// The view shown (`main`: the primary; docs/VIEWS.md).
+    pub view: String,
+    /// Every view's figures from the socket's statistics, `main` first (empty when the socket
+    /// did not answer).
+    pub views: Vec<crate::service::stats::ViewStats>,
 }
 
 /// Why a `STATS` request got no statistics.
@@ -220,7 +225,13 @@ fn stream_rows(before: &ServiceStats, after: &ServiceStats, dt: f64) -> Result<V
 /// `STATS` (for queue throughput) over `interval`. A socket that does not answer leaves the
 /// stream figures out, with the reason, rather than failing the view.
 pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Result<Status, ShmError> {
-    let c = Client::attach(dir, name)?;
+    status_of_view(dir, name, crate::shm::layout::views::PRIMARY_NAME, interval, socket)
+}
+
+/// [`status`] of the view `view` (docs/VIEWS.md; `main`: the primary): its snapshot's levels and
+/// min LOD, and every view's figures from the socket.
+pub fn status_of_view(dir: &Path, name: &str, view: &str, interval: Duration, socket: &Path) -> Result<Status, ShmError> {
+    let c = Client::attach_view(dir, name, view)?;
     let before = ask_stats(socket);
     let (h0, t0) = (c.heartbeat(), Instant::now());
     std::thread::sleep(interval);
@@ -275,6 +286,8 @@ pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Resu
         read_latency_ticks: engine.map(|e| e.read_latency_ticks),
         growth,
         heights: c.heights,
+        view: c.view_name().to_string(),
+        views: after.as_ref().map(|a| a.tick.views.clone()).unwrap_or_default(),
     })
 }
 
@@ -292,6 +305,15 @@ pub fn human(s: &Status) -> String {
         s.clip_size,
         s.bytes_per_texel
     );
+    if s.views.len() > 1 || s.view != crate::shm::layout::views::PRIMARY_NAME {
+        o.push_str("view        weight  min LOD  centre\n");
+        for v in &s.views {
+            let centre = v.centre.map_or("-".to_string(), |c| format!("{} {}", c[0], c[1]));
+            let shown = if v.name == s.view { "  (shown below)" } else { "" };
+            o.push_str(&format!("{:<11} {:>6.2}  {:>7.2}  {centre}{shown}\n", v.name, v.weight, v.min_lod));
+        }
+        o.push('\n');
+    }
     if let Some(h) = &s.heights {
         o.push_str(&format!(
             "heights: {}  metres = stored x {} + {}  nodata {}  levels {}\n\n",

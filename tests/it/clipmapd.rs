@@ -1149,6 +1149,22 @@ fn four_views_fly_at_once_read_by_readers_in_rust_c_and_python_every_texel_right
     assert_ne!(near["centre"], list[0]["centre"], "near follows its own requests, not main's: {list}");
     let far = &list[2];
     assert!(far["min_lod"].as_f64().unwrap() >= 1.0, "far is not held whole at level 0: {list}");
+    // `cliptex attach --view` shows one view's levels and every view's figures.
+    let out = Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(["attach", "views", "--view", "near", "--json", "--shm-dir", d.to_str().unwrap(), "--socket"])
+        .arg(d.join("views.sock"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let st: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(st["view"], "near");
+    let names: Vec<&str> = st["views"].as_array().unwrap().iter().map(|v| v["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["main", "near", "far", "stereo"], "{st}");
+    let bad = Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(["attach", "views", "--view", "nobody", "--json", "--shm-dir", d.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("no view `nobody`"));
 }
 
 #[test]
