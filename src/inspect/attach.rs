@@ -501,6 +501,8 @@ mod tests {
             read_latency_ticks: Some(4.25),
             growth: None,
             heights: None,
+            view: "main".into(),
+            views: Vec::new(),
         };
         let text = human(&s);
         assert!(text.contains("paging  read latency 4.2 ticks\n"), "{text}");
