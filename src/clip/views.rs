@@ -134,7 +134,9 @@ impl Clipmap {
     pub fn add_named_view(&mut self, name: &str, weight: f64) -> Result<ViewId, ViewError> {
         crate::shm::layout::views::check_name(name).map_err(ViewError::Name)?;
         if self.views.live().any(|(_, v)| v.name.as_deref() == Some(name)) {
-            return Err(ViewError::Name(format!("view `{name}` exists already: remove it first or choose another name")));
+            return Err(ViewError::Name(format!(
+                "view `{name}` exists already: remove it first or choose another name"
+            )));
         }
         self.add_view_as(Some(name.to_string()), weight)
     }

@@ -230,7 +230,13 @@ pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Resu
 
 /// [`status`] of the view `view` (docs/VIEWS.md; `main`: the primary): its snapshot's levels and
 /// min LOD, and every view's figures from the socket.
-pub fn status_of_view(dir: &Path, name: &str, view: &str, interval: Duration, socket: &Path) -> Result<Status, ShmError> {
+pub fn status_of_view(
+    dir: &Path,
+    name: &str,
+    view: &str,
+    interval: Duration,
+    socket: &Path,
+) -> Result<Status, ShmError> {
     let c = Client::attach_view(dir, name, view)?;
     let before = ask_stats(socket);
     let (h0, t0) = (c.heartbeat(), Instant::now());

@@ -279,10 +279,7 @@ async fn command(ctx: &Context, make: impl FnOnce(oneshot::Sender<String>) -> Co
 }
 
 /// [`command`] for a command that may be refused: `OK text` or `ERR why`.
-async fn fallible(
-    ctx: &Context,
-    make: impl FnOnce(oneshot::Sender<Result<String, String>>) -> Command,
-) -> String {
+async fn fallible(ctx: &Context, make: impl FnOnce(oneshot::Sender<Result<String, String>>) -> Command) -> String {
     let (tx, rx) = oneshot::channel();
     if let Err(e) = ctx.ticker.send(make(tx)) {
         return format!("ERR {e}");

@@ -101,7 +101,8 @@ impl Options {
         let bad = |m: String| Err(ServiceError::BadOption(m));
         crate::shm::check_name(&self.name).map_err(|e| ServiceError::BadOption(e.to_string()))?;
         for (i, (name, weight)) in self.views.iter().enumerate() {
-            crate::shm::layout::views::check_name(name).map_err(|e| ServiceError::BadOption(format!("--view {name}: {e}")))?;
+            crate::shm::layout::views::check_name(name)
+                .map_err(|e| ServiceError::BadOption(format!("--view {name}: {e}")))?;
             if !(weight.is_finite() && *weight > 0.0) {
                 return bad(format!("--view {name}:{weight}: expected a positive finite weight such as 1 or 3"));
             }
@@ -117,7 +118,11 @@ impl Options {
             ));
         }
         if self.view_spread > crate::limits::MAX_TEXTURE_SIZE {
-            return bad(format!("--view-spread {}: expected 0 to {} level-0 texels", self.view_spread, crate::limits::MAX_TEXTURE_SIZE));
+            return bad(format!(
+                "--view-spread {}: expected 0 to {} level-0 texels",
+                self.view_spread,
+                crate::limits::MAX_TEXTURE_SIZE
+            ));
         }
         if !(self.tick_hz.is_finite() && self.tick_hz >= 1.0 && self.tick_hz <= 1000.0) {
             return bad(format!("--tick-hz {}: expected 1 to 1000 ticks per second", self.tick_hz));

@@ -368,7 +368,8 @@ impl Runner {
 
     /// The error for a view name no view has, naming those that exist.
     fn no_view(&self, name: &str) -> String {
-        let names: Vec<&str> = self.clipmap.view_ids().into_iter().filter_map(|id| self.clipmap.view_name(id)).collect();
+        let names: Vec<&str> =
+            self.clipmap.view_ids().into_iter().filter_map(|id| self.clipmap.view_name(id)).collect();
         format!("no view `{name}`: the views are {}", names.join(", "))
     }
 

@@ -36,7 +36,13 @@ pub(super) fn check_block(region: &Region, slots_end: u64, total: u64) -> Result
     if at == 0 {
         return Ok(None);
     }
-    let field = |o: usize, name: &str| format!("views block (header byte {} says it is at {at}), byte {} ({name})", header::VIEWS_OFFSET, at + o as u64);
+    let field = |o: usize, name: &str| {
+        format!(
+            "views block (header byte {} says it is at {at}), byte {} ({name})",
+            header::VIEWS_OFFSET,
+            at + o as u64
+        )
+    };
     if !at.is_multiple_of(layout::PAGE) || at < slots_end || at.checked_add(v::FIRST as u64).is_none_or(|e| e > total) {
         return Err(format!(
             "header byte {} (views block offset): found {at}, expected 0 or a multiple of 4096 at or after the end of the last level's slots ({slots_end}) and inside the {total}-byte mapping",
@@ -62,7 +68,11 @@ pub(super) fn check_block(region: &Region, slots_end: u64, total: u64) -> Result
     }
     let bytes = region.read_u32(b + v::RECORD_BYTES_AT) as usize;
     if bytes != v::RECORD_BYTES {
-        return Err(format!("{}: found {bytes}, expected {}", field(v::RECORD_BYTES_AT, "record bytes"), v::RECORD_BYTES));
+        return Err(format!(
+            "{}: found {bytes}, expected {}",
+            field(v::RECORD_BYTES_AT, "record bytes"),
+            v::RECORD_BYTES
+        ));
     }
     if at.checked_add(v::block_bytes(records)).is_none_or(|e| e > total) {
         return Err(format!(
@@ -179,14 +189,24 @@ impl Client {
         match state {
             0 => return Ok(Some(Record { live: false, incarnation, weight: 0.0, name: String::new() })),
             1 => {}
-            other => return Err(ReadError::Corrupt(format!("{}: found {other}, expected 0 (free) or 1 (live)", at_field(v::STATE, "state")))),
+            other => {
+                return Err(ReadError::Corrupt(format!(
+                    "{}: found {other}, expected 0 (free) or 1 (live)",
+                    at_field(v::STATE, "state")
+                )))
+            }
         }
         let weight = f64::from_bits(weight);
         if !weight.is_finite() || weight <= 0.0 {
-            return Err(ReadError::Corrupt(format!("{}: found {weight}, expected a finite number above 0", at_field(v::WEIGHT, "weight"))));
+            return Err(ReadError::Corrupt(format!(
+                "{}: found {weight}, expected a finite number above 0",
+                at_field(v::WEIGHT, "weight")
+            )));
         }
         let len = name.iter().position(|&c| c == 0).unwrap_or(name.len());
-        let text = std::str::from_utf8(&name[..len]).ok().filter(|t| v::check_name(t).is_ok() && name[len..].iter().all(|&c| c == 0));
+        let text = std::str::from_utf8(&name[..len])
+            .ok()
+            .filter(|t| v::check_name(t).is_ok() && name[len..].iter().all(|&c| c == 0));
         let Some(text) = text else {
             return Err(ReadError::Corrupt(format!(
                 "{}: found {:?}, expected 1 to {} of A-Z a-z 0-9 - _ . (not main) followed by NULs only",
@@ -213,7 +233,13 @@ impl Client {
     /// the next epoch. A word left odd by a renderer that died (its pid is no live process) is
     /// advanced after a while; a live owner is waited for, never overruled. `incarnation` is
     /// stored for a view's request.
-    pub(super) fn request_at(&self, base: usize, incarnation: Option<u64>, centre: [i64; 2], velocity: [f64; 2]) -> bool {
+    pub(super) fn request_at(
+        &self,
+        base: usize,
+        incarnation: Option<u64>,
+        centre: [i64; 2],
+        velocity: [f64; 2],
+    ) -> bool {
         use layout::request_lock as lock;
         let Some(r) = &self.request else { return false };
         let pid = std::process::id();

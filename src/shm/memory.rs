@@ -276,8 +276,7 @@ impl ImageMemory {
         let old = self.keys[k][slot as usize].load(Ordering::Acquire);
         if state_of(now) == SETTLED && old != NO_TILE {
             let [s, t] = tile_of_key(old);
-            let covered =
-                self.published_tiles.lock().map(|p| p.iter().any(|v| v[k].contains(s, t))).unwrap_or(false);
+            let covered = self.published_tiles.lock().map(|p| p.iter().any(|v| v[k].contains(s, t))).unwrap_or(false);
             if covered {
                 self.violations.fetch_add(1, Ordering::Relaxed);
             }

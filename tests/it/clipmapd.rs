@@ -1116,13 +1116,17 @@ fn four_views_fly_at_once_read_by_readers_in_rust_c_and_python_every_texel_right
                 .spawn()
                 .unwrap(),
         ),
-        ("python stereo".into(), python_reader().arg(&map).args(["1000000000000", "7", secs, "--view", "stereo"]).spawn().unwrap()),
+        (
+            "python stereo".into(),
+            python_reader().arg(&map).args(["1000000000000", "7", secs, "--view", "stereo"]).spawn().unwrap(),
+        ),
     ];
     // Mid-flight: a fifth view comes, is read, and goes.
     std::thread::sleep(Duration::from_millis(700));
     assert!(svc.ask("VIEW ADD late 2").starts_with("OK"));
     assert!(svc.ask("VIEW CENTRE late 20000 20000").starts_with("OK"));
-    let late = rust_reader(d, "views", &["--view", "late", "--reads", "1000000000000", "--seconds", "1"]).output().unwrap();
+    let late =
+        rust_reader(d, "views", &["--view", "late", "--reads", "1000000000000", "--seconds", "1"]).output().unwrap();
     let (late_passed, late_failed) = counts(&late, "rust late");
     assert_eq!(late_failed, 0, "late: {}", String::from_utf8_lossy(&late.stderr));
     assert!(svc.ask("VIEW REMOVE late").starts_with("OK view late removed"));
