@@ -175,11 +175,10 @@ pub struct Client {
     /// Whether the texels are heights, and their scale, offset, nodata value and level rule (the
     /// header's heights block, checked at attach); `None` for a texture that is not heights.
     pub heights: Option<layout::Heights>,
-    /// The views block (checked at attach): its offset and record count; `None` when the mapping
-    /// has none (only the primary view, `main`).
-    pub(super) views: Option<(usize, usize)>,
+    /// The views block, as checked at attach.
+    pub(super) views: super::view_block::ViewsBlock,
     /// The view the snapshot is read from (`None`: the primary, `main`).
-    pub(super) view: Option<super::client_views::Binding>,
+    pub(super) view: Option<super::view_block::Binding>,
 }
 
 impl std::fmt::Debug for Client {
@@ -388,7 +387,7 @@ impl Client {
             end = slots_end.unwrap_or(total);
             levels.push(d);
         }
-        let views = super::client_views::check_block(&region, end, total).map_err(|why| invalid(path, why))?;
+        let views = super::view_block::check(&region, end, total).map_err(|why| invalid(path, why))?;
         Ok(Client {
             views,
             view: None,

@@ -4,19 +4,11 @@
 
 use super::client::{invalid, process_alive, Client, ReadError};
 use super::layout::{self, header, views as v};
-use super::raw::Region;
+use super::view_block::{Binding, ViewsBlock};
 use super::ShmError;
 use std::path::Path;
 use std::sync::atomic::{fence, Ordering};
 use std::time::Duration;
-
-/// The view a client reads: its record, and the incarnation it had when the client bound to it.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub(super) struct Binding {
-    pub(super) name: String,
-    pub(super) record: usize,
-    pub(super) incarnation: u64,
-}
 
 /// One view record's fields 0..128, as read under its seqlock.
 #[derive(Clone, Debug, PartialEq)]
@@ -25,62 +17,6 @@ struct Record {
     incarnation: u64,
     weight: f64,
     name: String,
-}
-
-/// Checks the views block the header names, if any: `Ok(None)` when the mapping has none,
-/// `Ok(Some((offset, records)))` when it is one this reader knows, `Err` saying which field holds
-/// what and what was expected. `slots_end` is the end of the last level's slots, `total` the
-/// mapping's size.
-pub(super) fn check_block(region: &Region, slots_end: u64, total: u64) -> Result<Option<(usize, usize)>, String> {
-    let at = region.read_u64(header::VIEWS_OFFSET);
-    if at == 0 {
-        return Ok(None);
-    }
-    let field = |o: usize, name: &str| {
-        format!(
-            "views block (header byte {} says it is at {at}), byte {} ({name})",
-            header::VIEWS_OFFSET,
-            at + o as u64
-        )
-    };
-    if !at.is_multiple_of(layout::PAGE) || at < slots_end || at.checked_add(v::FIRST as u64).is_none_or(|e| e > total) {
-        return Err(format!(
-            "header byte {} (views block offset): found {at}, expected 0 or a multiple of 4096 at or after the end of the last level's slots ({slots_end}) and inside the {total}-byte mapping",
-            header::VIEWS_OFFSET
-        ));
-    }
-    let b = at as usize;
-    let magic = region.read_u64(b + v::MAGIC).to_le_bytes();
-    if magic != v::MAGIC_BYTES {
-        return Err(format!("{}: found {magic:02x?}, expected \"CLIPVIEW\"", field(v::MAGIC, "magic")));
-    }
-    let version = region.read_u32(b + v::VERSION);
-    if version != v::BLOCK_VERSION {
-        return Err(format!(
-            "{}: found {version}, this reader knows version {}: use a reader of the service's release",
-            field(v::VERSION, "views block version"),
-            v::BLOCK_VERSION
-        ));
-    }
-    let records = region.read_u32(b + v::RECORDS) as usize;
-    if records == 0 || records > v::MAX_RECORDS {
-        return Err(format!("{}: found {records}, expected 1..={}", field(v::RECORDS, "view records"), v::MAX_RECORDS));
-    }
-    let bytes = region.read_u32(b + v::RECORD_BYTES_AT) as usize;
-    if bytes != v::RECORD_BYTES {
-        return Err(format!(
-            "{}: found {bytes}, expected {}",
-            field(v::RECORD_BYTES_AT, "record bytes"),
-            v::RECORD_BYTES
-        ));
-    }
-    if at.checked_add(v::block_bytes(records)).is_none_or(|e| e > total) {
-        return Err(format!(
-            "{}: {records} records of {bytes} bytes end past the {total}-byte mapping",
-            field(v::RECORDS, "view records")
-        ));
-    }
-    Ok(Some((b, records)))
 }
 
 impl Client {
@@ -137,8 +73,8 @@ impl Client {
 
     /// The byte offset of the snapshot the client reads: the header's, or its view record's.
     pub(super) fn snapshot_base(&self) -> usize {
-        match (&self.view, self.views) {
-            (Some(b), Some((at, _))) => at + v::record(b.record) + v::SNAPSHOT,
+        match (&self.view, &self.views) {
+            (Some(b), ViewsBlock::Known { at, .. }) => at + v::record(b.record) + v::SNAPSHOT,
             _ => header::SNAPSHOT,
         }
     }
@@ -157,7 +93,11 @@ impl Client {
 
     /// Every record, checked.
     fn records(&self) -> Result<Vec<(usize, Record)>, ShmError> {
-        let Some((_, n)) = self.views else { return Ok(Vec::new()) };
+        let n = match &self.views {
+            ViewsBlock::Absent => return Ok(Vec::new()),
+            ViewsBlock::Unknown(why) => return Err(invalid(self.path(), why.clone())),
+            ViewsBlock::Known { records, .. } => *records,
+        };
         let mut out = Vec::with_capacity(n);
         for i in 0..n {
             match self.record(i) {
@@ -173,7 +113,7 @@ impl Client {
     /// Record `i` read under its seqlock and checked (`Ok(None)`: no views block or no such
     /// record).
     fn record(&self, i: usize) -> Result<Option<Record>, ReadError> {
-        let Some((at, n)) = self.views else { return Ok(None) };
+        let ViewsBlock::Known { at, records: n } = self.views else { return Ok(None) };
         if i >= n {
             return Ok(None);
         }

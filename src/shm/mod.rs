@@ -18,6 +18,7 @@ pub mod names;
 #[allow(unsafe_code)] // the one module of raw pointer access; each block argues its SAFETY
 mod raw;
 pub mod verify;
+mod view_block;
 pub mod writer;
 
 #[cfg(test)]

@@ -373,6 +373,62 @@ fn hostile_mappings_are_refused_with_a_clear_error() {
     assert!(matches!(Client::attach(dir.path(), "../x"), Err(ShmError::BadName(_))));
 }
 
+/// The views block is checked as the C and Python readers check it: one placed outside the
+/// mapping, or of a known version with a wrong record count or size, refuses the mapping; one of
+/// a magic or version this reader does not know leaves `main` readable and refuses only a view.
+#[test]
+fn a_views_block_this_reader_does_not_know_refuses_views_not_main() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, w) = hash_service(dir.path(), "vgood", 1024, 64, 32);
+    let left = map.add_named_view("left", 1.0).unwrap();
+    map.move_view(left, [300, 300], None).unwrap();
+    for _ in 0..10 {
+        map.tick([500, 500], None);
+        map.wait_for_reads();
+    }
+    let good = std::fs::read(w.path()).unwrap();
+    let vb = u64::from_le_bytes(good[layout::header::VIEWS_OFFSET..][..8].try_into().unwrap()) as usize;
+    assert!(vb > 0);
+    let c = Client::attach_view(dir.path(), "vgood", "left").expect("a known block binds");
+    assert_eq!(c.view_name(), "left");
+    let put32 = |b: &mut Vec<u8>, at: usize, v: u32| b[at..at + 4].copy_from_slice(&v.to_le_bytes());
+    let put64 = |b: &mut Vec<u8>, at: usize, v: u64| b[at..at + 8].copy_from_slice(&v.to_le_bytes());
+    use layout::views as v;
+    type Corrupt = Box<dyn Fn(&mut Vec<u8>)>;
+    // Refused at attach, naming the field.
+    let refused: Vec<(&str, Corrupt, &str)> = vec![
+        ("vodd", Box::new(move |b| put64(b, layout::header::VIEWS_OFFSET, vb as u64 + 8)), "views block offset"),
+        ("vpast", Box::new(move |b| put64(b, layout::header::VIEWS_OFFSET, 1 << 40)), "views block offset"),
+        ("vrecords", Box::new(move |b| put32(b, vb + v::RECORDS, 0)), "view records"),
+        ("vbytes", Box::new(move |b| put32(b, vb + v::RECORD_BYTES_AT, 64)), "record bytes"),
+    ];
+    for (name, corrupt, want) in refused {
+        let mut bytes = good.clone();
+        corrupt(&mut bytes);
+        std::fs::write(dir.path().join(format!("clipmap-{name}.map")), &bytes).unwrap();
+        let err = Client::attach(dir.path(), name).unwrap_err().to_string();
+        assert!(err.contains(want), "{name}: {err}");
+    }
+    // Unknown: main reads, the view is refused with the field and the value found.
+    let unknown: Vec<(&str, Corrupt, &str)> = vec![
+        ("vmagic", Box::new(move |b| b[vb + v::MAGIC] = b'X'), "expected \"CLIPVIEW\""),
+        ("vversion", Box::new(move |b| put32(b, vb + v::VERSION, 2)), "found 2, this reader knows version 1"),
+    ];
+    for (name, corrupt, want) in unknown {
+        let mut bytes = good.clone();
+        corrupt(&mut bytes);
+        std::fs::write(dir.path().join(format!("clipmap-{name}.map")), &bytes).unwrap();
+        let c = Client::attach(dir.path(), name).unwrap_or_else(|e| panic!("{name}: main must stay readable: {e}"));
+        let snap = c.snapshot();
+        let mut rng = 7;
+        let (read, wrong) = read_and_check(&c, &mut rng, 200);
+        assert!(read > 0 && wrong == 0, "{name}: main reads {read}, wrong {wrong}, snapshot {snap:?}");
+        let err = Client::attach_view(dir.path(), name, "left").unwrap_err().to_string();
+        assert!(err.contains(want), "{name}: {err}");
+        assert!(Client::attach_view(dir.path(), name, "main").is_ok(), "{name}: main by name");
+    }
+}
+
 #[test]
 fn a_renderer_request_reaches_the_writer_and_a_dead_renderer_does_not_silence_the_others() {
     use std::os::unix::fs::FileExt;
