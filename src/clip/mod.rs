@@ -23,7 +23,7 @@ pub mod views;
 
 pub use load::{next_min_lod, target_min_lod};
 pub use stats::{FaultCounts, Stats, TickReport};
-pub use views::{demotion, ViewError, ViewId, MAX_VIEWS, PRIMARY};
+pub use views::{demotion, offset_for_footprint, LodWindow, ViewError, ViewId, MAX_VIEWS, PRIMARY};
 
 use crate::cache::{Admit, TileCache, TileState};
 use crate::geom::{aligned_centre, level_grid, tile_texels, tiles_covering, LevelFrame, LevelShape, Rect};
@@ -642,15 +642,22 @@ impl Clipmap {
 
         // Publish what is settled under each valid region, once, as one snapshot.
         let mut complete = Vec::with_capacity(self.levels.len());
+        let lod = self.views.primary_lod;
         for k in 0..self.levels.len() {
-            let region = self.settled_region(k);
+            // A level outside the primary's LOD window is not published for it (nor held for it).
+            let shown = lod.shows(k as u32);
+            let region = if shown { self.settled_region(k) } else { Rect::EMPTY };
             let level = &mut self.levels[k];
-            complete.push(region == level.frame.valid || level.frame.valid.is_empty());
+            complete.push(if shown {
+                region == level.frame.valid || level.frame.valid.is_empty()
+            } else {
+                k as u32 >= lod.offset
+            });
             if region != level.published {
                 level.published = region;
                 level.updated_tick = self.tick;
             }
-            if region != level.frame.valid && !level.frame.valid.is_empty() {
+            if shown && region != level.frame.valid && !level.frame.valid.is_empty() {
                 self.stats.levels_waiting_for_tiles += 1;
             }
         }
@@ -793,8 +800,15 @@ impl Clipmap {
             let v = velocity.map(|x| if x != 0 && (x >> k32.min(63)) == 0 { x.signum() } else { x >> k32.min(63) });
             let previous = level.frame.mem;
             level.frame = level.shape.frame(c, self.border, v);
-            // With further views, the grid holds the union of their windows where it can.
-            let tex = views::mem_window(&level.shape, level.frame.tex, &others[k]);
+            // With further views, the grid holds the union of their windows where it can; a level
+            // no view shows (their LOD windows) holds nothing and reads nothing.
+            let own = if self.views.primary_lod.shows(k32) { level.frame.tex } else { Rect::EMPTY };
+            let tex = views::mem_window(&level.shape, own, &others[k]);
+            if tex.is_empty() {
+                level.frame.mem = Rect::EMPTY;
+                out.push(v);
+                continue;
+            }
             level.frame.mem = match &mut self.controller {
                 None => self.settings.prefetch.policy().mem_region(&level.shape, tex, v, previous),
                 // A grid a configuration fixes (`mem_region_size`, or its lookahead) is held whole,

@@ -34,6 +34,62 @@ pub const PRIMARY: ViewId = 0;
 
 pub use crate::limits::MAX_VIEWS;
 
+/// The levels a view shows: Performer's virtual clip texture, a window of `effective` levels
+/// starting at `offset` (0: the finest). A view holds and reads nothing for the levels outside it;
+/// finer ones keep its min LOD at `offset` or coarser. [`LodWindow::ALL`] (the default) shows every
+/// level.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LodWindow {
+    /// The finest level shown (Performer's LOD offset).
+    pub offset: u32,
+    /// How many levels from `offset` are shown (Performer's effective levels; `u32::MAX`: all).
+    pub effective: u32,
+}
+
+impl LodWindow {
+    /// Every level.
+    pub const ALL: LodWindow = LodWindow { offset: 0, effective: u32::MAX };
+
+    /// Whether level `k` is shown.
+    pub fn shows(&self, k: u32) -> bool {
+        k >= self.offset && k - self.offset < self.effective.max(1)
+    }
+
+    /// Whether level `k` must be complete for the view to use level `k` or any coarser: every
+    /// level from the offset on is, none finer (so its min LOD never falls below the offset).
+    fn counts_complete(&self, k: u32) -> bool {
+        k >= self.offset
+    }
+}
+
+impl Default for LodWindow {
+    fn default() -> Self {
+        LodWindow::ALL
+    }
+}
+
+/// Texels of level 0 one screen pixel spans at a view's nearest ground point (its height above
+/// the texture times the angle of a pixel), at which the finest level a renderer samples is
+/// log2 of it. The LOD offset that follows it moves finer at once, a quarter level early (the
+/// finer level is read before the renderer asks for it), and coarser half a level late, so that a
+/// view hovering at a level boundary does not drop and read a level tick after tick.
+pub fn offset_for_footprint(current: u32, texels_per_pixel: f64, levels: u32) -> u32 {
+    let last = levels.saturating_sub(1);
+    if !(texels_per_pixel.is_finite() && texels_per_pixel > 0.0) {
+        return current.min(last);
+    }
+    let lod = texels_per_pixel.log2();
+    let finer = (lod - 0.25).floor().max(0.0).min(last as f64) as u32;
+    let coarser = (lod - 0.5).floor().max(0.0).min(last as f64) as u32;
+    if finer < current {
+        finer
+    } else if coarser > current {
+        coarser
+    } else {
+        current.min(last)
+    }
+}
+
 /// Why a view could not be added, moved or weighted.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ViewError {
@@ -49,6 +105,9 @@ pub enum ViewError {
     /// A name that is not allowed, or taken.
     #[error("{0}")]
     Name(String),
+    /// A LOD window or footprint that is not allowed.
+    #[error("{0}")]
+    Lod(String),
     /// The primary view cannot be removed.
     #[error("view 0 is the primary view (the clipmap's own centre) and cannot be removed")]
     Primary,
@@ -74,19 +133,22 @@ pub(super) struct View {
     pub(super) velocity: [i64; 2],
     pub(super) levels: Vec<ViewLevel>,
     pub(super) min_lod: f64,
+    /// The levels it shows.
+    pub(super) lod: LodWindow,
 }
 
-/// The views beside the primary one, and the primary's weight.
+/// The views beside the primary one, and the primary's weight and levels.
 #[derive(Clone, Debug)]
 pub(super) struct Views {
     pub(super) primary_weight: f64,
+    pub(super) primary_lod: LodWindow,
     /// Indexed by id less one; `None` once removed.
     pub(super) others: Vec<Option<View>>,
 }
 
 impl Default for Views {
     fn default() -> Self {
-        Views { primary_weight: 1.0, others: Vec::new() }
+        Views { primary_weight: 1.0, primary_lod: LodWindow::ALL, others: Vec::new() }
     }
 }
 
@@ -167,6 +229,7 @@ impl Clipmap {
             velocity: [0, 0],
             levels: Vec::new(),
             min_lod: self.levels.len() as f64,
+            lod: LodWindow::ALL,
         };
         let id = match self.views.others.iter().position(Option::is_none) {
             Some(i) => i + 1,
@@ -218,6 +281,69 @@ impl Clipmap {
             self.cache.memory().set_view_weight(id as usize, weight);
         }
         Ok(())
+    }
+
+    /// Sets the levels view `id` shows (the primary's too) from the next tick: it then holds and
+    /// reads nothing for levels outside `lod`, and its min LOD stays at `lod.offset` or coarser.
+    pub fn set_view_lod(&mut self, id: ViewId, lod: LodWindow) -> Result<(), ViewError> {
+        if lod.effective == 0 {
+            return Err(ViewError::Lod("effective levels 0: expected at least 1".into()));
+        }
+        let levels = self.levels.len() as u32;
+        if lod.offset >= levels {
+            return Err(ViewError::Lod(format!(
+                "LOD offset {}: expected 0 to {} (the texture has {levels} levels, 0 the finest)",
+                lod.offset,
+                levels - 1
+            )));
+        }
+        if id == PRIMARY {
+            self.views.primary_lod = lod;
+        } else {
+            self.view_mut(id)?.lod = lod;
+        }
+        Ok(())
+    }
+
+    /// The levels view `id` shows.
+    pub fn view_lod(&self, id: ViewId) -> Result<LodWindow, ViewError> {
+        if id == PRIMARY {
+            return Ok(self.views.primary_lod);
+        }
+        Ok(self.view(id)?.lod)
+    }
+
+    /// Moves view `id`'s LOD offset to follow its height above the texture: `texels_per_pixel`
+    /// is the level-0 texels one screen pixel spans at its nearest ground point
+    /// ([`offset_for_footprint`]); its effective levels stay as they are. Returns the offset.
+    pub fn set_view_footprint(&mut self, id: ViewId, texels_per_pixel: f64) -> Result<u32, ViewError> {
+        if !(texels_per_pixel.is_finite() && texels_per_pixel > 0.0) {
+            return Err(ViewError::Lod(format!(
+                "texels per pixel {texels_per_pixel}: expected a positive finite number (height above the texture in level-0 texels times the angle of a pixel in radians)"
+            )));
+        }
+        let lod = self.view_lod(id)?;
+        let offset = offset_for_footprint(lod.offset, texels_per_pixel, self.levels.len() as u32);
+        self.set_view_lod(id, LodWindow { offset, ..lod })?;
+        Ok(offset)
+    }
+
+    /// The levels view `id` holds now: those it shows whose grid holds part of its window.
+    pub fn view_resident_levels(&self, id: ViewId) -> Result<Vec<u32>, ViewError> {
+        let lod = self.view_lod(id)?;
+        let windows: Vec<Rect> = if id == PRIMARY {
+            self.levels.iter().map(|l| l.frame.tex).collect()
+        } else {
+            self.view(id)?.levels.iter().map(|l| l.frame.tex).collect()
+        };
+        Ok((0..self.levels.len() as u32)
+            .filter(|&k| lod.shows(k))
+            .filter(|&k| {
+                let l = &self.levels[k as usize];
+                let w = windows.get(k as usize).copied().unwrap_or(Rect::EMPTY);
+                !w.is_empty() && !tiles_covering(w, l.shape.tile).intersect(&l.frame.mem).is_empty()
+            })
+            .collect())
     }
 
     /// The ids of the views, the primary first.
@@ -321,6 +447,7 @@ impl Clipmap {
         (0..self.levels.len())
             .map(|k| {
                 live.iter()
+                    .filter(|(_, v)| v.lod.shows(k as u32))
                     .filter_map(|(_, v)| v.levels.get(k).map(|l| l.frame.tex))
                     .filter(|r| !r.is_empty())
                     .collect()
@@ -338,15 +465,23 @@ impl Clipmap {
             if view.centre.is_none() {
                 continue;
             }
-            let regions: Vec<Rect> = (0..count).map(|k| self.settled_in(k, &view.levels[k].frame)).collect();
+            let regions: Vec<Rect> = (0..count)
+                .map(|k| if view.lod.shows(k as u32) { self.settled_in(k, &view.levels[k].frame) } else { Rect::EMPTY })
+                .collect();
             updates.push((id, regions));
         }
         let tick = self.tick;
         for (id, regions) in updates {
             let view = self.views.others[id as usize - 1].as_mut().expect("a live view");
             let mut complete = Vec::with_capacity(count);
-            for (level, region) in view.levels.iter_mut().zip(regions) {
-                complete.push(region == level.frame.valid || level.frame.valid.is_empty());
+            let lod = view.lod;
+            for (k, (level, region)) in view.levels.iter_mut().zip(regions).enumerate() {
+                let k = k as u32;
+                complete.push(if lod.shows(k) {
+                    region == level.frame.valid || level.frame.valid.is_empty()
+                } else {
+                    lod.counts_complete(k)
+                });
                 if region != level.published {
                     level.published = region;
                     level.updated_tick = tick;
@@ -388,9 +523,15 @@ impl Clipmap {
         let count = self.levels.len();
         let heaviest = self.views.heaviest();
         let demote = |p: Priority, w: f64| Priority { rank: p.rank.saturating_add(demotion(w, heaviest)), ..p };
-        let mut best = demote(primary, self.views.primary_weight);
+        let mut best = None;
+        if self.views.primary_lod.shows(k as u32) {
+            best = Some(demote(primary, self.views.primary_weight));
+        }
         let clip = self.levels[k].shape.clip;
         for (_, view) in self.views.live() {
+            if !view.lod.shows(k as u32) {
+                continue;
+            }
             let Some(l) = view.levels.get(k).filter(|_| view.centre.is_some()) else { continue };
             let k32 = k as u32;
             let v =
@@ -400,9 +541,11 @@ impl Clipmap {
             } else {
                 crate::queue::priority(k32, count, texels, l.frame.valid, clip, v)
             };
-            best = best.min(demote(p, view.weight));
+            let p = demote(p, view.weight);
+            best = Some(best.map_or(p, |b: Priority| b.min(p)));
         }
-        best
+        // A tile no view shows is not in any mem region; the primary's rank stands in.
+        best.unwrap_or(primary)
     }
 
     /// Slots about to leave level `k`'s mem region `mem` whose tiles lie under a further view's

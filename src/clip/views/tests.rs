@@ -22,6 +22,8 @@ enum Step {
     Add(u8),
     Remove(usize),
     Weight(usize, u8),
+    /// Sets view `i`'s LOD window (4: the primary's): offset, effective levels.
+    Lod(usize, u32, u32),
     Wait,
 }
 
@@ -34,6 +36,7 @@ fn step() -> impl Strategy<Value = Step> {
         1 => (1u8..=4).prop_map(Step::Add),
         1 => (0usize..4).prop_map(Step::Remove),
         1 => (0usize..5, 1u8..=4).prop_map(|(i, w)| Step::Weight(i, w)),
+        1 => (0usize..5, 0u32..4, prop_oneof![Just(u32::MAX), 1u32..4]).prop_map(|(i, o, e)| Step::Lod(i, o, e)),
         3 => Just(Step::Wait),
     ]
 }
@@ -93,6 +96,12 @@ fn walk(
                     map.set_view_weight(v, w as f64).unwrap();
                 }
             }
+            Step::Lod(i, offset, effective) => {
+                let v = if i == 4 { Some(PRIMARY) } else { pick(i) };
+                if let Some(v) = v {
+                    map.set_view_lod(v, LodWindow { offset, effective }).unwrap();
+                }
+            }
             Step::Wait => map.wait_for_reads(),
         }
         for (&v, &p) in &positions {
@@ -104,8 +113,27 @@ fn walk(
         }
         prop_assert_eq!(map.stats().slots_reassigned_under_views, 0);
         prop_assert_eq!(map.stats().slots_reassigned_under_published, 0);
+        // No view publishes a level outside its LOD window, nor uses a level finer than it.
+        for v in map.view_ids() {
+            let lod = map.view_lod(v).unwrap();
+            for k in 0..map.level_count() as u32 {
+                if !lod.shows(k) {
+                    prop_assert!(
+                        map.view_level(v, k).unwrap().valid.is_empty(),
+                        "view {} level {} outside {:?}",
+                        v,
+                        k,
+                        lod
+                    );
+                }
+            }
+            prop_assert!(map.view_min_lod(v).unwrap() >= lod.offset as f64);
+        }
     }
     // Settled: every view whose windows the grids hold whole (with the primary's) shows level 0.
+    for v in map.view_ids() {
+        map.set_view_lod(v, LodWindow::ALL).unwrap();
+    }
     for _ in 0..80 {
         for (&v, &p) in &positions {
             map.move_view(v, p, Some([0, 0])).unwrap();
@@ -295,4 +323,115 @@ fn bad_view_calls_say_what_was_expected() {
     map.tick([500, 500], None);
     assert_eq!(map.view_level(b, 0).unwrap().valid, crate::geom::Rect::EMPTY);
     assert_eq!(map.view_min_lod(b).unwrap(), map.level_count() as f64);
+}
+
+/// A view flying high (its LOD offset 3) holds and reads nothing of levels 0 to 2: alone, those
+/// grids stay empty; beside a low view far away, they hold the low view's windows only.
+#[test]
+fn a_view_with_a_lod_offset_holds_and_reads_no_grid_finer_than_it_shows() {
+    let c = [2000, 2000];
+    // The primary alone at offset 3, then at offset 0: reads of the fine levels only in the second.
+    let (disk, mut high) = over_disk(1 << 20, settings(None));
+    high.set_view_lod(PRIMARY, LodWindow { offset: 3, effective: u32::MAX }).unwrap();
+    for _ in 0..40 {
+        disk_step(&disk, &mut high, c);
+        check_view(&high, PRIMARY).unwrap();
+    }
+    assert_eq!(high.min_lod(), 3.0, "it shows level 3 and coarser, whole");
+    for k in 0..3 {
+        assert!(high.mem_regions()[k].is_empty(), "level {k} holds nothing: {:?}", high.mem_regions()[k]);
+        assert!(high.level(k as u32).valid.is_empty());
+    }
+    assert_eq!(high.view_resident_levels(PRIMARY).unwrap(), (3..high.level_count() as u32).collect::<Vec<_>>());
+    let (disk_low, mut low) = over_disk(1 << 20, settings(None));
+    for _ in 0..40 {
+        disk_step(&disk_low, &mut low, c);
+    }
+    assert_eq!(low.min_lod(), 0.0);
+    let fine: u64 = (0..3).map(|k| low.mem_regions()[k].area()).sum();
+    assert!(fine > 0);
+    assert_eq!(
+        disk_low.reads() - disk.reads(),
+        fine,
+        "the high view reads exactly the fine levels' tiles fewer ({} vs {})",
+        disk.reads(),
+        disk_low.reads()
+    );
+
+    // Coming down: offset 0 again, the fine levels are read and shown.
+    high.set_view_lod(PRIMARY, LodWindow::ALL).unwrap();
+    for _ in 0..20 {
+        disk_step(&disk, &mut high, c);
+        check_view(&high, PRIMARY).unwrap();
+    }
+    assert_eq!(high.min_lod(), 0.0);
+
+    // A high further view far from a low primary: the fine grids hold the primary's windows
+    // only, exactly as with no further view.
+    let (disk2, mut two) = over_disk(1 << 20, Settings { view_spread: 4096, ..settings(None) });
+    let v = two.add_view(1.0).unwrap();
+    two.set_view_lod(v, LodWindow { offset: 3, effective: u32::MAX }).unwrap();
+    for _ in 0..40 {
+        two.move_view(v, [c[0] + 1200, c[1] - 900], None).unwrap();
+        disk_step(&disk2, &mut two, c);
+        check_view(&two, PRIMARY).unwrap();
+        check_view(&two, v).unwrap();
+    }
+    assert_eq!(two.view_min_lod(v).unwrap(), 3.0);
+    for k in 0..3u32 {
+        assert!(two.view_level(v, k).unwrap().valid.is_empty(), "level {k}");
+        let window = tiles_covering(two.level(k).valid, two.level(k).tile);
+        let mem = two.mem_regions()[k as usize];
+        // With the spread the grid could hold both; it holds a primary-sized region.
+        assert_eq!(mem.intersect(&window), window, "level {k}: the primary's window is held");
+        assert!(
+            mem.width() <= window.width() + 2 && mem.height() <= window.height() + 2,
+            "level {k}: {mem:?} for {window:?}"
+        );
+    }
+    // Level 3 holds both windows (the spread allows it).
+    assert_eq!(two.view_min_lod(v).unwrap(), 3.0);
+    assert!(two.view_resident_levels(v).unwrap().contains(&3));
+    assert_eq!(two.stats().slots_reassigned_under_views, 0);
+}
+
+/// The offset follows a view's height: finer at once a quarter level early, coarser half a level
+/// late, never outside the levels, the same answer when asked again.
+#[test]
+fn the_lod_offset_follows_the_footprint_with_hysteresis() {
+    let f = |current, lod: f64| offset_for_footprint(current, lod.exp2(), 12);
+    assert_eq!(f(0, 3.3), 2, "from finer it moves coarser to floor(3.3 - 0.5) only");
+    assert_eq!(f(3, 3.3), 3);
+    assert_eq!(f(3, 3.2), 2, "a quarter level early, finer");
+    assert_eq!(f(3, 4.4), 3, "coarser only half a level late");
+    assert_eq!(f(3, 4.5), 4);
+    assert_eq!(f(5, -2.0), 0, "a view below one texel a pixel shows level 0");
+    assert_eq!(f(0, 40.0), 11, "never past the coarsest level");
+    assert_eq!(offset_for_footprint(4, f64::NAN, 12), 4);
+    assert_eq!(offset_for_footprint(4, 0.0, 12), 4);
+    for current in 0..12 {
+        for tenth in -20..130 {
+            let lod = tenth as f64 / 10.0;
+            let o = f(current, lod);
+            let (lo, hi) = ((lod - 0.5).floor().clamp(0.0, 11.0) as u32, (lod - 0.25).floor().clamp(0.0, 11.0) as u32);
+            assert_eq!(o, current.clamp(lo, hi), "{current} at {lod}");
+            assert_eq!(f(o, lod), o, "stable: {current} at {lod}");
+        }
+    }
+}
+
+#[test]
+fn bad_lod_windows_say_what_was_expected() {
+    let src = hash_source([1 << 10, 1 << 10], 64, 16, 0, TexelFormat::L8);
+    let mut map = Clipmap::new(src, settings(None)).unwrap();
+    let levels = map.level_count() as u32;
+    let e = map.set_view_lod(PRIMARY, LodWindow { offset: levels, effective: 1 }).unwrap_err();
+    assert!(e.to_string().contains(&format!("expected 0 to {}", levels - 1)), "{e}");
+    let e = map.set_view_lod(PRIMARY, LodWindow { offset: 0, effective: 0 }).unwrap_err();
+    assert!(e.to_string().contains("at least 1"), "{e}");
+    assert_eq!(map.set_view_lod(9, LodWindow::ALL), Err(ViewError::Unknown(9)));
+    let e = map.set_view_footprint(PRIMARY, f64::NAN).unwrap_err();
+    assert!(e.to_string().contains("positive finite"), "{e}");
+    assert_eq!(map.set_view_footprint(PRIMARY, 8.0 * 1.5).unwrap(), 3);
+    assert_eq!(map.view_lod(PRIMARY).unwrap(), LodWindow { offset: 3, effective: u32::MAX });
 }
