@@ -213,10 +213,10 @@
 #define CLIPMAP_V_SNAPSHOT 128           /* the view's snapshot, CLIPMAP_SNAPSHOT_BYTES, laid out as CLIPMAP_H_SNAPSHOT's */
 #define CLIPMAP_VIEW_FREE 0u
 #define CLIPMAP_VIEW_LIVE 1u
-/* View request records (relative to CLIPMAP_R_VIEWS + CLIPMAP_VIEW_REQUEST_BYTES * r, r < 56): the
+/* View request records (relative to CLIPMAP_R_VIEWS + CLIPMAP_VIEW_REQUEST_BYTES * r, r < 24): the
  * main request's fields at the same distances from their lock word, and the view's incarnation. */
 #define CLIPMAP_VIEW_REQUEST_BYTES 64u
-#define CLIPMAP_MAX_VIEW_REQUESTS 56u    /* request records for view records 0..55 */
+#define CLIPMAP_MAX_VIEW_REQUESTS 24u    /* request records for view records 0..23 (the LOD records follow) */
 #define CLIPMAP_VR_SEQ 0                 /* u64 atomic lock word (as CLIPMAP_R_SEQ) */
 #define CLIPMAP_VR_CENTRE_S 8            /* i64: requested level-0 centre */
 #define CLIPMAP_VR_CENTRE_T 16           /* i64 */
@@ -225,6 +225,15 @@
 #define CLIPMAP_VR_CLIENT_PID 40         /* u64 */
 #define CLIPMAP_VR_COUNT 48              /* u64: requests made */
 #define CLIPMAP_VR_INCARNATION 56        /* u64: the incarnation of the view the request is for */
+/* LOD request records (docs/SHM.md, "Asking for a view's levels"): record i at CLIPMAP_R_LOD +
+ * CLIPMAP_LOD_RECORD_BYTES * i, i = 0 for `main` (under CLIPMAP_R_SEQ), 1 + r for view record r
+ * (under its request record's lock word). */
+#define CLIPMAP_R_LOD 2048
+#define CLIPMAP_LOD_RECORD_BYTES 32u
+#define CLIPMAP_LOD_HEIGHT 0             /* f64 bits: height above the texture, level-0 texels (0: none) */
+#define CLIPMAP_LOD_PIXEL_ANGLE 8        /* f64 bits: radians one screen pixel spans */
+#define CLIPMAP_LOD_EFFECTIVE 16         /* u64: levels the renderer addresses at once (0: all) */
+#define CLIPMAP_LOD_COUNT 24             /* u64: LOD requests made */
 
 /* Texel format codes (CLIPMAP_H_TEXEL_FORMAT); 16-bit components are little-endian. */
 #define CLIPMAP_FORMAT_OTHER 0u
@@ -270,8 +279,10 @@ _Static_assert(CLIPMAP_H_GLOBAL_SEQ == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ &&
                    CLIPMAP_H_LEVEL_STATES == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_LEVELS,
                "absolute snapshot offsets");
 _Static_assert(CLIPMAP_V_SNAPSHOT + CLIPMAP_SNAPSHOT_BYTES == CLIPMAP_VIEW_RECORD_BYTES, "view record size");
-_Static_assert(CLIPMAP_R_VIEWS + CLIPMAP_MAX_VIEW_REQUESTS * CLIPMAP_VIEW_REQUEST_BYTES == CLIPMAP_REQUEST_BYTES,
-               "view request records");
+_Static_assert(CLIPMAP_R_VIEWS + CLIPMAP_MAX_VIEW_REQUESTS * CLIPMAP_VIEW_REQUEST_BYTES == CLIPMAP_R_LOD,
+               "view request records end where the LOD records begin");
+_Static_assert(CLIPMAP_R_LOD + (CLIPMAP_MAX_VIEW_REQUESTS + 1) * CLIPMAP_LOD_RECORD_BYTES <= CLIPMAP_REQUEST_BYTES,
+               "LOD request records");
 _Static_assert(CLIPMAP_R_SEQ + CLIPMAP_VR_CENTRE_S == CLIPMAP_R_CENTRE_S &&
                    CLIPMAP_R_SEQ + CLIPMAP_VR_CENTRE_T == CLIPMAP_R_CENTRE_T &&
                    CLIPMAP_R_SEQ + CLIPMAP_VR_VEL_S == CLIPMAP_R_VEL_S &&
@@ -1372,7 +1383,7 @@ static inline int clipmap_closed(const struct clipmap_map *m) {
 struct clipmap_request {
     unsigned char *base;
     size_t len;
-    char error[320];
+    char error[4608]; /* room for a path of PATH_MAX and the message around it */
 };
 
 /* Maps the request mapping `path` read-write and checks its magic, version, size and that its
@@ -1451,8 +1462,18 @@ static inline uint32_t clipmap_request_owner_(uint64_t held) { return (uint32_t)
 /* The request protocol at the lock word at byte `at` of the request mapping (CLIPMAP_R_SEQ for the
  * main request, a view request record's for a view; the fields lie at the same distances from it,
  * CLIPMAP_VR_*); with `view`, the incarnation is stored too (CLIPMAP_VR_INCARNATION). */
-static inline int clipmap_request_at_(struct clipmap_request *r, size_t at, int view, uint64_t incarnation, int64_t s,
-                                      int64_t t, double vs, double vt) {
+/* What one request stores under its lock word: a centre and velocity, or (lod_at != 0) a LOD
+ * request at byte lod_at of the request mapping. */
+struct clipmap_request_fields_ {
+    int64_t s, t;
+    double vs, vt;
+    size_t lod_at;
+    double height, pixel_angle;
+    uint32_t effective;
+};
+
+static inline int clipmap_request_at_(struct clipmap_request *r, size_t at, int view, uint64_t incarnation,
+                                      const struct clipmap_request_fields_ *f) {
     uint64_t *seq = (uint64_t *)(void *)(r->base + at + CLIPMAP_VR_SEQ);
     uint64_t odd = 0, odd_since = 0, start = clipmap_now_ms_();
     uint32_t pid = (uint32_t)getpid();
@@ -1478,18 +1499,30 @@ static inline int clipmap_request_at_(struct clipmap_request *r, size_t at, int 
         uint64_t expect = v, mine = clipmap_request_locked_(v, pid);
         if (!__atomic_compare_exchange_n(seq, &expect, mine, 0, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED)) continue;
         __atomic_thread_fence(__ATOMIC_RELEASE);
-        uint64_t bits_s, bits_t;
-        memcpy(&bits_s, &vs, 8);
-        memcpy(&bits_t, &vt, 8);
-#define CLIPMAP_RSTORE_(off, val) __atomic_store_n((uint64_t *)(void *)(r->base + at + (off)), (val), __ATOMIC_RELAXED)
-        CLIPMAP_RSTORE_(CLIPMAP_VR_CENTRE_S, (uint64_t)s);
-        CLIPMAP_RSTORE_(CLIPMAP_VR_CENTRE_T, (uint64_t)t);
-        CLIPMAP_RSTORE_(CLIPMAP_VR_VEL_S, bits_s);
-        CLIPMAP_RSTORE_(CLIPMAP_VR_VEL_T, bits_t);
-        CLIPMAP_RSTORE_(CLIPMAP_VR_CLIENT_PID, (uint64_t)pid);
-        if (view) CLIPMAP_RSTORE_(CLIPMAP_VR_INCARNATION, incarnation);
-        uint64_t count = __atomic_load_n((uint64_t *)(void *)(r->base + at + CLIPMAP_VR_COUNT), __ATOMIC_RELAXED);
-        CLIPMAP_RSTORE_(CLIPMAP_VR_COUNT, count + 1);
+#define CLIPMAP_RSTORE_(off, val) __atomic_store_n((uint64_t *)(void *)(r->base + (off)), (val), __ATOMIC_RELAXED)
+        size_t counter;
+        if (f->lod_at) {
+            uint64_t bits_h, bits_a;
+            memcpy(&bits_h, &f->height, 8);
+            memcpy(&bits_a, &f->pixel_angle, 8);
+            CLIPMAP_RSTORE_(f->lod_at + CLIPMAP_LOD_HEIGHT, bits_h);
+            CLIPMAP_RSTORE_(f->lod_at + CLIPMAP_LOD_PIXEL_ANGLE, bits_a);
+            CLIPMAP_RSTORE_(f->lod_at + CLIPMAP_LOD_EFFECTIVE, (uint64_t)f->effective);
+            counter = f->lod_at + CLIPMAP_LOD_COUNT;
+        } else {
+            uint64_t bits_s, bits_t;
+            memcpy(&bits_s, &f->vs, 8);
+            memcpy(&bits_t, &f->vt, 8);
+            CLIPMAP_RSTORE_(at + CLIPMAP_VR_CENTRE_S, (uint64_t)f->s);
+            CLIPMAP_RSTORE_(at + CLIPMAP_VR_CENTRE_T, (uint64_t)f->t);
+            CLIPMAP_RSTORE_(at + CLIPMAP_VR_VEL_S, bits_s);
+            CLIPMAP_RSTORE_(at + CLIPMAP_VR_VEL_T, bits_t);
+            counter = at + CLIPMAP_VR_COUNT;
+        }
+        CLIPMAP_RSTORE_(at + CLIPMAP_VR_CLIENT_PID, (uint64_t)pid);
+        if (view) CLIPMAP_RSTORE_(at + CLIPMAP_VR_INCARNATION, incarnation);
+        uint64_t count = __atomic_load_n((uint64_t *)(void *)(r->base + counter), __ATOMIC_RELAXED);
+        CLIPMAP_RSTORE_(counter, count + 1);
 #undef CLIPMAP_RSTORE_
         expect = mine; /* release: never over a word someone else stored */
         if (__atomic_compare_exchange_n(seq, &expect, clipmap_request_released_(mine), 0, __ATOMIC_ACQ_REL,
@@ -1508,7 +1541,8 @@ static inline int clipmap_request_at_(struct clipmap_request *r, size_t at, int 
  * renderer's lock was taken from it, which happens only if its pid is not visible to the others:
  * renderers must share a pid namespace). */
 static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, int64_t t, double vs, double vt) {
-    return clipmap_request_at_(r, CLIPMAP_R_SEQ, 0, 0, s, t, vs, vt);
+    const struct clipmap_request_fields_ f = {s, t, vs, vt, 0, 0.0, 0.0, 0};
+    return clipmap_request_at_(r, CLIPMAP_R_SEQ, 0, 0, &f);
 }
 
 /* Asks for view *v's centre as clipmap_request_centre does for `main` (which it is for `main`),
@@ -1516,7 +1550,7 @@ static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, i
  * record), storing the incarnation clipmap_view_find kept with the fields: the service ignores a
  * request for an incarnation that is no longer the record's (a removed view). CLIPMAP_OK,
  * CLIPMAP_BUSY as clipmap_request_centre's; CLIPMAP_NOT_VALID (r->error says why) when the view's
- * record has no request record (records 56 to 63: ask through the control socket, `VIEW CENTRE`). */
+ * record has no request record (records 24 to 63: ask through the control socket, `VIEW CENTRE`). */
 static inline int clipmap_request_view_centre(struct clipmap_request *r, const struct clipmap_view *v, int64_t s,
                                               int64_t t, double vs, double vt) {
     if (v->record == CLIPMAP_VIEW_MAIN) return clipmap_request_centre(r, s, t, vs, vt);
@@ -1525,8 +1559,37 @@ static inline int clipmap_request_view_centre(struct clipmap_request *r, const s
                  "for view records 0 to %u only", v->name, v->record, CLIPMAP_MAX_VIEW_REQUESTS - 1);
         return CLIPMAP_NOT_VALID;
     }
+    const struct clipmap_request_fields_ f = {s, t, vs, vt, 0, 0.0, 0.0, 0};
     return clipmap_request_at_(r, CLIPMAP_R_VIEWS + (size_t)v->record * CLIPMAP_VIEW_REQUEST_BYTES, 1, v->incarnation,
-                               s, t, vs, vt);
+                               &f);
+}
+
+/* Asks the service for the levels view *v (`main` too) can use from `height` level-0 texels above
+ * the texture, one screen pixel spanning `pixel_angle` radians, addressing `effective` levels at once
+ * (0: all): the service moves the view's LOD offset to the finest level sampled there and holds and
+ * reads nothing finer for it (docs/VIEWS.md, "Virtual views"). Under the view's lock word, as
+ * clipmap_request_view_centre. CLIPMAP_OK, CLIPMAP_BUSY as there; CLIPMAP_NOT_VALID (r->error says
+ * why) for a height or angle that is not a finite number above 0 (the angle below pi), or a view
+ * record without a request record. */
+static inline int clipmap_request_lod(struct clipmap_request *r, const struct clipmap_view *v, double height,
+                                      double pixel_angle, uint32_t effective) {
+    if (!(height > 0 && height <= DBL_MAX) || !(pixel_angle > 0 && pixel_angle < 3.141592653589793)) {
+        snprintf(r->error, sizeof r->error, "LOD request: height %g and pixel angle %g: expected a finite height above "
+                 "0 (level-0 texels) and an angle above 0 and below pi (radians)", height, pixel_angle);
+        return CLIPMAP_NOT_VALID;
+    }
+    int main_view = v == NULL || v->record == CLIPMAP_VIEW_MAIN;
+    if (!main_view && v->record >= CLIPMAP_MAX_VIEW_REQUESTS) {
+        snprintf(r->error, sizeof r->error, "view \"%s\" is view record %u: the request mapping has request records "
+                 "for view records 0 to %u only", v->name, v->record, CLIPMAP_MAX_VIEW_REQUESTS - 1);
+        return CLIPMAP_NOT_VALID;
+    }
+    const size_t index = main_view ? 0 : 1 + (size_t)v->record;
+    const struct clipmap_request_fields_ f = {0, 0, 0.0, 0.0, CLIPMAP_R_LOD + index * CLIPMAP_LOD_RECORD_BYTES,
+                                              height, pixel_angle, effective};
+    if (main_view) return clipmap_request_at_(r, CLIPMAP_R_SEQ, 0, 0, &f);
+    return clipmap_request_at_(r, CLIPMAP_R_VIEWS + (size_t)v->record * CLIPMAP_VIEW_REQUEST_BYTES, 1, v->incarnation,
+                               &f);
 }
 
 static inline void clipmap_request_close(struct clipmap_request *r) {

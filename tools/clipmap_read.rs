@@ -64,6 +64,36 @@ struct Cli {
     /// The view to read (docs/VIEWS.md): `main`, the primary, or a further view's name.
     #[arg(long, default_value = "main")]
     view: String,
+    /// Also ask for the view's levels from HEIGHT level-0 texels above the texture, one screen
+    /// pixel spanning ANGLE radians, addressing EFFECTIVE levels at once (0 or omitted: all):
+    /// the service moves the view's LOD offset to match (docs/VIEWS.md, "Virtual views").
+    #[arg(long, value_name = "HEIGHT,ANGLE[,EFFECTIVE]", value_parser = parse_lod)]
+    lod: Option<(f64, f64, u32)>,
+}
+
+/// `--lod HEIGHT,ANGLE[,EFFECTIVE]`.
+fn parse_lod(s: &str) -> Result<(f64, f64, u32), String> {
+    let parts: Vec<&str> = s.split(',').collect();
+    let num = |w: &str, what: &str| match w.trim().parse::<f64>() {
+        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+        _ => Err(format!("{what} `{w}`: expected a positive finite number")),
+    };
+    match parts.as_slice() {
+        [h, a] | [h, a, _] => {
+            let (h, a) = (num(h, "height")?, num(a, "pixel angle")?);
+            if a >= std::f64::consts::PI {
+                return Err(format!("pixel angle {a}: expected radians below pi, such as 0.001"));
+            }
+            let e = match parts.get(2) {
+                Some(e) => {
+                    e.trim().parse::<u32>().map_err(|_| format!("effective levels `{e}`: expected 0 (all) or more"))?
+                }
+                None => 0,
+            };
+            Ok((h, a, e))
+        }
+        _ => Err(format!("`{s}`: expected HEIGHT,ANGLE or HEIGHT,ANGLE,EFFECTIVE, such as 40000,0.001")),
+    }
 }
 
 #[derive(Default, serde::Serialize)]
@@ -120,6 +150,7 @@ fn main() -> ExitCode {
     let mut stale = false;
     let mut last_request = Instant::now();
     let mut step = 0u64;
+    let mut lod_asked = 0u64;
     while counts.check.passed + counts.check.failed < cli.reads && Instant::now() < deadline {
         step += 1;
         counts.check.step(&client, &mut rng, cli.block.max(1), &mut buf, &clipmap::source::procedural::hash);
@@ -129,6 +160,12 @@ fn main() -> ExitCode {
             client.request_centre(c, v);
             counts.requests += 1;
             last_request = Instant::now();
+        }
+        // The LOD request, again every 64 steps (a restarted service hears it too).
+        if let Some((h, a, e)) = cli.lod.filter(|_| step.is_multiple_of(64) || lod_asked == 0) {
+            if client.request_lod(h, a, e) {
+                lod_asked += 1;
+            }
         }
         if cli.follow && step.is_multiple_of(64) {
             let now_stale = client.heartbeat_age() > Duration::from_millis(cli.stale_ms) || client.closed();

@@ -104,6 +104,11 @@ struct Cli {
     /// grows by that many texels (halved per level) per axis (0: grids for one view).
     #[arg(long, default_value_t = 0, value_name = "TEXELS")]
     view_spread: u64,
+    /// Levels every view addresses at once from its LOD offset (Performer's effective levels;
+    /// docs/VIEWS.md, "Virtual views"): a view holds and reads nothing outside them. Default: a
+    /// `.ct`'s `effective_levels` where it writes one below its level count, else all levels.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
+    effective_levels: Option<u32>,
     /// Close control connections idle for this many milliseconds.
     #[arg(long, default_value_t = 30_000)]
     idle_ms: u64,
@@ -162,6 +167,7 @@ fn options(cli: &Cli, default_name: &str) -> Result<Options, Failure> {
     o.centre_alignment = cli.centre_alignment;
     o.views = cli.views.clone();
     o.view_spread = cli.view_spread;
+    o.effective_levels = cli.effective_levels;
     o.control = ControlLimits {
         idle: Duration::from_millis(cli.idle_ms),
         max_connections: cli.max_connections,
@@ -218,6 +224,7 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
     // The grower's thread, stopped and joined after the service: the step under way ends and the
     // store is closed before the process exits.
     let mut grower_thread = None;
+    let mut ct_effective = None;
     let (source, default_name, paging) = match (&cli.config, cli.source) {
         (None, None) if cli.growing.is_some() => {
             let dir = cli.growing.clone().unwrap_or_default();
@@ -272,6 +279,10 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             };
             // The configuration's `#clipmap` lines, under the command line's flags.
             let paging = plan.paging;
+            // A virtual clip texture's effective levels, where the `.ct` writes them.
+            if plan.is_virtual && !plan.defaulted.contains(&"effective_levels") {
+                ct_effective = Some(plan.effective_levels);
+            }
             let src = clipmap::source::open_plan(plan, &clipmap::limits::Limits::default())
                 .map_err(|e| bad(anyhow::anyhow!("{e}")))?;
             let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "clip".into());
@@ -305,6 +316,7 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
     };
     let mut options = options(&cli, &default_name)?;
     options.paging = cli.paging.over(paging);
+    options.effective_levels = cli.effective_levels.or(ct_effective);
     options.growing = grower;
     let summary = service::run(source, options, shutdown_signal(int, term), |s| {
         println!("clipmapd: serving {} ({} levels, clip {})", s.mapping.display(), s.levels, s.clip_size);

@@ -43,7 +43,13 @@
  *
  * prints the view's snapshot: its line as --views prints it, "tick T min_lod X centre S T border B",
  * then one line per level: "level K centre S T region S0 T0 S1 T1 enabled E tick U" (floats as
- * %.17g; exit 3 when the view was removed). The Python reader's options print the same. */
+ * %.17g; exit 3 when the view was removed). The Python reader's options print the same.
+ *
+ * `--lod HEIGHT,ANGLE[,EFFECTIVE]`, anywhere after MAPPING, first asks the service for the view's
+ * levels (clipmap_request_lod: HEIGHT level-0 texels above the texture, a pixel of ANGLE radians,
+ * EFFECTIVE levels addressed at once, 0 or omitted: all) through MAPPING's request mapping (its
+ * name with .map changed to .req), then reads as without it; a request that cannot be made exits 2
+ * with why. */
 #include "clipmap_shm.h"
 
 #include <stdlib.h>
@@ -93,8 +99,17 @@ static void print_view(const char *name, uint32_t record, uint64_t incarnation, 
 int main(int argc, char **argv) {
     /* --view NAME, anywhere after MAPPING: taken out of argv, which then reads as before. */
     const char *view_name = "main";
+    const char *lod = NULL;
     int kept = 0;
     for (int i = 0; i < argc; i++) {
+        if (i > 0 && strcmp(argv[i], "--lod") == 0) {
+            if (i + 1 >= argc) {
+                fprintf(stderr, "usage: %s MAPPING ... --lod HEIGHT,ANGLE[,EFFECTIVE]: --lod needs its numbers\n", argv[0]);
+                return 2;
+            }
+            lod = argv[++i];
+            continue;
+        }
         if (i > 0 && strcmp(argv[i], "--view") == 0) {
             if (i + 1 >= argc) {
                 fprintf(stderr, "usage: %s MAPPING READS [SEED [SECONDS]] [--view NAME]: --view needs a name\n", argv[0]);
@@ -133,6 +148,31 @@ int main(int argc, char **argv) {
         fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], view.error);
         clipmap_close(&m);
         return 2;
+    }
+    if (lod != NULL) {
+        double height = 0, angle = 0;
+        unsigned effective = 0;
+        int got = sscanf(lod, "%lf,%lf,%u", &height, &angle, &effective);
+        char req_path[4096];
+        size_t n = strlen(argv[1]);
+        if (got < 2 || n < 4 || n >= sizeof req_path || strcmp(argv[1] + n - 4, ".map") != 0) {
+            fprintf(stderr, "clipmap reader: --lod %s: expected HEIGHT,ANGLE[,EFFECTIVE] (such as 12000,0.001) and a "
+                    "MAPPING named *.map\n", lod);
+            clipmap_close(&m);
+            return 2;
+        }
+        memcpy(req_path, argv[1], n - 4);
+        memcpy(req_path + n - 4, ".req", 5);
+        struct clipmap_request req;
+        int rc = clipmap_request_open(req_path, &m, &req);
+        if (rc == 0) rc = clipmap_request_lod(&req, &view, height, angle, effective) == CLIPMAP_OK ? 0 : -1;
+        if (rc != 0) {
+            fprintf(stderr, "clipmap reader: %s: LOD request: %s\n", req_path, req.error);
+            clipmap_request_close(&req);
+            clipmap_close(&m);
+            return 2;
+        }
+        clipmap_request_close(&req);
     }
     if (strcmp(argv[2], "--snapshot") == 0) {
         struct clipmap_snapshot snap;

@@ -125,8 +125,12 @@ REQ_MAGIC, REQ_VERSION, REQ_GENERATION, REQ_SEQ = 0, 8, 16, 64
 REQ_CENTRE_S, REQ_CENTRE_T, REQ_VEL_S, REQ_VEL_T, REQ_CLIENT_PID, REQ_COUNT = 72, 80, 88, 96, 104, 112
 # View request record r at REQ_VIEWS + VIEW_REQUEST_BYTES * r (r < MAX_VIEW_REQUESTS): the main
 # request's fields at the same distances from their lock word, and the view's incarnation.
-REQ_VIEWS, VIEW_REQUEST_BYTES, MAX_VIEW_REQUESTS = 512, 64, 56
+REQ_VIEWS, VIEW_REQUEST_BYTES, MAX_VIEW_REQUESTS = 512, 64, 24
 VR_SEQ, VR_CENTRE_S, VR_CENTRE_T, VR_VEL_S, VR_VEL_T, VR_CLIENT_PID, VR_COUNT, VR_INCARNATION = 0, 8, 16, 24, 32, 40, 48, 56
+# LOD request record i at REQ_LOD + LOD_RECORD_BYTES * i (0: main, 1 + r: view record r), under the
+# same lock words (docs/SHM.md, "Asking for a view's levels"); Python asks through the socket.
+REQ_LOD, LOD_RECORD_BYTES = 2048, 32
+LOD_HEIGHT, LOD_PIXEL_ANGLE, LOD_EFFECTIVE, LOD_COUNT = 0, 8, 16, 24
 
 # Views (docs/SHM.md, "Views"): the primary view, "main", is the snapshot at H_SNAPSHOT; further
 # views are the view records of the views block at H_VIEWS_OFFSET.
@@ -324,6 +328,34 @@ def request_centre(socket_path, s, t, view=None, timeout=5.0):
         line = f"VIEW CENTRE {name} {int(s)} {int(t)}\n"
     else:
         raise NoView(f'"{name}" is not a view name: expected "main" or 1 to {VIEW_NAME_MAX} of A-Z a-z 0-9 - _ .')
+    return _ask(socket_path, line, timeout)
+
+
+def request_lod(socket_path, height, pixel_angle, effective=0, view=None, timeout=5.0):
+    """Asks the service for the levels a view (None or "main": the primary; a name or a View) can
+    use from `height` level-0 texels above the texture, one screen pixel spanning `pixel_angle`
+    radians, addressing `effective` levels at once (0: all), through the control socket's
+    `VIEW HEIGHT NAME HEIGHT ANGLE EFFECTIVE`: the service moves the view's LOD offset to the
+    finest level sampled there and holds and reads nothing finer for it (docs/VIEWS.md, "Virtual
+    views"). Raises ValueError for numbers that are not finite and above 0 (the angle below pi),
+    NoView and ClipmapError as request_centre does."""
+    import math
+
+    h, a = float(height), float(pixel_angle)
+    if not (math.isfinite(h) and h > 0 and math.isfinite(a) and 0 < a < math.pi):
+        raise ValueError(f"height {h} and pixel angle {a}: expected a finite height above 0 (level-0 texels) "
+                         "and an angle above 0 and below pi (radians)")
+    e = int(effective)
+    if e < 0:
+        raise ValueError(f"effective levels {e}: expected 0 (all) or more")
+    name = view.name if isinstance(view, View) else (view or "main")
+    if name != "main" and not view_name_ok(name):
+        raise NoView(f'"{name}" is not a view name: expected "main" or 1 to {VIEW_NAME_MAX} of A-Z a-z 0-9 - _ .')
+    return _ask(socket_path, f"VIEW HEIGHT {name} {h!r} {a!r} {e}\n", timeout)
+
+
+def _ask(socket_path, line, timeout):
+    """One control-socket request line and its reply ("OK ..."), ClipmapError on anything else."""
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as c:
         c.settimeout(timeout)
         c.connect(socket_path)

@@ -644,15 +644,11 @@ impl Clipmap {
         let mut complete = Vec::with_capacity(self.levels.len());
         let lod = self.views.primary_lod;
         for k in 0..self.levels.len() {
-            // A level outside the primary's LOD window is not published for it (nor held for it).
+            // A level finer than the primary's LOD offset is not published for it (nor held for it).
             let shown = lod.shows(k as u32);
             let region = if shown { self.settled_region(k) } else { Rect::EMPTY };
             let level = &mut self.levels[k];
-            complete.push(if shown {
-                region == level.frame.valid || level.frame.valid.is_empty()
-            } else {
-                k as u32 >= lod.offset
-            });
+            complete.push(if shown { region == level.frame.valid || level.frame.valid.is_empty() } else { false });
             if region != level.published {
                 level.published = region;
                 level.updated_tick = self.tick;

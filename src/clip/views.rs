@@ -35,14 +35,18 @@ pub const PRIMARY: ViewId = 0;
 pub use crate::limits::MAX_VIEWS;
 
 /// The levels a view shows: Performer's virtual clip texture, a window of `effective` levels
-/// starting at `offset` (0: the finest). A view holds and reads nothing for the levels outside it;
-/// finer ones keep its min LOD at `offset` or coarser. [`LodWindow::ALL`] (the default) shows every
-/// level.
+/// starting at `offset` (0: the finest). A view holds, reads and publishes nothing finer than
+/// `offset`, and its min LOD stays at `offset` or coarser. Levels coarser than the window are
+/// held and published all the same: each is at most a clip-size square, and every reader relies
+/// on every level from min LOD to the coarsest being published (docs/SHM.md); `effective` is the
+/// renderer's own bound on what it addresses, kept and reported. [`LodWindow::ALL`] (the default)
+/// shows every level.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LodWindow {
     /// The finest level shown (Performer's LOD offset).
     pub offset: u32,
-    /// How many levels from `offset` are shown (Performer's effective levels; `u32::MAX`: all).
+    /// How many levels from `offset` the renderer addresses at once (Performer's effective
+    /// levels; `u32::MAX`: all).
     pub effective: u32,
 }
 
@@ -50,14 +54,8 @@ impl LodWindow {
     /// Every level.
     pub const ALL: LodWindow = LodWindow { offset: 0, effective: u32::MAX };
 
-    /// Whether level `k` is shown.
+    /// Whether level `k` is held and published for the view: it is not finer than the offset.
     pub fn shows(&self, k: u32) -> bool {
-        k >= self.offset && k - self.offset < self.effective.max(1)
-    }
-
-    /// Whether level `k` must be complete for the view to use level `k` or any coarser: every
-    /// level from the offset on is, none finer (so its min LOD never falls below the offset).
-    fn counts_complete(&self, k: u32) -> bool {
         k >= self.offset
     }
 }
@@ -480,7 +478,7 @@ impl Clipmap {
                 complete.push(if lod.shows(k) {
                     region == level.frame.valid || level.frame.valid.is_empty()
                 } else {
-                    lod.counts_complete(k)
+                    false
                 });
                 if region != level.published {
                     level.published = region;

@@ -311,12 +311,20 @@ pub fn human(s: &Status) -> String {
         s.clip_size,
         s.bytes_per_texel
     );
-    if s.views.len() > 1 || s.view != crate::shm::layout::views::PRIMARY_NAME {
-        o.push_str("view        weight  min LOD  centre\n");
+    let virtual_views = s.views.iter().any(|v| v.lod_offset > 0 || v.effective_levels < s.levels.len() as u32);
+    if s.views.len() > 1 || s.view != crate::shm::layout::views::PRIMARY_NAME || virtual_views {
+        o.push_str("view        weight  min LOD  LOD window    resident  centre\n");
         for v in &s.views {
             let centre = v.centre.map_or("-".to_string(), |c| format!("{} {}", c[0], c[1]));
             let shown = if v.name == s.view { "  (shown below)" } else { "" };
-            o.push_str(&format!("{:<11} {:>6.2}  {:>7.2}  {centre}{shown}\n", v.name, v.weight, v.min_lod));
+            let window = format!("{}..{}", v.lod_offset, (v.lod_offset + v.effective_levels).saturating_sub(1));
+            o.push_str(&format!(
+                "{:<11} {:>6.2}  {:>7.2}  {window:<12}  {:<8}  {centre}{shown}\n",
+                v.name,
+                v.weight,
+                v.min_lod,
+                level_list(&v.resident_levels)
+            ));
         }
         o.push('\n');
     }
@@ -547,4 +555,19 @@ mod tests {
             (serde_json::Value::Null, serde_json::Value::Null)
         );
     }
+}
+
+/// Levels as runs: `3..9`, `0..2,5`, `-` for none.
+fn level_list(levels: &[u32]) -> String {
+    let mut runs: Vec<(u32, u32)> = Vec::new();
+    for &k in levels {
+        match runs.last_mut() {
+            Some((_, end)) if *end + 1 == k => *end = k,
+            _ => runs.push((k, k)),
+        }
+    }
+    if runs.is_empty() {
+        return "-".into();
+    }
+    runs.iter().map(|&(a, b)| if a == b { a.to_string() } else { format!("{a}..{b}") }).collect::<Vec<_>>().join(",")
 }

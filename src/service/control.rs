@@ -196,6 +196,10 @@ async fn answer(ctx: &Context, line: &[u8], rd: &mut BufReader<tokio::net::unix:
         Request::ViewRemove(name) => (fallible(ctx, |tx| Command::ViewRemove(name, tx)).await, Flow::Continue),
         Request::ViewCentre(name, c) => (fallible(ctx, |tx| Command::ViewCentre(name, c, tx)).await, Flow::Continue),
         Request::ViewWeight(name, w) => (fallible(ctx, |tx| Command::ViewWeight(name, w, tx)).await, Flow::Continue),
+        Request::ViewLod(name, o, e) => (fallible(ctx, |tx| Command::ViewLod(name, o, e, tx)).await, Flow::Continue),
+        Request::ViewHeight(name, h, a, e) => {
+            (fallible(ctx, |tx| Command::ViewHeight(name, h, a, e, tx)).await, Flow::Continue)
+        }
         Request::Views => {
             (format!("OK {}", serde_json::to_string(&ctx.stats().tick.views).unwrap_or_default()), Flow::Continue)
         }

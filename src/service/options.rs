@@ -66,6 +66,9 @@ pub struct Options {
     /// Level-0 texels by which views may lie apart and all be held whole by the shared grids
     /// ([`crate::clip::Settings::view_spread`]; 0: grids for one view).
     pub view_spread: u64,
+    /// Levels every view addresses at once, from its LOD offset (Performer's effective levels;
+    /// `None`: all). A `.ct` that writes `effective_levels` below its level count gives it.
+    pub effective_levels: Option<u32>,
 }
 
 /// The default control socket of a name: `clipmap-<name>.sock` beside the mapping.
@@ -93,6 +96,7 @@ impl Options {
             growing: None,
             views: Vec::new(),
             view_spread: 0,
+            effective_levels: None,
         }
     }
 

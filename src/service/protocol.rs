@@ -30,6 +30,13 @@ pub enum Request {
     ViewCentre(String, [i64; 2]),
     /// `VIEW WEIGHT <name> <weight>`.
     ViewWeight(String, f64),
+    /// `VIEW LOD <name> <offset> [<effective>|all]`: the levels a view shows (docs/VIEWS.md,
+    /// "Virtual views"); effective `all` (the default) or 1 and more.
+    ViewLod(String, u32, Option<u32>),
+    /// `VIEW HEIGHT <name> <height> <pixel angle> [<effective>]`: a LOD request as the request
+    /// mapping's (docs/SHM.md, "Asking for a view's levels"), for those who cannot take its lock
+    /// words (Python).
+    ViewHeight(String, f64, f64, u32),
     /// `VIEWS`: `OK {json}`, the views and their figures.
     Views,
     /// `QUIT`: closes this connection.
@@ -91,7 +98,7 @@ pub enum BadRequest {
     #[error("unknown command `{0}`; expected one of {COMMANDS}")]
     Unknown(String),
     /// A `VIEW` request of the wrong shape, or a bad name or weight.
-    #[error("{0}; usage: VIEW ADD <name> [<weight>], VIEW REMOVE <name>, VIEW CENTRE <name> <s> <t>, VIEW WEIGHT <name> <weight>")]
+    #[error("{0}; usage: VIEW ADD <name> [<weight>], VIEW REMOVE <name>, VIEW CENTRE <name> <s> <t>, VIEW WEIGHT <name> <weight>, VIEW LOD <name> <offset> [<effective>|all], VIEW HEIGHT <name> <height> <pixel angle> [<effective>]")]
     View(String),
     /// A `PATCH` request of the wrong shape.
     #[error("usage: PATCH FILE <path of a sidecar .json> or PATCH DATA <bytes> <json description> followed by the bytes ({0})")]
@@ -195,7 +202,40 @@ fn view(args: &[&str]) -> Result<Request, BadRequest> {
             Ok(Request::ViewCentre(name(n, true)?, [p(s)?, p(t)?]))
         }
         (Some("WEIGHT"), [n, w]) => Ok(Request::ViewWeight(name(n, true)?, weight(w)?)),
-        (Some(other @ ("ADD" | "REMOVE" | "CENTRE" | "CENTER" | "WEIGHT")), rest) => {
+        (Some("LOD"), [n, o, rest @ ..]) if rest.len() <= 1 => {
+            let offset = o.parse::<u32>().map_err(|_| {
+                bad(format!("LOD offset `{}`: expected a level number, 0 (the finest) or more", clip(o)))
+            })?;
+            let effective = match rest.first() {
+                None => None,
+                Some(e) if e.eq_ignore_ascii_case("all") => None,
+                Some(e) => match e.parse::<u32>() {
+                    Ok(x) if x >= 1 => Some(x),
+                    _ => return Err(bad(format!("effective levels `{}`: expected 1 or more, or all", clip(e)))),
+                },
+            };
+            Ok(Request::ViewLod(name(n, true)?, offset, effective))
+        }
+        (Some("HEIGHT"), [n, h, a, rest @ ..]) if rest.len() <= 1 => {
+            let num = |w: &str, what: &str, max: f64| match w.parse::<f64>() {
+                Ok(x) if x.is_finite() && x > 0.0 && x < max => Ok(x),
+                _ => Err(bad(format!(
+                    "{what} `{}`: expected a finite number above 0{}",
+                    clip(w),
+                    if max.is_finite() { " and below pi" } else { "" }
+                ))),
+            };
+            let height = num(h, "height", f64::INFINITY)?;
+            let angle = num(a, "pixel angle", std::f64::consts::PI)?;
+            let effective = match rest.first() {
+                None => 0,
+                Some(e) => e
+                    .parse::<u32>()
+                    .map_err(|_| bad(format!("effective levels `{}`: expected 0 (all) or more", clip(e))))?,
+            };
+            Ok(Request::ViewHeight(name(n, true)?, height, angle, effective))
+        }
+        (Some(other @ ("ADD" | "REMOVE" | "CENTRE" | "CENTER" | "WEIGHT" | "LOD" | "HEIGHT")), rest) => {
             Err(bad(format!("VIEW {other} with {} argument(s)", rest.len())))
         }
         (Some(other), _) => Err(bad(format!("unknown VIEW command `{}`", clip(other)))),
@@ -254,6 +294,11 @@ mod tests {
             ("VIEW CENTRE left -5 7", Request::ViewCentre("left".into(), [-5, 7])),
             ("VIEW center main 1 2", Request::ViewCentre("main".into(), [1, 2])),
             ("VIEW WEIGHT right 0.5", Request::ViewWeight("right".into(), 0.5)),
+            ("VIEW LOD high 3", Request::ViewLod("high".into(), 3, None)),
+            ("view lod main 0 12", Request::ViewLod("main".into(), 0, Some(12))),
+            ("VIEW LOD high 2 all", Request::ViewLod("high".into(), 2, None)),
+            ("VIEW HEIGHT high 12000 0.001", Request::ViewHeight("high".into(), 12000.0, 0.001, 0)),
+            ("view height main 5e3 0.002 16", Request::ViewHeight("main".into(), 5000.0, 0.002, 16)),
             ("VIEWS", Request::Views),
             ("PATCH FILE /tmp/a b.json", Request::PatchFile("/tmp/a b.json".into())),
             (
@@ -288,6 +333,11 @@ mod tests {
             (b"PATCH DATA 3 nojson", "no JSON description"),
             (b"VIEW", "VIEW alone"),
             (b"VIEW JUMP a", "unknown VIEW command `JUMP`"),
+            (b"VIEW LOD high -1", "LOD offset `-1`: expected a level number"),
+            (b"VIEW LOD high 1 0", "effective levels `0`: expected 1 or more, or all"),
+            (b"VIEW LOD high", "VIEW LOD with 1 argument(s)"),
+            (b"VIEW HEIGHT high nan 0.001", "height `nan`: expected a finite number above 0"),
+            (b"VIEW HEIGHT high 100 4", "pixel angle `4`: expected a finite number above 0 and below pi"),
             (b"VIEW ADD", "VIEW ADD with 0 argument(s)"),
             (b"VIEW ADD main", "the primary view's own"),
             (b"VIEW ADD a/b", "expected 1 to 31 of"),

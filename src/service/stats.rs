@@ -29,6 +29,13 @@ pub struct TickStats {
     pub centre: [i64; 2],
     /// Renderer requests seen through the mapping (the request block's count).
     pub requests_seen: u64,
+    /// LOD requests (docs/SHM.md, "Asking for a view's levels") applied, every view's.
+    #[serde(default)]
+    pub lod_requests: u64,
+    /// LOD requests refused (a height or pixel angle that is not a positive finite number, an
+    /// angle of pi or more); each is logged with the view and the field.
+    #[serde(default)]
+    pub lod_requests_refused: u64,
     /// The latest request's velocity as the look-ahead takes it, in level-0 texels per tick
     /// (divided by the tick rate, rounded, clamped to 2^26, NaN and infinities 0); `null` when
     /// there is none, both are 0 or a `CENTRE` cleared it: the centre's change is used instead.
@@ -150,7 +157,7 @@ impl ServiceStats {
         let e = &t.engine;
         let c = &self.control;
         let q = &e.queue;
-        let rows: [(&str, &str, &str, f64); 30] = [
+        let rows: [(&str, &str, &str, f64); 32] = [
             ("ticks_total", "counter", "Update ticks run", e.ticks as f64),
             ("tick_overruns_total", "counter", "Ticks longer than the tick period", t.tick_overruns as f64),
             (
@@ -206,6 +213,13 @@ impl ServiceStats {
             ("invalid_border_texels", "gauge", "Invalid border in use", t.invalid_border as f64),
             ("resident_bytes", "gauge", "Bytes in tiles and windows", t.resident_bytes as f64),
             ("requests_seen_total", "counter", "Centre requests made through the mapping", t.requests_seen as f64),
+            ("lod_requests_total", "counter", "LOD requests applied, every view's", t.lod_requests as f64),
+            (
+                "lod_requests_refused_total",
+                "counter",
+                "LOD requests refused (bad numbers)",
+                t.lod_requests_refused as f64,
+            ),
             ("control_connections_total", "counter", "Control connections accepted", c.accepted as f64),
             ("control_connections_refused_total", "counter", "Control connections refused (limit)", c.refused as f64),
             ("control_connections_open", "gauge", "Control connections open", c.open as f64),
@@ -321,9 +335,9 @@ mod tests {
         let s = ServiceStats { name: "x".into(), tick: TickStats::default(), control: ControlStats::default() };
         let text = s.prometheus();
         let samples: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).collect();
-        assert_eq!(samples.len(), 30);
+        assert_eq!(samples.len(), 32);
         assert!(samples.iter().all(|l| l.starts_with("clipmapd_") && l.contains("{name=\"x\"} ")));
-        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 30);
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 32);
     }
 
     #[cfg(feature = "remote")]
@@ -375,11 +389,11 @@ mod tests {
         ] {
             assert!(text.lines().any(|l| l == want), "{want} missing:\n{text}");
         }
-        // Per family one HELP and one TYPE; 30 plain metrics, 2 streams' latencies, 3 x 2 levels
+        // Per family one HELP and one TYPE; 32 plain metrics, 2 streams' latencies, 3 x 2 levels
         // x 2 axes, 2 x 6 reasons.
         let samples = text.lines().filter(|l| !l.starts_with('#')).count();
-        assert_eq!(samples, 30 + 2 + 12 + 12);
-        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 35);
+        assert_eq!(samples, 32 + 2 + 12 + 12);
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 37);
         let ones = text.lines().filter(|l| l.starts_with("clipmapd_paging_reason") && l.ends_with(" 1")).count();
         assert_eq!(ones, 2, "one current reason a level");
     }
@@ -400,4 +414,13 @@ pub struct ViewStats {
     pub levels_disabled: u64,
     /// Its published valid region per level, `[s0, t0, s1, t1]`.
     pub valid: Vec<[i64; 4]>,
+    /// The finest level it shows (its LOD offset; docs/VIEWS.md, "Virtual views").
+    #[serde(default)]
+    pub lod_offset: u32,
+    /// How many levels from the offset it shows (the texture's level count at most).
+    #[serde(default)]
+    pub effective_levels: u32,
+    /// The levels it shows whose grids hold part of its windows now.
+    #[serde(default)]
+    pub resident_levels: Vec<u32>,
 }

@@ -40,6 +40,10 @@ pub enum Command {
     ViewCentre(String, [i64; 2], oneshot::Sender<Result<String, String>>),
     /// Sets a view's weight.
     ViewWeight(String, f64, oneshot::Sender<Result<String, String>>),
+    /// Sets a view's LOD window: offset, effective levels (`None`: all).
+    ViewLod(String, u32, Option<u32>, oneshot::Sender<Result<String, String>>),
+    /// A LOD request from the socket: height, pixel angle, effective levels (0: all).
+    ViewHeight(String, f64, f64, u32, oneshot::Sender<Result<String, String>>),
     /// Stops after closing the mapping.
     Stop,
 }
@@ -141,6 +145,10 @@ struct Runner {
     centre: [i64; 2],
     velocity: Option<[i64; 2]>,
     last_request: u64,
+    /// The primary's last LOD request's count.
+    last_lod: u64,
+    /// Levels every view addresses at once unless told otherwise (`None`: all).
+    effective_levels: Option<u32>,
     stats: TickStats,
     started: Instant,
     /// A growing texture's shared state, and the growth block's last published values.
@@ -157,6 +165,7 @@ struct ViewState {
     centre: Option<[i64; 2]>,
     velocity: Option<[i64; 2]>,
     last_request: u64,
+    last_lod: u64,
 }
 
 impl Runner {
@@ -228,6 +237,8 @@ impl Runner {
             centre: [(size[0] / 2) as i64, (size[1] / 2) as i64],
             velocity: None,
             last_request: 0,
+            last_lod: 0,
+            effective_levels: o.effective_levels,
             stats,
             started: Instant::now(),
             growing: o.growing.as_ref().map(|g| (g.served().clone(), None)),
@@ -235,6 +246,13 @@ impl Runner {
             view_state: Default::default(),
         };
         let mut runner = runner;
+        if let Some(e) = o.effective_levels {
+            let lod = crate::clip::LodWindow { offset: 0, effective: e };
+            if let Err(why) = runner.clipmap.set_view_lod(PRIMARY, lod) {
+                runner.writer.close();
+                return Err(ServiceError::BadOption(format!("--effective-levels {e}: {why}")));
+            }
+        }
         for (name, weight) in &o.views {
             if let Err(why) = runner.add_view(name, *weight) {
                 runner.writer.close();
@@ -354,13 +372,67 @@ impl Runner {
                 };
                 let _ = reply.send(r);
             }
+            Command::ViewLod(name, offset, effective, reply) => {
+                let r = match self.clipmap.view_named(&name) {
+                    None => Err(self.no_view(&name)),
+                    Some(id) => {
+                        let lod = crate::clip::LodWindow { offset, effective: effective.unwrap_or(u32::MAX) };
+                        self.clipmap.set_view_lod(id, lod).map(|()| describe_lod(&name, lod)).map_err(|e| e.to_string())
+                    }
+                };
+                let _ = reply.send(r);
+            }
+            Command::ViewHeight(name, height, pixel_angle, effective, reply) => {
+                let r = match self.clipmap.view_named(&name) {
+                    None => Err(self.no_view(&name)),
+                    Some(id) => {
+                        let req = crate::shm::writer::LodRequest {
+                            height,
+                            pixel_angle,
+                            effective: u64::from(effective),
+                            count: 0,
+                        };
+                        self.apply_lod(id, &req).map(|lod| describe_lod(&name, lod))
+                    }
+                };
+                let _ = reply.send(r);
+            }
             Command::Stop => {}
         }
+    }
+
+    /// Applies a renderer's LOD request for view `id` (docs/SHM.md, "Asking for a view's
+    /// levels"): its footprint moves the view's LOD offset, its effective levels bound the window.
+    /// A request whose numbers are unusable is refused with a warning naming the view and the field.
+    fn apply_lod(
+        &mut self,
+        id: ViewId,
+        req: &crate::shm::writer::LodRequest,
+    ) -> Result<crate::clip::LodWindow, String> {
+        let name = self.clipmap.view_name(id).unwrap_or("?").to_string();
+        let footprint = match req.footprint() {
+            Ok(f) => f,
+            Err(why) => {
+                self.stats.lod_requests_refused += 1;
+                tracing::warn!(view = %name, "LOD request refused: {why}");
+                return Err(format!("view {name}: LOD request refused: {why}"));
+            }
+        };
+        let effective = if req.effective == 0 { u32::MAX } else { req.effective as u32 };
+        let lod = self.clipmap.view_lod(id).map_err(|e| e.to_string())?;
+        self.clipmap.set_view_lod(id, crate::clip::LodWindow { effective, ..lod }).map_err(|e| e.to_string())?;
+        let offset = self.clipmap.set_view_footprint(id, footprint).map_err(|e| e.to_string())?;
+        self.stats.lod_requests += 1;
+        tracing::debug!(view = %name, offset, footprint, "LOD request");
+        Ok(crate::clip::LodWindow { offset, effective })
     }
 
     /// Adds a named view, centred where the primary is until it is told otherwise.
     fn add_view(&mut self, name: &str, weight: f64) -> Result<String, String> {
         let id = self.clipmap.add_named_view(name, weight).map_err(|e| e.to_string())?;
+        if let Some(e) = self.effective_levels {
+            let _ = self.clipmap.set_view_lod(id, crate::clip::LodWindow { offset: 0, effective: e });
+        }
         self.view_state.insert(id, ViewState { centre: Some(self.centre), ..ViewState::default() });
         tracing::info!(view = %name, weight, "view added");
         Ok(format!("view {name} added, weight {weight}"))
@@ -377,14 +449,25 @@ impl Runner {
     /// a new request for the view's current incarnation moves it.
     fn take_view_requests(&mut self) {
         let reqs = self.writer.view_requests();
+        let mut lods = Vec::new();
         for (id, st) in self.view_state.iter_mut() {
             let Some(req) = reqs.get(*id as usize - 1).copied().flatten() else { continue };
             let incarnation = self.writer.memory().view_incarnation(*id as usize);
-            if req.count != st.last_request && Some(req.incarnation) == incarnation {
+            if Some(req.incarnation) != incarnation {
+                continue;
+            }
+            if req.count != st.last_request {
                 st.last_request = req.count;
                 st.centre = Some(req.centre);
                 st.velocity = velocity_per_tick(req.velocity, self.hz);
             }
+            if let Some(lod) = req.lod.filter(|l| l.count != st.last_lod) {
+                st.last_lod = lod.count;
+                lods.push((*id, lod));
+            }
+        }
+        for (id, lod) in lods {
+            let _ = self.apply_lod(id, &lod);
         }
     }
 
@@ -396,6 +479,10 @@ impl Runner {
                 self.velocity = velocity_per_tick(req.velocity, self.hz);
                 self.stats.request_velocity = self.velocity;
                 self.stats.requests_seen = req.count;
+            }
+            if let Some(lod) = req.lod.filter(|l| l.count != self.last_lod) {
+                self.last_lod = lod.count;
+                let _ = self.apply_lod(PRIMARY, &lod);
             }
         }
         (self.stats.request_faults, self.stats.request_fault) = self.writer.request_faults();
@@ -463,6 +550,11 @@ impl Runner {
                     centre: m.view_centre(id).ok().flatten(),
                     min_lod,
                     levels_disabled: (0..levels as u32).filter(|&k| ((k + 1) as f64) <= min_lod).count() as u64,
+                    lod_offset: m.view_lod(id).map_or(0, |l| l.offset),
+                    effective_levels: m
+                        .view_lod(id)
+                        .map_or(levels as u32, |l| l.effective.min(levels as u32 - l.offset.min(levels as u32))),
+                    resident_levels: m.view_resident_levels(id).unwrap_or_default(),
                     valid: (0..levels as u32)
                         .map(|k| m.view_level(id, k).map(|l| l.valid).unwrap_or(crate::geom::Rect::EMPTY))
                         .map(|r| [r.s0, r.t0, r.s1, r.t1])
@@ -603,5 +695,14 @@ mod tests {
         assert_eq!(log_reason_changes(&mut last, &bound, 4.0, 3), vec![0]);
         assert_eq!(log_reason_changes(&mut last, &bound, 4.0, 4), Vec::<usize>::new());
         assert_eq!(last, vec![Reason::SourceBound, Reason::Hover]);
+    }
+}
+
+/// The reply to `VIEW LOD`: the levels the view shows from the next tick.
+fn describe_lod(name: &str, lod: crate::clip::LodWindow) -> String {
+    if lod.effective == u32::MAX {
+        format!("view {name} lod offset {} effective all", lod.offset)
+    } else {
+        format!("view {name} lod offset {} effective {}", lod.offset, lod.effective)
     }
 }

@@ -830,7 +830,7 @@ impl Client {
         match &self.view {
             Some(b) => self.request_view_centre(b, centre, velocity),
             // The main request's fields lie as a view request record's, from its lock word on.
-            None => self.request_at(request::SEQ, None, centre, velocity),
+            None => self.request_at(request::SEQ, None, super::client_views::Fields::Centre(centre, velocity)),
         }
     }
 

@@ -164,7 +164,30 @@ impl Client {
         if b.record >= v::MAX_REQUEST_RECORDS {
             return false;
         }
-        self.request_at(v::request(b.record), Some(b.incarnation), centre, velocity)
+        self.request_at(v::request(b.record), Some(b.incarnation), Fields::Centre(centre, velocity))
+    }
+
+    /// Asks the service to show the levels the bound view (`main` too) can use from
+    /// `height` level-0 texels above the texture, where one screen pixel spans `pixel_angle`
+    /// radians, addressing at most `effective` levels at once (0: all): the service then moves
+    /// the view's LOD offset to the finest level the renderer samples there
+    /// (`clipmap::clip::offset_for_footprint` of `height` x `pixel_angle`), and holds and reads
+    /// nothing finer for the view (docs/VIEWS.md, "Virtual views"). `false` when the request was
+    /// not made: bad numbers (each must be finite and above 0, the angle below pi), no request
+    /// mapping, or a lock word held too long.
+    pub fn request_lod(&self, height: f64, pixel_angle: f64, effective: u32) -> bool {
+        let ok = height.is_finite() && height > 0.0 && pixel_angle.is_finite() && pixel_angle > 0.0;
+        if !ok || pixel_angle >= std::f64::consts::PI {
+            return false;
+        }
+        let lod = |i: usize| Fields::Lod { at: v::lod(i), height, pixel_angle, effective };
+        match &self.view {
+            Some(b) if b.record < v::MAX_REQUEST_RECORDS => {
+                self.request_at(v::request(b.record), Some(b.incarnation), lod(1 + b.record))
+            }
+            Some(_) => false,
+            None => self.request_at(layout::request::SEQ, None, lod(0)),
+        }
     }
 
     /// One request under the lock word at `base` of the request mapping (docs/SHM.md, "Request
@@ -173,13 +196,7 @@ impl Client {
     /// the next epoch. A word left odd by a renderer that died (its pid is no live process) is
     /// advanced after a while; a live owner is waited for, never overruled. `incarnation` is
     /// stored for a view's request.
-    pub(super) fn request_at(
-        &self,
-        base: usize,
-        incarnation: Option<u64>,
-        centre: [i64; 2],
-        velocity: [f64; 2],
-    ) -> bool {
+    pub(super) fn request_at(&self, base: usize, incarnation: Option<u64>, fields: Fields) -> bool {
         use layout::request_lock as lock;
         let Some(r) = &self.request else { return false };
         let pid = std::process::id();
@@ -208,20 +225,39 @@ impl Client {
             if r.compare_exchange(base + v::REQ_SEQ, w, mine).is_ok() {
                 // The field stores below must not become visible before the odd word.
                 fence(Ordering::Release);
-                r.store(base + v::REQ_CENTRE_S, centre[0] as u64, Ordering::Relaxed);
-                r.store(base + v::REQ_CENTRE_T, centre[1] as u64, Ordering::Relaxed);
-                r.store(base + v::REQ_VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
-                r.store(base + v::REQ_VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
+                let count = match fields {
+                    Fields::Centre(centre, velocity) => {
+                        r.store(base + v::REQ_CENTRE_S, centre[0] as u64, Ordering::Relaxed);
+                        r.store(base + v::REQ_CENTRE_T, centre[1] as u64, Ordering::Relaxed);
+                        r.store(base + v::REQ_VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
+                        r.store(base + v::REQ_VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
+                        base + v::REQ_COUNT
+                    }
+                    Fields::Lod { at, height, pixel_angle, effective } => {
+                        r.store(at + v::LOD_HEIGHT, height.to_bits(), Ordering::Relaxed);
+                        r.store(at + v::LOD_PIXEL_ANGLE, pixel_angle.to_bits(), Ordering::Relaxed);
+                        r.store(at + v::LOD_EFFECTIVE, u64::from(effective), Ordering::Relaxed);
+                        at + v::LOD_COUNT
+                    }
+                };
                 r.store(base + v::REQ_CLIENT_PID, u64::from(pid), Ordering::Relaxed);
                 if let Some(i) = incarnation {
                     r.store(base + v::REQ_INCARNATION, i, Ordering::Relaxed);
                 }
-                let c = r.load(base + v::REQ_COUNT, Ordering::Relaxed);
-                r.store(base + v::REQ_COUNT, c.wrapping_add(1), Ordering::Relaxed);
+                let c = r.load(count, Ordering::Relaxed);
+                r.store(count, c.wrapping_add(1), Ordering::Relaxed);
                 // Release (compare-and-swap: never over a word someone else stored).
                 return r.compare_exchange(base + v::REQ_SEQ, mine, lock::released(mine)).is_ok();
             }
             std::hint::spin_loop();
         }
     }
+}
+
+/// What one request writes under its lock word: a centre (the request record's fields and count)
+/// or a LOD request (the fields and count of its LOD record, at `at` in the request mapping).
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Fields {
+    Centre([i64; 2], [f64; 2]),
+    Lod { at: usize, height: f64, pixel_angle: f64, effective: u32 },
 }

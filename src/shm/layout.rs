@@ -483,8 +483,33 @@ pub mod views {
     pub const REQUEST_BASE: usize = 512;
     /// Bytes of one request record.
     pub const REQUEST_RECORD_BYTES: usize = 64;
-    /// Most request records the request mapping holds.
-    pub const MAX_REQUEST_RECORDS: usize = (super::REQUEST_BYTES as usize - REQUEST_BASE) / REQUEST_RECORD_BYTES;
+    /// Most request records the request mapping holds (they end where the LOD requests begin).
+    pub const MAX_REQUEST_RECORDS: usize = (LOD_BASE - REQUEST_BASE) / REQUEST_RECORD_BYTES;
+
+    /// LOD requests in the request mapping (docs/SHM.md, "Asking for a view's levels"): one
+    /// record of [`LOD_RECORD_BYTES`] per view, the primary's first, at [`LOD_BASE`] +
+    /// [`LOD_RECORD_BYTES`] x i (i = 0: `main`, under the main request's lock word; i = 1 + r:
+    /// view record r's, under its request record's lock word).
+    pub const LOD_BASE: usize = 2048;
+    /// Bytes of one LOD request record.
+    pub const LOD_RECORD_BYTES: usize = 32;
+    /// LOD request fields, relative to the record: `f64` height of the view above the texture,
+    /// in level-0 texels (0: no LOD request).
+    pub const LOD_HEIGHT: usize = 0;
+    /// `f64` the angle one screen pixel spans, radians.
+    pub const LOD_PIXEL_ANGLE: usize = 8;
+    /// `u32` (in a `u64`) levels the renderer addresses at once (0: all).
+    pub const LOD_EFFECTIVE: usize = 16;
+    /// `u64` LOD requests made (the service acts when it changes).
+    pub const LOD_COUNT: usize = 24;
+
+    /// Offset of LOD request record `i` (0: `main`; 1 + r: view record r) in the request mapping.
+    pub fn lod(i: usize) -> usize {
+        LOD_BASE + i * LOD_RECORD_BYTES
+    }
+
+    const _: () = assert!(LOD_BASE + (MAX_REQUEST_RECORDS + 1) * LOD_RECORD_BYTES <= super::REQUEST_BYTES as usize);
+    const _: () = assert!(SERVICE_RECORDS <= MAX_REQUEST_RECORDS);
     /// Request record fields, relative to the record: the lock word (as
     /// [`super::request::SEQ`]).
     pub const REQ_SEQ: usize = 0;

@@ -23,6 +23,58 @@ pub struct Request {
     pub velocity: [f64; 2],
     /// Requests made so far.
     pub count: u64,
+    /// The primary view's latest LOD request, if one was made.
+    pub lod: Option<LodRequest>,
+}
+
+/// A renderer's LOD request for a view (docs/SHM.md, "Asking for a view's levels"), as found:
+/// the service checks the numbers before use ([`LodRequest::footprint`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LodRequest {
+    /// Height above the texture, level-0 texels.
+    pub height: f64,
+    /// Radians one screen pixel spans.
+    pub pixel_angle: f64,
+    /// Levels the renderer addresses at once (0: all).
+    pub effective: u64,
+    /// LOD requests made to this record.
+    pub count: u64,
+}
+
+impl LodRequest {
+    /// The level-0 texels one pixel spans at the view's nearest ground point, or why the request
+    /// cannot be used (what was found and what is expected).
+    pub fn footprint(&self) -> Result<f64, String> {
+        let (h, a) = (self.height, self.pixel_angle);
+        if !(h.is_finite() && h > 0.0) {
+            return Err(format!("height {h}: expected a finite number of level-0 texels above 0"));
+        }
+        if !(a.is_finite() && a > 0.0 && a < std::f64::consts::PI) {
+            return Err(format!("pixel angle {a}: expected radians above 0 and below pi"));
+        }
+        if self.effective > u64::from(u32::MAX) {
+            return Err(format!("effective levels {}: expected 0 (all) to {}", self.effective, u32::MAX));
+        }
+        let f = h * a;
+        if f.is_finite() {
+            Ok(f)
+        } else {
+            Err(format!("height {h} x pixel angle {a} is not finite"))
+        }
+    }
+}
+
+/// The LOD request record at `at` of a copy of the request mapping (`None` before any).
+fn lod_at(buf: &[u8], at: usize) -> Option<LodRequest> {
+    use layout::views as v;
+    let word = |o: usize| u64::from_le_bytes(buf[at + o..at + o + 8].try_into().expect("8 bytes"));
+    let count = word(v::LOD_COUNT);
+    (count > 0).then(|| LodRequest {
+        height: f64::from_bits(word(v::LOD_HEIGHT)),
+        pixel_angle: f64::from_bits(word(v::LOD_PIXEL_ANGLE)),
+        effective: word(v::LOD_EFFECTIVE),
+        count,
+    })
 }
 
 /// The writer of one mapping.
@@ -50,6 +102,8 @@ pub(crate) struct ViewRequest {
     pub count: u64,
     /// The view incarnation it is for.
     pub incarnation: u64,
+    /// The view's latest LOD request, if one was made.
+    pub lod: Option<LodRequest>,
 }
 
 impl std::fmt::Debug for Writer {
@@ -271,6 +325,7 @@ impl Writer {
     /// log) and its requests are ignored until it is whole again.
     pub fn request(&self) -> Option<Request> {
         let fields = request::SEQ..request::COUNT + 8;
+        let lod = layout::views::lod(0)..layout::views::lod(1);
         let mut a = [0u8; layout::REQUEST_BYTES as usize];
         let mut b = [0u8; layout::REQUEST_BYTES as usize];
         for _ in 0..layout::MAX_RETRIES {
@@ -280,15 +335,20 @@ impl Writer {
             }
             self.fault_cleared();
             let word = |buf: &[u8], o: usize| u64::from_le_bytes(buf[o..o + 8].try_into().expect("8 bytes"));
-            if word(&a, request::SEQ) & 1 == 1 || a[fields.clone()] != b[fields.clone()] {
+            if word(&a, request::SEQ) & 1 == 1
+                || a[fields.clone()] != b[fields.clone()]
+                || a[lod.clone()] != b[lod.clone()]
+            {
                 std::thread::yield_now();
                 continue;
             }
             let count = word(&a, request::COUNT);
-            return (count > 0).then(|| Request {
+            let lod_request = lod_at(&a, lod.start);
+            return (count > 0 || lod_request.is_some()).then(|| Request {
                 centre: [word(&a, request::CENTRE_S) as i64, word(&a, request::CENTRE_T) as i64],
                 velocity: [f64::from_bits(word(&a, request::VEL_S)), f64::from_bits(word(&a, request::VEL_T))],
                 count,
+                lod: lod_request,
             });
         }
         None
@@ -310,11 +370,17 @@ impl Writer {
             .map(|r| {
                 let base = v::request(r);
                 let fields = base..base + v::REQUEST_RECORD_BYTES;
-                if word(&a, base + v::REQ_SEQ) & 1 == 1 || a[fields.clone()] != b[fields] {
+                let lod = v::lod(1 + r)..v::lod(2 + r);
+                if word(&a, base + v::REQ_SEQ) & 1 == 1
+                    || a[fields.clone()] != b[fields]
+                    || a[lod.clone()] != b[lod.clone()]
+                {
                     return None;
                 }
                 let count = word(&a, base + v::REQ_COUNT);
-                (count > 0).then(|| ViewRequest {
+                let lod_request = lod_at(&a, lod.start);
+                (count > 0 || lod_request.is_some()).then(|| ViewRequest {
+                    lod: lod_request,
                     centre: [word(&a, base + v::REQ_CENTRE_S) as i64, word(&a, base + v::REQ_CENTRE_T) as i64],
                     velocity: [
                         f64::from_bits(word(&a, base + v::REQ_VEL_S)),

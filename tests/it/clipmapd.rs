@@ -1190,3 +1190,70 @@ fn the_c_and_python_readers_read_views_of_the_independent_fixture_mappings() {
         String::from_utf8_lossy(&run.stderr)
     );
 }
+
+#[test]
+fn a_virtual_view_follows_its_height_reads_no_finer_level_and_every_texel_is_right() {
+    // docs/VIEWS.md, "Virtual views": `high` asks through its request record for the levels it
+    // can use 12000 texels above the texture with a pixel of 1 mrad (12 texels a pixel: LOD 3.58,
+    // offset 3); `main` is bounded on the socket. Every texel read is right, and neither view
+    // publishes a level outside its window.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "virt", &["--budget-ms", "2", "--view", "high"]);
+    let out = rust_reader(
+        d,
+        "virt",
+        &["--view", "high", "--lod", "12000,0.001", "--reads", "1000000000000", "--seconds", "2"],
+    )
+    .output()
+    .unwrap();
+    let (passed, failed) = counts(&out, "rust high");
+    assert_eq!(failed, 0, "{}\n{}", String::from_utf8_lossy(&out.stderr), svc.dump());
+    assert!(passed > 1000, "only {passed} texels checked");
+    let stats = json_reply(&svc.ask("STATS"));
+    let high = &stats["views"][1];
+    assert_eq!(high["name"], "high");
+    assert_eq!(high["lod_offset"], 3, "{high}");
+    assert!(high["min_lod"].as_f64().unwrap() >= 3.0, "{high}");
+    for k in 0..3 {
+        assert_eq!(high["valid"][k], serde_json::json!([0, 0, 0, 0]), "level {k} is finer than high shows: {high}");
+    }
+    let resident: Vec<u64> = high["resident_levels"].as_array().unwrap().iter().map(|x| x.as_u64().unwrap()).collect();
+    assert!(!resident.is_empty() && resident.iter().all(|&k| k >= 3), "{high}");
+    assert!(stats["lod_requests"].as_u64().unwrap() >= 1, "{stats}");
+    assert_eq!(stats["lod_requests_refused"], 0);
+
+    // The socket: main shows levels 2 and coarser (addressing 4 at once: the coarser ones stay
+    // published, each a clip-size square at most, for the readers' fallback); a bad offset is
+    // refused naming the range.
+    let levels = stats["views"][0]["valid"].as_array().unwrap().len();
+    assert_eq!(svc.ask("VIEW LOD main 2 4"), "OK view main lod offset 2 effective 4");
+    assert!(
+        svc.ask(&format!("VIEW LOD high {levels}")).contains(&format!("expected 0 to {}", levels - 1)),
+        "offsets past the coarsest level are refused"
+    );
+    assert!(svc.ask("VIEW LOD nobody 1").contains("no view `nobody`"));
+    let out = rust_reader(d, "virt", &["--reads", "1000000000000", "--seconds", "1"]).output().unwrap();
+    let (passed, failed) = counts(&out, "rust main");
+    assert!(failed == 0 && passed > 1000, "{passed} passed, {failed} failed");
+    let stats = json_reply(&svc.ask("STATS"));
+    let main = &stats["views"][0];
+    assert_eq!((main["lod_offset"].as_u64(), main["effective_levels"].as_u64()), (Some(2), Some(4)), "{main}");
+    for k in 0..2 {
+        assert_eq!(main["valid"][k], serde_json::json!([0, 0, 0, 0]), "level {k} is finer than main shows: {main}");
+    }
+    assert!((2..levels).all(|k| main["valid"][k] != serde_json::json!([0, 0, 0, 0])), "{main}");
+    assert_eq!(stats["engine"]["slots_reassigned_under_published"], 0, "{stats}");
+    assert_eq!(stats["engine"]["slots_reassigned_under_views"], 0, "{stats}");
+    // `cliptex attach` shows each view's levels and those resident.
+    let out = Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(["attach", "virt", "--shm-dir", d.to_str().unwrap(), "--socket"])
+        .arg(d.join("virt.sock"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(text.contains("LOD window    resident"), "{text}");
+    assert!(text.lines().any(|l| l.starts_with("main") && l.contains("2..5")), "{text}");
+    assert!(text.lines().any(|l| l.starts_with("high") && l.contains(&format!("3..{}", levels - 1))), "{text}");
+}

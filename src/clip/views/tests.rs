@@ -113,7 +113,7 @@ fn walk(
         }
         prop_assert_eq!(map.stats().slots_reassigned_under_views, 0);
         prop_assert_eq!(map.stats().slots_reassigned_under_published, 0);
-        // No view publishes a level outside its LOD window, nor uses a level finer than it.
+        // No view publishes a level finer than its LOD offset, nor uses one.
         for v in map.view_ids() {
             let lod = map.view_lod(v).unwrap();
             for k in 0..map.level_count() as u32 {
