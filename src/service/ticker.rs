@@ -241,6 +241,7 @@ impl Runner {
                 return Err(ServiceError::BadOption(format!("--view {name}: {why}")));
             }
         }
+        runner.publish_views();
         Ok((runner, started))
     }
 
@@ -308,6 +309,9 @@ impl Runner {
             }
             Command::ViewAdd(name, weight, reply) => {
                 let r = self.add_view(&name, weight);
+                if r.is_ok() {
+                    self.publish_views();
+                }
                 let _ = reply.send(r);
             }
             Command::ViewRemove(name, reply) => {
@@ -320,6 +324,7 @@ impl Runner {
                 };
                 if r.is_ok() {
                     tracing::info!(view = %name, "view removed");
+                    self.publish_views();
                 }
                 let _ = reply.send(r);
             }
@@ -352,10 +357,20 @@ impl Runner {
                         .map(|()| format!("view {name} weight {w}"))
                         .map_err(|e| e.to_string()),
                 };
+                if r.is_ok() {
+                    self.publish_views();
+                }
                 let _ = reply.send(r);
             }
             Command::Stop => {}
         }
+    }
+
+    /// Publishes the views' figures now, not at the next tick: `VIEWS` and `STATS` asked after a
+    /// `VIEW ADD`, `REMOVE` or `WEIGHT` was answered show it (as the mapping already does).
+    fn publish_views(&mut self) {
+        self.stats.views = self.view_stats();
+        self.stats_tx.send_replace(self.stats.clone());
     }
 
     /// Adds a named view, centred where the primary is until it is told otherwise.
