@@ -875,6 +875,40 @@ fn cliptex_plan_sizes_the_image_caches_as_the_service_maps_them() {
     assert_eq!(j["image_caches"]["grid_budget_bytes"].as_u64(), Some(budget), "{j}");
     assert_eq!(j["image_caches"]["slot_bytes"].as_u64(), Some(bytes(e)), "{j}");
     assert_eq!(j["image_caches"]["level0_grid"], serde_json::json!([6 + e, 6 + e]));
+    assert_eq!(j["image_caches"]["view_spread"], 0, "{j}");
+    // `--view-spread 1024` (docs/VIEWS.md): a service started with it maps exactly what the plan
+    // with it says, every stack level's grid ceil((1024 >> k) / 64) tiles wider than one view's
+    // (at most its tiles), the pyramid levels whole as before.
+    let spread_svc = Service::start(d, "spread", &["--view-spread", "1024"]);
+    let spread_mapped = std::fs::metadata(d.join("clipmap-spread.map")).unwrap().len();
+    let plan_args = ["plan", "--size", "65536", "--clip", "256", "--tile", "64", "--texel-bytes", "4"];
+    let out = Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(plan_args)
+        .args(["--view-spread", "1024", "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(s["image_caches"]["bytes"].as_u64(), Some(spread_mapped), "{s}\n{}", spread_svc.dump());
+    assert_eq!(s["image_caches"]["view_spread"], 1024, "{s}");
+    let widened = |k: u64| ((6 + (e >> k)).min(1024 >> k) + (1024u64 >> k).div_ceil(64)).min(1024 >> k);
+    let spread_bytes = (0..8).map(|k| widened(k).pow(2) * tile).sum::<u64>() + pyramid;
+    assert_eq!(s["image_caches"]["slot_bytes"].as_u64(), Some(spread_bytes), "{s}");
+    assert_eq!(s["image_caches"]["level0_grid"], serde_json::json!([6 + e + 16, 6 + e + 16]), "{s}");
+    assert_eq!(s["image_caches"]["views_block_bytes"], j["image_caches"]["views_block_bytes"], "{s}");
+    let text =
+        Command::new(env!("CARGO_BIN_EXE_cliptex")).args(plan_args).args(["--view-spread", "1024"]).output().unwrap();
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(text.contains("widened for views up to 1024 level-0 texels apart"), "{text}");
+    // A spread no service takes is refused naming the option and the range.
+    let bad = Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(plan_args)
+        .args(["--view-spread", "67108865"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert_eq!(bad.status.code(), Some(1), "{err}");
+    assert!(err.contains("--view-spread") && err.contains("67108865") && err.contains("0..=67108864"), "{err}");
 }
 
 #[test]
