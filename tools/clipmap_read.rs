@@ -4,7 +4,9 @@
 //!
 //! Prints one JSON line of counts, then `N passed, M failed`.
 //! Exit status: 0 every texel matched, 1 a mismatch (or a bad command line), 2 the mapping could
-//! not be read.
+//! not be read, or (`--follow`) the service came back after a restart without the view read: a
+//! view added only on the control socket is not there after a restart until it is added again
+//! (docs/VIEWS.md); the reader waits for it until its time is up, then says so.
 
 #![forbid(unsafe_code)]
 
@@ -103,6 +105,11 @@ struct Counts {
     view: String,
     stale_seen: u64,
     reattached: u64,
+    /// Texels checked since the last reattach (all of them when never reattached).
+    passed_since_reattach: u64,
+    /// Following: the service was republished without the view read and the run ended before
+    /// the view came back.
+    view_missing: bool,
     requests: u64,
     seconds: f64,
 }
@@ -151,6 +158,10 @@ fn main() -> ExitCode {
     let mut last_request = Instant::now();
     let mut step = 0u64;
     let mut lod_asked = 0u64;
+    let mut passed_at_reattach = 0u64;
+    // Following: since when the republished mapping has lacked the view, whether that was said,
+    // and the last such refusal.
+    let mut missing: Option<(Instant, bool, ShmError)> = None;
     while counts.check.passed + counts.check.failed < cli.reads && Instant::now() < deadline {
         step += 1;
         counts.check.step(&client, &mut rng, cli.block.max(1), &mut buf, &clipmap::source::procedural::hash);
@@ -179,10 +190,26 @@ fn main() -> ExitCode {
                         Ok(c) if c.generation != client.generation => {
                             client = c;
                             counts.reattached += 1;
+                            passed_at_reattach = counts.check.passed;
                             stale = false;
+                            if let Some((_, true, _)) = missing {
+                                eprintln!("clipmap-read: view `{}` is back", cli.view);
+                            }
+                            missing = None;
                         }
                         Ok(_) => {}
-                        Err(ShmError::NotFound { .. } | ShmError::NoView { .. }) => {}
+                        Err(e @ ShmError::NoView { .. }) => {
+                            // A service adds its `--view`s just after it publishes the mapping: a
+                            // view missing longer than the stale time is said once.
+                            let since = missing.as_ref().map_or_else(Instant::now, |m| m.0);
+                            let mut said = missing.as_ref().is_some_and(|m| m.1);
+                            if !said && since.elapsed() > Duration::from_millis(cli.stale_ms) {
+                                eprintln!("clipmap-read: the service was restarted without the view read: {e}; waiting for `{}` to be added again", cli.view);
+                                said = true;
+                            }
+                            missing = Some((since, said, e));
+                        }
+                        Err(ShmError::NotFound { .. }) => {}
                         Err(e) => {
                             eprintln!("clipmap-read: reattaching: {e}");
                             return exit::status(exit::COULD_NOT_RUN);
@@ -194,14 +221,20 @@ fn main() -> ExitCode {
         }
     }
     counts.seconds = start.elapsed().as_secs_f64();
+    counts.passed_since_reattach = counts.check.passed - passed_at_reattach;
+    let lost = missing.filter(|_| stale).map(|m| m.2);
+    counts.view_missing = lost.is_some();
     println!("{}", serde_json::to_string(&counts).unwrap_or_default());
     println!("{} passed, {} failed", counts.check.passed, counts.check.failed);
     if let Some(f) = &counts.check.first_failure {
         eprintln!("clipmap-read: first failure: {f}");
     }
-    if counts.check.failed == 0 {
-        exit::status(exit::OK)
-    } else {
-        exit::status(exit::BAD_INPUT)
+    if counts.check.failed != 0 {
+        return exit::status(exit::BAD_INPUT);
     }
+    if let Some(e) = lost {
+        eprintln!("clipmap-read: view `{}` did not come back after the service restarted: {e}", cli.view);
+        return exit::status(exit::COULD_NOT_RUN);
+    }
+    exit::status(exit::OK)
 }

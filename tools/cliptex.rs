@@ -133,6 +133,7 @@ Examples:
   cliptex plan --size 8192x2048 --clip 512 --texel-bytes 3
   cliptex plan my.ct                       # sizes, clip and texel format from the .ct
   cliptex plan my.ct --clip 2048 --json    # the same texture with another clip size
+  cliptex plan --size 65536 --clip 512 --tile 128 --view-spread 4096   # grids for views 4096 texels apart
   cliptex plan --table --clip 2048 --texel-bytes 4")]
     Plan {
         /// A .ct to size: its virt_size, clip_size, texel format and invalid_border (its .ic
@@ -183,6 +184,10 @@ Examples:
         /// caches also hold each level's tile height ranges, 16 bytes a slot.
         #[arg(long)]
         heights: bool,
+        /// Level-0 texels further views may lie apart and still be held whole, as `clipmapd
+        /// --view-spread` (docs/VIEWS.md): the grids the engine widens for it, and their bytes.
+        #[arg(long, value_name = "TEXELS", default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=clipmap::limits::MAX_TEXTURE_SIZE))]
+        view_spread: u64,
         /// Print memory for texture sizes 2^10 to 2^26 at once.
         #[arg(long)]
         table: bool,
@@ -724,6 +729,7 @@ fn run(cli: Cli) -> i32 {
             tile,
             lookahead,
             heights,
+            view_spread,
             table,
             json,
             env,
@@ -770,6 +776,7 @@ fn run(cli: Cli) -> i32 {
                 tile,
                 lookahead,
                 heights: heights || from_ct.as_ref().is_some_and(|p| p.height.is_some()),
+                view_spread,
             };
             match report::plan::compute(&req) {
                 Ok(p) => {

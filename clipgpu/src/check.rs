@@ -7,6 +7,7 @@
 //! - **geometry**: how far the shader's f32 footprints are from the f64 camera's, against a
 //!   per-pixel bound derived from f32 rounding.
 
+pub use crate::diff::SamplingDiff;
 use crate::gpu::{Frame, LevelShape};
 use clipmap::accuracy::render::{render_mapping_at, Camera};
 use clipmap::sample::Filter;
@@ -15,17 +16,6 @@ use serde::Serialize;
 
 /// The unit roundoff of f32 (half an ulp of 1).
 const EPS: f64 = 1.0 / (1u64 << 24) as f64;
-
-/// The sampling half: the GPU's pixels against the CPU sampler at the GPU's footprints.
-#[derive(Clone, Debug, Default, Serialize)]
-pub struct SamplingDiff {
-    /// Ground pixels compared (drawn as ground by the GPU).
-    pub compared: u64,
-    /// Pixels whose colour differs at all (any of R, G, B, A).
-    pub differing: u64,
-    /// Largest channel difference (8-bit units).
-    pub max_error: u16,
-}
 
 /// The geometry half: the GPU's footprints against the f64 camera's.
 #[derive(Clone, Debug, Default, Serialize)]

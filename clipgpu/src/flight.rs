@@ -47,6 +47,8 @@ pub struct FlightOptions {
     pub start: Option<[f64; 2]>,
     /// A height texture's false-colour range, metres (`None`: the format's, docs/GPU.md).
     pub height_range: Option<[f64; 2]>,
+    /// The view to draw and move (docs/VIEWS.md): `main`, the primary, or a further view's name.
+    pub view: String,
 }
 
 /// One frame.
@@ -125,10 +127,13 @@ fn names_in(dir: &Path) -> Vec<String> {
     v
 }
 
-/// Attaches by name; a clear error for a name that is not there or a mapping that is refused.
-pub fn attach(dir: &Path, name: &str) -> Result<Client> {
+/// Attaches by name and binds to the view `view` (`main`: the primary); a clear error for a name
+/// that is not there, a view the service does not publish (naming those it does, as every reader
+/// says it), or a mapping that is refused.
+pub fn attach(dir: &Path, name: &str, view: &str) -> Result<Client> {
     match Client::attach(dir, name) {
-        Ok(c) => {
+        Ok(mut c) => {
+            c.bind_view(view).map_err(|e| anyhow!(e).context(format!("--view {view}")))?;
             check_format(&c).map_err(|e| anyhow!(BadInput(e.to_string())))?;
             if !c.can_request() {
                 return Err(anyhow!(
@@ -160,16 +165,27 @@ fn gone(c: &Client) -> bool {
     c.closed() || c.replaced() || c.heartbeat_age() > stale
 }
 
-/// Waits for a new service (another generation) on the name.
-fn reattach(dir: &Path, name: &str, old: u64, within: Duration, frame: u64) -> Result<Client> {
+/// Waits for a new service (another generation) on the name that publishes the view `view`.
+fn reattach(dir: &Path, name: &str, view: &str, old: u64, within: Duration, frame: u64) -> Result<Client> {
     let t0 = Instant::now();
+    let mut missing = None;
     while t0.elapsed() < within {
-        if let Ok(c) = attach(dir, name) {
-            if c.generation != old && !gone(&c) {
-                return Ok(c);
-            }
+        match attach(dir, name, view) {
+            Ok(c) if c.generation != old && !gone(&c) => return Ok(c),
+            Ok(_) => {}
+            // A new service without the view (yet: it adds its `--view`s just after publishing).
+            Err(e) if e.chain().any(|c| matches!(c.downcast_ref(), Some(ShmError::NoView { .. }))) => missing = Some(e),
+            Err(_) => {}
         }
         std::thread::sleep(Duration::from_millis(100));
+    }
+    if let Some(e) = missing {
+        return Err(anyhow!(
+            "the service {name} stopped at frame {frame} and the one that replaced it did not publish the view \
+             `{view}` within {:.1} s ({e:#}): a view added on the control socket is gone after a restart; add it \
+             again (`VIEW ADD {view}`), start clipmapd with --view {view}, or give clipgpu longer with --reattach-s",
+            within.as_secs_f64()
+        ));
     }
     Err(anyhow!(
         "the service {name} stopped at frame {frame} and no new one published {} within {:.1} s: \
@@ -229,7 +245,7 @@ fn settled(snap: &Snapshot, centre: [i64; 2], settle: bool) -> bool {
 /// Flies `o` against the service `name` in `dir`.
 pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<FlightReport> {
     let flight: Flight = o.case.flight.parse().map_err(|e| anyhow!(BadInput(format!("--flight: {e}"))))?;
-    let client = attach(dir, name)?;
+    let client = attach(dir, name, &o.view)?;
     let d0 = client.levels[0];
     let (clip, levels, bytes_per_texel) = (client.clip_size, client.levels.len(), client.bytes_per_texel);
     let mut at = Attached::new(gpu, client, o, None)?;
@@ -261,7 +277,7 @@ pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<Fligh
         let mut snap;
         loop {
             if gone(&at.client) {
-                let client = reattach(dir, name, at.client.generation, o.reattach, f)?;
+                let client = reattach(dir, name, &o.view, at.client.generation, o.reattach, f)?;
                 let Attached { renderer, .. } = at;
                 at = Attached::new(gpu, client, o, Some(renderer))?;
                 report.reattaches += 1;

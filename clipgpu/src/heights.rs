@@ -10,7 +10,7 @@
 //! a nodata texel does not make a level unavailable. It is meant to be folded into the core
 //! crate's sampler once that returns metres.
 
-use crate::check::SamplingDiff;
+use crate::diff::SamplingDiff;
 use crate::gpu::{Frame, HeightPixel, LevelShape};
 use clipmap::accuracy::render::{Camera, Pixel};
 use clipmap::geom::Rect;

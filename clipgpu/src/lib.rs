@@ -11,6 +11,7 @@
 
 pub mod check;
 pub mod demo;
+pub mod diff;
 pub mod flight;
 pub mod gpu;
 pub mod heights;

@@ -50,6 +50,7 @@ enum FilterArg {
 ///   clipgpu --demo --json                        # its own service, the reference flight, JSON
 ///   clipgpu --name terrain --out frames          # against `clipmapd --source terrain --name terrain`
 ///   clipgpu --name hash --filter point --frames 30 --upload rects
+///   clipgpu --name hash --view left              # draws and moves the view `left` (clipmapd --view left)
 #[derive(Parser, Debug)]
 #[command(name = "clipgpu", version, verbatim_doc_comment)]
 struct Cli {
@@ -71,6 +72,10 @@ struct Cli {
     /// The service's --shm-dir (default /dev/shm, else the temporary directory).
     #[arg(long)]
     shm_dir: Option<PathBuf>,
+    /// The view to draw and move (docs/VIEWS.md): `main`, the primary, or a further view's name
+    /// (`clipmapd --view NAME`, or `VIEW ADD NAME` on its socket).
+    #[arg(long, default_value = "main", conflicts_with = "demo")]
+    view: String,
     /// Print one JSON object (docs/GPU.md, "JSON") instead of a summary.
     #[arg(long)]
     json: bool,
@@ -220,7 +225,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         frame_pause: Duration::from_millis(cli.frame_ms),
         start: cli.start,
         height_range: cli.height_range,
+        view: cli.view.clone(),
     };
+    if cli.view != clipmap::shm::layout::views::PRIMARY_NAME {
+        clipmap::shm::layout::views::check_name(&cli.view)
+            .map_err(|e| BadInput(format!("--view {}: {e}", cli.view)))?;
+    }
     o.case.flight.parse::<clipmap::roam::Flight>().map_err(|e| BadInput(format!("--flight {}: {e}", o.case.flight)))?;
     let gpu = Gpu::new()?;
     let report = if cli.demo {

@@ -554,3 +554,72 @@ fn a_format_clipgpu_does_not_draw_is_refused_naming_what_it_found_and_what_it_ac
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("expected MIN,MAX"), "{err}");
 }
+
+/// Sends one line to the service's socket and returns the reply line.
+fn ask(socket: &Path, line: &str) -> String {
+    let mut c = UnixStream::connect(socket).unwrap();
+    writeln!(c, "{line}").unwrap();
+    let mut reply = String::new();
+    BufReader::new(c).read_line(&mut reply).unwrap();
+    reply.trim_end().to_string()
+}
+
+#[test]
+fn a_further_view_is_drawn_and_moved_bit_exact_while_main_stays_and_an_unknown_view_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    // A view `side`; grids widened so that it and main, 700 texels apart, are both held whole.
+    let s = Service::start(dir.path(), "views", &["--view", "side", "--view-spread", "1024"]);
+    let d = dir.path().to_str().unwrap();
+    let views = |s: &Service| -> Value {
+        serde_json::from_str(ask(&s.socket, "VIEWS").strip_prefix("OK ").expect("VIEWS answers OK")).unwrap()
+    };
+    let main_before = views(&s)[0]["centre"].clone();
+    assert_eq!(main_before, serde_json::json!([4096, 4096]), "{}", views(&s));
+    let args = [
+        "--name",
+        "views",
+        "--shm-dir",
+        d,
+        "--view",
+        "side",
+        "--start",
+        "4800,4096",
+        "--flight",
+        "straight:8:90",
+        "--filter",
+        "point",
+        "--frames",
+        "6",
+        "--size",
+        "128x96",
+    ];
+    let j = json(&args);
+    // Every frame drew the view's own snapshot, settled at its own centre, and matched the
+    // reference on it: identical off the texel edges, identical on every pixel at the GPU's
+    // coordinates.
+    assert_eq!(j["frames_unsettled"], 0, "{}", j["per_frame"]);
+    assert_within_tolerance(&j);
+    assert_eq!(j["max_error_off_edges"], 0);
+    assert_bit_exact_at_gpu_coords(&j);
+    assert_eq!(j["pixels_compared_at_gpu_coords"], 6 * 128 * 96);
+    let last = frames(&j).last().unwrap()["centre"].clone();
+    assert_eq!(last[0], 4800, "the flight goes along T: {last}");
+    // The requests moved `side`, not main.
+    let after = views(&s);
+    assert_eq!(after[1]["name"], "side", "{after}");
+    assert_eq!(after[1]["centre"], last, "{after}");
+    assert_eq!(after[0]["centre"], main_before, "main stays where it was: {after}");
+    // An unknown view: the readers' error, naming the views there are (exit 2, as they exit).
+    let out = clipgpu(&["--name", "views", "--shm-dir", d, "--view", "nobody", "--frames", "1"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--view nobody") && err.contains("no view `nobody`: the service publishes main, side"),
+        "{err}"
+    );
+    // A name no view may have is bad input.
+    let out = clipgpu(&["--name", "views", "--shm-dir", d, "--view", "a/b"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("--view a/b") && err.contains("expected 1 to 31 of"), "{err}");
+}

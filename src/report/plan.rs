@@ -38,6 +38,8 @@ pub struct Request {
     /// The texels are heights: the mapping also holds each level's tile ranges (16 bytes a
     /// slot, page-rounded; docs/SHM.md).
     pub heights: bool,
+    /// Level-0 texels views may lie apart and be held whole (`clipmapd --view-spread`; 0: none).
+    pub view_spread: u64,
 }
 
 /// The image caches the engine and `clipmapd` keep (layout 2): every stack level a grid of whole
@@ -53,6 +55,9 @@ pub struct ImageCaches {
     pub grids: &'static str,
     /// The adaptive grids' budget, bytes of slots (null for fixed grids).
     pub grid_budget_bytes: Option<u64>,
+    /// Level-0 texels further views may lie apart and still be held whole (`--view-spread`;
+    /// 0: grids for one view): every level's grid is the engine's for this spread.
+    pub view_spread: u64,
     /// Level 0's grid of slots (tiles across, down).
     pub level0_grid: [u64; 2],
     /// Bytes of the slots (the texels).
@@ -96,12 +101,27 @@ pub struct Plan {
     /// What the engine would hold (`null` when it cannot serve the texture: larger than 2^26
     /// texels a side, or more levels than a mapping describes).
     pub image_caches: Option<ImageCaches>,
+    /// Why there are no image caches (absent when there are).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub no_image_caches: Option<String>,
+}
+
+/// The texel format the image caches are sized with: any of `bytes` bytes a texel (the grids and
+/// the mapping depend on the bytes alone), `None` when no texel format has that many.
+fn format_of(bytes: u64) -> Option<crate::texel::TexelFormat> {
+    use crate::texel::{ComponentType, Components, TexelFormat};
+    let components = [Components::One, Components::Two, Components::Three, Components::Four];
+    [(ComponentType::U8, 1), (ComponentType::U16, 2), (ComponentType::F32, 4)].into_iter().find_map(|(ctype, b)| {
+        let n = components.iter().find(|c| u64::from(c.count()) * b == bytes)?;
+        Some(TexelFormat { components: *n, ctype })
+    })
 }
 
 /// The image caches of a `size` texture with clip size `clip` (layout 2), as `clipmapd` maps them
-/// for a procedural source: with `lookahead` fixed grids, without it the adaptive policy's grids
-/// from its default budget (the same rule as `Clipmap::grids`); `None` when the engine cannot lay
-/// them out.
+/// for a procedural source: the grids are the engine's own (`Clipmap::grids`) under the settings
+/// the options give: `lookahead` fixed grids, without it the adaptive policy's grids from its
+/// default budget, each widened for views up to `view_spread` level-0 texels apart
+/// (`Settings::view_spread`). `Err` says why the engine cannot lay them out.
 pub fn image_caches(
     size: [u64; 2],
     clip: u64,
@@ -109,47 +129,45 @@ pub fn image_caches(
     tile: u64,
     lookahead: Option<u64>,
     heights: bool,
-) -> Option<ImageCaches> {
-    use crate::shm::layout::{place_with, LevelShape, Shape};
-    if size[0].max(size[1]) > crate::limits::MAX_TEXTURE_SIZE || tile == 0 {
-        return None;
-    }
-    let shapes: Vec<([u64; 2], [u64; 2])> = (0..crate::source::level_count(size) as u32)
-        .map(|k| {
-            let ls = crate::source::level_size(size, k);
-            let stack = ls[0] > clip || ls[1] > clip;
-            (ls, if stack { [tile.min(ls[0]), tile.min(ls[1])] } else { ls })
-        })
-        .collect();
-    let tile_bytes = |k: usize| shapes[k].1[0] * shapes[k].1[1] * texel_bytes;
-    let (grids, budget) = match lookahead {
-        Some(l) => (shapes.iter().map(|&(ls, t)| crate::geom::mem_grid(ls, t, clip, l)).collect::<Vec<_>>(), None),
-        None => {
-            let base: u64 = shapes
-                .iter()
-                .enumerate()
-                .map(|(k, &(ls, t))| {
-                    let g = crate::geom::mem_grid(ls, t, clip, 1);
-                    g[0].saturating_mul(g[1]).saturating_mul(tile_bytes(k))
-                })
-                .fold(0u64, u64::saturating_add);
-            let budget = base
-                .saturating_mul(crate::paging::adaptive::DEFAULT_BUDGET_FACTOR)
-                .min(crate::limits::Limits::default().cache_bytes as u64);
-            (crate::paging::adaptive::budget_grids(&shapes, clip, tile_bytes, budget).0, Some(budget))
-        }
+    view_spread: u64,
+) -> Result<ImageCaches, String> {
+    use crate::clip::{Clipmap, Settings};
+    use crate::paging::PrefetchKind;
+    let format = format_of(texel_bytes)
+        .ok_or_else(|| format!("no texel format has {texel_bytes} bytes: expected 1, 2, 3, 4, 6, 8, 12 or 16"))?;
+    let desc = crate::source::TextureDesc::new(size, clip, format, [tile, tile]).map_err(|e| e.to_string())?;
+    let settings = Settings {
+        lookahead: lookahead.unwrap_or(1),
+        prefetch: if lookahead.is_some() { PrefetchKind::Ring } else { PrefetchKind::Adaptive },
+        view_spread,
+        ..Settings::default()
     };
-    let levels: Vec<LevelShape> =
-        shapes.iter().zip(&grids).map(|(&(size, tile), &grid)| LevelShape { size, tile, grid }).collect();
-    let level0_grid = levels[0].grid;
-    let placed = place_with(&Shape { bytes_per_texel: texel_bytes, clip_size: clip, levels }, heights)
-        .and_then(|p| crate::shm::layout::with_views(p, crate::shm::layout::views::SERVICE_RECORDS))?;
+    if view_spread > crate::limits::MAX_TEXTURE_SIZE {
+        return Err(format!(
+            "--view-spread {view_spread}: expected 0 to {} level-0 texels",
+            crate::limits::MAX_TEXTURE_SIZE
+        ));
+    }
+    let grids = Clipmap::grids(&desc, &settings);
+    let shape = crate::clip::memory_shape(&desc, &grids);
+    let level0_grid = grids[0];
+    use crate::shm::layout::{check_level, place_with, views::SERVICE_RECORDS, with_views, MAX_LEVELS};
+    if shape.levels.len() > MAX_LEVELS {
+        return Err(format!("{} levels: a mapping describes at most {MAX_LEVELS}", shape.levels.len()));
+    }
+    for (k, l) in shape.levels.iter().enumerate() {
+        check_level(l, clip, texel_bytes).map_err(|why| format!("level {k}: {why}"))?;
+    }
+    let placed = place_with(&shape, heights)
+        .and_then(|p| with_views(p, SERVICE_RECORDS))
+        .ok_or_else(|| "the mapping would be larger than 2^64 bytes".to_string())?;
     let tile_range_bytes = placed.levels.iter().map(|l| if l.ranges == 0 { 0 } else { l.slots - l.ranges }).sum();
-    Some(ImageCaches {
+    Ok(ImageCaches {
         tile_size: tile,
         lookahead: lookahead.unwrap_or(1),
         grids: if lookahead.is_some() { "fixed" } else { "adaptive" },
-        grid_budget_bytes: budget,
+        grid_budget_bytes: Clipmap::grid_budget(&desc, &settings),
+        view_spread,
         level0_grid,
         slot_bytes: placed.slot_bytes(),
         bytes: placed.total_bytes,
@@ -222,9 +240,14 @@ pub fn compute(r: &Request) -> Result<Plan, SizingError> {
         })
     });
     let clip = 1u64 << memory.log2_clip;
-    let image_caches = image_caches(r.size, clip, r.texel_bytes, r.tile, r.lookahead, r.heights);
+    let (image_caches, no_image_caches) =
+        match image_caches(r.size, clip, r.texel_bytes, r.tile, r.lookahead, r.heights, r.view_spread) {
+            Ok(ic) => (Some(ic), None),
+            Err(why) => (None, Some(why)),
+        };
     Ok(Plan {
         image_caches,
+        no_image_caches,
         from: r.from.clone(),
         size: long,
         clip_size: 1 << memory.log2_clip,
@@ -283,7 +306,7 @@ pub fn human(p: &Plan, r: &Request) -> String {
     o.push_str(&format!("clipmap      {} texels, {}\n", grouped(m.clipmap_texels), human_bytes(m.clipmap_bytes)));
     match &p.image_caches {
         Some(ic) => o.push_str(&format!(
-            "image caches {} mapped by clipmapd ({} of texels{}): {}-texel tiles, {}, level 0 a {}x{} grid of whole tiles, pyramid levels whole\n",
+            "image caches {} mapped by clipmapd ({} of texels{}): {}-texel tiles, {}{}, level 0 a {}x{} grid of whole tiles, pyramid levels whole\n",
             human_bytes(ic.bytes as u128),
             human_bytes(ic.slot_bytes as u128),
             if ic.tile_range_bytes > 0 {
@@ -296,10 +319,18 @@ pub fn human(p: &Plan, r: &Request) -> String {
                 Some(b) => format!("adaptive grids within a budget of {} (twice lookahead 1)", human_bytes(b as u128)),
                 None => format!("lookahead {}", ic.lookahead),
             },
+            if ic.view_spread > 0 {
+                format!(", widened for views up to {} level-0 texels apart (view spread)", ic.view_spread)
+            } else {
+                String::new()
+            },
             ic.level0_grid[0],
             ic.level0_grid[1]
         )),
-        None => o.push_str("image caches none: the engine serves textures up to 2^26 texels a side\n"),
+        None => o.push_str(&format!(
+            "image caches none: the engine cannot serve this texture: {}\n",
+            p.no_image_caches.as_deref().unwrap_or("unknown")
+        )),
     }
     o.push_str(&format!("full mipmap  {} texels, {}\n", grouped(m.mipmap_texels), human_bytes(m.mipmap_bytes)));
     o.push_str(&format!(

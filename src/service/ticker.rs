@@ -259,6 +259,7 @@ impl Runner {
                 return Err(ServiceError::BadOption(format!("--view {name}: {why}")));
             }
         }
+        runner.publish_views();
         Ok((runner, started))
     }
 
@@ -326,6 +327,9 @@ impl Runner {
             }
             Command::ViewAdd(name, weight, reply) => {
                 let r = self.add_view(&name, weight);
+                if r.is_ok() {
+                    self.publish_views();
+                }
                 let _ = reply.send(r);
             }
             Command::ViewRemove(name, reply) => {
@@ -338,6 +342,7 @@ impl Runner {
                 };
                 if r.is_ok() {
                     tracing::info!(view = %name, "view removed");
+                    self.publish_views();
                 }
                 let _ = reply.send(r);
             }
@@ -370,6 +375,9 @@ impl Runner {
                         .map(|()| format!("view {name} weight {w}"))
                         .map_err(|e| e.to_string()),
                 };
+                if r.is_ok() {
+                    self.publish_views();
+                }
                 let _ = reply.send(r);
             }
             Command::ViewLod(name, offset, effective, reply) => {
@@ -380,6 +388,9 @@ impl Runner {
                         self.clipmap.set_view_lod(id, lod).map(|()| describe_lod(&name, lod)).map_err(|e| e.to_string())
                     }
                 };
+                if r.is_ok() {
+                    self.publish_views();
+                }
                 let _ = reply.send(r);
             }
             Command::ViewHeight(name, height, pixel_angle, effective, reply) => {
@@ -395,6 +406,9 @@ impl Runner {
                         self.apply_lod(id, &req).map(|lod| describe_lod(&name, lod))
                     }
                 };
+                if r.is_ok() {
+                    self.publish_views();
+                }
                 let _ = reply.send(r);
             }
             Command::Stop => {}
@@ -425,6 +439,13 @@ impl Runner {
         self.stats.lod_requests += 1;
         tracing::debug!(view = %name, offset, footprint, "LOD request");
         Ok(crate::clip::LodWindow { offset, effective })
+    }
+
+    /// Publishes the views' figures now, not at the next tick: `VIEWS` and `STATS` asked after a
+    /// `VIEW ADD`, `REMOVE` or `WEIGHT` was answered show it (as the mapping already does).
+    fn publish_views(&mut self) {
+        self.stats.views = self.view_stats();
+        self.stats_tx.send_replace(self.stats.clone());
     }
 
     /// Adds a named view, centred where the primary is until it is told otherwise.

@@ -13,29 +13,29 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
-const READER: &str = env!("CARGO_BIN_EXE_clipmap-read");
-const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+pub(crate) const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
+pub(crate) const READER: &str = env!("CARGO_BIN_EXE_clipmap-read");
+pub(crate) const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
 /// A running `clipmapd`, killed on drop; its output goes to files in the temp dir.
-struct Service {
-    child: Child,
+pub(crate) struct Service {
+    pub(crate) child: Child,
     args: Vec<String>,
     out: PathBuf,
-    err: PathBuf,
-    socket: PathBuf,
+    pub(crate) err: PathBuf,
+    pub(crate) socket: PathBuf,
 }
 
 impl Service {
     /// Starts `clipmapd --source hash` named `name` in `dir` with `extra` options and waits until
     /// its socket answers.
-    fn start(dir: &Path, name: &str, extra: &[&str]) -> Service {
+    pub(crate) fn start(dir: &Path, name: &str, extra: &[&str]) -> Service {
         let s = Service::spawn(dir, name, extra);
         s.wait_ready();
         s
     }
 
-    fn spawn(dir: &Path, name: &str, extra: &[&str]) -> Service {
+    pub(crate) fn spawn(dir: &Path, name: &str, extra: &[&str]) -> Service {
         let source = ["--source", "hash", "--size", "65536", "--clip", "256", "--tile", "64"];
         Service::spawn_with(dir, name, &source, extra)
     }
@@ -64,7 +64,7 @@ impl Service {
         Service { child, args, out, err, socket }
     }
 
-    fn wait_ready(&self) {
+    pub(crate) fn wait_ready(&self) {
         let t = Instant::now();
         while t.elapsed() < Duration::from_secs(30) {
             if let Ok(mut s) = UnixStream::connect(&self.socket) {
@@ -85,7 +85,7 @@ impl Service {
         self.child.id()
     }
 
-    fn dump(&self) -> String {
+    pub(crate) fn dump(&self) -> String {
         format!(
             "command: {CLIPMAPD} {}\nstdout:\n{}\nstderr:\n{}",
             self.args.join(" "),
@@ -95,7 +95,7 @@ impl Service {
     }
 
     /// Sends one request and returns the first reply line.
-    fn ask(&self, line: &str) -> String {
+    pub(crate) fn ask(&self, line: &str) -> String {
         ask(&self.socket, line)
     }
 
@@ -118,7 +118,7 @@ impl Drop for Service {
     }
 }
 
-fn ask(socket: &Path, line: &str) -> String {
+pub(crate) fn ask(socket: &Path, line: &str) -> String {
     let mut s = UnixStream::connect(socket).unwrap_or_else(|e| panic!("connect {}: {e}", socket.display()));
     s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
     writeln!(s, "{line}").unwrap();
@@ -127,13 +127,13 @@ fn ask(socket: &Path, line: &str) -> String {
     reply.trim_end().to_string()
 }
 
-fn json_reply(reply: &str) -> serde_json::Value {
+pub(crate) fn json_reply(reply: &str) -> serde_json::Value {
     let body = reply.strip_prefix("OK ").unwrap_or_else(|| panic!("not OK: {reply}"));
     serde_json::from_str(body).unwrap_or_else(|e| panic!("{e}: {reply}"))
 }
 
 /// Parses "N passed, M failed" from a reader's output.
-fn counts(out: &Output, what: &str) -> (u64, u64) {
+pub(crate) fn counts(out: &Output, what: &str) -> (u64, u64) {
     let stdout = String::from_utf8_lossy(&out.stdout);
     let line = stdout.lines().find(|l| l.contains(" passed, ")).unwrap_or_else(|| {
         panic!(
@@ -148,7 +148,7 @@ fn counts(out: &Output, what: &str) -> (u64, u64) {
     (passed, failed)
 }
 
-fn rust_reader(dir: &Path, name: &str, extra: &[&str]) -> Command {
+pub(crate) fn rust_reader(dir: &Path, name: &str, extra: &[&str]) -> Command {
     let mut c = Command::new(READER);
     c.args(["--name", name, "--shm-dir", dir.to_str().unwrap()]).args(extra);
     c.stdout(Stdio::piped()).stderr(Stdio::piped());
@@ -156,7 +156,7 @@ fn rust_reader(dir: &Path, name: &str, extra: &[&str]) -> Command {
 }
 
 /// Builds the C example reader with the system compiler.
-fn c_reader(dir: &Path) -> PathBuf {
+pub(crate) fn c_reader(dir: &Path) -> PathBuf {
     let exe = dir.join("c-reader");
     let out = Command::new("cc")
         .args(["-O2", "-Wall", "-Werror", "-I"])
@@ -170,7 +170,7 @@ fn c_reader(dir: &Path) -> PathBuf {
     exe
 }
 
-fn python_reader() -> Command {
+pub(crate) fn python_reader() -> Command {
     let mut c = Command::new("python3");
     c.arg(Path::new(ROOT).join("clients/python/clipmap_shm.py"));
     c.stdout(Stdio::piped()).stderr(Stdio::piped());
@@ -875,6 +875,40 @@ fn cliptex_plan_sizes_the_image_caches_as_the_service_maps_them() {
     assert_eq!(j["image_caches"]["grid_budget_bytes"].as_u64(), Some(budget), "{j}");
     assert_eq!(j["image_caches"]["slot_bytes"].as_u64(), Some(bytes(e)), "{j}");
     assert_eq!(j["image_caches"]["level0_grid"], serde_json::json!([6 + e, 6 + e]));
+    assert_eq!(j["image_caches"]["view_spread"], 0, "{j}");
+    // `--view-spread 1024` (docs/VIEWS.md): a service started with it maps exactly what the plan
+    // with it says, every stack level's grid ceil((1024 >> k) / 64) tiles wider than one view's
+    // (at most its tiles), the pyramid levels whole as before.
+    let spread_svc = Service::start(d, "spread", &["--view-spread", "1024"]);
+    let spread_mapped = std::fs::metadata(d.join("clipmap-spread.map")).unwrap().len();
+    let plan_args = ["plan", "--size", "65536", "--clip", "256", "--tile", "64", "--texel-bytes", "4"];
+    let out = Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(plan_args)
+        .args(["--view-spread", "1024", "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(s["image_caches"]["bytes"].as_u64(), Some(spread_mapped), "{s}\n{}", spread_svc.dump());
+    assert_eq!(s["image_caches"]["view_spread"], 1024, "{s}");
+    let widened = |k: u64| ((6 + (e >> k)).min(1024 >> k) + (1024u64 >> k).div_ceil(64)).min(1024 >> k);
+    let spread_bytes = (0..8).map(|k| widened(k).pow(2) * tile).sum::<u64>() + pyramid;
+    assert_eq!(s["image_caches"]["slot_bytes"].as_u64(), Some(spread_bytes), "{s}");
+    assert_eq!(s["image_caches"]["level0_grid"], serde_json::json!([6 + e + 16, 6 + e + 16]), "{s}");
+    assert_eq!(s["image_caches"]["views_block_bytes"], j["image_caches"]["views_block_bytes"], "{s}");
+    let text =
+        Command::new(env!("CARGO_BIN_EXE_cliptex")).args(plan_args).args(["--view-spread", "1024"]).output().unwrap();
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(text.contains("widened for views up to 1024 level-0 texels apart"), "{text}");
+    // A spread no service takes is refused naming the option and the range.
+    let bad = Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(plan_args)
+        .args(["--view-spread", "67108865"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert_eq!(bad.status.code(), Some(1), "{err}");
+    assert!(err.contains("--view-spread") && err.contains("67108865") && err.contains("0..=67108864"), "{err}");
 }
 
 #[test]

@@ -46,3 +46,4 @@ mod patch_fuzz_props;
 mod remote;
 mod sixteen_bit;
 mod stability;
+mod views_restart;
