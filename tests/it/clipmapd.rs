@@ -1257,6 +1257,33 @@ fn a_virtual_view_follows_its_height_reads_no_finer_level_and_every_texel_is_rig
     assert!(stats["lod_requests"].as_u64().unwrap() >= 1, "{stats}");
     assert_eq!(stats["lod_requests_refused"], 0);
 
+    // The C reader asks through its request record (100 texels up, 0.1 texel a pixel: offset 0),
+    // then Python through the socket (40000 up: 40 texels a pixel, LOD 5.3: offset 4).
+    let creader = c_reader(d);
+    let map = d.join("clipmap-virt.map");
+    let out = Command::new(&creader)
+        .arg(&map)
+        .args(["1000000000000", "5", "1", "--view", "high", "--lod", "100,0.001"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let stats = json_reply(&svc.ask("STATS"));
+    assert_eq!(stats["views"][1]["lod_offset"], 0, "C's LOD request: {}", stats["views"][1]);
+    let py = Command::new("python3")
+        .arg("-c")
+        .arg(format!(
+            "import sys; sys.path.insert(0, {:?}); import clipmap_shm as c; print(c.request_lod({:?}, 40000, 0.001, view='high'))",
+            Path::new(ROOT).join("clients/python").to_str().unwrap(),
+            d.join("virt.sock").to_str().unwrap()
+        ))
+        .output()
+        .unwrap();
+    let reply = String::from_utf8_lossy(&py.stdout);
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    assert_eq!(reply.trim(), "OK view high lod offset 4 effective all");
+    let bad = svc.ask("VIEW HEIGHT high 100 7");
+    assert!(bad.contains("pixel angle `7`: expected a finite number above 0 and below pi"), "{bad}");
+
     // The socket: main shows levels 2 and coarser (addressing 4 at once: the coarser ones stay
     // published, each a clip-size square at most, for the readers' fallback); a bad offset is
     // refused naming the range.
@@ -1289,5 +1316,5 @@ fn a_virtual_view_follows_its_height_reads_no_finer_level_and_every_texel_is_rig
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(text.contains("LOD window    resident"), "{text}");
     assert!(text.lines().any(|l| l.starts_with("main") && l.contains("2..5")), "{text}");
-    assert!(text.lines().any(|l| l.starts_with("high") && l.contains(&format!("3..{}", levels - 1))), "{text}");
+    assert!(text.lines().any(|l| l.starts_with("high") && l.contains(&format!("4..{}", levels - 1))), "{text}");
 }
