@@ -217,10 +217,16 @@ impl Runner {
                 // Whether the thread ends or panics, what it reported is in `reported`.
                 let _ = tokio::task::spawn_blocking(move || {
                     let mut since_yield = std::time::Instant::now();
+                    // The run's tiles, announced: a source reading byte ranges of one object
+                    // fetches those lying side by side with one request.
+                    source.will_read(&batch);
                     for tile in batch {
                         // Straight into the tile's slot, under its claim: nothing is copied later.
                         let (outcome, ended) = match memory.fill(tile, |slot| source.read_into(tile, slot)) {
-                            None => (Outcome::NotWanted, Ended::NotWanted),
+                            None => {
+                                source.withdraw(tile);
+                                (Outcome::NotWanted, Ended::NotWanted)
+                            }
                             Some((generation, Ok(delivered))) => {
                                 (Outcome::Filled(generation, delivered), Ended::Filled)
                             }

@@ -54,6 +54,7 @@
 //! The levels past the overviews are built at open for a local file, and when one is first read
 //! for a remote object (its open stays one request).
 
+use super::ahead::{Piece, Plan, ReadAhead};
 use super::{
     check_request, level_count, level_size, DescError, LevelDesc, SourceError, TextureDesc, TileId, TileSource,
 };
@@ -100,6 +101,10 @@ pub const MAX_INDEX_READ: u64 = 256 << 10;
 
 /// The most bytes one ranged read of adjacent tiles of a row takes (a remote object).
 const MAX_SPAN_BYTES: u64 = 8 << 20;
+
+/// How many TIFF tiles before and after a tile, in file order, are looked at for reading ahead
+/// with it (those announced to be read).
+const AHEAD_WINDOW: u64 = 64;
 
 /// Why a file cannot be served as a COG.
 #[derive(Debug, Error)]
@@ -704,6 +709,9 @@ pub struct CogSource {
     /// Whether the texels are heights (16-bit signed or 32-bit float samples), with the nodata
     /// value of the GDAL_NODATA tag.
     heights: Option<crate::plan::HeightPlan>,
+    /// The tiles announced to be read, and the merged requests that read several at once
+    /// (remote objects).
+    ahead: ReadAhead<TileId>,
 }
 
 impl std::fmt::Debug for CogSource {
@@ -853,6 +861,7 @@ impl CogSource {
             chunked: false,
             built: Mutex::new(None),
             heights,
+            ahead: ReadAhead::default(),
         })
     }
 
@@ -1193,6 +1202,99 @@ impl CogSource {
         let trail = if self.ghost.trailer { 4 } else { 0 };
         let count = next.checked_sub(offset)?.checked_sub(4 + trail)?;
         (count >= 4).then_some((offset, count))
+    }
+
+    /// The most bytes a merged request reads ahead (the remote options' `merge_bytes`, at most
+    /// [`MAX_SPAN_BYTES`]); 0 for a local file, which reads nothing ahead.
+    fn ahead_cap(&self) -> u64 {
+        match &self.store {
+            #[cfg(feature = "remote")]
+            Store::Remote(o) => o.remote().fetcher().options().merge_bytes.min(MAX_SPAN_BYTES),
+            _ => 0,
+        }
+    }
+
+    /// The bytes a read of TIFF tile `index` of `lv` fetches (framing included), when they are
+    /// to be fetched: `None` for a sparse tile, one in the first bytes, or one whose place cannot
+    /// be had.
+    fn stored_range(&self, lv: &IfdLevel, index: u64, need: u64, tile: TileId) -> Option<(u64, u64)> {
+        let (offset, count) = self.tile_place(lv, index, tile).ok()?;
+        if offset == 0 || count == 0 {
+            return None;
+        }
+        let (from, len) = match lv.compression {
+            Compression::None if count < need => return None,
+            Compression::None if count != need => (offset, need),
+            _ => {
+                let (lead, trail) = self.framing(offset, count);
+                (offset - lead, lead.saturating_add(count).saturating_add(trail))
+            }
+        };
+        if (Span { start: 0, bytes: &self.prefix }).get(from, len).is_some() {
+            return None;
+        }
+        Some((from, len))
+    }
+
+    /// The bytes of a request that holds TIFF tile `index` of `lv` (texture tile `tile`) and the
+    /// announced tiles stored next to it (docs/COG.md, "The request budget of a remote COG"),
+    /// from the byte they start at; `None` when the tile is to be read on its own.
+    fn read_ahead(
+        &self,
+        lv: &IfdLevel,
+        tile: TileId,
+        index: u64,
+        need: u64,
+    ) -> Result<Option<(u64, Shared)>, SourceError> {
+        let cap = self.ahead_cap();
+        let (rows, across) = (lv.rows(), lv.across);
+        let tiles = rows * across;
+        if cap == 0 || index >= tiles {
+            return Ok(None);
+        }
+        let id = |j: u64| TileId { level: tile.level, s: j % across, t: rows - 1 - j / across };
+        let near: Vec<TileId> =
+            (index.saturating_sub(AHEAD_WINDOW)..=(index + AHEAD_WINDOW).min(tiles - 1)).map(id).collect();
+        let place = |k: &TileId| {
+            let j = (rows - 1 - k.t) * across + k.s;
+            self.stored_range(lv, j, need, *k).map(|(start, len)| Piece { key: *k, start, len })
+        };
+        match self.ahead.plan(tile, &near, place, cap) {
+            Plan::Alone => Ok(None),
+            Plan::Take { start, bytes } => Ok(bytes.map(|b| (start, b))),
+            Plan::Send { start, end, merged, ticket } => match self.store.read_bytes(start, end - start) {
+                Ok(b) => {
+                    #[cfg(feature = "remote")]
+                    if let Store::Remote(o) = &self.store {
+                        use std::sync::atomic::Ordering;
+                        let ranges = merged.len() as u64 + 1;
+                        o.remote().fetcher().counters.merged.fetch_add(ranges, Ordering::Relaxed);
+                    }
+                    #[cfg(not(feature = "remote"))]
+                    let _ = merged;
+                    ticket.finish(Some(Arc::clone(&b)));
+                    Ok(Some((start, b)))
+                }
+                // A tile whose place runs past the end: each tile then says what is wrong with it.
+                Err(StoreError::Eof { .. }) => {
+                    ticket.finish(None);
+                    Ok(None)
+                }
+                Err(e) => {
+                    ticket.finish(None);
+                    Err(e.for_tile(tile, &self.path, start, end - start))
+                }
+            },
+        }
+    }
+
+    /// Whether texture tiles of `level` are read one TIFF tile each (and so may be read ahead).
+    fn one_tiff_tile_each(&self, level: u32) -> Option<&IfdLevel> {
+        let d = self.desc.level(level);
+        match self.levels.get(level as usize)? {
+            Level::Ifd(lv) if lv.tile == d.tile && lv.size[1] % lv.tile[1] == 0 => Some(lv),
+            _ => None,
+        }
     }
 
     /// The bytes framing a tile of `count` bytes at `offset`: GDAL's leader before it and
@@ -1967,6 +2069,17 @@ impl TileSource for CogSource {
         }
     }
 
+    fn will_read(&self, tiles: &[TileId]) {
+        if self.ahead_cap() > 0 {
+            let ours = tiles.iter().filter(|t| (t.level as usize) < self.levels.len());
+            self.ahead.announce(ours.filter(|t| self.one_tiff_tile_each(t.level).is_some()).copied());
+        }
+    }
+
+    fn withdraw(&self, tile: TileId) {
+        self.ahead.withdraw(tile);
+    }
+
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
         check_request(&self.desc, tile, out)?;
         let d = self.desc.level(tile.level);
@@ -1993,7 +2106,9 @@ impl TileSource for CogSource {
                 // One TIFF tile, decoded in place: its rows reversed, columns past the image's
                 // right edge zeroed.
                 let index = (lv.rows() - 1 - tile.t) * lv.across + tile.s;
-                self.decode(lv, index, tile, out, None)?;
+                let ahead = self.read_ahead(lv, tile, index, out.len() as u64)?;
+                let span = ahead.as_ref().map(|(start, b)| Span { start: *start, bytes: b });
+                self.decode(lv, index, tile, out, span.as_ref())?;
                 let row = tw as usize * bpt;
                 for r in 0..th as usize / 2 {
                     let (top, bottom) = out.split_at_mut((th as usize - 1 - r) * row);

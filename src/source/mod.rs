@@ -11,6 +11,7 @@
 //! `((t - T*tile[1]) * tile[0] + (s - S*tile[0])) * bytes_per_texel`. Texels of an edge tile that
 //! lie outside the level are zero.
 
+mod ahead;
 pub mod cog;
 pub mod desc;
 pub mod faulty;
@@ -189,6 +190,25 @@ pub trait TileSource: Send + Sync {
         match self.wrapped() {
             Some(inner) => inner.stream_of(tile, streams),
             None => (tile.s % streams.max(1) as u64) as usize,
+        }
+    }
+
+    /// Says that `tiles` are about to be read (a read queue's run, most urgent first), so that a
+    /// source that reads byte ranges of one object may read several of them with one request
+    /// (docs/COG.md, "The request budget of a remote COG"). A hint only: a tile announced may be
+    /// read or [withdrawn](Self::withdraw), and one never announced is read as well. The
+    /// [`wrapped`](Self::wrapped) source is told; by default nothing else happens.
+    fn will_read(&self, tiles: &[TileId]) {
+        if let Some(inner) = self.wrapped() {
+            inner.will_read(tiles);
+        }
+    }
+
+    /// Says that `tile`, [announced](Self::will_read), will not be read after all: nothing more is
+    /// fetched for it, and bytes fetched ahead for it are dropped.
+    fn withdraw(&self, tile: TileId) {
+        if let Some(inner) = self.wrapped() {
+            inner.withdraw(tile);
         }
     }
 }

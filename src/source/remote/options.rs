@@ -18,7 +18,11 @@ pub struct RemoteOptions {
     /// timed-out connection, a truncated body).
     pub retries: u32,
     /// The first backoff; each retry doubles it, up to [`RemoteOptions::backoff_max`]; the wait is
-    /// drawn uniformly between half of it and all of it (jitter).
+    /// drawn uniformly between half of it and all of it (jitter). The default, 5 ms, makes a
+    /// transient fault (a 503, a connection dropped mid-body) cost little; with the default 7
+    /// retries the steps still add up to 635 ms (5 + 10 + ... + 320), about the 750 ms of the
+    /// earlier 4 retries from 50 ms, so a server that is unavailable for a while is waited for as
+    /// long as before.
     pub backoff: Duration,
     /// The longest backoff, and the most a `Retry-After` header is obeyed for.
     pub backoff_max: Duration,
@@ -38,8 +42,8 @@ impl Default for RemoteOptions {
         RemoteOptions {
             timeout: Duration::from_secs(10),
             connect_timeout: Duration::from_secs(2),
-            retries: 4,
-            backoff: Duration::from_millis(50),
+            retries: 7,
+            backoff: Duration::from_millis(5),
             backoff_max: Duration::from_secs(2),
             in_flight: 16,
             merge_bytes: 4 << 20,
@@ -53,8 +57,8 @@ impl Default for RemoteOptions {
 pub const ENV_VARS: [(&str, &str); 9] = [
     ("CLIPMAP_REMOTE_TIMEOUT_MS", "whole-request timeout, milliseconds (default 10000)"),
     ("CLIPMAP_REMOTE_CONNECT_TIMEOUT_MS", "connect timeout, milliseconds (default 2000)"),
-    ("CLIPMAP_REMOTE_RETRIES", "retries after the first attempt (default 4)"),
-    ("CLIPMAP_REMOTE_BACKOFF_MS", "first backoff, milliseconds (default 50)"),
+    ("CLIPMAP_REMOTE_RETRIES", "retries after the first attempt (default 7)"),
+    ("CLIPMAP_REMOTE_BACKOFF_MS", "first backoff, milliseconds (default 5)"),
     ("CLIPMAP_REMOTE_BACKOFF_MAX_MS", "longest backoff and Retry-After obeyed, milliseconds (default 2000)"),
     ("CLIPMAP_REMOTE_IN_FLIGHT", "requests in flight per endpoint (default 16)"),
     ("CLIPMAP_REMOTE_MERGE_BYTES", "largest merged range request, bytes (default 4194304)"),
@@ -201,6 +205,38 @@ mod tests {
         // A first backoff above the bound starts at the bound.
         let over = RemoteOptions { backoff: Duration::from_secs(9), ..o.clone() };
         assert!(over.backoff_policy().build().all(|w| w <= Duration::from_millis(350) + slack));
+    }
+
+    #[test]
+    fn the_default_backoff_starts_at_5_ms_and_keeps_the_earlier_total_budget() {
+        use backon::BackoffBuilder;
+        let o = RemoteOptions::default();
+        assert_eq!((o.backoff, o.retries), (Duration::from_millis(5), 7));
+        // The bound before retry n: 5, 10, 20, ... 320 ms (each under the 2 s cap).
+        let bounds: Vec<Duration> = (0..7).map(|n| Duration::from_millis(5 << n)).collect();
+        let total: Duration = bounds.iter().sum();
+        assert_eq!(total, Duration::from_millis(635), "about the 750 ms of 4 retries from 50 ms");
+        let slack = Duration::from_micros(10);
+        for seed in 0..100 {
+            let waits: Vec<Duration> = o.backoff_policy().with_jitter_seed(seed).build().collect();
+            assert_eq!(waits.len(), 7);
+            for (n, (w, b)) in waits.iter().zip(&bounds).enumerate() {
+                assert!(
+                    *w + slack >= *b / 2 && *w <= *b + slack,
+                    "retry {}: {w:?} outside [{:?}, {b:?}]",
+                    n + 1,
+                    *b / 2
+                );
+            }
+            // The first fault costs at most 5 ms, not the 25 to 50 ms of before.
+            assert!(waits[0] <= Duration::from_millis(5) + slack);
+        }
+        // The variable still sets it, and a value out of range is refused naming it.
+        let o = RemoteOptions::from_vars(|k| (k == "CLIPMAP_REMOTE_BACKOFF_MS").then(|| "50".into())).unwrap();
+        assert_eq!(o.backoff, Duration::from_millis(50));
+        let e = RemoteOptions::from_vars(|k| (k == "CLIPMAP_REMOTE_BACKOFF_MS").then(|| "600001".into())).unwrap_err();
+        assert_eq!(e.var, "CLIPMAP_REMOTE_BACKOFF_MS");
+        assert!(e.to_string().contains("found `600001`") && e.to_string().contains("0 to 600000"), "{e}");
     }
 
     #[test]

@@ -1,0 +1,518 @@
+//! Request shaping for tiles read in byte ranges of one object (a remote COG): the tiles a read
+//! queue is about to read are announced ([`ReadAhead::announce`]); a read of one of them fetches,
+//! with the same ranged request, the announced tiles whose stored bytes lie next to its own
+//! (separated by at most [`GAP_BYTES`], whose bytes are fetched and dropped), up to a byte cap.
+//! The other tiles of that request then take their bytes from it, waiting for it when it is still
+//! on its way, rather than sending a request each.
+//!
+//! Only announced tiles are read ahead: a tile the queue does not mean to read is never fetched,
+//! beyond a gap of at most [`GAP_BYTES`] between two that it does. A tile withdrawn
+//! ([`ReadAhead::withdraw`]: its read was dropped) leaves the request it was merged into; bytes
+//! read for tiles nobody takes are dropped once the spans kept pass [`KEPT_BYTES`]. A request
+//! runs only as long as the read of its first tile (the one that sent it) does, so a merged
+//! request whose tiles are all unwanted is never sent, and a partly wanted one completes.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::hash::Hash;
+use std::sync::{Arc, Condvar, Mutex, OnceLock};
+
+/// The longest run of bytes no wanted tile holds that a merged request reads (and drops) to join
+/// two tiles.
+pub const GAP_BYTES: u64 = 16 << 10;
+
+/// Most tiles remembered as announced (the oldest are forgotten first).
+pub const MAX_ANNOUNCED: usize = 1 << 14;
+
+/// Most bytes of merged requests kept for tiles that have not taken theirs yet; past it the
+/// oldest requests' bytes are dropped (their tiles are then read on their own).
+pub const KEPT_BYTES: u64 = 64 << 20;
+
+/// A tile's stored bytes in the object: `[start, start + len)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Piece<K> {
+    /// The tile.
+    pub key: K,
+    /// First byte.
+    pub start: u64,
+    /// Bytes.
+    pub len: u64,
+}
+
+impl<K> Piece<K> {
+    fn end(&self) -> u64 {
+        self.start.saturating_add(self.len)
+    }
+}
+
+/// The pieces to read with one request together with `pieces[head]`: the index range `lo..=hi`
+/// (containing `head`) of `pieces`, sorted by start, grown from the head forward while the next
+/// piece starts at most `gap` bytes after the run ends, then backward the same way, as long as
+/// the run's bytes (gaps included) stay within `cap`; the head alone may be larger than `cap`.
+pub fn coalesce<K>(pieces: &[Piece<K>], head: usize, gap: u64, cap: u64) -> (usize, usize) {
+    let (mut lo, mut hi) = (head, head);
+    let (mut start, mut end) = (pieces[head].start, pieces[head].end());
+    while hi + 1 < pieces.len() {
+        let next = &pieces[hi + 1];
+        let new_end = end.max(next.end());
+        if next.start < start || next.start.saturating_sub(end) > gap || new_end - start > cap {
+            break;
+        }
+        hi += 1;
+        end = new_end;
+    }
+    while lo > 0 {
+        let prev = &pieces[lo - 1];
+        let new_start = start.min(prev.start);
+        if prev.end() > end || start.saturating_sub(prev.end()) > gap || end - new_start > cap {
+            break;
+        }
+        lo -= 1;
+        start = new_start;
+    }
+    (lo, hi)
+}
+
+/// Bytes shared between readers.
+pub type Shared = Arc<Vec<u8>>;
+
+/// One merged request: its range and the tiles merged into it (those that still are to take their
+/// bytes from it are the ones `State::by_tile` maps to it).
+struct Span<K> {
+    start: u64,
+    end: u64,
+    waiting: HashSet<K>,
+    /// The bytes once read (`None`: the request failed; its tiles read on their own).
+    bytes: OnceLock<Option<Shared>>,
+}
+
+struct State<K> {
+    announced: HashSet<K>,
+    order: VecDeque<K>,
+    /// Spans, oldest first.
+    spans: VecDeque<Arc<Span<K>>>,
+    /// Tile to span.
+    by_tile: HashMap<K, Arc<Span<K>>>,
+}
+
+/// The announced tiles and the merged requests of one object.
+pub struct ReadAhead<K> {
+    state: Mutex<State<K>>,
+    read: Condvar,
+}
+
+impl<K> Default for ReadAhead<K> {
+    fn default() -> Self {
+        ReadAhead {
+            state: Mutex::new(State {
+                announced: HashSet::new(),
+                order: VecDeque::new(),
+                spans: VecDeque::new(),
+                by_tile: HashMap::new(),
+            }),
+            read: Condvar::new(),
+        }
+    }
+}
+
+/// What a read of a tile is to do.
+pub enum Plan<'a, K> {
+    /// Read the tile on its own.
+    Alone,
+    /// Its bytes are those of the request that holds them, from its byte `start` (`None`: that
+    /// request failed, read it on its own).
+    Take { start: u64, bytes: Option<Shared> },
+    /// Send the request for `start..end`, which holds the tile and `merged` others, then
+    /// [finish](Ticket::finish) the ticket.
+    Send { start: u64, end: u64, merged: Vec<K>, ticket: Ticket<'a, K> },
+}
+
+/// A request sent by one read, to be finished with its bytes or its failure; dropped unfinished
+/// (the read panicked), it fails, so that no tile waits for it for ever.
+pub struct Ticket<'a, K> {
+    ahead: &'a ReadAhead<K>,
+    span: Arc<Span<K>>,
+}
+
+impl<K> Ticket<'_, K> {
+    /// Hands the request's bytes to the tiles waiting for them, or its failure (`None`: each
+    /// reads on its own).
+    pub fn finish(self, bytes: Option<Shared>) {
+        self.set(bytes);
+    }
+
+    fn set(&self, bytes: Option<Shared>) {
+        let st = self.ahead.state.lock().unwrap_or_else(|e| e.into_inner());
+        let _ = self.span.bytes.set(bytes);
+        drop(st);
+        self.ahead.read.notify_all();
+    }
+}
+
+impl<K> Drop for Ticket<'_, K> {
+    fn drop(&mut self) {
+        if self.span.bytes.get().is_none() {
+            self.set(None);
+        }
+    }
+}
+
+impl<K: Copy + Eq + Hash> ReadAhead<K> {
+    fn lock(&self) -> std::sync::MutexGuard<'_, State<K>> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// `tiles` are about to be read.
+    pub fn announce(&self, tiles: impl IntoIterator<Item = K>) {
+        let mut st = self.lock();
+        for k in tiles {
+            if st.announced.insert(k) {
+                st.order.push_back(k);
+            }
+        }
+        while st.order.len() > MAX_ANNOUNCED {
+            if let Some(old) = st.order.pop_front() {
+                st.announced.remove(&old);
+            }
+        }
+    }
+
+    /// `tile` will not be read after all: it is not read ahead, and a request it was merged into
+    /// keeps no bytes for it.
+    pub fn withdraw(&self, tile: K) {
+        let mut st = self.lock();
+        st.announced.remove(&tile);
+        if st.by_tile.remove(&tile).is_some() {
+            Self::forget_taken(&mut st);
+        }
+    }
+
+    /// Forgets the spans no tile waits for any more (their bytes go with the last reader).
+    fn forget_taken(st: &mut State<K>) {
+        let by_tile = &st.by_tile;
+        st.spans.retain(|s| s.waiting.iter().any(|k| by_tile.get(k).is_some_and(|o| Arc::ptr_eq(o, s))));
+    }
+
+    /// What the read of `tile` is to do. `near` lists tiles whose bytes may lie next to its own
+    /// (the caller's neighbourhood of it in the object's order); `place` gives a tile's stored
+    /// bytes (`None`: not to be merged, as a sparse tile), asked outside the lock, for `tile` and
+    /// for those of `near` that are announced and in no request yet.
+    pub fn plan(&self, tile: K, near: &[K], place: impl Fn(&K) -> Option<Piece<K>>, cap: u64) -> Plan<'_, K> {
+        let keys: Vec<K> = {
+            let mut st = self.lock();
+            st.announced.remove(&tile);
+            if let Some(span) = st.by_tile.remove(&tile) {
+                Self::forget_taken(&mut st);
+                drop(st);
+                return self.take(&span);
+            }
+            near.iter()
+                .filter(|k| **k != tile && st.announced.contains(k) && !st.by_tile.contains_key(k))
+                .copied()
+                .collect()
+        };
+        if keys.is_empty() {
+            return Plan::Alone;
+        }
+        let Some(own) = place(&tile) else { return Plan::Alone };
+        let mut pieces: Vec<Piece<K>> = keys.iter().filter_map(&place).collect();
+        let mut st = self.lock();
+        // Claimed by another read meanwhile: not this request's.
+        pieces.retain(|p| st.announced.contains(&p.key) && !st.by_tile.contains_key(&p.key));
+        pieces.push(own);
+        pieces.sort_by_key(|p| p.start);
+        let Some(head) = pieces.iter().position(|p| p.key == tile) else { return Plan::Alone };
+        let (lo, hi) = coalesce(&pieces, head, GAP_BYTES, cap);
+        if lo == hi {
+            return Plan::Alone;
+        }
+        let run = &pieces[lo..=hi];
+        let start = run.iter().map(|p| p.start).min().unwrap_or(0);
+        let end = run.iter().map(Piece::end).max().unwrap_or(start);
+        let merged: Vec<K> = run.iter().map(|p| p.key).filter(|k| *k != tile).collect();
+        let span = Arc::new(Span { start, end, waiting: merged.iter().copied().collect(), bytes: OnceLock::new() });
+        for k in &merged {
+            st.announced.remove(k);
+            st.by_tile.insert(*k, Arc::clone(&span));
+        }
+        st.spans.push_back(Arc::clone(&span));
+        Self::trim(&mut st);
+        Plan::Send { start, end, merged, ticket: Ticket { ahead: self, span } }
+    }
+
+    /// Drops the oldest spans' claims while more than [`KEPT_BYTES`] are held.
+    fn trim(st: &mut State<K>) {
+        Self::forget_taken(st);
+        let mut held: u64 = st.spans.iter().map(|s| s.end - s.start).sum();
+        while held > KEPT_BYTES && st.spans.len() > 1 {
+            let Some(old) = st.spans.pop_front() else { break };
+            held -= old.end - old.start;
+            for k in &old.waiting {
+                if st.by_tile.get(k).is_some_and(|o| Arc::ptr_eq(o, &old)) {
+                    st.by_tile.remove(k);
+                }
+            }
+        }
+    }
+
+    fn take(&self, span: &Arc<Span<K>>) -> Plan<'_, K> {
+        let mut st = self.lock();
+        while span.bytes.get().is_none() {
+            st = self.read.wait(st).unwrap_or_else(|e| e.into_inner());
+        }
+        drop(st);
+        Plan::Take { start: span.start, bytes: span.bytes.get().cloned().flatten() }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Whether `lo..=hi` of `pieces` may be one request: every gap within `gap`, the bytes within
+    /// `cap` (or one piece alone), no piece reaching back before the run's first.
+    fn valid(pieces: &[Piece<usize>], lo: usize, hi: usize, gap: u64, cap: u64) -> bool {
+        if lo == hi {
+            return true;
+        }
+        let run = &pieces[lo..=hi];
+        let start = run[0].start;
+        let mut end = run[0].end();
+        for p in &run[1..] {
+            if p.start < start || p.start.saturating_sub(end) > gap {
+                return false;
+            }
+            end = end.max(p.end());
+        }
+        end - start <= cap
+    }
+
+    /// Pieces side by side with gaps (some none, some past the merge gap), sorted by start.
+    fn pieces() -> impl Strategy<Value = Vec<Piece<usize>>> {
+        prop::collection::vec((1u64..40_000, prop_oneof![Just(0u64), 0u64..20_000, 15_000u64..100_000]), 1..40)
+            .prop_map(|v| {
+                let mut at = 0;
+                v.into_iter()
+                    .enumerate()
+                    .map(|(key, (len, gap))| {
+                        at += gap;
+                        let p = Piece { key, start: at, len };
+                        at += len;
+                        p
+                    })
+                    .collect()
+            })
+    }
+
+    fn object(len: u64) -> Vec<u8> {
+        (0..len).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8).collect()
+    }
+
+    proptest! {
+        /// Against a brute-force oracle of the policy: the run grows forward as far as any valid
+        /// run from the head does, then backward as far as any valid run to that end does; its
+        /// bytes stay within the cap, its gaps within the gap; and every piece's bytes cut out of
+        /// the merged request are the bytes of its own range.
+        #[test]
+        fn coalescing_is_the_oracle_s_run_and_gives_each_piece_its_own_bytes(
+            ps in pieces(), head_seed in any::<usize>(), cap in 0u64..400_000,
+        ) {
+            let head = head_seed % ps.len();
+            let (lo, hi) = coalesce(&ps, head, GAP_BYTES, cap);
+            prop_assert!(lo <= head && head <= hi);
+            prop_assert!(valid(&ps, lo, hi, GAP_BYTES, cap));
+            let far = (head..ps.len()).filter(|&h| valid(&ps, head, h, GAP_BYTES, cap)).max().unwrap();
+            // Valid runs are intervals: every h up to `far` is valid too, so the greedy reaches it.
+            prop_assert_eq!(hi, far);
+            let back = (0..=head).filter(|&l| valid(&ps, l, hi, GAP_BYTES, cap)).min().unwrap();
+            prop_assert_eq!(lo, back);
+            let (start, end) = (ps[lo].start, ps[lo..=hi].iter().map(|p| p.end()).max().unwrap());
+            if lo < hi {
+                prop_assert!(end - start <= cap, "{} bytes over the cap {}", end - start, cap);
+            }
+            for w in ps[lo..=hi].windows(2) {
+                prop_assert!(w[1].start - w[0].end() <= GAP_BYTES);
+            }
+            let obj = object(end);
+            let merged = &obj[start as usize..end as usize];
+            for p in &ps[lo..=hi] {
+                let from = (p.start - start) as usize;
+                prop_assert_eq!(&merged[from..from + p.len as usize], &obj[p.start as usize..p.end() as usize]);
+            }
+        }
+
+        /// Threads reading announced tiles in any order through [`ReadAhead`]: each gets exactly
+        /// the bytes of its own range, no request is larger than the cap (but a lone tile), and
+        /// there are never more requests than tiles.
+        #[test]
+        fn reads_through_read_ahead_get_their_own_bytes(
+            ps in pieces(), order_seed in any::<u64>(), cap in 0u64..400_000, withdrawn in any::<u64>(),
+        ) {
+            let ahead = ReadAhead::<usize>::default();
+            let end = ps.iter().map(|p| p.end()).max().unwrap();
+            let obj = object(end);
+            let keys: Vec<usize> = ps.iter().map(|p| p.key).collect();
+            ahead.announce(keys.iter().copied());
+            // Some tiles are withdrawn (their reads dropped) and never read.
+            let gone: Vec<usize> = keys.iter().copied().filter(|k| withdrawn >> (k % 64) & 1 == 1 && k % 3 == 0).collect();
+            for k in &gone {
+                ahead.withdraw(*k);
+            }
+            let mut order: Vec<usize> = keys.iter().copied().filter(|k| !gone.contains(k)).collect();
+            let mut x = order_seed | 1;
+            for i in (1..order.len()).rev() {
+                x ^= x << 13; x ^= x >> 7; x ^= x << 17;
+                order.swap(i, (x % (i as u64 + 1)) as usize);
+            }
+            let requests = Mutex::new(Vec::<(u64, u64)>::new());
+            let next = std::sync::atomic::AtomicUsize::new(0);
+            let place = |k: &usize| Some(ps[*k]);
+            let read = |k: usize| -> Vec<u8> {
+                let fetch = |s: u64, e: u64| {
+                    requests.lock().unwrap().push((s, e));
+                    obj[s as usize..e as usize].to_vec()
+                };
+                let p = ps[k];
+                match ahead.plan(k, &keys, place, cap) {
+                    Plan::Alone => fetch(p.start, p.end()),
+                    Plan::Take { start, bytes: Some(b) } => {
+                        let from = (p.start - start) as usize;
+                        b[from..from + p.len as usize].to_vec()
+                    }
+                    Plan::Take { bytes: None, .. } => fetch(p.start, p.end()),
+                    Plan::Send { start, end, ticket, .. } => {
+                        let b = Arc::new(fetch(start, end));
+                        ticket.finish(Some(Arc::clone(&b)));
+                        let from = (p.start - start) as usize;
+                        b[from..from + p.len as usize].to_vec()
+                    }
+                }
+            };
+            let got: Vec<(usize, Vec<u8>)> = std::thread::scope(|scope| {
+                let threads: Vec<_> = (0..4)
+                    .map(|_| {
+                        scope.spawn(|| {
+                            let mut mine = Vec::new();
+                            loop {
+                                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                                let Some(&k) = order.get(i) else { return mine };
+                                mine.push((k, read(k)));
+                            }
+                        })
+                    })
+                    .collect();
+                threads.into_iter().flat_map(|t| t.join().unwrap()).collect()
+            });
+            prop_assert_eq!(got.len(), order.len());
+            for (k, bytes) in &got {
+                let p = ps[*k];
+                prop_assert_eq!(bytes.as_slice(), &obj[p.start as usize..p.end() as usize], "tile {}", k);
+            }
+            let requests = requests.into_inner().unwrap();
+            prop_assert!(requests.len() <= order.len());
+            for (s, e) in &requests {
+                let lone = ps.iter().any(|p| p.start == *s && p.end() == *e);
+                prop_assert!(lone || e - s <= cap, "request {}..{} over the cap {}", s, e, cap);
+            }
+        }
+    }
+
+    fn row(n: usize, len: u64, gap: u64) -> Vec<Piece<usize>> {
+        (0..n).map(|key| Piece { key, start: key as u64 * (len + gap), len }).collect()
+    }
+
+    #[test]
+    fn announced_neighbours_are_read_with_the_first_and_take_their_bytes_from_it() {
+        let ps = row(10, 1000, 0);
+        let ahead = ReadAhead::<usize>::default();
+        ahead.announce(0..10);
+        let place = |k: &usize| Some(ps[*k]);
+        let all: Vec<usize> = (0..10).collect();
+        let Plan::Send { start, end, merged, ticket } = ahead.plan(3, &all, place, 1 << 20) else { panic!() };
+        assert_eq!((start, end, merged.len()), (0, 10_000, 9));
+        ticket.finish(Some(Arc::new(object(10_000))));
+        match ahead.plan(7, &all, place, 1 << 20) {
+            Plan::Take { start: 0, bytes: Some(b) } => assert_eq!(b.len(), 10_000),
+            _ => panic!("tile 7 takes its bytes from the request"),
+        }
+        // Taken once: a second read of the same tile is a read of its own.
+        assert!(matches!(ahead.plan(7, &all, place, 1 << 20), Plan::Alone));
+    }
+
+    #[test]
+    fn unannounced_tiles_are_not_read_ahead_nor_gaps_past_the_bound() {
+        let place_of = |ps: Vec<Piece<usize>>| move |k: &usize| Some(ps[*k]);
+        let ahead = ReadAhead::<usize>::default();
+        let all: Vec<usize> = (0..6).collect();
+        // Nothing announced: each tile alone.
+        assert!(matches!(ahead.plan(0, &all, place_of(row(6, 1000, 0)), 1 << 20), Plan::Alone));
+        // Tiles 0, 1 and 4, 5 announced; 2 and 3 (2000 bytes, under the gap) not: one request
+        // reads 0..=5, dropping the bytes of 2 and 3.
+        ahead.announce([0, 1, 4, 5]);
+        let mut ps = row(6, 1000, 0);
+        ps.remove(3);
+        ps.remove(2);
+        let keyed: HashMap<usize, Piece<usize>> = ps.iter().map(|p| (p.key, *p)).collect();
+        match ahead.plan(0, &all, |k: &usize| keyed.get(k).copied(), 1 << 20) {
+            Plan::Send { start: 0, end: 6000, merged, .. } => assert_eq!(merged, vec![1, 4, 5]),
+            _ => panic!("the gap of 2000 bytes is read"),
+        }
+        // A gap past the bound splits the run.
+        let ahead = ReadAhead::<usize>::default();
+        ahead.announce(0..2);
+        let far = vec![Piece { key: 0, start: 0, len: 10 }, Piece { key: 1, start: 10 + GAP_BYTES + 1, len: 10 }];
+        assert!(matches!(ahead.plan(0, &[0, 1], place_of(far), 1 << 20), Plan::Alone));
+    }
+
+    #[test]
+    fn withdrawn_tiles_leave_their_request_and_a_dropped_ticket_fails_it() {
+        let ps = row(4, 1000, 0);
+        let place = |k: &usize| Some(ps[*k]);
+        let all: Vec<usize> = (0..4).collect();
+        let ahead = ReadAhead::<usize>::default();
+        ahead.announce(0..4);
+        ahead.withdraw(3);
+        let Plan::Send { end, merged, ticket, .. } = ahead.plan(0, &all, place, 1 << 20) else { panic!() };
+        assert_eq!((end, merged), (3000, vec![1, 2]), "a tile withdrawn before is not read");
+        ahead.withdraw(2);
+        // The read that sent the request fails without finishing: its tiles read on their own.
+        drop(ticket);
+        assert!(matches!(ahead.plan(1, &all, place, 1 << 20), Plan::Take { bytes: None, .. }));
+        assert!(matches!(ahead.plan(2, &all, place, 1 << 20), Plan::Alone), "withdrawn: nothing kept for it");
+        assert!(ahead.lock().spans.is_empty() && ahead.lock().by_tile.is_empty());
+    }
+
+    #[test]
+    fn the_cap_bounds_a_request_and_zero_reads_nothing_ahead() {
+        let ps = row(10, 1000, 0);
+        let place = |k: &usize| Some(ps[*k]);
+        let all: Vec<usize> = (0..10).collect();
+        let ahead = ReadAhead::<usize>::default();
+        ahead.announce(0..10);
+        let Plan::Send { start, end, .. } = ahead.plan(5, &all, place, 3500) else { panic!() };
+        // Forward first: 5, 6, 7, then back to 5's left while it fits.
+        assert_eq!((start, end), (5000, 8000));
+        let ahead = ReadAhead::<usize>::default();
+        ahead.announce(0..10);
+        assert!(matches!(ahead.plan(5, &all, place, 0), Plan::Alone));
+    }
+
+    #[test]
+    fn kept_bytes_are_bounded() {
+        let len = KEPT_BYTES / 4;
+        let ps = row(20, len, 0);
+        let place = |k: &usize| Some(ps[*k]);
+        let all: Vec<usize> = (0..20).collect();
+        let ahead = ReadAhead::<usize>::default();
+        ahead.announce(0..20);
+        // Requests of two tiles each, none of whose second tile is read.
+        for head in (0..20).step_by(2) {
+            let Plan::Send { ticket, .. } = ahead.plan(head, &all, place, 2 * len) else { panic!() };
+            ticket.finish(None);
+        }
+        let st = ahead.lock();
+        let held: u64 = st.spans.iter().map(|s| s.end - s.start).sum();
+        assert!(held <= KEPT_BYTES, "{held} bytes held");
+        assert!(st.by_tile.len() <= 2, "{} tiles still claim a request", st.by_tile.len());
+    }
+}
