@@ -117,7 +117,7 @@ pub enum Texels {
     /// RGBA16 (`Rgba16Uint`), from L16, LA16, RGB16, RGBA16.
     Bits16,
     /// Heights, metres in 32-bit floats (`R32Float`): `l32f` as published, `l16` and `l16i`
-    /// converted on upload (`crate::heights::HeightShading::to_gpu`).
+    /// converted on upload (`crate::shading::HeightShading::to_gpu`).
     Float32,
 }
 
@@ -259,7 +259,7 @@ pub struct Renderer {
     /// What a texel is on the GPU.
     pub texels: Texels,
     /// For heights: the nodata value and false-colour range the shader uses.
-    pub heights: Option<crate::heights::HeightShading>,
+    pub heights: Option<crate::shading::HeightShading>,
     texture: wgpu::Texture,
     tags: wgpu::Buffer,
     frame: wgpu::Buffer,

@@ -15,6 +15,7 @@ pub mod diff;
 pub mod flight;
 pub mod gpu;
 pub mod heights;
+pub mod shading;
 pub mod summary;
 pub mod upload;
 

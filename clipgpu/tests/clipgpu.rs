@@ -573,7 +573,13 @@ fn a_further_view_is_drawn_and_moved_bit_exact_while_main_stays_and_an_unknown_v
     let views = |s: &Service| -> Value {
         serde_json::from_str(ask(&s.socket, "VIEWS").strip_prefix("OK ").expect("VIEWS answers OK")).unwrap()
     };
-    let main_before = views(&s)[0]["centre"].clone();
+    // A view's centre is `null` until the first tick applies it.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    let mut main_before = views(&s)[0]["centre"].clone();
+    while main_before.is_null() && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+        main_before = views(&s)[0]["centre"].clone();
+    }
     assert_eq!(main_before, serde_json::json!([4096, 4096]), "{}", views(&s));
     let args = [
         "--name",

@@ -2,13 +2,12 @@
 //! a view by name, reading its snapshot instead of the primary's, noticing that it was removed,
 //! and asking for its centre through its request record.
 
-use super::client::{invalid, process_alive, Client, ReadError};
+use super::client::{invalid, Client, Fields, ReadError};
 use super::layout::{self, header, views as v};
 use super::view_block::{Binding, ViewsBlock};
 use super::ShmError;
 use std::path::Path;
-use std::sync::atomic::{fence, Ordering};
-use std::time::Duration;
+use std::sync::atomic::Ordering;
 
 /// One view record's fields 0..128, as read under its seqlock.
 #[derive(Clone, Debug, PartialEq)]
@@ -189,75 +188,4 @@ impl Client {
             None => self.request_at(layout::request::SEQ, None, lod(0)),
         }
     }
-
-    /// One request under the lock word at `base` of the request mapping (docs/SHM.md, "Request
-    /// mapping"), its fields at the offsets of a view request record (the main request's lie
-    /// the same way from its lock word at 64): take the word odd with our pid, store, release to
-    /// the next epoch. A word left odd by a renderer that died (its pid is no live process) is
-    /// advanced after a while; a live owner is waited for, never overruled. `incarnation` is
-    /// stored for a view's request.
-    pub(super) fn request_at(&self, base: usize, incarnation: Option<u64>, fields: Fields) -> bool {
-        use layout::request_lock as lock;
-        let Some(r) = &self.request else { return false };
-        let pid = std::process::id();
-        let start = std::time::Instant::now();
-        let mut odd_since: Option<(u64, std::time::Instant)> = None;
-        loop {
-            let w = r.load(base + v::REQ_SEQ, Ordering::Relaxed);
-            if w & 1 == 1 {
-                match odd_since {
-                    Some((seen, at)) if seen == w && at.elapsed() > Duration::from_millis(lock::TAKEOVER_MS) => {
-                        if !process_alive(lock::owner(w)) {
-                            let _ = r.compare_exchange(base + v::REQ_SEQ, w, lock::released(w));
-                        }
-                        odd_since = Some((w, std::time::Instant::now()));
-                    }
-                    Some((seen, _)) if seen == w => {}
-                    _ => odd_since = Some((w, std::time::Instant::now())),
-                }
-                if start.elapsed() > Duration::from_millis(lock::WAIT_MS) {
-                    return false;
-                }
-                std::thread::yield_now();
-                continue;
-            }
-            let mine = lock::locked(w, pid);
-            if r.compare_exchange(base + v::REQ_SEQ, w, mine).is_ok() {
-                // The field stores below must not become visible before the odd word.
-                fence(Ordering::Release);
-                let count = match fields {
-                    Fields::Centre(centre, velocity) => {
-                        r.store(base + v::REQ_CENTRE_S, centre[0] as u64, Ordering::Relaxed);
-                        r.store(base + v::REQ_CENTRE_T, centre[1] as u64, Ordering::Relaxed);
-                        r.store(base + v::REQ_VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
-                        r.store(base + v::REQ_VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
-                        base + v::REQ_COUNT
-                    }
-                    Fields::Lod { at, height, pixel_angle, effective } => {
-                        r.store(at + v::LOD_HEIGHT, height.to_bits(), Ordering::Relaxed);
-                        r.store(at + v::LOD_PIXEL_ANGLE, pixel_angle.to_bits(), Ordering::Relaxed);
-                        r.store(at + v::LOD_EFFECTIVE, u64::from(effective), Ordering::Relaxed);
-                        at + v::LOD_COUNT
-                    }
-                };
-                r.store(base + v::REQ_CLIENT_PID, u64::from(pid), Ordering::Relaxed);
-                if let Some(i) = incarnation {
-                    r.store(base + v::REQ_INCARNATION, i, Ordering::Relaxed);
-                }
-                let c = r.load(count, Ordering::Relaxed);
-                r.store(count, c.wrapping_add(1), Ordering::Relaxed);
-                // Release (compare-and-swap: never over a word someone else stored).
-                return r.compare_exchange(base + v::REQ_SEQ, mine, lock::released(mine)).is_ok();
-            }
-            std::hint::spin_loop();
-        }
-    }
-}
-
-/// What one request writes under its lock word: a centre (the request record's fields and count)
-/// or a LOD request (the fields and count of its LOD record, at `at` in the request mapping).
-#[derive(Clone, Copy, Debug)]
-pub(super) enum Fields {
-    Centre([i64; 2], [f64; 2]),
-    Lod { at: usize, height: f64, pixel_angle: f64, effective: u32 },
 }
