@@ -442,6 +442,29 @@ fn clipmapd_serves_a_cog_url_as_it_serves_the_file() {
         assert!(remote[field].is_u64(), "{field}: {remote}");
     }
     assert_eq!(remote["failures"], 0, "{remote}");
+    // `cliptex attach` shows them: one line of text, and `remote` in its JSON.
+    let attach = |json: bool| {
+        let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_cliptex"));
+        c.args(["attach", "cogurl", "--once", "--interval", "0.05", "--shm-dir"]).arg(d).arg("--socket").arg(&socket);
+        if json {
+            c.arg("--json");
+        }
+        let out = c.output().unwrap();
+        assert!(out.status.success(), "{out:?}\n{}", log());
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let v: serde_json::Value = serde_json::from_str(&attach(true)).unwrap();
+    let shown = &v["remote"];
+    assert!(shown["requests"].as_u64().unwrap() >= requests, "{shown}");
+    assert!(shown["bytes"].as_u64().unwrap() >= bytes, "{shown}");
+    for field in ["retries", "merged", "failures", "cache_hits", "cache_dropped", "peak_in_flight"] {
+        assert!(shown[field].is_u64(), "{field}: {shown}");
+    }
+    let text = attach(false);
+    let line = text.lines().find(|l| l.starts_with("remote: ")).unwrap_or_else(|| panic!("no remote line\n{text}"));
+    for word in ["requests", "retries", "merged", "MiB", "failures", "cache", "hits", "dropped", "peak", "in flight"] {
+        assert!(line.contains(word), "{word}: {line}");
+    }
     let _ = child.kill();
     let _ = child.wait();
     // An object that is not there is refused before anything is created, naming it.
