@@ -58,8 +58,8 @@ for i in range(n):
     print(bw, bh)
 "#;
 
-struct Case {
-    name: &'static str,
+pub(crate) struct Case {
+    pub(crate) name: &'static str,
     kind: &'static str,
     size: [u64; 2],
     bands: usize,
@@ -70,7 +70,7 @@ struct Case {
     format: TexelFormat,
 }
 
-const CASES: [Case; 4] = [
+pub(crate) const CASES: [Case; 4] = [
     // (a) RGB with an internal mask, no overviews.
     Case {
         name: "rgb_mask",
@@ -125,7 +125,7 @@ fn python() -> &'static str {
 }
 
 /// Writes the case's file with GDAL in `dir`; returns the size of every IFD GDAL decoded.
-fn write(case: &Case, dir: &Path) -> Vec<[u64; 2]> {
+pub(crate) fn write(case: &Case, dir: &Path) -> Vec<[u64; 2]> {
     let mut args = vec![
         "-".to_string(),
         case.name.into(),

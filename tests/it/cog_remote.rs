@@ -507,3 +507,32 @@ fn an_ifd_past_the_first_64_kib_is_read_where_it_lies_and_a_failed_read_of_it_is
     assert!(text.contains("reading its structure") && text.contains("HTTP 500") && text.contains(&url), "{text}");
     assert!(!text.contains("damaged"), "{text}");
 }
+
+#[test]
+fn a_masked_cog_over_nginx_gives_the_local_files_rgba_texels() {
+    // GDAL's masked COG with overviews (its masks 1-bit, after every overview), read remote with
+    // and without the tiles announced (the mask tiles are read beside each image tile).
+    let dir = tempfile::tempdir().unwrap();
+    let case = &crate::cog_masks::CASES[3];
+    crate::cog_masks::write(case, dir.path());
+    let nginx = Nginx::serve(dir.path());
+    let url = format!("{}/{}.tif", nginx.url(), case.name);
+    let remote = reader(&[]);
+    for (clip, announce) in [(64, false), (64, true), (512, false)] {
+        let src = open(&url, &remote, clip);
+        let local = CogSource::open(&dir.path().join(format!("{}.tif", case.name)), clip).unwrap();
+        assert_eq!(src.desc(), local.desc(), "clip {clip}");
+        assert_eq!(src.desc().format(), clipmap::texel::TexelFormat::RGBA8);
+        for k in 0..src.desc().level_count() as u32 {
+            if announce {
+                let l = *src.desc().level(k);
+                let t = l.tiles();
+                let all: Vec<TileId> =
+                    (0..t[1]).flat_map(|tt| (0..t[0]).map(move |ts| TileId::new(k, ts, tt))).collect();
+                src.will_read(&all);
+            }
+            let got = level(&src, k).unwrap_or_else(|e| panic!("clip {clip} level {k}: {e}"));
+            assert!(got == level(&local, k).unwrap(), "clip {clip} level {k}: the remote texels differ");
+        }
+    }
+}
