@@ -273,6 +273,9 @@ pub struct CogInfo {
     /// The levels past the overviews are built when one is first read (a remote object, whose
     /// open reads its structure only), not at open.
     pub built_on_first_read: bool,
+    /// Where a colour image's alpha comes from, when it is served with one added (its mask, its
+    /// GDAL_NODATA; docs/COG.md, "Masks and nodata"); `null` otherwise.
+    pub alpha: Option<String>,
 }
 
 /// One level of a [`CogInfo`].
@@ -330,6 +333,9 @@ impl CogInfo {
         }
         if let Some(why) = &self.built_because {
             let _ = writeln!(out, "levels are built because {why}");
+        }
+        if let Some(alpha) = &self.alpha {
+            let _ = writeln!(out, "alpha: {alpha}");
         }
         out
     }
@@ -963,6 +969,16 @@ impl CogSource {
             levels,
             built_because: self.built_because.clone(),
             built_on_first_read: self.store.is_remote(),
+            alpha: self.alpha.map(|rule| {
+                let mut zero = Vec::new();
+                if let Some(Level::Ifd(IfdLevel { mask: Some(m), .. })) = self.levels.first() {
+                    zero.push(format!("the internal mask is 0 (IFD {} for level 0)", m.lv.ifd));
+                }
+                if let Some(v) = rule.nodata {
+                    zero.push(format!("every colour sample is GDAL_NODATA {v}"));
+                }
+                format!("0 where {}, else full; colour samples as stored", zero.join(" or "))
+            }),
         }
     }
 

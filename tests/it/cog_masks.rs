@@ -244,6 +244,9 @@ fn colour_cogs_with_a_mask_or_nodata_are_served_rgba_with_their_alpha() {
             let src = CogSource::open(&path, clip).unwrap_or_else(|e| panic!("{ctx}: {e}"));
             assert_eq!(src.desc().format(), case.format, "{ctx}");
             assert!(src.heights().is_none(), "{ctx}");
+            let alpha = src.info().alpha.unwrap_or_default();
+            let says = if case.mask { "internal mask" } else { "GDAL_NODATA" };
+            assert!(alpha.contains(says), "{ctx}: {alpha}");
             let bpt = src.desc().bytes_per_texel();
             let want0 = level0(case);
             // Some texels of each kind, so that the checks below can fail.
@@ -295,6 +298,7 @@ fn clipmapd_serves_a_masked_cog_as_rgba_and_cliptex_info_says_so() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{out:?}");
     assert!(text.contains("300 x 200 texels, rgba8"), "{text}");
+    assert!(text.contains("alpha: 0 where the internal mask is 0 (IFD 1 for level 0), else full"), "{text}");
     let err = d.join("svc.err");
     struct Kill(std::process::Child);
     impl Drop for Kill {
