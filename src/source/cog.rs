@@ -1838,7 +1838,7 @@ fn raw_bytes(
 /// The heights a COG's samples are: 16-bit signed integers (`l16i`, metres, scale 1) and 32-bit
 /// floats (`l32f`) are heights, with the GDAL_NODATA tag's value as nodata (a NaN nodata means
 /// none: the mapping's heights block cannot name NaN, and NaN texels stay NaN); other formats
-/// are colours and their GDAL_NODATA is not used.
+/// are colours, whose GDAL_NODATA gives an alpha instead ([`alpha_of`]).
 fn heights_of(
     path: &Path,
     format: TexelFormat,
