@@ -141,6 +141,11 @@ pub struct Status {
     /// Every view's figures from the socket's statistics, `main` first (empty when the socket
     /// did not answer).
     pub views: Vec<crate::service::stats::ViewStats>,
+    /// The source's remote reads from the later `STATS` reply (requests, retries, merged,
+    /// bytes, failures, cache hits and drops, peak in flight; `null` for a local source or
+    /// without a `STATS` reply).
+    #[cfg(feature = "remote")]
+    pub remote: Option<crate::source::remote::RemoteStats>,
 }
 
 /// Why a `STATS` request got no statistics.
@@ -294,6 +299,8 @@ pub fn status_of_view(
         heights: c.heights,
         view: c.view_name().to_string(),
         views: after.as_ref().map(|a| a.tick.views.clone()).unwrap_or_default(),
+        #[cfg(feature = "remote")]
+        remote: after.as_ref().ok().and_then(|a| a.tick.remote.clone()),
     })
 }
 
@@ -355,6 +362,10 @@ pub fn human(s: &Status) -> String {
             if g.outside_frame > 0 { format!("  ({} patches reach outside the frame)", g.outside_frame) } else { String::new() }
         ));
     }
+    #[cfg(feature = "remote")]
+    if let Some(r) = &s.remote {
+        o.push_str(&remote_line(r));
+    }
     o.push_str(
         "level  size                kind     centre                  valid region                              use\n",
     );
@@ -403,6 +414,22 @@ pub fn human(s: &Status) -> String {
         }
     }
     o
+}
+
+/// The remote reads' line of the human form (and a blank line after it).
+#[cfg(feature = "remote")]
+fn remote_line(r: &crate::source::remote::RemoteStats) -> String {
+    format!(
+        "remote: {} requests  {} retries  {} merged  {:.2} MiB  {} failures  cache {} hits {} dropped  peak {} in flight\n\n",
+        r.requests,
+        r.retries,
+        r.merged,
+        r.bytes as f64 / (1024.0 * 1024.0),
+        r.failures,
+        r.cache_hits,
+        r.cache_dropped,
+        r.peak_in_flight
+    )
 }
 
 /// The paging part of the human form: per level the reason, the read-ahead (tiles the mem region
@@ -517,6 +544,8 @@ mod tests {
             heights: None,
             view: "main".into(),
             views: Vec::new(),
+            #[cfg(feature = "remote")]
+            remote: None,
         };
         let text = human(&s);
         assert!(text.contains("paging  read latency 4.2 ticks\n"), "{text}");
@@ -549,6 +578,30 @@ mod tests {
             v["heights"],
             serde_json::json!({"storage": "u16", "scale": 0.25, "offset": -500.0, "nodata": 65535.0, "levels": "max"})
         );
+        #[cfg(feature = "remote")]
+        {
+            // A local source: no remote line, `remote` null; a remote one: one line, every figure.
+            assert!(!text.contains("remote:"), "{text}");
+            assert_eq!(serde_json::to_value(&s).unwrap()["remote"], serde_json::Value::Null);
+            s.remote = Some(crate::source::remote::RemoteStats {
+                requests: 17,
+                retries: 2,
+                merged: 40,
+                bytes: 3 << 20,
+                failures: 1,
+                cache_hits: 5,
+                cache_dropped: 6,
+                peak_in_flight: 8,
+            });
+            let text = human(&s);
+            assert!(
+                text.contains("remote: 17 requests  2 retries  40 merged  3.00 MiB  1 failures  cache 5 hits 6 dropped  peak 8 in flight\n"),
+                "{text}"
+            );
+            let v = serde_json::to_value(&s).unwrap();
+            assert_eq!(v["remote"]["requests"], 17);
+            assert_eq!(v["remote"]["peak_in_flight"], 8);
+        }
         let v = serde_json::to_value(&s).unwrap();
         assert_eq!(
             (v["read_latency_ticks"].clone(), v["levels"][1]["paging"].clone()),

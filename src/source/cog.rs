@@ -178,6 +178,23 @@ pub enum CogError {
         #[source]
         source: SourceError,
     },
+    /// An internal mask that does not fit its image, or masks in an order this source does not
+    /// read.
+    #[error("{path}: IFD {ifd} (a mask{of}): {tag} is {found}, expected {expected}", path = path.display(), of = image.map_or(String::new(), |i| format!(" of IFD {i}")))]
+    Mask {
+        /// The file.
+        path: PathBuf,
+        /// The mask's IFD.
+        ifd: usize,
+        /// Its image's IFD, when it has one.
+        image: Option<usize>,
+        /// The tag, by name and number.
+        tag: &'static str,
+        /// The value found.
+        found: String,
+        /// What was expected.
+        expected: String,
+    },
     /// A remote object cannot be read, or this build cannot read remote objects.
     #[error("{problem}")]
     Remote {
@@ -256,6 +273,9 @@ pub struct CogInfo {
     /// The levels past the overviews are built when one is first read (a remote object, whose
     /// open reads its structure only), not at open.
     pub built_on_first_read: bool,
+    /// Where a colour image's alpha comes from, when it is served with one added (its mask, its
+    /// GDAL_NODATA; docs/COG.md, "Masks and nodata"); `null` otherwise.
+    pub alpha: Option<String>,
 }
 
 /// One level of a [`CogInfo`].
@@ -313,6 +333,9 @@ impl CogInfo {
         }
         if let Some(why) = &self.built_because {
             let _ = writeln!(out, "levels are built because {why}");
+        }
+        if let Some(alpha) = &self.alpha {
+            let _ = writeln!(out, "alpha: {alpha}");
         }
         out
     }
@@ -456,6 +479,8 @@ struct IfdLevel {
     spp: usize,
     offsets: Array,
     counts: Array,
+    /// The image's internal mask (a colour image's; docs/COG.md, "Masks and nodata").
+    mask: Option<Arc<MaskLevel>>,
 }
 
 impl IfdLevel {
@@ -463,6 +488,43 @@ impl IfdLevel {
     fn rows(&self) -> u64 {
         self.size[1].div_ceil(self.tile[1])
     }
+
+    /// Bytes of one stored pixel.
+    fn pixel_bytes(&self) -> usize {
+        self.spp * self.samples.bytes()
+    }
+}
+
+/// An internal mask: an IFD of one 1- or 8-bit sample (NewSubfileType 4, or 5 for an
+/// overview's), tiled as its image; 0 is a pixel without data.
+#[derive(Debug)]
+struct MaskLevel {
+    /// Its tiles (read as 8-bit grey: `spp` 1, `samples` U8).
+    lv: IfdLevel,
+    /// 1-bit samples (8 pixels a byte, the first in the most significant bit, rows padded to a
+    /// byte) rather than 8-bit ones.
+    one_bit: bool,
+}
+
+impl MaskLevel {
+    /// Bytes of one stored mask tile.
+    fn tile_bytes(&self) -> usize {
+        let [tw, th] = self.lv.tile;
+        if self.one_bit {
+            tw.div_ceil(8) as usize * th as usize
+        } else {
+            (tw * th) as usize
+        }
+    }
+}
+
+/// How a colour image gets its alpha (docs/COG.md, "Masks and nodata"): served as the RGBA
+/// variant of its format, alpha 0 where its level's mask is 0 or where every colour sample
+/// equals `nodata`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct AlphaRule {
+    /// The GDAL_NODATA value, as a sample.
+    nodata: Option<u16>,
 }
 
 /// A level: tiles of the file, or texels built from the last usable image (at open for a local
@@ -517,6 +579,10 @@ thread_local! {
     /// Each reading thread's buffer for a whole decoded TIFF tile, when a texture tile is not
     /// one TIFF tile.
     static CHUNK: RefCell<Vec<u8>> = const { RefCell::new(Vec::new()) };
+    /// Each reading thread's buffer for a TIFF tile's samples before an alpha is added.
+    static STORED: RefCell<Vec<u8>> = const { RefCell::new(Vec::new()) };
+    /// Each reading thread's buffer for a mask tile (as stored, then one byte a pixel).
+    static MASK: RefCell<Vec<u8>> = const { RefCell::new(Vec::new()) };
 }
 
 /// Where a TIFF's bytes are read from: a local file (positioned reads, straight into the
@@ -712,6 +778,9 @@ pub struct CogSource {
     /// The tiles announced to be read, and the merged requests that read several at once
     /// (remote objects).
     ahead: ReadAhead<TileId>,
+    /// A colour image with a mask or GDAL_NODATA: its texels get an alpha (`None`: texels are
+    /// the stored samples).
+    alpha: Option<AlphaRule>,
 }
 
 impl std::fmt::Debug for CogSource {
@@ -846,7 +915,15 @@ impl CogSource {
             (Err(e), None) => return Err(e),
         };
         let (desc, levels, origins, built_because) = parts;
-        let heights = heights_of(&path, desc.format(), nodata.as_deref())?;
+        let stored = desc.format();
+        let heights = heights_of(&path, stored, nodata.as_deref())?;
+        let alpha = alpha_of(&path, stored, nodata.as_deref(), &levels)?;
+        let desc = match alpha {
+            Some(_) => {
+                desc.with_format(rgba_of(stored)).map_err(|source| CogError::Desc { path: path.clone(), source })?
+            }
+            None => desc,
+        };
         Ok(CogSource {
             path,
             store,
@@ -862,6 +939,7 @@ impl CogSource {
             built: Mutex::new(None),
             heights,
             ahead: ReadAhead::default(),
+            alpha,
         })
     }
 
@@ -891,6 +969,16 @@ impl CogSource {
             levels,
             built_because: self.built_because.clone(),
             built_on_first_read: self.store.is_remote(),
+            alpha: self.alpha.map(|rule| {
+                let mut zero = Vec::new();
+                if let Some(Level::Ifd(IfdLevel { mask: Some(m), .. })) = self.levels.first() {
+                    zero.push(format!("the internal mask is 0 (IFD {} for level 0)", m.lv.ifd));
+                }
+                if let Some(v) = rule.nodata {
+                    zero.push(format!("every colour sample is GDAL_NODATA {v}"));
+                }
+                format!("0 where {}, else full; colour samples as stored", zero.join(" or "))
+            }),
         }
     }
 
@@ -903,9 +991,44 @@ impl CogSource {
         clip_size: u64,
     ) -> Result<(TextureDesc, Vec<Level>, Vec<LevelOrigin>, Option<String>), CogError> {
         let full = &images[0];
-        let (format, level0) = image_level(path, head, layout, full)?;
+        let (format, mut level0) = image_level(path, head, layout, full)?;
         let size = level0.size;
         let n = level_count(size);
+        // A colour image's masks: one of the full-resolution image (NewSubfileType 4), then one
+        // for each overview (5), in the overviews' order. A height image's are not used.
+        let colour = !matches!(format, TexelFormat::L16I | TexelFormat::L32F);
+        let full_masks: Vec<&Image> = images.iter().skip(1).filter(|i| i.subfile & 5 == 4).collect();
+        let mut overview_masks = images.iter().skip(1).filter(|i| i.subfile & 5 == 5);
+        if colour {
+            let order = |ifd: usize, found: String, expected: &str| CogError::Mask {
+                path: path.to_path_buf(),
+                ifd,
+                image: None,
+                tag: "NewSubfileType (254)",
+                found,
+                expected: expected.into(),
+            };
+            if let Some(second) = full_masks.get(1) {
+                return Err(order(
+                    second.ifd,
+                    format!("4 (a mask of the full-resolution image) after IFD {}'s", full_masks[0].ifd),
+                    "one mask of the full-resolution image",
+                ));
+            }
+            match full_masks.first() {
+                Some(m) => level0.mask = Some(mask_level(path, head, layout, m, &level0)?),
+                None => {
+                    if let Some(m) = images.iter().skip(1).find(|i| i.subfile & 5 == 5) {
+                        return Err(order(
+                            m.ifd,
+                            format!("{} (an overview's mask) where the full-resolution image has no mask", m.subfile),
+                            "an overview's mask (5) only beside a mask of the full-resolution image (4)",
+                        ));
+                    }
+                }
+            }
+        }
+        let masked = level0.mask.is_some();
         let mut levels = vec![Level::Ifd(level0)];
         let mut why = String::from("it has no overviews");
         for image in images.iter().skip(1) {
@@ -934,6 +1057,17 @@ impl CogSource {
                     )
                 };
                 break;
+            }
+            let mut level = level;
+            if masked {
+                let Some(m) = overview_masks.next() else {
+                    why = format!(
+                        "IFD {} (overview {k}) has no mask (NewSubfileType 5) where the full-resolution image has one; it and the overviews after it are not used",
+                        image.ifd
+                    );
+                    break;
+                };
+                level.mask = Some(mask_level(path, head, layout, m, &level)?);
             }
             levels.push(Level::Ifd(level));
             why = String::from("it has no smaller overviews");
@@ -1425,6 +1559,59 @@ impl CogSource {
         Ok(())
     }
 
+    /// Decodes TIFF tile `index` of `lv` as texels of the texture into `dst`: the stored samples
+    /// ([`CogSource::decode`]), or for a source with an alpha rule those samples widened to RGBA
+    /// with the alpha of its mask tile and nodata ([`add_alpha`]).
+    fn decode_texels(
+        &self,
+        lv: &IfdLevel,
+        index: u64,
+        tile: TileId,
+        dst: &mut [u8],
+        span: Option<&Span>,
+    ) -> Result<(), SourceError> {
+        let Some(rule) = self.alpha else { return self.decode(lv, index, tile, dst, span) };
+        let pixels = (lv.tile[0] * lv.tile[1]) as usize;
+        let mut stored = STORED.with(|c| std::mem::take(&mut *c.borrow_mut()));
+        let mut mask = MASK.with(|c| std::mem::take(&mut *c.borrow_mut()));
+        let result = (|| {
+            stored.resize(pixels * lv.pixel_bytes(), 0);
+            self.decode(lv, index, tile, &mut stored, span)?;
+            let m = match &lv.mask {
+                Some(m) => {
+                    self.mask_tile(m, index, tile, &mut mask)?;
+                    Some(&mask[..pixels])
+                }
+                None => None,
+            };
+            add_alpha(&stored, lv.spp, lv.samples.bytes(), rule.nodata, m, dst);
+            Ok(())
+        })();
+        STORED.with(|c| *c.borrow_mut() = stored);
+        MASK.with(|c| *c.borrow_mut() = mask);
+        result
+    }
+
+    /// Mask tile `index` of `m` into `out`, one byte a pixel (0: no data); a sparse mask tile is
+    /// all 0.
+    fn mask_tile(&self, m: &MaskLevel, index: u64, tile: TileId, out: &mut Vec<u8>) -> Result<(), SourceError> {
+        let pixels = (m.lv.tile[0] * m.lv.tile[1]) as usize;
+        let stored = m.tile_bytes();
+        out.resize(stored + if m.one_bit { pixels } else { 0 }, 0);
+        let (packed, unpacked) = out.split_at_mut(stored);
+        match self.decode(&m.lv, index, tile, packed, None) {
+            Ok(()) => {}
+            Err(SourceError::Missing { .. }) => packed.fill(0),
+            Err(e) => return Err(e),
+        }
+        if m.one_bit {
+            unpack_bits(packed, m.lv.tile[0] as usize, unpacked);
+            out.copy_within(stored.., 0);
+            out.truncate(pixels);
+        }
+        Ok(())
+    }
+
     /// The stored bytes of TIFF tiles `cx0..=cx1` of tile row `cy` in one read, when they lie
     /// back to back (GDAL writes a row's tiles so) and are not all in the first bytes: a remote
     /// object's one ranged GET instead of one a tile. `None` when they do not, or locally.
@@ -1493,7 +1680,7 @@ impl CogSource {
                 let row = self.row_span(lv, cy, [cx0, cx1], tile)?;
                 let span = row.as_ref().map(|(start, b)| Span { start: *start, bytes: b });
                 for cx in cx0..=cx1 {
-                    match self.decode(lv, cy * lv.across + cx, tile, &mut chunk, span.as_ref()) {
+                    match self.decode_texels(lv, cy * lv.across + cx, tile, &mut chunk, span.as_ref()) {
                         Ok(()) => {}
                         Err(SourceError::Missing { .. }) if sparse_zero => self.blank(&mut chunk),
                         Err(e) => return Err(e),
@@ -1651,7 +1838,7 @@ fn raw_bytes(
 /// The heights a COG's samples are: 16-bit signed integers (`l16i`, metres, scale 1) and 32-bit
 /// floats (`l32f`) are heights, with the GDAL_NODATA tag's value as nodata (a NaN nodata means
 /// none: the mapping's heights block cannot name NaN, and NaN texels stay NaN); other formats
-/// are colours and their GDAL_NODATA is not used.
+/// are colours, whose GDAL_NODATA gives an alpha instead ([`alpha_of`]).
 fn heights_of(
     path: &Path,
     format: TexelFormat,
@@ -1885,8 +2072,192 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
         spp: spp as usize,
         offsets,
         counts,
+        mask: None,
     };
     Ok((format, level))
+}
+
+/// The internal mask in IFD `image` of the image `of` (IFD `of.ifd`): one 1- or 8-bit unsigned
+/// sample, the image's size and tiling; anything else is refused naming the tag, the value found
+/// and what is expected.
+fn mask_level(
+    path: &Path,
+    file: &Head,
+    layout: Layout,
+    image: &Image,
+    of: &IfdLevel,
+) -> Result<Arc<MaskLevel>, CogError> {
+    let malformed = |(at, problem): (String, String)| CogError::Malformed { path: path.to_path_buf(), at, problem };
+    let refuse = |tag, found: String, expected: String| CogError::Mask {
+        path: path.to_path_buf(),
+        ifd: image.ifd,
+        image: Some(of.ifd),
+        tag,
+        found,
+        expected,
+    };
+    let get = |tag: u16, name: &str| scalar(file, layout, image, tag, name).map_err(malformed);
+    let shown = |v: Option<u64>| v.map_or("absent".to_string(), |v| v.to_string());
+    let (w, h) = (get(256, "ImageWidth (256)")?, get(257, "ImageLength (257)")?);
+    if (w, h) != (Some(of.size[0]), Some(of.size[1])) {
+        return Err(refuse(
+            "ImageWidth (256) x ImageLength (257)",
+            format!("{} x {}", shown(w), shown(h)),
+            format!("{} x {} (its image's)", of.size[0], of.size[1]),
+        ));
+    }
+    let (tw, th) = (get(322, "TileWidth (322)")?, get(323, "TileLength (323)")?);
+    if (tw, th) != (Some(of.tile[0]), Some(of.tile[1])) {
+        return Err(refuse(
+            "TileWidth (322) x TileLength (323)",
+            format!("{} x {}", shown(tw), shown(th)),
+            format!("{} x {} (its image's tiles)", of.tile[0], of.tile[1]),
+        ));
+    }
+    let spp = get(277, "SamplesPerPixel (277)")?.unwrap_or(1);
+    if spp != 1 {
+        return Err(refuse("SamplesPerPixel (277)", spp.to_string(), "1".into()));
+    }
+    let bits = get(258, "BitsPerSample (258)")?.unwrap_or(1);
+    let sample_format = get(339, "SampleFormat (339)")?.unwrap_or(1);
+    if !matches!(bits, 1 | 8) || sample_format != 1 {
+        return Err(refuse(
+            "BitsPerSample (258) / SampleFormat (339)",
+            format!("{bits} bits, sample format {sample_format}"),
+            "1 or 8 bits, unsigned (format 1)".into(),
+        ));
+    }
+    let photometric = get(262, "PhotometricInterpretation (262)")?;
+    if !matches!(photometric, None | Some(1) | Some(4)) {
+        return Err(refuse(
+            "PhotometricInterpretation (262)",
+            shown(photometric),
+            "4 (transparency mask, what GDAL writes) or 1".into(),
+        ));
+    }
+    let fill_order = get(266, "FillOrder (266)")?.unwrap_or(1);
+    if fill_order != 1 {
+        return Err(refuse(
+            "FillOrder (266)",
+            fill_order.to_string(),
+            "1 (the first pixel in the most significant bit)".into(),
+        ));
+    }
+    let compression = match get(259, "Compression (259)")?.unwrap_or(1) {
+        1 => Compression::None,
+        5 => Compression::Lzw,
+        8 | 32946 => Compression::Deflate,
+        50000 => Compression::Zstd,
+        c => {
+            return Err(refuse(
+                "Compression (259)",
+                c.to_string(),
+                "1 (none), 5 (LZW), 8 or 32946 (DEFLATE) or 50000 (ZSTD) for a mask".into(),
+            ))
+        }
+    };
+    let predictor = get(317, "Predictor (317)")?.unwrap_or(1);
+    if !(predictor == 1 || predictor == 2 && bits == 8) {
+        return Err(refuse(
+            "Predictor (317)",
+            format!("{predictor} with {bits}-bit samples"),
+            "1 (none), or 2 (horizontal differencing) with 8-bit samples".into(),
+        ));
+    }
+    let tiles = of.across * of.rows();
+    let offsets = array(layout, image, 324, "TileOffsets (324)", tiles).map_err(malformed)?;
+    let counts = array(layout, image, 325, "TileByteCounts (325)", tiles).map_err(malformed)?;
+    let lv = IfdLevel {
+        ifd: image.ifd,
+        size: of.size,
+        tile: of.tile,
+        across: of.across,
+        compression,
+        predictor: predictor as u16,
+        jpeg_tables: None,
+        samples: Samples::U8,
+        spp: 1,
+        offsets,
+        counts,
+        mask: None,
+    };
+    Ok(Arc::new(MaskLevel { lv, one_bit: bits == 1 }))
+}
+
+/// The RGBA variant of a colour format (grey and RGB gain an alpha; RGBA stays).
+fn rgba_of(format: TexelFormat) -> TexelFormat {
+    if format.ctype == crate::texel::ComponentType::U16 {
+        TexelFormat::RGBA16
+    } else {
+        TexelFormat::RGBA8
+    }
+}
+
+/// Whether a colour image gets an alpha: when its full-resolution image has a mask, or it has a
+/// GDAL_NODATA value (which must then be a value of its samples). Heights never do (their
+/// nodata is the heights block's).
+fn alpha_of(
+    path: &Path,
+    format: TexelFormat,
+    nodata: Option<&str>,
+    levels: &[Level],
+) -> Result<Option<AlphaRule>, CogError> {
+    if matches!(format, TexelFormat::L16I | TexelFormat::L32F) {
+        return Ok(None);
+    }
+    let max = if format.ctype == crate::texel::ComponentType::U16 { 65535.0 } else { 255.0 };
+    let nodata = match nodata {
+        None => None,
+        Some(text) => {
+            match text.parse::<f64>() {
+                Ok(v) if v.fract() == 0.0 && (0.0..=max).contains(&v) => Some(v as u16),
+                _ => return Err(CogError::Unsupported {
+                    path: path.to_path_buf(),
+                    ifd: 0,
+                    tag: "GDAL_NODATA (42113)",
+                    found: format!("{text:?} with {format} samples"),
+                    supported:
+                        "a value of the samples: a whole number in 0..=255 for 8-bit samples, 0..=65535 for 16-bit ones",
+                }),
+            }
+        }
+    };
+    let masked = matches!(levels.first(), Some(Level::Ifd(l)) if l.mask.is_some());
+    Ok((masked || nodata.is_some()).then_some(AlphaRule { nodata }))
+}
+
+/// Widens a decoded TIFF tile's pixels (`spp` samples of `n` bytes, little-endian) to RGBA
+/// texels in `dst`: grey replicated, RGB kept, the alpha full (an RGBA image's own), and 0 where
+/// `mask` (one byte a pixel) is 0 or every colour sample equals `nodata`. The colour samples are
+/// kept as stored, nodata or not.
+fn add_alpha(stored: &[u8], spp: usize, n: usize, nodata: Option<u16>, mask: Option<&[u8]>, dst: &mut [u8]) {
+    let full: u16 = if n == 1 { 255 } else { 65535 };
+    for (i, (px, out)) in stored.chunks_exact(spp * n).zip(dst.chunks_exact_mut(4 * n)).enumerate() {
+        let get = |k: usize| if n == 1 { px[k] as u16 } else { u16::from_le_bytes([px[2 * k], px[2 * k + 1]]) };
+        let colour = if spp >= 3 { [get(0), get(1), get(2)] } else { [get(0); 3] };
+        let mut alpha = if spp == 4 { get(3) } else { full };
+        if nodata.is_some_and(|v| colour.iter().all(|&c| c == v)) || mask.is_some_and(|m| m[i] == 0) {
+            alpha = 0;
+        }
+        for (k, v) in colour.into_iter().chain([alpha]).enumerate() {
+            if n == 1 {
+                out[k] = v as u8;
+            } else {
+                out[2 * k..2 * k + 2].copy_from_slice(&v.to_le_bytes());
+            }
+        }
+    }
+}
+
+/// Unpacks a 1-bit mask tile (`w` pixels a row, rows padded to a byte, the first pixel in the
+/// most significant bit) into one byte a pixel (0 or 255).
+fn unpack_bits(packed: &[u8], w: usize, out: &mut [u8]) {
+    let row = w.div_ceil(8);
+    for (bits, line) in packed.chunks_exact(row).zip(out.chunks_exact_mut(w)) {
+        for (x, o) in line.iter_mut().enumerate() {
+            *o = if bits[x / 8] & (0x80 >> (x % 8)) != 0 { 255 } else { 0 };
+        }
+    }
 }
 
 /// Turns a decoded TIFF tile's samples into texels: undoes the predictor and stores multi-byte
@@ -2106,9 +2477,10 @@ impl TileSource for CogSource {
                 // One TIFF tile, decoded in place: its rows reversed, columns past the image's
                 // right edge zeroed.
                 let index = (lv.rows() - 1 - tile.t) * lv.across + tile.s;
-                let ahead = self.read_ahead(lv, tile, index, out.len() as u64)?;
+                let stored = (lv.tile[0] * lv.tile[1]) * lv.pixel_bytes() as u64;
+                let ahead = self.read_ahead(lv, tile, index, stored)?;
                 let span = ahead.as_ref().map(|(start, b)| Span { start: *start, bytes: b });
-                self.decode(lv, index, tile, out, span.as_ref())?;
+                self.decode_texels(lv, index, tile, out, span.as_ref())?;
                 let row = tw as usize * bpt;
                 for r in 0..th as usize / 2 {
                     let (top, bottom) = out.split_at_mut((th as usize - 1 - r) * row);
@@ -2134,6 +2506,33 @@ impl TileSource for CogSource {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn alpha_is_zero_where_the_mask_is_zero_or_every_colour_sample_is_nodata() {
+        // RGB 8-bit: nodata 7 needs all three samples; the mask's 0 clears any pixel.
+        let rgb = [7, 7, 7, 7, 7, 8, 1, 2, 3, 9, 9, 9];
+        let mut out = [0u8; 16];
+        add_alpha(&rgb, 3, 1, Some(7), Some(&[255, 1, 255, 0]), &mut out);
+        assert_eq!(out, [7, 7, 7, 0, 7, 7, 8, 255, 1, 2, 3, 255, 9, 9, 9, 0]);
+        // Grey 16-bit replicated, the colour kept under nodata.
+        let grey = [0x40, 0x9c, 0x01, 0x00];
+        let mut out = [0u8; 16];
+        add_alpha(&grey, 1, 2, Some(40000), None, &mut out);
+        assert_eq!(out, [0x40, 0x9c, 0x40, 0x9c, 0x40, 0x9c, 0, 0, 1, 0, 1, 0, 1, 0, 0xff, 0xff]);
+        // RGBA keeps its own alpha, ANDed with the mask.
+        let rgba = [1, 2, 3, 100, 4, 5, 6, 200];
+        let mut out = [0u8; 8];
+        add_alpha(&rgba, 4, 1, None, Some(&[255, 0]), &mut out);
+        assert_eq!(out, [1, 2, 3, 100, 4, 5, 6, 0]);
+    }
+
+    #[test]
+    fn a_one_bit_mask_unpacks_most_significant_bit_first_with_rows_padded_to_a_byte() {
+        let mut out = [9u8; 20];
+        unpack_bits(&[0b1010_0000, 0b1100_0000, 0b0000_0001, 0b0100_0000], 10, &mut out);
+        assert_eq!(out[..10], [255, 0, 255, 0, 0, 0, 0, 0, 255, 255]);
+        assert_eq!(out[10..], [0, 0, 0, 0, 0, 0, 0, 255, 0, 255]);
+    }
 
     #[test]
     fn halving_is_clipprep_box_filter_with_clamped_edges() {

@@ -789,6 +789,11 @@ fn a_cog_is_served_as_it_is() {
     }
     // A local file reads nothing over the network.
     assert!(json_reply(&svc.ask("STATS"))["remote"].is_null(), "{}", svc.dump());
+    // And `cliptex attach` says so: `remote` null, no remote line.
+    let v: serde_json::Value = serde_json::from_str(&attach_output(attach(d, "cog", &svc.socket, true))).unwrap();
+    assert!(v["remote"].is_null() && v.get("remote").is_some() == cfg!(feature = "remote"), "{v}");
+    let text = attach_output(attach(d, "cog", &svc.socket, false));
+    assert!(text.contains("level  size") && !text.contains("remote:"), "{text}");
     // A layout it does not serve is refused before anything is created, naming the tag.
     let i32 = Path::new(ROOT).join("tests/fixtures/cog/i32_64x64.tif");
     let out = Command::new(CLIPMAPD).arg(&i32).args(["--shm-dir", d.to_str().unwrap()]).output().unwrap();

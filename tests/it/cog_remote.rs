@@ -442,6 +442,29 @@ fn clipmapd_serves_a_cog_url_as_it_serves_the_file() {
         assert!(remote[field].is_u64(), "{field}: {remote}");
     }
     assert_eq!(remote["failures"], 0, "{remote}");
+    // `cliptex attach` shows them: one line of text, and `remote` in its JSON.
+    let attach = |json: bool| {
+        let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_cliptex"));
+        c.args(["attach", "cogurl", "--once", "--interval", "0.05", "--shm-dir"]).arg(d).arg("--socket").arg(&socket);
+        if json {
+            c.arg("--json");
+        }
+        let out = c.output().unwrap();
+        assert!(out.status.success(), "{out:?}\n{}", log());
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let v: serde_json::Value = serde_json::from_str(&attach(true)).unwrap();
+    let shown = &v["remote"];
+    assert!(shown["requests"].as_u64().unwrap() >= requests, "{shown}");
+    assert!(shown["bytes"].as_u64().unwrap() >= bytes, "{shown}");
+    for field in ["retries", "merged", "failures", "cache_hits", "cache_dropped", "peak_in_flight"] {
+        assert!(shown[field].is_u64(), "{field}: {shown}");
+    }
+    let text = attach(false);
+    let line = text.lines().find(|l| l.starts_with("remote: ")).unwrap_or_else(|| panic!("no remote line\n{text}"));
+    for word in ["requests", "retries", "merged", "MiB", "failures", "cache", "hits", "dropped", "peak", "in flight"] {
+        assert!(line.contains(word), "{word}: {line}");
+    }
     let _ = child.kill();
     let _ = child.wait();
     // An object that is not there is refused before anything is created, naming it.
@@ -483,4 +506,33 @@ fn an_ifd_past_the_first_64_kib_is_read_where_it_lies_and_a_failed_read_of_it_is
     let text = e.to_string();
     assert!(text.contains("reading its structure") && text.contains("HTTP 500") && text.contains(&url), "{text}");
     assert!(!text.contains("damaged"), "{text}");
+}
+
+#[test]
+fn a_masked_cog_over_nginx_gives_the_local_files_rgba_texels() {
+    // GDAL's masked COG with overviews (its masks 1-bit, after every overview), read remote with
+    // and without the tiles announced (the mask tiles are read beside each image tile).
+    let dir = tempfile::tempdir().unwrap();
+    let case = &crate::cog_masks::CASES[3];
+    crate::cog_masks::write(case, dir.path());
+    let nginx = Nginx::serve(dir.path());
+    let url = format!("{}/{}.tif", nginx.url(), case.name);
+    let remote = reader(&[]);
+    for (clip, announce) in [(64, false), (64, true), (512, false)] {
+        let src = open(&url, &remote, clip);
+        let local = CogSource::open(&dir.path().join(format!("{}.tif", case.name)), clip).unwrap();
+        assert_eq!(src.desc(), local.desc(), "clip {clip}");
+        assert_eq!(src.desc().format(), clipmap::texel::TexelFormat::RGBA8);
+        for k in 0..src.desc().level_count() as u32 {
+            if announce {
+                let l = *src.desc().level(k);
+                let t = l.tiles();
+                let all: Vec<TileId> =
+                    (0..t[1]).flat_map(|tt| (0..t[0]).map(move |ts| TileId::new(k, ts, tt))).collect();
+                src.will_read(&all);
+            }
+            let got = level(&src, k).unwrap_or_else(|e| panic!("clip {clip} level {k}: {e}"));
+            assert!(got == level(&local, k).unwrap(), "clip {clip} level {k}: the remote texels differ");
+        }
+    }
 }
