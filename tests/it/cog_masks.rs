@@ -116,14 +116,6 @@ pub(crate) const CASES: [Case; 4] = [
     },
 ];
 
-fn python() -> &'static str {
-    if Path::new("/usr/bin/python3").exists() {
-        "/usr/bin/python3"
-    } else {
-        "python3"
-    }
-}
-
 /// Writes the case's file with GDAL in `dir`; returns the size of every IFD GDAL decoded.
 pub(crate) fn write(case: &Case, dir: &Path) -> Vec<[u64; 2]> {
     let mut args = vec![
@@ -137,26 +129,7 @@ pub(crate) fn write(case: &Case, dir: &Path) -> Vec<[u64; 2]> {
         if case.mask { "1" } else { "0" }.into(),
     ];
     args.extend(case.options.iter().map(|s| s.to_string()));
-    let mut child = Command::new(python())
-        .args(&args)
-        .current_dir(dir)
-        .stdin(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("python3 (with GDAL's binding, python3-gdal, which .ci/run installs)");
-    use std::io::Write;
-    child.stdin.take().unwrap().write_all(WRITE.as_bytes()).unwrap();
-    let out = child.wait_with_output().unwrap();
-    assert!(out.status.success(), "{}: GDAL failed: {}", case.name, String::from_utf8_lossy(&out.stderr));
-    String::from_utf8(out.stdout)
-        .unwrap()
-        .lines()
-        .map(|l| {
-            let v: Vec<u64> = l.split(' ').map(|x| x.parse().unwrap()).collect();
-            [v[0], v[1]]
-        })
-        .collect()
+    crate::common::gdal::write_with(WRITE, &args, dir, case.name)
 }
 
 /// Sample `c` of pixel (x, y) (y from the top row) as the Python formula writes it.
@@ -288,7 +261,6 @@ fn colour_cogs_with_a_mask_or_nodata_are_served_rgba_with_their_alpha() {
 
 #[test]
 fn clipmapd_serves_a_masked_cog_as_rgba_and_cliptex_info_says_so() {
-    use std::time::{Duration, Instant};
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let case = &CASES[3];
@@ -299,43 +271,9 @@ fn clipmapd_serves_a_masked_cog_as_rgba_and_cliptex_info_says_so() {
     assert!(out.status.success(), "{out:?}");
     assert!(text.contains("300 x 200 texels, rgba8"), "{text}");
     assert!(text.contains("alpha: 0 where the internal mask is 0 (IFD 1 for level 0), else full"), "{text}");
-    let err = d.join("svc.err");
-    struct Kill(std::process::Child);
-    impl Drop for Kill {
-        fn drop(&mut self) {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-    let _service = Kill(
-        Command::new(env!("CARGO_BIN_EXE_clipmapd"))
-            .arg(&tif)
-            .args([
-                "--clip",
-                "128",
-                "--tick-hz",
-                "120",
-                "--name",
-                "masked",
-                "--shm-dir",
-                d.to_str().unwrap(),
-                "--socket",
-            ])
-            .arg(d.join("masked.sock"))
-            .stdout(std::process::Stdio::null())
-            .stderr(std::fs::File::create(&err).unwrap())
-            .spawn()
-            .unwrap(),
-    );
-    let log = || std::fs::read_to_string(&err).unwrap_or_default();
-    let t = Instant::now();
-    let c = loop {
-        if let Ok(c) = clipmap::shm::Client::attach(d, "masked") {
-            break c;
-        }
-        assert!(t.elapsed() < Duration::from_secs(30), "no mapping\n{}", log());
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let served = crate::common::gdal::Served::start(&tif, 128, "masked", d);
+    let c = &served.client;
+    let log = || served.log();
     assert_eq!(c.bytes_per_texel, 4, "{}", log());
     assert!(c.heights.is_none());
 }

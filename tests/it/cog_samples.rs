@@ -120,14 +120,6 @@ const CASES: [Case; 5] = [
     },
 ];
 
-/// A Python with GDAL's binding: Debian's (where `python3` on the PATH may be another), else
-/// the PATH's.
-fn python() -> &'static str {
-    let has_gdal =
-        |p: &str| Command::new(p).args(["-c", "from osgeo import gdal"]).output().is_ok_and(|o| o.status.success());
-    ["/usr/bin/python3", "python3"].into_iter().find(|p| has_gdal(p)).unwrap_or("python3")
-}
-
 /// Writes the case's file with GDAL in `dir`; returns the size of every IFD GDAL decoded.
 fn write(case: &Case, dir: &Path) -> Vec<[u64; 2]> {
     let mut args = vec![
@@ -140,26 +132,7 @@ fn write(case: &Case, dir: &Path) -> Vec<[u64; 2]> {
         case.driver.into(),
     ];
     args.extend(case.options.iter().map(|s| s.to_string()));
-    let mut child = Command::new(python())
-        .args(&args)
-        .current_dir(dir)
-        .stdin(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("python3 (with GDAL's binding, python3-gdal, which .ci/run installs)");
-    use std::io::Write;
-    child.stdin.take().unwrap().write_all(WRITE.as_bytes()).unwrap();
-    let out = child.wait_with_output().unwrap();
-    assert!(out.status.success(), "{}: GDAL failed: {}", case.name, String::from_utf8_lossy(&out.stderr));
-    String::from_utf8(out.stdout)
-        .unwrap()
-        .lines()
-        .map(|l| {
-            let v: Vec<u64> = l.split(' ').map(|x| x.parse().unwrap()).collect();
-            [v[0], v[1]]
-        })
-        .collect()
+    crate::common::gdal::write_with(WRITE, &args, dir, case.name)
 }
 
 /// Sample `c` of pixel (x, y) (y from the top row), as the Python formula writes it, as bytes.
@@ -303,33 +276,10 @@ fn clipmapd_serves_a_float_dem_cog_as_heights_texel_for_texel() {
     let d = dir.path();
     let case = &CASES[0];
     write(case, d);
-    let err = d.join("svc.err");
-    struct Kill(std::process::Child);
-    impl Drop for Kill {
-        fn drop(&mut self) {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-    let _service = Kill(
-        Command::new(env!("CARGO_BIN_EXE_clipmapd"))
-            .arg(d.join(format!("{}.tif", case.name)))
-            .args(["--clip", "128", "--tick-hz", "120", "--name", "dem", "--shm-dir", d.to_str().unwrap(), "--socket"])
-            .arg(d.join("dem.sock"))
-            .stdout(std::process::Stdio::null())
-            .stderr(std::fs::File::create(&err).unwrap())
-            .spawn()
-            .unwrap(),
-    );
-    let log = || std::fs::read_to_string(&err).unwrap_or_default();
+    let served = crate::common::gdal::Served::start(&d.join(format!("{}.tif", case.name)), 128, "dem", d);
+    let c = &served.client;
+    let log = || served.log();
     let t = Instant::now();
-    let c = loop {
-        if let Ok(c) = clipmap::shm::Client::attach(d, "dem") {
-            break c;
-        }
-        assert!(t.elapsed() < Duration::from_secs(30), "no mapping\n{}", log());
-        std::thread::sleep(Duration::from_millis(20));
-    };
     // The header says l32f heights with the file's GDAL_NODATA.
     let h = c.heights.unwrap_or_else(|| panic!("not heights\n{}", log()));
     assert_eq!((c.format_code, h.storage, h.nodata), (11, HeightStorage::F32, Some(-32768.0)));
@@ -386,7 +336,7 @@ fn jpeg_cogs_grey_and_ycbcr_decode_as_gdal_does_within_the_decoders_tolerance() 
     for (name, bands, extra) in [("jpeg_ycbcr", 3usize, "QUALITY=90"), ("jpeg_grey", 1, "QUALITY=75")] {
         let args =
             ["-", name, "300", "200", &bands.to_string(), "COMPRESS=JPEG", extra, "BLOCKSIZE=128", "OVERVIEWS=AUTO"];
-        let mut child = Command::new(python())
+        let mut child = Command::new(crate::common::gdal::python())
             .args(args)
             .current_dir(d)
             .stdin(std::process::Stdio::piped())

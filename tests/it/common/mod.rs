@@ -4,6 +4,7 @@
 
 pub mod exercise;
 pub mod flight;
+pub mod gdal;
 pub mod patch_exercise;
 pub mod remote;
 
