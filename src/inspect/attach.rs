@@ -455,6 +455,21 @@ fn paging_table(s: &Status) -> String {
     o
 }
 
+/// Levels as runs: `3..9`, `0..2,5`, `-` for none.
+fn level_list(levels: &[u32]) -> String {
+    let mut runs: Vec<(u32, u32)> = Vec::new();
+    for &k in levels {
+        match runs.last_mut() {
+            Some((_, end)) if *end + 1 == k => *end = k,
+            _ => runs.push((k, k)),
+        }
+    }
+    if runs.is_empty() {
+        return "-".into();
+    }
+    runs.iter().map(|&(a, b)| if a == b { a.to_string() } else { format!("{a}..{b}") }).collect::<Vec<_>>().join(",")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -608,19 +623,4 @@ mod tests {
             (serde_json::Value::Null, serde_json::Value::Null)
         );
     }
-}
-
-/// Levels as runs: `3..9`, `0..2,5`, `-` for none.
-fn level_list(levels: &[u32]) -> String {
-    let mut runs: Vec<(u32, u32)> = Vec::new();
-    for &k in levels {
-        match runs.last_mut() {
-            Some((_, end)) if *end + 1 == k => *end = k,
-            _ => runs.push((k, k)),
-        }
-    }
-    if runs.is_empty() {
-        return "-".into();
-    }
-    runs.iter().map(|&(a, b)| if a == b { a.to_string() } else { format!("{a}..{b}") }).collect::<Vec<_>>().join(",")
 }

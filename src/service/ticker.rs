@@ -626,6 +626,15 @@ fn log_reason_changes(last: &mut Vec<Reason>, paging: &[LevelPaging], latency: f
     changed
 }
 
+/// The reply to `VIEW LOD`: the levels the view shows from the next tick.
+fn describe_lod(name: &str, lod: crate::clip::LodWindow) -> String {
+    if lod.effective == u32::MAX {
+        format!("view {name} lod offset {} effective all", lod.offset)
+    } else {
+        format!("view {name} lod offset {} effective {}", lod.offset, lod.effective)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -716,14 +725,5 @@ mod tests {
         assert_eq!(log_reason_changes(&mut last, &bound, 4.0, 3), vec![0]);
         assert_eq!(log_reason_changes(&mut last, &bound, 4.0, 4), Vec::<usize>::new());
         assert_eq!(last, vec![Reason::SourceBound, Reason::Hover]);
-    }
-}
-
-/// The reply to `VIEW LOD`: the levels the view shows from the next tick.
-fn describe_lod(name: &str, lod: crate::clip::LodWindow) -> String {
-    if lod.effective == u32::MAX {
-        format!("view {name} lod offset {} effective all", lod.offset)
-    } else {
-        format!("view {name} lod offset {} effective {}", lod.offset, lod.effective)
     }
 }

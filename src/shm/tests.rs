@@ -639,7 +639,7 @@ fn every_byte_the_contract_calls_reserved_is_zero() {
     zero("header", h::VIEWS_OFFSET + 8..h::SNAPSHOT);
     // The views block: its header's reserved bytes, and every free record whole.
     let vb = u64::from_le_bytes(m[h::VIEWS_OFFSET..h::VIEWS_OFFSET + 8].try_into().unwrap()) as usize;
-    assert!(vb > 0 && vb % 4096 == 0, "the service's mappings have a views block: {vb}");
+    assert!(vb > 0 && vb.is_multiple_of(4096), "the service's mappings have a views block: {vb}");
     zero("views block", vb + 20..vb + layout::views::FIRST);
     let rec = vb + layout::views::record(0);
     zero("free view record", rec..rec + layout::views::SNAPSHOT);

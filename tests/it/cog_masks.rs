@@ -135,7 +135,7 @@ pub(crate) fn write(case: &Case, dir: &Path) -> Vec<[u64; 2]> {
 /// Sample `c` of pixel (x, y) (y from the top row) as the Python formula writes it.
 fn value(case: &Case, x: u64, y: u64, c: u64) -> u16 {
     if let Some(v) = case.nodata {
-        if (x * 7 + y * 3) % 11 == 0 {
+        if (x * 7 + y * 3).is_multiple_of(11) {
             return v;
         }
     }
@@ -148,7 +148,7 @@ fn value(case: &Case, x: u64, y: u64, c: u64) -> u16 {
 /// The mask written for pixel (x, y) (0 no data).
 fn masked(x: u64, y: u64) -> bool {
     let (dx, dy) = (x as i64 - 40, y as i64 - 30);
-    (x / 5 + y / 3) % 4 == 0 || dx * dx + dy * dy < 200
+    (x / 5 + y / 3).is_multiple_of(4) || dx * dx + dy * dy < 200
 }
 
 /// Appends one RGBA texel of `n`-byte samples.
