@@ -263,10 +263,11 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
         // name ending in .tif / .tiff (read in ranges, docs/COG.md).
         (Some(path), _) if clipmap::source::cog::is_tiff_place(&clipmap::place::Place::from_path(path.clone())) => {
             let place = clipmap::place::Place::from_path(path.clone());
+            // A remote object replaced in its store is opened again and every tile read anew.
             let src =
-                clipmap::source::CogSource::open_place(&place, cli.clip).map_err(|e| bad(anyhow::anyhow!("{e}")))?;
+                clipmap::source::CogSource::open_served(&place, cli.clip).map_err(|e| bad(anyhow::anyhow!("{e}")))?;
             let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "clip".into());
-            (Arc::new(src) as Arc<dyn clipmap::source::TileSource>, stem, clipmap::paging::PagingOptions::default())
+            (src, stem, clipmap::paging::PagingOptions::default())
         }
         (Some(path), _) => {
             let o = cli.env.options().map_err(|e| Failure(exit::COULD_NOT_RUN, anyhow::anyhow!(e)))?;

@@ -259,6 +259,8 @@ pub struct Clipmap {
     heights: Option<crate::plan::HeightPlan>,
     /// Further views sharing the grids ([`views`]), and the primary's weight.
     views: views::Views,
+    /// The source's [`TileSource::version`] when every tile held was last read of it.
+    source_version: u64,
 }
 
 /// What the adaptive policy measures and chose ([`crate::paging::adaptive`]).
@@ -410,6 +412,7 @@ impl Clipmap {
             source: source.clone(),
             centre: None,
             views: views::Views::default(),
+            source_version: source.version(),
             tick: 0,
             stats: Stats::default(),
             refresh: VecDeque::new(),
@@ -448,6 +451,27 @@ impl Clipmap {
                 self.refresh.push_back(t);
             }
         }
+    }
+
+    /// When the source says that any tile may have changed ([`TileSource::version`]: a remote
+    /// COG replaced in its store and opened again), reads every tile held again, as
+    /// [`refresh`](Self::refresh) does.
+    fn follow_source_version(&mut self) {
+        let now = self.source.version();
+        if now == self.source_version {
+            return;
+        }
+        self.source_version = now;
+        let held: Vec<TileId> = (0..self.levels.len() as u32)
+            .flat_map(|k| {
+                let mem = self.cache.mem_region(k);
+                (mem.t0.max(0)..mem.t1)
+                    .flat_map(move |t| (mem.s0.max(0)..mem.s1).map(move |s| TileId::new(k, s as u64, t as u64)))
+            })
+            .filter(|&t| self.holds(t))
+            .collect();
+        self.stats.source_versions += 1;
+        self.refresh(held);
     }
 
     /// Whether the clipmap holds `tile` in a slot (loading, settled or failed).
@@ -631,6 +655,7 @@ impl Clipmap {
             self.stats.ticks_over_budget += 1;
             self.stats.reads_deferred += left as u64;
         }
+        self.follow_source_version();
         if !self.refresh.is_empty() || !self.replacing.is_empty() {
             self.replace_tiles();
         }

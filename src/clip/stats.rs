@@ -65,6 +65,10 @@ pub struct Stats {
     /// (a growing texture, [`super::Clipmap::refresh`]): replacement reads taken, ready or
     /// default (a failed one is counted in `read_faults`).
     pub tiles_replaced: u64,
+    /// Times the source said that every tile may have changed ([`crate::source::TileSource::version`]:
+    /// a remote COG replaced in its store and opened again), each followed by reading every tile
+    /// held again (counted in `tiles_replaced` as they land).
+    pub source_versions: u64,
     /// Ticks whose budget ran out with finished reads left for the next tick.
     pub ticks_over_budget: u64,
     /// Finished reads left for a later tick by a spent budget.

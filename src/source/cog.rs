@@ -54,6 +54,11 @@
 //! The levels past the overviews are built at open for a local file, and when one is first read
 //! for a remote object (its open stays one request).
 
+#[cfg(feature = "remote")]
+mod reopen;
+#[cfg(feature = "remote")]
+pub use reopen::{Reopening, RETRY_GAP as REOPEN_GAP};
+
 use super::ahead::{Piece, Plan, ReadAhead};
 use super::{
     check_request, level_count, level_size, DescError, LevelDesc, SourceError, TextureDesc, TileId, TileSource,
@@ -852,6 +857,22 @@ impl CogSource {
         }
     }
 
+    /// Opens `place` to be served by a long-running reader (the service): a local file as
+    /// [`CogSource::open`] does, a remote object through [`Reopening`], which opens it again
+    /// when it is replaced in its store.
+    pub fn open_served(place: &Place, clip_size: u64) -> Result<Arc<dyn super::TileSource>, CogError> {
+        match place {
+            Place::Local(_) => Ok(Arc::new(CogSource::open_place(place, clip_size)?)),
+            #[cfg(feature = "remote")]
+            Place::Remote(name) => {
+                let first = CogSource::open_place(place, clip_size)?;
+                Ok(Arc::new(Reopening::from_first(name, first, clip_size)))
+            }
+            #[cfg(not(feature = "remote"))]
+            Place::Remote(_) => Ok(Arc::new(CogSource::open_place(place, clip_size)?)),
+        }
+    }
+
     /// Opens the remote object `name` through `remote` with one ranged read of its first
     /// [`PREFIX_BYTES`] (more only for structure that lies past them); the tile index is read
     /// in chunks as tiles are first read, and the levels past the overviews are built when one
@@ -946,6 +967,17 @@ impl CogSource {
     /// The file served.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// Whether a read was refused because the remote object is no longer the version opened
+    /// (false for a local file, which is read through the handle opened, whatever its name
+    /// points at since): [`Reopening`] then opens it again.
+    pub fn object_changed(&self) -> bool {
+        match &self.store {
+            Store::Local(_) => false,
+            #[cfg(feature = "remote")]
+            Store::Remote(o) => o.has_changed(),
+        }
     }
 
     /// Where each level's texels come from, level 0 first.

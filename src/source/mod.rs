@@ -211,6 +211,14 @@ pub trait TileSource: Send + Sync {
             inner.withdraw(tile);
         }
     }
+
+    /// A number that changes each time any tile's texels may have changed at once: a remote COG
+    /// replaced in its store and opened again ([`cog::Reopening`]). A clipmap that sees it change
+    /// reads every tile it holds again ([`crate::clip::Clipmap::refresh`]). The
+    /// [`wrapped`](Self::wrapped) source's, or 0 for a source whose tiles never change so.
+    fn version(&self) -> u64 {
+        self.wrapped().map_or(0, |inner| inner.version())
+    }
 }
 
 /// Checks that `tile` exists in `desc` and that `out` is one tile long: the common preamble of

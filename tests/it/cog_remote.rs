@@ -536,3 +536,110 @@ fn a_masked_cog_over_nginx_gives_the_local_files_rgba_texels() {
         }
     }
 }
+
+/// Every texel a clipmap publishes, level by level, against two versions of a texture: how many
+/// equal `new`'s, how many equal only `old`'s, and how many equal neither.
+fn tally(map: &clipmap::clip::Clipmap, old: &CogSource, new: &CogSource) -> [u64; 3] {
+    let mut n = [0u64; 3];
+    let desc = map.desc().clone();
+    let bpt = desc.format().bytes_per_texel() as usize;
+    for k in 0..desc.level_count() as u32 {
+        let view = map.level(k);
+        let v = view.valid;
+        let (mut a, mut b) = (vec![0u8; desc.tile_bytes(k)], vec![0u8; desc.tile_bytes(k)]);
+        let mut last = None;
+        for t in v.t0..v.t1 {
+            for s in v.s0..v.s1 {
+                let Some(texel) = view.texel(s, t) else { continue };
+                let tile = view.tile_of(s, t);
+                if last != Some(tile) {
+                    old.read_tile(tile, &mut a).unwrap();
+                    new.read_tile(tile, &mut b).unwrap();
+                    last = Some(tile);
+                }
+                let i = ((t - tile.t as i64 * view.tile[1] as i64) * view.tile[0] as i64
+                    + (s - tile.s as i64 * view.tile[0] as i64)) as usize
+                    * bpt;
+                let got: &[u8] = &texel;
+                if got == &b[i..i + bpt] {
+                    n[0] += 1;
+                } else if got == &a[i..i + bpt] {
+                    n[1] += 1;
+                } else {
+                    n[2] += 1;
+                }
+            }
+        }
+    }
+    n
+}
+
+#[test]
+fn a_served_remote_cog_replaced_in_its_store_is_opened_again_and_every_tile_read_anew() {
+    use clipmap::clip::{Clipmap, Settings};
+    use clipmap::source::cog::Reopening;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Two versions of one texture (the same size, tiles and levels), the second's colours
+    // inverted, and a third of another size.
+    let script = "from osgeo import gdal\nimport sys\nsrc = sys.argv[1]\nco = ['COMPRESS=LZW', 'BLOCKSIZE=64']\n\
+                  gdal.Translate('a.tif', src, format='COG', creationOptions=co)\n\
+                  gdal.Translate('b.tif', src, format='COG', creationOptions=co, scaleParams=[[0, 255, 255, 0]])\n\
+                  gdal.Translate('c.tif', src, format='COG', creationOptions=co, width=256, height=192)\n";
+    let src = fixture("rgb_512x384.tif").to_string_lossy().into_owned();
+    crate::common::gdal::write_with(script, &["-".into(), src], d, "two versions of a COG");
+    let (old, new) = (CogSource::open(&d.join("a.tif"), 64).unwrap(), CogSource::open(&d.join("b.tif"), 64).unwrap());
+    assert_eq!(old.desc(), new.desc());
+
+    let served = d.join("served");
+    std::fs::create_dir(&served).unwrap();
+    let path = served.join("obj.tif");
+    std::fs::copy(d.join("a.tif"), &path).unwrap();
+    let nginx = Nginx::serve(&served);
+    let name = RemoteName::parse(&format!("{}/obj.tif", nginx.url())).unwrap();
+    let source = Arc::new(Reopening::open(&name, reader(&[]), 64).unwrap());
+    let mut map = Clipmap::new(source.clone(), Settings::default()).unwrap();
+    let size = old.desc().size().map(|x| x as i64);
+    let (here, there) = ([size[0] / 4, size[1] / 4], [size[0] * 3 / 4, size[1] * 3 / 4]);
+    let settle = |map: &mut Clipmap, at: [i64; 2], until: &dyn Fn(&Clipmap) -> bool, what: &str| {
+        let t = std::time::Instant::now();
+        loop {
+            map.tick(at, None);
+            map.wait_for_reads();
+            let n = tally(map, &old, &new);
+            assert_eq!(n[2], 0, "{what}: texels of neither version: {n:?}");
+            if until(map) {
+                return n;
+            }
+            assert!(t.elapsed() < Duration::from_secs(30), "{what}: {n:?}, {:?}", map.stats());
+        }
+    };
+    let n = settle(&mut map, here, &|m| m.min_lod() == 0.0, "the first version");
+    assert_eq!(n[0], 0, "the first version's texels only: {n:?}");
+    assert!(n[1] > 0, "{n:?}");
+
+    // Replaced: the next tile read sees another ETag, the object is opened again, and every
+    // tile held is read anew; no texel is ever of neither version.
+    replace(&path, &std::fs::read(d.join("b.tif")).unwrap());
+    let n = settle(
+        &mut map,
+        there,
+        &|m| m.min_lod() == 0.0 && m.refresh_pending() == 0 && tally(m, &old, &new)[1] == 0,
+        "the second version",
+    );
+    assert!(n[0] > 0 && n[1] == 0, "every texel the new version's: {n:?}");
+    assert_eq!(source.reopened(), 1);
+    assert_eq!(map.stats().source_versions, 1);
+    assert!(map.stats().tiles_replaced > 0, "{:?}", map.stats());
+    assert_eq!(source.refused(), None);
+
+    // Replaced by another texture: not served; the reads are refused, the texels stay the
+    // second version's.
+    replace(&path, &std::fs::read(d.join("c.tif")).unwrap());
+    std::thread::sleep(clipmap::source::cog::REOPEN_GAP);
+    let n = settle(&mut map, here, &|_| source.refused().is_some(), "another texture");
+    assert_eq!(n[1], 0, "{n:?}");
+    let why = source.refused().unwrap();
+    assert!(why.contains("another texture") && why.contains("[256, 192]") && why.contains("restart"), "{why}");
+    assert_eq!(source.reopened(), 1);
+}

@@ -22,7 +22,7 @@ pub enum ObjectError {
     #[error(transparent)]
     Read(#[from] ReadError),
     /// The object is not the one opened any more.
-    #[error("{name}: the object changed since it was opened ({was} at open, {now} now): its bytes are refused, never mixed with those read before; open it again (restart the service) to serve the new version")]
+    #[error("{name}: the object changed since it was opened ({was} at open, {now} now): its bytes are refused, never mixed with those read before; it must be opened again to serve the new version (`clipmapd` does so itself and reads every tile anew; run other tools again)")]
     Changed {
         /// The object.
         name: String,
@@ -43,6 +43,8 @@ pub struct Object {
     name: String,
     size: u64,
     validator: Option<String>,
+    /// Set once a range was refused because the object changed ([`Object::has_changed`]).
+    changed: std::sync::atomic::AtomicBool,
 }
 
 impl std::fmt::Debug for Object {
@@ -75,7 +77,7 @@ impl Object {
                 expected: prefix.min(size),
             }));
         }
-        let object = Object { remote, loc, name: text, size, validator: got.validator };
+        let object = Object { remote, loc, name: text, size, validator: got.validator, changed: Default::default() };
         Ok((object, bytes))
     }
 
@@ -92,6 +94,12 @@ impl Object {
     /// Its version at open (`ETag "..."` or `Last-Modified ...`), when the store named one.
     pub fn validator(&self) -> Option<&str> {
         self.validator.as_deref()
+    }
+
+    /// Whether a range was refused because the object is not the version opened any more
+    /// ([`ObjectError::Changed`]): it is then to be opened again, not read on.
+    pub fn has_changed(&self) -> bool {
+        self.changed.load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// The remote reader (its counters).
@@ -126,6 +134,7 @@ impl Object {
     }
 
     fn changed(&self, was: String, now: String) -> ObjectError {
+        self.changed.store(true, std::sync::atomic::Ordering::Relaxed);
         ObjectError::Changed { name: self.name.clone(), was, now }
     }
 }
