@@ -12,7 +12,7 @@ use clipmap::cli::EnvArgs;
 use clipmap::demo;
 use clipmap::plan;
 use clipmap::report::exit;
-use clipmap::service::{self, ControlLimits, Options, Procedural};
+use clipmap::service::{self, ControlLimits, Options, Procedural, ViewOption};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -97,9 +97,11 @@ struct Cli {
     centre_alignment: u64,
     /// A further view of the texture, NAME or NAME:WEIGHT (repeatable; docs/VIEWS.md): its own
     /// centre, published regions and min LOD over the shared grids. Readers attach to it by name
-    /// (`main` is the primary); `VIEW ADD` on the control socket adds one at run time.
-    #[arg(long = "view", value_name = "NAME[:WEIGHT]", value_parser = parse_view)]
-    views: Vec<(String, f64)>,
+    /// (`main` is the primary); `VIEW ADD` on the control socket adds one at run time. `:own`
+    /// gives the view grids of its own, in a mapping of its own (NAME@VIEW), for a view that flies
+    /// far from the others (docs/VIEWS.md, "Views far apart").
+    #[arg(long = "view", value_name = "NAME[:WEIGHT][:own]", value_parser = parse_view)]
+    views: Vec<ViewOption>,
     /// Level-0 texels by which views may lie apart and all be held whole: each level's grid
     /// grows by that many texels (halved per level) per axis (0: grids for one view).
     #[arg(long, default_value_t = 0, value_name = "TEXELS")]
@@ -398,20 +400,26 @@ fn main() -> ExitCode {
     }
 }
 
-/// `--view NAME[:WEIGHT]`.
-fn parse_view(s: &str) -> Result<(String, f64), String> {
-    let (name, weight) = match s.split_once(':') {
+/// `--view NAME[:WEIGHT][:own]`.
+fn parse_view(s: &str) -> Result<ViewOption, String> {
+    let (rest, own) = match s.strip_suffix(":own") {
+        Some(r) => (r, true),
+        None => (s, false),
+    };
+    let (name, weight) = match rest.split_once(':') {
         Some((n, w)) => {
-            let w: f64 = w.parse().map_err(|_| format!("weight `{w}`: expected a positive number such as 1 or 3"))?;
+            let w: f64 = w.parse().map_err(|_| {
+                format!("weight `{w}`: expected a positive number such as 1 or 3 (NAME[:WEIGHT][:own])")
+            })?;
             (n, w)
         }
-        None => (s, 1.0),
+        None => (rest, 1.0),
     };
     clipmap::shm::layout::views::check_name(name)?;
     if !(w_ok(weight)) {
         return Err(format!("weight {weight}: expected a positive finite number such as 1 or 3"));
     }
-    Ok((name.to_string(), weight))
+    Ok(ViewOption { name: name.to_string(), weight, own })
 }
 
 fn w_ok(w: f64) -> bool {

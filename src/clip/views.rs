@@ -106,6 +106,9 @@ pub enum ViewError {
     /// A LOD window or footprint that is not allowed.
     #[error("{0}")]
     Lod(String),
+    /// The view's grids are another clipmap's: it is moved there.
+    #[error("view `{0}` has grids of its own, in another clipmap: move it and set its levels there")]
+    Elsewhere(String),
     /// The primary view cannot be removed.
     #[error("view 0 is the primary view (the clipmap's own centre) and cannot be removed")]
     Primary,
@@ -133,6 +136,9 @@ pub(super) struct View {
     pub(super) min_lod: f64,
     /// The levels it shows.
     pub(super) lod: LodWindow,
+    /// Its grids are another clipmap's ([`Clipmap::add_view_elsewhere`]): here it only holds its
+    /// name and record, and never has a centre.
+    pub(super) elsewhere: bool,
 }
 
 /// The views beside the primary one, and the primary's weight and levels.
@@ -185,20 +191,40 @@ impl Clipmap {
     /// [`set_view_weight`](Self::set_view_weight) says otherwise). It has no centre, and
     /// publishes nothing, until [`move_view`](Self::move_view) gives it one.
     pub fn add_view(&mut self, weight: f64) -> Result<ViewId, ViewError> {
-        self.add_view_as(None, weight)
+        self.add_view_as(None, weight, false)
     }
 
     /// [`add_view`](Self::add_view) named `name` (1 to 31 of `A-Z a-z 0-9 - _ .`, not `main`,
     /// not another live view's): the mapping's record of the view carries the name, and readers
     /// find the view by it.
     pub fn add_named_view(&mut self, name: &str, weight: f64) -> Result<ViewId, ViewError> {
+        self.check_new_name(name)?;
+        self.add_view_as(Some(name.to_string()), weight, false)
+    }
+
+    /// Names a view whose grids are elsewhere: another clipmap of the same source, published in
+    /// the mapping [`own_mapping_name`](crate::shm::layout::views::own_mapping_name) beside this
+    /// one, holds them (docs/VIEWS.md, "Views far apart"). Here the view has a record that says
+    /// so (state 2), under the same rules of names as [`add_named_view`](Self::add_named_view);
+    /// it holds no tile, reads nothing and cannot be moved.
+    pub fn add_view_elsewhere(&mut self, name: &str, weight: f64) -> Result<ViewId, ViewError> {
+        self.check_new_name(name)?;
+        self.add_view_as(Some(name.to_string()), weight, true)
+    }
+
+    /// Whether view `id` has its grids elsewhere ([`add_view_elsewhere`](Self::add_view_elsewhere)).
+    pub fn view_elsewhere(&self, id: ViewId) -> bool {
+        id != PRIMARY && self.view(id).is_ok_and(|v| v.elsewhere)
+    }
+
+    fn check_new_name(&self, name: &str) -> Result<(), ViewError> {
         crate::shm::layout::views::check_name(name).map_err(ViewError::Name)?;
         if self.views.live().any(|(_, v)| v.name.as_deref() == Some(name)) {
             return Err(ViewError::Name(format!(
                 "view `{name}` exists already: remove it first or choose another name"
             )));
         }
-        self.add_view_as(Some(name.to_string()), weight)
+        Ok(())
     }
 
     /// A view's id by name (`main`: the primary).
@@ -217,7 +243,7 @@ impl Clipmap {
         self.view(id).ok().and_then(|v| v.name.as_deref())
     }
 
-    fn add_view_as(&mut self, name: Option<String>, weight: f64) -> Result<ViewId, ViewError> {
+    fn add_view_as(&mut self, name: Option<String>, weight: f64, elsewhere: bool) -> Result<ViewId, ViewError> {
         let weight = check_weight(weight)?;
         let view = View {
             name,
@@ -228,6 +254,7 @@ impl Clipmap {
             levels: Vec::new(),
             min_lod: self.levels.len() as f64,
             lod: LodWindow::ALL,
+            elsewhere,
         };
         let id = match self.views.others.iter().position(Option::is_none) {
             Some(i) => i + 1,
@@ -238,7 +265,7 @@ impl Clipmap {
             }
         };
         if let Some(name) = &view.name {
-            self.cache.memory().open_view(id, name, view.weight);
+            self.cache.memory().open_view(id, name, view.weight, elsewhere);
         }
         self.views.others[id - 1] = Some(view);
         Ok(id as ViewId)
@@ -265,6 +292,9 @@ impl Clipmap {
     pub fn move_view(&mut self, id: ViewId, centre: [i64; 2], velocity: Option<[i64; 2]>) -> Result<(), ViewError> {
         let far = crate::limits::MAX_CENTRE;
         let view = self.view_mut(id)?;
+        if view.elsewhere {
+            return Err(ViewError::Elsewhere(view.name.clone().unwrap_or_default()));
+        }
         view.want = Some((centre.map(|c| c.clamp(-far, far)), velocity.map(|v| v.map(|x| x.clamp(-far, far)))));
         Ok(())
     }

@@ -192,7 +192,9 @@ async fn answer(ctx: &Context, line: &[u8], rd: &mut BufReader<tokio::net::unix:
         Request::Budget(ms) => (command(ctx, |tx| Command::Budget(ms, tx)).await, Flow::Continue),
         Request::Border(b) => (command(ctx, |tx| Command::Border(b, tx)).await, Flow::Continue),
         Request::Centre(c) => (command(ctx, |tx| Command::Centre(c, tx)).await, Flow::Continue),
-        Request::ViewAdd(name, w) => (fallible(ctx, |tx| Command::ViewAdd(name, w, tx)).await, Flow::Continue),
+        Request::ViewAdd(name, w, own) => {
+            (fallible(ctx, |tx| Command::ViewAdd(name, w, own, tx)).await, Flow::Continue)
+        }
         Request::ViewRemove(name) => (fallible(ctx, |tx| Command::ViewRemove(name, tx)).await, Flow::Continue),
         Request::ViewCentre(name, c) => (fallible(ctx, |tx| Command::ViewCentre(name, c, tx)).await, Flow::Continue),
         Request::ViewWeight(name, w) => (fallible(ctx, |tx| Command::ViewWeight(name, w, tx)).await, Flow::Continue),

@@ -16,11 +16,12 @@
 
 pub mod control;
 pub mod options;
+mod own_views;
 pub mod protocol;
 pub mod stats;
 pub mod ticker;
 
-pub use options::{default_socket, ControlLimits, Options};
+pub use options::{default_socket, ControlLimits, Options, ViewOption};
 pub use stats::ServiceStats;
 pub use ticker::{Started, Ticker};
 

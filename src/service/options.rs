@@ -61,8 +61,8 @@ pub struct Options {
     /// A growing texture's grower (docs/GROWING.md): the service then replaces rebuilt tiles in
     /// their slots, publishes the growth block, and takes patches on the control socket.
     pub growing: Option<crate::growing::serve::Grower>,
-    /// Further views to start with (docs/VIEWS.md): name and weight each.
-    pub views: Vec<(String, f64)>,
+    /// Further views to start with (docs/VIEWS.md).
+    pub views: Vec<ViewOption>,
     /// Level-0 texels by which views may lie apart and all be held whole by the shared grids
     /// ([`crate::clip::Settings::view_spread`]; 0: grids for one view).
     pub view_spread: u64,
@@ -104,13 +104,19 @@ impl Options {
     pub fn check(&self) -> Result<(), ServiceError> {
         let bad = |m: String| Err(ServiceError::BadOption(m));
         crate::shm::check_name(&self.name).map_err(|e| ServiceError::BadOption(e.to_string()))?;
-        for (i, (name, weight)) in self.views.iter().enumerate() {
+        if self.name.contains('@') {
+            return bad(format!(
+                "--name {}: `@` is kept for the mappings of views with grids of their own (NAME@VIEW, docs/SHM.md); choose a name without it",
+                self.name
+            ));
+        }
+        for (i, ViewOption { name, weight, .. }) in self.views.iter().enumerate() {
             crate::shm::layout::views::check_name(name)
                 .map_err(|e| ServiceError::BadOption(format!("--view {name}: {e}")))?;
             if !(weight.is_finite() && *weight > 0.0) {
                 return bad(format!("--view {name}:{weight}: expected a positive finite weight such as 1 or 3"));
             }
-            if self.views[..i].iter().any(|(n, _)| n == name) {
+            if self.views[..i].iter().any(|v| &v.name == name) {
                 return bad(format!("--view {name} given twice: each view needs its own name"));
             }
         }
@@ -210,4 +216,16 @@ mod tests {
         assert_eq!(settings.prefetch, PrefetchKind::Adaptive);
         assert_eq!(settings.grid_budget, None, "the default budget");
     }
+}
+
+/// A view to start with (`--view NAME[:WEIGHT][:own]`, docs/VIEWS.md).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewOption {
+    /// Its name.
+    pub name: String,
+    /// Its weight.
+    pub weight: f64,
+    /// Whether it has grids of its own, in a mapping of its own (docs/VIEWS.md, "Views far
+    /// apart"), rather than a share of the primary's.
+    pub own: bool,
 }

@@ -22,8 +22,9 @@ pub enum Request {
     Border(u64),
     /// `CENTRE <s> <t>` (or `CENTER`): the level-0 clip centre.
     Centre([i64; 2]),
-    /// `VIEW ADD <name> [<weight>]`: a further view (docs/VIEWS.md), weight 1 by default.
-    ViewAdd(String, f64),
+    /// `VIEW ADD <name> [<weight>] [own]`: a further view (docs/VIEWS.md), weight 1 by default;
+    /// `own`: with grids of its own (docs/VIEWS.md, "Views far apart").
+    ViewAdd(String, f64, bool),
     /// `VIEW REMOVE <name>`.
     ViewRemove(String),
     /// `VIEW CENTRE <name> <s> <t>` (or `CENTER`): a view's level-0 centre (`main`: the primary).
@@ -98,7 +99,7 @@ pub enum BadRequest {
     #[error("unknown command `{0}`; expected one of {COMMANDS}")]
     Unknown(String),
     /// A `VIEW` request of the wrong shape, or a bad name or weight.
-    #[error("{0}; usage: VIEW ADD <name> [<weight>], VIEW REMOVE <name>, VIEW CENTRE <name> <s> <t>, VIEW WEIGHT <name> <weight>, VIEW LOD <name> <offset> [<effective>|all], VIEW HEIGHT <name> <height> <pixel angle> [<effective>]")]
+    #[error("{0}; usage: VIEW ADD <name> [<weight>] [own], VIEW REMOVE <name>, VIEW CENTRE <name> <s> <t>, VIEW WEIGHT <name> <weight>, VIEW LOD <name> <offset> [<effective>|all], VIEW HEIGHT <name> <height> <pixel angle> [<effective>]")]
     View(String),
     /// A `PATCH` request of the wrong shape.
     #[error("usage: PATCH FILE <path of a sidecar .json> or PATCH DATA <bytes> <json description> followed by the bytes ({0})")]
@@ -194,8 +195,12 @@ fn view(args: &[&str]) -> Result<Request, BadRequest> {
     };
     let sub = args.first().map(|w| w.to_ascii_uppercase());
     match (sub.as_deref(), &args[1.min(args.len())..]) {
-        (Some("ADD"), [n]) => Ok(Request::ViewAdd(name(n, false)?, 1.0)),
-        (Some("ADD"), [n, w]) => Ok(Request::ViewAdd(name(n, false)?, weight(w)?)),
+        (Some("ADD"), [n]) => Ok(Request::ViewAdd(name(n, false)?, 1.0, false)),
+        (Some("ADD"), [n, o]) if o.eq_ignore_ascii_case("own") => Ok(Request::ViewAdd(name(n, false)?, 1.0, true)),
+        (Some("ADD"), [n, w]) => Ok(Request::ViewAdd(name(n, false)?, weight(w)?, false)),
+        (Some("ADD"), [n, w, o]) if o.eq_ignore_ascii_case("own") => {
+            Ok(Request::ViewAdd(name(n, false)?, weight(w)?, true))
+        }
         (Some("REMOVE"), [n]) => Ok(Request::ViewRemove(name(n, false)?)),
         (Some("CENTRE" | "CENTER"), [n, s, t]) => {
             let p = |w: &str| w.parse::<i64>().map_err(|_| bad(format!("`{}` is not an integer", clip(w))));
@@ -288,8 +293,10 @@ mod tests {
             ("center 1 2", Request::Centre([1, 2])),
             ("  QUIT  ", Request::Quit),
             ("SHUTDOWN", Request::Shutdown),
-            ("VIEW ADD left", Request::ViewAdd("left".into(), 1.0)),
-            ("view add sensor.1 3", Request::ViewAdd("sensor.1".into(), 3.0)),
+            ("VIEW ADD left", Request::ViewAdd("left".into(), 1.0, false)),
+            ("view add sensor.1 3", Request::ViewAdd("sensor.1".into(), 3.0, false)),
+            ("VIEW ADD far own", Request::ViewAdd("far".into(), 1.0, true)),
+            ("VIEW ADD far 2 OWN", Request::ViewAdd("far".into(), 2.0, true)),
             ("VIEW REMOVE left", Request::ViewRemove("left".into())),
             ("VIEW CENTRE left -5 7", Request::ViewCentre("left".into(), [-5, 7])),
             ("VIEW center main 1 2", Request::ViewCentre("main".into(), [1, 2])),

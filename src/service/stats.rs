@@ -404,6 +404,10 @@ mod tests {
 pub struct ViewStats {
     /// Its name (`main`: the primary).
     pub name: String,
+    /// `shared`: it shares the primary's grids; `own`: it has grids of its own, in the mapping
+    /// `NAME@VIEW` (docs/VIEWS.md, "Views far apart").
+    #[serde(default)]
+    pub grids: String,
     /// Its weight.
     pub weight: f64,
     /// Its level-0 centre as the last tick applied it (`null` before its first).

@@ -8,6 +8,7 @@
 //! publishes its snapshot into the mapping, and beats the heartbeat. Commands (budget, border, centre, stop)
 //! are taken between ticks and answered through a one-shot reply.
 
+use super::own_views::{OwnViews, Setup};
 use super::stats::TickStats;
 use super::{Options, ServiceError};
 use crate::clip::{Clipmap, Settings, ViewId, PRIMARY};
@@ -32,8 +33,9 @@ pub enum Command {
     Border(u64, oneshot::Sender<String>),
     /// Moves the clip centre (level-0 texels).
     Centre([i64; 2], oneshot::Sender<String>),
-    /// Adds a named view of a weight (docs/VIEWS.md); replies `Err` with why not.
-    ViewAdd(String, f64, oneshot::Sender<Result<String, String>>),
+    /// Adds a named view of a weight (docs/VIEWS.md), with grids of its own when asked;
+    /// replies `Err` with why not.
+    ViewAdd(String, f64, bool, oneshot::Sender<Result<String, String>>),
     /// Removes a view.
     ViewRemove(String, oneshot::Sender<Result<String, String>>),
     /// Moves a view's centre (`main`: the primary's, as `Centre`).
@@ -157,6 +159,8 @@ struct Runner {
     reasons: Vec<Reason>,
     /// Each further view's centre and velocity as asked for, and its last request's count.
     view_state: std::collections::BTreeMap<ViewId, ViewState>,
+    /// The views with grids of their own ([`super::own_views`]).
+    own: OwnViews,
 }
 
 /// A further view's centre as asked for (socket or request record).
@@ -206,6 +210,17 @@ impl Runner {
         let request_mode = o.request_mode.unwrap_or(o.shm_mode);
         let writer =
             Writer::create(&o.shm_dir, &o.name, shape, desc.format(), o.shm_mode, request_mode, period_ns, heights)?;
+        let setup = Setup {
+            source: Arc::clone(&source),
+            settings: settings.clone(),
+            dir: o.shm_dir.clone(),
+            service: o.name.clone(),
+            shm_mode: o.shm_mode,
+            request_mode,
+            period_ns,
+            heights,
+            effective_levels: o.effective_levels,
+        };
         let mut clipmap = match Clipmap::with_memory(source, settings, writer.memory()) {
             Ok(c) => c,
             Err(e) => {
@@ -244,6 +259,7 @@ impl Runner {
             growing: o.growing.as_ref().map(|g| (g.served().clone(), None)),
             reasons: Vec::new(),
             view_state: Default::default(),
+            own: OwnViews::new(setup),
         };
         let mut runner = runner;
         if let Some(e) = o.effective_levels {
@@ -253,10 +269,11 @@ impl Runner {
                 return Err(ServiceError::BadOption(format!("--effective-levels {e}: {why}")));
             }
         }
-        for (name, weight) in &o.views {
-            if let Err(why) = runner.add_view(name, *weight) {
+        for v in &o.views {
+            if let Err(why) = runner.add_view(&v.name, v.weight, v.own) {
+                runner.own.close_all();
                 runner.writer.close();
-                return Err(ServiceError::BadOption(format!("--view {name}: {why}")));
+                return Err(ServiceError::BadOption(format!("--view {}: {why}", v.name)));
             }
         }
         runner.publish_views();
@@ -276,7 +293,9 @@ impl Runner {
                 if now >= next {
                     break;
                 }
-                if now >= last_start + min_gap && self.writer.request_count() != self.last_request {
+                if now >= last_start + min_gap
+                    && (self.writer.request_count() != self.last_request || self.own.requests_changed())
+                {
                     self.stats.ticks_on_request += 1;
                     break;
                 }
@@ -298,6 +317,7 @@ impl Runner {
             }
         }
         tracing::info!(ticks = self.stats.engine.ticks, "tick loop stopping; closing the mapping");
+        self.own.close_all();
         self.writer.close();
     }
 
@@ -325,8 +345,8 @@ impl Runner {
                 self.stats.socket_centres += 1;
                 let _ = reply.send(format!("centre {} {}", c[0], c[1]));
             }
-            Command::ViewAdd(name, weight, reply) => {
-                let r = self.add_view(&name, weight);
+            Command::ViewAdd(name, weight, own, reply) => {
+                let r = self.add_view(&name, weight, own);
                 if r.is_ok() {
                     self.publish_views();
                 }
@@ -337,6 +357,7 @@ impl Runner {
                     None => Err(self.no_view(&name)),
                     Some(id) => {
                         self.view_state.remove(&id);
+                        self.own.remove(&name);
                         self.clipmap.remove_view(id).map(|()| format!("view {name} removed")).map_err(|e| e.to_string())
                     }
                 };
@@ -355,6 +376,13 @@ impl Runner {
                         self.stats.request_velocity = None;
                         self.stats.socket_centres += 1;
                         Ok(format!("view main centre {} {}", c[0], c[1]))
+                    }
+                    Some(_) if self.own.get(&name).is_some() => {
+                        let v = self.own.get_mut(&name).expect("looked up above");
+                        v.centre = c;
+                        v.velocity = None;
+                        self.stats.socket_centres += 1;
+                        Ok(format!("view {name} centre {} {}", c[0], c[1]))
                     }
                     Some(id) => {
                         let st = self.view_state.entry(id).or_default();
@@ -385,7 +413,11 @@ impl Runner {
                     None => Err(self.no_view(&name)),
                     Some(id) => {
                         let lod = crate::clip::LodWindow { offset, effective: effective.unwrap_or(u32::MAX) };
-                        self.clipmap.set_view_lod(id, lod).map(|()| describe_lod(&name, lod)).map_err(|e| e.to_string())
+                        let (map, id) = match self.own.get_mut(&name) {
+                            Some(v) => (&mut v.clipmap, PRIMARY),
+                            None => (&mut self.clipmap, id),
+                        };
+                        map.set_view_lod(id, lod).map(|()| describe_lod(&name, lod)).map_err(|e| e.to_string())
                     }
                 };
                 if r.is_ok() {
@@ -403,7 +435,11 @@ impl Runner {
                             effective: u64::from(effective),
                             count: 0,
                         };
-                        self.apply_lod(id, &req).map(|lod| describe_lod(&name, lod))
+                        let (map, id) = match self.own.get_mut(&name) {
+                            Some(v) => (&mut v.clipmap, PRIMARY),
+                            None => (&mut self.clipmap, id),
+                        };
+                        apply_lod(map, id, &name, &req, &mut self.stats).map(|lod| describe_lod(&name, lod))
                     }
                 };
                 if r.is_ok() {
@@ -415,32 +451,6 @@ impl Runner {
         }
     }
 
-    /// Applies a renderer's LOD request for view `id` (docs/SHM.md, "Asking for a view's
-    /// levels"): its footprint moves the view's LOD offset, its effective levels bound the window.
-    /// A request whose numbers are unusable is refused with a warning naming the view and the field.
-    fn apply_lod(
-        &mut self,
-        id: ViewId,
-        req: &crate::shm::writer::LodRequest,
-    ) -> Result<crate::clip::LodWindow, String> {
-        let name = self.clipmap.view_name(id).unwrap_or("?").to_string();
-        let footprint = match req.footprint() {
-            Ok(f) => f,
-            Err(why) => {
-                self.stats.lod_requests_refused += 1;
-                tracing::warn!(view = %name, "LOD request refused: {why}");
-                return Err(format!("view {name}: LOD request refused: {why}"));
-            }
-        };
-        let effective = if req.effective == 0 { u32::MAX } else { req.effective as u32 };
-        let lod = self.clipmap.view_lod(id).map_err(|e| e.to_string())?;
-        self.clipmap.set_view_lod(id, crate::clip::LodWindow { effective, ..lod }).map_err(|e| e.to_string())?;
-        let offset = self.clipmap.set_view_footprint(id, footprint).map_err(|e| e.to_string())?;
-        self.stats.lod_requests += 1;
-        tracing::debug!(view = %name, offset, footprint, "LOD request");
-        Ok(crate::clip::LodWindow { offset, effective })
-    }
-
     /// Publishes the views' figures now, not at the next tick: `VIEWS` and `STATS` asked after a
     /// `VIEW ADD`, `REMOVE` or `WEIGHT` was answered show it (as the mapping already does).
     fn publish_views(&mut self) {
@@ -448,8 +458,17 @@ impl Runner {
         self.stats_tx.send_replace(self.stats.clone());
     }
 
-    /// Adds a named view, centred where the primary is until it is told otherwise.
-    fn add_view(&mut self, name: &str, weight: f64) -> Result<String, String> {
+    /// Adds a named view, centred where the primary is until it is told otherwise, in the shared
+    /// grids or (`own`) with grids of its own ([`super::own_views`]).
+    fn add_view(&mut self, name: &str, weight: f64, own: bool) -> Result<String, String> {
+        if own {
+            let id = self.clipmap.add_view_elsewhere(name, weight).map_err(|e| e.to_string())?;
+            if let Err(why) = self.own.add(name, self.centre) {
+                let _ = self.clipmap.remove_view(id);
+                return Err(why);
+            }
+            return Ok(format!("view {name} added, weight {weight}, grids of its own"));
+        }
         let id = self.clipmap.add_named_view(name, weight).map_err(|e| e.to_string())?;
         if let Some(e) = self.effective_levels {
             let _ = self.clipmap.set_view_lod(id, crate::clip::LodWindow { offset: 0, effective: e });
@@ -488,7 +507,8 @@ impl Runner {
             }
         }
         for (id, lod) in lods {
-            let _ = self.apply_lod(id, &lod);
+            let name = self.clipmap.view_name(id).unwrap_or("?").to_string();
+            let _ = apply_lod(&mut self.clipmap, id, &name, &lod, &mut self.stats);
         }
     }
 
@@ -503,7 +523,7 @@ impl Runner {
             }
             if let Some(lod) = req.lod.filter(|l| l.count != self.last_lod) {
                 self.last_lod = lod.count;
-                let _ = self.apply_lod(PRIMARY, &lod);
+                let _ = apply_lod(&mut self.clipmap, PRIMARY, "main", &lod, &mut self.stats);
             }
         }
         (self.stats.request_faults, self.stats.request_fault) = self.writer.request_faults();
@@ -523,6 +543,7 @@ impl Runner {
         }
         let t0 = Instant::now();
         let report = self.clipmap.tick(self.centre, self.velocity);
+        self.own.tick(self.hz, &mut self.stats);
         self.stats.views = self.view_stats();
         if let Some((served, last)) = &mut self.growing {
             let (_, mut g) = served.growth();
@@ -543,7 +564,7 @@ impl Runner {
         s.invalid_border = self.clipmap.invalid_border();
         s.bytes_published = self.clipmap.stats().queue.bytes_read;
         s.publications = self.clipmap.stats().publications;
-        s.resident_bytes = self.clipmap.resident_bytes();
+        s.resident_bytes = self.clipmap.resident_bytes() + self.own.resident_bytes();
         s.valid = report.valid.iter().map(|r| [r.s0, r.t0, r.s1, r.t1]).collect();
         s.engine = self.clipmap.stats().clone();
         s.streams = self.clipmap.stream_stats();
@@ -559,15 +580,23 @@ impl Runner {
 impl Runner {
     /// Each view's figures, the primary first.
     fn view_stats(&self) -> Vec<super::stats::ViewStats> {
-        let m = &self.clipmap;
-        m.view_ids()
+        let main = &self.clipmap;
+        main.view_ids()
             .into_iter()
-            .map(|id| {
+            .map(|vid| {
+                let name = main.view_name(vid).unwrap_or("").to_string();
+                // A view with grids of its own: its figures are its own clipmap's primary's.
+                let own = self.own.get(&name).filter(|_| main.view_elsewhere(vid));
+                let (m, id) = match own {
+                    Some(v) => (&v.clipmap, PRIMARY),
+                    None => (main, vid),
+                };
                 let levels = m.level_count();
                 let min_lod = m.view_min_lod(id).unwrap_or(levels as f64);
                 super::stats::ViewStats {
-                    name: m.view_name(id).unwrap_or("").to_string(),
-                    weight: m.view_weight(id).unwrap_or(1.0),
+                    name,
+                    grids: if own.is_some() { "own" } else { "shared" }.to_string(),
+                    weight: main.view_weight(vid).unwrap_or(1.0),
                     centre: m.view_centre(id).ok().flatten(),
                     min_lod,
                     levels_disabled: (0..levels as u32).filter(|&k| ((k + 1) as f64) <= min_lod).count() as u64,
@@ -586,12 +615,40 @@ impl Runner {
     }
 }
 
+/// Applies a renderer's LOD request for view `id` of `clipmap` (named `name`; docs/SHM.md,
+/// "Asking for a view's levels"): its footprint moves the view's LOD offset, its effective levels
+/// bound the window. A request whose numbers are unusable is refused with a warning naming the
+/// view and the field, and counted in `stats`.
+pub(super) fn apply_lod(
+    clipmap: &mut Clipmap,
+    id: ViewId,
+    name: &str,
+    req: &crate::shm::writer::LodRequest,
+    stats: &mut TickStats,
+) -> Result<crate::clip::LodWindow, String> {
+    let footprint = match req.footprint() {
+        Ok(f) => f,
+        Err(why) => {
+            stats.lod_requests_refused += 1;
+            tracing::warn!(view = %name, "LOD request refused: {why}");
+            return Err(format!("view {name}: LOD request refused: {why}"));
+        }
+    };
+    let effective = if req.effective == 0 { u32::MAX } else { req.effective as u32 };
+    let lod = clipmap.view_lod(id).map_err(|e| e.to_string())?;
+    clipmap.set_view_lod(id, crate::clip::LodWindow { effective, ..lod }).map_err(|e| e.to_string())?;
+    let offset = clipmap.set_view_footprint(id, footprint).map_err(|e| e.to_string())?;
+    stats.lod_requests += 1;
+    tracing::debug!(view = %name, offset, footprint, "LOD request");
+    Ok(crate::clip::LodWindow { offset, effective })
+}
+
 /// A request's velocity (level-0 texels per second, docs/SHM.md "What the service does with a
 /// request") as the engine takes it: divided by the tick rate `hz` and rounded to texels per tick,
 /// clamped to `MAX_TEXTURE_SIZE` (2^26) a tick, NaN and infinities read as 0. `None` when both
 /// are 0: the engine then uses the centre's change since the last tick. Anything a renderer (or a
 /// member of the mapping's group) wrote is bounded here, before the engine does arithmetic with it.
-fn velocity_per_tick(velocity: [f64; 2], hz: f64) -> Option<[i64; 2]> {
+pub(super) fn velocity_per_tick(velocity: [f64; 2], hz: f64) -> Option<[i64; 2]> {
     let max = crate::source::MAX_TEXTURE_SIZE as f64;
     let per_tick = |v: f64| if v.is_finite() { (v / hz).round().clamp(-max, max) as i64 } else { 0 };
     let v = velocity.map(per_tick);

@@ -181,6 +181,9 @@ pub struct Client {
     pub(super) views: super::view_block::ViewsBlock,
     /// The view the snapshot is read from (`None`: the primary, `main`).
     pub(super) view: Option<super::view_block::Binding>,
+    /// The view whose own mapping this is (docs/SHM.md, "A view with grids of its own"): the
+    /// client reads its `main` and answers to the view's name.
+    pub(super) own_view: Option<String>,
 }
 
 impl std::fmt::Debug for Client {
@@ -393,6 +396,7 @@ impl Client {
         Ok(Client {
             views,
             view: None,
+            own_view: None,
             inode: (meta.dev(), meta.ino()),
             generation: region.read_u64(header::GENERATION),
             format_code,

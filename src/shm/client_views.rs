@@ -13,6 +13,8 @@ use std::sync::atomic::Ordering;
 #[derive(Clone, Debug, PartialEq)]
 struct Record {
     live: bool,
+    /// The view has grids of its own, in the mapping [`v::own_mapping_name`] (state 2).
+    own: bool,
     incarnation: u64,
     weight: f64,
     name: String,
@@ -37,6 +39,12 @@ impl Client {
         v::check_name(view).map_err(|why| invalid(self.path(), why))?;
         let found = self.records()?.into_iter().find(|(_, r)| r.live && r.name == view);
         match found {
+            Some((_, r)) if r.own => {
+                let own = self.own_mapping(view)?;
+                own.check_own_view(view)?;
+                *self = own;
+                Ok(())
+            }
             Some((record, r)) => {
                 self.view = Some(Binding { name: view.to_string(), record, incarnation: r.incarnation });
                 Ok(())
@@ -51,7 +59,60 @@ impl Client {
 
     /// The view the client reads (`main` for the primary).
     pub fn view_name(&self) -> &str {
-        self.view.as_ref().map_or(v::PRIMARY_NAME, |b| b.name.as_str())
+        match (&self.own_view, &self.view) {
+            (Some(own), _) => own,
+            (None, Some(b)) => &b.name,
+            (None, None) => v::PRIMARY_NAME,
+        }
+    }
+
+    /// Whether the client reads a view with grids of its own (docs/SHM.md, "A view with grids of
+    /// its own"): it then reads and requests `main` of the view's own mapping.
+    pub fn reads_own_grids(&self) -> bool {
+        self.own_view.is_some()
+    }
+
+    /// Attaches to the own mapping of view `view` (checked) of the service whose mapping this
+    /// client attached to: `clipmap-SERVICE@VIEW.map` beside it, the name derived from the two
+    /// names, never read from the mapping.
+    fn own_mapping(&self, view: &str) -> Result<Client, ShmError> {
+        let path = self.path();
+        let file = path.file_name().and_then(|f| f.to_str()).unwrap_or_default();
+        let service = file.strip_prefix("clipmap-").and_then(|f| f.strip_suffix(".map")).filter(|s| !s.contains('@'));
+        let (Some(service), Some(dir)) = (service, path.parent()) else {
+            return Err(invalid(
+                path,
+                format!(
+                    "view `{view}` has grids of its own, in the mapping beside the service's named clipmap-SERVICE@{view}.map, but this mapping's file name is not clipmap-SERVICE.map: attach by the service's name (--name) in its directory"
+                ),
+            ));
+        };
+        let own = v::own_mapping_name(service, view);
+        let mut client = Client::attach(dir, &own).map_err(|e| match e {
+            ShmError::NotFound { .. } => invalid(
+                path,
+                format!(
+                    "view `{view}` has grids of its own, but its mapping {} is not there: the view is being added or removed; try again",
+                    super::map_path(dir, &own).display()
+                ),
+            ),
+            e => e,
+        })?;
+        client.own_view = Some(view.to_string());
+        Ok(client)
+    }
+
+    /// Checks that this own mapping publishes one view, its `main`: a views block with a live
+    /// record would mean a mapping that is not a view's own.
+    fn check_own_view(&self, view: &str) -> Result<(), ShmError> {
+        let others = self.records()?.into_iter().filter(|(_, r)| r.live).count();
+        if others > 0 {
+            return Err(invalid(
+                self.path(),
+                format!("the own mapping of view `{view}`: found {others} live view records, expected none (it publishes the view as main)"),
+            ));
+        }
+        Ok(())
     }
 
     /// The names of the views the service publishes now, `main` first, then each live record's
@@ -112,7 +173,7 @@ impl Client {
     /// Record `i` read under its seqlock and checked (`Ok(None)`: no views block or no such
     /// record).
     fn record(&self, i: usize) -> Result<Option<Record>, ReadError> {
-        let ViewsBlock::Known { at, records: n } = self.views else { return Ok(None) };
+        let ViewsBlock::Known { at, records: n, version } = self.views else { return Ok(None) };
         if i >= n {
             return Ok(None);
         }
@@ -125,16 +186,24 @@ impl Client {
         };
         let (_, (state, incarnation, weight, name)) = self.seqlocked(rec + v::SEQ, read).ok_or(ReadError::Busy(0))?;
         let at_field = |o: usize, what: &str| format!("view record {i}, byte {} ({what})", rec + o);
-        match state {
-            0 => return Ok(Some(Record { live: false, incarnation, weight: 0.0, name: String::new() })),
-            1 => {}
-            other => {
-                return Err(ReadError::Corrupt(format!(
-                    "{}: found {other}, expected 0 (free) or 1 (live)",
-                    at_field(v::STATE, "state")
-                )))
+        let own = match state {
+            v::STATE_FREE => {
+                return Ok(Some(Record { live: false, own: false, incarnation, weight: 0.0, name: String::new() }))
             }
-        }
+            v::STATE_LIVE => false,
+            v::STATE_OWN if version >= 2 => true,
+            other => {
+                let expected = if version >= 2 {
+                    "0 (free), 1 (live) or 2 (live, grids of its own)"
+                } else {
+                    "0 (free) or 1 (live) in a version-1 block"
+                };
+                return Err(ReadError::Corrupt(format!(
+                    "{}: found {other}, expected {expected}",
+                    at_field(v::STATE, "state")
+                )));
+            }
+        };
         let weight = f64::from_bits(weight);
         if !weight.is_finite() || weight <= 0.0 {
             return Err(ReadError::Corrupt(format!(
@@ -154,7 +223,7 @@ impl Client {
                 v::MAX_NAME
             )));
         };
-        Ok(Some(Record { live: true, incarnation, weight, name: text.to_string() }))
+        Ok(Some(Record { live: true, own, incarnation, weight, name: text.to_string() }))
     }
 
     /// [`Client::request_centre`] for a bound view: its request record, with the view's

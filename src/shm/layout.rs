@@ -438,8 +438,23 @@ pub mod views {
     pub const FIRST: usize = 64;
     /// The magic bytes.
     pub const MAGIC_BYTES: [u8; 8] = *b"CLIPVIEW";
-    /// This block's version.
-    pub const BLOCK_VERSION: u32 = 1;
+    /// This block's version: 2 adds record state [`STATE_OWN`] to version 1 (docs/SHM.md,
+    /// "Views"). Readers read both.
+    pub const BLOCK_VERSION: u32 = 2;
+    /// Record state: free.
+    pub const STATE_FREE: u64 = 0;
+    /// Record state: a live view in this mapping's grids.
+    pub const STATE_LIVE: u64 = 1;
+    /// Record state (version 2): a live view with grids of its own, published as `main` of the
+    /// mapping named [`own_mapping_name`]; the record's snapshot is unused.
+    pub const STATE_OWN: u64 = 2;
+
+    /// The name of the mapping of view `view`'s own grids, of the service whose mapping is named
+    /// `service` (both names checked by the caller): `SERVICE@VIEW`, so that its file is
+    /// `clipmap-SERVICE@VIEW.map` beside the service's.
+    pub fn own_mapping_name(service: &str, view: &str) -> String {
+        format!("{service}@{view}")
+    }
     /// Bytes of one record: its fields, then its snapshot.
     pub const RECORD_BYTES: usize = SNAPSHOT + super::header::LEVEL_DESCS - super::header::SNAPSHOT;
     /// Most records a block may have.

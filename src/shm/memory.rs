@@ -512,8 +512,10 @@ impl ImageMemory {
     }
 
     /// Gives view `view`'s record to a view named `name` (checked by the caller) of weight
-    /// `weight`: returns its new incarnation, or `None` when the mapping has no record for it.
-    pub(crate) fn open_view(&self, view: usize, name: &str, weight: f64) -> Option<u64> {
+    /// `weight`, live in this mapping's grids or (`own`) with grids of its own in another
+    /// mapping (docs/SHM.md, "A view with grids of its own"): returns its new incarnation, or
+    /// `None` when the mapping has no record for it.
+    pub(crate) fn open_view(&self, view: usize, name: &str, weight: f64, own: bool) -> Option<u64> {
         let rec = self.view_record(view)?;
         use layout::views as v;
         let r = &self.region;
@@ -522,7 +524,7 @@ impl ImageMemory {
         bytes[..n].copy_from_slice(&name.as_bytes()[..n]);
         let incarnation = r.load(rec + v::INCARNATION, Ordering::Relaxed).wrapping_add(1);
         self.record_locked(rec, || {
-            r.store(rec + v::STATE, 1, Ordering::Relaxed);
+            r.store(rec + v::STATE, if own { v::STATE_OWN } else { v::STATE_LIVE }, Ordering::Relaxed);
             r.store(rec + v::INCARNATION, incarnation, Ordering::Relaxed);
             r.store(rec + v::WEIGHT, weight.to_bits(), Ordering::Relaxed);
             for (i, w) in bytes.chunks_exact(8).enumerate() {

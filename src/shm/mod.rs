@@ -122,10 +122,18 @@ pub fn default_dir() -> PathBuf {
 
 /// Checks a publication name.
 pub(crate) fn check_name(name: &str) -> Result<(), ShmError> {
-    let ok = !name.is_empty()
-        && name.len() <= 64
-        && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
-        && !name.starts_with('.');
+    let plain = |name: &str| {
+        !name.is_empty()
+            && name.len() <= 64
+            && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+            && !name.starts_with('.')
+    };
+    // A view's own mapping (`SERVICE@VIEW`, layout::views::own_mapping_name): a service's name
+    // and a view's.
+    let ok = match name.split_once('@') {
+        None => plain(name),
+        Some((service, view)) => plain(service) && layout::views::check_name(view).is_ok(),
+    };
     if ok {
         Ok(())
     } else {

@@ -409,10 +409,42 @@ fn a_views_block_this_reader_does_not_know_refuses_views_not_main() {
         let err = Client::attach(dir.path(), name).unwrap_err().to_string();
         assert!(err.contains(want), "{name}: {err}");
     }
+    // Version 1 (the first release's) is read as version 2 is, but knows no state 2.
+    let state = vb + v::FIRST + v::STATE;
+    let mut v1 = good.clone();
+    put32(&mut v1, vb + v::VERSION, 1);
+    std::fs::write(dir.path().join("clipmap-v1.map"), &v1).unwrap();
+    let c = Client::attach_view(dir.path(), "v1", "left").expect("a version-1 block binds");
+    assert_eq!(c.view_name(), "left");
+    put64(&mut v1, state, v::STATE_OWN);
+    std::fs::write(dir.path().join("clipmap-v1own.map"), &v1).unwrap();
+    let err = Client::attach_view(dir.path(), "v1own", "left").unwrap_err().to_string();
+    assert!(err.contains("(state): found 2, expected 0 (free) or 1 (live) in a version-1 block"), "{err}");
+    // State 2 in version 2: the view is in its own mapping, which must be there.
+    let mut own = good.clone();
+    put64(&mut own, state, v::STATE_OWN);
+    std::fs::write(dir.path().join("clipmap-v2own.map"), &own).unwrap();
+    let err = Client::attach_view(dir.path(), "v2own", "left").unwrap_err().to_string();
+    assert!(err.contains("clipmap-v2own@left.map is not there"), "{err}");
+    // There (a mapping of no live view): read as its `main`, answering to the view's name.
+    let mut alone = good.clone();
+    put64(&mut alone, state, v::STATE_FREE);
+    std::fs::write(dir.path().join("clipmap-v2own@left.map"), &alone).unwrap();
+    let c = Client::attach_view(dir.path(), "v2own", "left").expect("follows to the own mapping");
+    assert!(c.reads_own_grids() && c.view_name() == "left");
+    assert!(c.path().ends_with("clipmap-v2own@left.map"), "{:?}", c.path());
+    let mut rng = 9;
+    let (read, wrong) = read_and_check(&c, &mut rng, 200);
+    assert!(read > 0 && wrong == 0, "own mapping: read {read}, wrong {wrong}");
+    // An own mapping that itself publishes views is not a view's own.
+    std::fs::write(dir.path().join("clipmap-v2bad.map"), &own).unwrap();
+    std::fs::write(dir.path().join("clipmap-v2bad@left.map"), &good).unwrap();
+    let err = Client::attach_view(dir.path(), "v2bad", "left").unwrap_err().to_string();
+    assert!(err.contains("found 1 live view records, expected none"), "{err}");
     // Unknown: main reads, the view is refused with the field and the value found.
     let unknown: Vec<(&str, Corrupt, &str)> = vec![
         ("vmagic", Box::new(move |b| b[vb + v::MAGIC] = b'X'), "expected \"CLIPVIEW\""),
-        ("vversion", Box::new(move |b| put32(b, vb + v::VERSION, 2)), "found 2, this reader knows version 1"),
+        ("vversion", Box::new(move |b| put32(b, vb + v::VERSION, 3)), "found 3, this reader knows versions 1 to 2"),
     ];
     for (name, corrupt, want) in unknown {
         let mut bytes = good.clone();

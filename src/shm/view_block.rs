@@ -10,14 +10,16 @@ use super::raw::Region;
 pub(super) enum ViewsBlock {
     /// No views block: only the primary view, `main`.
     Absent,
-    /// A block this reader knows: its byte offset and record count.
-    Known { at: usize, records: usize },
+    /// A block this reader knows: its byte offset, record count and version (1 or 2: version 1
+    /// has no record in state [`v::STATE_OWN`]).
+    Known { at: usize, records: usize, version: u32 },
     /// A block of a magic or version this reader does not know: `main` is read, and binding to
     /// any other view is refused with this reason.
     Unknown(String),
 }
 
-/// The view a client reads: its record, and the incarnation it had when the client bound to it.
+/// The view a client reads in the mapping it attached to: its record, and the incarnation it had
+/// when the client bound to it.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub(super) struct Binding {
     pub(super) name: String,
@@ -58,9 +60,9 @@ pub(super) fn check(region: &Region, slots_end: u64, total: u64) -> Result<Views
         )));
     }
     let version = region.read_u32(b + v::VERSION);
-    if version != v::BLOCK_VERSION {
+    if !(1..=v::BLOCK_VERSION).contains(&version) {
         return Ok(ViewsBlock::Unknown(format!(
-            "{}: found {version}, this reader knows version {}: use a reader of the service's release",
+            "{}: found {version}, this reader knows versions 1 to {}: use a reader of the service's release",
             field(v::VERSION, "views block version"),
             v::BLOCK_VERSION
         )));
@@ -83,5 +85,5 @@ pub(super) fn check(region: &Region, slots_end: u64, total: u64) -> Result<Views
             field(v::RECORDS, "view records")
         ));
     }
-    Ok(ViewsBlock::Known { at: b, records })
+    Ok(ViewsBlock::Known { at: b, records, version })
 }

@@ -47,4 +47,5 @@ mod patch_fuzz_props;
 mod remote;
 mod sixteen_bit;
 mod stability;
+mod views_own;
 mod views_restart;

@@ -1,0 +1,149 @@
+//! Views with grids of their own (docs/VIEWS.md, "Views far apart"): a view that flies far from
+//! the others is held by a clipmap of its own over the same source, published as `main` of a
+//! mapping of its own, `NAME@VIEW` beside the service's (docs/SHM.md, "A view with grids of its
+//! own"). The service's mapping keeps the view's record (state 2: its name, weight and
+//! incarnation), so readers find it by name as any view and follow it there.
+//!
+//! Why: one set of grids that holds views far apart must span all of them (a view spread of the
+//! distance between them: gigabytes for views a texture apart), while grids of their own cost each
+//! such view one view's mapping. Each own clipmap has its own read queues, so the source serves
+//! the grid sets side by side (each has the same reads in flight) rather than one set's
+//! read-ahead before another's window.
+//!
+//! The tick loop ([`super::ticker`]) owns these clipmaps as it owns the primary one, ticks each
+//! after the primary, and routes every command for such a view here by name.
+
+use super::stats::TickStats;
+use crate::clip::{Clipmap, LodWindow, Settings, PRIMARY};
+use crate::shm::layout::{self, views::own_mapping_name};
+use crate::shm::Writer;
+use crate::source::TileSource;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// What a new own view's clipmap and mapping are made of: the primary's.
+pub(super) struct Setup {
+    pub(super) source: Arc<dyn TileSource>,
+    pub(super) settings: Settings,
+    pub(super) dir: PathBuf,
+    pub(super) service: String,
+    pub(super) shm_mode: u32,
+    pub(super) request_mode: u32,
+    pub(super) period_ns: u64,
+    pub(super) heights: Option<layout::Heights>,
+    pub(super) effective_levels: Option<u32>,
+}
+
+/// One view with grids of its own.
+pub(super) struct OwnView {
+    pub(super) clipmap: Clipmap,
+    writer: Writer,
+    pub(super) centre: [i64; 2],
+    pub(super) velocity: Option<[i64; 2]>,
+    last_request: u64,
+    last_lod: u64,
+}
+
+/// Every view with grids of its own, by name.
+pub(super) struct OwnViews {
+    setup: Setup,
+    views: BTreeMap<String, OwnView>,
+}
+
+impl OwnViews {
+    pub(super) fn new(setup: Setup) -> OwnViews {
+        OwnViews { setup, views: BTreeMap::new() }
+    }
+
+    /// Creates view `name`'s clipmap and mapping (`clipmap-SERVICE@NAME.map`), centred at
+    /// `centre`. The caller has given the view its record in the service's mapping.
+    pub(super) fn add(&mut self, name: &str, centre: [i64; 2]) -> Result<(), String> {
+        let s = &self.setup;
+        let own = own_mapping_name(&s.service, name);
+        let shape = Clipmap::shape_for(s.source.desc(), &s.settings);
+        let writer = Writer::create(
+            &s.dir,
+            &own,
+            shape,
+            s.source.desc().format(),
+            s.shm_mode,
+            s.request_mode,
+            s.period_ns,
+            s.heights,
+        )
+        .map_err(|e| format!("view {name}: its own mapping {own}: {e}"))?;
+        let mut clipmap = match Clipmap::with_memory(Arc::clone(&s.source), s.settings.clone(), writer.memory()) {
+            Ok(c) => c,
+            Err(e) => {
+                writer.close();
+                return Err(format!("view {name}: its own grids: {e}"));
+            }
+        };
+        if let Some(e) = s.effective_levels {
+            let _ = clipmap.set_view_lod(PRIMARY, LodWindow { offset: 0, effective: e });
+        }
+        tracing::info!(view = %name, mapping = %writer.path().display(), "view with grids of its own added");
+        self.views.insert(
+            name.to_string(),
+            OwnView { clipmap, writer, centre, velocity: None, last_request: 0, last_lod: 0 },
+        );
+        Ok(())
+    }
+
+    /// Removes view `name`'s clipmap and closes its mapping (marked shut down, names removed).
+    pub(super) fn remove(&mut self, name: &str) -> bool {
+        match self.views.remove(name) {
+            Some(v) => {
+                v.writer.close();
+                true
+            }
+            None => false,
+        }
+    }
+
+    pub(super) fn get_mut(&mut self, name: &str) -> Option<&mut OwnView> {
+        self.views.get_mut(name)
+    }
+
+    pub(super) fn get(&self, name: &str) -> Option<&OwnView> {
+        self.views.get(name)
+    }
+
+    /// Whether a renderer made a new request in any own mapping (the loop then ticks early).
+    pub(super) fn requests_changed(&self) -> bool {
+        self.views.values().any(|v| v.writer.request_count() != v.last_request)
+    }
+
+    /// One tick of every own view: its newest request (centre, velocity, levels), its engine's
+    /// tick, its heartbeat.
+    pub(super) fn tick(&mut self, hz: f64, stats: &mut TickStats) {
+        for (name, v) in self.views.iter_mut() {
+            if let Some(req) = v.writer.request() {
+                if req.count != v.last_request {
+                    v.last_request = req.count;
+                    v.centre = req.centre;
+                    v.velocity = super::ticker::velocity_per_tick(req.velocity, hz);
+                }
+                if let Some(lod) = req.lod.filter(|l| l.count != v.last_lod) {
+                    v.last_lod = lod.count;
+                    let _ = super::ticker::apply_lod(&mut v.clipmap, PRIMARY, name, &lod, stats);
+                }
+            }
+            v.clipmap.tick(v.centre, v.velocity);
+            v.writer.heartbeat();
+        }
+    }
+
+    /// Bytes of tiles every own view holds.
+    pub(super) fn resident_bytes(&self) -> u64 {
+        self.views.values().map(|v| v.clipmap.resident_bytes()).sum()
+    }
+
+    /// Closes every own mapping (the service stops).
+    pub(super) fn close_all(&mut self) {
+        for (_, v) in std::mem::take(&mut self.views) {
+            v.writer.close();
+        }
+    }
+}

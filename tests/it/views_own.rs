@@ -1,0 +1,85 @@
+//! Views with grids of their own (docs/VIEWS.md, "Views far apart"; docs/SHM.md, "A view with
+//! grids of its own"): a view that flies far from `main` gets a clipmap and a mapping of its own
+//! (`--view NAME:WEIGHT:own`, `VIEW ADD NAME [WEIGHT] own`), readers find it by name in the
+//! service's mapping and follow it there, it shows its finest level where a view sharing the
+//! primary's grids cannot, and its mapping goes when it is removed.
+
+use crate::clipmapd::{counts, json_reply, rust_reader, Service};
+use std::time::{Duration, Instant};
+
+fn view<'a>(stats: &'a serde_json::Value, name: &str) -> &'a serde_json::Value {
+    stats["views"].as_array().unwrap().iter().find(|v| v["name"] == name).unwrap_or_else(|| panic!("{name}: {stats}"))
+}
+
+#[test]
+fn a_view_with_grids_of_its_own_shows_level_0_far_from_main_is_read_by_name_and_its_mapping_goes_with_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "vo", &["--view", "far:2:own", "--view", "shared"]);
+    // Both far from main (the texture's centre), at the same place.
+    for v in ["far", "shared"] {
+        let r = svc.ask(&format!("VIEW CENTRE {v} 3000 60000"));
+        assert!(r.starts_with(&format!("OK view {v} centre 3000 60000")), "{r}");
+    }
+    assert!(d.join("clipmap-vo@far.map").is_file() && d.join("clipmap-vo@far.req").is_file());
+    let t = Instant::now();
+    let stats = loop {
+        let stats = json_reply(&svc.ask("STATS"));
+        if view(&stats, "far")["min_lod"] == 0.0 && view(&stats, "far")["centre"] == serde_json::json!([3000, 60000]) {
+            break stats;
+        }
+        assert!(t.elapsed() < Duration::from_secs(20), "far never showed level 0: {stats}\n{}", svc.dump());
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let (far, shared) = (view(&stats, "far"), view(&stats, "shared"));
+    assert_eq!((far["grids"].as_str(), shared["grids"].as_str()), (Some("own"), Some("shared")), "{stats}");
+    assert_eq!(far["weight"], 2.0);
+    // The shared grids hold main's window: a view that far away shows coarse levels only.
+    assert!(shared["min_lod"].as_f64().unwrap() >= 3.0, "{stats}");
+    assert!(far["resident_levels"].as_array().unwrap().contains(&0.into()), "{far}");
+    // A reader finds it by name and reads it, every texel checked.
+    let out = rust_reader(d, "vo", &["--view", "far", "--reads", "3000", "--block", "5"]).output().unwrap();
+    let (passed, failed) = counts(&out, "far");
+    assert!(out.status.success() && failed == 0 && passed > 1000, "{passed} {failed}\n{out:?}");
+    let line: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).lines().next().unwrap()).unwrap();
+    assert_eq!(line["view"], "far", "{line}");
+    // Driven by its reader, it moves (its own mapping's request, not main's).
+    let before = json_reply(&svc.ask("STATS"))["centre"].clone();
+    let out =
+        rust_reader(d, "vo", &["--view", "far", "--reads", "1000000000", "--seconds", "1", "--drive", "--seed", "3"])
+            .output()
+            .unwrap();
+    let (_, failed) = counts(&out, "far, driven");
+    assert!(out.status.success() && failed == 0, "{out:?}");
+    let stats = json_reply(&svc.ask("STATS"));
+    assert_ne!(view(&stats, "far")["centre"], serde_json::json!([3000, 60000]), "{stats}");
+    assert_eq!(stats["centre"], before, "main did not move: {stats}");
+    // On the socket: added with grids of its own, listed, removed with its mapping.
+    let r = svc.ask("VIEW ADD sensor 1 own");
+    assert!(r.starts_with("OK view sensor added, weight 1, grids of its own"), "{r}");
+    assert!(d.join("clipmap-vo@sensor.map").is_file());
+    let views = json_reply(&svc.ask("VIEWS"));
+    let names: Vec<&str> = views.as_array().unwrap().iter().map(|v| v["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["main", "far", "shared", "sensor"], "{views}");
+    assert!(svc.ask("VIEW REMOVE sensor").starts_with("OK view sensor removed"));
+    assert!(!d.join("clipmap-vo@sensor.map").exists() && !d.join("clipmap-vo@sensor.req").exists());
+    let gone = rust_reader(d, "vo", &["--view", "sensor", "--reads", "10"]).output().unwrap();
+    assert_eq!(gone.status.code(), Some(2), "{gone:?}");
+    assert!(String::from_utf8_lossy(&gone.stderr).contains("no view `sensor`"), "{gone:?}");
+    // Names: `main` and taken names are refused with grids of their own as without.
+    assert!(svc.ask("VIEW ADD main own").contains("the primary view's own"));
+    assert!(svc.ask("VIEW ADD far own").contains("exists already"));
+}
+
+#[test]
+fn a_service_name_with_an_at_sign_is_refused_it_is_kept_for_views_own_mappings() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = std::process::Command::new(crate::clipmapd::CLIPMAPD)
+        .args(["--source", "hash", "--size", "4096", "--clip", "256", "--tile", "64", "--name", "a@b", "--shm-dir"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "{out:?}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("`@` is kept for the mappings of views"), "{out:?}");
+}
