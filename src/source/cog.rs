@@ -474,6 +474,8 @@ struct IfdLevel {
     predictor: u16,
     /// JPEGTables (347): the quantisation and Huffman tables the tiles' JPEG streams leave out.
     jpeg_tables: Option<Arc<[u8]>>,
+    /// How a JPEG tile's components become samples (JPEG only; `JpegColour::Raw` otherwise).
+    jpeg_colour: JpegColour,
     samples: Samples,
     /// Samples a pixel.
     spp: usize,
@@ -493,6 +495,17 @@ impl IfdLevel {
     fn pixel_bytes(&self) -> usize {
         self.spp * self.samples.bytes()
     }
+}
+
+/// How the components of an image's JPEG streams become its samples, as libtiff decodes them
+/// for GDAL: YCbCr (PhotometricInterpretation 6) converted to RGB, anything else (grey,
+/// PhotometricInterpretation 2 with 3 or 4 samples) taken as stored, without a colour transform.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum JpegColour {
+    /// The components are the samples (grey, RGB, RGBA).
+    Raw,
+    /// Three YCbCr components, converted to RGB.
+    YCbCr,
 }
 
 /// An internal mask: an IFD of one 1- or 8-bit sample (NewSubfileType 4, or 5 for an
@@ -1544,7 +1557,7 @@ impl CogSource {
                     dst.copy_from_slice(&data[..dst.len()]);
                     return Ok(());
                 }
-                let got = decompress(lv.compression, lv.jpeg_tables.as_deref(), lv.tile, data, dst)
+                let got = decompress(lv.compression, lv.jpeg_tables.as_deref(), lv.jpeg_colour, lv.tile, data, dst)
                     .map_err(|p| bad(format!("IFD {} tile {index} ({count} bytes at byte {offset}): {p}", lv.ifd)))?;
                 if got != dst.len() {
                     return Err(bad(format!(
@@ -2004,8 +2017,8 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
     let jpeg = compression == Compression::Jpeg;
     let ok_photometric = match (spp, jpeg) {
         (1, _) => photometric.unwrap_or(1) == 1,
-        (3, true) => photometric == Some(6),
-        (_, true) => false,
+        (3, true) => matches!(photometric, Some(2 | 6)),
+        (_, true) => photometric == Some(2),
         _ => photometric == Some(2),
     };
     if !ok_photometric {
@@ -2017,7 +2030,7 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
                 if jpeg { format!(" with {spp} JPEG-compressed samples") } else { String::new() }
             ),
             if jpeg {
-                "1 (grey) with 1 sample, 6 (YCbCr: gdal_translate -of COG -co COMPRESS=JPEG, or -co PHOTOMETRIC=YCBCR) with 3"
+                "1 (grey) with 1 sample; 6 (YCbCr: gdal_translate -of COG -co COMPRESS=JPEG, or -co PHOTOMETRIC=YCBCR) with 3; 2 (RGB, no colour transform: gdal_translate -of GTiff -co TILED=YES -co COMPRESS=JPEG -co PHOTOMETRIC=RGB) with 3, or with 4 (RGBA: what the GTiff driver writes for 4 bands)"
             } else {
                 "1 (grey, zero is black) with 1 sample, 2 (RGB) with 3 or 4"
             },
@@ -2068,6 +2081,7 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
         compression,
         predictor,
         jpeg_tables,
+        jpeg_colour: if jpeg && photometric == Some(6) { JpegColour::YCbCr } else { JpegColour::Raw },
         samples,
         spp: spp as usize,
         offsets,
@@ -2175,6 +2189,7 @@ fn mask_level(
         compression,
         predictor: predictor as u16,
         jpeg_tables: None,
+        jpeg_colour: JpegColour::Raw,
         samples: Samples::U8,
         spp: 1,
         offsets,
@@ -2315,16 +2330,18 @@ fn finish_samples(lv: &IfdLevel, little: bool, dst: &mut [u8]) {
 }
 
 /// Decompresses `packed` into `out`; returns the bytes written (at most `out.len()`).
-/// A JPEG tile takes its IFD's tables and its size in texels (`tile`).
+/// A JPEG tile takes its IFD's tables, how its components become samples and its size in
+/// texels (`tile`).
 fn decompress(
     c: Compression,
     tables: Option<&[u8]>,
+    colour: JpegColour,
     tile: [u64; 2],
     packed: &[u8],
     out: &mut [u8],
 ) -> Result<usize, String> {
     match c {
-        Compression::Jpeg => jpeg_tile(tables, tile, packed, out),
+        Compression::Jpeg => jpeg_tile(tables, colour, tile, packed, out),
         Compression::None => {
             let n = packed.len().min(out.len());
             out[..n].copy_from_slice(&packed[..n]);
@@ -2347,10 +2364,19 @@ fn decompress(
     }
 }
 
-/// Decodes one JPEG-compressed tile of `tile` texels into `out` (grey, or RGB from YCbCr): the
-/// IFD's tables (without their end marker) then the tile's stream (without its start marker),
-/// as libtiff splices them. Returns the bytes written.
-fn jpeg_tile(tables: Option<&[u8]>, tile: [u64; 2], packed: &[u8], out: &mut [u8]) -> Result<usize, String> {
+/// Decodes one JPEG-compressed tile of `tile` texels into `out`: the IFD's tables (without their
+/// end marker) then the tile's stream (without its start marker), as libtiff splices them.
+/// `JpegColour::YCbCr` converts three YCbCr components to RGB; `JpegColour::Raw` takes the
+/// components as they are (grey; RGB or RGBA with PhotometricInterpretation 2), whatever colour
+/// space the stream's markers suggest (libtiff decodes such streams with libjpeg's colour space
+/// `JCS_UNKNOWN`: no transform). Returns the bytes written.
+fn jpeg_tile(
+    tables: Option<&[u8]>,
+    colour: JpegColour,
+    tile: [u64; 2],
+    packed: &[u8],
+    out: &mut [u8],
+) -> Result<usize, String> {
     use zune_jpeg::zune_core::{bytestream::ZCursor, colorspace::ColorSpace, options::DecoderOptions};
     const SOI: [u8; 2] = [0xFF, 0xD8];
     const EOI: [u8; 2] = [0xFF, 0xD9];
@@ -2375,7 +2401,9 @@ fn jpeg_tile(tables: Option<&[u8]>, tile: [u64; 2], packed: &[u8], out: &mut [u8
         }
         None => std::borrow::Cow::Borrowed(packed),
     };
-    let components = out.len() as u64 / (tile[0] * tile[1]).max(1);
+    let components = (out.len() as u64 / (tile[0] * tile[1]).max(1)) as usize;
+    // RGB from YCbCr; for raw components, replaced by the stream's own colour space once its
+    // headers are read.
     let space = if components == 1 { ColorSpace::Luma } else { ColorSpace::RGB };
     let options = DecoderOptions::default()
         .jpeg_set_out_colorspace(space)
@@ -2386,6 +2414,24 @@ fn jpeg_tile(tables: Option<&[u8]>, tile: [u64; 2], packed: &[u8], out: &mut [u8
     let (w, h) = decoder.dimensions().unwrap_or((0, 0));
     if [w as u64, h as u64] != tile {
         return Err(format!("its JPEG stream is {w} x {h} pixels, expected the tile's {} x {}", tile[0], tile[1]));
+    }
+    let found = decoder.info().map_or(0, |i| i.components as usize);
+    if found != components {
+        return Err(format!(
+            "its JPEG stream has {found} components, expected {components} (the IFD's SamplesPerPixel)"
+        ));
+    }
+    if colour == JpegColour::Raw && components > 1 {
+        // The decoder names the stream's colour space from its markers (an Adobe APP14 marker,
+        // component ids 'R' 'G' 'B', else YCbCr or CMYK); asking for that same space as output
+        // copies the components as decoded, with no colour transform.
+        let input = decoder.input_colorspace().unwrap_or(ColorSpace::Unknown);
+        if input.num_components() != components {
+            return Err(format!(
+                "its JPEG stream's {components} components are read as {input:?}, expected {components} components taken as stored"
+            ));
+        }
+        decoder.set_options(decoder.options().jpeg_set_out_colorspace(input));
     }
     let need = decoder.output_buffer_size().unwrap_or(0);
     if need != out.len() {
@@ -2551,9 +2597,10 @@ mod tests {
         let data: Vec<u8> = (0..5000u32).map(|i| (i * 7 % 251) as u8).collect();
         let packed = weezl::encode::Encoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8).encode(&data).unwrap();
         let mut out = vec![0u8; data.len()];
-        assert_eq!(decompress(Compression::Lzw, None, [0, 0], &packed, &mut out), Ok(data.len()));
+        assert_eq!(decompress(Compression::Lzw, None, JpegColour::Raw, [0, 0], &packed, &mut out), Ok(data.len()));
         assert_eq!(out, data);
-        assert!(decompress(Compression::Lzw, None, [0, 0], &[0xff; 64], &mut out).is_err_and(|e| e.contains("LZW")));
+        assert!(decompress(Compression::Lzw, None, JpegColour::Raw, [0, 0], &[0xff; 64], &mut out)
+            .is_err_and(|e| e.contains("LZW")));
     }
     /// A classic little-endian TIFF of `w x h` grey texels `(3x + 5y) & 255` in uncompressed
     /// `t x t` tiles, its tile index (LONG arrays) placed after the tiles, past the first
