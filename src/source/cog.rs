@@ -44,12 +44,13 @@
 //! level 1 is 50 x 37), so the first overview that does not match, and every one after it, is not used:
 //! the levels from there on are built at open from the last matching image by the same 2 x 2 box
 //! filter `clipprep` uses (`floor((a + b + c + d + 2) / 4)` per component, edges clamped), which
-//! is refused when that image has more than [`MAX_BUILT_TEXELS`] texels. Transparency masks
-//! (NewSubfileType bit 2) and further pages are skipped.
+//! is refused when that image has more than [`MAX_BUILT_TEXELS`] texels. Internal masks
+//! (NewSubfileType bit 2) give a colour image an alpha and a height image its nodata texels
+//! (docs/COG.md, "Masks and nodata"); further pages are skipped.
 //!
 //! Sparse tiles (offset or byte count 0, as GDAL's `SPARSE_OK` writes them) are
 //! [`SourceError::Missing`] when read; a level built at open reads them as zeros (GDAL's value
-//! for them). Not yet: 16-bit and float samples, JPEG, GDAL_NODATA and masks.
+//! for them), or as nodata heights.
 //!
 //! The levels past the overviews are built at open for a local file, and when one is first read
 //! for a remote object (its open stays one request).
@@ -276,6 +277,10 @@ pub struct CogInfo {
     /// Where a colour image's alpha comes from, when it is served with one added (its mask, its
     /// GDAL_NODATA; docs/COG.md, "Masks and nodata"); `null` otherwise.
     pub alpha: Option<String>,
+    /// A height image's nodata value and where its nodata texels come from (its GDAL_NODATA,
+    /// its internal mask; docs/COG.md, "Masks and nodata"); `null` for colours and for heights
+    /// without nodata.
+    pub nodata: Option<String>,
 }
 
 /// One level of a [`CogInfo`].
@@ -336,6 +341,9 @@ impl CogInfo {
         }
         if let Some(alpha) = &self.alpha {
             let _ = writeln!(out, "alpha: {alpha}");
+        }
+        if let Some(nodata) = &self.nodata {
+            let _ = writeln!(out, "nodata: {nodata}");
         }
         out
     }
@@ -481,7 +489,8 @@ struct IfdLevel {
     spp: usize,
     offsets: Array,
     counts: Array,
-    /// The image's internal mask (a colour image's; docs/COG.md, "Masks and nodata").
+    /// The image's internal mask (docs/COG.md, "Masks and nodata"): a colour image's alpha, a
+    /// height image's nodata texels.
     mask: Option<Arc<MaskLevel>>,
 }
 
@@ -786,7 +795,8 @@ pub struct CogSource {
     /// The levels built from the last usable image, once built.
     built: Mutex<Option<Arc<Vec<Vec<u8>>>>>,
     /// Whether the texels are heights (16-bit signed or 32-bit float samples), with the nodata
-    /// value of the GDAL_NODATA tag.
+    /// value of the GDAL_NODATA tag (or, for an image with an internal mask and none, the one
+    /// [`heights_of`] chooses), served where the mask is 0.
     heights: Option<crate::plan::HeightPlan>,
     /// The tiles announced to be read, and the merged requests that read several at once
     /// (remote objects).
@@ -794,6 +804,8 @@ pub struct CogSource {
     /// A colour image with a mask or GDAL_NODATA: its texels get an alpha (`None`: texels are
     /// the stored samples).
     alpha: Option<AlphaRule>,
+    /// A height image's nodata value and where its nodata texels come from, for `cliptex info`.
+    height_nodata: Option<String>,
 }
 
 impl std::fmt::Debug for CogSource {
@@ -929,7 +941,26 @@ impl CogSource {
         };
         let (desc, levels, origins, built_because) = parts;
         let stored = desc.format();
-        let heights = heights_of(&path, stored, nodata.as_deref())?;
+        let masked = matches!(levels.first(), Some(Level::Ifd(l)) if l.mask.is_some());
+        let heights = heights_of(&path, stored, nodata.as_deref(), masked)?;
+        let height_nodata = heights.and_then(|p| p.format.nodata()).map(|v| {
+            // -3.4028234663852886e38 rather than its 39 digits.
+            let v = if v.abs() >= 1e16 { format!("{v:e}") } else { v.to_string() };
+            let tagged = nodata.as_deref().is_some_and(|t| t.parse::<f64>().is_ok_and(|x| !x.is_nan()));
+            match (&levels[0], tagged) {
+                (Level::Ifd(IfdLevel { mask: Some(m), .. }), true) => format!(
+                    "{v} (GDAL_NODATA), also where the internal mask is 0 (IFD {} for level 0)",
+                    m.lv.ifd
+                ),
+                (Level::Ifd(IfdLevel { mask: Some(m), .. }), false) => format!(
+                    "{v} where the internal mask is 0 (IFD {} for level 0; the {} value of the samples, chosen because the file has no GDAL_NODATA value{})",
+                    m.lv.ifd,
+                    if stored == TexelFormat::L32F { "least finite" } else { "least" },
+                    if nodata.is_some() { " other than nan" } else { "" }
+                ),
+                _ => format!("{v} (GDAL_NODATA)"),
+            }
+        });
         let alpha = alpha_of(&path, stored, nodata.as_deref(), &levels)?;
         let desc = match alpha {
             Some(_) => {
@@ -953,6 +984,7 @@ impl CogSource {
             heights,
             ahead: ReadAhead::default(),
             alpha,
+            height_nodata,
         })
     }
 
@@ -992,6 +1024,7 @@ impl CogSource {
                 }
                 format!("0 where {}, else full; colour samples as stored", zero.join(" or "))
             }),
+            nodata: self.height_nodata.clone(),
         }
     }
 
@@ -1007,37 +1040,35 @@ impl CogSource {
         let (format, mut level0) = image_level(path, head, layout, full)?;
         let size = level0.size;
         let n = level_count(size);
-        // A colour image's masks: one of the full-resolution image (NewSubfileType 4), then one
-        // for each overview (5), in the overviews' order. A height image's are not used.
-        let colour = !matches!(format, TexelFormat::L16I | TexelFormat::L32F);
+        // The masks: one of the full-resolution image (NewSubfileType 4), then one for each
+        // overview (5), in the overviews' order (a colour image's become its alpha, a height
+        // image's its nodata texels).
         let full_masks: Vec<&Image> = images.iter().skip(1).filter(|i| i.subfile & 5 == 4).collect();
         let mut overview_masks = images.iter().skip(1).filter(|i| i.subfile & 5 == 5);
-        if colour {
-            let order = |ifd: usize, found: String, expected: &str| CogError::Mask {
-                path: path.to_path_buf(),
-                ifd,
-                image: None,
-                tag: "NewSubfileType (254)",
-                found,
-                expected: expected.into(),
-            };
-            if let Some(second) = full_masks.get(1) {
-                return Err(order(
-                    second.ifd,
-                    format!("4 (a mask of the full-resolution image) after IFD {}'s", full_masks[0].ifd),
-                    "one mask of the full-resolution image",
-                ));
-            }
-            match full_masks.first() {
-                Some(m) => level0.mask = Some(mask_level(path, head, layout, m, &level0)?),
-                None => {
-                    if let Some(m) = images.iter().skip(1).find(|i| i.subfile & 5 == 5) {
-                        return Err(order(
-                            m.ifd,
-                            format!("{} (an overview's mask) where the full-resolution image has no mask", m.subfile),
-                            "an overview's mask (5) only beside a mask of the full-resolution image (4)",
-                        ));
-                    }
+        let order = |ifd: usize, found: String, expected: &str| CogError::Mask {
+            path: path.to_path_buf(),
+            ifd,
+            image: None,
+            tag: "NewSubfileType (254)",
+            found,
+            expected: expected.into(),
+        };
+        if let Some(second) = full_masks.get(1) {
+            return Err(order(
+                second.ifd,
+                format!("4 (a mask of the full-resolution image) after IFD {}'s", full_masks[0].ifd),
+                "one mask of the full-resolution image",
+            ));
+        }
+        match full_masks.first() {
+            Some(m) => level0.mask = Some(mask_level(path, head, layout, m, &level0)?),
+            None => {
+                if let Some(m) = images.iter().skip(1).find(|i| i.subfile & 5 == 5) {
+                    return Err(order(
+                        m.ifd,
+                        format!("{} (an overview's mask) where the full-resolution image has no mask", m.subfile),
+                        "an overview's mask (5) only beside a mask of the full-resolution image (4)",
+                    ));
                 }
             }
         }
@@ -1583,7 +1614,20 @@ impl CogSource {
         dst: &mut [u8],
         span: Option<&Span>,
     ) -> Result<(), SourceError> {
-        let Some(rule) = self.alpha else { return self.decode(lv, index, tile, dst, span) };
+        let Some(rule) = self.alpha else {
+            self.decode(lv, index, tile, dst, span)?;
+            if let (Some(m), Some(plan)) = (&lv.mask, &self.heights) {
+                // Heights: nodata where the mask is 0.
+                let mut mask = MASK.with(|c| std::mem::take(&mut *c.borrow_mut()));
+                let result = self.mask_tile(m, index, tile, &mut mask);
+                if result.is_ok() {
+                    mask_heights(plan.format, &mask, dst);
+                }
+                MASK.with(|c| *c.borrow_mut() = mask);
+                result?;
+            }
+            return Ok(());
+        };
         let pixels = (lv.tile[0] * lv.tile[1]) as usize;
         let mut stored = STORED.with(|c| std::mem::take(&mut *c.borrow_mut()));
         let mut mask = MASK.with(|c| std::mem::take(&mut *c.borrow_mut()));
@@ -1848,14 +1892,26 @@ fn raw_bytes(
     Ok(Some(bytes))
 }
 
+/// The nodata value of 16-bit signed heights with an internal mask and no GDAL_NODATA value:
+/// the least value of the samples (GDAL's usual nodata for Int16).
+pub const MASK_NODATA_I16: f64 = -32768.0;
+
+/// The nodata value of 32-bit float heights with an internal mask and no GDAL_NODATA value (or
+/// `nan`, which the heights block cannot name): the least finite 32-bit float,
+/// -3.4028234663852886e38 (GDAL's usual nodata for Float32).
+pub const MASK_NODATA_F32: f64 = f32::MIN as f64;
+
 /// The heights a COG's samples are: 16-bit signed integers (`l16i`, metres, scale 1) and 32-bit
 /// floats (`l32f`) are heights, with the GDAL_NODATA tag's value as nodata (a NaN nodata means
 /// none: the mapping's heights block cannot name NaN, and NaN texels stay NaN); other formats
-/// are colours, whose GDAL_NODATA gives an alpha instead ([`alpha_of`]).
+/// are colours, whose GDAL_NODATA gives an alpha instead ([`alpha_of`]). A height image with an
+/// internal mask (`masked`) and no nodata value gets [`MASK_NODATA_I16`] or [`MASK_NODATA_F32`],
+/// served where the mask is 0.
 fn heights_of(
     path: &Path,
     format: TexelFormat,
     nodata: Option<&str>,
+    masked: bool,
 ) -> Result<Option<crate::plan::HeightPlan>, CogError> {
     use crate::height::{HeightFormat, HeightStorage, LevelRule};
     let storage = match format {
@@ -1879,6 +1935,11 @@ fn heights_of(
             Ok(v) => Some(v),
             Err(_) => return Err(refuse(format!("{text:?}"))),
         },
+    };
+    let value = match (value, masked, storage) {
+        (None, true, HeightStorage::I16) => Some(MASK_NODATA_I16),
+        (None, true, _) => Some(MASK_NODATA_F32),
+        (v, _, _) => v,
     };
     let format =
         HeightFormat::new(storage, 1.0, 0.0, value).map_err(|e| refuse(format!("{} ({e})", nodata.unwrap_or(""))))?;
@@ -2264,6 +2325,17 @@ fn add_alpha(stored: &[u8], spp: usize, n: usize, nodata: Option<u16>, mask: Opt
     }
 }
 
+/// Sets the height texels of a decoded TIFF tile (`dst`, in `format`'s storage) to the
+/// format's nodata value where `mask` (one byte a pixel) is 0.
+fn mask_heights(format: crate::height::HeightFormat, mask: &[u8], dst: &mut [u8]) {
+    let Some(nodata) = format.nodata() else { return };
+    for (texel, &m) in dst.chunks_exact_mut(format.bytes_per_texel()).zip(mask) {
+        if m == 0 {
+            format.write(nodata, texel);
+        }
+    }
+}
+
 /// Unpacks a 1-bit mask tile (`w` pixels a row, rows padded to a byte, the first pixel in the
 /// most significant bit) into one byte a pixel (0 or 255).
 fn unpack_bits(packed: &[u8], w: usize, out: &mut [u8]) {
@@ -2552,6 +2624,38 @@ impl TileSource for CogSource {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_masked_height_image_without_nodata_gets_the_least_value_of_its_samples() {
+        let p = Path::new("dem.tif");
+        let nodata = |format, tag, masked| {
+            heights_of(p, format, tag, masked).unwrap().and_then(|plan: crate::plan::HeightPlan| plan.format.nodata())
+        };
+        assert_eq!(nodata(TexelFormat::L16I, None, true), Some(-32768.0));
+        assert_eq!(nodata(TexelFormat::L32F, None, true), Some(-3.4028234663852886e38));
+        // nan names no value: a mask then takes the chosen one, without a mask there is none.
+        assert_eq!(nodata(TexelFormat::L32F, Some("nan"), true), Some(MASK_NODATA_F32));
+        assert_eq!(nodata(TexelFormat::L32F, Some("nan"), false), None);
+        // GDAL_NODATA, masked or not, is the nodata value.
+        assert_eq!(nodata(TexelFormat::L16I, Some("-9999"), true), Some(-9999.0));
+        assert_eq!(nodata(TexelFormat::L16I, None, false), None);
+        assert!(heights_of(p, TexelFormat::RGB8, None, true).unwrap().is_none());
+    }
+
+    #[test]
+    fn masked_heights_become_nodata_and_the_others_stay() {
+        use crate::height::{HeightFormat, HeightStorage};
+        let i16s = HeightFormat::new(HeightStorage::I16, 1.0, 0.0, Some(-32768.0)).unwrap();
+        let mut texels: Vec<u8> = [5i16, -7, 300, 0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        mask_heights(i16s, &[255, 0, 1, 0], &mut texels);
+        let got: Vec<i16> = texels.chunks_exact(2).map(|b| i16::from_le_bytes([b[0], b[1]])).collect();
+        assert_eq!(got, [5, -32768, 300, -32768]);
+        let f32s = HeightFormat::float(Some(MASK_NODATA_F32)).unwrap();
+        let mut texels: Vec<u8> = [1.5f32, 2.5].iter().flat_map(|v| v.to_le_bytes()).collect();
+        mask_heights(f32s, &[0, 255], &mut texels);
+        let got: Vec<f32> = texels.chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
+        assert_eq!(got, [f32::MIN, 2.5]);
+    }
 
     #[test]
     fn alpha_is_zero_where_the_mask_is_zero_or_every_colour_sample_is_nodata() {
