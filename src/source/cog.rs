@@ -44,12 +44,13 @@
 //! level 1 is 50 x 37), so the first overview that does not match, and every one after it, is not used:
 //! the levels from there on are built at open from the last matching image by the same 2 x 2 box
 //! filter `clipprep` uses (`floor((a + b + c + d + 2) / 4)` per component, edges clamped), which
-//! is refused when that image has more than [`MAX_BUILT_TEXELS`] texels. Transparency masks
-//! (NewSubfileType bit 2) and further pages are skipped.
+//! is refused when that image has more than [`MAX_BUILT_TEXELS`] texels. Internal masks
+//! (NewSubfileType bit 2) give a colour image an alpha and a height image its nodata texels
+//! (docs/COG.md, "Masks and nodata"); further pages are skipped.
 //!
 //! Sparse tiles (offset or byte count 0, as GDAL's `SPARSE_OK` writes them) are
 //! [`SourceError::Missing`] when read; a level built at open reads them as zeros (GDAL's value
-//! for them). Not yet: 16-bit and float samples, JPEG, GDAL_NODATA and masks.
+//! for them), or as nodata heights.
 //!
 //! The levels past the overviews are built at open for a local file, and when one is first read
 //! for a remote object (its open stays one request).
@@ -281,6 +282,10 @@ pub struct CogInfo {
     /// Where a colour image's alpha comes from, when it is served with one added (its mask, its
     /// GDAL_NODATA; docs/COG.md, "Masks and nodata"); `null` otherwise.
     pub alpha: Option<String>,
+    /// A height image's nodata value and where its nodata texels come from (its GDAL_NODATA,
+    /// its internal mask; docs/COG.md, "Masks and nodata"); `null` for colours and for heights
+    /// without nodata.
+    pub nodata: Option<String>,
 }
 
 /// One level of a [`CogInfo`].
@@ -341,6 +346,9 @@ impl CogInfo {
         }
         if let Some(alpha) = &self.alpha {
             let _ = writeln!(out, "alpha: {alpha}");
+        }
+        if let Some(nodata) = &self.nodata {
+            let _ = writeln!(out, "nodata: {nodata}");
         }
         out
     }
@@ -479,12 +487,15 @@ struct IfdLevel {
     predictor: u16,
     /// JPEGTables (347): the quantisation and Huffman tables the tiles' JPEG streams leave out.
     jpeg_tables: Option<Arc<[u8]>>,
+    /// How a JPEG tile's components become samples (JPEG only; `JpegColour::Raw` otherwise).
+    jpeg_colour: JpegColour,
     samples: Samples,
     /// Samples a pixel.
     spp: usize,
     offsets: Array,
     counts: Array,
-    /// The image's internal mask (a colour image's; docs/COG.md, "Masks and nodata").
+    /// The image's internal mask (docs/COG.md, "Masks and nodata"): a colour image's alpha, a
+    /// height image's nodata texels.
     mask: Option<Arc<MaskLevel>>,
 }
 
@@ -498,6 +509,17 @@ impl IfdLevel {
     fn pixel_bytes(&self) -> usize {
         self.spp * self.samples.bytes()
     }
+}
+
+/// How the components of an image's JPEG streams become its samples, as libtiff decodes them
+/// for GDAL: YCbCr (PhotometricInterpretation 6) converted to RGB, anything else (grey,
+/// PhotometricInterpretation 2 with 3 or 4 samples) taken as stored, without a colour transform.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum JpegColour {
+    /// The components are the samples (grey, RGB, RGBA).
+    Raw,
+    /// Three YCbCr components, converted to RGB.
+    YCbCr,
 }
 
 /// An internal mask: an IFD of one 1- or 8-bit sample (NewSubfileType 4, or 5 for an
@@ -778,7 +800,8 @@ pub struct CogSource {
     /// The levels built from the last usable image, once built.
     built: Mutex<Option<Arc<Vec<Vec<u8>>>>>,
     /// Whether the texels are heights (16-bit signed or 32-bit float samples), with the nodata
-    /// value of the GDAL_NODATA tag.
+    /// value of the GDAL_NODATA tag (or, for an image with an internal mask and none, the one
+    /// [`heights_of`] chooses), served where the mask is 0.
     heights: Option<crate::plan::HeightPlan>,
     /// The tiles announced to be read, and the merged requests that read several at once
     /// (remote objects).
@@ -786,6 +809,8 @@ pub struct CogSource {
     /// A colour image with a mask or GDAL_NODATA: its texels get an alpha (`None`: texels are
     /// the stored samples).
     alpha: Option<AlphaRule>,
+    /// A height image's nodata value and where its nodata texels come from, for `cliptex info`.
+    height_nodata: Option<String>,
 }
 
 impl std::fmt::Debug for CogSource {
@@ -937,7 +962,26 @@ impl CogSource {
         };
         let (desc, levels, origins, built_because) = parts;
         let stored = desc.format();
-        let heights = heights_of(&path, stored, nodata.as_deref())?;
+        let masked = matches!(levels.first(), Some(Level::Ifd(l)) if l.mask.is_some());
+        let heights = heights_of(&path, stored, nodata.as_deref(), masked)?;
+        let height_nodata = heights.and_then(|p| p.format.nodata()).map(|v| {
+            // -3.4028234663852886e38 rather than its 39 digits.
+            let v = if v.abs() >= 1e16 { format!("{v:e}") } else { v.to_string() };
+            let tagged = nodata.as_deref().is_some_and(|t| t.parse::<f64>().is_ok_and(|x| !x.is_nan()));
+            match (&levels[0], tagged) {
+                (Level::Ifd(IfdLevel { mask: Some(m), .. }), true) => format!(
+                    "{v} (GDAL_NODATA), also where the internal mask is 0 (IFD {} for level 0)",
+                    m.lv.ifd
+                ),
+                (Level::Ifd(IfdLevel { mask: Some(m), .. }), false) => format!(
+                    "{v} where the internal mask is 0 (IFD {} for level 0; the {} value of the samples, chosen because the file has no GDAL_NODATA value{})",
+                    m.lv.ifd,
+                    if stored == TexelFormat::L32F { "least finite" } else { "least" },
+                    if nodata.is_some() { " other than nan" } else { "" }
+                ),
+                _ => format!("{v} (GDAL_NODATA)"),
+            }
+        });
         let alpha = alpha_of(&path, stored, nodata.as_deref(), &levels)?;
         let desc = match alpha {
             Some(_) => {
@@ -961,6 +1005,7 @@ impl CogSource {
             heights,
             ahead: ReadAhead::default(),
             alpha,
+            height_nodata,
         })
     }
 
@@ -1011,6 +1056,7 @@ impl CogSource {
                 }
                 format!("0 where {}, else full; colour samples as stored", zero.join(" or "))
             }),
+            nodata: self.height_nodata.clone(),
         }
     }
 
@@ -1026,37 +1072,35 @@ impl CogSource {
         let (format, mut level0) = image_level(path, head, layout, full)?;
         let size = level0.size;
         let n = level_count(size);
-        // A colour image's masks: one of the full-resolution image (NewSubfileType 4), then one
-        // for each overview (5), in the overviews' order. A height image's are not used.
-        let colour = !matches!(format, TexelFormat::L16I | TexelFormat::L32F);
+        // The masks: one of the full-resolution image (NewSubfileType 4), then one for each
+        // overview (5), in the overviews' order (a colour image's become its alpha, a height
+        // image's its nodata texels).
         let full_masks: Vec<&Image> = images.iter().skip(1).filter(|i| i.subfile & 5 == 4).collect();
         let mut overview_masks = images.iter().skip(1).filter(|i| i.subfile & 5 == 5);
-        if colour {
-            let order = |ifd: usize, found: String, expected: &str| CogError::Mask {
-                path: path.to_path_buf(),
-                ifd,
-                image: None,
-                tag: "NewSubfileType (254)",
-                found,
-                expected: expected.into(),
-            };
-            if let Some(second) = full_masks.get(1) {
-                return Err(order(
-                    second.ifd,
-                    format!("4 (a mask of the full-resolution image) after IFD {}'s", full_masks[0].ifd),
-                    "one mask of the full-resolution image",
-                ));
-            }
-            match full_masks.first() {
-                Some(m) => level0.mask = Some(mask_level(path, head, layout, m, &level0)?),
-                None => {
-                    if let Some(m) = images.iter().skip(1).find(|i| i.subfile & 5 == 5) {
-                        return Err(order(
-                            m.ifd,
-                            format!("{} (an overview's mask) where the full-resolution image has no mask", m.subfile),
-                            "an overview's mask (5) only beside a mask of the full-resolution image (4)",
-                        ));
-                    }
+        let order = |ifd: usize, found: String, expected: &str| CogError::Mask {
+            path: path.to_path_buf(),
+            ifd,
+            image: None,
+            tag: "NewSubfileType (254)",
+            found,
+            expected: expected.into(),
+        };
+        if let Some(second) = full_masks.get(1) {
+            return Err(order(
+                second.ifd,
+                format!("4 (a mask of the full-resolution image) after IFD {}'s", full_masks[0].ifd),
+                "one mask of the full-resolution image",
+            ));
+        }
+        match full_masks.first() {
+            Some(m) => level0.mask = Some(mask_level(path, head, layout, m, &level0)?),
+            None => {
+                if let Some(m) = images.iter().skip(1).find(|i| i.subfile & 5 == 5) {
+                    return Err(order(
+                        m.ifd,
+                        format!("{} (an overview's mask) where the full-resolution image has no mask", m.subfile),
+                        "an overview's mask (5) only beside a mask of the full-resolution image (4)",
+                    ));
                 }
             }
         }
@@ -1576,7 +1620,7 @@ impl CogSource {
                     dst.copy_from_slice(&data[..dst.len()]);
                     return Ok(());
                 }
-                let got = decompress(lv.compression, lv.jpeg_tables.as_deref(), lv.tile, data, dst)
+                let got = decompress(lv.compression, lv.jpeg_tables.as_deref(), lv.jpeg_colour, lv.tile, data, dst)
                     .map_err(|p| bad(format!("IFD {} tile {index} ({count} bytes at byte {offset}): {p}", lv.ifd)))?;
                 if got != dst.len() {
                     return Err(bad(format!(
@@ -1602,7 +1646,20 @@ impl CogSource {
         dst: &mut [u8],
         span: Option<&Span>,
     ) -> Result<(), SourceError> {
-        let Some(rule) = self.alpha else { return self.decode(lv, index, tile, dst, span) };
+        let Some(rule) = self.alpha else {
+            self.decode(lv, index, tile, dst, span)?;
+            if let (Some(m), Some(plan)) = (&lv.mask, &self.heights) {
+                // Heights: nodata where the mask is 0.
+                let mut mask = MASK.with(|c| std::mem::take(&mut *c.borrow_mut()));
+                let result = self.mask_tile(m, index, tile, &mut mask);
+                if result.is_ok() {
+                    mask_heights(plan.format, &mask, dst);
+                }
+                MASK.with(|c| *c.borrow_mut() = mask);
+                result?;
+            }
+            return Ok(());
+        };
         let pixels = (lv.tile[0] * lv.tile[1]) as usize;
         let mut stored = STORED.with(|c| std::mem::take(&mut *c.borrow_mut()));
         let mut mask = MASK.with(|c| std::mem::take(&mut *c.borrow_mut()));
@@ -1867,14 +1924,26 @@ fn raw_bytes(
     Ok(Some(bytes))
 }
 
+/// The nodata value of 16-bit signed heights with an internal mask and no GDAL_NODATA value:
+/// the least value of the samples (GDAL's usual nodata for Int16).
+pub const MASK_NODATA_I16: f64 = -32768.0;
+
+/// The nodata value of 32-bit float heights with an internal mask and no GDAL_NODATA value (or
+/// `nan`, which the heights block cannot name): the least finite 32-bit float,
+/// -3.4028234663852886e38 (GDAL's usual nodata for Float32).
+pub const MASK_NODATA_F32: f64 = f32::MIN as f64;
+
 /// The heights a COG's samples are: 16-bit signed integers (`l16i`, metres, scale 1) and 32-bit
 /// floats (`l32f`) are heights, with the GDAL_NODATA tag's value as nodata (a NaN nodata means
 /// none: the mapping's heights block cannot name NaN, and NaN texels stay NaN); other formats
-/// are colours, whose GDAL_NODATA gives an alpha instead ([`alpha_of`]).
+/// are colours, whose GDAL_NODATA gives an alpha instead ([`alpha_of`]). A height image with an
+/// internal mask (`masked`) and no nodata value gets [`MASK_NODATA_I16`] or [`MASK_NODATA_F32`],
+/// served where the mask is 0.
 fn heights_of(
     path: &Path,
     format: TexelFormat,
     nodata: Option<&str>,
+    masked: bool,
 ) -> Result<Option<crate::plan::HeightPlan>, CogError> {
     use crate::height::{HeightFormat, HeightStorage, LevelRule};
     let storage = match format {
@@ -1898,6 +1967,11 @@ fn heights_of(
             Ok(v) => Some(v),
             Err(_) => return Err(refuse(format!("{text:?}"))),
         },
+    };
+    let value = match (value, masked, storage) {
+        (None, true, HeightStorage::I16) => Some(MASK_NODATA_I16),
+        (None, true, _) => Some(MASK_NODATA_F32),
+        (v, _, _) => v,
     };
     let format =
         HeightFormat::new(storage, 1.0, 0.0, value).map_err(|e| refuse(format!("{} ({e})", nodata.unwrap_or(""))))?;
@@ -2036,8 +2110,8 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
     let jpeg = compression == Compression::Jpeg;
     let ok_photometric = match (spp, jpeg) {
         (1, _) => photometric.unwrap_or(1) == 1,
-        (3, true) => photometric == Some(6),
-        (_, true) => false,
+        (3, true) => matches!(photometric, Some(2 | 6)),
+        (_, true) => photometric == Some(2),
         _ => photometric == Some(2),
     };
     if !ok_photometric {
@@ -2049,7 +2123,7 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
                 if jpeg { format!(" with {spp} JPEG-compressed samples") } else { String::new() }
             ),
             if jpeg {
-                "1 (grey) with 1 sample, 6 (YCbCr: gdal_translate -of COG -co COMPRESS=JPEG, or -co PHOTOMETRIC=YCBCR) with 3"
+                "1 (grey) with 1 sample; 6 (YCbCr: gdal_translate -of COG -co COMPRESS=JPEG, or -co PHOTOMETRIC=YCBCR) with 3; 2 (RGB, no colour transform: gdal_translate -of GTiff -co TILED=YES -co COMPRESS=JPEG -co PHOTOMETRIC=RGB) with 3, or with 4 (RGBA: what the GTiff driver writes for 4 bands)"
             } else {
                 "1 (grey, zero is black) with 1 sample, 2 (RGB) with 3 or 4"
             },
@@ -2100,6 +2174,7 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
         compression,
         predictor,
         jpeg_tables,
+        jpeg_colour: if jpeg && photometric == Some(6) { JpegColour::YCbCr } else { JpegColour::Raw },
         samples,
         spp: spp as usize,
         offsets,
@@ -2207,6 +2282,7 @@ fn mask_level(
         compression,
         predictor: predictor as u16,
         jpeg_tables: None,
+        jpeg_colour: JpegColour::Raw,
         samples: Samples::U8,
         spp: 1,
         offsets,
@@ -2281,6 +2357,17 @@ fn add_alpha(stored: &[u8], spp: usize, n: usize, nodata: Option<u16>, mask: Opt
     }
 }
 
+/// Sets the height texels of a decoded TIFF tile (`dst`, in `format`'s storage) to the
+/// format's nodata value where `mask` (one byte a pixel) is 0.
+fn mask_heights(format: crate::height::HeightFormat, mask: &[u8], dst: &mut [u8]) {
+    let Some(nodata) = format.nodata() else { return };
+    for (texel, &m) in dst.chunks_exact_mut(format.bytes_per_texel()).zip(mask) {
+        if m == 0 {
+            format.write(nodata, texel);
+        }
+    }
+}
+
 /// Unpacks a 1-bit mask tile (`w` pixels a row, rows padded to a byte, the first pixel in the
 /// most significant bit) into one byte a pixel (0 or 255).
 fn unpack_bits(packed: &[u8], w: usize, out: &mut [u8]) {
@@ -2347,16 +2434,18 @@ fn finish_samples(lv: &IfdLevel, little: bool, dst: &mut [u8]) {
 }
 
 /// Decompresses `packed` into `out`; returns the bytes written (at most `out.len()`).
-/// A JPEG tile takes its IFD's tables and its size in texels (`tile`).
+/// A JPEG tile takes its IFD's tables, how its components become samples and its size in
+/// texels (`tile`).
 fn decompress(
     c: Compression,
     tables: Option<&[u8]>,
+    colour: JpegColour,
     tile: [u64; 2],
     packed: &[u8],
     out: &mut [u8],
 ) -> Result<usize, String> {
     match c {
-        Compression::Jpeg => jpeg_tile(tables, tile, packed, out),
+        Compression::Jpeg => jpeg_tile(tables, colour, tile, packed, out),
         Compression::None => {
             let n = packed.len().min(out.len());
             out[..n].copy_from_slice(&packed[..n]);
@@ -2379,10 +2468,19 @@ fn decompress(
     }
 }
 
-/// Decodes one JPEG-compressed tile of `tile` texels into `out` (grey, or RGB from YCbCr): the
-/// IFD's tables (without their end marker) then the tile's stream (without its start marker),
-/// as libtiff splices them. Returns the bytes written.
-fn jpeg_tile(tables: Option<&[u8]>, tile: [u64; 2], packed: &[u8], out: &mut [u8]) -> Result<usize, String> {
+/// Decodes one JPEG-compressed tile of `tile` texels into `out`: the IFD's tables (without their
+/// end marker) then the tile's stream (without its start marker), as libtiff splices them.
+/// `JpegColour::YCbCr` converts three YCbCr components to RGB; `JpegColour::Raw` takes the
+/// components as they are (grey; RGB or RGBA with PhotometricInterpretation 2), whatever colour
+/// space the stream's markers suggest (libtiff decodes such streams with libjpeg's colour space
+/// `JCS_UNKNOWN`: no transform). Returns the bytes written.
+fn jpeg_tile(
+    tables: Option<&[u8]>,
+    colour: JpegColour,
+    tile: [u64; 2],
+    packed: &[u8],
+    out: &mut [u8],
+) -> Result<usize, String> {
     use zune_jpeg::zune_core::{bytestream::ZCursor, colorspace::ColorSpace, options::DecoderOptions};
     const SOI: [u8; 2] = [0xFF, 0xD8];
     const EOI: [u8; 2] = [0xFF, 0xD9];
@@ -2407,7 +2505,9 @@ fn jpeg_tile(tables: Option<&[u8]>, tile: [u64; 2], packed: &[u8], out: &mut [u8
         }
         None => std::borrow::Cow::Borrowed(packed),
     };
-    let components = out.len() as u64 / (tile[0] * tile[1]).max(1);
+    let components = (out.len() as u64 / (tile[0] * tile[1]).max(1)) as usize;
+    // RGB from YCbCr; for raw components, replaced by the stream's own colour space once its
+    // headers are read.
     let space = if components == 1 { ColorSpace::Luma } else { ColorSpace::RGB };
     let options = DecoderOptions::default()
         .jpeg_set_out_colorspace(space)
@@ -2418,6 +2518,24 @@ fn jpeg_tile(tables: Option<&[u8]>, tile: [u64; 2], packed: &[u8], out: &mut [u8
     let (w, h) = decoder.dimensions().unwrap_or((0, 0));
     if [w as u64, h as u64] != tile {
         return Err(format!("its JPEG stream is {w} x {h} pixels, expected the tile's {} x {}", tile[0], tile[1]));
+    }
+    let found = decoder.info().map_or(0, |i| i.components as usize);
+    if found != components {
+        return Err(format!(
+            "its JPEG stream has {found} components, expected {components} (the IFD's SamplesPerPixel)"
+        ));
+    }
+    if colour == JpegColour::Raw && components > 1 {
+        // The decoder names the stream's colour space from its markers (an Adobe APP14 marker,
+        // component ids 'R' 'G' 'B', else YCbCr or CMYK); asking for that same space as output
+        // copies the components as decoded, with no colour transform.
+        let input = decoder.input_colorspace().unwrap_or(ColorSpace::Unknown);
+        if input.num_components() != components {
+            return Err(format!(
+                "its JPEG stream's {components} components are read as {input:?}, expected {components} components taken as stored"
+            ));
+        }
+        decoder.set_options(decoder.options().jpeg_set_out_colorspace(input));
     }
     let need = decoder.output_buffer_size().unwrap_or(0);
     if need != out.len() {
@@ -2540,6 +2658,38 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_masked_height_image_without_nodata_gets_the_least_value_of_its_samples() {
+        let p = Path::new("dem.tif");
+        let nodata = |format, tag, masked| {
+            heights_of(p, format, tag, masked).unwrap().and_then(|plan: crate::plan::HeightPlan| plan.format.nodata())
+        };
+        assert_eq!(nodata(TexelFormat::L16I, None, true), Some(-32768.0));
+        assert_eq!(nodata(TexelFormat::L32F, None, true), Some(-3.4028234663852886e38));
+        // nan names no value: a mask then takes the chosen one, without a mask there is none.
+        assert_eq!(nodata(TexelFormat::L32F, Some("nan"), true), Some(MASK_NODATA_F32));
+        assert_eq!(nodata(TexelFormat::L32F, Some("nan"), false), None);
+        // GDAL_NODATA, masked or not, is the nodata value.
+        assert_eq!(nodata(TexelFormat::L16I, Some("-9999"), true), Some(-9999.0));
+        assert_eq!(nodata(TexelFormat::L16I, None, false), None);
+        assert!(heights_of(p, TexelFormat::RGB8, None, true).unwrap().is_none());
+    }
+
+    #[test]
+    fn masked_heights_become_nodata_and_the_others_stay() {
+        use crate::height::{HeightFormat, HeightStorage};
+        let i16s = HeightFormat::new(HeightStorage::I16, 1.0, 0.0, Some(-32768.0)).unwrap();
+        let mut texels: Vec<u8> = [5i16, -7, 300, 0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        mask_heights(i16s, &[255, 0, 1, 0], &mut texels);
+        let got: Vec<i16> = texels.chunks_exact(2).map(|b| i16::from_le_bytes([b[0], b[1]])).collect();
+        assert_eq!(got, [5, -32768, 300, -32768]);
+        let f32s = HeightFormat::float(Some(MASK_NODATA_F32)).unwrap();
+        let mut texels: Vec<u8> = [1.5f32, 2.5].iter().flat_map(|v| v.to_le_bytes()).collect();
+        mask_heights(f32s, &[0, 255], &mut texels);
+        let got: Vec<f32> = texels.chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
+        assert_eq!(got, [f32::MIN, 2.5]);
+    }
+
+    #[test]
     fn alpha_is_zero_where_the_mask_is_zero_or_every_colour_sample_is_nodata() {
         // RGB 8-bit: nodata 7 needs all three samples; the mask's 0 clears any pixel.
         let rgb = [7, 7, 7, 7, 7, 8, 1, 2, 3, 9, 9, 9];
@@ -2583,9 +2733,10 @@ mod tests {
         let data: Vec<u8> = (0..5000u32).map(|i| (i * 7 % 251) as u8).collect();
         let packed = weezl::encode::Encoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8).encode(&data).unwrap();
         let mut out = vec![0u8; data.len()];
-        assert_eq!(decompress(Compression::Lzw, None, [0, 0], &packed, &mut out), Ok(data.len()));
+        assert_eq!(decompress(Compression::Lzw, None, JpegColour::Raw, [0, 0], &packed, &mut out), Ok(data.len()));
         assert_eq!(out, data);
-        assert!(decompress(Compression::Lzw, None, [0, 0], &[0xff; 64], &mut out).is_err_and(|e| e.contains("LZW")));
+        assert!(decompress(Compression::Lzw, None, JpegColour::Raw, [0, 0], &[0xff; 64], &mut out)
+            .is_err_and(|e| e.contains("LZW")));
     }
     /// A classic little-endian TIFF of `w x h` grey texels `(3x + 5y) & 255` in uncompressed
     /// `t x t` tiles, its tile index (LONG arrays) placed after the tiles, past the first

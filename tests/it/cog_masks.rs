@@ -330,3 +330,254 @@ fn ifd_offsets(b: &[u8]) -> Vec<usize> {
     }
     out
 }
+
+/// The Python side of the height tests: `NAME KIND W H NODATA OPTIONS...` writes `NAME.tif`
+/// (GDAL's COG driver), one band of 16-bit signed (`i16`) or 32-bit float (`f32`) heights from
+/// the formula, with the nodata value (`-`: none) and a per-dataset mask band from the mask
+/// formula, then each IFD's band (`NAME.N.raw`, little-endian, rows top-down) and GDAL's read of
+/// its mask band (`NAME.N.mask`), printing each IFD's size.
+const WRITE_HEIGHTS: &str = r#"
+import struct, sys
+from osgeo import gdal
+gdal.UseExceptions()
+name, kind, w, h, nodata = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
+opts = sys.argv[6:]
+code = {"i16": "h", "f32": "f"}[kind]
+gtype = {"i16": gdal.GDT_Int16, "f32": gdal.GDT_Float32}[kind]
+def value(x, y):
+    if nodata != "-" and (x * 7 + y * 3) % 16 == 0:
+        return int(nodata) if kind == "i16" else float(nodata)
+    if kind == "i16":
+        return (x * 97 + y * 61) % 60001 - 30000
+    return -11000 + ((x * 7919 + y * 104729) % (19900 * 1024)) / 1024.0
+def masked(x, y):
+    return 0 if (x // 5 + y // 3) % 4 == 0 or (x - 40) ** 2 + (y - 30) ** 2 < 200 else 255
+mem = gdal.GetDriverByName("MEM").Create("", w, h, 1, gtype)
+band = mem.GetRasterBand(1)
+band.WriteRaster(0, 0, w, h, struct.pack("<%d%s" % (w * h, code), *[value(x, y) for y in range(h) for x in range(w)]))
+if nodata != "-":
+    band.SetNoDataValue(float(nodata))
+mem.CreateMaskBand(gdal.GMF_PER_DATASET)
+band.GetMaskBand().WriteRaster(0, 0, w, h, bytes(masked(x, y) for y in range(h) for x in range(w)))
+gdal.Translate(name + ".tif", mem, format="COG", creationOptions=opts)
+ds = gdal.Open(name + ".tif")
+for i in range(1 + ds.GetRasterBand(1).GetOverviewCount()):
+    b = ds.GetRasterBand(1) if i == 0 else ds.GetRasterBand(1).GetOverview(i - 1)
+    raw = b.ReadRaster(0, 0, b.XSize, b.YSize)
+    open("%s.%d.raw" % (name, i), "wb").write(struct.pack("<%d%s" % (b.XSize * b.YSize, code), *struct.unpack("=%d%s" % (b.XSize * b.YSize, code), raw)))
+    open("%s.%d.mask" % (name, i), "wb").write(b.GetMaskBand().ReadRaster(0, 0, b.XSize, b.YSize))
+    print(b.XSize, b.YSize)
+"#;
+
+/// A height COG with an internal mask.
+struct HeightCase {
+    name: &'static str,
+    kind: &'static str,
+    size: [u64; 2],
+    /// GDAL_NODATA, as written (`None`: none).
+    nodata: Option<&'static str>,
+    options: &'static [&'static str],
+    /// The nodata value served.
+    served_nodata: f64,
+}
+
+const HEIGHT_CASES: [HeightCase; 3] = [
+    // 16-bit signed, no GDAL_NODATA: the mask's texels are -32768; GDAL's overviews and masks.
+    HeightCase {
+        name: "dem_i16_mask",
+        kind: "i16",
+        size: [300, 200],
+        nodata: None,
+        options: &["COMPRESS=LZW", "PREDICTOR=YES", "BLOCKSIZE=64", "OVERVIEWS=AUTO", "RESAMPLING=AVERAGE"],
+        served_nodata: -32768.0,
+    },
+    // 32-bit float with GDAL_NODATA: nodata where the mask is 0 as well as where the samples are
+    // -9999.
+    HeightCase {
+        name: "dem_f32_mask_nodata",
+        kind: "f32",
+        size: [300, 200],
+        nodata: Some("-9999"),
+        options: &["COMPRESS=DEFLATE", "PREDICTOR=FLOATING_POINT", "BLOCKSIZE=128", "OVERVIEWS=AUTO"],
+        served_nodata: -9999.0,
+    },
+    // 32-bit float, no GDAL_NODATA, no overviews: the least finite float where the mask is 0,
+    // every coarser level built by the `mean` rule with those texels left out.
+    HeightCase {
+        name: "dem_f32_mask",
+        kind: "f32",
+        size: [200, 150],
+        nodata: None,
+        options: &["COMPRESS=ZSTD", "BLOCKSIZE=64", "OVERVIEWS=NONE"],
+        served_nodata: f32::MIN as f64,
+    },
+];
+
+/// Writes a height case with GDAL in `dir`; returns the size of every IFD GDAL decoded.
+fn write_heights(case: &HeightCase, dir: &Path) -> Vec<[u64; 2]> {
+    let mut args = vec![
+        "-".to_string(),
+        case.name.into(),
+        case.kind.into(),
+        case.size[0].to_string(),
+        case.size[1].to_string(),
+        case.nodata.unwrap_or("-").into(),
+    ];
+    args.extend(case.options.iter().map(|s| s.to_string()));
+    crate::common::gdal::write_with(WRITE_HEIGHTS, &args, dir, case.name)
+}
+
+/// A height as stored (little-endian `i16` or `f32`).
+fn height_bytes(kind: &str, v: f64) -> Vec<u8> {
+    match kind {
+        "i16" => (v as i16).to_le_bytes().to_vec(),
+        _ => (v as f32).to_le_bytes().to_vec(),
+    }
+}
+
+/// Level 0 of a height case by the definition: the height written, or the nodata served where
+/// the mask is 0 (or the height is GDAL_NODATA); rows in increasing t.
+fn height_level0(case: &HeightCase) -> Vec<u8> {
+    let [w, h] = case.size;
+    let mut out = Vec::new();
+    for t in 0..h {
+        let y = h - 1 - t;
+        for x in 0..w {
+            let written = match (case.nodata, case.kind) {
+                (Some(v), _) if (x * 7 + y * 3).is_multiple_of(16) => v.parse().unwrap(),
+                (_, "i16") => ((x * 97 + y * 61) % 60001) as f64 - 30000.0,
+                _ => -11000.0 + ((x * 7919 + y * 104729) % (19900 * 1024)) as f64 / 1024.0,
+            };
+            out.extend(height_bytes(case.kind, if masked(x, y) { case.served_nodata } else { written }));
+        }
+    }
+    out
+}
+
+/// IFD `i` of a height case as GDAL reads it: its band, nodata where GDAL's read of its mask
+/// band is 0; rows in increasing t.
+fn gdal_heights(dir: &Path, case: &HeightCase, i: usize, [w, h]: [u64; 2]) -> Vec<u8> {
+    let n = if case.kind == "i16" { 2 } else { 4 };
+    let raw = std::fs::read(dir.join(format!("{}.{i}.raw", case.name))).unwrap();
+    let mask = std::fs::read(dir.join(format!("{}.{i}.mask", case.name))).unwrap();
+    assert_eq!((raw.len(), mask.len()), ((w * h) as usize * n, (w * h) as usize), "{} IFD {i}", case.name);
+    let nodata = height_bytes(case.kind, case.served_nodata);
+    let mut out = Vec::new();
+    for y in (0..h).rev() {
+        for x in 0..w {
+            let k = (y * w + x) as usize;
+            out.extend_from_slice(if mask[k] == 0 { &nodata } else { &raw[k * n..(k + 1) * n] });
+        }
+    }
+    out
+}
+
+#[test]
+fn height_cogs_with_a_mask_serve_nodata_where_the_mask_is_zero() {
+    use clipmap::height::HeightStorage;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for case in &HEIGHT_CASES {
+        let ifds = write_heights(case, d);
+        let path = d.join(format!("{}.tif", case.name));
+        // GDAL's read of the full-resolution mask is the mask written.
+        let [w, h] = case.size;
+        let mask0 = std::fs::read(d.join(format!("{}.0.mask", case.name))).unwrap();
+        let written: Vec<u8> = (0..h).flat_map(|y| (0..w).map(move |x| if masked(x, y) { 0 } else { 255 })).collect();
+        assert!(mask0 == written, "{}: GDAL's mask band is not the mask written", case.name);
+        for clip in [64, 512] {
+            let ctx = format!("{} (clip {clip})", case.name);
+            let src = CogSource::open(&path, clip).unwrap_or_else(|e| panic!("{ctx}: {e}"));
+            let plan = src.heights().unwrap_or_else(|| panic!("{ctx}: not heights"));
+            let storage = if case.kind == "i16" { HeightStorage::I16 } else { HeightStorage::F32 };
+            assert_eq!((plan.format.storage(), plan.format.nodata()), (storage, Some(case.served_nodata)), "{ctx}");
+            assert!(src.info().alpha.is_none(), "{ctx}");
+            let says = src.info().nodata.unwrap_or_default();
+            assert!(says.contains("where the internal mask is 0 (IFD 1 for level 0"), "{ctx}: {says}");
+            assert_eq!(says.contains("GDAL_NODATA)"), case.nodata.is_some(), "{ctx}: {says}");
+            let bpt = src.desc().bytes_per_texel();
+            let nodata = height_bytes(case.kind, case.served_nodata);
+            let mut want = height_level0(case);
+            // Some texels of each kind, so that the checks below can fail.
+            let holes = want.chunks_exact(bpt).filter(|t| *t == &nodata[..]).count();
+            assert!(holes > 100 && holes < want.len() / bpt / 2, "{ctx}: {holes} texels without data");
+            let mut size = case.size;
+            for k in 0..src.desc().level_count() as u32 {
+                let got = super::cog::level(&src, k).unwrap_or_else(|e| panic!("{ctx}: level {k}: {e}"));
+                if k > 0 {
+                    want = if (k as usize) < ifds.len() {
+                        assert_eq!(ifds[k as usize], src.desc().level(k).size, "{ctx}: overview {k}'s size");
+                        gdal_heights(d, case, k as usize, ifds[k as usize])
+                    } else {
+                        // The `mean` rule, nodata left out.
+                        let f = plan.format;
+                        let stored: Vec<f64> = want.chunks_exact(bpt).map(|b| f.read(b)).collect();
+                        let next = f.reduce_level(plan.levels, &stored, size[0] as usize, size[1] as usize).unwrap();
+                        next.iter().flat_map(|v| height_bytes(case.kind, *v)).collect()
+                    };
+                    size = src.desc().level(k).size;
+                }
+                assert_eq!(got.len(), want.len(), "{ctx}: level {k}");
+                let differ: Vec<usize> = (0..got.len() / bpt)
+                    .filter(|&i| got[i * bpt..(i + 1) * bpt] != want[i * bpt..(i + 1) * bpt])
+                    .collect();
+                assert!(
+                    differ.is_empty(),
+                    "{ctx}: level {k}: {} texels differ, the first {:?}: {:?}, expected {:?}",
+                    differ.len(),
+                    differ.first(),
+                    differ.first().map(|&i| &got[i * bpt..(i + 1) * bpt]),
+                    differ.first().map(|&i| &want[i * bpt..(i + 1) * bpt])
+                );
+            }
+            if case.name == "dem_i16_mask" {
+                assert_eq!(ifds.len(), 4, "{ctx}: GDAL wrote three overviews");
+                assert!(src.info().built_because.is_some_and(|b| b.contains("no smaller overviews")), "{ctx}");
+            }
+        }
+    }
+}
+
+#[test]
+fn clipmapd_serves_a_masked_height_cog_with_the_nodata_in_its_heights_block() {
+    use clipmap::height::HeightStorage;
+    use std::time::{Duration, Instant};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let case = &HEIGHT_CASES[0];
+    write_heights(case, d);
+    let tif = d.join(format!("{}.tif", case.name));
+    let out = Command::new(env!("CARGO_BIN_EXE_cliptex")).arg("info").arg(&tif).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{out:?}");
+    assert!(text.contains("300 x 200 texels, l16i"), "{text}");
+    assert!(text.contains("nodata: -32768 where the internal mask is 0 (IFD 1 for level 0;"), "{text}");
+    let served = crate::common::gdal::Served::start(&tif, 128, "dem_mask", d);
+    let c = &served.client;
+    let log = || served.log();
+    let h = c.heights.unwrap_or_else(|| panic!("not heights\n{}", log()));
+    assert_eq!((h.storage, h.nodata), (HeightStorage::I16, Some(-32768.0)), "{}", log());
+    let t = Instant::now();
+    let [s0, t0, s1, t1] = loop {
+        if let Some(st) = c.level_state(0) {
+            let [s0, t0, s1, t1] = st.valid;
+            if st.enabled && s1 > s0 && t1 > t0 {
+                break st.valid;
+            }
+        }
+        assert!(t.elapsed() < Duration::from_secs(30), "level 0 never became valid\n{}", log());
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    let (w, hh) = ((s1 - s0) as u64, (t1 - t0) as u64);
+    let mut buf = vec![0u8; (w * hh * 2) as usize];
+    c.read_region(0, s0, t0, w, hh, &mut buf).expect("the valid region reads");
+    let want = height_level0(case);
+    let mut holes = 0;
+    for (i, texel) in buf.chunks_exact(2).enumerate() {
+        let (s, t) = (s0 as u64 + i as u64 % w, t0 as u64 + i as u64 / w);
+        let k = (t * case.size[0] + s) as usize * 2;
+        assert_eq!(texel, &want[k..k + 2], "texel ({s}, {t})");
+        holes += (texel == (-32768i16).to_le_bytes()) as usize;
+    }
+    assert!(holes > 0, "no nodata texel in the valid region");
+}

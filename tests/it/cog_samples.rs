@@ -303,85 +303,312 @@ fn clipmapd_serves_a_float_dem_cog_as_heights_texel_for_texel() {
     }
 }
 
-/// The Python side of the JPEG test: a smooth 8-bit image of `bands` bands (grey or RGB) as
-/// `NAME.tif` with the options given, and GDAL's decode of every IFD as `NAME.N.raw`.
+/// The Python side of the JPEG tests: `NAME W H BANDS DRIVER OVERVIEWS OPTIONS...` writes a
+/// smooth 8-bit image of `BANDS` bands (grey, RGB, or RGB and an alpha that is 0 in stripes) as
+/// `NAME.tif` with the driver (`COG`, or `GTiff` then `OVERVIEWS` = `1`: internal overviews of 2
+/// and 4 by `BuildOverviews`) and options given, and GDAL's decode of every IFD as `NAME.N.raw`
+/// (the bands GDAL reads, interleaved) and `NAME.N.mask` (GDAL's read of band 1's mask band).
 const WRITE_JPEG: &str = r#"
 import math, sys
 from osgeo import gdal
 gdal.UseExceptions()
-name, w, h, bands = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+name, w, h, bands, driver, overviews = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), sys.argv[5], sys.argv[6] == "1"
+def value(x, y, b):
+    if b == 3:
+        return 0 if (x // 9 + y // 7) % 3 == 0 else 255
+    return int(127.5 + 120 * math.sin(x / 17.0 + b) * math.cos(y / 23.0 - b))
 mem = gdal.GetDriverByName("MEM").Create("", w, h, bands, gdal.GDT_Byte)
 for b in range(bands):
     band = mem.GetRasterBand(b + 1)
-    band.WriteRaster(0, 0, w, h, bytes(int(127.5 + 120 * math.sin(x / 17.0 + b) * math.cos(y / 23.0 - b)) for y in range(h) for x in range(w)))
-    if bands == 3:
-        band.SetColorInterpretation([gdal.GCI_RedBand, gdal.GCI_GreenBand, gdal.GCI_BlueBand][b])
-gdal.Translate(name + ".tif", mem, format="COG", creationOptions=sys.argv[5:])
+    band.WriteRaster(0, 0, w, h, bytes(value(x, y, b) for y in range(h) for x in range(w)))
+    if bands >= 3:
+        band.SetColorInterpretation([gdal.GCI_RedBand, gdal.GCI_GreenBand, gdal.GCI_BlueBand, gdal.GCI_AlphaBand][b])
+gdal.Translate(name + ".tif", mem, format=driver, creationOptions=sys.argv[7:])
+if overviews:
+    ds = gdal.Open(name + ".tif", gdal.GA_Update)
+    ds.BuildOverviews("AVERAGE", [2, 4])
+    ds = None
 ds = gdal.Open(name + ".tif")
 for i in range(1 + ds.GetRasterBand(1).GetOverviewCount()):
-    o = ds if i == 0 else None
-    bw, bh = (ds.RasterXSize, ds.RasterYSize) if i == 0 else (ds.GetRasterBand(1).GetOverview(i - 1).XSize, ds.GetRasterBand(1).GetOverview(i - 1).YSize)
-    planes = [(ds.GetRasterBand(b + 1) if i == 0 else ds.GetRasterBand(b + 1).GetOverview(i - 1)).ReadRaster(0, 0, bw, bh) for b in range(bands)]
-    out = bytearray(bw * bh * bands)
-    for b, p in enumerate(planes):
-        out[b::bands] = p
+    bands_ = [ds.GetRasterBand(b + 1) if i == 0 else ds.GetRasterBand(b + 1).GetOverview(i - 1) for b in range(ds.RasterCount)]
+    bw, bh = bands_[0].XSize, bands_[0].YSize
+    out = bytearray(bw * bh * len(bands_))
+    for b, band in enumerate(bands_):
+        out[b::len(bands_)] = band.ReadRaster(0, 0, bw, bh)
     open("%s.%d.raw" % (name, i), "wb").write(out)
-    print(bw, bh, ds.GetMetadataItem("COMPRESSION", "IMAGE_STRUCTURE"))
+    open("%s.%d.mask" % (name, i), "wb").write(bands_[0].GetMaskBand().ReadRaster(0, 0, bw, bh))
+    print(bw, bh, ds.RasterCount, ds.GetMetadataItem("COMPRESSION", "IMAGE_STRUCTURE"))
 "#;
 
+/// A JPEG-compressed file of the JPEG tests.
+struct JpegCase {
+    name: &'static str,
+    /// Bands written.
+    bands: usize,
+    driver: &'static str,
+    /// Internal overviews added by `BuildOverviews` (the GTiff driver).
+    overviews: bool,
+    options: &'static [&'static str],
+    /// The TIFF's PhotometricInterpretation (262), as GDAL writes it.
+    photometric: u64,
+    /// Bytes of a texel served.
+    served: usize,
+    /// The served alpha is GDAL's mask band (the COG driver turns an alpha band into a mask).
+    alpha_from_mask: bool,
+    /// The most a sample may differ from GDAL's decode, and the share of samples at most 2 apart.
+    tolerance: (u8, f64),
+}
+
+/// Two decoders of one JPEG stream agree to within a few levels, not exactly: their inverse DCTs
+/// round differently (components taken as stored, grey, RGB or RGBA: at most 1 apart), and
+/// YCbCr adds the chroma upsampling and colour conversion (at most 4 apart, 99.8 % of samples
+/// within 2; measured with GDAL 3.6's libjpeg-turbo: 99.85 to 99.96 % within 2, max 4).
+const JPEG_CASES: [JpegCase; 5] = [
+    // GDAL's COG driver writes 3 bands as YCbCr (PhotometricInterpretation 6).
+    JpegCase {
+        name: "jpeg_ycbcr",
+        bands: 3,
+        driver: "COG",
+        overviews: false,
+        options: &["COMPRESS=JPEG", "QUALITY=90", "BLOCKSIZE=128", "OVERVIEWS=AUTO"],
+        photometric: 6,
+        served: 3,
+        alpha_from_mask: false,
+        tolerance: (4, 0.998),
+    },
+    JpegCase {
+        name: "jpeg_grey",
+        bands: 1,
+        driver: "COG",
+        overviews: false,
+        options: &["COMPRESS=JPEG", "QUALITY=75", "BLOCKSIZE=128", "OVERVIEWS=AUTO"],
+        photometric: 1,
+        served: 1,
+        alpha_from_mask: false,
+        tolerance: (1, 1.0),
+    },
+    // RGB components with no colour transform (PhotometricInterpretation 2): the GTiff driver's
+    // PHOTOMETRIC=RGB (the COG driver of GDAL 3.6 has no PHOTOMETRIC option).
+    JpegCase {
+        name: "jpeg_rgb",
+        bands: 3,
+        driver: "GTiff",
+        overviews: true,
+        options: &["COMPRESS=JPEG", "PHOTOMETRIC=RGB", "TILED=YES", "BLOCKXSIZE=128", "BLOCKYSIZE=128"],
+        photometric: 2,
+        served: 3,
+        alpha_from_mask: false,
+        tolerance: (1, 1.0),
+    },
+    // 4 bands with the GTiff driver: 4 JPEG components, RGB and an alpha (PhotometricInterpretation
+    // 2, ExtraSamples 2), no colour transform.
+    JpegCase {
+        name: "jpeg_rgba",
+        bands: 4,
+        driver: "GTiff",
+        overviews: true,
+        options: &["COMPRESS=JPEG", "TILED=YES", "BLOCKXSIZE=128", "BLOCKYSIZE=128"],
+        photometric: 2,
+        served: 4,
+        alpha_from_mask: false,
+        tolerance: (1, 1.0),
+    },
+    // 4 bands with the COG driver: the alpha becomes an internal mask beside 3 YCbCr bands,
+    // served as RGBA with the alpha from the mask.
+    JpegCase {
+        name: "jpeg_rgba_cog",
+        bands: 4,
+        driver: "COG",
+        overviews: false,
+        options: &["COMPRESS=JPEG", "QUALITY=90", "BLOCKSIZE=128", "OVERVIEWS=AUTO"],
+        photometric: 6,
+        served: 4,
+        alpha_from_mask: true,
+        tolerance: (4, 0.998),
+    },
+];
+
+/// Has GDAL write a JPEG case in `dir`; returns each IFD's size and the bands GDAL reads.
+fn write_jpeg(case: &JpegCase, dir: &Path) -> Vec<([u64; 2], usize)> {
+    let mut args = vec![
+        "-".to_string(),
+        case.name.into(),
+        "300".into(),
+        "200".into(),
+        case.bands.to_string(),
+        case.driver.into(),
+        if case.overviews { "1" } else { "0" }.into(),
+    ];
+    args.extend(case.options.iter().map(|s| s.to_string()));
+    let mut child = Command::new(crate::common::gdal::python())
+        .args(&args)
+        .current_dir(dir)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    use std::io::Write;
+    child.stdin.take().unwrap().write_all(WRITE_JPEG.as_bytes()).unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}: GDAL failed: {}", case.name, String::from_utf8_lossy(&out.stderr));
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let v: Vec<&str> = l.splitn(4, ' ').collect();
+            assert!(v[3].contains("JPEG"), "{}: {l}", case.name);
+            ([v[0].parse().unwrap(), v[1].parse().unwrap()], v[2].parse().unwrap())
+        })
+        .collect()
+}
+
+/// The PhotometricInterpretation (262) of IFD 0 of the classic little-endian TIFF `bytes`.
+fn photometric(bytes: &[u8]) -> u64 {
+    assert_eq!(&bytes[..4], b"II*\0");
+    let at = u32::from_le_bytes(bytes[4..8].try_into().unwrap()) as usize;
+    let n = u16::from_le_bytes([bytes[at], bytes[at + 1]]) as usize;
+    (0..n)
+        .map(|i| &bytes[at + 2 + 12 * i..at + 14 + 12 * i])
+        .find(|e| u16::from_le_bytes([e[0], e[1]]) == 262)
+        .map(|e| u16::from_le_bytes([e[8], e[9]]) as u64)
+        .expect("a PhotometricInterpretation tag")
+}
+
 #[test]
-fn jpeg_cogs_grey_and_ycbcr_decode_as_gdal_does_within_the_decoders_tolerance() {
+fn jpeg_cogs_grey_ycbcr_rgb_and_rgba_decode_as_gdal_does_within_the_decoders_tolerance() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    for (name, bands, extra) in [("jpeg_ycbcr", 3usize, "QUALITY=90"), ("jpeg_grey", 1, "QUALITY=75")] {
-        let args =
-            ["-", name, "300", "200", &bands.to_string(), "COMPRESS=JPEG", extra, "BLOCKSIZE=128", "OVERVIEWS=AUTO"];
-        let mut child = Command::new(crate::common::gdal::python())
-            .args(args)
-            .current_dir(d)
-            .stdin(std::process::Stdio::piped())
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .unwrap();
-        use std::io::Write;
-        child.stdin.take().unwrap().write_all(WRITE_JPEG.as_bytes()).unwrap();
-        let out = child.wait_with_output().unwrap();
-        assert!(out.status.success(), "{name}: GDAL failed: {}", String::from_utf8_lossy(&out.stderr));
-        let stdout = String::from_utf8(out.stdout).unwrap();
-        let ifds: Vec<[u64; 2]> = stdout
-            .lines()
-            .map(|l| {
-                let v: Vec<&str> = l.splitn(3, ' ').collect();
-                assert!(v[2].contains("JPEG"), "{name}: {l}");
-                [v[0].parse().unwrap(), v[1].parse().unwrap()]
-            })
-            .collect();
-        let src = CogSource::open(&d.join(format!("{name}.tif")), 64).unwrap_or_else(|e| panic!("{name}: {e}"));
-        assert_eq!(src.desc().bytes_per_texel(), bands, "{name}");
+    for case in &JPEG_CASES {
+        let name = case.name;
+        let ifds = write_jpeg(case, d);
+        let path = d.join(format!("{name}.tif"));
+        assert_eq!(photometric(&std::fs::read(&path).unwrap()), case.photometric, "{name}: GDAL wrote another kind");
+        assert!(ifds.len() >= 3, "{name}: {} IFDs, expected overviews", ifds.len());
+        let src = CogSource::open(&path, 64).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let served = case.served;
+        assert_eq!(src.desc().bytes_per_texel(), served, "{name}");
         assert!(src.info().human().contains("JPEG"), "{name}: {}", src.info().human());
-        for (k, &size) in ifds.iter().enumerate() {
-            let raw = std::fs::read(d.join(format!("{name}.{k}.raw"))).unwrap();
-            let row = size[0] as usize * bands;
-            let gdal: Vec<u8> = raw.chunks_exact(row).rev().flatten().copied().collect();
+        for (k, &(size, bands)) in ifds.iter().enumerate() {
+            let rows_up = |raw: Vec<u8>, n: usize| -> Vec<u8> {
+                assert_eq!(raw.len(), (size[0] * size[1]) as usize * n, "{name} level {k}");
+                raw.chunks_exact(size[0] as usize * n).rev().flatten().copied().collect()
+            };
+            let gdal = rows_up(std::fs::read(d.join(format!("{name}.{k}.raw"))).unwrap(), bands);
+            let mask = rows_up(std::fs::read(d.join(format!("{name}.{k}.mask"))).unwrap(), 1);
             let ours = super::cog::level(&src, k as u32).unwrap_or_else(|e| panic!("{name} level {k}: {e}"));
-            assert_eq!(ours.len(), gdal.len(), "{name} level {k}");
-            // Two decoders of one JPEG stream agree to within a few levels, not exactly: their
-            // inverse DCTs round differently (grey: at most 1 apart), and YCbCr adds the
-            // chroma upsampling and colour conversion (at most 4 apart, 99.8 % of samples
-            // within 2; measured with GDAL 3.6's libjpeg-turbo: 99.93 to 99.96 % within 2, max 4).
-            let diff: Vec<u8> = ours.iter().zip(&gdal).map(|(a, b)| a.abs_diff(*b)).collect();
-            let max = diff.iter().copied().max().unwrap_or(0);
-            let within2 = diff.iter().filter(|&&e| e <= 2).count() as f64 / diff.len() as f64;
-            let (max_ok, share_ok) = if bands == 1 { (1, 1.0) } else { (4, 0.998) };
+            assert_eq!(ours.len(), mask.len() * served, "{name} level {k}");
+            let (mut colour, mut alpha) = (Vec::new(), Vec::new());
+            for (texel, gdal_texel) in ours.chunks_exact(served).zip(gdal.chunks_exact(bands)) {
+                let n = if case.alpha_from_mask { served - 1 } else { served };
+                colour.extend(texel[..n].iter().zip(gdal_texel).map(|(a, b)| a.abs_diff(*b)));
+                if case.alpha_from_mask {
+                    alpha.push(texel[served - 1]);
+                }
+            }
+            let max = colour.iter().copied().max().unwrap_or(0);
+            let within2 = colour.iter().filter(|&&e| e <= 2).count() as f64 / colour.len() as f64;
+            let (max_ok, share_ok) = case.tolerance;
             assert!(
                 max <= max_ok && within2 >= share_ok,
                 "{name} level {k}: max difference {max} (at most {max_ok}), {within2:.4} within 2 (at least {share_ok})"
             );
+            if case.alpha_from_mask {
+                assert!(mask.contains(&0) && mask.contains(&255), "{name} level {k}: the mask has no holes");
+                let differ = alpha.iter().zip(&mask).filter(|(a, m)| a != m).count();
+                assert_eq!(differ, 0, "{name} level {k}: {differ} alphas differ from GDAL's mask band");
+            }
         }
         // The levels past the overviews are built and read.
         for k in ifds.len()..src.desc().level_count() {
             super::cog::level(&src, k as u32).unwrap_or_else(|e| panic!("{name} level {k}: {e}"));
         }
+    }
+}
+
+#[test]
+fn jpeg_of_four_samples_that_are_not_rgba_is_refused_naming_the_photometric_interpretation() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // What else GDAL writes for 4 bands with JPEG: CMYK (PhotometricInterpretation 5, an Adobe
+    // JPEG of 4 components) and 4 grey samples (1, ExtraSamples 0, 0, 2).
+    for (name, photometric, found) in [
+        ("jpeg_cmyk", "CMYK", "5 with 4 JPEG-compressed samples"),
+        ("jpeg_grey4", "MINISBLACK", "1 with 4 JPEG-compressed samples"),
+    ] {
+        let options: &'static [&'static str] = match photometric {
+            "CMYK" => &["COMPRESS=JPEG", "TILED=YES", "PHOTOMETRIC=CMYK"],
+            _ => &["COMPRESS=JPEG", "TILED=YES", "PHOTOMETRIC=MINISBLACK"],
+        };
+        let case = JpegCase {
+            name,
+            bands: 4,
+            driver: "GTiff",
+            overviews: false,
+            options,
+            photometric: 0,
+            served: 0,
+            alpha_from_mask: false,
+            tolerance: (0, 0.0),
+        };
+        write_jpeg(&case, d);
+        let e = CogSource::open(&d.join(format!("{name}.tif")), 64).unwrap_err().to_string();
+        for part in ["IFD 0", "PhotometricInterpretation (262)", found, "2 (RGB, no colour transform", "with 4 (RGBA"] {
+            assert!(e.contains(part), "{name}: {part:?} not in {e}");
+        }
+    }
+}
+
+/// Rewrites the component ids of every tile's JPEG stream of `SRC` (3 components: 'R' 'G' 'B',
+/// what libjpeg writes for RGB) to 1 2 3 (what a YCbCr stream holds) as `DST`, and prints whether
+/// GDAL reads both files the same (libtiff takes the components of a PhotometricInterpretation 2
+/// image as stored, whatever their ids).
+const PATCH_IDS: &str = r#"
+import sys, shutil
+from osgeo import gdal
+gdal.UseExceptions()
+src, dst = sys.argv[1], sys.argv[2]
+shutil.copy(src, dst)
+ds = gdal.Open(src)
+b = ds.GetRasterBand(1)
+bw, bh = b.GetBlockSize()
+data = bytearray(open(dst, "rb").read())
+for ty in range((ds.RasterYSize + bh - 1) // bh):
+    for tx in range((ds.RasterXSize + bw - 1) // bw):
+        i = int(b.GetMetadataItem("BLOCK_OFFSET_%d_%d" % (tx, ty), "TIFF")) + 2
+        while True:
+            assert data[i] == 0xFF
+            m, n = data[i + 1], data[i + 2] * 256 + data[i + 3]
+            if m == 0xC0:
+                assert bytes(data[i + 10:i + 19:3]) == b"RGB"
+                for c in range(3):
+                    data[i + 10 + 3 * c] = c + 1
+            if m == 0xDA:
+                for c in range(3):
+                    data[i + 5 + 2 * c] = c + 1
+                break
+            i += 2 + n
+open(dst, "wb").write(data)
+print(1, 1 if gdal.Open(src).ReadRaster() == gdal.Open(dst).ReadRaster() else 0)
+"#;
+
+#[test]
+fn jpeg_rgb_components_are_taken_as_stored_whatever_their_component_ids() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let case = &JPEG_CASES[2];
+    assert_eq!(case.name, "jpeg_rgb");
+    write_jpeg(case, d);
+    let args = ["-".to_string(), "jpeg_rgb.tif".into(), "jpeg_rgb_ids.tif".into()];
+    let same = crate::common::gdal::write_with(PATCH_IDS, &args, d, "patching the component ids");
+    assert_eq!(same, [[1, 1]], "GDAL reads the file with ids 1 2 3 otherwise");
+    // With ids 1 2 3 and no Adobe marker a JPEG decoder on its own takes the components for
+    // YCbCr; the TIFF says RGB, so they are taken as stored: the same texels as with 'R' 'G' 'B'.
+    let rgb = CogSource::open(&d.join("jpeg_rgb.tif"), 64).unwrap();
+    let ids = CogSource::open(&d.join("jpeg_rgb_ids.tif"), 64).unwrap();
+    for k in 0..rgb.desc().level_count() as u32 {
+        let (a, b) = (super::cog::level(&rgb, k).unwrap(), super::cog::level(&ids, k).unwrap());
+        let differ = a.iter().zip(&b).filter(|(x, y)| x != y).count();
+        assert_eq!(differ, 0, "level {k}: {differ} samples differ");
     }
 }
