@@ -28,6 +28,7 @@ fn views_json_has_every_scenario_its_ratios_consistent_and_the_goals() {
         ("near", "views_spread_clip"),
         ("near", "separate_grids"),
         ("near", "separate_grids_shared_pool"),
+        ("near", "own_grids"),
         ("near", "one_view_ring"),
         ("near", "views_spread_0_ring"),
         ("near", "views_spread_clip_ring"),
@@ -35,6 +36,7 @@ fn views_json_has_every_scenario_its_ratios_consistent_and_the_goals() {
         ("far", "views_spread_0"),
         ("far", "separate_grids"),
         ("far", "separate_grids_shared_pool"),
+        ("far", "own_grids"),
         ("weighted", "one_view"),
         ("weighted", "one_view_same_grids"),
         ("weighted", "weights_3_1"),
@@ -134,6 +136,13 @@ fn views_json_has_every_scenario_its_ratios_consistent_and_the_goals() {
     assert_eq!(find("near", "views_spread_clip")["view_spread"], clip);
     assert_eq!(find("far", "separate_grids")["clipmaps"], 4);
     assert!(find("far", "separate_grids_shared_pool")["pool_hits"].as_u64().is_some());
+    // Grids of their own (the service's `:own` views): a clipmap a view, each with an equal share
+    // of the disk; far apart, that settles every view as fast as alone (the goal is met by it),
+    // at four views' memory.
+    let own = find("far", "own_grids");
+    assert_eq!((own["clipmaps"].as_u64(), own["resident_vs_one"].as_f64()), (Some(4), Some(4.0)), "{own}");
+    assert!(own["settle_vs_alone"].as_f64().is_some_and(|x| x <= 1.25), "{own}");
+    assert!(v["goals"]["far"]["met_by"].as_array().unwrap().contains(&"own_grids".into()), "{}", v["goals"]["far"]);
     assert_eq!(find("weighted", "weights_3_1")["weights"], serde_json::json!([3.0, 1.0]));
     let disk = &v["weighted_disk"];
     assert_eq!(find("weighted", "weights_3_1")["disk_tiles_per_tick"], disk["disk_tiles_per_tick"]);

@@ -289,6 +289,10 @@ enum Design {
     One { spread: u64, prefetch: PrefetchKind },
     /// One clipmap per view over one disk, optionally through one shared pool.
     Separate { pool: bool },
+    /// The service's views with grids of their own (`--view NAME:W:own`, docs/VIEWS.md, "Views
+    /// far apart"): one clipmap per view, each with its own read queues, so that the disk serves
+    /// them side by side: each gets an equal share of the disk's reads a tick.
+    Own,
 }
 
 /// What one run measured.
@@ -329,6 +333,8 @@ fn mapping_bytes(desc: &TextureDesc, spread: u64) -> u64 {
 /// The clipmaps of one run and where each view lives in them.
 struct Sim {
     disk: Arc<ThrottledSource>,
+    /// [`Design::Own`]: each clipmap's share of the disk (the disk itself then serves none).
+    lanes: Vec<Arc<ThrottledSource>>,
     pool: Option<Arc<PoolSource>>,
     maps: Vec<Clipmap>,
     /// (clipmap, view id) of each view.
@@ -341,6 +347,7 @@ impl Sim {
         let mut maps = Vec::new();
         let mut ids = Vec::new();
         let mut pool = None;
+        let mut lanes = Vec::new();
         match design {
             Design::One { spread, prefetch } => {
                 let mut map = Clipmap::new(disk.clone(), settings(spread, prefetch)).context("the clipmap")?;
@@ -364,13 +371,25 @@ impl Sim {
                     ids.push((i, PRIMARY));
                 }
             }
+            Design::Own => {
+                let share = (rate / weights.len() as u64).max(1);
+                for i in 0..weights.len() {
+                    let lane = Arc::new(ThrottledSource::new(Arc::new(HashSource::new(d.clone())), share));
+                    maps.push(Clipmap::new(lane.clone(), settings(0, PrefetchKind::default())).context("a clipmap")?);
+                    ids.push((i, PRIMARY));
+                    lanes.push(lane);
+                }
+            }
         }
-        Ok(Sim { disk, pool, maps, ids })
+        Ok(Sim { disk, lanes, pool, maps, ids })
     }
 
     /// One tick of every clipmap, in order, each followed by the reads it can start.
     fn step(&mut self, at: &[[i64; 2]]) {
         self.disk.next_tick();
+        for lane in &self.lanes {
+            lane.next_tick();
+        }
         for (m, map) in self.maps.iter_mut().enumerate() {
             let mut primary = None;
             for (v, &(mm, id)) in self.ids.iter().enumerate() {
@@ -399,7 +418,12 @@ impl Sim {
 
     /// Reads delivered so far (the disk's and the pool's).
     fn deliveries(&self) -> u64 {
-        self.disk.reads() + self.pool_hits()
+        self.disk_reads() + self.pool_hits()
+    }
+
+    /// Reads that reached the disk (its lanes' included).
+    fn disk_reads(&self) -> u64 {
+        self.disk.reads() + self.lanes.iter().map(|l| l.reads()).sum::<u64>()
     }
 
     fn resident(&self) -> u64 {
@@ -443,7 +467,7 @@ fn run(
         lods = now;
     }
     // Flight.
-    let reads0 = sim.disk.reads();
+    let reads0 = sim.disk_reads();
     let mut lod_sum = vec![0.0; n];
     let (mut event, mut event_tick) = (0usize, 1u64);
     for t in 1..=flight.ticks {
@@ -471,10 +495,10 @@ fn run(
         under_published += st.slots_reassigned_under_published;
     }
     Ok(Run {
-        tiles_read: sim.disk.reads(),
+        tiles_read: sim.disk_reads(),
         window_tiles: windows.len() as u64,
         level0_grid: sim.maps[0].level(0).grid,
-        flight_tiles_read: sim.disk.reads() - reads0,
+        flight_tiles_read: sim.disk_reads() - reads0,
         peak_resident_bytes: peak,
         mapping_bytes: sim.maps.iter().map(|m| m.memory().total_bytes()).sum(),
         view_mean_min_lod: lod_sum.iter().map(|s| s / flight.ticks.max(1) as f64).collect(),
@@ -581,7 +605,7 @@ fn make_row(sc: &Scenario, spec: &Spec, pool: u64, r: &Run, one: &Run, alone: &[
     let rate = if n == 1 { sc.alone_rate } else { sc.together_rate };
     let (spread, prefetch, clipmaps) = match spec.how {
         Design::One { spread, prefetch } => (spread, prefetch, 1),
-        Design::Separate { .. } => (0, PrefetchKind::default(), n),
+        Design::Separate { .. } | Design::Own => (0, PrefetchKind::default(), n),
     };
     let alone = &alone[..n];
     let view_settle: Vec<Option<f64>> = r.settle.iter().map(|e| mean_settle(e)).collect();
@@ -755,6 +779,7 @@ pub fn report(args: &Args, mut progress: impl FnMut(&Row)) -> anyhow::Result<Rep
                     four.clone(),
                     baseline,
                 ));
+                designs.push(spec("own_grids", Design::Own, four.clone(), baseline));
             }
             for sp in &designs {
                 emit(fly(&d, sc, sp, pool_bytes, &one, &settles)?);
@@ -820,7 +845,7 @@ pub fn report(args: &Args, mut progress: impl FnMut(&Row)) -> anyhow::Result<Rep
 }
 
 fn is_views_design(design: &str) -> bool {
-    design.starts_with("views_") || design.starts_with("weights_")
+    design.starts_with("views_") || design.starts_with("weights_") || design == "own_grids"
 }
 
 /// Checks every design against its scenario's goal.
@@ -852,7 +877,7 @@ fn goals(rows: &[Row]) -> Goals {
     let near = check(
         "near",
         "4 views within one clip size of each other flying together: tiles read <= 1.1x one view's, resident bytes <= 1.25x one view's",
-        &["views_*", "separate_grids*"],
+        &["views_*", "separate_grids*", "own_grids"],
         &|r| {
             let mut m = Vec::new();
             if r.tiles_read_vs_one > 1.1 {
@@ -867,7 +892,7 @@ fn goals(rows: &[Row]) -> Goals {
     let far = check(
         "far",
         "4 views far apart over a source that can serve all of them: each settles within 1.25x of its time alone, resident bytes <= 4.1x one view's",
-        &["views_*", "separate_grids*"],
+        &["views_*", "separate_grids*", "own_grids"],
         &|r| {
             let mut m = Vec::new();
             if !r.settle_vs_alone.is_some_and(|x| x <= 1.25) {
