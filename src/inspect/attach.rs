@@ -320,13 +320,14 @@ pub fn human(s: &Status) -> String {
     );
     let virtual_views = s.views.iter().any(|v| v.lod_offset > 0 || v.effective_levels < s.levels.len() as u32);
     if s.views.len() > 1 || s.view != crate::shm::layout::views::PRIMARY_NAME || virtual_views {
-        o.push_str("view        weight  min LOD  LOD window    resident  centre\n");
+        o.push_str("view        weight  min LOD  LOD window    resident  grids   centre\n");
         for v in &s.views {
             let centre = v.centre.map_or("-".to_string(), |c| format!("{} {}", c[0], c[1]));
             let shown = if v.name == s.view { "  (shown below)" } else { "" };
             let window = format!("{}..{}", v.lod_offset, (v.lod_offset + v.effective_levels).saturating_sub(1));
+            let grids = if v.grids.is_empty() { "shared" } else { v.grids.as_str() };
             o.push_str(&format!(
-                "{:<11} {:>6.2}  {:>7.2}  {window:<12}  {:<8}  {centre}{shown}\n",
+                "{:<11} {:>6.2}  {:>7.2}  {window:<12}  {:<8}  {grids:<6}  {centre}{shown}\n",
                 v.name,
                 v.weight,
                 v.min_lod,
