@@ -412,7 +412,7 @@ fn a_views_block_this_reader_does_not_know_refuses_views_not_main() {
     // Unknown: main reads, the view is refused with the field and the value found.
     let unknown: Vec<(&str, Corrupt, &str)> = vec![
         ("vmagic", Box::new(move |b| b[vb + v::MAGIC] = b'X'), "expected \"CLIPVIEW\""),
-        ("vversion", Box::new(move |b| put32(b, vb + v::VERSION, 2)), "found 2, this reader knows version 1"),
+        ("vversion", Box::new(move |b| put32(b, vb + v::VERSION, 3)), "found 3, this reader knows versions 1 to 2"),
     ];
     for (name, corrupt, want) in unknown {
         let mut bytes = good.clone();

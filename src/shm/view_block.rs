@@ -58,9 +58,9 @@ pub(super) fn check(region: &Region, slots_end: u64, total: u64) -> Result<Views
         )));
     }
     let version = region.read_u32(b + v::VERSION);
-    if version != v::BLOCK_VERSION {
+    if version == 0 || version > v::BLOCK_VERSION {
         return Ok(ViewsBlock::Unknown(format!(
-            "{}: found {version}, this reader knows version {}: use a reader of the service's release",
+            "{}: found {version}, this reader knows versions 1 to {}: use a reader of the service's release",
             field(v::VERSION, "views block version"),
             v::BLOCK_VERSION
         )));
