@@ -1284,9 +1284,9 @@ static inline int clipmap_view_own_path(const struct clipmap_map *m, const char 
         return -1;
     }
     if (!ok) {
-        clipmap_fmt_(out, len, "%s: view \"%s\" has grids of its own in DIR/clipmap-NAME%sVIEW.map, named after the "
-                 "service's mapping, but this mapping is not named DIR/clipmap-NAME.map (NAME 1 to %u of A-Z a-z "
-                 "0-9 - _ .): open the service's mapping by its published name", m->path, view, CLIPMAP_OWN_SEPARATOR,
+        clipmap_fmt_(out, len, "view \"%s\" has grids of its own in DIR/clipmap-NAME%sVIEW.map, named after the "
+                 "service's mapping, but the service's mapping was opened as %s, not DIR/clipmap-NAME.map (NAME 1 to "
+                 "%u of A-Z a-z 0-9 - _ .): open it by its published name", view, CLIPMAP_OWN_SEPARATOR, m->path,
                  CLIPMAP_NAME_MAX);
         return -1;
     }

@@ -353,9 +353,9 @@ def own_mapping_path(path, view):
     d, base = os.path.split(path)
     name = base[len("clipmap-"):-len(".map")] if base.startswith("clipmap-") and base.endswith(".map") else ""
     if not (1 <= len(name) <= NAME_MAX and all(c in VIEW_NAME_CHARS for c in name.encode())):
-        raise Refused(f'{path}: view "{view}" has grids of its own in DIR/clipmap-NAME{OWN_SEPARATOR}VIEW.map, named '
-                      f"after the service's mapping, but this mapping is not named DIR/clipmap-NAME.map (NAME 1 to "
-                      f"{NAME_MAX} of A-Z a-z 0-9 - _ .): open the service's mapping by its published name")
+        raise Refused(f'view "{view}" has grids of its own in DIR/clipmap-NAME{OWN_SEPARATOR}VIEW.map, named after '
+                      f"the service's mapping, but the service's mapping was opened as {path}, not "
+                      f"DIR/clipmap-NAME.map (NAME 1 to {NAME_MAX} of A-Z a-z 0-9 - _ .): open it by its published name")
     return os.path.join(d, f"clipmap-{own_mapping_name(name, view)}.map")
 
 
