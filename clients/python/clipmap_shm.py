@@ -305,7 +305,7 @@ class View:
         """The Mapping whose texels (and `main` snapshot, for a view with grids of its own) the
         view reads; a view with grids of its own listed by Mapping.views() has it opened now."""
         if self.mapping is None:
-            self.mapping = self.service._open_own(self.name)
+            self.mapping = self.service._open_own(self.name, self.record, self.incarnation)
         return self.mapping
 
     def snapshot(self):
@@ -427,7 +427,7 @@ class Mapping:
         self.mm = None
         self.q = None
         self.snap = None
-        self.owns = []  # the own mappings of views bound through this one (closed with it)
+        self.owns = {}  # (record, incarnation) -> the own mapping of a view bound through this one (closed with it)
         # O_NONBLOCK: a FIFO given as the path must not block the open (it is refused below).
         flags = os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
         try:
@@ -692,10 +692,13 @@ class Mapping:
         v.offset = None if own else self.views_offset + VB_RECORDS + r * VIEW_RECORD_BYTES + V_SNAPSHOT
         return v
 
-    def _open_own(self, name):
+    def _open_own(self, name, record, incarnation):
         """Opens the mapping of view `name`'s grids of its own (own_mapping_path): every check of
         any mapping, not followed when a symbolic link, owned by the owner of this mapping's file.
-        Refused (naming the path) when it is missing or refused; closed with this mapping."""
+        Refused (naming the path) when it is missing or refused; closed with this mapping. The view
+        of record `record` and `incarnation` has one: a second binding of it shares the first's."""
+        if (record, incarnation) in self.owns:
+            return self.owns[(record, incarnation)]
         path = own_mapping_path(self.path, name)
         try:
             own = Mapping(path, owner=self.uid)
@@ -707,7 +710,7 @@ class Mapping:
             raise Refused(f'view "{name}" has grids of its own: {path}: {e.strerror or e}') from None
         except Refused as e:
             raise Refused(f'view "{name}" has grids of its own: {e}') from None
-        self.owns.append(own)
+        self.owns[(record, incarnation)] = own
         return own
 
     def view(self, name):
@@ -997,9 +1000,9 @@ class Mapping:
         return bool(self.q[H_FLAGS // 8] & 1)
 
     def close(self):
-        for own in self.owns:
+        for own in self.owns.values():
             own.close()
-        self.owns = []
+        self.owns = {}
         if self.q is not None:
             self.q.release()
             self.q = None
