@@ -633,8 +633,8 @@ struct clipmap_view_record_ {
 /* Reads the fields 0..128 of view record r (r < m->view_records) under the record's seqlock, at
  * most CLIPMAP_MAX_RETRIES attempts with a yield between them, and checks them (docs/SHM.md,
  * "Checks of the block"): a state 0 or 1, or 2 in a version-2 block; for a live record (state 1
- * or 2), a weight finite and above 0 and a
- * name of 1 to 31 allowed characters followed by NULs only (never "main"). CLIPMAP_OK,
+ * or 2), a weight finite and above 0 and a name of 1 to 31 allowed characters followed by NULs
+ * only (never "main"). CLIPMAP_OK,
  * CLIPMAP_BUSY or CLIPMAP_CORRUPT, with `error` (len bytes) naming the record, byte and field. */
 static inline int clipmap_view_record_(const struct clipmap_map *m, uint32_t r, struct clipmap_view_record_ *rec,
                                        char *error, size_t len) {
