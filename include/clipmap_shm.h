@@ -30,6 +30,22 @@
  *   rc = clipmap_request_view_centre(&r, &v, s, t, vs, vt);
  * clipmap_views(&m, &list) lists the views that exist.
  *
+ * A view with grids of its own (views block version 2, docs/SHM.md "A view with grids of its
+ * own"): clipmap_view_find sets v.own, and the view's texels, snapshot and requests are those of
+ * `main` of another mapping of the service, DIR/clipmap-NAME@VIEW.map. m must have been opened
+ * under the service's own name, DIR/clipmap-NAME.map. Open that mapping and read it as any `main`:
+ *   struct clipmap_map own;
+ *   if (v.own) {
+ *       if (clipmap_view_open_own(&m, &v, &own) != 0) { fprintf(stderr, "%s\n", own.error); ... }
+ *       rc = clipmap_view_own_snapshot(&m, &v, &own, &snap); // own's `main` snapshot, or _REMOVED
+ *       rc = clipmap_read_region(&own, &snap, k, ...);       // texels of own, as for any `main`
+ *       char req[4096];                                      // its requests: the own mapping's
+ *       if (clipmap_request_path(&own, req, sizeof req) == 0 && clipmap_request_open(req, &own, &r) == 0)
+ *           rc = clipmap_request_centre(&r, s, t, vs, vt);
+ *       clipmap_close(&own);
+ *   }
+ * (clipmap_view_snapshot and the view request functions refuse such a view: CLIPMAP_NOT_VALID.)
+ *
  * Every value read from the mapping is checked before it is used in address arithmetic, so a
  * corrupt or hostile mapping gives an error, never an out-of-bounds access. (A file truncated
  * after it was mapped still raises SIGBUS on access, as with any mmap.)
@@ -49,6 +65,7 @@
 #include <math.h>
 #include <sched.h>
 #include <signal.h>
+#include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <string.h>
@@ -192,27 +209,32 @@
 /* Views (docs/SHM.md, "Views"). The primary view, `main`, is the snapshot at CLIPMAP_H_SNAPSHOT;
  * further views are view records of the views block at CLIPMAP_H_VIEWS_OFFSET (0: no block). */
 #define CLIPMAP_VIEWS_MAGIC "CLIPVIEW"
-#define CLIPMAP_VIEWS_VERSION 1u         /* the views block version this header reads */
+#define CLIPMAP_VIEWS_VERSION 2u         /* the views block version of this header; it reads versions 1 and 2 */
+#define CLIPMAP_VIEWS_VERSION_MIN 1u     /* the oldest views block version it reads (no record in state 2) */
 #define CLIPMAP_MAX_VIEWS 64u            /* view records N: 1..64 */
 #define CLIPMAP_VIEW_RECORD_BYTES 2240u
 #define CLIPMAP_VIEW_NAME_BYTES 32u      /* u8[32], NUL-padded: 1..31 of A-Z a-z 0-9 - _ . (never "main") */
 #define CLIPMAP_VIEW_NAME_MAX 31u
 #define CLIPMAP_VIEW_MAIN 0xFFFFFFFFu    /* struct clipmap_view's record for the primary view */
+#define CLIPMAP_NAME_MAX 64u             /* a service's name: 1..64 of A-Z a-z 0-9 - _ . (DIR/clipmap-NAME.map) */
+#define CLIPMAP_OWN_SEPARATOR "@"        /* a view's own grids: DIR/clipmap-NAME@VIEW.map (and .req) */
 /* Views block fields (relative to the block), static. */
 #define CLIPMAP_VB_MAGIC 0               /* u8[8] "CLIPVIEW" */
-#define CLIPMAP_VB_VERSION 8             /* u32: 1 */
+#define CLIPMAP_VB_VERSION 8             /* u32: 1 or 2 (2: records may be in state CLIPMAP_VIEW_OWN) */
 #define CLIPMAP_VB_RECORD_COUNT 12       /* u32: view records N, 1..64 */
 #define CLIPMAP_VB_RECORD_BYTES 16       /* u32: 2240 */
 #define CLIPMAP_VB_RECORDS 64            /* record r at CLIPMAP_VB_RECORDS + CLIPMAP_VIEW_RECORD_BYTES * r */
 /* View record fields (relative to the record), atomic; 0..128 under the record's seqlock. */
 #define CLIPMAP_V_SEQ 0                  /* u64: odd while the writer gives the record to a view or takes it back */
-#define CLIPMAP_V_STATE 8                /* u64: CLIPMAP_VIEW_FREE or CLIPMAP_VIEW_LIVE */
+#define CLIPMAP_V_STATE 8                /* u64: CLIPMAP_VIEW_FREE, _LIVE or (version 2) _OWN */
 #define CLIPMAP_V_INCARNATION 16         /* u64: incremented each time the record is given to a view */
 #define CLIPMAP_V_WEIGHT 24              /* f64 bits: positive, finite */
 #define CLIPMAP_V_NAME 64                /* u8[32] name, read as four u64 words */
 #define CLIPMAP_V_SNAPSHOT 128           /* the view's snapshot, CLIPMAP_SNAPSHOT_BYTES, laid out as CLIPMAP_H_SNAPSHOT's */
 #define CLIPMAP_VIEW_FREE 0u
 #define CLIPMAP_VIEW_LIVE 1u
+#define CLIPMAP_VIEW_OWN 2u              /* live, with grids of its own (version 2): name, weight and incarnation
+                                            mean something, the record's snapshot is unused */
 /* View request records (relative to CLIPMAP_R_VIEWS + CLIPMAP_VIEW_REQUEST_BYTES * r, r < 24): the
  * main request's fields at the same distances from their lock word, and the view's incarnation. */
 #define CLIPMAP_VIEW_REQUEST_BYTES 64u
@@ -338,9 +360,12 @@ struct clipmap_map {
     struct clipmap_level_desc levels[CLIPMAP_MAX_LEVELS];
     uint64_t views_offset;     /* the views block (CLIPMAP_H_VIEWS_OFFSET); 0: none, only `main` */
     uint32_t view_records;     /* its view records N (0: no block, or one of a magic or version not known) */
+    uint32_t views_version;    /* the block's version (1 or 2; 0: no usable block) */
     char views_error[320];     /* "": the block is usable (or absent); else why views other than `main`
                                   cannot be read (a magic or version this header does not know) */
     char error[320];           /* why clipmap_open failed */
+    uid_t uid;                 /* the file's owner (a view's own mapping must have the same) */
+    char path[4096];           /* the path it was opened by (a view's own mapping is found beside it) */
 };
 
 /* One level's published state. */
@@ -380,7 +405,9 @@ struct clipmap_view {
     uint32_t record;         /* its view record; CLIPMAP_VIEW_MAIN for `main` */
     uint64_t incarnation;    /* the record's incarnation when found (0 for `main`) */
     double weight;           /* the view's weight (0 for `main`: the mapping does not publish it) */
-    size_t snapshot_offset;  /* byte offset of its snapshot in the mapping */
+    size_t snapshot_offset;  /* byte offset of its snapshot in the mapping (0 for a view with grids of its own) */
+    int own;                 /* 1: the view has grids of its own (record state CLIPMAP_VIEW_OWN): read `main`
+                                of the mapping clipmap_view_open_own opens, not this one */
     char error[2400];        /* why clipmap_view_find failed (CLIPMAP_NO_VIEW: with every view's name) */
 };
 
@@ -390,6 +417,7 @@ struct clipmap_view_info {
     uint32_t record;         /* CLIPMAP_VIEW_MAIN for `main` */
     uint64_t incarnation;
     double weight;
+    int own;                 /* 1: grids of its own (see struct clipmap_view) */
 };
 struct clipmap_view_list {
     uint32_t count;
@@ -596,7 +624,7 @@ static inline int clipmap_view_name_ok(const char *name) {
 
 /* View record r's fields 0..128, as clipmap_view_record_ read and checked them. */
 struct clipmap_view_record_ {
-    uint64_t state;        /* CLIPMAP_VIEW_FREE or CLIPMAP_VIEW_LIVE */
+    uint64_t state;        /* CLIPMAP_VIEW_FREE, CLIPMAP_VIEW_LIVE or CLIPMAP_VIEW_OWN */
     uint64_t incarnation;
     double weight;         /* checked for a live record only */
     char name[CLIPMAP_VIEW_NAME_BYTES + 1]; /* NUL-terminated; checked for a live record only */
@@ -604,8 +632,9 @@ struct clipmap_view_record_ {
 
 /* Reads the fields 0..128 of view record r (r < m->view_records) under the record's seqlock, at
  * most CLIPMAP_MAX_RETRIES attempts with a yield between them, and checks them (docs/SHM.md,
- * "Checks of the block"): a state 0 or 1; for a live record, a weight finite and above 0 and a
- * name of 1 to 31 allowed characters followed by NULs only (never "main"). CLIPMAP_OK,
+ * "Checks of the block"): a state 0 or 1, or 2 in a version-2 block; for a live record (state 1
+ * or 2), a weight finite and above 0 and a name of 1 to 31 allowed characters followed by NULs
+ * only (never "main"). CLIPMAP_OK,
  * CLIPMAP_BUSY or CLIPMAP_CORRUPT, with `error` (len bytes) naming the record, byte and field. */
 static inline int clipmap_view_record_(const struct clipmap_map *m, uint32_t r, struct clipmap_view_record_ *rec,
                                        char *error, size_t len) {
@@ -632,9 +661,16 @@ static inline int clipmap_view_record_(const struct clipmap_map *m, uint32_t r, 
     unsigned char raw[CLIPMAP_VIEW_NAME_BYTES];
     memcpy(raw, name, sizeof raw); /* little-endian: the words' bytes in order */
     const unsigned long long at = (unsigned long long)b;
-    if (state > CLIPMAP_VIEW_LIVE) {
-        snprintf(error, len, "views block at %llu, record %u, byte %llu (state): found %llu, expected 0 (free) or 1 (live)",
-                 (unsigned long long)m->views_offset, r, at + CLIPMAP_V_STATE, (unsigned long long)state);
+    if (state > (m->views_version >= 2 ? CLIPMAP_VIEW_OWN : CLIPMAP_VIEW_LIVE)) {
+        if (m->views_version >= 2)
+            snprintf(error, len, "views block at %llu, record %u, byte %llu (state): found %llu, expected 0 (free), 1 "
+                     "(live) or 2 (live with grids of its own)", (unsigned long long)m->views_offset, r,
+                     at + CLIPMAP_V_STATE, (unsigned long long)state);
+        else
+            snprintf(error, len, "views block at %llu, record %u, byte %llu (state): found %llu, expected 0 (free) or "
+                     "1 (live) in a views block of version %u (state 2 comes with version 2)",
+                     (unsigned long long)m->views_offset, r, at + CLIPMAP_V_STATE, (unsigned long long)state,
+                     m->views_version);
         return CLIPMAP_CORRUPT;
     }
     memset(rec, 0, sizeof *rec);
@@ -642,7 +678,7 @@ static inline int clipmap_view_record_(const struct clipmap_map *m, uint32_t r, 
     rec->incarnation = inc;
     rec->weight = clipmap_f64_(wbits);
     memcpy(rec->name, raw, sizeof raw);
-    if (state != CLIPMAP_VIEW_LIVE) return CLIPMAP_OK;
+    if (state == CLIPMAP_VIEW_FREE) return CLIPMAP_OK;
     if (!isfinite(rec->weight) || !(rec->weight > 0.0)) {
         snprintf(error, len, "views block at %llu, record %u, byte %llu (weight): found %g (bits %016llx), expected a "
                  "finite number above 0", (unsigned long long)m->views_offset, r, at + CLIPMAP_V_WEIGHT, rec->weight,
@@ -669,7 +705,7 @@ static inline int clipmap_view_record_(const struct clipmap_map *m, uint32_t r, 
  * m->view_records and m->views_error; `slots_end` is the end of the last level's slots. 0 when
  * the mapping may be used; -1 with m->error set when it is corrupt: an offset that is not 0, not a
  * multiple of 4096, before `slots_end` or with the block past the end of the mapping; a block of
- * version 1 with N outside 1..64, record bytes other than 2240, or a record that fails
+ * version 1 or 2 with N outside 1..64, record bytes other than 2240, or a record that fails
  * clipmap_view_record_'s checks (a record the writer keeps locked is checked when it is read). A
  * magic or version this header does not know leaves `main` readable and every other view not
  * (m->views_error says why), as a reader of layout 2 that ignores the block would. */
@@ -685,6 +721,7 @@ static inline int clipmap_check_views_(struct clipmap_map *m, const char *path, 
     uint64_t head_end = 0, bytes, end = 0;
     m->views_offset = 0;
     m->view_records = 0;
+    m->views_version = 0;
     m->views_error[0] = 0;
     if (off == 0) return 0;
     if (off % CLIPMAP_PAGE != 0 || off < slots_end || !clipmap_add(off, CLIPMAP_VB_RECORDS, &head_end) ||
@@ -704,10 +741,11 @@ static inline int clipmap_check_views_(struct clipmap_map *m, const char *path, 
                  CLIPMAP_VIEWS_MAGIC);
         return 0;
     }
-    if (version != CLIPMAP_VIEWS_VERSION) {
+    if (version < CLIPMAP_VIEWS_VERSION_MIN || version > CLIPMAP_VIEWS_VERSION) {
         snprintf(m->views_error, sizeof m->views_error, "views block at %llu, byte %llu (version): found %u, this "
-                 "reader reads views block version %u only", (unsigned long long)off,
-                 (unsigned long long)off + CLIPMAP_VB_VERSION, version, CLIPMAP_VIEWS_VERSION);
+                 "reader reads views block versions %u to %u only (main still reads; for other views use a reader "
+                 "of the service's release)", (unsigned long long)off, (unsigned long long)off + CLIPMAP_VB_VERSION,
+                 version, CLIPMAP_VIEWS_VERSION_MIN, CLIPMAP_VIEWS_VERSION);
         return 0;
     }
     uint32_t n = clipmap_u32(m, (size_t)off + CLIPMAP_VB_RECORD_COUNT);
@@ -726,6 +764,7 @@ static inline int clipmap_check_views_(struct clipmap_map *m, const char *path, 
                        (unsigned long long)off, n, (unsigned long long)bytes, (unsigned long long)end,
                        (unsigned long long)total);
     m->view_records = n;
+    m->views_version = version;
     for (uint32_t r = 0; r < n; r++) {
         struct clipmap_view_record_ rec;
         char why[300];
@@ -884,18 +923,28 @@ static inline int clipmap_check_static(struct clipmap_map *m, const char *path) 
     return clipmap_check_views_(m, path, prev_end); /* prev_end: the end of the last level's slots */
 }
 
-/* Maps `path` read-only and checks every static field. 0 on success; else -1 with m->error
- * naming what was found and what was expected (and nothing left mapped). */
-static inline int clipmap_open(const char *path, struct clipmap_map *m) {
+/* clipmap_open, with `flags` added to open's (O_NOFOLLOW for a name the reader derived itself). */
+static inline int clipmap_open_(const char *path, struct clipmap_map *m, int flags) {
     memset(m, 0, sizeof *m);
+    if (strlen(path) >= sizeof m->path) {
+        snprintf(m->error, sizeof m->error, "%.200s...: a path of %zu bytes, expected at most %zu", path, strlen(path),
+                 sizeof m->path - 1);
+        return -1;
+    }
     /* O_NONBLOCK: a FIFO given as the path must not block the open (it is refused below). */
 #ifdef O_CLOEXEC
-    int fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+    int fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC | flags);
 #else
-    int fd = open(path, O_RDONLY | O_NONBLOCK);
+    int fd = open(path, O_RDONLY | O_NONBLOCK | flags);
 #endif
     if (fd < 0) {
-        snprintf(m->error, sizeof m->error, "%s: %s", path, strerror(errno));
+        const int e = errno;
+        if (e == ELOOP && (flags & O_NOFOLLOW))
+            snprintf(m->error, sizeof m->error, "%s: a symbolic link: expected the mapping itself (a name the "
+                     "service publishes is never a link)", path);
+        else
+            snprintf(m->error, sizeof m->error, "%s: %s", path, strerror(e));
+        errno = e;
         return -1;
     }
     struct stat st;
@@ -923,6 +972,8 @@ static inline int clipmap_open(const char *path, struct clipmap_map *m) {
     }
     m->base = (const unsigned char *)p;
     m->len = (size_t)st.st_size;
+    m->uid = st.st_uid;
+    memcpy(m->path, path, strlen(path) + 1);
     __atomic_thread_fence(__ATOMIC_ACQUIRE);
     if (clipmap_check_static(m, path) != 0) {
         munmap((void *)m->base, m->len);
@@ -932,6 +983,10 @@ static inline int clipmap_open(const char *path, struct clipmap_map *m) {
     }
     return 0;
 }
+
+/* Maps `path` read-only and checks every static field. 0 on success; else -1 with m->error
+ * naming what was found and what was expected (and nothing left mapped). */
+static inline int clipmap_open(const char *path, struct clipmap_map *m) { return clipmap_open_(path, m, 0); }
 
 static inline void clipmap_close(struct clipmap_map *m) {
     if (m->base) munmap((void *)m->base, m->len);
@@ -1031,7 +1086,7 @@ static inline int clipmap_snapshot(const struct clipmap_map *m, struct clipmap_s
 }
 
 /* Lists the views that exist into *list: `main` first, then each live view record's in record
- * order (each record read under its seqlock). CLIPMAP_OK; CLIPMAP_BUSY (a record stayed locked);
+ * order (each record read under its seqlock; a view with grids of its own, own = 1, as well). CLIPMAP_OK; CLIPMAP_BUSY (a record stayed locked);
  * CLIPMAP_CORRUPT (a record fails its checks, or the views block has a magic or version this
  * header does not read). On anything but CLIPMAP_OK the list holds `main` alone and list->error
  * says why. */
@@ -1051,12 +1106,13 @@ static inline int clipmap_views(const struct clipmap_map *m, struct clipmap_view
             list->count = 1;
             return rc;
         }
-        if (rec.state != CLIPMAP_VIEW_LIVE) continue;
+        if (rec.state == CLIPMAP_VIEW_FREE) continue;
         struct clipmap_view_info *v = &list->views[list->count++];
         memcpy(v->name, rec.name, sizeof v->name);
         v->record = r;
         v->incarnation = rec.incarnation;
         v->weight = rec.weight;
+        v->own = rec.state == CLIPMAP_VIEW_OWN;
     }
     return CLIPMAP_OK;
 }
@@ -1064,7 +1120,8 @@ static inline int clipmap_views(const struct clipmap_map *m, struct clipmap_view
 /* Binds *v to the view called `name` (docs/SHM.md, "Finding a view by name"): "main" is the
  * primary view (the snapshot at CLIPMAP_H_SNAPSHOT, always there); any other name is looked for
  * among the live view records, read under their seqlocks, and the record and its incarnation are
- * kept. CLIPMAP_OK; CLIPMAP_NO_VIEW (not a view name, or no live record carries it: v->error
+ * kept. A record in state CLIPMAP_VIEW_OWN binds with v->own = 1: the view has grids of its own,
+ * read through clipmap_view_open_own (nothing is opened here). CLIPMAP_OK; CLIPMAP_NO_VIEW (not a view name, or no live record carries it: v->error
  * names the views that exist); CLIPMAP_BUSY (no record carries it but one stayed locked: try
  * again); CLIPMAP_CORRUPT (a record fails its checks, or the views block has a magic or version
  * this header does not read). v->error says why on anything but CLIPMAP_OK. */
@@ -1103,14 +1160,15 @@ static inline int clipmap_view_find(const struct clipmap_map *m, const char *nam
             snprintf(v->error, sizeof v->error, "%s", why);
             return rc;
         }
-        if (rec.state != CLIPMAP_VIEW_LIVE) continue;
+        if (rec.state == CLIPMAP_VIEW_FREE) continue;
         if (strcmp(rec.name, name) == 0) {
             memcpy(v->name, rec.name, sizeof v->name);
             v->record = r;
             v->incarnation = rec.incarnation;
             v->weight = rec.weight;
-            v->snapshot_offset = (size_t)m->views_offset + CLIPMAP_VB_RECORDS + (size_t)r * CLIPMAP_VIEW_RECORD_BYTES +
-                                 CLIPMAP_V_SNAPSHOT;
+            v->own = rec.state == CLIPMAP_VIEW_OWN;
+            v->snapshot_offset = v->own ? 0 : (size_t)m->views_offset + CLIPMAP_VB_RECORDS +
+                                                  (size_t)r * CLIPMAP_VIEW_RECORD_BYTES + CLIPMAP_V_SNAPSHOT;
             return CLIPMAP_OK;
         }
         k += (size_t)snprintf(names + k, sizeof names - k, ", %s", rec.name); /* fits: 64 names of <= 31 */
@@ -1141,11 +1199,11 @@ static inline int clipmap_view_alive(const struct clipmap_map *m, const struct c
     struct clipmap_view_record_ rec;
     int rc = clipmap_view_record_(m, v->record, &rec, error, len);
     if (rc != CLIPMAP_OK) return rc;
-    if (rec.state != CLIPMAP_VIEW_LIVE) {
+    if (rec.state == CLIPMAP_VIEW_FREE) {
         snprintf(error, len, "view \"%s\" was removed: its record %u is free", v->name, v->record);
         return CLIPMAP_REMOVED;
     }
-    if (rec.incarnation != v->incarnation) {
+    if (rec.incarnation != v->incarnation || (rec.state == CLIPMAP_VIEW_OWN) != (v->own != 0)) {
         snprintf(error, len, "view \"%s\" was removed: its record %u went from incarnation %llu to %llu (view \"%s\")",
                  v->name, v->record, (unsigned long long)v->incarnation, (unsigned long long)rec.incarnation, rec.name);
         return CLIPMAP_REMOVED;
@@ -1159,11 +1217,18 @@ static inline int clipmap_view_alive(const struct clipmap_map *m, const struct c
  * the view's new snapshot (read texels under it with clipmap_read_region). CLIPMAP_REMOVED: the
  * view was removed (the copy is not used). CLIPMAP_BUSY, CLIPMAP_CORRUPT as clipmap_snapshot's (a
  * record that fails its checks is CLIPMAP_CORRUPT too); CLIPMAP_NOT_VALID: *v is not bound to
- * this mapping. On anything but CLIPMAP_OK, *snap keeps what it held except that snap->error says
- * why. A snapshot whose tick is 0 means the view has published nothing yet. */
+ * this mapping, or it is a view with grids of its own (v->own: its snapshot is `main`'s of the
+ * mapping clipmap_view_open_own opens). On anything but CLIPMAP_OK, *snap keeps what it held
+ * except that snap->error says why. A snapshot whose tick is 0 means the view has published
+ * nothing yet. */
 static inline int clipmap_view_snapshot(const struct clipmap_map *m, const struct clipmap_view *v,
                                         struct clipmap_snapshot *snap) {
     if (v->record == CLIPMAP_VIEW_MAIN) return clipmap_snapshot(m, snap);
+    if (v->own) {
+        snprintf(snap->error, sizeof snap->error, "view \"%s\" has grids of its own: open them with "
+                 "clipmap_view_open_own and read that mapping's main (clipmap_snapshot)", v->name);
+        return CLIPMAP_NOT_VALID;
+    }
     if (v->record >= m->view_records) return clipmap_view_alive(m, v, snap->error, sizeof snap->error);
     struct clipmap_snapshot x;
     memset(&x, 0, sizeof x);
@@ -1179,6 +1244,148 @@ static inline int clipmap_view_snapshot(const struct clipmap_map *m, const struc
     }
     memcpy(snap, &x, sizeof x);
     return CLIPMAP_OK;
+}
+
+/* snprintf into out (len bytes), cut at its end (its return value too): for a message that may be
+ * longer than its buffer (it names a path). */
+#if defined(__GNUC__)
+__attribute__((format(printf, 3, 4)))
+#endif
+static inline int clipmap_fmt_(char *out, size_t len, const char *fmt, ...) {
+    va_list ap;
+    va_start(ap, fmt);
+    int n = vsnprintf(out, len, fmt, ap);
+    va_end(ap);
+    return n;
+}
+
+/* The path of the mapping of view `view`'s grids of its own (docs/SHM.md, "A view with grids of its
+ * own"): DIR/clipmap-NAME@VIEW.map beside m's DIR/clipmap-NAME.map, derived from m's path and the
+ * view's name alone (never from bytes of a mapping). 0 with the path in out (len bytes); -1 when
+ * `view` is no view name, m was not opened as DIR/clipmap-NAME.map (NAME 1 to 64 of A-Z a-z 0-9
+ * - _ .) or the path does not fit, with why in out (when len > 0). */
+static inline int clipmap_view_own_path(const struct clipmap_map *m, const char *view, char *out, size_t len) {
+    static const char prefix[] = "clipmap-", suffix[] = ".map";
+    const char *base = strrchr(m->path, '/');
+    base = base ? base + 1 : m->path;
+    const size_t dir = (size_t)(base - m->path), n = strlen(base);
+    size_t name = 0;
+    int ok = n > sizeof prefix - 1 + sizeof suffix - 1 && memcmp(base, prefix, sizeof prefix - 1) == 0 &&
+             strcmp(base + n - (sizeof suffix - 1), suffix) == 0;
+    if (ok) {
+        name = n - (sizeof prefix - 1) - (sizeof suffix - 1);
+        ok = name >= 1 && name <= CLIPMAP_NAME_MAX;
+        for (size_t i = 0; ok && i < name; i++) ok = clipmap_view_char_((unsigned char)base[sizeof prefix - 1 + i]);
+    }
+    if (len == 0) return -1;
+    if (!clipmap_view_name_ok(view)) {
+        clipmap_fmt_(out, len, "\"%.40s\" is not a view name: expected 1 to %u of A-Z a-z 0-9 - _ . (not \"main\")", view,
+                 CLIPMAP_VIEW_NAME_MAX);
+        return -1;
+    }
+    if (!ok) {
+        clipmap_fmt_(out, len, "view \"%s\" has grids of its own in DIR/clipmap-NAME%sVIEW.map, named after the "
+                 "service's mapping, but the service's mapping was opened as %s, not DIR/clipmap-NAME.map (NAME 1 to "
+                 "%u of A-Z a-z 0-9 - _ .): open it by its published name", view, CLIPMAP_OWN_SEPARATOR, m->path,
+                 CLIPMAP_NAME_MAX);
+        return -1;
+    }
+    int w = clipmap_fmt_(out, len, "%.*s%s%.*s%s%s%s", (int)dir, m->path, prefix, (int)name, base + sizeof prefix - 1,
+                     CLIPMAP_OWN_SEPARATOR, view, suffix);
+    if (w < 0 || (size_t)w >= len) {
+        clipmap_fmt_(out, len, "%s: the path of view \"%s\"'s own mapping does not fit in %zu bytes", m->path, view, len);
+        return -1;
+    }
+    return 0;
+}
+
+/* Opens the mapping of view *v's grids of its own (v->own, as clipmap_view_find bound it on the
+ * service's mapping *m) into *own, exactly as clipmap_open opens any mapping (every check of
+ * docs/SHM.md "What a reader checks"), the name not followed when it is a symbolic link and the
+ * file owned by the owner of m's file. Read the view then as `main` of *own (clipmap_snapshot, or
+ * clipmap_view_own_snapshot, which also says when the view was removed; clipmap_read_region;
+ * clipmap_request_centre on its request mapping: clipmap_request_path). 0 on success; else -1 with
+ * own->error naming the path and why (and nothing left open). */
+static inline int clipmap_view_open_own(const struct clipmap_map *m, const struct clipmap_view *v,
+                                        struct clipmap_map *own) {
+    char path[sizeof own->path + 64];
+    if (!v->own || v->record == CLIPMAP_VIEW_MAIN) {
+        memset(own, 0, sizeof *own);
+        clipmap_fmt_(own->error, sizeof own->error, "%.200s: view \"%s\" has no grids of its own: read it in this mapping "
+                 "(clipmap_view_snapshot)", m->path, v->name);
+        return -1;
+    }
+    if (clipmap_view_own_path(m, v->name, path, sizeof path) != 0) {
+        memset(own, 0, sizeof *own);
+        clipmap_fmt_(own->error, sizeof own->error, "%s", path);
+        return -1;
+    }
+    errno = 0;
+    if (clipmap_open_(path, own, O_NOFOLLOW) != 0) {
+        char why[sizeof own->error];
+        int gone = errno == ENOENT;
+        memcpy(why, own->error, sizeof why);
+        clipmap_fmt_(own->error, sizeof own->error, "view \"%s\" has grids of its own: %s%s", v->name, why,
+                 gone ? " (expected the mapping the service publishes for the view: it was removed or is not "
+                        "published yet; look the view up again)" : "");
+        return -1;
+    }
+    if (own->uid != m->uid) {
+        unsigned long got = (unsigned long)own->uid, want = (unsigned long)m->uid;
+        clipmap_close(own);
+        clipmap_fmt_(own->error, sizeof own->error, "%.200s: owned by uid %lu, expected uid %lu, the owner of the "
+                 "service's mapping: not a file the service published (remove it, or ask its owner)", path, got, want);
+        return -1;
+    }
+    return 0;
+}
+
+/* The snapshot of view *v with grids of its own, bound on the service's mapping *m and opened as
+ * *own (clipmap_view_open_own): `main`'s snapshot of *own (clipmap_snapshot), then the view's record
+ * in *m (clipmap_view_alive). CLIPMAP_OK: *snap is the view's new snapshot (read texels under it
+ * with clipmap_read_region(own, ...)). CLIPMAP_REMOVED: the view was removed (the copy is not
+ * used). CLIPMAP_BUSY, CLIPMAP_CORRUPT as clipmap_snapshot's; CLIPMAP_NOT_VALID: *v has no grids of
+ * its own. On anything but CLIPMAP_OK, *snap keeps what it held except that snap->error says why. */
+static inline int clipmap_view_own_snapshot(const struct clipmap_map *m, const struct clipmap_view *v,
+                                            const struct clipmap_map *own, struct clipmap_snapshot *snap) {
+    if (!v->own || v->record == CLIPMAP_VIEW_MAIN) {
+        snprintf(snap->error, sizeof snap->error, "view \"%s\" has no grids of its own: clipmap_view_snapshot",
+                 v->name);
+        return CLIPMAP_NOT_VALID;
+    }
+    struct clipmap_snapshot x;
+    memset(&x, 0, sizeof x);
+    int rc = clipmap_snapshot(own, &x);
+    int alive = clipmap_view_alive(m, v, snap->error, sizeof snap->error);
+    if (alive != CLIPMAP_OK) return alive;
+    if (rc != CLIPMAP_OK) {
+        int n_ = snprintf(snap->error, sizeof snap->error, "view \"%s\" (grids of its own): ", v->name);
+        if (n_ < 0 || (size_t)n_ >= sizeof snap->error) n_ = 0;
+        snprintf(snap->error + n_, sizeof snap->error - (size_t)n_, "%s", x.error);
+        return rc;
+    }
+    memcpy(snap, &x, sizeof x);
+    return CLIPMAP_OK;
+}
+
+/* The request mapping's path of the mapping *m: its path with ".map" changed to ".req". 0 with the
+ * path in out (len bytes); -1 when m's path does not end in ".map" or does not fit, with why in out
+ * (when len > 0). */
+static inline int clipmap_request_path(const struct clipmap_map *m, char *out, size_t len) {
+    const size_t n = strlen(m->path);
+    if (len == 0) return -1;
+    if (n < 4 || strcmp(m->path + n - 4, ".map") != 0) {
+        clipmap_fmt_(out, len, "%s: not named *.map: the request mapping is found by the name DIR/clipmap-NAME.req",
+                 m->path);
+        return -1;
+    }
+    if (n + 1 > len) {
+        clipmap_fmt_(out, len, "the request mapping's path does not fit in %zu bytes", len);
+        return -1;
+    }
+    memcpy(out, m->path, n - 4);
+    memcpy(out + n - 4, ".req", 5);
+    return 0;
 }
 
 /* Reads the growth block consistently into *g and checks it: CLIPMAP_OK, CLIPMAP_BUSY (the writer
@@ -1532,6 +1739,15 @@ static inline int clipmap_request_at_(struct clipmap_request *r, size_t at, int 
     }
 }
 
+/* CLIPMAP_NOT_VALID for a request about view *v, which has grids of its own, through the request
+ * mapping of the service's mapping. */
+static inline int clipmap_request_own_refused_(struct clipmap_request *r, const struct clipmap_view *v) {
+    snprintf(r->error, sizeof r->error, "view \"%s\" has grids of its own: its requests go to its own mapping's "
+             "request mapping as requests for main (clipmap_view_open_own, clipmap_request_path, "
+             "clipmap_request_open, then clipmap_request_centre or clipmap_request_lod with no view)", v->name);
+    return CLIPMAP_NOT_VALID;
+}
+
 /* Asks for centre (s, t) (level-0 texels) with velocity (vs, vt) (texels per second, 0 when
  * unknown), under the request lock: compare-and-swap from an even word w to
  * clipmap_request_locked_(w, pid), write the fields, compare-and-swap to the next epoch. A word
@@ -1550,10 +1766,13 @@ static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, i
  * record), storing the incarnation clipmap_view_find kept with the fields: the service ignores a
  * request for an incarnation that is no longer the record's (a removed view). CLIPMAP_OK,
  * CLIPMAP_BUSY as clipmap_request_centre's; CLIPMAP_NOT_VALID (r->error says why) when the view's
- * record has no request record (records 24 to 63: ask through the control socket, `VIEW CENTRE`). */
+ * record has no request record (records 24 to 63: ask through the control socket, `VIEW CENTRE`),
+ * or the view has grids of its own (v->own: ask the request mapping of its own mapping for `main`,
+ * clipmap_request_centre). */
 static inline int clipmap_request_view_centre(struct clipmap_request *r, const struct clipmap_view *v, int64_t s,
                                               int64_t t, double vs, double vt) {
     if (v->record == CLIPMAP_VIEW_MAIN) return clipmap_request_centre(r, s, t, vs, vt);
+    if (v->own) return clipmap_request_own_refused_(r, v);
     if (v->record >= CLIPMAP_MAX_VIEW_REQUESTS) {
         snprintf(r->error, sizeof r->error, "view \"%s\" is view record %u: the request mapping has request records "
                  "for view records 0 to %u only", v->name, v->record, CLIPMAP_MAX_VIEW_REQUESTS - 1);
@@ -1569,8 +1788,9 @@ static inline int clipmap_request_view_centre(struct clipmap_request *r, const s
  * (0: all): the service moves the view's LOD offset to the finest level sampled there and holds and
  * reads nothing finer for it (docs/VIEWS.md, "Virtual views"). Under the view's lock word, as
  * clipmap_request_view_centre. CLIPMAP_OK, CLIPMAP_BUSY as there; CLIPMAP_NOT_VALID (r->error says
- * why) for a height or angle that is not a finite number above 0 (the angle below pi), or a view
- * record without a request record. */
+ * why) for a height or angle that is not a finite number above 0 (the angle below pi), a view
+ * record without a request record, or a view with grids of its own (ask its own mapping's request
+ * mapping for `main`: v NULL). */
 static inline int clipmap_request_lod(struct clipmap_request *r, const struct clipmap_view *v, double height,
                                       double pixel_angle, uint32_t effective) {
     if (!(height > 0 && height <= DBL_MAX) || !(pixel_angle > 0 && pixel_angle < 3.141592653589793)) {
@@ -1579,6 +1799,7 @@ static inline int clipmap_request_lod(struct clipmap_request *r, const struct cl
         return CLIPMAP_NOT_VALID;
     }
     int main_view = v == NULL || v->record == CLIPMAP_VIEW_MAIN;
+    if (!main_view && v->own) return clipmap_request_own_refused_(r, v);
     if (!main_view && v->record >= CLIPMAP_MAX_VIEW_REQUESTS) {
         snprintf(r->error, sizeof r->error, "view \"%s\" is view record %u: the request mapping has request records "
                  "for view records 0 to %u only", v->name, v->record, CLIPMAP_MAX_VIEW_REQUESTS - 1);

@@ -32,24 +32,31 @@
  * instead of the primary view's (`main`, the default) and checks the texels under its regions the
  * same way; the summary line ends with "view NAME". A name no view carries is refused (exit 2)
  * with the names of the views that exist; a view removed while it is read ends the run with the
- * summary, "view NAME was removed: ..." on stderr and exit status 3.
+ * summary, "view NAME was removed: ..." on stderr and exit status 3. A view with grids of its own
+ * (views block version 2, record state 2) is read in its own mapping, DIR/clipmap-NAME@VIEW.map
+ * beside MAPPING (which must then be named DIR/clipmap-NAME.map): that mapping is opened with every
+ * check MAPPING gets (and must be owned by MAPPING's owner, not a symbolic link), and its `main` is
+ * the view; a missing or refused own mapping exits 2 naming its path.
  *
  *   ./reader MAPPING --views
  *
  * lists the views that exist, one line each: "view main primary", then "view NAME record R
- * incarnation I weight W" for each live view record in record order, and
+ * incarnation I weight W" for each live view record in record order (with " own" at the end for a
+ * view with grids of its own), and
  *
  *   ./reader MAPPING --snapshot [--view NAME]
  *
  * prints the view's snapshot: its line as --views prints it, "tick T min_lod X centre S T border B",
  * then one line per level: "level K centre S T region S0 T0 S1 T1 enabled E tick U" (floats as
- * %.17g; exit 3 when the view was removed). The Python reader's options print the same.
+ * %.17g; exit 3 when the view was removed; for a view with grids of its own, its own mapping's
+ * `main` snapshot). The Python reader's options print the same.
  *
  * `--lod HEIGHT,ANGLE[,EFFECTIVE]`, anywhere after MAPPING, first asks the service for the view's
  * levels (clipmap_request_lod: HEIGHT level-0 texels above the texture, a pixel of ANGLE radians,
  * EFFECTIVE levels addressed at once, 0 or omitted: all) through MAPPING's request mapping (its
- * name with .map changed to .req), then reads as without it; a request that cannot be made exits 2
- * with why. */
+ * name with .map changed to .req; for a view with grids of its own, its own mapping's request
+ * mapping, as a request for its `main`), then reads as without it; a request that cannot be made
+ * exits 2 with why. */
 #include "clipmap_shm.h"
 
 #include <stdlib.h>
@@ -88,12 +95,19 @@ static void pick(uint64_t *rng, int mode, int64_t v0, int64_t v1, uint64_t tile,
 }
 
 /* A view's line of --views and --snapshot. */
-static void print_view(const char *name, uint32_t record, uint64_t incarnation, double weight) {
+static void print_view(const char *name, uint32_t record, uint64_t incarnation, double weight, int own) {
     if (record == CLIPMAP_VIEW_MAIN)
         printf("view %s primary\n", name);
     else
-        printf("view %s record %u incarnation %llu weight %.17g\n", name, record, (unsigned long long)incarnation,
-               weight);
+        printf("view %s record %u incarnation %llu weight %.17g%s\n", name, record, (unsigned long long)incarnation,
+               weight, own ? " own" : "");
+}
+
+/* The view's snapshot: in the service's mapping m, or for a view with grids of its own `main`'s of
+ * its own mapping (and whether the view is still the one bound). */
+static int view_snapshot(const struct clipmap_map *m, const struct clipmap_view *v, const struct clipmap_map *own,
+                         struct clipmap_snapshot *snap) {
+    return v->own ? clipmap_view_own_snapshot(m, v, own, snap) : clipmap_view_snapshot(m, v, snap);
 }
 
 int main(int argc, char **argv) {
@@ -138,7 +152,8 @@ int main(int argc, char **argv) {
             fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], list.error);
         } else {
             for (uint32_t i = 0; i < list.count; i++)
-                print_view(list.views[i].name, list.views[i].record, list.views[i].incarnation, list.views[i].weight);
+                print_view(list.views[i].name, list.views[i].record, list.views[i].incarnation, list.views[i].weight,
+                           list.views[i].own);
         }
         clipmap_close(&m);
         return rc == CLIPMAP_OK ? 0 : 2;
@@ -149,26 +164,38 @@ int main(int argc, char **argv) {
         clipmap_close(&m);
         return 2;
     }
+    /* tm: the mapping whose texels the view reads (a view with grids of its own: its own mapping). */
+    static struct clipmap_map own;
+    const struct clipmap_map *tm = &m;
+    if (view.own) {
+        if (clipmap_view_open_own(&m, &view, &own) != 0) {
+            fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], own.error);
+            clipmap_close(&m);
+            return 2;
+        }
+        tm = &own;
+    }
     if (lod != NULL) {
         double height = 0, angle = 0;
         unsigned effective = 0;
         int got = sscanf(lod, "%lf,%lf,%u", &height, &angle, &effective);
         char req_path[4096];
-        size_t n = strlen(argv[1]);
-        if (got < 2 || n < 4 || n >= sizeof req_path || strcmp(argv[1] + n - 4, ".map") != 0) {
+        if (got < 2 || clipmap_request_path(tm, req_path, sizeof req_path) != 0) {
             fprintf(stderr, "clipmap reader: --lod %s: expected HEIGHT,ANGLE[,EFFECTIVE] (such as 12000,0.001) and a "
-                    "MAPPING named *.map\n", lod);
+                    "MAPPING named *.map%s%s\n", lod, got < 2 ? "" : ": ", got < 2 ? "" : req_path);
+            clipmap_close(&own);
             clipmap_close(&m);
             return 2;
         }
-        memcpy(req_path, argv[1], n - 4);
-        memcpy(req_path + n - 4, ".req", 5);
         struct clipmap_request req;
-        int rc = clipmap_request_open(req_path, &m, &req);
-        if (rc == 0) rc = clipmap_request_lod(&req, &view, height, angle, effective) == CLIPMAP_OK ? 0 : -1;
+        int rc = clipmap_request_open(req_path, tm, &req);
+        /* A view with grids of its own asks its own mapping's request mapping for `main`. */
+        if (rc == 0)
+            rc = clipmap_request_lod(&req, view.own ? NULL : &view, height, angle, effective) == CLIPMAP_OK ? 0 : -1;
         if (rc != 0) {
             fprintf(stderr, "clipmap reader: %s: LOD request: %s\n", req_path, req.error);
             clipmap_request_close(&req);
+            clipmap_close(&own);
             clipmap_close(&m);
             return 2;
         }
@@ -176,13 +203,14 @@ int main(int argc, char **argv) {
     }
     if (strcmp(argv[2], "--snapshot") == 0) {
         struct clipmap_snapshot snap;
-        int rc = clipmap_view_snapshot(&m, &view, &snap);
+        int rc = view_snapshot(&m, &view, &own, &snap);
         if (rc != CLIPMAP_OK) {
             fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], snap.error);
+            clipmap_close(&own);
             clipmap_close(&m);
             return rc == CLIPMAP_REMOVED ? 3 : 2;
         }
-        print_view(view.name, view.record, view.incarnation, view.weight);
+        print_view(view.name, view.record, view.incarnation, view.weight, view.own);
         printf("tick %llu min_lod %.17g centre %lld %lld border %llu\n", (unsigned long long)snap.tick, snap.min_lod,
                (long long)snap.centre[0], (long long)snap.centre[1], (unsigned long long)snap.invalid_border);
         for (uint32_t k = 0; k < snap.level_count; k++) {
@@ -191,31 +219,33 @@ int main(int argc, char **argv) {
                    (long long)st->centre[0], (long long)st->centre[1], (long long)st->valid[0], (long long)st->valid[1],
                    (long long)st->valid[2], (long long)st->valid[3], st->enabled, (unsigned long long)st->updated_tick);
         }
+        clipmap_close(&own);
         clipmap_close(&m);
         return 0;
     }
     if (strcmp(argv[2], "--ranges") == 0 || strcmp(argv[2], "--heights-region") == 0) {
-        if (!m.heights) {
+        if (!tm->heights) {
             fprintf(stderr, "clipmap reader: %s: the texels are not heights (heights block all zero)\n", argv[1]);
+            clipmap_close(&own);
             clipmap_close(&m);
             return 2;
         }
         int rc = 0;
         if (strcmp(argv[2], "--ranges") == 0) {
-            for (uint32_t k = 0; k < m.level_count; k++) {
-                const struct clipmap_level_desc *d = &m.levels[k];
+            for (uint32_t k = 0; k < tm->level_count; k++) {
+                const struct clipmap_level_desc *d = &tm->levels[k];
                 for (uint64_t slot = 0; slot < d->slot_count; slot++) {
                     size_t tag = (size_t)(d->tags_offset + slot * CLIPMAP_TAG_BYTES);
-                    int64_t S = (int64_t)clipmap_load(&m, tag + CLIPMAP_T_TILE_S, __ATOMIC_RELAXED);
-                    int64_t T = (int64_t)clipmap_load(&m, tag + CLIPMAP_T_TILE_T, __ATOMIC_RELAXED);
+                    int64_t S = (int64_t)clipmap_load(tm, tag + CLIPMAP_T_TILE_S, __ATOMIC_RELAXED);
+                    int64_t T = (int64_t)clipmap_load(tm, tag + CLIPMAP_T_TILE_T, __ATOMIC_RELAXED);
                     double lo, hi;
-                    if (clipmap_tile_range(&m, k, S, T, &lo, &hi) == CLIPMAP_OK)
+                    if (clipmap_tile_range(tm, k, S, T, &lo, &hi) == CLIPMAP_OK)
                         printf("%u %lld %lld %.17g %.17g\n", k, (long long)S, (long long)T, lo, hi);
                 }
             }
         } else {
             struct clipmap_snapshot snap;
-            int src = clipmap_view_snapshot(&m, &view, &snap);
+            int src = view_snapshot(&m, &view, &own, &snap);
             if (src != CLIPMAP_OK) {
                 fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], snap.error);
                 rc = src == CLIPMAP_REMOVED ? 3 : 2;
@@ -224,8 +254,8 @@ int main(int argc, char **argv) {
                 const struct clipmap_level_state *st = &snap.levels[k];
                 if (!st->enabled) continue;
                 uint64_t w = (uint64_t)(st->valid[2] - st->valid[0]), h = (uint64_t)(st->valid[3] - st->valid[1]);
-                unsigned char *buf = malloc((size_t)(w * h * m.bytes_per_texel));
-                int r = buf ? clipmap_read_region(&m, &snap, k, st->valid[0], st->valid[1], w, h, buf) : -1;
+                unsigned char *buf = malloc((size_t)(w * h * tm->bytes_per_texel));
+                int r = buf ? clipmap_read_region(tm, &snap, k, st->valid[0], st->valid[1], w, h, buf) : -1;
                 if (r != CLIPMAP_OK) {
                     fprintf(stderr, "clipmap reader: level %u region: read failed (%d)\n", k, r);
                     free(buf);
@@ -235,13 +265,13 @@ int main(int argc, char **argv) {
                 printf("level %u region %lld %lld %lld %lld\n", k, (long long)st->valid[0], (long long)st->valid[1],
                        (long long)st->valid[2], (long long)st->valid[3]);
                 for (uint64_t i = 0; i < w * h; i++) {
-                    const unsigned char *p = buf + i * m.bytes_per_texel;
+                    const unsigned char *p = buf + i * tm->bytes_per_texel;
                     double v;
-                    if (m.texel_format == CLIPMAP_FORMAT_L32F) {
+                    if (tm->texel_format == CLIPMAP_FORMAT_L32F) {
                         float f;
                         memcpy(&f, p, 4);
                         v = f;
-                    } else if (m.texel_format == CLIPMAP_FORMAT_L16) {
+                    } else if (tm->texel_format == CLIPMAP_FORMAT_L16) {
                         uint16_t u;
                         memcpy(&u, p, 2);
                         v = u;
@@ -250,30 +280,32 @@ int main(int argc, char **argv) {
                         memcpy(&x, p, 2);
                         v = x;
                     }
-                    if (m.height_has_nodata && v == m.height_nodata)
+                    if (tm->height_has_nodata && v == tm->height_nodata)
                         printf("nodata");
                     else
-                        printf("%.17g", v * m.height_scale + m.height_offset);
+                        printf("%.17g", v * tm->height_scale + tm->height_offset);
                     putchar(i % w == w - 1 ? '\n' : ' ');
                 }
                 free(buf);
             }
         }
+        clipmap_close(&own);
         clipmap_close(&m);
         return rc;
     }
     if (strcmp(argv[2], "--heights") == 0) {
         static const char *const rules[] = {"mean", "point", "min", "max"};
-        if (!m.heights) {
+        if (!tm->heights) {
             printf("not heights\n");
         } else {
-            const char *storage = m.texel_format == CLIPMAP_FORMAT_L32F ? "l32f"
-                                  : m.texel_format == CLIPMAP_FORMAT_L16 ? "l16" : "l16i";
+            const char *storage = tm->texel_format == CLIPMAP_FORMAT_L32F ? "l32f"
+                                  : tm->texel_format == CLIPMAP_FORMAT_L16 ? "l16" : "l16i";
             char nodata[40] = "none";
-            if (m.height_has_nodata) snprintf(nodata, sizeof nodata, "%.17g", m.height_nodata);
-            printf("heights %s scale %.17g offset %.17g nodata %s levels %s\n", storage, m.height_scale,
-                   m.height_offset, nodata, rules[m.height_rule]);
+            if (tm->height_has_nodata) snprintf(nodata, sizeof nodata, "%.17g", tm->height_nodata);
+            printf("heights %s scale %.17g offset %.17g nodata %s levels %s\n", storage, tm->height_scale,
+                   tm->height_offset, nodata, rules[tm->height_rule]);
         }
+        clipmap_close(&own);
         clipmap_close(&m);
         return 0;
     }
@@ -293,10 +325,11 @@ int main(int argc, char **argv) {
     if (bad) {
         fprintf(stderr, "usage: %s MAPPING READS [SEED [SECONDS]] [--view NAME]: READS and SEED are integers, SECONDS "
                 "a number\n", argv[0]);
+        clipmap_close(&own);
         clipmap_close(&m);
         return 2;
     }
-    uint64_t bpt = m.bytes_per_texel;
+    uint64_t bpt = tm->bytes_per_texel;
     unsigned long long passed = 0, failed = 0, busy = 0, stale = 0, missing = 0, moved = 0, idle = 0;
     unsigned long long blocks = 0, crossing = 0;
     unsigned char *buf = malloc((size_t)LARGE * LARGE * 64);
@@ -315,7 +348,7 @@ int main(int argc, char **argv) {
             if ((double)(now.tv_sec - t0.tv_sec) + 1e-9 * (double)(now.tv_nsec - t0.tv_nsec) >= seconds) break;
         }
         if (!have || (iter & 255) == 0) {
-            int rc = clipmap_view_snapshot(&m, &view, &snap);
+            int rc = view_snapshot(&m, &view, &own, &snap);
             if (rc == CLIPMAP_REMOVED) {
                 fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], snap.error);
                 removed = 1;
@@ -324,6 +357,7 @@ int main(int argc, char **argv) {
             if (rc == CLIPMAP_CORRUPT) {
                 fprintf(stderr, "clipmap reader: %s: %s\n", argv[1], snap.error);
                 free(buf);
+                clipmap_close(&own);
                 clipmap_close(&m);
                 return 2;
             }
@@ -334,19 +368,19 @@ int main(int argc, char **argv) {
                 have = 1;
             }
         }
-        uint32_t level = (uint32_t)(next(&rng) % m.level_count);
+        uint32_t level = (uint32_t)(next(&rng) % tm->level_count);
         const struct clipmap_level_state *st = &snap.levels[level];
         if (!st->enabled) {
             idle++;
             continue;
         }
-        const struct clipmap_level_desc *d = &m.levels[level];
+        const struct clipmap_level_desc *d = &tm->levels[level];
         int mode = (int)(next(&rng) % 3);
         int64_t s0, t0b;
         uint64_t w, h;
         pick(&rng, mode, st->valid[0], st->valid[2], d->tile[0], &s0, &w);
         pick(&rng, mode, st->valid[1], st->valid[3], d->tile[1], &t0b, &h);
-        int rc = clipmap_read_region(&m, &snap, level, s0, t0b, w, h, buf);
+        int rc = clipmap_read_region(tm, &snap, level, s0, t0b, w, h, buf);
         if (rc != CLIPMAP_OK) {
             switch (rc) {
             case CLIPMAP_MISSING: missing++; break;
@@ -356,6 +390,7 @@ int main(int argc, char **argv) {
             default:
                 fprintf(stderr, "clipmap reader: level %u: read_region refused the snapshot (%d)\n", level, rc);
                 free(buf);
+                clipmap_close(&own);
                 clipmap_close(&m);
                 return 2;
             }
@@ -388,8 +423,9 @@ int main(int argc, char **argv) {
     printf("%llu passed, %llu failed (%llu blocks, %llu across tiles; skipped: %llu busy, %llu stale, %llu missing, "
            "%llu moved, %llu disabled; heartbeat age %llu ms; view %s)\n",
            passed, failed, blocks, crossing, busy, stale, missing, moved, idle,
-           (unsigned long long)clipmap_heartbeat_age_ms(&m), view.name);
+           (unsigned long long)clipmap_heartbeat_age_ms(tm), view.name);
     free(buf);
+    clipmap_close(&own);
     clipmap_close(&m);
     return failed != 0 ? 1 : removed ? 3 : 0;
 }

@@ -20,6 +20,14 @@ publish further views, each with its own snapshot over the same slots:
     m.snapshot(view="north")          # the same as m.view("north").snapshot()
     request_centre(socket_path, s, t, view="north")   # through the control socket (below)
 
+A view with grids of its own (views block version 2, docs/SHM.md "A view with grids of its own")
+reads `main` of another mapping of the service, DIR/clipmap-NAME@VIEW.map beside the service's
+DIR/clipmap-NAME.map (m must be opened by that name): m.view(name) opens it (every check of any
+mapping, not followed when it is a symbolic link, owned by the owner of m's file) and returns a
+View whose `own` is True and whose `mapping` is that Mapping; snapshot(), read_region() and
+texel() then read it as above, and snapshot() still raises Removed when the view is removed.
+m.views() lists such views (own True) without opening their mappings.
+
 As a program it reads random texel blocks inside the published valid regions of a texture
 served by `clipmapd --source hash` and checks every texel:
 
@@ -44,6 +52,7 @@ is enough, elsewhere treat this module as a reference, not a production reader. 
 truncated after it was mapped raises SIGBUS on access, as with any mmap.
 """
 
+import errno
 import math
 import mmap
 import os
@@ -135,7 +144,8 @@ LOD_HEIGHT, LOD_PIXEL_ANGLE, LOD_EFFECTIVE, LOD_COUNT = 0, 8, 16, 24
 # Views (docs/SHM.md, "Views"): the primary view, "main", is the snapshot at H_SNAPSHOT; further
 # views are the view records of the views block at H_VIEWS_OFFSET.
 VIEWS_MAGIC = b"CLIPVIEW"
-VIEWS_VERSION = 1
+VIEWS_VERSION = 2  # the views block version of this reader; it reads versions VIEWS_VERSION_MIN to this
+VIEWS_VERSION_MIN = 1  # version 1: no record in state VIEW_OWN
 MAX_VIEWS = 64  # view records N: 1..64
 VIEW_RECORD_BYTES = 2240
 VIEW_NAME_BYTES, VIEW_NAME_MAX = 32, 31  # u8[32], NUL-padded: 1..31 of A-Z a-z 0-9 - _ . (never "main")
@@ -145,6 +155,9 @@ VB_MAGIC, VB_VERSION, VB_RECORD_COUNT, VB_RECORD_BYTES, VB_RECORDS = 0, 8, 12, 1
 # View record fields (relative to the record); 0..128 under the record's seqlock (V_SEQ).
 V_SEQ, V_STATE, V_INCARNATION, V_WEIGHT, V_NAME, V_SNAPSHOT = 0, 8, 16, 24, 64, 128
 VIEW_FREE, VIEW_LIVE = 0, 1
+VIEW_OWN = 2  # live with grids of its own (version 2): name, weight, incarnation; the record's snapshot unused
+NAME_MAX = 64  # a service's name: 1..64 of A-Z a-z 0-9 - _ . (DIR/clipmap-NAME.map)
+OWN_SEPARATOR = "@"  # a view's own grids: DIR/clipmap-NAME@VIEW.map (and .req)
 
 # The request lock word (REQ_SEQ; docs/SHM.md, "Request mapping"): odd while a renderer holds it,
 # with its pid in bits 1..31; a word odd for REQUEST_TAKEOVER_MS is taken over only when that pid
@@ -265,53 +278,85 @@ class Snapshot:
 class View:
     """A view bound by Mapping.view(name): the primary view `main` (record None) or a view record
     while it keeps the incarnation it had when it was found. snapshot() raises Removed once the
-    record is freed or given to another view."""
+    record is freed or given to another view. `service` is the mapping holding the record;
+    `mapping` the one whose texels the view reads: the same, or for a view with grids of its own
+    (`own` True) the Mapping of DIR/clipmap-NAME@VIEW.map, read as its `main` (None in a listing of
+    Mapping.views() until the view is read: then it is opened)."""
 
-    __slots__ = ("mapping", "name", "record", "incarnation", "weight", "offset", "snap")
+    __slots__ = ("service", "mapping", "name", "record", "incarnation", "weight", "offset", "snap", "own")
 
     def __repr__(self):
         return (f"View({self.name!r}, record={self.record}, incarnation={self.incarnation}, "
-                f"weight={self.weight})")
+                f"weight={self.weight}{', own' if self.own else ''})")
 
     def alive(self):
         """Raises Removed when the view was removed (its record free, or another incarnation),
         Busy when the record stayed locked, Corrupt when it fails its checks."""
         if self.record is None:
             return
-        state, inc, _, name = self.mapping._view_record(self.record)
-        if state != VIEW_LIVE:
+        state, inc, _, name = self.service._view_record(self.record)
+        if state == VIEW_FREE:
             raise Removed(f'view "{self.name}" was removed: its record {self.record} is free')
-        if inc != self.incarnation:
+        if inc != self.incarnation or (state == VIEW_OWN) != self.own:
             raise Removed(f'view "{self.name}" was removed: its record {self.record} went from incarnation '
                           f'{self.incarnation} to {inc} (view "{name}")')
+
+    def texels(self):
+        """The Mapping whose texels (and `main` snapshot, for a view with grids of its own) the
+        view reads; a view with grids of its own listed by Mapping.views() has it opened now."""
+        if self.mapping is None:
+            self.mapping = self.service._open_own(self.name, self.record, self.incarnation)
+        return self.mapping
 
     def snapshot(self):
         """A consistent, checked copy of the view's snapshot (docs/SHM.md, "Reading a view's
         snapshot"): the record's snapshot under its own sequence counter, then the record's state
         and incarnation under the record's seqlock. Also kept as self.snap. Raises Removed (the
         copy is not used), Busy or Corrupt (self.snap unchanged). Tick 0: nothing published yet."""
-        m = self.mapping
+        m = self.texels()
         if self.record is None:
             self.snap = m.snapshot()
             return self.snap
         err = None
         try:
-            snap = m._snapshot_at(self.offset)
+            # A view with grids of its own: `main`'s snapshot of its own mapping.
+            snap = m._snapshot_at(H_SNAPSHOT if self.own else self.offset)
         except (Busy, Corrupt) as e:
             err = e
         self.alive()  # removed comes first: a record given to another view may be mid-way through its snapshot
         if err is not None:
-            raise type(err)(f'view "{self.name}": {err}')
+            raise type(err)(f'view "{self.name}"{" (grids of its own)" if self.own else ""}: {err}')
         self.snap = snap
         return snap
 
     def read_region(self, level, s0, t0, w, h, snap=None):
         """Mapping.read_region under this view's snapshot (`snap`, else the last one taken, else a
         new one)."""
-        return self.mapping.read_region(level, s0, t0, w, h, snap or self.snap or self.snapshot())
+        return self.texels().read_region(level, s0, t0, w, h, snap or self.snap or self.snapshot())
 
     def texel(self, level, s, t, snap=None):
         return self.read_region(level, s, t, 1, 1, snap)
+
+
+def own_mapping_name(service, view):
+    """The name of the mapping of view `view`'s grids of its own, for the service named `service`:
+    its files are DIR/clipmap-{service}@{view}.map and .req."""
+    return f"{service}{OWN_SEPARATOR}{view}"
+
+
+def own_mapping_path(path, view):
+    """The path of view `view`'s own mapping beside the service's mapping `path`, which must be
+    named DIR/clipmap-NAME.map (docs/SHM.md, "A view with grids of its own"): derived from the two
+    names alone. Raises NoView for a name that is no view name, Refused for a `path` not so named."""
+    if not view_name_ok(view):
+        raise NoView(f'"{view}" is not a view name: expected 1 to {VIEW_NAME_MAX} of A-Z a-z 0-9 - _ .')
+    d, base = os.path.split(path)
+    name = base[len("clipmap-"):-len(".map")] if base.startswith("clipmap-") and base.endswith(".map") else ""
+    if not (1 <= len(name) <= NAME_MAX and all(c in VIEW_NAME_CHARS for c in name.encode())):
+        raise Refused(f'view "{view}" has grids of its own in DIR/clipmap-NAME{OWN_SEPARATOR}VIEW.map, named after '
+                      f"the service's mapping, but the service's mapping was opened as {path}, not "
+                      f"DIR/clipmap-NAME.map (NAME 1 to {NAME_MAX} of A-Z a-z 0-9 - _ .): open it by its published name")
+    return os.path.join(d, f"clipmap-{own_mapping_name(name, view)}.map")
 
 
 def request_centre(socket_path, s, t, view=None, timeout=5.0):
@@ -373,19 +418,33 @@ def _ask(socket_path, line, timeout):
 
 
 class Mapping:
-    """One texel mapping, mapped read-only; every static field checked (Refused otherwise)."""
+    """One texel mapping, mapped read-only; every static field checked (Refused otherwise). With
+    `owner` (a uid; how a view's own mapping is opened): the name is not followed when it is a
+    symbolic link (Refused) and the file must be owned by that uid."""
 
-    def __init__(self, path):
+    def __init__(self, path, owner=None):
         self.path = path
         self.mm = None
         self.q = None
         self.snap = None
+        self.owns = {}  # (record, incarnation) -> the own mapping of a view bound through this one (closed with it)
         # O_NONBLOCK: a FIFO given as the path must not block the open (it is refused below).
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+        flags = os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
+        try:
+            fd = os.open(path, flags | (os.O_NOFOLLOW if owner is not None else 0))
+        except OSError as e:
+            if owner is not None and e.errno == errno.ELOOP:
+                raise Refused(f"{path}: a symbolic link: expected the mapping itself (a name the service publishes "
+                              f"is never a link)") from None
+            raise
         try:
             st = os.fstat(fd)
+            self.uid = st.st_uid
             if not stat.S_ISREG(st.st_mode):
                 raise Refused(f"{path}: not a regular file")
+            if owner is not None and st.st_uid != owner:
+                raise Refused(f"{path}: owned by uid {st.st_uid}, expected uid {owner}, the owner of the service's "
+                              f"mapping: not a file the service published (remove it, or ask its owner)")
             size = st.st_size
             if size < H_END:
                 raise Refused(f"{path}: truncated: {size} bytes, a mapping has at least {H_END}")
@@ -509,13 +568,13 @@ class Mapping:
         """Checks the views block (docs/SHM.md, "Checks of the block") and sets views_offset,
         view_records and views_error. Refused for an offset that is not 0, not a multiple of 4096,
         before `slots_end` (the end of the last level's slots) or with the block past the end of
-        the mapping; for a version-1 block with N outside 1..64, record bytes other than 2240, or
+        the mapping; for a version-1 or -2 block with N outside 1..64, record bytes other than 2240, or
         a record that fails its checks (one the writer keeps locked is checked when it is read).
         A magic or version this reader does not know leaves "main" readable and every other view
         not (views_error says why), as a reader of layout 2 that ignores the block would."""
         path, m, total = self.path, self.mm, len(self.mm)
         off = self._u64(H_VIEWS_OFFSET)
-        self.views_offset, self.view_records, self.views_error = 0, 0, None
+        self.views_offset, self.view_records, self.views_error, self.views_version = 0, 0, None, 0
         if off == 0:
             return
         if off % PAGE or off < slots_end or off + VB_RECORDS > total:
@@ -529,9 +588,10 @@ class Mapping:
             self.views_error = (f"views block at {off}, byte {off + VB_MAGIC} (magic): found {magic!r}, "
                                 f"expected {VIEWS_MAGIC.decode()!r}")
             return
-        if version != VIEWS_VERSION:
+        if not VIEWS_VERSION_MIN <= version <= VIEWS_VERSION:
             self.views_error = (f"views block at {off}, byte {off + VB_VERSION} (version): found {version}, "
-                                f"this reader reads views block version {VIEWS_VERSION} only")
+                                f"this reader reads views block versions {VIEWS_VERSION_MIN} to {VIEWS_VERSION} only "
+                                f"(main still reads; for other views use a reader of the service's release)")
             return
         n, rb = self._u32(off + VB_RECORD_COUNT), self._u32(off + VB_RECORD_BYTES)
         if not 1 <= n <= MAX_VIEWS:
@@ -545,7 +605,7 @@ class Mapping:
             raise Refused(f"{path}: header byte {H_VIEWS_OFFSET} (views block offset): found {off}, but the views "
                           f"block of {n} records ({size} bytes) then ends at {off + size}, past the end of the "
                           f"{total}-byte mapping")
-        self.view_records = n
+        self.view_records, self.views_version = n, version
         q = memoryview(m)[off:off + size].cast("Q")  # the records' words, before self.q exists
         try:
             for r in range(n):
@@ -562,7 +622,8 @@ class Mapping:
         """View record r's fields 0..128 read under the record's seqlock and checked: (state,
         incarnation, weight, name). Busy when the writer kept it locked for MAX_RETRIES attempts;
         Corrupt for a state other than 0 or 1 or, on a live record, a weight not finite and above
-        0 or a name not 1 to 31 allowed characters followed by NULs only (or "main")."""
+        0 or a name not 1 to 31 allowed characters followed by NULs only (or "main"). State 2 (VIEW_OWN,
+        live with grids of its own) is one only a version-2 block may hold."""
         if q is None:
             q, base = self.q, 0
         at = self.views_offset + VB_RECORDS + r * VIEW_RECORD_BYTES
@@ -579,13 +640,17 @@ class Mapping:
         state, inc, wbits = f[0], f[1], f[2]
         raw = b"".join(x.to_bytes(8, "little") for x in f[V_NAME // 8 - 1:])
         where = f"views block at {self.views_offset}, record {r}, byte"
-        if state > VIEW_LIVE:
-            raise Corrupt(f"{where} {at + V_STATE} (state): found {state}, expected 0 (free) or 1 (live)")
+        if self.views_version >= 2 and state > VIEW_OWN:
+            raise Corrupt(f"{where} {at + V_STATE} (state): found {state}, expected 0 (free), 1 (live) or 2 (live "
+                          f"with grids of its own)")
+        if self.views_version < 2 and state > VIEW_LIVE:
+            raise Corrupt(f"{where} {at + V_STATE} (state): found {state}, expected 0 (free) or 1 (live) in a views "
+                          f"block of version {self.views_version} (state 2 comes with version 2)")
         weight = struct.unpack("<d", struct.pack("<Q", wbits))[0]
         n = raw.find(b"\0")
         n = len(raw) if n < 0 else n
         name = raw[:n].decode("ascii", "replace")
-        if state != VIEW_LIVE:
+        if state == VIEW_FREE:
             return state, inc, weight, name
         if not (math.isfinite(weight) and weight > 0):
             raise Corrupt(f"{where} {at + V_WEIGHT} (weight): found {weight!r} (bits {wbits:016x}), expected a "
@@ -597,15 +662,16 @@ class Mapping:
 
     def views(self):
         """The views that exist: [View] with `main` first, then one per live view record in record
-        order (each record read under its seqlock). Busy when a record stayed locked, Corrupt when
-        one fails its checks or the views block has a magic or version this reader does not read."""
+        order (each record read under its seqlock; a view with grids of its own has own True, its
+        mapping not opened yet). Busy when a record stayed locked, Corrupt when one fails its checks
+        or the views block has a magic or version this reader does not read."""
         out = [self._main_view()]
         if self.views_error:
             raise Corrupt(self.views_error)
         for r in range(self.view_records):
             state, inc, weight, name = self._view_record(r)
-            if state == VIEW_LIVE:
-                out.append(self._bind(r, inc, weight, name))
+            if state != VIEW_FREE:
+                out.append(self._bind(r, inc, weight, name, state == VIEW_OWN))
         return out
 
     def view_names(self):
@@ -615,18 +681,44 @@ class Mapping:
     def _main_view(self):
         v = View()
         v.mapping, v.name, v.record, v.incarnation, v.weight, v.offset, v.snap = self, "main", None, 0, 0.0, H_SNAPSHOT, None
+        v.service, v.own = self, False
         return v
 
-    def _bind(self, r, inc, weight, name):
+    def _bind(self, r, inc, weight, name, own=False):
+        """A View of record r; with `own` (state VIEW_OWN) its mapping is opened when it is read."""
         v = View()
-        v.mapping, v.name, v.record, v.incarnation, v.weight, v.snap = self, name, r, inc, weight, None
-        v.offset = self.views_offset + VB_RECORDS + r * VIEW_RECORD_BYTES + V_SNAPSHOT
+        v.service, v.name, v.record, v.incarnation, v.weight, v.snap, v.own = self, name, r, inc, weight, None, own
+        v.mapping = None if own else self
+        v.offset = None if own else self.views_offset + VB_RECORDS + r * VIEW_RECORD_BYTES + V_SNAPSHOT
         return v
+
+    def _open_own(self, name, record, incarnation):
+        """Opens the mapping of view `name`'s grids of its own (own_mapping_path): every check of
+        any mapping, not followed when a symbolic link, owned by the owner of this mapping's file.
+        Refused (naming the path) when it is missing or refused; closed with this mapping. The view
+        of record `record` and `incarnation` has one: a second binding of it shares the first's."""
+        if (record, incarnation) in self.owns:
+            return self.owns[(record, incarnation)]
+        path = own_mapping_path(self.path, name)
+        try:
+            own = Mapping(path, owner=self.uid)
+        except FileNotFoundError:
+            raise Refused(f'view "{name}" has grids of its own: {path}: no such file (expected the mapping the '
+                          f"service publishes for the view: it was removed or is not published yet; look the view "
+                          f"up again)") from None
+        except OSError as e:
+            raise Refused(f'view "{name}" has grids of its own: {path}: {e.strerror or e}') from None
+        except Refused as e:
+            raise Refused(f'view "{name}" has grids of its own: {e}') from None
+        self.owns[(record, incarnation)] = own
+        return own
 
     def view(self, name):
         """Binds the view called `name` (docs/SHM.md, "Finding a view by name"): "main" is the
         primary view; any other name is looked for among the live view records (each read under
-        its seqlock), and the record and its incarnation are kept. Raises NoView (not a view name,
+        its seqlock), and the record and its incarnation are kept. A view with grids of its own
+        (record state 2) has its own mapping opened now (Refused, naming its path, when it is
+        missing or refused), and is read as that mapping's `main`. Raises NoView (not a view name,
         or no live record carries it: the message names the views that exist), Busy (no record
         carries it but one stayed locked), Corrupt (a record fails its checks, or the views block
         has a magic or version this reader does not read)."""
@@ -644,10 +736,12 @@ class Mapping:
             except Busy:
                 busy = r
                 continue
-            if state != VIEW_LIVE:
+            if state == VIEW_FREE:
                 continue
             if got == name:
-                return self._bind(r, inc, weight, got)
+                v = self._bind(r, inc, weight, got, state == VIEW_OWN)
+                v.texels()  # a view with grids of its own: open its mapping now
+                return v
             names.append(got)
         if busy is not None:
             raise Busy(f'no live view record is called "{name}" but view record {busy} stayed locked for '
@@ -906,6 +1000,9 @@ class Mapping:
         return bool(self.q[H_FLAGS // 8] & 1)
 
     def close(self):
+        for own in self.owns.values():
+            own.close()
+        self.owns = {}
         if self.q is not None:
             self.q.release()
             self.q = None
@@ -951,7 +1048,8 @@ def _view_line(v):
     """A view's line of --views and --snapshot (the C reader prints the same)."""
     if v.record is None:
         return f"view {v.name} primary"
-    return "view %s record %d incarnation %d weight %.17g" % (v.name, v.record, v.incarnation, v.weight)
+    return "view %s record %d incarnation %d weight %.17g%s" % (v.name, v.record, v.incarnation, v.weight,
+                                                               " own" if v.own else "")
 
 
 def main(argv):
@@ -1026,8 +1124,9 @@ def main(argv):
         # region S0 T0 S1 T1" and then one line per row of the region (increasing t), each
         # texel's metres as %.17g or "nodata". The C reader's options print the same.
         try:
-            m = Mapping(argv[1])
-            view = m.view(view_name)
+            service = Mapping(argv[1])
+            view = service.view(view_name)
+            m = view.texels()  # a view with grids of its own: its own mapping
             if m.heights is None:
                 raise Refused(f"{argv[1]}: the texels are not heights (heights block all zero)")
             if argv[2] == "--ranges":
@@ -1056,7 +1155,7 @@ def main(argv):
         except (ClipmapError, OSError, ValueError) as e:
             print(f"clipmap_shm: {e}", file=sys.stderr)
             return 2
-        m.close()
+        service.close()
         return 0
     if len(argv) == 3 and argv[2] == "--growth":
         # python3 clipmap_shm.py MAPPING --growth: the growth block as JSON (null: not growing).
@@ -1089,9 +1188,10 @@ def main(argv):
         print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
         m.close()
         return 2
+    tm = view.mapping  # the texels the view reads: a view with grids of its own, its own mapping's
     give_up = time.monotonic() + seconds
     passed = failed = busy = stale = missing = moved = idle = blocks = crossing = 0
-    bpt = m.bpt
+    bpt = tm.bpt
     snap = None
     removed = False
     it = 0
@@ -1113,19 +1213,19 @@ def main(argv):
                 m.close()
                 return 2
         rng[0] = splitmix64(rng[0])
-        level = rng[0] % m.count
+        level = rng[0] % tm.count
         st = snap.levels[level]
         if not st.enabled:
             idle += 1
             continue
-        d = m.levels[level]
+        d = tm.levels[level]
         rng[0] = splitmix64(rng[0])
         mode = rng[0] % 3
         v = st.valid
         s0, w = _pick(rng, mode, v[0], v[2], d.tile[0])
         t0, h = _pick(rng, mode, v[1], v[3], d.tile[1])
         try:
-            got = m.read_region(level, s0, t0, w, h, snap)
+            got = tm.read_region(level, s0, t0, w, h, snap)
         except ReadError as e:
             if isinstance(e, Missing):
                 missing += 1
@@ -1151,7 +1251,7 @@ def main(argv):
                     failed += 1
                 i += bpt
     print(f"{passed} passed, {failed} failed ({blocks} blocks, {crossing} across tiles; skipped: {busy} busy, "
-          f"{stale} stale, {missing} missing, {moved} moved, {idle} disabled; heartbeat age {m.heartbeat_age_ms()} ms; "
+          f"{stale} stale, {missing} missing, {moved} moved, {idle} disabled; heartbeat age {tm.heartbeat_age_ms()} ms; "
           f"view {view.name})")
     m.close()
     return 1 if failed else 3 if removed else 0

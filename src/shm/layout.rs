@@ -441,20 +441,6 @@ pub mod views {
     /// This block's version: 2 adds record state [`STATE_OWN`] to version 1 (docs/SHM.md,
     /// "Views"). Readers read both.
     pub const BLOCK_VERSION: u32 = 2;
-    /// Record state: free.
-    pub const STATE_FREE: u64 = 0;
-    /// Record state: a live view in this mapping's grids.
-    pub const STATE_LIVE: u64 = 1;
-    /// Record state (version 2): a live view with grids of its own, published as `main` of the
-    /// mapping named [`own_mapping_name`]; the record's snapshot is unused.
-    pub const STATE_OWN: u64 = 2;
-
-    /// The name of the mapping of view `view`'s own grids, of the service whose mapping is named
-    /// `service` (both names checked by the caller): `SERVICE@VIEW`, so that its file is
-    /// `clipmap-SERVICE@VIEW.map` beside the service's.
-    pub fn own_mapping_name(service: &str, view: &str) -> String {
-        format!("{service}@{view}")
-    }
     /// Bytes of one record: its fields, then its snapshot.
     pub const RECORD_BYTES: usize = SNAPSHOT + super::header::LEVEL_DESCS - super::header::SNAPSHOT;
     /// Most records a block may have.
@@ -470,8 +456,15 @@ pub mod views {
     /// Record fields, relative to the record.
     /// `u64` the record's sequence counter (odd while the writer changes fields 0..128).
     pub const SEQ: usize = 0;
-    /// `u64` 0 free, 1 live.
+    /// `u64` [`STATE_FREE`], [`STATE_LIVE`] or [`STATE_OWN`].
     pub const STATE: usize = 8;
+    /// State of a free record.
+    pub const STATE_FREE: u64 = 0;
+    /// State of a live view's record.
+    pub const STATE_LIVE: u64 = 1;
+    /// State of a live view with grids of its own (version 2): its texels, snapshot and requests
+    /// are those of `main` of the mapping named [`own_mapping_name`] in the same directory.
+    pub const STATE_OWN: u64 = 2;
     /// `u64` incremented each time the record is given to a view.
     pub const INCARNATION: usize = 16;
     /// `f64` bits: the view's weight.
@@ -482,6 +475,12 @@ pub mod views {
     pub const NAME_BYTES: usize = 32;
     /// The view's snapshot, laid out as the one at [`super::header::SNAPSHOT`].
     pub const SNAPSHOT: usize = 128;
+
+    /// The name of the mapping of view `view`'s own grids (record state [`STATE_OWN`]) for the
+    /// service named `service`: `DIR/clipmap-{service}@{view}.map` and `.req`.
+    pub fn own_mapping_name(service: &str, view: &str) -> String {
+        format!("{service}@{view}")
+    }
 
     /// Bytes of a block of `records` records, page-rounded.
     pub fn block_bytes(records: usize) -> u64 {
