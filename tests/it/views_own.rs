@@ -4,7 +4,8 @@
 //! service's mapping and follow it there, it shows its finest level where a view sharing the
 //! primary's grids cannot, and its mapping goes when it is removed.
 
-use crate::clipmapd::{counts, json_reply, rust_reader, Service};
+use crate::clipmapd::{c_reader, counts, json_reply, python_reader, rust_reader, Service};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 fn view<'a>(stats: &'a serde_json::Value, name: &str) -> &'a serde_json::Value {
@@ -44,6 +45,15 @@ fn a_view_with_grids_of_its_own_shows_level_0_far_from_main_is_read_by_name_and_
     let line: serde_json::Value =
         serde_json::from_str(String::from_utf8_lossy(&out.stdout).lines().next().unwrap()).unwrap();
     assert_eq!(line["view"], "far", "{line}");
+    // The C and Python readers find it in the service's mapping and follow it to its own.
+    let map = d.join("clipmap-vo.map");
+    let mut c = Command::new(c_reader(d));
+    c.stdout(Stdio::piped()).stderr(Stdio::piped());
+    for (what, mut cmd) in [("c", c), ("python", python_reader())] {
+        let out = cmd.arg(&map).args(["1000000000000", "5", "1", "--view", "far"]).output().unwrap();
+        let (passed, failed) = counts(&out, what);
+        assert!(out.status.success() && failed == 0 && passed > 1000, "{what}: {passed} {failed}\n{out:?}");
+    }
     // Driven by its reader, it moves (its own mapping's request, not main's).
     let before = json_reply(&svc.ask("STATS"))["centre"].clone();
     let out =

@@ -10,13 +10,15 @@ use std::process::{Child, Command, Output, Stdio};
 use std::time::Duration;
 
 /// The options the service starts (and restarts) with: two views on the command line.
-const VIEWS: &[&str] = &["--budget-ms", "2", "--view", "near:3", "--view", "far", "--view-spread", "256"];
+const VIEWS: &[&str] =
+    &["--budget-ms", "2", "--view", "near:3", "--view", "far", "--view", "tower:2:own", "--view-spread", "256"];
 
 /// What every restart must give: the `--view` views, and the socket's views added again by hand
 /// (`again`), `far` moved away again.
 fn set_up_views(svc: &Service) {
     assert!(svc.ask("VIEW ADD again 2").starts_with("OK view again added"), "{}", svc.dump());
     assert!(svc.ask("VIEW CENTRE far 60000 3000").starts_with("OK view far centre 60000 3000"));
+    assert!(svc.ask("VIEW CENTRE tower 5000 60000").starts_with("OK view tower centre 5000 60000"));
 }
 
 fn json_line(out: &Output, what: &str) -> serde_json::Value {
@@ -48,6 +50,7 @@ fn views_survive_sigkill_and_restart_every_texel_right_and_socket_views_are_refu
         ("near", follower("near", &["--drive", "--seed", "2"])),
         ("far", follower("far", &["--block", "5", "--seed", "3"])),
         ("again", follower("again", &["--seed", "4"])),
+        ("tower", follower("tower", &["--block", "5", "--seed", "6"])),
         ("sock", follower("sock", &["--seed", "5"])),
     ];
     // C and Python readers cannot follow a restart: they read the first service's mapping
@@ -67,12 +70,13 @@ fn views_survive_sigkill_and_restart_every_texel_right_and_socket_views_are_refu
     let mut others: Vec<(String, Child)> = vec![
         ("c near, across the first kill".into(), c("near", "2.5")),
         ("python far, across the first kill".into(), py("far", "2.5")),
+        ("c tower (own grids), across the first kill".into(), c("tower", "2.5")),
     ];
     let kills = 2;
     for i in 0..kills {
         std::thread::sleep(Duration::from_millis(1200));
         let views = json_reply(&svc.ask("VIEWS"));
-        assert_eq!(views.as_array().unwrap().len(), if i == 0 { 5 } else { 4 }, "{views}");
+        assert_eq!(views.as_array().unwrap().len(), if i == 0 { 6 } else { 5 }, "{views}");
         svc.child.kill().unwrap(); // SIGKILL, in the middle of whatever it was doing
         svc.child.wait().unwrap();
         std::thread::sleep(Duration::from_millis(600));
@@ -87,19 +91,24 @@ fn views_survive_sigkill_and_restart_every_texel_right_and_socket_views_are_refu
                 .collect()
         };
         let list = json_reply(&svc.ask("VIEWS"));
-        assert_eq!(names(&svc), ["main", "near", "far"], "after restart {}: {list}", i + 1);
+        assert_eq!(names(&svc), ["main", "near", "far", "tower"], "after restart {}: {list}", i + 1);
         assert_eq!(list[1]["weight"], 3.0, "{list}");
         // A new reader of a socket's view is refused by name, listing the views there are.
         let gone = rust_reader(d, "vk", &["--view", "sock", "--reads", "1000"]).output().unwrap();
         assert_eq!(gone.status.code(), Some(2), "{}", stderr(&gone));
-        assert!(stderr(&gone).contains("no view `sock`: the service publishes main, near, far"), "{}", stderr(&gone));
+        assert!(
+            stderr(&gone).contains("no view `sock`: the service publishes main, near, far, tower"),
+            "{}",
+            stderr(&gone)
+        );
         set_up_views(&svc);
-        assert_eq!(names(&svc), ["main", "near", "far", "again"]);
+        assert_eq!(names(&svc), ["main", "near", "far", "tower", "again"]);
         eprintln!("restart {} done", i + 1);
     }
     // The last service's mapping, read by C and Python, a view each.
     others.push(("c far, after the restarts".into(), c("far", "1.5")));
     others.push(("python near, after the restarts".into(), py("near", "1.5")));
+    others.push(("python tower (own grids), after the restarts".into(), py("tower", "1.5")));
     for (what, child) in others {
         let out = child.wait_with_output().unwrap();
         let (passed, failed) = counts(&out, &what);
@@ -123,7 +132,7 @@ fn views_survive_sigkill_and_restart_every_texel_right_and_socket_views_are_refu
             let err = stderr(&out);
             assert!(
                 err.contains("view `sock` did not come back after the service restarted")
-                    && err.contains("no view `sock`: the service publishes main, near, far"),
+                    && err.contains("no view `sock`: the service publishes main, near, far, tower"),
                 "{err}"
             );
             assert!(json["stale_seen"].as_u64().unwrap() >= 1, "{json}");
@@ -140,6 +149,9 @@ fn views_survive_sigkill_and_restart_every_texel_right_and_socket_views_are_refu
     let stats = json_reply(&svc.ask("STATS"));
     assert_eq!(stats["engine"]["slots_reassigned_under_published"], 0, "{stats}");
     assert_eq!(stats["engine"]["slots_reassigned_under_views"], 0, "{stats}");
-    let far = &json_reply(&svc.ask("VIEWS"))[2];
-    assert_eq!(far["centre"], serde_json::json!([60000, 3000]), "{far}");
+    let views = json_reply(&svc.ask("VIEWS"));
+    assert_eq!(views[2]["centre"], serde_json::json!([60000, 3000]), "{views}");
+    // The view with grids of its own came back with them, where it was set.
+    assert_eq!((views[3]["name"].as_str(), views[3]["grids"].as_str()), (Some("tower"), Some("own")), "{views}");
+    assert_eq!(views[3]["centre"], serde_json::json!([5000, 60000]), "{views}");
 }
