@@ -134,6 +134,7 @@ Examples:
   cliptex plan my.ct                       # sizes, clip and texel format from the .ct
   cliptex plan my.ct --clip 2048 --json    # the same texture with another clip size
   cliptex plan --size 65536 --clip 512 --tile 128 --view-spread 4096   # grids for views 4096 texels apart
+  cliptex plan --size 65536 --clip 512 --tile 128 --own-views 3        # and three views with grids of their own
   cliptex plan --table --clip 2048 --texel-bytes 4")]
     Plan {
         /// A .ct to size: its virt_size, clip_size, texel format and invalid_border (its .ic
@@ -188,6 +189,10 @@ Examples:
         /// --view-spread` (docs/VIEWS.md): the grids the engine widens for it, and their bytes.
         #[arg(long, value_name = "TEXELS", default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=clipmap::limits::MAX_TEXTURE_SIZE))]
         view_spread: u64,
+        /// Views with grids of their own, as `clipmapd --view NAME:W:own` (docs/VIEWS.md, "Views
+        /// far apart"): each one view's mapping more, and the bytes of every mapping together.
+        #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=15))]
+        own_views: u64,
         /// Print memory for texture sizes 2^10 to 2^26 at once.
         #[arg(long)]
         table: bool,
@@ -730,6 +735,7 @@ fn run(cli: Cli) -> i32 {
             lookahead,
             heights,
             view_spread,
+            own_views,
             table,
             json,
             env,
@@ -777,6 +783,7 @@ fn run(cli: Cli) -> i32 {
                 lookahead,
                 heights: heights || from_ct.as_ref().is_some_and(|p| p.height.is_some()),
                 view_spread,
+                own_views,
             };
             match report::plan::compute(&req) {
                 Ok(p) => {

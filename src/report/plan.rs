@@ -40,6 +40,9 @@ pub struct Request {
     pub heights: bool,
     /// Level-0 texels views may lie apart and be held whole (`clipmapd --view-spread`; 0: none).
     pub view_spread: u64,
+    /// Views with grids of their own (`clipmapd --view NAME:W:own`; docs/VIEWS.md, "Views far
+    /// apart"): each a mapping of one view's grids beside the service's.
+    pub own_views: u64,
 }
 
 /// The image caches the engine and `clipmapd` keep (layout 2): every stack level a grid of whole
@@ -70,6 +73,13 @@ pub struct ImageCaches {
     /// Bytes of the views block (one record for each further view the service may keep;
     /// docs/VIEWS.md), included in `bytes`: the only cost of views that share the grids.
     pub views_block_bytes: u64,
+    /// Views with grids of their own (`--own-views`; docs/VIEWS.md, "Views far apart").
+    pub own_views: u64,
+    /// Bytes of one such view's mapping (`clipmap-NAME@VIEW.map`: one view's grids, never
+    /// widened), 0 without such views.
+    pub own_view_bytes: u64,
+    /// Bytes of every mapping together: `bytes + own_views x own_view_bytes`.
+    pub all_bytes: u64,
 }
 
 /// The answer.
@@ -173,6 +183,9 @@ pub fn image_caches(
         bytes: placed.total_bytes,
         tile_range_bytes,
         views_block_bytes: placed.total_bytes - placed.views,
+        own_views: 0,
+        own_view_bytes: 0,
+        all_bytes: placed.total_bytes,
     })
 }
 
@@ -240,11 +253,19 @@ pub fn compute(r: &Request) -> Result<Plan, SizingError> {
         })
     });
     let clip = 1u64 << memory.log2_clip;
-    let (image_caches, no_image_caches) =
-        match image_caches(r.size, clip, r.texel_bytes, r.tile, r.lookahead, r.heights, r.view_spread) {
-            Ok(ic) => (Some(ic), None),
-            Err(why) => (None, Some(why)),
-        };
+    let caches = |spread| image_caches(r.size, clip, r.texel_bytes, r.tile, r.lookahead, r.heights, spread);
+    let (image_caches, no_image_caches) = match caches(r.view_spread) {
+        Ok(mut ic) if r.own_views > 0 => {
+            let own = caches(0).map_or(0, |o| o.bytes);
+            ic.own_views = r.own_views;
+            ic.own_view_bytes = own;
+            ic.all_bytes = ic.bytes.saturating_add(own.saturating_mul(r.own_views));
+            (Some(ic), None)
+        }
+        Ok(ic) => (Some(ic), None),
+        Err(why) => (None, Some(why)),
+    };
+
     Ok(Plan {
         image_caches,
         no_image_caches,
@@ -331,6 +352,15 @@ pub fn human(p: &Plan, r: &Request) -> String {
             "image caches none: the engine cannot serve this texture: {}\n",
             p.no_image_caches.as_deref().unwrap_or("unknown")
         )),
+    }
+    if let Some(ic) = p.image_caches.as_ref().filter(|ic| ic.own_views > 0) {
+        o.push_str(&format!(
+            "own grids    {} view{} with grids of their own: a mapping of {} each beside the service's; all mappings {}\n",
+            ic.own_views,
+            if ic.own_views == 1 { "" } else { "s" },
+            human_bytes(ic.own_view_bytes as u128),
+            human_bytes(ic.all_bytes as u128)
+        ));
     }
     o.push_str(&format!("full mipmap  {} texels, {}\n", grouped(m.mipmap_texels), human_bytes(m.mipmap_bytes)));
     o.push_str(&format!(

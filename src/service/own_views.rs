@@ -16,7 +16,7 @@
 use super::stats::TickStats;
 use crate::clip::{Clipmap, LodWindow, Settings, PRIMARY};
 use crate::shm::layout::{self, views::own_mapping_name};
-use crate::shm::Writer;
+use crate::shm::{Client, FromMapping, Writer};
 use crate::source::TileSource;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -33,16 +33,28 @@ pub(super) struct Setup {
     pub(super) period_ns: u64,
     pub(super) heights: Option<layout::Heights>,
     pub(super) effective_levels: Option<u32>,
+    /// The service's mapping: an own view's clipmap takes the tiles its slots hold from there
+    /// ([`FromMapping`]) rather than reading them again.
+    pub(super) main_mapping: PathBuf,
 }
 
 /// One view with grids of its own.
 pub(super) struct OwnView {
     pub(super) clipmap: Clipmap,
     writer: Writer,
+    /// Its source, taking tiles from the service's mapping (`None`: that could not be read).
+    from_mapping: Option<Arc<FromMapping>>,
     pub(super) centre: [i64; 2],
     pub(super) velocity: Option<[i64; 2]>,
     last_request: u64,
     last_lod: u64,
+}
+
+impl OwnView {
+    /// Tiles this view took from the service's mapping.
+    pub(super) fn shared_reads(&self) -> u64 {
+        self.from_mapping.as_ref().map_or(0, |f| f.hits())
+    }
 }
 
 /// Every view with grids of its own, by name.
@@ -73,7 +85,19 @@ impl OwnViews {
             s.heights,
         )
         .map_err(|e| format!("view {name}: its own mapping {own}: {e}"))?;
-        let mut clipmap = match Clipmap::with_memory(Arc::clone(&s.source), s.settings.clone(), writer.memory()) {
+        // Tiles the primary's grids hold (the coarse levels at least) are taken from them.
+        let from_mapping = match Client::attach_path(&s.main_mapping) {
+            Ok(main) => Some(Arc::new(FromMapping::new(Arc::clone(&s.source), main))),
+            Err(e) => {
+                tracing::warn!(view = %name, "the service's own mapping cannot be read ({e}): every tile of the view is read from the source");
+                None
+            }
+        };
+        let source: Arc<dyn TileSource> = match &from_mapping {
+            Some(f) => f.clone(),
+            None => Arc::clone(&s.source),
+        };
+        let mut clipmap = match Clipmap::with_memory(source, s.settings.clone(), writer.memory()) {
             Ok(c) => c,
             Err(e) => {
                 writer.close();
@@ -86,7 +110,7 @@ impl OwnViews {
         tracing::info!(view = %name, mapping = %writer.path().display(), "view with grids of its own added");
         self.views.insert(
             name.to_string(),
-            OwnView { clipmap, writer, centre, velocity: None, last_request: 0, last_lod: 0 },
+            OwnView { clipmap, writer, from_mapping, centre, velocity: None, last_request: 0, last_lod: 0 },
         );
         Ok(())
     }

@@ -408,6 +408,10 @@ pub struct ViewStats {
     /// `NAME@VIEW` (docs/VIEWS.md, "Views far apart").
     #[serde(default)]
     pub grids: String,
+    /// A view with grids of its own: tiles its grids took from the primary's rather than read
+    /// from the source again (0 for a view sharing the primary's grids).
+    #[serde(default)]
+    pub shared_reads: u64,
     /// Its weight.
     pub weight: f64,
     /// Its level-0 centre as the last tick applied it (`null` before its first).

@@ -212,7 +212,8 @@ impl Runner {
             Writer::create(&o.shm_dir, &o.name, shape, desc.format(), o.shm_mode, request_mode, period_ns, heights)?;
         let setup = Setup {
             source: Arc::clone(&source),
-            settings: settings.clone(),
+            // An own view's grids hold that view alone: never widened for others.
+            settings: Settings { view_spread: 0, ..settings.clone() },
             dir: o.shm_dir.clone(),
             service: o.name.clone(),
             shm_mode: o.shm_mode,
@@ -220,6 +221,7 @@ impl Runner {
             period_ns,
             heights,
             effective_levels: o.effective_levels,
+            main_mapping: writer.path().to_path_buf(),
         };
         let mut clipmap = match Clipmap::with_memory(source, settings, writer.memory()) {
             Ok(c) => c,
@@ -262,6 +264,10 @@ impl Runner {
             own: OwnViews::new(setup),
         };
         let mut runner = runner;
+        // Holding the service's lock: what a dead predecessor left of its views' own mappings goes.
+        for view in crate::shm::writer::remove_dead_own_mappings(&o.shm_dir, &o.name) {
+            tracing::info!(view = %view, "removed the own mapping a stopped service left for view {view}");
+        }
         if let Some(e) = o.effective_levels {
             let lod = crate::clip::LodWindow { offset: 0, effective: e };
             if let Err(why) = runner.clipmap.set_view_lod(PRIMARY, lod) {
@@ -596,6 +602,7 @@ impl Runner {
                 super::stats::ViewStats {
                     name,
                     grids: if own.is_some() { "own" } else { "shared" }.to_string(),
+                    shared_reads: own.map_or(0, |v| v.shared_reads()),
                     weight: main.view_weight(vid).unwrap_or(1.0),
                     centre: m.view_centre(id).ok().flatten(),
                     min_lod,

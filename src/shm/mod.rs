@@ -17,6 +17,7 @@ pub mod memory;
 pub mod names;
 #[allow(unsafe_code)] // the one module of raw pointer access; each block argues its SAFETY
 mod raw;
+pub mod shared_reads;
 pub mod verify;
 mod view_block;
 pub mod writer;
@@ -26,6 +27,7 @@ mod tests;
 
 pub use client::{Client, LevelState, ReadError, Snapshot};
 pub use memory::{ImageMemory, Publication, PublishedLevel};
+pub use shared_reads::FromMapping;
 pub use writer::Writer;
 
 use std::path::{Path, PathBuf};

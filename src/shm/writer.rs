@@ -453,6 +453,50 @@ impl Writer {
     }
 }
 
+/// Removes what a dead predecessor of the service named `service` left of its views' own
+/// mappings (`DIR/clipmap-SERVICE@VIEW.map`, `.req` and `.lock`; docs/SHM.md, "A view with grids
+/// of its own"): a view added on the socket is not there after a restart, and its files would
+/// otherwise stay in the shared directory. Only names whose lock nobody holds and whose mapping
+/// no live process publishes are removed, and only regular files of this user; anything else is
+/// left alone. Call it while holding the service's own lock, before adding views. Returns the
+/// views whose files were removed.
+pub(crate) fn remove_dead_own_mappings(dir: &Path, service: &str) -> Vec<String> {
+    let prefix = format!("clipmap-{service}@");
+    let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
+    let mut removed = Vec::new();
+    for entry in entries.flatten() {
+        let file = entry.file_name();
+        let Some(view) = file.to_str().and_then(|f| f.strip_prefix(&prefix)).and_then(|r| r.strip_suffix(".lock"))
+        else {
+            continue;
+        };
+        if layout::views::check_name(view).is_err() {
+            continue;
+        }
+        let own = layout::views::own_mapping_name(service, view);
+        let lock_path = lock_path(dir, &own);
+        let Ok(lock) = names::open_own(&lock_path) else { continue };
+        if lock.try_lock().is_err() {
+            continue;
+        }
+        let map = map_path(dir, &own);
+        if live_publisher(&map).is_some() {
+            continue;
+        }
+        for p in [map, request_path(dir, &own)] {
+            if std::fs::symlink_metadata(&p).is_ok_and(|m| names::check_own_file(&p, &m).is_ok()) {
+                let _ = std::fs::remove_file(&p);
+            }
+        }
+        if let Ok(m) = lock.metadata() {
+            names::remove_if_same(&lock_path, names::Identity::of(&m));
+        }
+        removed.push(view.to_string());
+    }
+    removed.sort();
+    removed
+}
+
 /// Renames a finished temporary file into place: a previous file there is replaced only when it
 /// is a regular file of this user (a dead service's); anything else is refused and left alone.
 fn place_file(tmp: &Path, path: &Path) -> Result<(), ShmError> {

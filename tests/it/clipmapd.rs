@@ -905,6 +905,24 @@ fn cliptex_plan_sizes_the_image_caches_as_the_service_maps_them() {
         Command::new(env!("CARGO_BIN_EXE_cliptex")).args(plan_args).args(["--view-spread", "1024"]).output().unwrap();
     let text = String::from_utf8_lossy(&text.stdout);
     assert!(text.contains("widened for views up to 1024 level-0 texels apart"), "{text}");
+    // Views with grids of their own (docs/VIEWS.md, "Views far apart"): each a mapping of one
+    // view's grids (never widened) beside the service's, every byte of them as the plan says.
+    let own_svc = Service::start(d, "owned", &["--view-spread", "1024", "--view", "a:1:own", "--view", "b:2:own"]);
+    let size = |n: &str| std::fs::metadata(d.join(format!("clipmap-{n}.map"))).unwrap().len();
+    let all = size("owned") + size("owned@a") + size("owned@b");
+    let out = Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(plan_args)
+        .args(["--view-spread", "1024", "--own-views", "2", "--json"])
+        .output()
+        .unwrap();
+    let o: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let ic = &o["image_caches"];
+    assert_eq!(ic["all_bytes"].as_u64(), Some(all), "{o}\n{}", own_svc.dump());
+    assert_eq!((ic["own_views"].as_u64(), ic["own_view_bytes"].as_u64()), (Some(2), Some(mapped)), "{o}");
+    assert_eq!((size("owned@a"), ic["bytes"].as_u64()), (mapped, Some(spread_mapped)), "{o}");
+    let text = Command::new(env!("CARGO_BIN_EXE_cliptex")).args(plan_args).args(["--own-views", "2"]).output().unwrap();
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(text.contains("2 views with grids of their own: a mapping of"), "{text}");
     // A spread no service takes is refused naming the option and the range.
     let bad = Command::new(env!("CARGO_BIN_EXE_cliptex"))
         .args(plan_args)

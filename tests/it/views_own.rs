@@ -35,6 +35,9 @@ fn a_view_with_grids_of_its_own_shows_level_0_far_from_main_is_read_by_name_and_
     let (far, shared) = (view(&stats, "far"), view(&stats, "shared"));
     assert_eq!((far["grids"].as_str(), shared["grids"].as_str()), (Some("own"), Some("shared")), "{stats}");
     assert_eq!(far["weight"], 2.0);
+    // The levels main's grids hold too (the pyramid at least) were taken from them, not read again.
+    assert!(far["shared_reads"].as_u64().unwrap() >= 9, "{far}");
+    assert_eq!(shared["shared_reads"], 0, "{shared}");
     // The shared grids hold main's window: a view that far away shows coarse levels only.
     assert!(shared["min_lod"].as_f64().unwrap() >= 3.0, "{stats}");
     assert!(far["resident_levels"].as_array().unwrap().contains(&0.into()), "{far}");
@@ -92,4 +95,28 @@ fn a_service_name_with_an_at_sign_is_refused_it_is_kept_for_views_own_mappings()
         .unwrap();
     assert!(!out.status.success(), "{out:?}");
     assert!(String::from_utf8_lossy(&out.stderr).contains("`@` is kept for the mappings of views"), "{out:?}");
+}
+
+#[test]
+fn the_own_mappings_a_killed_service_left_go_at_the_next_start_and_command_line_ones_come_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut svc = Service::start(d, "vk2", &["--view", "tower:own"]);
+    let r = svc.ask("VIEW ADD sensor 1 own");
+    assert!(r.starts_with("OK view sensor added"), "{r}");
+    let files = |view: &str| ["map", "req", "lock"].map(|e| d.join(format!("clipmap-vk2@{view}.{e}")));
+    assert!(files("sensor").iter().chain(&files("tower")).all(|f| f.is_file()));
+    // Something that only looks like one is not ours to remove.
+    std::fs::create_dir(d.join("clipmap-vk2@dir.lock")).unwrap();
+    svc.child.kill().unwrap();
+    svc.child.wait().unwrap();
+    assert!(files("sensor").iter().all(|f| f.is_file()), "SIGKILL leaves them");
+    let svc = Service::start(d, "vk2", &["--view", "tower:own"]);
+    assert!(files("sensor").iter().all(|f| !f.exists()), "the socket's view's files are gone\n{}", svc.dump());
+    assert!(files("tower").iter().all(|f| f.is_file()), "the command line's view is back");
+    assert!(d.join("clipmap-vk2@dir.lock").is_dir());
+    assert!(svc.dump().contains("removed the own mapping a stopped service left for view sensor"), "{}", svc.dump());
+    let out = rust_reader(d, "vk2", &["--view", "tower", "--reads", "2000"]).output().unwrap();
+    let (passed, failed) = counts(&out, "tower");
+    assert!(out.status.success() && failed == 0 && passed > 500, "{passed} {failed}\n{out:?}");
 }

@@ -64,6 +64,7 @@ use anyhow::Context;
 use clipmap::clip::{Clipmap, Settings, ViewId, PRIMARY};
 use clipmap::geom::{aligned_centre, tex_region, tiles_covering};
 use clipmap::paging::{EvictionKind, PrefetchKind};
+use clipmap::shm::{Client, FromMapping, Writer};
 use clipmap::source::{HashSource, PoolSource, TextureDesc, ThrottledSource, TileSource};
 use clipmap::texel::TexelFormat;
 use clipmap::tile::TileId;
@@ -291,7 +292,9 @@ enum Design {
     Separate { pool: bool },
     /// The service's views with grids of their own (`--view NAME:W:own`, docs/VIEWS.md, "Views
     /// far apart"): one clipmap per view, each with its own read queues, so that the disk serves
-    /// them side by side: each gets an equal share of the disk's reads a tick.
+    /// them side by side: each gets an equal share of the disk's reads a tick. View 0's clipmap
+    /// is mapped as the service maps it, and the others take the tiles its slots hold from there
+    /// (`FromMapping`) instead of reading them again.
     Own,
 }
 
@@ -330,11 +333,56 @@ fn mapping_bytes(desc: &TextureDesc, spread: u64) -> u64 {
         .map_or(0, |p| p.total_bytes)
 }
 
+/// View 0's clipmap's mapping in a directory of its own (`own_grids`), removed when dropped.
+struct Mapped {
+    dir: std::path::PathBuf,
+    writer: Option<Writer>,
+}
+
+impl Mapped {
+    fn new(d: &TextureDesc, s: &Settings) -> anyhow::Result<Mapped> {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        static RUN: AtomicU64 = AtomicU64::new(0);
+        let n = RUN.fetch_add(1, Ordering::Relaxed);
+        let dir = std::env::temp_dir().join(format!("clipbench-views-{}-{n}", std::process::id()));
+        std::fs::create_dir_all(&dir).with_context(|| format!("{}", dir.display()))?;
+        let shape = Clipmap::shape_for(d, s);
+        let writer = Writer::create(&dir, "view0", shape, d.format(), 0o600, 0o600, 1_000_000, None)
+            .with_context(|| format!("view 0's mapping in {}", dir.display()));
+        match writer {
+            Ok(w) => Ok(Mapped { dir, writer: Some(w) }),
+            Err(e) => {
+                let _ = std::fs::remove_dir_all(&dir);
+                Err(e)
+            }
+        }
+    }
+}
+
+impl std::ops::Deref for Mapped {
+    type Target = Writer;
+    fn deref(&self) -> &Writer {
+        self.writer.as_ref().expect("closed only when dropped")
+    }
+}
+
+impl Drop for Mapped {
+    fn drop(&mut self) {
+        if let Some(w) = self.writer.take() {
+            w.close();
+        }
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
 /// The clipmaps of one run and where each view lives in them.
 struct Sim {
     disk: Arc<ThrottledSource>,
-    /// [`Design::Own`]: each clipmap's share of the disk (the disk itself then serves none).
+    /// [`Design::Own`]: each clipmap's share of the disk (the disk itself then serves none),
+    /// view 0's mapping and the sources that read from it.
     lanes: Vec<Arc<ThrottledSource>>,
+    _mapped: Option<Mapped>,
+    shared: Vec<Arc<FromMapping>>,
     pool: Option<Arc<PoolSource>>,
     maps: Vec<Clipmap>,
     /// (clipmap, view id) of each view.
@@ -348,6 +396,7 @@ impl Sim {
         let mut ids = Vec::new();
         let mut pool = None;
         let mut lanes = Vec::new();
+        let (mut mapped, mut shared) = (None, Vec::new());
         match design {
             Design::One { spread, prefetch } => {
                 let mut map = Clipmap::new(disk.clone(), settings(spread, prefetch)).context("the clipmap")?;
@@ -373,15 +422,26 @@ impl Sim {
             }
             Design::Own => {
                 let share = (rate / weights.len() as u64).max(1);
+                let s = settings(0, PrefetchKind::default());
+                let m = Mapped::new(d, &s)?;
                 for i in 0..weights.len() {
                     let lane = Arc::new(ThrottledSource::new(Arc::new(HashSource::new(d.clone())), share));
-                    maps.push(Clipmap::new(lane.clone(), settings(0, PrefetchKind::default())).context("a clipmap")?);
+                    let map = if i == 0 {
+                        Clipmap::with_memory(lane.clone(), s.clone(), m.memory())
+                    } else {
+                        let main = Client::attach_path(m.path()).context("view 0's mapping")?;
+                        let from = Arc::new(FromMapping::new(lane.clone(), main));
+                        shared.push(from.clone());
+                        Clipmap::new(from, s.clone())
+                    };
+                    maps.push(map.context("a clipmap")?);
                     ids.push((i, PRIMARY));
                     lanes.push(lane);
                 }
+                mapped = Some(m);
             }
         }
-        Ok(Sim { disk, lanes, pool, maps, ids })
+        Ok(Sim { disk, lanes, _mapped: mapped, shared, pool, maps, ids })
     }
 
     /// One tick of every clipmap, in order, each followed by the reads it can start.
@@ -412,8 +472,10 @@ impl Sim {
         self.maps[m].view_min_lod(id).expect("a live view")
     }
 
+    /// Reads served without the disk: the shared pool's hits, or (`own_grids`) the tiles taken
+    /// from view 0's mapping.
     fn pool_hits(&self) -> u64 {
-        self.pool.as_ref().map_or(0, |p| p.stats().hits)
+        self.pool.as_ref().map_or(0, |p| p.stats().hits) + self.shared.iter().map(|f| f.hits()).sum::<u64>()
     }
 
     /// Reads delivered so far (the disk's and the pool's).

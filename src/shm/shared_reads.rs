@@ -1,0 +1,65 @@
+//! Tiles read once for several grid sets (docs/VIEWS.md, "Views far apart"): a view with grids
+//! of its own is held by a clipmap of its own, whose coarse levels cover the same tiles as the
+//! primary's. [`FromMapping`] stands in front of such a clipmap's source and takes a tile from
+//! the primary's mapping when one of its slots holds it ready, reading the source only for the
+//! others: the pyramid levels and every other tile both grid sets hold are read from the source
+//! once.
+//!
+//! It reads the mapping as any reader does ([`Client::read_tile`]: the whole slot under its
+//! tag, taken only when the tag says the slot holds that tile, ready, before and after the
+//! copy), so a slot the primary's engine reassigns meanwhile gives a fall-back to the source,
+//! never a wrong tile.
+
+use super::Client;
+use crate::source::{Delivered, SourceError, TextureDesc, TileId, TileSource};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+/// A source that takes each tile from a mapping's slots when they hold it (module docs).
+pub struct FromMapping {
+    inner: Arc<dyn TileSource>,
+    mapping: Client,
+    hits: AtomicU64,
+}
+
+impl std::fmt::Debug for FromMapping {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FromMapping").field("mapping", &self.mapping.path()).field("hits", &self.hits()).finish()
+    }
+}
+
+impl FromMapping {
+    /// Reads through `inner`, taking tiles from `mapping` (a mapping of the same texture) when
+    /// its slots hold them.
+    pub fn new(inner: Arc<dyn TileSource>, mapping: Client) -> FromMapping {
+        FromMapping { inner, mapping, hits: AtomicU64::new(0) }
+    }
+
+    /// Tiles taken from the mapping rather than read from the source.
+    pub fn hits(&self) -> u64 {
+        self.hits.load(Ordering::Relaxed)
+    }
+}
+
+impl TileSource for FromMapping {
+    fn desc(&self) -> &TextureDesc {
+        self.inner.desc()
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        self.read_into(tile, out).map(|_| ())
+    }
+
+    fn read_into(&self, tile: TileId, out: &mut [u8]) -> Result<Delivered, SourceError> {
+        let at = [tile.s as i64, tile.t as i64];
+        if self.mapping.read_tile(tile.level as usize, at, out).is_ok() {
+            self.hits.fetch_add(1, Ordering::Relaxed);
+            return Ok(Delivered::Tile);
+        }
+        self.inner.read_into(tile, out)
+    }
+
+    fn wrapped(&self) -> Option<&dyn TileSource> {
+        Some(&*self.inner)
+    }
+}
