@@ -137,7 +137,12 @@ pub(crate) fn unservable(plan: &plan::ClipTexturePlan) -> Option<String> {
 /// opening any file, or `None`.
 pub fn unservable_shape(plan: &plan::ClipTexturePlan) -> Option<String> {
     let limits = crate::limits::Limits::default();
-    match crate::source::file::texture_desc(plan) {
+    // A configuration naming a COG serves the COG's texture (not opened: the open says why).
+    let desc = match &plan.cog {
+        Some(cog) => Ok(crate::source::TileSource::desc(cog.source.as_deref()?).clone()),
+        None => crate::source::file::texture_desc(plan),
+    };
+    match desc {
         Err(e) => Some(e.to_string()),
         Ok(desc) => {
             let shape = crate::clip::Clipmap::shape_for(&desc, &crate::clip::Settings::default());
