@@ -232,7 +232,7 @@ pub(crate) fn check_ct(
         let words = |h: Option<&HeightPlan>| match h {
             None => "no heights (a colour texture: no `#clipmap height` lines)".to_string(),
             Some(h) => format!(
-                "heights `#clipmap height {}`, scale {}, offset {}, nodata {}, levels {}",
+                "heights {}, scale {}, offset {}, nodata {}, levels {}",
                 h.format.storage(),
                 h.format.scale(),
                 h.format.offset(),

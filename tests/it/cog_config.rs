@@ -337,3 +337,38 @@ fn clipprep_config_only_refuses_what_it_cannot_honour_and_writes_nothing() {
     assert_eq!(status.code(), Some(1), "{text}");
     assert!(text.contains("already holds a clip texture"), "{text}");
 }
+
+#[test]
+fn a_gdal_written_height_cog_gets_its_height_lines_and_is_served_as_heights_texel_for_texel() {
+    use clipmap::height::HeightStorage;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // 32-bit float heights with GDAL_NODATA -32768, DEFLATE with predictor 3, written by GDAL.
+    let case = &crate::cog_samples::CASES[0];
+    crate::cog_samples::write(case, d);
+    let cog = d.join(format!("{}.tif", case.name));
+    config_only(&cog, 128, "dem", d);
+    let text = std::fs::read_to_string(d.join("dem/dem.ct")).unwrap();
+    for line in
+        ["ext_format GL_FLOAT\n", "virt_size 512 256 1\n", "#clipmap height l32f\n", "#clipmap height_nodata -32768\n"]
+    {
+        assert!(text.contains(line), "{line}{text}");
+    }
+    let (status, out) = run(CLIPTEX, &["validate", "dem/dem.ct"], d);
+    assert!(status.success(), "{out}");
+    // Heights the COG does not have: refused at the height line.
+    let wrong = text.replace("#clipmap height_nodata -32768", "#clipmap height_nodata -9999");
+    std::fs::write(d.join("dem/wrong.ct"), &wrong).unwrap();
+    let (status, out) = run(CLIPTEX, &["validate", "dem/wrong.ct"], d);
+    assert_eq!(status.code(), Some(1), "{out}");
+    assert!(out.contains("error: `#clipmap height` does not describe the COG"), "{out}");
+    assert!(out.contains("nodata -9999") && out.contains("nodata -32768"), "{out}");
+    let src = CogSource::open(&cog, 128).unwrap();
+    let by_ct = Served::start(&d.join("dem/dem.ct"), 128, "demct", d);
+    let by_tif = Served::start(&cog, 128, "demtif", d);
+    for c in [&by_ct.client, &by_tif.client] {
+        let h = c.heights.unwrap_or_else(|| panic!("not heights\n{}", by_ct.log()));
+        assert_eq!((c.format_code, h.storage, h.nodata), (11, HeightStorage::F32, Some(-32768.0)));
+    }
+    assert_served_as_the_cog(&by_ct, &by_tif, &src, false);
+}
