@@ -246,7 +246,7 @@ pub enum OpenPlanError {
         path: std::path::PathBuf,
         /// Why.
         #[source]
-        source: CogError,
+        source: Box<CogError>,
     },
     /// The plan names remote locations, and this build cannot read them.
     #[error("{path} names remote locations (http://, https://, s3://), and this build cannot read them: build with the `remote` feature (on by default)", path = path.display())]
@@ -271,7 +271,7 @@ pub fn open_plan(
             return Ok(src.clone());
         }
         let src = CogSource::open_place(&cog.place, plan.clip_size)
-            .map_err(|e| OpenPlanError::Cog { path: plan.path.clone(), source: e })?;
+            .map_err(|e| OpenPlanError::Cog { path: plan.path.clone(), source: Box::new(e) })?;
         return Ok(std::sync::Arc::new(src));
     }
     #[cfg(feature = "remote")]
