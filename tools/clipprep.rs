@@ -288,7 +288,8 @@ fn conversion_option(cli: &Cli) -> Option<(&'static str, &'static str)> {
 /// --out through the same temporary directory as a pyramid (nothing at --out on an error).
 fn config_only(cli: &Cli) -> Result<(), PrepError> {
     use clipmap::place::Place;
-    use clipmap::plan::cog::{level_tile, rounded_size};
+    use clipmap::plan::cog::rounded_size;
+    use clipmap::source::configured::level_tile;
     use clipmap::source::TileSource;
     let started = Instant::now();
     let input = cli.input.clone().expect("clap requires --input with --config-only");
@@ -388,7 +389,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
         clipmap::prep::cog_config::write(&layout, staging.path(), &name, &description, heights.as_ref(), &name_of_cog)?;
     // What was written must load and serve the COG, before it is put in place.
     let staged = staging.path().join(&written.ct);
-    let loaded = clipmap::plan::load_clip_texture(&staged, &Default::default())
+    let loaded = clipmap::source::configured::load_clip_texture(&staged, &Default::default())
         .map_err(|e| PrepError::Geometry(format!("reading back the configuration written: {e}")))?;
     if loaded.plan.is_none() {
         return Err(PrepError::Geometry(format!(

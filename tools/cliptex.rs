@@ -647,8 +647,8 @@ fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
     };
     // A configuration naming a COG (`#clipmap cog`): the COG's tiles, as the service reads them.
     if let Some(cog) = &plan.cog {
-        if let Some(src) = &cog.source {
-            return check_cog_source(file, &cog.place, src, json, quiet);
+        if let Some(src) = clipmap::source::cog_of(cog) {
+            return check_cog_source(file, &cog.place, &src, json, quiet);
         }
     }
     // A shape the service refuses to start on has no tile to serve: said before any walk (the

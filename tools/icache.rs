@@ -139,7 +139,7 @@ fn dump(file: &Path, region: Option<[u64; 4]>, out: &Path, json: bool, quiet: bo
         return exit::BAD_INPUT;
     }
     // An image cache naming a COG (`#clipmap cog`): the COG's level, as the service reads it.
-    if let Some((src, k)) = plan.cog.as_ref().and_then(|c| Some((c.source.clone()?, c.level?))) {
+    if let Some((src, k)) = plan.cog.as_ref().and_then(|c| Some((clipmap::source::cog_of(c)?, c.level?))) {
         use clipmap::source::TileSource;
         let place = plan.cog.as_ref().map(|c| c.place.clone());
         let d = *src.desc().level(k);

@@ -4,30 +4,27 @@
 //! tile files the rest of the configuration names (none exist for a COG), so the line is a
 //! portability note (an error under `validate --strict`).
 //!
-//! The rest of the file stays a Performer configuration, and its header must describe the
-//! texture the COG is served as: `virt_size` is the COG's size rounded up to powers of two (what
-//! Performer needs; the texture is served at the COG's own size), the formats give the COG's
-//! texel format, every `tile_size` is the COG's TIFF tile (cut to the level), and the `#clipmap
-//! height` lines declare the COG's heights. Each disagreement is an error at the field, naming
-//! the value written and the COG's.
+//! This floor reads the line and anchors the name; opening the COG and checking the header
+//! against it (`virt_size` the COG's size rounded up to powers of two, the formats, every
+//! `tile_size`, the heights) is the business of the floor that reads COGs,
+//! [`crate::source::configured`], whose loaders every tool uses.
 
 use super::fields::Reader;
 use super::naming::{anchor, expand_field};
-use super::{portability, HeightPlan, Options};
-use crate::config::{Diagnostic, Severity, Span, Spanned, TokenId};
+use super::{portability, Options};
+use crate::config::{Severity, Span, Spanned, SyntaxFile};
 use crate::place::Place;
-use crate::source::cog::LevelOrigin;
-use crate::source::{CogSource, TileSource};
 use crate::texel::TexelFormat;
 use serde::Serialize;
+use std::any::Any;
 use std::path::Path;
 use std::sync::Arc;
 
 /// The settings a COG line may give.
 pub(crate) const SETTINGS: [&str; 1] = ["cog"];
 
-/// The COG a configuration names, and (once opened) the source it is served from.
-#[derive(Clone, Debug, Serialize)]
+/// The COG a configuration names, and (once opened and checked) what it is.
+#[derive(Clone, Serialize)]
 pub struct CogPlan {
     /// The name as written on the `#clipmap cog` line.
     pub written: String,
@@ -42,26 +39,29 @@ pub struct CogPlan {
     /// powers of two, is the `icache_size`). `None` for a `.ct` (every level) and an `.ic` read
     /// as a level of a `.ct` (that level).
     pub level: Option<u32>,
-    /// Where the line is.
+    /// Where the value is written.
     #[serde(skip)]
     pub span: Span,
-    /// The opened source (`None` when not opened: `--ct-only`, or an `.ic` of a `.ct`).
+    /// The source the COG was opened as when the configuration was loaded and checked, kept for
+    /// the source that serves it ([`crate::source::open_plan`]); `None` when not opened.
     #[serde(skip)]
-    pub source: Option<Arc<CogSource>>,
+    pub opened: Option<Arc<dyn Any + Send + Sync>>,
 }
 
-/// What a `.ct` naming a COG passes down to each of its `.ic` files: the COG, and the tile
-/// size that level is served in.
-#[derive(Clone, Debug)]
-pub struct LevelCheck {
-    /// The COG the `.ct` names.
-    pub place: Place,
-    /// The `.ic`'s expected `tile_size` (S, T), `None` when the COG was not opened.
-    pub tile: Option<[u64; 2]>,
+impl std::fmt::Debug for CogPlan {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CogPlan")
+            .field("place", &self.place)
+            .field("size", &self.size)
+            .field("format", &self.format)
+            .field("level", &self.level)
+            .field("opened", &self.opened.is_some())
+            .finish_non_exhaustive()
+    }
 }
 
 /// Reads the file's `#clipmap cog` line (lines without a value were reported by the paging
-/// reader, which reads every `#clipmap` line's shape). `None` when there is none.
+/// reader of a `.ct`, which reads every `#clipmap` line's shape). `None` when there is none.
 pub(crate) fn read(r: &mut Reader<'_>, dir: &Path, opts: &Options, what: &str) -> Option<CogPlan> {
     let lines = r.file.extensions.clone();
     let mut found: Option<(Spanned<String>, Span)> = None;
@@ -99,42 +99,29 @@ pub(crate) fn read(r: &mut Reader<'_>, dir: &Path, opts: &Options, what: &str) -
         format: None,
         level: None,
         span: value.span,
-        source: None,
+        opened: None,
     })
 }
 
-/// Opens the COG `cog` names with clip size `clip`, reporting at its line why it cannot be.
-pub(crate) fn open(r: &mut Reader<'_>, cog: &mut CogPlan, clip: u64) -> bool {
-    match CogSource::open_place(&cog.place, clip) {
-        Ok(src) => {
-            cog.size = Some(src.desc().size());
-            cog.format = Some(src.desc().format());
-            cog.source = Some(Arc::new(src));
-            true
-        }
-        Err(e) => {
-            let anchored = match &cog.place {
-                Place::Local(_) if !Path::new(&cog.written).is_absolute() => format!(
-                    " (a relative path is taken from the directory of {}, here {})",
-                    r.file.path.display(),
-                    cog.place
-                ),
-                _ => String::new(),
-            };
-            let d = r
-                .diag(
-                    Severity::Error,
-                    "cog-unreadable",
-                    Some(cog.span),
-                    format!("the COG `{}` cannot be served: {e}", cog.written),
-                )
-                .found(format!("{}{anchored}", cog.written))
-                .expected("a tiled GeoTIFF or COG this engine serves (docs/COG.md), as `clipmapd FILE.tif` would")
-                .hint("fix the path or URL on the `#clipmap cog` line, or write the file (gdal_translate -of COG)");
-            r.push(d);
-            false
-        }
-    }
+/// The COG the first `#clipmap cog` line of `file` names, anchored and expanded as [`read`]
+/// does, without a word about it (for the checks of [`crate::source::configured`], which read
+/// the file again whether or not it gave a plan).
+pub fn named(file: &SyntaxFile, opts: &Options) -> Option<CogPlan> {
+    let value = file.extensions.iter().find_map(|l| match (l.words.first(), l.words.get(1)) {
+        (Some(k), Some(v)) if k.value == "cog" => Some(v.clone()),
+        _ => None,
+    })?;
+    let dir = file.path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let expanded = super::env::expand(&value.value, &opts.env).value;
+    Some(CogPlan {
+        written: value.value,
+        place: anchor(&dir, &expanded),
+        size: None,
+        format: None,
+        level: None,
+        span: value.span,
+        opened: None,
+    })
 }
 
 /// The size Performer needs for a COG of `size` texels: each side rounded up to a power of two.
@@ -142,135 +129,37 @@ pub fn rounded_size(size: [u64; 2]) -> [u64; 2] {
     [size[0].next_power_of_two(), size[1].next_power_of_two()]
 }
 
-/// The TIFF tile level `k` of the COG is read in (a level built past the overviews: the last
-/// overview's), cut to `within` (the level's size in the configuration).
-pub fn level_tile(src: &CogSource, k: u32, within: [u64; 2]) -> Option<[u64; 2]> {
-    let origins = src.origins();
-    let tile = origins.iter().take(k as usize + 1).rev().find_map(|o| match o {
-        LevelOrigin::Ifd { tile, .. } => Some(*tile),
-        LevelOrigin::Built { .. } => None,
-    })?;
-    Some([tile[0].min(within[0]), tile[1].min(within[1])])
-}
-
-/// A mismatch between a header field and the COG, reported at the field.
-pub(crate) fn mismatch(
-    r: &Reader<'_>,
-    cog: &CogPlan,
-    span: Option<Span>,
-    field: &str,
-    written: String,
-    has: String,
-    fix: String,
-) -> Diagnostic {
-    r.diag(
-        Severity::Error,
-        "cog-mismatch",
-        span.or(Some(cog.span)),
-        format!("`{field}` does not describe the COG `{}` this file serves (line {})", cog.written, cog.span.line),
-    )
-    .found(written)
-    .expected(has)
-    .hint(fix)
-}
-
-/// Checks the `.ct`'s header against the opened COG: `virt_size`, the formats, `tile_size`
-/// and the heights.
-pub(crate) fn check_ct(
-    r: &mut Reader<'_>,
-    cog: &CogPlan,
-    virt: Option<[u64; 3]>,
-    texel: Option<TexelFormat>,
-    tile_size: Option<[u64; 3]>,
-    height: Option<&HeightPlan>,
-) {
-    let Some(src) = &cog.source else { return };
-    let desc = src.desc();
-    let size = desc.size();
-    let want = rounded_size(size);
-    if let Some(v) = virt {
-        if [v[0], v[1]] != want {
-            let note = if want != size {
-                format!(
-                    " (its {} x {} texels rounded up to powers of two, as Performer needs; the texture is served at the COG's own size)",
-                    size[0], size[1]
+/// In an `.ic` read as a level of a `.ct`: its `#clipmap cog` line, when it has one, must name
+/// the `.ct`'s COG (`ct_cog`).
+pub(crate) fn check_level_line(r: &mut Reader<'_>, line: Option<&CogPlan>, ct_cog: Option<&Place>, level: u32) {
+    let Some(c) = line else { return };
+    match ct_cog {
+        Some(place) if *place != c.place => {
+            let d = r
+                .diag(
+                    Severity::Error,
+                    "cog-differs",
+                    Some(c.span),
+                    "`#clipmap cog` names another COG than the clip texture's",
                 )
-            } else {
-                String::new()
-            };
-            let d = mismatch(
-                r,
-                cog,
-                r.span_of(TokenId::Size),
-                "virt_size",
-                format!("virt_size {} {} {}", v[0], v[1], v[2]),
-                format!("virt_size {} {} 1{note}", want[0], want[1]),
-                format!("write `virt_size {} {} 1`", want[0], want[1]),
-            );
+                .found(c.place.to_string())
+                .expected(format!("{place} (the `.ct`'s `#clipmap cog`)"))
+                .hint("name the same COG in the .ct and its .ic files, or remove the line from the .ic");
+            r.push(d);
+        }
+        Some(_) => {}
+        None => {
+            let d = r
+                .diag(
+                    Severity::Error,
+                    "cog-without-ct",
+                    Some(c.span),
+                    format!("`#clipmap cog` in an image cache of a clip texture that names no COG (level {level})"),
+                )
+                .found(c.written.clone())
+                .expected("the same `#clipmap cog` line in the .ct, whose texels it serves")
+                .hint("add the line to the .ct, or remove it from the .ic");
             r.push(d);
         }
     }
-    check_format(r, cog, texel);
-    if let Some(t) = tile_size {
-        if let Some(want) = level_tile(src, 0, [u64::MAX, u64::MAX]) {
-            if [t[0], t[1]] != want {
-                let d = mismatch(
-                    r,
-                    cog,
-                    r.span_of(TokenId::TileSize),
-                    "tile_size",
-                    format!("tile_size {} {} {}", t[0], t[1], t[2]),
-                    format!("tile_size {} {} 1 (the COG's TIFF tiles of level 0)", want[0], want[1]),
-                    format!("write `tile_size {} {} 1`", want[0], want[1]),
-                );
-                r.push(d);
-            }
-        }
-    }
-    let has = src.heights();
-    if height != has.as_ref() {
-        let words = |h: Option<&HeightPlan>| match h {
-            None => "no heights (a colour texture: no `#clipmap height` lines)".to_string(),
-            Some(h) => format!(
-                "heights {}, scale {}, offset {}, nodata {}, levels {}",
-                h.format.storage(),
-                h.format.scale(),
-                h.format.offset(),
-                h.format.nodata().map_or("none".to_string(), |v| v.to_string()),
-                h.levels
-            ),
-        };
-        let span = r.file.extensions.iter().find(|l| l.words.first().is_some_and(|w| w.value.starts_with("height")));
-        let fix = match &has {
-            None => "remove the `#clipmap height` lines".to_string(),
-            Some(h) => format!(
-                "write `#clipmap height {}` and `#clipmap height_nodata {}` (the COG's GDAL_NODATA; scale 1, offset 0, levels mean)",
-                h.format.storage(),
-                h.format.nodata().map_or("none".to_string(), |v| v.to_string())
-            ),
-        };
-        let d = mismatch(r, cog, span.map(|l| l.span), "#clipmap height", words(height), words(has.as_ref()), fix);
-        r.push(d);
-    }
-}
-
-/// Checks the formats of a `.ct` or `.ic` against the opened COG's texel format.
-pub(crate) fn check_format(r: &mut Reader<'_>, cog: &CogPlan, texel: Option<TexelFormat>) {
-    let (Some(texel), Some(has)) = (texel, cog.format) else { return };
-    if texel == has {
-        return;
-    }
-    let names = crate::prep::configfile::format_names(has)
-        .map(|(e, i, m)| format!("ext_format {e}, int_format {i}, img_format {m}"))
-        .unwrap_or_default();
-    let d = mismatch(
-        r,
-        cog,
-        r.span_of(TokenId::ExtFormat).or(r.span_of(TokenId::ImgFormat)),
-        "ext_format / int_format / img_format",
-        format!("{texel} texels"),
-        format!("{has} texels: {names}"),
-        format!("write {names}"),
-    );
-    r.push(d);
 }

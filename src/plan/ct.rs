@@ -78,14 +78,9 @@ pub fn build(
     let tile_base_f = r.base(TokenId::TileBase);
     let tile_base = expand_base(&mut r, &tile_base_f, opts);
 
-    // The COG the `#clipmap cog` line names (docs/COG.md): opened with the clip size, and the
-    // header checked against it.
-    let mut cog = super::cog::read(&mut r, &dir, opts, "the clip texture");
-    if let (Some(c), Some(clip), false) = (cog.as_mut(), clip, opts.ct_only) {
-        if super::cog::open(&mut r, c, clip) {
-            super::cog::check_ct(&mut r, c, virt, formats.as_ref().map(|f| f.3), tile_size, height.as_ref());
-        }
-    }
+    // The COG the `#clipmap cog` line names (docs/COG.md; opened and checked against the
+    // header by `crate::source::configured`).
+    let cog = super::cog::read(&mut r, &dir, opts, "the clip texture");
 
     let (Some(virt), Some(clip), Some(smallest)) = (virt, clip, smallest) else {
         return None;
@@ -155,10 +150,7 @@ pub fn build(
                     read_func: read_func.clone(),
                     level: Some((level, size)),
                     texel: Some(texel),
-                    cog: cog.as_ref().map(|c| super::cog::LevelCheck {
-                        place: c.place.clone(),
-                        tile: c.source.as_deref().and_then(|src| super::cog::level_tile(src, level, size)),
-                    }),
+                    cog: cog.as_ref().map(|c| c.place.clone()),
                 };
                 load_level_ic(&path, span, &file.path, &ctx, opts, diags, sources)
             };

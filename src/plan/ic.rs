@@ -26,8 +26,8 @@ pub struct Context {
     pub level: Option<(u32, [u64; 2])>,
     /// The clip texture's texel format.
     pub texel: Option<TexelFormat>,
-    /// The COG the clip texture names (`#clipmap cog`), and the tile size this level is served in.
-    pub cog: Option<super::cog::LevelCheck>,
+    /// The COG the clip texture names (`#clipmap cog`).
+    pub cog: Option<Place>,
 }
 
 impl Context {
@@ -207,7 +207,12 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
     let default_tile = default_tile(&mut r, &cache_name, &dir);
     let _ = file.all(TokenId::NumStreams).count();
 
-    let cog = cog_line(&mut r, ctx, opts, &dir, size, tile, &tile_f, tex_region, formats.as_ref().map(|f| f.3));
+    // The COG line (docs/COG.md): under a `.ct`, the `.ct`'s COG; alone, opened and checked by
+    // `crate::source::configured`.
+    let cog = super::cog::read(&mut r, &dir, opts, "the image cache");
+    if let Some((level, _)) = ctx.level {
+        super::cog::check_level_line(&mut r, cog.as_ref(), ctx.cog.as_ref(), level);
+    }
 
     let (ext, int, img, texel) = formats?;
     Some(ImageCachePlan {
@@ -233,123 +238,6 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
         defaulted,
         cog,
     })
-}
-
-/// The `#clipmap cog` line of an `.ic` (docs/COG.md): as a level of a `.ct`, the COG must be
-/// the `.ct`'s and `tile_size` the tile that level is served in; standalone, the COG is opened
-/// and the level it describes found by its size.
-#[allow(clippy::too_many_arguments)]
-fn cog_line(
-    r: &mut Reader<'_>,
-    ctx: &Context,
-    opts: &Options,
-    dir: &Path,
-    size: Option<[u64; 3]>,
-    tile: Option<[u64; 3]>,
-    tile_f: &Field<Vec<Spanned<i64>>>,
-    tex_region: Option<[u64; 3]>,
-    texel: Option<TexelFormat>,
-) -> Option<super::CogPlan> {
-    use super::cog;
-    let mut line = cog::read(r, dir, opts, "the image cache");
-    let tile_mismatch = |r: &mut Reader<'_>, c: &cog::CogPlan, t: [u64; 3], want: [u64; 2], level: u32| {
-        let d = cog::mismatch(
-            r,
-            c,
-            r.span_of(TokenId::TileSize),
-            "tile_size",
-            format!("tile_size {} {} {}", t[0], t[1], t[2]),
-            format!("tile_size {} {} 1 (the COG's TIFF tiles of level {level}, cut to the level)", want[0], want[1]),
-            format!("write `tile_size {} {} 1`", want[0], want[1]),
-        );
-        r.push(d);
-    };
-    if let Some((level, _)) = ctx.level {
-        match (&ctx.cog, &line) {
-            (Some(check), Some(c)) if check.place != c.place => {
-                let d = r
-                    .diag(
-                        Severity::Error,
-                        "cog-differs",
-                        Some(c.span),
-                        "`#clipmap cog` names another COG than the clip texture's",
-                    )
-                    .found(c.place.to_string())
-                    .expected(format!("{} (the `.ct`'s `#clipmap cog`)", check.place))
-                    .hint("name the same COG in the .ct and its .ic files, or remove the line from the .ic");
-                r.push(d);
-            }
-            (None, Some(c)) => {
-                let d = r
-                    .diag(
-                        Severity::Error,
-                        "cog-without-ct",
-                        Some(c.span),
-                        format!("`#clipmap cog` in an image cache of a clip texture that names no COG (level {level})"),
-                    )
-                    .found(c.written.clone())
-                    .expected("the same `#clipmap cog` line in the .ct, whose texels it serves")
-                    .hint("add the line to the .ct, or remove it from the .ic");
-                r.push(d);
-            }
-            _ => {}
-        }
-        if let (Some(check), Some(t), Field::Given(..)) = (&ctx.cog, tile, tile_f) {
-            if let Some(want) = check.tile.filter(|w| [t[0], t[1]] != *w) {
-                let c = line.clone().unwrap_or(cog::CogPlan {
-                    written: check.place.to_string(),
-                    place: check.place.clone(),
-                    size: None,
-                    format: None,
-                    level: None,
-                    span: r.span_of(TokenId::TileSize).unwrap_or_default(),
-                    source: None,
-                });
-                tile_mismatch(r, &c, t, want, level);
-            }
-        }
-        return line;
-    }
-    // Standalone: the COG opened with the tex region as its clip size, so that this level is
-    // read in its TIFF tiles.
-    let c = line.as_mut()?;
-    let (Some(size), Some(region)) = (size, tex_region) else { return line };
-    if !cog::open(r, c, region[0].max(region[1]).max(1)) {
-        return line;
-    }
-    let src = c.source.clone()?;
-    let desc = crate::source::TileSource::desc(src.as_ref());
-    let found = (0..desc.level_count() as u32).find(|&k| cog::rounded_size(desc.level(k).size) == [size[0], size[1]]);
-    let Some(k) = found else {
-        let sizes: Vec<String> = (0..desc.level_count() as u32)
-            .take(6)
-            .map(|k| {
-                let s = desc.level(k).size;
-                let p = cog::rounded_size(s);
-                format!("level {k}: {} x {} ({} x {} rounded up)", p[0], p[1], s[0], s[1])
-            })
-            .collect();
-        let d = cog::mismatch(
-            r,
-            c,
-            r.span_of(TokenId::Size),
-            "icache_size",
-            format!("icache_size {} {} {}", size[0], size[1], size[2]),
-            format!("the size of a level of the COG, rounded up to powers of two: {}", sizes.join(", ")),
-            "write the `icache_size` of the level this image cache describes".into(),
-        );
-        r.push(d);
-        return line;
-    };
-    c.level = Some(k);
-    cog::check_format(r, c, texel);
-    if let (Some(t), Some(want)) = (tile, cog::level_tile(&src, k, [size[0], size[1]])) {
-        if [t[0], t[1]] != want {
-            let c = c.clone();
-            tile_mismatch(r, &c, t, want, k);
-        }
-    }
-    line
 }
 
 /// The tile size must divide the cache size on both axes.

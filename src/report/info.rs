@@ -177,7 +177,7 @@ pub fn clip_texture<'a>(plan: &'a ClipTexturePlan, warnings: &'a [Diagnostic]) -
 
 /// The served texture of the COG a plan names, when it was opened.
 fn cog_info(plan: &ClipTexturePlan) -> Option<crate::source::cog::CogInfo> {
-    plan.cog.as_ref().and_then(|c| c.source.as_ref()).map(|src| src.info())
+    plan.cog.as_ref().and_then(crate::source::cog_of).map(|src| src.info())
 }
 
 fn mark(defaulted: &[&str], key: &str) -> &'static str {

@@ -13,6 +13,7 @@
 
 mod ahead;
 pub mod cog;
+pub mod configured;
 pub mod desc;
 pub mod faulty;
 pub mod file;
@@ -26,6 +27,7 @@ pub mod throttle;
 
 pub use crate::tile::TileId;
 pub use cog::{CogError, CogSource};
+pub use configured::cog_of;
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};
 pub use faulty::{Fault, FaultRule, FaultySource};
 pub use file::{FileSource, FileSourceError, FileStats, RemoteReader};
@@ -267,8 +269,8 @@ pub fn open_plan(
     // A configuration naming a COG (`#clipmap cog`, docs/COG.md): the COG, served as
     // `clipmapd FILE.tif --clip CLIP_SIZE` serves it.
     if let Some(cog) = &plan.cog {
-        if let Some(src) = &cog.source {
-            return Ok(src.clone());
+        if let Some(src) = cog_of(cog) {
+            return Ok(src);
         }
         let src = CogSource::open_place(&cog.place, plan.clip_size)
             .map_err(|e| OpenPlanError::Cog { path: plan.path.clone(), source: Box::new(e) })?;

@@ -269,6 +269,13 @@ fn a_header_field_that_disagrees_with_the_cog_is_refused_naming_line_field_found
         text.contains("expected tile_size 256 256 1 (the COG's TIFF tiles of level 0, cut to the level)"),
         "{text}"
     );
+    // Checked too in an .ic without the line: the COG is the .ct's.
+    let bare: String = bad.lines().filter(|l| !l.starts_with("#clipmap cog ")).map(|l| format!("{l}\n")).collect();
+    std::fs::write(d.join("g/L00.ic"), &bare).unwrap();
+    let (status, text) = run(CLIPTEX, &["validate", "g/g.ct"], d);
+    assert_eq!(status.code(), Some(1), "{text}");
+    let at = format!("L00.ic:{}:1: error: `tile_size` does not describe the COG", line_of(&bare, "tile_size"));
+    assert!(text.contains(&at) && text.contains("its clip texture serves"), "{at}\n{text}");
 }
 
 #[test]

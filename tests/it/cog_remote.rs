@@ -553,7 +553,7 @@ fn a_ct_naming_a_cog_url_serves_the_local_files_texels() {
     let (out, desc) = exec(d, env!("CARGO_BIN_EXE_cliptex"), &["validate", "g/g.ct"]);
     assert!(out.status.success(), "{desc}");
     // The plan's source is the remote COG: every level equals the local file's.
-    let loaded = clipmap::plan::load_clip_texture(&ct, &clipmap::plan::Options::default()).unwrap();
+    let loaded = clipmap::source::configured::load_clip_texture(&ct, &clipmap::plan::Options::default()).unwrap();
     let rendered = loaded.render();
     let plan = loaded.plan.unwrap_or_else(|| panic!("{rendered}"));
     let src = clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()).unwrap();
