@@ -38,7 +38,7 @@ impl EnvArgs {
         ct_only: bool,
     ) -> Result<(crate::plan::ClipTexturePlan, Vec<crate::config::Diagnostic>), i32> {
         let o = Options { ct_only, ..self.reader_options(tool)? };
-        let loaded = crate::plan::load_clip_texture(file, &o).map_err(|e| {
+        let loaded = crate::source::configured::load_clip_texture(file, &o).map_err(|e| {
             eprintln!("{tool}: {e}");
             exit::COULD_NOT_RUN
         })?;
@@ -53,7 +53,7 @@ impl EnvArgs {
         tool: &str,
     ) -> Result<(crate::plan::ImageCachePlan, Vec<crate::config::Diagnostic>), i32> {
         let o = self.reader_options(tool)?;
-        let loaded = crate::plan::load_image_cache(file, &o).map_err(|e| {
+        let loaded = crate::source::configured::load_image_cache(file, &o).map_err(|e| {
             eprintln!("{tool}: {e}");
             exit::COULD_NOT_RUN
         })?;

@@ -10,7 +10,6 @@ use anyhow::Context as _;
 use clap::{Parser, ValueEnum};
 use clipmap::cli::EnvArgs;
 use clipmap::demo;
-use clipmap::plan;
 use clipmap::report::exit;
 use clipmap::service::{self, ControlLimits, Options, Procedural, ViewOption};
 use std::path::PathBuf;
@@ -274,8 +273,8 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
         (Some(path), _) => {
             let o = cli.env.options().map_err(|e| Failure(exit::COULD_NOT_RUN, anyhow::anyhow!(e)))?;
             // Displayed once: the error's text already holds its source.
-            let loaded =
-                plan::load_clip_texture(path, &o).map_err(|e| Failure(exit::COULD_NOT_RUN, anyhow::anyhow!("{e}")))?;
+            let loaded = clipmap::source::configured::load_clip_texture(path, &o)
+                .map_err(|e| Failure(exit::COULD_NOT_RUN, anyhow::anyhow!("{e}")))?;
             eprint!("{}", loaded.render_from(clipmap::config::Severity::Warning));
             let Some(plan) = loaded.plan else {
                 return Err(bad(anyhow::anyhow!("{} is not a valid clip texture configuration", path.display())));

@@ -134,16 +134,23 @@ struct Cli {
     /// Size of a procedural texture: N (square) or WxH, powers of two.
     #[arg(long, value_name = "N|WxH")]
     size: Option<String>,
-    /// Tile edge in texels (power of two).
-    #[arg(long, value_name = "T")]
-    tile: u64,
+    /// Tile edge in texels (power of two). With --config-only: the COG's TIFF tiles (given, it
+    /// must be their size).
+    #[arg(long, value_name = "T", required_unless_present = "config_only")]
+    tile: Option<u64>,
     /// Clip size in texels (power of two).
     #[arg(long, value_name = "C")]
     clip: u64,
     /// Texel format on disk (16-bit formats keep 16-bit samples exactly; 8-bit samples into them
     /// are scaled by 257).
-    #[arg(long, value_enum, value_name = "FMT")]
-    format: Format,
+    /// With --config-only: the format the COG is served as (given, it must be that one).
+    #[arg(long, value_enum, value_name = "FMT", required_unless_present = "config_only")]
+    format: Option<Format>,
+    /// Write only the configuration (.ct and .ic files) that serves --input, a tiled GeoTIFF or
+    /// COG (a local file or an http(s):// or s3:// URL), as it is: each names it with a
+    /// `#clipmap cog` line, and no tile is written (docs/COG.md).
+    #[arg(long, requires = "input")]
+    config_only: bool,
     /// Round an input deeper than --format (16-bit samples for an 8-bit or packed format) to
     /// nearest instead of refusing it.
     #[arg(long)]
@@ -238,6 +245,197 @@ struct Cli {
     max_memory: u64,
 }
 
+impl Cli {
+    /// `--tile` (clap requires it without --config-only).
+    fn tile(&self) -> u64 {
+        self.tile.expect("clap requires --tile without --config-only")
+    }
+
+    /// `--format` (clap requires it without --config-only).
+    fn format(&self) -> Format {
+        self.format.expect("clap requires --format without --config-only")
+    }
+}
+
+/// The options that ask for a conversion, which --config-only (no tile written) cannot honour:
+/// the first one given, with why.
+fn conversion_option(cli: &Cli) -> Option<(&'static str, &'static str)> {
+    let heights = cli.height_scale.is_some()
+        || cli.height_offset.is_some()
+        || cli.height_nodata.is_some()
+        || cli.height_levels.is_some()
+        || cli.nan.is_some();
+    [
+        ("--pad", cli.pad, "the texture is served at the COG's size (the configuration's virt_size is rounded up to powers of two for Performer)"),
+        ("--filter lanczos3", matches!(cli.filter, FilterArg::Lanczos3), "the coarser levels are the COG's overviews"),
+        ("--linear-light", cli.linear_light, "the coarser levels are the COG's overviews"),
+        ("--reduce-depth", cli.reduce_depth, "the texels are served as the COG stores them"),
+        ("--tiles-per-file", cli.tiles_per_file != "1", "no tile file is written"),
+        ("--header-bytes", cli.header_bytes != 0, "no tile file is written"),
+        ("--streams", cli.streams.is_some(), "no tile file is written"),
+        ("--inset", cli.inset.is_some(), "no level is written, sparse or not"),
+        ("--zstd", cli.zstd.is_some(), "no tile file is written"),
+        ("--cog", cli.cog.is_some(), "the input is the COG already"),
+        ("--config-out", cli.config_out.is_some(), "the configuration is written into --out, a local directory"),
+        ("the height options", heights, "the heights are the COG's (its GDAL_NODATA is the nodata value)"),
+    ]
+    .into_iter()
+    .find(|c| c.1)
+    .map(|(flag, _, why)| (flag, why))
+}
+
+/// `--config-only`: the `.ct` and `.ic` files that serve the COG --input as it is, written into
+/// --out through the same temporary directory as a pyramid (nothing at --out on an error).
+fn config_only(cli: &Cli) -> Result<(), PrepError> {
+    use clipmap::place::Place;
+    use clipmap::plan::cog::rounded_size;
+    use clipmap::source::configured::level_tile;
+    use clipmap::source::TileSource;
+    let started = Instant::now();
+    let input = cli.input.clone().expect("clap requires --input with --config-only");
+    if let Some((flag, why)) = conversion_option(cli) {
+        return Err(PrepError::Geometry(format!(
+            "{flag} asks for a conversion, and --config-only writes only the configuration that serves {} as it is: {why}; drop {flag}, or drop --config-only to prepare a pyramid from the image",
+            input.display()
+        )));
+    }
+    if let Some(url) = Place::from_path(cli.out.clone()).remote() {
+        return Err(PrepError::Geometry(format!(
+            "--out {url} is a remote location, and --config-only writes the configuration into a local directory (configuration files are read from local disk only); give a local --out"
+        )));
+    }
+    let place = Place::from_path(input.clone());
+    if !clipmap::source::cog::is_tiff_place(&place) {
+        let what = match &place {
+            Place::Local(_) => "a local file that starts like a TIFF",
+            Place::Remote(_) => "an http(s):// or s3:// name ending in .tif or .tiff",
+        };
+        return Err(PrepError::Geometry(format!(
+            "--config-only serves a tiled GeoTIFF or COG as it is, and {} is not one: expected {what}; drop --config-only to prepare a pyramid from it",
+            input.display()
+        )));
+    }
+    check_pow2("the clip size".into(), cli.clip, "; pass --clip with a power of two")?;
+    let src = clipmap::source::CogSource::open_place(&place, cli.clip)
+        .map_err(|e| PrepError::Geometry(format!("--input {}: {e}", input.display())))?;
+    let desc = src.desc();
+    let format = desc.format();
+    if let Some(f) = cli.format {
+        if f.texel() != format {
+            return Err(PrepError::Geometry(format!(
+                "--format {}: {} is served as {format} texels, and --config-only serves it as it is; give --format {format}, or leave --format out",
+                f.texel().short_name(),
+                input.display(),
+            )));
+        }
+    }
+    let tile = level_tile(&src, 0, [u64::MAX, u64::MAX]).unwrap_or([0, 0]);
+    if tile[0] != tile[1] || !tile[0].is_power_of_two() {
+        return Err(PrepError::Geometry(format!(
+            "{} is tiled in {} x {} TIFF tiles, and a Performer configuration needs square tiles of a power of two; write it again in such tiles (gdal_translate -of COG -co BLOCKSIZE=256), or prepare a pyramid from it without --config-only",
+            input.display(),
+            tile[0],
+            tile[1]
+        )));
+    }
+    if let Some(t) = cli.tile {
+        if t != tile[0] {
+            return Err(PrepError::Geometry(format!(
+                "--tile {t}: {} is tiled in {} x {} TIFF tiles, which --config-only serves as they are; give --tile {}, or leave --tile out",
+                input.display(),
+                tile[0],
+                tile[1],
+                tile[0]
+            )));
+        }
+    }
+    let size = desc.size();
+    let virt = rounded_size(size);
+    let layout = Layout::new(Spec {
+        width: virt[0],
+        height: virt[1],
+        clip: cli.clip,
+        tile: tile[0],
+        format,
+        tiles_in_file: (1, 1),
+        header_bytes: 0,
+        streams: None,
+        inset: None,
+        compression: None,
+    })?;
+    // The name the configuration reads: a URL as given, a local file by its absolute path (the
+    // configuration's directory is not where the COG lies).
+    let name_of_cog = match &place {
+        Place::Remote(r) => r.as_str().to_string(),
+        Place::Local(p) => clipmap::plan::absolute(p).to_string_lossy().into_owned(),
+    };
+    let file = input.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let mut description = vec![format!(
+        "Prepared by clipprep {} from the COG {file} ({} x {} texels, {format}) with --config-only: the texture is the COG served as it is.",
+        env!("CARGO_PKG_VERSION"),
+        size[0],
+        size[1]
+    )];
+    if virt != size {
+        description.push(format!(
+            "virt_size is its size rounded up to powers of two, as Performer needs; the texture is served at {} x {}.",
+            size[0], size[1]
+        ));
+    }
+    let name = cli.name.clone().unwrap_or_else(|| default_name(&cli.out));
+    let staging = Staging::begin(&cli.out, cli.force)?;
+    let heights = src.heights();
+    let written =
+        clipmap::prep::cog_config::write(&layout, staging.path(), &name, &description, heights.as_ref(), &name_of_cog)?;
+    // What was written must load and serve the COG, before it is put in place.
+    let staged = staging.path().join(&written.ct);
+    let loaded = clipmap::source::configured::load_clip_texture(&staged, &Default::default())
+        .map_err(|e| PrepError::Geometry(format!("reading back the configuration written: {e}")))?;
+    if loaded.plan.is_none() {
+        return Err(PrepError::Geometry(format!(
+            "the configuration written for {} does not load (nothing was written at {}):\n{}",
+            input.display(),
+            cli.out.display(),
+            loaded.render_from(clipmap::config::Severity::Error)
+        )));
+    }
+    staging.commit()?;
+    let ct = cli.out.join(&written.ct);
+    let (ics, pyramid) = (layout.image_cache_levels().count(), layout.pyramid_levels().count());
+    if cli.json {
+        let v = serde_json::json!({
+            "ct": ct,
+            "cog": name_of_cog,
+            "config_only": true,
+            "levels": layout.levels.len(),
+            "image_cache_levels": ics,
+            "pyramid_levels": pyramid,
+            "files": written.files,
+            "bytes": written.bytes,
+            "seconds": started.elapsed().as_secs_f64(),
+            "size": size,
+            "virt_size": virt,
+            "clip": cli.clip,
+            "tile": tile[0],
+            "format": format.short_name(),
+        });
+        println!("{v}");
+    } else if !cli.quiet {
+        println!(
+            "wrote {}: the configuration ({} files: {} levels, {ics} image cache, {pyramid} pyramid) that serves {} as it is ({} x {} texels, {format}, virt_size {} x {}); no tile written",
+            ct.display(),
+            written.files,
+            layout.levels.len(),
+            name_of_cog,
+            size[0],
+            size[1],
+            virt[0],
+            virt[1]
+        );
+    }
+    Ok(())
+}
+
 /// `--cog-compression`.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 enum CogCompressionArg {
@@ -313,13 +511,14 @@ fn height_prep(cli: &Cli) -> Result<Option<HeightPrep>, PrepError> {
         || cli.height_nodata.is_some()
         || cli.height_levels.is_some()
         || cli.nan.is_some();
-    let asked =
-        options || matches!(cli.format, Format::L32f | Format::L16i) || matches!(cli.source, Some(SourceKind::Heights));
+    let asked = options
+        || matches!(cli.format(), Format::L32f | Format::L16i)
+        || matches!(cli.source, Some(SourceKind::Heights));
     if !asked {
         return Ok(None);
     }
-    let fmt = cli.format.texel().short_name();
-    let Some(storage) = cli.format.height_storage() else {
+    let fmt = cli.format().texel().short_name();
+    let Some(storage) = cli.format().height_storage() else {
         return Err(PrepError::Geometry(format!(
             "height options (or --source heights) were given with --format {fmt}, which holds colours; expected --format l32f, l16 or l16i for heights; choose one, or drop the height options"
         )));
@@ -418,7 +617,7 @@ struct Outcome {
 fn prepare(cli: &Cli, out: &Path, cancel: &AtomicBool) -> Result<Outcome, PrepError> {
     let started = Instant::now();
     let limits = Limits { max_memory_bytes: cli.max_memory << 20, ..Limits::default() };
-    let format = cli.format.texel();
+    let format = cli.format().texel();
     let heights = height_prep(cli)?;
     let (source, (width, height), origin) = match (&cli.input, cli.source, heights) {
         (Some(path), _, Some(prep)) => {
@@ -502,7 +701,7 @@ fn prepare(cli: &Cli, out: &Path, cancel: &AtomicBool) -> Result<Outcome, PrepEr
         width,
         height,
         clip: cli.clip,
-        tile: cli.tile,
+        tile: cli.tile(),
         format,
         tiles_in_file,
         header_bytes: cli.header_bytes,
@@ -639,13 +838,22 @@ fn main() -> ExitCode {
     if let Err(e) = watch_signals(cancel.clone()) {
         eprintln!("clipprep: warning: {e:#}; Ctrl-C will stop the run without cleaning up");
     }
+    if cli.config_only {
+        return match config_only(&cli) {
+            Ok(()) => clipmap::report::exit::status(clipmap::report::exit::OK),
+            Err(e) => {
+                eprintln!("clipprep: error: {e}");
+                clipmap::report::exit::status(e.exit_code())
+            }
+        };
+    }
     let url = clipmap::place::Place::from_path(cli.out.clone()).remote().map(|u| u.to_string());
     if let Some(cog) = &cli.cog {
         // Refused before any work: what --cog could not write, or where.
         let refused = if url.is_some() {
             Some("it is written from a local --out; prepare locally, then upload the file".to_string())
         } else {
-            clipmap::prep::cog::check(cli.format.texel(), cli.tile).err().map(|e| e.to_string())
+            clipmap::prep::cog::check(cli.format().texel(), cli.tile()).err().map(|e| e.to_string())
         };
         if let Some(why) = refused {
             eprintln!("clipprep: error: --cog {}: {why}", cog.display());

@@ -525,6 +525,7 @@ fn dump(args: DumpArgs) -> i32 {
         Err(c) => return c,
     };
     let locator = plan.clone();
+    let cog = plan.cog.as_ref().map(|c| c.place.clone());
     let src = match clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()) {
         Ok(src) => src,
         Err(e) => {
@@ -532,7 +533,9 @@ fn dump(args: DumpArgs) -> i32 {
             return exit::BAD_INPUT;
         }
     };
-    let file_of = |id: clipmap::source::TileId| locator.locate(id.level, id.s, id.t).ok().map(|l| l.path);
+    // A configuration naming a COG: every tile is the COG's.
+    let file_of =
+        |id: clipmap::source::TileId| cog.clone().or_else(|| locator.locate(id.level, id.s, id.t).ok().map(|l| l.path));
     dump_level(&args, file, out, src.as_ref(), &file_of)
 }
 
@@ -616,6 +619,12 @@ fn check_cog(file: &Path, json: bool, quiet: bool) -> i32 {
         Ok(s) => s,
         Err(c) => return c,
     };
+    check_cog_source(file, &Place::from_path(file.to_path_buf()), &src, json, quiet)
+}
+
+/// Checks every tile of the COG `src` (at `place`), reported under the name `file` (the COG,
+/// or the configuration naming it).
+fn check_cog_source(file: &Path, place: &Place, src: &clipmap::source::CogSource, json: bool, quiet: bool) -> i32 {
     let origins = src.origins().to_vec();
     let kind_of = |k: u32| match origins.get(k as usize) {
         Some(clipmap::source::cog::LevelOrigin::Built { .. }) => "built",
@@ -623,7 +632,7 @@ fn check_cog(file: &Path, json: bool, quiet: bool) -> i32 {
     };
     let tiles: u64 = src.desc().levels().iter().map(|l| l.tiles().iter().product::<u64>()).sum();
     let bar = tile_bar(tiles, quiet);
-    let report = check::run_source(file, &Place::from_path(file.to_path_buf()), &src, &kind_of, &|n| bar.inc(n));
+    let report = check::run_source(file, place, src, &kind_of, &|n| bar.inc(n));
     bar.finish_and_clear();
     report::emit(json, &report, |r| check::human(r, quiet));
     if report.servable {
@@ -641,6 +650,12 @@ fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
         Ok((p, _)) => p,
         Err(c) => return c,
     };
+    // A configuration naming a COG (`#clipmap cog`): the COG's tiles, as the service reads them.
+    if let Some(cog) = &plan.cog {
+        if let Some(src) = clipmap::source::cog_of(cog) {
+            return check_cog_source(file, &cog.place, &src, json, quiet);
+        }
+    }
     // A shape the service refuses to start on has no tile to serve: said before any walk (the
     // default tiles are reported in the walk's table).
     if let Some(why) = validate::unservable_shape(&plan) {

@@ -138,6 +138,23 @@ fn dump(file: &Path, region: Option<[u64; 4]>, out: &Path, json: bool, quiet: bo
         );
         return exit::BAD_INPUT;
     }
+    // An image cache naming a COG (`#clipmap cog`): the COG's level, as the service reads it.
+    if let Some((src, k)) = plan.cog.as_ref().and_then(|c| Some((clipmap::source::cog_of(c)?, c.level?))) {
+        use clipmap::source::TileSource;
+        let place = plan.cog.as_ref().map(|c| c.place.clone());
+        let d = *src.desc().level(k);
+        let read = |id: TileId, buf: &mut [u8]| src.read_tile(TileId::new(k, id.s, id.t), buf);
+        let file_of = |_: TileId| place.clone();
+        let level = dump::LevelTiles {
+            level: None,
+            size: d.size,
+            tile: d.tile,
+            format: src.desc().format(),
+            read: &read,
+            file_of: &file_of,
+        };
+        return dump::finish(dump::dump(file, &level, region, out), json, quiet, "icache");
+    }
     let (tiles, note) = dump::IcacheTiles::new(&plan);
     if let Some(note) = note {
         eprintln!("icache dump: {note}");

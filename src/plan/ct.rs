@@ -78,6 +78,10 @@ pub fn build(
     let tile_base_f = r.base(TokenId::TileBase);
     let tile_base = expand_base(&mut r, &tile_base_f, opts);
 
+    // The COG the `#clipmap cog` line names (docs/COG.md; opened and checked against the
+    // header by `crate::source::configured`).
+    let cog = super::cog::read(&mut r, &dir, opts, "the clip texture");
+
     let (Some(virt), Some(clip), Some(smallest)) = (virt, clip, smallest) else {
         return None;
     };
@@ -146,6 +150,7 @@ pub fn build(
                     read_func: read_func.clone(),
                     level: Some((level, size)),
                     texel: Some(texel),
+                    cog: cog.as_ref().map(|c| c.place.clone()),
                 };
                 load_level_ic(&path, span, &file.path, &ctx, opts, diags, sources)
             };
@@ -189,6 +194,7 @@ pub fn build(
         is_virtual: effective < n_levels,
         levels,
         defaulted,
+        cog,
     })
 }
 

@@ -180,6 +180,32 @@ pub(crate) fn components_of(img_value: u32) -> Option<u32> {
     IMG_FORMATS.iter().find(|&&(_, v, _)| v == img_value).map(|&(_, _, c)| c)
 }
 
+/// The `ext_format`, `int_format` and `img_format` names of a texel format, as `clipprep` writes
+/// them and a COG's configuration must give them, or `None` for a format without names here.
+pub fn names_of(f: TexelFormat) -> Option<(&'static str, &'static str, &'static str)> {
+    Some(match (f.components, f.ctype) {
+        (Components::One, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "GL_LUMINANCE8_EXT", "PFTEX_LUMINANCE"),
+        (Components::Three, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "PFTEX_RGB_8", "PFTEX_RGB"),
+        (Components::Four, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "PFTEX_RGBA_8", "PFTEX_RGBA"),
+        (Components::Three, ComponentType::Packed(PackedType::Rgb565)) => {
+            ("PFTEX_PACK_USHORT_5_6_5", "PFTEX_RGB_5", "PFTEX_RGB")
+        }
+        (Components::Four, ComponentType::Packed(PackedType::Rgba5551)) => {
+            ("PFTEX_UNSIGNED_SHORT_5_5_5_1", "PFTEX_RGB5_A1", "PFTEX_RGBA")
+        }
+        (Components::One, ComponentType::U16) => ("PFTEX_UNSIGNED_SHORT", "GL_LUMINANCE16_EXT", "PFTEX_LUMINANCE"),
+        // Heights (docs/ELEVATION.md): 32-bit float metres, signed 16-bit steps.
+        (Components::One, ComponentType::F32) => ("GL_FLOAT", "GL_LUMINANCE", "PFTEX_LUMINANCE"),
+        (Components::One, ComponentType::I16) => ("GL_SHORT", "GL_LUMINANCE16_EXT", "PFTEX_LUMINANCE"),
+        (Components::Two, ComponentType::U16) => {
+            ("PFTEX_UNSIGNED_SHORT", "GL_LUMINANCE16_ALPHA16_EXT", "PFTEX_LUMINANCE_ALPHA")
+        }
+        (Components::Three, ComponentType::U16) => ("PFTEX_UNSIGNED_SHORT", "GL_RGB16_EXT", "PFTEX_RGB"),
+        (Components::Four, ComponentType::U16) => ("PFTEX_UNSIGNED_SHORT", "GL_RGBA16_EXT", "PFTEX_RGBA"),
+        _ => return None,
+    })
+}
+
 /// The texel format for an external type and image layout. `None` for `GL_BITMAP`, which has no
 /// meaning for tiles.
 pub fn texel_format(ext_value: u32, img_value: u32) -> Option<TexelFormat> {

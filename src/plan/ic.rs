@@ -26,6 +26,8 @@ pub struct Context {
     pub level: Option<(u32, [u64; 2])>,
     /// The clip texture's texel format.
     pub texel: Option<TexelFormat>,
+    /// The COG the clip texture names (`#clipmap cog`).
+    pub cog: Option<Place>,
 }
 
 impl Context {
@@ -205,6 +207,13 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
     let default_tile = default_tile(&mut r, &cache_name, &dir);
     let _ = file.all(TokenId::NumStreams).count();
 
+    // The COG line (docs/COG.md): under a `.ct`, the `.ct`'s COG; alone, opened and checked by
+    // `crate::source::configured`.
+    let cog = super::cog::read(&mut r, &dir, opts, "the image cache");
+    if let Some((level, _)) = ctx.level {
+        super::cog::check_level_line(&mut r, cog.as_ref(), ctx.cog.as_ref(), level);
+    }
+
     let (ext, int, img, texel) = formats?;
     Some(ImageCachePlan {
         path: Some(file.path.clone()),
@@ -227,6 +236,7 @@ pub fn build(file: &SyntaxFile, ctx: &Context, opts: &Options, diags: &mut Diagn
         streams,
         default_tile,
         defaulted,
+        cog,
     })
 }
 
@@ -775,6 +785,7 @@ impl Synth<'_> {
             } else {
                 vec!["tiles_in_file", "tex_size", "mem_region", "lookahead"]
             },
+            cog: None,
         })
     }
 }

@@ -6,6 +6,7 @@
 //! [`ClipTexturePlan`] or [`ImageCachePlan`] that everything downstream borrows; nothing after this
 //! module reads configuration text.
 
+pub mod cog;
 mod ct;
 pub mod env;
 mod fields;
@@ -19,6 +20,7 @@ pub mod printf;
 mod tile;
 mod values;
 
+pub use cog::CogPlan;
 pub use env::Env;
 pub use height::{texel_of as height_texel, HeightPlan};
 pub use naming::TileNaming;
@@ -136,6 +138,9 @@ pub struct ImageCachePlan {
     pub default_tile: Option<Place>,
     /// Fields that took their default value.
     pub defaulted: Vec<&'static str>,
+    /// The COG its `#clipmap cog` line names (docs/COG.md), if any: its tiles are then read
+    /// from the COG's level, not from the tile files named above.
+    pub cog: Option<CogPlan>,
 }
 
 /// How a clip texture's level `.ic` files or pyramid files are named.
@@ -243,6 +248,10 @@ pub struct ClipTexturePlan {
     pub is_virtual: bool,
     /// Fields that took their default value.
     pub defaulted: Vec<&'static str>,
+    /// The COG its `#clipmap cog` line names (docs/COG.md), if any: the texture is then the
+    /// COG's, served as `clipmapd FILE.tif --clip CLIP_SIZE` serves it, and the levels above
+    /// describe the configuration only (no tile file of theirs is read).
+    pub cog: Option<CogPlan>,
 }
 
 impl ClipTexturePlan {

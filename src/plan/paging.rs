@@ -79,6 +79,8 @@ pub fn read(r: &mut Reader<'_>) -> PagingOptions {
             },
             // The height lines (docs/CONFIG.md §17), read by `super::height`.
             other if super::height::SETTINGS.contains(&other) => {}
+            // The COG line (docs/COG.md), read by `super::cog`.
+            other if super::cog::SETTINGS.contains(&other) => {}
             other => {
                 let mut d = r
                     .diag(
@@ -88,10 +90,16 @@ pub fn read(r: &mut Reader<'_>) -> PagingOptions {
                         format!("`{other}` is not a `#clipmap` setting"),
                     )
                     .found(other.to_string())
-                    .expected(format!("one of {}, {}", SETTINGS.join(", "), super::height::SETTINGS.join(", ")));
+                    .expected(format!(
+                        "one of {}, {}, {}",
+                        SETTINGS.join(", "),
+                        super::height::SETTINGS.join(", "),
+                        super::cog::SETTINGS.join(", ")
+                    ));
                 let best = SETTINGS
                     .iter()
                     .chain(&super::height::SETTINGS)
+                    .chain(&super::cog::SETTINGS)
                     .map(|s| (strsim::jaro_winkler(other, s), s))
                     .filter(|(score, _)| *score > 0.85)
                     .max_by(|a, b| a.0.total_cmp(&b.0));

@@ -67,6 +67,17 @@ pub enum TileError {
         /// The level.
         level: u32,
     },
+    /// The configuration names a COG (`#clipmap cog`, docs/COG.md): its tiles are the COG's,
+    /// not tile files of the configuration.
+    #[error("tile ({s}, {t}) is read from the COG {place} (the `#clipmap cog` line), not from a tile file of the configuration; `cliptex info {place}` shows its levels and TIFF tiles")]
+    Cog {
+        /// S.
+        s: u64,
+        /// T.
+        t: u64,
+        /// The COG.
+        place: Place,
+    },
     /// Arithmetic overflow in the byte offset.
     #[error("the byte offset of tile ({s}, {t}) overflows 64 bits")]
     Overflow {
@@ -90,6 +101,9 @@ impl ImageCachePlan {
 
     /// Locates tile (s, t, r) with idle read queues (the S server wins when S has servers).
     pub fn locate(&self, s: u64, t: u64, r: u64) -> Result<TileLocation, TileError> {
+        if let Some(cog) = &self.cog {
+            return Err(TileError::Cog { s, t, place: cog.place.clone() });
+        }
         self.locate_with(s, t, r, |_, _| 0)
     }
 
@@ -155,6 +169,9 @@ impl ImageCachePlan {
 impl ClipTexturePlan {
     /// Locates tile (s, t) of a level (pyramid levels: s = t = 0).
     pub fn locate(&self, level: u32, s: u64, t: u64) -> Result<TileLocation, TileError> {
+        if let Some(cog) = &self.cog {
+            return Err(TileError::Cog { s, t, place: cog.place.clone() });
+        }
         let l = self.level(level).ok_or(TileError::NoLevel { level, count: self.levels.len() as u32 })?;
         match &l.kind {
             LevelKind::Icache(ic) => ic.locate(s, t, 0),

@@ -11,34 +11,12 @@
 use super::layout::{Layout, Level, LevelKind};
 use crate::height::HeightStorage;
 use crate::plan::HeightPlan;
-use crate::texel::{ComponentType, Components, PackedType, TexelFormat};
+use crate::texel::TexelFormat;
 use std::fmt::Write;
 
-/// The `ext_format`, `int_format` and `img_format` names of a texel format, or `None` when this
-/// tool does not write that format.
-pub(crate) fn format_names(f: TexelFormat) -> Option<(&'static str, &'static str, &'static str)> {
-    Some(match (f.components, f.ctype) {
-        (Components::One, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "GL_LUMINANCE8_EXT", "PFTEX_LUMINANCE"),
-        (Components::Three, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "PFTEX_RGB_8", "PFTEX_RGB"),
-        (Components::Four, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "PFTEX_RGBA_8", "PFTEX_RGBA"),
-        (Components::Three, ComponentType::Packed(PackedType::Rgb565)) => {
-            ("PFTEX_PACK_USHORT_5_6_5", "PFTEX_RGB_5", "PFTEX_RGB")
-        }
-        (Components::Four, ComponentType::Packed(PackedType::Rgba5551)) => {
-            ("PFTEX_UNSIGNED_SHORT_5_5_5_1", "PFTEX_RGB5_A1", "PFTEX_RGBA")
-        }
-        (Components::One, ComponentType::U16) => ("PFTEX_UNSIGNED_SHORT", "GL_LUMINANCE16_EXT", "PFTEX_LUMINANCE"),
-        // Heights (docs/ELEVATION.md): 32-bit float metres, signed 16-bit steps.
-        (Components::One, ComponentType::F32) => ("GL_FLOAT", "GL_LUMINANCE", "PFTEX_LUMINANCE"),
-        (Components::One, ComponentType::I16) => ("GL_SHORT", "GL_LUMINANCE16_EXT", "PFTEX_LUMINANCE"),
-        (Components::Two, ComponentType::U16) => {
-            ("PFTEX_UNSIGNED_SHORT", "GL_LUMINANCE16_ALPHA16_EXT", "PFTEX_LUMINANCE_ALPHA")
-        }
-        (Components::Three, ComponentType::U16) => ("PFTEX_UNSIGNED_SHORT", "GL_RGB16_EXT", "PFTEX_RGB"),
-        (Components::Four, ComponentType::U16) => ("PFTEX_UNSIGNED_SHORT", "GL_RGBA16_EXT", "PFTEX_RGBA"),
-        _ => return None,
-    })
-}
+/// The `ext_format`, `int_format` and `img_format` names this tool writes a texel format with
+/// ([`crate::plan::formats::names_of`]).
+pub(crate) use crate::plan::formats::names_of as format_names;
 
 fn formats(out: &mut String, f: TexelFormat) {
     let (ext, int, img) = format_names(f).expect("the layout was built with a writable format");

@@ -5,6 +5,7 @@
 //! |---|---|
 //! | [`layout`] | level table (image cache vs pyramid), tile sizes, file names, offsets, streams |
 //! | [`configfile`] | the `.ct` / `.ic` text of a layout |
+//! | [`cog_config`] | the configuration alone of a COG served as it is (`clipprep --config-only`) |
 //! | [`source`] | level texels: `hash` per level, `terrain` and images at level 0 |
 //! | [`tiff_stream`] | streaming TIFF input, strip by strip or tile row by tile row |
 //! | [`inset`] | sparse insets: which tiles of a finer level are inset, border or absent |
@@ -27,6 +28,7 @@
 pub mod band;
 pub mod border;
 pub mod cog;
+pub mod cog_config;
 pub mod configfile;
 pub mod error;
 pub mod filter;

@@ -12,9 +12,11 @@ use super::band::{encode_rgba16, encode_rgba8, widen, BandSource};
 use super::error::PrepError;
 use super::Limits;
 use crate::height::{HeightError, HeightFormat, NonFinite};
+// The one test of "starts like a TIFF" every tool makes.
+use crate::source::cog::is_tiff;
 use crate::texel::{ComponentType, TexelFormat};
 use std::fs::File;
-use std::io::{BufReader, Read};
+use std::io::BufReader;
 use std::path::{Path, PathBuf};
 use tiff::decoder::{ChunkType, Decoder, DecodingResult};
 use tiff::tags::Tag;
@@ -42,12 +44,6 @@ pub(crate) struct TiffStream {
 
 fn err(path: &Path, e: impl std::fmt::Display) -> PrepError {
     PrepError::ImageDecode { path: path.to_path_buf(), message: e.to_string() }
-}
-
-fn is_tiff(path: &Path) -> bool {
-    let mut magic = [0u8; 4];
-    crate::open::regular(path).and_then(|(mut f, _)| f.read_exact(&mut magic)).is_ok()
-        && matches!(&magic, b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+")
 }
 
 impl TiffStream {

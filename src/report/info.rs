@@ -88,6 +88,9 @@ pub struct ClipTextureInfo<'a> {
     pub warnings: &'a [Diagnostic],
     /// The level table.
     pub levels: Vec<LevelRow>,
+    /// The COG the `#clipmap cog` line names, as it is served (its size, format and levels;
+    /// docs/COG.md): the texture served is this one. `null` for a texture of tile files.
+    pub cog: Option<crate::source::cog::CogInfo>,
 }
 
 fn two(a: [u64; 3]) -> [u64; 2] {
@@ -168,7 +171,13 @@ pub fn clip_texture<'a>(plan: &'a ClipTexturePlan, warnings: &'a [Diagnostic]) -
         defaulted: &plan.defaulted,
         warnings,
         levels: level_rows(plan),
+        cog: cog_info(plan),
     }
+}
+
+/// The served texture of the COG a plan names, when it was opened.
+fn cog_info(plan: &ClipTexturePlan) -> Option<crate::source::cog::CogInfo> {
+    plan.cog.as_ref().and_then(crate::source::cog_of).map(|src| src.info())
 }
 
 fn mark(defaulted: &[&str], key: &str) -> &'static str {
@@ -302,6 +311,19 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
     if plan.is_ct_only() {
         o.push_str("\n.ct only: the .ic files were not opened; `?` marks what only they give.\n");
     }
+    if let Some(c) = &plan.cog {
+        o.push_str(&format!(
+            "\ntexels from the COG {} (`#clipmap cog`): the texture is served as the COG is, not from the tile files above",
+            c.place
+        ));
+        match cog_info(plan) {
+            Some(info) => {
+                o.push_str(":\n");
+                o.push_str(&info.human());
+            }
+            None => o.push_str(" (not opened)\n"),
+        }
+    }
     o
 }
 
@@ -382,6 +404,11 @@ pub fn image_cache_human(plan: &ImageCachePlan) -> String {
     }
     if let Ok(loc) = plan.locate(0, 0, 0) {
         o.push_str(&format!("tile (0, 0)    {} @ {} (+{} bytes)\n", loc.path, loc.offset, loc.length));
+    }
+    if let Some(c) = &plan.cog {
+        let level = c.level.map_or(String::new(), |k| format!(", its level {k}"));
+        let size = c.size.map_or(String::new(), |s| format!(" ({} x {} texels at level 0)", s[0], s[1]));
+        o.push_str(&format!("cog            {}{size}{level}: tiles are read from it (#clipmap cog)\n", c.place));
     }
     o
 }

@@ -137,7 +137,12 @@ pub(crate) fn unservable(plan: &plan::ClipTexturePlan) -> Option<String> {
 /// opening any file, or `None`.
 pub fn unservable_shape(plan: &plan::ClipTexturePlan) -> Option<String> {
     let limits = crate::limits::Limits::default();
-    match crate::source::file::texture_desc(plan) {
+    // A configuration naming a COG serves the COG's texture (not opened: the open says why).
+    let desc = match &plan.cog {
+        Some(cog) => Ok(crate::source::TileSource::desc(crate::source::cog_of(cog)?.as_ref()).clone()),
+        None => crate::source::file::texture_desc(plan),
+    };
+    match desc {
         Err(e) => Some(e.to_string()),
         Ok(desc) => {
             let shape = crate::clip::Clipmap::shape_for(&desc, &crate::clip::Settings::default());
@@ -167,7 +172,7 @@ fn one(path: &Path, kind: FileKind, strict: bool, opts: &Options) -> FileReport 
         (l.diagnostics, rendered, named)
     }
     let loaded = match kind {
-        FileKind::ClipTexture => plan::load_clip_texture(path, opts).map(|mut l| {
+        FileKind::ClipTexture => crate::source::configured::load_clip_texture(path, opts).map(|mut l| {
             let named = opts.ct_only.then(|| l.plan.as_ref().map(named_icaches).unwrap_or_default());
             // A .ct-only plan is never served: whether its levels can be is for the full check.
             if !opts.ct_only {
@@ -175,7 +180,9 @@ fn one(path: &Path, kind: FileKind, strict: bool, opts: &Options) -> FileReport 
             }
             finish(l, strict, named)
         }),
-        FileKind::ImageCache => plan::load_image_cache(path, opts).map(|l| finish(l, strict, None)),
+        FileKind::ImageCache => {
+            crate::source::configured::load_image_cache(path, opts).map(|l| finish(l, strict, None))
+        }
     };
     match loaded {
         Err(e) => FileReport {

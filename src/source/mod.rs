@@ -13,6 +13,7 @@
 
 mod ahead;
 pub mod cog;
+pub mod configured;
 pub mod desc;
 pub mod faulty;
 pub mod file;
@@ -26,6 +27,7 @@ pub mod throttle;
 
 pub use crate::tile::TileId;
 pub use cog::{CogError, CogSource};
+pub use configured::cog_of;
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};
 pub use faulty::{Fault, FaultRule, FaultySource};
 pub use file::{FileSource, FileSourceError, FileStats, RemoteReader};
@@ -247,6 +249,15 @@ pub enum OpenPlanError {
     /// A remote source could not be set up (its options, its disk cache).
     #[error("{0}")]
     Remote(String),
+    /// The COG a configuration names (`#clipmap cog`) cannot be served.
+    #[error("{path}: the COG of its `#clipmap cog` line cannot be served: {source}", path = path.display())]
+    Cog {
+        /// The `.ct`.
+        path: std::path::PathBuf,
+        /// Why.
+        #[source]
+        source: Box<CogError>,
+    },
     /// The plan names remote locations, and this build cannot read them.
     #[error("{path} names remote locations (http://, https://, s3://), and this build cannot read them: build with the `remote` feature (on by default)", path = path.display())]
     NoRemote {
@@ -255,13 +266,24 @@ pub enum OpenPlanError {
     },
 }
 
-/// The source a plan is served from: a [`FileSource`] when it names local files only, a
-/// [`remote::RemoteSource`] (remote options from the `CLIPMAP_REMOTE_*` variables) when it
-/// names a remote location.
+/// The source a plan is served from: the [`CogSource`] of the COG its `#clipmap cog` line
+/// names (the one opened when the plan was loaded, else opened now), a [`FileSource`] when it
+/// names local files only, a [`remote::RemoteSource`] (remote options from the
+/// `CLIPMAP_REMOTE_*` variables) when it names a remote location.
 pub fn open_plan(
     plan: crate::plan::ClipTexturePlan,
     limits: &crate::limits::Limits,
 ) -> Result<std::sync::Arc<dyn TileSource>, OpenPlanError> {
+    // A configuration naming a COG (`#clipmap cog`, docs/COG.md): the COG, served as
+    // `clipmapd FILE.tif --clip CLIP_SIZE` serves it.
+    if let Some(cog) = &plan.cog {
+        if let Some(src) = cog_of(cog) {
+            return Ok(src);
+        }
+        let src = CogSource::open_place(&cog.place, plan.clip_size)
+            .map_err(|e| OpenPlanError::Cog { path: plan.path.clone(), source: Box::new(e) })?;
+        return Ok(std::sync::Arc::new(src));
+    }
     #[cfg(feature = "remote")]
     {
         if plan.names_remote() {

@@ -386,6 +386,39 @@ fn cliptex_info_of_a_cog_url_shows_its_levels_read_with_one_request() {
     assert!(desc.contains(&format!("{missing}: not found")), "{desc}");
 }
 
+#[test]
+fn a_ct_naming_a_cog_url_serves_the_local_files_texels() {
+    let nginx = Nginx::serve(&fixture(""));
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let url = format!("{}/grey_500x350.tif", nginx.url());
+    // clipprep --config-only takes the URL and writes it on the `#clipmap cog` lines.
+    let (out, desc) =
+        exec(d, env!("CARGO_BIN_EXE_clipprep"), &["--input", &url, "--config-only", "--clip", "128", "--out", "g"]);
+    assert!(out.status.success(), "{desc}");
+    let ct = d.join("g/g.ct");
+    let text = std::fs::read_to_string(&ct).unwrap();
+    assert!(text.contains(&format!("\n#clipmap cog {url}\n")), "{text}");
+    let (out, desc) = exec(d, env!("CARGO_BIN_EXE_cliptex"), &["validate", "g/g.ct"]);
+    assert!(out.status.success(), "{desc}");
+    // The plan's source is the remote COG: every level equals the local file's.
+    let loaded = clipmap::source::configured::load_clip_texture(&ct, &clipmap::plan::Options::default()).unwrap();
+    let rendered = loaded.render();
+    let plan = loaded.plan.unwrap_or_else(|| panic!("{rendered}"));
+    let src = clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()).unwrap();
+    let local = CogSource::open(&fixture("grey_500x350.tif"), 128).unwrap();
+    assert_eq!(src.desc(), local.desc());
+    assert!(src.remote_stats().is_some(), "read over the network");
+    for k in 0..local.desc().level_count() as u32 {
+        assert!(level(src.as_ref(), k).unwrap() == level(&local, k).unwrap(), "level {k}");
+    }
+    // An object that is not there: refused at the line, naming it.
+    std::fs::write(&ct, text.replace(&url, &format!("{}/nothing.tif", nginx.url()))).unwrap();
+    let (out, desc) = exec(d, env!("CARGO_BIN_EXE_cliptex"), &["validate", "g/g.ct"]);
+    assert_eq!(out.status.code(), Some(1), "{desc}");
+    assert!(desc.contains(&format!("{}/nothing.tif: not found", nginx.url())), "{desc}");
+}
+
 /// One control-socket exchange with a `clipmapd` (None until it answers).
 fn ask(socket: &Path, line: &str) -> Option<String> {
     use std::io::{BufRead, BufReader, Write};

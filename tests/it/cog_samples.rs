@@ -53,10 +53,10 @@ for i in range(n):
     print(bw, bh)
 "#;
 
-struct Case {
-    name: &'static str,
+pub(crate) struct Case {
+    pub(crate) name: &'static str,
     kind: &'static str,
-    size: [u64; 2],
+    pub(crate) size: [u64; 2],
     bands: usize,
     driver: &'static str,
     options: &'static [&'static str],
@@ -64,7 +64,7 @@ struct Case {
     predictor: &'static str,
 }
 
-const CASES: [Case; 5] = [
+pub(crate) const CASES: [Case; 5] = [
     Case {
         name: "f32_deflate_fp",
         kind: "f32",
@@ -121,7 +121,7 @@ const CASES: [Case; 5] = [
 ];
 
 /// Writes the case's file with GDAL in `dir`; returns the size of every IFD GDAL decoded.
-fn write(case: &Case, dir: &Path) -> Vec<[u64; 2]> {
+pub(crate) fn write(case: &Case, dir: &Path) -> Vec<[u64; 2]> {
     let mut args = vec![
         "-".to_string(),
         case.name.into(),

@@ -21,6 +21,7 @@ mod clipbench_views;
 mod clipmapd;
 mod clipprep;
 mod cog;
+mod cog_config;
 mod cog_masks;
 #[cfg(feature = "remote")]
 mod cog_remote;
