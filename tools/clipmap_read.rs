@@ -142,7 +142,9 @@ fn main() -> ExitCode {
     let mut client = loop {
         match attach(&cli) {
             Ok(c) => break c,
-            Err(ShmError::NotFound { .. } | ShmError::NoView { .. }) if cli.follow && Instant::now() < deadline => {
+            Err(ShmError::NotFound { .. } | ShmError::NoView { .. } | ShmError::OwnMissing { .. })
+                if cli.follow && Instant::now() < deadline =>
+            {
                 std::thread::sleep(Duration::from_millis(20))
             }
             Err(e) => {
@@ -209,7 +211,8 @@ fn main() -> ExitCode {
                             }
                             missing = Some((since, said, e));
                         }
-                        Err(ShmError::NotFound { .. }) => {}
+                        // Between a restarted service's mapping and a view's own one.
+                        Err(ShmError::NotFound { .. } | ShmError::OwnMissing { .. }) => {}
                         Err(e) => {
                             eprintln!("clipmap-read: reattaching: {e}");
                             return exit::status(exit::COULD_NOT_RUN);

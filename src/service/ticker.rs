@@ -363,8 +363,10 @@ impl Runner {
                     None => Err(self.no_view(&name)),
                     Some(id) => {
                         self.view_state.remove(&id);
+                        // The record first (readers see the view removed), then its own mapping.
+                        let r = self.clipmap.remove_view(id);
                         self.own.remove(&name);
-                        self.clipmap.remove_view(id).map(|()| format!("view {name} removed")).map_err(|e| e.to_string())
+                        r.map(|()| format!("view {name} removed")).map_err(|e| e.to_string())
                     }
                 };
                 if r.is_ok() {
@@ -468,10 +470,16 @@ impl Runner {
     /// grids or (`own`) with grids of its own ([`super::own_views`]).
     fn add_view(&mut self, name: &str, weight: f64, own: bool) -> Result<String, String> {
         if own {
-            let id = self.clipmap.add_view_elsewhere(name, weight).map_err(|e| e.to_string())?;
-            if let Err(why) = self.own.add(name, self.centre) {
-                let _ = self.clipmap.remove_view(id);
-                return Err(why);
+            // Its own mapping first, then the record that sends readers there: a reader never
+            // finds the record without the mapping.
+            if self.clipmap.view_named(name).is_some() {
+                return Err(format!("view `{name}` exists already: remove it first or choose another name"));
+            }
+            crate::shm::layout::views::check_name(name)?;
+            self.own.add(name, self.centre)?;
+            if let Err(e) = self.clipmap.add_view_elsewhere(name, weight) {
+                self.own.remove(name);
+                return Err(e.to_string());
             }
             return Ok(format!("view {name} added, weight {weight}, grids of its own"));
         }

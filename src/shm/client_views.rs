@@ -89,13 +89,9 @@ impl Client {
         };
         let own = v::own_mapping_name(service, view);
         let mut client = Client::attach(dir, &own).map_err(|e| match e {
-            ShmError::NotFound { .. } => invalid(
-                path,
-                format!(
-                    "view `{view}` has grids of its own, but its mapping {} is not there: the view is being added or removed; try again",
-                    super::map_path(dir, &own).display()
-                ),
-            ),
+            ShmError::NotFound { .. } => {
+                ShmError::OwnMissing { view: view.to_string(), path: super::map_path(dir, &own) }
+            }
             e => e,
         })?;
         client.own_view = Some(view.to_string());

@@ -75,6 +75,14 @@ pub enum ShmError {
         /// The views there are.
         views: Vec<String>,
     },
+    /// A view with grids of its own whose mapping is not there (yet, or any more).
+    #[error("view `{view}` has grids of its own, but its mapping {} is not there: the view is being added or removed, or its service restarted; try again", path.display())]
+    OwnMissing {
+        /// The view.
+        view: String,
+        /// Its mapping's file.
+        path: PathBuf,
+    },
     #[error("no clip texture `{name}` is published in {}: is the service running (and is --shm-dir the same)?", dir.display())]
     NotFound {
         /// The name.

@@ -425,7 +425,11 @@ fn a_views_block_this_reader_does_not_know_refuses_views_not_main() {
     put64(&mut own, state, v::STATE_OWN);
     std::fs::write(dir.path().join("clipmap-v2own.map"), &own).unwrap();
     let err = Client::attach_view(dir.path(), "v2own", "left").unwrap_err().to_string();
-    assert!(err.contains("clipmap-v2own@left.map is not there"), "{err}");
+    assert!(
+        err.contains("view `left` has grids of its own, but its mapping")
+            && err.contains("clipmap-v2own@left.map is not there"),
+        "{err}"
+    );
     // There (a mapping of no live view): read as its `main`, answering to the view's name.
     let mut alone = good.clone();
     put64(&mut alone, state, v::STATE_FREE);
