@@ -277,12 +277,21 @@ pub fn open_plan(
     // A configuration naming a COG (`#clipmap cog`, docs/COG.md): the COG, served as
     // `clipmapd FILE.tif --clip CLIP_SIZE` serves it.
     if let Some(cog) = &plan.cog {
-        if let Some(src) = cog_of(cog) {
-            return Ok(src);
+        let src = match cog_of(cog) {
+            Some(src) => src,
+            None => std::sync::Arc::new(
+                CogSource::open_place(&cog.place, plan.clip_size)
+                    .map_err(|e| OpenPlanError::Cog { path: plan.path.clone(), source: Box::new(e) })?,
+            ),
+        };
+        // A remote object replaced in its store is opened again, as `clipmapd URL` does.
+        #[cfg(feature = "remote")]
+        if let crate::place::Place::Remote(name) = &cog.place {
+            if let Some(r) = cog::Reopening::serving(name, std::sync::Arc::clone(&src), plan.clip_size) {
+                return Ok(std::sync::Arc::new(r));
+            }
         }
-        let src = CogSource::open_place(&cog.place, plan.clip_size)
-            .map_err(|e| OpenPlanError::Cog { path: plan.path.clone(), source: Box::new(e) })?;
-        return Ok(std::sync::Arc::new(src));
+        return Ok(src);
     }
     #[cfg(feature = "remote")]
     {

@@ -388,10 +388,13 @@ fn cliptex_info_of_a_cog_url_shows_its_levels_read_with_one_request() {
 
 #[test]
 fn a_ct_naming_a_cog_url_serves_the_local_files_texels() {
-    let nginx = Nginx::serve(&fixture(""));
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let url = format!("{}/grey_500x350.tif", nginx.url());
+    let served = d.join("served");
+    std::fs::create_dir(&served).unwrap();
+    std::fs::copy(fixture("rgb_512x384.tif"), served.join("rgb_512x384.tif")).unwrap();
+    let nginx = Nginx::serve(&served);
+    let url = format!("{}/rgb_512x384.tif", nginx.url());
     // clipprep --config-only takes the URL and writes it on the `#clipmap cog` lines.
     let (out, desc) =
         exec(d, env!("CARGO_BIN_EXE_clipprep"), &["--input", &url, "--config-only", "--clip", "128", "--out", "g"]);
@@ -406,12 +409,19 @@ fn a_ct_naming_a_cog_url_serves_the_local_files_texels() {
     let rendered = loaded.render();
     let plan = loaded.plan.unwrap_or_else(|| panic!("{rendered}"));
     let src = clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()).unwrap();
-    let local = CogSource::open(&fixture("grey_500x350.tif"), 128).unwrap();
+    let local = CogSource::open(&fixture("rgb_512x384.tif"), 128).unwrap();
     assert_eq!(src.desc(), local.desc());
     assert!(src.remote_stats().is_some(), "read over the network");
     for k in 0..local.desc().level_count() as u32 {
         assert!(level(src.as_ref(), k).unwrap() == level(&local, k).unwrap(), "level {k}");
     }
+    // Replaced in its store (another ETag), it is opened again at the next read past the first
+    // 64 KiB kept from the open, as `clipmapd URL` does (docs/COG.md, "One version of the object").
+    assert_eq!(src.version(), 0);
+    replace(&served.join("rgb_512x384.tif"), &std::fs::read(fixture("rgb_512x384.tif")).unwrap());
+    std::thread::sleep(clipmap::source::cog::REOPEN_GAP);
+    assert!(level(src.as_ref(), 0).unwrap() == level(&local, 0).unwrap(), "level 0, the new version");
+    assert_eq!(src.version(), 1, "opened again");
     // An object that is not there: refused at the line, naming it.
     std::fs::write(&ct, text.replace(&url, &format!("{}/nothing.tif", nginx.url()))).unwrap();
     let (out, desc) = exec(d, env!("CARGO_BIN_EXE_cliptex"), &["validate", "g/g.ct"]);

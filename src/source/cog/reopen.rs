@@ -63,19 +63,26 @@ impl Reopening {
     /// Serves `first`, the object `name` opened with clip size `clip_size`, and its later versions
     /// (opened again through `first`'s remote reader).
     pub(super) fn from_first(name: &RemoteName, first: CogSource, clip_size: u64) -> Reopening {
+        Reopening::serving(name, Arc::new(first), clip_size).expect("a remote name opens a remote object")
+    }
+
+    /// Serves `first` (the object `name`, opened with clip size `clip_size`, as a configuration's
+    /// `#clipmap cog` line opens it) and its later versions; `None` when `first` is not a remote
+    /// object's source.
+    pub fn serving(name: &RemoteName, first: Arc<CogSource>, clip_size: u64) -> Option<Reopening> {
         let remote = match &first.store {
             super::Store::Remote(o) => Arc::clone(o.remote()),
-            super::Store::Local(_) => unreachable!("a remote name opens a remote store"),
+            super::Store::Local(_) => return None,
         };
-        Reopening {
+        Some(Reopening {
             name: name.clone(),
             remote,
             clip: clip_size,
             desc: first.desc().clone(),
-            current: RwLock::new(Arc::new(first)),
+            current: RwLock::new(first),
             version: AtomicU64::new(0),
             attempt: Mutex::new(Attempt::default()),
-        }
+        })
     }
 
     /// The version served now.
