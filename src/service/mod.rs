@@ -18,6 +18,7 @@ pub mod control;
 pub mod options;
 mod own_views;
 pub mod protocol;
+mod requests;
 pub mod stats;
 pub mod ticker;
 

@@ -147,11 +147,11 @@ impl OwnViews {
                 if req.count != v.last_request {
                     v.last_request = req.count;
                     v.centre = req.centre;
-                    v.velocity = super::ticker::velocity_per_tick(req.velocity, hz);
+                    v.velocity = super::requests::velocity_per_tick(req.velocity, hz);
                 }
                 if let Some(lod) = req.lod.filter(|l| l.count != v.last_lod) {
                     v.last_lod = lod.count;
-                    let _ = super::ticker::apply_lod(&mut v.clipmap, PRIMARY, name, &lod, stats);
+                    let _ = super::requests::apply_lod(&mut v.clipmap, PRIMARY, name, &lod, stats);
                 }
             }
             v.clipmap.tick(v.centre, v.velocity);
