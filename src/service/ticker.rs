@@ -473,10 +473,7 @@ impl Runner {
         if own {
             // Its own mapping first, then the record that sends readers there: a reader never
             // finds the record without the mapping.
-            if self.clipmap.view_named(name).is_some() {
-                return Err(format!("view `{name}` exists already: remove it first or choose another name"));
-            }
-            crate::shm::layout::views::check_name(name)?;
+            self.clipmap.check_new_name(name).map_err(|e| e.to_string())?;
             self.own.add(name, self.centre)?;
             if let Err(e) = self.clipmap.add_view_elsewhere(name, weight) {
                 self.own.remove(name);

@@ -90,6 +90,12 @@ impl Reopening {
         Arc::clone(&self.current.read().unwrap_or_else(PoisonError::into_inner))
     }
 
+    /// `f` of the version served now, without taking a reference count (the queues ask per
+    /// tile).
+    fn with<R>(&self, f: impl FnOnce(&CogSource) -> R) -> R {
+        f(&self.current.read().unwrap_or_else(PoisonError::into_inner))
+    }
+
     /// Times the object was opened again and its new version served.
     pub fn reopened(&self) -> u64 {
         self.version.load(Ordering::Relaxed)
@@ -180,27 +186,27 @@ impl TileSource for Reopening {
     }
 
     fn heights(&self) -> Option<crate::plan::HeightPlan> {
-        self.current().heights()
+        self.with(|s| s.heights())
     }
 
     fn remote_stats(&self) -> Option<crate::source::remote::RemoteStats> {
-        self.current().remote_stats()
+        self.with(|s| s.remote_stats())
     }
 
     fn stream_servers(&self) -> usize {
-        self.current().stream_servers()
+        self.with(|s| s.stream_servers())
     }
 
     fn stream_of(&self, tile: TileId, streams: usize) -> usize {
-        self.current().stream_of(tile, streams)
+        self.with(|s| s.stream_of(tile, streams))
     }
 
     fn will_read(&self, tiles: &[TileId]) {
-        self.current().will_read(tiles);
+        self.with(|s| s.will_read(tiles));
     }
 
     fn withdraw(&self, tile: TileId) {
-        self.current().withdraw(tile);
+        self.with(|s| s.withdraw(tile));
     }
 
     fn version(&self) -> u64 {
