@@ -173,6 +173,7 @@ benchmark could not run.")]
 Examples:
   clipbench cog --quick --json
   clipbench cog --install-peers --passes 9
+  clipbench cog --quick --link-rate 100
 
 Needs GDAL (gdal_translate and Python's osgeo.gdal; --install-peers runs apt-get). Writes a COG
 with GDAL, reads every level-0 tile with both, and compares the texels. Exit status: 0 ok, 1 a

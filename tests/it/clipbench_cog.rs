@@ -15,7 +15,11 @@ fn run_cog(extra: &[&str]) -> serde_json::Value {
 
 #[test]
 fn cog_json_has_the_contract_fields_and_no_texel_differs_from_gdal() {
-    for extra in [&[][..], &["--compression", "zstd", "--predictor"][..], &["--compression", "deflate"][..]] {
+    for extra in [
+        &[][..],
+        &["--compression", "zstd", "--predictor"][..],
+        &["--compression", "deflate", "--link-rate", "1000"][..],
+    ] {
         let v = run_cog(extra);
         for field in ["tiles_per_s_local", "tiles_per_s_gdal_local", "local_vs_gdal", "tiles_per_s_gdal_local_all_cpus"]
         {
@@ -42,6 +46,22 @@ fn cog_json_has_the_contract_fields_and_no_texel_differs_from_gdal() {
             let want = over / under;
             assert!((f(ratio) - want).abs() <= 1e-9 * want, "{extra:?}: {ratio} is not {over} / {under}: {v}");
         }
+        // The machine's CPU (counted in hundredths of a second, so a smoke run's figures are
+        // coarse): numbers, none negative, and the bound the ratio of the costs.
+        for (busy, cost) in [
+            (&v["cores_busy_local"], &v["core_us_per_tile_local"]),
+            (&h["cores_busy_http"], &h["core_us_per_tile_http"]),
+            (&h["cores_busy_curl"], &h["core_us_per_tile_curl"]),
+            (&h["cores_busy_fetch_only"], &h["core_us_per_tile_fetch_only"]),
+        ] {
+            let (busy, cost) = (busy.as_f64().unwrap(), cost.as_f64().unwrap());
+            assert!(busy >= 0.0 && cost >= 0.0, "{extra:?}: {busy} cores, {cost} us: {v}");
+        }
+        let bound = h["core_us_per_tile_curl"].as_f64().unwrap() / h["core_us_per_tile_http"].as_f64().unwrap();
+        let got = v["http_vs_curl_cpu_bound"].as_f64();
+        assert!(got.is_some_and(|g| (g - bound).abs() <= 1e-9 * bound.abs()) || !bound.is_finite(), "{v}");
+        let link = extra.iter().position(|a| *a == "--link-rate").map(|i| extra[i + 1].parse::<u64>().unwrap());
+        assert_eq!(v["link_rate_mb_per_s"].as_u64(), link, "{extra:?}: {v}");
         assert_eq!(v["open_requests"], 1, "{extra:?}: open is one request: {v}");
         let open_bytes = v["open_bytes"].as_u64().unwrap();
         assert!((1..=65536).contains(&open_bytes), "{extra:?}: open read {open_bytes} bytes");

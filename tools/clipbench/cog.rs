@@ -16,6 +16,7 @@
 //! own decode of the same tile (an untimed pass of GDAL's first), rows turned over (our t counts
 //! up from the image's bottom row).
 
+use super::perf::MachineCpu;
 use clipmap::source::{CogSource, Procedural, TextureDesc, TileId, TileSource};
 use clipmap::texel::TexelFormat;
 use serde::Serialize;
@@ -55,6 +56,11 @@ pub struct Args {
     /// Horizontal differencing (`-co PREDICTOR=YES`, TIFF predictor 2) before compressing.
     #[arg(long)]
     predictor: bool,
+    /// Each HTTP connection limited to this many megabytes (10^6 bytes) a second (nginx's
+    /// `limit_rate`), for GDAL, curl and ours alike: object storage over a network, where a
+    /// connection's throughput rather than the CPU bounds the read. Unlimited when absent.
+    #[arg(long, value_name = "MB_PER_S", value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    link_rate: Option<u64>,
 }
 
 /// A compression GDAL writes and the COG source reads.
@@ -123,6 +129,13 @@ pub struct Report {
     pub wrong_texels: u64,
     /// Ours on one thread.
     pub tiles_per_s_local_one_thread: f64,
+    /// Cores busy on average during our local passes, the whole machine ([`MachineCpu`]).
+    pub cores_busy_local: f64,
+    /// The machine's busy CPU a tile of our local passes cost, microseconds.
+    pub core_us_per_tile_local: f64,
+    /// What a tile cost the machine under curl over what it cost under ours, over HTTP: the
+    /// most `http_vs_curl` can be where both keep every core busy (docs/BENCHMARKS.md, COG).
+    pub http_vs_curl_cpu_bound: Option<f64>,
     /// GDAL with `GDAL_NUM_THREADS=ALL_CPUS`.
     pub tiles_per_s_gdal_local_all_cpus: f64,
     /// Seconds to open the COG, ours (median; levels past the overviews built at open).
@@ -133,6 +146,8 @@ pub struct Report {
     pub cog: CogShape,
     /// GDAL's version.
     pub gdal_version: String,
+    /// `--link-rate`: megabytes a second each HTTP connection was limited to (`null`: no limit).
+    pub link_rate_mb_per_s: Option<u64>,
     /// Threads of ours.
     pub depth: u64,
     /// Passes each side.
@@ -320,6 +335,33 @@ pub(crate) struct Pass {
     pub first_error: Option<String>,
 }
 
+/// The machine's CPU over all the passes of a mode ([`MachineCpu`]): busy seconds over the whole
+/// run of passes (opens and the checks between passes included, since the kernel counts in
+/// hundredths of a second), seconds of the timed passes.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Spent {
+    pub busy_s: f64,
+    pub wall_s: f64,
+    pub tiles: u64,
+}
+
+impl Spent {
+    /// The CPU since `cpu` was taken, over passes of `seconds` reading `tiles` tiles in all.
+    pub fn since(cpu: MachineCpu, seconds: &[f64], tiles: u64) -> Spent {
+        Spent { busy_s: MachineCpu::busy_since(cpu), wall_s: seconds.iter().sum(), tiles }
+    }
+
+    /// Cores busy on average.
+    pub fn cores(&self) -> f64 {
+        self.busy_s / self.wall_s.max(1e-9)
+    }
+
+    /// Microseconds of busy CPU a tile cost the machine.
+    pub fn core_us_per_tile(&self) -> f64 {
+        self.busy_s * 1e6 / self.tiles.max(1) as f64
+    }
+}
+
 /// Tiles a reading thread takes at once in [`one_pass`]: the most a run of the engine's read
 /// queues takes (its `MAX_BATCH`).
 const RUN: u64 = 16;
@@ -376,15 +418,17 @@ pub(crate) fn one_pass(src: &CogSource, depth: u64, reference: &Reference) -> Pa
     }
 }
 
-/// Our local passes, each on a fresh open; (seconds a pass, seconds an open, wrong texels).
+/// Our local passes, each on a fresh open; (seconds a pass, seconds an open, wrong texels, the
+/// machine's CPU over the passes).
 fn our_passes(
     tif: &Path,
     n: u64,
     depth: u64,
     passes: u64,
     reference: &Reference,
-) -> anyhow::Result<(Vec<f64>, Vec<f64>, u64)> {
-    let (mut times, mut opens, mut wrong) = (Vec::new(), Vec::new(), 0);
+) -> anyhow::Result<(Vec<f64>, Vec<f64>, u64, Spent)> {
+    let (mut times, mut opens, mut wrong, mut tiles) = (Vec::new(), Vec::new(), 0, 0);
+    let cpu = MachineCpu::now();
     for _ in 0..passes {
         let t0 = Instant::now();
         let src = CogSource::open(tif, clip_of(n))?;
@@ -394,9 +438,12 @@ fn our_passes(
             anyhow::bail!("{}: {} reads failed; the first: {e}", tif.display(), p.failed);
         }
         times.push(p.seconds);
+        let [ts, tt] = src.desc().level(0).tiles();
+        tiles += ts * tt;
         wrong += p.wrong;
     }
-    Ok((times, opens, wrong))
+    let spent = Spent::since(cpu, &times, tiles);
+    Ok((times, opens, wrong, spent))
 }
 
 /// What the HTTP half needs of the run (`cog_http.rs`).
@@ -412,6 +459,8 @@ pub(crate) struct HttpRun<'a> {
     pub python: &'a Path,
     pub script: &'a Path,
     pub install_peers: bool,
+    /// `--link-rate`, megabytes a second a connection.
+    pub link_mb_per_s: Option<u64>,
 }
 
 /// The HTTP half's figures (`null` in the JSON when nginx or curl is missing).
@@ -429,6 +478,15 @@ pub struct Http {
     pub curl_ceiling_tiles_per_s: f64,
     /// Our remote reader fetching the same ranges, the same threads, without decoding them.
     pub tiles_per_s_http_fetch_only: f64,
+    /// Cores busy on average (the whole machine: ours or curl, nginx, the kernel) during our
+    /// HTTP passes, curl's, and our fetch-only passes.
+    pub cores_busy_http: f64,
+    pub cores_busy_curl: f64,
+    pub cores_busy_fetch_only: f64,
+    /// The machine's busy CPU a tile cost in each, microseconds.
+    pub core_us_per_tile_http: f64,
+    pub core_us_per_tile_curl: f64,
+    pub core_us_per_tile_fetch_only: f64,
     /// Requests of one pass of ours, open included (nginx's log).
     pub requests: u64,
     /// Bytes of one pass of ours, open included.
@@ -494,8 +552,8 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
     let _ = std::fs::remove_file(&dump);
     let gdal_all_s =
         gdal_passes(&gdal.python, &script, &path, tile, passes, None, &[("GDAL_NUM_THREADS", "ALL_CPUS")])?.seconds;
-    let (ours_s, opens, mut wrong) = our_passes(&tif, n, args.depth, passes, &reference)?;
-    let (one_s, _, w) = our_passes(&tif, n, 1, passes, &reference)?;
+    let (ours_s, opens, mut wrong, local_cpu) = our_passes(&tif, n, args.depth, passes, &reference)?;
+    let (one_s, _, w, _) = our_passes(&tif, n, 1, passes, &reference)?;
     wrong += w;
     let tiles = (n / tile) * (n / tile);
     anyhow::ensure!(gdal_tiles == tiles, "GDAL read {gdal_tiles} tiles a pass where the COG has {tiles}");
@@ -510,6 +568,7 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
         python: &gdal.python,
         script: &script,
         install_peers: args.install_peers,
+        link_mb_per_s: args.link_rate,
     };
     let http = http_half(&http_run)?;
     wrong += http.as_ref().map_or(0, |h| h.wrong_texels);
@@ -534,6 +593,9 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
         faults_vs_clean: h.map(|h| h.tiles_per_s_http_faults / h.tiles_per_s_http_relay),
         wrong_texels: wrong,
         tiles_per_s_local_one_thread: rate(one_s),
+        cores_busy_local: local_cpu.cores(),
+        core_us_per_tile_local: local_cpu.core_us_per_tile(),
+        http_vs_curl_cpu_bound: h.map(|h| h.core_us_per_tile_curl / h.core_us_per_tile_http),
         tiles_per_s_gdal_local_all_cpus: rate(gdal_all_s),
         open_s: median(opens),
         http,
@@ -547,6 +609,7 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
             level0_tiles: tiles,
         },
         gdal_version: version,
+        link_rate_mb_per_s: args.link_rate,
         depth: args.depth,
         passes,
         nproc: std::thread::available_parallelism().map_or(1, |n| n.get()),
@@ -589,11 +652,14 @@ fn human(r: &Report) -> String {
     match &r.http {
         None => o.push_str("HTTP: not measured (nginx or curl missing)\n"),
         Some(h) => o.push_str(&format!(
-            "HTTP (nginx on loopback): ours {:.0}, GDAL /vsicurl/ {:.0} (ALL_CPUS {:.0}; GDAL's defaults {:.0}): {:.2}x; \
+            "HTTP (nginx on loopback{}): ours {:.0}, GDAL /vsicurl/ {:.0} (ALL_CPUS {:.0}; GDAL's defaults {:.0}): {:.2}x; \
              curl, the same ranges {} at once, {:.0}: {:.2} of it (our reader fetching them without decoding: {:.0})\n\
              requests a pass: ours {} ({} bytes; open {} of {} bytes), GDAL {} ({} bytes; {} with its defaults)\n\
              faults ({:.0} % 503, {:.0} % cut): {:.0} against {:.0} through the same relay without them ({:.2}); \
-             {} 503s and {} cuts injected, {} retries, {} reads failed\n",
+             {} 503s and {} cuts injected, {} retries, {} reads failed\n\
+             the machine's CPU a tile (cores busy): ours local {:.0} us ({:.2}), ours HTTP {:.0} us ({:.2}), curl {:.0} us ({:.2}), \
+             ours fetching only {:.0} us ({:.2}); curl's over ours, HTTP: {:.2}, the most ours / curl can be with every core busy\n",
+            r.link_rate_mb_per_s.map_or(String::new(), |m| format!(", {m} MB/s a connection")),
             h.tiles_per_s_http,
             h.tiles_per_s_gdal_http,
             h.tiles_per_s_gdal_http_all_cpus,
@@ -618,7 +684,16 @@ fn human(r: &Report) -> String {
             h.faults_503,
             h.faults_cut,
             h.retries,
-            h.failed_reads
+            h.failed_reads,
+            r.core_us_per_tile_local,
+            r.cores_busy_local,
+            h.core_us_per_tile_http,
+            h.cores_busy_http,
+            h.core_us_per_tile_curl,
+            h.cores_busy_curl,
+            h.core_us_per_tile_fetch_only,
+            h.cores_busy_fetch_only,
+            h.core_us_per_tile_curl / h.core_us_per_tile_http
         )),
     }
     o

@@ -15,7 +15,8 @@
 //!   closes the connection half way through the body of 1 %, against the same relay with no
 //!   fault.
 
-use super::cog::{clip_of, gdal_passes, median, one_pass, Http, HttpRun};
+use super::cog::{clip_of, gdal_passes, median, one_pass, Http, HttpRun, Spent};
+use super::perf::MachineCpu;
 use super::serve::{program, AccessLog, Faults, Hit, Nginx, Proxy};
 use clipmap::place::RemoteName;
 use clipmap::source::remote::object::Object;
@@ -84,6 +85,8 @@ struct Ours {
     open_hits: Vec<Hit>,
     pass_hits: Vec<Hit>,
     remote: Arc<Remote>,
+    /// The machine's CPU over the passes.
+    spent: Spent,
 }
 
 fn our_passes(run: &HttpRun, url: &str, log: &AccessLog) -> anyhow::Result<Ours> {
@@ -100,7 +103,9 @@ fn our_passes(run: &HttpRun, url: &str, log: &AccessLog) -> anyhow::Result<Ours>
         open_hits: Vec::new(),
         pass_hits: Vec::new(),
         remote: remote.clone(),
+        spent: Spent { busy_s: 0.0, wall_s: 0.0, tiles: 0 },
     };
+    let cpu = MachineCpu::now();
     for pass in 0..run.passes {
         let before = log.settled()?.len();
         let t0 = Instant::now();
@@ -118,11 +123,13 @@ fn our_passes(run: &HttpRun, url: &str, log: &AccessLog) -> anyhow::Result<Ours>
         o.first_error = o.first_error.or(p.first_error);
         o.pass_hits = log.settled()?[opened.len()..].to_vec();
     }
+    o.spent = Spent::since(cpu, &o.seconds, run.passes * (run.n / run.tile) * (run.n / run.tile));
     Ok(o)
 }
 
 /// curl fetching `ranges` of `url` (both ends included), `depth` at once, once a pass; seconds
-/// a pass. Checks that every transfer got its range's bytes.
+/// a pass, and the machine's CPU over them. Checks that every transfer got its
+/// range's bytes.
 fn curl_passes(
     curl: &Path,
     dir: &Path,
@@ -130,7 +137,8 @@ fn curl_passes(
     ranges: &[(u64, u64)],
     depth: u64,
     passes: u64,
-) -> anyhow::Result<Vec<f64>> {
+    tiles: u64,
+) -> anyhow::Result<(Vec<f64>, Spent)> {
     let mut config = String::new();
     for (i, (a, b)) in ranges.iter().enumerate() {
         // `next` between transfers (one after the last would be a transfer with no URL).
@@ -146,6 +154,7 @@ fn curl_passes(
     std::fs::write(&file, config)?;
     let want: u64 = ranges.iter().map(|(a, b)| b - a + 1).sum();
     let mut times = Vec::new();
+    let cpu = MachineCpu::now();
     for _ in 0..passes {
         let t = Instant::now();
         let out = Command::new(curl)
@@ -181,17 +190,26 @@ fn curl_passes(
             String::from_utf8_lossy(&out.stderr).trim()
         );
     }
-    Ok(times)
+    let spent = Spent::since(cpu, &times, tiles * passes);
+    Ok((times, spent))
 }
 
 /// Our remote reader fetching `ranges` of `url` (both ends included) on `depth` threads, with
-/// no decoding, once a pass: what our HTTP path costs where curl's does (seconds a pass).
-fn fetch_passes(url: &str, ranges: &[(u64, u64)], depth: u64, passes: u64) -> anyhow::Result<Vec<f64>> {
+/// no decoding, once a pass: what our HTTP path costs where curl's does (seconds a pass, and the
+/// machine's CPU over them).
+fn fetch_passes(
+    url: &str,
+    ranges: &[(u64, u64)],
+    depth: u64,
+    passes: u64,
+    tiles: u64,
+) -> anyhow::Result<(Vec<f64>, Spent)> {
     let name = RemoteName::parse(url).ok_or_else(|| anyhow::anyhow!("{url}: not a remote name"))?;
     let opts = RemoteOptions::from_env().map_err(|e| anyhow::anyhow!("{e}"))?;
     let remote = Arc::new(Remote::new(RemoteOptions { cache_dir: None, ..opts })?);
     let (object, _) = Object::open(remote, &name, 1).map_err(|e| anyhow::anyhow!("opening {url}: {e}"))?;
     let mut times = Vec::new();
+    let cpu = MachineCpu::now();
     for _ in 0..passes {
         let next = AtomicUsize::new(0);
         let t = Instant::now();
@@ -214,7 +232,8 @@ fn fetch_passes(url: &str, ranges: &[(u64, u64)], depth: u64, passes: u64) -> an
             anyhow::bail!("fetching ranges of {url}: {e}");
         }
     }
-    Ok(times)
+    let spent = Spent::since(cpu, &times, tiles * passes);
+    Ok((times, spent))
 }
 
 /// Requests a pass of a GDAL run (all its passes over their number, rounded).
@@ -227,7 +246,7 @@ pub fn measure(run: &HttpRun) -> anyhow::Result<Option<Http>> {
     let root = run.tif.parent().ok_or_else(|| anyhow::anyhow!("{}: no directory", run.tif.display()))?;
     let file = run.tif.file_name().and_then(|f| f.to_str()).ok_or_else(|| anyhow::anyhow!("the COG's name"))?;
     let log = AccessLog(run.dir.join("access.log"));
-    let nginx = Nginx::serve(root, &run.dir.join("nginx"), Some(&log.0))?;
+    let nginx = Nginx::serve(root, &run.dir.join("nginx"), Some(&log.0), run.link_mb_per_s.map(|m| m * 1_000_000))?;
     let url = format!("http://127.0.0.1:{}/{file}", nginx.port);
     let tiles = (run.n / run.tile) * (run.n / run.tile);
     let rate = |s: &[f64]| tiles as f64 / median(s.to_vec());
@@ -266,8 +285,8 @@ pub fn measure(run: &HttpRun) -> anyhow::Result<Option<Http>> {
     let (gdal_default_s, gdal_default_hits) = gdal(&[])?;
 
     // curl, and our reader fetching the same ranges without decoding them.
-    let curl_s = curl_passes(&curl, run.dir, &url, &ranges, run.depth, run.passes)?;
-    let fetch_s = fetch_passes(&url, &ranges, run.depth, run.passes)?;
+    let (curl_s, curl_cpu) = curl_passes(&curl, run.dir, &url, &ranges, run.depth, run.passes, tiles)?;
+    let (fetch_s, fetch_cpu) = fetch_passes(&url, &ranges, run.depth, run.passes, tiles)?;
 
     // Faults: the same relay with and without them.
     let stop = Arc::new(AtomicBool::new(false));
@@ -288,6 +307,12 @@ pub fn measure(run: &HttpRun) -> anyhow::Result<Option<Http>> {
         tiles_per_s_gdal_http_default_env: rate(&gdal_default_s),
         curl_ceiling_tiles_per_s: rate(&curl_s),
         tiles_per_s_http_fetch_only: rate(&fetch_s),
+        cores_busy_http: ours.spent.cores(),
+        cores_busy_curl: curl_cpu.cores(),
+        cores_busy_fetch_only: fetch_cpu.cores(),
+        core_us_per_tile_http: ours.spent.core_us_per_tile(),
+        core_us_per_tile_curl: curl_cpu.core_us_per_tile(),
+        core_us_per_tile_fetch_only: fetch_cpu.core_us_per_tile(),
         requests,
         bytes: open_bytes + pass_bytes,
         requests_gdal: per_pass(gdal_hits.len(), run.passes),

@@ -176,6 +176,34 @@ pub fn quantile(v: &[f64], p: f64) -> f64 {
     s[((s.len() - 1) as f64 * p).round() as usize]
 }
 
+/// The whole machine's CPU time so far, every core and every process (`/proc/stat`'s `cpu`
+/// line; the kernel counts in 1/100 s): the seconds the cores were busy (user, nice, system,
+/// interrupts, steal). Over a span, busy seconds over wall seconds is how many cores
+/// were busy on average; busy seconds over tiles is what a tile cost the machine, whoever spent it
+/// (our threads, nginx, curl, the kernel's network stack).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MachineCpu {
+    pub busy_s: f64,
+}
+
+impl MachineCpu {
+    pub fn now() -> MachineCpu {
+        let stat = std::fs::read_to_string("/proc/stat").unwrap_or_default();
+        let line = stat.lines().find(|l| l.starts_with("cpu ")).unwrap_or("");
+        let f: Vec<u64> = line.split_whitespace().skip(1).map(|x| x.parse().unwrap_or(0)).collect();
+        let at = |i: usize| f.get(i).copied().unwrap_or(0);
+        // user nice system idle iowait irq softirq steal (guest time is within user); idle and
+        // iowait are not busy.
+        let busy = at(0) + at(1) + at(2) + at(5) + at(6) + at(7);
+        MachineCpu { busy_s: busy as f64 / 100.0 }
+    }
+
+    /// The busy seconds since `before`.
+    pub fn busy_since(before: MachineCpu) -> f64 {
+        (MachineCpu::now().busy_s - before.busy_s).max(0.0)
+    }
+}
+
 /// This process's counters from `/proc/self/stat`.
 pub struct ProcSelf {
     /// Minor page faults (all threads).

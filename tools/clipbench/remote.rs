@@ -244,7 +244,7 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
     let summary = prep::run(job, &root, &AtomicBool::new(false), dir, &|_| {})?;
     let local_ct = root.join(&summary.ct);
 
-    let nginx = Nginx::serve(&root, &dir.join("nginx"), None)?;
+    let nginx = Nginx::serve(&root, &dir.join("nginx"), None, None)?;
     let http_port = nginx.port;
     let (_moto, s3_port) = moto()?;
     // The benchmark's own store: these variables are this process's, set before any thread

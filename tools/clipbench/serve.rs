@@ -61,14 +61,16 @@ pub fn nginx_program() -> Option<PathBuf> {
 
 /// nginx serving `root` on a loopback port (one worker, keep-alive, `sendfile`), its files
 /// under `dir`; with `log`, every request is logged there as `STATUS BODY_BYTES METHOD
-/// "RANGE"` ([`AccessLog`]). Stops on drop.
+/// "RANGE"` ([`AccessLog`]). With `link_rate`, each connection sends at most that many bytes a
+/// second (nginx's `limit_rate`): a network link, where one connection's throughput bounds a
+/// transfer rather than the CPU. Stops on drop.
 pub struct Nginx {
     _child: Killed,
     pub port: u16,
 }
 
 impl Nginx {
-    pub fn serve(root: &Path, dir: &Path, log: Option<&Path>) -> anyhow::Result<Nginx> {
+    pub fn serve(root: &Path, dir: &Path, log: Option<&Path>, link_rate: Option<u64>) -> anyhow::Result<Nginx> {
         let exe = nginx_program()
             .ok_or_else(|| anyhow::anyhow!("nginx is needed and was not found: install it (apt-get install nginx)"))?;
         let port = free_port()?;
@@ -83,9 +85,10 @@ impl Nginx {
             ),
             None => " access_log off;\n".to_string(),
         };
+        let limit = link_rate.map_or(String::new(), |b| format!(" limit_rate {b};\n"));
         let conf = format!(
             "daemon off;\nmaster_process off;\nworker_processes 1;\npid {d}/nginx.pid;\nerror_log {d}/error.log warn;\n\
-             events {{ worker_connections 1024; }}\nhttp {{\n{access} client_body_temp_path {d}/body;\n proxy_temp_path {d}/proxy;\n fastcgi_temp_path {d}/fastcgi;\n uwsgi_temp_path {d}/uwsgi;\n scgi_temp_path {d}/scgi;\n keepalive_requests 1000000;\n sendfile on;\n tcp_nodelay on;\n server {{ listen 127.0.0.1:{port}; root {}; location / {{ }} }}\n}}\n",
+             events {{ worker_connections 1024; }}\nhttp {{\n{access} client_body_temp_path {d}/body;\n proxy_temp_path {d}/proxy;\n fastcgi_temp_path {d}/fastcgi;\n uwsgi_temp_path {d}/uwsgi;\n scgi_temp_path {d}/scgi;\n keepalive_requests 1000000;\n sendfile on;\n tcp_nodelay on;\n{limit} server {{ listen 127.0.0.1:{port}; root {}; location / {{ }} }}\n}}\n",
             root.display()
         );
         std::fs::write(dir.join("nginx.conf"), conf)?;
