@@ -60,7 +60,7 @@ mod reopen;
 #[cfg(feature = "remote")]
 pub use reopen::{Reopening, RETRY_GAP as REOPEN_GAP};
 
-use super::ahead::{Piece, Plan, ReadAhead};
+use super::ahead::{Feed, Piece, Plan, ReadAhead};
 use super::{
     check_request, level_count, level_size, DescError, LevelDesc, SourceError, TextureDesc, TileId, TileSource,
 };
@@ -696,6 +696,36 @@ impl Store {
         }
     }
 
+    /// Starts reading bytes `[offset, offset + len)` into `feed`, which it ends when done: a
+    /// remote object's one ranged read streamed on the runtime, its bytes handed over as they
+    /// arrive, without waiting for it (a local file's read whole, here). A range past the end is
+    /// refused at once, and nothing is started.
+    fn stream_detached(&self, offset: u64, len: u64, feed: Feed<TileId>) -> Result<(), StoreError> {
+        match self {
+            #[cfg(feature = "remote")]
+            Store::Remote(o) => {
+                if offset.checked_add(len).is_none_or(|e| e > o.size()) {
+                    return Err(StoreError::Eof { size: o.size() });
+                }
+                let sink = Arc::new(FeedSink(feed.clone()));
+                o.stream_detached(offset, len, sink, move |result| {
+                    if let Err(e) = result {
+                        // Its tiles are read on their own, each reporting what goes wrong.
+                        tracing::debug!("a merged read of {len} bytes at byte {offset} failed: {e}");
+                    }
+                    feed.end();
+                });
+                Ok(())
+            }
+            _ => {
+                let bytes = self.read_bytes(offset, len)?;
+                feed.push(&bytes);
+                feed.end();
+                Ok(())
+            }
+        }
+    }
+
     /// Bytes `[offset, offset + len)` in one piece (one ranged read of a remote object).
     fn read_bytes(&self, offset: u64, len: u64) -> Result<Shared, StoreError> {
         match self {
@@ -721,6 +751,22 @@ impl Store {
 /// Bytes shared between readers, read into their buffer once (without the `bytes` crate, which
 /// only the `remote` feature brings).
 type Shared = Arc<Vec<u8>>;
+
+/// A remote answer's bytes handed to the tiles of a merged request as they arrive.
+#[cfg(feature = "remote")]
+struct FeedSink(Feed<TileId>);
+
+#[cfg(feature = "remote")]
+impl super::remote::Sink for FeedSink {
+    fn head(&self, _: Option<u64>, _: Option<&str>) -> Result<(), String> {
+        // The object's version is checked by the object (`Object::stream`).
+        Ok(())
+    }
+
+    fn bytes(&self, bytes: bytes::Bytes) {
+        self.0.push(&bytes);
+    }
+}
 
 /// A run of a file's bytes read at once: `bytes` from byte `start`.
 struct Span<'a> {
@@ -1472,29 +1518,26 @@ impl CogSource {
         match self.ahead.plan(tile, &near, place, cap) {
             Plan::Alone => Ok(None),
             Plan::Take { start, bytes } => Ok(bytes.map(|b| (start, b))),
-            Plan::Send { start, end, merged, ticket } => match self.store.read_bytes(start, end - start) {
-                Ok(b) => {
-                    #[cfg(feature = "remote")]
-                    if let Store::Remote(o) = &self.store {
-                        use std::sync::atomic::Ordering;
-                        let ranges = merged.len() as u64 + 1;
-                        o.remote().fetcher().counters.merged.fetch_add(ranges, Ordering::Relaxed);
-                    }
-                    #[cfg(not(feature = "remote"))]
-                    let _ = merged;
-                    ticket.finish(Some(Arc::clone(&b)));
-                    Ok(Some((start, b)))
+            Plan::Send { start, end, merged, ticket } => {
+                #[cfg(feature = "remote")]
+                if let Store::Remote(o) = &self.store {
+                    use std::sync::atomic::Ordering;
+                    let ranges = merged.len() as u64 + 1;
+                    o.remote().fetcher().counters.merged.fetch_add(ranges, Ordering::Relaxed);
                 }
-                // A tile whose place runs past the end: each tile then says what is wrong with it.
-                Err(StoreError::Eof { .. }) => {
-                    ticket.finish(None);
-                    Ok(None)
+                #[cfg(not(feature = "remote"))]
+                let _ = merged;
+                let mut started = Ok(());
+                // This tile's own bytes, once whole (`None`: read it on its own).
+                let own = ticket.detach(|feed| started = self.store.stream_detached(start, end - start, feed));
+                match started {
+                    // A tile whose place runs past the end: each tile then says what is wrong
+                    // with it.
+                    Err(StoreError::Eof { .. }) => Ok(None),
+                    Err(e) => Err(e.for_tile(tile, &self.path, start, end - start)),
+                    Ok(()) => Ok(own),
                 }
-                Err(e) => {
-                    ticket.finish(None);
-                    Err(e.for_tile(tile, &self.path, start, end - start))
-                }
-            },
+            }
         }
     }
 

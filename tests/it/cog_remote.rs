@@ -686,3 +686,68 @@ fn a_served_remote_cog_replaced_in_its_store_is_opened_again_and_every_tile_read
     assert!(why.contains("another texture") && why.contains("[256, 192]") && why.contains("restart"), "{why}");
     assert_eq!(source.reopened(), 1);
 }
+
+/// Reads every level-0 tile of `src` a row at a time, each row announced first (as the engine's
+/// read queues announce a run: one merged, streamed request a row), checking each against the
+/// formula of [`tiled_tiff`]; returns the errors.
+fn read_rows_announced(src: &CogSource, h: u64) -> Vec<String> {
+    let [across, rows] = src.desc().level(0).tiles();
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    let mut errors = Vec::new();
+    for t in 0..rows {
+        let row: Vec<TileId> = (0..across).map(|s| TileId::new(0, s, t)).collect();
+        src.will_read(&row);
+        for id in row {
+            match src.read_tile(id, &mut buf) {
+                Ok(()) => assert_formula_tile(src, id.s, id.t, h, &buf),
+                Err(e) => errors.push(format!("{id}: {e}")),
+            }
+        }
+    }
+    errors
+}
+
+#[test]
+fn a_merged_request_cut_or_reset_mid_body_resumes_and_every_tile_is_right() {
+    let dir = tempfile::tempdir().unwrap();
+    // 1792 x 2048 in 256 x 256 tiles, framed as GDAL frames them: 8 rows of 7 tiles of 64 KiB,
+    // past the first 64 KiB. A body cut half way is cut inside a tile.
+    std::fs::write(dir.path().join("rows.tif"), tiled_tiff(1792, 2048, 256, true)).unwrap();
+    let nginx = Nginx::serve(dir.path());
+    let url = |port: u16| format!("http://127.0.0.1:{port}/rows.tif");
+
+    // Without faults: one request a row (the open, the tile index, a request for each row not
+    // in the first bytes).
+    let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
+    let remote = reader(&[]);
+    let src = open(&url(proxy.port), &remote, 1024);
+    assert!(read_rows_announced(&src, 2048).is_empty());
+    let clean = proxy.requests.load(Ordering::SeqCst);
+    assert!(clean <= 2 + 8, "{clean} requests for 8 rows");
+    assert!(remote.stats().merged >= 7 * 7, "{:?}", remote.stats());
+
+    // Every other request after the open cut half way through its body or reset: each merged
+    // request resumes where its body was cut, and no tile is wrong.
+    let faults = vec![Fault::Truncate, Fault::Pass, Fault::Reset, Fault::Pass, Fault::LongLength, Fault::Pass];
+    let proxy = FaultProxy::start(nginx.port, Schedule { faults: vec![Fault::Pass], then: faults, every: 1 }, 0);
+    let remote = reader(&[]);
+    let src = open(&url(proxy.port), &remote, 1024);
+    let errors = read_rows_announced(&src, 2048);
+    assert!(errors.is_empty(), "{errors:?}");
+    let injected = proxy.injected.lock().unwrap().iter().filter(|f| **f != Fault::Pass).count();
+    assert!(injected >= 4, "faults were injected: {injected}");
+    assert!(remote.stats().retries >= injected as u64, "{:?}", remote.stats());
+
+    // The object replaced after open: a merged request's answer is refused before any of its
+    // bytes reach a tile, and each tile then says the object changed.
+    let remote = reader(&[]);
+    let src = open(&url(nginx.port), &remote, 1024);
+    let mut altered = tiled_tiff(1792, 2048, 256, true);
+    for b in &mut altered[8192..] {
+        *b = !*b;
+    }
+    replace(&dir.path().join("rows.tif"), &altered);
+    let errors = read_rows_announced(&src, 2048);
+    assert!(errors.len() == 56, "{} tiles refused", errors.len());
+    assert!(errors.iter().all(|e| e.contains("changed since it was opened")), "{errors:?}");
+}

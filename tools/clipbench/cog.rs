@@ -369,7 +369,6 @@ const RUN: u64 = 16;
 /// Reads every level-0 tile of `src` on `depth` threads, as the engine's read queues do (runs of
 /// [`RUN`] tiles, announced before they are read), each tile checked against `reference` (the
 /// check is inside the timed pass: a few microseconds a tile, the same in every mode).
-
 pub(crate) fn one_pass(src: &CogSource, depth: u64, reference: &Reference) -> Pass {
     let d = src.desc();
     let [ts, tt] = d.level(0).tiles();

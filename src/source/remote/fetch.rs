@@ -131,11 +131,32 @@ impl Segments {
     }
 }
 
+/// Where the bytes of a streamed range go as they arrive ([`Fetcher::stream`]).
+pub trait Sink: Send + Sync {
+    /// What an answer says of the object (its length and version), before any of its bytes:
+    /// `Err` refuses the answer, and the read fails with it (not retried).
+    fn head(&self, object_len: Option<u64>, validator: Option<&str>) -> Result<(), String>;
+    /// The range's next bytes, in order.
+    fn bytes(&self, bytes: Bytes);
+}
+
 /// A protocol that reads remote objects: one attempt per call, blocking, bounded by the
 /// options' timeouts.
 pub trait Backend: Send + Sync {
     /// Bytes `[start, start + len)` of `loc`.
     fn get(&self, loc: &Location, start: u64, len: u64) -> Result<Got, Failure>;
+    /// Bytes `[start, start + len)` of `loc`, handed to `sink` as they arrive: the answer's head
+    /// first ([`Sink::head`]), then its bytes, checked as [`Backend::get`] checks them (a body
+    /// cut short fails, after the bytes that did arrive). Fewer bytes than asked only where the
+    /// object ends. This default reads the range whole, then hands it over.
+    fn get_streamed(&self, loc: &Location, start: u64, len: u64, sink: &Arc<dyn Sink>) -> Result<(), Failure> {
+        let got = self.get(loc, start, len)?;
+        sink.head(got.object_len, got.validator.as_deref()).map_err(Failure::Fatal)?;
+        for b in got.bytes.0 {
+            sink.bytes(b);
+        }
+        Ok(())
+    }
     /// The object's length (a HEAD request).
     fn head(&self, loc: &Location) -> Result<u64, Failure>;
     /// Stores `bytes` as the object `loc`.
@@ -298,6 +319,50 @@ impl Fetcher {
         })
     }
 
+    /// Bytes `[start, start + len)` of `loc`, handed to `sink` as they arrive, in order: waits
+    /// for a slot of its endpoint (the range is never merged with others: the caller merged
+    /// it), and retries, each retry asking only for the bytes that have not arrived yet, so that
+    /// no byte reaches the sink twice. The bytes that arrived before a failure stay handed over.
+    pub fn stream(&self, loc: &Location, start: u64, len: u64, sink: Arc<dyn Sink>) -> Result<(), ReadError> {
+        let ep = self.endpoint(&loc.endpoint);
+        {
+            let mut st = ep.state.lock().unwrap_or_else(|e| e.into_inner());
+            while st.in_flight >= self.opts.in_flight.max(1) {
+                st = ep.wake.wait(st).unwrap_or_else(|e| e.into_inner());
+            }
+            st.in_flight += 1;
+            self.counters.peak_in_flight.fetch_max(st.in_flight as u64, Ordering::Relaxed);
+        }
+        struct Slot(Arc<Endpoint>);
+        impl Drop for Slot {
+            fn drop(&mut self) {
+                self.0.state.lock().unwrap_or_else(|e| e.into_inner()).in_flight -= 1;
+                self.0.wake.notify_all();
+            }
+        }
+        let _slot = Slot(ep);
+        let counted = Arc::new(Counted { inner: sink, got: AtomicU64::new(0) });
+        let as_sink: Arc<dyn Sink> = counted.clone();
+        let object = loc.to_string();
+        let result = self.with_retries(loc, &object, |b| {
+            let got = counted.got.load(Ordering::Relaxed);
+            if got >= len {
+                return Ok(());
+            }
+            b.get_streamed(loc, start + got, len - got, &as_sink)
+        });
+        let got = counted.got.load(Ordering::Relaxed);
+        self.counters.bytes.fetch_add(got, Ordering::Relaxed);
+        let result = match result {
+            Ok(()) if got < len => Err(ReadError::Short { location: object, got, expected: len }),
+            r => r,
+        };
+        if result.is_err() {
+            self.counters.failures.fetch_add(1, Ordering::Relaxed);
+        }
+        result
+    }
+
     /// Reads the merged range of `batch` (sorted, adjacent) and hands each range its bytes.
     fn run_batch(&self, batch: &[Arc<Req>]) {
         let first = &batch[0];
@@ -389,6 +454,23 @@ impl Fetcher {
                 Err(ReadError::Failed { location: object.to_string(), why, attempts: n, timed_out })
             }
         }
+    }
+}
+
+/// A sink that counts the bytes handed to it (where a retry resumes).
+struct Counted {
+    inner: Arc<dyn Sink>,
+    got: AtomicU64,
+}
+
+impl Sink for Counted {
+    fn head(&self, object_len: Option<u64>, validator: Option<&str>) -> Result<(), String> {
+        self.inner.head(object_len, validator)
+    }
+
+    fn bytes(&self, bytes: Bytes) {
+        self.got.fetch_add(bytes.len() as u64, Ordering::Relaxed);
+        self.inner.bytes(bytes);
     }
 }
 
@@ -528,6 +610,115 @@ mod tests {
 
     fn expected(start: u64, len: u64) -> Vec<u8> {
         (start as u32..(start + len) as u32).map(|i| (i * 7 % 251) as u8).collect()
+    }
+
+    /// A backend whose streamed answers are cut half way through their body for the first
+    /// `cuts` attempts, and whose object's version is `v2` from attempt `new_version_at` on.
+    struct Cutting {
+        object: Vec<u8>,
+        cuts: AtomicUsize,
+        new_version_at: usize,
+        attempts: Mutex<Vec<(u64, u64)>>,
+    }
+
+    impl Backend for Cutting {
+        fn get(&self, _: &Location, _: u64, _: u64) -> Result<Got, Failure> {
+            Err(Failure::Fatal("streamed only".into()))
+        }
+        fn get_streamed(&self, _: &Location, start: u64, len: u64, sink: &Arc<dyn Sink>) -> Result<(), Failure> {
+            let n = {
+                let mut a = self.attempts.lock().unwrap();
+                a.push((start, len));
+                a.len()
+            };
+            let version = if n >= self.new_version_at { "ETag \"v2\"" } else { "ETag \"v1\"" };
+            sink.head(Some(self.object.len() as u64), Some(version)).map_err(Failure::Fatal)?;
+            let body = &self.object[start as usize..((start + len) as usize).min(self.object.len())];
+            let cut = self.cuts.load(Ordering::SeqCst) > 0;
+            let upto = if cut { body.len() / 2 } else { body.len() };
+            for piece in body[..upto].chunks(300) {
+                sink.bytes(Bytes::copy_from_slice(piece));
+            }
+            if cut {
+                self.cuts.fetch_sub(1, Ordering::SeqCst);
+                return Err(Failure::transient(format!("the body was cut after {upto} bytes")));
+            }
+            Ok(())
+        }
+        fn head(&self, _: &Location) -> Result<u64, Failure> {
+            Ok(self.object.len() as u64)
+        }
+        fn put(&self, _: &Location, _: Bytes) -> Result<(), Failure> {
+            Err(Failure::Fatal("read-only".into()))
+        }
+    }
+
+    /// Keeps what it is handed; refuses any version but `v1`.
+    #[derive(Default)]
+    struct Kept(Mutex<Vec<u8>>);
+
+    impl Sink for Kept {
+        fn head(&self, _: Option<u64>, validator: Option<&str>) -> Result<(), String> {
+            match validator {
+                Some("ETag \"v1\"") => Ok(()),
+                v => Err(format!("another version: {v:?}")),
+            }
+        }
+        fn bytes(&self, bytes: Bytes) {
+            self.0.lock().unwrap().extend_from_slice(&bytes);
+        }
+    }
+
+    fn cutting(cuts: usize, new_version_at: usize) -> Arc<Cutting> {
+        Arc::new(Cutting {
+            object: (0..4096u32).map(|i| (i * 7 % 251) as u8).collect(),
+            cuts: AtomicUsize::new(cuts),
+            new_version_at,
+            attempts: Mutex::new(Vec::new()),
+        })
+    }
+
+    #[test]
+    fn a_streamed_range_cut_short_resumes_where_it_was_cut_and_hands_each_byte_over_once() {
+        let backend = cutting(2, usize::MAX);
+        let f = Fetcher::new(
+            RemoteOptions { backoff: Duration::from_millis(1), ..Default::default() },
+            backend.clone(),
+            backend.clone(),
+        );
+        let loc = Location::parse("http://h:1/o").unwrap();
+        let kept = Arc::new(Kept::default());
+        f.stream(&loc, 50, 4000, kept.clone()).unwrap();
+        assert_eq!(*kept.0.lock().unwrap(), expected(50, 4000), "every byte once, in order");
+        // Each retry asks only for what had not arrived.
+        assert_eq!(*backend.attempts.lock().unwrap(), vec![(50, 4000), (2050, 2000), (3050, 1000)]);
+        let c = &f.counters;
+        assert_eq!((c.requests.load(Ordering::SeqCst), c.retries.load(Ordering::SeqCst)), (3, 2));
+        assert_eq!(c.bytes.load(Ordering::SeqCst), 4000);
+    }
+
+    #[test]
+    fn a_streamed_range_whose_object_changed_on_a_retry_stops_with_the_bytes_of_the_first_version() {
+        let backend = cutting(1, 2);
+        let f = Fetcher::new(
+            RemoteOptions { backoff: Duration::from_millis(1), ..Default::default() },
+            backend.clone(),
+            backend.clone(),
+        );
+        let loc = Location::parse("http://h:1/o").unwrap();
+        let kept = Arc::new(Kept::default());
+        let e = f.stream(&loc, 0, 4000, kept.clone()).unwrap_err();
+        assert!(e.to_string().contains("another version"), "{e}");
+        // The refusal is not retried; the bytes of version 1 that arrived stay, none of version 2.
+        assert_eq!(backend.attempts.lock().unwrap().len(), 2);
+        assert_eq!(*kept.0.lock().unwrap(), expected(0, 2000));
+        // Past the object's end: short, after the bytes that exist.
+        let backend = cutting(0, usize::MAX);
+        let f = Fetcher::new(RemoteOptions::default(), backend.clone(), backend.clone());
+        let kept = Arc::new(Kept::default());
+        let e = f.stream(&loc, 4000, 200, kept.clone()).unwrap_err();
+        assert!(matches!(e, ReadError::Short { got: 96, expected: 200, .. }), "{e:?}");
+        assert_eq!(*kept.0.lock().unwrap(), expected(4000, 96));
     }
 
     #[test]

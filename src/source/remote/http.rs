@@ -9,13 +9,14 @@
 //! alike); the range is then cut out of it. A `416` means the object ends before the range
 //! starts. Anything else is a [`Failure`], classified for the retry loop.
 
-use super::fetch::{Backend, Failure, Got, Segments};
+use super::fetch::{Backend, Failure, Got, Segments, Sink};
 use super::location::Location;
 use super::options::RemoteOptions;
 use super::runtime::block;
 use bytes::Bytes;
 use reqwest::header::{CONTENT_LENGTH, CONTENT_RANGE, CONTENT_TYPE, ETAG, LAST_MODIFIED, RANGE, RETRY_AFTER};
 use reqwest::StatusCode;
+use std::sync::Arc;
 use std::time::Duration;
 
 /// Largest object read whole from a server that does not answer range requests.
@@ -130,35 +131,102 @@ async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<Segme
     Ok(Segments(parts))
 }
 
-async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Result<Got, Failure> {
+/// Sends the ranged GET of `[start, start + len)` (`len` > 0).
+async fn send_range(client: &reqwest::Client, url: &str, start: u64, len: u64) -> Result<reqwest::Response, Failure> {
     let last = start + len - 1;
-    let mut resp =
-        client.get(&url).header(RANGE, format!("bytes={start}-{last}")).send().await.map_err(request_failure)?;
+    client.get(url).header(RANGE, format!("bytes={start}-{last}")).send().await.map_err(request_failure)
+}
+
+/// Checks a `206`'s head against the range asked for (`[start, last]`): the object's length
+/// (when the answer says) and the bytes its body is to hold.
+fn partial_head(headers: &reqwest::header::HeaderMap, start: u64, last: u64) -> Result<(Option<u64>, u64), Failure> {
+    let Some((a, b, total)) = content_range(headers) else {
+        return Err(Failure::transient("a partial answer without a usable Content-Range"));
+    };
+    let ends_object = total.is_some_and(|t| b + 1 == t && b < last);
+    if a != start || (b != last && !ends_object) || b < a {
+        return Err(Failure::transient(format!(
+            "Content-Range bytes {a}-{b} answers a request for bytes {start}-{last}"
+        )));
+    }
+    let want = b - a + 1;
+    if let Some(n) = headers.get(CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok()) {
+        if n != want {
+            return Err(Failure::transient(format!("Content-Length {n} for a range of {want} bytes")));
+        }
+    }
+    Ok((total, want))
+}
+
+async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Result<Got, Failure> {
+    let mut resp = send_range(&client, &url, start, len).await?;
+    if resp.status() != StatusCode::PARTIAL_CONTENT {
+        return not_partial(client, url, start, len, resp).await;
+    }
+    let headers = resp.headers().clone();
+    let (total, want) = partial_head(&headers, start, start + len - 1)?;
+    let buf = body(&mut resp, want, want + 1).await?;
+    if (buf.len() as u64) < want {
+        return Err(Failure::transient(format!("the body ended after {} of {want} bytes", buf.len())));
+    }
+    Ok(Got { bytes: buf, object_len: total, validator: validator(&headers) })
+}
+
+/// [`get`] handing the bytes of a `206` to `sink` as they arrive (any other answer whole).
+async fn get_streamed(
+    client: reqwest::Client,
+    url: String,
+    start: u64,
+    len: u64,
+    sink: Arc<dyn Sink>,
+) -> Result<(), Failure> {
+    let mut resp = send_range(&client, &url, start, len).await?;
+    if resp.status() != StatusCode::PARTIAL_CONTENT {
+        let got = not_partial(client, url, start, len, resp).await?;
+        sink.head(got.object_len, got.validator.as_deref()).map_err(Failure::Fatal)?;
+        for b in got.bytes.0 {
+            sink.bytes(b);
+        }
+        return Ok(());
+    }
+    let (total, want) = partial_head(resp.headers(), start, start + len - 1)?;
+    sink.head(total, validator(resp.headers()).as_deref()).map_err(Failure::Fatal)?;
+    let mut got = 0u64;
+    while got < want {
+        match resp.chunk().await {
+            Ok(Some(c)) => {
+                if got + c.len() as u64 > want {
+                    return Err(Failure::transient(format!("the body holds more than the {want} bytes announced")));
+                }
+                got += c.len() as u64;
+                sink.bytes(c);
+            }
+            Ok(None) => break,
+            Err(e) => {
+                let timed_out = e.is_timeout();
+                let why = format!("the body was cut after {got} bytes: {}", root_cause(&e));
+                return Err(Failure::Transient { why, retry_after: None, timed_out });
+            }
+        }
+    }
+    if got < want {
+        return Err(Failure::transient(format!("the body ended after {got} of {want} bytes")));
+    }
+    Ok(())
+}
+
+/// An answer to a range request other than `206`: the whole object (a `200`, checked), the
+/// object's end (`416`), or a failure.
+async fn not_partial(
+    client: reqwest::Client,
+    url: String,
+    start: u64,
+    len: u64,
+    mut resp: reqwest::Response,
+) -> Result<Got, Failure> {
     let status = resp.status();
     let headers = resp.headers().clone();
     match status {
-        StatusCode::PARTIAL_CONTENT => {
-            let Some((a, b, total)) = content_range(&headers) else {
-                return Err(Failure::transient("a partial answer without a usable Content-Range"));
-            };
-            let ends_object = total.is_some_and(|t| b + 1 == t && b < last);
-            if a != start || (b != last && !ends_object) || b < a {
-                return Err(Failure::transient(format!(
-                    "Content-Range bytes {a}-{b} answers a request for bytes {start}-{last}"
-                )));
-            }
-            let want = b - a + 1;
-            if let Some(n) = headers.get(CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok()) {
-                if n != want {
-                    return Err(Failure::transient(format!("Content-Length {n} for a range of {want} bytes")));
-                }
-            }
-            let buf = body(&mut resp, want, want + 1).await?;
-            if (buf.len() as u64) < want {
-                return Err(Failure::transient(format!("the body ended after {} of {want} bytes", buf.len())));
-            }
-            Ok(Got { bytes: buf, object_len: total, validator: validator(&headers) })
-        }
         StatusCode::OK => {
             // The server ignored the range. Only the whole object will do: an error page sent
             // with 200 (a proxy's, a misconfigured server's) is never cut up into texels.
@@ -242,6 +310,15 @@ impl Backend for Http {
         let client = self.client()?;
         let url = loc.target.clone();
         block(self.timeout, get(client, url, start, len))
+    }
+
+    fn get_streamed(&self, loc: &Location, start: u64, len: u64, sink: &Arc<dyn Sink>) -> Result<(), Failure> {
+        if len == 0 {
+            return Ok(());
+        }
+        let client = self.client()?;
+        let url = loc.target.clone();
+        block(self.timeout, get_streamed(client, url, start, len, Arc::clone(sink)))
     }
 
     fn head(&self, loc: &Location) -> Result<u64, Failure> {

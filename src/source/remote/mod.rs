@@ -17,7 +17,7 @@ pub mod options;
 mod runtime;
 pub mod s3;
 
-pub use fetch::{Backend, Failure, Fetcher, Got, ReadError, Segments, Versioned};
+pub use fetch::{Backend, Failure, Fetcher, Got, ReadError, Segments, Sink, Versioned};
 pub use location::{Location, LocationError, Scheme};
 pub use options::{OptionsError, RemoteOptions};
 

@@ -8,7 +8,7 @@
 //! against what open saw: a range of another size of object, or of another version, is refused
 //! ([`ObjectError::Changed`]), never patched into the bytes read before.
 
-use super::fetch::{ReadError, Segments};
+use super::fetch::{ReadError, Segments, Sink};
 use super::location::Location;
 use super::Remote;
 use crate::place::RemoteName;
@@ -36,7 +36,9 @@ pub enum ObjectError {
     Location(String),
 }
 
-/// A remote object read in ranges of the version seen at open.
+/// A remote object read in ranges of the version seen at open. A clone reads the same object,
+/// and shares what it learns of it ([`Object::has_changed`]).
+#[derive(Clone)]
 pub struct Object {
     remote: Arc<Remote>,
     loc: Location,
@@ -44,7 +46,7 @@ pub struct Object {
     size: u64,
     validator: Option<String>,
     /// Set once a range was refused because the object changed ([`Object::has_changed`]).
-    changed: std::sync::atomic::AtomicBool,
+    changed: Arc<std::sync::atomic::AtomicBool>,
 }
 
 impl std::fmt::Debug for Object {
@@ -110,18 +112,10 @@ impl Object {
     /// Bytes `[start, start + len)`, all of them, of the version opened.
     pub fn read(&self, start: u64, len: u64) -> Result<Segments, ObjectError> {
         let v = self.remote.fetcher().read_versioned(&self.loc, start, len)?;
-        if let Some(n) = v.object_len {
-            if n != self.size {
-                return Err(self.changed(format!("{} bytes", self.size), format!("{n} bytes")));
-            }
-        }
-        if let (Some(was), Some(now)) = (&self.validator, &v.validator) {
-            if was != now {
-                return Err(self.changed(was.clone(), now.clone()));
-            }
-        }
-        if self.validator.is_some() && v.validator.is_none() {
-            return Err(self.changed(self.validator.clone().unwrap_or_default(), "no validator".into()));
+        if let Some((was, now)) =
+            other_version(self.size, self.validator.as_deref(), v.object_len, v.validator.as_deref())
+        {
+            return Err(self.changed(was, now));
         }
         if v.bytes.len() as u64 != len {
             return Err(ObjectError::Read(ReadError::Short {
@@ -133,8 +127,93 @@ impl Object {
         Ok(v.bytes)
     }
 
+    /// Bytes `[start, start + len)` of the version opened, handed to `sink` as they arrive
+    /// ([`Fetcher::stream`](super::Fetcher::stream)): every answer's head is checked as
+    /// [`Object::read`] checks it before any of its bytes reach the sink. The bytes that arrived
+    /// before a failure stay handed over.
+    pub fn stream(&self, start: u64, len: u64, sink: Arc<dyn Sink>) -> Result<(), ObjectError> {
+        let checked = Arc::new(Checked {
+            inner: sink,
+            size: self.size,
+            validator: self.validator.clone(),
+            refused: std::sync::Mutex::new(None),
+        });
+        let result = self.remote.fetcher().stream(&self.loc, start, len, checked.clone());
+        if let Some((was, now)) = checked.refused.lock().unwrap_or_else(|e| e.into_inner()).take() {
+            return Err(self.changed(was, now));
+        }
+        Ok(result?)
+    }
+
+    /// [`Object::stream`] run on a thread of the process's runtime (its pool for blocking work),
+    /// without waiting for it: `done` is given its result when it ends.
+    pub fn stream_detached(
+        &self,
+        start: u64,
+        len: u64,
+        sink: Arc<dyn Sink>,
+        done: impl FnOnce(Result<(), ObjectError>) + Send + 'static,
+    ) {
+        let me = self.clone();
+        match crate::runtime::shared() {
+            Ok(rt) => {
+                rt.spawn_blocking(move || done(me.stream(start, len, sink)));
+            }
+            Err(e) => done(Err(ObjectError::Read(ReadError::Failed {
+                location: me.name,
+                why: format!("remote reads: {e}"),
+                attempts: 0,
+                timed_out: false,
+            }))),
+        }
+    }
+
     fn changed(&self, was: String, now: String) -> ObjectError {
         self.changed.store(true, std::sync::atomic::Ordering::Relaxed);
         ObjectError::Changed { name: self.name.clone(), was, now }
+    }
+}
+
+/// What open saw and what an answer says, when they are of two versions of the object: its size,
+/// else its validator (one named at open and another, or none, now).
+fn other_version(
+    size: u64,
+    validator: Option<&str>,
+    object_len: Option<u64>,
+    now: Option<&str>,
+) -> Option<(String, String)> {
+    if let Some(n) = object_len.filter(|n| *n != size) {
+        return Some((format!("{size} bytes"), format!("{n} bytes")));
+    }
+    match (validator, now) {
+        (Some(was), Some(now)) if was != now => Some((was.to_string(), now.to_string())),
+        (Some(was), None) => Some((was.to_string(), "no validator".into())),
+        _ => None,
+    }
+}
+
+/// A sink that lets through only the answers of the version opened.
+struct Checked {
+    inner: Arc<dyn Sink>,
+    size: u64,
+    validator: Option<String>,
+    /// The first answer refused: (what open saw, what it says).
+    refused: std::sync::Mutex<Option<(String, String)>>,
+}
+
+impl Sink for Checked {
+    fn head(&self, object_len: Option<u64>, validator: Option<&str>) -> Result<(), String> {
+        match other_version(self.size, self.validator.as_deref(), object_len, validator) {
+            None => self.inner.head(object_len, validator),
+            Some((was, now)) => {
+                let why = format!("the object changed ({was} at open, {now} now)");
+                self.refused.lock().unwrap_or_else(|e| e.into_inner()).get_or_insert((was, now));
+                Err(why)
+            }
+        }
+    }
+
+    fn bytes(&self, bytes: Bytes) {
+        self.inner.bytes(bytes);
     }
 }
