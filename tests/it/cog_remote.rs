@@ -708,7 +708,7 @@ fn read_rows_announced(src: &CogSource, h: u64) -> Vec<String> {
 }
 
 #[test]
-fn a_merged_request_cut_or_reset_mid_body_resumes_and_every_tile_is_right() {
+fn a_merged_request_cut_or_reset_mid_body_resumes_and_every_tile_is_right_over_http_and_s3() {
     let dir = tempfile::tempdir().unwrap();
     // 1792 x 2048 in 256 x 256 tiles, framed as GDAL frames them: 8 rows of 7 tiles of 64 KiB,
     // past the first 64 KiB. A body cut half way is cut inside a tile.
@@ -750,4 +750,18 @@ fn a_merged_request_cut_or_reset_mid_body_resumes_and_every_tile_is_right() {
     let errors = read_rows_announced(&src, 2048);
     assert!(errors.len() == 56, "{} tiles refused", errors.len());
     assert!(errors.iter().all(|e| e.contains("changed since it was opened")), "{errors:?}");
+
+    // The same over S3 (object_store's streamed answers): every tile right, one request a row
+    // (the put, the open and the tile index besides); then the object replaced, every tile
+    // refused.
+    let moto = Moto::start();
+    moto.create_bucket("rows");
+    let remote = reader(&moto.env());
+    remote.put("s3://rows/rows.tif", tiled_tiff(1792, 2048, 256, true).into()).unwrap();
+    let src = open("s3://rows/rows.tif", &remote, 1024);
+    assert!(read_rows_announced(&src, 2048).is_empty());
+    assert!(remote.stats().merged >= 7 * 7 && remote.stats().requests <= 3 + 8, "{:?}", remote.stats());
+    remote.put("s3://rows/rows.tif", altered.into()).unwrap();
+    let errors = read_rows_announced(&src, 2048);
+    assert!(errors.len() == 56 && errors.iter().all(|e| e.contains("changed since it was opened")), "{errors:?}");
 }

@@ -12,7 +12,7 @@
 //! final here. This backend checks the length of what arrives (a mismatch is retried by the
 //! fetcher's loop), says where an object ends, and classifies what is left.
 
-use super::fetch::{Backend, Failure, Got, Segments};
+use super::fetch::{Backend, Failure, Got, Segments, Sink};
 use super::location::Location;
 use super::options::RemoteOptions;
 use super::runtime::block;
@@ -141,6 +141,70 @@ fn failure(e: object_store::Error) -> Failure {
     }
 }
 
+/// Bytes `[start, start + len)` (`len` > 0) of `p`, handed to `sink` as they arrive: the answer's
+/// version first, then its body, checked against the range asked for. A range past the end of the
+/// object hands nothing over but the object's size.
+async fn get_into(
+    store: Arc<AmazonS3>,
+    p: ObjectPath,
+    start: u64,
+    len: u64,
+    sink: &(dyn Fn(Head) -> Result<(), Failure> + Send + Sync),
+    body: &(dyn Fn(Bytes) + Send + Sync),
+) -> Result<(), Failure> {
+    use futures_util::StreamExt;
+    let options = GetOptions { range: Some(GetRange::Bounded(start..start + len)), ..Default::default() };
+    let r = match store.get_opts(&p, options).await {
+        Ok(r) => r,
+        Err(e) => {
+            let f = failure(e);
+            if matches!(&f, Failure::Fatal(t) if t.starts_with("range not satisfiable")) {
+                let size = store.head(&p).await.ok().map(|m| m.size);
+                return sink(Head { object_len: size, validator: None });
+            }
+            return Err(f);
+        }
+    };
+    let (range, size) = (r.range.clone(), r.meta.size);
+    let validator = match &r.meta.e_tag {
+        Some(tag) => Some(format!("ETag {tag}")),
+        None => Some(format!("Last-Modified {}", r.meta.last_modified.to_rfc3339())),
+    };
+    if range.start != start || range.end < range.start || range.end > start + len {
+        return Err(Failure::transient(format!(
+            "asked for bytes {start}..{}, the answer holds bytes {}..{}",
+            start + len,
+            range.start,
+            range.end
+        )));
+    }
+    if range.end < start + len && range.end != size {
+        return Err(Failure::transient(format!("the answer ends at byte {} of {size}", range.end)));
+    }
+    sink(Head { object_len: Some(size), validator })?;
+    let want = range.end - range.start;
+    let mut got = 0u64;
+    let mut stream = r.into_stream();
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(failure)?;
+        if got + chunk.len() as u64 > want {
+            return Err(Failure::transient(format!("the body holds more than the {want} bytes of its range")));
+        }
+        got += chunk.len() as u64;
+        body(chunk);
+    }
+    if got < want {
+        return Err(Failure::transient(format!("the body ended after {got} of {want} bytes")));
+    }
+    Ok(())
+}
+
+/// What an answer says of the object before its body.
+struct Head {
+    object_len: Option<u64>,
+    validator: Option<String>,
+}
+
 impl Backend for S3 {
     fn get(&self, loc: &Location, start: u64, len: u64) -> Result<Got, Failure> {
         if len == 0 {
@@ -149,37 +213,31 @@ impl Backend for S3 {
         let store = self.store(&loc.bucket)?;
         let p = path(loc)?;
         block(self.limit(), async move {
-            let options = GetOptions { range: Some(GetRange::Bounded(start..start + len)), ..Default::default() };
-            let r = match store.get_opts(&p, options).await {
-                Ok(r) => r,
-                Err(e) => {
-                    let f = failure(e);
-                    if matches!(&f, Failure::Fatal(t) if t.starts_with("range not satisfiable")) {
-                        let size = store.head(&p).await.ok().map(|m| m.size);
-                        return Ok(Got { bytes: Segments::default(), object_len: size, validator: None });
-                    }
-                    return Err(f);
-                }
+            let head = Mutex::new(None);
+            let parts = Mutex::new(Vec::new());
+            let keep = |h: Head| {
+                *head.lock().unwrap_or_else(|e| e.into_inner()) = Some(h);
+                Ok(())
             };
-            let (range, size) = (r.range.clone(), r.meta.size);
-            let validator = match &r.meta.e_tag {
-                Some(tag) => Some(format!("ETag {tag}")),
-                None => Some(format!("Last-Modified {}", r.meta.last_modified.to_rfc3339())),
-            };
-            let bytes = r.bytes().await.map_err(failure)?;
-            if range.start != start || bytes.len() as u64 != range.end - range.start {
-                return Err(Failure::transient(format!(
-                    "asked for bytes {start}..{}, got {} bytes of {}..{}",
-                    start + len,
-                    bytes.len(),
-                    range.start,
-                    range.end
-                )));
-            }
-            if range.end < start + len && range.end != size {
-                return Err(Failure::transient(format!("the answer ends at byte {} of {size}", range.end)));
-            }
-            Ok(Got { bytes: bytes.into(), object_len: Some(size), validator })
+            let add = |b: Bytes| parts.lock().unwrap_or_else(|e| e.into_inner()).push(b);
+            get_into(store, p, start, len, &keep, &add).await?;
+            let h = head.into_inner().unwrap_or_else(|e| e.into_inner());
+            let (object_len, validator) = h.map_or((None, None), |h| (h.object_len, h.validator));
+            Ok(Got { bytes: Segments(parts.into_inner().unwrap_or_else(|e| e.into_inner())), object_len, validator })
+        })
+    }
+
+    fn get_streamed(&self, loc: &Location, start: u64, len: u64, sink: &Arc<dyn Sink>) -> Result<(), Failure> {
+        if len == 0 {
+            return Ok(());
+        }
+        let store = self.store(&loc.bucket)?;
+        let p = path(loc)?;
+        let sink = Arc::clone(sink);
+        block(self.limit(), async move {
+            let head = |h: Head| sink.head(h.object_len, h.validator.as_deref()).map_err(Failure::Fatal);
+            let body = |b: Bytes| sink.bytes(b);
+            get_into(store, p, start, len, &head, &body).await
         })
     }
 
