@@ -106,10 +106,14 @@ fn validator(headers: &reqwest::header::HeaderMap) -> Option<String> {
     text(LAST_MODIFIED).map(|m| format!("Last-Modified {}", m.trim()))
 }
 
-/// Reads the body, failing if it holds more than `max` bytes; stops reading at `stop` bytes. The
-/// pieces are kept as they came (no copy).
-async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<Segments, Failure> {
-    let mut parts: Vec<Bytes> = Vec::new();
+/// Reads the body, handing each piece to `each` as it arrives (no copy), failing before a piece
+/// that would take it past `max` bytes; stops reading at `stop` bytes. Returns the bytes read.
+async fn body_each(
+    resp: &mut reqwest::Response,
+    max: u64,
+    stop: u64,
+    each: &mut (dyn FnMut(Bytes) + Send),
+) -> Result<u64, Failure> {
     let mut len = 0u64;
     while len < stop {
         match resp.chunk().await {
@@ -118,7 +122,7 @@ async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<Segme
                     return Err(Failure::transient(format!("the body holds more than the {max} bytes announced")));
                 }
                 len += c.len() as u64;
-                parts.push(c);
+                each(c);
             }
             Ok(None) => break,
             Err(e) => {
@@ -128,6 +132,13 @@ async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<Segme
             }
         }
     }
+    Ok(len)
+}
+
+/// [`body_each`] keeping the pieces as they came.
+async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<Segments, Failure> {
+    let mut parts: Vec<Bytes> = Vec::new();
+    body_each(resp, max, stop, &mut |c| parts.push(c)).await?;
     Ok(Segments(parts))
 }
 
@@ -191,24 +202,7 @@ async fn get_streamed(
     }
     let (total, want) = partial_head(resp.headers(), start, start + len - 1)?;
     sink.head(total, validator(resp.headers()).as_deref()).map_err(Failure::Fatal)?;
-    let mut got = 0u64;
-    while got < want {
-        match resp.chunk().await {
-            Ok(Some(c)) => {
-                if got + c.len() as u64 > want {
-                    return Err(Failure::transient(format!("the body holds more than the {want} bytes announced")));
-                }
-                got += c.len() as u64;
-                sink.bytes(c);
-            }
-            Ok(None) => break,
-            Err(e) => {
-                let timed_out = e.is_timeout();
-                let why = format!("the body was cut after {got} bytes: {}", root_cause(&e));
-                return Err(Failure::Transient { why, retry_after: None, timed_out });
-            }
-        }
-    }
+    let got = body_each(&mut resp, want, want + 1, &mut |c| sink.bytes(c)).await?;
     if got < want {
         return Err(Failure::transient(format!("the body ended after {got} of {want} bytes")));
     }
