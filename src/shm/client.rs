@@ -630,6 +630,27 @@ impl Client {
         (r.load(b + tag::SEQ, Ordering::Relaxed) == s1).then_some((s1, tile, st))
     }
 
+    /// Whether the slot of tile `tile` (S, T) of `level` holds that tile ready (or as the default
+    /// tile) now, by its tag alone (no texel is copied): a hint that may be stale the moment it
+    /// is given (the writer may reassign the slot), for deciding what to ask of a source;
+    /// [`read_tile`](Self::read_tile) decides what is read. False for a level or tile outside
+    /// the mapping, and when the writer kept the tag locked through [`MAX_RETRIES`] attempts.
+    pub fn holds_tile(&self, level: usize, tile: [i64; 2]) -> bool {
+        let Some(d) = self.levels.get(level).copied() else { return false };
+        let across = [d.size[0].div_ceil(d.tile[0]) as i64, d.size[1].div_ceil(d.tile[1]) as i64];
+        if tile[0] < 0 || tile[1] < 0 || tile[0] >= across[0] || tile[1] >= across[1] {
+            return false;
+        }
+        let slot = layout::slot_index(d.grid, tile);
+        for _ in 0..MAX_RETRIES {
+            if let Some((_, held, state)) = self.tag_once(&d, slot) {
+                return held == tile && state.is_some_and(SlotState::readable);
+            }
+            std::hint::spin_loop();
+        }
+        false
+    }
+
     /// The range of heights of tile `tile` (S, T) of `level` as the service published it beside
     /// the slot's tag (docs/SHM.md, "Tile ranges"), read under the tag like texels: `Ok(None)` when
     /// the texels are not heights (or the mapping has no ranges), or the slot does not hold the

@@ -9,6 +9,11 @@
 //! tag, taken only when the tag says the slot holds that tile, ready, before and after the
 //! copy), so a slot the primary's engine reassigns meanwhile gives a fall-back to the source,
 //! never a wrong tile.
+//!
+//! Of the tiles a read queue announces ([`TileSource::will_read`]), only those the mapping does
+//! not hold are announced to the source, and a tile taken from the mapping is withdrawn from the
+//! source ([`TileSource::withdraw`]): a remote COG then never fetches bytes ahead for a tile the
+//! mapping gives.
 
 use super::Client;
 use crate::source::{Delivered, SourceError, TextureDesc, TileId, TileSource};
@@ -54,9 +59,26 @@ impl TileSource for FromMapping {
         let at = [tile.s as i64, tile.t as i64];
         if self.mapping.read_tile(tile.level as usize, at, out).is_ok() {
             self.hits.fetch_add(1, Ordering::Relaxed);
+            // Announced while the mapping did not hold it, perhaps: nothing is to be fetched.
+            self.inner.withdraw(tile);
             return Ok(Delivered::Tile);
         }
         self.inner.read_into(tile, out)
+    }
+
+    fn will_read(&self, tiles: &[TileId]) {
+        let from_source: Vec<TileId> = tiles
+            .iter()
+            .copied()
+            .filter(|t| !self.mapping.holds_tile(t.level as usize, [t.s as i64, t.t as i64]))
+            .collect();
+        if !from_source.is_empty() {
+            self.inner.will_read(&from_source);
+        }
+    }
+
+    fn withdraw(&self, tile: TileId) {
+        self.inner.withdraw(tile);
     }
 
     fn wrapped(&self) -> Option<&dyn TileSource> {
