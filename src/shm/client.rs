@@ -748,7 +748,7 @@ impl Client {
         part: Rect,
         rect: Rect,
         out: &mut [u8],
-    ) -> Result<(), ReadError> {
+    ) -> Result<SlotState, ReadError> {
         let bpt = self.bytes_per_texel;
         let (tw, th) = (d.tile[0] as i64, d.tile[1] as i64);
         let b = (d.tags + slot * layout::TAG_BYTES as u64) as usize;
@@ -765,13 +765,13 @@ impl Client {
             if held != tile {
                 return Err(ReadError::Stale(level));
             }
-            match state {
-                Some(s) if s.readable() => {}
+            let state = match state {
+                Some(s) if s.readable() => s,
                 Some(SlotState::Missing) => return Err(ReadError::Missing { level, s: tile[0], t: tile[1] }),
                 // Loading (for a growing texture, the tile rebuilt in place), empty or unknown:
                 // never waited for; the caller takes a new snapshot or uses a coarser level.
                 _ => return Err(ReadError::Stale(level)),
-            }
+            };
             let run = part.width() as usize * bpt;
             for t in part.t0..part.t1 {
                 let src = base + (((t - tile[1] * th) * tw + (part.s0 - tile[0] * tw)) as u64) * bpt as u64;
@@ -785,7 +785,7 @@ impl Client {
             }
             fence(Ordering::Acquire);
             if self.region.load(b + tag::SEQ, Ordering::Relaxed) == seq {
-                return Ok(());
+                return Ok(state);
             }
         }
         Err(ReadError::Busy(level))
@@ -797,6 +797,13 @@ impl Client {
     /// client, `clipgpu`). `Stale` when the slot holds another tile or is not ready, `Missing`
     /// when the service could not read the tile, `NotValid` for a tile outside the level.
     pub fn read_tile(&self, level: usize, tile: [i64; 2], out: &mut [u8]) -> Result<(), ReadError> {
+        self.read_tile_state(level, tile, out).map(|_| ())
+    }
+
+    /// [`read_tile`](Self::read_tile), saying what the slot held: the tile's own texels
+    /// ([`SlotState::Ready`]) or the configuration's default tile in its place
+    /// ([`SlotState::Default`]).
+    pub fn read_tile_state(&self, level: usize, tile: [i64; 2], out: &mut [u8]) -> Result<SlotState, ReadError> {
         let d = *self.levels.get(level).ok_or(ReadError::NoLevel(level))?;
         if out.len() as u64 != d.slot_bytes {
             return Err(ReadError::Corrupt(format!("buffer of {} bytes for a {}-byte tile", out.len(), d.slot_bytes)));

@@ -15,6 +15,7 @@
 //! source ([`TileSource::withdraw`]): a remote COG then never fetches bytes ahead for a tile the
 //! mapping gives.
 
+use super::layout::SlotState;
 use super::Client;
 use crate::source::{Delivered, SourceError, TextureDesc, TileId, TileSource};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -57,11 +58,12 @@ impl TileSource for FromMapping {
 
     fn read_into(&self, tile: TileId, out: &mut [u8]) -> Result<Delivered, SourceError> {
         let at = [tile.s as i64, tile.t as i64];
-        if self.mapping.read_tile(tile.level as usize, at, out).is_ok() {
+        if let Ok(state) = self.mapping.read_tile_state(tile.level as usize, at, out) {
             self.hits.fetch_add(1, Ordering::Relaxed);
             // Announced while the mapping did not hold it, perhaps: nothing is to be fetched.
             self.inner.withdraw(tile);
-            return Ok(Delivered::Tile);
+            // The configuration's default tile stands in for a missing one here as there.
+            return Ok(if state == SlotState::Default { Delivered::Default } else { Delivered::Tile });
         }
         self.inner.read_into(tile, out)
     }

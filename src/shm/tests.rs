@@ -1069,3 +1069,44 @@ fn tiles_the_mapping_holds_are_not_announced_to_the_source_and_one_taken_from_it
     assert_eq!(*told.read.lock().unwrap(), vec![far]);
     assert_eq!(from.hits(), 1);
 }
+
+/// The hash texture, with tile (62, 62) of level 0 delivered as the configuration's default
+/// tile (its texels the hash's all the same).
+struct DefaultAt(HashSource);
+
+impl TileSource for DefaultAt {
+    fn desc(&self) -> &TextureDesc {
+        self.0.desc()
+    }
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), crate::source::SourceError> {
+        self.0.read_tile(tile, out)
+    }
+    fn read_into(&self, tile: TileId, out: &mut [u8]) -> Result<crate::source::Delivered, crate::source::SourceError> {
+        self.0.read_tile(tile, out)?;
+        Ok(if tile == TileId::new(0, 62, 62) {
+            crate::source::Delivered::Default
+        } else {
+            crate::source::Delivered::Tile
+        })
+    }
+}
+
+#[test]
+fn a_default_tile_taken_from_the_mapping_is_delivered_as_the_default_tile() {
+    use crate::source::Delivered;
+    let dir = tempfile::tempdir().unwrap();
+    let (mut map, _w) = service(dir.path(), "main", Arc::new(DefaultAt(HashSource::new(desc(1 << 12, 128, 32)))));
+    let c = Client::attach(dir.path(), "main").unwrap();
+    for _ in 0..100 {
+        map.tick([2000, 2000], None);
+        map.wait_for_reads();
+        if c.holds_tile(0, [62, 62]) && c.holds_tile(0, [63, 62]) {
+            break;
+        }
+    }
+    let from = FromMapping::new(Arc::new(HashSource::new(desc(1 << 12, 128, 32))), c);
+    let mut buf = vec![0u8; desc(1 << 12, 128, 32).tile_bytes(0)];
+    assert_eq!(from.read_into(TileId::new(0, 62, 62), &mut buf).unwrap(), Delivered::Default);
+    assert_eq!(from.read_into(TileId::new(0, 63, 62), &mut buf).unwrap(), Delivered::Tile);
+    assert_eq!(from.hits(), 2);
+}
