@@ -700,7 +700,8 @@ fn read_rows_announced(src: &CogSource, h: u64) -> Vec<String> {
         for id in row {
             match src.read_tile(id, &mut buf) {
                 Ok(()) => assert_formula_tile(src, id.s, id.t, h, &buf),
-                Err(e) => errors.push(format!("{id}: {e}")),
+                // The error names the tile.
+                Err(e) => errors.push(e.to_string()),
             }
         }
     }

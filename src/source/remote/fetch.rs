@@ -669,24 +669,22 @@ mod tests {
         }
     }
 
-    fn cutting(cuts: usize, new_version_at: usize) -> Arc<Cutting> {
-        Arc::new(Cutting {
+    /// A [`Cutting`] backend, a fetcher over it (1 ms backoffs) and the object's location.
+    fn cutting(cuts: usize, new_version_at: usize) -> (Arc<Cutting>, Fetcher, Location) {
+        let backend = Arc::new(Cutting {
             object: (0..4096u32).map(|i| (i * 7 % 251) as u8).collect(),
             cuts: AtomicUsize::new(cuts),
             new_version_at,
             attempts: Mutex::new(Vec::new()),
-        })
+        });
+        let opts = RemoteOptions { backoff: Duration::from_millis(1), ..Default::default() };
+        let f = Fetcher::new(opts, backend.clone(), backend.clone());
+        (backend, f, Location::parse("http://h:1/o").unwrap())
     }
 
     #[test]
     fn a_streamed_range_cut_short_resumes_where_it_was_cut_and_hands_each_byte_over_once() {
-        let backend = cutting(2, usize::MAX);
-        let f = Fetcher::new(
-            RemoteOptions { backoff: Duration::from_millis(1), ..Default::default() },
-            backend.clone(),
-            backend.clone(),
-        );
-        let loc = Location::parse("http://h:1/o").unwrap();
+        let (backend, f, loc) = cutting(2, usize::MAX);
         let kept = Arc::new(Kept::default());
         f.stream(&loc, 50, 4000, kept.clone()).unwrap();
         assert_eq!(*kept.0.lock().unwrap(), expected(50, 4000), "every byte once, in order");
@@ -699,13 +697,7 @@ mod tests {
 
     #[test]
     fn a_streamed_range_whose_object_changed_on_a_retry_stops_with_the_bytes_of_the_first_version() {
-        let backend = cutting(1, 2);
-        let f = Fetcher::new(
-            RemoteOptions { backoff: Duration::from_millis(1), ..Default::default() },
-            backend.clone(),
-            backend.clone(),
-        );
-        let loc = Location::parse("http://h:1/o").unwrap();
+        let (backend, f, loc) = cutting(1, 2);
         let kept = Arc::new(Kept::default());
         let e = f.stream(&loc, 0, 4000, kept.clone()).unwrap_err();
         assert!(e.to_string().contains("another version"), "{e}");
@@ -713,8 +705,7 @@ mod tests {
         assert_eq!(backend.attempts.lock().unwrap().len(), 2);
         assert_eq!(*kept.0.lock().unwrap(), expected(0, 2000));
         // Past the object's end: short, after the bytes that exist.
-        let backend = cutting(0, usize::MAX);
-        let f = Fetcher::new(RemoteOptions::default(), backend.clone(), backend.clone());
+        let (_, f, _) = cutting(0, usize::MAX);
         let kept = Arc::new(Kept::default());
         let e = f.stream(&loc, 4000, 200, kept.clone()).unwrap_err();
         assert!(matches!(e, ReadError::Short { got: 96, expected: 200, .. }), "{e:?}");
