@@ -47,6 +47,7 @@ mod patch_fuzz_props;
 #[cfg(feature = "remote")]
 mod remote;
 mod sixteen_bit;
+mod shm_readers;
 mod shm_room;
 mod stability;
 mod views_own;
