@@ -46,9 +46,9 @@ mod house;
 mod patch_fuzz_props;
 #[cfg(feature = "remote")]
 mod remote;
-mod sixteen_bit;
 mod shm_readers;
 mod shm_room;
+mod sixteen_bit;
 mod stability;
 mod views_own;
 mod views_restart;

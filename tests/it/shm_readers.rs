@@ -1,8 +1,10 @@
 //! The reader programs against a running `clipmapd` (docs/SHM.md, "Readers in this repository"):
 //! the Rust reader refuses a view's own mapping that is a symbolic link or another user's file, as
-//! the C and Python readers do.
+//! the C and Python readers do; and all three dump a region of any texture, raw or as a PNG, with
+//! exactly the engine's texels.
 
 use crate::clipmapd::{c_reader, python_reader, rust_reader, Service};
+use clipmap::source::{Procedural, TileId};
 use std::path::Path;
 use std::process::Output;
 
@@ -56,4 +58,114 @@ fn the_rust_reader_refuses_a_symlinked_or_another_users_own_view_mapping_as_c_an
         assert_eq!(out.status.code(), Some(2), "{who} refuses another user's file\n{}", text(&out));
         assert!(err.contains("owned by uid 65534") && err.contains("expected uid 0"), "{who}: {err}");
     }
+}
+
+/// The engine's texels of `rect` (`[s0, t0, s1, t1)`) of `level` of the terrain texture the
+/// service below serves: its tiles read from the source itself, rows in increasing t.
+fn terrain_texels(level: u32, rect: [u64; 4]) -> Vec<u8> {
+    let src = clipmap::service::procedural_source(Procedural::Terrain, 65536, 256, 64).unwrap();
+    let desc = src.desc();
+    let d = *desc.level(level);
+    let bpt = desc.bytes_per_texel();
+    let mut tile = vec![0u8; desc.tile_bytes(level)];
+    let (w, h) = ((rect[2] - rect[0]) as usize, (rect[3] - rect[1]) as usize);
+    let mut out = vec![0u8; w * h * bpt];
+    for ts in rect[0] / d.tile[0]..rect[2].div_ceil(d.tile[0]) {
+        for tt in rect[1] / d.tile[1]..rect[3].div_ceil(d.tile[1]) {
+            src.read_tile(TileId::new(level, ts, tt), &mut tile).unwrap();
+            for t in (tt * d.tile[1]).max(rect[1])..((tt + 1) * d.tile[1]).min(rect[3]) {
+                for s in (ts * d.tile[0]).max(rect[0])..((ts + 1) * d.tile[0]).min(rect[2]) {
+                    let from = (((t - tt * d.tile[1]) * d.tile[0] + s - ts * d.tile[0]) as usize) * bpt;
+                    let to = (((t - rect[1]) as usize) * w + (s - rect[0]) as usize) * bpt;
+                    out[to..to + bpt].copy_from_slice(&tile[from..from + bpt]);
+                }
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn the_reader_programs_dump_a_region_of_any_texture_raw_or_png_with_the_engines_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let source = ["--source", "terrain", "--size", "65536", "--clip", "256", "--tile", "64"];
+    let svc = Service::spawn_with(d, "land", &source, &[]);
+    svc.wait_ready();
+    let map = d.join("clipmap-land.map");
+    let c = c_reader(d);
+    // Level 0 around the centre (32768, 32768) across a tile corner, and a part of level 3.
+    for (level, rect) in [(0u32, [32690u64, 32700, 32770, 32790]), (3, [4000, 4010, 4100, 4090])] {
+        let want = terrain_texels(level, rect);
+        let region = rect.map(|v| v.to_string()).join(",");
+        let (w, h) = ((rect[2] - rect[0]) as u32, (rect[3] - rect[1]) as u32);
+        let out = |who: &str, ext: &str| d.join(format!("{who}-{level}.{ext}"));
+        let lvl = level.to_string();
+        let rust = |file: &Path| {
+            let args = ["--dump-level", &lvl, "--region", &region, "--out", file.to_str().unwrap(), "--seconds", "20"];
+            rust_reader(d, "land", &args).output().unwrap()
+        };
+        let runs = [
+            ("rust", rust(&out("rust", "raw"))),
+            ("rust png", rust(&out("rust", "png"))),
+            (
+                "c",
+                std::process::Command::new(&c)
+                    .arg(&map)
+                    .args(["--dump", &lvl, &region])
+                    .arg(out("c", "raw"))
+                    .arg("20")
+                    .output()
+                    .unwrap(),
+            ),
+            (
+                "python",
+                python_reader()
+                    .arg(&map)
+                    .args(["--dump", &lvl, &region])
+                    .arg(out("python", "raw"))
+                    .arg("20")
+                    .output()
+                    .unwrap(),
+            ),
+            (
+                "python png",
+                python_reader()
+                    .arg(&map)
+                    .args(["--dump", &lvl, &region])
+                    .arg(out("python", "png"))
+                    .arg("20")
+                    .output()
+                    .unwrap(),
+            ),
+        ];
+        for (who, o) in &runs {
+            assert!(o.status.success(), "{who}, level {level}\n{}\n{}", text(o), svc.dump());
+        }
+        for who in ["rust", "c", "python"] {
+            let got = std::fs::read(out(who, "raw")).unwrap();
+            assert!(got == want, "{who}: level {level} {region}: the raw dump is not the engine's texels");
+        }
+        // A PNG runs t upwards: its top row is the region's last t row.
+        for who in ["rust", "python"] {
+            let img = image::open(out(who, "png")).unwrap().to_rgba8();
+            assert_eq!(img.dimensions(), (w, h), "{who}");
+            for y in 0..h {
+                for x in 0..w {
+                    let i = (((h - 1 - y) * w + x) * 4) as usize;
+                    assert_eq!(img.get_pixel(x, y).0, want[i..i + 4], "{who} png pixel ({x}, {y}), level {level}");
+                }
+            }
+        }
+    }
+    // A region the level does not publish: refused, naming what it publishes.
+    let far = rust_reader(d, "land", &["--dump-level", "0", "--region", "0,0,10,10", "--out"])
+        .arg(d.join("far.raw"))
+        .args(["--seconds", "1"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&far.stderr);
+    assert_eq!(far.status.code(), Some(2), "{}", text(&far));
+    assert!(err.contains("the level publishes [32648, 32888) x [32648, 32888)"), "{err}");
+    assert!(!d.join("far.raw").exists());
 }
