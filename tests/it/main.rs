@@ -11,6 +11,7 @@ mod cli_attach;
 mod cli_check;
 mod cli_config;
 mod cli_dump;
+mod cli_dump_heights;
 mod cli_roam;
 mod cli_snapshots;
 mod clipbench_cog;
