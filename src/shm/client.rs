@@ -943,54 +943,90 @@ impl Client {
         let mut odd_since: Option<(u64, std::time::Instant)> = None;
         loop {
             let w = r.load(base + v::REQ_SEQ, Ordering::Relaxed);
-            if w & 1 == 1 {
+            let mine = if w & 1 == 1 {
                 match odd_since {
                     Some((seen, at)) if seen == w && at.elapsed() > Duration::from_millis(lock::TAKEOVER_MS) => {
-                        if !process_alive(lock::owner(w)) {
-                            let _ = r.compare_exchange(base + v::REQ_SEQ, w, lock::released(w));
+                        // Straight from the dead renderer's odd word to our own at the next epoch:
+                        // the word is never even over its partial fields, so the service never
+                        // takes them (docs/SHM.md, "The lock word").
+                        let mine = lock::locked(lock::released(w), pid);
+                        if !process_alive(lock::owner(w)) && r.compare_exchange(base + v::REQ_SEQ, w, mine).is_ok() {
+                            note_lock_word(mine);
+                            Some(mine)
+                        } else {
+                            odd_since = Some((w, std::time::Instant::now()));
+                            None
                         }
+                    }
+                    Some((seen, _)) if seen == w => None,
+                    _ => {
                         odd_since = Some((w, std::time::Instant::now()));
+                        None
                     }
-                    Some((seen, _)) if seen == w => {}
-                    _ => odd_since = Some((w, std::time::Instant::now())),
                 }
-                if start.elapsed() > Duration::from_millis(lock::WAIT_MS) {
-                    return false;
+            } else {
+                let mine = lock::locked(w, pid);
+                let taken = r.compare_exchange(base + v::REQ_SEQ, w, mine).is_ok();
+                if taken {
+                    note_lock_word(mine);
+                } else {
+                    std::hint::spin_loop();
                 }
-                std::thread::yield_now();
+                taken.then_some(mine)
+            };
+            let Some(mine) = mine else {
+                if w & 1 == 1 {
+                    if start.elapsed() > Duration::from_millis(lock::WAIT_MS) {
+                        return false;
+                    }
+                    std::thread::yield_now();
+                }
                 continue;
-            }
-            let mine = lock::locked(w, pid);
-            if r.compare_exchange(base + v::REQ_SEQ, w, mine).is_ok() {
-                // The field stores below must not become visible before the odd word.
-                fence(Ordering::Release);
-                let count = match fields {
-                    Fields::Centre(centre, velocity) => {
-                        r.store(base + v::REQ_CENTRE_S, centre[0] as u64, Ordering::Relaxed);
-                        r.store(base + v::REQ_CENTRE_T, centre[1] as u64, Ordering::Relaxed);
-                        r.store(base + v::REQ_VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
-                        r.store(base + v::REQ_VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
-                        base + v::REQ_COUNT
-                    }
-                    Fields::Lod { at, height, pixel_angle, effective } => {
-                        r.store(at + v::LOD_HEIGHT, height.to_bits(), Ordering::Relaxed);
-                        r.store(at + v::LOD_PIXEL_ANGLE, pixel_angle.to_bits(), Ordering::Relaxed);
-                        r.store(at + v::LOD_EFFECTIVE, u64::from(effective), Ordering::Relaxed);
-                        at + v::LOD_COUNT
-                    }
-                };
-                r.store(base + v::REQ_CLIENT_PID, u64::from(pid), Ordering::Relaxed);
-                if let Some(i) = incarnation {
-                    r.store(base + v::REQ_INCARNATION, i, Ordering::Relaxed);
+            };
+            // The field stores below must not become visible before the odd word.
+            fence(Ordering::Release);
+            let count = match fields {
+                Fields::Centre(centre, velocity) => {
+                    r.store(base + v::REQ_CENTRE_S, centre[0] as u64, Ordering::Relaxed);
+                    r.store(base + v::REQ_CENTRE_T, centre[1] as u64, Ordering::Relaxed);
+                    r.store(base + v::REQ_VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
+                    r.store(base + v::REQ_VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
+                    base + v::REQ_COUNT
                 }
-                let c = r.load(count, Ordering::Relaxed);
-                r.store(count, c.wrapping_add(1), Ordering::Relaxed);
-                // Release (compare-and-swap: never over a word someone else stored).
-                return r.compare_exchange(base + v::REQ_SEQ, mine, lock::released(mine)).is_ok();
+                Fields::Lod { at, height, pixel_angle, effective } => {
+                    r.store(at + v::LOD_HEIGHT, height.to_bits(), Ordering::Relaxed);
+                    r.store(at + v::LOD_PIXEL_ANGLE, pixel_angle.to_bits(), Ordering::Relaxed);
+                    r.store(at + v::LOD_EFFECTIVE, u64::from(effective), Ordering::Relaxed);
+                    at + v::LOD_COUNT
+                }
+            };
+            r.store(base + v::REQ_CLIENT_PID, u64::from(pid), Ordering::Relaxed);
+            if let Some(i) = incarnation {
+                r.store(base + v::REQ_INCARNATION, i, Ordering::Relaxed);
             }
-            std::hint::spin_loop();
+            let c = r.load(count, Ordering::Relaxed);
+            r.store(count, c.wrapping_add(1), Ordering::Relaxed);
+            // Release (compare-and-swap: never over a word someone else stored).
+            let released = r.compare_exchange(base + v::REQ_SEQ, mine, lock::released(mine)).is_ok();
+            if released {
+                note_lock_word(lock::released(mine));
+            }
+            return released;
         }
     }
+}
+
+#[cfg(test)]
+thread_local! {
+    /// Every value this thread stored into a request lock word, in order (tests of the lock).
+    pub(super) static LOCK_WORDS: std::cell::RefCell<Vec<u64>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Notes a value this thread stored into a request lock word ([`LOCK_WORDS`]; nothing in other
+/// builds).
+fn note_lock_word(_word: u64) {
+    #[cfg(test)]
+    LOCK_WORDS.with(|w| w.borrow_mut().push(_word));
 }
 
 /// What one request writes under its lock word: a centre (the request record's fields and count)

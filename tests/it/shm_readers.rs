@@ -169,3 +169,42 @@ fn the_reader_programs_dump_a_region_of_any_texture_raw_or_png_with_the_engines_
     assert!(err.contains("the level publishes [32648, 32888) x [32648, 32888)"), "{err}");
     assert!(!d.join("far.raw").exists());
 }
+
+#[test]
+fn view_records_no_view_publishes_in_hold_a_snapshot_of_nothing_published() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "unused", &["--view", "far:own"]);
+    // A view that published and was removed: its record is free again.
+    assert!(svc.ask("VIEW ADD gone 1").starts_with("OK view gone added"));
+    assert!(svc.ask("VIEW CENTRE gone 1000 1000").starts_with("OK"));
+    let t = std::time::Instant::now();
+    while !crate::clipmapd::json_reply(&svc.ask("VIEWS")).to_string().contains("\"centre\":[1000,1000]") {
+        assert!(t.elapsed() < std::time::Duration::from_secs(20), "{}", svc.dump());
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(svc.ask("VIEW REMOVE gone").starts_with("OK view gone removed"));
+    let m = std::fs::read(d.join("clipmap-unused.map")).unwrap();
+    let u64_at = |o: usize| u64::from_le_bytes(m[o..o + 8].try_into().unwrap());
+    let u32_at = |o: usize| u32::from_le_bytes(m[o..o + 4].try_into().unwrap());
+    let levels = u32_at(36) as f64;
+    let block = u64_at(104) as usize;
+    let records = u32_at(block + 12) as usize;
+    let mut states = Vec::new();
+    for r in 0..records {
+        let rec = block + 64 + 2240 * r;
+        let state = u64_at(rec + 8);
+        states.push(state);
+        if state == 1 {
+            continue;
+        }
+        // State 0 (free: never used, or given back) or 2 (grids of its own, published elsewhere).
+        let snap = rec + 128;
+        assert_eq!(u64_at(snap) % 2, 0, "record {r} (state {state}): its snapshot's counter is even");
+        assert_eq!(f64::from_bits(u64_at(snap + 8)), levels, "record {r} (state {state}): min LOD the level count");
+        let rest: Vec<(usize, u64)> =
+            (16..2112).step_by(8).map(|o| (o, u64_at(snap + o))).filter(|&(_, v)| v != 0).collect();
+        assert!(rest.is_empty(), "record {r} (state {state}): every other snapshot field is 0: {rest:?}");
+    }
+    assert_eq!(&states[..2], [2, 0], "far's own grids, then gone's record given back: {states:?}");
+}
