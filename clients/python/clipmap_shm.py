@@ -1121,7 +1121,7 @@ def dump(argv, view_name):
             except (NotValid, Stale, Busy) as e:
                 if time.monotonic() >= deadline:
                     where = ""
-                    if snap is not None:
+                    if snap is not None and not isinstance(e, NotValid):  # NotValid names the region already
                         st = snap.levels[level]
                         where = (f"; the level publishes [{st.valid[0]}, {st.valid[2]}) x [{st.valid[1]}, {st.valid[3]})"
                                  f"{'' if st.enabled else ' (disabled)'}")
