@@ -1686,6 +1686,7 @@ static inline int clipmap_request_at_(struct clipmap_request *r, size_t at, int 
     uint32_t pid = (uint32_t)getpid();
     for (;;) {
         uint64_t v = __atomic_load_n(seq, __ATOMIC_RELAXED);
+        uint64_t expect = v, mine;
         if (v & 1) {
             uint64_t now = clipmap_now_ms_();
             if (v != odd) {
@@ -1693,9 +1694,12 @@ static inline int clipmap_request_at_(struct clipmap_request *r, size_t at, int 
                 odd_since = now;
             } else if (now - odd_since > CLIPMAP_REQUEST_TAKEOVER_MS) {
                 if (!clipmap_process_alive_(clipmap_request_owner_(v))) {
-                    uint64_t expect = v; /* forward only: from that odd word to the next epoch */
-                    __atomic_compare_exchange_n(seq, &expect, clipmap_request_released_(v), 0, __ATOMIC_ACQ_REL,
-                                                __ATOMIC_RELAXED);
+                    /* Straight from the dead renderer's odd word to this renderer's own, at the next
+                     * epoch: the word is never even over the dead renderer's partial fields, so the
+                     * service never takes them. Forward only. */
+                    mine = clipmap_request_locked_(clipmap_request_released_(v), pid);
+                    if (__atomic_compare_exchange_n(seq, &expect, mine, 0, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED))
+                        goto write;
                 }
                 odd_since = now;
             }
@@ -1703,8 +1707,9 @@ static inline int clipmap_request_at_(struct clipmap_request *r, size_t at, int 
             clipmap_pause();
             continue;
         }
-        uint64_t expect = v, mine = clipmap_request_locked_(v, pid);
+        mine = clipmap_request_locked_(v, pid);
         if (!__atomic_compare_exchange_n(seq, &expect, mine, 0, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED)) continue;
+    write:
         __atomic_thread_fence(__ATOMIC_RELEASE);
 #define CLIPMAP_RSTORE_(off, val) __atomic_store_n((uint64_t *)(void *)(r->base + (off)), (val), __ATOMIC_RELAXED)
         size_t counter;
@@ -1752,7 +1757,9 @@ static inline int clipmap_request_own_refused_(struct clipmap_request *r, const 
  * unknown), under the request lock: compare-and-swap from an even word w to
  * clipmap_request_locked_(w, pid), write the fields, compare-and-swap to the next epoch. A word
  * left odd for more than 100 ms whose owner is no live process (a renderer died mid-write) is
- * advanced to the next epoch; a live owner is never overruled, however long it stalls.
+ * taken with one compare-and-swap from that odd word straight to this renderer's own odd word at
+ * the next epoch (never through an even word, which would expose the dead renderer's partial
+ * fields); a live owner is never overruled, however long it stalls.
  * CLIPMAP_OK, or CLIPMAP_BUSY after about a second of a live renderer holding it (or when this
  * renderer's lock was taken from it, which happens only if its pid is not visible to the others:
  * renderers must share a pid namespace). */

@@ -2,6 +2,10 @@
 //! blocks of texels inside the published valid regions and checks every one; optionally asks for
 //! centres (a fast flight with jumps and reversals) and follows the service across restarts.
 //!
+//! `--dump-level L --region S0,T0,S1,T1 --out FILE` instead writes a region of any texture (not
+//! only the hash texture) to `FILE.raw` (the stored bytes) or `FILE.png` (as `cliptex dump`
+//! draws it) and prints one JSON line saying what was written.
+//!
 //! Prints one JSON line of counts, then `N passed, M failed`.
 //! Exit status: 0 every texel matched, 1 a mismatch (or a bad command line), 2 the mapping could
 //! not be read, or (`--follow`) the service came back after a restart without the view read: a
@@ -30,7 +34,15 @@ Examples:
   clipmapd --source hash --size 65536 --clip 512 --name hash &
   clipmap-read --name hash --reads 1000000
   clipmap-read --name hash --follow --seconds 60      # keeps reading through service restarts
-  clipmap-read --name hash --drive --seconds 10       # also requests a fast flight with jumps"
+  clipmap-read --name hash --drive --seconds 10       # also requests a fast flight with jumps
+  clipmap-read --name terrain --dump-level 2 --region 100,200,356,456 --out part.png
+  clipmap-read --name terrain --dump-level 0 --region 0,0,64,64 --out part.raw
+
+--dump-level writes a region of any texture instead of checking the hash texture: FILE.raw holds
+the stored texel bytes (rows in increasing t, s fastest, no header); FILE.png is drawn as `cliptex
+dump` draws a level (t upwards; 16-bit formats as 16-bit PNGs of the stored values; heights in
+false colour with a legend). The region must lie inside the level's published valid region; the
+reader waits for it up to --seconds while the service is still loading it."
 )]
 struct Cli {
     /// Publication name.
@@ -71,6 +83,15 @@ struct Cli {
     /// the service moves the view's LOD offset to match (docs/VIEWS.md, "Virtual views").
     #[arg(long, value_name = "HEIGHT,ANGLE[,EFFECTIVE]", value_parser = parse_lod)]
     lod: Option<(f64, f64, u32)>,
+    /// Write a region of this level to --out instead of checking the hash texture.
+    #[arg(long, value_name = "LEVEL", requires_all = ["region", "out"], conflicts_with_all = ["drive", "follow", "lod"])]
+    dump_level: Option<usize>,
+    /// The region to write (with --dump-level): S0,T0,S1,T1 in level texels, half-open.
+    #[arg(long, value_name = "S0,T0,S1,T1", value_parser = clipmap::report::dump::parse_region, requires = "dump_level")]
+    region: Option<[u64; 4]>,
+    /// The file to write (with --dump-level): FILE.raw (the stored bytes) or FILE.png.
+    #[arg(long, value_name = "FILE", requires = "dump_level")]
+    out: Option<PathBuf>,
 }
 
 /// `--lod HEIGHT,ANGLE[,EFFECTIVE]`.
@@ -153,6 +174,18 @@ fn main() -> ExitCode {
             }
         }
     };
+    if let (Some(level), Some(region), Some(out)) = (cli.dump_level, cli.region, &cli.out) {
+        return match dump::write(&client, level, region, out, deadline) {
+            Ok(report) => {
+                println!("{}", serde_json::to_string(&report).unwrap_or_default());
+                exit::status(exit::OK)
+            }
+            Err((code, e)) => {
+                eprintln!("clipmap-read: {e}");
+                exit::status(code)
+            }
+        };
+    }
     let mut counts = Counts { view: cli.view.clone(), ..Counts::default() };
     let mut rng = clipmap::source::procedural::splitmix64(cli.seed ^ std::process::id() as u64);
     let mut buf = Vec::new();
@@ -240,4 +273,162 @@ fn main() -> ExitCode {
         return exit::status(exit::COULD_NOT_RUN);
     }
     exit::status(exit::OK)
+}
+
+/// `--dump-level`: a region of any texture, written as its stored bytes or as a PNG.
+mod dump {
+    use clipmap::geom::{tex_region, Rect};
+    use clipmap::report::dump::{self as pictures, HeightView, LevelTiles};
+    use clipmap::report::exit;
+    use clipmap::shm::{Client, ReadError};
+    use clipmap::source::TileId;
+    use std::path::Path;
+    use std::time::{Duration, Instant};
+
+    /// What was written.
+    #[derive(serde::Serialize)]
+    pub struct Written {
+        level: usize,
+        /// `[s0, t0, s1, t1)`, level texels.
+        region: [u64; 4],
+        /// The mapping's texel format (`null` for a code the table does not name).
+        format: Option<String>,
+        bytes_per_texel: usize,
+        /// `raw` or `png`.
+        kind: &'static str,
+        out: String,
+        bytes: u64,
+        /// The tick of the snapshot the texels were read under.
+        tick: u64,
+    }
+
+    /// Reads `region` of `level` (waiting until `deadline` while it is still being published)
+    /// and writes it to `out`; an error carries its exit status.
+    pub fn write(
+        client: &Client,
+        level: usize,
+        region: [u64; 4],
+        out: &Path,
+        deadline: Instant,
+    ) -> Result<Written, (i32, String)> {
+        let bad = |e: String| (exit::BAD_INPUT, e);
+        let kind = match out.extension().and_then(|e| e.to_str()) {
+            Some("raw") => "raw",
+            Some("png") => "png",
+            _ => return Err(bad(format!("--out {}: expected a name ending in .raw or .png", out.display()))),
+        };
+        let Some(d) = client.levels.get(level) else {
+            return Err(bad(format!("--dump-level {level}: the texture has levels 0 to {}", client.levels.len() - 1)));
+        };
+        let [s0, t0, s1, t1] = region;
+        if s0 >= s1 || t0 >= t1 || s1 > d.size[0] || t1 > d.size[1] {
+            return Err(bad(format!(
+                "--region {s0},{t0},{s1},{t1} does not fit level {level} ({}x{} texels): expected 0 <= S0 < S1 <= {} and 0 <= T0 < T1 <= {}",
+                d.size[0], d.size[1], d.size[0], d.size[1]
+            )));
+        }
+        let (w, h) = (s1 - s0, t1 - t0);
+        if w.saturating_mul(h) > pictures::MAX_DUMP_TEXELS {
+            return Err(bad(format!(
+                "--region {s0},{t0},{s1},{t1} is {w}x{h} texels, more than one dump writes ({} texels, as 4096x4096 does)",
+                pictures::MAX_DUMP_TEXELS
+            )));
+        }
+        let bpt = client.bytes_per_texel;
+        let mut texels = vec![0u8; (w * h) as usize * bpt];
+        let rect = Rect::new(s0 as i64, t0 as i64, s1 as i64, t1 as i64);
+        let snap = loop {
+            let e = match client.read_region(level, rect.s0, rect.t0, w, h, &mut texels) {
+                Ok(snap) => break snap,
+                Err(e) => e,
+            };
+            let snap = client.snapshot();
+            let st = snap.levels[level];
+            // A region inside the level's window is published once its tiles are read; one
+            // outside it never is until the centre moves.
+            let window = tex_region(d.size, client.clip_size, st.centre);
+            let waiting = match &e {
+                ReadError::Stale(_) | ReadError::Busy(_) => true,
+                ReadError::NotValid(_) => {
+                    let inside =
+                        window.s0 <= rect.s0 && rect.s1 <= window.s1 && window.t0 <= rect.t0 && rect.t1 <= window.t1;
+                    snap.tick == 0 || inside
+                }
+                _ => false,
+            };
+            if !waiting || Instant::now() >= deadline {
+                let published = if st.enabled {
+                    format!("[{}, {}) x [{}, {})", st.valid[0], st.valid[2], st.valid[1], st.valid[3])
+                } else {
+                    "nothing (the level is disabled)".to_string()
+                };
+                let hint = match e {
+                    ReadError::NotValid(_) => {
+                        "; choose a region inside it, or move the centre there first (CENTRE on the control socket)"
+                    }
+                    ReadError::Missing { .. } => {
+                        "; the service could not read that tile: choose another region or level"
+                    }
+                    _ => "",
+                };
+                return Err((
+                    exit::COULD_NOT_RUN,
+                    format!(
+                        "{}: level {level} region [{s0}, {s1}) x [{t0}, {t1}): {e}; the level publishes {published} (window [{}, {}) x [{}, {})){hint}",
+                        client.path().display(),
+                        window.s0,
+                        window.s1,
+                        window.t0,
+                        window.t1
+                    ),
+                ));
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        };
+        let format = clipmap::shm::layout::format_from_code(client.format_code);
+        let fail = |e: String| (exit::COULD_NOT_RUN, format!("cannot write {}: {e}", out.display()));
+        if kind == "raw" {
+            clipmap::save::atomically(out, |f| std::io::Write::write_all(f, &texels))
+                .map_err(|e| fail(e.to_string()))?;
+        } else {
+            // The region as one tile of a level its size, drawn as `cliptex dump` draws a level.
+            let Some(format) = format else {
+                return Err(bad(format!(
+                    "texel format code {} is not one the PNG pictures know; write --out FILE.raw instead",
+                    client.format_code
+                )));
+            };
+            let read = |_: TileId, buf: &mut [u8]| {
+                buf.copy_from_slice(&texels);
+                Ok(())
+            };
+            let file_of = |_: TileId| None;
+            let tiles = LevelTiles {
+                level: Some(level as u32),
+                size: [w, h],
+                tile: [w, h],
+                format,
+                read: &read,
+                file_of: &file_of,
+            };
+            let written = match &client.heights {
+                Some(hts) => {
+                    let view = HeightView { format: hts.format(), range: None, shade: false };
+                    pictures::dump_heights(client.path(), &tiles, &view, None, out)
+                }
+                None => pictures::dump(client.path(), &tiles, None, out),
+            };
+            written.map_err(|e| fail(e.to_string()))?;
+        }
+        Ok(Written {
+            level,
+            region,
+            format: format.map(|f| f.short_name()),
+            bytes_per_texel: bpt,
+            kind,
+            out: out.display().to_string(),
+            bytes: std::fs::metadata(out).map_or(0, |m| m.len()),
+            tick: snap.tick,
+        })
+    }
 }

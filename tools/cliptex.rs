@@ -253,7 +253,9 @@ exit status is 1.
 From a running service (--attach NAME --out-dir DIR): DIR/level-NN.png shows each level's window
 (yellow outline), its valid region (red outline) and the invalid border (dark checkerboard);
 DIR/view.png is the view around the centre as a renderer would texture it and DIR/rings.png the
-same view coloured by the level each pixel uses.
+same view coloured by the level each pixel uses. A texture of heights is drawn as from disk: each
+level in false colour with its legend below (--range and --shade as there), the view over the
+range of every level.
 
 Examples:
   cliptex dump config_examples/prepared/hash256.ct --level 1 --out level1.png
@@ -303,11 +305,11 @@ struct DumpArgs {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Heights: hillshade the false-colour map (light from the north-west).
-    #[arg(long, conflicts_with = "attach")]
+    #[arg(long)]
     shade: bool,
     /// Heights: the metres the colour bar spans, MIN,MAX (default: the region's least and
     /// greatest height with data).
-    #[arg(long, value_name = "MIN,MAX", value_parser = report::dump::parse_range, conflicts_with = "attach", allow_hyphen_values = true)]
+    #[arg(long, value_name = "MIN,MAX", value_parser = report::dump::parse_range, allow_hyphen_values = true)]
     range: Option<[f64; 2]>,
     /// Picture a running service instead: its --name.
     #[arg(long, value_name = "NAME", requires = "out_dir", conflicts_with_all = ["region", "out"])]
@@ -493,7 +495,8 @@ fn dump(args: DumpArgs) -> i32 {
     if let Some(name) = &args.attach {
         let dir = args.shm_dir.clone().unwrap_or_else(clipmap::shm::default_dir);
         let out = args.out_dir.clone().unwrap_or_default();
-        return match live_dump::dump(&dir, name, &out) {
+        let options = live_dump::Options { shade: args.shade, range: args.range };
+        return match live_dump::dump(&dir, name, &out, &options) {
             Ok(d) => {
                 if args.json {
                     println!("{}", serde_json::to_string_pretty(&d).expect("dump serialises"));

@@ -11,6 +11,14 @@
  * Prints "N passed, M failed (...)". Exit status: 0 no mismatch, 1 a mismatch, 2 the mapping was
  * refused (at open, or published state out of bounds), with the reason on stderr.
  *
+ *   ./reader MAPPING --dump LEVEL S0,T0,S1,T1 OUT [SECONDS]
+ *
+ * writes the texels of [S0, S1) x [T0, T1) of LEVEL (any texture, not only the hash texture) to the
+ * file OUT as they are stored: rows in increasing t, s fastest, bytes per texel as the header says,
+ * no header (what `clipmap-read --dump-level ... --out FILE.raw` and the Python reader's --dump
+ * write). The region must lie inside the level's published valid region; the reader tries again
+ * for up to SECONDS (default 5) while it is not (the service still loading it) and then exits 2.
+ *
  *   ./reader MAPPING --heights
  *
  * prints what the header's heights block says, one line: "not heights", or "heights STORAGE
@@ -108,6 +116,78 @@ static void print_view(const char *name, uint32_t record, uint64_t incarnation, 
 static int view_snapshot(const struct clipmap_map *m, const struct clipmap_view *v, const struct clipmap_map *own,
                          struct clipmap_snapshot *snap) {
     return v->own ? clipmap_view_own_snapshot(m, v, own, snap) : clipmap_view_snapshot(m, v, snap);
+}
+
+/* --dump LEVEL S0,T0,S1,T1 OUT [SECONDS]: the region's stored bytes into OUT (see the top). */
+static int dump(int argc, char **argv, const struct clipmap_map *m, const struct clipmap_view *v,
+                const struct clipmap_map *own, const struct clipmap_map *tm) {
+    unsigned level = 0;
+    long long s0, t0, s1, t1;
+    char extra;
+    double seconds = argc > 6 ? strtod(argv[6], NULL) : 5.0;
+    if (argc < 6 || argc > 7 || sscanf(argv[3], "%u%c", &level, &extra) != 1 ||
+        sscanf(argv[4], "%lld,%lld,%lld,%lld%c", &s0, &t0, &s1, &t1, &extra) != 4 || !(seconds >= 0)) {
+        fprintf(stderr, "usage: %s MAPPING --dump LEVEL S0,T0,S1,T1 OUT [SECONDS]\n", argv[0]);
+        return 2;
+    }
+    if (level >= tm->level_count) {
+        fprintf(stderr, "clipmap reader: %s: --dump level %u: the texture has levels 0 to %u\n", argv[1], level,
+                tm->level_count - 1);
+        return 2;
+    }
+    const struct clipmap_level_desc *d = &tm->levels[level];
+    if (s0 < 0 || t0 < 0 || s0 >= s1 || t0 >= t1 || (uint64_t)s1 > d->size[0] || (uint64_t)t1 > d->size[1] ||
+        (uint64_t)(s1 - s0) * (uint64_t)(t1 - t0) > 4096u * 4096u) {
+        fprintf(stderr, "clipmap reader: %s: --dump region %lld,%lld,%lld,%lld: expected 0 <= S0 < S1 <= %llu and "
+                "0 <= T0 < T1 <= %llu, at most 4096x4096 texels\n", argv[1], s0, t0, s1, t1,
+                (unsigned long long)d->size[0], (unsigned long long)d->size[1]);
+        return 2;
+    }
+    uint64_t w = (uint64_t)(s1 - s0), h = (uint64_t)(t1 - t0), n = w * h * tm->bytes_per_texel;
+    unsigned char *buf = malloc(n);
+    if (buf == NULL) {
+        fprintf(stderr, "clipmap reader: --dump: cannot allocate %llu bytes\n", (unsigned long long)n);
+        return 2;
+    }
+    struct timespec start, now;
+    clock_gettime(CLOCK_MONOTONIC, &start);
+    struct clipmap_snapshot snap;
+    memset(&snap, 0, sizeof snap);
+    int rc;
+    for (;;) {
+        rc = view_snapshot(m, v, own, &snap);
+        if (rc == CLIPMAP_OK) rc = clipmap_read_region(tm, &snap, level, s0, t0, w, h, buf);
+        clock_gettime(CLOCK_MONOTONIC, &now);
+        double spent = (double)(now.tv_sec - start.tv_sec) + (double)(now.tv_nsec - start.tv_nsec) * 1e-9;
+        int again = rc == CLIPMAP_NOT_VALID || rc == CLIPMAP_STALE || rc == CLIPMAP_BUSY;
+        if (rc == CLIPMAP_OK || !again || spent >= seconds) break;
+        struct timespec pause = {0, 10 * 1000 * 1000};
+        nanosleep(&pause, NULL);
+    }
+    if (rc != CLIPMAP_OK) {
+        static const char *const why[] = {"ok", "not inside the level's published valid region", "a tile of it is "
+                                          "missing (the service could not read it)", "the writer kept it busy",
+                                          "the slots moved on", "published state out of bounds", "the view was removed",
+                                          "no such view"};
+        const struct clipmap_level_state *st = &snap.levels[level];
+        fprintf(stderr, "clipmap reader: %s: --dump level %u region [%lld, %lld) x [%lld, %lld): %s; the level "
+                "publishes [%lld, %lld) x [%lld, %lld)%s\n", argv[1], level, s0, s1, t0, t1,
+                rc >= 0 && rc <= CLIPMAP_NO_VIEW ? why[rc] : "?", (long long)st->valid[0], (long long)st->valid[2],
+                (long long)st->valid[1], (long long)st->valid[3], st->enabled ? "" : " (disabled)");
+        free(buf);
+        return rc == CLIPMAP_REMOVED ? 3 : 2;
+    }
+    FILE *f = fopen(argv[5], "wb");
+    int ok = f != NULL && fwrite(buf, 1, n, f) == n;
+    if (f != NULL && fclose(f) != 0) ok = 0;
+    free(buf);
+    if (!ok) {
+        fprintf(stderr, "clipmap reader: cannot write %s: %s\n", argv[5], strerror(errno));
+        return 2;
+    }
+    printf("level %u region %lld %lld %lld %lld bytes %llu tick %llu\n", level, s0, t0, s1, t1,
+           (unsigned long long)n, (unsigned long long)snap.tick);
+    return 0;
 }
 
 int main(int argc, char **argv) {
@@ -289,6 +369,12 @@ int main(int argc, char **argv) {
                 free(buf);
             }
         }
+        clipmap_close(&own);
+        clipmap_close(&m);
+        return rc;
+    }
+    if (strcmp(argv[2], "--dump") == 0) {
+        int rc = dump(argc, argv, &m, &view, &own, tm);
         clipmap_close(&own);
         clipmap_close(&m);
         return rc;

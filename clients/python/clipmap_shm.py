@@ -36,6 +36,12 @@ served by `clipmapd --source hash` and checks every texel:
 prints "N passed, M failed (...)"; `python3 clients/python/clipmap_shm.py MAPPING --growth`
 prints a growing texture's growth block as JSON (null when it does not grow). Exit status 0 no mismatch, 1 a mismatch, 2 the mapping was
 refused (at open, or published state out of bounds), with the reason on standard error.
+`MAPPING --dump LEVEL S0,T0,S1,T1 OUT [SECONDS]` writes the region [S0, S1) x [T0, T1) of LEVEL of
+any texture to OUT: OUT.raw the stored bytes (rows in increasing t, s fastest, no header; as the C
+reader's --dump and `clipmap-read --dump-level ... --out FILE.raw` write), OUT.png a PNG with t
+upwards (its top row is T1 - 1), 8-bit grey, RGB or RGBA, or 16-bit for the 16-bit formats (the
+stored values; write_png); other formats (packed, heights) only as .raw. It waits up to SECONDS
+(default 5) for the region to be published.
 `--view NAME` (anywhere after MAPPING) reads that view instead of `main` (exit 2 listing the views
 when there is none of that name, 3 when it is removed while it is read); `MAPPING --views` lists the
 views, `MAPPING --snapshot [--view NAME]` prints a view's snapshot (as the C reader's do).
@@ -61,6 +67,7 @@ import stat
 import struct
 import sys
 import time
+import zlib
 
 MAGIC = b"CLIPMAP2"
 REQUEST_MAGIC = b"CLIPREQ2"
@@ -1044,6 +1051,97 @@ def _pick(rng, mode, v0, v1, tile):
     return v0 + rng[0] % (span - w + 1), w
 
 
+# PNG colour type and bit depth of the formats a PNG holds exactly (code -> (type, depth)).
+PNG_FORMATS = {1: (0, 8), 3: (2, 8), 4: (6, 8), 7: (0, 16), 8: (4, 16), 9: (2, 16), 10: (6, 16)}
+
+
+def write_png(path, data, w, h, fmt):
+    """Writes `data` (w x h texels of format code `fmt`, rows in increasing t, as read_region
+    returns them) as a PNG with t upwards: its top row is the last t row. 16-bit components are
+    stored little-endian in the mapping and big-endian in PNG. Raises ValueError for a format
+    PNG_FORMATS does not name."""
+    if fmt not in PNG_FORMATS:
+        name = FORMATS.get(fmt, ("code %d" % fmt,))[0]
+        raise ValueError(f"texel format {name} has no exact PNG form here: write OUT.raw instead")
+    colour, depth = PNG_FORMATS[fmt]
+    pitch = w * FORMATS[fmt][1]
+    rows = []
+    for y in range(h):
+        row = data[(h - 1 - y) * pitch:(h - y) * pitch]
+        if depth == 16:
+            swapped = bytearray(row)
+            swapped[0::2], swapped[1::2] = row[1::2], row[0::2]
+            row = bytes(swapped)
+        rows.append(b"\0" + row)
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF)
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, depth, colour, 0, 0, 0))
+           + chunk(b"IDAT", zlib.compress(b"".join(rows), 6)) + chunk(b"IEND", b""))
+    with open(path, "wb") as f:
+        f.write(png)
+
+
+def dump(argv, view_name):
+    """MAPPING --dump LEVEL S0,T0,S1,T1 OUT [SECONDS] (see the module's text)."""
+    usage = f"usage: {argv[0]} MAPPING --dump LEVEL S0,T0,S1,T1 OUT [SECONDS] [--view NAME]"
+    try:
+        if len(argv) not in (6, 7):
+            raise ValueError("expected LEVEL, the region and OUT")
+        level = int(argv[3])
+        s0, t0, s1, t1 = (int(x) for x in argv[4].split(","))
+        seconds = float(argv[6]) if len(argv) > 6 else 5.0
+        out = argv[5]
+        if not out.endswith((".raw", ".png")):
+            raise ValueError(f"OUT {out}: expected a name ending in .raw or .png")
+    except ValueError as e:
+        print(f"{usage}: {e}", file=sys.stderr)
+        return 2
+    try:
+        m = Mapping(argv[1])
+        v = m.view(view_name)
+        tm = v.texels()
+        if not 0 <= level < tm.count:
+            raise Refused(f"--dump level {level}: the texture has levels 0 to {tm.count - 1}")
+        d = tm.levels[level]
+        if not (0 <= s0 < s1 <= d.size[0] and 0 <= t0 < t1 <= d.size[1]) or (s1 - s0) * (t1 - t0) > 4096 * 4096:
+            raise Refused(f"--dump region {s0},{t0},{s1},{t1}: expected 0 <= S0 < S1 <= {d.size[0]} and "
+                          f"0 <= T0 < T1 <= {d.size[1]}, at most 4096x4096 texels")
+        if out.endswith(".png") and tm.format not in PNG_FORMATS:
+            raise Refused(f"texel format {FORMATS.get(tm.format, ('code %d' % tm.format,))[0]} has no exact PNG "
+                          f"form here: write OUT.raw instead")
+        deadline = time.monotonic() + seconds
+        snap = None
+        while True:
+            try:
+                snap = v.snapshot()
+                data = v.read_region(level, s0, t0, s1 - s0, t1 - t0, snap)
+                break
+            except (NotValid, Stale, Busy) as e:
+                if time.monotonic() >= deadline:
+                    where = ""
+                    if snap is not None and not isinstance(e, NotValid):  # NotValid names the region already
+                        st = snap.levels[level]
+                        where = (f"; the level publishes [{st.valid[0]}, {st.valid[2]}) x [{st.valid[1]}, {st.valid[3]})"
+                                 f"{'' if st.enabled else ' (disabled)'}")
+                    raise Refused(f"--dump level {level} region [{s0}, {s1}) x [{t0}, {t1}): {e}{where}") from None
+                time.sleep(0.01)
+        if out.endswith(".png"):
+            write_png(out, data, s1 - s0, t1 - t0, tm.format)
+        else:
+            with open(out, "wb") as f:
+                f.write(data)
+    except Removed as e:
+        print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
+        return 3
+    except (ClipmapError, OSError, ValueError) as e:
+        print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
+        return 2
+    print("level %d region %d %d %d %d bytes %d tick %d" % (level, s0, t0, s1, t1, len(data), snap.tick))
+    return 0
+
+
 def _view_line(v):
     """A view's line of --views and --snapshot (the C reader prints the same)."""
     if v.record is None:
@@ -1157,6 +1255,8 @@ def main(argv):
             return 2
         service.close()
         return 0
+    if len(argv) >= 3 and argv[2] == "--dump":
+        return dump(argv, view_name)
     if len(argv) == 3 and argv[2] == "--growth":
         # python3 clipmap_shm.py MAPPING --growth: the growth block as JSON (null: not growing).
         import json

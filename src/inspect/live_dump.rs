@@ -4,12 +4,21 @@
 //! red), `view.png` (the view around the centre as a renderer would texture it) and `rings.png`
 //! (the same view coloured by the level each pixel would use: the concentric resolution bands).
 //!
-//! Owns choosing what to draw and naming the files; drawing is [`crate::report::picture`]'s.
+//! A texture of heights is drawn as `cliptex dump` draws one from disk
+//! ([`crate::report::dump::height_picture`]): each level's valid region in false colour over its
+//! range of heights (or `--range`), hillshaded with `--shade`, nodata transparent, its legend
+//! below, the window, outlines and border around it as for colours; `view.png` uses the same
+//! colours over the range of every level drawn.
+//!
+//! Owns choosing what to draw and naming the files; drawing is [`crate::report::picture`]'s and
+//! [`crate::report::dump`]'s.
 
 use crate::geom::{tex_region, Rect};
+use crate::report::dump::{height_picture, HeightLegend, HeightView};
+use crate::report::hypsometric::{self, Texel};
 use crate::report::picture::{self, Frame};
-use crate::shm::{Client, ShmError};
-use image::{Rgb, RgbImage};
+use crate::shm::{Client, ShmError, Snapshot};
+use image::{Rgb, RgbImage, RgbaImage};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
@@ -54,6 +63,19 @@ pub struct LevelPicture {
     pub pixels: [u32; 2],
     /// Texels per pixel.
     pub texels_per_pixel: i64,
+    /// A texture of heights: the picture's legend (absent for colours). The picture is then the
+    /// window's pixels with the legend's rows below (and at least the legend's width).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heights: Option<HeightLegend>,
+}
+
+/// How heights are drawn (`cliptex dump --attach --shade --range MIN,MAX`); colours ignore it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Options {
+    /// Hillshade the false-colour maps.
+    pub shade: bool,
+    /// The metres the colour bars span (default: each level's range; the view, every level's).
+    pub range: Option<[f64; 2]>,
 }
 
 /// What was written.
@@ -83,9 +105,13 @@ pub struct LiveDump {
     pub view_extent: i64,
     /// Colour of each level in `rings.png` (`#rrggbb`, repeating after 12).
     pub ring_colours: Vec<String>,
+    /// A texture of heights: the metres `view.png`'s colours span (`null`: colours, or no data).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub view_range: Option<[f64; 2]>,
 }
 
-fn save(img: &RgbImage, path: PathBuf) -> Result<String, LiveDumpError> {
+fn save(img: impl Into<image::DynamicImage>, path: PathBuf) -> Result<String, LiveDumpError> {
+    let img: image::DynamicImage = img.into();
     crate::save::atomically(&path, |w| img.write_to(w, image::ImageFormat::Png).map_err(crate::save::image_io))
         .map_err(|e| LiveDumpError::Write {
             path: path.clone(),
@@ -94,23 +120,76 @@ fn save(img: &RgbImage, path: PathBuf) -> Result<String, LiveDumpError> {
     Ok(path.display().to_string())
 }
 
+/// Level `k` of a height texture over `frame` ([`height_picture`]): the valid region's heights,
+/// the rest as [`picture::backdrop`] draws it.
+fn height_level(
+    client: &Client,
+    snap: &Snapshot,
+    k: usize,
+    frame: Frame,
+    view: &HeightView,
+) -> (RgbaImage, HeightLegend) {
+    let st = snap.levels[k];
+    let size = client.levels[k].size;
+    let window = tex_region(size, client.clip_size, st.centre);
+    let valid =
+        st.enabled.then(|| Rect::new(st.valid[0], st.valid[1], st.valid[2], st.valid[3])).filter(|v| !v.is_empty());
+    let (w, h) = (frame.pixels[0], frame.pixels[1]);
+    let (f, bpt) = (view.format, client.bytes_per_texel);
+    let mut map = vec![Texel::Missing; w as usize * h as usize];
+    let mut line = vec![0u8; valid.map_or(0, |v| v.width() as usize) * bpt];
+    for y in 0..h {
+        let (_, t) = frame.texel(0, y);
+        let Some(v) = valid.filter(|v| t >= v.t0 && t < v.t1) else { continue };
+        if client.read_region(k, v.s0, t, v.width(), 1, &mut line).is_err() {
+            continue;
+        }
+        for x in 0..w {
+            let (s, _) = frame.texel(x, y);
+            if v.contains(s, t) {
+                let j = (s - v.s0) as usize * bpt;
+                map[(y * w + x) as usize] = match f.decode(f.read(&line[j..j + bpt])) {
+                    Some(m) if m.is_finite() => Texel::Height(m),
+                    _ => Texel::Nodata,
+                };
+            }
+        }
+    }
+    height_picture(&map, w, h, view, |x, y| {
+        let (s, t) = frame.texel(x, y);
+        let c = picture::backdrop(&frame, size, window, valid, s, t);
+        [c[0], c[1], c[2], 255]
+    })
+}
+
 /// Attaches to `name` in `dir` and writes the pictures of one consistent snapshot into `out_dir`
-/// (created if needed).
-pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDumpError> {
+/// (created if needed); heights are drawn as `options` says.
+pub fn dump(dir: &Path, name: &str, out_dir: &Path, options: &Options) -> Result<LiveDump, LiveDumpError> {
     let client = Client::attach(dir, name)?;
     std::fs::create_dir_all(out_dir).map_err(|e| LiveDumpError::Write {
         path: out_dir.to_path_buf(),
         message: format!("{e}; --out-dir must be a directory that can be created or written"),
     })?;
     let snap = client.checked_snapshot()?;
+    let heights = client.heights.map(|h| HeightView { format: h.format(), range: options.range, shade: options.shade });
     let mut levels = Vec::with_capacity(client.levels.len());
     for (k, d) in client.levels.iter().enumerate() {
         let st = snap.levels[k];
         let window = tex_region(d.size, client.clip_size, st.centre);
         let frame = Frame::around(window, MAX_LEVEL_PIXELS, MARGIN);
-        let mut img = RgbImage::from_pixel(frame.pixels[0], frame.pixels[1], Rgb([0, 0, 0]));
-        picture::draw_published_level(&mut img, 0, 0, frame, &client, &snap, k);
-        let png = save(&img, out_dir.join(format!("level-{k:02}.png")))?;
+        let path = out_dir.join(format!("level-{k:02}.png"));
+        let (png, legend, pixels) = match &heights {
+            Some(view) => {
+                let (img, legend) = height_level(&client, &snap, k, frame, view);
+                let pixels = [img.width(), img.height()];
+                (save(img, path)?, Some(legend), pixels)
+            }
+            None => {
+                let mut img = RgbImage::from_pixel(frame.pixels[0], frame.pixels[1], Rgb([0, 0, 0]));
+                picture::draw_published_level(&mut img, 0, 0, frame, &client, &snap, k);
+                (save(img, path)?, None, frame.pixels)
+            }
+        };
         levels.push(LevelPicture {
             level: k,
             size: d.size,
@@ -120,8 +199,9 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDump
             enabled: st.enabled,
             invalid_border: snap.invalid_border,
             png,
-            pixels: frame.pixels,
+            pixels,
             texels_per_pixel: frame.scale,
+            heights: legend,
         });
     }
     // Wide enough to show the first few rings: each stack level's window is twice the previous.
@@ -129,9 +209,28 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDump
     let size0 = client.levels.first().map_or(1, |l| l.size[0].max(l.size[1])) as i64;
     let extent = ((client.clip_size as i64) << stack).min(size0).max(VIEW_PIXELS as i64);
     let centre = snap.levels.first().map_or([0, 0], |l| l.centre);
-    let (view, rings) = picture::view_and_rings(&client, &snap, centre, VIEW_PIXELS, extent);
-    let view = save(&view, out_dir.join("view.png"))?;
-    let rings = save(&rings, out_dir.join("rings.png"))?;
+    // Heights: one colour bar over every level's range (or --range), so that a height has one
+    // colour whichever level shows it.
+    let view_range = options.range.or_else(|| {
+        levels.iter().filter_map(|l| l.heights.as_ref()?.region_range).reduce(|a, b| [a[0].min(b[0]), a[1].max(b[1])])
+    });
+    let format = crate::shm::layout::format_from_code(client.format_code);
+    let colour = |px: &[u8]| -> [u8; 3] {
+        match (&heights, view_range) {
+            (Some(v), Some([lo, hi])) => match v.format.decode(v.format.read(px)) {
+                Some(m) if m.is_finite() => hypsometric::ramp(hypsometric::fraction(m, lo, hi)),
+                _ => [0, 0, 0],
+            },
+            (Some(_), None) => [0, 0, 0],
+            (None, _) => {
+                let c = picture::texel_rgba(format, px);
+                [c[0], c[1], c[2]]
+            }
+        }
+    };
+    let (view, rings) = picture::view_and_rings(&client, &snap, centre, VIEW_PIXELS, extent, &colour);
+    let view = save(view, out_dir.join("view.png"))?;
+    let rings = save(rings, out_dir.join("rings.png"))?;
     let ring_colours = (0..client.levels.len())
         .map(|k| {
             let c = picture::PALETTE[k % picture::PALETTE.len()];
@@ -151,6 +250,7 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path) -> Result<LiveDump, LiveDump
         rings,
         view_extent: extent,
         ring_colours,
+        view_range: view_range.filter(|_| heights.is_some()),
     })
 }
 
@@ -189,6 +289,18 @@ pub fn human(d: &LiveDump) -> String {
         d.ring_colours.iter().enumerate().take(6).map(|(k, c)| format!("{k} {c}")).collect::<Vec<_>>().join(", ")
             + if d.ring_colours.len() > 6 { ", ..." } else { "" }
     ));
+    if let Some(l) = d.levels.iter().find_map(|l| l.heights.as_ref()) {
+        o.push_str(&format!(
+            "heights {}: each level in false colour over {}{}, nodata transparent, its legend below;{}\n",
+            l.storage,
+            if l.range_given { "--range" } else { "its own heights" },
+            if l.shaded { ", hillshaded" } else { "" },
+            match d.view_range {
+                Some([a, b]) => format!(" the view over {a} m to {b} m"),
+                None => " no height with data to colour the view".to_string(),
+            }
+        ));
+    }
     o.push_str("outlines: yellow = window, red = valid region; dark checkerboard = invalid border or not loaded\n");
     o
 }

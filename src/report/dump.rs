@@ -198,7 +198,7 @@ pub fn dump_heights(
     region: Option<[u64; 4]>,
     out: &Path,
 ) -> Result<DumpReport, DumpError> {
-    use super::hypsometric::{self, Texel};
+    use super::hypsometric::Texel;
     let what = match src.level {
         Some(k) => format!("level {k}, the whole level,"),
         None => "the image cache, all of it,".to_string(),
@@ -237,30 +237,12 @@ pub fn dump_heights(
             }
         }
     }
-    let mut region_range: Option<[f64; 2]> = None;
-    let mut nodata_texels = 0;
-    for t in &map {
-        match *t {
-            Texel::Height(m) => {
-                region_range = Some(region_range.map_or([m, m], |[lo, hi]| [lo.min(m), hi.max(m)]));
-            }
-            Texel::Nodata => nodata_texels += 1,
-            Texel::Missing => {}
-        }
-    }
-    let range = view.range.or(region_range);
-    let img = hypsometric::picture(&map, w as u32, h as u32, range.map(|[a, b]| (a, b)), view.shade, |x, y| {
-        picture::missing_pattern(x, y)
-    });
+    let (img, legend) = height_picture(&map, w as u32, h as u32, view, picture::missing_pattern);
     let (pw, ph) = img.dimensions();
     crate::save::atomically(out, |wr| {
         DynamicImage::ImageRgba8(img).write_to(wr, image::ImageFormat::Png).map_err(crate::save::image_io)
     })
     .map_err(|e| write_error(out, e))?;
-    let labels = match range {
-        Some([a, b]) => [hypsometric::label(a), hypsometric::label(b)],
-        None => ["nodata".to_string(), "nodata".to_string()],
-    };
     Ok(DumpReport {
         file: file.display().to_string(),
         level: src.level,
@@ -272,17 +254,51 @@ pub fn dump_heights(
         pixels: [pw as u64, ph as u64],
         tiles: read,
         missing,
-        heights: Some(HeightLegend {
-            storage: f.storage().short_name().to_string(),
-            range,
-            range_given: view.range.is_some(),
-            region_range,
-            nodata_texels,
-            shaded: view.shade,
-            map: [w as u64, h as u64],
-            labels,
-        }),
+        heights: Some(legend),
     })
+}
+
+/// The false-colour picture of a map of heights (`w` x `h` texels, rows top-down) and its legend,
+/// as `cliptex dump` draws a level of heights: the colour bar over `view`'s range (default the
+/// map's least and greatest height with data), hillshaded when `view` says so, nodata
+/// transparent, a texel of [`Texel::Missing`] painted by `missing` (the pixel's x and y). Also
+/// `cliptex dump --attach`'s picture of each level of a height texture.
+pub(crate) fn height_picture(
+    map: &[super::hypsometric::Texel],
+    w: u32,
+    h: u32,
+    view: &HeightView,
+    missing: impl Fn(u32, u32) -> [u8; 4],
+) -> (RgbaImage, HeightLegend) {
+    use super::hypsometric::{self, Texel};
+    let mut region_range: Option<[f64; 2]> = None;
+    let mut nodata_texels = 0;
+    for t in map {
+        match *t {
+            Texel::Height(m) => {
+                region_range = Some(region_range.map_or([m, m], |[lo, hi]| [lo.min(m), hi.max(m)]));
+            }
+            Texel::Nodata => nodata_texels += 1,
+            Texel::Missing => {}
+        }
+    }
+    let range = view.range.or(region_range);
+    let img = hypsometric::picture(map, w, h, range.map(|[a, b]| (a, b)), view.shade, missing);
+    let labels = match range {
+        Some([a, b]) => [hypsometric::label(a), hypsometric::label(b)],
+        None => ["nodata".to_string(), "nodata".to_string()],
+    };
+    let legend = HeightLegend {
+        storage: view.format.storage().short_name().to_string(),
+        range,
+        range_given: view.range.is_some(),
+        region_range,
+        nodata_texels,
+        shaded: view.shade,
+        map: [w as u64, h as u64],
+        labels,
+    };
+    (img, legend)
 }
 
 /// Checks the region (the whole level when `None`) against the level and [`MAX_DUMP_TEXELS`].

@@ -147,12 +147,6 @@ pub(crate) fn draw_level(
     let valid = valid.filter(|v| !v.is_empty());
     let width = valid.map_or(0, |v| v.width() as usize);
     let mut line = vec![0u8; width * bytes_per_texel];
-    // An outline is the ring of pixels just outside its rectangle: it never hides a texel of it.
-    let sc = frame.scale;
-    let on_edge = |r: &Rect, s: i64, t: i64| {
-        let near = s >= r.s0 - sc && s < r.s1 + sc && t >= r.t0 - sc && t < r.t1 + sc;
-        near && !r.contains(s, t) && !r.is_empty()
-    };
     for y in 0..frame.pixels[1] {
         let (_, t) = frame.texel(0, y);
         let have = match valid {
@@ -161,30 +155,47 @@ pub(crate) fn draw_level(
         };
         for x in 0..frame.pixels[0] {
             let (s, t) = frame.texel(x, y);
-            let inside_level = s >= 0 && t >= 0 && (s as u64) < size[0] && (t as u64) < size[1];
-            let mut px = if !inside_level {
-                [0, 0, 0]
-            } else if let Some(v) = valid.filter(|v| have && v.contains(s, t)) {
-                let j = (s - v.s0) as usize * bytes_per_texel;
-                let c = texel_rgba(format, &line[j..j + bytes_per_texel]);
-                [c[0], c[1], c[2]]
-            } else if window.contains(s, t) {
-                if (s / 16 + t / 16) % 2 == 0 {
-                    [60, 60, 60]
-                } else {
-                    [80, 80, 80]
+            let px = match valid.filter(|v| have && v.contains(s, t)) {
+                Some(v) => {
+                    let j = (s - v.s0) as usize * bytes_per_texel;
+                    let c = texel_rgba(format, &line[j..j + bytes_per_texel]);
+                    [c[0], c[1], c[2]]
                 }
-            } else {
-                [24, 24, 24]
+                None => backdrop(&frame, size, window, valid, s, t),
             };
-            if on_edge(&window, s, t) {
-                px = WINDOW_EDGE;
-            }
-            if valid.is_some_and(|v| on_edge(&v, s, t)) {
-                px = VALID_EDGE;
-            }
             img.put_pixel(x0 + x, y0 + y, Rgb(px));
         }
+    }
+}
+
+/// What a level picture shows at texel (s, t) where it shows no texel of the level's valid
+/// region: the window's outline (yellow) or the valid region's (red), each the ring of pixels just
+/// outside its rectangle (so it never hides a texel of it); else the rest of the window as a dark
+/// checkerboard (the invalid border, or not yet loaded), black outside the level and dark grey
+/// elsewhere ([`draw_level`], and the height pictures of [`crate::inspect::live_dump`]).
+pub(crate) fn backdrop(frame: &Frame, size: [u64; 2], window: Rect, valid: Option<Rect>, s: i64, t: i64) -> [u8; 3] {
+    let sc = frame.scale;
+    let on_edge = |r: &Rect| {
+        let near = s >= r.s0 - sc && s < r.s1 + sc && t >= r.t0 - sc && t < r.t1 + sc;
+        near && !r.contains(s, t) && !r.is_empty()
+    };
+    if valid.is_some_and(|v| on_edge(&v)) {
+        return VALID_EDGE;
+    }
+    if on_edge(&window) {
+        return WINDOW_EDGE;
+    }
+    let inside_level = s >= 0 && t >= 0 && (s as u64) < size[0] && (t as u64) < size[1];
+    if !inside_level {
+        [0, 0, 0]
+    } else if window.contains(s, t) {
+        if (s / 16 + t / 16) % 2 == 0 {
+            [60, 60, 60]
+        } else {
+            [80, 80, 80]
+        }
+    } else {
+        [24, 24, 24]
     }
 }
 
@@ -210,17 +221,20 @@ pub(crate) fn draw_published_level(
 
 /// The view around `centre` (level-0 texels), `n` pixels a side over `extent` level-0 texels:
 /// the texture as a renderer would sample it (the finest level available at each pixel, no
-/// coarser than min LOD) and the same view coloured by that level (texture luminance mixed in).
-/// Pixels no level covers stay black.
+/// coarser than min LOD; each texel coloured by `colour`) and the same view coloured by that level
+/// (texture luminance mixed in). Pixels outside the texture, or that no level covers, stay black:
+/// where a side is not a power of two, the coarsest levels (at least one texel a side) reach past
+/// level 0's edge, and a texel there is no texel of the texture.
 pub(crate) fn view_and_rings(
     client: &Client,
     snap: &Snapshot,
     centre: [i64; 2],
     n: u32,
     extent: i64,
+    colour: &dyn Fn(&[u8]) -> [u8; 3],
 ) -> (RgbImage, RgbImage) {
     let bpt = client.bytes_per_texel;
-    let format = format_from_code(client.format_code);
+    let size0 = client.levels.first().map_or([0, 0], |l| l.size);
     let step = (extent / n as i64).max(1);
     let first = (snap.min_lod.max(0.0).ceil() as usize).min(client.levels.len());
     let mut view = RgbImage::new(n, n);
@@ -230,13 +244,16 @@ pub(crate) fn view_and_rings(
         for x in 0..n {
             let s = centre[0] + (x as i64 - n as i64 / 2) * step;
             let t = centre[1] + ((n - 1 - y) as i64 - n as i64 / 2) * step;
+            if s < 0 || t < 0 || s as u64 >= size0[0] || t as u64 >= size0[1] {
+                continue;
+            }
             let found = (first..client.levels.len()).find(|&k| {
                 let (sk, tk) = (s >> k, t >> k);
                 snap.levels[k].contains(sk, tk) && client.read_region(k, sk, tk, 1, 1, &mut px).is_ok()
             });
             if let Some(k) = found {
-                let c = texel_rgba(format, &px);
-                view.put_pixel(x, y, Rgb([c[0], c[1], c[2]]));
+                let c = colour(&px);
+                view.put_pixel(x, y, Rgb(c));
                 let p = PALETTE[k % PALETTE.len()];
                 let lum = (c[0] as u32 + c[1] as u32 + c[2] as u32) / 3;
                 let mix = |a: u8| ((a as u32 * 3 + lum * 2) / 5) as u8;
@@ -286,6 +303,53 @@ mod tests {
         assert_eq!(f.texel(1, 0), (104, 200 + 511 * 4));
         let g = Frame::fit(Rect::new(0, 0, 10, 3), 1024);
         assert_eq!((g.scale, g.pixels), (1, [10, 3]));
+    }
+
+    #[test]
+    fn the_view_drew_the_coarse_levels_past_the_edge_of_a_texture_whose_sides_are_not_powers_of_two() {
+        use crate::clip::{Clipmap, Settings};
+        use crate::source::{HashSource, TextureDesc, TileSource};
+        let dir = tempfile::tempdir().unwrap();
+        let desc = TextureDesc::new([600, 200], 32, TexelFormat::RGBA8, [16, 16]).unwrap();
+        let source: std::sync::Arc<dyn TileSource> = std::sync::Arc::new(HashSource::new(desc));
+        let settings = Settings { budget_ns: None, fade_ticks: 1, ..Settings::default() };
+        let shape = Clipmap::shape_for(source.desc(), &settings);
+        let w =
+            crate::shm::Writer::create(dir.path(), "npot", shape, TexelFormat::RGBA8, 0o600, 0o600, 1_000_000, None)
+                .unwrap();
+        let mut map = Clipmap::with_memory(source, settings, w.memory()).unwrap();
+        for _ in 0..10 {
+            map.tick([300, 100], None);
+            map.wait_for_reads();
+        }
+        let client = Client::attach(dir.path(), "npot").unwrap();
+        let snap = client.try_snapshot().unwrap();
+        assert_eq!(snap.min_lod, 0.0);
+        // The last levels are 2 x 1 and 1 x 1 (at least one texel a side): t 200 to 255 lies in
+        // their texel row 0, and s 512 to 599 in the 1 x 1 level's texel, but only t < 200 and
+        // s < 600 are texels of the texture.
+        let (n, extent, centre) = (128u32, 1024i64, [300i64, 100]);
+        let white = |_: &[u8]| [255u8; 3];
+        let (view, rings) = view_and_rings(&client, &snap, centre, n, extent, &white);
+        let step = extent / n as i64;
+        let (mut inside, mut outside) = (0, 0);
+        for y in 0..n {
+            for x in 0..n {
+                let s = centre[0] + (x as i64 - n as i64 / 2) * step;
+                let t = centre[1] + ((n - 1 - y) as i64 - n as i64 / 2) * step;
+                let texel = (0..600).contains(&s) && (0..200).contains(&t);
+                let (v, r) = (view.get_pixel(x, y).0, rings.get_pixel(x, y).0);
+                if texel {
+                    // (Not every one: a level halved rounding down drops its last odd texel, so
+                    // some of the texture's last texels lie in no coarse level.)
+                    inside += u32::from(v == [255; 3]);
+                } else {
+                    outside += 1;
+                    assert_eq!((v, r), ([0; 3], [0; 3]), "pixel ({x}, {y}) shows ({s}, {t}), outside the texture");
+                }
+            }
+        }
+        assert!(inside > 1000 && outside > 1000, "{inside} drawn, {outside} outside");
     }
 
     #[test]

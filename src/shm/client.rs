@@ -162,6 +162,8 @@ pub struct Client {
     pub(super) request: Option<Region>,
     path: PathBuf,
     inode: (u64, u64),
+    /// The mapping file's owner: a view's own mapping must have the same.
+    pub(super) uid: u32,
     /// Bytes per texel.
     pub bytes_per_texel: usize,
     /// Clip size.
@@ -195,14 +197,25 @@ impl std::fmt::Debug for Client {
 /// Opens `path` (read-only, or read-write) without blocking and checks on the open descriptor
 /// that it is a regular file: a FIFO planted at a mapping's name would otherwise block the open
 /// until someone writes to it, and a device would be mapped.
-fn open_regular(path: &Path, write: bool) -> Result<std::fs::File, ShmError> {
+///
+/// With `owner` (a name the reader derived itself, a view's own mapping: docs/SHM.md, "Where"),
+/// the name is also not followed when it is a symbolic link, and the file must be owned by that
+/// user (the owner of the service's mapping): anyone may plant a name in the shared directory.
+fn open_regular(path: &Path, write: bool, owner: Option<u32>) -> Result<std::fs::File, ShmError> {
+    use rustix::fs::OFlags;
     use std::os::unix::fs::OpenOptionsExt;
-    let file = OpenOptions::new()
-        .read(true)
-        .write(write)
-        .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
-        .open(path)
-        .map_err(super::io(path))?;
+    let flags = if owner.is_some() { OFlags::NONBLOCK | OFlags::NOFOLLOW } else { OFlags::NONBLOCK };
+    let file =
+        OpenOptions::new().read(true).write(write).custom_flags(flags.bits() as i32).open(path).map_err(|e| match e
+            .raw_os_error()
+        {
+            Some(c) if owner.is_some() && c == rustix::io::Errno::LOOP.raw_os_error() => invalid(
+                path,
+                "a symbolic link: expected the mapping itself (a name the service publishes is never a link, and \
+                 readers do not follow one); remove it",
+            ),
+            _ => ShmError::Io { path: path.to_path_buf(), source: e },
+        })?;
     let meta = file.metadata().map_err(super::io(path))?;
     if !meta.is_file() {
         return Err(invalid(
@@ -210,6 +223,16 @@ fn open_regular(path: &Path, write: bool) -> Result<std::fs::File, ShmError> {
             format!(
                 "it is {}, not a regular file: not a mapping (something else took the name)",
                 crate::open::kind_of(&meta)
+            ),
+        ));
+    }
+    if let Some(want) = owner.filter(|&w| w != meta.uid()) {
+        return Err(invalid(
+            path,
+            format!(
+                "owned by {}, expected {}, the owner of the service's mapping: not a file the service published (remove it, or ask its owner)",
+                super::names::owner(meta.uid()),
+                super::names::owner(want)
             ),
         ));
     }
@@ -234,7 +257,7 @@ impl Client {
             return Err(ShmError::NotFound { name: name.to_string(), dir: dir.to_path_buf() });
         }
         let mut client = Self::attach_path(&path)?;
-        client.open_requests(&request_path(dir, name));
+        client.open_requests(&request_path(dir, name), None);
         Ok(client)
     }
 
@@ -244,7 +267,13 @@ impl Client {
     /// The file is opened without blocking and its type checked on the open descriptor before
     /// anything is mapped, so a FIFO or device planted at the name is refused at once.
     pub fn attach_path(path: &Path) -> Result<Client, ShmError> {
-        let file = open_regular(path, false)?;
+        Self::attach_path_owned(path, None)
+    }
+
+    /// [`attach_path`](Self::attach_path); with `owner`, the name is not followed when it is a
+    /// symbolic link and the file must be owned by that user (see [`open_regular`]).
+    pub(super) fn attach_path_owned(path: &Path, owner: Option<u32>) -> Result<Client, ShmError> {
+        let file = open_regular(path, false, owner)?;
         let meta = file.metadata().map_err(super::io(path))?;
         if meta.len() < layout::header::END as u64 {
             return Err(invalid(
@@ -398,6 +427,7 @@ impl Client {
             view: None,
             own_view: None,
             inode: (meta.dev(), meta.ino()),
+            uid: meta.uid(),
             generation: region.read_u64(header::GENERATION),
             format_code,
             tick_period: Duration::from_nanos(region.read_u64(header::TICK_PERIOD_NS)),
@@ -411,9 +441,10 @@ impl Client {
         })
     }
 
-    /// Opens the request mapping `path` for writing, if it is one of this mapping's.
-    fn open_requests(&mut self, path: &Path) {
-        let Ok(file) = open_regular(path, true) else { return };
+    /// Opens the request mapping `path` for writing, if it is one of this mapping's (with
+    /// `owner`: not through a symbolic link, and owned by that user; see [`open_regular`]).
+    pub(super) fn open_requests(&mut self, path: &Path, owner: Option<u32>) {
+        let Ok(file) = open_regular(path, true, owner) else { return };
         if file.metadata().map(|m| m.len() != layout::REQUEST_BYTES).unwrap_or(true) {
             return;
         }
@@ -912,54 +943,90 @@ impl Client {
         let mut odd_since: Option<(u64, std::time::Instant)> = None;
         loop {
             let w = r.load(base + v::REQ_SEQ, Ordering::Relaxed);
-            if w & 1 == 1 {
+            let mine = if w & 1 == 1 {
                 match odd_since {
                     Some((seen, at)) if seen == w && at.elapsed() > Duration::from_millis(lock::TAKEOVER_MS) => {
-                        if !process_alive(lock::owner(w)) {
-                            let _ = r.compare_exchange(base + v::REQ_SEQ, w, lock::released(w));
+                        // Straight from the dead renderer's odd word to our own at the next epoch:
+                        // the word is never even over its partial fields, so the service never
+                        // takes them (docs/SHM.md, "The lock word").
+                        let mine = lock::locked(lock::released(w), pid);
+                        if !process_alive(lock::owner(w)) && r.compare_exchange(base + v::REQ_SEQ, w, mine).is_ok() {
+                            note_lock_word(mine);
+                            Some(mine)
+                        } else {
+                            odd_since = Some((w, std::time::Instant::now()));
+                            None
                         }
+                    }
+                    Some((seen, _)) if seen == w => None,
+                    _ => {
                         odd_since = Some((w, std::time::Instant::now()));
+                        None
                     }
-                    Some((seen, _)) if seen == w => {}
-                    _ => odd_since = Some((w, std::time::Instant::now())),
                 }
-                if start.elapsed() > Duration::from_millis(lock::WAIT_MS) {
-                    return false;
+            } else {
+                let mine = lock::locked(w, pid);
+                let taken = r.compare_exchange(base + v::REQ_SEQ, w, mine).is_ok();
+                if taken {
+                    note_lock_word(mine);
+                } else {
+                    std::hint::spin_loop();
                 }
-                std::thread::yield_now();
+                taken.then_some(mine)
+            };
+            let Some(mine) = mine else {
+                if w & 1 == 1 {
+                    if start.elapsed() > Duration::from_millis(lock::WAIT_MS) {
+                        return false;
+                    }
+                    std::thread::yield_now();
+                }
                 continue;
-            }
-            let mine = lock::locked(w, pid);
-            if r.compare_exchange(base + v::REQ_SEQ, w, mine).is_ok() {
-                // The field stores below must not become visible before the odd word.
-                fence(Ordering::Release);
-                let count = match fields {
-                    Fields::Centre(centre, velocity) => {
-                        r.store(base + v::REQ_CENTRE_S, centre[0] as u64, Ordering::Relaxed);
-                        r.store(base + v::REQ_CENTRE_T, centre[1] as u64, Ordering::Relaxed);
-                        r.store(base + v::REQ_VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
-                        r.store(base + v::REQ_VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
-                        base + v::REQ_COUNT
-                    }
-                    Fields::Lod { at, height, pixel_angle, effective } => {
-                        r.store(at + v::LOD_HEIGHT, height.to_bits(), Ordering::Relaxed);
-                        r.store(at + v::LOD_PIXEL_ANGLE, pixel_angle.to_bits(), Ordering::Relaxed);
-                        r.store(at + v::LOD_EFFECTIVE, u64::from(effective), Ordering::Relaxed);
-                        at + v::LOD_COUNT
-                    }
-                };
-                r.store(base + v::REQ_CLIENT_PID, u64::from(pid), Ordering::Relaxed);
-                if let Some(i) = incarnation {
-                    r.store(base + v::REQ_INCARNATION, i, Ordering::Relaxed);
+            };
+            // The field stores below must not become visible before the odd word.
+            fence(Ordering::Release);
+            let count = match fields {
+                Fields::Centre(centre, velocity) => {
+                    r.store(base + v::REQ_CENTRE_S, centre[0] as u64, Ordering::Relaxed);
+                    r.store(base + v::REQ_CENTRE_T, centre[1] as u64, Ordering::Relaxed);
+                    r.store(base + v::REQ_VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
+                    r.store(base + v::REQ_VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
+                    base + v::REQ_COUNT
                 }
-                let c = r.load(count, Ordering::Relaxed);
-                r.store(count, c.wrapping_add(1), Ordering::Relaxed);
-                // Release (compare-and-swap: never over a word someone else stored).
-                return r.compare_exchange(base + v::REQ_SEQ, mine, lock::released(mine)).is_ok();
+                Fields::Lod { at, height, pixel_angle, effective } => {
+                    r.store(at + v::LOD_HEIGHT, height.to_bits(), Ordering::Relaxed);
+                    r.store(at + v::LOD_PIXEL_ANGLE, pixel_angle.to_bits(), Ordering::Relaxed);
+                    r.store(at + v::LOD_EFFECTIVE, u64::from(effective), Ordering::Relaxed);
+                    at + v::LOD_COUNT
+                }
+            };
+            r.store(base + v::REQ_CLIENT_PID, u64::from(pid), Ordering::Relaxed);
+            if let Some(i) = incarnation {
+                r.store(base + v::REQ_INCARNATION, i, Ordering::Relaxed);
             }
-            std::hint::spin_loop();
+            let c = r.load(count, Ordering::Relaxed);
+            r.store(count, c.wrapping_add(1), Ordering::Relaxed);
+            // Release (compare-and-swap: never over a word someone else stored).
+            let released = r.compare_exchange(base + v::REQ_SEQ, mine, lock::released(mine)).is_ok();
+            if released {
+                note_lock_word(lock::released(mine));
+            }
+            return released;
         }
     }
+}
+
+#[cfg(test)]
+thread_local! {
+    /// Every value this thread stored into a request lock word, in order (tests of the lock).
+    pub(super) static LOCK_WORDS: std::cell::RefCell<Vec<u64>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Notes a value this thread stored into a request lock word ([`LOCK_WORDS`]; nothing in other
+/// builds).
+fn note_lock_word(_word: u64) {
+    #[cfg(test)]
+    LOCK_WORDS.with(|w| w.borrow_mut().push(_word));
 }
 
 /// What one request writes under its lock word: a centre (the request record's fields and count)

@@ -88,12 +88,22 @@ impl Client {
             ));
         };
         let own = v::own_mapping_name(service, view);
-        let mut client = Client::attach(dir, &own).map_err(|e| match e {
-            ShmError::NotFound { .. } => {
-                ShmError::OwnMissing { view: view.to_string(), path: super::map_path(dir, &own) }
-            }
+        let map = super::map_path(dir, &own);
+        // A name the reader derived itself in a directory anyone may write: never followed as a
+        // symbolic link, and the service's user's (docs/SHM.md, "Where"), as the C and Python
+        // readers open it.
+        if std::fs::symlink_metadata(&map).is_err() {
+            return Err(ShmError::OwnMissing { view: view.to_string(), path: map });
+        }
+        let not_own = |e: ShmError| match e {
+            ShmError::Invalid { path, reason } => ShmError::Invalid {
+                path,
+                reason: format!("the mapping of view `{view}`, which has grids of its own: {reason}"),
+            },
             e => e,
-        })?;
+        };
+        let mut client = Client::attach_path_owned(&map, Some(self.uid)).map_err(not_own)?;
+        client.open_requests(&super::request_path(dir, &own), Some(self.uid));
         client.own_view = Some(view.to_string());
         Ok(client)
     }

@@ -106,6 +106,20 @@ pub enum ShmError {
         /// How long it was tried.
         ms: u64,
     },
+    /// The file system of the shared directory has no room for a mapping: refused before a byte
+    /// of it was touched (a page the file system cannot supply would kill the service with
+    /// SIGBUS instead of giving an error).
+    #[error("{}: no room for a mapping of {needed} bytes: the file system of {} has {available} bytes free; free space there (any process may have filled it: `df {}`), make it larger (a tmpfs: `mount -o remount,size=... {}`) or point --shm-dir at a file system with room", path.display(), dir.display(), dir.display(), dir.display())]
+    NoRoom {
+        /// The file being made (a temporary, removed since).
+        path: PathBuf,
+        /// The shared directory.
+        dir: PathBuf,
+        /// The bytes the file needs.
+        needed: u64,
+        /// The bytes free for this user in that file system when it was refused (0 when unknown).
+        available: u64,
+    },
     /// The shape cannot be laid out.
     #[error("cannot lay out the mapping: {0}")]
     Shape(String),

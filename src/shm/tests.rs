@@ -490,6 +490,31 @@ fn a_renderer_request_reaches_the_writer_and_a_dead_renderer_does_not_silence_th
     assert!(c.closed());
 }
 
+#[test]
+fn a_dead_renderers_lock_was_taken_over_through_an_even_word_exposing_its_partial_fields() {
+    use layout::request_lock::locked;
+    use std::os::unix::fs::FileExt;
+    let dir = tempfile::tempdir().unwrap();
+    let (_map, w) = hash_service(dir.path(), "dead", 1024, 64, 32);
+    let c = Client::attach(dir.path(), "dead").unwrap();
+    assert!(c.request_centre([1, 2], [0.0, 0.0]));
+    // A renderer killed half way through its stores: the word odd at epoch 7 with its pid, the
+    // centre's s stored, its t and the count not.
+    let f = std::fs::OpenOptions::new().write(true).open(w.request_path()).unwrap();
+    f.write_all_at(&locked(7 << 32, dead_pid()).to_le_bytes(), layout::request::SEQ as u64).unwrap();
+    f.write_all_at(&999u64.to_le_bytes(), layout::request::CENTRE_S as u64).unwrap();
+    super::client::LOCK_WORDS.with(|w| w.borrow_mut().clear());
+    assert!(c.request_centre([5, 6], [0.0, 0.0]));
+    let stored = super::client::LOCK_WORDS.with(|w| w.borrow().clone());
+    assert_eq!(
+        stored,
+        [locked(8 << 32, std::process::id()), 9 << 32],
+        "from the dead renderer's odd word straight to our own at the next epoch, then released: never an even word over its partial fields"
+    );
+    let r = w.request().unwrap();
+    assert_eq!((r.centre, r.count), ([5, 6], 2));
+}
+
 /// The pid of a process that has exited (and been reaped): no live process has it for a while.
 fn dead_pid() -> u32 {
     let mut child = std::process::Command::new("true").spawn().unwrap();

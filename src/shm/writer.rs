@@ -208,6 +208,8 @@ impl Writer {
         };
         let made = (|| {
             req_file.set_len(layout::REQUEST_BYTES).map_err(io(&req_tmp))?;
+            // Renderers map it and write it: its page must be there.
+            reserve(&req_file, &req_tmp, &req_path, dir, layout::REQUEST_BYTES)?;
             req_file.write_all_at(&layout::VERSION.to_le_bytes(), request::VERSION as u64).map_err(io(&req_tmp))?;
             req_file.write_all_at(&generation.to_le_bytes(), request::GENERATION as u64).map_err(io(&req_tmp))?;
             req_file.write_all_at(&layout::REQUEST_MAGIC, request::MAGIC as u64).map_err(io(&req_tmp))?;
@@ -233,6 +235,7 @@ impl Writer {
         };
         let made = (|| {
             file.set_len(placement.total_bytes).map_err(io(&tmp))?;
+            reserve(&file, &tmp, &path, dir, placement.total_bytes)?;
             let region = Region::map_populated(&file).map_err(io(&tmp))?;
             let id = names::Identity::of(&file.metadata().map_err(io(&tmp))?);
             Ok::<_, ShmError>((region, id))
@@ -495,6 +498,41 @@ pub(crate) fn remove_dead_own_mappings(dir: &Path, service: &str) -> Vec<String>
     }
     removed.sort();
     removed
+}
+
+/// Reserves the first `len` bytes of `file` (the temporary `tmp`, to appear as `path` in `dir`)
+/// on its file system before any of its pages is touched: a shared mapping of a file whose pages
+/// the file system cannot supply (a full tmpfs: any local user can fill `/dev/shm`) faults with
+/// SIGBUS at the first store there, which kills the process without a word. A file system
+/// without room refuses the reservation, which is reported ([`ShmError::NoRoom`]) instead.
+/// One that cannot reserve (`fallocate` unsupported) has its blocks written with zeros, which
+/// allocates them just as well.
+fn reserve(file: &File, tmp: &Path, path: &Path, dir: &Path, len: u64) -> Result<(), ShmError> {
+    use rustix::io::Errno;
+    let no_room = || ShmError::NoRoom {
+        path: path.to_path_buf(),
+        dir: dir.to_path_buf(),
+        needed: len,
+        available: rustix::fs::fstatvfs(file).map_or(0, |v| v.f_bavail.saturating_mul(v.f_frsize)),
+    };
+    match rustix::fs::fallocate(file, rustix::fs::FallocateFlags::empty(), 0, len) {
+        Ok(()) => Ok(()),
+        Err(Errno::NOSPC | Errno::DQUOT | Errno::FBIG) => Err(no_room()),
+        Err(Errno::OPNOTSUPP | Errno::NOSYS) => {
+            let zeros = vec![0u8; 1 << 20];
+            let mut at = 0;
+            while at < len {
+                let n = (len - at).min(zeros.len() as u64);
+                file.write_all_at(&zeros[..n as usize], at).map_err(|e| match e.raw_os_error() {
+                    Some(c) if [Errno::NOSPC.raw_os_error(), Errno::DQUOT.raw_os_error()].contains(&c) => no_room(),
+                    _ => ShmError::Io { path: tmp.to_path_buf(), source: e },
+                })?;
+                at += n;
+            }
+            Ok(())
+        }
+        Err(e) => Err(ShmError::Io { path: tmp.to_path_buf(), source: e.into() }),
+    }
 }
 
 /// Renames a finished temporary file into place: a previous file there is replaced only when it

@@ -41,7 +41,7 @@ impl Service {
     }
 
     /// Starts `clipmapd SOURCE...` (a configuration file or procedural options).
-    fn spawn_with(dir: &Path, name: &str, source: &[&str], extra: &[&str]) -> Service {
+    pub(crate) fn spawn_with(dir: &Path, name: &str, source: &[&str], extra: &[&str]) -> Service {
         let given = extra.iter().position(|a| *a == "--socket").map(|i| PathBuf::from(extra[i + 1]));
         let socket = given.clone().unwrap_or_else(|| dir.join(format!("{name}.sock")));
         let mut args: Vec<String> = source.iter().map(|s| s.to_string()).collect();

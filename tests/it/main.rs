@@ -11,6 +11,7 @@ mod cli_attach;
 mod cli_check;
 mod cli_config;
 mod cli_dump;
+mod cli_dump_heights;
 mod cli_roam;
 mod cli_snapshots;
 mod clipbench_cog;
@@ -46,6 +47,8 @@ mod house;
 mod patch_fuzz_props;
 #[cfg(feature = "remote")]
 mod remote;
+mod shm_readers;
+mod shm_room;
 mod sixteen_bit;
 mod stability;
 mod views_own;

@@ -1,0 +1,210 @@
+//! The reader programs against a running `clipmapd` (docs/SHM.md, "Readers in this repository"):
+//! the Rust reader refuses a view's own mapping that is a symbolic link or another user's file, as
+//! the C and Python readers do; and all three dump a region of any texture, raw or as a PNG, with
+//! exactly the engine's texels.
+
+use crate::clipmapd::{c_reader, python_reader, rust_reader, Service};
+use clipmap::source::{Procedural, TileId};
+use std::path::Path;
+use std::process::Output;
+
+fn text(out: &Output) -> String {
+    format!(
+        "status {:?}\nstdout:\n{}\nstderr:\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+/// Each reader reading `--view far` of the service `name` in `d` a moment.
+fn read_far(d: &Path, name: &str) -> Vec<(&'static str, Output)> {
+    let map = d.join(format!("clipmap-{name}.map"));
+    let rust = rust_reader(d, name, &["--view", "far", "--reads", "100"]).output().unwrap();
+    let mut c = std::process::Command::new(c_reader(d));
+    let c = c.arg(&map).args(["100", "1", "5", "--view", "far"]).output().unwrap();
+    let py = python_reader().arg(&map).args(["100", "1", "5", "--view", "far"]).output().unwrap();
+    vec![("rust", rust), ("c", c), ("python", py)]
+}
+
+#[test]
+fn the_rust_reader_refuses_a_symlinked_or_another_users_own_view_mapping_as_c_and_python_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let _svc = Service::start(d, "sym", &["--view", "far:own"]);
+    let own = d.join("clipmap-sym@far.map");
+    for (who, out) in read_far(d, "sym") {
+        assert!(out.status.success(), "{who} reads the view as published\n{}", text(&out));
+    }
+    // A link planted at the name, to a mapping that is otherwise fine.
+    let aside = d.join("aside.map");
+    std::fs::rename(&own, &aside).unwrap();
+    std::os::unix::fs::symlink(&aside, &own).unwrap();
+    for (who, out) in read_far(d, "sym") {
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{who} refuses the link\n{}", text(&out));
+        assert!(err.contains(own.to_str().unwrap()) && err.contains("a symbolic link"), "{who}: {err}");
+    }
+    std::fs::remove_file(&own).unwrap();
+    std::fs::rename(&aside, &own).unwrap();
+    // Another user's file at the name.
+    if rustix::process::geteuid().as_raw() != 0 {
+        eprintln!("skipped the owner check: giving a file to another user needs root (CI runs as root)");
+        return;
+    }
+    std::os::unix::fs::chown(&own, Some(65534), None).unwrap();
+    for (who, out) in read_far(d, "sym") {
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{who} refuses another user's file\n{}", text(&out));
+        assert!(err.contains("owned by uid 65534") && err.contains("expected uid 0"), "{who}: {err}");
+    }
+}
+
+/// The engine's texels of `rect` (`[s0, t0, s1, t1)`) of `level` of the terrain texture the
+/// service below serves: its tiles read from the source itself, rows in increasing t.
+fn terrain_texels(level: u32, rect: [u64; 4]) -> Vec<u8> {
+    let src = clipmap::service::procedural_source(Procedural::Terrain, 65536, 256, 64).unwrap();
+    let desc = src.desc();
+    let d = *desc.level(level);
+    let bpt = desc.bytes_per_texel();
+    let mut tile = vec![0u8; desc.tile_bytes(level)];
+    let (w, h) = ((rect[2] - rect[0]) as usize, (rect[3] - rect[1]) as usize);
+    let mut out = vec![0u8; w * h * bpt];
+    for ts in rect[0] / d.tile[0]..rect[2].div_ceil(d.tile[0]) {
+        for tt in rect[1] / d.tile[1]..rect[3].div_ceil(d.tile[1]) {
+            src.read_tile(TileId::new(level, ts, tt), &mut tile).unwrap();
+            for t in (tt * d.tile[1]).max(rect[1])..((tt + 1) * d.tile[1]).min(rect[3]) {
+                for s in (ts * d.tile[0]).max(rect[0])..((ts + 1) * d.tile[0]).min(rect[2]) {
+                    let from = (((t - tt * d.tile[1]) * d.tile[0] + s - ts * d.tile[0]) as usize) * bpt;
+                    let to = (((t - rect[1]) as usize) * w + (s - rect[0]) as usize) * bpt;
+                    out[to..to + bpt].copy_from_slice(&tile[from..from + bpt]);
+                }
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn the_reader_programs_dump_a_region_of_any_texture_raw_or_png_with_the_engines_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let source = ["--source", "terrain", "--size", "65536", "--clip", "256", "--tile", "64"];
+    let svc = Service::spawn_with(d, "land", &source, &[]);
+    svc.wait_ready();
+    let map = d.join("clipmap-land.map");
+    let c = c_reader(d);
+    // Level 0 around the centre (32768, 32768) across a tile corner, and a part of level 3.
+    for (level, rect) in [(0u32, [32690u64, 32700, 32770, 32790]), (3, [4000, 4010, 4100, 4090])] {
+        let want = terrain_texels(level, rect);
+        let region = rect.map(|v| v.to_string()).join(",");
+        let (w, h) = ((rect[2] - rect[0]) as u32, (rect[3] - rect[1]) as u32);
+        let out = |who: &str, ext: &str| d.join(format!("{who}-{level}.{ext}"));
+        let lvl = level.to_string();
+        let rust = |file: &Path| {
+            let args = ["--dump-level", &lvl, "--region", &region, "--out", file.to_str().unwrap(), "--seconds", "20"];
+            rust_reader(d, "land", &args).output().unwrap()
+        };
+        let runs = [
+            ("rust", rust(&out("rust", "raw"))),
+            ("rust png", rust(&out("rust", "png"))),
+            (
+                "c",
+                std::process::Command::new(&c)
+                    .arg(&map)
+                    .args(["--dump", &lvl, &region])
+                    .arg(out("c", "raw"))
+                    .arg("20")
+                    .output()
+                    .unwrap(),
+            ),
+            (
+                "python",
+                python_reader()
+                    .arg(&map)
+                    .args(["--dump", &lvl, &region])
+                    .arg(out("python", "raw"))
+                    .arg("20")
+                    .output()
+                    .unwrap(),
+            ),
+            (
+                "python png",
+                python_reader()
+                    .arg(&map)
+                    .args(["--dump", &lvl, &region])
+                    .arg(out("python", "png"))
+                    .arg("20")
+                    .output()
+                    .unwrap(),
+            ),
+        ];
+        for (who, o) in &runs {
+            assert!(o.status.success(), "{who}, level {level}\n{}\n{}", text(o), svc.dump());
+        }
+        for who in ["rust", "c", "python"] {
+            let got = std::fs::read(out(who, "raw")).unwrap();
+            assert!(got == want, "{who}: level {level} {region}: the raw dump is not the engine's texels");
+        }
+        // A PNG runs t upwards: its top row is the region's last t row.
+        for who in ["rust", "python"] {
+            let img = image::open(out(who, "png")).unwrap().to_rgba8();
+            assert_eq!(img.dimensions(), (w, h), "{who}");
+            for y in 0..h {
+                for x in 0..w {
+                    let i = (((h - 1 - y) * w + x) * 4) as usize;
+                    assert_eq!(img.get_pixel(x, y).0, want[i..i + 4], "{who} png pixel ({x}, {y}), level {level}");
+                }
+            }
+        }
+    }
+    // A region the level does not publish: refused, naming what it publishes.
+    let far = rust_reader(d, "land", &["--dump-level", "0", "--region", "0,0,10,10", "--out"])
+        .arg(d.join("far.raw"))
+        .args(["--seconds", "1"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&far.stderr);
+    assert_eq!(far.status.code(), Some(2), "{}", text(&far));
+    assert!(err.contains("the level publishes [32648, 32888) x [32648, 32888)"), "{err}");
+    assert!(!d.join("far.raw").exists());
+}
+
+#[test]
+fn view_records_no_view_publishes_in_hold_a_snapshot_of_nothing_published() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "unused", &["--view", "far:own"]);
+    // A view that published and was removed: its record is free again.
+    assert!(svc.ask("VIEW ADD gone 1").starts_with("OK view gone added"));
+    assert!(svc.ask("VIEW CENTRE gone 1000 1000").starts_with("OK"));
+    let t = std::time::Instant::now();
+    while !crate::clipmapd::json_reply(&svc.ask("VIEWS")).to_string().contains("\"centre\":[1000,1000]") {
+        assert!(t.elapsed() < std::time::Duration::from_secs(20), "{}", svc.dump());
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(svc.ask("VIEW REMOVE gone").starts_with("OK view gone removed"));
+    let m = std::fs::read(d.join("clipmap-unused.map")).unwrap();
+    let u64_at = |o: usize| u64::from_le_bytes(m[o..o + 8].try_into().unwrap());
+    let u32_at = |o: usize| u32::from_le_bytes(m[o..o + 4].try_into().unwrap());
+    let levels = u32_at(36) as f64;
+    let block = u64_at(104) as usize;
+    let records = u32_at(block + 12) as usize;
+    let mut states = Vec::new();
+    for r in 0..records {
+        let rec = block + 64 + 2240 * r;
+        let state = u64_at(rec + 8);
+        states.push(state);
+        if state == 1 {
+            continue;
+        }
+        // State 0 (free: never used, or given back) or 2 (grids of its own, published elsewhere).
+        let snap = rec + 128;
+        assert_eq!(u64_at(snap) % 2, 0, "record {r} (state {state}): its snapshot's counter is even");
+        assert_eq!(f64::from_bits(u64_at(snap + 8)), levels, "record {r} (state {state}): min LOD the level count");
+        let rest: Vec<(usize, u64)> =
+            (16..2112).step_by(8).map(|o| (o, u64_at(snap + o))).filter(|&(_, v)| v != 0).collect();
+        assert!(rest.is_empty(), "record {r} (state {state}): every other snapshot field is 0: {rest:?}");
+    }
+    assert_eq!(&states[..2], [2, 0], "far's own grids, then gone's record given back: {states:?}");
+}
