@@ -444,20 +444,27 @@ enum CogCompressionArg {
     Zstd,
 }
 
-/// Writes the prepared texture at `o.ct` as the COG `path`.
-fn write_cog(o: &Outcome, path: &Path, c: CogCompressionArg) -> Result<clipmap::prep::cog::CogWritten, String> {
-    use clipmap::prep::cog::{self, CogCompression};
-    let loaded = clipmap::plan::load_clip_texture(&o.ct, &Default::default()).map_err(|e| e.to_string())?;
+/// Writes the prepared texture at `o.ct` as the COG `path`, stopping when `cancel` is set.
+fn write_cog(
+    o: &Outcome,
+    path: &Path,
+    c: CogCompressionArg,
+    cancel: &AtomicBool,
+) -> Result<clipmap::prep::cog::CogWritten, clipmap::prep::cog::CogWriteError> {
+    use clipmap::prep::cog::{self, CogCompression, CogWriteError};
+    let other = |why: String| CogWriteError::Unsupported(why);
+    let loaded = clipmap::plan::load_clip_texture(&o.ct, &Default::default()).map_err(|e| other(e.to_string()))?;
     let Some(plan) = loaded.plan else {
-        return Err(format!("{} does not load:\n{}", o.ct.display(), loaded.render()));
+        return Err(other(format!("{} does not load:\n{}", o.ct.display(), loaded.render())));
     };
-    let src = clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()).map_err(|e| e.to_string())?;
+    let src =
+        clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()).map_err(|e| other(e.to_string()))?;
     let compression = match c {
         CogCompressionArg::None => CogCompression::None,
         CogCompressionArg::Deflate => CogCompression::Deflate,
         CogCompressionArg::Zstd => CogCompression::Zstd,
     };
-    cog::write(src.as_ref(), path, o.layout.spec.tile, compression).map_err(|e| e.to_string())
+    cog::write(src.as_ref(), path, o.layout.spec.tile, compression, cancel)
 }
 
 fn parse_pair(text: &str, what: &str) -> Result<(u64, u64), PrepError> {
@@ -859,6 +866,11 @@ fn main() -> ExitCode {
             eprintln!("clipprep: error: --cog {}: {why}", cog.display());
             return clipmap::report::exit::status(clipmap::report::exit::BAD_INPUT);
         }
+        // A FIFO or a device there would block the write or swallow the file: never opened.
+        if let Err(e) = clipmap::prep::cog::check_target(cog) {
+            eprintln!("clipprep: error: --cog {e}");
+            return clipmap::report::exit::status(clipmap::report::exit::COULD_NOT_RUN);
+        }
     }
     let mut uploaded = None;
     let result = match &url {
@@ -876,12 +888,13 @@ fn main() -> ExitCode {
         },
     };
     let result = result.map(|o| {
-        let cog = cli.cog.as_ref().map(|p| (p, write_cog(&o, p, cli.cog_compression)));
+        let cog = cli.cog.as_ref().map(|p| (p, write_cog(&o, p, cli.cog_compression, &cancel)));
         (o, cog)
     });
     match result {
         Ok((_, Some((path, Err(why))))) => {
             eprintln!("clipprep: error: --cog {}: {why} (the pyramid itself was written)", path.display());
+            // Exit 2 for an interruption too, as for an interrupted pyramid.
             clipmap::report::exit::status(clipmap::report::exit::COULD_NOT_RUN)
         }
         Ok((o, cog)) => {
