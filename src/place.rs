@@ -76,9 +76,24 @@ impl RemoteName {
         &self.text[self.scheme.prefix().len()..]
     }
 
-    /// The name's last `.`-suffix as a path would have it (`zst` for `.../r000.c000.raw.zst`).
+    /// The name's last `.`-suffix as a path would have it (`zst` for `.../r000.c000.raw.zst`),
+    /// of its path alone: an http(s) URL's `?query` and `#fragment` are not part of it
+    /// (`https://host/x.tif?sig=...` ends in `tif`); an S3 key is taken whole.
     pub fn extension(&self) -> Option<&str> {
-        Path::new(&self.text).extension().and_then(|e| e.to_str())
+        Path::new(self.path()).extension().and_then(|e| e.to_str())
+    }
+
+    /// The name without an http(s) URL's `?query` and `#fragment` (an S3 name whole: `?` and
+    /// `#` are characters of a key).
+    pub fn path(&self) -> &str {
+        match self.scheme {
+            RemoteScheme::S3 => &self.text,
+            RemoteScheme::Http | RemoteScheme::Https => {
+                let rest = self.rest();
+                let end = rest.find(['?', '#']).map_or(self.text.len(), |i| self.scheme.prefix().len() + i);
+                &self.text[..end]
+            }
+        }
     }
 }
 
@@ -185,6 +200,21 @@ mod tests {
 
     fn local(p: &str) -> Place {
         Place::Local(PathBuf::from(p))
+    }
+
+    #[test]
+    fn a_url_with_a_query_ends_in_its_paths_extension() {
+        for (name, ext, path) in [
+            ("https://h/x.tif?sig=a/b.png&t=1", Some("tif"), "https://h/x.tif"),
+            ("http://h:8/d/x.TIFF#part", Some("TIFF"), "http://h:8/d/x.TIFF"),
+            ("https://h/x.raw.zst?X-Amz-Signature=00", Some("zst"), "https://h/x.raw.zst"),
+            ("https://h/x?y.tif", None, "https://h/x"),
+            ("s3://b/k.tif?v", Some("tif?v"), "s3://b/k.tif?v"),
+        ] {
+            let r = RemoteName::parse(name).unwrap();
+            assert_eq!((r.extension(), r.path()), (ext, path), "{name}");
+            assert_eq!(r.as_str(), name, "the name itself is kept whole");
+        }
     }
 
     #[test]

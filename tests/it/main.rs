@@ -48,5 +48,6 @@ mod patch_fuzz_props;
 mod remote;
 mod sixteen_bit;
 mod stability;
+mod tools_cog_names;
 mod views_own;
 mod views_restart;

@@ -1,0 +1,168 @@
+//! How the tools take a `.tif` they are given: a GeoTIFF or COG is never read as a
+//! configuration (`cliptex validate|roam|plan`), and a URL with a `?query` is a remote COG
+//! wherever a `.tif` name is accepted, its query kept in every request.
+
+use crate::common::exec;
+use std::path::{Path, PathBuf};
+
+const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
+const CLIPPREP: &str = env!("CARGO_BIN_EXE_clipprep");
+
+/// Writes a 512 x 512 RGB COG of the hash texture (128-texel tiles) at `dir/name`.
+pub fn small_cog(dir: &Path, name: &str) -> PathBuf {
+    let cog = dir.join(name);
+    let out = dir.join(format!("{name}.pyr"));
+    let args = [
+        "--source",
+        "hash",
+        "--size",
+        "512",
+        "--tile",
+        "128",
+        "--clip",
+        "256",
+        "--format",
+        "rgb8",
+        "--out",
+        out.to_str().unwrap(),
+        "--cog",
+        cog.to_str().unwrap(),
+        "-q",
+    ];
+    let (o, desc) = exec(dir, CLIPPREP, &args);
+    assert!(o.status.success(), "{desc}");
+    cog
+}
+
+/// Standard output and error of a run, together.
+fn said(o: &std::process::Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr)
+}
+
+/// No byte of the file's binary header in what was said (no control character but line ends).
+fn no_binary(text: &str, desc: &str) {
+    assert!(!text.contains("GDAL_STRUCTURAL_METADATA"), "bytes of the TIFF printed:\n{desc}");
+    assert!(!text.contains('\u{fffd}'), "bytes that are no UTF-8 printed:\n{desc}");
+    assert!(!text.chars().any(|c| c.is_control() && c != '\n' && c != '\t'), "control bytes printed:\n{desc}");
+}
+
+#[test]
+fn cliptex_validate_roam_and_plan_of_a_tif_say_what_it_is_and_print_no_binary() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let cog = small_cog(d, "c.tif");
+    let c = cog.to_str().unwrap();
+    // validate: one finding that says what the file is and what to run instead.
+    let (o, desc) = exec(d, CLIPTEX, &["validate", c]);
+    assert_eq!(o.status.code(), Some(1), "{desc}");
+    let text = said(&o);
+    no_binary(&text, &desc);
+    for w in
+        ["a TIFF image (a GeoTIFF or COG), not a clip texture (.ct) configuration", "cliptex check", "cliptex info"]
+    {
+        assert!(text.contains(w), "should say `{w}`:\n{desc}");
+    }
+    assert_eq!(text.matches("error:").count(), 1, "one finding, not a cascade:\n{desc}");
+    // roam flies the COG as clipmapd serves it.
+    let (o, desc) =
+        exec(d, CLIPTEX, &["roam", c, "--flight", "straight:4", "--frames", "4", "--wait-for-reads", "--json"]);
+    assert_eq!(o.status.code(), Some(0), "{desc}");
+    no_binary(&said(&o), &desc);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{e}\n{desc}"));
+    assert_eq!(v["size"], serde_json::json!([512, 512]), "{desc}");
+    assert_eq!(v["frames"].as_array().map(Vec::len), Some(4), "{desc}");
+    assert!(v["totals"]["tiles_read"].as_u64().unwrap() > 0, "{desc}");
+    // plan sizes it: its size, texel bytes and clip size 1024.
+    let (o, desc) = exec(d, CLIPTEX, &["plan", c, "--json"]);
+    assert_eq!(o.status.code(), Some(0), "{desc}");
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{e}\n{desc}"));
+    assert_eq!((v["width"].as_u64(), v["height"].as_u64()), (Some(512), Some(512)), "{desc}");
+    assert_eq!(v["texel_bytes"], 3, "{desc}");
+    // icache info of it is refused the same way.
+    let (o, desc) = exec(d, env!("CARGO_BIN_EXE_icache"), &["info", c]);
+    assert_eq!(o.status.code(), Some(1), "{desc}");
+    no_binary(&said(&o), &desc);
+    assert!(said(&o).contains("a TIFF image (a GeoTIFF or COG), not an image cache (.ic)"), "{desc}");
+}
+
+/// A `clipmapd` serving `args` with its names in `dir`: waits (bounded) until it answers, then
+/// returns its `STATS` reply and its log, and stops it.
+#[cfg(feature = "remote")]
+pub fn serve_once(dir: &Path, name: &str, args: &[&str]) -> (serde_json::Value, String) {
+    use std::io::{BufRead, BufReader, Write};
+    use std::time::{Duration, Instant};
+    let socket = dir.join(format!("{name}.sock"));
+    let err = dir.join(format!("{name}.err"));
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_clipmapd"))
+        .args(args)
+        .args(["--clip", "128", "--tick-hz", "60", "--name", name, "--shm-dir"])
+        .arg(dir)
+        .arg("--socket")
+        .arg(&socket)
+        .env("RUST_LOG", "info")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&err).unwrap())
+        .spawn()
+        .unwrap();
+    let log = || std::fs::read_to_string(&err).unwrap_or_default();
+    let ask = |line: &str| -> Option<String> {
+        let mut s = std::os::unix::net::UnixStream::connect(&socket).ok()?;
+        s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+        writeln!(s, "{line}").ok()?;
+        let mut reply = String::new();
+        BufReader::new(s).read_line(&mut reply).ok()?;
+        Some(reply.trim_end().to_string())
+    };
+    let t = Instant::now();
+    let stats = loop {
+        if let Ok(Some(st)) = child.try_wait() {
+            panic!("clipmapd exited ({st}):\n{}", log());
+        }
+        assert!(t.elapsed() < Duration::from_secs(30), "the service did not read a tile:\n{}", log());
+        if let Some(r) = ask("STATS") {
+            let v: serde_json::Value = serde_json::from_str(r.strip_prefix("OK ").unwrap_or("null")).unwrap();
+            if v["engine"]["tiles_read"].as_u64().is_some_and(|n| n > 0) {
+                break v;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let _ = child.kill();
+    let _ = child.wait();
+    (stats, log())
+}
+
+#[cfg(feature = "remote")]
+#[test]
+fn a_cog_url_with_a_query_is_remote_everywhere_and_the_query_is_kept_in_every_request() {
+    use crate::common::remote::PyServer;
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    small_cog(d, "c.tif");
+    let server = PyServer::serve(d, true);
+    let url = format!("{}/c.tif?sig=abc&x=1", server.url());
+    // Before: every one of these took the URL for a local path ("No such file or directory").
+    for args in [
+        vec!["info", url.as_str()],
+        vec!["check", url.as_str()],
+        vec!["dump", url.as_str(), "--level", "1", "--out", "l1.png"],
+        vec!["roam", url.as_str(), "--flight", "straight:4", "--frames", "2", "--wait-for-reads"],
+    ] {
+        let (o, desc) = exec(d, CLIPTEX, &args);
+        assert_eq!(o.status.code(), Some(0), "{desc}");
+    }
+    let (o, desc) = exec(d, CLIPPREP, &["--input", &url, "--config-only", "--clip", "256", "--out", "cfg"]);
+    assert_eq!(o.status.code(), Some(0), "{desc}");
+    let ct = std::fs::read_to_string(d.join("cfg/cfg.ct")).unwrap();
+    assert!(ct.contains(&format!("#clipmap cog {url}")), "the configuration names the URL whole:\n{ct}");
+    let (o, desc) = exec(d, CLIPTEX, &["check", "cfg/cfg.ct"]);
+    assert_eq!(o.status.code(), Some(0), "{desc}");
+    let (stats, log) = serve_once(d, "q", &[&url]);
+    assert!(stats["remote"]["requests"].as_u64().unwrap() >= 2, "{stats}\n{log}");
+    // Every request asked for the object with its query.
+    let requests = server.requests();
+    assert!(requests.len() > 10, "{requests:?}");
+    for r in &requests {
+        assert!(r.split(' ').nth(1) == Some("/c.tif?sig=abc&x=1"), "a request without the query: {r}\n{requests:?}");
+    }
+}
