@@ -284,6 +284,12 @@ fn conversion_option(cli: &Cli) -> Option<(&'static str, &'static str)> {
     .map(|(flag, _, why)| (flag, why))
 }
 
+/// A name from the command line as it may be printed: a URL's password and signatures
+/// replaced ([`clipmap::place::redacted`]).
+fn shown(path: &Path) -> String {
+    clipmap::place::redacted(&path.to_string_lossy()).into_owned()
+}
+
 /// `--config-only`: the `.ct` and `.ic` files that serve the COG --input as it is, written into
 /// --out through the same temporary directory as a pyramid (nothing at --out on an error).
 fn config_only(cli: &Cli) -> Result<(), PrepError> {
@@ -296,7 +302,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
     if let Some((flag, why)) = conversion_option(cli) {
         return Err(PrepError::Geometry(format!(
             "{flag} asks for a conversion, and --config-only writes only the configuration that serves {} as it is: {why}; drop {flag}, or drop --config-only to prepare a pyramid from the image",
-            input.display()
+            shown(&input)
         )));
     }
     if let Some(url) = Place::from_path(cli.out.clone()).remote() {
@@ -312,12 +318,12 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
         };
         return Err(PrepError::Geometry(format!(
             "--config-only serves a tiled GeoTIFF or COG as it is, and {} is not one: expected {what}; drop --config-only to prepare a pyramid from it",
-            input.display()
+            shown(&input)
         )));
     }
     check_pow2("the clip size".into(), cli.clip, "; pass --clip with a power of two")?;
     let src = clipmap::source::CogSource::open_place(&place, cli.clip)
-        .map_err(|e| PrepError::Geometry(format!("--input {}: {e}", input.display())))?;
+        .map_err(|e| PrepError::Geometry(format!("--input {}: {e}", shown(&input))))?;
     let desc = src.desc();
     let format = desc.format();
     if let Some(f) = cli.format {
@@ -325,7 +331,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
             return Err(PrepError::Geometry(format!(
                 "--format {}: {} is served as {format} texels, and --config-only serves it as it is; give --format {format}, or leave --format out",
                 f.texel().short_name(),
-                input.display(),
+                shown(&input),
             )));
         }
     }
@@ -333,7 +339,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
     if tile[0] != tile[1] || !tile[0].is_power_of_two() {
         return Err(PrepError::Geometry(format!(
             "{} is tiled in {} x {} TIFF tiles, and a Performer configuration needs square tiles of a power of two; write it again in such tiles (gdal_translate -of COG -co BLOCKSIZE=256), or prepare a pyramid from it without --config-only",
-            input.display(),
+            shown(&input),
             tile[0],
             tile[1]
         )));
@@ -342,7 +348,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
         if t != tile[0] {
             return Err(PrepError::Geometry(format!(
                 "--tile {t}: {} is tiled in {} x {} TIFF tiles, which --config-only serves as they are; give --tile {}, or leave --tile out",
-                input.display(),
+                shown(&input),
                 tile[0],
                 tile[1],
                 tile[0]
@@ -394,7 +400,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
     if loaded.plan.is_none() {
         return Err(PrepError::Geometry(format!(
             "the configuration written for {} does not load (nothing was written at {}):\n{}",
-            input.display(),
+            shown(&input),
             cli.out.display(),
             loaded.render_from(clipmap::config::Severity::Error)
         )));
@@ -405,7 +411,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
     if cli.json {
         let v = serde_json::json!({
             "ct": ct,
-            "cog": name_of_cog,
+            "cog": clipmap::place::redacted(&name_of_cog),
             "config_only": true,
             "levels": layout.levels.len(),
             "image_cache_levels": ics,
@@ -426,7 +432,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
             ct.display(),
             written.files,
             layout.levels.len(),
-            name_of_cog,
+            clipmap::place::redacted(&name_of_cog),
             size[0],
             size[1],
             virt[0],

@@ -530,8 +530,10 @@ fn dump(args: DumpArgs) -> i32 {
             Ok(s) => s,
             Err(c) => return c,
         };
-        let place = Place::from_path(file.clone());
-        return dump_level(&args, file, out, &src, &|_| Some(place.clone()));
+        // Reported under the name as it may be shown (a URL's password and signatures replaced).
+        let shown = PathBuf::from(clipmap::place::redacted(&file.to_string_lossy()).as_ref());
+        let place = Place::from_path(shown.clone());
+        return dump_level(&args, &shown, out, &src, &|_| Some(place.clone()));
     }
     let plan = match load(file, &args.env) {
         Ok((p, _)) => p,
@@ -642,7 +644,9 @@ fn check_cog(file: &Path, json: bool, quiet: bool) -> i32 {
         Ok(s) => s,
         Err(c) => return c,
     };
-    check_cog_source(file, &Place::from_path(file.to_path_buf()), &src, json, quiet)
+    // Reported under the name as it may be shown (a URL's password and signatures replaced).
+    let shown = PathBuf::from(clipmap::place::redacted(&file.to_string_lossy()).as_ref());
+    check_cog_source(&shown, &Place::from_path(shown.clone()), &src, json, quiet)
 }
 
 /// Checks every tile of the COG `src` (at `place`), reported under the name `file` (the COG,

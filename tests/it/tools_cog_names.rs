@@ -86,9 +86,9 @@ fn cliptex_validate_roam_and_plan_of_a_tif_say_what_it_is_and_print_no_binary() 
 }
 
 /// A `clipmapd` serving `args` with its names in `dir`: waits (bounded) until it answers, then
-/// returns its `STATS` reply and its log, and stops it.
+/// returns its `STATS` reply and its log (at `log_level`), and stops it.
 #[cfg(feature = "remote")]
-pub fn serve_once(dir: &Path, name: &str, args: &[&str]) -> (serde_json::Value, String) {
+pub fn serve_once(dir: &Path, name: &str, args: &[&str], log_level: &str) -> (serde_json::Value, String) {
     use std::io::{BufRead, BufReader, Write};
     use std::time::{Duration, Instant};
     let socket = dir.join(format!("{name}.sock"));
@@ -99,7 +99,7 @@ pub fn serve_once(dir: &Path, name: &str, args: &[&str]) -> (serde_json::Value, 
         .arg(dir)
         .arg("--socket")
         .arg(&socket)
-        .env("RUST_LOG", "info")
+        .env("RUST_LOG", log_level)
         .stdout(std::process::Stdio::null())
         .stderr(std::fs::File::create(&err).unwrap())
         .spawn()
@@ -157,7 +157,7 @@ fn a_cog_url_with_a_query_is_remote_everywhere_and_the_query_is_kept_in_every_re
     assert!(ct.contains(&format!("#clipmap cog {url}")), "the configuration names the URL whole:\n{ct}");
     let (o, desc) = exec(d, CLIPTEX, &["check", "cfg/cfg.ct"]);
     assert_eq!(o.status.code(), Some(0), "{desc}");
-    let (stats, log) = serve_once(d, "q", &[&url]);
+    let (stats, log) = serve_once(d, "q", &[&url], "info");
     assert!(stats["remote"]["requests"].as_u64().unwrap() >= 2, "{stats}\n{log}");
     // Every request asked for the object with its query.
     let requests = server.requests();
@@ -165,4 +165,70 @@ fn a_cog_url_with_a_query_is_remote_everywhere_and_the_query_is_kept_in_every_re
     for r in &requests {
         assert!(r.split(' ').nth(1) == Some("/c.tif?sig=abc&x=1"), "a request without the query: {r}\n{requests:?}");
     }
+}
+
+/// Runs `prog args` and returns what it said and its exit code, asserting that no secret of
+/// `secrets` is in it.
+#[cfg(feature = "remote")]
+fn says_no_secret(dir: &Path, prog: &str, args: &[&str], secrets: &[&str]) -> (Option<i32>, String) {
+    let (o, desc) = exec(dir, prog, args);
+    let text = said(&o);
+    for s in secrets {
+        assert!(!text.contains(s), "`{s}` printed:\n{desc}");
+    }
+    (o.status.code(), text)
+}
+
+#[cfg(feature = "remote")]
+#[test]
+fn a_url_with_a_password_is_refused_without_printing_the_password_nor_a_signature_anywhere() {
+    use crate::common::remote::PyServer;
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    small_cog(d, "c.tif");
+    let server = PyServer::serve(d, true);
+    let port = server.port;
+    // A password: refused by every tool, the user kept and the password replaced.
+    let with_password = format!("http://reader:hunter2@127.0.0.1:{port}/c.tif");
+    let secrets = ["hunter2"];
+    for (prog, args) in [
+        (CLIPTEX, vec!["info", with_password.as_str()]),
+        (CLIPTEX, vec!["check", with_password.as_str()]),
+        (CLIPTEX, vec!["dump", with_password.as_str(), "--level", "0", "--out", "x.png"]),
+        (CLIPTEX, vec!["roam", with_password.as_str(), "--flight", "hover", "--frames", "1"]),
+        (env!("CARGO_BIN_EXE_clipmapd"), vec![with_password.as_str(), "--shm-dir", "."]),
+        (CLIPPREP, vec!["--input", with_password.as_str(), "--config-only", "--clip", "256", "--out", "cfg"]),
+    ] {
+        // Before: "`http://reader:hunter2@127.0.0.1:.../c.tif` is not a usable remote location".
+        let (code, text) = says_no_secret(d, prog, &args, &secrets);
+        assert_eq!(code, Some(1), "{prog} {args:?}:\n{text}");
+        assert!(text.contains("reader:***@127.0.0.1") && text.contains("credentials in the URL"), "{text}");
+    }
+    // Signatures in the query: requests carry them, nothing shown does.
+    let signed =
+        |path: &str| format!("http://127.0.0.1:{port}/{path}?X-Amz-Credential=AKIDSECRET&X-Amz-Signature=SIGSECRET");
+    let secrets = ["AKIDSECRET", "SIGSECRET"];
+    let missing = signed("none.tif");
+    let (code, text) = says_no_secret(d, CLIPTEX, &["info", &missing], &secrets);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("X-Amz-Signature=***") && text.contains("not found"), "{text}");
+    let url = signed("c.tif");
+    for args in [
+        vec!["info", url.as_str(), "--json"],
+        vec!["info", url.as_str()],
+        vec!["check", url.as_str()],
+        vec!["check", url.as_str(), "--json"],
+    ] {
+        let (code, text) = says_no_secret(d, CLIPTEX, &args, &secrets);
+        assert_eq!(code, Some(0), "{args:?}:\n{text}");
+    }
+    let (code, text) = says_no_secret(d, env!("CARGO_BIN_EXE_clipmapd"), &[&missing, "--shm-dir", "."], &secrets);
+    assert_ne!(code, Some(0), "{text}");
+    // A running service: its log (every read at debug level), STATS and attach.
+    let (stats, log) = serve_once(d, "sig", &[&url], "debug");
+    for s in secrets {
+        assert!(!log.contains(s), "`{s}` in the log:\n{log}");
+        assert!(!stats.to_string().contains(s), "`{s}` in STATS: {stats}");
+    }
+    assert!(server.requests().iter().any(|r| r.contains("X-Amz-Signature=SIGSECRET")), "the requests carry it");
 }

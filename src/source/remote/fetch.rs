@@ -419,6 +419,8 @@ impl Fetcher {
         T: GotBytes,
     {
         use backon::BlockingRetryable;
+        // The name as errors and logs show it (a URL's password and signatures replaced).
+        let object = &*crate::place::redacted(object);
         let backend = self.backend(loc);
         let attempts = std::cell::Cell::new(0u32);
         let result = (|| {

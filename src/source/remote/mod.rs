@@ -136,7 +136,7 @@ impl Remote {
 
 fn parse(name: &str) -> Result<Location, ReadError> {
     Location::parse(name).map_err(|e| ReadError::Failed {
-        location: name.to_string(),
+        location: crate::place::redacted(name).into_owned(),
         why: e.problem.clone(),
         attempts: 0,
         timed_out: false,
@@ -196,7 +196,8 @@ impl Remote {
         out: &mut [u8],
     ) -> Result<(), SourceError> {
         let name = location.as_str();
-        let bad = |problem: String| SourceError::Undecodable { tile, path: location.as_str().into(), problem };
+        let shown = crate::place::redacted(location.as_str());
+        let bad = |problem: String| SourceError::Undecodable { tile, path: shown.as_ref().into(), problem };
         if offset != 0 {
             return Err(bad(format!(
                 "its tile is placed at byte {offset}, but a compressed file holds one whole tile"
