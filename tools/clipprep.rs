@@ -847,6 +847,7 @@ fn watch_signals(flag: Arc<AtomicBool>) -> anyhow::Result<()> {
 
 fn main() -> ExitCode {
     let cli: Cli = clipmap::cli::parse();
+    clipmap::cli::init_tool_log();
     let cancel = Arc::new(AtomicBool::new(false));
     if let Err(e) = watch_signals(cancel.clone()) {
         eprintln!("clipprep: warning: {e:#}; Ctrl-C will stop the run without cleaning up");

@@ -388,6 +388,7 @@ enum ProceduralArg {
 
 fn main() -> ExitCode {
     let cli: Cli = cmdline::parse();
+    clipmap::cli::init_tool_log();
     exit::status(run(cli))
 }
 

@@ -232,3 +232,32 @@ fn a_url_with_a_password_is_refused_without_printing_the_password_nor_a_signatur
     }
     assert!(server.requests().iter().any(|r| r.contains("X-Amz-Signature=SIGSECRET")), "the requests carry it");
 }
+
+#[cfg(feature = "remote")]
+#[test]
+fn a_server_that_ignores_range_is_said_once_in_the_log_and_counted_in_stats() {
+    use crate::common::remote::PyServer;
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    small_cog(d, "c.tif");
+    let warning = "the server ignores range requests";
+    // A server that answers ranges: nothing said, nothing counted.
+    let ranged = PyServer::serve(d, true);
+    let (stats, log) = serve_once(d, "ranged", &[&format!("{}/c.tif", ranged.url())], "info");
+    assert_eq!(stats["remote"]["ranges_ignored"], 0, "{stats}");
+    assert!(!log.contains(warning), "{log}");
+    // One that sends the whole file to every ranged GET: served right, but said once and counted.
+    let whole = PyServer::serve(d, false);
+    let url = format!("{}/c.tif", whole.url());
+    let (stats, log) = serve_once(d, "whole", &[&url], "info");
+    // Before: used silently (29 to 46 times slower), `ranges_ignored` absent from STATS.
+    let ignored = stats["remote"]["ranges_ignored"].as_u64().unwrap_or_else(|| panic!("{stats}"));
+    assert!(ignored >= 2, "the open and a tile at least: {stats}");
+    assert_eq!(log.matches(warning).count(), 1, "said once:\n{log}");
+    assert!(log.contains("remote.ranges_ignored"), "{log}");
+    // A tool reading it says so once too, and its report is right.
+    let (o, desc) = exec(d, CLIPTEX, &["check", &url]);
+    assert_eq!(o.status.code(), Some(0), "{desc}");
+    assert_eq!(said(&o).matches(warning).count(), 1, "{desc}");
+    assert!(whole.requests().iter().all(|r| !r.starts_with("GET") || !r.ends_with(" -")), "every GET was ranged");
+}

@@ -54,6 +54,10 @@ pub struct RemoteStats {
     pub cache_dropped: u64,
     /// Most requests in flight at once to one endpoint.
     pub peak_in_flight: u64,
+    /// Answers of a whole object (HTTP 200) to a ranged GET: the server ignores `Range`, so each
+    /// such read fetched the whole object (checked, then cut) rather than its range, tens of
+    /// times slower. 0 with a server that answers ranges; the log says so once an endpoint.
+    pub ranges_ignored: u64,
 }
 
 /// Reads remote locations: the fetcher and the disk cache.
@@ -111,6 +115,7 @@ impl Remote {
             cache_hits: c.cache_hits.load(Ordering::Relaxed),
             cache_dropped: self.cache.as_ref().map_or(0, disk::DiskCache::dropped),
             peak_in_flight: c.peak_in_flight.load(Ordering::Relaxed),
+            ranges_ignored: self.fetcher.ranges_ignored(),
         }
     }
 
