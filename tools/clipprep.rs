@@ -861,6 +861,16 @@ fn main() -> ExitCode {
             }
         };
     }
+    // A remote --input is served as it is (--config-only); a pyramid is made from a local file.
+    if let Some(input) =
+        cli.input.as_ref().filter(|p| clipmap::place::Place::from_path(p.to_path_buf()).remote().is_some())
+    {
+        eprintln!(
+            "clipprep: error: --input {} is a remote location, and a pyramid is prepared from a local image; add --config-only to serve a GeoTIFF or COG there as it is (docs/COG.md), or download the file and prepare it from disk",
+            shown(input)
+        );
+        return clipmap::report::exit::status(clipmap::report::exit::BAD_INPUT);
+    }
     let url = clipmap::place::Place::from_path(cli.out.clone()).remote().map(|u| u.to_string());
     if let Some(cog) = &cli.cog {
         // Refused before any work: what --cog could not write, or where.

@@ -155,6 +155,11 @@ fn a_cog_url_with_a_query_is_remote_everywhere_and_the_query_is_kept_in_every_re
     assert_eq!(o.status.code(), Some(0), "{desc}");
     let ct = std::fs::read_to_string(d.join("cfg/cfg.ct")).unwrap();
     assert!(ct.contains(&format!("#clipmap cog {url}")), "the configuration names the URL whole:\n{ct}");
+    // Without --config-only a remote input is refused as such (before: "No such file").
+    let (o, desc) =
+        exec(d, CLIPPREP, &["--input", &url, "--tile", "128", "--clip", "256", "--format", "rgb8", "--out", "p2"]);
+    assert_eq!(o.status.code(), Some(1), "{desc}");
+    assert!(said(&o).contains("is a remote location") && said(&o).contains("--config-only"), "{desc}");
     let (o, desc) = exec(d, CLIPTEX, &["check", "cfg/cfg.ct"]);
     assert_eq!(o.status.code(), Some(0), "{desc}");
     let (stats, log) = serve_once(d, "q", &[&url], "info");
