@@ -179,3 +179,15 @@ pub fn parse<C: clap::Parser>() -> C {
         }
     }
 }
+
+/// The log of a tool that is not the service (`cliptex`, `clipprep`): standard error, without
+/// colour codes off a terminal, and by default only the remote stack's warnings (a server that
+/// ignores range requests, said once an endpoint: docs/RELIABILITY.md §6), so that the tools'
+/// reports stay as they are; `RUST_LOG` chooses otherwise.
+pub fn init_tool_log() {
+    use std::io::IsTerminal;
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("clipmap::source::remote=warn"));
+    let ansi = std::io::stderr().is_terminal();
+    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).try_init();
+}

@@ -96,6 +96,16 @@ fn data_file(file: File) -> io::Result<(File, Metadata)> {
     Ok((file, meta))
 }
 
+/// Refuses a `path` that exists and is not a regular file (nor a link to one), saying what it
+/// is, without opening it: what a tool is asked to write as a file (opening a FIFO for writing
+/// blocks until a reader comes; a device would swallow the file). Nothing there is fine.
+pub fn regular_or_absent(path: &Path) -> io::Result<()> {
+    match std::fs::metadata(path) {
+        Ok(meta) if !meta.is_file() => Err(not_regular(&meta)),
+        _ => Ok(()),
+    }
+}
+
 /// Reads at most `max + 1` bytes of the regular file `path`, so that a caller can tell a file
 /// longer than `max` (it then has more than `max` bytes) without reading it whole.
 pub(crate) fn read_bounded(path: &Path, max: u64) -> io::Result<Vec<u8>> {

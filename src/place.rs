@@ -76,10 +76,114 @@ impl RemoteName {
         &self.text[self.scheme.prefix().len()..]
     }
 
-    /// The name's last `.`-suffix as a path would have it (`zst` for `.../r000.c000.raw.zst`).
+    /// The name's last `.`-suffix as a path would have it (`zst` for `.../r000.c000.raw.zst`),
+    /// of its path alone: an http(s) URL's `?query` and `#fragment` are not part of it
+    /// (`https://host/x.tif?sig=...` ends in `tif`); an S3 key is taken whole.
     pub fn extension(&self) -> Option<&str> {
-        Path::new(&self.text).extension().and_then(|e| e.to_str())
+        Path::new(self.path()).extension().and_then(|e| e.to_str())
     }
+
+    /// The name without an http(s) URL's `?query` and `#fragment` (an S3 name whole: `?` and
+    /// `#` are characters of a key).
+    pub fn path(&self) -> &str {
+        match self.scheme {
+            RemoteScheme::S3 => &self.text,
+            RemoteScheme::Http | RemoteScheme::Https => {
+                let rest = self.rest();
+                let end = rest.find(['?', '#']).map_or(self.text.len(), |i| self.scheme.prefix().len() + i);
+                &self.text[..end]
+            }
+        }
+    }
+}
+
+/// Query parameters whose values are secrets, by a word their name holds (case-insensitive):
+/// `X-Amz-Signature`, `X-Amz-Credential`, `X-Amz-Security-Token`, `sig` (Azure SAS), `token`,
+/// `access_token`, `api_key`, `password`, `secret`, `auth`.
+const SECRET_PARAMETERS: [&str; 7] = ["sig", "token", "credential", "key", "password", "secret", "auth"];
+
+/// What stands for a secret in a name as it is shown.
+pub const REDACTED: &str = "***";
+
+/// `text` as it may be shown (in errors, logs, statistics): every `http://` or `https://` URL in
+/// it with the password of its user information replaced by [`REDACTED`] (the user kept), and
+/// the value of every query parameter whose name holds a secret's word ([`SECRET_PARAMETERS`]:
+/// a signature, a credential, a token, a key) replaced the same way. Everything else is kept as
+/// written, so the shown name still says which object it is. Requests use the name itself.
+pub fn redacted(text: &str) -> std::borrow::Cow<'_, str> {
+    let lower = text.to_ascii_lowercase();
+    if !lower.contains("http://") && !lower.contains("https://") {
+        return std::borrow::Cow::Borrowed(text);
+    }
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(at) = find_url(rest) {
+        out.push_str(&rest[..at]);
+        let url = &rest[at..];
+        let end =
+            url.find(|c: char| c.is_whitespace() || matches!(c, '`' | '\'' | '"' | '<' | '>')).unwrap_or(url.len());
+        out.push_str(&redact_url(&url[..end]));
+        rest = &url[end..];
+    }
+    out.push_str(rest);
+    if out == text {
+        std::borrow::Cow::Borrowed(text)
+    } else {
+        std::borrow::Cow::Owned(out)
+    }
+}
+
+/// Where the next `http://` or `https://` (any case) starts in `text`.
+fn find_url(text: &str) -> Option<usize> {
+    let lower = text.to_ascii_lowercase();
+    [lower.find("http://"), lower.find("https://")].into_iter().flatten().min()
+}
+
+/// One URL (no whitespace in it) with its secrets replaced.
+fn redact_url(url: &str) -> String {
+    let scheme_end = url.find("://").map_or(0, |i| i + 3);
+    let after = &url[scheme_end..];
+    let authority_end = after.find(['/', '?', '#']).unwrap_or(after.len());
+    let authority = &after[..authority_end];
+    let mut out = url[..scheme_end].to_string();
+    match authority.rfind('@') {
+        Some(at) => {
+            let userinfo = &authority[..at];
+            match userinfo.split_once(':') {
+                Some((user, _password)) => out.push_str(&format!("{user}:{REDACTED}")),
+                None => out.push_str(userinfo),
+            }
+            out.push_str(&authority[at..]);
+        }
+        None => out.push_str(authority),
+    }
+    let tail = &after[authority_end..];
+    let (before_fragment, fragment) = match tail.find('#') {
+        Some(i) => tail.split_at(i),
+        None => (tail, ""),
+    };
+    match before_fragment.split_once('?') {
+        Some((path, query)) => {
+            out.push_str(path);
+            out.push('?');
+            let params: Vec<String> = query
+                .split('&')
+                .map(|p| match p.split_once('=') {
+                    Some((name, value)) if !value.is_empty() && is_secret(name) => format!("{name}={REDACTED}"),
+                    _ => p.to_string(),
+                })
+                .collect();
+            out.push_str(&params.join("&"));
+        }
+        None => out.push_str(before_fragment),
+    }
+    out.push_str(fragment);
+    out
+}
+
+fn is_secret(parameter: &str) -> bool {
+    let p = parameter.to_ascii_lowercase();
+    SECRET_PARAMETERS.iter().any(|w| p.contains(w))
 }
 
 impl fmt::Display for RemoteName {
@@ -185,6 +289,38 @@ mod tests {
 
     fn local(p: &str) -> Place {
         Place::Local(PathBuf::from(p))
+    }
+
+    #[test]
+    fn a_password_and_signatures_in_a_url_are_never_shown() {
+        for (text, shown) in [
+            ("http://user:hunter2@h:80/x.tif", "http://user:***@h:80/x.tif"),
+            (
+                "https://h/x.tif?X-Amz-Signature=abc&X-Amz-Date=2026&x-amz-credential=AK%2F1",
+                "https://h/x.tif?X-Amz-Signature=***&X-Amz-Date=2026&x-amz-credential=***",
+            ),
+            ("cannot open `HTTPS://u:p@h/a?sig=zz&sv=1#f`: no", "cannot open `HTTPS://u:***@h/a?sig=***&sv=1#f`: no"),
+            ("a https://h/x?token=t http://h/y?api_key=k", "a https://h/x?token=*** http://h/y?api_key=***"),
+            ("http://user@h/x?page=2", "http://user@h/x?page=2"),
+            ("/data/x.tif s3://b/k?token=t", "/data/x.tif s3://b/k?token=t"),
+        ] {
+            assert_eq!(redacted(text), shown, "{text}");
+        }
+    }
+
+    #[test]
+    fn a_url_with_a_query_ends_in_its_paths_extension() {
+        for (name, ext, path) in [
+            ("https://h/x.tif?sig=a/b.png&t=1", Some("tif"), "https://h/x.tif"),
+            ("http://h:8/d/x.TIFF#part", Some("TIFF"), "http://h:8/d/x.TIFF"),
+            ("https://h/x.raw.zst?X-Amz-Signature=00", Some("zst"), "https://h/x.raw.zst"),
+            ("https://h/x?y.tif", None, "https://h/x"),
+            ("s3://b/k.tif?v", Some("tif?v"), "s3://b/k.tif?v"),
+        ] {
+            let r = RemoteName::parse(name).unwrap();
+            assert_eq!((r.extension(), r.path()), (ext, path), "{name}");
+            assert_eq!(r.as_str(), name, "the name itself is kept whole");
+        }
     }
 
     #[test]

@@ -5,7 +5,11 @@
 //!
 //! A target that exists and is not a regular file (`/dev/stdout`, `/dev/full`, a FIFO) is
 //! written in place instead, never replaced: the flush is still checked, so a full device is an
-//! error. Directories that tools write whole are [`crate::prep::output`]'s business.
+//! error. A file that must be a file (a COG) is written by [`atomically_regular`] instead,
+//! which refuses such a target before opening it (opening a FIFO for writing blocks until a
+//! reader comes). A temporary that a killed process left is removed by the next write of the
+//! same target ([`remove_stale`]). Directories that tools write whole are
+//! [`crate::prep::output`]'s business.
 
 use std::fs::{File, OpenOptions};
 use std::io::{self, BufWriter, Write};
@@ -26,6 +30,24 @@ pub fn atomically(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> io::Re
             return Ok(());
         }
     }
+    replace(path, fill)
+}
+
+/// Writes `path` through `fill` as [`atomically`] does, but only as a regular file: an existing
+/// target that is a FIFO, a device, a socket or a directory is refused before anything is
+/// opened (an error of kind [`io::ErrorKind::InvalidInput`] saying what it is), never written in
+/// place. A symbolic link is replaced by the file, as any rename replaces it.
+pub fn atomically_regular(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>) -> io::Result<()> {
+    if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
+        // `crate::open::regular_or_absent` says what it is; callers check with it first.
+        return Err(io::Error::new(io::ErrorKind::InvalidInput, "not a regular file"));
+    }
+    replace(path, fill)
+}
+
+/// The temporary beside `path`, filled, synced and renamed over it.
+fn replace(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>) -> io::Result<()> {
+    remove_stale(path, ".tmp.", "");
     let (tmp, file) = temporary(path)?;
     let written = (|| {
         let mut w = BufWriter::new(file);
@@ -45,6 +67,33 @@ pub fn image_io(e: image::ImageError) -> io::Error {
     match e {
         image::ImageError::IoError(e) => e,
         other => io::Error::other(other),
+    }
+}
+
+/// Removes, beside `path`, the files `.NAME{infix}PID{suffix}` (and `.NAME{infix}PID.N{suffix}`)
+/// that a process now gone left behind (killed before it could clean up). A live process's
+/// files, this process's among them, are left alone; so is anything that is not a regular file.
+pub fn remove_stale(path: &Path, infix: &str, suffix: &str) {
+    let Some(name) = path.file_name().and_then(|n| n.to_str()) else { return };
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let prefix = format!(".{name}{infix}");
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for e in entries.flatten() {
+        let file_name = e.file_name();
+        let Some(rest) = file_name.to_str().and_then(|n| n.strip_prefix(&prefix)).and_then(|r| r.strip_suffix(suffix))
+        else {
+            continue;
+        };
+        let pid = rest.split_once('.').map_or(rest, |(p, _)| p);
+        let Ok(pid) = pid.parse::<u32>() else { continue };
+        let is_file = e.file_type().is_ok_and(|t| t.is_file());
+        if is_file && pid != std::process::id() && !Path::new(&format!("/proc/{pid}")).exists() {
+            tracing::info!(path = %e.path().display(), "removing the temporary of a process that was killed");
+            let _ = std::fs::remove_file(e.path());
+        }
     }
 }
 

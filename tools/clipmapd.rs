@@ -36,7 +36,9 @@ Exit status: 0 ok, 1 the input is bad, 2 the service could not run."
 )]
 struct Cli {
     /// A clip-texture configuration (.ct), or a tiled GeoTIFF / Cloud-Optimized GeoTIFF served
-    /// as it is (8-bit grey, RGB or RGBA; served with --clip).
+    /// as it is, a local path or an http(s):// or s3:// URL ending in .tif (a ?query is kept):
+    /// 8- or 16-bit grey, RGB or RGBA, 16-bit signed or 32-bit float heights; none, LZW,
+    /// DEFLATE, ZSTD or JPEG (docs/COG.md); served with --clip.
     config: Option<PathBuf>,
     /// Serve a procedural texture instead of a configuration.
     #[arg(long, value_enum, conflicts_with = "config")]

@@ -284,6 +284,12 @@ fn conversion_option(cli: &Cli) -> Option<(&'static str, &'static str)> {
     .map(|(flag, _, why)| (flag, why))
 }
 
+/// A name from the command line as it may be printed: a URL's password and signatures
+/// replaced ([`clipmap::place::redacted`]).
+fn shown(path: &Path) -> String {
+    clipmap::place::redacted(&path.to_string_lossy()).into_owned()
+}
+
 /// `--config-only`: the `.ct` and `.ic` files that serve the COG --input as it is, written into
 /// --out through the same temporary directory as a pyramid (nothing at --out on an error).
 fn config_only(cli: &Cli) -> Result<(), PrepError> {
@@ -296,7 +302,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
     if let Some((flag, why)) = conversion_option(cli) {
         return Err(PrepError::Geometry(format!(
             "{flag} asks for a conversion, and --config-only writes only the configuration that serves {} as it is: {why}; drop {flag}, or drop --config-only to prepare a pyramid from the image",
-            input.display()
+            shown(&input)
         )));
     }
     if let Some(url) = Place::from_path(cli.out.clone()).remote() {
@@ -312,12 +318,12 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
         };
         return Err(PrepError::Geometry(format!(
             "--config-only serves a tiled GeoTIFF or COG as it is, and {} is not one: expected {what}; drop --config-only to prepare a pyramid from it",
-            input.display()
+            shown(&input)
         )));
     }
     check_pow2("the clip size".into(), cli.clip, "; pass --clip with a power of two")?;
     let src = clipmap::source::CogSource::open_place(&place, cli.clip)
-        .map_err(|e| PrepError::Geometry(format!("--input {}: {e}", input.display())))?;
+        .map_err(|e| PrepError::Geometry(format!("--input {}: {e}", shown(&input))))?;
     let desc = src.desc();
     let format = desc.format();
     if let Some(f) = cli.format {
@@ -325,7 +331,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
             return Err(PrepError::Geometry(format!(
                 "--format {}: {} is served as {format} texels, and --config-only serves it as it is; give --format {format}, or leave --format out",
                 f.texel().short_name(),
-                input.display(),
+                shown(&input),
             )));
         }
     }
@@ -333,7 +339,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
     if tile[0] != tile[1] || !tile[0].is_power_of_two() {
         return Err(PrepError::Geometry(format!(
             "{} is tiled in {} x {} TIFF tiles, and a Performer configuration needs square tiles of a power of two; write it again in such tiles (gdal_translate -of COG -co BLOCKSIZE=256), or prepare a pyramid from it without --config-only",
-            input.display(),
+            shown(&input),
             tile[0],
             tile[1]
         )));
@@ -342,7 +348,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
         if t != tile[0] {
             return Err(PrepError::Geometry(format!(
                 "--tile {t}: {} is tiled in {} x {} TIFF tiles, which --config-only serves as they are; give --tile {}, or leave --tile out",
-                input.display(),
+                shown(&input),
                 tile[0],
                 tile[1],
                 tile[0]
@@ -394,7 +400,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
     if loaded.plan.is_none() {
         return Err(PrepError::Geometry(format!(
             "the configuration written for {} does not load (nothing was written at {}):\n{}",
-            input.display(),
+            shown(&input),
             cli.out.display(),
             loaded.render_from(clipmap::config::Severity::Error)
         )));
@@ -405,7 +411,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
     if cli.json {
         let v = serde_json::json!({
             "ct": ct,
-            "cog": name_of_cog,
+            "cog": clipmap::place::redacted(&name_of_cog),
             "config_only": true,
             "levels": layout.levels.len(),
             "image_cache_levels": ics,
@@ -426,7 +432,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
             ct.display(),
             written.files,
             layout.levels.len(),
-            name_of_cog,
+            clipmap::place::redacted(&name_of_cog),
             size[0],
             size[1],
             virt[0],
@@ -444,20 +450,27 @@ enum CogCompressionArg {
     Zstd,
 }
 
-/// Writes the prepared texture at `o.ct` as the COG `path`.
-fn write_cog(o: &Outcome, path: &Path, c: CogCompressionArg) -> Result<clipmap::prep::cog::CogWritten, String> {
-    use clipmap::prep::cog::{self, CogCompression};
-    let loaded = clipmap::plan::load_clip_texture(&o.ct, &Default::default()).map_err(|e| e.to_string())?;
+/// Writes the prepared texture at `o.ct` as the COG `path`, stopping when `cancel` is set.
+fn write_cog(
+    o: &Outcome,
+    path: &Path,
+    c: CogCompressionArg,
+    cancel: &AtomicBool,
+) -> Result<clipmap::prep::cog::CogWritten, clipmap::prep::cog::CogWriteError> {
+    use clipmap::prep::cog::{self, CogCompression, CogWriteError};
+    let other = |why: String| CogWriteError::Unsupported(why);
+    let loaded = clipmap::plan::load_clip_texture(&o.ct, &Default::default()).map_err(|e| other(e.to_string()))?;
     let Some(plan) = loaded.plan else {
-        return Err(format!("{} does not load:\n{}", o.ct.display(), loaded.render()));
+        return Err(other(format!("{} does not load:\n{}", o.ct.display(), loaded.render())));
     };
-    let src = clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()).map_err(|e| e.to_string())?;
+    let src =
+        clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()).map_err(|e| other(e.to_string()))?;
     let compression = match c {
         CogCompressionArg::None => CogCompression::None,
         CogCompressionArg::Deflate => CogCompression::Deflate,
         CogCompressionArg::Zstd => CogCompression::Zstd,
     };
-    cog::write(src.as_ref(), path, o.layout.spec.tile, compression).map_err(|e| e.to_string())
+    cog::write(src.as_ref(), path, o.layout.spec.tile, compression, cancel)
 }
 
 fn parse_pair(text: &str, what: &str) -> Result<(u64, u64), PrepError> {
@@ -834,6 +847,7 @@ fn watch_signals(flag: Arc<AtomicBool>) -> anyhow::Result<()> {
 
 fn main() -> ExitCode {
     let cli: Cli = clipmap::cli::parse();
+    clipmap::cli::init_tool_log();
     let cancel = Arc::new(AtomicBool::new(false));
     if let Err(e) = watch_signals(cancel.clone()) {
         eprintln!("clipprep: warning: {e:#}; Ctrl-C will stop the run without cleaning up");
@@ -847,6 +861,16 @@ fn main() -> ExitCode {
             }
         };
     }
+    // A remote --input is served as it is (--config-only); a pyramid is made from a local file.
+    if let Some(input) =
+        cli.input.as_ref().filter(|p| clipmap::place::Place::from_path(p.to_path_buf()).remote().is_some())
+    {
+        eprintln!(
+            "clipprep: error: --input {} is a remote location, and a pyramid is prepared from a local image; add --config-only to serve a GeoTIFF or COG there as it is (docs/COG.md), or download the file and prepare it from disk",
+            shown(input)
+        );
+        return clipmap::report::exit::status(clipmap::report::exit::BAD_INPUT);
+    }
     let url = clipmap::place::Place::from_path(cli.out.clone()).remote().map(|u| u.to_string());
     if let Some(cog) = &cli.cog {
         // Refused before any work: what --cog could not write, or where.
@@ -858,6 +882,11 @@ fn main() -> ExitCode {
         if let Some(why) = refused {
             eprintln!("clipprep: error: --cog {}: {why}", cog.display());
             return clipmap::report::exit::status(clipmap::report::exit::BAD_INPUT);
+        }
+        // A FIFO or a device there would block the write or swallow the file: never opened.
+        if let Err(e) = clipmap::prep::cog::check_target(cog) {
+            eprintln!("clipprep: error: --cog {e}");
+            return clipmap::report::exit::status(clipmap::report::exit::COULD_NOT_RUN);
         }
     }
     let mut uploaded = None;
@@ -876,12 +905,13 @@ fn main() -> ExitCode {
         },
     };
     let result = result.map(|o| {
-        let cog = cli.cog.as_ref().map(|p| (p, write_cog(&o, p, cli.cog_compression)));
+        let cog = cli.cog.as_ref().map(|p| (p, write_cog(&o, p, cli.cog_compression, &cancel)));
         (o, cog)
     });
     match result {
         Ok((_, Some((path, Err(why))))) => {
             eprintln!("clipprep: error: --cog {}: {why} (the pyramid itself was written)", path.display());
+            // Exit 2 for an interruption too, as for an interrupted pyramid.
             clipmap::report::exit::status(clipmap::report::exit::COULD_NOT_RUN)
         }
         Ok((o, cog)) => {

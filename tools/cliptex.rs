@@ -138,7 +138,8 @@ Examples:
   cliptex plan --table --clip 2048 --texel-bytes 4")]
     Plan {
         /// A .ct to size: its virt_size, clip_size, texel format and invalid_border (its .ic
-        /// files are not opened); --clip, --texel-bytes and --invalid-border override them.
+        /// files are not opened); or a GeoTIFF / COG: its size rounded up to powers of two and
+        /// its texel format; --clip, --texel-bytes and --invalid-border override them.
         #[arg(conflicts_with_all = ["size", "table"])]
         file: Option<PathBuf>,
         /// Texture size in texels: N (square) or WxH, powers of two.
@@ -332,7 +333,8 @@ struct DumpArgs {
 
 #[derive(clap::Args)]
 struct RoamArgs {
-    /// The .ct file whose tiles are read (or use --source).
+    /// The .ct file whose tiles are read, or a GeoTIFF / COG (path or URL) flown as clipmapd
+    /// serves it (clip size --clip, default 1024); or use --source.
     #[arg(required_unless_present = "source", conflicts_with = "source")]
     config: Option<PathBuf>,
     /// A procedural texture instead of a configuration (4-byte texels).
@@ -341,7 +343,7 @@ struct RoamArgs {
     /// Procedural texture size in texels a side.
     #[arg(long)]
     size: Option<u64>,
-    /// Procedural clip size.
+    /// Clip size: of the procedural texture, or of a GeoTIFF / COG (default 1024).
     #[arg(long)]
     clip: Option<u64>,
     /// Procedural tile size in texels a side.
@@ -388,6 +390,7 @@ enum ProceduralArg {
 
 fn main() -> ExitCode {
     let cli: Cli = cmdline::parse();
+    clipmap::cli::init_tool_log();
     exit::status(run(cli))
 }
 
@@ -434,6 +437,17 @@ fn roam(args: RoamArgs) -> i32 {
     let flight = args.flight;
     let mut paging_base = clipmap::paging::PagingOptions::default();
     let options = match (&args.config, args.source) {
+        // A GeoTIFF or COG, local or remote, flown as `clipmapd FILE.tif --clip C` serves it.
+        (Some(file), _) if is_cog(file) => {
+            let place = Place::from_path(file.clone());
+            match clipmap::source::CogSource::open_place(&place, args.clip.unwrap_or(COG_CLIP)) {
+                Ok(src) => roam::RoamOptions::over(std::sync::Arc::new(src), flight, args.frames),
+                Err(e) => {
+                    eprintln!("cliptex roam: {e}");
+                    return exit::BAD_INPUT;
+                }
+            }
+        }
         (Some(file), _) => {
             let plan = match load(file, &args.env) {
                 Ok((p, _)) => p,
@@ -520,8 +534,10 @@ fn dump(args: DumpArgs) -> i32 {
             Ok(s) => s,
             Err(c) => return c,
         };
-        let place = Place::from_path(file.clone());
-        return dump_level(&args, file, out, &src, &|_| Some(place.clone()));
+        // Reported under the name as it may be shown (a URL's password and signatures replaced).
+        let shown = PathBuf::from(clipmap::place::redacted(&file.to_string_lossy()).as_ref());
+        let place = Place::from_path(shown.clone());
+        return dump_level(&args, &shown, out, &src, &|_| Some(place.clone()));
     }
     let plan = match load(file, &args.env) {
         Ok((p, _)) => p,
@@ -584,6 +600,16 @@ fn dump_level(
     }
 }
 
+/// What `cliptex plan` takes from a `.ct` or a COG it is given.
+struct PlanFrom {
+    path: PathBuf,
+    size: [u64; 2],
+    clip: u64,
+    texel_bytes: u64,
+    invalid_border: u64,
+    heights: bool,
+}
+
 /// `clipmapd`'s and `cliptex info`'s clip size for a COG served as it is.
 const COG_CLIP: u64 = 1024;
 
@@ -622,7 +648,9 @@ fn check_cog(file: &Path, json: bool, quiet: bool) -> i32 {
         Ok(s) => s,
         Err(c) => return c,
     };
-    check_cog_source(file, &Place::from_path(file.to_path_buf()), &src, json, quiet)
+    // Reported under the name as it may be shown (a URL's password and signatures replaced).
+    let shown = PathBuf::from(clipmap::place::redacted(&file.to_string_lossy()).as_ref());
+    check_cog_source(&shown, &Place::from_path(shown.clone()), &src, json, quiet)
 }
 
 /// Checks every tile of the COG `src` (at `place`), reported under the name `file` (the COG,
@@ -758,19 +786,38 @@ fn run(cli: Cli) -> i32 {
             json,
             env,
         } => {
-            // From a .ct (read alone: sizing needs no .ic), or from the options.
+            // From a .ct (read alone: sizing needs no .ic), a GeoTIFF or COG (its size rounded
+            // up to powers of two, as a `#clipmap cog` configuration's virt_size), or the options.
             let from_ct = match &file {
                 None => None,
+                Some(f) if is_cog(f) => match open_cog(f, "cliptex plan") {
+                    Ok(src) => Some(PlanFrom {
+                        path: f.clone(),
+                        size: clipmap::plan::cog::rounded_size(src.desc().size()),
+                        clip: COG_CLIP,
+                        texel_bytes: src.desc().bytes_per_texel() as u64,
+                        invalid_border: 8,
+                        heights: src.heights().is_some(),
+                    }),
+                    Err(code) => return code,
+                },
                 Some(f) => match env.load_clip_texture(f, "cliptex", true) {
-                    Ok((p, _)) => Some(p),
+                    Ok((p, _)) => Some(PlanFrom {
+                        path: p.path.clone(),
+                        size: [p.virt_size[0], p.virt_size[1]],
+                        clip: p.clip_size,
+                        texel_bytes: p.bytes_per_texel as u64,
+                        invalid_border: p.invalid_border,
+                        heights: p.height.is_some(),
+                    }),
                     Err(code) => return code,
                 },
             };
-            let clip = clip.or(from_ct.as_ref().map(|p| p.clip_size)).unwrap_or(1024);
-            let texel_bytes = texel_bytes.or(from_ct.as_ref().map(|p| p.bytes_per_texel as u64)).unwrap_or(4);
+            let clip = clip.or(from_ct.as_ref().map(|p| p.clip)).unwrap_or(1024);
+            let texel_bytes = texel_bytes.or(from_ct.as_ref().map(|p| p.texel_bytes)).unwrap_or(4);
             let invalid_border = invalid_border.or(from_ct.as_ref().map(|p| p.invalid_border)).unwrap_or(8);
             let size = match &from_ct {
-                Some(p) => [p.virt_size[0], p.virt_size[1]],
+                Some(p) => p.size,
                 None => size.unwrap_or([0, 0]),
             };
             if table {
@@ -799,7 +846,7 @@ fn run(cli: Cli) -> i32 {
                 invalid_border,
                 tile,
                 lookahead,
-                heights: heights || from_ct.as_ref().is_some_and(|p| p.height.is_some()),
+                heights: heights || from_ct.as_ref().is_some_and(|p| p.heights),
                 view_spread,
                 own_views,
             };

@@ -37,7 +37,26 @@ pub fn parse(src: &[u8], path: &Path, kind: FileKind, limits: &Limits) -> (Synta
         extensions: Vec::new(),
         stopped: false,
     };
-    if src.len() > limits.max_file_bytes {
+    let binary = binary_kind(src);
+    let too_large = src.len() > limits.max_file_bytes;
+    // A known magic number says more than the length; the length more than binary bytes.
+    if let Some(what) = binary.filter(|w| !too_large || *w != BINARY) {
+        // One finding, not a cascade of words cut out of binary data (and no line of it shown).
+        let d = Diagnostic::new(
+            Severity::Error,
+            "not-text",
+            path,
+            None,
+            format!(
+                "the file is {what}, not {} {} configuration file; none of it was read",
+                if kind == FileKind::ImageCache { "an" } else { "a" },
+                kind.noun()
+            ),
+        )
+        .expected("a text file of tokens")
+        .hint(binary_hint(what, path));
+        p.push(d);
+    } else if too_large {
         p.error(
             "file-too-large",
             Some(Span::START),
@@ -52,6 +71,51 @@ pub fn parse(src: &[u8], path: &Path, kind: FileKind, limits: &Limits) -> (Synta
     }
     let file = SyntaxFile { path: path.to_path_buf(), kind, entries: p.entries, extensions: p.extensions };
     (file, p.diags)
+}
+
+/// Binary data that is told from a configuration by its first bytes, in words.
+const MAGIC: [(&[u8], &str); 8] = [
+    (b"II*\0", TIFF),
+    (b"MM\0*", TIFF),
+    (b"II+\0", TIFF),
+    (b"MM\0+", TIFF),
+    (b"\x89PNG\r\n\x1a\n", "a PNG image"),
+    (b"\xff\xd8\xff", "a JPEG image"),
+    (b"\x28\xb5\x2f\xfd", "zstd-compressed data"),
+    (b"\x1f\x8b", "gzip-compressed data"),
+];
+
+/// What [`binary_kind`] calls data that is not text and has no known magic number.
+const BINARY: &str = "binary data";
+
+/// What [`binary_kind`] calls a TIFF or BigTIFF file.
+const TIFF: &str = "a TIFF image (a GeoTIFF or COG)";
+
+/// What `src` is when it is binary data rather than text: a known magic number at its start, or
+/// a start of which more than a quarter is control bytes (NUL and the like; tabs, line ends and
+/// form feeds are text). A text file with a stray odd byte is not binary: it is parsed and the
+/// word that holds the byte is reported where it is.
+fn binary_kind(src: &[u8]) -> Option<&'static str> {
+    if let Some((_, what)) = MAGIC.iter().find(|(m, _)| src.starts_with(m)) {
+        return Some(what);
+    }
+    let head = &src[..src.len().min(512)];
+    let control = head.iter().filter(|&&b| b < 0x20 && !matches!(b, b'\t' | b'\n' | b'\r' | 0x0c)).count();
+    (head.len() >= 16 && control * 4 > head.len()).then_some(BINARY)
+}
+
+/// What to do instead of reading `path`, binary data of kind `what`, as a configuration.
+fn binary_hint(what: &str, path: &Path) -> String {
+    let p = path.display();
+    match what {
+        TIFF => format!(
+            "a GeoTIFF or COG is served as it is, with no configuration: `cliptex info {p}` shows the texture it is served as, `cliptex check {p}` reads and checks every tile, `cliptex roam {p}` flies it, `clipmapd {p}` serves it; `clipprep --input {p} --config-only` writes a configuration that names it (docs/COG.md)"
+        ),
+        "a PNG image" | "a JPEG image" => {
+            format!("prepare it into a clip texture first: `clipprep --input {p} --tile 256 --clip 512 --format rgb8 --out DIR`")
+        }
+        _ => "name the configuration file itself (a .ct or .ic file is text)".to_string(),
+    }
 }
 
 impl<'a> Parser<'a, '_> {

@@ -420,8 +420,14 @@ pub fn human(s: &Status) -> String {
 /// The remote reads' line of the human form (and a blank line after it).
 #[cfg(feature = "remote")]
 fn remote_line(r: &crate::source::remote::RemoteStats) -> String {
+    // A server that ignores ranges is said on the line (it makes every read fetch whole objects).
+    let ignored = if r.ranges_ignored > 0 {
+        format!("  ranges ignored {} (the server sends whole objects)", r.ranges_ignored)
+    } else {
+        String::new()
+    };
     format!(
-        "remote: {} requests  {} retries  {} merged  {:.2} MiB  {} failures  cache {} hits {} dropped  peak {} in flight\n\n",
+        "remote: {} requests  {} retries  {} merged  {:.2} MiB  {} failures  cache {} hits {} dropped  peak {} in flight{ignored}\n\n",
         r.requests,
         r.retries,
         r.merged,
@@ -608,6 +614,7 @@ mod tests {
                 cache_hits: 5,
                 cache_dropped: 6,
                 peak_in_flight: 8,
+                ranges_ignored: 0,
             });
             let text = human(&s);
             assert!(

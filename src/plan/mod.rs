@@ -309,7 +309,12 @@ pub fn load_image_cache(path: &Path, opts: &Options) -> Result<Loaded<ImageCache
     let (file, mut diags) = config::parse_bytes(&src, &abs, FileKind::ImageCache, &opts.limits);
     let mut sources = BTreeMap::new();
     sources.insert(abs.clone(), src);
-    let plan = ic::build(&file, &ic::Context::standalone(), opts, &mut diags);
+    // A file of which nothing could be read (binary data) is not built: its findings say so.
+    let plan = if diags.has_errors() && file.entries.is_empty() {
+        None
+    } else {
+        ic::build(&file, &ic::Context::standalone(), opts, &mut diags)
+    };
     let plan = if diags.has_errors() { None } else { plan };
     Ok(Loaded { plan, diagnostics: diags, sources })
 }

@@ -11,11 +11,19 @@
 //! (docs/ARCHITECTURE.md), so texel (s, t) of a level is pixel (s, H - 1 - t) of its image, as
 //! the COG source reads it back. 8-bit grey, RGB and RGBA textures are written;
 //! compression none, DEFLATE or ZSTD.
+//!
+//! The file is complete or absent: the tiles go to a scratch file `.NAME.PID.tiles.tmp` beside
+//! the target, then the whole file to a temporary renamed over it ([`crate::save`]). A target
+//! that is not a regular file (a FIFO, a device) is refused before anything is opened; a
+//! cancellation flag (the tool's Ctrl-C or SIGTERM) is polled between tiles and while the file
+//! is copied, and stops the write with both temporaries removed. Scratch files and temporaries
+//! that a killed run left for the same target are removed when the next write starts.
 
 use crate::source::{TileId, TileSource};
 use crate::texel::TexelFormat;
 use std::io::{self, Read, Seek, SeekFrom, Write};
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// How the tiles are compressed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -63,6 +71,19 @@ pub enum CogWriteError {
     /// The file could not be written.
     #[error("writing {path}: {source}")]
     Io { path: String, source: io::Error },
+    /// The target exists and is not a regular file; nothing was opened.
+    #[error("{path}: {source}; a COG is written as a regular file: name a new file or a regular one to replace")]
+    NotRegular { path: String, source: io::Error },
+    /// The write was cancelled (Ctrl-C or SIGTERM); its temporaries were removed.
+    #[error("interrupted; the partial COG was removed and {path} was left as it was")]
+    Interrupted { path: String },
+}
+
+/// Refuses, before any work, a `path` the COG cannot be written at: one that exists and is not
+/// a regular file (a FIFO, a device, a directory), said without opening it.
+pub fn check_target(path: &Path) -> Result<(), CogWriteError> {
+    crate::open::regular_or_absent(path)
+        .map_err(|source| CogWriteError::NotRegular { path: path.display().to_string(), source })
 }
 
 /// One image of the file while it is written.
@@ -98,17 +119,22 @@ pub fn check(format: TexelFormat, tile: u64) -> Result<(), CogWriteError> {
 }
 
 /// Writes `src` as a COG at `path`, complete or not at all (a temporary file renamed over it);
-/// `tile` is the TIFF tile side (a multiple of 16).
+/// `tile` is the TIFF tile side (a multiple of 16). `cancel` is polled between tiles and while
+/// the file is copied: once set, the write stops with [`CogWriteError::Interrupted`] and leaves
+/// `path` as it was.
 pub fn write(
     src: &dyn TileSource,
     path: &Path,
     tile: u64,
     compression: CogCompression,
+    cancel: &AtomicBool,
 ) -> Result<CogWritten, CogWriteError> {
     let desc = src.desc();
     check(desc.format(), tile)?;
+    check_target(path)?;
     let (spp, photometric, extra) = layout_of(desc.format())?;
     let io_err = |source| CogWriteError::Io { path: path.display().to_string(), source };
+    let interrupted = || CogWriteError::Interrupted { path: path.display().to_string() };
     // Levels 0 .. the first that fits in one tile (as GDAL stops its overviews).
     let mut levels = Vec::new();
     for (k, l) in desc.levels().iter().enumerate() {
@@ -130,8 +156,14 @@ pub fn write(
         let across = size[0].div_ceil(tile);
         let rows = size[1].div_ceil(tile);
         for r in 0..rows {
+            if cancel.load(Ordering::Relaxed) {
+                return Err(interrupted());
+            }
             let band = read_band(src, k, r * tile, tile)?;
             for c in 0..across {
+                if cancel.load(Ordering::Relaxed) {
+                    return Err(interrupted());
+                }
                 let raw = cut_tile(&band, size[0], c * tile, tile, spp as usize);
                 let packed = compress(compression, raw).map_err(io_err)?;
                 // GDAL's block leader (the size) and trailer (the last 4 bytes again).
@@ -153,19 +185,39 @@ pub fn write(
     let bigtiff = small.data_start + written > u32::MAX as u64;
     let header = if bigtiff { Header::new(true, &images, spp, extra.is_some(), ghost.len() as u64) } else { small };
     let bytes = header.data_start + written;
-    crate::save::atomically(path, |w| {
+    let saved = crate::save::atomically_regular(path, |w| {
         let mut head = Vec::with_capacity(header.data_start as usize);
         header.write(&mut head, &ghost, &images, spp, photometric, extra, compression, tile);
         debug_assert_eq!(head.len() as u64, header.data_start);
         w.write_all(&head)?;
         data.seek(SeekFrom::Start(0))?;
-        let copied = io::copy(&mut (&mut data).take(written), w)?;
-        if copied != written {
-            return Err(io::Error::new(io::ErrorKind::UnexpectedEof, "the scratch file of tiles came back short"));
+        // In pieces, so that a cancellation stops a copy of gigabytes promptly.
+        let mut buf = vec![0u8; 1 << 20];
+        let mut left = written;
+        while left > 0 {
+            if cancel.load(Ordering::Relaxed) {
+                return Err(io::Error::other("cancelled"));
+            }
+            let n = left.min(buf.len() as u64) as usize;
+            data.read_exact(&mut buf[..n]).map_err(|e| match e.kind() {
+                io::ErrorKind::UnexpectedEof => {
+                    io::Error::new(io::ErrorKind::UnexpectedEof, "the scratch file of tiles came back short")
+                }
+                _ => e,
+            })?;
+            w.write_all(&buf[..n])?;
+            left -= n as u64;
         }
         Ok(())
-    })
-    .map_err(io_err)?;
+    });
+    match saved {
+        Err(_) if cancel.load(Ordering::Relaxed) => return Err(interrupted()),
+        Err(e) if e.kind() == io::ErrorKind::InvalidInput => {
+            return Err(check_target(path).err().unwrap_or_else(|| io_err(e)))
+        }
+        Err(e) => return Err(io_err(e)),
+        Ok(()) => {}
+    }
     Ok(CogWritten { images: images.len(), tiles, bytes, bigtiff })
 }
 
@@ -176,7 +228,10 @@ struct Scratch {
 }
 
 impl Scratch {
+    /// Creates `.NAME.PID.tiles.tmp` beside `target`, after removing those of runs that were
+    /// killed (their process is gone).
     fn new(dir: &Path, target: &Path) -> io::Result<Scratch> {
+        crate::save::remove_stale(target, ".", ".tiles.tmp");
         let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         let path = dir.join(format!(".{name}.{}.tiles.tmp", std::process::id()));
         let file = std::fs::OpenOptions::new().read(true).write(true).create_new(true).open(&path)?;

@@ -910,7 +910,7 @@ impl CogSource {
             #[cfg(feature = "remote")]
             Place::Remote(name) => {
                 use super::remote::{Remote, RemoteOptions};
-                let path = PathBuf::from(name.as_str());
+                let path = PathBuf::from(crate::place::redacted(name.as_str()).as_ref());
                 let remote_err = |problem: String| CogError::Remote { path: path.clone(), problem };
                 let opts = RemoteOptions::from_env().map_err(|e| remote_err(e.to_string()))?;
                 // COG ranges are not kept in the disk cache (docs/COG.md): none is opened.
@@ -955,7 +955,7 @@ impl CogSource {
         clip_size: u64,
     ) -> Result<Self, CogError> {
         use super::remote::object::Object;
-        let path = PathBuf::from(name.as_str());
+        let path = PathBuf::from(crate::place::redacted(name.as_str()).as_ref());
         let (object, prefix) = Object::open(remote, name, PREFIX_BYTES)
             .map_err(|e| CogError::Remote { path: path.clone(), problem: e.to_string() })?;
         let mut src = CogSource::from_store(path, Store::Remote(object), prefix.to_vec(), clip_size)?;

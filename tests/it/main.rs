@@ -51,5 +51,6 @@ mod shm_readers;
 mod shm_room;
 mod sixteen_bit;
 mod stability;
+mod tools_cog_names;
 mod views_own;
 mod views_restart;

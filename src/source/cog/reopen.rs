@@ -123,14 +123,14 @@ impl Reopening {
             Ok(fresh) => fresh,
             Err(e) => {
                 // An object half rewritten, a store that answers later: tried again later.
-                tracing::warn!(object = %self.name.as_str(), "the object changed and could not be opened again yet: {e}");
+                tracing::warn!(object = %crate::place::redacted(self.name.as_str()), "the object changed and could not be opened again yet: {e}");
                 return None;
             }
         };
         if let Some(why) = differs(&self.desc, old, &fresh) {
             let text = format!(
                 "{}: the object changed into another texture ({why}); it is not served: restart the service to serve it, or put the earlier version back",
-                self.name.as_str()
+                crate::place::redacted(self.name.as_str())
             );
             if attempt.refused.as_deref() != Some(text.as_str()) {
                 tracing::error!("{text}");
@@ -142,7 +142,7 @@ impl Reopening {
         let fresh = Arc::new(fresh);
         *self.current.write().unwrap_or_else(PoisonError::into_inner) = Arc::clone(&fresh);
         let v = self.version.fetch_add(1, Ordering::AcqRel) + 1;
-        tracing::info!(object = %self.name.as_str(), version = v, "the object changed: opened again, every tile is read anew");
+        tracing::info!(object = %crate::place::redacted(self.name.as_str()), version = v, "the object changed: opened again, every tile is read anew");
         Some(fresh)
     }
 }

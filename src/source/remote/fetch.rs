@@ -157,6 +157,11 @@ pub trait Backend: Send + Sync {
         }
         Ok(())
     }
+    /// Answers so far that ignored a range (a whole object sent for a ranged GET, used after
+    /// its checks): a server that makes every read fetch the whole object.
+    fn ranges_ignored(&self) -> u64 {
+        0
+    }
     /// The object's length (a HEAD request).
     fn head(&self, loc: &Location) -> Result<u64, Failure>;
     /// Stores `bytes` as the object `loc`.
@@ -259,6 +264,11 @@ impl Fetcher {
     /// A fetcher over the two backends.
     pub fn new(opts: RemoteOptions, http: Arc<dyn Backend>, s3: Arc<dyn Backend>) -> Fetcher {
         Fetcher { opts, endpoints: Mutex::new(HashMap::new()), http, s3, counters: Counters::default() }
+    }
+
+    /// Answers so far, of every backend, that ignored a range ([`Backend::ranges_ignored`]).
+    pub fn ranges_ignored(&self) -> u64 {
+        self.http.ranges_ignored() + self.s3.ranges_ignored()
     }
 
     /// The options.
@@ -419,6 +429,8 @@ impl Fetcher {
         T: GotBytes,
     {
         use backon::BlockingRetryable;
+        // The name as errors and logs show it (a URL's password and signatures replaced).
+        let object = &*crate::place::redacted(object);
         let backend = self.backend(loc);
         let attempts = std::cell::Cell::new(0u32);
         let result = (|| {

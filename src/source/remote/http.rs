@@ -6,7 +6,9 @@
 //! only when it is the whole object: not an HTML page (`Content-Type: text/html`, what an error
 //! page of a proxy or a misconfigured server is), at most [`MAX_WHOLE_OBJECT`] bytes, and of
 //! exactly the object's size as a `HEAD` gives it (its `Content-Length`, if any, and its body
-//! alike); the range is then cut out of it. A `416` means the object ends before the range
+//! alike); the range is then cut out of it, and the answer is counted ([`Backend::ranges_ignored`],
+//! `ranges_ignored` in the statistics) and said once an endpoint in the log: such a server makes
+//! every read fetch the whole object. A `416` means the object ends before the range
 //! starts. Anything else is a [`Failure`], classified for the retry loop.
 
 use super::fetch::{Backend, Failure, Got, Segments, Sink};
@@ -16,7 +18,9 @@ use super::runtime::block;
 use bytes::Bytes;
 use reqwest::header::{CONTENT_LENGTH, CONTENT_RANGE, CONTENT_TYPE, ETAG, LAST_MODIFIED, RANGE, RETRY_AFTER};
 use reqwest::StatusCode;
-use std::sync::Arc;
+use std::collections::HashSet;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// Largest object read whole from a server that does not answer range requests.
@@ -26,6 +30,32 @@ pub(crate) const MAX_WHOLE_OBJECT: u64 = 256 << 20;
 pub struct Http {
     client: Result<reqwest::Client, String>,
     timeout: Duration,
+    ignored: Arc<IgnoredRanges>,
+}
+
+/// Answers that ignored a range: a `200` with the whole object to a ranged GET, used (the
+/// object checked and the range cut out of it) but each read then fetches the whole object,
+/// tens of times slower than ranged reads. Counted, and said once an endpoint in the log.
+#[derive(Debug, Default)]
+struct IgnoredRanges {
+    count: AtomicU64,
+    warned: Mutex<HashSet<String>>,
+}
+
+impl IgnoredRanges {
+    /// Counts one such answer from `endpoint` for an object of `size` bytes; the first from an
+    /// endpoint is a warning in the log.
+    fn note(&self, endpoint: &str, url: &str, size: u64) {
+        self.count.fetch_add(1, Ordering::Relaxed);
+        let first = self.warned.lock().unwrap_or_else(|e| e.into_inner()).insert(endpoint.to_string());
+        if first {
+            tracing::warn!(
+                endpoint,
+                object = %crate::place::redacted(url),
+                "the server ignores range requests: it answered a ranged GET with the whole object (HTTP 200, {size} bytes), so every read fetches the whole object (29 to 46 times slower than ranged reads, measured); serve the files with a server that answers Range (nginx, S3; Python's http.server does not); counted in STATS as remote.ranges_ignored, said once an endpoint"
+            );
+        }
+    }
 }
 
 impl Http {
@@ -40,11 +70,15 @@ impl Http {
             .no_proxy()
             .build()
             .map_err(|e| format!("cannot make an HTTP client: {e}"));
-        Http { client, timeout: opts.timeout }
+        Http { client, timeout: opts.timeout, ignored: Arc::default() }
     }
 
     fn client(&self) -> Result<reqwest::Client, Failure> {
         self.client.clone().map_err(Failure::Fatal)
+    }
+
+    fn target(&self, loc: &Location) -> Target {
+        Target { url: loc.target.clone(), endpoint: loc.endpoint.clone(), ignored: Arc::clone(&self.ignored) }
     }
 }
 
@@ -169,10 +203,17 @@ fn partial_head(headers: &reqwest::header::HeaderMap, start: u64, last: u64) -> 
     Ok((total, want))
 }
 
-async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Result<Got, Failure> {
-    let mut resp = send_range(&client, &url, start, len).await?;
+/// Where a request goes and what counts its answers that ignored the range.
+struct Target {
+    url: String,
+    endpoint: String,
+    ignored: Arc<IgnoredRanges>,
+}
+
+async fn get(client: reqwest::Client, to: Target, start: u64, len: u64) -> Result<Got, Failure> {
+    let mut resp = send_range(&client, &to.url, start, len).await?;
     if resp.status() != StatusCode::PARTIAL_CONTENT {
-        return not_partial(client, url, start, len, resp).await;
+        return not_partial(client, &to, start, len, resp).await;
     }
     let headers = resp.headers().clone();
     let (total, want) = partial_head(&headers, start, start + len - 1)?;
@@ -186,14 +227,14 @@ async fn get(client: reqwest::Client, url: String, start: u64, len: u64) -> Resu
 /// [`get`] handing the bytes of a `206` to `sink` as they arrive (any other answer whole).
 async fn get_streamed(
     client: reqwest::Client,
-    url: String,
+    to: Target,
     start: u64,
     len: u64,
     sink: Arc<dyn Sink>,
 ) -> Result<(), Failure> {
-    let mut resp = send_range(&client, &url, start, len).await?;
+    let mut resp = send_range(&client, &to.url, start, len).await?;
     if resp.status() != StatusCode::PARTIAL_CONTENT {
-        let got = not_partial(client, url, start, len, resp).await?;
+        let got = not_partial(client, &to, start, len, resp).await?;
         sink.head(got.object_len, got.validator.as_deref()).map_err(Failure::Fatal)?;
         for b in got.bytes.0 {
             sink.bytes(b);
@@ -209,15 +250,16 @@ async fn get_streamed(
     Ok(())
 }
 
-/// An answer to a range request other than `206`: the whole object (a `200`, checked), the
-/// object's end (`416`), or a failure.
+/// An answer to a range request other than `206`: the whole object (a `200`, checked, and
+/// counted as a range ignored), the object's end (`416`), or a failure.
 async fn not_partial(
     client: reqwest::Client,
-    url: String,
+    to: &Target,
     start: u64,
     len: u64,
     mut resp: reqwest::Response,
 ) -> Result<Got, Failure> {
+    let url = &to.url;
     let status = resp.status();
     let headers = resp.headers().clone();
     match status {
@@ -240,7 +282,7 @@ async fn not_partial(
                     announced.unwrap_or(0)
                 )));
             }
-            let size = head(&client, &url).await.map_err(|f| {
+            let size = head(&client, url).await.map_err(|f| {
                 let why = match f {
                     Failure::NotFound => "not found".to_string(),
                     Failure::Denied(w) | Failure::Fatal(w) | Failure::Transient { why: w, .. } => w,
@@ -267,9 +309,10 @@ async fn not_partial(
                     "HTTP 200 to a range request with a body of {got} bytes, but the object holds {size} (HEAD)"
                 )));
             }
+            to.ignored.note(&to.endpoint, url, size);
             let from = start.min(size) as usize;
-            let to = start.saturating_add(len).min(size) as usize;
-            Ok(Got { bytes: buf.slice(from, to), object_len: Some(size), validator: validator(&headers) })
+            let end = start.saturating_add(len).min(size) as usize;
+            Ok(Got { bytes: buf.slice(from, end), object_len: Some(size), validator: validator(&headers) })
         }
         StatusCode::RANGE_NOT_SATISFIABLE => {
             let total = headers
@@ -302,8 +345,7 @@ impl Backend for Http {
             return Ok(Got { bytes: Segments::default(), object_len: None, validator: None });
         }
         let client = self.client()?;
-        let url = loc.target.clone();
-        block(self.timeout, get(client, url, start, len))
+        block(self.timeout, get(client, self.target(loc), start, len))
     }
 
     fn get_streamed(&self, loc: &Location, start: u64, len: u64, sink: &Arc<dyn Sink>) -> Result<(), Failure> {
@@ -311,8 +353,11 @@ impl Backend for Http {
             return Ok(());
         }
         let client = self.client()?;
-        let url = loc.target.clone();
-        block(self.timeout, get_streamed(client, url, start, len, Arc::clone(sink)))
+        block(self.timeout, get_streamed(client, self.target(loc), start, len, Arc::clone(sink)))
+    }
+
+    fn ranges_ignored(&self) -> u64 {
+        self.ignored.count.load(Ordering::Relaxed)
     }
 
     fn head(&self, loc: &Location) -> Result<u64, Failure> {

@@ -29,8 +29,9 @@ pub struct Location {
 }
 
 /// Why a name is not a remote location that can be read.
+/// Its message shows the name with its secrets replaced ([`crate::place::redacted`]).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("`{name}` is not a usable remote location: {problem}; expected http://HOST[:PORT]/PATH, https://HOST[:PORT]/PATH or s3://BUCKET/KEY")]
+#[error("`{shown}` is not a usable remote location: {problem}; expected http://HOST[:PORT]/PATH, https://HOST[:PORT]/PATH or s3://BUCKET/KEY", shown = crate::place::redacted(name))]
 pub struct LocationError {
     /// The name.
     pub name: String,
@@ -77,7 +78,9 @@ impl Location {
         let url = reqwest::Url::parse(name).map_err(|e| bad(&e.to_string()))?;
         let host = url.host_str().filter(|h| !h.is_empty()).ok_or_else(|| bad("no host"))?;
         if !url.username().is_empty() || url.password().is_some() {
-            return Err(bad("credentials in the URL are refused (they would be logged with it)"));
+            return Err(bad(
+                "credentials in the URL are refused (a password in a URL ends up in logs and process lists); serve the object without them, or through a URL signed with a query",
+            ));
         }
         let port = url.port_or_known_default().unwrap_or(80);
         let endpoint = format!("{}://{host}:{port}", url.scheme());
@@ -85,10 +88,12 @@ impl Location {
     }
 }
 
+/// The location as it may be shown in errors and logs: an HTTP URL with its secrets replaced
+/// ([`crate::place::redacted`]); requests use [`Location::target`].
 impl fmt::Display for Location {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.scheme {
-            Scheme::Http => f.write_str(&self.target),
+            Scheme::Http => f.write_str(&crate::place::redacted(&self.target)),
             Scheme::S3 => write!(f, "s3://{}/{}", self.bucket, self.target),
         }
     }

@@ -54,6 +54,10 @@ pub struct RemoteStats {
     pub cache_dropped: u64,
     /// Most requests in flight at once to one endpoint.
     pub peak_in_flight: u64,
+    /// Answers of a whole object (HTTP 200) to a ranged GET: the server ignores `Range`, so each
+    /// such read fetched the whole object (checked, then cut) rather than its range, tens of
+    /// times slower. 0 with a server that answers ranges; the log says so once an endpoint.
+    pub ranges_ignored: u64,
 }
 
 /// Reads remote locations: the fetcher and the disk cache.
@@ -111,6 +115,7 @@ impl Remote {
             cache_hits: c.cache_hits.load(Ordering::Relaxed),
             cache_dropped: self.cache.as_ref().map_or(0, disk::DiskCache::dropped),
             peak_in_flight: c.peak_in_flight.load(Ordering::Relaxed),
+            ranges_ignored: self.fetcher.ranges_ignored(),
         }
     }
 
@@ -136,7 +141,7 @@ impl Remote {
 
 fn parse(name: &str) -> Result<Location, ReadError> {
     Location::parse(name).map_err(|e| ReadError::Failed {
-        location: name.to_string(),
+        location: crate::place::redacted(name).into_owned(),
         why: e.problem.clone(),
         attempts: 0,
         timed_out: false,
@@ -196,7 +201,8 @@ impl Remote {
         out: &mut [u8],
     ) -> Result<(), SourceError> {
         let name = location.as_str();
-        let bad = |problem: String| SourceError::Undecodable { tile, path: location.as_str().into(), problem };
+        let shown = crate::place::redacted(location.as_str());
+        let bad = |problem: String| SourceError::Undecodable { tile, path: shown.as_ref().into(), problem };
         if offset != 0 {
             return Err(bad(format!(
                 "its tile is placed at byte {offset}, but a compressed file holds one whole tile"

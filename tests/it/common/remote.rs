@@ -459,3 +459,94 @@ fn rewrite_range(req: &[u8], fault: Fault) -> Vec<u8> {
 pub fn point_config_at(src: &Path, dst: &Path, base: &str, stream_bases: &[String]) -> PathBuf {
     clipmap::prep::publish::write_pointed_config(src, dst, base, stream_bases).expect("the configuration is rewritten")
 }
+
+/// A static-file HTTP server in Python (`http.server`) on a loopback port that logs every
+/// request (`METHOD PATH-WITH-QUERY RANGE`) to a file and answers `Range` only when asked to:
+/// without ranges it answers every GET `200` with the whole file, as some servers do. An `ETag`
+/// names the file's version. Stopped on drop.
+pub struct PyServer {
+    child: Child,
+    /// Its port.
+    pub port: u16,
+    dir: tempfile::TempDir,
+}
+
+const PY_SERVER: &str = r#"
+import http.server, os, sys, urllib.parse
+root, port, log, ranges = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4] == "ranges"
+class H(http.server.BaseHTTPRequestHandler):
+    protocol_version = "HTTP/1.1"
+    def log_message(self, *a):
+        pass
+    def answer(self, body):
+        with open(log, "a") as f:
+            f.write("%s %s %s\n" % (self.command, self.path, self.headers.get("Range", "-")))
+        path = os.path.join(root, urllib.parse.unquote(urllib.parse.urlsplit(self.path).path).lstrip("/"))
+        if not os.path.isfile(path):
+            self.send_response(404); self.send_header("Content-Length", "0"); self.end_headers(); return
+        data = open(path, "rb").read()
+        st = os.stat(path)
+        status, start, end = 200, 0, len(data)
+        r = self.headers.get("Range")
+        if ranges and r and r.startswith("bytes="):
+            a, b = r[6:].split("-")
+            start, end = int(a), min(int(b) + 1, len(data))
+            status = 206
+        self.send_response(status)
+        self.send_header("Content-Type", "image/tiff")
+        self.send_header("ETag", '"%x-%x"' % (st.st_mtime_ns, st.st_size))
+        self.send_header("Content-Length", str(end - start))
+        if status == 206:
+            self.send_header("Content-Range", "bytes %d-%d/%d" % (start, end - 1, len(data)))
+        self.end_headers()
+        if body:
+            self.wfile.write(data[start:end])
+    def do_GET(self):
+        self.answer(True)
+    def do_HEAD(self):
+        self.answer(False)
+http.server.ThreadingHTTPServer(("127.0.0.1", port), H).serve_forever()
+"#;
+
+impl PyServer {
+    /// Serves `root`; `ranges` says whether `Range` is answered (`206`) or ignored (`200`).
+    pub fn serve(root: &Path, ranges: bool) -> PyServer {
+        let dir = tempfile::tempdir().unwrap();
+        let port = free_port();
+        let err = dir.path().join("stderr.log");
+        let child = Command::new("python3")
+            .args(["-c", PY_SERVER])
+            .arg(root)
+            .arg(port.to_string())
+            .arg(dir.path().join("requests.log"))
+            .arg(if ranges { "ranges" } else { "whole" })
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&err).unwrap())
+            .spawn()
+            .expect("python3 runs");
+        let s = PyServer { child, port, dir };
+        wait_listening(port, "python3 http.server", &err);
+        s
+    }
+
+    /// `http://127.0.0.1:PORT`.
+    pub fn url(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+
+    /// The requests so far, one `METHOD PATH RANGE` line each.
+    pub fn requests(&self) -> Vec<String> {
+        std::fs::read_to_string(self.dir.path().join("requests.log"))
+            .unwrap_or_default()
+            .lines()
+            .map(str::to_string)
+            .collect()
+    }
+}
+
+impl Drop for PyServer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}

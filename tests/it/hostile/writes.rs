@@ -108,3 +108,115 @@ fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
     }
     v
 }
+
+/// The arguments of a small prepared hash texture written as a COG at `cog` too.
+fn cog_args<'a>(out: &'a str, cog: &'a str, size: &'a str) -> Vec<&'a str> {
+    vec![
+        "--source", "hash", "--size", size, "--tile", "256", "--clip", "512", "--format", "rgb8", "--out", out,
+        "--cog", cog,
+    ]
+}
+
+/// What of `.NAME...` temporaries is beside `name` in `dir`.
+fn temporaries(dir: &Path, name: &str) -> Vec<String> {
+    let prefix = format!(".{name}.");
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(&prefix))
+        .collect()
+}
+
+#[test]
+fn clipprep_cog_naming_a_fifo_is_refused_at_once_and_never_opened() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let fifo = d.join("out.tif");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    let out = d.join("pyr");
+    let args = cog_args(out.to_str().unwrap(), fifo.to_str().unwrap(), "512");
+    // Before: blocked for ever opening the FIFO for writing (and deaf to SIGTERM meanwhile).
+    let err = fails(d, CLIPPREP, &args, 2, &["out.tif", "a FIFO (named pipe), not a regular file"]);
+    assert!(err.contains("a COG is written as a regular file"), "{err}");
+    assert!(!out.exists(), "refused before any work: no pyramid written");
+    let meta = std::fs::symlink_metadata(&fifo).unwrap();
+    assert!(std::os::unix::fs::FileTypeExt::is_fifo(&meta.file_type()), "the FIFO is left as it was");
+    // A character device likewise.
+    if Path::new("/dev/null").exists() {
+        let args = cog_args(out.to_str().unwrap(), "/dev/null", "512");
+        fails(d, CLIPPREP, &args, 2, &["/dev/null", "a character device, not a regular file"]);
+    }
+}
+
+#[test]
+fn sigterm_while_a_cog_is_written_stops_it_removes_its_temporaries_and_exits_2() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let out = d.join("pyr");
+    let cog = d.join("out.tif");
+    let args = cog_args(out.to_str().unwrap(), cog.to_str().unwrap(), "4096");
+    let mut child = std::process::Command::new(CLIPPREP)
+        .current_dir(d)
+        .args(&args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Signal it once the COG's scratch file of tiles has bytes (bounded wait).
+    let t = std::time::Instant::now();
+    let scratch = format!(".out.tif.{}.tiles.tmp", child.id());
+    let seen = loop {
+        if std::fs::metadata(d.join(&scratch)).is_ok_and(|m| m.len() > 0) {
+            break true;
+        }
+        if t.elapsed() > super::service::LIMIT || child.try_wait().unwrap().is_some() {
+            break false;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    };
+    assert!(seen, "the COG's scratch file never appeared: the write finished too fast to test");
+    let kill = std::process::Command::new("kill").args(["-TERM", &child.id().to_string()]).status().unwrap();
+    assert!(kill.success());
+    let t = std::time::Instant::now();
+    let status = loop {
+        if let Some(st) = child.try_wait().unwrap() {
+            break st;
+        }
+        if t.elapsed() > std::time::Duration::from_secs(10) {
+            let _ = child.kill();
+            panic!("clipprep went on writing the COG for 10 s after SIGTERM");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    };
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+    // Before: the signal was ignored, the COG finished and the exit status was 0.
+    assert_eq!(status.code(), Some(2), "exit status after SIGTERM: {status:?}\n{err}");
+    assert!(err.contains("interrupted") && err.contains("out.tif"), "{err}");
+    assert!(!cog.exists(), "no COG left at the target");
+    assert_eq!(temporaries(d, "out.tif"), Vec::<String>::new(), "no temporary left");
+}
+
+#[test]
+fn a_killed_clipprep_cogs_tiles_temporary_is_removed_by_the_next_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    // A pid that is surely gone: a process that ran and was waited for.
+    let mut gone = std::process::Command::new("true").spawn().unwrap();
+    gone.wait().unwrap();
+    let dead = gone.id();
+    let live = std::process::id(); // this test's own process: alive, and not clipprep's
+    let stale = [format!(".out.tif.{dead}.tiles.tmp"), format!(".out.tif.tmp.{dead}.0")];
+    let kept = format!(".out.tif.{live}.tiles.tmp");
+    for n in stale.iter().chain([&kept]) {
+        std::fs::write(d.join(n), vec![7u8; 4096]).unwrap();
+    }
+    let out = d.join("pyr");
+    let cog = d.join("out.tif");
+    let (o, desc) = run(d, CLIPPREP, &cog_args(out.to_str().unwrap(), cog.to_str().unwrap(), "512"));
+    assert_eq!(o.status.code(), Some(0), "{desc}");
+    assert!(cog.is_file());
+    // Before: every killed run's scratch file stayed for good (46 to 114 MB each).
+    assert_eq!(temporaries(d, "out.tif"), vec![kept], "a dead run's temporaries removed, a live run's kept");
+}
