@@ -48,5 +48,6 @@ mod patch_fuzz_props;
 mod remote;
 mod sixteen_bit;
 mod stability;
+mod tiff_hardening;
 mod views_own;
 mod views_restart;
