@@ -48,6 +48,7 @@ mod patch_fuzz_props;
 mod remote;
 mod sixteen_bit;
 mod stability;
+mod tiff_fuzz_props;
 mod tiff_hardening;
 mod views_own;
 mod views_restart;
