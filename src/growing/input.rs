@@ -122,6 +122,9 @@ pub fn decode_image(
     }
 }
 
+/// An image decoded: its width, height and texels.
+type Decoded = (u32, u32, Vec<u8>);
+
 /// Whether `bytes` start like a TIFF or BigTIFF.
 fn is_tiff_bytes(bytes: &[u8]) -> bool {
     matches!(bytes.get(..4), Some(b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+"))
@@ -135,7 +138,7 @@ fn decode_tiff_by_cog_reader(
     bytes: &[u8],
     max_bytes: u64,
     where_: &str,
-) -> Option<Result<(u32, u32, Vec<u8>), InputError>> {
+) -> Option<Result<Decoded, InputError>> {
     use crate::source::TileSource;
     use crate::texel::ComponentType;
     let w = || where_.to_string();

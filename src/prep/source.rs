@@ -323,7 +323,7 @@ fn open_by_cog_reader(path: &Path, limits: &Limits) -> Option<Result<OpenedImage
         height,
         streamed: true,
         bits: if f.ctype == ComponentType::U16 { 16 } else { 8 },
-        samples: f.components.count() as u32,
+        samples: f.components.count(),
         reduce_depth: false,
         path: path.into(),
         opener: Opener::Cog(Box::new(src)),

@@ -628,6 +628,18 @@ impl Ghost {
     }
 }
 
+/// The most bytes a reading thread keeps in each of its buffers between reads: a larger one (a
+/// tile of tens of MiB) is freed once read, so that an idle thread holds little whatever tiles
+/// it read.
+const KEPT_BUFFER_BYTES: usize = 16 << 20;
+
+/// `buf` back into its thread's slot, or freed when larger than [`KEPT_BUFFER_BYTES`].
+fn keep(slot: &'static std::thread::LocalKey<RefCell<Vec<u8>>>, buf: Vec<u8>) {
+    if buf.capacity() <= KEPT_BUFFER_BYTES {
+        slot.with(|c| *c.borrow_mut() = buf);
+    }
+}
+
 thread_local! {
     /// Each reading thread's buffer for a tile's stored bytes.
     static PACKED: RefCell<Vec<u8>> = const { RefCell::new(Vec::new()) };
@@ -1790,13 +1802,19 @@ impl CogSource {
             };
             let count = stored;
             let (from, len) = (offset - lead, lead + count + trail);
-            PACKED.with(|cell| {
+            let result = PACKED.with(|cell| {
                 let mut buf = cell.borrow_mut();
                 // The bytes where they were read already (a row's span, the first bytes), else
                 // read into this thread's buffer.
                 let packed: &[u8] = match span.and_then(|s| s.get(from, len)).or_else(|| prefix.get(from, len)) {
                     Some(b) => b,
                     None => {
+                        // Bytes the file does not hold are not allocated for: a byte count is
+                        // bounded by the file's size, not only by the tile's.
+                        let size = self.store.size();
+                        if from.checked_add(len).is_none_or(|end| end > size) {
+                            return Err(StoreError::Eof { size }.for_tile(tile, &self.path, from, len));
+                        }
                         buf.resize(len as usize, 0);
                         self.store
                             .read_exact_at(&mut buf, from)
@@ -1834,7 +1852,14 @@ impl CogSource {
                     )));
                 }
                 Ok(())
-            })?;
+            });
+            PACKED.with(|cell| {
+                let mut buf = cell.borrow_mut();
+                if buf.capacity() > KEPT_BUFFER_BYTES {
+                    *buf = Vec::new();
+                }
+            });
+            result?;
         }
         finish_samples(lv, self.layout.little, dst);
         Ok(())
@@ -1860,7 +1885,7 @@ impl CogSource {
                 if result.is_ok() {
                     mask_heights(plan.format, &mask, dst);
                 }
-                MASK.with(|c| *c.borrow_mut() = mask);
+                keep(&MASK, mask);
                 result?;
             }
             return Ok(());
@@ -1881,8 +1906,8 @@ impl CogSource {
             add_alpha(&stored, lv.spp, lv.samples.bytes(), rule.nodata, m, dst);
             Ok(())
         })();
-        STORED.with(|c| *c.borrow_mut() = stored);
-        MASK.with(|c| *c.borrow_mut() = mask);
+        keep(&STORED, stored);
+        keep(&MASK, mask);
         result
     }
 
@@ -1991,7 +2016,7 @@ impl CogSource {
             }
             Ok(())
         })();
-        CHUNK.with(|cell| *cell.borrow_mut() = chunk);
+        keep(&CHUNK, chunk);
         result
     }
 }

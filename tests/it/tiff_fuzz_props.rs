@@ -66,9 +66,9 @@ fn mutated() -> impl Strategy<Value = Vec<u8>> {
                     [0u64, 1, 0xFFFF, 0x7FFF_FFFF, 0xFFFF_FFFF, 1 << 26, 1 << 63, u64::MAX][(r >> 40) as usize % 8];
                 let width = [2usize, 4, 8][(r >> 48) as usize % 3];
                 let word = extreme.to_le_bytes();
-                for k in 0..width {
+                for (k, w) in word.iter().enumerate().take(width) {
                     if let Some(b) = v.get_mut(at + k) {
-                        *b = word[k];
+                        *b = *w;
                     }
                 }
             }

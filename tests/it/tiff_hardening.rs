@@ -435,7 +435,7 @@ for name, gtype, code, scale, offset in [("u16", gdal.GDT_UInt16, "H", 0.1, -500
     // Texels as stored: the metres are the format's.
     let l0 = level0(&u16s);
     let v = u16::from_le_bytes([l0[2], l0[3]]);
-    assert_eq!(v as u64, (64 + 63) % 5000, "texel (1, 0) is pixel (1, 63)");
+    assert_eq!(v, 127, "texel (1, 0) is pixel (1, 63): (1 x 64 + 63) mod 5000");
 }
 
 /// A 4 x 3 image in one uncompressed tile of `bits`-bit samples of SampleFormat `format`, rows
