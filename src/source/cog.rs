@@ -3158,14 +3158,14 @@ mod tests {
                 }
             }
         }
-        // An index that runs past the end of the file is an error naming where, not a texel.
+        // An index that runs past the end of the file is refused at open, naming where (not
+        // a texel, and not an error a tile, each read in vain).
         let mut cut = std::fs::read(&path).unwrap();
         cut.truncate(cut.len() - 100);
         std::fs::write(&path, &cut).unwrap();
-        let src = open_chunked(&path, 4096);
-        let e = src.read_tile(TileId::new(0, 0, 0), &mut vec![0u8; src.desc().tile_bytes(0)]).unwrap_err();
-        assert!(matches!(e, SourceError::Chunk { .. }), "{e}");
-        assert!(e.to_string().contains("lie past the end of the file"), "{e}");
+        let e = CogSource::open(&path, 4096).unwrap_err().to_string();
+        assert!(e.contains("IFD 0 tag TileByteCounts (325): its 5600 values (22400 bytes"), "{e}");
+        assert!(e.contains("run past the end of the file"), "{e}");
     }
 
     /// `path` opened as a remote object is (structure from the first bytes, the index read in
