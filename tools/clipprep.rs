@@ -357,7 +357,7 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
     }
     let size = desc.size();
     let virt = rounded_size(size);
-    let layout = Layout::new(Spec {
+    let mut layout = Layout::new(Spec {
         width: virt[0],
         height: virt[1],
         clip: cli.clip,
@@ -369,6 +369,19 @@ fn config_only(cli: &Cli) -> Result<(), PrepError> {
         inset: None,
         compression: None,
     })?;
+    // Each image cache in its level's own TIFF tiles: overviews may be tiled unlike level 0
+    // (`gdaladdo --config GDAL_TIFF_OVR_BLOCKSIZE 128`), and the `.ic` describes its level.
+    for level in layout.levels.iter_mut().filter(|l| l.kind == clipmap::prep::layout::LevelKind::ImageCache) {
+        let Some([w, h]) = level_tile(&src, level.index, [u64::MAX, u64::MAX]) else { continue };
+        if w != h || !w.is_power_of_two() {
+            return Err(PrepError::Geometry(format!(
+                "{}: level {} is tiled in {w} x {h} TIFF tiles, and a Performer configuration needs square tiles of a power of two; write its overviews again in such tiles (gdaladdo --config GDAL_TIFF_OVR_BLOCKSIZE 256), or prepare a pyramid from it without --config-only",
+                input.display(),
+                level.index
+            )));
+        }
+        (level.tile_w, level.tile_h) = (w.min(level.width), h.min(level.height));
+    }
     // The name the configuration reads: a URL as given, a local file by its absolute path (the
     // configuration's directory is not where the COG lies).
     let name_of_cog = match &place {
@@ -633,8 +646,20 @@ fn prepare(cli: &Cli, out: &Path, cancel: &AtomicBool) -> Result<Outcome, PrepEr
     let format = cli.format().texel();
     let heights = height_prep(cli)?;
     let (source, (width, height), origin) = match (&cli.input, cli.source, heights) {
-        (Some(path), _, Some(prep)) => {
+        (Some(path), _, Some(mut prep)) => {
             let tiff = HeightTiff::open(path, &limits)?;
+            // The input's nodata carries over, as GDAL carries it, unless --height-nodata names
+            // another (a NaN one names no stored value: --nan decides what NaN pixels become).
+            if let (None, Some(nd)) = (cli.height_nodata, tiff.nodata().filter(|v| !v.is_nan())) {
+                let f = prep.format;
+                prep.format = HeightFormat::new(f.storage(), f.scale(), f.offset(), Some(nd)).map_err(|e| {
+                    PrepError::Geometry(format!(
+                        "{}: its GDAL_NODATA {nd}, which the texture would keep as its nodata value, is not a stored value of --format {}: {e}; pass --height-nodata V (a stored value outside the data)",
+                        path.display(),
+                        format.short_name()
+                    ))
+                })?;
+            }
             let (w, h) = tiff.dimensions();
             let size = if cli.pad {
                 if (w, h) != (next_power_of_two(w), next_power_of_two(h)) && prep.format.nodata().is_none() {

@@ -114,6 +114,127 @@ pub fn decode_image(
             problem: format!("{e}; the JPEG is truncated or corrupt"),
         })?;
     }
+    match decode_with_image(grid, bytes, max_bytes, where_) {
+        Err(e @ (InputError::Decode { .. } | InputError::Format { .. })) if is_tiff_bytes(bytes) => {
+            decode_tiff_by_cog_reader(grid, bytes, max_bytes, where_).unwrap_or(Err(e))
+        }
+        r => r,
+    }
+}
+
+/// An image decoded: its width, height and texels.
+type Decoded = (u32, u32, Vec<u8>);
+
+/// Whether `bytes` start like a TIFF or BigTIFF.
+fn is_tiff_bytes(bytes: &[u8]) -> bool {
+    matches!(bytes.get(..4), Some(b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+"))
+}
+
+/// A tiled TIFF the `image` crate does not decode (GDAL's default RGB JPEG, stored as YCbCr),
+/// read by the COG reader as `clipmapd` serves it; `None` when that reader does not take it as
+/// colour either (the first decoder's refusal then stands).
+fn decode_tiff_by_cog_reader(
+    grid: &Grid,
+    bytes: &[u8],
+    max_bytes: u64,
+    where_: &str,
+) -> Option<Result<Decoded, InputError>> {
+    use crate::source::TileSource;
+    use crate::texel::ComponentType;
+    let w = || where_.to_string();
+    let src =
+        crate::source::CogSource::from_bytes_full_resolution(std::path::Path::new(where_), std::sync::Arc::from(bytes))
+            .ok()?;
+    let f = src.desc().format();
+    if src.heights().is_some() || !matches!(f.ctype, ComponentType::U8 | ComponentType::U16) {
+        return None;
+    }
+    let [width, height] = src.desc().size();
+    let texel_bytes = width * height * grid.bytes_per_texel as u64;
+    let served = width * height * src.desc().bytes_per_texel() as u64;
+    if width > MAX_PATCH_PIXELS as u64
+        || height > MAX_PATCH_PIXELS as u64
+        || texel_bytes > max_bytes
+        || served > max_bytes.saturating_mul(4).max(1 << 20)
+    {
+        return Some(Err(InputError::TooLarge {
+            where_: w(),
+            width: width as u32,
+            height: height as u32,
+            bytes: texel_bytes,
+            max_side: MAX_PATCH_PIXELS,
+            max_bytes,
+        }));
+    }
+    let wide = f.ctype == ComponentType::U16;
+    let want16 = grid.component_bytes == 2;
+    if wide != want16 {
+        return Some(Err(InputError::Depth {
+            where_: w(),
+            found: format!("{f} texels"),
+            expected: format!("{} bits a component", grid.component_bytes * 8),
+        }));
+    }
+    let mut texels = vec![0u8; served as usize];
+    if let Err(e) = src.read_full_resolution([0, 0], [width, height], &mut texels) {
+        return Some(Err(InputError::Decode { where_: w(), problem: e.to_string() }));
+    }
+    let (n, sb) = (f.components.count() as usize, if wide { 2 } else { 1 });
+    let comps = grid.bytes_per_texel / grid.component_bytes;
+    if !(1..=4).contains(&comps) {
+        return Some(Err(InputError::Depth {
+            where_: w(),
+            found: format!("{f} texels"),
+            expected: format!("{comps} components a texel (images give 1 to 4)"),
+        }));
+    }
+    let max = if wide { u16::MAX } else { 255 };
+    let mut out = Vec::with_capacity(texel_bytes as usize);
+    // The source's rows count t up from the bottom; an image's rows go top-down.
+    for t in (0..height as usize).rev() {
+        let line = &texels[t * width as usize * n * sb..][..width as usize * n * sb];
+        for px in line.chunks_exact(n * sb) {
+            let get = |k: usize| if wide { u16::from_le_bytes([px[2 * k], px[2 * k + 1]]) } else { px[k] as u16 };
+            let [r, g, b, a] = match n {
+                1 => [get(0), get(0), get(0), max],
+                2 => [get(0), get(0), get(0), get(1)],
+                3 => [get(0), get(1), get(2), max],
+                _ => [get(0), get(1), get(2), get(3)],
+            };
+            // Luminance as the `image` crate takes it (Rec. 709 weights; a grey pixel's value).
+            let luma = || {
+                if r == g && g == b {
+                    r
+                } else {
+                    ((2126 * r as u32 + 7152 * g as u32 + 722 * b as u32 + 5000) / 10000) as u16
+                }
+            };
+            let values: &[u16] = match comps {
+                1 => &[luma()],
+                2 => &[luma(), a],
+                3 => &[r, g, b],
+                _ => &[r, g, b, a],
+            };
+            for &v in values {
+                if wide {
+                    out.extend_from_slice(&v.to_le_bytes());
+                } else {
+                    out.push(v as u8);
+                }
+            }
+        }
+    }
+    Some(Ok((width as u32, height as u32, out)))
+}
+
+/// [`decode_image`] by the `image` crate's decoders.
+fn decode_with_image(
+    grid: &Grid,
+    bytes: &[u8],
+    max_bytes: u64,
+    where_: &str,
+) -> Result<(u32, u32, Vec<u8>), InputError> {
+    let w = || where_.to_string();
     let reader = image::ImageReader::new(Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| InputError::Format { where_: w(), problem: e.to_string() })?;

@@ -151,6 +151,9 @@ pub struct OpenedImage {
 enum Opener {
     Memory(DynamicImage),
     Tiff(PathBuf),
+    /// A tiled TIFF the `tiff` crate does not decode (GDAL's YCbCr JPEG), read by the COG
+    /// reader.
+    Cog(Box<crate::source::CogSource>),
 }
 
 impl OpenedImage {
@@ -185,6 +188,9 @@ impl OpenedImage {
         Ok(match self.opener {
             Opener::Memory(image) => Box::new(MemoryImage { image, format, width: padded_width, deep }),
             Opener::Tiff(path) => Box::new(TiffStream::open(&path)?.into_source(format, padded_width)),
+            Opener::Cog(src) => {
+                Box::new(CogBand { src: *src, format, width: padded_width, cache: Vec::new(), rows: None })
+            }
         })
     }
 }
@@ -204,9 +210,141 @@ fn check_whole(path: &Path, limits: &Limits) -> Result<(), PrepError> {
     Ok(())
 }
 
+/// Level 0 of a TIFF read by the COG reader ([`crate::source::CogSource::read_full_resolution`]),
+/// one row of TIFF tiles at a time, its texels (grey, RGB or RGBA of 8 or 16 bits, an alpha
+/// added for a mask or GDAL_NODATA as `clipmapd` serves it) encoded into `format`.
+struct CogBand {
+    src: crate::source::CogSource,
+    format: TexelFormat,
+    width: u64,
+    /// Texture rows `rows.0 .. rows.1` of level 0, as the source serves them.
+    cache: Vec<u8>,
+    rows: Option<(u64, u64)>,
+}
+
+impl CogBand {
+    /// Reads the texture rows of the TIFF tile row holding texture row `t` into the cache.
+    fn load(&mut self, t: u64) -> Result<(), PrepError> {
+        use crate::source::TileSource;
+        let [iw, ih] = self.src.desc().size();
+        let th = self.src.desc().level(0).tile[1].max(1);
+        let th = self.src.origins().first().map_or(th, |o| match o {
+            crate::source::cog::LevelOrigin::Ifd { tile, .. } => tile[1],
+            _ => th,
+        });
+        // Image rows cy * th .. (cy + 1) * th, top-down, are texture rows counted from the bottom.
+        let cy = (ih - 1 - t) / th;
+        let (y0, y1) = (cy * th, ((cy + 1) * th).min(ih));
+        let (t0, t1) = (ih - y1, ih - y0);
+        let bpt = self.src.desc().bytes_per_texel();
+        self.cache.resize((iw * (t1 - t0)) as usize * bpt, 0);
+        self.src
+            .read_full_resolution([0, t0], [iw, t1 - t0], &mut self.cache)
+            .map_err(|e| PrepError::ImageDecode { path: self.src.path().to_path_buf(), message: e.to_string() })?;
+        self.rows = Some((t0, t1));
+        Ok(())
+    }
+}
+
+impl BandSource for CogBand {
+    fn fill(&mut self, t0: u64, rows: usize, out: &mut [u8]) -> Result<(), PrepError> {
+        use crate::source::TileSource;
+        let bpt = self.format.bytes_per_texel() as usize;
+        let row_bytes = self.width as usize * bpt;
+        let [iw, ih] = self.src.desc().size();
+        let served = self.src.desc().format();
+        let (n, sb) = (served.components.count() as usize, if served.ctype == ComponentType::U16 { 2 } else { 1 });
+        let deep_in = sb == 2;
+        for i in 0..rows {
+            let row = &mut out[i * row_bytes..(i + 1) * row_bytes];
+            row.fill(0);
+            let t = t0 + i as u64;
+            if t >= ih {
+                continue;
+            }
+            if !self.rows.is_some_and(|(a, b)| (a..b).contains(&t)) {
+                self.load(t)?;
+            }
+            let (a, _) = self.rows.unwrap_or((t, t));
+            let line = &self.cache[((t - a) * iw) as usize * n * sb..][..iw as usize * n * sb];
+            for (texel, px) in row.chunks_exact_mut(bpt).zip(line.chunks_exact(n * sb)) {
+                let get =
+                    |k: usize| if deep_in { u16::from_le_bytes([px[2 * k], px[2 * k + 1]]) } else { px[k] as u16 };
+                let max = if deep_in { u16::MAX } else { 255 };
+                let p = match n {
+                    1 => [get(0), get(0), get(0), max],
+                    2 => [get(0), get(0), get(0), get(1)],
+                    3 => [get(0), get(1), get(2), max],
+                    _ => [get(0), get(1), get(2), get(3)],
+                };
+                if deep_in {
+                    encode_rgba16(self.format, p, texel);
+                } else {
+                    let p8 = p.map(|v| v as u8);
+                    if self.format.ctype == ComponentType::U16 {
+                        encode_rgba16(self.format, widen(p8), texel);
+                    } else {
+                        encode_rgba8(self.format, p8, texel);
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A TIFF the image decoders refused, opened by the COG reader when it serves it as colour
+/// (`None` when it does not: the decoder's refusal stands).
+fn open_by_cog_reader(path: &Path, limits: &Limits) -> Option<Result<OpenedImage, PrepError>> {
+    use crate::source::TileSource;
+    let src = crate::source::CogSource::open_full_resolution(path).ok()?;
+    let f = src.desc().format();
+    if src.heights().is_some() || !matches!(f.ctype, ComponentType::U8 | ComponentType::U16) {
+        return None;
+    }
+    let [width, height] = src.desc().size();
+    // One row of TIFF tiles is held, as the served texels: at most a quarter of the limit.
+    let th = src.origins().first().map_or(1, |o| match o {
+        crate::source::cog::LevelOrigin::Ifd { tile, .. } => tile[1],
+        _ => 1,
+    });
+    let band = width * th.min(height) * src.desc().bytes_per_texel() as u64;
+    if band > limits.max_memory_bytes / 4 {
+        return Some(Err(PrepError::ImageTooLarge {
+            path: path.into(),
+            width,
+            height,
+            mib: (band * 4).div_ceil(1 << 20),
+            limit_mib: limits.max_memory_bytes >> 20,
+        }));
+    }
+    Some(Ok(OpenedImage {
+        width,
+        height,
+        streamed: true,
+        bits: if f.ctype == ComponentType::U16 { 16 } else { 8 },
+        samples: f.components.count(),
+        reduce_depth: false,
+        path: path.into(),
+        opener: Opener::Cog(Box::new(src)),
+    }))
+}
+
 /// Opens an image: TIFF images with a streamable layout are streamed; anything else is decoded
-/// into memory if it fits `limits.max_memory_bytes`.
+/// into memory if it fits `limits.max_memory_bytes`. A tiled TIFF neither decoder reads (GDAL's
+/// default RGB JPEG, stored as YCbCr) is streamed by the COG reader, as `clipmapd` serves it.
 pub fn open_image(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepError> {
+    match open_image_decoded(path, limits) {
+        Err(e @ (PrepError::ImageDecode { .. } | PrepError::UnsupportedPixels { .. }))
+            if crate::source::cog::is_tiff(path) =>
+        {
+            open_by_cog_reader(path, limits).unwrap_or(Err(e))
+        }
+        r => r,
+    }
+}
+
+fn open_image_decoded(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepError> {
     let (file, _) = crate::open::regular(path).map_err(|source| PrepError::ImageOpen { path: path.into(), source })?;
     drop(file);
     if let Some(stream) = TiffStream::try_open(path, limits)? {

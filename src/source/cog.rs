@@ -89,6 +89,9 @@ const MAX_ENTRIES: u64 = 4096;
 /// under 2 KiB; 64 KiB allows anything a writer could mean.
 const MAX_JPEG_TABLES: u64 = 64 * 1024;
 
+/// The most bytes of GDAL_METADATA (42112) read: GDAL's XML of a few items per band.
+const MAX_GDAL_METADATA: u64 = 256 << 10;
+
 /// What open reads of a TIFF's structure at most, all IFDs together.
 const MAX_STRUCTURE_BYTES: u64 = 1 << 20;
 
@@ -155,6 +158,20 @@ pub enum CogError {
         found: String,
         /// What is served.
         supported: &'static str,
+    },
+    /// An overview whose samples are not the full-resolution image's.
+    #[error("{path}: IFD {ifd} (an overview): {tag} is {found}, expected the full-resolution image's (IFD 0): {expected}; write the overviews from the same bands (gdaladdo, or gdal_translate -of COG)", path = path.display())]
+    Overview {
+        /// The file.
+        path: PathBuf,
+        /// The overview's IFD.
+        ifd: usize,
+        /// The tag that differs, by name and number.
+        tag: &'static str,
+        /// The overview's value.
+        found: String,
+        /// The full-resolution image's.
+        expected: String,
     },
     /// Coarser levels that would have to be built from too large an image.
     #[error("{path}: {why}; levels {from} to {last} would be built at open from level {base} ({base_size:?} texels), more than {MAX_BUILT_TEXELS} texels: add overviews whose sizes are level 0's halved and rounded down (gdaladdo, or gdal_translate -of COG from a size that halves evenly)", path = path.display())]
@@ -465,6 +482,17 @@ enum Samples {
 }
 
 impl Samples {
+    /// The BitsPerSample and SampleFormat values, in words.
+    fn describe(self) -> String {
+        let (bits, format) = match self {
+            Samples::U8 => (8, "1, unsigned"),
+            Samples::U16 => (16, "1, unsigned"),
+            Samples::I16 => (16, "2, signed"),
+            Samples::F32 => (32, "3, floating point"),
+        };
+        format!("{bits} bits, sample format {format}")
+    }
+
     /// Bytes of one sample.
     fn bytes(self) -> usize {
         match self {
@@ -600,6 +628,18 @@ impl Ghost {
     }
 }
 
+/// The most bytes a reading thread keeps in each of its buffers between reads: a larger one (a
+/// tile of tens of MiB) is freed once read, so that an idle thread holds little whatever tiles
+/// it read.
+const KEPT_BUFFER_BYTES: usize = 16 << 20;
+
+/// `buf` back into its thread's slot, or freed when larger than [`KEPT_BUFFER_BYTES`].
+fn keep(slot: &'static std::thread::LocalKey<RefCell<Vec<u8>>>, buf: Vec<u8>) {
+    if buf.capacity() <= KEPT_BUFFER_BYTES {
+        slot.with(|c| *c.borrow_mut() = buf);
+    }
+}
+
 thread_local! {
     /// Each reading thread's buffer for a tile's stored bytes.
     static PACKED: RefCell<Vec<u8>> = const { RefCell::new(Vec::new()) };
@@ -616,6 +656,8 @@ thread_local! {
 /// caller's buffer) or a remote object (ranged reads of the version seen at open).
 enum Store {
     Local(File),
+    /// A whole file's bytes in memory (a growing texture's patch, the fuzz tests).
+    Memory(Arc<[u8]>),
     #[cfg(feature = "remote")]
     Remote(super::remote::object::Object),
 }
@@ -665,25 +707,44 @@ impl Store {
     fn size(&self) -> u64 {
         match self {
             Store::Local(f) => f.metadata().map(|m| m.len()).unwrap_or(0),
+            Store::Memory(b) => b.len() as u64,
             #[cfg(feature = "remote")]
             Store::Remote(o) => o.size(),
         }
     }
 
     fn is_remote(&self) -> bool {
-        !matches!(self, Store::Local(_))
+        !matches!(self, Store::Local(_) | Store::Memory(_))
     }
 
     /// Fills `buf` from byte `offset`.
     fn read_exact_at(&self, buf: &mut [u8], offset: u64) -> Result<(), StoreError> {
         match self {
-            Store::Local(f) => f.read_exact_at(buf, offset).map_err(|e| {
-                if e.kind() == io::ErrorKind::UnexpectedEof {
-                    StoreError::Eof { size: self.size() }
-                } else {
-                    StoreError::Io(e)
+            Store::Local(f) => {
+                // A range past the end (an offset of 2^63 or more included, which the system
+                // refuses as an invalid argument) is the file's end, said as such.
+                let size = self.size();
+                if offset.checked_add(buf.len() as u64).is_none_or(|e| e > size) {
+                    return Err(StoreError::Eof { size });
                 }
-            }),
+                f.read_exact_at(buf, offset).map_err(|e| {
+                    if e.kind() == io::ErrorKind::UnexpectedEof {
+                        StoreError::Eof { size: self.size() }
+                    } else {
+                        StoreError::Io(e)
+                    }
+                })
+            }
+            Store::Memory(b) => {
+                let range = usize::try_from(offset).ok().and_then(|o| Some(o..o.checked_add(buf.len())?));
+                match range.and_then(|r| b.get(r)) {
+                    Some(bytes) => {
+                        buf.copy_from_slice(bytes);
+                        Ok(())
+                    }
+                    None => Err(StoreError::Eof { size: b.len() as u64 }),
+                }
+            }
             #[cfg(feature = "remote")]
             Store::Remote(o) => {
                 let end = offset.checked_add(buf.len() as u64);
@@ -740,6 +801,10 @@ impl Store {
                 Ok(Arc::new(v))
             }
             _ => {
+                let size = self.size();
+                if offset.checked_add(len).is_none_or(|e| e > size) {
+                    return Err(StoreError::Eof { size });
+                }
                 let mut v = vec![0u8; len as usize];
                 self.read_exact_at(&mut v, offset)?;
                 Ok(Arc::new(v))
@@ -893,13 +958,76 @@ impl CogSource {
         let mut prefix = vec![0u8; PREFIX_BYTES as usize];
         let got = read_prefix(&file, &mut prefix).map_err(io_err)?;
         prefix.truncate(got);
-        let src = CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, clip_size)?;
+        let src = CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, clip_size, true)?;
         src.built_levels(None).map_err(|source| CogError::Build {
             path: path.to_path_buf(),
             from: src.levels.iter().filter(|l| matches!(l, Level::Ifd(_))).count() as u32,
             source,
         })?;
         Ok(src)
+    }
+
+    /// Opens the local TIFF `path` to read its full-resolution image only, with
+    /// [`CogSource::read_full_resolution`] (`clipprep --input` and a growing texture's patches
+    /// take TIFFs through it where the `image` crate's decoder does not read them, e.g. GDAL's
+    /// YCbCr JPEG): the same checks as [`CogSource::open`], but nothing is built past the
+    /// overviews, and an image without overviews is not refused for its size.
+    pub fn open_full_resolution(path: &Path) -> Result<Self, CogError> {
+        let io_err = |source| CogError::Io { path: path.to_path_buf(), source };
+        let (file, _) = crate::open::regular(path).map_err(io_err)?;
+        let mut prefix = vec![0u8; PREFIX_BYTES as usize];
+        let got = read_prefix(&file, &mut prefix).map_err(io_err)?;
+        prefix.truncate(got);
+        CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, super::MAX_TEXTURE_SIZE, false)
+    }
+
+    /// [`CogSource::open_full_resolution`] of a TIFF's bytes (`name` names it in errors): a
+    /// growing texture's patch, or bytes under test.
+    pub fn from_bytes_full_resolution(name: &Path, bytes: Arc<[u8]>) -> Result<Self, CogError> {
+        let prefix = bytes[..bytes.len().min(PREFIX_BYTES as usize)].to_vec();
+        CogSource::from_store(name.to_path_buf(), Store::Memory(bytes), prefix, super::MAX_TEXTURE_SIZE, false)
+    }
+
+    /// [`CogSource::open`] of a TIFF's bytes (`name` names it in errors), served at clip size
+    /// `clip_size`: the levels past the overviews are built here.
+    pub fn from_bytes(name: &Path, bytes: Arc<[u8]>, clip_size: u64) -> Result<Self, CogError> {
+        let prefix = bytes[..bytes.len().min(PREFIX_BYTES as usize)].to_vec();
+        let src = CogSource::from_store(name.to_path_buf(), Store::Memory(bytes), prefix, clip_size, true)?;
+        src.built_levels(None).map_err(|source| CogError::Build {
+            path: name.to_path_buf(),
+            from: src.levels.iter().filter(|l| matches!(l, Level::Ifd(_))).count() as u32,
+            source,
+        })?;
+        Ok(src)
+    }
+
+    /// Texels `[s0, s0 + w) x [t0, t0 + h)` of level 0 in the texture's format (rows in
+    /// increasing t, `w` texels each) into `out`; sparse TIFF tiles read as GDAL reads them
+    /// (zeros, or nodata heights).
+    pub fn read_full_resolution(
+        &self,
+        [s0, t0]: [u64; 2],
+        [w, h]: [u64; 2],
+        out: &mut [u8],
+    ) -> Result<(), SourceError> {
+        let Some(Level::Ifd(lv)) = self.levels.first() else { return Ok(()) };
+        let size = lv.size;
+        if w == 0 || h == 0 || s0 + w > size[0] || t0 + h > size[1] {
+            return Err(SourceError::Chunk {
+                tile: TileId::new(0, 0, 0),
+                path: self.path.clone(),
+                problem: format!(
+                    "texels [{s0}, {}) x [{t0}, {}) asked for, outside level 0's {size:?}",
+                    s0 + w,
+                    t0 + h
+                ),
+            });
+        }
+        let need = (w * h) as usize * self.desc.bytes_per_texel();
+        if out.len() < need {
+            return Err(SourceError::BufferSize { tile: TileId::new(0, 0, 0), expected: need, found: out.len() });
+        }
+        self.fill_region(lv, TileId::new(0, 0, 0), [s0, t0], [w, h], out, w as usize, true)
     }
 
     /// Opens `place`: a local file ([`CogSource::open`]) or a remote object read with the
@@ -958,12 +1086,15 @@ impl CogSource {
         let path = PathBuf::from(crate::place::redacted(name.as_str()).as_ref());
         let (object, prefix) = Object::open(remote, name, PREFIX_BYTES)
             .map_err(|e| CogError::Remote { path: path.clone(), problem: e.to_string() })?;
-        let mut src = CogSource::from_store(path, Store::Remote(object), prefix.to_vec(), clip_size)?;
+        let mut src = CogSource::from_store(path, Store::Remote(object), prefix.to_vec(), clip_size, true)?;
         src.chunked = true;
         Ok(src)
     }
 
-    fn from_store(path: PathBuf, store: Store, prefix: Vec<u8>, clip_size: u64) -> Result<Self, CogError> {
+    /// The source of `store`; with `build` false the levels past the overviews are never built
+    /// (only level 0 is read: [`CogSource::open_full_resolution`]), and an image too large to
+    /// build them from is not refused.
+    fn from_store(path: PathBuf, store: Store, prefix: Vec<u8>, clip_size: u64, build: bool) -> Result<Self, CogError> {
         let malformed = |(at, problem): (String, String)| CogError::Malformed { path: path.clone(), at, problem };
         let head = &prefix[..prefix.len().min(16)];
         let got = head.len();
@@ -991,10 +1122,19 @@ impl CogSource {
         let ghost = Ghost::parse(&prefix, if layout.big { 16 } else { 8 });
         let reader =
             Head { store: &store, prefix: &prefix, failed: RefCell::new(None), windows: RefCell::new(Vec::new()) };
-        let mut nodata = None;
+        let (mut nodata, mut meta) = (None, BandMeta::default());
         let parts = read_ifds(&reader, layout, first).map_err(malformed).and_then(|images| {
             nodata = ascii(&reader, layout, &images[0], 42113, "GDAL_NODATA (42113)", 64).map_err(malformed)?;
-            CogSource::levels_of(&path, &reader, layout, images, clip_size)
+            let xml = ascii(&reader, layout, &images[0], 42112, "GDAL_METADATA (42112)", MAX_GDAL_METADATA)
+                .map_err(malformed)?;
+            if let Some(xml) = xml {
+                meta = BandMeta::parse(&xml).map_err(|problem| CogError::Malformed {
+                    path: path.clone(),
+                    at: "IFD 0 tag GDAL_METADATA (42112)".into(),
+                    problem,
+                })?;
+            }
+            CogSource::levels_of(&path, &reader, layout, images, clip_size, build)
         });
         let parts = match (parts, reader.failed.take()) {
             (Ok(p), _) => p,
@@ -1009,7 +1149,7 @@ impl CogSource {
         let (desc, levels, origins, built_because) = parts;
         let stored = desc.format();
         let masked = matches!(levels.first(), Some(Level::Ifd(l)) if l.mask.is_some());
-        let heights = heights_of(&path, stored, nodata.as_deref(), masked)?;
+        let heights = heights_of(&path, stored, nodata.as_deref(), masked, &meta)?;
         let height_nodata = heights.and_then(|p| p.format.nodata()).map(|v| {
             // -3.4028234663852886e38 rather than its 39 digits.
             let v = if v.abs() >= 1e16 { format!("{v:e}") } else { v.to_string() };
@@ -1028,7 +1168,31 @@ impl CogSource {
                 _ => format!("{v} (GDAL_NODATA)"),
             }
         });
-        let alpha = alpha_of(&path, stored, nodata.as_deref(), &levels)?;
+        let alpha = match heights {
+            Some(_) => None,
+            None => alpha_of(&path, stored, nodata.as_deref(), &levels)?,
+        };
+        let served_format = if alpha.is_some() { rgba_of(stored) } else { stored };
+        // A TIFF tile is decoded into buffers of the texels served (an alpha added widens grey
+        // and RGB to RGBA), one set a reading thread: bound those, not the stored samples.
+        for level in &levels {
+            let Level::Ifd(lv) = level else { continue };
+            let [tw, th] = lv.tile;
+            let served = tw.saturating_mul(th).saturating_mul(served_format.bytes_per_texel() as u64);
+            let stored_bytes = tw.saturating_mul(th).saturating_mul(lv.pixel_bytes() as u64);
+            if served > crate::limits::MAX_TILE_BYTES {
+                return Err(CogError::Unsupported {
+                    path: path.clone(),
+                    ifd: lv.ifd,
+                    tag: "TileWidth (322) x TileLength (323)",
+                    found: format!(
+                        "{tw} x {th} ({stored_bytes} bytes a tile as stored, {served} served as {})",
+                        served_format
+                    ),
+                    supported: "tiles of at most MAX_TILE_BYTES (268435456) bytes as served (an alpha added makes grey and RGB RGBA): write smaller tiles (gdal_translate -co BLOCKSIZE=512, or -co BLOCKXSIZE= -co BLOCKYSIZE=)",
+                });
+            }
+        }
         let desc = match alpha {
             Some(_) => {
                 desc.with_format(rgba_of(stored)).map_err(|source| CogError::Desc { path: path.clone(), source })?
@@ -1065,7 +1229,7 @@ impl CogSource {
     /// points at since): [`Reopening`] then opens it again.
     pub fn object_changed(&self) -> bool {
         match &self.store {
-            Store::Local(_) => false,
+            Store::Local(_) | Store::Memory(_) => false,
             #[cfg(feature = "remote")]
             Store::Remote(o) => o.has_changed(),
         }
@@ -1113,6 +1277,7 @@ impl CogSource {
         layout: Layout,
         images: Vec<Image>,
         clip_size: u64,
+        build: bool,
     ) -> Result<(TextureDesc, Vec<Level>, Vec<LevelOrigin>, Option<String>), CogError> {
         let full = &images[0];
         let (format, mut level0) = image_level(path, head, layout, full)?;
@@ -1160,12 +1325,21 @@ impl CogSource {
             let k = levels.len() as u32;
             let (f, level) = image_level(path, head, layout, image)?;
             if f != format {
-                return Err(CogError::Unsupported {
+                let full = match &levels[0] {
+                    Level::Ifd(l) => l,
+                    Level::Built => unreachable!("level 0 is an image"),
+                };
+                let (tag, found, expected) = if level.samples != full.samples {
+                    ("BitsPerSample (258) / SampleFormat (339)", level.samples.describe(), full.samples.describe())
+                } else {
+                    ("SamplesPerPixel (277)", level.spp.to_string(), full.spp.to_string())
+                };
+                return Err(CogError::Overview {
                     path: path.to_path_buf(),
                     ifd: image.ifd,
-                    tag: "SamplesPerPixel (277)",
-                    found: format!("{} ({f})", f.components.count()),
-                    supported: "the full-resolution image's, in every overview",
+                    tag,
+                    found: format!("{found} ({f})"),
+                    expected: format!("{expected} ({format})"),
                 });
             }
             let expected = level_size(size, k);
@@ -1198,7 +1372,7 @@ impl CogSource {
         if used < n {
             let base = used as u32 - 1;
             let base_size = level_size(size, base);
-            if base_size[0] * base_size[1] > MAX_BUILT_TEXELS {
+            if build && base_size[0] * base_size[1] > MAX_BUILT_TEXELS {
                 return Err(CogError::TooLargeToBuild {
                     path: path.to_path_buf(),
                     why,
@@ -1628,13 +1802,19 @@ impl CogSource {
             };
             let count = stored;
             let (from, len) = (offset - lead, lead + count + trail);
-            PACKED.with(|cell| {
+            let result = PACKED.with(|cell| {
                 let mut buf = cell.borrow_mut();
                 // The bytes where they were read already (a row's span, the first bytes), else
                 // read into this thread's buffer.
                 let packed: &[u8] = match span.and_then(|s| s.get(from, len)).or_else(|| prefix.get(from, len)) {
                     Some(b) => b,
                     None => {
+                        // Bytes the file does not hold are not allocated for: a byte count is
+                        // bounded by the file's size, not only by the tile's.
+                        let size = self.store.size();
+                        if from.checked_add(len).is_none_or(|end| end > size) {
+                            return Err(StoreError::Eof { size }.for_tile(tile, &self.path, from, len));
+                        }
                         buf.resize(len as usize, 0);
                         self.store
                             .read_exact_at(&mut buf, from)
@@ -1672,7 +1852,14 @@ impl CogSource {
                     )));
                 }
                 Ok(())
-            })?;
+            });
+            PACKED.with(|cell| {
+                let mut buf = cell.borrow_mut();
+                if buf.capacity() > KEPT_BUFFER_BYTES {
+                    *buf = Vec::new();
+                }
+            });
+            result?;
         }
         finish_samples(lv, self.layout.little, dst);
         Ok(())
@@ -1698,7 +1885,7 @@ impl CogSource {
                 if result.is_ok() {
                     mask_heights(plan.format, &mask, dst);
                 }
-                MASK.with(|c| *c.borrow_mut() = mask);
+                keep(&MASK, mask);
                 result?;
             }
             return Ok(());
@@ -1719,8 +1906,8 @@ impl CogSource {
             add_alpha(&stored, lv.spp, lv.samples.bytes(), rule.nodata, m, dst);
             Ok(())
         })();
-        STORED.with(|c| *c.borrow_mut() = stored);
-        MASK.with(|c| *c.borrow_mut() = mask);
+        keep(&STORED, stored);
+        keep(&MASK, mask);
         result
     }
 
@@ -1829,7 +2016,7 @@ impl CogSource {
             }
             Ok(())
         })();
-        CHUNK.with(|cell| *cell.borrow_mut() = chunk);
+        keep(&CHUNK, chunk);
         result
     }
 }
@@ -1976,22 +2163,78 @@ pub const MASK_NODATA_I16: f64 = -32768.0;
 /// -3.4028234663852886e38 (GDAL's usual nodata for Float32).
 pub const MASK_NODATA_F32: f64 = f32::MIN as f64;
 
-/// The heights a COG's samples are: 16-bit signed integers (`l16i`, metres, scale 1) and 32-bit
-/// floats (`l32f`) are heights, with the GDAL_NODATA tag's value as nodata (a NaN nodata means
+/// The nodata value of 16-bit unsigned heights (samples with a GDAL scale, offset or unit) with
+/// an internal mask and no GDAL_NODATA value: the least value of the samples, 0.
+pub const MASK_NODATA_U16: f64 = 0.0;
+
+/// What GDAL's metadata (the GDAL_METADATA tag, 42112) says of the first band: its scale and
+/// offset (`gdal_translate -a_scale -a_offset`, `gdal_edit.py -scale -offset`) and its unit
+/// (`-a_unit`, `SetUnitType`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct BandMeta {
+    scale: Option<f64>,
+    offset: Option<f64>,
+    unit: Option<String>,
+}
+
+impl BandMeta {
+    /// Reads the `<Item name=... sample="0" role="scale|offset|unittype">` items of GDAL's XML; a
+    /// value that is no number is refused (the text, then what it is).
+    fn parse(xml: &str) -> Result<BandMeta, String> {
+        let mut meta = BandMeta::default();
+        for item in xml.split("<Item ").skip(1) {
+            let Some((attrs, rest)) = item.split_once('>') else { continue };
+            let Some((value, _)) = rest.split_once("</Item>") else { continue };
+            let value = value.trim();
+            let has = |a: &str| attrs.split_whitespace().any(|w| w.trim_end_matches('/') == a);
+            if !has("sample=\"0\"") {
+                continue;
+            }
+            let number = |what: &str| {
+                value
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .ok_or_else(|| format!("the first band's {what} is {value:?}, expected a finite number"))
+            };
+            if has("role=\"scale\"") {
+                meta.scale = Some(number("scale")?);
+            } else if has("role=\"offset\"") {
+                meta.offset = Some(number("offset")?);
+            } else if has("role=\"unittype\"") {
+                meta.unit = Some(value.to_string());
+            }
+        }
+        Ok(meta)
+    }
+
+    /// Whether GDAL's metadata makes 16-bit unsigned samples heights.
+    fn says_heights(&self) -> bool {
+        self.scale.is_some() || self.offset.is_some() || self.unit.is_some()
+    }
+}
+
+/// The heights a COG's samples are (docs/ELEVATION.md): 16-bit signed integers (`l16i`) and
+/// 32-bit floats (`l32f`) always, and 16-bit unsigned integers (`l16`) when GDAL's metadata
+/// gives their band a scale, an offset or a unit (else they are grey); the metres of a stored
+/// value are `v x scale + offset` with GDAL's scale and offset (1 and 0 when it gives none;
+/// floats take none other). The GDAL_NODATA tag's value is the nodata value (a NaN nodata means
 /// none: the mapping's heights block cannot name NaN, and NaN texels stay NaN); other formats
 /// are colours, whose GDAL_NODATA gives an alpha instead ([`alpha_of`]). A height image with an
-/// internal mask (`masked`) and no nodata value gets [`MASK_NODATA_I16`] or [`MASK_NODATA_F32`],
-/// served where the mask is 0.
+/// internal mask (`masked`) and no nodata value gets [`MASK_NODATA_I16`], [`MASK_NODATA_U16`] or
+/// [`MASK_NODATA_F32`], served where the mask is 0.
 fn heights_of(
     path: &Path,
     format: TexelFormat,
     nodata: Option<&str>,
     masked: bool,
+    meta: &BandMeta,
 ) -> Result<Option<crate::plan::HeightPlan>, CogError> {
-    use crate::height::{HeightFormat, HeightStorage, LevelRule};
+    use crate::height::{HeightError, HeightFormat, HeightStorage, LevelRule};
     let storage = match format {
         TexelFormat::L32F => HeightStorage::F32,
         TexelFormat::L16I => HeightStorage::I16,
+        TexelFormat::L16 if meta.says_heights() => HeightStorage::U16,
         _ => return Ok(None),
     };
     let refuse = |found: String| {
@@ -2000,7 +2243,7 @@ fn heights_of(
         ifd: 0,
         tag: "GDAL_NODATA (42113)",
         found,
-        supported: "a number that is a value of the samples (a whole number in -32768..32767 for 16-bit signed samples, a finite 32-bit float or nan for floats)",
+        supported: "a number that is a value of the samples (a whole number in -32768..32767 for 16-bit signed samples, 0..65535 for 16-bit unsigned ones, a finite 32-bit float or nan for floats)",
     }
     };
     let value = match nodata {
@@ -2013,11 +2256,21 @@ fn heights_of(
     };
     let value = match (value, masked, storage) {
         (None, true, HeightStorage::I16) => Some(MASK_NODATA_I16),
+        (None, true, HeightStorage::U16) => Some(MASK_NODATA_U16),
         (None, true, _) => Some(MASK_NODATA_F32),
         (v, _, _) => v,
     };
-    let format =
-        HeightFormat::new(storage, 1.0, 0.0, value).map_err(|e| refuse(format!("{} ({e})", nodata.unwrap_or(""))))?;
+    let (scale, offset) = (meta.scale.unwrap_or(1.0), meta.offset.unwrap_or(0.0));
+    let format = HeightFormat::new(storage, scale, offset, value).map_err(|e| match e {
+        HeightError::Nodata { .. } => refuse(format!("{} ({e})", nodata.unwrap_or(""))),
+        e => CogError::Unsupported {
+            path: path.to_path_buf(),
+            ifd: 0,
+            tag: "GDAL_METADATA (42112)",
+            found: format!("scale {scale}, offset {offset} for {storage} heights ({e})"),
+            supported: "a scale above 0 and an offset for 16-bit integer heights within the metres heights may take; none (scale 1, offset 0) for 32-bit floats: write the metres themselves (gdal_translate -unscale -ot Float32)",
+        },
+    })?;
     Ok(Some(crate::plan::HeightPlan { format, levels: LevelRule::Mean }))
 }
 
@@ -2202,13 +2455,14 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
         return Err(unsupported(
             "TileWidth (322) x TileLength (323)",
             format!("{tw} x {th} ({tile_bytes} bytes a tile)"),
-            "tiles of at most MAX_TILE_BYTES bytes",
+            "tiles of at most MAX_TILE_BYTES (268435456) bytes: write smaller tiles (gdal_translate -co BLOCKSIZE=512, or -co BLOCKXSIZE= -co BLOCKYSIZE=)",
         ));
     }
     let across = width.div_ceil(tw);
     let tiles = across * height.div_ceil(th);
     let offsets = array(layout, image, 324, "TileOffsets (324)", tiles).map_err(malformed)?;
     let counts = array(layout, image, 325, "TileByteCounts (325)", tiles).map_err(malformed)?;
+    index_in_file(file, image, &offsets, &counts, [width, height], [tw, th]).map_err(malformed)?;
     let level = IfdLevel {
         ifd: image.ifd,
         size: [width, height],
@@ -2225,6 +2479,33 @@ fn image_level(path: &Path, file: &Head, layout: Layout, image: &Image) -> Resul
         mask: None,
     };
     Ok((format, level))
+}
+
+/// Whether an image's tile index lies in the file: one past its end is a damaged or truncated
+/// file, refused at open rather than every tile of the image failing on its own (an image
+/// claiming 2^26 texels a side in a few kilobytes would have billions of tiles to try).
+fn index_in_file(
+    file: &Head,
+    image: &Image,
+    offsets: &Array,
+    counts: &Array,
+    [width, height]: [u64; 2],
+    [tw, th]: [u64; 2],
+) -> Result<(), (String, String)> {
+    let size = file.store.size();
+    for (a, name) in [(offsets, "TileOffsets (324)"), (counts, "TileByteCounts (325)")] {
+        let bytes = a.count.saturating_mul(a.size);
+        if a.inline.is_none() && a.at.checked_add(bytes).is_none_or(|end| end > size) {
+            return Err((
+                format!("IFD {} tag {name}", image.ifd),
+                format!(
+                    "its {} values ({bytes} bytes, one per tile of a {width} x {height} image in tiles of {tw} x {th}) at byte {} run past the end of the file ({size} bytes)",
+                    a.count, a.at
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The internal mask in IFD `image` of the image `of` (IFD `of.ifd`): one 1- or 8-bit unsigned
@@ -2317,6 +2598,7 @@ fn mask_level(
     let tiles = of.across * of.rows();
     let offsets = array(layout, image, 324, "TileOffsets (324)", tiles).map_err(malformed)?;
     let counts = array(layout, image, 325, "TileByteCounts (325)", tiles).map_err(malformed)?;
+    index_in_file(file, image, &offsets, &counts, of.size, of.tile).map_err(malformed)?;
     let lv = IfdLevel {
         ifd: image.ifd,
         size: of.size,
@@ -2629,7 +2911,7 @@ impl TileSource for CogSource {
     fn remote_stats(&self) -> Option<super::remote::RemoteStats> {
         match &self.store {
             Store::Remote(o) => Some(o.remote().stats()),
-            Store::Local(_) => None,
+            Store::Local(_) | Store::Memory(_) => None,
         }
     }
 
@@ -2704,7 +2986,9 @@ mod tests {
     fn a_masked_height_image_without_nodata_gets_the_least_value_of_its_samples() {
         let p = Path::new("dem.tif");
         let nodata = |format, tag, masked| {
-            heights_of(p, format, tag, masked).unwrap().and_then(|plan: crate::plan::HeightPlan| plan.format.nodata())
+            heights_of(p, format, tag, masked, &BandMeta::default())
+                .unwrap()
+                .and_then(|plan: crate::plan::HeightPlan| plan.format.nodata())
         };
         assert_eq!(nodata(TexelFormat::L16I, None, true), Some(-32768.0));
         assert_eq!(nodata(TexelFormat::L32F, None, true), Some(-3.4028234663852886e38));
@@ -2714,7 +2998,7 @@ mod tests {
         // GDAL_NODATA, masked or not, is the nodata value.
         assert_eq!(nodata(TexelFormat::L16I, Some("-9999"), true), Some(-9999.0));
         assert_eq!(nodata(TexelFormat::L16I, None, false), None);
-        assert!(heights_of(p, TexelFormat::RGB8, None, true).unwrap().is_none());
+        assert!(heights_of(p, TexelFormat::RGB8, None, true, &BandMeta::default()).unwrap().is_none());
     }
 
     #[test]
@@ -2874,14 +3158,14 @@ mod tests {
                 }
             }
         }
-        // An index that runs past the end of the file is an error naming where, not a texel.
+        // An index that runs past the end of the file is refused at open, naming where (not
+        // a texel, and not an error a tile, each read in vain).
         let mut cut = std::fs::read(&path).unwrap();
         cut.truncate(cut.len() - 100);
         std::fs::write(&path, &cut).unwrap();
-        let src = open_chunked(&path, 4096);
-        let e = src.read_tile(TileId::new(0, 0, 0), &mut vec![0u8; src.desc().tile_bytes(0)]).unwrap_err();
-        assert!(matches!(e, SourceError::Chunk { .. }), "{e}");
-        assert!(e.to_string().contains("lie past the end of the file"), "{e}");
+        let e = CogSource::open(&path, 4096).unwrap_err().to_string();
+        assert!(e.contains("IFD 0 tag TileByteCounts (325): its 5600 values (22400 bytes"), "{e}");
+        assert!(e.contains("run past the end of the file"), "{e}");
     }
 
     /// `path` opened as a remote object is (structure from the first bytes, the index read in
@@ -2891,7 +3175,7 @@ mod tests {
         let mut prefix = vec![0u8; PREFIX_BYTES as usize];
         let n = read_prefix(&file, &mut prefix).unwrap();
         prefix.truncate(n);
-        let mut src = CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, clip).unwrap();
+        let mut src = CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, clip, true).unwrap();
         src.chunked = true;
         src
     }

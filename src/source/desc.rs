@@ -159,11 +159,10 @@ impl TextureDesc {
     }
 
     /// The same texture in another texel format (tile sizes in texels unchanged).
+    /// Checked as [`TextureDesc::from_levels`] checks a new one: wider texels make every tile
+    /// larger, and a tile too large for the new format is refused.
     pub fn with_format(mut self, format: TexelFormat) -> Result<Self, DescError> {
-        let bytes = format.bytes_per_texel();
-        if !(1..=16).contains(&bytes) {
-            return Err(DescError::Format { format, bytes });
-        }
+        Self::from_levels(self.size, self.clip_size, format, self.levels.clone())?;
         self.format = format;
         Ok(self)
     }

@@ -51,6 +51,8 @@ mod shm_readers;
 mod shm_room;
 mod sixteen_bit;
 mod stability;
+mod tiff_fuzz_props;
+mod tiff_hardening;
 mod tools_cog_names;
 mod views_own;
 mod views_restart;

@@ -72,7 +72,7 @@ impl Reopening {
     pub fn serving(name: &RemoteName, first: Arc<CogSource>, clip_size: u64) -> Option<Reopening> {
         let remote = match &first.store {
             super::Store::Remote(o) => Arc::clone(o.remote()),
-            super::Store::Local(_) => return None,
+            super::Store::Local(_) | super::Store::Memory(_) => return None,
         };
         Some(Reopening {
             name: name.clone(),

@@ -7,6 +7,7 @@ pub mod flight;
 pub mod gdal;
 pub mod patch_exercise;
 pub mod remote;
+pub mod tiff_exercise;
 
 use clipmap::config::{self, Diagnostic, Diagnostics, FileKind, Limits, Severity, SyntaxFile};
 use clipmap::plan::{self, ClipTexturePlan, Env, ImageCachePlan, Loaded, Options};
