@@ -342,8 +342,12 @@ impl Check<'_> {
         let fix = match &has {
             None => "remove the `#clipmap height` lines".to_string(),
             Some(h) => format!(
-                "write `#clipmap height {}` and `#clipmap height_nodata {}` (the COG's GDAL_NODATA; scale 1, offset 0, levels mean)",
+                "write `#clipmap height {}`, `#clipmap height_scale {}`, `#clipmap height_offset {}` and \
+                 `#clipmap height_nodata {}` (the COG's GDAL scale, offset and GDAL_NODATA; levels mean), \
+                 or let `clipprep --input COG --config-only` write them",
                 h.format.storage(),
+                h.format.scale(),
+                h.format.offset(),
                 h.format.nodata().map_or("none".to_string(), |v| v.to_string())
             ),
         };
