@@ -16,7 +16,7 @@
 use super::stats::TickStats;
 use crate::clip::{Clipmap, LodWindow, Settings, PRIMARY};
 use crate::shm::layout::{self, views::own_mapping_name};
-use crate::shm::{Client, FromMapping, Writer};
+use crate::shm::{Client, Freshness, FromMapping, Writer};
 use crate::source::TileSource;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -36,6 +36,9 @@ pub(super) struct Setup {
     /// The service's mapping: an own view's clipmap takes the tiles its slots hold from there
     /// ([`FromMapping`]) rather than reading them again.
     pub(super) main_mapping: PathBuf,
+    /// What of the service's mapping is of the texels the source serves now, as the primary's
+    /// clipmap said at its last tick ([`OwnViews::tick`]): only such tiles are taken from it.
+    pub(super) fresh: Arc<Freshness>,
 }
 
 /// One view with grids of its own.
@@ -87,7 +90,7 @@ impl OwnViews {
         .map_err(|e| format!("view {name}: its own mapping {own}: {e}"))?;
         // Tiles the primary's grids hold (the coarse levels at least) are taken from them.
         let from_mapping = match Client::attach_path(&s.main_mapping) {
-            Ok(main) => Some(Arc::new(FromMapping::new(Arc::clone(&s.source), main))),
+            Ok(main) => Some(Arc::new(FromMapping::following(Arc::clone(&s.source), main, Arc::clone(&s.fresh)))),
             Err(e) => {
                 tracing::warn!(view = %name, "the service's own mapping cannot be read ({e}): every tile of the view is read from the source");
                 None
@@ -139,9 +142,12 @@ impl OwnViews {
         self.views.values().any(|v| v.writer.request_count() != v.last_request)
     }
 
-    /// One tick of every own view: its newest request (centre, velocity, levels), its engine's
-    /// tick, its heartbeat.
-    pub(super) fn tick(&mut self, hz: f64, stats: &mut TickStats) {
+    /// One tick of every own view, after the primary's (`primary`): first what of the service's
+    /// mapping may be taken now (the source version the primary followed, the tiles it is still
+    /// replacing), then for each view its newest request (centre, velocity, levels), its
+    /// engine's tick, its heartbeat.
+    pub(super) fn tick(&mut self, primary: &Clipmap, hz: f64, stats: &mut TickStats) {
+        self.setup.fresh.set(primary.followed_version(), primary.tiles_being_replaced());
         for (name, v) in self.views.iter_mut() {
             if let Some(req) = v.writer.request() {
                 if req.count != v.last_request {
@@ -171,3 +177,6 @@ impl OwnViews {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;

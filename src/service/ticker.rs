@@ -223,6 +223,7 @@ impl Runner {
             heights,
             effective_levels: o.effective_levels,
             main_mapping: writer.path().to_path_buf(),
+            fresh: Default::default(),
         };
         let mut clipmap = match Clipmap::with_memory(source, settings, writer.memory()) {
             Ok(c) => c,
@@ -555,7 +556,7 @@ impl Runner {
         }
         let t0 = Instant::now();
         let report = self.clipmap.tick(self.centre, self.velocity);
-        self.own.tick(self.hz, &mut self.stats);
+        self.own.tick(&self.clipmap, self.hz, &mut self.stats);
         self.stats.views = self.view_stats();
         if let Some((served, last)) = &mut self.growing {
             let (_, mut g) = served.growth();

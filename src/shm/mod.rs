@@ -27,7 +27,7 @@ mod tests;
 
 pub use client::{Client, LevelState, ReadError, Snapshot};
 pub use memory::{ImageMemory, Publication, PublishedLevel};
-pub use shared_reads::FromMapping;
+pub use shared_reads::{Freshness, FromMapping};
 pub use writer::Writer;
 
 use std::path::{Path, PathBuf};
