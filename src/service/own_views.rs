@@ -17,7 +17,7 @@ use super::stats::TickStats;
 use crate::clip::{Clipmap, LodWindow, Settings, PRIMARY};
 use crate::shm::layout::{self, views::own_mapping_name};
 use crate::shm::{Client, Freshness, FromMapping, Writer};
-use crate::source::TileSource;
+use crate::source::{TileId, TileSource};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -140,6 +140,19 @@ impl OwnViews {
     /// Whether a renderer made a new request in any own mapping (the loop then ticks early).
     pub(super) fn requests_changed(&self) -> bool {
         self.views.values().any(|v| v.writer.request_count() != v.last_request)
+    }
+
+    /// Says that the source's texels of `tiles` changed (a growing texture's patch): every own
+    /// view reads those it holds again, as the primary does ([`Clipmap::refresh`]).
+    pub(super) fn refresh(&mut self, tiles: &[TileId]) {
+        for v in self.views.values_mut() {
+            v.clipmap.refresh(tiles.iter().copied());
+        }
+    }
+
+    /// Whether any own view holds `tile`.
+    pub(super) fn holds(&self, tile: TileId) -> bool {
+        self.views.values().any(|v| v.clipmap.holds(tile))
     }
 
     /// One tick of every own view, after the primary's (`primary`): first what of the service's

@@ -542,10 +542,12 @@ impl Runner {
         (self.stats.request_faults, self.stats.request_fault) = self.writer.request_faults();
         if let Some((served, _)) = &self.growing {
             let changed = served.take_changed(self.clipmap.desc());
+            // Every clipmap reads the changed tiles again: the primary's and each own view's.
+            self.own.refresh(&changed);
             self.clipmap.refresh(changed);
             if self.stats.engine.ticks.is_multiple_of(256) {
-                let c = &self.clipmap;
-                served.retain_partial(|t| c.holds(t));
+                let (c, own) = (&self.clipmap, &self.own);
+                served.retain_partial(|t| c.holds(t) || own.holds(t));
             }
         }
         self.take_view_requests();
