@@ -9,7 +9,7 @@
 //! are taken between ticks and answered through a one-shot reply.
 
 use super::own_views::{OwnViews, Setup};
-use super::requests::{apply_lod, velocity_per_tick};
+use super::requests::{apply_lod, bounded_centre, velocity_per_tick};
 use super::stats::TickStats;
 use super::{Options, ServiceError};
 use crate::clip::{Clipmap, Settings, ViewId, PRIMARY};
@@ -347,6 +347,7 @@ impl Runner {
                 let _ = reply.send(format!("border {applied}"));
             }
             Command::Centre(c, reply) => {
+                let c = bounded_centre(c);
                 self.centre = c;
                 self.velocity = None;
                 self.stats.request_velocity = None;
@@ -378,6 +379,7 @@ impl Runner {
                 let _ = reply.send(r);
             }
             Command::ViewCentre(name, c, reply) => {
+                let c = bounded_centre(c);
                 let r = match self.clipmap.view_named(&name) {
                     None => Err(self.no_view(&name)),
                     Some(PRIMARY) => {

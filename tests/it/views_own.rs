@@ -131,3 +131,28 @@ fn the_own_mappings_a_killed_service_left_go_at_the_next_start_and_command_line_
     let (passed, failed) = counts(&out, "tower");
     assert!(out.status.success() && failed == 0 && passed > 500, "{passed} {failed}\n{out:?}");
 }
+
+/// The fault: `CENTRE` and `VIEW CENTRE` echoed the centre as asked while every snapshot
+/// published it bounded to -2^40..=2^40 (docs/SHM.md, "Centres"). The reply must say the centre
+/// that will be published, for `main`, a view in the shared grids and one with grids of its own.
+#[test]
+fn centre_replies_echo_an_unclamped_centre() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "vc", &["--view", "left", "--view", "far:own"]);
+    let far = 1i64 << 40;
+    assert_eq!(svc.ask("CENTRE 5000000000000 -5000000000000"), format!("OK centre {far} -{far}"));
+    for v in ["left", "far"] {
+        assert_eq!(svc.ask(&format!("VIEW CENTRE {v} -5000000000000 7")), format!("OK view {v} centre -{far} 7"),);
+    }
+    assert_eq!(svc.ask("VIEW CENTRE main 3 9223372036854775807"), format!("OK view main centre 3 {far}"));
+    // What each snapshot publishes.
+    for (v, want) in [("main", [3, far]), ("left", [-far, 7]), ("far", [-far, 7])] {
+        let c = clipmap::shm::Client::attach_view(d, "vc", v).unwrap();
+        let t = Instant::now();
+        while c.try_snapshot().map(|s| s.centre).ok() != Some(want) {
+            assert!(t.elapsed() < Duration::from_secs(20), "{v}: {:?}, expected {want:?}", c.try_snapshot());
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
