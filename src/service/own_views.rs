@@ -118,6 +118,16 @@ impl OwnViews {
         Ok(())
     }
 
+    /// The service's mapping is under its name `path` now: views added from now on take tiles
+    /// from it there (those added before keep the mapping they opened), and every own mapping's
+    /// heartbeat is beaten (its views may have been made a while before).
+    pub(super) fn published(&mut self, path: &std::path::Path) {
+        self.setup.main_mapping = path.to_path_buf();
+        for v in self.views.values() {
+            v.writer.heartbeat();
+        }
+    }
+
     /// Removes view `name`'s clipmap and closes its mapping (marked shut down, names removed).
     pub(super) fn remove(&mut self, name: &str) -> bool {
         match self.views.remove(name) {

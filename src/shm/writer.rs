@@ -89,6 +89,9 @@ pub struct Writer {
     lock_id: names::Identity,
     map_id: names::Identity,
     req_id: names::Identity,
+    /// The texel mapping's temporary name while it is not yet published under `path`
+    /// ([`prepare`](Writer::prepare), [`publish`](Writer::publish)).
+    pending: Option<PathBuf>,
 }
 
 /// A renderer's request for a further view's centre, as read from its request record.
@@ -135,6 +138,30 @@ impl Writer {
     /// that died (its lock died with it).
     #[allow(clippy::too_many_arguments)] // each is one static field of the header
     pub fn create(
+        dir: &Path,
+        name: &str,
+        shape: Shape,
+        format: TexelFormat,
+        mode: u32,
+        request_mode: u32,
+        tick_period_ns: u64,
+        heights: Option<layout::Heights>,
+    ) -> Result<Writer, ShmError> {
+        let mut w = Writer::prepare(dir, name, shape, format, mode, request_mode, tick_period_ns, heights)?;
+        match w.publish() {
+            Ok(()) => Ok(w),
+            Err(e) => {
+                w.close();
+                Err(e)
+            }
+        }
+    }
+
+    /// As [`create`](Self::create), but the texel mapping stays under its temporary name (the
+    /// lock taken, the request mapping in place) until [`publish`](Self::publish): what must be
+    /// in the mapping when readers first find it (a service's views) is written before.
+    #[allow(clippy::too_many_arguments)] // each is one static field of the header
+    pub fn prepare(
         dir: &Path,
         name: &str,
         shape: Shape,
@@ -249,13 +276,6 @@ impl Writer {
         let memory = ImageMemory::over(region, placement, shape, heights.map(|h| h.format()));
         memory.init(format, tick_period_ns, generation, heights.as_ref());
         memory.region().store(header::HEARTBEAT_MS, now_ms(), Ordering::Relaxed);
-        // Visible under its name only once complete; readers of a previous mapping keep theirs.
-        if let Err(e) = place_file(&tmp, &path) {
-            let _ = std::fs::remove_file(&tmp);
-            names::remove_if_same(&req_path, req_id);
-            drop_lock();
-            return Err(e);
-        }
         Ok(Writer {
             memory: Arc::new(memory),
             requests: req_file,
@@ -267,7 +287,26 @@ impl Writer {
             lock_id,
             map_id,
             req_id,
+            pending: Some(tmp),
         })
+    }
+
+    /// Puts the texel mapping under its name (a [`prepare`](Self::prepare)d one; nothing to do
+    /// for a published one), its heartbeat time now. Visible only once complete; readers of a
+    /// previous mapping keep theirs. On failure the temporary file is removed; [`close`](Self::close)
+    /// then removes the rest.
+    pub fn publish(&mut self) -> Result<(), ShmError> {
+        let Some(tmp) = self.pending.take() else { return Ok(()) };
+        self.memory.region().store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
+        place_file(&tmp, &self.path).inspect_err(|_| {
+            let _ = std::fs::remove_file(&tmp);
+        })
+    }
+
+    /// Where the texel mapping's file is now: its temporary name until it is
+    /// [published](Self::publish), then [`path`](Self::path).
+    pub fn file_path(&self) -> &Path {
+        self.pending.as_deref().unwrap_or(&self.path)
     }
 
     /// The texel mapping's path.
@@ -447,7 +486,13 @@ impl Writer {
         let r = self.memory.region();
         r.store(header::FLAGS, 1, Ordering::Release);
         r.store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
-        names::remove_if_same(&self.path, self.map_id);
+        match &self.pending {
+            // Never published: the temporary file is ours alone.
+            Some(tmp) => {
+                let _ = std::fs::remove_file(tmp);
+            }
+            None => names::remove_if_same(&self.path, self.map_id),
+        }
         names::remove_if_same(&self.req_path, self.req_id);
         names::remove_if_same(&self.lock_path, self.lock_id);
     }

@@ -6,6 +6,7 @@
 //! only on the socket is gone, refused by name, until it is added again.
 
 use crate::clipmapd::{c_reader, counts, json_reply, python_reader, rust_reader, Service};
+use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::Duration;
 
@@ -154,4 +155,61 @@ fn views_survive_sigkill_and_restart_every_texel_right_and_socket_views_are_refu
     // The view with grids of its own came back with them, where it was set.
     assert_eq!((views[3]["name"].as_str(), views[3]["grids"].as_str()), (Some("tower"), Some("own")), "{views}");
     assert_eq!(views[3]["centre"], serde_json::json!([5000, 60000]), "{views}");
+}
+
+/// Starts `clipmapd` named `va` with three command-line views, first afresh and then again after
+/// SIGKILL (the dead mapping stays under the name until the new one replaces it), and calls
+/// `check` the moment each start's mapping appears under its name, without waiting for anything.
+fn right_after_the_mapping_appears(check: impl Fn(&Path, &Service, &str)) {
+    use std::os::unix::fs::MetadataExt;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let map = d.join("clipmap-va.map");
+    let mut old: Option<(u64, u64)> = None;
+    for round in ["the first start", "a restart after SIGKILL"] {
+        let mut svc = Service::spawn(d, "va", &["--view", "left", "--view", "tower:2:own", "--view", "sensor:own"]);
+        let t = std::time::Instant::now();
+        loop {
+            if let Ok(m) = std::fs::metadata(&map) {
+                if Some((m.dev(), m.ino())) != old {
+                    old = Some((m.dev(), m.ino()));
+                    break;
+                }
+            }
+            assert!(t.elapsed() < Duration::from_secs(30), "{round}: no new mapping\n{}", svc.dump());
+            std::thread::sleep(Duration::from_micros(200));
+        }
+        check(d, &svc, round);
+        svc.child.kill().unwrap();
+        svc.child.wait().unwrap();
+    }
+}
+
+/// The fault: right after a start's mapping appeared under its name, an own-grid view given on
+/// the command line (and any other) was missing from it for 0.1 to 1.2 s.
+#[test]
+fn own_view_missing_right_after_the_mapping_appears() {
+    right_after_the_mapping_appears(|d, svc, round| {
+        let c = clipmap::shm::Client::attach(d, "va").unwrap();
+        assert_eq!(c.view_names().unwrap(), ["main", "left", "tower", "sensor"], "{round}\n{}", svc.dump());
+        for v in ["left", "tower", "sensor"] {
+            let r = clipmap::shm::Client::attach_view(d, "va", v);
+            assert!(r.is_ok(), "{round}: view {v}: {:?}\n{}", r.err(), svc.dump());
+        }
+    });
+}
+
+/// The fault: the control socket did not answer for 0.1 to 1.2 s after a start's mapping
+/// appeared under its name (not there at all, or a killed predecessor's refusing connections).
+#[test]
+fn socket_silent_right_after_the_mapping_appears() {
+    use std::io::{BufRead, BufReader, Write};
+    right_after_the_mapping_appears(|_, svc, round| {
+        let mut s = std::os::unix::net::UnixStream::connect(&svc.socket)
+            .unwrap_or_else(|e| panic!("{round}: the socket does not accept when the mapping appears: {e}"));
+        writeln!(s, "PING").unwrap();
+        let mut line = String::new();
+        BufReader::new(s).read_line(&mut line).unwrap();
+        assert_eq!(line.trim_end(), "OK pong", "{round}");
+    });
 }
