@@ -39,6 +39,9 @@ pub(super) struct Setup {
     /// What of the service's mapping is of the texels the source serves now, as the primary's
     /// clipmap said at its last tick ([`OwnViews::tick`]): only such tiles are taken from it.
     pub(super) fresh: Arc<Freshness>,
+    /// The service's generation (its mapping's header offset 80): every own mapping carries it,
+    /// which ties it to this start of the service.
+    pub(super) generation: u64,
 }
 
 /// One view with grids of its own.
@@ -77,7 +80,7 @@ impl OwnViews {
         let s = &self.setup;
         let own = own_mapping_name(&s.service, name);
         let shape = Clipmap::shape_for(s.source.desc(), &s.settings);
-        let writer = Writer::create(
+        let mut writer = Writer::prepare(
             &s.dir,
             &own,
             shape,
@@ -88,6 +91,10 @@ impl OwnViews {
             s.heights,
         )
         .map_err(|e| format!("view {name}: its own mapping {own}: {e}"))?;
+        if let Err(e) = writer.adopt_generation(s.generation).and_then(|()| writer.publish()) {
+            writer.close();
+            return Err(format!("view {name}: its own mapping {own}: {e}"));
+        }
         // Tiles the primary's grids hold (the coarse levels at least) are taken from them.
         let from_mapping = match Client::attach_path(&s.main_mapping) {
             Ok(main) => Some(Arc::new(FromMapping::following(Arc::clone(&s.source), main, Arc::clone(&s.fresh)))),

@@ -261,6 +261,7 @@ impl Runner {
             effective_levels: o.effective_levels,
             main_mapping: writer.file_path().to_path_buf(),
             fresh: Default::default(),
+            generation: writer.generation(),
         };
         let mut clipmap = match Clipmap::with_memory(source, settings, writer.memory()) {
             Ok(c) => c,
@@ -346,8 +347,8 @@ impl Runner {
                     }
                 }
                 Ok(Command::Stop) | Err(_) => {
-                    self.own.close_all();
                     self.writer.close();
+                    self.own.close_all();
                     return;
                 }
                 Ok(cmd) => self.apply(cmd),
@@ -389,8 +390,10 @@ impl Runner {
             }
         }
         tracing::info!(ticks = self.stats.engine.ticks, "tick loop stopping; closing the mapping");
-        self.own.close_all();
+        // The service's mapping first: a reader that sees its view's own mapping closed then
+        // finds the service closed (a stop), not the view's record live (docs/SHM.md).
         self.writer.close();
+        self.own.close_all();
     }
 
     fn apply(&mut self, cmd: Command) {

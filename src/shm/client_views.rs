@@ -94,6 +94,15 @@ impl Client {
             }
             e => e,
         })?;
+        // The own mapping of this start of the service: it carries the service's generation.
+        if client.generation != self.generation {
+            return Err(ShmError::OwnOfAnotherStart {
+                view: view.to_string(),
+                path: client.path().to_path_buf(),
+                found: client.generation,
+                expected: self.generation,
+            });
+        }
         client.own_view = Some(view.to_string());
         Ok(client)
     }

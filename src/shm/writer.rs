@@ -303,6 +303,29 @@ impl Writer {
         })
     }
 
+    /// The generation of this start (header offset 80; the request mapping's offset 16).
+    pub fn generation(&self) -> u64 {
+        self.memory.region().load(header::GENERATION, Ordering::Acquire)
+    }
+
+    /// Gives a [`prepare`](Self::prepare)d mapping and its request mapping the generation
+    /// `generation` instead of their own: a view's own mapping carries its service's, which ties
+    /// it to that start of the service (docs/SHM.md, "A view with grids of its own"). Nothing is
+    /// changed once the mapping is published (an error).
+    pub fn adopt_generation(&self, generation: u64) -> Result<(), ShmError> {
+        if self.pending.is_none() {
+            return Err(ShmError::Invalid {
+                path: self.path.clone(),
+                reason: "the generation of a published mapping cannot change".into(),
+            });
+        }
+        self.requests
+            .write_all_at(&generation.to_le_bytes(), request::GENERATION as u64)
+            .map_err(io(&self.req_path))?;
+        self.memory.region().store(header::GENERATION, generation, Ordering::Release);
+        Ok(())
+    }
+
     /// Where the texel mapping's file is now: its temporary name until it is
     /// [published](Self::publish), then [`path`](Self::path).
     pub fn file_path(&self) -> &Path {

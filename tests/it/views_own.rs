@@ -156,3 +156,61 @@ fn centre_replies_echo_an_unclamped_centre() {
         }
     }
 }
+
+/// The fault: at a stop the service marked its views' own mappings closed before its own, so a
+/// reader that saw its view's mapping closed and then read the service's mapping (as the
+/// contract says) found it open and the view's record live, and reported the stop as a removal.
+/// The rule (docs/SHM.md, "A view with grids of its own"): when an own mapping says closed, the
+/// service's mapping already says closed (a stop), or the view's record is already free (`VIEW
+/// REMOVE`).
+#[test]
+fn own_view_closed_before_the_service_reads_a_stop_as_a_removal() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "vs", &["--view", "a:own", "--view", "b:own", "--view", "c:own"]);
+    let service = clipmap::shm::Client::attach(d, "vs").unwrap();
+    // Waits in this thread, spinning, for `own` to say closed while `line` is sent on the socket
+    // from another; returns what the service's mapping says right then.
+    let closing = |own: &clipmap::shm::Client, line: &'static str| {
+        let socket = svc.socket.clone();
+        let asked = std::thread::spawn(move || crate::clipmapd::ask(&socket, line));
+        let t = Instant::now();
+        while !own.closed() {
+            assert!(t.elapsed() < Duration::from_secs(20), "{line}: the own mapping never said closed");
+            std::hint::spin_loop();
+        }
+        let seen = (service.closed(), service.view_names().unwrap());
+        let _ = asked.join();
+        seen
+    };
+    let c = clipmap::shm::Client::attach_view(d, "vs", "c").unwrap();
+    let (closed, views) = closing(&c, "VIEW REMOVE c");
+    assert!(!closed && !views.contains(&"c".to_string()), "VIEW REMOVE: the record is free first: {views:?}");
+    let a = clipmap::shm::Client::attach_view(d, "vs", "a").unwrap();
+    let (closed, views) = closing(&a, "SHUTDOWN");
+    assert!(closed, "a stop: the service's mapping says closed first ({views:?})");
+}
+
+/// The fault: nothing tied a view's own mapping `NAME@VIEW.map` to a start of the service, so a
+/// reader of a killed service's mapping, looking up a view, bound to the next start's own mapping
+/// of that name. It carries its service's generation now, and a reader checks it.
+#[test]
+fn own_mapping_of_another_start_is_taken_for_this_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut svc = Service::start(d, "vg", &["--view", "tower:own"]);
+    let old = clipmap::shm::Client::attach(d, "vg").unwrap();
+    let own = clipmap::shm::Client::attach_view(d, "vg", "tower").unwrap();
+    assert_eq!(own.generation, old.generation, "the own mapping carries the service's generation");
+    svc.child.kill().unwrap();
+    svc.child.wait().unwrap();
+    let _svc = Service::start(d, "vg", &["--view", "tower:own"]);
+    let new = clipmap::shm::Client::attach(d, "vg").unwrap();
+    assert_ne!(new.generation, old.generation);
+    let mut stale = old;
+    let err = stale.bind_view("tower").expect_err("the killed start's mapping must not bind to the new own mapping");
+    assert!(err.to_string().contains("belongs to another start of the service"), "{err}");
+    let mut fresh = new;
+    fresh.bind_view("tower").unwrap();
+    assert_eq!(fresh.generation, clipmap::shm::Client::attach(d, "vg").unwrap().generation);
+}
