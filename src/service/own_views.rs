@@ -176,7 +176,11 @@ impl OwnViews {
     /// mapping may be taken now (the source version the primary followed, the tiles it is still
     /// replacing), then for each view its newest request (centre, velocity, levels), its
     /// engine's tick, its heartbeat.
-    pub(super) fn tick(&mut self, primary: &Clipmap, hz: f64, stats: &mut TickStats) {
+    ///
+    /// The service's mapping (`service`) says it is alive after each view's tick: a tick of
+    /// many views is many pieces of work, and its heartbeat time stands still for the longest
+    /// of them only.
+    pub(super) fn tick(&mut self, primary: &Clipmap, service: &Writer, hz: f64, stats: &mut TickStats) {
         self.setup.fresh.set(primary.followed_version(), primary.tiles_being_replaced());
         for (name, v) in self.views.iter_mut() {
             if let Some(req) = v.writer.request() {
@@ -192,6 +196,14 @@ impl OwnViews {
             }
             v.clipmap.tick(v.centre, v.velocity);
             v.writer.heartbeat();
+            service.alive();
+        }
+    }
+
+    /// Every own mapping says it is alive (after a long command: a view added).
+    pub(super) fn alive(&self) {
+        for v in self.views.values() {
+            v.writer.alive();
         }
     }
 

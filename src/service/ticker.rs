@@ -374,7 +374,12 @@ impl Runner {
                 }
                 match self.commands.recv_timeout((next - now).min(poll)) {
                     Ok(Command::Stop) | Err(RecvTimeoutError::Disconnected) => break 'ticks,
-                    Ok(cmd) => self.apply(cmd),
+                    Ok(cmd) => {
+                        // A command may be long (a view with grids of its own makes a mapping).
+                        self.apply(cmd);
+                        self.writer.alive();
+                        self.own.alive();
+                    }
                     Err(RecvTimeoutError::Timeout) => {}
                 }
             }
@@ -627,7 +632,9 @@ impl Runner {
         }
         let t0 = Instant::now();
         let report = self.clipmap.tick(self.centre, self.velocity);
-        self.own.tick(&self.clipmap, self.hz, &mut self.stats);
+        // Alive after each clipmap's tick, not only after the whole tick (see `OwnViews::tick`).
+        self.writer.alive();
+        self.own.tick(&self.clipmap, &self.writer, self.hz, &mut self.stats);
         self.stats.views = self.view_stats();
         if let Some((served, last)) = &mut self.growing {
             let (_, mut g) = served.growth();

@@ -365,6 +365,13 @@ impl Writer {
         r.store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
     }
 
+    /// Stores the heartbeat time (header offset 72) without counting a tick: the service is
+    /// alive within a long tick or command, so that readers do not judge it stale meanwhile
+    /// (docs/SHM.md, "Liveness and restarts").
+    pub fn alive(&self) {
+        self.memory.region().store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
+    }
+
     /// How many requests renderers have made so far (one 8-byte `pread`: cheap enough to poll
     /// while waiting for the next tick). The value only says whether to tick early; the request
     /// itself is read consistently by [`request`](Self::request).
