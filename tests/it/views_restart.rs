@@ -213,3 +213,37 @@ fn socket_silent_right_after_the_mapping_appears() {
         assert_eq!(line.trim_end(), "OK pong", "{round}");
     });
 }
+
+/// docs/SHM.md, "Liveness and restarts": a stale verdict is taken back when the heartbeat moves
+/// again in the same mapping. A service stopped (SIGSTOP) for longer than the reader's stale time
+/// and then continued: `clipmap-read --follow` judges it stale once and goes on reading the same
+/// mapping (no reattach, every texel right), as the view it reads.
+#[test]
+fn a_stale_verdict_is_taken_back_when_the_heartbeat_moves_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "vz", &["--view", "tower:own"]);
+    let args = ["--follow", "--stale-ms", "300", "--reads", "1000000000", "--seconds", "4", "--block", "2"];
+    let mut readers: Vec<_> = ["main", "tower"]
+        .iter()
+        .map(|v| rust_reader(d, "vz", &[&args[..], &["--view", v]].concat()).spawn().unwrap())
+        .collect();
+    let signal = |s: &str| {
+        let st = Command::new("kill").args([s, &svc.child.id().to_string()]).status().unwrap();
+        assert!(st.success());
+    };
+    std::thread::sleep(Duration::from_millis(800));
+    signal("-STOP");
+    std::thread::sleep(Duration::from_millis(1200));
+    signal("-CONT");
+    for (v, r) in ["main", "tower"].iter().zip(readers.drain(..)) {
+        let out = r.wait_with_output().unwrap();
+        let (passed, failed) = counts(&out, v);
+        assert!(out.status.success() && failed == 0 && passed > 0, "{v}: {out:?}");
+        let line = json_line(&out, v);
+        assert!(line["stale_seen"].as_u64().unwrap() >= 1, "{v}: it was judged stale while stopped: {line}");
+        assert_eq!(line["reattached"], 0, "{v}: the same mapping, read on: {line}");
+        assert_eq!(line["passed_since_reattach"].as_u64(), Some(passed), "{v}: {line}");
+    }
+    assert_eq!(svc.ask("PING"), "OK pong");
+}
