@@ -121,7 +121,7 @@ impl Ticker {
 
     /// Starts the tick loop on its own thread with the mapping made, the command line's views in
     /// it, under its temporary name: it appears under its name, and the loop ticks, at
-    /// [`publish`](Self::publish) (the service has its control socket answering by then).
+    /// [`publish`](Self::publish) (the service has its control socket bound by then).
     /// Returns once that far (or the mapping could not be made). Blocks: call it off async worker
     /// threads.
     pub fn prepare(
@@ -328,7 +328,11 @@ impl Runner {
 
     /// Puts the mapping under its name: every view it was started with is in it by then, and
     /// the own views take their tiles from it under that name from now on.
+    ///
+    /// One tick first: the mapping appears with its first snapshot and (a growing texture) its
+    /// growth block in it, as when it appeared after the loop had ticked.
     fn publish(&mut self) -> Result<(), crate::shm::ShmError> {
+        self.tick();
         self.writer.publish()?;
         self.own.published(self.writer.path());
         Ok(())
