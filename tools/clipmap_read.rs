@@ -163,11 +163,12 @@ fn main() -> ExitCode {
     let mut client = loop {
         match attach(&cli) {
             Ok(c) => break c,
-            Err(ShmError::NotFound { .. } | ShmError::NoView { .. } | ShmError::OwnMissing { .. })
-                if cli.follow && Instant::now() < deadline =>
-            {
-                std::thread::sleep(Duration::from_millis(20))
-            }
+            Err(
+                ShmError::NotFound { .. }
+                | ShmError::NoView { .. }
+                | ShmError::OwnMissing { .. }
+                | ShmError::OwnOfAnotherStart { .. },
+            ) if cli.follow && Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
             Err(e) => {
                 eprintln!("clipmap-read: {e}");
                 return exit::status(exit::COULD_NOT_RUN);
@@ -234,8 +235,9 @@ fn main() -> ExitCode {
                         }
                         Ok(_) => {}
                         Err(e @ ShmError::NoView { .. }) => {
-                            // A service adds its `--view`s just after it publishes the mapping: a
-                            // view missing longer than the stale time is said once.
+                            // A restarted service's mapping has its `--view`s from the moment it
+                            // appears: a view missing was added on the socket and may come back.
+                            // Missing longer than the stale time is said once.
                             let since = missing.as_ref().map_or_else(Instant::now, |m| m.0);
                             let mut said = missing.as_ref().is_some_and(|m| m.1);
                             if !said && since.elapsed() > Duration::from_millis(cli.stale_ms) {
@@ -244,8 +246,13 @@ fn main() -> ExitCode {
                             }
                             missing = Some((since, said, e));
                         }
-                        // Between a restarted service's mapping and a view's own one.
-                        Err(ShmError::NotFound { .. } | ShmError::OwnMissing { .. }) => {}
+                        // A view being added or removed, or the service restarted again
+                        // between the look at its mapping and the view's own one.
+                        Err(
+                            ShmError::NotFound { .. }
+                            | ShmError::OwnMissing { .. }
+                            | ShmError::OwnOfAnotherStart { .. },
+                        ) => {}
                         Err(e) => {
                             eprintln!("clipmap-read: reattaching: {e}");
                             return exit::status(exit::COULD_NOT_RUN);

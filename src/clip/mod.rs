@@ -484,6 +484,19 @@ impl Clipmap {
         self.refresh.len() + self.replacing.len()
     }
 
+    /// The tiles [`refresh_pending`](Self::refresh_pending) counts: until a tile leaves them, its
+    /// slot may still hold the texels it had before the change (a slot waiting for its
+    /// replacement is still published ready).
+    pub fn tiles_being_replaced(&self) -> impl Iterator<Item = TileId> + '_ {
+        self.refreshing.iter().chain(self.replacing.iter()).copied()
+    }
+
+    /// The source's [`TileSource::version`] this clipmap last followed: every tile it holds is of
+    /// that version or a later one, except [`tiles_being_replaced`](Self::tiles_being_replaced).
+    pub fn followed_version(&self) -> u64 {
+        self.source_version
+    }
+
     /// Opens the slots of waiting [`refresh`](Self::refresh)ed tiles for their new texels (the
     /// read queues are asked for them with the tick's other reads), up to the bound on
     /// replacements under way. The tick reads nothing itself.

@@ -125,11 +125,14 @@ pub struct Summary {
 
 /// Runs the service for `source` until `shutdown` resolves, `SHUTDOWN` arrives on the control
 /// socket, or the tick loop fails. Creates the mapping (refusing a name a live service holds,
-/// taking over from a dead one), binds the control socket, ticks, and on the way out marks the
-/// mapping closed and removes the mapping's and socket's names (readers keep their mapping).
+/// taking over from a dead one) with the command line's views in it, binds the control socket,
+/// and only then puts the mapping under its name, serves the socket and ticks: a reader that finds
+/// the mapping finds its views and the socket answering, and a reply means the mapping is there.
+/// On the way out it marks the mapping closed and removes the mapping's and socket's names
+/// (readers keep their mapping).
 ///
-/// `ready` is called once the mapping and socket exist (the binary logs there; the demo starts
-/// its client there).
+/// `ready` is called once the mapping is published and the socket answers (the binary logs
+/// there; the demo starts its client there).
 pub async fn run(
     source: Arc<dyn TileSource>,
     options: Options,
@@ -138,7 +141,7 @@ pub async fn run(
 ) -> Result<Summary, ServiceError> {
     options.check()?;
     let opts = options.clone();
-    let (ticker, started, join) = tokio::task::spawn_blocking(move || Ticker::start(source, &opts))
+    let (ticker, started, join) = tokio::task::spawn_blocking(move || Ticker::prepare(source, &opts))
         .await
         .map_err(|_| ServiceError::TickLoopDied)??;
     let stop_ticker = |ticker: Ticker, join: std::thread::JoinHandle<()>| async move {
@@ -153,17 +156,19 @@ pub async fn run(
             return Err(e);
         }
     };
-    tracing::info!(
-        name = %options.name,
-        mapping = %started.mapping.display(),
-        socket = %options.socket.display(),
-        size = started.size[0],
-        clip = started.clip_size,
-        levels = started.levels,
-        tick_hz = options.tick_hz,
-        "serving"
-    );
-    ready(&started);
+    // Bound (connections are accepted from here on, and wait) before the mapping appears under
+    // its name, answered from right after: a reader that finds the mapping finds the socket
+    // answering, and a reply means that the mapping is in place.
+    let published = match ticker.publish() {
+        Ok(rx) => rx.await.map_err(|_| ServiceError::TickLoopDied).and_then(|r| r.map_err(ServiceError::from)),
+        Err(e) => Err(e),
+    };
+    if let Err(e) = published {
+        drop(listener);
+        stop_ticker(ticker, join).await;
+        crate::shm::names::remove_if_same(&options.socket, socket_id);
+        return Err(e);
+    }
     let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
     let ctx = Arc::new(control::Context {
         name: options.name.clone(),
@@ -176,6 +181,17 @@ pub async fn run(
         grower: options.growing.clone(),
     });
     let server = tokio::spawn(control::serve(listener, ctx.clone()));
+    tracing::info!(
+        name = %options.name,
+        mapping = %started.mapping.display(),
+        socket = %options.socket.display(),
+        size = started.size[0],
+        clip = started.clip_size,
+        levels = started.levels,
+        tick_hz = options.tick_hz,
+        "serving"
+    );
+    ready(&started);
     let mut ticks = ticker.watch();
     let died = tokio::select! {
         _ = shutdown => { tracing::info!("shutdown signal received"); false }

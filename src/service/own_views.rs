@@ -16,8 +16,8 @@
 use super::stats::TickStats;
 use crate::clip::{Clipmap, LodWindow, Settings, PRIMARY};
 use crate::shm::layout::{self, views::own_mapping_name};
-use crate::shm::{Client, FromMapping, Writer};
-use crate::source::TileSource;
+use crate::shm::{Client, Freshness, FromMapping, Writer};
+use crate::source::{TileId, TileSource};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -36,6 +36,12 @@ pub(super) struct Setup {
     /// The service's mapping: an own view's clipmap takes the tiles its slots hold from there
     /// ([`FromMapping`]) rather than reading them again.
     pub(super) main_mapping: PathBuf,
+    /// What of the service's mapping is of the texels the source serves now, as the primary's
+    /// clipmap said at its last tick ([`OwnViews::tick`]): only such tiles are taken from it.
+    pub(super) fresh: Arc<Freshness>,
+    /// The service's generation (its mapping's header offset 80): every own mapping carries it,
+    /// which ties it to this start of the service.
+    pub(super) generation: u64,
 }
 
 /// One view with grids of its own.
@@ -74,7 +80,7 @@ impl OwnViews {
         let s = &self.setup;
         let own = own_mapping_name(&s.service, name);
         let shape = Clipmap::shape_for(s.source.desc(), &s.settings);
-        let writer = Writer::create(
+        let mut writer = Writer::prepare(
             &s.dir,
             &own,
             shape,
@@ -85,9 +91,13 @@ impl OwnViews {
             s.heights,
         )
         .map_err(|e| format!("view {name}: its own mapping {own}: {e}"))?;
+        if let Err(e) = writer.adopt_generation(s.generation).and_then(|()| writer.publish()) {
+            writer.close();
+            return Err(format!("view {name}: its own mapping {own}: {e}"));
+        }
         // Tiles the primary's grids hold (the coarse levels at least) are taken from them.
         let from_mapping = match Client::attach_path(&s.main_mapping) {
-            Ok(main) => Some(Arc::new(FromMapping::new(Arc::clone(&s.source), main))),
+            Ok(main) => Some(Arc::new(FromMapping::following(Arc::clone(&s.source), main, Arc::clone(&s.fresh)))),
             Err(e) => {
                 tracing::warn!(view = %name, "the service's own mapping cannot be read ({e}): every tile of the view is read from the source");
                 None
@@ -115,6 +125,16 @@ impl OwnViews {
         Ok(())
     }
 
+    /// The service's mapping is under its name `path` now: views added from now on take tiles
+    /// from it there (those added before keep the mapping they opened), and every own mapping's
+    /// heartbeat is beaten (its views may have been made a while before).
+    pub(super) fn published(&mut self, path: &std::path::Path) {
+        self.setup.main_mapping = path.to_path_buf();
+        for v in self.views.values() {
+            v.writer.heartbeat();
+        }
+    }
+
     /// Removes view `name`'s clipmap and closes its mapping (marked shut down, names removed).
     pub(super) fn remove(&mut self, name: &str) -> bool {
         match self.views.remove(name) {
@@ -139,9 +159,29 @@ impl OwnViews {
         self.views.values().any(|v| v.writer.request_count() != v.last_request)
     }
 
-    /// One tick of every own view: its newest request (centre, velocity, levels), its engine's
-    /// tick, its heartbeat.
-    pub(super) fn tick(&mut self, hz: f64, stats: &mut TickStats) {
+    /// Says that the source's texels of `tiles` changed (a growing texture's patch): every own
+    /// view reads those it holds again, as the primary does ([`Clipmap::refresh`]).
+    pub(super) fn refresh(&mut self, tiles: &[TileId]) {
+        for v in self.views.values_mut() {
+            v.clipmap.refresh(tiles.iter().copied());
+        }
+    }
+
+    /// Whether any own view holds `tile`.
+    pub(super) fn holds(&self, tile: TileId) -> bool {
+        self.views.values().any(|v| v.clipmap.holds(tile))
+    }
+
+    /// One tick of every own view, after the primary's (`primary`): first what of the service's
+    /// mapping may be taken now (the source version the primary followed, the tiles it is still
+    /// replacing), then for each view its newest request (centre, velocity, levels), its
+    /// engine's tick, its heartbeat.
+    ///
+    /// The service's mapping (`service`) says it is alive after each view's tick: a tick of
+    /// many views is many pieces of work, and its heartbeat time stands still for the longest
+    /// of them only.
+    pub(super) fn tick(&mut self, primary: &Clipmap, service: &Writer, hz: f64, stats: &mut TickStats) {
+        self.setup.fresh.set(primary.followed_version(), primary.tiles_being_replaced());
         for (name, v) in self.views.iter_mut() {
             if let Some(req) = v.writer.request() {
                 if req.count != v.last_request {
@@ -156,6 +196,14 @@ impl OwnViews {
             }
             v.clipmap.tick(v.centre, v.velocity);
             v.writer.heartbeat();
+            service.alive();
+        }
+    }
+
+    /// Every own mapping says it is alive (after a long command: a view added).
+    pub(super) fn alive(&self) {
+        for v in self.views.values() {
+            v.writer.alive();
         }
     }
 
@@ -171,3 +219,6 @@ impl OwnViews {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -44,3 +44,11 @@ pub(super) fn velocity_per_tick(velocity: [f64; 2], hz: f64) -> Option<[i64; 2]>
     let v = velocity.map(per_tick);
     (v != [0, 0]).then_some(v)
 }
+
+/// A centre asked for (a request, `CENTRE`, `VIEW CENTRE`) as every clipmap takes it: each
+/// component bounded to `-2^40..=2^40` (docs/SHM.md, "Centres"). The socket's reply echoes this,
+/// the centre the snapshot will publish (reached at once, or by `--max-centre-step` steps).
+pub(super) fn bounded_centre(c: [i64; 2]) -> [i64; 2] {
+    let far = crate::limits::MAX_CENTRE;
+    c.map(|x| x.clamp(-far, far))
+}

@@ -9,7 +9,7 @@
 //! are taken between ticks and answered through a one-shot reply.
 
 use super::own_views::{OwnViews, Setup};
-use super::requests::{apply_lod, velocity_per_tick};
+use super::requests::{apply_lod, bounded_centre, velocity_per_tick};
 use super::stats::TickStats;
 use super::{Options, ServiceError};
 use crate::clip::{Clipmap, Settings, ViewId, PRIMARY};
@@ -47,6 +47,9 @@ pub enum Command {
     ViewLod(String, u32, Option<u32>, oneshot::Sender<Result<String, String>>),
     /// A LOD request from the socket: height, pixel angle, effective levels (0: all).
     ViewHeight(String, f64, f64, u32, oneshot::Sender<Result<String, String>>),
+    /// Puts the mapping under its name, its views in it, and starts ticking
+    /// ([`Ticker::prepare`], [`Ticker::publish`]).
+    Publish(oneshot::Sender<Result<(), crate::shm::ShmError>>),
     /// Stops after closing the mapping.
     Stop,
 }
@@ -87,9 +90,41 @@ pub enum SendError {
 }
 
 impl Ticker {
-    /// Starts the tick loop on its own thread; returns once the mapping exists (or could not be
-    /// made). Blocks: call it off async worker threads.
+    /// Starts the tick loop on its own thread; returns once the mapping is published under its
+    /// name (or could not be made). Blocks: call it off async worker threads.
     pub fn start(
+        source: Arc<dyn TileSource>,
+        options: &Options,
+    ) -> Result<(Ticker, Started, JoinHandle<()>), ServiceError> {
+        let (ticker, started, join) = Ticker::prepare(source, options)?;
+        let published = ticker.publish().map(|rx| rx.blocking_recv());
+        match published {
+            Ok(Ok(Ok(()))) => Ok((ticker, started, join)),
+            failed => {
+                let _ = ticker.send(Command::Stop);
+                let _ = join.join();
+                Err(match failed {
+                    Ok(Ok(Err(e))) => e.into(),
+                    _ => ServiceError::TickLoopDied,
+                })
+            }
+        }
+    }
+
+    /// Asks the tick loop to put the mapping under its name and start ticking; the answer says
+    /// whether it is there.
+    pub fn publish(&self) -> Result<oneshot::Receiver<Result<(), crate::shm::ShmError>>, ServiceError> {
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::Publish(tx)).map_err(|_| ServiceError::TickLoopDied)?;
+        Ok(rx)
+    }
+
+    /// Starts the tick loop on its own thread with the mapping made, the command line's views in
+    /// it, under its temporary name: it appears under its name, and the loop ticks, at
+    /// [`publish`](Self::publish) (the service has its control socket bound by then).
+    /// Returns once that far (or the mapping could not be made). Blocks: call it off async worker
+    /// threads.
+    pub fn prepare(
         source: Arc<dyn TileSource>,
         options: &Options,
     ) -> Result<(Ticker, Started, JoinHandle<()>), ServiceError> {
@@ -209,8 +244,10 @@ impl Runner {
         // into its slot, where renderers read it, and nothing is copied afterwards.
         let period_ns = (1e9 / o.tick_hz).round() as u64;
         let request_mode = o.request_mode.unwrap_or(o.shm_mode);
+        // Published once the views are in it (`Runner::publish`): a reader that finds the mapping
+        // finds the command line's views.
         let writer =
-            Writer::create(&o.shm_dir, &o.name, shape, desc.format(), o.shm_mode, request_mode, period_ns, heights)?;
+            Writer::prepare(&o.shm_dir, &o.name, shape, desc.format(), o.shm_mode, request_mode, period_ns, heights)?;
         let setup = Setup {
             source: Arc::clone(&source),
             // An own view's grids hold that view alone: never widened for others.
@@ -222,7 +259,9 @@ impl Runner {
             period_ns,
             heights,
             effective_levels: o.effective_levels,
-            main_mapping: writer.path().to_path_buf(),
+            main_mapping: writer.file_path().to_path_buf(),
+            fresh: Default::default(),
+            generation: writer.generation(),
         };
         let mut clipmap = match Clipmap::with_memory(source, settings, writer.memory()) {
             Ok(c) => c,
@@ -287,7 +326,38 @@ impl Runner {
         Ok((runner, started))
     }
 
+    /// Puts the mapping under its name: every view it was started with is in it by then, and
+    /// the own views take their tiles from it under that name from now on.
+    ///
+    /// One tick first: the mapping appears with its first snapshot and (a growing texture) its
+    /// growth block in it, as when it appeared after the loop had ticked.
+    fn publish(&mut self) -> Result<(), crate::shm::ShmError> {
+        self.tick();
+        self.writer.publish()?;
+        self.own.published(self.writer.path());
+        Ok(())
+    }
+
     fn run(mut self) {
+        // Nothing ticks before the mapping is published (`Ticker::publish`).
+        loop {
+            match self.commands.recv() {
+                Ok(Command::Publish(reply)) => {
+                    let r = self.publish();
+                    let ok = r.is_ok();
+                    let _ = reply.send(r);
+                    if ok {
+                        break;
+                    }
+                }
+                Ok(Command::Stop) | Err(_) => {
+                    self.writer.close();
+                    self.own.close_all();
+                    return;
+                }
+                Ok(cmd) => self.apply(cmd),
+            }
+        }
         // While waiting for the next period, look at the request block this often; a new
         // request starts a tick at once, but never sooner than `min_gap` after the last one.
         let poll = Duration::from_millis(1);
@@ -308,7 +378,12 @@ impl Runner {
                 }
                 match self.commands.recv_timeout((next - now).min(poll)) {
                     Ok(Command::Stop) | Err(RecvTimeoutError::Disconnected) => break 'ticks,
-                    Ok(cmd) => self.apply(cmd),
+                    Ok(cmd) => {
+                        // A command may be long (a view with grids of its own makes a mapping).
+                        self.apply(cmd);
+                        self.writer.alive();
+                        self.own.alive();
+                    }
                     Err(RecvTimeoutError::Timeout) => {}
                 }
             }
@@ -324,8 +399,10 @@ impl Runner {
             }
         }
         tracing::info!(ticks = self.stats.engine.ticks, "tick loop stopping; closing the mapping");
-        self.own.close_all();
+        // The service's mapping first: a reader that sees its view's own mapping closed then
+        // finds the service closed (a stop), not the view's record live (docs/SHM.md).
         self.writer.close();
+        self.own.close_all();
     }
 
     fn apply(&mut self, cmd: Command) {
@@ -346,6 +423,7 @@ impl Runner {
                 let _ = reply.send(format!("border {applied}"));
             }
             Command::Centre(c, reply) => {
+                let c = bounded_centre(c);
                 self.centre = c;
                 self.velocity = None;
                 self.stats.request_velocity = None;
@@ -377,6 +455,7 @@ impl Runner {
                 let _ = reply.send(r);
             }
             Command::ViewCentre(name, c, reply) => {
+                let c = bounded_centre(c);
                 let r = match self.clipmap.view_named(&name) {
                     None => Err(self.no_view(&name)),
                     Some(PRIMARY) => {
@@ -456,7 +535,7 @@ impl Runner {
                 }
                 let _ = reply.send(r);
             }
-            Command::Stop => {}
+            Command::Stop | Command::Publish(_) => {}
         }
     }
 
@@ -541,10 +620,12 @@ impl Runner {
         (self.stats.request_faults, self.stats.request_fault) = self.writer.request_faults();
         if let Some((served, _)) = &self.growing {
             let changed = served.take_changed(self.clipmap.desc());
+            // Every clipmap reads the changed tiles again: the primary's and each own view's.
+            self.own.refresh(&changed);
             self.clipmap.refresh(changed);
             if self.stats.engine.ticks.is_multiple_of(256) {
-                let c = &self.clipmap;
-                served.retain_partial(|t| c.holds(t));
+                let (c, own) = (&self.clipmap, &self.own);
+                served.retain_partial(|t| c.holds(t) || own.holds(t));
             }
         }
         self.take_view_requests();
@@ -555,7 +636,9 @@ impl Runner {
         }
         let t0 = Instant::now();
         let report = self.clipmap.tick(self.centre, self.velocity);
-        self.own.tick(self.hz, &mut self.stats);
+        // Alive after each clipmap's tick, not only after the whole tick (see `OwnViews::tick`).
+        self.writer.alive();
+        self.own.tick(&self.clipmap, &self.writer, self.hz, &mut self.stats);
         self.stats.views = self.view_stats();
         if let Some((served, last)) = &mut self.growing {
             let (_, mut g) = served.growth();

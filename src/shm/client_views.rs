@@ -103,6 +103,15 @@ impl Client {
             e => e,
         };
         let mut client = Client::attach_path_owned(&map, Some(self.uid)).map_err(not_own)?;
+        // The own mapping of this start of the service: it carries the service's generation.
+        if client.generation != self.generation {
+            return Err(ShmError::OwnOfAnotherStart {
+                view: view.to_string(),
+                path: client.path().to_path_buf(),
+                found: client.generation,
+                expected: self.generation,
+            });
+        }
         client.open_requests(&super::request_path(dir, &own), Some(self.uid));
         client.own_view = Some(view.to_string());
         Ok(client)

@@ -27,7 +27,7 @@ mod tests;
 
 pub use client::{Client, LevelState, ReadError, Snapshot};
 pub use memory::{ImageMemory, Publication, PublishedLevel};
-pub use shared_reads::FromMapping;
+pub use shared_reads::{Freshness, FromMapping};
 pub use writer::Writer;
 
 use std::path::{Path, PathBuf};
@@ -82,6 +82,19 @@ pub enum ShmError {
         view: String,
         /// Its mapping's file.
         path: PathBuf,
+    },
+    /// A view with grids of its own whose mapping under its name is another start's: its
+    /// generation is not the service mapping's (docs/SHM.md, "A view with grids of its own").
+    #[error("view `{view}` has grids of its own, but its mapping {} has generation {found:#x} where the service's mapping has {expected:#x}: it belongs to another start of the service; attach to the service again and look the view up", path.display())]
+    OwnOfAnotherStart {
+        /// The view.
+        view: String,
+        /// Its mapping's file.
+        path: PathBuf,
+        /// The own mapping's generation.
+        found: u64,
+        /// The generation of the service's mapping the view was found in.
+        expected: u64,
     },
     #[error("no clip texture `{name}` is published in {}: is the service running (and is --shm-dir the same)?", dir.display())]
     NotFound {

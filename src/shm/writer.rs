@@ -89,6 +89,9 @@ pub struct Writer {
     lock_id: names::Identity,
     map_id: names::Identity,
     req_id: names::Identity,
+    /// The texel mapping's temporary name while it is not yet published under `path`
+    /// ([`prepare`](Writer::prepare), [`publish`](Writer::publish)).
+    pending: Option<PathBuf>,
 }
 
 /// A renderer's request for a further view's centre, as read from its request record.
@@ -135,6 +138,30 @@ impl Writer {
     /// that died (its lock died with it).
     #[allow(clippy::too_many_arguments)] // each is one static field of the header
     pub fn create(
+        dir: &Path,
+        name: &str,
+        shape: Shape,
+        format: TexelFormat,
+        mode: u32,
+        request_mode: u32,
+        tick_period_ns: u64,
+        heights: Option<layout::Heights>,
+    ) -> Result<Writer, ShmError> {
+        let mut w = Writer::prepare(dir, name, shape, format, mode, request_mode, tick_period_ns, heights)?;
+        match w.publish() {
+            Ok(()) => Ok(w),
+            Err(e) => {
+                w.close();
+                Err(e)
+            }
+        }
+    }
+
+    /// As [`create`](Self::create), but the texel mapping stays under its temporary name (the
+    /// lock taken, the request mapping in place) until [`publish`](Self::publish): what must be
+    /// in the mapping when readers first find it (a service's views) is written before.
+    #[allow(clippy::too_many_arguments)] // each is one static field of the header
+    pub fn prepare(
         dir: &Path,
         name: &str,
         shape: Shape,
@@ -252,13 +279,6 @@ impl Writer {
         let memory = ImageMemory::over(region, placement, shape, heights.map(|h| h.format()));
         memory.init(format, tick_period_ns, generation, heights.as_ref());
         memory.region().store(header::HEARTBEAT_MS, now_ms(), Ordering::Relaxed);
-        // Visible under its name only once complete; readers of a previous mapping keep theirs.
-        if let Err(e) = place_file(&tmp, &path) {
-            let _ = std::fs::remove_file(&tmp);
-            names::remove_if_same(&req_path, req_id);
-            drop_lock();
-            return Err(e);
-        }
         Ok(Writer {
             memory: Arc::new(memory),
             requests: req_file,
@@ -270,7 +290,49 @@ impl Writer {
             lock_id,
             map_id,
             req_id,
+            pending: Some(tmp),
         })
+    }
+
+    /// Puts the texel mapping under its name (a [`prepare`](Self::prepare)d one; nothing to do
+    /// for a published one), its heartbeat time now. Visible only once complete; readers of a
+    /// previous mapping keep theirs. On failure the temporary file is removed; [`close`](Self::close)
+    /// then removes the rest.
+    pub fn publish(&mut self) -> Result<(), ShmError> {
+        let Some(tmp) = self.pending.take() else { return Ok(()) };
+        self.memory.region().store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
+        place_file(&tmp, &self.path).inspect_err(|_| {
+            let _ = std::fs::remove_file(&tmp);
+        })
+    }
+
+    /// The generation of this start (header offset 80; the request mapping's offset 16).
+    pub fn generation(&self) -> u64 {
+        self.memory.region().load(header::GENERATION, Ordering::Acquire)
+    }
+
+    /// Gives a [`prepare`](Self::prepare)d mapping and its request mapping the generation
+    /// `generation` instead of their own: a view's own mapping carries its service's, which ties
+    /// it to that start of the service (docs/SHM.md, "A view with grids of its own"). Nothing is
+    /// changed once the mapping is published (an error).
+    pub fn adopt_generation(&self, generation: u64) -> Result<(), ShmError> {
+        if self.pending.is_none() {
+            return Err(ShmError::Invalid {
+                path: self.path.clone(),
+                reason: "the generation of a published mapping cannot change".into(),
+            });
+        }
+        self.requests
+            .write_all_at(&generation.to_le_bytes(), request::GENERATION as u64)
+            .map_err(io(&self.req_path))?;
+        self.memory.region().store(header::GENERATION, generation, Ordering::Release);
+        Ok(())
+    }
+
+    /// Where the texel mapping's file is now: its temporary name until it is
+    /// [published](Self::publish), then [`path`](Self::path).
+    pub fn file_path(&self) -> &Path {
+        self.pending.as_deref().unwrap_or(&self.path)
     }
 
     /// The texel mapping's path.
@@ -304,6 +366,13 @@ impl Writer {
         let r = self.memory.region();
         r.fetch_add(header::HEARTBEAT, 1, Ordering::Relaxed);
         r.store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
+    }
+
+    /// Stores the heartbeat time (header offset 72) without counting a tick: the service is
+    /// alive within a long tick or command, so that readers do not judge it stale meanwhile
+    /// (docs/SHM.md, "Liveness and restarts").
+    pub fn alive(&self) {
+        self.memory.region().store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
     }
 
     /// How many requests renderers have made so far (one 8-byte `pread`: cheap enough to poll
@@ -450,7 +519,13 @@ impl Writer {
         let r = self.memory.region();
         r.store(header::FLAGS, 1, Ordering::Release);
         r.store(header::HEARTBEAT_MS, now_ms(), Ordering::Release);
-        names::remove_if_same(&self.path, self.map_id);
+        match &self.pending {
+            // Never published: the temporary file is ours alone.
+            Some(tmp) => {
+                let _ = std::fs::remove_file(tmp);
+            }
+            None => names::remove_if_same(&self.path, self.map_id),
+        }
         names::remove_if_same(&self.req_path, self.req_id);
         names::remove_if_same(&self.lock_path, self.lock_id);
     }

@@ -36,6 +36,11 @@ struct Service {
 
 impl Service {
     fn start(dir: &Path, name: &str) -> Service {
+        Service::start_with(dir, name, &[])
+    }
+
+    /// Started with further options (`extra`).
+    fn start_with(dir: &Path, name: &str, extra: &[&str]) -> Service {
         let socket = dir.join(format!("{name}.sock"));
         let err = dir.join(format!("{name}-{}.err", std::process::id()));
         let child = Command::new(CLIPMAPD)
@@ -43,6 +48,7 @@ impl Service {
             .args(["--growing", "tex", "--incoming", "inc", "--size", &FRAME.to_string()])
             .args(["--clip", &CLIP.to_string(), "--tick-hz", "120", "--name", name])
             .args(["--shm-dir", dir.to_str().unwrap(), "--socket", socket.to_str().unwrap()])
+            .args(extra)
             .env("RUST_LOG", "info")
             .stdout(std::process::Stdio::null())
             .stderr(std::fs::File::create(&err).unwrap())
@@ -489,4 +495,74 @@ fn a_growing_texture_is_served_while_it_grows_and_every_texel_read_matches_the_p
     let r = svc.send(b"PATCH DATA 999999999999 {\"bbox\": [0, 0, 1, 1], \"raw\": {\"width\": 1, \"height\": 1}}", &[]);
     assert!(r.contains("the most is"), "{r}");
     assert_eq!(svc.growth()["patches"], ps.len());
+}
+
+/// Texels of every enabled level of `c`'s view that differ from `want` (level, texel, got,
+/// wanted; the first few), and how many had data; `None` while the snapshot cannot be read.
+fn differences(c: &Client, want: &Want) -> Option<(Vec<String>, usize)> {
+    let snap = c.try_snapshot().ok()?;
+    let (mut wrong, mut with_data) = (Vec::new(), 0);
+    for (k, l) in snap.levels.iter().enumerate() {
+        if !l.enabled || (k as f64) < snap.min_lod.floor() {
+            continue;
+        }
+        let [s0, t0, s1, t1] = l.valid;
+        for t in t0..t1 {
+            for s in s0..s1 {
+                let got = read(c, &snap, k, s, t).ok()?;
+                let w = want.served(k, s as usize, t as usize);
+                if got != w && wrong.len() < 5 {
+                    wrong.push(format!("level {k} ({s}, {t}): {got:?}, expected {w:?}"));
+                }
+                with_data += got.is_some() as usize;
+            }
+        }
+    }
+    Some((wrong, with_data))
+}
+
+/// The fault: a view with grids of its own never read a patched tile again (only the primary's
+/// clipmap was told of the change), so it kept the old texels (here: none, the tile missing) for
+/// good while the primary showed the patch.
+#[test]
+fn own_view_never_receives_growing_patches() {
+    let fx = Fixture::new();
+    let (out, d) = exec(
+        fx.dir.path(),
+        CLIPTEX,
+        &["grow", "create", "tex", "--origin", "3.5,-2.25", "--texels-per-unit", "1", "--tile", "16", "--format", "l8"],
+    );
+    assert!(out.status.success(), "{d}");
+    std::fs::create_dir(fx.path("inc")).unwrap();
+    let ps = survey();
+    let svc = Service::start_with(fx.dir.path(), "grown", &["--view", "far:own"]);
+    let main = Client::attach(fx.dir.path(), "grown").unwrap();
+    let own = Client::attach_view(fx.dir.path(), "grown", "far").unwrap();
+    assert!(own.reads_own_grids());
+    // Its own view of the same place, settled before any patch: every tile missing.
+    let t = Instant::now();
+    while own.try_snapshot().map_or(true, |s| s.min_lod != 0.0) {
+        assert!(t.elapsed() < Duration::from_secs(20), "the own view never settled\n{}", svc.log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    for (n, p) in ps.iter().enumerate() {
+        assert_eq!(svc.patch(p), format!("OK patch {}", n + 1), "{}", svc.log());
+        // Two patches over the same tiles, the second while the first is being served.
+        std::thread::sleep(Duration::from_millis(30));
+    }
+    settle(&svc, &main, ps.len() as u64);
+    let want = Want::new(&ps);
+    assert!(check_all(&main, &want) > 0, "the primary shows the patches");
+    let t = Instant::now();
+    loop {
+        match differences(&own, &want) {
+            Some((wrong, with_data)) if wrong.is_empty() && with_data > 0 => break,
+            got => assert!(
+                t.elapsed() < Duration::from_secs(20),
+                "after 20 s the own view still differs from the patches: {got:?}\n{}",
+                svc.log()
+            ),
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
 }

@@ -131,3 +131,86 @@ fn the_own_mappings_a_killed_service_left_go_at_the_next_start_and_command_line_
     let (passed, failed) = counts(&out, "tower");
     assert!(out.status.success() && failed == 0 && passed > 500, "{passed} {failed}\n{out:?}");
 }
+
+/// The fault: `CENTRE` and `VIEW CENTRE` echoed the centre as asked while every snapshot
+/// published it bounded to -2^40..=2^40 (docs/SHM.md, "Centres"). The reply must say the centre
+/// that will be published, for `main`, a view in the shared grids and one with grids of its own.
+#[test]
+fn centre_replies_echo_an_unclamped_centre() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "vc", &["--view", "left", "--view", "far:own"]);
+    let far = 1i64 << 40;
+    assert_eq!(svc.ask("CENTRE 5000000000000 -5000000000000"), format!("OK centre {far} -{far}"));
+    for v in ["left", "far"] {
+        assert_eq!(svc.ask(&format!("VIEW CENTRE {v} -5000000000000 7")), format!("OK view {v} centre -{far} 7"),);
+    }
+    assert_eq!(svc.ask("VIEW CENTRE main 3 9223372036854775807"), format!("OK view main centre 3 {far}"));
+    // What each snapshot publishes.
+    for (v, want) in [("main", [3, far]), ("left", [-far, 7]), ("far", [-far, 7])] {
+        let c = clipmap::shm::Client::attach_view(d, "vc", v).unwrap();
+        let t = Instant::now();
+        while c.try_snapshot().map(|s| s.centre).ok() != Some(want) {
+            assert!(t.elapsed() < Duration::from_secs(20), "{v}: {:?}, expected {want:?}", c.try_snapshot());
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+/// The fault: at a stop the service marked its views' own mappings closed before its own, so a
+/// reader that saw its view's mapping closed and then read the service's mapping (as the
+/// contract says) found it open and the view's record live, and reported the stop as a removal.
+/// The rule (docs/SHM.md, "A view with grids of its own"): when an own mapping says closed, the
+/// service's mapping already says closed (a stop), or the view's record is already free (`VIEW
+/// REMOVE`).
+#[test]
+fn own_view_closed_before_the_service_reads_a_stop_as_a_removal() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "vs", &["--view", "a:own", "--view", "b:own", "--view", "c:own"]);
+    let service = clipmap::shm::Client::attach(d, "vs").unwrap();
+    // Waits in this thread, spinning, for `own` to say closed while `line` is sent on the socket
+    // from another; returns what the service's mapping says right then.
+    let closing = |own: &clipmap::shm::Client, line: &'static str| {
+        let socket = svc.socket.clone();
+        let asked = std::thread::spawn(move || crate::clipmapd::ask(&socket, line));
+        let t = Instant::now();
+        while !own.closed() {
+            assert!(t.elapsed() < Duration::from_secs(20), "{line}: the own mapping never said closed");
+            std::hint::spin_loop();
+        }
+        let seen = (service.closed(), service.view_names().unwrap());
+        let _ = asked.join();
+        seen
+    };
+    let c = clipmap::shm::Client::attach_view(d, "vs", "c").unwrap();
+    let (closed, views) = closing(&c, "VIEW REMOVE c");
+    assert!(!closed && !views.contains(&"c".to_string()), "VIEW REMOVE: the record is free first: {views:?}");
+    let a = clipmap::shm::Client::attach_view(d, "vs", "a").unwrap();
+    let (closed, views) = closing(&a, "SHUTDOWN");
+    assert!(closed, "a stop: the service's mapping says closed first ({views:?})");
+}
+
+/// The fault: nothing tied a view's own mapping `NAME@VIEW.map` to a start of the service, so a
+/// reader of a killed service's mapping, looking up a view, bound to the next start's own mapping
+/// of that name. It carries its service's generation now, and a reader checks it.
+#[test]
+fn own_mapping_of_another_start_is_taken_for_this_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut svc = Service::start(d, "vg", &["--view", "tower:own"]);
+    let old = clipmap::shm::Client::attach(d, "vg").unwrap();
+    let own = clipmap::shm::Client::attach_view(d, "vg", "tower").unwrap();
+    assert_eq!(own.generation, old.generation, "the own mapping carries the service's generation");
+    svc.child.kill().unwrap();
+    svc.child.wait().unwrap();
+    let _svc = Service::start(d, "vg", &["--view", "tower:own"]);
+    let new = clipmap::shm::Client::attach(d, "vg").unwrap();
+    assert_ne!(new.generation, old.generation);
+    let mut stale = old;
+    let err = stale.bind_view("tower").expect_err("the killed start's mapping must not bind to the new own mapping");
+    assert!(err.to_string().contains("belongs to another start of the service"), "{err}");
+    let mut fresh = new;
+    fresh.bind_view("tower").unwrap();
+    assert_eq!(fresh.generation, clipmap::shm::Client::attach(d, "vg").unwrap().generation);
+}

@@ -6,6 +6,7 @@
 //! only on the socket is gone, refused by name, until it is added again.
 
 use crate::clipmapd::{c_reader, counts, json_reply, python_reader, rust_reader, Service};
+use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::Duration;
 
@@ -154,4 +155,95 @@ fn views_survive_sigkill_and_restart_every_texel_right_and_socket_views_are_refu
     // The view with grids of its own came back with them, where it was set.
     assert_eq!((views[3]["name"].as_str(), views[3]["grids"].as_str()), (Some("tower"), Some("own")), "{views}");
     assert_eq!(views[3]["centre"], serde_json::json!([5000, 60000]), "{views}");
+}
+
+/// Starts `clipmapd` named `va` with three command-line views, first afresh and then again after
+/// SIGKILL (the dead mapping stays under the name until the new one replaces it), and calls
+/// `check` the moment each start's mapping appears under its name, without waiting for anything.
+fn right_after_the_mapping_appears(check: impl Fn(&Path, &Service, &str)) {
+    use std::os::unix::fs::MetadataExt;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let map = d.join("clipmap-va.map");
+    let mut old: Option<(u64, u64)> = None;
+    for round in ["the first start", "a restart after SIGKILL"] {
+        let mut svc = Service::spawn(d, "va", &["--view", "left", "--view", "tower:2:own", "--view", "sensor:own"]);
+        let t = std::time::Instant::now();
+        loop {
+            if let Ok(m) = std::fs::metadata(&map) {
+                if Some((m.dev(), m.ino())) != old {
+                    old = Some((m.dev(), m.ino()));
+                    break;
+                }
+            }
+            assert!(t.elapsed() < Duration::from_secs(30), "{round}: no new mapping\n{}", svc.dump());
+            std::thread::sleep(Duration::from_micros(200));
+        }
+        check(d, &svc, round);
+        svc.child.kill().unwrap();
+        svc.child.wait().unwrap();
+    }
+}
+
+/// The fault: right after a start's mapping appeared under its name, an own-grid view given on
+/// the command line (and any other) was missing from it for 0.1 to 1.2 s.
+#[test]
+fn own_view_missing_right_after_the_mapping_appears() {
+    right_after_the_mapping_appears(|d, svc, round| {
+        let c = clipmap::shm::Client::attach(d, "va").unwrap();
+        assert_eq!(c.view_names().unwrap(), ["main", "left", "tower", "sensor"], "{round}\n{}", svc.dump());
+        for v in ["left", "tower", "sensor"] {
+            let r = clipmap::shm::Client::attach_view(d, "va", v);
+            assert!(r.is_ok(), "{round}: view {v}: {:?}\n{}", r.err(), svc.dump());
+        }
+    });
+}
+
+/// The fault: the control socket did not answer for 0.1 to 1.2 s after a start's mapping
+/// appeared under its name (not there at all, or a killed predecessor's refusing connections).
+#[test]
+fn socket_silent_right_after_the_mapping_appears() {
+    use std::io::{BufRead, BufReader, Write};
+    right_after_the_mapping_appears(|_, svc, round| {
+        let mut s = std::os::unix::net::UnixStream::connect(&svc.socket)
+            .unwrap_or_else(|e| panic!("{round}: the socket does not accept when the mapping appears: {e}"));
+        writeln!(s, "PING").unwrap();
+        let mut line = String::new();
+        BufReader::new(s).read_line(&mut line).unwrap();
+        assert_eq!(line.trim_end(), "OK pong", "{round}");
+    });
+}
+
+/// docs/SHM.md, "Liveness and restarts": a stale verdict is taken back when the heartbeat moves
+/// again in the same mapping. A service stopped (SIGSTOP) for longer than the reader's stale time
+/// and then continued: `clipmap-read --follow` judges it stale once and goes on reading the same
+/// mapping (no reattach, every texel right), as the view it reads.
+#[test]
+fn a_stale_verdict_is_taken_back_when_the_heartbeat_moves_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svc = Service::start(d, "vz", &["--view", "tower:own"]);
+    let args = ["--follow", "--stale-ms", "300", "--reads", "1000000000", "--seconds", "4", "--block", "2"];
+    let mut readers: Vec<_> = ["main", "tower"]
+        .iter()
+        .map(|v| rust_reader(d, "vz", &[&args[..], &["--view", v]].concat()).spawn().unwrap())
+        .collect();
+    let signal = |s: &str| {
+        let st = Command::new("kill").args([s, &svc.child.id().to_string()]).status().unwrap();
+        assert!(st.success());
+    };
+    std::thread::sleep(Duration::from_millis(800));
+    signal("-STOP");
+    std::thread::sleep(Duration::from_millis(1200));
+    signal("-CONT");
+    for (v, r) in ["main", "tower"].iter().zip(readers.drain(..)) {
+        let out = r.wait_with_output().unwrap();
+        let (passed, failed) = counts(&out, v);
+        assert!(out.status.success() && failed == 0 && passed > 0, "{v}: {out:?}");
+        let line = json_line(&out, v);
+        assert!(line["stale_seen"].as_u64().unwrap() >= 1, "{v}: it was judged stale while stopped: {line}");
+        assert_eq!(line["reattached"], 0, "{v}: the same mapping, read on: {line}");
+        assert_eq!(line["passed_since_reattach"].as_u64(), Some(passed), "{v}: {line}");
+    }
+    assert_eq!(svc.ask("PING"), "OK pong");
 }
