@@ -1337,6 +1337,16 @@ static inline int clipmap_view_open_own(const struct clipmap_map *m, const struc
                  "service's mapping: not a file the service published (remove it, or ask its owner)", path, got, want);
         return -1;
     }
+    /* It carries the generation of the service's start that published it (docs/SHM.md, "A view
+     * with grids of its own"): another one is a mapping of another start, under a reused name. */
+    if (own->generation != m->generation) {
+        unsigned long long got = (unsigned long long)own->generation, want = (unsigned long long)m->generation;
+        clipmap_close(own);
+        clipmap_fmt_(own->error, sizeof own->error, "%.200s: view \"%s\" has grids of its own, but this mapping carries "
+                 "generation %llu, expected %llu (the service's mapping's): it belongs to another start of the "
+                 "service; open the service's mapping again and look the view up there", path, v->name, got, want);
+        return -1;
+    }
     return 0;
 }
 

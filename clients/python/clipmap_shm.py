@@ -717,6 +717,14 @@ class Mapping:
             raise Refused(f'view "{name}" has grids of its own: {path}: {e.strerror or e}') from None
         except Refused as e:
             raise Refused(f'view "{name}" has grids of its own: {e}') from None
+        # It carries the generation of the service's start that published it (docs/SHM.md, "A
+        # view with grids of its own"): another one is a mapping of another start, a reused name.
+        if own.generation != self.generation:
+            found = own.generation
+            own.close()
+            raise Refused(f'{path}: view "{name}" has grids of its own, but this mapping carries generation '
+                          f"{found}, expected {self.generation} (the service's mapping's): it belongs to another "
+                          f"start of the service; open the service's mapping again and look the view up there")
         self.owns[(record, incarnation)] = own
         return own
 

@@ -208,3 +208,28 @@ fn view_records_no_view_publishes_in_hold_a_snapshot_of_nothing_published() {
     }
     assert_eq!(&states[..2], [2, 0], "far's own grids, then gone's record given back: {states:?}");
 }
+
+/// The fault: nothing tied a view's own mapping `NAME@VIEW.map` to a start of the service, so a
+/// reader holding a killed start's mapping bound the view to the next start's own mapping of that
+/// name. The Rust reader checks the generation the own mapping carries; the C and Python readers
+/// did not. Here a killed start's mapping sits beside the next start's own mapping of its view.
+#[test]
+fn the_c_and_python_readers_took_another_starts_own_mapping_for_this_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut svc = Service::start(d, "gen", &["--view", "far:own"]);
+    for (who, out) in read_far(d, "gen") {
+        assert!(out.status.success(), "{who} reads the view as published\n{}", text(&out));
+    }
+    svc.child.kill().unwrap();
+    svc.child.wait().unwrap();
+    let old = tempfile::tempdir().unwrap();
+    std::fs::copy(d.join("clipmap-gen.map"), old.path().join("clipmap-gen.map")).unwrap();
+    let _next = Service::start(d, "gen", &["--view", "far:own"]);
+    std::fs::copy(d.join("clipmap-gen@far.map"), old.path().join("clipmap-gen@far.map")).unwrap();
+    for (who, out) in read_far(old.path(), "gen") {
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{who} refuses the next start's own mapping\n{}", text(&out));
+        assert!(err.contains("belongs to another start of the service"), "{who}: {err}");
+    }
+}
