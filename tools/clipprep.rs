@@ -237,7 +237,7 @@ struct Cli {
     #[arg(long, value_enum, value_name = "RULE")]
     height_levels: Option<LevelsArg>,
     /// Heights: what a NaN or infinite input height becomes: refused (an error naming the pixel),
-    /// or the nodata value (needs --height-nodata).
+    /// or the nodata value (--height-nodata, or the input's GDAL_NODATA).
     #[arg(long, value_enum, value_name = "WHAT")]
     nan: Option<NanArg>,
     /// Memory limit in MiB for a decoded input image and the band cascade.
@@ -583,7 +583,9 @@ fn height_prep(cli: &Cli) -> Result<Option<HeightPrep>, PrepError> {
     .map_err(|e| PrepError::Geometry(format!("--format {fmt} with the --height-* options given: {e}")))?;
     let non_finite = match cli.nan {
         Some(NanArg::Nodata) => {
-            if format.nodata().is_none() {
+            // An input elevation model may carry its own nodata (GDAL_NODATA): checked in
+            // `prepare`, once it is open.
+            if format.nodata().is_none() && cli.input.is_none() {
                 return Err(PrepError::Geometry(
                     "--nan nodata stores NaN and infinite heights as the nodata value, and none was given; expected --height-nodata V (a stored value outside the data, e.g. -32768); pass it, or --nan refuse".into(),
                 ));
@@ -659,6 +661,12 @@ fn prepare(cli: &Cli, out: &Path, cancel: &AtomicBool) -> Result<Outcome, PrepEr
                         format.short_name()
                     ))
                 })?;
+            }
+            if matches!(prep.non_finite, NonFinite::Nodata) && prep.format.nodata().is_none() {
+                return Err(PrepError::Geometry(format!(
+                    "--nan nodata stores NaN and infinite heights as the nodata value, and neither --height-nodata nor {} (no GDAL_NODATA, or a NaN one) gives one; expected --height-nodata V (a stored value outside the data, e.g. -32768); pass it, or --nan refuse",
+                    path.display()
+                )));
             }
             let (w, h) = tiff.dimensions();
             let size = if cli.pad {

@@ -1150,12 +1150,13 @@ mod heights {
             let e = prep_fails(&args);
             assert!(e.contains("pixel (5, 7)") && e.contains("NaN") && e.contains("--nan nodata"), "{e}");
             assert_nothing_written(&out);
-            // --nan nodata without a nodata value is refused before anything is read.
+            // --nan nodata without --height-nodata takes the input's GDAL_NODATA as the value.
+            let carried = d.join(format!("carried_{name}"));
             let mut args = base.to_vec();
-            args.extend(["--nan", "nodata", "--out", out.to_str().unwrap()]);
-            let e = prep_fails(&args);
-            assert!(e.contains("--height-nodata"), "{e}");
-            assert_nothing_written(&out);
+            args.extend(["--nan", "nodata"]);
+            prep(&carried, &args);
+            let (f, _, _) = read_heights(&carried.join(format!("carried_{name}.ct")));
+            assert_eq!(f.nodata(), Some(-9999.0), "the input's GDAL_NODATA");
             for rule in ["mean", "point", "min", "max"] {
                 let out = d.join(format!("{name}_{rule}"));
                 let mut args = base.to_vec();

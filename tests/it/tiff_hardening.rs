@@ -487,3 +487,44 @@ fn levels_built_past_the_overviews_pair_rows_from_the_bottom_and_round_as_docume
     assert_eq!(i16s(crate::cog::level(&src, 1).unwrap()), [-2, 1], "mean(-2, -3) = -2.5; mean(-3, 3, -1, 1) = 0");
     assert_eq!(i16s(crate::cog::level(&src, 2).unwrap()), [-1], "mean(-2, 1) = -0.5 rounds to 0, below it");
 }
+
+/// The fault: `--nan nodata` was refused unless `--height-nodata` was given, even when the elevation
+/// model carries its own nodata (GDAL_NODATA), which `clipprep` keeps by default.
+#[test]
+fn clipprep_nan_nodata_refused_a_dem_whose_gdal_nodata_gives_the_value() {
+    let dir = tempfile::tempdir().unwrap();
+    const WRITE: &str = r#"
+import struct
+from osgeo import gdal
+gdal.UseExceptions()
+for name, nodata in [("dem.tif", -9999), ("bare.tif", None)]:
+    mem = gdal.GetDriverByName("MEM").Create("", 64, 64, 1, gdal.GDT_Float32)
+    vals = [float("nan") if (x + y) % 9 == 0 else 100.0 + x + y * 0.5 for y in range(64) for x in range(64)]
+    mem.GetRasterBand(1).WriteRaster(0, 0, 64, 64, struct.pack("<4096f", *vals))
+    if nodata is not None:
+        mem.GetRasterBand(1).SetNoDataValue(nodata)
+    gdal.Translate(name, mem, format="GTiff", creationOptions=["TILED=YES", "BLOCKXSIZE=32", "BLOCKYSIZE=32"])
+"#;
+    crate::common::gdal::write_with(WRITE, &[], dir.path(), "DEMs with NaN, with and without GDAL_NODATA");
+    let prep = |input: &str, out: &str| {
+        Command::new(env!("CARGO_BIN_EXE_clipprep"))
+            .args([
+                "--input", input, "--format", "l32f", "--nan", "nodata", "--tile", "32", "--clip", "32", "--out", out,
+            ])
+            .current_dir(dir.path())
+            .output()
+            .unwrap()
+    };
+    let out = prep("dem.tif", "d");
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "{text}");
+    let ct = std::fs::read_to_string(dir.path().join("d").join("d.ct")).unwrap();
+    assert!(ct.contains("#clipmap height_nodata -9999"), "{ct}");
+    assert!(ct.contains("non-finite input stored as nodata"), "{ct}");
+    // Without a nodata anywhere, the refusal names the input and what to pass; nothing written.
+    let out = prep("bare.tif", "e");
+    let text = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    assert!(text.contains("bare.tif") && text.contains("--height-nodata V"), "{text}");
+    assert!(!dir.path().join("e").exists());
+}
