@@ -223,18 +223,18 @@ impl Motion {
     /// axis, which recentres (the smoothed motion restarts at 0). A reversal on an axis takes the
     /// new velocity at once; a stop decays like any change.
     pub fn update(&mut self, v: [i64; 2], jump: u64) {
-        for a in 0..2 {
-            let x = v[a] as f64;
-            let old = self.velocity[a];
-            self.velocity[a] = if v[a].unsigned_abs() > jump {
+        for (vel, &va) in self.velocity.iter_mut().zip(&v) {
+            let x = va as f64;
+            let old = *vel;
+            *vel = if va.unsigned_abs() > jump {
                 0.0
             } else if x * old < 0.0 {
                 x
             } else {
                 old + MOTION_WEIGHT * (x - old)
             };
-            if self.velocity[a].abs() < 0.05 {
-                self.velocity[a] = 0.0;
+            if vel.abs() < 0.05 {
+                *vel = 0.0;
             }
         }
     }
