@@ -227,7 +227,7 @@ pub struct PagingOptions {
     /// Most level-0 texels the centre moves per tick along each axis (`None`: unclamped).
     pub max_centre_step: Option<u64>,
     /// Bytes the adaptive policy's grids may take (`None`: the default budget,
-    /// [`adaptive::DEFAULT_BUDGET_FACTOR`] times the lookahead-1 grids).
+    /// `adaptive::DEFAULT_BUDGET_FACTOR` times the lookahead-1 grids).
     pub grid_budget: Option<u64>,
 }
 
