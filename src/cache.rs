@@ -4,7 +4,7 @@
 //! (S mod grid width, T mod grid height)) and what the engine knows of it (absent, loading,
 //! resident, defaulted, failed, replacing). The slots' bytes and tags live in an [`ImageMemory`]
 //! (the service's mapping, or anonymous memory): reads write there directly, and this module only
-//! moves claims ([`ImageMemory::assign`], [`ImageMemory::replace`], [`ImageMemory::settle`]). It
+//! moves claims (`ImageMemory::assign`, `ImageMemory::replace`, `ImageMemory::settle`). It
 //! decides nothing about *which* region to hold ([`crate::geom`]) nor how tiles are read
 //! ([`crate::queue`]).
 
@@ -30,7 +30,12 @@ pub enum TileState {
     Defaulted,
     /// The last read failed (readers use a coarser level for it); it is asked for again from
     /// tick `retry_at` on.
-    Failed { kind: FaultKind, retry_at: u64 },
+    Failed {
+        /// What went wrong.
+        kind: FaultKind,
+        /// The tick from which it is asked for again.
+        retry_at: u64,
+    },
     /// Was resident (or defaulted) and is being read again into its slot, in place, because its
     /// texels changed at the source ([`crate::clip::Clipmap::refresh`]): asked of the read queues
     /// like any tile. Settled (its level stays published), not readable: the slot's tag says
@@ -67,7 +72,7 @@ struct Slot {
     /// The tile the engine wants in this slot.
     tile: Option<[i64; 2]>,
     state: TileState,
-    /// True once the slot's claim and tag were moved to `tile` ([`ImageMemory::assign`]).
+    /// True once the slot's claim and tag were moved to `tile` (`ImageMemory::assign`).
     assigned: bool,
 }
 
@@ -102,7 +107,7 @@ pub struct TileCache {
 
 impl TileCache {
     /// Empty caches for every level of `desc`, level `k` `grids[k]` tiles a side (the engine's
-    /// [`crate::geom::level_grid`]), their slots in `memory` (laid out for the same grids).
+    /// `crate::geom::level_grid`), their slots in `memory` (laid out for the same grids).
     pub fn new(desc: &TextureDesc, grids: &[[u64; 2]], memory: Arc<ImageMemory>) -> Self {
         let levels = grids
             .iter()
@@ -236,7 +241,7 @@ impl TileCache {
     }
 
     /// Opens resident (or defaulted) `tile`'s slot to be read again in place
-    /// ([`ImageMemory::replace`]: tag loading, claim loading under a new generation): the tile
+    /// (`ImageMemory::replace`: tag loading, claim loading under a new generation): the tile
     /// is [`TileState::Replacing`], wanted from the read queues like any tile, and its read's
     /// completion settles it again ([`admit`](Self::admit), or [`mark_failed`](Self::mark_failed):
     /// missing, read again from its retry tick). `false` (nothing changed) unless the tile is

@@ -142,6 +142,7 @@ pub struct ValidateArgs {
     /// Print only the invalid files.
     #[arg(long, short)]
     pub quiet: bool,
+    /// `--env` and `--unset` (a flattened field: clap takes no help text from this comment).
     #[command(flatten)]
     pub env: EnvArgs,
 }

@@ -6,24 +6,27 @@
 //!
 //! ## Map of the crate, in data-flow order
 //!
+//! (docs/ARCHITECTURE.md §12 gives each module's floor; a module imports only lower floors.)
+//!
 //! | module | owns |
 //! |---|---|
+//! | [`tile`] | the ground floor: tile ids, level sizes and counts, the 64-bit mixing of the verification texture |
 //! | [`place`] | where a named file lives: a local path or a remote location, decided once where the name enters |
 //! | [`open`] | the one way to open a file a configuration names: regular files only, never blocking |
 //! | [`config`] | text → syntax tree with a span for every value; no arithmetic, no other files |
 //! | [`plan`] | syntax tree → validated, immutable plan: levels, formats, file names, byte offsets |
 //! | [`texel`] | texel formats, bytes per texel, colour encoding |
 //! | [`height`] | elevation: height encodings (`l32f`, `l16`, `l16i` with scale, offset, nodata), level rules for heights, per-tile height ranges |
-//! | [`source`] | texel values: procedural textures (and tile files, through the plan) |
+//! | [`source`] | texel values: tile files through the plan, tiled GeoTIFFs and COGs, remote tiles (`http(s)://`, `s3://`), procedural textures, the second-level tile pool, fault and throttle wrappers |
 //! | [`geom`] | pure level geometry: centres, tex / valid / mem regions, toroidal addressing |
 //! | [`limits`] | every bound the paging engine keeps (queue lengths, reads in flight, bytes) |
 //! | [`runtime`] | the process's one tokio runtime (read queues, remote requests, the service, the tools) and its thread bounds |
 //! | [`queue`] | per-stream-server async read queues: priorities, coalescing, stale drops |
-//! | [`paging`] | paging policies: where each grid's spare tiles go (ring, direction), and a second-level tile pool with its eviction (LRU, shift) |
-//! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
-//! | [`clip`] | per-level toroidal windows, the update tick, load control (min LOD), statistics |
-//! | [`shm`] | the shared-memory layout, writer and client (the only `unsafe` code) |
-//! | [`service`] | the `clipmapd` service: tick loop thread, control socket, statistics, demo |
+//! | [`paging`] | paging policies: where each grid's spare tiles go (adaptive, the default; ring, direction, ahead), and how the second-level tile pool evicts (LRU, the default; shift) |
+//! | [`cache`] | per-level toroidal grids of slots (mem regions): which tile each slot of the mapping holds |
+//! | [`clip`] | the engine: per-level windows, the update tick, load control (min LOD), adaptive paging, views, statistics |
+//! | [`shm`] | the shared-memory layout (layout 2: the image caches themselves), the slots' memory and claims, writer and client (the only `unsafe` code) |
+//! | [`service`] | the `clipmapd` service: tick loop thread, control socket, statistics, views with grids of their own, a growing texture's patches |
 //! | [`sample`] | reference point / bilinear / trilinear sampling of the full mipmap and the clipmap |
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
 //! | [`accuracy`] | the reference renderer, per-frame accuracy metrics and the speed/accuracy sweep |

@@ -107,7 +107,7 @@ pub const REDACTED: &str = "***";
 
 /// `text` as it may be shown (in errors, logs, statistics): every `http://` or `https://` URL in
 /// it with the password of its user information replaced by [`REDACTED`] (the user kept), and
-/// the value of every query parameter whose name holds a secret's word ([`SECRET_PARAMETERS`]:
+/// the value of every query parameter whose name holds a secret's word (`SECRET_PARAMETERS`:
 /// a signature, a credential, a token, a key) replaced the same way. Everything else is kept as
 /// written, so the shown name still says which object it is. Requests use the name itself.
 pub fn redacted(text: &str) -> std::borrow::Cow<'_, str> {

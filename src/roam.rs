@@ -19,15 +19,35 @@ use thiserror::Error;
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum Flight {
     /// A straight line at `speed` texels per frame, `angle` degrees from +s.
-    Straight { speed: f64, angle: f64 },
+    Straight {
+        /// Level-0 texels per frame.
+        speed: f64,
+        /// Degrees from +s.
+        angle: f64,
+    },
     /// A circle of `radius` texels around the start, at `speed` texels per frame.
-    Circle { radius: f64, speed: f64 },
+    Circle {
+        /// Radius in level-0 texels.
+        radius: f64,
+        /// Level-0 texels per frame along the circle.
+        speed: f64,
+    },
     /// Along +s at `speed`, swinging ±45° every `period` frames.
-    Zigzag { speed: f64, period: u64 },
+    Zigzag {
+        /// Level-0 texels per frame.
+        speed: f64,
+        /// Frames between swings.
+        period: u64,
+    },
     /// Standing still.
     Hover,
     /// Still, then a jump of `dist` texels along +s every `every` frames.
-    Jump { every: u64, dist: f64 },
+    Jump {
+        /// Frames between jumps.
+        every: u64,
+        /// Level-0 texels a jump goes along +s.
+        dist: f64,
+    },
 }
 
 /// A flight spec that could not be read.
@@ -35,13 +55,34 @@ pub enum Flight {
 pub enum FlightError {
     /// The first word is no known flight.
     #[error("unknown flight `{found}`: expected straight:SPEED[:ANGLE], circle:RADIUS:SPEED, zigzag:SPEED:PERIOD, hover or jump:EVERY:DIST")]
-    Kind { found: String },
+    Kind {
+        /// The first word given.
+        found: String,
+    },
     /// Wrong number of `:`-separated arguments.
     #[error("`{spec}`: {kind} takes {expected}, found {found} argument(s)")]
-    Arity { spec: String, kind: &'static str, expected: &'static str, found: usize },
+    Arity {
+        /// The spec given.
+        spec: String,
+        /// The flight.
+        kind: &'static str,
+        /// The arguments it takes.
+        expected: &'static str,
+        /// The arguments given.
+        found: usize,
+    },
     /// An argument that is not a number in range.
     #[error("`{spec}`: {name} `{found}` is not valid: expected {expected}")]
-    Number { spec: String, name: &'static str, found: String, expected: &'static str },
+    Number {
+        /// The spec given.
+        spec: String,
+        /// The argument.
+        name: &'static str,
+        /// Its text.
+        found: String,
+        /// The values it may take.
+        expected: &'static str,
+    },
 }
 
 impl FromStr for Flight {

@@ -432,7 +432,7 @@ pub(crate) fn sample_mapping(client: &Client, filter: Filter, u: f64, v: f64, lo
     sample_mapping_in(client, &snap, filter, u, v, lod)
 }
 
-/// [`sample_mapping`] against a snapshot the caller took (so that many samples, a whole frame,
+/// `sample_mapping` against a snapshot the caller took (so that many samples, a whole frame,
 /// see one published state, as a renderer that uploads once a frame does).
 pub(crate) fn sample_mapping_in(
     client: &Client,
@@ -465,7 +465,7 @@ pub(crate) fn sample_mapping_held(
 }
 
 /// Samples a service's mapping's heights through `client`, in metres, exactly as
-/// [`sample_mapping`] samples colours; `Ok(None)` when nothing holds the footprint (or no
+/// `sample_mapping` samples colours; `Ok(None)` when nothing holds the footprint (or no
 /// snapshot could be taken). Fails when the mapping's heights block says its texels are not
 /// heights.
 pub fn sample_mapping_height(

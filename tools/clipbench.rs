@@ -274,7 +274,7 @@ impl StudyFormat {
 
 fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool, format: clipmap::texel::TexelFormat) -> u8 {
     let started = std::time::Instant::now();
-    let show = !quiet && std::io::stderr().is_terminal() || !quiet && !json;
+    let show = !quiet && (std::io::stderr().is_terminal() || !json);
     let rows = match sweep::run(quick, format, |i, n, r| {
         if show {
             eprintln!(

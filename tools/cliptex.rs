@@ -353,6 +353,9 @@ struct RoamArgs {
     #[arg(long)]
     border: Option<u64>,
     /// The flight: straight:SPEED[:ANGLE], circle:RADIUS:SPEED, zigzag:SPEED:PERIOD, hover, jump:EVERY:DIST.
+    // This comment is clap's help text, printed as written: `[:ANGLE]` marks an optional argument,
+    // not a link, and escaping it would change the help.
+    #[allow(rustdoc::broken_intra_doc_links)]
     #[arg(long)]
     flight: roam::Flight,
     /// Frames to fly.

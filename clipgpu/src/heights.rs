@@ -37,7 +37,14 @@ pub enum Sampled {
     /// The filtered height in metres (f64 arithmetic on f64 metres, the f32 weights), the
     /// largest |metres| of the texels blended, and how many blends deep the filter was (point 0,
     /// bilinear 2, trilinear across two levels 3).
-    Metres { metres: f64, largest: f64, blends: u32 },
+    Metres {
+        /// The filtered height in metres.
+        metres: f64,
+        /// The largest |metres| of the texels blended.
+        largest: f64,
+        /// How many blends deep the filter was.
+        blends: u32,
+    },
     /// The filter touched a texel without data.
     Nodata,
     /// No level holds the footprint.

@@ -4,6 +4,8 @@
 //! disabled mid-flight, an upload budget, and bad input. A machine without a Vulkan driver fails
 //! these tests with clipgpu's message saying how to install one.
 
+#![forbid(unsafe_code)]
+
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;

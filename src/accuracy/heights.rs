@@ -128,9 +128,11 @@ pub struct LevelError {
     pub level: u32,
     /// Pixels compared.
     pub pixels: u64,
-    /// Mean, 99th percentile and largest absolute vertical error, metres.
+    /// Mean absolute vertical error, metres.
     pub mean_m: f64,
+    /// 99th percentile of the absolute vertical error, metres.
     pub p99_m: f64,
+    /// Largest absolute vertical error, metres.
     pub max_m: f64,
 }
 
@@ -157,16 +159,19 @@ pub struct HeightRow {
     pub frames: u64,
     /// Pixels compared (both samples with data), all frames.
     pub pixels: u64,
-    /// Mean, 99th percentile and largest absolute vertical error, metres.
+    /// Mean absolute vertical error, metres.
     pub mean_m: f64,
+    /// 99th percentile of the absolute vertical error, metres.
     pub p99_m: f64,
+    /// Largest absolute vertical error, metres.
     pub max_m: f64,
     /// Pixels where one sample is nodata and the other is not.
     pub nodata_mismatch: u64,
     /// Share of compared pixels drawn from a level coarser than 0.
     pub coarser_pixel_share: f64,
-    /// Mean and largest min LOD after the frames' ticks.
+    /// Mean min LOD after the frames' ticks.
     pub min_lod_mean: f64,
+    /// Largest min LOD after the frames' ticks.
     pub min_lod_max: f64,
     /// Tiles read over the flight.
     pub tiles_read: u64,

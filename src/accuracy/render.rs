@@ -183,7 +183,7 @@ pub(crate) fn render_clipmap_levels(
 
 /// Renders from a service's mapping as a reader sees it in one snapshot (`snap`, taken by the
 /// caller): the same camera, LOD and sampling as [`render_clipmap`], through
-/// [`crate::sample::sample_mapping_in`]. The GPU client (`clipgpu`) compares its frames with this.
+/// `crate::sample::sample_mapping_in`. The GPU client (`clipgpu`) compares its frames with this.
 pub fn render_mapping(cam: &Camera, client: &Client, snap: &Snapshot, filter: Filter) -> Vec<Pixel> {
     let rows: Vec<Vec<Pixel>> = (0..cam.height)
         .into_par_iter()
@@ -200,7 +200,7 @@ pub fn render_mapping(cam: &Camera, client: &Client, snap: &Snapshot, filter: Fi
 }
 
 /// One pixel of [`render_mapping`] whose footprint is `uv` and `lod` (unclamped); `held`
-/// restricts the texels available further (see [`crate::sample::sample_mapping_held`]).
+/// restricts the texels available further (see `crate::sample::sample_mapping_held`).
 fn mapping_pixel(
     client: &Client,
     snap: &Snapshot,
@@ -224,7 +224,7 @@ fn mapping_pixel(
 /// is sky for `None`, else shaded at `Some((uv, lod))` exactly as [`render_mapping`] shades a
 /// pixel with that footprint. A renderer that computes its footprints itself (the GPU client, in
 /// f32) checks its sampling with this at its own coordinates; `held` as in
-/// [`crate::sample::sample_mapping_held`].
+/// `crate::sample::sample_mapping_held`.
 pub fn render_mapping_at(
     client: &Client,
     snap: &Snapshot,

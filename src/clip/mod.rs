@@ -75,7 +75,7 @@ pub struct Settings {
     /// Bounds on queues and memory.
     pub limits: Limits,
     /// Bytes the grids of levels without a configured mem region may take under the adaptive
-    /// policy (`None`: [`crate::paging::adaptive::DEFAULT_BUDGET_FACTOR`] times the bytes of the
+    /// policy (`None`: `crate::paging::adaptive::DEFAULT_BUDGET_FACTOR` times the bytes of the
     /// lookahead-1 grids), capped by `limits.cache_bytes` less the pool. The fixed policies
     /// size grids from `lookahead` and ignore it.
     pub grid_budget: Option<u64>,
@@ -136,13 +136,23 @@ pub enum ClipError {
     Queue(#[from] QueueError),
     /// The image caches would take more memory than allowed.
     #[error("the image caches need {needed} bytes, any tile pool's budget included: the limit is {limit} bytes (Limits::cache_bytes); choose a smaller clip size, larger tiles, a smaller mem region or a smaller pool")]
-    CacheBytes { needed: u64, limit: u64 },
+    CacheBytes {
+        /// The bytes the image caches need, any pool included.
+        needed: u64,
+        /// The most allowed (`Limits::cache_bytes`).
+        limit: u64,
+    },
     /// The image caches cannot be laid out or mapped.
     #[error("cannot make the image caches: {0}")]
     Memory(String),
     /// Caller-supplied memory is laid out for another texture or other grids.
     #[error("the image-cache memory supplied is laid out as {found:?}: this texture and its settings need {expected:?}; make it from Clipmap::memory_shape")]
-    MemoryShape { found: Box<Shape>, expected: Box<Shape> },
+    MemoryShape {
+        /// How the memory supplied is laid out.
+        found: Box<Shape>,
+        /// How this texture and its settings need it.
+        expected: Box<Shape>,
+    },
 }
 
 /// The layout of the image caches of `desc` with mem grids `grids` (one per level).
@@ -317,7 +327,7 @@ impl Clipmap {
     }
 
     /// The bytes the adaptive policy's grids may take, all levels together (`None` for the fixed
-    /// policies): `settings.grid_budget`, or by default [`adaptive::DEFAULT_BUDGET_FACTOR`] times
+    /// policies): `settings.grid_budget`, or by default `adaptive::DEFAULT_BUDGET_FACTOR` times
     /// the bytes of the lookahead-1 grids of the levels no configuration fixes plus the bytes of
     /// those it fixes (which keep their grids), capped by `limits.cache_bytes` less the pool.
     pub fn grid_budget(desc: &TextureDesc, settings: &Settings) -> Option<u64> {

@@ -13,11 +13,17 @@ use serde::Serialize;
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct FaultCounts {
+    /// The tile (or its file) did not exist ([`FaultKind::Missing`]).
     pub missing: u64,
+    /// Fewer bytes than a tile were there ([`FaultKind::Short`]).
     pub short: u64,
+    /// The data had the wrong size or layout ([`FaultKind::Corrupt`]).
     pub corrupt: u64,
+    /// The tile could not be read for its permissions ([`FaultKind::PermissionDenied`]).
     pub permission_denied: u64,
+    /// Any other I/O failure ([`FaultKind::Io`]).
     pub io: u64,
+    /// A request outside the texture or into a wrong-sized buffer ([`FaultKind::BadRequest`]).
     pub bad_request: u64,
 }
 

@@ -513,8 +513,7 @@ impl<'a> Parser<'a, '_> {
 
     fn list(&mut self, def: &'static TokenDef, span: Span) -> Value {
         let mut items = Vec::new();
-        loop {
-            let Some(w) = self.lx.peek() else { break };
+        while let Some(w) = self.lx.peek() {
             let Some(t) = w.text() else {
                 let w = self.lx.next_word().expect("peeked");
                 self.text(&w);

@@ -11,7 +11,7 @@
 //! or, for raw texels in the grid's own format, `"raw": {"width": W, "height": H}` instead of
 //! `"image"`. Everything is checked before anything is decoded or kept: the description's fields
 //! (unknown ones are refused, so a misspelt `ratng` is not silently the default), the image's
-//! size from its header (at most [`MAX_PATCH_PIXELS`] a side, and at most `max_bytes` of texels),
+//! size from its header (at most `MAX_PATCH_PIXELS` a side, and at most `max_bytes` of texels),
 //! then the patch itself ([`Patch::new`]).
 
 use super::{Grid, GrowError, NewPatch, Patch, PatchMeta, WorldBox, MAX_PATCH_PIXELS};
@@ -43,7 +43,9 @@ pub struct Sidecar {
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
 #[serde(deny_unknown_fields)]
 pub struct RawSize {
+    /// Width in texels.
     pub width: u32,
+    /// Height in texels.
     pub height: u32,
 }
 
@@ -52,27 +54,74 @@ pub struct RawSize {
 pub enum InputError {
     /// The description is not valid JSON of the expected shape.
     #[error("{where_}: the patch description is not valid: {problem}; expected {{\"bbox\": [x0, y0, x1, y1], \"time\": N, \"rating\": R, \"image\": \"FILE\"}} (or \"raw\": {{\"width\": W, \"height\": H}} instead of \"image\")")]
-    Sidecar { where_: String, problem: String },
+    Sidecar {
+        /// Where the patch came from (its file or description).
+        where_: String,
+        /// The JSON parser's complaint.
+        problem: String,
+    },
     /// Both or neither of `image` and `raw`.
     #[error("{where_}: the patch description names {found}; give exactly one of \"image\" (a file) and \"raw\" (texels in the grid's format)")]
-    Source { where_: String, found: &'static str },
+    Source {
+        /// Where the patch came from (its file or description).
+        where_: String,
+        /// What the description names: both or neither.
+        found: &'static str,
+    },
     /// The image's format is not one this build reads.
     #[error(
         "{where_}: the image is not in a format this build reads ({problem}); give PNG, JPEG or TIFF, or raw texels"
     )]
-    Format { where_: String, problem: String },
+    Format {
+        /// Where the patch came from (its file or description).
+        where_: String,
+        /// The image decoder's complaint.
+        problem: String,
+    },
     /// The image is too large to take.
     #[error("{where_}: the image is {width}x{height} pixels, {bytes} bytes of texels; the most is {max_side} a side and {max_bytes} bytes")]
-    TooLarge { where_: String, width: u32, height: u32, bytes: u64, max_side: u32, max_bytes: u64 },
+    TooLarge {
+        /// Where the patch came from (its file or description).
+        where_: String,
+        /// Image width in pixels.
+        width: u32,
+        /// Image height in pixels.
+        height: u32,
+        /// Its bytes of texels.
+        bytes: u64,
+        /// The most pixels a side.
+        max_side: u32,
+        /// The most bytes of texels.
+        max_bytes: u64,
+    },
     /// The image file itself is larger than a patch may be.
     #[error("{where_}: the image file has {bytes} bytes; the most taken is {max_bytes} (--max-patch-bytes)")]
-    FileTooLarge { where_: String, bytes: u64, max_bytes: u64 },
+    FileTooLarge {
+        /// Where the patch came from (its file or description).
+        where_: String,
+        /// The file's bytes.
+        bytes: u64,
+        /// The most taken (`--max-patch-bytes`).
+        max_bytes: u64,
+    },
     /// The image's bits per component do not fit the grid's.
     #[error("{where_}: the image has {found}; the texture's texels are {expected}: convert the image, or grow a texture of that format")]
-    Depth { where_: String, found: String, expected: String },
+    Depth {
+        /// Where the patch came from (its file or description).
+        where_: String,
+        /// The image's bits per component.
+        found: String,
+        /// The texture's texels.
+        expected: String,
+    },
     /// The image could not be decoded.
     #[error("{where_}: the image could not be decoded: {problem}")]
-    Decode { where_: String, problem: String },
+    Decode {
+        /// Where the patch came from (its file or description).
+        where_: String,
+        /// The decoder's complaint.
+        problem: String,
+    },
     /// The patch itself is refused (a patch read here has no id yet: id 0 is not named).
     #[error("{where_}: {}", without_id(.0), where_ = .1)]
     Patch(GrowError, String),

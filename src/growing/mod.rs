@@ -114,32 +114,98 @@ pub struct Grid {
 pub enum GrowError {
     /// A grid parameter is out of range.
     #[error("grid: {what} is {found}; expected {expected}")]
-    Grid { what: &'static str, found: String, expected: &'static str },
+    Grid {
+        /// The parameter.
+        what: &'static str,
+        /// Its value.
+        found: String,
+        /// The values it may take.
+        expected: &'static str,
+    },
     /// The box has a coordinate that is NaN or infinite.
     #[error(
         "patch {id}: its box {bbox:?} has a coordinate that is not a finite number; give finite world coordinates"
     )]
-    NotFinite { id: u64, bbox: WorldBox },
+    NotFinite {
+        /// The patch's id.
+        id: u64,
+        /// Its box.
+        bbox: WorldBox,
+    },
     /// The box is empty or inverted along an axis.
     #[error("patch {id}: its box is empty or inverted along {axis} (min {min}, max {max}); min must be less than max")]
-    EmptyBox { id: u64, axis: char, min: f64, max: f64 },
+    EmptyBox {
+        /// The patch's id.
+        id: u64,
+        /// The axis, `x` or `y`.
+        axis: char,
+        /// The box's minimum along it.
+        min: f64,
+        /// The box's maximum along it.
+        max: f64,
+    },
     /// The patch would cover an absurd number of texels, or lie absurdly far from the origin.
     #[error("patch {id}: it spans {span:.3e} level-0 texels along {axis} ({what}); the most is {limit:.3e}: check the box's units against the grid's texels per unit")]
-    Absurd { id: u64, axis: char, span: f64, what: &'static str, limit: f64 },
+    Absurd {
+        /// The patch's id.
+        id: u64,
+        /// The axis, `x` or `y`.
+        axis: char,
+        /// The level-0 texels it spans or lies away.
+        span: f64,
+        /// Which of the two.
+        what: &'static str,
+        /// The most taken.
+        limit: f64,
+    },
     /// The image has no pixels, or too many.
     #[error("patch {id}: its image is {width}x{height} pixels; each side must be 1 to {max}")]
-    ImageSize { id: u64, width: u32, height: u32, max: u32 },
+    ImageSize {
+        /// The patch's id.
+        id: u64,
+        /// Image width in pixels.
+        width: u32,
+        /// Image height in pixels.
+        height: u32,
+        /// The most pixels a side.
+        max: u32,
+    },
     /// The texel bytes do not match the image size.
     #[error(
         "patch {id}: {found} bytes of texels for a {width}x{height} image of {bpt} bytes a texel; expected {expected}"
     )]
-    TexelBytes { id: u64, width: u32, height: u32, bpt: usize, expected: usize, found: usize },
+    TexelBytes {
+        /// The patch's id.
+        id: u64,
+        /// Image width in pixels.
+        width: u32,
+        /// Image height in pixels.
+        height: u32,
+        /// The grid's bytes per texel.
+        bpt: usize,
+        /// The bytes the image takes.
+        expected: usize,
+        /// The bytes given.
+        found: usize,
+    },
     /// The box holds no texel centre of the grid: its data would never show.
     #[error("patch {id}: its box {bbox:?} holds the centre of no level-0 texel ({per_unit} texels a unit); it is smaller than a texel there: give a larger box or a finer grid")]
-    NoTexel { id: u64, bbox: WorldBox, per_unit: f64 },
+    NoTexel {
+        /// The patch's id.
+        id: u64,
+        /// Its box.
+        bbox: WorldBox,
+        /// The grid's level-0 texels per world unit.
+        per_unit: f64,
+    },
     /// The rating is not a finite number.
     #[error("patch {id}: its rating {rating} is not a finite number")]
-    Rating { id: u64, rating: f64 },
+    Rating {
+        /// The patch's id.
+        id: u64,
+        /// The rating given.
+        rating: f64,
+    },
 }
 
 impl Grid {
@@ -236,8 +302,9 @@ pub struct Patch {
     pub time: u64,
     /// Its quality: the highest rating wins.
     pub rating: f64,
-    /// Image width and height in pixels.
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
     /// Row-major texels, the first row along the box's top edge (largest y), each row from its
     /// left edge (smallest x), as image files store them: `width * height * bytes_per_texel` bytes.

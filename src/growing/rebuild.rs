@@ -51,7 +51,7 @@ impl Flags {
         f
     }
 
-    /// The flags as bytes of 8 (see [`Flags::from_bytes`]), `len.div_ceil(8)` of them.
+    /// The flags as bytes of 8 (see `Flags::from_bytes`), `len.div_ceil(8)` of them.
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut out: Vec<u8> = self.words.iter().flat_map(|w| w.to_le_bytes()).collect();
         out.truncate(self.len.div_ceil(8));

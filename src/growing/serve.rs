@@ -453,7 +453,15 @@ impl TileSource for GrowingSource {
 /// What the grower is asked to do.
 pub enum GrowCommand {
     /// Take a patch (acknowledged once it is durable): its id, or why it was refused.
-    Add { patch: NewPatch, source: Option<String>, reply: tokio::sync::oneshot::Sender<Result<u64, String>> },
+    Add {
+        /// The patch.
+        patch: NewPatch,
+        /// Where it came from (a watched file), recorded so that it is not added twice; `None` from
+        /// the control socket.
+        source: Option<String>,
+        /// Answered with its id once it is durable, or why it was refused.
+        reply: tokio::sync::oneshot::Sender<Result<u64, String>>,
+    },
     /// Stop after the step under way.
     Stop,
 }
@@ -493,7 +501,7 @@ pub struct Grower {
     /// Largest patch accepted, in bytes of texels.
     pub max_patch_bytes: u64,
     /// Bytes of `PATCH DATA` requests in flight, all connections together: twice
-    /// `max_patch_bytes`, in permits of [`IN_FLIGHT_UNIT`] bytes. A request holds its share
+    /// `max_patch_bytes`, in permits of `IN_FLIGHT_UNIT` bytes. A request holds its share
     /// from before its first byte is read until its patch is decoded and handed over.
     pub in_flight: Arc<tokio::sync::Semaphore>,
     /// The bound `in_flight` keeps, in bytes.

@@ -76,8 +76,11 @@ pub enum StoreError {
     /// A file or directory could not be read or written.
     #[error("{path}: {what}: {source}")]
     Io {
+        /// The file or directory.
         path: PathBuf,
+        /// What was being done to it.
         what: &'static str,
+        /// The operating system's error.
         #[source]
         source: io::Error,
     },
@@ -85,13 +88,28 @@ pub enum StoreError {
     #[error(
         "{path}: {problem}; the growing texture's directory is damaged (restore it from a copy, or start a new one)"
     )]
-    Damaged { path: PathBuf, problem: String },
+    Damaged {
+        /// The file.
+        path: PathBuf,
+        /// What it holds instead.
+        problem: String,
+    },
     /// The directory is not a growing texture, or already is one.
     #[error("{path}: {problem}")]
-    NotAStore { path: PathBuf, problem: String },
+    NotAStore {
+        /// The directory.
+        path: PathBuf,
+        /// What it is.
+        problem: String,
+    },
     /// Another writer holds the directory.
     #[error("{path}: another process (pid {holder}) is adding to or rebuilding this growing texture; wait for it, or stop it (only one writer at a time; `cliptex grow status` and `dump` may look meanwhile)")]
-    Busy { path: PathBuf, holder: String },
+    Busy {
+        /// The directory.
+        path: PathBuf,
+        /// The other writer's process id.
+        holder: String,
+    },
     /// The grid is refused.
     #[error("{0}")]
     Grid(GrowError),
@@ -213,7 +231,7 @@ impl Growing {
     }
 
     /// [`Growing::create`], feathering patch edges over `feather` level-0 texels (0 to
-    /// [`MAX_FEATHER`]; 0: off), see [`super::rebuild::level0_tile_feathered`].
+    /// `MAX_FEATHER`; 0: off), see `super::rebuild::level0_tile_feathered`.
     pub fn create_feathered(
         dir: &Path,
         origin: [f64; 2],

@@ -5,7 +5,7 @@
 //! (the same view coloured by the level each pixel would use: the concentric resolution bands).
 //!
 //! A texture of heights is drawn as `cliptex dump` draws one from disk
-//! ([`crate::report::dump::height_picture`]): each level's valid region in false colour over its
+//! (`crate::report::dump::height_picture`): each level's valid region in false colour over its
 //! range of heights (or `--range`), hillshaded with `--shade`, nodata transparent, its legend
 //! below, the window, outlines and border around it as for colours; `view.png` uses the same
 //! colours over the range of every level drawn.
@@ -37,7 +37,12 @@ pub enum LiveDumpError {
     Attach(#[from] ShmError),
     /// The output directory or a picture could not be written.
     #[error("cannot write {}: {message}", path.display())]
-    Write { path: PathBuf, message: String },
+    Write {
+        /// The directory or picture.
+        path: PathBuf,
+        /// Why it could not be written.
+        message: String,
+    },
 }
 
 /// One level's picture.

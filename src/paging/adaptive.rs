@@ -3,7 +3,7 @@
 //!
 //! The read-ahead a level needs along an axis is the number of tiles that enter its window while
 //! a read issued now is still in flight: `speed x latency` in level texels, rounded up to whole
-//! tiles ([`lead_tiles`]). The speed is the centre's motion smoothed over a few ticks
+//! tiles ([`LevelPaging::lead_tiles`]). The speed is the centre's motion smoothed over a few ticks
 //! ([`Motion`]: a reversal takes the new direction at once, a jump recentres), the latency the
 //! ticks from asking for a tile to taking it, held at its recent peak and decaying slowly
 //! ([`Latency`]), measured per stream server: each level plans with the slowest of the servers
@@ -13,10 +13,10 @@
 //! on a fast straight flight it is `ahead` with the needed distance, and after a jump it is
 //! centred again.
 //!
-//! The grids themselves are sized once, at start, from a byte budget ([`budget_grids`]): every
+//! The grids themselves are sized once, at start, from a byte budget (`budget_grids`): every
 //! level gets the default lookahead-1 grid plus `E >> k` spare tiles per axis (a level's texels
 //! move half as fast as the next finer level's), with the largest `E` the budget allows. The
-//! default budget is [`DEFAULT_BUDGET_FACTOR`] times the bytes of the lookahead-1 grids, capped
+//! default budget is `DEFAULT_BUDGET_FACTOR` times the bytes of the lookahead-1 grids, capped
 //! by the engine's `cache_bytes`. Grids a configuration fixes (`mem_region_size`, an explicit
 //! lookahead) are kept as they are and reported as fixed.
 
@@ -223,18 +223,18 @@ impl Motion {
     /// axis, which recentres (the smoothed motion restarts at 0). A reversal on an axis takes the
     /// new velocity at once; a stop decays like any change.
     pub fn update(&mut self, v: [i64; 2], jump: u64) {
-        for a in 0..2 {
-            let x = v[a] as f64;
-            let old = self.velocity[a];
-            self.velocity[a] = if v[a].unsigned_abs() > jump {
+        for (vel, &va) in self.velocity.iter_mut().zip(&v) {
+            let x = va as f64;
+            let old = *vel;
+            *vel = if va.unsigned_abs() > jump {
                 0.0
             } else if x * old < 0.0 {
                 x
             } else {
                 old + MOTION_WEIGHT * (x - old)
             };
-            if self.velocity[a].abs() < 0.05 {
-                self.velocity[a] = 0.0;
+            if vel.abs() < 0.05 {
+                *vel = 0.0;
             }
         }
     }

@@ -2,10 +2,12 @@
 //! which tiles a second, associative pool in process memory keeps beyond the grids (eviction).
 //!
 //! Owns the two policy traits and their implementations, one file each: [`Prefetch`]
-//! ([`ring`]: spare tiles around the window, the default; [`direction`]: spare tiles put ahead
-//! when the centre crosses a tile boundary, held otherwise; [`ahead`]: spare tiles ahead at
-//! every moving tick, the engine's former placement), and [`Eviction`] ([`lru`]: least recently used
-//! first; [`shift`]: farthest behind the direction of motion first). The pool those rank is a
+//! ([`adaptive`]: read-ahead sized each tick from the measured motion and read latency, within
+//! grids sized from a memory budget, the default; [`ring`]: spare tiles around the window, the
+//! best fixed placement and the default before; [`direction`]: spare tiles put ahead when the
+//! centre crosses a tile boundary, held otherwise; [`ahead`]: spare tiles ahead at every moving
+//! tick, the engine's former placement), and [`Eviction`] ([`lru`]: least recently used first,
+//! the default; [`shift`]: farthest behind the direction of motion first). The pool those rank is a
 //! source in front of a source ([`crate::source::PoolSource`]), so it lives with the sources.
 //! The comparison is `clipbench policies` (docs/BENCHMARKS.md, ## Policies).
 //!
@@ -52,8 +54,9 @@ pub(crate) fn needed(shape: &LevelShape, tex: Rect) -> (Rect, [u64; 2]) {
     (tiles_covering(tex, shape.tile), tiles_in_level(shape.size, shape.tile))
 }
 
-/// The prefetch policies there are. The default, [`PrefetchKind::Ring`], is the comparison's
-/// winner (docs/BENCHMARKS.md, ## Policies).
+/// The prefetch policies there are. The default, [`PrefetchKind::Adaptive`], reads what the
+/// best fixed policy ([`PrefetchKind::Ring`]) reads on every flight of the comparison, with no
+/// more ticks with a disabled level (docs/BENCHMARKS.md, ## Policies).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PrefetchKind {
@@ -224,7 +227,7 @@ pub struct PagingOptions {
     /// Most level-0 texels the centre moves per tick along each axis (`None`: unclamped).
     pub max_centre_step: Option<u64>,
     /// Bytes the adaptive policy's grids may take (`None`: the default budget,
-    /// [`adaptive::DEFAULT_BUDGET_FACTOR`] times the lookahead-1 grids).
+    /// `adaptive::DEFAULT_BUDGET_FACTOR` times the lookahead-1 grids).
     pub grid_budget: Option<u64>,
 }
 

@@ -103,7 +103,7 @@ pub(crate) fn read(r: &mut Reader<'_>, dir: &Path, opts: &Options, what: &str) -
     })
 }
 
-/// The COG the first `#clipmap cog` line of `file` names, anchored and expanded as [`read`]
+/// The COG the first `#clipmap cog` line of `file` names, anchored and expanded as `read`
 /// does, without a word about it (for the checks of [`crate::source::configured`], which read
 /// the file again whether or not it gave a plan).
 pub fn named(file: &SyntaxFile, opts: &Options) -> Option<CogPlan> {

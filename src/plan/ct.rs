@@ -108,7 +108,6 @@ pub fn build(
     } else {
         None
     };
-    drop(r);
 
     let (ext, int, img, texel) = formats?;
     let header_offset = header_offset?;
@@ -509,7 +508,7 @@ fn smallest_icache(
         }
     }
     let (rs, rt) = (virt[0] / s[0], virt[1] / s[1]);
-    if rs != rt || !rs.is_power_of_two() || virt[0] % s[0] != 0 || virt[1] % s[1] != 0 {
+    if rs != rt || !rs.is_power_of_two() || !virt[0].is_multiple_of(s[0]) || !virt[1].is_multiple_of(s[1]) {
         let d = r
             .diag(
                 Severity::Error,
@@ -618,6 +617,9 @@ enum Group {
     Tile,
 }
 
+/// Each level's file name with the span that named it; `None` for a level without a name.
+type LevelNames = Vec<Option<(Place, Option<Span>)>>;
+
 /// The file name of every level of a group, with the span that named it. `None` for the whole
 /// group when its naming is broken (already reported); a `None` entry for a level without a name.
 #[allow(clippy::too_many_arguments)]
@@ -631,7 +633,7 @@ fn level_names(
     tile_base: &str,
     dir: &Path,
     opts: &Options,
-) -> Option<Vec<Option<(Place, Option<Span>)>>> {
+) -> Option<LevelNames> {
     let (fmt_id, params_id, files_id, base, gname) = match group {
         Group::Icache => (TokenId::IcacheFormat, TokenId::IcacheParams, TokenId::IcacheFiles, icache_base, "icache"),
         Group::Tile => (TokenId::TileFormat, TokenId::TileParams, TokenId::TileFiles, tile_base, "tile"),

@@ -261,7 +261,7 @@ impl TileNaming {
         TileNaming { format: parsed.text.clone(), default_format: false, params, cache_name, dir, parsed }
     }
 
-    /// Renders a name with a value for each parameter, anchored ([`anchor`]).
+    /// Renders a name with a value for each parameter, anchored (`anchor`).
     pub fn render(&self, value: impl Fn(Param) -> Arg) -> Place {
         let args: Vec<Arg> = self.params.iter().map(|&p| value(p)).collect();
         anchor(&self.dir, &self.parsed.render(&args))

@@ -88,7 +88,10 @@ pub enum Arg {
     Str(String),
 }
 
-fn conversion(input: &str) -> IResult<&str, (&str, Option<&str>, Option<&str>, char)> {
+/// A conversion's parts as written: flags, width, precision and the conversion character.
+type ConvParts<'a> = (&'a str, Option<&'a str>, Option<&'a str>, char);
+
+fn conversion(input: &str) -> IResult<&str, ConvParts<'_>> {
     let (input, _) = tag("%")(input)?;
     let (input, flags) = take_while(|c| "-0+ #".contains(c))(input)?;
     let (input, width) = opt(digit1)(input)?;
@@ -182,9 +185,8 @@ impl Format {
             match p {
                 Piece::Lit(l) => out.push_str(l),
                 Piece::Conv(c) => {
-                    match args.get(i) {
-                        Some(a) => out.push_str(&render_one(c, a)),
-                        None => {}
+                    if let Some(a) = args.get(i) {
+                        out.push_str(&render_one(c, a));
                     }
                     i += 1;
                 }

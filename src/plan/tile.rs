@@ -123,12 +123,11 @@ impl ImageCachePlan {
         }
         let idx = [s, t, r];
         let mut queue: Option<(usize, usize, usize)> = None;
-        for axis in 0..3 {
-            let list = &self.streams[axis];
+        for (axis, (list, &at)) in self.streams.iter().zip(&idx).enumerate() {
             if list.is_empty() {
                 continue;
             }
-            let i = (idx[axis] % list.len() as u64) as usize;
+            let i = (at % list.len() as u64) as usize;
             let load = pending(axis, i);
             if queue.is_none_or(|(_, _, best)| load < best) {
                 queue = Some((axis, i, load));

@@ -67,16 +67,38 @@ pub enum CogWriteError {
     Unsupported(String),
     /// A tile of the texture could not be read.
     #[error("reading level {level} tile ({s}, {t}) of the texture: {why}")]
-    Read { level: u32, s: u64, t: u64, why: String },
+    Read {
+        /// The level.
+        level: u32,
+        /// The tile's column.
+        s: u64,
+        /// The tile's row.
+        t: u64,
+        /// Why it could not be read.
+        why: String,
+    },
     /// The file could not be written.
     #[error("writing {path}: {source}")]
-    Io { path: String, source: io::Error },
+    Io {
+        /// The file being written.
+        path: String,
+        /// The operating system's error.
+        source: io::Error,
+    },
     /// The target exists and is not a regular file; nothing was opened.
     #[error("{path}: {source}; a COG is written as a regular file: name a new file or a regular one to replace")]
-    NotRegular { path: String, source: io::Error },
+    NotRegular {
+        /// The target.
+        path: String,
+        /// What opening it as a regular file found.
+        source: io::Error,
+    },
     /// The write was cancelled (Ctrl-C or SIGTERM); its temporaries were removed.
     #[error("interrupted; the partial COG was removed and {path} was left as it was")]
-    Interrupted { path: String },
+    Interrupted {
+        /// The target, left as it was.
+        path: String,
+    },
 }
 
 /// Refuses, before any work, a `path` the COG cannot be written at: one that exists and is not

@@ -11,7 +11,7 @@ use crate::plan::HeightPlan;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-/// What [`write`] wrote.
+/// What [`write()`] wrote.
 #[derive(Clone, Debug)]
 pub struct CogConfig {
     /// The `.ct`'s name inside the directory.

@@ -1,6 +1,6 @@
 //! Downsampling one level into the next, row by row, with bounded memory.
 //!
-//! A [`Downsampler`] receives the rows of level k in increasing t and emits the rows of level
+//! A `Downsampler` receives the rows of level k in increasing t and emits the rows of level
 //! k + 1 as soon as every source row they depend on has arrived; it keeps only the few source rows
 //! still needed (2 for the box filter, 12 for Lanczos-3), already reduced horizontally.
 //!

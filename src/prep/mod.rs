@@ -16,7 +16,7 @@
 //! | [`pipeline`] | one run: configuration, then the band cascade down the levels |
 //! | [`output`] | the temporary sibling directory and the final rename |
 //!
-//! Memory is bounded by [`pipeline::buffer_memory`], checked before anything is written: the hash
+//! Memory is bounded by `pipeline::buffer_memory`, checked before anything is written: the hash
 //! source writes image-cache levels tile by tile (one tile per worker thread, whatever the
 //! texture's size); filtered sources (terrain, images) run a band cascade of a few bands of one
 //! row of level-0 tiles (tile height x level-0 width), each coarser level fed row by row from the

@@ -105,7 +105,7 @@ pub struct Summary {
     pub border_tiles: u64,
     /// Tiles of sparse levels left absent (the default tile stands in).
     pub absent_tiles: u64,
-    /// The most memory the run's buffers took, by [`buffer_memory`]'s accounting.
+    /// The most memory the run's buffers took, by `buffer_memory`'s accounting.
     pub buffer_bytes: u64,
 }
 

@@ -5,11 +5,11 @@
 //! (used by [`crate::clip`]) sends each queue's runner the tiles wanted now with fresh
 //! [priorities](fn@priority), and drains finished reads from a channel. A read writes its tile
 //! straight into the slot (`pread` into the mapping, a decoder or generator writing there), under
-//! the slot's claim ([`ImageMemory::fill`]); nothing is copied afterwards. Which slot a tile has
+//! the slot's claim (`ImageMemory::fill`); nothing is copied afterwards. Which slot a tile has
 //! is [`crate::cache`]'s business; which tiles are wanted is decided by the caller from
 //! [`crate::geom`]. A tile whose texels changed at the source (a growing texture's rebuilt tile,
 //! [`crate::clip::Clipmap::refresh`]) is read again the same way: the engine reopens its settled
-//! slot ([`ImageMemory::replace`]) and asks for it like any other tile; the queues do not tell
+//! slot (`ImageMemory::replace`) and asks for it like any other tile; the queues do not tell
 //! the two apart.
 //!
 //! Design: each queue is a cloneable handle (a bounded command sender) plus a private runner task
@@ -123,7 +123,12 @@ pub enum QueueError {
     Runtime(#[source] std::io::Error),
     /// A stream count of 0 or above the limit.
     #[error("{streams} stream servers requested: expected 1..={max}")]
-    Streams { streams: usize, max: usize },
+    Streams {
+        /// The stream servers requested.
+        streams: usize,
+        /// The most there may be.
+        max: usize,
+    },
 }
 
 /// One queue's runner as its owner holds it: the command channel and what the owner knows of

@@ -3,10 +3,10 @@
 //! 16-bit PNG of their components (grey, grey+alpha, RGB, RGBA) with the stored values exactly.
 //!
 //! Owns choosing and checking the region, gathering its tiles, converting texels and reporting
-//! the tiles that could not be read (painted with [`picture::missing_pattern`], never fatal).
+//! the tiles that could not be read (painted with `picture::missing_pattern`, never fatal).
 //! Reading a tile is the caller's function: a [`crate::source::FileSource`] for a clip texture,
 //! [`IcacheTiles`] for a standalone image cache. Pictures of a running service are
-//! [`super::live_dump`]'s business.
+//! [`crate::inspect::live_dump`]'s business.
 
 use super::picture;
 use crate::geom::{tile_texels, tiles_covering, Rect};
@@ -26,23 +26,68 @@ pub use crate::limits::MAX_DUMP_TEXELS;
 pub enum DumpError {
     /// `--region` is not four numbers.
     #[error("--region `{text}`: expected S0,T0,S1,T1 (four whole numbers, the half-open texel rectangle [S0, S1) x [T0, T1))")]
-    RegionSyntax { text: String },
+    RegionSyntax {
+        /// The text given.
+        text: String,
+    },
     /// The region is empty or leaves the level.
     #[error(
         "--region {s0},{t0},{s1},{t1} does not fit {what} ({w}x{h} texels): expected 0 <= S0 < S1 <= {w} and 0 <= T0 < T1 <= {h}"
     )]
-    RegionOutside { what: String, s0: u64, t0: u64, s1: u64, t1: u64, w: u64, h: u64 },
+    RegionOutside {
+        /// The level (or picture) the region is of.
+        what: String,
+        /// First texel column of the region.
+        s0: u64,
+        /// First texel row of the region.
+        t0: u64,
+        /// One past its last column.
+        s1: u64,
+        /// One past its last row.
+        t1: u64,
+        /// Its width in texels.
+        w: u64,
+        /// Its height in texels.
+        h: u64,
+    },
     /// The region holds more texels than a dump writes.
     #[error(
         "{what} is {w}x{h} texels, more than one dump writes ({max} texels, as 4096x4096 does); choose a part with --region S0,T0,S1,T1, e.g. --region {s0},{t0},{s1},{t1}"
     )]
-    TooLarge { what: String, w: u64, h: u64, max: u64, s0: u64, t0: u64, s1: u64, t1: u64 },
+    TooLarge {
+        /// The level (or region) asked for.
+        what: String,
+        /// Its width in texels.
+        w: u64,
+        /// Its height in texels.
+        h: u64,
+        /// The most texels one dump writes.
+        max: u64,
+        /// First texel column of a region that fits, suggested.
+        s0: u64,
+        /// Its first texel row.
+        t0: u64,
+        /// One past its last column.
+        s1: u64,
+        /// One past its last row.
+        t1: u64,
+    },
     /// The level does not exist.
     #[error("--level {level}: the texture has levels 0 to {last}")]
-    NoLevel { level: u32, last: u32 },
+    NoLevel {
+        /// The level asked for.
+        level: u32,
+        /// The texture's last level.
+        last: u32,
+    },
     /// The PNG could not be written.
     #[error("cannot write {}: {message}", path.display())]
-    Write { path: PathBuf, message: String },
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// Why it could not be written.
+        message: String,
+    },
 }
 
 impl DumpError {

@@ -106,12 +106,19 @@ pub struct ControlCounters {
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(default)]
 pub struct ControlStats {
+    /// Connections accepted.
     pub accepted: u64,
+    /// Connections refused because the limit was reached.
     pub refused: u64,
+    /// Connections open now.
     pub open: u64,
+    /// Requests answered `OK`.
     pub ok: u64,
+    /// Requests answered `ERR`.
     pub errors: u64,
+    /// Connections closed for a line longer than the limit.
     pub long_lines: u64,
+    /// Connections closed for idling.
     pub idle_closed: u64,
 }
 

@@ -32,31 +32,86 @@ impl LevelDesc {
 pub enum DescError {
     /// A level-0 edge outside 1..=2^26.
     #[error("texture size {size:?} is out of range: each edge must be in 1..={MAX_TEXTURE_SIZE}")]
-    SizeOutOfRange { size: [u64; 2] },
+    SizeOutOfRange {
+        /// The level-0 size asked for, s and t.
+        size: [u64; 2],
+    },
     /// Clip size outside 1..=2^26.
     #[error("clip size {clip} is out of range: expected 1..={MAX_TEXTURE_SIZE}")]
-    ClipOutOfRange { clip: u64 },
+    ClipOutOfRange {
+        /// The clip size asked for.
+        clip: u64,
+    },
     /// A texel format without whole bytes (bitmap) or too wide.
     #[error("texel format {format} has {bytes} bytes per texel: expected 1..=16")]
-    Format { format: TexelFormat, bytes: u32 },
+    Format {
+        /// The texel format.
+        format: TexelFormat,
+        /// Its bytes per texel.
+        bytes: u32,
+    },
     /// A level list whose length is not the mipmap depth of the level-0 size.
     #[error("{found} levels given for a {size:?} texture: expected {expected} (down to 1 x 1){}", if short != expected { format!(" or {short} (down to where the short side is 1, as Performer 3.0 ends non-square pyramids)") } else { String::new() })]
-    LevelCount { size: [u64; 2], expected: usize, short: usize, found: usize },
+    LevelCount {
+        /// The level-0 size, s and t.
+        size: [u64; 2],
+        /// The levels down to 1 x 1.
+        expected: usize,
+        /// The levels down to where the short side is 1.
+        short: usize,
+        /// The levels given.
+        found: usize,
+    },
     /// A level whose size is not level 0's shifted right by its index.
     #[error("level {level} is {found:?} texels: expected {expected:?}")]
-    LevelSize { level: u32, expected: [u64; 2], found: [u64; 2] },
+    LevelSize {
+        /// The level.
+        level: u32,
+        /// Level 0's size shifted right by the level.
+        expected: [u64; 2],
+        /// The size given.
+        found: [u64; 2],
+    },
     /// A zero tile edge.
     #[error("level {level} has tile size {tile:?}: each edge must be at least 1")]
-    TileSize { level: u32, tile: [u64; 2] },
+    TileSize {
+        /// The level.
+        level: u32,
+        /// Its tile size, s and t.
+        tile: [u64; 2],
+    },
     /// A stack level whose tiles are larger than one read may be.
     #[error("level {level} has {tile:?}-texel tiles of {bytes} bytes: expected at most {} bytes (MAX_TILE_BYTES) per tile; choose smaller tiles", crate::limits::MAX_TILE_BYTES)]
-    TileTooLarge { level: u32, tile: [u64; 2], bytes: u64 },
+    TileTooLarge {
+        /// The level.
+        level: u32,
+        /// Its tile size, s and t.
+        tile: [u64; 2],
+        /// One tile's bytes.
+        bytes: u64,
+    },
     /// A stack level whose clip window spans more tiles than a level's tile grid may hold.
     #[error("level {level}'s clip window of {clip} texels spans at least {tiles} tiles of {tile:?} texels: expected at most {} (MAX_GRID_TILES); choose larger tiles", crate::limits::MAX_GRID_TILES)]
-    TooManyTiles { level: u32, clip: u64, tile: [u64; 2], tiles: u64 },
+    TooManyTiles {
+        /// The level.
+        level: u32,
+        /// The clip size.
+        clip: u64,
+        /// Its tile size, s and t.
+        tile: [u64; 2],
+        /// The fewest tiles the clip window spans.
+        tiles: u64,
+    },
     /// An invalid border leaving nothing of the clip window to read.
     #[error("invalid border {border} leaves nothing of clip size {clip}: expected at most {max}")]
-    Border { border: u64, clip: u64, max: u64 },
+    Border {
+        /// The invalid border asked for.
+        border: u64,
+        /// The clip size.
+        clip: u64,
+        /// The largest border that leaves texels to read.
+        max: u64,
+    },
 }
 
 /// A clip texture: level-0 size, clip size, invalid border, texel format and per-level tiles.
@@ -159,7 +214,7 @@ impl TextureDesc {
     }
 
     /// The same texture in another texel format (tile sizes in texels unchanged).
-    /// Checked as [`TextureDesc::from_levels`] checks a new one: wider texels make every tile
+    /// Checked as `TextureDesc::from_levels` checks a new one: wider texels make every tile
     /// larger, and a tile too large for the new format is refused.
     pub fn with_format(mut self, format: TexelFormat) -> Result<Self, DescError> {
         Self::from_levels(self.size, self.clip_size, format, self.levels.clone())?;

@@ -57,7 +57,7 @@ impl FaultRule {
     }
 
     fn matches(&self, tile: TileId) -> bool {
-        self.level.map_or(true, |l| l == tile.level) && self.tile.map_or(true, |st| st == [tile.s, tile.t])
+        self.level.is_none_or(|l| l == tile.level) && self.tile.is_none_or(|st| st == [tile.s, tile.t])
     }
 }
 

@@ -305,7 +305,7 @@ fn random_walk_publishes_only_hash_texels(files: Arc<FileSource>) {
         }
         tick_and_check(&mut map, c, &mut errors);
         assert!(errors.is_empty(), "step {step}: {errors:?}");
-        if x % 3 != 0 {
+        if !x.is_multiple_of(3) {
             map.wait_for_reads();
         }
     }

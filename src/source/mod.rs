@@ -61,41 +61,96 @@ pub enum FaultKind {
 pub enum SourceError {
     /// The tile (or the file holding it) does not exist.
     #[error("{tile}: missing")]
-    Missing { tile: TileId },
+    Missing {
+        /// The tile asked for.
+        tile: TileId,
+    },
     /// The read ended early.
     #[error("{tile}: short read: got {got} of {expected} bytes")]
-    Short { tile: TileId, expected: u64, got: u64 },
+    Short {
+        /// The tile asked for.
+        tile: TileId,
+        /// The bytes a tile takes.
+        expected: u64,
+        /// The bytes there were.
+        got: u64,
+    },
     /// The stored tile has the wrong size.
     #[error("{tile}: corrupt: {found} bytes stored, expected {expected}")]
-    Corrupt { tile: TileId, expected: u64, found: u64 },
+    Corrupt {
+        /// The tile asked for.
+        tile: TileId,
+        /// The bytes a tile takes.
+        expected: u64,
+        /// The bytes stored.
+        found: u64,
+    },
     /// A compressed tile file (`.zst`, docs/COMPRESSED-TILES.md) that does not decode to exactly
     /// one tile.
     #[error("{tile}: compressed tile {path} cannot be used: {problem}; restore the file or prepare the pyramid again (clipprep --zstd)", path = path.display())]
-    Undecodable { tile: TileId, path: std::path::PathBuf, problem: String },
+    Undecodable {
+        /// The tile asked for.
+        tile: TileId,
+        /// The compressed tile file.
+        path: std::path::PathBuf,
+        /// What the decoder found.
+        problem: String,
+    },
     /// A tile of a TIFF ([`CogSource`]) whose stored bytes cannot be used: its index entry or
     /// bytes out of place, or data that does not decode to one tile.
     #[error("{tile}: {path}: {problem}; the file is damaged or was changed while served: restore it", path = path.display())]
-    Chunk { tile: TileId, path: std::path::PathBuf, problem: String },
+    Chunk {
+        /// The tile asked for.
+        tile: TileId,
+        /// The TIFF file.
+        path: std::path::PathBuf,
+        /// What is wrong with the stored bytes.
+        problem: String,
+    },
     /// The tile may not be read.
     #[error("{tile}: permission denied")]
-    PermissionDenied { tile: TileId },
+    PermissionDenied {
+        /// The tile asked for.
+        tile: TileId,
+    },
     /// Any other I/O failure.
     #[error("{tile}: I/O error: {source}")]
     Io {
+        /// The tile asked for.
         tile: TileId,
+        /// The operating system's error.
         #[source]
         source: std::io::Error,
     },
     /// The tile is not part of the texture.
     #[error("{tile}: outside the texture: level has {tiles:?} tiles and {levels} levels exist")]
-    OutOfRange { tile: TileId, tiles: [u64; 2], levels: usize },
+    OutOfRange {
+        /// The tile asked for.
+        tile: TileId,
+        /// The level's tiles along s and t.
+        tiles: [u64; 2],
+        /// The levels the texture has.
+        levels: usize,
+    },
     /// The caller's buffer is not one tile long.
     #[error("{tile}: buffer holds {found} bytes, expected {expected}")]
-    BufferSize { tile: TileId, expected: usize, found: usize },
+    BufferSize {
+        /// The tile asked for.
+        tile: TileId,
+        /// The bytes a tile takes.
+        expected: usize,
+        /// The bytes the caller's buffer holds.
+        found: usize,
+    },
     /// The source cannot read now (a simulated disk spent its reads for the tick,
     /// [`ThrottledSource`]): not a fault, the tile stays wanted and is asked for again.
     #[error("{tile}: put off: the source reads at most {per_tick} tiles a tick")]
-    Busy { tile: TileId, per_tick: u64 },
+    Busy {
+        /// The tile asked for.
+        tile: TileId,
+        /// The most tiles the source reads a tick.
+        per_tick: u64,
+    },
 }
 
 impl SourceError {

@@ -165,7 +165,7 @@ impl Terrain {
             if j < level + 1 {
                 continue;
             }
-            sum += self.octave_salted(j, x, y, 0xD37A_11) - 0.5;
+            sum += self.octave_salted(j, x, y, 0x00D3_7A11) - 0.5;
             n += 1.0;
         }
         if n == 0.0 {

@@ -1067,7 +1067,7 @@ fn a_fast_source_at_a_moderate_speed_keeps_up_with_a_lead_and_hovers_at_rest() {
     let svc = Service::start(d, "brisk", &[]);
     let reader = rust_reader(d, "brisk", &["--reads", "1000000000000", "--seconds", "3"]).spawn().unwrap();
     let mut c = Control::open(&svc.socket);
-    let (st, ok) = wait_stats(&mut c, Duration::from_secs(20), |st| all_at_rest(st));
+    let (st, ok) = wait_stats(&mut c, Duration::from_secs(20), all_at_rest);
     assert!(ok, "at rest every level hovers: {st}");
     let (mut ahead, mut samples) = (0u32, 0u32);
     let mut seen = std::collections::BTreeMap::<String, u32>::new();

@@ -140,7 +140,7 @@ fn formula(kind: &str, x: u64, y: u64, c: u64) -> Vec<u8> {
     if kind == "u16" {
         return (((x * 257 + y * 131 + c * 20000) & 0xFFFF) as u16).to_le_bytes().to_vec();
     }
-    let nodata = (x * 7 + y * 3) % 16 == 0;
+    let nodata = (x * 7 + y * 3).is_multiple_of(16);
     match kind {
         "i16" => (if nodata { -32768 } else { ((x * 97 + y * 61) % 60001) as i16 as i32 - 30000 } as i16)
             .to_le_bytes()

@@ -8,13 +8,10 @@
 
 use crate::common;
 use crate::common::exercise;
+use crate::common::mutate::cases;
 
 use common::*;
 use proptest::prelude::*;
-
-fn cases(default: u32) -> u32 {
-    std::env::var("CLIPMAP_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(default)
-}
 
 /// Words that reach deep into the reader.
 const WORDS: &[&str] = &[

@@ -7,13 +7,10 @@
 //! The case count is fixed (fast in CI); `CLIPMAP_FUZZ_CASES=N` raises it for a longer run, which
 //! is how this logic is fuzzed where `cargo fuzz` cannot run (see fuzz/README.md).
 
+use crate::common::mutate::{cases, flip, insert};
 use crate::common::patch_exercise::exercise_patch;
 use proptest::prelude::*;
 use std::io::Cursor;
-
-fn cases(default: u32) -> u32 {
-    std::env::var("CLIPMAP_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(default)
-}
 
 fn encoded(format: image::ImageFormat, w: u32, h: u32) -> Vec<u8> {
     let img = image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 7) as u8, (y * 13) as u8, (x ^ y) as u8]));
@@ -52,18 +49,8 @@ fn mutated() -> impl Strategy<Value = Vec<u8>> {
         let at = (r as usize) % v.len().max(1);
         match how {
             0 => v.truncate(at),
-            1 => {
-                for (k, b) in bytes.iter().enumerate() {
-                    let j = (at + k * 31) % v.len();
-                    v[j] ^= b | 1;
-                }
-            }
-            2 => {
-                let tail = v[at..].to_vec();
-                v.truncate(at);
-                v.extend_from_slice(&bytes);
-                v.extend_from_slice(&tail);
-            }
+            1 => flip(&mut v, at, &bytes, 31),
+            2 => insert(&mut v, at, &bytes),
             3 => {
                 let s = String::from_utf8_lossy(&v).into_owned();
                 let bad = ["\"../a.png\"", "\"/etc/hostname\"", "\"\"", "\".\"", "\"a/../../b\""][(r % 5) as usize];

@@ -7,14 +7,11 @@
 //! The case count is fixed (fast in CI); `CLIPMAP_FUZZ_CASES=N` raises it for a longer run, which
 //! is how this logic is fuzzed where `cargo fuzz` cannot run (see fuzz/README.md).
 
+use crate::common::mutate::{cases, flip, insert, overwrite};
 use crate::common::tiff_exercise::exercise_tiff;
 use crate::tiff_hardening::{bigtiff, grey_ifd, DATA_AT};
 use proptest::prelude::*;
 use std::path::Path;
-
-fn cases(default: u32) -> u32 {
-    std::env::var("CLIPMAP_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(default)
-}
 
 /// Valid and nearly valid TIFFs: the small fixtures GDAL wrote, and some written here.
 pub fn seeds() -> Vec<Vec<u8>> {
@@ -49,28 +46,13 @@ fn mutated() -> impl Strategy<Value = Vec<u8>> {
         let at = ((r >> 8) as usize) % span.max(1);
         match how {
             0 => v.truncate(at),
-            1 => {
-                for (k, b) in bytes.iter().enumerate() {
-                    let j = (at + k * 7) % v.len();
-                    v[j] ^= b | 1;
-                }
-            }
-            2 => {
-                let tail = v[at..].to_vec();
-                v.truncate(at);
-                v.extend_from_slice(&bytes);
-                v.extend_from_slice(&tail);
-            }
+            1 => flip(&mut v, at, &bytes, 7),
+            2 => insert(&mut v, at, &bytes),
             _ => {
                 let extreme =
                     [0u64, 1, 0xFFFF, 0x7FFF_FFFF, 0xFFFF_FFFF, 1 << 26, 1 << 63, u64::MAX][(r >> 40) as usize % 8];
                 let width = [2usize, 4, 8][(r >> 48) as usize % 3];
-                let word = extreme.to_le_bytes();
-                for (k, w) in word.iter().enumerate().take(width) {
-                    if let Some(b) = v.get_mut(at + k) {
-                        *b = *w;
-                    }
-                }
+                overwrite(&mut v, at, extreme, width);
             }
         }
         v

@@ -467,7 +467,7 @@ pub(crate) struct HttpRun<'a> {
 pub struct Http {
     /// Ours over HTTP, `depth` threads (median pass, open not included).
     pub tiles_per_s_http: f64,
-    /// GDAL through `/vsicurl/`, one `ReadRaster` a tile, [`GDAL_HTTP_ENV`] set (median pass).
+    /// GDAL through `/vsicurl/`, one `ReadRaster` a tile, [`GDAL_HTTP_ENV`](crate::cog_http::GDAL_HTTP_ENV) set (median pass).
     pub tiles_per_s_gdal_http: f64,
     /// The same with `GDAL_NUM_THREADS=ALL_CPUS` too.
     pub tiles_per_s_gdal_http_all_cpus: f64,

@@ -218,7 +218,7 @@ fn fetch_passes(
                 .map(|_| {
                     scope.spawn(|| loop {
                         let i = next.fetch_add(1, Ordering::Relaxed);
-                        let Some(&(a, b)) = ranges.get(i) else { return None };
+                        let &(a, b) = ranges.get(i)?;
                         if let Err(e) = object.read(a, b - a + 1) {
                             return Some(format!("bytes {a}-{b}: {e}"));
                         }

@@ -408,7 +408,7 @@ fn fly(ct: &Path, latency_ms: u64, seconds: f64, speed: i64) -> anyhow::Result<R
                 if let Some(texel) = v.texel(s, t) {
                     hash(0, s as u64, t as u64, &mut want);
                     checked += 1;
-                    wrong += u64::from(&texel[..] != &want[..]);
+                    wrong += u64::from(texel[..] != want[..]);
                 }
             }
         }

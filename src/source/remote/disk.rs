@@ -2,7 +2,7 @@
 //! range read, bounded in bytes, least recently used files removed first, kept across restarts.
 //!
 //! A file ([`encode`]) holds a magic number, the lengths of its key and its bytes, a checksum
-//! ([`checksum`]) of both, the key (location, offset and length) and the bytes. Nothing in the
+//! (`checksum`) of both, the key (location, offset and length) and the bytes. Nothing in the
 //! directory is trusted: a hit is served only when the file is a regular file of this user with
 //! one name (opened without following a symbolic link and without blocking, so a FIFO or a link
 //! to `/dev/zero` is neither waited on nor read), exactly as long as the range asked for needs
@@ -89,7 +89,7 @@ pub(crate) fn checksum(key: &[u8], data: &[u8]) -> u64 {
     lanes.iter().fold(0u64, |h, l| splitmix64(h ^ l))
 }
 
-/// A cache file's bytes: [`MAGIC`], the key's length, the data's length, [`checksum`], key,
+/// A cache file's bytes: `MAGIC`, the key's length, the data's length, `checksum`, key,
 /// data.
 pub fn encode(key: &str, data: &[u8]) -> Vec<u8> {
     let mut bytes = Vec::with_capacity(HEADER + key.len() + data.len());

@@ -1,4 +1,4 @@
-//! Reading byte ranges of remote objects: one [`Endpoint`] per scheme-host-port (or S3 bucket),
+//! Reading byte ranges of remote objects: one `Endpoint` per scheme-host-port (or S3 bucket),
 //! each with a bound on its requests in flight; adjacent ranges of one object that wait for the
 //! same endpoint are read by one merged request; every request is retried with backoff and
 //! jitter when its failure is worth retrying.
@@ -250,7 +250,7 @@ struct Endpoint {
     wake: Condvar,
 }
 
-/// Reads ranges through a backend per scheme, one [`Endpoint`] per endpoint.
+/// Reads ranges through a backend per scheme, one `Endpoint` per endpoint.
 pub struct Fetcher {
     opts: RemoteOptions,
     endpoints: Mutex<HashMap<String, Arc<Endpoint>>>,

@@ -4,7 +4,7 @@
 //! A `206` must carry the `Content-Range` asked for (or one that ends where the object ends)
 //! and exactly that many body bytes. A `200` is an answer that ignores the range, and is used
 //! only when it is the whole object: not an HTML page (`Content-Type: text/html`, what an error
-//! page of a proxy or a misconfigured server is), at most [`MAX_WHOLE_OBJECT`] bytes, and of
+//! page of a proxy or a misconfigured server is), at most `MAX_WHOLE_OBJECT` bytes, and of
 //! exactly the object's size as a `HEAD` gives it (its `Content-Length`, if any, and its body
 //! alike); the range is then cut out of it, and the answer is counted ([`Backend::ranges_ignored`],
 //! `ranges_ignored` in the statistics) and said once an endpoint in the log: such a server makes

@@ -5,6 +5,7 @@
 pub mod exercise;
 pub mod flight;
 pub mod gdal;
+pub mod mutate;
 pub mod patch_exercise;
 pub mod remote;
 pub mod tiff_exercise;
