@@ -6,7 +6,8 @@
 //! | [`options`] | run-time options and the control socket's bounds, validated once |
 //! | [`ticker`] | the tick loop: a dedicated thread owning the engine and the mapping's writer |
 //! | [`control`] | the owner-only Unix control socket (tokio): one task per connection, bounded |
-//! | [`protocol`] | the control socket's line protocol, as pure functions |
+//! | [`protocol`] | the control socket's line protocol, as pure functions: requests parsed, answers rendered |
+//! | [`patches`] | a growing texture's patches taken on the control socket (`PATCH FILE`, `PATCH DATA`) |
 //! | [`stats`] | statistics: JSON and Prometheus text |
 //!
 //! The entry point [`run`] takes its shutdown signal as an argument (a future), so the binary
@@ -17,6 +18,7 @@
 pub mod control;
 pub mod options;
 mod own_views;
+pub mod patches;
 pub mod protocol;
 mod requests;
 pub mod stats;

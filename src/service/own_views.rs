@@ -13,6 +13,7 @@
 //! The tick loop ([`super::ticker`]) owns these clipmaps as it owns the primary one, ticks each
 //! after the primary, and routes every command for such a view here by name.
 
+use super::protocol::Refusal;
 use super::stats::TickStats;
 use crate::clip::{Clipmap, LodWindow, Settings, PRIMARY};
 use crate::shm::layout::{self, views::own_mapping_name};
@@ -76,7 +77,7 @@ impl OwnViews {
 
     /// Creates view `name`'s clipmap and mapping (`clipmap-SERVICE@NAME.map`), centred at
     /// `centre`. The caller has given the view its record in the service's mapping.
-    pub(super) fn add(&mut self, name: &str, centre: [i64; 2]) -> Result<(), String> {
+    pub(super) fn add(&mut self, name: &str, centre: [i64; 2]) -> Result<(), Refusal> {
         let s = &self.setup;
         let own = own_mapping_name(&s.service, name);
         let shape = Clipmap::shape_for(s.source.desc(), &s.settings);
@@ -90,10 +91,10 @@ impl OwnViews {
             s.period_ns,
             s.heights,
         )
-        .map_err(|e| format!("view {name}: its own mapping {own}: {e}"))?;
-        if let Err(e) = writer.adopt_generation(s.generation).and_then(|()| writer.publish()) {
+        .map_err(|source| Refusal::OwnMapping { name: name.to_string(), mapping: own.clone(), source })?;
+        if let Err(source) = writer.adopt_generation(s.generation).and_then(|()| writer.publish()) {
             writer.close();
-            return Err(format!("view {name}: its own mapping {own}: {e}"));
+            return Err(Refusal::OwnMapping { name: name.to_string(), mapping: own, source });
         }
         // Tiles the primary's grids hold (the coarse levels at least) are taken from them.
         let from_mapping = match Client::attach_path(&s.main_mapping) {
@@ -109,9 +110,9 @@ impl OwnViews {
         };
         let mut clipmap = match Clipmap::with_memory(source, s.settings.clone(), writer.memory()) {
             Ok(c) => c,
-            Err(e) => {
+            Err(source) => {
                 writer.close();
-                return Err(format!("view {name}: its own grids: {e}"));
+                return Err(Refusal::OwnGrids { name: name.to_string(), source });
             }
         };
         if let Some(e) = s.effective_levels {

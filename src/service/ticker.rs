@@ -9,6 +9,7 @@
 //! are taken between ticks and answered through a one-shot reply.
 
 use super::own_views::{OwnViews, Setup};
+use super::protocol::{Refusal, Reply, ViewCommand};
 use super::requests::{apply_lod, bounded_centre, velocity_per_tick};
 use super::stats::TickStats;
 use super::{Options, ServiceError};
@@ -25,31 +26,44 @@ use tokio::sync::{oneshot, watch};
 /// Commands waiting for the tick loop, at most (a full queue answers "busy", never blocks).
 pub(crate) const COMMAND_QUEUE: usize = 64;
 
-/// What the tick loop is asked to do between ticks.
+/// What the tick loop is asked to do between ticks; each carries the one-shot sender of its
+/// answer.
 #[derive(Debug)]
 pub enum Command {
     /// Sets the copy budget per tick (ms; `None`: unlimited).
-    Budget(Option<f64>, oneshot::Sender<String>),
-    /// Sets the invalid border (clamped by the engine); replies with the border applied.
-    Border(u64, oneshot::Sender<String>),
+    Budget {
+        /// Milliseconds a tick's own work may take.
+        ms: Option<f64>,
+        /// The budget set.
+        reply: oneshot::Sender<Reply>,
+    },
+    /// Sets the invalid border (clamped by the engine).
+    Border {
+        /// Texels asked for.
+        texels: u64,
+        /// The border applied.
+        reply: oneshot::Sender<Reply>,
+    },
     /// Moves the clip centre (level-0 texels).
-    Centre([i64; 2], oneshot::Sender<String>),
-    /// Adds a named view of a weight (docs/VIEWS.md), with grids of its own when asked;
-    /// replies `Err` with why not.
-    ViewAdd(String, f64, bool, oneshot::Sender<Result<String, String>>),
-    /// Removes a view.
-    ViewRemove(String, oneshot::Sender<Result<String, String>>),
-    /// Moves a view's centre (`main`: the primary's, as `Centre`).
-    ViewCentre(String, [i64; 2], oneshot::Sender<Result<String, String>>),
-    /// Sets a view's weight.
-    ViewWeight(String, f64, oneshot::Sender<Result<String, String>>),
-    /// Sets a view's LOD window: offset, effective levels (`None`: all).
-    ViewLod(String, u32, Option<u32>, oneshot::Sender<Result<String, String>>),
-    /// A LOD request from the socket: height, pixel angle, effective levels (0: all).
-    ViewHeight(String, f64, f64, u32, oneshot::Sender<Result<String, String>>),
+    Centre {
+        /// The centre asked for.
+        centre: [i64; 2],
+        /// The centre the snapshot will publish (bounded).
+        reply: oneshot::Sender<Reply>,
+    },
+    /// A command for one view (docs/VIEWS.md).
+    View {
+        /// What to do.
+        view: ViewCommand,
+        /// What was done, or why not.
+        reply: oneshot::Sender<Result<Reply, Refusal>>,
+    },
     /// Puts the mapping under its name, its views in it, and starts ticking
     /// ([`Ticker::prepare`], [`Ticker::publish`]).
-    Publish(oneshot::Sender<Result<(), crate::shm::ShmError>>),
+    Publish {
+        /// Whether the mapping is there.
+        reply: oneshot::Sender<Result<(), crate::shm::ShmError>>,
+    },
     /// Stops after closing the mapping.
     Stop,
 }
@@ -115,7 +129,7 @@ impl Ticker {
     /// whether it is there.
     pub fn publish(&self) -> Result<oneshot::Receiver<Result<(), crate::shm::ShmError>>, ServiceError> {
         let (tx, rx) = oneshot::channel();
-        self.send(Command::Publish(tx)).map_err(|_| ServiceError::TickLoopDied)?;
+        self.send(Command::Publish { reply: tx }).map_err(|_| ServiceError::TickLoopDied)?;
         Ok(rx)
     }
 
@@ -216,30 +230,11 @@ impl Runner {
         stats_tx: watch::Sender<TickStats>,
     ) -> Result<(Runner, Started), ServiceError> {
         let desc = source.desc().clone();
-        let mut settings = Settings {
-            budget_ns: o.budget_ms.map(|ms| (ms * 1e6) as u64),
-            // One read queue per stream server the configuration names.
-            streams: source.stream_servers(),
-            centre_alignment: o.centre_alignment,
-            ..Settings::default().with_paging(&o.paging)
-        };
-        settings.view_spread = o.view_spread;
-        if o.growing.is_some() {
-            // A growing texture's tile without data is read again when data arrives for it
-            // (`Clipmap::refresh`), not on a timer.
-            settings.retry_after_ticks = u64::MAX / 4;
-        }
+        let settings = engine_settings(source.as_ref(), o);
         // Refused before anything is created in the shared directory.
         let shape = Clipmap::shape_for(&desc, &settings);
         let heights = source.heights().map(|h| crate::shm::layout::Heights::of(&h.format, h.levels));
-        let placement = crate::shm::layout::place_with(&shape, heights.is_some())
-            .and_then(|p| crate::shm::layout::with_views(p, crate::shm::layout::views::SERVICE_RECORDS))
-            .ok_or_else(|| crate::clip::ClipError::Memory(crate::shm::memory::shape_error(&shape)))?;
-        let limit = settings.limits.cache_bytes as u64;
-        let needed = placement.total_bytes.saturating_add(settings.pool_bytes);
-        if needed > limit {
-            return Err(crate::clip::ClipError::CacheBytes { needed, limit }.into());
-        }
+        check_room(&shape, heights.is_some(), &settings)?;
         // The engine keeps its image caches in the mapping itself: each tile is read straight
         // into its slot, where renderers read it, and nothing is copied afterwards.
         let period_ns = (1e9 / o.tick_hz).round() as u64;
@@ -282,9 +277,22 @@ impl Runner {
             format: desc.format().short_name(),
             mapping_bytes: writer.placement().total_bytes,
         };
-        let size = desc.size();
+        let runner = Runner::assemble(clipmap, writer, OwnViews::new(setup), o, commands, stats_tx);
+        Ok((runner.start_views(o)?, started))
+    }
+
+    /// The runner of a clipmap and its mapping, its primary centred on the texture.
+    fn assemble(
+        clipmap: Clipmap,
+        writer: Writer,
+        own: OwnViews,
+        o: &Options,
+        commands: mpsc::Receiver<Command>,
+        stats_tx: watch::Sender<TickStats>,
+    ) -> Runner {
+        let size = clipmap.desc().size();
         let stats = TickStats { tick_hz: o.tick_hz, budget_ms: o.budget_ms, ..TickStats::default() };
-        let runner = Runner {
+        Runner {
             clipmap,
             writer,
             commands,
@@ -301,29 +309,33 @@ impl Runner {
             growing: o.growing.as_ref().map(|g| (g.served().clone(), None)),
             reasons: Vec::new(),
             view_state: Default::default(),
-            own: OwnViews::new(setup),
-        };
-        let mut runner = runner;
+            own,
+        }
+    }
+
+    /// The command line's views (`--effective-levels`, each `--view`), in the mapping before it
+    /// is published. Refused: the mapping (and every own view's) is closed.
+    fn start_views(mut self, o: &Options) -> Result<Runner, ServiceError> {
         // Holding the service's lock: what a dead predecessor left of its views' own mappings goes.
         for view in crate::shm::writer::remove_dead_own_mappings(&o.shm_dir, &o.name) {
             tracing::info!(view = %view, "removed the own mapping a stopped service left for view {view}");
         }
         if let Some(e) = o.effective_levels {
             let lod = crate::clip::LodWindow { offset: 0, effective: e };
-            if let Err(why) = runner.clipmap.set_view_lod(PRIMARY, lod) {
-                runner.writer.close();
+            if let Err(why) = self.clipmap.set_view_lod(PRIMARY, lod) {
+                self.writer.close();
                 return Err(ServiceError::BadOption(format!("--effective-levels {e}: {why}")));
             }
         }
         for v in &o.views {
-            if let Err(why) = runner.add_view(&v.name, v.weight, v.own) {
-                runner.own.close_all();
-                runner.writer.close();
+            if let Err(why) = self.add_view(&v.name, v.weight, v.own) {
+                self.own.close_all();
+                self.writer.close();
                 return Err(ServiceError::BadOption(format!("--view {}: {why}", v.name)));
             }
         }
-        runner.publish_views();
-        Ok((runner, started))
+        self.publish_views();
+        Ok(self)
     }
 
     /// Puts the mapping under its name: every view it was started with is in it by then, and
@@ -342,7 +354,7 @@ impl Runner {
         // Nothing ticks before the mapping is published (`Ticker::publish`).
         loop {
             match self.commands.recv() {
-                Ok(Command::Publish(reply)) => {
+                Ok(Command::Publish { reply }) => {
                     let r = self.publish();
                     let ok = r.is_ok();
                     let _ = reply.send(r);
@@ -407,136 +419,126 @@ impl Runner {
 
     fn apply(&mut self, cmd: Command) {
         match cmd {
-            Command::Budget(ms, reply) => {
-                self.clipmap.set_budget_ns(ms.map(|ms| (ms * 1e6) as u64));
-                self.stats.budget_ms = ms;
-                tracing::info!(budget_ms = ?ms, "copy budget changed");
-                let _ = reply.send(match ms {
-                    Some(ms) => format!("budget {ms} ms"),
-                    None => "budget off".to_string(),
-                });
+            Command::Budget { ms, reply } => {
+                let _ = reply.send(self.set_budget(ms));
             }
-            Command::Border(b, reply) => {
-                self.clipmap.set_invalid_border(b);
-                let applied = self.clipmap.invalid_border();
-                tracing::info!(asked = b, applied, "invalid border changed");
-                let _ = reply.send(format!("border {applied}"));
+            Command::Border { texels, reply } => {
+                let _ = reply.send(self.set_border(texels));
             }
-            Command::Centre(c, reply) => {
-                let c = bounded_centre(c);
-                self.centre = c;
-                self.velocity = None;
-                self.stats.request_velocity = None;
-                self.stats.socket_centres += 1;
-                let _ = reply.send(format!("centre {} {}", c[0], c[1]));
+            Command::Centre { centre, reply } => {
+                let _ = reply.send(Reply::Centre(self.centre_primary(centre)));
             }
-            Command::ViewAdd(name, weight, own, reply) => {
-                let r = self.add_view(&name, weight, own);
-                if r.is_ok() {
-                    self.publish_views();
-                }
-                let _ = reply.send(r);
+            Command::View { view, reply } => {
+                let _ = reply.send(self.view_command(view));
             }
-            Command::ViewRemove(name, reply) => {
-                let r = match self.clipmap.view_named(&name).filter(|&id| id != PRIMARY) {
-                    None => Err(self.no_view(&name)),
-                    Some(id) => {
-                        self.view_state.remove(&id);
-                        // The record first (readers see the view removed), then its own mapping.
-                        let r = self.clipmap.remove_view(id);
-                        self.own.remove(&name);
-                        r.map(|()| format!("view {name} removed")).map_err(|e| e.to_string())
-                    }
-                };
-                if r.is_ok() {
-                    tracing::info!(view = %name, "view removed");
-                    self.publish_views();
-                }
-                let _ = reply.send(r);
-            }
-            Command::ViewCentre(name, c, reply) => {
-                let c = bounded_centre(c);
-                let r = match self.clipmap.view_named(&name) {
-                    None => Err(self.no_view(&name)),
-                    Some(PRIMARY) => {
-                        self.centre = c;
-                        self.velocity = None;
-                        self.stats.request_velocity = None;
-                        self.stats.socket_centres += 1;
-                        Ok(format!("view main centre {} {}", c[0], c[1]))
-                    }
-                    Some(_) if self.own.get(&name).is_some() => {
-                        let v = self.own.get_mut(&name).expect("looked up above");
-                        v.centre = c;
-                        v.velocity = None;
-                        self.stats.socket_centres += 1;
-                        Ok(format!("view {name} centre {} {}", c[0], c[1]))
-                    }
-                    Some(id) => {
-                        let st = self.view_state.entry(id).or_default();
-                        st.centre = Some(c);
-                        st.velocity = None;
-                        self.stats.socket_centres += 1;
-                        Ok(format!("view {name} centre {} {}", c[0], c[1]))
-                    }
-                };
-                let _ = reply.send(r);
-            }
-            Command::ViewWeight(name, w, reply) => {
-                let r = match self.clipmap.view_named(&name) {
-                    None => Err(self.no_view(&name)),
-                    Some(id) => self
-                        .clipmap
-                        .set_view_weight(id, w)
-                        .map(|()| format!("view {name} weight {w}"))
-                        .map_err(|e| e.to_string()),
-                };
-                if r.is_ok() {
-                    self.publish_views();
-                }
-                let _ = reply.send(r);
-            }
-            Command::ViewLod(name, offset, effective, reply) => {
-                let r = match self.clipmap.view_named(&name) {
-                    None => Err(self.no_view(&name)),
-                    Some(id) => {
-                        let lod = crate::clip::LodWindow { offset, effective: effective.unwrap_or(u32::MAX) };
-                        let (map, id) = match self.own.get_mut(&name) {
-                            Some(v) => (&mut v.clipmap, PRIMARY),
-                            None => (&mut self.clipmap, id),
-                        };
-                        map.set_view_lod(id, lod).map(|()| describe_lod(&name, lod)).map_err(|e| e.to_string())
-                    }
-                };
-                if r.is_ok() {
-                    self.publish_views();
-                }
-                let _ = reply.send(r);
-            }
-            Command::ViewHeight(name, height, pixel_angle, effective, reply) => {
-                let r = match self.clipmap.view_named(&name) {
-                    None => Err(self.no_view(&name)),
-                    Some(id) => {
-                        let req = crate::shm::writer::LodRequest {
-                            height,
-                            pixel_angle,
-                            effective: u64::from(effective),
-                            count: 0,
-                        };
-                        let (map, id) = match self.own.get_mut(&name) {
-                            Some(v) => (&mut v.clipmap, PRIMARY),
-                            None => (&mut self.clipmap, id),
-                        };
-                        apply_lod(map, id, &name, &req, &mut self.stats).map(|lod| describe_lod(&name, lod))
-                    }
-                };
-                if r.is_ok() {
-                    self.publish_views();
-                }
-                let _ = reply.send(r);
-            }
-            Command::Stop | Command::Publish(_) => {}
+            Command::Stop | Command::Publish { .. } => {}
         }
+    }
+
+    fn set_budget(&mut self, ms: Option<f64>) -> Reply {
+        self.clipmap.set_budget_ns(ms.map(|ms| (ms * 1e6) as u64));
+        self.stats.budget_ms = ms;
+        tracing::info!(budget_ms = ?ms, "copy budget changed");
+        Reply::Budget(ms)
+    }
+
+    fn set_border(&mut self, texels: u64) -> Reply {
+        self.clipmap.set_invalid_border(texels);
+        let applied = self.clipmap.invalid_border();
+        tracing::info!(asked = texels, applied, "invalid border changed");
+        Reply::Border(applied)
+    }
+
+    /// Moves the primary's centre (`CENTRE`, `VIEW CENTRE main`): bounded, without velocity.
+    fn centre_primary(&mut self, centre: [i64; 2]) -> [i64; 2] {
+        let c = bounded_centre(centre);
+        self.centre = c;
+        self.velocity = None;
+        self.stats.request_velocity = None;
+        self.stats.socket_centres += 1;
+        c
+    }
+
+    /// Carries out a `VIEW` command. One that changes the views (all but a centre) publishes
+    /// their figures at once.
+    fn view_command(&mut self, cmd: ViewCommand) -> Result<Reply, Refusal> {
+        let changes_views = !matches!(cmd, ViewCommand::Centre { .. });
+        let r = match cmd {
+            ViewCommand::Add { name, weight, own } => self.add_view(&name, weight, own),
+            ViewCommand::Remove { name } => self.remove_view(name),
+            ViewCommand::Centre { name, centre } => self.centre_view(name, centre),
+            ViewCommand::Weight { name, weight } => {
+                let id = self.view_id(&name)?;
+                self.clipmap.set_view_weight(id, weight)?;
+                Ok(Reply::ViewWeight { name, weight })
+            }
+            ViewCommand::Lod { name, offset, effective } => {
+                let lod = crate::clip::LodWindow { offset, effective: effective.unwrap_or(u32::MAX) };
+                let (map, id) = self.grids_of(&name)?;
+                map.set_view_lod(id, lod)?;
+                Ok(Reply::ViewLod { name, lod })
+            }
+            ViewCommand::Height { name, height, pixel_angle, effective } => {
+                let req =
+                    crate::shm::writer::LodRequest { height, pixel_angle, effective: u64::from(effective), count: 0 };
+                let id = self.view_id(&name)?;
+                let (map, id) = match self.own.get_mut(&name) {
+                    Some(v) => (&mut v.clipmap, PRIMARY),
+                    None => (&mut self.clipmap, id),
+                };
+                let lod = apply_lod(map, id, &name, &req, &mut self.stats)?;
+                Ok(Reply::ViewLod { name, lod })
+            }
+        };
+        if r.is_ok() && changes_views {
+            self.publish_views();
+        }
+        r
+    }
+
+    /// The view named `name` in the service's clipmap.
+    fn view_id(&self, name: &str) -> Result<ViewId, Refusal> {
+        self.clipmap.view_named(name).ok_or_else(|| self.no_view(name))
+    }
+
+    /// The clipmap that holds view `name`'s grids, and the view's id there: a view with grids of
+    /// its own is its own clipmap's primary.
+    fn grids_of(&mut self, name: &str) -> Result<(&mut Clipmap, ViewId), Refusal> {
+        let id = self.view_id(name)?;
+        Ok(match self.own.get_mut(name) {
+            Some(v) => (&mut v.clipmap, PRIMARY),
+            None => (&mut self.clipmap, id),
+        })
+    }
+
+    fn remove_view(&mut self, name: String) -> Result<Reply, Refusal> {
+        let id = self.view_id(&name).ok().filter(|&id| id != PRIMARY).ok_or_else(|| self.no_view(&name))?;
+        self.view_state.remove(&id);
+        // The record first (readers see the view removed), then its own mapping.
+        let r = self.clipmap.remove_view(id);
+        self.own.remove(&name);
+        r?;
+        tracing::info!(view = %name, "view removed");
+        Ok(Reply::ViewRemoved { name })
+    }
+
+    fn centre_view(&mut self, name: String, centre: [i64; 2]) -> Result<Reply, Refusal> {
+        let id = self.view_id(&name)?;
+        if id == PRIMARY {
+            let centre = self.centre_primary(centre);
+            return Ok(Reply::ViewCentre { name, centre });
+        }
+        let c = bounded_centre(centre);
+        if let Some(v) = self.own.get_mut(&name) {
+            v.centre = c;
+            v.velocity = None;
+        } else {
+            let st = self.view_state.entry(id).or_default();
+            st.centre = Some(c);
+            st.velocity = None;
+        }
+        self.stats.socket_centres += 1;
+        Ok(Reply::ViewCentre { name, centre: c })
     }
 
     /// Publishes the views' figures now, not at the next tick: `VIEWS` and `STATS` asked after a
@@ -548,32 +550,32 @@ impl Runner {
 
     /// Adds a named view, centred where the primary is until it is told otherwise, in the shared
     /// grids or (`own`) with grids of its own ([`super::own_views`]).
-    fn add_view(&mut self, name: &str, weight: f64, own: bool) -> Result<String, String> {
+    fn add_view(&mut self, name: &str, weight: f64, own: bool) -> Result<Reply, Refusal> {
+        let added = Reply::ViewAdded { name: name.to_string(), weight, own };
         if own {
             // Its own mapping first, then the record that sends readers there: a reader never
             // finds the record without the mapping.
-            self.clipmap.check_new_name(name).map_err(|e| e.to_string())?;
+            self.clipmap.check_new_name(name)?;
             self.own.add(name, self.centre)?;
             if let Err(e) = self.clipmap.add_view_elsewhere(name, weight) {
                 self.own.remove(name);
-                return Err(e.to_string());
+                return Err(e.into());
             }
-            return Ok(format!("view {name} added, weight {weight}, grids of its own"));
+            return Ok(added);
         }
-        let id = self.clipmap.add_named_view(name, weight).map_err(|e| e.to_string())?;
+        let id = self.clipmap.add_named_view(name, weight)?;
         if let Some(e) = self.effective_levels {
             let _ = self.clipmap.set_view_lod(id, crate::clip::LodWindow { offset: 0, effective: e });
         }
         self.view_state.insert(id, ViewState { centre: Some(self.centre), ..ViewState::default() });
         tracing::info!(view = %name, weight, "view added");
-        Ok(format!("view {name} added, weight {weight}"))
+        Ok(added)
     }
 
-    /// The error for a view name no view has, naming those that exist.
-    fn no_view(&self, name: &str) -> String {
-        let names: Vec<&str> =
-            self.clipmap.view_ids().into_iter().filter_map(|id| self.clipmap.view_name(id)).collect();
-        format!("no view `{name}`: the views are {}", names.join(", "))
+    /// The refusal for a view name no view has, naming those that exist.
+    fn no_view(&self, name: &str) -> Refusal {
+        let views = self.clipmap.view_ids().into_iter().filter_map(|id| self.clipmap.view_name(id)).map(String::from);
+        Refusal::NoView { name: name.to_string(), views: views.collect() }
     }
 
     /// Takes each further view's request record (docs/SHM.md, "Asking for a view's centre"):
@@ -711,6 +713,38 @@ impl Runner {
     }
 }
 
+/// The engine's settings for the service's options.
+fn engine_settings(source: &dyn TileSource, o: &Options) -> Settings {
+    let mut settings = Settings {
+        budget_ns: o.budget_ms.map(|ms| (ms * 1e6) as u64),
+        // One read queue per stream server the configuration names.
+        streams: source.stream_servers(),
+        centre_alignment: o.centre_alignment,
+        ..Settings::default().with_paging(&o.paging)
+    };
+    settings.view_spread = o.view_spread;
+    if o.growing.is_some() {
+        // A growing texture's tile without data is read again when data arrives for it
+        // (`Clipmap::refresh`), not on a timer.
+        settings.retry_after_ticks = u64::MAX / 4;
+    }
+    settings
+}
+
+/// Refuses a clipmap whose mapping (of `shape`, with heights or not) could not be laid out, or
+/// would not fit the cache bound with the read pool.
+fn check_room(shape: &crate::shm::layout::Shape, heights: bool, settings: &Settings) -> Result<(), ServiceError> {
+    let placement = crate::shm::layout::place_with(shape, heights)
+        .and_then(|p| crate::shm::layout::with_views(p, crate::shm::layout::views::SERVICE_RECORDS))
+        .ok_or_else(|| crate::clip::ClipError::Memory(crate::shm::memory::shape_error(shape)))?;
+    let limit = settings.limits.cache_bytes as u64;
+    let needed = placement.total_bytes.saturating_add(settings.pool_bytes);
+    if needed > limit {
+        return Err(crate::clip::ClipError::CacheBytes { needed, limit }.into());
+    }
+    Ok(())
+}
+
 /// Logs each level whose paging reason differs from the one in `last` (one line a change, never
 /// one a tick), and remembers the new reasons. The first tick only sets where they start (every
 /// level `hover`, or `fixed`: nothing to say). Returns the levels logged.
@@ -737,15 +771,6 @@ fn log_reason_changes(last: &mut Vec<Reason>, paging: &[LevelPaging], latency: f
     }
     *last = paging.iter().map(|p| p.reason).collect();
     changed
-}
-
-/// The reply to `VIEW LOD`: the levels the view shows from the next tick.
-fn describe_lod(name: &str, lod: crate::clip::LodWindow) -> String {
-    if lod.effective == u32::MAX {
-        format!("view {name} lod offset {} effective all", lod.offset)
-    } else {
-        format!("view {name} lod offset {} effective {}", lod.offset, lod.effective)
-    }
 }
 
 #[cfg(test)]
@@ -810,9 +835,11 @@ mod tests {
         assert_eq!(request([-10.0, 1.0]), Some([-3, 0]));
         assert_eq!(request([0.0, 0.0]), None);
         assert_eq!(request([40.0, 8.0]), Some([10, 2]));
-        let (tx, rx) = oneshot::channel();
-        ticker.send(Command::Centre([100, 100], tx)).unwrap();
-        assert_eq!(rx.blocking_recv().unwrap(), "centre 100 100");
+        let (reply, rx) = oneshot::channel();
+        ticker.send(Command::Centre { centre: [100, 100], reply }).unwrap();
+        let reply = rx.blocking_recv().unwrap();
+        assert_eq!(reply, Reply::Centre([100, 100]));
+        assert_eq!(super::super::protocol::render(&super::super::protocol::Answer::Done(reply)), "OK centre 100 100");
         let deadline = Instant::now() + Duration::from_secs(20);
         while ticker.stats().socket_centres == 0 {
             assert!(Instant::now() < deadline, "no tick published the CENTRE in 20 s");
