@@ -1,5 +1,5 @@
 //! What a renderer's request does to a clipmap, for the primary's mapping and the mappings of
-//! views with grids of their own alike ([`super::ticker`], [`super::own_views`]): its velocity in
+//! views with grids of their own alike ([`super::views`]): its velocity in
 //! texels a tick, and its LOD request applied to a view.
 
 use super::protocol::Refusal;

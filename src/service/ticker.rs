@@ -5,15 +5,17 @@
 //! Handle and runner: [`Ticker`] is the cloneable handle (a bounded command sender and a watch on
 //! the latest [`TickStats`]); the runner owns every piece of mutable state, without locks. Each
 //! tick takes the newest renderer request from the request mapping, then ticks the engine, which
-//! publishes its snapshot into the mapping, and beats the heartbeat. Commands (budget, border, centre, stop)
-//! are taken between ticks and answered through a one-shot reply.
+//! publishes its snapshot into the mapping, and beats the heartbeat. Commands (budget, border, centre,
+//! views, stop) are taken between ticks and answered through a one-shot reply: a typed
+//! [`Reply`] or [`Refusal`], which [`super::protocol`] turns into the socket's text. What each view
+//! is told, and its grids, are `super::views`'s.
 
-use super::own_views::{OwnViews, Setup};
+use super::own_views::Setup;
 use super::protocol::{Refusal, Reply, ViewCommand};
-use super::requests::{apply_lod, bounded_centre, velocity_per_tick};
 use super::stats::TickStats;
+use super::views::Views;
 use super::{Options, ServiceError};
-use crate::clip::{Clipmap, Settings, ViewId, PRIMARY};
+use crate::clip::{Clipmap, Settings, PRIMARY};
 use crate::paging::adaptive::{LevelPaging, Reason};
 use crate::shm::Writer;
 use crate::source::TileSource;
@@ -194,32 +196,14 @@ struct Runner {
     stats_tx: watch::Sender<TickStats>,
     period: Duration,
     hz: f64,
-    centre: [i64; 2],
-    velocity: Option<[i64; 2]>,
-    last_request: u64,
-    /// The primary's last LOD request's count.
-    last_lod: u64,
-    /// Levels every view addresses at once unless told otherwise (`None`: all).
-    effective_levels: Option<u32>,
     stats: TickStats,
     started: Instant,
     /// A growing texture's shared state, and the growth block's last published values.
     growing: Option<(Arc<crate::growing::serve::Served>, Option<crate::shm::layout::Growth>)>,
     /// Each level's paging reason as last logged (the log says when one changes).
     reasons: Vec<Reason>,
-    /// Each further view's centre and velocity as asked for, and its last request's count.
-    view_state: std::collections::BTreeMap<ViewId, ViewState>,
-    /// The views with grids of their own ([`super::own_views`]).
-    own: OwnViews,
-}
-
-/// A further view's centre as asked for (socket or request record).
-#[derive(Clone, Debug, Default)]
-struct ViewState {
-    centre: Option<[i64; 2]>,
-    velocity: Option<[i64; 2]>,
-    last_request: u64,
-    last_lod: u64,
+    /// Every view, the primary first ([`super::views`]).
+    views: Views,
 }
 
 impl Runner {
@@ -277,7 +261,7 @@ impl Runner {
             format: desc.format().short_name(),
             mapping_bytes: writer.placement().total_bytes,
         };
-        let runner = Runner::assemble(clipmap, writer, OwnViews::new(setup), o, commands, stats_tx);
+        let runner = Runner::assemble(clipmap, writer, setup, o, commands, stats_tx);
         Ok((runner.start_views(o)?, started))
     }
 
@@ -285,7 +269,7 @@ impl Runner {
     fn assemble(
         clipmap: Clipmap,
         writer: Writer,
-        own: OwnViews,
+        setup: Setup,
         o: &Options,
         commands: mpsc::Receiver<Command>,
         stats_tx: watch::Sender<TickStats>,
@@ -299,17 +283,11 @@ impl Runner {
             stats_tx,
             period: Duration::from_secs_f64(1.0 / o.tick_hz),
             hz: o.tick_hz,
-            centre: [(size[0] / 2) as i64, (size[1] / 2) as i64],
-            velocity: None,
-            last_request: 0,
-            last_lod: 0,
-            effective_levels: o.effective_levels,
             stats,
             started: Instant::now(),
             growing: o.growing.as_ref().map(|g| (g.served().clone(), None)),
             reasons: Vec::new(),
-            view_state: Default::default(),
-            own,
+            views: Views::new(setup, [(size[0] / 2) as i64, (size[1] / 2) as i64]),
         }
     }
 
@@ -328,8 +306,8 @@ impl Runner {
             }
         }
         for v in &o.views {
-            if let Err(why) = self.add_view(&v.name, v.weight, v.own) {
-                self.own.close_all();
+            if let Err(why) = self.views.add(&mut self.clipmap, &v.name, v.weight, v.own) {
+                self.views.close_all();
                 self.writer.close();
                 return Err(ServiceError::BadOption(format!("--view {}: {why}", v.name)));
             }
@@ -346,7 +324,7 @@ impl Runner {
     fn publish(&mut self) -> Result<(), crate::shm::ShmError> {
         self.tick();
         self.writer.publish()?;
-        self.own.published(self.writer.path());
+        self.views.published(self.writer.path());
         Ok(())
     }
 
@@ -364,7 +342,7 @@ impl Runner {
                 }
                 Ok(Command::Stop) | Err(_) => {
                     self.writer.close();
-                    self.own.close_all();
+                    self.views.close_all();
                     return;
                 }
                 Ok(cmd) => self.apply(cmd),
@@ -382,9 +360,7 @@ impl Runner {
                 if now >= next {
                     break;
                 }
-                if now >= last_start + min_gap
-                    && (self.writer.request_count() != self.last_request || self.own.requests_changed())
-                {
+                if now >= last_start + min_gap && self.views.requests_changed(&self.writer) {
                     self.stats.ticks_on_request += 1;
                     break;
                 }
@@ -394,7 +370,7 @@ impl Runner {
                         // A command may be long (a view with grids of its own makes a mapping).
                         self.apply(cmd);
                         self.writer.alive();
-                        self.own.alive();
+                        self.views.alive();
                     }
                     Err(RecvTimeoutError::Timeout) => {}
                 }
@@ -414,7 +390,7 @@ impl Runner {
         // The service's mapping first: a reader that sees its view's own mapping closed then
         // finds the service closed (a stop), not the view's record live (docs/SHM.md).
         self.writer.close();
-        self.own.close_all();
+        self.views.close_all();
     }
 
     fn apply(&mut self, cmd: Command) {
@@ -426,7 +402,7 @@ impl Runner {
                 let _ = reply.send(self.set_border(texels));
             }
             Command::Centre { centre, reply } => {
-                let _ = reply.send(Reply::Centre(self.centre_primary(centre)));
+                let _ = reply.send(Reply::Centre(self.views.centre_primary(centre, &mut self.stats)));
             }
             Command::View { view, reply } => {
                 let _ = reply.send(self.view_command(view));
@@ -449,199 +425,45 @@ impl Runner {
         Reply::Border(applied)
     }
 
-    /// Moves the primary's centre (`CENTRE`, `VIEW CENTRE main`): bounded, without velocity.
-    fn centre_primary(&mut self, centre: [i64; 2]) -> [i64; 2] {
-        let c = bounded_centre(centre);
-        self.centre = c;
-        self.velocity = None;
-        self.stats.request_velocity = None;
-        self.stats.socket_centres += 1;
-        c
-    }
-
-    /// Carries out a `VIEW` command. One that changes the views (all but a centre) publishes
-    /// their figures at once.
+    /// Carries out a `VIEW` command ([`Views::command`]). One that changes the views (all but a
+    /// centre) publishes their figures at once.
     fn view_command(&mut self, cmd: ViewCommand) -> Result<Reply, Refusal> {
         let changes_views = !matches!(cmd, ViewCommand::Centre { .. });
-        let r = match cmd {
-            ViewCommand::Add { name, weight, own } => self.add_view(&name, weight, own),
-            ViewCommand::Remove { name } => self.remove_view(name),
-            ViewCommand::Centre { name, centre } => self.centre_view(name, centre),
-            ViewCommand::Weight { name, weight } => {
-                let id = self.view_id(&name)?;
-                self.clipmap.set_view_weight(id, weight)?;
-                Ok(Reply::ViewWeight { name, weight })
-            }
-            ViewCommand::Lod { name, offset, effective } => {
-                let lod = crate::clip::LodWindow { offset, effective: effective.unwrap_or(u32::MAX) };
-                let (map, id) = self.grids_of(&name)?;
-                map.set_view_lod(id, lod)?;
-                Ok(Reply::ViewLod { name, lod })
-            }
-            ViewCommand::Height { name, height, pixel_angle, effective } => {
-                let req =
-                    crate::shm::writer::LodRequest { height, pixel_angle, effective: u64::from(effective), count: 0 };
-                let id = self.view_id(&name)?;
-                let (map, id) = match self.own.get_mut(&name) {
-                    Some(v) => (&mut v.clipmap, PRIMARY),
-                    None => (&mut self.clipmap, id),
-                };
-                let lod = apply_lod(map, id, &name, &req, &mut self.stats)?;
-                Ok(Reply::ViewLod { name, lod })
-            }
-        };
+        let r = self.views.command(&mut self.clipmap, &mut self.stats, cmd);
         if r.is_ok() && changes_views {
             self.publish_views();
         }
         r
     }
 
-    /// The view named `name` in the service's clipmap.
-    fn view_id(&self, name: &str) -> Result<ViewId, Refusal> {
-        self.clipmap.view_named(name).ok_or_else(|| self.no_view(name))
-    }
-
-    /// The clipmap that holds view `name`'s grids, and the view's id there: a view with grids of
-    /// its own is its own clipmap's primary.
-    fn grids_of(&mut self, name: &str) -> Result<(&mut Clipmap, ViewId), Refusal> {
-        let id = self.view_id(name)?;
-        Ok(match self.own.get_mut(name) {
-            Some(v) => (&mut v.clipmap, PRIMARY),
-            None => (&mut self.clipmap, id),
-        })
-    }
-
-    fn remove_view(&mut self, name: String) -> Result<Reply, Refusal> {
-        let id = self.view_id(&name).ok().filter(|&id| id != PRIMARY).ok_or_else(|| self.no_view(&name))?;
-        self.view_state.remove(&id);
-        // The record first (readers see the view removed), then its own mapping.
-        let r = self.clipmap.remove_view(id);
-        self.own.remove(&name);
-        r?;
-        tracing::info!(view = %name, "view removed");
-        Ok(Reply::ViewRemoved { name })
-    }
-
-    fn centre_view(&mut self, name: String, centre: [i64; 2]) -> Result<Reply, Refusal> {
-        let id = self.view_id(&name)?;
-        if id == PRIMARY {
-            let centre = self.centre_primary(centre);
-            return Ok(Reply::ViewCentre { name, centre });
-        }
-        let c = bounded_centre(centre);
-        if let Some(v) = self.own.get_mut(&name) {
-            v.centre = c;
-            v.velocity = None;
-        } else {
-            let st = self.view_state.entry(id).or_default();
-            st.centre = Some(c);
-            st.velocity = None;
-        }
-        self.stats.socket_centres += 1;
-        Ok(Reply::ViewCentre { name, centre: c })
-    }
-
     /// Publishes the views' figures now, not at the next tick: `VIEWS` and `STATS` asked after a
     /// `VIEW ADD`, `REMOVE` or `WEIGHT` was answered show it (as the mapping already does).
     fn publish_views(&mut self) {
-        self.stats.views = self.view_stats();
+        self.stats.views = self.views.stats(&self.clipmap);
         self.stats_tx.send_replace(self.stats.clone());
     }
 
-    /// Adds a named view, centred where the primary is until it is told otherwise, in the shared
-    /// grids or (`own`) with grids of its own ([`super::own_views`]).
-    fn add_view(&mut self, name: &str, weight: f64, own: bool) -> Result<Reply, Refusal> {
-        let added = Reply::ViewAdded { name: name.to_string(), weight, own };
-        if own {
-            // Its own mapping first, then the record that sends readers there: a reader never
-            // finds the record without the mapping.
-            self.clipmap.check_new_name(name)?;
-            self.own.add(name, self.centre)?;
-            if let Err(e) = self.clipmap.add_view_elsewhere(name, weight) {
-                self.own.remove(name);
-                return Err(e.into());
-            }
-            return Ok(added);
-        }
-        let id = self.clipmap.add_named_view(name, weight)?;
-        if let Some(e) = self.effective_levels {
-            let _ = self.clipmap.set_view_lod(id, crate::clip::LodWindow { offset: 0, effective: e });
-        }
-        self.view_state.insert(id, ViewState { centre: Some(self.centre), ..ViewState::default() });
-        tracing::info!(view = %name, weight, "view added");
-        Ok(added)
-    }
-
-    /// The refusal for a view name no view has, naming those that exist.
-    fn no_view(&self, name: &str) -> Refusal {
-        let views = self.clipmap.view_ids().into_iter().filter_map(|id| self.clipmap.view_name(id)).map(String::from);
-        Refusal::NoView { name: name.to_string(), views: views.collect() }
-    }
-
-    /// Takes each further view's request record (docs/SHM.md, "Asking for a view's centre"):
-    /// a new request for the view's current incarnation moves it.
-    fn take_view_requests(&mut self) {
-        let reqs = self.writer.view_requests();
-        let mut lods = Vec::new();
-        for (id, st) in self.view_state.iter_mut() {
-            let Some(req) = reqs.get(*id as usize - 1).copied().flatten() else { continue };
-            let incarnation = self.writer.memory().view_incarnation(*id as usize);
-            if Some(req.incarnation) != incarnation {
-                continue;
-            }
-            if req.count != st.last_request {
-                st.last_request = req.count;
-                st.centre = Some(req.centre);
-                st.velocity = velocity_per_tick(req.velocity, self.hz);
-            }
-            if let Some(lod) = req.lod.filter(|l| l.count != st.last_lod) {
-                st.last_lod = lod.count;
-                lods.push((*id, lod));
-            }
-        }
-        for (id, lod) in lods {
-            let name = self.clipmap.view_name(id).unwrap_or("?").to_string();
-            let _ = apply_lod(&mut self.clipmap, id, &name, &lod, &mut self.stats);
-        }
-    }
-
     fn tick(&mut self) {
-        if let Some(req) = self.writer.request() {
-            if req.count != self.last_request {
-                self.last_request = req.count;
-                self.centre = req.centre;
-                self.velocity = velocity_per_tick(req.velocity, self.hz);
-                self.stats.request_velocity = self.velocity;
-                self.stats.requests_seen = req.count;
-            }
-            if let Some(lod) = req.lod.filter(|l| l.count != self.last_lod) {
-                self.last_lod = lod.count;
-                let _ = apply_lod(&mut self.clipmap, PRIMARY, "main", &lod, &mut self.stats);
-            }
-        }
+        self.views.take_primary_request(&mut self.clipmap, &self.writer, self.hz, &mut self.stats);
         (self.stats.request_faults, self.stats.request_fault) = self.writer.request_faults();
         if let Some((served, _)) = &self.growing {
             let changed = served.take_changed(self.clipmap.desc());
             // Every clipmap reads the changed tiles again: the primary's and each own view's.
-            self.own.refresh(&changed);
+            self.views.refresh(&changed);
             self.clipmap.refresh(changed);
             if self.stats.engine.ticks.is_multiple_of(256) {
-                let (c, own) = (&self.clipmap, &self.own);
-                served.retain_partial(|t| c.holds(t) || own.holds(t));
+                let (c, views) = (&self.clipmap, &self.views);
+                served.retain_partial(|t| c.holds(t) || views.own_holds(t));
             }
         }
-        self.take_view_requests();
-        for (&id, st) in &self.view_state {
-            if let Some(c) = st.centre {
-                let _ = self.clipmap.move_view(id, c, st.velocity);
-            }
-        }
+        self.views.take_further_requests(&mut self.clipmap, &self.writer, self.hz, &mut self.stats);
         let t0 = Instant::now();
-        let report = self.clipmap.tick(self.centre, self.velocity);
-        // Alive after each clipmap's tick, not only after the whole tick (see `OwnViews::tick`).
+        let (centre, velocity) = self.views.primary_motion();
+        let report = self.clipmap.tick(centre, velocity);
+        // Alive after each clipmap's tick, not only after the whole tick (see `Views::tick_own`).
         self.writer.alive();
-        self.own.tick(&self.clipmap, &self.writer, self.hz, &mut self.stats);
-        self.stats.views = self.view_stats();
+        self.views.tick_own(&self.clipmap, &self.writer, self.hz, &mut self.stats);
+        self.stats.views = self.views.stats(&self.clipmap);
         if let Some((served, last)) = &mut self.growing {
             let (_, mut g) = served.growth();
             g.tiles_replaced = self.clipmap.stats().tiles_replaced;
@@ -661,7 +483,7 @@ impl Runner {
         s.invalid_border = self.clipmap.invalid_border();
         s.bytes_published = self.clipmap.stats().queue.bytes_read;
         s.publications = self.clipmap.stats().publications;
-        s.resident_bytes = self.clipmap.resident_bytes() + self.own.resident_bytes();
+        s.resident_bytes = self.clipmap.resident_bytes() + self.views.own_resident_bytes();
         s.valid = report.valid.iter().map(|r| [r.s0, r.t0, r.s1, r.t1]).collect();
         s.engine = self.clipmap.stats().clone();
         s.streams = self.clipmap.stream_stats();
@@ -671,45 +493,6 @@ impl Runner {
         }
         log_reason_changes(&mut self.reasons, &s.engine.paging, s.engine.read_latency_ticks, s.engine.ticks);
         self.stats_tx.send_replace(s.clone());
-    }
-}
-
-impl Runner {
-    /// Each view's figures, the primary first.
-    fn view_stats(&self) -> Vec<super::stats::ViewStats> {
-        let main = &self.clipmap;
-        main.view_ids()
-            .into_iter()
-            .map(|vid| {
-                let name = main.view_name(vid).unwrap_or("").to_string();
-                // A view with grids of its own: its figures are its own clipmap's primary's.
-                let own = self.own.get(&name).filter(|_| main.view_elsewhere(vid));
-                let (m, id) = match own {
-                    Some(v) => (&v.clipmap, PRIMARY),
-                    None => (main, vid),
-                };
-                let levels = m.level_count();
-                let min_lod = m.view_min_lod(id).unwrap_or(levels as f64);
-                super::stats::ViewStats {
-                    name,
-                    grids: if own.is_some() { "own" } else { "shared" }.to_string(),
-                    shared_reads: own.map_or(0, |v| v.shared_reads()),
-                    weight: main.view_weight(vid).unwrap_or(1.0),
-                    centre: m.view_centre(id).ok().flatten(),
-                    min_lod,
-                    levels_disabled: (0..levels as u32).filter(|&k| ((k + 1) as f64) <= min_lod).count() as u64,
-                    lod_offset: m.view_lod(id).map_or(0, |l| l.offset),
-                    effective_levels: m
-                        .view_lod(id)
-                        .map_or(levels as u32, |l| l.effective.min(levels as u32 - l.offset.min(levels as u32))),
-                    resident_levels: m.view_resident_levels(id).unwrap_or_default(),
-                    valid: (0..levels as u32)
-                        .map(|k| m.view_level(id, k).map(|l| l.valid).unwrap_or(crate::geom::Rect::EMPTY))
-                        .map(|r| [r.s0, r.t0, r.s1, r.t1])
-                        .collect(),
-                }
-            })
-            .collect()
     }
 }
 
@@ -776,6 +559,7 @@ fn log_reason_changes(last: &mut Vec<Reason>, paging: &[LevelPaging], latency: f
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::service::requests::velocity_per_tick;
 
     /// docs/SHM.md, "What the service does with a request": the velocity (level-0 texels per
     /// second) is divided by the tick rate and rounded to texels per tick (halves away from zero),
