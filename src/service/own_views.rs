@@ -76,7 +76,7 @@ impl OwnGrids {
             writer.close();
             return Err(Refusal::OwnMapping { name: name.to_string(), mapping: own, source });
         }
-        let from_mapping = s.from_mapping(name);
+        let from_mapping = s.shared_tiles(name);
         let source: Arc<dyn TileSource> = match &from_mapping {
             Some(f) => f.clone(),
             None => Arc::clone(&s.source),
@@ -110,7 +110,7 @@ impl Setup {
     /// The source of view `name`'s grids: the tiles the primary's grids hold (the coarse levels
     /// at least) are taken from the service's mapping (`None`: it cannot be read; every tile is
     /// read from the source).
-    fn from_mapping(&self, name: &str) -> Option<Arc<FromMapping>> {
+    fn shared_tiles(&self, name: &str) -> Option<Arc<FromMapping>> {
         match Client::attach_path(&self.main_mapping) {
             Ok(main) => Some(Arc::new(FromMapping::following(Arc::clone(&self.source), main, Arc::clone(&self.fresh)))),
             Err(e) => {

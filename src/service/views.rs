@@ -488,7 +488,6 @@ mod tests {
         assert!(matches!(&gone, Refusal::NoView { name, views } if name == "left" && views == &["main"]), "{gone}");
         let weight = ViewCommand::Weight { name: "left".into(), weight: 1.0 };
         assert!(matches!(run(&mut views, &mut clipmap, weight), Err(Refusal::NoView { .. })));
-        drop(run);
         assert_eq!(stats.socket_centres, 2);
     }
 }
