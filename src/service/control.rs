@@ -6,8 +6,9 @@
 //! engine go to the tick loop through its bounded handle and wait (bounded) for its answer.
 //! Nothing a client sends can make the service hold more than the limits say.
 
-use super::protocol::{self, Request};
-use super::stats::{ControlCounters, ServiceStats};
+use super::patches::{self, PatchRefusal};
+use super::protocol::{self, Answer, Flow, Refusal, Refused, Reply, Request, Unanswered};
+use super::stats::{ControlCounters, ServiceStats, Status};
 use super::ticker::{Command, Started, Ticker};
 use super::{ControlLimits, ServiceError};
 use crate::shm::names::{self, Identity};
@@ -120,16 +121,13 @@ pub async fn serve(listener: UnixListener, ctx: Arc<Context>) {
                 ControlCounters::bump(&ctx.counters.refused);
                 let limit = ctx.limits.max_connections;
                 // Best effort, never waiting: the refusal must not hold anything.
-                let _ = stream.try_write(format!("ERR too many connections (limit {limit}); closing\n").as_bytes());
+                let mut out = protocol::render(&Refused::TooMany { limit }.into());
+                out.push('\n');
+                let _ = stream.try_write(out.as_bytes());
             }
         }
     }
     conns.shutdown().await;
-}
-
-enum Flow {
-    Continue,
-    Close,
 }
 
 async fn connection(stream: UnixStream, ctx: Arc<Context>, _permit: OwnedSemaphorePermit) {
@@ -142,10 +140,10 @@ async fn connection(stream: UnixStream, ctx: Arc<Context>, _permit: OwnedSemapho
         line.clear();
         let mut limited = (&mut rd).take(limits.max_line as u64 + 1);
         let read = limited.read_until(b'\n', &mut line);
-        let (reply, flow) = match tokio::time::timeout(limits.idle, read).await {
+        let (answer, flow) = match tokio::time::timeout(limits.idle, read).await {
             Err(_) => {
                 ControlCounters::bump(&ctx.counters.idle_closed);
-                (format!("ERR idle for {} ms; closing", limits.idle.as_millis()), Flow::Close)
+                (Refused::Idle { ms: limits.idle.as_millis() }.into(), Flow::Close)
             }
             Ok(Err(_)) | Ok(Ok(0)) => break,
             Ok(Ok(_)) if line.last() == Some(&b'\n') => {
@@ -154,13 +152,13 @@ async fn connection(stream: UnixStream, ctx: Arc<Context>, _permit: OwnedSemapho
             }
             Ok(Ok(_)) if line.len() > limits.max_line => {
                 ControlCounters::bump(&ctx.counters.long_lines);
-                (format!("ERR request longer than {} bytes; closing", limits.max_line), Flow::Close)
+                (Refused::TooLong { max: limits.max_line }.into(), Flow::Close)
             }
-            Ok(Ok(_)) => ("ERR incomplete request (no newline before end of input)".to_string(), Flow::Close),
+            Ok(Ok(_)) => (Refused::Incomplete.into(), Flow::Close),
         };
-        let counter = if reply.starts_with("OK") { &ctx.counters.ok } else { &ctx.counters.errors };
+        let counter = if answer.is_ok() { &ctx.counters.ok } else { &ctx.counters.errors };
         ControlCounters::bump(counter);
-        let mut out = reply.into_bytes();
+        let mut out = protocol::render(&answer).into_bytes();
         out.push(b'\n');
         let sent = tokio::time::timeout(limits.idle, wr.write_all(&out)).await;
         if !matches!(sent, Ok(Ok(()))) || matches!(flow, Flow::Close) {
@@ -170,197 +168,62 @@ async fn connection(stream: UnixStream, ctx: Arc<Context>, _permit: OwnedSemapho
     ctx.counters.open.fetch_sub(1, std::sync::atomic::Ordering::Relaxed);
 }
 
-async fn answer(ctx: &Context, line: &[u8], rd: &mut BufReader<tokio::net::unix::OwnedReadHalf>) -> (String, Flow) {
+async fn answer(ctx: &Context, line: &[u8], rd: &mut BufReader<tokio::net::unix::OwnedReadHalf>) -> (Answer, Flow) {
     let req = match protocol::parse(line) {
         Ok(r) => r,
         // The bytes that follow a PATCH DATA line are never read as requests: a line that cannot
         // say how many there are ends the connection.
-        Err(e) if protocol::announces_data(line) => {
-            return (format!("ERR {e}; closing (nothing was taken)"), Flow::Close)
-        }
-        Err(e) => return (format!("ERR {e}"), Flow::Continue),
+        Err(e) if protocol::announces_data(line) => return (Refused::BadDataLine(e).into(), Flow::Close),
+        Err(e) => return (e.into(), Flow::Continue),
     };
-    match req {
-        Request::Ping => ("OK pong".into(), Flow::Continue),
-        Request::Status => (format!("OK {}", status(ctx)), Flow::Continue),
-        Request::Stats => (format!("OK {}", serde_json::to_string(&ctx.stats()).unwrap_or_default()), Flow::Continue),
-        Request::StatsProm => {
-            let text = ctx.stats().prometheus();
-            let text = text.trim_end();
-            (format!("OK prometheus {}\n{text}", text.lines().count()), Flow::Continue)
+    let answer = match req {
+        Request::Ping => Answer::Pong,
+        Request::Status => {
+            Answer::Status(Box::new(Status::of(&ctx.name, &ctx.socket, &ctx.started, &ctx.ticker.stats())))
         }
-        Request::Budget(ms) => (command(ctx, |tx| Command::Budget(ms, tx)).await, Flow::Continue),
-        Request::Border(b) => (command(ctx, |tx| Command::Border(b, tx)).await, Flow::Continue),
-        Request::Centre(c) => (command(ctx, |tx| Command::Centre(c, tx)).await, Flow::Continue),
-        Request::ViewAdd(name, w, own) => {
-            (fallible(ctx, |tx| Command::ViewAdd(name, w, own, tx)).await, Flow::Continue)
-        }
-        Request::ViewRemove(name) => (fallible(ctx, |tx| Command::ViewRemove(name, tx)).await, Flow::Continue),
-        Request::ViewCentre(name, c) => (fallible(ctx, |tx| Command::ViewCentre(name, c, tx)).await, Flow::Continue),
-        Request::ViewWeight(name, w) => (fallible(ctx, |tx| Command::ViewWeight(name, w, tx)).await, Flow::Continue),
-        Request::ViewLod(name, o, e) => (fallible(ctx, |tx| Command::ViewLod(name, o, e, tx)).await, Flow::Continue),
-        Request::ViewHeight(name, h, a, e) => {
-            (fallible(ctx, |tx| Command::ViewHeight(name, h, a, e, tx)).await, Flow::Continue)
-        }
-        Request::Views => {
-            (format!("OK {}", serde_json::to_string(&ctx.stats().tick.views).unwrap_or_default()), Flow::Continue)
-        }
-        Request::PatchFile(path) => (patch(ctx, Patch::File(path.into())).await, Flow::Continue),
+        Request::Stats => Answer::Stats(Box::new(ctx.stats())),
+        Request::StatsProm => Answer::StatsProm(ctx.stats().prometheus()),
+        Request::Views => Answer::Views(ctx.stats().tick.views),
+        Request::Budget(ms) => done(ask(ctx, |reply| Command::Budget { ms, reply }).await.map(Ok)),
+        Request::Border(texels) => done(ask(ctx, |reply| Command::Border { texels, reply }).await.map(Ok)),
+        Request::Centre(centre) => done(ask(ctx, |reply| Command::Centre { centre, reply }).await.map(Ok)),
+        Request::View(view) => done(ask(ctx, |reply| Command::View { view, reply }).await),
+        Request::PatchFile(path) => patched(patches::file(ctx, path.into()).await),
         Request::PatchData { bytes, json } => {
-            let Some(g) = &ctx.grower else {
-                return (
-                    "ERR PATCH: this service's texture does not grow (start clipmapd --growing DIR)".into(),
-                    Flow::Close,
-                );
-            };
-            if bytes > g.max_patch_bytes {
-                return (
-                    format!(
-                        "ERR PATCH DATA: {bytes} bytes announced; the most is {} (--max-patch-bytes); closing",
-                        g.max_patch_bytes
-                    ),
-                    Flow::Close,
-                );
-            }
-            // Every PATCH DATA in flight, all connections together, holds its share of the
-            // grower's bound until its patch is decoded and handed over; one that cannot have it
-            // within the idle time is refused. The buffer grows as bytes arrive, so an announced
-            // size that never comes costs nothing.
-            let share = bytes.div_ceil(crate::growing::serve::IN_FLIGHT_UNIT) as u32;
-            let permit = match tokio::time::timeout(ctx.limits.idle, g.in_flight.clone().acquire_many_owned(share)).await {
-                Ok(Ok(p)) => p,
-                _ => {
-                    return (
-                        format!(
-                            "ERR PATCH DATA: {bytes} bytes announced while the {} bytes of patches the service holds in flight at once (twice --max-patch-bytes) stayed taken for {} ms; nothing was taken; try again later; closing",
-                            g.max_in_flight_bytes,
-                            ctx.limits.idle.as_millis()
-                        ),
-                        Flow::Close,
-                    )
-                }
-            };
-            let mut data = Vec::with_capacity(bytes.min(64 << 10) as usize);
-            let mut limited = (&mut *rd).take(bytes);
-            let read = limited.read_to_end(&mut data);
-            match tokio::time::timeout(ctx.limits.idle, read).await {
-                Ok(Ok(n)) if n as u64 == bytes => {
-                    let reply = patch(ctx, Patch::Data(json, data)).await;
-                    drop(permit);
-                    (reply, Flow::Continue)
-                }
-                Ok(Ok(n)) => (
-                    format!("ERR PATCH DATA: {n} of {bytes} bytes arrived before the end of input; nothing was taken"),
-                    Flow::Close,
-                ),
-                Ok(Err(e)) => (format!("ERR PATCH DATA: reading the bytes: {e}; nothing was taken"), Flow::Close),
-                Err(_) => (
-                    format!(
-                        "ERR PATCH DATA: the bytes did not arrive within {} ms; nothing was taken; closing",
-                        ctx.limits.idle.as_millis()
-                    ),
-                    Flow::Close,
-                ),
-            }
+            let (taken, flow) = patches::data(ctx, rd, bytes, json).await;
+            return (patched(taken), flow);
         }
-        Request::Quit => ("OK bye".into(), Flow::Close),
+        Request::Quit => return (Answer::Bye, Flow::Close),
         Request::Shutdown => {
             tracing::info!("shutdown requested on the control socket");
             ctx.stop.send_replace(true);
-            ("OK shutting down".into(), Flow::Close)
+            return (Answer::ShuttingDown, Flow::Close);
         }
-    }
-}
-
-async fn command(ctx: &Context, make: impl FnOnce(oneshot::Sender<String>) -> Command) -> String {
-    let (tx, rx) = oneshot::channel();
-    if let Err(e) = ctx.ticker.send(make(tx)) {
-        return format!("ERR {e}");
-    }
-    match tokio::time::timeout(ctx.limits.reply_timeout, rx).await {
-        Ok(Ok(text)) => format!("OK {text}"),
-        Ok(Err(_)) => "ERR the tick loop has stopped".into(),
-        Err(_) => "ERR the tick loop did not answer in time".into(),
-    }
-}
-
-/// [`command`] for a command that may be refused: `OK text` or `ERR why`.
-async fn fallible(ctx: &Context, make: impl FnOnce(oneshot::Sender<Result<String, String>>) -> Command) -> String {
-    let (tx, rx) = oneshot::channel();
-    if let Err(e) = ctx.ticker.send(make(tx)) {
-        return format!("ERR {e}");
-    }
-    match tokio::time::timeout(ctx.limits.reply_timeout, rx).await {
-        Ok(Ok(Ok(text))) => format!("OK {text}"),
-        Ok(Ok(Err(why))) => format!("ERR {why}"),
-        Ok(Err(_)) => "ERR the tick loop has stopped".into(),
-        Err(_) => "ERR the tick loop did not answer in time".into(),
-    }
-}
-
-enum Patch {
-    File(PathBuf),
-    Data(String, Vec<u8>),
-}
-
-/// Reads and checks a patch (off the async workers: decoding is work), hands it to the grower and
-/// waits for its answer: `OK patch <id>` once it is durable.
-async fn patch(ctx: &Context, p: Patch) -> String {
-    let Some(g) = ctx.grower.clone() else {
-        return "ERR PATCH: this service's texture does not grow (start clipmapd --growing DIR)".into();
     };
-    let grid = g.grid();
-    let max = g.max_patch_bytes;
-    let read = tokio::task::spawn_blocking(move || match p {
-        // The owner's own request: the sidecar's image may be anywhere it can read.
-        Patch::File(path) => {
-            crate::growing::input::read_sidecar(&grid, &path, max, crate::growing::input::Paths::Anywhere)
-        }
-        Patch::Data(json, bytes) => crate::growing::input::sidecar(json.as_bytes(), "the request")
-            .and_then(|d| crate::growing::input::new_patch(&grid, &d, bytes, max, "the request")),
-    })
-    .await;
-    let new = match read {
-        Ok(Ok(n)) => n,
-        Ok(Err(e)) => return format!("ERR PATCH: {e}; nothing was taken"),
-        Err(_) => return "ERR PATCH: reading the patch failed unexpectedly; nothing was taken".into(),
-    };
-    let (tx, rx) = oneshot::channel();
-    if !g.send(crate::growing::serve::GrowCommand::Add { patch: new, source: None, reply: tx }) {
-        return "ERR PATCH: the grower is busy or has stopped; try again".into();
-    }
-    // Keeping a patch syncs it to disk: allow longer than a tick command.
-    match tokio::time::timeout(ctx.limits.reply_timeout * 6, rx).await {
-        Ok(Ok(Ok(id))) => format!("OK patch {id}"),
-        Ok(Ok(Err(e))) => format!("ERR PATCH: {e}; nothing was taken"),
-        Ok(Err(_)) => "ERR PATCH: the grower has stopped".into(),
-        Err(_) => "ERR PATCH: the grower did not answer in time (the patch may still be taken)".into(),
+    (answer, Flow::Continue)
+}
+
+/// A tick loop command's answer.
+fn done(r: Result<Result<Reply, Refusal>, Unanswered>) -> Answer {
+    match r {
+        Ok(Ok(reply)) => Answer::Done(reply),
+        Ok(Err(why)) => why.into(),
+        Err(e) => e.into(),
     }
 }
 
-fn status(ctx: &Context) -> String {
-    let t = ctx.ticker.stats();
-    let s = &ctx.started;
-    serde_json::json!({
-        "name": ctx.name,
-        "pid": std::process::id(),
-        "mapping": s.mapping,
-        "socket": ctx.socket,
-        "size": s.size,
-        "clip_size": s.clip_size,
-        "levels": s.levels,
-        "format": s.format,
-        "mapping_bytes": s.mapping_bytes,
-        "uptime_s": t.uptime_s,
-        "ticks": t.engine.ticks,
-        "tick_hz": t.tick_hz,
-        "centre": t.centre,
-        "min_lod": t.min_lod,
-        "levels_disabled": t.levels_disabled,
-        "budget_ms": t.budget_ms,
-        "invalid_border": t.invalid_border,
-        "valid": t.valid,
-        "growth": t.growth,
-    })
-    .to_string()
+/// A patch's answer.
+fn patched(r: Result<u64, PatchRefusal>) -> Answer {
+    r.map_or_else(Answer::from, Answer::Patched)
+}
+
+/// Sends the tick loop a command and waits (at most the reply timeout) for its answer.
+async fn ask<T>(ctx: &Context, make: impl FnOnce(oneshot::Sender<T>) -> Command) -> Result<T, Unanswered> {
+    let (tx, rx) = oneshot::channel();
+    ctx.ticker.send(make(tx))?;
+    match tokio::time::timeout(ctx.limits.reply_timeout, rx).await {
+        Ok(Ok(answer)) => Ok(answer),
+        Ok(Err(_)) => Err(Unanswered::Stopped),
+        Err(_) => Err(Unanswered::Late),
+    }
 }

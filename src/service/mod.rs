@@ -5,8 +5,10 @@
 //! |---|---|
 //! | [`options`] | run-time options and the control socket's bounds, validated once |
 //! | [`ticker`] | the tick loop: a dedicated thread owning the engine and the mapping's writer |
+//! | `views` | the views, the primary included: what each is told (commands, requests) and its grids, shared or own |
 //! | [`control`] | the owner-only Unix control socket (tokio): one task per connection, bounded |
-//! | [`protocol`] | the control socket's line protocol, as pure functions |
+//! | [`protocol`] | the control socket's line protocol, as pure functions: requests parsed, answers rendered |
+//! | [`patches`] | a growing texture's patches taken on the control socket (`PATCH FILE`, `PATCH DATA`) |
 //! | [`stats`] | statistics: JSON and Prometheus text |
 //!
 //! The entry point [`run`] takes its shutdown signal as an argument (a future), so the binary
@@ -17,10 +19,12 @@
 pub mod control;
 pub mod options;
 mod own_views;
+pub mod patches;
 pub mod protocol;
 mod requests;
 pub mod stats;
 pub mod ticker;
+mod views;
 
 pub use options::{default_socket, ControlLimits, Options, ViewOption};
 pub use stats::ServiceStats;

@@ -1,9 +1,23 @@
-//! The control socket's line protocol, as pure functions: parse one request line, format replies.
+//! The control socket's line protocol, as pure functions: parse one request line, render replies.
 //!
 //! One request per line (`\n`-terminated, at most [`super::ControlLimits::max_line`] bytes,
 //! UTF-8, words separated by spaces, command names case-insensitive). Every reply starts with
 //! `OK` or `ERR`; see `docs/SHM.md` ("Control socket") for the whole table. Talking to the
-//! socket and to the tick loop is [`super::control`]'s business.
+//! socket and to the tick loop is [`super::control`]'s business; what the service answers, and
+//! the text of each answer, is [`replies`]'s.
+
+mod replies;
+
+pub use replies::{render, Answer, Refusal, Refused, Reply, Unanswered};
+
+/// Whether a connection goes on after a reply.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Flow {
+    /// It reads the next request.
+    Continue,
+    /// It closes after the reply.
+    Close,
+}
 
 /// A parsed request.
 #[derive(Clone, Debug, PartialEq)]
@@ -22,22 +36,8 @@ pub enum Request {
     Border(u64),
     /// `CENTRE <s> <t>` (or `CENTER`): the level-0 clip centre.
     Centre([i64; 2]),
-    /// `VIEW ADD <name> [<weight>] [own]`: a further view (docs/VIEWS.md), weight 1 by default;
-    /// `own`: with grids of its own (docs/VIEWS.md, "Views far apart").
-    ViewAdd(String, f64, bool),
-    /// `VIEW REMOVE <name>`.
-    ViewRemove(String),
-    /// `VIEW CENTRE <name> <s> <t>` (or `CENTER`): a view's level-0 centre (`main`: the primary).
-    ViewCentre(String, [i64; 2]),
-    /// `VIEW WEIGHT <name> <weight>`.
-    ViewWeight(String, f64),
-    /// `VIEW LOD <name> <offset> [<effective>|all]`: the levels a view shows (docs/VIEWS.md,
-    /// "Virtual views"); effective `all` (the default) or 1 and more.
-    ViewLod(String, u32, Option<u32>),
-    /// `VIEW HEIGHT <name> <height> <pixel angle> [<effective>]`: a LOD request as the request
-    /// mapping's (docs/SHM.md, "Asking for a view's levels"), for those who cannot take its lock
-    /// words (Python).
-    ViewHeight(String, f64, f64, u32),
+    /// `VIEW ...`: a command for one view (docs/VIEWS.md).
+    View(ViewCommand),
     /// `VIEWS`: `OK {json}`, the views and their figures.
     Views,
     /// `QUIT`: closes this connection.
@@ -55,6 +55,77 @@ pub enum Request {
         /// The description (JSON, one line).
         json: String,
     },
+}
+
+/// A command for one view, as `VIEW ...` asks (docs/VIEWS.md).
+#[derive(Clone, Debug, PartialEq)]
+pub enum ViewCommand {
+    /// `VIEW ADD <name> [<weight>] [own]`: a further view, weight 1 by default; `own`: with grids
+    /// of its own (docs/VIEWS.md, "Views far apart").
+    Add {
+        /// Its name.
+        name: String,
+        /// Its weight.
+        weight: f64,
+        /// With grids of its own.
+        own: bool,
+    },
+    /// `VIEW REMOVE <name>`.
+    Remove {
+        /// The view.
+        name: String,
+    },
+    /// `VIEW CENTRE <name> <s> <t>` (or `CENTER`): a view's level-0 centre (`main`: the primary).
+    Centre {
+        /// The view.
+        name: String,
+        /// Its centre.
+        centre: [i64; 2],
+    },
+    /// `VIEW WEIGHT <name> <weight>`.
+    Weight {
+        /// The view.
+        name: String,
+        /// Its weight.
+        weight: f64,
+    },
+    /// `VIEW LOD <name> <offset> [<effective>|all]`: the levels a view shows (docs/VIEWS.md,
+    /// "Virtual views"); effective `all` (the default) or 1 and more.
+    Lod {
+        /// The view.
+        name: String,
+        /// Its LOD offset.
+        offset: u32,
+        /// Levels it addresses at once (`None`: all).
+        effective: Option<u32>,
+    },
+    /// `VIEW HEIGHT <name> <height> <pixel angle> [<effective>]`: a LOD request as the request
+    /// mapping's (docs/SHM.md, "Asking for a view's levels"), for those who cannot take its lock
+    /// words (Python).
+    Height {
+        /// The view.
+        name: String,
+        /// Its height above the surface, level-0 texels.
+        height: f64,
+        /// A pixel's angle, radians.
+        pixel_angle: f64,
+        /// Levels it addresses at once (0: all).
+        effective: u32,
+    },
+}
+
+impl ViewCommand {
+    /// The view it is for.
+    pub fn name(&self) -> &str {
+        match self {
+            ViewCommand::Add { name, .. }
+            | ViewCommand::Remove { name }
+            | ViewCommand::Centre { name, .. }
+            | ViewCommand::Weight { name, .. }
+            | ViewCommand::Lod { name, .. }
+            | ViewCommand::Height { name, .. } => name,
+        }
+    }
 }
 
 pub use crate::limits::MAX_BUDGET_MS;
@@ -169,7 +240,7 @@ pub fn parse(line: &[u8]) -> Result<Request, BadRequest> {
                 _ => Err(BadRequest::Patch(format!("got {} argument(s)", args.len()))),
             }
         }
-        "VIEW" => view(args),
+        "VIEW" => view(args).map(Request::View),
         "VIEWS" => arity(0, "VIEWS").map(|_| Request::Views),
         "QUIT" => arity(0, "QUIT").map(|_| Request::Quit),
         "SHUTDOWN" => arity(0, "SHUTDOWN").map(|_| Request::Shutdown),
@@ -178,7 +249,7 @@ pub fn parse(line: &[u8]) -> Result<Request, BadRequest> {
 }
 
 /// `VIEW ...` (the words after `VIEW`).
-fn view(args: &[&str]) -> Result<Request, BadRequest> {
+fn view(args: &[&str]) -> Result<ViewCommand, BadRequest> {
     let bad = |why: String| BadRequest::View(why);
     let name = |w: &str, main_ok: bool| -> Result<String, BadRequest> {
         if main_ok && w == crate::shm::layout::views::PRIMARY_NAME {
@@ -195,18 +266,20 @@ fn view(args: &[&str]) -> Result<Request, BadRequest> {
     };
     let sub = args.first().map(|w| w.to_ascii_uppercase());
     match (sub.as_deref(), &args[1.min(args.len())..]) {
-        (Some("ADD"), [n]) => Ok(Request::ViewAdd(name(n, false)?, 1.0, false)),
-        (Some("ADD"), [n, o]) if o.eq_ignore_ascii_case("own") => Ok(Request::ViewAdd(name(n, false)?, 1.0, true)),
-        (Some("ADD"), [n, w]) => Ok(Request::ViewAdd(name(n, false)?, weight(w)?, false)),
-        (Some("ADD"), [n, w, o]) if o.eq_ignore_ascii_case("own") => {
-            Ok(Request::ViewAdd(name(n, false)?, weight(w)?, true))
+        (Some("ADD"), [n]) => Ok(ViewCommand::Add { name: name(n, false)?, weight: 1.0, own: false }),
+        (Some("ADD"), [n, o]) if o.eq_ignore_ascii_case("own") => {
+            Ok(ViewCommand::Add { name: name(n, false)?, weight: 1.0, own: true })
         }
-        (Some("REMOVE"), [n]) => Ok(Request::ViewRemove(name(n, false)?)),
+        (Some("ADD"), [n, w]) => Ok(ViewCommand::Add { name: name(n, false)?, weight: weight(w)?, own: false }),
+        (Some("ADD"), [n, w, o]) if o.eq_ignore_ascii_case("own") => {
+            Ok(ViewCommand::Add { name: name(n, false)?, weight: weight(w)?, own: true })
+        }
+        (Some("REMOVE"), [n]) => Ok(ViewCommand::Remove { name: name(n, false)? }),
         (Some("CENTRE" | "CENTER"), [n, s, t]) => {
             let p = |w: &str| w.parse::<i64>().map_err(|_| bad(format!("`{}` is not an integer", clip(w))));
-            Ok(Request::ViewCentre(name(n, true)?, [p(s)?, p(t)?]))
+            Ok(ViewCommand::Centre { name: name(n, true)?, centre: [p(s)?, p(t)?] })
         }
-        (Some("WEIGHT"), [n, w]) => Ok(Request::ViewWeight(name(n, true)?, weight(w)?)),
+        (Some("WEIGHT"), [n, w]) => Ok(ViewCommand::Weight { name: name(n, true)?, weight: weight(w)? }),
         (Some("LOD"), [n, o, rest @ ..]) if rest.len() <= 1 => {
             let offset = o.parse::<u32>().map_err(|_| {
                 bad(format!("LOD offset `{}`: expected a level number, 0 (the finest) or more", clip(o)))
@@ -219,7 +292,7 @@ fn view(args: &[&str]) -> Result<Request, BadRequest> {
                     _ => return Err(bad(format!("effective levels `{}`: expected 1 or more, or all", clip(e)))),
                 },
             };
-            Ok(Request::ViewLod(name(n, true)?, offset, effective))
+            Ok(ViewCommand::Lod { name: name(n, true)?, offset, effective })
         }
         (Some("HEIGHT"), [n, h, a, rest @ ..]) if rest.len() <= 1 => {
             let num = |w: &str, what: &str, max: f64| match w.parse::<f64>() {
@@ -238,7 +311,7 @@ fn view(args: &[&str]) -> Result<Request, BadRequest> {
                     .parse::<u32>()
                     .map_err(|_| bad(format!("effective levels `{}`: expected 0 (all) or more", clip(e))))?,
             };
-            Ok(Request::ViewHeight(name(n, true)?, height, angle, effective))
+            Ok(ViewCommand::Height { name: name(n, true)?, height, pixel_angle: angle, effective })
         }
         (Some(other @ ("ADD" | "REMOVE" | "CENTRE" | "CENTER" | "WEIGHT" | "LOD" | "HEIGHT")), rest) => {
             Err(bad(format!("VIEW {other} with {} argument(s)", rest.len())))
@@ -281,6 +354,12 @@ mod tests {
 
     #[test]
     fn requests_parse() {
+        let add = |name: &str, weight, own| Request::View(ViewCommand::Add { name: name.into(), weight, own });
+        let lod =
+            |name: &str, offset, effective| Request::View(ViewCommand::Lod { name: name.into(), offset, effective });
+        let height = |name: &str, height, pixel_angle, effective| {
+            Request::View(ViewCommand::Height { name: name.into(), height, pixel_angle, effective })
+        };
         let cases: &[(&str, Request)] = &[
             ("PING", Request::Ping),
             ("status", Request::Status),
@@ -293,19 +372,19 @@ mod tests {
             ("center 1 2", Request::Centre([1, 2])),
             ("  QUIT  ", Request::Quit),
             ("SHUTDOWN", Request::Shutdown),
-            ("VIEW ADD left", Request::ViewAdd("left".into(), 1.0, false)),
-            ("view add sensor.1 3", Request::ViewAdd("sensor.1".into(), 3.0, false)),
-            ("VIEW ADD far own", Request::ViewAdd("far".into(), 1.0, true)),
-            ("VIEW ADD far 2 OWN", Request::ViewAdd("far".into(), 2.0, true)),
-            ("VIEW REMOVE left", Request::ViewRemove("left".into())),
-            ("VIEW CENTRE left -5 7", Request::ViewCentre("left".into(), [-5, 7])),
-            ("VIEW center main 1 2", Request::ViewCentre("main".into(), [1, 2])),
-            ("VIEW WEIGHT right 0.5", Request::ViewWeight("right".into(), 0.5)),
-            ("VIEW LOD high 3", Request::ViewLod("high".into(), 3, None)),
-            ("view lod main 0 12", Request::ViewLod("main".into(), 0, Some(12))),
-            ("VIEW LOD high 2 all", Request::ViewLod("high".into(), 2, None)),
-            ("VIEW HEIGHT high 12000 0.001", Request::ViewHeight("high".into(), 12000.0, 0.001, 0)),
-            ("view height main 5e3 0.002 16", Request::ViewHeight("main".into(), 5000.0, 0.002, 16)),
+            ("VIEW ADD left", add("left", 1.0, false)),
+            ("view add sensor.1 3", add("sensor.1", 3.0, false)),
+            ("VIEW ADD far own", add("far", 1.0, true)),
+            ("VIEW ADD far 2 OWN", add("far", 2.0, true)),
+            ("VIEW REMOVE left", Request::View(ViewCommand::Remove { name: "left".into() })),
+            ("VIEW CENTRE left -5 7", Request::View(ViewCommand::Centre { name: "left".into(), centre: [-5, 7] })),
+            ("VIEW center main 1 2", Request::View(ViewCommand::Centre { name: "main".into(), centre: [1, 2] })),
+            ("VIEW WEIGHT right 0.5", Request::View(ViewCommand::Weight { name: "right".into(), weight: 0.5 })),
+            ("VIEW LOD high 3", lod("high", 3, None)),
+            ("view lod main 0 12", lod("main", 0, Some(12))),
+            ("VIEW LOD high 2 all", lod("high", 2, None)),
+            ("VIEW HEIGHT high 12000 0.001", height("high", 12000.0, 0.001, 0)),
+            ("view height main 5e3 0.002 16", height("main", 5000.0, 0.002, 16)),
             ("VIEWS", Request::Views),
             ("PATCH FILE /tmp/a b.json", Request::PatchFile("/tmp/a b.json".into())),
             (

@@ -1,7 +1,8 @@
 //! What a renderer's request does to a clipmap, for the primary's mapping and the mappings of
-//! views with grids of their own alike ([`super::ticker`], [`super::own_views`]): its velocity in
+//! views with grids of their own alike ([`super::views`]): its velocity in
 //! texels a tick, and its LOD request applied to a view.
 
+use super::protocol::Refusal;
 use super::stats::TickStats;
 use crate::clip::{Clipmap, ViewId};
 
@@ -15,19 +16,19 @@ pub(super) fn apply_lod(
     name: &str,
     req: &crate::shm::writer::LodRequest,
     stats: &mut TickStats,
-) -> Result<crate::clip::LodWindow, String> {
+) -> Result<crate::clip::LodWindow, Refusal> {
     let footprint = match req.footprint() {
         Ok(f) => f,
         Err(why) => {
             stats.lod_requests_refused += 1;
             tracing::warn!(view = %name, "LOD request refused: {why}");
-            return Err(format!("view {name}: LOD request refused: {why}"));
+            return Err(Refusal::LodRequest { name: name.to_string(), why });
         }
     };
     let effective = if req.effective == 0 { u32::MAX } else { req.effective as u32 };
-    let lod = clipmap.view_lod(id).map_err(|e| e.to_string())?;
-    clipmap.set_view_lod(id, crate::clip::LodWindow { effective, ..lod }).map_err(|e| e.to_string())?;
-    let offset = clipmap.set_view_footprint(id, footprint).map_err(|e| e.to_string())?;
+    let lod = clipmap.view_lod(id)?;
+    clipmap.set_view_lod(id, crate::clip::LodWindow { effective, ..lod })?;
+    let offset = clipmap.set_view_footprint(id, footprint)?;
     stats.lod_requests += 1;
     tracing::debug!(view = %name, offset, footprint, "LOD request");
     Ok(crate::clip::LodWindow { offset, effective })

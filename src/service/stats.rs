@@ -157,14 +157,108 @@ pub struct ServiceStats {
     pub control: ControlStats,
 }
 
+/// Everything `STATUS` answers: the texture, the mapping and where the tick loop is
+/// (docs/SHM.md, "Control socket"). Its JSON gives the fields in name order
+/// ([`super::protocol::render`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct Status {
+    /// The publication name.
+    pub name: String,
+    /// The service's process id.
+    pub pid: u32,
+    /// The mapping file.
+    pub mapping: std::path::PathBuf,
+    /// The control socket.
+    pub socket: std::path::PathBuf,
+    /// Level-0 size.
+    pub size: [u64; 2],
+    /// Clip size.
+    pub clip_size: u64,
+    /// Number of levels.
+    pub levels: usize,
+    /// Texel format.
+    pub format: String,
+    /// Bytes of the mapping.
+    pub mapping_bytes: u64,
+    /// Seconds since the tick loop started.
+    pub uptime_s: f64,
+    /// Ticks so far.
+    pub ticks: u64,
+    /// Ticks per second asked for.
+    pub tick_hz: f64,
+    /// Level-0 centre of the last tick.
+    pub centre: [i64; 2],
+    /// The finest level renderers may use.
+    pub min_lod: f64,
+    /// Levels disabled.
+    pub levels_disabled: u64,
+    /// The copy budget per tick (`None`: off).
+    pub budget_ms: Option<f64>,
+    /// The invalid border in use.
+    pub invalid_border: u64,
+    /// Each level's valid region, `[s0, t0, s1, t1]`.
+    pub valid: Vec<[i64; 4]>,
+    /// The growth block's values (`None`: the texture does not grow).
+    pub growth: Option<crate::shm::layout::Growth>,
+}
+
+impl Status {
+    /// The status of service `name` answering on `socket`, started as `started`, at its tick
+    /// loop's latest figures `t`.
+    pub fn of(name: &str, socket: &std::path::Path, started: &super::Started, t: &TickStats) -> Status {
+        Status {
+            name: name.to_string(),
+            pid: std::process::id(),
+            mapping: started.mapping.clone(),
+            socket: socket.to_path_buf(),
+            size: started.size,
+            clip_size: started.clip_size,
+            levels: started.levels,
+            format: started.format.clone(),
+            mapping_bytes: started.mapping_bytes,
+            uptime_s: t.uptime_s,
+            ticks: t.engine.ticks,
+            tick_hz: t.tick_hz,
+            centre: t.centre,
+            min_lod: t.min_lod,
+            levels_disabled: t.levels_disabled,
+            budget_ms: t.budget_ms,
+            invalid_border: t.invalid_border,
+            valid: t.valid.clone(),
+            growth: t.growth,
+        }
+    }
+}
+
 impl ServiceStats {
     /// The Prometheus text exposition form (`clipmapd_` prefix, label `name`).
     pub fn prometheus(&self) -> String {
+        let mut out = String::new();
+        for (name, kind, help, v) in self.sample_rows() {
+            out.push_str(&self.sample(name, kind, help, v));
+        }
+        out.push_str(&self.stream_latency_prometheus());
+        out.push_str(&self.paging_prometheus());
+        #[cfg(feature = "remote")]
+        out.push_str(&self.remote_prometheus());
+        out
+    }
+
+    /// One metric of the service: its help, its type and its one sample, labelled `name`.
+    fn sample(&self, name: &str, kind: &str, help: &str, v: impl std::fmt::Display) -> String {
+        format!(
+            "# HELP clipmapd_{name} {help}\n# TYPE clipmapd_{name} {kind}\nclipmapd_{name}{{name=\"{}\"}} {v}\n",
+            self.name
+        )
+    }
+
+    /// The metrics of one sample each: name, type, help, value.
+    fn sample_rows(&self) -> [(&'static str, &'static str, &'static str, f64); 32] {
         let t = &self.tick;
         let e = &t.engine;
         let c = &self.control;
         let q = &e.queue;
-        let rows: [(&str, &str, &str, f64); 32] = [
+        [
             ("ticks_total", "counter", "Update ticks run", e.ticks as f64),
             ("tick_overruns_total", "counter", "Ticks longer than the tick period", t.tick_overruns as f64),
             (
@@ -232,18 +326,14 @@ impl ServiceStats {
             ("control_connections_open", "gauge", "Control connections open", c.open as f64),
             ("control_requests_ok_total", "counter", "Control requests answered OK", c.ok as f64),
             ("control_requests_err_total", "counter", "Control requests answered ERR", c.errors as f64),
-        ];
+        ]
+    }
+
+    /// A remote source's counters (nothing for local files).
+    #[cfg(feature = "remote")]
+    fn remote_prometheus(&self) -> String {
         let mut out = String::new();
-        for (name, kind, help, v) in rows {
-            out.push_str(&format!(
-                "# HELP clipmapd_{name} {help}\n# TYPE clipmapd_{name} {kind}\nclipmapd_{name}{{name=\"{}\"}} {v}\n",
-                self.name
-            ));
-        }
-        out.push_str(&self.stream_latency_prometheus());
-        out.push_str(&self.paging_prometheus());
-        #[cfg(feature = "remote")]
-        if let Some(r) = &t.remote {
+        if let Some(r) = &self.tick.remote {
             let remote = [
                 ("remote_requests_total", "counter", "Remote requests sent, retries included", r.requests),
                 ("remote_retries_total", "counter", "Remote requests retried", r.retries),
@@ -254,10 +344,7 @@ impl ServiceStats {
                 ("remote_peak_in_flight", "gauge", "Most remote requests in flight to one endpoint", r.peak_in_flight),
             ];
             for (name, kind, help, v) in remote {
-                out.push_str(&format!(
-                    "# HELP clipmapd_{name} {help}\n# TYPE clipmapd_{name} {kind}\nclipmapd_{name}{{name=\"{}\"}} {v}\n",
-                    self.name
-                ));
+                out.push_str(&self.sample(name, kind, help, v));
             }
         }
         out

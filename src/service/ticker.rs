@@ -5,14 +5,17 @@
 //! Handle and runner: [`Ticker`] is the cloneable handle (a bounded command sender and a watch on
 //! the latest [`TickStats`]); the runner owns every piece of mutable state, without locks. Each
 //! tick takes the newest renderer request from the request mapping, then ticks the engine, which
-//! publishes its snapshot into the mapping, and beats the heartbeat. Commands (budget, border, centre, stop)
-//! are taken between ticks and answered through a one-shot reply.
+//! publishes its snapshot into the mapping, and beats the heartbeat. Commands (budget, border, centre,
+//! views, stop) are taken between ticks and answered through a one-shot reply: a typed
+//! [`Reply`] or [`Refusal`], which [`super::protocol`] turns into the socket's text. What each view
+//! is told, and its grids, are `super::views`'s.
 
-use super::own_views::{OwnViews, Setup};
-use super::requests::{apply_lod, bounded_centre, velocity_per_tick};
+use super::own_views::Setup;
+use super::protocol::{Refusal, Reply, ViewCommand};
 use super::stats::TickStats;
+use super::views::Views;
 use super::{Options, ServiceError};
-use crate::clip::{Clipmap, Settings, ViewId, PRIMARY};
+use crate::clip::{Clipmap, Settings, PRIMARY};
 use crate::paging::adaptive::{LevelPaging, Reason};
 use crate::shm::Writer;
 use crate::source::TileSource;
@@ -25,31 +28,44 @@ use tokio::sync::{oneshot, watch};
 /// Commands waiting for the tick loop, at most (a full queue answers "busy", never blocks).
 pub(crate) const COMMAND_QUEUE: usize = 64;
 
-/// What the tick loop is asked to do between ticks.
+/// What the tick loop is asked to do between ticks; each carries the one-shot sender of its
+/// answer.
 #[derive(Debug)]
 pub enum Command {
     /// Sets the copy budget per tick (ms; `None`: unlimited).
-    Budget(Option<f64>, oneshot::Sender<String>),
-    /// Sets the invalid border (clamped by the engine); replies with the border applied.
-    Border(u64, oneshot::Sender<String>),
+    Budget {
+        /// Milliseconds a tick's own work may take.
+        ms: Option<f64>,
+        /// The budget set.
+        reply: oneshot::Sender<Reply>,
+    },
+    /// Sets the invalid border (clamped by the engine).
+    Border {
+        /// Texels asked for.
+        texels: u64,
+        /// The border applied.
+        reply: oneshot::Sender<Reply>,
+    },
     /// Moves the clip centre (level-0 texels).
-    Centre([i64; 2], oneshot::Sender<String>),
-    /// Adds a named view of a weight (docs/VIEWS.md), with grids of its own when asked;
-    /// replies `Err` with why not.
-    ViewAdd(String, f64, bool, oneshot::Sender<Result<String, String>>),
-    /// Removes a view.
-    ViewRemove(String, oneshot::Sender<Result<String, String>>),
-    /// Moves a view's centre (`main`: the primary's, as `Centre`).
-    ViewCentre(String, [i64; 2], oneshot::Sender<Result<String, String>>),
-    /// Sets a view's weight.
-    ViewWeight(String, f64, oneshot::Sender<Result<String, String>>),
-    /// Sets a view's LOD window: offset, effective levels (`None`: all).
-    ViewLod(String, u32, Option<u32>, oneshot::Sender<Result<String, String>>),
-    /// A LOD request from the socket: height, pixel angle, effective levels (0: all).
-    ViewHeight(String, f64, f64, u32, oneshot::Sender<Result<String, String>>),
+    Centre {
+        /// The centre asked for.
+        centre: [i64; 2],
+        /// The centre the snapshot will publish (bounded).
+        reply: oneshot::Sender<Reply>,
+    },
+    /// A command for one view (docs/VIEWS.md).
+    View {
+        /// What to do.
+        view: ViewCommand,
+        /// What was done, or why not.
+        reply: oneshot::Sender<Result<Reply, Refusal>>,
+    },
     /// Puts the mapping under its name, its views in it, and starts ticking
     /// ([`Ticker::prepare`], [`Ticker::publish`]).
-    Publish(oneshot::Sender<Result<(), crate::shm::ShmError>>),
+    Publish {
+        /// Whether the mapping is there.
+        reply: oneshot::Sender<Result<(), crate::shm::ShmError>>,
+    },
     /// Stops after closing the mapping.
     Stop,
 }
@@ -115,7 +131,7 @@ impl Ticker {
     /// whether it is there.
     pub fn publish(&self) -> Result<oneshot::Receiver<Result<(), crate::shm::ShmError>>, ServiceError> {
         let (tx, rx) = oneshot::channel();
-        self.send(Command::Publish(tx)).map_err(|_| ServiceError::TickLoopDied)?;
+        self.send(Command::Publish { reply: tx }).map_err(|_| ServiceError::TickLoopDied)?;
         Ok(rx)
     }
 
@@ -180,32 +196,14 @@ struct Runner {
     stats_tx: watch::Sender<TickStats>,
     period: Duration,
     hz: f64,
-    centre: [i64; 2],
-    velocity: Option<[i64; 2]>,
-    last_request: u64,
-    /// The primary's last LOD request's count.
-    last_lod: u64,
-    /// Levels every view addresses at once unless told otherwise (`None`: all).
-    effective_levels: Option<u32>,
     stats: TickStats,
     started: Instant,
     /// A growing texture's shared state, and the growth block's last published values.
     growing: Option<(Arc<crate::growing::serve::Served>, Option<crate::shm::layout::Growth>)>,
     /// Each level's paging reason as last logged (the log says when one changes).
     reasons: Vec<Reason>,
-    /// Each further view's centre and velocity as asked for, and its last request's count.
-    view_state: std::collections::BTreeMap<ViewId, ViewState>,
-    /// The views with grids of their own ([`super::own_views`]).
-    own: OwnViews,
-}
-
-/// A further view's centre as asked for (socket or request record).
-#[derive(Clone, Debug, Default)]
-struct ViewState {
-    centre: Option<[i64; 2]>,
-    velocity: Option<[i64; 2]>,
-    last_request: u64,
-    last_lod: u64,
+    /// Every view, the primary first ([`super::views`]).
+    views: Views,
 }
 
 impl Runner {
@@ -216,30 +214,11 @@ impl Runner {
         stats_tx: watch::Sender<TickStats>,
     ) -> Result<(Runner, Started), ServiceError> {
         let desc = source.desc().clone();
-        let mut settings = Settings {
-            budget_ns: o.budget_ms.map(|ms| (ms * 1e6) as u64),
-            // One read queue per stream server the configuration names.
-            streams: source.stream_servers(),
-            centre_alignment: o.centre_alignment,
-            ..Settings::default().with_paging(&o.paging)
-        };
-        settings.view_spread = o.view_spread;
-        if o.growing.is_some() {
-            // A growing texture's tile without data is read again when data arrives for it
-            // (`Clipmap::refresh`), not on a timer.
-            settings.retry_after_ticks = u64::MAX / 4;
-        }
+        let settings = engine_settings(source.as_ref(), o);
         // Refused before anything is created in the shared directory.
         let shape = Clipmap::shape_for(&desc, &settings);
         let heights = source.heights().map(|h| crate::shm::layout::Heights::of(&h.format, h.levels));
-        let placement = crate::shm::layout::place_with(&shape, heights.is_some())
-            .and_then(|p| crate::shm::layout::with_views(p, crate::shm::layout::views::SERVICE_RECORDS))
-            .ok_or_else(|| crate::clip::ClipError::Memory(crate::shm::memory::shape_error(&shape)))?;
-        let limit = settings.limits.cache_bytes as u64;
-        let needed = placement.total_bytes.saturating_add(settings.pool_bytes);
-        if needed > limit {
-            return Err(crate::clip::ClipError::CacheBytes { needed, limit }.into());
-        }
+        check_room(&shape, heights.is_some(), &settings)?;
         // The engine keeps its image caches in the mapping itself: each tile is read straight
         // into its slot, where renderers read it, and nothing is copied afterwards.
         let period_ns = (1e9 / o.tick_hz).round() as u64;
@@ -282,48 +261,59 @@ impl Runner {
             format: desc.format().short_name(),
             mapping_bytes: writer.placement().total_bytes,
         };
-        let size = desc.size();
+        let runner = Runner::assemble(clipmap, writer, setup, o, commands, stats_tx);
+        Ok((runner.start_views(o)?, started))
+    }
+
+    /// The runner of a clipmap and its mapping, its primary centred on the texture.
+    fn assemble(
+        clipmap: Clipmap,
+        writer: Writer,
+        setup: Setup,
+        o: &Options,
+        commands: mpsc::Receiver<Command>,
+        stats_tx: watch::Sender<TickStats>,
+    ) -> Runner {
+        let size = clipmap.desc().size();
         let stats = TickStats { tick_hz: o.tick_hz, budget_ms: o.budget_ms, ..TickStats::default() };
-        let runner = Runner {
+        Runner {
             clipmap,
             writer,
             commands,
             stats_tx,
             period: Duration::from_secs_f64(1.0 / o.tick_hz),
             hz: o.tick_hz,
-            centre: [(size[0] / 2) as i64, (size[1] / 2) as i64],
-            velocity: None,
-            last_request: 0,
-            last_lod: 0,
-            effective_levels: o.effective_levels,
             stats,
             started: Instant::now(),
             growing: o.growing.as_ref().map(|g| (g.served().clone(), None)),
             reasons: Vec::new(),
-            view_state: Default::default(),
-            own: OwnViews::new(setup),
-        };
-        let mut runner = runner;
+            views: Views::new(setup, [(size[0] / 2) as i64, (size[1] / 2) as i64]),
+        }
+    }
+
+    /// The command line's views (`--effective-levels`, each `--view`), in the mapping before it
+    /// is published. Refused: the mapping (and every own view's) is closed.
+    fn start_views(mut self, o: &Options) -> Result<Runner, ServiceError> {
         // Holding the service's lock: what a dead predecessor left of its views' own mappings goes.
         for view in crate::shm::writer::remove_dead_own_mappings(&o.shm_dir, &o.name) {
             tracing::info!(view = %view, "removed the own mapping a stopped service left for view {view}");
         }
         if let Some(e) = o.effective_levels {
             let lod = crate::clip::LodWindow { offset: 0, effective: e };
-            if let Err(why) = runner.clipmap.set_view_lod(PRIMARY, lod) {
-                runner.writer.close();
+            if let Err(why) = self.clipmap.set_view_lod(PRIMARY, lod) {
+                self.writer.close();
                 return Err(ServiceError::BadOption(format!("--effective-levels {e}: {why}")));
             }
         }
         for v in &o.views {
-            if let Err(why) = runner.add_view(&v.name, v.weight, v.own) {
-                runner.own.close_all();
-                runner.writer.close();
+            if let Err(why) = self.views.add(&mut self.clipmap, &v.name, v.weight, v.own) {
+                self.views.close_all();
+                self.writer.close();
                 return Err(ServiceError::BadOption(format!("--view {}: {why}", v.name)));
             }
         }
-        runner.publish_views();
-        Ok((runner, started))
+        self.publish_views();
+        Ok(self)
     }
 
     /// Puts the mapping under its name: every view it was started with is in it by then, and
@@ -334,7 +324,7 @@ impl Runner {
     fn publish(&mut self) -> Result<(), crate::shm::ShmError> {
         self.tick();
         self.writer.publish()?;
-        self.own.published(self.writer.path());
+        self.views.published(self.writer.path());
         Ok(())
     }
 
@@ -342,7 +332,7 @@ impl Runner {
         // Nothing ticks before the mapping is published (`Ticker::publish`).
         loop {
             match self.commands.recv() {
-                Ok(Command::Publish(reply)) => {
+                Ok(Command::Publish { reply }) => {
                     let r = self.publish();
                     let ok = r.is_ok();
                     let _ = reply.send(r);
@@ -352,7 +342,7 @@ impl Runner {
                 }
                 Ok(Command::Stop) | Err(_) => {
                     self.writer.close();
-                    self.own.close_all();
+                    self.views.close_all();
                     return;
                 }
                 Ok(cmd) => self.apply(cmd),
@@ -370,9 +360,7 @@ impl Runner {
                 if now >= next {
                     break;
                 }
-                if now >= last_start + min_gap
-                    && (self.writer.request_count() != self.last_request || self.own.requests_changed())
-                {
+                if now >= last_start + min_gap && self.views.requests_changed(&self.writer) {
                     self.stats.ticks_on_request += 1;
                     break;
                 }
@@ -382,7 +370,7 @@ impl Runner {
                         // A command may be long (a view with grids of its own makes a mapping).
                         self.apply(cmd);
                         self.writer.alive();
-                        self.own.alive();
+                        self.views.alive();
                     }
                     Err(RecvTimeoutError::Timeout) => {}
                 }
@@ -402,244 +390,80 @@ impl Runner {
         // The service's mapping first: a reader that sees its view's own mapping closed then
         // finds the service closed (a stop), not the view's record live (docs/SHM.md).
         self.writer.close();
-        self.own.close_all();
+        self.views.close_all();
     }
 
     fn apply(&mut self, cmd: Command) {
         match cmd {
-            Command::Budget(ms, reply) => {
-                self.clipmap.set_budget_ns(ms.map(|ms| (ms * 1e6) as u64));
-                self.stats.budget_ms = ms;
-                tracing::info!(budget_ms = ?ms, "copy budget changed");
-                let _ = reply.send(match ms {
-                    Some(ms) => format!("budget {ms} ms"),
-                    None => "budget off".to_string(),
-                });
+            Command::Budget { ms, reply } => {
+                let _ = reply.send(self.set_budget(ms));
             }
-            Command::Border(b, reply) => {
-                self.clipmap.set_invalid_border(b);
-                let applied = self.clipmap.invalid_border();
-                tracing::info!(asked = b, applied, "invalid border changed");
-                let _ = reply.send(format!("border {applied}"));
+            Command::Border { texels, reply } => {
+                let _ = reply.send(self.set_border(texels));
             }
-            Command::Centre(c, reply) => {
-                let c = bounded_centre(c);
-                self.centre = c;
-                self.velocity = None;
-                self.stats.request_velocity = None;
-                self.stats.socket_centres += 1;
-                let _ = reply.send(format!("centre {} {}", c[0], c[1]));
+            Command::Centre { centre, reply } => {
+                let _ = reply.send(Reply::Centre(self.views.centre_primary(centre, &mut self.stats)));
             }
-            Command::ViewAdd(name, weight, own, reply) => {
-                let r = self.add_view(&name, weight, own);
-                if r.is_ok() {
-                    self.publish_views();
-                }
-                let _ = reply.send(r);
+            Command::View { view, reply } => {
+                let _ = reply.send(self.view_command(view));
             }
-            Command::ViewRemove(name, reply) => {
-                let r = match self.clipmap.view_named(&name).filter(|&id| id != PRIMARY) {
-                    None => Err(self.no_view(&name)),
-                    Some(id) => {
-                        self.view_state.remove(&id);
-                        // The record first (readers see the view removed), then its own mapping.
-                        let r = self.clipmap.remove_view(id);
-                        self.own.remove(&name);
-                        r.map(|()| format!("view {name} removed")).map_err(|e| e.to_string())
-                    }
-                };
-                if r.is_ok() {
-                    tracing::info!(view = %name, "view removed");
-                    self.publish_views();
-                }
-                let _ = reply.send(r);
-            }
-            Command::ViewCentre(name, c, reply) => {
-                let c = bounded_centre(c);
-                let r = match self.clipmap.view_named(&name) {
-                    None => Err(self.no_view(&name)),
-                    Some(PRIMARY) => {
-                        self.centre = c;
-                        self.velocity = None;
-                        self.stats.request_velocity = None;
-                        self.stats.socket_centres += 1;
-                        Ok(format!("view main centre {} {}", c[0], c[1]))
-                    }
-                    Some(_) if self.own.get(&name).is_some() => {
-                        let v = self.own.get_mut(&name).expect("looked up above");
-                        v.centre = c;
-                        v.velocity = None;
-                        self.stats.socket_centres += 1;
-                        Ok(format!("view {name} centre {} {}", c[0], c[1]))
-                    }
-                    Some(id) => {
-                        let st = self.view_state.entry(id).or_default();
-                        st.centre = Some(c);
-                        st.velocity = None;
-                        self.stats.socket_centres += 1;
-                        Ok(format!("view {name} centre {} {}", c[0], c[1]))
-                    }
-                };
-                let _ = reply.send(r);
-            }
-            Command::ViewWeight(name, w, reply) => {
-                let r = match self.clipmap.view_named(&name) {
-                    None => Err(self.no_view(&name)),
-                    Some(id) => self
-                        .clipmap
-                        .set_view_weight(id, w)
-                        .map(|()| format!("view {name} weight {w}"))
-                        .map_err(|e| e.to_string()),
-                };
-                if r.is_ok() {
-                    self.publish_views();
-                }
-                let _ = reply.send(r);
-            }
-            Command::ViewLod(name, offset, effective, reply) => {
-                let r = match self.clipmap.view_named(&name) {
-                    None => Err(self.no_view(&name)),
-                    Some(id) => {
-                        let lod = crate::clip::LodWindow { offset, effective: effective.unwrap_or(u32::MAX) };
-                        let (map, id) = match self.own.get_mut(&name) {
-                            Some(v) => (&mut v.clipmap, PRIMARY),
-                            None => (&mut self.clipmap, id),
-                        };
-                        map.set_view_lod(id, lod).map(|()| describe_lod(&name, lod)).map_err(|e| e.to_string())
-                    }
-                };
-                if r.is_ok() {
-                    self.publish_views();
-                }
-                let _ = reply.send(r);
-            }
-            Command::ViewHeight(name, height, pixel_angle, effective, reply) => {
-                let r = match self.clipmap.view_named(&name) {
-                    None => Err(self.no_view(&name)),
-                    Some(id) => {
-                        let req = crate::shm::writer::LodRequest {
-                            height,
-                            pixel_angle,
-                            effective: u64::from(effective),
-                            count: 0,
-                        };
-                        let (map, id) = match self.own.get_mut(&name) {
-                            Some(v) => (&mut v.clipmap, PRIMARY),
-                            None => (&mut self.clipmap, id),
-                        };
-                        apply_lod(map, id, &name, &req, &mut self.stats).map(|lod| describe_lod(&name, lod))
-                    }
-                };
-                if r.is_ok() {
-                    self.publish_views();
-                }
-                let _ = reply.send(r);
-            }
-            Command::Stop | Command::Publish(_) => {}
+            Command::Stop | Command::Publish { .. } => {}
         }
+    }
+
+    fn set_budget(&mut self, ms: Option<f64>) -> Reply {
+        self.clipmap.set_budget_ns(ms.map(|ms| (ms * 1e6) as u64));
+        self.stats.budget_ms = ms;
+        tracing::info!(budget_ms = ?ms, "copy budget changed");
+        Reply::Budget(ms)
+    }
+
+    fn set_border(&mut self, texels: u64) -> Reply {
+        self.clipmap.set_invalid_border(texels);
+        let applied = self.clipmap.invalid_border();
+        tracing::info!(asked = texels, applied, "invalid border changed");
+        Reply::Border(applied)
+    }
+
+    /// Carries out a `VIEW` command ([`Views::command`]). One that changes the views (all but a
+    /// centre) publishes their figures at once.
+    fn view_command(&mut self, cmd: ViewCommand) -> Result<Reply, Refusal> {
+        let changes_views = !matches!(cmd, ViewCommand::Centre { .. });
+        let r = self.views.command(&mut self.clipmap, &mut self.stats, cmd);
+        if r.is_ok() && changes_views {
+            self.publish_views();
+        }
+        r
     }
 
     /// Publishes the views' figures now, not at the next tick: `VIEWS` and `STATS` asked after a
     /// `VIEW ADD`, `REMOVE` or `WEIGHT` was answered show it (as the mapping already does).
     fn publish_views(&mut self) {
-        self.stats.views = self.view_stats();
+        self.stats.views = self.views.stats(&self.clipmap);
         self.stats_tx.send_replace(self.stats.clone());
     }
 
-    /// Adds a named view, centred where the primary is until it is told otherwise, in the shared
-    /// grids or (`own`) with grids of its own ([`super::own_views`]).
-    fn add_view(&mut self, name: &str, weight: f64, own: bool) -> Result<String, String> {
-        if own {
-            // Its own mapping first, then the record that sends readers there: a reader never
-            // finds the record without the mapping.
-            self.clipmap.check_new_name(name).map_err(|e| e.to_string())?;
-            self.own.add(name, self.centre)?;
-            if let Err(e) = self.clipmap.add_view_elsewhere(name, weight) {
-                self.own.remove(name);
-                return Err(e.to_string());
-            }
-            return Ok(format!("view {name} added, weight {weight}, grids of its own"));
-        }
-        let id = self.clipmap.add_named_view(name, weight).map_err(|e| e.to_string())?;
-        if let Some(e) = self.effective_levels {
-            let _ = self.clipmap.set_view_lod(id, crate::clip::LodWindow { offset: 0, effective: e });
-        }
-        self.view_state.insert(id, ViewState { centre: Some(self.centre), ..ViewState::default() });
-        tracing::info!(view = %name, weight, "view added");
-        Ok(format!("view {name} added, weight {weight}"))
-    }
-
-    /// The error for a view name no view has, naming those that exist.
-    fn no_view(&self, name: &str) -> String {
-        let names: Vec<&str> =
-            self.clipmap.view_ids().into_iter().filter_map(|id| self.clipmap.view_name(id)).collect();
-        format!("no view `{name}`: the views are {}", names.join(", "))
-    }
-
-    /// Takes each further view's request record (docs/SHM.md, "Asking for a view's centre"):
-    /// a new request for the view's current incarnation moves it.
-    fn take_view_requests(&mut self) {
-        let reqs = self.writer.view_requests();
-        let mut lods = Vec::new();
-        for (id, st) in self.view_state.iter_mut() {
-            let Some(req) = reqs.get(*id as usize - 1).copied().flatten() else { continue };
-            let incarnation = self.writer.memory().view_incarnation(*id as usize);
-            if Some(req.incarnation) != incarnation {
-                continue;
-            }
-            if req.count != st.last_request {
-                st.last_request = req.count;
-                st.centre = Some(req.centre);
-                st.velocity = velocity_per_tick(req.velocity, self.hz);
-            }
-            if let Some(lod) = req.lod.filter(|l| l.count != st.last_lod) {
-                st.last_lod = lod.count;
-                lods.push((*id, lod));
-            }
-        }
-        for (id, lod) in lods {
-            let name = self.clipmap.view_name(id).unwrap_or("?").to_string();
-            let _ = apply_lod(&mut self.clipmap, id, &name, &lod, &mut self.stats);
-        }
-    }
-
     fn tick(&mut self) {
-        if let Some(req) = self.writer.request() {
-            if req.count != self.last_request {
-                self.last_request = req.count;
-                self.centre = req.centre;
-                self.velocity = velocity_per_tick(req.velocity, self.hz);
-                self.stats.request_velocity = self.velocity;
-                self.stats.requests_seen = req.count;
-            }
-            if let Some(lod) = req.lod.filter(|l| l.count != self.last_lod) {
-                self.last_lod = lod.count;
-                let _ = apply_lod(&mut self.clipmap, PRIMARY, "main", &lod, &mut self.stats);
-            }
-        }
+        self.views.take_primary_request(&mut self.clipmap, &self.writer, self.hz, &mut self.stats);
         (self.stats.request_faults, self.stats.request_fault) = self.writer.request_faults();
         if let Some((served, _)) = &self.growing {
             let changed = served.take_changed(self.clipmap.desc());
             // Every clipmap reads the changed tiles again: the primary's and each own view's.
-            self.own.refresh(&changed);
+            self.views.refresh(&changed);
             self.clipmap.refresh(changed);
             if self.stats.engine.ticks.is_multiple_of(256) {
-                let (c, own) = (&self.clipmap, &self.own);
-                served.retain_partial(|t| c.holds(t) || own.holds(t));
+                let (c, views) = (&self.clipmap, &self.views);
+                served.retain_partial(|t| c.holds(t) || views.own_holds(t));
             }
         }
-        self.take_view_requests();
-        for (&id, st) in &self.view_state {
-            if let Some(c) = st.centre {
-                let _ = self.clipmap.move_view(id, c, st.velocity);
-            }
-        }
+        self.views.take_further_requests(&mut self.clipmap, &self.writer, self.hz, &mut self.stats);
         let t0 = Instant::now();
-        let report = self.clipmap.tick(self.centre, self.velocity);
-        // Alive after each clipmap's tick, not only after the whole tick (see `OwnViews::tick`).
+        let (centre, velocity) = self.views.primary_motion();
+        let report = self.clipmap.tick(centre, velocity);
+        // Alive after each clipmap's tick, not only after the whole tick (see `Views::tick_own`).
         self.writer.alive();
-        self.own.tick(&self.clipmap, &self.writer, self.hz, &mut self.stats);
-        self.stats.views = self.view_stats();
+        self.views.tick_own(&self.clipmap, &self.writer, self.hz, &mut self.stats);
+        self.stats.views = self.views.stats(&self.clipmap);
         if let Some((served, last)) = &mut self.growing {
             let (_, mut g) = served.growth();
             g.tiles_replaced = self.clipmap.stats().tiles_replaced;
@@ -659,7 +483,7 @@ impl Runner {
         s.invalid_border = self.clipmap.invalid_border();
         s.bytes_published = self.clipmap.stats().queue.bytes_read;
         s.publications = self.clipmap.stats().publications;
-        s.resident_bytes = self.clipmap.resident_bytes() + self.own.resident_bytes();
+        s.resident_bytes = self.clipmap.resident_bytes() + self.views.own_resident_bytes();
         s.valid = report.valid.iter().map(|r| [r.s0, r.t0, r.s1, r.t1]).collect();
         s.engine = self.clipmap.stats().clone();
         s.streams = self.clipmap.stream_stats();
@@ -672,43 +496,36 @@ impl Runner {
     }
 }
 
-impl Runner {
-    /// Each view's figures, the primary first.
-    fn view_stats(&self) -> Vec<super::stats::ViewStats> {
-        let main = &self.clipmap;
-        main.view_ids()
-            .into_iter()
-            .map(|vid| {
-                let name = main.view_name(vid).unwrap_or("").to_string();
-                // A view with grids of its own: its figures are its own clipmap's primary's.
-                let own = self.own.get(&name).filter(|_| main.view_elsewhere(vid));
-                let (m, id) = match own {
-                    Some(v) => (&v.clipmap, PRIMARY),
-                    None => (main, vid),
-                };
-                let levels = m.level_count();
-                let min_lod = m.view_min_lod(id).unwrap_or(levels as f64);
-                super::stats::ViewStats {
-                    name,
-                    grids: if own.is_some() { "own" } else { "shared" }.to_string(),
-                    shared_reads: own.map_or(0, |v| v.shared_reads()),
-                    weight: main.view_weight(vid).unwrap_or(1.0),
-                    centre: m.view_centre(id).ok().flatten(),
-                    min_lod,
-                    levels_disabled: (0..levels as u32).filter(|&k| ((k + 1) as f64) <= min_lod).count() as u64,
-                    lod_offset: m.view_lod(id).map_or(0, |l| l.offset),
-                    effective_levels: m
-                        .view_lod(id)
-                        .map_or(levels as u32, |l| l.effective.min(levels as u32 - l.offset.min(levels as u32))),
-                    resident_levels: m.view_resident_levels(id).unwrap_or_default(),
-                    valid: (0..levels as u32)
-                        .map(|k| m.view_level(id, k).map(|l| l.valid).unwrap_or(crate::geom::Rect::EMPTY))
-                        .map(|r| [r.s0, r.t0, r.s1, r.t1])
-                        .collect(),
-                }
-            })
-            .collect()
+/// The engine's settings for the service's options.
+fn engine_settings(source: &dyn TileSource, o: &Options) -> Settings {
+    let mut settings = Settings {
+        budget_ns: o.budget_ms.map(|ms| (ms * 1e6) as u64),
+        // One read queue per stream server the configuration names.
+        streams: source.stream_servers(),
+        centre_alignment: o.centre_alignment,
+        ..Settings::default().with_paging(&o.paging)
+    };
+    settings.view_spread = o.view_spread;
+    if o.growing.is_some() {
+        // A growing texture's tile without data is read again when data arrives for it
+        // (`Clipmap::refresh`), not on a timer.
+        settings.retry_after_ticks = u64::MAX / 4;
     }
+    settings
+}
+
+/// Refuses a clipmap whose mapping (of `shape`, with heights or not) could not be laid out, or
+/// would not fit the cache bound with the read pool.
+fn check_room(shape: &crate::shm::layout::Shape, heights: bool, settings: &Settings) -> Result<(), ServiceError> {
+    let placement = crate::shm::layout::place_with(shape, heights)
+        .and_then(|p| crate::shm::layout::with_views(p, crate::shm::layout::views::SERVICE_RECORDS))
+        .ok_or_else(|| crate::clip::ClipError::Memory(crate::shm::memory::shape_error(shape)))?;
+    let limit = settings.limits.cache_bytes as u64;
+    let needed = placement.total_bytes.saturating_add(settings.pool_bytes);
+    if needed > limit {
+        return Err(crate::clip::ClipError::CacheBytes { needed, limit }.into());
+    }
+    Ok(())
 }
 
 /// Logs each level whose paging reason differs from the one in `last` (one line a change, never
@@ -739,18 +556,10 @@ fn log_reason_changes(last: &mut Vec<Reason>, paging: &[LevelPaging], latency: f
     changed
 }
 
-/// The reply to `VIEW LOD`: the levels the view shows from the next tick.
-fn describe_lod(name: &str, lod: crate::clip::LodWindow) -> String {
-    if lod.effective == u32::MAX {
-        format!("view {name} lod offset {} effective all", lod.offset)
-    } else {
-        format!("view {name} lod offset {} effective {}", lod.offset, lod.effective)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::service::requests::velocity_per_tick;
 
     /// docs/SHM.md, "What the service does with a request": the velocity (level-0 texels per
     /// second) is divided by the tick rate and rounded to texels per tick (halves away from zero),
@@ -810,9 +619,11 @@ mod tests {
         assert_eq!(request([-10.0, 1.0]), Some([-3, 0]));
         assert_eq!(request([0.0, 0.0]), None);
         assert_eq!(request([40.0, 8.0]), Some([10, 2]));
-        let (tx, rx) = oneshot::channel();
-        ticker.send(Command::Centre([100, 100], tx)).unwrap();
-        assert_eq!(rx.blocking_recv().unwrap(), "centre 100 100");
+        let (reply, rx) = oneshot::channel();
+        ticker.send(Command::Centre { centre: [100, 100], reply }).unwrap();
+        let reply = rx.blocking_recv().unwrap();
+        assert_eq!(reply, Reply::Centre([100, 100]));
+        assert_eq!(super::super::protocol::render(&super::super::protocol::Answer::Done(reply)), "OK centre 100 100");
         let deadline = Instant::now() + Duration::from_secs(20);
         while ticker.stats().socket_centres == 0 {
             assert!(Instant::now() < deadline, "no tick published the CENTRE in 20 s");

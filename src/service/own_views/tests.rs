@@ -2,6 +2,7 @@
 //! texels the source serves, not those it copied from the primary's mapping before the primary
 //! read them again.
 
+use crate::service::protocol::ViewCommand;
 use crate::service::ticker::{Command, Ticker};
 use crate::service::Options;
 use crate::shm::Client;
@@ -112,10 +113,12 @@ fn own_view_refresh_keeps_replaced_source_version() {
     });
     let options = Options { shm_dir: dir.path().to_path_buf(), tick_hz: 30.0, ..Options::new("fresh") };
     let (ticker, _, join) = Ticker::start(src.clone(), &options).unwrap();
-    let r = ask(&ticker, |tx| Command::ViewAdd("far".into(), 1.0, true, tx));
+    let view = ViewCommand::Add { name: "far".into(), weight: 1.0, own: true };
+    let r = ask(&ticker, |reply| Command::View { view, reply });
     assert!(r.is_ok(), "{r:?}");
     // Near main, not on it: the coarse levels are the primary's tiles, the fine ones its own.
-    let r = ask(&ticker, |tx| Command::ViewCentre("far".into(), [4096 + 900, 4096 - 600], tx));
+    let view = ViewCommand::Centre { name: "far".into(), centre: [4096 + 900, 4096 - 600] };
+    let r = ask(&ticker, |reply| Command::View { view, reply });
     assert!(r.is_ok(), "{r:?}");
     let client = Client::attach_view(dir.path(), "fresh", "far").unwrap();
     let far = |t: &Ticker| t.stats().views.into_iter().find(|v| v.name == "far").unwrap();

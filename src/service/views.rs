@@ -1,0 +1,493 @@
+//! The service's views (docs/VIEWS.md): the primary (`main`, the clipmap's own centre) and the
+//! further ones, each one [`View`] whether its grids are the service's (shared) or its own
+//! ([`super::own_views`]). Everything a view is told arrives here: the socket's `CENTRE` and
+//! `VIEW` commands, and the renderers' requests in the request mappings (the service's request
+//! block for the primary, its request records for the further views, an own mapping's request
+//! block for a view with grids of its own).
+//!
+//! A view's published regions and LOD window are the engine's ([`Clipmap`]'s view of that id,
+//! in the clipmap that holds its grids): [`View::grids`] says which, and [`Views::stats`] reads
+//! them from there.
+
+use super::own_views::{OwnGrids, Setup};
+use super::protocol::{Refusal, Reply, ViewCommand};
+use super::requests::{apply_lod, bounded_centre, velocity_per_tick};
+use super::stats::{TickStats, ViewStats};
+use crate::clip::{Clipmap, LodWindow, ViewId, PRIMARY};
+use crate::shm::writer::LodRequest;
+use crate::shm::Writer;
+use crate::source::TileId;
+use std::collections::BTreeMap;
+
+/// Where a view's grids are.
+enum Grids {
+    /// The service's: the view is one of its clipmap's views.
+    Shared,
+    /// A clipmap and mapping of its own (docs/VIEWS.md, "Views far apart"); the service's
+    /// clipmap keeps its record only.
+    Own(Box<OwnGrids>),
+}
+
+/// One view of the service.
+pub(super) struct View {
+    /// Its id in the service's clipmap (the primary: [`PRIMARY`]).
+    id: ViewId,
+    /// Where it is asked to be, level-0 texels.
+    centre: [i64; 2],
+    /// Its velocity in texels a tick, from its last request (`None`: the engine follows the
+    /// centre's change).
+    velocity: Option<[i64; 2]>,
+    /// Its last request's count, as taken.
+    last_request: u64,
+    /// Its last LOD request's count, as taken.
+    last_lod: u64,
+    grids: Grids,
+}
+
+impl View {
+    fn new(id: ViewId, centre: [i64; 2], grids: Grids) -> View {
+        View { id, centre, velocity: None, last_request: 0, last_lod: 0, grids }
+    }
+
+    /// The clipmap that holds its grids (`shared`, the service's, or its own), and its id there.
+    fn grids<'a>(&'a mut self, shared: &'a mut Clipmap) -> (&'a mut Clipmap, ViewId) {
+        match &mut self.grids {
+            Grids::Own(g) => (&mut g.clipmap, PRIMARY),
+            Grids::Shared => (shared, self.id),
+        }
+    }
+
+    fn own(&self) -> Option<&OwnGrids> {
+        match &self.grids {
+            Grids::Own(g) => Some(g.as_ref()),
+            Grids::Shared => None,
+        }
+    }
+
+    /// Moved by the socket: its velocity is forgotten.
+    fn place(&mut self, centre: [i64; 2]) {
+        self.centre = centre;
+        self.velocity = None;
+    }
+
+    /// Takes a renderer's request (`count` made so far): a new one moves the view. Returns
+    /// whether it was new, and the LOD request if that is new.
+    fn take_request(
+        &mut self,
+        centre: [i64; 2],
+        velocity: [f64; 2],
+        count: u64,
+        lod: Option<LodRequest>,
+        hz: f64,
+    ) -> (bool, Option<LodRequest>) {
+        let new = count != self.last_request;
+        if new {
+            self.last_request = count;
+            self.centre = centre;
+            self.velocity = velocity_per_tick(velocity, hz);
+        }
+        let lod = lod.filter(|l| l.count != self.last_lod);
+        if let Some(l) = &lod {
+            self.last_lod = l.count;
+        }
+        (new, lod)
+    }
+}
+
+/// Every view of the service, by its id in the service's clipmap, the primary first.
+pub(super) struct Views {
+    views: BTreeMap<ViewId, View>,
+    /// What a view with grids of its own is made of.
+    setup: Setup,
+}
+
+impl Views {
+    /// The primary alone, at `centre`.
+    pub(super) fn new(setup: Setup, centre: [i64; 2]) -> Views {
+        Views { views: BTreeMap::from([(PRIMARY, View::new(PRIMARY, centre, Grids::Shared))]), setup }
+    }
+
+    /// The primary view.
+    pub(super) fn primary(&self) -> &View {
+        &self.views[&PRIMARY]
+    }
+
+    fn primary_mut(&mut self) -> &mut View {
+        self.views.get_mut(&PRIMARY).expect("the primary view is never removed")
+    }
+
+    /// The primary's centre and velocity, for the engine's tick.
+    pub(super) fn primary_motion(&self) -> ([i64; 2], Option<[i64; 2]>) {
+        let p = self.primary();
+        (p.centre, p.velocity)
+    }
+
+    /// Moves the primary (`CENTRE`, `VIEW CENTRE main`): bounded, without velocity. Returns the
+    /// centre the snapshot will publish.
+    pub(super) fn centre_primary(&mut self, centre: [i64; 2], stats: &mut TickStats) -> [i64; 2] {
+        let c = bounded_centre(centre);
+        self.primary_mut().place(c);
+        stats.request_velocity = None;
+        stats.socket_centres += 1;
+        c
+    }
+
+    /// Carries out a `VIEW` command on the views of `clipmap` (the service's).
+    pub(super) fn command(
+        &mut self,
+        clipmap: &mut Clipmap,
+        stats: &mut TickStats,
+        cmd: ViewCommand,
+    ) -> Result<Reply, Refusal> {
+        match cmd {
+            ViewCommand::Add { name, weight, own } => self.add(clipmap, &name, weight, own),
+            ViewCommand::Remove { name } => self.remove(clipmap, name),
+            ViewCommand::Centre { name, centre } => {
+                let id = named(clipmap, &name)?;
+                let centre = match id {
+                    PRIMARY => self.centre_primary(centre, stats),
+                    _ => {
+                        let c = bounded_centre(centre);
+                        self.get_mut(clipmap, id, &name)?.place(c);
+                        stats.socket_centres += 1;
+                        c
+                    }
+                };
+                Ok(Reply::ViewCentre { name, centre })
+            }
+            ViewCommand::Weight { name, weight } => {
+                clipmap.set_view_weight(named(clipmap, &name)?, weight)?;
+                Ok(Reply::ViewWeight { name, weight })
+            }
+            ViewCommand::Lod { name, offset, effective } => {
+                let lod = LodWindow { offset, effective: effective.unwrap_or(u32::MAX) };
+                let id = named(clipmap, &name)?;
+                let (map, id) = self.get_mut(clipmap, id, &name)?.grids(clipmap);
+                map.set_view_lod(id, lod)?;
+                Ok(Reply::ViewLod { name, lod })
+            }
+            ViewCommand::Height { name, height, pixel_angle, effective } => {
+                let req = LodRequest { height, pixel_angle, effective: u64::from(effective), count: 0 };
+                let id = named(clipmap, &name)?;
+                let (map, id) = self.get_mut(clipmap, id, &name)?.grids(clipmap);
+                let lod = apply_lod(map, id, &name, &req, stats)?;
+                Ok(Reply::ViewLod { name, lod })
+            }
+        }
+    }
+
+    /// View `id` (named `name` in `clipmap`).
+    fn get_mut(&mut self, clipmap: &Clipmap, id: ViewId, name: &str) -> Result<&mut View, Refusal> {
+        self.views.get_mut(&id).ok_or_else(|| no_view(clipmap, name))
+    }
+
+    /// Adds a named view to `clipmap` (the service's), centred where the primary is until it is
+    /// told otherwise, in the shared grids or (`own`) with grids of its own.
+    pub(super) fn add(&mut self, clipmap: &mut Clipmap, name: &str, weight: f64, own: bool) -> Result<Reply, Refusal> {
+        let centre = self.primary().centre;
+        let added = Reply::ViewAdded { name: name.to_string(), weight, own };
+        if own {
+            // Its own mapping first, then the record that sends readers there: a reader never
+            // finds the record without the mapping.
+            clipmap.check_new_name(name)?;
+            let grids = OwnGrids::new(&self.setup, name)?;
+            let id = match clipmap.add_view_elsewhere(name, weight) {
+                Ok(id) => id,
+                Err(e) => {
+                    grids.close();
+                    return Err(e.into());
+                }
+            };
+            self.views.insert(id, View::new(id, centre, Grids::Own(Box::new(grids))));
+            return Ok(added);
+        }
+        let id = clipmap.add_named_view(name, weight)?;
+        if let Some(e) = self.setup.effective_levels {
+            let _ = clipmap.set_view_lod(id, LodWindow { offset: 0, effective: e });
+        }
+        self.views.insert(id, View::new(id, centre, Grids::Shared));
+        tracing::info!(view = %name, weight, "view added");
+        Ok(added)
+    }
+
+    fn remove(&mut self, clipmap: &mut Clipmap, name: String) -> Result<Reply, Refusal> {
+        let id = clipmap.view_named(&name).filter(|&id| id != PRIMARY).ok_or_else(|| no_view(clipmap, &name))?;
+        let view = self.views.remove(&id);
+        // The record first (readers see the view removed), then its own mapping.
+        let removed = clipmap.remove_view(id);
+        if let Some(View { grids: Grids::Own(g), .. }) = view {
+            g.close();
+        }
+        removed?;
+        tracing::info!(view = %name, "view removed");
+        Ok(Reply::ViewRemoved { name })
+    }
+
+    /// Whether a renderer made a new request for the primary or a view with grids of its own
+    /// (the loop then ticks early).
+    pub(super) fn requests_changed(&self, service: &Writer) -> bool {
+        self.views.values().any(|v| match &v.grids {
+            Grids::Own(g) => g.writer.request_count() != v.last_request,
+            Grids::Shared => v.id == PRIMARY && service.request_count() != v.last_request,
+        })
+    }
+
+    /// Takes the newest request of the primary from the service's request block (`service`):
+    /// its centre, velocity and levels.
+    pub(super) fn take_primary_request(
+        &mut self,
+        clipmap: &mut Clipmap,
+        service: &Writer,
+        hz: f64,
+        stats: &mut TickStats,
+    ) {
+        let Some(req) = service.request() else { return };
+        let primary = self.primary_mut();
+        let (new, lod) = primary.take_request(req.centre, req.velocity, req.count, req.lod, hz);
+        if new {
+            stats.request_velocity = primary.velocity;
+            stats.requests_seen = req.count;
+        }
+        if let Some(lod) = lod {
+            let _ = apply_lod(clipmap, PRIMARY, crate::shm::layout::views::PRIMARY_NAME, &lod, stats);
+        }
+    }
+
+    /// Takes each further view's request record (docs/SHM.md, "Asking for a view's centre"):
+    /// a new request for the view's current incarnation moves it. Then moves every further view
+    /// of the shared grids where it is asked to be.
+    pub(super) fn take_further_requests(
+        &mut self,
+        clipmap: &mut Clipmap,
+        service: &Writer,
+        hz: f64,
+        stats: &mut TickStats,
+    ) {
+        let reqs = service.view_requests();
+        for (&id, v) in self.views.iter_mut().filter(|(_, v)| v.id != PRIMARY && v.own().is_none()) {
+            let Some(req) = reqs.get(id as usize - 1).copied().flatten() else { continue };
+            if Some(req.incarnation) != service.memory().view_incarnation(id as usize) {
+                continue;
+            }
+            if let (_, Some(lod)) = v.take_request(req.centre, req.velocity, req.count, req.lod, hz) {
+                let name = clipmap.view_name(id).unwrap_or("?").to_string();
+                let _ = apply_lod(clipmap, id, &name, &lod, stats);
+            }
+        }
+        for v in self.views.values().filter(|v| v.id != PRIMARY && v.own().is_none()) {
+            let _ = clipmap.move_view(v.id, v.centre, v.velocity);
+        }
+    }
+
+    /// One tick of every view with grids of its own, after the primary's (`primary`): first
+    /// what of the service's mapping may be taken now (the source version the primary
+    /// followed, the tiles it is still replacing), then for each view its newest request
+    /// (centre, velocity, levels), its engine's tick, its heartbeat.
+    ///
+    /// The service's mapping (`service`) says it is alive after each view's tick: a tick of
+    /// many views is many pieces of work, and its heartbeat time stands still for the longest
+    /// of them only.
+    pub(super) fn tick_own(&mut self, primary: &Clipmap, service: &Writer, hz: f64, stats: &mut TickStats) {
+        self.setup.fresh.set(primary.followed_version(), primary.tiles_being_replaced());
+        for v in self.views.values_mut() {
+            let Some(req) = v.own().map(|g| g.writer.request()) else { continue };
+            let lod = req.and_then(|r| v.take_request(r.centre, r.velocity, r.count, r.lod, hz).1);
+            let (id, centre, velocity) = (v.id, v.centre, v.velocity);
+            let Grids::Own(g) = &mut v.grids else { continue };
+            if let Some(lod) = lod {
+                let name = primary.view_name(id).unwrap_or("?").to_string();
+                let _ = apply_lod(&mut g.clipmap, PRIMARY, &name, &lod, stats);
+            }
+            g.clipmap.tick(centre, velocity);
+            g.writer.heartbeat();
+            service.alive();
+        }
+    }
+
+    /// The service's mapping is under its name `path` now: views added from now on take tiles
+    /// from it there (those added before keep the mapping they opened), and every own mapping's
+    /// heartbeat is beaten (its views may have been made a while before).
+    pub(super) fn published(&mut self, path: &std::path::Path) {
+        self.setup.main_mapping = path.to_path_buf();
+        self.own_grids().for_each(|g| g.writer.heartbeat());
+    }
+
+    fn own_grids(&self) -> impl Iterator<Item = &OwnGrids> {
+        self.views.values().filter_map(View::own)
+    }
+
+    /// Says that the source's texels of `tiles` changed (a growing texture's patch): every own
+    /// view reads those it holds again, as the primary does ([`Clipmap::refresh`]).
+    pub(super) fn refresh(&mut self, tiles: &[TileId]) {
+        for v in self.views.values_mut() {
+            if let Grids::Own(g) = &mut v.grids {
+                g.clipmap.refresh(tiles.iter().copied());
+            }
+        }
+    }
+
+    /// Whether any view with grids of its own holds `tile`.
+    pub(super) fn own_holds(&self, tile: TileId) -> bool {
+        self.own_grids().any(|g| g.clipmap.holds(tile))
+    }
+
+    /// Every own mapping says it is alive (after a long command: a view added).
+    pub(super) fn alive(&self) {
+        self.own_grids().for_each(|g| g.writer.alive());
+    }
+
+    /// Bytes of tiles the views with grids of their own hold.
+    pub(super) fn own_resident_bytes(&self) -> u64 {
+        self.own_grids().map(|g| g.clipmap.resident_bytes()).sum()
+    }
+
+    /// Closes every own mapping (the service stops).
+    pub(super) fn close_all(&mut self) {
+        for (_, v) in std::mem::take(&mut self.views) {
+            if let Grids::Own(g) = v.grids {
+                g.close();
+            }
+        }
+    }
+
+    /// Each view's figures, the primary first: a view with grids of its own's are its own
+    /// clipmap's primary's.
+    pub(super) fn stats(&self, main: &Clipmap) -> Vec<ViewStats> {
+        main.view_ids()
+            .into_iter()
+            .map(|vid| {
+                let own = self.views.get(&vid).and_then(View::own).filter(|_| main.view_elsewhere(vid));
+                let (m, id) = match own {
+                    Some(g) => (&g.clipmap, PRIMARY),
+                    None => (main, vid),
+                };
+                let levels = m.level_count();
+                let min_lod = m.view_min_lod(id).unwrap_or(levels as f64);
+                ViewStats {
+                    name: main.view_name(vid).unwrap_or("").to_string(),
+                    grids: if own.is_some() { "own" } else { "shared" }.to_string(),
+                    shared_reads: own.map_or(0, |g| g.shared_reads()),
+                    weight: main.view_weight(vid).unwrap_or(1.0),
+                    centre: m.view_centre(id).ok().flatten(),
+                    min_lod,
+                    levels_disabled: (0..levels as u32).filter(|&k| ((k + 1) as f64) <= min_lod).count() as u64,
+                    lod_offset: m.view_lod(id).map_or(0, |l| l.offset),
+                    effective_levels: m
+                        .view_lod(id)
+                        .map_or(levels as u32, |l| l.effective.min(levels as u32 - l.offset.min(levels as u32))),
+                    resident_levels: m.view_resident_levels(id).unwrap_or_default(),
+                    valid: (0..levels as u32)
+                        .map(|k| m.view_level(id, k).map(|l| l.valid).unwrap_or(crate::geom::Rect::EMPTY))
+                        .map(|r| [r.s0, r.t0, r.s1, r.t1])
+                        .collect(),
+                }
+            })
+            .collect()
+    }
+}
+
+/// The id of the view named `name` in `clipmap`.
+fn named(clipmap: &Clipmap, name: &str) -> Result<ViewId, Refusal> {
+    clipmap.view_named(name).ok_or_else(|| no_view(clipmap, name))
+}
+
+/// The refusal for a view name no view has, naming those that exist.
+fn no_view(clipmap: &Clipmap, name: &str) -> Refusal {
+    let views = clipmap.view_ids().into_iter().filter_map(|id| clipmap.view_name(id)).map(String::from);
+    Refusal::NoView { name: name.to_string(), views: views.collect() }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clip::Settings;
+    use crate::source::{HashSource, TextureDesc, TileSource};
+    use crate::texel::TexelFormat;
+    use std::sync::Arc;
+
+    /// A clipmap of the shared grids without a mapping, and its views (the primary at the
+    /// texture's middle).
+    fn shared(dir: &std::path::Path) -> (Clipmap, Views) {
+        let desc = TextureDesc::new([4096, 4096], 128, TexelFormat::RGBA8, [32, 32]).unwrap();
+        let source: Arc<dyn TileSource> = Arc::new(HashSource::new(desc));
+        let clipmap = Clipmap::new(Arc::clone(&source), Settings::default()).unwrap();
+        let setup = Setup {
+            source,
+            settings: Settings::default(),
+            dir: dir.to_path_buf(),
+            service: "views".into(),
+            shm_mode: 0o600,
+            request_mode: 0o600,
+            period_ns: 1_000_000,
+            heights: None,
+            effective_levels: None,
+            main_mapping: dir.join("clipmap-views.map"),
+            fresh: Default::default(),
+            generation: 1,
+        };
+        (clipmap, Views::new(setup, [2048, 2048]))
+    }
+
+    #[test]
+    fn a_request_moves_a_view_once_per_count_and_its_lod_request_is_taken_once_per_its_count() {
+        let mut v = View::new(1, [0, 0], Grids::Shared);
+        let lod = |count| Some(LodRequest { height: 100.0, pixel_angle: 0.001, effective: 0, count });
+        assert_eq!(v.take_request([10, 20], [120.0, -60.0], 1, None, 60.0), (true, None));
+        assert_eq!((v.centre, v.velocity), ([10, 20], Some([2, -1])));
+        assert_eq!(v.take_request([99, 99], [0.0, 0.0], 1, lod(1), 60.0), (false, lod(1)), "the same request again");
+        assert_eq!((v.centre, v.velocity), ([10, 20], Some([2, -1])), "not moved by a request already taken");
+        assert_eq!(v.take_request([99, 99], [0.0, 0.0], 1, lod(1), 60.0), (false, None), "a LOD request once");
+        assert_eq!(v.take_request([5, 6], [0.0, 0.0], 2, lod(1), 60.0), (true, None));
+        assert_eq!((v.centre, v.velocity), ([5, 6], None), "no velocity: the engine follows the centre");
+        v.velocity = Some([3, 3]);
+        v.place([7, 8]);
+        assert_eq!((v.centre, v.velocity), ([7, 8], None), "moved by the socket: the velocity is forgotten");
+    }
+
+    #[test]
+    fn view_commands_add_move_weight_set_levels_and_remove_views_and_an_unknown_name_is_told_the_views_there_are() {
+        let dir = tempfile::tempdir().unwrap();
+        let (mut clipmap, mut views) = shared(dir.path());
+        let mut stats = TickStats::default();
+        let mut run = |views: &mut Views, clipmap: &mut Clipmap, cmd| views.command(clipmap, &mut stats, cmd);
+        let add = ViewCommand::Add { name: "left".into(), weight: 2.0, own: false };
+        assert_eq!(
+            run(&mut views, &mut clipmap, add).unwrap(),
+            Reply::ViewAdded { name: "left".into(), weight: 2.0, own: false }
+        );
+        let id = clipmap.view_named("left").unwrap();
+        assert_eq!(views.views[&id].centre, [2048, 2048], "a new view starts where the primary is");
+        let far = crate::limits::MAX_CENTRE;
+        let centre = ViewCommand::Centre { name: "left".into(), centre: [i64::MAX, -5] };
+        assert_eq!(
+            run(&mut views, &mut clipmap, centre).unwrap(),
+            Reply::ViewCentre { name: "left".into(), centre: [far, -5] },
+            "bounded"
+        );
+        assert_eq!(views.views[&id].centre, [far, -5]);
+        let main = ViewCommand::Centre { name: "main".into(), centre: [100, 200] };
+        assert_eq!(
+            run(&mut views, &mut clipmap, main).unwrap(),
+            Reply::ViewCentre { name: "main".into(), centre: [100, 200] }
+        );
+        assert_eq!(views.primary_motion(), ([100, 200], None));
+        let weight = ViewCommand::Weight { name: "left".into(), weight: 0.5 };
+        assert_eq!(
+            run(&mut views, &mut clipmap, weight).unwrap(),
+            Reply::ViewWeight { name: "left".into(), weight: 0.5 }
+        );
+        assert_eq!(clipmap.view_weight(id).unwrap(), 0.5);
+        let lod = ViewCommand::Lod { name: "left".into(), offset: 1, effective: None };
+        let reply = run(&mut views, &mut clipmap, lod).unwrap();
+        assert_eq!(reply, Reply::ViewLod { name: "left".into(), lod: LodWindow { offset: 1, effective: u32::MAX } });
+        assert_eq!(clipmap.view_lod(id).unwrap().offset, 1);
+        let remove = || ViewCommand::Remove { name: "left".into() };
+        assert_eq!(run(&mut views, &mut clipmap, remove()).unwrap(), Reply::ViewRemoved { name: "left".into() });
+        assert!(!views.views.contains_key(&id) && clipmap.view_named("left").is_none());
+        let gone = run(&mut views, &mut clipmap, remove()).unwrap_err();
+        assert!(matches!(&gone, Refusal::NoView { name, views } if name == "left" && views == &["main"]), "{gone}");
+        let weight = ViewCommand::Weight { name: "left".into(), weight: 1.0 };
+        assert!(matches!(run(&mut views, &mut clipmap, weight), Err(Refusal::NoView { .. })));
+        assert_eq!(stats.socket_centres, 2);
+    }
+}
