@@ -16,7 +16,7 @@
 use super::stats::TickStats;
 use crate::clip::{Clipmap, LodWindow, Settings, PRIMARY};
 use crate::shm::layout::{self, views::own_mapping_name};
-use crate::shm::{Client, Freshness, FromMapping, Writer};
+use crate::shm::{Client, Freshness, FromMapping, Writer, WriterOptions};
 use crate::source::{TileId, TileSource};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -81,14 +81,11 @@ impl OwnViews {
         let own = own_mapping_name(&s.service, name);
         let shape = Clipmap::shape_for(s.source.desc(), &s.settings);
         let mut writer = Writer::prepare(
-            &s.dir,
-            &own,
-            shape,
-            s.source.desc().format(),
-            s.shm_mode,
-            s.request_mode,
-            s.period_ns,
-            s.heights,
+            WriterOptions::new(&s.dir, &own, shape, s.source.desc().format())
+                .mode(s.shm_mode)
+                .request_mode(s.request_mode)
+                .tick_period_ns(s.period_ns)
+                .heights(s.heights),
         )
         .map_err(|e| format!("view {name}: its own mapping {own}: {e}"))?;
         if let Err(e) = writer.adopt_generation(s.generation).and_then(|()| writer.publish()) {

@@ -28,7 +28,7 @@ mod tests;
 pub use client::{Client, LevelState, ReadError, Snapshot};
 pub use memory::{ImageMemory, Publication, PublishedLevel};
 pub use shared_reads::{Freshness, FromMapping};
-pub use writer::Writer;
+pub use writer::{Writer, WriterOptions};
 
 use std::path::{Path, PathBuf};
 

@@ -26,7 +26,7 @@ fn settings() -> Settings {
 /// A service's engine: its image caches in a mapping `name` in `dir`.
 fn service(dir: &Path, name: &str, source: Arc<dyn TileSource>) -> (Clipmap, Writer) {
     let shape = Clipmap::shape_for(source.desc(), &settings());
-    let w = Writer::create(dir, name, shape, source.desc().format(), 0o600, 0o600, 16_666_667, None).unwrap();
+    let w = Writer::create(WriterOptions::new(dir, name, shape, source.desc().format())).unwrap();
     let map = Clipmap::with_memory(source, settings(), w.memory()).unwrap();
     (map, w)
 }
@@ -267,7 +267,13 @@ fn a_region_across_tiles_and_the_toroidal_wrap_reads_equal_to_the_source() {
 fn the_mapping_is_owner_only_read_only_for_readers_and_the_name_is_exclusive() {
     let dir = tempfile::tempdir().unwrap();
     let shape = Clipmap::shape_for(&desc(1024, 64, 32), &settings());
-    let mk = || Writer::create(dir.path(), "excl", shape.clone(), TexelFormat::RGBA8, 0o640, 0o600, 1_000_000, None);
+    let mk = || {
+        Writer::create(
+            WriterOptions::new(dir.path(), "excl", shape.clone(), TexelFormat::RGBA8)
+                .mode(0o640)
+                .tick_period_ns(1_000_000),
+        )
+    };
     let first = mk().unwrap();
     let mode = |p: std::path::PathBuf| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
     assert_eq!(mode(map_path(dir.path(), "excl")), 0o640);
@@ -284,6 +290,55 @@ fn the_mapping_is_owner_only_read_only_for_readers_and_the_name_is_exclusive() {
     assert!(old.replaced(), "the old client must notice the new mapping");
     let new = Client::attach(dir.path(), "excl").unwrap();
     assert_ne!(new.generation, old.generation);
+}
+
+/// The names in a directory, sorted.
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> =
+        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn a_start_that_fails_part_way_leaves_nothing_of_its_own_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let shape = Clipmap::shape_for(&desc(1024, 64, 32), &settings());
+    let options = || WriterOptions::new(dir.path(), "part", shape.clone(), TexelFormat::RGBA8);
+    // Every temporary name of the texel mapping is taken: the start fails after it took the lock
+    // and put the request mapping in place.
+    let pid = std::process::id();
+    let taken: Vec<String> = (0..16).map(|n| format!(".clipmap-part.map.{pid}.{n}")).collect();
+    for t in &taken {
+        std::fs::write(dir.path().join(t), b"someone else's").unwrap();
+    }
+    let before = names_in(dir.path());
+    match Writer::create(options()) {
+        Err(ShmError::Io { path, .. }) => assert!(path.ends_with(&taken[15]), "{path:?}"),
+        other => panic!("expected the temporary name's error, got {other:?}"),
+    }
+    assert_eq!(names_in(dir.path()), before, "no lock file, request mapping or temporary is left");
+    for t in &taken {
+        assert_eq!(std::fs::read(dir.path().join(t)).unwrap(), b"someone else's", "{t} is not ours: left alone");
+    }
+    for t in &taken {
+        std::fs::remove_file(dir.path().join(t)).unwrap();
+    }
+    // The name is taken by something that is not a mapping of ours: publishing fails after the
+    // texel mapping was made, and that is removed too, the directory kept.
+    std::fs::create_dir(map_path(dir.path(), "part")).unwrap();
+    let before = names_in(dir.path());
+    match Writer::create(options()) {
+        Err(ShmError::Foreign { path, .. }) => assert_eq!(path, map_path(dir.path(), "part")),
+        other => panic!("expected the name's foreign file, got {other:?}"),
+    }
+    assert_eq!(names_in(dir.path()), before, "only the foreign directory is left");
+    // With the name free, the same start succeeds and is exclusive.
+    std::fs::remove_dir(map_path(dir.path(), "part")).unwrap();
+    let w = Writer::create(options()).unwrap();
+    assert_eq!(names_in(dir.path()), ["clipmap-part.lock", "clipmap-part.map", "clipmap-part.req"]);
+    w.close();
+    assert_eq!(names_in(dir.path()), Vec::<String>::new());
 }
 
 #[test]
@@ -940,7 +995,7 @@ fn height_service(dir: &Path, name: &str, size: u64, clip: u64, tile: u64) -> (C
     let source: Arc<dyn TileSource> = Arc::new(crate::source::HeightSource::new(d, HeightFormat::VERIFICATION));
     let shape = Clipmap::shape_for(source.desc(), &settings());
     let heights = Some(layout::Heights::of(&HeightFormat::VERIFICATION, LevelRule::Mean));
-    let w = Writer::create(dir, name, shape, TexelFormat::L32F, 0o600, 0o600, 16_666_667, heights).unwrap();
+    let w = Writer::create(WriterOptions::new(dir, name, shape, TexelFormat::L32F).heights(heights)).unwrap();
     let map = Clipmap::with_memory(source, settings(), w.memory()).unwrap();
     (map, w)
 }
