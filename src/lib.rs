@@ -22,7 +22,7 @@
 //! | [`paging`] | paging policies: where each grid's spare tiles go (ring, direction), and a second-level tile pool with its eviction (LRU, shift) |
 //! | [`cache`] | per-level toroidal tile grids (mem regions) under a hard byte budget |
 //! | [`clip`] | per-level toroidal windows, the update tick, load control (min LOD), statistics |
-//! | [`shm`] | the shared-memory layout, writer and client (the only `unsafe` code) |
+//! | [`shm`] | the shared-memory layout, writer and client (the `clipmap-shm` crate, re-exported; the only `unsafe` code), and the engine's reads from a mapping |
 //! | [`service`] | the `clipmapd` service: tick loop thread, control socket, statistics, demo |
 //! | [`sample`] | reference point / bilinear / trilinear sampling of the full mipmap and the clipmap |
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
@@ -45,6 +45,9 @@
 
 #![deny(unsafe_code)]
 
+// The ground floor, a crate of its own (`clipmap-base`), under its old paths.
+pub use clipmap_base::{geom, height, limits, open, save, sizing, texel, tile};
+
 pub mod accuracy;
 pub mod cache;
 #[cfg(feature = "cli")]
@@ -52,12 +55,8 @@ pub mod cli;
 pub mod clip;
 pub mod config;
 pub mod demo;
-pub mod geom;
 pub mod growing;
-pub mod height;
 pub mod inspect;
-pub mod limits;
-pub mod open;
 pub mod paging;
 pub mod place;
 pub mod plan;
@@ -67,10 +66,6 @@ pub mod report;
 pub mod roam;
 pub mod runtime;
 pub mod sample;
-pub mod save;
 pub mod service;
 pub mod shm;
-pub mod sizing;
 pub mod source;
-pub mod texel;
-pub mod tile;

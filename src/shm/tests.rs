@@ -64,12 +64,13 @@ fn tiles_under_published(c: &Client) -> Vec<(usize, u64, u64)> {
             for s in tiles.s0..tiles.s1 {
                 let slot = layout::slot_index(d.grid, [s, t]);
                 let b = (d.tags + slot * layout::TAG_BYTES as u64) as usize;
-                let seq = c.region.load(b + layout::tag::SEQ, Ordering::Acquire);
+                let seq = c.raw_region().load(b + layout::tag::SEQ, Ordering::Acquire);
                 let tile = [
-                    c.region.load(b + layout::tag::TILE_S, Ordering::Relaxed) as i64,
-                    c.region.load(b + layout::tag::TILE_T, Ordering::Relaxed) as i64,
+                    c.raw_region().load(b + layout::tag::TILE_S, Ordering::Relaxed) as i64,
+                    c.raw_region().load(b + layout::tag::TILE_T, Ordering::Relaxed) as i64,
                 ];
-                let state = layout::SlotState::from_code(c.region.load(b + layout::tag::STATE, Ordering::Relaxed));
+                let state =
+                    layout::SlotState::from_code(c.raw_region().load(b + layout::tag::STATE, Ordering::Relaxed));
                 assert_eq!(seq % 2, 0, "level {k} slot {slot}: tag being written under a published region");
                 assert_eq!(tile, [s, t], "level {k}: the slot of tile ({s}, {t}) holds another tile");
                 assert!(state.is_some_and(|x| x.settled()), "level {k} tile ({s}, {t}) is {state:?}");
@@ -106,7 +107,7 @@ fn after_any_walk_every_tile_under_a_published_region_is_settled_and_untouched_u
             .iter()
             .map(|&(k, slot, _)| {
                 let d = c.levels[k];
-                c.region.load((d.tags + slot * layout::TAG_BYTES as u64) as usize, Ordering::Acquire)
+                c.raw_region().load((d.tags + slot * layout::TAG_BYTES as u64) as usize, Ordering::Acquire)
             })
             .collect();
         for (&(k, slot, seq), now) in before.iter().zip(after) {
@@ -154,7 +155,7 @@ proptest::proptest! {
             }
             for &(k, slot, seq) in &before {
                 let d = c.levels[k];
-                let now = c.region.load((d.tags + slot * layout::TAG_BYTES as u64) as usize, Ordering::Acquire);
+                let now = c.raw_region().load((d.tags + slot * layout::TAG_BYTES as u64) as usize, Ordering::Acquire);
                 proptest::prop_assert_eq!(seq, now, "level {} slot {} changed under its publication", k, slot);
             }
         }
@@ -539,7 +540,7 @@ fn a_renderer_request_reaches_the_writer_and_a_dead_renderer_does_not_silence_th
     assert!(c.request_centre([7, 8], [0.0, 0.0]));
     let r = w.request().unwrap();
     assert_eq!(r.centre, [7, 8]);
-    let seq = c.request.as_ref().unwrap().load(layout::request::SEQ, Ordering::Acquire);
+    let seq = c.raw_request().unwrap().load(layout::request::SEQ, Ordering::Acquire);
     assert_eq!(seq, 5 << 32, "taken over from epoch 3 to 4, then the request: epoch 5; never backwards");
     w.close();
     assert!(c.closed());
@@ -584,7 +585,7 @@ fn a_stalled_renderer_holding_the_request_lock_is_never_overruled_so_no_request_
     let (_map, w) = hash_service(dir.path(), "stall", 1024, 64, 32);
     let c = Client::attach(dir.path(), "stall").unwrap();
     assert!(c.request_centre([1, 2], [0.0, 0.0]));
-    let r = c.request.as_ref().unwrap();
+    let r = c.raw_request().unwrap();
     let q = layout::request::SEQ;
     // A renderer (alive: this process) takes the lock word and stalls half way through its
     // stores, far longer than the 100 ms after which a dead renderer's lock is taken over.
@@ -930,7 +931,7 @@ fn a_counter_held_odd_costs_64_paused_attempts_and_then_busy_never_an_endless_sp
         map.wait_for_reads();
     }
     let memory = w.memory();
-    let r = memory.region();
+    let r = memory.raw_region();
     let hold = |at: usize| {
         let seq = r.load(at, Ordering::Relaxed);
         assert_eq!(seq % 2, 0);

@@ -7,7 +7,7 @@ use super::layout::{self, header, request, Placement, Shape};
 use super::memory::{shape_error, ImageMemory};
 use super::raw::Region;
 use super::{check_name, io, lock_path, map_path, names, request_path, ShmError};
-use crate::texel::TexelFormat;
+use clipmap_base::texel::TexelFormat;
 use std::fs::File;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
@@ -96,7 +96,7 @@ pub struct Writer {
 
 /// A renderer's request for a further view's centre, as read from its request record.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct ViewRequest {
+pub struct ViewRequest {
     /// Level-0 centre.
     pub centre: [i64; 2],
     /// Velocity, level-0 texels per second.
@@ -313,7 +313,7 @@ impl Writer {
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_nanos() as u64)
             .unwrap_or(0);
-        let generation = crate::source::procedural::splitmix64(nanos ^ ((std::process::id() as u64) << 40));
+        let generation = clipmap_base::tile::splitmix64(nanos ^ ((std::process::id() as u64) << 40));
 
         // The request mapping first: once the texel mapping appears, its companion is there.
         // The service never maps it: it reads it with `pread` (see `request`), so a writer of
@@ -414,11 +414,11 @@ impl Writer {
     }
 
     /// Where every level lies.
-    pub(crate) fn placement(&self) -> &Placement {
+    pub fn placement(&self) -> &Placement {
         self.memory.placement()
     }
 
-    /// The mapping as the engine's image caches ([`crate::clip::Clipmap::with_memory`]): tiles are
+    /// The mapping as the engine's image caches (`clipmap::clip::Clipmap::with_memory`): tiles are
     /// read straight into their slots, where renderers read them.
     pub fn memory(&self) -> Arc<ImageMemory> {
         Arc::clone(&self.memory)
@@ -441,7 +441,7 @@ impl Writer {
     /// How many requests renderers have made so far (one 8-byte `pread`: cheap enough to poll
     /// while waiting for the next tick). The value only says whether to tick early; the request
     /// itself is read consistently by [`request`](Self::request).
-    pub(crate) fn request_count(&self) -> u64 {
+    pub fn request_count(&self) -> u64 {
         let mut b = [0u8; 8];
         match self.requests.read_at(&mut b, request::COUNT as u64) {
             Ok(8) => u64::from_le_bytes(b),
@@ -492,7 +492,7 @@ impl Writer {
     /// Each view request record's latest consistent request (docs/SHM.md, "Asking for a view's
     /// centre"), in record order (`None`: no request yet, or it was being written both times it
     /// was read). Read with `pread`, twice, as [`request`](Self::request) reads the main one.
-    pub(crate) fn view_requests(&self) -> Vec<Option<ViewRequest>> {
+    pub fn view_requests(&self) -> Vec<Option<ViewRequest>> {
         use layout::views as v;
         let n = (self.memory.placement().view_records as usize).min(v::MAX_REQUEST_RECORDS);
         let mut a = [0u8; layout::REQUEST_BYTES as usize];
@@ -601,7 +601,7 @@ impl Writer {
 /// no live process publishes are removed, and only regular files of this user; anything else is
 /// left alone. Call it while holding the service's own lock, before adding views. Returns the
 /// views whose files were removed.
-pub(crate) fn remove_dead_own_mappings(dir: &Path, service: &str) -> Vec<String> {
+pub fn remove_dead_own_mappings(dir: &Path, service: &str) -> Vec<String> {
     let prefix = format!("clipmap-{service}@");
     let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
     let mut removed = Vec::new();
@@ -711,7 +711,7 @@ fn held(lock: &File, path: &Path, name: &str) -> ShmError {
 /// How long a mapping's heartbeat may stand still while its writer still counts as running, at
 /// least: a live service's heartbeat has been seen to pause for a quarter of a second, and one
 /// ticking slowly beats once a period (ten periods are allowed when that is longer).
-pub(crate) const LIVE_HEARTBEAT_MS: u64 = 10_000;
+pub const LIVE_HEARTBEAT_MS: u64 = 10_000;
 
 /// The process id of a service that still publishes the mapping at `path`: a regular file of
 /// this user with this layout's magic, not marked closed, whose writer (not this process) is a
