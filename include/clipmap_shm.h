@@ -556,7 +556,7 @@ static inline int clipmap_check_heights_(struct clipmap_map *m, const char *path
         CLIPMAP_REFUSE("heights block, byte %zu (scale): l32f stores metres: found scale %g, offset %g, expected 1 and 0",
                        b + CLIPMAP_HT_SCALE, scale, offset);
     if (f != CLIPMAP_FORMAT_L32F) {
-        /* What HeightFormat::new refuses (src/height.rs): heights past 10,000 km from zero, and
+        /* What HeightFormat::new refuses (crates/clipmap-base/src/height.rs): heights past 10,000 km from zero, and
          * steps too fine to be told apart at the heights' distance from zero. */
         double lo = f == CLIPMAP_FORMAT_L16 ? 0.0 : -32768.0, hi = f == CLIPMAP_FORMAT_L16 ? 65535.0 : 32767.0;
         double m_lo = lo * scale + offset, m_hi = hi * scale + offset;

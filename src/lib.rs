@@ -25,7 +25,7 @@
 //! | [`paging`] | paging policies: where each grid's spare tiles go (adaptive, the default; ring, direction, ahead), and how the second-level tile pool evicts (LRU, the default; shift) |
 //! | [`cache`] | per-level toroidal grids of slots (mem regions): which tile each slot of the mapping holds |
 //! | [`clip`] | the engine: per-level windows, the update tick, load control (min LOD), adaptive paging, views, statistics |
-//! | [`shm`] | the shared-memory layout (layout 2: the image caches themselves), the slots' memory and claims, writer and client (the only `unsafe` code) |
+//! | [`shm`] | the shared-memory layout (layout 2: the image caches themselves), the slots' memory and claims, writer and client (the `clipmap-shm` crate, re-exported; the only `unsafe` code), and the engine's reads from a mapping |
 //! | [`service`] | the `clipmapd` service: tick loop thread, control socket, statistics, views with grids of their own, a growing texture's patches |
 //! | [`sample`] | reference point / bilinear / trilinear sampling of the full mipmap and the clipmap |
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
@@ -48,6 +48,9 @@
 
 #![deny(unsafe_code)]
 
+// The ground floor, a crate of its own (`clipmap-base`), under its old paths.
+pub use clipmap_base::{geom, height, limits, open, save, sizing, texel, tile};
+
 pub mod accuracy;
 pub mod cache;
 #[cfg(feature = "cli")]
@@ -55,12 +58,8 @@ pub mod cli;
 pub mod clip;
 pub mod config;
 pub mod demo;
-pub mod geom;
 pub mod growing;
-pub mod height;
 pub mod inspect;
-pub mod limits;
-pub mod open;
 pub mod paging;
 pub mod place;
 pub mod plan;
@@ -70,10 +69,6 @@ pub mod report;
 pub mod roam;
 pub mod runtime;
 pub mod sample;
-pub mod save;
 pub mod service;
 pub mod shm;
-pub mod sizing;
 pub mod source;
-pub mod texel;
-pub mod tile;

@@ -793,7 +793,7 @@ class Mapping:
             raise Refused(f"{at(HT_SCALE, 'scale')}: l32f stores metres: found scale {scale}, offset {offset}, "
                           f"expected 1 and 0")
         if storage != "l32f":
-            # What HeightFormat::new refuses (src/height.rs): heights past 10,000 km from zero, and
+            # What HeightFormat::new refuses (crates/clipmap-base/src/height.rs): heights past 10,000 km from zero, and
             # steps too fine to be told apart at the heights' distance from zero.
             lo, hi = (0, 65535) if storage == "l16" else (-32768, 32767)
             m_lo, m_hi = lo * scale + offset, hi * scale + offset

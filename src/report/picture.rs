@@ -314,9 +314,10 @@ mod tests {
         let source: std::sync::Arc<dyn TileSource> = std::sync::Arc::new(HashSource::new(desc));
         let settings = Settings { budget_ns: None, fade_ticks: 1, ..Settings::default() };
         let shape = Clipmap::shape_for(source.desc(), &settings);
-        let w =
-            crate::shm::Writer::create(dir.path(), "npot", shape, TexelFormat::RGBA8, 0o600, 0o600, 1_000_000, None)
-                .unwrap();
+        let w = crate::shm::Writer::create(
+            crate::shm::WriterOptions::new(dir.path(), "npot", shape, TexelFormat::RGBA8).tick_period_ns(1_000_000),
+        )
+        .unwrap();
         let mut map = Clipmap::with_memory(source, settings, w.memory()).unwrap();
         for _ in 0..10 {
             map.tick([300, 100], None);

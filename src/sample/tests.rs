@@ -103,7 +103,7 @@ fn mapped_service(dir: &std::path::Path, name: &str) -> (Clipmap, crate::shm::Wr
     let source: Arc<dyn TileSource> = Arc::new(HashSource::new(mapped_desc()));
     let shape = Clipmap::shape_for(source.desc(), &settings);
     let w =
-        crate::shm::Writer::create(dir, name, shape, source.desc().format(), 0o600, 0o600, 16_666_667, None).unwrap();
+        crate::shm::Writer::create(crate::shm::WriterOptions::new(dir, name, shape, source.desc().format())).unwrap();
     let map = Clipmap::with_memory(source, settings, w.memory()).unwrap();
     (map, w)
 }
@@ -154,8 +154,10 @@ fn a_missing_tile_in_the_mapping_is_sampled_from_the_next_level_its_neighbours_n
     let faulty = Arc::new(FaultySource::new(Arc::new(HashSource::new(mapped_desc()))));
     faulty.add(FaultRule::tile(crate::source::TileId::new(0, 63, 63), Fault::Missing));
     let shape = Clipmap::shape_for(faulty.desc(), &settings);
-    let w = crate::shm::Writer::create(dir.path(), "hole", shape, TexelFormat::RGBA8, 0o600, 0o600, 1_000_000, None)
-        .unwrap();
+    let w = crate::shm::Writer::create(
+        crate::shm::WriterOptions::new(dir.path(), "hole", shape, TexelFormat::RGBA8).tick_period_ns(1_000_000),
+    )
+    .unwrap();
     let mut map = Clipmap::with_memory(faulty, settings, w.memory()).unwrap();
     for _ in 0..10 {
         map.tick([2040, 2040], None);
@@ -495,9 +497,10 @@ fn the_clipmap_and_the_mapping_sample_heights_exactly_as_the_full_mipmap() {
     let settings = Settings { budget_ns: None, fade_ticks: 1, ..Settings::default() };
     let shape = Clipmap::shape_for(source.desc(), &settings);
     let heights = source.heights().map(|h| crate::shm::layout::Heights::of(&h.format, h.levels));
-    let w =
-        crate::shm::Writer::create(dir.path(), "hts", shape, source.desc().format(), 0o600, 0o600, 16_666_667, heights)
-            .unwrap();
+    let w = crate::shm::Writer::create(
+        crate::shm::WriterOptions::new(dir.path(), "hts", shape, source.desc().format()).heights(heights),
+    )
+    .unwrap();
     let mut map = Clipmap::with_memory(source.clone(), settings, w.memory()).unwrap();
     let client = Client::attach(dir.path(), "hts").unwrap();
     let mut full = MipmapSampler::new(source.as_ref());

@@ -17,7 +17,7 @@
 use super::protocol::Refusal;
 use crate::clip::{Clipmap, LodWindow, Settings, PRIMARY};
 use crate::shm::layout::{self, views::own_mapping_name};
-use crate::shm::{Client, Freshness, FromMapping, Writer};
+use crate::shm::{Client, Freshness, FromMapping, Writer, WriterOptions};
 use crate::source::TileSource;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -62,14 +62,11 @@ impl OwnGrids {
         let own = own_mapping_name(&s.service, name);
         let shape = Clipmap::shape_for(s.source.desc(), &s.settings);
         let mut writer = Writer::prepare(
-            &s.dir,
-            &own,
-            shape,
-            s.source.desc().format(),
-            s.shm_mode,
-            s.request_mode,
-            s.period_ns,
-            s.heights,
+            WriterOptions::new(&s.dir, &own, shape, s.source.desc().format())
+                .mode(s.shm_mode)
+                .request_mode(s.request_mode)
+                .tick_period_ns(s.period_ns)
+                .heights(s.heights),
         )
         .map_err(|source| Refusal::OwnMapping { name: name.to_string(), mapping: own.clone(), source })?;
         if let Err(source) = writer.adopt_generation(s.generation).and_then(|()| writer.publish()) {

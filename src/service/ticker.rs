@@ -17,7 +17,7 @@ use super::views::Views;
 use super::{Options, ServiceError};
 use crate::clip::{Clipmap, Settings, PRIMARY};
 use crate::paging::adaptive::{LevelPaging, Reason};
-use crate::shm::Writer;
+use crate::shm::{Writer, WriterOptions};
 use crate::source::TileSource;
 use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::Arc;
@@ -225,8 +225,13 @@ impl Runner {
         let request_mode = o.request_mode.unwrap_or(o.shm_mode);
         // Published once the views are in it (`Runner::publish`): a reader that finds the mapping
         // finds the command line's views.
-        let writer =
-            Writer::prepare(&o.shm_dir, &o.name, shape, desc.format(), o.shm_mode, request_mode, period_ns, heights)?;
+        let writer = Writer::prepare(
+            WriterOptions::new(&o.shm_dir, &o.name, shape, desc.format())
+                .mode(o.shm_mode)
+                .request_mode(request_mode)
+                .tick_period_ns(period_ns)
+                .heights(heights),
+        )?;
         let setup = Setup {
             source: Arc::clone(&source),
             // An own view's grids hold that view alone: never widened for others.

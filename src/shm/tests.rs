@@ -26,7 +26,7 @@ fn settings() -> Settings {
 /// A service's engine: its image caches in a mapping `name` in `dir`.
 fn service(dir: &Path, name: &str, source: Arc<dyn TileSource>) -> (Clipmap, Writer) {
     let shape = Clipmap::shape_for(source.desc(), &settings());
-    let w = Writer::create(dir, name, shape, source.desc().format(), 0o600, 0o600, 16_666_667, None).unwrap();
+    let w = Writer::create(WriterOptions::new(dir, name, shape, source.desc().format())).unwrap();
     let map = Clipmap::with_memory(source, settings(), w.memory()).unwrap();
     (map, w)
 }
@@ -64,12 +64,13 @@ fn tiles_under_published(c: &Client) -> Vec<(usize, u64, u64)> {
             for s in tiles.s0..tiles.s1 {
                 let slot = layout::slot_index(d.grid, [s, t]);
                 let b = (d.tags + slot * layout::TAG_BYTES as u64) as usize;
-                let seq = c.region.load(b + layout::tag::SEQ, Ordering::Acquire);
+                let seq = c.raw_region().load(b + layout::tag::SEQ, Ordering::Acquire);
                 let tile = [
-                    c.region.load(b + layout::tag::TILE_S, Ordering::Relaxed) as i64,
-                    c.region.load(b + layout::tag::TILE_T, Ordering::Relaxed) as i64,
+                    c.raw_region().load(b + layout::tag::TILE_S, Ordering::Relaxed) as i64,
+                    c.raw_region().load(b + layout::tag::TILE_T, Ordering::Relaxed) as i64,
                 ];
-                let state = layout::SlotState::from_code(c.region.load(b + layout::tag::STATE, Ordering::Relaxed));
+                let state =
+                    layout::SlotState::from_code(c.raw_region().load(b + layout::tag::STATE, Ordering::Relaxed));
                 assert_eq!(seq % 2, 0, "level {k} slot {slot}: tag being written under a published region");
                 assert_eq!(tile, [s, t], "level {k}: the slot of tile ({s}, {t}) holds another tile");
                 assert!(state.is_some_and(|x| x.settled()), "level {k} tile ({s}, {t}) is {state:?}");
@@ -106,7 +107,7 @@ fn after_any_walk_every_tile_under_a_published_region_is_settled_and_untouched_u
             .iter()
             .map(|&(k, slot, _)| {
                 let d = c.levels[k];
-                c.region.load((d.tags + slot * layout::TAG_BYTES as u64) as usize, Ordering::Acquire)
+                c.raw_region().load((d.tags + slot * layout::TAG_BYTES as u64) as usize, Ordering::Acquire)
             })
             .collect();
         for (&(k, slot, seq), now) in before.iter().zip(after) {
@@ -154,7 +155,7 @@ proptest::proptest! {
             }
             for &(k, slot, seq) in &before {
                 let d = c.levels[k];
-                let now = c.region.load((d.tags + slot * layout::TAG_BYTES as u64) as usize, Ordering::Acquire);
+                let now = c.raw_region().load((d.tags + slot * layout::TAG_BYTES as u64) as usize, Ordering::Acquire);
                 proptest::prop_assert_eq!(seq, now, "level {} slot {} changed under its publication", k, slot);
             }
         }
@@ -267,7 +268,13 @@ fn a_region_across_tiles_and_the_toroidal_wrap_reads_equal_to_the_source() {
 fn the_mapping_is_owner_only_read_only_for_readers_and_the_name_is_exclusive() {
     let dir = tempfile::tempdir().unwrap();
     let shape = Clipmap::shape_for(&desc(1024, 64, 32), &settings());
-    let mk = || Writer::create(dir.path(), "excl", shape.clone(), TexelFormat::RGBA8, 0o640, 0o600, 1_000_000, None);
+    let mk = || {
+        Writer::create(
+            WriterOptions::new(dir.path(), "excl", shape.clone(), TexelFormat::RGBA8)
+                .mode(0o640)
+                .tick_period_ns(1_000_000),
+        )
+    };
     let first = mk().unwrap();
     let mode = |p: std::path::PathBuf| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
     assert_eq!(mode(map_path(dir.path(), "excl")), 0o640);
@@ -284,6 +291,55 @@ fn the_mapping_is_owner_only_read_only_for_readers_and_the_name_is_exclusive() {
     assert!(old.replaced(), "the old client must notice the new mapping");
     let new = Client::attach(dir.path(), "excl").unwrap();
     assert_ne!(new.generation, old.generation);
+}
+
+/// The names in a directory, sorted.
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> =
+        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn a_start_that_fails_part_way_leaves_nothing_of_its_own_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let shape = Clipmap::shape_for(&desc(1024, 64, 32), &settings());
+    let options = || WriterOptions::new(dir.path(), "part", shape.clone(), TexelFormat::RGBA8);
+    // Every temporary name of the texel mapping is taken: the start fails after it took the lock
+    // and put the request mapping in place.
+    let pid = std::process::id();
+    let taken: Vec<String> = (0..16).map(|n| format!(".clipmap-part.map.{pid}.{n}")).collect();
+    for t in &taken {
+        std::fs::write(dir.path().join(t), b"someone else's").unwrap();
+    }
+    let before = names_in(dir.path());
+    match Writer::create(options()) {
+        Err(ShmError::Io { path, .. }) => assert!(path.ends_with(&taken[15]), "{path:?}"),
+        other => panic!("expected the temporary name's error, got {other:?}"),
+    }
+    assert_eq!(names_in(dir.path()), before, "no lock file, request mapping or temporary is left");
+    for t in &taken {
+        assert_eq!(std::fs::read(dir.path().join(t)).unwrap(), b"someone else's", "{t} is not ours: left alone");
+    }
+    for t in &taken {
+        std::fs::remove_file(dir.path().join(t)).unwrap();
+    }
+    // The name is taken by something that is not a mapping of ours: publishing fails after the
+    // texel mapping was made, and that is removed too, the directory kept.
+    std::fs::create_dir(map_path(dir.path(), "part")).unwrap();
+    let before = names_in(dir.path());
+    match Writer::create(options()) {
+        Err(ShmError::Foreign { path, .. }) => assert_eq!(path, map_path(dir.path(), "part")),
+        other => panic!("expected the name's foreign file, got {other:?}"),
+    }
+    assert_eq!(names_in(dir.path()), before, "only the foreign directory is left");
+    // With the name free, the same start succeeds and is exclusive.
+    std::fs::remove_dir(map_path(dir.path(), "part")).unwrap();
+    let w = Writer::create(options()).unwrap();
+    assert_eq!(names_in(dir.path()), ["clipmap-part.lock", "clipmap-part.map", "clipmap-part.req"]);
+    w.close();
+    assert_eq!(names_in(dir.path()), Vec::<String>::new());
 }
 
 #[test]
@@ -484,7 +540,7 @@ fn a_renderer_request_reaches_the_writer_and_a_dead_renderer_does_not_silence_th
     assert!(c.request_centre([7, 8], [0.0, 0.0]));
     let r = w.request().unwrap();
     assert_eq!(r.centre, [7, 8]);
-    let seq = c.request.as_ref().unwrap().load(layout::request::SEQ, Ordering::Acquire);
+    let seq = c.raw_request().unwrap().load(layout::request::SEQ, Ordering::Acquire);
     assert_eq!(seq, 5 << 32, "taken over from epoch 3 to 4, then the request: epoch 5; never backwards");
     w.close();
     assert!(c.closed());
@@ -529,7 +585,7 @@ fn a_stalled_renderer_holding_the_request_lock_is_never_overruled_so_no_request_
     let (_map, w) = hash_service(dir.path(), "stall", 1024, 64, 32);
     let c = Client::attach(dir.path(), "stall").unwrap();
     assert!(c.request_centre([1, 2], [0.0, 0.0]));
-    let r = c.request.as_ref().unwrap();
+    let r = c.raw_request().unwrap();
     let q = layout::request::SEQ;
     // A renderer (alive: this process) takes the lock word and stalls half way through its
     // stores, far longer than the 100 ms after which a dead renderer's lock is taken over.
@@ -875,7 +931,7 @@ fn a_counter_held_odd_costs_64_paused_attempts_and_then_busy_never_an_endless_sp
         map.wait_for_reads();
     }
     let memory = w.memory();
-    let r = memory.region();
+    let r = memory.raw_region();
     let hold = |at: usize| {
         let seq = r.load(at, Ordering::Relaxed);
         assert_eq!(seq % 2, 0);
@@ -940,7 +996,7 @@ fn height_service(dir: &Path, name: &str, size: u64, clip: u64, tile: u64) -> (C
     let source: Arc<dyn TileSource> = Arc::new(crate::source::HeightSource::new(d, HeightFormat::VERIFICATION));
     let shape = Clipmap::shape_for(source.desc(), &settings());
     let heights = Some(layout::Heights::of(&HeightFormat::VERIFICATION, LevelRule::Mean));
-    let w = Writer::create(dir, name, shape, TexelFormat::L32F, 0o600, 0o600, 16_666_667, heights).unwrap();
+    let w = Writer::create(WriterOptions::new(dir, name, shape, TexelFormat::L32F).heights(heights)).unwrap();
     let map = Clipmap::with_memory(source, settings(), w.memory()).unwrap();
     (map, w)
 }

@@ -2,7 +2,7 @@
 //! engine, without the service around them).
 
 use clipmap::clip::{Clipmap, Settings};
-use clipmap::shm::Writer;
+use clipmap::shm::{Writer, WriterOptions};
 use clipmap::source::{HashSource, TextureDesc};
 use clipmap::texel::TexelFormat;
 use std::process::Command;
@@ -21,7 +21,7 @@ fn attach_once_json_reports_every_level_as_published() {
         TextureDesc::new([4096, 4096], 256, TexelFormat::RGBA8, [64, 64]).unwrap().with_invalid_border(8).unwrap();
     let settings = Settings { budget_ns: None, ..Settings::default() };
     let shape = Clipmap::shape_for(&desc, &settings);
-    let writer = Writer::create(dir.path(), "att", shape, desc.format(), 0o600, 0o600, 16_666_667, None).unwrap();
+    let writer = Writer::create(WriterOptions::new(dir.path(), "att", shape, desc.format())).unwrap();
     let mut map = Clipmap::with_memory(Arc::new(HashSource::new(desc)), settings, writer.memory()).unwrap();
     for _ in 0..6 {
         map.tick([1000, 3000], None);
@@ -90,7 +90,7 @@ fn published(dir: &std::path::Path, name: &str) -> (Writer, Vec<u8>) {
         TextureDesc::new([1024, 1024], 128, TexelFormat::RGBA8, [64, 64]).unwrap().with_invalid_border(4).unwrap();
     let settings = Settings { budget_ns: None, ..Settings::default() };
     let shape = Clipmap::shape_for(&desc, &settings);
-    let writer = Writer::create(dir, name, shape, desc.format(), 0o600, 0o600, 16_666_667, None).unwrap();
+    let writer = Writer::create(WriterOptions::new(dir, name, shape, desc.format())).unwrap();
     let mut map = Clipmap::with_memory(Arc::new(HashSource::new(desc)), settings, writer.memory()).unwrap();
     for _ in 0..10 {
         map.tick([500, 500], None);

@@ -23,7 +23,7 @@ fn level_ic_named_dev_zero_was_read_without_a_size_limit() {
     let t = Instant::now();
     let l = plan::load_clip_texture(&fx.path("z.ct"), &o).unwrap();
     assert!(t.elapsed() < Duration::from_secs(10));
-    // A device is refused before anything is read (src/open.rs: regular files only).
+    // A device is refused before anything is read (crates/clipmap-base/src/open.rs: regular files only).
     let x = find(&l.diagnostics, "icache-file-unreadable");
     assert_eq!(x.severity, Severity::Error);
     assert!(x.message.contains("a character device, not a regular file"), "{}", x.message);

@@ -64,7 +64,7 @@ use anyhow::Context;
 use clipmap::clip::{Clipmap, Settings, ViewId, PRIMARY};
 use clipmap::geom::{aligned_centre, tex_region, tiles_covering};
 use clipmap::paging::{EvictionKind, PrefetchKind};
-use clipmap::shm::{Client, FromMapping, Writer};
+use clipmap::shm::{Client, FromMapping, Writer, WriterOptions};
 use clipmap::source::{HashSource, PoolSource, TextureDesc, ThrottledSource, TileSource};
 use clipmap::texel::TexelFormat;
 use clipmap::tile::TileId;
@@ -347,7 +347,7 @@ impl Mapped {
         let dir = std::env::temp_dir().join(format!("clipbench-views-{}-{n}", std::process::id()));
         std::fs::create_dir_all(&dir).with_context(|| format!("{}", dir.display()))?;
         let shape = Clipmap::shape_for(d, s);
-        let writer = Writer::create(&dir, "view0", shape, d.format(), 0o600, 0o600, 1_000_000, None)
+        let writer = Writer::create(WriterOptions::new(&dir, "view0", shape, d.format()).tick_period_ns(1_000_000))
             .with_context(|| format!("view 0's mapping in {}", dir.display()));
         match writer {
             Ok(w) => Ok(Mapped { dir, writer: Some(w) }),

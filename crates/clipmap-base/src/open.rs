@@ -13,7 +13,7 @@
 //! file whole without a bound.
 //!
 //! What a file holds is left to the callers; names in shared directories (the service's mapping,
-//! lock and socket) are [`crate::shm::names`]'s business: those are never followed at all.
+//! lock and socket) are `clipmap::shm::names`'s business: those are never followed at all.
 
 use rustix::fs::OFlags;
 use std::fs::{File, Metadata, OpenOptions};
@@ -22,7 +22,7 @@ use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::Path;
 
 /// What a file that is not a regular file is, in words ("a FIFO", "a directory", ...).
-pub(crate) fn kind_of(meta: &Metadata) -> &'static str {
+pub fn kind_of(meta: &Metadata) -> &'static str {
     let t = meta.file_type();
     if t.is_file() {
         "a regular file"
@@ -44,7 +44,7 @@ pub(crate) fn kind_of(meta: &Metadata) -> &'static str {
 }
 
 /// The error for a file that is not a regular file (kind [`io::ErrorKind::InvalidInput`]).
-pub(crate) fn not_regular(meta: &Metadata) -> io::Error {
+pub fn not_regular(meta: &Metadata) -> io::Error {
     io::Error::new(io::ErrorKind::InvalidInput, format!("{}, not a regular file", kind_of(meta)))
 }
 
@@ -54,7 +54,7 @@ const PSEUDO_FILESYSTEMS: [(i64, &str); 4] =
     [(0x9fa0, "proc (/proc)"), (0x6265_6572, "sysfs (/sys)"), (0x6462_6720, "debugfs"), (0x7472_6163, "tracefs")];
 
 /// The name of the kernel pseudo-filesystem `file` lives on, if it does.
-pub(crate) fn pseudo_filesystem(file: &File) -> io::Result<Option<&'static str>> {
+pub fn pseudo_filesystem(file: &File) -> io::Result<Option<&'static str>> {
     let st = rustix::fs::fstatfs(file)?;
     // The field is a C long on most targets and an unsigned 32-bit number on a few.
     #[allow(clippy::unnecessary_cast)]
@@ -63,7 +63,7 @@ pub(crate) fn pseudo_filesystem(file: &File) -> io::Result<Option<&'static str>>
 }
 
 /// The error for a file of a kernel pseudo-filesystem (kind [`io::ErrorKind::InvalidInput`]).
-pub(crate) fn not_data(filesystem: &str) -> io::Error {
+pub fn not_data(filesystem: &str) -> io::Error {
     io::Error::new(
         io::ErrorKind::InvalidInput,
         format!(
@@ -108,7 +108,7 @@ pub fn regular_or_absent(path: &Path) -> io::Result<()> {
 
 /// Reads at most `max + 1` bytes of the regular file `path`, so that a caller can tell a file
 /// longer than `max` (it then has more than `max` bytes) without reading it whole.
-pub(crate) fn read_bounded(path: &Path, max: u64) -> io::Result<Vec<u8>> {
+pub fn read_bounded(path: &Path, max: u64) -> io::Result<Vec<u8>> {
     let (file, meta) = regular(path)?;
     let mut buf = Vec::with_capacity(meta.len().min(max.saturating_add(1)).min(1 << 20) as usize);
     file.take(max.saturating_add(1)).read_to_end(&mut buf)?;
@@ -118,7 +118,7 @@ pub(crate) fn read_bounded(path: &Path, max: u64) -> io::Result<Vec<u8>> {
 /// Reads the regular file `path` when its length is one of `allowed`; any other length is an
 /// error of kind [`io::ErrorKind::InvalidData`] that gives it (`len` bytes), and nothing is read.
 /// Allocates no more than the largest allowed length.
-pub(crate) fn read_sized(path: &Path, allowed: &[u64]) -> Result<Vec<u8>, SizedError> {
+pub fn read_sized(path: &Path, allowed: &[u64]) -> Result<Vec<u8>, SizedError> {
     let (file, meta) = regular(path).map_err(SizedError::Io)?;
     let len = meta.len();
     if !allowed.contains(&len) {
@@ -136,13 +136,13 @@ pub(crate) fn read_sized(path: &Path, allowed: &[u64]) -> Result<Vec<u8>, SizedE
 /// from its length ([`SizedError::Length`]) before anything is read, so a sparse file of
 /// gigabytes costs nothing; a file that grows while it is read is cut at `max + 1` bytes and
 /// refused the same way. Allocates no more than the file's length (at most `max + 1` bytes).
-pub(crate) fn read_capped(path: &Path, max: u64) -> Result<Vec<u8>, SizedError> {
+pub fn read_capped(path: &Path, max: u64) -> Result<Vec<u8>, SizedError> {
     let (file, meta) = regular(path).map_err(SizedError::Io)?;
     read_open_capped(file, &meta, max)
 }
 
 /// [`read_capped`] for a file already opened with [`regular`] or [`regular_in`].
-pub(crate) fn read_open_capped(file: File, meta: &Metadata, max: u64) -> Result<Vec<u8>, SizedError> {
+pub fn read_open_capped(file: File, meta: &Metadata, max: u64) -> Result<Vec<u8>, SizedError> {
     if meta.len() > max {
         return Err(SizedError::Length(meta.len()));
     }
@@ -160,7 +160,7 @@ pub(crate) fn read_open_capped(file: File, meta: &Metadata, max: u64) -> Result<
 /// relative to the one before). `dir` itself is opened as given. Never blocks on a FIFO or a
 /// device: those, directories, sockets and links are refused with an error that says what the
 /// component is.
-pub(crate) fn regular_in(dir: &Path, name: &Path) -> io::Result<(File, Metadata)> {
+pub fn regular_in(dir: &Path, name: &Path) -> io::Result<(File, Metadata)> {
     use rustix::fs::{openat, Mode, CWD};
     use std::path::Component;
     let parts: Vec<&std::ffi::OsStr> = name

@@ -1,5 +1,5 @@
 //! Verification of a mapping against a texel oracle (for the hash texture, docs/ARCHITECTURE.md
-//! §11, the caller passes `crate::source::procedural::hash`): read random blocks of texels inside
+//! §11, the caller passes `clipmap::source::procedural::hash`): read random blocks of texels inside
 //! the published valid regions and check every texel against the oracle.
 //!
 //! Used by `clipmap-read` and the tests; the C and Python readers do the same from the
@@ -92,7 +92,7 @@ impl HashCheck {
         let t0 = v[1] + (next(rng) % (vh - h + 1)) as i64;
         let bpt = client.bytes_per_texel;
         buf.resize((w * h) as usize * bpt, 0);
-        let rect = crate::geom::Rect::new(s0, t0, s0 + w as i64, t0 + h as i64);
+        let rect = clipmap_base::geom::Rect::new(s0, t0, s0 + w as i64, t0 + h as i64);
         match client.read_region_in(&snap, level, rect, buf) {
             Ok(()) => {}
             Err(ReadError::Busy(_)) => {

@@ -10,7 +10,7 @@
 //! All integers are little-endian. Every field the writer changes while readers run is 8 bytes,
 //! naturally aligned, and accessed atomically.
 
-use crate::geom::{tiles_in_level, Rect};
+use clipmap_base::geom::{tiles_in_level, Rect};
 
 /// Magic bytes at offset 0 of the texel mapping.
 pub const MAGIC: [u8; 8] = *b"CLIPMAP2";
@@ -102,7 +102,7 @@ pub mod heights {
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Heights {
     /// How the heights are stored (from the texel format code: 11 `l32f`, 7 `l16`, 12 `l16i`).
-    pub storage: crate::height::HeightStorage,
+    pub storage: clipmap_base::height::HeightStorage,
     /// Metres of one stored step.
     pub scale: f64,
     /// Metres of a stored 0.
@@ -110,12 +110,12 @@ pub struct Heights {
     /// The stored value that marks a texel without data (`None`: every texel has data).
     pub nodata: Option<f64>,
     /// How each coarser level is made from the finer one.
-    pub levels: crate::height::LevelRule,
+    pub levels: clipmap_base::height::LevelRule,
 }
 
 impl Heights {
     /// The block's values of a height format and level rule.
-    pub fn of(format: &crate::height::HeightFormat, levels: crate::height::LevelRule) -> Heights {
+    pub fn of(format: &clipmap_base::height::HeightFormat, levels: clipmap_base::height::LevelRule) -> Heights {
         Heights {
             storage: format.storage(),
             scale: format.scale(),
@@ -126,8 +126,8 @@ impl Heights {
     }
 
     /// The height format the block describes.
-    pub fn format(&self) -> crate::height::HeightFormat {
-        crate::height::HeightFormat::new(self.storage, self.scale, self.offset, self.nodata)
+    pub fn format(&self) -> clipmap_base::height::HeightFormat {
+        clipmap_base::height::HeightFormat::new(self.storage, self.scale, self.offset, self.nodata)
             .expect("checked by check_heights or made from a HeightFormat")
     }
 }
@@ -151,7 +151,7 @@ pub struct HeightsBlock {
 /// heights), `Ok(Some)` for a height texture whose values a writer of this layout writes, and
 /// `Err` saying where (the byte offset and field), what was found and what was expected.
 pub fn check_heights(format_code: u32, b: &HeightsBlock) -> Result<Option<Heights>, String> {
-    use crate::height::{HeightError, HeightFormat, HeightStorage};
+    use clipmap_base::height::{HeightError, HeightFormat, HeightStorage};
     let at = |field: usize, name: &str| format!("heights block, byte {} ({name})", header::HEIGHTS + field);
     match b.is_heights {
         0 => {
@@ -214,14 +214,14 @@ pub fn check_heights(format_code: u32, b: &HeightsBlock) -> Result<Option<Height
     }
 }
 
-/// The heights block's code of a level rule (its place in [`crate::height::LevelRule::ALL`]).
-pub fn rule_code(rule: crate::height::LevelRule) -> u32 {
-    crate::height::LevelRule::ALL.iter().position(|r| *r == rule).unwrap_or(0) as u32
+/// The heights block's code of a level rule (its place in [`clipmap_base::height::LevelRule::ALL`]).
+pub fn rule_code(rule: clipmap_base::height::LevelRule) -> u32 {
+    clipmap_base::height::LevelRule::ALL.iter().position(|r| *r == rule).unwrap_or(0) as u32
 }
 
 /// The level rule of a heights block code; `None` for a code no writer writes.
-pub fn rule_from_code(code: u32) -> Option<crate::height::LevelRule> {
-    crate::height::LevelRule::ALL.get(code as usize).copied()
+pub fn rule_from_code(code: u32) -> Option<clipmap_base::height::LevelRule> {
+    clipmap_base::height::LevelRule::ALL.get(code as usize).copied()
 }
 
 /// Bytes of the growth block.
@@ -405,7 +405,7 @@ pub enum SlotState {
 
 impl SlotState {
     /// The state of a tag's `STATE` value (`None` for a value no writer writes).
-    pub(crate) fn from_code(code: u64) -> Option<SlotState> {
+    pub fn from_code(code: u64) -> Option<SlotState> {
         [SlotState::Empty, SlotState::Loading, SlotState::Ready, SlotState::Missing, SlotState::Default]
             .into_iter()
             .find(|s| *s as u64 == code)
@@ -447,7 +447,7 @@ pub mod views {
     pub const MAX_RECORDS: usize = 64;
     /// Records the service's mappings have: one per further view the engine keeps.
     pub const SERVICE_RECORDS: usize = 15;
-    const _: () = assert!(SERVICE_RECORDS == crate::limits::MAX_VIEWS - 1);
+    const _: () = assert!(SERVICE_RECORDS == clipmap_base::limits::MAX_VIEWS - 1);
     /// Most bytes of a view's name (NUL-padded to [`NAME_BYTES`]).
     pub const MAX_NAME: usize = 31;
     /// The name of the primary view.
@@ -633,8 +633,8 @@ pub mod request_lock {
 }
 
 /// Texel format codes in the header.
-pub fn format_code(f: crate::texel::TexelFormat) -> u32 {
-    use crate::texel::TexelFormat as F;
+pub fn format_code(f: clipmap_base::texel::TexelFormat) -> u32 {
+    use clipmap_base::texel::TexelFormat as F;
     match f {
         x if x == F::L8 => 1,
         x if x == F::RGB8 => 3,
@@ -652,8 +652,8 @@ pub fn format_code(f: crate::texel::TexelFormat) -> u32 {
 }
 
 /// The texel format of a `TEXEL_FORMAT` code; `None` for 0 (other) or an unknown code.
-pub fn format_from_code(code: u32) -> Option<crate::texel::TexelFormat> {
-    use crate::texel::TexelFormat as F;
+pub fn format_from_code(code: u32) -> Option<clipmap_base::texel::TexelFormat> {
+    use clipmap_base::texel::TexelFormat as F;
     [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16, F::L32F, F::L16I]
         .into_iter()
         .find(|&f| format_code(f) == code)
@@ -700,17 +700,17 @@ pub struct LevelPlace {
 
 impl LevelPlace {
     /// Byte offset of slot `index`.
-    pub(crate) fn slot_offset(&self, index: u64) -> u64 {
+    pub fn slot_offset(&self, index: u64) -> u64 {
         self.slots + index * self.slot_bytes
     }
 
     /// Byte offset of slot `index`'s tag.
-    pub(crate) fn tag_offset(&self, index: u64) -> u64 {
+    pub fn tag_offset(&self, index: u64) -> u64 {
         self.tags + index * TAG_BYTES as u64
     }
 
     /// Byte offset of slot `index`'s tile range entry (`None`: the level has no ranges).
-    pub(crate) fn range_offset(&self, index: u64) -> Option<u64> {
+    pub fn range_offset(&self, index: u64) -> Option<u64> {
         (self.ranges != 0).then(|| self.ranges + index * RANGE_BYTES as u64)
     }
 }
@@ -744,7 +744,7 @@ pub fn slot_index(grid: [u64; 2], tile: [i64; 2]) -> u64 {
 
 /// Whether a level's static description is one a writer of this layout makes: non-zero tiles, a grid no larger than the level's tiles and large enough for a window
 /// of the clip size at any alignment, and a pyramid level (no larger than the clip size) whole. `Err` says what is wrong.
-pub(crate) fn check_level(l: &LevelShape, clip: u64, bpt: u64) -> Result<(), String> {
+pub fn check_level(l: &LevelShape, clip: u64, bpt: u64) -> Result<(), String> {
     let [w, h] = l.size;
     if w == 0 || h == 0 || l.tile[0] == 0 || l.tile[1] == 0 || l.grid[0] == 0 || l.grid[1] == 0 {
         return Err(format!("a zero size: level {w}x{h}, tile {:?}, grid {:?}", l.tile, l.grid));
@@ -838,7 +838,7 @@ pub(crate) fn check_region(l: &LevelShape, r: [i64; 4]) -> Result<Rect, String> 
         ));
     }
     let rect = Rect::new(s0, t0, s1, t1);
-    let tiles = crate::geom::tiles_covering(rect, l.tile);
+    let tiles = clipmap_base::geom::tiles_covering(rect, l.tile);
     if tiles.width() > l.grid[0] || tiles.height() > l.grid[1] {
         return Err(format!(
             "valid region {r:?} spans {}x{} tiles, more than the {:?} grid holds",
@@ -853,10 +853,10 @@ pub(crate) fn check_region(l: &LevelShape, r: [i64; 4]) -> Result<Rect, String> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geom::mem_grid;
+    use clipmap_base::geom::mem_grid;
 
     fn shape(size: u64, clip: u64, tile: u64, bpt: u64) -> Shape {
-        let levels = (0..crate::source::level_count([size, size]))
+        let levels = (0..clipmap_base::tile::level_count([size, size]))
             .map(|k| {
                 let s = (size >> k).max(1);
                 let t = if s <= clip { s } else { tile.min(s) };
@@ -922,7 +922,7 @@ mod tests {
 
     #[test]
     fn the_heights_block_round_trips_and_every_bad_value_is_refused_with_its_place() {
-        use crate::height::{HeightFormat, HeightStorage, LevelRule};
+        use clipmap_base::height::{HeightFormat, HeightStorage, LevelRule};
         const { assert!(header::HEIGHTS == 6464 && header::END <= 8192) };
         let block = |h: &Heights| HeightsBlock {
             is_heights: 1,

@@ -5,7 +5,7 @@
 //! docs/PERFORMER-REFERENCE.md §2.2), the valid region (tex region less the invalid border), toroidal addressing,
 //! and the mem region (the tile grid covering the tex region plus `lookahead` tiles, docs/ARCHITECTURE.md §3).
 //! Everything here is a synchronous function of its arguments; holding tiles and texels is left
-//! to [`crate::cache`] and [`crate::clip`].
+//! to `clipmap::cache` and `clipmap::clip`.
 //!
 //! Bounds: level sizes are at most 2^26 and clip sizes at most 2^26, so every coordinate a
 //! window can take fits in an `i64` with room to spare; arbitrary (even extreme) centres are
@@ -69,7 +69,7 @@ impl Rect {
     }
 
     /// Whether `other` lies entirely inside (an empty `other` always does).
-    pub(crate) fn contains_rect(&self, other: &Rect) -> bool {
+    pub fn contains_rect(&self, other: &Rect) -> bool {
         other.is_empty() || (other.s0 >= self.s0 && other.s1 <= self.s1 && other.t0 >= self.t0 && other.t1 <= self.t1)
     }
 
@@ -154,7 +154,7 @@ pub fn effective_size(clip: u64, border: u64) -> u64 {
 }
 
 /// Tiles along each axis of a level.
-pub(crate) fn tiles_in_level(size: [u64; 2], tile: [u64; 2]) -> [u64; 2] {
+pub fn tiles_in_level(size: [u64; 2], tile: [u64; 2]) -> [u64; 2] {
     [size[0].div_ceil(tile[0]), size[1].div_ceil(tile[1])]
 }
 
@@ -182,7 +182,7 @@ pub fn tile_texels(size: [u64; 2], tile: [u64; 2], st: [u64; 2]) -> Rect {
 /// Edge of the mem region in tiles per axis: enough tiles to cover the tex region at any
 /// alignment plus `lookahead`, never more than the level has (docs/ARCHITECTURE.md §3: clip 1024, 256-texel
 /// tiles, lookahead 1 → 6 x 6).
-pub(crate) fn mem_grid(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64) -> [u64; 2] {
+pub fn mem_grid(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64) -> [u64; 2] {
     let n = tiles_in_level(size, tile);
     let axis = |a: usize| (clip.min(size[a]).div_ceil(tile[a]) + 1 + lookahead).min(n[a]);
     [axis(0), axis(1)]
@@ -213,13 +213,7 @@ pub fn mem_region(size: [u64; 2], tile: [u64; 2], grid: [u64; 2], tex: Rect, vel
 /// The mem grid a level uses: `configured` (a configuration's mem region) raised, per axis, to
 /// the minimum that covers the tex region at any alignment (`mem_grid` with lookahead 0) and
 /// never more than the level has; without one, [`mem_grid`] with `lookahead`.
-pub(crate) fn level_grid(
-    size: [u64; 2],
-    tile: [u64; 2],
-    clip: u64,
-    lookahead: u64,
-    configured: Option<[u64; 2]>,
-) -> [u64; 2] {
+pub fn level_grid(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64, configured: Option<[u64; 2]>) -> [u64; 2] {
     match configured {
         None => mem_grid(size, tile, clip, lookahead),
         Some(g) => {

@@ -9,7 +9,7 @@
 //! otherwise refused with [`ShmError::Foreign`], which names the file, what it is and its owner;
 //! a name is removed only when it still is the very file (device and inode) this process made.
 //!
-//! Opening configuration files and tiles is [`crate::open`]'s business.
+//! Opening configuration files and tiles is [`clipmap_base::open`]'s business.
 
 use super::ShmError;
 use rustix::fs::OFlags;
@@ -19,13 +19,13 @@ use std::os::unix::fs::{MetadataExt, OpenOptionsExt, PermissionsExt};
 use std::path::Path;
 
 /// This process's effective user id.
-pub(crate) fn euid() -> u32 {
+pub fn euid() -> u32 {
     rustix::process::geteuid().as_raw()
 }
 
 /// A user id in words: `uid 1001 (alice)`, the name from `/etc/passwd` when it is there.
 pub fn owner(uid: u32) -> String {
-    let name = crate::open::read_bounded(Path::new("/etc/passwd"), 1 << 20).ok().and_then(|b| {
+    let name = clipmap_base::open::read_bounded(Path::new("/etc/passwd"), 1 << 20).ok().and_then(|b| {
         String::from_utf8_lossy(&b).lines().find_map(|l| {
             let mut f = l.split(':');
             let (name, _, id) = (f.next()?, f.next()?, f.next()?);
@@ -53,7 +53,7 @@ impl Identity {
 }
 
 fn foreign(path: &Path, meta: &Metadata, what: &str) -> ShmError {
-    let kind = crate::open::kind_of(meta);
+    let kind = clipmap_base::open::kind_of(meta);
     ShmError::Foreign { path: path.to_path_buf(), why: format!("it is {kind} owned by {}, {what}", owner(meta.uid())) }
 }
 
@@ -135,7 +135,7 @@ pub(crate) fn open_own(path: &Path) -> Result<File, ShmError> {
 
 /// Removes `path` only if it still is the file `id` (this process's): a name someone else has
 /// taken since is left alone.
-pub(crate) fn remove_if_same(path: &Path, id: Identity) {
+pub fn remove_if_same(path: &Path, id: Identity) {
     if let Ok(m) = std::fs::symlink_metadata(path) {
         if Identity::of(&m) == id {
             let _ = std::fs::remove_file(path);
@@ -145,7 +145,7 @@ pub(crate) fn remove_if_same(path: &Path, id: Identity) {
 
 /// Renames `from` to `to`, failing with [`io::ErrorKind::AlreadyExists`] rather than replacing
 /// anything at `to`.
-pub(crate) fn rename_no_replace(from: &Path, to: &Path) -> io::Result<()> {
+pub fn rename_no_replace(from: &Path, to: &Path) -> io::Result<()> {
     use rustix::fs::{renameat_with, RenameFlags, CWD};
     match renameat_with(CWD, from, CWD, to, RenameFlags::NOREPLACE) {
         Ok(()) => Ok(()),

@@ -2,7 +2,7 @@
 //! memory), [`ConfigLimits`] (the configuration reader's, against hostile or broken files),
 //! [`PrepLimits`] (data preparation's memory), and the fixed bounds on what a texture, a tile, a
 //! service, a picture or a flight may be (the constants). Each is checked once, where the value
-//! enters ([`crate::config`], [`crate::source::TextureDesc`], [`crate::service::Options::check`],
+//! enters (`clipmap::config`, `clipmap::source::TextureDesc`, `clipmap::service::Options::check`,
 //! the tools' value parsers), and named in the error that refuses it. `docs/RELIABILITY.md`
 //! lists them with what each protects against.
 //!
@@ -43,17 +43,17 @@ pub const MAX_GRID_TILES: u64 = 1 << 16;
 /// Farthest a clip centre (and a velocity per tick) may be from the origin, level-0 texels, on
 /// each axis: requests beyond are clamped to it. Far outside any texture (at most 2^26), yet far
 /// from where differences and products of centres overflow 64 bits.
-pub(crate) const MAX_CENTRE: i64 = 1 << 40;
+pub const MAX_CENTRE: i64 = 1 << 40;
 
 /// Most control connections a service may be told to accept at once (`--max-connections`).
-pub(crate) const MAX_CONNECTIONS: usize = 4096;
+pub const MAX_CONNECTIONS: usize = 4096;
 
 /// Smallest copy budget per tick, milliseconds: a smaller one would round to no work at all and
 /// freeze every update.
 pub const MIN_BUDGET_MS: f64 = 0.001;
 
 /// Longest idle time of a control connection, milliseconds (`--idle-ms`): one day.
-pub(crate) const MAX_IDLE_MS: u64 = 86_400_000;
+pub const MAX_IDLE_MS: u64 = 86_400_000;
 
 /// Most frames one `cliptex roam` flies (a report line each).
 pub const MAX_ROAM_FRAMES: u64 = 10_000_000;
@@ -160,7 +160,7 @@ impl Default for ConfigLimits {
 #[derive(Clone, Debug)]
 pub struct PrepLimits {
     /// Most memory a run may plan to use: the decoded size of an in-memory input image, and the
-    /// buffers of [`crate::prep::pipeline::buffer_memory`] (for filtered sources about three bands of one row
+    /// buffers of `clipmap::prep::pipeline::buffer_memory` (for filtered sources about three bands of one row
     /// of level-0 tiles).
     pub max_memory_bytes: u64,
     /// Most bytes of one band of a pyramid level (pyramid levels are one tile each, written in

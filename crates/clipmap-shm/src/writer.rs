@@ -7,7 +7,7 @@ use super::layout::{self, header, request, Placement, Shape};
 use super::memory::{shape_error, ImageMemory};
 use super::raw::Region;
 use super::{check_name, io, lock_path, map_path, names, request_path, ShmError};
-use crate::texel::TexelFormat;
+use clipmap_base::texel::TexelFormat;
 use std::fs::File;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
@@ -96,7 +96,7 @@ pub struct Writer {
 
 /// A renderer's request for a further view's centre, as read from its request record.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct ViewRequest {
+pub struct ViewRequest {
     /// Level-0 centre.
     pub centre: [i64; 2],
     /// Velocity, level-0 texels per second.
@@ -130,24 +130,132 @@ fn now_ms() -> u64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis() as u64).unwrap_or(0)
 }
 
+/// What a [`Writer`] is made from: where and under which name, the texture's shape and texel
+/// format, the files' permission bits, the tick period and the heights block. Built with
+/// [`new`](Self::new) and the setters (every other field has a default).
+#[derive(Clone, Debug)]
+pub struct WriterOptions {
+    /// The shared directory the mappings are made in.
+    pub dir: PathBuf,
+    /// The name the mappings are published under (`clipmap-NAME.map`, `.req`, `.lock`).
+    pub name: String,
+    /// The texture's shape.
+    pub shape: Shape,
+    /// The texel format.
+    pub format: TexelFormat,
+    /// Permission bits of the texel mapping (and the lock file): 0o600 (owner only) by default.
+    pub mode: u32,
+    /// Permission bits of the request mapping: 0o600 by default.
+    pub request_mode: u32,
+    /// The service's tick period in nanoseconds (the header's, readers judge liveness by it):
+    /// one sixtieth of a second by default.
+    pub tick_period_ns: u64,
+    /// The texels are heights, with their scale, offset, nodata value and level rule (the
+    /// header's heights block); `None` (the default) for a colour texture.
+    pub heights: Option<layout::Heights>,
+}
+
+impl WriterOptions {
+    /// The options of a mapping of `name` in `dir` for a texture of `shape` and `format`, every
+    /// other field at its default.
+    pub fn new(dir: impl Into<PathBuf>, name: impl Into<String>, shape: Shape, format: TexelFormat) -> Self {
+        WriterOptions {
+            dir: dir.into(),
+            name: name.into(),
+            shape,
+            format,
+            mode: 0o600,
+            request_mode: 0o600,
+            tick_period_ns: 16_666_667,
+            heights: None,
+        }
+    }
+
+    /// The texel mapping's (and lock file's) permission bits.
+    pub fn mode(mut self, mode: u32) -> Self {
+        self.mode = mode;
+        self
+    }
+
+    /// The request mapping's permission bits.
+    pub fn request_mode(mut self, mode: u32) -> Self {
+        self.request_mode = mode;
+        self
+    }
+
+    /// The tick period in nanoseconds.
+    pub fn tick_period_ns(mut self, ns: u64) -> Self {
+        self.tick_period_ns = ns;
+        self
+    }
+
+    /// The heights block (`None`: a colour texture).
+    pub fn heights(mut self, heights: Option<layout::Heights>) -> Self {
+        self.heights = heights;
+        self
+    }
+}
+
+/// What a start has made so far, removed when it is dropped armed (a start that fails part-way)
+/// and left in place once [`disarm`](Self::disarm)ed: a lock file it created (never one that was
+/// there before), its temporary files, and a request mapping only while the name still is its
+/// own.
+struct Unwind {
+    /// The lock file and its identity, when this start created it.
+    lock: Option<(PathBuf, names::Identity)>,
+    /// Temporary files made and not yet renamed into place.
+    temporaries: Vec<PathBuf>,
+    /// Names put in place, with the identity of the file put there.
+    placed: Vec<(PathBuf, names::Identity)>,
+    armed: bool,
+}
+
+impl Unwind {
+    fn new() -> Self {
+        Unwind { lock: None, temporaries: Vec::new(), placed: Vec::new(), armed: true }
+    }
+
+    /// A temporary file made.
+    fn temporary(&mut self, tmp: &Path) {
+        self.temporaries.push(tmp.to_path_buf());
+    }
+
+    /// The temporary `tmp` renamed to `path` (holding the file `id`).
+    fn placed(&mut self, tmp: &Path, path: &Path, id: names::Identity) {
+        self.temporaries.retain(|t| t != tmp);
+        self.placed.push((path.to_path_buf(), id));
+    }
+
+    /// Everything made stays: the start succeeded.
+    fn disarm(mut self) {
+        self.armed = false;
+    }
+}
+
+impl Drop for Unwind {
+    fn drop(&mut self) {
+        if !self.armed {
+            return;
+        }
+        for tmp in &self.temporaries {
+            let _ = std::fs::remove_file(tmp);
+        }
+        for (path, id) in &self.placed {
+            names::remove_if_same(path, *id);
+        }
+        if let Some((path, id)) = &self.lock {
+            names::remove_if_same(path, *id);
+        }
+    }
+}
+
 impl Writer {
-    /// Creates the mappings of `name` in `dir` for a texture of `shape`: the texel mapping with
-    /// permission bits `mode` (0o600 by default: owner only) and the request mapping with
-    /// `request_mode`. `heights` says the texels are heights, with their scale, offset, nodata
-    /// value and level rule (the header's heights block; `None` for a colour texture). Refuses when a live service holds the name; takes over cleanly from one
-    /// that died (its lock died with it).
-    #[allow(clippy::too_many_arguments)] // each is one static field of the header
-    pub fn create(
-        dir: &Path,
-        name: &str,
-        shape: Shape,
-        format: TexelFormat,
-        mode: u32,
-        request_mode: u32,
-        tick_period_ns: u64,
-        heights: Option<layout::Heights>,
-    ) -> Result<Writer, ShmError> {
-        let mut w = Writer::prepare(dir, name, shape, format, mode, request_mode, tick_period_ns, heights)?;
+    /// Creates the mappings `options` describe: the texel mapping with permission bits
+    /// `options.mode` and the request mapping with `options.request_mode`. Refuses when a live
+    /// service holds the name; takes over cleanly from one that died (its lock died with it).
+    /// A start that fails part-way leaves nothing of its own behind.
+    pub fn create(options: WriterOptions) -> Result<Writer, ShmError> {
+        let mut w = Writer::prepare(options)?;
         match w.publish() {
             Ok(()) => Ok(w),
             Err(e) => {
@@ -160,17 +268,9 @@ impl Writer {
     /// As [`create`](Self::create), but the texel mapping stays under its temporary name (the
     /// lock taken, the request mapping in place) until [`publish`](Self::publish): what must be
     /// in the mapping when readers first find it (a service's views) is written before.
-    #[allow(clippy::too_many_arguments)] // each is one static field of the header
-    pub fn prepare(
-        dir: &Path,
-        name: &str,
-        shape: Shape,
-        format: TexelFormat,
-        mode: u32,
-        request_mode: u32,
-        tick_period_ns: u64,
-        heights: Option<layout::Heights>,
-    ) -> Result<Writer, ShmError> {
+    pub fn prepare(options: WriterOptions) -> Result<Writer, ShmError> {
+        let WriterOptions { dir, name, shape, format, mode, request_mode, tick_period_ns, heights } = options;
+        let (dir, name) = (dir.as_path(), name.as_str());
         check_name(name)?;
         // Every mapping of the service has a views block, one record per further view the engine
         // may keep (docs/SHM.md, "Views").
@@ -180,105 +280,68 @@ impl Writer {
         let lock_path = lock_path(dir, name);
         let (lock, lock_made) = open_lock(&lock_path, mode)?;
         let lock_id = names::Identity::of(&lock.metadata().map_err(io(&lock_path))?);
-        // From here on a failed start removes what it made, and only that: a lock file it
-        // created (never one that was there before), its temporary files, and a mapping or
-        // request mapping only while the name still is its own.
-        let drop_lock = || {
-            if lock_made {
-                names::remove_if_same(&lock_path, lock_id);
-            }
-        };
+        // From here on a failed start removes what it made, and only that (`Unwind`).
+        let mut unwind = Unwind::new();
         match lock.try_lock() {
             Ok(()) => {}
             // Someone else holds it (even one we just created: a start racing this one), so it is
             // theirs: left in place, or they would hold a lock on a removed file.
             Err(std::fs::TryLockError::WouldBlock) => return Err(held(&lock, &lock_path, name)),
             Err(std::fs::TryLockError::Error(e)) => {
-                drop_lock();
+                if lock_made {
+                    names::remove_if_same(&lock_path, lock_id);
+                }
                 return Err(ShmError::Io { path: lock_path, source: e });
             }
+        }
+        if lock_made {
+            unwind.lock = Some((lock_path.clone(), lock_id));
         }
         // A live service whose lock file was removed still holds its lock on the removed file,
         // so taking the new one proves nothing: its mapping says whether it runs. Such a start
         // is refused before it changes anything.
         let path = map_path(dir, name);
         if let Some(pid) = live_publisher(&path) {
-            drop_lock();
             return Err(ShmError::AlreadyRunning { name: name.to_string(), pid });
         }
         // Ours (checked by `open_lock`) and locked by us: record our pid, nothing else.
-        let recorded = lock
-            .set_len(0)
+        lock.set_len(0)
             .and_then(|()| lock.write_all_at(std::process::id().to_string().as_bytes(), 0))
-            .map_err(io(&lock_path));
-        if let Err(e) = recorded {
-            drop_lock();
-            return Err(e);
-        }
+            .map_err(io(&lock_path))?;
 
         let nanos = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_nanos() as u64)
             .unwrap_or(0);
-        let generation = crate::source::procedural::splitmix64(nanos ^ ((std::process::id() as u64) << 40));
+        let generation = clipmap_base::tile::splitmix64(nanos ^ ((std::process::id() as u64) << 40));
 
         // The request mapping first: once the texel mapping appears, its companion is there.
         // The service never maps it: it reads it with `pread` (see `request`), so a writer of
         // the file that truncates it cannot make the service fault.
         let req_path = request_path(dir, name);
-        let (req_tmp, req_file) = match create_tmp(dir, name, "req", request_mode) {
-            Ok(x) => x,
-            Err(e) => {
-                drop_lock();
-                return Err(e);
-            }
-        };
-        let made = (|| {
-            req_file.set_len(layout::REQUEST_BYTES).map_err(io(&req_tmp))?;
-            // Renderers map it and write it: its page must be there.
-            reserve(&req_file, &req_tmp, &req_path, dir, layout::REQUEST_BYTES)?;
-            req_file.write_all_at(&layout::VERSION.to_le_bytes(), request::VERSION as u64).map_err(io(&req_tmp))?;
-            req_file.write_all_at(&generation.to_le_bytes(), request::GENERATION as u64).map_err(io(&req_tmp))?;
-            req_file.write_all_at(&layout::REQUEST_MAGIC, request::MAGIC as u64).map_err(io(&req_tmp))?;
-            let id = names::Identity::of(&req_file.metadata().map_err(io(&req_tmp))?);
-            Ok::<_, ShmError>(id)
-        })();
-        let req_id = match made.and_then(|r| place_file(&req_tmp, &req_path).map(|()| r)) {
-            Ok(r) => r,
-            Err(e) => {
-                let _ = std::fs::remove_file(&req_tmp);
-                drop_lock();
-                return Err(e);
-            }
-        };
+        let (req_tmp, req_file) = create_tmp(dir, name, "req", request_mode)?;
+        unwind.temporary(&req_tmp);
+        req_file.set_len(layout::REQUEST_BYTES).map_err(io(&req_tmp))?;
+        // Renderers map it and write it: its page must be there.
+        reserve(&req_file, &req_tmp, &req_path, dir, layout::REQUEST_BYTES)?;
+        req_file.write_all_at(&layout::VERSION.to_le_bytes(), request::VERSION as u64).map_err(io(&req_tmp))?;
+        req_file.write_all_at(&generation.to_le_bytes(), request::GENERATION as u64).map_err(io(&req_tmp))?;
+        req_file.write_all_at(&layout::REQUEST_MAGIC, request::MAGIC as u64).map_err(io(&req_tmp))?;
+        let req_id = names::Identity::of(&req_file.metadata().map_err(io(&req_tmp))?);
+        place_file(&req_tmp, &req_path)?;
+        unwind.placed(&req_tmp, &req_path, req_id);
 
-        let (tmp, file) = match create_tmp(dir, name, "map", mode) {
-            Ok(x) => x,
-            Err(e) => {
-                names::remove_if_same(&req_path, req_id);
-                drop_lock();
-                return Err(e);
-            }
-        };
-        let made = (|| {
-            file.set_len(placement.total_bytes).map_err(io(&tmp))?;
-            reserve(&file, &tmp, &path, dir, placement.total_bytes)?;
-            let region = Region::map_populated(&file).map_err(io(&tmp))?;
-            let id = names::Identity::of(&file.metadata().map_err(io(&tmp))?);
-            Ok::<_, ShmError>((region, id))
-        })();
-        let (region, map_id) = match made {
-            Ok(r) => r,
-            Err(e) => {
-                let _ = std::fs::remove_file(&tmp);
-                names::remove_if_same(&req_path, req_id);
-                drop_lock();
-                return Err(e);
-            }
-        };
+        let (tmp, file) = create_tmp(dir, name, "map", mode)?;
+        unwind.temporary(&tmp);
+        file.set_len(placement.total_bytes).map_err(io(&tmp))?;
+        reserve(&file, &tmp, &path, dir, placement.total_bytes)?;
+        let region = Region::map_populated(&file).map_err(io(&tmp))?;
+        let map_id = names::Identity::of(&file.metadata().map_err(io(&tmp))?);
         let memory = ImageMemory::over(region, placement, shape, heights.map(|h| h.format()));
         memory.init(format, tick_period_ns, generation, heights.as_ref());
         memory.region().store(header::HEARTBEAT_MS, now_ms(), Ordering::Relaxed);
+        // Whole: what was made is the writer's now (`close` removes it).
+        unwind.disarm();
         Ok(Writer {
             memory: Arc::new(memory),
             requests: req_file,
@@ -351,11 +414,11 @@ impl Writer {
     }
 
     /// Where every level lies.
-    pub(crate) fn placement(&self) -> &Placement {
+    pub fn placement(&self) -> &Placement {
         self.memory.placement()
     }
 
-    /// The mapping as the engine's image caches ([`crate::clip::Clipmap::with_memory`]): tiles are
+    /// The mapping as the engine's image caches (`clipmap::clip::Clipmap::with_memory`): tiles are
     /// read straight into their slots, where renderers read them.
     pub fn memory(&self) -> Arc<ImageMemory> {
         Arc::clone(&self.memory)
@@ -378,7 +441,7 @@ impl Writer {
     /// How many requests renderers have made so far (one 8-byte `pread`: cheap enough to poll
     /// while waiting for the next tick). The value only says whether to tick early; the request
     /// itself is read consistently by [`request`](Self::request).
-    pub(crate) fn request_count(&self) -> u64 {
+    pub fn request_count(&self) -> u64 {
         let mut b = [0u8; 8];
         match self.requests.read_at(&mut b, request::COUNT as u64) {
             Ok(8) => u64::from_le_bytes(b),
@@ -429,7 +492,7 @@ impl Writer {
     /// Each view request record's latest consistent request (docs/SHM.md, "Asking for a view's
     /// centre"), in record order (`None`: no request yet, or it was being written both times it
     /// was read). Read with `pread`, twice, as [`request`](Self::request) reads the main one.
-    pub(crate) fn view_requests(&self) -> Vec<Option<ViewRequest>> {
+    pub fn view_requests(&self) -> Vec<Option<ViewRequest>> {
         use layout::views as v;
         let n = (self.memory.placement().view_records as usize).min(v::MAX_REQUEST_RECORDS);
         let mut a = [0u8; layout::REQUEST_BYTES as usize];
@@ -538,7 +601,7 @@ impl Writer {
 /// no live process publishes are removed, and only regular files of this user; anything else is
 /// left alone. Call it while holding the service's own lock, before adding views. Returns the
 /// views whose files were removed.
-pub(crate) fn remove_dead_own_mappings(dir: &Path, service: &str) -> Vec<String> {
+pub fn remove_dead_own_mappings(dir: &Path, service: &str) -> Vec<String> {
     let prefix = format!("clipmap-{service}@");
     let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
     let mut removed = Vec::new();
@@ -648,7 +711,7 @@ fn held(lock: &File, path: &Path, name: &str) -> ShmError {
 /// How long a mapping's heartbeat may stand still while its writer still counts as running, at
 /// least: a live service's heartbeat has been seen to pause for a quarter of a second, and one
 /// ticking slowly beats once a period (ten periods are allowed when that is longer).
-pub(crate) const LIVE_HEARTBEAT_MS: u64 = 10_000;
+pub const LIVE_HEARTBEAT_MS: u64 = 10_000;
 
 /// The process id of a service that still publishes the mapping at `path`: a regular file of
 /// this user with this layout's magic, not marked closed, whose writer (not this process) is a

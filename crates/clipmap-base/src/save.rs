@@ -9,7 +9,7 @@
 //! which refuses such a target before opening it (opening a FIFO for writing blocks until a
 //! reader comes). A temporary that a killed process left is removed by the next write of the
 //! same target ([`remove_stale`]). Directories that tools write whole are
-//! [`crate::prep::output`]'s business.
+//! `clipmap::prep::output`'s business.
 
 use std::fs::{File, OpenOptions};
 use std::io::{self, BufWriter, Write};

@@ -13,7 +13,7 @@ use std::fs::File;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
 /// A shared mapping of a whole file (or an anonymous one, for an engine without a service).
-pub(crate) struct Region {
+pub struct Region {
     map: MmapRaw,
     writable: bool,
 }
@@ -101,7 +101,7 @@ impl Region {
     }
 
     /// Atomic compare-and-exchange of the u64 at `offset`.
-    pub(crate) fn compare_exchange(&self, offset: usize, current: u64, new: u64) -> Result<u64, u64> {
+    pub fn compare_exchange(&self, offset: usize, current: u64, new: u64) -> Result<u64, u64> {
         self.check_writable();
         self.atomic(offset).compare_exchange(current, new, Ordering::AcqRel, Ordering::Acquire)
     }

@@ -33,7 +33,7 @@ impl Components {
     }
 
     /// From a component count (1..=4).
-    pub(crate) fn from_count(n: u32) -> Option<Self> {
+    pub fn from_count(n: u32) -> Option<Self> {
         Some(match n {
             1 => Components::One,
             2 => Components::Two,
@@ -155,7 +155,7 @@ impl TexelFormat {
 
     /// Bits of the deepest component (8 for the 8-bit and packed formats of 8 bits or fewer per
     /// component, 16 for the 16-bit ones).
-    pub(crate) fn component_bits(self) -> u32 {
+    pub fn component_bits(self) -> u32 {
         match self.ctype {
             ComponentType::Packed(PackedType::Rgb10A2) => 10,
             ComponentType::Packed(_) => 8,

@@ -8,7 +8,7 @@ use super::layout::{
 };
 use super::raw::Region;
 use super::{check_name, map_path, request_path, ShmError};
-use crate::geom::Rect;
+use clipmap_base::geom::Rect;
 use std::fs::OpenOptions;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
@@ -17,10 +17,12 @@ use std::time::Duration;
 
 /// This thread's seqlocked reads so far, for the tests of "Reading consistently" (docs/SHM.md):
 /// attempts at the snapshot or the growth block and the yields between them, attempts at a tag
-/// and the pause hints between them.
-#[cfg(test)]
+/// and the pause hints between them. Only in this crate's tests and with the `test-hooks` feature
+/// (the `clipmap` crate's tests drive the engine against this layer).
+#[cfg(any(test, feature = "test-hooks"))]
+#[doc(hidden)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub(super) struct Tally {
+pub struct Tally {
     /// Attempts at the snapshot or the growth block.
     pub locked_attempts: u64,
     /// `std::thread::yield_now()` calls between those attempts.
@@ -31,15 +33,16 @@ pub(super) struct Tally {
     pub spins: u64,
 }
 
-#[cfg(test)]
+#[cfg(any(test, feature = "test-hooks"))]
 thread_local! {
-    pub(super) static TALLY: std::cell::Cell<Tally> = std::cell::Cell::new(Tally::default());
+    #[doc(hidden)]
+    pub static TALLY: std::cell::Cell<Tally> = std::cell::Cell::new(Tally::default());
 }
 
-/// Counts one event of [`Tally`] on this thread (tests only; nothing in other builds).
+/// Counts one event of `Tally` on this thread (tests only; nothing in other builds).
 macro_rules! tally {
     ($field:ident) => {
-        #[cfg(test)]
+        #[cfg(any(test, feature = "test-hooks"))]
         TALLY.with(|t| {
             let mut n = t.get();
             n.$field += 1;
@@ -222,7 +225,7 @@ fn open_regular(path: &Path, write: bool, owner: Option<u32>) -> Result<std::fs:
             path,
             format!(
                 "it is {}, not a regular file: not a mapping (something else took the name)",
-                crate::open::kind_of(&meta)
+                clipmap_base::open::kind_of(&meta)
             ),
         ));
     }
@@ -246,6 +249,21 @@ pub(super) fn process_alive(pid: u32) -> bool {
 
 pub(super) fn invalid(path: &Path, reason: impl Into<String>) -> ShmError {
     ShmError::Invalid { path: path.to_path_buf(), reason: reason.into() }
+}
+
+/// The raw mappings, for the tests of the `clipmap` crate (the `test-hooks` feature).
+#[cfg(feature = "test-hooks")]
+#[doc(hidden)]
+impl Client {
+    /// The texel mapping.
+    pub fn raw_region(&self) -> &Region {
+        &self.region
+    }
+
+    /// The request mapping, when the client could open it.
+    pub fn raw_request(&self) -> Option<&Region> {
+        self.request.as_ref()
+    }
 }
 
 impl Client {
@@ -346,10 +364,10 @@ impl Client {
             ));
         }
         let size0 = [region.read_u64(header::LEVEL0_S), region.read_u64(header::LEVEL0_T)];
-        if size0.iter().any(|&e| e == 0 || e > crate::limits::MAX_TEXTURE_SIZE) {
+        if size0.iter().any(|&e| e == 0 || e > clipmap_base::limits::MAX_TEXTURE_SIZE) {
             return Err(invalid(
                 path,
-                format!("level 0 is {size0:?} texels: expected 1..={} a side", crate::limits::MAX_TEXTURE_SIZE),
+                format!("level 0 is {size0:?} texels: expected 1..={} a side", clipmap_base::limits::MAX_TEXTURE_SIZE),
             ));
         }
         let mut levels: Vec<LevelDesc> = Vec::with_capacity(count);
@@ -368,7 +386,7 @@ impl Client {
                 ranges: g(desc::RANGES_OFFSET),
             };
             let bad = |why: String| invalid(path, format!("level {i}'s description is inconsistent: {why} ({d:?})"));
-            let want = crate::source::level_size(size0, i as u32);
+            let want = clipmap_base::tile::level_size(size0, i as u32);
             if d.size != want {
                 return Err(bad(format!("size {:?}, expected {want:?} (level 0 halved {i} times)", d.size)));
             }
@@ -555,7 +573,7 @@ impl Client {
     /// again for up to a second, and published state outside its bounds (a NaN min LOD, a region
     /// outside its level) refuses the mapping, as the C and Python readers refuse it, instead of
     /// being shown as "every level disabled".
-    pub(crate) fn checked_snapshot(&self) -> Result<Snapshot, ShmError> {
+    pub fn checked_snapshot(&self) -> Result<Snapshot, ShmError> {
         let start = std::time::Instant::now();
         loop {
             match self.try_snapshot() {
@@ -687,10 +705,14 @@ impl Client {
     /// the texels are not heights (or the mapping has no ranges), or the slot does not hold the
     /// tile ready or default (loading, missing, another tile: use a coarser level's range);
     /// `Busy` when the writer kept the tag locked through [`MAX_RETRIES`] attempts. The range is
-    /// in metres, nodata excluded ([`TileRange::Empty`](crate::height::TileRange::Empty) when
+    /// in metres, nodata excluded ([`TileRange::Empty`](clipmap_base::height::TileRange::Empty) when
     /// every texel of the tile is nodata; -inf..inf for a tile holding a texel that is not a
     /// finite height).
-    pub fn tile_range(&self, level: usize, tile: [i64; 2]) -> Result<Option<crate::height::TileRange>, ReadError> {
+    pub fn tile_range(
+        &self,
+        level: usize,
+        tile: [i64; 2],
+    ) -> Result<Option<clipmap_base::height::TileRange>, ReadError> {
         let d = *self.levels.get(level).ok_or(ReadError::NoLevel(level))?;
         if d.ranges == 0 || self.heights.is_none() {
             return Ok(None);
@@ -713,9 +735,9 @@ impl Client {
             fence(Ordering::Acquire);
             if self.region.load(b + tag::SEQ, Ordering::Relaxed) == seq {
                 return Ok(Some(if min.is_nan() || max.is_nan() {
-                    crate::height::TileRange::Empty
+                    clipmap_base::height::TileRange::Empty
                 } else {
-                    crate::height::TileRange::Heights { min, max }
+                    clipmap_base::height::TileRange::Heights { min, max }
                 }));
             }
         }
@@ -725,7 +747,7 @@ impl Client {
     /// The published range of every tile `level`'s slots hold ready or default, in slot order
     /// (each read under its tag with [`tile_range`](Self::tile_range); a slot whose tag is
     /// locked, loading or changing meanwhile is left out). Empty when the texels are not heights.
-    pub fn tile_ranges(&self, level: usize) -> Vec<([i64; 2], crate::height::TileRange)> {
+    pub fn tile_ranges(&self, level: usize) -> Vec<([i64; 2], clipmap_base::height::TileRange)> {
         let Some(d) = self.levels.get(level).copied() else { return Vec::new() };
         if d.ranges == 0 || self.heights.is_none() {
             return Vec::new();
@@ -756,7 +778,7 @@ impl Client {
         if !st.rect().contains_rect(&rect) {
             return Err(ReadError::NotValid(level));
         }
-        let tiles = crate::geom::tiles_covering(rect, d.tile);
+        let tiles = clipmap_base::geom::tiles_covering(rect, d.tile);
         let (tw, th) = (d.tile[0] as i64, d.tile[1] as i64);
         for ts in tiles.s0..tiles.s1 {
             for tt in tiles.t0..tiles.t1 {
@@ -1016,16 +1038,18 @@ impl Client {
     }
 }
 
-#[cfg(test)]
+#[cfg(any(test, feature = "test-hooks"))]
 thread_local! {
-    /// Every value this thread stored into a request lock word, in order (tests of the lock).
-    pub(super) static LOCK_WORDS: std::cell::RefCell<Vec<u64>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// Every value this thread stored into a request lock word, in order (tests of the lock; the
+    /// `test-hooks` feature).
+    #[doc(hidden)]
+    pub static LOCK_WORDS: std::cell::RefCell<Vec<u64>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-/// Notes a value this thread stored into a request lock word ([`LOCK_WORDS`]; nothing in other
+/// Notes a value this thread stored into a request lock word (`LOCK_WORDS`; nothing in other
 /// builds).
 fn note_lock_word(_word: u64) {
-    #[cfg(test)]
+    #[cfg(any(test, feature = "test-hooks"))]
     LOCK_WORDS.with(|w| w.borrow_mut().push(_word));
 }
 

@@ -16,14 +16,14 @@
 //!   way, tag first, and a read then fills it like any other;
 //! - the tick publishes the snapshot once, whole, under its seqlock.
 //!
-//! It decides nothing about which tiles to hold ([`crate::cache`]) nor when to publish
-//! ([`crate::clip`]).
+//! It decides nothing about which tiles to hold (`clipmap::cache`) nor when to publish
+//! (`clipmap::clip`).
 
 use super::layout::{self, growth, header, snapshot, state, tag, Placement, Shape, SlotState};
 use super::raw::Region;
-use crate::geom::Rect;
-use crate::source::TileId;
-use crate::texel::TexelFormat;
+use clipmap_base::geom::Rect;
+use clipmap_base::texel::TexelFormat;
+use clipmap_base::tile::TileId;
 use std::sync::atomic::{fence, AtomicU64, Ordering};
 
 const LOADING: u64 = 0;
@@ -53,7 +53,8 @@ fn tile_of_key(key: u64) -> [i64; 2] {
 
 /// What [`ImageMemory::assign`] did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Assign {
+#[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+pub enum Assign {
     /// The slot now belongs to the tile (loading).
     Assigned,
     /// A read is filling the slot with its previous tile right now: try again next tick.
@@ -103,7 +104,7 @@ pub struct ImageMemory {
     /// invariant says: never).
     violations: AtomicU64,
     /// The height format of a height texture whose levels have tile ranges (`None`: no ranges).
-    heights: Option<crate::height::HeightFormat>,
+    heights: Option<clipmap_base::height::HeightFormat>,
 }
 
 impl std::fmt::Debug for ImageMemory {
@@ -113,7 +114,7 @@ impl std::fmt::Debug for ImageMemory {
 }
 
 /// Why a shape cannot be laid out.
-pub(crate) fn shape_error(shape: &Shape) -> String {
+pub fn shape_error(shape: &Shape) -> String {
     for (k, l) in shape.levels.iter().enumerate() {
         if let Err(e) = layout::check_level(l, shape.clip_size, shape.bytes_per_texel) {
             return format!("level {k}: {e}");
@@ -125,6 +126,16 @@ pub(crate) fn shape_error(shape: &Shape) -> String {
         shape.clip_size,
         shape.bytes_per_texel
     )
+}
+
+/// The raw mapping, for the tests of the `clipmap` crate (the `test-hooks` feature).
+#[cfg(feature = "test-hooks")]
+#[doc(hidden)]
+impl ImageMemory {
+    /// The mapping.
+    pub fn raw_region(&self) -> &Region {
+        &self.region
+    }
 }
 
 impl ImageMemory {
@@ -146,7 +157,7 @@ impl ImageMemory {
         region: Region,
         placement: Placement,
         shape: Shape,
-        heights: Option<crate::height::HeightFormat>,
+        heights: Option<clipmap_base::height::HeightFormat>,
     ) -> ImageMemory {
         debug_assert!(placement.levels.iter().all(|l| (l.ranges != 0) == heights.is_some()));
         let per_slot = |v: u64| -> Vec<Vec<AtomicU64>> {
@@ -238,7 +249,7 @@ impl ImageMemory {
     }
 
     /// Where everything lies.
-    pub(crate) fn placement(&self) -> &Placement {
+    pub fn placement(&self) -> &Placement {
         &self.placement
     }
 
@@ -266,7 +277,8 @@ impl ImageMemory {
     /// Gives `tile`'s slot to `tile` (loading): its tag first, then its claim (tile, then a new
     /// generation). Refused while a read fills the slot. Only the engine calls this, and only for
     /// a slot whose old tile no published region covers.
-    pub(crate) fn assign(&self, level: u32, tile: [i64; 2]) -> Assign {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn assign(&self, level: u32, tile: [i64; 2]) -> Assign {
         let (k, slot) = self.slot_of(level, tile);
         let claim = &self.claims[k][slot as usize];
         let now = claim.load(Ordering::Acquire);
@@ -297,7 +309,8 @@ impl ImageMemory {
     /// its mem region, or it is settled, or another read fills it). Returns the generation the
     /// slot was filled in, for [`settle`](Self::settle), with what `fill` returned.
     #[allow(unsafe_code)] // the one call that lends a slot's bytes to a read (SAFETY below)
-    pub(crate) fn fill<R>(&self, tile: TileId, fill: impl FnOnce(&mut [u8]) -> R) -> Option<(u64, R)> {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn fill<R>(&self, tile: TileId, fill: impl FnOnce(&mut [u8]) -> R) -> Option<(u64, R)> {
         let st = [tile.s as i64, tile.t as i64];
         let level = tile.level;
         if level as usize >= self.claims.len() {
@@ -340,7 +353,8 @@ impl ImageMemory {
     /// Marks `tile` settled after a read filled its slot in `generation`: ready (or the default
     /// tile), or missing. `false` when the slot no longer belongs to that assignment of the tile
     /// (a late read: nothing changed).
-    pub(crate) fn settle(&self, tile: TileId, generation: u64, st: SlotState) -> bool {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn settle(&self, tile: TileId, generation: u64, st: SlotState) -> bool {
         let t = [tile.s as i64, tile.t as i64];
         if tile.level as usize >= self.claims.len() {
             return false;
@@ -396,12 +410,12 @@ impl ImageMemory {
         // needs settled), and this is the engine's own thread. So the bytes do not change while
         // they are copied into `bytes`, a private buffer.
         unsafe { self.region.read(p.slot_offset(slot) as usize, &mut bytes) };
-        let range = (0..h).try_fold(crate::height::TileRange::Empty, |acc, row| {
+        let range = (0..h).try_fold(clipmap_base::height::TileRange::Empty, |acc, row| {
             format.tile_range(&bytes[row * tw * bpt..(row * tw + w) * bpt]).map(|r| acc.union(r))
         });
         let (min, max) = match range {
-            Ok(crate::height::TileRange::Heights { min, max }) => (min, max),
-            Ok(crate::height::TileRange::Empty) => (f64::NAN, f64::NAN),
+            Ok(clipmap_base::height::TileRange::Heights { min, max }) => (min, max),
+            Ok(clipmap_base::height::TileRange::Empty) => (f64::NAN, f64::NAN),
             Err(e) => {
                 tracing::warn!("level {k} tile ({}, {}): {e}; its published range is -inf..inf", tile.s, tile.t);
                 (f64::NEG_INFINITY, f64::INFINITY)
@@ -413,7 +427,8 @@ impl ImageMemory {
 
     /// The generation of `tile`'s slot if it is assigned to the tile and loading (a read that
     /// failed before filling it settles it missing under this).
-    pub(crate) fn loading_generation(&self, tile: TileId) -> Option<u64> {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn loading_generation(&self, tile: TileId) -> Option<u64> {
         let t = [tile.s as i64, tile.t as i64];
         if tile.level as usize >= self.claims.len() {
             return None;
@@ -426,14 +441,16 @@ impl ImageMemory {
     /// Copies bytes of a settled slot (in-process readers: the sampler over the engine, dumps).
     /// `false` when the slot does not hold `tile` settled.
     #[allow(unsafe_code)] // the one copy out of a settled slot in process (SAFETY below)
-    pub(crate) fn read_settled(&self, tile: TileId, offset: usize, out: &mut [u8]) -> bool {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn read_settled(&self, tile: TileId, offset: usize, out: &mut [u8]) -> bool {
         let t = [tile.s as i64, tile.t as i64];
         if tile.level as usize >= self.claims.len() {
             return false;
         }
         let (k, slot) = self.slot_of(tile.level, t);
-        let settled = state_of(self.claims[k][slot as usize].load(Ordering::Acquire)) == SETTLED;
-        if !settled || self.keys[k][slot as usize].load(Ordering::Acquire) != key(t) {
+        let claim = &self.claims[k][slot as usize];
+        let before = claim.load(Ordering::Acquire);
+        if state_of(before) != SETTLED || self.keys[k][slot as usize].load(Ordering::Acquire) != key(t) {
             return false;
         }
         let p = &self.placement.levels[k];
@@ -441,22 +458,28 @@ impl ImageMemory {
             return false;
         }
         // SAFETY: a settled slot's bytes change only after `assign` or `replace` took its claim
-        // from settled to loading (then a read's `fill`), which only the engine's tick calls
-        // (crate-private, with `&mut` of the engine), never while an in-process reader copies a
-        // slot; a reader that comes after finds the claim no longer settled, above. Other
+        // from settled to loading under a new generation (then a read's `fill` took it to busy):
+        // the engine's tick calls those with `&mut` of the engine, never while an in-process
+        // reader copies a slot, and a reader that comes after finds the claim no longer settled,
+        // above. For any other caller of these public methods this is the seqlock reader of
+        // `Region::read`'s contract: the claim word (state and generation) was read before the
+        // copy and is read again after it, and a copy it does not match is discarded. Other
         // processes map the file read-only.
         unsafe { self.region.read(p.slot_offset(slot) as usize + offset, out) };
-        true
+        std::sync::atomic::fence(Ordering::Acquire);
+        claim.load(Ordering::Relaxed) == before
     }
 
     /// Assignments so far of a slot whose settled tile the current snapshot still covered: the
     /// writer's invariant, checked where it could break (0 unless the engine is wrong).
-    pub(crate) fn invariant_violations(&self) -> u64 {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn invariant_violations(&self) -> u64 {
         self.violations.load(Ordering::Relaxed)
     }
 
     /// Publishes the whole state of a tick under the snapshot's seqlock.
-    pub(crate) fn publish(&self, p: &Publication) {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn publish(&self, p: &Publication) {
         self.publish_view(0, p);
     }
 
@@ -471,13 +494,14 @@ impl ImageMemory {
     /// Publishes view `view`'s state of a tick under its snapshot's seqlock: the primary's (0) at
     /// the header's snapshot, a further view's in its record (kept only in the writer's own
     /// record of published tiles when the mapping has no record for it).
-    pub(crate) fn publish_view(&self, view: usize, p: &Publication) {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn publish_view(&self, view: usize, p: &Publication) {
         if let Ok(mut tiles) = self.published_tiles.lock() {
             if tiles.len() <= view {
                 tiles.resize(view + 1, vec![Rect::EMPTY; self.shape.levels.len()]);
             }
             for (k, l) in p.levels.iter().enumerate() {
-                tiles[view][k] = crate::geom::tiles_covering(l.valid, self.shape.levels[k].tile);
+                tiles[view][k] = clipmap_base::geom::tiles_covering(l.valid, self.shape.levels[k].tile);
             }
         }
         let b = match view {
@@ -492,7 +516,8 @@ impl ImageMemory {
 
     /// A further view's regions stop counting for the invariant (the view was removed), and its
     /// record, if any, is freed: its snapshot shows nothing, its state says free.
-    pub(crate) fn close_view(&self, view: usize) {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn close_view(&self, view: usize) {
         if let Ok(mut tiles) = self.published_tiles.lock() {
             if let Some(t) = tiles.get_mut(view) {
                 t.iter_mut().for_each(|r| *r = Rect::EMPTY);
@@ -515,7 +540,8 @@ impl ImageMemory {
     /// `weight`, live in this mapping's grids or (`own`) with grids of its own in another
     /// mapping (docs/SHM.md, "A view with grids of its own"): returns its new incarnation, or
     /// `None` when the mapping has no record for it.
-    pub(crate) fn open_view(&self, view: usize, name: &str, weight: f64, own: bool) -> Option<u64> {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn open_view(&self, view: usize, name: &str, weight: f64, own: bool) -> Option<u64> {
         let rec = self.view_record(view)?;
         use layout::views as v;
         let r = &self.region;
@@ -535,7 +561,8 @@ impl ImageMemory {
     }
 
     /// A further view's record's incarnation, when its record is live (`None`: no record, or free).
-    pub(crate) fn view_incarnation(&self, view: usize) -> Option<u64> {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn view_incarnation(&self, view: usize) -> Option<u64> {
         let rec = self.view_record(view)?;
         let r = &self.region;
         (r.load(rec + layout::views::STATE, Ordering::Acquire) == 1)
@@ -543,7 +570,8 @@ impl ImageMemory {
     }
 
     /// Sets a further view's weight in its record.
-    pub(crate) fn set_view_weight(&self, view: usize, weight: f64) {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn set_view_weight(&self, view: usize, weight: f64) {
         let Some(rec) = self.view_record(view) else { return };
         let r = &self.region;
         self.record_locked(rec, || r.store(rec + layout::views::WEIGHT, weight.to_bits(), Ordering::Relaxed));
@@ -588,7 +616,8 @@ impl ImageMemory {
     }
 
     /// Publishes a growing texture's growth block under its seqlock.
-    pub(crate) fn publish_growth(&self, g: &layout::Growth) {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn publish_growth(&self, g: &layout::Growth) {
         let r = &self.region;
         let b = header::GROWTH;
         let seq = r.load(b + growth::SEQ, Ordering::Relaxed);
@@ -612,7 +641,7 @@ impl ImageMemory {
     }
 
     /// Opens `tile`'s settled slot to be read again in place (a growing texture's rebuilt tile,
-    /// [`crate::clip::Clipmap::refresh`]): its tag goes to loading (readers of this tile fall back
+    /// `clipmap::clip::Clipmap::refresh`): its tag goes to loading (readers of this tile fall back
     /// to a coarser level, or discard what they copied, until it settles again) and then its claim
     /// to loading under a new generation, the tile and the slot unchanged. The new bytes then come
     /// as any tile's do: a read queue's thread fills the slot ([`fill`](Self::fill)) and the
@@ -620,7 +649,8 @@ impl ImageMemory {
     /// (nothing changed) unless the slot holds `tile` settled. Only the engine calls this, from
     /// its tick, as it calls [`assign`](Self::assign): never while an in-process reader holds the
     /// slot, and a settled claim is never held by a read, so no byte is written here.
-    pub(crate) fn replace(&self, tile: TileId) -> Option<u64> {
+    #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
+    pub fn replace(&self, tile: TileId) -> Option<u64> {
         let t = [tile.s as i64, tile.t as i64];
         if tile.level as usize >= self.claims.len() {
             return None;

@@ -78,7 +78,7 @@ fn pow2(what: &'static str, value: u64) -> Result<u32, SizingError> {
 ///
 /// ```
 /// // The whole earth at one metre a texel, a 2048 clip, RGBA8: 261 MiB instead of 21 PiB.
-/// let m = clipmap::sizing::memory(1 << 26, 2048, 4).unwrap();
+/// let m = clipmap_base::sizing::memory(1 << 26, 2048, 4).unwrap();
 /// assert_eq!((m.stack_levels, m.pyramid_levels), (15, 12));
 /// assert_eq!(m.clipmap_texels, 68_506_965);
 /// assert_eq!(m.mipmap_texels, ((1u128 << 54) - 1) / 3);
@@ -121,7 +121,7 @@ fn check_texel_bytes(texel_bytes: u64) -> Result<(), SizingError> {
 /// clip size is clamped to the longer side. A square size gives exactly [`memory`].
 ///
 /// ```
-/// let m = clipmap::sizing::memory_rect(8192, 2048, 512, 3).unwrap();
+/// let m = clipmap_base::sizing::memory_rect(8192, 2048, 512, 3).unwrap();
 /// assert_eq!((m.stack_levels, m.pyramid_levels), (4, 8)); // 8192x2048 .. 1024x256; 512x128 .. 4x1
 /// // Three levels keep 512x512, 1024x256 keeps 512x256, and 512x128 .. 4x1 stay whole.
 /// assert_eq!(m.clipmap_texels, 3 * 512 * 512 + 512 * 256 + (1..=8).map(|i| 1u128 << (2 * i)).sum::<u128>());
@@ -173,7 +173,7 @@ pub fn memory_rect(width: u64, height: u64, clip: u64, texel_bytes: u64) -> Resu
 /// A non-square texture: motion along S rewrites only levels wider than the clip size, each with
 /// a strip of min(H_k, clip) texels (along T the same with the roles swapped); the larger of the
 /// two axes is returned.
-pub(crate) fn update_texels_per_second(mem: &Memory, speed: f64) -> f64 {
+pub fn update_texels_per_second(mem: &Memory, speed: f64) -> f64 {
     let clip = 1u64 << mem.log2_clip;
     let levels = mem.stack_levels + mem.pyramid_levels;
     let axis = |along: u64, across: u64| -> f64 {
@@ -187,14 +187,14 @@ pub(crate) fn update_texels_per_second(mem: &Memory, speed: f64) -> f64 {
 
 /// Clip sizes for a display `width` pixels wide: the usual choice (the width, rounded up to a
 /// power of two) and the pixel-exact one (twice that: trilinear filtering reads two levels).
-pub(crate) fn recommended_clip(width: u64) -> (u64, u64) {
+pub fn recommended_clip(width: u64) -> (u64, u64) {
     let usual = width.max(1).next_power_of_two();
     (usual, usual * 2)
 }
 
 /// Inputs of Performer's `pfuCalcVirtualClipTexParams` (docs/PERFORMER-REFERENCE.md §2.8).
 #[derive(Clone, Debug)]
-pub(crate) struct VirtualInputs {
+pub struct VirtualInputs {
     /// Levels of the virtual texture.
     pub levels: u32,
     /// Clip size.
@@ -230,7 +230,7 @@ pub struct VirtualParams {
 }
 
 /// Performer's rule with its default limits (±1000 everywhere, 16 effective levels at most).
-pub(crate) fn virtual_params(i: &VirtualInputs) -> VirtualParams {
+pub fn virtual_params(i: &VirtualInputs) -> VirtualParams {
     let n = i.levels as f64;
     let tradeoff = i.tradeoff.clamp(0.0, 1.0);
     let border = (i.invalid_border as f64).clamp(0.0, i.clip_size as f64 / 2.0);
@@ -264,7 +264,7 @@ pub(crate) fn virtual_params(i: &VirtualInputs) -> VirtualParams {
 /// ground, looking straight down with a horizontal field of view `fov_deg` over `width` pixels,
 /// on a texture of `texel_metres` metres per level-0 texel: log2(ground footprint of a pixel /
 /// texel size), at least 0.
-pub(crate) fn finest_lod_at_foot(eye_height: f64, fov_deg: f64, width: u64, texel_metres: f64) -> f64 {
+pub fn finest_lod_at_foot(eye_height: f64, fov_deg: f64, width: u64, texel_metres: f64) -> f64 {
     let pixel_angle = fov_deg.to_radians() / width.max(1) as f64;
     let footprint = eye_height * pixel_angle;
     (footprint / texel_metres).log2().max(0.0)

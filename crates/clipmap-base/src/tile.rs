@@ -48,7 +48,7 @@ pub fn level_count(size: [u64; 2]) -> usize {
 /// The SplitMix64 finaliser alone (all arithmetic wrapping on 64 bits): spreads every input bit
 /// over the output.
 #[inline]
-pub(crate) fn mix64(mut z: u64) -> u64 {
+pub fn mix64(mut z: u64) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
