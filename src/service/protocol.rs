@@ -4,7 +4,7 @@
 //! UTF-8, words separated by spaces, command names case-insensitive). Every reply starts with
 //! `OK` or `ERR`; see `docs/SHM.md` ("Control socket") for the whole table. Talking to the
 //! socket and to the tick loop is [`super::control`]'s business; what the service answers, and
-//! the text of each answer, is [`replies`]'s.
+//! the text of each answer, is the `replies` room's.
 
 mod replies;
 

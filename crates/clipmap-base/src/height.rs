@@ -131,24 +131,75 @@ pub const HEIGHT_LIMIT_M: f64 = 1.0e7;
 #[derive(Clone, Debug, PartialEq)]
 pub enum HeightError {
     /// The scale is not a finite positive number, or is too fine for the offset.
-    Scale { scale: f64, why: String },
+    Scale {
+        /// The scale given.
+        scale: f64,
+        /// What is wrong with it.
+        why: String,
+    },
     /// The offset is not finite, or puts heights past [`HEIGHT_LIMIT_M`].
-    Offset { offset: f64, why: String },
+    Offset {
+        /// The offset given.
+        offset: f64,
+        /// What is wrong with it.
+        why: String,
+    },
     /// `l32f` was given a scale or offset other than 1 and 0.
-    FloatScaled { scale: f64, offset: f64 },
+    FloatScaled {
+        /// The scale given.
+        scale: f64,
+        /// The offset given.
+        offset: f64,
+    },
     /// The nodata value is not a value of the storage.
-    Nodata { nodata: f64, storage: HeightStorage, why: String },
+    Nodata {
+        /// The nodata value given.
+        nodata: f64,
+        /// The storage it must be a value of.
+        storage: HeightStorage,
+        /// What is wrong with it.
+        why: String,
+    },
     /// A height to store is NaN or infinite and non-finite heights are refused (or there is no
     /// nodata value to map them to).
-    NotFinite { value: f64, nodata_declared: bool },
+    NotFinite {
+        /// The height.
+        value: f64,
+        /// Whether the format declares a nodata value.
+        nodata_declared: bool,
+    },
     /// A height to store lies outside what the format holds.
-    OutOfRange { metres: f64, lo: f64, hi: f64, format: String },
+    OutOfRange {
+        /// The height, metres.
+        metres: f64,
+        /// The least height the format holds, metres.
+        lo: f64,
+        /// The greatest height the format holds, metres.
+        hi: f64,
+        /// The format, as a configuration names it.
+        format: String,
+    },
     /// A height to store encodes to the nodata value.
-    IsNodata { metres: f64, nodata: f64 },
+    IsNodata {
+        /// The height, metres.
+        metres: f64,
+        /// The nodata value it encodes to.
+        nodata: f64,
+    },
     /// A tile's bytes are not a whole number of texels.
-    TileLength { len: usize, bytes_per_texel: usize },
+    TileLength {
+        /// The tile's length, bytes.
+        len: usize,
+        /// The bytes of one texel.
+        bytes_per_texel: usize,
+    },
     /// A stored `l32f` texel of a tile is NaN or infinite.
-    TileNotFinite { index: usize, bits: u32 },
+    TileNotFinite {
+        /// The texel's index in the tile.
+        index: usize,
+        /// Its stored bits.
+        bits: u32,
+    },
 }
 
 impl fmt::Display for HeightError {
@@ -361,7 +412,7 @@ impl HeightFormat {
     }
 
     /// The metres of a stored value, nodata or not.
-    fn to_metres(&self, stored: f64) -> f64 {
+    fn to_metres(self, stored: f64) -> f64 {
         match self.storage {
             HeightStorage::F32 => stored,
             _ => stored * self.scale + self.offset,
@@ -501,7 +552,7 @@ impl HeightFormat {
     /// and, for `l32f`, a texel that is NaN or infinite (a corrupt or foreign tile).
     pub fn tile_range(&self, bytes: &[u8]) -> Result<TileRange, HeightError> {
         let b = self.bytes_per_texel();
-        if bytes.len() % b != 0 {
+        if !bytes.len().is_multiple_of(b) {
             return Err(HeightError::TileLength { len: bytes.len(), bytes_per_texel: b });
         }
         let mut range: Option<(f64, f64)> = None;
@@ -534,7 +585,12 @@ pub enum TileRange {
     /// Every texel is nodata.
     Empty,
     /// The least and greatest height, metres.
-    Heights { min: f64, max: f64 },
+    Heights {
+        /// The least height, metres.
+        min: f64,
+        /// The greatest height, metres.
+        max: f64,
+    },
 }
 
 impl TileRange {

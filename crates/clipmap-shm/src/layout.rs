@@ -603,10 +603,10 @@ pub mod request {
 ///
 /// Even: nobody writes the request (any even value). Odd: a renderer holds it, and bits 1..=31
 /// are its process id, bits 32..=63 the epoch of the word it took. A renderer takes the word with
-/// a compare-and-swap from an even `w` to [`locked(w, pid)`](locked), writes the fields, and
-/// releases it with a compare-and-swap from its locked word to [`released`] of it (the next
+/// a compare-and-swap from an even `w` to [`locked(w, pid)`](request_lock::locked), writes the fields, and
+/// releases it with a compare-and-swap from its locked word to [`released`](request_lock::released) of it (the next
 /// epoch, low half zero): the word never returns to a value the service saw before, and never
-/// moves backwards. A word left odd for more than [`TAKEOVER_MS`] whose owner is not a live
+/// moves backwards. A word left odd for more than [`TAKEOVER_MS`](request_lock::TAKEOVER_MS) whose owner is not a live
 /// process (a renderer that died mid-write) may be advanced by anyone with the same
 /// compare-and-swap from it to `released` of it. An owner that is alive is never overruled,
 /// however long it stalls: overruling it would let its late stores mix with the next request.
@@ -753,6 +753,8 @@ pub fn check_level(l: &LevelShape, clip: u64, bpt: u64) -> Result<(), String> {
     if l.grid[0] > n[0] || l.grid[1] > n[1] {
         return Err(format!("grid {:?} larger than the level's {n:?} tiles", l.grid));
     }
+    // One axis at a time over four arrays (size, tile, tiles, grid), the axis named in the error.
+    #[allow(clippy::needless_range_loop)]
     for a in 0..2 {
         let least = (clip.min(l.size[a]).div_ceil(l.tile[a]) + 1).min(n[a]);
         if l.grid[a] < least {

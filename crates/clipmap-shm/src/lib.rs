@@ -74,7 +74,6 @@ pub enum ShmError {
     /// The name is not usable in a file name.
     #[error("invalid name `{0}`: use 1 to 64 letters, digits, `-`, `_` or `.`")]
     BadName(String),
-    /// No mapping of this name exists.
     /// The mapping publishes no view of that name (yet: a service adds its `--view`s just after
     /// it publishes the mapping).
     #[error("{}: no view `{view}`: the service publishes {}", path.display(), views.join(", "))]
@@ -107,6 +106,7 @@ pub enum ShmError {
         /// The generation of the service's mapping the view was found in.
         expected: u64,
     },
+    /// No mapping of this name exists.
     #[error("no clip texture `{name}` is published in {}: is the service running (and is --shm-dir the same)?", dir.display())]
     NotFound {
         /// The name.

@@ -58,7 +58,7 @@ impl Region {
             self.map.len()
         );
         assert!(
-            (self.map.as_ptr() as usize + offset) % align == 0,
+            (self.map.as_ptr() as usize + offset).is_multiple_of(align),
             "shared-memory access at {offset} is not {align}-byte aligned"
         );
     }

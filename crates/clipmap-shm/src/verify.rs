@@ -36,9 +36,9 @@ pub struct HashCheck {
     pub idle: u64,
     /// Snapshots checked for consistency (every level from min LOD up published).
     pub snapshots: u64,
-    /// The first failure, described.
     /// Snapshots refused because the view read was removed from the service.
     pub view_removed: u64,
+    /// The first failure, described.
     pub first_failure: Option<String>,
 }
 

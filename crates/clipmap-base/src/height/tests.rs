@@ -54,7 +54,7 @@ fn float_mean_oracle(valid: &[f64], nodata: Option<f64>) -> f64 {
     let n = valid.len() as f64;
     let s: f64 = valid.iter().map(|v| v * 1024.0).sum(); // integers below 2^26: exact
     let guess = (s / 1024.0 / n) as f32;
-    let mut cands = vec![guess.next_down(), guess, guess.next_up()];
+    let mut cands = [guess.next_down(), guess, guess.next_up()];
     cands.sort_by(|a, b| {
         let (ea, eb) = ((*a as f64 * 1024.0 * n - s).abs(), (*b as f64 * 1024.0 * n - s).abs());
         // On a tie the even significand, as IEEE rounding does.
