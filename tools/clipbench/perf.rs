@@ -20,21 +20,14 @@
 //!
 //! What each figure means and what limits it is in `docs/BENCHMARKS.md` (## Perf).
 
-#[path = "perf/data.rs"]
 mod data;
 
 pub use data::find_gdal;
-#[path = "perf/flight.rs"]
 mod flight;
-#[path = "perf/human.rs"]
 mod human;
-#[path = "perf/ingest.rs"]
 mod ingest;
-#[path = "perf/install.rs"]
 pub mod install;
-#[path = "perf/scale.rs"]
 mod scale;
-#[path = "perf/service.rs"]
 mod service;
 
 use anyhow::Context;

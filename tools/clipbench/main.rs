@@ -29,26 +29,17 @@
 
 #![forbid(unsafe_code)]
 
-#[path = "clipbench/cog.rs"]
 mod cog;
 #[cfg(feature = "remote")]
-#[path = "clipbench/cog_http.rs"]
 mod cog_http;
-#[path = "clipbench/engine.rs"]
 mod engine;
-#[path = "clipbench/growing.rs"]
 mod growing;
-#[path = "clipbench/perf.rs"]
 mod perf;
-#[path = "clipbench/policies.rs"]
 mod policies;
 #[cfg(feature = "remote")]
-#[path = "clipbench/remote.rs"]
 mod remote;
 #[cfg(feature = "remote")]
-#[path = "clipbench/serve.rs"]
 mod serve;
-#[path = "clipbench/views.rs"]
 mod views;
 
 use clap::{Parser, Subcommand};

@@ -4,7 +4,6 @@
 
 #![forbid(unsafe_code)]
 
-#[path = "cliptex/grow.rs"]
 mod grow;
 
 use clap::{Parser, Subcommand};
