@@ -20,6 +20,7 @@ pub mod file;
 mod lzw;
 pub mod pool;
 pub mod procedural;
+pub mod range;
 #[cfg(feature = "remote")]
 pub mod remote;
 mod synthetic;

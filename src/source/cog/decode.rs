@@ -1,12 +1,13 @@
 //! Decoding a TIFF tile into texels: its stored bytes (from a span read already, the first
-//! bytes, or the store) checked against GDAL's leader and trailer, decompressed (none, LZW,
+//! bytes, or the range reader) checked against GDAL's leader and trailer, decompressed (none, LZW,
 //! DEFLATE, ZSTD, JPEG), the predictor undone and samples made little-endian
 //! ([`finish_samples`]), then a mask's nodata heights or an alpha added.
 
 use super::image::{IfdLevel, JpegColour, MaskLevel};
 use super::info::Compression;
-use super::store::{Span, StoreError};
+use super::structure::Span;
 use super::CogSource;
+use crate::source::range::RangeError;
 use crate::source::{SourceError, TileId};
 use std::cell::RefCell;
 
@@ -100,10 +101,10 @@ impl CogSource {
             }
         }
         let prefix = Span { start: 0, bytes: &self.prefix };
-        let local = !self.store.is_remote();
+        let local = !self.bytes.is_remote();
         if lv.compression == Compression::None && local && span.is_none() && prefix.get(offset, need).is_none() {
             // Straight into the slot: no copy on the local path.
-            self.store.read_exact_at(dst, offset).map_err(|e| e.for_tile(tile, &self.path, offset, need))?;
+            self.bytes.read_at(offset, dst).map_err(|e| e.for_tile(tile, &self.path, offset, need))?;
         } else {
             // An uncompressed tile's bytes are one tile's; a byte count beyond that (which GDAL
             // never writes) is not read, and leaves no framing to check.
@@ -122,13 +123,13 @@ impl CogSource {
                     None => {
                         // Bytes the file does not hold are not allocated for: a byte count is
                         // bounded by the file's size, not only by the tile's.
-                        let size = self.store.size();
+                        let size = self.bytes.size();
                         if from.checked_add(len).is_none_or(|end| end > size) {
-                            return Err(StoreError::Eof { size }.for_tile(tile, &self.path, from, len));
+                            return Err(RangeError::Eof { size }.for_tile(tile, &self.path, from, len));
                         }
                         buf.resize(len as usize, 0);
-                        self.store
-                            .read_exact_at(&mut buf, from)
+                        self.bytes
+                            .read_at(from, &mut buf)
                             .map_err(|e| e.for_tile(tile, &self.path, from, len))?;
                         &buf
                     }

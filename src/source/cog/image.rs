@@ -336,7 +336,7 @@ pub(super) fn index_in_file(
     [width, height]: [u64; 2],
     [tw, th]: [u64; 2],
 ) -> Result<(), (String, String)> {
-    let size = file.store.size();
+    let size = file.bytes.size();
     for (a, name) in [(offsets, "TileOffsets (324)"), (counts, "TileByteCounts (325)")] {
         let bytes = a.count.saturating_mul(a.size);
         if a.inline.is_none() && a.at.checked_add(bytes).is_none_or(|end| end > size) {

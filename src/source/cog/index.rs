@@ -6,9 +6,10 @@
 
 use super::image::IfdLevel;
 use super::info::Compression;
-use super::store::{Shared, Span, StoreError};
+use super::structure::Span;
 use super::structure::{unsigned_size, Image, Layout};
 use super::{CogSource, INDEX_CHUNK_BYTES, MAX_INDEX_READ};
+use crate::source::range::{RangeError, Shared};
 use crate::source::{SourceError, TileId};
 use std::sync::Arc;
 
@@ -72,9 +73,9 @@ impl CogSource {
             return Ok(self.layout.value(a.ty, &chunk[from..from + a.size as usize]));
         }
         let mut b = [0u8; 8];
-        match self.store.read_exact_at(&mut b[..a.size as usize], at) {
+        match self.bytes.read_at(at, &mut b[..a.size as usize]) {
             Ok(()) => Ok(self.layout.value(a.ty, &b)),
-            Err(StoreError::Eof { size }) => Err(past_end(size)),
+            Err(RangeError::Eof { size }) => Err(past_end(size)),
             Err(e) => Err(e.for_tile(tile, &self.path, at, a.size)),
         }
     }
@@ -91,9 +92,9 @@ impl CogSource {
         }
         let start = a.at.saturating_add(j * per * a.size);
         let len = ((a.count - j * per).min(per)) * a.size;
-        let chunk = match self.store.read_bytes(start, len) {
+        let chunk = match self.bytes.read_bytes(start, len) {
             Ok(c) => c,
-            Err(StoreError::Eof { size }) => {
+            Err(RangeError::Eof { size }) => {
                 return Err(SourceError::Chunk {
                     tile,
                     path: self.path.clone(),
@@ -143,10 +144,10 @@ impl CogSource {
                 return Ok(());
             }
         }
-        let both = match self.store.read_bytes(lo, hi - lo) {
+        let both = match self.bytes.read_bytes(lo, hi - lo) {
             Ok(b) => b,
             // Each chunk on its own then says what is wrong with it.
-            Err(StoreError::Eof { .. }) => return Ok(()),
+            Err(RangeError::Eof { .. }) => return Ok(()),
             Err(e) => return Err(e.for_tile(tile, &self.path, lo, hi - lo)),
         };
         let mut cache = self.index.lock().unwrap_or_else(|e| e.into_inner());
@@ -210,8 +211,6 @@ impl CogSource {
 #[cfg(test)]
 mod tests {
     use super::super::image::Level;
-    use super::super::store::Store;
-    use super::super::structure::read_prefix;
     use super::super::PREFIX_BYTES;
     use super::*;
     use crate::source::TileSource;
@@ -323,11 +322,8 @@ mod tests {
     /// `path` opened as a remote object is (structure from the first bytes, the index read in
     /// chunks, nothing built at open), over the local file.
     fn open_chunked(path: &Path, clip: u64) -> CogSource {
-        let (file, _) = crate::open::regular(path).unwrap();
-        let mut prefix = vec![0u8; PREFIX_BYTES as usize];
-        let n = read_prefix(&file, &mut prefix).unwrap();
-        prefix.truncate(n);
-        let mut src = CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, clip, true).unwrap();
+        let (bytes, prefix) = crate::source::range::open_local(path, PREFIX_BYTES).unwrap();
+        let mut src = CogSource::from_range(path.to_path_buf(), bytes, prefix, clip, true).unwrap();
         src.chunked = true;
         src
     }

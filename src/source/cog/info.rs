@@ -157,7 +157,7 @@ impl CogSource {
             format: self.desc.format(),
             levels,
             built_because: self.built_because.clone(),
-            built_on_first_read: self.store.is_remote(),
+            built_on_first_read: self.bytes.is_remote(),
             alpha: self.alpha.map(|rule| {
                 let mut zero = Vec::new();
                 if let Some(Level::Ifd(IfdLevel { mask: Some(m), .. })) = self.levels.first() {

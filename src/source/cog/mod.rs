@@ -9,9 +9,9 @@
 //! open, and decoding tiles (none, LZW, DEFLATE, ZSTD; horizontal predictor) into the caller's
 //! slot buffer.
 //!
-//! The bytes come from a `Store`: a local file (positioned reads, an uncompressed tile straight
-//! into the slot) or a remote object (`remote::object::Object`: ranged reads, every one checked
-//! against the version, ETag or Last-Modified, and size seen at open). Open reads the first
+//! The bytes come from a range reader (`crate::source::range`): a local file (positioned reads,
+//! an uncompressed tile straight into the slot), bytes in memory, or a remote object (ranged
+//! reads, every one checked against the version, ETag or Last-Modified, and size seen at open). Open reads the first
 //! [`PREFIX_BYTES`] once and parses the header, GDAL's ghost area and the IFDs from them. The tile
 //! index (TileOffsets, TileByteCounts) is never read whole at open: entries in the first bytes are
 //! taken from there; a local file reads a tile's two entries with positioned reads; a remote
@@ -68,7 +68,6 @@ mod index;
 mod info;
 mod meta;
 mod read;
-mod store;
 mod structure;
 
 pub use error::CogError;
@@ -78,11 +77,11 @@ pub use meta::{MASK_NODATA_F32, MASK_NODATA_I16, MASK_NODATA_U16};
 use self::image::AlphaRule;
 use self::image::{IfdLevel, Level};
 use self::meta::{alpha_of, heights_of, rgba_of, BandMeta};
-use self::store::{Shared, Span, Store};
-use self::structure::{ascii, read_ifds, read_prefix, Ghost, Head, Layout};
+use self::structure::{ascii, read_ifds, Ghost, Head, Layout, Span};
 use super::ahead::ReadAhead;
 use super::{check_request, SourceError, TextureDesc, TileId, TileSource};
 use crate::place::Place;
+use crate::source::range::{self, OpenError, RangeReader, Shared};
 use crate::texel::TexelFormat;
 use std::cell::RefCell;
 use std::collections::HashMap;
@@ -132,7 +131,8 @@ const AHEAD_WINDOW: u64 = 64;
 /// A local tiled GeoTIFF or COG, or a remote one, served as a clip texture.
 pub struct CogSource {
     path: PathBuf,
-    store: Store,
+    /// The file's bytes, read in ranges.
+    bytes: Arc<dyn RangeReader>,
     /// The file's first bytes ([`PREFIX_BYTES`] at most), kept: index entries and tiles in them
     /// are read from here.
     prefix: Vec<u8>,
@@ -191,18 +191,18 @@ impl CogSource {
     /// IFDs, checks every image used, and builds the levels coarser than the smallest usable
     /// overview.
     pub fn open(path: &Path, clip_size: u64) -> Result<Self, CogError> {
-        let io_err = |source| CogError::Io { path: path.to_path_buf(), source };
-        let (file, _) = crate::open::regular(path).map_err(io_err)?;
-        let mut prefix = vec![0u8; PREFIX_BYTES as usize];
-        let got = read_prefix(&file, &mut prefix).map_err(io_err)?;
-        prefix.truncate(got);
-        let src = CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, clip_size, true)?;
-        src.built_levels(None).map_err(|source| CogError::Build {
-            path: path.to_path_buf(),
-            from: src.levels.iter().filter(|l| matches!(l, Level::Ifd(_))).count() as u32,
+        let (bytes, prefix) = range::open_local(path, PREFIX_BYTES).map_err(|e| open_error(path, e))?;
+        CogSource::from_range(path.to_path_buf(), bytes, prefix, clip_size, true)?.built_now()
+    }
+
+    /// `self` with the levels past the overviews built (a failure refuses the file).
+    fn built_now(self) -> Result<Self, CogError> {
+        self.built_levels(None).map_err(|source| CogError::Build {
+            path: self.path.clone(),
+            from: self.levels.iter().filter(|l| matches!(l, Level::Ifd(_))).count() as u32,
             source,
         })?;
-        Ok(src)
+        Ok(self)
     }
 
     /// Opens the local TIFF `path` to read its full-resolution image only, with
@@ -211,32 +211,23 @@ impl CogSource {
     /// YCbCr JPEG): the same checks as [`CogSource::open`], but nothing is built past the
     /// overviews, and an image without overviews is not refused for its size.
     pub fn open_full_resolution(path: &Path) -> Result<Self, CogError> {
-        let io_err = |source| CogError::Io { path: path.to_path_buf(), source };
-        let (file, _) = crate::open::regular(path).map_err(io_err)?;
-        let mut prefix = vec![0u8; PREFIX_BYTES as usize];
-        let got = read_prefix(&file, &mut prefix).map_err(io_err)?;
-        prefix.truncate(got);
-        CogSource::from_store(path.to_path_buf(), Store::Local(file), prefix, super::MAX_TEXTURE_SIZE, false)
+        let (bytes, prefix) = range::open_local(path, PREFIX_BYTES).map_err(|e| open_error(path, e))?;
+        CogSource::from_range(path.to_path_buf(), bytes, prefix, super::MAX_TEXTURE_SIZE, false)
     }
 
     /// [`CogSource::open_full_resolution`] of a TIFF's bytes (`name` names it in errors): a
     /// growing texture's patch, or bytes under test.
     pub fn from_bytes_full_resolution(name: &Path, bytes: Arc<[u8]>) -> Result<Self, CogError> {
         let prefix = bytes[..bytes.len().min(PREFIX_BYTES as usize)].to_vec();
-        CogSource::from_store(name.to_path_buf(), Store::Memory(bytes), prefix, super::MAX_TEXTURE_SIZE, false)
+        let bytes = Arc::new(range::Memory(bytes));
+        CogSource::from_range(name.to_path_buf(), bytes, prefix, super::MAX_TEXTURE_SIZE, false)
     }
 
     /// [`CogSource::open`] of a TIFF's bytes (`name` names it in errors), served at clip size
     /// `clip_size`: the levels past the overviews are built here.
     pub fn from_bytes(name: &Path, bytes: Arc<[u8]>, clip_size: u64) -> Result<Self, CogError> {
         let prefix = bytes[..bytes.len().min(PREFIX_BYTES as usize)].to_vec();
-        let src = CogSource::from_store(name.to_path_buf(), Store::Memory(bytes), prefix, clip_size, true)?;
-        src.built_levels(None).map_err(|source| CogError::Build {
-            path: name.to_path_buf(),
-            from: src.levels.iter().filter(|l| matches!(l, Level::Ifd(_))).count() as u32,
-            source,
-        })?;
-        Ok(src)
+        CogSource::from_range(name.to_path_buf(), Arc::new(range::Memory(bytes)), prefix, clip_size, true)?.built_now()
     }
 
     /// Texels `[s0, s0 + w) x [t0, t0 + h)` of level 0 in the texture's format (rows in
@@ -273,25 +264,26 @@ impl CogSource {
     pub fn open_place(place: &Place, clip_size: u64) -> Result<Self, CogError> {
         match place {
             Place::Local(p) => CogSource::open(p, clip_size),
-            #[cfg(feature = "remote")]
             Place::Remote(name) => {
-                use super::remote::{Remote, RemoteOptions};
                 let path = PathBuf::from(crate::place::redacted(name.as_str()).as_ref());
-                let remote_err = |problem: String| CogError::Remote { path: path.clone(), problem };
-                let opts = RemoteOptions::from_env().map_err(|e| remote_err(e.to_string()))?;
-                // COG ranges are not kept in the disk cache (docs/COG.md): none is opened.
-                let opts = RemoteOptions { cache_dir: None, ..opts };
-                let remote = Remote::new(opts).map_err(|e| remote_err(e.to_string()))?;
-                CogSource::open_remote(name, Arc::new(remote), clip_size)
+                let (bytes, prefix) = range::open_place(place, PREFIX_BYTES).map_err(|e| open_error(&path, e))?;
+                CogSource::open_ranges(path, bytes, prefix, clip_size)
             }
-            #[cfg(not(feature = "remote"))]
-            Place::Remote(name) => Err(CogError::Remote {
-                path: PathBuf::from(name.as_str()),
-                problem: format!(
-                    "{name}: this build reads no remote objects: build it with the `remote` feature, or copy the file here"
-                ),
-            }),
         }
+    }
+
+    /// The source of an object read in ranges whose first bytes are `prefix`: its tile index
+    /// read in chunks as tiles are first read, and the levels past the overviews built when one
+    /// is first read (its open stays one request).
+    pub(crate) fn open_ranges(
+        path: PathBuf,
+        bytes: Arc<dyn RangeReader>,
+        prefix: Vec<u8>,
+        clip_size: u64,
+    ) -> Result<Self, CogError> {
+        let mut src = CogSource::from_range(path, bytes, prefix, clip_size, true)?;
+        src.chunked = true;
+        Ok(src)
     }
 
     /// Opens `place` to be served by a long-running reader (the service): a local file as
@@ -310,29 +302,16 @@ impl CogSource {
         }
     }
 
-    /// Opens the remote object `name` through `remote` with one ranged read of its first
-    /// [`PREFIX_BYTES`] (more only for structure that lies past them); the tile index is read
-    /// in chunks as tiles are first read, and the levels past the overviews are built when one
-    /// is first read.
-    #[cfg(feature = "remote")]
-    pub fn open_remote(
-        name: &crate::place::RemoteName,
-        remote: Arc<super::remote::Remote>,
-        clip_size: u64,
-    ) -> Result<Self, CogError> {
-        use super::remote::object::Object;
-        let path = PathBuf::from(crate::place::redacted(name.as_str()).as_ref());
-        let (object, prefix) = Object::open(remote, name, PREFIX_BYTES)
-            .map_err(|e| CogError::Remote { path: path.clone(), problem: e.to_string() })?;
-        let mut src = CogSource::from_store(path, Store::Remote(object), prefix.to_vec(), clip_size, true)?;
-        src.chunked = true;
-        Ok(src)
-    }
-
-    /// The source of `store`; with `build` false the levels past the overviews are never built
+    /// The source of `bytes`; with `build` false the levels past the overviews are never built
     /// (only level 0 is read: [`CogSource::open_full_resolution`]), and an image too large to
     /// build them from is not refused.
-    fn from_store(path: PathBuf, store: Store, prefix: Vec<u8>, clip_size: u64, build: bool) -> Result<Self, CogError> {
+    fn from_range(
+        path: PathBuf,
+        bytes: Arc<dyn RangeReader>,
+        prefix: Vec<u8>,
+        clip_size: u64,
+        build: bool,
+    ) -> Result<Self, CogError> {
         let malformed = |(at, problem): (String, String)| CogError::Malformed { path: path.clone(), at, problem };
         let head = &prefix[..prefix.len().min(16)];
         let got = head.len();
@@ -359,7 +338,7 @@ impl CogSource {
         let first = if layout.big { layout.u64(&head[8..]) } else { layout.u32(&head[4..]) as u64 };
         let ghost = Ghost::parse(&prefix, if layout.big { 16 } else { 8 });
         let reader =
-            Head { store: &store, prefix: &prefix, failed: RefCell::new(None), windows: RefCell::new(Vec::new()) };
+            Head { bytes: &*bytes, prefix: &prefix, failed: RefCell::new(None), windows: RefCell::new(Vec::new()) };
         let (mut nodata, mut meta) = (None, BandMeta::default());
         let parts = read_ifds(&reader, layout, first).map_err(malformed).and_then(|images| {
             nodata = ascii(&reader, layout, &images[0], 42113, "GDAL_NODATA (42113)", 64).map_err(malformed)?;
@@ -439,7 +418,7 @@ impl CogSource {
         };
         Ok(CogSource {
             path,
-            store,
+            bytes,
             prefix,
             layout,
             ghost,
@@ -466,16 +445,20 @@ impl CogSource {
     /// (false for a local file, which is read through the handle opened, whatever its name
     /// points at since): [`Reopening`] then opens it again.
     pub fn object_changed(&self) -> bool {
-        match &self.store {
-            Store::Local(_) | Store::Memory(_) => false,
-            #[cfg(feature = "remote")]
-            Store::Remote(o) => o.has_changed(),
-        }
+        self.bytes.changed()
     }
 
     /// Where each level's texels come from, level 0 first.
     pub fn origins(&self) -> &[LevelOrigin] {
         &self.origins
+    }
+}
+
+/// The refusal of a file or object that cannot be opened for reading.
+fn open_error(path: &Path, e: OpenError) -> CogError {
+    match e {
+        OpenError::Io(source) => CogError::Io { path: path.to_path_buf(), source },
+        OpenError::Remote(problem) => CogError::Remote { path: path.to_path_buf(), problem },
     }
 }
 
@@ -490,10 +473,8 @@ impl TileSource for CogSource {
 
     #[cfg(feature = "remote")]
     fn remote_stats(&self) -> Option<super::remote::RemoteStats> {
-        match &self.store {
-            Store::Remote(o) => Some(o.remote().stats()),
-            Store::Local(_) | Store::Memory(_) => None,
-        }
+        let object = self.bytes.as_any().downcast_ref::<super::remote::object::Object>()?;
+        Some(object.remote().stats())
     }
 
     fn will_read(&self, tiles: &[TileId]) {

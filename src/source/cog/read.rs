@@ -5,21 +5,18 @@
 use super::decode::{keep, CHUNK};
 use super::image::{IfdLevel, Level};
 use super::info::Compression;
-#[cfg(feature = "remote")]
-use super::store::Store;
-use super::store::{Shared, Span, StoreError};
+use super::structure::Span;
 use super::{CogSource, AHEAD_WINDOW, MAX_SPAN_BYTES};
 use crate::source::ahead::{Piece, Plan};
+use crate::source::range::{RangeError, Shared};
 use crate::source::{SourceError, TileId};
+use std::sync::Arc;
 
 impl CogSource {
+    /// The most bytes a merged request reads ahead (the range reader's merge cap, at most
     /// [`MAX_SPAN_BYTES`]); 0 for a local file, which reads nothing ahead.
     pub(super) fn ahead_cap(&self) -> u64 {
-        match &self.store {
-            #[cfg(feature = "remote")]
-            Store::Remote(o) => o.remote().fetcher().options().merge_bytes.min(MAX_SPAN_BYTES),
-            _ => 0,
-        }
+        self.bytes.merge_cap().min(MAX_SPAN_BYTES)
     }
 
     /// The bytes a read of TIFF tile `index` of `lv` fetches (framing included), when they are
@@ -71,21 +68,14 @@ impl CogSource {
             Plan::Alone => Ok(None),
             Plan::Take { start, bytes } => Ok(bytes.map(|b| (start, b))),
             Plan::Send { start, end, merged, ticket } => {
-                #[cfg(feature = "remote")]
-                if let Store::Remote(o) = &self.store {
-                    use std::sync::atomic::Ordering;
-                    let ranges = merged.len() as u64 + 1;
-                    o.remote().fetcher().counters.merged.fetch_add(ranges, Ordering::Relaxed);
-                }
-                #[cfg(not(feature = "remote"))]
-                let _ = merged;
+                let ranges = merged.len() as u64 + 1;
                 let mut started = Ok(());
                 // This tile's own bytes, once whole (`None`: read it on its own).
-                let own = ticket.detach(|feed| started = self.store.stream_detached(start, end - start, feed));
+                let own = ticket.detach(|feed| started = self.bytes.stream(start, end - start, ranges, Arc::new(feed)));
                 match started {
                     // A tile whose place runs past the end: each tile then says what is wrong
                     // with it.
-                    Err(StoreError::Eof { .. }) => Ok(None),
+                    Err(RangeError::Eof { .. }) => Ok(None),
                     Err(e) => Err(e.for_tile(tile, &self.path, start, end - start)),
                     Ok(()) => Ok(own),
                 }
@@ -112,7 +102,7 @@ impl CogSource {
         [cx0, cx1]: [u64; 2],
         tile: TileId,
     ) -> Result<Option<(u64, Shared)>, SourceError> {
-        if !self.store.is_remote() || cx1 <= cx0 {
+        if !self.bytes.is_remote() || cx1 <= cx0 {
             return Ok(None);
         }
         let mut start = None;
@@ -135,7 +125,7 @@ impl CogSource {
         if end - start > MAX_SPAN_BYTES || (Span { start: 0, bytes: &self.prefix }).get(start, end - start).is_some() {
             return Ok(None);
         }
-        match self.store.read_bytes(start, end - start) {
+        match self.bytes.read_bytes(start, end - start) {
             Ok(b) => Ok(Some((start, b))),
             Err(e) => Err(e.for_tile(tile, &self.path, start, end - start)),
         }

@@ -1,13 +1,10 @@
 //! A TIFF's structure: the header's byte order and flavour ([`Layout`]), the IFD chain and its
 //! entries, GDAL's ghost area, and the reader of structure at open ([`Head`]: the first bytes,
-//! then windows of the store).
+//! then windows of the range reader), and [`Span`], a run of bytes read at once.
 
-use super::store::{Span, Store, StoreError};
 use super::{MAX_ENTRIES, MAX_IFDS, MAX_STRUCTURE_BYTES};
+use crate::source::range::{RangeError, RangeReader};
 use std::cell::RefCell;
-use std::fs::File;
-use std::io;
-use std::os::unix::fs::FileExt;
 
 /// Byte order and TIFF flavour of a file.
 #[derive(Clone, Copy, Debug)]
@@ -134,7 +131,7 @@ impl Ghost {
 
 /// The structure reader at open: the first bytes, then the store.
 pub(super) struct Head<'a> {
-    pub(super) store: &'a Store,
+    pub(super) bytes: &'a dyn RangeReader,
     pub(super) prefix: &'a [u8],
     /// The first read that failed for another reason than the file's end (a remote object that
     /// could not be read, or changed): open says so rather than calling the file damaged.
@@ -159,12 +156,12 @@ impl Head<'_> {
             }
         }
         // At least a window, not past the end of the file (a short read there is the error).
-        let size = self.store.size();
+        let size = self.bytes.size();
         let wide = (len as u64).max(STRUCTURE_WINDOW.min(size.saturating_sub(offset)));
         let mut buf = vec![0u8; wide as usize];
-        self.store.read_exact_at(&mut buf, offset).map_err(|e| {
+        self.bytes.read_at(offset, &mut buf).map_err(|e| {
             let problem = e.problem(offset, len as u64);
-            if !matches!(e, StoreError::Eof { .. }) {
+            if !matches!(e, RangeError::Eof { .. }) {
                 self.failed.borrow_mut().get_or_insert_with(|| problem.clone());
             }
             (what.to_string(), problem)
@@ -173,20 +170,6 @@ impl Head<'_> {
         self.windows.borrow_mut().push((offset, buf));
         Ok(out)
     }
-}
-
-/// Reads up to `buf.len()` bytes from the start of `file`; returns how many there were.
-pub(super) fn read_prefix(file: &File, buf: &mut [u8]) -> io::Result<usize> {
-    let mut got = 0;
-    while got < buf.len() {
-        match file.read_at(&mut buf[got..], got as u64) {
-            Ok(0) => break,
-            Ok(n) => got += n,
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
-    }
-    Ok(got)
 }
 
 /// Reads the IFD chain from `first`: every IFD's entries, none of the arrays they point to.
@@ -317,6 +300,21 @@ pub(super) fn scalar(
     name: &str,
 ) -> Result<Option<u64>, (String, String)> {
     Ok(values(file, layout, image, tag, name, 1)?.map(|v| v[0]))
+}
+
+/// A run of a file's bytes read at once: `bytes` from byte `start`.
+pub(super) struct Span<'a> {
+    pub(super) start: u64,
+    pub(super) bytes: &'a [u8],
+}
+
+impl Span<'_> {
+    /// Bytes `[offset, offset + len)` when the span holds them all.
+    pub(super) fn get(&self, offset: u64, len: u64) -> Option<&[u8]> {
+        let from = offset.checked_sub(self.start)?;
+        let to = from.checked_add(len)?;
+        self.bytes.get(from as usize..usize::try_from(to).ok()?)
+    }
 }
 
 #[cfg(test)]
