@@ -18,6 +18,7 @@ pub mod desc;
 pub mod faulty;
 pub mod file;
 mod lzw;
+pub mod merge;
 pub mod pool;
 pub mod procedural;
 pub mod range;
