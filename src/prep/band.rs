@@ -31,6 +31,26 @@ pub(crate) fn encode_rgba8(format: TexelFormat, p: [u8; 4], out: &mut [u8]) {
     }
 }
 
+/// One row of pixels into texels of `format` (`row`, one texel a pixel, the rest of `row`
+/// left alone): each pixel as RGBA, its samples 16-bit when `deep`, else 8-bit values held in
+/// `u16`s; 16-bit ones encoded by [`encode_rgba16`], 8-bit ones by [`encode_rgba8`] (widened
+/// for a 16-bit format). The one pixels-to-texels path of the producers that decode rows.
+pub(crate) fn encode_row(format: TexelFormat, deep: bool, pixels: impl Iterator<Item = [u16; 4]>, row: &mut [u8]) {
+    let bpt = format.bytes_per_texel() as usize;
+    for (texel, p) in row.chunks_exact_mut(bpt).zip(pixels) {
+        if deep {
+            encode_rgba16(format, p, texel);
+            continue;
+        }
+        let p8 = p.map(|v| v as u8);
+        if format.ctype == ComponentType::U16 {
+            encode_rgba16(format, widen(p8), texel);
+        } else {
+            encode_rgba8(format, p8, texel);
+        }
+    }
+}
+
 /// Encodes a 16-bit RGBA pixel into `format`: 16-bit formats take the samples as they are,
 /// 8-bit formats the samples rounded to nearest (v / 257), packed formats their encoding.
 /// One-component formats take the luminance (Rec. 709 weights; a grey pixel's value exactly).
@@ -61,5 +81,27 @@ pub(crate) fn encode_rgba16(format: TexelFormat, p: [u16; 4], out: &mut [u8]) {
             }
         }
         _ => format.encode(p.map(|v| v as f32 / 65535.0), out),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_row_of_pixels_becomes_texels_by_its_depth_and_the_format() {
+        let grey = [[10u16, 10, 10, 255], [200, 200, 200, 255]];
+        // 8-bit samples into an 8-bit format: as encode_rgba8 does; the rest of the row untouched.
+        let mut row = [9u8; 3];
+        encode_row(TexelFormat::L8, false, grey.into_iter(), &mut row);
+        assert_eq!(row, [10, 200, 9]);
+        // 8-bit samples into a 16-bit format: widened (times 257).
+        let mut row = [0u8; 4];
+        encode_row(TexelFormat::L16, false, grey.into_iter(), &mut row);
+        assert_eq!(row, [(10u16 * 257).to_le_bytes(), (200u16 * 257).to_le_bytes()].concat()[..]);
+        // 16-bit samples into an 8-bit format: rounded to nearest (v / 257).
+        let mut row = [0u8; 8];
+        encode_row(TexelFormat::RGBA8, true, [[257u16, 514, 65535, 0], [128, 129, 0, 65535]].into_iter(), &mut row);
+        assert_eq!(row, [1, 2, 255, 0, 0, 1, 0, 255]);
     }
 }

@@ -10,7 +10,7 @@
 //! chosen format (16-bit samples, a format of 8 bits or fewer per component) is refused unless
 //! the reduction is asked for ([`OpenedImage::reduce_depth`]); it then rounds to nearest.
 
-use super::band::{encode_rgba16, encode_rgba8, widen, BandSource};
+use super::band::{encode_rgba16, encode_rgba8, encode_row, widen, BandSource};
 use super::error::PrepError;
 use super::tiff_stream::TiffStream;
 use super::Limits;
@@ -267,27 +267,18 @@ impl BandSource for CogBand {
             }
             let (a, _) = self.rows.unwrap_or((t, t));
             let line = &self.cache[((t - a) * iw) as usize * n * sb..][..iw as usize * n * sb];
-            for (texel, px) in row.chunks_exact_mut(bpt).zip(line.chunks_exact(n * sb)) {
+            let pixels = line.chunks_exact(n * sb).map(|px| {
                 let get =
                     |k: usize| if deep_in { u16::from_le_bytes([px[2 * k], px[2 * k + 1]]) } else { px[k] as u16 };
                 let max = if deep_in { u16::MAX } else { 255 };
-                let p = match n {
+                match n {
                     1 => [get(0), get(0), get(0), max],
                     2 => [get(0), get(0), get(0), get(1)],
                     3 => [get(0), get(1), get(2), max],
                     _ => [get(0), get(1), get(2), get(3)],
-                };
-                if deep_in {
-                    encode_rgba16(self.format, p, texel);
-                } else {
-                    let p8 = p.map(|v| v as u8);
-                    if self.format.ctype == ComponentType::U16 {
-                        encode_rgba16(self.format, widen(p8), texel);
-                    } else {
-                        encode_rgba8(self.format, p8, texel);
-                    }
                 }
-            }
+            });
+            encode_row(self.format, deep_in, pixels, row);
         }
         Ok(())
     }

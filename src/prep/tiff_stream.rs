@@ -8,13 +8,13 @@
 //! (planar, palette, CMYK, float, or a single strip larger than the memory limit) are left to the
 //! in-memory decoder.
 
-use super::band::{encode_rgba16, encode_rgba8, widen, BandSource};
+use super::band::{encode_row, BandSource};
 use super::error::PrepError;
 use super::Limits;
 use crate::height::{HeightError, HeightFormat, NonFinite};
 // The one test of "starts like a TIFF" every tool makes.
 use crate::source::cog::is_tiff;
-use crate::texel::{ComponentType, TexelFormat};
+use crate::texel::TexelFormat;
 use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
@@ -224,25 +224,16 @@ impl BandSource for TiffSource {
             }
             if s.bits == 16 {
                 let line = &s.cache16[(y - s.cache_y0) as usize * iw * 4..][..iw * 4];
-                for (texel, px) in row.chunks_exact_mut(bpt).zip(line.chunks_exact(4)) {
-                    encode_rgba16(self.format, [px[0], px[1], px[2], px[3]], texel);
-                }
+                encode_row(self.format, true, line.chunks_exact(4).map(|px| [px[0], px[1], px[2], px[3]]), row);
                 continue;
             }
             let line = &s.cache[(y - s.cache_y0) as usize * iw * 4..][..iw * 4];
-            if self.format.ctype == ComponentType::U16 {
-                for (texel, px) in row.chunks_exact_mut(bpt).zip(line.chunks_exact(4)) {
-                    encode_rgba16(self.format, widen([px[0], px[1], px[2], px[3]]), texel);
-                }
-                continue;
-            }
             if self.format == TexelFormat::RGBA8 {
                 row[..iw * 4].copy_from_slice(line);
                 continue;
             }
-            for (texel, px) in row.chunks_exact_mut(bpt).zip(line.chunks_exact(4)) {
-                encode_rgba8(self.format, [px[0], px[1], px[2], px[3]], texel);
-            }
+            let pixels = line.chunks_exact(4).map(|px| [px[0], px[1], px[2], px[3]].map(u16::from));
+            encode_row(self.format, false, pixels, row);
         }
         Ok(())
     }

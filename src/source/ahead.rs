@@ -22,6 +22,7 @@
 //! request that fails part way leaves the tiles whose bytes had all arrived to be taken (they
 //! are that object's bytes, whole) and the others to be read on their own.
 
+pub use super::merge::{coalesce, Piece};
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::hash::Hash;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
@@ -36,51 +37,6 @@ pub const MAX_ANNOUNCED: usize = 1 << 14;
 /// Most bytes of merged requests kept for tiles that have not taken theirs yet; past it the
 /// oldest requests' bytes are dropped (their tiles are then read on their own).
 pub const KEPT_BYTES: u64 = 64 << 20;
-
-/// A tile's stored bytes in the object: `[start, start + len)`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Piece<K> {
-    /// The tile.
-    pub key: K,
-    /// First byte.
-    pub start: u64,
-    /// Bytes.
-    pub len: u64,
-}
-
-impl<K> Piece<K> {
-    fn end(&self) -> u64 {
-        self.start.saturating_add(self.len)
-    }
-}
-
-/// The pieces to read with one request together with `pieces[head]`: the index range `lo..=hi`
-/// (containing `head`) of `pieces`, sorted by start, grown from the head forward while the next
-/// piece starts at most `gap` bytes after the run ends, then backward the same way, as long as
-/// the run's bytes (gaps included) stay within `cap`; the head alone may be larger than `cap`.
-pub fn coalesce<K>(pieces: &[Piece<K>], head: usize, gap: u64, cap: u64) -> (usize, usize) {
-    let (mut lo, mut hi) = (head, head);
-    let (mut start, mut end) = (pieces[head].start, pieces[head].end());
-    while hi + 1 < pieces.len() {
-        let next = &pieces[hi + 1];
-        let new_end = end.max(next.end());
-        if next.start < start || next.start.saturating_sub(end) > gap || new_end - start > cap {
-            break;
-        }
-        hi += 1;
-        end = new_end;
-    }
-    while lo > 0 {
-        let prev = &pieces[lo - 1];
-        let new_start = start.min(prev.start);
-        if prev.end() > end || start.saturating_sub(prev.end()) > gap || end - new_start > cap {
-            break;
-        }
-        lo -= 1;
-        start = new_start;
-    }
-    (lo, hi)
-}
 
 /// Bytes shared between readers.
 pub type Shared = Arc<Vec<u8>>;

@@ -18,8 +18,10 @@ pub mod desc;
 pub mod faulty;
 pub mod file;
 mod lzw;
+pub mod merge;
 pub mod pool;
 pub mod procedural;
+pub mod range;
 #[cfg(feature = "remote")]
 pub mod remote;
 mod synthetic;

@@ -18,14 +18,29 @@
 
 use super::{CogError, CogSource};
 use crate::place::RemoteName;
+use crate::source::remote::object::Object;
 use crate::source::remote::Remote;
 use crate::source::{Delivered, SourceError, TextureDesc, TileId, TileSource};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 use std::time::{Duration, Instant};
 
 /// The least time between two attempts at opening a changed object again.
 pub const RETRY_GAP: Duration = Duration::from_millis(200);
+
+impl CogSource {
+    /// Opens the remote object `name` through `remote` with one ranged read of its first
+    /// [`PREFIX_BYTES`](super::PREFIX_BYTES) (more only for structure that lies past them); the
+    /// tile index is read in chunks as tiles are first read, and the levels past the overviews
+    /// are built when one is first read.
+    pub fn open_remote(name: &RemoteName, remote: Arc<Remote>, clip_size: u64) -> Result<Self, CogError> {
+        let path = PathBuf::from(crate::place::redacted(name.as_str()).as_ref());
+        let (bytes, prefix) = crate::source::remote::range::open_with(name, remote, super::PREFIX_BYTES)
+            .map_err(|problem| CogError::Remote { path: path.clone(), problem })?;
+        CogSource::open_ranges(path, bytes, prefix, clip_size)
+    }
+}
 
 /// A remote COG that follows its object's new versions (module docs).
 pub struct Reopening {
@@ -70,10 +85,8 @@ impl Reopening {
     /// `#clipmap cog` line opens it) and its later versions; `None` when `first` is not a remote
     /// object's source.
     pub fn serving(name: &RemoteName, first: Arc<CogSource>, clip_size: u64) -> Option<Reopening> {
-        let remote = match &first.store {
-            super::Store::Remote(o) => Arc::clone(o.remote()),
-            super::Store::Local(_) | super::Store::Memory(_) => return None,
-        };
+        let object = first.bytes.as_any().downcast_ref::<Object>()?;
+        let remote = Arc::clone(object.remote());
         Some(Reopening {
             name: name.clone(),
             remote,

@@ -516,30 +516,8 @@ fn take_batch(waiting: &mut Vec<Arc<Req>>, me: &Arc<Req>, merge_bytes: u64) -> V
     let mut same: Vec<Arc<Req>> = waiting.iter().filter(|r| r.object == me.object).cloned().collect();
     same.sort_by_key(|r| r.start);
     let at = same.iter().position(|r| Arc::ptr_eq(r, me)).unwrap_or(0);
-    let (mut lo, mut hi) = (at, at);
-    let mut bytes = me.len;
-    loop {
-        let mut grew = false;
-        if hi + 1 < same.len() {
-            let (a, b) = (&same[hi], &same[hi + 1]);
-            if b.start == a.start + a.len && bytes + b.len <= merge_bytes {
-                hi += 1;
-                bytes += b.len;
-                grew = true;
-            }
-        }
-        if lo > 0 {
-            let (a, b) = (&same[lo - 1], &same[lo]);
-            if a.start + a.len == b.start && bytes + a.len <= merge_bytes {
-                lo -= 1;
-                bytes += a.len;
-                grew = true;
-            }
-        }
-        if !grew {
-            break;
-        }
-    }
+    let ranges: Vec<(u64, u64)> = same.iter().map(|r| (r.start, r.len)).collect();
+    let (lo, hi) = crate::source::merge::adjacent(&ranges, at, merge_bytes);
     let batch: Vec<Arc<Req>> = same[lo..=hi].to_vec();
     waiting.retain(|r| !batch.iter().any(|b| Arc::ptr_eq(b, r)));
     batch

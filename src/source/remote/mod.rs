@@ -14,6 +14,7 @@ pub mod http;
 pub mod location;
 pub mod object;
 pub mod options;
+pub mod range;
 mod runtime;
 pub mod s3;
 
