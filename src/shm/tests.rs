@@ -344,6 +344,8 @@ fn a_start_that_fails_part_way_leaves_nothing_of_its_own_behind() {
 
 #[test]
 fn hostile_mappings_are_refused_with_a_clear_error() {
+    /// A damage done to a copy of a mapping's bytes.
+    type Damage = Box<dyn Fn(&mut Vec<u8>)>;
     let dir = tempfile::tempdir().unwrap();
     let (mut map, w) = hash_service(dir.path(), "good", 1024, 64, 32);
     for _ in 0..10 {
@@ -355,7 +357,7 @@ fn hostile_mappings_are_refused_with_a_clear_error() {
     let put = |b: &mut Vec<u8>, at: usize, v: u64| b[at..at + 8].copy_from_slice(&v.to_le_bytes());
     let snap_level0 = layout::header::SNAPSHOT + layout::snapshot::LEVELS;
     let d0 = layout::header::LEVEL_DESCS;
-    let cases: Vec<(&str, Box<dyn Fn(&mut Vec<u8>)>, &str)> = vec![
+    let cases: Vec<(&str, Damage, &str)> = vec![
         ("magic", Box::new(|b| b[0] = b'X'), "wrong magic"),
         ("v1", Box::new(|b| b[..8].copy_from_slice(b"CLIPMAP1")), "layout version 1"),
         ("version", Box::new(|b| b[8] = 9), "layout version 9"),
@@ -375,7 +377,7 @@ fn hostile_mappings_are_refused_with_a_clear_error() {
         assert!(err.contains(want), "{name}: {err}");
     }
     // Published state outside its bounds: attaching works, every read is refused as corrupt.
-    let published: Vec<(&str, Box<dyn Fn(&mut Vec<u8>)>)> = vec![
+    let published: Vec<(&str, Damage)> = vec![
         ("outside", Box::new(move |b| put(b, snap_level0 + layout::state::VALID_S1, 5000))),
         ("far", Box::new(move |b| put(b, snap_level0 + layout::state::VALID_S0, (-(1i64 << 62)) as u64))),
         ("huge", Box::new(move |b| put(b, snap_level0 + layout::state::VALID_S1, 1 << 62))),
@@ -407,7 +409,7 @@ fn hostile_mappings_are_refused_with_a_clear_error() {
     let grown = std::fs::read(w.path()).unwrap();
     std::fs::write(dir.path().join("clipmap-grown.map"), &grown).unwrap();
     assert_eq!(Client::attach(dir.path(), "grown").unwrap().growth().unwrap(), Some(good_growth));
-    let growth: Vec<(&str, Box<dyn Fn(&mut Vec<u8>)>, &str)> = vec![
+    let growth: Vec<(&str, Damage, &str)> = vec![
         ("g-flag", Box::new(move |b| put(b, g0 + layout::growth::GROWING, 7)), "growing is 7"),
         ("g-out", Box::new(move |b| put(b, g0 + layout::growth::EXTENT_S1, 5000)), "not inside the 1024x1024 frame"),
         ("g-far", Box::new(move |b| put(b, g0 + layout::growth::EXTENT_S0, (-(1i64 << 62)) as u64)), "not inside"),

@@ -43,9 +43,23 @@ pub enum LevelOrigin {
     /// An image of the file: IFD `ifd`, in tiles of `tile` texels, compressed with
     /// `compression`, with a predictor when `predictor` is set (`predictor_tag`: the TIFF
     /// Predictor, 2 horizontal differencing or 3 floating point; 1 none).
-    Ifd { ifd: usize, tile: [u64; 2], compression: Compression, predictor: bool, predictor_tag: u16 },
+    Ifd {
+        /// The image's index among the file's IFDs (0: the full resolution).
+        ifd: usize,
+        /// Its tile size, texels.
+        tile: [u64; 2],
+        /// Its compression.
+        compression: Compression,
+        /// Whether its tiles were written with a predictor.
+        predictor: bool,
+        /// The TIFF Predictor tag: 1 none, 2 horizontal differencing, 3 floating point.
+        predictor_tag: u16,
+    },
     /// Built at open from level `from` by the 2 x 2 box filter.
-    Built { from: u32 },
+    Built {
+        /// The level it was halved from.
+        from: u32,
+    },
 }
 
 /// A COG's texture and the origin of each level ([`CogSource::info`]).

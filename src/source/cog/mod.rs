@@ -39,7 +39,7 @@
 //! copied.
 //!
 //! Levels: IFD 0 is level 0; reduced-resolution IFDs (NewSubfileType bit 0) follow in the file
-//! largest first, overview i being level i when its size is exactly [`level_size`] of level 0
+//! largest first, overview i being level i when its size is exactly [`level_size`](crate::tile::level_size) of level 0
 //! at i. `gdaladdo` rounds overview sizes up (a 100 x 75 image gets a 50 x 38 overview where
 //! level 1 is 50 x 37), so the first overview that does not match, and every one after it, is not used:
 //! the levels from there on are built at open from the last matching image by the same 2 x 2 box
