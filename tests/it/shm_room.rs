@@ -141,7 +141,8 @@ fn no_room_in_the_shm_file_system_at_start_is_an_error_that_leaves_nothing_not_a
     fs.resize("16m");
     let svc = Hash::spawn(fs.path(), logs.path());
     let t = Instant::now();
-    while std::os::unix::net::UnixStream::connect(&svc.socket).is_err() {
+    // The service binds its socket before it puts the mapping under its name: wait for both.
+    while std::os::unix::net::UnixStream::connect(&svc.socket).is_err() || !map.is_file() {
         assert!(t.elapsed() < Duration::from_secs(30), "{}", svc.log());
         std::thread::sleep(Duration::from_millis(20));
     }
