@@ -17,11 +17,11 @@
 //! policy) and the second-level tile pool [`crate::paging`]'s, slots are [`crate::cache`]'s and
 //! [`crate::shm::memory`]'s, reads [`crate::queue`]'s.
 
+mod frames;
 pub mod load;
+mod refresh;
 pub mod stats;
 pub mod views;
-mod frames;
-mod refresh;
 
 pub use load::{next_min_lod, target_min_lod};
 pub use stats::{FaultCounts, Stats, TickReport};
@@ -649,7 +649,6 @@ impl Clipmap {
         }
         got
     }
-
 }
 
 #[cfg(test)]

@@ -115,5 +115,4 @@ impl Clipmap {
             }
         }
     }
-
 }
