@@ -11,7 +11,7 @@
 use crate::geom::{wrap, Rect};
 use crate::shm::layout::SlotState;
 use crate::shm::memory::Assign;
-use crate::shm::ImageMemory;
+use crate::shm::{ImageMemory, SlotKeeper};
 use crate::source::{Delivered, FaultKind, TextureDesc, TileId};
 use serde::Serialize;
 use std::sync::Arc;
@@ -102,19 +102,23 @@ impl LevelCache {
 pub struct TileCache {
     levels: Vec<LevelCache>,
     memory: Arc<ImageMemory>,
+    /// The memory's one keeper: assigning and reopening slots take it `&mut`, copying settled
+    /// ones `&` (`ImageMemory::read_settled`), so no copy overlaps a slot's rewrite.
+    keeper: SlotKeeper,
     tile_bytes: Vec<usize>,
 }
 
 impl TileCache {
     /// Empty caches for every level of `desc`, level `k` `grids[k]` tiles a side (the engine's
-    /// `crate::geom::level_grid`), their slots in `memory` (laid out for the same grids).
-    pub fn new(desc: &TextureDesc, grids: &[[u64; 2]], memory: Arc<ImageMemory>) -> Self {
+    /// `crate::geom::level_grid`), their slots in `memory` (laid out for the same grids), which
+    /// `keeper` (`ImageMemory::take_keeper`) is the keeper of.
+    pub fn new(desc: &TextureDesc, grids: &[[u64; 2]], memory: Arc<ImageMemory>, keeper: SlotKeeper) -> Self {
         let levels = grids
             .iter()
             .map(|&grid| LevelCache { grid, mem: Rect::EMPTY, slots: vec![EMPTY_SLOT; (grid[0] * grid[1]) as usize] })
             .collect();
         let tile_bytes = (0..desc.level_count() as u32).map(|k| desc.tile_bytes(k)).collect();
-        TileCache { levels, memory, tile_bytes }
+        TileCache { levels, memory, keeper, tile_bytes }
     }
 
     /// The memory the slots live in.
@@ -153,7 +157,7 @@ impl TileCache {
                     *slot = Slot { tile: Some([s, t]), state: TileState::Absent, assigned: false };
                 }
                 if !slot.assigned {
-                    slot.assigned = memory.assign(k, [s, t]) == Assign::Assigned;
+                    slot.assigned = memory.assign(&mut self.keeper, k, [s, t]) == Assign::Assigned;
                 }
             }
         }
@@ -249,11 +253,14 @@ impl TileCache {
     /// can hold the slot.
     pub(crate) fn replace(&mut self, tile: TileId) -> bool {
         let memory = Arc::clone(&self.memory);
-        let Some(slot) = self.level_slot_mut(tile) else { return false };
-        if !slot.state.readable() || memory.replace(tile).is_none() {
+        if !self.level_slot_mut(tile).is_some_and(|slot| slot.state.readable())
+            || memory.replace(&mut self.keeper, tile).is_none()
+        {
             return false;
         }
-        slot.state = TileState::Replacing;
+        if let Some(slot) = self.level_slot_mut(tile) {
+            slot.state = TileState::Replacing;
+        }
         true
     }
 
@@ -278,7 +285,7 @@ impl TileCache {
 
     /// Copies bytes of `tile`'s slot, starting `offset` bytes into the tile, if it is readable.
     pub fn read(&self, tile: TileId, offset: usize, out: &mut [u8]) -> bool {
-        self.state(tile).readable() && self.memory.read_settled(tile, offset, out)
+        self.state(tile).readable() && self.memory.read_settled(&self.keeper, tile, offset, out)
     }
 
     /// Tiles of level `k`'s mem region that should be read at tick `now`: absent, loading or
@@ -330,7 +337,8 @@ mod tests {
         let grids: Vec<[u64; 2]> =
             desc.levels().iter().map(|l| mem_grid(l.size, l.tile, desc.clip_size(), 1)).collect();
         let memory = Arc::new(ImageMemory::anonymous(crate::clip::memory_shape(&desc, &grids), desc.format()).unwrap());
-        TileCache::new(&desc, &grids, memory)
+        let keeper = memory.take_keeper().expect("a new memory's keeper is free");
+        TileCache::new(&desc, &grids, memory, keeper)
     }
 
     fn fill(c: &TileCache, tile: TileId, byte: u8) -> u64 {

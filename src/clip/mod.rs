@@ -400,7 +400,14 @@ impl Clipmap {
                 updated_tick: 0,
             })
             .collect();
-        let cache = TileCache::new(&desc, &grids, Arc::clone(&memory));
+        let keeper = memory.take_keeper().ok_or_else(|| {
+            ClipError::Memory(
+                "another clipmap already keeps this memory's slots (one memory has one engine at a time): \
+                 drop it first, or give this clipmap a memory of its own"
+                    .to_string(),
+            )
+        })?;
+        let cache = TileCache::new(&desc, &grids, Arc::clone(&memory), keeper);
         let pool = (settings.pool_bytes > 0)
             .then(|| Arc::new(PoolSource::new(source.clone(), settings.pool_bytes, settings.eviction)));
         let reader: Arc<dyn TileSource> = match &pool {

@@ -17,11 +17,13 @@ fn memory(src: &FaultySource) -> Arc<ImageMemory> {
     let grids: Vec<[u64; 2]> =
         desc.levels().iter().map(|l| crate::geom::tiles_in_level(l.size, l.tile).map(|n| n.min(16))).collect();
     let m = ImageMemory::anonymous(crate::clip::memory_shape(desc, &grids), desc.format()).unwrap();
+    let mut keeper = m.take_keeper().expect("a new memory's keeper is free");
     for s in 0..16 {
         for t in 0..16 {
-            m.assign(0, [s, t]);
+            m.assign(&mut keeper, 0, [s, t]);
         }
     }
+    drop(keeper);
     Arc::new(m)
 }
 
@@ -85,7 +87,8 @@ fn completed_tiles_hold_the_source_texels_and_failures_are_typed() {
             src.read_tile(c.tile, &mut want).unwrap();
             assert!(memory.settle(c.tile, g, crate::shm::layout::SlotState::Ready));
             let mut got = vec![0u8; 64];
-            assert!(memory.read_settled(c.tile, 0, &mut got));
+            let keeper = memory.take_keeper().expect("no engine keeps the test's memory");
+            assert!(memory.read_settled(&keeper, c.tile, 0, &mut got));
             assert_eq!(got, want);
         }
     }
@@ -171,8 +174,9 @@ fn one_read_slot_reads_a_run_in_priority_order_and_skips_tiles_whose_slot_moved(
     }
     // Tiles (3, 0) and (5, 0) leave their mem region while the run is under way: their slots go
     // to the tiles 16 columns on (the grid is 16 wide).
-    memory.assign(0, [19, 0]);
-    memory.assign(0, [21, 0]);
+    let mut keeper = memory.take_keeper().expect("no engine keeps the test's memory");
+    memory.assign(&mut keeper, 0, [19, 0]);
+    memory.assign(&mut keeper, 0, [21, 0]);
     q.flush();
     let done = q.drain();
     let order: Vec<(u64, bool)> = done.iter().map(|c| (c.tile.s, matches!(c.outcome, Outcome::Filled(..)))).collect();

@@ -888,9 +888,14 @@ fn a_tile_loading_under_a_published_region_falls_back_to_a_coarser_level_without
     let (mut texel, mut want) = (vec![0u8; 4], vec![0u8; 4]);
     let point =
         |r: Rect, lod: f64| sample_mapping_in(&c, &snap, Filter::Point, r.s0 as f64 + 0.5, r.t0 as f64 + 0.5, lod);
+    // The test acts as the engine's tick from here on: it takes the memory's keeper, which the
+    // clipmap gives back when dropped.
+    drop(map);
     let memory = w.memory();
+    let mut keeper = memory.take_keeper().expect("the dropped clipmap gave the keeper back");
     // The tick opens the slot (tag loading), then a read fills it as any read does.
-    let generation = memory.replace(tile).expect("tile (63, 63) is settled in its slot under the published region");
+    let generation =
+        memory.replace(&mut keeper, tile).expect("tile (63, 63) is settled in its slot under the published region");
     let (filled, ()) = memory
         .fill(tile, |_| {
             // The tag now says (63, 63) loading, under level 0's published region.
@@ -1042,10 +1047,13 @@ fn a_tile_range_is_never_seen_for_another_fill_of_its_slot() {
     assert!(hc.levels.iter().all(|d| d.ranges == 0));
     assert_eq!(hc.tile_range(0, [16, 16]), Ok(None));
 
+    // The test acts as the engine's tick from here on (see above).
+    drop(map);
     let memory = w.memory();
+    let mut keeper = memory.take_keeper().expect("the dropped clipmap gave the keeper back");
     let tile = TileId::new(0, 16, 16);
     let before = c.tile_range(0, [16, 16]).unwrap().expect("tile (16, 16) is ready");
-    let generation = memory.replace(tile).expect("settled in its slot");
+    let generation = memory.replace(&mut keeper, tile).expect("settled in its slot");
     assert_eq!(c.tile_range(0, [16, 16]), Ok(None), "no range while the tag says loading");
     memory.fill(tile, |b| b.chunks_exact_mut(4).for_each(|x| x.copy_from_slice(&(-32768f32).to_le_bytes())));
     assert_eq!(c.tile_range(0, [16, 16]), Ok(None), "nor while the bytes change");
@@ -1078,7 +1086,7 @@ fn a_tile_range_is_never_seen_for_another_fill_of_its_slot() {
     };
     let fills = 2000;
     for i in 1..=fills {
-        let g = memory.replace(tile).expect("settled");
+        let g = memory.replace(&mut keeper, tile).expect("settled");
         memory.fill(tile, |b| b.chunks_exact_mut(4).for_each(|x| x.copy_from_slice(&(i as f32).to_le_bytes())));
         assert!(memory.settle(tile, g, layout::SlotState::Ready));
         if i % 50 == 0 {

@@ -38,7 +38,7 @@ pub mod writer;
 pub use raw::Region;
 
 pub use client::{Client, LevelState, ReadError, Snapshot};
-pub use memory::{ImageMemory, Publication, PublishedLevel};
+pub use memory::{ImageMemory, Publication, PublishedLevel, SlotKeeper};
 pub use writer::{Writer, WriterOptions};
 
 use std::path::{Path, PathBuf};

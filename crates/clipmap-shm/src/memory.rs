@@ -14,6 +14,10 @@
 //!   before the claim, so a reader sees the tag change before any byte does; it reopens a settled
 //!   slot for new texels of the same tile ([`ImageMemory::replace`], a growing texture) the same
 //!   way, tag first, and a read then fills it like any other;
+//! - taking a slot out of settled ([`ImageMemory::assign`], [`ImageMemory::replace`]) needs the
+//!   memory's one [`SlotKeeper`] `&mut`, and copying a settled slot in process
+//!   ([`ImageMemory::read_settled`]) needs it `&`: no such copy overlaps a change that lets the
+//!   slot's bytes be rewritten, whoever calls these public methods, from whatever thread;
 //! - the tick publishes the snapshot once, whole, under its seqlock.
 //!
 //! It decides nothing about which tiles to hold (`clipmap::cache`) nor when to publish
@@ -24,7 +28,8 @@ use super::raw::Region;
 use clipmap_base::geom::Rect;
 use clipmap_base::texel::TexelFormat;
 use clipmap_base::tile::TileId;
-use std::sync::atomic::{fence, AtomicU64, Ordering};
+use std::sync::atomic::{fence, AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
 
 const LOADING: u64 = 0;
 const BUSY: u64 = 1;
@@ -50,6 +55,37 @@ fn key(tile: [i64; 2]) -> u64 {
 fn tile_of_key(key: u64) -> [i64; 2] {
     [((key >> 30) & 0x0FFF_FFFF) as i64, ((key >> 2) & 0x0FFF_FFFF) as i64]
 }
+
+/// The one right to take slots of an [`ImageMemory`] out of settled ([`ImageMemory::assign`],
+/// [`ImageMemory::replace`]) and to copy settled slots' bytes in process
+/// ([`ImageMemory::read_settled`]): the engine's. At most one exists per memory at a time
+/// ([`ImageMemory::take_keeper`]; dropping it gives it back); it is not `Clone` and cannot be made
+/// outside this crate. The first two take it `&mut`, the copy `&`, so the borrow rules keep every
+/// in-process copy of a settled slot apart from every change that lets its bytes be rewritten
+/// (docs/ARCHITECTURE.md §12). A method given the keeper of another memory panics.
+pub struct SlotKeeper {
+    /// The [`ImageMemory::id`] of the memory it keeps.
+    memory: u64,
+    /// The memory's flag that a keeper is out, cleared when this one is dropped.
+    out: Arc<AtomicBool>,
+}
+
+impl std::fmt::Debug for SlotKeeper {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SlotKeeper").field("memory", &self.memory).finish()
+    }
+}
+
+impl Drop for SlotKeeper {
+    fn drop(&mut self) {
+        // Release: whatever this keeper did happens before anything the next one does (its
+        // `take_keeper` acquires the flag).
+        self.out.store(false, Ordering::Release);
+    }
+}
+
+/// Ids of memories, for [`SlotKeeper`]s to name theirs (never reused).
+static NEXT_ID: AtomicU64 = AtomicU64::new(0);
 
 /// What [`ImageMemory::assign`] did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -105,6 +141,10 @@ pub struct ImageMemory {
     violations: AtomicU64,
     /// The height format of a height texture whose levels have tile ranges (`None`: no ranges).
     heights: Option<clipmap_base::height::HeightFormat>,
+    /// This memory's id, unique in the process (what its [`SlotKeeper`] records).
+    id: u64,
+    /// Whether its [`SlotKeeper`] is out.
+    keeper_out: Arc<AtomicBool>,
 }
 
 impl std::fmt::Debug for ImageMemory {
@@ -165,7 +205,37 @@ impl ImageMemory {
         };
         let (claims, keys) = (per_slot(UNASSIGNED), per_slot(NO_TILE));
         let published_tiles = std::sync::Mutex::new(vec![vec![Rect::EMPTY; shape.levels.len()]]);
-        ImageMemory { region, placement, shape, claims, keys, published_tiles, violations: AtomicU64::new(0), heights }
+        ImageMemory {
+            region,
+            placement,
+            shape,
+            claims,
+            keys,
+            published_tiles,
+            violations: AtomicU64::new(0),
+            heights,
+            id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
+            keeper_out: Arc::new(AtomicBool::new(false)),
+        }
+    }
+
+    /// The memory's [`SlotKeeper`], for the engine that fills it; `None` while another one is out
+    /// (another engine keeps this memory: one memory has one engine at a time).
+    pub fn take_keeper(&self) -> Option<SlotKeeper> {
+        // Acquire: everything the previous keeper did happens before what this one does.
+        self.keeper_out.compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed).ok()?;
+        Some(SlotKeeper { memory: self.id, out: Arc::clone(&self.keeper_out) })
+    }
+
+    /// Panics unless `keeper` is this memory's.
+    fn check_keeper(&self, keeper: &SlotKeeper) {
+        assert!(
+            keeper.memory == self.id,
+            "the slot keeper of image memory {} was given to image memory {}: pass the keeper that \
+             `take_keeper` returned for this memory",
+            keeper.memory,
+            self.id
+        );
     }
 
     /// Writes the static header (everything but the magic, which [`finish`](Self::finish)
@@ -275,10 +345,11 @@ impl ImageMemory {
     }
 
     /// Gives `tile`'s slot to `tile` (loading): its tag first, then its claim (tile, then a new
-    /// generation). Refused while a read fills the slot. Only the engine calls this, and only for
-    /// a slot whose old tile no published region covers.
+    /// generation). Refused while a read fills the slot. Only the engine calls this (it holds the
+    /// memory's `keeper`), and only for a slot whose old tile no published region covers.
     #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
-    pub fn assign(&self, level: u32, tile: [i64; 2]) -> Assign {
+    pub fn assign(&self, keeper: &mut SlotKeeper, level: u32, tile: [i64; 2]) -> Assign {
+        self.check_keeper(keeper);
         let (k, slot) = self.slot_of(level, tile);
         let claim = &self.claims[k][slot as usize];
         let now = claim.load(Ordering::Acquire);
@@ -338,13 +409,15 @@ impl ImageMemory {
         // SAFETY: the claim is now `BUSY` for this slot, which only this call could set (the
         // compare-and-swap above succeeded from `LOADING`), and until `give_back` stores it back
         // (after `fill` returns, or while it unwinds):
-        // no other read can take it (they compare from `LOADING`), the engine neither reassigns
-        // nor settles a busy slot (`assign` refuses `BUSY`, `settle` compares from `LOADING`), and
-        // in-process readers copy a slot's bytes only while its claim is `SETTLED`
-        // (`read_settled`). So nothing else in this process touches these bytes while `fill`
-        // runs. Other processes map the file read-only and, by the tag protocol, discard what they
-        // read from a slot whose tag says loading (the tag was set to loading in `assign`, before
-        // the claim).
+        // no other read can take it (they compare from `LOADING`), no caller reassigns, reopens
+        // or settles a busy slot (`assign` and `replace` compare from the state they loaded, which
+        // was not `BUSY`, `settle` from `LOADING`), and in-process copies of a slot's bytes
+        // (`read_settled`) run only while its claim is `SETTLED` and hold the memory's keeper `&`,
+        // so every one of them ended before the `assign` or `replace` (keeper `&mut`) that took
+        // this claim out of settled. So nothing else in this process touches these bytes while
+        // `fill` runs, whoever calls it. Other processes map the file read-only and, by the tag
+        // protocol, discard what they read from a slot whose tag says loading (the tag was set to
+        // loading in `assign` or `replace`, before the claim).
         let out = unsafe { self.region.fill(offset, p.slot_bytes as usize, fill) };
         drop(give_back);
         Some((now >> 2, out))
@@ -405,10 +478,11 @@ impl ImageMemory {
         let h = (l.size[1] - (tile.t * l.tile[1]).min(l.size[1])).min(l.tile[1]) as usize;
         let mut bytes = vec![0u8; tw * th * bpt];
         // SAFETY: the caller holds the slot's claim busy, which only `settle`'s compare-and-swap
-        // from this generation's loading set: no read fills the slot (`fill` takes only a loading
-        // claim), the engine does not reassign or reopen it (`assign` refuses busy, `replace`
-        // needs settled), and this is the engine's own thread. So the bytes do not change while
-        // they are copied into `bytes`, a private buffer.
+        // from this generation's loading set, and only `settle` stores it back: no read fills the
+        // slot (`fill` takes only a loading claim) and no caller reassigns or reopens it
+        // (`assign` and `replace` compare from a state that was not busy), whatever thread any of
+        // them runs on; `read_settled` only reads. So the bytes do not change while they are
+        // copied into `bytes`, a private buffer.
         unsafe { self.region.read(p.slot_offset(slot) as usize, &mut bytes) };
         let range = (0..h).try_fold(clipmap_base::height::TileRange::Empty, |acc, row| {
             format.tile_range(&bytes[row * tw * bpt..(row * tw + w) * bpt]).map(|r| acc.union(r))
@@ -442,32 +516,33 @@ impl ImageMemory {
     /// `false` when the slot does not hold `tile` settled.
     #[allow(unsafe_code)] // the one copy out of a settled slot in process (SAFETY below)
     #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
-    pub fn read_settled(&self, tile: TileId, offset: usize, out: &mut [u8]) -> bool {
+    pub fn read_settled(&self, keeper: &SlotKeeper, tile: TileId, offset: usize, out: &mut [u8]) -> bool {
+        self.check_keeper(keeper);
         let t = [tile.s as i64, tile.t as i64];
         if tile.level as usize >= self.claims.len() {
             return false;
         }
         let (k, slot) = self.slot_of(tile.level, t);
         let claim = &self.claims[k][slot as usize];
-        let before = claim.load(Ordering::Acquire);
-        if state_of(before) != SETTLED || self.keys[k][slot as usize].load(Ordering::Acquire) != key(t) {
+        if state_of(claim.load(Ordering::Acquire)) != SETTLED
+            || self.keys[k][slot as usize].load(Ordering::Acquire) != key(t)
+        {
             return false;
         }
         let p = &self.placement.levels[k];
         if offset + out.len() > p.slot_bytes as usize {
             return false;
         }
-        // SAFETY: a settled slot's bytes change only after `assign` or `replace` took its claim
-        // from settled to loading under a new generation (then a read's `fill` took it to busy):
-        // the engine's tick calls those with `&mut` of the engine, never while an in-process
-        // reader copies a slot, and a reader that comes after finds the claim no longer settled,
-        // above. For any other caller of these public methods this is the seqlock reader of
-        // `Region::read`'s contract: the claim word (state and generation) was read before the
-        // copy and is read again after it, and a copy it does not match is discarded. Other
-        // processes map the file read-only.
+        // SAFETY: the claim was settled above (acquire: it was stored with release after the
+        // bytes were written, so they are visible). A settled claim leaves settled only by
+        // `assign` or `replace` (every other transition compares from loading or is made by the
+        // one holding it busy), and only after that can a read's `fill` take it to busy and write
+        // the bytes. Both need this memory's keeper `&mut`, checked above to be the keeper
+        // borrowed here `&`; there is one keeper per memory (`take_keeper`), so while this copy
+        // runs neither can run in any thread: nothing writes these bytes. Other processes map the
+        // file read-only. The copy goes into `out`, a private buffer.
         unsafe { self.region.read(p.slot_offset(slot) as usize + offset, out) };
-        std::sync::atomic::fence(Ordering::Acquire);
-        claim.load(Ordering::Relaxed) == before
+        true
     }
 
     /// Assignments so far of a slot whose settled tile the current snapshot still covered: the
@@ -646,11 +721,13 @@ impl ImageMemory {
     /// to loading under a new generation, the tile and the slot unchanged. The new bytes then come
     /// as any tile's do: a read queue's thread fills the slot ([`fill`](Self::fill)) and the
     /// engine settles it ([`settle`](Self::settle)) under the generation returned here. `None`
-    /// (nothing changed) unless the slot holds `tile` settled. Only the engine calls this, from
-    /// its tick, as it calls [`assign`](Self::assign): never while an in-process reader holds the
-    /// slot, and a settled claim is never held by a read, so no byte is written here.
+    /// (nothing changed) unless the slot holds `tile` settled. Only the engine calls this, with
+    /// the memory's `keeper` as for [`assign`](Self::assign): never while an in-process reader
+    /// copies a slot ([`read_settled`](Self::read_settled) borrows the keeper), and a settled
+    /// claim is never held by a read, so no byte is written here.
     #[doc(hidden)] // the writer's side of the slot protocol: for the engine (docs/ARCHITECTURE.md §12)
-    pub fn replace(&self, tile: TileId) -> Option<u64> {
+    pub fn replace(&self, keeper: &mut SlotKeeper, tile: TileId) -> Option<u64> {
+        self.check_keeper(keeper);
         let t = [tile.s as i64, tile.t as i64];
         if tile.level as usize >= self.claims.len() {
             return None;
@@ -671,5 +748,87 @@ impl ImageMemory {
     /// Bytes of the whole mapping.
     pub fn total_bytes(&self) -> u64 {
         self.placement.total_bytes
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use layout::LevelShape;
+
+    /// One level of 64 x 64 one-byte texels in 16 x 16 tiles, a 4 x 4 grid of slots.
+    fn memory() -> ImageMemory {
+        let levels = vec![LevelShape { size: [64, 64], tile: [16, 16], grid: [4, 4] }];
+        ImageMemory::anonymous(Shape { bytes_per_texel: 1, clip_size: 64, levels }, TexelFormat::L8).unwrap()
+    }
+
+    fn panic_text(f: impl FnOnce()) -> String {
+        let err = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).expect_err("it panics");
+        err.downcast_ref::<String>().cloned().unwrap_or_default()
+    }
+
+    #[test]
+    fn a_memory_has_one_keeper_at_a_time_given_back_when_dropped() {
+        let m = memory();
+        let keeper = m.take_keeper().expect("a new memory's keeper is free");
+        assert!(m.take_keeper().is_none(), "a second keeper while the first is out");
+        assert!(m.take_keeper().is_none(), "nor a third");
+        drop(keeper);
+        let again = m.take_keeper().expect("the dropped keeper was given back");
+        assert!(m.take_keeper().is_none());
+        // Another memory's keeper is its own.
+        let other = memory();
+        assert!(other.take_keeper().is_some());
+        drop(again);
+    }
+
+    #[test]
+    fn a_keeper_of_another_memory_is_refused_by_every_method_that_takes_one() {
+        let (m, other) = (memory(), memory());
+        let mut keeper = m.take_keeper().unwrap();
+        let mut foreign = other.take_keeper().unwrap();
+        let tile = TileId::new(0, 1, 2);
+        let mut out = [0u8; 4];
+        for text in [
+            panic_text(|| {
+                m.assign(&mut foreign, 0, [1, 2]);
+            }),
+            panic_text(|| {
+                m.replace(&mut foreign, tile);
+            }),
+            panic_text(|| {
+                m.read_settled(&foreign, tile, 0, &mut out);
+            }),
+        ] {
+            assert!(
+                text.contains(&format!(
+                    "the slot keeper of image memory {} was given to image memory {}",
+                    other.id, m.id
+                )),
+                "{text}"
+            );
+        }
+        // Nothing changed: the slot was never assigned, and its own keeper still works.
+        assert_eq!(m.loading_generation(tile), None);
+        assert_eq!(m.assign(&mut keeper, 0, [1, 2]), Assign::Assigned);
+        assert!(m.loading_generation(tile).is_some());
+    }
+
+    #[test]
+    fn with_its_keeper_a_slot_is_assigned_filled_settled_read_and_reopened() {
+        let m = memory();
+        let mut keeper = m.take_keeper().unwrap();
+        let tile = TileId::new(0, 1, 2);
+        let mut out = [0u8; 4];
+        assert_eq!(m.assign(&mut keeper, 0, [1, 2]), Assign::Assigned);
+        assert!(!m.read_settled(&keeper, tile, 0, &mut out), "loading: nothing to copy");
+        let (g, ()) = m.fill(tile, |b| b.iter_mut().enumerate().for_each(|(i, x)| *x = i as u8)).unwrap();
+        assert!(m.settle(tile, g, SlotState::Ready));
+        assert!(m.read_settled(&keeper, tile, 16, &mut out));
+        assert_eq!(out, [16, 17, 18, 19]);
+        assert!(!m.read_settled(&keeper, tile, 254, &mut out), "past the slot's end");
+        let reopened = m.replace(&mut keeper, tile).expect("settled");
+        assert_eq!(reopened, g + 1);
+        assert!(!m.read_settled(&keeper, tile, 0, &mut out), "reopened: loading again");
     }
 }

@@ -110,10 +110,11 @@ impl Region {
     ///
     /// # Safety
     /// Either nothing writes these bytes while they are copied (an in-process reader of a slot
-    /// whose claim is settled: only the engine's tick reassigns it), or the caller is a seqlock
-    /// reader: it read the slot's tag before the copy, reads it again after (acquire), and
-    /// discards the copy when the tag moved, because the only writer of a slot's bytes (a tile
-    /// read, in this process or the service's) moves the tag to loading first (docs/SHM.md).
+    /// whose claim is settled, holding the memory's slot keeper, without which nothing reopens
+    /// it: `memory::SlotKeeper`), or the caller is a seqlock reader: it read the slot's tag
+    /// before the copy, reads it again after (acquire), and discards the copy when the tag moved,
+    /// because the only writer of a slot's bytes (a tile read, in this process or the service's)
+    /// moves the tag to loading first (docs/SHM.md).
     pub unsafe fn read(&self, offset: usize, out: &mut [u8]) {
         self.check(offset, out.len(), 1);
         // SAFETY: `check` proved offset..offset+len lies inside the live mapping. The source is
