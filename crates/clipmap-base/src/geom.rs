@@ -31,16 +31,19 @@ impl Rect {
     pub const EMPTY: Rect = Rect { s0: 0, t0: 0, s1: 0, t1: 0 };
 
     /// `[s0, s1) x [t0, t1)`.
+    #[inline]
     pub const fn new(s0: i64, t0: i64, s1: i64, t1: i64) -> Self {
         Rect { s0, t0, s1, t1 }
     }
 
     /// Whether it holds no texel.
+    #[inline]
     pub fn is_empty(&self) -> bool {
         self.s1 <= self.s0 || self.t1 <= self.t0
     }
 
     /// Columns (0 when empty).
+    #[inline]
     pub fn width(&self) -> u64 {
         if self.is_empty() {
             0
@@ -50,6 +53,7 @@ impl Rect {
     }
 
     /// Rows (0 when empty).
+    #[inline]
     pub fn height(&self) -> u64 {
         if self.is_empty() {
             0
@@ -59,21 +63,25 @@ impl Rect {
     }
 
     /// Number of texels (or tiles).
+    #[inline]
     pub fn area(&self) -> u64 {
         self.width() * self.height()
     }
 
     /// Whether (s, t) lies inside.
+    #[inline]
     pub fn contains(&self, s: i64, t: i64) -> bool {
         s >= self.s0 && s < self.s1 && t >= self.t0 && t < self.t1
     }
 
     /// Whether `other` lies entirely inside (an empty `other` always does).
+    #[inline]
     pub fn contains_rect(&self, other: &Rect) -> bool {
         other.is_empty() || (other.s0 >= self.s0 && other.s1 <= self.s1 && other.t0 >= self.t0 && other.t1 <= self.t1)
     }
 
     /// The common part ([`Rect::EMPTY`] if none).
+    #[inline]
     pub fn intersect(&self, other: &Rect) -> Rect {
         let r = Rect::new(self.s0.max(other.s0), self.t0.max(other.t0), self.s1.min(other.s1), self.t1.min(other.t1));
         if r.is_empty() {
@@ -86,6 +94,7 @@ impl Rect {
 
 /// Level `k`'s default centre: level 0's centre shifted right by `k` (floor, also for negative
 /// centres), so the windows of all levels are concentric.
+#[inline]
 pub fn default_centre(centre0: [i64; 2], k: u32) -> [i64; 2] {
     let k = k.min(63);
     [centre0[0] >> k, centre0[1] >> k]
@@ -94,6 +103,7 @@ pub fn default_centre(centre0: [i64; 2], k: u32) -> [i64; 2] {
 /// Level `k`'s centre when level centres are aligned down to multiples of `alignment` level
 /// texels (Performer's "shift and mask"; floor also for negative centres). `alignment` 0 or 1
 /// gives [`default_centre`].
+#[inline]
 pub fn aligned_centre(centre0: [i64; 2], k: u32, alignment: u64) -> [i64; 2] {
     let c = default_centre(centre0, k);
     let a = alignment.clamp(1, 1 << 62) as i64;
@@ -102,6 +112,7 @@ pub fn aligned_centre(centre0: [i64; 2], k: u32, alignment: u64) -> [i64; 2] {
 }
 
 /// Euclidean `x mod m` (in `0..m` also for negative `x`). `m` must be in 1..=2^62.
+#[inline]
 pub fn wrap(x: i64, m: u64) -> u64 {
     x.rem_euclid(m as i64) as u64
 }
@@ -109,6 +120,7 @@ pub fn wrap(x: i64, m: u64) -> u64 {
 /// Offset of level texel (s, t) in a toroidal window of `clip` texels a side whose buffer is
 /// `dims` texels (dims are `min(clip, level size)` per axis). Texels are `(s mod clip, t mod clip)`
 /// of the window, rows of `dims[0]` texels.
+#[inline]
 pub fn window_index(s: i64, t: i64, clip: u64, dims: [u64; 2]) -> usize {
     (wrap(t, clip) * dims[0] + wrap(s, clip)) as usize
 }
@@ -126,6 +138,7 @@ fn window_axis(size: u64, clip: u64, centre: i64) -> (i64, i64) {
 /// The tex region of a level of `size` texels: the clip-size window centred on `centre`,
 /// translated (never shrunk) to stay inside the level; the whole level on axes no larger than the
 /// clip size.
+#[inline]
 pub fn tex_region(size: [u64; 2], clip: u64, centre: [i64; 2]) -> Rect {
     let (s0, s1) = window_axis(size[0], clip, centre[0]);
     let (t0, t1) = window_axis(size[1], clip, centre[1]);
@@ -135,6 +148,7 @@ pub fn tex_region(size: [u64; 2], clip: u64, centre: [i64; 2]) -> Rect {
 /// The part of `tex` renderers may read: `border` texels less on each side along every axis on
 /// which the level is larger than the clip size (the whole level is resident on the others),
 /// except on a side where the window touches the level's edge.
+#[inline]
 pub fn valid_region(size: [u64; 2], clip: u64, border: u64, tex: Rect) -> Rect {
     // No border against the level's edge: the window cannot roam past it, so those texels are
     // never updated in place, and renderers keep the finest level up to the texture's edge.
@@ -149,16 +163,19 @@ pub fn valid_region(size: [u64; 2], clip: u64, border: u64, tex: Rect) -> Rect {
 }
 
 /// The readable edge of a stack window: clip size less twice the border.
+#[inline]
 pub fn effective_size(clip: u64, border: u64) -> u64 {
     clip.saturating_sub(2 * border)
 }
 
 /// Tiles along each axis of a level.
+#[inline]
 pub fn tiles_in_level(size: [u64; 2], tile: [u64; 2]) -> [u64; 2] {
     [size[0].div_ceil(tile[0]), size[1].div_ceil(tile[1])]
 }
 
 /// The tiles (as a rectangle of tile indices) holding every texel of `rect`.
+#[inline]
 pub fn tiles_covering(rect: Rect, tile: [u64; 2]) -> Rect {
     if rect.is_empty() {
         return Rect::EMPTY;
@@ -173,6 +190,7 @@ pub fn tiles_covering(rect: Rect, tile: [u64; 2]) -> Rect {
 }
 
 /// The texels of tile (S, T), clipped to the level.
+#[inline]
 pub fn tile_texels(size: [u64; 2], tile: [u64; 2], st: [u64; 2]) -> Rect {
     let s0 = (st[0] * tile[0]) as i64;
     let t0 = (st[1] * tile[1]) as i64;
@@ -182,6 +200,7 @@ pub fn tile_texels(size: [u64; 2], tile: [u64; 2], st: [u64; 2]) -> Rect {
 /// Edge of the mem region in tiles per axis: enough tiles to cover the tex region at any
 /// alignment plus `lookahead`, never more than the level has (docs/ARCHITECTURE.md §3: clip 1024, 256-texel
 /// tiles, lookahead 1 → 6 x 6).
+#[inline]
 pub fn mem_grid(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64) -> [u64; 2] {
     let n = tiles_in_level(size, tile);
     let axis = |a: usize| (clip.min(size[a]).div_ceil(tile[a]) + 1 + lookahead).min(n[a]);
@@ -191,6 +210,7 @@ pub fn mem_grid(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64) -> [u
 /// The mem region (a rectangle of tile indices, `grid` tiles a side) around `tex`: it holds every
 /// tile the tex region touches; the spare tiles go ahead of the motion along each axis where
 /// `velocity` is non-zero and are split evenly otherwise; it stays inside the level.
+#[inline]
 pub fn mem_region(size: [u64; 2], tile: [u64; 2], grid: [u64; 2], tex: Rect, velocity: [i64; 2]) -> Rect {
     let n = tiles_in_level(size, tile);
     let need = tiles_covering(tex, tile);
@@ -213,6 +233,7 @@ pub fn mem_region(size: [u64; 2], tile: [u64; 2], grid: [u64; 2], tex: Rect, vel
 /// The mem grid a level uses: `configured` (a configuration's mem region) raised, per axis, to
 /// the minimum that covers the tex region at any alignment (`mem_grid` with lookahead 0) and
 /// never more than the level has; without one, [`mem_grid`] with `lookahead`.
+#[inline]
 pub fn level_grid(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64, configured: Option<[u64; 2]>) -> [u64; 2] {
     match configured {
         None => mem_grid(size, tile, clip, lookahead),
@@ -252,11 +273,13 @@ pub struct LevelFrame {
 
 impl LevelShape {
     /// A shape whose mem grid is [`mem_grid`] with `lookahead` extra tiles per axis.
+    #[inline]
     pub fn new(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64) -> Self {
         LevelShape { size, tile, clip, grid: mem_grid(size, tile, clip, lookahead) }
     }
 
     /// The level's regions for `centre` (in level texels), `border` and direction of motion.
+    #[inline]
     pub fn frame(&self, centre: [i64; 2], border: u64, velocity: [i64; 2]) -> LevelFrame {
         let tex = tex_region(self.size, self.clip, centre);
         let valid = valid_region(self.size, self.clip, border, tex);

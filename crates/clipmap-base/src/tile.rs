@@ -22,6 +22,7 @@ pub struct TileId {
 
 impl TileId {
     /// Tile (s, t) of `level`.
+    #[inline]
     pub fn new(level: u32, s: u64, t: u64) -> Self {
         TileId { level, s, t }
     }
@@ -35,11 +36,13 @@ impl fmt::Display for TileId {
 
 /// Size of level `k` of a texture whose level 0 is `size`: each edge halved k times (rounding
 /// down), at least 1.
+#[inline]
 pub fn level_size(size: [u64; 2], k: u32) -> [u64; 2] {
     [(size[0] >> k.min(63)).max(1), (size[1] >> k.min(63)).max(1)]
 }
 
 /// Number of levels of a full mipmap of `size`: down to 1 x 1.
+#[inline]
 pub fn level_count(size: [u64; 2]) -> usize {
     let edge = size[0].max(size[1]).max(1);
     (64 - edge.leading_zeros()) as usize
