@@ -26,6 +26,7 @@ pub mod range;
 pub mod remote;
 mod synthetic;
 pub mod throttle;
+pub mod tiles;
 
 pub use crate::tile::TileId;
 pub use cog::{CogError, CogSource};
