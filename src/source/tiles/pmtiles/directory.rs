@@ -228,6 +228,7 @@ pub(crate) mod tests {
     /// of the square (the curve's definition), independently of the bit arithmetic above.
     fn hilbert_order(z: u8) -> Vec<(u32, u32)> {
         // A square with corner (x0, y0) and axes (xi, xj), (yi, yj), in units of half a tile.
+        #[allow(clippy::too_many_arguments)]
         fn go(out: &mut Vec<(u32, u32)>, x0: i64, y0: i64, xi: i64, xj: i64, yi: i64, yj: i64, n: u8) {
             if n == 0 {
                 let (x, y) = (x0 + (xi + yi) / 2, y0 + (xj + yj) / 2);
