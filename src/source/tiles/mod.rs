@@ -13,6 +13,9 @@ use serde::Serialize;
 use std::fmt;
 use thiserror::Error;
 
+pub mod mbtiles;
+pub mod pmtiles;
+
 /// The deepest zoom a pyramid may have: 2^30 texels a side at 256-texel tiles is zoom 22, and
 /// a column or row must fit `u32`.
 pub const MAX_ZOOM: u8 = 30;

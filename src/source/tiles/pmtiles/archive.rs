@@ -1,0 +1,529 @@
+//! A PMTiles v3 archive read through the byte seam: opened with one read of its first 16 KiB
+//! (header and root directory), leaf directories read when a tile first needs one and kept in a
+//! cache bounded in bytes (least recently used out), tiles read one range each.
+
+use super::directory::{self, Entry, Found};
+use super::header::{Compression, Header, HEADER_LEN};
+use crate::place::Place;
+use crate::source::range::{open_place, OpenError, RangeError, RangeReader};
+use crate::source::tiles::{ArchiveError, Fetched, PyramidInfo, TileAddr, TileArchive};
+use crate::source::FaultKind;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+/// The bytes one open reads: the header and the root directory, which PMTiles v3 keeps within
+/// the first 16 KiB.
+pub const OPEN_BYTES: u64 = 16384;
+
+/// The leaf directories' cache bound unless told otherwise ([`PmtilesArchive::with_leaf_cache`]).
+pub const LEAF_CACHE_BYTES: u64 = 32 << 20;
+
+/// The most bytes a directory may inflate to (a root or a leaf): a planet's leaves hold a few
+/// MiB at most.
+const DIRECTORY_MAX: u64 = 64 << 20;
+
+/// The most bytes a leaf directory may have in the file.
+const LEAF_MAX: u32 = 16 << 20;
+
+/// The most bytes a tile may have, in the file or inflated.
+const TILE_MAX: u64 = 64 << 20;
+
+/// Root, leaf and at most two more levels of leaves: a deeper chain is a damaged archive.
+const DEPTH_MAX: usize = 4;
+
+/// The tile size [`PyramidInfo::tile_size`] says until [`PmtilesArchive::probe_tile_size`] has
+/// read one: PMTiles v3 has no field for it, and 256 is what nearly every raster archive holds.
+pub const DEFAULT_TILE_SIZE: u32 = 256;
+
+/// Leaf directories by their place in the leaf section, bounded in bytes.
+struct LeafCache {
+    budget: u64,
+    used: u64,
+    tick: u64,
+    leaves: HashMap<u64, (Arc<[Entry]>, u64, u64)>,
+}
+
+impl LeafCache {
+    fn get(&mut self, offset: u64) -> Option<Arc<[Entry]>> {
+        self.tick += 1;
+        let tick = self.tick;
+        self.leaves.get_mut(&offset).map(|(entries, _, last)| {
+            *last = tick;
+            Arc::clone(entries)
+        })
+    }
+
+    fn put(&mut self, offset: u64, entries: Arc<[Entry]>) {
+        let bytes = (entries.len() * std::mem::size_of::<Entry>()) as u64 + 64;
+        if bytes > self.budget || self.leaves.contains_key(&offset) {
+            return;
+        }
+        while self.used + bytes > self.budget {
+            let Some((&oldest, _)) = self.leaves.iter().min_by_key(|(_, (_, _, last))| *last) else { break };
+            if let Some((_, b, _)) = self.leaves.remove(&oldest) {
+                self.used -= b;
+            }
+        }
+        self.tick += 1;
+        self.used += bytes;
+        self.leaves.insert(offset, (entries, bytes, self.tick));
+    }
+}
+
+/// A PMTiles v3 archive of raster tiles (PNG, JPEG or WebP), local or remote.
+pub struct PmtilesArchive {
+    place: String,
+    bytes: Arc<dyn RangeReader>,
+    header: Header,
+    root: Vec<Entry>,
+    info: PyramidInfo,
+    leaves: Mutex<LeafCache>,
+}
+
+/// Whether `bounds` cover all of WebMercatorQuad (to its ±85.0511° edges, within a 1e-4° slack).
+fn whole_world(b: [f64; 4]) -> bool {
+    const EDGE: f64 = 85.0511;
+    b[0] <= -180.0 + 1e-4 && b[2] >= 180.0 - 1e-4 && b[1] <= -EDGE && b[3] >= EDGE
+}
+
+impl PmtilesArchive {
+    /// Opens the archive at `place` (a local path, an `http(s)://` URL or an `s3://` object)
+    /// with one read of its first [`OPEN_BYTES`] bytes.
+    pub fn open(place: &Place) -> Result<PmtilesArchive, ArchiveError> {
+        let name = crate::place::redacted(&place.to_string()).into_owned();
+        let (bytes, first) = open_place(place, OPEN_BYTES).map_err(|e| {
+            let (kind, problem) = match e {
+                OpenError::Io(e) if e.kind() == std::io::ErrorKind::NotFound => (FaultKind::Missing, e.to_string()),
+                OpenError::Io(e) => (FaultKind::Io, e.to_string()),
+                OpenError::Remote(p) => (FaultKind::Io, p),
+            };
+            ArchiveError { place: name.clone(), at: None, kind, problem: format!("cannot open it: {problem}") }
+        })?;
+        PmtilesArchive::from_reader(name, bytes, &first)
+    }
+
+    /// The archive read through `bytes`, whose first bytes (the first [`OPEN_BYTES`], or all of
+    /// a smaller file) are `first`; `place` names it in messages.
+    pub fn from_reader(
+        place: String,
+        bytes: Arc<dyn RangeReader>,
+        first: &[u8],
+    ) -> Result<PmtilesArchive, ArchiveError> {
+        let corrupt =
+            |problem: String| ArchiveError { place: place.clone(), at: None, kind: FaultKind::Corrupt, problem };
+        let header = Header::parse(first, bytes.size()).map_err(corrupt)?;
+        let (at, len) = (header.root.0 as usize, header.root.1 as usize);
+        let Some(root) = first.get(at..at + len) else {
+            return Err(corrupt(format!(
+                "the root directory (bytes {at}..+{len}) lies past the first {} bytes read",
+                first.len()
+            )));
+        };
+        let root = directory::decompress(root, header.internal_compression, DIRECTORY_MAX)
+            .and_then(|b| directory::parse(&b, header.data.1, header.leaves.1))
+            .map_err(|p| corrupt(format!("the root directory (bytes {at}..+{len}): {p}")))?;
+        let info = PyramidInfo {
+            min_zoom: header.min_zoom,
+            max_zoom: header.max_zoom,
+            tile_size: DEFAULT_TILE_SIZE,
+            bounds: (!whole_world(header.bounds)).then_some(header.bounds),
+            encoding: Some(header.encoding),
+        };
+        debug_assert!(HEADER_LEN as u64 <= OPEN_BYTES);
+        Ok(PmtilesArchive {
+            place,
+            bytes,
+            header,
+            root,
+            info,
+            leaves: Mutex::new(LeafCache { budget: LEAF_CACHE_BYTES, used: 0, tick: 0, leaves: HashMap::new() }),
+        })
+    }
+
+    /// The same archive with its leaf directories' cache bounded to `bytes` (entries in memory).
+    pub fn with_leaf_cache(self, bytes: u64) -> PmtilesArchive {
+        self.leaves.lock().expect("leaf cache").budget = bytes;
+        self
+    }
+
+    /// The header as read.
+    pub fn header(&self) -> &Header {
+        &self.header
+    }
+
+    /// The bytes the leaf directories' cache holds now (entries in memory).
+    pub fn leaf_cache_bytes(&self) -> u64 {
+        self.leaves.lock().expect("leaf cache").used
+    }
+
+    fn error(&self, at: Option<TileAddr>, kind: FaultKind, problem: String) -> ArchiveError {
+        ArchiveError { place: self.place.clone(), at, kind, problem }
+    }
+
+    /// Bytes `[offset, offset + len)` of the file, for `what`.
+    fn read(&self, at: Option<TileAddr>, offset: u64, len: u64, what: &str) -> Result<Vec<u8>, ArchiveError> {
+        self.bytes.read_bytes(offset, len).map(|b| b.to_vec()).map_err(|e| {
+            let kind = match e {
+                RangeError::Eof { .. } => FaultKind::Short,
+                _ => FaultKind::Io,
+            };
+            self.error(at, kind, format!("reading the {what} at bytes {offset}..+{len}: {}", e.problem(offset, len)))
+        })
+    }
+
+    /// The leaf directory at `offset` of the leaf section, `len` bytes: from the cache, or read.
+    fn leaf(&self, at: Option<TileAddr>, offset: u64, len: u32) -> Result<Arc<[Entry]>, ArchiveError> {
+        if let Some(entries) = self.leaves.lock().expect("leaf cache").get(offset) {
+            return Ok(entries);
+        }
+        let corrupt = |p: String| {
+            self.error(
+                at,
+                FaultKind::Corrupt,
+                format!("the leaf directory at bytes {offset}..+{len} of the leaf section: {p}"),
+            )
+        };
+        if len > LEAF_MAX {
+            return Err(corrupt(format!("it has {len} bytes, more than the {LEAF_MAX} this reader accepts")));
+        }
+        let raw = self.read(at, self.header.leaves.0 + offset, len.into(), "leaf directory")?;
+        let entries: Arc<[Entry]> = directory::decompress(&raw, self.header.internal_compression, DIRECTORY_MAX)
+            .and_then(|b| directory::parse(&b, self.header.data.1, self.header.leaves.1))
+            .map_err(corrupt)?
+            .into();
+        self.leaves.lock().expect("leaf cache").put(offset, Arc::clone(&entries));
+        Ok(entries)
+    }
+
+    /// Where tile id `id` leads, through the root and leaf directories.
+    fn locate(&self, at: Option<TileAddr>, id: u64) -> Result<Option<(u64, u32)>, ArchiveError> {
+        let mut found = directory::find(&self.root, id);
+        for _ in 0..DEPTH_MAX {
+            match found {
+                Found::Tile(offset, len) => return Ok(Some((offset, len))),
+                Found::Missing => return Ok(None),
+                Found::Leaf(offset, len) => found = directory::find(&self.leaf(at, offset, len)?, id),
+            }
+        }
+        Err(self.error(at, FaultKind::Corrupt, format!("leaf directories nest deeper than {DEPTH_MAX} levels")))
+    }
+
+    /// The tile bytes at `offset` of the tile data, `len` of them, their compression undone.
+    fn tile_bytes(&self, at: Option<TileAddr>, offset: u64, len: u32) -> Result<Vec<u8>, ArchiveError> {
+        if u64::from(len) > TILE_MAX {
+            return Err(self.error(
+                at,
+                FaultKind::Corrupt,
+                format!("its entry says {len} bytes, more than the {TILE_MAX} a tile may have"),
+            ));
+        }
+        let raw = self.read(at, self.header.data.0 + offset, len.into(), "tile")?;
+        match self.header.tile_compression {
+            Compression::None => Ok(raw),
+            c => directory::decompress(&raw, c, TILE_MAX).map_err(|p| {
+                self.error(at, FaultKind::Corrupt, format!("the tile at bytes {offset}..+{len} of the tile data: {p}"))
+            }),
+        }
+    }
+
+    /// Reads the first tile of the archive (the first of its coarsest zoom) and sets
+    /// [`PyramidInfo::tile_size`] to its width, which PMTiles v3 does not record elsewhere;
+    /// returns it. Costs the reads of that tile (and its leaf, if any). A tile that is not
+    /// square, or whose size cannot be read from its first bytes, is refused.
+    pub fn probe_tile_size(&mut self) -> Result<u32, ArchiveError> {
+        let mut entries: Arc<[Entry]> = self.root.clone().into();
+        for _ in 0..DEPTH_MAX {
+            let Some(first) = entries.first().copied() else {
+                return Err(self.error(None, FaultKind::Missing, "the archive holds no tiles".into()));
+            };
+            let addr = directory::tile_addr(first.tile_id);
+            if first.run_length == 0 {
+                entries = self.leaf(addr, first.offset, first.length)?;
+                continue;
+            }
+            let bytes = self.tile_bytes(addr, first.offset, first.length)?;
+            let size = match tile_dimensions(&bytes) {
+                Some((w, h)) if w == h && w > 0 => w,
+                Some((w, h)) => {
+                    return Err(self.error(
+                        addr,
+                        FaultKind::Corrupt,
+                        format!("the tile is {w} x {h} texels; tiles must be square"),
+                    ))
+                }
+                None => {
+                    return Err(self.error(
+                        addr,
+                        FaultKind::Corrupt,
+                        "its size cannot be read from its first bytes (not PNG, JPEG or WebP)".into(),
+                    ))
+                }
+            };
+            self.info.tile_size = size;
+            return Ok(size);
+        }
+        Err(self.error(None, FaultKind::Corrupt, format!("leaf directories nest deeper than {DEPTH_MAX} levels")))
+    }
+}
+
+/// The width and height a PNG, JPEG or WebP image says in its first bytes.
+pub fn tile_dimensions(b: &[u8]) -> Option<(u32, u32)> {
+    let be32 = |at: usize| Some(u32::from_be_bytes(b.get(at..at + 4)?.try_into().ok()?));
+    let be16 = |at: usize| Some(u32::from(u16::from_be_bytes(b.get(at..at + 2)?.try_into().ok()?)));
+    let le16 = |at: usize| Some(u32::from(u16::from_le_bytes(b.get(at..at + 2)?.try_into().ok()?)));
+    let le24 = |at: usize| Some(u32::from_le_bytes([*b.get(at)?, *b.get(at + 1)?, *b.get(at + 2)?, 0]));
+    match crate::source::tiles::TileEncoding::sniff(b)? {
+        crate::source::tiles::TileEncoding::Png => (b.get(12..16)? == b"IHDR").then_some(())?,
+        crate::source::tiles::TileEncoding::Jpeg => {
+            // Walk the markers to the first start of frame (SOF0..SOF15 but DHT, JPG and DAC).
+            let mut at = 2;
+            loop {
+                while *b.get(at)? != 0xFF {
+                    at += 1;
+                }
+                while *b.get(at)? == 0xFF {
+                    at += 1;
+                }
+                let marker = *b.get(at)?;
+                at += 1;
+                if (0xC0..=0xCF).contains(&marker) && ![0xC4, 0xC8, 0xCC].contains(&marker) {
+                    return Some((be16(at + 5)?, be16(at + 3)?));
+                }
+                if marker == 0xD8 || (0xD0..=0xD7).contains(&marker) || marker == 0x01 {
+                    continue;
+                }
+                at += be16(at)? as usize;
+            }
+        }
+        crate::source::tiles::TileEncoding::Webp => {
+            return match b.get(12..16)? {
+                b"VP8 " => Some((le16(26)? & 0x3FFF, le16(28)? & 0x3FFF)),
+                b"VP8L" => {
+                    let v = u32::from_le_bytes(b.get(21..25)?.try_into().ok()?);
+                    Some(((v & 0x3FFF) + 1, ((v >> 14) & 0x3FFF) + 1))
+                }
+                b"VP8X" => Some((le24(24)? + 1, le24(27)? + 1)),
+                _ => None,
+            };
+        }
+    }
+    Some((be32(16)?, be32(20)?))
+}
+
+impl TileArchive for PmtilesArchive {
+    fn place(&self) -> &str {
+        &self.place
+    }
+
+    fn info(&self) -> &PyramidInfo {
+        &self.info
+    }
+
+    fn fetch(&self, at: TileAddr) -> Result<Fetched, ArchiveError> {
+        if !at.is_valid() {
+            return Err(self.error(
+                Some(at),
+                FaultKind::BadRequest,
+                format!(
+                    "no such tile: zoom {} has {} columns and rows, and zooms go to {}",
+                    at.z,
+                    TileAddr::tiles_at(at.z.min(crate::source::tiles::MAX_ZOOM)),
+                    crate::source::tiles::MAX_ZOOM
+                ),
+            ));
+        }
+        if at.z < self.info.min_zoom || at.z > self.info.max_zoom {
+            return Ok(Fetched::Missing);
+        }
+        match self.locate(Some(at), directory::tile_id(at))? {
+            Some((offset, len)) => self.tile_bytes(Some(at), offset, len).map(Fetched::Tile),
+            None => Ok(Fetched::Missing),
+        }
+    }
+
+    #[cfg(feature = "remote")]
+    fn remote_stats(&self) -> Option<crate::source::remote::RemoteStats> {
+        let object = self.bytes.as_any().downcast_ref::<crate::source::remote::object::Object>()?;
+        Some(object.remote().stats())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::directory::tests::serialize;
+    use super::super::directory::tile_id;
+    use super::super::header::tests::header_bytes;
+    use super::*;
+    use crate::source::range::Memory;
+
+    fn addr(z: u8, x: u32, y: u32) -> TileAddr {
+        TileAddr { z, x, y }
+    }
+
+    /// An archive of `tiles` (address, bytes; sorted by tile id, same bytes consecutive ones
+    /// become one run) with leaves of `per_leaf` entries (0: all in the root), its directories
+    /// compressed with zstd and its tiles with gzip.
+    fn archive(tiles: &[(TileAddr, Vec<u8>)], per_leaf: usize) -> Vec<u8> {
+        let gz = |b: &[u8]| {
+            let mut g = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+            std::io::Write::write_all(&mut g, b).unwrap();
+            g.finish().unwrap()
+        };
+        let mut data = Vec::new();
+        let mut entries: Vec<Entry> = Vec::new();
+        for (at, bytes) in tiles {
+            let id = tile_id(*at);
+            if let Some(last) = entries.last_mut() {
+                if last.tile_id + u64::from(last.run_length) == id && data.ends_with(&gz(bytes)) {
+                    last.run_length += 1;
+                    continue;
+                }
+            }
+            let z = gz(bytes);
+            entries.push(Entry { tile_id: id, offset: data.len() as u64, length: z.len() as u32, run_length: 1 });
+            data.extend(z);
+        }
+        let zs = |b: Vec<u8>| zstd::encode_all(&b[..], 3).unwrap();
+        let (root, leaves) = if per_leaf == 0 {
+            (zs(serialize(&entries)), Vec::new())
+        } else {
+            let mut leaves = Vec::new();
+            let mut root = Vec::new();
+            for chunk in entries.chunks(per_leaf) {
+                let leaf = zs(serialize(chunk));
+                root.push(Entry {
+                    tile_id: chunk[0].tile_id,
+                    offset: leaves.len() as u64,
+                    length: leaf.len() as u32,
+                    run_length: 0,
+                });
+                leaves.extend(leaf);
+            }
+            (zs(serialize(&root)), leaves)
+        };
+        let root_at = HEADER_LEN as u64;
+        let leaves_at = root_at + root.len() as u64;
+        let data_at = leaves_at + leaves.len() as u64;
+        let zooms = (tiles.iter().map(|t| t.0.z).min().unwrap(), tiles.iter().map(|t| t.0.z).max().unwrap());
+        let mut f = header_bytes(
+            (root_at, root.len() as u64),
+            (leaves_at, leaves.len() as u64),
+            (data_at, data.len() as u64),
+            4,
+            2,
+            2,
+            zooms,
+        );
+        f.extend(root);
+        f.extend(leaves);
+        f.extend(data);
+        f
+    }
+
+    fn open(bytes: Vec<u8>) -> PmtilesArchive {
+        let first = bytes[..bytes.len().min(OPEN_BYTES as usize)].to_vec();
+        PmtilesArchive::from_reader("test.pmtiles".into(), Arc::new(Memory(bytes.into())), &first).unwrap()
+    }
+
+    fn png(w: u32, tag: u32) -> Vec<u8> {
+        let mut b = b"\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR".to_vec();
+        b.extend(w.to_be_bytes());
+        b.extend(w.to_be_bytes());
+        b.extend(tag.to_le_bytes());
+        b
+    }
+
+    #[test]
+    fn tiles_runs_and_leaves_read_back_and_absent_tiles_are_missing() {
+        let mut tiles: Vec<(TileAddr, Vec<u8>)> = Vec::new();
+        for z in 0..=4u8 {
+            for x in 0..(1u32 << z) {
+                for y in 0..(1u32 << z) {
+                    if (x + y) % 3 != 1 {
+                        // Every fourth tile of zoom 4 shares its bytes with its neighbours: runs.
+                        let tag =
+                            if z == 4 { tile_id(addr(z, x, y)) as u32 / 4 } else { tile_id(addr(z, x, y)) as u32 };
+                        tiles.push((addr(z, x, y), png(512, tag)));
+                    }
+                }
+            }
+        }
+        tiles.sort_by_key(|t| tile_id(t.0));
+        for per_leaf in [0, 7] {
+            let mut a = open(archive(&tiles, per_leaf));
+            assert_eq!((a.info().min_zoom, a.info().max_zoom, a.info().bounds), (0, 4, None));
+            assert_eq!(a.info().tile_size, DEFAULT_TILE_SIZE);
+            for z in 0..=5u8 {
+                for x in 0..(1u32 << z) {
+                    for y in 0..(1u32 << z) {
+                        let want = tiles.iter().find(|t| t.0 == addr(z, x, y)).map(|t| t.1.clone());
+                        let got = a.fetch(addr(z, x, y)).unwrap();
+                        assert_eq!(got, want.map_or(Fetched::Missing, Fetched::Tile), "{z}/{x}/{y}");
+                    }
+                }
+            }
+            assert_eq!(a.probe_tile_size().unwrap(), 512);
+            assert_eq!(a.info().tile_size, 512);
+            let e = a.fetch(addr(2, 4, 0)).unwrap_err();
+            assert_eq!(e.kind, FaultKind::BadRequest);
+        }
+    }
+
+    #[test]
+    fn the_leaf_cache_keeps_to_its_bound_and_drops_the_least_recently_used() {
+        let tiles: Vec<_> = (0..64u32)
+            .map(|i| directory::tile_addr(tile_id(addr(3, 0, 0)) + u64::from(i)).unwrap())
+            .map(|at| (at, png(256, at.x * 8 + at.y)))
+            .collect();
+        let a = open(archive(&tiles, 8));
+        let leaf_bytes = (8 * std::mem::size_of::<Entry>() + 64) as u64;
+        let a = a.with_leaf_cache(3 * leaf_bytes);
+        for (at, bytes) in &tiles {
+            assert_eq!(a.fetch(*at).unwrap(), Fetched::Tile(bytes.clone()));
+            assert!(a.leaf_cache_bytes() <= 3 * leaf_bytes);
+        }
+        assert_eq!(a.leaf_cache_bytes(), 3 * leaf_bytes);
+        // The three most recent leaves are the last three.
+        let cache = a.leaves.lock().unwrap();
+        let mut kept: Vec<_> = cache.leaves.keys().copied().collect();
+        kept.sort();
+        let root_offsets: Vec<_> = a.root.iter().map(|e| e.offset).collect();
+        assert_eq!(kept, root_offsets[5..]);
+    }
+
+    #[test]
+    fn damaged_archives_are_refused_naming_where() {
+        let tiles = vec![(addr(1, 0, 0), png(256, 1)), (addr(1, 1, 0), png(256, 2))];
+        let good = archive(&tiles, 0);
+        // Cut inside the tile data: the header's sections run past the end.
+        let cut = good[..good.len() - 3].to_vec();
+        let e = PmtilesArchive::from_reader("cut.pmtiles".into(), Arc::new(Memory(cut.clone().into())), &cut)
+            .err()
+            .unwrap();
+        assert!(e.to_string().starts_with("cut.pmtiles: ") && e.problem.contains("past the end of the file"), "{e}");
+        // A damaged root directory.
+        let mut bad = good.clone();
+        bad[HEADER_LEN + 2] ^= 0xFF;
+        let e = PmtilesArchive::from_reader("bad.pmtiles".into(), Arc::new(Memory(bad.clone().into())), &bad)
+            .err()
+            .unwrap();
+        assert!(e.problem.contains("root directory"), "{e}");
+        // A local file that is not there.
+        let e = PmtilesArchive::open(&Place::parse("/nonexistent/x.pmtiles")).err().unwrap();
+        assert_eq!(e.kind, FaultKind::Missing);
+    }
+
+    #[test]
+    fn tile_sizes_are_read_from_png_jpeg_and_webp_headers() {
+        assert_eq!(tile_dimensions(&png(256, 0)), Some((256, 256)));
+        // A JPEG: SOI, an APP0 of 16 bytes, SOF0 of 512 x 256.
+        let mut j = vec![0xFF, 0xD8, 0xFF, 0xE0, 0, 16];
+        j.extend([0u8; 14]);
+        j.extend([0xFF, 0xC0, 0, 17, 8, 1, 0, 2, 0, 3]);
+        assert_eq!(tile_dimensions(&j), Some((512, 256)));
+        let mut w = b"RIFF\0\0\0\0WEBPVP8X\x0a\0\0\0\0\0\0\0".to_vec();
+        w.extend([0xFF, 0, 0, 0x7F, 0, 0]);
+        assert_eq!(tile_dimensions(&w), Some((256, 128)));
+        assert_eq!(tile_dimensions(b"<html>"), None);
+    }
+}
