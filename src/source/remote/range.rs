@@ -1,13 +1,13 @@
-//! A remote object as a [`RangeReader`] (`crate::source::range`): ranged reads of the version
-//! seen at open ([`Object`]), a streamed range run on the process's runtime with its bytes handed
-//! to the sink as they arrive, and the figures of merged ranges kept in the remote reader's
-//! counters. The one implementation of the byte seam that the `remote` feature brings.
+//! A remote object as a [`RangeReader`] (`crate::source::range::reader`): ranged reads of the
+//! version seen at open ([`Object`]), a streamed range run on the process's runtime with its
+//! bytes handed to the sink as they arrive, and the figures of merged ranges kept in the remote
+//! reader's counters. The one implementation of the byte seam that the `remote` feature brings.
 
 use super::fetch::Sink;
 use super::object::{Object, ObjectError};
 use super::{Remote, RemoteOptions};
 use crate::place::RemoteName;
-use crate::source::range::{check_within, RangeError, RangeReader, RangeSink, Shared};
+use crate::source::range::reader::{check_within, RangeError, RangeReader, RangeSink, Shared};
 use std::any::Any;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
