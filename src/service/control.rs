@@ -188,9 +188,9 @@ async fn answer(ctx: &Context, line: &[u8], rd: &mut BufReader<tokio::net::unix:
         Request::Border(texels) => done(ask(ctx, |reply| Command::Border { texels, reply }).await.map(Ok)),
         Request::Centre(centre) => done(ask(ctx, |reply| Command::Centre { centre, reply }).await.map(Ok)),
         Request::View(view) => done(ask(ctx, |reply| Command::View { view, reply }).await),
-        Request::PatchFile(path) => patched(patches::file(ctx, path.into()).await),
+        Request::PatchFile(path) => patched(patches::file(ctx.grower.as_ref(), &ctx.limits, path.into()).await),
         Request::PatchData { bytes, json } => {
-            let (taken, flow) = patches::data(ctx, rd, bytes, json).await;
+            let (taken, flow) = patches::data(ctx.grower.as_ref(), &ctx.limits, rd, bytes, json).await;
             return (patched(taken), flow);
         }
         Request::Quit => return (Answer::Bye, Flow::Close),

@@ -3,8 +3,8 @@
 //! size, the bytes all connections hold in flight), then read, decoded off the async workers,
 //! handed to the grower, and answered once the patch is durable.
 
-use super::control::Context;
 use super::protocol::Flow;
+use super::ControlLimits;
 use crate::growing::input::{self, InputError, Paths};
 use crate::growing::serve::{GrowCommand, Grower, IN_FLIGHT_UNIT};
 use std::path::PathBuf;
@@ -80,25 +80,28 @@ enum Patch {
     Data(String, Vec<u8>),
 }
 
-/// `PATCH FILE <path>`: the patch id once it is durable.
-pub(super) async fn file(ctx: &Context, path: PathBuf) -> Result<u64, PatchRefusal> {
-    take(ctx, Patch::File(path)).await
+/// `PATCH FILE <path>`: the patch id once it is durable. `grower` is the service's grower (none
+/// when its texture does not grow); `limits` bound the wait for its answer.
+pub(super) async fn file(grower: Option<&Grower>, limits: &ControlLimits, path: PathBuf) -> Result<u64, PatchRefusal> {
+    let g = grower.ok_or(PatchRefusal::NotGrowing)?;
+    take(g, limits, Patch::File(path)).await
 }
 
 /// `PATCH DATA <bytes> <json>`: admits the announced bytes, reads them from `rd` and takes the
 /// patch. Every refusal before the bytes are read closes the connection (they are never read as
 /// requests).
 pub(super) async fn data(
-    ctx: &Context,
+    grower: Option<&Grower>,
+    limits: &ControlLimits,
     rd: &mut (impl AsyncRead + Unpin),
     bytes: u64,
     json: String,
 ) -> (Result<u64, PatchRefusal>, Flow) {
-    let Some(g) = &ctx.grower else { return (Err(PatchRefusal::NotGrowing), Flow::Close) };
+    let Some(g) = grower else { return (Err(PatchRefusal::NotGrowing), Flow::Close) };
     if bytes > g.max_patch_bytes {
         return (Err(PatchRefusal::TooBig { bytes, max: g.max_patch_bytes }), Flow::Close);
     }
-    let idle = ctx.limits.idle;
+    let idle = limits.idle;
     // Every PATCH DATA in flight, all connections together, holds its share of the grower's
     // bound until its patch is decoded and handed over; one that cannot have it within the idle
     // time is refused. The buffer grows as bytes arrive, so an announced size that never comes
@@ -113,7 +116,7 @@ pub(super) async fn data(
     let read = limited.read_to_end(&mut data);
     match tokio::time::timeout(idle, read).await {
         Ok(Ok(n)) if n as u64 == bytes => {
-            let taken = take(ctx, Patch::Data(json, data)).await;
+            let taken = take(g, limits, Patch::Data(json, data)).await;
             drop(permit);
             (taken, Flow::Continue)
         }
@@ -125,17 +128,16 @@ pub(super) async fn data(
 
 /// Reads and checks a patch (off the async workers: decoding is work), hands it to the grower and
 /// waits for its answer: the patch's id once it is durable.
-async fn take(ctx: &Context, p: Patch) -> Result<u64, PatchRefusal> {
-    let g = ctx.grower.clone().ok_or(PatchRefusal::NotGrowing)?;
-    let new = tokio::task::spawn_blocking(move || decode(&g, p)).await.map_err(|_| PatchRefusal::Decoding)?;
+async fn take(g: &Grower, limits: &ControlLimits, p: Patch) -> Result<u64, PatchRefusal> {
+    let decoding = g.clone();
+    let new = tokio::task::spawn_blocking(move || decode(&decoding, p)).await.map_err(|_| PatchRefusal::Decoding)?;
     let new = new.map_err(PatchRefusal::Input)?;
-    let g = ctx.grower.as_ref().ok_or(PatchRefusal::NotGrowing)?;
     let (tx, rx) = oneshot::channel();
     if !g.send(GrowCommand::Add { patch: new, source: None, reply: tx }) {
         return Err(PatchRefusal::GrowerBusy);
     }
     // Keeping a patch syncs it to disk: allow longer than a tick command.
-    match tokio::time::timeout(ctx.limits.reply_timeout * 6, rx).await {
+    match tokio::time::timeout(limits.reply_timeout * 6, rx).await {
         Ok(Ok(Ok(id))) => Ok(id),
         Ok(Ok(Err(e))) => Err(PatchRefusal::Grower(e)),
         Ok(Err(_)) => Err(PatchRefusal::GrowerStopped),

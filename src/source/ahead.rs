@@ -22,7 +22,8 @@
 //! request that fails part way leaves the tiles whose bytes had all arrived to be taken (they
 //! are that object's bytes, whole) and the others to be read on their own.
 
-pub use super::merge::{coalesce, Piece};
+pub use super::merge::Piece;
+use super::merge::{run, Rule};
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::hash::Hash;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
@@ -318,7 +319,7 @@ impl<K: Copy + Eq + Hash> ReadAhead<K> {
         pieces.push(own);
         pieces.sort_by_key(|p| p.start);
         let Some(head) = pieces.iter().position(|p| p.key == tile) else { return Plan::Alone };
-        let (lo, hi) = coalesce(&pieces, head, GAP_BYTES, cap);
+        let (lo, hi) = run(&pieces, head, Rule::within(GAP_BYTES, cap));
         if lo == hi {
             return Plan::Alone;
         }
@@ -417,7 +418,7 @@ mod tests {
             ps in pieces(), head_seed in any::<usize>(), cap in 0u64..400_000,
         ) {
             let head = head_seed % ps.len();
-            let (lo, hi) = coalesce(&ps, head, GAP_BYTES, cap);
+            let (lo, hi) = run(&ps, head, Rule::within(GAP_BYTES, cap));
             prop_assert!(lo <= head && head <= hi);
             prop_assert!(valid(&ps, lo, hi, GAP_BYTES, cap));
             let far = (head..ps.len()).filter(|&h| valid(&ps, head, h, GAP_BYTES, cap)).max().unwrap();

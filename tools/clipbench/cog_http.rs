@@ -15,7 +15,7 @@
 //!   closes the connection half way through the body of 1 %, against the same relay with no
 //!   fault.
 
-use super::cog::{clip_of, gdal_passes, median, one_pass, Http, HttpRun, Spent};
+use super::cog_shared::{clip_of, gdal_passes, median, one_pass, Http, HttpRun, Spent};
 use super::perf::MachineCpu;
 use super::serve::{program, AccessLog, Faults, Hit, Nginx, Proxy};
 use clipmap::place::RemoteName;

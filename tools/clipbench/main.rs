@@ -32,6 +32,7 @@
 mod cog;
 #[cfg(feature = "remote")]
 mod cog_http;
+mod cog_shared;
 mod engine;
 mod growing;
 mod perf;

@@ -1,7 +1,7 @@
 //! The levels a file lacks: built from the last usable image by halving, once (at open for a
 //! local file, when first read for a remote object).
 
-use super::image::Level;
+use super::level::Level;
 use super::CogSource;
 use crate::source::{SourceError, TileId};
 use std::sync::Arc;

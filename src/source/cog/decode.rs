@@ -3,8 +3,7 @@
 //! DEFLATE, ZSTD, JPEG), the predictor undone and samples made little-endian
 //! ([`finish_samples`]), then a mask's nodata heights or an alpha added.
 
-use super::image::{IfdLevel, JpegColour, MaskLevel};
-use super::info::Compression;
+use super::level::{Compression, IfdLevel, JpegColour, MaskLevel};
 use super::structure::Span;
 use super::CogSource;
 use crate::source::range::RangeError;

@@ -4,136 +4,14 @@
 //! levels ([`CogSource::levels_of`]), the rest built ([`Level::Built`]).
 
 use super::error::CogError;
-use super::index::{array, Array};
-use super::info::{Compression, LevelOrigin};
+use super::index::array;
+use super::level::{Array, Compression, IfdLevel, JpegColour, Level, LevelOrigin, MaskLevel, Samples};
 use super::structure::{raw_bytes, scalar, values, Head, Image, Layout};
 use super::{CogSource, MAX_BUILT_TEXELS, MAX_JPEG_TABLES};
 use crate::source::{level_count, level_size, LevelDesc, TextureDesc};
 use crate::texel::TexelFormat;
 use std::path::Path;
 use std::sync::Arc;
-
-/// How an image's samples are stored (BitsPerSample and SampleFormat).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum Samples {
-    /// 8-bit unsigned integers.
-    U8,
-    /// 16-bit unsigned integers.
-    U16,
-    /// 16-bit signed integers (heights, `l16i`).
-    I16,
-    /// 32-bit IEEE floats (heights, `l32f`).
-    F32,
-}
-
-impl Samples {
-    /// The BitsPerSample and SampleFormat values, in words.
-    pub(super) fn describe(self) -> String {
-        let (bits, format) = match self {
-            Samples::U8 => (8, "1, unsigned"),
-            Samples::U16 => (16, "1, unsigned"),
-            Samples::I16 => (16, "2, signed"),
-            Samples::F32 => (32, "3, floating point"),
-        };
-        format!("{bits} bits, sample format {format}")
-    }
-
-    /// Bytes of one sample.
-    pub(super) fn bytes(self) -> usize {
-        match self {
-            Samples::U8 => 1,
-            Samples::U16 | Samples::I16 => 2,
-            Samples::F32 => 4,
-        }
-    }
-}
-
-/// A level served from an image of the file.
-#[derive(Clone, Debug)]
-pub(super) struct IfdLevel {
-    pub(super) ifd: usize,
-    pub(super) size: [u64; 2],
-    pub(super) tile: [u64; 2],
-    pub(super) across: u64,
-    pub(super) compression: Compression,
-    /// The Predictor tag: 1 none, 2 horizontal differencing, 3 floating point.
-    pub(super) predictor: u16,
-    /// JPEGTables (347): the quantisation and Huffman tables the tiles' JPEG streams leave out.
-    pub(super) jpeg_tables: Option<Arc<[u8]>>,
-    /// How a JPEG tile's components become samples (JPEG only; `JpegColour::Raw` otherwise).
-    pub(super) jpeg_colour: JpegColour,
-    pub(super) samples: Samples,
-    /// Samples a pixel.
-    pub(super) spp: usize,
-    pub(super) offsets: Array,
-    pub(super) counts: Array,
-    /// The image's internal mask (docs/COG.md, "Masks and nodata"): a colour image's alpha, a
-    /// height image's nodata texels.
-    pub(super) mask: Option<Arc<MaskLevel>>,
-}
-
-impl IfdLevel {
-    /// Tile rows of the image.
-    pub(super) fn rows(&self) -> u64 {
-        self.size[1].div_ceil(self.tile[1])
-    }
-
-    /// Bytes of one stored pixel.
-    pub(super) fn pixel_bytes(&self) -> usize {
-        self.spp * self.samples.bytes()
-    }
-}
-
-/// How the components of an image's JPEG streams become its samples, as libtiff decodes them
-/// for GDAL: YCbCr (PhotometricInterpretation 6) converted to RGB, anything else (grey,
-/// PhotometricInterpretation 2 with 3 or 4 samples) taken as stored, without a colour transform.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum JpegColour {
-    /// The components are the samples (grey, RGB, RGBA).
-    Raw,
-    /// Three YCbCr components, converted to RGB.
-    YCbCr,
-}
-
-/// An internal mask: an IFD of one 1- or 8-bit sample (NewSubfileType 4, or 5 for an
-/// overview's), tiled as its image; 0 is a pixel without data.
-#[derive(Debug)]
-pub(super) struct MaskLevel {
-    /// Its tiles (read as 8-bit grey: `spp` 1, `samples` U8).
-    pub(super) lv: IfdLevel,
-    /// 1-bit samples (8 pixels a byte, the first in the most significant bit, rows padded to a
-    /// byte) rather than 8-bit ones.
-    pub(super) one_bit: bool,
-}
-
-impl MaskLevel {
-    /// Bytes of one stored mask tile.
-    pub(super) fn tile_bytes(&self) -> usize {
-        let [tw, th] = self.lv.tile;
-        if self.one_bit {
-            tw.div_ceil(8) as usize * th as usize
-        } else {
-            (tw * th) as usize
-        }
-    }
-}
-
-/// How a colour image gets its alpha (docs/COG.md, "Masks and nodata"): served as the RGBA
-/// variant of its format, alpha 0 where its level's mask is 0 or where every colour sample
-/// equals `nodata`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) struct AlphaRule {
-    /// The GDAL_NODATA value, as a sample.
-    pub(super) nodata: Option<u16>,
-}
-
-/// A level: tiles of the file, or texels built from the last usable image (at open for a local
-/// file, when first read for a remote object).
-#[derive(Clone, Debug)]
-pub(super) enum Level {
-    Ifd(IfdLevel),
-    Built,
-}
 
 /// Checks one image's layout and describes it as a level: its texel format and tiles.
 pub(super) fn image_level(

@@ -4,26 +4,13 @@
 //! [`MAX_INDEX_READ`], else chunks of [`INDEX_CHUNK_BYTES`], kept once read, and takes a tile's
 //! byte count from the offsets where GDAL's block leader confirms it.
 
-use super::image::IfdLevel;
-use super::info::Compression;
+use super::level::{Array, Compression, IfdLevel};
 use super::structure::Span;
 use super::structure::{unsigned_size, Image, Layout};
 use super::{CogSource, INDEX_CHUNK_BYTES, MAX_INDEX_READ};
 use crate::source::range::{RangeError, Shared};
 use crate::source::{SourceError, TileId};
 use std::sync::Arc;
-
-/// An array of unsigned values in the file (a tile index), read one value at a time.
-#[derive(Clone, Copy, Debug)]
-pub(super) struct Array {
-    pub(super) ty: u16,
-    pub(super) size: u64,
-    pub(super) count: u64,
-    /// The values, when they fit in the entry.
-    pub(super) inline: Option<[u8; 8]>,
-    /// Where they are, when they do not.
-    pub(super) at: u64,
-}
 
 /// The tile index array of tag `tag`, without reading it.
 pub(super) fn array(
@@ -210,7 +197,7 @@ impl CogSource {
 
 #[cfg(test)]
 mod tests {
-    use super::super::image::Level;
+    use super::super::level::Level;
     use super::super::PREFIX_BYTES;
     use super::*;
     use crate::source::TileSource;

@@ -1,66 +1,11 @@
 //! What a COG is served as, for `cliptex info`: [`CogInfo`] (the texture, each level's
 //! [`LevelOrigin`], an alpha or nodata rule) and its words ([`CogInfo::human`]).
 
-use super::image::{IfdLevel, Level};
+use super::level::{IfdLevel, Level, LevelOrigin};
 use super::CogSource;
 use crate::texel::TexelFormat;
 use serde::Serialize;
 use std::path::PathBuf;
-
-/// How tile bytes are compressed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Compression {
-    /// Stored as they are (1).
-    None,
-    /// LZW (5), GDAL's COG default.
-    Lzw,
-    /// DEFLATE (8 or 32946), zlib-wrapped.
-    Deflate,
-    /// Zstandard (50000).
-    Zstd,
-    /// JPEG (7): baseline or progressive, grey or YCbCr (decoded to RGB), the IFD's
-    /// JPEGTables (347) spliced before each tile's stream.
-    Jpeg,
-}
-
-impl std::fmt::Display for Compression {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Compression::None => "uncompressed",
-            Compression::Lzw => "LZW",
-            Compression::Deflate => "DEFLATE",
-            Compression::Zstd => "ZSTD",
-            Compression::Jpeg => "JPEG",
-        })
-    }
-}
-
-/// Where a level's texels come from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum LevelOrigin {
-    /// An image of the file: IFD `ifd`, in tiles of `tile` texels, compressed with
-    /// `compression`, with a predictor when `predictor` is set (`predictor_tag`: the TIFF
-    /// Predictor, 2 horizontal differencing or 3 floating point; 1 none).
-    Ifd {
-        /// The image's index among the file's IFDs (0: the full resolution).
-        ifd: usize,
-        /// Its tile size, texels.
-        tile: [u64; 2],
-        /// Its compression.
-        compression: Compression,
-        /// Whether its tiles were written with a predictor.
-        predictor: bool,
-        /// The TIFF Predictor tag: 1 none, 2 horizontal differencing, 3 floating point.
-        predictor_tag: u16,
-    },
-    /// Built at open from level `from` by the 2 x 2 box filter.
-    Built {
-        /// The level it was halved from.
-        from: u32,
-    },
-}
 
 /// A COG's texture and the origin of each level ([`CogSource::info`]).
 #[derive(Clone, Debug, Serialize)]

@@ -3,7 +3,7 @@
 //! mask or GDAL_NODATA ([`alpha_of`]).
 
 use super::error::CogError;
-use super::image::{AlphaRule, Level};
+use super::level::{AlphaRule, Level};
 use crate::texel::TexelFormat;
 use std::path::Path;
 

@@ -66,16 +66,17 @@ mod error;
 mod image;
 mod index;
 mod info;
+mod level;
 mod meta;
 mod read;
 mod structure;
 
 pub use error::CogError;
-pub use info::{CogInfo, CogLevelInfo, Compression, LevelOrigin};
+pub use info::{CogInfo, CogLevelInfo};
+pub use level::{Compression, LevelOrigin};
 pub use meta::{MASK_NODATA_F32, MASK_NODATA_I16, MASK_NODATA_U16};
 
-use self::image::AlphaRule;
-use self::image::{IfdLevel, Level};
+use self::level::{AlphaRule, IfdLevel, Level};
 use self::meta::{alpha_of, heights_of, rgba_of, BandMeta};
 use self::structure::{ascii, read_ifds, Ghost, Head, Layout, Span};
 use super::ahead::ReadAhead;

@@ -3,8 +3,7 @@
 //! every TIFF tile it touches.
 
 use super::decode::{keep, CHUNK};
-use super::image::{IfdLevel, Level};
-use super::info::Compression;
+use super::level::{Compression, IfdLevel, Level};
 use super::structure::Span;
 use super::{CogSource, AHEAD_WINDOW, MAX_SPAN_BYTES};
 use crate::source::ahead::{Piece, Plan};

@@ -10,6 +10,7 @@
 
 use super::location::Location;
 use super::options::RemoteOptions;
+use crate::source::merge::{self, Merged, Piece, Rule};
 use bytes::Bytes;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -216,8 +217,6 @@ pub struct Counters {
     pub requests: AtomicU64,
     /// Retries.
     pub retries: AtomicU64,
-    /// Ranges read by a request merged with another range.
-    pub merged: AtomicU64,
     /// Bytes received.
     pub bytes: AtomicU64,
     /// Ranges that failed after retries.
@@ -258,12 +257,22 @@ pub struct Fetcher {
     s3: Arc<dyn Backend>,
     /// The counters.
     pub counters: Counters,
+    /// Ranges read by a request merged with another range: the waiting ranges this fetcher merges
+    /// ([`merge::run`]) and the read-ahead requests it is told of (`RangeReader::stream`).
+    pub merged: Merged,
 }
 
 impl Fetcher {
     /// A fetcher over the two backends.
     pub fn new(opts: RemoteOptions, http: Arc<dyn Backend>, s3: Arc<dyn Backend>) -> Fetcher {
-        Fetcher { opts, endpoints: Mutex::new(HashMap::new()), http, s3, counters: Counters::default() }
+        Fetcher {
+            opts,
+            endpoints: Mutex::new(HashMap::new()),
+            http,
+            s3,
+            counters: Counters::default(),
+            merged: Merged::default(),
+        }
     }
 
     /// Answers so far, of every backend, that ignored a range ([`Backend::ranges_ignored`]).
@@ -378,9 +387,7 @@ impl Fetcher {
         let first = &batch[0];
         let start = first.start;
         let end = batch.iter().map(|r| r.start + r.len).max().unwrap_or(start);
-        if batch.len() > 1 {
-            self.counters.merged.fetch_add(batch.len() as u64, Ordering::Relaxed);
-        }
+        self.merged.count(batch.len() as u64);
         let got = self.with_retries(&first.loc, &first.object, |b| b.get(&first.loc, start, end - start));
         for r in batch {
             let result = match &got {
@@ -516,8 +523,9 @@ fn take_batch(waiting: &mut Vec<Arc<Req>>, me: &Arc<Req>, merge_bytes: u64) -> V
     let mut same: Vec<Arc<Req>> = waiting.iter().filter(|r| r.object == me.object).cloned().collect();
     same.sort_by_key(|r| r.start);
     let at = same.iter().position(|r| Arc::ptr_eq(r, me)).unwrap_or(0);
-    let ranges: Vec<(u64, u64)> = same.iter().map(|r| (r.start, r.len)).collect();
-    let (lo, hi) = crate::source::merge::adjacent(&ranges, at, merge_bytes);
+    let ranges: Vec<Piece<usize>> =
+        same.iter().enumerate().map(|(key, r)| Piece { key, start: r.start, len: r.len }).collect();
+    let (lo, hi) = merge::run(&ranges, at, Rule::touching(merge_bytes));
     let batch: Vec<Arc<Req>> = same[lo..=hi].to_vec();
     waiting.retain(|r| !batch.iter().any(|b| Arc::ptr_eq(b, r)));
     batch
@@ -730,7 +738,7 @@ mod tests {
         }
         let gets = m.gets.lock().unwrap().clone();
         assert_eq!(gets, vec![(3000, 256), (0, 2048)], "the eight adjacent waiting ranges share one request");
-        assert_eq!(f.counters.merged.load(Ordering::Relaxed), 8);
+        assert_eq!(f.merged.get(), 8);
         assert_eq!(m.peak.load(Ordering::SeqCst), 1, "one request in flight at most");
     }
 

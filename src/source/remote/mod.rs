@@ -110,7 +110,7 @@ impl Remote {
         RemoteStats {
             requests: c.requests.load(Ordering::Relaxed),
             retries: c.retries.load(Ordering::Relaxed),
-            merged: c.merged.load(Ordering::Relaxed),
+            merged: self.fetcher.merged.get(),
             bytes: c.bytes.load(Ordering::Relaxed),
             failures: c.failures.load(Ordering::Relaxed),
             cache_hits: c.cache_hits.load(Ordering::Relaxed),

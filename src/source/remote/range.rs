@@ -1,15 +1,15 @@
-//! A remote object as a [`RangeReader`] (`crate::source::range`): ranged reads of the version
-//! seen at open ([`Object`]), a streamed range run on the process's runtime with its bytes handed
-//! to the sink as they arrive, and the figures of merged ranges kept in the remote reader's
-//! counters. The one implementation of the byte seam that the `remote` feature brings.
+//! A remote object as a [`RangeReader`] (`crate::source::range::reader`): ranged reads of the
+//! version seen at open ([`Object`]), a streamed range run on the process's runtime with its
+//! bytes handed to the sink as they arrive, and the figures of merged ranges kept in the remote
+//! reader's fetcher (`crate::source::merge::Merged`). The one implementation of the byte seam
+//! that the `remote` feature brings.
 
 use super::fetch::Sink;
 use super::object::{Object, ObjectError};
 use super::{Remote, RemoteOptions};
 use crate::place::RemoteName;
-use crate::source::range::{check_within, RangeError, RangeReader, RangeSink, Shared};
+use crate::source::range::reader::{check_within, RangeError, RangeReader, RangeSink, Shared};
 use std::any::Any;
-use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 /// The most bytes one request merging several ranges of an object reads, whatever the remote
@@ -63,9 +63,7 @@ impl RangeReader for Object {
 
     fn stream(&self, offset: u64, len: u64, ranges: u64, sink: Arc<dyn RangeSink>) -> Result<(), RangeError> {
         check_within(offset, len, Object::size(self))?;
-        if ranges > 1 {
-            self.remote().fetcher().counters.merged.fetch_add(ranges, Ordering::Relaxed);
-        }
+        self.remote().fetcher().merged.count(ranges);
         let to: Arc<dyn Sink> = Arc::new(ToSink(Arc::clone(&sink)));
         self.stream_detached(offset, len, to, move |result| {
             if let Err(e) = result {
