@@ -8,6 +8,10 @@
 //! north as XYZ and WMTS count them) or says that the tile does not exist; the pyramid source
 //! decodes those bytes into a slot, in texture orientation (t counts up from the south).
 
+pub mod pyramid;
+
+pub use pyramid::{PyramidError, PyramidOptions, PyramidSource};
+
 use super::FaultKind;
 use serde::Serialize;
 use std::fmt;
