@@ -9,8 +9,10 @@
 //! decodes those bytes into a slot, in texture orientation (t counts up from the south).
 
 pub mod pyramid;
+pub mod template;
 
 pub use pyramid::{PyramidError, PyramidOptions, PyramidSource};
+pub use template::{TemplateArchive, TemplateOptions};
 
 use super::FaultKind;
 use serde::Serialize;
