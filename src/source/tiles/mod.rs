@@ -17,6 +17,7 @@ pub use template::{TemplateArchive, TemplateOptions};
 use super::FaultKind;
 use serde::Serialize;
 use std::fmt;
+use std::sync::Arc;
 use thiserror::Error;
 
 /// The deepest zoom a pyramid may have: 2^30 texels a side at 256-texel tiles is zoom 22, and
@@ -164,6 +165,13 @@ pub trait TileArchive: Send + Sync {
         None
     }
 
+    /// Where tile `at` is, as messages may show it (a URL with its secrets replaced, a path), for
+    /// an archive that keeps each tile apart; `None` by default.
+    fn locate(&self, at: TileAddr) -> Option<String> {
+        let _ = at;
+        None
+    }
+
     /// A number that changes each time tiles may have changed at once (an archive replaced in
     /// its store and opened again); 0 for an archive whose tiles never change so.
     fn version(&self) -> u64 {
@@ -171,9 +179,67 @@ pub trait TileArchive: Send + Sync {
     }
 }
 
+/// How a tile pyramid named on a command line or in a configuration is served.
+#[derive(Clone, Debug, Default)]
+pub struct OpenOptions {
+    /// A template's zooms, bounds, subdomains, User-Agent and headers.
+    pub template: TemplateOptions,
+    /// The clip size and default tile.
+    pub pyramid: PyramidOptions,
+}
+
+/// The opener of one kind of archive or service.
+type Opener = fn(&str, &OpenOptions) -> Result<Arc<dyn TileArchive>, PyramidError>;
+
+fn open_template(text: &str, opts: &OpenOptions) -> Result<Arc<dyn TileArchive>, PyramidError> {
+    let template = text.strip_prefix("xyz:").unwrap_or(text);
+    Ok(Arc::new(TemplateArchive::open(template, &opts.template)?))
+}
+
+/// The opener of the kind of archive or service `text` names, one arm a kind.
+fn opener(text: &str) -> Option<Opener> {
+    if text.starts_with("xyz:") {
+        return Some(open_template);
+    }
+    None
+}
+
+/// Whether `text` names a tile pyramid [`open`] serves (`xyz:TEMPLATE`).
+pub fn is_pyramid(text: &str) -> bool {
+    opener(text).is_some()
+}
+
+/// The archive or service `text` names: `xyz:TEMPLATE` (an XYZ, TMS, quadkey or WMTS template,
+/// docs/TILES.md); `None` when `text` names none of them.
+pub fn open_archive(text: &str, opts: &OpenOptions) -> Option<Result<Arc<dyn TileArchive>, PyramidError>> {
+    opener(text).map(|open| open(text, opts))
+}
+
+/// The tile pyramid `text` names ([`open_archive`]) served as a clip texture; `None` when
+/// `text` names none.
+pub fn open(text: &str, opts: &OpenOptions) -> Option<Result<PyramidSource, PyramidError>> {
+    let archive = open_archive(text, opts)?;
+    Some(archive.and_then(|a| PyramidSource::new(a, &opts.pyramid)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn open_recognises_templates_only() {
+        assert!(open("tiles/{z}/{x}/{y}.png", &OpenOptions::default()).is_none());
+        assert!(open("my.ct", &OpenOptions::default()).is_none());
+        let e = open("xyz:tiles/{z}/{x}.png", &OpenOptions::default()).unwrap().unwrap_err().to_string();
+        assert!(e.contains("does not name every tile"), "{e}");
+        let opts = OpenOptions {
+            template: TemplateOptions { zooms: Some([0, 18]), ..Default::default() },
+            ..Default::default()
+        };
+        let src = open("xyz:https://tile.example.org/{z}/{x}/{y}.jpg", &opts).unwrap().unwrap();
+        assert_eq!(src.info().encoding, Some(TileEncoding::Jpeg));
+        assert!(is_pyramid("xyz:a/{z}/{x}/{y}.png") && !is_pyramid("a.ct"));
+    }
 
     #[test]
     fn quadkeys_match_bing_maps_examples() {

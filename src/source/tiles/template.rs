@@ -355,6 +355,10 @@ impl TileArchive for TemplateArchive {
         }
     }
 
+    fn locate(&self, at: TileAddr) -> Option<String> {
+        Some(crate::place::redacted(&self.template.expand(at)).into_owned())
+    }
+
     #[cfg(feature = "remote")]
     fn remote_stats(&self) -> Option<crate::source::remote::RemoteStats> {
         match &self.reader {
