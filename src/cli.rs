@@ -256,6 +256,7 @@ impl TilesArgs {
                 subdomains: self.subdomains.clone(),
                 user_agent: self.user_agent.clone(),
                 headers,
+                ..Default::default()
             },
             pyramid: crate::source::tiles::PyramidOptions { clip_size: clip, default_tile },
         })

@@ -156,6 +156,9 @@ pub struct TemplateOptions {
     pub user_agent: Option<String>,
     /// Extra headers sent with every request (`Name: value`), never written to messages.
     pub headers: Vec<(String, String)>,
+    /// The remote stack's options; `None` for the `CLIPMAP_REMOTE_*` variables'.
+    #[cfg(feature = "remote")]
+    pub remote: Option<crate::source::remote::RemoteOptions>,
 }
 
 enum Reader {
@@ -198,7 +201,10 @@ impl TemplateArchive {
         let reader = if is_http(text) {
             #[cfg(feature = "remote")]
             {
-                let ropts = crate::source::remote::RemoteOptions::from_env().map_err(|e| bad(e.to_string()))?;
+                let ropts = match &opts.remote {
+                    Some(o) => o.clone(),
+                    None => crate::source::remote::RemoteOptions::from_env().map_err(|e| bad(e.to_string()))?,
+                };
                 let remote = crate::source::remote::Remote::with_backends(
                     ropts.clone(),
                     std::sync::Arc::new(crate::source::remote::http::Http::new(&ropts)),
