@@ -299,9 +299,8 @@ or the configuration is invalid, 2 the configuration cannot be read.")]
 
 #[derive(clap::Args)]
 struct DumpArgs {
-    #[command(flatten)]
-    tiles: TilesArgs,
-    /// The .ct file whose tiles are read, or a tiled GeoTIFF / COG (or use --attach).
+    /// The .ct file whose tiles are read, or a tiled GeoTIFF / COG, or a tile service or tree
+    /// `xyz:TEMPLATE` (docs/TILES.md) (or use --attach).
     #[arg(required_unless_present = "attach", conflicts_with = "attach", requires = "out")]
     config: Option<PathBuf>,
     /// Level to dump (0 is the finest).
@@ -338,6 +337,8 @@ struct DumpArgs {
     quiet: bool,
     #[command(flatten)]
     env: EnvArgs,
+    #[command(flatten)]
+    tiles: TilesArgs,
 }
 
 #[derive(clap::Args)]
