@@ -233,3 +233,57 @@ fn cliptex_dump_of_a_template_writes_gdals_texels_with_the_north_up() {
         assert_eq!(img.get_pixel(c, r).0[..], tile[i..i + 4], "pixel ({c}, {r})");
     }
 }
+
+#[test]
+fn clipmapd_publishes_gdals_texels_of_a_gdal2tiles_tree_at_their_places() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let gdal = trees(d);
+    let template = std::path::PathBuf::from(format!("xyz:{}/tms/{{z}}/{{x}}/{{-y}}.png", d.display()));
+    // Clip 1024, the texture's size: every level is resident whole, every texel compared.
+    let served = crate::common::gdal::Served::start(&template, 1024, "xyz", d);
+    let c = &served.client;
+    assert_eq!(c.bytes_per_texel, 4, "RGBA8 for PNG tiles");
+    for k in 0..=usize::from(MAX_ZOOM) {
+        let z = MAX_ZOOM - k as u8;
+        let side = 1024u64 >> k;
+        let n = 1u64 << z;
+        let t0 = std::time::Instant::now();
+        let texels = loop {
+            if let Some(st) = c.level_state(k) {
+                if st.enabled && st.valid == [0, 0, side as i64, side as i64] {
+                    let mut buf = vec![0u8; (side * side * 4) as usize];
+                    if c.read_region(k, 0, 0, side, side, &mut buf).is_ok() {
+                        break buf;
+                    }
+                }
+            }
+            assert!(t0.elapsed() < Duration::from_secs(30), "level {k} never became valid\n{}", served.log());
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        for t in 0..side {
+            for s in 0..side {
+                let tile = &gdal[&(z, (s / 256) as u32, (n - 1 - t / 256) as u32)];
+                let i = (((255 - t % 256) * 256 + s % 256) * 4) as usize;
+                let at = ((t * side + s) * 4) as usize;
+                assert_eq!(texels[at..at + 4], tile[i..i + 4], "level {k} texel ({s}, {t})\n{}", served.log());
+            }
+        }
+    }
+}
+
+#[test]
+fn a_503_with_retry_after_is_retried_and_then_served() {
+    let dir = tempfile::tempdir().unwrap();
+    let gdal = trees(dir.path());
+    let nginx = Nginx::serve_images(dir.path());
+    let first = Schedule { faults: vec![Fault::Unavailable, Fault::Unavailable], then: Vec::new(), every: 0 };
+    let proxy = FaultProxy::start(nginx.port, first, 0);
+    let src = open(&format!("xyz:{}/xyz/{{z}}/{{x}}/{{y}}.png", proxy.url()));
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    src.read_tile(TileId { level: 0, s: 2, t: 1 }, &mut buf).unwrap();
+    let expected = &gdal[&(2, 2, 2)];
+    assert!(buf[..1024] == expected[255 * 1024..], "texture row 0 is the tile's southern row");
+    let stats = src.remote_stats().unwrap();
+    assert_eq!((stats.requests, stats.retries, stats.failures), (3, 2, 0), "{stats:?}");
+}
