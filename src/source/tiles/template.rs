@@ -165,7 +165,7 @@ enum Reader {
     Local,
     #[cfg(feature = "remote")]
     Http {
-        remote: crate::source::remote::Remote,
+        remote: Box<crate::source::remote::Remote>,
         request: crate::source::remote::ObjectRequest,
     },
 }
@@ -224,7 +224,7 @@ impl TemplateArchive {
                     headers.push((name.clone(), value.clone()));
                 }
                 Reader::Http {
-                    remote,
+                    remote: Box::new(remote),
                     request: crate::source::remote::ObjectRequest { headers, max_bytes: MAX_TILE_ANSWER },
                 }
             }
