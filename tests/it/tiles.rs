@@ -287,3 +287,37 @@ fn a_503_with_retry_after_is_retried_and_then_served() {
     let stats = src.remote_stats().unwrap();
     assert_eq!((stats.requests, stats.retries, stats.failures), (3, 2, 0), "{stats:?}");
 }
+
+#[test]
+fn a_key_in_a_header_never_reaches_a_message() {
+    let dir = tempfile::tempdir().unwrap();
+    trees(dir.path());
+    let nginx = Nginx::serve_images(dir.path());
+    let pages = Schedule { faults: Vec::new(), then: vec![Fault::Page { len: 300, html: true }], every: 1 };
+    let proxy = FaultProxy::start(nginx.port, pages, 0);
+    let opts = OpenOptions {
+        template: TemplateOptions {
+            remote: Some(quick()),
+            zooms: Some([0, MAX_ZOOM]),
+            headers: vec![("X-Api-Key".into(), "s3cr3t-k3y".into())],
+            user_agent: Some("clipmap-tests/1 (tests@example.org)".into()),
+            ..Default::default()
+        },
+        pyramid: PyramidOptions { clip_size: Some(256), ..Default::default() },
+    };
+    let src = tiles::open(&format!("xyz:{}/xyz/{{z}}/{{x}}/{{y}}.png", proxy.url()), &opts).unwrap().unwrap();
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    let e = src.read_tile(TileId { level: 0, s: 0, t: 0 }, &mut buf).unwrap_err();
+    let text = format!("{e} {e:?}");
+    assert!(text.contains("text/html") && !text.contains("s3cr3t"), "{text}");
+    // A header that would split the request is refused, without its value.
+    let bad = OpenOptions {
+        template: TemplateOptions {
+            headers: vec![("X-Api-Key".into(), "s3cr3t\r\nHost: evil".into())],
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let e = tiles::open("xyz:https://tile.example.org/{z}/{x}/{y}.png", &bad).unwrap().unwrap_err().to_string();
+    assert!(e.contains("header \"X-Api-Key\"") && !e.contains("s3cr3t"), "{e}");
+}
