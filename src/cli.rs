@@ -192,3 +192,73 @@ pub fn init_tool_log() {
     let ansi = std::io::stderr().is_terminal();
     let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).try_init();
 }
+
+/// The options of a tile pyramid named as `xyz:TEMPLATE` (docs/TILES.md): zooms, bounds,
+/// subdomains, User-Agent, headers, tile size and default tile.
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct TilesArgs {
+    /// The zooms the service has, `MIN..MAX` (default: a local tree's zoom directories, else 0..18).
+    #[arg(long, value_name = "MIN..MAX", value_parser = parse_zooms)]
+    pub zooms: Option<[u8; 2]>,
+    /// The area the tiles cover, `W,S,E,N` in degrees: tiles outside it are not asked for.
+    #[arg(long, value_name = "W,S,E,N", value_parser = parse_bounds, allow_hyphen_values = true)]
+    pub bounds: Option<[f64; 4]>,
+    /// What the template's `{s}` takes, comma-separated (default: a,b,c).
+    #[arg(long, value_name = "A,B,..", value_delimiter = ',')]
+    pub subdomains: Vec<String>,
+    /// A header sent with every tile request, `Name: value` (repeatable; never logged).
+    #[arg(long = "header", value_name = "NAME: VALUE")]
+    pub headers: Vec<String>,
+    /// The User-Agent sent (default: clipmap/VERSION).
+    #[arg(long)]
+    pub user_agent: Option<String>,
+    /// Tile width and height in texels (default 256).
+    #[arg(long = "tile-size", value_name = "N")]
+    pub tile_size: Option<u32>,
+    /// A PNG, JPEG or WebP tile served in place of a missing one.
+    #[arg(long, value_name = "FILE")]
+    pub default_tile: Option<std::path::PathBuf>,
+}
+
+fn parse_zooms(text: &str) -> Result<[u8; 2], String> {
+    let bad = || format!("`{text}` is not a zoom range: expected MIN..MAX, e.g. 0..18");
+    let (a, b) = text.split_once("..").ok_or_else(bad)?;
+    Ok([a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?])
+}
+
+fn parse_bounds(text: &str) -> Result<[f64; 4], String> {
+    let v: Vec<f64> = text.split(',').filter_map(|p| p.trim().parse().ok()).collect();
+    match v.as_slice() {
+        &[w, s, e, n] if w < e && s < n => Ok([w, s, e, n]),
+        _ => Err(format!("`{text}` is not bounds: expected W,S,E,N in degrees with W < E and S < N")),
+    }
+}
+
+impl TilesArgs {
+    /// The options to open a pyramid with, served at `clip`.
+    pub fn options(&self, clip: Option<u64>) -> Result<crate::source::tiles::OpenOptions, String> {
+        let mut headers = Vec::new();
+        for h in &self.headers {
+            let (name, value) = h.split_once(':').ok_or_else(|| {
+                format!("--header {:?}: expected `Name: value`", h.split(':').next().unwrap_or_default())
+            })?;
+            headers.push((name.trim().to_string(), value.trim().to_string()));
+        }
+        let default_tile = match &self.default_tile {
+            Some(p) => Some(std::fs::read(p).map_err(|e| format!("--default-tile {}: {e}", p.display()))?),
+            None => None,
+        };
+        Ok(crate::source::tiles::OpenOptions {
+            template: crate::source::tiles::TemplateOptions {
+                zooms: self.zooms,
+                bounds: self.bounds,
+                tile_size: self.tile_size,
+                subdomains: self.subdomains.clone(),
+                user_agent: self.user_agent.clone(),
+                headers,
+                ..Default::default()
+            },
+            pyramid: crate::source::tiles::PyramidOptions { clip_size: clip, default_tile },
+        })
+    }
+}

@@ -38,8 +38,11 @@ struct Cli {
     /// A clip-texture configuration (.ct), or a tiled GeoTIFF / Cloud-Optimized GeoTIFF served
     /// as it is, a local path or an http(s):// or s3:// URL ending in .tif (a ?query is kept):
     /// 8- or 16-bit grey, RGB or RGBA, 16-bit signed or 32-bit float heights; none, LZW,
-    /// DEFLATE, ZSTD or JPEG (docs/COG.md); served with --clip.
+    /// DEFLATE, ZSTD or JPEG (docs/COG.md); served with --clip. Or a tile service or tree,
+    /// `xyz:TEMPLATE` (docs/TILES.md), with --zooms, --bounds, --header and the like.
     config: Option<PathBuf>,
+    #[command(flatten)]
+    tiles: clipmap::cli::TilesArgs,
     /// Serve a procedural texture instead of a configuration.
     #[arg(long, value_enum, conflicts_with = "config")]
     source: Option<SourceArg>,
@@ -261,6 +264,20 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             grower = Some(g);
             let stem = dir.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "growing".into());
             (src as Arc<dyn clipmap::source::TileSource>, stem, clipmap::paging::PagingOptions::default())
+        }
+        // A tile service or archive (`xyz:TEMPLATE`, docs/TILES.md), served as it is.
+        (Some(path), _) if clipmap::source::tiles::is_pyramid(&path.to_string_lossy()) => {
+            let opts = cli.tiles.options(Some(cli.clip)).map_err(|e| bad(anyhow::anyhow!(e)))?;
+            let src = match clipmap::source::tiles::open(&path.to_string_lossy(), &opts) {
+                Some(Ok(src)) => src,
+                Some(Err(e)) => return Err(bad(anyhow::anyhow!("{e}"))),
+                None => return Err(bad(anyhow::anyhow!("{}: not a tile pyramid", path.display()))),
+            };
+            (
+                Arc::new(src) as Arc<dyn clipmap::source::TileSource>,
+                "tiles".to_string(),
+                clipmap::paging::PagingOptions::default(),
+            )
         }
         // A tiled GeoTIFF / COG: a local file that starts like one, or an http(s):// or s3://
         // name ending in .tif / .tiff (read in ranges, docs/COG.md).

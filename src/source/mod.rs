@@ -110,6 +110,18 @@ pub enum SourceError {
         /// What is wrong with the stored bytes.
         problem: String,
     },
+    /// A tile of a tile pyramid ([`tiles::PyramidSource`]) that could not be read or used: the
+    /// archive's or service's failure, or an answer that is not the tile (another image type, a
+    /// wrong size, an HTML page, undecodable bytes).
+    #[error("{tile}: {problem}")]
+    Pyramid {
+        /// The tile asked for.
+        tile: TileId,
+        /// The kind of failure.
+        kind: FaultKind,
+        /// The place, the pyramid tile, what was found and what was expected.
+        problem: String,
+    },
     /// The tile may not be read.
     #[error("{tile}: permission denied")]
     PermissionDenied {
@@ -161,6 +173,7 @@ impl SourceError {
     pub fn kind(&self) -> FaultKind {
         match self {
             SourceError::Missing { .. } => FaultKind::Missing,
+            SourceError::Pyramid { kind, .. } => *kind,
             SourceError::Short { .. } => FaultKind::Short,
             SourceError::Corrupt { .. } | SourceError::Undecodable { .. } | SourceError::Chunk { .. } => {
                 FaultKind::Corrupt
@@ -179,6 +192,7 @@ impl SourceError {
             | SourceError::Corrupt { tile, .. }
             | SourceError::Undecodable { tile, .. }
             | SourceError::Chunk { tile, .. }
+            | SourceError::Pyramid { tile, .. }
             | SourceError::PermissionDenied { tile }
             | SourceError::Io { tile, .. }
             | SourceError::OutOfRange { tile, .. }

@@ -53,6 +53,7 @@ mod sixteen_bit;
 mod stability;
 mod tiff_fuzz_props;
 mod tiff_hardening;
+mod tiles;
 mod tiles_archives;
 mod tools_cog_names;
 mod views_own;

@@ -7,7 +7,7 @@
 mod grow;
 
 use clap::{Parser, Subcommand};
-use clipmap::cli::{self as cmdline, EnvArgs};
+use clipmap::cli::{self as cmdline, EnvArgs, TilesArgs};
 use clipmap::config::FileKind;
 use clipmap::place::Place;
 use clipmap::plan;
@@ -111,11 +111,14 @@ Examples:
   cliptex info my.ct --env DATA=/mnt/terrain
   cliptex info --ct-only my.ct     # the level table without opening the .ic files")]
     Info {
-        /// The .ct file, or a tiled GeoTIFF / COG (the texture it is served as, clip size 1024).
+        /// The .ct file, or a tiled GeoTIFF / COG (the texture it is served as, clip size 1024),
+        /// or a tile service or tree, `xyz:TEMPLATE` (docs/TILES.md).
         file: PathBuf,
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+        #[command(flatten)]
+        tiles: TilesArgs,
         /// Read the .ct alone: the .ic files it names are resolved and listed, not opened; what
         /// only they give (tile size, regions) is shown as unknown (`?`, null in JSON).
         #[arg(long)]
@@ -211,8 +214,10 @@ Examples:
 
 Exit status: 0 found, 1 no such tile or an invalid configuration, 2 the tool could not run.")]
     Tile {
-        /// The .ct file.
+        /// The .ct file, or a tile service or tree, `xyz:TEMPLATE` (docs/TILES.md).
         file: PathBuf,
+        #[command(flatten)]
+        tiles: TilesArgs,
         /// Level (0 is the finest).
         #[arg(long)]
         level: u32,
@@ -276,8 +281,11 @@ Examples:
 Exit status: 0 every tile can be served (present, or covered by a default tile), 1 some cannot
 or the configuration is invalid, 2 the configuration cannot be read.")]
     Check {
-        /// The .ct file, or a tiled GeoTIFF / COG (`.tif`, `.tiff`) served as it is.
+        /// The .ct file, or a tiled GeoTIFF / COG (`.tif`, `.tiff`) served as it is, or a tile
+        /// service or tree, `xyz:TEMPLATE` (docs/TILES.md).
         file: PathBuf,
+        #[command(flatten)]
+        tiles: TilesArgs,
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
@@ -291,7 +299,8 @@ or the configuration is invalid, 2 the configuration cannot be read.")]
 
 #[derive(clap::Args)]
 struct DumpArgs {
-    /// The .ct file whose tiles are read, or a tiled GeoTIFF / COG (or use --attach).
+    /// The .ct file whose tiles are read, or a tiled GeoTIFF / COG, or a tile service or tree
+    /// `xyz:TEMPLATE` (docs/TILES.md) (or use --attach).
     #[arg(required_unless_present = "attach", conflicts_with = "attach", requires = "out")]
     config: Option<PathBuf>,
     /// Level to dump (0 is the finest).
@@ -328,6 +337,8 @@ struct DumpArgs {
     quiet: bool,
     #[command(flatten)]
     env: EnvArgs,
+    #[command(flatten)]
+    tiles: TilesArgs,
 }
 
 #[derive(clap::Args)]
@@ -531,6 +542,15 @@ fn dump(args: DumpArgs) -> i32 {
         eprintln!("cliptex dump: give a .ct file with --out FILE.png, or --attach NAME with --out-dir DIR");
         return exit::BAD_INPUT;
     };
+    if let Some(src) = open_pyramid(file, &args.tiles, "cliptex dump") {
+        let src = match src {
+            Ok(s) => s,
+            Err(c) => return c,
+        };
+        let shown = PathBuf::from(src.archive().place());
+        let place = Place::from_path(shown.clone());
+        return dump_level(&args, &shown, out, &src, &|_| Some(place.clone()));
+    }
     if is_cog(file) {
         let src = match open_cog(file, "cliptex dump") {
             Ok(s) => s,
@@ -630,6 +650,156 @@ fn open_cog(file: &Path, tool: &str) -> Result<clipmap::source::CogSource, i32> 
     })
 }
 
+/// The most texture tiles `cliptex check` walks in a tile pyramid.
+const MAX_CHECKED_PYRAMID_TILES: u64 = 1 << 20;
+
+/// Opens the tile service or tree `file` names (`xyz:TEMPLATE`), served as `clipmapd` serves it
+/// (clip size 1024), or `None` when it names none; the error is printed for `tool`.
+fn open_pyramid(
+    file: &Path,
+    tiles: &TilesArgs,
+    tool: &str,
+) -> Option<Result<clipmap::source::tiles::PyramidSource, i32>> {
+    let text = file.to_string_lossy();
+    if !clipmap::source::tiles::is_pyramid(&text) {
+        return None;
+    }
+    let opts = match tiles.options(Some(COG_CLIP)) {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("{tool}: {e}");
+            return Some(Err(exit::BAD_INPUT));
+        }
+    };
+    let opened = clipmap::source::tiles::open(&text, &opts)?;
+    Some(opened.map_err(|e| {
+        eprintln!("{tool}: {e}");
+        exit::BAD_INPUT
+    }))
+}
+
+/// `cliptex info xyz:...`: the pyramid and the texture it is served as.
+fn pyramid_info(src: &clipmap::source::tiles::PyramidSource, json: bool) -> i32 {
+    let d = src.desc();
+    let info = serde_json::json!({
+        "place": src.archive().place(),
+        "pyramid": src.info(),
+        "size": d.size(),
+        "clip_size": d.clip_size(),
+        "format": d.format().to_string(),
+        "levels": d.levels().iter().enumerate().map(|(k, l)| serde_json::json!({
+            "level": k,
+            "zoom": i32::from(src.info().max_zoom) - k as i32,
+            "size": l.size,
+            "tile": l.tile,
+            "built": (k as i32) > i32::from(src.info().max_zoom) - i32::from(src.info().min_zoom),
+        })).collect::<Vec<_>>(),
+    });
+    report::emit(json, &info, |_| {
+        let p = src.info();
+        let mut out = format!(
+            "{}\n  zooms {}..{}, {}-texel tiles, encoding {}, bounds {}\n  texture {}x{} texels, {}, clip size {}, {} levels (level 0 = zoom {})\n",
+            src.archive().place(),
+            p.min_zoom,
+            p.max_zoom,
+            p.tile_size,
+            p.encoding.map_or("any (told by each tile)", |e| e.name()),
+            p.bounds.map_or("the whole world".to_string(), |b| format!("{},{},{},{}", b[0], b[1], b[2], b[3])),
+            d.size()[0],
+            d.size()[1],
+            d.format(),
+            d.clip_size(),
+            d.level_count(),
+            p.max_zoom
+        );
+        if p.min_zoom > 0 || d.level_count() > usize::from(p.max_zoom) + 1 {
+            out.push_str(&format!(
+                "  levels coarser than zoom {} are built from it once, kept in memory\n",
+                p.min_zoom
+            ));
+        }
+        out
+    });
+    exit::OK
+}
+
+/// `cliptex tile xyz:...`: the pyramid tiles a texture tile is read from, and where they are.
+fn pyramid_tile(src: &clipmap::source::tiles::PyramidSource, level: u32, s: u64, t: u64, json: bool) -> i32 {
+    use clipmap::source::tiles::TileAddr;
+    let d = src.desc();
+    let p = src.info();
+    if level as usize >= d.level_count() || s >= d.level(level).tiles()[0] || t >= d.level(level).tiles()[1] {
+        eprintln!(
+            "cliptex tile: {}: no tile ({s}, {t}) at level {level}: the texture has {} levels{}",
+            src.archive().place(),
+            d.level_count(),
+            if (level as usize) < d.level_count() {
+                format!(", level {level} has {:?} tiles", d.level(level).tiles())
+            } else {
+                String::new()
+            }
+        );
+        return exit::BAD_INPUT;
+    }
+    let zoom = i64::from(p.max_zoom) - i64::from(level);
+    let l = d.level(level);
+    let mut tiles = Vec::new();
+    if zoom >= i64::from(p.min_zoom) {
+        let z = zoom as u8;
+        let ts = u64::from(p.tile_size);
+        let n = TileAddr::tiles_at(z);
+        let (x0, x1) = (s * l.tile[0] / ts, ((s + 1) * l.tile[0]).min(l.size[0]).div_ceil(ts));
+        let rows_from_south = (t * l.tile[1] / ts, ((t + 1) * l.tile[1]).min(l.size[1]).div_ceil(ts));
+        for ty in rows_from_south.0..rows_from_south.1 {
+            for x in x0..x1 {
+                let at = TileAddr { z, x: x as u32, y: (n - 1 - ty) as u32 };
+                tiles.push(serde_json::json!({"z": z, "x": at.x, "y": at.y, "location": src.archive().locate(at)}));
+            }
+        }
+    }
+    let out =
+        serde_json::json!({"level": level, "s": s, "t": t, "zoom": zoom, "built": tiles.is_empty(), "tiles": tiles});
+    report::emit(json, &out, |_| {
+        if tiles.is_empty() {
+            return format!(
+                "level {level} (zoom {zoom}) tile ({s}, {t}): built from zoom {} (coarser than the service's)\n",
+                p.min_zoom
+            );
+        }
+        let mut text = format!("level {level} (zoom {zoom}) tile ({s}, {t}):\n");
+        for t in &tiles {
+            text.push_str(&format!("  {}/{}/{}  {}\n", t["z"], t["x"], t["y"], t["location"].as_str().unwrap_or("-")));
+        }
+        text
+    });
+    exit::OK
+}
+
+/// `cliptex check xyz:...`: every texture tile read and decoded as the service would.
+fn check_pyramid(file: &Path, src: &clipmap::source::tiles::PyramidSource, json: bool, quiet: bool) -> i32 {
+    let tiles: u64 = src.desc().levels().iter().map(|l| l.tiles().iter().product::<u64>()).sum();
+    if tiles > MAX_CHECKED_PYRAMID_TILES {
+        eprintln!(
+            "cliptex check: {}: the texture has {tiles} tiles, more than the {MAX_CHECKED_PYRAMID_TILES} checked: give a lower maximum zoom (--zooms)",
+            src.archive().place()
+        );
+        return exit::BAD_INPUT;
+    }
+    let max = i64::from(src.info().max_zoom);
+    let min = i64::from(src.info().min_zoom);
+    let kind_of = move |k: u32| if max - i64::from(k) >= min { "zoom" } else { "built" };
+    let bar = tile_bar(tiles, quiet);
+    let shown = PathBuf::from(src.archive().place());
+    let report = check::run_source(&shown, &Place::from_path(file.to_path_buf()), src, &kind_of, &|n| bar.inc(n));
+    bar.finish_and_clear();
+    report::emit(json, &report, |r| check::human(r, quiet));
+    if report.servable {
+        exit::OK
+    } else {
+        exit::BAD_INPUT
+    }
+}
+
 /// A progress bar over `len` tiles on a terminal, hidden otherwise.
 fn tile_bar(len: u64, quiet: bool) -> indicatif::ProgressBar {
     use std::io::IsTerminal;
@@ -675,7 +845,13 @@ fn check_cog_source(file: &Path, place: &Place, src: &clipmap::source::CogSource
     }
 }
 
-fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
+fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs, tiles: &TilesArgs) -> i32 {
+    if let Some(src) = open_pyramid(file, tiles, "cliptex check") {
+        return match src {
+            Ok(src) => check_pyramid(file, &src, json, quiet),
+            Err(c) => c,
+        };
+    }
     if is_cog(file) {
         return check_cog(file, json, quiet);
     }
@@ -708,7 +884,7 @@ fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs) -> i32 {
 
 fn run(cli: Cli) -> i32 {
     match cli.command {
-        Command::Check { file, json, quiet, env } => check(&file, json, quiet, &env),
+        Command::Check { file, json, quiet, env, tiles } => check(&file, json, quiet, &env, &tiles),
         Command::Roam(args) => roam(args),
         Command::Grow { cmd } => grow::run(cmd),
         Command::Dump(args) => dump(args),
@@ -752,6 +928,13 @@ fn run(cli: Cli) -> i32 {
         Command::Validate { args, ct_only } => cmdline::validate(&args, FileKind::ClipTexture, "cliptex", ct_only),
         // A tiled GeoTIFF / COG: the texture it is served as (clipmapd's default clip size).
         // A local file that starts like a TIFF, or an http(s):// or s3:// name ending in .tif / .tiff.
+        Command::Info { file, json, tiles, .. } if clipmap::source::tiles::is_pyramid(&file.to_string_lossy()) => {
+            match open_pyramid(&file, &tiles, "cliptex") {
+                Some(Ok(src)) => pyramid_info(&src, json),
+                Some(Err(c)) => c,
+                None => exit::BAD_INPUT,
+            }
+        }
         Command::Info { file, json, .. } if is_cog(&file) => match open_cog(&file, "cliptex") {
             Err(c) => c,
             Ok(src) => {
@@ -760,7 +943,7 @@ fn run(cli: Cli) -> i32 {
                 exit::OK
             }
         },
-        Command::Info { file, json, env, ct_only } => match env.load_clip_texture(&file, "cliptex", ct_only) {
+        Command::Info { file, json, env, ct_only, .. } => match env.load_clip_texture(&file, "cliptex", ct_only) {
             Err(c) => c,
             Ok((p, warnings)) => {
                 report::emit(json, &info::clip_texture(&p, &warnings), |_| info::clip_texture_human(&p));
@@ -863,7 +1046,16 @@ fn run(cli: Cli) -> i32 {
                 }
             }
         }
-        Command::Tile { file, level, s, t, json, env } => match load(&file, &env) {
+        Command::Tile { file, level, s, t, json, tiles, .. }
+            if clipmap::source::tiles::is_pyramid(&file.to_string_lossy()) =>
+        {
+            match open_pyramid(&file, &tiles, "cliptex tile") {
+                Some(Ok(src)) => pyramid_tile(&src, level, s, t, json),
+                Some(Err(c)) => c,
+                None => exit::BAD_INPUT,
+            }
+        }
+        Command::Tile { file, level, s, t, json, env, .. } => match load(&file, &env) {
             Err(c) => c,
             Ok((p, _)) => info::print_tile(p.locate(level, s, t), json, "cliptex", &file),
         },

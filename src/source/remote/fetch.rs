@@ -167,6 +167,31 @@ pub trait Backend: Send + Sync {
     fn head(&self, loc: &Location) -> Result<u64, Failure>;
     /// Stores `bytes` as the object `loc`.
     fn put(&self, loc: &Location, bytes: Bytes) -> Result<(), Failure>;
+    /// The whole object `loc` with a plain GET (a tile of a tile service): `404`/`410` are
+    /// [`Failure::NotFound`], a `204` an empty [`Object`], a body over `req.max_bytes` a fatal
+    /// failure. This default refuses (a backend without whole-object reads).
+    fn get_object(&self, loc: &Location, req: &ObjectRequest) -> Result<Object, Failure> {
+        let _ = (loc, req);
+        Err(Failure::Fatal("this store cannot read whole objects with a plain GET".into()))
+    }
+}
+
+/// How to ask for a whole object ([`Backend::get_object`]).
+#[derive(Clone, Debug, Default)]
+pub struct ObjectRequest {
+    /// Headers sent with the request (a User-Agent, an API key): never written to logs or errors.
+    pub headers: Vec<(String, String)>,
+    /// The most bytes the body may hold.
+    pub max_bytes: u64,
+}
+
+/// A whole object and what its answer said of it.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Object {
+    /// The body (empty for a `204`).
+    pub bytes: Bytes,
+    /// The answer's `Content-Type`, if any.
+    pub content_type: Option<String>,
 }
 
 /// Why a range could not be read, after retries.
@@ -352,13 +377,6 @@ impl Fetcher {
             st.in_flight += 1;
             self.counters.peak_in_flight.fetch_max(st.in_flight as u64, Ordering::Relaxed);
         }
-        struct Slot(Arc<Endpoint>);
-        impl Drop for Slot {
-            fn drop(&mut self) {
-                self.0.state.lock().unwrap_or_else(|e| e.into_inner()).in_flight -= 1;
-                self.0.wake.notify_all();
-            }
-        }
         let _slot = Slot(ep);
         let counted = Arc::new(Counted { inner: sink, got: AtomicU64::new(0) });
         let as_sink: Arc<dyn Sink> = counted.clone();
@@ -377,6 +395,27 @@ impl Fetcher {
             r => r,
         };
         if result.is_err() {
+            self.counters.failures.fetch_add(1, Ordering::Relaxed);
+        }
+        result
+    }
+
+    /// The whole object `loc` ([`Backend::get_object`]): waits for a slot of its endpoint (the
+    /// same bound on requests in flight as ranged reads), and retries transient failures,
+    /// obeying `Retry-After`.
+    pub fn object(&self, loc: &Location, req: &ObjectRequest) -> Result<Object, ReadError> {
+        let ep = self.endpoint(&loc.endpoint);
+        {
+            let mut st = ep.state.lock().unwrap_or_else(|e| e.into_inner());
+            while st.in_flight >= self.opts.in_flight.max(1) {
+                st = ep.wake.wait(st).unwrap_or_else(|e| e.into_inner());
+            }
+            st.in_flight += 1;
+            self.counters.peak_in_flight.fetch_max(st.in_flight as u64, Ordering::Relaxed);
+        }
+        let _slot = Slot(ep);
+        let result = self.with_retries(loc, &loc.to_string(), |b| b.get_object(loc, req));
+        if matches!(result, Err(ReadError::Denied { .. } | ReadError::Failed { .. } | ReadError::Short { .. })) {
             self.counters.failures.fetch_add(1, Ordering::Relaxed);
         }
         result
@@ -493,6 +532,16 @@ impl Sink for Counted {
     }
 }
 
+/// A request slot of an endpoint, given back when dropped.
+struct Slot(Arc<Endpoint>);
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        self.0.state.lock().unwrap_or_else(|e| e.into_inner()).in_flight -= 1;
+        self.0.wake.notify_all();
+    }
+}
+
 /// Results whose bytes are counted.
 pub(crate) trait GotBytes {
     /// Bytes received.
@@ -500,6 +549,12 @@ pub(crate) trait GotBytes {
 }
 
 impl GotBytes for Got {
+    fn byte_count(&self) -> u64 {
+        self.bytes.len() as u64
+    }
+}
+
+impl GotBytes for Object {
     fn byte_count(&self) -> u64 {
         self.bytes.len() as u64
     }
@@ -584,6 +639,10 @@ mod tests {
         }
         fn put(&self, _: &Location, _: Bytes) -> Result<(), Failure> {
             Err(Failure::Fatal("read-only".into()))
+        }
+        fn get_object(&self, loc: &Location, _: &ObjectRequest) -> Result<Object, Failure> {
+            let got = self.get(loc, 0, 1 << 20)?;
+            Ok(Object { bytes: got.bytes.to_bytes(), content_type: None })
         }
     }
 
@@ -799,6 +858,26 @@ mod tests {
         assert_eq!(f.read(&loc, 0, 10).unwrap().len(), 10);
         assert!(t.elapsed() >= Duration::from_millis(20) && t.elapsed() < Duration::from_secs(30), "{:?}", t.elapsed());
         assert_eq!(m.gets.lock().unwrap().len(), 2);
+    }
+
+    #[test]
+    fn whole_objects_wait_for_retry_after_and_not_found_is_not_retried() {
+        let loc = Location::parse("http://h:1/o").unwrap();
+        let m = mem(0, 1);
+        *m.retry_after.lock().unwrap() = Duration::from_millis(300);
+        let opts = RemoteOptions {
+            backoff: Duration::from_millis(1),
+            backoff_max: Duration::from_secs(5),
+            ..Default::default()
+        };
+        let f = fetcher(m.clone(), opts);
+        let t = std::time::Instant::now();
+        assert_eq!(f.object(&loc, &ObjectRequest::default()).unwrap().bytes.len(), 4096);
+        assert!(t.elapsed() >= Duration::from_millis(300), "{:?}", t.elapsed());
+        assert_eq!(f.counters.retries.load(Ordering::Relaxed), 1);
+        let gone = Location::parse("http://h:1/gone").unwrap();
+        assert!(matches!(f.object(&gone, &ObjectRequest::default()), Err(ReadError::NotFound { .. })));
+        assert_eq!(f.counters.retries.load(Ordering::Relaxed), 1);
     }
 
     #[test]

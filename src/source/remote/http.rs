@@ -11,7 +11,7 @@
 //! every read fetch the whole object. A `416` means the object ends before the range
 //! starts. Anything else is a [`Failure`], classified for the retry loop.
 
-use super::fetch::{Backend, Failure, Got, Segments, Sink};
+use super::fetch::{Backend, Failure, Got, Object, ObjectRequest, Segments, Sink};
 use super::location::Location;
 use super::options::RemoteOptions;
 use super::runtime::block;
@@ -326,6 +326,47 @@ async fn not_partial(
     }
 }
 
+/// A plain GET of a whole object ([`Backend::get_object`]).
+async fn get_object(client: reqwest::Client, url: String, req: ObjectRequest) -> Result<Object, Failure> {
+    let mut get = client.get(&url);
+    for (name, value) in &req.headers {
+        get = get.header(name.as_str(), value.as_str());
+    }
+    let mut resp = get.send().await.map_err(request_failure)?;
+    let status = resp.status();
+    let headers = resp.headers().clone();
+    if status == StatusCode::NO_CONTENT {
+        return Ok(Object::default());
+    }
+    if status != StatusCode::OK {
+        return Err(status_failure(status, &headers));
+    }
+    let content_type = headers.get(CONTENT_TYPE).and_then(|v| v.to_str().ok()).map(|v| v.trim().to_string());
+    let announced = headers.get(CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok());
+    if let Some(n) = announced.filter(|&n| n > req.max_bytes) {
+        return Err(Failure::Fatal(format!(
+            "the answer holds {n} bytes, more than the {} expected at most",
+            req.max_bytes
+        )));
+    }
+    let mut buf = Vec::new();
+    let got = body_each(&mut resp, req.max_bytes, req.max_bytes.saturating_add(1), &mut |c| buf.extend_from_slice(&c))
+        .await
+        .map_err(|f| match f {
+            Failure::Transient { why, .. } if why.starts_with("the body holds more") => {
+                Failure::Fatal(format!("the answer holds more than the {} bytes expected at most", req.max_bytes))
+            }
+            other => other,
+        })?;
+    if announced.is_some_and(|n| n != got) {
+        return Err(Failure::transient(format!(
+            "the body ended after {got} of the {} bytes its Content-Length announced",
+            announced.unwrap_or(0)
+        )));
+    }
+    Ok(Object { bytes: Bytes::from(buf), content_type })
+}
+
 /// The object's length, from the `Content-Length` of a `HEAD`.
 async fn head(client: &reqwest::Client, url: &str) -> Result<u64, Failure> {
     let resp = client.head(url).send().await.map_err(request_failure)?;
@@ -364,6 +405,11 @@ impl Backend for Http {
         let client = self.client()?;
         let url = loc.target.clone();
         block(self.timeout, async move { head(&client, &url).await })
+    }
+
+    fn get_object(&self, loc: &Location, req: &ObjectRequest) -> Result<Object, Failure> {
+        let client = self.client()?;
+        block(self.timeout, get_object(client, loc.target.clone(), req.clone()))
     }
 
     fn put(&self, loc: &Location, bytes: Bytes) -> Result<(), Failure> {

@@ -18,7 +18,7 @@ pub mod range;
 mod runtime;
 pub mod s3;
 
-pub use fetch::{Backend, Failure, Fetcher, Got, ReadError, Segments, Sink, Versioned};
+pub use fetch::{Backend, Failure, Fetcher, Got, Object, ObjectRequest, ReadError, Segments, Sink, Versioned};
 pub use location::{Location, LocationError, Scheme};
 pub use options::{OptionsError, RemoteOptions};
 

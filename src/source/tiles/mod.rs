@@ -8,9 +8,19 @@
 //! north as XYZ and WMTS count them) or says that the tile does not exist; the pyramid source
 //! decodes those bytes into a slot, in texture orientation (t counts up from the south).
 
+pub mod pyramid;
+pub mod template;
+
+pub use pyramid::{PyramidError, PyramidOptions, PyramidSource};
+pub use template::{TemplateArchive, TemplateOptions};
+
 use super::FaultKind;
+use crate::place::Place;
+use mbtiles::MbtilesArchive;
+use pmtiles::PmtilesArchive;
 use serde::Serialize;
 use std::fmt;
+use std::sync::Arc;
 use thiserror::Error;
 
 pub mod mbtiles;
@@ -161,6 +171,13 @@ pub trait TileArchive: Send + Sync {
         None
     }
 
+    /// Where tile `at` is, as messages may show it (a URL with its secrets replaced, a path), for
+    /// an archive that keeps each tile apart; `None` by default.
+    fn locate(&self, at: TileAddr) -> Option<String> {
+        let _ = at;
+        None
+    }
+
     /// A number that changes each time tiles may have changed at once (an archive replaced in
     /// its store and opened again); 0 for an archive whose tiles never change so.
     fn version(&self) -> u64 {
@@ -168,9 +185,97 @@ pub trait TileArchive: Send + Sync {
     }
 }
 
+/// How a tile pyramid named on a command line or in a configuration is served.
+#[derive(Clone, Debug, Default)]
+pub struct OpenOptions {
+    /// A template's zooms, bounds, subdomains, User-Agent and headers.
+    pub template: TemplateOptions,
+    /// The clip size and default tile.
+    pub pyramid: PyramidOptions,
+}
+
+/// The opener of one kind of archive or service.
+type Opener = fn(&str, &OpenOptions) -> Result<Arc<dyn TileArchive>, PyramidError>;
+
+fn open_template(text: &str, opts: &OpenOptions) -> Result<Arc<dyn TileArchive>, PyramidError> {
+    let template = text.strip_prefix("xyz:").unwrap_or(text);
+    Ok(Arc::new(TemplateArchive::open(template, &opts.template)?))
+}
+
+/// A PMTiles archive (a path, an http(s) URL or an `s3://` name), with its tile size read from
+/// its first tile unless `--tile-size` gives it.
+fn open_pmtiles(text: &str, opts: &OpenOptions) -> Result<Arc<dyn TileArchive>, PyramidError> {
+    let mut archive = PmtilesArchive::open(&Place::parse(text))?;
+    if opts.template.tile_size.is_none() {
+        archive.probe_tile_size()?;
+    }
+    Ok(Arc::new(archive))
+}
+
+/// An MBTiles archive: a local SQLite file.
+fn open_mbtiles(text: &str, _opts: &OpenOptions) -> Result<Arc<dyn TileArchive>, PyramidError> {
+    match Place::parse(text) {
+        Place::Local(path) => Ok(Arc::new(MbtilesArchive::open(&path)?)),
+        Place::Remote(_) => Err(PyramidError::Info {
+            place: text.to_string(),
+            problem: "an MBTiles archive is an SQLite file and is read from a local disk only; download it first, or convert it to PMTiles (`pmtiles convert`) to serve it over HTTP or S3".into(),
+        }),
+    }
+}
+
+/// The opener of the kind of archive or service `text` names, one arm a kind: `xyz:TEMPLATE`,
+/// a name ending in `.pmtiles` or `.mbtiles` (any case).
+fn opener(text: &str) -> Option<Opener> {
+    if text.starts_with("xyz:") {
+        return Some(open_template);
+    }
+    match Place::parse(text).extension().map(str::to_ascii_lowercase).as_deref() {
+        Some("pmtiles") => Some(open_pmtiles),
+        Some("mbtiles") => Some(open_mbtiles),
+        _ => None,
+    }
+}
+
+/// Whether `text` names a tile pyramid [`open`] serves (`xyz:TEMPLATE`, `.pmtiles`, `.mbtiles`).
+pub fn is_pyramid(text: &str) -> bool {
+    opener(text).is_some()
+}
+
+/// The archive or service `text` names: `xyz:TEMPLATE` (an XYZ, TMS, quadkey or WMTS template,
+/// docs/TILES.md), a PMTiles or an MBTiles archive; `None` when `text` names none of them.
+pub fn open_archive(text: &str, opts: &OpenOptions) -> Option<Result<Arc<dyn TileArchive>, PyramidError>> {
+    opener(text).map(|open| open(text, opts))
+}
+
+/// The tile pyramid `text` names ([`open_archive`]) served as a clip texture; `None` when
+/// `text` names none.
+pub fn open(text: &str, opts: &OpenOptions) -> Option<Result<PyramidSource, PyramidError>> {
+    let archive = open_archive(text, opts)?;
+    Some(archive.and_then(|a| PyramidSource::new(a, &opts.pyramid)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn open_recognises_templates_only() {
+        assert!(open("tiles/{z}/{x}/{y}.png", &OpenOptions::default()).is_none());
+        assert!(open("my.ct", &OpenOptions::default()).is_none());
+        let e = open("xyz:tiles/{z}/{x}.png", &OpenOptions::default()).unwrap().unwrap_err().to_string();
+        assert!(e.contains("does not name every tile"), "{e}");
+        let opts = OpenOptions {
+            template: TemplateOptions { zooms: Some([0, 18]), ..Default::default() },
+            ..Default::default()
+        };
+        let src = open("xyz:https://tile.example.org/{z}/{x}/{y}.jpg", &opts).unwrap().unwrap();
+        assert_eq!(src.info().encoding, Some(TileEncoding::Jpeg));
+        assert!(is_pyramid("xyz:a/{z}/{x}/{y}.png") && !is_pyramid("a.ct"));
+        assert!(is_pyramid("world.pmtiles") && is_pyramid("https://h/w.PMTiles?sig=1") && is_pyramid("s3://b/w.pmtiles"));
+        assert!(is_pyramid("ortho.mbtiles") && !is_pyramid("ortho.tif"));
+        let e = open("https://h/ortho.mbtiles", &OpenOptions::default()).unwrap().unwrap_err().to_string();
+        assert!(e.contains("local disk only"), "{e}");
+    }
 
     #[test]
     fn quadkeys_match_bing_maps_examples() {

@@ -63,6 +63,12 @@ impl Nginx {
         Nginx::serve_with(root, "")
     }
 
+    /// Like [`Nginx::serve`], answering images with their types (`image/png`, `image/jpeg`,
+    /// `image/webp`) and `.html` as `text/html`, as a tile server does (the others: `text/plain`).
+    pub fn serve_images(root: &Path) -> Nginx {
+        Nginx::serve_with(root, "types { image/png png; image/jpeg jpg jpeg; image/webp webp; text/html html; }")
+    }
+
     /// Like [`Nginx::serve`], and files may be written with HTTP PUT (the DAV module).
     pub fn serve_writable(root: &Path) -> Nginx {
         Nginx::serve_with(root, "dav_methods PUT; create_full_put_path on; client_max_body_size 0;")

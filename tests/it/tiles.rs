@@ -1,0 +1,323 @@
+//! Tile pyramids written by a peer: an XYZ tree (`gdal2tiles.py --xyz`) and a TMS tree
+//! (`gdal2tiles.py`'s default) of a small GDAL-made image, read from disk and over nginx. Every
+//! texel served equals GDAL's own decode of the same tile at the same place (zoom as level, rows
+//! flipped to texture orientation); a 404 storm gives missing tiles and an HTML page answered
+//! for a tile gives errors, never texels.
+
+use crate::common::gdal::python;
+use crate::common::remote::{Fault, FaultProxy, Nginx, Schedule};
+use clipmap::source::remote::RemoteOptions;
+use clipmap::source::tiles::{self, OpenOptions, PyramidOptions, PyramidSource, TemplateOptions};
+use clipmap::source::{SourceError, TileId, TileSource};
+use std::collections::HashMap;
+use std::path::Path;
+use std::process::Command;
+use std::time::Duration;
+
+/// The finest zoom of the trees.
+const MAX_ZOOM: u8 = 2;
+
+/// Makes `src.tif` (512² RGB in Web Mercator, the whole world), its XYZ and TMS trees
+/// (`xyz/`, `tms/`, zooms 0..2) and GDAL's decode of every tile: `(z, x, y from the north)` ->
+/// RGBA rows from the north.
+fn trees(dir: &Path) -> HashMap<(u8, u32, u32), Vec<u8>> {
+    let make = r#"
+from osgeo import gdal, osr
+import numpy as np
+ds = gdal.GetDriverByName('GTiff').Create('src.tif', 512, 512, 3, gdal.GDT_Byte)
+h = 20037508.342789244
+ds.SetGeoTransform([-h, 2 * h / 512, 0, h, 0, -2 * h / 512])
+s = osr.SpatialReference(); s.ImportFromEPSG(3857); ds.SetProjection(s.ExportToWkt())
+y, x = np.mgrid[0:512, 0:512]
+ds.GetRasterBand(1).WriteArray(((x * 7) % 251).astype(np.uint8))
+ds.GetRasterBand(2).WriteArray(((y * 5) % 253).astype(np.uint8))
+ds.GetRasterBand(3).WriteArray(((x // 32 + 3 * (y // 32)) * 17 % 256).astype(np.uint8))
+ds = None
+"#;
+    run_python(make, dir, &[]);
+    for (args, out) in [(vec!["--xyz"], "xyz"), (vec![], "tms")] {
+        let mut c = Command::new("gdal2tiles.py");
+        c.args(&args).args(["-z", &format!("0-{MAX_ZOOM}"), "-q", "src.tif", out]).current_dir(dir);
+        let o = c.output().expect("gdal2tiles.py (gdal-bin)");
+        assert!(o.status.success(), "gdal2tiles.py {args:?}: {}", String::from_utf8_lossy(&o.stderr));
+    }
+    // GDAL's decode of each XYZ tile, and a check that the TMS tree holds the same tiles with
+    // rows from the south.
+    let decode = r#"
+import sys, os
+from osgeo import gdal
+import numpy as np
+for z in range(int(sys.argv[1]) + 1):
+    n = 2 ** z
+    for x in range(n):
+        for y in range(n):
+            a = gdal.Open(f'xyz/{z}/{x}/{y}.png').ReadAsArray()
+            b = gdal.Open(f'tms/{z}/{x}/{n - 1 - y}.png').ReadAsArray()
+            assert (a == b).all(), (z, x, y)
+            if a.shape[0] == 3:
+                a = np.concatenate([a, np.full((1,) + a.shape[1:], 255, np.uint8)])
+            open(f'decoded/{z}_{x}_{y}.raw', 'wb').write(a.transpose(1, 2, 0).astype(np.uint8).tobytes())
+"#;
+    std::fs::create_dir_all(dir.join("decoded")).unwrap();
+    run_python(decode, dir, &[MAX_ZOOM.to_string()]);
+    let mut out = HashMap::new();
+    for z in 0..=MAX_ZOOM {
+        for x in 0..1u32 << z {
+            for y in 0..1u32 << z {
+                let raw = std::fs::read(dir.join(format!("decoded/{z}_{x}_{y}.raw"))).unwrap();
+                assert_eq!(raw.len(), 256 * 256 * 4);
+                out.insert((z, x, y), raw);
+            }
+        }
+    }
+    out
+}
+
+fn run_python(script: &str, dir: &Path, args: &[String]) {
+    let o = Command::new(python()).arg("-c").arg(script).args(args).current_dir(dir).output().expect("python3");
+    assert!(o.status.success(), "GDAL failed: {}", String::from_utf8_lossy(&o.stderr));
+}
+
+fn quick() -> RemoteOptions {
+    RemoteOptions {
+        timeout: Duration::from_millis(3000),
+        connect_timeout: Duration::from_millis(500),
+        retries: 2,
+        backoff: Duration::from_millis(2),
+        backoff_max: Duration::from_millis(40),
+        ..RemoteOptions::default()
+    }
+}
+
+fn open(text: &str) -> PyramidSource {
+    let opts = OpenOptions {
+        template: TemplateOptions { remote: Some(quick()), zooms: Some([0, MAX_ZOOM]), ..Default::default() },
+        // A clip size of one tile: every level but the coarsest zooms' is read tile by tile.
+        pyramid: PyramidOptions { clip_size: Some(256), ..Default::default() },
+    };
+    tiles::open(text, &opts).expect("a template").unwrap_or_else(|e| panic!("{text}: {e}"))
+}
+
+/// Reads every texture tile of the zooms' levels and compares each texel with GDAL's decode of
+/// the pyramid tile at the same place: texture tile (s, t) of level k is tile x = s,
+/// y = 2^z - 1 - t of zoom z = MAX_ZOOM - k, its texture row r the tile's row 255 - r.
+fn every_texel_is_gdals(src: &PyramidSource, gdal: &HashMap<(u8, u32, u32), Vec<u8>>, what: &str) {
+    assert_eq!(src.desc().size(), [1024, 1024], "{what}");
+    let mut compared = 0u64;
+    for k in 0..=u32::from(MAX_ZOOM) {
+        let z = MAX_ZOOM - k as u8;
+        let level = src.desc().level(k);
+        assert_eq!(level.tile, [256, 256], "{what}: level {k}");
+        let n = 1u64 << z;
+        let mut buf = vec![0u8; src.desc().tile_bytes(k)];
+        for t in 0..n {
+            for s in 0..n {
+                src.read_tile(TileId { level: k, s, t }, &mut buf).unwrap_or_else(|e| panic!("{what}: {e}"));
+                let expected = &gdal[&(z, s as u32, (n - 1 - t) as u32)];
+                for r in 0..256usize {
+                    let got = &buf[r * 1024..(r + 1) * 1024];
+                    let want = &expected[(255 - r) * 1024..(256 - r) * 1024];
+                    assert!(got == want, "{what}: level {k} tile ({s}, {t}) texture row {r} differs from GDAL's decode of tile {z}/{s}/{}", n - 1 - t);
+                }
+                compared += 256 * 256;
+            }
+        }
+    }
+    assert_eq!(compared, (1024 * 1024 + 512 * 512 + 256 * 256) as u64, "{what}");
+}
+
+#[test]
+fn gdal2tiles_xyz_and_tms_trees_serve_gdals_own_texels_from_disk_and_over_nginx() {
+    let dir = tempfile::tempdir().unwrap();
+    let gdal = trees(dir.path());
+    let d = dir.path().display();
+    every_texel_is_gdals(&open(&format!("xyz:{d}/xyz/{{z}}/{{x}}/{{y}}.png")), &gdal, "local XYZ");
+    every_texel_is_gdals(&open(&format!("xyz:{d}/tms/{{z}}/{{x}}/{{-y}}.png")), &gdal, "local TMS");
+    let nginx = Nginx::serve_images(dir.path());
+    let url = nginx.url();
+    let xyz = open(&format!("xyz:{url}/xyz/{{z}}/{{x}}/{{y}}.png"));
+    every_texel_is_gdals(&xyz, &gdal, "XYZ over nginx");
+    let stats = xyz.remote_stats().unwrap();
+    assert_eq!((stats.requests, stats.failures), (21, 0), "one request a tile: {stats:?}");
+    every_texel_is_gdals(&open(&format!("xyz:{url}/tms/{{z}}/{{x}}/{{-y}}.png")), &gdal, "TMS over nginx");
+    // The coarser levels are built from zoom 0: level 3 (128²) is its 2x2 means.
+    let src = open(&format!("xyz:{d}/xyz/{{z}}/{{x}}/{{y}}.png"));
+    let mut half = vec![0u8; src.desc().tile_bytes(3)];
+    src.read_tile(TileId { level: 3, s: 0, t: 0 }, &mut half).unwrap();
+    let z0 = &gdal[&(0, 0, 0)];
+    for (t, s, c) in [(0usize, 0usize, 0usize), (17, 90, 1), (127, 127, 2), (64, 3, 3)] {
+        // Texture row t from the south covers zoom-0 rows 255 - 2t and 254 - 2t from the north.
+        let at = |row: usize, col: usize| u32::from(z0[(row * 256 + col) * 4 + c]);
+        let (r0, r1) = (255 - 2 * t, 254 - 2 * t);
+        let sum = at(r0, 2 * s) + at(r0, 2 * s + 1) + at(r1, 2 * s) + at(r1, 2 * s + 1);
+        assert_eq!(u32::from(half[(t * 128 + s) * 4 + c]), (sum + 2) / 4, "level 3 texel ({s}, {t}) component {c}");
+    }
+}
+
+#[test]
+fn a_404_storm_is_missing_tiles_and_an_html_page_is_an_error_never_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    let gdal = trees(dir.path());
+    let nginx = Nginx::serve_images(dir.path());
+    // Every request answered 404 by the proxy: every tile missing, no texel published.
+    let storm = Schedule { faults: Vec::new(), then: vec![Fault::NotFound], every: 1 };
+    let proxy = FaultProxy::start(nginx.port, storm, 0);
+    let src = open(&format!("xyz:{}/xyz/{{z}}/{{x}}/{{y}}.png", proxy.url()));
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    for s in 0..4 {
+        for t in 0..4 {
+            let r = src.read_tile(TileId { level: 0, s, t }, &mut buf);
+            assert!(matches!(r, Err(SourceError::Missing { .. })), "tile ({s}, {t}): {r:?}");
+        }
+    }
+    assert_eq!(src.remote_stats().unwrap().retries, 0, "404 is not retried");
+    drop(proxy);
+    // A 200 HTML page for every other tile: those are errors naming the tile and what came,
+    // the others GDAL's texels.
+    let pages =
+        Schedule { faults: Vec::new(), then: vec![Fault::Page { len: 900, html: true }, Fault::Pass], every: 1 };
+    let proxy = FaultProxy::start(nginx.port, pages, 0);
+    let src = open(&format!("xyz:{}/xyz/{{z}}/{{x}}/{{y}}.png", proxy.url()));
+    let (mut errors, mut good) = (0, 0);
+    for s in 0..4u64 {
+        for t in 0..4u64 {
+            match src.read_tile(TileId { level: 0, s, t }, &mut buf) {
+                Ok(()) => {
+                    let expected = &gdal[&(2, s as u32, (3 - t) as u32)];
+                    for r in 0..256usize {
+                        assert!(
+                            buf[r * 1024..(r + 1) * 1024] == expected[(255 - r) * 1024..(256 - r) * 1024],
+                            "tile ({s}, {t}) row {r}"
+                        );
+                    }
+                    good += 1;
+                }
+                Err(e) => {
+                    let text = e.to_string();
+                    assert!(
+                        text.contains("text/html") && text.contains("expected an image") && text.contains("tile 2/"),
+                        "{text}"
+                    );
+                    errors += 1;
+                }
+            }
+        }
+    }
+    assert_eq!((errors, good), (8, 8));
+    // An HTML page stored as a tile (served as image/png) is told by its bytes.
+    std::fs::write(dir.path().join("xyz/2/1/1.png"), b"<!DOCTYPE html><html><body>Over quota</body></html>").unwrap();
+    let src = open(&format!("xyz:{}/xyz/{{z}}/{{x}}/{{y}}.png", nginx.url()));
+    let e = src.read_tile(TileId { level: 0, s: 1, t: 2 }, &mut buf).unwrap_err().to_string();
+    assert!(e.contains("tile 2/1/1") && e.contains("not an image") && e.contains("expected a png tile"), "{e}");
+}
+
+#[test]
+fn cliptex_dump_of_a_template_writes_gdals_texels_with_the_north_up() {
+    let dir = tempfile::tempdir().unwrap();
+    let gdal = trees(dir.path());
+    let out = dir.path().join("l1.png");
+    let template = format!("xyz:{}/tms/{{z}}/{{x}}/{{-y}}.png", dir.path().display());
+    let (o, _) = crate::common::exec(
+        dir.path(),
+        env!("CARGO_BIN_EXE_cliptex"),
+        &["dump", &template, "--level", "1", "--out", out.to_str().unwrap()],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let img = image::open(&out).unwrap().into_rgba8();
+    assert_eq!(img.dimensions(), (512, 512));
+    // The picture's top row is the north: its pixel (c, r) is zoom 1's tile (c / 256, r / 256) at
+    // (c % 256, r % 256), as GDAL decodes it.
+    for (c, r) in [(0u32, 0u32), (300, 10), (511, 511), (255, 256), (100, 400)] {
+        let tile = &gdal[&(1, c / 256, r / 256)];
+        let i = (((r % 256) * 256 + c % 256) * 4) as usize;
+        assert_eq!(img.get_pixel(c, r).0[..], tile[i..i + 4], "pixel ({c}, {r})");
+    }
+}
+
+#[test]
+fn clipmapd_publishes_gdals_texels_of_a_gdal2tiles_tree_at_their_places() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let gdal = trees(d);
+    let template = std::path::PathBuf::from(format!("xyz:{}/tms/{{z}}/{{x}}/{{-y}}.png", d.display()));
+    // Clip 1024, the texture's size: every level is resident whole, every texel compared.
+    let served = crate::common::gdal::Served::start(&template, 1024, "xyz", d);
+    let c = &served.client;
+    assert_eq!(c.bytes_per_texel, 4, "RGBA8 for PNG tiles");
+    for k in 0..=usize::from(MAX_ZOOM) {
+        let z = MAX_ZOOM - k as u8;
+        let side = 1024u64 >> k;
+        let n = 1u64 << z;
+        let t0 = std::time::Instant::now();
+        let texels = loop {
+            if let Some(st) = c.level_state(k) {
+                if st.enabled && st.valid == [0, 0, side as i64, side as i64] {
+                    let mut buf = vec![0u8; (side * side * 4) as usize];
+                    if c.read_region(k, 0, 0, side, side, &mut buf).is_ok() {
+                        break buf;
+                    }
+                }
+            }
+            assert!(t0.elapsed() < Duration::from_secs(30), "level {k} never became valid\n{}", served.log());
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        for t in 0..side {
+            for s in 0..side {
+                let tile = &gdal[&(z, (s / 256) as u32, (n - 1 - t / 256) as u32)];
+                let i = (((255 - t % 256) * 256 + s % 256) * 4) as usize;
+                let at = ((t * side + s) * 4) as usize;
+                assert_eq!(texels[at..at + 4], tile[i..i + 4], "level {k} texel ({s}, {t})\n{}", served.log());
+            }
+        }
+    }
+}
+
+#[test]
+fn a_503_with_retry_after_is_retried_and_then_served() {
+    let dir = tempfile::tempdir().unwrap();
+    let gdal = trees(dir.path());
+    let nginx = Nginx::serve_images(dir.path());
+    let first = Schedule { faults: vec![Fault::Unavailable, Fault::Unavailable], then: Vec::new(), every: 0 };
+    let proxy = FaultProxy::start(nginx.port, first, 0);
+    let src = open(&format!("xyz:{}/xyz/{{z}}/{{x}}/{{y}}.png", proxy.url()));
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    src.read_tile(TileId { level: 0, s: 2, t: 1 }, &mut buf).unwrap();
+    let expected = &gdal[&(2, 2, 2)];
+    assert!(buf[..1024] == expected[255 * 1024..], "texture row 0 is the tile's southern row");
+    let stats = src.remote_stats().unwrap();
+    assert_eq!((stats.requests, stats.retries, stats.failures), (3, 2, 0), "{stats:?}");
+}
+
+#[test]
+fn a_key_in_a_header_never_reaches_a_message() {
+    let dir = tempfile::tempdir().unwrap();
+    trees(dir.path());
+    let nginx = Nginx::serve_images(dir.path());
+    let pages = Schedule { faults: Vec::new(), then: vec![Fault::Page { len: 300, html: true }], every: 1 };
+    let proxy = FaultProxy::start(nginx.port, pages, 0);
+    let opts = OpenOptions {
+        template: TemplateOptions {
+            remote: Some(quick()),
+            zooms: Some([0, MAX_ZOOM]),
+            headers: vec![("X-Api-Key".into(), "s3cr3t-k3y".into())],
+            user_agent: Some("clipmap-tests/1 (tests@example.org)".into()),
+            ..Default::default()
+        },
+        pyramid: PyramidOptions { clip_size: Some(256), ..Default::default() },
+    };
+    let src = tiles::open(&format!("xyz:{}/xyz/{{z}}/{{x}}/{{y}}.png", proxy.url()), &opts).unwrap().unwrap();
+    let mut buf = vec![0u8; src.desc().tile_bytes(0)];
+    let e = src.read_tile(TileId { level: 0, s: 0, t: 0 }, &mut buf).unwrap_err();
+    let text = format!("{e} {e:?}");
+    assert!(text.contains("text/html") && !text.contains("s3cr3t"), "{text}");
+    // A header that would split the request is refused, without its value.
+    let bad = OpenOptions {
+        template: TemplateOptions {
+            headers: vec![("X-Api-Key".into(), "s3cr3t\r\nHost: evil".into())],
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let e = tiles::open("xyz:https://tile.example.org/{z}/{x}/{y}.png", &bad).unwrap().unwrap_err().to_string();
+    assert!(e.contains("header \"X-Api-Key\"") && !e.contains("s3cr3t"), "{e}");
+}
