@@ -321,3 +321,49 @@ fn a_key_in_a_header_never_reaches_a_message() {
     let e = tiles::open("xyz:https://tile.example.org/{z}/{x}/{y}.png", &bad).unwrap().unwrap_err().to_string();
     assert!(e.contains("header \"X-Api-Key\"") && !e.contains("s3cr3t"), "{e}");
 }
+
+/// Packs the XYZ tree's PNG tiles (gdal2tiles.py's, zooms 0..MAX_ZOOM) into `tree.pmtiles` with
+/// the reference PMTiles writer and into `tree.mbtiles` (TMS rows, with its metadata) with
+/// Python's sqlite3 module: the same encoded tiles in both archives.
+fn archives_of_the_tree(dir: &Path) {
+    let pack = r#"
+import sqlite3, sys
+from pmtiles.tile import Compression, TileType, zxy_to_tileid
+from pmtiles.writer import Writer
+top = int(sys.argv[1])
+tiles = sorted((zxy_to_tileid(z, x, y), open(f'xyz/{z}/{x}/{y}.png', 'rb').read(), z, x, y)
+               for z in range(top + 1) for x in range(2 ** z) for y in range(2 ** z))
+with open('tree.pmtiles', 'wb') as f:
+    w = Writer(f)
+    for tid, data, *_ in tiles:
+        w.write_tile(tid, data)
+    w.finalize({'tile_type': TileType.PNG, 'tile_compression': Compression.NONE, 'min_zoom': 0, 'max_zoom': top,
+                'min_lon_e7': int(-180e7), 'min_lat_e7': int(-85.0511287e7), 'max_lon_e7': int(180e7), 'max_lat_e7': int(85.0511287e7)},
+               {'name': 'tree'})
+db = sqlite3.connect('tree.mbtiles')
+db.execute('CREATE TABLE metadata (name TEXT, value TEXT)')
+db.execute('CREATE TABLE tiles (zoom_level INTEGER, tile_column INTEGER, tile_row INTEGER, tile_data BLOB)')
+db.executemany('INSERT INTO metadata VALUES (?, ?)', [('name', 'tree'), ('format', 'png'), ('minzoom', '0'), ('maxzoom', str(top)), ('bounds', '-180,-85.0511,180,85.0511')])
+db.executemany('INSERT INTO tiles VALUES (?, ?, ?, ?)', [(z, x, 2 ** z - 1 - y, data) for _, data, z, x, y in tiles])
+db.commit()
+"#;
+    run_python(pack, dir, &[MAX_ZOOM.to_string()]);
+}
+
+#[test]
+fn pmtiles_and_mbtiles_of_gdal2tiles_png_serve_gdals_own_texels_locally_and_over_nginx() {
+    let dir = tempfile::tempdir().unwrap();
+    let gdal = trees(dir.path());
+    archives_of_the_tree(dir.path());
+    let d = dir.path().display();
+    every_texel_is_gdals(&open(&format!("{d}/tree.pmtiles")), &gdal, "local PMTiles");
+    every_texel_is_gdals(&open(&format!("{d}/tree.mbtiles")), &gdal, "local MBTiles");
+    let nginx = Nginx::serve_images(dir.path());
+    let src = open(&format!("{}/tree.pmtiles", nginx.url()));
+    every_texel_is_gdals(&src, &gdal, "PMTiles over nginx");
+    let stats = src.remote_stats().expect("a remote archive counts its requests");
+    // The open (header and root directory: one request of at most 16 KiB), at most one more for
+    // the first tile's size, then at most one request for each of the 21 tiles.
+    assert!(stats.requests <= 2 + 21, "{stats:?}");
+    assert_eq!(stats.failures, 0, "{stats:?}");
+}
