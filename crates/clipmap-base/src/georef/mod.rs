@@ -7,7 +7,7 @@
 //! east from the west edge and t north from the south edge, so `t = height - line` for GDAL's
 //! continuous line coordinate (line 0 is the top edge of the top row) and `s = pixel`.
 //!
-//! Levels: level k's size is [`level_size`] (each edge halved k times, rounded down, at least
+//! Levels: level k's size is [`crate::tile::level_size`] (each edge halved k times, rounded down, at least
 //! 1), and its texel (s, t) covers level 0's texels [s 2^k, (s + 1) 2^k) x [t 2^k, (t + 1) 2^k):
 //! the levels are anchored at the south-west corner, as the 2 x 2 box filter that builds them
 //! pairs texels from there. So level k's geotransform is level 0's with every scale and rotation
@@ -24,7 +24,6 @@ mod tests;
 
 pub use crs::{Crs, WEB_MERCATOR_HALF, WEB_MERCATOR_MAX_LAT, WEB_MERCATOR_RADIUS};
 
-use crate::tile::level_size;
 use serde::Serialize;
 use thiserror::Error;
 
@@ -189,9 +188,11 @@ impl Georef {
         }
     }
 
-    /// Level `k`'s size ([`level_size`]).
+    /// Level `k`'s size: [`crate::tile::level_size`]'s rule (each edge `>> k`, at least 1),
+    /// written out here because the ground floor's modules name none of each other
+    /// (docs/ARCHITECTURE.md §12); a test holds the two equal.
     pub fn level_size(&self, k: u32) -> [u64; 2] {
-        level_size(self.size, k)
+        self.size.map(|e| (e >> k.min(63)).max(1))
     }
 
     /// Level `k`'s geotransform, GDAL's order for level k's own pixel / line (its line 0 the
@@ -287,6 +288,21 @@ impl Georef {
         let min = |v: [f64; 4]| v.into_iter().fold(f64::INFINITY, f64::min);
         let max = |v: [f64; 4]| v.into_iter().fold(f64::NEG_INFINITY, f64::max);
         [min(xs), min(ys), max(xs), max(ys)]
+    }
+
+    /// The WGS 84 bounds `[west, south, east, north]` (degrees) of level 0's edges, each edge
+    /// taken at 65 points (a projected texture's edges curve in longitude / latitude).
+    pub fn lonlat_bounds(&self) -> Result<[f64; 4], GeorefError> {
+        let [w, h] = [self.size[0] as f64, self.size[1] as f64];
+        let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+        for i in 0..=64 {
+            let f = i as f64 / 64.0;
+            for st in [[f * w, 0.0], [f * w, h], [0.0, f * h], [w, f * h]] {
+                let [lon, lat] = self.crs.to_lonlat(self.texel_to_map_unchecked(0, st))?;
+                b = [b[0].min(lon), b[1].min(lat), b[2].max(lon), b[3].max(lat)];
+            }
+        }
+        Ok(b)
     }
 
     /// Whether the texture spans 360 degrees of longitude, east to west, unrotated: a global

@@ -113,6 +113,16 @@ fn a_levels_transform_is_level_zeros_halved_anchored_at_the_south_west() {
 }
 
 #[test]
+fn level_sizes_are_the_tiles_level_sizes() {
+    for size in [[1u64, 1], [100, 75], [1536, 1024], [1 << 30, 3], [(1 << 26) + 1, 7]] {
+        let g = Georef::new(Crs::wgs84(), GeoTransform([0.0, 1.0, 0.0, 0.0, 0.0, -1.0]), size).unwrap();
+        for k in [0, 1, 2, 5, 13, 31, 40, 63, 64, 99] {
+            assert_eq!(g.level_size(k), crate::tile::level_size(size, k), "{size:?} level {k}");
+        }
+    }
+}
+
+#[test]
 fn a_global_geographic_texture_wraps_its_longitudes() {
     // 0..360 degrees east: -10 degrees is at 350.
     let g =
