@@ -1,5 +1,6 @@
 //! Georeferencing equals GDAL's (docs/GEOREF.md): COGs written by GDAL in the test in EPSG:4326,
-//! EPSG:3857 and UTM zone 33N (EPSG:32633, plus one marked PixelIsPoint); `cliptex info --json`'s
+//! EPSG:3857 and UTM zone 33N (EPSG:32633, plus one marked PixelIsPoint and one rotated, which
+//! GDAL writes as a ModelTransformationTag); `cliptex info --json`'s
 //! geotransform is `gdalinfo -json`'s, every level's transform is the one GDAL gives its
 //! overview (`gdal_translate -ovr`), and `cliptex locate` agrees with `gdaltransform` to a
 //! millionth of a texel at level 0, both ways.
@@ -35,6 +36,7 @@ make('g4326.tif', 4326, [-180, 360 / 2048, 0, 90, 0, -180 / 1024], 2048, 1024)
 make('g3857.tif', 3857, [-H, 2 * H / 2048, 0, H, 0, -2 * H / 2048], 2048, 2048)
 make('g32633.tif', 32633, [400000.5, 10.25, 0, 4700000.75, 0, -10.25], 1536, 1024)
 make('p32633.tif', 32633, [400000.5, 10.25, 0, 4700000.75, 0, -10.25], 1536, 1024, point=True)
+make('r32633.tif', 32633, [400000.5, 10, 2.5, 4700000.75, 1.5, -10], 1024, 1024)
 "#;
 
 fn gdal_files(dir: &Path) -> Vec<serde_json::Value> {
@@ -91,7 +93,7 @@ fn every_levels_transform_and_every_located_texel_equal_gdals() {
         let info: serde_json::Value = serde_json::from_str(&run(cliptex, &["info", "--json", name], d, "")).unwrap();
         let ours = numbers(&info["georef"]["geotransform"]);
         assert_eq!(ours, numbers(&gdalinfo["geoTransform"]), "{name}: {info}");
-        let epsg = if name.starts_with('p') { 32633 } else { name[1..name.len() - 4].parse::<u64>().unwrap() };
+        let epsg: u64 = name[1..name.len() - 4].parse().unwrap();
         assert_eq!(info["georef"]["epsg"], epsg, "{name}");
         // Every overview: GDAL's size and transform are our level's.
         let src = CogSource::open(&d.join(name), 1024).unwrap();
