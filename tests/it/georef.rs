@@ -37,6 +37,16 @@ make('g3857.tif', 3857, [-H, 2 * H / 2048, 0, H, 0, -2 * H / 2048], 2048, 2048)
 make('g32633.tif', 32633, [400000.5, 10.25, 0, 4700000.75, 0, -10.25], 1536, 1024)
 make('p32633.tif', 32633, [400000.5, 10.25, 0, 4700000.75, 0, -10.25], 1536, 1024, point=True)
 make('r32633.tif', 32633, [400000.5, 10, 2.5, 4700000.75, 1.5, -10], 1024, 1024)
+# Not reported: georeferenced by ground control points, and in a CRS without an EPSG code.
+d = gdal.GetDriverByName('MEM').Create('', 512, 512, 1, gdal.GDT_Byte)
+s = osr.SpatialReference(); s.ImportFromEPSG(4326)
+d.SetGCPs([gdal.GCP(10 + i, 50 - j, 0, 256 * i, 256 * j) for i in range(2) for j in range(2)], s.ExportToWkt())
+gdal.Translate('gcps.tif', d, format='COG', creationOptions=['BLOCKSIZE=256'])
+d = gdal.GetDriverByName('MEM').Create('', 512, 512, 1, gdal.GDT_Byte)
+d.SetGeoTransform([3500000, 10, 0, 5500000, 0, -10])
+s = osr.SpatialReference(); s.ImportFromProj4('+proj=tmerc +lat_0=0 +lon_0=9 +k=1 +x_0=3500000 +y_0=0 +ellps=bessel +units=m +no_defs')
+d.SetProjection(s.ExportToWkt())
+gdal.Translate('custom.tif', d, format='COG', creationOptions=['BLOCKSIZE=256'])
 "#;
 
 fn gdal_files(dir: &Path) -> Vec<serde_json::Value> {
@@ -159,7 +169,7 @@ fn every_levels_transform_and_every_located_texel_equal_gdals() {
 }
 
 #[test]
-fn a_cog_without_georeferencing_says_so_and_a_zero_pixel_scale_is_refused_where_it_is() {
+fn a_cog_without_usable_georeferencing_says_why_and_a_user_defined_crs_keeps_map_coordinates() {
     let cliptex = env!("CARGO_BIN_EXE_cliptex");
     let plain = crate::cog::fixture("rgba_100x75.tif");
     let out = Command::new(cliptex).args(["info", "--json"]).arg(&plain).output().unwrap();
@@ -185,6 +195,27 @@ fn a_cog_without_georeferencing_says_so_and_a_zero_pixel_scale_is_refused_where_
     assert!(v["georef"].is_null(), "{v}");
     let problem = v["georef_problem"].as_str().unwrap();
     assert!(problem.contains("IFD 0 tag ModelPixelScaleTag (33550)") && problem.contains("non-zero"), "{problem}");
+    // Ground control points: not read, and said so.
+    let out = Command::new(cliptex).args(["info", "--json", "gcps.tif"]).current_dir(d).output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let problem = v["georef_problem"].as_str().unwrap();
+    assert!(problem.contains("ModelTiepointTag (33922)") && problem.contains("4 tiepoints"), "{problem}");
+    // A user-defined CRS: map coordinates, no longitude / latitude, and its citation.
+    let out = Command::new(cliptex).args(["info", "--json", "custom.tif"]).current_dir(d).output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["georef"]["epsg"].is_null() && v["georef"]["geotransform"][0] == 3500000.0, "{v}");
+    let out = Command::new(cliptex)
+        .args(["locate", "custom.tif", "--texel", "10,20", "--json"])
+        .current_dir(d)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{out:?}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!((v["x"].as_f64(), v["y"].as_f64()), (Some(3500100.0), Some(5500000.0 - 4920.0)), "{v}");
+    assert!(v["lon"].is_null(), "{v}");
+    let out = Command::new(cliptex).args(["locate", "custom.tif", "--lonlat", "9,45"]).current_dir(d).output().unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no definition known here"), "{out:?}");
     // Outside the texture and beyond the projection: refused with the domain.
     let out = Command::new(cliptex).args(["locate", "g3857.tif", "--lonlat", "10,86"]).current_dir(d).output().unwrap();
     assert_eq!(out.status.code(), Some(1));
