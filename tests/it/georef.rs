@@ -204,6 +204,7 @@ fn a_cog_without_usable_georeferencing_says_why_and_a_user_defined_crs_keeps_map
     let out = Command::new(cliptex).args(["info", "--json", "custom.tif"]).current_dir(d).output().unwrap();
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!(v["georef"]["epsg"].is_null() && v["georef"]["geotransform"][0] == 3500000.0, "{v}");
+    assert!(v["georef"]["crs"].as_str().unwrap().contains("user-defined (GCS Name = unknown; Datum = "), "{v}");
     let out = Command::new(cliptex)
         .args(["locate", "custom.tif", "--texel", "10,20", "--json"])
         .current_dir(d)

@@ -157,17 +157,21 @@ impl GeoKeys {
         let [_, loc, count, offset] = self.find(key)?;
         let ascii = self.ascii.as_deref().filter(|_| loc == 34737)?;
         let text = ascii.get(offset as usize..(offset + count) as usize)?;
-        Some(text.trim_end_matches('|').trim().to_string())
+        // GDAL packs several fields into one citation, `|` between them.
+        Some(text.trim_end_matches('|').trim().replace('|', "; "))
     }
 
     /// The CRS: ProjectedCSTypeGeoKey, else GeographicTypeGeoKey; a user-defined or unknown
     /// code keeps map coordinates only, named by its citation.
     fn crs(&self) -> Result<Crs, (String, String)> {
         let citation = || {
-            [3073, 2049, 1026]
-                .into_iter()
-                .find_map(|k| self.text(k).filter(|t| !t.is_empty()))
-                .unwrap_or_else(|| "a user-defined CRS without a citation".into())
+            // PCSCitation, GTCitation, GeogCitation, those that say something.
+            let said = |t: &String| !t.is_empty() && !["unknown", "unnamed"].contains(&t.to_lowercase().as_str());
+            let cited: Vec<String> = [3073, 1026, 2049].into_iter().filter_map(|k| self.text(k).filter(said)).collect();
+            match cited.is_empty() {
+                false => format!("user-defined ({})", cited.join("; ")),
+                true => "user-defined, without a citation".into(),
+            }
         };
         let model = self.short(1024)?;
         let projected = self.short(3072)?;
