@@ -49,7 +49,7 @@
 #![deny(unsafe_code)]
 
 // The ground floor, a crate of its own (`clipmap-base`), under its old paths.
-pub use clipmap_base::{geom, height, limits, open, save, sizing, texel, tile};
+pub use clipmap_base::{geom, georef, height, limits, open, save, sizing, texel, tile};
 
 pub mod accuracy;
 pub mod cache;

@@ -12,6 +12,7 @@ const FLOORS: &[(&str, u32)] = &[
     ("tile", 1),
     ("texel", 1),
     ("geom", 1),
+    ("georef", 1),
     ("limits", 1),
     ("open", 1),
     ("save", 1),

@@ -39,6 +39,7 @@ mod config_tokens;
 mod elevation;
 mod examples;
 mod fuzz_regressions;
+mod georef;
 mod growing;
 mod growing_service;
 mod height_cracks;

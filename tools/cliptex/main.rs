@@ -5,6 +5,7 @@
 #![forbid(unsafe_code)]
 
 mod grow;
+mod locate;
 
 use clap::{Parser, Subcommand};
 use clipmap::cli::{self as cmdline, EnvArgs, TilesArgs};
@@ -125,6 +126,31 @@ Examples:
         ct_only: bool,
         #[command(flatten)]
         env: EnvArgs,
+    },
+    /// Where a longitude / latitude is in texels of a level of a COG, or the reverse (docs/GEOREF.md)
+    #[command(after_help = "\
+Texel (s, t) covers [s, s+1) x [t, t+1); t counts up from the south edge (t = height - line for
+GDAL's continuous line). Longitude / latitude are WGS 84 degrees.
+
+Examples:
+  cliptex locate ortho.tif --lonlat 13.4,52.5
+  cliptex locate ortho.tif --lonlat=-122.42,37.77 --level 3 --json
+  cliptex locate ortho.tif --texel 1024.5,2048.5")]
+    Locate {
+        /// A georeferenced tiled GeoTIFF / COG.
+        file: PathBuf,
+        /// The point's longitude and latitude, degrees: prints its continuous texel (s, t).
+        #[arg(long, value_name = "LON,LAT", allow_hyphen_values = true, conflicts_with = "texel")]
+        lonlat: Option<String>,
+        /// A continuous texel (s, t) of the level: prints its longitude / latitude and map x / y.
+        #[arg(long, value_name = "S,T", allow_hyphen_values = true)]
+        texel: Option<String>,
+        /// The level the texel is of.
+        #[arg(long, default_value_t = 0)]
+        level: u32,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
     },
     /// Size a deployment: clipmap memory against the full mipmap, update bandwidth, clip size for a display.
     #[command(after_help = "\
@@ -926,8 +952,7 @@ fn run(cli: Cli) -> i32 {
             }
         }
         Command::Validate { args, ct_only } => cmdline::validate(&args, FileKind::ClipTexture, "cliptex", ct_only),
-        // A tiled GeoTIFF / COG: the texture it is served as (clipmapd's default clip size).
-        // A local file that starts like a TIFF, or an http(s):// or s3:// name ending in .tif / .tiff.
+        // A tile pyramid (xyz:TEMPLATE, .pmtiles, .mbtiles): the texture it is served as.
         Command::Info { file, json, tiles, .. } if clipmap::source::tiles::is_pyramid(&file.to_string_lossy()) => {
             match open_pyramid(&file, &tiles, "cliptex") {
                 Some(Ok(src)) => pyramid_info(&src, json),
@@ -935,14 +960,32 @@ fn run(cli: Cli) -> i32 {
                 None => exit::BAD_INPUT,
             }
         }
+        // A tiled GeoTIFF / COG: the texture it is served as (clipmapd's default clip size).
+        // A local file that starts like a TIFF, or an http(s):// or s3:// name ending in .tif / .tiff.
         Command::Info { file, json, .. } if is_cog(&file) => match open_cog(&file, "cliptex") {
             Err(c) => c,
             Ok(src) => {
                 let info = src.info();
-                report::emit(json, &info, |_| info.human());
+                let levels = info.levels.len() as u32;
+                report::emit(json, &locate::CogInfoJson::of(&info, &src), |_| {
+                    info.human() + &locate::human(&src, levels)
+                });
                 exit::OK
             }
         },
+        Command::Locate { file, lonlat, texel, level, json } => {
+            if !is_cog(&file) {
+                eprintln!(
+                    "cliptex locate: {}: not a tiled GeoTIFF / COG: only COGs carry georeferencing (docs/GEOREF.md)",
+                    file.display()
+                );
+                return exit::BAD_INPUT;
+            }
+            match open_cog(&file, "cliptex locate") {
+                Err(c) => c,
+                Ok(src) => locate::run(&src, &file, lonlat.as_deref(), texel.as_deref(), level, json),
+            }
+        }
         Command::Info { file, json, env, ct_only, .. } => match env.load_clip_texture(&file, "cliptex", ct_only) {
             Err(c) => c,
             Ok((p, warnings)) => {

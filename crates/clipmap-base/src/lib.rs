@@ -10,6 +10,7 @@
 //! | [`texel`] | texel formats, bytes per texel, colour encoding |
 //! | [`height`] | elevation: height encodings, level rules for heights, per-tile height ranges |
 //! | [`geom`] | pure level geometry: centres, tex / valid / mem regions, toroidal addressing |
+//! | [`georef`] | where a texture is on the Earth: CRS, each level's transform, texel <-> map <-> longitude / latitude |
 //! | [`limits`] | every bound the paging engine keeps (queue lengths, reads in flight, bytes) |
 //! | [`open`] | the one way to open a file a configuration names: regular files only, never blocking |
 //! | [`save`] | writing a result file completely or not at all (temporary, sync, rename) |
@@ -20,6 +21,7 @@
 #![deny(unsafe_code)]
 
 pub mod geom;
+pub mod georef;
 pub mod height;
 pub mod limits;
 pub mod open;

@@ -63,6 +63,7 @@ pub use reopen::{Reopening, RETRY_GAP as REOPEN_GAP};
 mod built;
 mod decode;
 mod error;
+mod geokeys;
 mod image;
 mod index;
 mod info;
@@ -72,6 +73,7 @@ mod read;
 mod structure;
 
 pub use error::CogError;
+pub use geokeys::GeoKeysError;
 pub use info::{CogInfo, CogLevelInfo};
 pub use level::{Compression, LevelOrigin};
 pub use meta::{MASK_NODATA_F32, MASK_NODATA_I16, MASK_NODATA_U16};
@@ -161,6 +163,8 @@ pub struct CogSource {
     alpha: Option<AlphaRule>,
     /// A height image's nodata value and where its nodata texels come from, for `cliptex info`.
     height_nodata: Option<String>,
+    /// Where the file is on the Earth (its GeoTIFF tags), `None` when it does not say.
+    georef: Result<Option<crate::georef::Georef>, GeoKeysError>,
 }
 
 impl std::fmt::Debug for CogSource {
@@ -341,7 +345,10 @@ impl CogSource {
         let reader =
             Head { bytes: &*bytes, prefix: &prefix, failed: RefCell::new(None), windows: RefCell::new(Vec::new()) };
         let (mut nodata, mut meta) = (None, BandMeta::default());
+        let mut georef = Ok(None);
         let parts = read_ifds(&reader, layout, first).map_err(malformed).and_then(|images| {
+            // Read, never refused here: a file without (or with broken) georeferencing is served.
+            georef = geokeys::georef_of(&path, &reader, layout, &images[0]);
             nodata = ascii(&reader, layout, &images[0], 42113, "GDAL_NODATA (42113)", 64).map_err(malformed)?;
             let xml = ascii(&reader, layout, &images[0], 42112, "GDAL_METADATA (42112)", MAX_GDAL_METADATA)
                 .map_err(malformed)?;
@@ -434,6 +441,7 @@ impl CogSource {
             ahead: ReadAhead::default(),
             alpha,
             height_nodata,
+            georef,
         })
     }
 
@@ -447,6 +455,14 @@ impl CogSource {
     /// points at since): [`Reopening`] then opens it again.
     pub fn object_changed(&self) -> bool {
         self.bytes.changed()
+    }
+
+    /// Where the file is on the Earth, from its GeoTIFF tags (docs/GEOREF.md): `None` when it
+    /// has no transform tag; the error when its tags cannot be read (the file is served all the
+    /// same). Level k of the texture is [`Georef::level_transform`](crate::georef::Georef::level_transform)
+    /// of it.
+    pub fn georef(&self) -> Result<Option<&crate::georef::Georef>, &GeoKeysError> {
+        self.georef.as_ref().map(Option::as_ref)
     }
 
     /// Where each level's texels come from, level 0 first.

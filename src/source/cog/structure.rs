@@ -291,6 +291,36 @@ pub(super) fn raw_bytes(
     Ok(Some(bytes))
 }
 
+/// The values of DOUBLE tag `tag` (TIFF type 12; at most `max` of them), `None` when the IFD
+/// lacks it; a value that is not finite is refused (where, which value).
+pub(super) fn doubles(
+    file: &Head,
+    layout: Layout,
+    image: &Image,
+    tag: u16,
+    name: &str,
+    max: u64,
+) -> Result<Option<Vec<f64>>, (String, String)> {
+    let Some(e) = image.entries.iter().find(|e| e.tag == tag) else { return Ok(None) };
+    let at = format!("IFD {} tag {name}", image.ifd);
+    if e.ty != 12 {
+        return Err((at, format!("type {} found, expected 12 (DOUBLE)", e.ty)));
+    }
+    if e.count == 0 || e.count > max {
+        return Err((at, format!("{} values, expected 1 to {max}", e.count)));
+    }
+    let bytes = if e.count * 8 <= layout.field() as u64 {
+        e.field[..(e.count * 8) as usize].to_vec()
+    } else {
+        file.read_at(layout.offset(&e.field), (e.count * 8) as usize, &at)?
+    };
+    let v: Vec<f64> = bytes.chunks_exact(8).map(|b| f64::from_bits(layout.u64(b))).collect();
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err((at, format!("value {i} is {}, expected a finite number", v[i])));
+    }
+    Ok(Some(v))
+}
+
 /// The single unsigned value of tag `tag`, `None` when the IFD lacks it.
 pub(super) fn scalar(
     file: &Head,
