@@ -365,8 +365,7 @@ fn compressed_tiles_read_by_name_decode_in_one_read_and_are_refused_as_local_one
         let place = Place::parse(name);
         let Place::Remote(remote) = &place else { panic!("{name}") };
         let reader = objects.reader(remote);
-        let result = read_stored(&*reader, &place, TileId::new(0, 0, 0), offset, out);
-        result
+        read_stored(&*reader, &place, TileId::new(0, 0, 0), offset, out)
     };
     let mut out = vec![0u8; 768];
     read("http://h:1/good.raw.zst", 0, &mut out).unwrap();
