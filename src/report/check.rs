@@ -148,26 +148,31 @@ fn probe(place: &Place) -> FileState {
 }
 
 /// A compressed tile file (docs/COMPRESSED-TILES.md): its length, when it decodes to exactly
-/// one `tile`-byte tile. Decoded the very way the service reads it
-/// ([`crate::source::file::read_stored`]), so that `check` and the service agree on which
-/// frames are good; `buf` is reused between files.
+/// one `tile`-byte tile. Decoded the very way the service reads it, through the same byte seam
+/// ([`crate::source::file::read_stored`] over a local file or a remote object read by name), so
+/// that `check` and the service agree on which frames are good; `buf` is reused between files.
 fn probe_compressed(place: &Place, offset: u64, tile: u64, buf: &mut Vec<u8>) -> FileState {
+    use crate::source::file::read_stored;
+    use crate::source::range::LocalFile;
     use crate::source::{SourceError, TileId};
-    let path = match place {
-        Place::Local(path) => path,
+    buf.resize(tile as usize, 0);
+    let id = TileId::new(0, 0, 0);
+    let (decoded, len) = match place {
+        Place::Local(path) => {
+            let (file, meta) = match crate::open::regular(path) {
+                Ok(f) => f,
+                Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(Problem::Missing),
+                Err(_) => return Err(Problem::Unreadable),
+            };
+            (read_stored(&LocalFile(file), place, id, offset, buf), meta.len())
+        }
         Place::Remote(name) => {
-            buf.resize(tile as usize, 0);
-            return remote_probe::decode(name, offset, buf);
+            let Some(remote) = remote_probe::by_name() else { return Err(Problem::Unreadable) };
+            (read_stored(&*remote.reader(name), place, id, offset, buf), offset + tile)
         }
     };
-    let (file, meta) = match crate::open::regular(path) {
-        Ok(f) => f,
-        Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(Problem::Missing),
-        Err(_) => return Err(Problem::Unreadable),
-    };
-    buf.resize(tile as usize, 0);
-    match crate::source::file::read_stored(&file, path, TileId::new(0, 0, 0), offset, buf) {
-        Ok(()) => Ok(meta.len()),
+    match decoded {
+        Ok(()) => Ok(len),
         Err(SourceError::Undecodable { .. }) => Err(Problem::Corrupt),
         Err(SourceError::Missing { .. }) => Err(Problem::Missing),
         Err(_) => Err(Problem::Unreadable),
@@ -189,12 +194,13 @@ fn check_default(ic: &ImageCachePlan, place: &Place) -> DefaultTileCheck {
 }
 
 /// Remote locations, checked the way [`crate::source::remote`] reads them: the length of an
-/// object by HEAD, a compressed tile by reading and decoding it; one reader (and its connections)
-/// for the whole check, with the `CLIPMAP_REMOTE_*` options.
+/// object by HEAD, a compressed tile by reading it by name and decoding it; one reader (and its
+/// connections) for the whole check, with the `CLIPMAP_REMOTE_*` options.
 #[cfg(feature = "remote")]
 mod remote_probe {
     use super::{FileState, Problem};
     use crate::place::RemoteName;
+    use crate::source::range::ByName;
     use crate::source::remote::{ReadError, Remote, RemoteOptions};
     use std::sync::OnceLock;
 
@@ -221,15 +227,9 @@ mod remote_probe {
         }
     }
 
-    pub fn decode(name: &RemoteName, offset: u64, buf: &mut [u8]) -> FileState {
-        use crate::source::{RemoteReader, SourceError, TileId};
-        let Ok(r) = remote() else { return Err(Problem::Unreadable) };
-        match r.read_range(TileId::new(0, 0, 0), name, offset, buf) {
-            Ok(()) => Ok(offset + buf.len() as u64),
-            Err(SourceError::Undecodable { .. }) => Err(Problem::Corrupt),
-            Err(SourceError::Missing { .. }) => Err(Problem::Missing),
-            Err(_) => Err(Problem::Unreadable),
-        }
+    /// The reader of remote objects by name, when the options allow one.
+    pub fn by_name() -> Option<&'static dyn ByName> {
+        remote().ok().map(|r| r as &dyn ByName)
     }
 }
 
@@ -249,8 +249,9 @@ mod remote_probe {
         Err(Problem::Unreadable)
     }
 
-    pub fn decode(_: &RemoteName, _: u64, _: &mut [u8]) -> FileState {
-        Err(Problem::Unreadable)
+    /// None: this build reads no remote objects.
+    pub fn by_name() -> Option<&'static dyn crate::source::range::ByName> {
+        None
     }
 }
 

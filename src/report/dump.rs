@@ -645,7 +645,7 @@ impl<'a> IcacheTiles<'a> {
         // A remote tile is not read here: missing, as a file that is not there.
         let Place::Local(path) = &loc.path else { return Err(SourceError::Missing { tile }) };
         let (f, _) = crate::open::regular(path).map_err(|e| crate::source::file::io_error(tile, e))?;
-        crate::source::file::read_stored(&f, path, tile, loc.offset, out)
+        crate::source::file::read_stored(&crate::source::range::LocalFile(f), &loc.path, tile, loc.offset, out)
     }
 }
 

@@ -2,7 +2,9 @@
 //!
 //! Owns turning a plan into a [`TextureDesc`] (level sizes; image-cache levels are read in their
 //! `.ic` tile size, pyramid levels as one tile the size of the level), reading each tile with one
-//! positioned read at the byte offset the plan computes (docs/PERFORMER-REFERENCE.md §1.12), a bounded set of
+//! read at the byte offset the plan computes (docs/PERFORMER-REFERENCE.md §1.12) through the byte
+//! seam's lower step ([`RangeRead`]: a local file by positioned reads, a remote object by name
+//! through the [`ByName`] reader it is given), a bounded set of
 //! open file handles ([`Limits::max_open_files`], least recently used closed first), the default
 //! tile of each image cache (§1.13: read once at start-up, checked to be one tile long, served in
 //! place of a tile whose file is missing or too short), and the mapping of tiles to stream
@@ -21,17 +23,19 @@
 
 use super::{check_request, DescError, LevelDesc, SourceError, TextureDesc, TileId, TileSource};
 use crate::limits::Limits;
+use crate::open::SizedError;
 use crate::place::{Place, RemoteName};
 use crate::plan::{ClipTexturePlan, ImageCachePlan, LevelKind, TileError};
+use crate::source::range::{ByName, LocalFile, RangeRead};
 use serde::Serialize;
 use std::collections::HashMap;
-use std::fs::File;
 use std::io;
-use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use thiserror::Error;
+
+pub(crate) use crate::source::range::io_error;
 
 /// Why a plan cannot be served as a tile source.
 #[derive(Debug, Error)]
@@ -113,11 +117,11 @@ pub struct FileStats {
 struct Handles {
     bound: usize,
     clock: u64,
-    open: HashMap<PathBuf, (Arc<File>, u64)>,
+    open: HashMap<PathBuf, (Arc<LocalFile>, u64)>,
 }
 
 impl Handles {
-    fn cached(&mut self, path: &Path) -> Option<Arc<File>> {
+    fn cached(&mut self, path: &Path) -> Option<Arc<LocalFile>> {
         self.clock += 1;
         let now = self.clock;
         self.open.get_mut(path).map(|(f, used)| {
@@ -126,7 +130,7 @@ impl Handles {
         })
     }
 
-    fn insert(&mut self, path: &Path, file: Arc<File>) {
+    fn insert(&mut self, path: &Path, file: Arc<LocalFile>) {
         if self.bound == 0 {
             return;
         }
@@ -150,19 +154,7 @@ struct LevelStreams {
     servers: Vec<usize>,
 }
 
-/// Reads what a plan names at remote locations (`http://`, `https://`, `s3://`: a
-/// [`Place::Remote`]) for a [`FileSource`]: the `remote` feature's [`crate::source::remote`]
-/// implements it.
-pub trait RemoteReader: Send + Sync {
-    /// Fills `out` with the bytes of `location` from byte `offset` on (one tile; a compressed
-    /// tile file is one whole object, decoded).
-    fn read_range(&self, tile: TileId, location: &RemoteName, offset: u64, out: &mut [u8]) -> Result<(), SourceError>;
-
-    /// Reads a small whole object (a default tile) whose length is one of `allowed`.
-    fn read_sized(&self, location: &RemoteName, allowed: &[u64]) -> Result<Vec<u8>, crate::open::SizedError>;
-}
-
-/// The error for a remote location that a source without a [`RemoteReader`] was asked for.
+/// The error for a remote location that a source without a [`ByName`] reader was asked for.
 fn no_remote(location: &RemoteName) -> io::Error {
     io::Error::new(
         io::ErrorKind::Unsupported,
@@ -180,7 +172,7 @@ pub struct FileSource {
     streams: Vec<Option<LevelStreams>>,
     stream_names: Vec<String>,
     handles: Mutex<Handles>,
-    remote: Option<Arc<dyn RemoteReader>>,
+    remote: Option<Arc<dyn ByName>>,
     reads: AtomicU64,
     bytes_read: AtomicU64,
     default_tiles: AtomicU64,
@@ -241,25 +233,44 @@ pub(crate) fn texture_desc(plan: &ClipTexturePlan) -> Result<TextureDesc, FileSo
     Ok(desc.with_invalid_border(border).map_err(desc_err)?.with_mem_grids(grids))
 }
 
+/// Reads a small whole file or object whose length is one of `allowed` through `reader`: a
+/// length known beforehand (a local file's) that is not allowed is refused before anything is
+/// read; else at most one byte more than the longest allowed is read, in one read.
+fn read_sized(reader: &dyn RangeRead, allowed: &[u64]) -> Result<Vec<u8>, SizedError> {
+    if let Some(len) = reader.known_size().filter(|len| !allowed.contains(len)) {
+        return Err(SizedError::Length(len));
+    }
+    let max = allowed.iter().copied().max().unwrap_or(0).saturating_add(1);
+    let mut buf = vec![0u8; max as usize];
+    let n = reader.read_upto(0, &mut buf).map_err(|e| SizedError::Io(e.into_io(0, max)))?;
+    buf.truncate(n);
+    if !allowed.contains(&(n as u64)) {
+        return Err(SizedError::Length(n as u64));
+    }
+    Ok(buf)
+}
+
 /// Reads an image cache's default tile: exactly one tile, or one tile after the header. Only a
 /// regular file of one of those two lengths is read (never more than a tile and its header).
 fn read_default(
     level: u32,
     ic: &ImageCachePlan,
     path: &Place,
-    remote: Option<&dyn RemoteReader>,
+    remote: Option<&dyn ByName>,
 ) -> Result<Arc<[u8]>, FileSourceError> {
     let expected = ic.tile_bytes();
     let with_header = expected.saturating_add(ic.header_offset);
     let allowed: &[u64] = if ic.header_offset > 0 { &[expected, with_header] } else { &[expected] };
     let read = match (path, remote) {
-        (Place::Local(p), _) => crate::open::read_sized(p, allowed),
-        (Place::Remote(name), Some(r)) => r.read_sized(name, allowed),
-        (Place::Remote(name), None) => Err(crate::open::SizedError::Io(no_remote(name))),
+        (Place::Local(p), _) => {
+            crate::open::regular(p).map_err(SizedError::Io).and_then(|(f, _)| read_sized(&LocalFile(f), allowed))
+        }
+        (Place::Remote(name), Some(r)) => read_sized(&*r.reader(name), allowed),
+        (Place::Remote(name), None) => Err(SizedError::Io(no_remote(name))),
     };
     let bytes = read.map_err(|e| match e {
-        crate::open::SizedError::Io(source) => FileSourceError::DefaultTileRead { level, path: path.clone(), source },
-        crate::open::SizedError::Length(found) => FileSourceError::DefaultTileSize {
+        SizedError::Io(source) => FileSourceError::DefaultTileRead { level, path: path.clone(), source },
+        SizedError::Length(found) => FileSourceError::DefaultTileSize {
             level,
             path: path.clone(),
             found,
@@ -285,7 +296,7 @@ impl FileSource {
     pub(crate) fn with_remote(
         plan: ClipTexturePlan,
         limits: &Limits,
-        remote: Option<Arc<dyn RemoteReader>>,
+        remote: Option<Arc<dyn ByName>>,
     ) -> Result<Self, FileSourceError> {
         let desc = texture_desc(&plan)?;
         let mut read: HashMap<Place, Arc<[u8]>> = HashMap::new();
@@ -370,11 +381,11 @@ impl FileSource {
     /// An open handle to `path`, from the open set or newly opened (outside the lock): only a
     /// regular file ([`crate::open::regular`]), so a tile that is a FIFO or a device is a failed
     /// read, never a blocked read slot or device bytes served as texels.
-    fn handle(&self, path: &Path) -> io::Result<Arc<File>> {
+    fn handle(&self, path: &Path) -> io::Result<Arc<LocalFile>> {
         if let Some(f) = self.handles.lock().unwrap_or_else(|e| e.into_inner()).cached(path) {
             return Ok(f);
         }
-        let file = Arc::new(crate::open::regular(path)?.0);
+        let file = Arc::new(LocalFile(crate::open::regular(path)?.0));
         self.files_opened.fetch_add(1, Ordering::Relaxed);
         self.handles.lock().unwrap_or_else(|e| e.into_inner()).insert(path, Arc::clone(&file));
         Ok(file)
@@ -389,57 +400,52 @@ impl FileSource {
         if loc.length != out.len() as u64 {
             return Err(SourceError::Corrupt { tile, expected: out.len() as u64, found: loc.length });
         }
-        let path = match &loc.path {
-            Place::Local(path) => path,
-            Place::Remote(name) => {
-                return match &self.remote {
-                    Some(r) => r.read_range(tile, name, loc.offset, out),
-                    None => Err(SourceError::Io { tile, source: no_remote(name) }),
-                };
+        match &loc.path {
+            Place::Local(path) => {
+                let file = self.handle(path).map_err(|e| io_error(tile, e))?;
+                read_stored(&*file, &loc.path, tile, loc.offset, out)
             }
-        };
-        let file = self.handle(path).map_err(|e| io_error(tile, e))?;
-        read_stored(&file, path, tile, loc.offset, out)
+            Place::Remote(name) => match &self.remote {
+                Some(r) => read_stored(&*r.reader(name), &loc.path, tile, loc.offset, out),
+                None => Err(SourceError::Io { tile, source: no_remote(name) }),
+            },
+        }
     }
 }
 
 /// The extension of a compressed tile file (`rRRR.cCCC.raw.zst`, docs/COMPRESSED-TILES.md).
 const COMPRESSED: &str = "zst";
 
-/// Whether `path` names a compressed tile file.
-pub(crate) fn is_compressed(path: &Path) -> bool {
-    path.extension().is_some_and(|e| e == COMPRESSED)
-}
-
 /// Whether a name (a local or remote [`Place`]) with this extension is a compressed tile file.
 pub(crate) fn compressed_extension(extension: Option<&str>) -> bool {
     extension == Some(COMPRESSED)
 }
 
-/// Reads the tile stored at byte `offset` of `file` (opened from `path`) into `out`, which is one
-/// tile long: the raw bytes there, or, for a compressed tile file, the one zstd frame the whole
-/// file holds, decoded; it must decode to exactly `out.len()` bytes. A short raw read is
+/// The path an error names for `place`: a local path, or a remote name with its credentials
+/// left out.
+fn shown(place: &Place) -> PathBuf {
+    match place {
+        Place::Local(path) => path.clone(),
+        Place::Remote(name) => PathBuf::from(crate::place::redacted(name.as_str()).as_ref()),
+    }
+}
+
+/// Reads the tile stored at byte `offset` of `place` (read through `reader`) into `out`, which
+/// is one tile long: the raw bytes there, or, for a compressed tile file, the one zstd frame the
+/// whole file holds, decoded; it must decode to exactly `out.len()` bytes. A short raw read is
 /// [`SourceError::Short`]; a compressed file that does not decode to one tile is
 /// [`SourceError::Undecodable`] and leaves nothing to trust in `out`.
 pub(crate) fn read_stored(
-    file: &File,
-    path: &Path,
+    reader: &dyn RangeRead,
+    place: &Place,
     tile: TileId,
     offset: u64,
     out: &mut [u8],
 ) -> Result<(), SourceError> {
-    if is_compressed(path) {
-        return read_compressed(file, path, tile, offset, out);
+    if compressed_extension(place.extension()) {
+        return read_compressed(reader, place, tile, offset, out);
     }
-    match file.read_exact_at(out, offset) {
-        Ok(()) => Ok(()),
-        Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => {
-            let len = file.metadata().map(|m| m.len()).unwrap_or(0);
-            let expected = out.len() as u64;
-            Err(SourceError::Short { tile, expected, got: len.saturating_sub(offset).min(expected) })
-        }
-        Err(e) => Err(io_error(tile, e)),
-    }
+    reader.read_at(offset, out).map_err(|e| e.for_tile(tile, &shown(place), offset, out.len() as u64))
 }
 
 thread_local! {
@@ -449,45 +455,46 @@ thread_local! {
         const { std::cell::RefCell::new((None, Vec::new())) };
 }
 
-fn read_compressed(file: &File, path: &Path, tile: TileId, offset: u64, out: &mut [u8]) -> Result<(), SourceError> {
-    let bad = |problem: String| SourceError::Undecodable { tile, path: path.to_path_buf(), problem };
+/// A compressed tile file (docs/COMPRESSED-TILES.md), read whole in one read of at most one byte
+/// more than one tile compresses to, and decoded.
+fn read_compressed(
+    reader: &dyn RangeRead,
+    place: &Place,
+    tile: TileId,
+    offset: u64,
+    out: &mut [u8],
+) -> Result<(), SourceError> {
+    let bad = |problem: String| SourceError::Undecodable { tile, path: shown(place), problem };
     if offset != 0 {
         return Err(bad(format!(
             "its tile is placed at byte {offset}, but a compressed file holds one whole tile (no header, one tile per file)"
         )));
     }
-    let len = file.metadata().map_err(|e| io_error(tile, e))?.len();
     // The most a zstd frame of one tile can take (incompressible data grows a little).
-    let bound = zstd::zstd_safe::compress_bound(out.len()) as u64;
-    if len > bound {
-        return Err(bad(format!(
-            "the file holds {len} bytes, more than one {}-byte tile compresses to ({bound} at most)",
-            out.len()
-        )));
-    }
+    let bound = zstd::zstd_safe::compress_bound(out.len());
     ZSTD.with(|cell| {
         let (ctx, packed) = &mut *cell.borrow_mut();
-        packed.resize(len as usize, 0);
-        file.read_exact_at(packed, 0).map_err(|e| io_error(tile, e))?;
+        packed.resize(bound + 1, 0);
+        let n = reader.read_upto(0, packed).map_err(|e| e.for_tile(tile, &shown(place), 0, bound as u64 + 1))?;
+        if n > bound {
+            let tile_bytes = out.len();
+            return Err(bad(match (place, reader.known_size()) {
+                (Place::Local(_), Some(len)) => format!(
+                    "the file holds {len} bytes, more than one {tile_bytes}-byte tile compresses to ({bound} at most)"
+                ),
+                _ => format!("the object holds more than one {tile_bytes}-byte tile compresses to ({bound} at most)"),
+            }));
+        }
         if ctx.is_none() {
             *ctx = Some(zstd::bulk::Decompressor::new().map_err(|e| io_error(tile, e))?);
         }
         let ctx = ctx.as_mut().expect("just made");
-        match ctx.decompress_to_buffer(packed.as_slice(), out) {
+        match ctx.decompress_to_buffer(&packed[..n], out) {
             Ok(n) if n == out.len() => Ok(()),
             Ok(n) => Err(bad(format!("it decodes to {n} bytes, expected one tile of {}", out.len()))),
             Err(e) => Err(bad(format!("it is not one zstd frame of a {}-byte tile ({e})", out.len()))),
         }
     })
-}
-
-/// The [`SourceError`] of an I/O failure on `tile`'s file.
-pub(crate) fn io_error(tile: TileId, e: io::Error) -> SourceError {
-    match e.kind() {
-        io::ErrorKind::NotFound => SourceError::Missing { tile },
-        io::ErrorKind::PermissionDenied => SourceError::PermissionDenied { tile },
-        _ => SourceError::Io { tile, source: e },
-    }
 }
 
 impl TileSource for FileSource {

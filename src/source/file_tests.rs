@@ -7,7 +7,9 @@ use crate::clip::tests::{check_published, settle, tick_and_check};
 use crate::clip::{Clipmap, Settings};
 use crate::plan::{self, ClipTexturePlan};
 use crate::prep::{self, Filter, Job, Layout, Spec};
+use crate::source::range::RangeError;
 use crate::source::{FaultKind, HashSource};
+use std::fs::File;
 use std::os::unix::fs::PermissionsExt;
 use std::sync::atomic::AtomicBool;
 
@@ -315,4 +317,100 @@ fn random_walk_publishes_only_hash_texels(files: Arc<FileSource>) {
     assert_eq!(map.stats().tick_texel_bytes, 0);
     assert_eq!(map.stats().read_faults.total(), 0);
     assert!(files.stats().reads > 0);
+}
+
+/// Objects read by name as a remote store serves them: no size known beforehand, each read
+/// counted.
+#[derive(Default)]
+struct Objects {
+    bytes: HashMap<String, Vec<u8>>,
+    reads: AtomicU64,
+}
+
+struct Object<'a>(&'a Objects, &'a [u8]);
+
+impl RangeRead for Object<'_> {
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> Result<(), RangeError> {
+        match self.read_upto(offset, buf)? {
+            n if n == buf.len() => Ok(()),
+            n => Err(RangeError::Eof { size: offset + n as u64 }),
+        }
+    }
+
+    fn read_upto(&self, offset: u64, buf: &mut [u8]) -> Result<usize, RangeError> {
+        self.0.reads.fetch_add(1, Ordering::Relaxed);
+        let start = (offset as usize).min(self.1.len());
+        let n = (self.1.len() - start).min(buf.len());
+        buf[..n].copy_from_slice(&self.1[start..start + n]);
+        Ok(n)
+    }
+}
+
+impl ByName for Objects {
+    fn reader<'a>(&'a self, name: &'a RemoteName) -> Box<dyn RangeRead + 'a> {
+        Box::new(Object(self, self.bytes.get(name.as_str()).map_or(&[][..], |b| b.as_slice())))
+    }
+}
+
+#[test]
+fn compressed_tiles_read_by_name_decode_in_one_read_and_are_refused_as_local_ones_are() {
+    let tile: Vec<u8> = (0..768u32).map(|i| (i * 7 % 251) as u8).collect();
+    let frame = zstd::bulk::compress(&tile, 3).unwrap();
+    let mut objects = Objects::default();
+    objects.bytes.insert("http://h:1/good.raw.zst".into(), frame.clone());
+    objects.bytes.insert("http://h:1/long.raw.zst".into(), vec![0u8; 768 * 2 + 4096]);
+    objects.bytes.insert("http://h:1/half.raw.zst".into(), zstd::bulk::compress(&tile[..384], 3).unwrap());
+    objects.bytes.insert("http://h:1/raw.raw".into(), tile.clone());
+    let read = |name: &str, offset: u64, out: &mut [u8]| {
+        let place = Place::parse(name);
+        let Place::Remote(remote) = &place else { panic!("{name}") };
+        let reader = objects.reader(remote);
+        read_stored(&*reader, &place, TileId::new(0, 0, 0), offset, out)
+    };
+    let mut out = vec![0u8; 768];
+    read("http://h:1/good.raw.zst", 0, &mut out).unwrap();
+    assert_eq!(out, tile);
+    assert_eq!(objects.reads.load(Ordering::Relaxed), 1, "one read of the whole object");
+    for (name, offset, want) in [
+        ("http://h:1/long.raw.zst", 0, "the object holds more than one 768-byte tile compresses to"),
+        ("http://h:1/half.raw.zst", 0, "decodes to 384 bytes"),
+        ("http://h:1/good.raw.zst", 100, "placed at byte 100"),
+    ] {
+        match read(name, offset, &mut out) {
+            Err(SourceError::Undecodable { path, problem, .. }) => {
+                assert!(problem.contains(want) && path == Path::new(name), "{name}: {problem}")
+            }
+            other => panic!("{name}: {other:?}"),
+        }
+    }
+    // A raw tile by name: the range read, a short one short.
+    let mut half = vec![0u8; 384];
+    read("http://h:1/raw.raw", 384, &mut half).unwrap();
+    assert_eq!(half, tile[384..]);
+    match read("http://h:1/raw.raw", 500, &mut half) {
+        Err(SourceError::Short { expected, got, .. }) => assert_eq!((expected, got), (384, 268)),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_small_whole_object_is_read_in_one_read_and_a_local_file_of_another_length_is_not_read() {
+    let mut objects = Objects::default();
+    objects.bytes.insert("http://h:1/sea.raw".into(), vec![3u8; 768]);
+    objects.bytes.insert("http://h:1/big.raw".into(), vec![3u8; 5000]);
+    let name = |n: &str| RemoteName::parse(n).unwrap();
+    let sea = name("http://h:1/sea.raw");
+    assert_eq!(read_sized(&*objects.reader(&sea), &[768, 868]).unwrap(), vec![3u8; 768]);
+    // Longer than allowed: found to be so from one byte more than the most allowed.
+    let big = name("http://h:1/big.raw");
+    assert!(matches!(read_sized(&*objects.reader(&big), &[768, 868]), Err(SizedError::Length(869))));
+    assert_eq!(objects.reads.load(Ordering::Relaxed), 2);
+    // A local file says its length first: refused with it, before a byte is read.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("big.raw");
+    std::fs::write(&path, vec![0u8; 5000]).unwrap();
+    let local = LocalFile(File::open(&path).unwrap());
+    assert!(matches!(read_sized(&local, &[768]), Err(SizedError::Length(5000))));
+    std::fs::write(&path, vec![9u8; 768]).unwrap();
+    assert_eq!(read_sized(&local, &[768]).unwrap(), vec![9u8; 768]);
 }

@@ -33,7 +33,7 @@ pub use cog::{CogError, CogSource};
 pub use configured::cog_of;
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};
 pub use faulty::{Fault, FaultRule, FaultySource};
-pub use file::{FileSource, FileSourceError, FileStats, RemoteReader};
+pub use file::{FileSource, FileSourceError, FileStats};
 pub use pool::{PoolSource, PoolStats};
 pub use synthetic::{HashSource, HeightLevels, HeightSource, Procedural, TerrainSource, TERRAIN_SEED};
 pub use throttle::ThrottledSource;

@@ -1,14 +1,20 @@
-//! One seam for the sources that read bytes of a file or an object ([`RangeReader`]): its size,
-//! a range read into the caller's buffer, and a range streamed to a [`RangeSink`] in pieces as
-//! they arrive. A local file ([`LocalFile`]: positioned reads) and bytes in memory ([`Memory`])
-//! implement it here; a remote object (`remote::object::Object`: ranged reads of the version
-//! seen at open) implements it in the `remote` feature, the only place that feature is named on
-//! this seam apart from [`open_place`]'s remote arm.
+//! One seam for the sources that read bytes of a file or an object, in two steps.
+//! [`RangeRead`] needs no size: a range read into the caller's buffer, and "up to this many
+//! bytes" of an object of unknown size ([`RangeRead::read_upto`]). [`RangeReader`] adds the
+//! size and a range streamed to a [`RangeSink`] in pieces as they arrive. A local file
+//! ([`LocalFile`]: positioned reads) and bytes in memory ([`Memory`]) implement both here; in
+//! the `remote` feature a remote object opened once (`remote::object::Object`: ranged reads of
+//! the version seen at open) implements both, and a remote object read by name
+//! (`remote::range::Named`: no request to open it, no version kept, the remote reader's disk
+//! cache) implements [`RangeRead`], obtained through [`ByName`]. That is the only place the
+//! feature is named on this seam apart from [`open_place`]'s remote arm.
 //!
-//! A source opens a reader from a [`Place`] ([`open_place`]) and never asks which kind it got,
-//! beyond what the trait tells: whether reads cost a request each ([`RangeReader::is_remote`]),
-//! how many bytes one merged request may read ([`RangeReader::merge_cap`]) and whether the
-//! object changed under it ([`RangeReader::changed`]).
+//! A COG or a tile archive opens a reader from a [`Place`] ([`open_place`]) and never asks which
+//! kind it got, beyond what the trait tells: whether reads cost a request each
+//! ([`RangeReader::is_remote`]), how many bytes one merged request may read
+//! ([`RangeReader::merge_cap`]) and whether the object changed under it
+//! ([`RangeReader::changed`]). A prepared pyramid (`crate::source::file`) reads each tile file
+//! through [`RangeRead`] alone: a local file it keeps open, a remote one by name.
 //!
 //! The seam itself lives in [`reader`], below both the opener here and the remote object's
 //! implementation; its names are re-exported here, so `crate::source::range::RangeReader` and
@@ -23,7 +29,10 @@ use std::sync::Arc;
 
 pub mod reader;
 
-pub use reader::{check_within, LocalFile, Memory, RangeError, RangeReader, RangeSink, Shared, TileFailure};
+pub use reader::{
+    check_within, io_error, read_upto_sized, ByName, LocalFile, Memory, RangeError, RangeRead, RangeReader, RangeSink,
+    Shared, TileFailure,
+};
 
 /// Why a place cannot be opened for reading.
 #[derive(Debug)]
@@ -132,6 +141,62 @@ mod tests {
             assert!(matches!(r.stream(40, 20, 1, untouched.clone()), Err(RangeError::Eof { size: 50 })));
             assert_eq!(*untouched.0.lock().unwrap(), (Vec::new(), false), "nothing started past the end");
         }
+    }
+
+    #[test]
+    fn read_upto_gives_the_bytes_there_are_and_only_local_and_memory_know_their_size_beforehand() {
+        let bytes: Vec<u8> = (0..100u8).collect();
+        let (_dir, readers) = readers(&bytes);
+        for r in readers {
+            let mut buf = [0u8; 30];
+            assert_eq!(r.read_upto(80, &mut buf).unwrap(), 20);
+            assert_eq!(buf[..20], bytes[80..]);
+            assert_eq!(r.read_upto(10, &mut buf).unwrap(), 30);
+            assert_eq!(buf, bytes[10..40]);
+            assert_eq!(r.read_upto(100, &mut buf).unwrap(), 0);
+            assert_eq!(r.read_upto(u64::MAX, &mut buf).unwrap(), 0);
+            assert_eq!(r.known_size(), Some(100));
+            // An empty read is within the file up to its end, and past the end past it.
+            assert!(r.read_at(100, &mut []).is_ok());
+            assert!(matches!(r.read_at(101, &mut []), Err(RangeError::Eof { size: 100 })));
+        }
+    }
+
+    #[test]
+    fn a_local_read_past_the_end_says_how_long_the_file_is_now() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("grows");
+        std::fs::write(&path, [1u8; 10]).unwrap();
+        let (r, _) = open_local(&path, 0).unwrap();
+        let mut buf = [0u8; 8];
+        let e = r.read_at(5, &mut buf).unwrap_err();
+        assert!(matches!(e, RangeError::Eof { size: 10 }), "{e:?}");
+        // Its length is asked for when a read fails, not kept from open.
+        std::fs::write(&path, [2u8; 20]).unwrap();
+        r.read_at(5, &mut buf).unwrap();
+        assert_eq!(buf, [2u8; 8]);
+        assert!(matches!(r.read_at(1 << 63, &mut buf), Err(RangeError::Eof { size: 20 })));
+        assert!(matches!(r.read_at(u64::MAX - 2, &mut buf), Err(RangeError::Eof { size: 20 })));
+    }
+
+    #[test]
+    fn a_failure_outside_a_tile_is_an_io_error_of_its_kind() {
+        let gone = RangeError::Remote {
+            problem: "h/x: not found".into(),
+            tile: Some(Box::new(|tile| SourceError::Missing { tile })),
+        };
+        let e = gone.into_io(0, 5);
+        assert_eq!((e.kind(), e.to_string().as_str()), (io::ErrorKind::NotFound, "h/x: not found"));
+        let denied = RangeError::Remote {
+            problem: "403".into(),
+            tile: Some(Box::new(|tile| SourceError::PermissionDenied { tile })),
+        };
+        assert_eq!(denied.into_io(0, 5).kind(), io::ErrorKind::PermissionDenied);
+        let changed = RangeError::Remote { problem: "the object changed".into(), tile: None };
+        assert_eq!(changed.into_io(0, 5).kind(), io::ErrorKind::Other);
+        assert_eq!(RangeError::Eof { size: 3 }.into_io(2, 5).kind(), io::ErrorKind::UnexpectedEof);
+        let local = RangeError::Io(io::Error::new(io::ErrorKind::PermissionDenied, "no"));
+        assert_eq!(local.into_io(0, 1).kind(), io::ErrorKind::PermissionDenied);
     }
 
     #[test]

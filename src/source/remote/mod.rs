@@ -4,7 +4,8 @@
 //! `tile_base`, a stream server, a `tile_format`, a `default_tile`, or a `.ct`'s `tile_base` /
 //! `tile_files` / `tile_format` (docs/CONFIG.md §15). [`RemoteSource`] serves such a plan: it is
 //! a [`FileSource`] whose remote locations are read through a [`Remote`] (ranged reads, merged
-//! when adjacent, bounded per endpoint, retried; an optional disk cache), and whose stream
+//! when adjacent, bounded per endpoint, retried; an optional disk cache), each object by name
+//! (`range::Named`: the byte seam's lower step, no request to open one), and whose stream
 //! servers are the plan's endpoints, so that the engine gives every endpoint its own read queue
 //! and a slow endpoint holds back only its own tiles.
 
@@ -22,11 +23,11 @@ pub use fetch::{Backend, Failure, Fetcher, Got, Object, ObjectRequest, ReadError
 pub use location::{Location, LocationError, Scheme};
 pub use options::{OptionsError, RemoteOptions};
 
-use super::file::{FileSource, FileSourceError, RemoteReader};
+use super::file::{FileSource, FileSourceError};
+use super::range::ByName;
 use super::{SourceError, TextureDesc, TileId, TileSource};
 use crate::limits::Limits;
-use crate::open::SizedError;
-use crate::place::{Place, RemoteName};
+use crate::place::Place;
 use crate::plan::{ClipTexturePlan, LevelKind};
 use serde::Serialize;
 use std::collections::HashMap;
@@ -149,79 +150,6 @@ fn parse(name: &str) -> Result<Location, ReadError> {
     })
 }
 
-impl RemoteReader for Remote {
-    fn read_range(&self, tile: TileId, location: &RemoteName, offset: u64, out: &mut [u8]) -> Result<(), SourceError> {
-        let name = location.as_str();
-        if super::file::compressed_extension(location.extension()) {
-            return self.read_compressed(tile, location, offset, out);
-        }
-        let key = disk::key(name, offset, out.len() as u64);
-        if let Some(c) = &self.cache {
-            if c.get(&key, out) {
-                self.fetcher.counters.cache_hits.fetch_add(1, Ordering::Relaxed);
-                return Ok(());
-            }
-        }
-        let loc = Location::of(location).map_err(|e| io_failure(tile, io::ErrorKind::InvalidInput, e.to_string()))?;
-        let bytes = self.fetcher.read(&loc, offset, out.len() as u64).map_err(|e| source_error(tile, e))?;
-        if bytes.len() != out.len() {
-            return Err(SourceError::Short { tile, expected: out.len() as u64, got: bytes.len() as u64 });
-        }
-        bytes.copy_to(out);
-        if let Some(c) = &self.cache {
-            c.put(&key, out);
-        }
-        Ok(())
-    }
-
-    fn read_sized(&self, location: &RemoteName, allowed: &[u64]) -> Result<Vec<u8>, SizedError> {
-        let max = allowed.iter().copied().max().unwrap_or(0);
-        let bytes = self.read_upto(location.as_str(), 0, max.saturating_add(1)).map_err(|e| {
-            let kind = match e {
-                ReadError::NotFound { .. } => io::ErrorKind::NotFound,
-                ReadError::Denied { .. } => io::ErrorKind::PermissionDenied,
-                _ => io::ErrorKind::Other,
-            };
-            SizedError::Io(io::Error::new(kind, e.to_string()))
-        })?;
-        if !allowed.contains(&(bytes.len() as u64)) {
-            return Err(SizedError::Length(bytes.len() as u64));
-        }
-        Ok(bytes.to_vec())
-    }
-}
-
-impl Remote {
-    /// A compressed tile object (one zstd frame of one tile, docs/COMPRESSED-TILES.md), read
-    /// whole (at most what one tile compresses to) and decoded.
-    fn read_compressed(
-        &self,
-        tile: TileId,
-        location: &RemoteName,
-        offset: u64,
-        out: &mut [u8],
-    ) -> Result<(), SourceError> {
-        let name = location.as_str();
-        let shown = crate::place::redacted(location.as_str());
-        let bad = |problem: String| SourceError::Undecodable { tile, path: shown.as_ref().into(), problem };
-        if offset != 0 {
-            return Err(bad(format!(
-                "its tile is placed at byte {offset}, but a compressed file holds one whole tile"
-            )));
-        }
-        let bound = zstd::zstd_safe::compress_bound(out.len()) as u64;
-        let packed = self.read_upto(name, 0, bound + 1).map_err(|e| source_error(tile, e))?;
-        if packed.len() as u64 > bound {
-            return Err(bad(format!("the object holds more than one {}-byte tile compresses to", out.len())));
-        }
-        match zstd::bulk::decompress_to_buffer(&packed, out) {
-            Ok(n) if n == out.len() => Ok(()),
-            Ok(n) => Err(bad(format!("it decodes to {n} bytes, expected one tile of {}", out.len()))),
-            Err(e) => Err(bad(format!("it is not one zstd frame of a {}-byte tile ({e})", out.len()))),
-        }
-    }
-}
-
 /// The endpoint key of a tile's place: `scheme://authority` of a URL (lowercase), `s3://bucket`,
 /// or `file` for a local path. Cheap: no full URL parse.
 pub(crate) fn endpoint_key(place: &Place) -> String {
@@ -272,7 +200,7 @@ impl RemoteSource {
         limits: &Limits,
         remote: Arc<Remote>,
     ) -> Result<Self, RemoteSourceError> {
-        let files = FileSource::with_remote(plan, limits, Some(Arc::clone(&remote) as Arc<dyn RemoteReader>))?;
+        let files = FileSource::with_remote(plan, limits, Some(Arc::clone(&remote) as Arc<dyn ByName>))?;
         let mut endpoints: Vec<String> = Vec::new();
         let mut index = HashMap::new();
         let mut add = |key: String, endpoints: &mut Vec<String>| -> usize {
