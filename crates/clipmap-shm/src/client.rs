@@ -184,6 +184,10 @@ pub struct Client {
     /// Whether the texels are heights, and their scale, offset, nodata value and level rule (the
     /// header's heights block, checked at attach); `None` for a texture that is not heights.
     pub heights: Option<layout::Heights>,
+    /// Where the texture lies on the Earth (the header's georef block and each level's affine
+    /// terms, checked at attach); `None` for a texture without georeferencing, or a mapping of a
+    /// writer from before the block.
+    pub georef: Option<crate::GeorefBlock>,
     /// The views block, as checked at attach.
     pub(super) views: super::view_block::ViewsBlock,
     /// The view the snapshot is read from (`None`: the primary, `main`).
