@@ -401,7 +401,7 @@ mod tests {
         refused(&with(64 + 3, &[0]), &descs, &["byte 6595 (definition)", "NUL at byte 3"]);
         let len = global().definition.len();
         refused(
-            &with(64 + len + 5, &[b'x']),
+            &with(64 + len + 5, b"x"),
             &descs,
             &[&format!("byte {} (definition)", 6592 + len + 5), "0x78", "expected 0"],
         );

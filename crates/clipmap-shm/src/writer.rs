@@ -825,12 +825,14 @@ mod tests {
         let mut g = web_mercator();
         g.levels.pop();
         let e = Writer::create(WriterOptions::new(dir.path(), "geo", shape(), TexelFormat::RGBA8).georef(Some(g)));
-        let e = e.err().expect("refused").to_string();
+        let Err(e) = e else { panic!("refused") };
+        let e = e.to_string();
         assert!(e.contains("georeferencing") && e.contains("2 levels") && e.contains("3 levels"), "{e}");
         let mut g = web_mercator();
         g.origin[1] = f64::NAN;
         let e = Writer::create(WriterOptions::new(dir.path(), "geo", shape(), TexelFormat::RGBA8).georef(Some(g)));
-        assert!(e.err().expect("refused").to_string().contains("origin y"));
+        let Err(e) = e else { panic!("refused") };
+        assert!(e.to_string().contains("origin y"), "{e}");
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "nothing made");
     }
 }
