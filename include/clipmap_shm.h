@@ -381,7 +381,7 @@ struct clipmap_map {
     int georef;                /* 1: georeferenced (the georef_* fields mean something) */
     uint32_t georef_epsg;      /* the CRS's EPSG code; 0: none known */
     int georef_wraps;          /* 1: the texture spans 360 degrees of longitude */
-    double georef_origin[2];   /* GDAL geotransform [0] and [3] (shared by every level) */
+    double georef_origin[2];   /* level 0's GDAL geotransform [0] and [3]: its north-west corner */
     double georef_terms[CLIPMAP_MAX_LEVELS][4]; /* per level GDAL geotransform [1], [2], [4], [5] */
     uint32_t georef_definition_len;             /* bytes of the CRS definition */
     char georef_definition[CLIPMAP_GEOREF_DEFINITION_MAX + 1]; /* UTF-8, NUL-terminated here */
@@ -776,14 +776,18 @@ static inline int clipmap_check_georef_(struct clipmap_map *m, const char *path)
 }
 
 /* The map coordinates (out[0], out[1]) of the continuous texel position (s, t) of level k (t counting
- * up from the south: pixel s, line height_k - t of the level's GDAL geotransform). -1 without
- * georeferencing or for a level past the level count. */
+ * up from the south). Every level is anchored at the south-west corner SW = origin + H0 * ([2], [5])
+ * of level 0 (H0 the level-0 height, header offset 48; a level whose height was rounded down drops
+ * level 0's northmost rows), so the position is SW + s * ([1], [4]) - t * ([2], [5]) of level k's
+ * terms; level k's own GDAL geotransform is [SWx - height_k * [2], [1], [2], SWy - height_k * [5],
+ * [4], [5]]. -1 without georeferencing or for a level past the level count. */
 static inline int clipmap_map_of_texel(const struct clipmap_map *m, uint32_t k, double s, double t, double out[2]) {
     if (!m->georef || k >= m->level_count) return -1;
-    const double *g = m->georef_terms[k];
-    double line = (double)m->levels[k].size[1] - t;
-    out[0] = m->georef_origin[0] + g[0] * s + g[1] * line;
-    out[1] = m->georef_origin[1] + g[2] * s + g[3] * line;
+    const double *g0 = m->georef_terms[0], *g = m->georef_terms[k];
+    double h0 = (double)m->size[1];
+    double sw[2] = {m->georef_origin[0] + h0 * g0[1], m->georef_origin[1] + h0 * g0[3]};
+    out[0] = sw[0] + g[0] * s - g[1] * t;
+    out[1] = sw[1] + g[2] * s - g[3] * t;
     return 0;
 }
 

@@ -32,6 +32,11 @@
  * geotransform terms [1], [2], [4], [5]) and a last line "definition TEXT" (numbers as %.17g; the
  * Python reader's --georef prints the same lines).
  *
+ *   ./reader MAPPING --map-of-texel LEVEL S T
+ *
+ * prints the map coordinates of the continuous texel position (S, T) of LEVEL (clipmap_map_of_texel),
+ * one line "X Y" (%.17g; the Python reader's --map-of-texel prints the same), or "not georeferenced".
+ *
  *   ./reader MAPPING --ranges
  *
  * prints the published range of every tile a slot holds ready or default (clipmap_tile_range), one
@@ -382,6 +387,27 @@ int main(int argc, char **argv) {
     }
     if (strcmp(argv[2], "--dump") == 0) {
         int rc = dump(argc, argv, &m, &view, &own, tm);
+        clipmap_close(&own);
+        clipmap_close(&m);
+        return rc;
+    }
+    if (strcmp(argv[2], "--map-of-texel") == 0) {
+        unsigned level;
+        char extra;
+        double st[2], xy[2];
+        int rc = 0;
+        if (argc != 6 || sscanf(argv[3], "%u%c", &level, &extra) != 1 || sscanf(argv[4], "%lf%c", &st[0], &extra) != 1 ||
+            sscanf(argv[5], "%lf%c", &st[1], &extra) != 1) {
+            fprintf(stderr, "usage: %s MAPPING --map-of-texel LEVEL S T\n", argv[0]);
+            rc = 2;
+        } else if (level >= tm->level_count) {
+            fprintf(stderr, "clipmap reader: %s: no level %u (the mapping has %u)\n", argv[1], level, tm->level_count);
+            rc = 2;
+        } else if (clipmap_map_of_texel(tm, level, st[0], st[1], xy) != 0) {
+            printf("not georeferenced\n");
+        } else {
+            printf("%.17g %.17g\n", xy[0], xy[1]);
+        }
         clipmap_close(&own);
         clipmap_close(&m);
         return rc;

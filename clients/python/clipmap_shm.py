@@ -46,7 +46,9 @@ stored values; write_png); other formats (packed, heights) only as .raw. It wait
 when there is none of that name, 3 when it is removed while it is read); `MAPPING --views` lists the
 views, `MAPPING --snapshot [--view NAME]` prints a view's snapshot (as the C reader's do).
 `MAPPING --georef` prints the georef block (`Mapping.georef`; "not georeferenced" when there is
-none), as the C reader's --georef does.
+none), as the C reader's --georef does; `MAPPING --map-of-texel LEVEL S T` prints the map
+coordinates "X Y" of the continuous texel position (S, T) of LEVEL (`Mapping.map_of_texel`), as
+the C reader's --map-of-texel does.
 
 Requests: Python has no compare-and-swap on a mapping, so it cannot take the request
 mapping's lock words; a Python renderer asks for a centre through the control socket
@@ -115,8 +117,9 @@ H_HEIGHTS = H_GROWTH + GROWTH_BYTES
 HEIGHTS_BYTES = 64
 # The georef block (static; all zero for a texture without georeferencing): u32 present, u32 EPSG
 # code (0: none), u32 flags (bit 0: wraps in longitude), u32 definition length, f64 origin x, y
-# (GDAL geotransform [0], [3]), f64 level-0 terms [1], [2], [4], [5], then the CRS definition
-# (UTF-8, not NUL-terminated). Each level's terms are also in its descriptor (DESC_GEOREF).
+# (level 0's GDAL geotransform [0], [3]: its north-west corner), f64 level-0 terms [1], [2], [4],
+# [5], then the CRS definition (UTF-8, not NUL-terminated). Each level's terms are also in its
+# descriptor (DESC_GEOREF).
 H_GEOREF = H_HEIGHTS + HEIGHTS_BYTES
 GR_PRESENT, GR_EPSG, GR_FLAGS, GR_DEFINITION_LEN, GR_ORIGIN_X, GR_ORIGIN_Y, GR_TERMS, GR_DEFINITION = \
     0, 4, 8, 12, 16, 24, 32, 64
@@ -787,8 +790,8 @@ class Mapping:
     def _georef(self, path):
         """The georef block and each level's affine terms, checked (docs/SHM.md, "Georef block"):
         None when the block is all zero (no georeferencing), else a dict of epsg (None: none
-        known), wraps, definition (str), origin [x, y] (GDAL geotransform [0] and [3]) and levels
-        (per level [1], [2], [4], [5])."""
+        known), wraps, definition (str), origin [x, y] (level 0's GDAL geotransform [0] and [3])
+        and levels (per level [1], [2], [4], [5])."""
         b, m = H_GEOREF, self.mm
         names = ((0, "present"), (4, "EPSG code"), (8, "flags"), (12, "definition length"), (16, "origin x"),
                  (24, "origin y"), (32, "geotransform [1]"), (40, "geotransform [2]"), (48, "geotransform [4]"),
@@ -870,14 +873,18 @@ class Mapping:
 
     def map_of_texel(self, level, s, t):
         """The map coordinates of the continuous texel position (s, t) of `level` (t counting up
-        from the south: pixel s, line height - t of the level's GDAL geotransform); None without
-        georeferencing."""
+        from the south); None without georeferencing. Every level is anchored at the south-west
+        corner SW = origin + H0 * ([2], [5]) of level 0 (H0 the level-0 height; a level whose
+        height was rounded down drops level 0's northmost rows), so the position is
+        SW + s * ([1], [4]) - t * ([2], [5]) of the level's terms."""
         g = self.georef
         if g is None:
             return None
+        _, b0, _, e0 = g["levels"][0]
+        h0 = self.size[1]
+        swx, swy = g["origin"][0] + h0 * b0, g["origin"][1] + h0 * e0
         a, b, d, e = g["levels"][level]
-        line = self.levels[level].size[1] - t
-        return (g["origin"][0] + a * s + b * line, g["origin"][1] + d * s + e * line)
+        return (swx + a * s - b * t, swy + d * s - e * t)
 
     def _heights(self, path):
         """The heights block, checked: None when the texels are not heights, else a dict of
@@ -1341,6 +1348,24 @@ def main(argv):
             sys.stdout.flush()
             sys.stdout.buffer.write(("definition " + g["definition"] + "\n").encode("utf-8"))
             sys.stdout.buffer.flush()
+        m.close()
+        return 0
+    if len(argv) == 6 and argv[2] == "--map-of-texel":
+        # python3 clipmap_shm.py MAPPING --map-of-texel LEVEL S T: the map coordinates of the
+        # continuous texel position (S, T) of LEVEL, one line "X Y" (%.17g; the C reader's
+        # --map-of-texel prints the same), or "not georeferenced".
+        try:
+            m = Mapping(argv[1])
+            level, s, t = int(argv[3]), float(argv[4]), float(argv[5])
+        except (ClipmapError, OSError, ValueError) as e:
+            print(f"clipmap_shm: {e}", file=sys.stderr)
+            return 2
+        if not 0 <= level < len(m.levels):
+            print(f"clipmap_shm: {argv[1]}: no level {level} (the mapping has {len(m.levels)})", file=sys.stderr)
+            m.close()
+            return 2
+        xy = m.map_of_texel(level, s, t)
+        print("not georeferenced" if xy is None else "%.17g %.17g" % xy)
         m.close()
         return 0
     if len(argv) == 3 and argv[2] == "--heights":

@@ -260,8 +260,8 @@ fn the_georef_block_reads_the_same_in_rust_c_and_python_and_each_bad_field_is_re
         let py = python_reader().arg(map).arg("--georef").output().unwrap();
         [("C", c), ("Python", py)]
     };
-    // A rotated UTM grid with a definition beyond ASCII; level k's terms are level 0's scaled by
-    // the sizes (1000 x 600 halved: 500 x 300, ..., 1 x 1).
+    // A rotated UTM grid with a definition beyond ASCII; level k's terms are level 0's times 2^k
+    // (1000 x 600 halved: 500 x 300, 250 x 150, 125 x 75, then 62 x 37: rounded down).
     let def = "+proj=utm +zone=33 +datum=WGS84 +units=m +no_defs +title=Zürich";
     let map = d.join("clipmap-geo.map");
     make(&map, &["--georef", "32633", "0", "500000", "5000000", "0.5", "0.01", "0.02", "-0.5", def]);
@@ -273,19 +273,50 @@ fn the_georef_block_reads_the_same_in_rust_c_and_python_and_each_bad_field_is_re
         wraps: false,
         definition: def.into(),
         origin: [500000.0, 5000000.0],
-        levels: sizes
-            .iter()
-            .map(|s| {
-                let (fs, ft) = (1000.0 / s[0] as f64, 600.0 / s[1] as f64);
-                [0.5 * fs, 0.01 * ft, 0.02 * fs, -0.5 * ft]
-            })
-            .collect(),
+        levels: (0..sizes.len()).map(|k| [0.5, 0.01, 0.02, -0.5].map(|v| v * (k as f64).exp2())).collect(),
     };
     assert_eq!(g, want);
+    assert_eq!(sizes[4], [62, 37], "level 4's height was rounded down: 37 x 16 = 592 of level 0's 600 rows");
     // Texel (0, 600) of level 0 is pixel 0, line 0: the origin; texel (1000, 0) the far corner.
     assert_eq!(g.map_of_texel(0, 600, 0.0, 600.0), Some([500000.0, 5000000.0]));
+    assert_eq!(c.map_of_texel(0, 0.0, 600.0), Some([500000.0, 5000000.0]));
     let far = g.map_of_texel(0, 600, 1000.0, 0.0).unwrap();
     assert!((far[0] - 500506.0).abs() < 1e-6 && (far[1] - 4999720.0).abs() < 1e-6, "{far:?}");
+    // Every level shares the south-west corner, origin + 600 x (0.01, -0.5) = (500006, 4999700);
+    // level 4 covers level 0's 592 southmost rows, so its north-west corner (0, 37) lies 8 level-0
+    // rows south of level 0's: origin + 8 x (0.01, -0.5) = (500000.08, 4999996).
+    let close = |got: [f64; 2], want: [f64; 2]| (got[0] - want[0]).abs() < 1e-6 && (got[1] - want[1]).abs() < 1e-6;
+    let expected: [((usize, f64, f64), [f64; 2]); 5] = [
+        ((4, 0.0, 0.0), [500006.0, 4999700.0]),
+        ((4, 0.0, 37.0), [500000.08, 4999996.0]),
+        ((4, 62.5, 0.0), [500506.0, 4999720.0]),
+        ((4, 10.25, 20.5), [500006.0 + 82.0 - 3.28, 4999700.0 + 3.28 + 164.0]),
+        ((3, 0.0, 75.0), [500000.0, 5000000.0]),
+    ];
+    for ((k, s, t), xy) in expected {
+        let rust = c.map_of_texel(k, s, t).unwrap();
+        assert!(close(rust, xy), "Rust: level {k} ({s}, {t}) at {rust:?}, expected {xy:?}");
+        assert_eq!(
+            g.geotransform(k, 600, sizes[k][1]).map(|gt| {
+                let line = sizes[k][1] as f64 - t;
+                close([gt[0] + gt[1] * s + gt[2] * line, gt[3] + gt[4] * s + gt[5] * line], xy)
+            }),
+            Some(true),
+            "level {k}'s own geotransform at pixel {s}, line height - {t}"
+        );
+        let args = ["--map-of-texel".to_string(), k.to_string(), s.to_string(), t.to_string()];
+        let c_out = std::process::Command::new(&creader).arg(&map).args(&args).output().unwrap();
+        let py_out = python_reader().arg(&map).args(&args).output().unwrap();
+        for (who, o) in [("C", c_out), ("Python", py_out)] {
+            assert!(o.status.success(), "{who}: {}", text(&o));
+            let got: Vec<f64> =
+                String::from_utf8_lossy(&o.stdout).split_whitespace().map(|w| w.parse().unwrap()).collect();
+            assert!(
+                got.len() == 2 && close([got[0], got[1]], rust),
+                "{who}: level {k} ({s}, {t}) at {got:?}, Rust at {rust:?}"
+            );
+        }
+    }
     // The C and Python readers print the same numbers (as %.17g, which Rust's shortest form
     // round-trips through).
     let mut line = format!("georef epsg 32633 wraps 0 origin {} {}\n", 500000, 5000000);

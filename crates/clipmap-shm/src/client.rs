@@ -278,6 +278,13 @@ impl Client {
         &self.path
     }
 
+    /// The map coordinates of the continuous texel position (s, t) of `level` ([`crate::GeorefBlock::map_of_texel`]
+    /// with this mapping's level-0 height); `None` without georeferencing or for a level past the
+    /// level count.
+    pub fn map_of_texel(&self, level: usize, s: f64, t: f64) -> Option<[f64; 2]> {
+        self.georef.as_ref()?.map_of_texel(level, self.levels.first()?.size[1], s, t)
+    }
+
     /// True when requests can be made through the request mapping.
     pub fn can_request(&self) -> bool {
         self.request.is_some()

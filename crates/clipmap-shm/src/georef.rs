@@ -3,9 +3,11 @@
 //! and level 0's GDAL geotransform; each level's descriptor carries that level's affine terms.
 //!
 //! The mapping layer gives the numbers no meaning beyond their checks: the CRS is not parsed and
-//! no projection is computed here. A level's transform is GDAL's order over the level's pixel /
-//! line, lines counted from the north; texel (s, t) of level k (t counting up from the south)
-//! lies at pixel s, line `height_k - t` ([`GeorefBlock::map_of_texel`]).
+//! no projection is computed here. Every level is anchored at the texture's south-west corner
+//! (t counts up from the south, and a level whose height was rounded down drops level 0's
+//! northmost rows), so the corner shared by every level is the south-west one, `origin + H0 x
+//! ([2], [5])` of level 0 ([`GeorefBlock::south_west`]); texel (s, t) of level k lies at
+//! `SW + s ([1], [4]) - t ([2], [5])` of level k's terms ([`GeorefBlock::map_of_texel`]).
 
 use crate::layout::{self, desc, georef as g, header};
 
@@ -19,8 +21,9 @@ pub struct GeorefBlock {
     /// The CRS definition: a PROJ string or WKT, at most 1024 bytes of UTF-8 without NUL; may be
     /// empty (only the EPSG code, or a CRS nobody named).
     pub definition: String,
-    /// GDAL geotransform terms 0 and 3: the map coordinates of the west edge of texel column 0
-    /// and of the north edge of the texture (shared by every level).
+    /// Level 0's GDAL geotransform terms 0 and 3: the map coordinates of level 0's north-west
+    /// corner. Only level 0's: a level whose height was rounded down has its north edge further
+    /// south; the corner every level shares is the south-west one ([`Self::south_west`]).
     pub origin: [f64; 2],
     /// Each level's GDAL geotransform terms 1, 2, 4 and 5 (over that level's pixel / line), one
     /// entry per level, level 0 first.
@@ -49,20 +52,35 @@ pub fn field_name(at: usize) -> &'static str {
 const TERM_NAMES: [&str; 4] = ["[1]", "[2]", "[4]", "[5]"];
 
 impl GeorefBlock {
-    /// The GDAL geotransform of `level` (`[x0, a, b, y0, d, e]`: map x = x0 + a pixel + b line,
-    /// map y = y0 + d pixel + e line), `None` for a level the block has no entry for.
-    pub fn geotransform(&self, level: usize) -> Option<[f64; 6]> {
-        let [a, b, d, e] = *self.levels.get(level)?;
-        Some([self.origin[0], a, b, self.origin[1], d, e])
+    /// The map coordinates of the texture's south-west corner, the corner every level shares:
+    /// `origin + height0 x ([2], [5])` of level 0, `height0` the level-0 height in texels
+    /// (header offset 48). `None` for a block without level 0.
+    pub fn south_west(&self, height0: u64) -> Option<[f64; 2]> {
+        let [_, b, _, e] = *self.levels.first()?;
+        let h = height0 as f64;
+        Some([self.origin[0] + h * b, self.origin[1] + h * e])
     }
 
-    /// The map coordinates of the continuous texel position (s, t) of `level`, whose height in
-    /// texels is `height` (t counts up from the south: the position is at pixel s, line
-    /// `height - t`). `None` for a level the block has no entry for.
-    pub fn map_of_texel(&self, level: usize, height: u64, s: f64, t: f64) -> Option<[f64; 2]> {
-        let [x0, a, b, y0, d, e] = self.geotransform(level)?;
-        let line = height as f64 - t;
-        Some([x0 + a * s + b * line, y0 + d * s + e * line])
+    /// The GDAL geotransform of `level` (`[x0, a, b, y0, d, e]`: map x = x0 + a pixel + b line,
+    /// map y = y0 + d pixel + e line, over the level's own pixel / line, line 0 its north edge):
+    /// `[SWx - height b, a, b, SWy - height e, d, e]` with SW [`Self::south_west`], `height0` the
+    /// level-0 height and `height` the level's (descriptor offset 8). `None` for a level the block
+    /// has no entry for.
+    pub fn geotransform(&self, level: usize, height0: u64, height: u64) -> Option<[f64; 6]> {
+        let [a, b, d, e] = *self.levels.get(level)?;
+        let [x, y] = self.south_west(height0)?;
+        let h = height as f64;
+        Some([x - h * b, a, b, y - h * e, d, e])
+    }
+
+    /// The map coordinates of the continuous texel position (s, t) of `level` (t counts up from
+    /// the south): `SW + s ([1], [4]) - t ([2], [5])` with the level's terms and SW
+    /// [`Self::south_west`] of `height0`, the level-0 height in texels. `None` for a level the
+    /// block has no entry for. ([`crate::Client::map_of_texel`] takes the height from the mapping.)
+    pub fn map_of_texel(&self, level: usize, height0: u64, s: f64, t: f64) -> Option<[f64; 2]> {
+        let [a, b, d, e] = *self.levels.get(level)?;
+        let [x, y] = self.south_west(height0)?;
+        Some([x + a * s - b * t, y + d * s - e * t])
     }
 
     /// Checks the block before a writer publishes it for a texture of `levels` levels: finite
@@ -336,11 +354,60 @@ mod tests {
         let b = global();
         // Level 0 is 4096 x 2048: texel (0, 0) is the south-west corner's texel, its lower-left
         // corner at (-180, -90); texel (2048, 1024)'s lower-left corner is (0, 0).
+        assert_eq!(b.south_west(2048), Some([-180.0, -90.0]));
         assert_eq!(b.map_of_texel(0, 2048, 0.0, 0.0), Some([-180.0, -90.0]));
         assert_eq!(b.map_of_texel(0, 2048, 2048.0, 1024.0), Some([0.0, 0.0]));
-        assert_eq!(b.map_of_texel(1, 1024, 2048.0, 1024.0), Some([180.0, 90.0]), "level 1 is 2048 x 1024");
-        assert_eq!(b.map_of_texel(3, 256, 0.0, 0.0), None, "no level 3");
-        assert_eq!(b.geotransform(1), Some([-180.0, 360.0 / 2048.0, 0.0, 90.0, 0.0, -360.0 / 2048.0]));
+        assert_eq!(b.map_of_texel(1, 2048, 2048.0, 1024.0), Some([180.0, 90.0]), "level 1 is 2048 x 1024");
+        assert_eq!(b.map_of_texel(3, 2048, 0.0, 0.0), None, "no level 3");
+        assert_eq!(b.geotransform(0, 2048, 2048), Some([-180.0, 360.0 / 4096.0, 0.0, 90.0, 0.0, -360.0 / 4096.0]));
+        assert_eq!(b.geotransform(1, 2048, 1024), Some([-180.0, 360.0 / 2048.0, 0.0, 90.0, 0.0, -360.0 / 2048.0]));
+        assert_eq!(b.geotransform(3, 2048, 256), None, "no level 3");
+    }
+
+    /// Levels are anchored at the south-west corner: with a level-0 height of 1001, level 1 is
+    /// 500 texels high and covers level 0's 1000 southmost rows, so its north edge lies one
+    /// level-0 row south of level 0's, while every level shares the south-west corner.
+    #[test]
+    fn a_level_whose_height_was_rounded_down_drops_level_0s_northmost_rows() {
+        // A rotated grid (exact binary fractions, so the sums are exact): level k's terms are
+        // level 0's times 2^k.
+        let l0 = [2.0, 0.5, 0.25, -2.0];
+        let b = GeorefBlock {
+            epsg: None,
+            wraps: false,
+            definition: String::new(),
+            origin: [1000.0, 2000.0],
+            levels: (0..3).map(|k| l0.map(|v| v * f64::from(1 << k))).collect(),
+        };
+        let (h0, heights) = (1001, [1001u64, 500, 250]);
+        // The south-west corner: origin + 1001 x ([2], [5]) of level 0.
+        let sw = [1000.0 + 1001.0 * 0.5, 2000.0 - 1001.0 * 2.0];
+        assert_eq!(b.south_west(h0), Some(sw));
+        for k in 0..3 {
+            assert_eq!(b.map_of_texel(k, h0, 0.0, 0.0), Some(sw), "level {k} shares the south-west corner");
+        }
+        // Level 0's north-west corner is the origin; level 1's lies one level-0 row south of it.
+        assert_eq!(b.map_of_texel(0, h0, 0.0, 1001.0), Some([1000.0, 2000.0]));
+        let one_row_south = [1000.0 + 0.5, 2000.0 - 2.0];
+        assert_eq!(b.map_of_texel(1, h0, 0.0, 500.0), Some(one_row_south));
+        assert_eq!(b.geotransform(1, h0, 500), Some([one_row_south[0], 4.0, 1.0, one_row_south[1], 0.5, -4.0]));
+        assert_eq!(b.geotransform(0, h0, 1001), Some([1000.0, 2.0, 0.5, 2000.0, 0.25, -2.0]), "level 0's own");
+        // Level 2 (250 high) covers the 1000 southmost rows too.
+        assert_eq!(b.map_of_texel(2, h0, 0.0, 250.0), Some(one_row_south));
+        // A level's own geotransform at pixel s, line height - t is map_of_texel at (s, t); a
+        // texel of level 1 is two of level 0's along each axis from the shared corner.
+        for (k, &h) in heights.iter().enumerate() {
+            let [x0, a, bb, y0, d, e] = b.geotransform(k, h0, h).unwrap();
+            for (s, t) in [(0.0, 0.0), (3.5, 7.25), (100.0, h as f64)] {
+                let line = h as f64 - t;
+                assert_eq!(
+                    b.map_of_texel(k, h0, s, t),
+                    Some([x0 + a * s + bb * line, y0 + d * s + e * line]),
+                    "level {k} ({s}, {t})"
+                );
+            }
+        }
+        assert_eq!(b.map_of_texel(1, h0, 3.0, 5.0), b.map_of_texel(0, h0, 6.0, 10.0));
     }
 
     #[test]

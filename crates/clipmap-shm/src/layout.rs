@@ -101,9 +101,11 @@ pub mod georef {
     pub const FLAGS: usize = 8;
     /// `u32` bytes of the CRS definition at [`DEFINITION`] (at most 1024).
     pub const DEFINITION_LEN: usize = 12;
-    /// `f64` bits: GDAL geotransform term 0, the map x of the west edge of texel column 0.
+    /// `f64` bits: level 0's GDAL geotransform term 0, the map x of level 0's north-west corner.
     pub const ORIGIN_X: usize = 16;
-    /// `f64` bits: GDAL geotransform term 3, the map y of the north edge of the texture.
+    /// `f64` bits: level 0's GDAL geotransform term 3, the map y of level 0's north-west corner
+    /// (a level whose height was rounded down has its north edge further south; every level
+    /// shares the south-west corner).
     pub const ORIGIN_Y: usize = 24;
     /// `f64` bits x 4: level 0's GDAL geotransform terms 1, 2, 4 and 5.
     pub const TERMS: usize = 32;
