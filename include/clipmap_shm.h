@@ -111,7 +111,8 @@
 #define CLIPMAP_H_LEVEL_DESCS 2240       /* 32 level descriptors of CLIPMAP_DESC_BYTES */
 #define CLIPMAP_H_GROWTH 6336            /* the growth block, CLIPMAP_GROWTH_BYTES (growing textures) */
 #define CLIPMAP_H_HEIGHTS 6464           /* the heights block, CLIPMAP_HEIGHTS_BYTES (static; all zero: not heights) */
-#define CLIPMAP_H_END 6528               /* end of the fixed header */
+#define CLIPMAP_H_GEOREF 6528            /* the georef block, CLIPMAP_GEOREF_BYTES (static; all zero: no georeferencing) */
+#define CLIPMAP_H_END 7616               /* end of the fixed header */
 /* Snapshot fields as absolute offsets (the names layout 1 gave them). */
 #define CLIPMAP_H_GLOBAL_SEQ 128         /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ */
 #define CLIPMAP_H_MIN_LOD 136            /* = CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_MIN_LOD */
@@ -152,6 +153,7 @@
 #define CLIPMAP_D_SLOTS_OFFSET 64        /* multiple of 4096 */
 #define CLIPMAP_D_KIND 72                /* 0 stack, 1 pyramid */
 #define CLIPMAP_D_RANGES_OFFSET 80       /* multiple of 4096 between tags and slots; 0: not heights */
+#define CLIPMAP_D_GEOREF 88              /* f64 x 4: the level's GDAL geotransform [1], [2], [4], [5]; 0: none */
 
 /* Tile range entries (heights only): one per slot at ranges_offset + CLIPMAP_RANGE_BYTES * slot,
  * f64 bits stored atomically, read under the slot's tag like texels (clipmap_tile_range). */
@@ -289,9 +291,28 @@
 /* Every height a format holds lies within this many metres of zero (10,000 km). */
 #define CLIPMAP_HEIGHT_LIMIT_M 1.0e7
 
+/* Georef block fields (relative to CLIPMAP_H_GEOREF), static (docs/SHM.md, "Georef block"). All
+ * zero for a texture without georeferencing (or a writer from before the block). Each level's own
+ * terms are at CLIPMAP_D_GEOREF of its descriptor. clipmap_open checks them and fills struct
+ * clipmap_map's georef_* fields. */
+#define CLIPMAP_GR_PRESENT 0             /* u32: 1 georeferenced, 0 not */
+#define CLIPMAP_GR_EPSG 4                /* u32: the CRS's EPSG code; 0: none known */
+#define CLIPMAP_GR_FLAGS 8               /* u32: CLIPMAP_GR_WRAPS */
+#define CLIPMAP_GR_DEFINITION_LEN 12     /* u32: bytes of the definition (at most CLIPMAP_GEOREF_DEFINITION_MAX) */
+#define CLIPMAP_GR_ORIGIN_X 16           /* f64: GDAL geotransform [0], map x of the west edge of column 0 */
+#define CLIPMAP_GR_ORIGIN_Y 24           /* f64: GDAL geotransform [3], map y of the north edge */
+#define CLIPMAP_GR_TERMS 32              /* f64 x 4: level 0's GDAL geotransform [1], [2], [4], [5] */
+#define CLIPMAP_GR_DEFINITION 64         /* the CRS definition: UTF-8 (PROJ string or WKT), not NUL-terminated */
+#define CLIPMAP_GEOREF_DEFINITION_MAX 1024
+#define CLIPMAP_GEOREF_BYTES 1088         /* CLIPMAP_GR_DEFINITION + CLIPMAP_GEOREF_DEFINITION_MAX */
+#define CLIPMAP_GR_WRAPS 1u              /* flag: the texture spans 360 degrees of longitude (s wraps) */
+#define CLIPMAP_GR_KNOWN_FLAGS 1u        /* every flag this header knows: CLIPMAP_GR_WRAPS */
+
 #if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
 _Static_assert(CLIPMAP_H_GROWTH + CLIPMAP_GROWTH_BYTES == CLIPMAP_H_HEIGHTS, "growth block");
-_Static_assert(CLIPMAP_H_HEIGHTS + CLIPMAP_HEIGHTS_BYTES == CLIPMAP_H_END, "heights block");
+_Static_assert(CLIPMAP_H_HEIGHTS + CLIPMAP_HEIGHTS_BYTES == CLIPMAP_H_GEOREF, "heights block");
+_Static_assert(CLIPMAP_H_GEOREF + CLIPMAP_GEOREF_BYTES == CLIPMAP_H_END, "georef block");
+_Static_assert(CLIPMAP_GR_DEFINITION + CLIPMAP_GEOREF_DEFINITION_MAX == CLIPMAP_GEOREF_BYTES, "georef definition");
 _Static_assert(CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAPSHOT_BYTES == CLIPMAP_H_LEVEL_DESCS, "snapshot size");
 _Static_assert(CLIPMAP_SNAP_LEVELS + CLIPMAP_MAX_LEVELS * CLIPMAP_STATE_BYTES == CLIPMAP_SNAPSHOT_BYTES, "states");
 _Static_assert(CLIPMAP_H_LEVEL_DESCS + CLIPMAP_MAX_LEVELS * CLIPMAP_DESC_BYTES == CLIPMAP_H_GROWTH, "descs");
@@ -357,6 +378,13 @@ struct clipmap_map {
     double height_offset;
     int height_has_nodata;     /* 1: height_nodata marks texels without data */
     double height_nodata;      /* a stored value, not metres */
+    int georef;                /* 1: georeferenced (the georef_* fields mean something) */
+    uint32_t georef_epsg;      /* the CRS's EPSG code; 0: none known */
+    int georef_wraps;          /* 1: the texture spans 360 degrees of longitude */
+    double georef_origin[2];   /* level 0's GDAL geotransform [0] and [3]: its north-west corner */
+    double georef_terms[CLIPMAP_MAX_LEVELS][4]; /* per level GDAL geotransform [1], [2], [4], [5] */
+    uint32_t georef_definition_len;             /* bytes of the CRS definition */
+    char georef_definition[CLIPMAP_GEOREF_DEFINITION_MAX + 1]; /* UTF-8, NUL-terminated here */
     struct clipmap_level_desc levels[CLIPMAP_MAX_LEVELS];
     uint64_t views_offset;     /* the views block (CLIPMAP_H_VIEWS_OFFSET); 0: none, only `main` */
     uint32_t view_records;     /* its view records N (0: no block, or one of a magic or version not known) */
@@ -596,6 +624,173 @@ static inline int clipmap_check_heights_(struct clipmap_map *m, const char *path
 #undef CLIPMAP_REFUSE
 }
 
+/* The length of the longest prefix of the n bytes at p that is valid UTF-8 (n: all of it), as Rust's
+ * str::from_utf8 and Python's decode judge: no overlong forms, surrogates or code points past
+ * U+10FFFF. */
+static inline size_t clipmap_utf8_valid_(const unsigned char *p, size_t n) {
+    size_t i = 0;
+    while (i < n) {
+        unsigned c = p[i], lo = 0x80, hi = 0xBF;
+        size_t len;
+        if (c < 0x80) {
+            i++;
+            continue;
+        } else if (c >= 0xC2 && c <= 0xDF) {
+            len = 2;
+        } else if (c >= 0xE0 && c <= 0xEF) {
+            len = 3;
+            if (c == 0xE0) lo = 0xA0;
+            if (c == 0xED) hi = 0x9F;
+        } else if (c >= 0xF0 && c <= 0xF4) {
+            len = 4;
+            if (c == 0xF0) lo = 0x90;
+            if (c == 0xF4) hi = 0x8F;
+        } else {
+            return i;
+        }
+        if (i + 1 >= n || p[i + 1] < lo || p[i + 1] > hi) return i;
+        for (size_t j = 2; j < len; j++)
+            if (i + j >= n || p[i + j] < 0x80 || p[i + j] > 0xBF) return i;
+        i += len;
+    }
+    return n;
+}
+
+/* The field of byte `at` of the georef block, for messages. */
+static inline const char *clipmap_georef_field_(size_t at) {
+    static const char *const names[] = {"present", "EPSG code", "flags", "definition length", "origin x", "origin x",
+                                        "origin y", "origin y", "geotransform [1]", "geotransform [1]",
+                                        "geotransform [2]", "geotransform [2]", "geotransform [4]",
+                                        "geotransform [4]", "geotransform [5]", "geotransform [5]"};
+    return at < CLIPMAP_GR_DEFINITION ? names[at / 4] : "definition";
+}
+
+/* Checks the georef block and every level's affine terms (docs/SHM.md, "Georef block") and fills the
+ * georef_* fields of m (m->level_count must be checked). 0 on success, else -1 with m->error saying
+ * where, what and what was expected. */
+static inline int clipmap_check_georef_(struct clipmap_map *m, const char *path) {
+#define CLIPMAP_REFUSE(...)                                                          \
+    do {                                                                             \
+        int n_ = snprintf(m->error, sizeof m->error, "%s: ", path);                  \
+        if (n_ < 0 || (size_t)n_ >= sizeof m->error) n_ = 0;                         \
+        snprintf(m->error + n_, sizeof m->error - (size_t)n_, __VA_ARGS__);          \
+        return -1;                                                                   \
+    } while (0)
+    static const char *const terms[4] = {"[1]", "[2]", "[4]", "[5]"};
+    const size_t b = CLIPMAP_H_GEOREF;
+    const unsigned char *blk = m->base + b;
+    m->georef = 0;
+    m->georef_epsg = 0;
+    m->georef_wraps = 0;
+    m->georef_origin[0] = m->georef_origin[1] = 0.0;
+    memset(m->georef_terms, 0, sizeof m->georef_terms);
+    m->georef_definition_len = 0;
+    m->georef_definition[0] = 0;
+#define CLIPMAP_DESC_GEOREF_AT(k, i) \
+    (CLIPMAP_H_LEVEL_DESCS + (size_t)(k) * CLIPMAP_DESC_BYTES + CLIPMAP_D_GEOREF + 8 * (size_t)(i))
+    uint32_t present = clipmap_u32(m, b + CLIPMAP_GR_PRESENT);
+    if (present == 0) {
+        for (size_t i = 0; i < CLIPMAP_GEOREF_BYTES; i++)
+            if (blk[i] != 0)
+                CLIPMAP_REFUSE("georef block, byte %zu (%s): found byte 0x%02x, expected 0: the block says the texture "
+                               "has no georeferencing (present 0), so it must be all zero",
+                               b + i, clipmap_georef_field_(i), blk[i]);
+        for (uint32_t k = 0; k < m->level_count; k++)
+            for (int i = 0; i < 4; i++) {
+                uint64_t w = clipmap_u64(m, CLIPMAP_DESC_GEOREF_AT(k, i));
+                if (w != 0)
+                    CLIPMAP_REFUSE("level %u descriptor, byte %zu (georef %s): found %.17g, expected 0: the texture has "
+                                   "no georeferencing (georef block all zero)",
+                                   k, CLIPMAP_DESC_GEOREF_AT(k, i), terms[i], clipmap_f64_(w));
+            }
+        return 0;
+    }
+    if (present != 1)
+        CLIPMAP_REFUSE("georef block, byte %zu (present): found %u, expected 0 (no georeferencing) or 1 (georeferenced)",
+                       b + CLIPMAP_GR_PRESENT, present);
+    uint32_t flags = clipmap_u32(m, b + CLIPMAP_GR_FLAGS);
+    if (flags & ~CLIPMAP_GR_KNOWN_FLAGS)
+        CLIPMAP_REFUSE("georef block, byte %zu (flags): found 0x%x, expected only bit 0 (wraps in longitude): a bit "
+                       "this reader does not know", b + CLIPMAP_GR_FLAGS, flags);
+    uint32_t n = clipmap_u32(m, b + CLIPMAP_GR_DEFINITION_LEN);
+    if (n > CLIPMAP_GEOREF_DEFINITION_MAX)
+        CLIPMAP_REFUSE("georef block, byte %zu (definition length): found %u, expected at most %d",
+                       b + CLIPMAP_GR_DEFINITION_LEN, n, CLIPMAP_GEOREF_DEFINITION_MAX);
+    double v[6];
+    for (int i = 0; i < 6; i++) {
+        size_t o = i < 2 ? CLIPMAP_GR_ORIGIN_X + 8 * (size_t)i : CLIPMAP_GR_TERMS + 8 * (size_t)(i - 2);
+        v[i] = clipmap_f64_(clipmap_u64(m, b + o));
+        if (!isfinite(v[i]))
+            CLIPMAP_REFUSE("georef block, byte %zu (%s): found %.17g, expected a finite number", b + o,
+                           clipmap_georef_field_(o), v[i]);
+    }
+    double det = v[2] * v[5] - v[3] * v[4];
+    if (!isfinite(det) || det == 0.0)
+        CLIPMAP_REFUSE("georef block, byte %zu (geotransform [1]): [1] x [5] - [2] x [4] = %.17g, expected a finite "
+                       "number other than 0 (texels must span an area)", b + CLIPMAP_GR_TERMS, det);
+    const unsigned char *text = blk + CLIPMAP_GR_DEFINITION;
+    size_t ok = clipmap_utf8_valid_(text, n);
+    if (ok < n)
+        CLIPMAP_REFUSE("georef block, byte %zu (definition): byte %zu of the definition (0x%02x) is not UTF-8, "
+                       "expected UTF-8 text (a PROJ string or WKT)", b + CLIPMAP_GR_DEFINITION + ok, ok, text[ok]);
+    for (size_t i = 0; i < n; i++)
+        if (text[i] == 0)
+            CLIPMAP_REFUSE("georef block, byte %zu (definition): a NUL at byte %zu of the %u-byte definition, "
+                           "expected text without NUL", b + CLIPMAP_GR_DEFINITION + i, i, n);
+    for (size_t i = n; i < CLIPMAP_GEOREF_DEFINITION_MAX; i++)
+        if (text[i] != 0)
+            CLIPMAP_REFUSE("georef block, byte %zu (definition): found byte 0x%02x after the definition's %u bytes, "
+                           "expected 0", b + CLIPMAP_GR_DEFINITION + i, text[i], n);
+    for (uint32_t k = 0; k < m->level_count; k++) {
+        double t[4];
+        for (int i = 0; i < 4; i++) {
+            uint64_t w = clipmap_u64(m, CLIPMAP_DESC_GEOREF_AT(k, i));
+            t[i] = clipmap_f64_(w);
+            if (!isfinite(t[i]))
+                CLIPMAP_REFUSE("level %u descriptor, byte %zu (georef %s): found %.17g, expected a finite number", k,
+                               CLIPMAP_DESC_GEOREF_AT(k, i), terms[i], t[i]);
+        }
+        double d = t[0] * t[3] - t[1] * t[2];
+        if (!isfinite(d) || d == 0.0)
+            CLIPMAP_REFUSE("level %u descriptor, byte %zu (georef [1]): [1] x [5] - [2] x [4] = %.17g, expected a finite "
+                           "number other than 0 (the level's texels must span an area)", k, CLIPMAP_DESC_GEOREF_AT(k, 0), d);
+        if (k == 0)
+            for (int i = 0; i < 4; i++)
+                if (clipmap_u64(m, CLIPMAP_DESC_GEOREF_AT(0, i)) != clipmap_u64(m, b + CLIPMAP_GR_TERMS + 8 * (size_t)i))
+                    CLIPMAP_REFUSE("level 0 descriptor, byte %zu (georef %s): found %.17g, expected %.17g, the georef "
+                                   "block's level-0 term (byte %zu)", CLIPMAP_DESC_GEOREF_AT(0, i), terms[i], t[i],
+                                   v[2 + i], b + CLIPMAP_GR_TERMS + 8 * (size_t)i);
+        memcpy(m->georef_terms[k], t, sizeof t);
+    }
+#undef CLIPMAP_DESC_GEOREF_AT
+    m->georef = 1;
+    m->georef_epsg = clipmap_u32(m, b + CLIPMAP_GR_EPSG);
+    m->georef_wraps = (flags & CLIPMAP_GR_WRAPS) != 0;
+    m->georef_origin[0] = v[0];
+    m->georef_origin[1] = v[1];
+    m->georef_definition_len = n;
+    memcpy(m->georef_definition, text, n);
+    m->georef_definition[n] = 0;
+    return 0;
+#undef CLIPMAP_REFUSE
+}
+
+/* The map coordinates (out[0], out[1]) of the continuous texel position (s, t) of level k (t counting
+ * up from the south). Every level is anchored at the south-west corner SW = origin + H0 * ([2], [5])
+ * of level 0 (H0 the level-0 height, header offset 48; a level whose height was rounded down drops
+ * level 0's northmost rows), so the position is SW + s * ([1], [4]) - t * ([2], [5]) of level k's
+ * terms; level k's own GDAL geotransform is [SWx - height_k * [2], [1], [2], SWy - height_k * [5],
+ * [4], [5]]. -1 without georeferencing or for a level past the level count. */
+static inline int clipmap_map_of_texel(const struct clipmap_map *m, uint32_t k, double s, double t, double out[2]) {
+    if (!m->georef || k >= m->level_count) return -1;
+    const double *g0 = m->georef_terms[0], *g = m->georef_terms[k];
+    double h0 = (double)m->size[1];
+    double sw[2] = {m->georef_origin[0] + h0 * g0[1], m->georef_origin[1] + h0 * g0[3]};
+    out[0] = sw[0] + g[0] * s - g[1] * t;
+    out[1] = sw[1] + g[2] * s - g[3] * t;
+    return 0;
+}
+
 /* Writes the n bytes at p into out (len bytes) as text: printable ASCII as it is, any other byte (and
  * the quote and backslash) as \xNN. */
 static inline void clipmap_show_(const unsigned char *p, size_t n, char *out, size_t len) {
@@ -827,6 +1022,7 @@ static inline int clipmap_check_static(struct clipmap_map *m, const char *path) 
     if (clip == 0) CLIPMAP_REFUSE("clip size 0: expected at least 1");
     if (m->level_count < 1 || m->level_count > CLIPMAP_MAX_LEVELS)
         CLIPMAP_REFUSE("%u levels: expected 1 to %u", m->level_count, CLIPMAP_MAX_LEVELS);
+    if (clipmap_check_georef_(m, path) != 0) return -1;
     if (m->size[0] == 0 || m->size[1] == 0)
         CLIPMAP_REFUSE("level 0 is %llux%llu: expected a non-zero size", (unsigned long long)m->size[0],
                        (unsigned long long)m->size[1]);

@@ -25,6 +25,18 @@
  * scale S offset O nodata N|none levels RULE" (numbers as %.17g; the Python reader's --heights
  * prints the same line).
  *
+ *   ./reader MAPPING --georef
+ *
+ * prints what the georef block says (docs/SHM.md, "Georef block"): "not georeferenced", or a line
+ * "georef epsg CODE|none wraps 0|1 origin X Y", a line "level K A B D E" per level (its GDAL
+ * geotransform terms [1], [2], [4], [5]) and a last line "definition TEXT" (numbers as %.17g; the
+ * Python reader's --georef prints the same lines).
+ *
+ *   ./reader MAPPING --map-of-texel LEVEL S T
+ *
+ * prints the map coordinates of the continuous texel position (S, T) of LEVEL (clipmap_map_of_texel),
+ * one line "X Y" (%.17g; the Python reader's --map-of-texel prints the same), or "not georeferenced".
+ *
  *   ./reader MAPPING --ranges
  *
  * prints the published range of every tile a slot holds ready or default (clipmap_tile_range), one
@@ -378,6 +390,44 @@ int main(int argc, char **argv) {
         clipmap_close(&own);
         clipmap_close(&m);
         return rc;
+    }
+    if (strcmp(argv[2], "--map-of-texel") == 0) {
+        unsigned level;
+        char extra;
+        double st[2], xy[2];
+        int rc = 0;
+        if (argc != 6 || sscanf(argv[3], "%u%c", &level, &extra) != 1 || sscanf(argv[4], "%lf%c", &st[0], &extra) != 1 ||
+            sscanf(argv[5], "%lf%c", &st[1], &extra) != 1) {
+            fprintf(stderr, "usage: %s MAPPING --map-of-texel LEVEL S T\n", argv[0]);
+            rc = 2;
+        } else if (level >= tm->level_count) {
+            fprintf(stderr, "clipmap reader: %s: no level %u (the mapping has %u)\n", argv[1], level, tm->level_count);
+            rc = 2;
+        } else if (clipmap_map_of_texel(tm, level, st[0], st[1], xy) != 0) {
+            printf("not georeferenced\n");
+        } else {
+            printf("%.17g %.17g\n", xy[0], xy[1]);
+        }
+        clipmap_close(&own);
+        clipmap_close(&m);
+        return rc;
+    }
+    if (strcmp(argv[2], "--georef") == 0) {
+        if (!tm->georef) {
+            printf("not georeferenced\n");
+        } else {
+            char epsg[16] = "none";
+            if (tm->georef_epsg != 0) snprintf(epsg, sizeof epsg, "%u", tm->georef_epsg);
+            printf("georef epsg %s wraps %d origin %.17g %.17g\n", epsg, tm->georef_wraps, tm->georef_origin[0],
+                   tm->georef_origin[1]);
+            for (uint32_t k = 0; k < tm->level_count; k++)
+                printf("level %u %.17g %.17g %.17g %.17g\n", k, tm->georef_terms[k][0], tm->georef_terms[k][1],
+                       tm->georef_terms[k][2], tm->georef_terms[k][3]);
+            printf("definition %s\n", tm->georef_definition);
+        }
+        clipmap_close(&own);
+        clipmap_close(&m);
+        return 0;
     }
     if (strcmp(argv[2], "--heights") == 0) {
         static const char *const rules[] = {"mean", "point", "min", "max"};

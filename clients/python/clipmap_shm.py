@@ -45,6 +45,10 @@ stored values; write_png); other formats (packed, heights) only as .raw. It wait
 `--view NAME` (anywhere after MAPPING) reads that view instead of `main` (exit 2 listing the views
 when there is none of that name, 3 when it is removed while it is read); `MAPPING --views` lists the
 views, `MAPPING --snapshot [--view NAME]` prints a view's snapshot (as the C reader's do).
+`MAPPING --georef` prints the georef block (`Mapping.georef`; "not georeferenced" when there is
+none), as the C reader's --georef does; `MAPPING --map-of-texel LEVEL S T` prints the map
+coordinates "X Y" of the continuous texel position (S, T) of LEVEL (`Mapping.map_of_texel`), as
+the C reader's --map-of-texel does.
 
 Requests: Python has no compare-and-swap on a mapping, so it cannot take the request
 mapping's lock words; a Python renderer asks for a centre through the control socket
@@ -111,7 +115,19 @@ GROWTH_BYTES = 128
 # rule, f64 scale, offset and nodata (a stored value; NaN: none).
 H_HEIGHTS = H_GROWTH + GROWTH_BYTES
 HEIGHTS_BYTES = 64
-H_END = H_HEIGHTS + HEIGHTS_BYTES
+# The georef block (static; all zero for a texture without georeferencing): u32 present, u32 EPSG
+# code (0: none), u32 flags (bit 0: wraps in longitude), u32 definition length, f64 origin x, y
+# (level 0's GDAL geotransform [0], [3]: its north-west corner), f64 level-0 terms [1], [2], [4],
+# [5], then the CRS definition (UTF-8, not NUL-terminated). Each level's terms are also in its
+# descriptor (DESC_GEOREF).
+H_GEOREF = H_HEIGHTS + HEIGHTS_BYTES
+GR_PRESENT, GR_EPSG, GR_FLAGS, GR_DEFINITION_LEN, GR_ORIGIN_X, GR_ORIGIN_Y, GR_TERMS, GR_DEFINITION = \
+    0, 4, 8, 12, 16, 24, 32, 64
+GEOREF_DEFINITION_MAX = GR_DEFINITION_MAX = 1024
+GEOREF_BYTES = GR_DEFINITION + GR_DEFINITION_MAX
+GR_WRAPS = 1
+GR_KNOWN_FLAGS = GR_WRAPS
+H_END = H_GEOREF + GEOREF_BYTES
 HT_IS_HEIGHTS, HT_RULE, HT_SCALE, HT_OFFSET, HT_NODATA = 0, 4, 8, 16, 24
 # Level rule codes (HT_RULE) and the height storage of each texel format code.
 HEIGHT_RULES = ("mean", "point", "min", "max")
@@ -127,6 +143,8 @@ DESC_SIZE_S, DESC_SIZE_T, DESC_TILE_S, DESC_TILE_T, DESC_GRID_S, DESC_GRID_T = 0
 DESC_SLOT_BYTES, DESC_TAGS_OFFSET, DESC_SLOTS_OFFSET, DESC_KIND = 48, 56, 64, 72
 # u64 byte offset of the level's tile ranges (heights only; 0: none), between its tags and slots.
 DESC_RANGES_OFFSET = 80
+# f64 x 4: the level's GDAL geotransform terms [1], [2], [4], [5] (0: no georeferencing).
+DESC_GEOREF = 88
 # Tile range entries: one per slot at ranges + RANGE_BYTES * slot, f64 bits (metres, nodata
 # excluded; both NaN when every texel is nodata), read under the slot's tag like texels.
 RANGE_BYTES, RANGE_MIN, RANGE_MAX = 16, 0, 8
@@ -238,6 +256,10 @@ def hash_texel(level, s, t, bpt):
     """The verification texel at (level, s, t): byte i is byte i % 8 of the little-endian hash."""
     v = splitmix64(((level << 58) | (t << 29) | s) & M64).to_bytes(8, "little")
     return (v * 8)[:bpt]
+
+
+def _f64(bits):
+    return struct.unpack("<d", struct.pack("<Q", bits))[0]
 
 
 def _signed(v):
@@ -507,6 +529,7 @@ class Mapping:
             raise Refused(f"{path}: clip size 0: expected at least 1")
         if not 1 <= n <= MAX_LEVELS:
             raise Refused(f"{path}: {n} levels: expected 1 to {MAX_LEVELS}")
+        self.georef = self._georef(path)
         if 0 in self.size:
             raise Refused(f"{path}: level 0 is {self.size[0]}x{self.size[1]}: expected a non-zero size")
         prev_end = hb
@@ -763,6 +786,105 @@ class Mapping:
                        f'{MAX_RETRIES} attempts')
         none = " (the mapping has no views block)" if self.views_offset == 0 else ""
         raise NoView(f'no view "{name}"{none}; the views are: {", ".join(names)}')
+
+    def _georef(self, path):
+        """The georef block and each level's affine terms, checked (docs/SHM.md, "Georef block"):
+        None when the block is all zero (no georeferencing), else a dict of epsg (None: none
+        known), wraps, definition (str), origin [x, y] (level 0's GDAL geotransform [0] and [3])
+        and levels (per level [1], [2], [4], [5])."""
+        b, m = H_GEOREF, self.mm
+        names = ((0, "present"), (4, "EPSG code"), (8, "flags"), (12, "definition length"), (16, "origin x"),
+                 (24, "origin y"), (32, "geotransform [1]"), (40, "geotransform [2]"), (48, "geotransform [4]"),
+                 (56, "geotransform [5]"), (64, "definition"))
+        def at(field):
+            name = [n for o, n in names if o <= field][-1]
+            return f"{path}: georef block, byte {b + field} ({name})"
+        terms = ("[1]", "[2]", "[4]", "[5]")
+        def desc_at(k, i):
+            return f"{path}: level {k} descriptor, byte {H_LEVEL_DESCS + k * DESC_BYTES + DESC_GEOREF + 8 * i} " \
+                   f"(georef {terms[i]})"
+        block = bytes(m[b:b + GEOREF_BYTES])
+        descs = [struct.unpack_from("<4Q", m, H_LEVEL_DESCS + k * DESC_BYTES + DESC_GEOREF) for k in range(self.count)]
+        present = self._u32(b + GR_PRESENT)
+        if present == 0:
+            for i, v in enumerate(block):
+                if v:
+                    raise Refused(f"{at(i)}: found byte {v:#04x}, expected 0: the block says the texture has no "
+                                  f"georeferencing (present 0), so it must be all zero")
+            for k, d in enumerate(descs):
+                for i, w in enumerate(d):
+                    if w:
+                        raise Refused(f"{desc_at(k, i)}: found {_f64(w):.17g}, expected 0: the texture has no "
+                                      f"georeferencing (georef block all zero)")
+            return None
+        if present != 1:
+            raise Refused(f"{at(GR_PRESENT)}: found {present}, expected 0 (no georeferencing) or 1 (georeferenced)")
+        flags = self._u32(b + GR_FLAGS)
+        if flags & ~GR_KNOWN_FLAGS:
+            raise Refused(f"{at(GR_FLAGS)}: found {flags:#x}, expected only bit 0 (wraps in longitude): a bit "
+                          f"this reader does not know")
+        n = self._u32(b + GR_DEFINITION_LEN)
+        if n > GR_DEFINITION_MAX:
+            raise Refused(f"{at(GR_DEFINITION_LEN)}: found {n}, expected at most {GR_DEFINITION_MAX}")
+        values = []
+        for o in (GR_ORIGIN_X, GR_ORIGIN_Y, GR_TERMS, GR_TERMS + 8, GR_TERMS + 16, GR_TERMS + 24):
+            v = struct.unpack_from("<d", block, o)[0]
+            if not math.isfinite(v):
+                raise Refused(f"{at(o)}: found {v:.17g}, expected a finite number")
+            values.append(v)
+        level0 = values[2:]
+        det = level0[0] * level0[3] - level0[1] * level0[2]
+        if not math.isfinite(det) or det == 0:
+            raise Refused(f"{at(GR_TERMS)}: [1] x [5] - [2] x [4] = {det:.17g}, expected a finite number other than 0 "
+                          f"(texels must span an area)")
+        text = block[GR_DEFINITION:GR_DEFINITION + n]
+        try:
+            definition = text.decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise Refused(f"{at(GR_DEFINITION + e.start)}: byte {e.start} of the definition ({text[e.start]:#04x}) "
+                          f"is not UTF-8, expected UTF-8 text (a PROJ string or WKT)") from None
+        if 0 in text:
+            i = text.index(0)
+            raise Refused(f"{at(GR_DEFINITION + i)}: a NUL at byte {i} of the {n}-byte definition, expected text "
+                          f"without NUL")
+        for i, v in enumerate(block[GR_DEFINITION + n:]):
+            if v:
+                raise Refused(f"{at(GR_DEFINITION + n + i)}: found byte {v:#04x} after the definition's {n} bytes, "
+                              f"expected 0")
+        levels = []
+        for k, d in enumerate(descs):
+            t = [_f64(w) for w in d]
+            for i, v in enumerate(t):
+                if not math.isfinite(v):
+                    raise Refused(f"{desc_at(k, i)}: found {v:.17g}, expected a finite number")
+            det = t[0] * t[3] - t[1] * t[2]
+            if not math.isfinite(det) or det == 0:
+                raise Refused(f"{desc_at(k, 0)}: [1] x [5] - [2] x [4] = {det:.17g}, expected a finite number other "
+                              f"than 0 (the level's texels must span an area)")
+            if k == 0:
+                for i in range(4):
+                    if d[i] != struct.unpack_from("<Q", block, GR_TERMS + 8 * i)[0]:
+                        raise Refused(f"{desc_at(0, i)}: found {t[i]:.17g}, expected {level0[i]:.17g}, the georef block's "
+                                      f"level-0 term (byte {b + GR_TERMS + 8 * i})")
+            levels.append(t)
+        epsg = self._u32(b + GR_EPSG)
+        return {"epsg": epsg or None, "wraps": bool(flags & GR_WRAPS), "definition": definition,
+                "origin": values[:2], "levels": levels}
+
+    def map_of_texel(self, level, s, t):
+        """The map coordinates of the continuous texel position (s, t) of `level` (t counting up
+        from the south); None without georeferencing. Every level is anchored at the south-west
+        corner SW = origin + H0 * ([2], [5]) of level 0 (H0 the level-0 height; a level whose
+        height was rounded down drops level 0's northmost rows), so the position is
+        SW + s * ([1], [4]) - t * ([2], [5]) of the level's terms."""
+        g = self.georef
+        if g is None:
+            return None
+        _, b0, _, e0 = g["levels"][0]
+        h0 = self.size[1]
+        swx, swy = g["origin"][0] + h0 * b0, g["origin"][1] + h0 * e0
+        a, b, d, e = g["levels"][level]
+        return (swx + a * s - b * t, swy + d * s - e * t)
 
     def _heights(self, path):
         """The heights block, checked: None when the texels are not heights, else a dict of
@@ -1204,6 +1326,47 @@ def main(argv):
         except (ClipmapError, OSError, ValueError) as e:
             print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
             return 2
+        return 0
+    if len(argv) == 3 and argv[2] == "--georef":
+        # python3 clipmap_shm.py MAPPING --georef: the georef block (the C reader's --georef
+        # prints the same): "not georeferenced", or "georef epsg CODE|none wraps 0|1 origin X Y",
+        # a line "level K A B D E" per level (GDAL terms [1], [2], [4], [5]) and "definition TEXT"
+        # (numbers as %.17g).
+        try:
+            m = Mapping(argv[1])
+        except (ClipmapError, OSError, ValueError) as e:
+            print(f"clipmap_shm: {e}", file=sys.stderr)
+            return 2
+        g = m.georef
+        if g is None:
+            print("not georeferenced")
+        else:
+            print("georef epsg %s wraps %d origin %.17g %.17g"
+                  % ("none" if g["epsg"] is None else g["epsg"], g["wraps"], g["origin"][0], g["origin"][1]))
+            for k, t in enumerate(g["levels"]):
+                print("level %d %.17g %.17g %.17g %.17g" % ((k,) + tuple(t)))
+            sys.stdout.flush()
+            sys.stdout.buffer.write(("definition " + g["definition"] + "\n").encode("utf-8"))
+            sys.stdout.buffer.flush()
+        m.close()
+        return 0
+    if len(argv) == 6 and argv[2] == "--map-of-texel":
+        # python3 clipmap_shm.py MAPPING --map-of-texel LEVEL S T: the map coordinates of the
+        # continuous texel position (S, T) of LEVEL, one line "X Y" (%.17g; the C reader's
+        # --map-of-texel prints the same), or "not georeferenced".
+        try:
+            m = Mapping(argv[1])
+            level, s, t = int(argv[3]), float(argv[4]), float(argv[5])
+        except (ClipmapError, OSError, ValueError) as e:
+            print(f"clipmap_shm: {e}", file=sys.stderr)
+            return 2
+        if not 0 <= level < len(m.levels):
+            print(f"clipmap_shm: {argv[1]}: no level {level} (the mapping has {len(m.levels)})", file=sys.stderr)
+            m.close()
+            return 2
+        xy = m.map_of_texel(level, s, t)
+        print("not georeferenced" if xy is None else "%.17g %.17g" % xy)
+        m.close()
         return 0
     if len(argv) == 3 and argv[2] == "--heights":
         # python3 clipmap_shm.py MAPPING --heights: the heights block, one line (the C reader's

@@ -136,6 +136,10 @@ pub struct Status {
     /// The heights block: storage, scale, offset, nodata (a stored value; `null`: none) and level
     /// rule of a height texture (`null` for a texture that is not heights).
     pub heights: Option<crate::shm::layout::Heights>,
+    /// The georef block: EPSG code (`null`: none known), whether the texture wraps in longitude,
+    /// the CRS definition, the origin (GDAL geotransform terms 0 and 3) and each level's terms 1,
+    /// 2, 4 and 5 (docs/SHM.md, "Georef block"); `null` for a texture without georeferencing.
+    pub georef: Option<crate::shm::GeorefBlock>,
     /// The view shown (`main`: the primary; docs/VIEWS.md).
     pub view: String,
     /// Every view's figures from the socket's statistics, `main` first (empty when the socket
@@ -297,6 +301,7 @@ pub fn status_of_view(
         read_latency_ticks: engine.map(|e| e.read_latency_ticks),
         growth,
         heights: c.heights,
+        georef: c.georef.clone(),
         view: c.view_name().to_string(),
         views: after.as_ref().map(|a| a.tick.views.clone()).unwrap_or_default(),
         #[cfg(feature = "remote")]
@@ -344,6 +349,16 @@ pub fn human(s: &Status) -> String {
             h.offset,
             h.nodata.map_or_else(|| "none".to_string(), |v| v.to_string()),
             h.levels
+        ));
+    }
+    if let Some(g) = &s.georef {
+        let epsg = g.epsg.map_or_else(|| "no EPSG code".to_string(), |c| format!("EPSG:{c}"));
+        let [a, b, d, e] = g.levels[0];
+        o.push_str(&format!(
+            "georef: {epsg}  origin {} {}  level 0 terms {a} {b} {d} {e}{}\n\n",
+            g.origin[0],
+            g.origin[1],
+            if g.wraps { "  wraps in longitude" } else { "" }
         ));
     }
     if let Some(g) = &s.growth {
@@ -564,6 +579,7 @@ mod tests {
             read_latency_ticks: Some(4.25),
             growth: None,
             heights: None,
+            georef: None,
             view: "main".into(),
             views: Vec::new(),
             #[cfg(feature = "remote")]
@@ -599,6 +615,28 @@ mod tests {
         assert_eq!(
             v["heights"],
             serde_json::json!({"storage": "u16", "scale": 0.25, "offset": -500.0, "nodata": 65535.0, "levels": "max"})
+        );
+        // Without georeferencing: no georef line, `georef` null; with it: one line and the block.
+        assert!(!text.contains("georef:"), "{text}");
+        assert!(v["georef"].is_null(), "{v}");
+        s.georef = Some(crate::shm::GeorefBlock {
+            epsg: Some(3857),
+            wraps: true,
+            definition: "+proj=merc".into(),
+            origin: [-20037508.0, 20037508.0],
+            levels: vec![[0.5, 0.0, 0.0, -0.5], [1.0, 0.0, 0.0, -1.0]],
+        });
+        let text = human(&s);
+        assert!(
+            text.contains(
+                "georef: EPSG:3857  origin -20037508 20037508  level 0 terms 0.5 0 0 -0.5  wraps in longitude\n"
+            ),
+            "{text}"
+        );
+        let v = serde_json::to_value(&s).unwrap();
+        assert_eq!(
+            v["georef"],
+            serde_json::json!({"epsg": 3857, "wraps": true, "definition": "+proj=merc", "origin": [-20037508.0, 20037508.0], "levels": [[0.5, 0.0, 0.0, -0.5], [1.0, 0.0, 0.0, -1.0]]})
         );
         #[cfg(feature = "remote")]
         {

@@ -233,3 +233,165 @@ fn the_c_and_python_readers_took_another_starts_own_mapping_for_this_ones() {
         assert!(err.contains("belongs to another start of the service"), "{who}: {err}");
     }
 }
+
+/// The georef block (docs/SHM.md, "Georef block") written by the independent writer
+/// (tests/fixtures/make_mapping.py --georef): the Rust client, the C reader and the Python reader
+/// read the same values; a mapping without the block reads as none in all three; and each
+/// hostile variant (`--corrupt georef-*`) is refused by all three naming the same byte and field.
+#[test]
+fn the_georef_block_reads_the_same_in_rust_c_and_python_and_each_bad_field_is_refused_by_all_three() {
+    use clipmap::shm::{Client, GeorefBlock};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let creader = c_reader(d);
+    let make = |out: &Path, extra: &[&str]| {
+        let o = std::process::Command::new("python3")
+            .arg(Path::new(crate::clipmapd::ROOT).join("tests/fixtures/make_mapping.py"))
+            .arg(out)
+            .args(["--size", "1000x600", "--clip", "128", "--tile", "32"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "make_mapping: {}", text(&o));
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let c_and_python = |map: &Path| {
+        let c = std::process::Command::new(&creader).arg(map).arg("--georef").output().unwrap();
+        let py = python_reader().arg(map).arg("--georef").output().unwrap();
+        [("C", c), ("Python", py)]
+    };
+    // A rotated UTM grid with a definition beyond ASCII; level k's terms are level 0's times 2^k
+    // (1000 x 600 halved: 500 x 300, 250 x 150, 125 x 75, then 62 x 37: rounded down).
+    let def = "+proj=utm +zone=33 +datum=WGS84 +units=m +no_defs +title=Zürich";
+    let map = d.join("clipmap-geo.map");
+    make(&map, &["--georef", "32633", "0", "500000", "5000000", "0.5", "0.01", "0.02", "-0.5", def]);
+    let c = Client::attach_path(&map).unwrap();
+    let g = c.georef.clone().expect("the block is read");
+    let sizes: Vec<[u64; 2]> = c.levels.iter().map(|l| l.size).collect();
+    let want = GeorefBlock {
+        epsg: Some(32633),
+        wraps: false,
+        definition: def.into(),
+        origin: [500000.0, 5000000.0],
+        levels: (0..sizes.len()).map(|k| [0.5, 0.01, 0.02, -0.5].map(|v| v * (k as f64).exp2())).collect(),
+    };
+    assert_eq!(g, want);
+    assert_eq!(sizes[4], [62, 37], "level 4's height was rounded down: 37 x 16 = 592 of level 0's 600 rows");
+    // Texel (0, 600) of level 0 is pixel 0, line 0: the origin; texel (1000, 0) the far corner.
+    assert_eq!(g.map_of_texel(0, 600, 0.0, 600.0), Some([500000.0, 5000000.0]));
+    assert_eq!(c.map_of_texel(0, 0.0, 600.0), Some([500000.0, 5000000.0]));
+    let far = g.map_of_texel(0, 600, 1000.0, 0.0).unwrap();
+    assert!((far[0] - 500506.0).abs() < 1e-6 && (far[1] - 4999720.0).abs() < 1e-6, "{far:?}");
+    // Every level shares the south-west corner, origin + 600 x (0.01, -0.5) = (500006, 4999700);
+    // level 4 covers level 0's 592 southmost rows, so its north-west corner (0, 37) lies 8 level-0
+    // rows south of level 0's: origin + 8 x (0.01, -0.5) = (500000.08, 4999996).
+    let close = |got: [f64; 2], want: [f64; 2]| (got[0] - want[0]).abs() < 1e-6 && (got[1] - want[1]).abs() < 1e-6;
+    let expected: [((usize, f64, f64), [f64; 2]); 5] = [
+        ((4, 0.0, 0.0), [500006.0, 4999700.0]),
+        ((4, 0.0, 37.0), [500000.08, 4999996.0]),
+        ((4, 62.5, 0.0), [500506.0, 4999720.0]),
+        ((4, 10.25, 20.5), [500006.0 + 82.0 - 3.28, 4999700.0 + 3.28 + 164.0]),
+        ((3, 0.0, 75.0), [500000.0, 5000000.0]),
+    ];
+    for ((k, s, t), xy) in expected {
+        let rust = c.map_of_texel(k, s, t).unwrap();
+        assert!(close(rust, xy), "Rust: level {k} ({s}, {t}) at {rust:?}, expected {xy:?}");
+        assert_eq!(
+            g.geotransform(k, 600, sizes[k][1]).map(|gt| {
+                let line = sizes[k][1] as f64 - t;
+                close([gt[0] + gt[1] * s + gt[2] * line, gt[3] + gt[4] * s + gt[5] * line], xy)
+            }),
+            Some(true),
+            "level {k}'s own geotransform at pixel {s}, line height - {t}"
+        );
+        let args = ["--map-of-texel".to_string(), k.to_string(), s.to_string(), t.to_string()];
+        let c_out = std::process::Command::new(&creader).arg(&map).args(&args).output().unwrap();
+        let py_out = python_reader().arg(&map).args(&args).output().unwrap();
+        for (who, o) in [("C", c_out), ("Python", py_out)] {
+            assert!(o.status.success(), "{who}: {}", text(&o));
+            let got: Vec<f64> =
+                String::from_utf8_lossy(&o.stdout).split_whitespace().map(|w| w.parse().unwrap()).collect();
+            assert!(
+                got.len() == 2 && close([got[0], got[1]], rust),
+                "{who}: level {k} ({s}, {t}) at {got:?}, Rust at {rust:?}"
+            );
+        }
+    }
+    // The C and Python readers print the same numbers (as %.17g, which Rust's shortest form
+    // round-trips through).
+    let mut line = format!("georef epsg 32633 wraps 0 origin {} {}\n", 500000, 5000000);
+    for (k, t) in g.levels.iter().enumerate() {
+        line += &format!("level {k} {}\n", t.map(|v| format!("{}", v)).join(" "));
+    }
+    line += &format!("definition {def}\n");
+    for (who, o) in c_and_python(&map) {
+        assert!(o.status.success(), "{who}: {}", text(&o));
+        let got = String::from_utf8(o.stdout).unwrap();
+        let words: Vec<&str> = got.split([' ', '\n']).collect();
+        let want_words: Vec<&str> = line.split([' ', '\n']).collect();
+        assert_eq!(words.len(), want_words.len(), "{who}: {got}");
+        for (a, b) in words.iter().zip(&want_words) {
+            match (a.parse::<f64>(), b.parse::<f64>()) {
+                (Ok(x), Ok(y)) => assert_eq!(x, y, "{who}: {got}"),
+                _ => assert_eq!(a, b, "{who}: {got}"),
+            }
+        }
+    }
+    // `cliptex attach --json` shows the block as `georef` (no service answers on the socket: the
+    // mapping alone is shown).
+    let attach = |name: &str| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_cliptex"))
+            .args(["attach", name, "--shm-dir", d.to_str().unwrap(), "--once", "--json", "--interval", "0.05"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "cliptex attach: {}", text(&o));
+        serde_json::from_slice::<serde_json::Value>(&o.stdout).unwrap()["georef"].clone()
+    };
+    // (Both through serde_json's parser, which may round the last digit of a number.)
+    let json: serde_json::Value = serde_json::from_str(&serde_json::to_string(&want).unwrap()).unwrap();
+    assert_eq!(attach("geo"), json);
+    // Without the block: none, in all three.
+    let plain = d.join("clipmap-plain.map");
+    make(&plain, &[]);
+    assert_eq!(Client::attach_path(&plain).unwrap().georef, None);
+    assert!(attach("plain").is_null());
+    for (who, o) in c_and_python(&plain) {
+        assert!(o.status.success(), "{who}: {}", text(&o));
+        assert_eq!(String::from_utf8_lossy(&o.stdout), "not georeferenced\n", "{who}");
+    }
+    // Every hostile block: refused by all three, each naming the byte and the field.
+    let kinds = std::process::Command::new("python3")
+        .arg(Path::new(crate::clipmapd::ROOT).join("tests/fixtures/make_mapping.py"))
+        .args(["--list-kinds", "x"])
+        .output()
+        .unwrap();
+    let kinds = String::from_utf8(kinds.stdout).unwrap();
+    let kinds: Vec<(&str, String)> = kinds
+        .lines()
+        .filter(|l| l.starts_with("georef-"))
+        .map(|l| {
+            let (k, w) = l.split_once(' ').unwrap();
+            (k, w.replace('_', " "))
+        })
+        .collect();
+    assert!(kinds.len() >= 14, "{kinds:?}");
+    for (kind, word) in kinds {
+        let bad = d.join(format!("{kind}.map"));
+        make(&bad, &["--corrupt", kind]);
+        let e = Client::attach_path(&bad).expect_err(kind).to_string();
+        assert!(e.contains(&word), "Rust, {kind}: {e:?} lacks {word:?}");
+        // The word names the byte, and the field unless it ends in `(FIELD`: the message has the rest.
+        let full = if word.ends_with(')') {
+            word.clone()
+        } else {
+            let rest = e.split_once(&word).map(|(_, rest)| rest.split(')').next().unwrap_or("")).unwrap_or("");
+            format!("{word}{rest})")
+        };
+        for (who, o) in c_and_python(&bad) {
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(2), "{who}, {kind}: {}", text(&o));
+            // The same place and field as the Rust client's: `byte N (FIELD)`.
+            assert!(err.contains(&full), "{who}, {kind}: {err} lacks {full:?} (Rust: {e})");
+        }
+    }
+}

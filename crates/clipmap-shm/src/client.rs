@@ -184,6 +184,10 @@ pub struct Client {
     /// Whether the texels are heights, and their scale, offset, nodata value and level rule (the
     /// header's heights block, checked at attach); `None` for a texture that is not heights.
     pub heights: Option<layout::Heights>,
+    /// Where the texture lies on the Earth (the header's georef block and each level's affine
+    /// terms, checked at attach); `None` for a texture without georeferencing, or a mapping of a
+    /// writer from before the block.
+    pub georef: Option<crate::GeorefBlock>,
     /// The views block, as checked at attach.
     pub(super) views: super::view_block::ViewsBlock,
     /// The view the snapshot is read from (`None`: the primary, `main`).
@@ -272,6 +276,13 @@ impl Client {
     /// The mapping file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// The map coordinates of the continuous texel position (s, t) of `level` ([`crate::GeorefBlock::map_of_texel`]
+    /// with this mapping's level-0 height); `None` without georeferencing or for a level past the
+    /// level count.
+    pub fn map_of_texel(&self, level: usize, s: f64, t: f64) -> Option<[f64; 2]> {
+        self.georef.as_ref()?.map_of_texel(level, self.levels.first()?.size[1], s, t)
     }
 
     /// True when requests can be made through the request mapping.

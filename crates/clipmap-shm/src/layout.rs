@@ -76,8 +76,46 @@ pub mod header {
     /// The heights block ([`super::heights`]): whether the texels are heights, and their scale,
     /// offset, nodata value and level rule (all zero for a texture that is not heights). Static.
     pub const HEIGHTS: usize = GROWTH + super::GROWTH_BYTES;
+    /// The georef block ([`super::georef`]): where the texture lies on the Earth, its CRS and
+    /// level 0's affine transform (all zero for a texture without georeferencing). Static.
+    pub const GEOREF: usize = HEIGHTS + super::HEIGHTS_BYTES;
     /// End of the fixed header.
-    pub const END: usize = HEIGHTS + super::HEIGHTS_BYTES;
+    pub const END: usize = GEOREF + super::GEOREF_BYTES;
+}
+
+/// Most bytes of the georef block's CRS definition.
+pub const GEOREF_DEFINITION_MAX: usize = 1024;
+/// Bytes of the georef block.
+pub const GEOREF_BYTES: usize = georef::DEFINITION + GEOREF_DEFINITION_MAX;
+/// Georef block fields, relative to [`header::GEOREF`]; static (written before the mapping
+/// appears under its name). A mapping whose block is all zero has no georeferencing: a texture
+/// that does not say where it lies, or a mapping of a writer from before the block
+/// (docs/SHM.md, "Georef block"). Each level's own affine terms are in its descriptor
+/// ([`desc::GEOREF`]).
+pub mod georef {
+    /// `u32` 1 when the texture is georeferenced (the fields below mean something), 0 otherwise.
+    pub const PRESENT: usize = 0;
+    /// `u32` the CRS's EPSG code, 0 when none is known.
+    pub const EPSG: usize = 4;
+    /// `u32` flags: bit 0 ([`WRAPS`]) the texture spans 360 degrees of longitude.
+    pub const FLAGS: usize = 8;
+    /// `u32` bytes of the CRS definition at [`DEFINITION`] (at most 1024).
+    pub const DEFINITION_LEN: usize = 12;
+    /// `f64` bits: level 0's GDAL geotransform term 0, the map x of level 0's north-west corner.
+    pub const ORIGIN_X: usize = 16;
+    /// `f64` bits: level 0's GDAL geotransform term 3, the map y of level 0's north-west corner
+    /// (a level whose height was rounded down has its north edge further south; every level
+    /// shares the south-west corner).
+    pub const ORIGIN_Y: usize = 24;
+    /// `f64` bits x 4: level 0's GDAL geotransform terms 1, 2, 4 and 5.
+    pub const TERMS: usize = 32;
+    /// The CRS definition: UTF-8 (a PROJ string or WKT), not NUL-terminated, zero after its
+    /// length.
+    pub const DEFINITION: usize = 64;
+    /// Flag bit 0: the texture spans 360 degrees of longitude (s wraps modulo a level's width).
+    pub const WRAPS: u32 = 1;
+    /// Every flag bit a reader of this release knows.
+    pub const KNOWN_FLAGS: u32 = WRAPS;
 }
 
 /// Bytes of the heights block.
@@ -358,6 +396,9 @@ pub mod desc {
     /// Byte offset of the level's tile ranges ([`super::range`], a multiple of 4096, between the
     /// tags and the slots); 0 when the texels are not heights.
     pub const RANGES_OFFSET: usize = 80;
+    /// `f64` bits x 4: the level's GDAL geotransform terms 1, 2, 4 and 5 (over the level's
+    /// pixel / line; the origin is the georef block's), 0 when the texture has no georeferencing.
+    pub const GEOREF: usize = 88;
 }
 
 /// Bytes of one tile range entry (one per slot, at the level's ranges offset + 16 x slot).

@@ -22,6 +22,7 @@
 
 pub mod client;
 mod client_views;
+pub mod georef;
 pub mod layout;
 pub mod memory;
 pub mod names;
@@ -38,6 +39,7 @@ pub mod writer;
 pub use raw::Region;
 
 pub use client::{Client, LevelState, ReadError, Snapshot};
+pub use georef::GeorefBlock;
 pub use memory::{ImageMemory, Publication, PublishedLevel, SlotKeeper};
 pub use writer::{Writer, WriterOptions};
 
@@ -147,6 +149,10 @@ pub enum ShmError {
     /// The shape cannot be laid out.
     #[error("cannot lay out the mapping: {0}")]
     Shape(String),
+    /// The georeferencing given to the writer cannot be published (checked before anything is
+    /// made).
+    #[error("cannot publish the georeferencing: {0}")]
+    Georef(String),
     /// An I/O error.
     #[error("{}: {source}", path.display())]
     Io {

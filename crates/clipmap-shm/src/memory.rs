@@ -186,7 +186,7 @@ impl ImageMemory {
             usize::try_from(placement.total_bytes).map_err(|_| "the mapping does not fit in memory".to_string())?;
         let region = Region::anonymous(len).map_err(|e| format!("cannot map {len} bytes: {e}"))?;
         let memory = Self::over(region, placement, shape, None);
-        memory.init(format, 0, 0, None);
+        memory.init(format, 0, 0, None, None);
         Ok(memory)
     }
 
@@ -246,6 +246,7 @@ impl ImageMemory {
         tick_period_ns: u64,
         generation: u64,
         heights: Option<&layout::Heights>,
+        georef: Option<&crate::GeorefBlock>,
     ) {
         let r = &self.region;
         let put32 = |off: usize, v: u32| r.write_u32(off, v);
@@ -290,6 +291,18 @@ impl ImageMemory {
             put64(b + ht::SCALE, h.scale.to_bits());
             put64(b + ht::OFFSET, h.offset.to_bits());
             put64(b + ht::NODATA, h.nodata.unwrap_or(f64::NAN).to_bits());
+        }
+        // The georef block and each level's affine terms: all zero without georeferencing.
+        if let Some(g) = georef {
+            let (block, levels) = g.encode();
+            for (i, word) in block.chunks_exact(4).enumerate() {
+                put32(header::GEOREF + 4 * i, u32::from_le_bytes(word.try_into().expect("4 bytes")));
+            }
+            for (k, terms) in levels.iter().enumerate() {
+                for (i, v) in terms.iter().enumerate() {
+                    put64(header::LEVEL_DESCS + k * layout::DESC_BYTES + layout::desc::GEOREF + 8 * i, *v);
+                }
+            }
         }
         // Before the first tick nothing may be used: min LOD is the level count.
         let s = header::SNAPSHOT;

@@ -153,6 +153,9 @@ pub struct WriterOptions {
     /// The texels are heights, with their scale, offset, nodata value and level rule (the
     /// header's heights block); `None` (the default) for a colour texture.
     pub heights: Option<layout::Heights>,
+    /// Where the texture lies on the Earth (the header's georef block and each level's affine
+    /// terms); `None` (the default) for a texture without georeferencing.
+    pub georef: Option<crate::GeorefBlock>,
 }
 
 impl WriterOptions {
@@ -168,6 +171,7 @@ impl WriterOptions {
             request_mode: 0o600,
             tick_period_ns: 16_666_667,
             heights: None,
+            georef: None,
         }
     }
 
@@ -192,6 +196,13 @@ impl WriterOptions {
     /// The heights block (`None`: a colour texture).
     pub fn heights(mut self, heights: Option<layout::Heights>) -> Self {
         self.heights = heights;
+        self
+    }
+
+    /// The georef block (`None`: no georeferencing), checked by the writer before it makes
+    /// anything ([`crate::GeorefBlock::check`]).
+    pub fn georef(mut self, georef: Option<crate::GeorefBlock>) -> Self {
+        self.georef = georef;
         self
     }
 }
@@ -269,9 +280,12 @@ impl Writer {
     /// lock taken, the request mapping in place) until [`publish`](Self::publish): what must be
     /// in the mapping when readers first find it (a service's views) is written before.
     pub fn prepare(options: WriterOptions) -> Result<Writer, ShmError> {
-        let WriterOptions { dir, name, shape, format, mode, request_mode, tick_period_ns, heights } = options;
+        let WriterOptions { dir, name, shape, format, mode, request_mode, tick_period_ns, heights, georef } = options;
         let (dir, name) = (dir.as_path(), name.as_str());
         check_name(name)?;
+        if let Some(g) = &georef {
+            g.check(shape.levels.len()).map_err(ShmError::Georef)?;
+        }
         // Every mapping of the service has a views block, one record per further view the engine
         // may keep (docs/SHM.md, "Views").
         let placement = layout::place_with(&shape, heights.is_some())
@@ -338,7 +352,7 @@ impl Writer {
         let region = Region::map_populated(&file).map_err(io(&tmp))?;
         let map_id = names::Identity::of(&file.metadata().map_err(io(&tmp))?);
         let memory = ImageMemory::over(region, placement, shape, heights.map(|h| h.format()));
-        memory.init(format, tick_period_ns, generation, heights.as_ref());
+        memory.init(format, tick_period_ns, generation, heights.as_ref(), georef.as_ref());
         memory.region().store(header::HEARTBEAT_MS, now_ms(), Ordering::Relaxed);
         // Whole: what was made is the writer's now (`close` removes it).
         unwind.disarm();
@@ -752,4 +766,73 @@ fn create_tmp(dir: &Path, name: &str, ext: &str, mode: u32) -> Result<(PathBuf, 
     }
     let (path, source) = last.expect("tried at least once");
     Err(ShmError::Io { path, source })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Client, GeorefBlock};
+
+    /// Three levels under a clip of 128: 512 and 256 texels a side in 64 x 64 tiles, then a
+    /// pyramid level of 128.
+    fn shape() -> Shape {
+        let levels = (0..3u32)
+            .map(|k| {
+                let s = 512u64 >> k;
+                let t = if s <= 128 { s } else { 64 };
+                layout::LevelShape {
+                    size: [s, s],
+                    tile: [t, t],
+                    grid: clipmap_base::geom::mem_grid([s, s], [t, t], 128, 1),
+                }
+            })
+            .collect();
+        Shape { bytes_per_texel: 4, clip_size: 128, levels }
+    }
+
+    fn web_mercator() -> GeorefBlock {
+        let half = 20_037_508.342_789_244;
+        GeorefBlock {
+            epsg: Some(3857),
+            wraps: true,
+            definition: "+proj=merc +a=6378137 +b=6378137 +lat_ts=0 +lon_0=0 +x_0=0 +y_0=0 +k=1 +units=m +nadgrids=@null +no_defs".into(),
+            origin: [-half, half],
+            levels: (0..3).map(|k| 2.0 * half / f64::from(512 >> k)).map(|r| [r, 0.0, 0.0, -r]).collect(),
+        }
+    }
+
+    #[test]
+    fn the_georef_block_given_to_the_writer_is_what_a_client_reads() {
+        let dir = tempfile::tempdir().unwrap();
+        let opts = WriterOptions::new(dir.path(), "geo", shape(), TexelFormat::RGBA8).georef(Some(web_mercator()));
+        let w = Writer::create(opts).unwrap();
+        let c = Client::attach(dir.path(), "geo").unwrap();
+        assert_eq!(c.georef, Some(web_mercator()));
+        drop(c);
+        w.close();
+        // Without one: none, and the block and the descriptors' terms are all zero.
+        let w = Writer::create(WriterOptions::new(dir.path(), "plain", shape(), TexelFormat::RGBA8)).unwrap();
+        let c = Client::attach(dir.path(), "plain").unwrap();
+        assert_eq!(c.georef, None);
+        let bytes = std::fs::read(map_path(dir.path(), "plain")).unwrap();
+        assert!(bytes[header::GEOREF..header::END].iter().all(|&b| b == 0));
+        w.close();
+    }
+
+    #[test]
+    fn a_bad_georef_block_is_refused_before_anything_is_made() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut g = web_mercator();
+        g.levels.pop();
+        let e = Writer::create(WriterOptions::new(dir.path(), "geo", shape(), TexelFormat::RGBA8).georef(Some(g)));
+        let Err(e) = e else { panic!("refused") };
+        let e = e.to_string();
+        assert!(e.contains("georeferencing") && e.contains("2 levels") && e.contains("3 levels"), "{e}");
+        let mut g = web_mercator();
+        g.origin[1] = f64::NAN;
+        let e = Writer::create(WriterOptions::new(dir.path(), "geo", shape(), TexelFormat::RGBA8).georef(Some(g)));
+        let Err(e) = e else { panic!("refused") };
+        assert!(e.to_string().contains("origin y"), "{e}");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "nothing made");
+    }
 }

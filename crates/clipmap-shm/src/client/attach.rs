@@ -93,6 +93,18 @@ impl Client {
             };
             layout::check_heights(format_code, &block).map_err(|why| invalid(path, why))?
         };
+        let georef = {
+            let block: Vec<u8> = (0..layout::GEOREF_BYTES / 4)
+                .flat_map(|i| region.read_u32(header::GEOREF + 4 * i).to_le_bytes())
+                .collect();
+            let descs: Vec<[u64; 4]> = (0..count)
+                .map(|k| {
+                    let b = header::LEVEL_DESCS + k * layout::DESC_BYTES + desc::GEOREF;
+                    [0, 1, 2, 3].map(|i| region.read_u64(b + 8 * i))
+                })
+                .collect();
+            crate::GeorefBlock::read(&block, &descs).map_err(|why| invalid(path, why))?
+        };
         let header_bytes = region.read_u32(header::HEADER_BYTES) as u64;
         if header_bytes < layout::header::END as u64 || !header_bytes.is_multiple_of(layout::PAGE) {
             return Err(invalid(
@@ -187,6 +199,7 @@ impl Client {
             format_code,
             tick_period: Duration::from_nanos(region.read_u64(header::TICK_PERIOD_NS)),
             heights,
+            georef,
             region,
             request: None,
             path: path.to_path_buf(),
