@@ -203,7 +203,7 @@ impl TileSource for Reopening {
     }
 
     fn georef(&self) -> Option<crate::georef::Georef> {
-        self.with(|s| TileSource::georef(s))
+        self.with(TileSource::georef)
     }
 
     fn remote_stats(&self) -> Option<crate::source::remote::RemoteStats> {
