@@ -187,6 +187,7 @@ async fn answer(ctx: &Context, line: &[u8], rd: &mut BufReader<tokio::net::unix:
         Request::Budget(ms) => done(ask(ctx, |reply| Command::Budget { ms, reply }).await.map(Ok)),
         Request::Border(texels) => done(ask(ctx, |reply| Command::Border { texels, reply }).await.map(Ok)),
         Request::Centre(centre) => done(ask(ctx, |reply| Command::Centre { centre, reply }).await.map(Ok)),
+        Request::CentreLonLat(lonlat) => done(ask(ctx, |reply| Command::CentreLonLat { lonlat, reply }).await),
         Request::View(view) => done(ask(ctx, |reply| Command::View { view, reply }).await),
         Request::PatchFile(path) => patched(patches::file(ctx.grower.as_ref(), &ctx.limits, path.into()).await),
         Request::PatchData { bytes, json } => {

@@ -36,6 +36,9 @@ pub enum Request {
     Border(u64),
     /// `CENTRE <s> <t>` (or `CENTER`): the level-0 clip centre.
     Centre([i64; 2]),
+    /// `CENTRE LONLAT <lon> <lat>` (or `CENTER`): the level-0 clip centre at a WGS 84 longitude /
+    /// latitude (degrees, finite), through the texture's georeferencing (docs/GEOREF.md).
+    CentreLonLat([f64; 2]),
     /// `VIEW ...`: a command for one view (docs/VIEWS.md).
     View(ViewCommand),
     /// `VIEWS`: `OK {json}`, the views and their figures.
@@ -82,6 +85,14 @@ pub enum ViewCommand {
         /// Its centre.
         centre: [i64; 2],
     },
+    /// `VIEW CENTRE <name> LONLAT <lon> <lat>` (or `CENTER`): a view's centre at a WGS 84
+    /// longitude / latitude (degrees, finite).
+    CentreLonLat {
+        /// The view.
+        name: String,
+        /// Its centre's longitude and latitude.
+        lonlat: [f64; 2],
+    },
     /// `VIEW WEIGHT <name> <weight>`.
     Weight {
         /// The view.
@@ -121,6 +132,7 @@ impl ViewCommand {
             ViewCommand::Add { name, .. }
             | ViewCommand::Remove { name }
             | ViewCommand::Centre { name, .. }
+            | ViewCommand::CentreLonLat { name, .. }
             | ViewCommand::Weight { name, .. }
             | ViewCommand::Lod { name, .. }
             | ViewCommand::Height { name, .. } => name,
@@ -166,11 +178,16 @@ pub enum BadRequest {
     /// A centre coordinate that is not an integer.
     #[error("CENTRE: `{0}` is not an integer")]
     Centre(String),
+    /// A `CENTRE LONLAT` longitude or latitude that is not a finite number.
+    #[error(
+        "CENTRE LONLAT: `{0}` is not a finite number of degrees (usage: CENTRE LONLAT <longitude> <latitude>, WGS 84)"
+    )]
+    CentreLonLat(String),
     /// No such command.
     #[error("unknown command `{0}`; expected one of {COMMANDS}")]
     Unknown(String),
     /// A `VIEW` request of the wrong shape, or a bad name or weight.
-    #[error("{0}; usage: VIEW ADD <name> [<weight>] [own], VIEW REMOVE <name>, VIEW CENTRE <name> <s> <t>, VIEW WEIGHT <name> <weight>, VIEW LOD <name> <offset> [<effective>|all], VIEW HEIGHT <name> <height> <pixel angle> [<effective>]")]
+    #[error("{0}; usage: VIEW ADD <name> [<weight>] [own], VIEW REMOVE <name>, VIEW CENTRE <name> <s> <t>, VIEW CENTRE <name> LONLAT <lon> <lat>, VIEW WEIGHT <name> <weight>, VIEW LOD <name> <offset> [<effective>|all], VIEW HEIGHT <name> <height> <pixel angle> [<effective>]")]
     View(String),
     /// A `PATCH` request of the wrong shape.
     #[error("usage: PATCH FILE <path of a sidecar .json> or PATCH DATA <bytes> <json description> followed by the bytes ({0})")]
@@ -215,8 +232,19 @@ pub fn parse(line: &[u8]) -> Result<Request, BadRequest> {
             arity(1, "BORDER <texels>")?;
             args[0].parse::<u64>().map(Request::Border).map_err(|_| BadRequest::Border(clip(args[0])))
         }
+        "CENTRE" | "CENTER" if args.first().is_some_and(|w| w.eq_ignore_ascii_case("LONLAT")) => {
+            if args.len() != 3 {
+                return Err(BadRequest::Arity {
+                    command: format!("{} LONLAT", clip(&cmd)),
+                    count: 2,
+                    usage: "CENTRE LONLAT <longitude> <latitude>",
+                });
+            }
+            let d = |w: &str| degrees(w).ok_or_else(|| BadRequest::CentreLonLat(clip(w)));
+            Ok(Request::CentreLonLat([d(args[1])?, d(args[2])?]))
+        }
         "CENTRE" | "CENTER" => {
-            arity(2, "CENTRE <s> <t>")?;
+            arity(2, "CENTRE <s> <t> or CENTRE LONLAT <longitude> <latitude>")?;
             let p = |w: &str| w.parse::<i64>().map_err(|_| BadRequest::Centre(clip(w)));
             Ok(Request::Centre([p(args[0])?, p(args[1])?]))
         }
@@ -275,6 +303,14 @@ fn view(args: &[&str]) -> Result<ViewCommand, BadRequest> {
             Ok(ViewCommand::Add { name: name(n, false)?, weight: weight(w)?, own: true })
         }
         (Some("REMOVE"), [n]) => Ok(ViewCommand::Remove { name: name(n, false)? }),
+        (Some("CENTRE" | "CENTER"), [n, l, lon, lat]) if l.eq_ignore_ascii_case("LONLAT") => {
+            let d = |w: &str| degrees(w).ok_or_else(|| bad(format!("`{}` is not a finite number of degrees", clip(w))));
+            Ok(ViewCommand::CentreLonLat { name: name(n, true)?, lonlat: [d(lon)?, d(lat)?] })
+        }
+        (Some("CENTRE" | "CENTER"), [_, l, rest @ ..]) if l.eq_ignore_ascii_case("LONLAT") => Err(bad(format!(
+            "VIEW CENTRE <name> LONLAT takes a longitude and a latitude, got {} number(s)",
+            rest.len()
+        ))),
         (Some("CENTRE" | "CENTER"), [n, s, t]) => {
             let p = |w: &str| w.parse::<i64>().map_err(|_| bad(format!("`{}` is not an integer", clip(w))));
             Ok(ViewCommand::Centre { name: name(n, true)?, centre: [p(s)?, p(t)?] })
@@ -319,6 +355,11 @@ fn view(args: &[&str]) -> Result<ViewCommand, BadRequest> {
         (Some(other), _) => Err(bad(format!("unknown VIEW command `{}`", clip(other)))),
         (None, _) => Err(bad("VIEW alone".to_string())),
     }
+}
+
+/// A finite number of degrees (`nan`, `inf` and what does not parse: `None`).
+fn degrees(w: &str) -> Option<f64> {
+    w.parse::<f64>().ok().filter(|x| x.is_finite())
 }
 
 fn clip_owned(s: String) -> String {
@@ -370,6 +411,16 @@ mod tests {
             ("BORDER 16\r", Request::Border(16)),
             ("CENTRE -5 1000", Request::Centre([-5, 1000])),
             ("center 1 2", Request::Centre([1, 2])),
+            ("CENTRE LONLAT 13.4 52.5", Request::CentreLonLat([13.4, 52.5])),
+            ("center lonlat -122.42 -37.77", Request::CentreLonLat([-122.42, -37.77])),
+            (
+                "VIEW CENTRE left LONLAT 180 -85",
+                Request::View(ViewCommand::CentreLonLat { name: "left".into(), lonlat: [180.0, -85.0] }),
+            ),
+            (
+                "view center main lonlat 1e-3 2",
+                Request::View(ViewCommand::CentreLonLat { name: "main".into(), lonlat: [0.001, 2.0] }),
+            ),
             ("  QUIT  ", Request::Quit),
             ("SHUTDOWN", Request::Shutdown),
             ("VIEW ADD left", add("left", 1.0, false)),
@@ -411,6 +462,14 @@ mod tests {
             (b"BORDER -3", "not a whole number"),
             (b"CENTRE 1", "takes 2 arguments"),
             (b"CENTRE 1 99999999999999999999", "not an integer"),
+            (b"CENTRE LONLAT 1", "CENTRE LONLAT takes 2 arguments: CENTRE LONLAT <longitude> <latitude>"),
+            (b"CENTRE LONLAT 1 2 3", "CENTRE LONLAT takes 2 arguments"),
+            (b"CENTRE LONLAT NaN 2", "CENTRE LONLAT: `NaN` is not a finite number of degrees"),
+            (b"center lonlat 1 inf", "`inf` is not a finite number of degrees"),
+            (b"CENTRE LONLAT 1 north", "`north` is not a finite number of degrees"),
+            (b"CENTRE LONLAT x", "takes 2 arguments"),
+            (b"VIEW CENTRE a LONLAT 1 nan", "`nan` is not a finite number of degrees"),
+            (b"VIEW CENTRE a LONLAT 1", "LONLAT takes a longitude and a latitude, got 1 number(s)"),
             (b"STATS JSON", "usage: STATS"),
             (b"PING now", "takes 0 arguments"),
             (b"PATCH", "usage: PATCH FILE"),

@@ -27,6 +27,9 @@ pub struct TickStats {
     pub tick_busy_s: f64,
     /// Level-0 centre of the last tick.
     pub centre: [i64; 2],
+    /// That centre's WGS 84 `[longitude, latitude]` (its texel's middle; `null` when the texture
+    /// has no georeferencing, docs/GEOREF.md).
+    pub centre_lonlat: Option<[f64; 2]>,
     /// Renderer requests seen through the mapping (the request block's count).
     pub requests_seen: u64,
     /// LOD requests (docs/SHM.md, "Asking for a view's levels") applied, every view's.
@@ -510,6 +513,10 @@ pub struct ViewStats {
     pub weight: f64,
     /// Its level-0 centre as the last tick applied it (`null` before its first).
     pub centre: Option<[i64; 2]>,
+    /// That centre's WGS 84 `[longitude, latitude]` (its texel's middle; `null` before its
+    /// first tick or when the texture has no georeferencing).
+    #[serde(default)]
+    pub centre_lonlat: Option<[f64; 2]>,
     /// Its min LOD.
     pub min_lod: f64,
     /// Its levels renderers may not use now.

@@ -53,6 +53,13 @@ pub enum Command {
         /// The centre the snapshot will publish (bounded).
         reply: oneshot::Sender<Reply>,
     },
+    /// Moves the clip centre to a longitude / latitude (`CENTRE LONLAT`).
+    CentreLonLat {
+        /// WGS 84 longitude and latitude, degrees.
+        lonlat: [f64; 2],
+        /// The centre the snapshot will publish, or why not.
+        reply: oneshot::Sender<Result<Reply, Refusal>>,
+    },
     /// A command for one view (docs/VIEWS.md).
     View {
         /// What to do.
@@ -214,6 +221,7 @@ impl Runner {
         stats_tx: watch::Sender<TickStats>,
     ) -> Result<(Runner, Started), ServiceError> {
         let desc = source.desc().clone();
+        let georef = source.georef();
         let settings = engine_settings(source.as_ref(), o);
         // Refused before anything is created in the shared directory.
         let shape = Clipmap::shape_for(&desc, &settings);
@@ -266,7 +274,8 @@ impl Runner {
             format: desc.format().short_name(),
             mapping_bytes: writer.placement().total_bytes,
         };
-        let runner = Runner::assemble(clipmap, writer, setup, o, commands, stats_tx);
+        let mut runner = Runner::assemble(clipmap, writer, setup, o, commands, stats_tx);
+        runner.views.set_georef(georef);
         Ok((runner.start_views(o)?, started))
     }
 
@@ -409,6 +418,9 @@ impl Runner {
             Command::Centre { centre, reply } => {
                 let _ = reply.send(Reply::Centre(self.views.centre_primary(centre, &mut self.stats)));
             }
+            Command::CentreLonLat { lonlat, reply } => {
+                let _ = reply.send(self.views.centre_primary_lonlat(lonlat, &mut self.stats).map(Reply::Centre));
+            }
             Command::View { view, reply } => {
                 let _ = reply.send(self.view_command(view));
             }
@@ -433,7 +445,7 @@ impl Runner {
     /// Carries out a `VIEW` command ([`Views::command`]). One that changes the views (all but a
     /// centre) publishes their figures at once.
     fn view_command(&mut self, cmd: ViewCommand) -> Result<Reply, Refusal> {
-        let changes_views = !matches!(cmd, ViewCommand::Centre { .. });
+        let changes_views = !matches!(cmd, ViewCommand::Centre { .. } | ViewCommand::CentreLonLat { .. });
         let r = self.views.command(&mut self.clipmap, &mut self.stats, cmd);
         if r.is_ok() && changes_views {
             self.publish_views();
@@ -483,6 +495,7 @@ impl Runner {
         s.tick_busy_s += t0.elapsed().as_secs_f64();
         s.uptime_s = self.started.elapsed().as_secs_f64();
         s.centre = report.centre;
+        s.centre_lonlat = super::views::centre_lonlat(self.views.georef(), report.centre);
         s.min_lod = report.min_lod;
         s.levels_disabled = report.disabled_levels.len() as u64;
         s.invalid_border = self.clipmap.invalid_border();

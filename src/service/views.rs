@@ -14,6 +14,7 @@ use super::protocol::{Refusal, Reply, ViewCommand};
 use super::requests::{apply_lod, bounded_centre, velocity_per_tick};
 use super::stats::{TickStats, ViewStats};
 use crate::clip::{Clipmap, LodWindow, ViewId, PRIMARY};
+use crate::georef::Georef;
 use crate::shm::writer::LodRequest;
 use crate::shm::Writer;
 use crate::source::TileId;
@@ -99,12 +100,50 @@ pub(super) struct Views {
     views: BTreeMap<ViewId, View>,
     /// What a view with grids of its own is made of.
     setup: Setup,
+    /// The texture's georeferencing: centres given and shown in longitude / latitude.
+    georef: Option<Georef>,
+}
+
+/// The level-0 centre of a `CENTRE LONLAT`: the point's continuous level-0 texel coordinates
+/// through `georef`, floored to the texel that holds it (as `CENTRE <s> <t>` names a texel).
+/// Refused: no georeferencing, a point outside the projection's domain or the texture.
+pub(super) fn lonlat_centre(georef: Option<&Georef>, [lon, lat]: [f64; 2]) -> Result<[i64; 2], Refusal> {
+    let g = georef.ok_or(Refusal::NoGeoref)?;
+    let [s, t] = g.lonlat_to_texel(0, [lon, lat]).map_err(|e| Refusal::LonLat { lon, lat, why: e.to_string() })?;
+    Ok([s.floor() as i64, t.floor() as i64])
+}
+
+/// The longitude / latitude `STATS` shows of level-0 centre `c`: that of its texel's middle
+/// `(s + 0.5, t + 0.5)`, so that `CENTRE LONLAT` of it lands on `c` again; `None` without
+/// georeferencing or outside the texture.
+pub(super) fn centre_lonlat(georef: Option<&Georef>, c: [i64; 2]) -> Option<[f64; 2]> {
+    georef?.texel_to_lonlat(0, [c[0] as f64 + 0.5, c[1] as f64 + 0.5]).ok()
 }
 
 impl Views {
     /// The primary alone, at `centre`.
     pub(super) fn new(setup: Setup, centre: [i64; 2]) -> Views {
-        Views { views: BTreeMap::from([(PRIMARY, View::new(PRIMARY, centre, Grids::Shared))]), setup }
+        Views { views: BTreeMap::from([(PRIMARY, View::new(PRIMARY, centre, Grids::Shared))]), setup, georef: None }
+    }
+
+    /// Takes the texture's georeferencing ([`crate::source::TileSource::georef`]).
+    pub(super) fn set_georef(&mut self, georef: Option<Georef>) {
+        self.georef = georef;
+    }
+
+    /// The texture's georeferencing.
+    pub(super) fn georef(&self) -> Option<&Georef> {
+        self.georef.as_ref()
+    }
+
+    /// `CENTRE LONLAT`: the primary at the texel of a longitude / latitude ([`lonlat_centre`]).
+    pub(super) fn centre_primary_lonlat(
+        &mut self,
+        lonlat: [f64; 2],
+        stats: &mut TickStats,
+    ) -> Result<[i64; 2], Refusal> {
+        let c = lonlat_centre(self.georef.as_ref(), lonlat)?;
+        Ok(self.centre_primary(c, stats))
     }
 
     /// The primary view.
@@ -154,6 +193,10 @@ impl Views {
                     }
                 };
                 Ok(Reply::ViewCentre { name, centre })
+            }
+            ViewCommand::CentreLonLat { name, lonlat } => {
+                let centre = lonlat_centre(self.georef.as_ref(), lonlat)?;
+                self.command(clipmap, stats, ViewCommand::Centre { name, centre })
             }
             ViewCommand::Weight { name, weight } => {
                 clipmap.set_view_weight(named(clipmap, &name)?, weight)?;
@@ -369,6 +412,11 @@ impl Views {
                     shared_reads: own.map_or(0, |g| g.shared_reads()),
                     weight: main.view_weight(vid).unwrap_or(1.0),
                     centre: m.view_centre(id).ok().flatten(),
+                    centre_lonlat: m
+                        .view_centre(id)
+                        .ok()
+                        .flatten()
+                        .and_then(|c| centre_lonlat(self.georef.as_ref(), c)),
                     min_lod,
                     levels_disabled: (0..levels as u32).filter(|&k| ((k + 1) as f64) <= min_lod).count() as u64,
                     lod_offset: m.view_lod(id).map_or(0, |l| l.offset),
@@ -489,5 +537,36 @@ mod tests {
         let weight = ViewCommand::Weight { name: "left".into(), weight: 1.0 };
         assert!(matches!(run(&mut views, &mut clipmap, weight), Err(Refusal::NoView { .. })));
         assert_eq!(stats.socket_centres, 2);
+    }
+}
+
+#[cfg(test)]
+mod lonlat_tests {
+    use super::*;
+
+    #[test]
+    fn a_lonlat_centre_is_the_texel_holding_the_point_and_its_lonlat_lands_there_again() {
+        // WebMercatorQuad at zoom 2, 4-texel tiles: 16 texels a side, 22.5 degrees of longitude each.
+        let g = Georef::web_mercator_quad(2, 4);
+        assert_eq!(lonlat_centre(Some(&g), [0.0, 0.0]).unwrap(), [8, 8]);
+        // Just west and south of the centre: the texel west and south of it (floor, not round).
+        assert_eq!(lonlat_centre(Some(&g), [-1e-9, -1e-9]).unwrap(), [7, 7]);
+        assert_eq!(lonlat_centre(Some(&g), [22.4, 0.1]).unwrap(), [8, 8]);
+        assert_eq!(lonlat_centre(Some(&g), [22.6, 0.1]).unwrap(), [9, 8]);
+        for c in [[0, 0], [8, 8], [15, 3], [3, 15]] {
+            let ll = centre_lonlat(Some(&g), c).unwrap();
+            assert_eq!(lonlat_centre(Some(&g), ll).unwrap(), c, "{ll:?}");
+        }
+        assert!((centre_lonlat(Some(&g), [8, 8]).unwrap()[0] - 11.25).abs() < 1e-9);
+        assert_eq!(centre_lonlat(None, [8, 8]), None);
+        assert_eq!(centre_lonlat(Some(&g), [16, 0]), None, "outside the texture");
+    }
+
+    #[test]
+    fn a_lonlat_centre_is_refused_without_georeferencing_or_outside_the_domain() {
+        assert!(matches!(lonlat_centre(None, [1.0, 2.0]), Err(Refusal::NoGeoref)));
+        let e = lonlat_centre(Some(&Georef::web_mercator_quad(2, 4)), [10.0, 86.0]).unwrap_err().to_string();
+        assert!(e.starts_with("CENTRE LONLAT 10 86: ") && e.contains("85.05"), "{e}");
+        assert!(Refusal::NoGeoref.to_string().contains("no georeferencing"));
     }
 }

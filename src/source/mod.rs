@@ -242,6 +242,14 @@ pub trait TileSource: Send + Sync {
         self.wrapped().and_then(|inner| inner.heights())
     }
 
+    /// Where the texture is on the Earth (docs/GEOREF.md): its CRS and level 0's transform, level
+    /// k's being [`Georef::level_transform`](crate::georef::Georef::level_transform) of it. The
+    /// [`wrapped`](Self::wrapped) source's, or `None` (a texture without georeferencing: the
+    /// procedural sources, a plan's tile files).
+    fn georef(&self) -> Option<crate::georef::Georef> {
+        self.wrapped().and_then(|inner| inner.georef())
+    }
+
     /// The counters of the remote reads (requests, retries, merged ranges, bytes, cache hits)
     /// of a source that reads over the network: the [`wrapped`](Self::wrapped) source's, or
     /// `None` for one that reads local files only.

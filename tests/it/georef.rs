@@ -225,3 +225,110 @@ fn a_cog_without_usable_georeferencing_says_why_and_a_user_defined_crs_keeps_map
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("outside level 0"), "{out:?}");
 }
+
+/// `CENTRE LONLAT` (and `VIEW CENTRE main LONLAT`) of each point, on the `clipmapd` answering on
+/// `socket` serving `place`: the centre is the texel `cliptex locate --lonlat` gives, floored, the
+/// same `CENTRE <s> <t>` of that texel sets, and `STATS` shows its longitude / latitude back
+/// within a texel.
+pub(crate) fn centre_lonlat_lands_on_locates_texel(place: &str, socket: &Path, dir: &Path, points: &[[f64; 2]]) {
+    let cliptex = env!("CARGO_BIN_EXE_cliptex");
+    let mut c = crate::common::flight::Control::open(socket);
+    let locate = |lon: f64, lat: f64| -> [f64; 2] {
+        let out = run(cliptex, &["locate", place, &format!("--lonlat={lon},{lat}"), "--json"], dir, "");
+        let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+        [v["s"].as_f64().unwrap(), v["t"].as_f64().unwrap()]
+    };
+    for &[lon, lat] in points {
+        let [s, t] = locate(lon, lat);
+        let want = [s.floor() as i64, t.floor() as i64];
+        assert_eq!(
+            c.ask(&format!("CENTRE {} {}", want[0] + 3, want[1])),
+            format!("OK centre {} {}", want[0] + 3, want[1])
+        );
+        assert_eq!(
+            c.ask(&format!("CENTRE LONLAT {lon} {lat}")),
+            format!("OK centre {} {}", want[0], want[1]),
+            "{place} {lon},{lat}"
+        );
+        let (st, ok) = crate::common::flight::wait_stats(&mut c, std::time::Duration::from_secs(20), |st| {
+            let tick = if st["tick"].is_object() { &st["tick"] } else { st };
+            tick["centre"] == serde_json::json!(want) && tick["views"][0]["centre"] == serde_json::json!(want)
+        });
+        assert!(ok, "{place}: the centre never reached {want:?}: {st}");
+        let tick = if st["tick"].is_object() { &st["tick"] } else { &st };
+        let back = numbers(&tick["centre_lonlat"]);
+        let [bs, bt] = locate(back[0], back[1]);
+        assert!(
+            (bs - s).abs() <= 1.0 && (bt - t).abs() <= 1.0,
+            "{place}: {back:?} is texel ({bs}, {bt}), not near ({s}, {t})"
+        );
+        assert_eq!(
+            [bs.floor() as i64, bt.floor() as i64],
+            want,
+            "{place}: STATS's centre_lonlat {back:?} is the centre's texel"
+        );
+        let main = &tick["views"][0];
+        assert_eq!(main["name"], "main");
+        assert_eq!(numbers(&main["centre_lonlat"]), back, "{place}: the primary view's centre_lonlat: {main}");
+        assert_eq!(
+            c.ask(&format!("VIEW CENTRE main LONLAT {lon} {lat}")),
+            format!("OK view main centre {} {}", want[0], want[1])
+        );
+    }
+    // Refused: beyond Web Mercator's domain (the domain said), not a number.
+    let r = c.ask("CENTRE LONLAT 10 86");
+    assert!(r.starts_with("ERR ") && r.contains("85.05"), "{place}: {r}");
+    let r = c.ask("CENTRE LONLAT NaN 10");
+    assert!(r.starts_with("ERR ") && r.contains("not a finite number"), "{place}: {r}");
+    let r = c.ask("VIEW CENTRE main LONLAT 10 86");
+    assert!(r.starts_with("ERR ") && r.contains("85.05"), "{place}: {r}");
+    assert_eq!(c.ask("PING"), "OK pong", "the connection goes on after a refusal");
+}
+
+#[test]
+fn clipmapd_takes_centres_in_lonlat_through_a_cogs_georeferencing_and_refuses_them_without_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    gdal_files(d);
+    let points = [[13.4, 52.5], [-122.42, 37.77], [0.0001, -0.0001], [179.9, -60.0]];
+    let served = crate::common::gdal::Served::start(&d.join("g3857.tif"), 256, "m", d);
+    centre_lonlat_lands_on_locates_texel("g3857.tif", &d.join("m.sock"), d, &points);
+    drop(served);
+    let served = crate::common::gdal::Served::start(&d.join("g4326.tif"), 256, "g", d);
+    let mut c = crate::common::flight::Control::open(&d.join("g.sock"));
+    let want = {
+        let g = CogSource::open(&d.join("g4326.tif"), 256).unwrap().georef().unwrap().cloned().unwrap();
+        g.lonlat_to_texel(0, [13.4, 52.5]).unwrap().map(|x| x.floor() as i64)
+    };
+    assert_eq!(c.ask("center lonlat 13.4 52.5"), format!("OK centre {} {}", want[0], want[1]), "{}", served.log());
+    let r = c.ask("CENTRE LONLAT 10 91");
+    assert!(r.starts_with("ERR CENTRE LONLAT 10 91: "), "{r}");
+    drop(served);
+    // A texture without georeferencing: refused, saying which sources have it; STATS says null.
+    let sock = d.join("h.sock");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_clipmapd"))
+        .args(["--source", "hash", "--size", "4096", "--tile", "64", "--clip", "256", "--name", "h", "--shm-dir"])
+        .arg(d)
+        .arg("--socket")
+        .arg(&sock)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let t = std::time::Instant::now();
+    while clipmap::shm::Client::attach(d, "h").is_err() {
+        assert!(t.elapsed() < std::time::Duration::from_secs(30), "no mapping");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let mut c = crate::common::flight::Control::open(&sock);
+    let r = c.ask("CENTRE LONLAT 13.4 52.5");
+    assert!(r.starts_with("ERR ") && r.contains("no georeferencing") && r.contains("COG"), "{r}");
+    let r = c.ask("VIEW CENTRE main LONLAT 13.4 52.5");
+    assert!(r.starts_with("ERR ") && r.contains("no georeferencing"), "{r}");
+    assert_eq!(c.ask("CENTRE 100 200"), "OK centre 100 200", "CENTRE <s> <t> as before");
+    let st = c.stats();
+    let tick = if st["tick"].is_object() { &st["tick"] } else { &st };
+    assert!(tick["centre_lonlat"].is_null() && tick.get("centre_lonlat").is_some(), "{st}");
+    let _ = child.kill();
+    let _ = child.wait();
+}

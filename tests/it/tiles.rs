@@ -367,3 +367,23 @@ fn pmtiles_and_mbtiles_of_gdal2tiles_png_serve_gdals_own_texels_locally_and_over
     assert!(stats.requests <= 2 + 21, "{stats:?}");
     assert_eq!(stats.failures, 0, "{stats:?}");
 }
+
+#[test]
+fn clipmapd_takes_centres_in_lonlat_on_a_gdal2tiles_tree_as_cliptex_locate_places_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    trees(d);
+    let template = format!("xyz:{}/xyz/{{z}}/{{x}}/{{y}}.png", d.display());
+    let served = crate::common::gdal::Served::start(std::path::Path::new(&template), 256, "xyzll", d);
+    // cliptex info: the WebMercatorQuad, as a COG's georef.
+    let info =
+        std::process::Command::new(env!("CARGO_BIN_EXE_cliptex")).args(["info", "--json", &template]).output().unwrap();
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    assert_eq!(info["georef"]["epsg"], 3857, "{info}");
+    let h = 20037508.342789244;
+    let side = 256.0 * f64::from(1u32 << MAX_ZOOM);
+    assert_eq!(info["georef"]["geotransform"], serde_json::json!([-h, 2.0 * h / side, 0.0, h, 0.0, -2.0 * h / side]));
+    let points = [[13.4, 52.5], [-122.42, 37.77], [0.0001, -0.0001], [-179.9, 80.0]];
+    crate::georef::centre_lonlat_lands_on_locates_texel(&template, &d.join("xyzll.sock"), d, &points);
+    drop(served);
+}

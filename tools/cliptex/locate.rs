@@ -1,5 +1,5 @@
-//! `cliptex locate` and the georeferencing `cliptex info` prints for a COG (docs/GEOREF.md):
-//! where a longitude / latitude is in texels of a level, and the reverse.
+//! `cliptex locate` and the georeferencing `cliptex info` prints for a COG or a tile pyramid
+//! (docs/GEOREF.md): where a longitude / latitude is in texels of a level, and the reverse.
 
 use clipmap::georef::{Georef, GeorefSummary};
 use clipmap::report::exit;
@@ -34,14 +34,18 @@ impl<'a> CogInfoJson<'a> {
 /// The lines `cliptex info` adds for a COG: its CRS, bounds (map and longitude / latitude) and
 /// each level's texel size.
 pub fn human(src: &CogSource, levels: u32) -> String {
-    let g = match src.georef() {
-        Ok(Some(g)) => g,
+    match src.georef() {
+        Ok(Some(g)) => lines(g, levels),
         Ok(None) => {
-            return "georeferencing: none (no ModelTransformationTag, nor ModelTiepointTag with ModelPixelScaleTag)\n"
-                .into()
+            "georeferencing: none (no ModelTransformationTag, nor ModelTiepointTag with ModelPixelScaleTag)\n".into()
         }
-        Err(e) => return format!("georeferencing: unreadable: {e}\n"),
-    };
+        Err(e) => format!("georeferencing: unreadable: {e}\n"),
+    }
+}
+
+/// The lines `cliptex info` prints of a georeferencing (a COG's, a tile pyramid's): its CRS,
+/// bounds and each of the `levels` levels' texel size.
+pub fn lines(g: &Georef, levels: u32) -> String {
     let crs = g.crs();
     let mut out = match crs.epsg_code() {
         Some(c) => format!("CRS: EPSG:{c} ({})\n", crs.definition()),
@@ -92,12 +96,8 @@ fn pair(text: &str, what: &str) -> Result<[f64; 2], String> {
     }
 }
 
-/// `cliptex locate FILE (--lonlat LON,LAT | --texel S,T) [--level L] [--json]`.
+/// `cliptex locate FILE (--lonlat LON,LAT | --texel S,T) [--level L] [--json]` of a COG.
 pub fn run(src: &CogSource, file: &Path, lonlat: Option<&str>, texel: Option<&str>, level: u32, json: bool) -> i32 {
-    let fail = |m: String| {
-        eprintln!("cliptex locate: {m}");
-        exit::BAD_INPUT
-    };
     let g = match src.georef() {
         Ok(Some(g)) => g,
         Ok(None) => {
@@ -109,9 +109,19 @@ pub fn run(src: &CogSource, file: &Path, lonlat: Option<&str>, texel: Option<&st
         }
         Err(e) => return fail(e.to_string()),
     };
+    locate(g, &file.display().to_string(), lonlat, texel, level, json)
+}
+
+fn fail(m: String) -> i32 {
+    eprintln!("cliptex locate: {m}");
+    exit::BAD_INPUT
+}
+
+/// `cliptex locate` of any georeferenced texture (a COG, a tile pyramid) named `place`.
+pub fn locate(g: &Georef, place: &str, lonlat: Option<&str>, texel: Option<&str>, level: u32, json: bool) -> i32 {
     let levels = clipmap::tile::level_count(g.size()) as u32;
     if level >= levels {
-        return fail(format!("--level {level}: {} has levels 0 to {}", file.display(), levels - 1));
+        return fail(format!("--level {level}: {place} has levels 0 to {}", levels - 1));
     }
     let located = match (lonlat, texel) {
         (Some(text), None) => pair(text, "lonlat").and_then(|[lon, lat]| {
@@ -128,7 +138,7 @@ pub fn run(src: &CogSource, file: &Path, lonlat: Option<&str>, texel: Option<&st
     };
     let l = match located {
         Ok(l) => l,
-        Err(m) => return fail(format!("{}: {m}", file.display())),
+        Err(m) => return fail(format!("{place}: {m}")),
     };
     clipmap::report::emit(json, &l, |l| {
         let lonlat = match (l.lon, l.lat) {

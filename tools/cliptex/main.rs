@@ -127,7 +127,7 @@ Examples:
         #[command(flatten)]
         env: EnvArgs,
     },
-    /// Where a longitude / latitude is in texels of a level of a COG, or the reverse (docs/GEOREF.md)
+    /// Where a longitude / latitude is in texels of a level of a COG or a tile pyramid, or the reverse (docs/GEOREF.md)
     #[command(after_help = "\
 Texel (s, t) covers [s, s+1) x [t, t+1); t counts up from the south edge (t = height - line for
 GDAL's continuous line). Longitude / latitude are WGS 84 degrees.
@@ -135,9 +135,11 @@ GDAL's continuous line). Longitude / latitude are WGS 84 degrees.
 Examples:
   cliptex locate ortho.tif --lonlat 13.4,52.5
   cliptex locate ortho.tif --lonlat=-122.42,37.77 --level 3 --json
-  cliptex locate ortho.tif --texel 1024.5,2048.5")]
+  cliptex locate ortho.tif --texel 1024.5,2048.5
+  cliptex locate 'xyz:tiles/{z}/{x}/{y}.png' --lonlat 13.4,52.5   # WebMercatorQuad")]
     Locate {
-        /// A georeferenced tiled GeoTIFF / COG.
+        /// A georeferenced tiled GeoTIFF / COG, or a tile pyramid (`xyz:TEMPLATE`, `.pmtiles`,
+        /// `.mbtiles`; EPSG:3857 WebMercatorQuad, level 0 = its maximum zoom).
         file: PathBuf,
         /// The point's longitude and latitude, degrees: prints its continuous texel (s, t).
         #[arg(long, value_name = "LON,LAT", allow_hyphen_values = true, conflicts_with = "texel")]
@@ -151,6 +153,8 @@ Examples:
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+        #[command(flatten)]
+        tiles: TilesArgs,
     },
     /// Size a deployment: clipmap memory against the full mipmap, update bandwidth, clip size for a display.
     #[command(after_help = "\
@@ -707,12 +711,14 @@ fn open_pyramid(
 /// `cliptex info xyz:...`: the pyramid and the texture it is served as.
 fn pyramid_info(src: &clipmap::source::tiles::PyramidSource, json: bool) -> i32 {
     let d = src.desc();
+    let georef = clipmap::source::TileSource::georef(src);
     let info = serde_json::json!({
         "place": src.archive().place(),
         "pyramid": src.info(),
         "size": d.size(),
         "clip_size": d.clip_size(),
         "format": d.format().to_string(),
+        "georef": georef.as_ref().map(clipmap::georef::Georef::summary),
         "levels": d.levels().iter().enumerate().map(|(k, l)| serde_json::json!({
             "level": k,
             "zoom": i32::from(src.info().max_zoom) - k as i32,
@@ -743,6 +749,9 @@ fn pyramid_info(src: &clipmap::source::tiles::PyramidSource, json: bool) -> i32 
                 "  levels coarser than zoom {} are built from it once, kept in memory\n",
                 p.min_zoom
             ));
+        }
+        if let Some(g) = &georef {
+            out += &locate::lines(g, d.level_count() as u32);
         }
         out
     });
@@ -973,10 +982,19 @@ fn run(cli: Cli) -> i32 {
                 exit::OK
             }
         },
-        Command::Locate { file, lonlat, texel, level, json } => {
+        Command::Locate { file, lonlat, texel, level, json, tiles } => {
+            if let Some(opened) = open_pyramid(&file, &tiles, "cliptex locate") {
+                return match opened {
+                    Err(c) => c,
+                    Ok(src) => {
+                        let g = clipmap::source::TileSource::georef(&src).expect("a pyramid is WebMercatorQuad");
+                        locate::locate(&g, src.archive().place(), lonlat.as_deref(), texel.as_deref(), level, json)
+                    }
+                };
+            }
             if !is_cog(&file) {
                 eprintln!(
-                    "cliptex locate: {}: not a tiled GeoTIFF / COG: only COGs carry georeferencing (docs/GEOREF.md)",
+                    "cliptex locate: {}: neither a tiled GeoTIFF / COG nor a tile pyramid (xyz:TEMPLATE, .pmtiles, .mbtiles): only those carry georeferencing (docs/GEOREF.md)",
                     file.display()
                 );
                 return exit::BAD_INPUT;

@@ -116,6 +116,19 @@ pub enum Refusal {
         #[source]
         source: ClipError,
     },
+    /// `CENTRE LONLAT` (or `VIEW CENTRE ... LONLAT`) on a texture without georeferencing.
+    #[error("CENTRE LONLAT: the texture has no georeferencing (only GeoTIFFs / COGs with georeferencing tags and tile pyramids, xyz: / .pmtiles / .mbtiles, have it; docs/GEOREF.md): give the centre in level-0 texels, CENTRE <s> <t>")]
+    NoGeoref,
+    /// `CENTRE LONLAT` at a point outside the texture or its projection's domain.
+    #[error("CENTRE LONLAT {lon} {lat}: {why}")]
+    LonLat {
+        /// The longitude asked for.
+        lon: f64,
+        /// The latitude asked for.
+        lat: f64,
+        /// Where the point is, and the domain.
+        why: String,
+    },
     /// A LOD request (`VIEW HEIGHT`, a request mapping's LOD record) whose numbers are unusable.
     #[error("view {name}: LOD request refused: {why}")]
     LodRequest {

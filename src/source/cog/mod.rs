@@ -488,6 +488,12 @@ impl TileSource for CogSource {
         self.heights
     }
 
+    /// Its GeoTIFF keys' georeferencing; `None` when it has none or they cannot be read (the
+    /// file is served all the same; `cliptex info` says why).
+    fn georef(&self) -> Option<crate::georef::Georef> {
+        CogSource::georef(self).ok().flatten().cloned()
+    }
+
     #[cfg(feature = "remote")]
     fn remote_stats(&self) -> Option<super::remote::RemoteStats> {
         let object = self.bytes.as_any().downcast_ref::<super::remote::object::Object>()?;

@@ -202,6 +202,10 @@ impl TileSource for Reopening {
         self.with(|s| s.heights())
     }
 
+    fn georef(&self) -> Option<crate::georef::Georef> {
+        self.with(TileSource::georef)
+    }
+
     fn remote_stats(&self) -> Option<crate::source::remote::RemoteStats> {
         self.with(|s| s.remote_stats())
     }

@@ -271,7 +271,9 @@ mod tests {
         let src = open("xyz:https://tile.example.org/{z}/{x}/{y}.jpg", &opts).unwrap().unwrap();
         assert_eq!(src.info().encoding, Some(TileEncoding::Jpeg));
         assert!(is_pyramid("xyz:a/{z}/{x}/{y}.png") && !is_pyramid("a.ct"));
-        assert!(is_pyramid("world.pmtiles") && is_pyramid("https://h/w.PMTiles?sig=1") && is_pyramid("s3://b/w.pmtiles"));
+        assert!(
+            is_pyramid("world.pmtiles") && is_pyramid("https://h/w.PMTiles?sig=1") && is_pyramid("s3://b/w.pmtiles")
+        );
         assert!(is_pyramid("ortho.mbtiles") && !is_pyramid("ortho.tif"));
         let e = open("https://h/ortho.mbtiles", &OpenOptions::default()).unwrap().unwrap_err().to_string();
         assert!(e.contains("local disk only"), "{e}");

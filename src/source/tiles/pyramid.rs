@@ -440,6 +440,11 @@ impl TileSource for PyramidSource {
         self.read(tile, out)
     }
 
+    /// EPSG:3857 WebMercatorQuad: level 0 is zoom `max_zoom`, level k zoom `max_zoom - k`.
+    fn georef(&self) -> Option<crate::georef::Georef> {
+        Some(crate::georef::Georef::web_mercator_quad(u32::from(self.info.max_zoom), u64::from(self.info.tile_size)))
+    }
+
     #[cfg(feature = "remote")]
     fn remote_stats(&self) -> Option<crate::source::remote::RemoteStats> {
         self.archive.remote_stats()

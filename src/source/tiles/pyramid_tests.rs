@@ -187,3 +187,49 @@ fn jpeg_pyramids_are_rgb8_and_zoom_18_at_256_is_served() {
     let e = PyramidSource::new(a, &PyramidOptions::default()).unwrap_err().to_string();
     assert!(e.contains("zoom 19 at 256-texel tiles is 134217728 texels a side"), "{e}");
 }
+
+#[test]
+fn the_georef_is_web_mercator_quad_and_a_tiles_corners_are_its_definition() {
+    let a = mem(info(0, 2, 4, Some(TileEncoding::Png)), all_png(0, 2, 4));
+    let src = PyramidSource::new(a, &PyramidOptions { clip_size: Some(4), ..Default::default() }).unwrap();
+    let g = TileSource::georef(&src).expect("a pyramid is georeferenced");
+    assert_eq!(g.crs().epsg_code(), Some(3857));
+    assert_eq!(g.size(), src.desc().size());
+    let close = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol * b.abs().max(1.0);
+    for k in 0..3u32 {
+        let z = 2 - k;
+        // Level k's transform is zoom max_zoom - k's own WebMercatorQuad.
+        let own = crate::georef::Georef::web_mercator_quad(z, 4).geotransform().0;
+        let level = g.level_transform(k).0;
+        for i in 0..6 {
+            assert!(close(level[i], own[i], 1e-12), "level {k} term {i}: {} against zoom {z}'s {}", level[i], own[i]);
+        }
+        assert_eq!(g.level_size(k), src.desc().level(k).size);
+        let n = 1u32 << z;
+        let tile = src.desc().level(k).tile;
+        for y in 0..n {
+            for x in 0..n {
+                // The texture tile that holds pyramid tile (z, x, y), read through the source.
+                let (s, t) = (u64::from(x), u64::from(n - 1 - y));
+                let (_, out) = read(&src, k, s, t).unwrap();
+                let at = TileAddr { z: z as u8, x, y };
+                // Its first texel (south-west) is the image's bottom-left one.
+                assert_eq!(out[0..4], texel(at, 0, 3), "{at:?}");
+                let [s0, t0] = [(s * tile[0]) as f64, (t * tile[1]) as f64];
+                let nw = g.texel_to_lonlat(k, [s0, t0 + tile[1] as f64]).unwrap();
+                let se = g.texel_to_lonlat(k, [s0 + tile[0] as f64, t0]).unwrap();
+                // WebMercatorQuad: lon = x / 2^z * 360 - 180, lat = atan(sinh(pi (1 - 2 y / 2^z))).
+                let lon = |x: u32| f64::from(x) / f64::from(n) * 360.0 - 180.0;
+                let lat = |y: u32| {
+                    (std::f64::consts::PI * (1.0 - 2.0 * f64::from(y) / f64::from(n))).sinh().atan().to_degrees()
+                };
+                for (got, want) in [(nw, [lon(x), lat(y)]), (se, [lon(x + 1), lat(y + 1)])] {
+                    assert!(
+                        close(got[0], want[0], 1e-12) && close(got[1], want[1], 1e-12),
+                        "{at:?}: {got:?} against {want:?}"
+                    );
+                }
+            }
+        }
+    }
+}
