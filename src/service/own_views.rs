@@ -32,6 +32,8 @@ pub(super) struct Setup {
     pub(super) request_mode: u32,
     pub(super) period_ns: u64,
     pub(super) heights: Option<layout::Heights>,
+    /// The georef block, the primary's.
+    pub(super) georef: Option<crate::shm::GeorefBlock>,
     pub(super) effective_levels: Option<u32>,
     /// The service's mapping: an own view's clipmap takes the tiles its slots hold from there
     /// ([`FromMapping`]) rather than reading them again.
@@ -66,7 +68,8 @@ impl OwnGrids {
                 .mode(s.shm_mode)
                 .request_mode(s.request_mode)
                 .tick_period_ns(s.period_ns)
-                .heights(s.heights),
+                .heights(s.heights)
+                .georef(s.georef.clone()),
         )
         .map_err(|source| Refusal::OwnMapping { name: name.to_string(), mapping: own.clone(), source })?;
         if let Err(source) = writer.adopt_generation(s.generation).and_then(|()| writer.publish()) {

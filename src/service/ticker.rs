@@ -238,7 +238,8 @@ impl Runner {
                 .mode(o.shm_mode)
                 .request_mode(request_mode)
                 .tick_period_ns(period_ns)
-                .heights(heights),
+                .heights(heights)
+                .georef(georef_block(georef.as_ref(), desc.level_count())),
         )?;
         let setup = Setup {
             source: Arc::clone(&source),
@@ -250,6 +251,7 @@ impl Runner {
             request_mode,
             period_ns,
             heights,
+            georef: georef_block(georef.as_ref(), desc.level_count()),
             effective_levels: o.effective_levels,
             main_mapping: writer.file_path().to_path_buf(),
             fresh: Default::default(),
@@ -530,6 +532,40 @@ fn engine_settings(source: &dyn TileSource, o: &Options) -> Settings {
         settings.retry_after_ticks = u64::MAX / 4;
     }
     settings
+}
+
+/// The mapping's georef block (docs/SHM.md, "Georef block") of a texture of `levels` levels
+/// georeferenced by `georef`: level 0's origin, each level's terms, the CRS's EPSG code and
+/// definition, whether it spans 360 degrees of longitude. A definition the block cannot hold
+/// (over 1024 bytes, or with a NUL) is left out, the EPSG code kept; a georeferencing the block
+/// refuses (a level without an invertible transform) is not published, and the log says why.
+fn georef_block(georef: Option<&crate::georef::Georef>, levels: usize) -> Option<crate::shm::GeorefBlock> {
+    let g = georef?;
+    let gt = g.geotransform().0;
+    let mut definition = g.crs().definition().to_string();
+    if definition.len() > 1024 || definition.contains('\0') {
+        tracing::warn!(len = definition.len(), "the CRS definition does not fit the mapping's georef block (1024 bytes without NUL): only its EPSG code is published");
+        definition.clear();
+    }
+    let block = crate::shm::GeorefBlock {
+        epsg: g.crs().epsg_code().filter(|&c| c != 0),
+        wraps: g.is_global_in_longitude(),
+        definition,
+        origin: [gt[0], gt[3]],
+        levels: (0..levels as u32)
+            .map(|k| {
+                let t = g.level_transform(k).0;
+                [t[1], t[2], t[4], t[5]]
+            })
+            .collect(),
+    };
+    match block.check(levels) {
+        Ok(()) => Some(block),
+        Err(e) => {
+            tracing::warn!("the texture's georeferencing is not published in the mapping: {e}");
+            None
+        }
+    }
 }
 
 /// Refuses a clipmap whose mapping (of `shape`, with heights or not) could not be laid out, or

@@ -332,3 +332,65 @@ fn clipmapd_takes_centres_in_lonlat_through_a_cogs_georeferencing_and_refuses_th
     let _ = child.kill();
     let _ = child.wait();
 }
+
+#[test]
+fn clipmapd_publishes_each_levels_transform_in_the_mapping_as_gdal_gives_its_overviews() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let files = gdal_files(d);
+    for (name, epsg, service) in [("g32633.tif", 32633, "u"), ("r32633.tif", 32633, "r"), ("g4326.tif", 4326, "w")] {
+        let gdal = files.iter().find(|f| f["name"] == name).unwrap();
+        let served = crate::common::gdal::Served::start(&d.join(name), 256, service, d);
+        let client = clipmap::shm::Client::attach(d, service).unwrap();
+        let g = client.georef.clone().unwrap_or_else(|| panic!("{name}: no georef block: {}", served.log()));
+        assert_eq!(g.epsg, Some(epsg), "{name}");
+        assert!(!g.definition.is_empty(), "{name}: the CRS's definition");
+        let levels = gdal["levels"].as_array().unwrap();
+        let gt0 = numbers(&levels[0][2]);
+        assert_eq!(g.origin, [gt0[0], gt0[3]], "{name}: level 0's north-west corner");
+        for (k, level) in levels.iter().enumerate() {
+            let (w, h, gt) = (level[0].as_f64().unwrap(), level[1].as_f64().unwrap(), numbers(&level[2]));
+            let terms = g.levels[k];
+            assert!(
+                close(&terms, &[gt[1], gt[2], gt[4], gt[5]], 1e-12),
+                "{name}: level {k}: {terms:?} vs GDAL's {gt:?}"
+            );
+            // Texel (s, t) of level k is GDAL's pixel s, line h - t of that overview.
+            for [s, t] in [[0.0, 0.0], [w, h], [w / 3.0, h / 7.0], [w - 0.5, 0.5]] {
+                let (p, l) = (s, h - t);
+                let want = [gt[0] + p * gt[1] + l * gt[2], gt[3] + p * gt[4] + l * gt[5]];
+                let got = client.map_of_texel(k, s, t).unwrap();
+                assert!(close(&got, &want, 1e-12), "{name}: level {k} texel ({s}, {t}): {got:?}, GDAL {want:?}");
+            }
+        }
+        let attach = run(
+            env!("CARGO_BIN_EXE_cliptex"),
+            &["attach", service, "--shm-dir", &d.to_string_lossy(), "--once", "--json"],
+            d,
+            "",
+        );
+        let j: serde_json::Value = serde_json::from_str(&attach).unwrap();
+        assert_eq!(j["georef"]["epsg"], epsg, "{name}: {attach}");
+        drop(served);
+    }
+    // A texture without georeferencing publishes none.
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_clipmapd"))
+        .args(["--source", "hash", "--size", "4096", "--tile", "64", "--clip", "256", "--name", "h", "--shm-dir"])
+        .arg(dir.path())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let t = std::time::Instant::now();
+    let client = loop {
+        if let Ok(c) = clipmap::shm::Client::attach(dir.path(), "h") {
+            break c;
+        }
+        assert!(t.elapsed() < std::time::Duration::from_secs(30), "no mapping");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    assert!(client.georef.is_none());
+    let _ = child.kill();
+    let _ = child.wait();
+}
