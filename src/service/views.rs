@@ -468,6 +468,7 @@ mod tests {
             request_mode: 0o600,
             period_ns: 1_000_000,
             heights: None,
+            georef: None,
             effective_levels: None,
             main_mapping: dir.join("clipmap-views.map"),
             fresh: Default::default(),
