@@ -8,7 +8,7 @@
 //! across them; WMTS REST's `{TileMatrix}` (the zoom), `{TileRow}` (from the north) and
 //! `{TileCol}`. Any other `{...}` is refused, naming it.
 //!
-//! Over HTTP(S) each tile is one plain GET through the remote stack ([`Fetcher::object`]): at
+//! Over HTTP(S) each tile is one plain GET through the remote stack ([`Fetcher::object`](crate::source::remote::Fetcher::object)): at
 //! most `CLIPMAP_REMOTE_IN_FLIGHT` requests in flight to each host, transient failures retried
 //! with backoff, `429` and `503` retried after the server's `Retry-After` (bounded by
 //! `CLIPMAP_REMOTE_BACKOFF_MAX_MS`). A `404`, `410`, `204` or an empty body is a missing tile. A
