@@ -118,6 +118,9 @@ pub mod georef {
     pub const KNOWN_FLAGS: u32 = WRAPS;
 }
 
+/// Bytes of the heights block.
+pub const HEIGHTS_BYTES: usize = 64;
+
 mod heights_block;
 pub use heights_block::*;
 

@@ -4,8 +4,6 @@
 
 use super::header;
 
-/// Bytes of the heights block.
-pub const HEIGHTS_BYTES: usize = 64;
 /// Heights block fields, relative to [`header::HEIGHTS`]; static (written before the mapping
 /// appears under its name). A mapping whose block is all zero says its texels are not heights:
 /// a colour texture, or a mapping of a writer from before the block (docs/SHM.md).
