@@ -231,6 +231,7 @@ impl Runner {
         // into its slot, where renderers read it, and nothing is copied afterwards.
         let period_ns = (1e9 / o.tick_hz).round() as u64;
         let request_mode = o.request_mode.unwrap_or(o.shm_mode);
+        let georef_block = georef_block(georef.as_ref(), desc.level_count());
         // Published once the views are in it (`Runner::publish`): a reader that finds the mapping
         // finds the command line's views.
         let writer = Writer::prepare(
@@ -239,7 +240,7 @@ impl Runner {
                 .request_mode(request_mode)
                 .tick_period_ns(period_ns)
                 .heights(heights)
-                .georef(georef_block(georef.as_ref(), desc.level_count())),
+                .georef(georef_block.clone()),
         )?;
         let setup = Setup {
             source: Arc::clone(&source),
@@ -251,7 +252,7 @@ impl Runner {
             request_mode,
             period_ns,
             heights,
-            georef: georef_block(georef.as_ref(), desc.level_count()),
+            georef: georef_block,
             effective_levels: o.effective_levels,
             main_mapping: writer.file_path().to_path_buf(),
             fresh: Default::default(),

@@ -358,6 +358,19 @@ fn pmtiles_and_mbtiles_of_gdal2tiles_png_serve_gdals_own_texels_locally_and_over
     let d = dir.path().display();
     every_texel_is_gdals(&open(&format!("{d}/tree.pmtiles")), &gdal, "local PMTiles");
     every_texel_is_gdals(&open(&format!("{d}/tree.mbtiles")), &gdal, "local MBTiles");
+    // A tile size given on the command line is the one served, and tiles of another size are
+    // refused before a byte is decoded, never turned into texels.
+    let given = |size| OpenOptions {
+        template: TemplateOptions { tile_size: Some(size), ..Default::default() },
+        pyramid: PyramidOptions { clip_size: Some(256), ..Default::default() },
+    };
+    let right = tiles::open(&format!("{d}/tree.pmtiles"), &given(256)).unwrap().unwrap();
+    every_texel_is_gdals(&right, &gdal, "local PMTiles, --tile-size 256");
+    let wrong = tiles::open(&format!("{d}/tree.pmtiles"), &given(512)).unwrap().unwrap();
+    assert_eq!(wrong.desc().size(), [2048, 2048], "--tile-size 512 is served as given");
+    let mut buf = vec![0u8; wrong.desc().tile_bytes(0)];
+    let e = wrong.read_tile(TileId { level: 0, s: 0, t: 0 }, &mut buf).expect_err("a 256-texel tile served as 512");
+    assert!(!matches!(e, SourceError::Missing { .. }), "{e}");
     let nginx = Nginx::serve_images(dir.path());
     let src = open(&format!("{}/tree.pmtiles", nginx.url()));
     every_texel_is_gdals(&src, &gdal, "PMTiles over nginx");

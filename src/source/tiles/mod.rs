@@ -206,8 +206,11 @@ fn open_template(text: &str, opts: &OpenOptions) -> Result<Arc<dyn TileArchive>,
 /// its first tile unless `--tile-size` gives it.
 fn open_pmtiles(text: &str, opts: &OpenOptions) -> Result<Arc<dyn TileArchive>, PyramidError> {
     let mut archive = PmtilesArchive::open(&Place::parse(text))?;
-    if opts.template.tile_size.is_none() {
-        archive.probe_tile_size()?;
+    match opts.template.tile_size {
+        Some(size) => archive.set_tile_size(size),
+        None => {
+            archive.probe_tile_size()?;
+        }
     }
     Ok(Arc::new(archive))
 }

@@ -226,6 +226,13 @@ impl PmtilesArchive {
         }
     }
 
+    /// Sets [`PyramidInfo::tile_size`] to `size`, as the user gave it (`--tile-size`), in place of
+    /// [`probe_tile_size`](Self::probe_tile_size); each tile is still checked against it before
+    /// it is decoded.
+    pub fn set_tile_size(&mut self, size: u32) {
+        self.info.tile_size = size;
+    }
+
     /// Reads the first tile of the archive (the first of its coarsest zoom) and sets
     /// [`PyramidInfo::tile_size`] to its width, which PMTiles v3 does not record elsewhere;
     /// returns it. Costs the reads of that tile (and its leaf, if any). A tile that is not
