@@ -441,8 +441,14 @@ fn remote_line(r: &crate::source::remote::RemoteStats) -> String {
     } else {
         String::new()
     };
+    // Bytes fetched twice are said too: every tile is meant to be read once.
+    let twice = if r.duplicate_reads > 0 {
+        format!("  {} reads fetched {} bytes again", r.duplicate_reads, r.duplicate_bytes)
+    } else {
+        String::new()
+    };
     format!(
-        "remote: {} requests  {} retries  {} merged  {:.2} MiB  {} failures  cache {} hits {} dropped  peak {} in flight{ignored}\n\n",
+        "remote: {} requests  {} retries  {} merged  {:.2} MiB  {} failures  cache {} hits {} dropped  peak {} in flight{ignored}{twice}\n\n",
         r.requests,
         r.retries,
         r.merged,
@@ -653,12 +659,18 @@ mod tests {
                 cache_dropped: 6,
                 peak_in_flight: 8,
                 ranges_ignored: 0,
+                ..Default::default()
             });
             let text = human(&s);
             assert!(
                 text.contains("remote: 17 requests  2 retries  40 merged  3.00 MiB  1 failures  cache 5 hits 6 dropped  peak 8 in flight\n"),
                 "{text}"
             );
+            // Bytes fetched twice are said on the line.
+            s.remote.as_mut().unwrap().duplicate_reads = 3;
+            s.remote.as_mut().unwrap().duplicate_bytes = 4096;
+            assert!(human(&s).contains("in flight  3 reads fetched 4096 bytes again\n"), "{}", human(&s));
+            s.remote.as_mut().unwrap().duplicate_reads = 0;
             let v = serde_json::to_value(&s).unwrap();
             assert_eq!(v["remote"]["requests"], 17);
             assert_eq!(v["remote"]["peak_in_flight"], 8);

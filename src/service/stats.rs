@@ -345,6 +345,13 @@ impl ServiceStats {
                 ("remote_failures_total", "counter", "Remote ranges that failed after retries", r.failures),
                 ("remote_cache_hits_total", "counter", "Ranges served from the disk cache", r.cache_hits),
                 ("remote_peak_in_flight", "gauge", "Most remote requests in flight to one endpoint", r.peak_in_flight),
+                ("remote_duplicate_reads_total", "counter", "Remote reads of bytes fetched before", r.duplicate_reads),
+                (
+                    "remote_duplicate_bytes_total",
+                    "counter",
+                    "Bytes fetched from remote stores more than once",
+                    r.duplicate_bytes,
+                ),
             ];
             for (name, kind, help, v) in remote {
                 out.push_str(&self.sample(name, kind, help, v));

@@ -8,12 +8,17 @@
 //! The request's bytes are handed over as they arrive ([`Feed::push`]): a tile takes its own
 //! bytes as soon as the last of them has arrived, while the rest of the request is still on its
 //! way, so that the readers decode a row of tiles while the row streams in instead of waiting for
-//! all of it. Each tile's bytes are gathered into a buffer of their own (the bytes between tiles
-//! are dropped), the one copy of a byte on its way from the answer to the decoder.
+//! all of it. Each tile's bytes are gathered into a buffer of their own, the one copy of a byte on
+//! its way from the answer to the decoder. The bytes between the announced tiles are dropped,
+//! except those of a whole tile lying there that nobody announced yet: its bytes are kept as
+//! well (bounded like the others by [`KEPT_BYTES`]), so that its read, when it comes, takes them
+//! instead of fetching the same bytes again.
 //!
 //! Only announced tiles are read ahead: a tile the queue does not mean to read is never fetched,
 //! beyond a gap of at most [`GAP_BYTES`] between two that it does. A tile withdrawn
-//! ([`ReadAhead::withdraw`]: its read was dropped) leaves the request it was merged into; bytes
+//! ([`ReadAhead::withdraw`]: its read was dropped) leaves the request it was merged into while
+//! that request is not sent yet; once it is, the tile's bytes come anyway and are kept for it,
+//! so that a view coming back for it takes them rather than fetching them a second time; bytes
 //! read for tiles nobody takes are dropped once the spans kept pass [`KEPT_BYTES`]. A request
 //! is sent by the read of its first tile; a merged request whose tiles are all unwanted is
 //! never sent, and a partly wanted one completes. It may run detached from that read
@@ -58,6 +63,8 @@ struct Fill<K> {
     got: u64,
     /// The request is over (whole or failed): tiles not whole by now never will be.
     ended: bool,
+    /// The request was sent: its bytes come whether or not its tiles are still wanted.
+    sent: bool,
 }
 
 /// One merged request: its range, the tiles merged into it (those that still are to take their
@@ -230,6 +237,7 @@ impl<K: Copy + Eq> Ticket<K> {
     /// the request ended without them (read the tile on its own).
     pub fn detach(mut self, send: impl FnOnce(Feed<K>)) -> Option<(u64, Shared)> {
         self.detached = true;
+        self.span.lock().sent = true;
         send(Feed(Arc::new(FeedOf { span: Arc::clone(&self.span) })));
         match self.span.take(self.head) {
             (start, Some(b)) => Some((start, b)),
@@ -267,19 +275,24 @@ impl<K: Copy + Eq + Hash> ReadAhead<K> {
     }
 
     /// `tile` will not be read after all: it is not read ahead, and a request it was merged into
-    /// keeps no bytes for it.
+    /// keeps no bytes for it, unless that request was sent already: its bytes then come anyway,
+    /// and are kept for the tile (within [`KEPT_BYTES`]) in case it is wanted again, rather than
+    /// fetched a second time.
     pub fn withdraw(&self, tile: K) {
         let mut st = self.lock();
         st.announced.remove(&tile);
-        if let Some(span) = st.by_tile.remove(&tile) {
-            Self::forget_taken(&mut st);
-            drop(st);
-            let mut f = span.lock();
-            if let Some(g) = f.tiles.iter_mut().find(|g| g.piece.key == tile) {
-                (g.buf, g.whole) = (Vec::new(), None);
-                // Nothing more is gathered for it.
-                g.piece.len = 0;
-            }
+        let Some(span) = st.by_tile.get(&tile).cloned() else { return };
+        let mut f = span.lock();
+        if f.sent {
+            return;
+        }
+        st.by_tile.remove(&tile);
+        Self::forget_taken(&mut st);
+        drop(st);
+        if let Some(g) = f.tiles.iter_mut().find(|g| g.piece.key == tile) {
+            (g.buf, g.whole) = (Vec::new(), None);
+            // Nothing more is gathered for it.
+            g.piece.len = 0;
         }
     }
 
@@ -291,8 +304,11 @@ impl<K: Copy + Eq + Hash> ReadAhead<K> {
 
     /// What the read of `tile` is to do. `near` lists tiles whose bytes may lie next to its own
     /// (the caller's neighbourhood of it in the object's order); `place` gives a tile's stored
-    /// bytes (`None`: not to be merged, as a sparse tile), asked outside the lock, for `tile` and
-    /// for those of `near` that are announced and in no request yet.
+    /// bytes (`None`: not to be merged, as a sparse tile), asked outside the lock, for `tile`,
+    /// for those of `near` that are announced and in no request yet, and for the tiles of `near`
+    /// between them (in `near`'s order) that are not announced: those whose bytes lie wholly in
+    /// the request's range (its gaps) keep their bytes too, so that a read of one later takes
+    /// them rather than fetching them again.
     pub fn plan(&self, tile: K, near: &[K], place: impl Fn(&K) -> Option<Piece<K>>, cap: u64) -> Plan<K> {
         let keys: Vec<K> = {
             let mut st = self.lock();
@@ -313,6 +329,16 @@ impl<K: Copy + Eq + Hash> ReadAhead<K> {
         }
         let Some(own) = place(&tile) else { return Plan::Alone };
         let mut pieces: Vec<Piece<K>> = keys.iter().filter_map(&place).collect();
+        // The unannounced tiles of `near` between the first and the last tile the request may
+        // hold: those in its gaps are gathered too.
+        let at = |k: &K| near.iter().position(|n| n == k);
+        let spots: Vec<usize> = pieces.iter().map(|p| p.key).chain([tile]).filter_map(|k| at(&k)).collect();
+        let spare: Vec<Piece<K>> = match (spots.iter().min(), spots.iter().max()) {
+            (Some(&lo), Some(&hi)) => {
+                near[lo..=hi].iter().filter(|k| **k != tile && !keys.contains(k)).filter_map(&place).collect()
+            }
+            _ => Vec::new(),
+        };
         let mut st = self.lock();
         // Claimed by another read meanwhile: not this request's.
         pieces.retain(|p| st.announced.contains(&p.key) && !st.by_tile.contains_key(&p.key));
@@ -323,23 +349,33 @@ impl<K: Copy + Eq + Hash> ReadAhead<K> {
         if lo == hi {
             return Plan::Alone;
         }
-        let run = &pieces[lo..=hi];
+        let mut run = pieces[lo..=hi].to_vec();
         let start = run.iter().map(|p| p.start).min().unwrap_or(0);
         let end = run.iter().map(Piece::end).max().unwrap_or(start);
         let merged: Vec<K> = run.iter().map(|p| p.key).filter(|k| *k != tile).collect();
+        // Tiles in the gaps, in no request and not announced (an announced one is read on its
+        // own as planned).
+        let gaps: Vec<Piece<K>> = spare
+            .into_iter()
+            .filter(|p| p.start >= start && p.end() <= end && p.len > 0)
+            .filter(|p| !st.by_tile.contains_key(&p.key) && !st.announced.contains(&p.key))
+            .filter(|p| run.iter().all(|r| r.key != p.key))
+            .collect();
+        run.extend(gaps.iter().copied());
         let fill = Fill {
             tiles: run.iter().map(|p| Gathered { piece: *p, buf: Vec::new(), whole: None }).collect(),
             got: 0,
             ended: false,
+            sent: false,
         };
         let span = Arc::new(Span {
             start,
             end,
-            waiting: merged.iter().copied().collect(),
+            waiting: merged.iter().chain(gaps.iter().map(|p| &p.key)).copied().collect(),
             fill: Mutex::new(fill),
             grew: Condvar::new(),
         });
-        for k in &merged {
+        for k in merged.iter().chain(gaps.iter().map(|p| &p.key)) {
             st.announced.remove(k);
             st.by_tile.insert(*k, Arc::clone(&span));
         }
@@ -636,9 +672,46 @@ mod tests {
         ahead.withdraw(2);
         // The read that sent the request fails without finishing: its tiles read on their own.
         drop(ticket);
+        // (The ticket was never detached: the request was not sent, so tile 2 kept nothing.)
         assert!(matches!(ahead.plan(1, &all, place, 1 << 20), Plan::Take { bytes: None, .. }));
         assert!(matches!(ahead.plan(2, &all, place, 1 << 20), Plan::Alone), "withdrawn: nothing kept for it");
         assert!(ahead.lock().spans.is_empty() && ahead.lock().by_tile.is_empty());
+    }
+
+    #[test]
+    fn a_tile_withdrawn_once_its_request_was_sent_takes_its_bytes_when_wanted_again() {
+        let ps = row(4, 1000, 0);
+        let place = |k: &usize| Some(ps[*k]);
+        let all: Vec<usize> = (0..4).collect();
+        let ahead = ReadAhead::<usize>::default();
+        ahead.announce(0..4);
+        let Plan::Send { ticket, .. } = ahead.plan(0, &all, place, 1 << 20) else { panic!() };
+        let obj = object(4000);
+        ticket.detach(|feed| feed.push(&obj)).unwrap();
+        ahead.withdraw(2);
+        ahead.announce([2]);
+        match ahead.plan(2, &all, place, 1 << 20) {
+            Plan::Take { start: 2000, bytes: Some(b) } => assert_eq!(b.as_slice(), &obj[2000..3000]),
+            _ => panic!("tile 2 takes the bytes its sent request brought"),
+        }
+    }
+
+    #[test]
+    fn an_unannounced_tile_in_a_gap_keeps_its_bytes_for_its_read() {
+        // Tiles 0, 1, 2 back to back; only 0 and 2 announced: 1 lies in the request's gap.
+        let ps = row(3, 1000, 0);
+        let place = |k: &usize| Some(ps[*k]);
+        let all: Vec<usize> = (0..3).collect();
+        let ahead = ReadAhead::<usize>::default();
+        ahead.announce([0, 2]);
+        let Plan::Send { start: 0, end: 3000, merged, ticket } = ahead.plan(0, &all, place, 1 << 20) else { panic!() };
+        assert_eq!(merged, vec![2]);
+        let obj = object(3000);
+        ticket.detach(|feed| feed.push(&obj)).unwrap();
+        match ahead.plan(1, &all, place, 1 << 20) {
+            Plan::Take { start: 1000, bytes: Some(b) } => assert_eq!(b.as_slice(), &obj[1000..2000]),
+            _ => panic!("tile 1 takes the bytes the request passed over"),
+        }
     }
 
     #[test]

@@ -24,6 +24,7 @@ mod clipprep;
 mod cog;
 mod cog_config;
 mod cog_masks;
+mod cog_read_once;
 #[cfg(feature = "remote")]
 mod cog_remote;
 mod cog_samples;

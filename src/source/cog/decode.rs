@@ -127,9 +127,15 @@ impl CogSource {
                             return Err(RangeError::Eof { size }.for_tile(tile, &self.path, from, len));
                         }
                         buf.resize(len as usize, 0);
+                        // A tile that starts in the first bytes (read at open) reads only the
+                        // rest: no byte is fetched twice.
+                        let held = (self.prefix.len() as u64).saturating_sub(from).min(len);
+                        if held > 0 {
+                            buf[..held as usize].copy_from_slice(&self.prefix[from as usize..(from + held) as usize]);
+                        }
                         self.bytes
-                            .read_at(from, &mut buf)
-                            .map_err(|e| e.for_tile(tile, &self.path, from, len))?;
+                            .read_at(from + held, &mut buf[held as usize..])
+                            .map_err(|e| e.for_tile(tile, &self.path, from + held, len - held))?;
                         &buf
                     }
                 };

@@ -150,7 +150,7 @@ pub struct CogSource {
     /// Read index entries in chunks (set for remote objects; tests set it for a local file).
     chunked: bool,
     /// The levels built from the last usable image, once built.
-    built: Mutex<Option<Arc<Vec<Vec<u8>>>>>,
+    built: Mutex<Option<Arc<built::Built>>>,
     /// Whether the texels are heights (16-bit signed or 32-bit float samples), with the nodata
     /// value of the GDAL_NODATA tag (or, for an image with an internal mask and none, the one
     /// [`heights_of`] chooses), served where the mask is 0.
@@ -518,19 +518,21 @@ impl TileSource for CogSource {
         let [tw, th] = d.tile;
         let (s0, t0) = (tile.s * tw, tile.t * th);
         let (w, h) = ((d.size[0] - s0).min(tw), (d.size[1] - t0).min(th));
+        // The image the built levels are made from, kept when they were built: its tiles are
+        // not read a second time.
+        if let (Some(built), Level::Ifd(lv)) = (self.kept_base(tile.level, tile)?, &self.levels[tile.level as usize]) {
+            if s0 + w <= lv.size[0] && t0 + h <= lv.size[1] {
+                let texels = built.base.as_deref().unwrap_or_default();
+                Self::copy_tile(texels, lv.size[0] as usize, bpt, [s0, t0], [w, h], [tw, th], out);
+                return Ok(());
+            }
+        }
         match &self.levels[tile.level as usize] {
             Level::Built => {
                 let built = self.built_levels(Some(tile))?;
-                let used = self.desc.level_count() - built.len();
-                let texels = &built[tile.level as usize - used];
-                if w < tw || h < th {
-                    out.fill(0);
-                }
-                let (lw, len) = (d.size[0] as usize, w as usize * bpt);
-                for r in 0..h as usize {
-                    let from = ((t0 as usize + r) * lw + s0 as usize) * bpt;
-                    out[r * tw as usize * bpt..][..len].copy_from_slice(&texels[from..from + len]);
-                }
+                let used = self.desc.level_count() - built.levels.len();
+                let texels = &built.levels[tile.level as usize - used];
+                Self::copy_tile(texels, d.size[0] as usize, bpt, [s0, t0], [w, h], [tw, th], out);
                 Ok(())
             }
             Level::Ifd(lv) if lv.tile == d.tile && lv.size[1] % lv.tile[1] == 0 => {

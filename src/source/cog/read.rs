@@ -34,6 +34,8 @@ impl CogSource {
                 (offset - lead, lead.saturating_add(count).saturating_add(trail))
             }
         };
+        // Wholly in the first bytes (read at open): nothing to fetch. One that starts there is
+        // merged; its request fetches only the bytes past them ([`CogSource::read_ahead`]).
         if (Span { start: 0, bytes: &self.prefix }).get(from, len).is_some() {
             return None;
         }
@@ -70,7 +72,16 @@ impl CogSource {
                 let ranges = merged.len() as u64 + 1;
                 let mut started = Ok(());
                 // This tile's own bytes, once whole (`None`: read it on its own).
-                let own = ticket.detach(|feed| started = self.bytes.stream(start, end - start, ranges, Arc::new(feed)));
+                // The bytes the open read already are handed over first, not fetched again.
+                let held = (self.prefix.len() as u64).saturating_sub(start).min(end - start);
+                let own = ticket.detach(|feed| {
+                    if held > 0 {
+                        feed.push(&self.prefix[start as usize..(start + held) as usize]);
+                    }
+                    if held < end - start {
+                        started = self.bytes.stream(start + held, end - start - held, ranges, Arc::new(feed));
+                    }
+                });
                 match started {
                     // A tile whose place runs past the end: each tile then says what is wrong
                     // with it.
@@ -123,6 +134,15 @@ impl CogSource {
         let Some(start) = start else { return Ok(None) };
         if end - start > MAX_SPAN_BYTES || (Span { start: 0, bytes: &self.prefix }).get(start, end - start).is_some() {
             return Ok(None);
+        }
+        // A span that starts in the first bytes (read at open) fetches only the rest.
+        let held = (self.prefix.len() as u64).saturating_sub(start);
+        if held > 0 {
+            let mut b = self.prefix[start as usize..(start + held) as usize].to_vec();
+            let rest = self.bytes.read_bytes(start + held, end - start - held);
+            let rest = rest.map_err(|e| e.for_tile(tile, &self.path, start + held, end - start - held))?;
+            b.extend_from_slice(&rest);
+            return Ok(Some((start, Arc::new(b))));
         }
         match self.bytes.read_bytes(start, end - start) {
             Ok(b) => Ok(Some((start, b))),

@@ -285,6 +285,8 @@ pub struct Fetcher {
     /// Ranges read by a request merged with another range: the waiting ranges this fetcher merges
     /// ([`merge::run`]) and the read-ahead requests it is told of (`RangeReader::stream`).
     pub merged: Merged,
+    /// The ranges fetched so far, and those fetched twice.
+    pub seen: super::seen::Seen,
 }
 
 impl Fetcher {
@@ -297,6 +299,7 @@ impl Fetcher {
             s3,
             counters: Counters::default(),
             merged: Merged::default(),
+            seen: super::seen::Seen::default(),
         }
     }
 
@@ -390,6 +393,7 @@ impl Fetcher {
         });
         let got = counted.got.load(Ordering::Relaxed);
         self.counters.bytes.fetch_add(got, Ordering::Relaxed);
+        self.seen.fetched(&object, start, got);
         let result = match result {
             Ok(()) if got < len => Err(ReadError::Short { location: object, got, expected: len }),
             r => r,
@@ -428,6 +432,9 @@ impl Fetcher {
         let end = batch.iter().map(|r| r.start + r.len).max().unwrap_or(start);
         self.merged.count(batch.len() as u64);
         let got = self.with_retries(&first.loc, &first.object, |b| b.get(&first.loc, start, end - start));
+        if let Ok(g) = &got {
+            self.seen.fetched(&first.object, start, g.bytes.len() as u64);
+        }
         for r in batch {
             let result = match &got {
                 Ok(g) => {

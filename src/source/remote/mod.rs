@@ -18,6 +18,7 @@ pub mod options;
 pub mod range;
 mod runtime;
 pub mod s3;
+pub mod seen;
 
 pub use fetch::{Backend, Failure, Fetcher, Got, Object, ObjectRequest, ReadError, Segments, Sink, Versioned};
 pub use location::{Location, LocationError, Scheme};
@@ -60,6 +61,11 @@ pub struct RemoteStats {
     /// such read fetched the whole object (checked, then cut) rather than its range, tens of
     /// times slower. 0 with a server that answers ranges; the log says so once an endpoint.
     pub ranges_ignored: u64,
+    /// Reads that fetched bytes already fetched from the store before ([`seen::Seen`]): each
+    /// tile is meant to be read once, so anything but 0 is worth a look.
+    pub duplicate_reads: u64,
+    /// Bytes fetched more than once (each time after the first).
+    pub duplicate_bytes: u64,
 }
 
 /// Reads remote locations: the fetcher and the disk cache.
@@ -118,6 +124,8 @@ impl Remote {
             cache_dropped: self.cache.as_ref().map_or(0, disk::DiskCache::dropped),
             peak_in_flight: c.peak_in_flight.load(Ordering::Relaxed),
             ranges_ignored: self.fetcher.ranges_ignored(),
+            duplicate_reads: self.fetcher.seen.duplicate_reads(),
+            duplicate_bytes: self.fetcher.seen.duplicate_bytes(),
         }
     }
 
@@ -125,7 +133,9 @@ impl Remote {
     /// first), with retries; not merged with other reads.
     pub(crate) fn read_upto(&self, name: &str, start: u64, max: u64) -> Result<bytes::Bytes, ReadError> {
         let loc = parse(name)?;
-        self.fetcher.with_retries(&loc, name, |b| b.get(&loc, start, max)).map(|g| g.bytes.to_bytes())
+        let got = self.fetcher.with_retries(&loc, name, |b| b.get(&loc, start, max))?.bytes.to_bytes();
+        self.fetcher.seen.fetched(&loc.to_string(), start, got.len() as u64);
+        Ok(got)
     }
 
     /// The length of the object `name` (HEAD), with retries.
