@@ -407,3 +407,62 @@ fn a_remote_pmtiles_seeded_reads_its_tiles_from_the_cache_with_only_its_open_ask
     let runs = u64::from(MAX_ZOOM) + 1;
     assert_eq!(proxy.requests.load(Ordering::SeqCst) - before, runs, "one request a run: the open");
 }
+
+#[test]
+fn missing_tiles_errors_and_pages_answered_for_tiles_are_never_cached() {
+    use crate::common::remote::Fault;
+    use clipmap::source::remote::RemoteOptions;
+    use clipmap::source::tiles::{self, OpenOptions, PyramidOptions, TemplateOptions};
+    use clipmap::source::{SourceError, TileId, TileSource};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    trees(d);
+    let nginx = Nginx::serve_images(d);
+    let cache = d.join("cache");
+    let open = |base: &str| {
+        let remote = RemoteOptions { cache_dir: Some(cache.clone()), retries: 0, ..RemoteOptions::default() };
+        let opts = OpenOptions {
+            template: TemplateOptions { remote: Some(remote), zooms: Some([0, MAX_ZOOM]), ..Default::default() },
+            pyramid: PyramidOptions { clip_size: Some(256), ..Default::default() },
+        };
+        tiles::open(&xyz(base), &opts).unwrap().unwrap()
+    };
+    let entries = || cache_bytes(&cache);
+    let mut buf = vec![0u8; 256 * 256 * 4];
+    let level0 = |s, t| TileId { level: 0, s, t };
+    // 404 for every tile: missing, nothing cached.
+    let storm =
+        FaultProxy::start(nginx.port, Schedule { faults: Vec::new(), then: vec![Fault::NotFound], every: 1 }, 0);
+    let src = open(&storm.url());
+    for s in 0..4 {
+        let r = src.read_tile(level0(s, 0), &mut buf);
+        assert!(matches!(r, Err(SourceError::Missing { .. })), "{r:?}");
+    }
+    assert_eq!(entries(), 0, "a missing tile is never cached");
+    drop(storm);
+    // A page answered for every tile, as HTML and as `application/octet-stream`: errors, nothing
+    // cached.
+    for html in [true, false] {
+        let pages = Schedule { faults: Vec::new(), then: vec![Fault::Page { len: 700, html }], every: 1 };
+        let proxy = FaultProxy::start(nginx.port, pages, 0);
+        let src = open(&proxy.url());
+        for s in 0..4 {
+            assert!(src.read_tile(level0(s, 1), &mut buf).is_err(), "a page is not a tile (html {html})");
+        }
+        assert_eq!(entries(), 0, "a page answered for a tile is never cached (html {html})");
+    }
+    // The tiles themselves: cached, then read with no request.
+    let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
+    let src = open(&proxy.url());
+    for s in 0..4 {
+        src.read_tile(level0(s, 1), &mut buf).unwrap();
+    }
+    assert_eq!(proxy.requests.load(Ordering::SeqCst), 4);
+    assert!(entries() > 0);
+    let again = open(&proxy.url());
+    for s in 0..4 {
+        again.read_tile(level0(s, 1), &mut buf).unwrap();
+    }
+    assert_eq!(proxy.requests.load(Ordering::SeqCst), 4, "read from the cache");
+    assert_eq!(again.remote_stats().unwrap().cache_hits, 4);
+}
