@@ -386,14 +386,12 @@ fn seed(args: &SeedArgs) -> Result<i32, Failure> {
     Ok(exit::OK)
 }
 
-/// Opens the source with the remote options `ropts`: the archive, the zooms of `levels`
-/// (coarsest first) and the tiles of the area.
-fn open(
-    args: &SeedArgs,
-    levels: [u32; 2],
-    text: &str,
-    ropts: RemoteOptions,
-) -> Result<(Arc<dyn TileArchive>, [u8; 2], Vec<TileAddr>), Failure> {
+/// An opened source: the archive, the zooms of the levels asked (coarsest first) and the
+/// tiles of the area.
+type Opened = (Arc<dyn TileArchive>, [u8; 2], Vec<TileAddr>);
+
+/// Opens the source with the remote options `ropts` ([`Opened`]).
+fn open(args: &SeedArgs, levels: [u32; 2], text: &str, ropts: RemoteOptions) -> Result<Opened, Failure> {
     let mut opts = args.tiles.options(Some(super::COG_CLIP)).map_err(bad)?;
     opts.template.remote = Some(ropts);
     let archive = clipmap::source::tiles::open_archive(text, &opts)
