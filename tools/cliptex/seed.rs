@@ -588,37 +588,3 @@ impl Progress {
         }
     }
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn levels_and_boxes_parse_or_say_what_was_expected() {
-        assert_eq!(parse_levels("0..3"), Ok([0, 3]));
-        assert_eq!(parse_levels("2"), Ok([2, 2]));
-        assert!(parse_levels("3..1").unwrap_err().contains("expected A..B"));
-        assert!(parse_levels("a..b").is_err());
-        assert_eq!(parse_bbox("13,52.3,13.8,52.7"), Ok([13.0, 52.3, 13.8, 52.7]));
-        assert!(parse_bbox("52.3,13,52.7,13.8").is_ok(), "inside the ranges either way");
-        let e = parse_bbox("13,95,14,96").unwrap_err();
-        assert!(e.contains("latitudes 95 and 96") && e.contains("longitude first"), "{e}");
-        assert!(parse_bbox("14,52,13,53").unwrap_err().contains("west 14, east 13"));
-        assert!(parse_bbox("1,2,3").unwrap_err().contains("found 3 numbers"));
-    }
-
-    #[test]
-    fn a_corridor_covers_the_tiles_along_its_route_and_no_far_ones() {
-        // Along the equator from 0° to 10° east at zoom 4 (22.5° tiles): columns 8 only, rows
-        // 7 and 8 (the equator is their border).
-        let mut set = BTreeSet::new();
-        route_tiles(&[[0.5, 0.0], [10.0, 0.0]], 2.0, 4, &mut set);
-        assert_eq!(set.into_iter().collect::<Vec<_>>(), vec![(8, 7), (8, 8)]);
-        // At zoom 10 a 2 km corridor along 1° of longitude touches about 3 tiles a column.
-        let mut set = BTreeSet::new();
-        route_tiles(&[[0.1, 0.1], [1.1, 0.1]], 2.0, 10, &mut set);
-        let cols: BTreeSet<u32> = set.iter().map(|t| t.0).collect();
-        assert!(cols.len() >= 3 && cols.len() <= 5, "{cols:?}");
-        assert!(set.len() <= cols.len() * 2, "{set:?}");
-    }
-}
