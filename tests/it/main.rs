@@ -57,6 +57,7 @@ mod tiff_fuzz_props;
 mod tiff_hardening;
 mod tiles;
 mod tiles_archives;
+mod tiles_cache;
 mod tools_cog_names;
 mod views_own;
 mod views_restart;

@@ -15,12 +15,12 @@ use std::process::Command;
 use std::time::Duration;
 
 /// The finest zoom of the trees.
-const MAX_ZOOM: u8 = 2;
+pub(crate) const MAX_ZOOM: u8 = 2;
 
 /// Makes `src.tif` (512² RGB in Web Mercator, the whole world), its XYZ and TMS trees
 /// (`xyz/`, `tms/`, zooms 0..2) and GDAL's decode of every tile: `(z, x, y from the north)` ->
 /// RGBA rows from the north.
-fn trees(dir: &Path) -> HashMap<(u8, u32, u32), Vec<u8>> {
+pub(crate) fn trees(dir: &Path) -> HashMap<(u8, u32, u32), Vec<u8>> {
     let make = r#"
 from osgeo import gdal, osr
 import numpy as np
@@ -325,7 +325,7 @@ fn a_key_in_a_header_never_reaches_a_message() {
 /// Packs the XYZ tree's PNG tiles (gdal2tiles.py's, zooms 0..MAX_ZOOM) into `tree.pmtiles` with
 /// the reference PMTiles writer and into `tree.mbtiles` (TMS rows, with its metadata) with
 /// Python's sqlite3 module: the same encoded tiles in both archives.
-fn archives_of_the_tree(dir: &Path) {
+pub(crate) fn archives_of_the_tree(dir: &Path) {
     let pack = r#"
 import sqlite3, sys
 from pmtiles.tile import Compression, TileType, zxy_to_tileid

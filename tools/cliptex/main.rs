@@ -6,6 +6,8 @@
 
 mod grow;
 mod locate;
+#[cfg(feature = "remote")]
+mod seed;
 mod sources;
 
 use clap::{Parser, Subcommand};
@@ -38,6 +40,7 @@ Examples:
   cliptex dump my.ct --level 2 --out level2.png
   cliptex dump --attach terrain --out-dir pictures
   cliptex grow add survey flight1/*.json
+  cliptex seed 'xyz:https://tiles.example.org/{z}/{x}/{y}.png' --bbox 13.0,52.3,13.8,52.7 --levels 0..4 --estimate
 
 Exit status: 0 ok, 1 the input is bad, 2 the tool could not run."
 )]
@@ -279,6 +282,24 @@ Examples:
   cliptex roam config_examples/prepared/hash256.ct --flight straight:4:45 --frames 20 --json
   cliptex roam --source terrain --size 1048576 --clip 2048 --flight zigzag:64:20 --frames 200 --budget-ms inf")]
     Roam(RoamArgs),
+    /// Fill the remote disk cache with the tiles of an area at some levels of a tile service or
+    /// remote archive, before a flight; --estimate says what it would take (docs/TILES.md).
+    #[cfg(feature = "remote")]
+    #[command(after_help = "\
+The area is a box (--bbox W,S,E,N, degrees of longitude and latitude, WGS 84) or a corridor
+--width-km wide along a route (--route FILE: one LON,LAT point a line, in flight order; blank
+lines and lines starting with # are skipped). Levels are cliptex's: level 0 is the finest zoom.
+Tiles the cache holds already are skipped: stop a seed at any time (Ctrl-C) and run it again to
+go on. Missing tiles (404, 204) are counted, never cached.
+
+Examples:
+  cliptex seed 'xyz:https://tiles.example.org/{z}/{x}/{y}.png' --zooms 0..18 --bbox 13.0,52.3,13.8,52.7 --levels 0..4 --estimate
+  cliptex seed 'xyz:https://tiles.example.org/{z}/{x}/{y}.png' --zooms 0..18 --route flight.txt --width-km 5 --levels 0..6 --cache-dir /var/cache/clipmap
+  cliptex seed https://data.example.org/world.pmtiles --bbox=-10,35,30,60 --levels 2..8 --json
+
+Exit status: 0 done (or estimated), 1 bad input (area, route, levels, source, no cache), 2 some
+tiles could not be fetched (run it again to fetch them).")]
+    Seed(seed::SeedArgs),
     /// Write a level region to PNG from the tile files, or every level of a running service.
     #[command(after_help = "\
 From disk, one level (or a part of it) becomes one PNG, one pixel per texel, t upwards (the
@@ -705,6 +726,8 @@ fn run(cli: Cli) -> i32 {
     match cli.command {
         Command::Check { file, json, quiet, env, tiles } => check(&file, json, quiet, &env, &tiles),
         Command::Roam(args) => roam(args),
+        #[cfg(feature = "remote")]
+        Command::Seed(args) => seed::run(args),
         Command::Grow { cmd } => grow::run(cmd),
         Command::Dump(args) => dump(args),
         Command::Attach { name, shm_dir, socket, once, json, interval, view } => {

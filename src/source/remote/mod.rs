@@ -129,6 +129,26 @@ impl Remote {
         }
     }
 
+    /// The disk cache, if the options named one.
+    pub fn cache(&self) -> Option<&disk::DiskCache> {
+        self.cache.as_ref()
+    }
+
+    /// The whole object under `key` ([`disk::object_key`]) from the disk cache, checked, at most
+    /// `max` bytes; counted as a cache hit.
+    pub fn cached_object(&self, key: &str, max: u64) -> Option<Vec<u8>> {
+        let bytes = self.cache.as_ref()?.get_object(key, max)?;
+        self.fetcher.counters.cache_hits.fetch_add(1, Ordering::Relaxed);
+        Some(bytes)
+    }
+
+    /// Keeps `bytes` as the whole object under `key` in the disk cache, if there is one.
+    pub fn keep_object(&self, key: &str, bytes: &[u8]) {
+        if let Some(c) = &self.cache {
+            c.put(key, bytes);
+        }
+    }
+
     /// The bytes of `name` from `start` on, at most `max` of them (fewer when the object ends
     /// first), with retries; not merged with other reads.
     pub(crate) fn read_upto(&self, name: &str, start: u64, max: u64) -> Result<bytes::Bytes, ReadError> {

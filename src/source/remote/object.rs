@@ -6,7 +6,10 @@
 //! read at. Every later range goes through the [`Fetcher`](super::Fetcher) (bounded per
 //! endpoint, merged with adjacent ranges waiting for the same endpoint, retried) and is checked
 //! against what open saw: a range of another size of object, or of another version, is refused
-//! ([`ObjectError::Changed`]), never patched into the bytes read before.
+//! ([`ObjectError::Changed`]), never patched into the bytes read before. With a disk cache in
+//! its remote reader ([`super::range::open_cached`]: PMTiles archives), a range read whole
+//! ([`Object::read`]) is kept there under the object's size and validator, and served from
+//! there while the object opened is of that version; without a validator nothing is cached.
 
 use super::fetch::{ReadError, Segments, Sink};
 use super::location::Location;
@@ -109,8 +112,44 @@ impl Object {
         &self.remote
     }
 
-    /// Bytes `[start, start + len)`, all of them, of the version opened.
+    /// The disk cache's key of bytes `[start, start + len)` of the version opened, when the
+    /// remote reader has a disk cache and the store named a version (never without one: the
+    /// bytes of another version could be served).
+    fn cache_key(&self, start: u64, len: u64) -> Option<String> {
+        self.remote.cache.as_ref()?;
+        let version = format!("{} bytes {}", self.size, self.validator.as_deref()?);
+        Some(super::disk::versioned_key(&self.name, &version, start, len))
+    }
+
+    /// Bytes `[start, start + len)`, all of them, of the version opened: from the remote
+    /// reader's disk cache when it holds them under this version, else read (and kept there).
     pub fn read(&self, start: u64, len: u64) -> Result<Segments, ObjectError> {
+        let key = self.cache_key(start, len);
+        if let (Some(key), Some(cache)) = (&key, &self.remote.cache) {
+            let mut buf = vec![0u8; len as usize];
+            if cache.get(key, &mut buf) {
+                self.remote.fetcher().counters.cache_hits.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                return Ok(Segments::from(Bytes::from(buf)));
+            }
+        }
+        let bytes = self.read_remote(start, len)?;
+        if let (Some(key), Some(cache)) = (&key, &self.remote.cache) {
+            cache.put(key, &bytes.to_bytes());
+        }
+        Ok(bytes)
+    }
+
+    /// Whether the disk cache holds bytes `[start, start + len)` of the version opened (not
+    /// read nor checked: [`Object::read`] does).
+    pub fn holds(&self, start: u64, len: u64) -> bool {
+        match (self.cache_key(start, len), &self.remote.cache) {
+            (Some(key), Some(cache)) => cache.holds(&key),
+            _ => false,
+        }
+    }
+
+    /// Bytes `[start, start + len)` of the version opened, from the store.
+    fn read_remote(&self, start: u64, len: u64) -> Result<Segments, ObjectError> {
         let v = self.remote.fetcher().read_versioned(&self.loc, start, len)?;
         if let Some((was, now)) =
             other_version(self.size, self.validator.as_deref(), v.object_len, v.validator.as_deref())

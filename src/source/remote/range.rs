@@ -140,6 +140,23 @@ pub fn open(name: &RemoteName, prefix: u64) -> Result<(Arc<dyn RangeReader>, Vec
     open_with(name, Arc::new(remote), prefix)
 }
 
+/// Opens the remote object `name` with the remote options `opts` (those of the environment,
+/// `CLIPMAP_REMOTE_*`, when `None`), its ranges read whole kept in the disk cache they name
+/// (`CLIPMAP_REMOTE_CACHE_DIR`) under the object's version ([`Object::read`]): a tile archive's.
+pub fn open_cached(
+    name: &RemoteName,
+    prefix: u64,
+    opts: Option<RemoteOptions>,
+) -> Result<(Arc<dyn RangeReader>, Vec<u8>), String> {
+    let opts = match opts {
+        Some(o) => o,
+        None => RemoteOptions::from_env().map_err(|e| e.to_string())?,
+    };
+    let remote = Remote::new(opts)
+        .map_err(|e| format!("the remote disk cache (CLIPMAP_REMOTE_CACHE_DIR) cannot be used: {e}"))?;
+    open_with(name, Arc::new(remote), prefix)
+}
+
 /// A remote object read by name ([`ByName`] on [`Remote`]): nothing is asked to obtain one, no
 /// version is kept, and a range read whole is served from the remote reader's disk cache when
 /// it holds it (and kept there once read).

@@ -171,6 +171,13 @@ pub trait TileArchive: Send + Sync {
         None
     }
 
+    /// Whether the remote disk cache holds tile `at` already (`cliptex seed` skips it); `false`
+    /// for an archive read without one.
+    fn is_cached(&self, at: TileAddr) -> bool {
+        let _ = at;
+        false
+    }
+
     /// Where tile `at` is, as messages may show it (a URL with its secrets replaced, a path), for
     /// an archive that keeps each tile apart; `None` by default.
     fn locate(&self, at: TileAddr) -> Option<String> {
@@ -205,6 +212,12 @@ fn open_template(text: &str, opts: &OpenOptions) -> Result<Arc<dyn TileArchive>,
 /// A PMTiles archive (a path, an http(s) URL or an `s3://` name), with its tile size read from
 /// its first tile unless `--tile-size` gives it.
 fn open_pmtiles(text: &str, opts: &OpenOptions) -> Result<Arc<dyn TileArchive>, PyramidError> {
+    #[cfg(feature = "remote")]
+    let mut archive = match &opts.template.remote {
+        Some(remote) => PmtilesArchive::open_with(&Place::parse(text), remote.clone())?,
+        None => PmtilesArchive::open(&Place::parse(text))?,
+    };
+    #[cfg(not(feature = "remote"))]
     let mut archive = PmtilesArchive::open(&Place::parse(text))?;
     match opts.template.tile_size {
         Some(size) => archive.set_tile_size(size),

@@ -14,7 +14,10 @@
 //! `CLIPMAP_REMOTE_BACKOFF_MAX_MS`). A `404`, `410`, `204` or an empty body is a missing tile. A
 //! configured User-Agent and extra headers go with every request and never into a message. An
 //! answer's `Content-Type` (an image type or none) and size are checked before the bytes are
-//! handed on; the pyramid source then checks their magic number and decoded size.
+//! handed on; the pyramid source then checks their magic number and decoded size. With a disk
+//! cache (`CLIPMAP_REMOTE_CACHE_DIR`) a tile is looked up there by its URL first, and a tile
+//! fetched is kept there when it is an image (its magic number says PNG, JPEG or WebP): a
+//! missing tile, an error or a page answered for a tile is never cached.
 
 use super::{ArchiveError, Fetched, PyramidInfo, TileAddr, TileArchive, TileEncoding, MAX_ZOOM};
 use crate::source::FaultKind;
@@ -205,11 +208,10 @@ impl TemplateArchive {
                     Some(o) => o.clone(),
                     None => crate::source::remote::RemoteOptions::from_env().map_err(|e| bad(e.to_string()))?,
                 };
-                let remote = crate::source::remote::Remote::with_backends(
-                    ropts.clone(),
-                    std::sync::Arc::new(crate::source::remote::http::Http::new(&ropts)),
-                    std::sync::Arc::new(crate::source::remote::s3::S3::new(&ropts)),
-                );
+                // With the disk cache the options name, if any: tiles are kept there by URL.
+                let remote = crate::source::remote::Remote::new(ropts).map_err(|e| {
+                    bad(format!("the remote disk cache (CLIPMAP_REMOTE_CACHE_DIR) cannot be used: {e}"))
+                })?;
                 let ua = opts.user_agent.clone().unwrap_or_else(|| format!("clipmap/{}", env!("CARGO_PKG_VERSION")));
                 let mut headers = vec![("User-Agent".to_string(), ua)];
                 for (name, value) in &opts.headers {
@@ -335,6 +337,10 @@ impl TileArchive for TemplateArchive {
             Reader::Http { remote, request } => {
                 use crate::source::remote::{Location, ReadError};
                 let url = self.template.expand(at);
+                let key = crate::source::remote::disk::object_key(&url);
+                if let Some(bytes) = remote.cached_object(&key, MAX_TILE_ANSWER) {
+                    return Ok(Fetched::Tile(bytes));
+                }
                 let loc = Location::parse(&url).map_err(|e| self.error(at, FaultKind::BadRequest, e.to_string()))?;
                 match remote.fetcher().object(&loc, request) {
                     Ok(o) if o.bytes.is_empty() => Ok(Fetched::Missing),
@@ -348,6 +354,10 @@ impl TileArchive for TemplateArchive {
                                     o.bytes.len()
                                 ),
                             ));
+                        }
+                        // Kept only when it is an image: never a page, an error or a missing tile.
+                        if super::TileEncoding::sniff(&o.bytes).is_some() {
+                            remote.keep_object(&key, &o.bytes);
                         }
                         Ok(Fetched::Tile(o.bytes.to_vec()))
                     }
@@ -370,6 +380,16 @@ impl TileArchive for TemplateArchive {
         match &self.reader {
             Reader::Local => None,
             Reader::Http { remote, .. } => Some(remote.stats()),
+        }
+    }
+
+    #[cfg(feature = "remote")]
+    fn is_cached(&self, at: TileAddr) -> bool {
+        match &self.reader {
+            Reader::Local => false,
+            Reader::Http { remote, .. } => remote
+                .cache()
+                .is_some_and(|c| c.holds(&crate::source::remote::disk::object_key(&self.template.expand(at)))),
         }
     }
 }

@@ -89,9 +89,40 @@ fn whole_world(b: [f64; 4]) -> bool {
 impl PmtilesArchive {
     /// Opens the archive at `place` (a local path, an `http(s)://` URL or an `s3://` object)
     /// with one read of its first [`OPEN_BYTES`] bytes.
+    /// A remote archive's ranges go through the disk cache the `CLIPMAP_REMOTE_*` variables
+    /// name, if any ([`PmtilesArchive::open_with`]).
     pub fn open(place: &Place) -> Result<PmtilesArchive, ArchiveError> {
+        Self::open_place(place, None)
+    }
+
+    /// [`PmtilesArchive::open`] with the remote options `opts` for a remote archive (their disk
+    /// cache keeps its ranges read whole, under the archive's version; the open's read is
+    /// always asked of the store, which names the version).
+    #[cfg(feature = "remote")]
+    pub fn open_with(
+        place: &Place,
+        opts: crate::source::remote::RemoteOptions,
+    ) -> Result<PmtilesArchive, ArchiveError> {
+        Self::open_place(place, Some(opts))
+    }
+
+    fn open_place(
+        place: &Place,
+        #[cfg(feature = "remote")] opts: Option<crate::source::remote::RemoteOptions>,
+        #[cfg(not(feature = "remote"))] opts: Option<()>,
+    ) -> Result<PmtilesArchive, ArchiveError> {
         let name = crate::place::redacted(&place.to_string()).into_owned();
-        let (bytes, first) = open_place(place, OPEN_BYTES).map_err(|e| {
+        let opened = match place {
+            #[cfg(feature = "remote")]
+            Place::Remote(remote) => {
+                crate::source::remote::range::open_cached(remote, OPEN_BYTES, opts).map_err(OpenError::Remote)
+            }
+            _ => {
+                let _ = opts;
+                open_place(place, OPEN_BYTES)
+            }
+        };
+        let (bytes, first) = opened.map_err(|e| {
             let (kind, problem) = match e {
                 OpenError::Io(e) if e.kind() == std::io::ErrorKind::NotFound => (FaultKind::Missing, e.to_string()),
                 OpenError::Io(e) => (FaultKind::Io, e.to_string()),
@@ -352,6 +383,20 @@ impl TileArchive for PmtilesArchive {
     fn remote_stats(&self) -> Option<crate::source::remote::RemoteStats> {
         let object = self.bytes.as_any().downcast_ref::<crate::source::remote::object::Object>()?;
         Some(object.remote().stats())
+    }
+
+    #[cfg(feature = "remote")]
+    fn is_cached(&self, at: TileAddr) -> bool {
+        let Some(object) = self.bytes.as_any().downcast_ref::<crate::source::remote::object::Object>() else {
+            return false;
+        };
+        if !at.is_valid() || at.z < self.info.min_zoom || at.z > self.info.max_zoom {
+            return false;
+        }
+        match self.locate(Some(at), directory::tile_id(at)) {
+            Ok(Some((offset, len))) => object.holds(self.header.data.0 + offset, len.into()),
+            _ => false,
+        }
     }
 }
 
