@@ -813,6 +813,37 @@ mod tests {
     }
 
     #[test]
+    fn block_formats_have_codes_20_to_23_and_slots_of_whole_blocks() {
+        use clipmap_base::texel::TexelFormat as F;
+        let all = [F::BC1, F::BC4, F::BC5, F::BC7];
+        assert_eq!(all.map(format_code), [20, 21, 22, 23]);
+        for f in all {
+            assert_eq!(format_from_code(format_code(f)), Some(f));
+            assert!(is_block_code(format_code(f)));
+        }
+        assert!(!is_block_code(format_code(F::RGBA8)) && !is_block_code(0) && !is_block_code(24));
+        assert_eq!(format_from_code(24), None);
+        // 256 x 256 tiles: 64 x 64 blocks; a 3 x 1 pyramid tile is one partial block.
+        assert_eq!(slot_bytes([256, 256], 4, 8), Some(32768));
+        assert_eq!(slot_bytes([3, 1], 4, 16), Some(16));
+        assert_eq!(slot_bytes([3, 1], 1, 4), Some(12));
+        // A BC1 mapping's slots are an eighth of an RGBA8 one's on every level of 4 x 4 or more,
+        // and one 8-byte block on the 2 x 2 and 1 x 1 levels.
+        let rgba = place(&shape(4096, 256, 128, 4)).unwrap();
+        let bc1 = place(&Shape { block: 4, ..shape(4096, 256, 128, 8) }).unwrap();
+        for (k, (a, b)) in rgba.levels.iter().zip(&bc1.levels).enumerate() {
+            assert_eq!(a.slot_count, b.slot_count);
+            if a.slot_bytes >= 64 {
+                assert_eq!(a.slot_bytes, 8 * b.slot_bytes, "level {k}");
+            } else {
+                assert_eq!(b.slot_bytes, 8, "level {k}");
+            }
+        }
+        assert!(bc1.slot_bytes() * 7 < rgba.slot_bytes());
+        assert_eq!(place(&Shape { block: 3, ..shape(4096, 256, 128, 8) }), None);
+    }
+
+    #[test]
     fn header_fits_and_levels_are_page_aligned_in_order() {
         const { assert!(header::END <= 8192) };
         let p = place(&shape(16384, 1024, 256, 4)).unwrap();
