@@ -183,3 +183,40 @@ fn readers_without_block_support_and_sources_that_cannot_be_encoded_are_refused_
     refused(&SOURCE, &["--format", "dxt1"], "expected bc1, bc4, bc5 or bc7");
     refused(&SOURCE, &["--format", "bc1", "--bc-quality", "best"], "expected fast, normal or slow");
 }
+
+#[test]
+fn cliptex_plan_format_bc1_states_the_slot_formula_and_sizes_the_mapping_as_the_service_maps_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let plan = |format: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_cliptex"))
+            .args(["plan", "--size", "256", "--clip", "64", "--tile", "16", "--texel-bytes", "4", "--json"])
+            .args(format)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()["image_caches"].clone()
+    };
+    let (rgba, bc1, bc7) = (plan(&[]), plan(&["--format", "bc1"]), plan(&["--format", "bc7"]));
+    assert_eq!((rgba.get("slot_formula"), rgba.get("format")), (None, None), "{rgba}");
+    assert_eq!(bc1["slot_formula"], "ceil(16 / 4) x ceil(16 / 4) blocks x 8 bytes = 128");
+    assert_eq!(bc7["slot_formula"], "ceil(16 / 4) x ceil(16 / 4) blocks x 16 bytes = 256");
+    assert_eq!((bc1["format"].as_str(), bc7["format"].as_str()), (Some("bc1"), Some("bc7")));
+    for (format, caches) in [("bc1", &bc1), ("bc7", &bc7)] {
+        let svc = Service::spawn_with(d, format, &SOURCE, &["--format", format]);
+        svc.wait_ready();
+        let mapped = std::fs::metadata(d.join(format!("clipmap-{format}.map"))).unwrap().len();
+        assert_eq!(caches["bytes"].as_u64(), Some(mapped), "{format}: {caches}");
+    }
+    // The slots: an eighth (BC1) and a quarter (BC7) of RGBA8's but for the pyramid's 2 x 2 and
+    // 1 x 1 tiles, one whole block each.
+    let slots = |c: &serde_json::Value| c["slot_bytes"].as_u64().unwrap();
+    assert_eq!(slots(&rgba) - 4 * 4 - 4, 8 * (slots(&bc1) - 8 - 8));
+    assert_eq!(slots(&rgba) - 4 * 4 - 4, 4 * (slots(&bc7) - 16 - 16));
+    let human = std::process::Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(["plan", "--size", "256", "--clip", "64", "--tile", "16", "--format", "bc1"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&human.stdout);
+    assert!(text.contains("slots        bc1: level 0's ceil(16 / 4) x ceil(16 / 4) blocks x 8 bytes = 128"), "{text}");
+}
