@@ -134,6 +134,16 @@ struct Cli {
     /// Frames the demo's client flies.
     #[arg(long, default_value_t = 240, requires = "demo", hide = true)]
     demo_frames: u32,
+    /// Publish the texels block-compressed (docs/SHM.md, "Block-compressed formats"): bc1 (RGB,
+    /// an eighth of RGBA8), bc4 (one channel), bc5 (two), bc7 (RGBA, a quarter of RGBA8). Each
+    /// tile of any 8-bit source is encoded on the read threads after its decode, straight into
+    /// its slot; tile sizes must be multiples of 4. Heights are refused.
+    #[arg(long, value_name = "FORMAT", value_parser = clipmap::texel::Bc::parse)]
+    format: Option<clipmap::texel::Bc>,
+    /// With --format: how hard the encoder tries, fast, normal or slow (BC7's settings; BC1, BC4
+    /// and BC5 have one).
+    #[arg(long, value_name = "QUALITY", default_value = "normal", value_parser = clipmap::source::BcQuality::parse, requires = "format")]
+    bc_quality: clipmap::source::BcQuality,
     /// Tests: every tile read waits this many milliseconds before it reaches the source (a slow
     /// disk or link in front of any source), so that load control can be seen through the service.
     #[arg(long, value_name = "MS", hide = true, value_parser = clap::value_parser!(u64).range(0..=MAX_SOURCE_DELAY_MS))]
@@ -334,6 +344,15 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             Arc::new(slow) as Arc<dyn clipmap::source::TileSource>
         }
         _ => source,
+    };
+    let source = match cli.format {
+        Some(bc) => {
+            let encoded = clipmap::source::BcSource::new(source, bc, cli.bc_quality)
+                .map_err(|e| bad(anyhow::anyhow!("--format {}: {e}", bc.name())))?;
+            tracing::info!(format = bc.name(), quality = ?cli.bc_quality, "tiles are block-compressed at ingest");
+            Arc::new(encoded) as Arc<dyn clipmap::source::TileSource>
+        }
+        None => source,
     };
     let mut options = options(&cli, &default_name)?;
     options.paging = cli.paging.over(paging);

@@ -194,7 +194,11 @@ REQUEST_TAKEOVER_MS, REQUEST_WAIT_MS = 100, 1000
 FORMATS = {
     1: ("l8", 1), 3: ("rgb8", 3), 4: ("rgba8", 4), 5: ("rgb565", 2), 6: ("rgba5551", 2),
     7: ("l16", 2), 8: ("la16", 4), 9: ("rgb16", 6), 10: ("rgba16", 8), 11: ("l32f", 4), 12: ("l16i", 2),
+    # Block-compressed (docs/SHM.md, "Block-compressed formats"): the bytes are those of one 4 x 4 block.
+    20: ("bc1", 8), 21: ("bc4", 8), 22: ("bc5", 16), 23: ("bc7", 16),
 }
+# The block-compressed codes: slots of ceil(TW / 4) x ceil(TH / 4) blocks, read whole (read_tile).
+BLOCK_FORMATS = (20, 21, 22, 23)
 
 M64 = (1 << 64) - 1
 
@@ -562,8 +566,14 @@ class Mapping:
             if kind != int(d.pyramid):
                 raise Refused(f"{path}: level {k} ({d.size[0]}x{d.size[1]}, clip {clip}): kind {kind}, "
                               f"expected {int(d.pyramid)} ({'pyramid' if d.pyramid else 'stack'})")
+            if self.format in BLOCK_FORMATS:
+                sb = _ceil_div(d.tile[0], 4) * _ceil_div(d.tile[1], 4) * bpt
+                if sb > M64 or sb != d.slot_bytes:
+                    raise Refused(f"{path}: level {k}: slot bytes {d.slot_bytes}, expected tile "
+                                  f"{d.tile[0]}x{d.tile[1]} in 4 x 4 blocks x {bpt} bytes per block"
+                                  + (" (overflows 64 bits)" if sb > M64 else ""))
             sb = d.tile[0] * d.tile[1] * bpt
-            if sb > M64 or sb != d.slot_bytes:
+            if self.format not in BLOCK_FORMATS and (sb > M64 or sb != d.slot_bytes):
                 raise Refused(f"{path}: level {k}: slot bytes {d.slot_bytes}, expected tile "
                               f"{d.tile[0]}x{d.tile[1]} x {bpt} bytes per texel"
                               + (" (overflows 64 bits)" if sb > M64 else ""))
@@ -1045,6 +1055,9 @@ class Mapping:
         """The w x h texels of `level` from (s0, t0), as bytes (rows in increasing t, s fastest,
         row pitch w * bpt), read tile by tile under each slot's tag. `snap` defaults to the last
         snapshot taken (one is taken if there is none). Raises NotValid, Missing, Stale or Busy."""
+        if self.format in BLOCK_FORMATS:
+            raise ReadError(f"texel format {FORMATS[self.format][0]} is block-compressed: read whole tiles "
+                            "(read_tile) or decode them (decode_tile)")
         snap = snap or self.snap or self.snapshot()
         if not 0 <= level < min(self.count, len(snap.levels)):
             raise NotValid(f"level {level} does not exist")
@@ -1088,6 +1101,42 @@ class Mapping:
                 else:
                     raise Busy(f"level {level} tile ({S}, {T}): the tag stayed locked for {MAX_RETRIES} attempts")
         return bytes(out)
+
+    def read_tile(self, level, S, T):
+        """The bytes of tile (S, T)'s slot of `level` as they are (for a block format, its
+        ceil(TW / 4) x ceil(TH / 4) blocks in rows), copied under the slot's tag. Raises NotValid,
+        Missing, Stale or Busy."""
+        if not 0 <= level < self.count:
+            raise NotValid(f"level {level} does not exist")
+        d, q, mm = self.levels[level], self.q, self.mm
+        if not (0 <= S < _ceil_div(d.size[0], d.tile[0]) and 0 <= T < _ceil_div(d.size[1], d.tile[1])):
+            raise NotValid(f"level {level} has no tile ({S}, {T})")
+        slot = d.slot_index(S, T)
+        tag = (d.tags + slot * TAG_BYTES) // 8
+        base = d.slots + slot * d.slot_bytes
+        for _ in range(MAX_RETRIES):
+            seq = q[tag]
+            if seq & 1:
+                continue
+            ts, tt, state = _signed(q[tag + 1]), _signed(q[tag + 2]), q[tag + 3]
+            if ts == S and tt == T and state in (SLOT_READY, SLOT_DEFAULT):
+                out = bytes(mm[base:base + d.slot_bytes])
+                if q[tag] == seq:
+                    return out
+                continue
+            if q[tag] != seq:
+                continue
+            if ts == S and tt == T and state == SLOT_MISSING:
+                raise Missing(f"level {level} tile ({S}, {T}) is missing")
+            raise Stale(f"level {level} tile ({S}, {T}): its slot holds tile ({ts}, {tt}) in state {state}")
+        raise Busy(f"level {level} tile ({S}, {T}): the tag stayed locked for {MAX_RETRIES} attempts")
+
+    def decode_tile(self, level, S, T):
+        """Tile (S, T) of `level` of a bc1, bc4 or bc5 mapping decoded in pure Python
+        (decode_blocks): TW x TH texels, RGBA8 for bc1, one byte for bc4, two for bc5. BC7 is not
+        decoded here (ValueError)."""
+        d = self.levels[level]
+        return decode_blocks(self.format, self.read_tile(level, S, T), d.tile[0], d.tile[1])
 
     def tile_range(self, level, S, T):
         """The range of heights of tile (S, T) of `level` as the service published it beside the
@@ -1183,6 +1232,63 @@ def _pick(rng, mode, v0, v1, tile):
 
 # PNG colour type and bit depth of the formats a PNG holds exactly (code -> (type, depth)).
 PNG_FORMATS = {1: (0, 8), 3: (2, 8), 4: (6, 8), 7: (0, 16), 8: (4, 16), 9: (2, 16), 10: (6, 16)}
+
+
+def _bc4_values(b):
+    """The 16 values of a BC4 block (8 bytes), by the eight- or six-value palette of its endpoints."""
+    e0, e1 = b[0], b[1]
+    if e0 > e1:
+        pal = [e0, e1] + [((7 - i) * e0 + i * e1 + 3) // 7 for i in range(1, 7)]
+    else:
+        pal = [e0, e1] + [((5 - i) * e0 + i * e1 + 2) // 5 for i in range(1, 5)] + [0, 255]
+    bits = int.from_bytes(b[2:8], "little")
+    return [pal[(bits >> (3 * i)) & 7] for i in range(16)]
+
+
+def _bc1_texels(b):
+    """The 16 RGBA8 texels of a BC1 block (8 bytes)."""
+    c0, c1 = int.from_bytes(b[0:2], "little"), int.from_bytes(b[2:4], "little")
+
+    def rgb(c):
+        r, g, bl = (c >> 11) & 31, (c >> 5) & 63, c & 31
+        return [(r * 255 + 15) // 31, (g * 255 + 31) // 63, (bl * 255 + 15) // 31]
+    a, z = rgb(c0), rgb(c1)
+    if c0 > c1:
+        pal = [a + [255], z + [255], [(2 * x + y + 1) // 3 for x, y in zip(a, z)] + [255],
+               [(x + 2 * y + 1) // 3 for x, y in zip(a, z)] + [255]]
+    else:
+        pal = [a + [255], z + [255], [(x + y) // 2 for x, y in zip(a, z)] + [255], [0, 0, 0, 0]]
+    bits = int.from_bytes(b[4:8], "little")
+    return [pal[(bits >> (2 * i)) & 3] for i in range(16)]
+
+
+def decode_blocks(fmt, blocks, w, h):
+    """Decodes a w x h tile of format code `fmt` (20 bc1, 21 bc4, 22 bc5) stored as
+    ceil(w / 4) x ceil(h / 4) blocks in rows into w * h texels (RGBA8, one byte, two bytes), rows in
+    increasing t; texels of a partial block beyond w or h are dropped. A check's decoder: the
+    palettes are the formats' definitions rounded to nearest, so a GPU's texels may differ by 1.
+    BC7 (23) is not decoded here: ValueError."""
+    px = {20: 4, 21: 1, 22: 2}.get(fmt)
+    if px is None:
+        raise ValueError(f"texel format code {fmt}: this reader decodes bc1, bc4 and bc5 (20, 21, 22) only")
+    bb, bw, bh = (16 if fmt == 22 else 8), _ceil_div(w, 4), _ceil_div(h, 4)
+    if len(blocks) != bw * bh * bb:
+        raise ValueError(f"{len(blocks)} bytes for a {w}x{h} tile: expected {bw}x{bh} blocks of {bb} bytes")
+    out = bytearray(w * h * px)
+    for j in range(bh):
+        for i in range(bw):
+            b = blocks[(j * bw + i) * bb:(j * bw + i + 1) * bb]
+            if fmt == 20:
+                texels = [bytes(p) for p in _bc1_texels(b)]
+            elif fmt == 21:
+                texels = [bytes([v]) for v in _bc4_values(b)]
+            else:
+                texels = [bytes([r, g]) for r, g in zip(_bc4_values(b[:8]), _bc4_values(b[8:]))]
+            for n, texel in enumerate(texels):
+                x, y = 4 * i + n % 4, 4 * j + n // 4
+                if x < w and y < h:
+                    out[(y * w + x) * px:(y * w + x + 1) * px] = texel
+    return bytes(out)
 
 
 def write_png(path, data, w, h, fmt):

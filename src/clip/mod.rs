@@ -161,6 +161,7 @@ pub enum ClipError {
 pub fn memory_shape(desc: &TextureDesc, grids: &[[u64; 2]]) -> Shape {
     Shape {
         bytes_per_texel: desc.bytes_per_texel() as u64,
+        block: desc.format().block_edge(),
         clip_size: desc.clip_size(),
         levels: desc
             .levels()

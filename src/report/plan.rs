@@ -43,6 +43,9 @@ pub struct Request {
     /// Views with grids of their own (`clipmapd --view NAME:W:own`; docs/VIEWS.md, "Views far
     /// apart"): each a mapping of one view's grids beside the service's.
     pub own_views: u64,
+    /// The block format the service publishes (`clipmapd --format`): the image caches hold
+    /// tiles of 4 x 4 blocks instead of `texel_bytes` texels (docs/SHM.md).
+    pub format: Option<crate::texel::Bc>,
 }
 
 /// The image caches the engine and `clipmapd` keep (layout 2): every stack level a grid of whole
@@ -63,6 +66,14 @@ pub struct ImageCaches {
     pub view_spread: u64,
     /// Level 0's grid of slots (tiles across, down).
     pub level0_grid: [u64; 2],
+    /// The block format the slots hold (`bc1`, ...; `cliptex plan --format`), absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub format: Option<String>,
+    /// With a block format: how level 0's slot bytes follow from its tile, `ceil(W / 4) x
+    /// ceil(H / 4) blocks x B bytes = N`; every slot of the mapping is sized so, and `bytes` is
+    /// the sum over the grids, page-rounded, plus the header.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub slot_formula: Option<String>,
     /// Bytes of the slots (the texels).
     pub slot_bytes: u64,
     /// Bytes of the whole mapping (slots, tags, tile ranges, header, page rounding).
@@ -132,6 +143,7 @@ fn format_of(bytes: u64) -> Option<crate::texel::TexelFormat> {
 /// the options give: `lookahead` fixed grids, without it the adaptive policy's grids from its
 /// default budget, each widened for views up to `view_spread` level-0 texels apart
 /// (`Settings::view_spread`). `Err` says why the engine cannot lay them out.
+#[allow(clippy::too_many_arguments)] // the plan's inputs, each a number of its own
 pub fn image_caches(
     size: [u64; 2],
     clip: u64,
@@ -140,11 +152,16 @@ pub fn image_caches(
     lookahead: Option<u64>,
     heights: bool,
     view_spread: u64,
+    block: Option<crate::texel::Bc>,
 ) -> Result<ImageCaches, String> {
     use crate::clip::{Clipmap, Settings};
     use crate::paging::PrefetchKind;
-    let format = format_of(texel_bytes)
-        .ok_or_else(|| format!("no texel format has {texel_bytes} bytes: expected 1, 2, 3, 4, 6, 8, 12 or 16"))?;
+    let format = match block {
+        Some(bc) => bc.format(),
+        None => format_of(texel_bytes)
+            .ok_or_else(|| format!("no texel format has {texel_bytes} bytes: expected 1, 2, 3, 4, 6, 8, 12 or 16"))?,
+    };
+    let texel_bytes = u64::from(format.bytes_per_texel());
     let desc = crate::source::TextureDesc::new(size, clip, format, [tile, tile]).map_err(|e| e.to_string())?;
     let settings = Settings {
         lookahead: lookahead.unwrap_or(1),
@@ -172,7 +189,12 @@ pub fn image_caches(
         .and_then(|p| with_views(p, SERVICE_RECORDS))
         .ok_or_else(|| "the mapping would be larger than 2^64 bytes".to_string())?;
     let tile_range_bytes = placed.levels.iter().map(|l| if l.ranges == 0 { 0 } else { l.slots - l.ranges }).sum();
+    let [tw, th] = shape.levels[0].tile;
+    let slot0 = placed.levels[0].slot_bytes;
+    let slot_formula = block.map(|_| format!("ceil({tw} / 4) x ceil({th} / 4) blocks x {texel_bytes} bytes = {slot0}"));
     Ok(ImageCaches {
+        format: block.map(|b| b.name().to_string()),
+        slot_formula,
         tile_size: tile,
         lookahead: lookahead.unwrap_or(1),
         grids: if lookahead.is_some() { "fixed" } else { "adaptive" },
@@ -253,7 +275,7 @@ pub fn compute(r: &Request) -> Result<Plan, SizingError> {
         })
     });
     let clip = 1u64 << memory.log2_clip;
-    let caches = |spread| image_caches(r.size, clip, r.texel_bytes, r.tile, r.lookahead, r.heights, spread);
+    let caches = |spread| image_caches(r.size, clip, r.texel_bytes, r.tile, r.lookahead, r.heights, spread, r.format);
     let (image_caches, no_image_caches) = match caches(r.view_spread) {
         Ok(mut ic) if r.own_views > 0 => {
             let own = caches(0).map_or(0, |o| o.bytes);
@@ -352,6 +374,11 @@ pub fn human(p: &Plan, r: &Request) -> String {
             "image caches none: the engine cannot serve this texture: {}\n",
             p.no_image_caches.as_deref().unwrap_or("unknown")
         )),
+    }
+    if let Some((f, formula)) =
+        p.image_caches.as_ref().and_then(|ic| Some((ic.format.as_ref()?, ic.slot_formula.as_ref()?)))
+    {
+        o.push_str(&format!("slots        {f}: level 0's {formula}\n"));
     }
     if let Some(ic) = p.image_caches.as_ref().filter(|ic| ic.own_views > 0) {
         o.push_str(&format!(

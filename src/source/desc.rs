@@ -179,7 +179,7 @@ impl TextureDesc {
             }
             let stack = l.size[0] > clip_size || l.size[1] > clip_size;
             if stack {
-                let bytes = l.tile[0].saturating_mul(l.tile[1]).saturating_mul(bytes as u64);
+                let bytes = format.bytes_for(l.tile[0], l.tile[1]).unwrap_or(u64::MAX);
                 if bytes > crate::limits::MAX_TILE_BYTES {
                     return Err(DescError::TileTooLarge { level: k as u32, tile: l.tile, bytes });
                 }
@@ -291,7 +291,8 @@ impl TextureDesc {
     /// Bytes of one tile of level `k`.
     pub fn tile_bytes(&self, k: u32) -> usize {
         let t = self.level(k).tile;
-        (t[0] * t[1]) as usize * self.bytes_per_texel()
+        // Checked against `limits::MAX_TILE_BYTES` when the texture was described.
+        self.format.bytes_for(t[0], t[1]).unwrap_or(u64::MAX) as usize
     }
 }
 

@@ -12,6 +12,7 @@
 //! lie outside the level are zero.
 
 mod ahead;
+pub mod bc;
 pub mod cog;
 pub mod configured;
 pub mod desc;
@@ -29,6 +30,7 @@ pub mod throttle;
 pub mod tiles;
 
 pub use crate::tile::TileId;
+pub use bc::{BcQuality, BcSource};
 pub use cog::{CogError, CogSource};
 pub use configured::cog_of;
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};

@@ -7,6 +7,7 @@
 
 mod common;
 
+mod bc_formats;
 mod cli_attach;
 mod cli_check;
 mod cli_config;

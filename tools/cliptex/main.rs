@@ -188,6 +188,10 @@ Examples:
         /// Bytes per texel (e.g. 3 for RGB8, 4 for RGBA8, 2 for RGB565) [default: 4, or the .ct's].
         #[arg(long)]
         texel_bytes: Option<u64>,
+        /// The block format clipmapd publishes (`clipmapd --format bc1|bc4|bc5|bc7`): the image
+        /// caches are sized in 4 x 4 blocks (the `slots` line states the formula).
+        #[arg(long, value_name = "FORMAT", value_parser = clipmap::texel::Bc::parse)]
+        format: Option<clipmap::texel::Bc>,
         /// Display width in pixels: recommends a clip size.
         #[arg(long)]
         display: Option<u64>,
@@ -823,6 +827,7 @@ fn run(cli: Cli) -> i32 {
             size,
             clip,
             texel_bytes,
+            format,
             display,
             fov,
             speed,
@@ -902,6 +907,7 @@ fn run(cli: Cli) -> i32 {
                 heights: heights || from_ct.as_ref().is_some_and(|p| p.heights),
                 view_spread,
                 own_views,
+                format,
             };
             match report::plan::compute(&req) {
                 Ok(p) => {

@@ -66,6 +66,68 @@ pub enum ComponentType {
     Packed(PackedType),
     /// `GL_BITMAP`: not meaningful for tiles.
     Bitmap,
+    /// A block-compressed format: 4 x 4 texels in one block of [`Bc::block_bytes`] bytes
+    /// ([`TexelFormat::block`]). Not one of Performer's; the mapping's and our `.ic` extension.
+    Bc(Bc),
+}
+
+/// The block-compressed (BCn, DXT) formats a texture may be published in: every 4 x 4 texels
+/// are one block, blocks in rows, each block's bytes as Direct3D and Vulkan define them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Bc {
+    /// BC1 (DXT1): opaque RGB, 8 bytes a block (4 bits a texel).
+    Bc1,
+    /// BC4: one channel, 8 bytes a block.
+    Bc4,
+    /// BC5: two channels, 16 bytes a block.
+    Bc5,
+    /// BC7: RGBA, 16 bytes a block (8 bits a texel).
+    Bc7,
+}
+
+impl Bc {
+    /// Texels a side of one block.
+    pub const EDGE: u64 = 4;
+
+    /// Bytes of one 4 x 4 block.
+    pub fn block_bytes(self) -> u32 {
+        match self {
+            Bc::Bc1 | Bc::Bc4 => 8,
+            Bc::Bc5 | Bc::Bc7 => 16,
+        }
+    }
+
+    /// The format's short name (`bc1`, `bc4`, `bc5`, `bc7`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Bc::Bc1 => "bc1",
+            Bc::Bc4 => "bc4",
+            Bc::Bc5 => "bc5",
+            Bc::Bc7 => "bc7",
+        }
+    }
+
+    /// The texel format of this block format.
+    pub fn format(self) -> TexelFormat {
+        match self {
+            Bc::Bc1 => TexelFormat::BC1,
+            Bc::Bc4 => TexelFormat::BC4,
+            Bc::Bc5 => TexelFormat::BC5,
+            Bc::Bc7 => TexelFormat::BC7,
+        }
+    }
+
+    /// The block format named `name` (`bc1`, `bc4`, `bc5` or `bc7`, any case).
+    pub fn parse(name: &str) -> Result<Bc, String> {
+        match name.to_ascii_lowercase().as_str() {
+            "bc1" => Ok(Bc::Bc1),
+            "bc4" => Ok(Bc::Bc4),
+            "bc5" => Ok(Bc::Bc5),
+            "bc7" => Ok(Bc::Bc7),
+            _ => Err(format!("`{name}` is not a block format: expected bc1, bc4, bc5 or bc7")),
+        }
+    }
 }
 
 /// Packed texel layouts (whole texel in one 8-, 16- or 32-bit word, little-endian on disk).
@@ -106,6 +168,7 @@ impl ComponentType {
             ComponentType::U32 | ComponentType::I32 | ComponentType::F32 => 4,
             ComponentType::Packed(p) => p.bytes(),
             ComponentType::Bitmap => 0,
+            ComponentType::Bc(b) => b.block_bytes(),
         }
     }
 }
@@ -145,12 +208,49 @@ impl TexelFormat {
     /// 16-bit RGBA.
     pub const RGBA16: TexelFormat = TexelFormat { components: Components::Four, ctype: ComponentType::U16 };
 
-    /// Bytes one texel takes on disk and in memory (0 for `GL_BITMAP`).
+    /// BC1: opaque RGB in 8-byte 4 x 4 blocks.
+    pub const BC1: TexelFormat = TexelFormat { components: Components::Three, ctype: ComponentType::Bc(Bc::Bc1) };
+    /// BC4: one channel in 8-byte 4 x 4 blocks.
+    pub const BC4: TexelFormat = TexelFormat { components: Components::One, ctype: ComponentType::Bc(Bc::Bc4) };
+    /// BC5: two channels in 16-byte 4 x 4 blocks.
+    pub const BC5: TexelFormat = TexelFormat { components: Components::Two, ctype: ComponentType::Bc(Bc::Bc5) };
+    /// BC7: RGBA in 16-byte 4 x 4 blocks.
+    pub const BC7: TexelFormat = TexelFormat { components: Components::Four, ctype: ComponentType::Bc(Bc::Bc7) };
+
+    /// Bytes one texel takes on disk and in memory (0 for `GL_BITMAP`); for a block format
+    /// ([`block`](Self::block)) the bytes of one 4 x 4 block: use [`bytes_for`](Self::bytes_for)
+    /// for the bytes of a rectangle of texels, which holds for both.
     pub fn bytes_per_texel(self) -> u32 {
         match self.ctype {
             ComponentType::Packed(p) => p.bytes(),
+            ComponentType::Bc(b) => b.block_bytes(),
             other => other.bytes() * self.components.count(),
         }
+    }
+
+    /// The block format, `None` for a format of whole texels.
+    pub fn block(self) -> Option<Bc> {
+        match self.ctype {
+            ComponentType::Bc(b) => Some(b),
+            _ => None,
+        }
+    }
+
+    /// Texels a side of the format's unit of storage: 4 for a block format, 1 otherwise.
+    pub fn block_edge(self) -> u64 {
+        if self.block().is_some() {
+            Bc::EDGE
+        } else {
+            1
+        }
+    }
+
+    /// Bytes of a `w` x `h` rectangle of texels stored whole (a tile): `w * h` texels, or for a
+    /// block format `ceil(w / 4) * ceil(h / 4)` blocks (a partial block at an edge is a whole
+    /// block). `None` on overflow.
+    pub fn bytes_for(self, w: u64, h: u64) -> Option<u64> {
+        let e = self.block_edge();
+        w.div_ceil(e).checked_mul(h.div_ceil(e))?.checked_mul(u64::from(self.bytes_per_texel()))
     }
 
     /// Bits of the deepest component (8 for the 8-bit and packed formats of 8 bits or fewer per
@@ -186,12 +286,14 @@ impl TexelFormat {
             ComponentType::Packed(PackedType::Rgba8888) => "rgba8888".into(),
             ComponentType::Packed(PackedType::Rgb10A2) => "rgb10a2".into(),
             ComponentType::Bitmap => "bitmap".into(),
+            ComponentType::Bc(b) => b.name().into(),
         }
     }
 
     /// Encodes a linear-or-not (caller's choice) RGBA colour with components in 0..=1 into `out`,
     /// which must be exactly [`bytes_per_texel`](Self::bytes_per_texel) long. One-component
-    /// formats take the luminance (Rec. 709 weights); two take luminance and alpha.
+    /// formats take the luminance (Rec. 709 weights); two take luminance and alpha. A block
+    /// format has no texel of its own: `out` is left alone (blocks are encoded whole, at ingest).
     pub fn encode(self, rgba: [f32; 4], out: &mut [u8]) {
         let c = |v: f32| v.clamp(0.0, 1.0);
         let lum = c(0.2126 * rgba[0] + 0.7152 * rgba[1] + 0.0722 * rgba[2]);
@@ -253,12 +355,13 @@ impl TexelFormat {
                     }
                 }
             }
-            ComponentType::Bitmap => {}
+            ComponentType::Bitmap | ComponentType::Bc(_) => {}
         }
     }
 
     /// Decodes one texel into RGBA components in 0..=1 (the inverse of [`encode`](Self::encode)
-    /// up to quantisation; one-component formats give grey, alpha 1 where absent).
+    /// up to quantisation; one-component formats give grey, alpha 1 where absent). A block
+    /// format has no texel of its own: decode its blocks whole (the mapping's client does).
     pub fn decode(self, texel: &[u8]) -> [f32; 4] {
         let n = self.components.count() as usize;
         let mut ch = [0f32; 4];
@@ -316,7 +419,7 @@ impl TexelFormat {
                     }
                 };
             }
-            ComponentType::Bitmap => {}
+            ComponentType::Bitmap | ComponentType::Bc(_) => {}
         }
         match self.components {
             Components::One => [ch[0], ch[0], ch[0], 1.0],
@@ -394,6 +497,30 @@ mod tests {
         let mut b = [0u8; 2];
         TexelFormat::L16.encode([0x1234 as f32 / 65535.0; 4], &mut b);
         assert_eq!(b, [0x34, 0x12]);
+    }
+
+    #[test]
+    fn block_formats_are_named_and_sized_in_whole_blocks() {
+        let all = [TexelFormat::BC1, TexelFormat::BC4, TexelFormat::BC5, TexelFormat::BC7];
+        let names: Vec<String> = all.iter().map(|f| f.short_name()).collect();
+        assert_eq!(names, ["bc1", "bc4", "bc5", "bc7"]);
+        assert_eq!(all.map(|f| f.bytes_per_texel()), [8, 8, 16, 16]);
+        assert_eq!(all.map(|f| f.components.count()), [3, 1, 2, 4]);
+        for f in all {
+            let b = f.block().unwrap();
+            assert_eq!((b.format(), Bc::parse(b.name()), f.block_edge()), (f, Ok(b), 4));
+        }
+        // A 256 x 256 tile: 64 x 64 blocks; BC1 is an eighth of RGBA8, BC7 a quarter.
+        assert_eq!(TexelFormat::BC1.bytes_for(256, 256), Some(64 * 64 * 8));
+        assert_eq!(TexelFormat::RGBA8.bytes_for(256, 256), Some(256 * 256 * 4));
+        assert_eq!(TexelFormat::BC7.bytes_for(256, 256), Some(256 * 256));
+        // A partial block at an edge is a whole block: 5 x 3 texels are 2 x 1 blocks.
+        assert_eq!(TexelFormat::BC4.bytes_for(5, 3), Some(16));
+        assert_eq!(TexelFormat::BC5.bytes_for(1, 1), Some(16));
+        assert_eq!(TexelFormat::RGB8.bytes_for(5, 3), Some(45));
+        assert_eq!(TexelFormat::RGB8.block(), None);
+        assert_eq!(TexelFormat::BC7.bytes_for(u64::MAX, u64::MAX), None);
+        assert!(Bc::parse("dxt1").unwrap_err().contains("bc1, bc4, bc5 or bc7"));
     }
 
     #[test]

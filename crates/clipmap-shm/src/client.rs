@@ -169,8 +169,12 @@ pub struct Client {
     inode: (u64, u64),
     /// The mapping file's owner: a view's own mapping must have the same.
     pub(super) uid: u32,
-    /// Bytes per texel.
+    /// Bytes per texel; for a block-compressed format the bytes of one 4 x 4 block.
     pub bytes_per_texel: usize,
+    /// Texels a side of a slot's unit of storage: 1, or 4 for a block-compressed format (its
+    /// tiles are read whole, [`read_tile`](Self::read_tile), or decoded,
+    /// [`decode_tile`](Self::decode_tile)).
+    pub block: u64,
     /// Clip size.
     pub clip_size: u64,
     /// Texel format code.
@@ -575,6 +579,12 @@ impl Client {
         let d = *self.levels.get(level).ok_or(ReadError::NoLevel(level))?;
         let st = snap.levels.get(level).ok_or(ReadError::NoLevel(level))?;
         let bpt = self.bytes_per_texel;
+        if self.block > 1 {
+            return Err(ReadError::Corrupt(format!(
+                "texel format code {} is block-compressed: read whole tiles (read_tile) or decode a region (decode_tile)",
+                self.format_code
+            )));
+        }
         let (w, h) = (rect.width(), rect.height());
         if out.len() as u64 != w * h * bpt as u64 {
             return Err(ReadError::Corrupt(format!("buffer of {} bytes for a {w}x{h} region", out.len())));
@@ -632,8 +642,14 @@ impl Client {
                 // never waited for; the caller takes a new snapshot or uses a coarser level.
                 _ => return Err(ReadError::Stale(level)),
             };
+            if self.block > 1 {
+                // A block format: whole tiles only (`read_tile_state`), the slot copied as it is.
+                // SAFETY: as for the rows below: a copy that overlapped a write sees `seq` move
+                // and is discarded; `out` is a private buffer of the slot's length.
+                unsafe { self.region.read(base as usize, &mut out[..d.slot_bytes as usize]) };
+            }
             let run = part.width() as usize * bpt;
-            for t in part.t0..part.t1 {
+            for t in (part.t0..part.t1).filter(|_| self.block == 1) {
                 let src = base + (((t - tile[1] * th) * tw + (part.s0 - tile[0] * tw)) as u64) * bpt as u64;
                 let dst = (((t - rect.t0) as u64 * rect.width() + (part.s0 - rect.s0) as u64) as usize) * bpt;
                 // SAFETY: the tag said this tile, readable, under sequence `seq`; the writer (the
@@ -675,6 +691,20 @@ impl Client {
         let (tw, th) = (d.tile[0] as i64, d.tile[1] as i64);
         let rect = Rect::new(tile[0] * tw, tile[1] * th, (tile[0] + 1) * tw, (tile[1] + 1) * th);
         self.copy_from_slot(&d, level, layout::slot_index(d.grid, tile), tile, rect, rect, out)
+    }
+
+    /// Decodes tile `tile` (S, T) of `level` of a block-compressed mapping with an independent
+    /// decoder ([`crate::blocks::decode`]): the tile's width x height texels, RGBA8 for `bc1` and
+    /// `bc7`, one byte for `bc4`, two for `bc5`, rows in increasing t. Errors as
+    /// [`read_tile`](Self::read_tile); `Corrupt` when the mapping's format is not a block format.
+    pub fn decode_tile(&self, level: usize, tile: [i64; 2]) -> Result<Vec<u8>, ReadError> {
+        let bc = layout::format_from_code(self.format_code).and_then(|f| f.block()).ok_or_else(|| {
+            ReadError::Corrupt(format!("texel format code {} is not block-compressed", self.format_code))
+        })?;
+        let d = *self.levels.get(level).ok_or(ReadError::NoLevel(level))?;
+        let mut blocks = vec![0u8; d.slot_bytes as usize];
+        self.read_tile(level, tile, &mut blocks)?;
+        crate::blocks::decode(bc, &blocks, d.tile[0], d.tile[1]).map_err(ReadError::Corrupt)
     }
 
     /// Copies the `w` x `h` texels of `level` whose first is (s0, t0) into `out` from a fresh

@@ -41,7 +41,8 @@ pub mod header {
     pub const TOTAL_BYTES: usize = 16;
     /// `u32` texel format code (see [`super::format_code`]).
     pub const TEXEL_FORMAT: usize = 24;
-    /// `u32` bytes per texel.
+    /// `u32` bytes per texel; for a block-compressed format ([`super::is_block_code`]) the bytes
+    /// of one 4 x 4 block (8 or 16).
     pub const BYTES_PER_TEXEL: usize = 28;
     /// `u32` clip size.
     pub const CLIP_SIZE: usize = 32;
@@ -550,6 +551,10 @@ pub fn format_code(f: clipmap_base::texel::TexelFormat) -> u32 {
         x if x == F::RGBA16 => 10,
         x if x == F::L32F => 11,
         x if x == F::L16I => 12,
+        x if x == F::BC1 => 20,
+        x if x == F::BC4 => 21,
+        x if x == F::BC5 => 22,
+        x if x == F::BC7 => 23,
         _ => 0,
     }
 }
@@ -557,9 +562,32 @@ pub fn format_code(f: clipmap_base::texel::TexelFormat) -> u32 {
 /// The texel format of a `TEXEL_FORMAT` code; `None` for 0 (other) or an unknown code.
 pub fn format_from_code(code: u32) -> Option<clipmap_base::texel::TexelFormat> {
     use clipmap_base::texel::TexelFormat as F;
-    [F::L8, F::RGB8, F::RGBA8, F::RGB565, F::RGBA5551, F::L16, F::LA16, F::RGB16, F::RGBA16, F::L32F, F::L16I]
-        .into_iter()
-        .find(|&f| format_code(f) == code)
+    [
+        F::L8,
+        F::RGB8,
+        F::RGBA8,
+        F::RGB565,
+        F::RGBA5551,
+        F::L16,
+        F::LA16,
+        F::RGB16,
+        F::RGBA16,
+        F::L32F,
+        F::L16I,
+        F::BC1,
+        F::BC4,
+        F::BC5,
+        F::BC7,
+    ]
+    .into_iter()
+    .find(|&f| format_code(f) == code)
+}
+
+/// Whether a `TEXEL_FORMAT` code is a block-compressed format (20 `bc1`, 21 `bc4`, 22 `bc5`,
+/// 23 `bc7`): its slots hold 4 x 4 blocks, `ceil(tile width / 4)` blocks a row, and the
+/// header's bytes per texel are the bytes of one block (docs/SHM.md, "Block-compressed formats").
+pub fn is_block_code(code: u32) -> bool {
+    (20..=23).contains(&code)
 }
 
 /// One level of a shape: its size, tile size and grid of slots.
@@ -576,8 +604,12 @@ pub struct LevelShape {
 /// The static shape of a mapping.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Shape {
-    /// Bytes per texel.
+    /// Bytes per texel; for a block format the bytes of one block.
     pub bytes_per_texel: u64,
+    /// Texels a side of the unit of storage: 1 (texels), or 4 for a block-compressed format,
+    /// whose slots hold `ceil(tile width / 4) x ceil(tile height / 4)` blocks of
+    /// `bytes_per_texel` bytes each.
+    pub block: u64,
     /// Clip size.
     pub clip_size: u64,
     /// Levels, finest first.
@@ -679,6 +711,14 @@ pub fn check_level(l: &LevelShape, clip: u64, bpt: u64) -> Result<(), String> {
     Ok(())
 }
 
+/// Bytes of one slot of a `tile`-sized tile: `tile[0] * tile[1]` texels of `bytes` bytes for
+/// `block` 1, or `ceil(tile[0] / 4) * ceil(tile[1] / 4)` blocks of `bytes` bytes for `block` 4
+/// (a partial block at a tile's edge is a whole block). `None` on overflow.
+pub fn slot_bytes(tile: [u64; 2], block: u64, bytes: u64) -> Option<u64> {
+    let block = block.max(1);
+    tile[0].div_ceil(block).checked_mul(tile[1].div_ceil(block))?.checked_mul(bytes)
+}
+
 /// Lays a shape out without tile ranges (a texture whose texels are not heights). `None` when it
 /// has too many levels, a level fails [`check_level`] or the sizes overflow.
 pub fn place(shape: &Shape) -> Option<Placement> {
@@ -691,6 +731,7 @@ pub fn place_with(shape: &Shape, ranges: bool) -> Option<Placement> {
     if shape.levels.is_empty()
         || shape.levels.len() > MAX_LEVELS
         || shape.bytes_per_texel == 0
+        || !(shape.block == 1 || shape.block == 4)
         || shape.clip_size == 0
         || shape.levels.iter().any(|l| check_level(l, shape.clip_size, shape.bytes_per_texel).is_err())
     {
@@ -702,7 +743,7 @@ pub fn place_with(shape: &Shape, ranges: bool) -> Option<Placement> {
     let mut levels = Vec::new();
     for l in &shape.levels {
         let slot_count = l.grid[0].checked_mul(l.grid[1])?;
-        let slot_bytes = l.tile[0].checked_mul(l.tile[1])?.checked_mul(shape.bytes_per_texel)?;
+        let slot_bytes = slot_bytes(l.tile, shape.block, shape.bytes_per_texel)?;
         let tags = at;
         let tags_end = round(tags.checked_add(slot_count.checked_mul(TAG_BYTES as u64)?)?)?;
         let (ranges_at, slots) = if ranges {
@@ -768,7 +809,38 @@ mod tests {
                 LevelShape { size: [s, s], tile: [t, t], grid: mem_grid([s, s], [t, t], clip, 1) }
             })
             .collect();
-        Shape { bytes_per_texel: bpt, clip_size: clip, levels }
+        Shape { bytes_per_texel: bpt, block: 1, clip_size: clip, levels }
+    }
+
+    #[test]
+    fn block_formats_have_codes_20_to_23_and_slots_of_whole_blocks() {
+        use clipmap_base::texel::TexelFormat as F;
+        let all = [F::BC1, F::BC4, F::BC5, F::BC7];
+        assert_eq!(all.map(format_code), [20, 21, 22, 23]);
+        for f in all {
+            assert_eq!(format_from_code(format_code(f)), Some(f));
+            assert!(is_block_code(format_code(f)));
+        }
+        assert!(!is_block_code(format_code(F::RGBA8)) && !is_block_code(0) && !is_block_code(24));
+        assert_eq!(format_from_code(24), None);
+        // 256 x 256 tiles: 64 x 64 blocks; a 3 x 1 pyramid tile is one partial block.
+        assert_eq!(slot_bytes([256, 256], 4, 8), Some(32768));
+        assert_eq!(slot_bytes([3, 1], 4, 16), Some(16));
+        assert_eq!(slot_bytes([3, 1], 1, 4), Some(12));
+        // A BC1 mapping's slots are an eighth of an RGBA8 one's on every level of 4 x 4 or more,
+        // and one 8-byte block on the 2 x 2 and 1 x 1 levels.
+        let rgba = place(&shape(4096, 256, 128, 4)).unwrap();
+        let bc1 = place(&Shape { block: 4, ..shape(4096, 256, 128, 8) }).unwrap();
+        for (k, (a, b)) in rgba.levels.iter().zip(&bc1.levels).enumerate() {
+            assert_eq!(a.slot_count, b.slot_count);
+            if a.slot_bytes >= 64 {
+                assert_eq!(a.slot_bytes, 8 * b.slot_bytes, "level {k}");
+            } else {
+                assert_eq!(b.slot_bytes, 8, "level {k}");
+            }
+        }
+        assert!(bc1.slot_bytes() * 7 < rgba.slot_bytes());
+        assert_eq!(place(&Shape { block: 3, ..shape(4096, 256, 128, 8) }), None);
     }
 
     #[test]

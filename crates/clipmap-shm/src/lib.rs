@@ -20,6 +20,7 @@
 
 #![deny(unsafe_code)]
 
+pub mod blocks;
 pub mod client;
 mod client_views;
 pub mod georef;

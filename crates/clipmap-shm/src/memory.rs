@@ -772,7 +772,7 @@ mod tests {
     /// One level of 64 x 64 one-byte texels in 16 x 16 tiles, a 4 x 4 grid of slots.
     fn memory() -> ImageMemory {
         let levels = vec![LevelShape { size: [64, 64], tile: [16, 16], grid: [4, 4] }];
-        ImageMemory::anonymous(Shape { bytes_per_texel: 1, clip_size: 64, levels }, TexelFormat::L8).unwrap()
+        ImageMemory::anonymous(Shape { bytes_per_texel: 1, block: 1, clip_size: 64, levels }, TexelFormat::L8).unwrap()
     }
 
     fn panic_text(f: impl FnOnce()) -> String {

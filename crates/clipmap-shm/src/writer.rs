@@ -787,7 +787,7 @@ mod tests {
                 }
             })
             .collect();
-        Shape { bytes_per_texel: 4, clip_size: 128, levels }
+        Shape { bytes_per_texel: 4, block: 1, clip_size: 128, levels }
     }
 
     fn web_mercator() -> GeorefBlock {

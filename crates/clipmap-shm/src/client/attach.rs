@@ -81,6 +81,8 @@ impl Client {
                 ));
             }
         }
+        // Texels a side of a slot's unit of storage: 4 for a block-compressed format.
+        let block: u64 = if layout::is_block_code(format_code) { 4 } else { 1 };
         let heights = {
             use layout::heights as ht;
             let b = header::HEIGHTS;
@@ -140,8 +142,14 @@ impl Client {
                 return Err(bad(format!("size {:?}, expected {want:?} (level 0 halved {i} times)", d.size)));
             }
             layout::check_level(&d.shape(), clip, bpt).map_err(bad)?;
-            if d.slot_bytes != d.tile[0] * d.tile[1] * bpt {
+            if block == 1 && d.slot_bytes != d.tile[0] * d.tile[1] * bpt {
                 return Err(bad(format!("slot bytes {}, expected tile width x height x {bpt}", d.slot_bytes)));
+            }
+            if block > 1 && Some(d.slot_bytes) != layout::slot_bytes(d.tile, block, bpt) {
+                return Err(bad(format!(
+                    "slot bytes {}, expected ceil(tile width / 4) x ceil(tile height / 4) blocks x {bpt} bytes (block format {format_code})",
+                    d.slot_bytes
+                )));
             }
             if d.pyramid != (d.size[0] <= clip && d.size[1] <= clip) || g(desc::KIND) > 1 {
                 return Err(bad(format!("kind {} does not match the level's size against clip {clip}", g(desc::KIND))));
@@ -204,6 +212,7 @@ impl Client {
             request: None,
             path: path.to_path_buf(),
             bytes_per_texel: bpt as usize,
+            block,
             clip_size: clip,
             levels,
         })
