@@ -20,7 +20,7 @@ const MAX_ZOOM: u8 = 2;
 /// Makes `src.tif` (512² RGB in Web Mercator, the whole world), its XYZ and TMS trees
 /// (`xyz/`, `tms/`, zooms 0..2) and GDAL's decode of every tile: `(z, x, y from the north)` ->
 /// RGBA rows from the north.
-fn trees(dir: &Path) -> HashMap<(u8, u32, u32), Vec<u8>> {
+pub(crate) fn trees(dir: &Path) -> HashMap<(u8, u32, u32), Vec<u8>> {
     let make = r#"
 from osgeo import gdal, osr
 import numpy as np
