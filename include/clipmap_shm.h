@@ -1190,16 +1190,33 @@ static inline void clipmap_close(struct clipmap_map *m) {
     m->len = 0;
 }
 
-/* Whether an enabled level's region is one a writer publishes: inside the level, non-empty, and
- * spanning at most GW x GH tiles. */
-static inline int clipmap_region_ok(const struct clipmap_level_desc *d, const int64_t v[4]) {
+/* Whether level `d`'s region may run past its width: the texture wraps in longitude (the georef
+ * block's flag, `wraps`) and the level's width is a whole number of tiles (docs/SHM.md, "How a
+ * region wraps"). */
+static inline int clipmap_region_may_wrap(const struct clipmap_level_desc *d, int wraps) {
+    return wraps && d->tile[0] > 0 && d->size[0] % d->tile[0] == 0;
+}
+
+/* Whether an enabled level's region is one a writer publishes: inside the level (on a level that
+ * may wrap, clipmap_region_may_wrap: 0 <= s0 < width and s0 < s1 <= s0 + width, texel s being
+ * texel s mod width), non-empty, and spanning at most GW x GH tiles. */
+static inline int clipmap_region_ok_wrapping(const struct clipmap_level_desc *d, const int64_t v[4], int wraps) {
     for (int a = 0; a < 2; a++) {
         int64_t lo = v[a], hi = v[a + 2];
-        if (lo < 0 || hi <= lo || (uint64_t)hi > d->size[a]) return 0;
+        if (a == 0 && clipmap_region_may_wrap(d, wraps)) {
+            if (lo < 0 || (uint64_t)lo >= d->size[0] || hi <= lo || (uint64_t)hi - (uint64_t)lo > d->size[0]) return 0;
+        } else if (lo < 0 || hi <= lo || (uint64_t)hi > d->size[a]) {
+            return 0;
+        }
         uint64_t tiles = ((uint64_t)hi - 1) / d->tile[a] - (uint64_t)lo / d->tile[a] + 1;
         if (tiles > d->grid[a]) return 0;
     }
     return 1;
+}
+
+/* clipmap_region_ok_wrapping of a texture that does not wrap. */
+static inline int clipmap_region_ok(const struct clipmap_level_desc *d, const int64_t v[4]) {
+    return clipmap_region_ok_wrapping(d, v, 0);
 }
 
 /* Takes a consistent copy of the snapshot at byte offset b (CLIPMAP_H_SNAPSHOT for `main`, a view
@@ -1259,13 +1276,14 @@ static inline int clipmap_snapshot_at_(const struct clipmap_map *m, size_t b, st
             return CLIPMAP_CORRUPT;
         }
         s->enabled = enabled[k] == 1;
-        if (s->enabled && !clipmap_region_ok(d, s->valid)) {
+        if (s->enabled && !clipmap_region_ok_wrapping(d, s->valid, m->georef_wraps)) {
             snprintf(snap->error, sizeof snap->error,
                      "level %u: published region [%lld, %lld) x [%lld, %lld): expected a non-empty rectangle "
-                     "inside the %llux%llu level spanning at most %llux%llu tiles", k, (long long)s->valid[0],
+                     "inside the %llux%llu level spanning at most %llux%llu tiles%s", k, (long long)s->valid[0],
                      (long long)s->valid[2], (long long)s->valid[1], (long long)s->valid[3],
                      (unsigned long long)d->size[0], (unsigned long long)d->size[1],
-                     (unsigned long long)d->grid[0], (unsigned long long)d->grid[1]);
+                     (unsigned long long)d->grid[0], (unsigned long long)d->grid[1],
+                     clipmap_region_may_wrap(d, m->georef_wraps) ? " (it wraps: s0 inside the level, s1 - s0 at most its width)" : "");
             return CLIPMAP_CORRUPT;
         }
     }
@@ -1728,29 +1746,14 @@ static inline int clipmap_tile_range(const struct clipmap_map *m, uint32_t level
     return CLIPMAP_BUSY;
 }
 
-/* Copies the w x h texels of `level` from (s0, t0) into `out` (row-major, rows in increasing t,
- * row pitch w * bytes per texel), tile by tile across tile edges and the toroidal wrap, each
- * tile under its tag protocol. The rectangle must lie inside the level's region in `snap`.
- * CLIPMAP_OK: a consistent copy. CLIPMAP_NOT_VALID: no such level, disabled, or outside the
- * region. CLIPMAP_MISSING: a tile could not be read (use a coarser level). CLIPMAP_STALE: a
- * slot holds another tile (take a new snapshot). CLIPMAP_BUSY: a tag stayed locked or kept
- * changing for CLIPMAP_MAX_RETRIES attempts. CLIPMAP_CORRUPT: `snap` was not accepted by
- * clipmap_snapshot. On anything but CLIPMAP_OK, `out` holds unspecified bytes. */
-static inline int clipmap_read_region(const struct clipmap_map *m, const struct clipmap_snapshot *snap,
-                                      uint32_t level, int64_t s0, int64_t t0, uint64_t w, uint64_t h,
-                                      unsigned char *out) {
-    if (level >= m->level_count || level >= snap->level_count) return CLIPMAP_NOT_VALID;
+/* Copies the w x h texels of level `level` whose first is (s0, t0), inside the level, into `out`
+ * at column `col` of rows `pitch` texels long, tile by tile, each tile under its tag protocol
+ * (clipmap_read_region's codes). */
+static inline int clipmap_copy_texels_(const struct clipmap_map *m, uint32_t level, uint64_t us0, uint64_t ut0,
+                                       uint64_t w, uint64_t h, unsigned char *out, uint64_t pitch, uint64_t col) {
     const struct clipmap_level_desc *d = &m->levels[level];
-    const struct clipmap_level_state *st = &snap->levels[level];
-    if (st->enabled != 1) return st->enabled == 0 ? CLIPMAP_NOT_VALID : CLIPMAP_CORRUPT;
-    if (!clipmap_region_ok(d, st->valid)) return CLIPMAP_CORRUPT;
-    if (w == 0 || h == 0) return CLIPMAP_OK;
-    /* Inside [v0, v1): s0 >= v0, s0 < v1 and w <= v1 - s0 (no overflow: v1 - s0 > 0). */
-    if (s0 < st->valid[0] || s0 >= st->valid[2] || w > (uint64_t)(st->valid[2] - s0) || t0 < st->valid[1] ||
-        t0 >= st->valid[3] || h > (uint64_t)(st->valid[3] - t0))
-        return CLIPMAP_NOT_VALID;
     const uint64_t bpt = m->bytes_per_texel, tw = d->tile[0], th = d->tile[1];
-    const uint64_t us0 = (uint64_t)s0, ut0 = (uint64_t)t0, us1 = us0 + w, ut1 = ut0 + h;
+    const uint64_t us1 = us0 + w, ut1 = ut0 + h;
     for (uint64_t T = ut0 / th; T <= (ut1 - 1) / th; T++) {
         uint64_t ta = T * th > ut0 ? T * th : ut0, tb = (T + 1) * th < ut1 ? (T + 1) * th : ut1;
         for (uint64_t S = us0 / tw; S <= (us1 - 1) / tw; S++) {
@@ -1767,12 +1770,55 @@ static inline int clipmap_read_region(const struct clipmap_map *m, const struct 
                 }
                 if (rc != CLIPMAP_OK) return rc;
                 for (uint64_t t = ta; t < tb; t++)
-                    memcpy(out + ((t - ut0) * w + (sa - us0)) * bpt,
+                    memcpy(out + ((t - ut0) * pitch + col + (sa - us0)) * bpt,
                            slot + ((t - T * th) * tw + (sa - S * tw)) * bpt, (size_t)((sbnd - sa) * bpt));
                 done = clipmap_tag_end(m, level, (int64_t)S, (int64_t)T, seq);
             }
             if (!done) return CLIPMAP_BUSY;
         }
+    }
+    return CLIPMAP_OK;
+}
+
+/* Copies the w x h texels of `level` from (s0, t0) into `out` (row-major, rows in increasing t,
+ * row pitch w * bytes per texel), tile by tile across tile edges and the toroidal wrap, each
+ * tile under its tag protocol. The rectangle must lie inside the level's region in `snap`; on a
+ * texture that wraps in longitude (m->georef_wraps) texel s is texel s mod width, and the
+ * rectangle must lie inside the region taken modulo the width (docs/SHM.md, "How a region
+ * wraps"), at most the width wide.
+ * CLIPMAP_OK: a consistent copy. CLIPMAP_NOT_VALID: no such level, disabled, or outside the
+ * region. CLIPMAP_MISSING: a tile could not be read (use a coarser level). CLIPMAP_STALE: a
+ * slot holds another tile (take a new snapshot). CLIPMAP_BUSY: a tag stayed locked or kept
+ * changing for CLIPMAP_MAX_RETRIES attempts. CLIPMAP_CORRUPT: `snap` was not accepted by
+ * clipmap_snapshot. On anything but CLIPMAP_OK, `out` holds unspecified bytes. */
+static inline int clipmap_read_region(const struct clipmap_map *m, const struct clipmap_snapshot *snap,
+                                      uint32_t level, int64_t s0, int64_t t0, uint64_t w, uint64_t h,
+                                      unsigned char *out) {
+    if (level >= m->level_count || level >= snap->level_count) return CLIPMAP_NOT_VALID;
+    const struct clipmap_level_desc *d = &m->levels[level];
+    const struct clipmap_level_state *st = &snap->levels[level];
+    if (st->enabled != 1) return st->enabled == 0 ? CLIPMAP_NOT_VALID : CLIPMAP_CORRUPT;
+    if (!clipmap_region_ok_wrapping(d, st->valid, m->georef_wraps)) return CLIPMAP_CORRUPT;
+    if (w == 0 || h == 0) return CLIPMAP_OK;
+    if (t0 < st->valid[1] || t0 >= st->valid[3] || h > (uint64_t)(st->valid[3] - t0)) return CLIPMAP_NOT_VALID;
+    if (!m->georef_wraps) {
+        /* Inside [v0, v1): s0 >= v0, s0 < v1 and w <= v1 - s0 (no overflow: v1 - s0 > 0). */
+        if (s0 < st->valid[0] || s0 >= st->valid[2] || w > (uint64_t)(st->valid[2] - s0)) return CLIPMAP_NOT_VALID;
+        return clipmap_copy_texels_(m, level, (uint64_t)s0, (uint64_t)t0, w, h, out, w, 0);
+    }
+    /* Wraps: s0 taken to its column in [v0, v0 + width); the rectangle must end by v1. The
+     * region check bounds v0 and v1 - v0 by the width (at most 2^40), so nothing overflows. */
+    const int64_t width = (int64_t)d->size[0];
+    if (w > d->size[0] || s0 < -((int64_t)1 << 62) || s0 > ((int64_t)1 << 62)) return CLIPMAP_NOT_VALID;
+    int64_t at = st->valid[0] + (((s0 - st->valid[0]) % width) + width) % width;
+    if ((uint64_t)(st->valid[2] - at) < w || at >= st->valid[2]) return CLIPMAP_NOT_VALID;
+    uint64_t col = 0, real = (uint64_t)(((s0 % width) + width) % width);
+    while (col < w) {
+        uint64_t n = w - col < d->size[0] - real ? w - col : d->size[0] - real;
+        int rc = clipmap_copy_texels_(m, level, real, (uint64_t)t0, n, h, out, w, col);
+        if (rc != CLIPMAP_OK) return rc;
+        col += n;
+        real = 0;
     }
     return CLIPMAP_OK;
 }

@@ -82,8 +82,13 @@ const EMPTY_SLOT: Slot = Slot { tile: None, state: TileState::Absent, assigned: 
 #[derive(Clone, Debug)]
 struct LevelCache {
     grid: [u64; 2],
+    /// The mem region, in tile indices; on a wrapping level its columns may run past the
+    /// level's tiles (tile U is tile U mod `period`).
     mem: Rect,
     slots: Vec<Slot>,
+    /// The level's tiles across when it wraps along s (the grid width divides it, so tile U
+    /// and tile U mod `period` take the same slot), `None` otherwise.
+    period: Option<u64>,
 }
 
 impl LevelCache {
@@ -91,9 +96,23 @@ impl LevelCache {
         (wrap(st[1], self.grid[1]) * self.grid[0] + wrap(st[0], self.grid[0])) as usize
     }
 
+    /// The level's own tile of tile index `st` of the mem region (column modulo the tiles
+    /// across on a wrapping level).
+    fn real(&self, st: [i64; 2]) -> [i64; 2] {
+        match self.period {
+            Some(n) => [wrap(st[0], n) as i64, st[1]],
+            None => st,
+        }
+    }
+
+    /// Whether tile `st` (the level's own index) is in the mem region.
+    fn in_mem(&self, st: [i64; 2]) -> bool {
+        crate::geom::contains_wrapped(&self.mem, st[0], st[1], self.period)
+    }
+
     fn slot(&self, st: [i64; 2]) -> Option<&Slot> {
         let slot = &self.slots[self.slot_index(st)];
-        (self.mem.contains(st[0], st[1]) && slot.tile == Some(st)).then_some(slot)
+        (self.in_mem(st) && slot.tile == Some(st)).then_some(slot)
     }
 }
 
@@ -115,7 +134,12 @@ impl TileCache {
     pub fn new(desc: &TextureDesc, grids: &[[u64; 2]], memory: Arc<ImageMemory>, keeper: SlotKeeper) -> Self {
         let levels = grids
             .iter()
-            .map(|&grid| LevelCache { grid, mem: Rect::EMPTY, slots: vec![EMPTY_SLOT; (grid[0] * grid[1]) as usize] })
+            .map(|&grid| LevelCache {
+                grid,
+                mem: Rect::EMPTY,
+                slots: vec![EMPTY_SLOT; (grid[0] * grid[1]) as usize],
+                period: None,
+            })
             .collect();
         let tile_bytes = (0..desc.level_count() as u32).map(|k| desc.tile_bytes(k)).collect();
         TileCache { levels, memory, keeper, tile_bytes }
@@ -124,6 +148,18 @@ impl TileCache {
     /// The memory the slots live in.
     pub fn memory(&self) -> &Arc<ImageMemory> {
         &self.memory
+    }
+
+    /// Level `k` wraps along s with `period` tiles across (`None`: it does not): its mem
+    /// regions may run past its tiles, tile U being tile U mod `period`. The grid width must
+    /// divide `period` ([`crate::geom::wrap_grid`]). Call before the first mem region.
+    pub(crate) fn set_tile_period(&mut self, k: u32, period: Option<u64>) {
+        let level = &mut self.levels[k as usize];
+        debug_assert!(
+            period.is_none_or(|n| n % level.grid[0] == 0),
+            "a wrapping grid's width divides the tiles across"
+        );
+        level.period = period;
     }
 
     /// Slots per axis of level `k`'s grid.
@@ -147,7 +183,8 @@ impl TileCache {
         level.mem = mem;
         let mut evicted = 0;
         for t in mem.t0..mem.t1 {
-            for s in mem.s0..mem.s1 {
+            for u in mem.s0..mem.s1 {
+                let [s, t] = level.real([u, t]);
                 let i = level.slot_index([s, t]);
                 let slot = &mut level.slots[i];
                 if slot.tile != Some([s, t]) {
@@ -164,8 +201,9 @@ impl TileCache {
         // Slots outside a region smaller than the grid (edges of small levels) hold nothing the
         // engine uses; their memory keeps whatever tile it had, which no region covers.
         if mem.area() < level.grid[0] * level.grid[1] {
+            let period = level.period;
             for slot in level.slots.iter_mut() {
-                if slot.tile.is_some_and(|[s, t]| !mem.contains(s, t)) {
+                if slot.tile.is_some_and(|[s, t]| !crate::geom::contains_wrapped(&mem, s, t, period)) {
                     if slot.state.settled() {
                         evicted += 1;
                     }
@@ -188,7 +226,7 @@ impl TileCache {
     fn level_slot_mut(&mut self, tile: TileId) -> Option<&mut Slot> {
         let level = self.levels.get_mut(tile.level as usize)?;
         let st = [tile.s as i64, tile.t as i64];
-        if !level.mem.contains(st[0], st[1]) {
+        if !level.in_mem(st) {
             return None;
         }
         let i = level.slot_index(st);
@@ -295,7 +333,8 @@ impl TileCache {
         let level = &self.levels[k as usize];
         let mut out = Vec::new();
         for t in level.mem.t0..level.mem.t1 {
-            for s in level.mem.s0..level.mem.s1 {
+            for u in level.mem.s0..level.mem.s1 {
+                let [s, t] = level.real([u, t]);
                 let slot = &level.slots[level.slot_index([s, t])];
                 let want = slot.assigned
                     && match slot.state {

@@ -9,7 +9,8 @@
 //! accuracy tools.
 //!
 //! Coordinates are level-0 texel units in f64: (u, v) = (s + 0.5, t + 0.5) is the centre of
-//! level-0 texel (s, t). Addressing clamps to the level's edges.
+//! level-0 texel (s, t). Addressing clamps to the level's edges (along s, a texture read from a
+//! mapping that wraps in longitude takes s modulo the level's width instead).
 //!
 //! Heights (docs/ELEVATION.md) are sampled in metres with 64-bit arithmetic from the stored
 //! values ([`crate::height::HeightFormat::decode`]), never through the normalised colour path:
@@ -113,6 +114,13 @@ trait Fetch {
     /// available.
     fn raw(&mut self, level: u32, s: i64, t: i64, out: &mut [u8]) -> bool;
 
+    /// Whether s wraps modulo each level's width (a texture that spans 360 degrees of longitude,
+    /// read from a mapping whose georef block says so: docs/SHM.md, "How a region wraps"):
+    /// addressing then takes s modulo the width instead of clamping it to the edges.
+    fn wraps(&self) -> bool {
+        false
+    }
+
     /// The texel's colour, components normalised.
     fn texel(&mut self, level: u32, s: i64, t: i64) -> Option<[f32; 4]> {
         let format = self.format();
@@ -129,6 +137,16 @@ trait Fetch {
     }
 }
 
+/// Column `s` of a level `width` texels wide: `s mod width` where the texture wraps, else
+/// clamped to the edges.
+fn column(wraps: bool, s: i64, width: u64) -> i64 {
+    if wraps {
+        crate::geom::wrap(s, width) as i64
+    } else {
+        s.clamp(0, width as i64 - 1)
+    }
+}
+
 fn lerp(a: [f32; 4], b: [f32; 4], f: f32) -> [f32; 4] {
     [a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f, a[2] + (b[2] - a[2]) * f, a[3] + (b[3] - a[3]) * f]
 }
@@ -136,7 +154,7 @@ fn lerp(a: [f32; 4], b: [f32; 4], f: f32) -> [f32; 4] {
 fn point(src: &mut dyn Fetch, k: u32, u: f64, v: f64) -> Option<[f32; 4]> {
     let size = level_size(src.size(), k);
     let scale = (1u64 << k) as f64;
-    let s = ((u / scale).floor() as i64).clamp(0, size[0] as i64 - 1);
+    let s = column(src.wraps(), (u / scale).floor() as i64, size[0]);
     let t = ((v / scale).floor() as i64).clamp(0, size[1] as i64 - 1);
     src.texel(k, s, t)
 }
@@ -147,7 +165,8 @@ fn bilinear(src: &mut dyn Fetch, k: u32, u: f64, v: f64) -> Option<[f32; 4]> {
     let (x, y) = (u / scale - 0.5, v / scale - 0.5);
     let (x0, y0) = (x.floor(), y.floor());
     let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
-    let cs = |s: i64| s.clamp(0, size[0] as i64 - 1);
+    let wraps = src.wraps();
+    let cs = |s: i64| column(wraps, s, size[0]);
     let ct = |t: i64| t.clamp(0, size[1] as i64 - 1);
     let (s0, t0) = (x0 as i64, y0 as i64);
     let a = src.texel(k, cs(s0), ct(t0))?;
@@ -179,7 +198,7 @@ fn filtered(src: &mut dyn Fetch, filter: Filter, u: f64, v: f64, lod: f64) -> Op
 fn point_height(src: &mut dyn Fetch, hf: &HeightFormat, k: u32, u: f64, v: f64) -> Option<Option<f64>> {
     let size = level_size(src.size(), k);
     let scale = (1u64 << k) as f64;
-    let s = ((u / scale).floor() as i64).clamp(0, size[0] as i64 - 1);
+    let s = column(src.wraps(), (u / scale).floor() as i64, size[0]);
     let t = ((v / scale).floor() as i64).clamp(0, size[1] as i64 - 1);
     src.height(hf, k, s, t)
 }
@@ -201,7 +220,8 @@ fn bilinear_height(
     let (x, y) = (u / scale - 0.5, v / scale - 0.5);
     let (x0, y0) = (x.floor(), y.floor());
     let (fx, fy) = (x - x0, y - y0);
-    let cs = |s: i64| s.clamp(0, size[0] as i64 - 1);
+    let wraps = src.wraps();
+    let cs = |s: i64| column(wraps, s, size[0]);
     let ct = |t: i64| t.clamp(0, size[1] as i64 - 1);
     let (s0, t0) = (x0 as i64, y0 as i64);
     let corners = [(0, 0, (1.0 - fx) * (1.0 - fy)), (1, 0, fx * (1.0 - fy)), (0, 1, (1.0 - fx) * fy), (1, 1, fx * fy)];
@@ -408,6 +428,10 @@ impl Fetch for MappedFetch<'_> {
 
     fn format(&self) -> TexelFormat {
         self.format
+    }
+
+    fn wraps(&self) -> bool {
+        self.client.wraps()
     }
 
     fn raw(&mut self, level: u32, s: i64, t: i64, out: &mut [u8]) -> bool {

@@ -46,6 +46,11 @@ struct Cli {
     /// Serve a procedural texture instead of a configuration.
     #[arg(long, value_enum, conflicts_with = "config")]
     source: Option<SourceArg>,
+    /// With --source: place the procedural texture on the whole Earth (EPSG:4326, longitude -180
+    /// to 180, latitude -90 to 90), so that it wraps in longitude as a global COG or a tile
+    /// service does (docs/GEOREF.md, "The antimeridian").
+    #[arg(long, requires = "source")]
+    global: bool,
     /// Serve a growing texture (a store made by `cliptex grow create`, docs/GROWING.md) while it
     /// grows: patches arrive on the control socket (`PATCH`) and in --incoming.
     #[arg(long, value_name = "DIR", conflicts_with_all = ["config", "source"])]
@@ -327,6 +332,7 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             };
             let src = service::procedural_source(kind, cli.size, cli.clip, cli.tile)
                 .map_err(|e| Failure(e.exit_code(), e.into()))?;
+            let src = if cli.global { Arc::new(clipmap::source::GlobalSource::new(src)) as _ } else { src };
             (src, name.to_string(), clipmap::paging::PagingOptions::default())
         }
         (None, None) => {

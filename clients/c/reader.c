@@ -540,6 +540,8 @@ int main(int argc, char **argv) {
         for (uint64_t j = 0; j < h; j++) {
             for (uint64_t i = 0; i < w; i++) {
                 uint64_t s = (uint64_t)s0 + i, t = (uint64_t)t0b + j;
+                /* A wrapping texture's region may run past the width: texel s is texel s mod width. */
+                if (tm->georef_wraps) s %= d->size[0];
                 uint64_t v = clipmap_hash_value(level, s, t);
                 const unsigned char *got = buf + (j * w + i) * bpt;
                 int ok = 1;

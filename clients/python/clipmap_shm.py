@@ -283,12 +283,22 @@ class LevelDesc:
         """The slot of tile (S, T): (T mod GH) * GW + (S mod GW), Euclidean."""
         return (T % self.grid[1]) * self.grid[0] + (S % self.grid[0])
 
-    def region_ok(self, v):
-        """Whether an enabled level's region is inside the level, non-empty, and spans at most
-        GW x GH tiles."""
+    def may_wrap(self, wraps):
+        """Whether the level's region may run past its width: the texture wraps in longitude (the
+        georef block's flag, `wraps`) and the width is a whole number of tiles (docs/SHM.md, "How
+        a region wraps")."""
+        return bool(wraps) and self.tile[0] > 0 and self.size[0] % self.tile[0] == 0
+
+    def region_ok(self, v, wraps=False):
+        """Whether an enabled level's region is inside the level (on a level that may wrap:
+        0 <= s0 < width and s0 < s1 <= s0 + width, texel s being texel s mod width), non-empty,
+        and spans at most GW x GH tiles."""
         for a in (0, 1):
             lo, hi = v[a], v[a + 2]
-            if not (0 <= lo < hi <= self.size[a]):
+            if a == 0 and self.may_wrap(wraps):
+                if not (0 <= lo < self.size[0] and lo < hi and hi - lo <= self.size[0]):
+                    return False
+            elif not (0 <= lo < hi <= self.size[a]):
                 return False
             if (hi - 1) // self.tile[a] - lo // self.tile[a] + 1 > self.grid[a]:
                 return False
@@ -994,11 +1004,12 @@ class Mapping:
                 raise Corrupt(f"level {k}: published enabled flag {f[6]}: expected 0 or 1")
             st.enabled = f[6] == 1
             d = self.levels[k]
-            if st.enabled and not d.region_ok(st.valid):
+            if st.enabled and not d.region_ok(st.valid, self.wraps):
                 v = st.valid
+                how = " (it wraps: s0 inside the level, s1 - s0 at most its width)" if d.may_wrap(self.wraps) else ""
                 raise Corrupt(f"level {k}: published region [{v[0]}, {v[2]}) x [{v[1]}, {v[3]}): expected a "
                               f"non-empty rectangle inside the {d.size[0]}x{d.size[1]} level spanning at most "
-                              f"{d.grid[0]}x{d.grid[1]} tiles")
+                              f"{d.grid[0]}x{d.grid[1]} tiles{how}")
             snap.levels.append(st)
         return snap
 
@@ -1067,11 +1078,37 @@ class Mapping:
             raise NotValid(f"level {level} is disabled")
         if w <= 0 or h <= 0:
             return b""
-        if not (v[0] <= s0 and s0 + w <= v[2] and v[1] <= t0 and t0 + h <= v[3]):
+        width = d.size[0]
+        if self.wraps:
+            # Texel s is texel s mod width: the rectangle, taken to the region's lap, must end by s1.
+            at = v[0] + (s0 - v[0]) % width
+            inside = w <= width and at + w <= v[2] and v[1] <= t0 and t0 + h <= v[3]
+        else:
+            inside = v[0] <= s0 and s0 + w <= v[2] and v[1] <= t0 and t0 + h <= v[3]
+        if not inside:
             raise NotValid(f"[{s0}, {s0 + w}) x [{t0}, {t0 + h}) is not inside level {level}'s published region "
-                           f"[{v[0]}, {v[2]}) x [{v[1]}, {v[3]})")
+                           f"[{v[0]}, {v[2]}) x [{v[1]}, {v[3]})" + (" (s taken modulo the width)" if self.wraps else ""))
+        out = bytearray(w * h * self.bpt)
+        if not self.wraps:
+            self._copy(level, d, s0, t0, w, h, out, w, 0)
+            return bytes(out)
+        col, real = 0, s0 % width
+        while col < w:
+            n = min(w - col, width - real)
+            self._copy(level, d, real, t0, n, h, out, w, col)
+            col, real = col + n, 0
+        return bytes(out)
+
+    @property
+    def wraps(self):
+        """Whether the texture wraps in longitude (the georef block's flag bit 0): texel s of every
+        level is texel s mod width, and a level's region may run past its width."""
+        return bool(self.georef and self.georef["wraps"])
+
+    def _copy(self, level, d, s0, t0, w, h, out, pitch, col):
+        """Copies the w x h texels from (s0, t0), inside the level, into `out` at column `col` of
+        rows `pitch` texels long, tile by tile under each slot's tag."""
         bpt, (tw, th), mm, q = self.bpt, d.tile, self.mm, self.q
-        out = bytearray(w * h * bpt)
         for T in range(t0 // th, (t0 + h - 1) // th + 1):
             ta, tb = max(t0, T * th), min(t0 + h, (T + 1) * th)
             for S in range(s0 // tw, (s0 + w - 1) // tw + 1):
@@ -1088,7 +1125,7 @@ class Mapping:
                     if ts == S and tt == T and state in (SLOT_READY, SLOT_DEFAULT):
                         for t in range(ta, tb):
                             src = base + ((t - T * th) * tw + (sa - S * tw)) * bpt
-                            dst = ((t - t0) * w + (sa - s0)) * bpt
+                            dst = ((t - t0) * pitch + col + (sa - s0)) * bpt
                             out[dst:dst + run] = mm[src:src + run]
                         if q[tag] == seq:
                             break
@@ -1100,7 +1137,6 @@ class Mapping:
                     raise Stale(f"level {level} tile ({S}, {T}): its slot holds tile ({ts}, {tt}) in state {state}")
                 else:
                     raise Busy(f"level {level} tile ({S}, {T}): the tag stayed locked for {MAX_RETRIES} attempts")
-        return bytes(out)
 
     def read_tile(self, level, S, T):
         """The bytes of tile (S, T)'s slot of `level` as they are (for a block format, its
@@ -1620,7 +1656,8 @@ def main(argv):
         i = 0
         for t in range(t0, t0 + h):
             for s in range(s0, s0 + w):
-                if got[i:i + bpt] == hash_texel(level, s, t, bpt):
+                # A wrapping texture's region may run past the width: texel s is texel s mod width.
+                if got[i:i + bpt] == hash_texel(level, s % d.size[0] if tm.wraps else s, t, bpt):
                     passed += 1
                 else:
                     if failed == 0:

@@ -129,7 +129,10 @@ fn footprint_bound(cam: &Camera, i: u32, j: u32) -> Option<([f64; 2], [f64; 2], 
 pub fn geometry(cam: &Camera, levels: &[LevelShape], frame: &Frame) -> GeometryDiff {
     let last = levels.len() as f64 - 1.0;
     let s0 = levels[0].size;
-    let on_texture = |uv: [f64; 2]| uv[0] >= 0.0 && uv[1] >= 0.0 && uv[0] < s0[0] as f64 && uv[1] < s0[1] as f64;
+    // A texture that wraps in longitude has no west or east edge.
+    let wraps = levels[0].wraps;
+    let on_texture =
+        |uv: [f64; 2]| (wraps || (uv[0] >= 0.0 && uv[0] < s0[0] as f64)) && uv[1] >= 0.0 && uv[1] < s0[1] as f64;
     let mut g = GeometryDiff::default();
     for j in 0..cam.height {
         for i in 0..cam.width {

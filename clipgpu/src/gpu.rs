@@ -250,6 +250,31 @@ pub struct LevelShape {
     pub grid: [u64; 2],
     /// Index of the level's first slot in the tag buffer.
     pub tag_base: u32,
+    /// The texture wraps in longitude (the mapping's georef flag): column s is column s mod the
+    /// width, and the published region may run past the width (docs/SHM.md, "How a region
+    /// wraps").
+    pub wraps: bool,
+}
+
+impl LevelShape {
+    /// Tile column `s` of the level itself: `s mod` the tiles across where the texture wraps.
+    pub fn real_tile(&self, s: i64) -> i64 {
+        if self.wraps {
+            clipmap::geom::wrap(s, self.size[0].div_ceil(self.tile[0])) as i64
+        } else {
+            s
+        }
+    }
+
+    /// Column `s` where the region `r` sees it (a width away across the seam where the texture
+    /// wraps).
+    pub fn near_window(&self, s: i64, r: clipmap::geom::Rect) -> i64 {
+        if self.wraps && !r.is_empty() {
+            clipmap::geom::shift_near(clipmap::geom::Rect::new(s, 0, s + 1, 1), self.size[0], (r.s0 + r.s1) / 2).s0
+        } else {
+            s
+        }
+    }
 }
 
 /// The textures, tags and pipeline for one mapping's shape.
@@ -277,7 +302,7 @@ pub fn shapes(client: &Client) -> Vec<LevelShape> {
         .levels
         .iter()
         .map(|d| {
-            let s = LevelShape { size: d.size, tile: d.tile, grid: d.grid, tag_base: base };
+            let s = LevelShape { size: d.size, tile: d.tile, grid: d.grid, tag_base: base, wraps: client.wraps() };
             base += (d.grid[0] * d.grid[1]) as u32;
             s
         })
@@ -541,7 +566,9 @@ impl Renderer {
             match (self.levels.get(k), snap.levels.get(k)) {
                 (Some(l), Some(st)) => {
                     push_i32(&mut b, st.valid);
-                    push_i32(&mut b, [l.size[0] as i64, l.size[1] as i64, st.enabled as i64, l.tag_base as i64]);
+                    // Bit 0: enabled; bit 1: the texture wraps in longitude.
+                    let flags = st.enabled as i64 | (i64::from(l.wraps) << 1);
+                    push_i32(&mut b, [l.size[0] as i64, l.size[1] as i64, flags, l.tag_base as i64]);
                     push_i32(&mut b, [l.tile[0] as i64, l.tile[1] as i64, l.grid[0] as i64, l.grid[1] as i64]);
                 }
                 _ => b.extend_from_slice(&[0u8; LEVEL_BYTES]),

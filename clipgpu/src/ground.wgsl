@@ -14,7 +14,9 @@
 struct Level {
     // Published valid region s0, t0, s1, t1 (level texels).
     valid: vec4<i32>,
-    // Level width, height; enabled (1) or not (0); first tag of the level in `tags`.
+    // Level width, height; flags: bit 0 enabled, bit 1 the texture wraps in longitude (column s
+    // is column s mod the width; the region may run past the width); first tag of the level in
+    // `tags`.
     size: vec4<i32>,
     // Tile width, height; grid width, height (slots).
     tile: vec4<i32>,
@@ -79,13 +81,35 @@ fn ground(x: f32, y: f32) -> vec3<f32> {
 // valid region, and the GPU slot of its tile holding that very tile.
 fn available(k: i32, s: i32, t: i32) -> bool {
     let l = fr.levels[k];
-    if l.size.z == 0 || s < l.valid.x || s >= l.valid.z || t < l.valid.y || t >= l.valid.w {
+    if (l.size.z & 1) == 0 || t < l.valid.y || t >= l.valid.w {
+        return false;
+    }
+    // s is the level's own column (in [0, width) where the texture wraps): the region holds it,
+    // or holds it a width further where the region runs past the width.
+    let inside = s >= l.valid.x && s < l.valid.z;
+    let lap = wraps(k) && s + l.size.x >= l.valid.x && s + l.size.x < l.valid.z;
+    if !(inside || lap) {
         return false;
     }
     let ts = s / l.tile.x;
     let tt = t / l.tile.y;
     let tag = tags[l.size.w + (tt % l.tile.w) * l.tile.z + (ts % l.tile.z)];
     return tag.x == ts && tag.y == tt && tag.z == 1;
+}
+
+// Whether the texture wraps in longitude (every level's flag says the same).
+fn wraps(k: i32) -> bool {
+    return (fr.levels[k].size.z & 2) != 0;
+}
+
+// Column s of level k: s mod the width where the texture wraps, else clamped to the edges (as
+// `clipmap::sample` addresses).
+fn column(k: i32, s: i32) -> i32 {
+    let w = fr.levels[k].size.x;
+    if wraps(k) {
+        return ((s % w) + w) % w;
+    }
+    return clamp(s, 0, w - 1);
 }
 
 // Where texel (s, t) of level k lies in its layer.
@@ -139,7 +163,7 @@ struct Coord {
 fn point(k: i32, c: Coord) -> Got {
     let l = fr.levels[k];
     // floor((i + f) / 2^k) = i >> k, as f < 1.
-    let s = clamp(c.i.x >> u32(k), 0, l.size.x - 1);
+    let s = column(k, c.i.x >> u32(k));
     let t = clamp(c.i.y >> u32(k), 0, l.size.y - 1);
     if !available(k, s, t) {
         return Got(false, false, vec4<f32>(0.0));
@@ -181,8 +205,8 @@ fn bilinear(k: i32, c: Coord) -> Got {
     let t0 = cy.x0;
     let fx = cx.w;
     let fy = cy.w;
-    let sa = clamp(s0, 0, l.size.x - 1);
-    let sb = clamp(s0 + 1, 0, l.size.x - 1);
+    let sa = column(k, s0);
+    let sb = column(k, s0 + 1);
     let ta = clamp(t0, 0, l.size.y - 1);
     let tb = clamp(t0 + 1, 0, l.size.y - 1);
     if !(available(k, sa, ta) && available(k, sb, ta) && available(k, sa, tb) && available(k, sb, tb)) {
@@ -358,8 +382,10 @@ fn fs(@builtin(position) pos: vec4<f32>) -> Out {
     let q = vec2<u32>(su.q, sv.q);
     let co = Coord(vec2<i32>(su.i, sv.i), vec2<f32>(ldexp(f32(q.x), -24), ldexp(f32(q.y), -24)));
     let size = fr.levels[0].size;
-    // u = i + f with f in [0, 1): u >= 0 exactly when i >= 0, u < size when i < size.
-    if co.i.x < 0 || co.i.y < 0 || co.i.x >= size.x || co.i.y >= size.y {
+    // u = i + f with f in [0, 1): u >= 0 exactly when i >= 0, u < size when i < size. A texture
+    // that wraps in longitude has no west or east edge: the ground goes on around the world.
+    let off_s = !wraps(0) && (co.i.x < 0 || co.i.x >= size.x);
+    if off_s || co.i.y < 0 || co.i.y >= size.y {
         return sky();
     }
     let count = i32(fr.params.y);

@@ -10,6 +10,7 @@
 #![forbid(unsafe_code)]
 
 pub mod check;
+pub mod coords;
 pub mod demo;
 pub mod diff;
 pub mod flight;

@@ -232,7 +232,11 @@ impl Uploader {
                 (tiles.t0..tiles.t1).flat_map(|t| (tiles.s0..tiles.s1).map(move |s| [s, t])).collect();
             let (ts, tt) = (l.tile[0] as i64, l.tile[1] as i64);
             let c = state.centre;
+            let c = [l.near_window(c[0], state.rect()), c[1]];
             order.sort_by_key(|&[s, t]| (s * ts + ts / 2 - c[0]).abs().max((t * tt + tt / 2 - c[1]).abs()));
+            // A region past the width (a texture that wraps in longitude) names tiles past the
+            // level's: tile S is tile S mod the tiles across.
+            let order: Vec<[i64; 2]> = order.into_iter().map(|[s, t]| [l.real_tile(s), t]).collect();
             let tile_bytes = l.tile[0] * l.tile[1] * self.bpt as u64;
             for tile in order {
                 let slot = clipmap::shm::layout::slot_index(l.grid, tile) as usize;
@@ -331,7 +335,7 @@ impl Uploader {
                                 false
                             }
                         };
-                        let tag = ([ts, tt], ok);
+                        let tag = ([l.real_tile(ts), tt], ok);
                         if self.held[k][slot] != tag {
                             self.held[k][slot] = tag;
                             changed.push((k, slot));

@@ -631,3 +631,42 @@ fn a_further_view_is_drawn_and_moved_bit_exact_while_main_stays_and_an_unknown_v
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("--view a/b") && err.contains("expected 1 to 31 of"), "{err}");
 }
+
+#[test]
+fn a_flight_across_the_antimeridian_of_a_global_texture_shows_no_seam_and_stays_bit_exact() {
+    // Eastwards from 42 texels west of the east edge of an 8192-wide texture: the camera looks
+    // across the edge every frame, and the eye crosses it.
+    let args = |name: &'static str, d: &'static str| {
+        vec![
+            "--name",
+            name,
+            "--shm-dir",
+            d,
+            "--filter",
+            "point",
+            "--frames",
+            "6",
+            "--size",
+            "128x96",
+            "--start",
+            "8150,4096",
+            "--flight",
+            "straight:8:0",
+        ]
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let _s = Service::start(dir.path(), "globe", &["--global"]);
+    let d: &'static str = Box::leak(dir.path().to_str().unwrap().to_string().into_boxed_str());
+    let j = json(&args("globe", d));
+    assert_within_tolerance(&j);
+    assert_bit_exact_at_gpu_coords(&j);
+    // No sky past the antimeridian: every pixel of every frame is ground, sampled at s mod width.
+    assert_eq!(j["pixels_compared_at_gpu_coords"], 6 * 128 * 96, "{}", j["per_frame"]);
+    // The same texture not marked global ends at its edge: sky past it.
+    let flat = tempfile::tempdir().unwrap();
+    let _f = Service::start(flat.path(), "flat", &[]);
+    let d: &'static str = Box::leak(flat.path().to_str().unwrap().to_string().into_boxed_str());
+    let j = json(&args("flat", d));
+    assert_bit_exact_at_gpu_coords(&j);
+    assert!(j["pixels_compared_at_gpu_coords"].as_u64().unwrap() < 6 * 128 * 96, "sky past the edge");
+}

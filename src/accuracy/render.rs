@@ -210,7 +210,11 @@ fn mapping_pixel(
     lod: f64,
 ) -> Pixel {
     let last = client.levels.len() as f64 - 1.0;
-    if !in_texture(uv, client.levels[0].size) {
+    // A texture that wraps in longitude has no west or east edge (docs/SHM.md, "How a region
+    // wraps"): the ground goes on around the world, sampled at s mod width.
+    let size = client.levels[0].size;
+    let on = if client.wraps() { uv[1] >= 0.0 && uv[1] < size[1] as f64 } else { in_texture(uv, size) };
+    if !on {
         return SKY;
     }
     let held = held.map(|h| h as &dyn Fn(u32, i64, i64) -> bool);

@@ -95,12 +95,30 @@ impl Clipmap {
                 out.push(v);
                 continue;
             }
-            level.frame.mem = match &mut self.controller {
-                None => self.settings.prefetch.policy().mem_region(&level.shape, tex, v, previous),
+            // A wrapping level is placed as the middle of three copies of itself side by side
+            // (no edge near its window along s), and its region moved back by a level's tiles.
+            let (shape, tex, previous, back) = match level.shape.tile_period() {
+                None => (level.shape, tex, previous, 0),
+                Some(n) => {
+                    let w = level.shape.size[0] as i64;
+                    let wide =
+                        LevelShape { size: [level.shape.size[0] * 3, level.shape.size[1]], wrap: false, ..level.shape };
+                    let need = tiles_covering(tex, level.shape.tile);
+                    let prev = crate::geom::shift_near(previous, n, need.s0);
+                    let prev = if prev.is_empty() {
+                        prev
+                    } else {
+                        Rect::new(prev.s0 + n as i64, prev.t0, prev.s1 + n as i64, prev.t1)
+                    };
+                    (wide, Rect::new(tex.s0 + w, tex.t0, tex.s1 + w, tex.t1), prev, n as i64)
+                }
+            };
+            let mem = match &mut self.controller {
+                None => self.settings.prefetch.policy().mem_region(&shape, tex, v, previous),
                 // A grid a configuration fixes (`mem_region_size`, or its lookahead) is held whole,
                 // as the configuration says, its spare tiles around the window: reported fixed.
                 Some(_) if self.desc.mem_grid(k32).is_some() => {
-                    PrefetchKind::Ring.policy().mem_region(&level.shape, tex, v, previous)
+                    PrefetchKind::Ring.policy().mem_region(&shape, tex, v, previous)
                 }
                 Some(ctl) => {
                     let smooth = ctl.motion.at_level(k32);
@@ -119,9 +137,11 @@ impl Clipmap {
                         lead[a] = if smooth[a] == 0 { 0 } else { adaptive::held_lead(ctl.lead[k][a], need) };
                     }
                     ctl.lead[k] = lead;
-                    adaptive::region(&level.shape, tex, smooth, lead)
+                    adaptive::region(&shape, tex, smooth, lead)
                 }
             };
+            level.frame.mem =
+                if mem.is_empty() { mem } else { Rect::new(mem.s0 - back, mem.t0, mem.s1 - back, mem.t1) };
             out.push(v);
         }
         out
@@ -146,14 +166,22 @@ impl Clipmap {
         let tile = level.shape.tile;
         let tiles = tiles_covering(valid, tile);
         let mem = level.frame.mem;
+        let period = level.shape.tile_period();
+        // On a wrapping level tile columns run past the level's tiles: column U is U mod n.
         let settled = |s: i64, t: i64| {
-            mem.contains(s, t) && self.cache.state(TileId::new(k as u32, s as u64, t as u64)).settled()
+            let s = period.map_or(s, |n| crate::geom::wrap(s, n) as i64);
+            crate::geom::contains_wrapped(&mem, s, t, period)
+                && self.cache.state(TileId::new(k as u32, s as u64, t as u64)).settled()
         };
         let all = |r: Rect| (r.t0..r.t1).all(|t| (r.s0..r.s1).all(|s| settled(s, t)));
         if all(tiles) {
             return valid;
         }
-        let c = frame.centre;
+        let mut c = frame.centre;
+        if let Some(w) = level.shape.texel_period() {
+            // The centre's column nearest the window (its own may lie a level's width away).
+            c[0] = crate::geom::shift_near(Rect::new(c[0], 0, c[0] + 1, 1), w, (valid.s0 + valid.s1) / 2).s0;
+        }
         let cs = c[0].clamp(valid.s0, valid.s1 - 1).div_euclid(tile[0] as i64);
         let ct = c[1].clamp(valid.t0, valid.t1 - 1).div_euclid(tile[1] as i64);
         if !settled(cs, ct) {
@@ -205,7 +233,11 @@ impl Clipmap {
                 if waiting.contains(&tile) {
                     continue;
                 }
-                let texels = tile_texels(level.shape.size, level.shape.tile, [tile.s, tile.t]);
+                let mut texels = tile_texels(level.shape.size, level.shape.tile, [tile.s, tile.t]);
+                if let Some(w) = level.shape.texel_period() {
+                    // Where the window sees the tile (a level's width away across the seam).
+                    texels = crate::geom::shift_near(texels, w, (level.frame.tex.s0 + level.frame.tex.s1) / 2);
+                }
                 let p = if self.controller.is_some() {
                     soonest_first(k32, count, texels, level.frame.valid, level.shape.clip, velocities[k])
                 } else {

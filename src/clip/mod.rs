@@ -86,6 +86,12 @@ pub struct Settings {
     /// (0: grids for one view; the views share what it holds). `cliptex plan`'s memory formula
     /// counts them.
     pub view_spread: u64,
+    /// The texture spans 360 degrees of longitude (its georeferencing says so,
+    /// `Georef::is_global_in_longitude`): every level that [`crate::geom::level_wraps`] wraps
+    /// along s, its windows crossing the antimeridian (tile S is tile S mod the tiles across, and
+    /// its grid width divides the tiles across, [`crate::geom::wrap_grid`]). `false`: windows
+    /// stop at the texture's edges.
+    pub wrap_longitude: bool,
 }
 
 impl Default for Settings {
@@ -104,6 +110,7 @@ impl Default for Settings {
             limits: Limits::default(),
             grid_budget: None,
             view_spread: 0,
+            wrap_longitude: false,
         }
     }
 }
@@ -191,13 +198,26 @@ pub struct LevelView<'a> {
     pub valid: Rect,
     /// The level's current centre.
     pub centre: [i64; 2],
+    /// Whether the level wraps along s ([`crate::geom::level_wraps`]): its valid region's
+    /// s-range may run past the width, and texel s is texel `s mod width`.
+    pub wrap: bool,
     cache: &'a TileCache,
 }
 
 impl LevelView<'_> {
     /// The tile holding texel (s, t).
     pub fn tile_of(&self, s: i64, t: i64) -> TileId {
+        let s = self.real_s(s);
         TileId::new(self.level, s.div_euclid(self.tile[0] as i64) as u64, t.div_euclid(self.tile[1] as i64) as u64)
+    }
+
+    /// Column s of the level itself: `s mod width` when the level wraps, else `s`.
+    fn real_s(&self, s: i64) -> i64 {
+        if self.wrap {
+            crate::geom::wrap(s, self.size[0]) as i64
+        } else {
+            s
+        }
     }
 
     /// The state of the tile holding texel (s, t).
@@ -208,9 +228,10 @@ impl LevelView<'_> {
     /// The texel at (s, t) if it lies in the published valid region and its tile is readable (a
     /// missing tile's texels come from a coarser level).
     pub fn texel(&self, s: i64, t: i64) -> Option<Texel> {
-        if !self.valid.contains(s, t) {
+        if !crate::geom::contains_wrapped(&self.valid, s, t, self.wrap.then_some(self.size[0])) {
             return None;
         }
+        let s = self.real_s(s);
         let tile = self.tile_of(s, t);
         let (tw, th) = (self.tile[0] as i64, self.tile[1] as i64);
         let i = ((t - tile.t as i64 * th) * tw + (s - tile.s as i64 * tw)) as usize * self.bpt;
@@ -313,7 +334,7 @@ impl Clipmap {
             .map(|(k, l)| level_grid(l.size, l.tile, clip, settings.lookahead, desc.mem_grid(k as u32)))
             .collect();
         if settings.prefetch != PrefetchKind::Adaptive {
-            return views::spread_grids(desc, fixed, settings.view_spread);
+            return Self::wrap_grids(desc, settings, views::spread_grids(desc, fixed, settings.view_spread));
         }
         // Levels whose configuration fixes a mem region keep it; the others share the budget.
         let free: Vec<usize> = (0..fixed.len()).filter(|&k| desc.mem_grid(k as u32).is_none()).collect();
@@ -326,7 +347,24 @@ impl Clipmap {
         for (i, &k) in free.iter().enumerate() {
             out[k] = grids[i];
         }
-        views::spread_grids(desc, out, settings.view_spread)
+        Self::wrap_grids(desc, settings, views::spread_grids(desc, out, settings.view_spread))
+    }
+
+    /// Whether level `k` of `desc` wraps along s under `settings` ([`crate::geom::level_wraps`]).
+    pub fn level_wraps(desc: &TextureDesc, settings: &Settings, k: u32) -> bool {
+        let l = desc.level(k);
+        crate::geom::level_wraps(settings.wrap_longitude, l.size, l.tile, desc.clip_size())
+    }
+
+    /// `grids` with the width of every wrapping level's raised to a divisor of its tiles across.
+    fn wrap_grids(desc: &TextureDesc, settings: &Settings, mut grids: Vec<[u64; 2]>) -> Vec<[u64; 2]> {
+        for (k, g) in grids.iter_mut().enumerate() {
+            if Self::level_wraps(desc, settings, k as u32) {
+                let l = desc.level(k as u32);
+                g[0] = crate::geom::wrap_grid(crate::geom::tiles_in_level(l.size, l.tile)[0], g[0]);
+            }
+        }
+        grids
     }
 
     /// The bytes the adaptive policy's grids may take, all levels together (`None` for the fixed
@@ -394,8 +432,9 @@ impl Clipmap {
             .levels()
             .iter()
             .zip(&grids)
-            .map(|(l, &grid)| Level {
-                shape: LevelShape { size: l.size, tile: l.tile, clip, grid },
+            .enumerate()
+            .map(|(k, (l, &grid))| Level {
+                shape: LevelShape { size: l.size, tile: l.tile, clip, grid, wrap: Self::level_wraps(&desc, &settings, k as u32) },
                 frame: LevelFrame { centre: [0, 0], tex: Rect::EMPTY, valid: Rect::EMPTY, mem: Rect::EMPTY },
                 published: Rect::EMPTY,
                 updated_tick: 0,
@@ -408,7 +447,10 @@ impl Clipmap {
                     .to_string(),
             )
         })?;
-        let cache = TileCache::new(&desc, &grids, Arc::clone(&memory), keeper);
+        let mut cache = TileCache::new(&desc, &grids, Arc::clone(&memory), keeper);
+        for (k, l) in levels.iter().enumerate() {
+            cache.set_tile_period(k as u32, l.shape.tile_period());
+        }
         let pool = (settings.pool_bytes > 0)
             .then(|| Arc::new(PoolSource::new(source.clone(), settings.pool_bytes, settings.eviction)));
         let reader: Arc<dyn TileSource> = match &pool {
@@ -518,6 +560,7 @@ impl Clipmap {
             bpt: self.desc.bytes_per_texel(),
             valid: l.published,
             centre: l.frame.centre,
+            wrap: l.shape.wrap,
             cache: &self.cache,
         }
     }

@@ -40,8 +40,12 @@ impl Clipmap {
         let held: Vec<TileId> = (0..self.levels.len() as u32)
             .flat_map(|k| {
                 let mem = self.cache.mem_region(k);
+                // A wrapping level's columns may run past its tiles: tile U is tile U mod n.
+                let period = self.levels[k as usize].shape.tile_period();
+                let real = move |s: i64| period.map_or(s, |n| crate::geom::wrap(s, n) as i64);
+                let lo = if period.is_some() { mem.s0 } else { mem.s0.max(0) };
                 (mem.t0.max(0)..mem.t1)
-                    .flat_map(move |t| (mem.s0.max(0)..mem.s1).map(move |s| TileId::new(k, s as u64, t as u64)))
+                    .flat_map(move |t| (lo..mem.s1).map(move |s| TileId::new(k, real(s) as u64, t as u64)))
             })
             .filter(|&t| self.holds(t))
             .collect();

@@ -585,14 +585,21 @@ impl Clipmap {
             return 0;
         }
         let tile = self.levels[k].shape.tile;
+        let period = self.levels[k].shape.tile_period();
         let mut n = 0;
         for (_, view) in self.views.live() {
             let Some(l) = view.levels.get(k) else { continue };
-            let r = tiles_covering(l.published, tile).intersect(&old);
+            let r = tiles_covering(l.published, tile);
+            let r = match period {
+                Some(p) => crate::geom::shift_near(r, p, old.s0),
+                None => r,
+            }
+            .intersect(&old);
             for t in r.t0..r.t1 {
                 for s in r.s0..r.s1 {
-                    let settled = self.cache.state(TileId::new(k as u32, s as u64, t as u64)).settled();
-                    if settled && !mem.contains(s, t) {
+                    let real = period.map_or(s, |p| crate::geom::wrap(s, p) as i64);
+                    let settled = self.cache.state(TileId::new(k as u32, real as u64, t as u64)).settled();
+                    if settled && !crate::geom::contains_wrapped(&mem, real, t, period) {
                         n += 1;
                     }
                 }
@@ -613,6 +620,11 @@ pub(super) fn mem_window(shape: &LevelShape, tex: Rect, others: &[Rect]) -> Rect
     };
     let mut union = tex;
     for &r in others {
+        // On a wrapping level, another view's window where it lies nearest the primary's.
+        let r = match shape.texel_period() {
+            Some(w) if !tex.is_empty() => crate::geom::shift_near(r, w, tex.s0),
+            _ => r,
+        };
         let grown = bbox(union, r);
         if fits(grown) {
             union = grown;

@@ -471,7 +471,7 @@ mod tests {
     use proptest::test_runner::{Config, RngSeed};
 
     fn shape(grid: u64) -> LevelShape {
-        LevelShape { size: [1 << 16, 1 << 16], tile: [256, 256], clip: 2048, grid: [grid, grid] }
+        LevelShape { size: [1 << 16, 1 << 16], tile: [256, 256], clip: 2048, grid: [grid, grid], wrap: false }
     }
 
     #[test]
@@ -680,7 +680,7 @@ mod tests {
         let touch = 2048 / tile + 1;
         let spare = lead.div_ceil(tile) + 2;
         let sh =
-            LevelShape { size: [1 << 24, 1 << 24], tile: [tile, tile], clip: 2048, grid: [touch + spare, touch + 2] };
+            LevelShape { size: [1 << 24, 1 << 24], tile: [tile, tile], clip: 2048, grid: [touch + spare, touch + 2], wrap: false };
         let mut asked = std::collections::HashMap::<i64, u64>::new();
         let mut c = (1i64 << 22) + 77;
         for tick in 0..120u64 {

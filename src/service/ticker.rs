@@ -527,6 +527,9 @@ fn engine_settings(source: &dyn TileSource, o: &Options) -> Settings {
         ..Settings::default().with_paging(&o.paging)
     };
     settings.view_spread = o.view_spread;
+    // A texture that spans 360 degrees of longitude wraps there (docs/SHM.md, "How a region
+    // wraps"): its georeferencing says so, as the mapping's georef block's flag does.
+    settings.wrap_longitude = source.georef().is_some_and(|g| g.is_global_in_longitude());
     if o.growing.is_some() {
         // A growing texture's tile without data is read again when data arrives for it
         // (`Clipmap::refresh`), not on a timer.

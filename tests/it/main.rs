@@ -42,6 +42,7 @@ mod elevation;
 mod examples;
 mod fuzz_regressions;
 mod georef;
+mod georef_wrap;
 mod growing;
 mod growing_service;
 mod height_cracks;

@@ -156,7 +156,7 @@ fn mem_regions(
     (0..desc.level_count())
         .map(|k| {
             let l = desc.level(k as u32);
-            let shape = LevelShape { size: l.size, tile: l.tile, clip: desc.clip_size(), grid: grids[k] };
+            let shape = LevelShape { size: l.size, tile: l.tile, clip: desc.clip_size(), grid: grids[k], wrap: false };
             let k32 = k as u32;
             let lv = v.map(|x| if x != 0 && (x >> k32) == 0 { x.signum() } else { x >> k32 });
             let tex = shape.frame(aligned_centre(c, k32, align), desc.invalid_border(), lv).tex;

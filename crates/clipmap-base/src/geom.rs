@@ -125,6 +125,52 @@ pub fn window_index(s: i64, t: i64, clip: u64, dims: [u64; 2]) -> usize {
     (wrap(t, clip) * dims[0] + wrap(s, clip)) as usize
 }
 
+/// Whether a level of a texture that spans 360 degrees of longitude (`global`) wraps along s:
+/// it is wider than the clip size (a narrower one is resident whole along s) and its width is a
+/// whole number of tiles (so its tile grid repeats modulo the width: tile `n` is tile 0 again).
+/// Such a level's window is never translated to stay inside it along s: it crosses the
+/// antimeridian, and texel s of it is texel `s mod width`.
+#[inline]
+pub fn level_wraps(global: bool, size: [u64; 2], tile: [u64; 2], clip: u64) -> bool {
+    global && size[0] > clip && tile[0] > 0 && size[0] % tile[0] == 0
+}
+
+/// The grid width a wrapping level uses: the least divisor of `tiles` (the level's tiles
+/// across) that is at least `grid`. Slots are tile S mod grid width; a wrapping window holds
+/// tiles `n - 1` and `0` side by side, and only a grid width that divides `n` gives every run of
+/// `grid` consecutive tiles, taken modulo `n`, distinct slots.
+pub fn wrap_grid(tiles: u64, grid: u64) -> u64 {
+    let grid = grid.clamp(1, tiles.max(1));
+    (grid..=tiles).find(|d| tiles % d == 0).unwrap_or(tiles.max(1))
+}
+
+/// Whether (s, t) lies in `r`, s taken modulo `period` when one is given (a wrapping level's
+/// region, whose s-range may run past the level's width: `[s0, s1)` with `s1 - s0 <= period`).
+#[inline]
+pub fn contains_wrapped(r: &Rect, s: i64, t: i64, period: Option<u64>) -> bool {
+    match period {
+        None => r.contains(s, t),
+        Some(p) => {
+            let d = (s as i128 - r.s0 as i128).rem_euclid(p.max(1) as i128);
+            !r.is_empty() && t >= r.t0 && t < r.t1 && (r.s0 as i128 + d) < r.s1 as i128
+        }
+    }
+}
+
+/// `r` moved along s by the multiple of `period` that puts its first column nearest `near`
+/// (ties: the lower); `r` itself when empty.
+#[inline]
+pub fn shift_near(r: Rect, period: u64, near: i64) -> Rect {
+    if r.is_empty() || period == 0 {
+        return r;
+    }
+    let p = period as i64;
+    let to = near - p / 2;
+    let s0 = to + wrap(r.s0 - to, period) as i64;
+    let d = s0 - r.s0;
+    Rect::new(r.s0 + d, r.t0, r.s1 + d, r.t1)
+}
+
 /// One axis of the tex region: `[lo, lo + min(clip, size))` with `lo` as close to
 /// `centre - clip/2` as the level allows.
 fn window_axis(size: u64, clip: u64, centre: i64) -> (i64, i64) {
@@ -133,6 +179,16 @@ fn window_axis(size: u64, clip: u64, centre: i64) -> (i64, i64) {
     }
     let lo = centre.saturating_sub((clip / 2) as i64).clamp(0, (size - clip) as i64);
     (lo, lo + clip as i64)
+}
+
+/// [`tex_region`] of a level that wraps along s ([`level_wraps`]): along s the window is centred
+/// on the centre taken modulo the width and never translated, its first column in
+/// `[0, width)` and its last possibly past the width (read modulo the width).
+#[inline]
+pub fn wrapping_tex_region(size: [u64; 2], clip: u64, centre: [i64; 2]) -> Rect {
+    let lo = wrap(centre[0].saturating_sub((clip / 2) as i64), size[0]) as i64;
+    let (t0, t1) = window_axis(size[1], clip, centre[1]);
+    Rect::new(lo, t0, lo + clip.min(size[0]) as i64, t1)
 }
 
 /// The tex region of a level of `size` texels: the clip-size window centred on `centre`,
@@ -160,6 +216,36 @@ pub fn valid_region(size: [u64; 2], clip: u64, border: u64, tex: Rect) -> Rect {
     } else {
         r
     }
+}
+
+/// [`valid_region`] of a level that wraps along s: along s the border is taken on both sides
+/// (the window has no edge there).
+#[inline]
+pub fn wrapping_valid_region(size: [u64; 2], clip: u64, border: u64, tex: Rect) -> Rect {
+    let r = valid_region(size, clip, border, tex);
+    if r.is_empty() {
+        return Rect::EMPTY;
+    }
+    let r = Rect::new(tex.s0 + border as i64, r.t0, tex.s1 - border as i64, r.t1);
+    if r.is_empty() {
+        Rect::EMPTY
+    } else {
+        r
+    }
+}
+
+/// [`mem_region`] of a level that wraps along s: along s the region is placed around the
+/// window without staying inside the level, in tile indices that may run past the level's
+/// tiles (tile U is tile `U mod n`).
+#[inline]
+pub fn wrapping_mem_region(size: [u64; 2], tile: [u64; 2], grid: [u64; 2], tex: Rect, velocity: [i64; 2]) -> Rect {
+    let n = tiles_in_level(size, tile);
+    // The level seen as three copies side by side, the window in the middle one: no edge is
+    // near it, so the placement along s is the unclamped one.
+    let wide = [size[0] * 3, size[1]];
+    let mid = Rect::new(tex.s0 + size[0] as i64, tex.t0, tex.s1 + size[0] as i64, tex.t1);
+    let r = mem_region(wide, tile, grid, mid, velocity);
+    Rect::new(r.s0 - n[0] as i64, r.t0, r.s1 - n[0] as i64, r.t1)
 }
 
 /// The readable edge of a stack window: clip size less twice the border.
@@ -254,8 +340,11 @@ pub struct LevelShape {
     pub tile: [u64; 2],
     /// Clip size.
     pub clip: u64,
-    /// The mem region's edge in tiles per axis (see [`level_grid`]).
+    /// The mem region's edge in tiles per axis (see [`level_grid`]; a divisor of the level's
+    /// tiles across when `wrap`, [`wrap_grid`]).
     pub grid: [u64; 2],
+    /// Whether the level wraps along s ([`level_wraps`]): its windows cross the antimeridian.
+    pub wrap: bool,
 }
 
 /// Where a level's regions lie for one centre.
@@ -275,12 +364,38 @@ impl LevelShape {
     /// A shape whose mem grid is [`mem_grid`] with `lookahead` extra tiles per axis.
     #[inline]
     pub fn new(size: [u64; 2], tile: [u64; 2], clip: u64, lookahead: u64) -> Self {
-        LevelShape { size, tile, clip, grid: mem_grid(size, tile, clip, lookahead) }
+        LevelShape { size, tile, clip, grid: mem_grid(size, tile, clip, lookahead), wrap: false }
+    }
+
+    /// The same shape wrapping along s ([`level_wraps`] decides whether it may): its grid width
+    /// raised to a divisor of the level's tiles across ([`wrap_grid`]).
+    #[inline]
+    pub fn wrapping(self) -> Self {
+        let n = tiles_in_level(self.size, self.tile);
+        LevelShape { grid: [wrap_grid(n[0], self.grid[0]), self.grid[1]], wrap: true, ..self }
+    }
+
+    /// The period of s in tiles (`Some(tiles across)` when the level wraps).
+    #[inline]
+    pub fn tile_period(&self) -> Option<u64> {
+        self.wrap.then(|| tiles_in_level(self.size, self.tile)[0])
+    }
+
+    /// The period of s in texels (`Some(width)` when the level wraps).
+    #[inline]
+    pub fn texel_period(&self) -> Option<u64> {
+        self.wrap.then_some(self.size[0])
     }
 
     /// The level's regions for `centre` (in level texels), `border` and direction of motion.
     #[inline]
     pub fn frame(&self, centre: [i64; 2], border: u64, velocity: [i64; 2]) -> LevelFrame {
+        if self.wrap {
+            let tex = wrapping_tex_region(self.size, self.clip, centre);
+            let valid = wrapping_valid_region(self.size, self.clip, border, tex);
+            let mem = wrapping_mem_region(self.size, self.tile, self.grid, tex, velocity);
+            return LevelFrame { centre, tex, valid, mem };
+        }
         let tex = tex_region(self.size, self.clip, centre);
         let valid = valid_region(self.size, self.clip, border, tex);
         let mem = mem_region(self.size, self.tile, self.grid, tex, velocity);
@@ -427,6 +542,74 @@ mod tests {
                     prop_assert!(seen.insert((wrap(ts, f.mem.width()), wrap(tt, f.mem.height()))));
                 }
             }
+        }
+
+        #[test]
+        fn wrapping_frames_match_a_brute_force_oracle_on_small_levels(
+            tiles in 2u64..=24, tw in 1u64..=12, sh in 1u64..=80, clip in 1u64..=96, cs in -400i64..400,
+            ct in -100i64..160, border in 0u64..8, look in 0u64..3, vs in -2i64..=2,
+        ) {
+            let w = tiles * tw;
+            let clip = 1 + (clip - 1) % (w - 1);
+            prop_assert!(level_wraps(true, [w, sh], [tw, tw], clip));
+            prop_assert!(!level_wraps(false, [w, sh], [tw, tw], clip) && !level_wraps(true, [w, sh], [tw, tw], w));
+            let border = border.min((clip - 1) / 2);
+            let shape = LevelShape::new([w, sh], [tw, tw], clip, look).wrapping();
+            let f = shape.frame([cs, ct], border, [vs, 0]);
+            // The window: clip texels along s centred on the centre, taken modulo the width.
+            prop_assert!(f.tex.s0 >= 0 && (f.tex.s0 as u64) < w);
+            prop_assert_eq!(f.tex.width(), clip);
+            let want: Vec<u64> = (0..clip as i64).map(|i| (cs - (clip / 2) as i64 + i).rem_euclid(w as i64) as u64).collect();
+            let got: Vec<u64> = (f.tex.s0..f.tex.s1).map(|s| wrap(s, w)).collect();
+            prop_assert_eq!(got, want);
+            // The border on both sides along s.
+            if !f.valid.is_empty() {
+                prop_assert_eq!((f.valid.s0, f.valid.s1), (f.tex.s0 + border as i64, f.tex.s1 - border as i64));
+            }
+            // The grid width divides the level's tiles across; the mem region is that wide.
+            prop_assert_eq!(tiles % shape.grid[0], 0);
+            prop_assert!(shape.grid[0] >= mem_grid([w, sh], [tw, tw], clip, look)[0]);
+            prop_assert_eq!(f.mem.width(), shape.grid[0]);
+            // Every texel of the window is in a tile of the mem region, taken modulo the tiles across.
+            for s in f.tex.s0..f.tex.s1 {
+                let real = wrap(s, w) / tw;
+                prop_assert!((f.mem.s0..f.mem.s1).any(|u| wrap(u, tiles) == real), "texel {} (tile {}) outside {:?}", s, real, f.mem);
+                prop_assert!(contains_wrapped(&f.mem, real as i64, f.mem.t0, Some(tiles)));
+            }
+            // Its tiles, taken modulo the tiles across, are distinct and take distinct slots.
+            let mut real = std::collections::HashSet::new();
+            let mut slots = std::collections::HashSet::new();
+            for u in f.mem.s0..f.mem.s1 {
+                prop_assert!(real.insert(wrap(u, tiles)));
+                prop_assert!(slots.insert(wrap(wrap(u, tiles) as i64, shape.grid[0])));
+                prop_assert_eq!(wrap(u, shape.grid[0]), wrap(wrap(u, tiles) as i64, shape.grid[0]), "the slot of U is the slot of U mod n");
+            }
+        }
+
+        #[test]
+        fn wrapped_containment_and_shifts_match_brute_force(
+            s0 in -50i64..50, len in 0i64..40, t0 in -5i64..5, s in -200i64..200, t in -8i64..8, p in 1u64..=40, near in -100i64..100,
+        ) {
+            let len = len.min(p as i64);
+            let r = Rect::new(s0, t0, s0 + len, t0 + 3);
+            let oracle = (-300i64..300).any(|k| r.contains(s + k * p as i64, t));
+            prop_assert_eq!(contains_wrapped(&r, s, t, Some(p)), oracle);
+            prop_assert_eq!(contains_wrapped(&r, s, t, None), r.contains(s, t));
+            let m = shift_near(r, p, near);
+            if !r.is_empty() {
+                prop_assert_eq!((m.s0 - r.s0).rem_euclid(p as i64), 0);
+                prop_assert_eq!(m.width(), r.width());
+                let best = (-300i64..300).map(|k| r.s0 + k * p as i64).min_by_key(|&x| ((x - near).abs(), x)).unwrap();
+                prop_assert!((m.s0 - near).abs() == (best - near).abs(), "{:?} {} {}", m, best, near);
+            }
+        }
+
+        #[test]
+        fn wrap_grid_is_the_least_divisor_at_or_above(n in 1u64..=300, g in 0u64..=320) {
+            let d = wrap_grid(n, g);
+            prop_assert_eq!(n % d, 0);
+            prop_assert!(d >= g.clamp(1, n));
+            prop_assert!((g.clamp(1, n)..d).all(|x| n % x != 0));
         }
 
         #[test]

@@ -372,7 +372,7 @@ impl Client {
                 return Err(ReadError::Corrupt(format!("level {k}: enabled is {e}, expected 0 or 1")));
             }
             if l.enabled {
-                layout::check_region(&self.levels[k].shape(), l.valid)
+                layout::check_region_wrapping(&self.levels[k].shape(), l.valid, self.wraps())
                     .map_err(|why| ReadError::Corrupt(format!("level {k}: {why}")))?;
             }
         }
@@ -592,16 +592,58 @@ impl Client {
         if w == 0 || h == 0 {
             return Ok(());
         }
-        if !st.rect().contains_rect(&rect) {
+        let Some(period) = self.texel_period(level) else {
+            if !st.rect().contains_rect(&rect) {
+                return Err(ReadError::NotValid(level));
+            }
+            return self.copy_rect(&d, level, rect, rect, out);
+        };
+        // A wrapping texture (docs/SHM.md, "How a region wraps"): texel s is texel s mod width.
+        // The rectangle must lie in the region taken modulo the width; it is read in pieces that
+        // do not cross a multiple of the width, each where the level itself has it.
+        let region = st.rect();
+        let w = period as i64;
+        let inside = |r: Rect| {
+            let at = region.s0 + clipmap_base::geom::wrap(r.s0 - region.s0, period) as i64;
+            r.width() <= period && at + r.width() as i64 <= region.s1 && r.t0 >= region.t0 && r.t1 <= region.t1
+        };
+        if region.is_empty() || !inside(rect) {
             return Err(ReadError::NotValid(level));
         }
-        let tiles = clipmap_base::geom::tiles_covering(rect, d.tile);
+        let mut s = rect.s0;
+        while s < rect.s1 {
+            let lap = s.div_euclid(w);
+            let end = rect.s1.min((lap + 1) * w);
+            let shift = -lap * w;
+            let piece = Rect::new(s + shift, rect.t0, end + shift, rect.t1);
+            let whole = Rect::new(rect.s0 + shift, rect.t0, rect.s1 + shift, rect.t1);
+            self.copy_rect(&d, level, piece, whole, out)?;
+            s = end;
+        }
+        Ok(())
+    }
+
+    /// Whether the texture wraps in longitude (the georef block's flag bit 0): texel s of every
+    /// level is texel `s mod width`, and a level's region may run past its width
+    /// ([`layout::region_may_wrap`]).
+    pub fn wraps(&self) -> bool {
+        self.georef.as_ref().is_some_and(|g| g.wraps)
+    }
+
+    /// `Some(width)` of `level` when the texture wraps ([`wraps`](Self::wraps)), else `None`.
+    pub fn texel_period(&self, level: usize) -> Option<u64> {
+        self.levels.get(level).filter(|_| self.wraps()).map(|d| d.size[0])
+    }
+
+    /// Copies `part` (inside the level) of `rect` tile by tile into `out`, laid out as `rect`.
+    fn copy_rect(&self, d: &LevelDesc, level: usize, part: Rect, rect: Rect, out: &mut [u8]) -> Result<(), ReadError> {
+        let tiles = clipmap_base::geom::tiles_covering(part, d.tile);
         let (tw, th) = (d.tile[0] as i64, d.tile[1] as i64);
         for ts in tiles.s0..tiles.s1 {
             for tt in tiles.t0..tiles.t1 {
-                let part = rect.intersect(&Rect::new(ts * tw, tt * th, (ts + 1) * tw, (tt + 1) * th));
+                let part = part.intersect(&Rect::new(ts * tw, tt * th, (ts + 1) * tw, (tt + 1) * th));
                 let slot = layout::slot_index(d.grid, [ts, tt]);
-                self.copy_from_slot(&d, level, slot, [ts, tt], part, rect, out)?;
+                self.copy_from_slot(d, level, slot, [ts, tt], part, rect, out)?;
             }
         }
         Ok(())

@@ -774,12 +774,34 @@ pub fn with_views(mut p: Placement, records: usize) -> Option<Placement> {
 /// Whether a published valid region is one a writer of this layout publishes for a level of
 /// `l`'s shape: inside the level, and spanning no more tiles than the grid has slots per axis (so
 /// the tiles under it have distinct slots). `Err` says what is wrong.
+#[cfg(test)]
 pub(crate) fn check_region(l: &LevelShape, r: [i64; 4]) -> Result<Rect, String> {
+    check_region_wrapping(l, r, false)
+}
+
+/// Whether level `l`'s region may run past its width: the texture wraps in longitude (the
+/// georef block's flag bit 0) and the level's width is a whole number of tiles (docs/SHM.md,
+/// "How a region wraps").
+pub fn region_may_wrap(l: &LevelShape, texture_wraps: bool) -> bool {
+    texture_wraps && l.tile[0] > 0 && l.size[0] % l.tile[0] == 0
+}
+
+/// [`check_region`] of a level of a texture that may wrap (`texture_wraps`, the georef block's
+/// flag): where [`region_may_wrap`], the region's s-range is `0 <= s0 < width` and
+/// `s0 < s1 <= s0 + width` (texel s of it is texel `s mod width`); otherwise inside the level.
+pub(crate) fn check_region_wrapping(l: &LevelShape, r: [i64; 4], texture_wraps: bool) -> Result<Rect, String> {
     let [s0, t0, s1, t1] = r;
     let inside = |lo: i64, hi: i64, size: u64| 0 <= lo && lo < hi && hi as u64 <= size;
-    if !inside(s0, s1, l.size[0]) || !inside(t0, t1, l.size[1]) {
+    let wraps = region_may_wrap(l, texture_wraps);
+    let s_ok = if wraps {
+        0 <= s0 && (s0 as u64) < l.size[0] && s0 < s1 && (s1 as u64).saturating_sub(s0 as u64) <= l.size[0]
+    } else {
+        inside(s0, s1, l.size[0])
+    };
+    if !s_ok || !inside(t0, t1, l.size[1]) {
+        let how = if wraps { " (it wraps: s0 inside the level, s1 - s0 at most its width)" } else { "" };
         return Err(format!(
-            "valid region {r:?} is not a non-empty rectangle inside the {}x{} level",
+            "valid region {r:?} is not a non-empty rectangle inside the {}x{} level{how}",
             l.size[0], l.size[1]
         ));
     }
@@ -959,5 +981,18 @@ mod tests {
         assert!(check_region(&l, [5, 5, 5, 9]).is_err());
         assert!(check_region(&l, [0, 0, 256 * 7, 10]).is_err(), "7 tiles wide in a 6-slot grid");
         assert!(check_region(&l, [i64::MIN, 0, i64::MAX, 1]).is_err());
+        // A wrapping texture's level: the s-range may run past the width, by at most the width.
+        assert!(check_region(&l, [3900, 0, 4200, 10]).is_err(), "past the width without wrapping");
+        assert!(check_region_wrapping(&l, [3900, 0, 4200, 10], true).is_ok());
+        assert!(check_region_wrapping(&l, [3900, 0, 4200, 10], false).is_err());
+        assert!(check_region_wrapping(&l, [4096, 0, 4200, 10], true).is_err(), "s0 at the width");
+        assert!(check_region_wrapping(&l, [-1, 0, 200, 10], true).is_err(), "s0 below 0");
+        assert!(check_region_wrapping(&l, [3900, 0, 3900 + 4097, 10], true).is_err(), "wider than the level");
+        assert!(check_region_wrapping(&l, [3900, 0, 3900 + 256 * 6, 10], true).is_err(), "7 tiles in a 6-slot grid");
+        let odd = LevelShape { size: [4000, 4096], tile: [256, 256], grid: [6, 6] };
+        assert!(
+            check_region_wrapping(&odd, [3900, 0, 4100, 10], true).is_err(),
+            "a width of no whole tiles never wraps"
+        );
     }
 }

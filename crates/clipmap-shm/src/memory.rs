@@ -372,7 +372,14 @@ impl ImageMemory {
         let old = self.keys[k][slot as usize].load(Ordering::Acquire);
         if state_of(now) == SETTLED && old != NO_TILE {
             let [s, t] = tile_of_key(old);
-            let covered = self.published_tiles.lock().map(|p| p.iter().any(|v| v[k].contains(s, t))).unwrap_or(false);
+            // A wrapping level's region may run past its tiles (column s + n is column s again,
+            // docs/SHM.md "How a region wraps"); no other level's region reaches past its edge.
+            let n = clipmap_base::geom::tiles_in_level(self.shape.levels[k].size, self.shape.levels[k].tile)[0] as i64;
+            let covered = self
+                .published_tiles
+                .lock()
+                .map(|p| p.iter().any(|v| v[k].contains(s, t) || v[k].contains(s + n, t)))
+                .unwrap_or(false);
             if covered {
                 self.violations.fetch_add(1, Ordering::Relaxed);
             }
