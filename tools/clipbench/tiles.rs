@@ -178,7 +178,8 @@ pub struct Report {
     pub goals: Goals,
 }
 
-/// The goals, each `null` where this run does not measure it.
+/// The goals, each met by every kind that measures it (a kind without the figure, such
+/// as a local kind's curl share, counts as meeting it).
 #[derive(Debug, Serialize)]
 pub struct Goals {
     /// Ours >= 2x GDAL where GDAL reads the kind.
