@@ -19,6 +19,7 @@ mod clipbench_cog;
 mod clipbench_growing;
 mod clipbench_perf;
 mod clipbench_policies;
+mod clipbench_tiles;
 mod clipbench_views;
 mod clipmapd;
 mod clipprep;

@@ -41,6 +41,12 @@ mod policies;
 mod remote;
 #[cfg(feature = "remote")]
 mod serve;
+#[cfg(feature = "remote")]
+mod tiles;
+#[cfg(feature = "remote")]
+mod tiles_flight;
+#[cfg(feature = "remote")]
+mod tiles_peers;
 mod views;
 
 use clap::{Parser, Subcommand};
@@ -63,6 +69,7 @@ Examples:
   clipbench views --quick --json
   clipbench remote --quick --json
   clipbench cog --quick --json
+  clipbench tiles --quick --json
   clipbench engine --quick
   clipbench accuracy --quick --out study
 
@@ -171,6 +178,21 @@ Needs GDAL (gdal_translate and Python's osgeo.gdal; --install-peers runs apt-get
 with GDAL, reads every level-0 tile with both, and compares the texels. Exit status: 0 ok, 1 a
 texel differs from GDAL's decode, 2 the benchmark could not run.")]
     Cog(cog::Args),
+    /// A tile service and tile archives served as they are (XYZ over HTTP, PMTiles over HTTP
+    /// and from disk, MBTiles) against GDAL reading the same tiles and curl fetching them, and
+    /// a real-time flight over the XYZ service with latency added to every request.
+    #[cfg(feature = "remote")]
+    #[command(after_help = "\
+Examples:
+  clipbench tiles --quick --json
+  clipbench tiles --passes 9
+  clipbench tiles --link-rate 100
+
+Needs GDAL (gdal2tiles.py and Python's osgeo.gdal), Python's pmtiles package (the reference
+PMTiles writer), nginx and curl; makes its own tiles with no network, starts nginx on a loopback
+port and stops it at the end. Exit status: 0 ok, 1 a texel read differs from GDAL's decode of
+its tile, 2 the benchmark could not run.")]
+    Tiles(tiles::Args),
     /// Speed against accuracy: sweep the knobs, render each frame twice, measure the difference.
     #[command(after_help = "\
 Examples:
@@ -217,6 +239,8 @@ fn main() -> ExitCode {
         #[cfg(feature = "remote")]
         Command::Remote(args) => remote::main(args),
         Command::Cog(args) => cog::main(args),
+        #[cfg(feature = "remote")]
+        Command::Tiles(args) => tiles::main(args),
         Command::Engine { quick, runs, json, smoke, centre_alignment } => {
             match engine::engine(engine_size(quick, smoke), runs, centre_alignment) {
                 Ok(r) => {

@@ -59,7 +59,8 @@ pub fn nginx_program() -> Option<PathBuf> {
     program(&["nginx", "/usr/sbin/nginx"])
 }
 
-/// nginx serving `root` on a loopback port (one worker, keep-alive, `sendfile`), its files
+/// nginx serving `root` on a loopback port (one worker, keep-alive, `sendfile`; images with
+/// their types, anything else `application/octet-stream`), its files
 /// under `dir`; with `log`, every request is logged there as `STATUS BODY_BYTES METHOD
 /// "RANGE"` ([`AccessLog`]). With `link_rate`, each connection sends at most that many bytes a
 /// second (nginx's `limit_rate`): a network link, where one connection's throughput bounds a
@@ -88,7 +89,7 @@ impl Nginx {
         let limit = link_rate.map_or(String::new(), |b| format!(" limit_rate {b};\n"));
         let conf = format!(
             "daemon off;\nmaster_process off;\nworker_processes 1;\npid {d}/nginx.pid;\nerror_log {d}/error.log warn;\n\
-             events {{ worker_connections 1024; }}\nhttp {{\n{access} client_body_temp_path {d}/body;\n proxy_temp_path {d}/proxy;\n fastcgi_temp_path {d}/fastcgi;\n uwsgi_temp_path {d}/uwsgi;\n scgi_temp_path {d}/scgi;\n keepalive_requests 1000000;\n sendfile on;\n tcp_nodelay on;\n{limit} server {{ listen 127.0.0.1:{port}; root {}; location / {{ }} }}\n}}\n",
+             events {{ worker_connections 1024; }}\nhttp {{\n{access} client_body_temp_path {d}/body;\n proxy_temp_path {d}/proxy;\n fastcgi_temp_path {d}/fastcgi;\n uwsgi_temp_path {d}/uwsgi;\n scgi_temp_path {d}/scgi;\n keepalive_requests 1000000;\n types {{ image/png png; image/jpeg jpg jpeg; image/webp webp; }}\n default_type application/octet-stream;\n sendfile on;\n tcp_nodelay on;\n{limit} server {{ listen 127.0.0.1:{port}; root {}; location / {{ }} }}\n}}\n",
             root.display()
         );
         std::fs::write(dir.join("nginx.conf"), conf)?;
