@@ -56,6 +56,7 @@ mod tiff_fuzz_props;
 mod tiff_hardening;
 mod tiles;
 mod tiles_archives;
+mod tiles_faults;
 mod tools_cog_names;
 mod views_own;
 mod views_restart;

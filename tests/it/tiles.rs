@@ -15,12 +15,12 @@ use std::process::Command;
 use std::time::Duration;
 
 /// The finest zoom of the trees.
-const MAX_ZOOM: u8 = 2;
+pub(crate) const MAX_ZOOM: u8 = 2;
 
 /// Makes `src.tif` (512² RGB in Web Mercator, the whole world), its XYZ and TMS trees
 /// (`xyz/`, `tms/`, zooms 0..2) and GDAL's decode of every tile: `(z, x, y from the north)` ->
 /// RGBA rows from the north.
-fn trees(dir: &Path) -> HashMap<(u8, u32, u32), Vec<u8>> {
+pub(crate) fn trees(dir: &Path) -> HashMap<(u8, u32, u32), Vec<u8>> {
     let make = r#"
 from osgeo import gdal, osr
 import numpy as np
@@ -73,12 +73,12 @@ for z in range(int(sys.argv[1]) + 1):
     out
 }
 
-fn run_python(script: &str, dir: &Path, args: &[String]) {
+pub(crate) fn run_python(script: &str, dir: &Path, args: &[String]) {
     let o = Command::new(python()).arg("-c").arg(script).args(args).current_dir(dir).output().expect("python3");
     assert!(o.status.success(), "GDAL failed: {}", String::from_utf8_lossy(&o.stderr));
 }
 
-fn quick() -> RemoteOptions {
+pub(crate) fn quick() -> RemoteOptions {
     RemoteOptions {
         timeout: Duration::from_millis(3000),
         connect_timeout: Duration::from_millis(500),
@@ -89,7 +89,7 @@ fn quick() -> RemoteOptions {
     }
 }
 
-fn open(text: &str) -> PyramidSource {
+pub(crate) fn open(text: &str) -> PyramidSource {
     let opts = OpenOptions {
         template: TemplateOptions { remote: Some(quick()), zooms: Some([0, MAX_ZOOM]), ..Default::default() },
         // A clip size of one tile: every level but the coarsest zooms' is read tile by tile.
@@ -101,7 +101,7 @@ fn open(text: &str) -> PyramidSource {
 /// Reads every texture tile of the zooms' levels and compares each texel with GDAL's decode of
 /// the pyramid tile at the same place: texture tile (s, t) of level k is tile x = s,
 /// y = 2^z - 1 - t of zoom z = MAX_ZOOM - k, its texture row r the tile's row 255 - r.
-fn every_texel_is_gdals(src: &PyramidSource, gdal: &HashMap<(u8, u32, u32), Vec<u8>>, what: &str) {
+pub(crate) fn every_texel_is_gdals(src: &PyramidSource, gdal: &HashMap<(u8, u32, u32), Vec<u8>>, what: &str) {
     assert_eq!(src.desc().size(), [1024, 1024], "{what}");
     let mut compared = 0u64;
     for k in 0..=u32::from(MAX_ZOOM) {
@@ -325,7 +325,7 @@ fn a_key_in_a_header_never_reaches_a_message() {
 /// Packs the XYZ tree's PNG tiles (gdal2tiles.py's, zooms 0..MAX_ZOOM) into `tree.pmtiles` with
 /// the reference PMTiles writer and into `tree.mbtiles` (TMS rows, with its metadata) with
 /// Python's sqlite3 module: the same encoded tiles in both archives.
-fn archives_of_the_tree(dir: &Path) {
+pub(crate) fn archives_of_the_tree(dir: &Path) {
     let pack = r#"
 import sqlite3, sys
 from pmtiles.tile import Compression, TileType, zxy_to_tileid
@@ -399,4 +399,43 @@ fn clipmapd_takes_centres_in_lonlat_on_a_gdal2tiles_tree_as_cliptex_locate_place
     let points = [[13.4, 52.5], [-122.42, 37.77], [0.0001, -0.0001], [-179.9, 80.0]];
     crate::georef::centre_lonlat_lands_on_locates_texel(&template, &d.join("xyzll.sock"), d, &points);
     drop(served);
+}
+
+#[test]
+fn a_pmtiles_of_brotli_tiles_packed_by_the_reference_writer_serves_gdals_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let gdal = trees(d);
+    // The reference writer stores tiles as given and says how they are compressed: the PNG tiles
+    // compressed with brotli here (the `brotli` crate's encoder), the header saying BROTLI.
+    std::fs::create_dir_all(d.join("br")).unwrap();
+    let params = brotli::enc::BrotliEncoderParams { quality: 9, ..Default::default() };
+    for z in 0..=MAX_ZOOM {
+        for x in 0..1u32 << z {
+            for y in 0..1u32 << z {
+                let png = std::fs::read(d.join(format!("xyz/{z}/{x}/{y}.png"))).unwrap();
+                let mut out = Vec::new();
+                brotli::BrotliCompress(&mut &png[..], &mut out, &params).unwrap();
+                assert_ne!(out, png);
+                std::fs::write(d.join(format!("br/{z}_{x}_{y}.br")), out).unwrap();
+            }
+        }
+    }
+    let pack = r#"
+import sys
+from pmtiles.tile import Compression, TileType, zxy_to_tileid
+from pmtiles.writer import Writer
+top = int(sys.argv[1])
+tiles = sorted((zxy_to_tileid(z, x, y), open(f'br/{z}_{x}_{y}.br', 'rb').read())
+               for z in range(top + 1) for x in range(2 ** z) for y in range(2 ** z))
+with open('br.pmtiles', 'wb') as f:
+    w = Writer(f)
+    for tid, data in tiles:
+        w.write_tile(tid, data)
+    w.finalize({'tile_type': TileType.PNG, 'tile_compression': Compression.BROTLI, 'min_zoom': 0, 'max_zoom': top,
+                'min_lon_e7': int(-180e7), 'min_lat_e7': int(-85.0511287e7), 'max_lon_e7': int(180e7), 'max_lat_e7': int(85.0511287e7)},
+               {'name': 'br'})
+"#;
+    run_python(pack, d, &[MAX_ZOOM.to_string()]);
+    every_texel_is_gdals(&open(&format!("{}/br.pmtiles", d.display())), &gdal, "PMTiles of brotli tiles");
 }
