@@ -181,6 +181,17 @@ pub fn parse<C: clap::Parser>() -> C {
     }
 }
 
+/// [`parse`] of `args` (the program's name first) in place of the process's arguments.
+pub fn parse_from<C: clap::Parser>(args: Vec<std::ffi::OsString>) -> C {
+    match C::try_parse_from(args) {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = e.print();
+            std::process::exit(of_clap(&e));
+        }
+    }
+}
+
 /// The log of a tool that is not the service (`cliptex`, `clipprep`): standard error, without
 /// colour codes off a terminal, and by default only the remote stack's warnings (a server that
 /// ignores range requests, said once an endpoint: docs/RELIABILITY.md §6), so that the tools'

@@ -81,6 +81,22 @@ pub fn build(
     // The COG the `#clipmap cog` line names (docs/COG.md; opened and checked against the
     // header by `crate::source::configured`).
     let cog = super::cog::read(&mut r, &dir, opts, "the clip texture");
+    // The tile pyramid the `#clipmap source` line names (docs/TILES.md; opened by the source
+    // floor with the clip size below).
+    let source = super::source_line::read(&mut r, &dir, opts);
+    if let (Some(c), Some(s)) = (&cog, &source) {
+        let d = r
+            .diag(
+                Severity::Error,
+                "duplicate-extension",
+                Some(s.span),
+                "`#clipmap source` and `#clipmap cog` both name the clip texture's texels",
+            )
+            .found(s.written.clone())
+            .expected(format!("one of them (the COG `{}` is named at line {})", c.written, c.span.line))
+            .hint("keep the line of the source to serve");
+        r.push(d);
+    }
 
     let (Some(virt), Some(clip), Some(smallest)) = (virt, clip, smallest) else {
         return None;
@@ -194,6 +210,7 @@ pub fn build(
         levels,
         defaulted,
         cog,
+        source,
     })
 }
 

@@ -17,6 +17,7 @@ mod naming;
 mod paging;
 pub mod params;
 pub mod printf;
+pub mod source_line;
 mod tile;
 mod values;
 
@@ -252,6 +253,10 @@ pub struct ClipTexturePlan {
     /// COG's, served as `clipmapd FILE.tif --clip CLIP_SIZE` serves it, and the levels above
     /// describe the configuration only (no tile file of theirs is read).
     pub cog: Option<CogPlan>,
+    /// The tile pyramid its `#clipmap source` line names (docs/TILES.md), if any: the texture
+    /// is then the pyramid's, served as `clipmapd NAME --clip CLIP_SIZE` serves it, and the
+    /// levels above describe the configuration only (no tile file of theirs is read).
+    pub source: Option<source_line::SourceLine>,
 }
 
 impl ClipTexturePlan {

@@ -81,6 +81,8 @@ pub fn read(r: &mut Reader<'_>) -> PagingOptions {
             other if super::height::SETTINGS.contains(&other) => {}
             // The COG line (docs/COG.md), read by `super::cog`.
             other if super::cog::SETTINGS.contains(&other) => {}
+            // The tile-source line (docs/TILES.md), read by `super::source_line`.
+            other if super::source_line::SETTINGS.contains(&other) => {}
             other => {
                 let mut d = r
                     .diag(
@@ -91,15 +93,17 @@ pub fn read(r: &mut Reader<'_>) -> PagingOptions {
                     )
                     .found(other.to_string())
                     .expected(format!(
-                        "one of {}, {}, {}",
+                        "one of {}, {}, {}, {}",
                         SETTINGS.join(", "),
                         super::height::SETTINGS.join(", "),
-                        super::cog::SETTINGS.join(", ")
+                        super::cog::SETTINGS.join(", "),
+                        super::source_line::SETTINGS.join(", ")
                     ));
                 let best = SETTINGS
                     .iter()
                     .chain(&super::height::SETTINGS)
                     .chain(&super::cog::SETTINGS)
+                    .chain(&super::source_line::SETTINGS)
                     .map(|s| (strsim::jaro_winkler(other, s), s))
                     .filter(|(score, _)| *score > 0.85)
                     .max_by(|a, b| a.0.total_cmp(&b.0));

@@ -55,8 +55,44 @@ pub fn write(
     cog: &str,
 ) -> Result<CogConfig, PrepError> {
     writable_name(cog).map_err(PrepError::Geometry)?;
-    let ct_name = format!("{name}.ct");
     let lines = cog_lines(cog);
+    write_lines(layout, root, name, description, heights, &lines, &lines)
+}
+
+/// The `#clipmap source` lines that name the tile pyramid `source` (`xyz:TEMPLATE`, a `.pmtiles`
+/// or `.mbtiles` path or URL, as the configuration reads it).
+pub fn source_lines(source: &str) -> String {
+    format!(
+        "# The texels are the tile source's, served as it is (docs/TILES.md); no tile file is written.\n#clipmap source {source}\n"
+    )
+}
+
+/// Writes the configuration of `layout` into `root` (an empty directory): `NAME.ct`, naming the
+/// tile pyramid `source` (`#clipmap source`), and one `.ic` per image-cache level.
+/// `description` lines become comments of the `.ct`.
+pub fn write_source(
+    layout: &Layout,
+    root: &Path,
+    name: &str,
+    description: &[String],
+    source: &str,
+) -> Result<CogConfig, PrepError> {
+    writable_name(source).map_err(|e| PrepError::Geometry(e.replace("#clipmap cog", "#clipmap source")))?;
+    write_lines(layout, root, name, description, None, &source_lines(source), "")
+}
+
+/// Writes `NAME.ct` (with `ct_lines` after its version line) and the `.ic` files of `layout`
+/// (with `ic_lines`).
+fn write_lines(
+    layout: &Layout,
+    root: &Path,
+    name: &str,
+    description: &[String],
+    heights: Option<&HeightPlan>,
+    ct_lines: &str,
+    ic_lines: &str,
+) -> Result<CogConfig, PrepError> {
+    let ct_name = format!("{name}.ct");
     let mut files = 0;
     let mut bytes = 0;
     let mut put = |path: PathBuf, text: String| -> Result<(), PrepError> {
@@ -67,13 +103,13 @@ pub fn write(
     };
     // Right after the version line: a `#clipmap` line inside a list (the `.ic`'s `tile_params`)
     // would be a comment line of the list.
-    let with_lines = |text: String| match text.split_once('\n') {
+    let with_lines = |text: String, lines: &str| match text.split_once('\n') {
         Some((version, rest)) => format!("{version}\n{lines}{rest}"),
-        None => text + &lines,
+        None => text + lines,
     };
     for level in layout.image_cache_levels() {
-        put(root.join(Layout::ic_file(level.index)), with_lines(ic_text(layout, level, &ct_name)))?;
+        put(root.join(Layout::ic_file(level.index)), with_lines(ic_text(layout, level, &ct_name), ic_lines))?;
     }
-    put(root.join(&ct_name), with_lines(ct_text(layout, description, heights)))?;
+    put(root.join(&ct_name), with_lines(ct_text(layout, description, heights), ct_lines))?;
     Ok(CogConfig { ct: PathBuf::from(ct_name), files, bytes })
 }

@@ -324,6 +324,12 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
             None => o.push_str(" (not opened)\n"),
         }
     }
+    if let Some(line) = &plan.source {
+        o.push_str(&format!(
+            "\ntexels from the tile source {} (`#clipmap source`): the texture is served as the pyramid is (docs/TILES.md), with the clip size above, not from the tile files above\n",
+            crate::place::redacted(&line.name)
+        ));
+    }
     o
 }
 

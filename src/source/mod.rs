@@ -342,6 +342,14 @@ pub enum OpenPlanError {
         #[source]
         source: Box<CogError>,
     },
+    /// The tile pyramid the plan's `#clipmap source` line names cannot be served.
+    #[error("{path}: the tile source of its `#clipmap source` line cannot be served: {problem}", path = path.display())]
+    Pyramid {
+        /// The `.ct`.
+        path: std::path::PathBuf,
+        /// Why, naming the source.
+        problem: String,
+    },
     /// The plan names remote locations, and this build cannot read them.
     #[error("{path} names remote locations (http://, https://, s3://), and this build cannot read them: build with the `remote` feature (on by default)", path = path.display())]
     NoRemote {
@@ -358,6 +366,20 @@ pub fn open_plan(
     plan: crate::plan::ClipTexturePlan,
     limits: &crate::limits::Limits,
 ) -> Result<std::sync::Arc<dyn TileSource>, OpenPlanError> {
+    // A configuration naming a tile pyramid (`#clipmap source`, docs/TILES.md): the pyramid,
+    // served as `clipmapd NAME --clip CLIP_SIZE` serves it.
+    if let Some(line) = &plan.source {
+        let opts = tiles::OpenOptions {
+            pyramid: tiles::PyramidOptions { clip_size: Some(plan.clip_size), ..Default::default() },
+            ..Default::default()
+        };
+        let src = tiles::open(&line.name, &opts)
+            .unwrap_or_else(|| {
+                Err(tiles::PyramidError::Info { place: line.name.clone(), problem: "names no tile source".into() })
+            })
+            .map_err(|e| OpenPlanError::Pyramid { path: plan.path.clone(), problem: e.to_string() })?;
+        return Ok(std::sync::Arc::new(src));
+    }
     // A configuration naming a COG (`#clipmap cog`, docs/COG.md): the COG, served as
     // `clipmapd FILE.tif --clip CLIP_SIZE` serves it.
     if let Some(cog) = &plan.cog {

@@ -61,6 +61,7 @@ mod tiff_hardening;
 mod tiles;
 mod tiles_archives;
 mod tiles_cache;
+mod tiles_faults;
 mod tools_cog_names;
 mod views_own;
 mod views_restart;

@@ -73,12 +73,12 @@ for z in range(int(sys.argv[1]) + 1):
     out
 }
 
-fn run_python(script: &str, dir: &Path, args: &[String]) {
+pub(crate) fn run_python(script: &str, dir: &Path, args: &[String]) {
     let o = Command::new(python()).arg("-c").arg(script).args(args).current_dir(dir).output().expect("python3");
     assert!(o.status.success(), "GDAL failed: {}", String::from_utf8_lossy(&o.stderr));
 }
 
-fn quick() -> RemoteOptions {
+pub(crate) fn quick() -> RemoteOptions {
     RemoteOptions {
         timeout: Duration::from_millis(3000),
         connect_timeout: Duration::from_millis(500),
@@ -89,7 +89,7 @@ fn quick() -> RemoteOptions {
     }
 }
 
-fn open(text: &str) -> PyramidSource {
+pub(crate) fn open(text: &str) -> PyramidSource {
     let opts = OpenOptions {
         template: TemplateOptions { remote: Some(quick()), zooms: Some([0, MAX_ZOOM]), ..Default::default() },
         // A clip size of one tile: every level but the coarsest zooms' is read tile by tile.
@@ -101,7 +101,7 @@ fn open(text: &str) -> PyramidSource {
 /// Reads every texture tile of the zooms' levels and compares each texel with GDAL's decode of
 /// the pyramid tile at the same place: texture tile (s, t) of level k is tile x = s,
 /// y = 2^z - 1 - t of zoom z = MAX_ZOOM - k, its texture row r the tile's row 255 - r.
-fn every_texel_is_gdals(src: &PyramidSource, gdal: &HashMap<(u8, u32, u32), Vec<u8>>, what: &str) {
+pub(crate) fn every_texel_is_gdals(src: &PyramidSource, gdal: &HashMap<(u8, u32, u32), Vec<u8>>, what: &str) {
     assert_eq!(src.desc().size(), [1024, 1024], "{what}");
     let mut compared = 0u64;
     for k in 0..=u32::from(MAX_ZOOM) {
@@ -399,4 +399,180 @@ fn clipmapd_takes_centres_in_lonlat_on_a_gdal2tiles_tree_as_cliptex_locate_place
     let points = [[13.4, 52.5], [-122.42, 37.77], [0.0001, -0.0001], [-179.9, 80.0]];
     crate::georef::centre_lonlat_lands_on_locates_texel(&template, &d.join("xyzll.sock"), d, &points);
     drop(served);
+}
+
+/// Waits until level `k` of the served texture is valid whole and compares each of its texels
+/// with GDAL's decode of the pyramid tile there (rows flipped to texture orientation).
+fn served_level_is_gdals(served: &crate::common::gdal::Served, k: usize, gdal: &HashMap<(u8, u32, u32), Vec<u8>>) {
+    let c = &served.client;
+    let z = MAX_ZOOM - k as u8;
+    let side = 1024u64 >> k;
+    let n = 1u64 << z;
+    let t0 = std::time::Instant::now();
+    let texels = loop {
+        if let Some(st) = c.level_state(k) {
+            if st.enabled && st.valid == [0, 0, side as i64, side as i64] {
+                let mut buf = vec![0u8; (side * side * 4) as usize];
+                if c.read_region(k, 0, 0, side, side, &mut buf).is_ok() {
+                    break buf;
+                }
+            }
+        }
+        assert!(t0.elapsed() < Duration::from_secs(30), "level {k} never became valid\n{}", served.log());
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    for t in 0..side {
+        for s in 0..side {
+            let tile = &gdal[&(z, (s / 256) as u32, (n - 1 - t / 256) as u32)];
+            let i = (((255 - t % 256) * 256 + s % 256) * 4) as usize;
+            let at = ((t * side + s) * 4) as usize;
+            assert_eq!(texels[at..at + 4], tile[i..i + 4], "level {k} texel ({s}, {t})\n{}", served.log());
+        }
+    }
+}
+
+fn cliptex(dir: &Path, args: &[&str]) -> (std::process::ExitStatus, String) {
+    let (o, _) = crate::common::exec(dir, env!("CARGO_BIN_EXE_cliptex"), args);
+    (o.status, format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr)))
+}
+
+#[test]
+fn clipprep_input_of_a_template_pmtiles_or_mbtiles_writes_a_ct_naming_it_that_clipmapd_serves_as_the_source() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let gdal = trees(d);
+    archives_of_the_tree(d);
+    let inputs = [
+        ("tms", format!("xyz:{}/tms/{{z}}/{{x}}/{{-y}}.png", d.display())),
+        ("pm", d.join("tree.pmtiles").display().to_string()),
+        ("mb", d.join("tree.mbtiles").display().to_string()),
+    ];
+    for (name, input) in &inputs {
+        let out = d.join(format!("cfg-{name}"));
+        let (o, _) = crate::common::exec(
+            d,
+            env!("CARGO_BIN_EXE_clipprep"),
+            &["--input", input, "--clip", "1024", "--json", "--out", out.to_str().unwrap()],
+        );
+        assert!(o.status.success(), "{name}: {}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(
+            (v["config_only"].as_bool(), v["size"].clone()),
+            (Some(true), serde_json::json!([1024, 1024])),
+            "{v}"
+        );
+        // Only the configuration: a .ct and its .ic files, no tile.
+        let files: Vec<String> =
+            std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        assert!(files.iter().all(|f| f.ends_with(".ct") || f.ends_with(".ic")), "{name}: {files:?}");
+        let ct = out.join(format!("cfg-{name}.ct"));
+        let text = std::fs::read_to_string(&ct).unwrap();
+        assert!(text.contains(&format!("#clipmap source {input}")), "{name}: {text}");
+        // Served by clipmapd: every texel of every zoom's level is GDAL's.
+        let served = crate::common::gdal::Served::start(&ct, 1024, &format!("ct{name}"), d);
+        assert_eq!(served.client.bytes_per_texel, 4);
+        for k in 0..=usize::from(MAX_ZOOM) {
+            served_level_is_gdals(&served, k, &gdal);
+        }
+    }
+    // A pyramid's --input refuses conversions.
+    let (o, _) = crate::common::exec(
+        d,
+        env!("CARGO_BIN_EXE_clipprep"),
+        &["--input", &inputs[1].1, "--clip", "256", "--tile", "512", "--out", d.join("bad").to_str().unwrap()],
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--tile 512") && !d.join("bad").exists());
+}
+
+#[test]
+fn a_ct_naming_a_tile_source_by_a_relative_path_is_served_and_strict_validation_names_the_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let gdal = trees(d);
+    let out = d.join("cfg");
+    let (o, _) = crate::common::exec(
+        d,
+        env!("CARGO_BIN_EXE_clipprep"),
+        &["--input", &format!("xyz:{}/xyz/{{z}}/{{x}}/{{y}}.png", d.display()), "--clip", "1024", "--out", "cfg"],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The line written by hand, relative to the .ct's directory.
+    let ct = out.join("cfg.ct");
+    let text = std::fs::read_to_string(&ct).unwrap();
+    let line = text.lines().position(|l| l.starts_with("#clipmap source ")).unwrap() + 1;
+    let text: String = text
+        .lines()
+        .map(|l| if l.starts_with("#clipmap source ") { "#clipmap source xyz:../xyz/{z}/{x}/{y}.png" } else { l })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(&ct, text).unwrap();
+    let (status, text) = cliptex(d, &["validate", "cfg/cfg.ct"]);
+    assert!(status.success(), "{text}");
+    assert!(text.contains("note: `#clipmap source` serves the clip texture's texels from the tile source"), "{text}");
+    let (status, text) = cliptex(d, &["validate", "--strict", "cfg/cfg.ct"]);
+    assert_eq!(status.code(), Some(1), "{text}");
+    assert!(text.contains(&format!("cfg.ct:{line}:10: error: `#clipmap source`")), "{text}");
+    assert!(text.contains("which Performer 3.0 does not know"), "{text}");
+    let (_, text) = cliptex(d, &["validate", "--strict", "--json", "cfg/cfg.ct"]);
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let codes: Vec<&str> =
+        v["files"][0]["diagnostics"].as_array().unwrap().iter().filter_map(|d| d["code"].as_str()).collect();
+    assert!(codes.contains(&"source-extension"), "{v}");
+    let (status, text) = cliptex(d, &["info", "cfg/cfg.ct"]);
+    assert!(status.success(), "{text}");
+    assert!(
+        text.contains(&format!("texels from the tile source xyz:{}", out.join("../xyz/{z}/{x}/{y}.png").display())),
+        "{text}"
+    );
+    let served = crate::common::gdal::Served::start(&ct, 1024, "ctrel", d);
+    for k in 0..=usize::from(MAX_ZOOM) {
+        served_level_is_gdals(&served, k, &gdal);
+    }
+    drop(served);
+    // A value that names no tile source, and a second source line, are errors at their lines.
+    let bad = std::fs::read_to_string(&ct).unwrap().replace("xyz:../xyz/{z}/{x}/{y}.png", "../earth.tif");
+    std::fs::write(out.join("bad.ct"), bad).unwrap();
+    let (status, text) = cliptex(d, &["validate", "cfg/bad.ct"]);
+    assert_eq!(status.code(), Some(1), "{text}");
+    assert!(text.contains("`#clipmap source` names no tile source") && text.contains("#clipmap cog"), "{text}");
+}
+
+#[test]
+fn a_pmtiles_of_brotli_tiles_packed_by_the_reference_writer_serves_gdals_texels() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let gdal = trees(d);
+    // The reference writer stores tiles as given and says how they are compressed: the PNG tiles
+    // compressed with brotli here (the `brotli` crate's encoder), the header saying BROTLI.
+    std::fs::create_dir_all(d.join("br")).unwrap();
+    let params = brotli::enc::BrotliEncoderParams { quality: 9, ..Default::default() };
+    for z in 0..=MAX_ZOOM {
+        for x in 0..1u32 << z {
+            for y in 0..1u32 << z {
+                let png = std::fs::read(d.join(format!("xyz/{z}/{x}/{y}.png"))).unwrap();
+                let mut out = Vec::new();
+                brotli::BrotliCompress(&mut &png[..], &mut out, &params).unwrap();
+                assert_ne!(out, png);
+                std::fs::write(d.join(format!("br/{z}_{x}_{y}.br")), out).unwrap();
+            }
+        }
+    }
+    let pack = r#"
+import sys
+from pmtiles.tile import Compression, TileType, zxy_to_tileid
+from pmtiles.writer import Writer
+top = int(sys.argv[1])
+tiles = sorted((zxy_to_tileid(z, x, y), open(f'br/{z}_{x}_{y}.br', 'rb').read())
+               for z in range(top + 1) for x in range(2 ** z) for y in range(2 ** z))
+with open('br.pmtiles', 'wb') as f:
+    w = Writer(f)
+    for tid, data in tiles:
+        w.write_tile(tid, data)
+    w.finalize({'tile_type': TileType.PNG, 'tile_compression': Compression.BROTLI, 'min_zoom': 0, 'max_zoom': top,
+                'min_lon_e7': int(-180e7), 'min_lat_e7': int(-85.0511287e7), 'max_lon_e7': int(180e7), 'max_lat_e7': int(85.0511287e7)},
+               {'name': 'br'})
+"#;
+    run_python(pack, d, &[MAX_ZOOM.to_string()]);
+    every_texel_is_gdals(&open(&format!("{}/br.pmtiles", d.display())), &gdal, "PMTiles of brotli tiles");
 }

@@ -151,7 +151,9 @@ struct Cli {
     format: Option<Format>,
     /// Write only the configuration (.ct and .ic files) that serves --input, a tiled GeoTIFF or
     /// COG (a local file or an http(s):// or s3:// URL), as it is: each names it with a
-    /// `#clipmap cog` line, and no tile is written (docs/COG.md).
+    /// `#clipmap cog` line, and no tile is written (docs/COG.md). An --input naming a tile
+    /// pyramid (`xyz:TEMPLATE`, a .pmtiles or .mbtiles) always writes only the configuration, its
+    /// `.ct` naming it with a `#clipmap source` line (docs/TILES.md).
     #[arg(long, requires = "input")]
     config_only: bool,
     /// Round an input deeper than --format (16-bit samples for an 8-bit or packed format) to
@@ -717,7 +719,8 @@ fn watch_signals(flag: Arc<AtomicBool>) -> anyhow::Result<()> {
 }
 
 fn main() -> ExitCode {
-    let cli: Cli = clipmap::cli::parse();
+    // An --input naming a tile pyramid is served as it is: --config-only goes without saying.
+    let cli: Cli = clipmap::cli::parse_from(config_only::pyramid_means_config_only(std::env::args_os().collect()));
     clipmap::cli::init_tool_log();
     let cancel = Arc::new(AtomicBool::new(false));
     if let Err(e) = watch_signals(cancel.clone()) {

@@ -272,6 +272,28 @@ struct EpState {
 struct Endpoint {
     state: Mutex<EpState>,
     wake: Condvar,
+    /// No request is sent to the endpoint before this instant: its server answered `429` or
+    /// `503` with a `Retry-After` (the rate limit is the host's, not one request's).
+    paused_until: Mutex<Option<std::time::Instant>>,
+}
+
+impl Endpoint {
+    /// Sends nothing for `wait` from now (or longer, if already paused longer).
+    fn pause(&self, wait: Duration) {
+        let until = std::time::Instant::now() + wait;
+        let mut p = self.paused_until.lock().unwrap_or_else(|e| e.into_inner());
+        if p.is_none_or(|t| t < until) {
+            *p = Some(until);
+        }
+    }
+
+    /// Waits out a pause of the endpoint, if one is on.
+    fn wait_pause(&self) {
+        let until = *self.paused_until.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(wait) = until.and_then(|t| t.checked_duration_since(std::time::Instant::now())) {
+            std::thread::sleep(wait);
+        }
+    }
 }
 
 /// Reads ranges through a backend per scheme, one `Endpoint` per endpoint.
@@ -485,8 +507,11 @@ impl Fetcher {
         // The name as errors and logs show it (a URL's password and signatures replaced).
         let object = &*crate::place::redacted(object);
         let backend = self.backend(loc);
+        let ep = self.endpoint(&loc.endpoint);
         let attempts = std::cell::Cell::new(0u32);
         let result = (|| {
+            // A `Retry-After` another request of this endpoint was told is waited out first.
+            ep.wait_pause();
             attempts.set(attempts.get() + 1);
             self.counters.requests.fetch_add(1, Ordering::Relaxed);
             attempt(backend)
@@ -494,10 +519,14 @@ impl Fetcher {
         .retry(self.opts.backoff_policy())
         .when(|f| matches!(f, Failure::Transient { .. }))
         .notify(|f, backoff| {
-            self.counters.retries.fetch_add(1, Ordering::Relaxed);
             let Failure::Transient { why, retry_after, .. } = f else { return };
             // `backon` sleeps the backoff next; a longer `Retry-After` (bounded) is slept here.
             let wait = self.opts.wait_for(backoff, *retry_after);
+            if retry_after.is_some() {
+                // The server's rate limit holds for every request to it, not only this one.
+                ep.pause(wait);
+            }
+            self.counters.retries.fetch_add(1, Ordering::Relaxed);
             tracing::debug!(location = %object, attempt = attempts.get(), ?wait, "remote read failed ({why}); retrying");
             if wait > backoff {
                 std::thread::sleep(wait - backoff);
@@ -605,6 +634,8 @@ mod tests {
         delay: Duration,
         fail_first: AtomicUsize,
         gets: Mutex<Vec<(u64, u64)>>,
+        /// When each get was answered.
+        at: Mutex<Vec<std::time::Instant>>,
         concurrent: AtomicUsize,
         peak: AtomicUsize,
         /// While true, every get waits (so that a test can line ranges up behind it).
@@ -626,6 +657,7 @@ mod tests {
             std::thread::sleep(self.delay);
             self.concurrent.fetch_sub(1, Ordering::SeqCst);
             self.gets.lock().unwrap().push((start, len));
+            self.at.lock().unwrap().push(std::time::Instant::now());
             if self.fail_first.load(Ordering::SeqCst) > 0 {
                 self.fail_first.fetch_sub(1, Ordering::SeqCst);
                 return Err(Failure::Transient {
@@ -664,6 +696,7 @@ mod tests {
             delay: Duration::from_millis(delay_ms),
             fail_first: AtomicUsize::new(fail_first),
             gets: Mutex::new(Vec::new()),
+            at: Mutex::new(Vec::new()),
             concurrent: AtomicUsize::new(0),
             peak: AtomicUsize::new(0),
             hold: Mutex::new(false),
@@ -865,6 +898,34 @@ mod tests {
         assert_eq!(f.read(&loc, 0, 10).unwrap().len(), 10);
         assert!(t.elapsed() >= Duration::from_millis(20) && t.elapsed() < Duration::from_secs(30), "{:?}", t.elapsed());
         assert_eq!(m.gets.lock().unwrap().len(), 2);
+    }
+
+    #[test]
+    fn a_retry_after_holds_back_every_request_to_the_endpoint() {
+        let loc = Location::parse("http://h:1/o").unwrap();
+        let m = mem(0, 1);
+        *m.retry_after.lock().unwrap() = Duration::from_millis(300);
+        let opts = RemoteOptions {
+            backoff: Duration::from_millis(1),
+            backoff_max: Duration::from_secs(5),
+            merge_bytes: 0,
+            ..Default::default()
+        };
+        let f = Arc::new(fetcher(m.clone(), opts));
+        let first = {
+            let (f, loc) = (f.clone(), loc.clone());
+            std::thread::spawn(move || f.read(&loc, 0, 10).map(|s| s.len()))
+        };
+        // Once the first read was told to wait, another read of the endpoint waits too.
+        while f.counters.retries.load(Ordering::SeqCst) == 0 {
+            std::thread::yield_now();
+        }
+        assert_eq!(f.read(&loc, 1000, 10).unwrap().len(), 10);
+        assert_eq!(first.join().unwrap().unwrap(), 10);
+        let (gets, at) = (m.gets.lock().unwrap().clone(), m.at.lock().unwrap().clone());
+        assert_eq!(gets.len(), 3, "{gets:?}");
+        let other = gets.iter().position(|g| g.0 == 1000).unwrap();
+        assert!(at[other].duration_since(at[0]) >= Duration::from_millis(300), "{:?}", at[other].duration_since(at[0]));
     }
 
     #[test]

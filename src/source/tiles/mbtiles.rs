@@ -4,6 +4,7 @@
 //! zooms (the zooms are read from the tiles when it does not).
 
 use super::pmtiles::archive::tile_dimensions;
+use super::reopen::{Renewable, Watched};
 use super::{ArchiveError, Fetched, PyramidInfo, TileAddr, TileArchive, TileEncoding, MAX_ZOOM};
 use crate::source::FaultKind;
 use rusqlite::{Connection, OpenFlags, OptionalExtension};
@@ -16,6 +17,8 @@ pub struct MbtilesArchive {
     place: String,
     db: Mutex<Connection>,
     info: PyramidInfo,
+    /// The file as it was opened, to tell when it is replaced or rewritten.
+    watched: Watched,
 }
 
 /// The tile size when the archive has no tile to read it from.
@@ -27,10 +30,11 @@ impl MbtilesArchive {
     pub fn open(path: &Path) -> Result<MbtilesArchive, ArchiveError> {
         let place = path.display().to_string();
         let fail = |kind, problem: String| ArchiveError { place: place.clone(), at: None, kind, problem };
-        if let Err(e) = std::fs::metadata(path) {
+        // Stamped before it is read: a change while it is opened shows at the first read.
+        let watched = Watched::stamp(path).map_err(|e| {
             let kind = if e.kind() == std::io::ErrorKind::NotFound { FaultKind::Missing } else { FaultKind::Io };
-            return Err(fail(kind, format!("cannot open it: {e}")));
-        }
+            fail(kind, format!("cannot open it: {e}"))
+        })?;
         let db = Connection::open_with_flags(path, OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX)
             .map_err(|e| fail(FaultKind::Io, format!("cannot open it as SQLite: {e}")))?;
         let not_sqlite = |e: rusqlite::Error| match e.sqlite_error_code() {
@@ -164,6 +168,7 @@ impl MbtilesArchive {
             place: place.clone(),
             db: Mutex::new(db),
             info: PyramidInfo { min_zoom, max_zoom, tile_size, bounds, encoding },
+            watched,
         })
     }
 }
@@ -200,6 +205,18 @@ impl TileArchive for MbtilesArchive {
             Some(b) if !b.is_empty() => Fetched::Tile(b),
             _ => Fetched::Missing,
         })
+    }
+}
+
+impl Renewable for MbtilesArchive {
+    /// The file replaced or rewritten since it was opened (one `stat`): SQLite reads the new
+    /// file's pages through the connection of the old one's, so its rows are not trusted.
+    fn stale(&self) -> Option<String> {
+        self.watched.changed()
+    }
+
+    fn renew(&self) -> Result<MbtilesArchive, ArchiveError> {
+        MbtilesArchive::open(self.watched.path())
     }
 }
 

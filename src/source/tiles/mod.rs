@@ -9,6 +9,7 @@
 //! decodes those bytes into a slot, in texture orientation (t counts up from the south).
 
 pub mod pyramid;
+pub mod reopen;
 pub mod template;
 
 pub use pyramid::{PyramidError, PyramidOptions, PyramidSource};
@@ -18,6 +19,7 @@ use super::FaultKind;
 use crate::place::Place;
 use mbtiles::MbtilesArchive;
 use pmtiles::PmtilesArchive;
+use reopen::Reopening;
 use serde::Serialize;
 use std::fmt;
 use std::sync::Arc;
@@ -190,6 +192,13 @@ pub trait TileArchive: Send + Sync {
     fn version(&self) -> u64 {
         0
     }
+
+    /// Checks whether the archive changed since it was opened (opening it again if so, as a
+    /// read would) and returns its [`version`](TileArchive::version) then: what a reader asks
+    /// before using what it built from the archive's tiles. May block (disk, network).
+    fn refresh(&self) -> u64 {
+        self.version()
+    }
 }
 
 /// How a tile pyramid named on a command line or in a configuration is served.
@@ -225,13 +234,13 @@ fn open_pmtiles(text: &str, opts: &OpenOptions) -> Result<Arc<dyn TileArchive>, 
             archive.probe_tile_size()?;
         }
     }
-    Ok(Arc::new(archive))
+    Ok(Arc::new(Reopening::new(archive)))
 }
 
 /// An MBTiles archive: a local SQLite file.
 fn open_mbtiles(text: &str, _opts: &OpenOptions) -> Result<Arc<dyn TileArchive>, PyramidError> {
     match Place::parse(text) {
-        Place::Local(path) => Ok(Arc::new(MbtilesArchive::open(&path)?)),
+        Place::Local(path) => Ok(Arc::new(Reopening::new(MbtilesArchive::open(&path)?))),
         Place::Remote(_) => Err(PyramidError::Info {
             place: text.to_string(),
             problem: "an MBTiles archive is an SQLite file and is read from a local disk only; download it first, or convert it to PMTiles (`pmtiles convert`) to serve it over HTTP or S3".into(),

@@ -28,7 +28,7 @@ use super::{ArchiveError, Fetched, PyramidInfo, TileAddr, TileArchive, TileEncod
 use crate::source::{check_request, Delivered, FaultKind, SourceError, TextureDesc, TileId, TileSource};
 use clipmap_base::texel::TexelFormat;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex};
 use thiserror::Error;
 
 /// The most texels of the minimum zoom's level from which the coarser levels are built (4096²).
@@ -80,7 +80,8 @@ pub struct PyramidSource {
     desc: TextureDesc,
     /// The default tile's texels, in texture orientation.
     default: Option<Vec<u8>>,
-    built: OnceLock<Result<Arc<Built>, String>>,
+    /// The built levels and the archive's version they were built from.
+    built: Mutex<Option<(u64, Result<Arc<Built>, String>)>>,
     /// Tiles fetched from the archive.
     fetched: AtomicU64,
     /// Default tiles served.
@@ -164,7 +165,7 @@ impl PyramidSource {
             info,
             desc,
             default: None,
-            built: OnceLock::new(),
+            built: Mutex::new(None),
             fetched: AtomicU64::new(0),
             default_tiles: AtomicU64::new(0),
         };
@@ -227,6 +228,30 @@ impl PyramidSource {
                     expected.name()
                 ));
             }
+        }
+        // A cut answer must not decode: JPEG decoders fill what is missing with grey, so a JPEG
+        // must end with its end-of-image marker, and a WebP hold the bytes its RIFF header says.
+        match found {
+            TileEncoding::Jpeg => {
+                let end = bytes.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+                if !bytes[..end].ends_with(&[0xFF, 0xD9]) {
+                    return Err(format!(
+                        "{what}: the JPEG of {} bytes ends without its end-of-image marker (FF D9): it was cut short",
+                        bytes.len()
+                    ));
+                }
+            }
+            TileEncoding::Webp => {
+                let riff = u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]) as usize;
+                if riff.saturating_add(8) > bytes.len() {
+                    return Err(format!(
+                        "{what}: the WebP's RIFF header says {} bytes, and the tile has {}: it was cut short",
+                        riff.saturating_add(8),
+                        bytes.len()
+                    ));
+                }
+            }
+            TileEncoding::Png => {}
         }
         let format = match found {
             TileEncoding::Png => image::ImageFormat::Png,
@@ -348,10 +373,28 @@ impl PyramidSource {
         Ok(any)
     }
 
-    /// The levels coarser than the minimum zoom, built once.
+    /// The levels coarser than the minimum zoom, built once for each version of the archive (an
+    /// archive replaced and opened again builds them anew from its new tiles).
     fn built(&self, tile: TileId) -> Result<Arc<Built>, SourceError> {
-        let r = self.built.get_or_init(|| self.build().map(Arc::new));
-        r.clone().map_err(|problem| SourceError::Pyramid { tile, kind: FaultKind::Io, problem })
+        let mut built = self.built.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut tries = 0;
+        loop {
+            let version = self.archive.refresh();
+            match &*built {
+                Some((v, r)) if *v == version => {
+                    return r.clone().map_err(|problem| SourceError::Pyramid { tile, kind: FaultKind::Io, problem })
+                }
+                _ => {}
+            }
+            let r = self.build().map(Arc::new);
+            tries += 1;
+            if self.archive.version() != version && tries < 3 {
+                // The archive changed while its tiles were read: built again from one version.
+                continue;
+            }
+            *built = Some((version, r.clone()));
+            return r.map_err(|problem| SourceError::Pyramid { tile, kind: FaultKind::Io, problem });
+        }
     }
 
     /// Reads the whole level of the minimum zoom and box-filters it down to 1 texel.

@@ -233,3 +233,29 @@ fn the_georef_is_web_mercator_quad_and_a_tiles_corners_are_its_definition() {
         }
     }
 }
+
+#[test]
+fn cut_jpeg_and_webp_tiles_are_errors_never_grey_texels() {
+    let at = TileAddr { z: 0, x: 0, y: 0 };
+    let img = image::RgbImage::from_fn(16, 16, |c, r| {
+        let t = texel(at, c, r);
+        image::Rgb([t[0], t[1], t[2]])
+    });
+    let mut jpeg = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut jpeg, image::ImageFormat::Jpeg).unwrap();
+    let jpeg = jpeg.into_inner();
+    let whole = mem(info(0, 0, 16, Some(TileEncoding::Jpeg)), vec![(at, jpeg.clone())]);
+    let src = PyramidSource::new(whole, &PyramidOptions::default()).unwrap();
+    assert!(read(&src, 0, 0, 0).is_ok());
+    // Half a JPEG: its decoder would fill the rest; refused, naming why.
+    let cut = mem(info(0, 0, 16, Some(TileEncoding::Jpeg)), vec![(at, jpeg[..jpeg.len() / 2].to_vec())]);
+    let src = PyramidSource::new(cut, &PyramidOptions::default()).unwrap();
+    let e = read(&src, 0, 0, 0).unwrap_err().to_string();
+    assert!(e.contains("end-of-image marker") && e.contains("cut short") && e.contains("tile 0/0/0"), "{e}");
+    // A WebP shorter than its RIFF header says.
+    let mut webp = b"RIFF\x40\0\0\0WEBPVP8L".to_vec();
+    webp.resize(30, 0);
+    let src = PyramidSource::new(mem(info(0, 0, 16, None), vec![(at, webp)]), &PyramidOptions::default()).unwrap();
+    let e = read(&src, 0, 0, 0).unwrap_err().to_string();
+    assert!(e.contains("RIFF header says 72 bytes") && e.contains("has 30"), "{e}");
+}

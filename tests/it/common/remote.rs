@@ -224,6 +224,15 @@ pub enum Fault {
     /// Forwards a GET asking for the range one byte further on, so that the server answers
     /// `206` for a range that was not asked for.
     OtherRange,
+    /// Answers `204 No Content` itself.
+    NoContent,
+    /// Answers `429 Too Many Requests` with `Retry-After: 1` itself.
+    TooMany,
+    /// Answers `200 OK` with an empty body of type `image/png` itself.
+    EmptyOk,
+    /// Forwards the answer with its body cut to half and a `Content-Length` that says so: a
+    /// whole answer of a truncated file.
+    HalfBody,
 }
 
 /// The proxy's schedule: request `i` (from 0) gets `faults[i]` while `i < faults.len()`, then
@@ -265,6 +274,10 @@ pub struct FaultProxy {
     pub requests: Arc<AtomicU64>,
     /// Faults injected, by kind.
     pub injected: Arc<Mutex<Vec<Fault>>>,
+    /// Requests being answered now, and the most there were at once.
+    pub in_flight: Arc<InFlight>,
+    /// Each request's arrival, path and fault, in order of arrival.
+    pub seen: Arc<Mutex<Vec<(Instant, String, Fault)>>>,
     schedule: Arc<Mutex<Schedule>>,
     stop: Arc<AtomicBool>,
 }
@@ -279,23 +292,27 @@ impl FaultProxy {
         let injected = Arc::new(Mutex::new(Vec::new()));
         let schedule = Arc::new(Mutex::new(schedule));
         let stop = Arc::new(AtomicBool::new(false));
+        let in_flight = Arc::new(InFlight::default());
+        let seen = Arc::new(Mutex::new(Vec::new()));
         {
-            let (requests, injected, schedule, stop) =
-                (requests.clone(), injected.clone(), schedule.clone(), stop.clone());
+            let (requests, injected, schedule, stop, in_flight, seen) =
+                (requests.clone(), injected.clone(), schedule.clone(), stop.clone(), in_flight.clone(), seen.clone());
             std::thread::spawn(move || {
                 for conn in listener.incoming() {
                     if stop.load(Ordering::SeqCst) {
                         break;
                     }
                     let Ok(conn) = conn else { continue };
-                    let (requests, injected, schedule) = (requests.clone(), injected.clone(), schedule.clone());
+                    let (requests, injected, schedule, in_flight, seen) =
+                        (requests.clone(), injected.clone(), schedule.clone(), in_flight.clone(), seen.clone());
                     std::thread::spawn(move || {
-                        let _ = serve(conn, upstream, delay_ms, &requests, &injected, &schedule);
+                        let tally = Tally { in_flight: &in_flight, seen: &seen };
+                        let _ = serve(conn, upstream, delay_ms, &requests, &injected, &schedule, &tally);
                     });
                 }
             });
         }
-        FaultProxy { port, requests, injected, schedule, stop }
+        FaultProxy { port, requests, injected, in_flight, seen, schedule, stop }
     }
 
     /// `http://127.0.0.1:PORT`.
@@ -317,6 +334,30 @@ impl Drop for FaultProxy {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
         let _ = TcpStream::connect(("127.0.0.1", self.port));
+    }
+}
+
+/// The requests a proxy is answering at once.
+#[derive(Debug, Default)]
+pub struct InFlight {
+    /// Now.
+    pub now: AtomicU64,
+    /// The most at once so far.
+    pub peak: AtomicU64,
+}
+
+/// Where one connection's request is counted.
+struct Tally<'a> {
+    in_flight: &'a InFlight,
+    seen: &'a Mutex<Vec<(Instant, String, Fault)>>,
+}
+
+/// A request counted in flight until dropped.
+struct Counted<'a>(&'a InFlight);
+
+impl Drop for Counted<'_> {
+    fn drop(&mut self) {
+        self.0.now.fetch_sub(1, Ordering::SeqCst);
     }
 }
 
@@ -355,15 +396,21 @@ fn serve(
     requests: &AtomicU64,
     injected: &Mutex<Vec<Fault>>,
     schedule: &Mutex<Schedule>,
+    tally: &Tally,
 ) -> std::io::Result<()> {
     let mut r = BufReader::new(conn.try_clone()?);
     let mut out = conn;
     let Some(req) = read_request(&mut r)? else { return Ok(()) };
+    let now = tally.in_flight.now.fetch_add(1, Ordering::SeqCst) + 1;
+    tally.in_flight.peak.fetch_max(now, Ordering::SeqCst);
+    let _counted = Counted(tally.in_flight);
     let i = requests.fetch_add(1, Ordering::SeqCst);
     let fault = schedule.lock().unwrap().fault(i);
     if fault != Fault::Pass {
         injected.lock().unwrap().push(fault);
     }
+    let path = String::from_utf8_lossy(&req).split_whitespace().nth(1).unwrap_or_default().to_string();
+    tally.seen.lock().unwrap().push((Instant::now(), path, fault));
     if delay_ms > 0 {
         std::thread::sleep(Duration::from_millis(delay_ms));
     }
@@ -374,6 +421,9 @@ fn serve(
         Fault::NotFound => return out.write_all(&canned("404 Not Found", "")),
         Fault::ServerError => return out.write_all(&canned("500 Internal Server Error", "")),
         Fault::Unavailable => return out.write_all(&canned("503 Service Unavailable", "Retry-After: 1\r\n")),
+        Fault::NoContent => return out.write_all(&canned("204 No Content", "")),
+        Fault::TooMany => return out.write_all(&canned("429 Too Many Requests", "Retry-After: 1\r\n")),
+        Fault::EmptyOk => return out.write_all(&canned("200 OK", "Content-Type: image/png\r\n")),
         Fault::Reset => {
             // Closed with the request unread past its head: no answer at all.
             return out.shutdown(Shutdown::Both);
@@ -430,6 +480,11 @@ fn serve(
         Fault::ShortLength => {
             out.write_all(rewrite_length(body.len().saturating_sub(10)).as_bytes())?;
             out.write_all(body)?;
+        }
+        Fault::HalfBody => {
+            // `rewrite_length` leaves out the blank line that ends the head.
+            out.write_all(format!("{}\r\n", rewrite_length(body.len() / 2)).as_bytes())?;
+            out.write_all(&body[..body.len() / 2])?;
         }
         _ => {
             out.write_all(head.as_bytes())?;

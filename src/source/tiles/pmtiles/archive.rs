@@ -6,6 +6,7 @@ use super::directory::{self, Entry, Found};
 use super::header::{Compression, Header, HEADER_LEN};
 use crate::place::Place;
 use crate::source::range::{open_place, OpenError, RangeError, RangeReader};
+use crate::source::tiles::reopen::{Renewable, Watched};
 use crate::source::tiles::{ArchiveError, Fetched, PyramidInfo, TileAddr, TileArchive};
 use crate::source::FaultKind;
 use std::collections::HashMap;
@@ -78,6 +79,26 @@ pub struct PmtilesArchive {
     root: Vec<Entry>,
     info: PyramidInfo,
     leaves: Mutex<LeafCache>,
+    /// Where it was opened from, to tell when it changed and to open it again; `None` for an
+    /// archive read from a reader given ([`PmtilesArchive::from_reader`]).
+    origin: Option<Origin>,
+    /// Whether the tile size was read from the first tile ([`PmtilesArchive::probe_tile_size`]).
+    probed: bool,
+}
+
+/// The remote reader a new version of a remote archive is read through.
+#[cfg(feature = "remote")]
+type SharedRemote = Arc<crate::source::remote::Remote>;
+/// No remote reader in a build without the `remote` feature.
+#[cfg(not(feature = "remote"))]
+type SharedRemote = ();
+
+/// Where an archive was opened from.
+enum Origin {
+    /// A local file, watched for replacement.
+    Local(Watched),
+    /// A remote object (its reader refuses bytes of another version, and says so).
+    Remote(crate::place::RemoteName),
 }
 
 /// Whether `bounds` cover all of WebMercatorQuad (to its ±85.0511° edges, within a 1e-4° slack).
@@ -92,7 +113,7 @@ impl PmtilesArchive {
     /// A remote archive's ranges go through the disk cache the `CLIPMAP_REMOTE_*` variables
     /// name, if any ([`PmtilesArchive::open_with`]).
     pub fn open(place: &Place) -> Result<PmtilesArchive, ArchiveError> {
-        Self::open_place(place, None)
+        PmtilesArchive::open_from(place, None, None)
     }
 
     /// [`PmtilesArchive::open`] with the remote options `opts` for a remote archive (their disk
@@ -103,34 +124,53 @@ impl PmtilesArchive {
         place: &Place,
         opts: crate::source::remote::RemoteOptions,
     ) -> Result<PmtilesArchive, ArchiveError> {
-        Self::open_place(place, Some(opts))
+        PmtilesArchive::open_from(place, None, Some(opts))
     }
 
-    fn open_place(
+    /// [`open`](Self::open), a remote object through `remote` when given (the same counters,
+    /// connections, disk cache and bound on requests in flight as an earlier version's), else
+    /// through a remote reader made with `opts` (those of the environment when `None`).
+    fn open_from(
         place: &Place,
+        remote: Option<SharedRemote>,
         #[cfg(feature = "remote")] opts: Option<crate::source::remote::RemoteOptions>,
         #[cfg(not(feature = "remote"))] opts: Option<()>,
     ) -> Result<PmtilesArchive, ArchiveError> {
         let name = crate::place::redacted(&place.to_string()).into_owned();
-        let opened = match place {
-            #[cfg(feature = "remote")]
-            Place::Remote(remote) => {
-                crate::source::remote::range::open_cached(remote, OPEN_BYTES, opts).map_err(OpenError::Remote)
-            }
-            _ => {
-                let _ = opts;
-                open_place(place, OPEN_BYTES)
-            }
-        };
-        let (bytes, first) = opened.map_err(|e| {
+        let failed = |e: OpenError| {
             let (kind, problem) = match e {
                 OpenError::Io(e) if e.kind() == std::io::ErrorKind::NotFound => (FaultKind::Missing, e.to_string()),
                 OpenError::Io(e) => (FaultKind::Io, e.to_string()),
                 OpenError::Remote(p) => (FaultKind::Io, p),
             };
             ArchiveError { place: name.clone(), at: None, kind, problem: format!("cannot open it: {problem}") }
-        })?;
-        PmtilesArchive::from_reader(name, bytes, &first)
+        };
+        let (origin, (bytes, first)) = match place {
+            Place::Local(path) => {
+                // Stamped before it is read: a change while it is opened shows at the first read.
+                let watched = Watched::stamp(path).map_err(|e| failed(OpenError::Io(e)))?;
+                (Origin::Local(watched), open_place(place, OPEN_BYTES).map_err(failed)?)
+            }
+            Place::Remote(r) => {
+                let opened = match remote {
+                    #[cfg(feature = "remote")]
+                    Some(remote) => {
+                        crate::source::remote::range::open_with(r, remote, OPEN_BYTES).map_err(OpenError::Remote)
+                    }
+                    #[cfg(feature = "remote")]
+                    None => crate::source::remote::range::open_cached(r, OPEN_BYTES, opts).map_err(OpenError::Remote),
+                    #[cfg(not(feature = "remote"))]
+                    _ => {
+                        let _ = (remote, opts);
+                        open_place(place, OPEN_BYTES)
+                    }
+                };
+                (Origin::Remote(r.clone()), opened.map_err(failed)?)
+            }
+        };
+        let mut archive = PmtilesArchive::from_reader(name, bytes, &first)?;
+        archive.origin = Some(origin);
+        Ok(archive)
     }
 
     /// The archive read through `bytes`, whose first bytes (the first [`OPEN_BYTES`], or all of
@@ -168,6 +208,8 @@ impl PmtilesArchive {
             root,
             info,
             leaves: Mutex::new(LeafCache { budget: LEAF_CACHE_BYTES, used: 0, tick: 0, leaves: HashMap::new() }),
+            origin: None,
+            probed: false,
         })
     }
 
@@ -298,6 +340,7 @@ impl PmtilesArchive {
                 }
             };
             self.info.tile_size = size;
+            self.probed = true;
             return Ok(size);
         }
         Err(self.error(None, FaultKind::Corrupt, format!("leaf directories nest deeper than {DEPTH_MAX} levels")))
@@ -400,6 +443,55 @@ impl TileArchive for PmtilesArchive {
     }
 }
 
+impl Renewable for PmtilesArchive {
+    /// A local file replaced or rewritten since it was opened (one `stat`), or a remote object
+    /// one of whose reads was refused because its version changed.
+    fn stale(&self) -> Option<String> {
+        match &self.origin {
+            Some(Origin::Local(w)) => w.changed(),
+            Some(Origin::Remote(_)) => self
+                .bytes
+                .changed()
+                .then(|| "the object changed since it was opened (its ETag, Last-Modified or size)".to_string()),
+            None => None,
+        }
+    }
+
+    /// Opened again from where it was (a remote object through the same remote reader), its
+    /// tile size read again from its first tile if it was so, else the one set.
+    fn renew(&self) -> Result<PmtilesArchive, ArchiveError> {
+        let mut fresh = match &self.origin {
+            Some(Origin::Local(w)) => PmtilesArchive::open_from(&Place::Local(w.path().to_path_buf()), None, None)?,
+            Some(Origin::Remote(name)) => {
+                #[cfg(feature = "remote")]
+                let remote = self
+                    .bytes
+                    .as_any()
+                    .downcast_ref::<crate::source::remote::object::Object>()
+                    .map(|o| Arc::clone(o.remote()));
+                #[cfg(not(feature = "remote"))]
+                let remote = None;
+                PmtilesArchive::open_from(&Place::Remote(name.clone()), remote, None)?
+            }
+            None => {
+                return Err(self.error(
+                    None,
+                    FaultKind::Io,
+                    "it was not opened from a file or an object and cannot be opened again".into(),
+                ))
+            }
+        };
+        let budget = self.leaves.lock().expect("leaf cache").budget;
+        fresh.leaves.lock().expect("leaf cache").budget = budget;
+        if self.probed {
+            fresh.probe_tile_size()?;
+        } else {
+            fresh.set_tile_size(self.info.tile_size);
+        }
+        Ok(fresh)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::directory::tests::serialize;
@@ -416,11 +508,50 @@ mod tests {
     /// become one run) with leaves of `per_leaf` entries (0: all in the root), its directories
     /// compressed with zstd and its tiles with gzip.
     fn archive(tiles: &[(TileAddr, Vec<u8>)], per_leaf: usize) -> Vec<u8> {
-        let gz = |b: &[u8]| {
-            let mut g = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
-            std::io::Write::write_all(&mut g, b).unwrap();
-            g.finish().unwrap()
-        };
+        archive_compressed(tiles, per_leaf, Compression::Zstd, Compression::Gzip)
+    }
+
+    /// Bytes compressed as `c` (brotli by the `brotli` crate's encoder, quality 5).
+    fn compress(b: &[u8], c: Compression) -> Vec<u8> {
+        match c {
+            Compression::None => b.to_vec(),
+            Compression::Gzip => {
+                let mut g = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+                std::io::Write::write_all(&mut g, b).unwrap();
+                g.finish().unwrap()
+            }
+            Compression::Zstd => zstd::encode_all(b, 3).unwrap(),
+            Compression::Brotli => {
+                let mut out = Vec::new();
+                brotli::BrotliCompress(
+                    &mut &b[..],
+                    &mut out,
+                    &brotli::enc::BrotliEncoderParams { quality: 5, ..Default::default() },
+                )
+                .unwrap();
+                out
+            }
+        }
+    }
+
+    /// The header's byte for `c`.
+    fn byte(c: Compression) -> u8 {
+        match c {
+            Compression::None => 1,
+            Compression::Gzip => 2,
+            Compression::Brotli => 3,
+            Compression::Zstd => 4,
+        }
+    }
+
+    /// [`archive`] with directories compressed as `internal` and tiles as `tile`.
+    fn archive_compressed(
+        tiles: &[(TileAddr, Vec<u8>)],
+        per_leaf: usize,
+        internal: Compression,
+        tile: Compression,
+    ) -> Vec<u8> {
+        let gz = |b: &[u8]| compress(b, tile);
         let mut data = Vec::new();
         let mut entries: Vec<Entry> = Vec::new();
         for (at, bytes) in tiles {
@@ -435,7 +566,7 @@ mod tests {
             entries.push(Entry { tile_id: id, offset: data.len() as u64, length: z.len() as u32, run_length: 1 });
             data.extend(z);
         }
-        let zs = |b: Vec<u8>| zstd::encode_all(&b[..], 3).unwrap();
+        let zs = |b: Vec<u8>| compress(&b, internal);
         let (root, leaves) = if per_leaf == 0 {
             (zs(serialize(&entries)), Vec::new())
         } else {
@@ -461,8 +592,8 @@ mod tests {
             (root_at, root.len() as u64),
             (leaves_at, leaves.len() as u64),
             (data_at, data.len() as u64),
-            4,
-            2,
+            byte(internal),
+            byte(tile),
             2,
             zooms,
         );
@@ -519,6 +650,37 @@ mod tests {
             let e = a.fetch(addr(2, 4, 0)).unwrap_err();
             assert_eq!(e.kind, FaultKind::BadRequest);
         }
+    }
+
+    #[test]
+    fn brotli_directories_and_tiles_read_back_and_damaged_brotli_is_refused() {
+        let tiles: Vec<(TileAddr, Vec<u8>)> = (0..40u32)
+            .map(|i| directory::tile_addr(tile_id(addr(3, 0, 0)) + u64::from(i)).unwrap())
+            .map(|at| (at, png(256, at.x * 8 + at.y)))
+            .collect();
+        for (internal, tile) in [
+            (Compression::Brotli, Compression::Brotli),
+            (Compression::Brotli, Compression::None),
+            (Compression::Gzip, Compression::Brotli),
+        ] {
+            for per_leaf in [0, 6] {
+                let bytes = archive_compressed(&tiles, per_leaf, internal, tile);
+                let a = open(bytes);
+                assert_eq!((a.header().internal_compression, a.header().tile_compression), (internal, tile));
+                for (at, want) in &tiles {
+                    assert_eq!(a.fetch(*at).unwrap(), Fetched::Tile(want.clone()), "{internal:?} {tile:?} {at}");
+                }
+                assert_eq!(a.fetch(addr(3, 7, 7)).unwrap(), Fetched::Missing);
+            }
+        }
+        // A brotli stream cut short is refused, never handed on as a tile.
+        let good = compress(&png(256, 9), Compression::Brotli);
+        assert_eq!(directory::decompress(&good, Compression::Brotli, 1 << 20).unwrap(), png(256, 9));
+        let e = directory::decompress(&good[..good.len() - 3], Compression::Brotli, 1 << 20).unwrap_err();
+        assert!(e.contains("Brotli"), "{e}");
+        // The inflated size is bounded.
+        let big = compress(&vec![7u8; 100_000], Compression::Brotli);
+        assert!(directory::decompress(&big, Compression::Brotli, 50_000).unwrap_err().contains("more than 50000"));
     }
 
     #[test]

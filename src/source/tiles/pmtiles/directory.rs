@@ -109,6 +109,9 @@ pub fn decompress(bytes: &[u8], compression: Compression, limit: u64) -> Result<
         Compression::Zstd => {
             zstd::stream::read::Decoder::new(bytes).and_then(|d| d.take(limit + 1).read_to_end(&mut out))
         }
+        Compression::Brotli => {
+            brotli_decompressor::Decompressor::new(bytes, 4096).take(limit + 1).read_to_end(&mut out)
+        }
     };
     read.map_err(|e| format!("cannot undo its {compression:?} compression: {e}"))?;
     if out.len() as u64 > limit {

@@ -19,6 +19,8 @@ pub enum Compression {
     None,
     /// gzip.
     Gzip,
+    /// Brotli.
+    Brotli,
     /// zstd.
     Zstd,
 }
@@ -28,13 +30,10 @@ fn compression(byte: u8, what: &str) -> Result<Compression, String> {
     match byte {
         1 => Ok(Compression::None),
         2 => Ok(Compression::Gzip),
+        3 => Ok(Compression::Brotli),
         4 => Ok(Compression::Zstd),
-        3 => Err(format!(
-            "the {what} are brotli-compressed (byte {byte}), which this reader does not undo: \
-             convert the archive with `pmtiles convert` or write it with gzip, zstd or no compression"
-        )),
         0 => Err(format!(
-            "the {what}' compression is \"unknown\" (byte 0): the archive must say none (1), gzip (2) or zstd (4)"
+            "the {what}' compression is \"unknown\" (byte 0): the archive must say none (1), gzip (2), brotli (3) or zstd (4)"
         )),
         b => Err(format!("the {what}' compression is byte {b}, which PMTiles v3 does not define (1 to 4)")),
     }
@@ -235,8 +234,8 @@ pub(crate) mod tests {
         assert!(at(2, 1, 1).unwrap_err().contains("MVT"));
         assert!(at(2, 1, 5).unwrap_err().contains("AVIF"));
         assert!(at(2, 1, 0).unwrap_err().contains("unknown"));
-        assert!(at(3, 1, 2).unwrap_err().contains("brotli"));
-        assert!(at(2, 3, 2).unwrap_err().contains("brotli"));
+        assert_eq!(at(3, 1, 2).unwrap().internal_compression, Compression::Brotli);
+        assert_eq!(at(2, 3, 2).unwrap().tile_compression, Compression::Brotli);
         assert!(at(0, 1, 2).unwrap_err().contains("unknown"));
         assert_eq!(at(4, 0, 4).unwrap().tile_compression, Compression::None);
         let mut b = header_bytes((127, 0), (127, 0), (127, 0), 2, 1, 2, (0, 0));
