@@ -188,6 +188,7 @@ fn is_http(text: &str) -> bool {
 
 /// Whether `value` is a content type a tile may come with: an image type, a generic binary
 /// type, or none.
+#[cfg_attr(not(feature = "remote"), allow(dead_code))]
 fn tile_content_type(value: &str) -> bool {
     let v = value.split(';').next().unwrap_or_default().trim().to_ascii_lowercase();
     v.starts_with("image/") || v == "application/octet-stream" || v == "binary/octet-stream" || v.is_empty()
