@@ -68,6 +68,11 @@ struct Cli {
     /// Procedural tile size.
     #[arg(long, default_value_t = 128)]
     tile: u64,
+    /// Georeferences a procedural texture (--source) as the whole Web Mercator square
+    /// (EPSG:3857, WebMercatorQuad at zoom log2(--size) with 1-texel tiles), so that centres may
+    /// be given in longitude / latitude (docs/GEOREF.md).
+    #[arg(long, value_name = "web-mercator", requires = "source", value_parser = ["web-mercator"])]
+    georef: Option<String>,
     /// Publication name (default: the source kind or the configuration's file stem).
     #[arg(long)]
     name: Option<String>,
@@ -317,6 +322,10 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             };
             let src = service::procedural_source(kind, cli.size, cli.clip, cli.tile)
                 .map_err(|e| Failure(e.exit_code(), e.into()))?;
+            let src = match cli.georef {
+                Some(_) => service::web_mercator_square(src),
+                None => src,
+            };
             (src, name.to_string(), clipmap::paging::PagingOptions::default())
         }
         (None, None) => {

@@ -40,6 +40,7 @@ mod elevation;
 mod examples;
 mod fuzz_regressions;
 mod georef;
+mod georef_extremes;
 mod growing;
 mod growing_service;
 mod height_cracks;
