@@ -36,7 +36,7 @@ pub(super) fn apply_lod(
 
 /// A request's velocity (level-0 texels per second, docs/SHM.md "What the service does with a
 /// request") as the engine takes it: divided by the tick rate `hz` and rounded to texels per tick,
-/// clamped to `MAX_TEXTURE_SIZE` (2^26) a tick, NaN and infinities read as 0. `None` when both
+/// clamped to `MAX_TEXTURE_SIZE` (2^30) a tick, NaN and infinities read as 0. `None` when both
 /// are 0: the engine then uses the centre's change since the last tick. Anything a renderer (or a
 /// member of the mapping's group) wrote is bounded here, before the engine does arithmetic with it.
 pub(super) fn velocity_per_tick(velocity: [f64; 2], hz: f64) -> Option<[i64; 2]> {

@@ -52,7 +52,7 @@ pub struct TickStats {
     #[serde(default)]
     pub position_request_refused: Option<String>,
     /// The latest request's velocity as the look-ahead takes it, in level-0 texels per tick
-    /// (divided by the tick rate, rounded, clamped to 2^26, NaN and infinities 0); `null` when
+    /// (divided by the tick rate, rounded, clamped to 2^30, NaN and infinities 0); `null` when
     /// there is none, both are 0 or a `CENTRE` cleared it: the centre's change is used instead.
     pub request_velocity: Option<[i64; 2]>,
     /// Times the request mapping was found not whole (shorter than its 4096 bytes: truncated by a
