@@ -2002,7 +2002,7 @@ static inline int clipmap_request_own_refused_(struct clipmap_request *r, const 
  * renderer's lock was taken from it, which happens only if its pid is not visible to the others:
  * renderers must share a pid namespace). */
 static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, int64_t t, double vs, double vt) {
-    const struct clipmap_request_fields_ f = {s, t, vs, vt, 0, 0.0, 0.0, 0};
+    const struct clipmap_request_fields_ f = {s, t, vs, vt, 0, 0.0, 0.0, 0, 0, CLIPMAP_KIND_TEXELS, 0.0, 0.0};
     return clipmap_request_at_(r, CLIPMAP_R_SEQ, 0, 0, &f);
 }
 
@@ -2062,7 +2062,7 @@ static inline int clipmap_request_view_centre(struct clipmap_request *r, const s
                  "for view records 0 to %u only", v->name, v->record, CLIPMAP_MAX_VIEW_REQUESTS - 1);
         return CLIPMAP_NOT_VALID;
     }
-    const struct clipmap_request_fields_ f = {s, t, vs, vt, 0, 0.0, 0.0, 0};
+    const struct clipmap_request_fields_ f = {s, t, vs, vt, 0, 0.0, 0.0, 0, 0, CLIPMAP_KIND_TEXELS, 0.0, 0.0};
     return clipmap_request_at_(r, CLIPMAP_R_VIEWS + (size_t)v->record * CLIPMAP_VIEW_REQUEST_BYTES, 1, v->incarnation,
                                &f);
 }
@@ -2091,7 +2091,7 @@ static inline int clipmap_request_lod(struct clipmap_request *r, const struct cl
     }
     const size_t index = main_view ? 0 : 1 + (size_t)v->record;
     const struct clipmap_request_fields_ f = {0, 0, 0.0, 0.0, CLIPMAP_R_LOD + index * CLIPMAP_LOD_RECORD_BYTES,
-                                              height, pixel_angle, effective};
+                                              height, pixel_angle, effective, 0, CLIPMAP_KIND_TEXELS, 0.0, 0.0};
     if (main_view) return clipmap_request_at_(r, CLIPMAP_R_SEQ, 0, 0, &f);
     return clipmap_request_at_(r, CLIPMAP_R_VIEWS + (size_t)v->record * CLIPMAP_VIEW_REQUEST_BYTES, 1, v->incarnation,
                                &f);
