@@ -456,9 +456,9 @@ mod tests {
         let s = ServiceStats { name: "x".into(), tick: TickStats::default(), control: ControlStats::default() };
         let text = s.prometheus();
         let samples: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).collect();
-        assert_eq!(samples.len(), 32);
+        assert_eq!(samples.len(), 34);
         assert!(samples.iter().all(|l| l.starts_with("clipmapd_") && l.contains("{name=\"x\"} ")));
-        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 32);
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 34);
     }
 
     #[cfg(feature = "remote")]
@@ -510,11 +510,11 @@ mod tests {
         ] {
             assert!(text.lines().any(|l| l == want), "{want} missing:\n{text}");
         }
-        // Per family one HELP and one TYPE; 32 plain metrics, 2 streams' latencies, 3 x 2 levels
+        // Per family one HELP and one TYPE; 34 plain metrics, 2 streams' latencies, 3 x 2 levels
         // x 2 axes, 2 x 6 reasons.
         let samples = text.lines().filter(|l| !l.starts_with('#')).count();
-        assert_eq!(samples, 32 + 2 + 12 + 12);
-        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 37);
+        assert_eq!(samples, 34 + 2 + 12 + 12);
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 39);
         let ones = text.lines().filter(|l| l.starts_with("clipmapd_paging_reason") && l.ends_with(" 1")).count();
         assert_eq!(ones, 2, "one current reason a level");
     }

@@ -622,7 +622,7 @@ mod tests {
     /// engine then follows the centre's change).
     #[test]
     fn a_requests_velocity_is_divided_by_the_tick_rate_rounded_clamped_and_nan_or_infinite_reads_zero() {
-        let max = 1i64 << 26;
+        let max = 1i64 << 30;
         assert_eq!(crate::source::MAX_TEXTURE_SIZE as i64, max);
         assert_eq!(velocity_per_tick([600.0, -120.0], 60.0), Some([10, -2]));
         assert_eq!(velocity_per_tick([100.0, 0.0], 4.0), Some([25, 0]), "one component may be 0");
