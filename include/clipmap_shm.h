@@ -258,6 +258,20 @@
 #define CLIPMAP_LOD_PIXEL_ANGLE 8        /* f64 bits: radians one screen pixel spans */
 #define CLIPMAP_LOD_EFFECTIVE 16         /* u64: levels the renderer addresses at once (0: all) */
 #define CLIPMAP_LOD_COUNT 24             /* u64: LOD requests made */
+/* Position records (docs/SHM.md, "Positions in longitude / latitude or map coordinates"): record i
+ * at CLIPMAP_R_POSITION + CLIPMAP_POSITION_RECORD_BYTES * i, i = 0 for `main`, 1 + r for view record
+ * r, under the same lock word as its request. A request's centre is the record's position when
+ * CLIPMAP_POS_FOR_COUNT equals the request's count (CLIPMAP_VR_COUNT) and the kind is not texels;
+ * else the request's texel centre (an older renderer writes no record: its requests are texels). */
+#define CLIPMAP_R_POSITION 3072
+#define CLIPMAP_POSITION_RECORD_BYTES 32u
+#define CLIPMAP_POS_KIND 0               /* u64: CLIPMAP_KIND_* */
+#define CLIPMAP_POS_X 8                  /* f64 bits: longitude (degrees) or map x */
+#define CLIPMAP_POS_Y 16                 /* f64 bits: latitude (degrees) or map y */
+#define CLIPMAP_POS_FOR_COUNT 24         /* u64: the request count the position belongs to */
+#define CLIPMAP_KIND_TEXELS 0u           /* the request's CLIPMAP_VR_CENTRE_S / _T, level-0 texels */
+#define CLIPMAP_KIND_LONLAT 1u           /* WGS 84 longitude / latitude, degrees */
+#define CLIPMAP_KIND_MAP 2u              /* map coordinates of the texture's CRS (the georef block's) */
 
 /* Texel format codes (CLIPMAP_H_TEXEL_FORMAT); 16-bit components are little-endian. */
 #define CLIPMAP_FORMAT_OTHER 0u
@@ -324,8 +338,11 @@ _Static_assert(CLIPMAP_H_GLOBAL_SEQ == CLIPMAP_H_SNAPSHOT + CLIPMAP_SNAP_SEQ &&
 _Static_assert(CLIPMAP_V_SNAPSHOT + CLIPMAP_SNAPSHOT_BYTES == CLIPMAP_VIEW_RECORD_BYTES, "view record size");
 _Static_assert(CLIPMAP_R_VIEWS + CLIPMAP_MAX_VIEW_REQUESTS * CLIPMAP_VIEW_REQUEST_BYTES == CLIPMAP_R_LOD,
                "view request records end where the LOD records begin");
-_Static_assert(CLIPMAP_R_LOD + (CLIPMAP_MAX_VIEW_REQUESTS + 1) * CLIPMAP_LOD_RECORD_BYTES <= CLIPMAP_REQUEST_BYTES,
+_Static_assert(CLIPMAP_R_LOD + (CLIPMAP_MAX_VIEW_REQUESTS + 1) * CLIPMAP_LOD_RECORD_BYTES <= CLIPMAP_R_POSITION,
                "LOD request records");
+_Static_assert(CLIPMAP_R_POSITION + (CLIPMAP_MAX_VIEW_REQUESTS + 1) * CLIPMAP_POSITION_RECORD_BYTES <=
+                   CLIPMAP_REQUEST_BYTES,
+               "position records");
 _Static_assert(CLIPMAP_R_SEQ + CLIPMAP_VR_CENTRE_S == CLIPMAP_R_CENTRE_S &&
                    CLIPMAP_R_SEQ + CLIPMAP_VR_CENTRE_T == CLIPMAP_R_CENTRE_T &&
                    CLIPMAP_R_SEQ + CLIPMAP_VR_VEL_S == CLIPMAP_R_VEL_S &&
@@ -1929,6 +1946,9 @@ struct clipmap_request_fields_ {
     size_t lod_at;
     double height, pixel_angle;
     uint32_t effective;
+    size_t pos_at; /* the request's position record (0: none written) */
+    uint64_t kind; /* CLIPMAP_KIND_*: with another kind than texels, s and t are not stored */
+    double x, y;
 };
 
 static inline int clipmap_request_at_(struct clipmap_request *r, size_t at, int view, uint64_t incarnation,
@@ -1977,8 +1997,20 @@ static inline int clipmap_request_at_(struct clipmap_request *r, size_t at, int 
             uint64_t bits_s, bits_t;
             memcpy(&bits_s, &f->vs, 8);
             memcpy(&bits_t, &f->vt, 8);
-            CLIPMAP_RSTORE_(at + CLIPMAP_VR_CENTRE_S, (uint64_t)f->s);
-            CLIPMAP_RSTORE_(at + CLIPMAP_VR_CENTRE_T, (uint64_t)f->t);
+            if (f->kind == CLIPMAP_KIND_TEXELS) {
+                CLIPMAP_RSTORE_(at + CLIPMAP_VR_CENTRE_S, (uint64_t)f->s);
+                CLIPMAP_RSTORE_(at + CLIPMAP_VR_CENTRE_T, (uint64_t)f->t);
+            }
+            if (f->pos_at) {
+                uint64_t bits_x, bits_y;
+                memcpy(&bits_x, &f->x, 8);
+                memcpy(&bits_y, &f->y, 8);
+                uint64_t next = __atomic_load_n((uint64_t *)(void *)(r->base + at + CLIPMAP_VR_COUNT), __ATOMIC_RELAXED) + 1;
+                CLIPMAP_RSTORE_(f->pos_at + CLIPMAP_POS_KIND, f->kind);
+                CLIPMAP_RSTORE_(f->pos_at + CLIPMAP_POS_X, bits_x);
+                CLIPMAP_RSTORE_(f->pos_at + CLIPMAP_POS_Y, bits_y);
+                CLIPMAP_RSTORE_(f->pos_at + CLIPMAP_POS_FOR_COUNT, next);
+            }
             CLIPMAP_RSTORE_(at + CLIPMAP_VR_VEL_S, bits_s);
             CLIPMAP_RSTORE_(at + CLIPMAP_VR_VEL_T, bits_t);
             counter = at + CLIPMAP_VR_COUNT;
@@ -2016,8 +2048,47 @@ static inline int clipmap_request_own_refused_(struct clipmap_request *r, const 
  * renderer's lock was taken from it, which happens only if its pid is not visible to the others:
  * renderers must share a pid namespace). */
 static inline int clipmap_request_centre(struct clipmap_request *r, int64_t s, int64_t t, double vs, double vt) {
-    const struct clipmap_request_fields_ f = {s, t, vs, vt, 0, 0.0, 0.0, 0};
+    const struct clipmap_request_fields_ f = {s, t, vs, vt, 0, 0.0, 0.0, 0, 0, CLIPMAP_KIND_TEXELS, 0.0, 0.0};
     return clipmap_request_at_(r, CLIPMAP_R_SEQ, 0, 0, &f);
+}
+
+/* Asks for the centre at a position of coordinate kind `kind` (docs/SHM.md, "Positions in longitude /
+ * latitude or map coordinates"): CLIPMAP_KIND_LONLAT (x longitude, y latitude, WGS 84 degrees) or
+ * CLIPMAP_KIND_MAP (map x, y of the texture's CRS), with velocity (vs, vt) in level-0 texels per
+ * second, as clipmap_request_centre asks. The service converts it through the texture's
+ * georeferencing; it refuses a texture without one or a position outside the texture or the
+ * projection's domain (STATS position_requests_refused, its log says why) and the centre stays.
+ * The texel centre fields keep the previous request's. CLIPMAP_NOT_VALID for another kind. */
+static inline int clipmap_request_position(struct clipmap_request *r, uint64_t kind, double x, double y, double vs,
+                                           double vt) {
+    if (kind != CLIPMAP_KIND_LONLAT && kind != CLIPMAP_KIND_MAP) {
+        snprintf(r->error, sizeof r->error, "coordinate kind %llu: expected CLIPMAP_KIND_LONLAT (1) or CLIPMAP_KIND_MAP "
+                 "(2); a centre in texels is clipmap_request_centre", (unsigned long long)kind);
+        return CLIPMAP_NOT_VALID;
+    }
+    struct clipmap_request_fields_ f = {0, 0, vs, vt, 0, 0.0, 0.0, 0, CLIPMAP_R_POSITION, kind, x, y};
+    return clipmap_request_at_(r, CLIPMAP_R_SEQ, 0, 0, &f);
+}
+
+/* The latest request in the main request record as found (no lock taken: a reading for display):
+ * its count, texel centre, and the position record's kind, x, y and the count it belongs to
+ * (the position is the request's centre when for_count == count and kind != CLIPMAP_KIND_TEXELS). */
+struct clipmap_request_seen {
+    uint64_t count, for_count, kind;
+    int64_t s, t;
+    double x, y;
+};
+static inline void clipmap_request_read(const struct clipmap_request *r, struct clipmap_request_seen *out) {
+#define CLIPMAP_RLOAD_(off) __atomic_load_n((const uint64_t *)(const void *)(r->base + (off)), __ATOMIC_ACQUIRE)
+    uint64_t bx = CLIPMAP_RLOAD_(CLIPMAP_R_POSITION + CLIPMAP_POS_X), by = CLIPMAP_RLOAD_(CLIPMAP_R_POSITION + CLIPMAP_POS_Y);
+    out->count = CLIPMAP_RLOAD_(CLIPMAP_R_SEQ + CLIPMAP_VR_COUNT);
+    out->s = (int64_t)CLIPMAP_RLOAD_(CLIPMAP_R_SEQ + CLIPMAP_VR_CENTRE_S);
+    out->t = (int64_t)CLIPMAP_RLOAD_(CLIPMAP_R_SEQ + CLIPMAP_VR_CENTRE_T);
+    out->kind = CLIPMAP_RLOAD_(CLIPMAP_R_POSITION + CLIPMAP_POS_KIND);
+    out->for_count = CLIPMAP_RLOAD_(CLIPMAP_R_POSITION + CLIPMAP_POS_FOR_COUNT);
+    memcpy(&out->x, &bx, 8);
+    memcpy(&out->y, &by, 8);
+#undef CLIPMAP_RLOAD_
 }
 
 /* Asks for view *v's centre as clipmap_request_centre does for `main` (which it is for `main`),
@@ -2037,7 +2108,7 @@ static inline int clipmap_request_view_centre(struct clipmap_request *r, const s
                  "for view records 0 to %u only", v->name, v->record, CLIPMAP_MAX_VIEW_REQUESTS - 1);
         return CLIPMAP_NOT_VALID;
     }
-    const struct clipmap_request_fields_ f = {s, t, vs, vt, 0, 0.0, 0.0, 0};
+    const struct clipmap_request_fields_ f = {s, t, vs, vt, 0, 0.0, 0.0, 0, 0, CLIPMAP_KIND_TEXELS, 0.0, 0.0};
     return clipmap_request_at_(r, CLIPMAP_R_VIEWS + (size_t)v->record * CLIPMAP_VIEW_REQUEST_BYTES, 1, v->incarnation,
                                &f);
 }
@@ -2066,7 +2137,7 @@ static inline int clipmap_request_lod(struct clipmap_request *r, const struct cl
     }
     const size_t index = main_view ? 0 : 1 + (size_t)v->record;
     const struct clipmap_request_fields_ f = {0, 0, 0.0, 0.0, CLIPMAP_R_LOD + index * CLIPMAP_LOD_RECORD_BYTES,
-                                              height, pixel_angle, effective};
+                                              height, pixel_angle, effective, 0, CLIPMAP_KIND_TEXELS, 0.0, 0.0};
     if (main_view) return clipmap_request_at_(r, CLIPMAP_R_SEQ, 0, 0, &f);
     return clipmap_request_at_(r, CLIPMAP_R_VIEWS + (size_t)v->record * CLIPMAP_VIEW_REQUEST_BYTES, 1, v->incarnation,
                                &f);

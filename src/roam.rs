@@ -48,13 +48,22 @@ pub enum Flight {
         /// Level-0 texels a jump goes along +s.
         dist: f64,
     },
+    /// From WGS 84 `from` to `to` (`[longitude, latitude]`, degrees) in equal steps of longitude
+    /// and latitude over the frames, each position through the texture's georeferencing to the
+    /// texel that holds it (as `CENTRE LONLAT`; docs/GEOREF.md). The start (`--start`) is not used.
+    LonLat {
+        /// Where the first frame is.
+        from: [f64; 2],
+        /// Where the last frame is.
+        to: [f64; 2],
+    },
 }
 
 /// A flight spec that could not be read.
 #[derive(Debug, Error, PartialEq, Eq)]
 pub enum FlightError {
     /// The first word is no known flight.
-    #[error("unknown flight `{found}`: expected straight:SPEED[:ANGLE], circle:RADIUS:SPEED, zigzag:SPEED:PERIOD, hover or jump:EVERY:DIST")]
+    #[error("unknown flight `{found}`: expected straight:SPEED[:ANGLE], circle:RADIUS:SPEED, zigzag:SPEED:PERIOD, hover, jump:EVERY:DIST or lonlat:LON,LAT:LON,LAT")]
     Kind {
         /// The first word given.
         found: String,
@@ -148,6 +157,22 @@ impl FromStr for Flight {
                 arity("jump", "2 (EVERY:DIST)", args.len() == 2)?;
                 Ok(Flight::Jump { every: count(0, "EVERY")?, dist: real(1, "DIST", false)? })
             }
+            "lonlat" => {
+                arity("lonlat", "2 (LON,LAT:LON,LAT)", args.len() == 2)?;
+                let point = |i: usize, name: &'static str| -> Result<[f64; 2], FlightError> {
+                    let bad = || FlightError::Number {
+                        spec: spec.into(),
+                        name,
+                        found: args[i].into(),
+                        expected: "LON,LAT in WGS 84 degrees, such as 13.4,52.5",
+                    };
+                    match args[i].split(',').map(|w| w.trim().parse::<f64>()).collect::<Vec<_>>().as_slice() {
+                        [Ok(lon), Ok(lat)] if lon.is_finite() && lat.is_finite() => Ok([*lon, *lat]),
+                        _ => Err(bad()),
+                    }
+                };
+                Ok(Flight::LonLat { from: point(0, "FROM")?, to: point(1, "TO")? })
+            }
             other => Err(FlightError::Kind { found: other.into() }),
         }
     }
@@ -174,7 +199,17 @@ impl Flight {
             }
             Flight::Hover => start,
             Flight::Jump { every, dist } => [start[0] + (frame / every) as f64 * dist, start[1]],
+            // Placed by `lonlat_at` through the texture's georeferencing.
+            Flight::LonLat { .. } => start,
         }
+    }
+
+    /// The WGS 84 `[longitude, latitude]` of frame `frame` of `frames` of a [`Flight::LonLat`]
+    /// (`None` for the other flights): equal steps from `from` to `to`.
+    pub fn lonlat_at(&self, frame: u64, frames: u64) -> Option<[f64; 2]> {
+        let Flight::LonLat { from, to } = *self else { return None };
+        let f = if frames > 1 { frame as f64 / (frames - 1) as f64 } else { 0.0 };
+        Some([from[0] + (to[0] - from[0]) * f, from[1] + (to[1] - from[1]) * f])
     }
 }
 
@@ -358,6 +393,23 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
         )));
     }
     let desc = options.source.desc().clone();
+    // A flight in longitude / latitude: through the texture's georeferencing, both ends checked
+    // before anything is flown (the frames between lie between them).
+    let georef = match options.flight {
+        Flight::LonLat { from, to } => {
+            let g = options.source.georef().ok_or_else(|| {
+                RoamError::OutOfBounds(
+                    "--flight lonlat: the texture has no georeferencing (only GeoTIFFs / COGs with georeferencing tags and tile pyramids have it; docs/GEOREF.md): give a flight in texels".into(),
+                )
+            })?;
+            for (what, p) in [("from", from), ("to", to)] {
+                g.lonlat_to_texel(0, p)
+                    .map_err(|e| RoamError::OutOfBounds(format!("--flight lonlat: {what} {},{}: {e}", p[0], p[1])))?;
+            }
+            Some(g)
+        }
+        _ => None,
+    };
     let mut settings = options.settings;
     settings.budget_ns = options.budget_ms.map(|ms| (ms.max(0.0) * 1e6) as u64);
     let settings_alignment = settings.centre_alignment.max(1);
@@ -386,7 +438,11 @@ pub fn run(options: RoamOptions) -> Result<RoamReport, RoamError> {
     };
     let clock = std::time::Instant::now();
     for frame in 0..options.frames {
-        let p = options.flight.position(startf, frame);
+        let p = match (&georef, options.flight.lonlat_at(frame, options.frames)) {
+            // Inside the texture: its ends were, and the frames lie between them.
+            (Some(g), Some(ll)) => g.lonlat_to_texel(0, ll).unwrap_or(startf),
+            _ => options.flight.position(startf, frame),
+        };
         let clamp = |x: f64, n: u64| (x.floor() as i64).clamp(0, n as i64 - 1);
         let centre = [clamp(p[0], size[0]), clamp(p[1], size[1])];
         let (copied0, read0) = (map.stats().tick_texel_bytes, map.stats().queue.bytes_read);

@@ -35,6 +35,7 @@ Examples:
   clipmap-read --name hash --reads 1000000
   clipmap-read --name hash --follow --seconds 60      # keeps reading through service restarts
   clipmap-read --name hash --drive --seconds 10       # also requests a fast flight with jumps
+  clipmap-read --name hash --lonlat 13.4,52.5         # centred there first (a georeferenced texture)
   clipmap-read --name terrain --dump-level 2 --region 100,200,356,456 --out part.png
   clipmap-read --name terrain --dump-level 0 --region 0,0,64,64 --out part.raw
 
@@ -83,6 +84,12 @@ struct Cli {
     /// the service moves the view's LOD offset to match (docs/VIEWS.md, "Virtual views").
     #[arg(long, value_name = "HEIGHT,ANGLE[,EFFECTIVE]", value_parser = parse_lod)]
     lod: Option<(f64, f64, u32)>,
+    /// First ask for the view's centre at this WGS 84 longitude / latitude (degrees) through the
+    /// request mapping (coordinate kind 1, docs/SHM.md) and wait until level 0 is centred on the
+    /// texel that holds it (through the mapping's georef block), then read there. A texture
+    /// without georeferencing, or a point outside it, is refused (exit 1).
+    #[arg(long, value_name = "LON,LAT", allow_hyphen_values = true, value_parser = parse_lonlat, conflicts_with = "drive")]
+    lonlat: Option<[f64; 2]>,
     /// Write a region of this level to --out instead of checking the hash texture.
     #[arg(long, value_name = "LEVEL", requires_all = ["region", "out"], conflicts_with_all = ["drive", "follow", "lod"])]
     dump_level: Option<usize>,
@@ -92,6 +99,44 @@ struct Cli {
     /// The file to write (with --dump-level): FILE.raw (the stored bytes) or FILE.png.
     #[arg(long, value_name = "FILE", requires = "dump_level")]
     out: Option<PathBuf>,
+}
+
+/// `--lonlat LON,LAT`.
+fn parse_lonlat(s: &str) -> Result<[f64; 2], String> {
+    let bad = || format!("`{s}`: expected LON,LAT in degrees, such as 13.4,52.5 or -122.42,37.77");
+    match s.split(',').map(|w| w.trim().parse::<f64>()).collect::<Vec<_>>().as_slice() {
+        [Ok(lon), Ok(lat)] if lon.is_finite() && lat.is_finite() => Ok([*lon, *lat]),
+        _ => Err(bad()),
+    }
+}
+
+/// `--lonlat`: asks for the centre at `ll` and waits (until `deadline`) for level 0 to be
+/// centred on the texel that holds it; returns that texel. `Err` carries the exit status.
+fn centre_at(client: &Client, ll: [f64; 2], deadline: Instant) -> Result<[i64; 2], (i32, String)> {
+    let size0 = client.levels[0].size;
+    let block = client.georef.as_ref().ok_or_else(|| {
+        (exit::BAD_INPUT, "--lonlat: the texture has no georeferencing (its mapping has no georef block; docs/GEOREF.md): read at texels instead".to_string())
+    })?;
+    let g = clipmap::shm::georef_of(block, size0).map_err(|e| (exit::BAD_INPUT, format!("--lonlat: {e}")))?;
+    let [s, t] =
+        g.lonlat_to_texel(0, ll).map_err(|e| (exit::BAD_INPUT, format!("--lonlat {},{}: {e}", ll[0], ll[1])))?;
+    let want = [s.floor() as i64, t.floor() as i64];
+    let mut asked = false;
+    loop {
+        if !asked {
+            asked = client.request_position(clipmap::shm::RequestPosition::LonLat(ll), [0.0, 0.0]);
+        }
+        if asked && client.level_state(0).is_some_and(|st| st.centre == want) {
+            return Ok(want);
+        }
+        if Instant::now() >= deadline {
+            return Err((
+                exit::COULD_NOT_RUN,
+                format!("--lonlat {},{}: level 0 was not centred on texel {want:?} within --seconds (request made: {asked})", ll[0], ll[1]),
+            ));
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
 }
 
 /// `--lod HEIGHT,ANGLE[,EFFECTIVE]`.
@@ -133,6 +178,9 @@ struct Counts {
     view_missing: bool,
     requests: u64,
     seconds: f64,
+    /// With --lonlat: the level-0 texel the centre was asked for and reached.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    lonlat_centre: Option<[i64; 2]>,
 }
 
 fn attach(cli: &Cli) -> Result<Client, ShmError> {
@@ -175,6 +223,14 @@ fn main() -> ExitCode {
             }
         }
     };
+    let lonlat_centre = match cli.lonlat.map(|ll| centre_at(&client, ll, deadline)) {
+        Some(Ok(c)) => Some(c),
+        Some(Err((code, e))) => {
+            eprintln!("clipmap-read: {e}");
+            return exit::status(code);
+        }
+        None => None,
+    };
     if let (Some(level), Some(region), Some(out)) = (cli.dump_level, cli.region, &cli.out) {
         return match dump::write(&client, level, region, out, deadline) {
             Ok(report) => {
@@ -187,7 +243,7 @@ fn main() -> ExitCode {
             }
         };
     }
-    let mut counts = Counts { view: cli.view.clone(), ..Counts::default() };
+    let mut counts = Counts { view: cli.view.clone(), lonlat_centre, ..Counts::default() };
     let mut rng = clipmap::source::procedural::splitmix64(cli.seed ^ std::process::id() as u64);
     let mut buf = Vec::new();
     let mut stale = false;

@@ -49,7 +49,7 @@ struct Cli {
     /// With --source: place the procedural texture on the whole Earth (EPSG:4326, longitude -180
     /// to 180, latitude -90 to 90), so that it wraps in longitude as a global COG or a tile
     /// service does (docs/GEOREF.md, "The antimeridian").
-    #[arg(long, requires = "source")]
+    #[arg(long, requires = "source", conflicts_with = "georef")]
     global: bool,
     /// Serve a growing texture (a store made by `cliptex grow create`, docs/GROWING.md) while it
     /// grows: patches arrive on the control socket (`PATCH`) and in --incoming.
@@ -73,6 +73,11 @@ struct Cli {
     /// Procedural tile size.
     #[arg(long, default_value_t = 128)]
     tile: u64,
+    /// Georeferences a procedural texture (--source) as the whole Web Mercator square
+    /// (EPSG:3857, WebMercatorQuad at zoom log2(--size) with 1-texel tiles), so that centres may
+    /// be given in longitude / latitude (docs/GEOREF.md).
+    #[arg(long, value_name = "web-mercator", requires = "source", value_parser = ["web-mercator"])]
+    georef: Option<String>,
     /// Publication name (default: the source kind or the configuration's file stem).
     #[arg(long)]
     name: Option<String>,
@@ -333,6 +338,10 @@ async fn serve(cli: Cli) -> Result<(), Failure> {
             let src = service::procedural_source(kind, cli.size, cli.clip, cli.tile)
                 .map_err(|e| Failure(e.exit_code(), e.into()))?;
             let src = if cli.global { Arc::new(clipmap::source::GlobalSource::new(src)) as _ } else { src };
+            let src = match cli.georef {
+                Some(_) => service::web_mercator_square(src),
+                None => src,
+            };
             (src, name.to_string(), clipmap::paging::PagingOptions::default())
         }
         (None, None) => {

@@ -412,6 +412,30 @@ int main(int argc, char **argv) {
         clipmap_close(&m);
         return rc;
     }
+    if (strcmp(argv[2], "--request") == 0) {
+        /* MAPPING --request: the main request as found in the request mapping, its coordinate kind
+         * and position (docs/SHM.md, "Positions in longitude / latitude or map coordinates"). */
+        static const char *const kinds[] = {"texels", "lonlat", "map"};
+        char path[4096];
+        struct clipmap_request r;
+        int rc = 0;
+        if (clipmap_request_path(&m, path, sizeof path) != 0 || clipmap_request_open(path, &m, &r) != 0) {
+            fprintf(stderr, "clipmap reader: %s: no request mapping to read\n", argv[1]);
+            rc = 1;
+        } else {
+            struct clipmap_request_seen q;
+            clipmap_request_read(&r, &q);
+            const int positioned = q.count != 0 && q.for_count == q.count && q.kind != CLIPMAP_KIND_TEXELS;
+            printf("request count %llu centre %lld %lld kind %s", (unsigned long long)q.count, (long long)q.s,
+                   (long long)q.t, !positioned ? "texels" : q.kind <= CLIPMAP_KIND_MAP ? kinds[q.kind] : "unknown");
+            if (positioned) printf(" position %.17g %.17g", q.x, q.y);
+            printf("\n");
+            clipmap_request_close(&r);
+        }
+        clipmap_close(&own);
+        clipmap_close(&m);
+        return rc;
+    }
     if (strcmp(argv[2], "--georef") == 0) {
         if (!tm->georef) {
             printf("not georeferenced\n");

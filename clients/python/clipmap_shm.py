@@ -165,6 +165,35 @@ VR_SEQ, VR_CENTRE_S, VR_CENTRE_T, VR_VEL_S, VR_VEL_T, VR_CLIENT_PID, VR_COUNT, V
 # same lock words (docs/SHM.md, "Asking for a view's levels"); Python asks through the socket.
 REQ_LOD, LOD_RECORD_BYTES = 2048, 32
 LOD_HEIGHT, LOD_PIXEL_ANGLE, LOD_EFFECTIVE, LOD_COUNT = 0, 8, 16, 24
+# Position record i at REQ_POSITION + POSITION_RECORD_BYTES * i (0: main, 1 + r: view record r),
+# under the same lock words (docs/SHM.md, "Positions in longitude / latitude or map coordinates"):
+# the request's centre is the record's position when POS_FOR_COUNT equals the request's count and
+# the kind is not KIND_TEXELS; else its texel centre.
+REQ_POSITION, POSITION_RECORD_BYTES = 3072, 32
+POS_KIND, POS_X, POS_Y, POS_FOR_COUNT = 0, 8, 16, 24
+KIND_TEXELS, KIND_LONLAT, KIND_MAP = 0, 1, 2
+KIND_NAMES = {KIND_TEXELS: "texels", KIND_LONLAT: "lonlat", KIND_MAP: "map"}
+
+
+def read_request(req_path):
+    """The main request of the request mapping at req_path as found (read, not locked: for
+    display): a dict with "count", "centre" [s, t] (level-0 texels), "kind" ("texels", "lonlat",
+    "map" or "unknown") and "position" [x, y] (None when the request is in texels). The position is
+    the request's when the position record was written with it (POS_FOR_COUNT == count)."""
+    with open(req_path, "rb") as f:
+        b = f.read(REQUEST_BYTES)
+    if len(b) != REQUEST_BYTES or b[0:8] != REQUEST_MAGIC:
+        raise Corrupt(f"{req_path}: {len(b)} bytes starting {b[0:8]!r}, expected {REQUEST_BYTES} starting {REQUEST_MAGIC!r}")
+    count = struct.unpack_from("<Q", b, REQ_COUNT)[0]
+    s, t = struct.unpack_from("<qq", b, REQ_CENTRE_S)
+    kind, x, y, for_count = struct.unpack_from("<QddQ", b, REQ_POSITION)
+    positioned = count != 0 and for_count == count and kind != KIND_TEXELS
+    return {
+        "count": count,
+        "centre": [s, t],
+        "kind": KIND_NAMES.get(kind, "unknown") if positioned else "texels",
+        "position": [x, y] if positioned else None,
+    }
 
 # Views (docs/SHM.md, "Views"): the primary view, "main", is the snapshot at H_SNAPSHOT; further
 # views are the view records of the views block at H_VIEWS_OFFSET.
@@ -1468,6 +1497,19 @@ def main(argv):
         except (ClipmapError, OSError, ValueError) as e:
             print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
             return 2
+        return 0
+    if len(argv) == 3 and argv[2] == "--request":
+        # python3 clipmap_shm.py MAPPING --request: the main request as found, as the C reader's
+        # --request prints it: "request count N centre S T kind K[ position X Y]".
+        try:
+            q = read_request(argv[1][:-4] + ".req" if argv[1].endswith(".map") else argv[1] + ".req")
+        except (ClipmapError, OSError) as e:
+            print(f"clipmap_shm: {argv[1]}: {e}", file=sys.stderr)
+            return 1
+        line = "request count %d centre %d %d kind %s" % (q["count"], q["centre"][0], q["centre"][1], q["kind"])
+        if q["position"] is not None:
+            line += " position %.17g %.17g" % (q["position"][0], q["position"][1])
+        print(line)
         return 0
     if len(argv) == 3 and argv[2] == "--georef":
         # python3 clipmap_shm.py MAPPING --georef: the georef block (the C reader's --georef

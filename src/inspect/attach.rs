@@ -140,6 +140,11 @@ pub struct Status {
     /// the CRS definition, the origin (GDAL geotransform terms 0 and 3) and each level's terms 1,
     /// 2, 4 and 5 (docs/SHM.md, "Georef block"); `null` for a texture without georeferencing.
     pub georef: Option<crate::shm::GeorefBlock>,
+    /// The shown view's level-0 centre, texels (level 0's state in its snapshot).
+    pub centre: [i64; 2],
+    /// That centre's WGS 84 `[longitude, latitude]`, of its texel's middle (s + 0.5, t + 0.5), as
+    /// `STATS` `centre_lonlat` shows it (docs/GEOREF.md); `null` without georeferencing.
+    pub centre_lonlat: Option<[f64; 2]>,
     /// The view shown (`main`: the primary; docs/VIEWS.md).
     pub view: String,
     /// Every view's figures from the socket's statistics, `main` first (empty when the socket
@@ -302,6 +307,12 @@ pub fn status_of_view(
         growth,
         heights: c.heights,
         georef: c.georef.clone(),
+        centre: snap.levels.first().map_or([0, 0], |l| l.centre),
+        centre_lonlat: snap
+            .levels
+            .first()
+            .zip(c.levels.first())
+            .and_then(|(l, d)| crate::shm::centre_lonlat(c.georef.as_ref(), d.size, l.centre)),
         view: c.view_name().to_string(),
         views: after.as_ref().map(|a| a.tick.views.clone()).unwrap_or_default(),
         #[cfg(feature = "remote")]
@@ -360,6 +371,13 @@ pub fn human(s: &Status) -> String {
             g.origin[1],
             if g.wraps { "  wraps in longitude" } else { "" }
         ));
+    }
+    match s.centre_lonlat {
+        Some([lon, lat]) => o.push_str(&format!(
+            "centre: {} {} (level-0 texels)  longitude {lon:.9} latitude {lat:.9} (WGS 84)\n\n",
+            s.centre[0], s.centre[1]
+        )),
+        None => o.push_str(&format!("centre: {} {} (level-0 texels)\n\n", s.centre[0], s.centre[1])),
     }
     if let Some(g) = &s.growth {
         let e = g.extent;
@@ -586,6 +604,8 @@ mod tests {
             growth: None,
             heights: None,
             georef: None,
+            centre: [512, 512],
+            centre_lonlat: None,
             view: "main".into(),
             views: Vec::new(),
             #[cfg(feature = "remote")]

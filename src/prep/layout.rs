@@ -182,7 +182,7 @@ impl Layout {
         let max = crate::source::MAX_TEXTURE_SIZE;
         if w > max || h > max || spec.tile > max {
             return Err(PrepError::Geometry(format!(
-                "the texture is {w}x{h} with {} texel tiles; expected each at most {max} (MAX_TEXTURE_SIZE, 2^26) texels; pass a smaller --size or --tile",
+                "the texture is {w}x{h} with {} texel tiles; expected each at most {max} (MAX_TEXTURE_SIZE, 2^30) texels; pass a smaller --size or --tile",
                 spec.tile
             )));
         }

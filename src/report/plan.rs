@@ -119,7 +119,7 @@ pub struct Plan {
     /// Virtual-level parameters, when an eye height was given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub virtual_levels: Option<VirtualParams>,
-    /// What the engine would hold (`null` when it cannot serve the texture: larger than 2^26
+    /// What the engine would hold (`null` when it cannot serve the texture: larger than 2^30
     /// texels a side, or more levels than a mapping describes).
     pub image_caches: Option<ImageCaches>,
     /// Why there are no image caches (absent when there are).

@@ -118,6 +118,43 @@ pub fn procedural_source(
     Ok(kind.source(desc))
 }
 
+/// `source` (a square of a power of two texels a side, as [`procedural_source`] makes) georeferenced
+/// as the whole Web Mercator square: WebMercatorQuad at zoom log2(size) with 1-texel tiles
+/// (`clipmapd --georef web-mercator`; docs/GEOREF.md). Its texels are the source's.
+pub fn web_mercator_square(source: Arc<dyn TileSource>) -> Arc<dyn TileSource> {
+    let size = source.desc().size()[0];
+    let georef = crate::georef::Georef::web_mercator_quad(size.trailing_zeros(), size >> size.trailing_zeros());
+    Arc::new(Georeferenced { inner: source, georef })
+}
+
+/// A source with a georeferencing given to it ([`web_mercator_square`]).
+struct Georeferenced {
+    inner: Arc<dyn TileSource>,
+    georef: crate::georef::Georef,
+}
+
+impl TileSource for Georeferenced {
+    fn desc(&self) -> &TextureDesc {
+        self.inner.desc()
+    }
+    fn read_tile(&self, tile: crate::source::TileId, out: &mut [u8]) -> Result<(), crate::source::SourceError> {
+        self.inner.read_tile(tile, out)
+    }
+    fn read_into(
+        &self,
+        tile: crate::source::TileId,
+        out: &mut [u8],
+    ) -> Result<crate::source::Delivered, crate::source::SourceError> {
+        self.inner.read_into(tile, out)
+    }
+    fn wrapped(&self) -> Option<&dyn TileSource> {
+        Some(self.inner.as_ref())
+    }
+    fn georef(&self) -> Option<crate::georef::Georef> {
+        Some(self.georef.clone())
+    }
+}
+
 /// What a service did, returned when it stops.
 #[derive(Clone, Debug)]
 pub struct Summary {

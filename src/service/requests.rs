@@ -36,7 +36,7 @@ pub(super) fn apply_lod(
 
 /// A request's velocity (level-0 texels per second, docs/SHM.md "What the service does with a
 /// request") as the engine takes it: divided by the tick rate `hz` and rounded to texels per tick,
-/// clamped to `MAX_TEXTURE_SIZE` (2^26) a tick, NaN and infinities read as 0. `None` when both
+/// clamped to `MAX_TEXTURE_SIZE` (2^30) a tick, NaN and infinities read as 0. `None` when both
 /// are 0: the engine then uses the centre's change since the last tick. Anything a renderer (or a
 /// member of the mapping's group) wrote is bounded here, before the engine does arithmetic with it.
 pub(super) fn velocity_per_tick(velocity: [f64; 2], hz: f64) -> Option<[i64; 2]> {
@@ -52,4 +52,94 @@ pub(super) fn velocity_per_tick(velocity: [f64; 2], hz: f64) -> Option<[i64; 2]>
 pub(super) fn bounded_centre(c: [i64; 2]) -> [i64; 2] {
     let far = crate::limits::MAX_CENTRE;
     c.map(|x| x.clamp(-far, far))
+}
+
+/// The level-0 centre a renderer's request asks for (docs/SHM.md, "Positions in longitude /
+/// latitude or map coordinates"): its texel centre, or its position converted through the
+/// texture's `georef` to the texel that holds it (as `CENTRE LONLAT` does), bounded as every
+/// centre is. Refused, with what was found and what is expected: a position on a texture
+/// without georeferencing, one outside the texture or the projection's domain, a coordinate
+/// that is not a finite number, an unknown coordinate kind.
+pub(super) fn request_centre(
+    georef: Option<&crate::georef::Georef>,
+    centre: [i64; 2],
+    position: crate::shm::writer::Position,
+) -> Result<[i64; 2], String> {
+    use crate::shm::writer::Position;
+    let finite = |what: &str, [x, y]: [f64; 2]| {
+        if x.is_finite() && y.is_finite() {
+            Ok(())
+        } else {
+            Err(format!("{what} ({x}, {y}): expected finite numbers"))
+        }
+    };
+    let no_georef = || {
+        "the texture has no georeferencing (only GeoTIFFs / COGs with georeferencing tags, tile pyramids and procedural textures served with --georef have it; docs/GEOREF.md): give the centre in level-0 texels (coordinate kind 0)".to_string()
+    };
+    let c = match position {
+        Position::Texels => centre,
+        Position::LonLat(ll) => {
+            finite("longitude / latitude", ll)?;
+            let g = georef.ok_or_else(no_georef)?;
+            let [s, t] =
+                g.lonlat_to_texel(0, ll).map_err(|e| format!("longitude / latitude ({}, {}): {e}", ll[0], ll[1]))?;
+            [s.floor() as i64, t.floor() as i64]
+        }
+        Position::Map(xy) => {
+            finite("map coordinates", xy)?;
+            let g = georef.ok_or_else(no_georef)?;
+            let [s, t] =
+                g.map_to_texel(0, xy).map_err(|e| format!("map ({}, {}) in {}: {e}", xy[0], xy[1], g.crs().name()))?;
+            [s.floor() as i64, t.floor() as i64]
+        }
+        Position::Unknown(kind, _) => {
+            return Err(format!(
+                "coordinate kind {kind}: expected 0 (level-0 texels), 1 (WGS 84 longitude / latitude) or 2 (map coordinates of the texture's CRS)"
+            ))
+        }
+    };
+    Ok(bounded_centre(c))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::request_centre;
+    use crate::georef::Georef;
+    use crate::shm::writer::Position;
+
+    /// docs/SHM.md, "Positions in longitude / latitude or map coordinates": each coordinate kind
+    /// lands on the texel that holds the point, as `CENTRE LONLAT` does; each refusal says why.
+    #[test]
+    fn a_requests_position_is_converted_through_the_georeferencing_or_refused_with_why() {
+        // WebMercatorQuad at zoom 2, 4-texel tiles: 16 texels a side, 22.5 degrees of longitude each.
+        let g = Georef::web_mercator_quad(2, 4);
+        let at = |p| request_centre(Some(&g), [3, 4], p);
+        assert_eq!(at(Position::Texels), Ok([3, 4]), "texels: the request's own centre");
+        assert_eq!(at(Position::LonLat([0.0, 0.0])), Ok([8, 8]));
+        assert_eq!(at(Position::LonLat([-1e-9, -1e-9])), Ok([7, 7]), "the texel that holds the point");
+        assert_eq!(at(Position::LonLat([22.6, 0.1])), Ok([9, 8]));
+        let texel = 2.0 * 20037508.342789244 / 16.0;
+        assert_eq!(at(Position::Map([0.0, 0.0])), Ok([8, 8]));
+        assert_eq!(
+            at(Position::Map([-20037508.342789244 + 2.5 * texel, -20037508.342789244 + 0.5 * texel])),
+            Ok([2, 0])
+        );
+        let refused = |p| at(p).unwrap_err();
+        let e = refused(Position::LonLat([10.0, 86.0]));
+        assert!(e.starts_with("longitude / latitude (10, 86): ") && e.contains("85.05"), "{e}");
+        let e = refused(Position::Map([0.0, 3e7]));
+        assert!(e.starts_with("map (0, 30000000) in EPSG:3857") && e.contains("outside level 0"), "{e}");
+        let e = refused(Position::LonLat([f64::NAN, 0.0]));
+        assert!(e.contains("expected finite numbers"), "{e}");
+        let e = refused(Position::Unknown(7, [0.0, 0.0]));
+        assert!(e.starts_with("coordinate kind 7: expected 0 (level-0 texels), 1"), "{e}");
+        let e = request_centre(None, [3, 4], Position::LonLat([0.0, 0.0])).unwrap_err();
+        assert!(e.contains("no georeferencing") && e.contains("coordinate kind 0"), "{e}");
+        assert_eq!(request_centre(None, [3, 4], Position::Texels), Ok([3, 4]), "texels need no georeferencing");
+        assert_eq!(
+            request_centre(None, [i64::MAX, 0], Position::Texels),
+            Ok([crate::limits::MAX_CENTRE, 0]),
+            "bounded"
+        );
+    }
 }

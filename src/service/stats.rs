@@ -39,8 +39,20 @@ pub struct TickStats {
     /// angle of pi or more); each is logged with the view and the field.
     #[serde(default)]
     pub lod_requests_refused: u64,
+    /// Requests whose centre was given in longitude / latitude or map coordinates (docs/SHM.md,
+    /// "Positions in longitude / latitude or map coordinates") and taken.
+    #[serde(default)]
+    pub position_requests: u64,
+    /// Such requests refused (no georeferencing, a position outside the texture or the
+    /// projection's domain, an unknown coordinate kind); each is logged with why, and its view
+    /// stays where it was.
+    #[serde(default)]
+    pub position_requests_refused: u64,
+    /// Why the latest one was refused (`null` when none was).
+    #[serde(default)]
+    pub position_request_refused: Option<String>,
     /// The latest request's velocity as the look-ahead takes it, in level-0 texels per tick
-    /// (divided by the tick rate, rounded, clamped to 2^26, NaN and infinities 0); `null` when
+    /// (divided by the tick rate, rounded, clamped to 2^30, NaN and infinities 0); `null` when
     /// there is none, both are 0 or a `CENTRE` cleared it: the centre's change is used instead.
     pub request_velocity: Option<[i64; 2]>,
     /// Times the request mapping was found not whole (shorter than its 4096 bytes: truncated by a
@@ -256,7 +268,7 @@ impl ServiceStats {
     }
 
     /// The metrics of one sample each: name, type, help, value.
-    fn sample_rows(&self) -> [(&'static str, &'static str, &'static str, f64); 32] {
+    fn sample_rows(&self) -> [(&'static str, &'static str, &'static str, f64); 34] {
         let t = &self.tick;
         let e = &t.engine;
         let c = &self.control;
@@ -323,6 +335,18 @@ impl ServiceStats {
                 "counter",
                 "LOD requests refused (bad numbers)",
                 t.lod_requests_refused as f64,
+            ),
+            (
+                "position_requests_total",
+                "counter",
+                "Centre requests in longitude / latitude or map coordinates taken",
+                t.position_requests as f64,
+            ),
+            (
+                "position_requests_refused_total",
+                "counter",
+                "Centre requests in longitude / latitude or map coordinates refused",
+                t.position_requests_refused as f64,
             ),
             ("control_connections_total", "counter", "Control connections accepted", c.accepted as f64),
             ("control_connections_refused_total", "counter", "Control connections refused (limit)", c.refused as f64),
@@ -439,9 +463,9 @@ mod tests {
         let s = ServiceStats { name: "x".into(), tick: TickStats::default(), control: ControlStats::default() };
         let text = s.prometheus();
         let samples: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).collect();
-        assert_eq!(samples.len(), 32);
+        assert_eq!(samples.len(), 34);
         assert!(samples.iter().all(|l| l.starts_with("clipmapd_") && l.contains("{name=\"x\"} ")));
-        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 32);
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 34);
     }
 
     #[cfg(feature = "remote")]
@@ -493,11 +517,11 @@ mod tests {
         ] {
             assert!(text.lines().any(|l| l == want), "{want} missing:\n{text}");
         }
-        // Per family one HELP and one TYPE; 32 plain metrics, 2 streams' latencies, 3 x 2 levels
+        // Per family one HELP and one TYPE; 34 plain metrics, 2 streams' latencies, 3 x 2 levels
         // x 2 axes, 2 x 6 reasons.
         let samples = text.lines().filter(|l| !l.starts_with('#')).count();
-        assert_eq!(samples, 32 + 2 + 12 + 12);
-        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 37);
+        assert_eq!(samples, 34 + 2 + 12 + 12);
+        assert_eq!(text.lines().filter(|l| l.starts_with("# TYPE")).count(), 39);
         let ones = text.lines().filter(|l| l.starts_with("clipmapd_paging_reason") && l.ends_with(" 1")).count();
         assert_eq!(ones, 2, "one current reason a level");
     }

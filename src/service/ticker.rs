@@ -621,11 +621,11 @@ mod tests {
 
     /// docs/SHM.md, "What the service does with a request": the velocity (level-0 texels per
     /// second) is divided by the tick rate and rounded to texels per tick (halves away from zero),
-    /// clamped to 2^26 a tick, NaN and infinities read as 0; both 0 is no velocity at all (the
+    /// clamped to 2^30 a tick, NaN and infinities read as 0; both 0 is no velocity at all (the
     /// engine then follows the centre's change).
     #[test]
     fn a_requests_velocity_is_divided_by_the_tick_rate_rounded_clamped_and_nan_or_infinite_reads_zero() {
-        let max = 1i64 << 26;
+        let max = 1i64 << 30;
         assert_eq!(crate::source::MAX_TEXTURE_SIZE as i64, max);
         assert_eq!(velocity_per_tick([600.0, -120.0], 60.0), Some([10, -2]));
         assert_eq!(velocity_per_tick([100.0, 0.0], 4.0), Some([25, 0]), "one component may be 0");
@@ -633,7 +633,7 @@ mod tests {
         assert_eq!(velocity_per_tick([10.0, -9.9], 4.0), Some([3, -2]), "-2.475: to the nearest");
         assert_eq!(velocity_per_tick([1.0, -1.9], 4.0), None, "0.25 and -0.475 round to 0: no velocity");
         assert_eq!(velocity_per_tick([0.0, -0.0], 60.0), None, "0: unknown");
-        assert_eq!(velocity_per_tick([1e300, -1e300], 60.0), Some([max, -max]), "clamped to 2^26 a tick");
+        assert_eq!(velocity_per_tick([1e300, -1e300], 60.0), Some([max, -max]), "clamped to 2^30 a tick");
         assert_eq!(velocity_per_tick([f64::MAX, -f64::MAX], 1.0), Some([max, -max]));
         assert_eq!(
             velocity_per_tick([(max as f64 + 2.0) * 2.0, 0.0], 2.0),
@@ -672,7 +672,7 @@ mod tests {
                 std::thread::sleep(Duration::from_millis(5));
             }
         };
-        assert_eq!(request([100.0, -1e300]), Some([25, -(1 << 26)]), "at 4 ticks a second");
+        assert_eq!(request([100.0, -1e300]), Some([25, -(1 << 30)]), "at 4 ticks a second");
         assert_eq!(request([f64::NAN, f64::INFINITY]), None);
         assert_eq!(request([-10.0, 1.0]), Some([-3, 0]));
         assert_eq!(request([0.0, 0.0]), None);

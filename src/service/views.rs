@@ -11,11 +11,11 @@
 
 use super::own_views::{OwnGrids, Setup};
 use super::protocol::{Refusal, Reply, ViewCommand};
-use super::requests::{apply_lod, bounded_centre, velocity_per_tick};
+use super::requests::{apply_lod, bounded_centre, request_centre, velocity_per_tick};
 use super::stats::{TickStats, ViewStats};
 use crate::clip::{Clipmap, LodWindow, ViewId, PRIMARY};
 use crate::georef::Georef;
-use crate::shm::writer::LodRequest;
+use crate::shm::writer::{LodRequest, Position};
 use crate::shm::Writer;
 use crate::source::TileId;
 use std::collections::BTreeMap;
@@ -73,6 +73,7 @@ impl View {
 
     /// Takes a renderer's request (`count` made so far): a new one moves the view. Returns
     /// whether it was new, and the LOD request if that is new.
+    #[cfg(test)]
     fn take_request(
         &mut self,
         centre: [i64; 2],
@@ -81,11 +82,27 @@ impl View {
         lod: Option<LodRequest>,
         hz: f64,
     ) -> (bool, Option<LodRequest>) {
+        self.take_request_at(Ok(centre), velocity, count, lod, hz)
+    }
+
+    /// [`take_request`](Self::take_request) of a centre that may have been refused (a position
+    /// the georeferencing could not place): a refused one is taken (not looked at again) and
+    /// moves nothing.
+    fn take_request_at(
+        &mut self,
+        centre: Result<[i64; 2], ()>,
+        velocity: [f64; 2],
+        count: u64,
+        lod: Option<LodRequest>,
+        hz: f64,
+    ) -> (bool, Option<LodRequest>) {
         let new = count != self.last_request;
         if new {
             self.last_request = count;
-            self.centre = centre;
-            self.velocity = velocity_per_tick(velocity, hz);
+            if let Ok(centre) = centre {
+                self.centre = centre;
+                self.velocity = velocity_per_tick(velocity, hz);
+            }
         }
         let lod = lod.filter(|l| l.count != self.last_lod);
         if let Some(l) = &lod {
@@ -134,6 +151,33 @@ impl Views {
     /// The texture's georeferencing.
     pub(super) fn georef(&self) -> Option<&Georef> {
         self.georef.as_ref()
+    }
+
+    /// The centre of a new request (`count`, not yet taken by a view whose last is `last`) of
+    /// view `name`: [`request_centre`] of its position, counted in `stats` when the position was
+    /// not in texels, and logged with why when refused. `Ok` of anything for a request already
+    /// taken (it moves nothing then).
+    fn resolve(
+        georef: Option<&Georef>,
+        name: &str,
+        (centre, position, count, last): ([i64; 2], Position, u64, u64),
+        stats: &mut TickStats,
+    ) -> Result<[i64; 2], ()> {
+        if count == last || position == Position::Texels {
+            return Ok(centre);
+        }
+        match request_centre(georef, centre, position) {
+            Ok(c) => {
+                stats.position_requests += 1;
+                Ok(c)
+            }
+            Err(why) => {
+                stats.position_requests_refused += 1;
+                tracing::warn!(view = %name, "centre request refused: {why}");
+                stats.position_request_refused = Some(format!("view {name}: {why}"));
+                Err(())
+            }
+        }
     }
 
     /// `CENTRE LONLAT`: the primary at the texel of a longitude / latitude ([`lonlat_centre`]).
@@ -285,8 +329,11 @@ impl Views {
         stats: &mut TickStats,
     ) {
         let Some(req) = service.request() else { return };
+        let last = self.primary().last_request;
+        let name = crate::shm::layout::views::PRIMARY_NAME;
+        let centre = Self::resolve(self.georef.as_ref(), name, (req.centre, req.position, req.count, last), stats);
         let primary = self.primary_mut();
-        let (new, lod) = primary.take_request(req.centre, req.velocity, req.count, req.lod, hz);
+        let (new, lod) = primary.take_request_at(centre, req.velocity, req.count, req.lod, hz);
         if new {
             stats.request_velocity = primary.velocity;
             stats.requests_seen = req.count;
@@ -312,8 +359,10 @@ impl Views {
             if Some(req.incarnation) != service.memory().view_incarnation(id as usize) {
                 continue;
             }
-            if let (_, Some(lod)) = v.take_request(req.centre, req.velocity, req.count, req.lod, hz) {
-                let name = clipmap.view_name(id).unwrap_or("?").to_string();
+            let name = clipmap.view_name(id).unwrap_or("?").to_string();
+            let at = (req.centre, req.position, req.count, v.last_request);
+            let centre = Self::resolve(self.georef.as_ref(), &name, at, stats);
+            if let (_, Some(lod)) = v.take_request_at(centre, req.velocity, req.count, req.lod, hz) {
                 let _ = apply_lod(clipmap, id, &name, &lod, stats);
             }
         }
@@ -334,7 +383,12 @@ impl Views {
         self.setup.fresh.set(primary.followed_version(), primary.tiles_being_replaced());
         for v in self.views.values_mut() {
             let Some(req) = v.own().map(|g| g.writer.request()) else { continue };
-            let lod = req.and_then(|r| v.take_request(r.centre, r.velocity, r.count, r.lod, hz).1);
+            let lod = req.and_then(|r| {
+                let name = primary.view_name(v.id).unwrap_or("?").to_string();
+                let at = (r.centre, r.position, r.count, v.last_request);
+                let centre = Self::resolve(self.georef.as_ref(), &name, at, stats);
+                v.take_request_at(centre, r.velocity, r.count, r.lod, hz).1
+            });
             let (id, centre, velocity) = (v.id, v.centre, v.velocity);
             let Grids::Own(g) = &mut v.grids else { continue };
             if let Some(lod) = lod {

@@ -30,13 +30,13 @@ impl LevelDesc {
 /// Why a texture description was rejected.
 #[derive(Debug, Error, PartialEq, Eq)]
 pub enum DescError {
-    /// A level-0 edge outside 1..=2^26.
+    /// A level-0 edge outside 1..=2^30.
     #[error("texture size {size:?} is out of range: each edge must be in 1..={MAX_TEXTURE_SIZE}")]
     SizeOutOfRange {
         /// The level-0 size asked for, s and t.
         size: [u64; 2],
     },
-    /// Clip size outside 1..=2^26.
+    /// Clip size outside 1..=2^30.
     #[error("clip size {clip} is out of range: expected 1..={MAX_TEXTURE_SIZE}")]
     ClipOutOfRange {
         /// The clip size asked for.
@@ -326,8 +326,8 @@ mod tests {
 
     #[test]
     fn bad_descriptions_say_what_was_expected() {
-        let e = TextureDesc::new([(1 << 26) + 1, 4], 4, TexelFormat::L8, [4, 4]).unwrap_err();
-        assert_eq!(e, DescError::SizeOutOfRange { size: [(1 << 26) + 1, 4] });
+        let e = TextureDesc::new([(1 << 30) + 1, 4], 4, TexelFormat::L8, [4, 4]).unwrap_err();
+        assert_eq!(e, DescError::SizeOutOfRange { size: [(1 << 30) + 1, 4] });
         let e = TextureDesc::new([64, 64], 0, TexelFormat::L8, [4, 4]).unwrap_err();
         assert!(e.to_string().contains("expected 1..="), "{e}");
         let e = TextureDesc::new([64, 64], 16, TexelFormat::L8, [0, 4]).unwrap_err();

@@ -1,4 +1,4 @@
-//! Procedural textures defined per level, for textures up to 2^26 texels a side without a file.
+//! Procedural textures defined per level, for textures up to 2^30 texels a side without a file.
 //!
 //! * [`hash`]: the verification texture of docs/ARCHITECTURE.md §11. The texel at level L, column s, row t is
 //!   the little-endian bytes of `splitmix64((L << 58) | (t << 29) | s)`; a format of `n` bytes per
@@ -7,7 +7,7 @@
 //!   own, so a pyramid of it is *not* a filtered pyramid.
 //! * [`Terrain`]: smooth fractal value noise coloured like land and sea. Level k is band-limited
 //!   analytically (octaves finer than two level-k texels are dropped), so any texel of any level of
-//!   a 2^26 texture costs the same few dozen operations. All lattice arithmetic is integer; only
+//!   a 2^30 texture costs the same few dozen operations. All lattice arithmetic is integer; only
 //!   the fractional position inside a lattice cell is a float, so precision does not degrade at
 //!   the far corner of the texture.
 //!

@@ -1,5 +1,5 @@
 //! Procedural tile sources: the verification texture ([`HashSource`], docs/ARCHITECTURE.md §11) and smooth
-//! terrain ([`TerrainSource`]), any size up to 2^26 texels a side, no files.
+//! terrain ([`TerrainSource`]), any size up to 2^30 texels a side, no files.
 //!
 //! Owns cutting the per-texel functions of [`super::procedural`] into tiles; the texel values
 //! themselves are defined there.

@@ -19,7 +19,15 @@ fn run_perf(dir: &std::path::Path, extra: &[&str]) -> serde_json::Value {
 fn perf_json_has_the_contract_fields() {
     let dir = tempfile::tempdir().unwrap();
     let v = run_perf(dir.path(), &["--no-gdal"]);
-    for field in ["direction_ratio", "ingest_vs_read", "speedup_vs_full_reload", "memory_vs_formula"] {
+    for field in [
+        "direction_ratio",
+        "ingest_vs_read",
+        "speedup_vs_full_reload",
+        "memory_vs_formula",
+        "memory_vs_formula_2_30",
+        "tick_2_30_vs_2_26",
+        "lonlat_vs_texels",
+    ] {
         let x = v[field].as_f64().unwrap_or_else(|| panic!("{field} is not a number: {}", v[field]));
         assert!(x.is_finite() && x > 0.0, "{field} = {x}");
     }
@@ -38,6 +46,15 @@ fn perf_json_has_the_contract_fields() {
     assert!((ratio - slowest / fastest).abs() <= 1e-9 * ratio, "{ratio} against {slowest} / {fastest} ({medians:?})");
     assert_eq!(v["engine"]["direction_ratio"].as_f64(), Some(ratio), "the engine's figure");
     assert_eq!(v["tick_texel_bytes"], 0, "ticks write no texels");
+    // The same flights at 2^30 texels a side, and the service's requests in lon/lat and texels.
+    assert_eq!(v["engine_2_30"]["setup"]["size"].as_u64(), Some(1 << 30), "{}", v["engine_2_30"]["setup"]);
+    assert_eq!(v["engine_2_30"]["setup"]["clip"], v["engine"]["setup"]["clip"], "the same clip");
+    assert!(v["memory_2_30"]["formula_bytes"].as_u64().unwrap() > 0);
+    let s = &v["service"];
+    for field in ["lonlat_published_p50_s", "texels_published_p50_s"] {
+        assert!(s[field].as_f64().is_some_and(|x| x > 0.0), "service.{field}: {s}");
+    }
+    assert_eq!(s["lonlat_vs_texels"], v["lonlat_vs_texels"]);
     assert!(v.get("update_vs_memcpy").is_none(), "update_vs_memcpy is retired");
     let shown = v["scale"]["level0_shown_share"].as_f64().expect("scale.level0_shown_share");
     assert!((0.0..=1.0).contains(&shown), "{shown}");

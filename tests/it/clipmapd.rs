@@ -932,12 +932,12 @@ fn cliptex_plan_sizes_the_image_caches_as_the_service_maps_them() {
     // A spread no service takes is refused naming the option and the range.
     let bad = Command::new(env!("CARGO_BIN_EXE_cliptex"))
         .args(plan_args)
-        .args(["--view-spread", "67108865"])
+        .args(["--view-spread", "1073741825"])
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&bad.stderr);
     assert_eq!(bad.status.code(), Some(1), "{err}");
-    assert!(err.contains("--view-spread") && err.contains("67108865") && err.contains("0..=67108864"), "{err}");
+    assert!(err.contains("--view-spread") && err.contains("1073741825") && err.contains("0..=1073741824"), "{err}");
 }
 
 #[test]

@@ -43,6 +43,7 @@ mod elevation;
 mod examples;
 mod fuzz_regressions;
 mod georef;
+mod georef_extremes;
 mod georef_wrap;
 mod growing;
 mod growing_service;

@@ -197,8 +197,8 @@ pub enum Size {
     Smoke,
 }
 
-pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<Report> {
-    let setup = if size == Size::Smoke {
+pub fn engine(size: Size, runs: usize, centre_alignment: u64, size_log2: Option<u32>) -> anyhow::Result<Report> {
+    let mut setup = if size == Size::Smoke {
         Setup {
             size: 1 << 12,
             clip: 128,
@@ -235,6 +235,9 @@ pub fn engine(size: Size, runs: usize, centre_alignment: u64) -> anyhow::Result<
             centre_alignment,
         }
     };
+    if let Some(n) = size_log2 {
+        setup.size = 1 << n;
+    }
     let runs = runs.max(1);
     let desc = TextureDesc::new([setup.size; 2], setup.clip, TexelFormat::RGBA8, [setup.tile; 2])?
         .with_invalid_border(setup.border)?;

@@ -108,6 +108,10 @@ Examples:
         /// engine's default; Performer's InfiniteReality used 8).
         #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=clipmap::clip::MAX_CENTRE_ALIGNMENT))]
         centre_alignment: u64,
+        /// The texture's size, 2^N texels a side (clip, tiles and flights unchanged): `clipbench
+        /// perf` flies the same flights at 2^30 beside its own size's.
+        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(12..=30))]
+        size_log2: Option<u32>,
     },
     /// Every performance comparison in one run: engine against memcpy, tile ingest against plain
     /// reads, per-frame cost against GDAL and full reloads, memory against the formula, a 2^26
@@ -241,8 +245,8 @@ fn main() -> ExitCode {
         Command::Cog(args) => cog::main(args),
         #[cfg(feature = "remote")]
         Command::Tiles(args) => tiles::main(args),
-        Command::Engine { quick, runs, json, smoke, centre_alignment } => {
-            match engine::engine(engine_size(quick, smoke), runs, centre_alignment) {
+        Command::Engine { quick, runs, json, smoke, centre_alignment, size_log2 } => {
+            match engine::engine(engine_size(quick, smoke), runs, centre_alignment, size_log2) {
                 Ok(r) => {
                     clipmap::report::emit(json, &r, engine::human);
                     0

@@ -307,6 +307,16 @@ pub struct Report {
     pub speedup_vs_full_reload: f64,
     /// Resident growth / the image caches' formula (goal <= 1.1).
     pub memory_vs_formula: f64,
+    /// The same at 2^30 texels a side (`engine_2_30`, the same clip and tiles; goal <= 1.05).
+    pub memory_vs_formula_2_30: f64,
+    /// The median update tick of the same flights (texels a tick, clip, tiles) at 2^30 texels a
+    /// side over at 2^26 (the engine's own flights at full size, a run of its own at `--quick`
+    /// and `--smoke`): the mean of the flights' medians, one over the other (goal <= 1.1).
+    pub tick_2_30_vs_2_26: f64,
+    /// Service latency, request to published (median), with the centre asked for in longitude /
+    /// latitude (the request mapping's coordinate kind 1) over in texels, the two interleaved in
+    /// one run (goal <= 1.05).
+    pub lonlat_vs_texels: f64,
     pub size: Size,
     pub runs: usize,
     pub command: String,
@@ -314,6 +324,9 @@ pub struct Report {
     pub elapsed_s: f64,
     pub engine: serde_json::Value,
     pub memory: Memory,
+    /// `clipbench engine --size-log2 30`: the same flights at 2^30 texels a side.
+    pub engine_2_30: serde_json::Value,
+    pub memory_2_30: Memory,
     pub ingest: ingest::Ingest,
     pub flight: flight::Flight,
     pub scale: scale::Scale,
@@ -323,11 +336,15 @@ pub struct Report {
     pub service: service::Latency,
 }
 
-/// Runs `clipbench engine` in a child process (its `VmHWM` is then the engine's alone).
-fn engine_child(size: Size, runs: usize) -> anyhow::Result<serde_json::Value> {
+/// Runs `clipbench engine` in a child process (its `VmHWM` is then the engine's alone), at 2^N
+/// texels a side when `size_log2` is given.
+fn engine_child(size: Size, runs: usize, size_log2: Option<u32>) -> anyhow::Result<serde_json::Value> {
     let exe = std::env::current_exe().context("locating this program")?;
     let mut cmd = std::process::Command::new(exe);
     cmd.args(["engine", "--json", "--runs", &runs.to_string()]);
+    if let Some(n) = size_log2 {
+        cmd.args(["--size-log2", &n.to_string()]);
+    }
     match size {
         Size::Full => {}
         Size::Quick => {
@@ -353,6 +370,17 @@ fn field(v: &serde_json::Value, path: &[&str]) -> anyhow::Result<f64> {
         at = at.get(p).with_context(|| format!("clipbench engine's JSON has no {}", path.join(".")))?;
     }
     at.as_f64().with_context(|| format!("{} is not a number", path.join(".")))
+}
+
+/// The mean of `a`'s flights' median ticks over `b`'s (`engine.flights[].median_tick_s`).
+fn tick_ratio(a: &serde_json::Value, b: &serde_json::Value) -> anyhow::Result<f64> {
+    let mean = |v: &serde_json::Value| -> anyhow::Result<f64> {
+        let f = v["flights"].as_array().context("clipbench engine's JSON has no flights")?;
+        let m: Vec<f64> = f.iter().filter_map(|f| f["median_tick_s"].as_f64()).collect();
+        anyhow::ensure!(!m.is_empty() && m.len() == f.len(), "a flight without median_tick_s");
+        Ok(m.iter().sum::<f64>() / m.len() as f64)
+    };
+    Ok(mean(a)? / mean(b)?)
 }
 
 /// docs/ARCHITECTURE.md §3: a 2^n texture with clip 2^m holds 4^m (n - m + 4/3) - 1/3 texels.
@@ -423,10 +451,18 @@ pub fn run(args: &Args) -> anyhow::Result<Report> {
     let json = c.json;
 
     progress(json, "engine flights by direction, memory (child process)");
-    let engine = engine_child(size, runs)?;
+    let engine = engine_child(size, runs, None)?;
     let direction_ratio = field(&engine, &["direction_ratio"])?;
     let tick_texel_bytes = field(&engine, &["tick_texel_bytes"])? as u64;
     let memory = memory(&engine)?;
+    progress(json, "the same flights at 2^30 texels a side (child process)");
+    let engine_2_30 = engine_child(size, runs, Some(30))?;
+    let memory_2_30 = self::memory(&engine_2_30)?;
+    // Against the same flights at 2^26 (the engine's own at full size; a child more otherwise).
+    let tick_2_30_vs_2_26 = match size {
+        Size::Full => tick_ratio(&engine_2_30, &engine)?,
+        _ => tick_ratio(&engine_2_30, &engine_child(size, runs, Some(26))?)?,
+    };
 
     let scratch = Scratch::new(c.dir.clone())?;
     progress(json, &format!("preparing data in {}", scratch.0.display()));
@@ -449,6 +485,9 @@ pub fn run(args: &Args) -> anyhow::Result<Report> {
         speedup_vs_gdal: flight.speedup_vs_gdal.as_ref().map(|s| s.median),
         speedup_vs_full_reload: flight.speedup_vs_full_reload.median,
         memory_vs_formula: memory.delta_ratio,
+        memory_vs_formula_2_30: memory_2_30.delta_ratio,
+        tick_2_30_vs_2_26,
+        lonlat_vs_texels: service.lonlat_vs_texels,
         size,
         runs,
         command,
@@ -456,6 +495,8 @@ pub fn run(args: &Args) -> anyhow::Result<Report> {
         elapsed_s: started.elapsed().as_secs_f64(),
         engine,
         memory,
+        engine_2_30,
+        memory_2_30,
         ingest,
         flight,
         scale,

@@ -419,12 +419,18 @@ struct RoamArgs {
     /// Invalid border in texels (default: the configuration's, 0 for a procedural texture).
     #[arg(long)]
     border: Option<u64>,
-    /// The flight: straight:SPEED[:ANGLE], circle:RADIUS:SPEED, zigzag:SPEED:PERIOD, hover, jump:EVERY:DIST.
+    /// The flight: straight:SPEED[:ANGLE], circle:RADIUS:SPEED, zigzag:SPEED:PERIOD, hover, jump:EVERY:DIST,
+    /// or lonlat:LON,LAT:LON,LAT (from one WGS 84 place to another over the frames, through the
+    /// texture's georeferencing; docs/GEOREF.md).
     // This comment is clap's help text, printed as written: `[:ANGLE]` marks an optional argument,
     // not a link, and escaping it would change the help.
     #[allow(rustdoc::broken_intra_doc_links)]
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     flight: roam::Flight,
+    /// Georeferences a procedural texture (--source) as the whole Web Mercator square (EPSG:3857,
+    /// as `clipmapd --georef web-mercator`), so that a flight may be given in longitude / latitude.
+    #[arg(long, value_name = "web-mercator", requires = "source", value_parser = ["web-mercator"])]
+    georef: Option<String>,
     /// Frames to fly.
     #[arg(long)]
     frames: u64,
@@ -540,6 +546,9 @@ fn roam(args: RoamArgs) -> i32 {
             };
             let (size, clip) = (args.size.unwrap_or(0), args.clip.unwrap_or(0));
             match roam::RoamOptions::procedural(kind, size, clip, args.tile, 0, flight, args.frames) {
+                Ok(o) if args.georef.is_some() => {
+                    roam::RoamOptions { source: clipmap::service::web_mercator_square(o.source.clone()), ..o }
+                }
                 Ok(o) => o,
                 Err(e) => {
                     eprintln!("cliptex roam: {e}");

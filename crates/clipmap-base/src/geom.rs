@@ -7,7 +7,7 @@
 //! Everything here is a synchronous function of its arguments; holding tiles and texels is left
 //! to `clipmap::cache` and `clipmap::clip`.
 //!
-//! Bounds: level sizes are at most 2^26 and clip sizes at most 2^26, so every coordinate a
+//! Bounds: level sizes are at most 2^30 and clip sizes at most 2^30, so every coordinate a
 //! window can take fits in an `i64` with room to spare; arbitrary (even extreme) centres are
 //! handled with saturating arithmetic before clamping.
 

@@ -9,8 +9,12 @@
 //! Owns the numbers only; the modules that take the values in enforce them. The old paths
 //! (`config::Limits`, `prep::Limits`, `report::dump::MAX_DUMP_TEXELS`, ...) re-export these.
 
-/// Largest level-0 edge a texture may have (texels): 2^26, the whole earth at one metre.
-pub const MAX_TEXTURE_SIZE: u64 = 1 << 26;
+/// Largest level-0 edge a texture may have (texels): 2^30, WebMercatorQuad zoom 22 at 256-texel
+/// tiles (the whole earth at about 4 cm). Level indices of tiles stay below 2^31 and every
+/// position, product and difference of positions the engine and the mapping form stays far inside
+/// 64 bits; texel positions of this size need f64 (30 bits of integer part), never f32
+/// (docs/GEOREF.md, "Sizes up to 2^30").
+pub const MAX_TEXTURE_SIZE: u64 = 1 << 30;
 
 /// Most texels one dump reads (a 4096 x 4096 region): 64 MiB of RGBA in memory at most (128 MiB
 /// for the 16-bit formats).
@@ -41,7 +45,7 @@ pub const MAX_TILE_BYTES: u64 = 1 << 28;
 pub const MAX_GRID_TILES: u64 = 1 << 16;
 
 /// Farthest a clip centre (and a velocity per tick) may be from the origin, level-0 texels, on
-/// each axis: requests beyond are clamped to it. Far outside any texture (at most 2^26), yet far
+/// each axis: requests beyond are clamped to it. Far outside any texture (at most 2^30), yet far
 /// from where differences and products of centres overflow 64 bits.
 pub const MAX_CENTRE: i64 = 1 << 40;
 

@@ -66,7 +66,10 @@ pub fn splitmix64(x: u64) -> u64 {
 /// The 64-bit hash behind the verification texel at (level, s, t).
 ///
 /// `s` and `t` must be below 2^29 and `level` below 64 for the key to be unique; textures up to
-/// 2^26 texels a side satisfy this with room to spare.
+/// 2^29 texels a side satisfy this. Past it (up to 2^30, `MAX_TEXTURE_SIZE`) the key is kept
+/// (every reader, Rust, C and Python, computes the same texture): level-0 texel (s, t) with
+/// s >= 2^29 shares its key with (s - 2^29, t | 1) where t is odd, so a reader that misplaced a read
+/// by exactly 2^29 texels along s on such rows would not notice; any other misplacement it does.
 #[inline]
 pub fn hash_value(level: u32, s: u64, t: u64) -> u64 {
     splitmix64(((level as u64) << 58) | (t << 29) | s)

@@ -793,10 +793,23 @@ impl Client {
     /// when another renderer that is still alive held the request lock for
     /// [`request_lock::WAIT_MS`](layout::request_lock::WAIT_MS) (try again next frame).
     pub fn request_centre(&self, centre: [i64; 2], velocity: [f64; 2]) -> bool {
+        self.request_position(RequestPosition::Texels(centre), velocity)
+    }
+
+    /// [`request_centre`](Self::request_centre) with the centre in any coordinate kind
+    /// (docs/SHM.md, "Positions in longitude / latitude or map coordinates"): level-0 texels,
+    /// WGS 84 longitude / latitude, or map coordinates of the texture's CRS. The service converts
+    /// a position through the texture's georeferencing (the georef block's, [`Client::georef`]);
+    /// it refuses (counts in `STATS` `position_requests_refused`, logs why) a texture without one
+    /// or a position outside the texture or the projection's domain, and the view stays where it
+    /// was. The velocity is in level-0 texels per second whatever the kind. A position request
+    /// leaves the texel centre fields as they were: a service older than the position records
+    /// takes it as the previous texel centre.
+    pub fn request_position(&self, position: RequestPosition, velocity: [f64; 2]) -> bool {
         match &self.view {
-            Some(b) => self.request_view_centre(b, centre, velocity),
+            Some(b) => self.request_view_centre(b, position, velocity),
             // The main request's fields lie as a view request record's, from its lock word on.
-            None => self.request_at(request::SEQ, None, Fields::Centre(centre, velocity)),
+            None => self.request_at(request::SEQ, None, Fields::Centre(position, v::position(0), velocity)),
         }
     }
 
@@ -887,9 +900,22 @@ impl Client {
             // The field stores below must not become visible before the odd word.
             fence(Ordering::Release);
             let count = match fields {
-                Fields::Centre(centre, velocity) => {
-                    r.store(base + v::REQ_CENTRE_S, centre[0] as u64, Ordering::Relaxed);
-                    r.store(base + v::REQ_CENTRE_T, centre[1] as u64, Ordering::Relaxed);
+                Fields::Centre(position, at, velocity) => {
+                    let (kind, xy) = match position {
+                        RequestPosition::Texels(centre) => {
+                            r.store(base + v::REQ_CENTRE_S, centre[0] as u64, Ordering::Relaxed);
+                            r.store(base + v::REQ_CENTRE_T, centre[1] as u64, Ordering::Relaxed);
+                            (v::KIND_TEXELS, [0.0, 0.0])
+                        }
+                        RequestPosition::LonLat(ll) => (v::KIND_LONLAT, ll),
+                        RequestPosition::Map(xy) => (v::KIND_MAP, xy),
+                    };
+                    // The position record belongs to this request: the count it will have.
+                    let next = r.load(base + v::REQ_COUNT, Ordering::Relaxed).wrapping_add(1);
+                    r.store(at + v::POS_KIND, kind, Ordering::Relaxed);
+                    r.store(at + v::POS_X, xy[0].to_bits(), Ordering::Relaxed);
+                    r.store(at + v::POS_Y, xy[1].to_bits(), Ordering::Relaxed);
+                    r.store(at + v::POS_FOR_COUNT, next, Ordering::Relaxed);
                     r.store(base + v::REQ_VEL_S, velocity[0].to_bits(), Ordering::Relaxed);
                     r.store(base + v::REQ_VEL_T, velocity[1].to_bits(), Ordering::Relaxed);
                     base + v::REQ_COUNT
@@ -936,6 +962,24 @@ fn note_lock_word(_word: u64) {
 /// or a LOD request (the fields and count of its LOD record, at `at` in the request mapping).
 #[derive(Clone, Copy, Debug)]
 pub(super) enum Fields {
-    Centre([i64; 2], [f64; 2]),
-    Lod { at: usize, height: f64, pixel_angle: f64, effective: u32 },
+    /// A centre, the offset of the request's position record, the velocity.
+    Centre(RequestPosition, usize, [f64; 2]),
+    Lod {
+        at: usize,
+        height: f64,
+        pixel_angle: f64,
+        effective: u32,
+    },
+}
+
+/// Where a renderer asks for a centre ([`Client::request_position`]; docs/SHM.md, "Positions in
+/// longitude / latitude or map coordinates").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RequestPosition {
+    /// Level-0 texels (coordinate kind 0, as [`Client::request_centre`]).
+    Texels([i64; 2]),
+    /// WGS 84 `[longitude, latitude]`, degrees (kind 1).
+    LonLat([f64; 2]),
+    /// Map `[x, y]` in the texture's CRS (kind 2).
+    Map([f64; 2]),
 }

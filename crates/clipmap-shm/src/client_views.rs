@@ -2,7 +2,7 @@
 //! a view by name, reading its snapshot instead of the primary's, noticing that it was removed,
 //! and asking for its centre through its request record.
 
-use super::client::{invalid, Client, Fields, ReadError};
+use super::client::{invalid, Client, Fields, ReadError, RequestPosition};
 use super::layout::{self, header, views as v};
 use super::view_block::{Binding, ViewsBlock};
 use super::ShmError;
@@ -243,11 +243,12 @@ impl Client {
 
     /// [`Client::request_centre`] for a bound view: its request record, with the view's
     /// incarnation.
-    pub(super) fn request_view_centre(&self, b: &Binding, centre: [i64; 2], velocity: [f64; 2]) -> bool {
+    pub(super) fn request_view_centre(&self, b: &Binding, position: RequestPosition, velocity: [f64; 2]) -> bool {
         if b.record >= v::MAX_REQUEST_RECORDS {
             return false;
         }
-        self.request_at(v::request(b.record), Some(b.incarnation), Fields::Centre(centre, velocity))
+        let fields = Fields::Centre(position, v::position(1 + b.record), velocity);
+        self.request_at(v::request(b.record), Some(b.incarnation), fields)
     }
 
     /// Asks the service to show the levels the bound view (`main` too) can use from

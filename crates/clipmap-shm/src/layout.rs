@@ -427,6 +427,42 @@ pub mod views {
     }
 
     const _: () = assert!(LOD_BASE + (MAX_REQUEST_RECORDS + 1) * LOD_RECORD_BYTES <= super::REQUEST_BYTES as usize);
+
+    /// Position records in the request mapping (docs/SHM.md, "Positions in longitude / latitude
+    /// or map coordinates"): one of [`POSITION_RECORD_BYTES`] per view, the primary's first, at
+    /// [`POSITION_BASE`] + [`POSITION_RECORD_BYTES`] x i (i = 0: `main`, under the main request's
+    /// lock word; i = 1 + r: view record r's, under its request record's lock word). A request's
+    /// centre is the record's position when the record's [`POS_FOR_COUNT`] equals the request's
+    /// count and its kind is not [`KIND_TEXELS`]; else the request's texel centre. A renderer that
+    /// knows nothing of these records (older) never writes the count, so its requests read as
+    /// texels.
+    pub const POSITION_BASE: usize = 3072;
+    /// Bytes of one position record.
+    pub const POSITION_RECORD_BYTES: usize = 32;
+    /// Position record fields, relative to the record: `u64` the coordinate kind
+    /// ([`KIND_TEXELS`], [`KIND_LONLAT`], [`KIND_MAP`]).
+    pub const POS_KIND: usize = 0;
+    /// `f64` bits: the position's first coordinate (longitude in degrees, or map x).
+    pub const POS_X: usize = 8;
+    /// `f64` bits: the second (latitude in degrees, or map y).
+    pub const POS_Y: usize = 16;
+    /// `u64` the request count (the request record's, after this request) the position belongs to.
+    pub const POS_FOR_COUNT: usize = 24;
+    /// Coordinate kind 0: the request's centre in level-0 texels (its `CENTRE_S` / `CENTRE_T`).
+    pub const KIND_TEXELS: u64 = 0;
+    /// Coordinate kind 1: WGS 84 longitude / latitude, degrees.
+    pub const KIND_LONLAT: u64 = 1;
+    /// Coordinate kind 2: map coordinates of the texture's CRS (the georef block's).
+    pub const KIND_MAP: u64 = 2;
+
+    /// Offset of position record `i` (0: `main`; 1 + r: view record r) in the request mapping.
+    pub fn position(i: usize) -> usize {
+        POSITION_BASE + i * POSITION_RECORD_BYTES
+    }
+
+    const _: () = assert!(LOD_BASE + (MAX_REQUEST_RECORDS + 1) * LOD_RECORD_BYTES <= POSITION_BASE);
+    const _: () =
+        assert!(POSITION_BASE + (MAX_REQUEST_RECORDS + 1) * POSITION_RECORD_BYTES <= super::REQUEST_BYTES as usize);
     const _: () = assert!(SERVICE_RECORDS <= MAX_REQUEST_RECORDS);
     /// Request record fields, relative to the record: the lock word (as
     /// [`super::request::SEQ`]).

@@ -39,7 +39,7 @@ pub mod writer;
 #[doc(hidden)]
 pub use raw::Region;
 
-pub use client::{Client, LevelState, ReadError, Snapshot};
+pub use client::{Client, LevelState, ReadError, RequestPosition, Snapshot};
 pub use georef::GeorefBlock;
 pub use memory::{ImageMemory, Publication, PublishedLevel, SlotKeeper};
 pub use writer::{Writer, WriterOptions};

@@ -48,12 +48,13 @@ fn word(generation: u64, state: u64) -> u64 {
 }
 
 fn key(tile: [i64; 2]) -> u64 {
-    // Tile indices are below 2^27 (levels are at most 2^26 texels a side): 28 bits each.
-    ((tile[0] as u64 & 0x0FFF_FFFF) << 30) | ((tile[1] as u64 & 0x0FFF_FFFF) << 2)
+    // Tile indices are below 2^30 (levels are at most 2^30 texels a side, MAX_TEXTURE_SIZE, tiles
+    // at least 1): 31 bits each, above the two low bits (always 0: never NO_TILE).
+    ((tile[0] as u64 & 0x7FFF_FFFF) << 33) | ((tile[1] as u64 & 0x7FFF_FFFF) << 2)
 }
 
 fn tile_of_key(key: u64) -> [i64; 2] {
-    [((key >> 30) & 0x0FFF_FFFF) as i64, ((key >> 2) & 0x0FFF_FFFF) as i64]
+    [((key >> 33) & 0x7FFF_FFFF) as i64, ((key >> 2) & 0x7FFF_FFFF) as i64]
 }
 
 /// The one right to take slots of an [`ImageMemory`] out of settled ([`ImageMemory::assign`],

@@ -17,14 +17,50 @@ use std::sync::Arc;
 /// A renderer's request.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Request {
-    /// Requested centre, level-0 texels.
+    /// Requested centre, level-0 texels (used when [`position`](Self::position) is
+    /// [`Position::Texels`]).
     pub centre: [i64; 2],
+    /// Where the centre is asked for: in texels (`centre`), or a position to convert.
+    pub position: Position,
     /// Velocity, level-0 texels per second.
     pub velocity: [f64; 2],
     /// Requests made so far.
     pub count: u64,
     /// The primary view's latest LOD request, if one was made.
     pub lod: Option<LodRequest>,
+}
+
+/// The coordinate kind of a request's centre (docs/SHM.md, "Positions in longitude / latitude or
+/// map coordinates"), as found in its position record: the service converts the last two
+/// through the texture's georeferencing, and refuses an unknown kind.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Position {
+    /// The request's own centre fields, level-0 texels (kind 0, or a record of an earlier
+    /// request: an older renderer writes no position record).
+    Texels,
+    /// WGS 84 `[longitude, latitude]`, degrees (kind 1).
+    LonLat([f64; 2]),
+    /// Map `[x, y]` in the texture's CRS (kind 2).
+    Map([f64; 2]),
+    /// A kind this service does not know (the value found), with its coordinates.
+    Unknown(u64, [f64; 2]),
+}
+
+/// The position record at `at` of a copy of the request mapping, for a request whose count is
+/// `count`: [`Position::Texels`] unless the record was written with that request.
+fn position_at(buf: &[u8], at: usize, count: u64) -> Position {
+    use layout::views as v;
+    let word = |o: usize| u64::from_le_bytes(buf[at + o..at + o + 8].try_into().expect("8 bytes"));
+    if count == 0 || word(v::POS_FOR_COUNT) != count {
+        return Position::Texels;
+    }
+    let xy = [f64::from_bits(word(v::POS_X)), f64::from_bits(word(v::POS_Y))];
+    match word(v::POS_KIND) {
+        v::KIND_TEXELS => Position::Texels,
+        v::KIND_LONLAT => Position::LonLat(xy),
+        v::KIND_MAP => Position::Map(xy),
+        other => Position::Unknown(other, xy),
+    }
 }
 
 /// A renderer's LOD request for a view (docs/SHM.md, "Asking for a view's levels"), as found:
@@ -99,6 +135,8 @@ pub struct Writer {
 pub struct ViewRequest {
     /// Level-0 centre.
     pub centre: [i64; 2],
+    /// Where the centre is asked for (as [`Request::position`]).
+    pub position: Position,
     /// Velocity, level-0 texels per second.
     pub velocity: [f64; 2],
     /// Requests made to this record.
@@ -475,6 +513,7 @@ impl Writer {
     pub fn request(&self) -> Option<Request> {
         let fields = request::SEQ..request::COUNT + 8;
         let lod = layout::views::lod(0)..layout::views::lod(1);
+        let pos = layout::views::position(0)..layout::views::position(1);
         let mut a = [0u8; layout::REQUEST_BYTES as usize];
         let mut b = [0u8; layout::REQUEST_BYTES as usize];
         for _ in 0..layout::MAX_RETRIES {
@@ -487,6 +526,7 @@ impl Writer {
             if word(&a, request::SEQ) & 1 == 1
                 || a[fields.clone()] != b[fields.clone()]
                 || a[lod.clone()] != b[lod.clone()]
+                || a[pos.clone()] != b[pos.clone()]
             {
                 std::thread::yield_now();
                 continue;
@@ -495,6 +535,7 @@ impl Writer {
             let lod_request = lod_at(&a, lod.start);
             return (count > 0 || lod_request.is_some()).then(|| Request {
                 centre: [word(&a, request::CENTRE_S) as i64, word(&a, request::CENTRE_T) as i64],
+                position: position_at(&a, pos.start, count),
                 velocity: [f64::from_bits(word(&a, request::VEL_S)), f64::from_bits(word(&a, request::VEL_T))],
                 count,
                 lod: lod_request,
@@ -520,9 +561,11 @@ impl Writer {
                 let base = v::request(r);
                 let fields = base..base + v::REQUEST_RECORD_BYTES;
                 let lod = v::lod(1 + r)..v::lod(2 + r);
+                let pos = v::position(1 + r)..v::position(2 + r);
                 if word(&a, base + v::REQ_SEQ) & 1 == 1
                     || a[fields.clone()] != b[fields]
                     || a[lod.clone()] != b[lod.clone()]
+                    || a[pos.clone()] != b[pos.clone()]
                 {
                     return None;
                 }
@@ -531,6 +574,7 @@ impl Writer {
                 (count > 0 || lod_request.is_some()).then(|| ViewRequest {
                     lod: lod_request,
                     centre: [word(&a, base + v::REQ_CENTRE_S) as i64, word(&a, base + v::REQ_CENTRE_T) as i64],
+                    position: position_at(&a, pos.start, count),
                     velocity: [
                         f64::from_bits(word(&a, base + v::REQ_VEL_S)),
                         f64::from_bits(word(&a, base + v::REQ_VEL_T)),

@@ -51,7 +51,7 @@ pub(super) fn image_level(
         return Err(unsupported(
             "ImageWidth (256) x ImageLength (257)",
             format!("{width} x {height}"),
-            "at most 2^26 (MAX_TEXTURE_SIZE) texels a side",
+            "at most 2^30 (MAX_TEXTURE_SIZE) texels a side",
         ));
     }
     let spp = get(277, "SamplesPerPixel (277)")?.unwrap_or(1);

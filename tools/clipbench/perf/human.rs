@@ -92,6 +92,27 @@ pub fn table(r: &Report) -> String {
         mib(mm.layout1_window_bytes as f64),
         mm.hwm_ratio
     );
+    let _ = writeln!(
+        o,
+        "| memory_vs_formula_2_30 (the same at 2^30 texels a side) | {:.3} | <= 1.05 | {} | over formula {} | |",
+        r.memory_vs_formula_2_30,
+        met(r.memory_vs_formula_2_30 <= 1.05),
+        mib(r.memory_2_30.formula_bytes as f64),
+    );
+    let _ = writeln!(
+        o,
+        "| tick_2_30_vs_2_26 (the same flights' median tick) | {:.3} | <= 1.1 | {} | | |",
+        r.tick_2_30_vs_2_26,
+        met(r.tick_2_30_vs_2_26 <= 1.1),
+    );
+    let _ = writeln!(
+        o,
+        "| lonlat_vs_texels (service latency, request -> published, median) | {:.3} | <= 1.05 | {} | lon/lat {:.2} ms, texels {:.2} ms | |",
+        r.lonlat_vs_texels,
+        met(r.lonlat_vs_texels <= 1.05),
+        r.service.lonlat_published_p50_s * 1e3,
+        r.service.texels_published_p50_s * 1e3,
+    );
     let _ = writeln!(o);
     o.push_str(&ingest_details(i));
     let _ = writeln!(

@@ -4,11 +4,15 @@
 //! request → level 0's state carries the centre, and request → level 0 complete around it.
 //! Requests are spread over the tick's phase (each at a pseudo-random offset within its 1/60 s
 //! slot): requests in lock step with the ticks would measure only their fixed phase difference.
+//! The texture is georeferenced (the Web Mercator square, `clipmapd --georef web-mercator`) and
+//! every other request gives its centre in longitude / latitude (the request mapping's coordinate
+//! kind 1: the middle of the same next texel) instead of in texels: `lonlat_vs_texels` is the
+//! median request -> published latency of those over the texel ones, in the same run.
 
 use super::{quantile, Size};
 use anyhow::Context;
 use clipmap::service::{procedural_source, run, Options, Procedural};
-use clipmap::shm::Client;
+use clipmap::shm::{Client, RequestPosition};
 use clipmap::source::procedural::splitmix64;
 use serde::Serialize;
 use std::time::{Duration, Instant};
@@ -27,9 +31,20 @@ pub struct Latency {
     pub complete_max_s: f64,
     /// One reader snapshot of every level's state (seqlocked).
     pub snapshot_ns: f64,
+    /// The requests that gave their centre in longitude / latitude (every other one): request
+    /// -> level 0's state carries the centre, median and 99th percentile.
+    pub lonlat_published_p50_s: f64,
+    pub lonlat_published_p99_s: f64,
+    /// The requests in texels (the others), likewise.
+    pub texels_published_p50_s: f64,
+    pub texels_published_p99_s: f64,
+    /// `lonlat_published_p50_s / texels_published_p50_s` (goal <= 1.05).
+    pub lonlat_vs_texels: f64,
 }
 
-type Samples = (Vec<f64>, Vec<f64>, f64);
+/// Request -> published and request -> complete of every request, whether each was in longitude
+/// / latitude, and a snapshot's time.
+type Samples = (Vec<f64>, Vec<f64>, Vec<bool>, f64);
 
 fn reader(shm_dir: &std::path::Path, clip: u64, requests: usize) -> anyhow::Result<Samples> {
     let c = Client::attach(shm_dir, "perf").map_err(|e| anyhow::anyhow!("attaching: {e}"))?;
@@ -43,7 +58,10 @@ fn reader(shm_dir: &std::path::Path, clip: u64, requests: usize) -> anyhow::Resu
         anyhow::ensure!(t.elapsed() < Duration::from_secs(60), "the first window did not fill in 60 s");
         std::thread::sleep(Duration::from_millis(1));
     }
-    let (mut published, mut full) = (Vec::new(), Vec::new());
+    let georef =
+        clipmap::shm::georef_of(c.georef.as_ref().context("the mapping has no georef block")?, c.levels[0].size)
+            .map_err(|e| anyhow::anyhow!("the mapping's georef block: {e}"))?;
+    let (mut published, mut full, mut lonlat) = (Vec::new(), Vec::new(), Vec::new());
     let period = Duration::from_secs_f64(1.0 / 60.0);
     let start = Instant::now();
     for i in 1..=requests {
@@ -51,8 +69,16 @@ fn reader(shm_dir: &std::path::Path, clip: u64, requests: usize) -> anyhow::Resu
         let slot = start + period * i as u32 + period.mul_f64(phase);
         std::thread::sleep(slot.saturating_duration_since(Instant::now()));
         let want = [base[0] + 8 * i as i64, base[1]];
+        // Every other request by longitude / latitude: the middle of the same texel.
+        let by_lonlat = i % 2 == 1;
+        let ll = georef.texel_to_lonlat(0, [want[0] as f64 + 0.5, want[1] as f64 + 0.5]);
+        let ll = ll.map_err(|e| anyhow::anyhow!("texel {want:?}: {e}"))?;
         let t0 = Instant::now();
-        c.request_centre(want, [480.0, 0.0]);
+        if by_lonlat {
+            c.request_position(RequestPosition::LonLat(ll), [480.0, 0.0]);
+        } else {
+            c.request_centre(want, [480.0, 0.0]);
+        }
         let mut seen = None;
         loop {
             if let Some(st) = c.level_state(0) {
@@ -69,13 +95,14 @@ fn reader(shm_dir: &std::path::Path, clip: u64, requests: usize) -> anyhow::Resu
         let e = t0.elapsed();
         published.push(seen.unwrap_or(e).as_secs_f64());
         full.push(e.as_secs_f64());
+        lonlat.push(by_lonlat);
     }
     let n = 20_000;
     let t = Instant::now();
     for _ in 0..n {
         std::hint::black_box(c.snapshot());
     }
-    Ok((published, full, t.elapsed().as_nanos() as f64 / n as f64))
+    Ok((published, full, lonlat, t.elapsed().as_nanos() as f64 / n as f64))
 }
 
 pub fn measure(size: Size) -> anyhow::Result<Latency> {
@@ -88,7 +115,7 @@ pub fn measure(size: Size) -> anyhow::Result<Latency> {
     let mut o = Options::new("perf");
     o.shm_dir = dir.0.clone();
     o.socket = dir.0.join("perf.sock");
-    let source = procedural_source(Procedural::Hash, texture, clip, 256)?;
+    let source = clipmap::service::web_mercator_square(procedural_source(Procedural::Hash, texture, clip, 256)?);
     let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
     let (res_tx, res_rx) = std::sync::mpsc::channel();
     let shm_dir = dir.0.clone();
@@ -106,7 +133,12 @@ pub fn measure(size: Size) -> anyhow::Result<Latency> {
         },
     ))?
     .map_err(|e| anyhow::anyhow!("the service: {e}"))?;
-    let (published, full, snapshot_ns) = res_rx.recv().context("the reader thread ended without a result")??;
+    let (published, full, lonlat, snapshot_ns) =
+        res_rx.recv().context("the reader thread ended without a result")??;
+    let of = |want: bool| -> Vec<f64> {
+        published.iter().zip(&lonlat).filter(|(_, l)| **l == want).map(|(p, _)| *p).collect()
+    };
+    let (by_lonlat, by_texels) = (of(true), of(false));
     Ok(Latency {
         texture,
         clip,
@@ -118,5 +150,10 @@ pub fn measure(size: Size) -> anyhow::Result<Latency> {
         complete_p99_s: quantile(&full, 0.99),
         complete_max_s: quantile(&full, 1.0),
         snapshot_ns,
+        lonlat_published_p50_s: quantile(&by_lonlat, 0.5),
+        lonlat_published_p99_s: quantile(&by_lonlat, 0.99),
+        texels_published_p50_s: quantile(&by_texels, 0.5),
+        texels_published_p99_s: quantile(&by_texels, 0.99),
+        lonlat_vs_texels: quantile(&by_lonlat, 0.5) / quantile(&by_texels, 0.5),
     })
 }
