@@ -211,7 +211,13 @@ impl Clipmap {
             }
         }
         let (tw, th) = (tile[0] as i64, tile[1] as i64);
-        valid.intersect(&Rect::new(r.s0 * tw, r.t0 * th, r.s1 * tw, r.t1 * th))
+        let r = valid.intersect(&Rect::new(r.s0 * tw, r.t0 * th, r.s1 * tw, r.t1 * th));
+        // A region of a wrapping level starts inside the level (docs/SHM.md, "How a region
+        // wraps"): one settled only past the seam is the same columns a width to the west.
+        match level.shape.texel_period() {
+            Some(w) if r.s0 >= w as i64 => Rect::new(r.s0 - w as i64, r.t0, r.s1 - w as i64, r.t1),
+            _ => r,
+        }
     }
 
     /// Gives the slots of tiles that left each mem region to the tiles that entered, and asks

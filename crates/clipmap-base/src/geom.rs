@@ -226,7 +226,11 @@ pub fn wrapping_valid_region(size: [u64; 2], clip: u64, border: u64, tex: Rect) 
     if r.is_empty() {
         return Rect::EMPTY;
     }
-    let r = Rect::new(tex.s0 + border as i64, r.t0, tex.s1 - border as i64, r.t1);
+    // Its first column inside the level: a window starting within `border` of the seam has its
+    // valid region start past it, the same columns a width to the west.
+    let s0 = tex.s0 + border as i64;
+    let west = if s0 >= size[0] as i64 { size[0] as i64 } else { 0 };
+    let r = Rect::new(s0 - west, r.t0, tex.s1 - border as i64 - west, r.t1);
     if r.is_empty() {
         Rect::EMPTY
     } else {

@@ -183,9 +183,13 @@ fn jpeg_pyramids_are_rgb8_and_zoom_18_at_256_is_served() {
     assert_eq!(src.desc().size(), [1 << 26, 1 << 26]);
     assert_eq!(src.desc().format(), TexelFormat::RGB8);
     assert!(matches!(read(&src, 0, 12345, 67890), Err(SourceError::Missing { .. })));
-    let a = mem(info(0, 19, 256, None), vec![]);
+    // Zoom 22 at 256-texel tiles is 2^30 texels a side, the largest texture; zoom 23 is refused.
+    let a = mem(info(0, 22, 256, None), vec![]);
+    let src = PyramidSource::new(a, &PyramidOptions::default()).unwrap();
+    assert_eq!(src.desc().size(), [1 << 30, 1 << 30]);
+    let a = mem(info(0, 23, 256, None), vec![]);
     let e = PyramidSource::new(a, &PyramidOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("zoom 19 at 256-texel tiles is 134217728 texels a side"), "{e}");
+    assert!(e.contains("zoom 23 at 256-texel tiles is 2147483648 texels a side"), "{e}");
 }
 
 #[test]

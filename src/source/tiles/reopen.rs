@@ -206,6 +206,10 @@ impl<A: Renewable> TileArchive for Reopening<A> {
         self.current().remote_stats()
     }
 
+    fn is_cached(&self, at: TileAddr) -> bool {
+        self.current().is_cached(at)
+    }
+
     fn locate(&self, at: TileAddr) -> Option<String> {
         self.current().locate(at)
     }

@@ -403,7 +403,10 @@ fn serve(
     let Some(req) = read_request(&mut r)? else { return Ok(()) };
     let now = tally.in_flight.now.fetch_add(1, Ordering::SeqCst) + 1;
     tally.in_flight.peak.fetch_max(now, Ordering::SeqCst);
-    let _counted = Counted(tally.in_flight);
+    // Released just before the answer is written: the client frees its slot once the answer
+    // has come, which may be before this thread has returned, so a later count could otherwise
+    // see one request too many at once.
+    let mut counted = Some(Counted(tally.in_flight));
     let i = requests.fetch_add(1, Ordering::SeqCst);
     let fault = schedule.lock().unwrap().fault(i);
     if fault != Fault::Pass {
@@ -417,6 +420,19 @@ fn serve(
     let canned = |status: &str, extra: &str| {
         format!("HTTP/1.1 {status}\r\nContent-Length: 0\r\n{extra}Connection: close\r\n\r\n").into_bytes()
     };
+    if matches!(
+        fault,
+        Fault::NotFound
+            | Fault::ServerError
+            | Fault::Unavailable
+            | Fault::NoContent
+            | Fault::TooMany
+            | Fault::EmptyOk
+            | Fault::Reset
+            | Fault::Page { .. }
+    ) {
+        counted.take();
+    }
     match fault {
         Fault::NotFound => return out.write_all(&canned("404 Not Found", "")),
         Fault::ServerError => return out.write_all(&canned("500 Internal Server Error", "")),
@@ -468,6 +484,7 @@ fn serve(
             .collect::<Vec<_>>()
             .join("\r\n")
     };
+    counted.take();
     match fault {
         Fault::Truncate => {
             out.write_all(head.as_bytes())?;
