@@ -639,7 +639,14 @@ fn every_byte_the_contract_calls_reserved_is_zero() {
     use layout::request as q;
     rzero("request: after the version", q::VERSION + 4..q::GENERATION);
     rzero("request: before the lock word", q::GENERATION + 8..q::SEQ);
-    rzero("request: after the count", q::COUNT + 8..4096);
+    // A request in texels writes its position record too (kind 0, for its own count): the
+    // rest stays zero.
+    let pos = layout::views::position(0);
+    rzero("request: after the count", q::COUNT + 8..pos);
+    let word = |o: usize| u64::from_le_bytes(r[o..o + 8].try_into().unwrap());
+    assert_eq!(word(pos + layout::views::POS_KIND), layout::views::KIND_TEXELS);
+    assert_eq!(word(pos + layout::views::POS_FOR_COUNT), word(q::COUNT), "the position record is this request's");
+    rzero("request: after the main position record", layout::views::position(1)..4096);
     assert_eq!(u64::from_le_bytes(r[q::CLIENT_PID..q::CLIENT_PID + 8].try_into().unwrap()), std::process::id() as u64);
 }
 
