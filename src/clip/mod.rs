@@ -434,7 +434,13 @@ impl Clipmap {
             .zip(&grids)
             .enumerate()
             .map(|(k, (l, &grid))| Level {
-                shape: LevelShape { size: l.size, tile: l.tile, clip, grid, wrap: Self::level_wraps(&desc, &settings, k as u32) },
+                shape: LevelShape {
+                    size: l.size,
+                    tile: l.tile,
+                    clip,
+                    grid,
+                    wrap: Self::level_wraps(&desc, &settings, k as u32),
+                },
                 frame: LevelFrame { centre: [0, 0], tex: Rect::EMPTY, valid: Rect::EMPTY, mem: Rect::EMPTY },
                 published: Rect::EMPTY,
                 updated_tick: 0,

@@ -679,8 +679,13 @@ mod tests {
     fn keeps_up(speed: u64, latency: u64, tile: u64, lead: u64) -> bool {
         let touch = 2048 / tile + 1;
         let spare = lead.div_ceil(tile) + 2;
-        let sh =
-            LevelShape { size: [1 << 24, 1 << 24], tile: [tile, tile], clip: 2048, grid: [touch + spare, touch + 2], wrap: false };
+        let sh = LevelShape {
+            size: [1 << 24, 1 << 24],
+            tile: [tile, tile],
+            clip: 2048,
+            grid: [touch + spare, touch + 2],
+            wrap: false,
+        };
         let mut asked = std::collections::HashMap::<i64, u64>::new();
         let mut c = (1i64 << 22) + 77;
         for tick in 0..120u64 {
