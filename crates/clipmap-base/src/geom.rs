@@ -566,9 +566,13 @@ mod tests {
             let want: Vec<u64> = (0..clip as i64).map(|i| (cs - (clip / 2) as i64 + i).rem_euclid(w as i64) as u64).collect();
             let got: Vec<u64> = (f.tex.s0..f.tex.s1).map(|s| wrap(s, w)).collect();
             prop_assert_eq!(got, want);
-            // The border on both sides along s.
+            // The border on both sides along s, the region starting inside the level (the same
+            // columns a width to the west when the window starts within the border of the seam).
             if !f.valid.is_empty() {
-                prop_assert_eq!((f.valid.s0, f.valid.s1), (f.tex.s0 + border as i64, f.tex.s1 - border as i64));
+                let (s0, s1) = (f.tex.s0 + border as i64, f.tex.s1 - border as i64);
+                let west = if s0 >= w as i64 { w as i64 } else { 0 };
+                prop_assert_eq!((f.valid.s0, f.valid.s1), (s0 - west, s1 - west));
+                prop_assert!(f.valid.s0 >= 0 && (f.valid.s0 as u64) < w);
             }
             // The grid width divides the level's tiles across; the mem region is that wide.
             prop_assert_eq!(tiles % shape.grid[0], 0);
