@@ -68,7 +68,7 @@ fn tiles_json_has_the_contract_fields_and_every_texel_is_gdals() {
             let warm = number(&k["requests_per_tile_warm"], "");
             assert!(warm > 0.0 && warm <= 1.0, "{name}: {warm} requests a tile warm: {k}");
             let cold = number(&k["requests_per_tile_cold"], "");
-            assert!(cold >= 1.0 && cold <= 2.0, "{name}: {cold} requests a tile cold: {k}");
+            assert!((1.0..=2.0).contains(&cold), "{name}: {cold} requests a tile cold: {k}");
             let open = k["open_requests"].as_u64().unwrap();
             assert_eq!(k["requests"].as_u64(), Some(open + (cold * level0 as f64).round() as u64), "{name}: {k}");
         }

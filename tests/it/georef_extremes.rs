@@ -230,7 +230,7 @@ proptest! {
         let exact = num.div_euclid(den);
         let s = g.lonlat_to_texel(0, [nano as f64 / 1e9, lat]).unwrap()[0].floor() as i128;
         let rem = num.rem_euclid(den) as f64 / den as f64;
-        let near_edge = rem < 1e-6 || rem > 1.0 - 1e-6;
+        let near_edge = !(1e-6..=1.0 - 1e-6).contains(&rem);
         prop_assert!(s == exact || (near_edge && (s - exact).abs() == 1), "column {s}, exact {exact} (fraction {rem})");
     }
 }

@@ -279,7 +279,7 @@ fn pyramid_config(cli: &Cli) -> Result<(), PrepError> {
     let staged = staging.path().join(&written.ct);
     let loaded = clipmap::source::configured::load_clip_texture(&staged, &Default::default())
         .map_err(|e| PrepError::Geometry(format!("reading back the configuration written: {e}")))?;
-    if !loaded.plan.as_ref().is_some_and(|p| p.source.as_ref().is_some_and(|s| s.name == name_of_source)) {
+    if loaded.plan.as_ref().is_none_or(|p| p.source.as_ref().is_none_or(|s| s.name != name_of_source)) {
         return Err(PrepError::Geometry(format!(
             "the configuration written for {} does not load (nothing was written at {}):\n{}",
             shown(&input),

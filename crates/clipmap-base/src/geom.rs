@@ -132,7 +132,7 @@ pub fn window_index(s: i64, t: i64, clip: u64, dims: [u64; 2]) -> usize {
 /// antimeridian, and texel s of it is texel `s mod width`.
 #[inline]
 pub fn level_wraps(global: bool, size: [u64; 2], tile: [u64; 2], clip: u64) -> bool {
-    global && size[0] > clip && tile[0] > 0 && size[0] % tile[0] == 0
+    global && size[0] > clip && tile[0] > 0 && size[0].is_multiple_of(tile[0])
 }
 
 /// The grid width a wrapping level uses: the least divisor of `tiles` (the level's tiles
@@ -141,7 +141,7 @@ pub fn level_wraps(global: bool, size: [u64; 2], tile: [u64; 2], clip: u64) -> b
 /// `grid` consecutive tiles, taken modulo `n`, distinct slots.
 pub fn wrap_grid(tiles: u64, grid: u64) -> u64 {
     let grid = grid.clamp(1, tiles.max(1));
-    (grid..=tiles).find(|d| tiles % d == 0).unwrap_or(tiles.max(1))
+    (grid..=tiles).find(|d| tiles.is_multiple_of(*d)).unwrap_or(tiles.max(1))
 }
 
 /// Whether (s, t) lies in `r`, s taken modulo `period` when one is given (a wrapping level's

@@ -819,7 +819,7 @@ pub(crate) fn check_region(l: &LevelShape, r: [i64; 4]) -> Result<Rect, String> 
 /// georef block's flag bit 0) and the level's width is a whole number of tiles (docs/SHM.md,
 /// "How a region wraps").
 pub fn region_may_wrap(l: &LevelShape, texture_wraps: bool) -> bool {
-    texture_wraps && l.tile[0] > 0 && l.size[0] % l.tile[0] == 0
+    texture_wraps && l.tile[0] > 0 && l.size[0].is_multiple_of(l.tile[0])
 }
 
 /// [`check_region`] of a level of a texture that may wrap (`texture_wraps`, the georef block's

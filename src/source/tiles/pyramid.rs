@@ -73,6 +73,9 @@ pub struct PyramidOptions {
 /// `min_zoom - 1`.
 type Built = Vec<Vec<u8>>;
 
+/// The built levels (or why they could not be built) and the archive's version they are of.
+type BuiltFor = (u64, Result<Arc<Built>, String>);
+
 /// A tile pyramid ([`TileArchive`]) served as a clip texture.
 pub struct PyramidSource {
     archive: Arc<dyn TileArchive>,
@@ -81,7 +84,7 @@ pub struct PyramidSource {
     /// The default tile's texels, in texture orientation.
     default: Option<Vec<u8>>,
     /// The built levels and the archive's version they were built from.
-    built: Mutex<Option<(u64, Result<Arc<Built>, String>)>>,
+    built: Mutex<Option<BuiltFor>>,
     /// Tiles fetched from the archive.
     fetched: AtomicU64,
     /// Default tiles served.
