@@ -6,7 +6,7 @@
 //! the tiles that could not be read (painted with `picture::missing_pattern`, never fatal).
 //! Reading a tile is the caller's function: a [`crate::source::FileSource`] for a clip texture,
 //! [`IcacheTiles`] for a standalone image cache. Pictures of a running service are
-//! [`crate::inspect::live_dump`]'s business.
+//! `clipmap_tools::inspect::live_dump`'s business.
 
 use super::picture;
 use crate::geom::{tile_texels, tiles_covering, Rect};
@@ -308,7 +308,7 @@ pub fn dump_heights(
 /// map's least and greatest height with data), hillshaded when `view` says so, nodata
 /// transparent, a texel of [`Texel::Missing`] painted by `missing` (the pixel's x and y). Also
 /// `cliptex dump --attach`'s picture of each level of a height texture.
-pub(crate) fn height_picture(
+pub fn height_picture(
     map: &[super::hypsometric::Texel],
     w: u32,
     h: u32,

@@ -11,7 +11,7 @@ use super::protocol::{self, Answer, Flow, Refusal, Refused, Reply, Request, Unan
 use super::stats::{ControlCounters, ServiceStats, Status};
 use super::ticker::{Command, Started, Ticker};
 use super::{ControlLimits, ServiceError};
-use crate::shm::names::{self, Identity};
+use clipmap::shm::names::{self, Identity};
 use std::os::unix::fs::{DirBuilderExt, FileTypeExt, MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -38,7 +38,7 @@ pub struct Context {
     /// Set to true to stop the service.
     pub stop: watch::Sender<bool>,
     /// A growing texture's grower (the `PATCH` commands), if the texture grows.
-    pub grower: Option<crate::growing::serve::Grower>,
+    pub grower: Option<clipmap::growing::serve::Grower>,
 }
 
 impl Context {
@@ -61,7 +61,7 @@ pub fn bind(path: &Path) -> Result<(UnixListener, Identity), ServiceError> {
         if !meta.file_type().is_socket() {
             return Err(in_use(format!(
                 "it exists and is {} owned by {who}, not a socket",
-                crate::open::kind_of(&meta)
+                clipmap::open::kind_of(&meta)
             )));
         }
         match std::os::unix::net::UnixStream::connect(path) {

@@ -13,8 +13,8 @@
 //!
 //! The entry point [`run`] takes its shutdown signal as an argument (a future), so the binary
 //! passes SIGINT/SIGTERM and tests pass whatever they like. Reading configuration files and
-//! tiles is left to [`crate::source`]; the layout and its `unsafe` access to [`crate::shm`]. The
-//! demo (`clipmapd --demo`, [`crate::demo`]) is a client of this module like any other.
+//! tiles is left to [`clipmap::source`]; the layout and its `unsafe` access to [`clipmap::shm`]. The
+//! demo (`clipmapd --demo`, `clipmap_tools::demo`) is a client of this module like any other.
 
 pub mod control;
 pub mod options;
@@ -30,7 +30,7 @@ pub use options::{default_socket, ControlLimits, Options, ViewOption};
 pub use stats::ServiceStats;
 pub use ticker::{Started, Ticker};
 
-use crate::source::{TextureDesc, TileSource};
+use clipmap::source::{TextureDesc, TileSource};
 use std::future::Future;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -43,13 +43,13 @@ pub enum ServiceError {
     BadOption(String),
     /// The shared-memory layer refused (name taken, directory not writable, ...).
     #[error(transparent)]
-    Shm(#[from] crate::shm::ShmError),
+    Shm(#[from] clipmap::shm::ShmError),
     /// The engine could not be built.
     #[error(transparent)]
-    Engine(#[from] crate::clip::ClipError),
+    Engine(#[from] clipmap::clip::ClipError),
     /// The texture description is not usable.
     #[error("texture: {0}")]
-    Texture(#[from] crate::source::DescError),
+    Texture(#[from] clipmap::source::DescError),
     /// The control socket could not be bound.
     #[error("control socket {}: {source}", path.display())]
     Socket {
@@ -91,14 +91,14 @@ impl ServiceError {
             ServiceError::BadOption(_)
             | ServiceError::Texture(_)
             | ServiceError::Engine(
-                crate::clip::ClipError::CacheBytes { .. } | crate::clip::ClipError::MemoryShape { .. },
-            ) => crate::report::exit::BAD_INPUT,
-            _ => crate::report::exit::COULD_NOT_RUN,
+                clipmap::clip::ClipError::CacheBytes { .. } | clipmap::clip::ClipError::MemoryShape { .. },
+            ) => clipmap::report::exit::BAD_INPUT,
+            _ => clipmap::report::exit::COULD_NOT_RUN,
         }
     }
 }
 
-pub use crate::source::{Procedural, TERRAIN_SEED};
+pub use clipmap::source::{Procedural, TERRAIN_SEED};
 
 /// A procedural RGBA8 texture `size` texels a side with clip size `clip` and `tile`-texel tiles.
 pub fn procedural_source(
@@ -123,34 +123,34 @@ pub fn procedural_source(
 /// (`clipmapd --georef web-mercator`; docs/GEOREF.md). Its texels are the source's.
 pub fn web_mercator_square(source: Arc<dyn TileSource>) -> Arc<dyn TileSource> {
     let size = source.desc().size()[0];
-    let georef = crate::georef::Georef::web_mercator_quad(size.trailing_zeros(), size >> size.trailing_zeros());
+    let georef = clipmap::georef::Georef::web_mercator_quad(size.trailing_zeros(), size >> size.trailing_zeros());
     Arc::new(Georeferenced { inner: source, georef })
 }
 
 /// A source with a georeferencing given to it ([`web_mercator_square`]).
 struct Georeferenced {
     inner: Arc<dyn TileSource>,
-    georef: crate::georef::Georef,
+    georef: clipmap::georef::Georef,
 }
 
 impl TileSource for Georeferenced {
     fn desc(&self) -> &TextureDesc {
         self.inner.desc()
     }
-    fn read_tile(&self, tile: crate::source::TileId, out: &mut [u8]) -> Result<(), crate::source::SourceError> {
+    fn read_tile(&self, tile: clipmap::source::TileId, out: &mut [u8]) -> Result<(), clipmap::source::SourceError> {
         self.inner.read_tile(tile, out)
     }
     fn read_into(
         &self,
-        tile: crate::source::TileId,
+        tile: clipmap::source::TileId,
         out: &mut [u8],
-    ) -> Result<crate::source::Delivered, crate::source::SourceError> {
+    ) -> Result<clipmap::source::Delivered, clipmap::source::SourceError> {
         self.inner.read_into(tile, out)
     }
     fn wrapped(&self) -> Option<&dyn TileSource> {
         Some(self.inner.as_ref())
     }
-    fn georef(&self) -> Option<crate::georef::Georef> {
+    fn georef(&self) -> Option<clipmap::georef::Georef> {
         Some(self.georef.clone())
     }
 }
@@ -207,7 +207,7 @@ pub async fn run(
     if let Err(e) = published {
         drop(listener);
         stop_ticker(ticker, join).await;
-        crate::shm::names::remove_if_same(&options.socket, socket_id);
+        clipmap::shm::names::remove_if_same(&options.socket, socket_id);
         return Err(e);
     }
     let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
@@ -244,10 +244,13 @@ pub async fn run(
     let stats = ctx.stats();
     drop(ctx);
     stop_ticker(ticker, join).await;
-    crate::shm::names::remove_if_same(&options.socket, socket_id);
+    clipmap::shm::names::remove_if_same(&options.socket, socket_id);
     tracing::info!(ticks = stats.tick.engine.ticks, "stopped");
     if died {
         return Err(ServiceError::TickLoopDied);
     }
     Ok(Summary { started, stats })
 }
+
+#[cfg(test)]
+mod tests;

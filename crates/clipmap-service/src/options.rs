@@ -4,7 +4,7 @@
 //! Owns defaults and validation only; reading a command line is the binary's business.
 
 use super::ServiceError;
-use crate::limits::{MAX_CONNECTIONS, MAX_IDLE_MS, MIN_BUDGET_MS};
+use clipmap::limits::{MAX_CONNECTIONS, MAX_IDLE_MS, MIN_BUDGET_MS};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -52,19 +52,19 @@ pub struct Options {
     /// Invalid border to start with (`None`: the texture's).
     pub invalid_border: Option<u64>,
     /// Level centres aligned to multiples of this many level texels (1: texel-exact; see
-    /// [`crate::clip::Settings::centre_alignment`]).
+    /// [`clipmap::clip::Settings::centre_alignment`]).
     pub centre_alignment: u64,
     /// Paging policies, the second-level pool's budget and the centre clamp.
-    pub paging: crate::paging::PagingOptions,
+    pub paging: clipmap::paging::PagingOptions,
     /// Control socket bounds.
     pub control: ControlLimits,
     /// A growing texture's grower (docs/GROWING.md): the service then replaces rebuilt tiles in
     /// their slots, publishes the growth block, and takes patches on the control socket.
-    pub growing: Option<crate::growing::serve::Grower>,
+    pub growing: Option<clipmap::growing::serve::Grower>,
     /// Further views to start with (docs/VIEWS.md).
     pub views: Vec<ViewOption>,
     /// Level-0 texels by which views may lie apart and all be held whole by the shared grids
-    /// ([`crate::clip::Settings::view_spread`]; 0: grids for one view).
+    /// ([`clipmap::clip::Settings::view_spread`]; 0: grids for one view).
     pub view_spread: u64,
     /// Levels every view addresses at once, from its LOD offset (Performer's effective levels;
     /// `None`: all). A `.ct` that writes `effective_levels` below its level count gives it.
@@ -77,10 +77,10 @@ pub fn default_socket(shm_dir: &Path, name: &str) -> PathBuf {
 }
 
 impl Options {
-    /// Defaults for `name`: mapping in [`crate::shm::default_dir`], socket beside it, owner-only,
+    /// Defaults for `name`: mapping in [`clipmap::shm::default_dir`], socket beside it, owner-only,
     /// 6 ms budget, 60 ticks per second.
     pub fn new(name: &str) -> Options {
-        let shm_dir = crate::shm::default_dir();
+        let shm_dir = clipmap::shm::default_dir();
         Options {
             name: name.to_string(),
             socket: default_socket(&shm_dir, name),
@@ -91,7 +91,7 @@ impl Options {
             tick_hz: 60.0,
             invalid_border: None,
             centre_alignment: 1,
-            paging: crate::paging::PagingOptions::default(),
+            paging: clipmap::paging::PagingOptions::default(),
             control: ControlLimits::default(),
             growing: None,
             views: Vec::new(),
@@ -103,7 +103,7 @@ impl Options {
     /// Checks every value; the error says which option and what was expected.
     pub fn check(&self) -> Result<(), ServiceError> {
         let bad = |m: String| Err(ServiceError::BadOption(m));
-        crate::shm::check_name(&self.name).map_err(|e| ServiceError::BadOption(e.to_string()))?;
+        clipmap::shm::check_name(&self.name).map_err(|e| ServiceError::BadOption(e.to_string()))?;
         if self.name.contains('@') {
             return bad(format!(
                 "--name {}: `@` is kept for the mappings of views with grids of their own (NAME@VIEW, docs/SHM.md); choose a name without it",
@@ -111,7 +111,7 @@ impl Options {
             ));
         }
         for (i, ViewOption { name, weight, .. }) in self.views.iter().enumerate() {
-            crate::shm::layout::views::check_name(name)
+            clipmap::shm::layout::views::check_name(name)
                 .map_err(|e| ServiceError::BadOption(format!("--view {name}: {e}")))?;
             if !(weight.is_finite() && *weight > 0.0) {
                 return bad(format!("--view {name}:{weight}: expected a positive finite weight such as 1 or 3"));
@@ -120,28 +120,28 @@ impl Options {
                 return bad(format!("--view {name} given twice: each view needs its own name"));
             }
         }
-        if self.views.len() >= crate::limits::MAX_VIEWS {
+        if self.views.len() >= clipmap::limits::MAX_VIEWS {
             return bad(format!(
                 "{} --view options: at most {} views besides main",
                 self.views.len(),
-                crate::limits::MAX_VIEWS - 1
+                clipmap::limits::MAX_VIEWS - 1
             ));
         }
-        if self.view_spread > crate::limits::MAX_TEXTURE_SIZE {
+        if self.view_spread > clipmap::limits::MAX_TEXTURE_SIZE {
             return bad(format!(
                 "--view-spread {}: expected 0 to {} level-0 texels",
                 self.view_spread,
-                crate::limits::MAX_TEXTURE_SIZE
+                clipmap::limits::MAX_TEXTURE_SIZE
             ));
         }
         if !(self.tick_hz.is_finite() && self.tick_hz >= 1.0 && self.tick_hz <= 1000.0) {
             return bad(format!("--tick-hz {}: expected 1 to 1000 ticks per second", self.tick_hz));
         }
-        if !(1..=crate::clip::MAX_CENTRE_ALIGNMENT).contains(&self.centre_alignment) {
+        if !(1..=clipmap::clip::MAX_CENTRE_ALIGNMENT).contains(&self.centre_alignment) {
             return bad(format!(
                 "--centre-alignment {}: expected 1 (texel-exact centres) to {} level texels",
                 self.centre_alignment,
-                crate::clip::MAX_CENTRE_ALIGNMENT
+                clipmap::clip::MAX_CENTRE_ALIGNMENT
             ));
         }
         if let Some(ms) = self.budget_ms {
@@ -203,7 +203,7 @@ impl Options {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::paging::{PagingOptions, PrefetchKind};
+    use clipmap::paging::{PagingOptions, PrefetchKind};
 
     /// `clipmapd` and the GPU client's demo service (`clipgpu --demo`) start from these
     /// defaults: both page adaptively unless told otherwise.
@@ -212,7 +212,7 @@ mod tests {
         let o = Options::new("x");
         assert_eq!(o.paging, PagingOptions::default());
         assert_eq!(o.paging.prefetch, PrefetchKind::Adaptive);
-        let settings = crate::clip::Settings::default().with_paging(&o.paging);
+        let settings = clipmap::clip::Settings::default().with_paging(&o.paging);
         assert_eq!(settings.prefetch, PrefetchKind::Adaptive);
         assert_eq!(settings.grid_budget, None, "the default budget");
     }

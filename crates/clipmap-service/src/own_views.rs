@@ -15,10 +15,10 @@
 //! view goes to its own clipmap.
 
 use super::protocol::Refusal;
-use crate::clip::{Clipmap, LodWindow, Settings, PRIMARY};
-use crate::shm::layout::{self, views::own_mapping_name};
-use crate::shm::{Client, Freshness, FromMapping, Writer, WriterOptions};
-use crate::source::TileSource;
+use clipmap::clip::{Clipmap, LodWindow, Settings, PRIMARY};
+use clipmap::shm::layout::{self, views::own_mapping_name};
+use clipmap::shm::{Client, Freshness, FromMapping, Writer, WriterOptions};
+use clipmap::source::TileSource;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -33,7 +33,7 @@ pub(super) struct Setup {
     pub(super) period_ns: u64,
     pub(super) heights: Option<layout::Heights>,
     /// The georef block, the primary's.
-    pub(super) georef: Option<crate::shm::GeorefBlock>,
+    pub(super) georef: Option<clipmap::shm::GeorefBlock>,
     pub(super) effective_levels: Option<u32>,
     /// The service's mapping: an own view's clipmap takes the tiles its slots hold from there
     /// ([`FromMapping`]) rather than reading them again.

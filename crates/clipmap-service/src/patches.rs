@@ -5,8 +5,8 @@
 
 use super::protocol::Flow;
 use super::ControlLimits;
-use crate::growing::input::{self, InputError, Paths};
-use crate::growing::serve::{GrowCommand, Grower, IN_FLIGHT_UNIT};
+use clipmap::growing::input::{self, InputError, Paths};
+use clipmap::growing::serve::{GrowCommand, Grower, IN_FLIGHT_UNIT};
 use std::path::PathBuf;
 use tokio::io::{AsyncRead, AsyncReadExt};
 use tokio::sync::oneshot;
@@ -146,7 +146,7 @@ async fn take(g: &Grower, limits: &ControlLimits, p: Patch) -> Result<u64, Patch
 }
 
 /// A patch's sidecar and image read and checked against the grower's grid and bound.
-fn decode(g: &Grower, p: Patch) -> Result<crate::growing::NewPatch, InputError> {
+fn decode(g: &Grower, p: Patch) -> Result<clipmap::growing::NewPatch, InputError> {
     let (grid, max) = (g.grid(), g.max_patch_bytes);
     match p {
         // The owner's own request: the sidecar's image may be anywhere it can read.

@@ -140,7 +140,7 @@ impl ViewCommand {
     }
 }
 
-pub use crate::limits::MAX_BUDGET_MS;
+pub use clipmap::limits::MAX_BUDGET_MS;
 
 /// The commands, for error messages.
 pub(crate) const COMMANDS: &str =
@@ -170,7 +170,7 @@ pub enum BadRequest {
     #[error("usage: STATS or STATS PROM")]
     Stats,
     /// A budget that is not a number of milliseconds in range, nor `off`.
-    #[error("BUDGET: `{0}` is not a number of milliseconds in [{min}, {MAX_BUDGET_MS}] or `off`", min = crate::limits::MIN_BUDGET_MS)]
+    #[error("BUDGET: `{0}` is not a number of milliseconds in [{min}, {MAX_BUDGET_MS}] or `off`", min = clipmap::limits::MIN_BUDGET_MS)]
     Budget(String),
     /// A border that is not a whole number.
     #[error("BORDER: `{0}` is not a whole number of texels")]
@@ -224,7 +224,9 @@ pub fn parse(line: &[u8]) -> Result<Request, BadRequest> {
                 return Ok(Request::Budget(None));
             }
             match args[0].parse::<f64>() {
-                Ok(ms) if (crate::limits::MIN_BUDGET_MS..=MAX_BUDGET_MS).contains(&ms) => Ok(Request::Budget(Some(ms))),
+                Ok(ms) if (clipmap::limits::MIN_BUDGET_MS..=MAX_BUDGET_MS).contains(&ms) => {
+                    Ok(Request::Budget(Some(ms)))
+                }
                 _ => Err(BadRequest::Budget(clip(args[0]))),
             }
         }
@@ -280,10 +282,10 @@ pub fn parse(line: &[u8]) -> Result<Request, BadRequest> {
 fn view(args: &[&str]) -> Result<ViewCommand, BadRequest> {
     let bad = |why: String| BadRequest::View(why);
     let name = |w: &str, main_ok: bool| -> Result<String, BadRequest> {
-        if main_ok && w == crate::shm::layout::views::PRIMARY_NAME {
+        if main_ok && w == clipmap::shm::layout::views::PRIMARY_NAME {
             return Ok(w.to_string());
         }
-        crate::shm::layout::views::check_name(w).map_err(|why| bad(clip_owned(why)))?;
+        clipmap::shm::layout::views::check_name(w).map_err(|why| bad(clip_owned(why)))?;
         Ok(w.to_string())
     };
     let weight = |w: &str| -> Result<f64, BadRequest> {

@@ -4,7 +4,7 @@
 
 use super::protocol::Refusal;
 use super::stats::TickStats;
-use crate::clip::{Clipmap, ViewId};
+use clipmap::clip::{Clipmap, ViewId};
 
 /// Applies a renderer's LOD request for view `id` of `clipmap` (named `name`; docs/SHM.md,
 /// "Asking for a view's levels"): its footprint moves the view's LOD offset, its effective levels
@@ -14,9 +14,9 @@ pub(super) fn apply_lod(
     clipmap: &mut Clipmap,
     id: ViewId,
     name: &str,
-    req: &crate::shm::writer::LodRequest,
+    req: &clipmap::shm::writer::LodRequest,
     stats: &mut TickStats,
-) -> Result<crate::clip::LodWindow, Refusal> {
+) -> Result<clipmap::clip::LodWindow, Refusal> {
     let footprint = match req.footprint() {
         Ok(f) => f,
         Err(why) => {
@@ -27,11 +27,11 @@ pub(super) fn apply_lod(
     };
     let effective = if req.effective == 0 { u32::MAX } else { req.effective as u32 };
     let lod = clipmap.view_lod(id)?;
-    clipmap.set_view_lod(id, crate::clip::LodWindow { effective, ..lod })?;
+    clipmap.set_view_lod(id, clipmap::clip::LodWindow { effective, ..lod })?;
     let offset = clipmap.set_view_footprint(id, footprint)?;
     stats.lod_requests += 1;
     tracing::debug!(view = %name, offset, footprint, "LOD request");
-    Ok(crate::clip::LodWindow { offset, effective })
+    Ok(clipmap::clip::LodWindow { offset, effective })
 }
 
 /// A request's velocity (level-0 texels per second, docs/SHM.md "What the service does with a
@@ -40,7 +40,7 @@ pub(super) fn apply_lod(
 /// are 0: the engine then uses the centre's change since the last tick. Anything a renderer (or a
 /// member of the mapping's group) wrote is bounded here, before the engine does arithmetic with it.
 pub(super) fn velocity_per_tick(velocity: [f64; 2], hz: f64) -> Option<[i64; 2]> {
-    let max = crate::source::MAX_TEXTURE_SIZE as f64;
+    let max = clipmap::source::MAX_TEXTURE_SIZE as f64;
     let per_tick = |v: f64| if v.is_finite() { (v / hz).round().clamp(-max, max) as i64 } else { 0 };
     let v = velocity.map(per_tick);
     (v != [0, 0]).then_some(v)
@@ -50,7 +50,7 @@ pub(super) fn velocity_per_tick(velocity: [f64; 2], hz: f64) -> Option<[i64; 2]>
 /// component bounded to `-2^40..=2^40` (docs/SHM.md, "Centres"). The socket's reply echoes this,
 /// the centre the snapshot will publish (reached at once, or by `--max-centre-step` steps).
 pub(super) fn bounded_centre(c: [i64; 2]) -> [i64; 2] {
-    let far = crate::limits::MAX_CENTRE;
+    let far = clipmap::limits::MAX_CENTRE;
     c.map(|x| x.clamp(-far, far))
 }
 
@@ -61,11 +61,11 @@ pub(super) fn bounded_centre(c: [i64; 2]) -> [i64; 2] {
 /// without georeferencing, one outside the texture or the projection's domain, a coordinate
 /// that is not a finite number, an unknown coordinate kind.
 pub(super) fn request_centre(
-    georef: Option<&crate::georef::Georef>,
+    georef: Option<&clipmap::georef::Georef>,
     centre: [i64; 2],
-    position: crate::shm::writer::Position,
+    position: clipmap::shm::writer::Position,
 ) -> Result<[i64; 2], String> {
-    use crate::shm::writer::Position;
+    use clipmap::shm::writer::Position;
     let finite = |what: &str, [x, y]: [f64; 2]| {
         if x.is_finite() && y.is_finite() {
             Ok(())
@@ -104,8 +104,8 @@ pub(super) fn request_centre(
 #[cfg(test)]
 mod tests {
     use super::request_centre;
-    use crate::georef::Georef;
-    use crate::shm::writer::Position;
+    use clipmap::georef::Georef;
+    use clipmap::shm::writer::Position;
 
     /// docs/SHM.md, "Positions in longitude / latitude or map coordinates": each coordinate kind
     /// lands on the texel that holds the point, as `CENTRE LONLAT` does; each refusal says why.
@@ -138,7 +138,7 @@ mod tests {
         assert_eq!(request_centre(None, [3, 4], Position::Texels), Ok([3, 4]), "texels need no georeferencing");
         assert_eq!(
             request_centre(None, [i64::MAX, 0], Position::Texels),
-            Ok([crate::limits::MAX_CENTRE, 0]),
+            Ok([clipmap::limits::MAX_CENTRE, 0]),
             "bounded"
         );
     }

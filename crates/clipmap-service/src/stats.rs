@@ -4,8 +4,8 @@
 //! Owns the numbers' names and units only; the tick loop ([`super::ticker`]) and the control
 //! server ([`super::control`]) fill them in.
 
-use crate::clip::Stats;
-use crate::queue::QueueStats;
+use clipmap::clip::Stats;
+use clipmap::queue::QueueStats;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -86,13 +86,13 @@ pub struct TickStats {
     pub streams: Vec<QueueStats>,
     /// A growing texture's growth block as last published (`null` for a texture that does not
     /// grow).
-    pub growth: Option<crate::shm::layout::Growth>,
+    pub growth: Option<clipmap::shm::layout::Growth>,
     /// The remote reads of a source that reads over the network (HTTP or S3 tiles, a remote
     /// COG): requests sent (retries included), retries, ranges read by a merged request, bytes
     /// received, ranges that failed after retries, disk-cache hits and dropped cache files, the
     /// most requests in flight to one endpoint; `null` for local files.
     #[cfg(feature = "remote")]
-    pub remote: Option<crate::source::remote::RemoteStats>,
+    pub remote: Option<clipmap::source::remote::RemoteStats>,
     /// Each view (docs/VIEWS.md), the primary (`main`) first: its name, weight, centre, min LOD
     /// and published regions.
     pub views: Vec<ViewStats>,
@@ -214,7 +214,7 @@ pub struct Status {
     /// Each level's valid region, `[s0, t0, s1, t1]`.
     pub valid: Vec<[i64; 4]>,
     /// The growth block's values (`None`: the texture does not grow).
-    pub growth: Option<crate::shm::layout::Growth>,
+    pub growth: Option<clipmap::shm::layout::Growth>,
 }
 
 impl Status {
@@ -404,14 +404,14 @@ impl ServiceStats {
     /// axis in tiles and in level texels, the grid, and the reason as one 0/1 sample per reason
     /// (the current one 1), labels `name`, `level` (and `axis` s or t, or `reason`).
     fn paging_prometheus(&self) -> String {
-        use crate::paging::adaptive::Reason;
+        use clipmap::paging::adaptive::Reason;
         let paging = &self.tick.engine.paging;
         if paging.is_empty() {
             return String::new();
         }
         let name = &self.name;
         let mut out = String::new();
-        type PerAxis = fn(&crate::paging::adaptive::LevelPaging) -> [u64; 2];
+        type PerAxis = fn(&clipmap::paging::adaptive::LevelPaging) -> [u64; 2];
         let axes: [(&str, &str, PerAxis); 3] = [
             ("paging_lead_tiles", "Tiles the mem region holds beyond the window along the motion", |p| p.lead_tiles),
             ("paging_lead_texels", "Read-ahead the adaptive paging asked for beyond the window, level texels", |p| {
@@ -474,7 +474,7 @@ mod tests {
         let mut s = ServiceStats { name: "x".into(), ..ServiceStats::default() };
         assert!(!s.prometheus().contains("remote"), "a local source has no remote counters");
         s.tick.remote =
-            Some(crate::source::remote::RemoteStats { requests: 7, bytes: 4096, merged: 3, ..Default::default() });
+            Some(clipmap::source::remote::RemoteStats { requests: 7, bytes: 4096, merged: 3, ..Default::default() });
         let text = s.prometheus();
         for want in [
             "clipmapd_remote_requests_total{name=\"x\"} 7",
@@ -488,7 +488,7 @@ mod tests {
 
     #[test]
     fn prometheus_text_has_each_levels_lead_grid_and_reason_and_the_latency() {
-        use crate::paging::adaptive::{LevelPaging, Reason};
+        use clipmap::paging::adaptive::{LevelPaging, Reason};
         let mut s = ServiceStats { name: "x".into(), ..ServiceStats::default() };
         s.tick.engine.read_latency_ticks = 4.5;
         s.tick.engine.stream_read_latency_ticks = vec![4.5, 1.25];

@@ -15,10 +15,10 @@ use super::protocol::{Refusal, Reply, ViewCommand};
 use super::stats::TickStats;
 use super::views::Views;
 use super::{Options, ServiceError};
-use crate::clip::{Clipmap, Settings, PRIMARY};
-use crate::paging::adaptive::{LevelPaging, Reason};
-use crate::shm::{Writer, WriterOptions};
-use crate::source::TileSource;
+use clipmap::clip::{Clipmap, Settings, PRIMARY};
+use clipmap::paging::adaptive::{LevelPaging, Reason};
+use clipmap::shm::{Writer, WriterOptions};
+use clipmap::source::TileSource;
 use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -71,7 +71,7 @@ pub enum Command {
     /// ([`Ticker::prepare`], [`Ticker::publish`]).
     Publish {
         /// Whether the mapping is there.
-        reply: oneshot::Sender<Result<(), crate::shm::ShmError>>,
+        reply: oneshot::Sender<Result<(), clipmap::shm::ShmError>>,
     },
     /// Stops after closing the mapping.
     Stop,
@@ -136,7 +136,7 @@ impl Ticker {
 
     /// Asks the tick loop to put the mapping under its name and start ticking; the answer says
     /// whether it is there.
-    pub fn publish(&self) -> Result<oneshot::Receiver<Result<(), crate::shm::ShmError>>, ServiceError> {
+    pub fn publish(&self) -> Result<oneshot::Receiver<Result<(), clipmap::shm::ShmError>>, ServiceError> {
         let (tx, rx) = oneshot::channel();
         self.send(Command::Publish { reply: tx }).map_err(|_| ServiceError::TickLoopDied)?;
         Ok(rx)
@@ -206,7 +206,7 @@ struct Runner {
     stats: TickStats,
     started: Instant,
     /// A growing texture's shared state, and the growth block's last published values.
-    growing: Option<(Arc<crate::growing::serve::Served>, Option<crate::shm::layout::Growth>)>,
+    growing: Option<(Arc<clipmap::growing::serve::Served>, Option<clipmap::shm::layout::Growth>)>,
     /// Each level's paging reason as last logged (the log says when one changes).
     reasons: Vec<Reason>,
     /// Every view, the primary first ([`super::views`]).
@@ -225,7 +225,7 @@ impl Runner {
         let settings = engine_settings(source.as_ref(), o);
         // Refused before anything is created in the shared directory.
         let shape = Clipmap::shape_for(&desc, &settings);
-        let heights = source.heights().map(|h| crate::shm::layout::Heights::of(&h.format, h.levels));
+        let heights = source.heights().map(|h| clipmap::shm::layout::Heights::of(&h.format, h.levels));
         check_room(&shape, heights.is_some(), &settings)?;
         // The engine keeps its image caches in the mapping itself: each tile is read straight
         // into its slot, where renderers read it, and nothing is copied afterwards.
@@ -312,11 +312,11 @@ impl Runner {
     /// is published. Refused: the mapping (and every own view's) is closed.
     fn start_views(mut self, o: &Options) -> Result<Runner, ServiceError> {
         // Holding the service's lock: what a dead predecessor left of its views' own mappings goes.
-        for view in crate::shm::writer::remove_dead_own_mappings(&o.shm_dir, &o.name) {
+        for view in clipmap::shm::writer::remove_dead_own_mappings(&o.shm_dir, &o.name) {
             tracing::info!(view = %view, "removed the own mapping a stopped service left for view {view}");
         }
         if let Some(e) = o.effective_levels {
-            let lod = crate::clip::LodWindow { offset: 0, effective: e };
+            let lod = clipmap::clip::LodWindow { offset: 0, effective: e };
             if let Err(why) = self.clipmap.set_view_lod(PRIMARY, lod) {
                 self.writer.close();
                 return Err(ServiceError::BadOption(format!("--effective-levels {e}: {why}")));
@@ -338,7 +338,7 @@ impl Runner {
     ///
     /// One tick first: the mapping appears with its first snapshot and (a growing texture) its
     /// growth block in it, as when it appeared after the loop had ticked.
-    fn publish(&mut self) -> Result<(), crate::shm::ShmError> {
+    fn publish(&mut self) -> Result<(), clipmap::shm::ShmError> {
         self.tick();
         self.writer.publish()?;
         self.views.published(self.writer.path());
@@ -543,7 +543,7 @@ fn engine_settings(source: &dyn TileSource, o: &Options) -> Settings {
 /// definition, whether it spans 360 degrees of longitude. A definition the block cannot hold
 /// (over 1024 bytes, or with a NUL) is left out, the EPSG code kept; a georeferencing the block
 /// refuses (a level without an invertible transform) is not published, and the log says why.
-fn georef_block(georef: Option<&crate::georef::Georef>, levels: usize) -> Option<crate::shm::GeorefBlock> {
+fn georef_block(georef: Option<&clipmap::georef::Georef>, levels: usize) -> Option<clipmap::shm::GeorefBlock> {
     let g = georef?;
     let gt = g.geotransform().0;
     let mut definition = g.crs().definition().to_string();
@@ -551,7 +551,7 @@ fn georef_block(georef: Option<&crate::georef::Georef>, levels: usize) -> Option
         tracing::warn!(len = definition.len(), "the CRS definition does not fit the mapping's georef block (1024 bytes without NUL): only its EPSG code is published");
         definition.clear();
     }
-    let block = crate::shm::GeorefBlock {
+    let block = clipmap::shm::GeorefBlock {
         epsg: g.crs().epsg_code().filter(|&c| c != 0),
         wraps: g.is_global_in_longitude(),
         definition,
@@ -574,14 +574,14 @@ fn georef_block(georef: Option<&crate::georef::Georef>, levels: usize) -> Option
 
 /// Refuses a clipmap whose mapping (of `shape`, with heights or not) could not be laid out, or
 /// would not fit the cache bound with the read pool.
-fn check_room(shape: &crate::shm::layout::Shape, heights: bool, settings: &Settings) -> Result<(), ServiceError> {
-    let placement = crate::shm::layout::place_with(shape, heights)
-        .and_then(|p| crate::shm::layout::with_views(p, crate::shm::layout::views::SERVICE_RECORDS))
-        .ok_or_else(|| crate::clip::ClipError::Memory(crate::shm::memory::shape_error(shape)))?;
+fn check_room(shape: &clipmap::shm::layout::Shape, heights: bool, settings: &Settings) -> Result<(), ServiceError> {
+    let placement = clipmap::shm::layout::place_with(shape, heights)
+        .and_then(|p| clipmap::shm::layout::with_views(p, clipmap::shm::layout::views::SERVICE_RECORDS))
+        .ok_or_else(|| clipmap::clip::ClipError::Memory(clipmap::shm::memory::shape_error(shape)))?;
     let limit = settings.limits.cache_bytes as u64;
     let needed = placement.total_bytes.saturating_add(settings.pool_bytes);
     if needed > limit {
-        return Err(crate::clip::ClipError::CacheBytes { needed, limit }.into());
+        return Err(clipmap::clip::ClipError::CacheBytes { needed, limit }.into());
     }
     Ok(())
 }
@@ -617,7 +617,7 @@ fn log_reason_changes(last: &mut Vec<Reason>, paging: &[LevelPaging], latency: f
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::service::requests::velocity_per_tick;
+    use crate::requests::velocity_per_tick;
 
     /// docs/SHM.md, "What the service does with a request": the velocity (level-0 texels per
     /// second) is divided by the tick rate and rounded to texels per tick (halves away from zero),
@@ -626,7 +626,7 @@ mod tests {
     #[test]
     fn a_requests_velocity_is_divided_by_the_tick_rate_rounded_clamped_and_nan_or_infinite_reads_zero() {
         let max = 1i64 << 30;
-        assert_eq!(crate::source::MAX_TEXTURE_SIZE as i64, max);
+        assert_eq!(clipmap::source::MAX_TEXTURE_SIZE as i64, max);
         assert_eq!(velocity_per_tick([600.0, -120.0], 60.0), Some([10, -2]));
         assert_eq!(velocity_per_tick([100.0, 0.0], 4.0), Some([25, 0]), "one component may be 0");
         assert_eq!(velocity_per_tick([10.0, -6.0], 4.0), Some([3, -2]), "2.5 and -1.5: halves away from zero");
@@ -652,12 +652,12 @@ mod tests {
     /// clears it.
     #[test]
     fn the_tick_loop_takes_a_requests_velocity_per_tick_and_a_centre_command_clears_it() {
-        use crate::source::{HashSource, TextureDesc};
+        use clipmap::source::{HashSource, TextureDesc};
         let dir = tempfile::tempdir().unwrap();
-        let desc = TextureDesc::new([4096, 4096], 128, crate::texel::TexelFormat::RGBA8, [32, 32]).unwrap();
+        let desc = TextureDesc::new([4096, 4096], 128, clipmap::texel::TexelFormat::RGBA8, [32, 32]).unwrap();
         let options = Options { shm_dir: dir.path().to_path_buf(), tick_hz: 4.0, ..Options::new("vel") };
         let (ticker, _, join) = Ticker::start(Arc::new(HashSource::new(desc)), &options).unwrap();
-        let client = crate::shm::Client::attach(dir.path(), "vel").unwrap();
+        let client = clipmap::shm::Client::attach(dir.path(), "vel").unwrap();
         let mut asked = 0;
         let mut request = |velocity: [f64; 2]| {
             assert!(client.request_centre([2000, 2000], velocity), "the request lock is free");

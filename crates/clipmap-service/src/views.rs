@@ -13,11 +13,11 @@ use super::own_views::{OwnGrids, Setup};
 use super::protocol::{Refusal, Reply, ViewCommand};
 use super::requests::{apply_lod, bounded_centre, request_centre, velocity_per_tick};
 use super::stats::{TickStats, ViewStats};
-use crate::clip::{Clipmap, LodWindow, ViewId, PRIMARY};
-use crate::georef::Georef;
-use crate::shm::writer::{LodRequest, Position};
-use crate::shm::Writer;
-use crate::source::TileId;
+use clipmap::clip::{Clipmap, LodWindow, ViewId, PRIMARY};
+use clipmap::georef::Georef;
+use clipmap::shm::writer::{LodRequest, Position};
+use clipmap::shm::Writer;
+use clipmap::source::TileId;
 use std::collections::BTreeMap;
 
 /// Where a view's grids are.
@@ -143,7 +143,7 @@ impl Views {
         Views { views: BTreeMap::from([(PRIMARY, View::new(PRIMARY, centre, Grids::Shared))]), setup, georef: None }
     }
 
-    /// Takes the texture's georeferencing ([`crate::source::TileSource::georef`]).
+    /// Takes the texture's georeferencing ([`clipmap::source::TileSource::georef`]).
     pub(super) fn set_georef(&mut self, georef: Option<Georef>) {
         self.georef = georef;
     }
@@ -330,7 +330,7 @@ impl Views {
     ) {
         let Some(req) = service.request() else { return };
         let last = self.primary().last_request;
-        let name = crate::shm::layout::views::PRIMARY_NAME;
+        let name = clipmap::shm::layout::views::PRIMARY_NAME;
         let centre = Self::resolve(self.georef.as_ref(), name, (req.centre, req.position, req.count, last), stats);
         let primary = self.primary_mut();
         let (new, lod) = primary.take_request_at(centre, req.velocity, req.count, req.lod, hz);
@@ -339,7 +339,7 @@ impl Views {
             stats.requests_seen = req.count;
         }
         if let Some(lod) = lod {
-            let _ = apply_lod(clipmap, PRIMARY, crate::shm::layout::views::PRIMARY_NAME, &lod, stats);
+            let _ = apply_lod(clipmap, PRIMARY, clipmap::shm::layout::views::PRIMARY_NAME, &lod, stats);
         }
     }
 
@@ -479,7 +479,7 @@ impl Views {
                         .map_or(levels as u32, |l| l.effective.min(levels as u32 - l.offset.min(levels as u32))),
                     resident_levels: m.view_resident_levels(id).unwrap_or_default(),
                     valid: (0..levels as u32)
-                        .map(|k| m.view_level(id, k).map(|l| l.valid).unwrap_or(crate::geom::Rect::EMPTY))
+                        .map(|k| m.view_level(id, k).map(|l| l.valid).unwrap_or(clipmap::geom::Rect::EMPTY))
                         .map(|r| [r.s0, r.t0, r.s1, r.t1])
                         .collect(),
                 }
@@ -502,9 +502,9 @@ fn no_view(clipmap: &Clipmap, name: &str) -> Refusal {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::clip::Settings;
-    use crate::source::{HashSource, TextureDesc, TileSource};
-    use crate::texel::TexelFormat;
+    use clipmap::clip::Settings;
+    use clipmap::source::{HashSource, TextureDesc, TileSource};
+    use clipmap::texel::TexelFormat;
     use std::sync::Arc;
 
     /// A clipmap of the shared grids without a mapping, and its views (the primary at the
@@ -560,7 +560,7 @@ mod tests {
         );
         let id = clipmap.view_named("left").unwrap();
         assert_eq!(views.views[&id].centre, [2048, 2048], "a new view starts where the primary is");
-        let far = crate::limits::MAX_CENTRE;
+        let far = clipmap::limits::MAX_CENTRE;
         let centre = ViewCommand::Centre { name: "left".into(), centre: [i64::MAX, -5] };
         assert_eq!(
             run(&mut views, &mut clipmap, centre).unwrap(),

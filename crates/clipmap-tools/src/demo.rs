@@ -4,15 +4,15 @@
 //! perspective view as a renderer would texture it (the reference renderer's camera, trilinear,
 //! LOD from each pixel's footprint), and the same view coloured by the level each pixel uses;
 //! every picture captioned and its outlines and colours explained in a legend (drawn by
-//! [`crate::report::picture`] and [`crate::report::label`]).
+//! [`clipmap::report::picture`] and [`clipmap::report::label`]).
 //!
-//! Everything it shows is read back through [`crate::shm::Client`], as any renderer would: the
+//! Everything it shows is read back through [`clipmap::shm::Client`], as any renderer would: the
 //! demo is a client of the library on the top floor, above the service, the sampler, the
 //! accuracy study's camera and the pictures, none of which the service itself imports.
 
-use crate::report::{label, picture};
-use crate::service::{procedural_source, run, Options, Procedural, ServiceError, ServiceStats};
-use crate::shm::{Client, Snapshot};
+use clipmap::report::{label, picture};
+use clipmap::shm::{Client, Snapshot};
+use clipmap_service::{procedural_source, run, Options, Procedural, ServiceError, ServiceStats};
 use image::{Rgb, RgbImage};
 use std::os::unix::fs::DirBuilderExt;
 use std::path::{Path, PathBuf};
@@ -64,7 +64,7 @@ pub async fn demo(o: DemoOptions) -> Result<DemoReport, ServiceError> {
     let _ = std::fs::remove_dir_all(&shm_dir);
     std::fs::DirBuilder::new().mode(0o700).create(&shm_dir).map_err(|e| out_err(&shm_dir, &e))?;
     let mut options = Options::new("demo");
-    options.socket = crate::service::default_socket(&shm_dir, "demo");
+    options.socket = clipmap_service::default_socket(&shm_dir, "demo");
     options.shm_dir = shm_dir.clone();
     options.tick_hz = 120.0;
     options.budget_ms = Some(3.0);
@@ -102,7 +102,7 @@ pub async fn demo(o: DemoOptions) -> Result<DemoReport, ServiceError> {
 /// A level-0 point on a coast of the demo's terrain (the flight starts there: more to see).
 fn coast(size: u64) -> [i64; 2] {
     let log2 = 64 - (size - 1).max(1).leading_zeros();
-    let terrain = crate::source::procedural::Terrain::new(log2, crate::source::TERRAIN_SEED);
+    let terrain = clipmap::source::procedural::Terrain::new(log2, clipmap::source::TERRAIN_SEED);
     let step = (size / 48).max(1);
     let mut best = ([size as i64 / 2; 2], f64::MAX);
     for i in 8..40 {
@@ -153,7 +153,7 @@ fn fly(shm_dir: &Path, o: &DemoOptions) -> Result<(Vec<PathBuf>, u32), ServiceEr
 }
 
 fn save(img: &RgbImage, path: PathBuf) -> Result<PathBuf, ServiceError> {
-    crate::save::atomically(&path, |w| img.write_to(w, image::ImageFormat::Png).map_err(crate::save::image_io))
+    clipmap::save::atomically(&path, |w| img.write_to(w, image::ImageFormat::Png).map_err(clipmap::save::image_io))
         .map_err(|e| ServiceError::Output { path: path.clone(), message: e.to_string() })?;
     Ok(path)
 }
@@ -247,8 +247,8 @@ const EYE_HEIGHT: f64 = 1200.0;
 /// reference renderer's camera and sampled from the mapping as any reader samples it; and the
 /// same view coloured by the level each pixel used (texture brightness mixed in). Sky is blue.
 fn perspective(client: &Client, centre: [i64; 2]) -> (RgbImage, RgbImage) {
-    use crate::accuracy::render::Camera;
-    use crate::sample::{sample_mapping, Filter};
+    use clipmap::accuracy::render::Camera;
+    use clipmap::sample::{sample_mapping, Filter};
     let size = [480u32, 300u32];
     let foot = [centre[0] as f64 + 0.5, centre[1] as f64 + 0.5];
     let cam = Camera::following(foot, EYE_HEIGHT, 0.0, 22.0, 70.0, size);

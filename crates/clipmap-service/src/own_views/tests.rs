@@ -2,12 +2,12 @@
 //! texels the source serves, not those it copied from the primary's mapping before the primary
 //! read them again.
 
-use crate::service::protocol::ViewCommand;
-use crate::service::ticker::{Command, Ticker};
-use crate::service::Options;
-use crate::shm::Client;
-use crate::source::{HashSource, SourceError, TextureDesc, TileId, TileSource};
-use crate::texel::TexelFormat;
+use crate::protocol::ViewCommand;
+use crate::ticker::{Command, Ticker};
+use crate::Options;
+use clipmap::shm::Client;
+use clipmap::source::{HashSource, SourceError, TextureDesc, TileId, TileSource};
+use clipmap::texel::TexelFormat;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};

@@ -4,11 +4,11 @@
 //! socket").
 
 use super::BadRequest;
-use crate::clip::{ClipError, LodWindow, ViewError};
-use crate::service::patches::PatchRefusal;
-use crate::service::stats::{ServiceStats, Status, ViewStats};
-use crate::service::ticker::SendError;
-use crate::shm::ShmError;
+use crate::patches::PatchRefusal;
+use crate::stats::{ServiceStats, Status, ViewStats};
+use crate::ticker::SendError;
+use clipmap::clip::{ClipError, LodWindow, ViewError};
+use clipmap::shm::ShmError;
 use std::fmt;
 
 /// What the tick loop did with a command it carried out (the text after `OK`).
@@ -262,8 +262,8 @@ fn json(v: &impl serde::Serialize) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::service::stats::TickStats;
-    use crate::service::Started;
+    use crate::stats::TickStats;
+    use crate::Started;
 
     /// docs/SHM.md, "Control socket": each command's `OK` line.
     #[test]
@@ -341,7 +341,7 @@ mod tests {
             min_lod: 0.25,
             budget_ms: Some(2.0),
             valid: vec![[0, 0, 256, 256]],
-            growth: Some(crate::shm::layout::Growth { patches: 3, texels_per_unit: 0.5, ..Default::default() }),
+            growth: Some(clipmap::shm::layout::Growth { patches: 3, texels_per_unit: 0.5, ..Default::default() }),
             ..TickStats::default()
         };
         let status = Status::of("a", "/tmp/a.sock".as_ref(), &started, &tick);

@@ -1,6 +1,6 @@
 //! `clipmapd`: the clip-texture service. Keeps a clip texture's windows filled around the centre
 //! renderers ask for, publishes them in shared memory (docs/SHM.md) and answers a control socket.
-//! A thin shell over [`clipmap::service`].
+//! A thin shell over [`clipmap_service`].
 //!
 //! Exit status: 0 ok, 1 the input is bad, 2 the service could not run.
 
@@ -9,9 +9,9 @@
 use anyhow::Context as _;
 use clap::{Parser, ValueEnum};
 use clipmap::cli::EnvArgs;
-use clipmap::demo;
 use clipmap::report::exit;
-use clipmap::service::{self, ControlLimits, Options, Procedural, ViewOption};
+use clipmap_service::{self as service, ControlLimits, Options, Procedural, ViewOption};
+use clipmap_tools::demo;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;

@@ -4,9 +4,9 @@
 //! of the interval), and each level's paging as the service's last tick chose it (read-ahead,
 //! grid and why, with the read latency planned with; from the later reply).
 
-use crate::paging::adaptive::LevelPaging;
-use crate::service::ServiceStats;
-use crate::shm::{Client, ShmError};
+use clipmap::paging::adaptive::LevelPaging;
+use clipmap::shm::{Client, ShmError};
+use clipmap_service::ServiceStats;
 use serde::Serialize;
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
@@ -86,9 +86,9 @@ pub struct TileRangeRow {
 }
 
 impl TileRangeRow {
-    fn of(tile: [i64; 2], r: crate::height::TileRange) -> TileRangeRow {
+    fn of(tile: [i64; 2], r: clipmap::height::TileRange) -> TileRangeRow {
         let (min, max) = match r {
-            crate::height::TileRange::Heights { min, max } if min.is_finite() && max.is_finite() => {
+            clipmap::height::TileRange::Heights { min, max } if min.is_finite() && max.is_finite() => {
                 (Some(min), Some(max))
             }
             _ => (None, None),
@@ -132,14 +132,14 @@ pub struct Status {
     /// `null` when the socket did not answer).
     pub read_latency_ticks: Option<f64>,
     /// A growing texture's growth block (`null` for a texture that does not grow).
-    pub growth: Option<crate::shm::layout::Growth>,
+    pub growth: Option<clipmap::shm::layout::Growth>,
     /// The heights block: storage, scale, offset, nodata (a stored value; `null`: none) and level
     /// rule of a height texture (`null` for a texture that is not heights).
-    pub heights: Option<crate::shm::layout::Heights>,
+    pub heights: Option<clipmap::shm::layout::Heights>,
     /// The georef block: EPSG code (`null`: none known), whether the texture wraps in longitude,
     /// the CRS definition, the origin (GDAL geotransform terms 0 and 3) and each level's terms 1,
     /// 2, 4 and 5 (docs/SHM.md, "Georef block"); `null` for a texture without georeferencing.
-    pub georef: Option<crate::shm::GeorefBlock>,
+    pub georef: Option<clipmap::shm::GeorefBlock>,
     /// The shown view's level-0 centre, texels (level 0's state in its snapshot).
     pub centre: [i64; 2],
     /// That centre's WGS 84 `[longitude, latitude]`, of its texel's middle (s + 0.5, t + 0.5), as
@@ -149,12 +149,12 @@ pub struct Status {
     pub view: String,
     /// Every view's figures from the socket's statistics, `main` first (empty when the socket
     /// did not answer).
-    pub views: Vec<crate::service::stats::ViewStats>,
+    pub views: Vec<clipmap_service::stats::ViewStats>,
     /// The source's remote reads from the later `STATS` reply (requests, retries, merged,
     /// bytes, failures, cache hits and drops, peak in flight; `null` for a local source or
     /// without a `STATS` reply).
     #[cfg(feature = "remote")]
-    pub remote: Option<crate::source::remote::RemoteStats>,
+    pub remote: Option<clipmap::source::remote::RemoteStats>,
 }
 
 /// Why a `STATS` request got no statistics.
@@ -239,7 +239,7 @@ fn stream_rows(before: &ServiceStats, after: &ServiceStats, dt: f64) -> Result<V
 /// `STATS` (for queue throughput) over `interval`. A socket that does not answer leaves the
 /// stream figures out, with the reason, rather than failing the view.
 pub fn status(dir: &Path, name: &str, interval: Duration, socket: &Path) -> Result<Status, ShmError> {
-    status_of_view(dir, name, crate::shm::layout::views::PRIMARY_NAME, interval, socket)
+    status_of_view(dir, name, clipmap::shm::layout::views::PRIMARY_NAME, interval, socket)
 }
 
 /// [`status`] of the view `view` (docs/VIEWS.md; `main`: the primary): its snapshot's levels and
@@ -312,7 +312,7 @@ pub fn status_of_view(
             .levels
             .first()
             .zip(c.levels.first())
-            .and_then(|(l, d)| crate::shm::centre_lonlat(c.georef.as_ref(), d.size, l.centre)),
+            .and_then(|(l, d)| clipmap::shm::centre_lonlat(c.georef.as_ref(), d.size, l.centre)),
         view: c.view_name().to_string(),
         views: after.as_ref().map(|a| a.tick.views.clone()).unwrap_or_default(),
         #[cfg(feature = "remote")]
@@ -335,7 +335,7 @@ pub fn human(s: &Status) -> String {
         s.bytes_per_texel
     );
     let virtual_views = s.views.iter().any(|v| v.lod_offset > 0 || v.effective_levels < s.levels.len() as u32);
-    if s.views.len() > 1 || s.view != crate::shm::layout::views::PRIMARY_NAME || virtual_views {
+    if s.views.len() > 1 || s.view != clipmap::shm::layout::views::PRIMARY_NAME || virtual_views {
         o.push_str("view        weight  min LOD  LOD window    resident  grids   centre\n");
         for v in &s.views {
             let centre = v.centre.map_or("-".to_string(), |c| format!("{} {}", c[0], c[1]));
@@ -452,7 +452,7 @@ pub fn human(s: &Status) -> String {
 
 /// The remote reads' line of the human form (and a blank line after it).
 #[cfg(feature = "remote")]
-fn remote_line(r: &crate::source::remote::RemoteStats) -> String {
+fn remote_line(r: &clipmap::source::remote::RemoteStats) -> String {
     // A server that ignores ranges is said on the line (it makes every read fetch whole objects).
     let ignored = if r.ranges_ignored > 0 {
         format!("  ranges ignored {} (the server sends whole objects)", r.ranges_ignored)
@@ -551,7 +551,7 @@ mod tests {
 
     #[test]
     fn each_levels_reason_lead_and_grid_are_shown_with_the_read_latency() {
-        use crate::paging::adaptive::Reason;
+        use clipmap::paging::adaptive::Reason;
         let row = |level, paging| LevelRow {
             level,
             size: [1024, 1024],
@@ -632,9 +632,9 @@ mod tests {
         assert!(text.contains("paging: no figures (control socket s: refused)"), "{text}");
         assert!(!text.contains("heights:"), "a colour texture shows no heights line\n{text}");
         // A height texture: its heights block, one line, and in the JSON.
-        let f =
-            crate::height::HeightFormat::new(crate::height::HeightStorage::U16, 0.25, -500.0, Some(65535.0)).unwrap();
-        s.heights = Some(crate::shm::layout::Heights::of(&f, crate::height::LevelRule::Max));
+        let f = clipmap::height::HeightFormat::new(clipmap::height::HeightStorage::U16, 0.25, -500.0, Some(65535.0))
+            .unwrap();
+        s.heights = Some(clipmap::shm::layout::Heights::of(&f, clipmap::height::LevelRule::Max));
         let text = human(&s);
         assert!(text.contains("heights: l16  metres = stored x 0.25 + -500  nodata 65535  levels max\n"), "{text}");
         let v = serde_json::to_value(&s).unwrap();
@@ -645,7 +645,7 @@ mod tests {
         // Without georeferencing: no georef line, `georef` null; with it: one line and the block.
         assert!(!text.contains("georef:"), "{text}");
         assert!(v["georef"].is_null(), "{v}");
-        s.georef = Some(crate::shm::GeorefBlock {
+        s.georef = Some(clipmap::shm::GeorefBlock {
             epsg: Some(3857),
             wraps: true,
             definition: "+proj=merc".into(),
@@ -669,7 +669,7 @@ mod tests {
             // A local source: no remote line, `remote` null; a remote one: one line, every figure.
             assert!(!text.contains("remote:"), "{text}");
             assert_eq!(serde_json::to_value(&s).unwrap()["remote"], serde_json::Value::Null);
-            s.remote = Some(crate::source::remote::RemoteStats {
+            s.remote = Some(clipmap::source::remote::RemoteStats {
                 requests: 17,
                 retries: 2,
                 merged: 40,

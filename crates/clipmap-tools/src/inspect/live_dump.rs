@@ -5,25 +5,25 @@
 //! (the same view coloured by the level each pixel would use: the concentric resolution bands).
 //!
 //! A texture of heights is drawn as `cliptex dump` draws one from disk
-//! (`crate::report::dump::height_picture`): each level's valid region in false colour over its
+//! (`clipmap::report::dump::height_picture`): each level's valid region in false colour over its
 //! range of heights (or `--range`), hillshaded with `--shade`, nodata transparent, its legend
 //! below, the window, outlines and border around it as for colours; `view.png` uses the same
 //! colours over the range of every level drawn.
 //!
-//! Owns choosing what to draw and naming the files; drawing is [`crate::report::picture`]'s and
-//! [`crate::report::dump`]'s.
+//! Owns choosing what to draw and naming the files; drawing is [`clipmap::report::picture`]'s and
+//! [`clipmap::report::dump`]'s.
 
-use crate::geom::{tex_region, Rect};
-use crate::report::dump::{height_picture, HeightLegend, HeightView};
-use crate::report::hypsometric::{self, Texel};
-use crate::report::picture::{self, Frame};
-use crate::shm::{Client, ShmError, Snapshot};
+use clipmap::geom::{tex_region, Rect};
+use clipmap::report::dump::{height_picture, HeightLegend, HeightView};
+use clipmap::report::hypsometric::{self, Texel};
+use clipmap::report::picture::{self, Frame};
+use clipmap::shm::{Client, ShmError, Snapshot};
 use image::{Rgb, RgbImage, RgbaImage};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 
-pub use crate::limits::MAX_LEVEL_PIXELS;
+pub use clipmap::limits::MAX_LEVEL_PIXELS;
 /// Side of `view.png` and `rings.png` in pixels.
 pub(crate) const VIEW_PIXELS: u32 = 512;
 /// Pixels of margin around each level picture, where the outlines go.
@@ -117,7 +117,7 @@ pub struct LiveDump {
 
 fn save(img: impl Into<image::DynamicImage>, path: PathBuf) -> Result<String, LiveDumpError> {
     let img: image::DynamicImage = img.into();
-    crate::save::atomically(&path, |w| img.write_to(w, image::ImageFormat::Png).map_err(crate::save::image_io))
+    clipmap::save::atomically(&path, |w| img.write_to(w, image::ImageFormat::Png).map_err(clipmap::save::image_io))
         .map_err(|e| LiveDumpError::Write {
             path: path.clone(),
             message: format!("{e}; check the permissions of --out-dir"),
@@ -219,7 +219,7 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path, options: &Options) -> Result
     let view_range = options.range.or_else(|| {
         levels.iter().filter_map(|l| l.heights.as_ref()?.region_range).reduce(|a, b| [a[0].min(b[0]), a[1].max(b[1])])
     });
-    let format = crate::shm::layout::format_from_code(client.format_code);
+    let format = clipmap::shm::layout::format_from_code(client.format_code);
     let colour = |px: &[u8]| -> [u8; 3] {
         match (&heights, view_range) {
             (Some(v), Some([lo, hi])) => match v.format.decode(v.format.read(px)) {
@@ -248,7 +248,7 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path, options: &Options) -> Result
         min_lod: snap.min_lod,
         closed: client.closed(),
         clip_size: client.clip_size,
-        format: crate::shm::layout::format_from_code(client.format_code).map(|f| f.short_name()),
+        format: clipmap::shm::layout::format_from_code(client.format_code).map(|f| f.short_name()),
         centre,
         levels,
         view,

@@ -547,7 +547,7 @@ fn roam(args: RoamArgs) -> i32 {
             let (size, clip) = (args.size.unwrap_or(0), args.clip.unwrap_or(0));
             match roam::RoamOptions::procedural(kind, size, clip, args.tile, 0, flight, args.frames) {
                 Ok(o) if args.georef.is_some() => {
-                    roam::RoamOptions { source: clipmap::service::web_mercator_square(o.source.clone()), ..o }
+                    roam::RoamOptions { source: clipmap_service::web_mercator_square(o.source.clone()), ..o }
                 }
                 Ok(o) => o,
                 Err(e) => {
@@ -584,7 +584,7 @@ fn roam(args: RoamArgs) -> i32 {
 }
 
 fn dump(args: DumpArgs) -> i32 {
-    use clipmap::inspect::live_dump;
+    use clipmap_tools::inspect::live_dump;
     if let Some(name) = &args.attach {
         let dir = args.shm_dir.clone().unwrap_or_else(clipmap::shm::default_dir);
         let out = args.out_dir.clone().unwrap_or_default();
@@ -745,11 +745,11 @@ fn run(cli: Cli) -> i32 {
         Command::Dump(args) => dump(args),
         Command::Attach { name, shm_dir, socket, once, json, interval, view } => {
             let dir = shm_dir.unwrap_or_else(clipmap::shm::default_dir);
-            let socket = socket.unwrap_or_else(|| clipmap::service::default_socket(&dir, &name));
+            let socket = socket.unwrap_or_else(|| clipmap_service::default_socket(&dir, &name));
             let every = std::time::Duration::from_secs_f64(interval.clamp(0.05, 3600.0));
             let live = !once && !json && std::io::IsTerminal::is_terminal(&std::io::stdout());
             loop {
-                match clipmap::inspect::attach::status_of_view(
+                match clipmap_tools::inspect::attach::status_of_view(
                     &dir,
                     &name,
                     &view,
@@ -767,7 +767,7 @@ fn run(cli: Cli) -> i32 {
                             if live {
                                 print!("\x1b[2J\x1b[H");
                             }
-                            print!("{}", clipmap::inspect::attach::human(&s));
+                            print!("{}", clipmap_tools::inspect::attach::human(&s));
                         }
                         if !live || s.closed {
                             return exit::OK;

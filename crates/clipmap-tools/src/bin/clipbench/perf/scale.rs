@@ -11,7 +11,7 @@
 use super::{quantile, Size};
 use clipmap::clip::{Clipmap, Settings};
 use clipmap::paging::PrefetchKind;
-use clipmap::service::{procedural_source, Procedural};
+use clipmap_service::{procedural_source, Procedural};
 use serde::Serialize;
 use std::time::{Duration, Instant};
 

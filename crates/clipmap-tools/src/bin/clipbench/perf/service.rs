@@ -11,9 +11,9 @@
 
 use super::{quantile, Size};
 use anyhow::Context;
-use clipmap::service::{procedural_source, run, Options, Procedural};
 use clipmap::shm::{Client, RequestPosition};
 use clipmap::source::procedural::splitmix64;
+use clipmap_service::{procedural_source, run, Options, Procedural};
 use serde::Serialize;
 use std::time::{Duration, Instant};
 
@@ -115,7 +115,7 @@ pub fn measure(size: Size) -> anyhow::Result<Latency> {
     let mut o = Options::new("perf");
     o.shm_dir = dir.0.clone();
     o.socket = dir.0.join("perf.sock");
-    let source = clipmap::service::web_mercator_square(procedural_source(Procedural::Hash, texture, clip, 256)?);
+    let source = clipmap_service::web_mercator_square(procedural_source(Procedural::Hash, texture, clip, 256)?);
     let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
     let (res_tx, res_rx) = std::sync::mpsc::channel();
     let shm_dir = dir.0.clone();
