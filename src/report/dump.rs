@@ -306,7 +306,7 @@ pub fn dump_heights(
 /// The false-colour picture of a map of heights (`w` x `h` texels, rows top-down) and its legend,
 /// as `cliptex dump` draws a level of heights: the colour bar over `view`'s range (default the
 /// map's least and greatest height with data), hillshaded when `view` says so, nodata
-/// transparent, a texel of [`Texel::Missing`] painted by `missing` (the pixel's x and y). Also
+/// transparent, a texel of [`Texel::Missing`](super::hypsometric::Texel::Missing) painted by `missing` (the pixel's x and y). Also
 /// `cliptex dump --attach`'s picture of each level of a height texture.
 pub fn height_picture(
     map: &[super::hypsometric::Texel],
