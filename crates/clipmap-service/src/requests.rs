@@ -5,6 +5,7 @@
 use super::protocol::Refusal;
 use super::stats::TickStats;
 use clipmap::clip::{Clipmap, ViewId};
+use clipmap::georef::GeorefError;
 
 /// Applies a renderer's LOD request for view `id` of `clipmap` (named `name`; docs/SHM.md,
 /// "Asking for a view's levels"): its footprint moves the view's LOD offset, its effective levels
@@ -54,6 +55,49 @@ pub(super) fn bounded_centre(c: [i64; 2]) -> [i64; 2] {
     c.map(|x| x.clamp(-far, far))
 }
 
+/// Why a renderer's request for a centre by position was refused ([`request_centre`]): what was
+/// found and what is expected. Its text goes to the log and to STATS
+/// (`position_request_refused`).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub(super) enum PositionRefused {
+    /// A coordinate is NaN or infinite.
+    #[error("{what} ({}, {}): expected finite numbers", .xy[0], .xy[1])]
+    NotFinite {
+        /// Which coordinates: `longitude / latitude` or `map coordinates`.
+        what: &'static str,
+        /// The coordinates given.
+        xy: [f64; 2],
+    },
+    /// A position on a texture without georeferencing.
+    #[error(
+        "the texture has no georeferencing (only GeoTIFFs / COGs with georeferencing tags, tile pyramids and procedural textures served with --georef have it; docs/GEOREF.md): give the centre in level-0 texels (coordinate kind 0)"
+    )]
+    NoGeoref,
+    /// A longitude / latitude outside the texture or the projection's domain.
+    #[error("longitude / latitude ({}, {}): {source}", .lonlat[0], .lonlat[1])]
+    LonLat {
+        /// The position given.
+        lonlat: [f64; 2],
+        /// Why the georeferencing refused it.
+        source: GeorefError,
+    },
+    /// Map coordinates outside the texture.
+    #[error("map ({}, {}) in {crs}: {source}", .xy[0], .xy[1])]
+    Map {
+        /// The position given.
+        xy: [f64; 2],
+        /// The texture's CRS, by name.
+        crs: String,
+        /// Why the georeferencing refused it.
+        source: GeorefError,
+    },
+    /// A coordinate kind the layout does not define.
+    #[error(
+        "coordinate kind {0}: expected 0 (level-0 texels), 1 (WGS 84 longitude / latitude) or 2 (map coordinates of the texture's CRS)"
+    )]
+    UnknownKind(u64),
+}
+
 /// The level-0 centre a renderer's request asks for (docs/SHM.md, "Positions in longitude /
 /// latitude or map coordinates"): its texel centre, or its position converted through the
 /// texture's `georef` to the texel that holds it (as `CENTRE LONLAT` does), bounded as every
@@ -64,39 +108,31 @@ pub(super) fn request_centre(
     georef: Option<&clipmap::georef::Georef>,
     centre: [i64; 2],
     position: clipmap::shm::writer::Position,
-) -> Result<[i64; 2], String> {
+) -> Result<[i64; 2], PositionRefused> {
     use clipmap::shm::writer::Position;
-    let finite = |what: &str, [x, y]: [f64; 2]| {
-        if x.is_finite() && y.is_finite() {
+    let finite = |what: &'static str, xy: [f64; 2]| {
+        if xy.iter().all(|v| v.is_finite()) {
             Ok(())
         } else {
-            Err(format!("{what} ({x}, {y}): expected finite numbers"))
+            Err(PositionRefused::NotFinite { what, xy })
         }
-    };
-    let no_georef = || {
-        "the texture has no georeferencing (only GeoTIFFs / COGs with georeferencing tags, tile pyramids and procedural textures served with --georef have it; docs/GEOREF.md): give the centre in level-0 texels (coordinate kind 0)".to_string()
     };
     let c = match position {
         Position::Texels => centre,
         Position::LonLat(ll) => {
             finite("longitude / latitude", ll)?;
-            let g = georef.ok_or_else(no_georef)?;
-            let [s, t] =
-                g.lonlat_to_texel(0, ll).map_err(|e| format!("longitude / latitude ({}, {}): {e}", ll[0], ll[1]))?;
+            let g = georef.ok_or(PositionRefused::NoGeoref)?;
+            let [s, t] = g.lonlat_to_texel(0, ll).map_err(|source| PositionRefused::LonLat { lonlat: ll, source })?;
             [s.floor() as i64, t.floor() as i64]
         }
         Position::Map(xy) => {
             finite("map coordinates", xy)?;
-            let g = georef.ok_or_else(no_georef)?;
+            let g = georef.ok_or(PositionRefused::NoGeoref)?;
             let [s, t] =
-                g.map_to_texel(0, xy).map_err(|e| format!("map ({}, {}) in {}: {e}", xy[0], xy[1], g.crs().name()))?;
+                g.map_to_texel(0, xy).map_err(|source| PositionRefused::Map { xy, crs: g.crs().name(), source })?;
             [s.floor() as i64, t.floor() as i64]
         }
-        Position::Unknown(kind, _) => {
-            return Err(format!(
-                "coordinate kind {kind}: expected 0 (level-0 texels), 1 (WGS 84 longitude / latitude) or 2 (map coordinates of the texture's CRS)"
-            ))
-        }
+        Position::Unknown(kind, _) => return Err(PositionRefused::UnknownKind(kind)),
     };
     Ok(bounded_centre(c))
 }
@@ -124,7 +160,7 @@ mod tests {
             at(Position::Map([-20037508.342789244 + 2.5 * texel, -20037508.342789244 + 0.5 * texel])),
             Ok([2, 0])
         );
-        let refused = |p| at(p).unwrap_err();
+        let refused = |p| at(p).unwrap_err().to_string();
         let e = refused(Position::LonLat([10.0, 86.0]));
         assert!(e.starts_with("longitude / latitude (10, 86): ") && e.contains("85.05"), "{e}");
         let e = refused(Position::Map([0.0, 3e7]));
@@ -134,6 +170,8 @@ mod tests {
         let e = refused(Position::Unknown(7, [0.0, 0.0]));
         assert!(e.starts_with("coordinate kind 7: expected 0 (level-0 texels), 1"), "{e}");
         let e = request_centre(None, [3, 4], Position::LonLat([0.0, 0.0])).unwrap_err();
+        assert_eq!(e, super::PositionRefused::NoGeoref);
+        let e = e.to_string();
         assert!(e.contains("no georeferencing") && e.contains("coordinate kind 0"), "{e}");
         assert_eq!(request_centre(None, [3, 4], Position::Texels), Ok([3, 4]), "texels need no georeferencing");
         assert_eq!(
