@@ -4,7 +4,21 @@
 //! clip-texture (`.ct`) and image-cache (`.ic`) configuration files, and the pieces that turn such
 //! a configuration into per-level windows of texels.
 //!
-//! ## Map of the crate, in data-flow order
+//! ## The crates
+//!
+//! This is the core crate of a workspace whose crates follow the floors (docs/ARCHITECTURE.md,
+//! "Crates"; a crate depends only on the ones before it):
+//!
+//! | crate | holds |
+//! |---|---|
+//! | `clipmap-base` | the ground floor: tiles, texels, heights, geometry, georeferencing, bounds (re-exported here under their old paths) |
+//! | `clipmap-shm` | the shared mapping: layout, writer, the reader a renderer links alone (re-exported here as [`shm`]) |
+//! | `clipmap` (this crate) | configuration, plan, sources, the engine, sampling, the reports and the command line the tools share |
+//! | `clipmap-service` | the `clipmapd` service: tick loop, control socket, statistics, views, patches |
+//! | `clipmap-tools` | the tools' library above the service (`inspect`, `demo`) and the binaries |
+//! | `clipgpu` | the GPU client |
+//!
+//! ## Map of this crate, in data-flow order
 //!
 //! (docs/ARCHITECTURE.md §12 gives each module's floor; a module imports only lower floors.)
 //!
@@ -26,16 +40,13 @@
 //! | [`cache`] | per-level toroidal grids of slots (mem regions): which tile each slot of the mapping holds |
 //! | [`clip`] | the engine: per-level windows, the update tick, load control (min LOD), adaptive paging, views, statistics |
 //! | [`shm`] | the shared-memory layout (layout 2: the image caches themselves), the slots' memory and claims, writer and client (the `clipmap-shm` crate, re-exported; the only `unsafe` code), and the engine's reads from a mapping |
-//! | [`service`] | the `clipmapd` service: tick loop thread, control socket, statistics, views with grids of their own, a growing texture's patches |
 //! | [`sample`] | reference point / bilinear / trilinear sampling of the full mipmap and the clipmap |
 //! | [`roam`] | in-process flight simulation (`cliptex roam`): flight specs, per-frame report |
 //! | [`accuracy`] | the reference renderer, per-frame accuracy metrics and the speed/accuracy sweep |
 //! | [`sizing`] | memory and bandwidth arithmetic, clip-size and virtual-level recommendations |
 //! | [`save`] | writing a result file completely or not at all (temporary, sync, rename) |
-//! | [`report`] | what the tools print: validation reports, info, tile locations, dumps, pictures and their labels (below the service) |
-//! | [`demo`] | `clipmapd --demo`: the service, a small flying client and pictures of what it saw (a client of the rest, the top floor) |
+//! | [`report`] | what the tools print: validation reports, info, tile locations, dumps, pictures and their labels (below the service, which names its exit statuses) |
 //! | `cli` | the command line the binaries share (`--env`, paging flags, `validate`'s arguments, the parse that exits 1 on usage errors); the `cli` feature, on by default |
-//! | [`inspect`] | a running service seen from outside: `cliptex attach` and `dump --attach` (the top of the stack) |
 //! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
 //! | [`growing`] | growing textures: patches, the fixed tile grid anchored at a world origin, the R*-tree index, tile rebuilds |
 //!
@@ -57,9 +68,7 @@ pub mod cache;
 pub mod cli;
 pub mod clip;
 pub mod config;
-pub mod demo;
 pub mod growing;
-pub mod inspect;
 pub mod paging;
 pub mod place;
 pub mod plan;
@@ -69,6 +78,5 @@ pub mod report;
 pub mod roam;
 pub mod runtime;
 pub mod sample;
-pub mod service;
 pub mod shm;
 pub mod source;

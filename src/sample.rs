@@ -451,14 +451,14 @@ impl Fetch for MappedFetch<'_> {
 /// (min LOD from the mapping's global state, the finest-available rule over the published valid
 /// regions); `None` when nothing holds the footprint, or the mapping's texel format is one the
 /// sampler cannot decode.
-pub(crate) fn sample_mapping(client: &Client, filter: Filter, u: f64, v: f64, lod: f64) -> Option<Sample> {
+pub fn sample_mapping(client: &Client, filter: Filter, u: f64, v: f64, lod: f64) -> Option<Sample> {
     let snap = client.try_snapshot().ok()?;
     sample_mapping_in(client, &snap, filter, u, v, lod)
 }
 
 /// `sample_mapping` against a snapshot the caller took (so that many samples, a whole frame,
 /// see one published state, as a renderer that uploads once a frame does).
-pub(crate) fn sample_mapping_in(
+pub fn sample_mapping_in(
     client: &Client,
     snap: &crate::shm::Snapshot,
     filter: Filter,
@@ -473,7 +473,7 @@ pub(crate) fn sample_mapping_in(
 /// says so (level, s, t): a renderer that mirrors the mapping and holds less of it for a while
 /// (an upload budget, say) checks its own sampling against this with its own notion of what it
 /// holds.
-pub(crate) fn sample_mapping_held(
+pub fn sample_mapping_held(
     client: &Client,
     snap: &crate::shm::Snapshot,
     held: Option<&dyn Fn(u32, i64, i64) -> bool>,

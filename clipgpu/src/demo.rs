@@ -36,9 +36,9 @@ pub fn with_service<T>(source: Arc<dyn TileSource>, name: &str, f: impl FnOnce(&
     let dir = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::DirBuilder::new().mode(0o700).create(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    let mut options = clipmap::service::Options::new(name);
+    let mut options = clipmap_service::Options::new(name);
     options.shm_dir = dir.clone();
-    options.socket = clipmap::service::default_socket(&dir, name);
+    options.socket = clipmap_service::default_socket(&dir, name);
     options.tick_hz = 120.0;
     options.budget_ms = None;
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
@@ -46,7 +46,7 @@ pub fn with_service<T>(source: Arc<dyn TileSource>, name: &str, f: impl FnOnce(&
     let thread_name = name.to_string();
     let service = std::thread::spawn(move || -> Result<()> {
         let name = thread_name;
-        clipmap::runtime::block_on(clipmap::service::run(
+        clipmap::runtime::block_on(clipmap_service::run(
             source,
             options,
             async {

@@ -517,7 +517,7 @@ impl Clipmap {
     }
 
     /// Each read queue's counters, in stream-server order (their sum is `stats().queue`).
-    pub(crate) fn stream_stats(&self) -> Vec<crate::queue::QueueStats> {
+    pub fn stream_stats(&self) -> Vec<crate::queue::QueueStats> {
         self.queues.stream_stats()
     }
 
@@ -545,12 +545,12 @@ impl Clipmap {
 
     /// Widens (or narrows) the invalid border from the next tick on, clamped so that at least one
     /// texel of each stack window stays readable.
-    pub(crate) fn set_invalid_border(&mut self, border: u64) {
+    pub fn set_invalid_border(&mut self, border: u64) {
         self.border = border.min((self.desc.clip_size() - 1) / 2);
     }
 
     /// Sets the bound on a tick's own work (ns; `None`: unbounded).
-    pub(crate) fn set_budget_ns(&mut self, budget: Option<u64>) {
+    pub fn set_budget_ns(&mut self, budget: Option<u64>) {
         self.settings.budget_ns = budget;
     }
 

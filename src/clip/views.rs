@@ -218,7 +218,7 @@ impl Clipmap {
     }
 
     /// Whether `name` may be given to a new view: an allowed name no live view has.
-    pub(crate) fn check_new_name(&self, name: &str) -> Result<(), ViewError> {
+    pub fn check_new_name(&self, name: &str) -> Result<(), ViewError> {
         crate::shm::layout::views::check_name(name).map_err(ViewError::Name)?;
         if self.views.live().any(|(_, v)| v.name.as_deref() == Some(name)) {
             return Err(ViewError::Name(format!(

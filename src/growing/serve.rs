@@ -132,7 +132,7 @@ impl Served {
     /// [`crate::clip::Clipmap::refresh`]; `desc` is the frame's texture. A changed store tile
     /// changes the frame tiles of its level under it, and any frame tile of a finer level under
     /// it that was served with texels taken from coarser levels (those are rebuilt after it).
-    pub(crate) fn take_changed(&self, desc: &TextureDesc) -> Vec<TileId> {
+    pub fn take_changed(&self, desc: &TextureDesc) -> Vec<TileId> {
         let (changed, partial) = {
             let mut s = self.lock();
             let changed = std::mem::take(&mut s.changed);
@@ -188,7 +188,7 @@ impl Served {
     }
 
     /// Forgets partly served tiles `keep` says no (tiles the clipmap no longer holds).
-    pub(crate) fn retain_partial(&self, keep: impl Fn(TileId) -> bool) {
+    pub fn retain_partial(&self, keep: impl Fn(TileId) -> bool) {
         self.lock().partial.retain(|&t| keep(t));
     }
 
@@ -491,7 +491,7 @@ impl Default for GrowerOptions {
 }
 
 /// The unit of [`Grower::in_flight`]'s permits: one KiB.
-pub(crate) const IN_FLIGHT_UNIT: u64 = 1 << 10;
+pub const IN_FLIGHT_UNIT: u64 = 1 << 10;
 
 /// The grower's handle: send it patches; it stops when told or when every handle is gone.
 #[derive(Clone, Debug)]

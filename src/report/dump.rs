@@ -6,7 +6,7 @@
 //! the tiles that could not be read (painted with `picture::missing_pattern`, never fatal).
 //! Reading a tile is the caller's function: a [`crate::source::FileSource`] for a clip texture,
 //! [`IcacheTiles`] for a standalone image cache. Pictures of a running service are
-//! [`crate::inspect::live_dump`]'s business.
+//! `clipmap_tools::inspect::live_dump`'s business.
 
 use super::picture;
 use crate::geom::{tile_texels, tiles_covering, Rect};
@@ -306,9 +306,9 @@ pub fn dump_heights(
 /// The false-colour picture of a map of heights (`w` x `h` texels, rows top-down) and its legend,
 /// as `cliptex dump` draws a level of heights: the colour bar over `view`'s range (default the
 /// map's least and greatest height with data), hillshaded when `view` says so, nodata
-/// transparent, a texel of [`Texel::Missing`] painted by `missing` (the pixel's x and y). Also
+/// transparent, a texel of [`Texel::Missing`](super::hypsometric::Texel::Missing) painted by `missing` (the pixel's x and y). Also
 /// `cliptex dump --attach`'s picture of each level of a height texture.
-pub(crate) fn height_picture(
+pub fn height_picture(
     map: &[super::hypsometric::Texel],
     w: u32,
     h: u32,

@@ -9,12 +9,12 @@ use font8x8::UnicodeFonts;
 use image::{Rgb, RgbImage};
 
 /// Height of one line of text at `scale`, with a pixel of spacing per scale step above and below.
-pub(crate) fn line_height(scale: u32) -> u32 {
+pub fn line_height(scale: u32) -> u32 {
     10 * scale
 }
 
 /// Width `text` takes at `scale`.
-pub(crate) fn text_width(text: &str, scale: u32) -> u32 {
+pub fn text_width(text: &str, scale: u32) -> u32 {
     text.chars().count() as u32 * 8 * scale
 }
 
@@ -48,7 +48,7 @@ pub fn fill(img: &mut RgbImage, x: u32, y: u32, w: u32, h: u32, colour: [u8; 3])
 
 /// A copy of `img` with `lines` of caption above it (white on the picture's dark background),
 /// at least `min_width` pixels wide; lines longer than the width are wrapped at spaces.
-pub(crate) fn captioned(img: &RgbImage, lines: &[String], min_width: u32) -> RgbImage {
+pub fn captioned(img: &RgbImage, lines: &[String], min_width: u32) -> RgbImage {
     let scale = 1;
     let pad = 6;
     let width = img.width().max(min_width).max(160);
@@ -84,7 +84,7 @@ fn wrap(lines: &[String], columns: usize) -> Vec<String> {
 
 /// A legend row under `img`: one swatch and its meaning per entry, wrapped onto as many rows as
 /// the width needs.
-pub(crate) fn with_legend(img: &RgbImage, entries: &[(Swatch, String)]) -> RgbImage {
+pub fn with_legend(img: &RgbImage, entries: &[(Swatch, String)]) -> RgbImage {
     let scale = 1;
     let pad = 6;
     let lh = line_height(scale) + 4;
@@ -113,11 +113,11 @@ pub(crate) fn with_legend(img: &RgbImage, entries: &[(Swatch, String)]) -> RgbIm
 }
 
 /// The dark grey behind captions and legends.
-pub(crate) const BACKGROUND: [u8; 3] = [24, 24, 24];
+pub const BACKGROUND: [u8; 3] = [24, 24, 24];
 
 /// How a legend entry's sample looks.
 #[derive(Clone, Copy, Debug)]
-pub(crate) enum Swatch {
+pub enum Swatch {
     /// A filled square.
     Solid([u8; 3]),
     /// A square outlined in this colour (an outline in the picture).

@@ -132,7 +132,7 @@ impl Frame {
 /// outside the level; the window outlined in yellow and the valid region in red, each outline
 /// one pixel outside its rectangle.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn draw_level(
+pub fn draw_level(
     img: &mut RgbImage,
     x0: u32,
     y0: u32,
@@ -172,8 +172,8 @@ pub(crate) fn draw_level(
 /// region: the window's outline (yellow) or the valid region's (red), each the ring of pixels just
 /// outside its rectangle (so it never hides a texel of it); else the rest of the window as a dark
 /// checkerboard (the invalid border, or not yet loaded), black outside the level and dark grey
-/// elsewhere ([`draw_level`], and the height pictures of [`crate::inspect::live_dump`]).
-pub(crate) fn backdrop(frame: &Frame, size: [u64; 2], window: Rect, valid: Option<Rect>, s: i64, t: i64) -> [u8; 3] {
+/// elsewhere ([`draw_level`], and the height pictures of `clipmap_tools::inspect::live_dump`).
+pub fn backdrop(frame: &Frame, size: [u64; 2], window: Rect, valid: Option<Rect>, s: i64, t: i64) -> [u8; 3] {
     let sc = frame.scale;
     let on_edge = |r: &Rect| {
         let near = s >= r.s0 - sc && s < r.s1 + sc && t >= r.t0 - sc && t < r.t1 + sc;
@@ -200,7 +200,7 @@ pub(crate) fn backdrop(frame: &Frame, size: [u64; 2], window: Rect, valid: Optio
 }
 
 /// Draws level `k` of a mapping as published in `snap` over `frame` (see [`draw_level`]).
-pub(crate) fn draw_published_level(
+pub fn draw_published_level(
     img: &mut RgbImage,
     x0: u32,
     y0: u32,
@@ -225,7 +225,7 @@ pub(crate) fn draw_published_level(
 /// (texture luminance mixed in). Pixels outside the texture, or that no level covers, stay black:
 /// where a side is not a power of two, the coarsest levels (at least one texel a side) reach past
 /// level 0's edge, and a texel there is no texel of the texture.
-pub(crate) fn view_and_rings(
+pub fn view_and_rings(
     client: &Client,
     snap: &Snapshot,
     centre: [i64; 2],

@@ -18,7 +18,7 @@ const SOURCE: [&str; 8] = ["--source", "hash", "--size", "256", "--clip", "64", 
 
 /// The service's source: the hash texture of `SOURCE`, uncompressed.
 fn hash() -> Arc<dyn TileSource> {
-    clipmap::service::procedural_source(Procedural::Hash, 256, 64, 16).unwrap()
+    clipmap_service::procedural_source(Procedural::Hash, 256, 64, 16).unwrap()
 }
 
 /// Waits until every level of `c` is enabled, and returns the snapshot.

@@ -540,7 +540,7 @@ fn plan_of_a_non_square_texture_equals_the_level_by_level_formula() {
     run(CLIPTEX, &["plan", &s.rel("bad.ct")], s.cwd()).status(1);
 }
 
-const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+const ROOT: &str = env!("CLIPMAP_ROOT");
 
 fn num_u128(v: &Value) -> u128 {
     v.as_u64().map(u128::from).unwrap_or_else(|| v.as_str().unwrap().parse().unwrap())

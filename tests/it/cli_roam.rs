@@ -197,7 +197,7 @@ fn aligned_centres_read_tiles_only_when_a_level_steps() {
 
 #[test]
 fn a_flight_over_the_prepared_example_reads_its_files_from_any_working_directory() {
-    let ct = Path::new(env!("CARGO_MANIFEST_DIR")).join("config_examples/prepared/hash256.ct");
+    let ct = Path::new(env!("CLIPMAP_ROOT")).join("config_examples/prepared/hash256.ct");
     let dir = tempfile::tempdir().unwrap();
     let args =
         [ct.to_str().unwrap(), "--flight", "straight:4", "--frames", "10", "--budget-ms", "inf", "--wait-for-reads"];
@@ -295,7 +295,7 @@ fn a_configured_lookahead_or_mem_region_changes_what_the_engine_reads_and_holds(
     // `lookahead 0` or `3` changed what `cliptex info` printed but not what the engine held.
     // The prepared example: level 0 is 4 x 4 tiles of 64 x 64 RGB texels, clip 64; level 1 is
     // 2 x 2 tiles; seven pyramid levels of 5461 texels in all.
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("config_examples/prepared");
+    let src = Path::new(env!("CLIPMAP_ROOT")).join("config_examples/prepared");
     let tile = 64 * 64 * 3u64;
     let roam = |extra_ct: &str, extra_ic: &str| {
         let dir = tempfile::tempdir().unwrap();

@@ -17,7 +17,7 @@ use std::process::Command;
 
 const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
 const ICACHE: &str = env!("CARGO_BIN_EXE_icache");
-const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+const ROOT: &str = env!("CLIPMAP_ROOT");
 
 /// Compares `actual` with the snapshot `tests/snapshots/NAME.snap` (insta).
 fn snapshot(name: &str, actual: &str) {

@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 pub(crate) const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
 pub(crate) const READER: &str = env!("CARGO_BIN_EXE_clipmap-read");
-pub(crate) const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+pub(crate) const ROOT: &str = env!("CLIPMAP_ROOT");
 
 /// A running `clipmapd`, killed on drop; its output goes to files in the temp dir.
 pub(crate) struct Service {

@@ -580,7 +580,7 @@ fn every_format_and_layout_option_passes_strict_validation() {
 
 #[test]
 fn the_prepared_example_is_what_clipprep_writes() {
-    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("config_examples/prepared");
+    let example = Path::new(env!("CLIPMAP_ROOT")).join("config_examples/prepared");
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("prepared");
     let ct = ct_path(&prep(

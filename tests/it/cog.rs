@@ -8,7 +8,7 @@ use clipmap::source::{CogError, CogSource, SourceError, TileId, TileSource};
 use std::path::{Path, PathBuf};
 
 pub(crate) fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cog").join(name)
+    Path::new(env!("CLIPMAP_ROOT")).join("tests/fixtures/cog").join(name)
 }
 
 /// Sample `c` of pixel `(x, y)` (y from the top row) of every fixture image (README.md).

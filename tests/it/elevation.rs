@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
 const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
 const CLIPPREP: &str = env!("CARGO_BIN_EXE_clipprep");
-const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+const ROOT: &str = env!("CLIPMAP_ROOT");
 
 /// `NO_IC_CT` with heights of `ext` (a GL type name) as one luminance component.
 fn height_ct(ext: &str, lines: &str) -> String {

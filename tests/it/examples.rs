@@ -37,7 +37,7 @@ fn strict_errors(mut d: Diagnostics) -> Option<String> {
 
 #[test]
 fn every_example_validates_strictly() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("config_examples");
+    let root = Path::new(env!("CLIPMAP_ROOT")).join("config_examples");
     let mut files = Vec::new();
     walk(&root, &mut files);
     // Examples are checked as the environment leaves them: variables take their defaults.
@@ -80,7 +80,7 @@ fn every_example_validates_strictly() {
 
 #[test]
 fn the_readme_lists_every_top_level_example() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("config_examples");
+    let root = Path::new(env!("CLIPMAP_ROOT")).join("config_examples");
     let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
     for e in std::fs::read_dir(&root).unwrap() {
         let p = e.unwrap().path();

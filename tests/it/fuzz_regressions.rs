@@ -9,7 +9,7 @@ use std::path::Path;
 
 #[test]
 fn every_kept_crash_input_is_handled() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fuzz_regressions");
+    let dir = Path::new(env!("CLIPMAP_ROOT")).join("tests/fuzz_regressions");
     let mut inputs: Vec<_> = std::fs::read_dir(&dir)
         .unwrap()
         .map(|e| e.unwrap().path())

@@ -249,7 +249,7 @@ fn settle(svc: &Service, c: &Client, n: u64) {
 
 /// The C and Python readers and `cliptex attach` show the growth block as the Rust reader reads it.
 fn readers_show_the_growth(fx: &Fixture, svc: &Service, g: &clipmap::shm::layout::Growth) {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = Path::new(env!("CLIPMAP_ROOT"));
     let mapping = fx.path("clipmap-grow.map");
     // Numbers compared as numbers (C prints 1 where serde writes 1.0).
     fn numbers(v: serde_json::Value) -> serde_json::Value {

@@ -1,8 +1,10 @@
-//! The floors of docs/ARCHITECTURE.md §12, checked against the code: every module of the library
-//! names (`crate::X`, or `clipmap_base::X` and `clipmap_shm::` across the crates) only modules on
-//! lower floors, so there is no circle and no import climbing back up; and each crate of the
-//! workspace depends only on crates on lower floors (docs/ARCHITECTURE.md, "Crates"). Tests are
-//! left out (they may reach anything), as are comments (a doc link is not an import).
+//! The floors of docs/ARCHITECTURE.md §12, checked against the code: every module of the libraries
+//! and the binaries names (`crate::X`, or `clipmap::X`, `clipmap_base::X`, `clipmap_shm::`,
+//! `clipmap_service::` and `clipmap_tools::X` across the crates) only modules on lower floors, so
+//! there is no circle and no import climbing back up; and each crate of the workspace depends only
+//! on crates on lower floors (docs/ARCHITECTURE.md, "Crates"), so the crate graph enforces the
+//! floors between crates. Tests are left out (they may reach anything), as are comments (a doc
+//! link is not an import).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -38,6 +40,8 @@ const FLOORS: &[(&str, u32)] = &[
     ("inspect", 10),
     ("accuracy", 10),
     ("demo", 11),
+    // The binaries (crates/clipmap-tools/src/bin), above everything they run.
+    ("bin", 12),
 ];
 
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
@@ -106,25 +110,39 @@ fn named_through(code: &str, prefix: &str) -> Vec<String> {
     found
 }
 
-/// Where the library's modules live: the root crate's `src/`, where each top-level module is a
-/// module of the table; the ground floor's crate, the same; and the mapping's crate, all of whose
-/// files are the module `shm` (its `crate::` names its own parts).
-const SOURCES: &[(&str, Option<&str>)] =
-    &[("src", None), ("crates/clipmap-base/src", None), ("crates/clipmap-shm/src", Some("shm"))];
+/// Where the modules live: the root crate's `src/`, where each top-level module is a module of the
+/// table; the ground floor's crate and the tools' library, the same; the mapping's crate and the
+/// service's, all of whose files are one module (`shm`, `service`: their `crate::` names their own
+/// parts); and the binaries, all on the floor `bin` (a binary's `crate::` names its own files).
+const SOURCES: &[(&str, Option<&str>)] = &[
+    ("src", None),
+    ("crates/clipmap-base/src", None),
+    ("crates/clipmap-shm/src", Some("shm")),
+    ("crates/clipmap-service/src", Some("service")),
+    ("crates/clipmap-tools/src", None),
+    ("crates/clipmap-tools/src/bin", Some("bin")),
+];
 
-/// The modules a file of the library names: through `crate::` (unless the whole crate is one
-/// module, `whole`), and through the lower crates' names.
+/// The modules a file names: through `crate::` (unless the whole crate is one module, `whole`),
+/// and through the other crates' names.
 fn names_in(code: &str, whole: Option<&str>) -> Vec<String> {
     let mut names = if whole.is_some() { Vec::new() } else { named_modules(code) };
+    names.extend(named_through(code, "clipmap::"));
     names.extend(named_through(code, "clipmap_base::"));
     names.extend(named_through(code, "clipmap_shm::").into_iter().map(|_| "shm".to_string()));
+    names.extend(named_through(code, "clipmap_service::").into_iter().map(|_| "service".to_string()));
+    // `use clipmap_service;` or `clipmap_service::{self as service, ..}` names the crate itself.
+    if code.contains("use clipmap_service") {
+        names.push("service".to_string());
+    }
+    names.extend(named_through(code, "clipmap_tools::"));
     names
 }
 
 #[test]
 fn every_module_names_only_modules_on_lower_floors() {
     let floors: BTreeMap<&str, u32> = FLOORS.iter().copied().collect();
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = Path::new(env!("CLIPMAP_ROOT"));
     let mut wrong = Vec::new();
     let mut checked = 0;
     let mut files_seen = 0;
@@ -140,6 +158,10 @@ fn every_module_names_only_modules_on_lower_floors() {
             let first = in_crate.components().next().unwrap().as_os_str().to_str().unwrap().trim_end_matches(".rs");
             let top = whole.unwrap_or(first).to_string();
             let name = f.file_name().unwrap().to_str().unwrap();
+            // The binaries are scanned as their own entry (`bin`), not as the tools' library.
+            if whole.is_none() && first == "bin" && dir == "crates/clipmap-tools/src" {
+                continue;
+            }
             if (whole.is_none() && first == "lib")
                 || name == "tests.rs"
                 || name.ends_with("_tests.rs")
@@ -178,7 +200,9 @@ const CRATE_FLOORS: &[(&str, &str, u32)] = &[
     ("clipmap-base", "crates/clipmap-base", 1),
     ("clipmap-shm", "crates/clipmap-shm", 2),
     ("clipmap", ".", 3),
-    ("clipgpu", "clipgpu", 4),
+    ("clipmap-service", "crates/clipmap-service", 4),
+    ("clipmap-tools", "crates/clipmap-tools", 5),
+    ("clipgpu", "clipgpu", 5),
 ];
 
 /// The names in a `[workspace]`'s `members = [...]` list of a Cargo.toml.
@@ -209,7 +233,7 @@ fn dependencies(toml: &str) -> Vec<String> {
 
 #[test]
 fn each_crate_depends_only_on_crates_on_lower_floors() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = Path::new(env!("CLIPMAP_ROOT"));
     let manifest = std::fs::read_to_string(root.join("Cargo.toml")).unwrap();
     let mut members = workspace_members(&manifest);
     members.sort();
@@ -233,7 +257,13 @@ fn each_crate_depends_only_on_crates_on_lower_floors() {
         }
     }
     assert!(wrong.is_empty(), "the crates depend against their floors:\n{}", wrong.join("\n"));
-    for edge in ["clipmap-shm -> clipmap-base", "clipmap -> clipmap-shm", "clipgpu -> clipmap"] {
+    for edge in [
+        "clipmap-shm -> clipmap-base",
+        "clipmap -> clipmap-shm",
+        "clipmap-service -> clipmap",
+        "clipmap-tools -> clipmap-service",
+        "clipgpu -> clipmap",
+    ] {
         assert!(edges.iter().any(|e| e == edge), "`{edge}` not found in {edges:?}: the scan is broken");
     }
 }
@@ -245,6 +275,13 @@ fn the_crate_scan_sees_every_dependency_table() {
     assert_eq!(
         names_in("use clipmap_base::{geom, tile::TileId};\nuse crate::layout;\npub use clipmap_shm::*;\n", Some("shm")),
         ["geom", "tile", "shm"]
+    );
+    assert_eq!(
+        names_in(
+            "use clipmap::{clip, source::TileId};\nuse crate::views;\nuse clipmap_service::Options;\nuse clipmap_tools::demo;\n",
+            Some("bin")
+        ),
+        ["clip", "source", "service", "service", "demo"]
     );
 }
 

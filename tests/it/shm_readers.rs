@@ -63,7 +63,7 @@ fn the_rust_reader_refuses_a_symlinked_or_another_users_own_view_mapping_as_c_an
 /// The engine's texels of `rect` (`[s0, t0, s1, t1)`) of `level` of the terrain texture the
 /// service below serves: its tiles read from the source itself, rows in increasing t.
 fn terrain_texels(level: u32, rect: [u64; 4]) -> Vec<u8> {
-    let src = clipmap::service::procedural_source(Procedural::Terrain, 65536, 256, 64).unwrap();
+    let src = clipmap_service::procedural_source(Procedural::Terrain, 65536, 256, 64).unwrap();
     let desc = src.desc();
     let d = *desc.level(level);
     let bpt = desc.bytes_per_texel();

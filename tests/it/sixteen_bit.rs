@@ -21,7 +21,7 @@ const CLIPPREP: &str = env!("CARGO_BIN_EXE_clipprep");
 const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
 const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
 const ICACHE: &str = env!("CARGO_BIN_EXE_icache");
-const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+const ROOT: &str = env!("CLIPMAP_ROOT");
 
 /// Runs `prog args` in `cwd`; it must succeed; returns stdout.
 fn ok(cwd: &Path, prog: &str, args: &[&str]) -> String {

@@ -15,7 +15,7 @@ use std::path::Path;
 
 /// Valid and nearly valid TIFFs: the small fixtures GDAL wrote, and some written here.
 pub fn seeds() -> Vec<Vec<u8>> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cog");
+    let dir = Path::new(env!("CLIPMAP_ROOT")).join("tests/fixtures/cog");
     let mut out: Vec<Vec<u8>> = ["grey_200x256", "u16_64x64", "bigtiff_200x256", "strips_64x64", "i32_64x64"]
         .iter()
         .map(|n| std::fs::read(dir.join(format!("{n}.tif"))).unwrap())

@@ -15,7 +15,7 @@ pub const CLIPTEX: &str = env!("CARGO_BIN_EXE_cliptex");
 pub const ICACHE: &str = env!("CARGO_BIN_EXE_icache");
 pub const CLIPPREP: &str = env!("CARGO_BIN_EXE_clipprep");
 pub const CLIPBENCH: &str = env!("CARGO_BIN_EXE_clipbench");
-pub const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+pub const ROOT: &str = env!("CLIPMAP_ROOT");
 
 /// The longest any single tool run may take in this suite.
 pub const LIMIT: Duration = Duration::from_secs(20);

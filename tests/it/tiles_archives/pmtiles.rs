@@ -22,7 +22,7 @@ type Run = (u64, u64, Vec<u8>);
 
 /// Writes the archives into `dir` with the reference writer.
 fn write_archives(dir: &Path) {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/it/tiles_archives/write_pmtiles.py");
+    let script = Path::new(env!("CLIPMAP_ROOT")).join("tests/it/tiles_archives/write_pmtiles.py");
     let python = ["python3", "/usr/bin/python3"]
         .into_iter()
         .find(|p| Command::new(p).args(["-c", "import pmtiles"]).output().is_ok_and(|o| o.status.success()))
