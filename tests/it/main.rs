@@ -8,6 +8,7 @@
 mod common;
 
 mod bc_formats;
+mod bc_readers;
 mod cli_attach;
 mod cli_check;
 mod cli_config;
