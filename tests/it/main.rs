@@ -7,6 +7,7 @@
 
 mod common;
 
+mod bc_edges;
 mod bc_formats;
 mod bc_readers;
 mod cli_attach;
