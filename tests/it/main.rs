@@ -9,6 +9,7 @@ mod common;
 
 mod bc_edges;
 mod bc_formats;
+mod bc_prepared;
 mod bc_readers;
 mod cli_attach;
 mod cli_check;
