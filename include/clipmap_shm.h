@@ -16,6 +16,14 @@
  *   }
  *   clipmap_close(&m);
  *
+ * A block-compressed mapping (m.block == 4: BC1, BC4, BC5, BC7; docs/SHM.md, "Block-compressed
+ * formats") is read in whole tiles, its blocks as the GPU takes them; clipmap_read_region refuses it
+ * (CLIPMAP_BLOCKS):
+ *   rc = clipmap_read_tile(&m, k, S, T, buf);     // buf: m.levels[k].slot_bytes bytes, the tile's
+ *                                                 // blocks[0] x blocks[1] blocks (codes as above)
+ *   rc = clipmap_decode_blocks(m.texel_format, buf, m.levels[k].slot_bytes, m.levels[k].tile[0],
+ *                              m.levels[k].tile[1], texels);  // BC1, BC4, BC5 for checks (not BC7)
+ *
  * A renderer asks for a centre through the request mapping: clipmap_request_open(req_path, &m,
  * &r), then clipmap_request_centre(&r, s, t, vs, vt).
  *
@@ -287,6 +295,13 @@
 /* One IEEE 754 32-bit float, and one signed 16-bit integer, little-endian (heights: docs/ELEVATION.md). */
 #define CLIPMAP_FORMAT_L32F 11u
 #define CLIPMAP_FORMAT_L16I 12u
+/* Block-compressed (docs/SHM.md, "Block-compressed formats"): slots hold the tile's 4 x 4 blocks,
+ * the header's bytes per texel are the bytes of one block; read them whole (clipmap_read_tile) and
+ * decode them for a check (clipmap_decode_blocks: BC1, BC4 and BC5; BC7 is not decoded here). */
+#define CLIPMAP_FORMAT_BC1 20u           /* RGB, 8 bytes a block (Direct3D BC1_UNORM) */
+#define CLIPMAP_FORMAT_BC4 21u           /* one channel, 8 bytes a block (BC4_UNORM) */
+#define CLIPMAP_FORMAT_BC5 22u           /* two channels, 16 bytes a block (BC5_UNORM) */
+#define CLIPMAP_FORMAT_BC7 23u           /* RGBA, 16 bytes a block (BC7_UNORM) */
 
 /* Heights block fields (relative to CLIPMAP_H_HEIGHTS), static. All zero for a texture whose
  * texels are not heights (a colour texture, or a writer from before the block). clipmap_open
@@ -361,7 +376,8 @@ enum {
     CLIPMAP_STALE = 4,     /* a slot holds another tile (or is loading): take a new snapshot */
     CLIPMAP_CORRUPT = 5,   /* published state outside its bounds */
     CLIPMAP_REMOVED = 6,   /* the view was removed (its record freed or given to another view) */
-    CLIPMAP_NO_VIEW = 7    /* no view of that name (the error lists the views that exist) */
+    CLIPMAP_NO_VIEW = 7,   /* no view of that name (the error lists the views that exist) */
+    CLIPMAP_BLOCKS = 8     /* the format is block-compressed: read whole tiles (clipmap_read_tile) */
 };
 
 /* One level's static description, checked by clipmap_open. */
@@ -369,7 +385,9 @@ struct clipmap_level_desc {
     uint64_t size[2];     /* level size in texels */
     uint64_t tile[2];     /* TW, TH */
     uint64_t grid[2];     /* GW, GH */
-    uint64_t slot_bytes;  /* TW * TH * bytes per texel */
+    uint64_t slot_bytes;  /* TW * TH * bytes per texel; block formats: blocks[0] * blocks[1] * bytes per block */
+    uint64_t blocks[2];   /* a slot's units a row and its rows: ceil(TW / 4), ceil(TH / 4) blocks for a block
+                             format (clipmap_map.block 4), TW, TH texels otherwise */
     uint64_t slot_count;  /* GW * GH */
     uint64_t tags_offset; /* byte offset of slot 0's tag */
     uint64_t slots_offset;/* byte offset of slot 0 */
@@ -380,7 +398,8 @@ struct clipmap_level_desc {
 struct clipmap_map {
     const unsigned char *base; /* the read-only mapping */
     size_t len;
-    uint32_t bytes_per_texel;
+    uint32_t bytes_per_texel;  /* for a block format (block 4): the bytes of one 4 x 4 block, 8 or 16 */
+    uint32_t block;            /* texels a side of a slot's unit of storage: 1, or 4 for a block format */
     uint32_t clip_size;
     uint32_t level_count;
     uint32_t texel_format;     /* CLIPMAP_FORMAT_* */
@@ -497,8 +516,17 @@ static inline uint32_t clipmap_format_bytes(uint32_t code) {
     case CLIPMAP_FORMAT_RGBA16: return 8;
     case CLIPMAP_FORMAT_L32F: return 4;
     case CLIPMAP_FORMAT_L16I: return 2;
+    case CLIPMAP_FORMAT_BC1: return 8; /* the block formats: bytes of one 4 x 4 block */
+    case CLIPMAP_FORMAT_BC4: return 8;
+    case CLIPMAP_FORMAT_BC5: return 16;
+    case CLIPMAP_FORMAT_BC7: return 16;
     default: return 0;
     }
+}
+
+/* Texels a side of the unit a slot stores of format `code`: 4 for a block format, else 1. */
+static inline uint32_t clipmap_format_block(uint32_t code) {
+    return code >= CLIPMAP_FORMAT_BC1 && code <= CLIPMAP_FORMAT_BC7 ? 4u : 1u;
 }
 
 static inline uint32_t clipmap_u32(const struct clipmap_map *m, size_t off) {
@@ -1030,6 +1058,7 @@ static inline int clipmap_check_static(struct clipmap_map *m, const char *path) 
     m->generation = clipmap_u64(m, CLIPMAP_H_GENERATION);
     m->tick_period_ns = clipmap_u64(m, CLIPMAP_H_TICK_PERIOD_NS);
     uint64_t bpt = m->bytes_per_texel, clip = m->clip_size;
+    m->block = clipmap_format_block(m->texel_format);
     if (bpt < 1 || bpt > 64) CLIPMAP_REFUSE("%llu bytes per texel: expected 1 to 64", (unsigned long long)bpt);
     uint32_t fb = clipmap_format_bytes(m->texel_format);
     if (fb != 0 && fb != bpt)
@@ -1095,11 +1124,19 @@ static inline int clipmap_check_static(struct clipmap_map *m, const char *path) 
                            (unsigned long long)kind, pyramid, pyramid ? "pyramid" : "stack");
         d->pyramid = pyramid;
         uint64_t sb, count, tags_bytes, tags_end, slots_bytes, slots_end;
-        int sb_ok = clipmap_mul(d->tile[0], d->tile[1], &sb) && clipmap_mul(sb, bpt, &sb);
-        if (!sb_ok || sb != d->slot_bytes)
+        d->blocks[0] = clipmap_div_ceil(d->tile[0], m->block);
+        d->blocks[1] = clipmap_div_ceil(d->tile[1], m->block);
+        int sb_ok = clipmap_mul(d->blocks[0], d->blocks[1], &sb) && clipmap_mul(sb, bpt, &sb);
+        if ((!sb_ok || sb != d->slot_bytes) && m->block == 1)
             CLIPMAP_REFUSE("level %u: slot bytes %llu, expected tile %llux%llu x %llu bytes per texel%s", k,
                            (unsigned long long)d->slot_bytes, (unsigned long long)d->tile[0],
                            (unsigned long long)d->tile[1], (unsigned long long)bpt, sb_ok ? "" : " (overflows 64 bits)");
+        if (!sb_ok || sb != d->slot_bytes)
+            CLIPMAP_REFUSE("level %u: slot bytes %llu, expected tile %llux%llu in 4 x 4 blocks (%llux%llu) x %llu "
+                           "bytes per block (texel format %u)%s", k, (unsigned long long)d->slot_bytes,
+                           (unsigned long long)d->tile[0], (unsigned long long)d->tile[1],
+                           (unsigned long long)d->blocks[0], (unsigned long long)d->blocks[1], (unsigned long long)bpt,
+                           m->texel_format, sb_ok ? "" : " (overflows 64 bits)");
         if (!clipmap_mul(d->grid[0], d->grid[1], &count) || !clipmap_mul(count, CLIPMAP_TAG_BYTES, &tags_bytes) ||
             !clipmap_mul(count, d->slot_bytes, &slots_bytes))
             CLIPMAP_REFUSE("level %u: grid %llux%llu of %llu-byte slots overflows", k, (unsigned long long)d->grid[0],
@@ -1689,11 +1726,12 @@ static inline int clipmap_growth(const struct clipmap_map *m, struct clipmap_gro
 }
 
 /* The address of texel (s, t) of `level` in the slot its tile maps to, or NULL when the level
- * does not exist or (s, t) is outside it. It says nothing about what the slot holds: use the
+ * does not exist, (s, t) is outside it or the format is block-compressed (a texel has no address
+ * of its own there: clipmap_read_tile). It says nothing about what the slot holds: use the
  * tag protocol (clipmap_tag_try / clipmap_tag_end) around any copy. */
 static inline const unsigned char *clipmap_texel_ptr(const struct clipmap_map *m, uint32_t level, int64_t s,
                                                      int64_t t) {
-    if (level >= m->level_count || s < 0 || t < 0) return NULL;
+    if (level >= m->level_count || s < 0 || t < 0 || m->block != 1) return NULL;
     const struct clipmap_level_desc *d = &m->levels[level];
     if ((uint64_t)s >= d->size[0] || (uint64_t)t >= d->size[1]) return NULL;
     uint64_t S = (uint64_t)s / d->tile[0], T = (uint64_t)t / d->tile[1];
@@ -1807,11 +1845,13 @@ static inline int clipmap_copy_texels_(const struct clipmap_map *m, uint32_t lev
  * region. CLIPMAP_MISSING: a tile could not be read (use a coarser level). CLIPMAP_STALE: a
  * slot holds another tile (take a new snapshot). CLIPMAP_BUSY: a tag stayed locked or kept
  * changing for CLIPMAP_MAX_RETRIES attempts. CLIPMAP_CORRUPT: `snap` was not accepted by
- * clipmap_snapshot. On anything but CLIPMAP_OK, `out` holds unspecified bytes. */
+ * clipmap_snapshot. CLIPMAP_BLOCKS: the format is block-compressed (m->block 4): read whole tiles
+ * with clipmap_read_tile. On anything but CLIPMAP_OK, `out` holds unspecified bytes. */
 static inline int clipmap_read_region(const struct clipmap_map *m, const struct clipmap_snapshot *snap,
                                       uint32_t level, int64_t s0, int64_t t0, uint64_t w, uint64_t h,
                                       unsigned char *out) {
     if (level >= m->level_count || level >= snap->level_count) return CLIPMAP_NOT_VALID;
+    if (m->block != 1) return CLIPMAP_BLOCKS;
     const struct clipmap_level_desc *d = &m->levels[level];
     const struct clipmap_level_state *st = &snap->levels[level];
     if (st->enabled != 1) return st->enabled == 0 ? CLIPMAP_NOT_VALID : CLIPMAP_CORRUPT;
@@ -1836,6 +1876,136 @@ static inline int clipmap_read_region(const struct clipmap_map *m, const struct 
         if (rc != CLIPMAP_OK) return rc;
         col += n;
         real = 0;
+    }
+    return CLIPMAP_OK;
+}
+
+/* Copies tile (S, T) of `level` whole into `out` (m->levels[level].slot_bytes bytes): its slot's
+ * bytes as they are, under the slot's tag protocol. For a block format (m->block 4) those are the
+ * tile's blocks[0] x blocks[1] blocks in rows of increasing t, blocks along s fastest: block (i, j)
+ * holds texels S*TW + 4i .. and T*TH + 4j .., at byte (j * blocks[0] + i) * bytes_per_texel; a
+ * partial block (a tile spanning an odd-sized level's side) repeats the tile's last column and row.
+ * For any other format, the tile's TW x TH texels in rows. The blocks are the standard BCn blocks:
+ * upload them as they are (Direct3D BC1_UNORM ... BC7_UNORM, Vulkan's VK_FORMAT_BC*_UNORM_BLOCK).
+ * CLIPMAP_OK: a consistent copy. CLIPMAP_NOT_VALID: no such level or tile (0 <= S < ceil(width / TW),
+ * 0 <= T < ceil(height / TH)). CLIPMAP_MISSING: the tile could not be read. CLIPMAP_STALE: its slot
+ * holds another tile, or is loading or empty. CLIPMAP_BUSY: the tag stayed locked or kept changing
+ * for CLIPMAP_MAX_RETRIES attempts. */
+static inline int clipmap_read_tile(const struct clipmap_map *m, uint32_t level, int64_t S, int64_t T,
+                                    unsigned char *out) {
+    if (level >= m->level_count) return CLIPMAP_NOT_VALID;
+    const struct clipmap_level_desc *d = &m->levels[level];
+    if (S < 0 || T < 0 || (uint64_t)S >= clipmap_div_ceil(d->size[0], d->tile[0]) ||
+        (uint64_t)T >= clipmap_div_ceil(d->size[1], d->tile[1]))
+        return CLIPMAP_NOT_VALID;
+    const unsigned char *slot = m->base + d->slots_offset + clipmap_slot_index(d, S, T) * d->slot_bytes;
+    for (int attempt = 0; attempt < CLIPMAP_MAX_RETRIES; attempt++) {
+        uint64_t seq;
+        int rc = clipmap_tag_try(m, level, S, T, &seq);
+        if (rc == CLIPMAP_BUSY) {
+            clipmap_pause();
+            continue;
+        }
+        if (rc != CLIPMAP_OK) return rc;
+        memcpy(out, slot, (size_t)d->slot_bytes);
+        if (clipmap_tag_end(m, level, S, T, seq)) return CLIPMAP_OK;
+    }
+    return CLIPMAP_BUSY;
+}
+
+/* Bytes of one texel clipmap_decode_blocks gives for format `code`: 4 (RGBA8) for BC1, 1 for BC4,
+ * 2 for BC5; 0 for a format it does not decode (BC7 and every texel format). */
+static inline uint32_t clipmap_decoded_bytes(uint32_t code) {
+    switch (code) {
+    case CLIPMAP_FORMAT_BC1: return 4;
+    case CLIPMAP_FORMAT_BC4: return 1;
+    case CLIPMAP_FORMAT_BC5: return 2;
+    default: return 0;
+    }
+}
+
+/* One BC1 block into 4 x 4 RGBA8 texels at `out`, rows `pitch` bytes apart. The arithmetic is
+ * bcdec's (public domain; the Rust client's decoder), so the texels equal its bit for bit: 5:6:5
+ * endpoints widened to 8 bits, two colours between them when colour 0 > colour 1, else their mean
+ * and transparent black. */
+static inline void clipmap_bc1_block(const unsigned char *b, unsigned char *out, size_t pitch) {
+    uint32_t c0 = (uint32_t)b[0] | (uint32_t)b[1] << 8, c1 = (uint32_t)b[2] | (uint32_t)b[3] << 8;
+    uint32_t r0 = (c0 >> 11) & 31, g0 = (c0 >> 5) & 63, b0 = c0 & 31;
+    uint32_t r1 = (c1 >> 11) & 31, g1 = (c1 >> 5) & 63, b1 = c1 & 31;
+    unsigned char pal[4][4] = {
+        {(unsigned char)((r0 * 527 + 23) >> 6), (unsigned char)((g0 * 259 + 33) >> 6), (unsigned char)((b0 * 527 + 23) >> 6), 255},
+        {(unsigned char)((r1 * 527 + 23) >> 6), (unsigned char)((g1 * 259 + 33) >> 6), (unsigned char)((b1 * 527 + 23) >> 6), 255},
+        {0, 0, 0, 255},
+        {0, 0, 0, 0}};
+    if (c0 > c1) {
+        pal[2][0] = (unsigned char)(((2 * r0 + r1) * 351 + 61) >> 7);
+        pal[2][1] = (unsigned char)(((2 * g0 + g1) * 2763 + 1039) >> 11);
+        pal[2][2] = (unsigned char)(((2 * b0 + b1) * 351 + 61) >> 7);
+        pal[3][0] = (unsigned char)(((r0 + 2 * r1) * 351 + 61) >> 7);
+        pal[3][1] = (unsigned char)(((g0 + 2 * g1) * 2763 + 1039) >> 11);
+        pal[3][2] = (unsigned char)(((b0 + 2 * b1) * 351 + 61) >> 7);
+        pal[3][3] = 255;
+    } else {
+        pal[2][0] = (unsigned char)(((r0 + r1) * 1053 + 125) >> 8);
+        pal[2][1] = (unsigned char)(((g0 + g1) * 4145 + 1019) >> 11);
+        pal[2][2] = (unsigned char)(((b0 + b1) * 1053 + 125) >> 8);
+    }
+    uint32_t idx = (uint32_t)b[4] | (uint32_t)b[5] << 8 | (uint32_t)b[6] << 16 | (uint32_t)b[7] << 24;
+    for (int y = 0; y < 4; y++)
+        for (int x = 0; x < 4; x++, idx >>= 2) memcpy(out + (size_t)y * pitch + (size_t)x * 4, pal[idx & 3], 4);
+}
+
+/* One BC4 block (8 bytes) into 4 x 4 one-byte values at `out`, `px` bytes apart along a row and
+ * rows `pitch` bytes apart (BC5 is two of them, px 2). bcdec's arithmetic, as clipmap_bc1_block. */
+static inline void clipmap_bc4_block(const unsigned char *b, unsigned char *out, size_t pitch, size_t px) {
+    static const uint32_t w4[4] = {13107, 26215, 39321, 52429};
+    static const uint32_t w6[6] = {9363, 18724, 28086, 37450, 46812, 56173};
+    uint32_t a[8];
+    a[0] = b[0];
+    a[1] = b[1];
+    if (a[0] > a[1]) {
+        for (int i = 0; i < 6; i++) a[2 + i] = (w6[5 - i] * a[0] + w6[i] * a[1] + 32768) >> 16;
+    } else {
+        for (int i = 0; i < 4; i++) a[2 + i] = (w4[3 - i] * a[0] + w4[i] * a[1] + 32768) >> 16;
+        a[6] = 0;
+        a[7] = 255;
+    }
+    uint64_t idx = 0;
+    for (int i = 7; i >= 2; i--) idx = idx << 8 | b[i];
+    for (int y = 0; y < 4; y++)
+        for (int x = 0; x < 4; x++, idx >>= 3) out[(size_t)y * pitch + (size_t)x * px] = (unsigned char)a[idx & 7];
+}
+
+/* Decodes `blocks` (`len` bytes), a w x h-texel tile of format `code` stored as ceil(w / 4) x
+ * ceil(h / 4) blocks in rows (as clipmap_read_tile copies it), into `out`: w * h texels of
+ * clipmap_decoded_bytes(code) bytes, rows in increasing t, s fastest; the texels of a partial block
+ * beyond w or h are dropped. A decoder for checks and for renderers without the GPU formats; it
+ * gives bcdec's texels (the Rust client's decode_tile) bit for bit.
+ * CLIPMAP_OK; CLIPMAP_NOT_VALID: a format it does not decode (BC7, or a texel format), or `len` is
+ * not ceil(w / 4) x ceil(h / 4) blocks of the format's bytes. */
+static inline int clipmap_decode_blocks(uint32_t code, const unsigned char *blocks, size_t len, uint64_t w,
+                                        uint64_t h, unsigned char *out) {
+    const uint64_t px = clipmap_decoded_bytes(code), bb = clipmap_format_bytes(code);
+    const uint64_t bw = clipmap_div_ceil(w, 4), bh = clipmap_div_ceil(h, 4);
+    uint64_t n;
+    if (px == 0 || !clipmap_mul(bw, bh, &n) || !clipmap_mul(n, bb, &n) || n != (uint64_t)len) return CLIPMAP_NOT_VALID;
+    unsigned char texels[4 * 4 * 4];
+    for (uint64_t j = 0; j < bh; j++) {
+        for (uint64_t i = 0; i < bw; i++) {
+            const unsigned char *b = blocks + (j * bw + i) * bb;
+            if (code == CLIPMAP_FORMAT_BC1) {
+                clipmap_bc1_block(b, texels, 16);
+            } else if (code == CLIPMAP_FORMAT_BC4) {
+                clipmap_bc4_block(b, texels, 4, 1);
+            } else {
+                clipmap_bc4_block(b, texels, 8, 2);
+                clipmap_bc4_block(b + 8, texels + 1, 8, 2);
+            }
+            for (uint64_t y = 0; y < 4 && 4 * j + y < h; y++) {
+                uint64_t cols = w - 4 * i < 4 ? w - 4 * i : 4;
+                memcpy(out + ((4 * j + y) * w + 4 * i) * px, texels + y * 4 * px, (size_t)(cols * px));
+            }
+        }
     }
     return CLIPMAP_OK;
 }

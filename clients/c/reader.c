@@ -19,6 +19,17 @@
  * write). The region must lie inside the level's published valid region; the reader tries again
  * for up to SECONDS (default 5) while it is not (the service still loading it) and then exits 2.
  *
+ *   ./reader MAPPING --tile LEVEL S T OUT [SECONDS]
+ *   ./reader MAPPING --decode LEVEL S T OUT [SECONDS]
+ *
+ * write tile (S, T) of LEVEL to the file OUT: --tile its slot's bytes as they are (clipmap_read_tile;
+ * for a block-compressed format its blocks, docs/SHM.md "Block-compressed formats"), --decode a BC1,
+ * BC4 or BC5 tile's texels decoded (clipmap_decode_blocks: TW x TH texels of 4, 1 or 2 bytes, rows in
+ * increasing t). Each prints "level L tile S T bytes N" and tries again for up to SECONDS (default 5)
+ * while the slot does not hold the tile ready or default; a tile missing, never ready or not decoded
+ * here (BC7, a texel format) exits 2 saying why. The random reads and --dump refuse a block format
+ * (exit 2): its texels have no address of their own.
+ *
  *   ./reader MAPPING --heights
  *
  * prints what the header's heights block says, one line: "not heights", or "heights STORAGE
@@ -128,6 +139,79 @@ static void print_view(const char *name, uint32_t record, uint64_t incarnation, 
 static int view_snapshot(const struct clipmap_map *m, const struct clipmap_view *v, const struct clipmap_map *own,
                          struct clipmap_snapshot *snap) {
     return v->own ? clipmap_view_own_snapshot(m, v, own, snap) : clipmap_view_snapshot(m, v, snap);
+}
+
+/* --tile / --decode LEVEL S T OUT [SECONDS]: the tile's bytes, or its texels decoded, into OUT. */
+static int tile(int argc, char **argv, const struct clipmap_map *tm) {
+    unsigned level;
+    long long S, T;
+    char extra;
+    int decode = strcmp(argv[2], "--decode") == 0;
+    double seconds = argc > 7 ? strtod(argv[7], NULL) : 5.0;
+    if (argc < 7 || argc > 8 || sscanf(argv[3], "%u%c", &level, &extra) != 1 ||
+        sscanf(argv[4], "%lld%c", &S, &extra) != 1 || sscanf(argv[5], "%lld%c", &T, &extra) != 1 || !(seconds >= 0)) {
+        fprintf(stderr, "usage: %s MAPPING %s LEVEL S T OUT [SECONDS]\n", argv[0], argv[2]);
+        return 2;
+    }
+    if (level >= tm->level_count) {
+        fprintf(stderr, "clipmap reader: %s: %s level %u: the texture has levels 0 to %u\n", argv[1], argv[2], level,
+                tm->level_count - 1);
+        return 2;
+    }
+    const struct clipmap_level_desc *d = &tm->levels[level];
+    uint32_t px = clipmap_decoded_bytes(tm->texel_format);
+    if (decode && px == 0) {
+        fprintf(stderr, "clipmap reader: %s: --decode: texel format %u is not decoded here: this reader decodes bc1, "
+                "bc4 and bc5 (20, 21, 22); read the tile's bytes with --tile\n", argv[1], tm->texel_format);
+        return 2;
+    }
+    size_t n = (size_t)d->slot_bytes, texels = (size_t)(d->tile[0] * d->tile[1] * px);
+    unsigned char *buf = malloc(n), *dec = decode ? malloc(texels) : NULL;
+    if (buf == NULL || (decode && dec == NULL)) {
+        fprintf(stderr, "clipmap reader: %s: cannot allocate %zu bytes\n", argv[2], n + texels);
+        free(buf);
+        free(dec);
+        return 2;
+    }
+    struct timespec start, now;
+    clock_gettime(CLOCK_MONOTONIC, &start);
+    int rc;
+    for (;;) {
+        rc = clipmap_read_tile(tm, level, S, T, buf);
+        clock_gettime(CLOCK_MONOTONIC, &now);
+        double spent = (double)(now.tv_sec - start.tv_sec) + (double)(now.tv_nsec - start.tv_nsec) * 1e-9;
+        if (rc == CLIPMAP_OK || (rc != CLIPMAP_STALE && rc != CLIPMAP_BUSY) || spent >= seconds) break;
+        struct timespec pause = {0, 10 * 1000 * 1000};
+        nanosleep(&pause, NULL);
+    }
+    if (rc != CLIPMAP_OK) {
+        const char *why = rc == CLIPMAP_NOT_VALID ? "the level has no such tile"
+                          : rc == CLIPMAP_MISSING ? "the tile is missing (the service could not read it)"
+                          : rc == CLIPMAP_STALE   ? "its slot never held it ready"
+                                                  : "the writer kept its tag busy";
+        fprintf(stderr, "clipmap reader: %s: %s level %u tile (%lld, %lld): %s\n", argv[1], argv[2], level, S, T, why);
+        free(buf);
+        free(dec);
+        return 2;
+    }
+    if (decode && clipmap_decode_blocks(tm->texel_format, buf, n, d->tile[0], d->tile[1], dec) != CLIPMAP_OK) {
+        fprintf(stderr, "clipmap reader: %s: --decode level %u: %zu bytes are not the tile's blocks\n", argv[1], level, n);
+        free(buf);
+        free(dec);
+        return 2;
+    }
+    FILE *f = fopen(argv[6], "wb");
+    int ok = f != NULL && fwrite(decode ? dec : buf, 1, decode ? texels : n, f) == (decode ? texels : n);
+    if (f != NULL && fclose(f) != 0) ok = 0;
+    free(buf);
+    free(dec);
+    if (!ok) {
+        fprintf(stderr, "clipmap reader: cannot write %s: %s\n", argv[6], strerror(errno));
+        remove(argv[6]);
+        return 2;
+    }
+    printf("level %u tile %lld %lld bytes %zu\n", level, S, T, decode ? texels : n);
+    return 0;
 }
 
 /* --dump LEVEL S0,T0,S1,T1 OUT [SECONDS]: the region's stored bytes into OUT (see the top). */
@@ -384,6 +468,20 @@ int main(int argc, char **argv) {
         clipmap_close(&own);
         clipmap_close(&m);
         return rc;
+    }
+    if (strcmp(argv[2], "--tile") == 0 || strcmp(argv[2], "--decode") == 0) {
+        int rc = tile(argc, argv, tm);
+        clipmap_close(&own);
+        clipmap_close(&m);
+        return rc;
+    }
+    if (tm->block != 1 && (strcmp(argv[2], "--dump") == 0 || argv[2][0] != '-')) {
+        fprintf(stderr, "clipmap reader: %s: texel format %u is block-compressed (4 x 4 blocks of %u bytes): its texels "
+                "have no address of their own; read whole tiles with --tile or --decode\n", argv[1], tm->texel_format,
+                tm->bytes_per_texel);
+        clipmap_close(&own);
+        clipmap_close(&m);
+        return 2;
     }
     if (strcmp(argv[2], "--dump") == 0) {
         int rc = dump(argc, argv, &m, &view, &own, tm);

@@ -1197,9 +1197,9 @@ class Mapping:
         raise Busy(f"level {level} tile ({S}, {T}): the tag stayed locked for {MAX_RETRIES} attempts")
 
     def decode_tile(self, level, S, T):
-        """Tile (S, T) of `level` of a bc1, bc4 or bc5 mapping decoded in pure Python
-        (decode_blocks): TW x TH texels, RGBA8 for bc1, one byte for bc4, two for bc5. BC7 is not
-        decoded here (ValueError)."""
+        """Tile (S, T) of `level` of a block-compressed mapping decoded in pure Python
+        (decode_blocks): TW x TH texels, RGBA8 for bc1 and bc7, one byte for bc4, two for bc5,
+        equal to the Rust client's decode_tile bit for bit."""
         d = self.levels[level]
         return decode_blocks(self.format, self.read_tile(level, S, T), d.tile[0], d.tile[1])
 
@@ -1300,43 +1300,181 @@ PNG_FORMATS = {1: (0, 8), 3: (2, 8), 4: (6, 8), 7: (0, 16), 8: (4, 16), 9: (2, 1
 
 
 def _bc4_values(b):
-    """The 16 values of a BC4 block (8 bytes), by the eight- or six-value palette of its endpoints."""
+    """The 16 values of a BC4 block (8 bytes), by the eight- or six-value palette of its endpoints
+    (bcdec's arithmetic, so the values equal the Rust client's decoder's)."""
     e0, e1 = b[0], b[1]
     if e0 > e1:
-        pal = [e0, e1] + [((7 - i) * e0 + i * e1 + 3) // 7 for i in range(1, 7)]
+        w = (9363, 18724, 28086, 37450, 46812, 56173)
+        pal = [e0, e1] + [(w[6 - i] * e0 + w[i - 1] * e1 + 32768) >> 16 for i in range(1, 7)]
     else:
-        pal = [e0, e1] + [((5 - i) * e0 + i * e1 + 2) // 5 for i in range(1, 5)] + [0, 255]
+        w = (13107, 26215, 39321, 52429)
+        pal = [e0, e1] + [(w[4 - i] * e0 + w[i - 1] * e1 + 32768) >> 16 for i in range(1, 5)] + [0, 255]
     bits = int.from_bytes(b[2:8], "little")
     return [pal[(bits >> (3 * i)) & 7] for i in range(16)]
 
 
 def _bc1_texels(b):
-    """The 16 RGBA8 texels of a BC1 block (8 bytes)."""
+    """The 16 RGBA8 texels of a BC1 block (8 bytes): bcdec's arithmetic (5:6:5 widened, the thirds
+    and the mean in fixed point), so the texels equal the Rust client's decoder's."""
     c0, c1 = int.from_bytes(b[0:2], "little"), int.from_bytes(b[2:4], "little")
+    e0, e1 = ((c0 >> 11) & 31, (c0 >> 5) & 63, c0 & 31), ((c1 >> 11) & 31, (c1 >> 5) & 63, c1 & 31)
 
-    def rgb(c):
-        r, g, bl = (c >> 11) & 31, (c >> 5) & 63, c & 31
-        return [(r * 255 + 15) // 31, (g * 255 + 31) // 63, (bl * 255 + 15) // 31]
-    a, z = rgb(c0), rgb(c1)
+    def wide(e):
+        return [(e[0] * 527 + 23) >> 6, (e[1] * 259 + 33) >> 6, (e[2] * 527 + 23) >> 6, 255]
+
+    def third(x, y):  # (2x + y) / 3 of 5:6:5 components
+        return [((2 * x[0] + y[0]) * 351 + 61) >> 7, ((2 * x[1] + y[1]) * 2763 + 1039) >> 11,
+                ((2 * x[2] + y[2]) * 351 + 61) >> 7, 255]
     if c0 > c1:
-        pal = [a + [255], z + [255], [(2 * x + y + 1) // 3 for x, y in zip(a, z)] + [255],
-               [(x + 2 * y + 1) // 3 for x, y in zip(a, z)] + [255]]
+        pal = [wide(e0), wide(e1), third(e0, e1), third(e1, e0)]
     else:
-        pal = [a + [255], z + [255], [(x + y) // 2 for x, y in zip(a, z)] + [255], [0, 0, 0, 0]]
+        half = [((e0[0] + e1[0]) * 1053 + 125) >> 8, ((e0[1] + e1[1]) * 4145 + 1019) >> 11,
+                ((e0[2] + e1[2]) * 1053 + 125) >> 8, 255]
+        pal = [wide(e0), wide(e1), half, [0, 0, 0, 0]]
     bits = int.from_bytes(b[4:8], "little")
     return [pal[(bits >> (2 * i)) & 3] for i in range(16)]
 
 
+# BC7 (docs/SHM.md, "Block-compressed formats"): the format's tables. Each partition is its 16
+# texels' subsets (texel i = 4 * row + column); an anchor is the texel whose index of a subset
+# other than subset 0 is stored with one bit less (subset 0's is texel 0).
+_BC7_PARTITIONS2 = (
+    "0011001100110011", "0001000100010001", "0111011101110111", "0001001100110111",
+    "0000000100010011", "0011011101111111", "0001001101111111", "0000000100110111",
+    "0000000000010011", "0011011111111111", "0000000101111111", "0000000000010111",
+    "0001011111111111", "0000000011111111", "0000111111111111", "0000000000001111",
+    "0000100011101111", "0111000100000000", "0000000010001110", "0111001100010000",
+    "0011000100000000", "0000100011001110", "0000000010001100", "0111001100110001",
+    "0011000100010000", "0000100010001100", "0110011001100110", "0011011001101100",
+    "0001011111101000", "0000111111110000", "0111000110001110", "0011100110011100",
+    "0101010101010101", "0000111100001111", "0101101001011010", "0011001111001100",
+    "0011110000111100", "0101010110101010", "0110100101101001", "0101101010100101",
+    "0111001111001110", "0001001111001000", "0011001001001100", "0011101111011100",
+    "0110100110010110", "0011110011000011", "0110011010011001", "0000011001100000",
+    "0100111001000000", "0010011100100000", "0000001001110010", "0000010011100100",
+    "0110110010010011", "0011011011001001", "0110001110011100", "0011100111000110",
+    "0110110011001001", "0110001100111001", "0111111010000001", "0001100011100111",
+    "0000111100110011", "0011001111110000", "0010001011101110", "0100010001110111",
+)
+_BC7_ANCHORS2 = (15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 2, 8, 2, 2, 8, 8, 15, 2, 8, 2, 2, 8, 8, 2, 2, 15, 15, 6, 8, 2, 8, 15, 15, 2, 8, 2, 2, 2, 15, 15, 6, 6, 2, 6, 8, 15, 15, 2, 2, 15, 15, 15, 15, 15, 2, 2, 15)
+_BC7_PARTITIONS3 = (
+    "0011001102212222", "0001001122112221", "0000200122112211", "0222002200110111",
+    "0000000011221122", "0011001100220022", "0022002211111111", "0011001122112211",
+    "0000000011112222", "0000111111112222", "0000111122222222", "0012001200120012",
+    "0112011201120112", "0122012201220122", "0011011211221222", "0011200122002220",
+    "0001001101121122", "0111001120012200", "0000112211221122", "0022002200221111",
+    "0111011102220222", "0001000122212221", "0000001101220122", "0000110022102210",
+    "0122012200110000", "0012001211222222", "0110122112210110", "0000011012211221",
+    "0022110211020022", "0110011020022222", "0011012201220011", "0000200022112221",
+    "0000000211221222", "0222002200120011", "0011001200220222", "0120012001200120",
+    "0000111122220000", "0120120120120120", "0120201212010120", "0011220011220011",
+    "0011112222000011", "0101010122222222", "0000000021212121", "0022112200221122",
+    "0022001100220011", "0220122102201221", "0101222222220101", "0000212121212121",
+    "0101010101012222", "0222011102220111", "0002111200021112", "0000211221122112",
+    "0222011101110222", "0002111211120002", "0110011001102222", "0000000021122112",
+    "0110011022222222", "0022001100110022", "0022112211220022", "0000000000002112",
+    "0002000100020001", "0222122202221222", "0101222222222222", "0111201122012220",
+)
+_BC7_ANCHORS3 = ((3, 15), (3, 8), (15, 8), (15, 3), (8, 15), (3, 15), (15, 3), (15, 8), (8, 15), (8, 15), (6, 15), (6, 15), (6, 15), (5, 15), (3, 15), (3, 8), (3, 15), (3, 8), (8, 15), (15, 3), (3, 15), (3, 8), (6, 15), (10, 8), (5, 3), (8, 15), (8, 6), (6, 10), (8, 15), (5, 15), (15, 10), (15, 8), (8, 15), (15, 3), (3, 15), (5, 10), (6, 10), (10, 8), (8, 9), (15, 10), (15, 6), (3, 15), (15, 8), (5, 15), (15, 3), (15, 6), (15, 6), (15, 8), (3, 15), (15, 3), (5, 15), (5, 15), (5, 15), (8, 15), (5, 15), (10, 15), (5, 15), (10, 15), (8, 15), (13, 15), (15, 3), (12, 15), (3, 15), (3, 8))
+_BC7_WEIGHTS = {
+    2: (0, 21, 43, 64),
+    3: (0, 9, 18, 27, 37, 46, 55, 64),
+    4: (0, 4, 9, 13, 17, 21, 26, 30, 34, 38, 43, 47, 51, 55, 60, 64),
+}
+# Per mode 0..7: subsets, partition bits, rotation bits, index selection bits, colour bits, alpha
+# bits, p-bits per endpoint, shared p-bits per subset, index bits, secondary index bits.
+_BC7_MODES = (
+    (3, 4, 0, 0, 4, 0, 1, 0, 3, 0),
+    (2, 6, 0, 0, 6, 0, 0, 1, 3, 0),
+    (3, 6, 0, 0, 5, 0, 0, 0, 2, 0),
+    (2, 6, 0, 0, 7, 0, 1, 0, 2, 0),
+    (1, 0, 2, 1, 5, 6, 0, 0, 2, 3),
+    (1, 0, 2, 0, 7, 8, 0, 0, 2, 2),
+    (1, 0, 0, 0, 7, 7, 1, 0, 4, 0),
+    (2, 6, 0, 0, 5, 5, 1, 0, 2, 0),
+)
+
+
+def _bc7_texels(b):
+    """The 16 RGBA8 texels of a BC7 block (16 bytes), every mode 0..7 by the format's definition
+    (Direct3D 11's BC7 decoding; exact, so the texels equal any conforming decoder's, bcdec's
+    among them). A block whose first byte is 0 (no mode) decodes to transparent black."""
+    v = int.from_bytes(b[:16], "little")
+    mode = 0
+    while mode < 8 and not (v >> mode) & 1:
+        mode += 1
+    if mode == 8:
+        return [[0, 0, 0, 0]] * 16
+    at = mode + 1
+
+    def take(n):
+        nonlocal at
+        x = (v >> at) & ((1 << n) - 1)
+        at += n
+        return x
+    ns, pb, rb, isb, cb, ab, epb, spb, ib, ib2 = _BC7_MODES[mode]
+    partition, rotation, selection = take(pb), take(rb), take(isb)
+    ends = 2 * ns
+    # Endpoints: red of every endpoint, then green, blue and alpha (subset 0's two first).
+    ep = [[0, 0, 0, 255] for _ in range(ends)]
+    for c in range(3):
+        for e in range(ends):
+            ep[e][c] = take(cb)
+    if ab:
+        for e in range(ends):
+            ep[e][3] = take(ab)
+    # P-bits: one per endpoint, or one per subset shared by its two endpoints.
+    if epb:
+        pbits = [take(1) for _ in range(ends)]
+    elif spb:
+        shared = [take(1) for _ in range(ns)]
+        pbits = [shared[e // 2] for e in range(ends)]
+    else:
+        pbits = None
+    for e in range(ends):
+        for c in range(4):
+            n = cb if c < 3 else ab
+            if n == 0:
+                continue
+            x = ep[e][c]
+            if pbits is not None:
+                x, n = x << 1 | pbits[e], n + 1
+            x <<= 8 - n
+            ep[e][c] = x | x >> n
+    if ns == 1:
+        subsets, anchors = "0" * 16, (0,)
+    elif ns == 2:
+        subsets, anchors = _BC7_PARTITIONS2[partition], (0, _BC7_ANCHORS2[partition])
+    else:
+        subsets, anchors = _BC7_PARTITIONS3[partition], (0,) + _BC7_ANCHORS3[partition]
+    idx = [take(ib - (i in anchors)) for i in range(16)]
+    idx2 = [take(ib2 - (i == 0)) for i in range(16)] if ib2 else idx
+    wc, wa = _BC7_WEIGHTS[ib], _BC7_WEIGHTS[ib2 or ib]
+    if selection:  # mode 4: the colour takes the secondary indices, alpha the primary ones
+        idx, idx2, wc, wa = idx2, idx, wa, wc
+    out = []
+    for i in range(16):
+        e0, e1 = ep[2 * int(subsets[i])], ep[2 * int(subsets[i]) + 1]
+        w, wal = wc[idx[i]], wa[idx2[i]]
+        t = [(e0[c] * (64 - w) + e1[c] * w + 32) >> 6 for c in range(3)]
+        t.append((e0[3] * (64 - wal) + e1[3] * wal + 32) >> 6)
+        if rotation:
+            t[3], t[rotation - 1] = t[rotation - 1], t[3]
+        out.append(t)
+    return out
+
+
 def decode_blocks(fmt, blocks, w, h):
-    """Decodes a w x h tile of format code `fmt` (20 bc1, 21 bc4, 22 bc5) stored as
-    ceil(w / 4) x ceil(h / 4) blocks in rows into w * h texels (RGBA8, one byte, two bytes), rows in
-    increasing t; texels of a partial block beyond w or h are dropped. A check's decoder: the
-    palettes are the formats' definitions rounded to nearest, so a GPU's texels may differ by 1.
-    BC7 (23) is not decoded here: ValueError."""
-    px = {20: 4, 21: 1, 22: 2}.get(fmt)
+    """Decodes a w x h tile of format code `fmt` (20 bc1, 21 bc4, 22 bc5, 23 bc7) stored as
+    ceil(w / 4) x ceil(h / 4) blocks in rows into w * h texels (RGBA8, one byte, two bytes, RGBA8),
+    rows in increasing t; texels of a partial block beyond w or h are dropped. A check's decoder,
+    in pure Python: BC7 by the format's definition (exact), BC1, BC4 and BC5 with bcdec's
+    arithmetic, so the texels equal the Rust client's decoder's bit for bit (a GPU's BC1, BC4 and
+    BC5 palettes may differ from them by 1). Another format code: ValueError."""
+    px = {20: 4, 21: 1, 22: 2, 23: 4}.get(fmt)
     if px is None:
-        raise ValueError(f"texel format code {fmt}: this reader decodes bc1, bc4 and bc5 (20, 21, 22) only")
-    bb, bw, bh = (16 if fmt == 22 else 8), _ceil_div(w, 4), _ceil_div(h, 4)
+        raise ValueError(f"texel format code {fmt}: not block-compressed (expected 20 bc1, 21 bc4, 22 bc5 or 23 bc7)")
+    bb, bw, bh = (16 if fmt in (22, 23) else 8), _ceil_div(w, 4), _ceil_div(h, 4)
     if len(blocks) != bw * bh * bb:
         raise ValueError(f"{len(blocks)} bytes for a {w}x{h} tile: expected {bw}x{bh} blocks of {bb} bytes")
     out = bytearray(w * h * px)
@@ -1347,8 +1485,10 @@ def decode_blocks(fmt, blocks, w, h):
                 texels = [bytes(p) for p in _bc1_texels(b)]
             elif fmt == 21:
                 texels = [bytes([v]) for v in _bc4_values(b)]
-            else:
+            elif fmt == 22:
                 texels = [bytes([r, g]) for r, g in zip(_bc4_values(b[:8]), _bc4_values(b[8:]))]
+            else:
+                texels = [bytes(p) for p in _bc7_texels(b)]
             for n, texel in enumerate(texels):
                 x, y = 4 * i + n % 4, 4 * j + n // 4
                 if x < w and y < h:
@@ -1644,6 +1784,11 @@ def main(argv):
         m.close()
         return 2
     tm = view.mapping  # the texels the view reads: a view with grids of its own, its own mapping's
+    if tm.format in BLOCK_FORMATS:
+        print(f"clipmap_shm: {argv[1]}: texel format {FORMATS[tm.format][0]} is block-compressed: its texels have no "
+              f"address of their own; read whole tiles (Mapping.read_tile, decode_tile)", file=sys.stderr)
+        m.close()
+        return 2
     give_up = time.monotonic() + seconds
     passed = failed = busy = stale = missing = moved = idle = blocks = crossing = 0
     bpt = tm.bpt

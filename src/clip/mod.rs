@@ -192,7 +192,7 @@ pub struct LevelView<'a> {
     pub tile: [u64; 2],
     /// Slots per axis of the level's grid.
     pub grid: [u64; 2],
-    /// Bytes per texel.
+    /// Bytes per texel; for a block-compressed format the bytes of one 4 x 4 block.
     pub bpt: usize,
     /// Published valid region: texels readers may read (where their tiles are readable).
     pub valid: Rect,
@@ -201,6 +201,8 @@ pub struct LevelView<'a> {
     /// Whether the level wraps along s ([`crate::geom::level_wraps`]): its valid region's
     /// s-range may run past the width, and texel s is texel `s mod width`.
     pub wrap: bool,
+    /// The block format of a block-compressed texture ([`LevelView::texel`] decodes).
+    block: Option<crate::texel::Bc>,
     cache: &'a TileCache,
 }
 
@@ -226,7 +228,9 @@ impl LevelView<'_> {
     }
 
     /// The texel at (s, t) if it lies in the published valid region and its tile is readable (a
-    /// missing tile's texels come from a coarser level).
+    /// missing tile's texels come from a coarser level). For a block-compressed texture, the
+    /// texel decoded from its 4 x 4 block (RGBA8 for `bc1` and `bc7`, one byte for `bc4`, two
+    /// for `bc5`; `crate::shm::blocks`).
     pub fn texel(&self, s: i64, t: i64) -> Option<Texel> {
         if !crate::geom::contains_wrapped(&self.valid, s, t, self.wrap.then_some(self.size[0])) {
             return None;
@@ -234,9 +238,30 @@ impl LevelView<'_> {
         let s = self.real_s(s);
         let tile = self.tile_of(s, t);
         let (tw, th) = (self.tile[0] as i64, self.tile[1] as i64);
+        if let Some(bc) = self.block {
+            return self.block_texel(bc, tile, s - tile.s as i64 * tw, t - tile.t as i64 * th);
+        }
         let i = ((t - tile.t as i64 * th) * tw + (s - tile.s as i64 * tw)) as usize * self.bpt;
         let mut texel = Texel { bytes: [0; 16], len: self.bpt.min(16) as u8 };
         self.cache.read(tile, i, &mut texel.bytes[..texel.len as usize]).then_some(texel)
+    }
+}
+
+impl LevelView<'_> {
+    /// Texel (x, y) of `tile` of a block-compressed level, decoded from the block holding it.
+    fn block_texel(&self, bc: crate::texel::Bc, tile: TileId, x: i64, y: i64) -> Option<Texel> {
+        let across = self.tile[0].div_ceil(4) as i64;
+        let mut block = [0u8; 16];
+        let block = &mut block[..self.bpt.min(16)];
+        if !self.cache.read(tile, ((y / 4) * across + x / 4) as usize * self.bpt, block) {
+            return None;
+        }
+        let texels = crate::shm::blocks::decode(bc, block, 4, 4).ok()?;
+        let n = crate::shm::blocks::decoded_bytes(bc);
+        let at = ((y % 4) * 4 + x % 4) as usize * n;
+        let mut texel = Texel { bytes: [0; 16], len: n as u8 };
+        texel.bytes[..n].copy_from_slice(&texels[at..at + n]);
+        Some(texel)
     }
 }
 
@@ -567,6 +592,7 @@ impl Clipmap {
             valid: l.published,
             centre: l.frame.centre,
             wrap: l.shape.wrap,
+            block: self.desc.format().block(),
             cache: &self.cache,
         }
     }

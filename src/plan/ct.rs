@@ -11,6 +11,7 @@ use super::values::{self, SizeRule};
 use super::{check_version, portability, ClipTexturePlan, GroupMode, Level, LevelKind, Options, PyramidTile};
 use crate::config::{self, Diagnostic, Diagnostics, FileKind, Severity, Span, Spanned, SyntaxFile, TokenId};
 use crate::place::Place;
+use crate::texel::TexelFormat;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -175,7 +176,7 @@ pub fn build(
         } else {
             let idx = l - n_icache as usize;
             let path = pyramid_names.as_ref().and_then(|v| v.get(idx).cloned().flatten()).map(|(p, _)| p);
-            levels.push(pyramid_level(file, diags, (level, size), path, header_offset, texel.bytes_per_texel())?);
+            levels.push(pyramid_level(file, diags, (level, size), path, header_offset, texel)?);
         }
     }
     if levels.len() != sizes.len() {
@@ -402,9 +403,10 @@ fn pyramid_level(
     (level, size): (u32, [u64; 2]),
     path: Option<Place>,
     header_offset: u64,
-    bytes_per_texel: u32,
+    texel: TexelFormat,
 ) -> Option<Level> {
-    let Some(length) = size[0].checked_mul(size[1]).and_then(|n| n.checked_mul(bytes_per_texel as u64)) else {
+    // Whole 4 x 4 blocks for a block-compressed format, texels for the others.
+    let Some(length) = texel.bytes_for(size[0], size[1]) else {
         diags.push(
             Diagnostic::new(
                 Severity::Error,

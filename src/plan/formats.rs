@@ -1,7 +1,7 @@
 //! Texel format names and numbers: `ext_format`, `int_format` and `img_format` values
 //! (docs/PERFORMER-REFERENCE.md §1.3), resolved to OpenGL enum values and to a [`TexelFormat`].
 
-use crate::texel::{ComponentType, Components, PackedType, TexelFormat};
+use crate::texel::{Bc, ComponentType, Components, PackedType, TexelFormat};
 
 /// External (on-disk component type) format names with their GL value.
 pub(crate) const EXT_FORMATS: &[(&str, u32)] = &[
@@ -30,11 +30,22 @@ pub(crate) const EXT_FORMATS: &[(&str, u32)] = &[
     ("GL_UNSIGNED_INT_8_8_8_8_EXT", 32821),
     ("GL_UNSIGNED_INT_10_10_10_2_EXT", 32822),
     ("GL_BITMAP", 6656),
+    // This crate's extension (docs/CONFIG.md, "Block-compressed tiles"): tiles stored as BCn
+    // blocks, each name's value the OpenGL compressed format's.
+    ("CLIPMAP_BC1", 33776),
+    ("CLIPMAP_BC4", 36283),
+    ("CLIPMAP_BC5", 36285),
+    ("CLIPMAP_BC7", 36492),
 ];
 
 /// Internal (hardware) format names with their GL value.
 pub(crate) const INT_FORMATS: &[(&str, u32)] = &[
     ("PFTEX_I_8", 32832),
+    // The OpenGL compressed formats of this crate's block-compressed tiles.
+    ("GL_COMPRESSED_RGB_S3TC_DXT1_EXT", 33776),
+    ("GL_COMPRESSED_RED_RGTC1", 36283),
+    ("GL_COMPRESSED_RG_RGTC2", 36285),
+    ("GL_COMPRESSED_RGBA_BPTC_UNORM", 36492),
     ("PFTEX_I_16", 32845),
     ("PFTEX_IA_8", 32837),
     ("PFTEX_I_12A_4", 32838),
@@ -186,6 +197,17 @@ pub fn names_of(f: TexelFormat) -> Option<(&'static str, &'static str, &'static 
     Some(match (f.components, f.ctype) {
         (Components::One, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "GL_LUMINANCE8_EXT", "PFTEX_LUMINANCE"),
         (Components::Three, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "PFTEX_RGB_8", "PFTEX_RGB"),
+        // Block-compressed tiles (this crate's extension, docs/CONFIG.md).
+        (Components::Three, ComponentType::Bc(Bc::Bc1)) => {
+            ("CLIPMAP_BC1", "GL_COMPRESSED_RGB_S3TC_DXT1_EXT", "PFTEX_RGB")
+        }
+        (Components::One, ComponentType::Bc(Bc::Bc4)) => ("CLIPMAP_BC4", "GL_COMPRESSED_RED_RGTC1", "PFTEX_LUMINANCE"),
+        (Components::Two, ComponentType::Bc(Bc::Bc5)) => {
+            ("CLIPMAP_BC5", "GL_COMPRESSED_RG_RGTC2", "PFTEX_LUMINANCE_ALPHA")
+        }
+        (Components::Four, ComponentType::Bc(Bc::Bc7)) => {
+            ("CLIPMAP_BC7", "GL_COMPRESSED_RGBA_BPTC_UNORM", "PFTEX_RGBA")
+        }
         (Components::Four, ComponentType::U8) => ("PFTEX_UNSIGNED_BYTE", "PFTEX_RGBA_8", "PFTEX_RGBA"),
         (Components::Three, ComponentType::Packed(PackedType::Rgb565)) => {
             ("PFTEX_PACK_USHORT_5_6_5", "PFTEX_RGB_5", "PFTEX_RGB")
@@ -210,6 +232,18 @@ pub fn names_of(f: TexelFormat) -> Option<(&'static str, &'static str, &'static 
 /// meaning for tiles.
 pub fn texel_format(ext_value: u32, img_value: u32) -> Option<TexelFormat> {
     let components = Components::from_count(components_of(img_value)?)?;
+    // A block format: its components are the format's own (an image format of another count
+    // names no format).
+    let bc = match ext_value {
+        33776 => Some(Bc::Bc1),
+        36283 => Some(Bc::Bc4),
+        36285 => Some(Bc::Bc5),
+        36492 => Some(Bc::Bc7),
+        _ => None,
+    };
+    if let Some(bc) = bc {
+        return (bc.format().components == components).then(|| bc.format());
+    }
     let ctype = match ext_value {
         5121 => ComponentType::U8,
         5120 => ComponentType::I8,
@@ -251,5 +285,10 @@ mod tests {
         assert_eq!(texel_format(32820, 6408).unwrap().bytes_per_texel(), 2);
         assert_eq!(texel_format(5123, 6408).unwrap().bytes_per_texel(), 8);
         assert_eq!(texel_format(6656, 6408), None);
+        // Block formats: the bytes of one 4 x 4 block; an image format of another component
+        // count names none.
+        assert_eq!(texel_format(33776, 6407), Some(TexelFormat::BC1));
+        assert_eq!(texel_format(36492, 6408).unwrap().bytes_per_texel(), 16);
+        assert_eq!(texel_format(33776, 6408), None);
     }
 }

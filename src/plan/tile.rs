@@ -96,6 +96,11 @@ impl ImageCachePlan {
 
     /// Bytes of one tile.
     pub fn tile_bytes(&self) -> u64 {
+        if self.texel.block().is_some() {
+            // Block-compressed: whole 4 x 4 blocks of the tile (docs/CONFIG.md).
+            let [w, h, d] = self.tile_size;
+            return self.texel.bytes_for(w, h).unwrap_or(u64::MAX).saturating_mul(d);
+        }
         self.tile_size.iter().product::<u64>() * self.bytes_per_texel as u64
     }
 

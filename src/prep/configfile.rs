@@ -41,7 +41,17 @@ pub fn ct_text(layout: &Layout, description: &[String], heights: Option<&HeightP
         layout.image_cache_levels().count(),
         layout.pyramid_levels().count()
     );
-    out.push_str("# Texel (s, t) of a tile is at byte ((t mod tile height) * tile width + (s mod tile width)) * bytes per texel.\n");
+    match layout.blocks {
+        None => out.push_str("# Texel (s, t) of a tile is at byte ((t mod tile height) * tile width + (s mod tile width)) * bytes per texel.\n"),
+        Some((bc, _)) => {
+            let _ = writeln!(
+                out,
+                "# Tiles are {} blocks (an extension of this format): ceil(tile width / 4) x ceil(tile height / 4) blocks of {} bytes, in rows of increasing t.",
+                bc.name(),
+                bc.block_bytes()
+            );
+        }
+    }
     if let Some(i) = &spec.inset {
         let _ = writeln!(
             out,
@@ -53,7 +63,7 @@ pub fn ct_text(layout: &Layout, description: &[String], heights: Option<&HeightP
             i.t1
         );
     }
-    formats(&mut out, spec.format);
+    formats(&mut out, layout.disk_format());
     let _ = writeln!(out, "virt_size {} {} 1", spec.width, spec.height);
     let _ = writeln!(out, "clip_size {}", spec.clip);
     if !layout.smallest_icache_is_default {
@@ -108,7 +118,7 @@ pub(crate) fn ic_text(layout: &Layout, level: &Level, ct_name: &str) -> String {
         level.tile_w,
         level.tile_h
     );
-    formats(&mut out, spec.format);
+    formats(&mut out, layout.disk_format());
     let _ = writeln!(out, "icache_size {} {} 1", level.width, level.height);
     let _ = writeln!(out, "tex_region_size {} {} 1", spec.clip.min(level.width), spec.clip.min(level.height));
     if spec.header_bytes > 0 {

@@ -149,6 +149,9 @@ pub struct Layout {
     pub smallest_icache: (u64, u64),
     /// True when `smallest_icache` equals Performer's default (so the `.ct` need not say it).
     pub smallest_icache_is_default: bool,
+    /// Tiles stored block-compressed ([`Layout::with_blocks`]): the format and the encoder's
+    /// quality; `None` for texels as they are.
+    pub blocks: Option<(crate::texel::Bc, crate::source::BcQuality)>,
 }
 
 fn check_pow2(what: String, v: u64, hint: &'static str) -> Result<(), PrepError> {
@@ -244,12 +247,61 @@ impl Layout {
             levels.push(Level { index: k, width: lw, height: lh, kind: LevelKind::Pyramid, tile_w: lw, tile_h: lh });
             k += 1;
         }
-        let layout =
-            Layout { spec, levels, smallest_icache: smallest, smallest_icache_is_default: smallest == default };
+        let layout = Layout {
+            spec,
+            levels,
+            smallest_icache: smallest,
+            smallest_icache_is_default: smallest == default,
+            blocks: None,
+        };
         if let Some(inset) = &layout.spec.inset {
             layout.check_inset(inset)?;
         }
         Ok(layout)
+    }
+
+    /// The same layout with its tiles stored block-compressed in `bc` (`clipprep --format
+    /// bc1|bc4|bc5|bc7`; docs/CONFIG.md, "Block-compressed tiles"): the levels are made of
+    /// `spec.format` texels as before (8-bit: the encoder's input), and each tile is encoded whole
+    /// at `quality` as it is written, so a service serves the blocks without encoding. Refused
+    /// for texels other than 8-bit grey, RGB or RGBA, and for tiles that do not start on a 4 x 4
+    /// block (tiles of fewer than 4 texels that do not span their level).
+    pub fn with_blocks(mut self, bc: crate::texel::Bc, quality: crate::source::BcQuality) -> Result<Layout, PrepError> {
+        use crate::texel::ComponentType;
+        if self.spec.format.ctype != ComponentType::U8 {
+            return Err(PrepError::Geometry(format!(
+                "--format {} encodes 8-bit texels, and the texels are {}; expected an 8-bit grey, RGB or RGBA source",
+                bc.name(),
+                self.spec.format
+            )));
+        }
+        for l in &self.levels {
+            let ok = |tile: u64, size: u64| tile.is_multiple_of(4) || tile >= size;
+            if !ok(l.tile_w, l.width) || !ok(l.tile_h, l.height) {
+                return Err(PrepError::Geometry(format!(
+                    "--format {}: level {} ({}x{}) has {}x{} tiles, which do not start on 4 x 4 blocks; pass a --tile of at least 4",
+                    bc.name(),
+                    l.index,
+                    l.width,
+                    l.height,
+                    l.tile_w,
+                    l.tile_h
+                )));
+            }
+        }
+        self.blocks = Some((bc, quality));
+        Ok(self)
+    }
+
+    /// The format of the tiles on disk: the block format when tiles are block-compressed, else
+    /// `spec.format`.
+    pub fn disk_format(&self) -> TexelFormat {
+        self.blocks.map_or(self.spec.format, |(bc, _)| bc.format())
+    }
+
+    /// Bytes of one tile of `level` on disk (whole 4 x 4 blocks when block-compressed).
+    pub fn tile_bytes(&self, level: &Level) -> u64 {
+        self.disk_format().bytes_for(level.tile_w, level.tile_h).unwrap_or(u64::MAX)
     }
 
     /// The tiles of `level` if the layout has an inset and the level is finer than its level.
@@ -280,6 +332,8 @@ impl Layout {
 
     /// Bytes per texel.
     pub fn bpt(&self) -> u64 {
+        // The texels the levels are made of (the encoder's input when tiles are block-compressed).
+
         self.spec.format.bytes_per_texel() as u64
     }
 
@@ -351,8 +405,7 @@ impl Layout {
 
     /// Where tile (s, t) of `level` lives. For a pyramid level only (0, 0) exists.
     pub fn tile(&self, level: &Level, s: u64, t: u64) -> TileLocation {
-        let bpt = self.bpt();
-        let length = level.tile_w * level.tile_h * bpt;
+        let length = self.tile_bytes(level);
         match level.kind {
             LevelKind::Pyramid => {
                 TileLocation { path: PathBuf::from(Self::pyramid_file(level.index)), offset: 0, length, stream: None }

@@ -215,7 +215,8 @@ pub fn run(
         if layout.sparse(level).is_some() {
             let zeros = vec![0u8; (level.tile_w * level.tile_h * layout.bpt()) as usize];
             let path = root.join(Layout::default_tile_file(level.index));
-            fs::write(&path, zeros).map_err(|e| PrepError::write(&path, e, total))?;
+            fs::write(&path, super::sink::on_disk(layout, level, &zeros))
+                .map_err(|e| PrepError::write(&path, e, total))?;
         }
     }
     let interrupted = || PrepError::Interrupted { dir: interrupted_dir.to_path_buf() };

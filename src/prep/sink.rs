@@ -35,6 +35,8 @@ impl<'a> LevelWriter<'a> {
         let row_bytes = (level.width * layout.bpt()) as usize;
         let band_rows = match level.kind {
             LevelKind::ImageCache => level.tile_h as usize,
+            // A block-compressed pyramid level is encoded whole (at most the clip size a side).
+            LevelKind::Pyramid if layout.blocks.is_some() => level.height as usize,
             LevelKind::Pyramid => (pyramid_band_bytes as usize / row_bytes).clamp(1, level.height as usize),
         };
         LevelWriter {
@@ -143,6 +145,15 @@ pub(crate) fn write_tile_part(
 ) -> Result<(), PrepError> {
     let loc = layout.tile(level, s, t);
     let path = root.join(&loc.path);
+    let encoded;
+    let data = match layout.blocks {
+        Some(_) => {
+            assert_eq!(offset, 0, "block-compressed tiles are written whole");
+            encoded = on_disk(layout, level, data);
+            &encoded[..]
+        }
+        None => data,
+    };
     if let (true, Some(Compression::Zstd(z))) = (layout.compressed(level), layout.spec.compression) {
         assert!(offset == 0 && data.len() as u64 == loc.length, "compressed tiles are written whole");
         let packed = zstd::bulk::compress(data, z).map_err(|e| PrepError::write(&path, e, total_bytes))?;
@@ -150,6 +161,23 @@ pub(crate) fn write_tile_part(
     }
     write_at(&path, &header(layout, level, s, t), loc.offset + offset, data)
         .map_err(|e| PrepError::write(&path, e, total_bytes))
+}
+
+/// A whole tile of `level` as it is stored: `texels` (tile width x height texels of the layout's
+/// format) as they are, or encoded into blocks when the layout's tiles are block-compressed.
+pub(crate) fn on_disk(layout: &Layout, level: &Level, texels: &[u8]) -> Vec<u8> {
+    let Some((bc, quality)) = layout.blocks else {
+        return texels.to_vec();
+    };
+    let (w, h) = (level.tile_w, level.tile_h);
+    assert_eq!(texels.len() as u64, w * h * layout.bpt(), "a whole tile of level {}", level.index);
+    let from = layout.spec.format;
+    let mut input = Vec::new();
+    crate::source::bc::encoder_input(bc, from, texels, w, h, &mut input).expect("8-bit texels, checked by with_blocks");
+    let alpha = from.components.count() % 2 == 0;
+    let mut out = vec![0u8; layout.tile_bytes(level) as usize];
+    crate::source::bc::encode_padded(bc, quality, alpha, &input, w, h, &mut out);
+    out
 }
 
 /// The header of the file holding tile (s, t): a line of text describing the file, padded

@@ -212,8 +212,13 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
     o.push_str(&format!("clip texture   {}\n", plan.path.display()));
     o.push_str(&format!("version        {}\n", plan.version.as_deref().unwrap_or("(none)")));
     o.push_str(&format!(
-        "texel          {} ({} bytes; ext_format {}, int_format {}, img_format {})\n",
-        plan.texel, plan.bytes_per_texel, plan.ext_format.written, plan.int_format.written, plan.img_format.written
+        "texel          {} ({} bytes{}; ext_format {}, int_format {}, img_format {})\n",
+        plan.texel,
+        plan.bytes_per_texel,
+        if plan.texel.block().is_some() { " a 4 x 4 block" } else { "" },
+        plan.ext_format.written,
+        plan.int_format.written,
+        plan.img_format.written
     ));
     o.push_str(&format!("virt_size      {} x {} x {}\n", plan.virt_size[0], plan.virt_size[1], plan.virt_size[2]));
     o.push_str(&format!("clip_size      {}\n", plan.clip_size));
@@ -272,7 +277,8 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
     }
     o.push_str(&format!("page_size      {}{}\n", plan.page_size, mark(d, "page_size")));
     o.push_str(&format!("naming         .ic files: {:?}, pyramid files: {:?}\n", plan.icache_mode, plan.tile_mode));
-    let bpt = plan.bytes_per_texel as u128;
+    // Bytes a texel, in sixteenths: a block format's block bytes cover 16 texels.
+    let bpt = plan.bytes_per_texel as u128 * if plan.texel.block().is_some() { 1 } else { 16 };
     let resident: u128 = plan
         .levels
         .iter()
@@ -282,9 +288,9 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
     o.push_str(&format!(
         "resident       {} texels ({}) against {} ({}) for the full mipmap\n",
         resident,
-        human_bytes(resident * bpt),
+        human_bytes(resident * bpt / 16),
         full,
-        human_bytes(full * bpt)
+        human_bytes(full * bpt / 16)
     ));
     o.push_str("\nlevel  size              kind     tile          tex region   mem region  file\n");
     let pair = |v: Option<[u64; 2]>| v.map(|[a, b]| format!("{a}x{b}")).unwrap_or_else(|| "?".into());

@@ -214,9 +214,39 @@ pub fn draw_published_level(
     let window = crate::geom::tex_region(size, client.clip_size, st.centre);
     let v = Rect::new(st.valid[0], st.valid[1], st.valid[2], st.valid[3]);
     let valid = st.enabled.then_some(v);
-    let format = format_from_code(client.format_code);
-    let mut row = |t: i64, out: &mut [u8]| client.read_region(k, v.s0, t, v.width(), 1, out).is_ok();
-    draw_level(img, x0, y0, frame, size, window, valid, format, client.bytes_per_texel, &mut row);
+    let Some(decoded) = client.decoded_format() else {
+        let format = format_from_code(client.format_code);
+        let mut row = |t: i64, out: &mut [u8]| client.read_region(k, v.s0, t, v.width(), 1, out).is_ok();
+        draw_level(img, x0, y0, frame, size, window, valid, format, client.bytes_per_texel, &mut row);
+        return;
+    };
+    // A block format: the valid region decoded once, tile by tile (nothing of it when a tile
+    // under it cannot be read), its rows given from there.
+    let bpt = decoded.bytes_per_texel() as usize;
+    let texels = decoded_region(client, snap, k);
+    let pitch = v.width() as usize * bpt;
+    let mut row = |t: i64, out: &mut [u8]| match &texels {
+        Some(b) => {
+            out.copy_from_slice(&b[(t - v.t0) as usize * pitch..][..pitch]);
+            true
+        }
+        None => false,
+    };
+    draw_level(img, x0, y0, frame, size, window, valid, Some(decoded), bpt, &mut row);
+}
+
+/// The texels of level `k`'s valid region in `snap` of a block-compressed mapping, decoded
+/// ([`Client::decode_region_in`]); `None` for a level disabled, empty, or with a tile under it
+/// that cannot be read.
+fn decoded_region(client: &Client, snap: &Snapshot, k: usize) -> Option<Vec<u8>> {
+    let st = snap.levels[k];
+    let v = st.rect();
+    let n = client.decoded_format()?.bytes_per_texel() as usize;
+    if !st.enabled || v.is_empty() {
+        return None;
+    }
+    let mut out = vec![0u8; (v.width() * v.height()) as usize * n];
+    client.decode_region_in(snap, k, v, &mut out).ok().map(|()| out)
 }
 
 /// The view around `centre` (level-0 texels), `n` pixels a side over `extent` level-0 texels:
@@ -233,7 +263,9 @@ pub fn view_and_rings(
     extent: i64,
     colour: &dyn Fn(&[u8]) -> [u8; 3],
 ) -> (RgbImage, RgbImage) {
-    let bpt = client.bytes_per_texel;
+    let bpt = client.decoded_format().map_or(client.bytes_per_texel, |f| f.bytes_per_texel() as usize);
+    // A block format: each level's valid region decoded once, when first needed.
+    let mut decoded: Vec<Option<Option<Vec<u8>>>> = vec![None; client.levels.len()];
     let size0 = client.levels.first().map_or([0, 0], |l| l.size);
     let step = (extent / n as i64).max(1);
     let first = (snap.min_lod.max(0.0).ceil() as usize).min(client.levels.len());
@@ -249,7 +281,19 @@ pub fn view_and_rings(
             }
             let found = (first..client.levels.len()).find(|&k| {
                 let (sk, tk) = (s >> k, t >> k);
-                snap.levels[k].contains(sk, tk) && client.read_region(k, sk, tk, 1, 1, &mut px).is_ok()
+                if !snap.levels[k].contains(sk, tk) {
+                    return false;
+                }
+                if client.block == 1 {
+                    return client.read_region(k, sk, tk, 1, 1, &mut px).is_ok();
+                }
+                let v = snap.levels[k].rect();
+                let Some(texels) = decoded[k].get_or_insert_with(|| decoded_region(client, snap, k)) else {
+                    return false;
+                };
+                let i = ((tk - v.t0) as usize * v.width() as usize + (sk - v.s0) as usize) * bpt;
+                px.copy_from_slice(&texels[i..i + bpt]);
+                true
             });
             if let Some(k) = found {
                 let c = colour(&px);

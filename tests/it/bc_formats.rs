@@ -3,8 +3,9 @@
 //! blocks the encoder makes of the source's tile; an independent decoder (`bcdec_rs`, behind
 //! `Client::decode_tile`) gives back texels close to the source's; slots are laid out in whole
 //! blocks, down to the pyramid's 2 x 2 and 1 x 1 tiles (partial blocks); and what cannot be
-//! encoded is refused at start, saying why. The Python reader reads and decodes the same blocks;
-//! the C reader refuses a block mapping.
+//! encoded is refused at start, saying why. The C and Python readers read the same blocks on
+//! every level and decode them to the Rust client's texels bit for bit (the C reader BC1, BC4
+//! and BC5, Python all four); both refuse texel reads of a block mapping.
 
 use crate::clipmapd::{c_reader, Service};
 use clipmap::shm::client::ReadError;
@@ -40,6 +41,43 @@ fn mean_error(a: &[u8], b: &[u8], n: usize) -> f64 {
     e / (b.len() / n) as f64
 }
 
+/// Bytes as lowercase hex.
+pub(crate) fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+/// Lowercase hex as bytes.
+pub(crate) fn unhex(s: &str) -> Vec<u8> {
+    (0..s.len() / 2).map(|i| u8::from_str_radix(&s[2 * i..2 * i + 2], 16).unwrap()).collect()
+}
+
+/// Runs `script` with the Python reader importable as `c`, and returns its standard output.
+pub(crate) fn python(script: &str) -> String {
+    let script = format!(
+        "import sys; sys.path.insert(0, {:?}); import clipmap_shm as c\n{script}",
+        format!("{}/clients/python", crate::clipmapd::ROOT)
+    );
+    let out = std::process::Command::new("python3").args(["-c", &script]).output().unwrap();
+    assert!(out.status.success(), "python: {}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// The C reader's `--tile` or `--decode` of tile `tile` of `level`: the bytes it writes.
+fn c_tile(exe: &std::path::Path, map: &std::path::Path, how: &str, level: usize, tile: [i64; 2]) -> Vec<u8> {
+    let out = map.with_extension(format!("{how}-{level}-{}-{}", tile[0], tile[1]).trim_start_matches('-'));
+    let run = std::process::Command::new(exe)
+        .arg(map)
+        .args([how, &level.to_string(), &tile[0].to_string(), &tile[1].to_string()])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let text = format!("{}{}", String::from_utf8_lossy(&run.stdout), String::from_utf8_lossy(&run.stderr));
+    assert!(run.status.success(), "c reader {how} level {level} tile {tile:?}: {text}");
+    let bytes = std::fs::read(&out).unwrap();
+    assert_eq!(text.trim(), format!("level {level} tile {} {} bytes {}", tile[0], tile[1], bytes.len()));
+    bytes
+}
+
 #[test]
 fn every_block_format_publishes_the_encoders_blocks_bit_for_bit_and_they_decode_to_the_source() {
     let dir = tempfile::tempdir().unwrap();
@@ -48,6 +86,7 @@ fn every_block_format_publishes_the_encoders_blocks_bit_for_bit_and_they_decode_
     let rgba = Service::spawn_with(d, "plain", &SOURCE, &[]);
     rgba.wait_ready();
     let plain = Client::attach(d, "plain").unwrap();
+    let creader = c_reader(d);
     for (bc, quality) in [(Bc::Bc1, "normal"), (Bc::Bc4, "normal"), (Bc::Bc5, "normal"), (Bc::Bc7, "fast")] {
         let name = bc.name();
         let svc = Service::spawn_with(d, name, &SOURCE, &["--format", name, "--bc-quality", quality]);
@@ -62,6 +101,8 @@ fn every_block_format_publishes_the_encoders_blocks_bit_for_bit_and_they_decode_
         assert_eq!((c.format_code, c.bytes_per_texel, c.block), (code, bc.block_bytes() as usize, 4));
         let encoder = BcSource::new(src.clone(), bc, BcQuality::parse(quality).unwrap()).unwrap();
         let snap = all_levels(&c, &svc);
+        // One tile each level read ready, for the C and Python readers below.
+        let mut ready: Vec<[i64; 2]> = Vec::new();
         for (k, level) in c.levels.iter().enumerate() {
             // Slots in whole blocks: a 16 x 16 tile is 4 x 4 blocks, the pyramid's 2 x 2 and 1 x 1
             // tiles one (partial) block; RGBA8 takes 16 texels x 4 bytes for the same 16 texels.
@@ -112,42 +153,57 @@ fn every_block_format_publishes_the_encoders_blocks_bit_for_bit_and_they_decode_
                         // One texel in a partial block: BC1, BC5 and BC7 keep a lone colour closely.
                         assert!((texels[0] as i32 - decoded[0] as i32).abs() <= 8, "{name}: {texels:?} {decoded:?}");
                     }
+                    if read == 0 {
+                        ready.push([ts, tt]);
+                    }
                     read += 1;
                 }
             }
             assert!(read > 0, "{name} level {k}: no tile was read ready");
         }
-        // The Python reader reads the same blocks and decodes BC1, BC4 and BC5 in pure Python to
-        // within 2 of the Rust client's independent decoder (the palettes' rounding differs).
-        if bc != Bc::Bc7 {
-            let (k, tile) = (1usize, [2i64, 3i64]);
-            let tiles = clipmap::geom::tiles_covering(c.snapshot().levels[k].rect(), c.levels[k].tile);
-            let tile = if tiles.contains(tile[0], tile[1]) { tile } else { [tiles.s0, tiles.t0] };
-            let script = format!(
-                "import sys; sys.path.insert(0, {:?}); import clipmap_shm as c\n\
-                 m = c.Mapping({:?})\n\
-                 sys.stdout.write(m.read_tile({k}, {}, {}).hex() + ' ' + m.decode_tile({k}, {}, {}).hex())",
-                format!("{}/clients/python", crate::clipmapd::ROOT),
-                d.join(format!("clipmap-{name}.map")).to_str().unwrap(),
-                tile[0],
-                tile[1],
-                tile[0],
-                tile[1]
-            );
-            let out = std::process::Command::new("python3").args(["-c", &script]).output().unwrap();
-            assert!(out.status.success(), "python: {}", String::from_utf8_lossy(&out.stderr));
-            let text = String::from_utf8(out.stdout).unwrap();
-            let (blocks, decoded) = text.split_once(' ').unwrap();
-            let hex = |b: &[u8]| b.iter().map(|x| format!("{x:02x}")).collect::<String>();
+        // The C reader reads the same blocks on every level, the pyramid's partial 2 x 2 and 1 x 1
+        // blocks included, and decodes BC1, BC4 and BC5 to the Rust client's texels bit for bit.
+        let map = d.join(format!("clipmap-{name}.map"));
+        for (k, &tile) in ready.iter().enumerate() {
             let mut want = vec![0u8; c.levels[k].slot_bytes as usize];
             c.read_tile(k, tile, &mut want).unwrap();
-            assert_eq!(blocks, hex(&want), "{name}: the Python reader's blocks");
-            let rust = c.decode_tile(k, tile).unwrap();
-            let py: Vec<u8> =
-                (0..decoded.len() / 2).map(|i| u8::from_str_radix(&decoded[2 * i..2 * i + 2], 16).unwrap()).collect();
-            assert_eq!(py.len(), rust.len(), "{name}");
-            let worst = py.iter().zip(&rust).map(|(a, b)| (*a as i32 - *b as i32).abs()).max().unwrap();
-            assert!(worst <= 2, "{name}: Python's decode differs from bcdec's by {worst}");
+            assert!(c_tile(&creader, &map, "--tile", k, tile) == want, "{name} level {k}: the C reader's blocks");
+            if bc != Bc::Bc7 {
+                let rust = c.decode_tile(k, tile).unwrap();
+                assert!(c_tile(&creader, &map, "--decode", k, tile) == rust, "{name} level {k}: the C reader's decode");
+            }
+        }
+        if bc == Bc::Bc7 {
+            let out = std::process::Command::new(&creader)
+                .arg(&map)
+                .args(["--decode", "0", "0", "0"])
+                .arg(d.join("x"))
+                .output()
+                .unwrap();
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert_eq!(out.status.code(), Some(2), "{err}");
+            assert!(err.contains("texel format 23 is not decoded here") && !d.join("x").exists(), "{err}");
+        }
+        // The Python reader too, and it decodes all four formats (BC7 in pure Python by the
+        // format's definition) to the Rust client's texels bit for bit.
+        let tiles: Vec<String> = ready.iter().enumerate().map(|(k, t)| format!("({k}, {}, {})", t[0], t[1])).collect();
+        let text = python(&format!(
+            "m = c.Mapping({:?})\n\
+             for k, s, t in [{}]:\n    print(m.read_tile(k, s, t).hex(), m.decode_tile(k, s, t).hex())",
+            map.to_str().unwrap(),
+            tiles.join(", ")
+        ));
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), ready.len(), "{text}");
+        for (k, (line, &tile)) in lines.iter().zip(&ready).enumerate() {
+            let (blocks, decoded) = line.split_once(' ').unwrap();
+            let mut want = vec![0u8; c.levels[k].slot_bytes as usize];
+            c.read_tile(k, tile, &mut want).unwrap();
+            assert_eq!(blocks, hex(&want), "{name} level {k}: the Python reader's blocks");
+            assert!(
+                unhex(decoded) == c.decode_tile(k, tile).unwrap(),
+                "{name} level {k}: Python's decode is not bcdec's"
+            );
         }
         // Texel reads of a block format are refused, saying what to use instead.
         let e = c.read_region(0, 100, 100, 4, 4, &mut [0u8; 64]).unwrap_err();
@@ -156,18 +212,25 @@ fn every_block_format_publishes_the_encoders_blocks_bit_for_bit_and_they_decode_
 }
 
 #[test]
-fn readers_without_block_support_and_sources_that_cannot_be_encoded_are_refused_saying_why() {
+fn texel_reads_of_blocks_and_sources_that_cannot_be_encoded_are_refused_saying_why() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let svc = Service::spawn_with(d, "b1", &SOURCE, &["--format", "bc1"]);
     svc.wait_ready();
-    // The C reader does not read blocks (yet): it refuses the mapping at its slot bytes, never
-    // misreading blocks as texels.
+    // The C and Python readers' texel reads refuse the mapping's blocks, saying what to use
+    // instead, never misreading blocks as texels.
     let map = d.join("clipmap-b1.map");
-    let c = std::process::Command::new(c_reader(d)).arg(&map).args(["10", "1", "1"]).output().unwrap();
-    let err = String::from_utf8_lossy(&c.stderr);
-    assert_eq!(c.status.code(), Some(2), "c: {err}");
-    assert!(err.contains("slot bytes"), "c: {err}");
+    let exe = c_reader(d);
+    for args in [&["10", "1", "1"][..], &["--dump", "0", "0,0,4,4"]] {
+        let c = std::process::Command::new(&exe).arg(&map).args(args).arg(d.join("out.raw")).output().unwrap();
+        let err = String::from_utf8_lossy(&c.stderr);
+        assert_eq!(c.status.code(), Some(2), "c {args:?}: {err}");
+        assert!(err.contains("texel format 20 is block-compressed") && err.contains("--tile or --decode"), "c: {err}");
+    }
+    let py = crate::clipmapd::python_reader().arg(&map).args(["10", "1", "1"]).output().unwrap();
+    let err = String::from_utf8_lossy(&py.stderr);
+    assert_eq!(py.status.code(), Some(2), "python: {err}");
+    assert!(err.contains("block-compressed"), "python: {err}");
     // A tile size off the block grid, heights, and an unknown format or quality.
     let refused = |source: &[&str], extra: &[&str], want: &str| {
         let mut s = Service::spawn_with(d, "no", source, extra);

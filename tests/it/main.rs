@@ -7,7 +7,11 @@
 
 mod common;
 
+mod bc_edges;
 mod bc_formats;
+mod bc_prepared;
+mod bc_readers;
+mod bc_views;
 mod cli_attach;
 mod cli_check;
 mod cli_config;

@@ -4,6 +4,7 @@
 //! through the request mapping, and notice a stale or replaced service.
 
 mod attach;
+mod decoded;
 
 use super::layout::{
     self, desc, header, request, snapshot, state, tag, views as v, LevelShape, SlotState, MAX_RETRIES,

@@ -219,7 +219,8 @@ pub fn dump(dir: &Path, name: &str, out_dir: &Path, options: &Options) -> Result
     let view_range = options.range.or_else(|| {
         levels.iter().filter_map(|l| l.heights.as_ref()?.region_range).reduce(|a, b| [a[0].min(b[0]), a[1].max(b[1])])
     });
-    let format = clipmap::shm::layout::format_from_code(client.format_code);
+    // A block-compressed mapping's texels come decoded (RGBA8, or one or two bytes).
+    let format = client.decoded_format().or_else(|| clipmap::shm::layout::format_from_code(client.format_code));
     let colour = |px: &[u8]| -> [u8; 3] {
         match (&heights, view_range) {
             (Some(v), Some([lo, hi])) => match v.format.decode(v.format.read(px)) {

@@ -15,7 +15,7 @@ use clipmap::prep::source::open_image;
 use clipmap::prep::tiff_stream::HeightTiff;
 use clipmap::prep::{Compression, Filter, Inset, Job, Layout, Limits, PrepError, Source, Spec};
 use clipmap::prep::{HeightInput, HeightPrep};
-use clipmap::texel::TexelFormat;
+use clipmap::texel::{Bc, TexelFormat};
 use config_only::config_only;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::io::IsTerminal;
@@ -51,6 +51,12 @@ enum Format {
     // Heights (docs/ELEVATION.md): 32-bit float metres, signed 16-bit steps.
     L32f,
     L16i,
+    // Block-compressed tiles (docs/CONFIG.md, "Block-compressed tiles"): encoded from RGB8 (bc1,
+    // and bc5 from its first two channels), L8 (bc4) or RGBA8 (bc7) texels.
+    Bc1,
+    Bc4,
+    Bc5,
+    Bc7,
 }
 
 impl Format {
@@ -67,6 +73,20 @@ impl Format {
             Format::Rgba16 => TexelFormat::RGBA16,
             Format::L32f => TexelFormat::L32F,
             Format::L16i => TexelFormat::L16I,
+            Format::Bc1 | Format::Bc5 => TexelFormat::RGB8,
+            Format::Bc4 => TexelFormat::L8,
+            Format::Bc7 => TexelFormat::RGBA8,
+        }
+    }
+
+    /// The block format tiles are stored in, for bc1, bc4, bc5 and bc7.
+    fn blocks(self) -> Option<Bc> {
+        match self {
+            Format::Bc1 => Some(Bc::Bc1),
+            Format::Bc4 => Some(Bc::Bc4),
+            Format::Bc5 => Some(Bc::Bc5),
+            Format::Bc7 => Some(Bc::Bc7),
+            _ => None,
         }
     }
 
@@ -110,6 +130,7 @@ Examples:
   clipprep --source terrain --size 16384 --tile 256 --clip 1024 --format rgb8 --out terrain
   clipprep --source hash --size 65536x32768 --tile 512 --clip 2048 --format rgba8 --streams 4 --out verify
   clipprep --source terrain --size 8192 --tile 256 --clip 512 --format rgb8 --zstd 3 --out packed
+  clipprep --input photo.png --tile 256 --clip 512 --format bc1 --zstd 3 --out blocks
   clipprep --input dem.tif --format l16 --height-scale 0.01 --height-offset -500 --height-nodata 0 \\
            --height-levels point --nan nodata --pad --tile 256 --clip 1024 --out dem
   clipprep --source heights --size 4096 --format l32f --height-nodata -32768 --tile 256 --clip 512 --out heights
@@ -145,7 +166,8 @@ struct Cli {
     #[arg(long, value_name = "C")]
     clip: u64,
     /// Texel format on disk (16-bit formats keep 16-bit samples exactly; 8-bit samples into them
-    /// are scaled by 257).
+    /// are scaled by 257). bc1, bc4, bc5, bc7: tiles stored as GPU blocks, encoded here (see
+    /// --bc-quality) and served by clipmapd without encoding (docs/CONFIG.md, §20).
     /// With --config-only: the format the COG is served as (given, it must be that one).
     #[arg(long, value_enum, value_name = "FMT", required_unless_present = "config_only")]
     format: Option<Format>,
@@ -225,6 +247,10 @@ struct Cli {
     /// Compression of the --cog file's tiles.
     #[arg(long, value_enum, default_value = "deflate", requires = "cog")]
     cog_compression: CogCompressionArg,
+    /// With --format bc1|bc4|bc5|bc7: how hard the encoder tries, fast, normal or slow (BC7's
+    /// settings; BC1, BC4 and BC5 have one), as `clipmapd --bc-quality`.
+    #[arg(long, value_name = "QUALITY", default_value = "normal", value_parser = clipmap::source::BcQuality::parse)]
+    bc_quality: clipmap::source::BcQuality,
     /// Heights: the metres of one stored step of l16/l16i (stored x scale + offset = metres).
     /// Any height option (or --format l32f/l16i, or --source heights) makes the texture heights:
     /// --input is then a single-band elevation TIFF, the .ct carries `#clipmap height` lines.
@@ -280,6 +306,11 @@ fn conversion_option(cli: &Cli) -> Option<(&'static str, &'static str)> {
         ("--streams", cli.streams.is_some(), "no tile file is written"),
         ("--inset", cli.inset.is_some(), "no level is written, sparse or not"),
         ("--zstd", cli.zstd.is_some(), "no tile file is written"),
+        (
+            "--format bc1|bc4|bc5|bc7",
+            cli.format.is_some_and(|f| f.blocks().is_some()),
+            "the COG's tiles are served as it stores them (clipmapd --format encodes them at run time)",
+        ),
         ("--cog", cli.cog.is_some(), "the input is the COG already"),
         ("--config-out", cli.config_out.is_some(), "the configuration is written into --out, a local directory"),
         ("the height options", heights, "the heights are the COG's (its GDAL_NODATA is the nodata value)"),
@@ -595,6 +626,10 @@ fn prepare(cli: &Cli, out: &Path, cancel: &AtomicBool) -> Result<Outcome, PrepEr
         inset,
         compression: cli.zstd.map(Compression::Zstd),
     })?;
+    let layout = match cli.format().blocks() {
+        Some(bc) => layout.with_blocks(bc, cli.bc_quality)?,
+        None => layout,
+    };
     let filter = match cli.filter {
         FilterArg::Box => Filter::Box,
         FilterArg::Lanczos3 => Filter::Lanczos3,
@@ -750,6 +785,8 @@ fn main() -> ExitCode {
         // Refused before any work: what --cog could not write, or where.
         let refused = if url.is_some() {
             Some("it is written from a local --out; prepare locally, then upload the file".to_string())
+        } else if let Some(bc) = cli.format().blocks() {
+            Some(format!("a COG holds texels, and --format {} stores blocks; drop one of them", bc.name()))
         } else {
             clipmap::prep::cog::check(cli.format().texel(), cli.tile()).err().map(|e| e.to_string())
         };
@@ -806,7 +843,7 @@ fn main() -> ExitCode {
                     "size": [spec.width, spec.height],
                     "clip": spec.clip,
                     "tile": spec.tile,
-                    "format": spec.format.short_name(),
+                    "format": o.layout.disk_format().short_name(),
                     "inset_tiles": s.inset_tiles,
                     "border_tiles": s.border_tiles,
                     "absent_tiles": s.absent_tiles,
