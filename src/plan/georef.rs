@@ -31,7 +31,8 @@ pub fn lines(g: &Georef) -> String {
 /// refused, reported already): `None` when there are none or one was refused.
 pub(crate) fn read(r: &mut Reader<'_>, size: Option<[u64; 3]>) -> Option<Georef> {
     let lines = r.file.extensions.clone();
-    let (mut epsg, mut transform): (Option<(u32, Span)>, Option<([f64; 6], Span)>) = (None, None);
+    let mut epsg: Option<(u32, Span)> = None;
+    let mut transform: Option<([f64; 6], Span)> = None;
     let mut failed = false;
     let mut flagged = false;
     for line in &lines {
