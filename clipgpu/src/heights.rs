@@ -88,10 +88,22 @@ impl Taps<'_> {
         level_size(self.client.levels[0].size, k)
     }
 
+    /// Column `s` of level `k`: `s mod width` on a texture that wraps in longitude (docs/SHM.md,
+    /// "How a region wraps"), as the shader and `clipmap::sample` take it; else clamped to the
+    /// level.
+    fn column(&self, k: u32, s: i64) -> i64 {
+        let width = self.size(k)[0];
+        if self.client.wraps() {
+            clipmap::geom::wrap(s, width) as i64
+        } else {
+            s.clamp(0, width as i64 - 1)
+        }
+    }
+
     fn point(&mut self, k: u32, u: f64, v: f64) -> Filtered {
         let size = self.size(k);
         let scale = (1u64 << k) as f64;
-        let s = ((u / scale).floor() as i64).clamp(0, size[0] as i64 - 1);
+        let s = self.column(k, (u / scale).floor() as i64);
         let t = ((v / scale).floor() as i64).clamp(0, size[1] as i64 - 1);
         Some(match self.tap(k, s, t) {
             Tap::Missing => return None,
@@ -107,14 +119,14 @@ impl Taps<'_> {
         let (x0, y0) = (x.floor(), y.floor());
         // The weights as the shader has them: exact in f64, rounded to f32 once.
         let (fx, fy) = ((x - x0) as f32 as f64, (y - y0) as f32 as f64);
-        let cs = |s: i64| s.clamp(0, size[0] as i64 - 1);
         let ct = |t: i64| t.clamp(0, size[1] as i64 - 1);
         let (s0, t0) = (x0 as i64, y0 as i64);
+        let (sa, sb) = (self.column(k, s0), self.column(k, s0 + 1));
         let taps = [
-            self.tap(k, cs(s0), ct(t0)),
-            self.tap(k, cs(s0 + 1), ct(t0)),
-            self.tap(k, cs(s0), ct(t0 + 1)),
-            self.tap(k, cs(s0 + 1), ct(t0 + 1)),
+            self.tap(k, sa, ct(t0)),
+            self.tap(k, sb, ct(t0)),
+            self.tap(k, sa, ct(t0 + 1)),
+            self.tap(k, sb, ct(t0 + 1)),
         ];
         let mut m = [0f64; 4];
         let mut nodata = false;
@@ -288,9 +300,12 @@ pub fn render(cam: &Camera, client: &Client, snap: &Snapshot, filter: Filter, sh
     let mut out = Vec::with_capacity((cam.width * cam.height) as usize);
     for j in 0..cam.height {
         for i in 0..cam.width {
-            let fp = cam
-                .footprint(i, j)
-                .filter(|f| f.uv[0] >= 0.0 && f.uv[1] >= 0.0 && f.uv[0] < size[0] as f64 && f.uv[1] < size[1] as f64);
+            // A texture that wraps in longitude has no west or east edge: ground all around, as
+            // the shader and `clipmap::accuracy::render::render_mapping` draw it.
+            let wraps = client.wraps();
+            let fp = cam.footprint(i, j).filter(|f| {
+                (wraps || (f.uv[0] >= 0.0 && f.uv[0] < size[0] as f64)) && f.uv[1] >= 0.0 && f.uv[1] < size[1] as f64
+            });
             let Some(fp) = fp else {
                 out.push(pixel(SKY, 0.0, false));
                 continue;

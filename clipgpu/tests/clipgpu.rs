@@ -45,9 +45,14 @@ impl Service {
 
     /// A running `clipmapd --source SOURCE` (hash, terrain or heights).
     fn start_source(dir: &Path, name: &str, source: &str, extra: &[&str]) -> Service {
+        Service::start_sized(dir, name, source, "8192", extra)
+    }
+
+    /// A running `clipmapd --source SOURCE --size SIZE`.
+    fn start_sized(dir: &Path, name: &str, source: &str, size: &str, extra: &[&str]) -> Service {
         let socket = dir.join(format!("{name}.sock"));
         let mut args: Vec<String> =
-            ["--source", source, "--size", "8192", "--clip", "256", "--tile", "64", "--tick-hz", "120"]
+            ["--source", source, "--size", size, "--clip", "256", "--tile", "64", "--tick-hz", "120"]
                 .iter()
                 .map(|s| s.to_string())
                 .collect();
@@ -669,4 +674,117 @@ fn a_flight_across_the_antimeridian_of_a_global_texture_shows_no_seam_and_stays_
     let j = json(&args("flat", d));
     assert_bit_exact_at_gpu_coords(&j);
     assert!(j["pixels_compared_at_gpu_coords"].as_u64().unwrap() < 6 * 128 * 96, "sky past the edge");
+}
+
+/// docs/GPU.md, "Exact at 2^30 texels a side": a flight through `clipmapd` on the hash texture
+/// 2^30 texels a side (WebMercatorQuad zoom 22 at 256-texel tiles, georeferenced as the Web
+/// Mercator square, so it wraps in longitude), drawn by the GPU client at the origin and at the far
+/// corner, there also across the antimeridian: the frames equal the reference renderer's by the
+/// same criteria at every place, point filtering bit-exact at the GPU's coordinates and identical
+/// off the texel edges, trilinear bit-exact at the GPU's coordinates.
+#[test]
+fn at_2_30_texels_a_side_the_frames_equal_the_reference_at_the_far_corner_as_at_the_origin() {
+    let n = 1u64 << 30;
+    let dir = tempfile::tempdir().unwrap();
+    let size = n.to_string();
+    let _s = Service::start_sized(dir.path(), "huge", "hash", &size, &["--georef", "web-mercator"]);
+    let d = dir.path().to_str().unwrap();
+    let far = (n - 200).to_string();
+    let seam_t = (n - 300).to_string();
+    let seam_s = (n - 42).to_string();
+    // (where, start, flight): the origin looking north-east into the texture, the far corner
+    // looking back south-west the same way, and the far corner's east edge flown across eastwards.
+    let places = [
+        ("origin", "200,200".to_string(), "straight:8:30"),
+        ("far corner", format!("{far},{far}"), "straight:8:210"),
+        ("antimeridian at the far corner", format!("{seam_s},{seam_t}"), "straight:8:0"),
+    ];
+    let mut pixels_at_edges = Vec::new();
+    for (place, start, flight) in &places {
+        let j = json(&[
+            "--name",
+            "huge",
+            "--shm-dir",
+            d,
+            "--filter",
+            "point",
+            "--frames",
+            "6",
+            "--size",
+            "128x96",
+            "--start",
+            start,
+            "--flight",
+            flight,
+        ]);
+        assert_eq!(j["frames_unsettled"], 0, "{place}: {}", j["per_frame"]);
+        assert_within_tolerance(&j);
+        assert_eq!(j["psnr_min_off_edges"], Value::Null, "{place}: {}", j["per_frame"]);
+        assert_eq!(j["max_error_off_edges"], 0, "{place}");
+        assert_bit_exact_at_gpu_coords(&j);
+        // No sky anywhere: every pixel of the 6 frames was ground, checked at the GPU's coordinates.
+        assert_eq!(j["pixels_compared_at_gpu_coords"], 6 * 128 * 96, "{place}: {}", j["per_frame"]);
+        let first = frames(&j)[0]["centre"].clone();
+        let want: Vec<i64> = start.split(',').map(|c| c.parse().unwrap()).collect();
+        assert_eq!(first, serde_json::json!(want), "{place}: the flight starts where asked");
+        pixels_at_edges.push(j["pixels_at_edges"].as_u64().unwrap());
+    }
+    // Pixels whose footprint lies on a texel edge to within f32 rounding (where the f64 reference
+    // may pick the neighbour): as few at the far corner as at the origin.
+    assert!(pixels_at_edges.iter().all(|&e| e <= 6), "{pixels_at_edges:?}");
+    // Trilinear at the far corner: bit-exact at the GPU's coordinates as at the origin.
+    for start in ["200,200".to_string(), format!("{far},{far}")] {
+        let flight = if start.starts_with("200,") { "straight:8:30" } else { "straight:8:210" };
+        let j = json(&[
+            "--name",
+            "huge",
+            "--shm-dir",
+            d,
+            "--frames",
+            "4",
+            "--size",
+            "128x96",
+            "--start",
+            &start,
+            "--flight",
+            flight,
+        ]);
+        assert_within_tolerance(&j);
+        assert_eq!(j["pixels_differing_at_gpu_coords"], 0, "{start}: {}", j["per_frame"]);
+        assert_eq!(j["frames_over_bound"], 0, "{start}");
+    }
+}
+
+/// docs/GPU.md, "Heights", on a texture that wraps in longitude: the height verification texture
+/// of `clipmapd --global` flown across its east edge. The CPU height reference takes columns
+/// modulo the width as the shader does, so every pixel is ground and every height agrees across
+/// the antimeridian, as the same flight's colours do (above).
+#[test]
+fn heights_across_the_antimeridian_of_a_global_texture_match_the_cpu_reference_with_no_seam() {
+    let dir = tempfile::tempdir().unwrap();
+    let _s = Service::start_source(dir.path(), "demglobe", "heights", &["--global"]);
+    let d = dir.path().to_str().unwrap();
+    for filter in ["point", "bilinear"] {
+        let j = json(&[
+            "--name",
+            "demglobe",
+            "--shm-dir",
+            d,
+            "--filter",
+            filter,
+            "--frames",
+            "6",
+            "--size",
+            "96x64",
+            "--start",
+            "8160,4096",
+            "--flight",
+            "straight:8:0",
+        ]);
+        assert_within_tolerance(&j);
+        assert_heights_match(&j);
+        // No sky past the antimeridian: every pixel was ground and checked.
+        assert_eq!(j["pixels_compared_at_gpu_coords"], 6 * 96 * 64, "{filter}: {}", j["per_frame"]);
+        assert!(frames(&j).last().unwrap()["centre"][0].as_i64().unwrap() >= 8192, "the eye crossed the edge");
+    }
 }

@@ -386,6 +386,25 @@ fn mean(texels: &[&[u8]], cb: usize, out: &mut [u8]) {
 pub struct GrowingSource {
     desc: TextureDesc,
     served: Arc<Served>,
+    /// The frame's georeferencing, from the grid ([`frame_georef`]), when the grid names a CRS.
+    georef: Option<crate::georef::Georef>,
+}
+
+/// The georeferencing of the frame `frame` of a grid whose world coordinates are map coordinates
+/// of the CRS `epsg` (docs/GEOREF.md, "Growing textures"): level-0 frame texel (s, t) covers world
+/// `[o_x + s / r, o_x + (s + 1) / r) x [o_y + t / r, o_y + (t + 1) / r)` with `o` the world point of
+/// the frame's south-west corner (the grid's origin less half the frame) and r the texels per
+/// unit; t counts north as world y does. So level 0's geotransform (GDAL's order, line 0 the
+/// frame's north edge) is `[o_x, 1/r, 0, o_y + 2^F / r, 0, -1/r]`. `None` without a CRS, or
+/// for a code this engine does not know.
+pub fn frame_georef(grid: &Grid, frame: Frame, epsg: Option<u32>) -> Option<crate::georef::Georef> {
+    let crs = crate::georef::Crs::epsg(epsg?).ok()?;
+    let r = grid.texels_per_unit;
+    let o = frame.offset(0) as f64;
+    let n = frame.size() as f64;
+    let sw = [grid.origin[0] - o / r, grid.origin[1] - o / r];
+    let gt = crate::georef::GeoTransform([sw[0], 1.0 / r, 0.0, sw[1] + n / r, 0.0, -1.0 / r]);
+    crate::georef::Georef::new(crs, gt, [frame.size(), frame.size()]).ok()
 }
 
 impl std::fmt::Debug for GrowingSource {
@@ -418,6 +437,10 @@ impl GrowingSource {
 impl TileSource for GrowingSource {
     fn desc(&self) -> &TextureDesc {
         &self.desc
+    }
+
+    fn georef(&self) -> Option<crate::georef::Georef> {
+        self.georef.clone()
     }
 
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
@@ -553,7 +576,8 @@ pub fn start(
     };
     served.set_growth(&store, 0, outside(&store));
     let (tx, rx) = mpsc::sync_channel(64);
-    let source = Arc::new(GrowingSource { desc, served: served.clone() });
+    let georef = frame_georef(&grid, frame, store.epsg());
+    let source = Arc::new(GrowingSource { desc, served: served.clone(), georef });
     let max_patch_bytes = options.max_patch_bytes.clamp(1, crate::limits::MAX_PATCH_BYTES);
     let max_in_flight_bytes = max_patch_bytes * 2;
     let handle = Grower {

@@ -157,6 +157,11 @@ pub(crate) struct GridFile {
     /// best patch wins each texel outright).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub feather: f64,
+    /// The EPSG code of the CRS whose map units the world coordinates are (the patches' boxes
+    /// georeferenced in it; docs/GEOREF.md, "Growing textures"); absent: the world units are the
+    /// user's own, and the texture has no georeferencing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub epsg: Option<u32>,
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -216,6 +221,8 @@ pub struct Growing {
     sources: std::collections::HashSet<String>,
     /// Tiles changed and saved since [`Growing::take_saved`] last took them.
     saved: Vec<TileKey>,
+    /// The CRS of the world coordinates, an EPSG code ([`GridFile::epsg`]).
+    epsg: Option<u32>,
 }
 
 impl Growing {
@@ -230,6 +237,11 @@ impl Growing {
         Growing::create_feathered(dir, origin, texels_per_unit, tile, format, 0.0)
     }
 
+    /// The EPSG code of the CRS the world coordinates are in, if the grid names one.
+    pub fn epsg(&self) -> Option<u32> {
+        self.epsg
+    }
+
     /// [`Growing::create`], feathering patch edges over `feather` level-0 texels (0 to
     /// `MAX_FEATHER`; 0: off), see `super::rebuild::level0_tile_feathered`.
     pub fn create_feathered(
@@ -240,6 +252,29 @@ impl Growing {
         format: &str,
         feather: f64,
     ) -> Result<Growing, StoreError> {
+        Growing::create_georeferenced(dir, origin, texels_per_unit, tile, format, feather, None)
+    }
+
+    /// [`Growing::create_feathered`] with the world coordinates in the CRS `epsg` (an EPSG code
+    /// this engine knows; `None`: the user's own units, no georeferencing): the patches' boxes are
+    /// map coordinates of it, and the texture is georeferenced by its grid (docs/GEOREF.md).
+    pub fn create_georeferenced(
+        dir: &Path,
+        origin: [f64; 2],
+        texels_per_unit: f64,
+        tile: u64,
+        format: &str,
+        feather: f64,
+        epsg: Option<u32>,
+    ) -> Result<Growing, StoreError> {
+        if let Some(Err(e)) = epsg.map(crate::georef::Crs::epsg) {
+            return Err(StoreError::NotAStore {
+                path: dir.to_path_buf(),
+                problem: format!(
+                    "the CRS of the world coordinates: {e}; give an EPSG code such as 4326, 3857 or 32633"
+                ),
+            });
+        }
         if !(feather.is_finite() && (0.0..=MAX_FEATHER).contains(&feather)) {
             return Err(StoreError::NotAStore {
                 path: dir.to_path_buf(),
@@ -272,7 +307,7 @@ impl Growing {
             let p = dir.join(sub);
             std::fs::create_dir(&p).map_err(io_err(&p, "could not create the directory"))?;
         }
-        let file = GridFile { version: 1, origin, texels_per_unit, tile, format: format.to_string(), feather };
+        let file = GridFile { version: 1, origin, texels_per_unit, tile, format: format.to_string(), feather, epsg };
         write_json(&dir.join("state.json"), &State::default())?;
         // grid.json last: a directory without it is not a store, and is refused by `open`.
         write_json(&dir.join("grid.json"), &file)?;
@@ -294,6 +329,7 @@ impl Growing {
             lock: Some(lock),
             sources: Default::default(),
             saved: Vec::new(),
+            epsg,
         })
     }
 
@@ -355,6 +391,7 @@ impl Growing {
             lock,
             sources,
             saved: Vec::new(),
+            epsg: file.epsg,
         })
     }
 
@@ -594,6 +631,9 @@ fn read_grid(dir: &Path) -> Result<(GridFile, TexelFormat, Grid), StoreError> {
             path: grid_path,
             problem: format!("feather {}: expected 0 (off) to {MAX_FEATHER} level-0 texels", file.feather),
         });
+    }
+    if let Some(Err(e)) = file.epsg.map(crate::georef::Crs::epsg) {
+        return Err(StoreError::Damaged { path: grid_path, problem: format!("epsg: {e}") });
     }
     let grid = Grid::new(file.origin, file.texels_per_unit, file.tile, bpt, cb).map_err(StoreError::Grid)?;
     Ok((file, format, grid))

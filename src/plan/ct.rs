@@ -52,6 +52,7 @@ pub fn build(
     let read_func = ic::read_func(&mut r);
     let paging = super::paging::read(&mut r);
     let height = super::height::read(&mut r, formats.as_ref().map(|f| f.3));
+    let georef = super::georef::read(&mut r, virt);
     let tile_f = r.int3(TokenId::TileSize);
     let tile_size = match &tile_f {
         Field::Absent => None,
@@ -212,6 +213,7 @@ pub fn build(
         defaulted,
         cog,
         source,
+        georef,
     })
 }
 

@@ -11,6 +11,7 @@ mod ct;
 pub mod env;
 mod fields;
 pub mod formats;
+pub mod georef;
 mod height;
 mod ic;
 mod naming;
@@ -257,6 +258,10 @@ pub struct ClipTexturePlan {
     /// is then the pyramid's, served as `clipmapd NAME --clip CLIP_SIZE` serves it, and the
     /// levels above describe the configuration only (no tile file of theirs is read).
     pub source: Option<source_line::SourceLine>,
+    /// Where the texture is on the Earth, as its `#clipmap georef_…` lines record it (a
+    /// pyramid `clipprep` prepared from a georeferenced input; docs/GEOREF.md), if they do.
+    #[serde(skip)]
+    pub georef: Option<crate::georef::Georef>,
 }
 
 impl ClipTexturePlan {

@@ -83,6 +83,8 @@ pub fn read(r: &mut Reader<'_>) -> PagingOptions {
             other if super::cog::SETTINGS.contains(&other) => {}
             // The tile-source line (docs/TILES.md), read by `super::source_line`.
             other if super::source_line::SETTINGS.contains(&other) => {}
+            // The georeferencing lines (docs/GEOREF.md), read by `super::georef`.
+            other if super::georef::SETTINGS.contains(&other) => {}
             other => {
                 let mut d = r
                     .diag(
@@ -93,17 +95,19 @@ pub fn read(r: &mut Reader<'_>) -> PagingOptions {
                     )
                     .found(other.to_string())
                     .expected(format!(
-                        "one of {}, {}, {}, {}",
+                        "one of {}, {}, {}, {}, {}",
                         SETTINGS.join(", "),
                         super::height::SETTINGS.join(", "),
                         super::cog::SETTINGS.join(", "),
-                        super::source_line::SETTINGS.join(", ")
+                        super::source_line::SETTINGS.join(", "),
+                        super::georef::SETTINGS.join(", ")
                     ));
                 let best = SETTINGS
                     .iter()
                     .chain(&super::height::SETTINGS)
                     .chain(&super::cog::SETTINGS)
                     .chain(&super::source_line::SETTINGS)
+                    .chain(&super::georef::SETTINGS)
                     .map(|s| (strsim::jaro_winkler(other, s), s))
                     .filter(|(score, _)| *score > 0.85)
                     .max_by(|a, b| a.0.total_cmp(&b.0));

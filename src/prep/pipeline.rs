@@ -227,6 +227,15 @@ pub fn run(
         Source::Heights { prep, .. } => Some(prep.plan()),
         _ => None,
     };
+    // Where the texture is on the Earth: an input image's georeferencing, shifted for the
+    // padding (docs/GEOREF.md, "Prepared pyramids"); none for the other sources.
+    let georef_lines = match &job.source {
+        Source::Image(image) => image
+            .texture_georef([layout.spec.width, layout.spec.height])
+            .map(|g| crate::plan::georef::lines(&g))
+            .unwrap_or_default(),
+        _ => String::new(),
+    };
     match job.source {
         Source::Hash => {
             for (w, level) in writers.iter_mut().zip(&layout.levels) {
@@ -325,7 +334,8 @@ pub fn run(
     for level in layout.image_cache_levels() {
         write_file(&root.join(Layout::ic_file(level.index)), &ic_text(layout, level, &ct_name), total)?;
     }
-    write_file(&root.join(&ct_name), &ct_text(layout, &job.description, height_plan.as_ref()), total)?;
+    let ct = ct_text(layout, &job.description, height_plan.as_ref()) + &georef_lines;
+    write_file(&root.join(&ct_name), &ct, total)?;
     let (mut inset_tiles, mut absent_tiles) = (0, 0);
     for level in &layout.levels {
         if let Some(sp) = layout.sparse(level) {

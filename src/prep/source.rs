@@ -144,6 +144,10 @@ pub struct OpenedImage {
     pub samples: u32,
     /// Round samples deeper than the texel format to it instead of refusing the image.
     pub reduce_depth: bool,
+    /// Where the image is on the Earth: a TIFF's GeoTIFF tags read as a COG's are
+    /// (`crate::source::cog::tiff_georef`; docs/GEOREF.md). `Ok(None)`: none (not a TIFF, or no
+    /// transform tag); `Err`: the tags could not be read, and why.
+    pub georef: Result<Option<crate::georef::Georef>, String>,
     path: PathBuf,
     opener: Opener,
 }
@@ -316,6 +320,7 @@ fn open_by_cog_reader(path: &Path, limits: &Limits) -> Option<Result<OpenedImage
         bits: if f.ctype == ComponentType::U16 { 16 } else { 8 },
         samples: f.components.count(),
         reduce_depth: false,
+        georef: Ok(None),
         path: path.into(),
         opener: Opener::Cog(Box::new(src)),
     }))
@@ -325,13 +330,47 @@ fn open_by_cog_reader(path: &Path, limits: &Limits) -> Option<Result<OpenedImage
 /// into memory if it fits `limits.max_memory_bytes`. A tiled TIFF neither decoder reads (GDAL's
 /// default RGB JPEG, stored as YCbCr) is streamed by the COG reader, as `clipmapd` serves it.
 pub fn open_image(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepError> {
-    match open_image_decoded(path, limits) {
+    let mut image = match open_image_decoded(path, limits) {
         Err(e @ (PrepError::ImageDecode { .. } | PrepError::UnsupportedPixels { .. }))
             if crate::source::cog::is_tiff(path) =>
         {
             open_by_cog_reader(path, limits).unwrap_or(Err(e))
         }
         r => r,
+    }?;
+    if crate::source::cog::is_tiff(path) {
+        image.georef = crate::source::cog::tiff_georef(path).map_err(|e| e.to_string());
+    }
+    Ok(image)
+}
+
+impl OpenedImage {
+    /// The georeferencing of the texture this image is level 0 of, `texture` texels a side (the
+    /// image at its bottom, padded north and east: `crate::plan::georef::padded_transform`):
+    /// `None` without the image's, or for a CRS without an EPSG code (which the `.ct` cannot
+    /// record).
+    pub fn texture_georef(&self, texture: [u64; 2]) -> Option<crate::georef::Georef> {
+        let g = self.georef.as_ref().ok()?.as_ref()?;
+        g.crs().epsg_code()?;
+        let t = crate::plan::georef::padded_transform(g.geotransform(), self.height, texture[1]);
+        crate::georef::Georef::new(g.crs().clone(), t, texture).ok()
+    }
+
+    /// What the prepared pyramid records of the image's georeferencing, in words (a line of the
+    /// `.ct`'s description, and `clipprep`'s report).
+    pub fn georef_note(&self) -> String {
+        match &self.georef {
+            Ok(Some(g)) if g.crs().epsg_code().is_some() => format!(
+                "Georeferencing: the input's GeoTIFF tags, {} (the `#clipmap georef_` lines; docs/GEOREF.md).",
+                g.crs().name()
+            ),
+            Ok(Some(g)) => format!(
+                "Georeferencing: none recorded: the input's CRS ({}) has no EPSG code, which the `.ct` needs (docs/GEOREF.md).",
+                g.crs().name()
+            ),
+            Ok(None) => "Georeferencing: none (the input has no GeoTIFF georeferencing tags; docs/GEOREF.md).".into(),
+            Err(e) => format!("Georeferencing: none: the input's GeoTIFF tags could not be read: {e}."),
+        }
     }
 }
 
@@ -348,6 +387,7 @@ fn open_image_decoded(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepE
             bits,
             samples,
             reduce_depth: false,
+            georef: Ok(None),
             path: path.into(),
             opener: Opener::Tiff(path.into()),
         });
@@ -396,6 +436,7 @@ fn open_image_decoded(path: &Path, limits: &Limits) -> Result<OpenedImage, PrepE
         bits,
         samples: image.color().channel_count() as u32,
         reduce_depth: false,
+        georef: Ok(None),
         path: path.into(),
         opener: Opener::Memory(image),
     })

@@ -91,6 +91,9 @@ pub struct ClipTextureInfo<'a> {
     /// The COG the `#clipmap cog` line names, as it is served (its size, format and levels;
     /// docs/COG.md): the texture served is this one. `null` for a texture of tile files.
     pub cog: Option<crate::source::cog::CogInfo>,
+    /// Where the texture is on the Earth, as its `#clipmap georef_…` lines record it
+    /// (docs/GEOREF.md, "Prepared pyramids"): `{"epsg", "crs", "geotransform"}`, or null.
+    pub georef: Option<crate::georef::GeorefSummary>,
 }
 
 fn two(a: [u64; 3]) -> [u64; 2] {
@@ -172,6 +175,7 @@ pub fn clip_texture<'a>(plan: &'a ClipTexturePlan, warnings: &'a [Diagnostic]) -
         warnings,
         levels: level_rows(plan),
         cog: cog_info(plan),
+        georef: plan.georef.as_ref().map(crate::georef::Georef::summary),
     }
 }
 
@@ -274,6 +278,17 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
                 crate::height::LevelRule::Max => "greatest of the finer texels with data",
             }
         ));
+    }
+    match &plan.georef {
+        Some(g) => o.push_str(&format!(
+            "georef         {}, level 0's geotransform (GDAL's order) {:?}  (#clipmap)\n",
+            g.crs().name(),
+            g.geotransform().0
+        )),
+        None if plan.cog.is_none() && plan.source.is_none() => o.push_str(
+            "georef         none (no `#clipmap georef_` lines; docs/GEOREF.md)\n",
+        ),
+        None => {}
     }
     o.push_str(&format!("page_size      {}{}\n", plan.page_size, mark(d, "page_size")));
     o.push_str(&format!("naming         .ic files: {:?}, pyramid files: {:?}\n", plan.icache_mode, plan.tile_mode));

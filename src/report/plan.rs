@@ -46,6 +46,10 @@ pub struct Request {
     /// The block format the service publishes (`clipmapd --format`): the image caches hold
     /// tiles of 4 x 4 blocks instead of `texel_bytes` texels (docs/SHM.md).
     pub format: Option<crate::texel::Bc>,
+    /// The texture spans 360 degrees of longitude (a global COG, a `.ct` whose georeferencing
+    /// does, `--global`): its levels wider than the clip wrap, their grids widened to a divisor
+    /// of their tiles across as the engine widens them (docs/GEOREF.md, "The antimeridian").
+    pub global: bool,
 }
 
 /// The image caches the engine and `clipmapd` keep (layout 2): every stack level a grid of whole
@@ -91,6 +95,9 @@ pub struct ImageCaches {
     pub own_view_bytes: u64,
     /// Bytes of every mapping together: `bytes + own_views x own_view_bytes`.
     pub all_bytes: u64,
+    /// The levels that wrap in longitude (a global texture: [`Request::global`]), whose grid
+    /// widths the engine raises to a divisor of their tiles across; empty otherwise.
+    pub wrapping_levels: Vec<u32>,
 }
 
 /// The answer.
@@ -153,6 +160,7 @@ pub fn image_caches(
     heights: bool,
     view_spread: u64,
     block: Option<crate::texel::Bc>,
+    global: bool,
 ) -> Result<ImageCaches, String> {
     use crate::clip::{Clipmap, Settings};
     use crate::paging::PrefetchKind;
@@ -167,6 +175,7 @@ pub fn image_caches(
         lookahead: lookahead.unwrap_or(1),
         prefetch: if lookahead.is_some() { PrefetchKind::Ring } else { PrefetchKind::Adaptive },
         view_spread,
+        wrap_longitude: global,
         ..Settings::default()
     };
     if view_spread > crate::limits::MAX_TEXTURE_SIZE {
@@ -208,6 +217,9 @@ pub fn image_caches(
         own_views: 0,
         own_view_bytes: 0,
         all_bytes: placed.total_bytes,
+        wrapping_levels: (0..desc.level_count() as u32)
+            .filter(|&k| Clipmap::level_wraps(&desc, &settings, k))
+            .collect(),
     })
 }
 
@@ -275,7 +287,8 @@ pub fn compute(r: &Request) -> Result<Plan, SizingError> {
         })
     });
     let clip = 1u64 << memory.log2_clip;
-    let caches = |spread| image_caches(r.size, clip, r.texel_bytes, r.tile, r.lookahead, r.heights, spread, r.format);
+    let caches =
+        |spread| image_caches(r.size, clip, r.texel_bytes, r.tile, r.lookahead, r.heights, spread, r.format, r.global);
     let (image_caches, no_image_caches) = match caches(r.view_spread) {
         Ok(mut ic) if r.own_views > 0 => {
             let own = caches(0).map_or(0, |o| o.bytes);
@@ -374,6 +387,14 @@ pub fn human(p: &Plan, r: &Request) -> String {
             "image caches none: the engine cannot serve this texture: {}\n",
             p.no_image_caches.as_deref().unwrap_or("unknown")
         )),
+    }
+    if let Some(ic) = p.image_caches.as_ref().filter(|ic| !ic.wrapping_levels.is_empty()) {
+        let w = &ic.wrapping_levels;
+        o.push_str(&format!(
+            "             levels {} to {} wrap in longitude (a global texture): their grids are as wide as a divisor of their tiles across, counted above\n",
+            w[0],
+            w[w.len() - 1]
+        ));
     }
     if let Some((f, formula)) =
         p.image_caches.as_ref().and_then(|ic| Some((ic.format.as_ref()?, ic.slot_formula.as_ref()?)))

@@ -502,6 +502,11 @@ impl TileSource for FileSource {
         &self.desc
     }
 
+    /// What the `.ct`'s `#clipmap georef_…` lines record (docs/GEOREF.md), if anything.
+    fn georef(&self) -> Option<crate::georef::Georef> {
+        self.plan.georef.clone()
+    }
+
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
         self.read_into(tile, out).map(|_| ())
     }

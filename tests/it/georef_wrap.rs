@@ -245,3 +245,43 @@ fn a_gdal2tiles_pyramid_wraps_at_the_antimeridian_with_gdals_texels_on_both_side
         }
     }
 }
+
+/// `cliptex plan --global` counts the wider grids a texture that wraps in longitude takes (each
+/// wrapping level's grid as wide as a divisor of its tiles across, so that tiles n - 1 and 0 take
+/// distinct slots): its image caches are the bytes `clipmapd --global` maps, and more than the
+/// same texture's without the wrap.
+#[test]
+fn cliptex_plan_global_sizes_the_wider_grids_of_a_wrapping_texture_as_the_service_maps_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // `Service::start`'s texture: hash (RGBA8), 65536, clip 256, tiles of 64; marked global.
+    let _svc = crate::clipmapd::Service::start(d, "wrapplan", &["--global"]);
+    let mapped = std::fs::metadata(d.join("clipmap-wrapplan.map")).unwrap().len();
+    let plan = |global: bool| -> serde_json::Value {
+        let mut args = vec!["plan", "--size", "65536", "--clip", "256", "--tile", "64", "--texel-bytes", "4", "--json"];
+        if global {
+            args.push("--global");
+        }
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_cliptex")).args(&args).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let (flat, global) = (plan(false), plan(true));
+    assert_eq!(global["image_caches"]["bytes"].as_u64(), Some(mapped), "{global}");
+    assert!(
+        global["image_caches"]["bytes"].as_u64() > flat["image_caches"]["bytes"].as_u64(),
+        "the wrap widens grids: {global} against {flat}"
+    );
+    // Levels 0 to 7 (65536 down to 512 texels, wider than the clip) wrap; level 0's grid is as
+    // wide as a divisor of its 1024 tiles across.
+    assert_eq!(global["image_caches"]["wrapping_levels"], serde_json::json!([0, 1, 2, 3, 4, 5, 6, 7]), "{global}");
+    assert_eq!(flat["image_caches"]["wrapping_levels"], serde_json::json!([]), "{flat}");
+    let g0 = global["image_caches"]["level0_grid"][0].as_u64().unwrap();
+    assert!(1024 % g0 == 0 && g0 >= flat["image_caches"]["level0_grid"][0].as_u64().unwrap(), "{global}");
+    let human = std::process::Command::new(env!("CARGO_BIN_EXE_cliptex"))
+        .args(["plan", "--size", "65536", "--clip", "256", "--tile", "64", "--texel-bytes", "4", "--global"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&human.stdout);
+    assert!(text.contains("levels 0 to 7 wrap in longitude"), "{text}");
+}

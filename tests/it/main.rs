@@ -48,6 +48,8 @@ mod examples;
 mod fuzz_regressions;
 mod georef;
 mod georef_extremes;
+mod georef_growing;
+mod georef_prepared;
 mod georef_wrap;
 mod growing;
 mod growing_service;

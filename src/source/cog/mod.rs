@@ -71,12 +71,14 @@ mod level;
 mod meta;
 mod read;
 mod structure;
+mod tiff_georef;
 
 pub use error::CogError;
 pub use geokeys::GeoKeysError;
 pub use info::{CogInfo, CogLevelInfo};
 pub use level::{Compression, LevelOrigin};
 pub use meta::{MASK_NODATA_F32, MASK_NODATA_I16, MASK_NODATA_U16};
+pub use tiff_georef::tiff_georef;
 
 use self::level::{AlphaRule, IfdLevel, Level};
 use self::meta::{alpha_of, heights_of, rgba_of, BandMeta};

@@ -645,6 +645,10 @@ fn prepare(cli: &Cli, out: &Path, cancel: &AtomicBool) -> Result<Outcome, PrepEr
         let light = if cli.linear_light { "linear light" } else { "stored values" };
         description.push(format!("Coarser levels: {f} filter on {light}."));
     }
+    description.push(match &source {
+        Source::Image(image) => image.georef_note(),
+        _ => "Georeferencing: none (the input is not a georeferenced image; docs/GEOREF.md).".into(),
+    });
     let name = cli.name.clone().unwrap_or_else(|| default_name(&cli.out));
     let staging = Staging::begin(out, cli.force)?;
     let bar = if cli.quiet || !std::io::stderr().is_terminal() {

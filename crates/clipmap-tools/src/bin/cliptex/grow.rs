@@ -40,6 +40,11 @@ Examples:
         /// beneath it towards its box's edge; 0: the best patch wins each texel outright).
         #[arg(long, default_value_t = 0.0)]
         feather: f64,
+        /// The CRS the world coordinates (origin, the patches' boxes) are map coordinates of,
+        /// EPSG:CODE (e.g. EPSG:32633): the texture is then georeferenced by its grid
+        /// (docs/GEOREF.md); without it the units are your own and the texture has none.
+        #[arg(long, value_name = "EPSG:CODE", value_parser = parse_epsg)]
+        crs: Option<u32>,
     },
     /// Add patches: each a JSON sidecar naming its image (PNG, JPEG, TIFF) or raw texels, or a
     /// directory whose *.json sidecars are all taken. Each patch is on disk before it is
@@ -170,6 +175,9 @@ pub struct Status {
     pub texels_per_unit: f64,
     /// Level-0 texels over which patch edges are blended (0: off).
     pub feather: f64,
+    /// The EPSG code of the CRS the world coordinates are in (null: the user's own units, no
+    /// georeferencing).
+    pub epsg: Option<u32>,
     pub patches: usize,
     pub levels: u32,
     /// The union of the patches' boxes, world units (null while empty).
@@ -247,6 +255,7 @@ pub fn status(g: &Growing) -> Status {
         origin: grid.origin,
         texels_per_unit: grid.texels_per_unit,
         feather: g.feather(),
+        epsg: g.epsg(),
         patches: g.index().len(),
         levels: g.levels(),
         extent: extent.map(|e| [e.min[0], e.min[1], e.max[0], e.max[1]]),
@@ -263,7 +272,7 @@ fn human(s: &Status) -> String {
     let ext =
         s.extent.map_or("none yet".to_string(), |e| format!("[{}, {}) x [{}, {}) world units", e[0], e[2], e[1], e[3]));
     format!(
-        "{}: {} texels, {}² tiles, origin ({}, {}), {} texels a unit{}\n  patches {}  levels {}  extent {}\n  tiles {} (per level {:?})  waiting {}  applied up to patch {}{}\n",
+        "{}: {} texels, {}² tiles, origin ({}, {}), {} texels a unit{}\n  georef {}\n  patches {}  levels {}  extent {}\n  tiles {} (per level {:?})  waiting {}  applied up to patch {}{}\n",
         s.dir,
         s.format,
         s.tile,
@@ -271,6 +280,10 @@ fn human(s: &Status) -> String {
         s.origin[1],
         s.texels_per_unit,
         if s.feather > 0.0 { format!(", edges feathered over {} texels", s.feather) } else { String::new() },
+        match s.epsg {
+            Some(code) => format!("EPSG:{code}: world units are its map coordinates, the grid places every texel"),
+            None => "none (the world units are the grid's own: create with --crs EPSG:CODE to georeference)".into(),
+        },
         s.patches,
         s.levels,
         ext,
@@ -307,8 +320,8 @@ fn open_to_look(dir: &Path) -> Result<Growing, i32> {
 /// Runs one `cliptex grow` subcommand; returns the exit status.
 pub fn run(cmd: GrowCommand) -> i32 {
     match cmd {
-        GrowCommand::Create { dir, origin, texels_per_unit, tile, format, feather } => {
-            match Growing::create_feathered(&dir, origin, texels_per_unit, tile, &format, feather) {
+        GrowCommand::Create { dir, origin, texels_per_unit, tile, format, feather, crs } => {
+            match Growing::create_georeferenced(&dir, origin, texels_per_unit, tile, &format, feather, crs) {
                 Ok(g) => {
                     print!("{}", human(&status(&g)));
                     exit::OK
@@ -626,4 +639,10 @@ fn watch(
         print!("{}", human(&status(g)));
         exit::OK
     })
+}
+
+/// `EPSG:CODE` (or the code alone).
+fn parse_epsg(s: &str) -> Result<u32, String> {
+    let code = s.strip_prefix("EPSG:").or_else(|| s.strip_prefix("epsg:")).unwrap_or(s);
+    code.parse().map_err(|_| format!("`{s}`: expected EPSG:CODE, e.g. EPSG:32633"))
 }

@@ -235,6 +235,11 @@ Examples:
         /// far apart"): each one view's mapping more, and the bytes of every mapping together.
         #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=15))]
         own_views: u64,
+        /// The texture spans 360 degrees of longitude, as `clipmapd --global` serves it (a global
+        /// COG, or a .ct whose georeferencing spans 360 degrees, says so itself): its levels
+        /// wider than the clip wrap, with the wider grids the engine gives them (docs/GEOREF.md).
+        #[arg(long)]
+        global: bool,
         /// Print memory for texture sizes 2^10 to 2^26 at once.
         #[arg(long)]
         table: bool,
@@ -696,6 +701,8 @@ struct PlanFrom {
     texel_bytes: u64,
     invalid_border: u64,
     heights: bool,
+    /// Its georeferencing spans 360 degrees of longitude.
+    global: bool,
 }
 
 fn check(file: &Path, json: bool, quiet: bool, env: &EnvArgs, tiles: &TilesArgs) -> i32 {
@@ -849,6 +856,7 @@ fn run(cli: Cli) -> i32 {
             heights,
             view_spread,
             own_views,
+            global,
             table,
             json,
             env,
@@ -865,6 +873,7 @@ fn run(cli: Cli) -> i32 {
                         texel_bytes: src.desc().bytes_per_texel() as u64,
                         invalid_border: 8,
                         heights: src.heights().is_some(),
+                        global: clipmap::source::TileSource::georef(&src).is_some_and(|g| g.is_global_in_longitude()),
                     }),
                     Err(code) => return code,
                 },
@@ -876,6 +885,7 @@ fn run(cli: Cli) -> i32 {
                         texel_bytes: p.bytes_per_texel as u64,
                         invalid_border: p.invalid_border,
                         heights: p.height.is_some(),
+                        global: p.georef.as_ref().is_some_and(|g| g.is_global_in_longitude()),
                     }),
                     Err(code) => return code,
                 },
@@ -917,6 +927,7 @@ fn run(cli: Cli) -> i32 {
                 view_spread,
                 own_views,
                 format,
+                global: global || from_ct.as_ref().is_some_and(|p| p.global),
             };
             match report::plan::compute(&req) {
                 Ok(p) => {
