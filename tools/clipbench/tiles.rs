@@ -29,7 +29,7 @@ use super::cog_shared::{median, Spent};
 use super::perf::MachineCpu;
 use super::serve::{AccessLog, Hit, Nginx};
 use super::tiles_flight::{self, Flight};
-use super::tiles_peers::{self, Gdal, Transfer};
+use super::tiles_peers::{self, Gdal, Reference, Transfer, BPT};
 use clipmap::source::remote::RemoteOptions;
 use clipmap::source::tiles::{self, OpenOptions, PyramidOptions, PyramidSource, TemplateOptions};
 use clipmap::source::{Procedural, TextureDesc, TileId, TileSource};
@@ -194,61 +194,6 @@ pub struct Goals {
 }
 
 const STATE: &str = "each pass on a fresh open (our source, GDAL's datasets and curl hold no tile from the pass before); the files in the page cache; requests_per_tile_warm from one more pass on a source already open";
-
-/// GDAL's decode of every level-0 tile file, what every tile read is checked against: tile by
-/// tile in XYZ order (rows from the north, columns within), each tile's RGBA rows from the north.
-pub(crate) struct Reference {
-    pub gdal: Vec<u8>,
-    /// Tiles a side of level 0.
-    pub tiles: u64,
-    /// Tile size, texels.
-    pub tile: u64,
-}
-
-/// Bytes a texel: RGBA (PNG tiles).
-const BPT: usize = 4;
-
-impl Reference {
-    fn tile_bytes(&self) -> usize {
-        BPT * (self.tile * self.tile) as usize
-    }
-
-    /// GDAL's decode of level-0 texture tile `id`, rows from the north.
-    fn of(&self, id: TileId) -> &[u8] {
-        let y = self.tiles - 1 - id.t;
-        &self.gdal[(y * self.tiles + id.s) as usize * self.tile_bytes()..][..self.tile_bytes()]
-    }
-
-    /// Texels of our level-0 tile `id` (rows from the south) that differ from GDAL's decode.
-    pub fn wrong(&self, id: TileId, ours: &[u8]) -> u64 {
-        let theirs = self.of(id);
-        let (tile, row) = (self.tile as usize, BPT * self.tile as usize);
-        let mut wrong = 0;
-        for r in 0..tile {
-            let a = &ours[r * row..(r + 1) * row];
-            let b = &theirs[(tile - 1 - r) * row..][..row];
-            if a != b {
-                wrong += a.chunks(BPT).zip(b.chunks(BPT)).filter(|(x, y)| x != y).count() as u64;
-            }
-        }
-        wrong
-    }
-
-    /// GDAL's texel at level-0 texel (s, t) (t from the south).
-    pub fn texel(&self, s: u64, t: u64) -> &[u8] {
-        let id = TileId { level: 0, s: s / self.tile, t: t / self.tile };
-        let row = self.tile - 1 - t % self.tile;
-        &self.of(id)[((row * self.tile + s % self.tile) as usize) * BPT..][..BPT]
-    }
-
-    /// Texels of a dump in the reference's own layout (GDAL reading a kind) that differ from it.
-    fn wrong_dump(&self, dump: &[u8]) -> u64 {
-        if dump.len() != self.gdal.len() {
-            return (self.gdal.len() / BPT) as u64;
-        }
-        dump.chunks(BPT).zip(self.gdal.chunks(BPT)).filter(|(a, b)| a != b).count() as u64
-    }
-}
 
 /// Writes the terrain texture's level 0 (`n`² RGB, top row first) as `terrain.png` in `dir`.
 fn terrain_png(dir: &Path, n: u64) -> anyhow::Result<PathBuf> {
