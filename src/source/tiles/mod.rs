@@ -8,6 +8,7 @@
 //! north as XYZ and WMTS count them) or says that the tile does not exist; the pyramid source
 //! decodes those bytes into a slot, in texture orientation (t counts up from the south).
 
+mod decode;
 pub mod pyramid;
 pub mod reopen;
 pub mod template;
