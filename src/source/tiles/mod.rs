@@ -188,6 +188,14 @@ pub trait TileArchive: Send + Sync {
         None
     }
 
+    /// The bytes tile `at` takes in the archive, as its own index says, without reading the tile
+    /// (`cliptex seed --estimate`): `Some(Ok(None))` for a tile it does not hold, `None` for an
+    /// archive with no such index (a tile service). May read directories (network, disk).
+    fn stored_length(&self, at: TileAddr) -> Option<Result<Option<u64>, ArchiveError>> {
+        let _ = at;
+        None
+    }
+
     /// A number that changes each time tiles may have changed at once (an archive replaced in
     /// its store and opened again); 0 for an archive whose tiles never change so.
     fn version(&self) -> u64 {
