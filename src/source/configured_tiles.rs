@@ -1,10 +1,12 @@
 //! A `.ct` naming a tile pyramid (`#clipmap source`, docs/TILES.md) checked against the pyramid,
 //! as a `.ct` naming a COG is (`cog-mismatch`, `configured.rs`): the pyramid is opened with the
 //! `.ct`'s clip size, as `clipmapd` serves it, and the `.ct`'s header must describe the texture
-//! served: `virt_size` the pyramid's size (the tile size times 2 to the finest zoom), the formats
-//! its texel format (RGB8 for JPEG tiles, RGBA8 otherwise) and `tile_size` its tile size. Each
-//! disagreement is a `source-mismatch` error at the field, naming the value written, the
-//! pyramid's, and the line to write.
+//! served: `virt_size` the pyramid's size (the tile size times 2 to the finest zoom) and the
+//! formats its texel format (RGB8 for JPEG tiles, RGBA8 otherwise). Each disagreement is a
+//! `source-mismatch` error at the field, naming the value written, the pyramid's, and the line
+//! to write. (`tile_size` is not compared: the pyramid is served in its own tiles whatever the
+//! `.ct` says, and `clipprep --input` writes the tile of a texture no larger than its clip size
+//! as that size.)
 //!
 //! A pyramid that cannot be opened while the configuration is read is not reported here: the
 //! service says why when it opens it to serve it (`super::open_plan`), as before.
@@ -61,19 +63,17 @@ fn mismatches(
     src: &PyramidSource,
 ) -> Vec<Diagnostic> {
     let span = |id| tree.last(id).map(|e| e.span);
-    let tile_span = span(TokenId::TileSize);
     let format_span = tree.first(TokenId::ExtFormat).or(tree.first(TokenId::ImgFormat)).map(|e| e.span);
     let size_span = match tree.last(TokenId::Size).map(|e| &e.value) {
         Some(Value::Int3(_)) => span(TokenId::Size),
         _ => None,
     };
-    compare(plan.virt_size, plan.texel, plan.tile_size, Served::of(src))
+    compare(plan.virt_size, plan.texel, Served::of(src))
         .into_iter()
         .map(|m| {
             let at = match m.field {
                 Field::Size => size_span,
                 Field::Format => format_span,
-                Field::Tile => tile_span,
             };
             diagnostic(file, line, at, m)
         })
@@ -85,7 +85,6 @@ fn mismatches(
 pub(crate) enum Field {
     Size,
     Format,
-    Tile,
 }
 
 /// One disagreement: the field, what is written, what the pyramid serves, the line to write.
@@ -97,13 +96,8 @@ pub(crate) struct Mismatch {
     pub fix: String,
 }
 
-/// The header fields (`virt_size`, the texel format, `tile_size` when given) against `served`.
-pub(crate) fn compare(
-    virt_size: [u64; 3],
-    texel: TexelFormat,
-    tile_size: Option<[u64; 3]>,
-    served: Served,
-) -> Vec<Mismatch> {
+/// The header fields (`virt_size`, the texel format) against `served`.
+pub(crate) fn compare(virt_size: [u64; 3], texel: TexelFormat, served: Served) -> Vec<Mismatch> {
     let mut out = Vec::new();
     let n = served.size;
     if [virt_size[0], virt_size[1]] != [n, n] {
@@ -130,16 +124,6 @@ pub(crate) fn compare(
             fix: format!("write {names}"),
         });
     }
-    if let Some(t) = tile_size {
-        if [t[0], t[1]] != [served.tile, served.tile] {
-            out.push(Mismatch {
-                field: Field::Tile,
-                written: format!("tile_size {} {} {}", t[0], t[1], t[2]),
-                has: format!("tile_size {0} {0} 1 (the pyramid's tiles)", served.tile),
-                fix: format!("write `tile_size {0} {0} 1`", served.tile),
-            });
-        }
-    }
     out
 }
 
@@ -147,7 +131,6 @@ fn diagnostic(file: &Path, line: &SourceLine, at: Option<Span>, m: Mismatch) -> 
     let field = match m.field {
         Field::Size => "virt_size",
         Field::Format => "ext_format / int_format / img_format",
-        Field::Tile => "tile_size",
     };
     Diagnostic::new(
         Severity::Error,
@@ -173,18 +156,16 @@ mod tests {
 
     #[test]
     fn a_header_describing_the_pyramid_has_no_mismatch() {
-        assert!(compare([1024, 1024, 1], TexelFormat::RGBA8, Some([256, 256, 1]), SERVED).is_empty());
-        assert!(compare([1024, 1024, 1], TexelFormat::RGBA8, None, SERVED).is_empty());
+        assert!(compare([1024, 1024, 1], TexelFormat::RGBA8, SERVED).is_empty());
     }
 
     #[test]
-    fn size_format_and_tile_each_say_what_the_pyramid_serves() {
-        let m = compare([2048, 2048, 1], TexelFormat::RGB8, Some([512, 512, 1]), SERVED);
-        assert_eq!(m.iter().map(|m| m.field).collect::<Vec<_>>(), [Field::Size, Field::Format, Field::Tile]);
+    fn size_and_format_each_say_what_the_pyramid_serves() {
+        let m = compare([2048, 2048, 1], TexelFormat::RGB8, SERVED);
+        assert_eq!(m.iter().map(|m| m.field).collect::<Vec<_>>(), [Field::Size, Field::Format]);
         assert_eq!(m[0].written, "virt_size 2048 2048 1");
         assert!(m[0].has.starts_with("virt_size 1024 1024 1 (zooms 0..2 of 256-texel tiles"), "{}", m[0].has);
         assert!(m[0].fix.contains("`virt_size 1024 1024 1`"), "{}", m[0].fix);
         assert!(m[1].written.contains("RGB8") && m[1].has.contains("RGBA8"), "{m:?}");
-        assert_eq!((m[2].written.as_str(), m[2].fix.as_str()), ("tile_size 512 512 1", "write `tile_size 256 256 1`"));
     }
 }
