@@ -41,6 +41,18 @@ pub fn load_clip_texture(path: &Path, opts: &Options) -> Result<Loaded<ClipTextu
     let abs = crate::plan::absolute(path);
     let mut check = Check { sources: &loaded.sources, opts, found: Vec::new() };
     let Some(tree) = check.tree(&abs, FileKind::ClipTexture) else { return Ok(loaded) };
+    // A `.ct` naming a tile pyramid: its header against the pyramid (`configured_tiles.rs`).
+    let found = match loaded.plan.as_ref() {
+        Some(plan) => plan.source.as_ref().map(|line| super::configured_tiles::check(&abs, &tree, plan, line)),
+        None => None,
+    };
+    if let Some(found) = found {
+        if found.iter().any(|d| d.severity == Severity::Error) {
+            loaded.plan = None;
+        }
+        loaded.diagnostics.items.extend(found);
+        return Ok(loaded);
+    }
     let Some(mut cog) = crate::plan::cog::named(&tree, opts) else { return Ok(loaded) };
     let int = |id| match tree.last(id).map(|e| &e.value) {
         Some(Value::Int(v)) => u64::try_from(v.value).ok(),

@@ -15,6 +15,7 @@ mod ahead;
 pub mod bc;
 pub mod cog;
 pub mod configured;
+mod configured_tiles;
 pub mod desc;
 pub mod faulty;
 pub mod file;

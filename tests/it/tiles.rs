@@ -576,3 +576,42 @@ with open('br.pmtiles', 'wb') as f:
     run_python(pack, d, &[MAX_ZOOM.to_string()]);
     every_texel_is_gdals(&open(&format!("{}/br.pmtiles", d.display())), &gdal, "PMTiles of brotli tiles");
 }
+
+#[test]
+fn a_ct_whose_header_does_not_describe_its_tile_source_is_a_source_mismatch_at_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    trees(d);
+    let (o, _) = crate::common::exec(
+        d,
+        env!("CARGO_BIN_EXE_clipprep"),
+        &["--input", &format!("xyz:{}/xyz/{{z}}/{{x}}/{{y}}.png", d.display()), "--clip", "1024", "--out", "cfg"],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ct = d.join("cfg/cfg.ct");
+    let text = std::fs::read_to_string(&ct).unwrap();
+    // What clipprep wrote describes the pyramid: no mismatch.
+    let (status, out) = cliptex(d, &["validate", "cfg/cfg.ct"]);
+    assert!(status.success() && !out.contains("source-mismatch"), "{out}");
+    // Zooms 0..2 of 256-texel tiles are 1024 texels a side; a .ct saying 2048 is refused.
+    let line = text.lines().position(|l| l.trim_start().starts_with("virt_size")).expect("a virt_size line") + 1;
+    let bad: String = text
+        .lines()
+        .map(|l| if l.trim_start().starts_with("virt_size") { "virt_size 2048 2048 1" } else { l })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(d.join("cfg/bad.ct"), bad).unwrap();
+    let (status, out) = cliptex(d, &["validate", "cfg/bad.ct"]);
+    assert_eq!(status.code(), Some(1), "{out}");
+    assert!(out.contains(&format!("bad.ct:{line}:")), "at the virt_size line: {out}");
+    assert!(out.contains("error: `virt_size` does not describe the tile source `xyz:"), "{out}");
+    assert!(out.contains("virt_size 1024 1024 1 (zooms 0..2 of 256-texel tiles"), "{out}");
+    let (_, out) = cliptex(d, &["validate", "--json", "cfg/bad.ct"]);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let codes: Vec<&str> =
+        v["files"][0]["diagnostics"].as_array().unwrap().iter().filter_map(|d| d["code"].as_str()).collect();
+    assert!(codes.contains(&"source-mismatch"), "{v}");
+    // Nor is it served: `cliptex info` says why.
+    let (status, out) = cliptex(d, &["info", "cfg/bad.ct"]);
+    assert!(!status.success() && out.contains("`virt_size` does not describe the tile source"), "{out}");
+}

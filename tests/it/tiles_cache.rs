@@ -325,6 +325,7 @@ fn an_estimate_fetches_only_its_sample_and_bad_areas_and_levels_say_what_was_exp
     let per_tile = j["sample"]["bytes"].as_u64().unwrap() / 3;
     assert!(j["bytes"].as_u64().unwrap() >= per_tile * 15, "{j}");
     assert_eq!(j["requests"].as_u64(), Some(21), "{j}");
+    assert_eq!(j["estimate_method"].as_str(), Some("sample"), "a tile service has no directories: {j}");
     assert!(j["seconds"].as_f64().unwrap() >= 0.0, "{j}");
     // In text, saying it measured on a sample.
     let (o, desc) = seed(&["--bbox", "0,0,90,60", "--levels", "0", "--estimate", "--sample", "1"]);
@@ -375,6 +376,40 @@ fn an_estimate_fetches_only_its_sample_and_bad_areas_and_levels_say_what_was_exp
         4,
         "the route counted its tiles only, and no bad input fetched anything"
     );
+}
+
+#[test]
+fn an_estimate_of_a_remote_pmtiles_takes_its_bytes_from_the_directories_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    trees(d);
+    archives_of_the_tree(d);
+    let nginx = Nginx::serve_images(d);
+    let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
+    let url = format!("{}/tree.pmtiles", proxy.url());
+    let (o, desc) = cliptex(
+        d,
+        &["seed", &url, "--bbox=-180,-85,180,85", "--levels", "0..2", "--estimate", "--sample", "2", "--json"],
+        &[],
+    );
+    assert!(o.status.success(), "{desc}");
+    let j = json(&o, &desc);
+    // The archive stores the tree's PNG files as they are: its entries' lengths are theirs.
+    let files: u64 = (0..=MAX_ZOOM)
+        .flat_map(|z| (0..1u32 << z).flat_map(move |x| (0..1u32 << z).map(move |y| (z, x, y))))
+        .map(|(z, x, y)| std::fs::metadata(d.join(format!("xyz/{z}/{x}/{y}.png"))).unwrap().len())
+        .sum();
+    assert_eq!(j["estimate_method"].as_str(), Some("directories"), "{j}");
+    assert_eq!((j["tiles"].as_u64(), j["missing"].as_u64()), (Some(21), Some(0)), "{j}");
+    assert_eq!(j["bytes"].as_u64(), Some(files), "every tile's bytes, exactly: {j}");
+    // One request a tile (its root directory holds every entry: no leaf to read).
+    assert_eq!(j["requests"].as_u64(), Some(21), "{j}");
+    assert_eq!(j["sample"]["tiles"].as_u64(), Some(2), "{j}");
+    // In text, it says so.
+    let (o, desc) =
+        cliptex(d, &["seed", &url, "--bbox=-180,-85,180,85", "--levels", "0", "--estimate", "--sample", "1"], &[]);
+    assert!(o.status.success(), "{desc}");
+    assert!(String::from_utf8_lossy(&o.stdout).contains("from the archive's directories, exactly"), "{desc}");
 }
 
 #[test]

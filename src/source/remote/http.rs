@@ -109,8 +109,7 @@ fn status_failure(status: StatusCode, headers: &reqwest::header::HeaderMap) -> F
     let retry_after = headers
         .get(RETRY_AFTER)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.trim().parse::<u64>().ok())
-        .map(Duration::from_secs);
+        .and_then(|v| super::retry_after::parse(v, std::time::SystemTime::now()));
     match status.as_u16() {
         404 | 410 => Failure::NotFound,
         401 | 403 => Failure::Denied(format!("HTTP {status}")),

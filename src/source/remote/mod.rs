@@ -16,6 +16,7 @@ pub mod location;
 pub mod object;
 pub mod options;
 pub mod range;
+mod retry_after;
 mod runtime;
 pub mod s3;
 pub mod seen;

@@ -8,6 +8,7 @@
 //! north as XYZ and WMTS count them) or says that the tile does not exist; the pyramid source
 //! decodes those bytes into a slot, in texture orientation (t counts up from the south).
 
+mod decode;
 pub mod pyramid;
 pub mod reopen;
 pub mod template;
@@ -183,6 +184,14 @@ pub trait TileArchive: Send + Sync {
     /// Where tile `at` is, as messages may show it (a URL with its secrets replaced, a path), for
     /// an archive that keeps each tile apart; `None` by default.
     fn locate(&self, at: TileAddr) -> Option<String> {
+        let _ = at;
+        None
+    }
+
+    /// The bytes tile `at` takes in the archive, as its own index says, without reading the tile
+    /// (`cliptex seed --estimate`): `Some(Ok(None))` for a tile it does not hold, `None` for an
+    /// archive with no such index (a tile service). May read directories (network, disk).
+    fn stored_length(&self, at: TileAddr) -> Option<Result<Option<u64>, ArchiveError>> {
         let _ = at;
         None
     }

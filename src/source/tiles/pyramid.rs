@@ -209,6 +209,16 @@ impl PyramidSource {
     /// first), after checking its type and size. `at` names the tile in messages (`None` for
     /// the default tile).
     fn decode(&self, bytes: &[u8], at: Option<TileAddr>) -> Result<Vec<u8>, String> {
+        let ts = self.info.tile_size as usize;
+        let mut out = vec![0u8; ts * ts * self.bytes_per_texel()];
+        self.decode_into(bytes, at, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`decode`](Self::decode) into `out` (one tile's texels), the slot they are published
+    /// from: a plain PNG is decoded there with no copy of its own (`decode.rs`). `out` holds no
+    /// texel of the tile when it fails.
+    fn decode_into(&self, bytes: &[u8], at: Option<TileAddr>, out: &mut [u8]) -> Result<(), String> {
         let what = at.map(|a| format!("tile {a}")).unwrap_or_else(|| "the default tile".into());
         let found = TileEncoding::sniff(bytes);
         let Some(found) = found else {
@@ -256,6 +266,20 @@ impl PyramidSource {
             }
             TileEncoding::Png => {}
         }
+        let ts = self.info.tile_size;
+        let wrong_size =
+            |w: u32, h: u32| format!("{what} is {w}x{h} texels: expected {ts}x{ts} (the pyramid's tile size)");
+        if found == TileEncoding::Png {
+            // The whole PNG is there (its chunks up to IEND), before a byte is inflated.
+            let head = super::decode::png_chunks(bytes).map_err(|e| format!("{what}: {e}"))?;
+            if (head.width, head.height) != (ts, ts) {
+                return Err(wrong_size(head.width, head.height));
+            }
+            if head.plain && self.bytes_per_texel() == 4 {
+                return super::decode::png_into_slot(bytes, ts as usize, out)
+                    .map_err(|e| format!("{what}: the PNG image cannot be decoded: {e}"));
+            }
+        }
         let format = match found {
             TileEncoding::Png => image::ImageFormat::Png,
             TileEncoding::Jpeg => image::ImageFormat::Jpeg,
@@ -264,21 +288,22 @@ impl PyramidSource {
         let reader = image::ImageReader::with_format(std::io::Cursor::new(bytes), format);
         let (w, h) =
             reader.into_dimensions().map_err(|e| format!("{what}: {} header cannot be read: {e}", found.name()))?;
-        let ts = self.info.tile_size;
         if (w, h) != (ts, ts) {
-            return Err(format!("{what} is {w}x{h} texels: expected {ts}x{ts} (the pyramid's tile size)"));
+            return Err(wrong_size(w, h));
         }
         let img = image::load_from_memory_with_format(bytes, format)
             .map_err(|e| format!("{what}: the {} image cannot be decoded: {e}", found.name()))?;
         let raw = if self.bytes_per_texel() == 3 { img.into_rgb8().into_raw() } else { img.into_rgba8().into_raw() };
         let row = ts as usize * self.bytes_per_texel();
+        if raw.len() != out.len() {
+            return Err(format!("{what}: decoded to {} bytes: expected {} ({ts}x{ts} texels)", raw.len(), out.len()));
+        }
         // Rows from the north as the image has them; texture rows from the south.
-        let mut out = vec![0u8; raw.len()];
         for (r, src) in raw.chunks_exact(row).enumerate() {
             let dst = (ts as usize - 1 - r) * row;
             out[dst..dst + row].copy_from_slice(src);
         }
-        Ok(out)
+        Ok(())
     }
 
     /// Whether tile `at` lies within the declared bounds (always, without bounds).
@@ -294,15 +319,23 @@ impl PyramidSource {
 
     /// The texels of pyramid tile `at` in texture orientation, or `None` when it is missing.
     fn pyramid_tile(&self, tile: TileId, at: TileAddr) -> Result<Option<Vec<u8>>, SourceError> {
+        let ts = self.info.tile_size as usize;
+        let mut texels = vec![0u8; ts * ts * self.bytes_per_texel()];
+        Ok(self.pyramid_tile_into(tile, at, &mut texels)?.then_some(texels))
+    }
+
+    /// Pyramid tile `at` decoded into `out` (one tile's texels, texture orientation); whether it
+    /// exists (`out` untouched when it is missing).
+    fn pyramid_tile_into(&self, tile: TileId, at: TileAddr, out: &mut [u8]) -> Result<bool, SourceError> {
         if !self.in_bounds(at) {
-            return Ok(None);
+            return Ok(false);
         }
         self.fetched.fetch_add(1, Ordering::Relaxed);
         match self.archive.fetch(at) {
-            Ok(Fetched::Missing) => Ok(None),
-            Ok(Fetched::Tile(bytes)) if bytes.is_empty() => Ok(None),
+            Ok(Fetched::Missing) => Ok(false),
+            Ok(Fetched::Tile(bytes)) if bytes.is_empty() => Ok(false),
             Ok(Fetched::Tile(bytes)) => {
-                self.decode(&bytes, Some(at)).map(Some).map_err(|problem| SourceError::Pyramid {
+                self.decode_into(&bytes, Some(at), out).map(|()| true).map_err(|problem| SourceError::Pyramid {
                     tile,
                     kind: FaultKind::Corrupt,
                     problem: format!("{}: {problem}", self.archive.place()),
@@ -349,12 +382,24 @@ impl PyramidSource {
         let ts = u64::from(self.info.tile_size);
         let at = [tile.s * tw, tile.t * th];
         let region = [tw.min(size[0] - at[0]), th.min(size[1] - at[1])];
-        out.fill(0);
-        let mut any = false;
         // Texture rows at[1] .. at[1] + region[1] from the south are pyramid rows from the north
         // size - at[1] - region[1] ..= size - 1 - at[1].
         let north0 = size[1] - at[1] - region[1];
         let north1 = size[1] - 1 - at[1];
+        if [tw, th] == [ts, ts] && region == [ts, ts] && at[0] % ts == 0 && north0 % ts == 0 {
+            // The texture tile is one whole pyramid tile: decoded straight into `out`.
+            let addr = TileAddr { z, x: (at[0] / ts) as u32, y: (north0 / ts) as u32 };
+            if self.pyramid_tile_into(tile, addr, out)? {
+                return Ok(true);
+            }
+            match &self.default {
+                Some(d) => out.copy_from_slice(d),
+                None => out.fill(0),
+            }
+            return Ok(false);
+        }
+        out.fill(0);
+        let mut any = false;
         for y in north0 / ts..=north1 / ts {
             for x in at[0] / ts..=(at[0] + region[0] - 1) / ts {
                 let addr = TileAddr { z, x: x as u32, y: y as u32 };

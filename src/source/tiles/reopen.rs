@@ -214,6 +214,10 @@ impl<A: Renewable> TileArchive for Reopening<A> {
         self.current().locate(at)
     }
 
+    fn stored_length(&self, at: TileAddr) -> Option<Result<Option<u64>, ArchiveError>> {
+        self.current().stored_length(at)
+    }
+
     fn version(&self) -> u64 {
         self.version.load(Ordering::SeqCst)
     }

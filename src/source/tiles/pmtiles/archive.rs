@@ -422,6 +422,15 @@ impl TileArchive for PmtilesArchive {
         }
     }
 
+    /// The length of the tile's entry in its directory (a leaf read when first needed): the
+    /// bytes a read of the tile asks for.
+    fn stored_length(&self, at: TileAddr) -> Option<Result<Option<u64>, ArchiveError>> {
+        if !at.is_valid() || at.z < self.info.min_zoom || at.z > self.info.max_zoom {
+            return Some(Ok(None));
+        }
+        Some(self.locate(Some(at), directory::tile_id(at)).map(|found| found.map(|(_, len)| u64::from(len))))
+    }
+
     #[cfg(feature = "remote")]
     fn remote_stats(&self) -> Option<crate::source::remote::RemoteStats> {
         let object = self.bytes.as_any().downcast_ref::<crate::source::remote::object::Object>()?;
@@ -640,6 +649,10 @@ mod tests {
                 for x in 0..(1u32 << z) {
                     for y in 0..(1u32 << z) {
                         let want = tiles.iter().find(|t| t.0 == addr(z, x, y)).map(|t| t.1.clone());
+                        // The directories alone say which tiles are held, and their stored
+                        // lengths (`cliptex seed --estimate`; the helper compresses the tiles).
+                        let len = a.stored_length(addr(z, x, y)).expect("an index").unwrap();
+                        assert_eq!(len.is_some(), want.is_some(), "{z}/{x}/{y}");
                         let got = a.fetch(addr(z, x, y)).unwrap();
                         assert_eq!(got, want.map_or(Fetched::Missing, Fetched::Tile), "{z}/{x}/{y}");
                     }

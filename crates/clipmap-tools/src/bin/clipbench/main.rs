@@ -43,10 +43,15 @@ mod remote;
 mod serve;
 #[cfg(feature = "remote")]
 mod tiles;
+/// Where a tile's CPU goes in `clipbench tiles`.
+#[cfg(feature = "remote")]
+mod tiles_cpu;
 #[cfg(feature = "remote")]
 mod tiles_flight;
 #[cfg(feature = "remote")]
 mod tiles_peers;
+#[cfg(feature = "remote")]
+mod tiles_planet;
 mod views;
 
 use clap::{Parser, Subcommand};

@@ -71,6 +71,11 @@ pub struct Nginx {
 }
 
 impl Nginx {
+    /// The server's process id (one process: `master_process off`).
+    pub fn pid(&self) -> u32 {
+        self._child.0.id()
+    }
+
     pub fn serve(root: &Path, dir: &Path, log: Option<&Path>, link_rate: Option<u64>) -> anyhow::Result<Nginx> {
         let exe = nginx_program()
             .ok_or_else(|| anyhow::anyhow!("nginx is needed and was not found: install it (apt-get install nginx)"))?;

@@ -28,10 +28,12 @@
 use super::cog_shared::{median, Spent};
 use super::perf::MachineCpu;
 use super::serve::{AccessLog, Hit, Nginx};
+use super::tiles_cpu::{self, MemoryArchive};
 use super::tiles_flight::{self, Flight};
-use super::tiles_peers::{self, Gdal, Transfer};
+use super::tiles_peers::{self, Gdal, Reference, Transfer, BPT};
+use super::tiles_planet::{self, PlanetOpen};
 use clipmap::source::remote::RemoteOptions;
-use clipmap::source::tiles::{self, OpenOptions, PyramidOptions, PyramidSource, TemplateOptions};
+use clipmap::source::tiles::{self, OpenOptions, PyramidOptions, PyramidSource, TemplateOptions, TileAddr};
 use clipmap::source::{Procedural, TextureDesc, TileId, TileSource};
 use clipmap::texel::TexelFormat;
 use serde::Serialize;
@@ -123,6 +125,38 @@ pub struct Kind {
     pub core_us_per_tile: f64,
     /// The same under curl (HTTP kinds).
     pub core_us_per_tile_curl: Option<f64>,
+    /// Our process's CPU a tile over the timed passes (every thread), microseconds: robust to
+    /// other work on the machine, unlike `core_us_per_tile`.
+    pub cpu_us_per_tile: f64,
+    /// Our process's CPU a tile of a pass that only fetches the tiles' bytes through this kind's
+    /// archive (HTTP client, remote stack, directories), on a fresh open.
+    pub cpu_us_per_tile_fetch: f64,
+    /// curl's processes' CPU a tile (HTTP kinds; the kernel's 1/100 s counts).
+    pub cpu_us_per_tile_curl: Option<f64>,
+    /// nginx's CPU a tile while our passes ran, and while curl's did (HTTP kinds).
+    pub nginx_cpu_us_per_tile: Option<f64>,
+    pub nginx_cpu_us_per_tile_curl: Option<f64>,
+    /// Ours over curl's rate as the CPU alone predicts on a machine both saturate: (curl +
+    /// nginx under curl) / (ours + nginx under ours), a tile (HTTP kinds).
+    pub vs_curl_by_cpu: Option<f64>,
+    /// The most ours over curl can be while a tile's decode, checks and copies cost what they
+    /// cost (`cpu.us_per_tile_memory_pass`) even if our fetch cost no more than curl's whole
+    /// process: (curl + nginx) / (memory pass + curl + nginx), a tile (HTTP kinds).
+    pub vs_curl_bound_by_decode: Option<f64>,
+}
+
+/// Where a tile's CPU goes that no kind changes (`tiles_cpu.rs`), microseconds a tile.
+#[derive(Debug, Serialize)]
+pub struct Cpu {
+    /// The decode alone, each thread's CPU clock: the `image` crate (load from memory, RGBA,
+    /// rows turned over into a slot), as the pyramid decoded PNG tiles before.
+    pub us_per_tile_decode_image: f64,
+    /// The same tiles with `zune-png` into the slot, rows turned over in place, CRC and
+    /// Adler-32 checked: what the pyramid does now for plain PNG tiles.
+    pub us_per_tile_decode_zune: f64,
+    /// A pass of a pyramid source over the tiles' bytes in memory: the checks, the decode into
+    /// the slot and any copies, our whole cost a tile apart from the fetch (process CPU).
+    pub us_per_tile_memory_pass: f64,
 }
 
 /// The four kinds.
@@ -164,6 +198,10 @@ pub struct Report {
     /// Decoding the level-0 tiles' bytes (held in memory) into texels in texture orientation,
     /// `depth` threads: the most any kind can read.
     pub tiles_per_s_decode_only: f64,
+    /// Where a tile's CPU goes apart from the fetch.
+    pub cpu: Cpu,
+    /// A sparse z0..z18 planet's open over HTTP against the small archive's (`tiles_planet.rs`).
+    pub sparse_planet_open: PlanetOpen,
     /// How the passes were run.
     pub state: &'static str,
     pub data: Data,
@@ -194,61 +232,6 @@ pub struct Goals {
 }
 
 const STATE: &str = "each pass on a fresh open (our source, GDAL's datasets and curl hold no tile from the pass before); the files in the page cache; requests_per_tile_warm from one more pass on a source already open";
-
-/// GDAL's decode of every level-0 tile file, what every tile read is checked against: tile by
-/// tile in XYZ order (rows from the north, columns within), each tile's RGBA rows from the north.
-pub(crate) struct Reference {
-    pub gdal: Vec<u8>,
-    /// Tiles a side of level 0.
-    pub tiles: u64,
-    /// Tile size, texels.
-    pub tile: u64,
-}
-
-/// Bytes a texel: RGBA (PNG tiles).
-const BPT: usize = 4;
-
-impl Reference {
-    fn tile_bytes(&self) -> usize {
-        BPT * (self.tile * self.tile) as usize
-    }
-
-    /// GDAL's decode of level-0 texture tile `id`, rows from the north.
-    fn of(&self, id: TileId) -> &[u8] {
-        let y = self.tiles - 1 - id.t;
-        &self.gdal[(y * self.tiles + id.s) as usize * self.tile_bytes()..][..self.tile_bytes()]
-    }
-
-    /// Texels of our level-0 tile `id` (rows from the south) that differ from GDAL's decode.
-    pub fn wrong(&self, id: TileId, ours: &[u8]) -> u64 {
-        let theirs = self.of(id);
-        let (tile, row) = (self.tile as usize, BPT * self.tile as usize);
-        let mut wrong = 0;
-        for r in 0..tile {
-            let a = &ours[r * row..(r + 1) * row];
-            let b = &theirs[(tile - 1 - r) * row..][..row];
-            if a != b {
-                wrong += a.chunks(BPT).zip(b.chunks(BPT)).filter(|(x, y)| x != y).count() as u64;
-            }
-        }
-        wrong
-    }
-
-    /// GDAL's texel at level-0 texel (s, t) (t from the south).
-    pub fn texel(&self, s: u64, t: u64) -> &[u8] {
-        let id = TileId { level: 0, s: s / self.tile, t: t / self.tile };
-        let row = self.tile - 1 - t % self.tile;
-        &self.of(id)[((row * self.tile + s % self.tile) as usize) * BPT..][..BPT]
-    }
-
-    /// Texels of a dump in the reference's own layout (GDAL reading a kind) that differ from it.
-    fn wrong_dump(&self, dump: &[u8]) -> u64 {
-        if dump.len() != self.gdal.len() {
-            return (self.gdal.len() / BPT) as u64;
-        }
-        dump.chunks(BPT).zip(self.gdal.chunks(BPT)).filter(|(a, b)| a != b).count() as u64
-    }
-}
 
 /// Writes the terrain texture's level 0 (`n`² RGB, top row first) as `terrain.png` in `dir`.
 fn terrain_png(dir: &Path, n: u64) -> anyhow::Result<PathBuf> {
@@ -289,6 +272,9 @@ struct Ours {
     pass_hits: Vec<Hit>,
     warm_hits: Vec<Hit>,
     spent: Spent,
+    /// Our process's CPU and nginx's over the timed passes, seconds.
+    cpu_s: f64,
+    nginx_s: f64,
 }
 
 /// One pass of ours: every tile of `ids` on `depth` threads, each checked against `reference`
@@ -334,7 +320,9 @@ fn our_passes(
     passes: u64,
     reference: &Reference,
     log: Option<&AccessLog>,
+    nginx: Option<u32>,
 ) -> anyhow::Result<Ours> {
+    let nginx_s = || nginx.map_or(0.0, tiles_cpu::pid_s);
     let hits = || -> anyhow::Result<Vec<Hit>> { log.map_or(Ok(Vec::new()), |l| l.settled()) };
     let mut o = Ours {
         seconds: Vec::new(),
@@ -346,6 +334,8 @@ fn our_passes(
         pass_hits: Vec::new(),
         warm_hits: Vec::new(),
         spent: Spent { busy_s: 0.0, wall_s: 0.0, tiles: 0 },
+        cpu_s: 0.0,
+        nginx_s: 0.0,
     };
     let mut last = None;
     let cpu = MachineCpu::now();
@@ -355,7 +345,10 @@ fn our_passes(
         let src = open()?;
         o.opens.push(t0.elapsed().as_secs_f64());
         let opened = hits()?;
+        let (c0, n0) = (tiles_cpu::process_s(), nginx_s());
         let (s, w, f, e) = one_pass(&src, ids, depth, reference);
+        o.cpu_s += tiles_cpu::process_s() - c0;
+        o.nginx_s += nginx_s() - n0;
         o.seconds.push(s);
         o.wrong += w;
         o.failed += f;
@@ -381,39 +374,94 @@ fn our_passes(
     Ok(o)
 }
 
-/// Decodes every tile of `files` (PNG bytes) into RGBA rows from the south, `depth` threads,
-/// `passes` times: the rate of the decode alone (median pass).
-fn decode_only(files: &[Vec<u8>], depth: u64, passes: u64) -> anyhow::Result<f64> {
-    let mut times = Vec::new();
-    for _ in 0..passes {
-        let next = AtomicU64::new(0);
-        let bad = AtomicU64::new(0);
-        let t = Instant::now();
-        std::thread::scope(|scope| {
-            for _ in 0..depth {
-                scope.spawn(|| {
-                    let mut out = Vec::new();
-                    loop {
-                        let i = next.fetch_add(1, Ordering::Relaxed) as usize;
-                        let Some(b) = files.get(i) else { return };
-                        let Ok(img) = image::load_from_memory_with_format(b, image::ImageFormat::Png) else {
-                            bad.fetch_add(1, Ordering::Relaxed);
-                            continue;
-                        };
-                        let raw = img.into_rgba8();
-                        let row = raw.width() as usize * BPT;
-                        out.resize(raw.len(), 0);
-                        for (r, src) in raw.chunks_exact(row).rev().enumerate() {
-                            out[r * row..(r + 1) * row].copy_from_slice(src);
-                        }
-                    }
-                });
-            }
-        });
-        times.push(t.elapsed().as_secs_f64());
-        anyhow::ensure!(bad.load(Ordering::Relaxed) == 0, "a level-0 tile file does not decode as PNG");
+/// Decodes `b` (a 256² RGBA PNG) with the `image` crate into `out`, rows from the south: the
+/// pyramid's decode before `zune-png`.
+fn decode_image(b: &[u8], out: &mut Vec<u8>) -> bool {
+    let Ok(img) = image::load_from_memory_with_format(b, image::ImageFormat::Png) else { return false };
+    let raw = img.into_rgba8();
+    let row = raw.width() as usize * BPT;
+    out.resize(raw.len(), 0);
+    for (r, src) in raw.chunks_exact(row).rev().enumerate() {
+        out[r * row..(r + 1) * row].copy_from_slice(src);
     }
-    Ok(files.len() as f64 / median(times))
+    true
+}
+
+/// Decodes `b` with `zune-png` straight into `out` (`side`² RGBA), then turns its rows over in
+/// place, CRC and Adler-32 checked: the pyramid's decode of a plain PNG tile.
+fn decode_zune(b: &[u8], side: usize, out: &mut Vec<u8>) -> bool {
+    use zune_png::zune_core::{bytestream::ZCursor, options::DecoderOptions};
+    let o = DecoderOptions::default()
+        .png_set_confirm_crc(true)
+        .inflate_set_confirm_adler(true)
+        .png_set_add_alpha_channel(true);
+    out.resize(side * side * BPT, 0);
+    if zune_png::PngDecoder::new_with_options(ZCursor::new(b), o).decode_into(out).is_err() {
+        return false;
+    }
+    let row = side * BPT;
+    for r in 0..side / 2 {
+        let (top, bottom) = out.split_at_mut((side - 1 - r) * row);
+        top[r * row..(r + 1) * row].swap_with_slice(&mut bottom[..row]);
+    }
+    true
+}
+
+/// Decodes every tile of `files` (PNG bytes) into RGBA rows from the south, `depth` threads,
+/// `passes` times, with `zune-png` (timed: the rate of the decode alone, median pass) and then
+/// with the `image` crate; each decoder's thread CPU a tile, microseconds: (rate, image, zune).
+fn decode_only(files: &[Vec<u8>], side: usize, depth: u64, passes: u64) -> anyhow::Result<(f64, f64, f64)> {
+    let mut times = Vec::new();
+    let (mut image_s, mut zune_s) = (0.0, 0.0);
+    for zune in [true, false] {
+        for _ in 0..passes {
+            let next = AtomicU64::new(0);
+            let bad = AtomicU64::new(0);
+            let cpu_ns = AtomicU64::new(0);
+            let t = Instant::now();
+            std::thread::scope(|scope| {
+                for _ in 0..depth {
+                    scope.spawn(|| {
+                        let mut out = Vec::new();
+                        let c0 = tiles_cpu::thread_s();
+                        loop {
+                            let i = next.fetch_add(1, Ordering::Relaxed) as usize;
+                            let Some(b) = files.get(i) else { break };
+                            let ok = if zune { decode_zune(b, side, &mut out) } else { decode_image(b, &mut out) };
+                            if !ok {
+                                bad.fetch_add(1, Ordering::Relaxed);
+                            }
+                        }
+                        cpu_ns.fetch_add(((tiles_cpu::thread_s() - c0) * 1e9) as u64, Ordering::Relaxed);
+                    });
+                }
+            });
+            if zune {
+                times.push(t.elapsed().as_secs_f64());
+            }
+            let cpu = cpu_ns.into_inner() as f64 * 1e-9;
+            *(if zune { &mut zune_s } else { &mut image_s }) += cpu;
+            anyhow::ensure!(bad.load(Ordering::Relaxed) == 0, "a level-0 tile file does not decode as PNG");
+        }
+    }
+    let per_tile = |s: f64| s * 1e6 / (passes as f64 * files.len() as f64);
+    Ok((files.len() as f64 / median(times), per_tile(image_s), per_tile(zune_s)))
+}
+
+/// Our process's CPU a tile, microseconds, of a pass that only fetches each tile of `ids`
+/// through `src`'s archive (on a fresh open), `depth` threads.
+fn fetch_only_us(src: &PyramidSource, ids: &[TileId], depth: u64) -> anyhow::Result<f64> {
+    let max_zoom = src.archive().info().max_zoom;
+    let side = 1u32 << max_zoom;
+    let failed = AtomicU64::new(0);
+    let cpu = tiles_cpu::pass_cpu(ids, depth, &|id, _| {
+        let at = TileAddr { z: max_zoom, x: id.s as u32, y: side - 1 - id.t as u32 };
+        if !matches!(src.archive().fetch(at), Ok(tiles::Fetched::Tile(_))) {
+            failed.fetch_add(1, Ordering::Relaxed);
+        }
+    });
+    anyhow::ensure!(failed.into_inner() == 0, "{}: a fetch-only pass missed tiles", src.archive().place());
+    Ok(cpu * 1e6 / ids.len() as f64)
 }
 
 /// What a kind measured, before it is put into a [`Kind`].
@@ -425,6 +473,12 @@ struct Measured<'a> {
     curl: Option<(Vec<f64>, Spent)>,
     log: Option<&'a AccessLog>,
     decode_rate: f64,
+    /// Our fetch-only pass, CPU microseconds a tile.
+    fetch_us: f64,
+    /// curl's and nginx's CPU microseconds a tile under curl (HTTP kinds).
+    curl_cpu: Option<(f64, f64)>,
+    /// The memory pass, CPU microseconds a tile.
+    memory_us: f64,
 }
 
 fn kind(m: Measured, reference: &Reference) -> Kind {
@@ -434,6 +488,9 @@ fn kind(m: Measured, reference: &Reference) -> Kind {
     let gdal_rate = m.gdal.as_ref().map(|(g, _)| rate(&g.seconds));
     let curl_rate = m.curl.as_ref().map(|(s, _)| rate(s));
     let per_tile = |hits: &[Hit]| hits.len() as f64 / m.tiles as f64;
+    let timed_tiles = (m.tiles * m.ours.seconds.len() as u64).max(1) as f64;
+    let ours_us = m.ours.cpu_s * 1e6 / timed_tiles;
+    let nginx_us = m.ours.nginx_s * 1e6 / timed_tiles;
     Kind {
         source: m.source,
         tiles: m.tiles,
@@ -458,6 +515,13 @@ fn kind(m: Measured, reference: &Reference) -> Kind {
         cores_busy: m.ours.spent.cores(),
         core_us_per_tile: m.ours.spent.core_us_per_tile(),
         core_us_per_tile_curl: m.curl.as_ref().map(|(_, s)| s.core_us_per_tile()),
+        cpu_us_per_tile: ours_us,
+        cpu_us_per_tile_fetch: m.fetch_us,
+        cpu_us_per_tile_curl: m.curl_cpu.map(|(c, _)| c),
+        nginx_cpu_us_per_tile: http.then_some(nginx_us),
+        nginx_cpu_us_per_tile_curl: m.curl_cpu.map(|(_, n)| n),
+        vs_curl_by_cpu: m.curl_cpu.map(|(c, n)| (c + n) / (ours_us + nginx_us).max(1e-9)),
+        vs_curl_bound_by_decode: m.curl_cpu.map(|(c, n)| (c + n) / (m.memory_us + c + n).max(1e-9)),
     }
 }
 
@@ -499,8 +563,47 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
         pmtiles_bytes: std::fs::metadata(dir.join("tiles.pmtiles"))?.len(),
         mbtiles_bytes: std::fs::metadata(dir.join("tiles.mbtiles"))?.len(),
     };
-    let decode_rate = decode_only(&files, depth, passes)?;
+    let (decode_rate, decode_image_us, decode_zune_us) = decode_only(&files, tile as usize, depth, passes)?;
+    // A pyramid source over the same tiles in memory: its checks, decode and copies alone.
+    let memory = MemoryArchive {
+        info: tiles::PyramidInfo {
+            min_zoom: max_zoom,
+            max_zoom,
+            tile_size: tile as u32,
+            bounds: None,
+            encoding: Some(tiles::TileEncoding::Png),
+        },
+        tiles: ids
+            .iter()
+            .zip(&files)
+            .map(|(id, f)| ((max_zoom, id.s as u32, (side - 1 - id.t) as u32), f.clone()))
+            .collect(),
+    };
     drop(files);
+    let memory_src = PyramidSource::new(
+        std::sync::Arc::new(memory),
+        &PyramidOptions { clip_size: Some(1024.min(n / 2)), ..Default::default() },
+    )
+    .map_err(|e| anyhow::anyhow!("a pyramid over the tiles in memory: {e}"))?;
+    let mut memory_us = Vec::new();
+    for _ in 0..passes {
+        let wrong = AtomicU64::new(0);
+        let cpu = tiles_cpu::pass_cpu(&ids, depth, &|id, buf| {
+            buf.resize(memory_src.desc().tile_bytes(0), 0);
+            match memory_src.read_tile(id, buf) {
+                Ok(()) => wrong.fetch_add(reference.wrong(id, buf), Ordering::Relaxed),
+                Err(_) => wrong.fetch_add(1, Ordering::Relaxed),
+            };
+        });
+        anyhow::ensure!(wrong.into_inner() == 0, "the pyramid over the tiles in memory read wrong texels");
+        memory_us.push(cpu * 1e6 / ids.len() as f64);
+    }
+    let memory_us = median(memory_us);
+    let cpu = Cpu {
+        us_per_tile_decode_image: decode_image_us,
+        us_per_tile_decode_zune: decode_zune_us,
+        us_per_tile_memory_pass: memory_us,
+    };
 
     let log = AccessLog(dir.join("access.log"));
     let nginx = Nginx::serve(dir, &dir.join("nginx"), Some(&log.0), args.link_rate.map(|m| m * 1_000_000))?;
@@ -531,19 +634,28 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
         );
         Ok((g, driver))
     };
-    let curl_run =
-        |transfers: &[Transfer]| tiles_peers::curl_passes(&curl, dir, transfers, depth, passes, ids.len() as u64);
+    let nginx_pid = nginx.pid();
+    // curl's passes, and curl's and nginx's CPU microseconds a tile over them.
+    let curl_run = |transfers: &[Transfer]| -> anyhow::Result<((Vec<f64>, Spent), (f64, f64))> {
+        let (c0, n0) = (tiles_cpu::children_s(), tiles_cpu::pid_s(nginx_pid));
+        let r = tiles_peers::curl_passes(&curl, dir, transfers, depth, passes, ids.len() as u64)?;
+        let per = 1e6 / (passes * ids.len() as u64) as f64;
+        let cpu = ((tiles_cpu::children_s() - c0) * per, (tiles_cpu::pid_s(nginx_pid) - n0) * per);
+        Ok((r, cpu))
+    };
+    let fetch_us = |text: &str, o: &OpenOptions| -> anyhow::Result<f64> { fetch_only_us(&open(text, o)?, &ids, depth) };
 
     // XYZ over nginx.
     let xyz_text = format!("xyz:{base}/xyz/{{z}}/{{x}}/{{y}}.png");
     let xyz_opts = opts(Some([0, max_zoom]));
-    let ours = our_passes(&|| open(&xyz_text, &xyz_opts), &ids, depth, passes, &reference, Some(&log))
+    let ours = our_passes(&|| open(&xyz_text, &xyz_opts), &ids, depth, passes, &reference, Some(&log), Some(nginx_pid))
         .map_err(|e| anyhow::anyhow!("{xyz_text}: {e}"))?;
+    let xyz_fetch = fetch_us(&xyz_text, &xyz_opts)?;
     let urls: Vec<Transfer> = ids
         .iter()
         .map(|id| Transfer { url: format!("{base}/xyz/{max_zoom}/{}/{}.png", id.s, side - 1 - id.t), range: None })
         .collect();
-    let curl_xyz = curl_run(&urls)?;
+    let (curl_xyz, curl_xyz_cpu) = curl_run(&urls)?;
     let wms = tiles_peers::wms_xml(&base, max_zoom, tile);
     let g = gdal_run(&wms, "WMS (TMS mini-driver)", true)?;
     let version = g.0.version.clone();
@@ -556,6 +668,9 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
             curl: Some(curl_xyz),
             log: Some(&log),
             decode_rate,
+            fetch_us: xyz_fetch,
+            curl_cpu: Some(curl_xyz_cpu),
+            memory_us,
         },
         &reference,
     );
@@ -564,7 +679,7 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
     // timed passes leave it aside).
     let pm_url = format!("{base}/tiles.pmtiles");
     let pm_opts = opts(None);
-    let ours = our_passes(&|| open(&pm_url, &pm_opts), &ids, depth, passes, &reference, Some(&log))
+    let ours = our_passes(&|| open(&pm_url, &pm_opts), &ids, depth, passes, &reference, Some(&log), Some(nginx_pid))
         .map_err(|e| anyhow::anyhow!("{pm_url}: {e}"))?;
     let mut ranges = Vec::new();
     for h in &ours.pass_hits {
@@ -573,7 +688,8 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
             _ => anyhow::bail!("{pm_url}: our reads made a request nginx answered {} ({h:?}); expected 206", h.status),
         }
     }
-    let curl_pm = curl_run(&ranges)?;
+    let (curl_pm, curl_pm_cpu) = curl_run(&ranges)?;
+    let pm_fetch = fetch_us(&pm_url, &pm_opts)?;
     let pmtiles_http = kind(
         Measured {
             source: pm_url.clone(),
@@ -583,26 +699,59 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
             curl: Some(curl_pm),
             log: Some(&log),
             decode_rate,
+            fetch_us: pm_fetch,
+            curl_cpu: Some(curl_pm_cpu),
+            memory_us,
         },
         &reference,
     );
 
+    // The sparse planet's open against the small archive's, over the same nginx.
+    let sparse_planet_open =
+        tiles_planet::planet_open(&gdal.python, dir, &base, &pm_url, &log, if args.quick { 20 } else { 50 }, &|url| {
+            open(url, &pm_opts).map(drop)
+        })?;
+
     // PMTiles from disk.
     let pm_path = dir.join("tiles.pmtiles").to_string_lossy().into_owned();
-    let ours = our_passes(&|| open(&pm_path, &pm_opts), &ids, depth, passes, &reference, None)
+    let ours = our_passes(&|| open(&pm_path, &pm_opts), &ids, depth, passes, &reference, None, None)
         .map_err(|e| anyhow::anyhow!("{pm_path}: {e}"))?;
+    let fetch_us_local = fetch_us(&pm_path, &pm_opts)?;
     let pmtiles_local = kind(
-        Measured { source: pm_path, ours, tiles: ids.len() as u64, gdal: None, curl: None, log: None, decode_rate },
+        Measured {
+            source: pm_path,
+            ours,
+            tiles: ids.len() as u64,
+            gdal: None,
+            curl: None,
+            log: None,
+            decode_rate,
+            fetch_us: fetch_us_local,
+            curl_cpu: None,
+            memory_us,
+        },
         &reference,
     );
 
     // MBTiles.
     let mb_path = dir.join("tiles.mbtiles").to_string_lossy().into_owned();
-    let ours = our_passes(&|| open(&mb_path, &opts(None)), &ids, depth, passes, &reference, None)
+    let ours = our_passes(&|| open(&mb_path, &opts(None)), &ids, depth, passes, &reference, None, None)
         .map_err(|e| anyhow::anyhow!("{mb_path}: {e}"))?;
+    let fetch_us_mb = fetch_us(&mb_path, &opts(None))?;
     let g = gdal_run(&mb_path, "MBTiles", false)?;
     let mbtiles = kind(
-        Measured { source: mb_path, ours, tiles: ids.len() as u64, gdal: Some(g), curl: None, log: None, decode_rate },
+        Measured {
+            source: mb_path,
+            ours,
+            tiles: ids.len() as u64,
+            gdal: Some(g),
+            curl: None,
+            log: None,
+            decode_rate,
+            fetch_us: fetch_us_mb,
+            curl_cpu: None,
+            memory_us,
+        },
         &reference,
     );
 
@@ -631,6 +780,8 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
         kinds,
         flight,
         tiles_per_s_decode_only: decode_rate,
+        cpu,
+        sparse_planet_open,
         state: STATE,
         data,
         gdal_version: version,
@@ -699,6 +850,27 @@ fn human(r: &Report) -> String {
             k.wrong_texels
         ));
     }
+    o.push_str(&format!(
+        "CPU a tile, microseconds: decode alone {:.0} (image) / {:.0} (zune-png); checks, decode and copies from memory {:.0}\n",
+        r.cpu.us_per_tile_decode_image, r.cpu.us_per_tile_decode_zune, r.cpu.us_per_tile_memory_pass
+    ));
+    for (name, k) in [("xyz", &r.kinds.xyz), ("pmtiles_http", &r.kinds.pmtiles_http)] {
+        o.push_str(&format!(
+            "  {name}: ours {:.0} (fetch alone {:.0}), nginx {}; curl {}, nginx {}; ours/curl by CPU {}, at most {} while the decode costs what it does\n",
+            k.cpu_us_per_tile,
+            k.cpu_us_per_tile_fetch,
+            opt(k.nginx_cpu_us_per_tile, 0),
+            opt(k.cpu_us_per_tile_curl, 0),
+            opt(k.nginx_cpu_us_per_tile_curl, 0),
+            opt(k.vs_curl_by_cpu, 2),
+            opt(k.vs_curl_bound_by_decode, 2)
+        ));
+    }
+    let p = &r.sparse_planet_open;
+    o.push_str(&format!(
+        "sparse planet ({} tiles addressed at zooms 0..18, {} bytes) opens over HTTP in {:.2} ms ({} request, {} bytes), the small archive ({} bytes) in {:.2} ms: {:.2}x (median of {})\n",
+        p.addressed_tiles, p.planet_bytes, p.open_s * 1e3, p.open_requests, p.open_bytes, p.small_bytes, p.small_open_s * 1e3, p.vs_small, p.opens
+    ));
     o.push_str(&tiles_flight::human(&r.flight));
     o
 }

@@ -5,7 +5,7 @@
 //! the largest speed at which level 0 is still shown on at least 95 % of the ticks.
 
 use super::serve::{Faults, Proxy};
-use super::tiles::Reference;
+use super::tiles_peers::Reference;
 use clipmap::clip::{Clipmap, Settings};
 use clipmap::source::remote::RemoteOptions;
 use clipmap::source::tiles::{self, OpenOptions, PyramidOptions, TemplateOptions};

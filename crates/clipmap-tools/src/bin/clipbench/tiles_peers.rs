@@ -1,10 +1,13 @@
 //! The peers of `clipbench tiles` (`tiles.rs`): GDAL cutting the image into an XYZ tree
 //! (`gdal2tiles.py`), the reference PMTiles writer, an MBTiles written from the same tiles, GDAL
-//! reading the kinds it has drivers for, and curl fetching what our passes fetched.
+//! reading the kinds it has drivers for, curl fetching what our passes fetched, and GDAL's decode of
+//! the level-0 tiles that every read is checked against ([`Reference`], used by `tiles.rs` and
+//! `tiles_flight.rs`).
 
 use super::cog_shared::Spent;
 use super::perf::MachineCpu;
 use super::serve::AccessLog;
+use clipmap::source::TileId;
 use std::fmt::Write as _;
 use std::path::Path;
 use std::process::Command;
@@ -296,4 +299,59 @@ pub fn curl_passes(
     }
     let spent = Spent::since(cpu, &times, tiles * passes);
     Ok((times, spent))
+}
+
+/// GDAL's decode of every level-0 tile file, what every tile read is checked against: tile by
+/// tile in XYZ order (rows from the north, columns within), each tile's RGBA rows from the north.
+pub struct Reference {
+    pub gdal: Vec<u8>,
+    /// Tiles a side of level 0.
+    pub tiles: u64,
+    /// Tile size, texels.
+    pub tile: u64,
+}
+
+/// Bytes a texel: RGBA (PNG tiles).
+pub const BPT: usize = 4;
+
+impl Reference {
+    pub fn tile_bytes(&self) -> usize {
+        BPT * (self.tile * self.tile) as usize
+    }
+
+    /// GDAL's decode of level-0 texture tile `id`, rows from the north.
+    fn of(&self, id: TileId) -> &[u8] {
+        let y = self.tiles - 1 - id.t;
+        &self.gdal[(y * self.tiles + id.s) as usize * self.tile_bytes()..][..self.tile_bytes()]
+    }
+
+    /// Texels of our level-0 tile `id` (rows from the south) that differ from GDAL's decode.
+    pub fn wrong(&self, id: TileId, ours: &[u8]) -> u64 {
+        let theirs = self.of(id);
+        let (tile, row) = (self.tile as usize, BPT * self.tile as usize);
+        let mut wrong = 0;
+        for r in 0..tile {
+            let a = &ours[r * row..(r + 1) * row];
+            let b = &theirs[(tile - 1 - r) * row..][..row];
+            if a != b {
+                wrong += a.chunks(BPT).zip(b.chunks(BPT)).filter(|(x, y)| x != y).count() as u64;
+            }
+        }
+        wrong
+    }
+
+    /// GDAL's texel at level-0 texel (s, t) (t from the south).
+    pub fn texel(&self, s: u64, t: u64) -> &[u8] {
+        let id = TileId { level: 0, s: s / self.tile, t: t / self.tile };
+        let row = self.tile - 1 - t % self.tile;
+        &self.of(id)[((row * self.tile + s % self.tile) as usize) * BPT..][..BPT]
+    }
+
+    /// Texels of a dump in the reference's own layout (GDAL reading a kind) that differ from it.
+    pub fn wrong_dump(&self, dump: &[u8]) -> u64 {
+        if dump.len() != self.gdal.len() {
+            return (self.gdal.len() / BPT) as u64;
+        }
+        dump.chunks(BPT).zip(self.gdal.chunks(BPT)).filter(|(a, b)| a != b).count() as u64
+    }
 }

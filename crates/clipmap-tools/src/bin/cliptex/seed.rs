@@ -1,7 +1,9 @@
 //! `cliptex seed`: fills the remote disk cache with the tiles of an area (a box, or a corridor
 //! along a route) at some levels of a tile service or a remote tile archive, before a flight;
-//! or, with `--estimate`, says what that would take (tiles, bytes, requests, time) from a small
-//! sample of fetched tiles.
+//! or, with `--estimate`, says what that would take (tiles, bytes, requests, time): for a
+//! PMTiles, bytes and requests from the archive's own directories, exactly (each entry's length;
+//! `estimate_method: "directories"`), for a tile service from a small sample of fetched tiles
+//! (`"sample"`); the time at the rate the sample was fetched at, either way.
 //!
 //! The tiles an area touches at a zoom are those `clipmap::source::tiles::pyramid::tile_range`
 //! gives (the same arithmetic the service uses to decide which tiles lie within `--bounds`).
@@ -111,10 +113,20 @@ struct Estimate {
     tiles: u64,
     /// Of those, tiles the cache holds already (when a cache is configured).
     skipped_cached: u64,
-    /// Bytes of the tiles still to fetch, at the sample's mean size a tile.
+    /// How `bytes` and `requests` were found: `"directories"` (a PMTiles: each tile's length
+    /// read from the archive's own directories, exactly) or `"sample"` (the sample's mean size
+    /// and requests a tile, for a tile service).
+    estimate_method: &'static str,
+    /// Bytes of the tiles still to fetch: the sum of their entries' lengths (`directories`),
+    /// else at the sample's mean size a tile.
     bytes: u64,
-    /// Requests to fetch them, at the sample's requests a tile.
+    /// Requests to fetch them: one a tile the archive holds plus the leaf directories read to
+    /// find them (`directories`), else at the sample's requests a tile.
     requests: u64,
+    /// Of the tiles still to fetch, those the archive does not hold (`directories` only: they
+    /// cost no request).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    missing: Option<u64>,
     /// Seconds to fetch them, at the sample's rate.
     seconds: f64,
     /// What was fetched to measure: the only tiles this estimate fetched.
@@ -491,6 +503,9 @@ fn estimate(
 ) -> Result<i32, Failure> {
     let cached: Vec<bool> = tiles.iter().map(|&at| archive.is_cached(at)).collect();
     let todo: Vec<TileAddr> = tiles.iter().zip(&cached).filter(|(_, c)| !**c).map(|(t, _)| *t).collect();
+    // A PMTiles: every tile's length from its directories (before the sample, so that the
+    // sample's requests are its tiles' alone).
+    let exact = exact_lengths(archive, &todo)?;
     let n = (args.sample as usize).min(todo.len());
     let sample: Vec<TileAddr> = (0..n).map(|i| todo[i * todo.len() / n.max(1)]).collect();
     let before = archive.remote_stats().unwrap_or_default().requests;
@@ -512,6 +527,17 @@ fn estimate(
     }
     let left = todo.len() as u64;
     let per = |x: u64| if n == 0 { 0.0 } else { x as f64 / n as f64 };
+    let rate = |tiles: u64| if n == 0 { 0.0 } else { seconds / n as f64 * tiles as f64 };
+    let (estimate_method, bytes, requests, missing, secs) = match exact {
+        Some(x) => ("directories", x.bytes, x.present + x.leaf_requests, Some(x.missing), rate(x.present)),
+        None => (
+            "sample",
+            (per(s.bytes) * left as f64).round() as u64,
+            (per(s.requests) * left as f64).round() as u64,
+            None,
+            rate(left),
+        ),
+    };
     let e = Estimate {
         estimate: true,
         source: archive.place().to_string(),
@@ -519,14 +545,22 @@ fn estimate(
         zooms,
         tiles: tiles.len() as u64,
         skipped_cached: tiles.len() as u64 - left,
-        bytes: (per(s.bytes) * left as f64).round() as u64,
-        requests: (per(s.requests) * left as f64).round() as u64,
-        seconds: if n == 0 { 0.0 } else { seconds / n as f64 * left as f64 },
+        estimate_method,
+        bytes,
+        requests,
+        missing,
+        seconds: secs,
         sample: s,
     };
     report::emit(args.json, &e, |e| {
+        let how = match e.missing {
+            Some(m) => format!(
+                "bytes and requests from the archive's directories, exactly ({m} of them not in the archive; leaf directories read to find them), the time at the rate"
+            ),
+            None => "bytes and requests at the sample's mean a tile, the time at its rate".to_string(),
+        };
         format!(
-            "{}: levels {}..{} (zooms {}..{}): {} tiles, {} already cached\nestimate for the {} to fetch: {}, {} requests, {:.0} s at the measured rate\n(measured on a sample of {} tiles fetched now: {} present, {} missing, {}, {} requests, {:.2} s; nothing else was fetched)\n",
+            "{}: levels {}..{} (zooms {}..{}): {} tiles, {} already cached\nestimate for the {} to fetch: {}, {} requests, {:.0} s ({how})\n(measured on a sample of {} tiles fetched now: {} present, {} missing, {}, {} requests, {:.2} s; nothing else was fetched)\n",
             e.source,
             e.levels[0],
             e.levels[1],
@@ -547,6 +581,40 @@ fn estimate(
         )
     });
     Ok(exit::OK)
+}
+
+/// What an archive's directories say of the tiles to fetch ([`exact_lengths`]).
+struct Exact {
+    present: u64,
+    missing: u64,
+    bytes: u64,
+    /// Requests made to read the leaf directories that lead to them.
+    leaf_requests: u64,
+}
+
+/// Each tile's stored length from the archive's own index (a PMTiles' directories, leaves read
+/// as needed); `None` for an archive without one (a tile service: the sample estimates).
+fn exact_lengths(archive: &Arc<dyn TileArchive>, todo: &[TileAddr]) -> Result<Option<Exact>, Failure> {
+    let Some(&first) = todo.first() else { return Ok(None) };
+    if archive.stored_length(first).is_none() {
+        return Ok(None);
+    }
+    let before = archive.remote_stats().unwrap_or_default().requests;
+    let mut x = Exact { present: 0, missing: 0, bytes: 0, leaf_requests: 0 };
+    for &at in todo {
+        match archive.stored_length(at) {
+            Some(Ok(Some(len))) => {
+                x.present += 1;
+                x.bytes += len;
+            }
+            Some(Ok(None)) | None => x.missing += 1,
+            Some(Err(e)) => {
+                return Err((exit::COULD_NOT_RUN, format!("the archive's directories could not be read: {e}")))
+            }
+        }
+    }
+    x.leaf_requests = archive.remote_stats().unwrap_or_default().requests - before;
+    Ok(Some(x))
 }
 
 /// Progress: a bar on a terminal, a line every 5 % otherwise, nothing with --quiet or --json.
