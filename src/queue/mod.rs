@@ -183,7 +183,7 @@ impl ReadQueues {
             .map(|stream| {
                 let (commands, rx) = mpsc::channel(limits.queue_commands.max(1));
                 let idle = Arc::new(AtomicU64::new(0));
-                let runner = Runner::new(
+                let mut runner = Runner::new(
                     stream,
                     rx,
                     tx.clone(),
@@ -192,6 +192,7 @@ impl ReadQueues {
                     limits,
                     Arc::clone(&idle),
                 );
+                runner.streams = streams;
                 let alive = alive.clone();
                 runners.push(runtime.spawn(async move {
                     let _alive = alive;

@@ -72,6 +72,8 @@ pub(super) enum Event {
 
 pub(super) struct Runner {
     pub stream: usize,
+    /// The queues in all (for [`TileSource::read_slots`]).
+    pub streams: usize,
     pub commands: mpsc::Receiver<Command>,
     pub events: std_mpsc::Sender<Event>,
     pub source: Arc<dyn TileSource>,
@@ -111,6 +113,7 @@ impl Runner {
     ) -> Self {
         Runner {
             stream,
+            streams: 1,
             commands,
             events,
             source,
@@ -185,21 +188,38 @@ impl Runner {
         }
     }
 
+    /// Reads the queue runs at once: the engine's bound, or more where the source can serve
+    /// more at once ([`TileSource::read_slots`]: a remote source's requests in flight, each
+    /// read holding its thread for a round trip), never more than `max_ready_reads`.
+    /// A source's own number makes each read a task of its own: its reads wait for round trips,
+    /// and a run of them in one task would wait for each in turn. Returns the slots and whether
+    /// they are the source's.
+    fn slots(&self) -> (usize, bool) {
+        let own = self.limits.max_in_flight_reads.max(1);
+        match self.source.read_slots(self.stream, self.streams) {
+            Some(n) if n > own => (n.min(self.limits.max_ready_reads.max(1)).max(own), true),
+            _ => (own, false),
+        }
+    }
+
     fn can_start(&self) -> bool {
-        !self.pending.is_empty()
-            && self.reads.len() < self.limits.max_in_flight_reads.max(1)
-            && self.owed_total < self.limits.max_ready_reads.max(1)
+        self.can_start_with(self.slots().0)
+    }
+
+    fn can_start_with(&self, slots: usize) -> bool {
+        !self.pending.is_empty() && self.reads.len() < slots && self.owed_total < self.limits.max_ready_reads.max(1)
     }
 
     fn start_reads(&mut self) {
-        while self.can_start() {
+        let (all, one_each) = self.slots();
+        while self.can_start_with(all) {
             // One blocking task reads a run of the most urgent requests, one after the other, so
             // that a read costs no thread hand-off (about as much CPU as the read itself when
             // tiles come from the page cache): the pending requests are shared among the free
             // read slots, at most `MAX_BATCH` each.
-            let slots = self.limits.max_in_flight_reads.max(1).saturating_sub(self.reads.len()).max(1);
+            let slots = all.saturating_sub(self.reads.len()).max(1);
             let room = self.limits.max_ready_reads.max(1) - self.owed_total;
-            let n = self.pending.len().div_ceil(slots).clamp(1, MAX_BATCH).min(room);
+            let n = if one_each { 1 } else { self.pending.len().div_ceil(slots).clamp(1, MAX_BATCH).min(room) };
             let batch: Vec<TileId> = self.pending.drain(..n).map(|r| r.tile).collect();
             for &tile in &batch {
                 *self.owed.entry(tile).or_default() += 1;

@@ -420,3 +420,67 @@ fn dropped_queues_stop_their_runners_at_once_and_a_running_read_stops_after_its_
     // z was read; the next tile of the run was not: nobody was left to take it.
     assert_eq!(src.reads(), 1);
 }
+
+/// Counts the reads running at once, each held until opened; says it serves `slots` reads at
+/// once (a remote source's requests in flight), or nothing.
+struct Concurrent {
+    src: Arc<FaultySource>,
+    slots: Option<usize>,
+    now: std::sync::atomic::AtomicUsize,
+    peak: std::sync::atomic::AtomicUsize,
+    open: std::sync::Mutex<bool>,
+    wake: std::sync::Condvar,
+}
+
+impl TileSource for Concurrent {
+    fn desc(&self) -> &TextureDesc {
+        self.src.desc()
+    }
+
+    fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
+        let n = self.now.fetch_add(1, Ordering::SeqCst) + 1;
+        self.peak.fetch_max(n, Ordering::SeqCst);
+        let mut open = self.open.lock().unwrap();
+        while !*open {
+            open = self.wake.wait(open).unwrap();
+        }
+        drop(open);
+        self.now.fetch_sub(1, Ordering::SeqCst);
+        self.src.read_tile(tile, out)
+    }
+
+    fn read_slots(&self, _: usize, _: usize) -> Option<usize> {
+        self.slots
+    }
+}
+
+#[test]
+fn a_queue_runs_as_many_reads_as_its_source_serves_at_once_within_max_ready_reads() {
+    // Twenty requests, the engine's bound 4; the source serves 12 at once, then 100 (more than
+    // `max_ready_reads`, 16), then says nothing.
+    for (slots, expected) in [(Some(12), 12), (Some(100), 16), (None, 4), (Some(2), 4)] {
+        let src = source();
+        let c = Arc::new(Concurrent {
+            src: src.clone(),
+            slots,
+            now: Default::default(),
+            peak: Default::default(),
+            open: std::sync::Mutex::new(false),
+            wake: std::sync::Condvar::new(),
+        });
+        let limits = Limits { max_ready_reads: 16, ..limits(64, 4) };
+        let mut q = ReadQueues::new(c.clone(), memory(&src), 1, limits).unwrap();
+        let wanted: Vec<ReadRequest> = (0..20).map(|i| request(i % 16, i / 16, i)).collect();
+        q.update(&wanted);
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        while c.now.load(Ordering::SeqCst) < expected {
+            assert!(std::time::Instant::now() < deadline, "{slots:?}: {} reads at once", c.now.load(Ordering::SeqCst));
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        *c.open.lock().unwrap() = true;
+        c.wake.notify_all();
+        let done = run_to_end(&mut q, &wanted);
+        assert_eq!(done.len(), 20, "{slots:?}");
+        assert_eq!(c.peak.load(Ordering::SeqCst), expected, "{slots:?}: never more at once");
+    }
+}

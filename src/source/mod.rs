@@ -263,6 +263,16 @@ pub trait TileSource: Send + Sync {
         self.wrapped().and_then(|inner| inner.remote_stats())
     }
 
+    /// How many reads of stream server `stream` (of `streams`) the source can serve at once,
+    /// when it knows better than the engine's fixed bound
+    /// ([`Limits::max_in_flight_reads`](crate::limits::Limits)): a remote source answers with
+    /// the requests in flight its endpoints allow now (sized from their latency and the rate
+    /// of reads), and a read queue runs that many reads. The [`wrapped`](Self::wrapped)
+    /// source's answer, or `None`.
+    fn read_slots(&self, stream: usize, streams: usize) -> Option<usize> {
+        self.wrapped().and_then(|inner| inner.read_slots(stream, streams))
+    }
+
     /// Number of stream servers (separate disks, one read queue each) the source is laid out
     /// for: the [`wrapped`](Self::wrapped) source's, or 1 when it has no notion of them.
     fn stream_servers(&self) -> usize {

@@ -59,6 +59,8 @@ mod house;
 mod patch_fuzz_props;
 #[cfg(feature = "remote")]
 mod remote;
+#[cfg(feature = "remote")]
+mod remote_flight;
 mod shm_readers;
 mod shm_room;
 mod sixteen_bit;

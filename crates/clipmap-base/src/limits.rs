@@ -88,7 +88,9 @@ pub struct Limits {
     /// Most requests waiting (not yet started) in one stream server's read queue. Requests beyond
     /// it are dropped, most urgent kept, and asked for again at the next tick if still wanted.
     pub max_pending_reads: usize,
-    /// Most reads of one queue running at once (each holds a blocking thread and a tile buffer).
+    /// Most reads of one queue running at once (each holds a blocking thread and a tile buffer);
+    /// a source that serves more at once (a remote one: its requests in flight) raises it, up to
+    /// `max_ready_reads`.
     pub max_in_flight_reads: usize,
     /// Most reads of one queue running or finished but not yet taken by the update tick; no read
     /// starts while this many are outstanding.

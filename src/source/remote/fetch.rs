@@ -8,6 +8,7 @@
 //! reads its own range together with the waiting ranges adjacent to it. A slow endpoint holds
 //! only its own slots, so reads of other endpoints go on.
 
+use super::flight::{self, Sizing};
 use super::location::Location;
 use super::options::RemoteOptions;
 use crate::source::merge::{self, Merged, Piece, Rule};
@@ -15,7 +16,7 @@ use bytes::Bytes;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, OnceLock};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// One attempt's failure, as a backend classifies it.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -158,6 +159,15 @@ pub trait Backend: Send + Sync {
         }
         Ok(())
     }
+    /// Like [`Backend::get`], but when no answer came within `hedge.after` and the budget
+    /// allows one more ([`Hedges::take`]), the same request is sent once more (a hedge) and the
+    /// first successful answer is used, whole (never bytes of two answers, which may be of two
+    /// versions of the object); the other request is cancelled. Returns the answer and whether
+    /// a hedge was sent. This default never hedges.
+    fn get_hedged(&self, loc: &Location, start: u64, len: u64, hedge: Hedge) -> Result<(Got, bool), Failure> {
+        let _ = hedge;
+        self.get(loc, start, len).map(|g| (g, false))
+    }
     /// Answers so far that ignored a range (a whole object sent for a ranged GET, used after
     /// its checks): a server that makes every read fetch the whole object.
     fn ranges_ignored(&self) -> u64 {
@@ -250,6 +260,57 @@ pub struct Counters {
     pub cache_hits: AtomicU64,
     /// Most requests in flight at once to one endpoint.
     pub peak_in_flight: AtomicU64,
+    /// Microseconds reads waited for a request slot of their endpoint, all reads together.
+    pub slot_wait_us: AtomicU64,
+    /// Microseconds of the attempts that were answered (sent to answered, body included).
+    pub request_us: AtomicU64,
+    /// Attempts answered (the count `request_us` is the sum over).
+    pub answered: AtomicU64,
+    /// Attempts the store answered with 429, 503 or SlowDown.
+    pub throttled: AtomicU64,
+}
+
+/// The hedges of a fetcher and the requests they are a share of.
+#[derive(Debug, Default)]
+pub struct Hedges {
+    /// Requests sent (as [`Counters::requests`]).
+    sent: AtomicU64,
+    /// Hedges sent (each also counted in `sent` and in [`Counters::requests`]).
+    hedged: AtomicU64,
+}
+
+impl Hedges {
+    /// Takes one hedge if it keeps the hedges within [`flight::HEDGE_SHARE`] of the requests.
+    pub fn take(&self) -> bool {
+        let sent = self.sent.load(Ordering::Relaxed) as f64;
+        let within = |h: u64| ((h + 1) as f64 <= flight::HEDGE_SHARE * (sent + 1.0)).then_some(h + 1);
+        let taken = self.hedged.fetch_update(Ordering::Relaxed, Ordering::Relaxed, within).is_ok();
+        if taken {
+            // A hedge is a request too.
+            self.sent.fetch_add(1, Ordering::Relaxed);
+        }
+        taken
+    }
+
+    /// Hedges sent so far.
+    pub fn hedged(&self) -> u64 {
+        self.hedged.load(Ordering::Relaxed)
+    }
+}
+
+/// When a read may be hedged ([`Backend::get_hedged`]).
+#[derive(Clone, Debug)]
+pub struct Hedge {
+    /// How long its first request may go unanswered.
+    pub after: Duration,
+    /// The budget a hedge is taken from.
+    pub budget: Arc<Hedges>,
+}
+
+impl Counters {
+    fn waited(&self, since: Instant) {
+        self.slot_wait_us.fetch_add(since.elapsed().as_micros() as u64, Ordering::Relaxed);
+    }
 }
 
 /// A range a reading thread waits for.
@@ -261,15 +322,61 @@ struct Req {
     result: OnceLock<Result<Versioned, ReadError>>,
 }
 
-#[derive(Default)]
 struct EpState {
     in_flight: usize,
     waiting: Vec<Arc<Req>>,
+    /// How many requests may be in flight ([`flight`]).
+    sizing: Sizing,
+}
+
+impl EpState {
+    /// A read arrived: counted in the rate; true when the limit grew.
+    fn arrive(&mut self, key: &str) -> bool {
+        let before = (self.sizing.limit(), self.sizing.reason());
+        self.sizing.arrive(Instant::now()) && self.resized(key, before)
+    }
+
+    /// Logs a change of the limit's reason (one line a change, at info; a change of size alone
+    /// at debug). True when the limit grew.
+    fn resized(&self, key: &str, (was, was_reason): (usize, flight::Reason)) -> bool {
+        let (limit, reason) = (self.sizing.limit(), self.sizing.reason());
+        let latency_ms = self.sizing.latency().map_or(0.0, |l| l.as_secs_f64() * 1e3);
+        let reads_per_s = self.sizing.rate().unwrap_or(0.0).round();
+        if reason != was_reason {
+            tracing::info!(
+                endpoint = %key, limit, was, reason = reason.as_str(), was_reason = was_reason.as_str(),
+                latency_ms, reads_per_s, "remote requests in flight: {limit} ({})", reason.as_str()
+            );
+        } else {
+            tracing::debug!(endpoint = %key, limit, was, reason = reason.as_str(), latency_ms, reads_per_s, "remote requests in flight resized");
+        }
+        limit > was
+    }
+
+    fn has_slot(&self) -> bool {
+        self.in_flight < self.sizing.limit()
+    }
+}
+
+/// An endpoint's requests in flight and what sized them, as `STATS` reports them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EndpointFlight {
+    /// The endpoint (`scheme://host:port`, `s3://bucket`).
+    pub endpoint: String,
+    /// Requests allowed in flight now.
+    pub limit: usize,
+    /// Why ([`flight::Reason::as_str`]).
+    pub reason: &'static str,
+    /// The smoothed latency of an answered request.
+    pub latency: Option<Duration>,
+    /// The smoothed rate of reads arriving, per second.
+    pub rate: Option<f64>,
 }
 
 /// One endpoint: its slots and the ranges waiting for them.
-#[derive(Default)]
 struct Endpoint {
+    /// Its key ([`Location::endpoint`]), for the log.
+    key: String,
     state: Mutex<EpState>,
     wake: Condvar,
     /// No request is sent to the endpoint before this instant: its server answered `429` or
@@ -278,6 +385,25 @@ struct Endpoint {
 }
 
 impl Endpoint {
+    fn new(key: &str, cap: usize) -> Endpoint {
+        Endpoint {
+            key: key.to_string(),
+            state: Mutex::new(EpState { in_flight: 0, waiting: Vec::new(), sizing: Sizing::new(cap) }),
+            wake: Condvar::new(),
+            paused_until: Mutex::new(None),
+        }
+    }
+
+    /// Tells the sizing how an attempt ended; wakes the waiting reads when the limit grew.
+    fn attempted(&self, outcome: flight::Outcome) {
+        let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        let before = (st.sizing.limit(), st.sizing.reason());
+        if st.sizing.attempt(Instant::now(), outcome) && st.resized(&self.key, before) {
+            drop(st);
+            self.wake.notify_all();
+        }
+    }
+
     /// Sends nothing for `wait` from now (or longer, if already paused longer).
     fn pause(&self, wait: Duration) {
         let until = std::time::Instant::now() + wait;
@@ -309,6 +435,8 @@ pub struct Fetcher {
     pub merged: Merged,
     /// The ranges fetched so far, and those fetched twice.
     pub seen: super::seen::Seen,
+    /// The hedges sent, within their share of the requests.
+    pub hedges: Arc<Hedges>,
 }
 
 impl Fetcher {
@@ -322,6 +450,7 @@ impl Fetcher {
             counters: Counters::default(),
             merged: Merged::default(),
             seen: super::seen::Seen::default(),
+            hedges: Arc::default(),
         }
     }
 
@@ -344,7 +473,37 @@ impl Fetcher {
 
     fn endpoint(&self, key: &str) -> Arc<Endpoint> {
         let mut m = self.endpoints.lock().unwrap_or_else(|e| e.into_inner());
-        Arc::clone(m.entry(key.to_string()).or_default())
+        Arc::clone(m.entry(key.to_string()).or_insert_with(|| Arc::new(Endpoint::new(key, self.opts.in_flight))))
+    }
+
+    /// Requests the endpoint `key` ([`Location::endpoint`]) may have in flight now: what its
+    /// sizing says, or where a new one starts.
+    pub fn in_flight_limit(&self, key: &str) -> usize {
+        let m = self.endpoints.lock().unwrap_or_else(|e| e.into_inner());
+        match m.get(key) {
+            Some(ep) => ep.state.lock().unwrap_or_else(|e| e.into_inner()).sizing.limit(),
+            None => Sizing::new(self.opts.in_flight).limit(),
+        }
+    }
+
+    /// Each endpoint's requests in flight and what sized them, by endpoint.
+    pub fn flight(&self) -> Vec<EndpointFlight> {
+        let m = self.endpoints.lock().unwrap_or_else(|e| e.into_inner());
+        let mut v: Vec<EndpointFlight> = m
+            .iter()
+            .map(|(k, ep)| {
+                let st = ep.state.lock().unwrap_or_else(|e| e.into_inner());
+                EndpointFlight {
+                    endpoint: k.clone(),
+                    limit: st.sizing.limit(),
+                    reason: st.sizing.reason().as_str(),
+                    latency: st.sizing.latency(),
+                    rate: st.sizing.rate(),
+                }
+            })
+            .collect();
+        v.sort_by(|a, b| a.endpoint.cmp(&b.endpoint));
+        v
     }
 
     /// Bytes `[start, start + len)` of `loc`: waits for a slot of its endpoint, merges with the
@@ -358,13 +517,18 @@ impl Fetcher {
     pub fn read_versioned(&self, loc: &Location, start: u64, len: u64) -> Result<Versioned, ReadError> {
         let ep = self.endpoint(&loc.endpoint);
         let me = Arc::new(Req { object: loc.to_string(), loc: loc.clone(), start, len, result: OnceLock::new() });
+        let queued = Instant::now();
         let mut st = ep.state.lock().unwrap_or_else(|e| e.into_inner());
+        if st.arrive(&ep.key) {
+            ep.wake.notify_all();
+        }
         st.waiting.push(Arc::clone(&me));
         loop {
             if me.result.get().is_some() {
                 break;
             }
-            if st.in_flight < self.opts.in_flight.max(1) {
+            if st.has_slot() {
+                self.counters.waited(queued);
                 let batch = take_batch(&mut st.waiting, &me, self.opts.merge_bytes);
                 st.in_flight += 1;
                 self.counters.peak_in_flight.fetch_max(st.in_flight as u64, Ordering::Relaxed);
@@ -395,10 +559,15 @@ impl Fetcher {
     pub fn stream(&self, loc: &Location, start: u64, len: u64, sink: Arc<dyn Sink>) -> Result<(), ReadError> {
         let ep = self.endpoint(&loc.endpoint);
         {
+            let queued = Instant::now();
             let mut st = ep.state.lock().unwrap_or_else(|e| e.into_inner());
-            while st.in_flight >= self.opts.in_flight.max(1) {
+            if st.arrive(&ep.key) {
+                ep.wake.notify_all();
+            }
+            while !st.has_slot() {
                 st = ep.wake.wait(st).unwrap_or_else(|e| e.into_inner());
             }
+            self.counters.waited(queued);
             st.in_flight += 1;
             self.counters.peak_in_flight.fetch_max(st.in_flight as u64, Ordering::Relaxed);
         }
@@ -432,10 +601,15 @@ impl Fetcher {
     pub fn object(&self, loc: &Location, req: &ObjectRequest) -> Result<Object, ReadError> {
         let ep = self.endpoint(&loc.endpoint);
         {
+            let queued = Instant::now();
             let mut st = ep.state.lock().unwrap_or_else(|e| e.into_inner());
-            while st.in_flight >= self.opts.in_flight.max(1) {
+            if st.arrive(&ep.key) {
+                ep.wake.notify_all();
+            }
+            while !st.has_slot() {
                 st = ep.wake.wait(st).unwrap_or_else(|e| e.into_inner());
             }
+            self.counters.waited(queued);
             st.in_flight += 1;
             self.counters.peak_in_flight.fetch_max(st.in_flight as u64, Ordering::Relaxed);
         }
@@ -453,7 +627,19 @@ impl Fetcher {
         let start = first.start;
         let end = batch.iter().map(|r| r.start + r.len).max().unwrap_or(start);
         self.merged.count(batch.len() as u64);
-        let got = self.with_retries(&first.loc, &first.object, |b| b.get(&first.loc, start, end - start));
+        let ep = self.endpoint(&first.loc.endpoint);
+        let got = self.with_retries(&first.loc, &first.object, |b| match self.hedge_after(&ep) {
+            Some(after) => {
+                let hedge = Hedge { after, budget: Arc::clone(&self.hedges) };
+                b.get_hedged(&first.loc, start, end - start, hedge).map(|(got, hedged)| {
+                    if hedged {
+                        self.counters.requests.fetch_add(1, Ordering::Relaxed);
+                    }
+                    got
+                })
+            }
+            None => b.get(&first.loc, start, end - start),
+        });
         if let Ok(g) = &got {
             self.seen.fetched(&first.object, start, g.bytes.len() as u64);
         }
@@ -485,6 +671,16 @@ impl Fetcher {
         }
     }
 
+    /// How long a ranged read of `ep` may go unanswered before it is hedged, while hedges are
+    /// within their share of the requests ([`flight::HEDGE_SHARE`]).
+    fn hedge_after(&self, ep: &Endpoint) -> Option<Duration> {
+        let sent = self.hedges.sent.load(Ordering::Relaxed) as f64;
+        if (self.hedges.hedged() + 1) as f64 > flight::HEDGE_SHARE * (sent + 1.0) {
+            return None;
+        }
+        ep.state.lock().unwrap_or_else(|e| e.into_inner()).sizing.hedge_after()
+    }
+
     /// Runs `attempt` until it succeeds, fails for good or runs out of retries.
     ///
     /// The retries are `backon`'s blocking retry: it is maintained, small (one dependency,
@@ -514,7 +710,24 @@ impl Fetcher {
             ep.wait_pause();
             attempts.set(attempts.get() + 1);
             self.counters.requests.fetch_add(1, Ordering::Relaxed);
-            attempt(backend)
+            self.hedges.sent.fetch_add(1, Ordering::Relaxed);
+            let sent = Instant::now();
+            let r = attempt(backend);
+            match &r {
+                Ok(_) => {
+                    let took = sent.elapsed();
+                    self.counters.request_us.fetch_add(took.as_micros() as u64, Ordering::Relaxed);
+                    self.counters.answered.fetch_add(1, Ordering::Relaxed);
+                    ep.attempted(flight::Outcome::Answered(took));
+                }
+                Err(Failure::Transient { why, .. }) if flight::is_throttle(why) => {
+                    self.counters.throttled.fetch_add(1, Ordering::Relaxed);
+                    ep.attempted(flight::Outcome::Throttled);
+                }
+                Err(Failure::Transient { .. }) => ep.attempted(flight::Outcome::Failed),
+                Err(_) => {}
+            }
+            r
         })
         .retry(self.opts.backoff_policy())
         .when(|f| matches!(f, Failure::Transient { .. }))
@@ -958,6 +1171,20 @@ mod tests {
         mid.copy_to(&mut out);
         assert_eq!(out, [0, 1, 1, 1, 2, 2, 2, 3, 3]);
         assert!(s.slice(15, 15).is_empty());
+    }
+
+    #[test]
+    fn hedges_stay_within_five_percent_of_the_requests_sent() {
+        let h = Hedges::default();
+        assert!(!h.take(), "no request sent, no hedge");
+        h.sent.store(99, Ordering::Relaxed);
+        // 99 requests: one hedge makes 5 of 100 requests... up to the share, then none.
+        let taken = (0..10).filter(|_| h.take()).count();
+        assert_eq!((taken, h.hedged()), (5, 5));
+        assert!(h.hedged() as f64 <= flight::HEDGE_SHARE * h.sent.load(Ordering::Relaxed) as f64);
+        // Twenty more requests: one more hedge.
+        h.sent.fetch_add(20, Ordering::Relaxed);
+        assert_eq!((0..10).filter(|_| h.take()).count(), 1);
     }
 
     #[test]

@@ -11,7 +11,7 @@
 //! every read fetch the whole object. A `416` means the object ends before the range
 //! starts. Anything else is a [`Failure`], classified for the retry loop.
 
-use super::fetch::{Backend, Failure, Got, Object, ObjectRequest, Segments, Sink};
+use super::fetch::{Backend, Failure, Got, Hedge, Object, ObjectRequest, Segments, Sink};
 use super::location::Location;
 use super::options::RemoteOptions;
 use super::runtime::block;
@@ -223,6 +223,37 @@ async fn get(client: reqwest::Client, to: Target, start: u64, len: u64) -> Resul
     Ok(Got { bytes: buf, object_len: total, validator: validator(&headers) })
 }
 
+/// [`get`], sent once more (a hedge, on another connection: the first one is busy) when no
+/// answer came within `after`. The first successful answer is used whole, never pieces of two
+/// (they may be of two versions of the object); the other request is dropped, which cancels it
+/// and closes its connection. A failed answer waits for the other one. Returns whether a hedge
+/// was sent.
+async fn get_hedged(
+    client: reqwest::Client,
+    (first, second): (Target, Target),
+    start: u64,
+    len: u64,
+    hedge: Hedge,
+) -> Result<(Got, bool), Failure> {
+    use futures_util::future::{select, Either};
+    let one = Box::pin(get(client.clone(), first, start, len));
+    let one = match select(one, Box::pin(tokio::time::sleep(hedge.after))).await {
+        Either::Left((r, _)) => return r.map(|g| (g, false)),
+        Either::Right(((), one)) => one,
+    };
+    if !hedge.budget.take() {
+        return one.await.map(|g| (g, false));
+    }
+    let two = Box::pin(get(client, second, start, len));
+    let (r, other) = match select(one, two).await {
+        Either::Left((r, other)) | Either::Right((r, other)) => (r, other),
+    };
+    match r {
+        Ok(g) => Ok((g, true)),
+        Err(_) => other.await.map(|g| (g, true)),
+    }
+}
+
 /// [`get`] handing the bytes of a `206` to `sink` as they arrive (any other answer whole).
 async fn get_streamed(
     client: reqwest::Client,
@@ -386,6 +417,15 @@ impl Backend for Http {
         }
         let client = self.client()?;
         block(self.timeout, get(client, self.target(loc), start, len))
+    }
+
+    fn get_hedged(&self, loc: &Location, start: u64, len: u64, hedge: Hedge) -> Result<(Got, bool), Failure> {
+        if len == 0 {
+            return Ok((Got { bytes: Segments::default(), object_len: None, validator: None }, false));
+        }
+        let client = self.client()?;
+        let targets = (self.target(loc), self.target(loc));
+        block(self.timeout, get_hedged(client, targets, start, len, hedge))
     }
 
     fn get_streamed(&self, loc: &Location, start: u64, len: u64, sink: &Arc<dyn Sink>) -> Result<(), Failure> {

@@ -11,6 +11,7 @@
 
 pub mod disk;
 pub mod fetch;
+pub mod flight;
 pub mod http;
 pub mod location;
 pub mod object;
@@ -21,7 +22,9 @@ mod runtime;
 pub mod s3;
 pub mod seen;
 
-pub use fetch::{Backend, Failure, Fetcher, Got, Object, ObjectRequest, ReadError, Segments, Sink, Versioned};
+pub use fetch::{
+    Backend, Failure, Fetcher, Got, Hedge, Hedges, Object, ObjectRequest, ReadError, Segments, Sink, Versioned,
+};
 pub use location::{Location, LocationError, Scheme};
 pub use options::{OptionsError, RemoteOptions};
 
@@ -67,6 +70,31 @@ pub struct RemoteStats {
     pub duplicate_reads: u64,
     /// Bytes fetched more than once (each time after the first).
     pub duplicate_bytes: u64,
+    /// Requests allowed in flight now to the endpoint with the most (sized by the source from
+    /// the measured latency and the rate of reads: [`flight`]; capped by
+    /// `CLIPMAP_REMOTE_IN_FLIGHT`).
+    pub in_flight_limit: u64,
+    /// Why that endpoint's limit is what it is (`start`, `floor`, `rate x latency`, `cap
+    /// (CLIPMAP_REMOTE_IN_FLIGHT)`, `throttled (429/503/SlowDown)`, `failures`).
+    pub in_flight_reason: String,
+    /// That endpoint's smoothed latency of an answered request, microseconds (0: none yet).
+    pub latency_us: u64,
+    /// That endpoint's smoothed rate of reads arriving, per second.
+    pub reads_per_s: u64,
+    /// Where reads waited: microseconds waiting for a request slot of their endpoint, all reads
+    /// together.
+    pub slot_wait_us: u64,
+    /// Microseconds of the answered attempts, all together (sent to answered, body included;
+    /// divided by `answered`, the mean latency our side sees).
+    pub request_us: u64,
+    /// Attempts answered.
+    pub answered: u64,
+    /// Attempts the store answered with 429, 503 or SlowDown (each shrinks the limit).
+    pub throttled: u64,
+    /// Ranged reads sent once more because the first request had no answer past the
+    /// endpoint's 95th percentile of latency (the first answer is used; at most 5 % of the
+    /// requests; each also counted in `requests`).
+    pub hedged: u64,
 }
 
 /// Reads remote locations: the fetcher and the disk cache.
@@ -115,6 +143,8 @@ impl Remote {
     /// Counters so far.
     pub fn stats(&self) -> RemoteStats {
         let c = &self.fetcher.counters;
+        // The endpoint with the most requests allowed in flight stands for all in the figures.
+        let top = self.fetcher.flight().into_iter().max_by_key(|f| f.limit);
         RemoteStats {
             requests: c.requests.load(Ordering::Relaxed),
             retries: c.retries.load(Ordering::Relaxed),
@@ -127,6 +157,15 @@ impl Remote {
             ranges_ignored: self.fetcher.ranges_ignored(),
             duplicate_reads: self.fetcher.seen.duplicate_reads(),
             duplicate_bytes: self.fetcher.seen.duplicate_bytes(),
+            in_flight_limit: top.as_ref().map_or(0, |f| f.limit as u64),
+            in_flight_reason: top.as_ref().map_or_else(String::new, |f| f.reason.to_string()),
+            latency_us: top.as_ref().and_then(|f| f.latency).map_or(0, |l| l.as_micros() as u64),
+            reads_per_s: top.as_ref().and_then(|f| f.rate).map_or(0, |r| r.round() as u64),
+            slot_wait_us: c.slot_wait_us.load(Ordering::Relaxed),
+            request_us: c.request_us.load(Ordering::Relaxed),
+            answered: c.answered.load(Ordering::Relaxed),
+            throttled: c.throttled.load(Ordering::Relaxed),
+            hedged: self.fetcher.hedges.hedged(),
         }
     }
 
@@ -216,6 +255,8 @@ pub struct RemoteSource {
     index: HashMap<String, usize>,
     /// Each level's endpoint when all its tiles share one (levels without stream servers).
     level_endpoint: Vec<Option<usize>>,
+    /// Each endpoint's key in the fetcher (`None`: local files).
+    fetcher_keys: Vec<Option<String>>,
 }
 
 impl RemoteSource {
@@ -266,7 +307,10 @@ impl RemoteSource {
                 LevelKind::IcacheNotOpened { .. } => level_endpoint.push(None),
             }
         }
-        Ok(RemoteSource { files, remote, endpoints, index, level_endpoint })
+        // Each endpoint as the fetcher names it (the port always written).
+        let fetcher_keys =
+            endpoints.iter().map(|k| Location::parse(&format!("{k}/")).ok().map(|l| l.endpoint)).collect();
+        Ok(RemoteSource { files, remote, endpoints, index, level_endpoint, fetcher_keys })
     }
 
     /// The endpoints (one stream server each), in server order.
@@ -323,6 +367,20 @@ impl TileSource for RemoteSource {
 
     fn stream_servers(&self) -> usize {
         self.endpoints.len().max(1)
+    }
+
+    fn read_slots(&self, stream: usize, streams: usize) -> Option<usize> {
+        // The requests in flight the endpoints of the stream allow: a read queue that runs fewer
+        // reads than that queues them on our side (each read blocks its thread for a round trip).
+        let slots: usize = self
+            .fetcher_keys
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i % streams.max(1) == stream)
+            .filter_map(|(_, k)| k.as_deref())
+            .map(|k| self.remote.fetcher().in_flight_limit(k))
+            .sum();
+        (slots > 0).then_some(slots)
     }
 
     fn stream_of(&self, tile: TileId, streams: usize) -> usize {

@@ -26,7 +26,10 @@ pub struct RemoteOptions {
     pub backoff: Duration,
     /// The longest backoff, and the most a `Retry-After` header is obeyed for.
     pub backoff_max: Duration,
-    /// Requests in flight at once to one endpoint (scheme, host and port; an S3 bucket).
+    /// The most requests in flight at once to one endpoint (scheme, host and port; an S3
+    /// bucket): a cap. Within it the source sizes each endpoint's requests in flight itself,
+    /// from the measured latency and rate of reads ([`super::flight`]), from
+    /// [`super::flight::FLOOR`] (or the cap, if lower) up.
     pub in_flight: usize,
     /// Largest merged request: adjacent ranges of one object waiting for the same endpoint are
     /// read by one request up to this many bytes.
@@ -45,7 +48,7 @@ impl Default for RemoteOptions {
             retries: 7,
             backoff: Duration::from_millis(5),
             backoff_max: Duration::from_secs(2),
-            in_flight: 16,
+            in_flight: 256,
             merge_bytes: 4 << 20,
             cache_dir: None,
             cache_bytes: 1 << 30,
@@ -60,7 +63,7 @@ pub const ENV_VARS: [(&str, &str); 9] = [
     ("CLIPMAP_REMOTE_RETRIES", "retries after the first attempt (default 7)"),
     ("CLIPMAP_REMOTE_BACKOFF_MS", "first backoff, milliseconds (default 5)"),
     ("CLIPMAP_REMOTE_BACKOFF_MAX_MS", "longest backoff and Retry-After obeyed, milliseconds (default 2000)"),
-    ("CLIPMAP_REMOTE_IN_FLIGHT", "requests in flight per endpoint (default 16)"),
+    ("CLIPMAP_REMOTE_IN_FLIGHT", "most requests in flight per endpoint; sized within it (default 256)"),
     ("CLIPMAP_REMOTE_MERGE_BYTES", "largest merged range request, bytes (default 4194304)"),
     ("CLIPMAP_REMOTE_CACHE_DIR", "directory of the local disk cache (default: no cache)"),
     ("CLIPMAP_REMOTE_CACHE_BYTES", "bound on the disk cache, bytes (default 1073741824)"),

@@ -465,8 +465,20 @@ fn remote_line(r: &clipmap::source::remote::RemoteStats) -> String {
     } else {
         String::new()
     };
+    // The requests in flight the source sized for its busiest endpoint, and why.
+    let sized = if r.in_flight_limit > 0 {
+        format!(
+            "  sized {} in flight ({}; {:.1} ms, {} reads/s)",
+            r.in_flight_limit,
+            r.in_flight_reason,
+            r.latency_us as f64 / 1e3,
+            r.reads_per_s
+        )
+    } else {
+        String::new()
+    };
     format!(
-        "remote: {} requests  {} retries  {} merged  {:.2} MiB  {} failures  cache {} hits {} dropped  peak {} in flight{ignored}{twice}\n\n",
+        "remote: {} requests  {} retries  {} merged  {:.2} MiB  {} failures  cache {} hits {} dropped  peak {} in flight{ignored}{twice}{sized}\n\n",
         r.requests,
         r.retries,
         r.merged,
@@ -691,7 +703,18 @@ mod tests {
             s.remote.as_mut().unwrap().duplicate_bytes = 4096;
             assert!(human(&s).contains("in flight  3 reads fetched 4096 bytes again\n"), "{}", human(&s));
             s.remote.as_mut().unwrap().duplicate_reads = 0;
+            // The requests in flight the source chose, and why.
+            let r = s.remote.as_mut().unwrap();
+            (r.in_flight_limit, r.in_flight_reason, r.latency_us, r.reads_per_s) =
+                (96, "rate x latency".into(), 21_400, 2200);
+            assert!(
+                human(&s).contains("peak 8 in flight  sized 96 in flight (rate x latency; 21.4 ms, 2200 reads/s)\n"),
+                "{}",
+                human(&s)
+            );
             let v = serde_json::to_value(&s).unwrap();
+            assert_eq!(v["remote"]["in_flight_limit"], 96);
+            assert_eq!(v["remote"]["in_flight_reason"], "rate x latency");
             assert_eq!(v["remote"]["requests"], 17);
             assert_eq!(v["remote"]["peak_in_flight"], 8);
         }

@@ -51,6 +51,16 @@ pub struct Args {
     /// Level-0 texels a tick of the real-time flight (`remote_flight`), 60 ticks a second.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(i64).range(1..=4096))]
     flight_speed: i64,
+    /// Seconds of the real-time flight (default: 20, 6 with --quick, 1.5 with --smoke).
+    #[arg(long, value_parser = parse_seconds)]
+    flight_seconds: Option<f64>,
+}
+
+fn parse_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (0.5..=600.0).contains(&v) => Ok(v),
+        _ => Err(format!("found `{s}`, expected seconds from 0.5 to 600")),
+    }
 }
 
 /// One depth of the latency sweep.
@@ -119,6 +129,62 @@ pub struct RemoteFlight {
     /// differed.
     pub texels_checked: u64,
     pub wrong_texels: u64,
+    /// Milliseconds from a clipmap made over a freshly opened source (through the delaying
+    /// proxy) to the first tick that shows level 0 (min LOD below 1), ticking at 60 Hz; and the
+    /// same on the local files (`_local`), in the same run. 30 000 when it never did.
+    pub cold_start_to_level0_ms: f64,
+    pub cold_start_to_level0_ms_local: f64,
+    /// Milliseconds from a jump of ten clip sizes along s (fewer where the texture is smaller)
+    /// to the first tick that shows level 0 again, over HTTP and on the local files.
+    pub jump_to_level0_ms: f64,
+    pub jump_to_level0_ms_local: f64,
+    /// The level-0 texels of that jump.
+    pub jump_texels: i64,
+    /// The requests in flight the source chose for the proxy's endpoint at the end of the
+    /// flight, why, the most it had in flight, and its smoothed latency (ms) and read rate.
+    pub in_flight_limit: u64,
+    pub in_flight_reason: String,
+    pub peak_in_flight: u64,
+    pub store_latency_ms: f64,
+    pub reads_per_s: u64,
+    /// Where a request's time went (means over the flight's reads): waiting for a request slot
+    /// of the endpoint, and from sent to answered (the proxy's delay, nginx, the connection).
+    pub mean_slot_wait_ms: f64,
+    pub mean_request_ms: f64,
+    /// Share of the requests that were hedged (a second request for a slow one).
+    pub hedged_share: f64,
+}
+
+/// Ticks a clipmap at 60 Hz at `at` until it shows level 0 (min LOD below 1); milliseconds from
+/// the call, at most `limit`.
+fn until_level0(map: &mut clipmap::clip::Clipmap, at: [i64; 2], limit: Duration) -> f64 {
+    let period = Duration::from_secs_f64(1.0 / 60.0);
+    let start = Instant::now();
+    for i in 0u32.. {
+        std::thread::sleep((start + period * i).saturating_duration_since(Instant::now()));
+        if map.tick(at, None).min_lod < 1.0 {
+            break;
+        }
+        if start.elapsed() >= limit {
+            break;
+        }
+    }
+    start.elapsed().as_secs_f64() * 1e3
+}
+
+/// The time to level 0 after a cold start over `src`, then after a jump of (up to) ten clip
+/// sizes along s: milliseconds each, and the jump in texels.
+fn back_to_level0(src: Arc<dyn TileSource>) -> anyhow::Result<(f64, f64, i64)> {
+    use clipmap::clip::{Clipmap, Settings};
+    let desc = src.desc().clone();
+    let (size, clip) = (desc.size()[0] as i64, desc.clip_size() as i64);
+    let limit = Duration::from_secs(30);
+    let mut map = Clipmap::new(src, Settings::default())?;
+    let from = [clip, size / 2];
+    let cold = until_level0(&mut map, from, limit);
+    let to = [(clip + 10 * clip).min((size - clip).max(clip)), size / 2];
+    let jump = until_level0(&mut map, to, limit);
+    Ok((cold, jump, to[0] - from[0]))
 }
 
 fn moto() -> anyhow::Result<(Killed, u16)> {
@@ -319,14 +385,21 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
             break;
         }
     }
-    let flight_s = if args.smoke {
+    let flight_s = args.flight_seconds.unwrap_or(if args.smoke {
         1.5
     } else if args.quick {
         6.0
     } else {
         20.0
-    };
-    let remote_flight = fly(&slow_ct, args.latency_ms, flight_s, args.flight_speed)?;
+    });
+    let mut remote_flight = fly(&slow_ct, args.latency_ms, flight_s, args.flight_speed)?;
+    let (cold, jump, texels) = back_to_level0(Arc::new(FileSource::new(open_plan(&local_ct)?, &Limits::default())?))?;
+    (remote_flight.cold_start_to_level0_ms_local, remote_flight.jump_to_level0_ms_local) = (cold, jump);
+    let slow: Arc<dyn TileSource> =
+        Arc::new(RemoteSource::new(open_plan(&slow_ct)?, &Limits::default(), RemoteOptions::default())?);
+    let (cold, jump, _) = back_to_level0(slow)?;
+    (remote_flight.cold_start_to_level0_ms, remote_flight.jump_to_level0_ms, remote_flight.jump_texels) =
+        (cold, jump, texels);
     stop.store(true, Ordering::Relaxed);
     let best = sweep
         .iter()
@@ -364,8 +437,8 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
 /// five published level-0 texels a tick against the hash texture.
 fn fly(ct: &Path, latency_ms: u64, seconds: f64, speed: i64) -> anyhow::Result<RemoteFlight> {
     use clipmap::clip::{Clipmap, Settings};
-    let src: Arc<dyn TileSource> =
-        Arc::new(RemoteSource::new(open_plan(ct)?, &Limits::default(), RemoteOptions::default())?);
+    let remote = Arc::new(RemoteSource::new(open_plan(ct)?, &Limits::default(), RemoteOptions::default())?);
+    let src: Arc<dyn TileSource> = remote.clone();
     let desc = src.desc().clone();
     let settings = Settings::default();
     let prefetch = settings.prefetch;
@@ -414,6 +487,8 @@ fn fly(ct: &Path, latency_ms: u64, seconds: f64, speed: i64) -> anyhow::Result<R
         }
     }
     let wall = start.elapsed().as_secs_f64();
+    let st = remote.stats();
+    let per = |us: u64, n: u64| us as f64 / 1e3 / n.max(1) as f64;
     Ok(RemoteFlight {
         texels_per_tick: speed,
         tick_hz: hz,
@@ -428,6 +503,19 @@ fn fly(ct: &Path, latency_ms: u64, seconds: f64, speed: i64) -> anyhow::Result<R
         read_latency_ticks: map.stats().read_latency_ticks,
         texels_checked: checked,
         wrong_texels: wrong,
+        cold_start_to_level0_ms: 0.0,
+        cold_start_to_level0_ms_local: 0.0,
+        jump_to_level0_ms: 0.0,
+        jump_to_level0_ms_local: 0.0,
+        jump_texels: 0,
+        in_flight_limit: st.in_flight_limit,
+        in_flight_reason: st.in_flight_reason.clone(),
+        peak_in_flight: st.peak_in_flight,
+        store_latency_ms: st.latency_us as f64 / 1e3,
+        reads_per_s: st.reads_per_s,
+        mean_slot_wait_ms: per(st.slot_wait_us, st.requests.saturating_sub(st.retries)),
+        mean_request_ms: per(st.request_us, st.answered),
+        hedged_share: st.hedged as f64 / st.requests.max(1) as f64,
     })
 }
 
@@ -464,6 +552,23 @@ fn human(r: &Report) -> String {
         f.read_latency_ticks,
         f.wrong_texels,
         f.texels_checked
+    ));
+    o.push_str(&format!(
+        "requests in flight {} ({}; peak {}), store latency {:.1} ms, {} reads/s; a read waited {:.2} ms for a slot, a request took {:.1} ms; {:.1}% hedged\n\
+         level 0 after a cold start {:.0} ms (local {:.0}), after a jump of {} texels {:.0} ms (local {:.0})\n",
+        f.in_flight_limit,
+        f.in_flight_reason,
+        f.peak_in_flight,
+        f.store_latency_ms,
+        f.reads_per_s,
+        f.mean_slot_wait_ms,
+        f.mean_request_ms,
+        f.hedged_share * 100.0,
+        f.cold_start_to_level0_ms,
+        f.cold_start_to_level0_ms_local,
+        f.jump_texels,
+        f.jump_to_level0_ms,
+        f.jump_to_level0_ms_local
     ));
     o
 }

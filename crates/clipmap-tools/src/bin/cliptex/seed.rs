@@ -64,7 +64,7 @@ pub(crate) struct SeedArgs {
     /// CLIPMAP_REMOTE_CACHE_BYTES.
     #[arg(long, value_name = "DIR")]
     cache_dir: Option<PathBuf>,
-    /// Tiles fetched at once (default: CLIPMAP_REMOTE_IN_FLIGHT, the bound per host).
+    /// Tiles fetched at once (default: 16, or CLIPMAP_REMOTE_IN_FLIGHT, the cap per host, if lower).
     #[arg(long, value_name = "N")]
     jobs: Option<usize>,
     /// Print a JSON summary instead of text.
@@ -461,7 +461,12 @@ fn fetch_all(
 ) -> Counts {
     let counts = Counts::default();
     let next = AtomicUsize::new(0);
-    let jobs = args.jobs.unwrap_or_else(|| RemoteOptions::from_env().map_or(8, |o| o.in_flight)).clamp(1, 256);
+    let jobs = args
+        .jobs
+        .unwrap_or_else(|| {
+            RemoteOptions::from_env().map_or(8, |o| o.in_flight.min(clipmap::source::remote::flight::FLOOR))
+        })
+        .clamp(1, 256);
     std::thread::scope(|s| {
         for _ in 0..jobs.min(tiles.len().max(1)) {
             s.spawn(|| loop {
