@@ -415,6 +415,8 @@ struct MappedFetch<'a> {
     buf: Vec<u8>,
     /// A further restriction of the texels available (level, s, t), if any.
     held: Option<&'a dyn Fn(u32, i64, i64) -> bool>,
+    /// A block-compressed mapping's texels, decoded (`format` is then the decoded format).
+    blocks: Option<blocks::BlockTexels>,
 }
 
 impl Fetch for MappedFetch<'_> {
@@ -437,6 +439,9 @@ impl Fetch for MappedFetch<'_> {
     fn raw(&mut self, level: u32, s: i64, t: i64, out: &mut [u8]) -> bool {
         if self.held.is_some_and(|held| !held(level, s, t)) {
             return false;
+        }
+        if let Some(b) = &mut self.blocks {
+            return b.texel(self.client, self.snap, level, s, t, out);
         }
         let texel = crate::geom::Rect::new(s, t, s + 1, t + 1);
         if self.client.read_region_in(self.snap, level as usize, texel, &mut self.buf).is_err() {
@@ -484,7 +489,9 @@ pub fn sample_mapping_held(
 ) -> Option<Sample> {
     let format = crate::shm::layout::format_from_code(client.format_code)?;
     let min_lod = snap.min_lod;
-    let mut src = MappedFetch { client, snap, format, buf: vec![0; client.bytes_per_texel], held };
+    let blocks = format.block().map(blocks::BlockTexels::new);
+    let format = format.block().map(blocks::decoded_format).unwrap_or(format);
+    let mut src = MappedFetch { client, snap, format, buf: vec![0; client.bytes_per_texel], held, blocks };
     sample_published(&mut src, min_lod, filter, u, v, lod)
 }
 
@@ -521,7 +528,7 @@ pub fn sample_mapping_height_in(
         });
     };
     let hf = height_format("the mapping", client.heights.map(|h| h.format()), format)?;
-    let mut src = MappedFetch { client, snap, format, buf: vec![0; client.bytes_per_texel], held: None };
+    let mut src = MappedFetch { client, snap, format, buf: vec![0; client.bytes_per_texel], held: None, blocks: None };
     Ok(published_height(&mut src, &hf, snap.min_lod, filter, u, v, lod))
 }
 
@@ -565,5 +572,6 @@ fn published_height(
         .map(|(metres, lod)| HeightSample { metres, lod })
 }
 
+pub mod blocks;
 #[cfg(test)]
 mod tests;

@@ -7,7 +7,7 @@
 use crate::check::{self, GeometryDiff, SamplingDiff};
 use crate::gpu::{shapes, Gpu, Renderer, Texels};
 use crate::heights::{self, HeightDiff, HeightShading};
-use crate::upload::{check_format, Method, UploadStats, Uploader};
+use crate::upload::{check_format, on_gpu, Method, UploadStats, Uploader};
 use crate::BadInput;
 use anyhow::{anyhow, Context, Result};
 use clipmap::accuracy::render::{render_mapping, Camera, Pixel};
@@ -109,6 +109,22 @@ pub struct TextureInfo {
     pub bytes_per_texel: usize,
     /// For heights: the format (from the mapping's heights block) and the false-colour range.
     pub heights: Option<HeightShading>,
+    /// The mapping's texel format (`rgba8`, `bc7`, ...).
+    pub format: String,
+    /// The GPU texture's format (wgpu's name: `Rgba8Uint`, `Bc7RgbaUnorm`, ...).
+    pub gpu_format: String,
+    /// A block-compressed mapping: `gpu` (its blocks uploaded as they are, decoded by the GPU) or
+    /// `cpu` (the adapter lacks BC textures: decoded on the CPU with `bcdec_rs`, uploaded as
+    /// RGBA8); `None` for other formats.
+    pub block_upload: Option<&'static str>,
+}
+
+impl TextureInfo {
+    /// The block format whose blocks the GPU decodes (`None`: not a block format, or decoded on
+    /// the CPU).
+    pub fn gpu_blocks(&self) -> Option<clipmap::texel::Bc> {
+        (self.block_upload == Some("gpu")).then(|| clipmap::texel::Bc::parse(&self.format).ok()).flatten()
+    }
 }
 
 /// Names of services published in `dir` (for the error that says which exist).
@@ -223,7 +239,20 @@ fn shading(client: &Client, texels: Texels, o: &FlightOptions) -> Result<Option<
 impl Attached {
     fn new(gpu: &Gpu, client: Client, o: &FlightOptions, reuse: Option<Renderer>) -> Result<Attached> {
         let levels = shapes(&client);
-        let texels = check_format(&client).map_err(|e| anyhow!(BadInput(e.to_string())))?;
+        let published = check_format(&client).map_err(|e| anyhow!(BadInput(e.to_string())))?;
+        let block = match published {
+            Texels::Blocks(bc) => Some(bc),
+            _ => None,
+        };
+        if let (Some(bc), Method::Rects) = (block, o.method) {
+            return Err(anyhow!(BadInput(format!(
+                "--upload rects: {} is block-compressed ({}), and rects cuts texels out of its tiles; block \
+                 formats go to the GPU in whole tiles: use --upload tiles",
+                client.path().display(),
+                bc.name()
+            ))));
+        }
+        let texels = on_gpu(published, gpu.bc);
         let heights = shading(&client, texels, o)?;
         let mut renderer = match reuse {
             Some(r) if r.levels == levels && r.texels == texels => {
@@ -233,7 +262,8 @@ impl Attached {
             _ => Renderer::new(gpu, levels, texels)?,
         };
         renderer.heights = heights;
-        let uploader = Uploader::new(&renderer.levels, client.bytes_per_texel, texels, heights, o.method, o.budget);
+        let uploader =
+            Uploader::new(&renderer.levels, client.bytes_per_texel, texels, block, heights, o.method, o.budget);
         Ok(Attached { client, renderer, uploader })
     }
 }
@@ -248,9 +278,33 @@ pub fn fly(gpu: &Gpu, dir: &Path, name: &str, o: &FlightOptions) -> Result<Fligh
     let client = attach(dir, name, &o.view)?;
     let d0 = client.levels[0];
     let (clip, levels, bytes_per_texel) = (client.clip_size, client.levels.len(), client.bytes_per_texel);
+    let format = clipmap::shm::layout::format_from_code(client.format_code)
+        .map(|f| f.short_name())
+        .unwrap_or_else(|| format!("code {}", client.format_code));
     let mut at = Attached::new(gpu, client, o, None)?;
-    let texture =
-        TextureInfo { size: d0.size, clip, tile: d0.tile, levels, bytes_per_texel, heights: at.renderer.heights };
+    let block_upload = match at.renderer.texels {
+        Texels::Blocks(_) => Some("gpu"),
+        _ if at.uploader.block().is_some() => Some("cpu"),
+        _ => None,
+    };
+    if block_upload == Some("cpu") {
+        eprintln!(
+            "clipgpu: the adapter {} has no BC textures (TEXTURE_COMPRESSION_BC): decoding the {format} blocks on \
+             the CPU (bcdec) and uploading RGBA8",
+            gpu.adapter
+        );
+    }
+    let texture = TextureInfo {
+        size: d0.size,
+        clip,
+        tile: d0.tile,
+        levels,
+        bytes_per_texel,
+        heights: at.renderer.heights,
+        format,
+        gpu_format: at.renderer.texels.gpu_format(),
+        block_upload,
+    };
     let start = o.start.unwrap_or([d0.size[0] as f64 / 2.0, d0.size[1] as f64 / 2.0]);
     let heading = {
         let (a, b) = (flight.position(start, 0), flight.position(start, 1));

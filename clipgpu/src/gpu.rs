@@ -12,6 +12,7 @@ use anyhow::{anyhow, Context, Result};
 use clipmap::accuracy::render::Camera;
 use clipmap::sample::Filter;
 use clipmap::shm::{Client, Snapshot};
+use clipmap::texel::Bc;
 use std::sync::{Arc, Mutex};
 
 /// At most this many levels (the mapping's bound, docs/SHM.md).
@@ -25,6 +26,9 @@ pub struct Gpu {
     pub adapter: String,
     pub(crate) device: wgpu::Device,
     pub(crate) queue: wgpu::Queue,
+    /// The adapter decodes BC1 to BC7 textures (`TEXTURE_COMPRESSION_BC`, asked for when the
+    /// adapter has it): a block-compressed mapping's tiles go to the GPU as they are.
+    pub bc: bool,
     /// Errors no scope caught (the handler wgpu calls instead of panicking).
     uncaptured: Arc<Mutex<Vec<String>>>,
 }
@@ -59,8 +63,10 @@ impl Gpu {
         })?;
         let info = adapter.get_info();
         let name = format!("{} ({:?}, {} {})", info.name, info.backend, info.driver, info.driver_info);
+        let bc = adapter.features().contains(wgpu::Features::TEXTURE_COMPRESSION_BC);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("clipgpu"),
+            required_features: if bc { wgpu::Features::TEXTURE_COMPRESSION_BC } else { wgpu::Features::empty() },
             required_limits: wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits()),
             ..Default::default()
         }))
@@ -72,7 +78,7 @@ impl Gpu {
                 v.push(describe(&e));
             }
         }));
-        Ok(Gpu { adapter: name, device, queue, uncaptured })
+        Ok(Gpu { adapter: name, device, queue, bc, uncaptured })
     }
 
     /// Runs `f` (device work: creating resources, writing, submitting) inside out-of-memory,
@@ -119,6 +125,10 @@ pub enum Texels {
     /// Heights, metres in 32-bit floats (`R32Float`): `l32f` as published, `l16` and `l16i`
     /// converted on upload (`crate::shading::HeightShading::to_gpu`).
     Float32,
+    /// A block-compressed mapping's blocks as published (`Bc1RgbaUnorm`, `Bc4RUnorm`,
+    /// `Bc5RgUnorm`, `Bc7RgbaUnorm`), decoded by the GPU; on an adapter without BC textures
+    /// they are decoded on the CPU and uploaded as [`Texels::Bits8`] instead.
+    Blocks(Bc),
 }
 
 impl Texels {
@@ -127,13 +137,34 @@ impl Texels {
             Texels::Bits8 => wgpu::TextureFormat::Rgba8Uint,
             Texels::Bits16 => wgpu::TextureFormat::Rgba16Uint,
             Texels::Float32 => wgpu::TextureFormat::R32Float,
+            Texels::Blocks(Bc::Bc1) => wgpu::TextureFormat::Bc1RgbaUnorm,
+            Texels::Blocks(Bc::Bc4) => wgpu::TextureFormat::Bc4RUnorm,
+            Texels::Blocks(Bc::Bc5) => wgpu::TextureFormat::Bc5RgUnorm,
+            Texels::Blocks(Bc::Bc7) => wgpu::TextureFormat::Bc7RgbaUnorm,
         }
     }
 
-    /// Bytes of one texel on the GPU.
+    /// The GPU texture format's name, as the JSON reports it.
+    pub fn gpu_format(self) -> String {
+        format!("{:?}", self.format())
+    }
+
+    /// How the shader widens a block format's channels (the frame's `params.w`): 1 for `bc4`
+    /// (one channel as grey, L L L 1), 2 for `bc5` (two as grey and alpha, R R R G), as the CPU
+    /// reads the decoded texels (`clipmap::sample::blocks::decoded_format`); 0 otherwise.
+    fn widen(self) -> f64 {
+        match self {
+            Texels::Blocks(Bc::Bc4) => 1.0,
+            Texels::Blocks(Bc::Bc5) => 2.0,
+            _ => 0.0,
+        }
+    }
+
+    /// Bytes of one texel on the GPU (for blocks: of a texel's RGBA8 decode, the components
+    /// the shader reads).
     pub fn bytes(self) -> u32 {
         match self {
-            Texels::Bits8 | Texels::Float32 => 4,
+            Texels::Bits8 | Texels::Float32 | Texels::Blocks(_) => 4,
             Texels::Bits16 => 8,
         }
     }
@@ -147,7 +178,7 @@ impl Texels {
     /// for heights).
     fn decode_table(self) -> Option<Vec<u8>> {
         let v: Vec<f32> = match self {
-            Texels::Bits8 => (0..=255u32).map(|c| c as u8 as f32 / 255.0).collect(),
+            Texels::Bits8 | Texels::Blocks(_) => (0..=255u32).map(|c| c as u8 as f32 / 255.0).collect(),
             Texels::Bits16 => (0..=65535u32).map(|c| c as u16 as f32 / 65535.0).collect(),
             Texels::Float32 => return None,
         };
@@ -165,17 +196,22 @@ impl Texels {
     }
 }
 
-/// The shader for `texels`: ground.wgsl with the lines of the other variant's sections
-/// (`//#if colour` or `//#if heights` up to `//#end`) blanked, so that line numbers in a
+/// The shader for `texels`: ground.wgsl with the lines of the other variants' sections
+/// (`//#if colour`, `//#if blocks` or `//#if heights` up to `//#end`; a section may name
+/// several) blanked, so that line numbers in a
 /// compiler's message are the file's.
 pub fn shader_source(texels: Texels) -> String {
-    let keep = if texels.heights() { "heights" } else { "colour" };
+    let keep = match texels {
+        Texels::Float32 => "heights",
+        Texels::Blocks(_) => "blocks",
+        Texels::Bits8 | Texels::Bits16 => "colour",
+    };
     let mut out = String::new();
     let mut section: Option<bool> = None;
     for line in include_str!("ground.wgsl").lines() {
         let t = line.trim();
-        if let Some(name) = t.strip_prefix("//#if ") {
-            section = Some(name.trim() == keep);
+        if let Some(names) = t.strip_prefix("//#if ") {
+            section = Some(names.split_whitespace().any(|n| n == keep));
         } else if t == "//#end" {
             section = None;
         } else if section != Some(false) {
@@ -348,6 +384,9 @@ impl Renderer {
         }
         let w = levels.iter().map(|l| l.tile[0] * l.grid[0]).max().unwrap_or(1);
         let h = levels.iter().map(|l| l.tile[1] * l.grid[1]).max().unwrap_or(1);
+        // A block-compressed texture is whole blocks.
+        let (w, h) =
+            if matches!(texels, Texels::Blocks(_)) { (w.next_multiple_of(4), h.next_multiple_of(4)) } else { (w, h) };
         let lim = gpu.device.limits();
         if w > lim.max_texture_dimension_2d as u64 || h > lim.max_texture_dimension_2d as u64 {
             return Err(anyhow!(
@@ -390,13 +429,17 @@ impl Renderer {
             decode
         });
         let shader = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(if texels.heights() { "ground.wgsl (heights)" } else { "ground.wgsl (colour)" }),
+            label: Some(match texels {
+                Texels::Float32 => "ground.wgsl (heights)",
+                Texels::Blocks(_) => "ground.wgsl (blocks)",
+                Texels::Bits8 | Texels::Bits16 => "ground.wgsl (colour)",
+            }),
             source: wgpu::ShaderSource::Wgsl(shader_source(texels).into()),
         });
-        let sample_type = if texels.heights() {
-            wgpu::TextureSampleType::Float { filterable: false }
-        } else {
-            wgpu::TextureSampleType::Uint
+        let sample_type = match texels {
+            Texels::Float32 => wgpu::TextureSampleType::Float { filterable: false },
+            Texels::Blocks(_) => wgpu::TextureSampleType::Float { filterable: true },
+            Texels::Bits8 | Texels::Bits16 => wgpu::TextureSampleType::Uint,
         };
         let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
             binding,
@@ -518,8 +561,17 @@ impl Renderer {
         gpu.queue.write_buffer(&self.tags, (first * 16) as u64, &bytes);
     }
 
-    /// Writes texels (RGBA, [`Texels`]) of a `w` x `h` rectangle at (x, y) of level `k`'s layer.
+    /// Writes texels (RGBA, [`Texels`]) of a `w` x `h` rectangle at (x, y) of level `k`'s layer;
+    /// for [`Texels::Blocks`], the `ceil(w / 4)` x `ceil(h / 4)` blocks of a tile whose corner
+    /// (x, y) starts a block (a tile narrower than a block is its level's only one, at 0, 0).
     pub fn write_texels(&self, gpu: &Gpu, k: usize, at: [u32; 2], size: [u32; 2], rgba: &[u8]) {
+        let (size, bytes_per_row) = match self.texels {
+            Texels::Blocks(bc) => {
+                let blocks = [size[0].div_ceil(4), size[1].div_ceil(4)];
+                ([blocks[0] * 4, blocks[1] * 4], blocks[0] * bc.block_bytes())
+            }
+            t => (size, size[0] * t.bytes()),
+        };
         gpu.queue.write_texture(
             wgpu::TexelCopyTextureInfo {
                 texture: &self.texture,
@@ -528,11 +580,7 @@ impl Renderer {
                 aspect: wgpu::TextureAspect::All,
             },
             rgba,
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(size[0] * self.texels.bytes()),
-                rows_per_image: Some(size[1]),
-            },
+            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(bytes_per_row), rows_per_image: None },
             wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
         );
     }
@@ -557,7 +605,7 @@ impl Renderer {
             Filter::Bilinear => 1.0,
             Filter::Trilinear => 2.0,
         };
-        push_f32(&mut b, [snap.min_lod, self.levels.len() as f64, filter, 0.0]);
+        push_f32(&mut b, [snap.min_lod, self.levels.len() as f64, filter, self.texels.widen()]);
         match &self.heights {
             Some(h) => h.uniform().iter().for_each(|x| b.extend_from_slice(&x.to_le_bytes())),
             None => b.extend_from_slice(&[0u8; 16]),
@@ -720,10 +768,13 @@ mod tests {
         let file = include_str!("ground.wgsl");
         let colour = shader_source(Texels::Bits8);
         let heights = shader_source(Texels::Float32);
+        let blocks = shader_source(Texels::Blocks(Bc::Bc1));
         assert_eq!(shader_source(Texels::Bits16), colour);
+        assert_eq!(shader_source(Texels::Blocks(Bc::Bc7)), blocks);
         for (name, src, cache, other) in [
             ("colour", &colour, "texture_2d_array<u32>", "texture_2d_array<f32>"),
             ("heights", &heights, "texture_2d_array<f32>", "texture_2d_array<u32>"),
+            ("blocks", &blocks, "texture_2d_array<f32>", "texture_2d_array<u32>"),
         ] {
             assert_eq!(src.lines().count(), file.lines().count(), "{name}");
             assert_eq!(src.matches("var cache").count(), 1, "{name}");
@@ -737,6 +788,13 @@ mod tests {
             }
         }
         assert!(colour.contains("var<storage, read> decode") && !heights.contains("var<storage, read> decode"));
+        // Blocks: the GPU's unorm decode back to 8-bit codes, then the colour's table and output.
+        let back = "round(clamp(f, vec4<f32>(0.0), vec4<f32>(1.0)) * 255.0)";
+        assert!(blocks.contains("var<storage, read> decode") && blocks.contains(back));
+        assert!(!colour.contains(back) && !heights.contains(back));
+        assert_eq!(Texels::Blocks(Bc::Bc4).widen(), 1.0);
+        assert_eq!(Texels::Blocks(Bc::Bc5).widen(), 2.0);
+        assert_eq!(Texels::Blocks(Bc::Bc7).widen(), 0.0);
         assert!(heights.contains("@location(3) height") && !colour.contains("@location(3)"));
     }
 }

@@ -5,11 +5,12 @@
 // `clipmap::sample` (min LOD, the finest level whose whole filter footprint is available, else a
 // coarser whole level), filtering by hand from texel loads so the arithmetic is the reference's.
 //
-// Two variants are made from this one source (`shader_source` in gpu.rs): the lines between the
+// Three variants are made from this one source (`shader_source` in gpu.rs): the lines between the
 // marker comments `#if colour` and `#end` are kept for colour textures (unsigned components
-// decoded through a table), those between `#if heights` and `#end` for height textures
-// (`R32Float` metres drawn in false colour, with the sampled height written to a fourth target).
-// Everything else is shared.
+// decoded through a table), those between `#if blocks` and `#end` for block-compressed ones (BC
+// textures the GPU decodes, then the colour's table), those between `#if heights` and `#end` for
+// height textures (`R32Float` metres drawn in false colour, with the sampled height written to a
+// fourth target); a marker may name several variants. Everything else is shared.
 
 struct Level {
     // Published valid region s0, t0, s1, t1 (level texels).
@@ -45,6 +46,13 @@ struct Frame {
 //#if colour
 // The texels' components as published (8 or 16 bits, unsigned).
 @group(0) @binding(2) var cache: texture_2d_array<u32>;
+//#end
+//#if blocks
+// A block-compressed mapping's blocks as published (BC1, BC4, BC5, BC7), decoded by the GPU to
+// unorm values (8-bit codes c as c / 255).
+@group(0) @binding(2) var cache: texture_2d_array<f32>;
+//#end
+//#if colour blocks
 // Component value c to [0, 1] as `TexelFormat::decode` computes it on the CPU (c / 255 or
 // c / 65535, rounded once): a table, so that no GPU division rounds differently.
 @group(0) @binding(3) var<storage, read> decode: array<f32>;
@@ -121,6 +129,25 @@ fn cache_at(k: i32, s: i32, t: i32) -> vec2<i32> {
 //#if colour
 fn load(k: i32, s: i32, t: i32) -> vec4<f32> {
     let c = textureLoad(cache, cache_at(k, s, t), k, 0);
+    return vec4<f32>(decode[c.x], decode[c.y], decode[c.z], decode[c.w]);
+}
+
+fn is_nodata(v: vec4<f32>) -> bool {
+    return false;
+}
+//#end
+//#if blocks
+// The GPU's decoded value back to its 8-bit code (exact: c / 255 rounds back to c), widened as
+// the CPU reads the decoded texels (params.w: 1 BC4's channel as grey L L L 1, 2 BC5's two as grey
+// and alpha R R R G), then through the table as a published colour.
+fn load(k: i32, s: i32, t: i32) -> vec4<f32> {
+    let f = textureLoad(cache, cache_at(k, s, t), k, 0);
+    var c = vec4<u32>(round(clamp(f, vec4<f32>(0.0), vec4<f32>(1.0)) * 255.0));
+    if fr.params.w == 1.0 {
+        c = vec4<u32>(c.x, c.x, c.x, 255u);
+    } else if fr.params.w == 2.0 {
+        c = vec4<u32>(c.x, c.x, c.x, c.y);
+    }
     return vec4<f32>(decode[c.x], decode[c.y], decode[c.z], decode[c.w]);
 }
 
@@ -259,7 +286,7 @@ const SKY: vec4<u32> = vec4<u32>(140u, 180u, 230u, 255u);
 // Ground where no level holds the footprint (nothing published yet).
 const BLACK: vec4<u32> = vec4<u32>(0u, 0u, 0u, 255u);
 
-//#if colour
+//#if colour blocks
 struct Out {
     // The pixel, RGBA8.
     @location(0) rgba: vec4<u32>,

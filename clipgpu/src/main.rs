@@ -117,6 +117,10 @@ struct Cli {
     /// Do not render the reference frames (no comparison; for timing the GPU alone).
     #[arg(long)]
     no_compare: bool,
+    /// A block-compressed texture (bc1, bc4, bc5, bc7): decode its blocks on the CPU and upload
+    /// RGBA8, as on an adapter without BC textures, even where the adapter has them.
+    #[arg(long)]
+    decode_blocks_on_cpu: bool,
     /// Draw as soon as the service applied each frame's centre, without waiting for min LOD 0.
     #[arg(long)]
     no_settle: bool,
@@ -232,7 +236,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             .map_err(|e| BadInput(format!("--view {}: {e}", cli.view)))?;
     }
     o.case.flight.parse::<clipmap::roam::Flight>().map_err(|e| BadInput(format!("--flight {}: {e}", o.case.flight)))?;
-    let gpu = Gpu::new()?;
+    let mut gpu = Gpu::new()?;
+    if cli.decode_blocks_on_cpu {
+        gpu.bc = false;
+    }
     let report = if cli.demo {
         clipgpu::demo::demo(&gpu, &o, demo_heights)?
     } else {
@@ -253,8 +260,22 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     if cli.json {
         println!("{}", serde_json::to_string_pretty(&j)?);
     } else {
-        let tol = Tolerance::for_texture(filter, report.texture.heights.is_some());
+        let tol = Tolerance::for_report(filter, report.texture.heights.is_some(), report.texture.gpu_blocks());
         println!("clipgpu: {} frames on {}", report.frames.len(), gpu.adapter);
+        if let Some(how) = report.texture.block_upload {
+            let how = if how == "gpu" {
+                "uploaded as they are, decoded by the GPU"
+            } else {
+                "decoded on the CPU (bcdec), uploaded as RGBA8"
+            };
+            println!(
+                "  {} blocks {how} ({}); {:.0} bytes a frame to the GPU, {:.3} of RGBA8's",
+                report.texture.format,
+                report.texture.gpu_format,
+                j["upload_gpu_bytes_per_frame"].as_f64().unwrap_or(0.0),
+                j["upload_bytes_vs_rgba8"].as_f64().unwrap_or(0.0)
+            );
+        }
         println!(
             "  uploads: {:.0} bytes a frame ({}), the entering strips {:.0}, the tile-rounded bound {:.0}; first frame {}",
             j["upload_bytes_per_frame"].as_f64().unwrap_or(0.0),

@@ -17,6 +17,7 @@ use crate::heights::HeightShading;
 use anyhow::{anyhow, Result};
 use clipmap::geom::{tiles_covering, Rect};
 use clipmap::shm::{Client, ReadError, Snapshot};
+use clipmap::texel::Bc;
 use std::time::Instant;
 
 /// The upload method.
@@ -32,8 +33,16 @@ pub enum Method {
 /// What one frame's upload did.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct UploadStats {
-    /// Texel bytes sent to the GPU (as published: bytes per texel of the mapping).
+    /// Texel bytes sent to the GPU (as published: bytes per texel of the mapping; for a
+    /// block-compressed mapping, the tiles' blocks).
     pub bytes: u64,
+    /// Bytes written to the GPU texture: as published, widened to four components (the GPU's
+    /// texels); a block-compressed mapping's blocks as they are, or their RGBA8 decode where the
+    /// adapter lacks BC textures.
+    pub gpu_bytes: u64,
+    /// What the same texels would have cost as RGBA8 (4 bytes a texel): the base of
+    /// `upload_bytes_vs_rgba8`.
+    pub rgba8_bytes: u64,
     /// Texel bytes of the strips that entered the valid regions since the last frame.
     pub theory_bytes: u64,
     /// The tile-rounded bound of the tiles method: the tiles each strip touches, whole.
@@ -69,6 +78,10 @@ pub struct Uploader {
     heights: Option<HeightShading>,
     tile_buf: Vec<u8>,
     rgba: Vec<u8>,
+    /// A block-compressed mapping's format.
+    block: Option<Bc>,
+    /// Its blocks go to the GPU as they are (else decoded on the CPU to RGBA8).
+    gpu_blocks: bool,
 }
 
 /// `a` less `b` as at most four rectangles (above, below, left, right of their intersection).
@@ -111,6 +124,16 @@ fn expand(bpt: usize, component: usize, src: &[u8], out: &mut Vec<u8>) {
     }
 }
 
+/// What the GPU holds for a block-compressed mapping on `gpu`: its blocks as they are where the
+/// adapter decodes BC textures, else RGBA8 decoded on the CPU ([`Texels::Bits8`]); other texels
+/// as `texels` says.
+pub fn on_gpu(texels: Texels, gpu_bc: bool) -> Texels {
+    match texels {
+        Texels::Blocks(_) if !gpu_bc => Texels::Bits8,
+        t => t,
+    }
+}
+
 /// What the GPU holds for a mapping's texel format: heights (the mapping's heights block says
 /// so: `l32f`, `l16`, `l16i`) as `R32Float` metres, colours as RGBA8 or RGBA16; the error says
 /// what it found when clipgpu cannot upload it, and what it accepts.
@@ -120,6 +143,7 @@ pub fn check_format(client: &Client) -> Result<Texels> {
         return Ok(Texels::Float32);
     }
     match clipmap::shm::layout::format_from_code(client.format_code) {
+        Some(f) if f.block().is_some() => Ok(Texels::Blocks(f.block().expect("a block format"))),
         Some(f) if f.ctype == ComponentType::U8 && (1..=4).contains(&f.components.count()) => Ok(Texels::Bits8),
         Some(f) if f.ctype == ComponentType::U16 && (1..=4).contains(&f.components.count()) => Ok(Texels::Bits16),
         found => {
@@ -131,7 +155,8 @@ pub fn check_format(client: &Client) -> Result<Texels> {
             };
             Err(anyhow!(
                 "{}: texel format {name} is not one clipgpu uploads{float}; expected colour of 8 or 16 bits a \
-                 component (L8, RGB8, RGBA8, L16, LA16, RGB16 or RGBA16), or heights (l32f, l16 or l16i with the \
+                 component (L8, RGB8, RGBA8, L16, LA16, RGB16 or RGBA16), block-compressed colour (bc1, bc4, bc5, \
+                 bc7), or heights (l32f, l16 or l16i with the \
                  mapping's heights block, docs/ELEVATION.md); serve the texture in one of those",
                 client.path().display()
             ))
@@ -142,10 +167,14 @@ pub fn check_format(client: &Client) -> Result<Texels> {
 impl Uploader {
     /// Nothing held yet. `heights`: the height texture's shading (its texels go to the GPU by
     /// [`HeightShading::to_gpu`]); `None` for colour.
+    /// `block`: the mapping's block format, if it is one (its tiles' blocks go to the GPU as they
+    /// are when `texels` is [`Texels::Blocks`], else decoded on the CPU).
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         levels: &[LevelShape],
         bpt: usize,
         texels: Texels,
+        block: Option<Bc>,
         heights: Option<HeightShading>,
         method: Method,
         budget: Option<u64>,
@@ -164,15 +193,40 @@ impl Uploader {
             heights,
             tile_buf: Vec::new(),
             rgba: Vec::new(),
+            block,
+            gpu_blocks: matches!(texels, Texels::Blocks(_)),
         }
     }
 
-    /// The texels read (`tile_buf`) as the GPU holds them (`rgba`).
-    fn convert(&mut self) {
-        match &self.heights {
-            Some(h) => h.to_gpu(&self.tile_buf, &mut self.rgba),
-            None => expand(self.bpt, self.component, &self.tile_buf, &mut self.rgba),
+    /// Bytes of one tile of level shape `l` as published: its texels, or its blocks.
+    fn tile_bytes(&self, l: &LevelShape) -> u64 {
+        match self.block {
+            Some(_) => l.tile[0].div_ceil(4) * l.tile[1].div_ceil(4) * self.bpt as u64,
+            None => l.tile[0] * l.tile[1] * self.bpt as u64,
         }
+    }
+
+    /// The texels read (`tile_buf`, a `size` tile) as the GPU holds them (`rgba`): a block
+    /// mapping's blocks as they are, or decoded (`bcdec_rs`) and widened as the CPU reads them.
+    fn convert(&mut self, size: [u64; 2]) {
+        match (&self.heights, self.block) {
+            (Some(h), _) => h.to_gpu(&self.tile_buf, &mut self.rgba),
+            (None, Some(_)) if self.gpu_blocks => {
+                self.rgba.clear();
+                self.rgba.extend_from_slice(&self.tile_buf);
+            }
+            (None, Some(bc)) => {
+                let texels = clipmap::shm::blocks::decode(bc, &self.tile_buf, size[0], size[1])
+                    .expect("a tile read whole is its blocks");
+                expand(clipmap::shm::blocks::decoded_bytes(bc), 1, &texels, &mut self.rgba);
+            }
+            (None, None) => expand(self.bpt, self.component, &self.tile_buf, &mut self.rgba),
+        }
+    }
+
+    /// The mapping's block format, if it is one.
+    pub fn block(&self) -> Option<Bc> {
+        self.block
     }
 
     /// Per level, per slot: the tile the GPU slot holds and whether its texels are there (the
@@ -189,8 +243,9 @@ impl Uploader {
         for (k, l) in r.levels.iter().enumerate() {
             let now = snap.levels[k].rect();
             for strip in minus(now, self.previous[k]) {
-                st.theory_bytes += strip.area() * bpt;
-                st.bound_bytes += tiles_covering(strip, l.tile).area() * l.tile[0] * l.tile[1] * bpt;
+                // A block format: bpt bytes a block of 16 texels.
+                st.theory_bytes += if self.block.is_some() { strip.area() * bpt / 16 } else { strip.area() * bpt };
+                st.bound_bytes += tiles_covering(strip, l.tile).area() * self.tile_bytes(l);
             }
             self.previous[k] = now;
         }
@@ -237,7 +292,7 @@ impl Uploader {
             // A region past the width (a texture that wraps in longitude) names tiles past the
             // level's: tile S is tile S mod the tiles across.
             let order: Vec<[i64; 2]> = order.into_iter().map(|[s, t]| [l.real_tile(s), t]).collect();
-            let tile_bytes = l.tile[0] * l.tile[1] * self.bpt as u64;
+            let tile_bytes = self.tile_bytes(&l);
             for tile in order {
                 let slot = clipmap::shm::layout::slot_index(l.grid, tile) as usize;
                 if self.held[k][slot] == (tile, true) {
@@ -251,7 +306,7 @@ impl Uploader {
                 self.tile_buf.resize(tile_bytes as usize, 0);
                 match client.read_tile(k, tile, &mut self.tile_buf) {
                     Ok(()) => {
-                        self.convert();
+                        self.convert(l.tile);
                         let at = [(slot as u64 % l.grid[0]) * l.tile[0], (slot as u64 / l.grid[0]) * l.tile[1]];
                         r.write_texels(
                             gpu,
@@ -261,6 +316,8 @@ impl Uploader {
                             &self.rgba,
                         );
                         st.bytes += tile_bytes;
+                        st.gpu_bytes += self.rgba.len() as u64;
+                        st.rgba8_bytes += l.tile[0] * l.tile[1] * 4;
                         st.writes += 1;
                         spent += tile_bytes;
                         self.held[k][slot] = (tile, true);
@@ -312,7 +369,7 @@ impl Uploader {
                         self.tile_buf.resize((piece.area() as usize) * self.bpt, 0);
                         let ok = match client.read_region_in(snap, k, piece, &mut self.tile_buf) {
                             Ok(()) => {
-                                self.convert();
+                                self.convert([piece.width(), piece.height()]);
                                 let at = [piece.s0 as u64 % period[0], piece.t0 as u64 % period[1]];
                                 r.write_texels(
                                     gpu,
@@ -322,6 +379,8 @@ impl Uploader {
                                     &self.rgba,
                                 );
                                 st.bytes += piece.area() * self.bpt as u64;
+                                st.gpu_bytes += self.rgba.len() as u64;
+                                st.rgba8_bytes += piece.area() * 4;
                                 st.writes += 1;
                                 true
                             }

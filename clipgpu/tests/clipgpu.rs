@@ -430,6 +430,108 @@ fn a_16_bit_texture_uploads_as_rgba16_and_samples_exactly() {
     }
 }
 
+/// The upload's bytes of every frame: (sent to the GPU, the same texels as RGBA8).
+fn upload_bytes(j: &Value) -> Vec<(u64, u64)> {
+    frames(j)
+        .iter()
+        .map(|f| (f["upload"]["gpu_bytes"].as_u64().unwrap(), f["upload"]["rgba8_bytes"].as_u64().unwrap()))
+        .collect()
+}
+
+#[test]
+fn block_compressed_textures_upload_their_blocks_and_match_the_reference_decoded_independently() {
+    // The same hash texture and flight as RGBA8, BC1 and BC7 (`clipmapd --format`): the blocks go
+    // to the GPU as they are where the adapter has BC textures (lavapipe has), the reference
+    // decodes them with bcdec_rs, and the frames are held to the criteria of the uncompressed ones.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let run = |name: &str, extra: &[&str]| {
+        let mut a = vec!["--name", name, "--shm-dir", d, "--frames", "6", "--size", "128x96"];
+        a.extend_from_slice(extra);
+        json(&a)
+    };
+    let _plain = Service::start(dir.path(), "plain", &[]);
+    let plain = run("plain", &["--filter", "point"]);
+    assert_bit_exact_at_gpu_coords(&plain);
+    assert_eq!(plain["texture"]["block_upload"], Value::Null);
+    let plain_bytes: u64 = upload_bytes(&plain).iter().map(|b| b.0).sum();
+    assert!(plain_bytes > 0);
+    for (bc, ratio) in [("bc1", 8), ("bc7", 4)] {
+        let _s = Service::start(dir.path(), bc, &["--format", bc, "--bc-quality", "fast"]);
+        let j = run(bc, &["--filter", "point"]);
+        assert_eq!(j["texture"]["format"], bc);
+        let gpu = j["texture"]["block_upload"].as_str().unwrap();
+        if gpu == "gpu" {
+            let want = if bc == "bc1" { "Bc1RgbaUnorm" } else { "Bc7RgbaUnorm" };
+            assert_eq!(j["texture"]["gpu_format"], want);
+            // Counted by the client, frame by frame: an eighth (BC1) or a quarter (BC7) of what
+            // the same tiles cost as RGBA8, and of what the RGBA8 service's same flight sent.
+            // Frame 0 also uploads the pyramid's 2 x 2 and 1 x 1 tops, a whole block each
+            // (RGBA8: 16 and 4 bytes).
+            let block = if bc == "bc1" { 8 } else { 16 };
+            let bytes = upload_bytes(&j);
+            assert_eq!((bytes[0].0 - 2 * block) * ratio, bytes[0].1 - 20, "{bc} frame 0");
+            for (n, &(sent, rgba8)) in bytes.iter().enumerate().skip(1) {
+                assert_eq!(sent * ratio, rgba8, "{bc} frame {n}");
+            }
+            assert!(bytes.iter().skip(1).any(|b| b.0 > 0), "{bc}: the flight uploads after frame 0");
+            assert_eq!(j["upload_bytes_vs_rgba8"].as_f64(), Some(1.0 / ratio as f64));
+            let sent: u64 = bytes.iter().map(|b| b.0).sum();
+            assert_eq!((sent - 2 * block) * ratio, plain_bytes - 20, "{bc}: bytes against the RGBA8 flight's");
+        } else {
+            assert_eq!(gpu, "cpu", "{}", j["texture"]);
+        }
+        assert_within_tolerance(&j);
+        if bc == "bc7" || gpu == "cpu" {
+            // BC7's decode is specified in integers: the GPU's equals bcdec_rs's, so the frames
+            // are held to the uncompressed texture's criteria.
+            assert_bit_exact_at_gpu_coords(&j);
+            assert_eq!(j["max_error_off_edges"], 0);
+        } else {
+            // BC1 leaves the rounding of its interpolated colours to the implementation: within
+            // the decoding tolerance of bcdec_rs's (docs/GPU.md, "Block-compressed textures"),
+            // and not everywhere identical (the comparison does see the GPU's own decode).
+            assert_eq!(j["tolerance"]["sampling_max_error"], 2, "{}", j["tolerance"]);
+            assert!(j["max_error_at_gpu_coords"].as_u64().unwrap() <= 2, "{}", j["per_frame"]);
+        }
+        let j = run(bc, &["--flight", "circle:300:12"]);
+        assert_within_tolerance(&j);
+        if bc == "bc7" || gpu == "cpu" {
+            assert_eq!(j["pixels_differing_at_gpu_coords"], 0, "{bc}: {}", j["per_frame"]);
+        }
+        // Decoded on the CPU instead (as on an adapter without BC textures): said so, RGBA8 sent,
+        // the same frames.
+        let out = clipgpu(&[
+            "--name",
+            bc,
+            "--shm-dir",
+            d,
+            "--frames",
+            "3",
+            "--size",
+            "96x64",
+            "--decode-blocks-on-cpu",
+            "--filter",
+            "point",
+            "--json",
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{err}");
+        assert!(err.contains("no BC textures") && err.contains("decoding the") && err.contains("on the CPU"), "{err}");
+        let j: Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(j["texture"]["block_upload"], "cpu");
+        assert_eq!(j["texture"]["gpu_format"], "Rgba8Uint");
+        assert_eq!(j["upload_bytes_vs_rgba8"].as_f64(), Some(1.0));
+        assert_within_tolerance(&j);
+        assert_bit_exact_at_gpu_coords(&j);
+        // Rects cut texels out of tiles: refused for blocks, saying what to use.
+        let out = clipgpu(&["--name", bc, "--shm-dir", d, "--frames", "1", "--upload", "rects"]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains("block-compressed") && err.contains("--upload tiles"), "{err}");
+    }
+}
+
 #[test]
 fn without_a_vulkan_driver_the_error_says_how_to_get_one() {
     let out = Command::new(CLIPGPU)
