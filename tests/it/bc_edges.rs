@@ -140,7 +140,7 @@ fn a_2_26_hash_texture_in_bc1_reads_only_its_window_and_publishes_the_encoders_b
     svc.wait_ready();
     let c = Client::attach(d, "big").unwrap();
     assert_eq!((c.levels.len(), c.levels[0].size), (27, [size, size]));
-    let inner = clipmap::service::procedural_source(clipmap::source::Procedural::Hash, size, 64, 16).unwrap();
+    let inner = clipmap_service::procedural_source(clipmap::source::Procedural::Hash, size, 64, 16).unwrap();
     let encoder = BcSource::new(inner, Bc::Bc1, BcQuality::Normal).unwrap();
     let read = check_published(&c, &svc, &encoder, "2^26");
     assert!(read.iter().filter(|r| r.0 == 0).count() >= 16, "level 0's window: {read:?}");

@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 #[test]
 fn level_view_texels_of_a_block_format_are_its_blocks_decoded() {
-    let inner = clipmap::service::procedural_source(Procedural::Hash, 256, 64, 16).unwrap();
+    let inner = clipmap_service::procedural_source(Procedural::Hash, 256, 64, 16).unwrap();
     for bc in [Bc::Bc1, Bc::Bc4, Bc::Bc7] {
         let src = Arc::new(BcSource::new(inner.clone(), bc, BcQuality::Fast).unwrap());
         let mut map = Clipmap::new(src.clone(), Settings::default()).unwrap();

@@ -2,7 +2,7 @@
 //! memory), [`ConfigLimits`] (the configuration reader's, against hostile or broken files),
 //! [`PrepLimits`] (data preparation's memory), and the fixed bounds on what a texture, a tile, a
 //! service, a picture or a flight may be (the constants). Each is checked once, where the value
-//! enters (`clipmap::config`, `clipmap::source::TextureDesc`, `clipmap::service::Options::check`,
+//! enters (`clipmap::config`, `clipmap::source::TextureDesc`, `clipmap_service::Options::check`,
 //! the tools' value parsers), and named in the error that refuses it. `docs/RELIABILITY.md`
 //! lists them with what each protects against.
 //!
