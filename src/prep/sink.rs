@@ -174,7 +174,7 @@ pub(crate) fn on_disk(layout: &Layout, level: &Level, texels: &[u8]) -> Vec<u8> 
     let from = layout.spec.format;
     let mut input = Vec::new();
     crate::source::bc::encoder_input(bc, from, texels, w, h, &mut input).expect("8-bit texels, checked by with_blocks");
-    let alpha = from.components.count() % 2 == 0;
+    let alpha = from.components.count().is_multiple_of(2);
     let mut out = vec![0u8; layout.tile_bytes(level) as usize];
     crate::source::bc::encode_padded(bc, quality, alpha, &input, w, h, &mut out);
     out

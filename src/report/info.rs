@@ -285,9 +285,9 @@ pub fn clip_texture_human(plan: &ClipTexturePlan) -> String {
             g.crs().name(),
             g.geotransform().0
         )),
-        None if plan.cog.is_none() && plan.source.is_none() => o.push_str(
-            "georef         none (no `#clipmap georef_` lines; docs/GEOREF.md)\n",
-        ),
+        None if plan.cog.is_none() && plan.source.is_none() => {
+            o.push_str("georef         none (no `#clipmap georef_` lines; docs/GEOREF.md)\n")
+        }
         None => {}
     }
     o.push_str(&format!("page_size      {}{}\n", plan.page_size, mark(d, "page_size")));

@@ -271,19 +271,34 @@ pub struct Counters {
 }
 
 /// The hedges of a fetcher and the requests they are a share of.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct Hedges {
     /// Requests sent (as [`Counters::requests`]).
     sent: AtomicU64,
     /// Hedges sent (each also counted in `sent` and in [`Counters::requests`]).
     hedged: AtomicU64,
+    /// The most hedges, as a share of the requests sent; 0: none.
+    share: f64,
+}
+
+impl Default for Hedges {
+    /// Within [`flight::HEDGE_SHARE`] of the requests.
+    fn default() -> Self {
+        Hedges::within(flight::HEDGE_SHARE)
+    }
 }
 
 impl Hedges {
-    /// Takes one hedge if it keeps the hedges within [`flight::HEDGE_SHARE`] of the requests.
+    /// Hedges within `share` of the requests sent (0: none).
+    pub fn within(share: f64) -> Hedges {
+        Hedges { sent: AtomicU64::new(0), hedged: AtomicU64::new(0), share }
+    }
+
+    /// Takes one hedge if it keeps the hedges within their share of the requests.
     pub fn take(&self) -> bool {
         let sent = self.sent.load(Ordering::Relaxed) as f64;
-        let within = |h: u64| ((h + 1) as f64 <= flight::HEDGE_SHARE * (sent + 1.0)).then_some(h + 1);
+        let share = self.share;
+        let within = |h: u64| ((h + 1) as f64 <= share * (sent + 1.0)).then_some(h + 1);
         let taken = self.hedged.fetch_update(Ordering::Relaxed, Ordering::Relaxed, within).is_ok();
         if taken {
             // A hedge is a request too.
@@ -442,6 +457,7 @@ pub struct Fetcher {
 impl Fetcher {
     /// A fetcher over the two backends.
     pub fn new(opts: RemoteOptions, http: Arc<dyn Backend>, s3: Arc<dyn Backend>) -> Fetcher {
+        let hedges = Arc::new(Hedges::within(f64::from(opts.hedge_percent) / 100.0));
         Fetcher {
             opts,
             endpoints: Mutex::new(HashMap::new()),
@@ -450,7 +466,7 @@ impl Fetcher {
             counters: Counters::default(),
             merged: Merged::default(),
             seen: super::seen::Seen::default(),
-            hedges: Arc::default(),
+            hedges,
         }
     }
 
@@ -672,10 +688,10 @@ impl Fetcher {
     }
 
     /// How long a ranged read of `ep` may go unanswered before it is hedged, while hedges are
-    /// within their share of the requests ([`flight::HEDGE_SHARE`]).
+    /// within their share of the requests ([`RemoteOptions::hedge_percent`]).
     fn hedge_after(&self, ep: &Endpoint) -> Option<Duration> {
         let sent = self.hedges.sent.load(Ordering::Relaxed) as f64;
-        if (self.hedges.hedged() + 1) as f64 > flight::HEDGE_SHARE * (sent + 1.0) {
+        if (self.hedges.hedged() + 1) as f64 > self.hedges.share * (sent + 1.0) {
             return None;
         }
         ep.state.lock().unwrap_or_else(|e| e.into_inner()).sizing.hedge_after()
@@ -1185,6 +1201,17 @@ mod tests {
         // Twenty more requests: one more hedge.
         h.sent.fetch_add(20, Ordering::Relaxed);
         assert_eq!((0..10).filter(|_| h.take()).count(), 1);
+    }
+
+    #[test]
+    fn a_hedge_share_of_zero_percent_hedges_nothing() {
+        let opts = RemoteOptions::from_vars(|k| (k == "CLIPMAP_REMOTE_HEDGE_PERCENT").then(|| "0".into())).unwrap();
+        assert_eq!(opts.hedge_percent, 0);
+        let h = Hedges::within(f64::from(opts.hedge_percent) / 100.0);
+        h.sent.store(1_000_000, Ordering::Relaxed);
+        assert!(!h.take(), "hedging off");
+        let e = RemoteOptions::from_vars(|k| (k == "CLIPMAP_REMOTE_HEDGE_PERCENT").then(|| "51".into())).unwrap_err();
+        assert_eq!(e.var, "CLIPMAP_REMOTE_HEDGE_PERCENT");
     }
 
     #[test]

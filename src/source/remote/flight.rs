@@ -41,7 +41,8 @@ const HEDGE_SAMPLES: usize = 20;
 /// once more (a hedge): about one read in twenty at most, fewer with the share's bound.
 pub const HEDGE_QUANTILE: f64 = 0.95;
 
-/// The most hedges, as a share of the requests sent.
+/// The most hedges, as a share of the requests sent, by default (`CLIPMAP_REMOTE_HEDGE_PERCENT`
+/// changes it; 0 turns hedging off).
 pub const HEDGE_SHARE: f64 = 0.05;
 
 /// A read is hedged no sooner than this many times the median latency...

@@ -38,6 +38,9 @@ pub struct RemoteOptions {
     pub cache_dir: Option<PathBuf>,
     /// Bound on the disk cache's bytes (least recently used files go first).
     pub cache_bytes: u64,
+    /// The most hedged reads, in percent of the requests sent ([`super::flight`]); 0 turns
+    /// hedging off (a store billed per request, or a test counting the requests a server sees).
+    pub hedge_percent: u32,
 }
 
 impl Default for RemoteOptions {
@@ -52,12 +55,13 @@ impl Default for RemoteOptions {
             merge_bytes: 4 << 20,
             cache_dir: None,
             cache_bytes: 1 << 30,
+            hedge_percent: 5,
         }
     }
 }
 
 /// The environment variables [`RemoteOptions::from_env`] reads, with what each sets.
-pub const ENV_VARS: [(&str, &str); 9] = [
+pub const ENV_VARS: [(&str, &str); 10] = [
     ("CLIPMAP_REMOTE_TIMEOUT_MS", "whole-request timeout, milliseconds (default 10000)"),
     ("CLIPMAP_REMOTE_CONNECT_TIMEOUT_MS", "connect timeout, milliseconds (default 2000)"),
     ("CLIPMAP_REMOTE_RETRIES", "retries after the first attempt (default 7)"),
@@ -67,6 +71,7 @@ pub const ENV_VARS: [(&str, &str); 9] = [
     ("CLIPMAP_REMOTE_MERGE_BYTES", "largest merged range request, bytes (default 4194304)"),
     ("CLIPMAP_REMOTE_CACHE_DIR", "directory of the local disk cache (default: no cache)"),
     ("CLIPMAP_REMOTE_CACHE_BYTES", "bound on the disk cache, bytes (default 1073741824)"),
+    ("CLIPMAP_REMOTE_HEDGE_PERCENT", "most hedged reads, percent of the requests; 0 turns hedging off (default 5)"),
 ];
 
 /// A `CLIPMAP_REMOTE_*` variable with a value that cannot be used.
@@ -125,6 +130,9 @@ impl RemoteOptions {
         }
         if let Some(n) = num("CLIPMAP_REMOTE_CACHE_BYTES", 1, u64::MAX, "a positive number of bytes")? {
             o.cache_bytes = n;
+        }
+        if let Some(n) = num("CLIPMAP_REMOTE_HEDGE_PERCENT", 0, 50, "a percentage from 0 (no hedging) to 50")? {
+            o.hedge_percent = n as u32;
         }
         Ok(o)
     }

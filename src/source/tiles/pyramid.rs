@@ -386,7 +386,7 @@ impl PyramidSource {
         // size - at[1] - region[1] ..= size - 1 - at[1].
         let north0 = size[1] - at[1] - region[1];
         let north1 = size[1] - 1 - at[1];
-        if [tw, th] == [ts, ts] && region == [ts, ts] && at[0] % ts == 0 && north0 % ts == 0 {
+        if [tw, th] == [ts, ts] && region == [ts, ts] && at[0].is_multiple_of(ts) && north0.is_multiple_of(ts) {
             // The texture tile is one whole pyramid tile: decoded straight into `out`.
             let addr = TileAddr { z, x: (at[0] / ts) as u32, y: (north0 / ts) as u32 };
             if self.pyramid_tile_into(tile, addr, out)? {

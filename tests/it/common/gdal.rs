@@ -51,10 +51,16 @@ impl Served {
     /// attaches to its mapping, within 30 s.
     // The child is waited for on every path: by `Drop` once it is in a `Served`, here before the
     // panic when no mapping appears.
-    #[allow(clippy::zombie_processes)]
     pub fn start(file: &Path, clip: u64, name: &str, dir: &Path) -> Served {
+        Served::start_with(file, clip, name, dir, &[])
+    }
+
+    /// [`Served::start`] with these environment variables set for the service.
+    #[allow(clippy::zombie_processes)]
+    pub fn start_with(file: &Path, clip: u64, name: &str, dir: &Path, envs: &[(&str, &str)]) -> Served {
         let err = dir.join(format!("{name}.err"));
         let child = Command::new(env!("CARGO_BIN_EXE_clipmapd"))
+            .envs(envs.iter().copied())
             .arg(file)
             .args(["--clip", &clip.to_string(), "--tick-hz", "120", "--name", name, "--shm-dir"])
             .arg(dir)

@@ -636,7 +636,9 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
     };
     let nginx_pid = nginx.pid();
     // curl's passes, and curl's and nginx's CPU microseconds a tile over them.
-    let curl_run = |transfers: &[Transfer]| -> anyhow::Result<((Vec<f64>, Spent), (f64, f64))> {
+    // (curl's passes, and (curl's, nginx's) CPU microseconds a tile)
+    type CurlRun = ((Vec<f64>, Spent), (f64, f64));
+    let curl_run = |transfers: &[Transfer]| -> anyhow::Result<CurlRun> {
         let (c0, n0) = (tiles_cpu::children_s(), tiles_cpu::pid_s(nginx_pid));
         let r = tiles_peers::curl_passes(&curl, dir, transfers, depth, passes, ids.len() as u64)?;
         let per = 1e6 / (passes * ids.len() as u64) as f64;
