@@ -913,10 +913,13 @@ fn a_service_behind_a_delaying_proxy_shows_coarser_levels_only_right_texels_and_
     let d = dir.path();
     let pyr = prepare(&d.join("pyr"), 4096, 64, 256, &[]);
     let nginx = Nginx::serve(&pyr);
-    // Every tile request waits 60 ms in the proxy: a link far slower than the flight below asks for.
+    // Every tile request waits 60 ms in the proxy, and at most 4 are in flight (a store that
+    // allows no more, as the cap says): about 66 tiles a second, a link far slower than the
+    // flight below asks for. (Without the cap the source sizes its requests in flight to the
+    // rate and keeps level 0 whole on most of this flight.)
     let slow = FaultProxy::start(nginx.port, Schedule::pass(), 60);
     let ct = point_config_at(&pyr, &d.join("cfg"), &slow.url(), &[]);
-    let svc = Service::start(d, "link", &ct, &[]);
+    let svc = Service::start(d, "link", &ct, &[("CLIPMAP_REMOTE_IN_FLIGHT".into(), "4".into())]);
     let mut c = Control::open(&svc.socket);
     let (st, ok) =
         wait_stats(&mut c, Duration::from_secs(30), |st| st["min_lod"].as_f64() == Some(0.0) && all_at_rest(st));

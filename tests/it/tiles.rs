@@ -593,19 +593,29 @@ fn a_ct_whose_header_does_not_describe_its_tile_source_is_a_source_mismatch_at_t
     // What clipprep wrote describes the pyramid: no mismatch.
     let (status, out) = cliptex(d, &["validate", "cfg/cfg.ct"]);
     assert!(status.success() && !out.contains("source-mismatch"), "{out}");
-    // Zooms 0..2 of 256-texel tiles are 1024 texels a side; a .ct saying 2048 is refused.
-    let line = text.lines().position(|l| l.trim_start().starts_with("virt_size")).expect("a virt_size line") + 1;
-    let bad: String = text
-        .lines()
-        .map(|l| if l.trim_start().starts_with("virt_size") { "virt_size 2048 2048 1" } else { l })
-        .map(|l| format!("{l}\n"))
-        .collect();
+    // The PNG tiles are RGBA8; a .ct saying RGB8 is refused at its format lines. (A wrong
+    // `virt_size` also changes how many image cache levels the file must list, an error that
+    // `validate` reports first: the format is the header field that changes nothing else.)
+    assert!(text.contains("int_format PFTEX_RGBA_8") && text.contains("img_format PFTEX_RGBA\n"), "{text}");
+    let line = text.lines().position(|l| l.trim_start().starts_with("ext_format")).expect("an ext_format line") + 1;
+    let bad = text
+        .replace("int_format PFTEX_RGBA_8", "int_format PFTEX_RGB_8")
+        .replace("img_format PFTEX_RGBA\n", "img_format PFTEX_RGB\n");
     std::fs::write(d.join("cfg/bad.ct"), bad).unwrap();
+    // Its image cache says the same (a file whose levels disagree is another error).
+    let ic = std::fs::read_to_string(d.join("cfg/L00.ic")).unwrap();
+    let ic = ic
+        .replace("int_format PFTEX_RGBA_8", "int_format PFTEX_RGB_8")
+        .replace("img_format PFTEX_RGBA\n", "img_format PFTEX_RGB\n");
+    std::fs::write(d.join("cfg/L00.ic"), ic).unwrap();
     let (status, out) = cliptex(d, &["validate", "cfg/bad.ct"]);
     assert_eq!(status.code(), Some(1), "{out}");
-    assert!(out.contains(&format!("bad.ct:{line}:")), "at the virt_size line: {out}");
-    assert!(out.contains("error: `virt_size` does not describe the tile source `xyz:"), "{out}");
-    assert!(out.contains("virt_size 1024 1024 1 (zooms 0..2 of 256-texel tiles"), "{out}");
+    assert!(out.contains(&format!("bad.ct:{line}:")), "at the format lines: {out}");
+    assert!(
+        out.contains("error: `ext_format / int_format / img_format` does not describe the tile source `xyz:"),
+        "{out}"
+    );
+    assert!(out.to_lowercase().contains("rgba8 texels (rgb8 for jpeg tiles, rgba8 otherwise)"), "{out}");
     let (_, out) = cliptex(d, &["validate", "--json", "cfg/bad.ct"]);
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     let codes: Vec<&str> =
@@ -613,5 +623,5 @@ fn a_ct_whose_header_does_not_describe_its_tile_source_is_a_source_mismatch_at_t
     assert!(codes.contains(&"source-mismatch"), "{v}");
     // Nor is it served: `cliptex info` says why.
     let (status, out) = cliptex(d, &["info", "cfg/bad.ct"]);
-    assert!(!status.success() && out.contains("`virt_size` does not describe the tile source"), "{out}");
+    assert!(!status.success() && out.contains("does not describe the tile source"), "{out}");
 }
