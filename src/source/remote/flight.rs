@@ -35,7 +35,7 @@ const LATENCY_WEIGHT: f64 = 0.1;
 const KEPT_LATENCIES: usize = 200;
 
 /// Answers measured before a read is hedged at all.
-const HEDGE_SAMPLES: usize = 20;
+pub const HEDGE_SAMPLES: usize = 20;
 
 /// The quantile of an endpoint's recent latencies past which a read still unanswered is sent
 /// once more (a hedge): about one read in twenty at most, fewer with the share's bound.

@@ -5,7 +5,7 @@
 //!   the timed passes;
 //! - its stages: a pass that only fetches each tile's bytes through the kind's archive (the
 //!   HTTP client, the remote stack, the archive's directories), and a pass of the same pyramid
-//!   source over the tiles' bytes held in memory ([`MemoryArchive`]: the checks, the decode into
+//!   source over the tiles' bytes held in memory (`MemoryArchive`: the checks, the decode into
 //!   the slot, the copies), each on a fresh open, `depth` threads, this process's CPU clock;
 //! - the decode alone, each thread's own CPU clock around the decoder call;
 //! - curl: its processes' CPU (the children's user and system time that the kernel adds up when
