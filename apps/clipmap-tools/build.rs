@@ -4,7 +4,7 @@
 fn main() {
     let manifest =
         std::path::PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
-    let root = manifest.parent().and_then(|crates| crates.parent()).expect("the package lives in crates/clipmap-tools");
+    let root = manifest.parent().and_then(|apps| apps.parent()).expect("the package lives in apps/clipmap-tools");
     println!("cargo:rustc-env=CLIPMAP_ROOT={}", root.display());
     println!("cargo:rerun-if-changed=build.rs");
 }

@@ -4,7 +4,7 @@
 //! `update_vs_memcpy` is gone (there is nothing left to copy). No timing is asserted.
 //! `--install-peers` sends the installer's output to standard error, not into the JSON.
 
-#[path = "../../crates/clipmap-tools/src/bin/clipbench/perf/install.rs"]
+#[path = "../../apps/clipmap-tools/src/bin/clipbench/perf/install.rs"]
 mod install;
 
 fn run_perf(dir: &std::path::Path, extra: &[&str]) -> serde_json::Value {

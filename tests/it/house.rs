@@ -40,7 +40,7 @@ const FLOORS: &[(&str, u32)] = &[
     ("inspect", 10),
     ("accuracy", 10),
     ("demo", 11),
-    // The binaries (crates/clipmap-tools/src/bin), above everything they run.
+    // The binaries (apps/clipmap-tools/src/bin), above everything they run.
     ("bin", 12),
 ];
 
@@ -118,9 +118,9 @@ const SOURCES: &[(&str, Option<&str>)] = &[
     ("src", None),
     ("crates/clipmap-base/src", None),
     ("crates/clipmap-shm/src", Some("shm")),
-    ("crates/clipmap-service/src", Some("service")),
-    ("crates/clipmap-tools/src", None),
-    ("crates/clipmap-tools/src/bin", Some("bin")),
+    ("apps/clipmap-service/src", Some("service")),
+    ("apps/clipmap-tools/src", None),
+    ("apps/clipmap-tools/src/bin", Some("bin")),
 ];
 
 /// The modules a file names: through `crate::` (unless the whole crate is one module, `whole`),
@@ -159,7 +159,7 @@ fn every_module_names_only_modules_on_lower_floors() {
             let top = whole.unwrap_or(first).to_string();
             let name = f.file_name().unwrap().to_str().unwrap();
             // The binaries are scanned as their own entry (`bin`), not as the tools' library.
-            if whole.is_none() && first == "bin" && dir == "crates/clipmap-tools/src" {
+            if whole.is_none() && first == "bin" && dir == "apps/clipmap-tools/src" {
                 continue;
             }
             if (whole.is_none() && first == "lib")
@@ -200,8 +200,8 @@ const CRATE_FLOORS: &[(&str, &str, u32)] = &[
     ("clipmap-base", "crates/clipmap-base", 1),
     ("clipmap-shm", "crates/clipmap-shm", 2),
     ("clipmap", ".", 3),
-    ("clipmap-service", "crates/clipmap-service", 4),
-    ("clipmap-tools", "crates/clipmap-tools", 5),
+    ("clipmap-service", "apps/clipmap-service", 4),
+    ("clipmap-tools", "apps/clipmap-tools", 5),
     ("clipgpu", "clipgpu", 5),
 ];
 
