@@ -8,16 +8,16 @@
 
 pub mod cog;
 mod ct;
-pub mod env;
+pub(crate) mod env;
 mod fields;
-pub mod formats;
+pub(crate) mod formats;
 pub mod georef;
 mod height;
 mod ic;
 mod naming;
 mod paging;
-pub mod params;
-pub mod printf;
+pub(crate) mod params;
+pub(crate) mod printf;
 pub mod source_line;
 mod tile;
 mod values;

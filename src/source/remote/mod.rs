@@ -10,12 +10,12 @@
 //! and a slow endpoint holds back only its own tiles.
 
 pub mod disk;
-pub mod fetch;
+pub(crate) mod fetch;
 pub mod flight;
 pub mod http;
-pub mod location;
+pub(crate) mod location;
 pub mod object;
-pub mod options;
+pub(crate) mod options;
 pub mod range;
 mod retry_after;
 mod runtime;

@@ -10,8 +10,8 @@
 
 mod decode;
 pub mod pyramid;
-pub mod reopen;
-pub mod template;
+pub(crate) mod reopen;
+pub(crate) mod template;
 
 pub use pyramid::{PyramidError, PyramidOptions, PyramidSource};
 pub use template::{TemplateArchive, TemplateOptions};
