@@ -57,7 +57,9 @@
 //! is `pub(crate)`. Every module of the map above is public but `cache`. Inside them, the types and
 //! functions users name are re-exported where they look for them (`clip::Clipmap`,
 //! `source::{FileSource, CogSource, TileSource}`, `config::Diagnostic`, `plan::Env`,
-//! `prep::{Job, Spec}`, ...), and only these submodules are public:
+//! `prep::{Job, Spec}`, ...), every type a public signature names among them (no public item
+//! names a type users cannot name: `rustc -W unnameable_types` finds none), and only these
+//! submodules are public:
 //!
 //! | module | public submodules, and what for |
 //! |---|---|
@@ -65,13 +67,13 @@
 //! | [`config`] | `tokens` (the token table: `cliptex tokens`, the tests of every token) |
 //! | [`growing`] | `index`, `input`, `rebuild`, `serve`, `store`, `watch`: a growing texture's stages, which the service's patch admission and `clipbench growing` drive one by one |
 //! | [`paging`] | `adaptive` (the default policy's per-level paging and its reasons, in the service's statistics) |
-//! | [`plan`] | `cog`, `georef`, `source_line`: the `#clipmap` extension lines the tools read and write |
+//! | [`plan`] | `cog`, `georef`, `source_line` (the `#clipmap` extension lines the tools read and write); `printf`, `params` (Performer's tile-name formats and their parameters, the vocabulary of `TileNaming`) |
 //! | [`prep`] | `cog`, `cog_config`, `error`, `jpeg_check`, `layout`, `output`, `publish`, `source`, `tiff_stream`: `clipprep`'s stages |
 //! | [`queue`] | `priority` (read priorities, pure functions) |
-//! | [`report`] | `check`, `dump`, `exit`, `hypsometric`, `info`, `label`, `picture`, `validate`: one a report the tools print |
+//! | [`report`] | `check`, `dump`, `exit`, `hypsometric`, `info`, `label`, `picture`, `plan`, `validate`: each a report (or its pictures and exit statuses) the tools print |
 //! | [`sample`] | `blocks` (block-compressed texels decoded for sampling) |
 //! | [`shm`] | the `clipmap-shm` crate whole, and `shared_reads` (tiles a source takes from a mapping) |
-//! | [`source`] | `cog`, `configured`, `procedural`, `remote` (with `disk`, `flight`, `http`, `object`, `range`, `s3`), `tiles` (with `mbtiles`, `pmtiles` and its `directory`, `pyramid`): the sources the tools open and measure directly |
+//! | [`source`] | `cog`, `configured`, `procedural`, `remote` (with `disk`, `flight`, `http`, `object`, `range`, `s3`, `seen`), `tiles` (with `mbtiles`, `pmtiles` and its `directory`, `pyramid`): the sources the tools open and measure directly; `range` (the byte seam: `RangeRead`, `RangeReader`, a reader a tile archive is opened from) and `merge` (the one merge of ranges and its figure, `Merged`, which the remote reader's statistics carry) |
 //!
 //! `clip`, `cli`, `place`, `roam` and `runtime` have no public submodule. `tests/it/api.rs` holds
 //! this list and fails on a new public module or crate-root re-export.

@@ -23,11 +23,12 @@ mod refresh;
 pub(crate) mod stats;
 pub(crate) mod views;
 
+pub use crate::cache::TileState;
 pub use load::{next_min_lod, target_min_lod};
 pub use stats::{FaultCounts, Stats, TickReport};
 pub use views::{demotion, offset_for_footprint, LodWindow, ViewError, ViewId, MAX_VIEWS, PRIMARY};
 
-use crate::cache::{Admit, TileCache, TileState};
+use crate::cache::{Admit, TileCache};
 use crate::geom::{aligned_centre, level_grid, tile_texels, tiles_covering, LevelFrame, LevelShape, Rect};
 use crate::limits::Limits;
 use crate::paging::{adaptive, EvictionKind, PrefetchKind};

@@ -11,7 +11,7 @@ pub(crate) mod syntax;
 pub mod tokens;
 
 pub use diag::{Diagnostic, Diagnostics, Severity, Span};
-pub use syntax::{Entry, Spanned, SyntaxFile, Value};
+pub use syntax::{Entry, Extension, Spanned, SyntaxFile, Value};
 pub use tokens::{FileKind, TokenId};
 
 use std::path::Path;

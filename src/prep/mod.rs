@@ -46,7 +46,7 @@ pub mod tiff_stream;
 pub use error::PrepError;
 pub use filter::Filter;
 pub use heights::{HeightInput, HeightPrep};
-pub use inset::{Inset, TileRole};
+pub use inset::{Inset, SparseLevel, TileRect, TileRole};
 pub use layout::{Compression, Layout, Level, LevelKind, Spec, TileLocation};
 pub use pipeline::{run, Job, Source, Summary};
 

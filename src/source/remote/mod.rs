@@ -23,7 +23,8 @@ pub mod s3;
 pub mod seen;
 
 pub use fetch::{
-    Backend, Failure, Fetcher, Got, Hedge, Hedges, Object, ObjectRequest, ReadError, Segments, Sink, Versioned,
+    Backend, Counters, EndpointFlight, Failure, Fetcher, Got, Hedge, Hedges, Object, ObjectRequest, ReadError,
+    Segments, Sink, Versioned,
 };
 pub use location::{Location, LocationError, Scheme};
 pub use options::{OptionsError, RemoteOptions};

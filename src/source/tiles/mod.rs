@@ -14,7 +14,7 @@ pub(crate) mod reopen;
 pub(crate) mod template;
 
 pub use pyramid::{PyramidError, PyramidOptions, PyramidSource};
-pub use template::{TemplateArchive, TemplateOptions};
+pub use template::{Template, TemplateArchive, TemplateOptions};
 
 use super::FaultKind;
 use crate::place::Place;

@@ -17,3 +17,4 @@ pub mod directory;
 pub(crate) mod header;
 
 pub use archive::{PmtilesArchive, DEFAULT_TILE_SIZE, LEAF_CACHE_BYTES, OPEN_BYTES};
+pub use header::{Compression, Header};
