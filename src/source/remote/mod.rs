@@ -177,14 +177,14 @@ impl Remote {
 
     /// The whole object under `key` ([`disk::object_key`]) from the disk cache, checked, at most
     /// `max` bytes; counted as a cache hit.
-    pub fn cached_object(&self, key: &str, max: u64) -> Option<Vec<u8>> {
+    pub(crate) fn cached_object(&self, key: &str, max: u64) -> Option<Vec<u8>> {
         let bytes = self.cache.as_ref()?.get_object(key, max)?;
         self.fetcher.counters.cache_hits.fetch_add(1, Ordering::Relaxed);
         Some(bytes)
     }
 
     /// Keeps `bytes` as the whole object under `key` in the disk cache, if there is one.
-    pub fn keep_object(&self, key: &str, bytes: &[u8]) {
+    pub(crate) fn keep_object(&self, key: &str, bytes: &[u8]) {
         if let Some(c) = &self.cache {
             c.put(key, bytes);
         }
