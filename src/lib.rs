@@ -57,8 +57,8 @@
 //! is `pub(crate)`. Every module of the map above is public but `cache`. Inside them, the types and
 //! functions users name are re-exported where they look for them (`clip::Clipmap`,
 //! `source::{FileSource, CogSource, TileSource}`, `config::Diagnostic`, `plan::Env`,
-//! `prep::{Job, Spec}`, ...), every type a public signature names among them (no public item
-//! names a type users cannot name: `rustc -W unnameable_types` finds none), and only these
+//! `prep::{Job, Spec}`, ...), and so is every type a public signature names (no public item
+//! names a type users cannot name: `rustc -W unnameable_types` finds none). Only these
 //! submodules are public:
 //!
 //! | module | public submodules, and what for |
@@ -73,7 +73,7 @@
 //! | [`report`] | `check`, `dump`, `exit`, `hypsometric`, `info`, `label`, `picture`, `plan`, `validate`: each a report (or its pictures and exit statuses) the tools print |
 //! | [`sample`] | `blocks` (block-compressed texels decoded for sampling) |
 //! | [`shm`] | the `clipmap-shm` crate whole, and `shared_reads` (tiles a source takes from a mapping) |
-//! | [`source`] | `cog`, `configured`, `procedural`, `remote` (with `disk`, `flight`, `http`, `object`, `range`, `s3`, `seen`), `tiles` (with `mbtiles`, `pmtiles` and its `directory`, `pyramid`): the sources the tools open and measure directly; `range` (the byte seam: `RangeRead`, `RangeReader`, a reader a tile archive is opened from) and `merge` (the one merge of ranges and its figure, `Merged`, which the remote reader's statistics carry) |
+//! | [`source`] | `cog`, `configured`, `procedural`, `remote` (with `disk`, `flight`, `http`, `object`, `range`, `s3`, `seen`), `tiles` (with `mbtiles`, `pmtiles` and its `directory`, `pyramid`): the sources the tools open and measure directly; `range` with its `reader` (the byte seam: `RangeRead`, `RangeReader`, what a tile archive is opened from) and `merge` (the one merge of ranges and its figure, `Merged`, which the remote reader's statistics carry) |
 //!
 //! `clip`, `cli`, `place`, `roam` and `runtime` have no public submodule. `tests/it/api.rs` holds
 //! this list and fails on a new public module or crate-root re-export.
