@@ -73,7 +73,7 @@
 //! | [`report`] | `check`, `dump`, `exit`, `hypsometric`, `info`, `label`, `picture`, `plan`, `validate`: each a report (or its pictures and exit statuses) the tools print |
 //! | [`sample`] | `blocks` (block-compressed texels decoded for sampling) |
 //! | [`shm`] | the `clipmap-shm` crate whole, and `shared_reads` (tiles a source takes from a mapping) |
-//! | [`source`] | `cog`, `configured`, `procedural`, `remote` (with `disk`, `flight`, `http`, `object`, `range`, `s3`, `seen`), `tiles` (with `mbtiles`, `pmtiles` and its `directory`, `pyramid`): the sources the tools open and measure directly; `range` with its `reader` (the byte seam: `RangeRead`, `RangeReader`, what a tile archive is opened from) and `merge` (the one merge of ranges and its figure, `Merged`, which the remote reader's statistics carry) |
+//! | [`source`] | `cog`, `configured`, `procedural`, `remote` (with `disk`, `flight`, `http`, `object`, `options` and its `ENV_VARS`, `range`, `s3`, `seen`), `tiles` (with `mbtiles`, `pmtiles` and its `directory`, `pyramid`): the sources the tools open and measure directly; `range` with its `reader` (the byte seam: `RangeRead`, `RangeReader`, what a tile archive is opened from) and `merge` (the one merge of ranges and its figure, `Merged`, which the remote reader's statistics carry) |
 //!
 //! `clip`, `cli`, `place`, `roam` and `runtime` have no public submodule. `tests/it/api.rs` holds
 //! this list and fails on a new public module or crate-root re-export.

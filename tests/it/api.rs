@@ -128,6 +128,7 @@ const API: &[(&str, &[&str])] = &[
             "mod source::remote::flight",
             "mod source::remote::http",
             "mod source::remote::object",
+            "mod source::remote::options",
             "mod source::remote::range",
             "mod source::remote::s3",
             "mod source::remote::seen",

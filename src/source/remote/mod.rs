@@ -15,7 +15,7 @@ pub mod flight;
 pub mod http;
 pub(crate) mod location;
 pub mod object;
-pub(crate) mod options;
+pub mod options;
 pub mod range;
 mod retry_after;
 mod runtime;

@@ -60,6 +60,20 @@ impl Default for RemoteOptions {
     }
 }
 
+/// The environment variables [`RemoteOptions::from_env`] reads, with what each sets.
+pub const ENV_VARS: [(&str, &str); 10] = [
+    ("CLIPMAP_REMOTE_TIMEOUT_MS", "whole-request timeout, milliseconds (default 10000)"),
+    ("CLIPMAP_REMOTE_CONNECT_TIMEOUT_MS", "connect timeout, milliseconds (default 2000)"),
+    ("CLIPMAP_REMOTE_RETRIES", "retries after the first attempt (default 7)"),
+    ("CLIPMAP_REMOTE_BACKOFF_MS", "first backoff, milliseconds (default 5)"),
+    ("CLIPMAP_REMOTE_BACKOFF_MAX_MS", "longest backoff and Retry-After obeyed, milliseconds (default 2000)"),
+    ("CLIPMAP_REMOTE_IN_FLIGHT", "most requests in flight per endpoint; sized within it (default 256)"),
+    ("CLIPMAP_REMOTE_MERGE_BYTES", "largest merged range request, bytes (default 4194304)"),
+    ("CLIPMAP_REMOTE_CACHE_DIR", "directory of the local disk cache (default: no cache)"),
+    ("CLIPMAP_REMOTE_CACHE_BYTES", "bound on the disk cache, bytes (default 1073741824)"),
+    ("CLIPMAP_REMOTE_HEDGE_PERCENT", "most hedged reads, percent of the requests; 0 turns hedging off (default 5)"),
+];
+
 /// A `CLIPMAP_REMOTE_*` variable with a value that cannot be used.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("environment variable {var}: found `{found}`, expected {expected}; set it to such a value or unset it for the default")]
