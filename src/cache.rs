@@ -12,7 +12,7 @@ use crate::geom::{wrap, Rect};
 use crate::shm::layout::SlotState;
 use crate::shm::memory::Assign;
 use crate::shm::{ImageMemory, SlotKeeper};
-use crate::source::{Delivered, FaultKind, TextureDesc, TileId};
+use crate::source::{Delivered, FaultKind, TileId};
 use serde::Serialize;
 use std::sync::Arc;
 
@@ -124,14 +124,13 @@ pub struct TileCache {
     /// The memory's one keeper: assigning and reopening slots take it `&mut`, copying settled
     /// ones `&` (`ImageMemory::read_settled`), so no copy overlaps a slot's rewrite.
     keeper: SlotKeeper,
-    tile_bytes: Vec<usize>,
 }
 
 impl TileCache {
-    /// Empty caches for every level of `desc`, level `k` `grids[k]` tiles a side (the engine's
+    /// Empty caches for every level, level `k` `grids[k]` tiles a side (the engine's
     /// `crate::geom::level_grid`), their slots in `memory` (laid out for the same grids), which
     /// `keeper` (`ImageMemory::take_keeper`) is the keeper of.
-    pub fn new(desc: &TextureDesc, grids: &[[u64; 2]], memory: Arc<ImageMemory>, keeper: SlotKeeper) -> Self {
+    pub fn new(grids: &[[u64; 2]], memory: Arc<ImageMemory>, keeper: SlotKeeper) -> Self {
         let levels = grids
             .iter()
             .map(|&grid| LevelCache {
@@ -141,8 +140,7 @@ impl TileCache {
                 period: None,
             })
             .collect();
-        let tile_bytes = (0..desc.level_count() as u32).map(|k| desc.tile_bytes(k)).collect();
-        TileCache { levels, memory, keeper, tile_bytes }
+        TileCache { levels, memory, keeper }
     }
 
     /// The memory the slots live in.
@@ -162,7 +160,8 @@ impl TileCache {
         level.period = period;
     }
 
-    /// Slots per axis of level `k`'s grid.
+    /// Slots per axis of level `k`'s grid (the engine keeps its own; the tests check this).
+    #[cfg(test)]
     pub fn grid(&self, k: u32) -> [u64; 2] {
         self.levels[k as usize].grid
     }
@@ -350,18 +349,11 @@ impl TileCache {
         out
     }
 
-    /// Bytes of level `k`'s tiles.
-    pub fn tile_bytes(&self, k: u32) -> usize {
-        self.tile_bytes[k as usize]
-    }
-
-    /// Bytes of the slots of every level that hold a readable tile now.
-    pub fn resident_bytes(&self) -> usize {
-        self.levels
-            .iter()
-            .zip(&self.tile_bytes)
-            .map(|(l, b)| l.slots.iter().filter(|s| s.state.readable()).count() * b)
-            .sum()
+    /// Slots of every level that hold a readable tile now (the tests' count; the engine counts
+    /// resident bytes itself, `Clipmap::resident_bytes`).
+    #[cfg(test)]
+    pub fn resident_tiles(&self) -> usize {
+        self.levels.iter().map(|l| l.slots.iter().filter(|s| s.state.readable()).count()).sum()
     }
 }
 
@@ -369,6 +361,7 @@ impl TileCache {
 mod tests {
     use super::*;
     use crate::geom::mem_grid;
+    use crate::source::TextureDesc;
     use crate::texel::TexelFormat;
 
     fn cache() -> TileCache {
@@ -377,7 +370,7 @@ mod tests {
             desc.levels().iter().map(|l| mem_grid(l.size, l.tile, desc.clip_size(), 1)).collect();
         let memory = Arc::new(ImageMemory::anonymous(crate::clip::memory_shape(&desc, &grids), desc.format()).unwrap());
         let keeper = memory.take_keeper().expect("a new memory's keeper is free");
-        TileCache::new(&desc, &grids, memory, keeper)
+        TileCache::new(&grids, memory, keeper)
     }
 
     fn fill(c: &TileCache, tile: TileId, byte: u8) -> u64 {
@@ -399,13 +392,13 @@ mod tests {
         assert!(c.read(tile, 0, &mut b));
         assert_eq!(b, [7; 4]);
         assert_eq!(c.wanted(0, 0).len(), 15);
-        assert_eq!(c.resident_bytes(), 256);
+        assert_eq!(c.resident_tiles(), 1);
         // Moving by one tile keeps (3, 4) (same slot) and evicts nothing else resident.
         assert_eq!(c.set_mem_region(0, Rect::new(3, 2, 7, 6)), 0);
         assert_eq!(c.state(tile), TileState::Resident);
         // Moving away evicts it; a late read of it finds its slot given away and changes nothing.
         assert_eq!(c.set_mem_region(0, Rect::new(8, 8, 12, 12)), 1);
-        assert_eq!(c.resident_bytes(), 0);
+        assert_eq!(c.resident_tiles(), 0);
         assert_eq!(c.state(tile), TileState::Absent);
         assert!(c.memory().fill(tile, |b| b.fill(9)).is_none(), "the slot belongs to another tile now");
         assert_eq!(c.admit(tile, g, Delivered::Tile), Admit::Stale);

@@ -37,7 +37,7 @@
 //! | [`runtime`] | the process's one tokio runtime (read queues, remote requests, the service, the tools) and its thread bounds |
 //! | [`queue`] | per-stream-server async read queues: priorities, coalescing, stale drops |
 //! | [`paging`] | paging policies: where each grid's spare tiles go (adaptive, the default; ring, direction, ahead), and how the second-level tile pool evicts (LRU, the default; shift) |
-//! | [`cache`] | per-level toroidal grids of slots (mem regions): which tile each slot of the mapping holds |
+//! | `cache` | per-level toroidal grids of slots (mem regions): which tile each slot of the mapping holds (crate-private: the engine's own) |
 //! | [`clip`] | the engine: per-level windows, the update tick, load control (min LOD), adaptive paging, views, statistics |
 //! | [`shm`] | the shared-memory layout (layout 2: the image caches themselves), the slots' memory and claims, writer and client (the `clipmap-shm` crate, re-exported; the only `unsafe` code), and the engine's reads from a mapping |
 //! | [`sample`] | reference point / bilinear / trilinear sampling of the full mipmap and the clipmap |
@@ -49,6 +49,34 @@
 //! | `cli` | the command line the binaries share (`--env`, paging flags, `validate`'s arguments, the parse that exits 1 on usage errors); the `cli` feature, on by default |
 //! | [`prep`] | data preparation: image or procedural source → tiled pyramid plus `.ct`/`.ic` |
 //! | [`growing`] | growing textures: patches, the fixed tile grid anchored at a world origin, the R*-tree index, tile rebuilds |
+//!
+//! ## The public API
+//!
+//! What is public is what the crates above use (the service, the tools' library, the binaries,
+//! the GPU client, the benchmarks and the integration tests) and what docs/ shows users; the rest
+//! is `pub(crate)`. Every module of the map above is public but `cache`. Inside them, the types and
+//! functions users name are re-exported where they look for them (`clip::Clipmap`,
+//! `source::{FileSource, CogSource, TileSource}`, `config::Diagnostic`, `plan::Env`,
+//! `prep::{Job, Spec}`, ...), and so is every type a public signature names (no public item
+//! names a type users cannot name: `rustc -W unnameable_types` finds none). Only these
+//! submodules are public:
+//!
+//! | module | public submodules, and what for |
+//! |---|---|
+//! | [`accuracy`] | `render` (the reference renderer and its camera), `study` (per-frame metrics, flights), `sweep` (the speed/accuracy sweep), `heights` (the height study): `clipbench accuracy` and the GPU client |
+//! | [`config`] | `tokens` (the token table: `cliptex tokens`, the tests of every token) |
+//! | [`growing`] | `index`, `input`, `rebuild`, `serve`, `store`, `watch`: a growing texture's stages, which the service's patch admission and `clipbench growing` drive one by one |
+//! | [`paging`] | `adaptive` (the default policy's per-level paging and its reasons, in the service's statistics) |
+//! | [`plan`] | `cog`, `georef`, `source_line` (the `#clipmap` extension lines the tools read and write); `printf`, `params` (Performer's tile-name formats and their parameters, the vocabulary of `TileNaming`) |
+//! | [`prep`] | `cog`, `cog_config`, `error`, `jpeg_check`, `layout`, `output`, `publish`, `source`, `tiff_stream`: `clipprep`'s stages |
+//! | [`queue`] | `priority` (read priorities, pure functions) |
+//! | [`report`] | `check`, `dump`, `exit`, `hypsometric`, `info`, `label`, `picture`, `plan`, `validate`: each a report (or its pictures and exit statuses) the tools print |
+//! | [`sample`] | `blocks` (block-compressed texels decoded for sampling) |
+//! | [`shm`] | the `clipmap-shm` crate whole, and `shared_reads` (tiles a source takes from a mapping) |
+//! | [`source`] | `cog`, `configured`, `procedural`, `remote` (with `disk`, `flight`, `http`, `object`, `options` and its `ENV_VARS`, `range`, `s3`, `seen`), `tiles` (with `mbtiles`, `pmtiles` and its `directory`, `pyramid`): the sources the tools open and measure directly; `range` with its `reader` (the byte seam: `RangeRead`, `RangeReader`, what a tile archive is opened from) and `merge` (the one merge of ranges and its figure, `Merged`, which the remote reader's statistics carry) |
+//!
+//! `clip`, `cli`, `place`, `roam` and `runtime` have no public submodule. `tests/it/api.rs` holds
+//! this list and fails on a new public module or crate-root re-export.
 //!
 //! ## Invariants
 //!
@@ -63,7 +91,7 @@
 pub use clipmap_base::{geom, georef, height, limits, open, save, sizing, texel, tile};
 
 pub mod accuracy;
-pub mod cache;
+pub(crate) mod cache;
 #[cfg(feature = "cli")]
 pub mod cli;
 pub mod clip;

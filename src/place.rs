@@ -255,7 +255,7 @@ impl Place {
 
     /// The name as a path (a remote name's text unchanged): for records that keep the name of a
     /// file that is never read through the place, such as a `.ic` a `.ct`-only plan did not open.
-    pub fn into_path_buf(self) -> PathBuf {
+    pub(crate) fn into_path_buf(self) -> PathBuf {
         match self {
             Place::Local(p) => p,
             Place::Remote(r) => PathBuf::from(r.text),

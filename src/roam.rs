@@ -206,7 +206,7 @@ impl Flight {
 
     /// The WGS 84 `[longitude, latitude]` of frame `frame` of `frames` of a [`Flight::LonLat`]
     /// (`None` for the other flights): equal steps from `from` to `to`.
-    pub fn lonlat_at(&self, frame: u64, frames: u64) -> Option<[f64; 2]> {
+    pub(crate) fn lonlat_at(&self, frame: u64, frames: u64) -> Option<[f64; 2]> {
         let Flight::LonLat { from, to } = *self else { return None };
         let f = if frames > 1 { frame as f64 / (frames - 1) as f64 } else { 0.0 };
         Some([from[0] + (to[0] - from[0]) * f, from[1] + (to[1] - from[1]) * f])

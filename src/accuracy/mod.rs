@@ -13,7 +13,7 @@
 //! quantising to 8 bits per channel, or to 16 for a case with a 16-bit texel format
 //! ([`study::Case::format`]; PSNR then against a peak of 65535).
 
-pub mod cache;
+pub(crate) mod cache;
 pub mod heights;
 pub mod render;
 pub mod study;

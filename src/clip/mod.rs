@@ -14,20 +14,21 @@
 //! (ready, the default tile, or missing, which readers see in the slot's tag and serve from a
 //! coarser level), and a slot is given to another tile only after a snapshot that no longer
 //! covers its old tile. Geometry is [`crate::geom`]'s, where each mem region lies (the prefetch
-//! policy) and the second-level tile pool [`crate::paging`]'s, slots are [`crate::cache`]'s and
+//! policy) and the second-level tile pool [`crate::paging`]'s, slots are `crate::cache`'s and
 //! [`crate::shm::memory`]'s, reads [`crate::queue`]'s.
 
 mod frames;
-pub mod load;
+pub(crate) mod load;
 mod refresh;
-pub mod stats;
-pub mod views;
+pub(crate) mod stats;
+pub(crate) mod views;
 
+pub use crate::cache::TileState;
 pub use load::{next_min_lod, target_min_lod};
 pub use stats::{FaultCounts, Stats, TickReport};
 pub use views::{demotion, offset_for_footprint, LodWindow, ViewError, ViewId, MAX_VIEWS, PRIMARY};
 
-use crate::cache::{Admit, TileCache, TileState};
+use crate::cache::{Admit, TileCache};
 use crate::geom::{aligned_centre, level_grid, tile_texels, tiles_covering, LevelFrame, LevelShape, Rect};
 use crate::limits::Limits;
 use crate::paging::{adaptive, EvictionKind, PrefetchKind};
@@ -82,7 +83,7 @@ pub struct Settings {
     /// size grids from `lookahead` and ignore it.
     pub grid_budget: Option<u64>,
     /// Level-0 texels by which further views' windows may lie apart and still be held whole
-    /// ([`views`]): each level's grid gets `ceil((view_spread >> k) / tile)` more tiles per axis
+    /// (`views`): each level's grid gets `ceil((view_spread >> k) / tile)` more tiles per axis
     /// (0: grids for one view; the views share what it holds). `cliptex plan`'s memory formula
     /// counts them.
     pub view_spread: u64,
@@ -478,7 +479,7 @@ impl Clipmap {
                     .to_string(),
             )
         })?;
-        let mut cache = TileCache::new(&desc, &grids, Arc::clone(&memory), keeper);
+        let mut cache = TileCache::new(&grids, Arc::clone(&memory), keeper);
         for (k, l) in levels.iter().enumerate() {
             cache.set_tile_period(k as u32, l.shape.tile_period());
         }

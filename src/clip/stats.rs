@@ -96,7 +96,7 @@ pub struct Stats {
     /// `STATS` can prove it).
     pub slots_reassigned_under_published: u64,
     /// Settled slots given to another tile while a further view's published region covered them
-    /// ([`super::views`]): the same invariant for every view, always 0.
+    /// (`super::views`): the same invariant for every view, always 0.
     pub slots_reassigned_under_views: u64,
     /// Time the ticks themselves took, all ticks (ns).
     pub tick_ns: u64,

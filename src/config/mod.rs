@@ -4,14 +4,14 @@
 //! diagnostics type shared by both stages. It does no arithmetic, expands no variables and reads
 //! no other file: that is [`crate::plan`]'s job.
 
-pub mod diag;
-pub mod lexer;
-pub mod parse;
-pub mod syntax;
+pub(crate) mod diag;
+pub(crate) mod lexer;
+pub(crate) mod parse;
+pub(crate) mod syntax;
 pub mod tokens;
 
 pub use diag::{Diagnostic, Diagnostics, Severity, Span};
-pub use syntax::{Entry, Spanned, SyntaxFile, Value};
+pub use syntax::{Entry, Extension, Spanned, SyntaxFile, Value};
 pub use tokens::{FileKind, TokenId};
 
 use std::path::Path;

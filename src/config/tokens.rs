@@ -181,9 +181,6 @@ pub static TOKENS: &[TokenDef] = &[
     t(I::DefaultTile, "default_tile", A::Word, false, true, 0),
 ];
 
-/// The five comment tokens: a comment runs to the end of its line (or of the file).
-pub const COMMENT_WORDS: &[&str] = &["#", "//", ";", "comment", "rem"];
-
 /// Looks a whole word up in the token table.
 pub fn lookup(word: &str) -> Option<&'static TokenDef> {
     TOKENS.iter().find(|d| d.name == word)

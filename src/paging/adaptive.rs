@@ -372,7 +372,7 @@ impl StreamMeasures {
 
     /// Whether a stream server that reads level `level`'s tiles (any server, before it has asked
     /// for a tile) delivers less than is asked of it ([`TileRate::short`]).
-    pub fn level_short(&self, level: usize) -> bool {
+    pub(crate) fn level_short(&self, level: usize) -> bool {
         let mut own = self.streams_of(level).peekable();
         if own.peek().is_some() {
             own.any(|s| self.rates[s].short())
@@ -403,7 +403,7 @@ impl StreamMeasures {
     }
 
     /// Number of stream servers.
-    pub fn stream_count(&self) -> usize {
+    pub(crate) fn stream_count(&self) -> usize {
         self.streams.len()
     }
 
@@ -413,7 +413,7 @@ impl StreamMeasures {
     }
 
     /// The stream servers known to read level `level`'s tiles (none before it asked for one).
-    pub fn streams_of(&self, level: usize) -> impl Iterator<Item = usize> + '_ {
+    pub(crate) fn streams_of(&self, level: usize) -> impl Iterator<Item = usize> + '_ {
         self.levels.get(level).into_iter().flat_map(|l| l.iter().enumerate().filter(|(_, &on)| on).map(|(s, _)| s))
     }
 

@@ -3,26 +3,26 @@
 //!
 //! Owns the two policy traits and their implementations, one file each: [`Prefetch`]
 //! ([`adaptive`]: read-ahead sized each tick from the measured motion and read latency, within
-//! grids sized from a memory budget, the default; [`ring`]: spare tiles around the window, the
-//! best fixed placement and the default before; [`direction`]: spare tiles put ahead when the
-//! centre crosses a tile boundary, held otherwise; [`ahead`]: spare tiles ahead at every moving
-//! tick, the engine's former placement), and [`Eviction`] ([`lru`]: least recently used first,
-//! the default; [`shift`]: farthest behind the direction of motion first). The pool those rank is a
+//! grids sized from a memory budget, the default; `ring`: spare tiles around the window, the
+//! best fixed placement and the default before; `direction`: spare tiles put ahead when the
+//! centre crosses a tile boundary, held otherwise; `ahead`: spare tiles ahead at every moving
+//! tick, the engine's former placement), and [`Eviction`] (`lru`: least recently used first,
+//! the default; `shift`: farthest behind the direction of motion first). The pool those rank is a
 //! source in front of a source ([`crate::source::PoolSource`]), so it lives with the sources.
 //! The comparison is `clipbench policies` (docs/BENCHMARKS.md, ## Policies).
 //!
 //! Everything here is pure: a prefetch policy is a function of the level's shape,
 //! its tex region, its motion and last tick's mem region; an eviction policy ranks the pool's
 //! tiles given the motion the clipmap last reported ([`Motion`]). Which slots change and when is
-//! still [`crate::cache`]'s and [`crate::clip`]'s business (a slot is given to another tile only
+//! still `crate::cache`'s and [`crate::clip`]'s business (a slot is given to another tile only
 //! after a snapshot that no longer covers its old one).
 
 pub mod adaptive;
-pub mod ahead;
-pub mod direction;
-pub mod lru;
-pub mod ring;
-pub mod shift;
+pub(crate) mod ahead;
+pub(crate) mod direction;
+pub(crate) mod lru;
+pub(crate) mod ring;
+pub(crate) mod shift;
 
 use crate::geom::{tiles_covering, tiles_in_level, LevelShape, Rect};
 use crate::tile::TileId;
@@ -60,13 +60,13 @@ pub(crate) fn needed(shape: &LevelShape, tex: Rect) -> (Rect, [u64; 2]) {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PrefetchKind {
-    /// Spare tiles around the window on both axes, margins balanced ([`ring::Ring`]).
+    /// Spare tiles around the window on both axes, margins balanced (`ring::Ring`).
     Ring,
     /// Spare tiles put ahead of the motion when the centre crosses a tile boundary, held
-    /// otherwise (Luo and Duan; [`direction::Direction`]).
+    /// otherwise (Luo and Duan; `direction::Direction`).
     Direction,
     /// Spare tiles ahead of the motion at every moving tick (the former placement;
-    /// [`ahead::Ahead`]).
+    /// `ahead::Ahead`).
     Ahead,
     /// Read-ahead sized each tick from the measured motion and read latency, within grids sized
     /// from a memory budget ([`adaptive`]).
@@ -79,10 +79,10 @@ pub enum PrefetchKind {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum EvictionKind {
-    /// Least recently used first ([`lru::Lru`]).
+    /// Least recently used first (`lru::Lru`).
     #[default]
     Lru,
-    /// Farthest behind the direction of motion first ([`shift::Shift`]).
+    /// Farthest behind the direction of motion first (`shift::Shift`).
     Shift,
 }
 

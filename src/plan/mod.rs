@@ -8,9 +8,9 @@
 
 pub mod cog;
 mod ct;
-pub mod env;
+pub(crate) mod env;
 mod fields;
-pub mod formats;
+pub(crate) mod formats;
 pub mod georef;
 mod height;
 mod ic;
@@ -24,6 +24,7 @@ mod values;
 
 pub use cog::CogPlan;
 pub use env::Env;
+pub use formats::FormatValue;
 pub use height::{texel_of as height_texel, HeightPlan};
 pub use naming::TileNaming;
 pub use tile::{TileError, TileLocation};
@@ -31,7 +32,6 @@ pub use tile::{TileError, TileLocation};
 use crate::config::{self, Diagnostic, Diagnostics, FileKind, Limits, Severity};
 use crate::place::Place;
 use crate::texel::TexelFormat;
-use formats::FormatValue;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -23,13 +23,13 @@ pub struct CogConfig {
 }
 
 /// The `#clipmap cog` lines that name `cog` (a path or URL as the configuration reads it).
-pub fn cog_lines(cog: &str) -> String {
+pub(crate) fn cog_lines(cog: &str) -> String {
     format!("# The texels are the COG's, served as it is (docs/COG.md); no tile file is written.\n#clipmap cog {cog}\n")
 }
 
 /// Whether `name` can be written on a `#clipmap cog` line: one word (no whitespace), not empty,
 /// UTF-8 already, not read as a comment by Performer's reader (`//`) nor as a variable (`$`).
-pub fn writable_name(name: &str) -> Result<(), String> {
+pub(crate) fn writable_name(name: &str) -> Result<(), String> {
     if name.is_empty() || name.chars().any(char::is_whitespace) {
         return Err(format!(
             "`{name}` cannot be written on a `#clipmap cog` line, which takes one word: expected a path or URL without spaces; rename the file or link it from a path without spaces"
@@ -61,7 +61,7 @@ pub fn write(
 
 /// The `#clipmap source` lines that name the tile pyramid `source` (`xyz:TEMPLATE`, a `.pmtiles`
 /// or `.mbtiles` path or URL, as the configuration reads it).
-pub fn source_lines(source: &str) -> String {
+pub(crate) fn source_lines(source: &str) -> String {
     format!(
         "# The texels are the tile source's, served as it is (docs/TILES.md); no tile file is written.\n#clipmap source {source}\n"
     )

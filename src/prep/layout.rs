@@ -2,7 +2,7 @@
 //! caches, which are pyramid levels), tile sizes per level, and the relative path, byte offset and
 //! stream of every tile.
 //!
-//! Pure geometry: no I/O. The names chosen here are the ones [`super::configfile`] writes into
+//! Pure geometry: no I/O. The names chosen here are the ones `super::configfile` writes into
 //! the `.ct`/`.ic` files, so a reader that follows docs/PERFORMER-REFERENCE.md §1.9–§1.14 finds every tile.
 //!
 //! Layout of a prepared directory:

@@ -349,7 +349,7 @@ impl OpenedImage {
     /// image at its bottom, padded north and east: `crate::plan::georef::padded_transform`):
     /// `None` without the image's, or for a CRS without an EPSG code (which the `.ct` cannot
     /// record).
-    pub fn texture_georef(&self, texture: [u64; 2]) -> Option<crate::georef::Georef> {
+    pub(crate) fn texture_georef(&self, texture: [u64; 2]) -> Option<crate::georef::Georef> {
         let g = self.georef.as_ref().ok()?.as_ref()?;
         g.crs().epsg_code()?;
         let t = crate::plan::georef::padded_transform(g.geotransform(), self.height, texture[1]);

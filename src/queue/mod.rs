@@ -6,7 +6,7 @@
 //! [priorities](fn@priority), and drains finished reads from a channel. A read writes its tile
 //! straight into the slot (`pread` into the mapping, a decoder or generator writing there), under
 //! the slot's claim (`ImageMemory::fill`); nothing is copied afterwards. Which slot a tile has
-//! is [`crate::cache`]'s business; which tiles are wanted is decided by the caller from
+//! is `crate::cache`'s business; which tiles are wanted is decided by the caller from
 //! [`crate::geom`]. A tile whose texels changed at the source (a growing texture's rebuilt tile,
 //! [`crate::clip::Clipmap::refresh`]) is read again the same way: the engine reopens its settled
 //! slot (`ImageMemory::replace`) and asks for it like any other tile; the queues do not tell

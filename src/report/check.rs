@@ -228,7 +228,7 @@ mod remote_probe {
     }
 
     /// The reader of remote objects by name, when the options allow one.
-    pub fn by_name() -> Option<&'static dyn ByName> {
+    pub(crate) fn by_name() -> Option<&'static dyn ByName> {
         remote().ok().map(|r| r as &dyn ByName)
     }
 }
@@ -250,7 +250,7 @@ mod remote_probe {
     }
 
     /// None: this build reads no remote objects.
-    pub fn by_name() -> Option<&'static dyn crate::source::range::ByName> {
+    pub(crate) fn by_name() -> Option<&'static dyn crate::source::range::ByName> {
         None
     }
 }

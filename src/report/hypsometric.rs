@@ -150,9 +150,9 @@ pub struct Legend {
 }
 
 /// The least width of a picture with a legend.
-pub const LEGEND_WIDTH: u32 = 256;
+pub(crate) const LEGEND_WIDTH: u32 = 256;
 /// Rows the legend adds below the map.
-pub const LEGEND_ROWS: u32 = 40;
+pub(crate) const LEGEND_ROWS: u32 = 40;
 
 impl Legend {
     /// Where the legend of a picture `width` wide below a map `map_h` rows tall goes.

@@ -14,7 +14,7 @@ pub fn line_height(scale: u32) -> u32 {
 }
 
 /// Width `text` takes at `scale`.
-pub fn text_width(text: &str, scale: u32) -> u32 {
+pub(crate) fn text_width(text: &str, scale: u32) -> u32 {
     text.chars().count() as u32 * 8 * scale
 }
 

@@ -4,7 +4,7 @@
 //! [`SourceError`], the [`TextureDesc`] a source serves, the tile files a plan names
 //! ([`FileSource`]), tiled GeoTIFFs and COGs served as they are ([`CogSource`]), the procedural sources ([`HashSource`], [`TerrainSource`]) and a
 //! fault-injecting wrapper ([`FaultySource`]). Residency, queues and
-//! windows belong to later modules ([`crate::cache`], [`crate::queue`], [`crate::clip`]).
+//! windows belong to later modules (`crate::cache`, [`crate::queue`], [`crate::clip`]).
 //!
 //! Tile layout (docs/ARCHITECTURE.md §11): a tile of level `k` is `tile[0] x tile[1]` texels, rows in
 //! increasing t, s fastest. Texel (s, t) of tile (S, T) is at byte
@@ -12,27 +12,27 @@
 //! lie outside the level are zero.
 
 mod ahead;
-pub mod bc;
+pub(crate) mod bc;
 pub mod cog;
 pub mod configured;
 mod configured_tiles;
-pub mod desc;
-pub mod faulty;
-pub mod file;
-pub mod global;
+pub(crate) mod desc;
+pub(crate) mod faulty;
+pub(crate) mod file;
+pub(crate) mod global;
 mod lzw;
 pub mod merge;
-pub mod pool;
+pub(crate) mod pool;
 pub mod procedural;
 pub mod range;
 #[cfg(feature = "remote")]
 pub mod remote;
 mod synthetic;
-pub mod throttle;
+pub(crate) mod throttle;
 pub mod tiles;
 
 pub use crate::tile::TileId;
-pub use bc::{BcQuality, BcSource};
+pub use bc::{BcError, BcQuality, BcSource};
 pub use cog::{CogError, CogSource};
 pub use configured::cog_of;
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};

@@ -7,6 +7,7 @@
 
 mod common;
 
+mod api;
 mod bc_edges;
 mod bc_formats;
 mod bc_prepared;

@@ -1,14 +1,30 @@
 //! The clip-texture service behind `clipmapd`: keeps one clip texture's windows filled around
 //! the centre renderers ask for and publishes them in shared memory, answering a control socket.
 //!
+//! ## The public API
+//!
+//! What `clipmapd`, the tools, the GPU client's demo and the tests use, all at the crate root but
+//! the statistics:
+//!
+//! - [`run`] with its [`Options`] ([`ControlLimits`], [`ViewOption`], [`default_socket`]), the
+//!   [`Summary`] it returns ([`Started`], [`ServiceStats`]) and its [`ServiceError`];
+//! - [`stats`]: the statistics the control socket's `STATS` answers (JSON and Prometheus text),
+//!   whose types the tools read back;
+//! - the demo's sources: [`procedural_source`], [`web_mercator_square`], [`Procedural`] and
+//!   [`TERRAIN_SEED`] (re-exported from `clipmap::source`).
+//!
+//! Everything else is crate-private: the socket speaks its line protocol to clients, not Rust
+//! types, so its commands, replies, parsers and the tick loop's handle (`Ticker`) are not an
+//! API. `tests/it/api.rs` holds this list.
+//!
 //! | file | owns |
 //! |---|---|
-//! | [`options`] | run-time options and the control socket's bounds, validated once |
-//! | [`ticker`] | the tick loop: a dedicated thread owning the engine and the mapping's writer |
+//! | `options` | run-time options and the control socket's bounds, validated once (re-exported at the root) |
+//! | `ticker` | the tick loop: a dedicated thread owning the engine and the mapping's writer |
 //! | `views` | the views, the primary included: what each is told (commands, requests) and its grids, shared or own |
-//! | [`control`] | the owner-only Unix control socket (tokio): one task per connection, bounded |
-//! | [`protocol`] | the control socket's line protocol, as pure functions: requests parsed, answers rendered |
-//! | [`patches`] | a growing texture's patches taken on the control socket (`PATCH FILE`, `PATCH DATA`) |
+//! | `control` | the owner-only Unix control socket (tokio): one task per connection, bounded |
+//! | `protocol` | the control socket's line protocol, as pure functions: requests parsed, answers rendered |
+//! | `patches` | a growing texture's patches taken on the control socket (`PATCH FILE`, `PATCH DATA`) |
 //! | [`stats`] | statistics: JSON and Prometheus text |
 //!
 //! The entry point [`run`] takes its shutdown signal as an argument (a future), so the binary
@@ -16,19 +32,20 @@
 //! tiles is left to [`clipmap::source`]; the layout and its `unsafe` access to [`clipmap::shm`]. The
 //! demo (`clipmapd --demo`, `clipmap_tools::demo`) is a client of this module like any other.
 
-pub mod control;
-pub mod options;
+pub(crate) mod control;
+pub(crate) mod options;
 mod own_views;
-pub mod patches;
-pub mod protocol;
+pub(crate) mod patches;
+pub(crate) mod protocol;
 mod requests;
 pub mod stats;
-pub mod ticker;
+pub(crate) mod ticker;
 mod views;
 
 pub use options::{default_socket, ControlLimits, Options, ViewOption};
 pub use stats::ServiceStats;
-pub use ticker::{Started, Ticker};
+pub use ticker::Started;
+use ticker::Ticker;
 
 use clipmap::source::{TextureDesc, TileSource};
 use std::future::Future;

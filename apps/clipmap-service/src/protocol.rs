@@ -125,21 +125,6 @@ pub enum ViewCommand {
     },
 }
 
-impl ViewCommand {
-    /// The view it is for.
-    pub fn name(&self) -> &str {
-        match self {
-            ViewCommand::Add { name, .. }
-            | ViewCommand::Remove { name }
-            | ViewCommand::Centre { name, .. }
-            | ViewCommand::CentreLonLat { name, .. }
-            | ViewCommand::Weight { name, .. }
-            | ViewCommand::Lod { name, .. }
-            | ViewCommand::Height { name, .. } => name,
-        }
-    }
-}
-
 pub use clipmap::limits::MAX_BUDGET_MS;
 
 /// The commands, for error messages.

@@ -1,8 +1,8 @@
 //! The service's statistics: a snapshot the tick loop publishes after every tick, the control
 //! server's own counters, and their Prometheus text form.
 //!
-//! Owns the numbers' names and units only; the tick loop ([`super::ticker`]) and the control
-//! server ([`super::control`]) fill them in.
+//! Owns the numbers' names and units only; the tick loop (`super::ticker`) and the control
+//! server (`super::control`) fill them in.
 
 use clipmap::clip::Stats;
 use clipmap::queue::QueueStats;
@@ -174,7 +174,7 @@ pub struct ServiceStats {
 
 /// Everything `STATUS` answers: the texture, the mapping and where the tick loop is
 /// (docs/SHM.md, "Control socket"). Its JSON gives the fields in name order
-/// ([`super::protocol::render`]).
+/// (`super::protocol::render`).
 #[derive(Clone, Debug, Serialize)]
 pub struct Status {
     /// The publication name.

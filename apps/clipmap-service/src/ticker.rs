@@ -114,7 +114,9 @@ pub enum SendError {
 
 impl Ticker {
     /// Starts the tick loop on its own thread; returns once the mapping is published under its
-    /// name (or could not be made). Blocks: call it off async worker threads.
+    /// name (or could not be made). Blocks: call it off async worker threads. The tests' way in
+    /// ([`run`](crate::run) prepares the loop and publishes once the socket is bound).
+    #[cfg(test)]
     pub fn start(
         source: Arc<dyn TileSource>,
         options: &Options,

@@ -10,6 +10,9 @@
 //! |---|---|
 //! | [`inspect`] | a running service seen from outside: `cliptex attach` and `dump --attach` |
 //! | [`demo`] | `clipmapd --demo`: the service, a small flying client and pictures of what it saw (a client of the rest, the top floor) |
+//!
+//! Both are public, for the binaries: `inspect` with its `attach` (`cliptex attach`) and
+//! `live_dump` (`dump --attach`), and `demo`; `tests/it/api.rs` holds this list.
 
 #![deny(unsafe_code)]
 

@@ -75,7 +75,7 @@ pub fn open_place(place: &Place, prefix: u64) -> Result<(Arc<dyn RangeReader>, V
 }
 
 /// Opens the local regular file `path` with its first `prefix` bytes.
-pub fn open_local(path: &Path, prefix: u64) -> Result<(Arc<dyn RangeReader>, Vec<u8>), OpenError> {
+pub(crate) fn open_local(path: &Path, prefix: u64) -> Result<(Arc<dyn RangeReader>, Vec<u8>), OpenError> {
     let (file, _) = crate::open::regular(path).map_err(OpenError::Io)?;
     let mut first = vec![0u8; prefix as usize];
     let got = read_prefix(&file, &mut first).map_err(OpenError::Io)?;

@@ -86,7 +86,7 @@ impl RangeError {
     }
 
     /// The failure of a read of `len` bytes at `offset` of `path` for `tile`.
-    pub fn for_tile(self, tile: TileId, path: &Path, offset: u64, len: u64) -> SourceError {
+    pub(crate) fn for_tile(self, tile: TileId, path: &Path, offset: u64, len: u64) -> SourceError {
         match self {
             RangeError::Eof { size } => {
                 SourceError::Short { tile, expected: len, got: size.saturating_sub(offset).min(len) }
@@ -101,7 +101,7 @@ impl RangeError {
 
     /// The failure as an I/O error of the kind it is (not found, access refused, other), for a
     /// read that is not of a tile (a default tile read at start-up).
-    pub fn into_io(self, offset: u64, len: u64) -> io::Error {
+    pub(crate) fn into_io(self, offset: u64, len: u64) -> io::Error {
         let problem = self.problem(offset, len);
         match self {
             RangeError::Io(e) => e,

@@ -26,7 +26,7 @@ pub const FLOOR: usize = 16;
 pub const HEADROOM: f64 = 2.0;
 
 /// The window over which the arrival rate is measured.
-pub const WINDOW: Duration = Duration::from_millis(100);
+pub(crate) const WINDOW: Duration = Duration::from_millis(100);
 
 /// Weight of a new latency sample in the smoothed latency.
 const LATENCY_WEIGHT: f64 = 0.1;
@@ -46,11 +46,11 @@ pub const HEDGE_QUANTILE: f64 = 0.95;
 pub const HEDGE_SHARE: f64 = 0.05;
 
 /// A read is hedged no sooner than this many times the median latency...
-pub const HEDGE_OVER_MEDIAN: u32 = 3;
+pub(crate) const HEDGE_OVER_MEDIAN: u32 = 3;
 
 /// ...and no sooner than this: a hedge is for a request held far longer than its peers, not for
 /// the jitter of a busy machine.
-pub const HEDGE_MIN: Duration = Duration::from_millis(50);
+pub(crate) const HEDGE_MIN: Duration = Duration::from_millis(50);
 
 /// Why an endpoint's limit is what it is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -167,7 +167,7 @@ impl Sizing {
     /// How long a read waits unanswered before it is sent once more: the [`HEDGE_QUANTILE`]
     /// of the recent latencies, at least [`HEDGE_OVER_MEDIAN`] times their median and
     /// [`HEDGE_MIN`]; none before [`HEDGE_SAMPLES`] were measured.
-    pub fn hedge_after(&self) -> Option<Duration> {
+    pub(crate) fn hedge_after(&self) -> Option<Duration> {
         let (q, median) = self.quantiles()?;
         Some(q.max(median * HEDGE_OVER_MEDIAN).max(HEDGE_MIN))
     }
@@ -264,7 +264,7 @@ impl Sizing {
 }
 
 /// True for a failure by which a store says it is overloaded: `429`, `503`, S3's `SlowDown`.
-pub fn is_throttle(why: &str) -> bool {
+pub(crate) fn is_throttle(why: &str) -> bool {
     ["429", "503", "SlowDown", "Slow Down", "TooManyRequests", "Too Many Requests"].iter().any(|w| why.contains(w))
 }
 

@@ -10,10 +10,10 @@
 //! and a slow endpoint holds back only its own tiles.
 
 pub mod disk;
-pub mod fetch;
+pub(crate) mod fetch;
 pub mod flight;
 pub mod http;
-pub mod location;
+pub(crate) mod location;
 pub mod object;
 pub mod options;
 pub mod range;
@@ -23,7 +23,8 @@ pub mod s3;
 pub mod seen;
 
 pub use fetch::{
-    Backend, Failure, Fetcher, Got, Hedge, Hedges, Object, ObjectRequest, ReadError, Segments, Sink, Versioned,
+    Backend, Counters, EndpointFlight, Failure, Fetcher, Got, Hedge, Hedges, Object, ObjectRequest, ReadError,
+    Segments, Sink, Versioned,
 };
 pub use location::{Location, LocationError, Scheme};
 pub use options::{OptionsError, RemoteOptions};
@@ -176,14 +177,14 @@ impl Remote {
 
     /// The whole object under `key` ([`disk::object_key`]) from the disk cache, checked, at most
     /// `max` bytes; counted as a cache hit.
-    pub fn cached_object(&self, key: &str, max: u64) -> Option<Vec<u8>> {
+    pub(crate) fn cached_object(&self, key: &str, max: u64) -> Option<Vec<u8>> {
         let bytes = self.cache.as_ref()?.get_object(key, max)?;
         self.fetcher.counters.cache_hits.fetch_add(1, Ordering::Relaxed);
         Some(bytes)
     }
 
     /// Keeps `bytes` as the whole object under `key` in the disk cache, if there is one.
-    pub fn keep_object(&self, key: &str, bytes: &[u8]) {
+    pub(crate) fn keep_object(&self, key: &str, bytes: &[u8]) {
         if let Some(c) = &self.cache {
             c.put(key, bytes);
         }

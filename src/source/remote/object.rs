@@ -186,7 +186,7 @@ impl Object {
 
     /// [`Object::stream`] run on a thread of the process's runtime (its pool for blocking work),
     /// without waiting for it: `done` is given its result when it ends.
-    pub fn stream_detached(
+    pub(crate) fn stream_detached(
         &self,
         start: u64,
         len: u64,

@@ -27,7 +27,7 @@ use std::sync::Arc;
 
 /// The most bytes one request merging several ranges of an object reads, whatever the remote
 /// options' `merge_bytes` say.
-pub const MAX_MERGE_BYTES: u64 = 8 << 20;
+pub(crate) const MAX_MERGE_BYTES: u64 = 8 << 20;
 
 impl From<ObjectError> for RangeError {
     fn from(e: ObjectError) -> RangeError {

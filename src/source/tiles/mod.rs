@@ -10,11 +10,11 @@
 
 mod decode;
 pub mod pyramid;
-pub mod reopen;
-pub mod template;
+pub(crate) mod reopen;
+pub(crate) mod template;
 
 pub use pyramid::{PyramidError, PyramidOptions, PyramidSource};
-pub use template::{TemplateArchive, TemplateOptions};
+pub use template::{Template, TemplateArchive, TemplateOptions};
 
 use super::FaultKind;
 use crate::place::Place;
@@ -52,7 +52,7 @@ impl TileAddr {
     }
 
     /// Whether the column and row lie within zoom `z` and the zoom within [`MAX_ZOOM`].
-    pub fn is_valid(&self) -> bool {
+    pub(crate) fn is_valid(&self) -> bool {
         self.z <= MAX_ZOOM && u64::from(self.x) < Self::tiles_at(self.z) && u64::from(self.y) < Self::tiles_at(self.z)
     }
 

@@ -49,7 +49,7 @@ pub struct Template {
 }
 
 impl Template {
-    /// Parses `text`; `subdomains` are what `{s}` takes (empty: [`DEFAULT_SUBDOMAINS`]).
+    /// Parses `text`; `subdomains` are what `{s}` takes (empty: `DEFAULT_SUBDOMAINS`).
     pub fn parse(text: &str, subdomains: &[String]) -> Result<Template, String> {
         let mut pieces = Vec::new();
         let mut rest = text;

@@ -81,7 +81,7 @@ fn i32_at(b: &[u8], at: usize) -> i32 {
 }
 
 impl Header {
-    /// Parses the header from the file's first bytes (`first`, at least [`HEADER_LEN`] of them)
+    /// Parses the header from the file's first bytes (`first`, at least `HEADER_LEN` of them)
     /// of a file of `size` bytes; the problem in words when it is not a PMTiles v3 archive this
     /// reader can read.
     pub fn parse(first: &[u8], size: u64) -> Result<Header, String> {

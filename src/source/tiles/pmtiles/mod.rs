@@ -1,7 +1,7 @@
 //! PMTiles v3 archives of raster tiles, local, over HTTP and on S3, read through the byte seam
 //! ([`crate::source::range`]) so that every read is one counted, retried request of the version
-//! opened: [`header`] (the 127 bytes that say where everything lies), [`directory`] (Hilbert tile
-//! ids and the varint-encoded directories), [`archive`] (open, leaf cache, tiles).
+//! opened: `header` (the 127 bytes that say where everything lies), [`directory`] (Hilbert tile
+//! ids and the varint-encoded directories), `archive` (open, leaf cache, tiles).
 //!
 //! Why not the `pmtiles` crate: its reader (`AsyncPmTilesReader`) is async only (synchronous
 //! backends are on its to-do list), and its backends bring their own clients (reqwest, rust-s3,
@@ -12,8 +12,9 @@
 //! moka cache, not bounded in bytes. The format itself (a header, varints, a Hilbert curve) is
 //! a few hundred lines, checked here against the reference Python writer's archives.
 
-pub mod archive;
+pub(crate) mod archive;
 pub mod directory;
-pub mod header;
+pub(crate) mod header;
 
 pub use archive::{PmtilesArchive, DEFAULT_TILE_SIZE, LEAF_CACHE_BYTES, OPEN_BYTES};
+pub use header::{Compression, Header};
