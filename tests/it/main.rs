@@ -11,6 +11,7 @@ mod bc_edges;
 mod bc_formats;
 mod bc_prepared;
 mod bc_readers;
+mod bc_strict;
 mod bc_views;
 mod cli_attach;
 mod cli_check;
