@@ -21,6 +21,7 @@ mod cli_dump_heights;
 mod cli_roam;
 mod cli_snapshots;
 mod clipbench_cog;
+mod clipbench_formats;
 mod clipbench_growing;
 mod clipbench_perf;
 mod clipbench_policies;
