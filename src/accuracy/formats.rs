@@ -315,6 +315,30 @@ pub fn table(rows: &[FormatRow]) -> String {
     s
 }
 
+/// PSNR against bytes a tile as an SVG chart: level 0 and the rendered view for the RGB formats
+/// (`bc1`, `bc7`), and `bc4`'s on the grey image. RGBA8 (the reference, identical) has no point.
+pub fn plot(rows: &[FormatRow]) -> String {
+    let points = |grey: bool, view: bool| -> Vec<(f64, f64)> {
+        let mut p: Vec<(f64, f64)> = rows
+            .iter()
+            .filter(|r| (r.channels == "grey") == grey)
+            .filter_map(|r| {
+                let db = if view { r.psnr_view_db } else { r.psnr_level0_db };
+                db.map(|d| (r.tile_bytes as f64, d))
+            })
+            .collect();
+        p.sort_by(|a, b| a.0.total_cmp(&b.0));
+        p
+    };
+    let series = vec![
+        ("bc1, bc7: level 0".to_string(), points(false, false)),
+        ("bc1, bc7: view".to_string(), points(false, true)),
+        ("bc4 grey: level 0".to_string(), points(true, false)),
+        ("bc4 grey: view".to_string(), points(true, true)),
+    ];
+    super::sweep::svg_chart("PSNR against bytes a tile", "bytes a tile", "PSNR dB", &series, true)
+}
+
 /// The heading of the format axis' section of `ACCURACY.md`, written from `clipbench formats`'
 /// figures (docs/BENCHMARKS.md): `clipbench accuracy` regenerates the sections above it and keeps
 /// this one as it finds it.
@@ -337,6 +361,33 @@ mod tests {
         assert_eq!(kept_section("# Accuracy\n\nsweep only\n"), None);
         // Named inside a line (not a heading): not the section.
         assert_eq!(kept_section(&format!("see `{SECTION}` below\n")), None);
+    }
+
+    #[test]
+    fn the_plot_has_a_point_for_each_measured_block_format() {
+        let row = |format: &str, channels: &'static str, tile_bytes: u64, db: Option<f64>| FormatRow {
+            format: format.into(),
+            channels,
+            psnr_level0_db: db,
+            psnr_view_min_db: db,
+            psnr_view_db: db,
+            tile_bytes,
+            encode_us_per_tile: 0.0,
+            mapping_bytes: 0,
+            mapping_bytes_vs_rgba8: 1.0,
+            upload_bytes_per_frame: 0.0,
+            upload_bytes_per_frame_vs_rgba8: 1.0,
+        };
+        let rows = [
+            row("rgba8", "rgb", 65536, None),
+            row("bc7", "rgb", 16384, Some(44.0)),
+            row("bc1", "rgb", 8192, Some(34.5)),
+            row("bc4", "grey", 8192, Some(41.0)),
+        ];
+        let svg = plot(&rows);
+        assert!(svg.starts_with("<svg") && svg.contains("bytes a tile"));
+        // bc7 and bc1 twice (level 0, view), bc4 twice; RGBA8 none.
+        assert_eq!(svg.matches("<circle").count(), 6, "{svg}");
     }
 
     #[test]

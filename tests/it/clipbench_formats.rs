@@ -7,8 +7,15 @@
 
 #[test]
 fn formats_json_has_every_format_with_exact_byte_ratios_and_sane_psnr() {
-    let args: Vec<&std::ffi::OsStr> = ["formats", "--quick", "--json"].iter().map(|a| a.as_ref()).collect();
+    let dir = tempfile::tempdir().unwrap();
+    let svg = dir.path().join("formats.svg");
+    let mut args: Vec<&std::ffi::OsStr> =
+        ["formats", "--quick", "--json", "--plot"].iter().map(|a| a.as_ref()).collect();
+    args.push(svg.as_os_str());
     let v = crate::common::clipbench_json(&args);
+    // The chart: a point for level 0 and one for the view of each block format.
+    let chart = std::fs::read_to_string(&svg).unwrap();
+    assert_eq!(chart.matches("<circle").count(), 6, "{chart}");
     let rows = v["formats"].as_array().unwrap_or_else(|| panic!("formats in {v}"));
     let names: Vec<&str> = rows.iter().map(|r| r["format"].as_str().unwrap()).collect();
     assert_eq!(names, ["rgba8", "bc7", "bc1", "bc4", "bc5"]);

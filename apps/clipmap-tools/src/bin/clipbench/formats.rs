@@ -46,6 +46,10 @@ pub struct Args {
     /// The ingest texture's side (a power of two from 1024; for the tests).
     #[arg(long, hide = true, value_name = "N")]
     texture: Option<u64>,
+    /// Also writes the study's format axis as an SVG chart (PSNR against bytes a tile) to FILE
+    /// (docs/accuracy/formats.svg is one).
+    #[arg(long, value_name = "FILE")]
+    plot: Option<PathBuf>,
     /// Skips the 2^26 real-time flight (for the tests).
     #[arg(long, hide = true)]
     no_flight: bool,
@@ -122,6 +126,11 @@ pub struct IngestComparison {
     pub bc1_encoded_tiles_per_s: f64,
     /// BC1 encoded at run time / RGBA8 (goal at least 0.5).
     pub bc1_encoded_vs_rgba8: f64,
+    /// Where the time goes: wall time a tile of the ingest (reads run on every core), RGBA8 and
+    /// BC1 encoded at run time, and BC1's encoding of a tile on one thread.
+    pub rgba8_us_per_tile: f64,
+    pub bc1_encoded_us_per_tile: f64,
+    pub bc1_encode_us_per_tile: f64,
     /// The same photograph prepared pre-encoded to BC1 (as `clipprep --format bc1` writes it),
     /// read as it is: tiles a second.
     pub bc1_pre_encoded_tiles_per_s: f64,
@@ -157,10 +166,16 @@ pub struct Report {
     /// `clipbench perf`'s 2^26 flight with every default over a pre-encoded BC1 texture (`None`
     /// with `--no-flight`).
     pub flight: Option<formats_flight::Flight>,
+    /// The same flight over the same tiles in RGBA8, in the same run.
+    pub flight_rgba8: Option<formats_flight::Flight>,
     /// The goals: each one's figure, its bound and whether it is met.
     pub goals: std::collections::BTreeMap<&'static str, Goal>,
     /// Debug builds' timings are not representative.
     pub build: &'static str,
+    /// The machine's load average (1, 5, 15 minutes) at the start and at the end of the run, and
+    /// its cores.
+    pub load_average: [String; 2],
+    pub cpus: usize,
 }
 
 /// matplotlib's data directory, asked of the Python that has it, and Debian's package's.
@@ -464,8 +479,16 @@ fn texpresso_bc1(_: &[Vec<u8>], _: f64) -> Result<Option<(f64, f64)>> {
     Ok(None)
 }
 
+/// The first three fields of /proc/loadavg ("" where there is none).
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|l| l.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_default()
+}
+
 /// Measures everything.
 pub fn run(args: &Args) -> Result<Report> {
+    let load_start = load_average();
     let quality = BcQuality::parse(&args.bc_quality).map_err(|e| anyhow!("--bc-quality: {e}"))?;
     let (pic, imagery) = load(args)?;
     let tiles = pic.tiles();
@@ -580,11 +603,18 @@ pub fn run(args: &Args) -> Result<Report> {
         rgba8_tiles_per_s: rate("rgba8"),
         bc1_encoded_tiles_per_s: rate("bc1"),
         bc1_encoded_vs_rgba8: rate("bc1") / rate("rgba8"),
+        rgba8_us_per_tile: 1e6 / rate("rgba8"),
+        bc1_encoded_us_per_tile: 1e6 / rate("bc1"),
+        bc1_encode_us_per_tile: rows.iter().find(|r| r.format == "bc1").map_or(0.0, |r| r.encode_us_per_tile),
         bc1_pre_encoded_tiles_per_s: pre,
         bc1_pre_encoded_vs_rgba8: pre / rate("rgba8"),
     };
-    let flight =
-        if args.no_flight { None } else { Some(formats_flight::fly(Bc::Bc1, if args.quick { 5.0 } else { 20.0 })?) };
+    let (flight, flight_rgba8) = if args.no_flight {
+        (None, None)
+    } else {
+        let secs = if args.quick { 5.0 } else { 20.0 };
+        (Some(formats_flight::fly(Some(Bc::Bc1), secs)?), Some(formats_flight::fly(None, secs)?))
+    };
     // The study's format axis over the photograph's pyramid: its flight and camera.
     let mut case = clipmap::accuracy::study::Case::small();
     case.size = n;
@@ -619,7 +649,10 @@ pub fn run(args: &Args) -> Result<Report> {
         view,
         view_case: case,
         flight,
+        flight_rgba8,
         goals,
+        load_average: [load_start, load_average()],
+        cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
         build: if cfg!(debug_assertions) { "debug (timings not representative)" } else { "release" },
     })
 }
@@ -670,11 +703,13 @@ fn human(r: &Report) -> String {
         i.bc1_pre_encoded_tiles_per_s,
         i.bc1_pre_encoded_vs_rgba8
     );
-    if let Some(f) = &r.flight {
+    for f in r.flight.iter().chain(&r.flight_rgba8) {
         s += &format!(
-            "2^26 flight, defaults, pre-encoded BC1: level 0 shown on {:.2}% of ticks ({} ticks, {} late, tick p99 {:.2} ms)\n",
+            "2^26 flight, defaults, {}: level 0 shown on {:.2}% of ticks ({} ticks, {} with a disabled level, {} late, tick p99 {:.2} ms)\n",
+            f.format,
             f.level0_shown_share * 100.0,
             f.ticks,
+            f.ticks_with_disabled_levels,
             f.late_ticks,
             f.tick_p99_s * 1e3
         );
@@ -693,7 +728,10 @@ fn human(r: &Report) -> String {
             }
         );
     }
-    s += &format!("build: {}\n", r.build);
+    s += &format!(
+        "build: {}; {} cores, load average {} at the start, {} at the end\n",
+        r.build, r.cpus, r.load_average[0], r.load_average[1]
+    );
     s
 }
 
@@ -711,6 +749,12 @@ pub fn main(args: Args) -> u8 {
     }
     match run(&args) {
         Ok(r) => {
+            if let Some(p) = &args.plot {
+                if let Err(e) = clipmap::accuracy::sweep::write_whole(p, clipmap::accuracy::formats::plot(&r.view)) {
+                    eprintln!("clipbench formats: cannot write {}: {e}", p.display());
+                    return 2;
+                }
+            }
             clipmap::report::emit(args.json, &r, human);
             0
         }

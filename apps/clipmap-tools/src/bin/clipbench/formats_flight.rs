@@ -3,6 +3,8 @@
 //! budget, load control and adaptive paging, clip 2048, tiles of 256) over a pre-encoded BC1
 //! texture, counting the ticks after the first second on which level 0 is published.
 //!
+//! The same flight over the same tiles in RGBA8, in the same run, says what the format changes.
+//!
 //! A 2^26 pyramid cannot be written to disk here, so the pre-encoded texture is the hash texture's
 //! BC1 blocks encoded before the flight: per level, the blocks of its first 4 x 4 tiles (or all of
 //! them, fewer), served by tile number modulo 4 along each axis. Its reads copy blocks into the
@@ -26,9 +28,14 @@ struct PreEncoded {
 }
 
 impl PreEncoded {
-    fn new(bc: Bc, texture: u64, clip: u64, tile: u64) -> anyhow::Result<PreEncoded> {
+    /// `bc`'s blocks of the hash texture, or (`None`) its RGBA8 texels made before the flight
+    /// likewise.
+    fn new(bc: Option<Bc>, texture: u64, clip: u64, tile: u64) -> anyhow::Result<PreEncoded> {
         let hash = procedural_source(Procedural::Hash, texture, clip, tile)?;
-        let blocks = BcSource::new(hash, bc, BcQuality::Normal)?;
+        let blocks: Arc<dyn TileSource> = match bc {
+            Some(bc) => Arc::new(BcSource::new(hash, bc, BcQuality::Normal)?),
+            None => hash,
+        };
         let desc = blocks.desc().clone();
         let (mut tiles, mut across) = (Vec::new(), Vec::new());
         for k in 0..desc.level_count() as u32 {
@@ -57,7 +64,7 @@ impl TileSource for PreEncoded {
     fn read_tile(&self, tile: TileId, out: &mut [u8]) -> Result<(), SourceError> {
         let k = tile.level as usize;
         let a = self.across[k];
-        let from = &self.tiles[k][((tile.t as u64 % a[1]) * a[0] + tile.s as u64 % a[0]) as usize];
+        let from = &self.tiles[k][((tile.t % a[1]) * a[0] + tile.s % a[0]) as usize];
         if out.len() != from.len() {
             return Err(SourceError::BufferSize { tile, expected: from.len(), found: out.len() });
         }
@@ -70,7 +77,7 @@ impl TileSource for PreEncoded {
 /// level 0 kept up).
 #[derive(Clone, Debug, Serialize)]
 pub struct Flight {
-    /// `bc1`.
+    /// `bc1` (or `rgba8`, the same flight without block compression).
     pub format: &'static str,
     /// How the tiles were made (pre-encoded, see the module's documentation).
     pub source: &'static str,
@@ -97,8 +104,9 @@ pub struct Flight {
     pub peak_resident_bytes: u64,
 }
 
-/// Flies `seconds` in real time over the pre-encoded `bc` texture with every default.
-pub fn fly(bc: Bc, seconds: f64) -> anyhow::Result<Flight> {
+/// Flies `seconds` in real time over the pre-encoded `bc` texture (`None`: the same tiles in
+/// RGBA8, made before the flight likewise) with every default.
+pub fn fly(bc: Option<Bc>, seconds: f64) -> anyhow::Result<Flight> {
     let (texture, clip, tile) = (1u64 << 26, 2048, 256);
     let (speed, hz) = (1000i64, 60.0);
     let source: Arc<dyn TileSource> = Arc::new(PreEncoded::new(bc, texture, clip, tile)?);
@@ -138,8 +146,8 @@ pub fn fly(bc: Bc, seconds: f64) -> anyhow::Result<Flight> {
     let cpu = proc_self().cpu_s - cpu_before;
     let after = map.stats();
     Ok(Flight {
-        format: bc.name(),
-        source: "pre-encoded blocks of the hash texture (4 x 4 tiles a level, encoded before the flight)",
+        format: bc.map_or("rgba8", |b| b.name()),
+        source: "the hash texture's tiles made (and encoded) before the flight, 4 x 4 a level",
         texture,
         clip,
         tile,
