@@ -63,7 +63,7 @@
 //!
 //! | module | public submodules, and what for |
 //! |---|---|
-//! | [`accuracy`] | `render` (the reference renderer and its camera), `study` (per-frame metrics, flights), `sweep` (the speed/accuracy sweep), `heights` (the height study): `clipbench accuracy` and the GPU client |
+//! | [`accuracy`] | `render` (the reference renderer and its camera), `study` (per-frame metrics, flights), `sweep` (the speed/accuracy sweep), `heights` (the height study), `formats` (the texel-format axis: PSNR, bytes and encoding of each format): `clipbench accuracy`, `clipbench formats` and the GPU client |
 //! | [`config`] | `tokens` (the token table: `cliptex tokens`, the tests of every token) |
 //! | [`growing`] | `index`, `input`, `rebuild`, `serve`, `store`, `watch`: a growing texture's stages, which the service's patch admission and `clipbench growing` drive one by one |
 //! | [`paging`] | `adaptive` (the default policy's per-level paging and its reasons, in the service's statistics) |

@@ -14,6 +14,7 @@
 //! ([`study::Case::format`]; PSNR then against a peak of 65535).
 
 pub(crate) mod cache;
+pub mod formats;
 pub mod heights;
 pub mod render;
 pub mod study;

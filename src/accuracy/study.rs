@@ -152,6 +152,12 @@ pub enum StudyError {
     /// A height texture could not be made.
     #[error("height texture: {0}")]
     Heights(String),
+    /// A tile could not be read (the format axis reads its sources directly).
+    #[error("{0}")]
+    Source(#[from] crate::source::SourceError),
+    /// A texel format the format axis cannot measure, or encode into.
+    #[error("texel format: {0}")]
+    Format(String),
 }
 
 /// Compares a frame with its reference at 8 bits per channel: (PSNR, largest channel error,

@@ -8,7 +8,7 @@ use super::values::{self, SizeRule};
 use super::{check_version, portability, ImageCachePlan, Options, ReadFunc};
 use crate::config::{Diagnostics, FileKind, Severity, Span, Spanned, SyntaxFile, TokenId, Value};
 use crate::place::Place;
-use crate::texel::TexelFormat;
+use crate::texel::{Bc, TexelFormat};
 use std::path::{Path, PathBuf};
 
 /// What a clip texture passes down to each of its image caches.
@@ -115,7 +115,12 @@ pub(crate) fn read_formats(
     }
     let (ext, int, img) = (vals[0].clone()?, vals[1].clone()?, vals[2].clone()?);
     match formats::texel_format(ext.value, img.value) {
-        Some(t) => Some((ext, int, img, t)),
+        Some(t) => {
+            if let Some(bc) = t.block() {
+                note_block_format(r, spans[0], &ext, bc);
+            }
+            Some((ext, int, img, t))
+        }
         None => {
             let d = r
                 .diag(
@@ -132,6 +137,29 @@ pub(crate) fn read_formats(
             None
         }
     }
+}
+
+/// Notes that the texels are a block-compressed format (`CLIPMAP_BC*`): this crate's extension,
+/// which Performer 3.0 would not read, so a portability finding (an error under `--strict`), as
+/// the other extensions are.
+fn note_block_format(r: &mut Reader<'_>, span: Option<Span>, ext: &FormatValue, bc: Bc) {
+    if r.reported("block-format-extension", span) {
+        return;
+    }
+    let d = r
+        .diag(
+            Severity::Warning,
+            "block-format-extension",
+            span,
+            format!(
+                "`ext_format {}` names {} blocks, an extension of this reader; Performer 3.0 would not read it",
+                ext.written,
+                bc.name().to_uppercase()
+            ),
+        )
+        .found(ext.written.clone())
+        .hint("keep it for this engine (docs/CONFIG.md §20); for a texture Performer must read, prepare it with `clipprep --format rgb8` or `rgba8`");
+    r.push(portability(d));
 }
 
 /// Builds the plan of one `.ic` file.

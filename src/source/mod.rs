@@ -32,7 +32,7 @@ pub(crate) mod throttle;
 pub mod tiles;
 
 pub use crate::tile::TileId;
-pub use bc::{BcError, BcQuality, BcSource};
+pub use bc::{encode_padded, encoder_input, BcError, BcQuality, BcSource};
 pub use cog::{CogError, CogSource};
 pub use configured::cog_of;
 pub use desc::{level_count, level_size, DescError, LevelDesc, TextureDesc, MAX_TEXTURE_SIZE};

@@ -64,6 +64,7 @@ const API: &[(&str, &[&str])] = &[
         ".",
         &[
             "mod accuracy",
+            "mod accuracy::formats",
             "mod accuracy::heights",
             "mod accuracy::render",
             "mod accuracy::study",

@@ -34,6 +34,8 @@ mod cog;
 mod cog_http;
 mod cog_shared;
 mod engine;
+mod formats;
+mod formats_flight;
 mod growing;
 mod perf;
 mod policies;
@@ -74,6 +76,7 @@ Examples:
   clipbench views --quick --json
   clipbench remote --quick --json
   clipbench cog --quick --json
+  clipbench formats --quick --json
   clipbench tiles --quick --json
   clipbench engine --quick
   clipbench accuracy --quick --out study
@@ -187,6 +190,15 @@ Needs GDAL (gdal_translate and Python's osgeo.gdal; --install-peers runs apt-get
 with GDAL, reads every level-0 tile with both, and compares the texels. Exit status: 0 ok, 1 a
 texel differs from GDAL's decode, 2 the benchmark could not run.")]
     Cog(cog::Args),
+    /// Texel formats (rgba8, bc7, bc1, bc4, bc5) on a photograph: PSNR, bytes, encoding and ingest.
+    #[command(after_help = "\
+Examples:
+  clipbench formats --quick --json
+  clipbench formats --image photo.jpg
+
+The photograph: --image, else matplotlib's grace_hopper.jpg (apt-get install
+python-matplotlib-data, or pip install matplotlib); without it, the procedural terrain, said so.")]
+    Formats(formats::Args),
     /// A tile service and tile archives served as they are (XYZ over HTTP, PMTiles over HTTP
     /// and from disk, MBTiles) against GDAL reading the same tiles and curl fetching them, and
     /// a real-time flight over the XYZ service with latency added to every request.
@@ -248,6 +260,7 @@ fn main() -> ExitCode {
         #[cfg(feature = "remote")]
         Command::Remote(args) => remote::main(args),
         Command::Cog(args) => cog::main(args),
+        Command::Formats(args) => formats::main(args),
         #[cfg(feature = "remote")]
         Command::Tiles(args) => tiles::main(args),
         Command::Engine { quick, runs, json, smoke, centre_alignment, size_log2 } => {
@@ -360,12 +373,17 @@ fn accuracy(quick: bool, out: PathBuf, json: bool, quiet: bool, format: clipmap:
     {
         Ok(report) => {
             let path = out.join("ACCURACY.md");
-            let text = format!(
+            let mut text = format!(
                 "{report}\n{}\n{}\n{}",
                 sweep::CONCLUSIONS,
                 clipmap::accuracy::heights::report(&heights, quick, &command),
                 clipmap::accuracy::heights::CONCLUSIONS
             );
+            // The texel format axis' section holds `clipbench formats`' figures: kept as it is.
+            let old = std::fs::read_to_string(&path).unwrap_or_default();
+            if let Some(kept) = clipmap::accuracy::formats::kept_section(&old) {
+                text = format!("{}\n{kept}", text.trim_end());
+            }
             if let Err(e) = sweep::write_whole(&path, text) {
                 eprintln!("clipbench accuracy: cannot write {}: {e}", path.display());
                 return 2;
