@@ -374,6 +374,12 @@ impl Fetch for ClipFetch<'_> {
         self.0.desc().format()
     }
 
+    /// A texture that wraps in longitude (`Settings::wrap_longitude`): level 0, the widest,
+    /// wraps whenever any level does.
+    fn wraps(&self) -> bool {
+        self.0.level(0).wrap
+    }
+
     fn raw(&mut self, level: u32, s: i64, t: i64, out: &mut [u8]) -> bool {
         match self.0.level(level).texel(s, t) {
             Some(bytes) => {

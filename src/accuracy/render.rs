@@ -167,10 +167,12 @@ pub(crate) fn render_clipmap_levels(
         Some((offset, effective)) => (offset as f64, (offset as f64 + effective.max(1) as f64 - 1.0).min(count - 1.0)),
         None => (0.0, count - 1.0),
     };
+    // A texture that wraps in longitude has no west or east edge, as in `mapping_pixel`.
+    let wraps = map.level(0).wrap;
     (0..cam.height)
         .flat_map(|j| (0..cam.width).map(move |i| (i, j)))
         .map(|(i, j)| match cam.footprint(i, j) {
-            Some(fp) if in_texture(fp.uv, size) => {
+            Some(fp) if in_texture(fp.uv, size) || wraps && fp.uv[1] >= 0.0 && fp.uv[1] < size[1] as f64 => {
                 match sample_clipmap(map, filter, fp.uv[0], fp.uv[1], fp.lod.clamp(lo, last)) {
                     Some(s) => ground(s.rgba, s.lod),
                     None => ground(BLACK, last),

@@ -554,3 +554,41 @@ fn the_clipmap_and_the_mapping_sample_heights_exactly_as_the_full_mipmap() {
     let e = sample_mapping_height(&colour_client, Filter::Point, 5.5, 5.5, 0.0).unwrap_err();
     assert!(e.to_string().contains("the mapping is not a height texture"), "{e}");
 }
+
+/// A clipmap that wraps in longitude (`Settings::wrap_longitude`) is sampled across its
+/// antimeridian as the mapping's readers sample it: column s is column `s mod width`, so a
+/// footprint just past the east edge takes the westmost texels and one just west of s = 0 the
+/// eastmost, where a texture that does not wrap clamps to its edge.
+#[test]
+fn a_wrapping_clipmap_samples_across_the_antimeridian_at_s_mod_width() {
+    let size = 1024u64;
+    let desc =
+        TextureDesc::new([size, size], 64, TexelFormat::RGBA8, [16, 16]).unwrap().with_invalid_border(2).unwrap();
+    let src: Arc<dyn TileSource> = Arc::new(HashSource::new(desc));
+    let settings = Settings { budget_ns: None, wrap_longitude: true, ..Settings::default() };
+    let mut map = Clipmap::new(src.clone(), settings).unwrap();
+    let centre = [size as i64 - 2, 500];
+    for _ in 0..8 {
+        map.tick(centre, Some([0, 0]));
+        map.wait_for_reads();
+    }
+    map.tick(centre, Some([0, 0]));
+    assert_eq!(map.min_lod(), 0.0);
+    let mut mip = MipmapSampler::new(src.as_ref());
+    let w = size as f64;
+    for (u, at) in [(w + 0.5, 0.5), (w + 7.25, 7.25), (w - 0.5, w - 0.5), (-0.5, w - 0.5), (-3.75, w - 3.75)] {
+        let v = 500.5;
+        let got = sample_clipmap(&map, Filter::Point, u, v, 0.0).unwrap();
+        assert_eq!(got.lod, 0.0, "({u}, {v}): level 0 holds it");
+        let want = mip.sample(Filter::Point, at, v, 0.0).unwrap();
+        assert_eq!(got.rgba.map(f32::to_bits), want.map(f32::to_bits), "({u}, {v}) against ({at}, {v})");
+    }
+    // Bilinear at the seam blends column width - 1 with column 0.
+    let got = sample_clipmap(&map, Filter::Bilinear, w, 500.5, 0.0).unwrap().rgba;
+    let (east, west) =
+        (mip.sample(Filter::Point, w - 0.5, 500.5, 0.0).unwrap(), mip.sample(Filter::Point, 0.5, 500.5, 0.0).unwrap());
+    for c in 0..4 {
+        let want = east[c] + (west[c] - east[c]) * 0.5;
+        assert!((got[c] - want).abs() < 1e-6, "component {c}: {} against {want}", got[c]);
+    }
+}
