@@ -10,14 +10,12 @@
 //! them, fewer), served by tile number modulo 4 along each axis. Its reads copy blocks into the
 //! slots and encode nothing, as a pre-encoded pyramid's reads do (without the disk).
 
-use super::perf::{proc_self, quantile};
-use clipmap::clip::{Clipmap, Settings};
+use clipmap::clip::Settings;
 use clipmap::source::{BcQuality, BcSource, SourceError, TextureDesc, TileId, TileSource};
 use clipmap::texel::Bc;
 use clipmap_service::{procedural_source, Procedural};
 use serde::Serialize;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
 
 /// Pre-encoded blocks, per level: `tiles[level][(t % 4) * 4 + s % 4]` (fewer where the level has
 /// fewer tiles, taken modulo its count).
@@ -108,62 +106,29 @@ pub struct Flight {
 /// RGBA8, made before the flight likewise) with every default.
 pub fn fly(bc: Option<Bc>, seconds: f64) -> anyhow::Result<Flight> {
     let (texture, clip, tile) = (1u64 << 26, 2048, 256);
-    let (speed, hz) = (1000i64, 60.0);
     let source: Arc<dyn TileSource> = Arc::new(PreEncoded::new(bc, texture, clip, tile)?);
-    let mut map = Clipmap::new(source, Settings::default())?;
-    // Start where the whole flight stays inside the texture, filled (untimed).
-    let mut c = [(texture / 4) as i64, (texture / 2) as i64];
-    for _ in 0..100 {
-        if map.tick(c, Some([0, 0])).min_lod == 0.0 {
-            break;
-        }
-        map.wait_for_reads();
-    }
-    let before = map.stats().clone();
-    let period = Duration::from_secs_f64(1.0 / hz);
-    let ticks = (seconds * hz) as u64;
-    let (mut times, mut over, mut disabled, mut lod_sum, mut late) = (Vec::new(), 0u64, 0u64, 0.0, 0u64);
-    let (mut shown, mut after_first_second) = (0u64, 0u64);
-    let cpu_before = proc_self().cpu_s;
-    let start = Instant::now();
-    for i in 0..ticks {
-        std::thread::sleep((start + period * i as u32).saturating_duration_since(Instant::now()));
-        c[0] += speed;
-        let t = Instant::now();
-        let r = map.tick(c, Some([speed, 0]));
-        let dt = t.elapsed();
-        times.push(dt.as_secs_f64());
-        late += u64::from(dt > period);
-        over += u64::from(r.over_budget);
-        disabled += u64::from(!r.disabled_levels.is_empty());
-        lod_sum += r.min_lod;
-        if i >= hz as u64 {
-            after_first_second += 1;
-            shown += u64::from(r.min_lod < 1.0);
-        }
-    }
-    let wall = start.elapsed().as_secs_f64();
-    let cpu = proc_self().cpu_s - cpu_before;
-    let after = map.stats();
+    let settings = Settings::default();
+    let lookahead = settings.lookahead;
+    let f = super::perf::fly_over(source, settings, lookahead, seconds)?;
     Ok(Flight {
         format: bc.map_or("rgba8", |b| b.name()),
         source: "the hash texture's tiles made (and encoded) before the flight, 4 x 4 a level",
-        texture,
-        clip,
-        tile,
-        texels_per_tick: speed,
-        tick_hz: hz,
-        seconds: wall,
-        ticks,
-        level0_shown_share: if after_first_second == 0 { 0.0 } else { shown as f64 / after_first_second as f64 },
-        ticks_with_disabled_levels: disabled,
-        ticks_over_budget: over,
-        late_ticks: late,
-        mean_min_lod: lod_sum / ticks.max(1) as f64,
-        tick_p50_s: quantile(&times, 0.5),
-        tick_p99_s: quantile(&times, 0.99),
-        tiles_read_per_s: (after.tiles_read - before.tiles_read) as f64 / wall,
-        cpu_cores_used: cpu / wall,
-        peak_resident_bytes: after.peak_resident_bytes,
+        texture: f.texture,
+        clip: f.clip,
+        tile: f.tile,
+        texels_per_tick: f.texels_per_tick,
+        tick_hz: f.tick_hz,
+        seconds: f.seconds,
+        ticks: f.ticks,
+        level0_shown_share: f.level0_shown_share,
+        ticks_with_disabled_levels: f.ticks_with_disabled_levels,
+        ticks_over_budget: f.ticks_over_budget,
+        late_ticks: f.late_ticks,
+        mean_min_lod: f.mean_min_lod,
+        tick_p50_s: f.tick_p50_s,
+        tick_p99_s: f.tick_p99_s,
+        tiles_read_per_s: f.tiles_read_per_s,
+        cpu_cores_used: f.cpu_cores_used,
+        peak_resident_bytes: f.peak_resident_bytes,
     })
 }

@@ -28,6 +28,7 @@ mod human;
 mod ingest;
 pub mod install;
 mod scale;
+pub(crate) use scale::fly_over;
 mod service;
 
 use anyhow::Context;

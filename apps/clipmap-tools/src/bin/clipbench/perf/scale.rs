@@ -80,7 +80,6 @@ pub fn measure(size: Size) -> anyhow::Result<(Scale, Scale)> {
 
 fn fly(clip: u64, tile: u64, seconds: f64, ahead: Option<u64>) -> anyhow::Result<Scale> {
     let texture = 1u64 << 26;
-    let (speed, hz) = (1000i64, 60.0);
     let plain = procedural_source(Procedural::Hash, texture, clip, tile)?;
     // A mem region sized for this flight puts its spare tiles ahead of the motion (the `ahead`
     // prefetch policy, `--prefetch ahead`): the default ring would split them around the window
@@ -104,6 +103,22 @@ fn fly(clip: u64, tile: u64, seconds: f64, ahead: Option<u64>) -> anyhow::Result
         }
     };
     let lookahead = ahead.unwrap_or(settings.lookahead);
+    fly_over(source, settings, lookahead, seconds)
+}
+
+/// The flight itself over `source` (a 2^26 texture) with `settings`: 1000 level-0 texels a tick
+/// along +s at 60 ticks a second for `seconds`, from where the whole flight stays inside the
+/// texture, filled first (untimed). `lookahead` is reported as given. `clipbench formats` flies
+/// it over pre-encoded block textures.
+pub(crate) fn fly_over(
+    source: std::sync::Arc<dyn clipmap::source::TileSource>,
+    settings: Settings,
+    lookahead: u64,
+    seconds: f64,
+) -> anyhow::Result<Scale> {
+    let (texture, clip, tile) = (source.desc().size()[0], source.desc().clip_size(), source.desc().level(0).tile[0]);
+    let (speed, hz) = (1000i64, 60.0);
+    let prefetch = settings.prefetch;
     let budget_ms = settings.budget_ns.unwrap_or(0) as f64 / 1e6;
     let grid_budget_bytes = Clipmap::grid_budget(source.desc(), &settings);
     let mut map = Clipmap::new(source, settings)?;
