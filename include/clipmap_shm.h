@@ -22,7 +22,7 @@
  *   rc = clipmap_read_tile(&m, k, S, T, buf);     // buf: m.levels[k].slot_bytes bytes, the tile's
  *                                                 // blocks[0] x blocks[1] blocks (codes as above)
  *   rc = clipmap_decode_blocks(m.texel_format, buf, m.levels[k].slot_bytes, m.levels[k].tile[0],
- *                              m.levels[k].tile[1], texels);  // BC1, BC4, BC5 for checks (not BC7)
+ *                              m.levels[k].tile[1], texels);  // BC1, BC4, BC5, BC7 for checks
  *
  * A renderer asks for a centre through the request mapping: clipmap_request_open(req_path, &m,
  * &r), then clipmap_request_centre(&r, s, t, vs, vt).
@@ -297,7 +297,7 @@
 #define CLIPMAP_FORMAT_L16I 12u
 /* Block-compressed (docs/SHM.md, "Block-compressed formats"): slots hold the tile's 4 x 4 blocks,
  * the header's bytes per texel are the bytes of one block; read them whole (clipmap_read_tile) and
- * decode them for a check (clipmap_decode_blocks: BC1, BC4 and BC5; BC7 is not decoded here). */
+ * decode them for a check (clipmap_decode_blocks: BC1, BC4, BC5 and BC7). */
 #define CLIPMAP_FORMAT_BC1 20u           /* RGB, 8 bytes a block (Direct3D BC1_UNORM) */
 #define CLIPMAP_FORMAT_BC4 21u           /* one channel, 8 bytes a block (BC4_UNORM) */
 #define CLIPMAP_FORMAT_BC5 22u           /* two channels, 16 bytes a block (BC5_UNORM) */
@@ -1913,13 +1913,14 @@ static inline int clipmap_read_tile(const struct clipmap_map *m, uint32_t level,
     return CLIPMAP_BUSY;
 }
 
-/* Bytes of one texel clipmap_decode_blocks gives for format `code`: 4 (RGBA8) for BC1, 1 for BC4,
- * 2 for BC5; 0 for a format it does not decode (BC7 and every texel format). */
+/* Bytes of one texel clipmap_decode_blocks gives for format `code`: 4 (RGBA8) for BC1 and BC7, 1
+ * for BC4, 2 for BC5; 0 for a format it does not decode (every texel format). */
 static inline uint32_t clipmap_decoded_bytes(uint32_t code) {
     switch (code) {
     case CLIPMAP_FORMAT_BC1: return 4;
     case CLIPMAP_FORMAT_BC4: return 1;
     case CLIPMAP_FORMAT_BC5: return 2;
+    case CLIPMAP_FORMAT_BC7: return 4;
     default: return 0;
     }
 }
@@ -1976,12 +1977,142 @@ static inline void clipmap_bc4_block(const unsigned char *b, unsigned char *out,
         for (int x = 0; x < 4; x++, idx >>= 3) out[(size_t)y * pitch + (size_t)x * px] = (unsigned char)a[idx & 7];
 }
 
+/* BC7's partitions (docs/SHM.md, "Block-compressed formats"): texel i's subset (i = 4 * row +
+ * column) is bit i of a two-subset partition and bits 2i, 2i + 1 of a three-subset one. */
+static const uint16_t clipmap_bc7_partitions2[64] = {
+    0xcccc, 0x8888, 0xeeee, 0xecc8, 0xc880, 0xfeec, 0xfec8, 0xec80, 0xc800, 0xffec, 0xfe80, 0xe800, 0xffe8,
+    0xff00, 0xfff0, 0xf000, 0xf710, 0x008e, 0x7100, 0x08ce, 0x008c, 0x7310, 0x3100, 0x8cce, 0x088c, 0x3110,
+    0x6666, 0x366c, 0x17e8, 0x0ff0, 0x718e, 0x399c, 0xaaaa, 0xf0f0, 0x5a5a, 0x33cc, 0x3c3c, 0x55aa, 0x9696,
+    0xa55a, 0x73ce, 0x13c8, 0x324c, 0x3bdc, 0x6996, 0xc33c, 0x9966, 0x0660, 0x0272, 0x04e4, 0x4e40, 0x2720,
+    0xc936, 0x936c, 0x39c6, 0x639c, 0x9336, 0x9cc6, 0x817e, 0xe718, 0xccf0, 0x0fcc, 0x7744, 0xee22};
+static const uint32_t clipmap_bc7_partitions3[64] = {
+    0xaa685050u, 0x6a5a5040u, 0x5a5a4200u, 0x5450a0a8u, 0xa5a50000u, 0xa0a05050u, 0x5555a0a0u, 0x5a5a5050u,
+    0xaa550000u, 0xaa555500u, 0xaaaa5500u, 0x90909090u, 0x94949494u, 0xa4a4a4a4u, 0xa9a59450u, 0x2a0a4250u,
+    0xa5945040u, 0x0a425054u, 0xa5a5a500u, 0x55a0a0a0u, 0xa8a85454u, 0x6a6a4040u, 0xa4a45000u, 0x1a1a0500u,
+    0x0050a4a4u, 0xaaa59090u, 0x14696914u, 0x69691400u, 0xa08585a0u, 0xaa821414u, 0x50a4a450u, 0x6a5a0200u,
+    0xa9a58000u, 0x5090a0a8u, 0xa8a09050u, 0x24242424u, 0x00aa5500u, 0x24924924u, 0x24499224u, 0x50a50a50u,
+    0x500aa550u, 0xaaaa4444u, 0x66660000u, 0xa5a0a5a0u, 0x50a050a0u, 0x69286928u, 0x44aaaa44u, 0x66666600u,
+    0xaa444444u, 0x54a854a8u, 0x95809580u, 0x96969600u, 0xa85454a8u, 0x80959580u, 0xaa141414u, 0x96960000u,
+    0xaaaa1414u, 0xa05050a0u, 0xa0a5a5a0u, 0x96000000u, 0x40804080u, 0xa9a8a9a8u, 0xaaaaaa44u, 0x2a4a5254u};
+/* The anchors: the texel whose index of subset 1 (and 2) is stored with one bit less (subset 0's
+ * is texel 0). */
+static const unsigned char clipmap_bc7_anchors2[64] = {
+    15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 2, 8, 2, 2, 8, 8, 15, 2, 8, 2, 2, 8, 8, 2, 2,
+    15, 15, 6, 8, 2, 8, 15, 15, 2, 8, 2, 2, 2, 15, 15, 6, 6, 2, 6, 8, 15, 15, 2, 2, 15, 15, 15, 15, 15, 2, 2, 15};
+static const unsigned char clipmap_bc7_anchors3[64][2] = {
+    {3, 15}, {3, 8}, {15, 8}, {15, 3}, {8, 15}, {3, 15}, {15, 3}, {15, 8}, {8, 15}, {8, 15}, {6, 15}, {6, 15},
+    {6, 15}, {5, 15}, {3, 15}, {3, 8}, {3, 15}, {3, 8}, {8, 15}, {15, 3}, {3, 15}, {3, 8}, {6, 15}, {10, 8},
+    {5, 3}, {8, 15}, {8, 6}, {6, 10}, {8, 15}, {5, 15}, {15, 10}, {15, 8}, {8, 15}, {15, 3}, {3, 15}, {5, 10},
+    {6, 10}, {10, 8}, {8, 9}, {15, 10}, {15, 6}, {3, 15}, {15, 8}, {5, 15}, {15, 3}, {15, 6}, {15, 6}, {15, 8},
+    {3, 15}, {15, 3}, {5, 15}, {5, 15}, {5, 15}, {8, 15}, {5, 15}, {10, 15}, {5, 15}, {10, 15}, {8, 15}, {13, 15},
+    {15, 3}, {12, 15}, {3, 15}, {3, 8}};
+/* Per mode 0..7: subsets, partition bits, rotation bits, index selection bits, colour bits, alpha
+ * bits, p-bits per endpoint, shared p-bits per subset, index bits, secondary index bits. */
+static const unsigned char clipmap_bc7_modes[8][10] = {
+    {3, 4, 0, 0, 4, 0, 1, 0, 3, 0}, {2, 6, 0, 0, 6, 0, 0, 1, 3, 0}, {3, 6, 0, 0, 5, 0, 0, 0, 2, 0},
+    {2, 6, 0, 0, 7, 0, 1, 0, 2, 0}, {1, 0, 2, 1, 5, 6, 0, 0, 2, 3}, {1, 0, 2, 0, 7, 8, 0, 0, 2, 2},
+    {1, 0, 0, 0, 7, 7, 1, 0, 4, 0}, {2, 6, 0, 0, 5, 5, 1, 0, 2, 0}};
+/* The interpolation weights (of 64) of 2-, 3- and 4-bit indices, at [bits - 2]. */
+static const unsigned char clipmap_bc7_weights[3][16] = {
+    {0, 21, 43, 64},
+    {0, 9, 18, 27, 37, 46, 55, 64},
+    {0, 4, 9, 13, 17, 21, 26, 30, 34, 38, 43, 47, 51, 55, 60, 64}};
+
+/* The next `n` bits (n <= 8) of BC7 block `b` from bit *at (bit 0: the lowest of byte 0), *at
+ * advanced past them; bits past the block's 128 read as 0. */
+static inline uint32_t clipmap_bc7_take(const unsigned char *b, uint32_t *at, uint32_t n) {
+    uint32_t x = 0;
+    for (uint32_t i = 0; i < n; i++, (*at)++)
+        if (*at < 128) x |= (uint32_t)((b[*at >> 3] >> (*at & 7)) & 1) << i;
+    return x;
+}
+
+/* One BC7 block (16 bytes) into 4 x 4 RGBA8 texels at `out`, rows `pitch` bytes apart, every mode
+ * 0..7 by the format's definition (Direct3D 11's BC7 decoding: partitions, anchors, p-bits,
+ * endpoints widened by repeating their top bits, ((64 - w) * e0 + w * e1 + 32) >> 6 with the 2-,
+ * 3- and 4-bit weight tables, mode 4's index selection and modes 4 and 5's rotation). Exact, so the
+ * texels equal any conforming decoder's, bcdec's among them. A block whose first byte is 0 (no
+ * mode) decodes to transparent black. */
+static inline void clipmap_bc7_block(const unsigned char *b, unsigned char *out, size_t pitch) {
+    uint32_t mode = 0;
+    while (mode < 8 && !((b[0] >> mode) & 1)) mode++;
+    if (mode == 8) {
+        for (int y = 0; y < 4; y++) memset(out + (size_t)y * pitch, 0, 16);
+        return;
+    }
+    const unsigned char *md = clipmap_bc7_modes[mode];
+    const uint32_t ns = md[0], cb = md[4], ab = md[5], epb = md[6], spb = md[7], ib = md[8], ib2 = md[9];
+    uint32_t at = mode + 1;
+    const uint32_t partition = clipmap_bc7_take(b, &at, md[1]);
+    const uint32_t rotation = clipmap_bc7_take(b, &at, md[2]);
+    const uint32_t selection = clipmap_bc7_take(b, &at, md[3]);
+    const uint32_t ends = 2 * ns;
+    /* Endpoints: red of every endpoint, then green, blue and alpha (subset 0's two first). */
+    uint32_t ep[6][4], pbits[6] = {0, 0, 0, 0, 0, 0};
+    for (uint32_t c = 0; c < 3; c++)
+        for (uint32_t e = 0; e < ends; e++) ep[e][c] = clipmap_bc7_take(b, &at, cb);
+    for (uint32_t e = 0; e < ends; e++) ep[e][3] = ab ? clipmap_bc7_take(b, &at, ab) : 255;
+    /* P-bits: one per endpoint, or one per subset shared by its two endpoints. */
+    if (epb) {
+        for (uint32_t e = 0; e < ends; e++) pbits[e] = clipmap_bc7_take(b, &at, 1);
+    } else if (spb) {
+        for (uint32_t s = 0; s < ns; s++) pbits[2 * s] = pbits[2 * s + 1] = clipmap_bc7_take(b, &at, 1);
+    }
+    for (uint32_t e = 0; e < ends; e++) {
+        for (uint32_t c = 0; c < 4; c++) {
+            uint32_t n = c < 3 ? cb : ab, x = ep[e][c];
+            if (n == 0) continue;
+            if (epb || spb) {
+                x = x << 1 | pbits[e];
+                n++;
+            }
+            x <<= 8 - n;
+            ep[e][c] = (x | x >> n) & 255;
+        }
+    }
+    /* Indices: each texel's in turn, an anchor's with one bit less; then mode 4 and 5's secondary
+     * (alpha) indices, texel 0's with one bit less. */
+    const uint32_t a1 = ns == 2 ? clipmap_bc7_anchors2[partition] : ns == 3 ? clipmap_bc7_anchors3[partition][0] : 0;
+    const uint32_t a2 = ns == 3 ? clipmap_bc7_anchors3[partition][1] : 0;
+    uint32_t idx[16], idx2[16];
+    for (uint32_t i = 0; i < 16; i++) {
+        uint32_t anchor = i == 0 || (ns > 1 && i == a1) || (ns > 2 && i == a2);
+        idx[i] = clipmap_bc7_take(b, &at, ib - anchor);
+    }
+    for (uint32_t i = 0; i < 16; i++) idx2[i] = ib2 ? clipmap_bc7_take(b, &at, ib2 - (i == 0)) : idx[i];
+    const unsigned char *wc = clipmap_bc7_weights[ib - 2], *wa = clipmap_bc7_weights[(ib2 ? ib2 : ib) - 2];
+    const uint32_t *ic = idx, *ia = idx2;
+    if (selection) { /* mode 4: the colour takes the secondary indices, alpha the primary ones */
+        const unsigned char *tw = wc;
+        wc = wa;
+        wa = tw;
+        ic = idx2;
+        ia = idx;
+    }
+    for (uint32_t i = 0; i < 16; i++) {
+        uint32_t s = ns == 2 ? (clipmap_bc7_partitions2[partition] >> i) & 1
+                   : ns == 3 ? (clipmap_bc7_partitions3[partition] >> (2 * i)) & 3
+                             : 0;
+        const uint32_t *e0 = ep[2 * s], *e1 = ep[2 * s + 1], w = wc[ic[i]], wal = wa[ia[i]];
+        unsigned char t[4];
+        for (int c = 0; c < 3; c++) t[c] = (unsigned char)((e0[c] * (64 - w) + e1[c] * w + 32) >> 6);
+        t[3] = (unsigned char)((e0[3] * (64 - wal) + e1[3] * wal + 32) >> 6);
+        if (rotation) {
+            unsigned char r = t[3];
+            t[3] = t[rotation - 1];
+            t[rotation - 1] = r;
+        }
+        memcpy(out + (size_t)(i / 4) * pitch + (size_t)(i % 4) * 4, t, 4);
+    }
+}
+
 /* Decodes `blocks` (`len` bytes), a w x h-texel tile of format `code` stored as ceil(w / 4) x
  * ceil(h / 4) blocks in rows (as clipmap_read_tile copies it), into `out`: w * h texels of
  * clipmap_decoded_bytes(code) bytes, rows in increasing t, s fastest; the texels of a partial block
  * beyond w or h are dropped. A decoder for checks and for renderers without the GPU formats; it
- * gives bcdec's texels (the Rust client's decode_tile) bit for bit.
- * CLIPMAP_OK; CLIPMAP_NOT_VALID: a format it does not decode (BC7, or a texel format), or `len` is
+ * gives bcdec's texels (the Rust client's decode_tile) bit for bit: BC1, BC4 and BC5 with bcdec's
+ * arithmetic, BC7 (RGBA8) by the format's definition, which is exact.
+ * CLIPMAP_OK; CLIPMAP_NOT_VALID: a format it does not decode (a texel format), or `len` is
  * not ceil(w / 4) x ceil(h / 4) blocks of the format's bytes. */
 static inline int clipmap_decode_blocks(uint32_t code, const unsigned char *blocks, size_t len, uint64_t w,
                                         uint64_t h, unsigned char *out) {
@@ -1997,6 +2128,8 @@ static inline int clipmap_decode_blocks(uint32_t code, const unsigned char *bloc
                 clipmap_bc1_block(b, texels, 16);
             } else if (code == CLIPMAP_FORMAT_BC4) {
                 clipmap_bc4_block(b, texels, 4, 1);
+            } else if (code == CLIPMAP_FORMAT_BC7) {
+                clipmap_bc7_block(b, texels, 16);
             } else {
                 clipmap_bc4_block(b, texels, 8, 2);
                 clipmap_bc4_block(b + 8, texels + 1, 8, 2);

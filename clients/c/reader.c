@@ -24,10 +24,10 @@
  *
  * write tile (S, T) of LEVEL to the file OUT: --tile its slot's bytes as they are (clipmap_read_tile;
  * for a block-compressed format its blocks, docs/SHM.md "Block-compressed formats"), --decode a BC1,
- * BC4 or BC5 tile's texels decoded (clipmap_decode_blocks: TW x TH texels of 4, 1 or 2 bytes, rows in
- * increasing t). Each prints "level L tile S T bytes N" and tries again for up to SECONDS (default 5)
- * while the slot does not hold the tile ready or default; a tile missing, never ready or not decoded
- * here (BC7, a texel format) exits 2 saying why. The random reads and --dump refuse a block format
+ * BC4, BC5 or BC7 tile's texels decoded (clipmap_decode_blocks: TW x TH texels of 4, 1, 2 or 4 bytes,
+ * rows in increasing t). Each prints "level L tile S T bytes N" and tries again for up to SECONDS
+ * (default 5) while the slot does not hold the tile ready or default; a tile missing, never ready or
+ * not decoded here (a texel format) exits 2 saying why. The random reads and --dump refuse a block format
  * (exit 2): its texels have no address of their own.
  *
  *   ./reader MAPPING --heights
@@ -162,7 +162,7 @@ static int tile(int argc, char **argv, const struct clipmap_map *tm) {
     uint32_t px = clipmap_decoded_bytes(tm->texel_format);
     if (decode && px == 0) {
         fprintf(stderr, "clipmap reader: %s: --decode: texel format %u is not decoded here: this reader decodes bc1, "
-                "bc4 and bc5 (20, 21, 22); read the tile's bytes with --tile\n", argv[1], tm->texel_format);
+                "bc4, bc5 and bc7 (20, 21, 22, 23); read the tile's bytes with --tile\n", argv[1], tm->texel_format);
         return 2;
     }
     size_t n = (size_t)d->slot_bytes, texels = (size_t)(d->tile[0] * d->tile[1] * px);

@@ -115,10 +115,8 @@ fn odd_level_sizes_and_partial_last_tiles_publish_the_encoders_blocks_to_every_r
             let mut want = vec![0u8; c.levels[k].slot_bytes as usize];
             c.read_tile(k, [s, t], &mut want).unwrap();
             assert!(c_read(&exe, &map, "--tile", (k, s, t)).unwrap() == want, "{name} level {k} ({s}, {t}): C");
-            if bc == Bc::Bc1 {
-                let rust = c.decode_tile(k, [s, t]).unwrap();
-                assert!(c_read(&exe, &map, "--decode", (k, s, t)).unwrap() == rust, "{name} level {k}: C decode");
-            }
+            let rust = c.decode_tile(k, [s, t]).unwrap();
+            assert!(c_read(&exe, &map, "--decode", (k, s, t)).unwrap() == rust, "{name} level {k}: C decode");
             script += &format!("print(m.read_tile({k}, {s}, {t}).hex(), m.decode_tile({k}, {s}, {t}).hex())\n");
         }
         let text = python(&script);
