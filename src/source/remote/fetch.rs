@@ -294,11 +294,22 @@ impl Hedges {
         Hedges { sent: AtomicU64::new(0), hedged: AtomicU64::new(0), share }
     }
 
+    /// Whether one more hedge, with `hedged` sent so far and `sent` requests, keeps the hedges
+    /// within their share of the requests (the hedge counted as a request too).
+    fn allows(&self, hedged: u64, sent: u64) -> bool {
+        (hedged + 1) as f64 <= self.share * (sent + 1) as f64
+    }
+
+    /// Whether a hedge could be taken now ([`Hedges::take`] without taking it): a read that
+    /// could not be hedged is not timed for one.
+    pub fn has_room(&self) -> bool {
+        self.allows(self.hedged(), self.sent.load(Ordering::Relaxed))
+    }
+
     /// Takes one hedge if it keeps the hedges within their share of the requests.
     pub fn take(&self) -> bool {
-        let sent = self.sent.load(Ordering::Relaxed) as f64;
-        let share = self.share;
-        let within = |h: u64| ((h + 1) as f64 <= share * (sent + 1.0)).then_some(h + 1);
+        let sent = self.sent.load(Ordering::Relaxed);
+        let within = |h: u64| self.allows(h, sent).then_some(h + 1);
         let taken = self.hedged.fetch_update(Ordering::Relaxed, Ordering::Relaxed, within).is_ok();
         if taken {
             // A hedge is a request too.
@@ -690,8 +701,7 @@ impl Fetcher {
     /// How long a ranged read of `ep` may go unanswered before it is hedged, while hedges are
     /// within their share of the requests ([`RemoteOptions::hedge_percent`]).
     fn hedge_after(&self, ep: &Endpoint) -> Option<Duration> {
-        let sent = self.hedges.sent.load(Ordering::Relaxed) as f64;
-        if (self.hedges.hedged() + 1) as f64 > self.hedges.share * (sent + 1.0) {
+        if !self.hedges.has_room() {
             return None;
         }
         ep.state.lock().unwrap_or_else(|e| e.into_inner()).sizing.hedge_after()
