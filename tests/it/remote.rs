@@ -26,7 +26,7 @@ const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
 const READER: &str = env!("CARGO_BIN_EXE_clipmap-read");
 
 /// Prepares a hash pyramid (RGBA8) in `dir` with extra clipprep options; returns `dir`.
-fn prepare(dir: &Path, size: u64, tile: u64, clip: u64, extra: &[&str]) -> PathBuf {
+pub(crate) fn prepare(dir: &Path, size: u64, tile: u64, clip: u64, extra: &[&str]) -> PathBuf {
     let (s, t, c) = (size.to_string(), tile.to_string(), clip.to_string());
     let mut args = vec!["--source", "hash", "--size", &s, "--tile", &t, "--clip", &c, "--format", "rgba8", "--quiet"];
     args.extend_from_slice(extra);
@@ -36,14 +36,14 @@ fn prepare(dir: &Path, size: u64, tile: u64, clip: u64, extra: &[&str]) -> PathB
     dir.to_path_buf()
 }
 
-fn load(ct: &Path) -> plan::ClipTexturePlan {
+pub(crate) fn load(ct: &Path) -> plan::ClipTexturePlan {
     let l = plan::load_clip_texture(ct, &plan::Options::default()).unwrap();
     let rendered = l.render();
     l.plan.unwrap_or_else(|| panic!("{} should load:\n{rendered}", ct.display()))
 }
 
 /// Short timeouts and backoffs, so that faults resolve quickly.
-fn quick_opts() -> RemoteOptions {
+pub(crate) fn quick_opts() -> RemoteOptions {
     RemoteOptions {
         timeout: Duration::from_millis(1500),
         connect_timeout: Duration::from_millis(500),
@@ -66,7 +66,7 @@ fn assert_hash_tile(id: TileId, w: u64, h: u64, buf: &[u8]) {
     }
 }
 
-fn every_tile(src: &dyn TileSource) -> Vec<TileId> {
+pub(crate) fn every_tile(src: &dyn TileSource) -> Vec<TileId> {
     let d = src.desc();
     (0..d.level_count() as u32)
         .flat_map(|k| {
@@ -76,7 +76,7 @@ fn every_tile(src: &dyn TileSource) -> Vec<TileId> {
         .collect()
 }
 
-fn read_checked(src: &dyn TileSource, id: TileId) -> Result<(), SourceError> {
+pub(crate) fn read_checked(src: &dyn TileSource, id: TileId) -> Result<(), SourceError> {
     let d = src.desc().level(id.level);
     let mut buf = vec![0u8; src.desc().tile_bytes(id.level)];
     src.read_tile(id, &mut buf)?;

@@ -173,6 +173,11 @@ pub trait Backend: Send + Sync {
     fn ranges_ignored(&self) -> u64 {
         0
     }
+    /// Answers so far by the HTTP version they came in (this default counts none: a backend
+    /// whose client does not tell, such as S3's, which speaks HTTP/1.1).
+    fn versions(&self) -> super::protocol::AnswerVersions {
+        super::protocol::AnswerVersions::default()
+    }
     /// The object's length (a HEAD request).
     fn head(&self, loc: &Location) -> Result<u64, Failure>;
     /// Stores `bytes` as the object `loc`.
@@ -484,6 +489,11 @@ impl Fetcher {
     /// Answers so far, of every backend, that ignored a range ([`Backend::ranges_ignored`]).
     pub fn ranges_ignored(&self) -> u64 {
         self.http.ranges_ignored() + self.s3.ranges_ignored()
+    }
+
+    /// Answers so far, of every backend, by HTTP version ([`Backend::versions`]).
+    pub fn versions(&self) -> super::protocol::AnswerVersions {
+        self.http.versions().plus(self.s3.versions())
     }
 
     /// The options.
