@@ -516,7 +516,18 @@ fn a_slow_endpoint_holds_back_only_its_own_read_queue() {
 #[test]
 fn clipbench_remote_prints_its_contract_fields_and_reads_no_wrong_texel() {
     let dir = tempfile::tempdir().unwrap();
-    let args = ["remote", "--smoke", "--json", "--dir", dir.path().to_str().unwrap()];
+    // With a tail: a fifth of the delayed requests held 30 ms longer.
+    let args = [
+        "remote",
+        "--smoke",
+        "--json",
+        "--tail-ms",
+        "30",
+        "--tail-percent",
+        "20",
+        "--dir",
+        dir.path().to_str().unwrap(),
+    ];
     let (out, desc) = exec_bounded(dir.path(), env!("CARGO_BIN_EXE_clipbench"), &args, &[], Duration::from_secs(300));
     assert_eq!(out.status.code(), Some(0), "{desc}");
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {desc}"));
@@ -548,6 +559,8 @@ fn clipbench_remote_prints_its_contract_fields_and_reads_no_wrong_texel() {
     assert!(f["in_flight_limit"].as_u64().unwrap() >= 16, "{f}");
     assert!(!f["in_flight_reason"].as_str().unwrap().is_empty(), "{f}");
     assert!((0.0..=0.05).contains(&f["hedged_share"].as_f64().unwrap()), "{f}");
+    assert_eq!((f["tail_ms"].as_u64(), f["tail_share"].as_f64()), (Some(30), Some(0.2)), "{f}");
+    assert!(f["tail_held_requests"].as_u64().unwrap() > 0, "the proxy held some requests longer: {f}");
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "the scratch directory is removed: {desc}");
 }
 
