@@ -78,16 +78,26 @@ pub fn region(shape: &LevelShape, tex: Rect, velocity: [i64; 2], lead: [u64; 2])
         // The lead, at most what the grid can hold beside the window's tiles.
         let most = (g - (hi - lo)).max(0).saturating_mul(e);
         let lead = (lead[a].min(i64::MAX as u64) as i64).min(most);
+        // A lead that reaches the level's edge (not on a level that wraps around there): a
+        // flight there can only turn back or stop, so the grid's tiles the edge leaves unused
+        // keep the way it came, which it crosses again at once if it turns.
+        let edge = !(shape.wrap && a == 0);
         match velocity[a].signum() {
             1 => {
                 let front = (edges[a].1 + lead + e - 1).div_euclid(e);
                 r1 = r1.max(front.min(hi + (g - (hi - lo)))).min(n[a] as i64);
                 r0 = r0.max(r1 - g);
+                if edge && front >= n[a] as i64 {
+                    r0 = (r1 - g).max(0);
+                }
             }
             -1 => {
                 let front = (edges[a].0 - lead).div_euclid(e);
                 r0 = r0.min(front.max(lo - (g - (hi - lo)))).max(0);
                 r1 = r1.min(r0 + g);
+                if edge && front <= 0 {
+                    r1 = (r0 + g).min(n[a] as i64);
+                }
             }
             _ => {}
         }
@@ -512,6 +522,28 @@ mod tests {
         assert_eq!(region(&sh, tex, [5, 0], [0, 0]), ring);
         assert_eq!(region(&sh, tex, [5, 0], [10, 0]), ring);
         assert_eq!(region(&sh, tex, [-5, 3], [10, 10]), ring);
+    }
+
+    #[test]
+    fn at_the_levels_edge_the_grid_keeps_the_way_back() {
+        let sh = shape(14);
+        let n = 256;
+        // The window's last tile is the level's: the lead runs past the edge.
+        let tex = crate::geom::tex_region(sh.size, sh.clip, [(1 << 16) - 1024, 20_000]);
+        let need = crate::geom::tiles_covering(tex, sh.tile);
+        assert_eq!(need.s1, n);
+        let r = region(&sh, tex, [1000, 0], [4 * 256, 0]);
+        assert_eq!((r.s0, r.s1), (n - 14, n), "the whole grid, behind the window");
+        let back = region(&sh, crate::geom::tex_region(sh.size, sh.clip, [1024, 20_000]), [-1000, 0], [4 * 256, 0]);
+        assert_eq!((back.s0, back.s1), (0, 14));
+        // Away from the edge, behind the window only the ring's margin.
+        let mid = crate::geom::tex_region(sh.size, sh.clip, [20_000, 20_000]);
+        let ring_shape = LevelShape { grid: mem_grid(sh.size, sh.tile, sh.clip, 1), ..sh };
+        let ring = ring::Ring.mem_region(&ring_shape, mid, [0, 0], Rect::EMPTY);
+        assert_eq!(region(&sh, mid, [1000, 0], [4 * 256, 0]).s0, ring.s0);
+        // A level that wraps along s has no edge there.
+        let wraps = LevelShape { wrap: true, ..sh };
+        assert!(region(&wraps, tex, [1000, 0], [4 * 256, 0]).s0 > n - 14);
     }
 
     #[test]

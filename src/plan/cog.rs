@@ -12,7 +12,7 @@
 use super::fields::Reader;
 use super::naming::{anchor, expand_field};
 use super::{portability, Options};
-use crate::config::{Severity, Span, Spanned, SyntaxFile};
+use crate::config::{Severity, Span, SyntaxFile};
 use crate::place::Place;
 use crate::texel::TexelFormat;
 use serde::Serialize;
@@ -63,25 +63,7 @@ impl std::fmt::Debug for CogPlan {
 /// Reads the file's `#clipmap cog` line (lines without a value were reported by the paging
 /// reader of a `.ct`, which reads every `#clipmap` line's shape). `None` when there is none.
 pub(crate) fn read(r: &mut Reader<'_>, dir: &Path, opts: &Options, what: &str) -> Option<CogPlan> {
-    let lines = r.file.extensions.clone();
-    let mut found: Option<(Spanned<String>, Span)> = None;
-    for line in &lines {
-        let (Some(key), Some(value)) = (line.words.first(), line.words.get(1)) else { continue };
-        if key.value != "cog" {
-            continue;
-        }
-        if let Some((_, first)) = &found {
-            let d = r
-                .diag(Severity::Error, "duplicate-extension", Some(key.span), "`#clipmap cog` is given twice")
-                .found(value.value.clone())
-                .expected(format!("one COG for {what}"))
-                .hint(format!("keep one `#clipmap cog` line; the first one is at line {}", first.line));
-            r.push(d);
-            continue;
-        }
-        found = Some((value.clone(), key.span));
-    }
-    let (value, span) = found?;
+    let (value, span) = r.single_extension("cog", &format!("one COG for {what}"))?;
     let d = r
         .diag(
             Severity::Note,

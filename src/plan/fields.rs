@@ -65,6 +65,59 @@ impl<'a> Reader<'a> {
         Diagnostic::new(sev, code, &self.file.path, span, msg)
     }
 
+    /// The `#clipmap KEY VALUE` lines whose KEY is one of `keys`, as (key, value), in the file's
+    /// order. Lines without a value are left out: the paging reader reports every `#clipmap`
+    /// line's shape.
+    pub(crate) fn extension_settings(&self, keys: &[&str]) -> Vec<(Spanned<String>, Spanned<String>)> {
+        let line = |l: &crate::config::syntax::Extension| Some((l.words.first()?.clone(), l.words.get(1)?.clone()));
+        self.file.extensions.iter().filter_map(line).filter(|(k, _)| keys.contains(&k.value.as_str())).collect()
+    }
+
+    /// The value of the file's one `#clipmap KEY VALUE` line, and where its key is written; each
+    /// further such line is a `duplicate-extension` error that expects `one`. `None` when there
+    /// is none.
+    pub(crate) fn single_extension(&mut self, key: &str, one: &str) -> Option<(Spanned<String>, Span)> {
+        let mut found: Option<(Spanned<String>, Span)> = None;
+        for (k, value) in self.extension_settings(&[key]) {
+            if let Some((_, first)) = &found {
+                let d = self
+                    .diag(
+                        Severity::Error,
+                        "duplicate-extension",
+                        Some(k.span),
+                        format!("`#clipmap {key}` is given twice"),
+                    )
+                    .found(value.value.clone())
+                    .expected(one)
+                    .hint(format!("keep one `#clipmap {key}` line; the first one is at line {}", first.line));
+                self.push(d);
+                continue;
+            }
+            found = Some((value, k.span));
+        }
+        found
+    }
+
+    /// A `bad-extension-value` error at `value`, the value of `#clipmap KEY` that is no value of
+    /// it, saying what is `expected`.
+    pub(crate) fn bad_extension_value(
+        &mut self,
+        key: &Spanned<String>,
+        value: &Spanned<String>,
+        expected: impl Into<String>,
+    ) {
+        let d = self
+            .diag(
+                Severity::Error,
+                "bad-extension-value",
+                Some(value.span),
+                format!("`{}` is no value for `#clipmap {}`", value.value, key.value),
+            )
+            .found(value.value.clone())
+            .expected(expected);
+        self.push(d);
+    }
+
     /// Warns when a scalar token is repeated (the last value wins).
     fn repeated_scalar(&mut self, id: TokenId) {
         let all: Vec<_> = self.file.all(id).collect();

@@ -30,39 +30,25 @@ pub fn lines(g: &Georef) -> String {
 /// Reads the georeferencing lines of a `.ct` whose level 0 is `size` (`None` when it was
 /// refused, reported already): `None` when there are none or one was refused.
 pub(crate) fn read(r: &mut Reader<'_>, size: Option<[u64; 3]>) -> Option<Georef> {
-    let lines = r.file.extensions.clone();
+    let settings = r.extension_settings(&SETTINGS);
     let mut epsg: Option<(u32, Span)> = None;
     let mut transform: Option<([f64; 6], Span)> = None;
     let mut failed = false;
-    let mut flagged = false;
-    for line in &lines {
-        let (Some(key), Some(value)) = (line.words.first(), line.words.get(1)) else { continue };
-        if !SETTINGS.contains(&key.value.as_str()) {
-            continue;
-        }
-        if !flagged {
-            flagged = true;
-            let d = r
-                .diag(
-                    Severity::Warning,
-                    "georef-extension",
-                    Some(key.span),
-                    format!("`#clipmap {}` records where the texture is, which Performer 3.0 does not know", key.value),
-                )
-                .hint("Performer reads the `#clipmap` lines as comments; keep them for this engine (docs/GEOREF.md)");
-            r.push(portability(d));
-        }
+    // Once a file, at its first line.
+    if let Some((key, _)) = settings.first() {
+        let d = r
+            .diag(
+                Severity::Warning,
+                "georef-extension",
+                Some(key.span),
+                format!("`#clipmap {}` records where the texture is, which Performer 3.0 does not know", key.value),
+            )
+            .hint("Performer reads the `#clipmap` lines as comments; keep them for this engine (docs/GEOREF.md)");
+        r.push(portability(d));
+    }
+    for (key, value) in &settings {
         let mut bad = |r: &mut Reader<'_>, expected: String| {
-            let d = r
-                .diag(
-                    Severity::Error,
-                    "bad-extension-value",
-                    Some(value.span),
-                    format!("`{}` is no value for `#clipmap {}`", value.value, key.value),
-                )
-                .found(value.value.clone())
-                .expected(expected);
-            r.push(d);
+            r.bad_extension_value(key, value, expected);
             failed = true;
         };
         if key.value == "georef_epsg" {

@@ -45,41 +45,26 @@ fn formats_of(storage: HeightStorage) -> &'static str {
 /// reader, which reads every `#clipmap` line's shape; `None` when the texture is no height
 /// texture or a height line was refused.
 pub fn read(r: &mut Reader<'_>, texel: Option<TexelFormat>) -> Option<HeightPlan> {
-    let lines = r.file.extensions.clone();
+    let settings = r.extension_settings(&SETTINGS);
     let mut storage: Option<(HeightStorage, Span)> = None;
     let (mut scale, mut offset, mut nodata, mut levels) = (None, None, None, LevelRule::default());
     let mut first_setting: Option<(String, Span)> = None;
     let mut failed = false;
-    let mut flagged = false;
-    for line in &lines {
-        let (Some(key), Some(value)) = (line.words.first(), line.words.get(1)) else { continue };
-        if !SETTINGS.contains(&key.value.as_str()) {
-            continue;
-        }
-        if !flagged {
-            // Once a file, at its first height line.
-            flagged = true;
-            let d = r
-                .diag(
-                    Severity::Warning,
-                    "height-extension",
-                    Some(key.span),
-                    format!("`#clipmap {}` declares heights, which Performer 3.0 does not know", key.value),
-                )
-                .hint("Performer reads the `#clipmap` lines as comments and would serve the texels as plain luminance; keep them for this engine (docs/ELEVATION.md)");
-            r.push(portability(d));
-        }
+    // Once a file, at its first height line.
+    if let Some((key, _)) = settings.first() {
+        let d = r
+            .diag(
+                Severity::Warning,
+                "height-extension",
+                Some(key.span),
+                format!("`#clipmap {}` declares heights, which Performer 3.0 does not know", key.value),
+            )
+            .hint("Performer reads the `#clipmap` lines as comments and would serve the texels as plain luminance; keep them for this engine (docs/ELEVATION.md)");
+        r.push(portability(d));
+    }
+    for (key, value) in &settings {
         let mut bad = |r: &mut Reader<'_>, expected: &str| {
-            let d = r
-                .diag(
-                    Severity::Error,
-                    "bad-extension-value",
-                    Some(value.span),
-                    format!("`{}` is no value for `#clipmap {}`", value.value, key.value),
-                )
-                .found(value.value.clone())
-                .expected(expected.to_string());
-            r.push(d);
+            r.bad_extension_value(key, value, expected);
             failed = true;
         };
         // Only plain decimal numbers: Rust would read `nan` and `inf` as numbers too.

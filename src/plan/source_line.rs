@@ -10,16 +10,18 @@
 
 use super::fields::Reader;
 use super::{portability, Options};
-use crate::config::{Severity, Span, Spanned};
+use crate::config::{Severity, Span};
 use crate::place::Place;
 use serde::Serialize;
+use std::any::Any;
 use std::path::Path;
+use std::sync::Arc;
 
 /// The settings a tile-source line may give.
 pub(crate) const SETTINGS: [&str; 1] = ["source"];
 
 /// The tile pyramid a `.ct` names.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Serialize)]
 pub struct SourceLine {
     /// The name as written on the `#clipmap source` line.
     pub written: String,
@@ -29,6 +31,22 @@ pub struct SourceLine {
     /// Where the value is written.
     #[serde(skip)]
     pub span: Span,
+    /// The pyramid as it was opened when the configuration was loaded and checked against it,
+    /// kept for the source that serves it (`crate::source::open_plan`), so a remote archive is
+    /// opened once; `None` when not opened.
+    #[serde(skip)]
+    pub opened: Option<Arc<dyn Any + Send + Sync>>,
+}
+
+impl std::fmt::Debug for SourceLine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SourceLine")
+            .field("written", &self.written)
+            .field("name", &self.name)
+            .field("span", &self.span)
+            .field("opened", &self.opened.is_some())
+            .finish()
+    }
 }
 
 /// Whether `name` names a tile pyramid: `xyz:TEMPLATE`, or a name ending in `.pmtiles` or
@@ -54,25 +72,7 @@ fn anchored(dir: &Path, name: &str) -> String {
 /// Reads the file's `#clipmap source` line. `None` when there is none, or its value names no
 /// tile pyramid (an error at the line); a second line is an error too.
 pub(crate) fn read(r: &mut Reader<'_>, dir: &Path, opts: &Options) -> Option<SourceLine> {
-    let lines = r.file.extensions.clone();
-    let mut found: Option<(Spanned<String>, Span)> = None;
-    for line in &lines {
-        let (Some(key), Some(value)) = (line.words.first(), line.words.get(1)) else { continue };
-        if key.value != "source" {
-            continue;
-        }
-        if let Some((_, first)) = &found {
-            let d = r
-                .diag(Severity::Error, "duplicate-extension", Some(key.span), "`#clipmap source` is given twice")
-                .found(value.value.clone())
-                .expected("one tile source for the clip texture")
-                .hint(format!("keep one `#clipmap source` line; the first one is at line {}", first.line));
-            r.push(d);
-            continue;
-        }
-        found = Some((value.clone(), key.span));
-    }
-    let (value, span) = found?;
+    let (value, span) = r.single_extension("source", "one tile source for the clip texture")?;
     let d = r
         .diag(
             Severity::Note,
@@ -100,7 +100,7 @@ pub(crate) fn read(r: &mut Reader<'_>, dir: &Path, opts: &Options) -> Option<Sou
         r.push(d);
         return None;
     }
-    Some(SourceLine { written: value.value, name: anchored(dir, &expanded), span: value.span })
+    Some(SourceLine { written: value.value, name: anchored(dir, &expanded), span: value.span, opened: None })
 }
 
 #[cfg(test)]

@@ -42,8 +42,16 @@ pub fn load_clip_texture(path: &Path, opts: &Options) -> Result<Loaded<ClipTextu
     let mut check = Check { sources: &loaded.sources, opts, found: Vec::new() };
     let Some(tree) = check.tree(&abs, FileKind::ClipTexture) else { return Ok(loaded) };
     // A `.ct` naming a tile pyramid: its header against the pyramid (`configured_tiles.rs`).
-    let found = match loaded.plan.as_ref() {
-        Some(plan) => plan.source.as_ref().map(|line| super::configured_tiles::check(&abs, &tree, plan, line)),
+    let found = match loaded.plan.as_mut() {
+        Some(plan) => match plan.source.as_ref().map(|line| super::configured_tiles::check(&abs, &tree, plan, line)) {
+            Some((found, opened)) => {
+                if let Some(line) = plan.source.as_mut() {
+                    line.opened = opened.map(|src| src as Arc<dyn std::any::Any + Send + Sync>);
+                }
+                Some(found)
+            }
+            None => None,
+        },
         None => None,
     };
     if let Some(found) = found {

@@ -18,18 +18,36 @@ use crate::plan::source_line::SourceLine;
 use crate::plan::ClipTexturePlan;
 use crate::texel::TexelFormat;
 use std::path::Path;
+use std::sync::Arc;
 
 /// What the `.ct` at `file` (its syntax tree `tree`, its plan `plan`) says that the pyramid its
-/// `#clipmap source` line names does not serve. Empty when it cannot be opened.
-pub(crate) fn check(file: &Path, tree: &SyntaxFile, plan: &ClipTexturePlan, line: &SourceLine) -> Vec<Diagnostic> {
-    let opts = OpenOptions {
+/// `#clipmap source` line names does not serve (empty when it cannot be opened), and the pyramid
+/// as opened, for the source that serves it ([`pyramid_of`]).
+pub(crate) fn check(
+    file: &Path,
+    tree: &SyntaxFile,
+    plan: &ClipTexturePlan,
+    line: &SourceLine,
+) -> (Vec<Diagnostic>, Option<Arc<PyramidSource>>) {
+    match tiles::open(&line.name, &options(plan)) {
+        Some(Ok(src)) => (mismatches(file, tree, plan, line, &src), Some(Arc::new(src))),
+        _ => (Vec::new(), None),
+    }
+}
+
+/// How a `.ct`'s pyramid is opened: with the `.ct`'s clip size, as `clipmapd NAME --clip
+/// CLIP_SIZE` opens it.
+pub(crate) fn options(plan: &ClipTexturePlan) -> OpenOptions {
+    OpenOptions {
         pyramid: PyramidOptions { clip_size: Some(plan.clip_size), ..Default::default() },
         ..Default::default()
-    };
-    match tiles::open(&line.name, &opts) {
-        Some(Ok(src)) => mismatches(file, tree, plan, line, &src),
-        _ => Vec::new(),
     }
+}
+
+/// The pyramid a plan's `#clipmap source` line names, when the loader that checked the `.ct`
+/// opened it.
+pub(crate) fn pyramid_of(line: &SourceLine) -> Option<Arc<PyramidSource>> {
+    line.opened.clone()?.downcast::<PyramidSource>().ok()
 }
 
 /// The pyramid's texture as the `.ct` would have to say it.

@@ -380,11 +380,11 @@ pub fn open_plan(
     // A configuration naming a tile pyramid (`#clipmap source`, docs/TILES.md): the pyramid,
     // served as `clipmapd NAME --clip CLIP_SIZE` serves it.
     if let Some(line) = &plan.source {
-        let opts = tiles::OpenOptions {
-            pyramid: tiles::PyramidOptions { clip_size: Some(plan.clip_size), ..Default::default() },
-            ..Default::default()
-        };
-        let src = tiles::open(&line.name, &opts)
+        // Opened once: the loader that checked the `.ct` against it kept it.
+        if let Some(src) = configured_tiles::pyramid_of(line) {
+            return Ok(src);
+        }
+        let src = tiles::open(&line.name, &configured_tiles::options(&plan))
             .unwrap_or_else(|| {
                 Err(tiles::PyramidError::Info { place: line.name.clone(), problem: "names no tile source".into() })
             })

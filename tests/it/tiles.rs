@@ -242,33 +242,9 @@ fn clipmapd_publishes_gdals_texels_of_a_gdal2tiles_tree_at_their_places() {
     let template = std::path::PathBuf::from(format!("xyz:{}/tms/{{z}}/{{x}}/{{-y}}.png", d.display()));
     // Clip 1024, the texture's size: every level is resident whole, every texel compared.
     let served = crate::common::gdal::Served::start(&template, 1024, "xyz", d);
-    let c = &served.client;
-    assert_eq!(c.bytes_per_texel, 4, "RGBA8 for PNG tiles");
+    assert_eq!(served.client.bytes_per_texel, 4, "RGBA8 for PNG tiles");
     for k in 0..=usize::from(MAX_ZOOM) {
-        let z = MAX_ZOOM - k as u8;
-        let side = 1024u64 >> k;
-        let n = 1u64 << z;
-        let t0 = std::time::Instant::now();
-        let texels = loop {
-            if let Some(st) = c.level_state(k) {
-                if st.enabled && st.valid == [0, 0, side as i64, side as i64] {
-                    let mut buf = vec![0u8; (side * side * 4) as usize];
-                    if c.read_region(k, 0, 0, side, side, &mut buf).is_ok() {
-                        break buf;
-                    }
-                }
-            }
-            assert!(t0.elapsed() < Duration::from_secs(30), "level {k} never became valid\n{}", served.log());
-            std::thread::sleep(Duration::from_millis(5));
-        };
-        for t in 0..side {
-            for s in 0..side {
-                let tile = &gdal[&(z, (s / 256) as u32, (n - 1 - t / 256) as u32)];
-                let i = (((255 - t % 256) * 256 + s % 256) * 4) as usize;
-                let at = ((t * side + s) * 4) as usize;
-                assert_eq!(texels[at..at + 4], tile[i..i + 4], "level {k} texel ({s}, {t})\n{}", served.log());
-            }
-        }
+        served_level_is_gdals(&served, k, &gdal);
     }
 }
 

@@ -215,3 +215,39 @@ fn a_pmtiles_opens_with_one_request_of_16_kib_and_a_tile_in_a_leaf_costs_two_col
     assert_eq!(planet.fetch(addr(run.0 + run.1 / 3)).unwrap(), Fetched::Tile(run.2));
     assert!(seen() - before <= 2);
 }
+
+#[test]
+fn a_ct_naming_a_remote_pmtiles_opens_it_once_to_check_its_header_and_to_serve_it() {
+    let dir = tempfile::tempdir().unwrap();
+    write_archives(dir.path());
+    let nginx = Nginx::serve(dir.path());
+    let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 0);
+    let seen = || proxy.requests.load(Ordering::SeqCst);
+    let url = format!("{}/small.pmtiles", proxy.url());
+    let out = dir.path().join("cfg");
+    let (o, _) = crate::common::exec(
+        dir.path(),
+        env!("CARGO_BIN_EXE_clipprep"),
+        &["--input", &url, "--clip", "256", "--out", out.to_str().unwrap()],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ct = out.join("cfg.ct");
+    assert!(std::fs::read_to_string(&ct).unwrap().contains(&format!("#clipmap source {url}")));
+
+    // What opening the archive costs: its header and directory, and its first tile (PMTiles
+    // does not record the tile size).
+    let before = seen();
+    let opts = clipmap::source::tiles::OpenOptions::default();
+    drop(clipmap::source::tiles::open(&url, &opts).unwrap().unwrap());
+    let open = seen() - before;
+    assert_eq!(open, 2, "an open is the header's request and the first tile's");
+
+    let before = seen();
+    let loaded = clipmap::source::configured::load_clip_texture(&ct, &clipmap::plan::Options::default()).unwrap();
+    assert!(!loaded.diagnostics.has_errors(), "{:?}", loaded.diagnostics);
+    let plan = loaded.plan.expect("a plan");
+    assert_eq!(seen() - before, open, "checking the .ct against the archive opens it once");
+    let src = clipmap::source::open_plan(plan, &clipmap::limits::Limits::default()).unwrap();
+    assert_eq!(seen() - before, open, "serving the archive the check opened costs no second open");
+    assert_eq!(src.desc().size()[0], 256 * 8, "zooms 0..3 of 256-texel tiles");
+}

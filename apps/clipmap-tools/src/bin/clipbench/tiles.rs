@@ -564,10 +564,13 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
         mbtiles_bytes: std::fs::metadata(dir.join("tiles.mbtiles"))?.len(),
     };
     let (decode_rate, decode_image_us, decode_zune_us) = decode_only(&files, tile as usize, depth, passes)?;
-    // A pyramid source over the same tiles in memory: its checks, decode and copies alone.
+    // A pyramid source over the same tiles in memory: its checks, decode and copies alone. It
+    // holds only the finest zoom's tiles, the only ones a pass reads; it says it has every zoom,
+    // so that no coarser level is built from the finest (at full size, 8192² texels, more than a
+    // source builds coarser levels from).
     let memory = MemoryArchive {
         info: tiles::PyramidInfo {
-            min_zoom: max_zoom,
+            min_zoom: 0,
             max_zoom,
             tile_size: tile as u32,
             bounds: None,
