@@ -971,3 +971,50 @@ fn a_service_behind_a_delaying_proxy_shows_coarser_levels_only_right_texels_and_
     assert!(passed > 10_000, "only {passed} texels checked");
     assert!(slow.requests.load(std::sync::atomic::Ordering::SeqCst) > 0, "the tiles came through the proxy");
 }
+
+/// A server that answers every request `403 Forbidden` with a short reason; returns its port.
+fn forbidding_server() -> u16 {
+    use std::io::Read;
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        for conn in listener.incoming() {
+            let Ok(mut conn) = conn else { continue };
+            conn.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+            let mut head = Vec::new();
+            let mut byte = [0u8; 1];
+            while !head.ends_with(b"\r\n\r\n") && head.len() < 65536 {
+                match conn.read(&mut byte) {
+                    Ok(1) => head.push(byte[0]),
+                    _ => break,
+                }
+            }
+            let body = "AccessDenied";
+            let reply =
+                format!("HTTP/1.1 403 Forbidden\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}", body.len());
+            let _ = conn.write_all(reply.as_bytes());
+        }
+    });
+    port
+}
+
+#[test]
+fn cliptex_check_keeps_the_remote_error_of_an_unreadable_tile() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pyr = prepare(&d.join("pyr"), 512, 64, 128, &[]);
+    let port = forbidding_server();
+    let ct = point_config_at(&pyr, &d.join("cfg"), &format!("http://127.0.0.1:{port}"), &[]);
+    let (out, desc) =
+        exec_bounded(d, CLIPTEX, &["check", ct.to_str().unwrap(), "--json"], &[], Duration::from_secs(120));
+    assert_eq!(out.status.code(), Some(1), "no tile can be served:\n{desc}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["totals"]["unreadable"].as_u64().unwrap() > 0, "{}", v["totals"]);
+    let first = &v["problems"][0];
+    assert_eq!(first["problem"], "unreadable", "{first}");
+    let detail = first["detail"].as_str().unwrap_or_default();
+    assert!(detail.contains("403"), "the store's answer is kept, not only 'unreadable': {first}");
+    let (out, desc) = exec_bounded(d, CLIPTEX, &["check", ct.to_str().unwrap()], &[], Duration::from_secs(120));
+    assert_eq!(out.status.code(), Some(1));
+    assert!(desc.contains("403"), "the table's problem list says why too:\n{desc}");
+}
