@@ -22,12 +22,6 @@ use std::time::{Duration, Instant};
 /// earlier versions, so that a light load is read exactly as before.
 pub const FLOOR: usize = 16;
 
-/// The limit before anything was measured (unless the cap is lower): a cold start asks for the
-/// coarse levels and the view's finest tiles at once, and at the floor they would take several
-/// round trips where this takes one or two. The first measured window sets the limit from the
-/// demand (or the floor); a store that pushes back halves it as ever.
-pub const START: usize = 64;
-
 /// Factor over rate x latency: room for the rate's bursts and the latency's spread.
 pub const HEADROOM: f64 = 2.0;
 
@@ -73,7 +67,7 @@ pub const HEDGE_MIN_STABLE: Duration = Duration::from_millis(25);
 /// Why an endpoint's limit is what it is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Reason {
-    /// Nothing measured yet: [`START`].
+    /// Nothing measured yet: the floor.
     Start,
     /// Rate x latency x headroom is below the floor.
     Floor,
@@ -149,7 +143,7 @@ impl Sizing {
             successes: 0,
             ceiling_reason: Reason::Throttled,
             last_cut: None,
-            limit: START.min(cap),
+            limit: floor,
             reason: Reason::Start,
             recent: VecDeque::new(),
         }
@@ -275,7 +269,7 @@ impl Sizing {
                     (want as usize, Reason::Demand)
                 }
             }
-            _ => (START.min(self.cap), Reason::Start),
+            _ => (self.floor, Reason::Start),
         };
         let ceiling = self.ceiling.max(1);
         let (limit, reason) = if ceiling < want { (ceiling, self.ceiling_reason) } else { (want, reason) };
@@ -313,7 +307,7 @@ mod tests {
     fn the_limit_is_rate_times_latency_with_headroom_within_floor_and_cap() {
         let t0 = Instant::now();
         let mut s = Sizing::new(256);
-        assert_eq!((s.limit(), s.reason()), (START, Reason::Start));
+        assert_eq!((s.limit(), s.reason()), (16, Reason::Start));
         // 1000 reads a second at 40 ms: 40 in flight, 80 with headroom.
         drive(&mut s, t0, 1000, 40 * MS, 2);
         assert_eq!((s.limit(), s.reason()), (80, Reason::Demand));

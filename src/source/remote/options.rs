@@ -29,8 +29,7 @@ pub struct RemoteOptions {
     /// The most requests in flight at once to one endpoint (scheme, host and port; an S3
     /// bucket): a cap. Within it the source sizes each endpoint's requests in flight itself,
     /// from the measured latency and rate of reads ([`super::flight`]), from
-    /// [`super::flight::FLOOR`] (or the cap, if lower) up; [`super::flight::START`] before
-    /// anything was measured.
+    /// [`super::flight::FLOOR`] (or the cap, if lower) up.
     pub in_flight: usize,
     /// Largest merged request: adjacent ranges of one object waiting for the same endpoint are
     /// read by one request up to this many bytes.
