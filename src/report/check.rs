@@ -132,8 +132,9 @@ pub struct CheckReport {
     pub problems_not_listed: u64,
 }
 
-/// What opening a file found: its length, or the problem every tile in it has.
-type FileState = Result<u64, Problem>;
+/// What opening a file found: its length, or the problem every tile in it has and what the
+/// reader said about it (a remote store's error, where it said more than the problem's name).
+type FileState = Result<u64, (Problem, Option<String>)>;
 
 fn probe(place: &Place) -> FileState {
     let path = match place {
@@ -142,8 +143,8 @@ fn probe(place: &Place) -> FileState {
     };
     match crate::open::regular(path) {
         Ok((_, m)) => Ok(m.len()),
-        Err(e) if e.kind() == io::ErrorKind::NotFound => Err(Problem::Missing),
-        Err(_) => Err(Problem::Unreadable),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Err((Problem::Missing, None)),
+        Err(e) => Err((Problem::Unreadable, Some(e.to_string()))),
     }
 }
 
@@ -161,21 +162,24 @@ fn probe_compressed(place: &Place, offset: u64, tile: u64, buf: &mut Vec<u8>) ->
         Place::Local(path) => {
             let (file, meta) = match crate::open::regular(path) {
                 Ok(f) => f,
-                Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(Problem::Missing),
-                Err(_) => return Err(Problem::Unreadable),
+                Err(e) if e.kind() == io::ErrorKind::NotFound => return Err((Problem::Missing, None)),
+                Err(e) => return Err((Problem::Unreadable, Some(e.to_string()))),
             };
             (read_stored(&LocalFile(file), place, id, offset, buf), meta.len())
         }
         Place::Remote(name) => {
-            let Some(remote) = remote_probe::by_name() else { return Err(Problem::Unreadable) };
+            let remote = match remote_probe::by_name() {
+                Ok(r) => r,
+                Err(why) => return Err((Problem::Unreadable, Some(why))),
+            };
             (read_stored(&*remote.reader(name), place, id, offset, buf), offset + tile)
         }
     };
     match decoded {
         Ok(()) => Ok(len),
-        Err(SourceError::Undecodable { .. }) => Err(Problem::Corrupt),
-        Err(SourceError::Missing { .. }) => Err(Problem::Missing),
-        Err(_) => Err(Problem::Unreadable),
+        Err(SourceError::Undecodable { .. }) => Err((Problem::Corrupt, None)),
+        Err(SourceError::Missing { .. }) => Err((Problem::Missing, None)),
+        Err(e) => Err((Problem::Unreadable, Some(e.to_string()))),
     }
 }
 
@@ -218,18 +222,20 @@ mod remote_probe {
         remote()?.length(name.as_str()).map_err(|e| e.to_string())
     }
 
+    /// The object's length; a failure keeps the store's message (a refused credential, a bad
+    /// endpoint, a TLS failure), not only the problem's name.
     pub fn length(name: &RemoteName) -> FileState {
-        let Ok(r) = remote() else { return Err(Problem::Unreadable) };
+        let r = remote().map_err(|why| (Problem::Unreadable, Some(why)))?;
         match r.length(name.as_str()) {
             Ok(n) => Ok(n),
-            Err(ReadError::NotFound { .. }) => Err(Problem::Missing),
-            Err(_) => Err(Problem::Unreadable),
+            Err(ReadError::NotFound { .. }) => Err((Problem::Missing, None)),
+            Err(e) => Err((Problem::Unreadable, Some(e.to_string()))),
         }
     }
 
-    /// The reader of remote objects by name, when the options allow one.
-    pub(crate) fn by_name() -> Option<&'static dyn ByName> {
-        remote().ok().map(|r| r as &dyn ByName)
+    /// The reader of remote objects by name, or why the options allow none.
+    pub(crate) fn by_name() -> Result<&'static dyn ByName, String> {
+        remote().map(|r| r as &dyn ByName)
     }
 }
 
@@ -246,12 +252,12 @@ mod remote_probe {
     }
 
     pub fn length(_: &RemoteName) -> FileState {
-        Err(Problem::Unreadable)
+        Err((Problem::Unreadable, Some(WHY.to_string())))
     }
 
     /// None: this build reads no remote objects.
-    pub(crate) fn by_name() -> Option<&'static dyn crate::source::range::ByName> {
-        None
+    pub(crate) fn by_name() -> Result<&'static dyn crate::source::range::ByName, String> {
+        Err(WHY.to_string())
     }
 }
 
@@ -294,22 +300,23 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
                 counts.tiles += 1;
                 let loc: Option<TileLocation> = plan.locate(l.level, s, t).ok();
                 let state = match &loc {
-                    None => Err(Problem::Missing),
-                    Some(loc) if crate::source::file::compressed_extension(loc.path.extension()) => *files
+                    None => Err((Problem::Missing, None)),
+                    Some(loc) if crate::source::file::compressed_extension(loc.path.extension()) => files
                         .entry(loc.path.clone())
-                        .or_insert_with(|| probe_compressed(&loc.path, loc.offset, loc.length, &mut scratch)),
+                        .or_insert_with(|| probe_compressed(&loc.path, loc.offset, loc.length, &mut scratch))
+                        .clone(),
                     Some(loc) => {
-                        let len = *files.entry(loc.path.clone()).or_insert_with(|| probe(&loc.path));
+                        let len = files.entry(loc.path.clone()).or_insert_with(|| probe(&loc.path)).clone();
                         len.and_then(|len| {
                             if len >= loc.offset.saturating_add(loc.length) {
                                 Ok(len)
                             } else {
-                                Err(Problem::Short)
+                                Err((Problem::Short, None))
                             }
                         })
                     }
                 };
-                let Err(problem) = state else {
+                let Err((problem, detail)) = state else {
                     counts.present += 1;
                     continue;
                 };
@@ -332,7 +339,7 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
                         path,
                         problem,
                         default_covered: covered,
-                        detail: None,
+                        detail,
                     });
                 } else {
                     not_listed += 1;

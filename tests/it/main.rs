@@ -64,6 +64,8 @@ mod patch_fuzz_props;
 mod remote;
 #[cfg(feature = "remote")]
 mod remote_flight;
+#[cfg(feature = "remote")]
+mod remote_h2;
 mod shm_readers;
 mod shm_room;
 mod sixteen_bit;

@@ -26,7 +26,7 @@ const CLIPMAPD: &str = env!("CARGO_BIN_EXE_clipmapd");
 const READER: &str = env!("CARGO_BIN_EXE_clipmap-read");
 
 /// Prepares a hash pyramid (RGBA8) in `dir` with extra clipprep options; returns `dir`.
-fn prepare(dir: &Path, size: u64, tile: u64, clip: u64, extra: &[&str]) -> PathBuf {
+pub(crate) fn prepare(dir: &Path, size: u64, tile: u64, clip: u64, extra: &[&str]) -> PathBuf {
     let (s, t, c) = (size.to_string(), tile.to_string(), clip.to_string());
     let mut args = vec!["--source", "hash", "--size", &s, "--tile", &t, "--clip", &c, "--format", "rgba8", "--quiet"];
     args.extend_from_slice(extra);
@@ -36,14 +36,14 @@ fn prepare(dir: &Path, size: u64, tile: u64, clip: u64, extra: &[&str]) -> PathB
     dir.to_path_buf()
 }
 
-fn load(ct: &Path) -> plan::ClipTexturePlan {
+pub(crate) fn load(ct: &Path) -> plan::ClipTexturePlan {
     let l = plan::load_clip_texture(ct, &plan::Options::default()).unwrap();
     let rendered = l.render();
     l.plan.unwrap_or_else(|| panic!("{} should load:\n{rendered}", ct.display()))
 }
 
 /// Short timeouts and backoffs, so that faults resolve quickly.
-fn quick_opts() -> RemoteOptions {
+pub(crate) fn quick_opts() -> RemoteOptions {
     RemoteOptions {
         timeout: Duration::from_millis(1500),
         connect_timeout: Duration::from_millis(500),
@@ -66,7 +66,7 @@ fn assert_hash_tile(id: TileId, w: u64, h: u64, buf: &[u8]) {
     }
 }
 
-fn every_tile(src: &dyn TileSource) -> Vec<TileId> {
+pub(crate) fn every_tile(src: &dyn TileSource) -> Vec<TileId> {
     let d = src.desc();
     (0..d.level_count() as u32)
         .flat_map(|k| {
@@ -76,7 +76,7 @@ fn every_tile(src: &dyn TileSource) -> Vec<TileId> {
         .collect()
 }
 
-fn read_checked(src: &dyn TileSource, id: TileId) -> Result<(), SourceError> {
+pub(crate) fn read_checked(src: &dyn TileSource, id: TileId) -> Result<(), SourceError> {
     let d = src.desc().level(id.level);
     let mut buf = vec![0u8; src.desc().tile_bytes(id.level)];
     src.read_tile(id, &mut buf)?;
@@ -516,7 +516,18 @@ fn a_slow_endpoint_holds_back_only_its_own_read_queue() {
 #[test]
 fn clipbench_remote_prints_its_contract_fields_and_reads_no_wrong_texel() {
     let dir = tempfile::tempdir().unwrap();
-    let args = ["remote", "--smoke", "--json", "--dir", dir.path().to_str().unwrap()];
+    // With a tail: a fifth of the delayed requests held 30 ms longer.
+    let args = [
+        "remote",
+        "--smoke",
+        "--json",
+        "--tail-ms",
+        "30",
+        "--tail-percent",
+        "20",
+        "--dir",
+        dir.path().to_str().unwrap(),
+    ];
     let (out, desc) = exec_bounded(dir.path(), env!("CARGO_BIN_EXE_clipbench"), &args, &[], Duration::from_secs(300));
     assert_eq!(out.status.code(), Some(0), "{desc}");
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {desc}"));
@@ -548,6 +559,8 @@ fn clipbench_remote_prints_its_contract_fields_and_reads_no_wrong_texel() {
     assert!(f["in_flight_limit"].as_u64().unwrap() >= 16, "{f}");
     assert!(!f["in_flight_reason"].as_str().unwrap().is_empty(), "{f}");
     assert!((0.0..=0.05).contains(&f["hedged_share"].as_f64().unwrap()), "{f}");
+    assert_eq!((f["tail_ms"].as_u64(), f["tail_share"].as_f64()), (Some(30), Some(0.2)), "{f}");
+    assert!(f["tail_held_requests"].as_u64().unwrap() > 0, "the proxy held some requests longer: {f}");
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "the scratch directory is removed: {desc}");
 }
 
@@ -957,4 +970,51 @@ fn a_service_behind_a_delaying_proxy_shows_coarser_levels_only_right_texels_and_
     assert_eq!(failed, 0, "{}\n{}", String::from_utf8_lossy(&out.stderr), svc.log());
     assert!(passed > 10_000, "only {passed} texels checked");
     assert!(slow.requests.load(std::sync::atomic::Ordering::SeqCst) > 0, "the tiles came through the proxy");
+}
+
+/// A server that answers every request `403 Forbidden` with a short reason; returns its port.
+fn forbidding_server() -> u16 {
+    use std::io::Read;
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        for conn in listener.incoming() {
+            let Ok(mut conn) = conn else { continue };
+            conn.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+            let mut head = Vec::new();
+            let mut byte = [0u8; 1];
+            while !head.ends_with(b"\r\n\r\n") && head.len() < 65536 {
+                match conn.read(&mut byte) {
+                    Ok(1) => head.push(byte[0]),
+                    _ => break,
+                }
+            }
+            let body = "AccessDenied";
+            let reply =
+                format!("HTTP/1.1 403 Forbidden\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}", body.len());
+            let _ = conn.write_all(reply.as_bytes());
+        }
+    });
+    port
+}
+
+#[test]
+fn cliptex_check_keeps_the_remote_error_of_an_unreadable_tile() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pyr = prepare(&d.join("pyr"), 512, 64, 128, &[]);
+    let port = forbidding_server();
+    let ct = point_config_at(&pyr, &d.join("cfg"), &format!("http://127.0.0.1:{port}"), &[]);
+    let (out, desc) =
+        exec_bounded(d, CLIPTEX, &["check", ct.to_str().unwrap(), "--json"], &[], Duration::from_secs(120));
+    assert_eq!(out.status.code(), Some(1), "no tile can be served:\n{desc}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["totals"]["unreadable"].as_u64().unwrap() > 0, "{}", v["totals"]);
+    let first = &v["problems"][0];
+    assert_eq!(first["problem"], "unreadable", "{first}");
+    let detail = first["detail"].as_str().unwrap_or_default();
+    assert!(detail.contains("403"), "the store's answer is kept, not only 'unreadable': {first}");
+    let (out, desc) = exec_bounded(d, CLIPTEX, &["check", ct.to_str().unwrap()], &[], Duration::from_secs(120));
+    assert_eq!(out.status.code(), Some(1));
+    assert!(desc.contains("403"), "the table's problem list says why too:\n{desc}");
 }

@@ -173,6 +173,11 @@ pub trait Backend: Send + Sync {
     fn ranges_ignored(&self) -> u64 {
         0
     }
+    /// Answers so far by the HTTP version they came in (this default counts none: a backend
+    /// whose client does not tell, such as S3's, which speaks HTTP/1.1).
+    fn versions(&self) -> super::protocol::AnswerVersions {
+        super::protocol::AnswerVersions::default()
+    }
     /// The object's length (a HEAD request).
     fn head(&self, loc: &Location) -> Result<u64, Failure>;
     /// Stores `bytes` as the object `loc`.
@@ -294,11 +299,22 @@ impl Hedges {
         Hedges { sent: AtomicU64::new(0), hedged: AtomicU64::new(0), share }
     }
 
+    /// Whether one more hedge, with `hedged` sent so far and `sent` requests, keeps the hedges
+    /// within their share of the requests (the hedge counted as a request too).
+    fn allows(&self, hedged: u64, sent: u64) -> bool {
+        (hedged + 1) as f64 <= self.share * (sent + 1) as f64
+    }
+
+    /// Whether a hedge could be taken now ([`Hedges::take`] without taking it): a read that
+    /// could not be hedged is not timed for one.
+    pub fn has_room(&self) -> bool {
+        self.allows(self.hedged(), self.sent.load(Ordering::Relaxed))
+    }
+
     /// Takes one hedge if it keeps the hedges within their share of the requests.
     pub fn take(&self) -> bool {
-        let sent = self.sent.load(Ordering::Relaxed) as f64;
-        let share = self.share;
-        let within = |h: u64| ((h + 1) as f64 <= share * (sent + 1.0)).then_some(h + 1);
+        let sent = self.sent.load(Ordering::Relaxed);
+        let within = |h: u64| self.allows(h, sent).then_some(h + 1);
         let taken = self.hedged.fetch_update(Ordering::Relaxed, Ordering::Relaxed, within).is_ok();
         if taken {
             // A hedge is a request too.
@@ -473,6 +489,11 @@ impl Fetcher {
     /// Answers so far, of every backend, that ignored a range ([`Backend::ranges_ignored`]).
     pub fn ranges_ignored(&self) -> u64 {
         self.http.ranges_ignored() + self.s3.ranges_ignored()
+    }
+
+    /// Answers so far, of every backend, by HTTP version ([`Backend::versions`]).
+    pub fn versions(&self) -> super::protocol::AnswerVersions {
+        self.http.versions().plus(self.s3.versions())
     }
 
     /// The options.
@@ -690,8 +711,7 @@ impl Fetcher {
     /// How long a ranged read of `ep` may go unanswered before it is hedged, while hedges are
     /// within their share of the requests ([`RemoteOptions::hedge_percent`]).
     fn hedge_after(&self, ep: &Endpoint) -> Option<Duration> {
-        let sent = self.hedges.sent.load(Ordering::Relaxed) as f64;
-        if (self.hedges.hedged() + 1) as f64 > self.hedges.share * (sent + 1.0) {
+        if !self.hedges.has_room() {
             return None;
         }
         ep.state.lock().unwrap_or_else(|e| e.into_inner()).sizing.hedge_after()

@@ -10,10 +10,18 @@
 //! `ranges_ignored` in the statistics) and said once an endpoint in the log: such a server makes
 //! every read fetch the whole object. A `416` means the object ends before the range
 //! starts. Anything else is a [`Failure`], classified for the retry loop.
+//!
+//! HTTP/2 where the server offers it: over TLS the client offers `h2` and `http/1.1` (ALPN) and
+//! the server chooses; to `http://` endpoints it speaks HTTP/2 with prior knowledge (h2c) only
+//! when the options say so ([`RemoteOptions::h2c`]). Over HTTP/2 every request to an endpoint
+//! is a stream of one shared connection (as many at once as the server allows), instead of a
+//! connection per request in flight. Answers are counted by version ([`Backend::versions`]).
+//! Extra certificate authorities come from [`RemoteOptions::ca_file`].
 
 use super::fetch::{Backend, Failure, Got, Hedge, Object, ObjectRequest, Segments, Sink};
 use super::location::Location;
 use super::options::RemoteOptions;
+use super::protocol::{AnswerVersions, VersionCounters};
 use super::runtime::block;
 use bytes::Bytes;
 use reqwest::header::{CONTENT_LENGTH, CONTENT_RANGE, CONTENT_TYPE, ETAG, LAST_MODIFIED, RANGE, RETRY_AFTER};
@@ -29,8 +37,11 @@ pub(crate) const MAX_WHOLE_OBJECT: u64 = 256 << 20;
 /// Ranged reads over HTTP(S).
 pub struct Http {
     client: Result<reqwest::Client, String>,
+    /// The client for `http://` URLs when they are spoken to in HTTP/2 with prior knowledge.
+    h2c: Option<Result<reqwest::Client, String>>,
     timeout: Duration,
     ignored: Arc<IgnoredRanges>,
+    versions: Arc<VersionCounters>,
 }
 
 /// Answers that ignored a range: a `200` with the whole object to a ranged GET, used (the
@@ -59,26 +70,58 @@ impl IgnoredRanges {
 }
 
 impl Http {
-    /// A client with the options' timeouts (connections are kept and reused per host).
+    /// A client with the options' timeouts (connections are kept and reused per host), and
+    /// one speaking h2c to `http://` URLs if the options ask for it.
     pub fn new(opts: &RemoteOptions) -> Http {
         super::runtime::install_crypto();
-        let client = reqwest::Client::builder()
-            .timeout(opts.timeout)
-            .connect_timeout(opts.connect_timeout)
-            .pool_max_idle_per_host(opts.in_flight.max(1))
-            .tcp_nodelay(true)
-            .no_proxy()
-            .build()
-            .map_err(|e| format!("cannot make an HTTP client: {e}"));
-        Http { client, timeout: opts.timeout, ignored: Arc::default() }
+        let roots = opts.ca_file.as_deref().map(super::ca::read).transpose();
+        let client = |h2c: bool| -> Result<reqwest::Client, String> {
+            let mut b = reqwest::Client::builder()
+                .timeout(opts.timeout)
+                .connect_timeout(opts.connect_timeout)
+                .pool_max_idle_per_host(opts.in_flight.max(1))
+                .tcp_nodelay(true)
+                .no_proxy();
+            if let Some(pem) = roots.clone()? {
+                let certs = reqwest::Certificate::from_pem_bundle(&pem).map_err(|e| {
+                    format!(
+                        "CLIPMAP_REMOTE_CA_FILE: cannot read its certificates: {}; expected CA certificates in PEM",
+                        root_cause(&e)
+                    )
+                })?;
+                b = b.tls_certs_merge(certs);
+            }
+            if h2c {
+                b = b.http2_prior_knowledge();
+            }
+            b.build().map_err(|e| format!("cannot make an HTTP client: {}", root_cause(&e)))
+        };
+        Http {
+            client: client(false),
+            h2c: opts.h2c.then(|| client(true)),
+            timeout: opts.timeout,
+            ignored: Arc::default(),
+            versions: Arc::default(),
+        }
     }
 
-    fn client(&self) -> Result<reqwest::Client, Failure> {
-        self.client.clone().map_err(Failure::Fatal)
+    /// The client for `loc`: the h2c one for an `http://` URL when there is one.
+    fn client(&self, loc: &Location) -> Result<reqwest::Client, Failure> {
+        let plain = loc.target.get(..7).is_some_and(|s| s.eq_ignore_ascii_case("http://"));
+        let client = match &self.h2c {
+            Some(h2c) if plain => h2c,
+            _ => &self.client,
+        };
+        client.clone().map_err(Failure::Fatal)
     }
 
     fn target(&self, loc: &Location) -> Target {
-        Target { url: loc.target.clone(), endpoint: loc.endpoint.clone(), ignored: Arc::clone(&self.ignored) }
+        Target {
+            url: loc.target.clone(),
+            endpoint: loc.endpoint.clone(),
+            ignored: Arc::clone(&self.ignored),
+            versions: Arc::clone(&self.versions),
+        }
     }
 }
 
@@ -175,10 +218,17 @@ async fn body(resp: &mut reqwest::Response, max: u64, stop: u64) -> Result<Segme
     Ok(Segments(parts))
 }
 
-/// Sends the ranged GET of `[start, start + len)` (`len` > 0).
-async fn send_range(client: &reqwest::Client, url: &str, start: u64, len: u64) -> Result<reqwest::Response, Failure> {
+/// Sends the ranged GET of `[start, start + len)` (`len` > 0), counting its answer's version.
+async fn send_range(client: &reqwest::Client, to: &Target, start: u64, len: u64) -> Result<reqwest::Response, Failure> {
     let last = start + len - 1;
-    client.get(url).header(RANGE, format!("bytes={start}-{last}")).send().await.map_err(request_failure)
+    send(client.get(&to.url).header(RANGE, format!("bytes={start}-{last}")), &to.versions).await
+}
+
+/// Sends `req`, counting its answer's version.
+async fn send(req: reqwest::RequestBuilder, versions: &VersionCounters) -> Result<reqwest::Response, Failure> {
+    let resp = req.send().await.map_err(request_failure)?;
+    versions.note(resp.version());
+    Ok(resp)
 }
 
 /// Checks a `206`'s head against the range asked for (`[start, last]`): the object's length
@@ -207,10 +257,11 @@ struct Target {
     url: String,
     endpoint: String,
     ignored: Arc<IgnoredRanges>,
+    versions: Arc<VersionCounters>,
 }
 
 async fn get(client: reqwest::Client, to: Target, start: u64, len: u64) -> Result<Got, Failure> {
-    let mut resp = send_range(&client, &to.url, start, len).await?;
+    let mut resp = send_range(&client, &to, start, len).await?;
     if resp.status() != StatusCode::PARTIAL_CONTENT {
         return not_partial(client, &to, start, len, resp).await;
     }
@@ -223,7 +274,8 @@ async fn get(client: reqwest::Client, to: Target, start: u64, len: u64) -> Resul
     Ok(Got { bytes: buf, object_len: total, validator: validator(&headers) })
 }
 
-/// [`get`], sent once more (a hedge, on another connection: the first one is busy) when no
+/// [`get`], sent once more (a hedge: over HTTP/1.1 on another connection, the first one being
+/// busy; over HTTP/2 another stream of the same connection) when no
 /// answer came within `after`. The first successful answer is used whole, never pieces of two
 /// (they may be of two versions of the object); the other request is dropped, which cancels it
 /// and closes its connection. A failed answer waits for the other one. Returns whether a hedge
@@ -262,7 +314,7 @@ async fn get_streamed(
     len: u64,
     sink: Arc<dyn Sink>,
 ) -> Result<(), Failure> {
-    let mut resp = send_range(&client, &to.url, start, len).await?;
+    let mut resp = send_range(&client, &to, start, len).await?;
     if resp.status() != StatusCode::PARTIAL_CONTENT {
         let got = not_partial(client, &to, start, len, resp).await?;
         sink.head(got.object_len, got.validator.as_deref()).map_err(Failure::Fatal)?;
@@ -312,7 +364,7 @@ async fn not_partial(
                     announced.unwrap_or(0)
                 )));
             }
-            let size = head(&client, url).await.map_err(|f| {
+            let size = head(&client, url, &to.versions).await.map_err(|f| {
                 let why = match f {
                     Failure::NotFound => "not found".to_string(),
                     Failure::Denied(w) | Failure::Fatal(w) | Failure::Transient { why: w, .. } => w,
@@ -357,12 +409,17 @@ async fn not_partial(
 }
 
 /// A plain GET of a whole object ([`Backend::get_object`]).
-async fn get_object(client: reqwest::Client, url: String, req: ObjectRequest) -> Result<Object, Failure> {
+async fn get_object(
+    client: reqwest::Client,
+    url: String,
+    req: ObjectRequest,
+    versions: Arc<VersionCounters>,
+) -> Result<Object, Failure> {
     let mut get = client.get(&url);
     for (name, value) in &req.headers {
         get = get.header(name.as_str(), value.as_str());
     }
-    let mut resp = get.send().await.map_err(request_failure)?;
+    let mut resp = send(get, &versions).await?;
     let status = resp.status();
     let headers = resp.headers().clone();
     if status == StatusCode::NO_CONTENT {
@@ -398,8 +455,8 @@ async fn get_object(client: reqwest::Client, url: String, req: ObjectRequest) ->
 }
 
 /// The object's length, from the `Content-Length` of a `HEAD`.
-async fn head(client: &reqwest::Client, url: &str) -> Result<u64, Failure> {
-    let resp = client.head(url).send().await.map_err(request_failure)?;
+async fn head(client: &reqwest::Client, url: &str, versions: &VersionCounters) -> Result<u64, Failure> {
+    let resp = send(client.head(url), versions).await?;
     let status = resp.status();
     if !status.is_success() {
         return Err(status_failure(status, resp.headers()));
@@ -415,7 +472,7 @@ impl Backend for Http {
         if len == 0 {
             return Ok(Got { bytes: Segments::default(), object_len: None, validator: None });
         }
-        let client = self.client()?;
+        let client = self.client(loc)?;
         block(self.timeout, get(client, self.target(loc), start, len))
     }
 
@@ -423,7 +480,7 @@ impl Backend for Http {
         if len == 0 {
             return Ok((Got { bytes: Segments::default(), object_len: None, validator: None }, false));
         }
-        let client = self.client()?;
+        let client = self.client(loc)?;
         let targets = (self.target(loc), self.target(loc));
         block(self.timeout, get_hedged(client, targets, start, len, hedge))
     }
@@ -432,7 +489,7 @@ impl Backend for Http {
         if len == 0 {
             return Ok(());
         }
-        let client = self.client()?;
+        let client = self.client(loc)?;
         block(self.timeout, get_streamed(client, self.target(loc), start, len, Arc::clone(sink)))
     }
 
@@ -440,22 +497,28 @@ impl Backend for Http {
         self.ignored.count.load(Ordering::Relaxed)
     }
 
+    fn versions(&self) -> AnswerVersions {
+        self.versions.get()
+    }
+
     fn head(&self, loc: &Location) -> Result<u64, Failure> {
-        let client = self.client()?;
+        let client = self.client(loc)?;
         let url = loc.target.clone();
-        block(self.timeout, async move { head(&client, &url).await })
+        let versions = Arc::clone(&self.versions);
+        block(self.timeout, async move { head(&client, &url, &versions).await })
     }
 
     fn get_object(&self, loc: &Location, req: &ObjectRequest) -> Result<Object, Failure> {
-        let client = self.client()?;
-        block(self.timeout, get_object(client, loc.target.clone(), req.clone()))
+        let client = self.client(loc)?;
+        block(self.timeout, get_object(client, loc.target.clone(), req.clone(), Arc::clone(&self.versions)))
     }
 
     fn put(&self, loc: &Location, bytes: Bytes) -> Result<(), Failure> {
-        let client = self.client()?;
+        let client = self.client(loc)?;
         let url = loc.target.clone();
+        let versions = Arc::clone(&self.versions);
         block(self.timeout, async move {
-            let resp = client.put(&url).body(bytes).send().await.map_err(request_failure)?;
+            let resp = send(client.put(&url).body(bytes), &versions).await?;
             let status = resp.status();
             if status.is_success() {
                 Ok(())

@@ -9,6 +9,7 @@
 //! servers are the plan's endpoints, so that the engine gives every endpoint its own read queue
 //! and a slow endpoint holds back only its own tiles.
 
+mod ca;
 pub mod disk;
 pub(crate) mod fetch;
 pub mod flight;
@@ -16,6 +17,7 @@ pub mod http;
 pub(crate) mod location;
 pub mod object;
 pub mod options;
+mod protocol;
 pub mod range;
 mod retry_after;
 mod runtime;
@@ -28,6 +30,7 @@ pub use fetch::{
 };
 pub use location::{Location, LocationError, Scheme};
 pub use options::{OptionsError, RemoteOptions};
+pub use protocol::AnswerVersions;
 
 use super::file::{FileSource, FileSourceError};
 use super::range::ByName;
@@ -96,6 +99,13 @@ pub struct RemoteStats {
     /// endpoint's 95th percentile of latency (the first answer is used; at most 5 % of the
     /// requests; each also counted in `requests`).
     pub hedged: u64,
+    /// The HTTP versions the HTTP(S) endpoints answered in: `HTTP/1.1`, `HTTP/2`, `HTTP/1.1
+    /// and HTTP/2`, or empty before any answer (S3 stores are not counted: they speak
+    /// HTTP/1.1).
+    pub http_version: String,
+    /// Answers that came over HTTP/2 (requests multiplexed on few connections; over TLS when
+    /// the server offers it, to `http://` endpoints with `CLIPMAP_REMOTE_H2C=1`).
+    pub http2_answers: u64,
 }
 
 /// Reads remote locations: the fetcher and the disk cache.
@@ -120,8 +130,13 @@ pub(crate) fn source_error(tile: TileId, e: ReadError) -> SourceError {
 }
 
 impl Remote {
-    /// HTTP and S3 backends with `opts`, and the disk cache it names (made if absent).
+    /// HTTP and S3 backends with `opts`, and the disk cache it names (made if absent). A CA
+    /// file ([`RemoteOptions::ca_file`]) that cannot be read or holds no certificate is refused
+    /// here, before any read.
     pub fn new(opts: RemoteOptions) -> io::Result<Remote> {
+        if let Some(path) = &opts.ca_file {
+            ca::read(path).map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
+        }
         let cache = match &opts.cache_dir {
             Some(dir) => Some(disk::DiskCache::open(dir, opts.cache_bytes)?),
             None => None,
@@ -167,6 +182,8 @@ impl Remote {
             answered: c.answered.load(Ordering::Relaxed),
             throttled: c.throttled.load(Ordering::Relaxed),
             hedged: self.fetcher.hedges.hedged(),
+            http_version: self.fetcher.versions().summary().to_string(),
+            http2_answers: self.fetcher.versions().http2,
         }
     }
 
@@ -245,6 +262,10 @@ pub enum RemoteSourceError {
     /// The disk cache cannot be opened.
     #[error("the remote disk cache (CLIPMAP_REMOTE_CACHE_DIR) cannot be used: {0}")]
     Cache(io::Error),
+    /// The CA file (`CLIPMAP_REMOTE_CA_FILE`) cannot be read or holds no certificate; the
+    /// message names the variable and the file.
+    #[error("{0}")]
+    CaFile(String),
 }
 
 /// A plan's tiles from remote locations (and from local files, for the names that are paths):
@@ -263,6 +284,9 @@ pub struct RemoteSource {
 impl RemoteSource {
     /// A source over `plan` with the remote options `opts`. Reads every default tile now.
     pub fn new(plan: ClipTexturePlan, limits: &Limits, opts: RemoteOptions) -> Result<Self, RemoteSourceError> {
+        if let Some(path) = &opts.ca_file {
+            ca::read(path).map_err(RemoteSourceError::CaFile)?;
+        }
         let remote = Arc::new(Remote::new(opts).map_err(RemoteSourceError::Cache)?);
         Self::with_remote(plan, limits, remote)
     }

@@ -41,6 +41,13 @@ pub struct RemoteOptions {
     /// The most hedged reads, in percent of the requests sent ([`super::flight`]); 0 turns
     /// hedging off (a store billed per request, or a test counting the requests a server sees).
     pub hedge_percent: u32,
+    /// A PEM file of certificate authorities trusted for `https://` and S3 endpoints besides
+    /// the system's (a private CA, a test server's own).
+    pub ca_file: Option<PathBuf>,
+    /// Speak HTTP/2 with prior knowledge (h2c) to `http://` endpoints: only for servers that
+    /// speak it (nginx's `listen ... http2;`), as a plain-HTTP server cannot offer it. `https://`
+    /// endpoints use HTTP/2 whenever the server offers it (ALPN), without this.
+    pub h2c: bool,
 }
 
 impl Default for RemoteOptions {
@@ -56,12 +63,14 @@ impl Default for RemoteOptions {
             cache_dir: None,
             cache_bytes: 1 << 30,
             hedge_percent: 5,
+            ca_file: None,
+            h2c: false,
         }
     }
 }
 
 /// The environment variables [`RemoteOptions::from_env`] reads, with what each sets.
-pub const ENV_VARS: [(&str, &str); 10] = [
+pub const ENV_VARS: [(&str, &str); 12] = [
     ("CLIPMAP_REMOTE_TIMEOUT_MS", "whole-request timeout, milliseconds (default 10000)"),
     ("CLIPMAP_REMOTE_CONNECT_TIMEOUT_MS", "connect timeout, milliseconds (default 2000)"),
     ("CLIPMAP_REMOTE_RETRIES", "retries after the first attempt (default 7)"),
@@ -72,6 +81,11 @@ pub const ENV_VARS: [(&str, &str); 10] = [
     ("CLIPMAP_REMOTE_CACHE_DIR", "directory of the local disk cache (default: no cache)"),
     ("CLIPMAP_REMOTE_CACHE_BYTES", "bound on the disk cache, bytes (default 1073741824)"),
     ("CLIPMAP_REMOTE_HEDGE_PERCENT", "most hedged reads, percent of the requests; 0 turns hedging off (default 5)"),
+    (
+        "CLIPMAP_REMOTE_CA_FILE",
+        "PEM file of extra certificate authorities trusted for https:// and S3 (default: the system's only)",
+    ),
+    ("CLIPMAP_REMOTE_H2C", "1: HTTP/2 with prior knowledge to http:// endpoints (h2c); 0: HTTP/1.1 (default 0)"),
 ];
 
 /// A `CLIPMAP_REMOTE_*` variable with a value that cannot be used.
@@ -134,6 +148,12 @@ impl RemoteOptions {
         if let Some(n) = num("CLIPMAP_REMOTE_HEDGE_PERCENT", 0, 50, "a percentage from 0 (no hedging) to 50")? {
             o.hedge_percent = n as u32;
         }
+        if let Some(d) = get("CLIPMAP_REMOTE_CA_FILE").filter(|d| !d.is_empty()) {
+            o.ca_file = Some(PathBuf::from(d));
+        }
+        if let Some(n) = num("CLIPMAP_REMOTE_H2C", 0, 1, "0 (HTTP/1.1) or 1 (HTTP/2 with prior knowledge)")? {
+            o.h2c = n == 1;
+        }
         Ok(o)
     }
 
@@ -177,6 +197,24 @@ mod tests {
         let e = RemoteOptions::from_vars(|k| (k == "CLIPMAP_REMOTE_IN_FLIGHT").then(|| "0".into())).unwrap_err();
         assert_eq!(e.var, "CLIPMAP_REMOTE_IN_FLIGHT");
         assert!(e.to_string().contains("found `0`") && e.to_string().contains("1 to 1024"), "{e}");
+    }
+
+    #[test]
+    fn the_ca_file_and_h2c_are_read_from_their_variables() {
+        let d = RemoteOptions::default();
+        assert_eq!((d.ca_file.as_deref(), d.h2c), (None, false), "off unless asked for");
+        let o = RemoteOptions::from_vars(|k| match k {
+            "CLIPMAP_REMOTE_CA_FILE" => Some("certs/ca.pem".into()),
+            "CLIPMAP_REMOTE_H2C" => Some("1".into()),
+            _ => None,
+        })
+        .unwrap();
+        assert_eq!((o.ca_file.as_deref(), o.h2c), (Some(std::path::Path::new("certs/ca.pem")), true));
+        let e = RemoteOptions::from_vars(|k| (k == "CLIPMAP_REMOTE_H2C").then(|| "yes".into())).unwrap_err();
+        assert_eq!(e.var, "CLIPMAP_REMOTE_H2C");
+        assert!(e.to_string().contains("found `yes`") && e.to_string().contains("prior knowledge"), "{e}");
+        assert!(ENV_VARS.iter().any(|(v, _)| *v == "CLIPMAP_REMOTE_CA_FILE"));
+        assert!(ENV_VARS.iter().any(|(v, _)| *v == "CLIPMAP_REMOTE_H2C"));
     }
 
     #[test]

@@ -84,10 +84,19 @@ impl S3 {
         // A plain-HTTP endpoint that the environment names was chosen on purpose (a store on a
         // private network, a test server).
         let plain = endpoint.as_deref().is_some_and(|e| e.to_ascii_lowercase().starts_with("http://"));
-        let client = ClientOptions::new()
+        let mut client = ClientOptions::new()
             .with_timeout(self.opts.timeout)
             .with_connect_timeout(self.opts.connect_timeout)
             .with_allow_http(plain || self.var("AWS_ALLOW_HTTP").is_some_and(|v| v.eq_ignore_ascii_case("true")));
+        if let Some(path) = &self.opts.ca_file {
+            let pem = super::ca::read(path).map_err(Failure::Fatal)?;
+            let certs = object_store::Certificate::from_pem_bundle(&pem).map_err(|e| {
+                Failure::Fatal(format!("CLIPMAP_REMOTE_CA_FILE {}: cannot read its certificates: {e}", path.display()))
+            })?;
+            for c in certs {
+                client = client.with_root_certificate(c);
+            }
+        }
         let retry = RetryConfig {
             backoff: object_store::BackoffConfig {
                 init_backoff: self.opts.backoff.max(Duration::from_millis(1)),

@@ -74,7 +74,32 @@ impl Nginx {
         Nginx::serve_with(root, "dav_methods PUT; create_full_put_path on; client_max_body_size 0;")
     }
 
+    /// Like [`Nginx::serve`], speaking HTTP/2 only: with prior knowledge (h2c) on plain HTTP,
+    /// or offered by ALPN over TLS with `tls`'s certificate and key (PEM files). Every request
+    /// is logged ([`Nginx::requests`]) with its connection and protocol.
+    pub fn serve_h2(root: &Path, tls: Option<(&Path, &Path)>) -> Nginx {
+        let (listen, server) = match tls {
+            None => ("http2".to_string(), String::new()),
+            Some((cert, key)) => (
+                "ssl http2".to_string(),
+                format!("ssl_certificate {};\n    ssl_certificate_key {};\n", cert.display(), key.display()),
+            ),
+        };
+        Nginx::start(root, &listen, &server, "", true)
+    }
+
+    /// Like [`Nginx::serve`], and every request is logged ([`Nginx::requests`]).
+    pub fn serve_logged(root: &Path) -> Nginx {
+        Nginx::start(root, "", "", "", true)
+    }
+
     fn serve_with(root: &Path, location: &str) -> Nginx {
+        Nginx::start(root, "", "", location, false)
+    }
+
+    /// nginx with extra `listen` parameters, server directives and location directives; with
+    /// an access log of each request's connection, protocol and status if `log`.
+    fn start(root: &Path, listen: &str, server: &str, location: &str, log: bool) -> Nginx {
         let exe = find_program(&["nginx", "/usr/sbin/nginx"], "install Debian's nginx: apt-get install nginx");
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
@@ -82,11 +107,16 @@ impl Nginx {
         for sub in ["body", "proxy", "fastcgi", "uwsgi", "scgi"] {
             std::fs::create_dir_all(d.join(sub)).unwrap();
         }
+        let access = if log {
+            format!("log_format conns '$connection $connection_requests $server_protocol $status';\n  access_log {}/access.log conns;", d.display())
+        } else {
+            "access_log off;".to_string()
+        };
         let conf = format!(
             "daemon off;\nmaster_process off;\nworker_processes 1;\npid {d}/nginx.pid;\nerror_log {d}/error.log warn;\n\
              events {{ worker_connections 512; }}\n\
-             http {{\n  access_log off;\n  client_body_temp_path {d}/body;\n  proxy_temp_path {d}/proxy;\n  fastcgi_temp_path {d}/fastcgi;\n  uwsgi_temp_path {d}/uwsgi;\n  scgi_temp_path {d}/scgi;\n  keepalive_requests 100000;\n  sendfile on;\n  tcp_nodelay on;\n\
-               server {{\n    listen 127.0.0.1:{port};\n    root {root};\n    location / {{ {location} }}\n  }}\n}}\n",
+             http {{\n  {access}\n  client_body_temp_path {d}/body;\n  proxy_temp_path {d}/proxy;\n  fastcgi_temp_path {d}/fastcgi;\n  uwsgi_temp_path {d}/uwsgi;\n  scgi_temp_path {d}/scgi;\n  keepalive_requests 100000;\n  sendfile on;\n  tcp_nodelay on;\n\
+               server {{\n    listen 127.0.0.1:{port} {listen};\n    {server}root {root};\n    location / {{ {location} }}\n  }}\n}}\n",
             d = d.display(),
             root = root.display()
         );
@@ -107,6 +137,19 @@ impl Nginx {
     /// `http://127.0.0.1:PORT`.
     pub fn url(&self) -> String {
         format!("http://127.0.0.1:{}", self.port)
+    }
+
+    /// The requests logged so far (a server started with a log): connection serial number,
+    /// requests on it so far, protocol (`HTTP/1.1`, `HTTP/2.0`) and status.
+    pub fn requests(&self) -> Vec<(u64, u64, String, u16)> {
+        let log = std::fs::read_to_string(self.dir.path().join("access.log")).unwrap_or_default();
+        log.lines()
+            .map(|l| {
+                let f: Vec<&str> = l.split(' ').collect();
+                assert_eq!(f.len(), 4, "an access log line: {l}");
+                (f[0].parse().unwrap(), f[1].parse().unwrap(), f[2].to_string(), f[3].parse().unwrap())
+            })
+            .collect()
     }
 }
 

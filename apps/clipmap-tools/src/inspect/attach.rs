@@ -477,8 +477,10 @@ fn remote_line(r: &clipmap::source::remote::RemoteStats) -> String {
     } else {
         String::new()
     };
+    // The HTTP versions the endpoints answered in (none before an answer, or for S3 alone).
+    let version = if r.http_version.is_empty() { String::new() } else { format!("  over {}", r.http_version) };
     format!(
-        "remote: {} requests  {} retries  {} merged  {:.2} MiB  {} failures  cache {} hits {} dropped  peak {} in flight{ignored}{twice}{sized}\n\n",
+        "remote: {} requests  {} retries  {} merged  {:.2} MiB  {} failures  cache {} hits {} dropped  peak {} in flight{ignored}{twice}{sized}{version}\n\n",
         r.requests,
         r.retries,
         r.merged,
@@ -712,6 +714,9 @@ mod tests {
                 "{}",
                 human(&s)
             );
+            // The HTTP version the answers came in, once there were answers.
+            s.remote.as_mut().unwrap().http_version = "HTTP/2".into();
+            assert!(human(&s).contains("2200 reads/s)  over HTTP/2\n"), "{}", human(&s));
             let v = serde_json::to_value(&s).unwrap();
             assert_eq!(v["remote"]["in_flight_limit"], 96);
             assert_eq!(v["remote"]["in_flight_reason"], "rate x latency");

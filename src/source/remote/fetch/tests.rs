@@ -345,6 +345,33 @@ fn hedges_stay_within_five_percent_of_the_requests_sent() {
 }
 
 #[test]
+fn has_room_says_what_take_would_do_and_takes_nothing() {
+    let h = Hedges::default();
+    assert!(!h.has_room(), "no request sent, no room");
+    h.sent.store(39, Ordering::Relaxed);
+    // 39 requests: two hedges fit in 5 % of 41 requests, a third does not (3 > 0.05 x 42).
+    for n in 0..2 {
+        assert!(h.has_room(), "hedge {n}");
+        assert!(h.has_room(), "asking again takes nothing");
+        assert_eq!(h.hedged(), n);
+        assert!(h.take());
+    }
+    assert!(!h.has_room());
+    assert!(!h.take(), "no room, no hedge");
+    assert_eq!(h.hedged(), 2);
+    // The predicate agrees with take across many counts.
+    for sent in 0..200 {
+        let h = Hedges::default();
+        h.sent.store(sent, Ordering::Relaxed);
+        let room = h.has_room();
+        assert_eq!(room, h.take(), "{sent} requests sent");
+    }
+    let none = Hedges::within(0.0);
+    none.sent.store(1_000_000, Ordering::Relaxed);
+    assert!(!none.has_room(), "hedging off");
+}
+
+#[test]
 fn a_hedge_share_of_zero_percent_hedges_nothing() {
     let opts = RemoteOptions::from_vars(|k| (k == "CLIPMAP_REMOTE_HEDGE_PERCENT").then(|| "0".into())).unwrap();
     assert_eq!(opts.hedge_percent, 0);

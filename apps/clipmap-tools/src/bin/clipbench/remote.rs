@@ -9,7 +9,7 @@
 //! engine's read queues make them: `depth` threads, each reading one tile at a time through
 //! [`TileSource::read_tile`].
 
-use super::serve::{free_port, wait_port, Faults, Killed, Nginx, Proxy};
+use super::serve::{free_port, wait_port, Faults, Killed, Nginx, Proxy, Tail};
 use clipmap::limits::Limits;
 use clipmap::plan;
 use clipmap::prep::{self, Filter, Job, Layout, Source, Spec};
@@ -54,6 +54,20 @@ pub struct Args {
     /// Seconds of the real-time flight (default: 20, 6 with --quick, 1.5 with --smoke).
     #[arg(long, value_parser = parse_seconds)]
     flight_seconds: Option<f64>,
+    /// A tail: the delaying proxy holds `--tail-percent` of the requests this many
+    /// milliseconds longer than the others (0: no tail), from the latency sweep on.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=10_000))]
+    tail_ms: u64,
+    /// The share of the requests the tail holds, percent.
+    #[arg(long, default_value_t = 1.0, value_parser = parse_percent)]
+    tail_percent: f64,
+}
+
+fn parse_percent(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (0.0..=50.0).contains(&v) => Ok(v),
+        _ => Err(format!("found `{s}`, expected a percentage from 0 to 50")),
+    }
 }
 
 fn parse_seconds(s: &str) -> Result<f64, String> {
@@ -153,6 +167,11 @@ pub struct RemoteFlight {
     pub mean_request_ms: f64,
     /// Share of the requests that were hedged (a second request for a slow one).
     pub hedged_share: f64,
+    /// The proxy's tail: the share of the requests held longer, and by how much (0: none).
+    pub tail_share: f64,
+    pub tail_ms: u64,
+    /// Requests the proxy held longer, from the latency sweep to the end of the run.
+    pub tail_held_requests: u64,
 }
 
 /// Ticks a clipmap at 60 Hz at `at` until it shows level 0 (min LOD below 1); milliseconds from
@@ -211,9 +230,10 @@ fn moto() -> anyhow::Result<(Killed, u16)> {
     Ok((k, port))
 }
 
-/// A keep-alive HTTP proxy to `upstream` that holds every request `delay` before forwarding it.
-fn delaying_proxy(upstream: u16, delay: Duration, stop: Arc<AtomicBool>) -> anyhow::Result<u16> {
-    Ok(Proxy::start(upstream, delay, Faults::default(), stop)?.port)
+/// A keep-alive HTTP proxy to `upstream` that holds every request `delay` before forwarding it
+/// (and `tail`'s share of them `tail.hold` longer).
+fn delaying_proxy(upstream: u16, delay: Duration, tail: Tail, stop: Arc<AtomicBool>) -> anyhow::Result<Proxy> {
+    Proxy::start_with_tail(upstream, delay, Faults::default(), tail, stop)
 }
 
 /// Reads `tiles` with `depth` threads; returns tiles per second (of tiles read), wrong texels (64
@@ -357,7 +377,7 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
 
     let stop = Arc::new(AtomicBool::new(false));
     // The proxy's own ceiling: the same relay without the added latency, at `depth`.
-    let direct = delaying_proxy(http_port, Duration::ZERO, stop.clone())?;
+    let direct = delaying_proxy(http_port, Duration::ZERO, Tail::default(), stop.clone())?.port;
     let direct_ct =
         prep::publish::write_pointed_config(&root, &dir.join("relay"), &format!("http://127.0.0.1:{direct}"), &[])?;
     let relay = remote_source(&direct_ct, args.depth)?;
@@ -367,7 +387,10 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
     let (relay_rate, w, f) = rate(&relay, &tiles, args.depth, 1);
     wrong += w;
     failed += f;
-    let proxy = delaying_proxy(http_port, Duration::from_millis(args.latency_ms), stop.clone())?;
+    let tail = Tail { share: args.tail_percent / 100.0, hold: Duration::from_millis(args.tail_ms) };
+    let tail = if args.tail_ms == 0 { Tail::default() } else { tail };
+    let delaying = delaying_proxy(http_port, Duration::from_millis(args.latency_ms), tail, stop.clone())?;
+    let proxy = delaying.port;
     let slow_ct =
         prep::publish::write_pointed_config(&root, &dir.join("slow"), &format!("http://127.0.0.1:{proxy}"), &[])?;
     let mut sweep = Vec::new();
@@ -400,6 +423,8 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
     let (cold, jump, _) = back_to_level0(slow)?;
     (remote_flight.cold_start_to_level0_ms, remote_flight.jump_to_level0_ms, remote_flight.jump_texels) =
         (cold, jump, texels);
+    (remote_flight.tail_share, remote_flight.tail_ms) = (tail.share, tail.hold.as_millis() as u64);
+    remote_flight.tail_held_requests = delaying.counters.held.load(Ordering::Relaxed);
     stop.store(true, Ordering::Relaxed);
     let best = sweep
         .iter()
@@ -516,6 +541,9 @@ fn fly(ct: &Path, latency_ms: u64, seconds: f64, speed: i64) -> anyhow::Result<R
         mean_slot_wait_ms: per(st.slot_wait_us, st.requests.saturating_sub(st.retries)),
         mean_request_ms: per(st.request_us, st.answered),
         hedged_share: st.hedged as f64 / st.requests.max(1) as f64,
+        tail_share: 0.0,
+        tail_ms: 0,
+        tail_held_requests: 0,
     })
 }
 
@@ -538,6 +566,14 @@ fn human(r: &Report) -> String {
         r.failed_reads
     ));
     let f = &r.remote_flight;
+    if f.tail_ms > 0 {
+        o.push_str(&format!(
+            "tail: {:.1}% of the requests held {} ms longer ({} held)\n",
+            f.tail_share * 100.0,
+            f.tail_ms,
+            f.tail_held_requests
+        ));
+    }
     o.push_str(&format!(
         "real-time flight through +{} ms per request, {} prefetch, {} texels a tick at {} ticks/s ({:.0} texels/s) for {:.1} s: level 0 shown on {:.1}% of the ticks after the first second (goal >= 95%), mean min LOD {:.2}, {} ticks with a disabled level, planned latency {:.1} ticks; {} of {} published texels wrong\n",
         f.added_latency_ms,

@@ -174,12 +174,22 @@ pub struct Faults {
     pub cut: f64,
 }
 
+/// A tail a [`Proxy`] adds: a share of the requests (drawn from their numbers, after the
+/// faults' shares) held `hold` longer than the others, as a store's slowest requests are.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Tail {
+    pub share: f64,
+    pub hold: Duration,
+}
+
 /// What a [`Proxy`] did.
 #[derive(Debug, Default)]
 pub struct ProxyCounters {
     pub requests: AtomicU64,
     pub unavailable: AtomicU64,
     pub cut: AtomicU64,
+    /// Requests held longer ([`Tail`]).
+    pub held: AtomicU64,
 }
 
 /// A keep-alive HTTP relay to a loopback `upstream` that holds every request `delay` before
@@ -191,6 +201,17 @@ pub struct Proxy {
 
 impl Proxy {
     pub fn start(upstream: u16, delay: Duration, faults: Faults, stop: Arc<AtomicBool>) -> anyhow::Result<Proxy> {
+        Proxy::start_with_tail(upstream, delay, faults, Tail::default(), stop)
+    }
+
+    /// [`Proxy::start`], and `tail`'s share of the requests held `tail.hold` longer.
+    pub fn start_with_tail(
+        upstream: u16,
+        delay: Duration,
+        faults: Faults,
+        tail: Tail,
+        stop: Arc<AtomicBool>,
+    ) -> anyhow::Result<Proxy> {
         let listener = TcpListener::bind("127.0.0.1:0")?;
         let port = listener.local_addr()?.port();
         let counters = Arc::new(ProxyCounters::default());
@@ -203,7 +224,7 @@ impl Proxy {
                 let Ok(conn) = conn else { continue };
                 let c = c.clone();
                 std::thread::spawn(move || {
-                    let _ = relay(conn, upstream, delay, faults, &c);
+                    let _ = relay(conn, upstream, delay, (faults, tail), &c);
                 });
             }
         });
@@ -229,7 +250,13 @@ fn read_head(r: &mut BufReader<TcpStream>) -> std::io::Result<Option<(Vec<u8>, u
     }
 }
 
-fn relay(client: TcpStream, upstream: u16, delay: Duration, faults: Faults, c: &ProxyCounters) -> std::io::Result<()> {
+fn relay(
+    client: TcpStream,
+    upstream: u16,
+    delay: Duration,
+    (faults, tail): (Faults, Tail),
+    c: &ProxyCounters,
+) -> std::io::Result<()> {
     client.set_nodelay(true)?;
     let mut from_client = BufReader::new(client.try_clone()?);
     let mut to_client = client;
@@ -249,7 +276,13 @@ fn relay(client: TcpStream, upstream: u16, delay: Duration, faults: Faults, c: &
             to_client.write_all(b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\n\r\n")?;
             continue;
         }
-        std::thread::sleep(delay);
+        let faulty = faults.unavailable + faults.cut;
+        if (faulty..faulty + tail.share).contains(&x) {
+            c.held.fetch_add(1, Ordering::Relaxed);
+            std::thread::sleep(delay + tail.hold);
+        } else {
+            std::thread::sleep(delay);
+        }
         to_up.write_all(&head)?;
         to_up.write_all(&body)?;
         let Some((rhead, rlen)) = read_head(&mut from_up)? else { return Ok(()) };
