@@ -78,10 +78,11 @@ pub fn region(shape: &LevelShape, tex: Rect, velocity: [i64; 2], lead: [u64; 2])
         // The lead, at most what the grid can hold beside the window's tiles.
         let most = (g - (hi - lo)).max(0).saturating_mul(e);
         let lead = (lead[a].min(i64::MAX as u64) as i64).min(most);
-        // A lead that reaches the level's edge (not on a level that wraps around there): a
-        // flight there can only turn back or stop, so the grid's tiles the edge leaves unused
-        // keep the way it came, which it crosses again at once if it turns.
-        let edge = !(shape.wrap && a == 0);
+        // A lead of a tile or more that reaches the level's edge (not on a level that wraps
+        // around there): a flight there can only turn back or stop, so the grid's tiles the edge
+        // leaves unused keep the way it came, which a fast flight crosses again at once if it
+        // turns. A slower flight keeps the ring (it reads no tile the ring does not).
+        let edge = !(shape.wrap && a == 0) && lead >= e;
         match velocity[a].signum() {
             1 => {
                 let front = (edges[a].1 + lead + e - 1).div_euclid(e);
@@ -539,8 +540,11 @@ mod tests {
         // Away from the edge, behind the window only the ring's margin.
         let mid = crate::geom::tex_region(sh.size, sh.clip, [20_000, 20_000]);
         let ring_shape = LevelShape { grid: mem_grid(sh.size, sh.tile, sh.clip, 1), ..sh };
-        let ring = ring::Ring.mem_region(&ring_shape, mid, [0, 0], Rect::EMPTY);
-        assert_eq!(region(&sh, mid, [1000, 0], [4 * 256, 0]).s0, ring.s0);
+        let mid_ring = ring::Ring.mem_region(&ring_shape, mid, [0, 0], Rect::EMPTY);
+        assert_eq!(region(&sh, mid, [1000, 0], [4 * 256, 0]).s0, mid_ring.s0);
+        // A flight slower than a tile a latency keeps the ring there too.
+        let ring = ring::Ring.mem_region(&ring_shape, tex, [0, 0], Rect::EMPTY);
+        assert_eq!(region(&sh, tex, [10, 0], [10, 0]), ring);
         // A level that wraps along s has no edge there.
         let wraps = LevelShape { wrap: true, ..sh };
         assert!(region(&wraps, tex, [1000, 0], [4 * 256, 0]).s0 > n - 14);

@@ -548,11 +548,16 @@ fn clipbench_remote_prints_its_contract_fields_and_reads_no_wrong_texel() {
     assert!(f["texels_per_s"].as_f64().unwrap() > 0.0 && f["added_latency_ms"].as_u64().unwrap() > 0, "{f}");
     assert!(f["texels_checked"].as_u64().unwrap() > 0, "{f}");
     assert_eq!(f["wrong_texels"], 0, "{f}");
-    // The time back to level 0 after a cold start and a jump, over HTTP and on local files, and
-    // the requests in flight the source chose.
-    for key in
-        ["cold_start_to_level0_ms", "cold_start_to_level0_ms_local", "jump_to_level0_ms", "jump_to_level0_ms_local"]
-    {
+    // The time back to level 0 after a cold start and a jump, over HTTP, on local files and from
+    // S3, and the requests in flight the source chose.
+    for key in [
+        "cold_start_to_level0_ms",
+        "cold_start_to_level0_ms_local",
+        "cold_start_to_level0_ms_s3",
+        "jump_to_level0_ms",
+        "jump_to_level0_ms_local",
+        "jump_to_level0_ms_s3",
+    ] {
         let ms = f[key].as_f64().unwrap_or_else(|| panic!("`{key}` missing: {f}"));
         assert!(ms > 0.0 && ms < 30_000.0, "{key}: level 0 is shown again: {f}");
     }

@@ -152,6 +152,9 @@ pub struct RemoteFlight {
     /// to the first tick that shows level 0 again, over HTTP and on the local files.
     pub jump_to_level0_ms: f64,
     pub jump_to_level0_ms_local: f64,
+    /// The same two times over the S3-compatible store (moto, no latency added: its own).
+    pub cold_start_to_level0_ms_s3: f64,
+    pub jump_to_level0_ms_s3: f64,
     /// The level-0 texels of that jump.
     pub jump_texels: i64,
     /// The requests in flight the source chose for the proxy's endpoint at the end of the
@@ -423,6 +426,10 @@ fn measure(args: &Args, dir: &Path) -> anyhow::Result<Report> {
     let (cold, jump, _) = back_to_level0(slow)?;
     (remote_flight.cold_start_to_level0_ms, remote_flight.jump_to_level0_ms, remote_flight.jump_texels) =
         (cold, jump, texels);
+    let s3: Arc<dyn TileSource> =
+        Arc::new(RemoteSource::new(open_plan(&s3_ct)?, &Limits::default(), RemoteOptions::default())?);
+    let (cold, jump, _) = back_to_level0(s3)?;
+    (remote_flight.cold_start_to_level0_ms_s3, remote_flight.jump_to_level0_ms_s3) = (cold, jump);
     (remote_flight.tail_share, remote_flight.tail_ms) = (tail.share, tail.hold.as_millis() as u64);
     remote_flight.tail_held_requests = delaying.counters.held.load(Ordering::Relaxed);
     stop.store(true, Ordering::Relaxed);
@@ -532,6 +539,8 @@ fn fly(ct: &Path, latency_ms: u64, seconds: f64, speed: i64) -> anyhow::Result<R
         cold_start_to_level0_ms_local: 0.0,
         jump_to_level0_ms: 0.0,
         jump_to_level0_ms_local: 0.0,
+        cold_start_to_level0_ms_s3: 0.0,
+        jump_to_level0_ms_s3: 0.0,
         jump_texels: 0,
         in_flight_limit: st.in_flight_limit,
         in_flight_reason: st.in_flight_reason.clone(),
@@ -591,7 +600,7 @@ fn human(r: &Report) -> String {
     ));
     o.push_str(&format!(
         "requests in flight {} ({}; peak {}), store latency {:.1} ms, {} reads/s; a read waited {:.2} ms for a slot, a request took {:.1} ms; {:.1}% hedged\n\
-         level 0 after a cold start {:.0} ms (local {:.0}), after a jump of {} texels {:.0} ms (local {:.0})\n",
+         level 0 after a cold start {:.0} ms (local {:.0}, S3 {:.0}), after a jump of {} texels {:.0} ms (local {:.0}, S3 {:.0})\n",
         f.in_flight_limit,
         f.in_flight_reason,
         f.peak_in_flight,
@@ -602,9 +611,11 @@ fn human(r: &Report) -> String {
         f.hedged_share * 100.0,
         f.cold_start_to_level0_ms,
         f.cold_start_to_level0_ms_local,
+        f.cold_start_to_level0_ms_s3,
         f.jump_texels,
         f.jump_to_level0_ms,
-        f.jump_to_level0_ms_local
+        f.jump_to_level0_ms_local,
+        f.jump_to_level0_ms_s3
     ));
     o
 }
