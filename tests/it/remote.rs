@@ -701,7 +701,6 @@ fn a_206_answer_for_another_range_is_refused_and_a_whole_object_answer_is_cut_ri
 /// `html` (200 and an error page), `other` (206 for the range one byte further on). Serves at
 /// most `max` connections.
 fn hostile_s3(max: usize) -> u16 {
-    use std::io::Read;
     let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let port = listener.local_addr().unwrap().port();
     std::thread::spawn(move || {
@@ -709,14 +708,7 @@ fn hostile_s3(max: usize) -> u16 {
         for conn in listener.incoming().take(max) {
             let Ok(mut conn) = conn else { continue };
             conn.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-            let mut head = Vec::new();
-            let mut byte = [0u8; 1];
-            while !head.ends_with(b"\r\n\r\n") && head.len() < 65536 {
-                match conn.read(&mut byte) {
-                    Ok(1) => head.push(byte[0]),
-                    _ => break,
-                }
-            }
+            let head = request_head(&mut conn);
             let head = String::from_utf8_lossy(&head).to_ascii_lowercase();
             let path = head.split_whitespace().nth(1).unwrap_or("").to_string();
             let range = head.lines().find_map(|l| l.strip_prefix("range: bytes=")).and_then(|r| {
@@ -977,23 +969,30 @@ fn a_service_behind_a_delaying_proxy_shows_coarser_levels_only_right_texels_and_
     assert!(slow.requests.load(std::sync::atomic::Ordering::SeqCst) > 0, "the tiles came through the proxy");
 }
 
+/// The head of one request on `conn`, read byte by byte up to its blank line (at most 64 KiB; less
+/// when the client stops).
+fn request_head(conn: &mut std::net::TcpStream) -> Vec<u8> {
+    use std::io::Read;
+    let mut head = Vec::new();
+    let mut byte = [0u8; 1];
+    while !head.ends_with(b"\r\n\r\n") && head.len() < 65536 {
+        match conn.read(&mut byte) {
+            Ok(1) => head.push(byte[0]),
+            _ => break,
+        }
+    }
+    head
+}
+
 /// A server that answers every request `403 Forbidden` with a short reason; returns its port.
 fn forbidding_server() -> u16 {
-    use std::io::Read;
     let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let port = listener.local_addr().unwrap().port();
     std::thread::spawn(move || {
         for conn in listener.incoming() {
             let Ok(mut conn) = conn else { continue };
             conn.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-            let mut head = Vec::new();
-            let mut byte = [0u8; 1];
-            while !head.ends_with(b"\r\n\r\n") && head.len() < 65536 {
-                match conn.read(&mut byte) {
-                    Ok(1) => head.push(byte[0]),
-                    _ => break,
-                }
-            }
+            request_head(&mut conn);
             let body = "AccessDenied";
             let reply =
                 format!("HTTP/1.1 403 Forbidden\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}", body.len());
