@@ -204,6 +204,34 @@ fn reads_held_twenty_times_longer_than_their_peers_are_hedged_within_their_share
 }
 
 #[test]
+fn a_cold_starts_first_request_held_is_hedged_once_the_others_answers_time_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pyr = d.join("pyr");
+    let args = ["--source", "hash", "--size", "1024", "--tile", "64", "--clip", "256", "--format", "rgba8", "--quiet"];
+    let (out, desc) =
+        exec(Path::new("."), env!("CARGO_BIN_EXE_clipprep"), &[&args[..], &["--out", pyr.to_str().unwrap()]].concat());
+    assert!(out.status.success(), "{desc}");
+    let nginx = Nginx::serve(&pyr);
+    let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 20);
+    let ct = point_config_at(&pyr, &d.join("cfg"), &proxy.url(), &[]);
+    let src = source(&ct);
+    // The first tile request after the open is held 3 s: sent before any answer was measured,
+    // it can be timed for a hedge only by the answers that come after it.
+    proxy.set(Schedule { faults: vec![Fault::Slow(3000)], then: Vec::new(), every: 0 });
+    let t = Instant::now();
+    assert_eq!(read_all(&src, 16), 0);
+    let st = src.stats();
+    let held = proxy.injected.lock().unwrap().iter().filter(|f| matches!(f, Fault::Slow(_))).count();
+    println!("{} requests, {} held, {} hedged, {:?}", st.requests, held, st.hedged, t.elapsed());
+    assert_eq!(held, 1, "{st:?}");
+    assert!(st.hedged >= 1, "the held request is hedged: {st:?}");
+    // Its own answer cannot come before 3 s: every tile read sooner (and checked) came from
+    // the hedge. (Without a hedge for requests sent before the first answers, it waited.)
+    assert!(t.elapsed() < Duration::from_secs(3), "{:?}: {st:?}", t.elapsed());
+}
+
+#[test]
 fn an_object_replaced_between_a_request_and_its_hedge_is_refused_as_changed() {
     use clipmap::place::RemoteName;
     use clipmap::source::remote::object::{Object, ObjectError};

@@ -305,8 +305,13 @@ impl Hedges {
         (hedged + 1) as f64 <= self.share * (sent + 1) as f64
     }
 
-    /// Whether a hedge could be taken now ([`Hedges::take`] without taking it): a read that
-    /// could not be hedged is not timed for one.
+    /// Whether hedging is on (a share above 0): only then is a read timed for a hedge. A read
+    /// sent while the budget has no room waits for room as it waits for its time.
+    pub fn on(&self) -> bool {
+        self.share > 0.0
+    }
+
+    /// Whether a hedge could be taken now ([`Hedges::take`] without taking it).
     pub fn has_room(&self) -> bool {
         self.allows(self.hedged(), self.sent.load(Ordering::Relaxed))
     }
@@ -330,12 +335,33 @@ impl Hedges {
 }
 
 /// When a read may be hedged ([`Backend::get_hedged`]).
-#[derive(Clone, Debug)]
+#[derive(Clone)]
 pub struct Hedge {
-    /// How long its first request may go unanswered.
-    pub after: Duration,
+    /// How long its first request may go unanswered, as its endpoint's answers measure it when
+    /// asked: `None` while too few were measured, and then asked again after
+    /// [`flight::HEDGE_RECHECK`]. Asked while the request waits, not once when it is sent, so
+    /// that a request sent before the first answers (a cold start's) is hedged too; and once it
+    /// is time, the hedge waits for room in the budget the same way.
+    pub after: Arc<dyn Fn() -> Option<Duration> + Send + Sync>,
     /// The budget a hedge is taken from.
     pub budget: Arc<Hedges>,
+}
+
+impl std::fmt::Debug for Hedge {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Hedge").field("after_now", &(self.after)()).field("budget", &self.budget).finish()
+    }
+}
+
+impl Hedge {
+    /// How long to wait, `elapsed` after the request was sent, before asking again whether to
+    /// hedge it: zero when it is time to hedge.
+    pub fn wait(&self, elapsed: Duration) -> Duration {
+        match (self.after)() {
+            Some(after) => after.saturating_sub(elapsed),
+            None => flight::HEDGE_RECHECK,
+        }
+    }
 }
 
 impl Counters {
@@ -665,17 +691,19 @@ impl Fetcher {
         let end = batch.iter().map(|r| r.start + r.len).max().unwrap_or(start);
         self.merged.count(batch.len() as u64);
         let ep = self.endpoint(&first.loc.endpoint);
-        let got = self.with_retries(&first.loc, &first.object, |b| match self.hedge_after(&ep) {
-            Some(after) => {
-                let hedge = Hedge { after, budget: Arc::clone(&self.hedges) };
-                b.get_hedged(&first.loc, start, end - start, hedge).map(|(got, hedged)| {
-                    if hedged {
-                        self.counters.requests.fetch_add(1, Ordering::Relaxed);
-                    }
-                    got
-                })
+        let got = self.with_retries(&first.loc, &first.object, |b| {
+            if !self.hedges.on() {
+                return b.get(&first.loc, start, end - start);
             }
-            None => b.get(&first.loc, start, end - start),
+            let ep = Arc::clone(&ep);
+            let after = move || ep.state.lock().unwrap_or_else(|e| e.into_inner()).sizing.hedge_after();
+            let hedge = Hedge { after: Arc::new(after), budget: Arc::clone(&self.hedges) };
+            b.get_hedged(&first.loc, start, end - start, hedge).map(|(got, hedged)| {
+                if hedged {
+                    self.counters.requests.fetch_add(1, Ordering::Relaxed);
+                }
+                got
+            })
         });
         if let Ok(g) = &got {
             self.seen.fetched(&first.object, start, g.bytes.len() as u64);
@@ -706,15 +734,6 @@ impl Fetcher {
             }
             let _ = r.result.set(result);
         }
-    }
-
-    /// How long a ranged read of `ep` may go unanswered before it is hedged, while hedges are
-    /// within their share of the requests ([`RemoteOptions::hedge_percent`]).
-    fn hedge_after(&self, ep: &Endpoint) -> Option<Duration> {
-        if !self.hedges.has_room() {
-            return None;
-        }
-        ep.state.lock().unwrap_or_else(|e| e.into_inner()).sizing.hedge_after()
     }
 
     /// Runs `attempt` until it succeeds, fails for good or runs out of retries.

@@ -64,6 +64,11 @@ pub(crate) const HEDGE_OVER_MEDIAN_STABLE: f64 = 1.5;
 /// 33 ms instead of 66, and its tile comes about two ticks (60 a second) sooner.
 pub(crate) const HEDGE_MIN_STABLE: Duration = Duration::from_millis(25);
 
+/// A read sent before its endpoint had measured [`HEDGE_SAMPLES`] answers asks this often
+/// whether it may be hedged now: a cold start's first requests, sent before any answer, are
+/// hedged once the answers to the others say when.
+pub const HEDGE_RECHECK: Duration = Duration::from_millis(10);
+
 /// Why an endpoint's limit is what it is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Reason {

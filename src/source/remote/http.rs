@@ -288,13 +288,21 @@ async fn get_hedged(
     hedge: Hedge,
 ) -> Result<(Got, bool), Failure> {
     use futures_util::future::{select, Either};
-    let one = Box::pin(get(client.clone(), first, start, len));
-    let one = match select(one, Box::pin(tokio::time::sleep(hedge.after))).await {
-        Either::Left((r, _)) => return r.map(|g| (g, false)),
-        Either::Right(((), one)) => one,
-    };
-    if !hedge.budget.take() {
-        return one.await.map(|g| (g, false));
+    let sent = std::time::Instant::now();
+    let mut one = Box::pin(get(client.clone(), first, start, len));
+    // Until it is time to hedge and the budget has room for it (both asked again while not).
+    loop {
+        let mut wait = hedge.wait(sent.elapsed());
+        if wait.is_zero() {
+            if hedge.budget.take() {
+                break;
+            }
+            wait = super::flight::HEDGE_RECHECK;
+        }
+        one = match select(one, Box::pin(tokio::time::sleep(wait))).await {
+            Either::Left((r, _)) => return r.map(|g| (g, false)),
+            Either::Right(((), one)) => one,
+        };
     }
     let two = Box::pin(get(client, second, start, len));
     let (r, other) = match select(one, two).await {

@@ -369,6 +369,7 @@ fn has_room_says_what_take_would_do_and_takes_nothing() {
     let none = Hedges::within(0.0);
     none.sent.store(1_000_000, Ordering::Relaxed);
     assert!(!none.has_room(), "hedging off");
+    assert!(!none.on() && Hedges::default().on(), "only a share above 0 times reads for a hedge");
 }
 
 #[test]
