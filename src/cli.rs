@@ -259,16 +259,20 @@ impl TilesArgs {
             Some(p) => Some(std::fs::read(p).map_err(|e| format!("--default-tile {}: {e}", p.display()))?),
             None => None,
         };
+        // The rest is `remote`, a field only a build with the `remote` feature has (without it
+        // the update fills nothing, which clippy would otherwise refuse).
+        #[allow(clippy::needless_update)]
+        let template = crate::source::tiles::TemplateOptions {
+            zooms: self.zooms,
+            bounds: self.bounds,
+            tile_size: self.tile_size,
+            subdomains: self.subdomains.clone(),
+            user_agent: self.user_agent.clone(),
+            headers,
+            ..Default::default()
+        };
         Ok(crate::source::tiles::OpenOptions {
-            template: crate::source::tiles::TemplateOptions {
-                zooms: self.zooms,
-                bounds: self.bounds,
-                tile_size: self.tile_size,
-                subdomains: self.subdomains.clone(),
-                user_agent: self.user_agent.clone(),
-                headers,
-                ..Default::default()
-            },
+            template,
             pyramid: crate::source::tiles::PyramidOptions { clip_size: clip, default_tile },
         })
     }
