@@ -53,7 +53,13 @@ fn formats_json_has_every_format_with_exact_byte_ratios_and_sane_psnr() {
         assert!(t[field].as_f64().is_some_and(|x| x.is_finite() && x > 0.0), "{field} in {t}");
     }
     let i = &v["ingest"];
-    for field in ["bc1_encoded_vs_rgba8", "bc1_pre_encoded_vs_rgba8"] {
+    for field in [
+        "bc1_encoded_vs_rgba8",
+        "bc1_pre_encoded_vs_rgba8",
+        "rgba8_cpu_us_per_tile",
+        "bc1_encoded_cpu_us_per_tile",
+        "bc1_encoded_vs_rgba8_cpu",
+    ] {
         assert!(i[field].as_f64().is_some_and(|x| x.is_finite() && x > 0.0), "{field} in {i}");
     }
     assert!(i["tiles_per_run"].as_u64().unwrap() > 0, "{i}");

@@ -131,6 +131,13 @@ pub struct IngestComparison {
     pub rgba8_us_per_tile: f64,
     pub bc1_encoded_us_per_tile: f64,
     pub bc1_encode_us_per_tile: f64,
+    /// CPU time a tile of the ingest, every thread of the process (over all runs): RGBA8, and
+    /// BC1 encoded at run time...
+    pub rgba8_cpu_us_per_tile: f64,
+    pub bc1_encoded_cpu_us_per_tile: f64,
+    /// ...and their ratio: what `bc1_encoded_vs_rgba8` is where the reads keep every core
+    /// equally busy either way (the encoding then costs its CPU time in full).
+    pub bc1_encoded_vs_rgba8_cpu: f64,
     /// The same photograph prepared pre-encoded to BC1 (as `clipprep --format bc1` writes it),
     /// read as it is: tiles a second.
     pub bc1_pre_encoded_tiles_per_s: f64,
@@ -328,23 +335,26 @@ impl TileSource for Counting {
     }
 }
 
-/// One ingest run: seconds of the flight, tiles read, the image caches' bytes (level 0's, all).
-fn ingest_run(source: Arc<dyn TileSource>, centres: &[[i64; 2]]) -> Result<(f64, u64, u64, u64)> {
+/// One ingest run: seconds of the flight, tiles read, the image caches' bytes (level 0's, all),
+/// and the CPU seconds of every thread of the process meanwhile (the clipmap's read threads
+/// outlive the run's end, so their time is in).
+fn ingest_run(source: Arc<dyn TileSource>, centres: &[[i64; 2]]) -> Result<(f64, u64, u64, u64, f64)> {
     let counting = Arc::new(Counting { inner: source, reads: AtomicU64::new(0) });
     let mut settings = Settings { budget_ns: None, ..Settings::default() };
     settings.limits.max_pending_reads = 4096;
     settings.limits.max_ready_reads = 4096;
     let mut map = Clipmap::new(Arc::clone(&counting) as Arc<dyn TileSource>, settings)?;
-    let t = Instant::now();
+    let (t, cpu) = (Instant::now(), crate::perf::cpu_ns());
     for &c in centres {
         map.tick(c, Some([0, 0]));
         map.wait_for_reads();
     }
     map.tick(*centres.last().expect("a jump"), Some([0, 0]));
     let secs = t.elapsed().as_secs_f64();
+    let cpu_s = crate::perf::cpu_ns().saturating_sub(cpu) as f64 / 1e9;
     let p = map.memory().placement();
     let level0 = p.levels[0].slot_bytes * p.levels[0].slot_count;
-    Ok((secs, counting.reads.load(Ordering::Relaxed), level0, p.slot_bytes()))
+    Ok((secs, counting.reads.load(Ordering::Relaxed), level0, p.slot_bytes(), cpu_s))
 }
 
 /// A scratch directory, removed with what is in it when dropped (on errors too).
@@ -551,13 +561,21 @@ pub fn run(args: &Args) -> Result<Report> {
     sources.push(pre_encoded);
     let mut rates = vec![Vec::new(); sources.len()];
     let mut caches = vec![(0u64, 0u64, 0u64); sources.len()];
+    // CPU seconds and tiles over all runs, per source.
+    let mut cpu = vec![(0.0, 0u64); sources.len()];
     for _ in 0..runs {
         for (k, source) in sources.iter().enumerate() {
-            let (s, read, level0, all) = ingest_run(source.clone(), &centres)?;
+            let (s, read, level0, all, cpu_s) = ingest_run(source.clone(), &centres)?;
             rates[k].push(read as f64 / s);
             caches[k] = (level0, all, read);
+            cpu[k].0 += cpu_s;
+            cpu[k].1 += read;
         }
     }
+    let cpu_us = |f: &str| {
+        let k = FORMATS.iter().position(|(name, _, _)| *name == f).expect("a measured format");
+        cpu[k].0 * 1e6 / cpu[k].1.max(1) as f64
+    };
     let rates: Vec<f64> = rates.into_iter().map(median).collect();
     let (base_level0, _, tiles_per_run) = caches[0];
     let base_upload = (tiles_per_run * TILE * TILE * 4) as f64 / centres.len() as f64;
@@ -606,6 +624,9 @@ pub fn run(args: &Args) -> Result<Report> {
         rgba8_us_per_tile: 1e6 / rate("rgba8"),
         bc1_encoded_us_per_tile: 1e6 / rate("bc1"),
         bc1_encode_us_per_tile: rows.iter().find(|r| r.format == "bc1").map_or(0.0, |r| r.encode_us_per_tile),
+        rgba8_cpu_us_per_tile: cpu_us("rgba8"),
+        bc1_encoded_cpu_us_per_tile: cpu_us("bc1"),
+        bc1_encoded_vs_rgba8_cpu: cpu_us("rgba8") / cpu_us("bc1").max(1e-9),
         bc1_pre_encoded_tiles_per_s: pre,
         bc1_pre_encoded_vs_rgba8: pre / rate("rgba8"),
     };
@@ -702,6 +723,10 @@ fn human(r: &Report) -> String {
         i.bc1_encoded_vs_rgba8,
         i.bc1_pre_encoded_tiles_per_s,
         i.bc1_pre_encoded_vs_rgba8
+    );
+    s += &format!(
+        "ingest CPU a tile (every thread): RGBA8 {:.1} us, BC1 encoded at run time {:.1} us ({:.2}x: the ratio where the reads keep every core busy either way)\n",
+        i.rgba8_cpu_us_per_tile, i.bc1_encoded_cpu_us_per_tile, i.bc1_encoded_vs_rgba8_cpu
     );
     for f in r.flight.iter().chain(&r.flight_rgba8) {
         s += &format!(
