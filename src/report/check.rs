@@ -363,15 +363,17 @@ pub fn run(plan: &ClipTexturePlan, progress: &dyn Fn(u64)) -> CheckReport {
     }
 }
 
-/// Checks every tile of a texture served as it is from one file (a COG): each tile is read and
-/// decoded as the service would read it (`TileSource::read_tile`), and sorted by what the read
-/// says. `kind_of` names each level's origin (`ifd`, `built`); `progress` is told the tiles
-/// checked since its last call.
+/// Checks every tile of a texture served as it is from one file or tile source (a COG, a tile
+/// archive, a template): each tile is read and decoded as the service would read it
+/// (`TileSource::read_tile`), and sorted by what the read says. `kind_of` names each level's
+/// origin (`ifd`, `zoom`, `built`); `missing` says what a missing tile means for this kind of
+/// source (its problem's detail); `progress` is told the tiles checked since its last call.
 pub fn run_source(
     path: &std::path::Path,
     place: &Place,
     src: &dyn crate::source::TileSource,
     kind_of: &dyn Fn(u32) -> &'static str,
+    missing: &str,
     progress: &dyn Fn(u64),
 ) -> CheckReport {
     use crate::source::{SourceError, TileId};
@@ -390,10 +392,7 @@ pub fn run_source(
                         counts.present += 1;
                         continue;
                     }
-                    Err(SourceError::Missing { .. }) => (
-                        Problem::Missing,
-                        Some("sparse: the file holds no bytes for it (offset or byte count 0)".into()),
-                    ),
+                    Err(SourceError::Missing { .. }) => (Problem::Missing, Some(missing.to_string())),
                     Err(e @ SourceError::Short { .. }) => (Problem::Short, Some(e.to_string())),
                     Err(e @ (SourceError::PermissionDenied { .. } | SourceError::Io { .. })) => {
                         (Problem::Unreadable, Some(e.to_string()))

@@ -413,6 +413,32 @@ fn cliptex(dir: &Path, args: &[&str]) -> (std::process::ExitStatus, String) {
 }
 
 #[test]
+fn cliptex_check_of_a_tree_with_a_tile_removed_says_the_tile_source_has_none_there() {
+    let dir = tempfile::tempdir().unwrap();
+    trees(dir.path());
+    // A tree one zoom deeper (2048², more than the check's clip of 1024, so level 0 is read in
+    // tiles of 256): zoom 3's tile x 2, y 5 (from the north) is level 0's tile (2, 2).
+    let o = Command::new("gdal2tiles.py")
+        .args(["--xyz", "-z", "0-3", "-q", "src.tif", "xyz3"])
+        .current_dir(dir.path())
+        .output()
+        .expect("gdal2tiles.py (gdal-bin)");
+    assert!(o.status.success(), "gdal2tiles.py: {}", String::from_utf8_lossy(&o.stderr));
+    std::fs::remove_file(dir.path().join("xyz3/3/2/5.png")).unwrap();
+    let template = format!("xyz:{}/xyz3/{{z}}/{{x}}/{{y}}.png", dir.path().display());
+    let (o, desc) = crate::common::exec(dir.path(), env!("CARGO_BIN_EXE_cliptex"), &["check", &template, "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{e}: {desc}"));
+    let problems = v["problems"].as_array().unwrap();
+    assert_eq!(problems.len(), 1, "{v}");
+    let p = &problems[0];
+    assert_eq!((p["level"].as_u64(), p["s"].as_u64(), p["t"].as_u64()), (Some(0), Some(2), Some(2)), "{p}");
+    assert_eq!(p["problem"], "missing", "{p}");
+    let detail = p["detail"].as_str().unwrap();
+    assert!(detail.contains("the tile source has no tile there"), "{detail}");
+    assert!(!detail.contains("byte count"), "not a COG's wording: {detail}");
+}
+
+#[test]
 fn clipprep_input_of_a_template_pmtiles_or_mbtiles_writes_a_ct_naming_it_that_clipmapd_serves_as_the_source() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

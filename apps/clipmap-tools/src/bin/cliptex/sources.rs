@@ -171,7 +171,9 @@ pub(crate) fn check_pyramid(file: &Path, src: &clipmap::source::tiles::PyramidSo
     let kind_of = move |k: u32| if max - i64::from(k) >= min { "zoom" } else { "built" };
     let bar = tile_bar(tiles, quiet);
     let shown = PathBuf::from(src.archive().place());
-    let report = check::run_source(&shown, &Place::from_path(file.to_path_buf()), src, &kind_of, &|n| bar.inc(n));
+    let missing = "sparse: the tile source has no tile there (no file, no archive entry, or a 404)";
+    let report =
+        check::run_source(&shown, &Place::from_path(file.to_path_buf()), src, &kind_of, missing, &|n| bar.inc(n));
     bar.finish_and_clear();
     report::emit(json, &report, |r| check::human(r, quiet));
     if report.servable {
@@ -222,7 +224,8 @@ pub(crate) fn check_cog_source(
     };
     let tiles: u64 = src.desc().levels().iter().map(|l| l.tiles().iter().product::<u64>()).sum();
     let bar = tile_bar(tiles, quiet);
-    let report = check::run_source(file, place, src, &kind_of, &|n| bar.inc(n));
+    let missing = "sparse: the file holds no bytes for it (offset or byte count 0)";
+    let report = check::run_source(file, place, src, &kind_of, missing, &|n| bar.inc(n));
     bar.finish_and_clear();
     report::emit(json, &report, |r| check::human(r, quiet));
     if report.servable {
