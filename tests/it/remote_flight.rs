@@ -19,6 +19,19 @@ use std::time::{Duration, Instant};
 /// Reads a second.
 const RATE: f64 = 400.0;
 
+/// A `size`² hash-texture pyramid of 64-texel tiles (clip 256) prepared by `clipprep` under
+/// `d/pyr`, and nginx serving it.
+fn served_hash_pyramid(d: &Path, size: u32) -> (std::path::PathBuf, Nginx) {
+    let pyr = d.join("pyr");
+    let size = size.to_string();
+    let args = ["--source", "hash", "--size", &size, "--tile", "64", "--clip", "256", "--format", "rgba8", "--quiet"];
+    let (out, desc) =
+        exec(Path::new("."), env!("CARGO_BIN_EXE_clipprep"), &[&args[..], &["--out", pyr.to_str().unwrap()]].concat());
+    assert!(out.status.success(), "{desc}");
+    let nginx = Nginx::serve(&pyr);
+    (pyr, nginx)
+}
+
 fn source(ct: &Path) -> RemoteSource {
     let l = plan::load_clip_texture(ct, &plan::Options::default()).unwrap();
     let rendered = l.render();
@@ -78,12 +91,7 @@ fn paced(src: &RemoteSource, first: usize, secs: f64) -> (u64, usize) {
 fn requests_in_flight_follow_rate_times_latency_and_drop_when_the_store_says_slow_down() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let pyr = d.join("pyr");
-    let args = ["--source", "hash", "--size", "4096", "--tile", "64", "--clip", "256", "--format", "rgba8", "--quiet"];
-    let (out, desc) =
-        exec(Path::new("."), env!("CARGO_BIN_EXE_clipprep"), &[&args[..], &["--out", pyr.to_str().unwrap()]].concat());
-    assert!(out.status.success(), "{desc}");
-    let nginx = Nginx::serve(&pyr);
+    let (pyr, nginx) = served_hash_pyramid(d, 4096);
     let mut last = None;
     for delay in [5u64, 20, 80] {
         let proxy = FaultProxy::start(nginx.port, Schedule::pass(), delay);
@@ -183,12 +191,7 @@ fn read_all(src: &RemoteSource, threads: usize) -> u64 {
 fn reads_held_twenty_times_longer_than_their_peers_are_hedged_within_their_share_and_every_texel_is_right() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let pyr = d.join("pyr");
-    let args = ["--source", "hash", "--size", "1024", "--tile", "64", "--clip", "256", "--format", "rgba8", "--quiet"];
-    let (out, desc) =
-        exec(Path::new("."), env!("CARGO_BIN_EXE_clipprep"), &[&args[..], &["--out", pyr.to_str().unwrap()]].concat());
-    assert!(out.status.success(), "{desc}");
-    let nginx = Nginx::serve(&pyr);
+    let (pyr, nginx) = served_hash_pyramid(d, 1024);
     // 20 ms a request; one request in a hundred held 400 ms more.
     let tail = Schedule { faults: Vec::new(), then: vec![Fault::Slow(400)], every: 100 };
     let proxy = FaultProxy::start(nginx.port, tail, 20);
@@ -207,12 +210,7 @@ fn reads_held_twenty_times_longer_than_their_peers_are_hedged_within_their_share
 fn a_cold_starts_first_request_held_is_hedged_once_the_others_answers_time_it() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let pyr = d.join("pyr");
-    let args = ["--source", "hash", "--size", "1024", "--tile", "64", "--clip", "256", "--format", "rgba8", "--quiet"];
-    let (out, desc) =
-        exec(Path::new("."), env!("CARGO_BIN_EXE_clipprep"), &[&args[..], &["--out", pyr.to_str().unwrap()]].concat());
-    assert!(out.status.success(), "{desc}");
-    let nginx = Nginx::serve(&pyr);
+    let (pyr, nginx) = served_hash_pyramid(d, 1024);
     let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 20);
     let ct = point_config_at(&pyr, &d.join("cfg"), &proxy.url(), &[]);
     let src = source(&ct);
