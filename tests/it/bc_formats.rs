@@ -22,12 +22,15 @@ fn hash() -> Arc<dyn TileSource> {
     clipmap_service::procedural_source(Procedural::Hash, 256, 64, 16).unwrap()
 }
 
-/// Waits until every level of `c` is enabled, and returns the snapshot.
+/// Waits until every level of `c` is enabled and published whole (min LOD 0), and returns the
+/// snapshot.
 fn all_levels(c: &Client, svc: &Service) -> clipmap::shm::client::Snapshot {
     let t = Instant::now();
     loop {
         let snap = c.snapshot();
-        if !snap.levels.is_empty() && snap.levels.iter().all(|l| l.enabled) {
+        // Min LOD 0: every level's published region is its whole valid region (docs/SHM.md);
+        // a level is enabled while its region still grows, which a slow machine shows.
+        if !snap.levels.is_empty() && snap.levels.iter().all(|l| l.enabled) && snap.min_lod == 0.0 {
             return snap;
         }
         assert!(t.elapsed() < Duration::from_secs(30), "levels never all published: {snap:?}\n{}", svc.dump());

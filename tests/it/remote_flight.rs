@@ -97,7 +97,10 @@ fn requests_in_flight_follow_rate_times_latency_and_drop_when_the_store_says_slo
         let proxy = FaultProxy::start(nginx.port, Schedule::pass(), delay);
         let ct = point_config_at(&pyr, &d.join(format!("cfg{delay}")), &proxy.url(), &[]);
         let src = source(&ct);
+        let t = Instant::now();
         let (failed, next) = paced(&src, 0, 2.5);
+        // The rate the reads came at: `RATE`, or less on a machine too loaded to keep the pace.
+        let rate = (RATE * 2.5).floor() / t.elapsed().as_secs_f64();
         assert_eq!(failed, 0, "{delay} ms");
         let st = src.stats();
         let peak = proxy.in_flight.peak.load(Ordering::SeqCst);
@@ -111,10 +114,11 @@ fn requests_in_flight_follow_rate_times_latency_and_drop_when_the_store_says_slo
             peak,
             st.peak_in_flight
         );
-        // What the source measured: the rate it was read at, and the proxy's delay plus a little.
-        assert!((0.8 * RATE..=1.2 * RATE).contains(&(st.reads_per_s as f64)), "{st:?}");
+        // What the source measured: the rate it was read at, and the proxy's delay plus a little
+        // (the local server's answer and the machine's scheduling).
+        assert!((0.8 * rate..=1.2 * rate).contains(&(st.reads_per_s as f64)), "read at {rate:.0} a second: {st:?}");
         let added = delay as f64 / 1e3;
-        assert!(latency >= added && latency < added + 0.06, "{delay} ms: {st:?}");
+        assert!(latency >= added && latency < added + 0.15, "{delay} ms: {st:?}");
         // Its limit: rate x latency with the headroom, within the floor and the cap.
         let want = (st.reads_per_s as f64 * latency * flight::HEADROOM).ceil() as u64;
         let floor = flight::FLOOR as u64;
@@ -122,13 +126,15 @@ fn requests_in_flight_follow_rate_times_latency_and_drop_when_the_store_says_slo
         assert!(near(st.in_flight_limit), "{delay} ms: the limit {} is not near {want}: {st:?}", st.in_flight_limit);
         assert!((floor..=256).contains(&st.in_flight_limit), "{st:?}");
         // The requests at once: about rate x latency.
-        let needed = RATE * added;
+        let needed = rate * added;
         assert!(peak as f64 >= 0.6 * needed, "{delay} ms: {peak} at once at the proxy, rate x latency is {needed}");
         if delay == 80 {
             assert_eq!(st.in_flight_reason, "rate x latency", "{st:?}");
             assert!(st.in_flight_limit > floor && peak > floor, "more than the floor of 16 when needed: {st:?}");
             last = Some((proxy, src, next, st));
-        } else if delay == 5 {
+        } else if delay == 5 && want <= floor {
+            // (Where a loaded machine made even these answers slow, the limit is rate x latency,
+            // checked above.)
             assert_eq!((st.in_flight_limit, st.in_flight_reason.as_str()), (floor, "floor"), "{st:?}");
         }
     }
@@ -214,9 +220,9 @@ fn a_cold_starts_first_request_held_is_hedged_once_the_others_answers_time_it() 
     let proxy = FaultProxy::start(nginx.port, Schedule::pass(), 20);
     let ct = point_config_at(&pyr, &d.join("cfg"), &proxy.url(), &[]);
     let src = source(&ct);
-    // The first tile request after the open is held 3 s: sent before any answer was measured,
+    // The first tile request after the open is held 10 s: sent before any answer was measured,
     // it can be timed for a hedge only by the answers that come after it.
-    proxy.set(Schedule { faults: vec![Fault::Slow(3000)], then: Vec::new(), every: 0 });
+    proxy.set(Schedule { faults: vec![Fault::Slow(10_000)], then: Vec::new(), every: 0 });
     let t = Instant::now();
     assert_eq!(read_all(&src, 16), 0);
     let st = src.stats();
@@ -224,9 +230,10 @@ fn a_cold_starts_first_request_held_is_hedged_once_the_others_answers_time_it() 
     println!("{} requests, {} held, {} hedged, {:?}", st.requests, held, st.hedged, t.elapsed());
     assert_eq!(held, 1, "{st:?}");
     assert!(st.hedged >= 1, "the held request is hedged: {st:?}");
-    // Its own answer cannot come before 3 s: every tile read sooner (and checked) came from
-    // the hedge. (Without a hedge for requests sent before the first answers, it waited.)
-    assert!(t.elapsed() < Duration::from_secs(3), "{:?}: {st:?}", t.elapsed());
+    // Its own answer cannot come before 10 s: every tile read sooner (and checked) came from
+    // the hedge. (Without a hedge for requests sent before the first answers, it waited.) About
+    // 0.5 s here; the hold leaves a slow machine room.
+    assert!(t.elapsed() < Duration::from_secs(10), "{:?}: {st:?}", t.elapsed());
 }
 
 #[test]
@@ -252,8 +259,9 @@ fn an_object_replaced_between_a_request_and_its_hedge_is_refused_as_changed() {
     }
     let hedged = remote.stats().hedged;
     // The next request is held 5 s; the object is replaced while it waits, before its hedge
-    // (three times the 40 ms median later) is sent.
-    proxy.set(Schedule { faults: vec![Fault::Slow(5000)], then: Vec::new(), every: 0 });
+    // (sent three times the 40 ms median later, then held 1 s at the proxy, so that a slow
+    // machine still replaces the object before the hedge reaches the server) is answered.
+    proxy.set(Schedule { faults: vec![Fault::Slow(5000), Fault::Slow(1000)], then: Vec::new(), every: 0 });
     let before = proxy.requests.load(Ordering::SeqCst);
     let reader = {
         let obj = obj.clone();

@@ -26,6 +26,22 @@ fn cache_bytes(dir: &Path) -> u64 {
         .sum()
 }
 
+/// Waits (up to 30 s) until the cache directory `dir` holds a whole entry (a `.tile` file): a
+/// process killed after that has cached something, however slowly the machine started it.
+fn wait_for_an_entry(dir: &Path, child: &mut std::process::Child) {
+    let t = Instant::now();
+    loop {
+        let entries = std::fs::read_dir(dir)
+            .map_or(0, |rd| rd.flatten().filter(|e| e.path().extension().is_some_and(|x| x == "tile")).count());
+        if entries > 0 {
+            return;
+        }
+        assert!(child.try_wait().unwrap().is_none(), "the process ended before caching a tile");
+        assert!(t.elapsed() < Duration::from_secs(30), "no tile cached in 30 s");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
 /// `cliptex ARGS` with `envs`, its output.
 fn cliptex(cwd: &Path, args: &[&str], envs: &[(&str, &str)]) -> (Output, String) {
     let (o, d) = crate::common::exec_bounded(cwd, CLIPTEX, args, envs, Duration::from_secs(120));
@@ -179,6 +195,11 @@ fn a_kill_during_writes_leaves_no_corrupt_tile_served() {
             .stderr(Stdio::null())
             .spawn()
             .unwrap();
+        if i == 6 {
+            // The last is killed only once some tile is cached (a slow machine may start every
+            // process later than these times), then after its time.
+            wait_for_an_entry(&cache, &mut child);
+        }
         std::thread::sleep(Duration::from_millis(after_ms));
         let _ = child.kill(); // SIGKILL
         let _ = child.wait();
@@ -281,7 +302,8 @@ fn a_killed_seed_run_again_fetches_only_what_it_had_not_cached() {
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(400));
+    // Killed once it has cached a tile (at 40 ms a request, one at a time, well before its 21st).
+    wait_for_an_entry(&cache, &mut child);
     let _ = child.kill();
     let _ = child.wait();
     let before = proxy.requests.load(Ordering::SeqCst);
