@@ -224,29 +224,27 @@ pub fn proc_self() -> ProcSelf {
 /// counts in hundredths of a second). A thread that ended between two readings takes its time
 /// with it, so compare readings around work whose threads outlive it. 0 where it is unreadable.
 pub fn cpu_ns() -> u64 {
-    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else { return 0 };
-    tasks
-        .flatten()
-        .filter_map(|t| std::fs::read_to_string(t.path().join("schedstat")).ok())
-        .filter_map(|s| s.split_whitespace().next().and_then(|x| x.parse::<u64>().ok()))
-        .sum()
+    sum_over_threads("schedstat", |s| s.split_whitespace().next().and_then(|x| x.parse::<u64>().ok()).unwrap_or(0))
 }
 
 fn thread_switches() -> u64 {
+    sum_over_threads("status", |status| {
+        status
+            .lines()
+            .filter_map(|line| {
+                line.strip_prefix("voluntary_ctxt_switches:")
+                    .or_else(|| line.strip_prefix("nonvoluntary_ctxt_switches:"))
+            })
+            .map(|v| v.trim().parse::<u64>().unwrap_or(0))
+            .sum()
+    })
+}
+
+/// Sums `figure` of the file `file` of every thread of this process (`/proc/self/task/*/FILE`);
+/// 0 where /proc cannot be read (a thread that ended meanwhile counts nothing).
+fn sum_over_threads(file: &str, figure: impl Fn(&str) -> u64) -> u64 {
     let Ok(tasks) = std::fs::read_dir("/proc/self/task") else { return 0 };
-    let mut sum = 0;
-    for task in tasks.flatten() {
-        let status = std::fs::read_to_string(task.path().join("status")).unwrap_or_default();
-        for line in status.lines() {
-            if let Some(v) = line
-                .strip_prefix("voluntary_ctxt_switches:")
-                .or_else(|| line.strip_prefix("nonvoluntary_ctxt_switches:"))
-            {
-                sum += v.trim().parse::<u64>().unwrap_or(0);
-            }
-        }
-    }
-    sum
+    tasks.flatten().filter_map(|t| std::fs::read_to_string(t.path().join(file)).ok()).map(|s| figure(&s)).sum()
 }
 
 /// The machine the figures come from.
