@@ -73,6 +73,10 @@ fn formats_json_has_every_format_with_exact_byte_ratios_and_sane_psnr() {
         assert_eq!(r["upload_bytes_per_frame_vs_rgba8"].as_f64(), Some(ratio), "{r}");
         assert_eq!(r["psnr_view_db"].is_null(), r["format"] == "rgba8", "{r}");
     }
+    // Its case renders the pyramid prepared from the image, not a procedural texture.
+    let case = &v["view_case"];
+    assert_eq!(case["source"], "image", "{case}");
+    assert!(case["frames"].as_u64().is_some_and(|f| f > 0), "{case}");
     // The 2^26 flight over the pre-encoded BC1 texture.
     let fl = &v["flight"];
     assert_eq!(fl["format"], "bc1", "{fl}");

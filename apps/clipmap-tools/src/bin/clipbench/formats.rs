@@ -168,8 +168,9 @@ pub struct Report {
     /// (`clipmap::accuracy::formats`): level-0 and rendered-view PSNR, bytes, encoding time,
     /// image caches and upload bytes a frame of the study's flight.
     pub view: Vec<clipmap::accuracy::formats::FormatRow>,
-    /// The flight and camera of `view`.
-    pub view_case: clipmap::accuracy::study::Case,
+    /// The flight and camera of `view` (the study's case), its `source` `"image"`: the view
+    /// renders the pyramid prepared from `image`, not one of the study's procedural textures.
+    pub view_case: serde_json::Value,
     /// `clipbench perf`'s 2^26 flight with every default over a pre-encoded BC1 texture (`None`
     /// with `--no-flight`).
     pub flight: Option<formats_flight::Flight>,
@@ -668,7 +669,11 @@ pub fn run(args: &Args) -> Result<Report> {
         bc1_vs_texpresso: tex,
         ingest,
         view,
-        view_case: case,
+        view_case: {
+            let mut v = serde_json::to_value(&case)?;
+            v["source"] = "image".into();
+            v
+        },
         flight,
         flight_rgba8,
         goals,
