@@ -33,7 +33,7 @@ fn all_levels(c: &Client, svc: &Service) -> clipmap::shm::client::Snapshot {
 
 /// Reads every tile under each level's published region that the service holds ready or
 /// default and checks it against `encoder`'s blocks; returns the tiles read, as (level, S, T).
-fn check_published(c: &Client, svc: &Service, encoder: &BcSource, what: &str) -> Vec<(usize, i64, i64)> {
+pub(crate) fn check_published(c: &Client, svc: &Service, encoder: &BcSource, what: &str) -> Vec<(usize, i64, i64)> {
     let snap = all_levels(c, svc);
     let mut read = Vec::new();
     for (k, level) in c.levels.iter().enumerate() {
