@@ -480,6 +480,7 @@ fn every_published_tile_range_equals_brute_force_through_every_reader() {
     // The Rust client: every tile under every published region is ready with its range, and
     // every range published equals brute force.
     let mut rust = std::collections::BTreeMap::new();
+    let mut under = 0;
     for (k, st) in snap.levels.iter().enumerate() {
         assert!(st.enabled, "level {k}");
         for (tile, r) in c.tile_ranges(k) {
@@ -492,10 +493,13 @@ fn every_published_tile_range_equals_brute_force_through_every_reader() {
         for ts in s0 / tw..=(s1 - 1) / tw {
             for tt in t0 / th..=(t1 - 1) / th {
                 assert!(rust.contains_key(&(k, [ts, tt])), "level {k} tile ({ts}, {tt}) under the region has a range");
+                under += 1;
             }
         }
     }
-    assert!(rust.len() > 100, "{} tiles", rust.len());
+    // Every tile under the regions (4 x 4 tiles or more at each of the three finest levels), and
+    // the spare tiles read ahead that are ready by now (how many depends on the machine's pace).
+    assert!(under >= 48 && rust.len() >= under, "{} tiles, {under} under the regions", rust.len());
 
     // The C and Python readers: `--ranges` lines "LEVEL S T MIN MAX", each equal to brute force,
     // covering every tile the Rust client found (the service stands still: nothing moves).
