@@ -508,8 +508,10 @@ fn a_slow_endpoint_holds_back_only_its_own_read_queue() {
     assert_eq!(streams.len(), 2, "{stats}");
     let done = |i: usize| streams[i]["reads_done"].as_u64().unwrap();
     println!("reads done: slow endpoint {}, fast endpoint {}", done(0), done(1));
-    // The slow queue keeps its few reads in flight for 500 ms each; the other is not held.
-    assert!(done(1) > 4 * done(0).max(1), "the fast endpoint's queue reads on: {stats}");
+    // The slow queue keeps its reads in flight for 500 ms each; the other is not held: it reads
+    // on at several times the slow one's pace (about 13 times here; 3 on a machine loaded far
+    // beyond its cores; a queue held by the other would go at its pace, about 1).
+    assert!(done(1) > 2 * done(0).max(1), "the fast endpoint's queue reads on: {stats}");
     assert!(done(0) > 0, "the slow endpoint is read too: {stats}");
 }
 
