@@ -17,16 +17,36 @@ pub fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
-fn wait_listening(port: u16, what: &str, log: &Path) {
-    let t = Instant::now();
-    while t.elapsed() < Duration::from_secs(30) {
-        if TcpStream::connect(("127.0.0.1", port)).is_ok() {
-            return;
+/// Starts a server with `spawn(port)` on a free loopback port and waits (30 s at most) until it
+/// listens: the port comes back once it listens and the server still runs. A port is free only
+/// until the server binds it (another process may take it between), so a server that ends
+/// before it listens is started again on another port, five times at most.
+fn start_listening(what: &str, log: &Path, mut spawn: impl FnMut(u16) -> Child) -> (Child, u16) {
+    for _ in 0..5 {
+        let port = free_port();
+        let mut child = spawn(port);
+        let t = Instant::now();
+        loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                eprintln!("{what} ended ({status}) before it listened on port {port}; again on another port");
+                break;
+            }
+            if TcpStream::connect(("127.0.0.1", port)).is_ok() && child.try_wait().unwrap().is_none() {
+                return (child, port);
+            }
+            if t.elapsed() > Duration::from_secs(30) {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!(
+                    "{what} did not listen on port {port} within 30 s; its log:\n{}",
+                    std::fs::read_to_string(log).unwrap_or_default()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(25));
         }
-        std::thread::sleep(Duration::from_millis(25));
     }
     panic!(
-        "{what} did not listen on port {port} within 30 s; its log:\n{}",
+        "{what} ended five times before it listened; its log:\n{}",
         std::fs::read_to_string(log).unwrap_or_default()
     );
 }
@@ -103,7 +123,6 @@ impl Nginx {
         let exe = find_program(&["nginx", "/usr/sbin/nginx"], "install Debian's nginx: apt-get install nginx");
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
-        let port = free_port();
         for sub in ["body", "proxy", "fastcgi", "uwsgi", "scgi"] {
             std::fs::create_dir_all(d.join(sub)).unwrap();
         }
@@ -112,26 +131,28 @@ impl Nginx {
         } else {
             "access_log off;".to_string()
         };
-        let conf = format!(
-            "daemon off;\nmaster_process off;\nworker_processes 1;\npid {d}/nginx.pid;\nerror_log {d}/error.log warn;\n\
-             events {{ worker_connections 512; }}\n\
-             http {{\n  {access}\n  client_body_temp_path {d}/body;\n  proxy_temp_path {d}/proxy;\n  fastcgi_temp_path {d}/fastcgi;\n  uwsgi_temp_path {d}/uwsgi;\n  scgi_temp_path {d}/scgi;\n  keepalive_requests 100000;\n  sendfile on;\n  tcp_nodelay on;\n\
-               server {{\n    listen 127.0.0.1:{port} {listen};\n    {server}root {root};\n    location / {{ {location} }}\n  }}\n}}\n",
-            d = d.display(),
-            root = root.display()
-        );
-        std::fs::write(d.join("nginx.conf"), conf).unwrap();
+        let conf = |port: u16| {
+            format!(
+                "daemon off;\nmaster_process off;\nworker_processes 1;\npid {d}/nginx.pid;\nerror_log {d}/error.log warn;\n\
+                 events {{ worker_connections 512; }}\n\
+                 http {{\n  {access}\n  client_body_temp_path {d}/body;\n  proxy_temp_path {d}/proxy;\n  fastcgi_temp_path {d}/fastcgi;\n  uwsgi_temp_path {d}/uwsgi;\n  scgi_temp_path {d}/scgi;\n  keepalive_requests 100000;\n  sendfile on;\n  tcp_nodelay on;\n\
+                   server {{\n    listen 127.0.0.1:{port} {listen};\n    {server}root {root};\n    location / {{ {location} }}\n  }}\n}}\n",
+                d = d.display(),
+                root = root.display()
+            )
+        };
         let log = d.join("stderr.log");
-        let child = Command::new(exe)
-            .args(["-p", d.to_str().unwrap(), "-e", d.join("error.log").to_str().unwrap(), "-c"])
-            .arg(d.join("nginx.conf"))
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(&log).unwrap())
-            .spawn()
-            .expect("nginx starts");
-        let n = Nginx { child, port, dir };
-        wait_listening(port, "nginx", &n.dir.path().join("error.log"));
-        n
+        let (child, port) = start_listening("nginx", &d.join("error.log"), |port| {
+            std::fs::write(d.join("nginx.conf"), conf(port)).unwrap();
+            Command::new(&exe)
+                .args(["-p", d.to_str().unwrap(), "-e", d.join("error.log").to_str().unwrap(), "-c"])
+                .arg(d.join("nginx.conf"))
+                .stdout(Stdio::null())
+                .stderr(std::fs::File::create(&log).unwrap())
+                .spawn()
+                .expect("nginx starts")
+        });
+        Nginx { child, port, dir }
     }
 
     /// `http://127.0.0.1:PORT`.
@@ -173,7 +194,6 @@ impl Moto {
     /// Starts `moto_server` (or `python3 -m moto.server`).
     pub fn start() -> Moto {
         let dir = tempfile::tempdir().unwrap();
-        let port = free_port();
         let log = dir.path().join("moto.log");
         let python = find_program(&["python3"], "install python3");
         let ok = Command::new(&python)
@@ -183,15 +203,16 @@ impl Moto {
             .status()
             .is_ok_and(|s| s.success());
         assert!(ok, "moto is needed for this test and was not found: pip install 'moto[server]' (.ci/run does it)");
-        let child = Command::new(python)
-            .args(["-m", "moto.server", "-H", "127.0.0.1", "-p", &port.to_string()])
-            .stdout(std::fs::File::create(&log).unwrap())
-            .stderr(std::fs::File::create(dir.path().join("moto.err")).unwrap())
-            .spawn()
-            .expect("moto starts");
-        let m = Moto { child, port, log: dir.path().join("moto.err"), _dir: dir };
-        wait_listening(port, "moto", &m.log);
-        m
+        let err = dir.path().join("moto.err");
+        let (child, port) = start_listening("moto", &err, |port| {
+            Command::new(&python)
+                .args(["-m", "moto.server", "-H", "127.0.0.1", "-p", &port.to_string()])
+                .stdout(std::fs::File::create(&log).unwrap())
+                .stderr(std::fs::File::create(&err).unwrap())
+                .spawn()
+                .expect("moto starts")
+        });
+        Moto { child, port, log: err, _dir: dir }
     }
 
     /// `http://127.0.0.1:PORT`.
@@ -633,21 +654,20 @@ impl PyServer {
     /// Serves `root`; `ranges` says whether `Range` is answered (`206`) or ignored (`200`).
     pub fn serve(root: &Path, ranges: bool) -> PyServer {
         let dir = tempfile::tempdir().unwrap();
-        let port = free_port();
         let err = dir.path().join("stderr.log");
-        let child = Command::new("python3")
-            .args(["-c", PY_SERVER])
-            .arg(root)
-            .arg(port.to_string())
-            .arg(dir.path().join("requests.log"))
-            .arg(if ranges { "ranges" } else { "whole" })
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(&err).unwrap())
-            .spawn()
-            .expect("python3 runs");
-        let s = PyServer { child, port, dir };
-        wait_listening(port, "python3 http.server", &err);
-        s
+        let (child, port) = start_listening("python3 http.server", &err, |port| {
+            Command::new("python3")
+                .args(["-c", PY_SERVER])
+                .arg(root)
+                .arg(port.to_string())
+                .arg(dir.path().join("requests.log"))
+                .arg(if ranges { "ranges" } else { "whole" })
+                .stdout(Stdio::null())
+                .stderr(std::fs::File::create(&err).unwrap())
+                .spawn()
+                .expect("python3 runs")
+        });
+        PyServer { child, port, dir }
     }
 
     /// `http://127.0.0.1:PORT`.
