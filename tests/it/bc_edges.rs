@@ -15,26 +15,10 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-/// Waits until every level of `c` is enabled and published whole (min LOD 0), and returns the
-/// snapshot.
-fn all_levels(c: &Client, svc: &Service) -> clipmap::shm::client::Snapshot {
-    let t = Instant::now();
-    loop {
-        let snap = c.snapshot();
-        // Min LOD 0: every level's published region is its whole valid region (docs/SHM.md);
-        // a level is enabled while its region still grows, which a slow machine shows.
-        if !snap.levels.is_empty() && snap.levels.iter().all(|l| l.enabled) && snap.min_lod == 0.0 {
-            return snap;
-        }
-        assert!(t.elapsed() < Duration::from_secs(60), "levels never all published: {snap:?}\n{}", svc.dump());
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
 /// Reads every tile under each level's published region that the service holds ready or
 /// default and checks it against `encoder`'s blocks; returns the tiles read, as (level, S, T).
 pub(crate) fn check_published(c: &Client, svc: &Service, encoder: &BcSource, what: &str) -> Vec<(usize, i64, i64)> {
-    let snap = all_levels(c, svc);
+    let snap = crate::bc_formats::all_levels(c, svc);
     let mut read = Vec::new();
     for (k, level) in c.levels.iter().enumerate() {
         assert_eq!(level.tile, encoder.desc().level(k as u32).tile, "{what} level {k}");

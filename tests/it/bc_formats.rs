@@ -24,7 +24,7 @@ fn hash() -> Arc<dyn TileSource> {
 
 /// Waits until every level of `c` is enabled and published whole (min LOD 0), and returns the
 /// snapshot.
-fn all_levels(c: &Client, svc: &Service) -> clipmap::shm::client::Snapshot {
+pub(crate) fn all_levels(c: &Client, svc: &Service) -> clipmap::shm::client::Snapshot {
     let t = Instant::now();
     loop {
         let snap = c.snapshot();
@@ -33,7 +33,7 @@ fn all_levels(c: &Client, svc: &Service) -> clipmap::shm::client::Snapshot {
         if !snap.levels.is_empty() && snap.levels.iter().all(|l| l.enabled) && snap.min_lod == 0.0 {
             return snap;
         }
-        assert!(t.elapsed() < Duration::from_secs(30), "levels never all published: {snap:?}\n{}", svc.dump());
+        assert!(t.elapsed() < Duration::from_secs(60), "levels never all published: {snap:?}\n{}", svc.dump());
         std::thread::sleep(Duration::from_millis(20));
     }
 }
